@@ -1,0 +1,83 @@
+"""One error hierarchy: every user-facing failure is a HilbenchError with a one-line message.
+
+The CLI turns these into a single line on stderr and the kind's exit code, never a traceback.
+"""
+
+from __future__ import annotations
+
+
+class HilbenchError(Exception):
+    """Base of every error the bench reports to its user."""
+
+    exit_code = 1
+    kind = "error"
+
+
+class ConfigError(HilbenchError):
+    """A config file, option or value is wrong (names file, table and key)."""
+
+    exit_code = 2
+    kind = "config error"
+
+
+class ProtocolError(HilbenchError):
+    """Bytes that are not a valid frame or message, or a handshake that does not agree."""
+
+    exit_code = 3
+    kind = "protocol error"
+
+
+class DecodeError(ProtocolError):
+    """One frame could not be decoded (bad CRC, bad COBS, wrong length, unknown type)."""
+
+
+class VersionMismatch(ProtocolError):
+    """Host and target speak different protocol versions."""
+
+
+class LinkError(HilbenchError):
+    """A port could not be opened, vanished, or the far end went silent."""
+
+    exit_code = 4
+    kind = "link error"
+
+
+class LinkTimeout(LinkError):
+    """No frame arrived before the deadline."""
+
+
+class LinkClosed(LinkError):
+    """The transport was closed or the far end hung up."""
+
+
+class TargetError(HilbenchError):
+    """The target refused a request or reported a fault."""
+
+    exit_code = 5
+    kind = "target error"
+
+
+class ParamError(TargetError):
+    """A parameter request was refused (unknown id, read-only, out of range, constraint)."""
+
+
+class RecordingError(HilbenchError):
+    """A recording could not be written or read."""
+
+    exit_code = 6
+    kind = "recording error"
+
+
+__all__ = [
+    "HilbenchError",
+    "ConfigError",
+    "ProtocolError",
+    "DecodeError",
+    "VersionMismatch",
+    "LinkError",
+    "LinkTimeout",
+    "LinkClosed",
+    "TargetError",
+    "ParamError",
+    "RecordingError",
+]

@@ -1,0 +1,42 @@
+"""Shared test fixtures.
+
+HILBENCH_REQUIRE_GCC=1 (set by .ci/run) turns "gcc not found" from a skip into a failure, so CI
+can never pass by silently skipping the C side of the protocol.
+"""
+
+from __future__ import annotations
+
+import os
+import shutil
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+REPO_ROOT = Path(__file__).resolve().parent.parent
+FIRMWARE_DIR = REPO_ROOT / "firmware_protocol"
+BENCH_CONFIGS = REPO_ROOT / "bench_configs"
+
+
+@pytest.fixture(scope="session")
+def gcc() -> str:
+    """Path to gcc; skips locally without it, fails under HILBENCH_REQUIRE_GCC=1."""
+    path = shutil.which("gcc")
+    if path is None:
+        if os.environ.get("HILBENCH_REQUIRE_GCC") == "1":
+            pytest.fail("gcc is required (HILBENCH_REQUIRE_GCC=1) but was not found on PATH")
+        pytest.skip("gcc not found")
+    return path
+
+
+def run_cli(*args: str, timeout: float = 60.0, input_text: str | None = None) -> subprocess.CompletedProcess[str]:
+    """Run `python -m hilbench ARGS` as a real process and reap it."""
+    return subprocess.run(
+        [sys.executable, "-m", "hilbench", *args],
+        capture_output=True,
+        text=True,
+        timeout=timeout,
+        input=input_text,
+        cwd=REPO_ROOT,
+    )
