@@ -67,23 +67,3 @@ def svm(volts: int, angle_u16: int) -> tuple[int, int, int]:
         return (t2 + h) & 0xFFFF, h, (t1 + t2 + h) & 0xFFFF
     return (t1 + t2 + h) & 0xFFFF, h, (t1 + h) & 0xFFFF
 
-
-def build_angle_tables() -> tuple[tuple[int, ...], tuple[int, ...], tuple[int, ...], tuple[int, ...]]:
-    """Per-angle precomputation for the hot path: the angle's table values t1, t2 and sector.
-
-    Only `angle >> 6` selects the table entry, but the sector boundary is not a multiple of 64,
-    so both are stored per 16-bit angle (65536 entries each) plus the VECTOR offset index.
-    Returns (t1_raw, t2_raw, sector_1_to_6) as tuples indexed by the angle.
-    """
-    t1s = [0] * 65536
-    t2s = [0] * 65536
-    secs = [0] * 65536
-    table = SINE_TABLE
-    for a in range(65536):
-        s = svm_sector(a)
-        angle2 = (a - VECTORS[s - 1]) & 0xFFFF
-        angle1 = (SIXTY_DEG - angle2) & 0xFFFF
-        t1s[a] = table[(angle1 >> 6) & 0xFF]
-        t2s[a] = table[(angle2 >> 6) & 0xFF]
-        secs[a] = s
-    return tuple(t1s), tuple(t2s), tuple(secs), VECTORS

@@ -1,0 +1,331 @@
+"""The AN1017 firmware model behind the Target interface (docs/design.md, hilbench/targets/base.py).
+
+The firmware itself lives in `an1017_firmware` (plain ints, Tcy time); this module translates
+protocol messages to its inputs and its state to Drive, and owns the declared parameter table.
+
+Drive semantics: `duty_a..c` are the duty registers in effect during the last PWM period of the
+step (they were written by the PWM ISR one period earlier), so the register-update latency is
+already inside the model — the host should add no extra delay for it. PDC values above 1000
+(only produced by the firmware's volts = −1 start-up transient in CCW) mean 100 % and are
+reported as 1000.
+"""
+
+from __future__ import annotations
+
+from typing import Any, NamedTuple
+
+from hilbench.errors import ConfigError, ParamError
+from hilbench.targets.an1017_firmware import (
+    GAIN_CONSTRAINT_NAMES,
+    MODE_OFF,
+    STATE_FAULT,
+    FAULT_WATCHDOG,
+    SECTOR_INVALID,
+    SECTOR_TABLE,
+    TCY_PER_US,
+    An1017Firmware,
+    An1017Options,
+    check_gain_constraints,
+    max_phase_advance_from_deg,
+)
+
+try:  # the protocol package provides the message classes; fall back to same-shaped tuples
+    from hilbench import protocol as _protocol
+
+    Drive = _protocol.Drive
+    TargetHello = _protocol.TargetHello
+    ParamInfo = _protocol.ParamInfo
+    ParamValue = _protocol.ParamValue
+    ParamSetResult = _protocol.ParamSetResult
+    Status = _protocol.Status
+    PROTOCOL_VERSION = _protocol.PROTOCOL_VERSION
+except (ImportError, AttributeError):  # pragma: no cover - only before hilbench.protocol lands
+
+    class Drive(NamedTuple):  # type: ignore[no-redef]
+        seq: int
+        duty_a: int
+        duty_b: int
+        duty_c: int
+        output_mode: int
+        state: int
+        sector: int
+        direction_ccw: bool
+        required_ccw: bool
+        fault: int
+        telemetry: tuple
+
+    class TargetHello(NamedTuple):  # type: ignore[no-redef]
+        seq: int
+        protocol_version: int
+        firmware_version: int
+        pwm_period_counts: int
+        pwm_freq_hz: int
+        n_params: int
+        firmware_name: str
+        adc_roles: tuple
+        telemetry_ids: tuple
+
+    class ParamInfo(NamedTuple):  # type: ignore[no-redef]
+        seq: int
+        param_id: int
+        ptype: int
+        access: int
+        min_value: int
+        max_value: int
+        value: int
+        name: str
+
+    class ParamValue(NamedTuple):  # type: ignore[no-redef]
+        seq: int
+        param_id: int
+        result: int
+        value: int
+
+    class ParamSetResult(NamedTuple):  # type: ignore[no-redef]
+        seq: int
+        result: int
+        param_id: int
+        detail: int
+
+    class Status(NamedTuple):  # type: ignore[no-redef]
+        seq: int
+        rx_frames: int
+        rx_errors: int
+        resyncs: int
+        unknown: int
+        overruns: int
+        watchdog_trips: int
+        last_error: int
+
+    PROTOCOL_VERSION = 1
+
+# design.md constants (the protocol's IntEnums carry the same numbers)
+EDGE_NONE = 0xFFFF
+PTYPE_Q15, PTYPE_INT, PTYPE_BOOL = 0, 1, 2
+ACCESS_RO, ACCESS_RW = 0, 1
+RESULT_OK, RESULT_UNKNOWN_ID, RESULT_READ_ONLY, RESULT_OUT_OF_RANGE, RESULT_CONSTRAINT, RESULT_BAD_REQUEST = range(6)
+ADC_ROLE_POT, ADC_ROLE_IBUS, ADC_ROLE_VBUS = 1, 2, 3
+TELEMETRY_REF_SPEED, TELEMETRY_MEASURED_SPEED, TELEMETRY_CONTROL_OUTPUT = 1, 2, 3
+
+FIRMWARE_NAME = "AN1017"
+FIRMWARE_VERSION = 0x0101  # v1.1
+PWM_PERIOD_COUNTS = 1000
+PWM_FREQ_HZ = 20000
+PWM_PERIOD_US = 50
+
+# declared parameters: id → (name, ptype, access, min, max)
+PARAM_KP, PARAM_KI, PARAM_KD = 0, 1, 2
+PARAM_PH_ADV_ON, PARAM_PH_ADV_DEG = 3, 4
+PARAM_REF_OVR_ON, PARAM_REF_OVR = 5, 6
+PARAM_STALL_MS = 7
+PARAMS: dict[int, tuple[str, int, int, int, int]] = {
+    PARAM_KP: ("kp", PTYPE_Q15, ACCESS_RW, 0, 32767),
+    PARAM_KI: ("ki", PTYPE_Q15, ACCESS_RW, 0, 32767),
+    PARAM_KD: ("kd", PTYPE_Q15, ACCESS_RW, 0, 32767),
+    PARAM_PH_ADV_ON: ("ph_adv_on", PTYPE_BOOL, ACCESS_RW, 0, 1),
+    PARAM_PH_ADV_DEG: ("ph_adv_deg", PTYPE_INT, ACCESS_RW, 0, 60),
+    PARAM_REF_OVR_ON: ("ref_ovr_on", PTYPE_BOOL, ACCESS_RW, 0, 1),
+    PARAM_REF_OVR: ("ref_override", PTYPE_Q15, ACCESS_RW, -32768, 32767),
+    PARAM_STALL_MS: ("stall_ms", PTYPE_INT, ACCESS_RW, 10, 30000),
+}
+GAIN_PARAM_OF_CONSTRAINT = {1: PARAM_KP, 2: PARAM_KP, 3: PARAM_KD}
+
+__all__ = [
+    "An1017Target",
+    "An1017Options",
+    "An1017Firmware",
+    "check_gain_constraints",
+    "GAIN_CONSTRAINT_NAMES",
+    "PARAMS",
+]
+
+
+class An1017Target:
+    """AN1017 firmware as a Target: lockstep `step`, real-time `advance`, declared parameters."""
+
+    firmware_name = FIRMWARE_NAME
+
+    def __init__(self, options: An1017Options = An1017Options(), *, reference: bool = False) -> None:
+        self.options = options.resolved()
+        self.fw = An1017Firmware(options, reference=reference)
+        self.period_us = PWM_PERIOD_US
+        self._period_tcy = PWM_PERIOD_US * TCY_PER_US
+        self.mode = 0
+        self.watchdog_ms = 0
+        self._last_seq = 0
+        self._frac_tcy = 0.0
+        self.watchdog_trips = 0
+        self.last_error = 0
+
+    # ---- handshake and parameters ------------------------------------------------------------
+    def hello(self, host: Any) -> TargetHello:
+        """Agree the period (a whole number of 50 µs PWM periods) and the mode."""
+        period_us = int(host.period_us)
+        if period_us <= 0 or period_us % PWM_PERIOD_US:
+            raise ConfigError(f"an1017 hello: period_us {period_us} is not a positive multiple of {PWM_PERIOD_US}")
+        self.period_us = period_us
+        self._period_tcy = period_us * TCY_PER_US
+        self.mode = int(host.mode)
+        self.watchdog_ms = int(host.watchdog_ms)
+        return TargetHello(
+            host.seq,
+            PROTOCOL_VERSION,
+            FIRMWARE_VERSION,
+            PWM_PERIOD_COUNTS,
+            PWM_FREQ_HZ,
+            len(PARAMS),
+            FIRMWARE_NAME,
+            (ADC_ROLE_POT, ADC_ROLE_IBUS, ADC_ROLE_VBUS),
+            (TELEMETRY_REF_SPEED, TELEMETRY_MEASURED_SPEED, TELEMETRY_CONTROL_OUTPUT),
+        )
+
+    def _value(self, param_id: int) -> int:
+        fw = self.fw
+        kp, ki, kd = fw.declared_gains()
+        if param_id == PARAM_KP:
+            return kp
+        if param_id == PARAM_KI:
+            return ki
+        if param_id == PARAM_KD:
+            return kd
+        if param_id == PARAM_PH_ADV_ON:
+            return int(fw.phase_advance_on)
+        if param_id == PARAM_PH_ADV_DEG:
+            return fw.max_ph_adv_deg
+        if param_id == PARAM_REF_OVR_ON:
+            return int(fw.ref_override_on)
+        if param_id == PARAM_REF_OVR:
+            return fw.ref_override
+        if param_id == PARAM_STALL_MS:
+            return fw.stall_limit
+        raise ParamError(f"an1017 param {param_id}: unknown id")
+
+    def describe(self, param_id: int) -> ParamInfo:
+        """The declaration of one parameter; an unknown id raises ParamError."""
+        if param_id not in PARAMS:
+            raise ParamError(f"an1017 describe: unknown param id {param_id}")
+        name, ptype, access, lo, hi = PARAMS[param_id]
+        return ParamInfo(0, param_id, ptype, access, lo, hi, self._value(param_id), name)
+
+    def get_param(self, param_id: int) -> ParamValue:
+        """Read one parameter; result UNKNOWN_ID for an undeclared id."""
+        if param_id not in PARAMS:
+            return ParamValue(0, param_id, RESULT_UNKNOWN_ID, 0)
+        return ParamValue(0, param_id, RESULT_OK, self._value(param_id))
+
+    def set_params(self, pairs: tuple[tuple[int, int], ...]) -> ParamSetResult:
+        """All or nothing: ids, ranges and the seed's gain constraints are checked before any write."""
+        if not pairs or len(pairs) > 4:
+            return ParamSetResult(0, RESULT_BAD_REQUEST, 0, 0)
+        new = {pid: self._value(pid) for pid in PARAMS}
+        for pid, value in pairs:
+            if pid not in PARAMS:
+                return ParamSetResult(0, RESULT_UNKNOWN_ID, pid, 0)
+            _, _, access, lo, hi = PARAMS[pid]
+            if access != ACCESS_RW:
+                return ParamSetResult(0, RESULT_READ_ONLY, pid, 0)
+            if not lo <= value <= hi:
+                return ParamSetResult(0, RESULT_OUT_OF_RANGE, pid, 0)
+            new[pid] = value
+        gains_touched = [pid for pid, _ in pairs if pid in (PARAM_KP, PARAM_KI, PARAM_KD)]
+        if gains_touched:
+            broken = check_gain_constraints(new[PARAM_KP], new[PARAM_KI], new[PARAM_KD])
+            if broken is not None:
+                # name the written gain that takes part in the broken constraint
+                involved = {1: (PARAM_KP, PARAM_KI, PARAM_KD), 2: (PARAM_KP, PARAM_KD), 3: (PARAM_KD,)}[broken]
+                offender = next((p for p in gains_touched if p in involved), gains_touched[0])
+                return ParamSetResult(0, RESULT_CONSTRAINT, offender, broken)
+        fw = self.fw
+        if gains_touched:
+            fw.set_gains(new[PARAM_KP], new[PARAM_KI], new[PARAM_KD])
+        fw.phase_advance_on = bool(new[PARAM_PH_ADV_ON])
+        if new[PARAM_PH_ADV_DEG] != fw.max_ph_adv_deg:
+            fw.max_ph_adv_deg = new[PARAM_PH_ADV_DEG]
+            fw.max_ph_adv = max_phase_advance_from_deg(fw.max_ph_adv_deg)
+        fw.ref_override_on = bool(new[PARAM_REF_OVR_ON])
+        fw.ref_override = new[PARAM_REF_OVR]
+        fw.stall_limit = new[PARAM_STALL_MS]
+        return ParamSetResult(0, RESULT_OK, pairs[-1][0], 0)
+
+    # ---- run control -------------------------------------------------------------------------
+    def start(self) -> None:
+        """S2 as a command: start (ChargeBootstraps, then RunMotor) when stopped."""
+        self.fw.press_start()
+
+    def stop(self) -> None:
+        """StopMotor(): all six switches off, motor coasts (also aborts a bootstrap)."""
+        if self.fw.running or self.fw.booting:
+            self.fw.press_stop()
+
+    def _drive(self, seq: int) -> Drive:
+        fw = self.fw
+        d = fw.duties()
+        a, b, c = d
+        if a > 1000 or b > 1000 or c > 1000:
+            a, b, c = min(a, 1000), min(b, 1000), min(c, 1000)
+        if fw.running:
+            s = fw.sector
+        else:
+            s = SECTOR_TABLE[fw.hall] & 0xFFFF
+        return Drive(
+            seq,
+            a,
+            b,
+            c,
+            fw.output_mode,
+            fw.state,
+            7 if s == SECTOR_INVALID else s,
+            fw.cur_ccw,
+            fw.req_ccw,
+            fw.fault,
+            (fw.ref_speed, fw.measured_speed, fw.control_output),
+        )
+
+    def step(self, sensors: Any) -> Drive:
+        """Lockstep: exactly one agreed period with these sensors."""
+        edge = sensors.edge_time_100ns
+        adc = sensors.adc
+        self.fw.run(
+            self._period_tcy,
+            sensors.inputs,
+            None if edge == EDGE_NONE else edge << 1,
+            adc[0] if adc else None,
+        )
+        self._last_seq = sensors.seq
+        return self._drive(sensors.seq)
+
+    def advance(self, duration_us: float, sensors: Any) -> Drive:
+        """Real time: any span of wall time (sub-Tcy remainders carry over)."""
+        total = duration_us * TCY_PER_US + self._frac_tcy
+        tcy = int(total)
+        self._frac_tcy = total - tcy
+        edge = sensors.edge_time_100ns
+        adc = sensors.adc
+        if tcy > 0:
+            self.fw.run(tcy, sensors.inputs, None if edge == EDGE_NONE else edge << 1, adc[0] if adc else None)
+        self._last_seq = sensors.seq
+        return self._drive(sensors.seq)
+
+    def watchdog_trip(self) -> Drive:
+        """Sensors stopped arriving: StopMotor, state FAULT, fault WATCHDOG."""
+        self.watchdog_trips += 1
+        self.last_error = FAULT_WATCHDOG
+        self.fw.press_stop(STATE_FAULT, FAULT_WATCHDOG)
+        return self._drive(self._last_seq)
+
+    def status(self) -> Status:
+        """The target's own counters (the server adds link counters)."""
+        return Status(0, 0, 0, 0, 0, 0, self.watchdog_trips & 0xFFFF, self.last_error)
+
+    @property
+    def time_us(self) -> float:
+        """Virtual time since power-on, µs."""
+        return self.fw.t / TCY_PER_US
+
+
+def constraint_name(number: int) -> str:
+    """Human name of a gain constraint number (1, 2, 3)."""
+    return GAIN_CONSTRAINT_NAMES[number]
+
+
+assert MODE_OFF == 0
