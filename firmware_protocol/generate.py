@@ -1,0 +1,734 @@
+#!/usr/bin/env python3
+"""Generate the Python message module and the C message code from schema.toml.
+
+The schema is the one definition of the wire format; both sides are produced from it so that the
+host and the firmware cannot drift. `python firmware_protocol/generate.py` rewrites:
+
+    hilbench/protocol/messages.py        NamedTuple messages, IntEnums, pack/unpack tables
+    firmware_protocol/hbp_messages.h     #defines, message structs, pack/unpack prototypes
+    firmware_protocol/hbp_messages.c     C99 pack/unpack of every message
+
+`--check` writes nothing and exits 1 when any committed output differs from what it would write.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+import tomllib
+from dataclasses import dataclass
+from pathlib import Path
+
+HERE = Path(__file__).resolve().parent
+REPO = HERE.parent
+SCHEMA = HERE / "schema.toml"
+PY_OUT = REPO / "hilbench" / "protocol" / "messages.py"
+H_OUT = HERE / "hbp_messages.h"
+C_OUT = HERE / "hbp_messages.c"
+
+SCALAR_FMT = {"u8": "B", "u16": "H", "u32": "I", "i16": "h", "bool": "B", "bits8": "B", "bits32": "I"}
+SCALAR_SIZE = {"u8": 1, "u16": 2, "u32": 4, "i16": 2, "bool": 1, "bits8": 1, "bits32": 4}
+ARRAY_ELEM = {"u8[]": ("B", 1), "u16[]": ("H", 2), "i16[]": ("h", 2), "pair[]": ("Bh", 3)}
+C_SCALAR = {"u8": "uint8_t", "u16": "uint16_t", "u32": "uint32_t", "i16": "int16_t", "bool": "uint8_t"}
+C_ELEM = {"u8[]": "uint8_t", "u16[]": "uint16_t", "i16[]": "int16_t", "pair[]": "hbp_pair_t"}
+RANGE = {"u8": (0, 0xFF), "u16": (0, 0xFFFF), "u32": (0, 0xFFFFFFFF), "i16": (-0x8000, 0x7FFF)}
+
+
+@dataclass(frozen=True)
+class Field:
+    name: str
+    type: str
+    max: str | None
+    bits: tuple[tuple[str, int, str], ...]
+    last: bool
+
+    @property
+    def variable(self) -> bool:
+        return self.type == "str" or self.type.endswith("[]")
+
+
+@dataclass(frozen=True)
+class Message:
+    name: str
+    type_name: str
+    type_id: int
+    dir: str
+    fields: tuple[Field, ...]
+
+    @property
+    def snake(self) -> str:
+        out = ""
+        for i, ch in enumerate(self.name):
+            if ch.isupper() and i:
+                out += "_"
+            out += ch.lower()
+        return out
+
+    def py_fields(self) -> list[str]:
+        """Python field names after seq, with bit fields expanded."""
+        names: list[str] = []
+        for f in self.fields:
+            if f.bits:
+                names.extend(b[0] for b in f.bits)
+            else:
+                names.append(f.name)
+        return names
+
+    @property
+    def fixed(self) -> tuple[Field, ...]:
+        return tuple(f for f in self.fields if not f.variable)
+
+    @property
+    def fixed_len(self) -> int:
+        """type + seq + all fixed-size fields (they all precede the variable ones)."""
+        return 2 + sum(SCALAR_SIZE[f.type] for f in self.fixed)
+
+
+def load(path: Path = SCHEMA) -> tuple[dict, list[tuple[str, str, str, list]], list[Message]]:
+    data = tomllib.loads(path.read_text(encoding="utf-8"))
+    enums = [(e["name"], e["prefix"], e["doc"], e["members"]) for e in data["enum"]]
+    type_ids = {m: v for (n, _, _, members) in enums if n == "MsgType" for m, v in members}
+    msgs: list[Message] = []
+    for m in data["message"]:
+        raw = m["fields"]
+        fields = []
+        for i, f in enumerate(raw):
+            fields.append(Field(f["name"], f["type"], f.get("max"),
+                                tuple(tuple(b) for b in f.get("bits", ())), i == len(raw) - 1))
+        seen_var = False
+        for f in fields:  # the codec relies on all fixed fields coming first
+            if f.variable:
+                seen_var = True
+            elif seen_var:
+                raise SystemExit(f"schema.toml message {m['name']}: fixed field {f.name} after a variable one")
+        msgs.append(Message(m["name"], m["type"], type_ids[m["type"]], m["dir"], tuple(fields)))
+    return data, enums, msgs
+
+
+# ----------------------------------------------------------------------------------------------
+# Python
+
+
+def _py_pack_scalar_exprs(f: Field) -> list[str]:
+    if f.type == "bool":
+        return [f"(1 if m.{f.name} else 0)"]
+    if f.bits:
+        parts = []
+        shift = 0
+        for name, width, kind in f.bits:
+            if kind == "bool":
+                term = f"({1 << shift} if m.{name} else 0)"
+            else:
+                term = f"m.{name}" if shift == 0 else f"m.{name} << {shift}"
+            parts.append(term)
+            shift += width
+        return ["(" + " | ".join(parts) + ")"]
+    return [f"m.{f.name}"]
+
+
+def _py_bits_check(f: Field) -> list[str]:
+    """Range checks for bit fields (struct checks the plain scalars)."""
+    lines = []
+    groups: dict[int, list[str]] = {}
+    for name, width, kind in f.bits:
+        if kind != "bool":
+            groups.setdefault(width, []).append(f"m.{name}")
+    for width, names in groups.items():
+        lines.append(f"    if ({' | '.join(names)}) >> {width}:")
+        lines.append(f"        raise ProtocolError(f\"encode {{type(m).__name__}}: {'/'.join(n[2:] for n in names)} "
+                     f"must be 0..{(1 << width) - 1}\")")
+    return lines
+
+
+def _py_unpack_scalar(f: Field, v: str) -> list[str]:
+    if f.type == "bool":
+        return [f"{v} != 0"]
+    if f.bits:
+        out = []
+        shift = 0
+        for _name, width, kind in f.bits:
+            if kind == "bool":
+                out.append(f"({v} >> {shift} & 1) != 0")
+            else:
+                out.append(f"{v} >> {shift} & {(1 << width) - 1}" if shift else f"{v} & {(1 << width) - 1}")
+            shift += width
+        return out
+    return [v]
+
+
+def gen_python(data: dict, enums: list, msgs: list[Message]) -> str:
+    L: list[str] = []
+    w = L.append
+    w('"""Wire messages of the hilbench protocol: GENERATED by firmware_protocol/generate.py from')
+    w("firmware_protocol/schema.toml. Do not edit; change the schema and re-run the generator.")
+    w("")
+    w("Each message is a NamedTuple whose first field is `seq`. `PACKERS[cls](msg)` gives the frame")
+    w("without CRC (type . seq . payload); `UNPACKERS[type_byte](frame)` parses one (CRC already")
+    w('stripped) and raises LengthError on a malformed payload."""')
+    w("")
+    w("from __future__ import annotations")
+    w("")
+    w("import struct")
+    w("from enum import IntEnum")
+    w("from typing import Callable, NamedTuple, Union")
+    w("")
+    w("from hilbench.errors import ProtocolError")
+    w("from hilbench.protocol.framing import LengthError")
+    w("")
+    w(f"PROTOCOL_VERSION = {data['protocol_version']}")
+    w(f"MAX_FRAME_BYTES = {data['max_frame_bytes']}")
+    w(f"MAX_NAME_CHARS = {data['max_name_chars']}")
+    w(f"MAX_ADC = {data['max_adc']}")
+    w(f"MAX_TELEMETRY = {data['max_telemetry']}")
+    w(f"MAX_PARAM_PAIRS = {data['max_param_pairs']}")
+    w("")
+    w("_tnew = tuple.__new__")
+    w("")
+    for name, prefix, doc, members in enums:
+        w("")
+        w(f"class {name}(IntEnum):")
+        w(f'    """{doc}."""')
+        w("")
+        for mname, value in members:
+            w(f"    {mname} = {value:#x}" if value > 9 else f"    {mname} = {value}")
+        w("")
+    w("")
+    for name, prefix, doc, members in enums:
+        for mname, _ in members:
+            w(f"{prefix}_{mname} = {name}.{mname}")
+    w("")
+    for m in msgs:
+        w("")
+        w(f"class {m.name}(NamedTuple):")
+        w(f'    """{ "host -> target" if m.dir == "h2t" else "target -> host"}, frame type {m.type_id:#04x}."""')
+        w("")
+        w("    seq: int")
+        for f in m.fields:
+            if f.bits:
+                for bname, _w, kind in f.bits:
+                    w(f"    {bname}: {'bool' if kind == 'bool' else 'int'}")
+            elif f.type == "bool":
+                w(f"    {f.name}: bool")
+            elif f.type == "str":
+                w(f"    {f.name}: str")
+            elif f.type == "pair[]":
+                w(f"    {f.name}: tuple[tuple[int, int], ...]")
+            elif f.variable:
+                w(f"    {f.name}: tuple[int, ...]")
+            else:
+                w(f"    {f.name}: int")
+        w("")
+        w(f"    TYPE = {m.type_id:#04x}")
+        w("")
+    w("")
+    w("Message = Union[" + ", ".join(m.name for m in msgs) + "]")
+    w("")
+    # structs
+    for m in msgs:
+        fixed_fmt = "<BB" + "".join(SCALAR_FMT[f.type] for f in m.fixed)
+        var = [f for f in m.fields if f.variable]
+        up = m.name.upper()
+        if len(var) == 1 and var[0].last and var[0].type != "str":
+            f = var[0]
+            code, _size = ARRAY_ELEM[f.type]
+            mx = data[f.max]
+            w(f"_{up}_ST = tuple(struct.Struct({fixed_fmt!r} + {code!r} * n) for n in range({mx} + 1))")
+        else:
+            w(f"_{up}_ST = struct.Struct({fixed_fmt!r})")
+    w("")
+    # packers
+    for m in msgs:
+        up = m.name.upper()
+        var = [f for f in m.fields if f.variable]
+        w("")
+        w(f"def pack_{m.snake}(m: {m.name}) -> bytes:")
+        w(f'    """{m.name} -> type . seq . payload (no CRC)."""')
+        for f in m.fields:
+            if f.bits:
+                L.extend(_py_bits_check(f))
+        fixed_args = [str(m.type_id), "m.seq"]
+        for f in m.fixed:
+            fixed_args.extend(_py_pack_scalar_exprs(f))
+        if not var:
+            w(f"    return _{up}_ST.pack({', '.join(fixed_args)})")
+        elif len(var) == 1 and var[0].last and var[0].type != "str":
+            f = var[0]
+            mx = data[f.max]
+            w(f"    arr = m.{f.name}")
+            w(f"    if len(arr) > {mx}:")
+            w(f"        raise ProtocolError(f\"encode {m.name}: {f.name} has {{len(arr)}} entries, at most {mx}\")")
+            if f.type == "pair[]":
+                w(f"    return _{up}_ST[len(arr)].pack({', '.join(fixed_args)}, *[v for pair in arr for v in pair])")
+            else:
+                w(f"    return _{up}_ST[len(arr)].pack({', '.join(fixed_args)}, *arr)")
+        else:
+            w(f"    parts = [_{up}_ST.pack({', '.join(fixed_args)})]")
+            for f in var:
+                mx = data[f.max]
+                if f.type == "str":
+                    w(f"    raw = _ascii(m.{f.name}, {mx}, {m.name!r}, {f.name!r})")
+                else:
+                    code, _size = ARRAY_ELEM[f.type]
+                    w(f"    if len(m.{f.name}) > {mx}:")
+                    w(f"        raise ProtocolError(f\"encode {m.name}: {f.name} has {{len(m.{f.name})}} entries, at most {mx}\")")
+                    w(f"    raw = struct.pack('<' + {code!r} * len(m.{f.name}), *m.{f.name})")
+                if not f.last:
+                    w("    parts.append(bytes((len(raw),)))" if f.type == "str" else
+                      f"    parts.append(bytes((len(m.{f.name}),)))")
+                w("    parts.append(raw)")
+            w("    return b''.join(parts)")
+        w("")
+    # unpackers
+    for m in msgs:
+        up = m.name.upper()
+        var = [f for f in m.fields if f.variable]
+        w("")
+        w(f"def unpack_{m.snake}(b: bytes) -> {m.name}:")
+        w(f'    """type . seq . payload (no CRC) -> {m.name}; LengthError if malformed."""')
+        args = ["v[1]"]
+        idx = 2
+        for f in m.fixed:
+            args.extend(_py_unpack_scalar(f, f"v[{idx}]"))
+            idx += 1
+        fl = m.fixed_len
+        if not var:
+            w(f"    if len(b) != {fl}:")
+            w(f"        raise LengthError(f\"{m.name}: payload of {{len(b) - 2}} bytes, expected {fl - 2}\")")
+            w(f"    v = _{up}_ST.unpack(b)")
+            if args == [f"v[{i}]" for i in range(1, idx)]:
+                w(f"    return _tnew({m.name}, v[1:])")
+            else:
+                w(f"    return _tnew({m.name}, ({', '.join(args)},))")
+        elif len(var) == 1 and var[0].last and var[0].type != "str":
+            f = var[0]
+            _code, size = ARRAY_ELEM[f.type]
+            mx = data[f.max]
+            w(f"    n, r = divmod(len(b) - {fl}, {size})")
+            w(f"    if r or n < 0 or n > {mx}:")
+            w(f"        raise LengthError(f\"{m.name}: payload of {{len(b) - 2}} bytes is not {fl - 2} + {size}*n (n <= {mx})\")")
+            w(f"    v = _{up}_ST[n].unpack(b)")
+            if f.type == "pair[]":
+                args.append(f"tuple(zip(v[{idx}::2], v[{idx + 1}::2]))")
+            else:
+                args.append(f"v[{idx}:]")
+            w(f"    return _tnew({m.name}, ({', '.join(args)},))")
+        else:
+            w(f"    if len(b) < {fl}:")
+            w(f"        raise LengthError(f\"{m.name}: payload of {{len(b) - 2}} bytes, at least {fl - 2}\")")
+            w(f"    v = _{up}_ST.unpack_from(b)")
+            w(f"    pos = {fl}")
+            for f in var:
+                mx = data[f.max]
+                _code, size = ARRAY_ELEM.get(f.type, ("", 1))
+                if f.last:
+                    w(f"    n, r = divmod(len(b) - pos, {size})")
+                    w("    if r:")
+                    w(f"        raise LengthError(\"{m.name}: {f.name} has a partial entry\")")
+                else:
+                    w("    if pos >= len(b):")
+                    w(f"        raise LengthError(\"{m.name}: missing the count of {f.name}\")")
+                    w("    n = b[pos]")
+                    w("    pos += 1")
+                    w(f"    if pos + n * {size} > len(b):")
+                    w(f"        raise LengthError(f\"{m.name}: {f.name} count {{n}} runs past the frame end\")")
+                w(f"    if n > {mx}:")
+                w(f"        raise LengthError(f\"{m.name}: {f.name} has {{n}} entries, at most {mx}\")")
+                if f.type == "str":
+                    w(f"    f_{f.name} = _unascii(b[pos:pos + n], {m.name!r}, {f.name!r})")
+                elif f.type == "u8[]":
+                    w(f"    f_{f.name} = tuple(b[pos:pos + n])")
+                else:
+                    code, size = ARRAY_ELEM[f.type]
+                    w(f"    f_{f.name} = struct.unpack_from('<' + {code!r} * n, b, pos)")
+                w(f"    pos += n * {size}")
+                args.append(f"f_{f.name}")
+            w(f"    return _tnew({m.name}, ({', '.join(args)},))")
+        w("")
+    w("")
+    w("def _ascii(text: str, max_chars: int, msg: str, field: str) -> bytes:")
+    w('    """Encode a short printable ASCII name (no NUL: names are length-delimited)."""')
+    w("    try:")
+    w("        raw = text.encode('ascii')")
+    w("    except UnicodeEncodeError:")
+    w("        raise ProtocolError(f\"encode {msg}: {field} {text!r} is not ASCII\") from None")
+    w("    if len(raw) > max_chars or not all(0x20 <= c < 0x7F for c in raw):")
+    w("        raise ProtocolError(f\"encode {msg}: {field} {text!r} must be at most {max_chars} printable ASCII characters\")")
+    w("    return raw")
+    w("")
+    w("")
+    w("def _unascii(raw: bytes, msg: str, field: str) -> str:")
+    w('    """Decode a name; anything but printable ASCII is a malformed payload."""')
+    w("    if not all(0x20 <= c < 0x7F for c in raw):")
+    w("        raise LengthError(f\"{msg}: {field} is not printable ASCII\")")
+    w("    return raw.decode('ascii')")
+    w("")
+    w("")
+    w("PACKERS: dict[type, Callable[..., bytes]] = {")
+    for m in msgs:
+        w(f"    {m.name}: pack_{m.snake},")
+    w("}")
+    w("")
+    w("UNPACKERS: dict[int, Callable[[bytes], Message]] = {")
+    for m in msgs:
+        w(f"    {m.type_id:#04x}: unpack_{m.snake},")
+    w("}")
+    w("")
+    w("MESSAGE_TYPES: dict[int, type] = {")
+    for m in msgs:
+        w(f"    {m.type_id:#04x}: {m.name},")
+    w("}")
+    w("")
+    w("HOST_TO_TARGET = frozenset({" + ", ".join(m.name for m in msgs if m.dir == "h2t") + "})")
+    w("TARGET_TO_HOST = frozenset({" + ", ".join(m.name for m in msgs if m.dir == "t2h") + "})")
+    w("")
+    names = ["PROTOCOL_VERSION", "MAX_FRAME_BYTES", "MAX_NAME_CHARS", "MAX_ADC", "MAX_TELEMETRY",
+             "MAX_PARAM_PAIRS", "Message", "PACKERS", "UNPACKERS", "MESSAGE_TYPES", "HOST_TO_TARGET",
+             "TARGET_TO_HOST"]
+    names += [e[0] for e in enums]
+    names += [f"{prefix}_{mn}" for (_n, prefix, _d, members) in enums for mn, _v in members]
+    names += [m.name for m in msgs]
+    w("__all__ = [")
+    for n in names:
+        w(f"    {n!r},")
+    w("]")
+    w("")
+    return "\n".join(L)
+
+
+# ----------------------------------------------------------------------------------------------
+# C
+
+
+def c_max(data: dict, key: str) -> str:
+    return {"max_adc": "HBP_MAX_ADC", "max_telemetry": "HBP_MAX_TELEMETRY",
+            "max_name_chars": "HBP_MAX_NAME", "max_param_pairs": "HBP_MAX_PARAM_PAIRS"}[key]
+
+
+def gen_header(data: dict, enums: list, msgs: list[Message]) -> str:
+    L: list[str] = []
+    w = L.append
+    w("/* hbp_messages.h: GENERATED by firmware_protocol/generate.py from schema.toml. Do not edit. */")
+    w("#ifndef HBP_MESSAGES_H")
+    w("#define HBP_MESSAGES_H")
+    w("")
+    w("#include <stdint.h>")
+    w("")
+    w(f"#define HBP_PROTOCOL_VERSION {data['protocol_version']}u")
+    w(f"#define HBP_MAX_FRAME {data['max_frame_bytes']}u /* decoded frame: type, seq, payload, crc16 */")
+    w(f"#define HBP_MAX_NAME {data['max_name_chars']}u")
+    w(f"#define HBP_MAX_PARAM_PAIRS {data['max_param_pairs']}u")
+    w("/* Array capacities of the structs below; a firmware may lower them to its profile (-D...). */")
+    w("#ifndef HBP_MAX_ADC")
+    w(f"#define HBP_MAX_ADC {data['max_adc']}u")
+    w("#endif")
+    w("#ifndef HBP_MAX_TELEMETRY")
+    w(f"#define HBP_MAX_TELEMETRY {data['max_telemetry']}u")
+    w("#endif")
+    w("")
+    for name, prefix, doc, members in enums:
+        w(f"/* {doc} */")
+        for mname, value in members:
+            w(f"#define HBP_{prefix}_{mname} {value:#04x}u")
+        w("")
+    w("/* One (parameter id, value) pair of ParamSet. */")
+    w("typedef struct {")
+    w("    uint8_t id;")
+    w("    int16_t value;")
+    w("} hbp_pair_t;")
+    w("")
+    for m in msgs:
+        w(f"/* {m.name}: {'host -> target' if m.dir == 'h2t' else 'target -> host'}, type {m.type_id:#04x}, "
+          f"{m.fixed_len - 2} fixed payload bytes. */")
+        w(f"#define HBP_{m.type_name}_FIXED_LEN {m.fixed_len}u /* type + seq + fixed fields */")
+        w("typedef struct {")
+        w("    uint8_t seq;")
+        for f in m.fields:
+            if f.bits:
+                for bname, width, kind in f.bits:
+                    w(f"    {'uint8_t' if width <= 8 else 'uint16_t'} {bname};{' /* 0 or 1 */' if kind == 'bool' else ''}")
+            elif f.type == "str":
+                w(f"    char {f.name}[HBP_MAX_NAME + 1u]; /* NUL-terminated ASCII */")
+            elif f.variable:
+                w(f"    uint8_t n_{f.name};")
+                w(f"    {C_ELEM[f.type]} {f.name}[{c_max(data, f.max)}];")
+            else:
+                w(f"    {C_SCALAR[f.type]} {f.name};")
+        if not m.fields:
+            pass
+        w(f"}} hbp_{m.snake}_t;")
+        w("")
+    w("/* hbp_pack_X writes type, seq and payload (no CRC) to frame[0..] (room for HBP_MAX_FRAME bytes)")
+    w("   and returns the length, or 0 if the message does not fit (a count above its maximum).")
+    w("   hbp_unpack_X parses such a frame (CRC already stripped) of len bytes and returns HBP_ERROR_NONE")
+    w("   or HBP_ERROR_LENGTH. */")
+    for m in msgs:
+        w(f"uint8_t hbp_pack_{m.snake}(const hbp_{m.snake}_t *m, uint8_t *frame);")
+        w(f"uint8_t hbp_unpack_{m.snake}(const uint8_t *frame, uint8_t len, hbp_{m.snake}_t *m);")
+    w("")
+    w("/* 1 if the type byte names a message of this protocol. */")
+    w("uint8_t hbp_type_known(uint8_t type);")
+    w("")
+    w("#endif /* HBP_MESSAGES_H */")
+    w("")
+    return "\n".join(L)
+
+
+def gen_c(data: dict, enums: list, msgs: list[Message]) -> str:
+    L: list[str] = []
+    w = L.append
+    w("/* hbp_messages.c: GENERATED by firmware_protocol/generate.py from schema.toml. Do not edit.")
+    w("   C99, no heap, no floating point, safe with a 16-bit int. */")
+    w('#include "hbp_messages.h"')
+    w("")
+    w("static void put16(uint8_t *p, uint16_t v)")
+    w("{")
+    w("    p[0] = (uint8_t)(v & 0xFFu);")
+    w("    p[1] = (uint8_t)(v >> 8);")
+    w("}")
+    w("")
+    w("static void put32(uint8_t *p, uint32_t v)")
+    w("{")
+    w("    p[0] = (uint8_t)(v & 0xFFu);")
+    w("    p[1] = (uint8_t)((v >> 8) & 0xFFu);")
+    w("    p[2] = (uint8_t)((v >> 16) & 0xFFu);")
+    w("    p[3] = (uint8_t)(v >> 24);")
+    w("}")
+    w("")
+    w("static uint16_t get16(const uint8_t *p)")
+    w("{")
+    w("    return (uint16_t)((uint16_t)p[0] | (uint16_t)((uint16_t)p[1] << 8));")
+    w("}")
+    w("")
+    w("static uint32_t get32(const uint8_t *p)")
+    w("{")
+    w("    return (uint32_t)p[0] | ((uint32_t)p[1] << 8) | ((uint32_t)p[2] << 16) | ((uint32_t)p[3] << 24);")
+    w("}")
+    w("")
+    w("static void puti16(uint8_t *p, int16_t v)")
+    w("{")
+    w("    put16(p, (uint16_t)v); /* two's complement: conversion to unsigned is well defined */")
+    w("}")
+    w("")
+    w("static int16_t geti16(const uint8_t *p)")
+    w("{")
+    w("    uint16_t u = get16(p);")
+    w("    if (u < 0x8000u) {")
+    w("        return (int16_t)u;")
+    w("    }")
+    w("    return (int16_t)(-(int16_t)(0xFFFFu - u) - 1); /* no implementation-defined conversion */")
+    w("}")
+    w("")
+    used = set()
+    for m in msgs:
+        for f in m.fields:
+            used.add(f.type)
+    for m in msgs:
+        s = m.snake
+        # ---- pack
+        w(f"uint8_t hbp_pack_{s}(const hbp_{s}_t *m, uint8_t *frame)")
+        w("{")
+        w(f"    uint8_t pos = {m.fixed_len};")
+        has_loop = any(f.variable and f.type != "str" for f in m.fields)
+        if has_loop or any(f.type == "str" for f in m.fields):
+            w("    uint8_t i;")
+        if not m.fields:
+            w("    (void)0;")
+        w(f"    frame[0] = HBP_MSG_{m.type_name};")
+        w("    frame[1] = m->seq;")
+        off = 2
+        for f in m.fixed:
+            if f.bits:
+                ctype = "uint32_t" if f.type == "bits32" else "uint8_t"
+                terms = []
+                shift = 0
+                for bname, width, kind in f.bits:
+                    mask = (1 << width) - 1
+                    if kind == "bool":
+                        t = f"(m->{bname} ? {1 << shift}u : 0u)"
+                        t = f"(uint32_t){t}" if ctype == "uint32_t" else t
+                    elif ctype == "uint32_t":
+                        t = f"((uint32_t)(m->{bname} & {mask:#x}u) << {shift})"
+                    else:
+                        t = f"(unsigned)((m->{bname} & {mask:#x}u) << {shift})"
+                    terms.append(t)
+                    shift += width
+                expr = " | ".join(terms)
+                if ctype == "uint32_t":
+                    w(f"    put32(&frame[{off}], {expr});")
+                else:
+                    w(f"    frame[{off}] = (uint8_t)({expr});")
+            elif f.type in ("u8", "bool"):
+                w(f"    frame[{off}] = {'(uint8_t)(m->' + f.name + ' ? 1u : 0u)' if f.type == 'bool' else 'm->' + f.name};")
+            elif f.type == "u16":
+                w(f"    put16(&frame[{off}], m->{f.name});")
+            elif f.type == "u32":
+                w(f"    put32(&frame[{off}], m->{f.name});")
+            elif f.type == "i16":
+                w(f"    puti16(&frame[{off}], m->{f.name});")
+            off += SCALAR_SIZE[f.type]
+        for f in m.fields:
+            if not f.variable:
+                continue
+            cm = c_max(data, f.max)
+            if f.type == "str":
+                w(f"    for (i = 0u; i < HBP_MAX_NAME && m->{f.name}[i] != '\\0'; i++) {{")
+                w("    }")
+                if not f.last:
+                    w("    frame[pos++] = i;")
+                w(f"    {{ uint8_t k; for (k = 0u; k < i; k++) {{ frame[pos++] = (uint8_t)m->{f.name}[k]; }} }}")
+            else:
+                w(f"    if (m->n_{f.name} > {cm}) {{")
+                w("        return 0u;")
+                w("    }")
+                if not f.last:
+                    w(f"    frame[pos++] = m->n_{f.name};")
+                w(f"    for (i = 0u; i < m->n_{f.name}; i++) {{")
+                if f.type == "u8[]":
+                    w(f"        frame[pos++] = m->{f.name}[i];")
+                elif f.type == "u16[]":
+                    w(f"        put16(&frame[pos], m->{f.name}[i]);")
+                    w("        pos = (uint8_t)(pos + 2u);")
+                elif f.type == "i16[]":
+                    w(f"        puti16(&frame[pos], m->{f.name}[i]);")
+                    w("        pos = (uint8_t)(pos + 2u);")
+                elif f.type == "pair[]":
+                    w(f"        frame[pos] = m->{f.name}[i].id;")
+                    w(f"        puti16(&frame[pos + 1u], m->{f.name}[i].value);")
+                    w("        pos = (uint8_t)(pos + 3u);")
+                w("    }")
+        w("    return pos;")
+        w("}")
+        w("")
+        # ---- unpack
+        w(f"uint8_t hbp_unpack_{s}(const uint8_t *frame, uint8_t len, hbp_{s}_t *m)")
+        w("{")
+        var = [f for f in m.fields if f.variable]
+        if var:
+            w(f"    uint8_t pos = {m.fixed_len};")
+            w("    uint8_t i;")
+            w("    uint8_t n;")
+        if var:
+            w(f"    if (len < {m.fixed_len}u || frame[0] != HBP_MSG_{m.type_name}) {{")
+        else:
+            w(f"    if (len != {m.fixed_len}u || frame[0] != HBP_MSG_{m.type_name}) {{")
+        w("        return HBP_ERROR_LENGTH;")
+        w("    }")
+        w("    m->seq = frame[1];")
+        off = 2
+        for f in m.fixed:
+            if f.bits:
+                if f.type == "bits32":
+                    w("    {")
+                    w(f"        uint32_t word = get32(&frame[{off}]);")
+                    shift = 0
+                    for bname, width, kind in f.bits:
+                        ct = "uint8_t" if width <= 8 else "uint16_t"
+                        w(f"        m->{bname} = ({ct})((word >> {shift}) & {(1 << width) - 1:#x}u);")
+                        shift += width
+                    w("    }")
+                else:
+                    shift = 0
+                    for bname, width, kind in f.bits:
+                        w(f"    m->{bname} = (uint8_t)((frame[{off}] >> {shift}) & {(1 << width) - 1:#x}u);")
+                        shift += width
+            elif f.type == "u8":
+                w(f"    m->{f.name} = frame[{off}];")
+            elif f.type == "bool":
+                w(f"    m->{f.name} = (uint8_t)(frame[{off}] != 0u);")
+            elif f.type == "u16":
+                w(f"    m->{f.name} = get16(&frame[{off}]);")
+            elif f.type == "u32":
+                w(f"    m->{f.name} = get32(&frame[{off}]);")
+            elif f.type == "i16":
+                w(f"    m->{f.name} = geti16(&frame[{off}]);")
+            off += SCALAR_SIZE[f.type]
+        for f in var:
+            cm = c_max(data, f.max)
+            size = 1 if f.type == "str" else ARRAY_ELEM[f.type][1]
+            if f.last:
+                w(f"    n = (uint8_t)((uint8_t)(len - pos) / {size}u);")
+                w(f"    if ((uint8_t)(len - pos) != (uint8_t)(n * {size}u)) {{")
+                w("        return HBP_ERROR_LENGTH;")
+                w("    }")
+            else:
+                w("    if (pos >= len) {")
+                w("        return HBP_ERROR_LENGTH;")
+                w("    }")
+                w("    n = frame[pos++];")
+                w(f"    if ((unsigned)n * {size}u > (unsigned)(len - pos)) {{")
+                w("        return HBP_ERROR_LENGTH;")
+                w("    }")
+            w(f"    if (n > {cm}) {{")
+            w("        return HBP_ERROR_LENGTH;")
+            w("    }")
+            if f.type == "str":
+                w("    for (i = 0u; i < n; i++) {")
+                w("        uint8_t c = frame[pos++];")
+                w("        if (c < 0x20u || c > 0x7Eu) {")
+                w("            return HBP_ERROR_LENGTH;")
+                w("        }")
+                w(f"        m->{f.name}[i] = (char)c;")
+                w("    }")
+                w(f"    m->{f.name}[n] = '\\0';")
+            else:
+                w(f"    m->n_{f.name} = n;")
+                w("    for (i = 0u; i < n; i++) {")
+                if f.type == "u8[]":
+                    w(f"        m->{f.name}[i] = frame[pos++];")
+                elif f.type == "u16[]":
+                    w(f"        m->{f.name}[i] = get16(&frame[pos]);")
+                    w("        pos = (uint8_t)(pos + 2u);")
+                elif f.type == "i16[]":
+                    w(f"        m->{f.name}[i] = geti16(&frame[pos]);")
+                    w("        pos = (uint8_t)(pos + 2u);")
+                elif f.type == "pair[]":
+                    w(f"        m->{f.name}[i].id = frame[pos];")
+                    w(f"        m->{f.name}[i].value = geti16(&frame[pos + 1u]);")
+                    w("        pos = (uint8_t)(pos + 3u);")
+                w("    }")
+        w("    return HBP_ERROR_NONE;")
+        w("}")
+        w("")
+    w("uint8_t hbp_type_known(uint8_t type)")
+    w("{")
+    w("    switch (type) {")
+    for m in msgs:
+        w(f"    case HBP_MSG_{m.type_name}:")
+    w("        return 1u;")
+    w("    default:")
+    w("        return 0u;")
+    w("    }")
+    w("}")
+    w("")
+    return "\n".join(L)
+
+
+def outputs() -> dict[Path, str]:
+    data, enums, msgs = load()
+    return {PY_OUT: gen_python(data, enums, msgs), H_OUT: gen_header(data, enums, msgs),
+            C_OUT: gen_c(data, enums, msgs)}
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--check", action="store_true", help="exit 1 if a generated file is stale")
+    args = parser.parse_args(argv)
+    stale = []
+    for path, text in outputs().items():
+        current = path.read_text(encoding="utf-8") if path.exists() else None
+        if current != text:
+            stale.append(path)
+            if not args.check:
+                path.write_text(text, encoding="utf-8")
+    if args.check and stale:
+        for path in stale:
+            print(f"stale: {path.relative_to(REPO)} (run python firmware_protocol/generate.py)", file=sys.stderr)
+        return 1
+    if not args.check:
+        for path in stale:
+            print(f"wrote {path.relative_to(REPO)}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
