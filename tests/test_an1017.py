@@ -6,8 +6,6 @@ and hand arithmetic in the comments — never from the model's own output.
 
 from __future__ import annotations
 
-from collections import namedtuple
-
 import pytest
 
 from hilbench.targets.an1017 import (
@@ -33,10 +31,7 @@ from hilbench.targets.an1017_firmware import (
 )
 from hilbench.targets.fixedpoint import divf
 
-try:
-    from hilbench.protocol import Sensors  # type: ignore[attr-defined]
-except ImportError:  # before the protocol package lands
-    Sensors = namedtuple("Sensors", "seq inputs edge_time_100ns encoder adc")
+from hilbench.protocol import HostHello, Sensors, decode_frame, encode_frame
 
 EDGE_NONE = 0xFFFF
 S2 = 0x08
@@ -377,3 +372,18 @@ def test_advance_real_time_matches_lockstep_for_whole_periods():
     for k, (hall, edge) in enumerate(stream):
         s = Sensors(k & 0xFF, hall, edge, 0, (800, 0, 0))
         assert a.step(s) == b.advance(50.0, s)
+
+
+def test_hello_and_drive_encode_on_the_wire():
+    t = An1017Target()
+    h = t.hello(HostHello(5, 1, 1000, 0, 500))
+    assert (h.firmware_name, h.pwm_period_counts, h.pwm_freq_hz) == ("AN1017", 1000, 20000)
+    assert h.adc_roles == (1, 2, 3) and h.telemetry_ids == (1, 2, 3) and h.n_params == len(PARAMS)
+    assert decode_frame(encode_frame(h)[:-1]) == h
+    t.start()
+    for k, (hall, edge) in enumerate(_hall_stream(40, 1000.0, 1000, ccw=True)):
+        d = t.step(Sensors(k, hall, edge, 0, (100, 0, 0)))
+        assert decode_frame(encode_frame(d)[:-1]) == d
+    for pid in PARAMS:
+        info = t.describe(pid)
+        assert decode_frame(encode_frame(info)[:-1]) == info

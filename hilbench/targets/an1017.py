@@ -12,12 +12,11 @@ reported as 1000.
 
 from __future__ import annotations
 
-from typing import Any, NamedTuple
+from typing import Any
 
 from hilbench.errors import ConfigError, ParamError
 from hilbench.targets.an1017_firmware import (
     GAIN_CONSTRAINT_NAMES,
-    MODE_OFF,
     STATE_FAULT,
     FAULT_WATCHDOG,
     SECTOR_INVALID,
@@ -29,83 +28,34 @@ from hilbench.targets.an1017_firmware import (
     max_phase_advance_from_deg,
 )
 
-try:  # the protocol package provides the message classes; fall back to same-shaped tuples
-    from hilbench import protocol as _protocol
+from hilbench.protocol import (
+    PROTOCOL_VERSION,
+    Access,
+    AdcRole,
+    Drive,
+    Edge,
+    ParamInfo,
+    ParamSetResult,
+    ParamType,
+    ParamValue,
+    Result,
+    Status,
+    TargetHello,
+    TelemetryId,
+)
 
-    Drive = _protocol.Drive
-    TargetHello = _protocol.TargetHello
-    ParamInfo = _protocol.ParamInfo
-    ParamValue = _protocol.ParamValue
-    ParamSetResult = _protocol.ParamSetResult
-    Status = _protocol.Status
-    PROTOCOL_VERSION = _protocol.PROTOCOL_VERSION
-except (ImportError, AttributeError):  # pragma: no cover - only before hilbench.protocol lands
-
-    class Drive(NamedTuple):  # type: ignore[no-redef]
-        seq: int
-        duty_a: int
-        duty_b: int
-        duty_c: int
-        output_mode: int
-        state: int
-        sector: int
-        direction_ccw: bool
-        required_ccw: bool
-        fault: int
-        telemetry: tuple
-
-    class TargetHello(NamedTuple):  # type: ignore[no-redef]
-        seq: int
-        protocol_version: int
-        firmware_version: int
-        pwm_period_counts: int
-        pwm_freq_hz: int
-        n_params: int
-        firmware_name: str
-        adc_roles: tuple
-        telemetry_ids: tuple
-
-    class ParamInfo(NamedTuple):  # type: ignore[no-redef]
-        seq: int
-        param_id: int
-        ptype: int
-        access: int
-        min_value: int
-        max_value: int
-        value: int
-        name: str
-
-    class ParamValue(NamedTuple):  # type: ignore[no-redef]
-        seq: int
-        param_id: int
-        result: int
-        value: int
-
-    class ParamSetResult(NamedTuple):  # type: ignore[no-redef]
-        seq: int
-        result: int
-        param_id: int
-        detail: int
-
-    class Status(NamedTuple):  # type: ignore[no-redef]
-        seq: int
-        rx_frames: int
-        rx_errors: int
-        resyncs: int
-        unknown: int
-        overruns: int
-        watchdog_trips: int
-        last_error: int
-
-    PROTOCOL_VERSION = 1
-
-# design.md constants (the protocol's IntEnums carry the same numbers)
-EDGE_NONE = 0xFFFF
-PTYPE_Q15, PTYPE_INT, PTYPE_BOOL = 0, 1, 2
-ACCESS_RO, ACCESS_RW = 0, 1
-RESULT_OK, RESULT_UNKNOWN_ID, RESULT_READ_ONLY, RESULT_OUT_OF_RANGE, RESULT_CONSTRAINT, RESULT_BAD_REQUEST = range(6)
-ADC_ROLE_POT, ADC_ROLE_IBUS, ADC_ROLE_VBUS = 1, 2, 3
-TELEMETRY_REF_SPEED, TELEMETRY_MEASURED_SPEED, TELEMETRY_CONTROL_OUTPUT = 1, 2, 3
+# plain ints of the protocol constants (IntEnum members are slower in the per-period path)
+EDGE_NONE = int(Edge.NONE)
+PTYPE_Q15, PTYPE_INT, PTYPE_BOOL = int(ParamType.Q15), int(ParamType.INT), int(ParamType.BOOL)
+ACCESS_RO, ACCESS_RW = int(Access.RO), int(Access.RW)
+RESULT_OK = int(Result.OK)
+RESULT_UNKNOWN_ID = int(Result.UNKNOWN_ID)
+RESULT_READ_ONLY = int(Result.READ_ONLY)
+RESULT_OUT_OF_RANGE = int(Result.OUT_OF_RANGE)
+RESULT_CONSTRAINT = int(Result.CONSTRAINT)
+RESULT_BAD_REQUEST = int(Result.BAD_REQUEST)
+ADC_ROLES = (int(AdcRole.POT), int(AdcRole.IBUS), int(AdcRole.VBUS))
+TELEMETRY_IDS = (int(TelemetryId.REF_SPEED), int(TelemetryId.MEASURED_SPEED), int(TelemetryId.CONTROL_OUTPUT))
 
 FIRMWARE_NAME = "AN1017"
 FIRMWARE_VERSION = 0x0101  # v1.1
@@ -175,8 +125,8 @@ class An1017Target:
             PWM_FREQ_HZ,
             len(PARAMS),
             FIRMWARE_NAME,
-            (ADC_ROLE_POT, ADC_ROLE_IBUS, ADC_ROLE_VBUS),
-            (TELEMETRY_REF_SPEED, TELEMETRY_MEASURED_SPEED, TELEMETRY_CONTROL_OUTPUT),
+            ADC_ROLES,
+            TELEMETRY_IDS,
         )
 
     def _value(self, param_id: int) -> int:
@@ -327,5 +277,3 @@ def constraint_name(number: int) -> str:
     """Human name of a gain constraint number (1, 2, 3)."""
     return GAIN_CONSTRAINT_NAMES[number]
 
-
-assert MODE_OFF == 0
