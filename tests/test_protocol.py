@@ -1,0 +1,311 @@
+"""Wire protocol (Python codec): round trips, frame sizes, hand-derived bytes, robustness to bad input.
+
+Expectations come from the CRC-16/CCITT-FALSE catalogue check value, the COBS examples of Cheshire &
+Baker, an independent bitwise CRC and COBS written here, and the layout fixed in docs/design.md.
+"""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
+
+from hilbench.errors import DecodeError, ProtocolError
+from hilbench.protocol import (
+    PROTOCOL_VERSION,
+    Drive,
+    ErrorReport,
+    FrameDecoder,
+    HostHello,
+    ParamDescribe,
+    ParamGet,
+    ParamInfo,
+    ParamSet,
+    ParamSetResult,
+    ParamValue,
+    Sensors,
+    Start,
+    Status,
+    StatusRequest,
+    Stop,
+    TargetHello,
+    decode_frame,
+    encode_frame,
+)
+from hilbench.protocol.framing import cobs_decode, cobs_encode, crc16
+
+REPO = Path(__file__).resolve().parent.parent
+
+u8 = st.integers(0, 0xFF)
+u16 = st.integers(0, 0xFFFF)
+u32 = st.integers(0, 0xFFFFFFFF)
+i16 = st.integers(-0x8000, 0x7FFF)
+name = st.text(st.characters(min_codepoint=0x20, max_codepoint=0x7E), max_size=12)
+
+MESSAGES = st.one_of(
+    st.builds(HostHello, u8, u8, u16, u8, u16),
+    st.builds(TargetHello, u8, u8, u16, u16, u32, u8, name,
+              st.lists(u8, max_size=8).map(tuple), st.lists(u8, max_size=8).map(tuple)),
+    st.builds(Sensors, u8, u8, u16, u16, st.lists(u16, max_size=8).map(tuple)),
+    st.builds(Drive, u8, st.integers(0, 1023), st.integers(0, 1023), st.integers(0, 1023),
+              st.integers(0, 3), st.integers(0, 7), st.integers(0, 7), st.booleans(), st.booleans(), u8,
+              st.lists(i16, max_size=8).map(tuple)),
+    st.builds(ParamDescribe, u8, u8),
+    st.builds(ParamInfo, u8, u8, u8, u8, i16, i16, i16, name),
+    st.builds(ParamGet, u8, u8),
+    st.builds(ParamValue, u8, u8, u8, i16),
+    st.builds(ParamSet, u8, st.lists(st.tuples(u8, i16), max_size=4).map(tuple)),
+    st.builds(ParamSetResult, u8, u8, u8, u8),
+    st.builds(Start, u8),
+    st.builds(Stop, u8),
+    st.builds(StatusRequest, u8),
+    st.builds(Status, u8, u16, u16, u16, u16, u16, u16, u8),
+    st.builds(ErrorReport, u8, u8, u8),
+)
+
+
+def ref_crc(data: bytes) -> int:
+    """Bitwise CRC-16/CCITT-FALSE, written from its definition."""
+    crc = 0xFFFF
+    for byte in data:
+        crc ^= byte << 8
+        for _ in range(8):
+            crc = ((crc << 1) ^ 0x1021) & 0xFFFF if crc & 0x8000 else (crc << 1) & 0xFFFF
+    return crc
+
+
+def ref_cobs(raw: bytes) -> bytes:
+    """Byte-by-byte COBS encoder (frames < 254 bytes)."""
+    out = bytearray([0])
+    code_at = 0
+    for b in raw:
+        if b == 0:
+            out[code_at] = len(out) - code_at
+            code_at = len(out)
+            out.append(0)
+        else:
+            out.append(b)
+    out[code_at] = len(out) - code_at
+    return bytes(out)
+
+
+def ref_wire(raw_no_crc: bytes) -> bytes:
+    crc = ref_crc(raw_no_crc)
+    return ref_cobs(raw_no_crc + bytes((crc & 0xFF, crc >> 8))) + b"\x00"
+
+
+def test_crc_check_value() -> None:
+    assert crc16(b"123456789") == 0x29B1
+    assert ref_crc(b"123456789") == 0x29B1
+
+
+@pytest.mark.parametrize(
+    ("raw", "enc"),
+    [
+        (b"\x00", b"\x01\x01"),
+        (b"\x00\x00", b"\x01\x01\x01"),
+        (b"\x11\x22\x00\x33", b"\x03\x11\x22\x02\x33"),
+        (b"\x11\x22\x33\x44", b"\x05\x11\x22\x33\x44"),
+        (b"\x11\x00\x00\x00", b"\x02\x11\x01\x01\x01"),
+    ],
+)
+def test_cobs_examples(raw: bytes, enc: bytes) -> None:
+    assert cobs_encode(raw) == enc
+    assert cobs_decode(enc) == raw
+
+
+def test_sensors_bytes_by_hand() -> None:
+    msg = Sensors(seq=5, inputs=0x0B, edge_time_100ns=1234, encoder=0xFFFF, adc=(512, 0, 1023))
+    raw = bytes([0x10, 5, 0x0B, 0xD2, 0x04, 0xFF, 0xFF, 0x00, 0x02, 0x00, 0x00, 0xFF, 0x03])
+    assert encode_frame(msg) == ref_wire(raw)
+    assert len(encode_frame(msg)) == 17
+
+
+def test_drive_bit_layout_by_hand() -> None:
+    msg = Drive(seq=200, duty_a=1, duty_b=2, duty_c=3, output_mode=1, state=2, sector=5,
+                direction_ccw=True, required_ccw=False, fault=4, telemetry=(-1, 2, -32768))
+    word = 1 | 2 << 10 | 3 << 20 | 1 << 30
+    flags = 2 | 5 << 3 | 0x40
+    raw = bytes([0x11, 200]) + word.to_bytes(4, "little") + bytes([flags, 4]) + bytes(
+        [0xFF, 0xFF, 0x02, 0x00, 0x00, 0x80])
+    assert encode_frame(msg) == ref_wire(raw)
+    assert len(encode_frame(msg)) == 18
+
+
+def test_an1017_profile_fits_the_budget() -> None:
+    """1 kHz full duplex at 250 000 baud: 25 bytes per period per direction, 25 % spare -> <= 18.75."""
+    sensors = encode_frame(Sensors(0xFF, 0xFF, 0xFFFF, 0xFFFF, (1023, 1023, 1023)))
+    drive = encode_frame(Drive(0xFF, 1023, 1023, 1023, 3, 7, 7, True, True, 0xFF, (-1, -1, -1)))
+    assert len(sensors) == 17
+    assert len(drive) == 18
+    assert max(len(sensors), len(drive)) <= 0.75 * 250_000 / 10 / 1000
+
+
+@settings(max_examples=1500, suppress_health_check=[HealthCheck.too_slow])
+@given(MESSAGES)
+def test_round_trip(msg) -> None:
+    wire = encode_frame(msg)
+    assert wire[-1] == 0 and 0 not in wire[:-1]
+    assert len(wire) <= 64 + 2
+    assert decode_frame(wire[:-1]) == msg
+    decoder = FrameDecoder()
+    assert decoder.feed(wire) == [msg]
+    assert decoder.counters["frames"] == 1
+
+
+def test_round_trip_gives_bools_and_tuples() -> None:
+    d = decode_frame(encode_frame(Drive(1, 0, 0, 0, 0, 0, 0, True, False, 0, (5,)))[:-1])
+    assert d.direction_ccw is True and d.required_ccw is False and d.telemetry == (5,)
+
+
+@pytest.mark.parametrize(
+    "msg",
+    [
+        Drive(0, 1024, 0, 0, 0, 0, 0, False, False, 0, ()),
+        Drive(0, 0, 0, 0, 4, 0, 0, False, False, 0, ()),
+        Drive(0, 0, 0, 0, 0, 8, 0, False, False, 0, ()),
+        Drive(0, 0, 0, 0, 0, 0, 0, False, False, 0, (0,) * 9),
+        Sensors(256, 0, 0, 0, ()),
+        Sensors(0, 0, 0, 0x10000, ()),
+        Sensors(0, 0, 0, 0, (-1,)),
+        ParamSet(0, ((0, 0),) * 5),
+        ParamInfo(0, 0, 0, 0, 0, 0, 0, "x" * 13),
+        TargetHello(0, 1, 1, 1, 1, 0, "caf\u00e9", (), ()),
+        ("not", "a", "message"),
+    ],
+)
+def test_unencodable_messages_raise_protocol_error(msg) -> None:
+    with pytest.raises(ProtocolError):
+        encode_frame(msg)
+
+
+@settings(max_examples=800)
+@given(st.binary(max_size=80))
+def test_garbage_raises_only_decode_error(data: bytes) -> None:
+    try:
+        decode_frame(data)
+    except DecodeError:
+        pass
+
+
+@settings(max_examples=500, suppress_health_check=[HealthCheck.too_slow])
+@given(MESSAGES, st.data())
+def test_truncation_and_bit_flips_are_rejected(msg, data) -> None:
+    body = encode_frame(msg)[:-1]
+    cut = data.draw(st.integers(0, len(body) - 1))
+    try:
+        assert decode_frame(body[:cut]) != msg
+    except DecodeError:
+        pass
+    bits = data.draw(st.lists(st.integers(0, 8 * len(body) - 1), min_size=1, max_size=2, unique=True))
+    flipped = bytearray(body)
+    for bit in bits:
+        flipped[bit // 8] ^= 1 << (bit % 8)
+    decoder = FrameDecoder()
+    got = decoder.feed(bytes(flipped) + b"\x00")
+    assert got == []  # a 1- or 2-bit error is never accepted
+    assert sum(decoder.counters[k] for k in ("crc_errors", "cobs_errors", "length_errors",
+                                             "unknown_type", "oversized")) >= 1
+
+
+@settings(max_examples=400, suppress_health_check=[HealthCheck.too_slow])
+@given(st.binary(max_size=200), MESSAGES, st.lists(st.integers(1, 40), max_size=8))
+def test_decoder_survives_garbage_and_finds_the_next_frame(garbage: bytes, msg, splits) -> None:
+    stream = garbage + b"\x00" + encode_frame(msg)
+    decoder = FrameDecoder()
+    got = []
+    pos = 0
+    for size in splits:
+        got += decoder.feed(stream[pos:pos + size])
+        pos += size
+    got += decoder.feed(stream[pos:])
+    assert got and got[-1] == msg
+
+
+def _largest_frame() -> bytes:
+    msg = TargetHello(0xA5, PROTOCOL_VERSION, 0xFFFF, 1000, 20000, 3, "W" * 12, tuple(range(8)),
+                      tuple(range(10, 18)))
+    return encode_frame(msg)
+
+
+def test_every_1_and_2_bit_error_in_a_64_byte_frame_fails_the_crc() -> None:
+    """CRC level: a maximum (64-byte) decoded frame, every single and double bit error."""
+    body = bytes((i * 37 + 11) & 0xFF for i in range(62))
+    crc = crc16(body)
+    frame = bytearray(body + bytes((crc & 0xFF, crc >> 8)))
+    nbits = len(frame) * 8
+    from binascii import crc_hqx
+
+    def ok(f: bytearray) -> bool:
+        return crc_hqx(bytes(f[:-2]), 0xFFFF) == f[-2] | f[-1] << 8
+
+    assert ok(frame)
+    for a in range(nbits):
+        frame[a // 8] ^= 1 << (a % 8)
+        assert not ok(frame)
+        for b in range(a + 1, nbits):
+            frame[b // 8] ^= 1 << (b % 8)
+            assert not ok(frame), (a, b)
+            frame[b // 8] ^= 1 << (b % 8)
+        frame[a // 8] ^= 1 << (a % 8)
+
+
+@pytest.mark.slow
+def test_every_1_and_2_bit_error_on_the_wire_of_the_largest_message_is_rejected() -> None:
+    """Wire level: flips in the COBS bytes of the largest message, through the stream decoder."""
+    wire = _largest_frame()
+    body = bytearray(wire[:-1])
+    nbits = len(body) * 8
+    decoder = FrameDecoder()
+    for a in range(nbits):
+        body[a // 8] ^= 1 << (a % 8)
+        assert decoder.feed(bytes(body) + b"\x00") == [], a
+        for b in range(a + 1, nbits):
+            body[b // 8] ^= 1 << (b % 8)
+            assert decoder.feed(bytes(body) + b"\x00") == [], (a, b)
+            body[b // 8] ^= 1 << (b % 8)
+        body[a // 8] ^= 1 << (a % 8)
+    assert decoder.counters["frames"] == 0
+    assert decoder.feed(wire) != []
+
+
+def test_decoder_counts_each_kind_of_error() -> None:
+    good = encode_frame(Start(1))
+    raw = bytes([0x30, 1])
+    crc = ref_crc(raw)
+    bad_crc = ref_cobs(raw + bytes(((crc & 0xFF) ^ 1, crc >> 8))) + b"\x00"
+    raw_unknown = bytes([0x7E, 1])
+    c2 = ref_crc(raw_unknown)
+    unknown = ref_cobs(raw_unknown + bytes((c2 & 0xFF, c2 >> 8))) + b"\x00"
+    raw_len = bytes([0x30, 1, 0x55])  # Start carries no payload
+    c3 = ref_crc(raw_len)
+    bad_len = ref_cobs(raw_len + bytes((c3 & 0xFF, c3 >> 8))) + b"\x00"
+    bad_cobs = b"\x05\x01\x02\x00"  # block runs past the end
+    oversized = b"\x01" * 200 + b"\x00"
+    decoder = FrameDecoder()
+    got = []
+    for chunk in (good, bad_crc, good, unknown, bad_len, bad_cobs, b"\x00\x00", oversized[:100], oversized[100:], good):
+        got += decoder.feed(chunk)
+    assert got == [Start(1)] * 3
+    c = decoder.counters
+    assert (c["frames"], c["crc_errors"], c["unknown_type"], c["length_errors"], c["cobs_errors"], c["oversized"]) == (
+        3, 1, 1, 1, 1, 1)
+    assert c["resyncs"] == 2
+    assert c["garbage_bytes"] == len(bad_crc) + len(unknown) + len(bad_len) + len(bad_cobs) + 200
+
+
+def test_decoder_never_raises_on_odd_input() -> None:
+    decoder = FrameDecoder()
+    assert decoder.feed(b"") == []
+    assert decoder.feed(bytearray(b"\x03\x00")) == []
+    assert decoder.feed(memoryview(b"\xff" * 70)) == []
+
+
+def test_generated_files_are_fresh() -> None:
+    result = subprocess.run([sys.executable, str(REPO / "firmware_protocol" / "generate.py"), "--check"],
+                            capture_output=True, text=True, timeout=60)
+    assert result.returncode == 0, result.stderr
