@@ -232,15 +232,58 @@ class An1017Target:
         )
 
     def step(self, sensors: Any) -> Drive:
-        """Lockstep: exactly one agreed period with these sensors."""
-        edge = sensors.edge_time_100ns
+        """Lockstep: exactly one agreed period with these sensors.
+
+        The common case — 50 µs period, motor running, halls unchanged, no Timer1 tick in the
+        period, S2 up — is inlined here (one PWM ISR, maybe the ADC ISR); everything else goes
+        through An1017Firmware.run. Both give identical results (tests compare with the
+        reference path).
+        """
+        fw = self.fw
+        inputs = sensors.inputs
         adc = sensors.adc
-        self.fw.run(
-            self._period_tcy,
-            sensors.inputs,
-            None if edge == EDGE_NONE else edge << 1,
-            adc[0] if adc else None,
-        )
+        t = fw.t
+        if (
+            fw.running
+            and self._period_tcy == 1000
+            and (inputs & 15) == fw.hall
+            and not fw.s2_wait_release
+            and fw.t1_next >= t + 1000
+            and t % 1000 == 0
+            and not fw.reference
+        ):
+            if adc:
+                fw.pot_code = adc[0]
+            fw.s2_level = False
+            if fw._adc_every or (t // 1000) % 16 == 0:
+                fw.ref_speed = fw.ref_override if fw.ref_override_on else ((fw.pot_code & 0x3FF) - 512) << 6
+            co = fw.control_output
+            if fw.req_ccw:
+                volts = -(co + 1)
+                phase = (fw.phase - fw.phase_inc) & 0xFFFF if fw.cur_ccw else fw.phase
+            else:
+                volts = co
+                phase = fw.phase if fw.cur_ccw else (fw.phase + fw.phase_inc) & 0xFFFF
+            act_v = fw.act_v = fw.pend_v
+            act_a = fw.act_a = fw.pend_a
+            fw.phase = phase
+            fw.pend_v = volts
+            fw.pend_a = (phase + fw.phase_adv) & 0xFFFF
+            fw.t = t + 1000
+            d = fw._svm_cache.get((act_v << 16) | act_a)
+            if d is None:
+                d = fw.duties()
+            a, b, c = d
+            if a > 1000 or b > 1000 or c > 1000:
+                a, b, c = min(a, 1000), min(b, 1000), min(c, 1000)
+            s = fw.sector
+            self._last_seq = seq = sensors.seq
+            return Drive(
+                seq, a, b, c, fw.output_mode, fw.state, 7 if s == 0xFFFF else s,
+                fw.cur_ccw, fw.req_ccw, fw.fault, (fw.ref_speed, fw.measured_speed, fw.control_output),
+            )
+        edge = sensors.edge_time_100ns
+        fw.run(self._period_tcy, inputs, None if edge == EDGE_NONE else edge << 1, adc[0] if adc else None)
         self._last_seq = sensors.seq
         return self._drive(sensors.seq)
 
