@@ -166,6 +166,9 @@ class FaultyLink:
     def recv(self, timeout_s: float | None = None) -> Any:
         return self.inner.recv(timeout_s)
 
+    def recv_or_none(self, timeout_s: float) -> Any | None:
+        return self.inner.recv_or_none(timeout_s)
+
     def poll(self) -> list[Any]:
         return self.inner.poll()
 

@@ -126,6 +126,28 @@ class Link:
                     f"(after {self.stats.frames_rx} frames received)"
                 )
 
+    def recv_or_none(self, timeout_s: float) -> Any | None:
+        """Like recv, but None when nothing arrives in timeout_s (not counted as a timeout).
+
+        For servers that wake up periodically to check a stop flag or a watchdog.
+        """
+        pending = self._pending
+        if pending:
+            return pending.popleft()
+        deadline = time.monotonic() + timeout_s
+        remaining = timeout_s
+        while True:
+            data = self._read(remaining)
+            if data:
+                frames = self._take(data)
+                if frames:
+                    if len(frames) > 1:
+                        pending.extend(frames[1:])
+                    return frames[0]
+            remaining = deadline - time.monotonic()
+            if remaining <= 0:
+                return None
+
     def poll(self) -> list[Any]:
         """Every good frame already waiting, without blocking."""
         out = list(self._pending)

@@ -1,0 +1,222 @@
+"""RemoteTarget: the Target interface over a link, for a board or an emulator process.
+
+Requests carry their own sequence number and wait for the answer with the same seq; frames that
+arrive meanwhile (a late Drive, a stray reply) are counted and skipped. step() is the bench's
+hot path: one send, one receive, one type-and-seq check.
+"""
+
+from __future__ import annotations
+
+import time
+from typing import Any
+
+from hilbench.errors import LinkTimeout, ParamError, TargetError, VersionMismatch
+from hilbench.protocol import (
+    MODE_LOCKSTEP,
+    PROTOCOL_VERSION,
+    Drive,
+    ErrorCode,
+    ErrorReport,
+    HostHello,
+    ParamDescribe,
+    ParamGet,
+    ParamInfo,
+    ParamSet,
+    ParamSetResult,
+    ParamValue,
+    Sensors,
+    Start,
+    Status,
+    StatusRequest,
+    Stop,
+    TargetHello,
+)
+
+
+def _error_name(code: int) -> str:
+    try:
+        return ErrorCode(code).name
+    except ValueError:
+        return f"code {code}"
+
+
+class RemoteTarget:
+    """A target on the far end of a link, seen through the Target interface."""
+
+    def __init__(self, link: Any, *, timeout_s: float = 1.0, protocol_version: int = PROTOCOL_VERSION) -> None:
+        self.link = link
+        self.timeout_s = timeout_s
+        self.protocol_version = protocol_version
+        self.firmware_name = ""
+        self.target_hello: TargetHello | None = None
+        self.stale_frames = 0
+        self.error_reports = 0
+        self.last_error_report: ErrorReport | None = None
+        self.watchdog_ms = 0
+        self._req_seq = 0
+        self._send = link.send
+        self._recv = link.recv
+
+    # -- plumbing ------------------------------------------------------------------------
+    def _next_seq(self) -> int:
+        self._req_seq = (self._req_seq + 1) & 0xFF
+        return self._req_seq
+
+    def _request(self, msg: Any, reply_type: type, timeout_s: float | None = None) -> Any:
+        """Send msg and wait for reply_type (or an ErrorReport) with msg's seq."""
+        self._send(msg)
+        timeout = self.timeout_s if timeout_s is None else timeout_s
+        deadline = time.monotonic() + timeout
+        while True:
+            remaining = deadline - time.monotonic()
+            if remaining <= 0:
+                raise LinkTimeout(
+                    f"link {self.link.name}: no {reply_type.__name__} for {type(msg).__name__} within {timeout * 1000:.0f} ms"
+                )
+            try:
+                reply = self._recv(remaining)
+            except LinkTimeout:
+                continue
+            kind = type(reply)
+            if reply.seq == msg.seq and (kind is reply_type or kind is ErrorReport):
+                if kind is ErrorReport:
+                    self.error_reports += 1
+                    self.last_error_report = reply
+                return reply
+            self._note_stray(reply)
+
+    def _note_stray(self, reply: Any) -> None:
+        if type(reply) is ErrorReport:
+            self.error_reports += 1
+            self.last_error_report = reply
+        else:
+            self.stale_frames += 1
+
+    def _refused(self, what: str, report: ErrorReport) -> TargetError:
+        return TargetError(
+            f"link {self.link.name}: target refused {what}: {_error_name(report.code)} (detail {report.detail})"
+        )
+
+    # -- handshake -----------------------------------------------------------------------
+    def handshake(self, period_us: int, mode: int = MODE_LOCKSTEP, watchdog_ms: int = 0, *,
+                  attempts: int = 3) -> TargetHello:
+        """HostHello -> TargetHello; VersionMismatch naming both versions when they differ.
+
+        Retries on silence (a board may still be booting, a fresh tty may have flushed input).
+        """
+        last: LinkTimeout | None = None
+        for _ in range(max(1, attempts)):
+            host = HostHello(self._next_seq(), self.protocol_version, period_us, mode, watchdog_ms)
+            try:
+                return self.hello(host)
+            except LinkTimeout as exc:
+                last = exc
+        assert last is not None
+        raise LinkTimeout(f"{last} (after {attempts} HostHello attempts)")
+
+    def hello(self, host: HostHello) -> TargetHello:
+        reply = self._request(host, TargetHello)
+        if type(reply) is ErrorReport:
+            if reply.code == ErrorCode.VERSION:
+                raise VersionMismatch(
+                    f"link {self.link.name}: host speaks protocol version {host.protocol_version}, "
+                    f"target speaks version {reply.detail}"
+                )
+            raise self._refused(f"HostHello (period {host.period_us} us, mode {host.mode})", reply)
+        if reply.protocol_version != host.protocol_version:
+            raise VersionMismatch(
+                f"link {self.link.name}: host speaks protocol version {host.protocol_version}, "
+                f"target {reply.firmware_name!r} speaks version {reply.protocol_version}"
+            )
+        self.target_hello = reply
+        self.watchdog_ms = host.watchdog_ms
+        self.firmware_name = reply.firmware_name
+        self.link.reset_sequence()
+        return reply
+
+    # -- parameters ----------------------------------------------------------------------
+    def describe(self, param_id: int) -> ParamInfo:
+        reply = self._request(ParamDescribe(self._next_seq(), param_id), ParamInfo)
+        if type(reply) is ErrorReport:
+            if reply.code == ErrorCode.UNKNOWN_PARAM:
+                raise ParamError(f"link {self.link.name}: target {self.firmware_name!r} has no param id {param_id}")
+            raise self._refused(f"ParamDescribe {param_id}", reply)
+        return reply
+
+    def describe_all(self) -> list[ParamInfo]:
+        """Every declared parameter (ids 0..n_params-1 by the handshake's count)."""
+        n = self.target_hello.n_params if self.target_hello is not None else 0
+        return [self.describe(pid) for pid in range(n)]
+
+    def get_param(self, param_id: int) -> ParamValue:
+        reply = self._request(ParamGet(self._next_seq(), param_id), ParamValue)
+        if type(reply) is ErrorReport:
+            raise self._refused(f"ParamGet {param_id}", reply)
+        return reply
+
+    def set_params(self, pairs: tuple[tuple[int, int], ...]) -> ParamSetResult:
+        reply = self._request(ParamSet(self._next_seq(), tuple(pairs)), ParamSetResult)
+        if type(reply) is ErrorReport:
+            raise self._refused(f"ParamSet {pairs}", reply)
+        return reply
+
+    # -- commands --------------------------------------------------------------------------
+    def start(self) -> None:
+        self._send(Start(self._next_seq()))
+
+    def stop(self) -> None:
+        self._send(Stop(self._next_seq()))
+
+    def status(self) -> Status:
+        reply = self._request(StatusRequest(self._next_seq()), Status)
+        if type(reply) is ErrorReport:
+            raise self._refused("StatusRequest", reply)
+        return reply
+
+    # -- the hot path ----------------------------------------------------------------------
+    def step(self, sensors: Sensors) -> Drive:
+        """One exchange: Sensors out, the Drive with the same seq back (LinkTimeout if none)."""
+        self._send(sensors)
+        seq = sensors.seq
+        msg = self._recv(self.timeout_s)
+        if type(msg) is Drive and msg.seq == seq:
+            return msg
+        self._note_stray(msg)
+        return self._step_slow(seq)
+
+    def _step_slow(self, seq: int) -> Drive:
+        # the first frame was something else (late Drive, stray reply): skip until ours or timeout
+        deadline = time.monotonic() + self.timeout_s
+        while True:
+            remaining = deadline - time.monotonic()
+            if remaining <= 0:
+                raise LinkTimeout(f"link {self.link.name}: no Drive for Sensors seq {seq} within "
+                                  f"{self.timeout_s * 1000:.0f} ms")
+            msg = self._recv(remaining)
+            if type(msg) is Drive and msg.seq == seq:
+                return msg
+            self._note_stray(msg)
+
+    def advance(self, duration_us: float, sensors: Sensors) -> Drive:
+        """Real time: the far end runs on its own clock; the exchange is the same."""
+        return self.step(sensors)
+
+    def watchdog_trip(self) -> Drive:
+        """Stay silent and wait for the far end's watchdog Drive (outputs off)."""
+        watchdog_ms = self.watchdog_ms
+        deadline = time.monotonic() + self.timeout_s + watchdog_ms / 1000.0
+        while True:
+            remaining = deadline - time.monotonic()
+            if remaining <= 0:
+                raise LinkTimeout(f"link {self.link.name}: target sent no watchdog Drive within "
+                                  f"{self.timeout_s * 1000:.0f} ms")
+            msg = self._recv(remaining)
+            if type(msg) is Drive and msg.fault:
+                return msg
+            self._note_stray(msg)
+
+    def close(self) -> None:
+        self.link.close()
+
+
+__all__ = ["RemoteTarget"]

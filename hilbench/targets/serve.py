@@ -1,0 +1,245 @@
+"""Serve a target model on a link: answer every request frame until the link closes.
+
+Lockstep: each Sensors advances the model by exactly one period (target.step) and is answered
+by its Drive with the same seq. Real time (HostHello mode 1, or forced): each Sensors advances
+the model by the wall time since the previous one (target.advance); when no Sensors arrives for
+watchdog_ms the model's watchdog trips and its Drive (outputs off) is sent unsolicited.
+Bad frames are counted by the link's decoder; nothing a host sends can crash the server.
+"""
+
+from __future__ import annotations
+
+import logging
+import threading
+import time
+from dataclasses import dataclass, field
+from typing import Any
+
+from hilbench.errors import HilbenchError, LinkClosed, ParamError
+from hilbench.protocol import (
+    MODE_LOCKSTEP,
+    MODE_REALTIME,
+    PROTOCOL_VERSION,
+    ErrorCode,
+    ErrorReport,
+    HostHello,
+    ParamDescribe,
+    ParamGet,
+    ParamSet,
+    Sensors,
+    Start,
+    Status,
+    StatusRequest,
+    Stop,
+)
+
+log = logging.getLogger("hilbench.serve")
+
+_POLL_S = 0.2  # how often an idle server looks at stop_event
+_MAX_LOGGED_FAULTS = 5
+
+
+@dataclass
+class ServeReport:
+    """What one serve() call did (returned when the link closes or stop_event is set)."""
+
+    reason: str = ""
+    sensors: int = 0
+    requests: int = 0
+    error_reports: int = 0
+    watchdog_trips: int = 0
+    handler_faults: int = 0
+    mode: int = MODE_LOCKSTEP
+    link_stats: dict[str, int] = field(default_factory=dict)
+
+
+class _Server:
+    def __init__(self, target: Any, link: Any, stop_event: threading.Event | None, mode: int | None,
+                 watchdog_ms: int | None) -> None:
+        self.target = target
+        self.link = link
+        self.stop_event = stop_event
+        self.forced_mode = mode
+        self.forced_watchdog_ms = watchdog_ms
+        self.mode = MODE_LOCKSTEP if mode is None else mode
+        self.watchdog_s = (watchdog_ms or 0) / 1000.0
+        self.period_us = 0
+        self.report = ServeReport(mode=self.mode)
+        self.last_error = int(ErrorCode.NONE)
+        self.last_sensors_t: float | None = None
+        self.tripped = False
+
+    # -- replies ---------------------------------------------------------------------------
+    def error(self, seq: int, code: int, detail: int) -> None:
+        self.last_error = int(code)
+        self.report.error_reports += 1
+        self.link.send(ErrorReport(seq, int(code), detail & 0xFF))
+
+    def on_hello(self, msg: HostHello) -> None:
+        if msg.protocol_version != PROTOCOL_VERSION:
+            log.error(
+                "%s: host speaks protocol version %d, this target speaks %d; handshake refused",
+                self.link.name, msg.protocol_version, PROTOCOL_VERSION,
+            )
+            self.error(msg.seq, ErrorCode.VERSION, PROTOCOL_VERSION)
+            return
+        if self.forced_mode is not None and msg.mode != self.forced_mode:
+            log.error("%s: host asks for mode %d but this server runs mode %d; handshake refused",
+                      self.link.name, msg.mode, self.forced_mode)
+            self.error(msg.seq, ErrorCode.BAD_REQUEST, self.forced_mode)
+            return
+        if self.forced_watchdog_ms is not None:
+            msg = msg._replace(watchdog_ms=self.forced_watchdog_ms)
+        try:
+            reply = self.target.hello(msg)
+        except HilbenchError as exc:
+            log.error("%s: handshake refused: %s", self.link.name, exc)
+            self.error(msg.seq, ErrorCode.BAD_REQUEST, 0)
+            return
+        self.mode = msg.mode
+        self.report.mode = msg.mode
+        self.period_us = msg.period_us
+        self.watchdog_s = msg.watchdog_ms / 1000.0
+        self.last_sensors_t = None
+        self.tripped = False
+        self.link.reset_sequence()
+        self.link.send(reply._replace(seq=msg.seq))
+        log.info("%s: handshake: period %d us, mode %s, watchdog %d ms", self.link.name, msg.period_us,
+                 "realtime" if msg.mode == MODE_REALTIME else "lockstep", msg.watchdog_ms)
+
+    def on_describe(self, msg: ParamDescribe) -> None:
+        try:
+            reply = self.target.describe(msg.param_id)
+        except ParamError:
+            self.error(msg.seq, ErrorCode.UNKNOWN_PARAM, msg.param_id)
+            return
+        self.link.send(reply._replace(seq=msg.seq))
+
+    def on_get(self, msg: ParamGet) -> None:
+        self.link.send(self.target.get_param(msg.param_id)._replace(seq=msg.seq))
+
+    def on_set(self, msg: ParamSet) -> None:
+        self.link.send(self.target.set_params(tuple(msg.pairs))._replace(seq=msg.seq))
+
+    def on_start(self, msg: Start) -> None:
+        self.target.start()
+
+    def on_stop(self, msg: Stop) -> None:
+        self.target.stop()
+
+    def on_status(self, msg: StatusRequest) -> None:
+        own = self.target.status()
+        stats = self.link.stats
+        last_error = own.last_error or self.last_error
+        self.link.send(Status(
+            msg.seq,
+            stats.frames_rx & 0xFFFF,
+            stats.frame_errors & 0xFFFF,
+            stats.resyncs & 0xFFFF,
+            stats.unknown_type & 0xFFFF,
+            own.overruns & 0xFFFF,
+            max(own.watchdog_trips, self.report.watchdog_trips) & 0xFFFF,
+            last_error,
+        ))
+
+    # -- the loop ----------------------------------------------------------------------------
+    def run(self) -> ServeReport:
+        link = self.link
+        target = self.target
+        recv = link.recv_or_none
+        send = link.send
+        stop_event = self.stop_event
+        report = self.report
+        handlers = {
+            HostHello: self.on_hello,
+            ParamDescribe: self.on_describe,
+            ParamGet: self.on_get,
+            ParamSet: self.on_set,
+            Start: self.on_start,
+            Stop: self.on_stop,
+            StatusRequest: self.on_status,
+        }
+        try:
+            while True:
+                if self.mode == MODE_REALTIME and self.watchdog_s > 0 and self.last_sensors_t is not None \
+                        and not self.tripped:
+                    wait = min(_POLL_S, max(0.0, self.last_sensors_t + self.watchdog_s - time.monotonic()))
+                else:
+                    wait = _POLL_S
+                msg = recv(wait)
+                if msg is None:
+                    if stop_event is not None and stop_event.is_set():
+                        report.reason = "stopped"
+                        break
+                    self.check_watchdog()
+                    continue
+                kind = type(msg)
+                try:
+                    if kind is Sensors:
+                        report.sensors += 1
+                        if self.mode == MODE_REALTIME:
+                            now = time.monotonic()
+                            span_us = (now - self.last_sensors_t) * 1e6 if self.last_sensors_t is not None \
+                                else float(self.period_us)
+                            self.last_sensors_t = now
+                            self.tripped = False
+                            drive = target.advance(span_us, msg)
+                        else:
+                            drive = target.step(msg)
+                        if drive.seq != msg.seq:
+                            drive = drive._replace(seq=msg.seq)
+                        send(drive)
+                        continue
+                    report.requests += 1
+                    handler = handlers.get(kind)
+                    if handler is None:
+                        self.error(msg.seq, ErrorCode.BAD_REQUEST, 0)
+                    else:
+                        handler(msg)
+                except LinkClosed:
+                    raise
+                except Exception as exc:  # noqa: BLE001 - a model bug must not take the server down
+                    report.handler_faults += 1
+                    if report.handler_faults <= _MAX_LOGGED_FAULTS:
+                        log.error("%s: %s while handling %s: %s", link.name, type(exc).__name__, kind.__name__, exc)
+                    try:
+                        self.error(msg.seq, ErrorCode.BAD_REQUEST, 0)
+                    except LinkClosed:
+                        raise
+                    except Exception:  # noqa: BLE001
+                        pass
+                if stop_event is not None and stop_event.is_set():
+                    report.reason = "stopped"
+                    break
+        except LinkClosed as exc:
+            report.reason = str(exc)
+            log.info("%s", exc)
+        report.link_stats = link.stats.as_dict()
+        return report
+
+    def check_watchdog(self) -> None:
+        if self.mode != MODE_REALTIME or self.watchdog_s <= 0 or self.last_sensors_t is None or self.tripped:
+            return
+        if time.monotonic() - self.last_sensors_t >= self.watchdog_s:
+            self.tripped = True
+            self.report.watchdog_trips += 1
+            self.last_error = int(ErrorCode.WATCHDOG)
+            drive = self.target.watchdog_trip()
+            log.warning("%s: no Sensors for %.0f ms: watchdog tripped, outputs off", self.link.name,
+                        self.watchdog_s * 1000)
+            self.link.send(drive)
+
+
+def serve(target: Any, link: Any, *, stop_event: threading.Event | None = None, mode: int | None = None,
+          watchdog_ms: int | None = None) -> ServeReport:
+    """Answer frames on link with target until the link closes or stop_event is set.
+
+    mode None follows the host's HostHello; MODE_LOCKSTEP or MODE_REALTIME refuses a host that
+    asks for the other. watchdog_ms overrides the host's watchdog (0 disables it).
+    """
+    if mode is not None and mode not in (MODE_LOCKSTEP, MODE_REALTIME):
+        raise ValueError(f"serve: mode must be {MODE_LOCKSTEP} or {MODE_REALTIME}, got {mode}")
+    return _Server(target, link, stop_event, mode, watchdog_ms).run()
+
+
+__all__ = ["ServeReport", "serve"]
