@@ -1,0 +1,192 @@
+"""Plant parameters: frozen dataclasses in SI units (unit in the name where it is not SI).
+
+Flux from a back-EMF constant. Ke is quoted as volts line-to-line *peak* per 1000 rpm of the
+shaft. At n rpm the shaft turns at wm = n*2*pi/60 rad/s, the electrical speed is we = p*wm, a
+sinusoidal PM flux psi (peak per phase) gives a phase back-EMF of peak we*psi and a line-to-line
+peak of sqrt(3)*we*psi. Hence
+
+    psi = Ke / (sqrt(3) * p * 1000 * 2*pi/60)
+
+Hurst DMB0224C10002: Ke = 7.32 V/krpm, p = 5 -> psi = 8.071 mWb (Kt = 1.5*p*psi = 60.5 mN*m/A).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from typing import Literal
+
+__all__ = [
+    "MotorParams",
+    "InverterParams",
+    "HallParams",
+    "EncoderParams",
+    "AdcChannel",
+    "LoadProfile",
+    "PlantParams",
+    "psi_from_ke",
+    "ke_from_psi",
+    "ADC_ROLE_CODES",
+    "default_adc_channels",
+]
+
+RPM_PER_KRPM_RAD_S = 1000.0 * 2.0 * math.pi / 60.0  # 1000 rpm in rad/s
+
+
+def psi_from_ke(ke_v_per_krpm: float, pole_pairs: int) -> float:
+    """PM flux linkage (Wb, peak per phase) from Ke in V line-line peak per 1000 rpm (mechanical)."""
+    return ke_v_per_krpm / (math.sqrt(3.0) * pole_pairs * RPM_PER_KRPM_RAD_S)
+
+
+def ke_from_psi(psi_wb: float, pole_pairs: int) -> float:
+    """Inverse of `psi_from_ke`."""
+    return psi_wb * math.sqrt(3.0) * pole_pairs * RPM_PER_KRPM_RAD_S
+
+
+@dataclass(frozen=True)
+class MotorParams:
+    """Surface or interior PMSM in the rotor (dq) frame, amplitude-invariant transform."""
+
+    rs_ohm: float
+    ld_h: float
+    lq_h: float
+    psi_wb: float
+    pole_pairs: int
+    j_kgm2: float
+    b_nms_per_rad: float = 0.0
+    coulomb_nm: float = 0.0
+
+    @classmethod
+    def from_ke(
+        cls,
+        *,
+        rs_ohm: float,
+        l_h: float | None = None,
+        ld_h: float | None = None,
+        lq_h: float | None = None,
+        ke_v_per_krpm: float,
+        pole_pairs: int,
+        j_kgm2: float,
+        b_nms_per_rad: float = 0.0,
+        coulomb_nm: float = 0.0,
+    ) -> "MotorParams":
+        """Build from Ke (V line-line peak per krpm); `l_h` sets Ld = Lq when they are not given."""
+        ld = ld_h if ld_h is not None else l_h
+        lq = lq_h if lq_h is not None else l_h
+        if ld is None or lq is None:
+            raise ValueError("MotorParams.from_ke: give l_h or both ld_h and lq_h")
+        return cls(
+            rs_ohm=rs_ohm,
+            ld_h=ld,
+            lq_h=lq,
+            psi_wb=psi_from_ke(ke_v_per_krpm, pole_pairs),
+            pole_pairs=pole_pairs,
+            j_kgm2=j_kgm2,
+            b_nms_per_rad=b_nms_per_rad,
+            coulomb_nm=coulomb_nm,
+        )
+
+    @property
+    def kt_nm_per_a(self) -> float:
+        """Torque per peak phase ampere on the q axis (id = 0)."""
+        return 1.5 * self.pole_pairs * self.psi_wb
+
+
+@dataclass(frozen=True)
+class InverterParams:
+    """Two-level three-phase inverter, averaged over a PWM period."""
+
+    vbus_v: float = 24.0
+    pwm_freq_hz: float = 20000.0
+    dead_time_s: float = 0.8e-6
+    dead_time_enabled: bool = False
+
+
+@dataclass(frozen=True)
+class HallParams:
+    """Hall placement. offset_deg = 0 reproduces an1017_facts.md section 2.5:
+    A = 1 for theta_e in [30, 210), B = 1 for [270, 90), C = 1 for [150, 330) (degrees electrical,
+    theta_e = rotor d-axis angle, 0 = phase-1 axis). A positive offset moves every edge to a
+    larger angle."""
+
+    offset_deg: float = 0.0
+
+
+@dataclass(frozen=True)
+class EncoderParams:
+    """Quadrature encoder: `lines` per mechanical turn, x4 decoding, 16-bit counter.
+
+    Counts increase with theta (forward rotation) unless `reverse`; zero at theta_e = 0 plus
+    `offset_counts`."""
+
+    lines: int = 500
+    reverse: bool = False
+    offset_counts: int = 0
+
+
+# ADC roles as in docs/design.md (NONE=0, POT=1, IBUS=2, VBUS=3, IA=4, IB=5).
+ADC_ROLE_CODES: dict[str, int] = {"none": 0, "pot": 1, "ibus": 2, "vbus": 3, "ia": 4, "ib": 5}
+
+
+@dataclass(frozen=True)
+class AdcChannel:
+    """One 10-bit ADC channel: code = round(offset_codes + gain_codes_per_unit * x + noise), 0..1023.
+
+    x is the role's physical quantity: pot fraction 0..1, bus current A, bus voltage V, phase
+    current A. `noise_lsb` is the standard deviation of seeded Gaussian noise in codes."""
+
+    role: Literal["pot", "ibus", "vbus", "ia", "ib"]
+    gain_codes_per_unit: float
+    offset_codes: float = 0.0
+    noise_lsb: float = 0.0
+
+
+def default_adc_channels(vbus_v: float = 24.0) -> tuple[AdcChannel, ...]:
+    """Documented defaults; the MCLV shunt amplifier and divider values are unknown (facts §6).
+
+    Current channels: 0.1 ohm shunt, amplifier gain 7.5, 5 V full scale, mid-scale offset
+    (512) so that negative current is visible: 0.1*7.5*1023/5 = 153.45 codes/A (range +-3.3 A).
+    Bus voltage: divider chosen so that 1.6 x the nominal bus reads full scale.
+    """
+    i_gain = 0.1 * 7.5 * 1023.0 / 5.0
+    return (
+        AdcChannel("pot", 1023.0, 0.0, 0.0),
+        AdcChannel("ibus", i_gain, 512.0, 0.0),
+        AdcChannel("vbus", 1023.0 / (1.6 * vbus_v), 0.0, 0.0),
+        AdcChannel("ia", i_gain, 512.0, 0.0),
+        AdcChannel("ib", i_gain, 512.0, 0.0),
+    )
+
+
+@dataclass(frozen=True)
+class LoadProfile:
+    """Load torque (N*m, positive opposes forward rotation).
+
+    kind: "constant" (torque_nm), "step" (torque_nm before step_time_s, step_torque_nm from the
+    first period that starts at or after it), "linear" (coeff * w, w in rad/s), "quadratic"
+    (coeff * w*|w|), "locked" (rotor held at its angle)."""
+
+    kind: Literal["constant", "step", "linear", "quadratic", "locked"] = "constant"
+    torque_nm: float = 0.0
+    step_time_s: float = 0.0
+    step_torque_nm: float = 0.0
+    coeff: float = 0.0
+
+
+@dataclass(frozen=True)
+class PlantParams:
+    motor: MotorParams
+    inverter: InverterParams = field(default_factory=InverterParams)
+    hall: HallParams = field(default_factory=HallParams)
+    encoder: EncoderParams = field(default_factory=EncoderParams)
+    adc: tuple[AdcChannel, ...] = field(default_factory=default_adc_channels)
+    load: LoadProfile = field(default_factory=LoadProfile)
+
+    @classmethod
+    def hurst(cls) -> "PlantParams":
+        """The Hurst DMB0224C10002 on the MCLV board (an1017_facts.md §5 recommended defaults)."""
+        motor = MotorParams.from_ke(
+            rs_ohm=2.54, l_h=2.21e-3, ke_v_per_krpm=7.32, pole_pairs=5,
+            j_kgm2=5.5e-6, b_nms_per_rad=1.53e-5, coulomb_nm=0.0,
+        )
+        return cls(motor=motor)
