@@ -1,0 +1,697 @@
+"""Control socket: lets another terminal or a script change a running session live.
+
+Protocol: one JSON object per line (UTF-8, at most 4096 bytes before the newline), one JSON
+reply line per request ``{"ok": bool, "message": str, "data": object | null}``. An optional
+``"id"`` (string or integer) in a request is echoed in its reply. Requests:
+
+    {"cmd": "get"}
+    {"cmd": "set",   "params": {"kp": 0.1, "ki": 0.01}}     names → numbers, applied atomically
+    {"cmd": "ref",   "rpm": 1500}
+    {"cmd": "load",  "nm": 0.02}
+    {"cmd": "step",  "from_rpm": 1000, "to_rpm": 2000}
+    {"cmd": "save",  "file": "gains.toml"}
+    {"cmd": "guard", "on": true}                             guarded tuning on/off
+
+This module checks only the *shape* of a request (known command, the right fields with the
+right JSON types, finite numbers); malformed, oversized, unknown or ill-typed lines are answered
+here with a one-line reason and never reach the session. Whether a parameter exists, is in
+range and meets the AN1017 constraints is the session's business.
+
+Where it lives: a fresh directory of mode 0700 (``mkdtemp`` under ``$XDG_RUNTIME_DIR`` when
+that is set, else the system temp dir) holding the socket ``ctl.sock`` (mode 0600). The
+directory is what keeps other users out (the socket is chmod-ed after bind, and the directory
+already forbids entry during that instant).
+
+Discovery: the server writes ``<socket path>\\n<pid>\\n`` to ``$XDG_RUNTIME_DIR/hilbench/current``
+(or ``~/.cache/hilbench/current-session`` without ``XDG_RUNTIME_DIR``; the directory is created
+0700), so ``hilbench ctl`` finds the running session without arguments. The newest session
+wins; ``close()`` removes the file only if it still names this server's socket.
+
+Threading: a daemon I/O thread blocks in a selector, accepts connections, splits lines, parses
+and validates them and appends ``ControlRequest``s to a deque. ``poll()`` on the session thread
+is then a deque truthiness check (well under 1 µs when idle, no system call), and requests are
+seen within one poll of arrival however rarely poll is called. Replies are queued back to the
+I/O thread (woken through a pipe), so the session never blocks on a slow client. The I/O thread
+sleeps in the kernel while idle and holds the GIL only while handling bytes.
+"""
+
+from __future__ import annotations
+
+import collections
+import json
+import math
+import os
+import re
+import selectors
+import socket
+import stat
+import tempfile
+import threading
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+from types import MappingProxyType
+from typing import Any, Callable, Mapping, Sequence
+
+from hilbench.errors import ConfigError, LinkClosed, LinkError, LinkTimeout, ProtocolError
+
+MAX_LINE_BYTES = 4096
+MAX_PENDING = 64  # requests queued for the session before new ones are refused as busy
+MAX_CONNECTIONS = 16
+MAX_SET_PARAMS = 16
+SOCKET_NAME = "ctl.sock"
+_NAME_RE = re.compile(r"^[A-Za-z_][A-Za-z0-9_.]{0,31}$")
+
+
+# --------------------------------------------------------------------------------------------
+# Request shape
+
+
+def _is_number(v: Any) -> bool:
+    return isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v)
+
+
+def _number(cmd: str, key: str) -> Callable[[Any], Any]:
+    def check(v: Any) -> Any:
+        if not _is_number(v):
+            raise ValueError(f"{cmd}: {key} must be a finite number, got {json.dumps(v)[:40]}")
+        return v
+
+    return check
+
+
+def _check_params(v: Any) -> dict[str, int | float]:
+    if not isinstance(v, dict) or not v:
+        raise ValueError("set: params must be a non-empty object of name: number")
+    if len(v) > MAX_SET_PARAMS:
+        raise ValueError(f"set: at most {MAX_SET_PARAMS} parameters per request, got {len(v)}")
+    out: dict[str, int | float] = {}
+    for name, value in v.items():
+        if not _NAME_RE.match(name):
+            raise ValueError(f"set: bad parameter name {name[:40]!r}")
+        if not _is_number(value):
+            raise ValueError(f"set: {name} must be a finite number, got {json.dumps(value)[:40]}")
+        out[name] = value
+    return out
+
+
+def _check_file(v: Any) -> str:
+    if not isinstance(v, str) or not v.strip() or "\x00" in v:
+        raise ValueError("save: file must be a non-empty path string")
+    return v
+
+
+def _check_bool(v: Any) -> bool:
+    if not isinstance(v, bool):
+        raise ValueError(f"guard: on must be true or false, got {json.dumps(v)[:40]}")
+    return v
+
+
+# cmd -> {field: checker}; every field is required, no others allowed (besides "cmd" and "id").
+COMMANDS: Mapping[str, Mapping[str, Callable[[Any], Any]]] = MappingProxyType(
+    {
+        "get": {},
+        "set": {"params": _check_params},
+        "ref": {"rpm": _number("ref", "rpm")},
+        "load": {"nm": _number("load", "nm")},
+        "step": {"from_rpm": _number("step", "from_rpm"), "to_rpm": _number("step", "to_rpm")},
+        "save": {"file": _check_file},
+        "guard": {"on": _check_bool},
+    }
+)
+
+
+def validate_request(obj: Any) -> tuple[str, dict[str, Any]]:
+    """Check a decoded request's shape; return (cmd, args) or raise ValueError with a one-line reason."""
+    if not isinstance(obj, dict):
+        raise ValueError("request must be a JSON object")
+    cmd = obj.get("cmd")
+    if not isinstance(cmd, str):
+        raise ValueError('request needs "cmd" (a string)')
+    if cmd not in COMMANDS:
+        raise ValueError(f"unknown cmd {cmd[:40]!r} (known: {', '.join(COMMANDS)})")
+    if "id" in obj and not (isinstance(obj["id"], (str, int)) and not isinstance(obj["id"], bool)):
+        raise ValueError("id must be a string or an integer")
+    spec = COMMANDS[cmd]
+    extra = sorted(set(obj) - set(spec) - {"cmd", "id"})
+    if extra:
+        raise ValueError(f"{cmd}: unexpected field {extra[0][:40]!r} (expected: {', '.join(spec) or 'none'})")
+    args: dict[str, Any] = {}
+    for key, check in spec.items():
+        if key not in obj:
+            raise ValueError(f"{cmd}: missing field {key!r}")
+        args[key] = check(obj[key])
+    return cmd, args
+
+
+# --------------------------------------------------------------------------------------------
+# Discovery
+
+
+def default_discovery_file() -> Path:
+    """The per-user file naming the newest session's socket (see module docstring)."""
+    runtime = os.environ.get("XDG_RUNTIME_DIR")
+    if runtime and os.path.isdir(runtime):
+        return Path(runtime) / "hilbench" / "current"
+    return Path.home() / ".cache" / "hilbench" / "current-session"
+
+
+def _private_dir(path: Path) -> None:
+    """Create ``path`` (mode 0700) or check an existing one is ours and closed to others."""
+    path.mkdir(mode=0o700, parents=True, exist_ok=True)
+    st = path.stat()
+    if st.st_uid != os.getuid():
+        raise ConfigError(f"control directory {path}: owned by uid {st.st_uid}, not by this user")
+    if stat.S_IMODE(st.st_mode) & 0o077:
+        raise ConfigError(f"control directory {path}: mode {stat.S_IMODE(st.st_mode):o} lets other users in (want 700)")
+
+
+def read_discovery(discovery_file: Path | None = None) -> Path:
+    """Socket path of the running session from the discovery file; LinkError if there is none."""
+    f = discovery_file or default_discovery_file()
+    try:
+        first = f.read_text(encoding="utf-8").splitlines()[0].strip()
+    except (OSError, IndexError, UnicodeDecodeError):
+        raise LinkError(f"control socket: no running session found ({f} missing or empty; is `hilbench run` running?)") from None
+    return Path(first)
+
+
+# --------------------------------------------------------------------------------------------
+# Server
+
+
+@dataclass(eq=False)
+class ControlRequest:
+    """One validated request from a client; answer it exactly once with ``reply``."""
+
+    cmd: str
+    args: Mapping[str, Any]
+    received_monotonic_s: float
+    request_id: str | int | None = None
+    _send: Callable[[bytes], None] | None = field(default=None, repr=False)
+    _replied: bool = field(default=False, repr=False)
+
+    def reply(self, ok: bool, message: str, data: dict[str, Any] | None = None) -> None:
+        """Queue the reply line; never blocks. JSON-unserialisable data or NaN raises here."""
+        if self._replied:
+            raise RuntimeError(f"control request {self.cmd!r} already answered")
+        line = _reply_line(ok, message, data, self.request_id)
+        self._replied = True
+        if self._send is not None:
+            self._send(line)
+
+    @property
+    def replied(self) -> bool:
+        return self._replied
+
+
+def _reply_line(ok: bool, message: str, data: Mapping[str, Any] | None, request_id: str | int | None) -> bytes:
+    msg = " ".join(str(message).split())  # one line, always
+    obj: dict[str, Any] = {"ok": bool(ok), "message": msg, "data": None if data is None else dict(data)}
+    if request_id is not None:
+        obj["id"] = request_id
+    return json.dumps(obj, allow_nan=False, separators=(",", ":")).encode("utf-8") + b"\n"
+
+
+class _Conn:
+    __slots__ = ("sock", "cid", "rbuf", "wbuf", "discarding", "closing")
+
+    def __init__(self, sock: socket.socket, cid: int) -> None:
+        self.sock = sock
+        self.cid = cid
+        self.rbuf = bytearray()
+        self.wbuf = bytearray()
+        self.discarding = False  # inside an oversized line: drop bytes until its newline
+        self.closing = False  # close once wbuf is flushed
+
+
+class ControlServer:
+    """The session's end of the control socket (see module docstring for protocol and layout)."""
+
+    def __init__(
+        self,
+        path: str | os.PathLike[str] | None = None,
+        *,
+        discovery_file: str | os.PathLike[str] | None = None,
+        publish: bool = True,
+    ) -> None:
+        self._owns_dir = path is None
+        if path is None:
+            runtime = os.environ.get("XDG_RUNTIME_DIR")
+            base = runtime if runtime and os.path.isdir(runtime) else None
+            self.directory = Path(tempfile.mkdtemp(prefix="hilbench-ctl-", dir=base))  # mode 0700
+            self.path = self.directory / SOCKET_NAME
+        else:
+            self.path = Path(path)
+            self.directory = self.path.parent
+            _private_dir(self.directory)
+        os.chmod(self.directory, 0o700)
+        self.discovery_file: Path | None = None
+        self.counters: collections.Counter[str] = collections.Counter()
+        self._inbox: collections.deque[ControlRequest] = collections.deque()
+        self._outbox: collections.deque[tuple[int, bytes]] = collections.deque()
+        self._conns: dict[int, _Conn] = {}
+        self._next_cid = 0
+        self._closed = False
+        self._stop = threading.Event()
+        self._sel = selectors.DefaultSelector()
+        self._bound = False
+        self._wake_r, self._wake_w = os.pipe()
+        self._listener = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
+        try:
+            if self.path.exists() or self.path.is_symlink():
+                self._remove_stale_socket()
+            self._listener.bind(str(self.path))
+            self._bound = True
+            os.chmod(self.path, 0o600)
+            self._listener.listen(8)
+            self._listener.setblocking(False)
+            os.set_blocking(self._wake_r, False)
+            os.set_blocking(self._wake_w, False)
+            self._sel.register(self._listener, selectors.EVENT_READ, None)
+            self._sel.register(self._wake_r, selectors.EVENT_READ, None)
+            if publish:
+                self.discovery_file = Path(discovery_file) if discovery_file is not None else default_discovery_file()
+                self._publish(self.discovery_file)
+        except (OSError, ConfigError) as exc:
+            self._listener.close()
+            self._sel.close()
+            os.close(self._wake_r)
+            os.close(self._wake_w)
+            self._cleanup_fs()
+            if isinstance(exc, ConfigError):
+                raise
+            raise ConfigError(f"control socket {self.path}: {exc.strerror or exc}") from None
+        self._thread = threading.Thread(target=self._run, name="hilbench-ctl", daemon=True)
+        self._thread.start()
+
+    # ---- session side ------------------------------------------------------------------
+
+    def poll(self) -> list[ControlRequest]:
+        """Requests that arrived since the last call (usually none: then no system call)."""
+        inbox = self._inbox
+        if not inbox:
+            return []
+        out: list[ControlRequest] = []
+        while inbox:
+            out.append(inbox.popleft())
+        return out
+
+    def close(self) -> None:
+        """Stop the I/O thread; remove the socket, its directory (if ours) and the discovery file."""
+        if self._closed:
+            return
+        self._closed = True
+        self._stop.set()
+        self._wake()
+        self._thread.join(timeout=5.0)
+        for conn in list(self._conns.values()):
+            conn.sock.close()
+        self._conns.clear()
+        self._sel.close()
+        self._listener.close()
+        os.close(self._wake_r)
+        os.close(self._wake_w)
+        self._cleanup_fs()
+
+    def __enter__(self) -> "ControlServer":
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+    # ---- file system -------------------------------------------------------------------
+
+    def _remove_stale_socket(self) -> None:
+        st = os.lstat(self.path)
+        if not stat.S_ISSOCK(st.st_mode):
+            raise ConfigError(f"control socket {self.path}: exists and is not a socket")
+        probe = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
+        try:
+            probe.settimeout(0.5)
+            probe.connect(str(self.path))
+        except OSError:
+            os.unlink(self.path)  # nobody listening: left over from a crashed session
+        else:
+            raise ConfigError(f"control socket {self.path}: another session is listening there")
+        finally:
+            probe.close()
+
+    def _publish(self, f: Path) -> None:
+        _private_dir(f.parent)
+        tmp = f.with_name(f".{f.name}.{os.getpid()}.tmp")
+        fd = os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_TRUNC, 0o600)
+        with os.fdopen(fd, "w", encoding="utf-8") as fh:
+            fh.write(f"{self.path}\n{os.getpid()}\n")
+        os.replace(tmp, f)
+
+    def _cleanup_fs(self) -> None:
+        if self._bound:  # never remove a socket some other server bound
+            try:
+                os.unlink(self.path)
+            except FileNotFoundError:
+                pass
+        if self._owns_dir:
+            try:
+                os.rmdir(self.directory)
+            except OSError:
+                pass
+        f = self.discovery_file
+        if f is not None:
+            try:
+                if f.read_text(encoding="utf-8").splitlines()[0].strip() == str(self.path):
+                    os.unlink(f)
+            except (OSError, IndexError, UnicodeDecodeError):
+                pass
+
+    # ---- I/O thread ---------------------------------------------------------------------
+
+    def _wake(self) -> None:
+        try:
+            os.write(self._wake_w, b"x")
+        except (BlockingIOError, OSError):
+            pass  # pipe full (a wake-up is already pending) or closing
+
+    def _queue_reply(self, cid: int, line: bytes) -> None:
+        """Called from the session thread by ControlRequest.reply."""
+        if self._closed:
+            return
+        self._outbox.append((cid, line))
+        self._wake()
+
+    def _run(self) -> None:
+        while not self._stop.is_set():
+            try:
+                events = self._sel.select(timeout=None)
+            except OSError:  # selector closed under us
+                return
+            for key, mask in events:
+                obj = key.fileobj
+                if obj is self._listener:
+                    self._accept()
+                elif obj == self._wake_r:
+                    try:
+                        while os.read(self._wake_r, 4096):
+                            pass
+                    except (BlockingIOError, OSError):
+                        pass
+                else:
+                    conn: _Conn = key.data
+                    if mask & selectors.EVENT_READ:
+                        self._read(conn)
+                    if mask & selectors.EVENT_WRITE and conn.cid in self._conns:
+                        self._flush(conn)
+            while self._outbox:
+                cid, line = self._outbox.popleft()
+                conn2 = self._conns.get(cid)
+                if conn2 is not None:  # else the client has gone: drop the reply
+                    conn2.wbuf += line
+                    self._flush(conn2)
+
+    def _accept(self) -> None:
+        while True:
+            try:
+                sock, _ = self._listener.accept()
+            except (BlockingIOError, InterruptedError):
+                return
+            except OSError:
+                return
+            sock.setblocking(False)
+            self.counters["connections"] += 1
+            cid = self._next_cid
+            self._next_cid += 1
+            conn = _Conn(sock, cid)
+            self._conns[cid] = conn
+            self._sel.register(sock, selectors.EVENT_READ, conn)
+            if len(self._conns) > MAX_CONNECTIONS:
+                self.counters["refused_connections"] += 1
+                conn.wbuf += _reply_line(False, f"too many control connections (max {MAX_CONNECTIONS})", None, None)
+                conn.closing = True
+                self._flush(conn)
+
+    def _drop(self, conn: _Conn) -> None:
+        self._conns.pop(conn.cid, None)
+        try:
+            self._sel.unregister(conn.sock)
+        except (KeyError, ValueError):
+            pass
+        conn.sock.close()
+
+    def _flush(self, conn: _Conn) -> None:
+        try:
+            while conn.wbuf:
+                n = conn.sock.send(conn.wbuf)
+                del conn.wbuf[:n]
+        except (BlockingIOError, InterruptedError):
+            pass
+        except OSError:
+            self._drop(conn)
+            return
+        if conn.wbuf:
+            self._sel.modify(conn.sock, selectors.EVENT_READ | selectors.EVENT_WRITE, conn)
+        elif conn.closing:
+            self._drop(conn)
+        else:
+            self._sel.modify(conn.sock, selectors.EVENT_READ, conn)
+
+    def _read(self, conn: _Conn) -> None:
+        try:
+            data = conn.sock.recv(65536)
+        except (BlockingIOError, InterruptedError):
+            return
+        except OSError:
+            self._drop(conn)
+            return
+        if not data:
+            self._drop(conn)
+            return
+        conn.rbuf += data
+        answered = False
+        while True:
+            nl = conn.rbuf.find(b"\n")
+            if conn.discarding:
+                if nl < 0:
+                    conn.rbuf.clear()
+                    break
+                del conn.rbuf[: nl + 1]
+                conn.discarding = False
+                continue
+            if nl < 0:
+                if len(conn.rbuf) > MAX_LINE_BYTES:
+                    self._reject(conn, None, f"request longer than {MAX_LINE_BYTES} bytes", "oversized")
+                    answered = True
+                    conn.rbuf.clear()
+                    conn.discarding = True
+                break
+            line = bytes(conn.rbuf[:nl])
+            del conn.rbuf[: nl + 1]
+            if line.endswith(b"\r"):
+                line = line[:-1]
+            if len(line) > MAX_LINE_BYTES:
+                self._reject(conn, None, f"request longer than {MAX_LINE_BYTES} bytes", "oversized")
+                answered = True
+                continue
+            if not line.strip():
+                continue
+            answered |= self._handle_line(conn, line)
+        if answered and conn.cid in self._conns:
+            self._flush(conn)
+
+    def _reject(self, conn: _Conn, request_id: Any, reason: str, counter: str) -> None:
+        self.counters["rejected"] += 1
+        self.counters[counter] += 1
+        conn.wbuf += _reply_line(False, reason, None, request_id)
+
+    def _handle_line(self, conn: _Conn, line: bytes) -> bool:
+        """Queue a valid request for the session; answer a bad one here. True if answered here."""
+        try:
+            obj = json.loads(line.decode("utf-8"))
+        except UnicodeDecodeError:
+            self._reject(conn, None, "request is not UTF-8", "malformed")
+            return True
+        except json.JSONDecodeError as exc:
+            self._reject(conn, None, f"malformed JSON: {exc.msg} at column {exc.colno}", "malformed")
+            return True
+        rid = obj.get("id") if isinstance(obj, dict) else None
+        if not (isinstance(rid, (str, int)) and not isinstance(rid, bool)):
+            rid = None
+        try:
+            cmd, args = validate_request(obj)
+        except ValueError as exc:
+            self._reject(conn, rid, str(exc), "invalid")
+            return True
+        if len(self._inbox) >= MAX_PENDING:
+            self._reject(conn, rid, f"busy: {MAX_PENDING} requests already waiting for the session", "busy")
+            return True
+        cid = conn.cid
+        self.counters["requests"] += 1
+        self._inbox.append(
+            ControlRequest(
+                cmd=cmd,
+                args=MappingProxyType(args),
+                received_monotonic_s=time.monotonic(),
+                request_id=rid,
+                _send=lambda data, cid=cid: self._queue_reply(cid, data),
+            )
+        )
+        return False
+
+
+# --------------------------------------------------------------------------------------------
+# Client
+
+
+class ControlClient:
+    """The `hilbench ctl` end: connect to a session's socket (found by discovery if not given)."""
+
+    def __init__(
+        self,
+        path: str | os.PathLike[str] | None = None,
+        *,
+        discovery_file: str | os.PathLike[str] | None = None,
+        timeout_s: float = 2.0,
+    ) -> None:
+        self.path = Path(path) if path is not None else read_discovery(Path(discovery_file) if discovery_file else None)
+        self._sock = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
+        self._sock.settimeout(timeout_s)
+        try:
+            self._sock.connect(str(self.path))
+        except (FileNotFoundError, ConnectionRefusedError):
+            self._sock.close()
+            raise LinkError(f"control socket {self.path}: no session listening (is `hilbench run` still running?)") from None
+        except socket.timeout:
+            self._sock.close()
+            raise LinkTimeout(f"control socket {self.path}: connect timed out after {timeout_s} s") from None
+        except OSError as exc:
+            self._sock.close()
+            raise LinkError(f"control socket {self.path}: {exc.strerror or exc}") from None
+        self._buf = bytearray()
+
+    def request(self, req: Mapping[str, Any], timeout_s: float = 5.0) -> dict[str, Any]:
+        """Send one request and wait for its reply line (LinkTimeout after ``timeout_s``)."""
+        line = json.dumps(dict(req), allow_nan=False, separators=(",", ":")).encode("utf-8") + b"\n"
+        if len(line) > MAX_LINE_BYTES + 1:
+            raise ConfigError(f"control request is {len(line) - 1} bytes, more than {MAX_LINE_BYTES}")
+        deadline = time.monotonic() + timeout_s
+        try:
+            self._sock.settimeout(timeout_s)
+            self._sock.sendall(line)
+            while True:
+                nl = self._buf.find(b"\n")
+                if nl >= 0:
+                    raw = bytes(self._buf[:nl])
+                    del self._buf[: nl + 1]
+                    break
+                remaining = deadline - time.monotonic()
+                if remaining <= 0:
+                    raise socket.timeout
+                self._sock.settimeout(remaining)
+                chunk = self._sock.recv(65536)
+                if not chunk:
+                    raise LinkClosed(f"control socket {self.path}: session closed the connection")
+                self._buf += chunk
+        except socket.timeout:
+            raise LinkTimeout(f"control socket {self.path}: no reply to {req.get('cmd')!r} within {timeout_s} s") from None
+        except (BrokenPipeError, ConnectionResetError):
+            raise LinkClosed(f"control socket {self.path}: session closed the connection") from None
+        try:
+            reply = json.loads(raw.decode("utf-8"))
+        except (UnicodeDecodeError, json.JSONDecodeError):
+            raise ProtocolError(f"control socket {self.path}: reply is not JSON: {raw[:60]!r}") from None
+        if not isinstance(reply, dict) or not isinstance(reply.get("ok"), bool):
+            raise ProtocolError(f"control socket {self.path}: reply lacks a boolean 'ok': {raw[:60]!r}")
+        return reply
+
+    def close(self) -> None:
+        self._sock.close()
+
+    def __enter__(self) -> "ControlClient":
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+
+# --------------------------------------------------------------------------------------------
+# CLI words
+
+
+_USAGE = "get | set NAME=VALUE ... | ref RPM | load NM | step FROM_RPM TO_RPM | save FILE | guard on|off"
+
+
+def _parse_number(cmd: str, what: str, word: str) -> int | float:
+    try:
+        value: int | float = int(word, 10)
+    except ValueError:
+        try:
+            value = float(word)
+        except ValueError:
+            raise ConfigError(f"ctl {cmd}: {what} {word!r} is not a number") from None
+    if not math.isfinite(value):
+        raise ConfigError(f"ctl {cmd}: {what} {word!r} is not finite")
+    return value
+
+
+def parse_ctl_args(words: Sequence[str]) -> dict[str, Any]:
+    """Turn `hilbench ctl` words into a request dict (ConfigError with a one-line reason)."""
+    if not words:
+        raise ConfigError(f"ctl: missing command (usage: {_USAGE})")
+    cmd, rest = words[0], list(words[1:])
+    counts = {"get": 0, "ref": 1, "load": 1, "step": 2, "save": 1, "guard": 1}
+    if cmd == "set":
+        if not rest:
+            raise ConfigError("ctl set: give at least one NAME=VALUE (e.g. set kp=0.1 ki=0.01)")
+        params: dict[str, int | float] = {}
+        for word in rest:
+            name, eq, text = word.partition("=")
+            name = name.strip()
+            if not eq or not name or not text.strip():
+                raise ConfigError(f"ctl set: {word!r} is not NAME=VALUE")
+            if not _NAME_RE.match(name):
+                raise ConfigError(f"ctl set: bad parameter name {name!r}")
+            if name in params:
+                raise ConfigError(f"ctl set: {name} given twice")
+            params[name] = _parse_number("set", name, text.strip())
+        req: dict[str, Any] = {"cmd": "set", "params": params}
+    elif cmd in counts:
+        if len(rest) != counts[cmd]:
+            expected = {"get": "no arguments", "ref": "one speed in rpm", "load": "one torque in N·m",
+                        "step": "two speeds in rpm (from, to)", "save": "one file name",
+                        "guard": "on or off"}[cmd]
+            raise ConfigError(f"ctl {cmd}: expected {expected}, got {len(rest)} word(s)")
+        if cmd == "get":
+            req = {"cmd": "get"}
+        elif cmd == "ref":
+            req = {"cmd": "ref", "rpm": _parse_number("ref", "speed", rest[0])}
+        elif cmd == "load":
+            req = {"cmd": "load", "nm": _parse_number("load", "torque", rest[0])}
+        elif cmd == "step":
+            req = {"cmd": "step", "from_rpm": _parse_number("step", "from", rest[0]),
+                   "to_rpm": _parse_number("step", "to", rest[1])}
+        elif cmd == "save":
+            req = {"cmd": "save", "file": rest[0]}
+        else:
+            flag = rest[0].lower()
+            if flag not in ("on", "off"):
+                raise ConfigError(f"ctl guard: expected on or off, got {rest[0]!r}")
+            req = {"cmd": "guard", "on": flag == "on"}
+    else:
+        raise ConfigError(f"ctl: unknown command {cmd!r} (usage: {_USAGE})")
+    try:
+        validate_request(req)
+    except ValueError as exc:
+        raise ConfigError(f"ctl {exc}") from None
+    return req
+
+
+__all__ = [
+    "MAX_LINE_BYTES",
+    "COMMANDS",
+    "ControlRequest",
+    "ControlServer",
+    "ControlClient",
+    "validate_request",
+    "parse_ctl_args",
+    "default_discovery_file",
+    "read_discovery",
+]
