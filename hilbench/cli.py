@@ -120,7 +120,8 @@ def emulate(target: str, port_spec: str, mode: str, watchdog_ms: int | None, qui
 @_friendly
 def link_test(target: str, periods: int, period_us: int, timeout_ms: int) -> None:
     """Round trips against TARGET: `pty` (default: the loopback target as its own process on a
-    virtual serial pair) or a link spec such as serial:/dev/ttyUSB0?baud=250000.
+    virtual serial pair), exec:PROGRAM (a host-built target given the pty path, e.g. the C
+    loopback target) or a link spec such as serial:/dev/ttyUSB0?baud=250000.
 
     Prints round trips/s, RTT p50/p99/max and every error counter.
     """

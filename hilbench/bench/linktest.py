@@ -64,17 +64,26 @@ def sensors_for_period(k: int) -> Sensors:
 
 
 class _Spawned:
-    """A loopback emulator process on a pty pair this process made; always reaped."""
+    """A target process serving the far end of a pty pair this process made; always reaped.
 
-    def __init__(self, target_name: str, timeout_s: float) -> None:
+    `python -m hilbench emulate NAME --port PATH` announces readiness on stdout; a program
+    (exec:PROGRAM, e.g. the C loopback target) gets the path as its argument and is given time
+    by the handshake's retries instead.
+    """
+
+    def __init__(self, target_name: str, timeout_s: float, program: str | None = None) -> None:
         self.link = open_link("pty", timeout_s=timeout_s)
         self.proc: subprocess.Popen[bytes] | None = None
         try:
-            self.proc = subprocess.Popen(
-                [sys.executable, "-m", "hilbench", "emulate", target_name, "--port", str(self.link.peer_path)],
-                stdout=subprocess.PIPE, stderr=subprocess.PIPE, stdin=subprocess.DEVNULL,
-            )
-            self._wait_ready()
+            if program is None:
+                argv = [sys.executable, "-m", "hilbench", "emulate", target_name, "-q",
+                        "--port", str(self.link.peer_path)]
+            else:
+                argv = [program, str(self.link.peer_path)]
+            self.proc = subprocess.Popen(argv, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+                                         stdin=subprocess.DEVNULL)
+            if program is None:
+                self._wait_ready()
         except BaseException:
             self.close()
             raise
@@ -127,7 +136,8 @@ class _Spawned:
 def run_link_test(target: str = DEFAULT_TARGET, *, periods: int = 10_000, period_us: int = 50,
                   timeout_s: float = 1.0, progress: Callable[[int], None] | None = None,
                   link_wrapper: Callable[[Any], Any] | None = None) -> LinkTestResult:
-    """Run `periods` lockstep exchanges against target (a link spec, or "pty" = spawn loopback).
+    """Run `periods` lockstep exchanges against target: a link spec, "pty" (spawn the Python
+    loopback emulator on a pty pair) or "exec:PROGRAM" (spawn PROGRAM with the pty path).
 
     link_wrapper (for example a FaultyLink factory) wraps the host's link before use.
     """
@@ -137,12 +147,15 @@ def run_link_test(target: str = DEFAULT_TARGET, *, periods: int = 10_000, period
     if target in ("pty", "loopback"):
         spawned = _Spawned("loopback", timeout_s)
         link = spawned.link
+    elif target.startswith("exec:"):
+        spawned = _Spawned("", timeout_s, program=target[len("exec:"):])
+        link = spawned.link
     else:
         link = open_link(target, timeout_s=timeout_s)
     try:
         host_link = link_wrapper(link) if link_wrapper is not None else link
         remote = RemoteTarget(host_link, timeout_s=timeout_s)
-        hello = remote.handshake(period_us, MODE_LOCKSTEP, 0)
+        hello = remote.handshake(period_us, MODE_LOCKSTEP, 0, attempts=5)
         check = LoopbackTarget() if hello.firmware_name == "loopback" else None
         rtt_ns = np.zeros(periods, dtype=np.int64)
         good = timeouts = mismatches = consecutive = 0
@@ -179,7 +192,7 @@ def run_link_test(target: str = DEFAULT_TARGET, *, periods: int = 10_000, period
             pass
         rtt_us = rtt_ns[:good] / 1000.0
         return LinkTestResult(
-            target=target if spawned is None else f"loopback process on {link.name}",
+            target=target if spawned is None else f"{target} process on {link.name}",
             firmware_name=hello.firmware_name,
             periods=periods,
             good=good,

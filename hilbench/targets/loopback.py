@@ -98,6 +98,8 @@ class LoopbackTarget:
         self._last_sensors: Sensors | None = None
 
     def hello(self, host: HostHello) -> TargetHello:
+        """A handshake starts a session stopped."""
+        self.running = False
         return TargetHello(host.seq, PROTOCOL_VERSION, FIRMWARE_VERSION, PWM_PERIOD_COUNTS, PWM_FREQ_HZ,
                            len(PARAMS), FIRMWARE_NAME, ADC_ROLES, TELEMETRY_IDS)
 
