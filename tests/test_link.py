@@ -1,0 +1,302 @@
+"""Links: every spec kind, pty raw mode and permissions, bulk reads, hang-up, stats, FaultyLink."""
+
+from __future__ import annotations
+
+import fcntl
+import os
+import socket
+import stat
+import termios
+
+import pytest
+
+from hilbench.errors import LinkClosed, LinkError, LinkTimeout
+from hilbench.link import FaultyLink, open_link
+from hilbench.protocol import Drive, HostHello, Sensors, encode_frame
+
+
+def _sensors(seq: int) -> Sensors:
+    return Sensors(seq, 0x05, 1234, 40000, (100, 200, 300))
+
+
+@pytest.fixture
+def pty_pair():
+    host = open_link("pty", timeout_s=1.0)
+    far = open_link(host.peer_path, timeout_s=1.0)
+    try:
+        yield host, far
+    finally:
+        far.close()
+        host.close()
+
+
+def test_pty_slave_is_raw_and_owner_only() -> None:
+    link = open_link("pty", timeout_s=0.5)
+    try:
+        path = link.peer_path
+        assert path is not None and path.startswith("/dev/")
+        assert link.name == f"pty:{path}"
+        mode = os.stat(path).st_mode
+        assert stat.S_ISCHR(mode)
+        assert stat.S_IMODE(mode) == 0o600
+        fd = os.open(path, os.O_RDWR | os.O_NOCTTY)
+        try:
+            iflag, oflag, cflag, lflag, *_ , cc = termios.tcgetattr(fd)
+            assert not lflag & (termios.ECHO | termios.ICANON | termios.ISIG)
+            assert not oflag & termios.OPOST
+            assert not iflag & (termios.ICRNL | termios.IXON)
+            assert cflag & termios.CSIZE == termios.CS8
+        finally:
+            os.close(fd)
+    finally:
+        link.close()
+
+
+def test_pty_round_trip_both_ways(pty_pair) -> None:
+    host, far = pty_pair
+    msg = _sensors(7)
+    host.send(msg)
+    assert far.recv() == msg
+    reply = HostHello(3, 1, 1000, 0, 100)
+    far.send(reply)
+    assert host.recv() == reply
+
+
+def test_serial_spec_with_baud_opens_a_tty() -> None:
+    host = open_link("pty", timeout_s=0.5)
+    link = open_link(f"serial:{host.peer_path}?baud=115200", timeout_s=0.5)
+    try:
+        link.send(_sensors(1))
+        assert host.recv() == _sensors(1)
+    finally:
+        link.close()
+        host.close()
+
+
+def test_loop_url_echoes_frames() -> None:
+    link = open_link("loop://", timeout_s=0.5)
+    try:
+        msgs = [_sensors(k) for k in range(5)]
+        for m in msgs:
+            link.send(m)
+        assert [link.recv() for _ in msgs] == msgs
+        assert link.stats.frames_rx == 5 and link.stats.frames_tx == 5
+    finally:
+        link.close()
+
+
+def test_fd_spec_over_a_socketpair() -> None:
+    a, b = socket.socketpair()
+    link = open_link(f"fd:{a.detach()}", timeout_s=0.5)
+    try:
+        frame = encode_frame(_sensors(9))
+        b.sendall(frame)
+        assert link.recv() == _sensors(9)
+        link.send(_sensors(10))
+        assert b.recv(100) == encode_frame(_sensors(10))
+    finally:
+        link.close()
+        b.close()
+
+
+def test_missing_port_is_one_line_naming_it() -> None:
+    with pytest.raises(LinkError) as info:
+        open_link("serial:/dev/ttyNOPE_hilbench?baud=250000")
+    text = str(info.value)
+    assert "/dev/ttyNOPE_hilbench" in text and "\n" not in text
+
+
+def test_busy_port_is_refused(pty_pair) -> None:
+    host, _far = pty_pair  # _far holds an exclusive lock on the slave
+    with pytest.raises(LinkError) as info:
+        open_link(host.peer_path, timeout_s=0.5)
+    assert host.peer_path in str(info.value) and "busy" in str(info.value)
+
+
+@pytest.mark.parametrize("spec", ["bogus", "fd:x", "fd:987654", "serial:", "serial:/dev/x?speed=3"])
+def test_bad_specs_raise_link_error(spec: str) -> None:
+    with pytest.raises(LinkError):
+        open_link(spec)
+
+
+def test_reads_are_bulk(pty_pair) -> None:
+    """Three frames written at once arrive with one read: all bytes are in after the first recv."""
+    host, far = pty_pair
+    reads: list[int] = []
+    inner = far.transport.read
+
+    def counting_read(timeout_s):
+        data = inner(timeout_s)
+        reads.append(len(data))
+        return data
+
+    far._read = counting_read  # the link's bound read
+    wire = b"".join(encode_frame(_sensors(k)) for k in range(3))
+    host.send_bytes(wire, frames=3)
+    assert far.recv() == _sensors(0)
+    assert far.stats.bytes_rx == len(wire)
+    assert far.recv() == _sensors(1) and far.recv() == _sensors(2)
+    assert len([n for n in reads if n]) == 1
+
+
+def test_timeout_is_counted_and_names_the_link(pty_pair) -> None:
+    host, _ = pty_pair
+    with pytest.raises(LinkTimeout) as info:
+        host.recv(timeout_s=0.05)
+    assert host.name in str(info.value)
+    assert host.stats.timeouts == 1
+    assert host.recv_or_none(0.01) is None
+    assert host.stats.timeouts == 1
+
+
+def test_far_end_hang_up_is_link_closed(pty_pair) -> None:
+    host, far = pty_pair
+    far.send(_sensors(1))
+    assert host.recv() == _sensors(1)  # the far end has spoken: our slave copy is released
+    far.close()
+    with pytest.raises(LinkClosed) as info:
+        host.recv(timeout_s=1.0)
+    assert host.name in str(info.value)
+
+
+def test_near_end_hang_up_seen_by_far_end(pty_pair) -> None:
+    host, far = pty_pair
+    host.send(_sensors(1))
+    assert far.recv() == _sensors(1)
+    host.close()
+    with pytest.raises(LinkClosed):
+        far.recv(timeout_s=1.0)
+
+
+def test_stats_count_crc_errors_resyncs_and_seq_gaps(pty_pair) -> None:
+    host, far = pty_pair
+    good = encode_frame(_sensors(254))
+    bad = bytearray(encode_frame(_sensors(255)))
+    bad[3] ^= 0x10  # one flipped bit inside the frame
+    wire = good + bytes(bad) + encode_frame(_sensors(0)) + encode_frame(_sensors(2))
+    host.send_bytes(wire, frames=4)
+    got = [far.recv(), far.recv(), far.recv()]
+    assert [m.seq for m in got] == [254, 0, 2]
+    stats = far.stats
+    assert stats.crc_errors + stats.cobs_errors + stats.length_errors == 1
+    assert stats.frame_errors == 1
+    assert stats.resyncs == 1
+    assert stats.seq_gaps == 2  # 254 -> 0 skips 255, 0 -> 2 skips 1; the u8 wrap itself is no gap
+    assert stats.bytes_rx == len(wire)
+    assert host.stats.frames_tx == 4 and host.stats.bytes_tx == len(wire)
+
+
+def test_seq_wrap_is_not_a_gap(pty_pair) -> None:
+    host, far = pty_pair
+    for seq in (254, 255, 0, 1):
+        host.send(_sensors(seq))
+    for _ in range(4):
+        far.recv()
+    assert far.stats.seq_gaps == 0
+
+
+def test_writes_to_a_stalled_far_end_time_out() -> None:
+    link = open_link("pty", timeout_s=0.05)
+    try:
+        with pytest.raises(LinkTimeout):
+            for k in range(100_000):  # nobody reads the slave: the pty buffer fills
+                link.send(_sensors(k & 0xFF))
+    finally:
+        link.close()
+
+
+# -- fault injection -----------------------------------------------------------------------
+def _faulty_stream(seed: int, n: int = 400, **faults) -> tuple[bytes, object]:
+    """Send n frames through a FaultyLink over loop:// and return the wire bytes that came out."""
+    inner = open_link("loop://", timeout_s=0.2)
+    faulty = FaultyLink(inner, seed, **faults)
+    try:
+        out = bytearray()
+        port = inner.transport._port  # loop:// holds only a few kB: drain after every frame
+        for k in range(n):
+            faulty.send(_sensors(k & 0xFF))
+            while port.in_waiting:
+                out += port.read(port.in_waiting)
+        return bytes(out), faulty.injected
+    finally:
+        faulty.close()
+
+
+def test_faulty_link_is_deterministic_by_seed() -> None:
+    faults = dict(corrupt_bit_rate=0.002, drop_rate=0.05, duplicate_rate=0.05, corrupt_direction="tx")
+    a, ca = _faulty_stream(1, **faults)
+    b, cb = _faulty_stream(1, **faults)
+    c, _ = _faulty_stream(2, **faults)
+    assert a == b and ca == cb
+    assert a != c
+
+
+def test_faulty_link_corruption_counts_match_the_bytes() -> None:
+    """Compare the corrupted stream with the clean one bit by bit: the counts must agree."""
+    clean = b"".join(encode_frame(_sensors(k & 0xFF)) for k in range(2000))
+    out, counts = _faulty_stream(5, n=2000, corrupt_bit_rate=0.01 / 8, corrupt_direction="tx")
+    assert len(out) == len(clean)
+    flipped_bits = sum(bin(x ^ y).count("1") for x, y in zip(out, clean))
+    flipped_bytes = sum(1 for x, y in zip(out, clean) if x != y)
+    frames = clean.split(b"\x00")[:-1]
+    start, bad_frames = 0, 0
+    for f in frames:
+        end = start + len(f) + 1
+        bad_frames += out[start:end] != clean[start:end]
+        start = end
+    assert counts.corrupted_bits_tx == flipped_bits
+    assert counts.corrupted_bytes_tx == flipped_bytes
+    assert counts.corrupted_frames_tx == bad_frames
+    # about 1 % of bytes: binomial mean n*p, well inside 6 sigma
+    n_bytes, p = len(clean), 1 - (1 - 0.01 / 8) ** 8
+    mean, sigma = n_bytes * p, (n_bytes * p * (1 - p)) ** 0.5
+    assert abs(flipped_bytes - mean) < 6 * sigma
+
+
+def test_faulty_link_drop_duplicate_silence() -> None:
+    out, counts = _faulty_stream(3, n=1000, drop_rate=0.1, duplicate_rate=0.1)
+    assert out.count(b"\x00") == 1000 - counts.dropped + counts.duplicated
+    assert 50 < counts.dropped < 150 and 50 < counts.duplicated < 150
+    out, counts = _faulty_stream(3, n=50, silent_after=20)
+    assert out == b"".join(encode_frame(_sensors(k)) for k in range(20))
+    assert counts.silenced == 30
+
+
+def test_faulty_link_corrupts_received_bytes(pty_pair) -> None:
+    host, far = pty_pair
+    faulty = FaultyLink(far, 11, corrupt_bit_rate=0.05, corrupt_direction="rx")
+    for k in range(200):
+        host.send(_sensors(k & 0xFF))
+    got = []
+    while (m := faulty.recv_or_none(0.2)) is not None:
+        got.append(m)
+    assert all(m == _sensors(m.seq) for m in got)  # nothing corrupted is accepted
+    counts = faulty.injected
+    assert counts.corrupted_frames_rx > 0
+    assert len(got) <= 200 - counts.corrupted_frames_rx
+    assert far.stats.frame_errors > 0
+
+
+def test_faulty_link_rejects_bad_rates() -> None:
+    link = open_link("loop://")
+    try:
+        with pytest.raises(ValueError):
+            FaultyLink(link, 0, corrupt_bit_rate=1.5)
+        with pytest.raises(ValueError):
+            FaultyLink(link, 0, corrupt_direction="sideways")
+    finally:
+        link.close()
+
+
+def test_drive_round_trip_keeps_every_field(pty_pair) -> None:
+    host, far = pty_pair
+    d = Drive(200, 1023, 0, 512, 1, 2, 5, True, False, 0, (-32768, 32767, 200))
+    far.send(d)
+    assert host.recv() == d
+
+
+def test_link_fd_is_nonblocking(pty_pair) -> None:
+    host, _ = pty_pair
+    fd = host.fileno()
+    assert fd is not None
+    assert fcntl.fcntl(fd, fcntl.F_GETFL) & os.O_NONBLOCK
