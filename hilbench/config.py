@@ -1,0 +1,431 @@
+"""Bench configuration: TOML tables -> frozen dataclasses, validated as a whole.
+
+Every TOML table maps to a dataclass ("section"). Field metadata (see `spec`) gives the unit,
+the physical range and a one-line doc. `load_config` collects *every* problem — missing key,
+wrong type, out of range, unknown key (with a "did you mean"), bad choice — and raises one
+`ConfigError` whose lines read `FILE [table] key: reason`.
+
+Extending: a later layer adds a section with a few lines, no edit here:
+
+    @dataclass(frozen=True)
+    class RunSection:
+        duration_s: float = field(default=1.0, metadata=spec(unit="s", gt=0))
+    register_section("run", RunSection)          # optional table, defaults when absent
+    cfg = load_config(path); cfg.run.duration_s  # or cfg.sections["run"]
+
+Supported field types: float (ints accepted), int, bool, str, `Literal[...]` choices, nested
+dataclasses (sub-tables), `tuple[Dataclass, ...]` (arrays of tables, validated per item),
+`tuple[scalar, ...]`, `X | None` (optional, default None). A section may define
+`check(self) -> list[tuple[str, str]]` for cross-field rules, returning (key, reason) pairs.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import difflib
+import math
+import tomllib
+import types
+import typing
+from dataclasses import MISSING, dataclass, field
+from importlib import resources
+from pathlib import Path
+from typing import Any, Literal, Mapping, Sequence
+
+from hilbench.errors import ConfigError
+from hilbench.plant.params import (
+    AdcChannel,
+    EncoderParams,
+    HallParams,
+    InverterParams,
+    LoadProfile,
+    MotorParams,
+    PlantParams,
+    default_adc_channels,
+    psi_from_ke,
+)
+
+__all__ = [
+    "BenchConfig",
+    "MotorSection",
+    "PlantSection",
+    "load_config",
+    "plant_from_config",
+    "register_section",
+    "spec",
+    "DEFAULT_CONFIG_NAME",
+]
+
+DEFAULT_CONFIG_NAME = "hurst_mclv.toml"
+
+
+def spec(*, unit: str = "", doc: str = "", ge: float | None = None, gt: float | None = None,
+         le: float | None = None, lt: float | None = None) -> dict[str, Any]:
+    """Field metadata: unit, one-line doc and an inclusive/exclusive physical range."""
+    return {"unit": unit, "doc": doc, "ge": ge, "gt": gt, "le": le, "lt": lt}
+
+
+# ---------------------------------------------------------------- sections owned here
+@dataclass(frozen=True)
+class MotorSection:
+    """[motor]: give psi_wb or ke_v_per_krpm (V line-line peak per 1000 rpm), and l_h or ld_h+lq_h."""
+
+    rs_ohm: float = field(metadata=spec(unit="ohm", gt=0, le=1e3, doc="phase (line-neutral) resistance"))
+    pole_pairs: int = field(metadata=spec(ge=1, le=64, doc="pole pairs"))
+    j_kgm2: float = field(metadata=spec(unit="kg*m^2", gt=0, le=10, doc="rotor + load inertia"))
+    l_h: float | None = field(default=None, metadata=spec(unit="H", gt=0, le=10, doc="Ld = Lq"))
+    ld_h: float | None = field(default=None, metadata=spec(unit="H", gt=0, le=10))
+    lq_h: float | None = field(default=None, metadata=spec(unit="H", gt=0, le=10))
+    psi_wb: float | None = field(default=None, metadata=spec(unit="Wb", gt=0, le=10, doc="PM flux, peak per phase"))
+    ke_v_per_krpm: float | None = field(default=None, metadata=spec(unit="V/krpm", gt=0, le=1e4))
+    b_nms_per_rad: float = field(default=0.0, metadata=spec(unit="N*m*s/rad", ge=0, le=10))
+    coulomb_nm: float = field(default=0.0, metadata=spec(unit="N*m", ge=0, le=1e3))
+    name: str = field(default="", metadata=spec(doc="free text"))
+
+    def check(self) -> list[tuple[str, str]]:
+        bad: list[tuple[str, str]] = []
+        if (self.psi_wb is None) == (self.ke_v_per_krpm is None):
+            bad.append(("psi_wb", "give exactly one of psi_wb and ke_v_per_krpm"))
+        if self.l_h is None and (self.ld_h is None or self.lq_h is None):
+            bad.append(("l_h", "give l_h, or both ld_h and lq_h"))
+        if self.l_h is not None and (self.ld_h is not None or self.lq_h is not None):
+            bad.append(("l_h", "give l_h or ld_h/lq_h, not both"))
+        return bad
+
+    def to_params(self) -> MotorParams:
+        psi = self.psi_wb if self.psi_wb is not None else psi_from_ke(self.ke_v_per_krpm or 0.0, self.pole_pairs)
+        ld = self.ld_h if self.ld_h is not None else self.l_h
+        lq = self.lq_h if self.lq_h is not None else self.l_h
+        return MotorParams(rs_ohm=self.rs_ohm, ld_h=float(ld), lq_h=float(lq), psi_wb=psi,
+                           pole_pairs=self.pole_pairs, j_kgm2=self.j_kgm2,
+                           b_nms_per_rad=self.b_nms_per_rad, coulomb_nm=self.coulomb_nm)
+
+
+@dataclass(frozen=True)
+class PlantSection:
+    """[plant]: the seed of the sensor noise generator."""
+
+    seed: int = field(default=0, metadata=spec(ge=0, doc="seed of the ADC noise generator"))
+
+
+# Range metadata for the plant's own parameter dataclasses (kept in one place, here).
+_RANGES: dict[type, dict[str, dict[str, Any]]] = {
+    InverterParams: {
+        "vbus_v": spec(unit="V", gt=0, le=1500),
+        "pwm_freq_hz": spec(unit="Hz", ge=100, le=1e6),
+        "dead_time_s": spec(unit="s", ge=0, le=1e-4),
+    },
+    HallParams: {"offset_deg": spec(unit="deg", ge=-360, le=360)},
+    EncoderParams: {"lines": spec(ge=1, le=1_000_000), "offset_counts": spec(ge=0, le=65535)},
+    AdcChannel: {
+        "gain_codes_per_unit": spec(unit="codes/unit", ge=-1e6, le=1e6),
+        "offset_codes": spec(unit="codes", ge=-1023, le=2046),
+        "noise_lsb": spec(unit="codes", ge=0, le=1023),
+    },
+    LoadProfile: {
+        "torque_nm": spec(unit="N*m", ge=-1e3, le=1e3),
+        "step_time_s": spec(unit="s", ge=0),
+        "step_torque_nm": spec(unit="N*m", ge=-1e3, le=1e3),
+        "coeff": spec(ge=0, le=1e3),
+    },
+}
+
+
+@dataclass(frozen=True)
+class _Section:
+    name: str
+    cls: type
+    required: bool
+    many: bool  # an array of tables
+
+
+_SECTIONS: dict[str, _Section] = {}
+
+
+def register_section(name: str, cls: type, *, required: bool = False, many: bool = False) -> None:
+    """Add a top-level table `[name]` (or `[[name]]` when many) validated into dataclass `cls`.
+
+    Optional sections are built from the dataclass defaults when absent (all fields need one)."""
+    if not dataclasses.is_dataclass(cls):
+        raise TypeError(f"register_section {name!r}: {cls!r} is not a dataclass")
+    _SECTIONS[name] = _Section(name, cls, required, many)
+
+
+register_section("motor", MotorSection, required=True)
+register_section("inverter", InverterParams)
+register_section("hall", HallParams)
+register_section("encoder", EncoderParams)
+register_section("adc", AdcChannel, many=True)
+register_section("load", LoadProfile)
+register_section("plant", PlantSection)
+
+
+@dataclass(frozen=True)
+class BenchConfig:
+    """A validated config: one attribute per registered table (`cfg.motor`, `cfg.adc`, ...)."""
+
+    sections: Mapping[str, Any]
+    source: str = "<default>"
+
+    def __getattr__(self, name: str) -> Any:
+        sections = self.__dict__.get("sections", {})
+        if name in sections:
+            return sections[name]
+        raise AttributeError(name)
+
+    def __getitem__(self, name: str) -> Any:
+        return self.sections[name]
+
+
+# ---------------------------------------------------------------- validation
+class _Collector:
+    def __init__(self, source: str, override_keys: set[str]) -> None:
+        self.source = source
+        self.override_keys = override_keys
+        self.lines: list[str] = []
+
+    def add(self, table: str, key: str, reason: str) -> None:
+        dotted = f"{table}.{key}" if key else table
+        src = f"--set {dotted}" if dotted in self.override_keys else self.source
+        where = f"[{table}]" if table else ""
+        self.lines.append(f"{src} {where} {key}: {reason}".replace("  ", " ").replace(" :", ":"))
+
+
+def _suggest(name: str, known: Sequence[str]) -> str:
+    close = difflib.get_close_matches(name, list(known), n=1, cutoff=0.6)
+    return f" (did you mean {close[0]!r}?)" if close else ""
+
+
+def _type_name(tp: Any) -> str:
+    return getattr(tp, "__name__", str(tp))
+
+
+def _convert(value: Any, tp: Any, table: str, key: str, col: _Collector) -> tuple[bool, Any]:
+    """Check/convert one value against a type annotation; report and return (ok, value)."""
+    origin = typing.get_origin(tp)
+    if origin in (typing.Union, types.UnionType):
+        args = [a for a in typing.get_args(tp) if a is not type(None)]
+        if len(args) == 1:
+            return _convert(value, args[0], table, key, col)
+    if origin is Literal:
+        choices = typing.get_args(tp)
+        if value in choices:
+            return True, value
+        hint = _suggest(str(value), [str(c) for c in choices]) if isinstance(value, str) else ""
+        col.add(table, key, f"{value!r} is not one of {', '.join(repr(c) for c in choices)}{hint}")
+        return False, None
+    if origin is tuple:
+        args = typing.get_args(tp)
+        item_tp = args[0]
+        if not isinstance(value, list):
+            col.add(table, key, f"expected an array, got {type(value).__name__}")
+            return False, None
+        out = []
+        ok = True
+        for n, item in enumerate(value):
+            if dataclasses.is_dataclass(item_tp):
+                good, obj = _build(item_tp, item, f"{table}.{key}[{n}]" if key else f"{table}[{n}]", col)
+            else:
+                good, obj = _convert(item, item_tp, table, f"{key}[{n}]", col)
+            ok = ok and good
+            out.append(obj)
+        return ok, tuple(out)
+    if dataclasses.is_dataclass(tp):
+        return _build(tp, value, f"{table}.{key}", col)
+    if tp is float:
+        if isinstance(value, bool) or not isinstance(value, (int, float)):
+            col.add(table, key, f"expected a number, got {type(value).__name__} {value!r}")
+            return False, None
+        if not math.isfinite(value):
+            col.add(table, key, f"expected a finite number, got {value!r}")
+            return False, None
+        return True, float(value)
+    if tp is int:
+        if isinstance(value, bool) or not isinstance(value, int):
+            col.add(table, key, f"expected an integer, got {type(value).__name__} {value!r}")
+            return False, None
+        return True, value
+    if tp is bool:
+        if not isinstance(value, bool):
+            col.add(table, key, f"expected true or false, got {type(value).__name__} {value!r}")
+            return False, None
+        return True, value
+    if tp is str:
+        if not isinstance(value, str):
+            col.add(table, key, f"expected a string, got {type(value).__name__} {value!r}")
+            return False, None
+        return True, value
+    col.add(table, key, f"unsupported field type {_type_name(tp)}")
+    return False, None
+
+
+def _range_reason(value: Any, meta: Mapping[str, Any]) -> str | None:
+    if not isinstance(value, (int, float)) or isinstance(value, bool):
+        return None
+    unit = f" {meta['unit']}" if meta.get("unit") else ""
+    if meta.get("gt") is not None and not value > meta["gt"]:
+        return f"{value}{unit} is out of range: must be > {meta['gt']}{unit}"
+    if meta.get("ge") is not None and not value >= meta["ge"]:
+        return f"{value}{unit} is out of range: must be >= {meta['ge']}{unit}"
+    if meta.get("lt") is not None and not value < meta["lt"]:
+        return f"{value}{unit} is out of range: must be < {meta['lt']}{unit}"
+    if meta.get("le") is not None and not value <= meta["le"]:
+        return f"{value}{unit} is out of range: must be <= {meta['le']}{unit}"
+    return None
+
+
+def _build(cls: type, data: Any, table: str, col: _Collector) -> tuple[bool, Any]:
+    """Validate a TOML table into dataclass `cls`, reporting every problem to `col`."""
+    if not isinstance(data, dict):
+        col.add(table, "", f"expected a table, got {type(data).__name__}")
+        return False, None
+    hints = typing.get_type_hints(cls)
+    fields = {f.name: f for f in dataclasses.fields(cls)}
+    ok = True
+    for key in data:
+        if key not in fields:
+            col.add(table, key, f"unknown key{_suggest(key, list(fields))}")
+            ok = False
+    kwargs: dict[str, Any] = {}
+    extra_meta = _RANGES.get(cls, {})
+    for name, f in fields.items():
+        if name not in data:
+            if f.default is MISSING and f.default_factory is MISSING:
+                col.add(table, name, "missing")
+                ok = False
+            continue
+        good, value = _convert(data[name], hints[name], table, name, col)
+        if not good:
+            ok = False
+            continue
+        meta = {**extra_meta.get(name, {}), **dict(f.metadata)}
+        reason = _range_reason(value, meta)
+        if reason:
+            col.add(table, name, reason)
+            ok = False
+            continue
+        kwargs[name] = value
+    if not ok:
+        return False, None
+    obj = cls(**kwargs)
+    check = getattr(obj, "check", None)
+    if callable(check):
+        for key, reason in check():
+            col.add(table, key, reason)
+            ok = False
+    return ok, obj if ok else None
+
+
+# ---------------------------------------------------------------- overrides
+def _parse_value(text: str) -> Any:
+    """TOML value syntax; a bare word that is not valid TOML is taken as a string."""
+    try:
+        return tomllib.loads(f"v = {text}")["v"]
+    except tomllib.TOMLDecodeError:
+        return text.strip()
+
+
+def _apply_override(data: dict[str, Any], item: str, col: _Collector) -> str | None:
+    if "=" not in item:
+        col.lines.append(f"--set {item}: expected TABLE.KEY=VALUE")
+        return None
+    path, text = item.split("=", 1)
+    parts = [p.strip() for p in path.strip().split(".")]
+    if len(parts) < 2 or not all(parts):
+        col.lines.append(f"--set {item}: expected TABLE.KEY=VALUE")
+        return None
+    node: Any = data
+    for part in parts[:-1]:
+        if isinstance(node, list):
+            if not part.isdigit() or int(part) >= len(node):
+                col.lines.append(f"--set {item}: no item {part} in this array")
+                return None
+            node = node[int(part)]
+        else:
+            node = node.setdefault(part, {})
+    if not isinstance(node, dict):
+        col.lines.append(f"--set {item}: {'.'.join(parts[:-1])} is not a table")
+        return None
+    node[parts[-1]] = _parse_value(text)
+    table = ".".join(parts[:-1])
+    return f"{table}.{parts[-1]}"
+
+
+# ---------------------------------------------------------------- entry points
+def default_config_text() -> str:
+    """The packaged default config (the Hurst motor on the MCLV board)."""
+    return resources.files("hilbench").joinpath("data", DEFAULT_CONFIG_NAME).read_text(encoding="utf-8")
+
+
+def load_config(path: str | Path | None = None, overrides: Sequence[str] = ()) -> BenchConfig:
+    """Read, merge `overrides` ("table.key=value", TOML value syntax), validate everything, build."""
+    if path is None:
+        source = f"<packaged {DEFAULT_CONFIG_NAME}>"
+        text = default_config_text()
+    else:
+        source = str(path)
+        try:
+            text = Path(path).read_text(encoding="utf-8")
+        except OSError as exc:
+            raise ConfigError(f"{source}: cannot read: {exc.strerror or exc}") from None
+    try:
+        data = tomllib.loads(text)
+    except tomllib.TOMLDecodeError as exc:
+        raise ConfigError(f"{source}: not valid TOML: {exc}") from None
+    override_keys: set[str] = set()
+    col = _Collector(source, override_keys)
+    for item in overrides:
+        key = _apply_override(data, item, col)
+        if key:
+            override_keys.add(key)
+    for key in data:
+        if key not in _SECTIONS:
+            col.add("", "", f"unknown table [{key}]{_suggest(key, list(_SECTIONS))}")
+    built: dict[str, Any] = {}
+    for name, sec in _SECTIONS.items():
+        if name not in data:
+            if sec.required:
+                col.add(name, "", "missing table")
+                continue
+            if sec.many:
+                built[name] = default_adc_channels() if sec.cls is AdcChannel else ()
+                continue
+            good, obj = _build(sec.cls, {}, name, col)
+            if good:
+                built[name] = obj
+            continue
+        if sec.many:
+            good, obj = _convert(data[name], tuple[sec.cls, ...], name, "", col)  # type: ignore[valid-type]
+        else:
+            good, obj = _build(sec.cls, data[name], name, col)
+        if good:
+            built[name] = obj
+    if col.lines:
+        err = ConfigError("\n".join(col.lines))
+        err.lines = list(col.lines)  # type: ignore[attr-defined]
+        raise err
+    if "adc" in built and "adc" not in data and "inverter" in built:
+        built["adc"] = default_adc_channels(built["inverter"].vbus_v)
+    return BenchConfig(sections=types.MappingProxyType(built), source=source)
+
+
+def plant_params_from_config(cfg: BenchConfig) -> PlantParams:
+    return PlantParams(
+        motor=cfg.motor.to_params(),
+        inverter=cfg.inverter,
+        hall=cfg.hall,
+        encoder=cfg.encoder,
+        adc=tuple(cfg.adc),
+        load=cfg.load,
+    )
+
+
+def plant_from_config(cfg: BenchConfig) -> "Plant":
+    """A Plant built from a validated config, seeded from [plant] seed."""
+    from hilbench.plant.model import Plant
+
+    return Plant(plant_params_from_config(cfg), seed=cfg.plant.seed)
+
+
+if typing.TYPE_CHECKING:
+    from hilbench.plant.model import Plant
