@@ -5,9 +5,10 @@
  * pack/unpack functions are generated from schema.toml into hbp_messages.h/.c.
  *
  * Static RAM (AN1017 profile: -DHBP_MAX_ADC=3u -DHBP_MAX_TELEMETRY=3u, so HBP_RX_MAX = 16):
- *   hbp_rx_t        16 (buffer) + 5 (state) + 10 (five u16 counters) + 1 (last_error) = 32 bytes
- *   hbp_params_t    a const table in flash, plus the firmware's own int16_t values (3 params: 6 bytes)
- *   total           38 bytes of the 128-byte budget (tests/test_c_library.py checks sizeof).
+ *   hbp_rx_t        16 (buffer) + 5 (state) + 10 (five u16 counters) + 1 (last_error) = 32 bytes,
+ *                   34 with 2-byte alignment padding
+ *   hbp_params_t    can be const (flash); the firmware owns the int16_t values (3 params: 6 bytes)
+ *   total           40 bytes of the 128-byte budget (tests/test_c_library.py checks sizeof and nm).
  * Stack: sending a frame uses a HBP_MAX_FRAME (64) byte pack buffer and HBP_MAX_WIRE (66) bytes out,
  * transiently, in the caller's (non-ISR) context; a firmware may use one static buffer instead.
  */
