@@ -1,0 +1,185 @@
+"""The lockstep fast path against the reference path over long randomised Sensors streams.
+
+The reference path (`reference=True`) executes every PWM ISR with the full SVM and no shortcut;
+the fast path must produce the identical Drive for every period, whatever arrives: hall edges at
+random times inside the period (including at 0, without a time, and past the period's end),
+direction reversals, invalid hall states (000, 111), stalls, S2 presses (also held through the
+bootstrap), pot changes, gain writes (accepted and refused), phase-advance and reference-override
+writes, host start/stop and watchdog trips. Streams are seeded, so a failure is reproducible.
+"""
+
+from __future__ import annotations
+
+import random
+
+import pytest
+
+from hilbench.protocol import Drive, Sensors
+from hilbench.targets.an1017 import (
+    PARAM_KD,
+    PARAM_KI,
+    PARAM_KP,
+    PARAM_PH_ADV_DEG,
+    PARAM_PH_ADV_ON,
+    PARAM_REF_OVR,
+    PARAM_REF_OVR_ON,
+    PARAM_STALL_MS,
+    An1017Target,
+)
+from hilbench.targets.an1017_firmware import An1017Options
+
+EDGE_NONE = 0xFFFF
+S2 = 0x08
+# CW order of hall states (C B A), Table 8: sector 0..5
+HALL_OF_SECTOR = (0b100, 0b110, 0b010, 0b011, 0b001, 0b101)
+
+
+def random_script(seed: int, n_steps: int, step_us: int) -> list[tuple]:
+    """Per step: ("sensors", Sensors) plus host actions ("start"/"stop"/"watchdog"/"params", …)."""
+    rng = random.Random(seed)
+    period_100ns = step_us * 10
+    script: list[tuple] = []
+    sector = 0
+    hall = HALL_OF_SECTOR[0]
+    next_edge_us = 300.0
+    dwell_us = 1500.0
+    direction = 1
+    pot = 800
+    s2_left = 0  # periods S2 stays down
+    t_us = 0.0
+    for k in range(n_steps):
+        t0, t1 = t_us, t_us + step_us
+        # occasional regime changes of the rotor stream
+        r = rng.random()
+        if r < 0.002:
+            dwell_us = rng.choice((120.0, 400.0, 900.0, 1500.0, 3000.0, 6000.0, 250_000.0))
+        elif r < 0.003:
+            direction = -direction
+        edge = EDGE_NONE
+        while t0 <= next_edge_us < t1:
+            x = rng.random()
+            if x < 0.01:
+                hall = rng.choice((0b000, 0b111))  # invalid state
+            elif x < 0.015:
+                hall = rng.randrange(8)  # any jump
+            else:
+                sector = (sector + direction) % 6
+                hall = HALL_OF_SECTOR[sector]
+            edge = int((next_edge_us - t0) * 10)
+            next_edge_us += dwell_us * rng.uniform(0.7, 1.3)
+        if edge != EDGE_NONE:
+            y = rng.random()
+            if y < 0.05:
+                edge = EDGE_NONE  # hall changed, no time given
+            elif y < 0.08:
+                edge = 0
+            elif y < 0.10:
+                edge = rng.randrange(period_100ns, 0xFFFF)  # past the period: clamped
+        elif rng.random() < 0.002:
+            edge = rng.randrange(0, period_100ns)  # a time without a hall change
+        if rng.random() < 0.01:
+            pot = rng.choice((0, 100, 300, 511, 512, 513, 700, 900, 1023, rng.randrange(1024)))
+        elif rng.random() < 0.05:
+            pot = min(1023, max(0, pot + rng.randrange(-3, 4)))
+        if s2_left == 0 and rng.random() < 0.0015:
+            s2_left = rng.randrange(1, 400)
+        inputs = hall | (S2 if s2_left else 0) | (0x10 if rng.random() < 0.01 else 0)
+        s2_left = max(0, s2_left - 1)
+        z = rng.random()
+        if z < 0.001:
+            script.append(("start",))
+        elif z < 0.0015:
+            script.append(("stop",))
+        elif z < 0.0017:
+            script.append(("watchdog",))
+        elif z < 0.004:
+            pid = rng.choice(
+                (PARAM_KP, PARAM_KI, PARAM_KD, PARAM_PH_ADV_ON, PARAM_PH_ADV_DEG, PARAM_REF_OVR_ON, PARAM_REF_OVR,
+                 PARAM_STALL_MS)
+            )
+            value = {
+                PARAM_KP: rng.randrange(0, 30000),
+                PARAM_KI: rng.randrange(0, 3000),
+                PARAM_KD: rng.randrange(0, 20000),  # sometimes breaks a constraint → refused
+                PARAM_PH_ADV_ON: rng.randrange(2),
+                PARAM_PH_ADV_DEG: rng.randrange(61),
+                PARAM_REF_OVR_ON: rng.randrange(2),
+                PARAM_REF_OVR: rng.randrange(-32768, 32768),
+                PARAM_STALL_MS: rng.choice((10, 55, 100, 1000)),
+            }[pid]
+            script.append(("params", ((pid, value),)))
+        script.append(("sensors", Sensors(k & 0xFF, inputs, edge, k & 0xFFFF, (pot, 512, 700))))
+        t_us = t1
+    return script
+
+
+def play(target: An1017Target, script: list[tuple]) -> list:
+    out: list = []
+    for item in script:
+        kind = item[0]
+        if kind == "sensors":
+            out.append(target.step(item[1]))
+        elif kind == "start":
+            target.start()
+        elif kind == "stop":
+            target.stop()
+        elif kind == "watchdog":
+            out.append(target.watchdog_trip())
+        else:
+            out.append(target.set_params(item[1]))
+    return out
+
+
+def first_difference(a: list, b: list) -> str:
+    for i, (x, y) in enumerate(zip(a, b)):
+        if x != y:
+            return f"item {i}: fast {x} != reference {y}"
+    return f"lengths {len(a)} != {len(b)}"
+
+
+@pytest.mark.parametrize("variant", ["seed", "v11"])
+@pytest.mark.parametrize("seed", [1, 2, 3])
+def test_randomised_stream_fast_equals_reference_50us(variant, seed):
+    script = random_script(seed, 24_000, 50)  # 1.2 s of simulated time
+    opts = An1017Options(variant=variant)
+    fast_t, ref_t = An1017Target(opts), An1017Target(opts, reference=True)
+    fast_t.start(), ref_t.start()
+    fast, ref = play(fast_t, script), play(ref_t, script)
+    assert fast == ref, first_difference(fast, ref)
+    drives = [d for d in fast if isinstance(d, Drive)]
+    assert all(type(d) is Drive for d in drives)
+    # the stream really exercised the running motor, both directions, stops and restarts
+    assert sum(d.output_mode == 1 for d in drives) > 2000
+    assert any(d.direction_ccw for d in drives) and any(not d.direction_ccw for d in drives)
+    assert len({d.state for d in drives}) >= 3
+    assert fast_t.fw.t == ref_t.fw.t and fast_t.fw.phase == ref_t.fw.phase
+
+
+@pytest.mark.parametrize("step_us", [100, 250, 1000])
+def test_randomised_stream_fast_equals_reference_longer_periods(step_us):
+    script = random_script(10 + step_us, 1_200_000 // step_us, step_us)
+    fast_t, ref_t = An1017Target(), An1017Target(reference=True)
+    for t in (fast_t, ref_t):
+        t.period_us = step_us
+        t._period_tcy = step_us * 20
+        t.start()
+    fast, ref = play(fast_t, script), play(ref_t, script)
+    assert fast == ref, first_difference(fast, ref)
+
+
+def test_randomised_stream_with_advance_between_steps():
+    """Real-time advance() spans (not whole periods) interleaved with lockstep steps."""
+    script = random_script(77, 12_000, 50)
+    rng_a, rng_b = random.Random(5), random.Random(5)
+    fast_t, ref_t = An1017Target(), An1017Target(reference=True)
+    fast_t.start(), ref_t.start()
+    outs = []
+    for target, rng in ((fast_t, rng_a), (ref_t, rng_b)):
+        out = []
+        for item in script:
+            if item[0] == "sensors" and rng.random() < 0.02:
+                out.append(target.advance(rng.uniform(0.0, 120.0), item[1]))
+            else:
+                out.extend(play(target, [item]))
+        outs.append(out)
+    assert outs[0] == outs[1], first_difference(outs[0], outs[1])
