@@ -493,8 +493,8 @@ class Plant:
 
     # ----------------------------------------------------------------- outputs off
     def _phase_currents(self) -> list[float]:
-        ia, ib, ic = self.i_abc
-        return [ia, ib, ic]
+        """Phase currents with transform round-off (< 1e-12 A) of an open phase snapped to zero."""
+        return [0.0 if -1e-12 < x < 1e-12 else x for x in self.i_abc]
 
     def _set_phase_currents(self, i: list[float]) -> None:
         c = math.cos(self._th)
