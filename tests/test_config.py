@@ -101,7 +101,7 @@ def test_overrides_apply_and_are_validated():
 
 
 def test_adc_array_items_validated(tmp_path):
-    text = (CONFIGS / "hurst_mclv.toml").read_text(encoding="utf-8") + '\n[[adc]]\nrole = "iq"\ngain_codes_per_unit = 1.0\n'
+    text = (CONFIGS / "hurst_mclv.toml").read_text(encoding="utf-8") + '\n[[adc]]\nrole = "ibs"\ngain_codes_per_unit = 1.0\n'
     p = tmp_path / "a.toml"
     p.write_text(text, encoding="utf-8")
     with pytest.raises(ConfigError, match=r"\[adc\[3\]\] role: 'ibs' is not one of .*did you mean 'ibus'"):
