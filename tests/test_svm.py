@@ -7,7 +7,7 @@ import math
 import numpy as np
 import pytest
 
-from hilbench.targets.svm import SINE_TABLE, svm, svm_sector
+from hilbench.targets.svm import SINE_TABLE, svm, svm_fast, svm_sector
 
 
 def test_sine_table_shape_and_end_values():
@@ -78,3 +78,21 @@ def test_line_to_line_is_sinusoid_low_thd():
     # line-line peak ≈ v·tpwm: 0.8·28300/32768 · 998 (facts §1.3 meaning) within table quantisation
     expected = 0.8 * 28300 / 32768 * 998
     assert abs(2 * fund - expected) / expected < 0.01
+
+
+@pytest.mark.parametrize("volts", [-1, 0, 1, 163, 16384, 22640, 28299, 28300, 28301, 32767])
+def test_svm_fast_equals_svm_at_every_angle(volts):
+    # the unrolled variant must agree with the readable one everywhere, including volts = -1
+    # (the CCW start-up value) and amplitudes above the 0.866 clamp
+    for a in range(65536):
+        assert svm_fast(volts, a) == svm(volts, a), (volts, a)
+
+
+def test_svm_fast_equals_svm_random_pairs():
+    import random
+
+    rng = random.Random(2)
+    for _ in range(50_000):
+        v, a = rng.randrange(-1, 32768), rng.randrange(65536)
+        assert svm_fast(v, a) == svm(v, a), (v, a)
+    assert svm_fast(16384, 0x1555) == (747, 499, 251)  # facts §1.3 vector
