@@ -36,7 +36,7 @@ class Event:
     pot: float | None = None          # pot position 0..1, raw
     ramp_s: float = 0.0               # ramp duration for ref_rpm / pot / vbus_v
     load_nm: float | None = None      # constant load torque from here on
-    load_kind: str = "constant"       # constant | viscous (nm per rad/s) | fan (nm per (rad/s)^2) | locked
+    load_kind: str = "constant"       # constant N*m | linear N*m per rad/s | quadratic N*m per (rad/s)^2 | locked
     vbus_v: float | None = None
     press: str | None = None          # "s2" (start/stop) or "s3"
     fault: str | None = None          # a FaultKind
@@ -65,7 +65,7 @@ class Event:
 
 _ACTION_KEYS = ("ref_rpm", "pot", "load_nm", "vbus_v", "press", "fault", "params", "end")
 _ALLOWED_KEYS = set(_ACTION_KEYS) | {"at_s", "ramp_s", "load_kind", "fault_duration_s"}
-LOAD_KINDS = ("constant", "viscous", "fan", "locked")
+LOAD_KINDS = ("constant", "linear", "quadratic", "locked")
 
 
 def event_from_mapping(raw: Mapping[str, Any], where: str) -> tuple[Event | None, list[str]]:
@@ -135,15 +135,17 @@ def scenario_from_list(raw_events: Iterable[Mapping[str, Any]], where: str) -> t
 
 
 def default_scenario() -> tuple[Event, ...]:
-    """The default bench: S2, ramp to 1500 rpm, step to 2500, reverse to -1500, stop.
+    """The default bench: pot ramp to 1500 rpm with S2, step to 2500, reverse to -1500, stop.
+
+    The pot starts turning before S2 so that the firmware sees a non-zero reference at start:
+    with the reference at zero AN1017 applies no voltage and its stall timer stops it again.
 
     Each reference is held about 1 s, longer than the 0.6-0.7 s the AN1017 default gains need to
     settle; the reversal gets more because it brakes through zero first.
     """
     return (
-        Event(at_s=0.0, ref_rpm=0.0),
-        Event(at_s=0.01, press="s2"),
-        Event(at_s=0.05, ref_rpm=1500.0, ramp_s=0.3),
+        Event(at_s=0.0, ref_rpm=1500.0, ramp_s=0.3),
+        Event(at_s=0.03, press="s2"),
         Event(at_s=1.2, ref_rpm=2500.0),
         Event(at_s=2.2, ref_rpm=-1500.0),
         Event(at_s=3.6, press="s2"),

@@ -1,0 +1,141 @@
+"""The bench's config tables: [run], [link], [target] and [[scenario]].
+
+Registered with hilbench.config so a bench file is validated as a whole — plant and bench
+tables together, every problem at once.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Any, Literal
+
+from hilbench.bench.scenario import FAULT_KINDS, LOAD_KINDS, Event, default_scenario
+from hilbench.bench.session import SessionOptions
+from hilbench.config import BenchConfig, register_section, spec
+
+FaultName = Literal[
+    "hall_a_high", "hall_a_low", "hall_b_high", "hall_b_low", "hall_c_high", "hall_c_low",
+    "hall_missing_edge", "encoder_glitch", "clear",
+]
+assert FaultName.__args__ == FAULT_KINDS  # type: ignore[attr-defined]
+LoadKind = Literal["constant", "linear", "quadratic", "locked"]
+assert LoadKind.__args__ == LOAD_KINDS  # type: ignore[attr-defined]
+
+
+@dataclass(frozen=True)
+class RunSection:
+    """[run]: how long and how."""
+
+    mode: Literal["lockstep", "realtime"] = field(default="lockstep", metadata=spec(doc="lockstep (virtual time) or realtime (wall clock)"))
+    duration_s: float | None = field(default=None, metadata=spec(unit="s", gt=0, le=86400, doc="default: the scenario's end"))
+    seed: int = field(default=0, metadata=spec(ge=0, doc="seed of every random source of the run"))
+
+
+@dataclass(frozen=True)
+class LinkSection:
+    """[link]: which target, the exchange period and the timing policy."""
+
+    target: str = field(default="emulator:an1017", metadata=spec(doc="emulator:NAME, inprocess:NAME, serial:PORT?baud=N or a device path"))
+    period_us: int = field(default=50, metadata=spec(unit="us", ge=50, le=6000, doc="one exchange per period"))
+    timeout_ms: int = field(default=500, metadata=spec(unit="ms", ge=1, le=60000, doc="silence that ends the run"))
+    watchdog_ms: int = field(default=100, metadata=spec(unit="ms", ge=0, le=60000, doc="target turns PWM off after this silence (real time)"))
+    actuation_delay_periods: int = field(default=0, metadata=spec(ge=0, le=100, doc="extra whole periods before duties reach the plant"))
+    overrun_policy: Literal["continue", "abort"] = "continue"
+    max_consecutive_overruns: int = field(default=10, metadata=spec(ge=1, le=1_000_000))
+
+
+@dataclass(frozen=True)
+class TargetSection:
+    """[target]: firmware variant and the gains written after the handshake (None: firmware's own)."""
+
+    variant: Literal["seed", "v11"] = field(default="seed", metadata=spec(doc="AN1017 seed-document behaviour or the v1.1 source's"))
+    kp: float | None = field(default=None, metadata=spec(ge=0, lt=1, doc="speed PID Kp (Q15 fraction)"))
+    ki: float | None = field(default=None, metadata=spec(ge=0, lt=1))
+    kd: float | None = field(default=None, metadata=spec(ge=0, lt=1))
+
+
+@dataclass(frozen=True)
+class ScenarioEntry:
+    """[[scenario]]: one timed action; exactly one of the action keys."""
+
+    at_s: float = field(metadata=spec(unit="s", ge=0))
+    ref_rpm: float | None = field(default=None, metadata=spec(unit="rpm", ge=-20000, le=20000))
+    pot: float | None = field(default=None, metadata=spec(ge=0, le=1))
+    ramp_s: float = field(default=0.0, metadata=spec(unit="s", ge=0, le=3600))
+    load_nm: float | None = field(default=None, metadata=spec(unit="N*m", ge=-1000, le=1000))
+    load_kind: LoadKind = "constant"
+    vbus_v: float | None = field(default=None, metadata=spec(unit="V", ge=0, le=1500))
+    press: Literal["s2", "s3"] | None = None
+    fault: FaultName | None = None
+    fault_duration_s: float | None = field(default=None, metadata=spec(unit="s", gt=0))
+    kp: float | None = field(default=None, metadata=spec(ge=0, lt=1))
+    ki: float | None = field(default=None, metadata=spec(ge=0, lt=1))
+    kd: float | None = field(default=None, metadata=spec(ge=0, lt=1))
+    end: bool = False
+
+    def check(self) -> list[tuple[str, str]]:
+        actions = [k for k in ("ref_rpm", "pot", "load_nm", "vbus_v", "press", "fault") if getattr(self, k) is not None]
+        if any(getattr(self, k) is not None for k in ("kp", "ki", "kd")):
+            actions.append("kp/ki/kd")
+        if self.end:
+            actions.append("end")
+        if len(actions) != 1:
+            return [("at_s", f"needs exactly one action of ref_rpm, pot, load_nm, vbus_v, press, fault, kp/ki/kd, end (found {actions or 'none'})")]
+        return []
+
+    def to_event(self) -> Event:
+        params = tuple((k, float(getattr(self, k))) for k in ("kp", "ki", "kd") if getattr(self, k) is not None)
+        return Event(
+            at_s=self.at_s, ref_rpm=self.ref_rpm, pot=self.pot, ramp_s=self.ramp_s, load_nm=self.load_nm,
+            load_kind=self.load_kind, vbus_v=self.vbus_v, press=self.press, fault=self.fault,
+            fault_duration_s=self.fault_duration_s, params=params, end=self.end,
+        )
+
+
+register_section("run", RunSection)
+register_section("link", LinkSection)
+register_section("target", TargetSection)
+register_section("scenario", ScenarioEntry, many=True)
+
+
+def session_options(cfg: BenchConfig) -> SessionOptions:
+    """SessionOptions from the [run] and [link] tables."""
+    run, link = cfg.run, cfg.link
+    return SessionOptions(
+        period_us=link.period_us,
+        mode=run.mode,
+        duration_s=run.duration_s,
+        actuation_delay_periods=link.actuation_delay_periods,
+        timeout_s=link.timeout_ms / 1000.0,
+        watchdog_ms=link.watchdog_ms,
+        overrun_policy=link.overrun_policy,
+        max_consecutive_overruns=link.max_consecutive_overruns,
+        seed=run.seed,
+    )
+
+
+def scenario_events(cfg: BenchConfig) -> tuple[Event, ...]:
+    """The config's scenario, or the default bench scenario when it has none."""
+    entries = cfg.scenario
+    if not entries:
+        return default_scenario()
+    return tuple(sorted((e.to_event() for e in entries), key=lambda e: e.at_s))
+
+
+def configured_gains(cfg: BenchConfig) -> dict[str, float]:
+    """Gains the [target] table asks for (those left out keep the firmware's defaults)."""
+    return {k: v for k in ("kp", "ki", "kd") if (v := getattr(cfg.target, k)) is not None}
+
+
+def config_metadata(cfg: BenchConfig) -> dict[str, Any]:
+    """The validated config as plain data, for a recording's metadata."""
+    import dataclasses
+
+    def plain(obj: Any) -> Any:
+        if dataclasses.is_dataclass(obj):
+            return {f.name: plain(getattr(obj, f.name)) for f in dataclasses.fields(obj)}
+        if isinstance(obj, tuple):
+            return [plain(x) for x in obj]
+        return obj
+
+    return {name: plain(value) for name, value in cfg.sections.items()}

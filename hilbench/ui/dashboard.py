@@ -1,0 +1,172 @@
+"""The live dashboard of `hilbench run`: speed, state, duties, currents, gains, link, progress.
+
+The session hands over a Snapshot every few hundred periods; the dashboard redraws at most
+``max_fps`` times a second so that drawing never slows the loop it watches.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from typing import Any
+
+from rich.console import Console, Group
+from rich.live import Live
+from rich.panel import Panel
+from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn
+from rich.table import Table
+from rich.text import Text
+
+from hilbench.bench.session import Snapshot, Summary
+
+STATE_NAMES = {0: "STOPPED", 1: "BOOTSTRAP", 2: "RUNNING", 3: "STALLED", 4: "FAULT"}
+OUTPUT_NAMES = {0: "off", 1: "PWM", 2: "low-side on", 3: "?"}
+SPARK = "▁▂▃▄▅▆▇█"
+
+
+def sparkline(values: list[float], width: int = 60) -> str:
+    """A one-line chart of the last ``width`` values."""
+    clean = [v for v in values[-width:] if not math.isnan(v)]
+    if not clean:
+        return ""
+    lo, hi = min(clean), max(clean)
+    span = (hi - lo) or 1.0
+    return "".join(SPARK[min(7, int((v - lo) / span * 7.999))] if not math.isnan(v) else " " for v in values[-width:])
+
+
+def _fmt(value: float, spec: str = ".0f") -> str:
+    return "—" if value is None or (isinstance(value, float) and math.isnan(value)) else format(value, spec)
+
+
+def render_snapshot(snap: Snapshot, params: dict[str, float], target_label: str) -> Group:
+    """Everything one frame of the dashboard shows."""
+    motor = Table.grid(padding=(0, 2))
+    motor.add_column(style="bold")
+    motor.add_column(justify="right")
+    motor.add_row("reference", f"{_fmt(snap.ref_rpm)} rpm")
+    motor.add_row("speed (plant)", f"{_fmt(snap.speed_rpm)} rpm")
+    motor.add_row("speed (firmware)", f"{_fmt(snap.measured_rpm)} rpm")
+    motor.add_row("state", f"{STATE_NAMES.get(snap.state, snap.state)}, outputs {OUTPUT_NAMES.get(snap.output_mode, '?')}")
+    motor.add_row("sector / dir", f"{snap.sector} / {'CCW' if snap.direction_ccw else 'CW'}")
+    motor.add_row("duties", " ".join(str(d) for d in snap.duties))
+    motor.add_row("i a/b/c", " ".join(f"{i:+.2f}" for i in snap.i_abc) + " A")
+    motor.add_row("i bus", f"{snap.i_bus:+.3f} A")
+    motor.add_row("controller", f"{snap.control_output_q15}")
+
+    link = Table.grid(padding=(0, 2))
+    link.add_column(style="bold")
+    link.add_column(justify="right")
+    link.add_row("periods/s", f"{snap.periods_per_s:,.0f}")
+    link.add_row("RTT p50/p99", f"{_fmt(snap.rtt_p50_us, '.0f')}/{_fmt(snap.rtt_p99_us, '.0f')} µs")
+    for key in ("crc_errors", "timeouts", "resyncs", "seq_gaps"):
+        if key in snap.link:
+            link.add_row(key.replace("_", " "), str(snap.link[key]))
+    link.add_row("overruns", str(snap.overruns))
+    for name, value in params.items():
+        link.add_row(name, f"{value:.5g}")
+
+    grid = Table.grid(expand=True)
+    grid.add_column(ratio=1)
+    grid.add_column(ratio=1)
+    grid.add_row(Panel(motor, title="motor"), Panel(link, title="link & gains"))
+    speeds = [h[2] for h in snap.history]
+    chart = Text(sparkline(speeds), style="cyan")
+    parts: list[Any] = [
+        Text(f"hilbench run — {target_label}", style="bold"),
+        grid,
+        Panel(chart, title="speed (plant), last samples"),
+    ]
+    if snap.messages:
+        parts.append(Text("\n".join(snap.messages), style="yellow"))
+    return Group(*parts)
+
+
+class Dashboard:
+    """A rich Live view fed by the session's observer callback."""
+
+    def __init__(self, target_label: str, duration_s: float | None, console: Console | None = None, max_fps: float = 8.0) -> None:
+        self.console = console or Console(stderr=False)
+        self.target_label = target_label
+        self.params: dict[str, float] = {}
+        self.min_interval_s = 1.0 / max_fps
+        self._last = 0.0
+        self.progress = Progress(
+            TextColumn("[bold]simulated"),
+            BarColumn(),
+            TextColumn("{task.completed:.2f}/{task.total:.2f} s"),
+            TimeElapsedColumn(),
+            console=self.console,
+        )
+        self.task = self.progress.add_task("run", total=duration_s or 1.0)
+        self.live = Live(console=self.console, refresh_per_second=max_fps, transient=False)
+
+    def __enter__(self) -> "Dashboard":
+        self.live.__enter__()
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.live.__exit__(*exc)  # type: ignore[arg-type]
+
+    def __call__(self, snap: Snapshot) -> None:
+        now = time.perf_counter()
+        if now - self._last < self.min_interval_s:
+            return
+        self._last = now
+        self.progress.update(self.task, completed=snap.t_s, total=snap.duration_s)
+        self.live.update(Group(render_snapshot(snap, self.params, self.target_label), self.progress))
+
+
+def summary_table(summary: Summary) -> Group:
+    """The end-of-run summary: how each reference was followed, link and timing figures."""
+    head = Table(title=f"hilbench run — {summary.target}", show_header=False, box=None)
+    head.add_row("mode", f"{summary.mode}, period {summary.period_us} µs")
+    head.add_row("ended", summary.end_reason + (f": {summary.fault}" if summary.fault else ""))
+    head.add_row("simulated", f"{summary.sim_s:.3f} s in {summary.periods:,} periods")
+    head.add_row("wall", f"{summary.wall_s:.2f} s ({summary.realtime_factor:.2f}× real time)")
+    if summary.rtt_us:
+        head.add_row("RTT", f"p50 {summary.rtt_us['p50']:.0f} µs, p99 {summary.rtt_us['p99']:.0f} µs, max {summary.rtt_us['max']:.0f} µs")
+    if summary.lateness_us:
+        lat = summary.lateness_us
+        head.add_row("lateness", f"p50 {lat['p50']:.1f} µs, p99 {lat['p99']:.1f} µs, max {lat['max']:.0f} µs; overruns {summary.overruns}")
+    if summary.link:
+        head.add_row("link", ", ".join(f"{k} {v}" for k, v in summary.link.items()))
+    if summary.params:
+        head.add_row("parameters", ", ".join(f"{k} {v:.5g}" for k, v in summary.params.items()))
+    if summary.recording:
+        head.add_row("recording", f"{summary.recording} ({summary.rows_recorded:,} rows)")
+    seg = Table(title="steady state per reference (last 30 % of each hold)")
+    for col in ("from [s]", "to [s]", "reference [rpm]", "plant [rpm]", "firmware [rpm]", "error [%]", "within 2 %"):
+        seg.add_column(col, justify="right")
+    for s in summary.segments:
+        ok = abs(s.error_pct) <= 2.0
+        seg.add_row(
+            f"{s.t_start_s:.2f}", f"{s.t_end_s:.2f}", f"{s.ref_rpm:.0f}", f"{s.plant_rpm:.1f}",
+            _fmt(s.measured_rpm, ".1f"), f"{s.error_pct:+.2f}", "[green]yes[/]" if ok else "[red]no[/]",
+        )
+    return Group(head, seg) if summary.segments else Group(head)
+
+
+def summary_text(summary: Summary) -> str:
+    """The plain summary of --no-ui: one fact per line."""
+    lines = [
+        f"target: {summary.target}",
+        f"mode: {summary.mode}, period {summary.period_us} us",
+        f"ended: {summary.end_reason}" + (f": {summary.fault}" if summary.fault else ""),
+        f"simulated: {summary.sim_s:.3f} s, {summary.periods} periods, wall {summary.wall_s:.2f} s, "
+        f"{summary.realtime_factor:.2f}x real time",
+    ]
+    if summary.rtt_us:
+        lines.append(f"rtt_us: p50 {summary.rtt_us['p50']:.1f} p99 {summary.rtt_us['p99']:.1f} max {summary.rtt_us['max']:.1f}")
+    if summary.lateness_us:
+        lat = summary.lateness_us
+        lines.append(f"lateness_us: p50 {lat['p50']:.1f} p99 {lat['p99']:.1f} max {lat['max']:.1f}; overruns {summary.overruns}")
+    if summary.link:
+        lines.append("link: " + ", ".join(f"{k} {v}" for k, v in summary.link.items()))
+    for s in summary.segments:
+        lines.append(
+            f"ref {s.ref_rpm:+.0f} rpm [{s.t_start_s:.2f}-{s.t_end_s:.2f} s]: plant {s.plant_rpm:+.1f} rpm, "
+            f"firmware {_fmt(s.measured_rpm, '+.1f')} rpm, error {s.error_pct:+.2f} %"
+        )
+    if summary.recording:
+        lines.append(f"recording: {summary.recording} ({summary.rows_recorded} rows)")
+    return "\n".join(lines)
