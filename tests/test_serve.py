@@ -79,7 +79,7 @@ def test_handshake_and_params(served: Served) -> None:
     assert remote.set_params(((2, 1),)).result == 2
     assert remote.set_params(((1, 40000 - 65536),)).result == 3  # -25536 is below min 0
     r = remote.set_params(((1, 32700), (0, 100)))
-    assert (r.result, r.param_id, r.detail) == (4, 1, 1)
+    assert (r.result, r.param_id, r.detail) == (4, 0, 1)  # PROTOCOL.md: param_id 0, constraint 1
     assert remote.get_param(0).value == 100
 
 

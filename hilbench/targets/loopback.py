@@ -10,7 +10,7 @@ in firmware_protocol/PROTOCOL.md, so a test can assert every field of every Driv
   110->1, 000/111 -> 7 invalid); direction_ccw = S3 input; required_ccw False; fault 0;
 - telemetry = (encoder as int16, edge_time_100ns as int16, seq).
 Parameters: 0 "kp" Q15 RW [0, 32767] = 3277, 1 "ki" Q15 RW [0, 32767] = 328, 2 "version" INT
-RO = 1; constraint 1: kp + ki <= 32767.
+RO = 1; constraint 1: kp + ki <= 32767 (else CONSTRAINT, param_id 0, detail 1).
 """
 
 from __future__ import annotations
@@ -131,7 +131,7 @@ class LoopbackTarget:
                 return ParamSetResult(0, RESULT_OUT_OF_RANGE, pid, 0)
             new[pid] = value
         if new[PARAM_KP] + new[PARAM_KI] > 32767:
-            return ParamSetResult(0, RESULT_CONSTRAINT, pairs[0][0], CONSTRAINT_KP_PLUS_KI)
+            return ParamSetResult(0, RESULT_CONSTRAINT, PARAM_KP, CONSTRAINT_KP_PLUS_KI)  # as PROTOCOL.md and the C target
         self.values = new
         return ParamSetResult(0, RESULT_OK, 0, 0)
 
