@@ -1,0 +1,193 @@
+"""N independent plants stepped together with numpy (gain sweeps): the scalar plant's equations
+and method (RK4 in dq, alpha-beta voltage held over the period, Park-transformed per stage,
+stiction per plant, hall sector and edge time from a cubic Hermite of theta(t)).
+
+Scope: output modes PWM and LOW_SIDE, loads constant/step/linear/locked (no quadratic load, no
+OFF-mode diode model, no dead time, no ADC noise: use `Plant` for those).
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Sequence
+
+import numpy as np
+
+from hilbench.plant.model import HALL_BY_SECTOR, OUTPUT_LOW_SIDE, OUTPUT_PWM, SECTOR0_START_RAD, SIXTY, TWO_PI
+from hilbench.plant.params import PlantParams
+
+__all__ = ["BatchPlant"]
+
+_HALL = np.array(HALL_BY_SECTOR, dtype=np.int64)
+
+
+class BatchPlant:
+    """`BatchPlant(params_list)`; `step(duty_a, duty_b, duty_c, output_mode, dt_s)` with arrays of
+    shape (N,) (or scalars). After a step: `i_d, i_q, w_m, theta_e, hall_bits, last_edge_s`
+    (NaN where no edge), `speed_rpm`."""
+
+    def __init__(self, params: Sequence[PlantParams]) -> None:
+        self.params = tuple(params)
+        n = len(self.params)
+        if n == 0:
+            raise ValueError("BatchPlant: no plants")
+
+        def arr(get) -> np.ndarray:
+            return np.array([float(get(p)) for p in self.params])
+
+        for p in self.params:
+            if p.load.kind == "quadratic" or p.inverter.dead_time_enabled:
+                raise ValueError("BatchPlant: quadratic load and dead time are scalar-Plant only")
+        rs = arr(lambda p: p.motor.rs_ohm)
+        ld = arr(lambda p: p.motor.ld_h)
+        lq = arr(lambda p: p.motor.lq_h)
+        psi = arr(lambda p: p.motor.psi_wb)
+        self._p = arr(lambda p: p.motor.pole_pairs)
+        j = arr(lambda p: p.motor.j_kgm2)
+        self._tc = arr(lambda p: p.motor.coulomb_nm)
+        self._j = j
+        self._ild, self._ilq = 1.0 / ld, 1.0 / lq
+        self._rd, self._rq = rs / ld, rs / lq
+        self._pq = self._p * lq / ld
+        self._pd = self._p * ld / lq
+        self._ppsi = self._p * psi / lq
+        self._kt = 1.5 * self._p * psi / j
+        self._kr = 1.5 * self._p * (ld - lq) / j
+        self._ij = 1.0 / j
+        self._b = arr(lambda p: p.motor.b_nms_per_rad)
+        self.vbus_v = arr(lambda p: p.inverter.vbus_v)
+        self._base = np.array([(SECTOR0_START_RAD + math.radians(p.hall.offset_deg)) % TWO_PI for p in self.params])
+        loads = [p.load for p in self.params]
+        self._tl_before = np.array([ld.torque_nm for ld in loads])
+        self._tl_after = np.array([ld.step_torque_nm if ld.kind == "step" else ld.torque_nm for ld in loads])
+        self._t_step = np.array([ld.step_time_s if ld.kind == "step" else 0.0 for ld in loads])
+        self._kl = np.array([ld.coeff if ld.kind == "linear" else 0.0 for ld in loads])
+        self._locked = np.array([ld.kind == "locked" for ld in loads])
+        self._simple = not self._locked.any() and not (self._tc > 0).any()
+        self._kvj = (self._b + self._kl) * self._ij
+        self.n = n
+        self.reset()
+
+    def reset(self) -> None:
+        n = self.n
+        self.i_d = np.zeros(n)
+        self.i_q = np.zeros(n)
+        self.w_m = np.zeros(n)
+        self.theta_e = np.zeros(n)
+        self.t_s = 0.0
+        self._stuck = self._tc > 0.0
+        self._nidx = np.floor((self.theta_e - self._base) / SIXTY)
+        self.hall_bits = _HALL[self._nidx.astype(np.int64) % 6]
+        self.last_edge_s = np.full(n, np.nan)
+
+    @property
+    def speed_rpm(self) -> np.ndarray:
+        return self.w_m * (60.0 / TWO_PI)
+
+    def _loads(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        tl = np.where(self.t_s >= self._t_step - 1e-12, self._tl_after, self._tl_before)
+        return tl, self._kl, self._locked
+
+    def step(self, duty_a, duty_b, duty_c, output_mode: int, dt_s: float) -> None:
+        """Integrate one period for every plant (same dt). output_mode: PWM (1) or LOW_SIDE (2)."""
+        cos, sin = np.cos, np.sin
+        if output_mode == OUTPUT_PWM:
+            da = np.asarray(duty_a, dtype=float)
+            db = np.asarray(duty_b, dtype=float)
+            dc = np.asarray(duty_c, dtype=float)
+            va = self.vbus_v * (2.0 * da - db - dc) / 3.0
+            vb = self.vbus_v * (db - dc) / math.sqrt(3.0)
+        elif output_mode == OUTPUT_LOW_SIDE:
+            va = vb = np.zeros(self.n)
+        else:
+            raise NotImplementedError("BatchPlant: output mode OFF is modelled by the scalar Plant only")
+        rd, rq, pq, pd, ppsi, p = self._rd, self._rq, self._pq, self._pd, self._ppsi, self._p
+        id0, iq0, w0, th0 = self.i_d, self.i_q, self.w_m, self.theta_e
+        tl, kl, locked = self._loads()
+        if self._simple:
+            ftj = tl * self._ij
+            kvj = self._kvj
+            kt = self._kt
+            kr = self._kr
+            fr = None
+        else:
+            ftj, kvj, kt, kr, fr, w0 = self._friction(id0, iq0, w0, tl, kl, locked)
+        vmag = np.sqrt(va * va + vb * vb)
+        vdm = vmag * self._ild
+        vqm = vmag * self._ilq
+        x0 = np.arctan2(vb, va) - th0
+        h = dt_s
+        h2 = 0.5 * h
+
+        def f(a, b, w, x):
+            kd = vdm * cos(x) + w * pq * b - rd * a
+            kq = vqm * sin(x) - w * (pd * a + ppsi) - rq * b
+            kw = b * (kt + kr * a) - kvj * w - ftj
+            return kd, kq, kw
+
+        k1d, k1q, k1w = f(id0, iq0, w0, x0)
+        w2 = w0 + h2 * k1w
+        k2d, k2q, k2w = f(id0 + h2 * k1d, iq0 + h2 * k1q, w2, x0 - h2 * p * w0)
+        w3 = w0 + h2 * k2w
+        k3d, k3q, k3w = f(id0 + h2 * k2d, iq0 + h2 * k2q, w3, x0 - h2 * p * w2)
+        w4 = w0 + h * k3w
+        k4d, k4q, k4w = f(id0 + h * k3d, iq0 + h * k3q, w4, x0 - h * p * w3)
+        h6 = h / 6.0
+        self.i_d = id0 + h6 * (k1d + 2.0 * (k2d + k3d) + k4d)
+        self.i_q = iq0 + h6 * (k1q + 2.0 * (k2q + k3q) + k4q)
+        w1 = w0 + h6 * (k1w + 2.0 * (k2w + k3w) + k4w)
+        th1 = th0 + h6 * p * (w0 + 2.0 * (w2 + w3) + w4)
+        if fr is not None:
+            stick = (fr != 0.0) & (w0 != 0.0) & ((w1 > 0.0) != (w0 > 0.0))
+            if stick.any():
+                w1 = np.where(stick, 0.0, w1)
+                self._stuck = self._stuck | stick
+        self.w_m = w1
+        n0 = self._nidx
+        n1 = np.floor((th1 - self._base) / SIXTY)
+        moved = n1 != n0
+        if moved.any():
+            idx = np.nonzero(moved)[0]
+            pi = p[idx]
+            edge = np.full(self.n, np.nan)
+            edge[idx] = self._edge(self._base[idx], th0[idx], th1[idx], n0[idx], n1[idx], pi * w0[idx], pi * w1[idx], h)
+            self.last_edge_s = edge
+            self.hall_bits = _HALL[n1.astype(np.int64) % 6]
+        else:
+            self.last_edge_s = np.full(self.n, np.nan)
+        k = np.floor(th1 / TWO_PI)
+        self.theta_e = th1 - k * TWO_PI
+        self._nidx = n1 - 6.0 * k
+        self.t_s += h
+
+    def _friction(self, id0, iq0, w0, tl, kl, locked):
+        """Stiction and Coulomb sign per plant, frozen over the period (as the scalar plant)."""
+        net = (self._kt + self._kr * id0) * iq0 * self._j - tl
+        hold = locked | (self._stuck & (np.abs(net) <= self._tc))
+        release = self._stuck & ~hold
+        self._stuck = self._stuck & hold
+        fr = np.where(release, np.copysign(self._tc, net), np.where(w0 > 0, self._tc, np.where(w0 < 0, -self._tc, 0.0)))
+        ij = np.where(hold, 0.0, self._ij)
+        w0 = np.where(locked, 0.0, w0)
+        fr = np.where(hold, 0.0, fr)
+        ftj = (fr + tl) * ij
+        kvj = (self._b + kl) * ij
+        kt = np.where(hold, 0.0, self._kt)
+        kr = np.where(hold, 0.0, self._kr)
+        return ftj, kvj, kt, kr, fr, w0
+
+    @staticmethod
+    def _edge(base, th0, th1, n0, n1, we0, we1, h):
+        """Newton on the cubic Hermite theta(u), u in [0, 1] (only plants whose sector moved: d != 0)."""
+        target = base + np.where(n1 > n0, n1, n0) * SIXTY
+        d = th1 - th0
+        a1 = we0 * h
+        a2 = 3.0 * d - 2.0 * a1 - we1 * h
+        a3 = -2.0 * d + a1 + we1 * h
+        g = target - th0
+        u = np.clip(g / d, 0.0, 1.0)
+        for _ in range(4):
+            fv = u * (a1 + u * (a2 + u * a3)) - g
+            fp = a1 + u * (2.0 * a2 + 3.0 * u * a3)
+            u = np.clip(u - fv / fp, 0.0, 1.0)
+        return u * h
