@@ -84,9 +84,11 @@ _MODES = {"auto": None, "lockstep": 0, "realtime": 1}
               help="auto follows the host's handshake; lockstep/realtime refuse a host asking otherwise.")
 @click.option("--watchdog-ms", type=click.IntRange(0, 65535), default=None,
               help="Override the host's watchdog time in real-time mode (0 disables it).")
+@click.option("--variant", type=click.Choice(["seed", "v11"]), default=None,
+              help="AN1017 only: the seed document's behaviour (default) or the v1.1 source's.")
 @click.option("--quiet", "-q", is_flag=True, help="Log only warnings and errors.")
 @_friendly
-def emulate(target: str, port_spec: str, mode: str, watchdog_ms: int | None, quiet: bool) -> None:
+def emulate(target: str, port_spec: str, mode: str, watchdog_ms: int | None, variant: str | None, quiet: bool) -> None:
     """Serve an emulated TARGET (an1017, loopback) on a virtual serial pair or a tty.
 
     The first line on stdout is the path the host opens, e.g.
@@ -103,7 +105,8 @@ def emulate(target: str, port_spec: str, mode: str, watchdog_ms: int | None, qui
         click.echo(path)
         sys.stdout.flush()
 
-    report = serve_on_port(target, port_spec, _MODES[mode], {}, watchdog_ms=watchdog_ms, announce=announce)
+    options = {"variant": variant} if variant is not None else {}
+    report = serve_on_port(target, port_spec, _MODES[mode], options, watchdog_ms=watchdog_ms, announce=announce)
     logging.getLogger("hilbench.serve").info(
         "served %d periods and %d requests; %s", report.sensors, report.requests, report.reason or "done"
     )
@@ -156,6 +159,145 @@ def link_test(target: str, periods: int, period_us: int, timeout_ms: int) -> Non
     console.print(table)
     if result.errors:
         console.print(f"[yellow]{result.errors} errors counted[/yellow]")
+
+
+@cli.command(context_settings={"show_default": True})
+@click.argument("config", required=False, type=click.Path(dir_okay=False))
+@click.option("--target", "target_spec", default=None, metavar="SPEC",
+              help="emulator:an1017 (default: the emulator process on a virtual serial pair), "
+                   "emulator:loopback, inprocess:an1017, or a board: serial:/dev/ttyUSB0?baud=250000.")
+@click.option("--mode", type=click.Choice(["lockstep", "realtime"]), default=None,
+              help="lockstep: the host is the clock (deterministic); realtime: periods paced to the wall clock.")
+@click.option("--duration", "duration_s", type=click.FloatRange(min=0, min_open=True), default=None,
+              metavar="S", help="Simulated seconds (default: the scenario's end).")
+@click.option("--record", type=click.Path(dir_okay=False), default=None, metavar="FILE",
+              help="Keep every period in FILE (.csv or .npz), written as the run goes.")
+@click.option("--set", "overrides", multiple=True, metavar="TABLE.KEY=VALUE",
+              help="Override one config value, e.g. --set target.kp=0.2 --set link.period_us=100.")
+@click.option("--no-ui", is_flag=True, help="No live dashboard; print a plain summary at the end.")
+@click.option("--json", "as_json", is_flag=True, help="Print the summary as JSON (implies --no-ui).")
+@click.option("--no-control", is_flag=True, help="Do not open the control socket for `hilbench ctl`.")
+@_friendly
+def run(config: str | None, target_spec: str | None, mode: str | None, duration_s: float | None,
+        record: str | None, overrides: tuple[str, ...], no_ui: bool, as_json: bool, no_control: bool) -> None:
+    """Run a bench session: target + plant + scenario, live, recorded.
+
+    With no arguments: the AN1017 emulator as its own process on a virtual serial pair, the Hurst
+    DMB0224C10002 on the MCLV board, and the default scenario (S2, ramp to 1500 rpm, step to 2500,
+    reverse to -1500, stop), lockstep at 20 kHz, with the live dashboard and a summary at the end.
+
+    \b
+    Examples:
+      hilbench run
+      hilbench run bench_configs/hurst_mclv.toml --record run.csv
+      hilbench run --set target.kp=0.15 --duration 2 --no-ui
+      hilbench run --target serial:/dev/ttyUSB0?baud=250000 --mode realtime --set link.period_us=1000
+    While it runs, `hilbench ctl get|set|ref|load` talks to it from another terminal.
+    """
+    import json as json_module
+
+    from rich.console import Console
+
+    from hilbench.bench.run import RunRequest, check_overrides, load_run_config, run_bench
+    from hilbench.ui.dashboard import Dashboard, summary_table, summary_text
+
+    request = RunRequest(config, check_overrides(overrides), target_spec, mode, duration_s, record)
+    cfg = load_run_config(request)
+    control = None
+    if not no_control:
+        from hilbench.bench.control import ControlServer
+
+        control = ControlServer()
+    console = Console()
+    try:
+        if no_ui or as_json or not console.is_terminal:
+            summary = run_bench(cfg, record=record, control=control)
+        else:
+            dashboard = Dashboard(cfg.link.target, cfg.run.duration_s, console=console)
+
+            def ready(session) -> None:  # type: ignore[no-untyped-def]
+                dashboard.params = session.param_values()
+                session.on_params = lambda values: dashboard.params.update(values)
+
+            with dashboard:
+                summary = run_bench(cfg, record=record, observer=dashboard, control=control, on_ready=ready)
+    finally:
+        if control is not None:
+            control.close()
+    if as_json:
+        click.echo(json_module.dumps(summary.as_dict(), indent=2, default=str))
+    elif no_ui or not console.is_terminal:
+        click.echo(summary_text(summary))
+    else:
+        console.print(summary_table(summary))
+
+
+@cli.command()
+@click.argument("recording", type=click.Path(dir_okay=False))
+@click.option("--plot", "plot_dir", type=click.Path(file_okay=False), default=None, metavar="DIR",
+              help="Write PNG plots (speed, currents, duties, hall, link) into DIR (needs the plot extra).")
+@click.option("--json", "as_json", is_flag=True, help="Print the summary as JSON.")
+@_friendly
+def report(recording: str, plot_dir: str | None, as_json: bool) -> None:
+    """Summarise a recording (CSV, NPZ, or the journal of a run that was killed)."""
+    import json as json_module
+    from pathlib import Path
+
+    from rich.console import Console
+    from rich.table import Table
+
+    from hilbench.bench.recorder import read_recording
+    from hilbench.bench.report import summarise
+
+    data = read_recording(recording)
+    info = summarise(data)
+    if plot_dir is not None:
+        from hilbench.ui.plots import plot_recording
+
+        info["plots"] = [str(p) for p in plot_recording(data, Path(plot_dir))]
+    if as_json:
+        click.echo(json_module.dumps(info, indent=2, default=str))
+        return
+    table = Table(title=f"recording {recording}", show_header=False)
+    table.add_column("what", style="bold")
+    table.add_column("value")
+    for key, value in info.items():
+        if isinstance(value, list):
+            value = "\n".join(str(v) for v in value) or "—"
+        table.add_row(key.replace("_", " "), str(value))
+    Console().print(table)
+
+
+@cli.command(context_settings={"ignore_unknown_options": True})
+@click.argument("words", nargs=-1, type=click.UNPROCESSED)
+@click.option("--socket", "socket_path", default=None, metavar="PATH",
+              help="The session's control socket (default: the newest running session).")
+@click.option("--timeout", "timeout_s", type=click.FloatRange(min=0.1), default=5.0, show_default=True)
+@_friendly
+def ctl(words: tuple[str, ...], socket_path: str | None, timeout_s: float) -> None:
+    """Talk to a running `hilbench run` through its control socket.
+
+    \b
+    hilbench ctl get                     gains and parameters now
+    hilbench ctl set kp=0.1 ki=0.01      write a gain set (checked, applied atomically)
+    hilbench ctl ref 1500                speed reference in rpm (negative: reverse)
+    hilbench ctl load 0.02               load torque in N*m
+    hilbench ctl step 1000 2000          reference step from 1000 to 2000 rpm
+    hilbench ctl save gains.toml         write the gains as a config fragment
+    hilbench ctl guard on|off            guarded tuning: restore gains after a bad response
+    """
+    import json as json_module
+
+    from hilbench.bench.control import ControlClient, parse_ctl_args
+    from hilbench.errors import TargetError
+
+    request = parse_ctl_args(list(words))
+    reply = ControlClient(socket_path, timeout_s=timeout_s).request(request, timeout_s=timeout_s)
+    if not reply.get("ok"):
+        raise TargetError(str(reply.get("message", "refused")))
+    click.echo(reply.get("message", "ok"))
+    if reply.get("data"):
+        click.echo(json_module.dumps(reply["data"], indent=2, default=str))
 
 
 def main() -> None:

@@ -14,8 +14,10 @@ reaps the child on every exit path.
 from __future__ import annotations
 
 import os
+import select
 import subprocess
 import sys
+import tempfile
 from dataclasses import dataclass, field
 from typing import Any, Callable
 
@@ -33,6 +35,7 @@ class TargetHandle:
     label: str
     link: Any = None
     process: subprocess.Popen[bytes] | None = None
+    child_log: Any = None
     _closers: list[Callable[[], None]] = field(default_factory=list)
 
     def link_stats(self) -> dict[str, int]:
@@ -62,6 +65,8 @@ class TargetHandle:
             pass
         if self.process is not None:
             reap(self.process)
+            if self.process.stdout is not None:
+                self.process.stdout.close()
         for closer in self._closers:
             closer()
 
@@ -124,17 +129,41 @@ def _spawn_emulator(name: str, mode: str, timeout_s: float, watchdog_ms: int, ex
         sys.executable, "-m", "hilbench", "emulate", name,
         "--port", link.peer_path, "--mode", mode, "--watchdog-ms", str(watchdog_ms), *extra,
     ]
+    log = tempfile.TemporaryFile()  # the child's stderr: a file never fills up and blocks it
     try:
         process = subprocess.Popen(
             command,
             stdin=subprocess.DEVNULL,
-            stdout=subprocess.DEVNULL,
-            stderr=subprocess.PIPE,
+            stdout=subprocess.PIPE,
+            stderr=log,
             env=dict(os.environ, PYTHONUNBUFFERED="1"),
+            start_new_session=True,  # Ctrl-C reaches the session, which stops and reaps the child
         )
     except OSError as exc:
         link.close()
+        log.close()
         raise LinkError(f"emulator {name}: cannot start ({exc.strerror})") from None
     label = f"emulator:{name} on {link.peer_path} (pid {process.pid})"
-    handle = TargetHandle(RemoteTarget(link, timeout_s=max(timeout_s, 5.0)), label=label, link=link, process=process)
+    handle = TargetHandle(RemoteTarget(link, timeout_s=timeout_s), label=label, link=link, process=process)
+    handle._closers.append(log.close)
+    handle.child_log = log
+    try:
+        _wait_ready(process, label, log)
+    except BaseException:
+        handle.close()
+        raise
     return handle
+
+
+def _wait_ready(process: subprocess.Popen[bytes], label: str, log: Any, timeout_s: float = 20.0) -> None:
+    """The emulator prints the port path once it listens; bytes sent before that could be lost."""
+    assert process.stdout is not None
+    ready, _, _ = select.select([process.stdout], [], [], timeout_s)
+    line = process.stdout.readline() if ready else b""
+    if not line:
+        process.poll()
+        log.seek(0)
+        tail = log.read().decode(errors="replace").strip().splitlines()[-1:] or ["no output"]
+        code = process.returncode
+        state = f"exited with code {code}" if code is not None else f"not ready after {timeout_s:.0f} s"
+        raise LinkError(f"{label}: emulator {state}: {tail[0]}")

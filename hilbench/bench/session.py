@@ -227,6 +227,7 @@ class Session:
         self._last_hall = 0
         self._last_drive: Any = None
         self._end_requested = False
+        self.on_params: Callable[[dict[str, float]], None] | None = None
 
     # ------------------------------------------------------------------ handshake
     def handshake(self) -> TargetHello:
@@ -284,6 +285,8 @@ class Session:
             reason = RESULT_NAMES.get(result.result, f"result {result.result}")
             detail = f" #{result.detail}" if result.result == 4 else ""
             raise ParamError(f"{self.target_label} refused {name}: {reason}{detail}")
+        if self.on_params is not None:
+            self.on_params(dict(values))
         text = "set " + " ".join(f"{k}={v:g}" for k, v in values.items())
         when = self.plant.t_s if t_s is None else t_s
         self.param_log.append((when, text))

@@ -28,7 +28,7 @@ class RunSection:
 
     mode: Literal["lockstep", "realtime"] = field(default="lockstep", metadata=spec(doc="lockstep (virtual time) or realtime (wall clock)"))
     duration_s: float | None = field(default=None, metadata=spec(unit="s", gt=0, le=86400, doc="default: the scenario's end"))
-    seed: int = field(default=0, metadata=spec(ge=0, doc="seed of every random source of the run"))
+    seed: int | None = field(default=None, metadata=spec(ge=0, doc="seed of every random source of the run (default: [plant] seed)"))
 
 
 @dataclass(frozen=True)

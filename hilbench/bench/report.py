@@ -1,0 +1,83 @@
+"""Summaries of a recording, for `hilbench report` (data only; the CLI prints)."""
+
+from __future__ import annotations
+
+import re
+from typing import Any
+
+import numpy as np
+
+from hilbench.bench.recorder import MARKER_FAULT, RecordingData
+
+_EVENT_TIME = re.compile(r"^t=([0-9.]+) (.*)$")
+_REF = re.compile(r"^ref (-?[0-9.]+) rpm")
+
+
+def timed_events(data: RecordingData) -> list[tuple[float, str]]:
+    """Events that carry a time (scenario actions, parameter changes)."""
+    out: list[tuple[float, str]] = []
+    for text in data.events:
+        match = _EVENT_TIME.match(text)
+        if match:
+            out.append((float(match.group(1)), match.group(2)))
+    return out
+
+
+def reference_segments(data: RecordingData) -> list[dict[str, float]]:
+    """Each reference hold: mean plant and firmware speed over its last 30 %."""
+    c = data.columns
+    t = c["t_s"]
+    if len(t) == 0:
+        return []
+    events = timed_events(data)
+    refs = [(when, float(m.group(1))) for when, text in events if (m := _REF.match(text))]
+    segments: list[dict[str, float]] = []
+    for i, (start, ref) in enumerate(refs):
+        end = refs[i + 1][0] if i + 1 < len(refs) else float(t[-1])
+        later_stops = [w for w, text in events if text.startswith("press") and start + 0.05 < w < end]
+        if later_stops:
+            end = later_stops[0]
+        if end - start < 0.05 or ref == 0:
+            continue
+        window = (t >= end - 0.3 * (end - start)) & (t < end)
+        if not window.any():
+            continue
+        plant = float(np.mean(c["speed_rpm"][window]))
+        measured = float(np.nanmean(c["measured_speed_rpm"][window])) if not np.all(np.isnan(c["measured_speed_rpm"][window])) else float("nan")
+        segments.append({
+            "from_s": round(start, 4), "to_s": round(end, 4), "ref_rpm": ref,
+            "plant_rpm": round(plant, 2), "firmware_rpm": round(measured, 2),
+            "error_pct": round(100.0 * (plant - ref) / abs(ref), 3),
+        })
+    return segments
+
+
+def summarise(data: RecordingData) -> dict[str, Any]:
+    """The facts of a recording as plain data."""
+    c = data.columns
+    n = data.n_rows
+    meta = data.metadata
+    hello = meta.get("target_hello") or {}
+    faults = np.flatnonzero(c["marker"] == MARKER_FAULT) if n else np.array([], dtype=int)
+    info: dict[str, Any] = {
+        "file": str(data.path),
+        "rows": n,
+        "time_s": f"{c['t_s'][0]:.6f} .. {c['t_s'][-1]:.6f}" if n else "empty",
+        "target": f"{hello.get('firmware_name', '?')} via {meta.get('target', '?')}",
+        "mode": meta.get("mode", "?"),
+        "period_us": meta.get("period_us", "?"),
+        "seed": meta.get("seed", "?"),
+        "ended": meta.get("end", data.events[-1] if data.events else "no end note (killed run?)"),
+        "fault_rows": [int(c["seq"][i]) for i in faults],
+    }
+    if n:
+        info["max_speed_rpm"] = round(float(np.max(np.abs(c["speed_rpm"]))), 2)
+        info["max_phase_current_a"] = round(float(np.max(np.abs(np.stack([c["ia_a"], c["ib_a"], c["ic_a"]])))), 4)
+        info["max_bus_current_a"] = round(float(np.max(np.abs(c["ibus_a"]))), 4)
+    info["segments"] = [
+        f"{s['from_s']:.2f}-{s['to_s']:.2f} s: ref {s['ref_rpm']:+.0f} rpm, plant {s['plant_rpm']:+.1f}, "
+        f"firmware {s['firmware_rpm']:+.1f}, error {s['error_pct']:+.2f} %"
+        for s in reference_segments(data)
+    ]
+    info["events"] = [f"{when:.4f} s {text}" for when, text in timed_events(data)]
+    return info
