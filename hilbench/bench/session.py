@@ -45,6 +45,9 @@ PARAM_Q15 = 0
 PARAM_BOOL = 2
 RESULT_NAMES = {0: "ok", 1: "unknown parameter", 2: "read-only", 3: "out of range", 4: "constraint", 5: "bad request"}
 
+#: the plant's step is accurate to 1e-6 at 50 us; longer periods are integrated in substeps
+MAX_PLANT_STEP_US = 50
+
 #: how long a button press is held (the firmware debounces and acts on the edge)
 BUTTON_HOLD_S = 0.002
 
@@ -409,6 +412,9 @@ class Session:
         control = self.control
         perf = time.perf_counter
         edge_limit = options.period_us * 10 - 1
+        substeps = max(1, math.ceil(options.period_us / MAX_PLANT_STEP_US))
+        sub_s = period_s / substeps
+        edge_s = plant.last_edge_s
         wall_start = perf()
         last_obs_wall = wall_start
         last_obs_k = 0
@@ -437,7 +443,6 @@ class Session:
                     self._apply_fault(Event(at_s=t_s, fault="clear"), t_s)
                 # -- sample the plant
                 hall = plant.hall_bits
-                edge_s = plant.last_edge_s
                 edge = EDGE_NONE if edge_s is None else min(int(edge_s * 1e7), edge_limit)
                 if self._hall_force_high or self._hall_force_low or self._missing_edge_armed:
                     hall, edge = self._faulty_hall(hall, edge)
@@ -472,15 +477,22 @@ class Session:
                     applied = drive
                 # -- integrate the plant over the period
                 if applied is None:
-                    plant.step(0.0, 0.0, 0.0, OUTPUT_OFF, period_s)
+                    da = db = dc = 0.0
+                    mode = OUTPUT_OFF
                 else:
-                    plant.step(
-                        applied.duty_a * duty_scale,
-                        applied.duty_b * duty_scale,
-                        applied.duty_c * duty_scale,
-                        applied.output_mode,
-                        period_s,
-                    )
+                    da = applied.duty_a * duty_scale
+                    db = applied.duty_b * duty_scale
+                    dc = applied.duty_c * duty_scale
+                    mode = applied.output_mode
+                if substeps == 1:
+                    plant.step(da, db, dc, mode, period_s)
+                    edge_s = plant.last_edge_s
+                else:  # long periods: the plant keeps its accurate step, the duties are held
+                    edge_s = None
+                    for i in range(substeps):
+                        plant.step(da, db, dc, mode, sub_s)
+                        if plant.last_edge_s is not None:
+                            edge_s = i * sub_s + plant.last_edge_s
                 if pacer is not None:
                     finished = perf() - pacer.t0 - k * period_s
                     if finished > period_s:
