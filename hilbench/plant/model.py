@@ -8,19 +8,24 @@ Model (amplitude-invariant Clarke/Park, theta = rotor d-axis electrical angle, 0
     J dwm/dt = Te - B wm - Tc sign(wm) - T_load
     dtheta/dt = we = p wm
 
-Integration: classic RK4 over each period in the dq frame. The inverter's alpha-beta voltage is
-held over the period (it is the period average of the PWM) and Park-transformed with each stage's
-own angle, so a rotating rotor sees the correct rotating voltage. Plain Python floats, hot path
-inlined (profiled with cProfile: the step is one function with no calls but math.cos/sin).
-Measured (tests/test_plant_accuracy.py against scipy DOP853 rtol 1e-10 in the abc frame,
-dt = 50 us, no substeps): over a 0.1 s q-voltage start-up with a load step at 50 ms, speed error
-1.2e-8 (Hurst) / 2.1e-7 (servo) and current error 3.5e-7 / 4.4e-7 of their peaks. Energy balance
-(track_energy) closes to ~5e-6 at 50 us and ~3e-7 at 25 us (RK4, h^4). Cost ~3.7 us per period
-on the 2-vCPU VM (about 13x real time at 20 kHz; benchmarks/bench_plant.py) — short of 20x.
+Integration: classic RK4 in the dq frame, `substeps` RK4 steps per period (default
+DEFAULT_SUBSTEPS). The inverter's alpha-beta voltage is held over the period (it is the period
+average of the PWM) and Park-transformed with each stage's own angle, so a rotating rotor sees
+the correct rotating voltage. Accuracy against scipy DOP853 (tests/test_plant_accuracy.py) and
+cost: see the README of benchmarks/bench_plant.py and the report in the git log.
+
+Two backends with the same per-period arithmetic (tests/test_plant_backends.py checks they agree):
+"c" (hilbench/plant/_plantcore.c, an optional compiled extension; PWM and LOW_SIDE periods and
+the zero-current OFF coast run in C) and "python" (this file). `Plant(...)` picks "c" when the
+extension is importable unless HILBENCH_PLANT_BACKEND=python (or backend="python") asks otherwise;
+`plant.backend` says which one runs.
 
 Coulomb friction with stiction: at rest the rotor stays exactly at rest while |Te - T_load| <= Tc;
-when moving, the friction sign is frozen over a period (the ODE stays smooth for RK4) and a
-speed that crosses zero inside a period is set to zero and the rotor sticks again.
+when moving, the friction sign is frozen over a substep (the ODE stays smooth for RK4) and a
+speed that crosses zero inside a substep is set to zero and the rotor sticks again.
+
+Sensors (`i_a, i_b, i_c, i_bus, encoder_count, hall_bits, last_edge_s`) are plain attributes
+refreshed at the end of every step, so the bench reads them at attribute cost.
 
 Output modes: PWM (1) averaged duties; LOW_SIDE (2) the three phases shorted to the negative rail;
 OFF (0, and the reserved 3) all six switches open: see `_step_off`.
@@ -29,13 +34,22 @@ OFF (0, and the reserved 3) all six switches open: see `_step_off`.
 from __future__ import annotations
 
 import math
+import os
 from typing import Sequence
 
 import numpy as np
 
-from hilbench.plant.params import ADC_ROLE_CODES, AdcChannel, LoadProfile, PlantParams
+from hilbench.plant.params import ADC_ROLE_CODES, LoadProfile, PlantParams
 
-__all__ = ["Plant", "HALL_BY_SECTOR", "OUTPUT_OFF", "OUTPUT_PWM", "OUTPUT_LOW_SIDE"]
+try:  # the optional compiled core (setup.py builds it when a C compiler is present)
+    from hilbench.plant import _plantcore
+except ImportError:  # pragma: no cover - depends on the build
+    _plantcore = None
+
+__all__ = [
+    "Plant", "HALL_BY_SECTOR", "OUTPUT_OFF", "OUTPUT_PWM", "OUTPUT_LOW_SIDE",
+    "DEFAULT_SUBSTEPS", "available_backends",
+]
 
 OUTPUT_OFF = 0
 OUTPUT_PWM = 1
@@ -52,12 +66,40 @@ HALL_BY_SECTOR = (0b100, 0b110, 0b010, 0b011, 0b001, 0b101)
 SECTOR0_START_RAD = math.radians(210.0)
 NOISE_BLOCK = 4096
 OFF_SUBSTEPS = 8
+DEFAULT_SUBSTEPS = 1
+N_ROLES = 6
+
+
+def available_backends() -> tuple[str, ...]:
+    """Backends this installation can run ("python" always; "c" when the extension was built)."""
+    return ("c", "python") if _plantcore is not None else ("python",)
+
+
+def _choose_backend(backend: str | None) -> str:
+    choice = backend or os.environ.get("HILBENCH_PLANT_BACKEND", "") or ("c" if _plantcore is not None else "python")
+    if choice not in ("c", "python"):
+        raise ValueError(f"Plant backend {choice!r}: expected 'c' or 'python'")
+    if choice == "c" and _plantcore is None:
+        raise ValueError("Plant backend 'c': hilbench.plant._plantcore is not built (pip install . with a C compiler)")
+    return choice
 
 
 class Plant:
     """One motor on one inverter. `step()` integrates one period; sensors are read after it."""
 
-    def __init__(self, params: PlantParams, seed: int = 0) -> None:
+    backend = "python"
+
+    def __new__(cls, params: PlantParams, seed: int = 0, *, substeps: int = DEFAULT_SUBSTEPS,
+                backend: str | None = None) -> "Plant":
+        if cls is Plant and _choose_backend(backend) == "c":
+            cls = _CPlant
+        return super().__new__(cls)
+
+    def __init__(self, params: PlantParams, seed: int = 0, *, substeps: int = DEFAULT_SUBSTEPS,
+                 backend: str | None = None) -> None:
+        if int(substeps) < 1:
+            raise ValueError(f"Plant substeps {substeps}: must be >= 1")
+        self._substeps = int(substeps)
         self.params = params
         m = params.motor
         self._rs = float(m.rs_ohm)
@@ -68,15 +110,21 @@ class Plant:
         self._j = float(m.j_kgm2)
         self._b = float(m.b_nms_per_rad)
         self._tc = float(m.coulomb_nm)
+        # back-EMF line-line peak per unit mechanical speed (the OFF coast test)
+        self._ell = SQRT3 * self._p * self._psi
         inv = params.inverter
         self.vbus_v = float(inv.vbus_v)
         self._dt_duty = float(inv.dead_time_s * inv.pwm_freq_hz) if inv.dead_time_enabled else 0.0
         self._hall_base = (SECTOR0_START_RAD + math.radians(params.hall.offset_deg)) % TWO_PI
         enc = params.encoder
-        self._enc_counts_per_turn = 4 * int(enc.lines)
+        self._enc_cpt = 4 * int(enc.lines)
         self._enc_sign = -1 if enc.reverse else 1
         self._enc_offset = int(enc.offset_counts)
-        self._adc: dict[int, AdcChannel] = {ADC_ROLE_CODES[ch.role]: ch for ch in params.adc}
+        # ADC: one (gain, offset, noise) per role number, None for an absent role
+        tab: list[tuple[float, float, float] | None] = [None] * N_ROLES
+        for ch in params.adc:
+            tab[ADC_ROLE_CODES[ch.role]] = (float(ch.gain_codes_per_unit), float(ch.offset_codes), float(ch.noise_lsb))
+        self._adc_tab = tab
         self._rng = np.random.Generator(np.random.PCG64(seed))
         self._noise: list[float] = []
         self._noise_i = 0
@@ -84,11 +132,13 @@ class Plant:
         ilq = 1.0 / self._lq
         ij = 1.0 / self._j
         k15 = 1.5 * self._p
-        self._hot = (
+        self._hot = hot = (
             self._rs * ild, self._rs * ilq, self._p * self._lq * ild, self._p * self._ld * ilq,
             self._p * self._psi * ilq, self._p, ild, ilq, k15 * self._psi * ij,
             k15 * (self._ld - self._lq) * ij, ij,
         )
+        (self._rd, self._rq, self._pq, self._pd, self._ppsi, _p, self._ild, self._ilq,
+         self._kt, self._kr, self._ijv) = hot
         self.pot_fraction = 0.0
         self.track_energy = False
         self.t_s = 0.0
@@ -114,13 +164,36 @@ class Plant:
         self._update_load()
         self.hall_bits = HALL_BY_SECTOR[self._sector]
         self.last_edge_s: float | None = None
-        self._last_duties = (0.5, 0.5, 0.5)
+        self._da = self._db = self._dc = 0.5
         self._last_mode = OUTPUT_OFF
         # energy accounts (J), integrated only when track_energy is set
         self.e_in_j = 0.0
         self.e_cu_j = 0.0
         self.e_fric_j = 0.0
         self.e_load_j = 0.0
+        self._sense()
+
+    def _sense(self) -> None:
+        """Refresh the sensor attributes from the state (end of every step; same order in C)."""
+        th = self._th
+        c = math.cos(th)
+        s = math.sin(th)
+        ia = self.i_d * c - self.i_q * s
+        ibe = self.i_d * s + self.i_q * c
+        ib = -0.5 * ia + HALF_SQRT3 * ibe
+        ic = -0.5 * ia - HALF_SQRT3 * ibe
+        self.i_a = ia
+        self.i_b = ib
+        self.i_c = ic
+        mode = self._last_mode
+        if mode == OUTPUT_PWM:
+            self.i_bus = self._da * ia + self._db * ib + self._dc * ic
+        elif mode == OUTPUT_LOW_SIDE:
+            self.i_bus = 0.0
+        else:
+            self.i_bus = (ia if ia < 0.0 else 0.0) + (ib if ib < 0.0 else 0.0) + (ic if ic < 0.0 else 0.0)
+        n = math.floor((self._turns + th / TWO_PI) * self._enc_cpt / self._p)
+        self.encoder_count = (self._enc_sign * n + self._enc_offset) & 0xFFFF
 
     @property
     def theta_e(self) -> float:
@@ -141,34 +214,18 @@ class Plant:
         return self._sector
 
     @property
+    def substeps(self) -> int:
+        """RK4 steps per period."""
+        return self._substeps
+
+    @property
     def i_abc(self) -> tuple[float, float, float]:
-        c = math.cos(self._th)
-        s = math.sin(self._th)
-        ia = self.i_d * c - self.i_q * s
-        ib_beta = self.i_d * s + self.i_q * c
-        return (ia, -0.5 * ia + HALF_SQRT3 * ib_beta, -0.5 * ia - HALF_SQRT3 * ib_beta)
+        """Phase currents (A) at the end of the last step."""
+        return (self.i_a, self.i_b, self.i_c)
 
     @property
     def torque_nm(self) -> float:
         return 1.5 * self._p * self.i_q * (self._psi + (self._ld - self._lq) * self.i_d)
-
-    @property
-    def i_bus(self) -> float:
-        """DC bus current (A, from the supply) at the end of the last step."""
-        ia, ib, ic = self.i_abc
-        mode = self._last_mode
-        if mode == OUTPUT_PWM:
-            da, db, dc = self._last_duties
-            return da * ia + db * ib + dc * ic
-        if mode == OUTPUT_LOW_SIDE:
-            return 0.0
-        return (ia if ia < 0.0 else 0.0) + (ib if ib < 0.0 else 0.0) + (ic if ic < 0.0 else 0.0)
-
-    @property
-    def encoder_count(self) -> int:
-        """Quadrature count (x4), 16-bit wrap; 4*lines counts per mechanical turn."""
-        n = math.floor((self._turns + self._th / TWO_PI) * self._enc_counts_per_turn / self._p)
-        return (self._enc_sign * n + self._enc_offset) & 0xFFFF
 
     @property
     def load_torque_nm(self) -> float:
@@ -210,37 +267,37 @@ class Plant:
         return 0.5 * self._j * self.w_m * self.w_m
 
     # ----------------------------------------------------------------- sensors
-    def _gauss(self) -> float:
-        i = self._noise_i
-        if i >= len(self._noise):
-            self._noise = self._rng.standard_normal(NOISE_BLOCK).tolist()
-            i = 0
-        self._noise_i = i + 1
-        return self._noise[i]
-
     def adc_codes(self, roles: Sequence[int]) -> tuple[int, ...]:
-        """10-bit codes for the given ADC roles (docs/design.md role numbers); NONE -> 0."""
+        """10-bit codes for the given ADC roles (docs/design.md role numbers); NONE -> 0.
+
+        Per-role gain/offset/noise precomputed; Gaussian noise from a pre-drawn block."""
+        tab = self._adc_tab
         out = []
-        ia = ib = None
-        for role in roles:
-            ch = self._adc.get(int(role))
+        for r in roles:
+            ch = tab[r]
             if ch is None:
                 out.append(0)
                 continue
-            r = int(role)
-            if r == 1:
-                x = self.pot_fraction
+            if r == 4:
+                x = self.i_a
             elif r == 2:
                 x = self.i_bus
+            elif r == 5:
+                x = self.i_b
             elif r == 3:
                 x = self.vbus_v
             else:
-                if ia is None:
-                    ia, ib, _ = self.i_abc
-                x = ia if r == 4 else ib
-            v = ch.offset_codes + ch.gain_codes_per_unit * x
-            if ch.noise_lsb:
-                v += ch.noise_lsb * self._gauss()
+                x = self.pot_fraction
+            g, v, nz = ch
+            v += g * x
+            if nz:
+                i = self._noise_i
+                noise = self._noise
+                if i >= len(noise):
+                    noise = self._noise = self._rng.standard_normal(NOISE_BLOCK).tolist()
+                    i = 0
+                self._noise_i = i + 1
+                v += nz * noise[i]
             code = math.floor(v + 0.5)
             out.append(0 if code < 0 else 1023 if code > 1023 else code)
         return tuple(out)
@@ -261,17 +318,22 @@ class Plant:
         return ld.torque_nm, 0.0, 0.0, True
 
     # ----------------------------------------------------------------- stepping
-    def step(self, duty_a: float, duty_b: float, duty_c: float, output_mode: int, dt_s: float) -> None:
-        """Integrate one period with the given duties (fractions 0..1) held over it."""
-        vbus = self.vbus_v
+    def _step_py(self, duty_a: float, duty_b: float, duty_c: float, output_mode: int, dt_s: float) -> None:
+        """Integrate one period with the duties (fractions 0..1) held over it (Python backend;
+        the C backend calls this for the cases it leaves to Python)."""
         if output_mode == OUTPUT_PWM:
+            vbus = self.vbus_v
             dtd = self._dt_duty
             if dtd:
-                ia, ib, ic = self.i_abc
+                ia = self.i_a
+                ib = self.i_b
+                ic = self.i_c
                 duty_a = min(1.0, max(0.0, duty_a - (dtd if ia > 0.0 else -dtd if ia < 0.0 else 0.0)))
                 duty_b = min(1.0, max(0.0, duty_b - (dtd if ib > 0.0 else -dtd if ib < 0.0 else 0.0)))
                 duty_c = min(1.0, max(0.0, duty_c - (dtd if ic > 0.0 else -dtd if ic < 0.0 else 0.0)))
-            self._last_duties = (duty_a, duty_b, duty_c)
+            self._da = duty_a
+            self._db = duty_b
+            self._dc = duty_c
             va = vbus * (2.0 * duty_a - duty_b - duty_c) / 3.0
             vb = vbus * (duty_b - duty_c) * INV_SQRT3
         elif output_mode == OUTPUT_LOW_SIDE:
@@ -279,133 +341,166 @@ class Plant:
         else:
             self._last_mode = OUTPUT_OFF
             th0 = self._th
+            self.last_edge_s = None
             self._step_off(dt_s)
-            self._finish(th0, self._th - th0 + self._dturns * TWO_PI, dt_s)
+            self._finish(th0, self._th - th0 + self._dturns * TWO_PI, dt_s, 0.0)
+            self.t_s += dt_s
+            self._sense()
             return
         self._last_mode = output_mode
+        nsub = self._substeps
         if self.track_energy or self._kq_any:
-            th0 = self._th
-            self._rk4_general(va, vb, dt_s)
-            self._finish(th0, self._th - th0 + self._dturns * TWO_PI, dt_s)
+            h = dt_s / nsub
+            self.last_edge_s = None
+            for j in range(nsub):
+                th0 = self._th
+                self._rk4_general(va, vb, h)
+                self._finish(th0, self._th - th0 + self._dturns * TWO_PI, h, j * h)
+            self.t_s += dt_s
+            self._sense()
             return
 
-        # ---- hot path: RK4 in dq, inlined (see module docstring) ----
+        # ---- hot path: RK4 in dq, inlined; the C core (_plantcore.c) mirrors it line by line ----
         # The held alpha-beta voltage as magnitude/angle: vd = V cos(phi - theta),
         # vq = V sin(phi - theta); x = phi - theta is carried through the stages.
         cos = math.cos
         sin = math.sin
+        floor = math.floor
         rd, rq, pq, pd, ppsi, p, ild, ilq, kt, kr, ijv = self._hot
+        if self._t_load_change <= self.t_s + 1e-12:
+            self._update_load()
+        tl = self._tl
+        kv = self._kv
+        tc = self._tc
+        base = self._hall_base
+        vmag = math.sqrt(va * va + vb * vb)
+        vdm = vmag * ild
+        vqm = vmag * ilq
+        phi = math.atan2(vb, va)
+        h = dt_s / nsub
+        h2 = 0.5 * h
+        h6 = h / 6.0
         id0 = self.i_d
         iq0 = self.i_q
         w0 = self.w_m
         th0 = self._th
-        if self._t_load_change <= self.t_s + 1e-12:
-            self._update_load()
-        tl = self._tl
-        if self._locked:
-            ij = 0.0
-            fr = 0.0
-            w0 = 0.0
-        elif self._stuck:
-            net = (kt + kr * id0) * iq0 * self._j - tl
-            tc = self._tc
-            if -tc <= net <= tc:
+        n0 = self._nidx
+        edge = None
+        for j in range(nsub):
+            if self._locked:
                 ij = 0.0
                 fr = 0.0
+                w0 = 0.0
+            elif self._stuck:
+                net = (kt + kr * id0) * iq0 * self._j - tl
+                if -tc <= net <= tc:
+                    ij = 0.0
+                    fr = 0.0
+                else:
+                    self._stuck = False
+                    ij = ijv
+                    fr = tc if net > 0.0 else -tc
             else:
-                self._stuck = False
                 ij = ijv
-                fr = tc if net > 0.0 else -tc
-        else:
-            ij = ijv
-            fr = self._tc if w0 > 0.0 else -self._tc if w0 < 0.0 else 0.0
-        ftj = (fr + tl) * ij
-        kvj = self._kv * ij
-        if ij == 0.0:
-            kt = kr = 0.0
-        h = dt_s
-        cos = math.cos
-        sin = math.sin
-        vmag = math.sqrt(va * va + vb * vb)
-        vdm = vmag * ild
-        vqm = vmag * ilq
-        x0 = math.atan2(vb, va) - th0
-        h2 = 0.5 * h
-        # stage 1
-        k1d = vdm * cos(x0) + w0 * pq * iq0 - rd * id0
-        k1q = vqm * sin(x0) - w0 * (pd * id0 + ppsi) - rq * iq0
-        k1w = iq0 * (kt + kr * id0) - kvj * w0 - ftj
-        # stage 2
-        a = id0 + h2 * k1d
-        b = iq0 + h2 * k1q
-        w = w0 + h2 * k1w
-        x = x0 - h2 * p * w0
-        k2d = vdm * cos(x) + w * pq * b - rd * a
-        k2q = vqm * sin(x) - w * (pd * a + ppsi) - rq * b
-        k2w = b * (kt + kr * a) - kvj * w - ftj
-        w2 = w
-        # stage 3
-        a = id0 + h2 * k2d
-        b = iq0 + h2 * k2q
-        w = w0 + h2 * k2w
-        x = x0 - h2 * p * w2
-        k3d = vdm * cos(x) + w * pq * b - rd * a
-        k3q = vqm * sin(x) - w * (pd * a + ppsi) - rq * b
-        k3w = b * (kt + kr * a) - kvj * w - ftj
-        w3 = w
-        # stage 4
-        a = id0 + h * k3d
-        b = iq0 + h * k3q
-        w = w0 + h * k3w
-        x = x0 - h * p * w3
-        k4d = vdm * cos(x) + w * pq * b - rd * a
-        k4q = vqm * sin(x) - w * (pd * a + ppsi) - rq * b
-        k4w = b * (kt + kr * a) - kvj * w - ftj
-        h6 = h / 6.0
-        self.i_d = id0 + h6 * (k1d + 2.0 * (k2d + k3d) + k4d)
-        self.i_q = iq0 + h6 * (k1q + 2.0 * (k2q + k3q) + k4q)
-        w1 = w0 + h6 * (k1w + 2.0 * (k2w + k3w) + k4w)
-        dth = h6 * p * (w0 + 2.0 * (w2 + w3) + w)
-        if fr != 0.0 and w0 != 0.0 and (w1 > 0.0) != (w0 > 0.0):
-            w1 = 0.0  # speed crossed zero under Coulomb friction: stick
-            self._stuck = True
-        self.w_m = w1
-        # ---- angle, hall sector, edge time ----
-        th1 = th0 + dth
-        n0 = self._nidx
-        n1 = math.floor((th1 - self._hall_base) / SIXTY)
-        if n1 != n0:
-            self._edge(th0, th1, n0, n1, p * w0, p * w1, h)
-            self._sector = n1 % 6
-            self.hall_bits = HALL_BY_SECTOR[self._sector]
-        elif self.last_edge_s is not None:
-            self.last_edge_s = None
-        if th1 >= TWO_PI or th1 < 0.0:
-            k = math.floor(th1 / TWO_PI)
-            self._turns += k
-            th1 -= k * TWO_PI
-            n1 -= 6 * k
-        self._nidx = n1
-        self._th = th1
-        self.t_s += h
+                fr = tc if w0 > 0.0 else -tc if w0 < 0.0 else 0.0
+            ftj = (fr + tl) * ij
+            kvj = kv * ij
+            if ij == 0.0:
+                ktj = krj = 0.0
+            else:
+                ktj = kt
+                krj = kr
+            x0 = phi - th0
+            # stage 1
+            k1d = vdm * cos(x0) + w0 * pq * iq0 - rd * id0
+            k1q = vqm * sin(x0) - w0 * (pd * id0 + ppsi) - rq * iq0
+            k1w = iq0 * (ktj + krj * id0) - kvj * w0 - ftj
+            # stage 2
+            a = id0 + h2 * k1d
+            b = iq0 + h2 * k1q
+            w = w0 + h2 * k1w
+            x = x0 - h2 * p * w0
+            k2d = vdm * cos(x) + w * pq * b - rd * a
+            k2q = vqm * sin(x) - w * (pd * a + ppsi) - rq * b
+            k2w = b * (ktj + krj * a) - kvj * w - ftj
+            w2 = w
+            # stage 3
+            a = id0 + h2 * k2d
+            b = iq0 + h2 * k2q
+            w = w0 + h2 * k2w
+            x = x0 - h2 * p * w2
+            k3d = vdm * cos(x) + w * pq * b - rd * a
+            k3q = vqm * sin(x) - w * (pd * a + ppsi) - rq * b
+            k3w = b * (ktj + krj * a) - kvj * w - ftj
+            w3 = w
+            # stage 4
+            a = id0 + h * k3d
+            b = iq0 + h * k3q
+            w = w0 + h * k3w
+            x = x0 - h * p * w3
+            k4d = vdm * cos(x) + w * pq * b - rd * a
+            k4q = vqm * sin(x) - w * (pd * a + ppsi) - rq * b
+            k4w = b * (ktj + krj * a) - kvj * w - ftj
+            id0 = id0 + h6 * (k1d + 2.0 * (k2d + k3d) + k4d)
+            iq0 = iq0 + h6 * (k1q + 2.0 * (k2q + k3q) + k4q)
+            w1 = w0 + h6 * (k1w + 2.0 * (k2w + k3w) + k4w)
+            dth = h6 * p * (w0 + 2.0 * (w2 + w3) + w)
+            if fr != 0.0 and w0 != 0.0 and (w1 > 0.0) != (w0 > 0.0):
+                w1 = 0.0  # speed crossed zero under Coulomb friction: stick
+                self._stuck = True
+            # ---- angle, hall sector, edge time ----
+            th1 = th0 + dth
+            n1 = floor((th1 - base) / SIXTY)
+            if n1 != n0:
+                edge = j * h + self._edge(th0, th1, n0, n1, p * w0, p * w1, h)
+                self._sector = n1 % 6
+            if th1 >= TWO_PI or th1 < 0.0:
+                k = floor(th1 / TWO_PI)
+                self._turns += k
+                th1 -= k * TWO_PI
+                n1 -= 6 * k
+            n0 = n1
+            th0 = th1
+            w0 = w1
+        self.i_d = id0
+        self.i_q = iq0
+        self.w_m = w0
+        self._nidx = n0
+        self._th = th0
+        self.hall_bits = HALL_BY_SECTOR[self._sector]
+        self.last_edge_s = edge
+        self.t_s += dt_s
+        # ---- sensors (as _sense, inlined) ----
+        c = cos(th0)
+        s = sin(th0)
+        ia = id0 * c - iq0 * s
+        ibe = id0 * s + iq0 * c
+        ib = -0.5 * ia + HALF_SQRT3 * ibe
+        ic = -0.5 * ia - HALF_SQRT3 * ibe
+        self.i_a = ia
+        self.i_b = ib
+        self.i_c = ic
+        self.i_bus = self._da * ia + self._db * ib + self._dc * ic if output_mode == OUTPUT_PWM else 0.0
+        n = floor((self._turns + th0 / TWO_PI) * self._enc_cpt / p)
+        self.encoder_count = (self._enc_sign * n + self._enc_offset) & 0xFFFF
 
-    def _finish(self, th0: float, dth: float, h: float) -> None:
-        """Sector/edge bookkeeping after a step done by the general integrator (angle already wrapped)."""
+    step = _step_py
+
+    def _finish(self, th0: float, dth: float, h: float, t_off: float) -> None:
+        """Sector/edge bookkeeping after a (sub)step done outside the hot path (angle already
+        wrapped); an edge is timed at t_off + its time inside the substep."""
         th1 = th0 + dth
         base = self._hall_base
         n0 = math.floor((th0 - base) / SIXTY)
         n1 = math.floor((th1 - base) / SIXTY)
         if n1 != n0:
-            self._edge(th0, th1, n0, n1, self._p * self._w_start, self._p * self.w_m, h)
+            self.last_edge_s = t_off + self._edge(th0, th1, n0, n1, self._p * self._w_start, self._p * self.w_m, h)
             self._sector = n1 % 6
             self.hall_bits = HALL_BY_SECTOR[self._sector]
-        else:
-            self.last_edge_s = None
         self._nidx = math.floor((self._th - base) / SIXTY)
-        self.t_s += h
 
-    def _edge(self, th0: float, th1: float, n0: int, n1: int, we0: float, we1: float, h: float) -> None:
-        """Time of the last hall edge inside the step: Newton on the cubic Hermite theta(t)."""
+    def _edge(self, th0: float, th1: float, n0: int, n1: int, we0: float, we1: float, h: float) -> float:
+        """Time of the last hall edge inside a (sub)step: Newton on the cubic Hermite theta(t)."""
         target = self._hall_base + (n1 if n1 > n0 else n0) * SIXTY
         d = th1 - th0
         # Hermite on [0, 1]: theta(u) = th0 + a1 u + a2 u^2 + a3 u^3
@@ -428,7 +523,7 @@ class Plant:
                 u = 1.0
             if abs(du) < 1e-15:
                 break
-        self.last_edge_s = u * h
+        return u * h
 
     # ----------------------------------------------------------------- general integrator
     def _deriv(self, idv: float, iqv: float, w: float, th: float, va: float, vb: float,
@@ -494,9 +589,16 @@ class Plant:
         self.e_load_j += y1[7]
 
     # ----------------------------------------------------------------- outputs off
+    def _abc_now(self) -> tuple[float, float, float]:
+        c = math.cos(self._th)
+        s = math.sin(self._th)
+        ia = self.i_d * c - self.i_q * s
+        ibe = self.i_d * s + self.i_q * c
+        return (ia, -0.5 * ia + HALF_SQRT3 * ibe, -0.5 * ia - HALF_SQRT3 * ibe)
+
     def _phase_currents(self) -> list[float]:
         """Phase currents with transform round-off (< 1e-12 A) of an open phase snapped to zero."""
-        return [0.0 if -1e-12 < x < 1e-12 else x for x in self.i_abc]
+        return [0.0 if -1e-12 < x < 1e-12 else x for x in self._abc_now()]
 
     def _set_phase_currents(self, i: list[float]) -> None:
         c = math.cos(self._th)
@@ -515,12 +617,19 @@ class Plant:
         linear interpolation, then set exactly to zero), so currents reach zero and stay there
         while the line back-EMF is below the bus. The rotor coasts. Substeps: OFF_SUBSTEPS per
         period; open-phase currents are projected back to exactly zero after each substep
-        (exact for Ld = Lq, a small correction for salient rotors)."""
-        t_left = dt_s
-        h_nom = dt_s / OFF_SUBSTEPS
+        (exact for Ld = Lq, a small correction for salient rotors). With zero currents and the
+        back-EMF line-line peak below the bus the whole period is one `_coast` step."""
         turns0 = self._turns
         w_start = self.w_m
         vbus = self.vbus_v
+        if self.i_d == 0.0 and self.i_q == 0.0 and self._ell * abs(w_start) < vbus:
+            # no current and the line back-EMF peak below the bus: no diode can conduct
+            self._coast(dt_s)
+            self._dturns = self._turns - turns0
+            self._w_start = w_start
+            return
+        t_left = dt_s
+        h_nom = dt_s / OFF_SUBSTEPS
         for _guard in range(4 * OFF_SUBSTEPS + 8):
             if t_left <= 1e-15:
                 break
@@ -604,8 +713,30 @@ class Plant:
             return
         self._set_phase_currents(out)
 
+    def _project(self, i: list[float], open_: list[int]) -> None:
+        """Force the open phases' currents to exactly zero, keeping the sum of currents zero."""
+        if not open_:
+            return
+        open_set = set(open_)
+        live = [k for k in range(3) if k not in open_set]
+        if len(live) < 2:
+            self.i_d = 0.0
+            self.i_q = 0.0
+            return
+        a, b = live
+        x = 0.5 * (i[a] - i[b])
+        out = [0.0, 0.0, 0.0]
+        out[a] = x
+        out[b] = -x
+        if x == 0.0:
+            self.i_d = 0.0
+            self.i_q = 0.0
+            return
+        self._set_phase_currents(out)
+
     def _coast(self, h: float) -> None:
-        """Zero currents: mechanics only (RK4 on speed, same friction/stiction rules)."""
+        """Zero currents: mechanics only (one RK4 step on speed, same friction/stiction rules).
+        The C core has the same arithmetic (`coast` in _plantcore.c)."""
         self.i_d = 0.0
         self.i_q = 0.0
         tl, kl, kq, locked = self._load_terms()
@@ -619,18 +750,19 @@ class Plant:
             fr = -math.copysign(self._tc, tl)
         else:
             fr = math.copysign(self._tc, w0) if w0 != 0.0 else 0.0
-        ft = fr + tl
         ij = 1.0 / self._j
-
-        def f(w: float) -> float:
-            return (-kv * w - kq * w * abs(w) - ft) * ij
-
-        k1 = f(w0)
-        k2 = f(w0 + 0.5 * h * k1)
-        k3 = f(w0 + 0.5 * h * k2)
-        k4 = f(w0 + h * k3)
+        a = kv * ij
+        c = kq * ij
+        f0 = (fr + tl) * ij
+        k1 = -a * w0 - c * w0 * abs(w0) - f0
+        wa = w0 + 0.5 * h * k1
+        k2 = -a * wa - c * wa * abs(wa) - f0
+        wb = w0 + 0.5 * h * k2
+        k3 = -a * wb - c * wb * abs(wb) - f0
+        wc = w0 + h * k3
+        k4 = -a * wc - c * wc * abs(wc) - f0
         w1 = w0 + h / 6.0 * (k1 + 2.0 * (k2 + k3) + k4)
-        dth = self._p * h / 6.0 * (w0 + 2.0 * ((w0 + 0.5 * h * k1) + (w0 + 0.5 * h * k2)) + (w0 + h * k3))
+        dth = self._p * h / 6.0 * (w0 + 2.0 * (wa + wb) + wc)
         if fr != 0.0 and w0 != 0.0 and (w1 > 0.0) != (w0 > 0.0):
             w1 = 0.0
             self._stuck = True
@@ -639,3 +771,15 @@ class Plant:
         k = math.floor(th1 / TWO_PI)
         self._turns += k
         self._th = th1 - k * TWO_PI
+
+
+if _plantcore is not None:
+
+    class _CPlant(Plant, _plantcore.Core):
+        """Plant whose state lives in the C struct of `_plantcore.Core`; `step` is the C method
+        (it calls `Plant._step_py` for the periods it leaves to Python)."""
+
+        backend = "c"
+        step = _plantcore.Core.step
+else:  # pragma: no cover
+    _CPlant = None  # type: ignore[assignment,misc]
