@@ -17,7 +17,10 @@ from typing import Any
 from hilbench.errors import ConfigError, ParamError
 from hilbench.targets.an1017_firmware import (
     GAIN_CONSTRAINT_NAMES,
+    INPUT_S2,
+    PWM_PERIOD_TCY,
     STATE_FAULT,
+    TIMER1_PERIOD_TCY,
     FAULT_WATCHDOG,
     SECTOR_INVALID,
     SECTOR_TABLE,
@@ -27,6 +30,7 @@ from hilbench.targets.an1017_firmware import (
     check_gain_constraints,
     max_phase_advance_from_deg,
 )
+from hilbench.targets.svm import svm_fast
 
 from hilbench.protocol import (
     PROTOCOL_VERSION,
@@ -39,6 +43,7 @@ from hilbench.protocol import (
     ParamType,
     ParamValue,
     Result,
+    Sensors,
     Status,
     TargetHello,
     TelemetryId,
@@ -62,6 +67,8 @@ FIRMWARE_VERSION = 0x0101  # v1.1
 PWM_PERIOD_COUNTS = 1000
 PWM_FREQ_HZ = 20000
 PWM_PERIOD_US = 50
+DUTY_CACHE_MAX = 200_000  # entries of (a, b, c): bounded memory, cleared when full
+_tuple_new = tuple.__new__  # Drive is a NamedTuple: this skips its Python-level __new__ (~3x cheaper)
 
 # declared parameters: id → (name, ptype, access, min, max)
 PARAM_KP, PARAM_KI, PARAM_KD = 0, 1, 2
@@ -106,6 +113,10 @@ class An1017Target:
         self._frac_tcy = 0.0
         self.watchdog_trips = 0
         self.last_error = 0
+        self._duty_cache: dict[int, tuple[int, int, int]] = {}  # packed SVM args → reported duties
+        # the Drive after its duties (mode, state, sector, ccw, required ccw, fault, telemetry)
+        self._tail: tuple = (0, 0, 7, False, False, 0, (0, 0, 0))
+        self._ctx: tuple | None = None  # the plain-period context (see _finish)
 
     # ---- handshake and parameters ------------------------------------------------------------
     def hello(self, host: Any) -> TargetHello:
@@ -115,6 +126,7 @@ class An1017Target:
             raise ConfigError(f"an1017 hello: period_us {period_us} is not a positive multiple of {PWM_PERIOD_US}")
         self.period_us = period_us
         self._period_tcy = period_us * TCY_PER_US
+        self._ctx = None
         self.mode = int(host.mode)
         self.watchdog_ms = int(host.watchdog_ms)
         return TargetHello(
@@ -195,97 +207,181 @@ class An1017Target:
         fw.ref_override_on = bool(new[PARAM_REF_OVR_ON])
         fw.ref_override = new[PARAM_REF_OVR]
         fw.stall_limit = new[PARAM_STALL_MS]
+        self._ctx = None  # the reference override is part of the fast path's context
         return ParamSetResult(0, RESULT_OK, pairs[-1][0], 0)
 
     # ---- run control -------------------------------------------------------------------------
     def start(self) -> None:
         """S2 as a command: start (ChargeBootstraps, then RunMotor) when stopped."""
         self.fw.press_start()
+        self._ctx = None
 
     def stop(self) -> None:
         """StopMotor(): all six switches off, motor coasts (also aborts a bootstrap)."""
         if self.fw.running or self.fw.booting:
             self.fw.press_stop()
+        self._ctx = None
 
-    def _drive(self, seq: int) -> Drive:
-        fw = self.fw
-        d = fw.duties()
-        a, b, c = d
+    # ---- the per-period paths ------------------------------------------------------------------
+    def _duty_miss(self, key: int) -> tuple[int, int, int]:
+        """Reported duties for packed SVM arguments `key` (see An1017Firmware.pend_key), cached.
+
+        The cache is what makes a Timer1 interval's SVM a one-off: within it the amplitude is
+        constant and the angles repeat from one electrical cycle to the next.
+        """
+        a, b, c = svm_fast(key >> 16, key & 0xFFFF)
         if a > 1000 or b > 1000 or c > 1000:
             a, b, c = min(a, 1000), min(b, 1000), min(c, 1000)
-        if fw.running:
-            s = fw.sector
-        else:
-            s = SECTOR_TABLE[fw.hall] & 0xFFFF
-        return Drive(
-            seq,
-            a,
-            b,
-            c,
-            fw.output_mode,
-            fw.state,
-            7 if s == SECTOR_INVALID else s,
-            fw.cur_ccw,
-            fw.req_ccw,
-            fw.fault,
-            (fw.ref_speed, fw.measured_speed, fw.control_output),
-        )
+        cache = self._duty_cache
+        if len(cache) >= DUTY_CACHE_MAX:
+            cache.clear()
+        d = cache[key] = (a, b, c)
+        return d
 
-    def step(self, sensors: Any) -> Drive:
+    def _finish(self, seq: int) -> Drive:
+        """The Drive after a step that was not a plain period, and the context for the next ones.
+
+        The context (`_ctx`) caches what plain periods need — motor running, 50 µs lockstep, S2
+        up, halls unchanged, no Timer1 tick in the period — which then change only Phase, the duty
+        pipeline, time and, through the ADC ISR, RefSpeed. Everything in it stays valid until an
+        ISR other than PWM/ADC runs or the host changes something; every such path ends here or
+        sets `_ctx = None`. `_tail` is the Drive after its duties (mode … telemetry), reused
+        while unchanged.
+        """
+        fw = self.fw
+        if fw.reference:
+            a, b, c = fw.act_duty
+            if a > 1000 or b > 1000 or c > 1000:
+                a, b, c = min(a, 1000), min(b, 1000), min(c, 1000)
+        else:
+            key = fw.act_key
+            d = self._duty_cache.get(key)
+            a, b, c = d if d is not None else self._duty_miss(key)
+        running = fw.running
+        s = fw.sector if running else SECTOR_TABLE[fw.hall] & 0xFFFF
+        co = fw.control_output
+        tel = self._tail[6]
+        if tel[0] != fw.ref_speed or tel[1] != fw.measured_speed or tel[2] != co:
+            tel = (fw.ref_speed, fw.measured_speed, co)
+        tail = (
+            fw.output_mode, fw.state, 7 if s == SECTOR_INVALID else s, fw.cur_ccw, fw.req_ccw, fw.fault, tel,
+        )
+        if tail != self._tail:
+            self._tail = tail
+        else:
+            tail = self._tail
+        if (
+            running
+            and self._period_tcy == PWM_PERIOD_TCY
+            and not fw.reference
+            and fw.t % PWM_PERIOD_TCY == 0
+            and not fw.s2_wait_release
+            and (not fw._adc_every or fw.ref_speed == fw._ref_input())  # see step()
+        ):
+            if fw.req_ccw:
+                volts = -(co + 1)
+                dphase = -fw.phase_inc if fw.cur_ccw else 0
+            else:
+                volts = co
+                dphase = 0 if fw.cur_ccw else fw.phase_inc
+            self._ctx = (
+                fw.hall,
+                fw.t1_next - PWM_PERIOD_TCY,  # the last start time of a period without a Timer1 tick
+                volts << 16,
+                dphase,
+                fw.phase_adv,
+                fw.ref_override if fw.ref_override_on else None,
+                fw._adc_every,
+                self._duty_cache,
+            )
+        else:
+            self._ctx = None
+        return _tuple_new(Drive, (seq, a, b, c) + tail)
+
+    def step(self, sensors: Sensors) -> Drive:
         """Lockstep: exactly one agreed period with these sensors.
 
-        The common case — 50 µs period, motor running, halls unchanged, no Timer1 tick in the
-        period, S2 up — is inlined here (one PWM ISR, maybe the ADC ISR); everything else goes
-        through An1017Firmware.run. Both give identical results (tests compare with the
-        reference path).
+        Plain 50 µs periods (see `_finish`) run inline here: the ADC ISR when due, one PWM ISR,
+        one cached SVM lookup, a Drive from the cached tail. Everything else goes through
+        `_step_events`. All paths give the reference path's Drive exactly
+        (tests/test_an1017_fastpath.py compares every Drive over randomised streams).
         """
+        ctx = self._ctx
+        if ctx is not None:
+            hall, t_last, vkey, dphase, adv, ovr, adc_every, cache = ctx
+            seq, inputs, _, _, adc = sensors
+            fw = self.fw
+            t = fw.t
+            if (inputs & 15) == hall and t <= t_last:
+                tail = self._tail
+                if adc:
+                    pot = adc[0]
+                    if pot != fw.pot_code:
+                        fw.pot_code = pot
+                        if adc_every and ovr is None:  # seed: the ADC ISR runs at every boundary
+                            ref = ((pot & 0x3FF) - 512) << 6
+                            if ref != fw.ref_speed:
+                                fw.ref_speed = ref
+                                tel = tail[6]
+                                tail = self._tail = tail[:6] + ((ref, tel[1], tel[2]),)
+                # (seed, pot unchanged: RefSpeed is already this pot's value — see _finish)
+                if not adc_every and t % 16_000 == 0:  # v11: the ADC ISR at every 16th boundary
+                    ref = (((fw.pot_code & 0x3FF) - 512) << 6) if ovr is None else ovr
+                    if ref != fw.ref_speed:
+                        fw.ref_speed = ref
+                        tel = tail[6]
+                        tail = self._tail = tail[:6] + ((ref, tel[1], tel[2]),)
+                act = fw.pend_key  # PWM ISR: last period's registers take effect ...
+                fw.act_key = act
+                phase = (fw.phase + dphase) & 0xFFFF  # ... and it writes the next ones
+                fw.phase = phase
+                fw.pend_key = vkey | ((phase + adv) & 0xFFFF)
+                fw.t = t + 1000
+                self._last_seq = seq
+                d = cache.get(act)
+                return _tuple_new(Drive, (seq,) + (d if d is not None else self._duty_miss(act)) + tail)
+        return self._step_events(sensors)
+
+    def _step_events(self, sensors: Any) -> Drive:
+        """A period with a Timer1 tick or a timed hall edge after its PWM boundary, or the general path."""
         fw = self.fw
         inputs = sensors.inputs
         adc = sensors.adc
+        seq = sensors.seq
+        self._last_seq = seq
         t = fw.t
-        if (
-            fw.running
-            and self._period_tcy == 1000
-            and (inputs & 15) == fw.hall
-            and not fw.s2_wait_release
-            and fw.t1_next >= t + 1000
-            and t % 1000 == 0
-            and not fw.reference
-        ):
-            if adc:
-                fw.pot_code = adc[0]
-            fw.s2_level = False
-            if fw._adc_every or (t // 1000) % 16 == 0:
-                fw.ref_speed = fw.ref_override if fw.ref_override_on else ((fw.pot_code & 0x3FF) - 512) << 6
-            co = fw.control_output
-            if fw.req_ccw:
-                volts = -(co + 1)
-                phase = (fw.phase - fw.phase_inc) & 0xFFFF if fw.cur_ccw else fw.phase
-            else:
-                volts = co
-                phase = fw.phase if fw.cur_ccw else (fw.phase + fw.phase_inc) & 0xFFFF
-            act_v = fw.act_v = fw.pend_v
-            act_a = fw.act_a = fw.pend_a
-            fw.phase = phase
-            fw.pend_v = volts
-            fw.pend_a = (phase + fw.phase_adv) & 0xFFFF
-            fw.t = t + 1000
-            d = fw._svm_cache.get((act_v << 16) | act_a)
-            if d is None:
-                d = fw.duties()
-            a, b, c = d
-            if a > 1000 or b > 1000 or c > 1000:
-                a, b, c = min(a, 1000), min(b, 1000), min(c, 1000)
-            s = fw.sector
-            self._last_seq = seq = sensors.seq
-            return Drive(
-                seq, a, b, c, fw.output_mode, fw.state, 7 if s == 0xFFFF else s,
-                fw.cur_ccw, fw.req_ccw, fw.fault, (fw.ref_speed, fw.measured_speed, fw.control_output),
-            )
+        t1 = fw.t1_next
+        if self._ctx is not None and not inputs & INPUT_S2 and t1 > t:
+            new_hall = inputs & 7
+            edge_at = -1
+            if new_hall != fw.hall:
+                edge = sensors.edge_time_100ns
+                if edge != EDGE_NONE and edge != 0:  # an edge at the boundary precedes the PWM ISR
+                    edge_at = t + min(edge << 1, PWM_PERIOD_TCY - 1)
+                else:
+                    edge_at = t  # → the general path below
+            if edge_at != t:
+                if adc:
+                    fw.pot_code = adc[0]
+                fw.s2_level = False
+                fw._pwm_run(t // PWM_PERIOD_TCY, 1)
+                t_end = t + PWM_PERIOD_TCY
+                # the later events in the dsPIC's order: by time, Timer1 first on a tie
+                if t1 < t_end and (edge_at < 0 or t1 <= edge_at):
+                    fw.t1_next = t1 + TIMER1_PERIOD_TCY
+                    fw._timer1()
+                    if edge_at >= 0:
+                        fw._apply_hall(new_hall, edge_at)
+                elif edge_at >= 0:
+                    fw._apply_hall(new_hall, edge_at)
+                    if t1 < t_end and fw.running:
+                        fw.t1_next = t1 + TIMER1_PERIOD_TCY
+                        fw._timer1()
+                fw.t = t_end
+                return self._finish(seq)
         edge = sensors.edge_time_100ns
         fw.run(self._period_tcy, inputs, None if edge == EDGE_NONE else edge << 1, adc[0] if adc else None)
-        self._last_seq = sensors.seq
-        return self._drive(sensors.seq)
+        return self._finish(seq)
 
     def advance(self, duration_us: float, sensors: Any) -> Drive:
         """Real time: any span of wall time (sub-Tcy remainders carry over)."""
@@ -297,14 +393,14 @@ class An1017Target:
         if tcy > 0:
             self.fw.run(tcy, sensors.inputs, None if edge == EDGE_NONE else edge << 1, adc[0] if adc else None)
         self._last_seq = sensors.seq
-        return self._drive(sensors.seq)
+        return self._finish(sensors.seq)
 
     def watchdog_trip(self) -> Drive:
         """Sensors stopped arriving: StopMotor, state FAULT, fault WATCHDOG."""
         self.watchdog_trips += 1
         self.last_error = FAULT_WATCHDOG
         self.fw.press_stop(STATE_FAULT, FAULT_WATCHDOG)
-        return self._drive(self._last_seq)
+        return self._finish(self._last_seq)
 
     def status(self) -> Status:
         """The target's own counters (the server adds link counters)."""

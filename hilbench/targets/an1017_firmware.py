@@ -31,7 +31,7 @@ from typing import Literal
 
 from hilbench.errors import ConfigError
 from hilbench.targets.fixedpoint import divf, float_to_q15, sat16, wrap16
-from hilbench.targets.svm import PTPER, svm
+from hilbench.targets.svm import PTPER, svm, svm_fast
 
 # ---- time base -------------------------------------------------------------------------------
 FCY_HZ = 20_000_000
@@ -186,10 +186,8 @@ class An1017Firmware:
         "t3_zero",
         "ic7_fifo",
         "output_mode",
-        "pend_v",
-        "pend_a",
-        "act_v",
-        "act_a",
+        "pend_key",
+        "act_key",
         "pend_duty",
         "act_duty",
         "running",
@@ -219,7 +217,6 @@ class An1017Firmware:
         "t1_next",
         "s2_level",
         "s2_wait_release",
-        "_svm_cache",
     )
 
     def __init__(self, options: An1017Options = An1017Options(), *, reference: bool = False) -> None:
@@ -249,10 +246,11 @@ class An1017Firmware:
         self.t3_zero = 0  # time TMR3 was last cleared
         self.ic7_fifo: list[int] = []
         self.output_mode = MODE_OFF
-        self.pend_v = 0  # pending duty (as SVM arguments: volts, angle) — written by the PWM ISR
-        self.pend_a = 0
-        self.act_v = 0  # active duty (latched at the last period boundary)
-        self.act_a = 0
+        # duties as SVM arguments packed into one int, (volts << 16) | angle (volts ≥ −1 here,
+        # so the packing is unique): pending = written by the PWM ISR, active = latched at the
+        # last period boundary. One int per register set keeps the per-period path to one store.
+        self.pend_key = 0
+        self.act_key = 0
         self.pend_duty = (PTPER, PTPER, PTPER)  # reference path only
         self.act_duty = (PTPER, PTPER, PTPER)
         # firmware variables
@@ -281,7 +279,6 @@ class An1017Firmware:
         self.t1_next = 0
         self.s2_level = False
         self.s2_wait_release = False
-        self._svm_cache: dict[int, tuple[int, int, int]] = {}
 
     # ---- commands from the host --------------------------------------------------------------
     def press_start(self) -> None:
@@ -326,8 +323,7 @@ class An1017Firmware:
         """RunMotor() after ChargeBootstraps(): PDC = PTPER, OVDCON = 0x3F00, variables, interrupts."""
         self.booting = False
         self.output_mode = MODE_PWM
-        self.pend_v = self.act_v = 0
-        self.pend_a = self.act_a = 0
+        self.pend_key = self.act_key = 0
         self.pend_duty = self.act_duty = (PTPER, PTPER, PTPER)
         self.e1 = self.e2 = 0
         self._coefficients()
@@ -348,6 +344,68 @@ class An1017Firmware:
         self.state = STATE_RUNNING
 
     def _timer1(self) -> None:
+        """Timer1 ISR, the fast path's version: `_timer1_reference` with divf and speed_control inlined.
+
+        Why: it runs 1000 times per simulated second. Period ≥ MINPERIOD > MINPERIOD_DIVF > 0,
+        so DIVF's operands are positive and its quotient is a plain floor division. The
+        randomised fast == reference tests compare every Drive of the two versions.
+        """
+        pg = self.pending_gains
+        if pg is not None:
+            self.kp, self.ki, self.kd = pg
+            self.pending_gains = None
+            self._coefficients()
+        period = (self.actual_capture - self.past_capture) & 0xFFFF
+        if period < MINPERIOD:
+            period = MINPERIOD
+        elif period > MAXPERIOD:
+            period = MAXPERIOD
+        self.period = period
+        self.phase_inc = PHASEINC_NUMERATOR // period
+        ms = (MINPERIOD_DIVF << 15) // period
+        if self.cur_ccw:
+            ms = -ms
+        self.measured_speed = ms
+        e0 = self.ref_speed - ms
+        if e0 > 32767:
+            e0 = 32767
+        elif e0 < -32768:
+            e0 = -32768
+        acc = (self.control_output << 16) + ((e0 * self.c0) << 1)
+        if acc > 0x7FFFFFFF:
+            acc = 0x7FFFFFFF
+        elif acc < -0x80000000:
+            acc = -0x80000000
+        acc += (self.e1 * self.c1) << 1
+        if acc > 0x7FFFFFFF:
+            acc = 0x7FFFFFFF
+        elif acc < -0x80000000:
+            acc = -0x80000000
+        acc += (self.e2 * self.c2) << 1
+        if acc > 0x7FFFFFFF:
+            acc = 0x7FFFFFFF
+        elif acc < -0x80000000:
+            acc = -0x80000000
+        co = acc >> 16  # within −32768..32767 after the 1.31 clamp: SAC's saturation never acts
+        self.e2 = self.e1
+        self.e1 = e0
+        self.control_output = co
+        self.req_ccw = co < 0
+        if self.phase_advance_on:
+            self.phase_adv = sat16((self.max_ph_adv * ms * 2) >> 16)
+        else:
+            self.phase_adv = 0
+        sc = self.stall_counter + 1
+        self.stall_counter = sc
+        if sc % FORCE_COMMUTATION_TICKS == 0:
+            s = SECTOR_TABLE[self.hall]
+            self.sector = s & 0xFFFF
+            if s >= 0:
+                self.phase = phase_for_sector(s, self.req_ccw, self.phase, self.phase_offset)
+        elif sc >= self.stall_limit:
+            self.press_stop(STATE_STALLED, FAULT_STALL)
+
+    def _timer1_reference(self) -> None:
         """Timer1 ISR: Period, PhaseInc, MeasuredSpeed, SpeedControl, PhaseAdvance, stall logic."""
         if self.pending_gains is not None:
             self.kp, self.ki, self.kd = self.pending_gains
@@ -435,7 +493,7 @@ class An1017Firmware:
                 for _ in range(n):
                     self.act_duty = self.pend_duty
             else:
-                self.act_v, self.act_a = self.pend_v, self.pend_a
+                self.act_key = self.pend_key
             return
         co = self.control_output
         if self.req_ccw:
@@ -452,28 +510,21 @@ class An1017Firmware:
                 self.pend_duty = svm(volts, (self.phase + adv) & 0xFFFF)
             return
         phase = self.phase
+        vkey = volts << 16
         if n >= 2:
-            self.act_v = volts
-            self.act_a = (phase + (n - 1) * dphase + adv) & 0xFFFF
+            self.act_key = vkey | ((phase + (n - 1) * dphase + adv) & 0xFFFF)
         else:
-            self.act_v, self.act_a = self.pend_v, self.pend_a
+            self.act_key = self.pend_key
         phase = (phase + n * dphase) & 0xFFFF
         self.phase = phase
-        self.pend_v = volts
-        self.pend_a = (phase + adv) & 0xFFFF
+        self.pend_key = vkey | ((phase + adv) & 0xFFFF)
 
     def duties(self) -> tuple[int, int, int]:
         """The duty registers in effect now (latched at the last boundary)."""
         if self.reference:
             return self.act_duty
-        key = (self.act_v << 16) | self.act_a
-        d = self._svm_cache.get(key)
-        if d is None:
-            if len(self._svm_cache) > 200_000:
-                self._svm_cache.clear()
-            d = svm(self.act_v, self.act_a)
-            self._svm_cache[key] = d
-        return d
+        key = self.act_key
+        return svm_fast(key >> 16, key & 0xFFFF)
 
     def _main_loop_buttons(self, inputs: int) -> None:
         """main(): if S2 is down, wait for its release, then toggle RunMotor/StopMotor."""
@@ -525,7 +576,10 @@ class An1017Firmware:
                 break
             if kind == 1:
                 self.t1_next += TIMER1_PERIOD_TCY
-                self._timer1()
+                if self.reference:
+                    self._timer1_reference()
+                else:
+                    self._timer1()
             elif kind == 2:
                 self._run_motor()
             else:
