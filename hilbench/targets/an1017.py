@@ -30,7 +30,7 @@ from hilbench.targets.an1017_firmware import (
     check_gain_constraints,
     max_phase_advance_from_deg,
 )
-from hilbench.targets.svm import svm_fast
+from hilbench.targets.svm import VOLTS_LIMIT, svm_fast
 
 from hilbench.protocol import (
     PROTOCOL_VERSION,
@@ -97,6 +97,27 @@ __all__ = [
 ]
 
 
+class DutyCache(dict):
+    """Packed SVM arguments (volts << 16 | angle, see An1017Firmware.pend_key) → reported duties.
+
+    Filled on first use (`__missing__`), so the per-period lookup is one subscript. It is what
+    makes the SVM a one-off per amplitude: angles repeat from one electrical cycle to the next.
+    PDC values above 1000 (volts = −1 only) are reported as 1000; the size is bounded.
+    """
+
+    __slots__ = ()
+
+    def __missing__(self, key: int) -> tuple[int, int, int]:
+        volts = key >> 16
+        a, b, c = svm_fast(volts, key & 0xFFFF)
+        if volts < 0:
+            a, b, c = min(a, 1000), min(b, 1000), min(c, 1000)
+        if len(self) >= DUTY_CACHE_MAX:
+            self.clear()
+        d = self[key] = (a, b, c)
+        return d
+
+
 class An1017Target:
     """AN1017 firmware as a Target: lockstep `step`, real-time `advance`, declared parameters."""
 
@@ -113,7 +134,7 @@ class An1017Target:
         self._frac_tcy = 0.0
         self.watchdog_trips = 0
         self.last_error = 0
-        self._duty_cache: dict[int, tuple[int, int, int]] = {}  # packed SVM args → reported duties
+        self._duty_cache = DutyCache()
         # the Drive after its duties (mode, state, sector, ccw, required ccw, fault, telemetry)
         self._tail: tuple = (0, 0, 7, False, False, 0, (0, 0, 0))
         self._ctx: tuple | None = None  # the plain-period context (see _finish)
@@ -223,21 +244,6 @@ class An1017Target:
         self._ctx = None
 
     # ---- the per-period paths ------------------------------------------------------------------
-    def _duty_miss(self, key: int) -> tuple[int, int, int]:
-        """Reported duties for packed SVM arguments `key` (see An1017Firmware.pend_key), cached.
-
-        The cache is what makes a Timer1 interval's SVM a one-off: within it the amplitude is
-        constant and the angles repeat from one electrical cycle to the next.
-        """
-        a, b, c = svm_fast(key >> 16, key & 0xFFFF)
-        if a > 1000 or b > 1000 or c > 1000:
-            a, b, c = min(a, 1000), min(b, 1000), min(c, 1000)
-        cache = self._duty_cache
-        if len(cache) >= DUTY_CACHE_MAX:
-            cache.clear()
-        d = cache[key] = (a, b, c)
-        return d
-
     def _finish(self, seq: int) -> Drive:
         """The Drive after a step that was not a plain period, and the context for the next ones.
 
@@ -254,9 +260,7 @@ class An1017Target:
             if a > 1000 or b > 1000 or c > 1000:
                 a, b, c = min(a, 1000), min(b, 1000), min(c, 1000)
         else:
-            key = fw.act_key
-            d = self._duty_cache.get(key)
-            a, b, c = d if d is not None else self._duty_miss(key)
+            a, b, c = self._duty_cache[fw.act_key]
         running = fw.running
         s = fw.sector if running else SECTOR_TABLE[fw.hall] & 0xFFFF
         co = fw.control_output
@@ -287,7 +291,7 @@ class An1017Target:
             self._ctx = (
                 fw.hall,
                 fw.t1_next - PWM_PERIOD_TCY,  # the last start time of a period without a Timer1 tick
-                volts << 16,
+                (volts if volts < VOLTS_LIMIT else VOLTS_LIMIT) << 16,  # svm clamps it there too
                 dphase,
                 fw.phase_adv,
                 fw.ref_override if fw.ref_override_on else None,
@@ -338,8 +342,7 @@ class An1017Target:
                 fw.pend_key = vkey | ((phase + adv) & 0xFFFF)
                 fw.t = t + 1000
                 self._last_seq = seq
-                d = cache.get(act)
-                return _tuple_new(Drive, (seq,) + (d if d is not None else self._duty_miss(act)) + tail)
+                return _tuple_new(Drive, (seq,) + cache[act] + tail)
         return self._step_events(sensors)
 
     def _step_events(self, sensors: Any) -> Drive:

@@ -31,7 +31,7 @@ from typing import Literal
 
 from hilbench.errors import ConfigError
 from hilbench.targets.fixedpoint import divf, float_to_q15, sat16, wrap16
-from hilbench.targets.svm import PTPER, svm, svm_fast
+from hilbench.targets.svm import PTPER, VOLTS_LIMIT, svm, svm_fast
 
 # ---- time base -------------------------------------------------------------------------------
 FCY_HZ = 20_000_000
@@ -510,7 +510,7 @@ class An1017Firmware:
                 self.pend_duty = svm(volts, (self.phase + adv) & 0xFFFF)
             return
         phase = self.phase
-        vkey = volts << 16
+        vkey = (volts if volts < VOLTS_LIMIT else VOLTS_LIMIT) << 16  # svm clamps there: more cache hits
         if n >= 2:
             self.act_key = vkey | ((phase + (n - 1) * dphase + adv) & 0xFFFF)
         else:
