@@ -300,6 +300,100 @@ def ctl(words: tuple[str, ...], socket_path: str | None, timeout_s: float) -> No
         click.echo(json_module.dumps(reply["data"], indent=2, default=str))
 
 
+@cli.command(context_settings={"show_default": True})
+@click.argument("config", required=False, type=click.Path(dir_okay=False))
+@click.option("--from", "from_rpm", type=float, default=1000.0, help="Speed before the step, rpm (0: start from rest).")
+@click.option("--to", "to_rpm", type=float, default=2000.0, help="Speed after the step, rpm (negative: reverse).")
+@click.option("--gains", "gains", multiple=True, metavar="KP,KI,KD",
+              help="A gain set (Q15 fractions); repeat to compare several. Default: the firmware's own.")
+@click.option("--target", "target_spec", default="inprocess:an1017", metavar="SPEC",
+              help="inprocess:an1017 (fast), emulator:an1017 (its own process on a pty) or a board's serial port.")
+@click.option("--settle", "settle_s", type=float, default=1.0, help="Seconds at --from before the step.")
+@click.option("--after", "after_s", type=float, default=1.0, help="Seconds recorded after the step.")
+@click.option("--set", "overrides", multiple=True, metavar="TABLE.KEY=VALUE", help="Override a config value.")
+@click.option("--plot", "plot_file", type=click.Path(dir_okay=False), default=None, metavar="FILE.png",
+              help="One overlay plot of every response (needs the plot extra).")
+@click.option("--csv", "csv_file", type=click.Path(dir_okay=False), default=None, metavar="FILE.csv",
+              help="Write the metrics of every gain set as CSV.")
+@click.option("--json", "as_json", is_flag=True, help="Print the metrics as JSON.")
+@_friendly
+def step(config: str | None, from_rpm: float, to_rpm: float, gains: tuple[str, ...], target_spec: str,
+         settle_s: float, after_s: float, overrides: tuple[str, ...], plot_file: str | None,
+         csv_file: str | None, as_json: bool) -> None:
+    """Run a speed step and measure it: rise (10-90 %), overshoot, settling (2 %), steady-state
+    error and ripple, IAE, ITAE, peak current. Several --gains give one comparison table.
+
+    \b
+    Examples:
+      hilbench step --from 1000 --to 2000
+      hilbench step --gains 0.1,0.01,0 --gains 0.2,0.02,0 --plot steps.png
+      hilbench step --from 1500 --to -1500 --target emulator:an1017
+    """
+    import json as json_module
+    from pathlib import Path
+
+    from rich.console import Console
+    from rich.progress import Progress
+    from rich.table import Table
+
+    from hilbench.bench.metrics import METRIC_COLUMNS, compare_table
+    from hilbench.bench.run import RunRequest, check_overrides, load_run_config, run_step_tests
+    from hilbench.bench.steptest import StepTest, parse_gain_sets, result_row
+
+    test = StepTest(from_rpm, to_rpm, settle_s, after_s)
+    sets = parse_gain_sets(gains)
+    cfg = load_run_config(RunRequest(config, check_overrides(overrides), target_spec, "lockstep"))
+    console = Console(stderr=True)
+    with Progress(console=console, transient=True) as progress:
+        task = progress.add_task("step tests", total=max(1, len(sets)))
+        results = run_step_tests(cfg, test, sets, progress=lambda done, total: progress.update(task, completed=done))
+    rows = [result_row(r) for r in results]
+    if csv_file:
+        import csv
+
+        with open(csv_file, "w", newline="", encoding="utf-8") as handle:
+            writer = csv.DictWriter(handle, fieldnames=list(rows[0].keys()))
+            writer.writeheader()
+            writer.writerows(rows)
+    if plot_file:
+        from hilbench.ui.plots import plot_overlay
+
+        curves = [(r.label, r.t_s, r.speed_rpm) for r in results]
+        t_ref = results[0].t_s
+        plot_overlay(curves, (t_ref, [results[0].ref_rpm] * len(t_ref)), Path(plot_file),
+                     f"speed step {from_rpm:g} → {to_rpm:g} rpm")
+    if as_json:
+        click.echo(json_module.dumps(rows, indent=2, default=str))
+        return
+    Console().print(step_table([(r.label, r.metrics) for r in results], f"speed step {from_rpm:g} → {to_rpm:g} rpm ({target_spec})"))
+    if plot_file:
+        Console().print(f"plot: {plot_file}")
+
+
+def step_table(rows, title: str, sort_by: str | None = None):  # type: ignore[no-untyped-def]
+    """A compact comparison table of step metrics (fits 100 columns)."""
+    from rich.table import Table
+
+    from hilbench.bench.metrics import compare_table
+
+    columns = (
+        ("rise_time_s", "rise ms", 1e3, ".0f"), ("overshoot_pct", "ovs %", 1, ".1f"),
+        ("settling_time_s", "settle ms", 1e3, ".0f"), ("ss_error_pct", "ss err %", 1, ".2f"),
+        ("ss_ripple", "ripple rpm", 1, ".1f"), ("iae", "IAE", 1, ".1f"), ("itae", "ITAE", 1, ".2f"),
+        ("peak_current_a", "peak A", 1, ".2f"),
+    )
+    table = Table(title=title)
+    if sort_by:
+        table.add_column("#", justify="right")
+    table.add_column("gains", no_wrap=True)
+    for _, header, _, _ in columns:
+        table.add_column(header, justify="right", no_wrap=True)
+    for row in compare_table(rows, sort_by=sort_by):
+        cells = ["—" if row[key] is None else format(row[key] * scale, fmt) for key, _, scale, fmt in columns]
+        table.add_row(*([str(row["rank"])] if sort_by else []), row["label"], *cells)
+    return table
+
+
 def main() -> None:
     """Console-script entry point."""
     cli(prog_name="hilbench")

@@ -287,3 +287,41 @@ def column_index(name: str) -> int:
 def rows_to_table(rows: Sequence[Sequence[float]]) -> np.ndarray:
     """Rows as a float array (for tests and reports)."""
     return np.asarray(rows, dtype=float).reshape(-1, N_COLUMNS)
+
+
+class MemoryRecorder:
+    """The Recorder interface kept in memory: every row, for step tests and analysis."""
+
+    def __init__(self, metadata: dict[str, Any] | None = None) -> None:
+        self.path = Path("<memory>")
+        self.metadata = dict(metadata or {})
+        self.rows: list[tuple[float, ...]] = []
+        self.events: list[tuple[int, str]] = []
+        self.append = self.rows.append
+        self.closed = False
+
+    @property
+    def rows_written(self) -> int:
+        return len(self.rows)
+
+    def event(self, text: str) -> None:
+        self.events.append((len(self.rows), text))
+
+    def mark_last(self, marker: int) -> None:
+        if self.rows:
+            self.rows[-1] = self.rows[-1][:-1] + (float(marker),)
+
+    def maybe_flush(self) -> None:
+        """Nothing to flush: rows stay in memory."""
+
+    def flush(self) -> None:
+        """Nothing to flush: rows stay in memory."""
+
+    def close(self, final_note: str | None = None) -> None:
+        if final_note:
+            self.event(final_note)
+        self.closed = True
+
+    def columns(self) -> dict[str, np.ndarray]:
+        """Every column as an array."""
+        return _columns(rows_to_table(self.rows))

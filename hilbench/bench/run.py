@@ -141,3 +141,38 @@ def check_overrides(words: Sequence[str]) -> tuple[str, ...]:
         if "=" not in word or "." not in word.split("=", 1)[0]:
             raise ConfigError(f"--set {word!r}: expected TABLE.KEY=VALUE, e.g. motor.rs_ohm=2.6 or target.kp=0.2")
     return tuple(words)
+
+
+def run_step_tests(
+    cfg: BenchConfig,
+    test: "StepTest",
+    gain_sets: Sequence[dict[str, float]],
+    progress: Callable[[int, int], None] | None = None,
+) -> list["StepResult"]:
+    """One step test per gain set on the configured target (a fresh target and plant each)."""
+    from hilbench.bench.steptest import run_step
+    from hilbench.plant.model import Plant
+
+    options = dataclasses.replace(
+        settings.session_options(cfg), seed=effective_seed(cfg), duration_s=test.duration_s, history_every_periods=1_000_000
+    )
+    results = []
+    sets = list(gain_sets) or [{}]
+    for index, gains in enumerate(sets):
+        handle = connect(cfg, options)
+        try:
+            def make(events, opts, recorder, handle=handle):  # type: ignore[no-untyped-def]
+                plant = Plant(plant_params_from_config(cfg), seed=opts.seed)
+                return Session(handle.target, plant, events, opts, recorder=recorder,
+                               link_stats=handle.link_stats, target_label=handle.label)
+
+            results.append(run_step(make, test, gains, options))
+        finally:
+            handle.close()
+        if progress is not None:
+            progress(index + 1, len(sets))
+    return results
+
+
+if False:  # typing only
+    from hilbench.bench.steptest import StepResult, StepTest

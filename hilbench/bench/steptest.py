@@ -1,0 +1,131 @@
+"""Speed-step tests: one definition used by `hilbench step`, the control socket and sweeps.
+
+A step test starts the motor with the pot at ``from_rpm``, holds ``settle_s`` so the loop settles,
+steps the pot to ``to_rpm`` and keeps ``after_s`` seconds. The metrics are computed on the plant's
+speed from the step on, against the reference the firmware actually gets (the pot code's RefSpeed:
+the 10-bit pot quantises the reference by ~11.7 rpm on AN1017), so a perfect loop scores zero
+steady-state error.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Any, Callable, Sequence
+
+import numpy as np
+
+from hilbench.bench.metrics import StepMetrics, step_metrics
+from hilbench.bench.recorder import MemoryRecorder
+from hilbench.bench.scenario import Event
+from hilbench.bench.session import Session, SessionOptions
+from hilbench.errors import ConfigError
+from hilbench.targets.profiles import TargetProfile
+
+
+@dataclass(frozen=True)
+class StepTest:
+    """The shape of a step test (rpm and seconds)."""
+
+    from_rpm: float
+    to_rpm: float
+    settle_s: float = 1.0
+    after_s: float = 1.0
+
+    def __post_init__(self) -> None:
+        if self.from_rpm == self.to_rpm:
+            raise ConfigError(f"step: --from and --to are both {self.from_rpm:g} rpm; a step needs two speeds")
+        if self.settle_s <= 0.02 or self.after_s <= 0:
+            raise ConfigError("step: settle and after times must be positive (settle > 20 ms)")
+
+    @property
+    def duration_s(self) -> float:
+        return self.settle_s + self.after_s
+
+    def events(self) -> tuple[Event, ...]:
+        """Pot at from_rpm, S2, step at settle_s, end. From standstill, S2 comes with the step."""
+        if self.from_rpm == 0:
+            return (
+                Event(at_s=0.0, ref_rpm=0.0),
+                Event(at_s=self.settle_s, ref_rpm=self.to_rpm),
+                Event(at_s=self.settle_s, press="s2"),
+                Event(at_s=self.duration_s, end=True),
+            )
+        return (
+            Event(at_s=0.0, ref_rpm=self.from_rpm),
+            Event(at_s=0.01, press="s2"),
+            Event(at_s=self.settle_s, ref_rpm=self.to_rpm),
+            Event(at_s=self.duration_s, end=True),
+        )
+
+    def quantised_rpm(self, profile: TargetProfile, rpm: float) -> float:
+        """The reference the firmware gets for ``rpm`` through the pot."""
+        if profile.rpm_per_speed_q15 is None or profile.pot_counts_per_q15 is None:
+            return rpm
+        code = profile.pot_code_for_rpm(rpm)
+        return (code - 512) / profile.pot_counts_per_q15 * profile.rpm_per_speed_q15
+
+
+@dataclass
+class StepResult:
+    """One gain set's step response and its figures."""
+
+    label: str
+    gains: dict[str, float]
+    metrics: StepMetrics
+    t_s: np.ndarray = field(repr=False)  # from the step, s
+    speed_rpm: np.ndarray = field(repr=False)
+    ref_rpm: float = 0.0
+
+
+def analyse(columns: dict[str, np.ndarray], test: StepTest, profile: TargetProfile, label: str, gains: dict[str, float]) -> StepResult:
+    """Metrics of a recorded step test."""
+    t = columns["t_s"]
+    speed = columns["speed_rpm"]
+    before = (t >= test.settle_s - 0.05) & (t < test.settle_s)
+    y0 = float(np.mean(speed[before])) if before.any() else float(speed[0])
+    if test.from_rpm == 0:
+        y0 = 0.0
+    y_ref = test.quantised_rpm(profile, test.to_rpm)
+    after = t >= test.settle_s
+    currents = np.max(np.abs(np.stack([columns["ia_a"], columns["ib_a"], columns["ic_a"]])), axis=0)
+    metrics = step_metrics(t[after], speed[after], y0=y0, y_final_ref=y_ref, current_a=currents[after], t_step_s=test.settle_s)
+    return StepResult(label, gains, metrics, t[after] - test.settle_s, speed[after], y_ref)
+
+
+def run_step(
+    make_session: Callable[[tuple[Event, ...], SessionOptions, MemoryRecorder], Session],
+    test: StepTest,
+    gains: dict[str, float],
+    options: SessionOptions,
+    label: str | None = None,
+) -> StepResult:
+    """Run one step test through a session built by ``make_session`` and analyse it."""
+    recorder = MemoryRecorder()
+    session = make_session(test.events(), options, recorder)
+    session.handshake()
+    if gains:
+        session.set_params(gains, 0.0)
+    session.run()
+    name = label or ("/".join(f"{v:g}" for v in gains.values()) or "firmware defaults")
+    return analyse(recorder.columns(), test, session.profile, name, gains)
+
+
+def parse_gain_sets(words: Sequence[str], names: Sequence[str] = ("kp", "ki", "kd")) -> list[dict[str, float]]:
+    """`--gains 0.1,0.01,0` → [{"kp": 0.1, "ki": 0.01, "kd": 0.0}]; fewer values leave the rest."""
+    sets: list[dict[str, float]] = []
+    for word in words:
+        parts = [p for p in word.split(",")]
+        if not 1 <= len(parts) <= len(names):
+            raise ConfigError(f"--gains {word!r}: expected up to {len(names)} comma-separated values ({','.join(names)})")
+        try:
+            values = [float(p) for p in parts]
+        except ValueError:
+            raise ConfigError(f"--gains {word!r}: not numbers (e.g. 0.1,0.01,0)") from None
+        sets.append(dict(zip(names, values)))
+    return sets
+
+
+def result_row(result: StepResult) -> dict[str, Any]:
+    """A flat row for tables and CSV."""
+    m = result.metrics
+    return {"label": result.label, **result.gains, **{k: v for k, v in m.as_dict().items()}}
