@@ -17,7 +17,7 @@ from hilbench.errors import ConfigError
 from hilbench.plant import LoadProfile, Plant
 from hilbench.protocol import HostHello, Sensors
 from hilbench.targets.an1017 import PARAM_KD, PARAM_KI, PARAM_KP, An1017Target
-from hilbench.targets.an1017_batch import EDGE_NONE, An1017Batch, gains_to_q15, svm_batch
+from hilbench.targets.an1017_batch import EDGE_NONE, An1017Batch, gains_to_q15, svm_batch, svm_batch_clipped
 from hilbench.targets.an1017_firmware import An1017Options
 from hilbench.targets.svm import svm
 
@@ -85,6 +85,9 @@ def test_svm_batch_matches_scalar_svm_at_every_angle() -> None:
         got = svm_batch(np.full(angles.size, volts, dtype=np.int64), angles)
         want = np.array([svm(volts, int(a)) for a in angles[::7]]).T
         assert np.array_equal(got[:, ::7], want)
+        clipped = np.empty_like(got)
+        svm_batch_clipped(np.full(angles.size, volts, dtype=np.int64), angles, clipped)
+        assert np.array_equal(clipped[:, ::7], np.minimum(want, 1000))
 
 
 @pytest.mark.slow

@@ -88,8 +88,11 @@ _SIN2 = _SINE[_A2 >> 6]
 # duty = h + k1·t1 + k2·t2 per phase and sector (svm.py's six return patterns)
 _K1 = np.array([[1, 1, 0, 0, 0, 1], [0, 1, 1, 1, 0, 0], [0, 0, 0, 1, 1, 1]], dtype=I64)
 _K2 = np.array([[1, 0, 0, 0, 1, 1], [1, 1, 1, 0, 0, 0], [0, 0, 1, 1, 1, 0]], dtype=I64)
-_K1_BY_ANGLE = np.ascontiguousarray(_K1[:, _SVM_SECTOR])  # (3, 65536)
-_K2_BY_ANGLE = np.ascontiguousarray(_K2[:, _SVM_SECTOR])
+# flat (3·65536) tables indexed by angle + 65536·phase: one 1-D take serves all three phases
+_K1_FLAT = np.ascontiguousarray(_K1[:, _SVM_SECTOR]).ravel()
+_K2_FLAT = np.ascontiguousarray(_K2[:, _SVM_SECTOR]).ravel()
+_PHASE_ROWS = (np.arange(3, dtype=I64) * 0x10000)[:, None]
+_SIN12 = np.ascontiguousarray(np.stack([_SIN1, _SIN2]))  # (2, 65536)
 
 
 def svm_batch(volts: np.ndarray, angle_u16: np.ndarray) -> np.ndarray:
@@ -98,7 +101,37 @@ def svm_batch(volts: np.ndarray, angle_u16: np.ndarray) -> np.ndarray:
     t1 = (((_SIN1[angle_u16] * v) >> 15) & 0xFFFF) * TPWM >> 15 & 0xFFFF
     t2 = (((_SIN2[angle_u16] * v) >> 15) & 0xFFFF) * TPWM >> 15 & 0xFFFF
     h = ((TPWM - t1 - t2) & 0xFFFF) >> 1
-    return (h + _K1_BY_ANGLE[:, angle_u16] * t1 + _K2_BY_ANGLE[:, angle_u16] * t2) & 0xFFFF
+    rows = angle_u16 + _PHASE_ROWS
+    return (h + _K1_FLAT.take(rows) * t1 + _K2_FLAT.take(rows) * t2) & 0xFFFF
+
+
+def svm_batch_clipped(volts: np.ndarray, angle_u16: np.ndarray, out: np.ndarray) -> None:
+    """min(svm(volts, angle), 1000) into out (3, n), for volts ≥ −1 (all the firmware makes).
+
+    Why a second version: for 0 ≤ volts ≤ 28300 every product stays below 2^16 and
+    t1 + t2 ≤ 862 < 998, so svm's 16-bit masks never act and duties stay ≤ 998; volts = −1
+    (the CCW start-up transient) gives t1, t2 ∈ {0, 1995} and every duty wraps above 1000, so
+    the clipped result is 1000 on all phases. tests/test_an1017_batch.py checks both cases.
+    """
+    v = np.clip(volts, 0, VOLTS_LIMIT)
+    t = _SIN12.take(angle_u16, axis=1)
+    t *= v
+    t >>= 15
+    t *= TPWM
+    t >>= 15
+    t1, t2 = t[0], t[1]
+    h = TPWM - t1
+    h -= t2
+    h >>= 1
+    rows = angle_u16 + _PHASE_ROWS
+    np.multiply(_K1_FLAT.take(rows), t1, out=out)
+    k2 = _K2_FLAT.take(rows)
+    k2 *= t2
+    out += k2
+    out += h
+    neg = volts < 0
+    if neg.any():
+        out[:, neg] = 1000
 
 
 class An1017Batch:
@@ -192,6 +225,8 @@ class An1017Batch:
         self._changed = np.zeros(n, dtype=bool)
         self._scale = np.zeros(n)  # 1/1000 where the output is PWM, else 0
         self._frac = np.zeros((3, n))
+        self._volts = z()  # PWM ISR amplitude, changes only in Timer1 / RunMotor
+        self._dphase = z()  # Phase step per PWM period, changes in Timer1 / hall ISR / RunMotor
 
     # ---- bookkeeping -------------------------------------------------------------------------
     def _refresh(self) -> None:
@@ -262,6 +297,17 @@ class An1017Batch:
         self.phase_inc[idx] = PHASEINC_NUMERATOR // MAXPERIOD
         self.running[idx] = True
         self.state[idx] = STATE_RUNNING
+        self._update_pwm_terms(idx)
+
+    def _update_pwm_terms(self, idx: np.ndarray) -> None:
+        """Cache the PWM ISR's amplitude and phase step for idx (their inputs just changed).
+
+        volts = −(co+1) when CCW is required, else co; the phase moves by +PhaseInc (CW wanted
+        and turning CW), −PhaseInc (CCW and CCW) and stays put while the two disagree.
+        """
+        co, req, cur, inc = self.control_output[idx], self.req_ccw[idx], self.cur_ccw[idx], self.phase_inc[idx]
+        self._volts[idx] = np.where(req, -1 - co, co)
+        self._dphase[idx] = np.where(req, np.where(cur, -inc, 0), np.where(cur, 0, inc))
 
     def _timer1(self, idx: np.ndarray) -> None:
         """Timer1 ISR for the instances idx: speed, PID (MAC sequence), phase advance, stall."""
@@ -301,6 +347,7 @@ class An1017Batch:
         stall = ~force & (sc >= self.stall_limit)
         if stall.any():
             self._stop(idx[stall], STATE_STALLED, FAULT_STALL)
+        self._update_pwm_terms(idx)
 
     def _edges(self, idx: np.ndarray, new_hall: np.ndarray, t_edge: np.ndarray) -> None:
         """Hall inputs of instances idx change at t_edge: IC7 capture, then the hall ISR."""
@@ -339,6 +386,7 @@ class An1017Batch:
         new = self._phase_for[self.req_ccw[idx].astype(I64), sidx]
         self.phase[idx] = np.where(new < 0, self.phase[idx], new)
         self.last_sector[idx] = s
+        self._update_pwm_terms(idx)
 
     def _pwm(self) -> None:
         """The PWM period boundary at self.t: latch, ADC ISR, PWM ISR (phase ramp, SVM)."""
@@ -352,32 +400,26 @@ class An1017Batch:
             self._pend_duty[...] = self.duty
             return
         if nrun == self.n:
-            co, req, cur, inc = self.control_output, self.req_ccw, self.cur_ccw, self.phase_inc
-            volts = np.where(req, -1 - co, co)
-            # dphase: +inc (CW wanted, CW turning), -inc (CCW, CCW), 0 otherwise
-            dphase = np.where(req, np.where(cur, -inc, 0), np.where(cur, 0, inc))
             phase = self.phase
-            phase += dphase
+            phase += self._dphase
             phase &= 0xFFFF
-            angle = phase + self.phase_adv
+            angle = self.pend_a
+            np.add(phase, self.phase_adv, out=angle)
             angle &= 0xFFFF
-            self.pend_v = volts
-            self.pend_a = angle
-            d = svm_batch(volts, angle)
-            np.minimum(d, 1000, out=self._pend_duty)
+            self.pend_v[...] = self._volts
+            svm_batch_clipped(self._volts, angle, self._pend_duty)
             return
         idx = np.flatnonzero(self.running)
         stopped = ~self.running
         self._pend_duty[:, stopped] = self.duty[:, stopped]
-        co, req, cur, inc = self.control_output[idx], self.req_ccw[idx], self.cur_ccw[idx], self.phase_inc[idx]
-        volts = np.where(req, -1 - co, co)
-        dphase = np.where(req, np.where(cur, -inc, 0), np.where(cur, 0, inc))
-        phase = (self.phase[idx] + dphase) & 0xFFFF
+        phase = (self.phase[idx] + self._dphase[idx]) & 0xFFFF
         self.phase[idx] = phase
         angle = (phase + self.phase_adv[idx]) & 0xFFFF
+        volts = self._volts[idx]
         self.pend_v[idx] = volts
         self.pend_a[idx] = angle
-        d = np.minimum(svm_batch(volts, angle), 1000)
+        d = np.empty((3, idx.size), dtype=I64)
+        svm_batch_clipped(volts, angle, d)
         self._pend_duty[:, idx] = d
 
     # ---- the step function -------------------------------------------------------------------
