@@ -252,7 +252,7 @@ class An1017Target:
         pipeline, time and, through the ADC ISR, RefSpeed. Everything in it stays valid until an
         ISR other than PWM/ADC runs or the host changes something; every such path ends here or
         sets `_ctx = None`. `_tail` is the Drive after its duties (mode … telemetry), reused
-        while unchanged.
+        while only the duties change.
         """
         fw = self.fw
         if fw.reference:
@@ -267,20 +267,17 @@ class An1017Target:
         tel = self._tail[6]
         if tel[0] != fw.ref_speed or tel[1] != fw.measured_speed or tel[2] != co:
             tel = (fw.ref_speed, fw.measured_speed, co)
-        tail = (
+        self._tail = tail = (
             fw.output_mode, fw.state, 7 if s == SECTOR_INVALID else s, fw.cur_ccw, fw.req_ccw, fw.fault, tel,
         )
-        if tail != self._tail:
-            self._tail = tail
-        else:
-            tail = self._tail
         if (
             running
             and self._period_tcy == PWM_PERIOD_TCY
             and not fw.reference
             and fw.t % PWM_PERIOD_TCY == 0
             and not fw.s2_wait_release
-            and (not fw._adc_every or fw.ref_speed == fw._ref_input())  # see step()
+            and (not fw._adc_every or fw.ref_speed == (  # the pot's value (see step())
+                fw.ref_override if fw.ref_override_on else ((fw.pot_code & 0x3FF) - 512) << 6))
         ):
             if fw.req_ccw:
                 volts = -(co + 1)
