@@ -146,9 +146,14 @@ def step_scenario(
 
 
 def _event_period(at_s: float, period_s: float) -> int:
-    """First period k whose t_s = k·period_s the session treats as due (at_s <= t_s + 1e-12)."""
+    """First period k at which the session applies an event at at_s.
+
+    The session gates on ``t_s >= next_t_s`` (no tolerance) before its ``due`` check, with
+    t_s = k·period_s and period_s = 50·1e-6 (slightly below 5e-5): an event at 0.2 s is applied
+    at k = 4001, not 4000. Mirrored here so both paths step the pot in the same period.
+    """
     k = max(0, math.floor(at_s / period_s) - 2)
-    while not at_s <= k * period_s + 1e-12:
+    while not (k * period_s >= at_s and at_s <= k * period_s + 1e-12):
         k += 1
     return k
 
