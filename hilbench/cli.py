@@ -174,12 +174,15 @@ def link_test(target: str, periods: int, period_us: int, timeout_ms: int) -> Non
               help="Keep every period in FILE (.csv or .npz), written as the run goes.")
 @click.option("--set", "overrides", multiple=True, metavar="TABLE.KEY=VALUE",
               help="Override one config value, e.g. --set target.kp=0.2 --set link.period_us=100.")
+@click.option("--gains-file", type=click.Path(dir_okay=False), default=None, metavar="FILE",
+              help="Start with the gains saved by `hilbench ctl save` or `hilbench sweep --save`.")
 @click.option("--no-ui", is_flag=True, help="No live dashboard; print a plain summary at the end.")
 @click.option("--json", "as_json", is_flag=True, help="Print the summary as JSON (implies --no-ui).")
 @click.option("--no-control", is_flag=True, help="Do not open the control socket for `hilbench ctl`.")
 @_friendly
 def run(config: str | None, target_spec: str | None, mode: str | None, duration_s: float | None,
-        record: str | None, overrides: tuple[str, ...], no_ui: bool, as_json: bool, no_control: bool) -> None:
+        record: str | None, overrides: tuple[str, ...], gains_file: str | None, no_ui: bool, as_json: bool,
+        no_control: bool) -> None:
     """Run a bench session: target + plant + scenario, live, recorded.
 
     With no arguments: the AN1017 emulator as its own process on a virtual serial pair, the Hurst
@@ -201,7 +204,10 @@ def run(config: str | None, target_spec: str | None, mode: str | None, duration_
     from hilbench.bench.run import RunRequest, check_overrides, load_run_config, run_bench
     from hilbench.ui.dashboard import Dashboard, summary_table, summary_text
 
-    request = RunRequest(config, check_overrides(overrides), target_spec, mode, duration_s, record)
+    from hilbench.bench.settings import gains_file_overrides
+
+    extra = gains_file_overrides(gains_file) if gains_file else ()
+    request = RunRequest(config, check_overrides(overrides) + extra, target_spec, mode, duration_s, record)
     cfg = load_run_config(request)
     control = None
     if not no_control:
@@ -215,12 +221,8 @@ def run(config: str | None, target_spec: str | None, mode: str | None, duration_
         else:
             dashboard = Dashboard(cfg.link.target, cfg.run.duration_s, console=console)
 
-            def ready(session) -> None:  # type: ignore[no-untyped-def]
-                dashboard.params = session.param_values()
-                session.on_params = lambda values: dashboard.params.update(values)
-
             with dashboard:
-                summary = run_bench(cfg, record=record, observer=dashboard, control=control, on_ready=ready)
+                summary = run_bench(cfg, record=record, observer=dashboard, control=control, on_ready=dashboard.attach)
     finally:
         if control is not None:
             control.close()
@@ -285,6 +287,7 @@ def ctl(words: tuple[str, ...], socket_path: str | None, timeout_s: float) -> No
     hilbench ctl step 1000 2000          reference step from 1000 to 2000 rpm
     hilbench ctl save gains.toml         write the gains as a config fragment
     hilbench ctl guard on|off            guarded tuning: restore gains after a bad response
+    hilbench ctl stop                    end the run (recording closed, target stopped)
     """
     import json as json_module
 
@@ -292,7 +295,22 @@ def ctl(words: tuple[str, ...], socket_path: str | None, timeout_s: float) -> No
     from hilbench.errors import TargetError
 
     request = parse_ctl_args(list(words))
-    reply = ControlClient(socket_path, timeout_s=timeout_s).request(request, timeout_s=timeout_s)
+    client = ControlClient(socket_path, timeout_s=timeout_s)
+    if request["cmd"] == "save":  # the file is written here, where the user is, from the session's values
+        from hilbench.bench.tuning import gains_fragment
+
+        reply = client.request({"cmd": "get"}, timeout_s=timeout_s)
+        if not reply.get("ok"):
+            raise TargetError(str(reply.get("message", "refused")))
+        text = gains_fragment(reply["data"]["params"])
+        try:
+            with open(request["file"], "w", encoding="utf-8") as handle:
+                handle.write(text)
+        except OSError as exc:
+            raise TargetError(f"ctl save {request['file']}: {exc.strerror}") from None
+        click.echo(f"wrote {request['file']}:\n{text}", nl=False)
+        return
+    reply = client.request(request, timeout_s=timeout_s)
     if not reply.get("ok"):
         raise TargetError(str(reply.get("message", "refused")))
     click.echo(reply.get("message", "ok"))

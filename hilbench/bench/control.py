@@ -117,6 +117,7 @@ COMMANDS: Mapping[str, Mapping[str, Callable[[Any], Any]]] = MappingProxyType(
         "step": {"from_rpm": _number("step", "from_rpm"), "to_rpm": _number("step", "to_rpm")},
         "save": {"file": _check_file},
         "guard": {"on": _check_bool},
+        "stop": {},
     }
 )
 
@@ -616,7 +617,7 @@ class ControlClient:
 # CLI words
 
 
-_USAGE = "get | set NAME=VALUE ... | ref RPM | load NM | step FROM_RPM TO_RPM | save FILE | guard on|off"
+_USAGE = "get | set NAME=VALUE ... | ref RPM | load NM | step FROM_RPM TO_RPM | save FILE | guard on|off | stop"
 
 
 def _parse_number(cmd: str, what: str, word: str) -> int | float:
@@ -637,7 +638,7 @@ def parse_ctl_args(words: Sequence[str]) -> dict[str, Any]:
     if not words:
         raise ConfigError(f"ctl: missing command (usage: {_USAGE})")
     cmd, rest = words[0], list(words[1:])
-    counts = {"get": 0, "ref": 1, "load": 1, "step": 2, "save": 1, "guard": 1}
+    counts = {"get": 0, "ref": 1, "load": 1, "step": 2, "save": 1, "guard": 1, "stop": 0}
     if cmd == "set":
         if not rest:
             raise ConfigError("ctl set: give at least one NAME=VALUE (e.g. set kp=0.1 ki=0.01)")
@@ -655,12 +656,12 @@ def parse_ctl_args(words: Sequence[str]) -> dict[str, Any]:
         req: dict[str, Any] = {"cmd": "set", "params": params}
     elif cmd in counts:
         if len(rest) != counts[cmd]:
-            expected = {"get": "no arguments", "ref": "one speed in rpm", "load": "one torque in N·m",
+            expected = {"get": "no arguments", "stop": "no arguments", "ref": "one speed in rpm", "load": "one torque in N·m",
                         "step": "two speeds in rpm (from, to)", "save": "one file name",
                         "guard": "on or off"}[cmd]
             raise ConfigError(f"ctl {cmd}: expected {expected}, got {len(rest)} word(s)")
-        if cmd == "get":
-            req = {"cmd": "get"}
+        if cmd in ("get", "stop"):
+            req = {"cmd": cmd}
         elif cmd == "ref":
             req = {"cmd": "ref", "rpm": _parse_number("ref", "speed", rest[0])}
         elif cmd == "load":

@@ -94,7 +94,7 @@ def run_bench(
     try:
         session = Session(
             handle.target, plant, events, options, observer=observer, control=control,
-            link_stats=handle.link_stats, target_label=handle.label,
+            link_stats=handle.link_stats, target_label=handle.label, guard=settings.guard_settings(cfg),
         )
         try:
             hello = session.handshake()
@@ -104,7 +104,7 @@ def run_bench(
             handle.target.timeout_s = options.timeout_s  # the first answer may wait for the process to start
         gains = settings.configured_gains(cfg)
         if gains:
-            session.set_params(gains, 0.0)
+            session.set_params(gains, 0.0, guard=False)
         if record is not None:
             metadata = {
                 "hilbench_version": __version__,

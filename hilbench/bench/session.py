@@ -9,6 +9,7 @@ model are all a ``Target``; the session cannot tell them apart.
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import time
 from collections import deque
@@ -48,6 +49,12 @@ RESULT_NAMES = {0: "ok", 1: "unknown parameter", 2: "read-only", 3: "out of rang
 #: the plant's step is accurate to 1e-6 at 50 us; longer periods are integrated in substeps
 MAX_PLANT_STEP_US = 50
 
+CTL_STEP_HOLD_S = 1.0
+CTL_STEP_AFTER_S = 1.0
+STEP_REPLY_KEYS = ("rise_time_s", "overshoot_pct", "settling_time_s", "ss_error", "ss_error_pct", "ss_ripple", "iae", "itae")
+STATE_STALLED = 3
+FAULT_STALL = 2
+
 #: how long a button press is held (the firmware debounces and acts on the edge)
 BUTTON_HOLD_S = 0.002
 
@@ -67,6 +74,28 @@ class SessionOptions:
     seed: int = 0
     observe_every_periods: int = 400
     history_every_periods: int = 20
+
+
+@dataclass(frozen=True)
+class GuardSettings:
+    """Guarded tuning: after a gain change, watch a window and restore the old gains on trouble."""
+
+    enabled: bool = True
+    window_s: float = 1.0
+    oscillation_rpm: float = 150.0  # a speed-error swing beyond ±this counts
+    oscillation_swings: int = 4  # this many swings across ±oscillation_rpm trip the guard
+    current_limit_a: float = 3.0  # phase current peak (the MCLV six-step trip level is 3 A)
+
+
+@dataclass
+class _CtlStep:
+    """A `ctl step` in progress: hold, step, then answer with the metrics."""
+
+    request: Any
+    from_rpm: float
+    to_rpm: float
+    due_s: float
+    t_step_s: float | None = None
 
 
 @dataclass
@@ -202,6 +231,7 @@ class Session:
         control: Any = None,
         link_stats: Callable[[], dict[str, int]] | None = None,
         target_label: str = "target",
+        guard: GuardSettings = GuardSettings(),
     ) -> None:
         self.target = target
         self.plant = plant
@@ -231,6 +261,13 @@ class Session:
         self._last_drive: Any = None
         self._end_requested = False
         self.on_params: Callable[[dict[str, float]], None] | None = None
+        self.guard = guard
+        self._guard_until = -math.inf
+        self._guard_prev: dict[str, float] = {}
+        self._guard_sign = 0
+        self._guard_swings = 0
+        self.guard_trips: list[str] = []
+        self._pending_steps: list[_CtlStep] = []
 
     # ------------------------------------------------------------------ handshake
     def handshake(self) -> TargetHello:
@@ -279,9 +316,20 @@ class Session:
             raise ParamError(f"{self.target_label}: {name}={value:g} is out of range {rng}")
         return info.param_id, raw
 
-    def set_params(self, values: dict[str, float], t_s: float | None = None) -> None:
+    def set_params(self, values: dict[str, float], t_s: float | None = None, *, guard: bool = True) -> None:
         """Write a parameter set atomically (checked here first, then by the target)."""
         pairs = tuple(self.encode_param(name, value) for name, value in values.items())
+        if any(name in self.profile.gain_params for name in values):
+            raw_now = {name: self.target.get_param(self.param_ids[name]).value
+                       for name in self.profile.gain_params if name in self.param_ids}
+            previous = {name: raw / 32768.0 for name, raw in raw_now.items()}
+            raw_now.update({name: raw for name, (_, raw) in zip(values, pairs)})
+            broken = self.profile.gain_constraint_broken(raw_now)
+            if broken is not None:
+                text = " ".join(f"{k}={v:g}" for k, v in values.items())
+                raise ParamError(f"{self.target_label}: gains {text} break the firmware's {broken}")
+        else:
+            previous = {}
         result = self.target.set_params(pairs)
         if result.result != 0:
             name = next((n for n, i in self.param_ids.items() if i == result.param_id), str(result.param_id))
@@ -297,6 +345,44 @@ class Session:
         if self.recorder is not None:
             self.recorder.event(f"t={when:.6f} {text}")
         self._marker = MARKER_PARAM
+        if guard and previous and self.guard.enabled:
+            self._arm_guard(when, previous)
+
+    def _arm_guard(self, t_s: float, previous: dict[str, float]) -> None:
+        self._guard_until = t_s + self.guard.window_s
+        self._guard_prev = previous
+        self._guard_sign = 0
+        self._guard_swings = 0
+
+    def _guard_check(self, t_s: float, ref_rpm: float, state: int, fault: int) -> None:
+        """One look at the motor inside the guard window (every history sample, ~1 ms)."""
+        guard = self.guard
+        reason = None
+        peak = max(abs(i) for i in self.plant.i_abc)
+        if peak > guard.current_limit_a:
+            reason = f"phase current {peak:.2f} A > {guard.current_limit_a:g} A"
+        elif state == STATE_STALLED or fault == FAULT_STALL:
+            reason = "the firmware stalled"
+        else:
+            error = self.plant.speed_rpm - ref_rpm
+            sign = 1 if error > guard.oscillation_rpm else (-1 if error < -guard.oscillation_rpm else 0)
+            if sign and sign != self._guard_sign:
+                if self._guard_sign:
+                    self._guard_swings += 1
+                self._guard_sign = sign
+            if self._guard_swings >= guard.oscillation_swings:
+                reason = f"speed error oscillates beyond ±{guard.oscillation_rpm:g} rpm"
+        if reason is None:
+            return
+        self._guard_until = -math.inf
+        restored = " ".join(f"{k}={v:g}" for k, v in self._guard_prev.items())
+        try:
+            self.set_params(self._guard_prev, t_s, guard=False)
+            text = f"guard: {reason}; restored {restored}"
+        except HilbenchError as exc:
+            text = f"guard: {reason}; could not restore {restored}: {exc}"
+        self.guard_trips.append(text)
+        self._note(t_s, text)
 
     # ------------------------------------------------------------------ scenario
     def _apply(self, event: Event, t_s: float) -> None:
@@ -422,6 +508,7 @@ class Session:
         self._marker = MARKER_NONE
         self._last_hall = plant.hall_bits
         drive = None
+        last_ref = 0.0
         self.periods_done = 0
         if pacer is not None:
             pacer.start()
@@ -433,6 +520,17 @@ class Session:
                         self._apply(event, t_s)
                     if self._end_requested:
                         summary.end_reason = "scenario end"
+                        break
+                # -- live changes act from this period on, so they are noted at its time
+                if k % history_every == 0 and drive is not None:
+                    if t_s < self._guard_until:
+                        self._guard_check(t_s, last_ref, drive.state, drive.fault)
+                    if self._pending_steps:
+                        self._advance_steps(t_s)
+                if control is not None and k % observe_every == 0 and k:
+                    self._serve_control(t_s)
+                    if self._end_requested:
+                        summary.end_reason = "stopped by ctl"
                         break
                 if self.player.ramps:
                     self._tick_ramps(t_s)
@@ -509,6 +607,7 @@ class Session:
                 meas = tele[tele_meas] * rpm_q15 if tele_meas >= 0 else math.nan
                 ref = tele[tele_ref] * rpm_q15 if tele_ref >= 0 else self._ref_rpm
                 ctrl = tele[tele_ctrl] if tele_ctrl >= 0 else 0
+                last_ref = ref
                 if rec_append is not None:
                     ia, ib, ic = plant.i_abc
                     rec_append(
@@ -525,8 +624,6 @@ class Session:
                 if k % history_every == 0:
                     self.history.append((t_s, self._ref_rpm, plant.speed_rpm, meas))
                 if k % observe_every == 0 and k:
-                    if control is not None:
-                        self._serve_control(t_s)
                     if self.observer is not None:
                         now = perf()
                         rate = (k - last_obs_k) / max(now - last_obs_wall, 1e-9)
@@ -538,6 +635,7 @@ class Session:
         except KeyboardInterrupt:
             summary.end_reason = "interrupted"
             self.periods_done = k
+            self._stop_target()
             self._finish(summary, wall_start, rtts, lateness, overruns, f"interrupted at period {k}")
             raise
         except (LinkError, TargetError, SessionAborted) as exc:
@@ -547,8 +645,16 @@ class Session:
             self._deenergise()
             self._finish(summary, wall_start, rtts, lateness, overruns, f"fault at period {k}: {exc}", fault=True)
             raise
+        self._stop_target()
         self._finish(summary, wall_start, rtts, lateness, overruns, f"end: {summary.end_reason} at period {k}")
         return summary
+
+    def _stop_target(self) -> None:
+        """A clean end: the target stops its outputs (S2 as a command)."""
+        try:
+            self.target.stop()
+        except HilbenchError:
+            pass
 
     def _faulty_hall(self, hall: int, edge: int) -> tuple[int, int]:
         if self._missing_edge_armed and hall != self._last_hall:
@@ -583,6 +689,16 @@ class Session:
                 self._set_ref(float(args["rpm"]))
                 self._note(t_s, f"ref {args['rpm']} rpm (ctl)")
                 request.reply(True, f"reference {args['rpm']} rpm at t={t_s:.4f} s")
+            elif cmd == "step":
+                self._start_ctl_step(request, float(args["from_rpm"]), float(args["to_rpm"]), t_s)
+            elif cmd == "stop":
+                self._end_requested = True
+                self._note(t_s, "stop (ctl)")
+                request.reply(True, f"run ends at t={t_s:.4f} s")
+            elif cmd == "guard":
+                self.guard = dataclasses.replace(self.guard, enabled=bool(args["on"]))
+                self._note(t_s, f"guard {'on' if self.guard.enabled else 'off'} (ctl)")
+                request.reply(True, f"guarded tuning {'on' if self.guard.enabled else 'off'}")
             elif cmd == "load":
                 self.set_load("constant", float(args["nm"]))
                 self._note(t_s, f"load {args['nm']} N*m (ctl)")
@@ -591,6 +707,41 @@ class Session:
                 request.reply(False, f"command {cmd!r} is not available in this session")
         except HilbenchError as exc:
             request.reply(False, str(exc))
+
+    def _start_ctl_step(self, request: Any, from_rpm: float, to_rpm: float, t_s: float) -> None:
+        """`ctl step A B`: reference A now, B after a 1 s hold; reply with the metrics 1 s later."""
+        self.player.ramps.pop("ref_rpm", None)
+        self._set_ref(from_rpm)
+        self._note(t_s, f"step {from_rpm:g} -> {to_rpm:g} rpm (ctl): hold {from_rpm:g}")
+        self._pending_steps.append(_CtlStep(request, from_rpm, to_rpm, t_s + CTL_STEP_HOLD_S))
+
+    def _advance_steps(self, t_s: float) -> None:
+        for step in list(self._pending_steps):
+            if t_s < step.due_s:
+                continue
+            if step.t_step_s is None:  # the hold is over: step now
+                self._set_ref(step.to_rpm)
+                self._note(t_s, f"step to {step.to_rpm:g} rpm (ctl)")
+                step.t_step_s = t_s
+                step.due_s = t_s + CTL_STEP_AFTER_S
+            else:  # the record after the step is complete: answer
+                self._pending_steps.remove(step)
+                metrics = self._step_metrics(step.t_step_s, step.to_rpm)
+                step.request.reply(True, f"step {step.from_rpm:g} -> {step.to_rpm:g} rpm done", metrics)
+
+    def _step_metrics(self, t_step: float, to_rpm: float) -> dict[str, Any]:
+        from hilbench.bench.metrics import step_metrics
+
+        t = [h[0] for h in self.history if h[0] >= t_step - 0.05]
+        y = [h[2] for h in self.history if h[0] >= t_step - 0.05]
+        before = [v for tt, v in zip(t, y) if tt < t_step] or y[:1]
+        code_rpm = self.profile.pot_code_for_rpm(to_rpm)
+        ref = ((code_rpm - 512) / self.profile.pot_counts_per_q15 * self.profile.rpm_per_speed_q15
+               if self.profile.pot_counts_per_q15 and self.profile.rpm_per_speed_q15 else to_rpm)
+        after = [(tt, v) for tt, v in zip(t, y) if tt >= t_step]
+        metrics = step_metrics([a for a, _ in after], [b for _, b in after], y0=sum(before) / len(before),
+                               y_final_ref=ref, t_step_s=t_step)
+        return {k: v for k, v in metrics.as_dict().items() if k in STEP_REPLY_KEYS}
 
     def _note(self, t_s: float, text: str) -> None:
         self.messages.append(f"{t_s:.3f} s: {text}")

@@ -10,7 +10,7 @@ from dataclasses import dataclass, field
 from typing import Any, Literal
 
 from hilbench.bench.scenario import FAULT_KINDS, LOAD_KINDS, Event, default_scenario
-from hilbench.bench.session import SessionOptions
+from hilbench.bench.session import GuardSettings, SessionOptions
 from hilbench.config import BenchConfig, register_section, spec
 
 FaultName = Literal[
@@ -92,6 +92,18 @@ class ScenarioEntry:
         )
 
 
+@dataclass(frozen=True)
+class TuningSection:
+    """[tuning]: guarded live tuning (restore the previous gains when a change goes bad)."""
+
+    guard: bool = True
+    guard_window_s: float = field(default=1.0, metadata=spec(unit="s", gt=0, le=60))
+    guard_oscillation_rpm: float = field(default=150.0, metadata=spec(unit="rpm", gt=0, le=20000))
+    guard_swings: int = field(default=4, metadata=spec(ge=1, le=1000))
+    guard_current_a: float = field(default=3.0, metadata=spec(unit="A", gt=0, le=1000))
+
+
+register_section("tuning", TuningSection)
 register_section("run", RunSection)
 register_section("link", LinkSection)
 register_section("target", TargetSection)
@@ -112,6 +124,31 @@ def session_options(cfg: BenchConfig) -> SessionOptions:
         max_consecutive_overruns=link.max_consecutive_overruns,
         seed=run.seed,
     )
+
+
+def guard_settings(cfg: BenchConfig) -> GuardSettings:
+    """GuardSettings from the [tuning] table."""
+    t = cfg.tuning
+    return GuardSettings(t.guard, t.guard_window_s, t.guard_oscillation_rpm, t.guard_swings, t.guard_current_a)
+
+
+def gains_file_overrides(path: str) -> tuple[str, ...]:
+    """`--gains-file FILE`: the kp/ki/kd of a saved fragment's [target] table as overrides."""
+    import tomllib
+
+    from hilbench.errors import ConfigError
+
+    try:
+        with open(path, "rb") as handle:
+            data = tomllib.load(handle)
+    except OSError as exc:
+        raise ConfigError(f"{path}: cannot read: {exc.strerror}") from None
+    except tomllib.TOMLDecodeError as exc:
+        raise ConfigError(f"{path}: not valid TOML: {exc}") from None
+    table = data.get("target")
+    if not isinstance(table, dict) or not any(k in table for k in ("kp", "ki", "kd")):
+        raise ConfigError(f"{path}: no [target] table with kp/ki/kd (write one with `hilbench ctl save`)")
+    return tuple(f"target.{k}={table[k]!r}" for k in ("kp", "ki", "kd") if k in table)
 
 
 def scenario_events(cfg: BenchConfig) -> tuple[Event, ...]:

@@ -104,7 +104,7 @@ def run_step(
     session = make_session(test.events(), options, recorder)
     session.handshake()
     if gains:
-        session.set_params(gains, 0.0)
+        session.set_params(gains, 0.0, guard=False)
     session.run()
     name = label or ("/".join(f"{v:g}" for v in gains.values()) or "firmware defaults")
     return analyse(recorder.columns(), test, session.profile, name, gains)

@@ -21,6 +21,17 @@ class TargetProfile:
     rpm_per_speed_q15: float | None  # None: the target reports no speed
     pot_counts_per_q15: float | None  # AN1017: RefSpeed = (code - 512)·64
     gain_params: tuple[str, ...] = ()
+    constraint_module: str | None = None  # module with check_gain_constraints and GAIN_CONSTRAINT_NAMES
+
+    def gain_constraint_broken(self, gains_q15: dict[str, int]) -> str | None:
+        """The firmware's own gain constraint that ``gains_q15`` breaks, as text, or None."""
+        if self.constraint_module is None or not all(name in gains_q15 for name in self.gain_params):
+            return None
+        import importlib
+
+        module = importlib.import_module(self.constraint_module)
+        broken = module.check_gain_constraints(*(gains_q15[name] for name in self.gain_params))
+        return None if broken is None else f"constraint #{broken} {module.GAIN_CONSTRAINT_NAMES[broken]}"
 
     def speed_rpm(self, speed_q15: int) -> float:
         """Telemetry speed (Q15) in rpm, or NaN where the target has no speed scale."""
@@ -37,7 +48,9 @@ class TargetProfile:
         return min(1023, max(0, code))
 
 
-AN1017_PROFILE = TargetProfile("AN1017", AN1017_RPM_PER_Q15, 1 / 64, ("kp", "ki", "kd"))
+AN1017_PROFILE = TargetProfile(
+    "AN1017", AN1017_RPM_PER_Q15, 1 / 64, ("kp", "ki", "kd"), "hilbench.targets.an1017_firmware"
+)
 GENERIC_PROFILE = TargetProfile("generic", None, None)
 
 _PROFILES = {"AN1017": AN1017_PROFILE}

@@ -100,6 +100,11 @@ class Dashboard:
         self.task = self.progress.add_task("run", total=duration_s or 1.0)
         self.live = Live(console=self.console, refresh_per_second=max_fps, transient=False)
 
+    def attach(self, session: Any) -> None:
+        """Show the session's parameters and follow every change (ctl, scenario, guard)."""
+        self.params = session.param_values()
+        session.on_params = self.params.update
+
     def __enter__(self) -> "Dashboard":
         self.live.__enter__()
         return self
