@@ -120,8 +120,11 @@ def test_sweep_skips_constraint_breakers_ranks_and_reports_progress(tmp_path) ->
     path = write_sweep_csv(tmp_path / "sweep.csv", sweep)
     rows = list(csv.DictReader(path.open()))
     assert len(rows) == 4 and sum(r["status"] == "skipped" for r in rows) == 1
+    import hilbench.bench.settings  # noqa: F401  (registers the [target] table)
+    from hilbench.config import default_config_text
+
     frag = tmp_path / "best.toml"
-    frag.write_text(best_fragment(sweep))
+    frag.write_text(default_config_text() + "\n" + best_fragment(sweep))
     loaded = load_config(frag)
     assert (loaded.target.kp, loaded.target.ki, loaded.target.kd) == sweep.best.gains
 
