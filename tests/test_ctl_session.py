@@ -98,4 +98,4 @@ def test_live_tuning_over_the_control_socket(tmp_path: Path) -> None:
     t_set = float(set_events[0].split()[0][2:])
     marked = data.columns["t_s"][data.columns["marker"] == MARKER_PARAM]
     assert t_set == pytest.approx(marked[0], abs=1e-9)  # the row of the period it was applied in
-    assert any(e.split(" ", 1)[1].startswith("guard: ") and "restored kp=0.12" in e for e in data.events), data.events
+    assert any(e.split(" ", 1)[1].startswith("guard: ") and "restored kp=0.1199" in e for e in data.events), data.events
