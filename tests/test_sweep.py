@@ -24,32 +24,38 @@ from hilbench.bench.sweep import (
     sweep_grid,
     write_sweep_csv,
 )
-from hilbench.config import load_config, plant_params_from_config
+from hilbench.config import load_config, plant_from_config
 from hilbench.errors import ConfigError
-from hilbench.plant import Plant
 from hilbench.targets.an1017 import An1017Target
 
 RPM_PER_Q15 = 1_875_000 / (312 * 32768)  # AN1017 Table 6: rpm = 1 875 000 / Period
 
 
-class _RecordingPlant(Plant):
-    """The scalar plant, remembering speed and current magnitude after every period."""
+class _RecordingPlant:
+    """The config's scalar plant behind a proxy that remembers speed and |i_dq| after each period."""
 
-    def __init__(self, *args, **kwargs) -> None:  # type: ignore[no-untyped-def]
-        super().__init__(*args, **kwargs)
-        self.speeds: list[float] = []
-        self.currents: list[float] = []
-        self.pots: list[float] = []
+    def __init__(self, inner: object) -> None:
+        object.__setattr__(self, "_inner", inner)
+        object.__setattr__(self, "speeds", [])
+        object.__setattr__(self, "currents", [])
+        object.__setattr__(self, "pots", [])
+
+    def __getattr__(self, name: str) -> object:
+        return getattr(self._inner, name)
+
+    def __setattr__(self, name: str, value: object) -> None:
+        setattr(self._inner, name, value)
 
     def step(self, *args, **kwargs) -> None:  # type: ignore[no-untyped-def]
-        self.pots.append(self.pot_fraction)
-        super().step(*args, **kwargs)
-        self.speeds.append(self.speed_rpm)
-        self.currents.append(math.hypot(self.i_d, self.i_q))
+        inner = self._inner
+        self.pots.append(inner.pot_fraction)
+        inner.step(*args, **kwargs)
+        self.speeds.append(inner.speed_rpm)
+        self.currents.append(math.hypot(inner.i_d, inner.i_q))
 
 
 def _scalar_step(cfg, gains, from_rpm, to_rpm, duration_s, step_at_s, record_every):  # type: ignore[no-untyped-def]
-    plant = _RecordingPlant(plant_params_from_config(cfg), seed=cfg.plant.seed)
+    plant = _RecordingPlant(plant_from_config(cfg))
     target = An1017Target()
     session = Session(target, plant, step_scenario(from_rpm, to_rpm, step_at_s, duration_s),
                       SessionOptions(duration_s=duration_s))

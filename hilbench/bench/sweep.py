@@ -200,8 +200,12 @@ def _batch_plant(cfg: Any, n: int) -> Any:
     from hilbench.plant.batch import BatchPlant
 
     params = plant_params_from_config(cfg)
+    plant_section = cfg.sections.get("plant")
+    substeps = getattr(plant_section, "substeps", None)  # as plant_from_config gives the scalar plant
     try:
-        return BatchPlant([params] * n)
+        if substeps is None:
+            return BatchPlant([params] * n)
+        return BatchPlant([params] * n, substeps=int(substeps))
     except ValueError as exc:
         raise ConfigError(f"sweep: {exc}") from None
 
