@@ -221,7 +221,14 @@ def run(config: str | None, target_spec: str | None, mode: str | None, duration_
         else:
             dashboard = Dashboard(cfg.link.target, cfg.run.duration_s, console=console)
 
-            with dashboard:
+            import contextlib
+
+            keys: Any = contextlib.nullcontext()
+            if control is not None:
+                from hilbench.ui.keys import CommandLine
+
+                keys = dashboard.command_line = CommandLine(control.path, dashboard.replies.append)
+            with keys, dashboard:
                 summary = run_bench(cfg, record=record, observer=dashboard, control=control, on_ready=dashboard.attach)
     finally:
         if control is not None:

@@ -98,6 +98,8 @@ class Dashboard:
             console=self.console,
         )
         self.task = self.progress.add_task("run", total=duration_s or 1.0)
+        self.command_line: Any = None  # hilbench.ui.keys.CommandLine, when the terminal can type
+        self.replies: list[str] = []
         self.live = Live(console=self.console, refresh_per_second=max_fps, transient=False)
 
     def attach(self, session: Any) -> None:
@@ -118,7 +120,13 @@ class Dashboard:
             return
         self._last = now
         self.progress.update(self.task, completed=snap.t_s, total=snap.duration_s)
-        self.live.update(Group(render_snapshot(snap, self.params, self.target_label), self.progress))
+        parts: list[Any] = [render_snapshot(snap, self.params, self.target_label), self.progress]
+        if self.command_line is not None and self.command_line.active:
+            from hilbench.ui.keys import PROMPT_HELP
+
+            parts.append(Text("\n".join(self.replies[-3:]), style="cyan"))
+            parts.append(Text(f"> {self.command_line.buffer}_" if self.command_line.buffer else PROMPT_HELP, style="dim"))
+        self.live.update(Group(*parts))
 
 
 def summary_table(summary: Summary) -> Group:
