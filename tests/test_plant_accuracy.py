@@ -18,6 +18,7 @@ from scipy.integrate import solve_ivp
 
 from hilbench.config import load_config, plant_params_from_config
 from hilbench.plant import LoadProfile, Plant
+from hilbench.plant.model import available_backends
 
 CONFIGS = Path(__file__).resolve().parent.parent / "bench_configs"
 PHI = (0.0, -2.0 * math.pi / 3.0, 2.0 * math.pi / 3.0)
@@ -45,14 +46,14 @@ def reference_rhs(motor, vbus, duties, t_load):
     return f
 
 
-def run_both(cfg_name: str, vq: float, t_step: float, load_nm: float, n_periods: int):
+def run_both(cfg_name: str, vq: float, t_step: float, load_nm: float, n_periods: int, backend: str, substeps: int):
     cfg = load_config(CONFIGS / cfg_name)
     params = plant_params_from_config(cfg)
     motor = params.motor
     assert motor.ld_h == motor.lq_h  # the abc reference is written for a round rotor
     vbus = params.inverter.vbus_v
     dt = 50e-6
-    plant = Plant(params)
+    plant = Plant(params, backend=backend, substeps=substeps)
     plant.load = LoadProfile("step", torque_nm=0.0, step_time_s=t_step, step_torque_nm=load_nm)
     y = [0.0, 0.0, 0.0, 0.0]
     out_ref, out_plant = [], []
@@ -73,8 +74,10 @@ def run_both(cfg_name: str, vq: float, t_step: float, load_nm: float, n_periods:
     "cfg_name, vq, load_nm",
     [("hurst_mclv.toml", 12.0, 0.02), ("servo_200w.toml", 150.0, 0.3)],
 )
-def test_startup_and_load_step_match_reference(cfg_name, vq, load_nm):
-    ref, got = run_both(cfg_name, vq, t_step=0.05, load_nm=load_nm, n_periods=2000)
+@pytest.mark.parametrize("backend", available_backends())
+@pytest.mark.parametrize("substeps", [1, 2])
+def test_startup_and_load_step_match_reference(cfg_name, vq, load_nm, backend, substeps):
+    ref, got = run_both(cfg_name, vq, t_step=0.05, load_nm=load_nm, n_periods=2000, backend=backend, substeps=substeps)
     w_peak = np.max(np.abs(ref[:, 0]))
     i_peak = np.max(np.abs(ref[:, 1:]))
     w_err = np.max(np.abs(got[:, 0] - ref[:, 0])) / w_peak

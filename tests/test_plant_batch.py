@@ -10,6 +10,7 @@ import pytest
 
 from hilbench.plant import LoadProfile, Plant, PlantParams
 from hilbench.plant.batch import BatchPlant
+from hilbench.plant.model import available_backends
 
 PHI = (0.0, -2.0 * math.pi / 3.0, 2.0 * math.pi / 3.0)
 
@@ -18,7 +19,9 @@ def q_duties(theta, vq, vbus=24.0):
     return [0.5 + vq * np.cos(theta + math.pi / 2 + ph) / vbus for ph in PHI]
 
 
-def test_batch_matches_scalar_plants():
+@pytest.mark.parametrize("backend", available_backends())
+@pytest.mark.parametrize("substeps", [1, 2])
+def test_batch_matches_scalar_plants(backend, substeps):
     base = PlantParams.hurst()
     params = [
         base,
@@ -27,8 +30,8 @@ def test_batch_matches_scalar_plants():
         dataclasses.replace(base, motor=dataclasses.replace(base.motor, coulomb_nm=2e-3)),
     ]
     vq = np.array([12.0, 10.0, 8.0, 6.0])
-    batch = BatchPlant(params)
-    singles = [Plant(p) for p in params]
+    batch = BatchPlant(params, substeps=substeps, backend=backend)
+    singles = [Plant(p, substeps=substeps, backend="python") for p in params]
     for _ in range(1200):
         da, db, dc = q_duties(batch.theta_e, vq)
         batch.step(da, db, dc, 1, 50e-6)

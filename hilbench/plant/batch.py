@@ -4,6 +4,11 @@ stiction per plant, hall sector and edge time from a cubic Hermite of theta(t)).
 
 Scope: output modes PWM and LOW_SIDE, loads constant/step/linear/locked (no quadratic load, no
 OFF-mode diode model, no dead time, no ADC noise: use `Plant` for those).
+
+`substeps` RK4 steps per period as the scalar plant (default the same). With the compiled core
+(hilbench.plant._plantcore.batch_step) the per-plant loop runs in C over a state matrix; without
+it (or with HILBENCH_PLANT_BACKEND=python) the numpy code below runs. Each step hands out fresh
+arrays for the attributes (reading one never aliases the plant's state).
 """
 
 from __future__ import annotations
@@ -13,7 +18,17 @@ from typing import Sequence
 
 import numpy as np
 
-from hilbench.plant.model import HALL_BY_SECTOR, OUTPUT_LOW_SIDE, OUTPUT_PWM, SECTOR0_START_RAD, SIXTY, TWO_PI
+from hilbench.plant.model import (
+    DEFAULT_SUBSTEPS,
+    HALL_BY_SECTOR,
+    OUTPUT_LOW_SIDE,
+    OUTPUT_PWM,
+    SECTOR0_START_RAD,
+    SIXTY,
+    TWO_PI,
+    _choose_backend,
+    _plantcore,
+)
 from hilbench.plant.params import PlantParams
 
 __all__ = ["BatchPlant"]
@@ -26,8 +41,13 @@ class BatchPlant:
     shape (N,) (or scalars). After a step: `i_d, i_q, w_m, theta_e, hall_bits, last_edge_s`
     (NaN where no edge), `speed_rpm`."""
 
-    def __init__(self, params: Sequence[PlantParams]) -> None:
+    def __init__(self, params: Sequence[PlantParams], *, substeps: int = DEFAULT_SUBSTEPS,
+                 backend: str | None = None) -> None:
         self.params = tuple(params)
+        if int(substeps) < 1:
+            raise ValueError(f"BatchPlant substeps {substeps}: must be >= 1")
+        self.substeps = int(substeps)
+        self.backend = _choose_backend(backend)
         n = len(self.params)
         if n == 0:
             raise ValueError("BatchPlant: no plants")
@@ -55,7 +75,7 @@ class BatchPlant:
         self._kr = 1.5 * self._p * (ld - lq) / j
         self._ij = 1.0 / j
         self._b = arr(lambda p: p.motor.b_nms_per_rad)
-        self.vbus_v = arr(lambda p: p.inverter.vbus_v)
+        self.vbus_v = np.ascontiguousarray(arr(lambda p: p.inverter.vbus_v))
         self._base = np.array([(SECTOR0_START_RAD + math.radians(p.hall.offset_deg)) % TWO_PI for p in self.params])
         loads = [p.load for p in self.params]
         self._tl_before = np.array([ld.torque_nm for ld in loads])
@@ -63,9 +83,16 @@ class BatchPlant:
         self._t_step = np.array([ld.step_time_s if ld.kind == "step" else 0.0 for ld in loads])
         self._kl = np.array([ld.coeff if ld.kind == "linear" else 0.0 for ld in loads])
         self._locked = np.array([ld.kind == "locked" for ld in loads])
+        self._t_step_last = float(self._t_step.max())
         self._simple = not self._locked.any() and not (self._tc > 0).any()
         self._kvj = (self._b + self._kl) * self._ij
         self.n = n
+        # the C loop's per-plant rows (order fixed by _plantcore.c batch_step)
+        self._cparams = np.ascontiguousarray(np.stack([
+            self._rd, self._rq, self._pq, self._pd, self._ppsi, self._p, self._ild, self._ilq,
+            self._kt, self._kr, self._ij, self._kvj, self._tc, self._j, self._base,
+            self._locked.astype(float),
+        ], axis=1))
         self.reset()
 
     def reset(self) -> None:
@@ -79,6 +106,11 @@ class BatchPlant:
         self._nidx = np.floor((self.theta_e - self._base) / SIXTY)
         self.hall_bits = _HALL[self._nidx.astype(np.int64) % 6]
         self.last_edge_s = np.full(n, np.nan)
+        self._cstate = np.zeros((n, 6))
+        self._cstate[:, 4] = self._nidx
+        self._cstate[:, 5] = self._stuck
+        self._cout = np.zeros((n, 2))
+        self._cout[:, 0] = self.hall_bits
 
     @property
     def speed_rpm(self) -> np.ndarray:
@@ -88,22 +120,56 @@ class BatchPlant:
         tl = np.where(self.t_s >= self._t_step - 1e-12, self._tl_after, self._tl_before)
         return tl, self._kl, self._locked
 
+    def _vec(self, x) -> np.ndarray:
+        """x as a C-contiguous float64 array of shape (N,) (no copy when it already is one)."""
+        if type(x) is np.ndarray and x.dtype == np.float64 and x.shape == (self.n,) and x.flags.c_contiguous:
+            return x
+        return np.ascontiguousarray(np.broadcast_to(np.asarray(x, dtype=float), (self.n,)))
+
     def step(self, duty_a, duty_b, duty_c, output_mode: int, dt_s: float) -> None:
         """Integrate one period for every plant (same dt). output_mode: PWM (1) or LOW_SIDE (2)."""
-        cos, sin = np.cos, np.sin
+        if output_mode != OUTPUT_PWM and output_mode != OUTPUT_LOW_SIDE:
+            raise NotImplementedError("BatchPlant: output mode OFF is modelled by the scalar Plant only")
+        if self.t_s >= self._t_step_last - 1e-12:
+            tl = self._tl_after
+        else:
+            tl = np.where(self.t_s >= self._t_step - 1e-12, self._tl_after, self._tl_before)
+        if self.backend == "c":
+            vec = self._vec
+            st = self._cstate
+            out = self._cout
+            _plantcore.batch_step(self._cparams, st, out, vec(duty_a), vec(duty_b), vec(duty_c), vec(self.vbus_v), tl,
+                                  output_mode, dt_s, self.substeps)
+            self.i_d = st[:, 0].copy()
+            self.i_q = st[:, 1].copy()
+            self.w_m = st[:, 2].copy()
+            self.theta_e = st[:, 3].copy()
+            self.hall_bits = out[:, 0].astype(np.int64)
+            self.last_edge_s = out[:, 1].copy()
+            self.t_s += dt_s
+            return
+        kl, locked = self._kl, self._locked
         if output_mode == OUTPUT_PWM:
             da = np.asarray(duty_a, dtype=float)
             db = np.asarray(duty_b, dtype=float)
             dc = np.asarray(duty_c, dtype=float)
             va = self.vbus_v * (2.0 * da - db - dc) / 3.0
             vb = self.vbus_v * (db - dc) / math.sqrt(3.0)
-        elif output_mode == OUTPUT_LOW_SIDE:
-            va = vb = np.zeros(self.n)
         else:
-            raise NotImplementedError("BatchPlant: output mode OFF is modelled by the scalar Plant only")
+            va = vb = np.zeros(self.n)
+        nsub = self.substeps
+        h = dt_s / nsub
+        edge = np.full(self.n, np.nan)
+        for j in range(nsub):
+            self._substep(va, vb, tl, kl, locked, h, j * h, edge)
+        self.last_edge_s = edge
+        self.t_s += dt_s
+
+    def _substep(self, va, vb, tl, kl, locked, h, t_off, edge) -> None:
+        """One RK4 substep of every plant (numpy backend); edge times land in `edge`."""
+        cos, sin = np.cos, np.sin
         rd, rq, pq, pd, ppsi, p = self._rd, self._rq, self._pq, self._pd, self._ppsi, self._p
         id0, iq0, w0, th0 = self.i_d, self.i_q, self.w_m, self.theta_e
-        tl, kl, locked = self._loads()
         if self._simple:
             ftj = tl * self._ij
             kvj = self._kvj
@@ -116,7 +182,6 @@ class BatchPlant:
         vdm = vmag * self._ild
         vqm = vmag * self._ilq
         x0 = np.arctan2(vb, va) - th0
-        h = dt_s
         h2 = 0.5 * h
 
         def f(a, b, w, x):
@@ -149,16 +214,11 @@ class BatchPlant:
         if moved.any():
             idx = np.nonzero(moved)[0]
             pi = p[idx]
-            edge = np.full(self.n, np.nan)
-            edge[idx] = self._edge(self._base[idx], th0[idx], th1[idx], n0[idx], n1[idx], pi * w0[idx], pi * w1[idx], h)
-            self.last_edge_s = edge
+            edge[idx] = t_off + self._edge(self._base[idx], th0[idx], th1[idx], n0[idx], n1[idx], pi * w0[idx], pi * w1[idx], h)
             self.hall_bits = _HALL[n1.astype(np.int64) % 6]
-        else:
-            self.last_edge_s = np.full(self.n, np.nan)
         k = np.floor(th1 / TWO_PI)
         self.theta_e = th1 - k * TWO_PI
         self._nidx = n1 - 6.0 * k
-        self.t_s += h
 
     def _friction(self, id0, iq0, w0, tl, kl, locked):
         """Stiction and Coulomb sign per plant, frozen over the period (as the scalar plant)."""

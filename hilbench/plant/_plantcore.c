@@ -1,0 +1,608 @@
+/* Compiled per-period step of hilbench.plant.model.Plant (the "c" backend).
+ *
+ * Core is the base type of model._CPlant: the plant's state and cached parameters live in this
+ * struct and are exposed to the Python code as members with the Python attribute names, so the
+ * Python paths (energy tracking, quadratic load, OFF with current or above-bus back-EMF) keep
+ * working on the same state. Core.step runs PWM and LOW_SIDE periods and the zero-current OFF
+ * coast here and calls Plant._step_py for the rest.
+ *
+ * The arithmetic mirrors model.py operation by operation (same order, no FMA contraction:
+ * build with -ffp-contract=off), so both backends agree to the last bit on the same libm.
+ * batch_step runs BatchPlant.step's loop over N plants (batch.py documents the arrays).
+ */
+#define PY_SSIZE_T_CLEAN
+#include <Python.h>
+#include <structmember.h>
+#include <math.h>
+#include <stddef.h>
+
+#define OUTPUT_OFF 0
+#define OUTPUT_PWM 1
+#define OUTPUT_LOW_SIDE 2
+
+static double TWO_PI, SIXTY, INV_SQRT3, HALF_SQRT3;
+static const int HALL_BY_SECTOR[6] = {4, 6, 2, 3, 1, 5};
+static PyObject *str_step_py, *str_update_load, *str_draw_noise;
+
+typedef struct {
+    PyObject_HEAD
+    double i_d, i_q, w_m, th, t_s, vbus_v, dt_duty, hall_base, tl, kv, tc, j, t_load_change;
+    double i_a, i_b, i_c, i_bus;
+    double rd, rq, pq, pd, ppsi, p, ild, ilq, kt, kr, ijv;
+    double da, db, dc, ell;
+    long long turns, nidx;
+    int sector, hall_bits, encoder_count, last_mode, enc_sign, enc_offset, enc_cpt, substeps;
+    char stuck, locked, track_energy, kq_any;
+    PyObject *last_edge_s;
+    /* ADC: per role (0..5) gain, offset, noise, present; pre-drawn noise list and its index */
+    double pot_fraction, adc_gain[6], adc_off[6], adc_nz[6];
+    char adc_has[6];
+    PyObject *noise;
+    long long noise_i;
+} Core;
+
+static long long mod6(long long n) { long long r = n % 6; return r < 0 ? r + 6 : r; }
+
+/* Time of the last hall edge inside a (sub)step: Newton on the cubic Hermite (model._edge). */
+static double edge_time(double base, double th0, double th1, long long n0, long long n1,
+                        double we0, double we1, double h)
+{
+    double target = base + (double)(n1 > n0 ? n1 : n0) * SIXTY;
+    double d = th1 - th0;
+    double a1 = we0 * h;
+    double a2 = 3.0 * d - 2.0 * a1 - we1 * h;
+    double a3 = -2.0 * d + a1 + we1 * h;
+    double g = target - th0;
+    double u = d != 0.0 ? g / d : 0.5;
+    u = u < 0.0 ? 0.0 : u > 1.0 ? 1.0 : u;
+    for (int it = 0; it < 30; it++) {
+        double f = u * (a1 + u * (a2 + u * a3)) - g;
+        double fp = a1 + u * (2.0 * a2 + 3.0 * u * a3);
+        if (fp == 0.0) break;
+        double du = f / fp;
+        u -= du;
+        if (u < 0.0) u = 0.0;
+        else if (u > 1.0) u = 1.0;
+        if (fabs(du) < 1e-15) break;
+    }
+    return u * h;
+}
+
+static void set_edge(Core *s, int have, double edge)
+{
+    PyObject *old = s->last_edge_s;
+    if (have) {
+        PyObject *f = PyFloat_FromDouble(edge);
+        if (f == NULL) { PyErr_Clear(); f = Py_NewRef(Py_None); }
+        s->last_edge_s = f;
+    } else {
+        if (old == Py_None) return;
+        s->last_edge_s = Py_NewRef(Py_None);
+    }
+    Py_XDECREF(old);
+}
+
+/* model.Plant._sense */
+static void sense(Core *s)
+{
+    double th = s->th, c = cos(th), sn = sin(th);
+    double ia = s->i_d * c - s->i_q * sn;
+    double ibe = s->i_d * sn + s->i_q * c;
+    double ib = -0.5 * ia + HALF_SQRT3 * ibe;
+    double ic = -0.5 * ia - HALF_SQRT3 * ibe;
+    s->i_a = ia; s->i_b = ib; s->i_c = ic;
+    if (s->last_mode == OUTPUT_PWM)
+        s->i_bus = s->da * ia + s->db * ib + s->dc * ic;
+    else if (s->last_mode == OUTPUT_LOW_SIDE)
+        s->i_bus = 0.0;
+    else
+        s->i_bus = (ia < 0.0 ? ia : 0.0) + (ib < 0.0 ? ib : 0.0) + (ic < 0.0 ? ic : 0.0);
+    long long n = (long long)floor(((double)s->turns + th / TWO_PI) * (double)s->enc_cpt / s->p);
+    s->encoder_count = (int)(((long long)s->enc_sign * n + s->enc_offset) & 0xFFFF);
+}
+
+/* OFF with zero currents and the back-EMF below the bus: model.Plant._coast over the period,
+ * then model.Plant._finish and _sense. */
+static void coast_period(Core *s, double h)
+{
+    double th0 = s->th, w_start = s->w_m;
+    long long turns0 = s->turns;
+    s->last_mode = OUTPUT_OFF;
+    s->i_d = 0.0;
+    s->i_q = 0.0;
+    double tl = s->tl, kv = s->kv, kq = 0.0, w0 = s->w_m;
+    if (s->locked || (s->stuck && fabs(tl) <= s->tc)) {
+        s->w_m = 0.0;
+    } else {
+        double fr;
+        if (s->stuck) {
+            s->stuck = 0;
+            fr = -copysign(s->tc, tl);
+        } else {
+            fr = w0 != 0.0 ? copysign(s->tc, w0) : 0.0;
+        }
+        double ij = 1.0 / s->j;
+        double a = kv * ij, c = kq * ij, f0 = (fr + tl) * ij;
+        double k1 = -a * w0 - c * w0 * fabs(w0) - f0;
+        double wa = w0 + 0.5 * h * k1;
+        double k2 = -a * wa - c * wa * fabs(wa) - f0;
+        double wb = w0 + 0.5 * h * k2;
+        double k3 = -a * wb - c * wb * fabs(wb) - f0;
+        double wc = w0 + h * k3;
+        double k4 = -a * wc - c * wc * fabs(wc) - f0;
+        double w1 = w0 + h / 6.0 * (k1 + 2.0 * (k2 + k3) + k4);
+        double dth = s->p * h / 6.0 * (w0 + 2.0 * (wa + wb) + wc);
+        if (fr != 0.0 && w0 != 0.0 && ((w1 > 0.0) != (w0 > 0.0))) {
+            w1 = 0.0;
+            s->stuck = 1;
+        }
+        s->w_m = w1;
+        double th1 = s->th + dth;
+        double k = floor(th1 / TWO_PI);
+        s->turns += (long long)k;
+        s->th = th1 - k * TWO_PI;
+    }
+    /* _finish */
+    long long dturns = s->turns - turns0;
+    double dth = s->th - th0 + (double)dturns * TWO_PI;
+    double th1 = th0 + dth, base = s->hall_base;
+    long long n0 = (long long)floor((th0 - base) / SIXTY);
+    long long n1 = (long long)floor((th1 - base) / SIXTY);
+    if (n1 != n0) {
+        double e = 0.0 + edge_time(base, th0, th1, n0, n1, s->p * w_start, s->p * s->w_m, h);
+        set_edge(s, 1, e);
+        s->sector = (int)mod6(n1);
+        s->hall_bits = HALL_BY_SECTOR[s->sector];
+    } else {
+        set_edge(s, 0, 0.0);
+    }
+    s->nidx = (long long)floor((s->th - base) / SIXTY);
+    s->t_s += h;
+    sense(s);
+}
+
+static int get_double(PyObject *o, double *out)
+{
+    if (PyFloat_CheckExact(o)) { *out = PyFloat_AS_DOUBLE(o); return 0; }
+    *out = PyFloat_AsDouble(o);
+    return (*out == -1.0 && PyErr_Occurred()) ? -1 : 0;
+}
+
+static PyObject *Core_step(Core *s, PyObject *const *args, Py_ssize_t nargs)
+{
+    if (nargs != 5) {
+        PyErr_Format(PyExc_TypeError, "Plant.step: expected 5 arguments (duty_a, duty_b, duty_c, output_mode, dt_s), got %zd", nargs);
+        return NULL;
+    }
+    double duty_a, duty_b, duty_c, dt_s;
+    if (get_double(args[0], &duty_a) || get_double(args[1], &duty_b) || get_double(args[2], &duty_c)
+        || get_double(args[4], &dt_s))
+        return NULL;
+    long mode = PyLong_AsLong(args[3]);
+    if (mode == -1 && PyErr_Occurred()) return NULL;
+    int hot = (mode == OUTPUT_PWM || mode == OUTPUT_LOW_SIDE);
+    if (s->track_energy || s->kq_any || (!hot && !(s->i_d == 0.0 && s->i_q == 0.0 && s->ell * fabs(s->w_m) < s->vbus_v))) {
+        PyObject *cargs[6] = {(PyObject *)s, args[0], args[1], args[2], args[3], args[4]};
+        return PyObject_VectorcallMethod(str_step_py, cargs, 6, NULL);
+    }
+    if (s->t_load_change <= s->t_s + 1e-12) {
+        PyObject *r = PyObject_CallMethodNoArgs((PyObject *)s, str_update_load);
+        if (r == NULL) return NULL;
+        Py_DECREF(r);
+    }
+    if (!hot) {
+        coast_period(s, dt_s);
+        Py_RETURN_NONE;
+    }
+    double va, vb;
+    if (mode == OUTPUT_PWM) {
+        double vbus = s->vbus_v, dtd = s->dt_duty;
+        if (dtd != 0.0) {
+            double ia = s->i_a, ib = s->i_b, ic = s->i_c, x;
+            x = duty_a - (ia > 0.0 ? dtd : ia < 0.0 ? -dtd : 0.0);
+            x = x > 0.0 ? x : 0.0; duty_a = x < 1.0 ? x : 1.0;
+            x = duty_b - (ib > 0.0 ? dtd : ib < 0.0 ? -dtd : 0.0);
+            x = x > 0.0 ? x : 0.0; duty_b = x < 1.0 ? x : 1.0;
+            x = duty_c - (ic > 0.0 ? dtd : ic < 0.0 ? -dtd : 0.0);
+            x = x > 0.0 ? x : 0.0; duty_c = x < 1.0 ? x : 1.0;
+        }
+        s->da = duty_a; s->db = duty_b; s->dc = duty_c;
+        va = vbus * (2.0 * duty_a - duty_b - duty_c) / 3.0;
+        vb = vbus * (duty_b - duty_c) * INV_SQRT3;
+    } else {
+        va = vb = 0.0;
+    }
+    s->last_mode = (int)mode;
+    const double rd = s->rd, rq = s->rq, pq = s->pq, pd = s->pd, ppsi = s->ppsi, p = s->p;
+    const double ild = s->ild, ilq = s->ilq, kt = s->kt, kr = s->kr, ijv = s->ijv;
+    const double tl = s->tl, kv = s->kv, tc = s->tc, base = s->hall_base;
+    const int nsub = s->substeps;
+    double vmag = sqrt(va * va + vb * vb);
+    double vdm = vmag * ild, vqm = vmag * ilq;
+    double phi = atan2(vb, va);
+    double h = dt_s / (double)nsub, h2 = 0.5 * h, h6 = h / 6.0;
+    double id0 = s->i_d, iq0 = s->i_q, w0 = s->w_m, th0 = s->th;
+    long long n0 = s->nidx;
+    int have_edge = 0;
+    double edge = 0.0;
+    for (int jj = 0; jj < nsub; jj++) {
+        double ij, fr;
+        if (s->locked) {
+            ij = 0.0; fr = 0.0; w0 = 0.0;
+        } else if (s->stuck) {
+            double net = (kt + kr * id0) * iq0 * s->j - tl;
+            if (-tc <= net && net <= tc) {
+                ij = 0.0; fr = 0.0;
+            } else {
+                s->stuck = 0;
+                ij = ijv;
+                fr = net > 0.0 ? tc : -tc;
+            }
+        } else {
+            ij = ijv;
+            fr = w0 > 0.0 ? tc : w0 < 0.0 ? -tc : 0.0;
+        }
+        double ftj = (fr + tl) * ij, kvj = kv * ij, ktj, krj;
+        if (ij == 0.0) { ktj = krj = 0.0; } else { ktj = kt; krj = kr; }
+        double x0 = phi - th0, a, b, w, x;
+        double k1d = vdm * cos(x0) + w0 * pq * iq0 - rd * id0;
+        double k1q = vqm * sin(x0) - w0 * (pd * id0 + ppsi) - rq * iq0;
+        double k1w = iq0 * (ktj + krj * id0) - kvj * w0 - ftj;
+        a = id0 + h2 * k1d; b = iq0 + h2 * k1q; w = w0 + h2 * k1w; x = x0 - h2 * p * w0;
+        double k2d = vdm * cos(x) + w * pq * b - rd * a;
+        double k2q = vqm * sin(x) - w * (pd * a + ppsi) - rq * b;
+        double k2w = b * (ktj + krj * a) - kvj * w - ftj;
+        double w2 = w;
+        a = id0 + h2 * k2d; b = iq0 + h2 * k2q; w = w0 + h2 * k2w; x = x0 - h2 * p * w2;
+        double k3d = vdm * cos(x) + w * pq * b - rd * a;
+        double k3q = vqm * sin(x) - w * (pd * a + ppsi) - rq * b;
+        double k3w = b * (ktj + krj * a) - kvj * w - ftj;
+        double w3 = w;
+        a = id0 + h * k3d; b = iq0 + h * k3q; w = w0 + h * k3w; x = x0 - h * p * w3;
+        double k4d = vdm * cos(x) + w * pq * b - rd * a;
+        double k4q = vqm * sin(x) - w * (pd * a + ppsi) - rq * b;
+        double k4w = b * (ktj + krj * a) - kvj * w - ftj;
+        id0 = id0 + h6 * (k1d + 2.0 * (k2d + k3d) + k4d);
+        iq0 = iq0 + h6 * (k1q + 2.0 * (k2q + k3q) + k4q);
+        double w1 = w0 + h6 * (k1w + 2.0 * (k2w + k3w) + k4w);
+        double dth = h6 * p * (w0 + 2.0 * (w2 + w3) + w);
+        if (fr != 0.0 && w0 != 0.0 && ((w1 > 0.0) != (w0 > 0.0))) {
+            w1 = 0.0;
+            s->stuck = 1;
+        }
+        double th1 = th0 + dth;
+        long long n1 = (long long)floor((th1 - base) / SIXTY);
+        if (n1 != n0) {
+            edge = (double)jj * h + edge_time(base, th0, th1, n0, n1, p * w0, p * w1, h);
+            have_edge = 1;
+            s->sector = (int)mod6(n1);
+        }
+        if (th1 >= TWO_PI || th1 < 0.0) {
+            double k = floor(th1 / TWO_PI);
+            s->turns += (long long)k;
+            th1 -= k * TWO_PI;
+            n1 -= 6 * (long long)k;
+        }
+        n0 = n1; th0 = th1; w0 = w1;
+    }
+    s->i_d = id0; s->i_q = iq0; s->w_m = w0; s->nidx = n0; s->th = th0;
+    s->hall_bits = HALL_BY_SECTOR[s->sector];
+    set_edge(s, have_edge, edge);
+    s->t_s += dt_s;
+    double c = cos(th0), sn = sin(th0);
+    double ia = id0 * c - iq0 * sn;
+    double ibe = id0 * sn + iq0 * c;
+    double ib = -0.5 * ia + HALF_SQRT3 * ibe;
+    double ic = -0.5 * ia - HALF_SQRT3 * ibe;
+    s->i_a = ia; s->i_b = ib; s->i_c = ic;
+    s->i_bus = mode == OUTPUT_PWM ? s->da * ia + s->db * ib + s->dc * ic : 0.0;
+    long long n = (long long)floor(((double)s->turns + th0 / TWO_PI) * (double)s->enc_cpt / p);
+    s->encoder_count = (int)(((long long)s->enc_sign * n + s->enc_offset) & 0xFFFF);
+    Py_RETURN_NONE;
+}
+
+/* model.Plant.adc_codes */
+static PyObject *Core_adc_codes(Core *s, PyObject *roles)
+{
+    PyObject *seq = PySequence_Fast(roles, "adc_codes: roles must be a sequence of role numbers");
+    if (seq == NULL) return NULL;
+    Py_ssize_t n = PySequence_Fast_GET_SIZE(seq);
+    PyObject **items = PySequence_Fast_ITEMS(seq);
+    PyObject *out = PyTuple_New(n);
+    if (out == NULL) { Py_DECREF(seq); return NULL; }
+    for (Py_ssize_t k = 0; k < n; k++) {
+        long r = PyLong_AsLong(items[k]);
+        if (r == -1 && PyErr_Occurred()) goto fail;
+        if (r < 0 || r > 5) {
+            PyErr_Format(PyExc_IndexError, "adc_codes: role %ld is not 0..5", r);
+            goto fail;
+        }
+        long code = 0;
+        if (s->adc_has[r]) {
+            double x = r == 4 ? s->i_a : r == 2 ? s->i_bus : r == 5 ? s->i_b : r == 3 ? s->vbus_v : s->pot_fraction;
+            double v = s->adc_off[r];
+            v += s->adc_gain[r] * x;
+            double nz = s->adc_nz[r];
+            if (nz != 0.0) {
+                if (s->noise == NULL || !PyList_Check(s->noise) || s->noise_i >= PyList_GET_SIZE(s->noise)) {
+                    PyObject *lst = PyObject_CallMethodNoArgs((PyObject *)s, str_draw_noise);
+                    if (lst == NULL) goto fail;
+                    Py_DECREF(lst);
+                    if (s->noise == NULL || !PyList_Check(s->noise) || PyList_GET_SIZE(s->noise) == 0) {
+                        PyErr_SetString(PyExc_RuntimeError, "adc_codes: _draw_noise left no noise list");
+                        goto fail;
+                    }
+                    s->noise_i = 0;
+                }
+                double g = PyFloat_AsDouble(PyList_GET_ITEM(s->noise, s->noise_i));
+                if (g == -1.0 && PyErr_Occurred()) goto fail;
+                s->noise_i += 1;
+                v += nz * g;
+            }
+            double c = floor(v + 0.5);
+            code = c < 0.0 ? 0 : c > 1023.0 ? 1023 : (long)c;
+        }
+        PyObject *o = PyLong_FromLong(code);
+        if (o == NULL) goto fail;
+        PyTuple_SET_ITEM(out, k, o);
+    }
+    Py_DECREF(seq);
+    return out;
+fail:
+    Py_DECREF(seq);
+    Py_DECREF(out);
+    return NULL;
+}
+
+static PyObject *Core_set_adc(Core *s, PyObject *const *args, Py_ssize_t nargs)
+{
+    if (nargs != 4) { PyErr_SetString(PyExc_TypeError, "_set_adc(role, gain, offset, noise)"); return NULL; }
+    long r = PyLong_AsLong(args[0]);
+    if (r == -1 && PyErr_Occurred()) return NULL;
+    if (r < 0 || r > 5) { PyErr_Format(PyExc_IndexError, "_set_adc: role %ld is not 0..5", r); return NULL; }
+    double g, o, nz;
+    if (get_double(args[1], &g) || get_double(args[2], &o) || get_double(args[3], &nz)) return NULL;
+    s->adc_gain[r] = g; s->adc_off[r] = o; s->adc_nz[r] = nz; s->adc_has[r] = 1;
+    Py_RETURN_NONE;
+}
+
+/* ------------------------------------------------------------------ batch */
+/* batch_step(params, state, out, duty_a, duty_b, duty_c, vbus, tl, output_mode, dt_s, substeps)
+ *   params: float64 (N, NP) rows [rd, rq, pq, pd, ppsi, p, ild, ilq, kt, kr, ij, kvj, tc, j, base, locked]
+ *   state:  float64 (N, NS) rows [i_d, i_q, w_m, theta_e, nidx, stuck] (updated in place)
+ *   out:    float64 (N, 2)  rows [hall_bits, last_edge_s (NaN = none)]
+ *   duty_a, duty_b, duty_c, vbus, tl: float64 (N,); output_mode PWM (1) or LOW_SIDE (2)
+ * The same arithmetic as Core_step with the batch's friction rules (batch.BatchPlant._friction). */
+enum { NP = 16, NS = 6 };
+
+static int get_buf(PyObject *o, Py_buffer *b, Py_ssize_t n, Py_ssize_t cols, int writable, const char *what)
+{
+    if (PyObject_GetBuffer(o, b, PyBUF_C_CONTIGUOUS | PyBUF_FORMAT | (writable ? PyBUF_WRITABLE : 0)) < 0)
+        return -1;
+    if (b->itemsize != 8 || b->format == NULL || strcmp(b->format, "d") != 0 || b->len != n * cols * 8) {
+        PyErr_Format(PyExc_ValueError, "batch_step: %s must be C-contiguous float64 with %zd x %zd items", what, n, cols);
+        PyBuffer_Release(b);
+        return -1;
+    }
+    return 0;
+}
+
+static PyObject *batch_step(PyObject *mod, PyObject *const *args, Py_ssize_t nargs)
+{
+    (void)mod;
+    if (nargs != 11) {
+        PyErr_SetString(PyExc_TypeError, "batch_step: expected 11 arguments");
+        return NULL;
+    }
+    double dt_s;
+    if (get_double(args[9], &dt_s)) return NULL;
+    long mode = PyLong_AsLong(args[8]);
+    if (mode == -1 && PyErr_Occurred()) return NULL;
+    long nsub = PyLong_AsLong(args[10]);
+    if (nsub == -1 && PyErr_Occurred()) return NULL;
+    if (nsub < 1) { PyErr_SetString(PyExc_ValueError, "batch_step: substeps must be >= 1"); return NULL; }
+    if (mode != OUTPUT_PWM && mode != OUTPUT_LOW_SIDE) {
+        PyErr_Format(PyExc_ValueError, "batch_step: output mode %ld is not PWM (1) or LOW_SIDE (2)", mode);
+        return NULL;
+    }
+    Py_buffer bv;
+    if (PyObject_GetBuffer(args[7], &bv, PyBUF_C_CONTIGUOUS) < 0) return NULL;
+    Py_ssize_t n = bv.len / 8;
+    PyBuffer_Release(&bv);
+    static const char *names[8] = {"params", "state", "out", "duty_a", "duty_b", "duty_c", "vbus", "tl"};
+    static const Py_ssize_t cols[8] = {NP, NS, 2, 1, 1, 1, 1, 1};
+    Py_buffer bufs[8];
+    int got = 0;
+    for (; got < 8; got++) {
+        if (get_buf(args[got], &bufs[got], n, cols[got], got == 1 || got == 2, names[got])) {
+            for (int k = 0; k < got; k++) PyBuffer_Release(&bufs[k]);
+            return NULL;
+        }
+    }
+    const double *P = bufs[0].buf, *DA = bufs[3].buf, *DB = bufs[4].buf, *DC = bufs[5].buf;
+    const double *VBUS = bufs[6].buf, *TL = bufs[7].buf;
+    double *S = bufs[1].buf, *O = bufs[2].buf;
+    const double sqrt3 = sqrt(3.0);
+    Py_BEGIN_ALLOW_THREADS
+    for (Py_ssize_t i = 0; i < n; i++) {
+        const double *q = P + i * NP;
+        double *st = S + i * NS;
+        const double rd = q[0], rq = q[1], pq = q[2], pd = q[3], ppsi = q[4], p = q[5], ild = q[6], ilq = q[7];
+        const double kt = q[8], kr = q[9], ijv = q[10], kvjv = q[11], tc = q[12], jm = q[13], base = q[14];
+        const int locked = q[15] != 0.0;
+        double va = 0.0, vb = 0.0;
+        if (mode == OUTPUT_PWM) {
+            va = VBUS[i] * (2.0 * DA[i] - DB[i] - DC[i]) / 3.0;
+            vb = VBUS[i] * (DB[i] - DC[i]) / sqrt3;
+        }
+        const double tl = TL[i];
+        double vmag = sqrt(va * va + vb * vb);
+        double vdm = vmag * ild, vqm = vmag * ilq;
+        double phi = atan2(vb, va);
+        double h = dt_s / (double)nsub, h2 = 0.5 * h, h6 = h / 6.0;
+        double id0 = st[0], iq0 = st[1], w0 = st[2], th0 = st[3];
+        double n0 = st[4];
+        int stuck = st[5] != 0.0, have_edge = 0;
+        double edge = NAN;
+        for (long jj = 0; jj < nsub; jj++) {
+            double ij, fr;
+            if (locked) {
+                ij = 0.0; fr = 0.0; w0 = 0.0;
+            } else if (stuck) {
+                double net = (kt + kr * id0) * iq0 * jm - tl;
+                if (fabs(net) <= tc) {
+                    ij = 0.0; fr = 0.0;
+                } else {
+                    stuck = 0;
+                    ij = ijv;
+                    fr = copysign(tc, net);
+                }
+            } else {
+                ij = ijv;
+                fr = w0 > 0.0 ? tc : w0 < 0.0 ? -tc : 0.0;
+            }
+            double ftj = (fr + tl) * ij, kvj = ij == 0.0 ? 0.0 : kvjv, ktj, krj;
+            if (ij == 0.0) { ktj = krj = 0.0; } else { ktj = kt; krj = kr; }
+            double x0 = phi - th0, a, b, w, x;
+            double k1d = vdm * cos(x0) + w0 * pq * iq0 - rd * id0;
+            double k1q = vqm * sin(x0) - w0 * (pd * id0 + ppsi) - rq * iq0;
+            double k1w = iq0 * (ktj + krj * id0) - kvj * w0 - ftj;
+            a = id0 + h2 * k1d; b = iq0 + h2 * k1q; w = w0 + h2 * k1w; x = x0 - h2 * p * w0;
+            double k2d = vdm * cos(x) + w * pq * b - rd * a;
+            double k2q = vqm * sin(x) - w * (pd * a + ppsi) - rq * b;
+            double k2w = b * (ktj + krj * a) - kvj * w - ftj;
+            double w2 = w;
+            a = id0 + h2 * k2d; b = iq0 + h2 * k2q; w = w0 + h2 * k2w; x = x0 - h2 * p * w2;
+            double k3d = vdm * cos(x) + w * pq * b - rd * a;
+            double k3q = vqm * sin(x) - w * (pd * a + ppsi) - rq * b;
+            double k3w = b * (ktj + krj * a) - kvj * w - ftj;
+            double w3 = w;
+            a = id0 + h * k3d; b = iq0 + h * k3q; w = w0 + h * k3w; x = x0 - h * p * w3;
+            double k4d = vdm * cos(x) + w * pq * b - rd * a;
+            double k4q = vqm * sin(x) - w * (pd * a + ppsi) - rq * b;
+            double k4w = b * (ktj + krj * a) - kvj * w - ftj;
+            id0 = id0 + h6 * (k1d + 2.0 * (k2d + k3d) + k4d);
+            iq0 = iq0 + h6 * (k1q + 2.0 * (k2q + k3q) + k4q);
+            double w1 = w0 + h6 * (k1w + 2.0 * (k2w + k3w) + k4w);
+            double dth = h6 * p * (w0 + 2.0 * (w2 + w3) + w);
+            if (fr != 0.0 && w0 != 0.0 && ((w1 > 0.0) != (w0 > 0.0))) {
+                w1 = 0.0;
+                stuck = 1;
+            }
+            double th1 = th0 + dth;
+            double n1 = floor((th1 - base) / SIXTY);
+            if (n1 != n0) {
+                edge = (double)jj * h + edge_time(base, th0, th1, (long long)n0, (long long)n1, p * w0, p * w1, h);
+                have_edge = 1;
+                O[2 * i] = (double)HALL_BY_SECTOR[mod6((long long)n1)];
+            }
+            double k = floor(th1 / TWO_PI);
+            th1 -= k * TWO_PI;
+            n1 -= 6.0 * k;
+            n0 = n1; th0 = th1; w0 = w1;
+        }
+        st[0] = id0; st[1] = iq0; st[2] = w0; st[3] = th0; st[4] = n0; st[5] = stuck;
+        O[2 * i + 1] = have_edge ? edge : NAN;
+    }
+    Py_END_ALLOW_THREADS
+    for (int k = 0; k < 8; k++) PyBuffer_Release(&bufs[k]);
+    Py_RETURN_NONE;
+}
+
+/* ------------------------------------------------------------------ type */
+static PyObject *Core_new(PyTypeObject *type, PyObject *args, PyObject *kwds)
+{
+    (void)args; (void)kwds;
+    Core *s = (Core *)type->tp_alloc(type, 0);
+    if (s == NULL) return NULL;
+    s->last_edge_s = Py_NewRef(Py_None);
+    s->substeps = 1;
+    s->p = 1.0;
+    s->j = 1.0;
+    s->enc_cpt = 4;
+    s->t_load_change = INFINITY;
+    return (PyObject *)s;
+}
+
+static void Core_dealloc(Core *s)
+{
+    Py_CLEAR(s->last_edge_s);
+    Py_CLEAR(s->noise);
+    Py_TYPE(s)->tp_free((PyObject *)s);
+}
+
+#define DM(name, field) {name, T_DOUBLE, offsetof(Core, field), 0, NULL}
+#define IM(name, field) {name, T_INT, offsetof(Core, field), 0, NULL}
+#define LM(name, field) {name, T_LONGLONG, offsetof(Core, field), 0, NULL}
+#define BM(name, field) {name, T_BOOL, offsetof(Core, field), 0, NULL}
+
+static PyMemberDef Core_members[] = {
+    DM("i_d", i_d), DM("i_q", i_q), DM("w_m", w_m), DM("_th", th), DM("t_s", t_s), DM("vbus_v", vbus_v),
+    DM("_dt_duty", dt_duty), DM("_hall_base", hall_base), DM("_tl", tl), DM("_kv", kv), DM("_tc", tc),
+    DM("_j", j), DM("_t_load_change", t_load_change), DM("i_a", i_a), DM("i_b", i_b), DM("i_c", i_c),
+    DM("i_bus", i_bus), DM("_rd", rd), DM("_rq", rq), DM("_pq", pq), DM("_pd", pd), DM("_ppsi", ppsi),
+    DM("_p", p), DM("_ild", ild), DM("_ilq", ilq), DM("_kt", kt), DM("_kr", kr), DM("_ijv", ijv),
+    DM("_da", da), DM("_db", db), DM("_dc", dc), DM("_ell", ell),
+    LM("_turns", turns), LM("_nidx", nidx),
+    IM("_sector", sector), IM("hall_bits", hall_bits), IM("encoder_count", encoder_count),
+    IM("_last_mode", last_mode), IM("_enc_sign", enc_sign), IM("_enc_offset", enc_offset),
+    IM("_enc_cpt", enc_cpt), IM("_substeps", substeps),
+    BM("_stuck", stuck), BM("_locked", locked), BM("track_energy", track_energy), BM("_kq_any", kq_any),
+    {"last_edge_s", T_OBJECT_EX, offsetof(Core, last_edge_s), 0, NULL},
+    {"_noise", T_OBJECT_EX, offsetof(Core, noise), 0, NULL},
+    LM("_noise_i", noise_i), DM("pot_fraction", pot_fraction),
+    {NULL, 0, 0, 0, NULL},
+};
+
+static PyMethodDef Core_methods[] = {
+    {"step", (PyCFunction)(void (*)(void))Core_step, METH_FASTCALL,
+     "step(duty_a, duty_b, duty_c, output_mode, dt_s): one period (see model.Plant)."},
+    {"adc_codes", (PyCFunction)Core_adc_codes, METH_O, "adc_codes(roles): 10-bit codes (see model.Plant)."},
+    {"_set_adc", (PyCFunction)(void (*)(void))Core_set_adc, METH_FASTCALL, "_set_adc(role, gain, offset, noise)"},
+    {NULL, NULL, 0, NULL},
+};
+
+static PyTypeObject CoreType = {
+    PyVarObject_HEAD_INIT(NULL, 0)
+    .tp_name = "hilbench.plant._plantcore.Core",
+    .tp_basicsize = sizeof(Core),
+    .tp_flags = Py_TPFLAGS_DEFAULT | Py_TPFLAGS_BASETYPE,
+    .tp_doc = "State and compiled step of the C plant backend (base of model._CPlant).",
+    .tp_new = Core_new,
+    .tp_dealloc = (destructor)Core_dealloc,
+    .tp_members = Core_members,
+    .tp_methods = Core_methods,
+};
+
+static PyMethodDef module_methods[] = {
+    {"batch_step", (PyCFunction)(void (*)(void))batch_step, METH_FASTCALL,
+     "batch_step(params, state, out, duty_a, duty_b, duty_c, vbus, tl, output_mode, dt_s, substeps): one period of N plants."},
+    {NULL, NULL, 0, NULL},
+};
+
+static struct PyModuleDef moduledef = {
+    PyModuleDef_HEAD_INIT, "_plantcore", "Compiled core of hilbench.plant (optional).", -1, module_methods,
+    NULL, NULL, NULL, NULL,
+};
+
+PyMODINIT_FUNC PyInit__plantcore(void)
+{
+    TWO_PI = 2.0 * Py_MATH_PI;
+    SIXTY = Py_MATH_PI / 3.0;
+    INV_SQRT3 = 1.0 / sqrt(3.0);
+    HALF_SQRT3 = 0.5 * sqrt(3.0);
+    str_step_py = PyUnicode_InternFromString("_step_py");
+    str_update_load = PyUnicode_InternFromString("_update_load");
+    str_draw_noise = PyUnicode_InternFromString("_draw_noise");
+    if (str_step_py == NULL || str_update_load == NULL || str_draw_noise == NULL) return NULL;
+    if (PyType_Ready(&CoreType) < 0) return NULL;
+    PyObject *m = PyModule_Create(&moduledef);
+    if (m == NULL) return NULL;
+    Py_INCREF(&CoreType);
+    if (PyModule_AddObject(m, "Core", (PyObject *)&CoreType) < 0) {
+        Py_DECREF(&CoreType);
+        Py_DECREF(m);
+        return NULL;
+    }
+    return m;
+}

@@ -1,0 +1,26 @@
+"""Build hook for the optional compiled plant core (hilbench/plant/_plantcore.c).
+
+All metadata is in pyproject.toml. The extension is `optional`: without a C compiler
+`pip install .` still succeeds and hilbench.plant falls back to its pure-Python step.
+-ffp-contract=off keeps the C arithmetic identical to the Python backend (no fused multiply-add).
+"""
+
+import sys
+
+from setuptools import Extension, setup
+
+if sys.platform == "win32":
+    _flags: list[str] = ["/O2", "/fp:precise"]
+else:
+    _flags = ["-O2", "-std=c99", "-ffp-contract=off", "-fno-fast-math"]
+
+setup(
+    ext_modules=[
+        Extension(
+            "hilbench.plant._plantcore",
+            sources=["hilbench/plant/_plantcore.c"],
+            extra_compile_args=_flags,
+            optional=True,
+        )
+    ]
+)
