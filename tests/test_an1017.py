@@ -261,17 +261,17 @@ def test_gain_change_is_atomic_at_timer1_boundary():
     hall = HALL_OF_SECTOR[0]
     for k in range(201):
         t.step(sensors(k, hall, pot=700))
-    fw = t.fw
     assert t.set_params(((PARAM_KP, 6000), (PARAM_KI, 1000), (PARAM_KD, 100))).result == 0
     assert t.get_param(PARAM_KP).value == 6000  # declared value at once
-    assert (fw.kp, fw.c0) == (3277, 3605)  # firmware still on the old set
-    t1_next = fw.t1_next
+    assert (t.fw.kp, t.fw.c0) == (3277, 3605)  # firmware still on the old set
+    t1_next = t.fw.t1_next
     k = 201
-    while fw.t + 1000 <= t1_next:
+    while t.fw.t + 1000 <= t1_next:  # (t.fw re-read after each step: it is brought up to date)
         t.step(sensors(k, hall, pot=700))
         k += 1
-        assert fw.c0 == 3605
+        assert t.fw.c0 == 3605
     t.step(sensors(k, hall, pot=700))  # this step contains the Timer1 tick
+    fw = t.fw
     assert (fw.kp, fw.ki, fw.kd) == (6000, 1000, 100)
     assert (fw.c0, fw.c1, fw.c2) == (7100, -6200, 100)
 

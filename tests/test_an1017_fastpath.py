@@ -5,7 +5,9 @@ the fast path must produce the identical Drive for every period, whatever arrive
 random times inside the period (including at 0, without a time, and past the period's end),
 direction reversals, invalid hall states (000, 111), stalls, S2 presses (also held through the
 bootstrap), pot changes, gain writes (accepted and refused), phase-advance and reference-override
-writes, host start/stop and watchdog trips. Streams are seeded, so a failure is reproducible.
+writes, host start/stop and watchdog trips; the firmware state (time, Phase, duty registers) is
+also compared at random points, which brings the fast path's counted periods up to date.
+Streams are seeded, so a failure is reproducible.
 """
 
 from __future__ import annotations
@@ -27,6 +29,7 @@ from hilbench.targets.an1017 import (
     An1017Target,
 )
 from hilbench.targets.an1017_firmware import An1017Options
+from hilbench.targets.svm import svm
 
 EDGE_NONE = 0xFFFF
 S2 = 0x08
@@ -109,8 +112,20 @@ def random_script(seed: int, n_steps: int, step_us: int) -> list[tuple]:
             }[pid]
             script.append(("params", ((pid, value),)))
         script.append(("sensors", Sensors(k & 0xFF, inputs, edge, k & 0xFFFF, (pot, 512, 700))))
+        if rng.random() < 0.003:
+            script.append(("probe",))  # look at the firmware state mid-stream
         t_us = t1
     return script
+
+
+def probe(target: An1017Target) -> tuple:
+    """Time, Phase, the active and the pending duty registers, as the firmware holds them now."""
+    fw = target.fw
+    if fw.reference:
+        pending = fw.pend_duty
+    else:
+        pending = svm(fw.pend_key >> 16, fw.pend_key & 0xFFFF)
+    return ("probe", fw.t, fw.phase, fw.duties(), pending, fw.ref_speed, fw.pot_code)
 
 
 def play(target: An1017Target, script: list[tuple]) -> list:
@@ -125,6 +140,8 @@ def play(target: An1017Target, script: list[tuple]) -> list:
             target.stop()
         elif kind == "watchdog":
             out.append(target.watchdog_trip())
+        elif kind == "probe":
+            out.append(probe(target))
         else:
             out.append(target.set_params(item[1]))
     return out
