@@ -113,7 +113,7 @@ def svm_batch_clipped(volts: np.ndarray, angle_u16: np.ndarray, out: np.ndarray)
     (the CCW start-up transient) gives t1, t2 ∈ {0, 1995} and every duty wraps above 1000, so
     the clipped result is 1000 on all phases. tests/test_an1017_batch.py checks both cases.
     """
-    v = np.clip(volts, 0, VOLTS_LIMIT)
+    v = np.minimum(volts, VOLTS_LIMIT)  # volts = −1 columns are overwritten below
     t = _SIN12.take(angle_u16, axis=1)
     t *= v
     t >>= 15
@@ -428,9 +428,8 @@ class An1017Batch:
         n = self.n
         if pot_code is not None:
             self.pot_code[...] = pot_code
-        s2a = np.asarray(s2, dtype=bool)
-        if self._any_wait or s2a.any():
-            if self._buttons(np.broadcast_to(s2a, (n,))):
+        if self._any_wait or (s2 is not False and bool(np.any(s2))):
+            if self._buttons(np.broadcast_to(np.asarray(s2, dtype=bool), (n,))):
                 self._refresh()
         t = self.t
         t_end = t + PERIOD_TCY
