@@ -19,6 +19,7 @@ import sys
 import tomllib
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Callable, Iterable
 
 HERE = Path(__file__).resolve().parent
 REPO = HERE.parent
@@ -43,6 +44,7 @@ class Field:
     max: str | None
     bits: tuple[tuple[str, int, str], ...]
     last: bool
+    hot_n: int | None = None  # array count the Python encoder unrolls (the AN1017 profile's)
 
     @property
     def variable(self) -> bool:
@@ -56,6 +58,7 @@ class Message:
     type_id: int
     dir: str
     fields: tuple[Field, ...]
+    hot: bool = False  # sent every period: inlined into encode_frame/decode_body
 
     @property
     def snake(self) -> str:
@@ -96,14 +99,14 @@ def load(path: Path = SCHEMA) -> tuple[dict, list[tuple[str, str, str, list]], l
         fields = []
         for i, f in enumerate(raw):
             fields.append(Field(f["name"], f["type"], f.get("max"),
-                                tuple(tuple(b) for b in f.get("bits", ())), i == len(raw) - 1))
+                                tuple(tuple(b) for b in f.get("bits", ())), i == len(raw) - 1, f.get("hot_n")))
         seen_var = False
         for f in fields:  # the codec relies on all fixed fields coming first
             if f.variable:
                 seen_var = True
             elif seen_var:
                 raise SystemExit(f"schema.toml message {m['name']}: fixed field {f.name} after a variable one")
-        msgs.append(Message(m["name"], m["type"], type_ids[m["type"]], m["dir"], tuple(fields)))
+        msgs.append(Message(m["name"], m["type"], type_ids[m["type"]], m["dir"], tuple(fields), m.get("hot", False)))
     return data, enums, msgs
 
 
@@ -111,33 +114,33 @@ def load(path: Path = SCHEMA) -> tuple[dict, list[tuple[str, str, str, list]], l
 # Python
 
 
-def _py_pack_scalar_exprs(f: Field) -> list[str]:
+def _py_pack_scalar_exprs(f: Field, ref: Callable[[str], str] = lambda n: f"m.{n}") -> list[str]:
     if f.type == "bool":
-        return [f"(1 if m.{f.name} else 0)"]
+        return [f"(1 if {ref(f.name)} else 0)"]
     if f.bits:
         parts = []
         shift = 0
         for name, width, kind in f.bits:
             if kind == "bool":
-                term = f"({1 << shift} if m.{name} else 0)"
+                term = f"({1 << shift} if {ref(name)} else 0)"
             else:
-                term = f"m.{name}" if shift == 0 else f"m.{name} << {shift}"
+                term = ref(name) if shift == 0 else f"{ref(name)} << {shift}"
             parts.append(term)
             shift += width
         return ["(" + " | ".join(parts) + ")"]
-    return [f"m.{f.name}"]
+    return [ref(f.name)]
 
 
-def _py_bits_check(f: Field) -> list[str]:
+def _py_bits_check(f: Field, ref: Callable[[str], str] = lambda n: f"m.{n}") -> list[str]:
     """Range checks for bit fields (struct checks the plain scalars)."""
     lines = []
     groups: dict[int, list[str]] = {}
     for name, width, kind in f.bits:
         if kind != "bool":
-            groups.setdefault(width, []).append(f"m.{name}")
+            groups.setdefault(width, []).append(name)
     for width, names in groups.items():
-        lines.append(f"    if ({' | '.join(names)}) >> {width}:")
-        lines.append(f"        raise ProtocolError(f\"encode {{type(m).__name__}}: {'/'.join(n[2:] for n in names)} "
+        lines.append(f"    if ({' | '.join(ref(n) for n in names)}) >> {width}:")
+        lines.append(f"        raise ProtocolError(f\"encode {{type(m).__name__}}: {'/'.join(names)} "
                      f"must be 0..{(1 << width) - 1}\")")
     return lines
 
@@ -158,6 +161,293 @@ def _py_unpack_scalar(f: Field, v: str) -> list[str]:
     return [v]
 
 
+def _specialisable(m: Message) -> bool:
+    """Fixed fields only, or fixed fields and one trailing numeric array: one struct per count."""
+    var = [f for f in m.fields if f.variable]
+    return not var or (len(var) == 1 and var[0].last and var[0].type != "str")
+
+
+def _gen_python_wire(w: Callable[[str], None], data: dict, msgs: list[Message]) -> None:
+    """Full-wire fast paths: encode_X(m) -> wire bytes and _decode_X(raw, n) -> message.
+
+    The hot path (one Sensors and one Drive per period at 20 kHz) pays for every Python operation,
+    so each specialisable message gets a straight-line encoder (fields unpacked once, one struct
+    pack, the array count of the AN1017 profile unrolled, CRC, COBS inline for the usual one-zero
+    frame) and a decoder that unpacks the COBS-decoded buffer in place with a struct chosen by the
+    encoded length. Messages with strings or counted arrays reuse pack_X/unpack_X.
+    """
+    max_enc = data["max_frame_bytes"] + 2  # BY_LEN tables are indexed by the COBS body length
+    w("")
+    w("# ---------------------------------------------------------------------------------------------")
+    w("# Full-wire fast paths (type . seq . payload . crc16, COBS, 0x00) used by hilbench.protocol.codec.")
+    w("")
+    for m in msgs:
+        if not _specialisable(m):
+            continue
+        up = m.name.upper()
+        var = [f for f in m.fields if f.variable]
+        if var:
+            f = var[0]
+            _code, size = ARRAY_ELEM[f.type]
+            mx = data[f.max]
+            fl = m.fixed_len
+            w(f"_{up}_BY_LEN = tuple(_{up}_ST[(k - {fl + 3}) // {size}] if k >= {fl + 3} and "
+              f"(k - {fl + 3}) % {size} == 0 and (k - {fl + 3}) // {size} <= {mx} else None "
+              f"for k in range({max_enc}))")
+            if f.hot_n is not None:
+                w(f"_{up}_ST{f.hot_n} = _{up}_ST[{f.hot_n}]")
+    for m in msgs:
+        has_checks = any(f.bits for f in m.fields)
+        variants = [("", True)] + ([("_unchecked", False)] if has_checks else [])
+        for suffix, checked in variants:
+            w("")
+            w("")
+            _gen_encoder(w, data, m, suffix, checked)
+    for m in msgs:
+        w("")
+        w("")
+        _gen_decoder(w, data, m)
+    w("")
+    w("")
+    w("ENCODERS: dict[type, Callable[..., bytes]] = {")
+    for m in msgs:
+        w(f"    {m.name}: encode_{m.snake},")
+    w("}")
+    w("")
+    w("# Range checks of bit fields skipped: only for messages the caller built itself (see codec).")
+    w("UNCHECKED_ENCODERS: dict[type, Callable[..., bytes]] = {")
+    for m in msgs:
+        has_checks = any(f.bits for f in m.fields)
+        w(f"    {m.name}: encode_{m.snake}{'_unchecked' if has_checks else ''},")
+    w("}")
+    w("")
+    w("# Indexed by the frame type byte; None for a type this protocol version does not know.")
+    w("_decoders: list = [None] * 256")
+    for m in msgs:
+        w(f"_decoders[{m.type_id:#04x}] = _decode_{m.snake}")
+    w("DECODERS: tuple = tuple(_decoders)")
+    w("del _decoders")
+    w("_ENCODE_ERRORS = (struct.error, TypeError, ValueError, OverflowError, IndexError, AttributeError)")
+    w("")
+    w("")
+    _gen_encode_frame(w, data, msgs)
+    w("")
+    w("")
+    _gen_decode_body(w, data, msgs)
+    w("")
+    w("")
+
+
+def _pack_lines(data: dict, m: Message, checks: str) -> list[str]:
+    """Lines (4-space base indent) that unpack a message `m` and leave its frame in `body`.
+
+    checks: "always", "never" or "if validate" (the bit-field range checks; struct checks the rest).
+    """
+    up = m.name.upper()
+    out: list[str] = []
+    names = ["seq"] + m.py_fields()
+    out.append(f"    {_targets('x_' + n for n in names)} = m")
+    ref = lambda n: f"x_{n}"  # noqa: E731
+    check_lines = [line for f in m.fields if f.bits for line in _py_bits_check(f, ref)]
+    if check_lines and checks == "always":
+        out.extend(check_lines)
+    elif check_lines and checks == "if validate":
+        out.append("    if validate:")
+        out.extend("    " + line for line in check_lines)
+    args = [str(m.type_id), "x_seq"]
+    var = [f for f in m.fields if f.variable]
+    for f in m.fixed:
+        if f.bits and var:  # the word is used by more than one pack call below: build it once
+            out.append(f"    w_{f.name} = {_py_pack_scalar_exprs(f, ref)[0]}")
+            args.append(f"w_{f.name}")
+        else:
+            args.extend(_py_pack_scalar_exprs(f, ref))
+    if not var:
+        out.append(f"    body = _{up}_ST.pack({', '.join(args)})")
+        return out
+    f = var[0]
+    mx = data[f.max]
+    arr = f"x_{f.name}"
+    out.append(f"    n = len({arr})")
+    first = "if"
+    if f.hot_n is not None:
+        elems = [f"e{i}" for i in range(f.hot_n)]
+        flat = elems if f.type != "pair[]" else [f"{e}[{k}]" for e in elems for k in (0, 1)]
+        out.append(f"    if n == {f.hot_n}:")
+        out.append(f"        {_targets(elems)} = {arr}")
+        out.append(f"        body = _{up}_ST{f.hot_n}.pack({', '.join(args + flat)})")
+        first = "elif"
+    out.append(f"    {first} n <= {mx}:")
+    if f.type == "pair[]":
+        out.append(f"        body = _{up}_ST[n].pack({', '.join(args)}, *[v for pair in {arr} for v in pair])")
+    else:
+        out.append(f"        body = _{up}_ST[n].pack({', '.join(args)}, *{arr})")
+    out.append("    else:")
+    out.append(f"        raise ProtocolError(f\"encode {m.name}: {f.name} has {{n}} entries, at most {mx}\")")
+    return out
+
+
+# CRC appended, then COBS: below 254 bytes each split part is one block behind its code byte.
+_WIRE_LINES = [
+    "    p = (body + _le16(_crc(body, 0xFFFF))).split(b'\\x00')",
+    "    k = len(p)",
+    "    if k == 2:  # one 0x00 in the frame",
+    "        a, b = p",
+    "        return b''.join((_CODE[len(a)], a, _CODE[len(b)], b, b'\\x00'))",
+    "    if k == 3:",
+    "        a, b, c = p",
+    "        return b''.join((_CODE[len(a)], a, _CODE[len(b)], b, _CODE[len(c)], c, b'\\x00'))",
+    "    return cobs_join(p)",
+]
+
+
+def _gen_encoder(w: Callable[[str], None], data: dict, m: Message, suffix: str, checked: bool) -> None:
+    w(f"def encode_{m.snake}{suffix}(m: {m.name}) -> bytes:")
+    if checked:
+        w(f'    """{m.name} -> complete wire bytes (CRC, COBS, 0x00); ProtocolError/struct.error if unencodable."""')
+    else:
+        w(f'    """encode_{m.snake} without the bit-field range checks: for messages built by trusted code only."""')
+    if not _specialisable(m):
+        w(f"    return frame_bytes(pack_{m.snake}(m))")
+        return
+    for line in _pack_lines(data, m, "always" if checked else "never") + _WIRE_LINES:
+        w(line)
+
+
+def _gen_encode_frame(w: Callable[[str], None], data: dict, msgs: list[Message]) -> None:
+    """encode_frame with the hot messages inlined (one Python call per frame instead of two)."""
+    hot = [m for m in msgs if m.hot]
+    w("def encode_frame(m: Message, validate: bool = True) -> bytes:")
+    w('    """One message -> its complete wire bytes, 0x00 included (ProtocolError if unencodable).')
+    w("")
+    w("    validate=False skips the bit-field range checks (Drive's duties, mode, state, sector), which")
+    w("    would otherwise corrupt neighbouring bits silently; struct still checks every plain field.")
+    w("    Only for messages the caller's own code built, never for anything that came off a wire.")
+    w('    """')
+    w("    t = type(m)")
+    w("    try:")
+    for i, m in enumerate(hot):
+        w(f"        {'if' if i == 0 else 'elif'} t is {m.name}:")
+        for line in _pack_lines(data, m, "if validate"):
+            w("        " + line)
+    w("        else:" if hot else "        if True:")
+    w("            enc = (ENCODERS if validate else UNCHECKED_ENCODERS).get(t)")
+    w("            if enc is None:")
+    w("                raise ProtocolError(f\"encode: {t.__name__} is not a protocol message\")")
+    w("            return enc(m)")
+    w("        " + _WIRE_LINES[0].strip())
+    w("    except _ENCODE_ERRORS as exc:")
+    w("        raise ProtocolError(f\"encode {t.__name__}: {exc}\") from None")
+    for line in _WIRE_LINES[1:]:
+        w(line)
+
+
+def _gen_decode_body(w: Callable[[str], None], data: dict, msgs: list[Message]) -> None:
+    """decode_body: COBS undo, CRC check, then the hot messages inline and the rest by table."""
+    w("def decode_body(body: bytes, n: int) -> Message:")
+    w('    """A COBS frame body of n bytes (no 0x00 in it, n <= MAX_ENCODED_BYTES) -> message.')
+    w("")
+    w("    Raises CobsError, LengthError, CrcError or UnknownTypeError. The COBS code bytes after the")
+    w("    first stand where the frame's 0x00s were, so they are zeroed in a copy; the CRC is checked")
+    w("    on that buffer as it is (see framing.CRC_PRE/CRC_OK); the type byte picks the decoder.")
+    w('    """')
+    w("    i = body[0]")
+    w("    if i < n:")
+    w("        raw = bytearray(body)")
+    w("        while i < n:")
+    w("            code = raw[i]")
+    w("            raw[i] = 0")
+    w("            i += code")
+    w("        if i != n:")
+    w("            raise CobsError(f\"COBS: last block runs {i - n} bytes past the frame end\")")
+    w("    elif i == n:")
+    w("        raw = body  # no 0x00 in the frame: nothing to undo")
+    w("    else:")
+    w("        raise CobsError(f\"COBS: block at offset 0 runs {i - n} bytes past the frame end\")")
+    w("    if n < 5:")
+    w("        raise LengthError(f\"frame of {n - 1} bytes is shorter than 4\")")
+    w("    if _crc(raw, _CRC_PRE[raw[0]]) != _CRC_OK[raw[-1] ^ raw[-2]]:")
+    w("        raise CrcError(f\"CRC mismatch in a {n - 1}-byte frame (type {raw[1]:#04x})\")")
+    w("    t = raw[1]")
+    for i, m in enumerate(m for m in msgs if m.hot):
+        w(f"    {'if' if i == 0 else 'elif'} t == {m.type_id:#04x}:")
+        lines = _decode_lines(data, m, inline=True)
+        for line in lines:
+            w("    " + line)
+    w("    decode = DECODERS[t]")
+    w("    if decode is None:")
+    w("        raise UnknownTypeError(f\"unknown frame type {t:#04x}\")")
+    w("    return decode(raw, n)")
+
+
+def _targets(names: Iterable[str]) -> str:
+    """Left-hand side of a tuple unpacking (a trailing comma only for one name)."""
+    names = list(names)
+    return ", ".join(names) + ("," if len(names) == 1 else "")
+
+
+def _gen_decoder(w: Callable[[str], None], data: dict, m: Message) -> None:
+    w(f"def _decode_{m.snake}(raw: bytes, n: int) -> {m.name}:")
+    w(f'    """COBS-decoded frame of n bytes (first code byte, type . seq . payload, CRC checked) -> {m.name}."""')
+    if not _specialisable(m):
+        w(f"    return unpack_{m.snake}(bytes(raw[1:n - 2]))")
+        return
+    for line in _decode_lines(data, m, inline=False):
+        w(line)
+
+
+def _decode_lines(data: dict, m: Message, inline: bool) -> list[str]:
+    """Lines (4-space indent) that turn raw (n bytes) into a message and return it.
+
+    inline=True (inside decode_body): a bad length is not raised here but falls through to the
+    table decoder, which raises the LengthError.
+    """
+    up = m.name.upper()
+    out: list[str] = []
+    var = [f for f in m.fields if f.variable]
+    fl = m.fixed_len
+    args = ["v[1]"]
+    idx = 2
+    for f in m.fixed:
+        args.extend(_py_unpack_scalar(f, f"v[{idx}]"))
+        idx += 1
+    if not var:
+        if inline:
+            out.append(f"    if n == {fl + 3}:")
+            cond = len(out)
+        else:
+            out.append(f"    if n != {fl + 3}:")
+            out.append(f"        raise LengthError(f\"{m.name}: payload of {{n - 5}} bytes, expected {fl - 2}\")")
+        out.append(f"    v = _{up}_ST.unpack_from(raw, 1)")
+    else:
+        f = var[0]
+        _code, size = ARRAY_ELEM[f.type]
+        mx = data[f.max]
+        out.append(f"    st = _{up}_BY_LEN[n]")
+        if inline:
+            out.append("    if st is not None:")
+            cond = len(out)
+        else:
+            out.append("    if st is None:")
+            out.append(f"        raise LengthError(f\"{m.name}: payload of {{n - 5}} bytes is not {fl - 2} + {size}*n (n <= {mx})\")")
+        out.append("    v = st.unpack_from(raw, 1)")
+        if f.type == "pair[]":
+            args.append(f"tuple(zip(v[{idx}::2], v[{idx + 1}::2]))")
+        else:
+            args.append(f"v[{idx}:]")
+    if not var and args == [f"v[{i}]" for i in range(1, idx)]:
+        out.append(f"    return _tnew({m.name}, v[1:])")
+    else:
+        for i, f in enumerate(m.fixed):
+            if f.bits:  # name the bit-field word once instead of indexing v in every term
+                out.append(f"    w{i + 2} = v[{i + 2}]")
+                args = [a.replace(f"v[{i + 2}]", f"w{i + 2}") for a in args]
+        out.append(f"    return _tnew({m.name}, ({_targets(args)}))")
+    if inline:  # everything after the length test belongs to its if-block
+        out = out[:cond] + ["    " + line for line in out[cond:]]
+    return out
+
+
 def gen_python(data: dict, enums: list, msgs: list[Message]) -> str:
     L: list[str] = []
     w = L.append
@@ -166,7 +456,9 @@ def gen_python(data: dict, enums: list, msgs: list[Message]) -> str:
     w("")
     w("Each message is a NamedTuple whose first field is `seq`. `PACKERS[cls](msg)` gives the frame")
     w("without CRC (type . seq . payload); `UNPACKERS[type_byte](frame)` parses one (CRC already")
-    w('stripped) and raises LengthError on a malformed payload."""')
+    w("stripped) and raises LengthError on a malformed payload. The codec's hot path uses the full-wire")
+    w("fast paths instead: `ENCODERS[cls](msg)` -> wire bytes, and `DECODERS[type_byte](raw, n)` on a")
+    w('COBS-decoded, CRC-checked buffer."""')
     w("")
     w("from __future__ import annotations")
     w("")
@@ -174,9 +466,15 @@ def gen_python(data: dict, enums: list, msgs: list[Message]) -> str:
     w("from enum import IntEnum")
     w("from typing import Callable, NamedTuple, Union")
     w("")
-    w("from hilbench.errors import ProtocolError")
-    w("from hilbench.protocol.framing import LengthError")
+    w("from binascii import crc_hqx as _crc")
     w("")
+    w("from hilbench.errors import ProtocolError")
+    w("from hilbench.protocol.framing import COBS_CODE as _CODE")
+    w("from hilbench.protocol.framing import CRC_OK as _CRC_OK")
+    w("from hilbench.protocol.framing import CRC_PRE as _CRC_PRE")
+    w("from hilbench.protocol.framing import CobsError, CrcError, LengthError, UnknownTypeError, cobs_join, frame_bytes")
+    w("")
+    w("_le16 = struct.Struct('<H').pack")
     w(f"PROTOCOL_VERSION = {data['protocol_version']}")
     w(f"MAX_FRAME_BYTES = {data['max_frame_bytes']}")
     w(f"MAX_NAME_CHARS = {data['max_name_chars']}")
@@ -365,6 +663,7 @@ def gen_python(data: dict, enums: list, msgs: list[Message]) -> str:
     w("    return raw.decode('ascii')")
     w("")
     w("")
+    _gen_python_wire(w, data, msgs)
     w("PACKERS: dict[type, Callable[..., bytes]] = {")
     for m in msgs:
         w(f"    {m.name}: pack_{m.snake},")
@@ -384,7 +683,8 @@ def gen_python(data: dict, enums: list, msgs: list[Message]) -> str:
     w("TARGET_TO_HOST = frozenset({" + ", ".join(m.name for m in msgs if m.dir == "t2h") + "})")
     w("")
     names = ["PROTOCOL_VERSION", "MAX_FRAME_BYTES", "MAX_NAME_CHARS", "MAX_ADC", "MAX_TELEMETRY",
-             "MAX_PARAM_PAIRS", "Message", "PACKERS", "UNPACKERS", "MESSAGE_TYPES", "HOST_TO_TARGET",
+             "MAX_PARAM_PAIRS", "Message", "PACKERS", "UNPACKERS", "ENCODERS", "UNCHECKED_ENCODERS",
+             "DECODERS", "MESSAGE_TYPES", "HOST_TO_TARGET",
              "TARGET_TO_HOST"]
     names += [e[0] for e in enums]
     names += [f"{prefix}_{mn}" for (_n, prefix, _d, members) in enums for mn, _v in members]

@@ -18,6 +18,29 @@ MIN_FRAME_BYTES = 4  # type, seq, crc16
 
 _CODE = tuple(bytes((i,)) for i in range(256))
 
+# COBS_CODE[k]: the code byte that opens a block of k data bytes (k + 1); frames stay < 254 bytes.
+COBS_CODE = tuple(bytes((k + 1,)) for k in range(254))
+
+
+def _crc_tables() -> tuple[tuple[int, ...], tuple[int, ...]]:
+    """CRC_PRE and CRC_OK: check a COBS-decoded frame's CRC in one crc_hqx call, without slicing.
+
+    The decoder's buffer is code . frame . crc_lo . crc_hi. CRC_PRE[code] is the register value
+    from which the code byte steps to 0xFFFF (the CCITT-FALSE init), so crc_hqx(buf, CRC_PRE[code])
+    is the CRC register after frame . lo . hi. Appending two bytes maps the register c to
+    F(c ^ (lo << 8 | hi)) with F(x) = x * X^16 mod P, a bijection; so the result equals
+    F((lo | hi << 8) ^ (lo << 8 | hi)) exactly when c == lo | hi << 8 (the CRC sent), and that
+    value depends only on lo ^ hi: CRC_OK[lo ^ hi].
+    """
+    table = [crc_hqx(bytes((k,)), 0) for k in range(256)]  # one-byte step: s -> s << 8 ^ T[s >> 8 ^ b]
+    k_ff = next(k for k, t in enumerate(table) if t & 0xFF == 0xFF)  # the low byte of T is a bijection
+    pre = tuple(((k_ff ^ b) << 8) | (0xFF ^ (table[k_ff] >> 8)) for b in range(256))
+    ok = tuple(crc_hqx(bytes((d, 0)), d) for d in range(256))
+    return pre, ok
+
+
+CRC_PRE, CRC_OK = _crc_tables()
+
 
 class CobsError(DecodeError):
     """The bytes between two delimiters are not valid COBS."""
@@ -55,9 +78,26 @@ def crc16(data: bytes) -> int:
 
 
 def cobs_encode(raw: bytes) -> bytes:
-    """COBS-encode a frame of at most 254 bytes (no delimiter added)."""
-    code = _CODE
-    return b"".join([code[len(p) + 1] + p for p in raw.split(b"\x00")])
+    """COBS-encode a frame of at most 253 bytes (no delimiter added)."""
+    code = COBS_CODE
+    return b"".join([code[len(p)] + p for p in raw.split(b"\x00")])
+
+
+def cobs_join(parts: list[bytes]) -> bytes:
+    """raw.split(b"\\0") of a frame < 254 bytes -> its COBS encoding plus the 0x00 delimiter.
+
+    Below 254 bytes every block is one split part, so a code byte in front of each part is all
+    COBS does; the generated encoders inline the one-zero case and call this for the rest.
+    """
+    code = COBS_CODE
+    if len(parts) == 1:
+        raw = parts[0]
+        return b"".join((code[len(raw)], raw, b"\x00"))
+    out: list[bytes] = []
+    for part in parts:
+        out += (code[len(part)], part)
+    out.append(b"\x00")
+    return b"".join(out)
 
 
 def cobs_decode(enc: bytes) -> bytes:
@@ -86,9 +126,7 @@ def cobs_decode(enc: bytes) -> bytes:
 def frame_bytes(body: bytes) -> bytes:
     """type . seq . payload -> complete wire bytes (CRC appended, COBS, 0x00 delimiter)."""
     crc = crc_hqx(body, 0xFFFF)
-    raw = body + _CODE[crc & 0xFF] + _CODE[crc >> 8]
-    code = _CODE
-    return b"".join([code[len(p) + 1] + p for p in raw.split(b"\x00")]) + b"\x00"
+    return cobs_join((body + _CODE[crc & 0xFF] + _CODE[crc >> 8]).split(b"\x00"))
 
 
 def unframe(enc: bytes) -> bytes:
@@ -113,8 +151,12 @@ __all__ = [
     "LengthError",
     "UnknownTypeError",
     "OversizedError",
+    "COBS_CODE",
+    "CRC_PRE",
+    "CRC_OK",
     "crc16",
     "cobs_encode",
+    "cobs_join",
     "cobs_decode",
     "frame_bytes",
     "unframe",

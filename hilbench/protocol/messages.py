@@ -3,7 +3,9 @@ firmware_protocol/schema.toml. Do not edit; change the schema and re-run the gen
 
 Each message is a NamedTuple whose first field is `seq`. `PACKERS[cls](msg)` gives the frame
 without CRC (type . seq . payload); `UNPACKERS[type_byte](frame)` parses one (CRC already
-stripped) and raises LengthError on a malformed payload."""
+stripped) and raises LengthError on a malformed payload. The codec's hot path uses the full-wire
+fast paths instead: `ENCODERS[cls](msg)` -> wire bytes, and `DECODERS[type_byte](raw, n)` on a
+COBS-decoded, CRC-checked buffer."""
 
 from __future__ import annotations
 
@@ -11,9 +13,15 @@ import struct
 from enum import IntEnum
 from typing import Callable, NamedTuple, Union
 
-from hilbench.errors import ProtocolError
-from hilbench.protocol.framing import LengthError
+from binascii import crc_hqx as _crc
 
+from hilbench.errors import ProtocolError
+from hilbench.protocol.framing import COBS_CODE as _CODE
+from hilbench.protocol.framing import CRC_OK as _CRC_OK
+from hilbench.protocol.framing import CRC_PRE as _CRC_PRE
+from hilbench.protocol.framing import CobsError, CrcError, LengthError, UnknownTypeError, cobs_join, frame_bytes
+
+_le16 = struct.Struct('<H').pack
 PROTOCOL_VERSION = 1
 MAX_FRAME_BYTES = 64
 MAX_NAME_CHARS = 12
@@ -712,6 +720,549 @@ def _unascii(raw: bytes, msg: str, field: str) -> str:
     return raw.decode('ascii')
 
 
+
+# ---------------------------------------------------------------------------------------------
+# Full-wire fast paths (type . seq . payload . crc16, COBS, 0x00) used by hilbench.protocol.codec.
+
+_SENSORS_BY_LEN = tuple(_SENSORS_ST[(k - 10) // 2] if k >= 10 and (k - 10) % 2 == 0 and (k - 10) // 2 <= 8 else None for k in range(66))
+_SENSORS_ST3 = _SENSORS_ST[3]
+_DRIVE_BY_LEN = tuple(_DRIVE_ST[(k - 11) // 2] if k >= 11 and (k - 11) % 2 == 0 and (k - 11) // 2 <= 8 else None for k in range(66))
+_DRIVE_ST3 = _DRIVE_ST[3]
+_PARAMSET_BY_LEN = tuple(_PARAMSET_ST[(k - 5) // 3] if k >= 5 and (k - 5) % 3 == 0 and (k - 5) // 3 <= 4 else None for k in range(66))
+
+
+def encode_host_hello(m: HostHello) -> bytes:
+    """HostHello -> complete wire bytes (CRC, COBS, 0x00); ProtocolError/struct.error if unencodable."""
+    x_seq, x_protocol_version, x_period_us, x_mode, x_watchdog_ms = m
+    body = _HOSTHELLO_ST.pack(1, x_seq, x_protocol_version, x_period_us, x_mode, x_watchdog_ms)
+    p = (body + _le16(_crc(body, 0xFFFF))).split(b'\x00')
+    k = len(p)
+    if k == 2:  # one 0x00 in the frame
+        a, b = p
+        return b''.join((_CODE[len(a)], a, _CODE[len(b)], b, b'\x00'))
+    if k == 3:
+        a, b, c = p
+        return b''.join((_CODE[len(a)], a, _CODE[len(b)], b, _CODE[len(c)], c, b'\x00'))
+    return cobs_join(p)
+
+
+def encode_target_hello(m: TargetHello) -> bytes:
+    """TargetHello -> complete wire bytes (CRC, COBS, 0x00); ProtocolError/struct.error if unencodable."""
+    return frame_bytes(pack_target_hello(m))
+
+
+def encode_sensors(m: Sensors) -> bytes:
+    """Sensors -> complete wire bytes (CRC, COBS, 0x00); ProtocolError/struct.error if unencodable."""
+    x_seq, x_inputs, x_edge_time_100ns, x_encoder, x_adc = m
+    n = len(x_adc)
+    if n == 3:
+        e0, e1, e2 = x_adc
+        body = _SENSORS_ST3.pack(16, x_seq, x_inputs, x_edge_time_100ns, x_encoder, e0, e1, e2)
+    elif n <= 8:
+        body = _SENSORS_ST[n].pack(16, x_seq, x_inputs, x_edge_time_100ns, x_encoder, *x_adc)
+    else:
+        raise ProtocolError(f"encode Sensors: adc has {n} entries, at most 8")
+    p = (body + _le16(_crc(body, 0xFFFF))).split(b'\x00')
+    k = len(p)
+    if k == 2:  # one 0x00 in the frame
+        a, b = p
+        return b''.join((_CODE[len(a)], a, _CODE[len(b)], b, b'\x00'))
+    if k == 3:
+        a, b, c = p
+        return b''.join((_CODE[len(a)], a, _CODE[len(b)], b, _CODE[len(c)], c, b'\x00'))
+    return cobs_join(p)
+
+
+def encode_drive(m: Drive) -> bytes:
+    """Drive -> complete wire bytes (CRC, COBS, 0x00); ProtocolError/struct.error if unencodable."""
+    x_seq, x_duty_a, x_duty_b, x_duty_c, x_output_mode, x_state, x_sector, x_direction_ccw, x_required_ccw, x_fault, x_telemetry = m
+    if (x_duty_a | x_duty_b | x_duty_c) >> 10:
+        raise ProtocolError(f"encode {type(m).__name__}: duty_a/duty_b/duty_c must be 0..1023")
+    if (x_output_mode) >> 2:
+        raise ProtocolError(f"encode {type(m).__name__}: output_mode must be 0..3")
+    if (x_state | x_sector) >> 3:
+        raise ProtocolError(f"encode {type(m).__name__}: state/sector must be 0..7")
+    w_duties = (x_duty_a | x_duty_b << 10 | x_duty_c << 20 | x_output_mode << 30)
+    w_flags = (x_state | x_sector << 3 | (64 if x_direction_ccw else 0) | (128 if x_required_ccw else 0))
+    n = len(x_telemetry)
+    if n == 3:
+        e0, e1, e2 = x_telemetry
+        body = _DRIVE_ST3.pack(17, x_seq, w_duties, w_flags, x_fault, e0, e1, e2)
+    elif n <= 8:
+        body = _DRIVE_ST[n].pack(17, x_seq, w_duties, w_flags, x_fault, *x_telemetry)
+    else:
+        raise ProtocolError(f"encode Drive: telemetry has {n} entries, at most 8")
+    p = (body + _le16(_crc(body, 0xFFFF))).split(b'\x00')
+    k = len(p)
+    if k == 2:  # one 0x00 in the frame
+        a, b = p
+        return b''.join((_CODE[len(a)], a, _CODE[len(b)], b, b'\x00'))
+    if k == 3:
+        a, b, c = p
+        return b''.join((_CODE[len(a)], a, _CODE[len(b)], b, _CODE[len(c)], c, b'\x00'))
+    return cobs_join(p)
+
+
+def encode_drive_unchecked(m: Drive) -> bytes:
+    """encode_drive without the bit-field range checks: for messages built by trusted code only."""
+    x_seq, x_duty_a, x_duty_b, x_duty_c, x_output_mode, x_state, x_sector, x_direction_ccw, x_required_ccw, x_fault, x_telemetry = m
+    w_duties = (x_duty_a | x_duty_b << 10 | x_duty_c << 20 | x_output_mode << 30)
+    w_flags = (x_state | x_sector << 3 | (64 if x_direction_ccw else 0) | (128 if x_required_ccw else 0))
+    n = len(x_telemetry)
+    if n == 3:
+        e0, e1, e2 = x_telemetry
+        body = _DRIVE_ST3.pack(17, x_seq, w_duties, w_flags, x_fault, e0, e1, e2)
+    elif n <= 8:
+        body = _DRIVE_ST[n].pack(17, x_seq, w_duties, w_flags, x_fault, *x_telemetry)
+    else:
+        raise ProtocolError(f"encode Drive: telemetry has {n} entries, at most 8")
+    p = (body + _le16(_crc(body, 0xFFFF))).split(b'\x00')
+    k = len(p)
+    if k == 2:  # one 0x00 in the frame
+        a, b = p
+        return b''.join((_CODE[len(a)], a, _CODE[len(b)], b, b'\x00'))
+    if k == 3:
+        a, b, c = p
+        return b''.join((_CODE[len(a)], a, _CODE[len(b)], b, _CODE[len(c)], c, b'\x00'))
+    return cobs_join(p)
+
+
+def encode_param_describe(m: ParamDescribe) -> bytes:
+    """ParamDescribe -> complete wire bytes (CRC, COBS, 0x00); ProtocolError/struct.error if unencodable."""
+    x_seq, x_param_id = m
+    body = _PARAMDESCRIBE_ST.pack(32, x_seq, x_param_id)
+    p = (body + _le16(_crc(body, 0xFFFF))).split(b'\x00')
+    k = len(p)
+    if k == 2:  # one 0x00 in the frame
+        a, b = p
+        return b''.join((_CODE[len(a)], a, _CODE[len(b)], b, b'\x00'))
+    if k == 3:
+        a, b, c = p
+        return b''.join((_CODE[len(a)], a, _CODE[len(b)], b, _CODE[len(c)], c, b'\x00'))
+    return cobs_join(p)
+
+
+def encode_param_info(m: ParamInfo) -> bytes:
+    """ParamInfo -> complete wire bytes (CRC, COBS, 0x00); ProtocolError/struct.error if unencodable."""
+    return frame_bytes(pack_param_info(m))
+
+
+def encode_param_get(m: ParamGet) -> bytes:
+    """ParamGet -> complete wire bytes (CRC, COBS, 0x00); ProtocolError/struct.error if unencodable."""
+    x_seq, x_param_id = m
+    body = _PARAMGET_ST.pack(34, x_seq, x_param_id)
+    p = (body + _le16(_crc(body, 0xFFFF))).split(b'\x00')
+    k = len(p)
+    if k == 2:  # one 0x00 in the frame
+        a, b = p
+        return b''.join((_CODE[len(a)], a, _CODE[len(b)], b, b'\x00'))
+    if k == 3:
+        a, b, c = p
+        return b''.join((_CODE[len(a)], a, _CODE[len(b)], b, _CODE[len(c)], c, b'\x00'))
+    return cobs_join(p)
+
+
+def encode_param_value(m: ParamValue) -> bytes:
+    """ParamValue -> complete wire bytes (CRC, COBS, 0x00); ProtocolError/struct.error if unencodable."""
+    x_seq, x_param_id, x_result, x_value = m
+    body = _PARAMVALUE_ST.pack(35, x_seq, x_param_id, x_result, x_value)
+    p = (body + _le16(_crc(body, 0xFFFF))).split(b'\x00')
+    k = len(p)
+    if k == 2:  # one 0x00 in the frame
+        a, b = p
+        return b''.join((_CODE[len(a)], a, _CODE[len(b)], b, b'\x00'))
+    if k == 3:
+        a, b, c = p
+        return b''.join((_CODE[len(a)], a, _CODE[len(b)], b, _CODE[len(c)], c, b'\x00'))
+    return cobs_join(p)
+
+
+def encode_param_set(m: ParamSet) -> bytes:
+    """ParamSet -> complete wire bytes (CRC, COBS, 0x00); ProtocolError/struct.error if unencodable."""
+    x_seq, x_pairs = m
+    n = len(x_pairs)
+    if n <= 4:
+        body = _PARAMSET_ST[n].pack(36, x_seq, *[v for pair in x_pairs for v in pair])
+    else:
+        raise ProtocolError(f"encode ParamSet: pairs has {n} entries, at most 4")
+    p = (body + _le16(_crc(body, 0xFFFF))).split(b'\x00')
+    k = len(p)
+    if k == 2:  # one 0x00 in the frame
+        a, b = p
+        return b''.join((_CODE[len(a)], a, _CODE[len(b)], b, b'\x00'))
+    if k == 3:
+        a, b, c = p
+        return b''.join((_CODE[len(a)], a, _CODE[len(b)], b, _CODE[len(c)], c, b'\x00'))
+    return cobs_join(p)
+
+
+def encode_param_set_result(m: ParamSetResult) -> bytes:
+    """ParamSetResult -> complete wire bytes (CRC, COBS, 0x00); ProtocolError/struct.error if unencodable."""
+    x_seq, x_result, x_param_id, x_detail = m
+    body = _PARAMSETRESULT_ST.pack(37, x_seq, x_result, x_param_id, x_detail)
+    p = (body + _le16(_crc(body, 0xFFFF))).split(b'\x00')
+    k = len(p)
+    if k == 2:  # one 0x00 in the frame
+        a, b = p
+        return b''.join((_CODE[len(a)], a, _CODE[len(b)], b, b'\x00'))
+    if k == 3:
+        a, b, c = p
+        return b''.join((_CODE[len(a)], a, _CODE[len(b)], b, _CODE[len(c)], c, b'\x00'))
+    return cobs_join(p)
+
+
+def encode_start(m: Start) -> bytes:
+    """Start -> complete wire bytes (CRC, COBS, 0x00); ProtocolError/struct.error if unencodable."""
+    x_seq, = m
+    body = _START_ST.pack(48, x_seq)
+    p = (body + _le16(_crc(body, 0xFFFF))).split(b'\x00')
+    k = len(p)
+    if k == 2:  # one 0x00 in the frame
+        a, b = p
+        return b''.join((_CODE[len(a)], a, _CODE[len(b)], b, b'\x00'))
+    if k == 3:
+        a, b, c = p
+        return b''.join((_CODE[len(a)], a, _CODE[len(b)], b, _CODE[len(c)], c, b'\x00'))
+    return cobs_join(p)
+
+
+def encode_stop(m: Stop) -> bytes:
+    """Stop -> complete wire bytes (CRC, COBS, 0x00); ProtocolError/struct.error if unencodable."""
+    x_seq, = m
+    body = _STOP_ST.pack(49, x_seq)
+    p = (body + _le16(_crc(body, 0xFFFF))).split(b'\x00')
+    k = len(p)
+    if k == 2:  # one 0x00 in the frame
+        a, b = p
+        return b''.join((_CODE[len(a)], a, _CODE[len(b)], b, b'\x00'))
+    if k == 3:
+        a, b, c = p
+        return b''.join((_CODE[len(a)], a, _CODE[len(b)], b, _CODE[len(c)], c, b'\x00'))
+    return cobs_join(p)
+
+
+def encode_status_request(m: StatusRequest) -> bytes:
+    """StatusRequest -> complete wire bytes (CRC, COBS, 0x00); ProtocolError/struct.error if unencodable."""
+    x_seq, = m
+    body = _STATUSREQUEST_ST.pack(64, x_seq)
+    p = (body + _le16(_crc(body, 0xFFFF))).split(b'\x00')
+    k = len(p)
+    if k == 2:  # one 0x00 in the frame
+        a, b = p
+        return b''.join((_CODE[len(a)], a, _CODE[len(b)], b, b'\x00'))
+    if k == 3:
+        a, b, c = p
+        return b''.join((_CODE[len(a)], a, _CODE[len(b)], b, _CODE[len(c)], c, b'\x00'))
+    return cobs_join(p)
+
+
+def encode_status(m: Status) -> bytes:
+    """Status -> complete wire bytes (CRC, COBS, 0x00); ProtocolError/struct.error if unencodable."""
+    x_seq, x_rx_frames, x_rx_errors, x_resyncs, x_unknown, x_overruns, x_watchdog_trips, x_last_error = m
+    body = _STATUS_ST.pack(65, x_seq, x_rx_frames, x_rx_errors, x_resyncs, x_unknown, x_overruns, x_watchdog_trips, x_last_error)
+    p = (body + _le16(_crc(body, 0xFFFF))).split(b'\x00')
+    k = len(p)
+    if k == 2:  # one 0x00 in the frame
+        a, b = p
+        return b''.join((_CODE[len(a)], a, _CODE[len(b)], b, b'\x00'))
+    if k == 3:
+        a, b, c = p
+        return b''.join((_CODE[len(a)], a, _CODE[len(b)], b, _CODE[len(c)], c, b'\x00'))
+    return cobs_join(p)
+
+
+def encode_error_report(m: ErrorReport) -> bytes:
+    """ErrorReport -> complete wire bytes (CRC, COBS, 0x00); ProtocolError/struct.error if unencodable."""
+    x_seq, x_code, x_detail = m
+    body = _ERRORREPORT_ST.pack(66, x_seq, x_code, x_detail)
+    p = (body + _le16(_crc(body, 0xFFFF))).split(b'\x00')
+    k = len(p)
+    if k == 2:  # one 0x00 in the frame
+        a, b = p
+        return b''.join((_CODE[len(a)], a, _CODE[len(b)], b, b'\x00'))
+    if k == 3:
+        a, b, c = p
+        return b''.join((_CODE[len(a)], a, _CODE[len(b)], b, _CODE[len(c)], c, b'\x00'))
+    return cobs_join(p)
+
+
+def _decode_host_hello(raw: bytes, n: int) -> HostHello:
+    """COBS-decoded frame of n bytes (first code byte, type . seq . payload, CRC checked) -> HostHello."""
+    if n != 11:
+        raise LengthError(f"HostHello: payload of {n - 5} bytes, expected 6")
+    v = _HOSTHELLO_ST.unpack_from(raw, 1)
+    return _tnew(HostHello, v[1:])
+
+
+def _decode_target_hello(raw: bytes, n: int) -> TargetHello:
+    """COBS-decoded frame of n bytes (first code byte, type . seq . payload, CRC checked) -> TargetHello."""
+    return unpack_target_hello(bytes(raw[1:n - 2]))
+
+
+def _decode_sensors(raw: bytes, n: int) -> Sensors:
+    """COBS-decoded frame of n bytes (first code byte, type . seq . payload, CRC checked) -> Sensors."""
+    st = _SENSORS_BY_LEN[n]
+    if st is None:
+        raise LengthError(f"Sensors: payload of {n - 5} bytes is not 5 + 2*n (n <= 8)")
+    v = st.unpack_from(raw, 1)
+    return _tnew(Sensors, (v[1], v[2], v[3], v[4], v[5:]))
+
+
+def _decode_drive(raw: bytes, n: int) -> Drive:
+    """COBS-decoded frame of n bytes (first code byte, type . seq . payload, CRC checked) -> Drive."""
+    st = _DRIVE_BY_LEN[n]
+    if st is None:
+        raise LengthError(f"Drive: payload of {n - 5} bytes is not 6 + 2*n (n <= 8)")
+    v = st.unpack_from(raw, 1)
+    w2 = v[2]
+    w3 = v[3]
+    return _tnew(Drive, (v[1], w2 & 1023, w2 >> 10 & 1023, w2 >> 20 & 1023, w2 >> 30 & 3, w3 & 7, w3 >> 3 & 7, (w3 >> 6 & 1) != 0, (w3 >> 7 & 1) != 0, v[4], v[5:]))
+
+
+def _decode_param_describe(raw: bytes, n: int) -> ParamDescribe:
+    """COBS-decoded frame of n bytes (first code byte, type . seq . payload, CRC checked) -> ParamDescribe."""
+    if n != 6:
+        raise LengthError(f"ParamDescribe: payload of {n - 5} bytes, expected 1")
+    v = _PARAMDESCRIBE_ST.unpack_from(raw, 1)
+    return _tnew(ParamDescribe, v[1:])
+
+
+def _decode_param_info(raw: bytes, n: int) -> ParamInfo:
+    """COBS-decoded frame of n bytes (first code byte, type . seq . payload, CRC checked) -> ParamInfo."""
+    return unpack_param_info(bytes(raw[1:n - 2]))
+
+
+def _decode_param_get(raw: bytes, n: int) -> ParamGet:
+    """COBS-decoded frame of n bytes (first code byte, type . seq . payload, CRC checked) -> ParamGet."""
+    if n != 6:
+        raise LengthError(f"ParamGet: payload of {n - 5} bytes, expected 1")
+    v = _PARAMGET_ST.unpack_from(raw, 1)
+    return _tnew(ParamGet, v[1:])
+
+
+def _decode_param_value(raw: bytes, n: int) -> ParamValue:
+    """COBS-decoded frame of n bytes (first code byte, type . seq . payload, CRC checked) -> ParamValue."""
+    if n != 9:
+        raise LengthError(f"ParamValue: payload of {n - 5} bytes, expected 4")
+    v = _PARAMVALUE_ST.unpack_from(raw, 1)
+    return _tnew(ParamValue, v[1:])
+
+
+def _decode_param_set(raw: bytes, n: int) -> ParamSet:
+    """COBS-decoded frame of n bytes (first code byte, type . seq . payload, CRC checked) -> ParamSet."""
+    st = _PARAMSET_BY_LEN[n]
+    if st is None:
+        raise LengthError(f"ParamSet: payload of {n - 5} bytes is not 0 + 3*n (n <= 4)")
+    v = st.unpack_from(raw, 1)
+    return _tnew(ParamSet, (v[1], tuple(zip(v[2::2], v[3::2]))))
+
+
+def _decode_param_set_result(raw: bytes, n: int) -> ParamSetResult:
+    """COBS-decoded frame of n bytes (first code byte, type . seq . payload, CRC checked) -> ParamSetResult."""
+    if n != 8:
+        raise LengthError(f"ParamSetResult: payload of {n - 5} bytes, expected 3")
+    v = _PARAMSETRESULT_ST.unpack_from(raw, 1)
+    return _tnew(ParamSetResult, v[1:])
+
+
+def _decode_start(raw: bytes, n: int) -> Start:
+    """COBS-decoded frame of n bytes (first code byte, type . seq . payload, CRC checked) -> Start."""
+    if n != 5:
+        raise LengthError(f"Start: payload of {n - 5} bytes, expected 0")
+    v = _START_ST.unpack_from(raw, 1)
+    return _tnew(Start, v[1:])
+
+
+def _decode_stop(raw: bytes, n: int) -> Stop:
+    """COBS-decoded frame of n bytes (first code byte, type . seq . payload, CRC checked) -> Stop."""
+    if n != 5:
+        raise LengthError(f"Stop: payload of {n - 5} bytes, expected 0")
+    v = _STOP_ST.unpack_from(raw, 1)
+    return _tnew(Stop, v[1:])
+
+
+def _decode_status_request(raw: bytes, n: int) -> StatusRequest:
+    """COBS-decoded frame of n bytes (first code byte, type . seq . payload, CRC checked) -> StatusRequest."""
+    if n != 5:
+        raise LengthError(f"StatusRequest: payload of {n - 5} bytes, expected 0")
+    v = _STATUSREQUEST_ST.unpack_from(raw, 1)
+    return _tnew(StatusRequest, v[1:])
+
+
+def _decode_status(raw: bytes, n: int) -> Status:
+    """COBS-decoded frame of n bytes (first code byte, type . seq . payload, CRC checked) -> Status."""
+    if n != 18:
+        raise LengthError(f"Status: payload of {n - 5} bytes, expected 13")
+    v = _STATUS_ST.unpack_from(raw, 1)
+    return _tnew(Status, v[1:])
+
+
+def _decode_error_report(raw: bytes, n: int) -> ErrorReport:
+    """COBS-decoded frame of n bytes (first code byte, type . seq . payload, CRC checked) -> ErrorReport."""
+    if n != 7:
+        raise LengthError(f"ErrorReport: payload of {n - 5} bytes, expected 2")
+    v = _ERRORREPORT_ST.unpack_from(raw, 1)
+    return _tnew(ErrorReport, v[1:])
+
+
+ENCODERS: dict[type, Callable[..., bytes]] = {
+    HostHello: encode_host_hello,
+    TargetHello: encode_target_hello,
+    Sensors: encode_sensors,
+    Drive: encode_drive,
+    ParamDescribe: encode_param_describe,
+    ParamInfo: encode_param_info,
+    ParamGet: encode_param_get,
+    ParamValue: encode_param_value,
+    ParamSet: encode_param_set,
+    ParamSetResult: encode_param_set_result,
+    Start: encode_start,
+    Stop: encode_stop,
+    StatusRequest: encode_status_request,
+    Status: encode_status,
+    ErrorReport: encode_error_report,
+}
+
+# Range checks of bit fields skipped: only for messages the caller built itself (see codec).
+UNCHECKED_ENCODERS: dict[type, Callable[..., bytes]] = {
+    HostHello: encode_host_hello,
+    TargetHello: encode_target_hello,
+    Sensors: encode_sensors,
+    Drive: encode_drive_unchecked,
+    ParamDescribe: encode_param_describe,
+    ParamInfo: encode_param_info,
+    ParamGet: encode_param_get,
+    ParamValue: encode_param_value,
+    ParamSet: encode_param_set,
+    ParamSetResult: encode_param_set_result,
+    Start: encode_start,
+    Stop: encode_stop,
+    StatusRequest: encode_status_request,
+    Status: encode_status,
+    ErrorReport: encode_error_report,
+}
+
+# Indexed by the frame type byte; None for a type this protocol version does not know.
+_decoders: list = [None] * 256
+_decoders[0x01] = _decode_host_hello
+_decoders[0x02] = _decode_target_hello
+_decoders[0x10] = _decode_sensors
+_decoders[0x11] = _decode_drive
+_decoders[0x20] = _decode_param_describe
+_decoders[0x21] = _decode_param_info
+_decoders[0x22] = _decode_param_get
+_decoders[0x23] = _decode_param_value
+_decoders[0x24] = _decode_param_set
+_decoders[0x25] = _decode_param_set_result
+_decoders[0x30] = _decode_start
+_decoders[0x31] = _decode_stop
+_decoders[0x40] = _decode_status_request
+_decoders[0x41] = _decode_status
+_decoders[0x42] = _decode_error_report
+DECODERS: tuple = tuple(_decoders)
+del _decoders
+_ENCODE_ERRORS = (struct.error, TypeError, ValueError, OverflowError, IndexError, AttributeError)
+
+
+def encode_frame(m: Message, validate: bool = True) -> bytes:
+    """One message -> its complete wire bytes, 0x00 included (ProtocolError if unencodable).
+
+    validate=False skips the bit-field range checks (Drive's duties, mode, state, sector), which
+    would otherwise corrupt neighbouring bits silently; struct still checks every plain field.
+    Only for messages the caller's own code built, never for anything that came off a wire.
+    """
+    t = type(m)
+    try:
+        if t is Sensors:
+            x_seq, x_inputs, x_edge_time_100ns, x_encoder, x_adc = m
+            n = len(x_adc)
+            if n == 3:
+                e0, e1, e2 = x_adc
+                body = _SENSORS_ST3.pack(16, x_seq, x_inputs, x_edge_time_100ns, x_encoder, e0, e1, e2)
+            elif n <= 8:
+                body = _SENSORS_ST[n].pack(16, x_seq, x_inputs, x_edge_time_100ns, x_encoder, *x_adc)
+            else:
+                raise ProtocolError(f"encode Sensors: adc has {n} entries, at most 8")
+        elif t is Drive:
+            x_seq, x_duty_a, x_duty_b, x_duty_c, x_output_mode, x_state, x_sector, x_direction_ccw, x_required_ccw, x_fault, x_telemetry = m
+            if validate:
+                if (x_duty_a | x_duty_b | x_duty_c) >> 10:
+                    raise ProtocolError(f"encode {type(m).__name__}: duty_a/duty_b/duty_c must be 0..1023")
+                if (x_output_mode) >> 2:
+                    raise ProtocolError(f"encode {type(m).__name__}: output_mode must be 0..3")
+                if (x_state | x_sector) >> 3:
+                    raise ProtocolError(f"encode {type(m).__name__}: state/sector must be 0..7")
+            w_duties = (x_duty_a | x_duty_b << 10 | x_duty_c << 20 | x_output_mode << 30)
+            w_flags = (x_state | x_sector << 3 | (64 if x_direction_ccw else 0) | (128 if x_required_ccw else 0))
+            n = len(x_telemetry)
+            if n == 3:
+                e0, e1, e2 = x_telemetry
+                body = _DRIVE_ST3.pack(17, x_seq, w_duties, w_flags, x_fault, e0, e1, e2)
+            elif n <= 8:
+                body = _DRIVE_ST[n].pack(17, x_seq, w_duties, w_flags, x_fault, *x_telemetry)
+            else:
+                raise ProtocolError(f"encode Drive: telemetry has {n} entries, at most 8")
+        else:
+            enc = (ENCODERS if validate else UNCHECKED_ENCODERS).get(t)
+            if enc is None:
+                raise ProtocolError(f"encode: {t.__name__} is not a protocol message")
+            return enc(m)
+        p = (body + _le16(_crc(body, 0xFFFF))).split(b'\x00')
+    except _ENCODE_ERRORS as exc:
+        raise ProtocolError(f"encode {t.__name__}: {exc}") from None
+    k = len(p)
+    if k == 2:  # one 0x00 in the frame
+        a, b = p
+        return b''.join((_CODE[len(a)], a, _CODE[len(b)], b, b'\x00'))
+    if k == 3:
+        a, b, c = p
+        return b''.join((_CODE[len(a)], a, _CODE[len(b)], b, _CODE[len(c)], c, b'\x00'))
+    return cobs_join(p)
+
+
+def decode_body(body: bytes, n: int) -> Message:
+    """A COBS frame body of n bytes (no 0x00 in it, n <= MAX_ENCODED_BYTES) -> message.
+
+    Raises CobsError, LengthError, CrcError or UnknownTypeError. The COBS code bytes after the
+    first stand where the frame's 0x00s were, so they are zeroed in a copy; the CRC is checked
+    on that buffer as it is (see framing.CRC_PRE/CRC_OK); the type byte picks the decoder.
+    """
+    i = body[0]
+    if i < n:
+        raw = bytearray(body)
+        while i < n:
+            code = raw[i]
+            raw[i] = 0
+            i += code
+        if i != n:
+            raise CobsError(f"COBS: last block runs {i - n} bytes past the frame end")
+    elif i == n:
+        raw = body  # no 0x00 in the frame: nothing to undo
+    else:
+        raise CobsError(f"COBS: block at offset 0 runs {i - n} bytes past the frame end")
+    if n < 5:
+        raise LengthError(f"frame of {n - 1} bytes is shorter than 4")
+    if _crc(raw, _CRC_PRE[raw[0]]) != _CRC_OK[raw[-1] ^ raw[-2]]:
+        raise CrcError(f"CRC mismatch in a {n - 1}-byte frame (type {raw[1]:#04x})")
+    t = raw[1]
+    if t == 0x10:
+        st = _SENSORS_BY_LEN[n]
+        if st is not None:
+            v = st.unpack_from(raw, 1)
+            return _tnew(Sensors, (v[1], v[2], v[3], v[4], v[5:]))
+    elif t == 0x11:
+        st = _DRIVE_BY_LEN[n]
+        if st is not None:
+            v = st.unpack_from(raw, 1)
+            w2 = v[2]
+            w3 = v[3]
+            return _tnew(Drive, (v[1], w2 & 1023, w2 >> 10 & 1023, w2 >> 20 & 1023, w2 >> 30 & 3, w3 & 7, w3 >> 3 & 7, (w3 >> 6 & 1) != 0, (w3 >> 7 & 1) != 0, v[4], v[5:]))
+    decode = DECODERS[t]
+    if decode is None:
+        raise UnknownTypeError(f"unknown frame type {t:#04x}")
+    return decode(raw, n)
+
+
 PACKERS: dict[type, Callable[..., bytes]] = {
     HostHello: pack_host_hello,
     TargetHello: pack_target_hello,
@@ -779,6 +1330,9 @@ __all__ = [
     'Message',
     'PACKERS',
     'UNPACKERS',
+    'ENCODERS',
+    'UNCHECKED_ENCODERS',
+    'DECODERS',
     'MESSAGE_TYPES',
     'HOST_TO_TARGET',
     'TARGET_TO_HOST',
