@@ -84,6 +84,9 @@ class Recorder:
     _file: Any = field(default=None, repr=False)
     rows_written: int = 0
     closed: bool = False
+    #: turns a chunk of appended rows (an array) into the COLUMNS; the session appends raw values
+    #: cheaply and scales them here, once per chunk
+    transform: Any = None
 
     def __post_init__(self) -> None:
         self.path = Path(self.path)
@@ -130,19 +133,28 @@ class Recorder:
         if not rows and not events:
             return
         try:
+            table = self._table(rows) if rows else np.zeros((0, N_COLUMNS))
             if self.is_npz:
                 if rows:
-                    self._file.write(np.asarray(rows, dtype="<f8").tobytes())
+                    self._file.write(np.ascontiguousarray(table, dtype="<f8").tobytes())
                 for _, text in events:  # NPZ keeps events in the metadata at close
                     self.metadata.setdefault("events", []).append(text)
             else:
-                self._file.write(self._format_csv(rows, events))
+                self._file.write(self._format_csv(list(map(tuple, table.tolist())), events))
             self._file.flush()
         except OSError as exc:
             raise RecordingError(f"recording {self.path}: write failed ({exc.strerror})") from None
         self.rows_written += len(rows)
         rows.clear()
         events.clear()
+
+    def _table(self, rows: list[tuple[float, ...]]) -> np.ndarray:
+        table = np.asarray(rows, dtype=float)
+        if self.transform is not None:
+            table = self.transform(table)
+        if table.ndim != 2 or table.shape[1] != N_COLUMNS:
+            raise RecordingError(f"recording {self.path}: rows have {table.shape} columns, expected {N_COLUMNS}")
+        return table
 
     def _format_csv(self, rows: list[tuple[float, ...]], events: list[tuple[int, str]]) -> str:
         fmt = self._fmt
@@ -299,6 +311,7 @@ class MemoryRecorder:
         self.events: list[tuple[int, str]] = []
         self.append = self.rows.append
         self.closed = False
+        self.transform: Any = None
 
     @property
     def rows_written(self) -> int:
@@ -324,4 +337,7 @@ class MemoryRecorder:
 
     def columns(self) -> dict[str, np.ndarray]:
         """Every column as an array."""
-        return _columns(rows_to_table(self.rows))
+        table = np.asarray(self.rows, dtype=float)
+        if self.transform is not None and len(table):
+            table = self.transform(table)
+        return _columns(table.reshape(-1, N_COLUMNS))

@@ -88,7 +88,7 @@ def run_bench(
 
     options = dataclasses.replace(settings.session_options(cfg), seed=effective_seed(cfg))
     events = settings.scenario_events(cfg)
-    plant = Plant(plant_params_from_config(cfg), seed=options.seed)
+    plant = Plant(plant_params_from_config(cfg), seed=options.seed, substeps=cfg.plant.substeps)
     handle = connect(cfg, options)
     recorder: Recorder | None = None
     try:
@@ -162,7 +162,7 @@ def run_step_tests(
         handle = connect(cfg, options)
         try:
             def make(events, opts, recorder, handle=handle):  # type: ignore[no-untyped-def]
-                plant = Plant(plant_params_from_config(cfg), seed=opts.seed)
+                plant = Plant(plant_params_from_config(cfg), seed=opts.seed, substeps=cfg.plant.substeps)
                 return Session(handle.target, plant, events, opts, recorder=recorder,
                                link_stats=handle.link_stats, target_label=handle.label)
 

@@ -46,6 +46,8 @@ PARAM_Q15 = 0
 PARAM_BOOL = 2
 RESULT_NAMES = {0: "ok", 1: "unknown parameter", 2: "read-only", 3: "out of range", 4: "constraint", 5: "bad request"}
 
+RPM_PER_RAD_S = 60.0 / (2.0 * math.pi)
+
 #: the plant's step is accurate to 1e-6 at 50 us; longer periods are integrated in substeps
 MAX_PLANT_STEP_US = 50
 
@@ -510,47 +512,56 @@ class Session:
         drive = None
         last_ref = 0.0
         self.periods_done = 0
+        self._period_s = period_s
+        if recorder is not None:
+            recorder.transform = self._columns_from_raw
+        new_sensors = tuple.__new__
+        next_event_s = self.player.next_t_s
+        sensor_faults = False
         if pacer is not None:
             pacer.start()
         try:
             for k in range(n_periods):
                 t_s = k * period_s
-                if t_s >= self.player.next_t_s:
-                    for event in self.player.due(t_s):
-                        self._apply(event, t_s)
-                    if self._end_requested:
-                        summary.end_reason = "scenario end"
-                        break
-                # -- live changes act from this period on, so they are noted at its time
+                if t_s >= next_event_s:  # scenario events, ramps, button release, fault expiry
+                    if t_s >= self.player.next_t_s:
+                        for event in self.player.due(t_s):
+                            self._apply(event, t_s)
+                        if self._end_requested:
+                            summary.end_reason = "scenario end"
+                            break
+                    if self.player.ramps:
+                        self._tick_ramps(t_s)
+                    if t_s >= self._button_release_s:
+                        self._buttons = 0
+                        self._button_release_s = math.inf
+                    if t_s >= self._fault_clear_s:
+                        self._apply_fault(Event(at_s=t_s, fault="clear"), t_s)
+                    sensor_faults = bool(self._hall_force_high or self._hall_force_low or self._missing_edge_armed)
+                    next_event_s = min(self.player.next_t_s, self._button_release_s, self._fault_clear_s,
+                                       t_s + period_s if self.player.ramps else math.inf)
                 if k % history_every == 0 and drive is not None:
+                    # live changes act from this period on, so they are noted at its time
                     if t_s < self._guard_until:
                         self._guard_check(t_s, last_ref, drive.state, drive.fault)
                     if self._pending_steps:
                         self._advance_steps(t_s)
-                if control is not None and k % observe_every == 0 and k:
-                    self._serve_control(t_s)
-                    if self._end_requested:
-                        summary.end_reason = "stopped by ctl"
-                        break
-                if self.player.ramps:
-                    self._tick_ramps(t_s)
-                if t_s >= self._button_release_s:
-                    self._buttons = 0
-                    self._button_release_s = math.inf
-                if t_s >= self._fault_clear_s:
-                    self._apply_fault(Event(at_s=t_s, fault="clear"), t_s)
+                    if control is not None and k % observe_every == 0:
+                        self._serve_control(t_s)
+                        if self._end_requested:
+                            summary.end_reason = "stopped by ctl"
+                            break
+                        next_event_s = min(next_event_s, t_s + period_s)  # a ctl ref may start a ramp
                 # -- sample the plant
                 hall = plant.hall_bits
                 edge = EDGE_NONE if edge_s is None else min(int(edge_s * 1e7), edge_limit)
-                if self._hall_force_high or self._hall_force_low or self._missing_edge_armed:
+                if sensor_faults:
                     hall, edge = self._faulty_hall(hall, edge)
-                sensors = Sensors(
-                    k & 0xFF,
-                    hall | self._buttons,
-                    edge,
-                    (plant.encoder_count + self._encoder_offset) & 0xFFFF,
-                    plant.adc_codes(roles),
-                )
+                    sensor_faults = bool(self._hall_force_high or self._hall_force_low or self._missing_edge_armed)
+                sensors = new_sensors(Sensors, (
+                    k & 0xFF, hall | self._buttons, edge,
+                    (plant.encoder_count + self._encoder_offset) & 0xFFFF, plant.adc_codes(roles),
+                ))
                 # -- exchange
                 if pacer is not None:
                     late = pacer.wait_for(k)
@@ -567,7 +578,6 @@ class Session:
                         rtts.append(perf() - sent)
                     else:
                         drive = target_step(sensors)
-                self._last_drive = drive
                 if delay:
                     pending.append(drive)
                     applied = pending.popleft() if len(pending) > delay else None
@@ -575,20 +585,17 @@ class Session:
                     applied = drive
                 # -- integrate the plant over the period
                 if applied is None:
-                    da = db = dc = 0.0
-                    mode = OUTPUT_OFF
-                else:
-                    da = applied.duty_a * duty_scale
-                    db = applied.duty_b * duty_scale
-                    dc = applied.duty_c * duty_scale
-                    mode = applied.output_mode
-                if substeps == 1:
-                    plant.step(da, db, dc, mode, period_s)
+                    plant.step(0.0, 0.0, 0.0, OUTPUT_OFF, period_s)
+                    edge_s = plant.last_edge_s
+                elif substeps == 1:
+                    plant.step(applied[1] * duty_scale, applied[2] * duty_scale, applied[3] * duty_scale,
+                               applied[4], period_s)
                     edge_s = plant.last_edge_s
                 else:  # long periods: the plant keeps its accurate step, the duties are held
                     edge_s = None
                     for i in range(substeps):
-                        plant.step(da, db, dc, mode, sub_s)
+                        plant.step(applied[1] * duty_scale, applied[2] * duty_scale, applied[3] * duty_scale,
+                                   applied[4], sub_s)
                         if plant.last_edge_s is not None:
                             edge_s = i * sub_s + plant.last_edge_s
                 if pacer is not None:
@@ -603,32 +610,29 @@ class Session:
                             )
                     else:
                         consecutive = 0
-                tele = drive.telemetry
-                meas = tele[tele_meas] * rpm_q15 if tele_meas >= 0 else math.nan
-                ref = tele[tele_ref] * rpm_q15 if tele_ref >= 0 else self._ref_rpm
+                _, duty_a, duty_b, duty_c, mode, state, sector, _, _, fault, tele = drive
+                meas_raw = tele[tele_meas] if tele_meas >= 0 else 0
+                ref_raw = tele[tele_ref] if tele_ref >= 0 else self._ref_rpm
                 ctrl = tele[tele_ctrl] if tele_ctrl >= 0 else 0
-                last_ref = ref
-                if rec_append is not None:
-                    ia, ib, ic = plant.i_abc
-                    rec_append(
-                        (
-                            t_s, k, hall, drive.sector, math.degrees(plant.theta_e) % 360.0,
-                            plant.speed_rpm, meas, ref, ctrl, ia, ib, ic, plant.i_bus,
-                            drive.duty_a, drive.duty_b, drive.duty_c, drive.output_mode, drive.state,
-                            drive.fault, plant.load_torque_nm, rtt * 1e6, late * 1e6, self._marker,
-                        )
-                    )
+                if rec_append is not None:  # raw values; _columns_from_raw scales them per chunk
+                    rec_append((
+                        k, hall, sector, plant.theta_e, plant.w_m, meas_raw, ref_raw, ctrl,
+                        plant.i_a, plant.i_b, plant.i_c, plant.i_bus, duty_a, duty_b, duty_c, mode, state,
+                        fault, plant.load_torque_nm, rtt * 1e6, late * 1e6, self._marker,
+                    ))
                     self._marker = MARKER_NONE
-                    if k % 2000 == 0:
-                        recorder.maybe_flush()
                 if k % history_every == 0:
-                    self.history.append((t_s, self._ref_rpm, plant.speed_rpm, meas))
-                if k % observe_every == 0 and k:
-                    if self.observer is not None:
-                        now = perf()
-                        rate = (k - last_obs_k) / max(now - last_obs_wall, 1e-9)
-                        last_obs_wall, last_obs_k = now, k
-                        self.observer(self._snapshot(t_s, k, drive, meas, ctrl, rate, rtts, overruns))
+                    meas = meas_raw * rpm_q15 if tele_meas >= 0 else math.nan
+                    last_ref = ref_raw * rpm_q15 if tele_ref >= 0 else ref_raw
+                    self.history.append((t_s, self._ref_rpm, plant.w_m * RPM_PER_RAD_S, meas))
+                    if k % observe_every == 0 and k:
+                        if recorder is not None:
+                            recorder.maybe_flush()
+                        if self.observer is not None:
+                            now = perf()
+                            rate = (k - last_obs_k) / max(now - last_obs_wall, 1e-9)
+                            last_obs_wall, last_obs_k = now, k
+                            self.observer(self._snapshot(t_s, k, drive, meas, ctrl, rate, rtts, overruns))
             else:
                 k = n_periods
             self.periods_done = k
@@ -648,6 +652,19 @@ class Session:
         self._stop_target()
         self._finish(summary, wall_start, rtts, lateness, overruns, f"end: {summary.end_reason} at period {k}")
         return summary
+
+    def _columns_from_raw(self, raw: Any) -> Any:
+        """Raw recorded rows (the hot path's cheap tuple) to the recording's columns and units."""
+        import numpy as np
+
+        rpm_q15 = self.profile.rpm_per_speed_q15
+        k = raw[:, 0]
+        meas = raw[:, 5] * rpm_q15 if (self._tele_meas >= 0 and rpm_q15) else np.full(len(raw), np.nan)
+        ref = raw[:, 6] * rpm_q15 if (self._tele_ref >= 0 and rpm_q15) else raw[:, 6]
+        return np.column_stack((
+            k * self._period_s, k, raw[:, 1], raw[:, 2], np.degrees(raw[:, 3]) % 360.0,
+            raw[:, 4] * RPM_PER_RAD_S, meas, ref, raw[:, 7:],
+        ))
 
     def _stop_target(self) -> None:
         """A clean end: the target stops its outputs (S2 as a command)."""

@@ -1,0 +1,89 @@
+"""Lockstep closed-loop speed of the bench: AN1017 firmware + Hurst plant, every period recorded.
+
+Prints, in one run (medians over repeats; the machine is a noisy 2-core VM):
+  (a) periods/s and real-time factor with the firmware in-process (goal >= 10x at 20 kHz periods),
+  (b) periods/s with the firmware as its own process on a pty (goal >= 50 % of the raw echo),
+  and a raw two-process pty echo of the same frame sizes as the baseline for (b).
+
+    python benchmarks/bench_session.py [--seconds 1.0] [--repeats 3]
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import statistics
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+
+from bench_link import frame_sizes, raw_echo  # noqa: E402
+
+from hilbench.bench import settings  # noqa: E402
+from hilbench.bench.launcher import open_target  # noqa: E402
+from hilbench.bench.recorder import Recorder  # noqa: E402
+from hilbench.bench.scenario import Event  # noqa: E402
+from hilbench.bench.session import Session  # noqa: E402
+from hilbench.config import load_config, plant_params_from_config  # noqa: E402
+from hilbench.plant.model import Plant  # noqa: E402
+
+PERIOD_US = 50
+
+
+def scenario(seconds: float) -> tuple[Event, ...]:
+    """Running at speed for the whole timed span: pot at 1500 rpm, S2, a step to 2000 rpm."""
+    return (
+        Event(at_s=0.0, ref_rpm=1500.0),
+        Event(at_s=0.01, press="s2"),
+        Event(at_s=seconds / 2, ref_rpm=2000.0),
+        Event(at_s=seconds, end=True),
+    )
+
+
+def closed_loop(spec: str, seconds: float, record_dir: str, fmt: str) -> tuple[float, str]:
+    """Periods/s of one lockstep run against ``spec``, every period recorded to ``fmt``."""
+    cfg = load_config(None)
+    options = dataclasses.replace(settings.session_options(cfg), duration_s=seconds, period_us=PERIOD_US)
+    plant = Plant(plant_params_from_config(cfg), seed=0, substeps=cfg.plant.substeps)
+    with open_target(spec, timeout_s=2.0) as handle:
+        recorder = Recorder(Path(record_dir) / f"bench.{fmt}", {"bench": True}, flush_rows=20_000)
+        session = Session(handle.target, plant, scenario(seconds), options, recorder=recorder,
+                          link_stats=handle.link_stats, target_label=spec)
+        session.handshake()
+        t0 = time.perf_counter()
+        summary = session.run()
+        elapsed = time.perf_counter() - t0
+    return summary.periods / elapsed, getattr(plant, "backend", "python")
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    parser.add_argument("--seconds", type=float, default=1.0, help="simulated seconds per run")
+    parser.add_argument("--repeats", type=int, default=3)
+    args = parser.parse_args()
+    sensors_len, drive_len = frame_sizes()
+    rates: dict[str, list[float]] = {"inproc_npz": [], "inproc_csv": [], "pty": [], "raw": []}
+    backend = "?"
+    with tempfile.TemporaryDirectory() as tmp:
+        for _ in range(args.repeats):  # interleaved, so drifts in machine load hit every figure alike
+            rate, backend = closed_loop("inprocess:an1017", args.seconds, tmp, "npz")
+            rates["inproc_npz"].append(rate)
+            rates["inproc_csv"].append(closed_loop("inprocess:an1017", args.seconds, tmp, "csv")[0])
+            rates["pty"].append(closed_loop("emulator:an1017", args.seconds, tmp, "npz")[0])
+            rates["raw"].append(raw_echo(int(args.seconds * 20_000), sensors_len, drive_len).rate)
+    med = {k: statistics.median(v) for k, v in rates.items()}
+    real = 1e6 / PERIOD_US
+    print(f"AN1017 + Hurst closed loop, lockstep, {PERIOD_US} us periods, {args.seconds:g} s simulated, "
+          f"median of {args.repeats} (plant backend: {backend})")
+    print(f"  (a) in-process, NPZ recording : {med['inproc_npz']:9,.0f} periods/s = {med['inproc_npz'] / real:5.2f}x real time (goal >= 10x)")
+    print(f"      in-process, CSV recording : {med['inproc_csv']:9,.0f} periods/s = {med['inproc_csv'] / real:5.2f}x real time")
+    print(f"  (b) emulator process on a pty : {med['pty']:9,.0f} periods/s = {med['pty'] / real:5.2f}x real time")
+    print(f"      raw pty echo {sensors_len}/{drive_len} B    : {med['raw']:9,.0f} round trips/s")
+    print(f"      (b) / raw echo            : {med['pty'] / med['raw']:6.1%} (goal >= 50 %)")
+
+
+if __name__ == "__main__":
+    main()
