@@ -351,7 +351,8 @@ class An1017Target:
         self._last_seq = seq
         t = fw.t
         t1 = fw.t1_next
-        if self._ctx is not None and not inputs & INPUT_S2 and t1 > t:
+        ctx = self._ctx
+        if ctx is not None and not inputs & INPUT_S2 and t1 > t:
             new_hall = inputs & 7
             edge_at = -1
             if new_hall != fw.hall:
@@ -361,10 +362,17 @@ class An1017Target:
                 else:
                     edge_at = t  # → the general path below
             if edge_at != t:
+                # the plain period's ADC and PWM ISRs (An1017Firmware._pwm_run for n = 1)
+                _, _, vkey, dphase, adv, ovr, adc_every, _ = ctx
                 if adc:
                     fw.pot_code = adc[0]
                 fw.s2_level = False
-                fw._pwm_run(t // PWM_PERIOD_TCY, 1)
+                if adc_every or t % 16_000 == 0:
+                    fw.ref_speed = (((fw.pot_code & 0x3FF) - 512) << 6) if ovr is None else ovr
+                fw.act_key = fw.pend_key
+                phase = (fw.phase + dphase) & 0xFFFF
+                fw.phase = phase
+                fw.pend_key = vkey | ((phase + adv) & 0xFFFF)
                 t_end = t + PWM_PERIOD_TCY
                 # the later events in the dsPIC's order: by time, Timer1 first on a tie
                 if t1 < t_end and (edge_at < 0 or t1 <= edge_at):
