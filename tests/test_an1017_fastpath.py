@@ -200,3 +200,16 @@ def test_randomised_stream_with_advance_between_steps():
                 out.extend(play(target, [item]))
         outs.append(out)
     assert outs[0] == outs[1], first_difference(outs[0], outs[1])
+
+
+def test_drives_are_real_drive_tuples_equal_to_the_constructor():
+    """Drives built with tuple.__new__ must equal (and encode like) the NamedTuple constructor's."""
+    from hilbench.protocol import decode_frame, encode_frame
+
+    t = An1017Target()
+    t.start()
+    script = random_script(4, 1500, 50)
+    for d in play(t, script):
+        if isinstance(d, tuple) and type(d) is Drive:
+            assert Drive(*d) == d and Drive._make(d) == d and len(d) == len(Drive._fields)
+            assert decode_frame(encode_frame(d)[:-1]) == d

@@ -69,6 +69,9 @@ PWM_FREQ_HZ = 20000
 PWM_PERIOD_US = 50
 DUTY_CACHE_MAX = 200_000  # entries of (a, b, c): bounded memory, cleared when full
 _tuple_new = tuple.__new__  # Drive is a NamedTuple: this skips its Python-level __new__ (~3x cheaper)
+if Drive._fields[1:4] != ("duty_a", "duty_b", "duty_c") or len(Drive._fields) != 11:
+    # _finish/step build Drives from positional tuples: a changed message must not go unnoticed
+    raise ConfigError(f"an1017: Drive fields changed to {Drive._fields}; update the tuple layout in an1017.py")
 
 # declared parameters: id → (name, ptype, access, min, max)
 PARAM_KP, PARAM_KI, PARAM_KD = 0, 1, 2
@@ -138,6 +141,7 @@ class An1017Target:
         # the Drive after its duties (mode, state, sector, ccw, required ccw, fault, telemetry)
         self._tail: tuple = (0, 0, 7, False, False, 0, (0, 0, 0))
         self._ctx: tuple | None = None  # the plain-period context (see _finish)
+        self._idle: tuple | None = None  # the stopped-motor context (see _finish)
 
     # ---- handshake and parameters ------------------------------------------------------------
     def hello(self, host: Any) -> TargetHello:
@@ -147,7 +151,7 @@ class An1017Target:
             raise ConfigError(f"an1017 hello: period_us {period_us} is not a positive multiple of {PWM_PERIOD_US}")
         self.period_us = period_us
         self._period_tcy = period_us * TCY_PER_US
-        self._ctx = None
+        self._ctx = self._idle = None
         self.mode = int(host.mode)
         self.watchdog_ms = int(host.watchdog_ms)
         return TargetHello(
@@ -228,20 +232,20 @@ class An1017Target:
         fw.ref_override_on = bool(new[PARAM_REF_OVR_ON])
         fw.ref_override = new[PARAM_REF_OVR]
         fw.stall_limit = new[PARAM_STALL_MS]
-        self._ctx = None  # the reference override is part of the fast path's context
+        self._ctx = self._idle = None  # the reference override is part of both contexts
         return ParamSetResult(0, RESULT_OK, pairs[-1][0], 0)
 
     # ---- run control -------------------------------------------------------------------------
     def start(self) -> None:
         """S2 as a command: start (ChargeBootstraps, then RunMotor) when stopped."""
         self.fw.press_start()
-        self._ctx = None
+        self._ctx = self._idle = None
 
     def stop(self) -> None:
         """StopMotor(): all six switches off, motor coasts (also aborts a bootstrap)."""
         if self.fw.running or self.fw.booting:
             self.fw.press_stop()
-        self._ctx = None
+        self._ctx = self._idle = None
 
     # ---- the per-period paths ------------------------------------------------------------------
     def _finish(self, seq: int) -> Drive:
@@ -297,13 +301,30 @@ class An1017Target:
             )
         else:
             self._ctx = None
-        return _tuple_new(Drive, (seq, a, b, c) + tail)
+        d = _tuple_new(Drive, (seq, a, b, c) + tail)
+        if (
+            not running
+            and not fw.booting
+            and not fw.reference
+            and self._period_tcy == PWM_PERIOD_TCY
+            and fw.t % PWM_PERIOD_TCY == 0
+            and not fw.s2_wait_release
+            and fw.act_key == fw.pend_key
+            and fw.ref_speed == (fw.ref_override if fw.ref_override_on else ((fw.pot_code & 0x3FF) - 512) << 6)
+        ):
+            # Stopped, registers settled, RefSpeed = the pot's: while halls, S2 and the pot stay
+            # as they are, a period only advances time and the Drive differs only in seq.
+            self._idle = (fw.hall, fw.pot_code, {seq: d}, (a, b, c) + tail)
+        else:
+            self._idle = None
+        return d
 
     def step(self, sensors: Sensors) -> Drive:
         """Lockstep: exactly one agreed period with these sensors.
 
         Plain 50 µs periods (see `_finish`) run inline here: the ADC ISR when due, one PWM ISR,
-        one cached SVM lookup, a Drive from the cached tail. Everything else goes through
+        one cached SVM lookup, a Drive from the cached tail. A stopped motor with nothing changing
+        only advances time and reuses its Drives (one per seq). Everything else goes through
         `_step_events`. All paths give the reference path's Drive exactly
         (tests/test_an1017_fastpath.py compares every Drive over randomised streams).
         """
@@ -340,6 +361,19 @@ class An1017Target:
                 fw.t = t + 1000
                 self._last_seq = seq
                 return _tuple_new(Drive, (seq,) + cache[act] + tail)
+        idle = self._idle
+        if idle is not None:
+            hall, pot, drives, body = idle
+            seq, inputs, _, _, adc = sensors
+            if (inputs & 15) == hall and (not adc or adc[0] == pot):
+                self.fw.t += PWM_PERIOD_TCY
+                self._last_seq = seq
+                d = drives.get(seq)
+                if d is None:
+                    if len(drives) >= 4096:
+                        drives.clear()
+                    d = drives[seq] = _tuple_new(Drive, (seq,) + body)
+                return d
         return self._step_events(sensors)
 
     def _step_events(self, sensors: Any) -> Drive:
