@@ -62,12 +62,13 @@ class FrameDecoder:
 
     def feed(self, data: bytes) -> list[Message]:
         """Add received bytes; return the messages completed by them, in order."""
-        if not self._buf and not self._discarding and type(data) is bytes:
-            # Lockstep: a read usually returns exactly one whole frame. One find, no splitting.
-            end = len(data) - 1
-            if 0 < end <= MAX_ENCODED_BYTES and data.find(0) == end:
+        if type(data) is bytes and not self._buf and not self._discarding:
+            # Lockstep: a read usually returns exactly one whole frame: no split, no list of chunks.
+            body = data[:-1]
+            n = len(body)
+            if 0 < n <= MAX_ENCODED_BYTES and data[-1] == 0 and 0 not in body:
                 try:
-                    msg = decode_body(data[:end], end)
+                    msg = decode_body(body, n)
                 except Exception:  # noqa: BLE001 - bad frame: the general path below counts it
                     pass
                 else:

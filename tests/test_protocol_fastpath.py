@@ -1,0 +1,188 @@
+"""Protocol fast paths: the generated Sensors/Drive encoders, the slice-free CRC check, validate=False
+and the one-frame FrameDecoder.feed path, each against bytes built here from the layout in
+docs/design.md with an independent bitwise CRC and byte-by-byte COBS.
+"""
+
+from __future__ import annotations
+
+import random
+from binascii import crc_hqx
+
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from hilbench.errors import ProtocolError
+from hilbench.protocol import Drive, FrameDecoder, LengthError, Sensors, decode_frame, encode_frame
+from hilbench.protocol.framing import CRC_OK, CRC_PRE
+
+# Values rich in 0x00 bytes, so frames with 0, 1, 2, 3 and more COBS blocks all occur.
+U16_ZEROISH = st.one_of(st.sampled_from([0, 1, 0x100, 0xFF, 0xFF00, 0xFFFF]), st.integers(0, 0xFFFF))
+I16_ZEROISH = st.one_of(st.sampled_from([0, 1, -1, 0x100, -0x100, -0x8000, 0x7FFF]), st.integers(-0x8000, 0x7FFF))
+U8_ZEROISH = st.one_of(st.just(0), st.integers(0, 0xFF))
+
+SENSORS = st.builds(Sensors, U8_ZEROISH, U8_ZEROISH, U16_ZEROISH, U16_ZEROISH,
+                    st.lists(st.integers(0, 1023) | U16_ZEROISH, max_size=8).map(tuple))
+DRIVE = st.builds(Drive, U8_ZEROISH, st.integers(0, 1023), st.integers(0, 1023), st.integers(0, 1023),
+                  st.integers(0, 3), st.integers(0, 7), st.integers(0, 7), st.booleans(), st.booleans(), U8_ZEROISH,
+                  st.lists(I16_ZEROISH, max_size=8).map(tuple))
+
+
+def ref_crc(data: bytes) -> int:
+    """Bitwise CRC-16/CCITT-FALSE from its definition."""
+    crc = 0xFFFF
+    for byte in data:
+        crc ^= byte << 8
+        for _ in range(8):
+            crc = ((crc << 1) ^ 0x1021) & 0xFFFF if crc & 0x8000 else (crc << 1) & 0xFFFF
+    return crc
+
+
+def ref_cobs(raw: bytes) -> bytes:
+    out = bytearray([0])
+    code_at = 0
+    for b in raw:
+        if b == 0:
+            out[code_at] = len(out) - code_at
+            code_at = len(out)
+            out.append(0)
+        else:
+            out.append(b)
+    out[code_at] = len(out) - code_at
+    return bytes(out)
+
+
+def ref_wire(frame: bytes) -> bytes:
+    crc = ref_crc(frame)
+    return ref_cobs(frame + bytes((crc & 0xFF, crc >> 8))) + b"\x00"
+
+
+def le16(v: int) -> bytes:
+    return (v & 0xFFFF).to_bytes(2, "little")
+
+
+def sensors_frame(m: Sensors) -> bytes:
+    """type 0x10 . seq . inputs . edge u16 . encoder u16 . adc u16 each (design.md)."""
+    return bytes([0x10, m.seq, m.inputs]) + le16(m.edge_time_100ns) + le16(m.encoder) + b"".join(map(le16, m.adc))
+
+
+def drive_frame(m: Drive) -> bytes:
+    """type 0x11 . seq . duties word (a | b<<10 | c<<20 | mode<<30) . flags . fault . telemetry i16 each."""
+    word = m.duty_a + (m.duty_b << 10) + (m.duty_c << 20) + (m.output_mode << 30)
+    flags = m.state + (m.sector << 3) + (64 if m.direction_ccw else 0) + (128 if m.required_ccw else 0)
+    return (bytes([0x11, m.seq]) + word.to_bytes(4, "little") + bytes([flags, m.fault])
+            + b"".join(map(le16, m.telemetry)))
+
+
+@settings(max_examples=1500)
+@given(SENSORS)
+def test_sensors_fast_path_bytes_and_round_trip(msg: Sensors) -> None:
+    wire = ref_wire(sensors_frame(msg))
+    assert encode_frame(msg) == wire
+    assert encode_frame(msg, validate=False) == wire
+    assert decode_frame(wire[:-1]) == msg
+    assert FrameDecoder().feed(wire) == [msg]
+
+
+@settings(max_examples=1500)
+@given(DRIVE)
+def test_drive_fast_path_bytes_and_round_trip(msg: Drive) -> None:
+    wire = ref_wire(drive_frame(msg))
+    assert encode_frame(msg) == wire
+    assert encode_frame(msg, validate=False) == wire
+    got = decode_frame(wire[:-1])
+    assert got == msg
+    assert type(got.direction_ccw) is bool and type(got.telemetry) is tuple
+
+
+def test_crc_tables_accept_exactly_the_right_crc() -> None:
+    """Every possible stored CRC (all 65 536) behind three frames: the table check says yes once, at ref_crc."""
+    rng = random.Random(2)
+    for size in (2, 13, 61):
+        frame = bytes(rng.randrange(256) for _ in range(size))
+        want = ref_crc(frame)
+        code = rng.randrange(1, 256)
+        accepted = [stored for stored in range(0x10000)
+                    if crc_hqx(bytes([code]) + frame + bytes((stored & 0xFF, stored >> 8)), CRC_PRE[code])
+                    == CRC_OK[(stored & 0xFF) ^ (stored >> 8)]]
+        assert accepted == [want]
+
+
+@pytest.mark.parametrize(
+    ("msg", "same_bits_as"),
+    [
+        # duty_a = 1024 spills into duty_b's bit 0; sector 8 spills into direction_ccw (bit 6)
+        (Drive(0, 1024, 0, 0, 0, 0, 0, False, False, 0, (1, 2, 3)),
+         Drive(0, 0, 1, 0, 0, 0, 0, False, False, 0, (1, 2, 3))),
+        (Drive(0, 0, 0, 0, 0, 0, 8, False, False, 0, ()),
+         Drive(0, 0, 0, 0, 0, 0, 0, True, False, 0, ())),
+    ],
+)
+def test_validate_false_skips_only_the_bit_field_checks(msg: Drive, same_bits_as: Drive) -> None:
+    with pytest.raises(ProtocolError):
+        encode_frame(msg)
+    # unchecked, the out-of-range value lands in its neighbour's bits: why it is for trusted code only
+    assert encode_frame(msg, validate=False) == ref_wire(drive_frame(same_bits_as))
+
+
+@pytest.mark.parametrize(
+    "msg",
+    [
+        Drive(256, 0, 0, 0, 0, 0, 0, False, False, 0, (0, 0, 0)),
+        Drive(0, 0, 0, 0, 0, 0, 0, False, False, 0, (0, 0x8000, 0)),
+        Drive(0, 0, 0, 0, 0, 0, 0, False, False, 0, (0,) * 9),
+        Sensors(0, 0, 0, 0, (0, -1, 0)),
+        Sensors(0, 0, 0, 0x10000, (0, 0, 0)),
+        Sensors(0, 0, 0, 0, (0,) * 9),
+        Sensors(0, 0, 0, 0, None),
+    ],
+)
+def test_validate_false_still_checks_plain_fields(msg) -> None:
+    for validate in (True, False):
+        with pytest.raises(ProtocolError):
+            encode_frame(msg, validate=validate)
+
+
+def _framed(raw_no_crc: bytes) -> bytes:
+    return ref_wire(raw_no_crc)
+
+
+@pytest.mark.parametrize(
+    "frame",
+    [
+        bytes([0x10, 1, 0, 1, 1, 2, 2, 5]),  # Sensors with half an adc entry
+        bytes([0x10, 1, 0, 1, 1, 2]),  # Sensors without its encoder
+        bytes([0x11, 1, 1, 1, 1, 1, 1]),  # Drive without its fault byte
+        bytes([0x11, 1, 1, 1, 1, 1, 1, 1, 9]),  # Drive with half a telemetry entry
+    ],
+)
+def test_hot_types_with_a_bad_length_raise_length_error(frame: bytes) -> None:
+    wire = _framed(frame)
+    with pytest.raises(LengthError):
+        decode_frame(wire[:-1])
+    decoder = FrameDecoder()
+    assert decoder.feed(wire) == []
+    assert decoder.counters["length_errors"] == 1 and decoder.counters["frames"] == 0
+    assert decoder.counters["garbage_bytes"] == len(wire)
+
+
+def test_one_frame_per_read_counts_like_the_general_path() -> None:
+    """good, bad CRC, good, fed one whole frame per call (the fast path), then all in one call."""
+    good = encode_frame(Sensors(1, 2, 3, 4, (5, 6, 7)))
+    raw = sensors_frame(Sensors(9, 2, 3, 4, (5, 6, 7)))
+    crc = ref_crc(raw)
+    bad = ref_cobs(raw + bytes(((crc & 0xFF) ^ 0x10, crc >> 8))) + b"\x00"
+    per_call = FrameDecoder()
+    got = [m for chunk in (good, bad, good) for m in per_call.feed(chunk)]
+    at_once = FrameDecoder()
+    assert at_once.feed(good + bad + good) == got == [Sensors(1, 2, 3, 4, (5, 6, 7))] * 2
+    assert per_call.counters == at_once.counters
+    assert per_call.counters["crc_errors"] == 1 and per_call.counters["resyncs"] == 1
+
+
+def test_fast_path_leaves_a_partial_frame_for_later() -> None:
+    wire = encode_frame(Drive(3, 1, 2, 3, 1, 2, 5, True, False, 0, (1, 2, 3)))
+    decoder = FrameDecoder()
+    assert decoder.feed(wire[:5]) == []
+    assert decoder.feed(wire[5:]) == [Drive(3, 1, 2, 3, 1, 2, 5, True, False, 0, (1, 2, 3))]
+    assert decoder.feed(bytearray(wire)) == [Drive(3, 1, 2, 3, 1, 2, 5, True, False, 0, (1, 2, 3))]
