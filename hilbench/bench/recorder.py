@@ -20,6 +20,7 @@ import json
 import os
 import struct
 import zipfile
+from array import array
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Sequence
@@ -79,7 +80,7 @@ class Recorder:
     path: Path
     metadata: dict[str, Any]
     flush_rows: int = 20_000
-    _rows: list[tuple[float, ...]] = field(default_factory=list, repr=False)
+    _buf: array = field(default_factory=lambda: array("d"), repr=False)
     _events: list[tuple[int, str]] = field(default_factory=list, repr=False)
     _file: Any = field(default=None, repr=False)
     rows_written: int = 0
@@ -87,6 +88,8 @@ class Recorder:
     #: turns a chunk of appended rows (an array) into the COLUMNS; the session appends raw values
     #: cheaply and scales them here, once per chunk
     transform: Any = None
+    #: values per appended row (the session's raw rows may differ from N_COLUMNS)
+    row_width: int = N_COLUMNS
 
     def __post_init__(self) -> None:
         self.path = Path(self.path)
@@ -108,34 +111,35 @@ class Recorder:
         except OSError as exc:
             raise RecordingError(f"recording {self.path}: cannot write ({exc.strerror})") from None
         self._fmt = ",".join(fmt for _, _, fmt in COLUMNS) + "\n"
-        self.append = self._rows.append  # the hot path: one list append per period
+        self.append = self._buf.extend  # the hot path: one row of numbers into a flat float array
 
     def _journal_path(self) -> Path:
         return self.path.with_name(self.path.name + ".journal")
 
     def event(self, text: str) -> None:
         """Note an event at the next row to be appended (after the rows appended so far)."""
-        self._events.append((len(self._rows), text.replace("\n", " ")))
+        self._events.append((len(self._buf) // self.row_width, text.replace("\n", " ")))
 
     def mark_last(self, marker: int) -> None:
-        """Set the marker of the newest pending row (the last good period before a fault)."""
-        if self._rows:
-            self._rows[-1] = self._rows[-1][:-1] + (float(marker),)
+        """Set the marker (the last value) of the newest pending row: the last good period."""
+        if self._buf:
+            self._buf[-1] = float(marker)
 
     def maybe_flush(self) -> None:
         """Write out the pending chunk if it is full; cheap to call every period."""
-        if len(self._rows) >= self.flush_rows:
+        if len(self._buf) >= self.flush_rows * self.row_width:
             self.flush()
 
     def flush(self) -> None:
         """Write every pending row and event and push them to the OS."""
-        rows, events = self._rows, self._events
-        if not rows and not events:
+        events = self._events
+        n_rows = len(self._buf) // self.row_width
+        if not n_rows and not events:
             return
         try:
-            table = self._table(rows) if rows else np.zeros((0, N_COLUMNS))
+            table = self._table() if n_rows else np.zeros((0, N_COLUMNS))
             if self.is_npz:
-                if rows:
+                if n_rows:
                     self._file.write(np.ascontiguousarray(table, dtype="<f8").tobytes())
                 for _, text in events:  # NPZ keeps events in the metadata at close
                     self.metadata.setdefault("events", []).append(text)
@@ -144,12 +148,12 @@ class Recorder:
             self._file.flush()
         except OSError as exc:
             raise RecordingError(f"recording {self.path}: write failed ({exc.strerror})") from None
-        self.rows_written += len(rows)
-        rows.clear()
+        self.rows_written += n_rows
+        del self._buf[:]
         events.clear()
 
-    def _table(self, rows: list[tuple[float, ...]]) -> np.ndarray:
-        table = np.asarray(rows, dtype=float)
+    def _table(self) -> np.ndarray:
+        table = np.frombuffer(self._buf, dtype=float).reshape(-1, self.row_width).copy()
         if self.transform is not None:
             table = self.transform(table)
         if table.ndim != 2 or table.shape[1] != N_COLUMNS:
@@ -189,13 +193,14 @@ class Recorder:
 
 
 def _write_npz_deterministic(path: Path, arrays: dict[str, np.ndarray]) -> None:
-    """np.savez_compressed stamps the wall clock into the zip; fixed stamps keep runs identical."""
-    with zipfile.ZipFile(path, "w", compression=zipfile.ZIP_DEFLATED) as archive:
+    """np.savez stamps the wall clock into the zip; fixed stamps keep runs identical.
+
+    Stored, not deflated: compressing costs more than the whole run at 20 kHz (gzip it if needed)."""
+    with zipfile.ZipFile(path, "w", compression=zipfile.ZIP_STORED) as archive:
         for name, array in arrays.items():
             buffer = io.BytesIO()
             np.lib.format.write_array(buffer, np.asanyarray(array), allow_pickle=False)
             info = zipfile.ZipInfo(name + ".npy", date_time=(1980, 1, 1, 0, 0, 0))
-            info.compress_type = zipfile.ZIP_DEFLATED
             archive.writestr(info, buffer.getvalue())
 
 
@@ -307,22 +312,23 @@ class MemoryRecorder:
     def __init__(self, metadata: dict[str, Any] | None = None) -> None:
         self.path = Path("<memory>")
         self.metadata = dict(metadata or {})
-        self.rows: list[tuple[float, ...]] = []
+        self._buf = array("d")
         self.events: list[tuple[int, str]] = []
-        self.append = self.rows.append
+        self.append = self._buf.extend
         self.closed = False
         self.transform: Any = None
+        self.row_width = N_COLUMNS
 
     @property
     def rows_written(self) -> int:
-        return len(self.rows)
+        return len(self._buf) // self.row_width
 
     def event(self, text: str) -> None:
-        self.events.append((len(self.rows), text))
+        self.events.append((self.rows_written, text))
 
     def mark_last(self, marker: int) -> None:
-        if self.rows:
-            self.rows[-1] = self.rows[-1][:-1] + (float(marker),)
+        if self._buf:
+            self._buf[-1] = float(marker)
 
     def maybe_flush(self) -> None:
         """Nothing to flush: rows stay in memory."""
@@ -337,7 +343,7 @@ class MemoryRecorder:
 
     def columns(self) -> dict[str, np.ndarray]:
         """Every column as an array."""
-        table = np.asarray(self.rows, dtype=float)
+        table = np.frombuffer(self._buf, dtype=float).reshape(-1, self.row_width)
         if self.transform is not None and len(table):
             table = self.transform(table)
-        return _columns(table.reshape(-1, N_COLUMNS))
+        return _columns(np.asarray(table).reshape(-1, N_COLUMNS))

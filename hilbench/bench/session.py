@@ -10,6 +10,7 @@ model are all a ``Target``; the session cannot tell them apart.
 from __future__ import annotations
 
 import dataclasses
+import gc
 import math
 import time
 from collections import deque
@@ -47,6 +48,7 @@ PARAM_BOOL = 2
 RESULT_NAMES = {0: "ok", 1: "unknown parameter", 2: "read-only", 3: "out of range", 4: "constraint", 5: "bad request"}
 
 RPM_PER_RAD_S = 60.0 / (2.0 * math.pi)
+RAW_ROW_WIDTH = 22  # the values the hot loop appends per period (see _columns_from_raw)
 
 #: the plant's step is accurate to 1e-6 at 50 us; longer periods are integrated in substeps
 MAX_PLANT_STEP_US = 50
@@ -515,9 +517,12 @@ class Session:
         self._period_s = period_s
         if recorder is not None:
             recorder.transform = self._columns_from_raw
+            recorder.row_width = RAW_ROW_WIDTH
         new_sensors = tuple.__new__
         next_event_s = self.player.next_t_s
         sensor_faults = False
+        gc_was_enabled = gc.isenabled()
+        gc.disable()  # no collector pauses inside periods (recorded rows are plain numbers)
         if pacer is not None:
             pacer.start()
         try:
@@ -618,7 +623,7 @@ class Session:
                     rec_append((
                         k, hall, sector, plant.theta_e, plant.w_m, meas_raw, ref_raw, ctrl,
                         plant.i_a, plant.i_b, plant.i_c, plant.i_bus, duty_a, duty_b, duty_c, mode, state,
-                        fault, plant.load_torque_nm, rtt * 1e6, late * 1e6, self._marker,
+                        fault, plant.load_nm, rtt * 1e6, late * 1e6, self._marker,
                     ))
                     self._marker = MARKER_NONE
                 if k % history_every == 0:
@@ -649,6 +654,9 @@ class Session:
             self._deenergise()
             self._finish(summary, wall_start, rtts, lateness, overruns, f"fault at period {k}: {exc}", fault=True)
             raise
+        finally:
+            if gc_was_enabled:
+                gc.enable()
         self._stop_target()
         self._finish(summary, wall_start, rtts, lateness, overruns, f"end: {summary.end_reason} at period {k}")
         return summary

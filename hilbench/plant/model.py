@@ -249,6 +249,7 @@ class Plant:
         """Cache the load terms for the hot path; remember when a step load changes next."""
         tl, kl, kq, locked = self._load_terms()
         self._tl = tl
+        self.load_nm = tl  # the constant part of the load now, as a plain attribute for recorders
         self._kv = self._b + kl
         self._kq_any = kq != 0.0
         self._locked = locked
