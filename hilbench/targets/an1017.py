@@ -72,6 +72,8 @@ _tuple_new = tuple.__new__  # Drive is a NamedTuple: this skips its Python-level
 if Drive._fields[1:4] != ("duty_a", "duty_b", "duty_c") or len(Drive._fields) != 11:
     # _finish/step build Drives from positional tuples: a changed message must not go unnoticed
     raise ConfigError(f"an1017: Drive fields changed to {Drive._fields}; update the tuple layout in an1017.py")
+if Sensors._fields != ("seq", "inputs", "edge_time_100ns", "encoder", "adc"):
+    raise ConfigError(f"an1017: Sensors fields changed to {Sensors._fields}; update the unpacking in step()")
 
 # declared parameters: id → (name, ptype, access, min, max)
 PARAM_KP, PARAM_KI, PARAM_KD = 0, 1, 2
