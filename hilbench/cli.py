@@ -13,7 +13,7 @@ from typing import Any, Callable
 import click
 
 from hilbench import __version__
-from hilbench.errors import HilbenchError
+from hilbench.errors import ConfigError, HilbenchError
 
 
 def _friendly(func: Callable[..., Any]) -> Callable[..., Any]:
@@ -333,8 +333,8 @@ def ctl(words: tuple[str, ...], socket_path: str | None, timeout_s: float) -> No
               help="A gain set (Q15 fractions); repeat to compare several. Default: the firmware's own.")
 @click.option("--target", "target_spec", default="inprocess:an1017", metavar="SPEC",
               help="inprocess:an1017 (fast), emulator:an1017 (its own process on a pty) or a board's serial port.")
-@click.option("--settle", "settle_s", type=float, default=1.0, help="Seconds at --from before the step.")
-@click.option("--after", "after_s", type=float, default=1.0, help="Seconds recorded after the step.")
+@click.option("--settle", "settle_s", type=float, default=0.5, help="Seconds at --from before the step.")
+@click.option("--after", "after_s", type=float, default=0.5, help="Seconds recorded after the step (0.5 + 0.5 s: the same test as `hilbench sweep`).")
 @click.option("--set", "overrides", multiple=True, metavar="TABLE.KEY=VALUE", help="Override a config value.")
 @click.option("--plot", "plot_file", type=click.Path(dir_okay=False), default=None, metavar="FILE.png",
               help="One overlay plot of every response (needs the plot extra).")
@@ -390,9 +390,17 @@ def step(config: str | None, from_rpm: float, to_rpm: float, gains: tuple[str, .
     if as_json:
         click.echo(json_module.dumps(rows, indent=2, default=str))
         return
-    Console().print(step_table([(r.label, r.metrics) for r in results], f"speed step {from_rpm:g} → {to_rpm:g} rpm ({target_spec})"))
+    _wide_console().print(step_table([(r.label, r.metrics) for r in results], f"speed step {from_rpm:g} → {to_rpm:g} rpm ({target_spec})"))
     if plot_file:
         Console().print(f"plot: {plot_file}")
+
+
+def _wide_console():  # type: ignore[no-untyped-def]
+    """A console for tables: the terminal's width, or 120 columns when piped (not rich's 80)."""
+    from rich.console import Console
+
+    console = Console()
+    return console if console.is_terminal else Console(width=120)
 
 
 def step_table(rows, title: str, sort_by: str | None = None):  # type: ignore[no-untyped-def]
@@ -417,6 +425,85 @@ def step_table(rows, title: str, sort_by: str | None = None):  # type: ignore[no
         cells = ["—" if row[key] is None else format(row[key] * scale, fmt) for key, _, scale, fmt in columns]
         table.add_row(*([str(row["rank"])] if sort_by else []), row["label"], *cells)
     return table
+
+
+@cli.command(context_settings={"show_default": True})
+@click.argument("config", required=False, type=click.Path(dir_okay=False))
+@click.option("--kp", "kp_spec", default="0.05:0.85:10", metavar="A:B:N", help="Kp grid: N values from A to B (or a single value).")
+@click.option("--ki", "ki_spec", default="0.005:0.12:10", metavar="A:B:N", help="Ki grid.")
+@click.option("--kd", "kd_spec", default="0", metavar="A:B:N", help="Kd grid.")
+@click.option("--metric", type=click.Choice(["itae", "iae", "settling_time_s", "rise_time_s", "overshoot_pct", "ss_error"]),
+              default="itae", help="What ranks the gain sets (smaller is better).")
+@click.option("--from", "from_rpm", type=float, default=1000.0, help="Speed before the step, rpm.")
+@click.option("--to", "to_rpm", type=float, default=2000.0, help="Speed after the step, rpm.")
+@click.option("--duration", "duration_s", type=float, default=1.0, help="Seconds per step test.")
+@click.option("--step-at", "step_at_s", type=float, default=0.5, help="When the step comes, s.")
+@click.option("--csv", "csv_file", type=click.Path(dir_okay=False), default=None, metavar="FILE", help="Every grid point as CSV.")
+@click.option("--save", "save_file", type=click.Path(dir_okay=False), default=None, metavar="FILE",
+              help="The best gains as a [target] fragment (load it with `hilbench run --gains-file FILE`).")
+@click.option("--top", type=click.IntRange(1, 1000), default=10, help="Rows of the ranked table.")
+@click.option("--set", "overrides", multiple=True, metavar="TABLE.KEY=VALUE", help="Override a config value.")
+@click.option("--json", "as_json", is_flag=True, help="Print the ranked results as JSON.")
+@_friendly
+def sweep(config: str | None, kp_spec: str, ki_spec: str, kd_spec: str, metric: str, from_rpm: float,
+          to_rpm: float, duration_s: float, step_at_s: float, csv_file: str | None, save_file: str | None,
+          top: int, overrides: tuple[str, ...], as_json: bool) -> None:
+    """Find gains offline: a grid of speed-step tests on the AN1017 emulator (batched), ranked.
+
+    Gain sets that break the AN1017 constraints (Kp+Ki+Kd < 0.9999, -Kp-2Kd > -1, Kd < 0.9999) are
+    skipped and counted, not simulated. Every point can go to a CSV; the best to a config fragment.
+
+    \b
+    Examples:
+      hilbench sweep
+      hilbench sweep --kp 0.1:0.9:9 --ki 0.01:0.2:8 --metric settling_time_s --save best.toml
+    """
+    import json as json_module
+    import time
+
+    from rich.console import Console
+    from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn
+
+    from hilbench.bench.run import RunRequest, check_overrides, load_run_config
+    from hilbench.bench.sweep import best_fragment, parse_grid_spec, sweep_grid, write_sweep_csv
+
+    kp = parse_grid_spec(kp_spec, "--kp")
+    ki = parse_grid_spec(ki_spec, "--ki")
+    kd = parse_grid_spec(kd_spec, "--kd")
+    cfg = load_run_config(RunRequest(config, check_overrides(overrides)))
+    console = Console(stderr=True)
+    started = time.perf_counter()
+    with Progress(TextColumn("[bold]sweep"), BarColumn(), TextColumn("{task.completed}/{task.total} gain sets"),
+                  TimeElapsedColumn(), console=console, transient=True) as progress:
+        task = progress.add_task("sweep", total=None)
+        result = sweep_grid(cfg, kp, ki, kd, metric, from_rpm=from_rpm, to_rpm=to_rpm, duration_s=duration_s,
+                            step_at_s=step_at_s, progress=lambda done, total: progress.update(task, completed=done, total=total))
+    wall_s = time.perf_counter() - started
+    if csv_file:
+        write_sweep_csv(csv_file, result)
+    if save_file:
+        try:
+            with open(save_file, "w", encoding="utf-8") as handle:
+                handle.write(best_fragment(result))
+        except OSError as exc:
+            raise ConfigError(f"sweep --save {save_file}: {exc.strerror}") from None
+    ranked = result.ranked[:top]
+    if as_json:
+        click.echo(json_module.dumps([
+            {"rank": p.rank, "kp": p.gains[0], "ki": p.gains[1], "kd": p.gains[2], **p.result.metrics.as_dict()}
+            for p in ranked if p.result is not None
+        ], indent=2, default=str))
+        return
+    out = _wide_console()
+    rows = [(f"{p.gains[0]:.4g}/{p.gains[1]:.4g}/{p.gains[2]:.4g}", p.result.metrics) for p in ranked if p.result is not None]
+    out.print(step_table(rows, f"sweep: best {len(rows)} of {len(result.points)} by {result.metric} "
+                               f"(step {from_rpm:g} → {to_rpm:g} rpm)", sort_by=result.metric))
+    out.print(f"{len(result.points) - result.skipped} gain sets simulated, {result.skipped} skipped (AN1017 constraints); "
+              f"{result.sim_s:.0f} simulated s in {wall_s:.1f} s wall ({result.sim_s / wall_s:.1f} plant-s/s)")
+    if csv_file:
+        out.print(f"every point: {csv_file}")
+    if save_file:
+        out.print(f"best gains: {save_file} (hilbench run --gains-file {save_file})")
 
 
 def main() -> None:

@@ -50,12 +50,9 @@ class StepTest:
                 Event(at_s=self.settle_s, press="s2"),
                 Event(at_s=self.duration_s, end=True),
             )
-        return (
-            Event(at_s=0.0, ref_rpm=self.from_rpm),
-            Event(at_s=0.01, press="s2"),
-            Event(at_s=self.settle_s, ref_rpm=self.to_rpm),
-            Event(at_s=self.duration_s, end=True),
-        )
+        from hilbench.bench.sweep import step_scenario  # one step test for `step` and `sweep`
+
+        return step_scenario(self.from_rpm, self.to_rpm, self.settle_s, self.duration_s)
 
     def quantised_rpm(self, profile: TargetProfile, rpm: float) -> float:
         """The reference the firmware gets for ``rpm`` through the pot."""
@@ -77,19 +74,26 @@ class StepResult:
     ref_rpm: float = 0.0
 
 
-def analyse(columns: dict[str, np.ndarray], test: StepTest, profile: TargetProfile, label: str, gains: dict[str, float]) -> StepResult:
-    """Metrics of a recorded step test."""
-    t = columns["t_s"]
+def analyse(columns: dict[str, np.ndarray], test: StepTest, profile: TargetProfile, label: str,
+            gains: dict[str, float], period_s: float) -> StepResult:
+    """Metrics of a recorded step test.
+
+    A row's plant values are those at the end of its period, so they are placed at t_s + period;
+    the step happens at the start of the first period whose t_s reaches ``settle_s``.
+    """
+    t_start = columns["t_s"]
+    t = t_start + period_s
     speed = columns["speed_rpm"]
-    before = (t >= test.settle_s - 0.05) & (t < test.settle_s)
-    y0 = float(np.mean(speed[before])) if before.any() else float(speed[0])
-    if test.from_rpm == 0:
-        y0 = 0.0
+    y0 = test.quantised_rpm(profile, test.from_rpm)  # the firmware's references, as `sweep` does
     y_ref = test.quantised_rpm(profile, test.to_rpm)
-    after = t >= test.settle_s
-    currents = np.max(np.abs(np.stack([columns["ia_a"], columns["ib_a"], columns["ic_a"]])), axis=0)
-    metrics = step_metrics(t[after], speed[after], y0=y0, y_final_ref=y_ref, current_a=currents[after], t_step_s=test.settle_s)
-    return StepResult(label, gains, metrics, t[after] - test.settle_s, speed[after], y_ref)
+    stepped = np.flatnonzero(t_start >= test.settle_s)
+    t_step = float(t_start[stepped[0]]) if stepped.size else test.settle_s
+    i_alpha = columns["ia_a"]
+    i_beta = (columns["ia_a"] + 2.0 * columns["ib_a"]) / np.sqrt(3.0)
+    currents = np.hypot(i_alpha, i_beta)  # the phase-current amplitude |i_dq|
+    metrics = step_metrics(t, speed, y0=y0, y_final_ref=y_ref, current_a=currents, t_step_s=t_step)
+    after = t >= t_step
+    return StepResult(label, gains, metrics, t[after] - t_step, speed[after], y_ref)
 
 
 def run_step(
@@ -106,8 +110,8 @@ def run_step(
     if gains:
         session.set_params(gains, 0.0, guard=False)
     session.run()
-    name = label or ("/".join(f"{v:g}" for v in gains.values()) or "firmware defaults")
-    return analyse(recorder.columns(), test, session.profile, name, gains)
+    name = label or ("/".join(f"{v:.4g}" for v in gains.values()) or "firmware defaults")
+    return analyse(recorder.columns(), test, session.profile, name, gains, options.period_us * 1e-6)
 
 
 def parse_gain_sets(words: Sequence[str], names: Sequence[str] = ("kp", "ki", "kd")) -> list[dict[str, float]]:

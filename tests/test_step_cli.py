@@ -1,0 +1,81 @@
+"""`hilbench step` and `hilbench sweep` run the same step test and agree on its figures."""
+
+from __future__ import annotations
+
+import csv
+import json
+from pathlib import Path
+
+import pytest
+
+from conftest import run_cli
+from hilbench.bench.run import RunRequest, load_run_config, run_step_tests
+from hilbench.bench.steptest import StepTest
+from hilbench.bench.sweep import run_step_batch
+
+
+def test_scalar_step_and_batch_sweep_agree() -> None:
+    cfg = load_run_config(RunRequest(None, target="inprocess:an1017"))
+    gains = [(0.1, 0.01, 0.0), (0.3, 0.05, 0.0)]
+    scalar = run_step_tests(cfg, StepTest(1000.0, 2000.0, 0.5, 0.5), [dict(zip(("kp", "ki", "kd"), g)) for g in gains])
+    batch = run_step_batch(cfg, gains, 1000.0, 2000.0, 1.0, 0.5, record_every=1)
+    for s, b in zip(scalar, batch):
+        assert s.metrics.itae == pytest.approx(b.metrics.itae, rel=1e-3)
+        assert s.metrics.iae == pytest.approx(b.metrics.iae, rel=1e-3)
+        assert s.metrics.overshoot_pct == pytest.approx(b.metrics.overshoot_pct, abs=0.05)
+        assert s.metrics.rise_time_s == pytest.approx(b.metrics.rise_time_s, abs=1e-4)
+        assert s.metrics.peak_current_a == pytest.approx(b.metrics.peak_current_a, rel=1e-3)
+
+
+def test_step_cli_compares_gain_sets(tmp_path: Path) -> None:
+    out = tmp_path / "steps.csv"
+    plot = tmp_path / "steps.png"
+    result = run_cli("step", "--gains", "0.1,0.01,0", "--gains", "0.3,0.05,0", "--csv", str(out), "--plot", str(plot), timeout=300)
+    assert result.returncode == 0, result.stderr
+    assert "0.1/0.01/0" in result.stdout and "0.3/0.05/0" in result.stdout
+    rows = list(csv.DictReader(out.open()))
+    assert len(rows) == 2
+    assert float(rows[1]["itae"]) < float(rows[0]["itae"])  # the livelier gains settle faster
+    assert plot.stat().st_size > 10_000
+
+
+@pytest.mark.parametrize(
+    ("args", "needle"),
+    [
+        (("step", "--from", "1000", "--to", "1000"), "a step needs two speeds"),
+        (("step", "--gains", "0.1,x"), "not numbers"),
+        (("step", "--gains", "0.7,0.5,0"), "Kp + Ki + Kd < 0.9999"),
+        (("sweep", "--kp", "0.1:0.2"), "--kp"),
+    ],
+)
+def test_step_and_sweep_bad_input(args: tuple[str, ...], needle: str) -> None:
+    result = run_cli(*args, timeout=120)
+    assert result.returncode != 0
+    assert "Traceback" not in result.stderr
+    assert needle in result.stderr, result.stderr
+    assert len(result.stderr.strip().splitlines()) == 1
+
+
+@pytest.mark.slow
+def test_sweep_cli_ranks_skips_and_saves(tmp_path: Path) -> None:
+    save = tmp_path / "best.toml"
+    table = tmp_path / "sweep.csv"
+    result = run_cli("sweep", "--kp", "0.1:0.9:3", "--ki", "0.01:0.3:3", "--csv", str(table), "--save", str(save),
+                     "--json", timeout=300)
+    assert result.returncode == 0, result.stderr
+    ranked = json.loads(result.stdout)
+    itae = [r["itae"] for r in ranked]
+    assert itae == sorted(itae)
+    rows = list(csv.DictReader(table.open()))
+    assert len(rows) == 9
+    skipped = [r for r in rows if r["status"] == "skipped"]
+    expected_skips = {(kp, ki) for kp in (0.1, 0.5, 0.9) for ki in (0.01, 0.155, 0.3) if kp + ki >= 0.9999}
+    assert {(float(r["kp"]), float(r["ki"])) for r in skipped} == expected_skips  # Kp + Ki + Kd < 0.9999
+    assert len(ranked) == 9 - len(expected_skips)
+    # the saved fragment starts the next run with those gains
+    run = run_cli("run", "--gains-file", str(save), "--target", "inprocess:an1017", "--duration", "0.05",
+                  "--json", "--no-control", timeout=120)
+    assert run.returncode == 0, run.stderr
+    params = json.loads(run.stdout)["params"]
+    assert params["kp"] == pytest.approx(ranked[0]["kp"], abs=1e-4)
+    assert params["ki"] == pytest.approx(ranked[0]["ki"], abs=1e-4)
