@@ -124,7 +124,12 @@ class DutyCache(dict):
 
 
 class An1017Target:
-    """AN1017 firmware as a Target: lockstep `step`, real-time `advance`, declared parameters."""
+    """AN1017 firmware as a Target: lockstep `step`, real-time `advance`, declared parameters.
+
+    `fw` is up to date after every call and may be read freely. Change it only through these
+    methods: `step` keeps a per-period context (see `_finish`) that direct writes to `fw`
+    between steps would bypass.
+    """
 
     firmware_name = FIRMWARE_NAME
 
