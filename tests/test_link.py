@@ -119,24 +119,26 @@ def test_bad_specs_raise_link_error(spec: str) -> None:
         open_link(spec)
 
 
-def test_reads_are_bulk(pty_pair) -> None:
+def test_reads_are_bulk(pty_pair, monkeypatch) -> None:
     """Three frames written at once arrive with one read: all bytes are in after the first recv."""
     host, far = pty_pair
+    far_fd = far.fileno()
     reads: list[int] = []
-    inner = far.transport.read
+    real_read = os.read
 
-    def counting_read(timeout_s):
-        data = inner(timeout_s)
-        reads.append(len(data))
+    def counting_read(fd: int, n: int) -> bytes:
+        data = real_read(fd, n)
+        if fd == far_fd:
+            reads.append(len(data))
         return data
 
-    far._read = counting_read  # the link's bound read
+    monkeypatch.setattr(os, "read", counting_read)
     wire = b"".join(encode_frame(_sensors(k)) for k in range(3))
     host.send_bytes(wire, frames=3)
     assert far.recv() == _sensors(0)
     assert far.stats.bytes_rx == len(wire)
     assert far.recv() == _sensors(1) and far.recv() == _sensors(2)
-    assert len([n for n in reads if n]) == 1
+    assert reads == [len(wire)]
 
 
 def test_timeout_is_counted_and_names_the_link(pty_pair) -> None:
@@ -300,3 +302,40 @@ def test_link_fd_is_nonblocking(pty_pair) -> None:
     fd = host.fileno()
     assert fd is not None
     assert fcntl.fcntl(fd, fcntl.F_GETFL) & os.O_NONBLOCK
+
+
+def test_one_frame_per_read_counts_like_the_decoder(pty_pair) -> None:
+    """Frames that arrive one per read (the fast path) are counted, and a bad frame arriving alone
+    still counts as an error, with the resync counted at the next good frame."""
+    host, far = pty_pair
+    bad = bytearray(encode_frame(_sensors(2)))
+    bad[4] ^= 0x01
+    host.send(_sensors(1))
+    assert far.recv() == _sensors(1)
+    host.send_bytes(bytes(bad), frames=1)
+    with pytest.raises(LinkTimeout):
+        far.recv(timeout_s=0.2)  # the bad frame is not a message
+    host.send(_sensors(3))
+    assert far.recv() == _sensors(3)
+    host.send(_sensors(4))
+    assert far.recv() == _sensors(4)
+    stats = far.stats
+    assert stats.frames_rx == 3
+    assert stats.frame_errors == 1
+    assert stats.resyncs == 1
+    assert stats.seq_gaps == 1  # 1 -> 3
+    assert stats.bytes_rx == 3 * len(encode_frame(_sensors(1))) + len(bad)
+
+
+def test_frame_split_across_reads_is_reassembled(pty_pair) -> None:
+    host, far = pty_pair
+    wire = encode_frame(_sensors(9))
+    host.send_bytes(wire[:5], frames=0)
+    assert far.recv_or_none(0.1) is None  # half a frame is not a message
+    host.send_bytes(wire[5:] + encode_frame(_sensors(10))[:3], frames=1)
+    assert far.recv() == _sensors(9)
+    host.send_bytes(encode_frame(_sensors(10))[3:], frames=1)
+    assert far.recv() == _sensors(10)
+    host.send(_sensors(11))
+    assert far.recv() == _sensors(11)
+    assert far.stats.frames_rx == 3 and far.stats.frame_errors == 0 and far.stats.seq_gaps == 0

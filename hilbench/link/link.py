@@ -10,16 +10,16 @@ from __future__ import annotations
 
 import os
 import stat
-import time
+from time import monotonic
 from collections import deque
 from dataclasses import asdict, dataclass
 from typing import Any, Callable, Iterable
 from urllib.parse import parse_qs, urlsplit
 
-from hilbench.errors import LinkError, LinkTimeout
+from hilbench.errors import DecodeError, LinkError, LinkTimeout
 from hilbench.link.pty import open_pty_pair
-from hilbench.link.transport import FdTransport, PtyMasterTransport, SerialUrlTransport, Transport
-from hilbench.protocol import Drive, FrameDecoder, Sensors, encode_frame
+from hilbench.link.transport import _READ_CHUNK, FdTransport, PtyMasterTransport, SerialUrlTransport, Transport
+from hilbench.protocol import Drive, FrameDecoder, Sensors, decode_frame, encode_frame
 
 DEFAULT_BAUD = 250_000
 DEFAULT_TIMEOUT_S = 1.0
@@ -63,7 +63,14 @@ def _decoder_counter(decoder: Any, key: str) -> int:
 
 
 class Link:
-    """Messages over a transport: send(msg), recv(timeout_s) -> msg, stats, close()."""
+    """Messages over a transport: send(msg), recv(timeout_s) -> msg, stats, close().
+
+    On a file descriptor (pty, tty, socket) send and recv talk to the fd directly: one os.write
+    per frame; poll (the timeout) then one os.read of all that is waiting; and when those bytes
+    are exactly one frame on a clean stream, decode_frame on it without the streaming decoder.
+    Anything else (partial frames, several frames, bad bytes, an rx_filter) goes through the
+    FrameDecoder, which counts every fault.
+    """
 
     def __init__(self, transport: Transport, name: str, *, timeout_s: float = DEFAULT_TIMEOUT_S,
                  peer_path: str | None = None,
@@ -78,20 +85,60 @@ class Link:
         self._feed = self._decoder.feed
         self._pending: deque[Any] = deque()
         self._sequenced = frozenset(sequenced_types)
-        self._last_seq: dict[type, int] = {}
-        self.rx_filter: Callable[[bytes], bytes] | None = None
+        self._next_seq: dict[type, int] = {}  # the seq each sequenced type should carry next
+        self._rx_filter: Callable[[bytes], bytes] | None = None
         self.frames_tx = 0
         self.bytes_tx = 0
         self.bytes_rx = 0
         self.timeouts = 0
         self.seq_gaps = 0
+        self.fast_frames = 0  # good frames decoded on the fast path (the decoder never saw them)
+        self._clean = True  # the decoder holds no partial frame and owes no resync count
         self._closed = False
+        # direct fd access for FdTransport; -1 = go through the transport
+        fd = transport.fileno() if isinstance(transport, FdTransport) else None
+        self._fd_w = -1 if fd is None else fd
+        self._fd_r = -1
+        self._poll_fd: Callable[[float | None], list[Any]] | None = None
+        if fd is not None:
+            self._poll_fd = transport._poll.poll  # type: ignore[attr-defined]
+            self._update_fast_read()
+
+    def _update_fast_read(self) -> None:
+        """Read the fd directly unless an rx_filter is set or a pty master still holds its slave."""
+        transport = self.transport
+        if (self._fd_w < 0 or self._rx_filter is not None or self._closed
+                or getattr(transport, "slave_fd", None) is not None):
+            self._fd_r = -1
+        else:
+            self._fd_r = self._fd_w
+
+    @property
+    def rx_filter(self) -> Callable[[bytes], bytes] | None:
+        """A function applied to received bytes before decoding (the fault injector's)."""
+        return self._rx_filter
+
+    @rx_filter.setter
+    def rx_filter(self, value: Callable[[bytes], bytes] | None) -> None:
+        self._rx_filter = value
+        self._update_fast_read()
 
     # -- sending -------------------------------------------------------------------------
     def send(self, msg: Any) -> None:
         """Encode one message and write all of its bytes (LinkTimeout if the far end stalls)."""
         data = encode_frame(msg)
-        self._write(data, self.timeout_s)
+        fd = self._fd_w
+        if fd >= 0:
+            try:
+                n = os.write(fd, data)
+            except BlockingIOError:
+                n = 0
+            except OSError:
+                n = 0  # the transport names the error (hang-up, closed) on the retry below
+            if n != len(data):
+                self._write(data[n:], self.timeout_s)
+        else:
+            self._write(data, self.timeout_s)
         self.frames_tx += 1
         self.bytes_tx += len(data)
 
@@ -104,49 +151,121 @@ class Link:
     # -- receiving -----------------------------------------------------------------------
     def recv(self, timeout_s: float | None = None) -> Any:
         """The next good frame's message; LinkTimeout after timeout_s, LinkClosed on hang-up."""
-        pending = self._pending
-        if pending:
-            return pending.popleft()
+        if self._pending:
+            return self._pending.popleft()
         timeout = self.timeout_s if timeout_s is None else timeout_s
-        deadline = time.monotonic() + timeout
-        remaining = timeout
-        while True:
-            data = self._read(remaining)
-            if data:
-                frames = self._take(data)
-                if frames:
-                    if len(frames) > 1:
-                        pending.extend(frames[1:])
-                    return frames[0]
-            remaining = deadline - time.monotonic()
-            if remaining <= 0:
-                self.timeouts += 1
-                raise LinkTimeout(
-                    f"link {self.name}: no frame for {timeout * 1000:.0f} ms "
-                    f"(after {self.stats.frames_rx} frames received)"
-                )
+        fd = self._fd_r
+        if fd >= 0:
+            # the hot path: wait, read what is waiting, and it is usually exactly one frame
+            t0 = monotonic()
+            if self._poll_fd(timeout * 1000.0 if timeout > 0 else 0):
+                try:
+                    data = os.read(fd, _READ_CHUNK)
+                except BlockingIOError:
+                    data = None
+                except OSError:
+                    data = None  # the transport's read below raises the named error
+                    fd = -1
+                if data and self._clean and data.find(0) == len(data) - 1:
+                    try:
+                        msg = decode_frame(data[:-1])
+                    except DecodeError:
+                        pass
+                    else:
+                        self.bytes_rx += len(data)
+                        self.fast_frames += 1
+                        kind = type(msg)
+                        if kind in self._sequenced:
+                            expect = self._next_seq.get(kind)
+                            seq = msg.seq
+                            if expect is not None and seq != expect:
+                                self.seq_gaps += 1
+                            self._next_seq[kind] = (seq + 1) & 0xFF
+                        return msg
+                if data:
+                    msg = self._take_first(data)
+                    if msg is not None:
+                        return msg
+                elif data is not None and fd >= 0:
+                    raise self.transport._hung_up("end of file")  # type: ignore[attr-defined]
+            remaining = t0 + timeout - monotonic()
+            msg = self._wait(remaining, timeout) if remaining > 0 else None
+        else:
+            msg = self._wait(timeout, timeout)
+        if msg is None:
+            self.timeouts += 1
+            raise LinkTimeout(
+                f"link {self.name}: no frame for {timeout * 1000:.0f} ms "
+                f"(after {self.stats.frames_rx} frames received)"
+            )
+        return msg
 
     def recv_or_none(self, timeout_s: float) -> Any | None:
         """Like recv, but None when nothing arrives in timeout_s (not counted as a timeout).
 
         For servers that wake up periodically to check a stop flag or a watchdog.
         """
-        pending = self._pending
-        if pending:
-            return pending.popleft()
-        deadline = time.monotonic() + timeout_s
-        remaining = timeout_s
+        if self._pending:
+            return self._pending.popleft()
+        fd = self._fd_r
+        if fd >= 0:
+            t0 = monotonic()
+            if self._poll_fd(timeout_s * 1000.0 if timeout_s > 0 else 0):
+                try:
+                    data = os.read(fd, _READ_CHUNK)
+                except BlockingIOError:
+                    data = None
+                except OSError:
+                    data = None
+                    fd = -1
+                if data and self._clean and data.find(0) == len(data) - 1:
+                    try:
+                        msg = decode_frame(data[:-1])
+                    except DecodeError:
+                        pass
+                    else:
+                        self.bytes_rx += len(data)
+                        self.fast_frames += 1
+                        kind = type(msg)
+                        if kind in self._sequenced:
+                            expect = self._next_seq.get(kind)
+                            seq = msg.seq
+                            if expect is not None and seq != expect:
+                                self.seq_gaps += 1
+                            self._next_seq[kind] = (seq + 1) & 0xFF
+                        return msg
+                if data:
+                    msg = self._take_first(data)
+                    if msg is not None:
+                        return msg
+                elif data is not None and fd >= 0:
+                    raise self.transport._hung_up("end of file")  # type: ignore[attr-defined]
+            remaining = t0 + timeout_s - monotonic()
+            return self._wait(remaining, timeout_s) if remaining > 0 else None
+        return self._wait(timeout_s, timeout_s)
+
+    def _wait(self, remaining: float, timeout: float) -> Any | None:
+        """The general receive loop through the transport: the first frame, or None at the deadline."""
+        deadline = monotonic() + remaining
+        read = self._read
         while True:
-            data = self._read(remaining)
+            data = read(remaining)
             if data:
-                frames = self._take(data)
-                if frames:
-                    if len(frames) > 1:
-                        pending.extend(frames[1:])
-                    return frames[0]
-            remaining = deadline - time.monotonic()
+                msg = self._take_first(data)
+                if msg is not None:
+                    self._update_fast_read()  # a pty master may just have released its slave
+                    return msg
+            remaining = deadline - monotonic()
             if remaining <= 0:
                 return None
+
+    def _take_first(self, data: bytes) -> Any | None:
+        frames = self._take(data)
+        if not frames:
+            return None
+        if len(frames) > 1:
+            self._pending.extend(frames[1:])
+        return frames[0]
 
     def poll(self) -> list[Any]:
         """Every good frame already waiting, without blocking."""
@@ -158,26 +277,39 @@ class Link:
             data = self._read(0)
         return out
 
+    def _check_seq(self, kind: type, seq: int) -> None:
+        expect = self._next_seq.get(kind)
+        if expect is not None and seq != expect:
+            self.seq_gaps += 1
+        self._next_seq[kind] = (seq + 1) & 0xFF
+
     def _take(self, data: bytes) -> list[Any]:
+        """Feed the streaming decoder (it counts every fault) and note whether it is left clean."""
         self.bytes_rx += len(data)
-        if self.rx_filter is not None:
-            data = self.rx_filter(data)
+        if self._rx_filter is not None:
+            data = self._rx_filter(data)
+        errors_before = self._decoder_errors()
         frames = self._feed(data)
+        # clean: no partial frame held (data ended on a delimiter), and no resync still owed
+        # (no bad frame in this feed, and any earlier bad input was followed by a good frame)
+        self._clean = (bool(data) and data[-1] == 0 and self._decoder_errors() == errors_before
+                       and (self._clean or bool(frames)))
         if frames and self._sequenced:
             sequenced = self._sequenced
-            last = self._last_seq
             for msg in frames:
                 kind = type(msg)
                 if kind in sequenced:
-                    prev = last.get(kind)
-                    if prev is not None and msg.seq != ((prev + 1) & 0xFF):
-                        self.seq_gaps += 1
-                    last[kind] = msg.seq
+                    self._check_seq(kind, msg.seq)
         return frames
+
+    def _decoder_errors(self) -> int:
+        d = self._decoder
+        return (sum(_decoder_counter(d, key) for key in _DECODER_ERROR_KEYS)
+                + _decoder_counter(d, "garbage_bytes"))
 
     def reset_sequence(self) -> None:
         """Forget the last sequence numbers (a new session starts counting again)."""
-        self._last_seq.clear()
+        self._next_seq.clear()
 
     # -- bookkeeping ---------------------------------------------------------------------
     @property
@@ -185,7 +317,7 @@ class Link:
         d = self._decoder
         return LinkStats(
             frames_tx=self.frames_tx,
-            frames_rx=_decoder_counter(d, "frames"),
+            frames_rx=_decoder_counter(d, "frames") + self.fast_frames,
             bytes_tx=self.bytes_tx,
             bytes_rx=self.bytes_rx,
             crc_errors=_decoder_counter(d, "crc_errors"),
@@ -209,6 +341,7 @@ class Link:
     def close(self) -> None:
         if not self._closed:
             self._closed = True
+            self._fd_r = self._fd_w = -1
             self.transport.close()
 
     def __enter__(self) -> "Link":

@@ -22,6 +22,7 @@ from hilbench.protocol import (
     PROTOCOL_VERSION,
     ErrorCode,
     ErrorReport,
+    Fault,
     HostHello,
     ParamDescribe,
     ParamGet,
@@ -130,7 +131,6 @@ class _Server:
     def on_status(self, msg: StatusRequest) -> None:
         own = self.target.status()
         stats = self.link.stats
-        last_error = own.last_error or self.last_error
         self.link.send(Status(
             msg.seq,
             stats.frames_rx & 0xFFFF,
@@ -139,7 +139,7 @@ class _Server:
             stats.unknown_type & 0xFFFF,
             own.overruns & 0xFFFF,
             max(own.watchdog_trips, self.report.watchdog_trips) & 0xFFFF,
-            last_error,
+            status_last_error(self.last_error, own.last_error),
         ))
 
     # -- the loop ----------------------------------------------------------------------------
@@ -148,6 +148,7 @@ class _Server:
         target = self.target
         recv = link.recv_or_none
         send = link.send
+        step = target.step
         stop_event = self.stop_event
         report = self.report
         handlers = {
@@ -159,14 +160,29 @@ class _Server:
             Stop: self.on_stop,
             StatusRequest: self.on_status,
         }
+        lockstep = self.mode != MODE_REALTIME
         try:
             while True:
-                if self.mode == MODE_REALTIME and self.watchdog_s > 0 and self.last_sensors_t is not None \
-                        and not self.tripped:
-                    wait = min(_POLL_S, max(0.0, self.last_sensors_t + self.watchdog_s - time.monotonic()))
+                if lockstep:
+                    # the hot path: one Sensors in, one Drive out, nothing else per period
+                    msg = recv(_POLL_S)
+                    if type(msg) is Sensors:
+                        report.sensors += 1
+                        try:
+                            drive = step(msg)
+                            if drive.seq != msg.seq:
+                                drive = drive._replace(seq=msg.seq)
+                            send(drive)
+                        except LinkClosed:
+                            raise
+                        except Exception as exc:  # noqa: BLE001 - a model bug must not take the server down
+                            self.handler_fault(msg, exc)
+                        if stop_event is not None and stop_event.is_set():
+                            report.reason = "stopped"
+                            break
+                        continue
                 else:
-                    wait = _POLL_S
-                msg = recv(wait)
+                    msg = recv(self.realtime_wait())
                 if msg is None:
                     if stop_event is not None and stop_event.is_set():
                         report.reason = "stopped"
@@ -177,37 +193,27 @@ class _Server:
                 try:
                     if kind is Sensors:
                         report.sensors += 1
-                        if self.mode == MODE_REALTIME:
-                            now = time.monotonic()
-                            span_us = (now - self.last_sensors_t) * 1e6 if self.last_sensors_t is not None \
-                                else float(self.period_us)
-                            self.last_sensors_t = now
-                            self.tripped = False
-                            drive = target.advance(span_us, msg)
-                        else:
-                            drive = target.step(msg)
+                        now = time.monotonic()
+                        last = self.last_sensors_t
+                        span_us = (now - last) * 1e6 if last is not None else float(self.period_us)
+                        self.last_sensors_t = now
+                        self.tripped = False
+                        drive = target.advance(span_us, msg)
                         if drive.seq != msg.seq:
                             drive = drive._replace(seq=msg.seq)
                         send(drive)
-                        continue
-                    report.requests += 1
-                    handler = handlers.get(kind)
-                    if handler is None:
-                        self.error(msg.seq, ErrorCode.BAD_REQUEST, 0)
                     else:
-                        handler(msg)
+                        report.requests += 1
+                        handler = handlers.get(kind)
+                        if handler is None:
+                            self.error(msg.seq, ErrorCode.BAD_REQUEST, 0)
+                        else:
+                            handler(msg)
+                            lockstep = self.mode != MODE_REALTIME
                 except LinkClosed:
                     raise
                 except Exception as exc:  # noqa: BLE001 - a model bug must not take the server down
-                    report.handler_faults += 1
-                    if report.handler_faults <= _MAX_LOGGED_FAULTS:
-                        log.error("%s: %s while handling %s: %s", link.name, type(exc).__name__, kind.__name__, exc)
-                    try:
-                        self.error(msg.seq, ErrorCode.BAD_REQUEST, 0)
-                    except LinkClosed:
-                        raise
-                    except Exception:  # noqa: BLE001
-                        pass
+                    self.handler_fault(msg, exc)
                 if stop_event is not None and stop_event.is_set():
                     report.reason = "stopped"
                     break
@@ -216,6 +222,27 @@ class _Server:
             log.info("%s", exc)
         report.link_stats = link.stats.as_dict()
         return report
+
+    def realtime_wait(self) -> float:
+        """How long the real-time loop may wait for a frame: until the watchdog is due, at most _POLL_S."""
+        if self.watchdog_s > 0 and self.last_sensors_t is not None and not self.tripped:
+            return min(_POLL_S, max(0.0, self.last_sensors_t + self.watchdog_s - time.monotonic()))
+        return _POLL_S
+
+    def handler_fault(self, msg: Any, exc: Exception) -> None:
+        """A model raised while handling msg: log (the first few), answer BAD_REQUEST, keep serving."""
+        if isinstance(exc, LinkClosed):
+            raise exc
+        report = self.report
+        report.handler_faults += 1
+        if report.handler_faults <= _MAX_LOGGED_FAULTS:
+            log.error("%s: %s while handling %s: %s", self.link.name, type(exc).__name__, type(msg).__name__, exc)
+        try:
+            self.error(msg.seq, ErrorCode.BAD_REQUEST, 0)
+        except LinkClosed:
+            raise
+        except Exception:  # noqa: BLE001
+            pass
 
     def check_watchdog(self) -> None:
         if self.mode != MODE_REALTIME or self.watchdog_s <= 0 or self.last_sensors_t is None or self.tripped:
@@ -230,6 +257,27 @@ class _Server:
             self.link.send(drive)
 
 
+_ERROR_OF_FAULT = {int(Fault.WATCHDOG): int(ErrorCode.WATCHDOG)}
+
+
+def status_last_error(server_error: int, target_value: int) -> int:
+    """Status.last_error as an ErrorCode: the server's own view (the last ErrorReport it sent, or
+    WATCHDOG when it tripped the watchdog) first; else the target's value when it is an ErrorCode
+    (or a plain int naming one). A value of another enum, such as a Drive fault code (Fault), is not
+    an ErrorCode: Fault.WATCHDOG maps to ErrorCode.WATCHDOG and the other faults to NONE.
+    """
+    if server_error:
+        return int(server_error)
+    if isinstance(target_value, Fault):
+        return _ERROR_OF_FAULT.get(int(target_value), int(ErrorCode.NONE))
+    if isinstance(target_value, ErrorCode) or type(target_value) is int:
+        try:
+            return int(ErrorCode(target_value))
+        except ValueError:
+            return int(ErrorCode.NONE)
+    return int(ErrorCode.NONE)
+
+
 def serve(target: Any, link: Any, *, stop_event: threading.Event | None = None, mode: int | None = None,
           watchdog_ms: int | None = None) -> ServeReport:
     """Answer frames on link with target until the link closes or stop_event is set.
@@ -242,4 +290,4 @@ def serve(target: Any, link: Any, *, stop_event: threading.Event | None = None, 
     return _Server(target, link, stop_event, mode, watchdog_ms).run()
 
 
-__all__ = ["ServeReport", "serve"]
+__all__ = ["ServeReport", "serve", "status_last_error"]
