@@ -623,7 +623,7 @@ class Session:
                     rec_append((
                         k, hall, sector, plant.theta_e, plant.w_m, meas_raw, ref_raw, ctrl,
                         plant.i_a, plant.i_b, plant.i_c, plant.i_bus, duty_a, duty_b, duty_c, mode, state,
-                        fault, plant.load_nm, rtt * 1e6, late * 1e6, self._marker,
+                        fault, plant.load_nm, rtt, late, self._marker,
                     ))
                     self._marker = MARKER_NONE
                 if k % history_every == 0:
@@ -671,7 +671,7 @@ class Session:
         ref = raw[:, 6] * rpm_q15 if (self._tele_ref >= 0 and rpm_q15) else raw[:, 6]
         return np.column_stack((
             k * self._period_s, k, raw[:, 1], raw[:, 2], np.degrees(raw[:, 3]) % 360.0,
-            raw[:, 4] * RPM_PER_RAD_S, meas, ref, raw[:, 7:],
+            raw[:, 4] * RPM_PER_RAD_S, meas, ref, raw[:, 7:19], raw[:, 19:21] * 1e6, raw[:, 21:],
         ))
 
     def _stop_target(self) -> None:
