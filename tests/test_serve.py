@@ -259,3 +259,17 @@ def test_c_loopback_survives_one_percent_corrupted_bytes(c_loopback: str) -> Non
         assert status is not None and 2 * status.rx_errors >= injected.corrupted_frames_tx
     finally:
         spawned.close()
+
+
+def test_status_last_error_is_always_an_error_code() -> None:
+    """Status.last_error is an ErrorCode (WATCHDOG = 9); a Drive fault code (Fault.WATCHDOG = 1,
+    which as a number would read as ErrorCode.VERSION) is translated, not passed through."""
+    from hilbench.protocol import ErrorCode, Fault
+    from hilbench.targets.serve import status_last_error
+
+    assert status_last_error(0, Fault.WATCHDOG) == 9
+    assert status_last_error(0, Fault.STALL) == 0
+    assert status_last_error(0, 9) == 9 and status_last_error(0, ErrorCode.OVERRUN) == 8
+    assert status_last_error(0, 200) == 0
+    assert status_last_error(int(ErrorCode.WATCHDOG), Fault.NONE) == 9
+    assert status_last_error(int(ErrorCode.BAD_REQUEST), 9) == 10  # the server's own view first

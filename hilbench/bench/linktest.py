@@ -14,7 +14,7 @@ import subprocess
 import sys
 import time
 from dataclasses import dataclass, field
-from typing import Any, Callable
+from typing import Any, Callable, Sequence
 
 import numpy as np
 
@@ -68,16 +68,18 @@ class _Spawned:
 
     `python -m hilbench emulate NAME --port PATH` announces readiness on stdout; a program
     (exec:PROGRAM, e.g. the C loopback target) gets the path as its argument and is given time
-    by the handshake's retries instead.
+    by the handshake's retries instead. `emulate_args` are further `emulate` options
+    (e.g. `--mode realtime`).
     """
 
-    def __init__(self, target_name: str, timeout_s: float, program: str | None = None) -> None:
+    def __init__(self, target_name: str, timeout_s: float, program: str | None = None,
+                 emulate_args: Sequence[str] = ()) -> None:
         self.link = open_link("pty", timeout_s=timeout_s)
         self.proc: subprocess.Popen[bytes] | None = None
         try:
             if program is None:
                 argv = [sys.executable, "-m", "hilbench", "emulate", target_name, "-q",
-                        "--port", str(self.link.peer_path)]
+                        "--port", str(self.link.peer_path), *emulate_args]
             else:
                 argv = [program, str(self.link.peer_path)]
             self.proc = subprocess.Popen(argv, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
