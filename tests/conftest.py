@@ -40,3 +40,24 @@ def run_cli(*args: str, timeout: float = 60.0, input_text: str | None = None) ->
         input=input_text,
         cwd=REPO_ROOT,
     )
+
+
+def hurst_bench_config(tmp_path: Path, duration_s: float, seed: int = 7) -> Path:
+    """The Hurst bench with a hold scenario: the pot at 1000 rpm, S2 at 10 ms, run for duration_s."""
+    text = (BENCH_CONFIGS / "hurst_mclv.toml").read_text()
+    text += f"""
+[run]
+duration_s = {duration_s}
+seed = {seed}
+
+[[scenario]]
+at_s = 0.0
+ref_rpm = 1000.0
+
+[[scenario]]
+at_s = 0.01
+press = "s2"
+"""
+    path = tmp_path / "hold.toml"
+    path.write_text(text)
+    return path

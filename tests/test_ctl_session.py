@@ -10,7 +10,7 @@ from pathlib import Path
 import pytest
 from rich.console import Console
 
-from conftest import REPO_ROOT
+from conftest import hurst_bench_config
 from hilbench.bench.control import ControlClient, ControlServer
 from hilbench.bench.recorder import MARKER_PARAM, read_recording
 from hilbench.bench.run import RunRequest, load_run_config, run_bench
@@ -19,28 +19,9 @@ from hilbench.ui.dashboard import Dashboard
 Q15 = 1 / 32768
 
 
-def _config(tmp_path: Path) -> Path:
-    text = (REPO_ROOT / "bench_configs" / "hurst_mclv.toml").read_text()
-    text += """
-[run]
-duration_s = 60.0
-
-[[scenario]]
-at_s = 0.0
-ref_rpm = 1000.0
-
-[[scenario]]
-at_s = 0.01
-press = "s2"
-"""
-    path = tmp_path / "ctl.toml"
-    path.write_text(text)
-    return path
-
-
 @pytest.mark.slow
 def test_live_tuning_over_the_control_socket(tmp_path: Path) -> None:
-    cfg = load_run_config(RunRequest(str(_config(tmp_path)), target="emulator:an1017"))
+    cfg = load_run_config(RunRequest(str(hurst_bench_config(tmp_path, 60.0)), target="emulator:an1017"))
     server = ControlServer(tmp_path / "sock" / "ctl.sock", publish=False)
     client = ControlClient(server.path, timeout_s=10.0)
     replies: dict[str, dict] = {}

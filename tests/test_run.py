@@ -12,34 +12,13 @@ from pathlib import Path
 
 import pytest
 
-from conftest import REPO_ROOT, run_cli
+from conftest import REPO_ROOT, hurst_bench_config, run_cli
 from hilbench.bench.recorder import MARKER_FAULT, read_recording
 from hilbench.bench.run import RunRequest, load_run_config, run_bench
 
 
-def _short_config(tmp_path: Path, duration_s: float = 0.6) -> Path:
-    """The Hurst bench with a short scenario: S2 with the pot at 1000 rpm, hold."""
-    text = (REPO_ROOT / "bench_configs" / "hurst_mclv.toml").read_text()
-    text += f"""
-[run]
-duration_s = {duration_s}
-seed = 7
-
-[[scenario]]
-at_s = 0.0
-ref_rpm = 1000.0
-
-[[scenario]]
-at_s = 0.01
-press = "s2"
-"""
-    path = tmp_path / "short.toml"
-    path.write_text(text)
-    return path
-
-
 def test_inprocess_lockstep_is_byte_identical(tmp_path: Path) -> None:
-    config = _short_config(tmp_path, 0.3)
+    config = hurst_bench_config(tmp_path, 0.3)
     blobs = []
     for i in range(2):
         cfg = load_run_config(RunRequest(str(config), target="inprocess:an1017"))
@@ -56,7 +35,7 @@ def test_inprocess_lockstep_is_byte_identical(tmp_path: Path) -> None:
 @pytest.mark.slow
 def test_emulator_process_run_matches_inprocess_bytes(tmp_path: Path) -> None:
     """The same bytes whether the firmware runs in-process or as its own process on a pty."""
-    config = _short_config(tmp_path, 0.2)
+    config = hurst_bench_config(tmp_path, 0.2)
     rows = {}
     for spec in ("inprocess:an1017", "emulator:an1017"):
         out = tmp_path / f"{spec.split(':')[0]}.csv"
@@ -81,7 +60,7 @@ def test_default_run_follows_every_reference_within_2_percent() -> None:
 
 
 def _start_run(tmp_path: Path, record: Path, *extra: str) -> subprocess.Popen[str]:
-    config = _short_config(tmp_path, 60.0)
+    config = hurst_bench_config(tmp_path, 60.0)
     return subprocess.Popen(
         [sys.executable, "-m", "hilbench", "run", str(config), "--no-ui", "--no-control",
          "--record", str(record), "--set", "link.timeout_ms=500", *extra],
