@@ -33,6 +33,19 @@ def _pyplot():  # type: ignore[no-untyped-def]
     return plt
 
 
+def _line_figure(plt, t, columns, series, ylabel: str, title: str):  # type: ignore[no-untyped-def]
+    """One axis of lines against time: (column, label, line style) per series."""
+    fig, ax = plt.subplots(figsize=(10, 4.5))
+    for name, label, style in series:
+        ax.plot(t, columns[name], label=label, **style)
+    ax.set_xlabel("time [s]")
+    ax.set_ylabel(ylabel)
+    ax.set_title(title)
+    ax.grid(alpha=0.3)
+    ax.legend(loc="best")
+    return fig
+
+
 def plot_recording(data: RecordingData, out_dir: Path, stem: str | None = None) -> list[Path]:
     """Write the standard plots of a recording into ``out_dir``; returns their paths."""
     plt = _pyplot()
@@ -49,38 +62,16 @@ def plot_recording(data: RecordingData, out_dir: Path, stem: str | None = None) 
         plt.close(fig)
         written.append(path)
 
-    fig, ax = plt.subplots(figsize=(10, 4.5))
-    ax.plot(t, c["ref_speed_rpm"], label="reference (firmware)", lw=1.2, color="k", ls="--")
-    ax.plot(t, c["speed_rpm"], label="speed (plant)", lw=1.0)
+    speeds = [("ref_speed_rpm", "reference (firmware)", {"lw": 1.2, "color": "k", "ls": "--"}),
+              ("speed_rpm", "speed (plant)", {"lw": 1.0})]
     if not np.all(np.isnan(c["measured_speed_rpm"])):
-        ax.plot(t, c["measured_speed_rpm"], label="speed (firmware measured)", lw=0.8, alpha=0.8)
-    ax.set_xlabel("time [s]")
-    ax.set_ylabel("speed [rpm]")
-    ax.set_title("speed vs reference")
-    ax.grid(alpha=0.3)
-    ax.legend(loc="best")
-    save(fig, "speed")
-
-    fig, ax = plt.subplots(figsize=(10, 4.5))
-    for name, label in (("ia_a", "i_a"), ("ib_a", "i_b"), ("ic_a", "i_c")):
-        ax.plot(t, c[name], lw=0.6, label=label)
-    ax.plot(t, c["ibus_a"], lw=0.8, color="k", label="i_bus")
-    ax.set_xlabel("time [s]")
-    ax.set_ylabel("current [A]")
-    ax.set_title("phase and bus currents")
-    ax.grid(alpha=0.3)
-    ax.legend(loc="best")
-    save(fig, "currents")
-
-    fig, ax = plt.subplots(figsize=(10, 4.5))
-    for name in ("duty_a", "duty_b", "duty_c"):
-        ax.plot(t, c[name], lw=0.6, label=name)
-    ax.set_xlabel("time [s]")
-    ax.set_ylabel("duty [counts]")
-    ax.set_title("PWM duties from the target")
-    ax.grid(alpha=0.3)
-    ax.legend(loc="best")
-    save(fig, "duties")
+        speeds.append(("measured_speed_rpm", "speed (firmware measured)", {"lw": 0.8, "alpha": 0.8}))
+    save(_line_figure(plt, t, c, speeds, "speed [rpm]", "speed vs reference"), "speed")
+    currents = [(name, label, {"lw": 0.6}) for name, label in (("ia_a", "i_a"), ("ib_a", "i_b"), ("ic_a", "i_c"))]
+    currents.append(("ibus_a", "i_bus", {"lw": 0.8, "color": "k"}))
+    save(_line_figure(plt, t, c, currents, "current [A]", "phase and bus currents"), "currents")
+    duties = [(name, name, {"lw": 0.6}) for name in ("duty_a", "duty_b", "duty_c")]
+    save(_line_figure(plt, t, c, duties, "duty [counts]", "PWM duties from the target"), "duties")
 
     fig, (ax1, ax2) = plt.subplots(2, 1, figsize=(10, 5), sharex=True)
     ax1.step(t, c["hall"], where="post", lw=0.8)
@@ -91,15 +82,9 @@ def plot_recording(data: RecordingData, out_dir: Path, stem: str | None = None) 
     ax1.set_title("hall state and firmware sector")
     save(fig, "hall")
 
-    fig, ax = plt.subplots(figsize=(10, 4.5))
-    ax.plot(t, c["rtt_us"], lw=0.5, label="round trip [µs]")
-    ax.plot(t, c["lateness_us"], lw=0.5, label="lateness [µs]")
-    ax.set_xlabel("time [s]")
-    ax.set_ylabel("µs")
-    ax.set_yscale("symlog")
-    ax.set_title("link timing (real-time runs; zero in lockstep)")
-    ax.grid(alpha=0.3)
-    ax.legend(loc="best")
+    timing = [("rtt_us", "round trip [µs]", {"lw": 0.5}), ("lateness_us", "lateness [µs]", {"lw": 0.5})]
+    fig = _line_figure(plt, t, c, timing, "µs", "link timing (real-time runs; zero in lockstep)")
+    fig.axes[0].set_yscale("symlog")
     save(fig, "link")
     return written
 

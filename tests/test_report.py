@@ -1,0 +1,29 @@
+"""`hilbench report`: the summary and plots of a recording, from CSV, NPZ and a killed run's journal."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import pytest
+
+from conftest import hurst_bench_config, run_cli
+
+
+@pytest.mark.parametrize("suffix", [".csv", ".npz"])
+def test_report_summarises_and_plots(tmp_path: Path, suffix: str) -> None:
+    record = tmp_path / f"run{suffix}"
+    config = hurst_bench_config(tmp_path, 0.4)
+    result = run_cli("run", str(config), "--target", "inprocess:an1017", "--record", str(record), "--no-ui", "--no-control")
+    assert result.returncode == 0, result.stderr
+    report = run_cli("report", str(record), "--plot", str(tmp_path / "plots"), "--json")
+    assert report.returncode == 0, report.stderr
+    info = json.loads(report.stdout)
+    assert info["rows"] == 8000
+    assert info["target"].startswith("AN1017")
+    assert info["fault_rows"] == []
+    assert any("press s2" in e for e in info["events"])
+    assert 0 < info["max_speed_rpm"] < 1500  # the pot asks for 1000 rpm
+    plots = [Path(p) for p in info["plots"]]
+    assert {p.name.split("_", 1)[1] for p in plots} == {"speed.png", "currents.png", "duties.png", "hall.png", "link.png"}
+    assert all(p.stat().st_size > 10_000 for p in plots)
