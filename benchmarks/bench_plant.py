@@ -1,15 +1,26 @@
 """Plant cost per 50 us period and real-time factor (both bench motors, both backends, 1 and 2
 RK4 substeps), sensor-read and OFF-coast cost, batch plant-seconds per wall second for N = 256 on
-both backends, and whether gym-electric-motor / motulator are importable.
+both backends, and the same open-loop start-up of the Hurst motor on gym-electric-motor and
+motulator next to ours in one table.
 
 Run: python benchmarks/bench_plant.py   (medians of 5 runs; the VM is noisy, compare ratios)
+
+Peers are never project dependencies. They run in their own interpreter: $HILBENCH_PEER_PYTHON,
+else /tmp/peers/bin/python if it exists, else this one. Install them with
+    python -m venv /tmp/peers && /tmp/peers/bin/pip install gym-electric-motor motulator numpy
+(about a minute). Each peer run is a subprocess that builds the model, times its start-up loop
+itself (time.perf_counter around the loop only) and prints JSON.
 """
 
 from __future__ import annotations
 
-import importlib.util
+import json
 import math
+import os
 import statistics
+import subprocess
+import sys
+import tempfile
 import time
 from pathlib import Path
 
@@ -18,7 +29,7 @@ import numpy as np
 from hilbench.config import load_config, plant_params_from_config
 from hilbench.plant import Plant
 from hilbench.plant.batch import BatchPlant
-from hilbench.plant.model import available_backends
+from hilbench.plant.model import DEFAULT_SUBSTEPS, available_backends
 
 ROOT = Path(__file__).resolve().parent.parent
 DT = 50e-6
@@ -73,27 +84,178 @@ def sensor_and_off_cost_us(backend: str) -> tuple[float, float]:
     return statistics.median(reads), statistics.median(off)
 
 
-def batch_rate(backend: str, substeps: int, n_plants: int = 256, n: int = 1000) -> float:
+def batch_rate(backend: str, substeps: int, n_plants: int = 256, n: int = 1000) -> tuple[float, float]:
+    """Median plant-seconds per wall second: with the numpy duty computation in the loop, and step alone."""
     params = plant_params_from_config(load_config(ROOT / "bench_configs" / "hurst_mclv.toml"))
-    rates = []
+    rates, bare = [], []
+    vq = np.linspace(6.0, 12.0, n_plants)
     for _ in range(3):
         bp = BatchPlant([params] * n_plants, backend=backend, substeps=substeps)
-        vq = np.linspace(6.0, 12.0, n_plants)
         t0 = time.perf_counter()
         for _ in range(n):
             d = [0.5 + vq * np.cos(bp.theta_e + math.pi / 2 + ph) / 24.0 for ph in PHI]
             bp.step(d[0], d[1], d[2], 1, DT)
         rates.append(n_plants * n * DT / (time.perf_counter() - t0))
-    return statistics.median(rates)
+        step = bp.step
+        t0 = time.perf_counter()
+        for _ in range(n):
+            step(d[0], d[1], d[2], 1, DT)
+        bare.append(n_plants * n * DT / (time.perf_counter() - t0))
+    return statistics.median(rates), statistics.median(bare)
 
 
-def peers() -> None:
-    for name, mod in (("gym-electric-motor", "gym_electric_motor"), ("motulator", "motulator")):
-        if importlib.util.find_spec(mod) is None:
-            print(f"{name}: not importable here (python -m venv /tmp/peers && /tmp/peers/bin/pip install "
-                  f"gym-electric-motor motulator; both install in about a minute)")
-        else:
-            print(f"{name}: importable, but no start-up harness is written for it yet")
+# ------------------------------------------------------------------ peers
+# The start-up every model runs: Hurst motor from rest, no load torque (viscous friction only);
+# each 50 us period the duties put vq = 0.45 * Vbus on the q axis of the angle at the period
+# start, held over the period (what a controller does). One script, run by the peer's
+# interpreter; it times its own loop and prints one JSON line.
+PEER_SCRIPT = r"""
+import json, math, sys, time
+peer, cfg = sys.argv[1], json.loads(sys.argv[2])
+R, L, PSI, P, J, B, VBUS = (cfg[k] for k in ("r_ohm", "l_h", "psi_wb", "pole_pairs", "j_kgm2", "b_nms", "vbus_v"))
+DT, N, VQ = cfg["dt_s"], cfg["periods"], cfg["vq_v"]
+PHI = (0.0, -2.0 * math.pi / 3.0, 2.0 * math.pi / 3.0)
+
+def duties(th):
+    return [0.5 + VQ * math.cos(th + math.pi / 2 + ph) / VBUS for ph in PHI]
+
+if peer == "gym-electric-motor":
+    import gym_electric_motor as gem
+    env = gem.make("Cont-SC-PMSM-v0",
+                   motor=dict(motor_parameter=dict(p=P, l_d=L, l_q=L, j_rotor=J / 2, r_s=R, psi_p=PSI),
+                              limit_values=dict(i=100.0, omega=2000.0, u=100.0, torque=10.0),
+                              nominal_values=dict(i=50.0, omega=1000.0, u=VBUS, torque=1.0)),
+                   load=dict(load_parameter=dict(a=0.0, b=B, c=0.0, j_load=J / 2)),  # rotor + load = J
+                   supply=dict(u_nominal=VBUS), tau=DT, constraints=())
+    env.reset(seed=0)
+    ps = env.unwrapped.physical_system
+    names = list(ps.state_names)
+    ie, iw, iq = names.index("epsilon"), names.index("omega"), names.index("i_sq")
+    lim = ps.limits
+    th = 0.0
+    t0 = time.perf_counter()
+    for _ in range(N):
+        s = ps.simulate([2.0 * d - 1.0 for d in duties(th)])  # B6 bridge action a = 2 * duty - 1
+        th = s[ie] * lim[ie]
+    t1 = time.perf_counter()
+    out = dict(cost_us=(t1 - t0) / N * 1e6, speed_rad_s=float(s[iw] * lim[iw]), iq_a=float(s[iq] * lim[iq]),
+               how=f"physical_system.simulate per period ({type(ps._ode_solver).__name__}: scipy.integrate.ode "
+                   "dopri5, default tolerances); it Parks the phase voltages at the period start and holds the "
+                   "dq voltage (we and motulator hold the stator-frame voltage), hence its different speed")
+elif peer == "motulator":
+    import numpy as np
+    from motulator.drive import model
+    from motulator.drive.utils import SynchronousMachinePars
+    from motulator.common.model._simulation import Delay
+    par = SynchronousMachinePars(n_p=P, R_s=R, L_d=L, L_q=L, psi_f=PSI)
+    mdl = model.Drive(model.VoltageSourceConverter(u_dc=VBUS), model.SynchronousMachine(par),
+                      model.StiffMechanicalSystem(J=J, B_L=B))
+    mdl.delay = Delay(0)  # duties act in the period they are computed for, as in our loop
+
+    class OpenLoop:
+        n = 0
+
+        def __call__(self, m):
+            self.n += 1
+            return DT, duties(float(np.angle(m.machine.state.exp_j_theta_m)))
+
+        def post_process(self):
+            pass
+
+    ctrl = OpenLoop()
+    sim = model.Simulation(mdl, ctrl)
+    t0 = time.perf_counter()
+    sim.simulate(t_stop=(N - 1) * DT)  # loops while t <= t_stop: N periods
+    t1 = time.perf_counter()
+    out = dict(cost_us=(t1 - t0) / ctrl.n * 1e6, speed_rad_s=float(mdl.mechanics.data.w_M[-1]),
+               iq_a=float(np.imag(mdl.machine.data.i_s[-1])),
+               how="Simulation.simulate: scipy solve_ivp RK45 per period (default rtol 1e-3, atol 1e-6), "
+                   "zero-order-held duties, computational delay 0; time includes its post-processing")
+print(json.dumps(out))
+"""
+
+PEERS = (("gym-electric-motor", "gym_electric_motor"), ("motulator", "motulator"))
+INSTALL_HINT = "python -m venv /tmp/peers && /tmp/peers/bin/pip install gym-electric-motor motulator numpy"
+
+
+def peer_python() -> str:
+    env = os.environ.get("HILBENCH_PEER_PYTHON")
+    if env:
+        return env
+    return "/tmp/peers/bin/python" if Path("/tmp/peers/bin/python").exists() else sys.executable
+
+
+def startup_case(params, periods: int) -> dict:
+    m = params.motor
+    return dict(r_ohm=m.rs_ohm, l_h=m.ld_h, psi_wb=m.psi_wb, pole_pairs=m.pole_pairs, j_kgm2=m.j_kgm2,
+                b_nms=m.b_nms_per_rad, vbus_v=params.inverter.vbus_v, dt_s=DT, periods=periods,
+                vq_v=0.45 * params.inverter.vbus_v)
+
+
+def ours_startup(params, case: dict, backend: str, runs: int = 5) -> tuple[float, float, float]:
+    """Median cost (us/period) of our plant on the peers' start-up loop (duties computed in the loop)."""
+    vq, vbus = case["vq_v"], case["vbus_v"]
+    c0, c1, c2 = (math.pi / 2 + ph for ph in PHI)
+    costs = []
+    for _ in range(runs):
+        plant = Plant(params, backend=backend)
+        step, cos = plant.step, math.cos
+        t0 = time.perf_counter()
+        for _ in range(case["periods"]):
+            th = plant.theta_e
+            step(0.5 + vq * cos(th + c0) / vbus, 0.5 + vq * cos(th + c1) / vbus, 0.5 + vq * cos(th + c2) / vbus, 1, DT)
+        costs.append((time.perf_counter() - t0) / case["periods"] * 1e6)
+    return statistics.median(costs), plant.w_m, plant.i_q
+
+
+def run_peer(py: str, script: str, name: str, case: dict, runs: int = 3) -> tuple[dict | None, str]:
+    """Median of `runs` subprocess runs, or None and why not."""
+    results = []
+    for _ in range(runs):
+        try:
+            proc = subprocess.run([py, script, name, json.dumps(case)], capture_output=True, text=True, timeout=600)
+        except (OSError, subprocess.TimeoutExpired) as exc:
+            return None, f"could not run {py}: {exc}"
+        if proc.returncode != 0:
+            last = (proc.stderr.strip().splitlines() or ["no output"])[-1]
+            return None, f"failed: {last}"
+        results.append(json.loads(proc.stdout.strip().splitlines()[-1]))
+    res = dict(results[-1])
+    res["cost_us"] = statistics.median(r["cost_us"] for r in results)
+    return res, ""
+
+
+def peers_table(periods: int = 2000) -> None:
+    params = plant_params_from_config(load_config(ROOT / "bench_configs" / "hurst_mclv.toml"))
+    case = startup_case(params, periods)
+    print(f"\nsame open-loop start-up on every model: Hurst (R {case['r_ohm']} ohm, L {case['l_h'] * 1e3:.2f} mH, "
+          f"psi {case['psi_wb'] * 1e3:.3f} mWb, p {case['pole_pairs']}, J {case['j_kgm2']:g}, B {case['b_nms']:g}, "
+          f"{case['vbus_v']:g} V), vq {case['vq_v']:.1f} V on the q axis of the period-start angle, from rest, "
+          f"{periods} periods of 50 us ({periods * DT:g} s)")
+    rows = []
+    for backend in available_backends():  # the default backend first: it is the baseline
+        cost, w, iq = ours_startup(params, case, backend)
+        rows.append((f"hilbench ({backend})", cost, w, iq,
+                     f"RK4 in dq, {DEFAULT_SUBSTEPS} substeps per period, stator-frame voltage held"))
+    py = peer_python()
+    with tempfile.TemporaryDirectory() as tmp:
+        script = str(Path(tmp) / "peer_startup.py")
+        Path(script).write_text(PEER_SCRIPT)
+        for name, mod in PEERS:
+            probe = subprocess.run([py, "-c", f"import {mod}"], capture_output=True, text=True)
+            if probe.returncode != 0:
+                print(f"{name}: not importable by {py} (install: {INSTALL_HINT})")
+                continue
+            res, why = run_peer(py, script, name, case)
+            if res is None:
+                print(f"{name}: could not run the start-up: {why}")
+                continue
+            rows.append((name, res["cost_us"], res["speed_rad_s"], res["iq_a"], res["how"]))
+    ref = rows[0][1]
+    print(f"{'model':22s} {'us/period':>10s} {'real-time':>10s} {'cost/ours':>9s} {'end speed':>10s} {'end iq':>8s}  integrates")
+    for name, cost, w, iq, how in rows:
+        print(f"{name:22s} {cost:10.2f} {50.0 / cost:9.2f}x {cost / ref:8.1f}x {w:6.2f} r/s {iq:6.4f} A  {how}")
+    print(f"(medians: ours of 5 runs, peers of 3 subprocess runs; cost/ours against {rows[0][0]}; peers via {py})")
 
 
 def main() -> None:
@@ -113,9 +275,10 @@ def main() -> None:
               f" OFF coast period {off:5.2f} us")
     for backend in available_backends()[::-1]:
         for substeps in (1, 2):
-            print(f"{backend:6s} substeps {substeps} batch N=256: {batch_rate(backend, substeps):6.1f} plant-s per wall-s"
-                  f" (incl. numpy duty computation)")
-    peers()
+            with_duties, bare = batch_rate(backend, substeps)
+            print(f"{backend:6s} substeps {substeps} batch N=256: {with_duties:6.1f} plant-s per wall-s incl. numpy duty"
+                  f" computation, {bare:6.1f} step alone (goal 200)")
+    peers_table()
 
 
 if __name__ == "__main__":
