@@ -61,3 +61,14 @@ press = "s2"
     path = tmp_path / "hold.toml"
     path.write_text(text)
     return path
+
+
+def require_c_plant() -> bool:
+    """True when the compiled plant core is built; under HILBENCH_REQUIRE_GCC=1 its absence fails."""
+    from hilbench.plant.model import available_backends
+
+    if "c" in available_backends():
+        return True
+    if os.environ.get("HILBENCH_REQUIRE_GCC") == "1":
+        pytest.fail("the compiled plant core is not built (HILBENCH_REQUIRE_GCC=1): install with pip install -e .")
+    return False

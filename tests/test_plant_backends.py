@@ -10,6 +10,8 @@ from pathlib import Path
 
 import pytest
 
+from conftest import require_c_plant
+
 from hilbench.config import load_config, plant_params_from_config
 from hilbench.plant import LoadProfile, Plant
 from hilbench.plant.model import available_backends
@@ -18,7 +20,7 @@ CONFIGS = Path(__file__).resolve().parent.parent / "bench_configs"
 PHI = (0.0, -2.0 * math.pi / 3.0, 2.0 * math.pi / 3.0)
 DT = 50e-6
 
-needs_c = pytest.mark.skipif("c" not in available_backends(), reason="C plant core not built")
+needs_c = pytest.mark.skipif(not require_c_plant(), reason="C plant core not built")
 
 
 def q_duties(theta: float, vq: float, vbus: float):

@@ -8,6 +8,8 @@ import math
 import numpy as np
 import pytest
 
+from conftest import require_c_plant
+
 from hilbench.plant import LoadProfile, Plant, PlantParams
 from hilbench.plant.batch import BatchPlant
 from hilbench.plant.model import available_backends
@@ -60,7 +62,7 @@ def _mixed_params():
     ]
 
 
-@pytest.mark.skipif("c" not in available_backends(), reason="C plant core not built")
+@pytest.mark.skipif(not require_c_plant(), reason="C plant core not built")
 @pytest.mark.parametrize("substeps", [1, 2])
 def test_batch_c_and_numpy_backends_agree(substeps):
     """Same arithmetic in both batch backends: 1e-12 relative in every state over start-up,
