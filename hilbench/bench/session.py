@@ -496,7 +496,11 @@ class Session:
         plant = self.plant
         target_step = self.target.step
         recorder = self.recorder
-        rec_append = recorder.append if recorder is not None else None
+        if recorder is not None:
+            recorder.rows.configure(RAW_ROW_WIDTH)
+            recorder.transform = self._columns_from_raw
+            rec_pack, rec_extend = recorder.rows.pack, recorder.rows.extend
+        rec_on = recorder is not None
         observe_every = options.observe_every_periods
         history_every = options.history_every_periods
         control = self.control
@@ -515,9 +519,6 @@ class Session:
         last_ref = 0.0
         self.periods_done = 0
         self._period_s = period_s
-        if recorder is not None:
-            recorder.transform = self._columns_from_raw
-            recorder.row_width = RAW_ROW_WIDTH
         new_sensors = tuple.__new__
         next_event_s = self.player.next_t_s
         sensor_faults = False
@@ -619,8 +620,8 @@ class Session:
                 meas_raw = tele[tele_meas] if tele_meas >= 0 else 0
                 ref_raw = tele[tele_ref] if tele_ref >= 0 else self._ref_rpm
                 ctrl = tele[tele_ctrl] if tele_ctrl >= 0 else 0
-                if rec_append is not None:  # raw values; _columns_from_raw scales them per chunk
-                    rec_append((
+                if rec_on:  # raw values; _columns_from_raw scales them per chunk
+                    rec_extend(rec_pack(
                         k, hall, sector, plant.theta_e, plant.w_m, meas_raw, ref_raw, ctrl,
                         plant.i_a, plant.i_b, plant.i_c, plant.i_bus, duty_a, duty_b, duty_c, mode, state,
                         fault, plant.load_nm, rtt, late, self._marker,
