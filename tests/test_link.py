@@ -339,3 +339,21 @@ def test_frame_split_across_reads_is_reassembled(pty_pair) -> None:
     host.send(_sensors(11))
     assert far.recv() == _sensors(11)
     assert far.stats.frames_rx == 3 and far.stats.frame_errors == 0 and far.stats.seq_gaps == 0
+
+
+def test_recv_without_timeout_blocks_for_frames_and_sees_hang_up(pty_pair) -> None:
+    """recv_or_none(None) (the lockstep server's wait): whole frames, split frames, then hang-up.
+    Everything it needs is written before it is called, so it never waits on a live writer."""
+    host, far = pty_pair
+    wire = encode_frame(_sensors(1)) + encode_frame(_sensors(2))[:4]
+    host.send_bytes(wire, frames=1)
+    assert far.recv_or_none(None) == _sensors(1)
+    host.send_bytes(encode_frame(_sensors(2))[4:], frames=1)
+    assert far.recv_or_none(None) == _sensors(2)
+    far.send(_sensors(3))  # writes still work on the now blocking fd
+    assert host.recv() == _sensors(3)
+    assert far.recv_or_none(0.01) is None  # a timeout again: non-blocking again
+    assert not os.get_blocking(far.fileno())
+    host.close()
+    with pytest.raises(LinkClosed):
+        far.recv_or_none(None)

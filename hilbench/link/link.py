@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import os
 import stat
+import termios
 from time import monotonic
 from collections import deque
 from dataclasses import asdict, dataclass
@@ -23,6 +24,7 @@ from hilbench.protocol import Drive, FrameDecoder, Sensors, decode_frame, encode
 
 DEFAULT_BAUD = 250_000
 DEFAULT_TIMEOUT_S = 1.0
+_UNSEQUENCED = object()  # _next_seq.get default: a message type without a running seq
 _DECODER_ERROR_KEYS = ("crc_errors", "cobs_errors", "length_errors", "unknown_type", "oversized")
 
 
@@ -85,7 +87,8 @@ class Link:
         self._feed = self._decoder.feed
         self._pending: deque[Any] = deque()
         self._sequenced = frozenset(sequenced_types)
-        self._next_seq: dict[type, int] = {}  # the seq each sequenced type should carry next
+        # the seq each sequenced type should carry next (None: not seen yet); other types absent
+        self._next_seq: dict[type, int | None] = dict.fromkeys(self._sequenced)
         self._rx_filter: Callable[[bytes], bytes] | None = None
         self.frames_tx = 0
         self.bytes_tx = 0
@@ -94,6 +97,7 @@ class Link:
         self.seq_gaps = 0
         self.fast_frames = 0  # good frames decoded on the fast path (the decoder never saw them)
         self._clean = True  # the decoder holds no partial frame and owes no resync count
+        self._blocking = False  # the fd is O_NONBLOCK except while recv_or_none(None) is in use
         self._closed = False
         # direct fd access for FdTransport; -1 = go through the transport
         fd = transport.fileno() if isinstance(transport, FdTransport) else None
@@ -166,17 +170,17 @@ class Link:
                 except OSError:
                     data = None  # the transport's read below raises the named error
                     fd = -1
-                if data and self._clean and data.find(0) == len(data) - 1:
+                if data and data[-1] == 0 and self._clean:
                     try:
-                        msg = decode_frame(data[:-1])
+                        msg = decode_frame(data[:-1])  # raises when a 0x00 inside means more frames
                     except DecodeError:
                         pass
                     else:
                         self.bytes_rx += len(data)
                         self.fast_frames += 1
                         kind = type(msg)
-                        if kind in self._sequenced:
-                            expect = self._next_seq.get(kind)
+                        expect = self._next_seq.get(kind, _UNSEQUENCED)
+                        if expect is not _UNSEQUENCED:
                             seq = msg.seq
                             if expect is not None and seq != expect:
                                 self.seq_gaps += 1
@@ -200,14 +204,21 @@ class Link:
             )
         return msg
 
-    def recv_or_none(self, timeout_s: float) -> Any | None:
+    def recv_or_none(self, timeout_s: float | None) -> Any | None:
         """Like recv, but None when nothing arrives in timeout_s (not counted as a timeout).
 
-        For servers that wake up periodically to check a stop flag or a watchdog.
+        For servers that wake up periodically to check a stop flag or a watchdog. timeout_s None
+        waits as long as it takes (LinkClosed on hang-up): on an fd that is one blocking os.read
+        per frame with no poll; the fd then stays blocking, so writes wait for the far end
+        without a deadline, until a call with a timeout makes it non-blocking again.
         """
         if self._pending:
             return self._pending.popleft()
         fd = self._fd_r
+        if timeout_s is None:
+            return self._recv_forever()
+        if self._blocking:
+            self._set_blocking(False)
         if fd >= 0:
             t0 = monotonic()
             if self._poll_fd(timeout_s * 1000.0 if timeout_s > 0 else 0):
@@ -218,17 +229,17 @@ class Link:
                 except OSError:
                     data = None
                     fd = -1
-                if data and self._clean and data.find(0) == len(data) - 1:
+                if data and data[-1] == 0 and self._clean:
                     try:
-                        msg = decode_frame(data[:-1])
+                        msg = decode_frame(data[:-1])  # raises when a 0x00 inside means more frames
                     except DecodeError:
                         pass
                     else:
                         self.bytes_rx += len(data)
                         self.fast_frames += 1
                         kind = type(msg)
-                        if kind in self._sequenced:
-                            expect = self._next_seq.get(kind)
+                        expect = self._next_seq.get(kind, _UNSEQUENCED)
+                        if expect is not _UNSEQUENCED:
                             seq = msg.seq
                             if expect is not None and seq != expect:
                                 self.seq_gaps += 1
@@ -243,6 +254,59 @@ class Link:
             remaining = t0 + timeout_s - monotonic()
             return self._wait(remaining, timeout_s) if remaining > 0 else None
         return self._wait(timeout_s, timeout_s)
+
+    def _recv_forever(self) -> Any:
+        """The next frame, however long it takes: blocking reads, no poll (the lockstep server)."""
+        fd = self._fd_r
+        if fd < 0:
+            while True:
+                msg = self._wait(1.0, 1.0)
+                if msg is not None:
+                    return msg
+        if not self._blocking:
+            self._set_blocking(True)
+        while True:
+            try:
+                data = os.read(fd, _READ_CHUNK)
+            except OSError as exc:
+                self._set_blocking(False)
+                self._read(0)  # the transport names a hang-up
+                raise LinkError(f"link {self.name}: read failed: {exc.strerror}") from None
+            if not data:
+                self._set_blocking(False)
+                raise self.transport._hung_up("end of file")  # type: ignore[attr-defined]
+            if data[-1] == 0 and self._clean:
+                try:
+                    msg = decode_frame(data[:-1])
+                except DecodeError:
+                    pass
+                else:
+                    self.bytes_rx += len(data)
+                    self.fast_frames += 1
+                    kind = type(msg)
+                    expect = self._next_seq.get(kind, _UNSEQUENCED)
+                    if expect is not _UNSEQUENCED:
+                        seq = msg.seq
+                        if expect is not None and seq != expect:
+                            self.seq_gaps += 1
+                        self._next_seq[kind] = (seq + 1) & 0xFF
+                    return msg
+            msg = self._take_first(data)
+            if msg is not None:
+                return msg
+
+    def _set_blocking(self, blocking: bool) -> None:
+        fd = self._fd_w
+        if fd >= 0:
+            if blocking and os.isatty(fd):
+                # pyserial opens ttys with VMIN=0, VTIME=0, where a blocking read returns b""
+                # at once; VMIN=1 makes it wait for a byte (O_NONBLOCK reads ignore VMIN)
+                attrs = termios.tcgetattr(fd)
+                if attrs[6][termios.VMIN] != 1 or attrs[6][termios.VTIME] != 0:
+                    attrs[6][termios.VMIN], attrs[6][termios.VTIME] = 1, 0
+                    termios.tcsetattr(fd, termios.TCSANOW, attrs)
+            os.set_blocking(fd, blocking)
+        self._blocking = blocking
 
     def _wait(self, remaining: float, timeout: float) -> Any | None:
         """The general receive loop through the transport: the first frame, or None at the deadline."""
@@ -278,7 +342,7 @@ class Link:
         return out
 
     def _check_seq(self, kind: type, seq: int) -> None:
-        expect = self._next_seq.get(kind)
+        expect = self._next_seq[kind]
         if expect is not None and seq != expect:
             self.seq_gaps += 1
         self._next_seq[kind] = (seq + 1) & 0xFF
@@ -309,7 +373,7 @@ class Link:
 
     def reset_sequence(self) -> None:
         """Forget the last sequence numbers (a new session starts counting again)."""
-        self._next_seq.clear()
+        self._next_seq = dict.fromkeys(self._sequenced)
 
     # -- bookkeeping ---------------------------------------------------------------------
     @property

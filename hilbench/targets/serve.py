@@ -161,11 +161,14 @@ class _Server:
             StatusRequest: self.on_status,
         }
         lockstep = self.mode != MODE_REALTIME
+        # lockstep with nobody to ask us to stop: wait for frames without a timeout (one blocking
+        # read per period, no poll); otherwise wake every _POLL_S to look at stop_event
+        lockstep_wait = None if stop_event is None else _POLL_S
         try:
             while True:
                 if lockstep:
                     # the hot path: one Sensors in, one Drive out, nothing else per period
-                    msg = recv(_POLL_S)
+                    msg = recv(lockstep_wait)
                     if type(msg) is Sensors:
                         report.sensors += 1
                         try:
