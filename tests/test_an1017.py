@@ -387,3 +387,14 @@ def test_hello_and_drive_encode_on_the_wire():
     for pid in PARAMS:
         info = t.describe(pid)
         assert decode_frame(encode_frame(info)[:-1]) == info
+
+
+def test_watchdog_trip_reports_an_error_code_in_status() -> None:
+    """Status.last_error speaks the protocol's ErrorCode (WATCHDOG = 9), Drive.fault its Fault."""
+    from hilbench.protocol import ErrorCode, Fault, HostHello
+
+    target = An1017Target()
+    target.hello(HostHello(0, 1, 50, 1, 100))
+    drive = target.watchdog_trip()
+    assert drive.fault == Fault.WATCHDOG and drive.output_mode == 0
+    assert target.status().last_error == ErrorCode.WATCHDOG

@@ -38,6 +38,7 @@ from hilbench.protocol import (
     AdcRole,
     Drive,
     Edge,
+    ErrorCode,
     ParamInfo,
     ParamSetResult,
     ParamType,
@@ -447,7 +448,7 @@ class An1017Target:
     def watchdog_trip(self) -> Drive:
         """Sensors stopped arriving: StopMotor, state FAULT, fault WATCHDOG."""
         self.watchdog_trips += 1
-        self.last_error = FAULT_WATCHDOG
+        self.last_error = int(ErrorCode.WATCHDOG)  # Status.last_error speaks ErrorCode; FAULT_WATCHDOG is for Drive.fault
         self.fw.press_stop(STATE_FAULT, FAULT_WATCHDOG)
         return self._finish(self._last_seq)
 
