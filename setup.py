@@ -1,7 +1,9 @@
-"""Build hook for the optional compiled plant core (hilbench/plant/_plantcore.c).
+"""Build hook for the optional compiled cores: the plant (hilbench/plant/_plantcore.c) and the
+AN1017 firmware model (hilbench/targets/_an1017core.c).
 
 All metadata is in pyproject.toml. The extension is `optional`: without a C compiler
-`pip install .` still succeeds and hilbench.plant falls back to its pure-Python step.
+`pip install .` still succeeds and hilbench.plant falls back to its pure-Python step
+(and hilbench.targets.an1017 to its pure-Python firmware model).
 -ffp-contract=off keeps the C arithmetic identical to the Python backend (no fused multiply-add).
 """
 
@@ -21,6 +23,12 @@ setup(
             sources=["hilbench/plant/_plantcore.c"],
             extra_compile_args=_flags,
             optional=True,
-        )
+        ),
+        Extension(
+            "hilbench.targets._an1017core",
+            sources=["hilbench/targets/_an1017core.c"],
+            extra_compile_args=_flags,
+            optional=True,
+        ),
     ]
 )

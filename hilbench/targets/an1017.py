@@ -8,10 +8,18 @@ step (they were written by the PWM ISR one period earlier), so the register-upda
 already inside the model — the host should add no extra delay for it. PDC values above 1000
 (only produced by the firmware's volts = −1 start-up transient in CCW) mean 100 % and are
 reported as 1000.
+
+Two backends with identical outputs (tests/test_an1017_core.py compares every Drive with the
+reference path): "c" (hilbench/targets/_an1017core.c, an optional compiled extension holding the
+firmware state in a C struct, exposed under An1017Firmware's attribute names) and "python"
+(An1017Firmware with this module's fast path). "c" is chosen when the extension is built unless
+HILBENCH_AN1017_BACKEND=python (or backend="python") asks otherwise; `reference=True` is always
+pure Python (it is the readable spec). `target.backend` says which one runs.
 """
 
 from __future__ import annotations
 
+import os
 from typing import Any
 
 from hilbench.errors import ConfigError, ParamError
@@ -30,7 +38,7 @@ from hilbench.targets.an1017_firmware import (
     check_gain_constraints,
     max_phase_advance_from_deg,
 )
-from hilbench.targets.svm import VOLTS_LIMIT, svm_fast
+from hilbench.targets.svm import SINE_TABLE, VOLTS_LIMIT, svm_fast
 
 from hilbench.protocol import (
     PROTOCOL_VERSION,
@@ -95,12 +103,40 @@ GAIN_PARAM_OF_CONSTRAINT = {1: PARAM_KP, 2: PARAM_KP, 3: PARAM_KD}
 
 __all__ = [
     "An1017Target",
+    "available_backends",
     "An1017Options",
     "An1017Firmware",
     "check_gain_constraints",
     "GAIN_CONSTRAINT_NAMES",
     "PARAMS",
 ]
+
+
+try:
+    from hilbench.targets import _an1017core
+except ImportError:  # pragma: no cover - built without a C compiler
+    _an1017core = None
+else:
+    _an1017core.init(Drive, SINE_TABLE)
+
+
+def available_backends() -> tuple[str, ...]:
+    """The firmware-model backends usable here ("c" only when the extension is built)."""
+    return ("c", "python") if _an1017core is not None else ("python",)
+
+
+def _choose_backend(backend: str | None, reference: bool) -> str:
+    """backend argument, else HILBENCH_AN1017_BACKEND, else "c" when built; reference → "python"."""
+    choice = backend or os.environ.get("HILBENCH_AN1017_BACKEND", "") or ("c" if _an1017core is not None else "python")
+    if choice not in ("c", "python"):
+        raise ConfigError(f"an1017 backend {choice!r}: expected 'c' or 'python'")
+    if reference:
+        if backend == "c":
+            raise ConfigError("an1017 backend 'c': the reference path (reference=True) is pure Python")
+        return "python"
+    if choice == "c" and _an1017core is None:
+        raise ConfigError("an1017 backend 'c': hilbench.targets._an1017core is not built (pip install . with a C compiler)")
+    return choice
 
 
 class DutyCache(dict):
@@ -133,10 +169,18 @@ class An1017Target:
     """
 
     firmware_name = FIRMWARE_NAME
+    backend = "python"
 
-    def __init__(self, options: An1017Options = An1017Options(), *, reference: bool = False) -> None:
+    def __new__(cls, options: An1017Options = An1017Options(), *, reference: bool = False,
+                backend: str | None = None) -> "An1017Target":
+        if cls is An1017Target and _choose_backend(backend, reference) == "c":
+            return object.__new__(_CAn1017Target)
+        return object.__new__(cls)
+
+    def __init__(self, options: An1017Options = An1017Options(), *, reference: bool = False,
+                 backend: str | None = None) -> None:
         self.options = options.resolved()
-        self.fw = An1017Firmware(options, reference=reference)
+        self.fw = (_CFirmware if self.backend == "c" else An1017Firmware)(options, reference=reference)
         self.period_us = PWM_PERIOD_US
         self._period_tcy = PWM_PERIOD_US * TCY_PER_US
         self.mode = 0
@@ -460,6 +504,63 @@ class An1017Target:
     def time_us(self) -> float:
         """Virtual time since power-on, µs."""
         return self.fw.t / TCY_PER_US
+
+
+if _an1017core is not None:
+
+    class _CFirmware(_an1017core.Core):
+        """An1017Firmware whose state is the C struct of `_an1017core.Core`.
+
+        The host-command methods are An1017Firmware's own (they only read and write attributes,
+        which are the struct's members here); `run` is the compiled one, plus `step` (one lockstep
+        period → Drive) and `finish` (the Drive of the current state) used by _CAn1017Target.
+        """
+
+        __init__ = An1017Firmware.__init__
+        press_start = An1017Firmware.press_start
+        press_stop = An1017Firmware.press_stop
+        set_gains = An1017Firmware.set_gains
+        declared_gains = An1017Firmware.declared_gains
+        _coefficients = An1017Firmware._coefficients
+        duties = An1017Firmware.duties
+
+    class _CAn1017Target(An1017Target):
+        """An1017Target on the compiled firmware: `step` is the C method of `fw` itself.
+
+        Parameter writes, hello, start/stop, watchdog and status are the Python ones; their
+        effects land in the C struct through its members (gains through `pending_gains`, taken
+        at the next Timer1 ISR as in the Python model). The lockstep period and the last seq
+        live in the struct, behind `_period_tcy` and `_last_seq`.
+        """
+
+        backend = "c"
+
+        def __init__(self, options: An1017Options = An1017Options(), *, reference: bool = False,
+                     backend: str | None = None) -> None:
+            super().__init__(options, reference=reference, backend=backend)
+            self.step = self.fw.step  # type: ignore[method-assign]  # no Python frame per period
+
+        @property
+        def _period_tcy(self) -> int:  # type: ignore[override]
+            return self.fw.period_tcy
+
+        @_period_tcy.setter
+        def _period_tcy(self, value: int) -> None:
+            self.fw.period_tcy = value
+
+        @property
+        def _last_seq(self) -> int:  # type: ignore[override]
+            return self.fw.last_seq
+
+        @_last_seq.setter
+        def _last_seq(self, value: int) -> None:
+            self.fw.last_seq = value
+
+        def _finish(self, seq: int) -> Drive:
+            return self.fw.finish(seq)
+
+else:  # pragma: no cover
+    _CFirmware = _CAn1017Target = None  # type: ignore[assignment,misc]
 
 
 def constraint_name(number: int) -> str:
