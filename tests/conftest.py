@@ -72,3 +72,14 @@ def require_c_plant() -> bool:
     if os.environ.get("HILBENCH_REQUIRE_GCC") == "1":
         pytest.fail("the compiled plant core is not built (HILBENCH_REQUIRE_GCC=1): install with pip install -e .")
     return False
+
+
+def require_c_an1017() -> bool:
+    """True when the compiled AN1017 firmware core is built; under HILBENCH_REQUIRE_GCC=1 its absence fails."""
+    from hilbench.targets.an1017 import available_backends
+
+    if "c" in available_backends():
+        return True
+    if os.environ.get("HILBENCH_REQUIRE_GCC") == "1":
+        pytest.fail("the compiled AN1017 core is not built (HILBENCH_REQUIRE_GCC=1): install with pip install -e .")
+    return False
