@@ -117,6 +117,19 @@ def test_c_equals_reference_random_stream_50us(variant, seed):
     assert_same_state(c_t, ref_t)
 
 
+@pytest.mark.slow
+@pytest.mark.parametrize("variant", ["seed", "v11"])
+@pytest.mark.parametrize("seed", range(100, 116))
+def test_c_equals_reference_more_streams(variant, seed):
+    """More seeds, a longer stream (4 s), a random lockstep period per seed."""
+    step_us = random.Random(seed).choice((50, 50, 100, 150, 250, 500, 1000))
+    script = random_script(seed, 4_000_000 // step_us, step_us)
+    c_t, ref_t = pair(variant, step_us)
+    got, ref = play(c_t, script), play(ref_t, script)
+    assert got == ref, first_difference(got, ref)
+    assert_same_state(c_t, ref_t)
+
+
 @pytest.mark.parametrize("variant", ["seed", "v11"])
 @pytest.mark.parametrize("step_us", [100, 250, 1000])
 def test_c_equals_reference_random_stream_longer_periods(variant, step_us):
