@@ -216,9 +216,10 @@ class Recorder:
         self.closed = True
         self._file.close()
         if self.is_npz:
-            data = read_recording(self._journal_path())
+            table = _journal_table(self._journal_path())
             tmp = self.path.with_name(self.path.name + ".tmp.npz")
-            arrays = dict(data.columns, metadata=np.asarray(json.dumps(self.metadata, default=str)))
+            arrays: dict[str, np.ndarray] = {name: table[:, i] for i, name in enumerate(COLUMN_NAMES)}
+            arrays["metadata"] = np.asarray(json.dumps(self.metadata, default=str))
             _write_npz_deterministic(tmp, arrays)
             os.replace(tmp, self.path)
             self._journal_path().unlink()
@@ -230,10 +231,10 @@ def _write_npz_deterministic(path: Path, arrays: dict[str, np.ndarray]) -> None:
     Stored, not deflated: compressing costs more than the whole run at 20 kHz (gzip it if needed)."""
     with zipfile.ZipFile(path, "w", compression=zipfile.ZIP_STORED) as archive:
         for name, array in arrays.items():
-            buffer = io.BytesIO()
-            np.lib.format.write_array(buffer, np.asanyarray(array), allow_pickle=False)
             info = zipfile.ZipInfo(name + ".npy", date_time=(1980, 1, 1, 0, 0, 0))
-            archive.writestr(info, buffer.getvalue())
+            with archive.open(info, "w", force_zip64=True) as member:  # streamed: no copy in memory
+                data = np.ascontiguousarray(array) if np.ndim(array) else np.asarray(array)
+                np.lib.format.write_array(member, data, allow_pickle=False)
 
 
 @dataclass(frozen=True)
@@ -302,6 +303,19 @@ def _read_csv(path: Path) -> RecordingData:
         raise RecordingError(f"recording {path}: no header line (empty or not a hilbench CSV)")
     table = np.asarray(values, dtype=float).reshape(-1, N_COLUMNS)
     return RecordingData(path, _columns(table), metadata, tuple(events))
+
+
+def _journal_table(path: Path) -> np.ndarray:
+    """The rows of a journal as an (n, columns) array read straight from the file."""
+    with open(path, "rb") as handle:
+        head = handle.read(12)
+        if head[:4] != _JOURNAL_MAGIC:
+            raise RecordingError(f"recording {path}: not a hilbench journal")
+        n_columns, meta_len = struct.unpack_from("<II", head, 4)
+        handle.seek(12 + meta_len)
+        body = np.fromfile(handle, dtype="<f8")
+    usable = len(body) - len(body) % n_columns
+    return body[:usable].reshape(-1, n_columns)
 
 
 def _read_journal(path: Path) -> RecordingData:
