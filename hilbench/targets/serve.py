@@ -10,6 +10,7 @@ Bad frames are counted by the link's decoder; nothing a host sends can crash the
 from __future__ import annotations
 
 import logging
+import gc
 import threading
 import time
 from dataclasses import dataclass, field
@@ -290,7 +291,18 @@ def serve(target: Any, link: Any, *, stop_event: threading.Event | None = None, 
     """
     if mode is not None and mode not in (MODE_LOCKSTEP, MODE_REALTIME):
         raise ValueError(f"serve: mode must be {MODE_LOCKSTEP} or {MODE_REALTIME}, got {mode}")
-    return _Server(target, link, stop_event, mode, watchdog_ms).run()
+    # No collector pauses while serving: a full collection takes milliseconds, longer than a
+    # real-time period, and the frame path makes no reference cycles.
+    gc_was_enabled = gc.isenabled()
+    gc.collect()
+    gc.freeze()
+    gc.disable()
+    try:
+        return _Server(target, link, stop_event, mode, watchdog_ms).run()
+    finally:
+        gc.unfreeze()
+        if gc_was_enabled:
+            gc.enable()
 
 
 __all__ = ["ServeReport", "serve", "status_last_error"]
