@@ -9,8 +9,20 @@ machine is a shared 2-core VM, so the figures move with its load; run it when no
 from __future__ import annotations
 
 import argparse
+import os
+import select
+import statistics
+import subprocess
+import sys
 import tempfile
 from pathlib import Path
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+
+from bench_link import _ECHO_CHILD, frame_sizes  # noqa: E402
+
+from hilbench.bench.clock import Pacer  # noqa: E402
+from hilbench.link.pty import open_pty_pair  # noqa: E402
 
 from hilbench.bench.run import RunRequest, load_run_config, run_bench
 from hilbench.config import default_config_text
@@ -33,6 +45,58 @@ ref_rpm = 2000.0
 at_s = 40.0
 ref_rpm = -1000.0
 """
+
+
+def paced_raw_echo(seconds: float, period_us: int) -> tuple[float, float, int, int]:
+    """The baseline: the same pacing with a raw two-process pty echo of the same frame sizes.
+
+    Returns (lateness p99 us, round-trip p99 us, overruns, periods) — an overrun is a period whose
+    wait + exchange ends after the next period's start, as the session counts them.
+    """
+    req_len, resp_len = frame_sizes()
+    pair = open_pty_pair()
+    child = subprocess.Popen([sys.executable, "-c", _ECHO_CHILD, pair.slave_path, str(req_len), str(resp_len)],
+                             stdout=subprocess.PIPE)
+    try:
+        assert child.stdout is not None
+        child.stdout.readline()
+        os.close(pair.slave_fd)
+        fd = pair.master_fd
+        period_s = period_us * 1e-6
+        n = int(seconds / period_s)
+        pacer = Pacer(period_s)
+        late: list[float] = []
+        rtt: list[float] = []
+        overruns = 0
+        request = b"\xaa" * req_len
+        from time import perf_counter
+        pacer.start()
+        for k in range(n):
+            late.append(pacer.wait_for(k))
+            sent = perf_counter()
+            os.write(fd, request)
+            got = 0
+            while got < resp_len:
+                select.select([fd], [], [], 1.0)
+                got += len(os.read(fd, 4096))
+            done = perf_counter()
+            rtt.append(done - sent)
+            if done - pacer.t0 - k * period_s > period_s:
+                overruns += 1
+    finally:
+        os.close(pair.master_fd)
+        try:
+            child.wait(timeout=5)
+        except subprocess.TimeoutExpired:
+            child.kill()
+            child.wait()
+        if child.stdout is not None:
+            child.stdout.close()
+
+    def p99(values: list[float]) -> float:
+        return statistics.quantiles(values, n=100)[98] * 1e6
+
+    return p99(late), p99(rtt), overruns, n
 
 
 def main() -> None:
@@ -59,6 +123,13 @@ def main() -> None:
     share = summary.overruns / max(1, summary.periods)
     print(f"  overruns   {summary.overruns} of {summary.periods} = {share:.3%} (goal < 0.5 %)")
     print(f"  link: {summary.link}")
+    base_late, base_rtt, base_over, base_n = paced_raw_echo(args.seconds, args.period_us)
+    base_share = base_over / base_n
+    print(f"baseline in the same run: raw two-process pty echo, same pacing, {base_n} periods")
+    print(f"  lateness p99 {base_late:8.1f} us   round trip p99 {base_rtt:8.1f} us   "
+          f"overruns {base_over} = {base_share:.3%}")
+    if base_over:
+        print(f"  bench overruns / baseline overruns: {share / base_share:.2f}x")
 
 
 if __name__ == "__main__":
