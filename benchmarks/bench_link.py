@@ -14,6 +14,7 @@ than the rates are.
 from __future__ import annotations
 
 import argparse
+import contextlib
 import os
 import shutil
 import statistics
@@ -22,7 +23,7 @@ import sys
 import tempfile
 import time
 from pathlib import Path
-from typing import NamedTuple
+from typing import Iterator, NamedTuple
 
 from hilbench.bench.linktest import _Spawned, sensors_for_period
 from hilbench.link import open_pty_pair
@@ -76,8 +77,9 @@ def frame_sizes() -> tuple[int, int]:
     return len(encode_frame(sensors)), len(encode_frame(LoopbackTarget().step(sensors)))
 
 
-def raw_echo(periods: int, req_len: int, resp_len: int) -> Run:
-    """os.write/os.read against a child echoing fixed-size replies on a pty (blocking reads both sides)."""
+@contextlib.contextmanager
+def echo_child(req_len: int, resp_len: int) -> Iterator[tuple[int, subprocess.Popen[bytes]]]:
+    """A child echoing a resp_len reply per req_len request on a pty; yields (our fd, child)."""
     pair = open_pty_pair()
     proc = subprocess.Popen([sys.executable, "-c", _ECHO_CHILD, pair.slave_path, str(req_len), str(resp_len)],
                             stdout=subprocess.PIPE)
@@ -85,15 +87,7 @@ def raw_echo(periods: int, req_len: int, resp_len: int) -> Run:
         assert proc.stdout is not None
         proc.stdout.readline()
         os.close(pair.slave_fd)
-        fd = pair.master_fd
-        req = b"\xaa" * req_len
-        f0, c0, t0 = _proc_cpu_s(proc.pid), time.process_time(), time.perf_counter()
-        for _ in range(periods):
-            os.write(fd, req)
-            got = 0
-            while got < resp_len:
-                got += len(os.read(fd, 4096))
-        elapsed, host_cpu, far_cpu = time.perf_counter() - t0, time.process_time() - c0, _proc_cpu_s(proc.pid) - f0
+        yield pair.master_fd, proc
     finally:
         os.close(pair.master_fd)
         try:
@@ -103,6 +97,19 @@ def raw_echo(periods: int, req_len: int, resp_len: int) -> Run:
             proc.wait()
         if proc.stdout is not None:
             proc.stdout.close()
+
+
+def raw_echo(periods: int, req_len: int, resp_len: int) -> Run:
+    """os.write/os.read against a child echoing fixed-size replies on a pty (blocking reads both sides)."""
+    with echo_child(req_len, resp_len) as (fd, proc):
+        req = b"\xaa" * req_len
+        f0, c0, t0 = _proc_cpu_s(proc.pid), time.process_time(), time.perf_counter()
+        for _ in range(periods):
+            os.write(fd, req)
+            got = 0
+            while got < resp_len:
+                got += len(os.read(fd, 4096))
+        elapsed, host_cpu, far_cpu = time.perf_counter() - t0, time.process_time() - c0, _proc_cpu_s(proc.pid) - f0
     return Run(periods / elapsed, host_cpu / periods * 1e6, far_cpu / periods * 1e6)
 
 

@@ -12,17 +12,16 @@ import argparse
 import os
 import select
 import statistics
-import subprocess
 import sys
 import tempfile
+import time
 from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
-from bench_link import _ECHO_CHILD, frame_sizes  # noqa: E402
+from bench_link import echo_child, frame_sizes  # noqa: E402
 
 from hilbench.bench.clock import Pacer  # noqa: E402
-from hilbench.link.pty import open_pty_pair  # noqa: E402
 
 from hilbench.bench.run import RunRequest, load_run_config, run_bench
 from hilbench.config import default_config_text
@@ -54,44 +53,27 @@ def paced_raw_echo(seconds: float, period_us: int) -> tuple[float, float, int, i
     wait + exchange ends after the next period's start, as the session counts them.
     """
     req_len, resp_len = frame_sizes()
-    pair = open_pty_pair()
-    child = subprocess.Popen([sys.executable, "-c", _ECHO_CHILD, pair.slave_path, str(req_len), str(resp_len)],
-                             stdout=subprocess.PIPE)
-    try:
-        assert child.stdout is not None
-        child.stdout.readline()
-        os.close(pair.slave_fd)
-        fd = pair.master_fd
-        period_s = period_us * 1e-6
-        n = int(seconds / period_s)
+    period_s = period_us * 1e-6
+    n = int(seconds / period_s)
+    late: list[float] = []
+    rtt: list[float] = []
+    overruns = 0
+    request = b"\xaa" * req_len
+    with echo_child(req_len, resp_len) as (fd, _):
         pacer = Pacer(period_s)
-        late: list[float] = []
-        rtt: list[float] = []
-        overruns = 0
-        request = b"\xaa" * req_len
-        from time import perf_counter
         pacer.start()
         for k in range(n):
             late.append(pacer.wait_for(k))
-            sent = perf_counter()
+            sent = time.perf_counter()
             os.write(fd, request)
             got = 0
             while got < resp_len:
                 select.select([fd], [], [], 1.0)
                 got += len(os.read(fd, 4096))
-            done = perf_counter()
+            done = time.perf_counter()
             rtt.append(done - sent)
             if done - pacer.t0 - k * period_s > period_s:
                 overruns += 1
-    finally:
-        os.close(pair.master_fd)
-        try:
-            child.wait(timeout=5)
-        except subprocess.TimeoutExpired:
-            child.kill()
-            child.wait()
-        if child.stdout is not None:
-            child.stdout.close()
 
     def p99(values: list[float]) -> float:
         return statistics.quantiles(values, n=100)[98] * 1e6

@@ -162,36 +162,9 @@ class Link:
         if fd >= 0:
             # the hot path: wait, read what is waiting, and it is usually exactly one frame
             t0 = monotonic()
-            if self._poll_fd(timeout * 1000.0 if timeout > 0 else 0):
-                try:
-                    data = os.read(fd, _READ_CHUNK)
-                except BlockingIOError:
-                    data = None
-                except OSError:
-                    data = None  # the transport's read below raises the named error
-                    fd = -1
-                if data and data[-1] == 0 and self._clean:
-                    try:
-                        msg = decode_frame(data[:-1])  # raises when a 0x00 inside means more frames
-                    except DecodeError:
-                        pass
-                    else:
-                        self.bytes_rx += len(data)
-                        self.fast_frames += 1
-                        kind = type(msg)
-                        expect = self._next_seq.get(kind, _UNSEQUENCED)
-                        if expect is not _UNSEQUENCED:
-                            seq = msg.seq
-                            if expect is not None and seq != expect:
-                                self.seq_gaps += 1
-                            self._next_seq[kind] = (seq + 1) & 0xFF
-                        return msg
-                if data:
-                    msg = self._take_first(data)
-                    if msg is not None:
-                        return msg
-                elif data is not None and fd >= 0:
-                    raise self.transport._hung_up("end of file")  # type: ignore[attr-defined]
+            msg = self._read_ready(fd, timeout)
+            if msg is not None:
+                return msg
             remaining = t0 + timeout - monotonic()
             msg = self._wait(remaining, timeout) if remaining > 0 else None
         else:
@@ -221,39 +194,43 @@ class Link:
             self._set_blocking(False)
         if fd >= 0:
             t0 = monotonic()
-            if self._poll_fd(timeout_s * 1000.0 if timeout_s > 0 else 0):
-                try:
-                    data = os.read(fd, _READ_CHUNK)
-                except BlockingIOError:
-                    data = None
-                except OSError:
-                    data = None
-                    fd = -1
-                if data and data[-1] == 0 and self._clean:
-                    try:
-                        msg = decode_frame(data[:-1])  # raises when a 0x00 inside means more frames
-                    except DecodeError:
-                        pass
-                    else:
-                        self.bytes_rx += len(data)
-                        self.fast_frames += 1
-                        kind = type(msg)
-                        expect = self._next_seq.get(kind, _UNSEQUENCED)
-                        if expect is not _UNSEQUENCED:
-                            seq = msg.seq
-                            if expect is not None and seq != expect:
-                                self.seq_gaps += 1
-                            self._next_seq[kind] = (seq + 1) & 0xFF
-                        return msg
-                if data:
-                    msg = self._take_first(data)
-                    if msg is not None:
-                        return msg
-                elif data is not None and fd >= 0:
-                    raise self.transport._hung_up("end of file")  # type: ignore[attr-defined]
+            msg = self._read_ready(fd, timeout_s)
+            if msg is not None:
+                return msg
             remaining = t0 + timeout_s - monotonic()
             return self._wait(remaining, timeout_s) if remaining > 0 else None
         return self._wait(timeout_s, timeout_s)
+
+    def _read_ready(self, fd: int, timeout_s: float) -> Any | None:
+        """One poll and one read: the frame that arrived, or None (nothing yet, or part of one).
+
+        A read error returns None: the caller's wait reads again through the transport, which
+        names the error (hang-up, closed). End of file is a hang-up."""
+        if not self._poll_fd(timeout_s * 1000.0 if timeout_s > 0 else 0):
+            return None
+        try:
+            data = os.read(fd, _READ_CHUNK)
+        except OSError:  # BlockingIOError included: nothing after all
+            return None
+        if not data:
+            raise self.transport._hung_up("end of file")  # type: ignore[attr-defined]
+        if data[-1] == 0 and self._clean:
+            try:
+                msg = decode_frame(data[:-1])  # raises when a 0x00 inside means more frames
+            except DecodeError:
+                pass
+            else:
+                self.bytes_rx += len(data)
+                self.fast_frames += 1
+                kind = type(msg)
+                expect = self._next_seq.get(kind, _UNSEQUENCED)
+                if expect is not _UNSEQUENCED:
+                    seq = msg.seq
+                    if expect is not None and seq != expect:
+                        self.seq_gaps += 1
+                    self._next_seq[kind] = (seq + 1) & 0xFF
+                return msg
+        return self._take_first(data)
 
     def _recv_forever(self) -> Any:
         """The next frame, however long it takes: blocking reads, no poll (the lockstep server)."""
