@@ -63,23 +63,24 @@ press = "s2"
     return path
 
 
-def require_c_plant() -> bool:
-    """True when the compiled plant core is built; under HILBENCH_REQUIRE_GCC=1 its absence fails."""
-    from hilbench.plant.model import available_backends
-
-    if "c" in available_backends():
+def _require_compiled(what: str, backends: tuple[str, ...]) -> bool:
+    """True when a compiled core is built; under HILBENCH_REQUIRE_GCC=1 its absence fails."""
+    if "c" in backends:
         return True
     if os.environ.get("HILBENCH_REQUIRE_GCC") == "1":
-        pytest.fail("the compiled plant core is not built (HILBENCH_REQUIRE_GCC=1): install with pip install -e .")
+        pytest.fail(f"the compiled {what} core is not built (HILBENCH_REQUIRE_GCC=1): install with pip install -e .")
     return False
+
+
+def require_c_plant() -> bool:
+    """The compiled plant core (hilbench/plant/_plantcore.c)."""
+    from hilbench.plant.model import available_backends
+
+    return _require_compiled("plant", available_backends())
 
 
 def require_c_an1017() -> bool:
-    """True when the compiled AN1017 firmware core is built; under HILBENCH_REQUIRE_GCC=1 its absence fails."""
+    """The compiled AN1017 firmware core (hilbench/targets/_an1017core.c)."""
     from hilbench.targets.an1017 import available_backends
 
-    if "c" in available_backends():
-        return True
-    if os.environ.get("HILBENCH_REQUIRE_GCC") == "1":
-        pytest.fail("the compiled AN1017 core is not built (HILBENCH_REQUIRE_GCC=1): install with pip install -e .")
-    return False
+    return _require_compiled("AN1017", available_backends())
