@@ -17,6 +17,7 @@ import pytest
 REPO_ROOT = Path(__file__).resolve().parent.parent
 FIRMWARE_DIR = REPO_ROOT / "firmware_protocol"
 BENCH_CONFIGS = REPO_ROOT / "bench_configs"
+sys.path.insert(0, str(FIRMWARE_DIR / "vectors"))  # reference_codec: the independent CRC and COBS
 
 
 @pytest.fixture(scope="session")

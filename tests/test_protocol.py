@@ -37,6 +37,7 @@ from hilbench.protocol import (
     encode_frame,
 )
 from hilbench.protocol.framing import cobs_decode, cobs_encode, crc16
+from reference_codec import cobs as ref_cobs, crc16 as ref_crc, wire as ref_wire  # independent
 
 REPO = Path(__file__).resolve().parent.parent
 
@@ -66,36 +67,6 @@ MESSAGES = st.one_of(
     st.builds(Status, u8, u16, u16, u16, u16, u16, u16, u8),
     st.builds(ErrorReport, u8, u8, u8),
 )
-
-
-def ref_crc(data: bytes) -> int:
-    """Bitwise CRC-16/CCITT-FALSE, written from its definition."""
-    crc = 0xFFFF
-    for byte in data:
-        crc ^= byte << 8
-        for _ in range(8):
-            crc = ((crc << 1) ^ 0x1021) & 0xFFFF if crc & 0x8000 else (crc << 1) & 0xFFFF
-    return crc
-
-
-def ref_cobs(raw: bytes) -> bytes:
-    """Byte-by-byte COBS encoder (frames < 254 bytes)."""
-    out = bytearray([0])
-    code_at = 0
-    for b in raw:
-        if b == 0:
-            out[code_at] = len(out) - code_at
-            code_at = len(out)
-            out.append(0)
-        else:
-            out.append(b)
-    out[code_at] = len(out) - code_at
-    return bytes(out)
-
-
-def ref_wire(raw_no_crc: bytes) -> bytes:
-    crc = ref_crc(raw_no_crc)
-    return ref_cobs(raw_no_crc + bytes((crc & 0xFF, crc >> 8))) + b"\x00"
 
 
 def test_crc_check_value() -> None:

@@ -15,6 +15,7 @@ from hypothesis import strategies as st
 from hilbench.errors import ProtocolError
 from hilbench.protocol import Drive, FrameDecoder, LengthError, Sensors, decode_frame, encode_frame
 from hilbench.protocol.framing import CRC_OK, CRC_PRE
+from reference_codec import cobs as ref_cobs, crc16 as ref_crc, wire as ref_wire  # independent
 
 # Values rich in 0x00 bytes, so frames with 0, 1, 2, 3 and more COBS blocks all occur.
 U16_ZEROISH = st.one_of(st.sampled_from([0, 1, 0x100, 0xFF, 0xFF00, 0xFFFF]), st.integers(0, 0xFFFF))
@@ -26,35 +27,6 @@ SENSORS = st.builds(Sensors, U8_ZEROISH, U8_ZEROISH, U16_ZEROISH, U16_ZEROISH,
 DRIVE = st.builds(Drive, U8_ZEROISH, st.integers(0, 1023), st.integers(0, 1023), st.integers(0, 1023),
                   st.integers(0, 3), st.integers(0, 7), st.integers(0, 7), st.booleans(), st.booleans(), U8_ZEROISH,
                   st.lists(I16_ZEROISH, max_size=8).map(tuple))
-
-
-def ref_crc(data: bytes) -> int:
-    """Bitwise CRC-16/CCITT-FALSE from its definition."""
-    crc = 0xFFFF
-    for byte in data:
-        crc ^= byte << 8
-        for _ in range(8):
-            crc = ((crc << 1) ^ 0x1021) & 0xFFFF if crc & 0x8000 else (crc << 1) & 0xFFFF
-    return crc
-
-
-def ref_cobs(raw: bytes) -> bytes:
-    out = bytearray([0])
-    code_at = 0
-    for b in raw:
-        if b == 0:
-            out[code_at] = len(out) - code_at
-            code_at = len(out)
-            out.append(0)
-        else:
-            out.append(b)
-    out[code_at] = len(out) - code_at
-    return bytes(out)
-
-
-def ref_wire(frame: bytes) -> bytes:
-    crc = ref_crc(frame)
-    return ref_cobs(frame + bytes((crc & 0xFF, crc >> 8))) + b"\x00"
 
 
 def le16(v: int) -> bytes:

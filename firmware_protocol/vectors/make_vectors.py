@@ -19,30 +19,9 @@ from __future__ import annotations
 import struct
 from pathlib import Path
 
+from reference_codec import cobs, crc16  # the independent CRC/COBS beside this script
+
 OUT = Path(__file__).resolve().parent / "vectors.txt"
-
-
-def crc16(data: bytes) -> int:
-    crc = 0xFFFF
-    for byte in data:
-        crc ^= byte << 8
-        for _ in range(8):
-            crc = ((crc << 1) ^ 0x1021) & 0xFFFF if crc & 0x8000 else (crc << 1) & 0xFFFF
-    return crc
-
-
-def cobs(raw: bytes) -> bytes:
-    out = bytearray([0])
-    code_at = 0
-    for b in raw:
-        if b == 0:
-            out[code_at] = len(out) - code_at
-            code_at = len(out)
-            out.append(0)
-        else:
-            out.append(b)
-    out[code_at] = len(out) - code_at
-    return bytes(out)
 
 
 def with_crc(raw: bytes, flip: int = 0) -> bytes:
