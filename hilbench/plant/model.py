@@ -720,27 +720,6 @@ class Plant:
             return
         self._set_phase_currents(out)
 
-    def _project(self, i: list[float], open_: list[int]) -> None:
-        """Force the open phases' currents to exactly zero, keeping the sum of currents zero."""
-        if not open_:
-            return
-        open_set = set(open_)
-        live = [k for k in range(3) if k not in open_set]
-        if len(live) < 2:
-            self.i_d = 0.0
-            self.i_q = 0.0
-            return
-        a, b = live
-        x = 0.5 * (i[a] - i[b])
-        out = [0.0, 0.0, 0.0]
-        out[a] = x
-        out[b] = -x
-        if x == 0.0:
-            self.i_d = 0.0
-            self.i_q = 0.0
-            return
-        self._set_phase_currents(out)
-
     def _coast(self, h: float) -> None:
         """Zero currents: mechanics only (one RK4 step on speed, same friction/stiction rules).
         The C core has the same arithmetic (`coast` in _plantcore.c)."""
