@@ -214,6 +214,11 @@ class Link:
             return None
         if not data:
             raise self.transport._hung_up("end of file")  # type: ignore[attr-defined]
+        return self._take_read(data)
+
+    def _take_read(self, data: bytes) -> Any | None:
+        """What one read brought: the frame itself when it is exactly one good frame (the fast
+        path, no streaming decoder), else the first frame the streaming decoder makes of it."""
         if data[-1] == 0 and self._clean:
             try:
                 msg = decode_frame(data[:-1])  # raises when a 0x00 inside means more frames
@@ -252,23 +257,7 @@ class Link:
             if not data:
                 self._set_blocking(False)
                 raise self.transport._hung_up("end of file")  # type: ignore[attr-defined]
-            if data[-1] == 0 and self._clean:
-                try:
-                    msg = decode_frame(data[:-1])
-                except DecodeError:
-                    pass
-                else:
-                    self.bytes_rx += len(data)
-                    self.fast_frames += 1
-                    kind = type(msg)
-                    expect = self._next_seq.get(kind, _UNSEQUENCED)
-                    if expect is not _UNSEQUENCED:
-                        seq = msg.seq
-                        if expect is not None and seq != expect:
-                            self.seq_gaps += 1
-                        self._next_seq[kind] = (seq + 1) & 0xFF
-                    return msg
-            msg = self._take_first(data)
+            msg = self._take_read(data)
             if msg is not None:
                 return msg
 
