@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import pytest
 
-from hilbench.bench.scenario import Event, ScenarioPlayer, _Ramp, default_scenario, scenario_from_list
+from hilbench.bench.scenario import Event, Ramp, ScenarioPlayer, default_scenario, scenario_from_list
 from hilbench.errors import ConfigError
 
 
@@ -37,7 +37,7 @@ def test_events_sorted_and_due_in_order() -> None:
 
 
 def test_ramp_is_linear_and_ends_on_target() -> None:
-    ramp = _Ramp("ref_rpm", 1.0, 1.5, 0.0, 1000.0)
+    ramp = Ramp(1.0, 1.5, 0.0, 1000.0)
     assert ramp.value(1.25) == pytest.approx(500.0)
     assert ramp.value(2.0) == 1000.0
 

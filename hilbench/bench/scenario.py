@@ -154,8 +154,9 @@ def default_scenario() -> tuple[Event, ...]:
 
 
 @dataclass
-class _Ramp:
-    kind: str  # "ref_rpm" | "pot" | "vbus_v"
+class Ramp:
+    """A linear change from v0 at t0 to v1 at t1 (reference or bus voltage)."""
+
     t0: float
     t1: float
     v0: float
@@ -174,7 +175,7 @@ class ScenarioPlayer:
         self.events: tuple[Event, ...] = tuple(sorted(events, key=lambda e: e.at_s))
         self._index = 0
         self.next_t_s = self.events[0].at_s if self.events else float("inf")
-        self.ramps: dict[str, _Ramp] = {}
+        self.ramps: dict[str, Ramp] = {}
 
     def due(self, t_s: float) -> list[Event]:
         """Events whose time has come (call only when ``t_s >= next_t_s``)."""

@@ -25,7 +25,7 @@ from hilbench.bench.recorder import (
     MARKER_PARAM,
     Recorder,
 )
-from hilbench.bench.scenario import Event, ScenarioPlayer
+from hilbench.bench.scenario import Event, Ramp, ScenarioPlayer
 from hilbench.errors import HilbenchError, LinkError, ParamError, TargetError
 from hilbench.protocol import (
     PROTOCOL_VERSION,
@@ -194,7 +194,6 @@ class Snapshot:
     i_abc: tuple[float, float, float]
     i_bus: float
     control_output_q15: int
-    params: dict[str, float]
     periods_per_s: float
     rtt_p50_us: float
     rtt_p99_us: float
@@ -262,7 +261,6 @@ class Session:
         self._missing_edge_armed = False
         self._encoder_offset = 0
         self._last_hall = 0
-        self._last_drive: Any = None
         self._end_requested = False
         self.on_params: Callable[[dict[str, float]], None] | None = None
         self.guard = guard
@@ -394,7 +392,7 @@ class Session:
         if event.ref_rpm is not None:
             target_rpm = event.ref_rpm
             if event.ramp_s > 0:
-                self.player.ramps["ref_rpm"] = _ramp(t_s, event.ramp_s, self._ref_rpm, target_rpm)
+                self.player.ramps["ref_rpm"] = Ramp(t_s, t_s + event.ramp_s, self._ref_rpm, target_rpm)
             else:
                 self.player.ramps.pop("ref_rpm", None)
                 self._set_ref(target_rpm)
@@ -404,7 +402,7 @@ class Session:
             self.set_load(event.load_kind, event.load_nm)
         elif event.vbus_v is not None:
             if event.ramp_s > 0:
-                self.player.ramps["vbus_v"] = _ramp(t_s, event.ramp_s, plant.vbus_v, event.vbus_v)
+                self.player.ramps["vbus_v"] = Ramp(t_s, t_s + event.ramp_s, plant.vbus_v, event.vbus_v)
             else:
                 plant.vbus_v = event.vbus_v
         elif event.press is not None:
@@ -794,7 +792,6 @@ class Session:
             i_abc=(ia, ib, ic),
             i_bus=self.plant.i_bus,
             control_output_q15=ctrl,
-            params={},
             periods_per_s=rate,
             rtt_p50_us=stats.get("p50", math.nan),
             rtt_p99_us=stats.get("p99", math.nan),
@@ -844,9 +841,3 @@ class Session:
             meas_mean = sum(meas_values) / len(meas_values) if meas_values else math.nan
             segments.append(Segment(event.at_s, end, float(event.ref_rpm or 0.0), plant_mean, meas_mean))
         return segments
-
-
-def _ramp(t_s: float, ramp_s: float, v0: float, v1: float):  # type: ignore[no-untyped-def]
-    from hilbench.bench.scenario import _Ramp
-
-    return _Ramp("", t_s, t_s + ramp_s, v0, v1)
