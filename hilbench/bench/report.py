@@ -8,6 +8,7 @@ from typing import Any
 import numpy as np
 
 from hilbench.bench.recorder import MARKER_FAULT, RecordingData
+from hilbench.bench.session import START_PRESS_S
 
 _EVENT_TIME = re.compile(r"^t=([0-9.]+) (.*)$")
 _REF = re.compile(r"^ref (-?[0-9.]+) rpm")
@@ -34,7 +35,7 @@ def reference_segments(data: RecordingData) -> list[dict[str, float]]:
     segments: list[dict[str, float]] = []
     for i, (start, ref) in enumerate(refs):
         end = refs[i + 1][0] if i + 1 < len(refs) else float(t[-1])
-        later_stops = [w for w, text in events if text.startswith("press") and start + 0.05 < w < end]
+        later_stops = [w for w, text in events if text.startswith("press") and start + START_PRESS_S < w < end]
         if later_stops:
             end = later_stops[0]
         if end - start < 0.05 or ref == 0:

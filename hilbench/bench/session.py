@@ -53,6 +53,7 @@ RAW_ROW_WIDTH = 22  # the values the hot loop appends per period (see _columns_f
 #: the plant's step is accurate to 1e-6 at 50 us; longer periods are integrated in substeps
 MAX_PLANT_STEP_US = 50
 
+START_PRESS_S = 0.05  # presses this soon after a reference are starts, not stops (segments)
 CTL_STEP_HOLD_S = 1.0
 CTL_STEP_AFTER_S = 1.0
 STEP_REPLY_KEYS = ("rise_time_s", "overshoot_pct", "settling_time_s", "ss_error", "ss_error_pct", "ss_ripple", "iae", "itae")
@@ -798,7 +799,7 @@ class Session:
             link=self.link_stats(),
             overruns=overruns,
             messages=self.messages[-4:],
-            history=self.history[-300:],
+            history=self.history,  # the dashboard decimates it to its width
         )
 
     def _finish(self, summary: Summary, wall_start: float, rtts, lateness, overruns, note, fault=False) -> None:  # type: ignore[no-untyped-def]
@@ -824,11 +825,13 @@ class Session:
     def _segments(self, sim_s: float) -> list[Segment]:
         """Each held reference: the mean speed over the last 30 % of its hold."""
         refs = [e for e in self.player.events if e.ref_rpm is not None and e.at_s < sim_s]
-        bounds = [e.at_s for e in self.player.events if (e.ref_rpm is not None or e.press or e.end)]
+        bounds = [e.at_s for e in self.player.events if e.ref_rpm is not None or e.end]
+        presses = [e.at_s for e in self.player.events if e.press]
         segments: list[Segment] = []
         for event in refs:
             start = event.at_s + event.ramp_s
-            later = [b for b in bounds if b > start]
+            # a press soon after the hold starts is the start button; a later one stops the motor
+            later = sorted([b for b in bounds if b > start] + [p for p in presses if p > start + START_PRESS_S])
             end = min(later[0] if later else sim_s, sim_s)
             if end - start <= 0.05 or event.ref_rpm == 0:
                 continue

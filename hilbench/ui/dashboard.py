@@ -24,14 +24,16 @@ OUTPUT_NAMES = {0: "off", 1: "PWM", 2: "low-side on", 3: "?"}
 SPARK = "▁▂▃▄▅▆▇█"
 
 
-def sparkline(values: list[float], width: int = 60) -> str:
-    """A one-line chart of the last ``width`` values."""
-    clean = [v for v in values[-width:] if not math.isnan(v)]
+def sparkline(values: list[float], width: int = 100) -> str:
+    """A one-line chart of the whole series, decimated to ``width`` characters."""
+    step = max(1, len(values) // width)
+    picked = values[::step][-width:]
+    clean = [v for v in picked if not math.isnan(v)]
     if not clean:
         return ""
     lo, hi = min(clean), max(clean)
     span = (hi - lo) or 1.0
-    return "".join(SPARK[min(7, int((v - lo) / span * 7.999))] if not math.isnan(v) else " " for v in values[-width:])
+    return "".join(" " if math.isnan(v) else SPARK[min(7, int((v - lo) / span * 7.999))] for v in picked)
 
 
 def _fmt(value: float, spec: str = ".0f") -> str:
@@ -74,7 +76,7 @@ def render_snapshot(snap: Snapshot, params: dict[str, float], target_label: str)
     parts: list[Any] = [
         Text(f"hilbench run — {target_label}", style="bold"),
         grid,
-        Panel(chart, title="speed (plant), last samples"),
+        Panel(chart, title="speed (plant) since the start"),
     ]
     if snap.messages:
         parts.append(Text("\n".join(snap.messages), style="yellow"))
