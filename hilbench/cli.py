@@ -245,10 +245,18 @@ def run(config: str | None, target_spec: str | None, mode: str | None, duration_
 @click.argument("recording", type=click.Path(dir_okay=False))
 @click.option("--plot", "plot_dir", type=click.Path(file_okay=False), default=None, metavar="DIR",
               help="Write PNG plots (speed, currents, duties, hall, link) into DIR (needs the plot extra).")
+@click.option("--csv", "csv_file", type=click.Path(dir_okay=False), default=None, metavar="FILE.csv",
+              help="Also write the recording as CSV (e.g. from a fast .npz run).")
 @click.option("--json", "as_json", is_flag=True, help="Print the summary as JSON.")
 @_friendly
-def report(recording: str, plot_dir: str | None, as_json: bool) -> None:
-    """Summarise a recording (CSV, NPZ, or the journal of a run that was killed)."""
+def report(recording: str, plot_dir: str | None, csv_file: str | None, as_json: bool) -> None:
+    """Summarise a recording (CSV, NPZ, or the journal of a run that was killed).
+
+    \b
+    Examples:
+      hilbench report run.npz --plot plots/
+      hilbench report run.npz --csv run.csv
+    """
     import json as json_module
     from pathlib import Path
 
@@ -260,6 +268,10 @@ def report(recording: str, plot_dir: str | None, as_json: bool) -> None:
 
     data = read_recording(recording)
     info = summarise(data)
+    if csv_file is not None:
+        from hilbench.bench.recorder import export_csv
+
+        info["csv"] = str(export_csv(data, csv_file))
     if plot_dir is not None:
         from hilbench.ui.plots import plot_recording
 

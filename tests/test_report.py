@@ -27,3 +27,18 @@ def test_report_summarises_and_plots(tmp_path: Path, suffix: str) -> None:
     plots = [Path(p) for p in info["plots"]]
     assert {p.name.split("_", 1)[1] for p in plots} == {"speed.png", "currents.png", "duties.png", "hall.png", "link.png"}
     assert all(p.stat().st_size > 10_000 for p in plots)
+
+
+def test_npz_recording_exports_the_same_csv_as_a_csv_run(tmp_path: Path) -> None:
+    config = hurst_bench_config(tmp_path, 0.1)
+    for suffix in (".csv", ".npz"):
+        result = run_cli("run", str(config), "--target", "inprocess:an1017", "--record", str(tmp_path / f"run{suffix}"),
+                         "--no-ui", "--no-control")
+        assert result.returncode == 0, result.stderr
+    export = run_cli("report", str(tmp_path / "run.npz"), "--csv", str(tmp_path / "export.csv"), "--json")
+    assert export.returncode == 0, export.stderr
+
+    def rows(path: Path) -> list[str]:
+        return [ln for ln in path.read_text().splitlines() if not ln.startswith("#")]
+
+    assert rows(tmp_path / "export.csv") == rows(tmp_path / "run.csv")
