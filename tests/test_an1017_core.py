@@ -22,7 +22,7 @@ from hilbench.plant import Plant
 from hilbench.protocol import PROTOCOL_VERSION, Drive, HostHello, Sensors
 from hilbench.targets.an1017 import An1017Target, available_backends
 from hilbench.targets.an1017_firmware import An1017Firmware, An1017Options
-from test_an1017_fastpath import first_difference, play, random_script
+from test_an1017_fastpath import first_difference, play, play_with_advances, random_script
 
 pytestmark = pytest.mark.skipif(not require_c_an1017(), reason="compiled AN1017 core not built")
 
@@ -144,16 +144,7 @@ def test_c_equals_reference_random_stream_longer_periods(variant, step_us):
 def test_c_equals_reference_with_advance_spans(variant):
     """Real-time advance() spans (not whole periods) interleaved with lockstep steps."""
     script = random_script(77, 12_000, 50)
-    outs = []
-    for target in pair(variant):
-        rng = random.Random(5)
-        out = []
-        for item in script:
-            if item[0] == "sensors" and rng.random() < 0.02:
-                out.append(target.advance(rng.uniform(0.0, 120.0), item[1]))
-            else:
-                out.extend(play(target, [item]))
-        outs.append(out)
+    outs = [play_with_advances(target, script, seed=5) for target in pair(variant)]
     assert outs[0] == outs[1], first_difference(outs[0], outs[1])
 
 

@@ -147,6 +147,18 @@ def play(target: An1017Target, script: list[tuple]) -> list:
     return out
 
 
+def play_with_advances(target: An1017Target, script: list[tuple], seed: int) -> list:
+    """Play a script, turning 2 % of its Sensors into real-time advance() spans of 0..120 us."""
+    rng = random.Random(seed)
+    out: list = []
+    for item in script:
+        if item[0] == "sensors" and rng.random() < 0.02:
+            out.append(target.advance(rng.uniform(0.0, 120.0), item[1]))
+        else:
+            out.extend(play(target, [item]))
+    return out
+
+
 def first_difference(a: list, b: list) -> str:
     for i, (x, y) in enumerate(zip(a, b)):
         if x != y:
@@ -187,18 +199,9 @@ def test_randomised_stream_fast_equals_reference_longer_periods(step_us):
 def test_randomised_stream_with_advance_between_steps():
     """Real-time advance() spans (not whole periods) interleaved with lockstep steps."""
     script = random_script(77, 12_000, 50)
-    rng_a, rng_b = random.Random(5), random.Random(5)
     fast_t, ref_t = An1017Target(), An1017Target(reference=True)
     fast_t.start(), ref_t.start()
-    outs = []
-    for target, rng in ((fast_t, rng_a), (ref_t, rng_b)):
-        out = []
-        for item in script:
-            if item[0] == "sensors" and rng.random() < 0.02:
-                out.append(target.advance(rng.uniform(0.0, 120.0), item[1]))
-            else:
-                out.extend(play(target, [item]))
-        outs.append(out)
+    outs = [play_with_advances(target, script, seed=5) for target in (fast_t, ref_t)]
     assert outs[0] == outs[1], first_difference(outs[0], outs[1])
 
 
