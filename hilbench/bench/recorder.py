@@ -342,16 +342,6 @@ def _columns(table: np.ndarray) -> dict[str, np.ndarray]:
     return {name: table[:, i].copy() for i, name in enumerate(COLUMN_NAMES)}
 
 
-def column_index(name: str) -> int:
-    """Position of a column in a row tuple."""
-    return COLUMN_NAMES.index(name)
-
-
-def rows_to_table(rows: Sequence[Sequence[float]]) -> np.ndarray:
-    """Rows as a float array (for tests and reports)."""
-    return np.asarray(rows, dtype=float).reshape(-1, N_COLUMNS)
-
-
 class MemoryRecorder:
     """The Recorder interface kept in memory: every row, for step tests and analysis."""
 

@@ -9,7 +9,7 @@ from __future__ import annotations
 import dataclasses
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Callable, Sequence
+from typing import TYPE_CHECKING, Any, Callable, Sequence
 
 from hilbench import __version__
 from hilbench.bench import settings
@@ -19,6 +19,9 @@ from hilbench.bench.session import Session, SessionOptions, Snapshot, Summary
 from hilbench.config import BenchConfig, load_config, plant_params_from_config
 from hilbench.errors import ConfigError, LinkError
 from hilbench.protocol import PROTOCOL_VERSION
+
+if TYPE_CHECKING:
+    from hilbench.bench.steptest import StepResult, StepTest
 
 
 @dataclass(frozen=True)
@@ -173,6 +176,3 @@ def run_step_tests(
             progress(index + 1, len(sets))
     return results
 
-
-if False:  # typing only
-    from hilbench.bench.steptest import StepResult, StepTest

@@ -29,23 +29,31 @@ from hilbench.bench.scenario import Event, Ramp, ScenarioPlayer
 from hilbench.errors import HilbenchError, LinkError, ParamError, TargetError
 from hilbench.protocol import (
     PROTOCOL_VERSION,
+    Edge,
+    Fault,
     HostHello,
+    Input,
+    OutputMode,
+    ParamType,
+    Result,
     Sensors,
+    State,
     TargetHello,
+    TelemetryId,
 )
 from hilbench.targets.profiles import TargetProfile, profile_for
 
-EDGE_NONE = 0xFFFF
-INPUT_S2 = 0x08
-INPUT_S3 = 0x10
-#: telemetry ids (docs/design.md)
-TELEMETRY_REF_SPEED = 1
-TELEMETRY_MEASURED_SPEED = 2
-TELEMETRY_CONTROL_OUTPUT = 3
-OUTPUT_OFF = 0
-PARAM_Q15 = 0
-PARAM_BOOL = 2
-RESULT_NAMES = {0: "ok", 1: "unknown parameter", 2: "read-only", 3: "out of range", 4: "constraint", 5: "bad request"}
+# The schema's constants as plain ints: the hot loop puts them into Sensors and compares with them.
+EDGE_NONE = int(Edge.NONE)
+INPUT_S2 = int(Input.S2)
+INPUT_S3 = int(Input.S3)
+OUTPUT_OFF = int(OutputMode.OFF)
+STATE_STALLED = int(State.STALLED)
+FAULT_STALL = int(Fault.STALL)
+RESULT_NAMES = {
+    Result.OK: "ok", Result.UNKNOWN_ID: "unknown parameter", Result.READ_ONLY: "read-only",
+    Result.OUT_OF_RANGE: "out of range", Result.CONSTRAINT: "constraint", Result.BAD_REQUEST: "bad request",
+}
 
 RPM_PER_RAD_S = 60.0 / (2.0 * math.pi)
 RAW_ROW_WIDTH = 22  # the values the hot loop appends per period (see _columns_from_raw)
@@ -57,8 +65,6 @@ START_PRESS_S = 0.05  # presses this soon after a reference are starts, not stop
 CTL_STEP_HOLD_S = 1.0
 CTL_STEP_AFTER_S = 1.0
 STEP_REPLY_KEYS = ("rise_time_s", "overshoot_pct", "settling_time_s", "ss_error", "ss_error_pct", "ss_ripple", "iae", "itae")
-STATE_STALLED = 3
-FAULT_STALL = 2
 
 #: how long a button press is held (the firmware debounces and acts on the edge)
 BUTTON_HOLD_S = 0.002
@@ -285,9 +291,9 @@ class Session:
             self.param_ids[info.name] = info.param_id
             self.param_info[info.name] = info
         ids = list(hello.telemetry_ids)
-        self._tele_ref = ids.index(TELEMETRY_REF_SPEED) if TELEMETRY_REF_SPEED in ids else -1
-        self._tele_meas = ids.index(TELEMETRY_MEASURED_SPEED) if TELEMETRY_MEASURED_SPEED in ids else -1
-        self._tele_ctrl = ids.index(TELEMETRY_CONTROL_OUTPUT) if TELEMETRY_CONTROL_OUTPUT in ids else -1
+        self._tele_ref = ids.index(TelemetryId.REF_SPEED) if TelemetryId.REF_SPEED in ids else -1
+        self._tele_meas = ids.index(TelemetryId.MEASURED_SPEED) if TelemetryId.MEASURED_SPEED in ids else -1
+        self._tele_ctrl = ids.index(TelemetryId.CONTROL_OUTPUT) if TelemetryId.CONTROL_OUTPUT in ids else -1
         return hello
 
     # ------------------------------------------------------------------ parameters
@@ -296,7 +302,7 @@ class Session:
         values: dict[str, float] = {}
         for name, param_id in self.param_ids.items():
             raw = self.target.get_param(param_id).value
-            values[name] = raw / 32768.0 if self.param_info[name].ptype == PARAM_Q15 else float(raw)
+            values[name] = raw / 32768.0 if self.param_info[name].ptype == ParamType.Q15 else float(raw)
         return values
 
     def encode_param(self, name: str, value: float) -> tuple[int, int]:
@@ -307,12 +313,12 @@ class Session:
         info = self.param_info[name]
         if info.access == 0:
             raise ParamError(f"{self.target_label}: parameter {name} is read-only")
-        raw = round(value * 32768.0) if info.ptype == PARAM_Q15 else round(value)
-        if info.ptype == PARAM_Q15 and value == 1.0:
+        raw = round(value * 32768.0) if info.ptype == ParamType.Q15 else round(value)
+        if info.ptype == ParamType.Q15 and value == 1.0:
             raw = 32767
         if not info.min_value <= raw <= info.max_value:
             lo, hi = info.min_value, info.max_value
-            if info.ptype == PARAM_Q15:
+            if info.ptype == ParamType.Q15:
                 rng = f"{lo / 32768:.5f}..{hi / 32768:.5f}"
             else:
                 rng = f"{lo}..{hi}"
@@ -337,7 +343,7 @@ class Session:
         if result.result != 0:
             name = next((n for n, i in self.param_ids.items() if i == result.param_id), str(result.param_id))
             reason = RESULT_NAMES.get(result.result, f"result {result.result}")
-            detail = f" #{result.detail}" if result.result == 4 else ""
+            detail = f" #{result.detail}" if result.result == Result.CONSTRAINT else ""
             raise ParamError(f"{self.target_label} refused {name}: {reason}{detail}")
         if self.on_params is not None:
             self.on_params(dict(values))
