@@ -40,14 +40,7 @@ class TargetHandle:
 
     def link_stats(self) -> dict[str, int]:
         """The link's counters as plain ints (empty for an in-process target)."""
-        if self.link is None:
-            return {}
-        stats = self.link.stats
-        if hasattr(stats, "as_dict"):
-            return dict(stats.as_dict())
-        if isinstance(stats, dict):
-            return dict(stats)
-        return {k: v for k, v in vars(stats).items() if isinstance(v, int)}
+        return {} if self.link is None else self.link.stats.as_dict()
 
     def child_status(self) -> str:
         """How the emulator process is doing, for error lines."""
