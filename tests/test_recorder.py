@@ -12,9 +12,11 @@ import pytest
 
 from hilbench.bench.recorder import (
     COLUMN_NAMES,
+    MARKER_EVENT,
     MARKER_FAULT,
     N_COLUMNS,
     Recorder,
+    RowLayout,
     read_recording,
 )
 from hilbench.errors import RecordingError
@@ -115,3 +117,53 @@ def test_unreadable_recordings_raise_recording_error(tmp_path: Path) -> None:
     with pytest.raises(RecordingError, match="unknown format"):
         Recorder(tmp_path / "x.txt", {})
     assert COLUMN_NAMES[0] == "t_s"
+
+
+def _raw_layout() -> RowLayout:
+    """A layout like the session's: integers kept as integers, columns made by scaling."""
+    fields = (("k", "Q"), ("speed_raw", "i"), ("amps", "d"), ("marker", "B"))
+    sources = {"t_s": ("k", 50e-6), "seq": ("k", 1.0), "speed_rpm": ("speed_raw", 0.5),
+               "measured_speed_rpm": ("speed_raw", float("nan")), "ia_a": ("amps", 1.0), "marker": ("marker", 1.0)}
+    return RowLayout(fields, tuple(sources.get(name, ("k", 0.0)) for name in COLUMN_NAMES))
+
+
+@pytest.mark.parametrize("suffix", [".csv", ".npz"])
+def test_raw_layout_rows_become_scaled_columns_with_event_markers(tmp_path: Path, suffix: str) -> None:
+    path = tmp_path / f"run{suffix}"
+    rec = Recorder(path, {"seed": 2}, flush_rows=4)
+    rec.start(_raw_layout())
+    for k in range(10):
+        if k == 6:
+            rec.event("press s2", MARKER_EVENT)
+        rec.rows.append((k, 2 * k, 0.25 * k, 0))
+        rec.maybe_flush()
+    rec.close("end")
+    data = read_recording(path)
+    assert data.n_rows == 10
+    assert data.columns["t_s"][3] == pytest.approx(3 * 50e-6)
+    assert list(data.columns["speed_rpm"]) == [float(k) for k in range(10)]  # 2k x 0.5
+    assert np.isnan(data.columns["measured_speed_rpm"]).all()  # a quantity the target does not report
+    assert data.columns["ia_a"][9] == 2.25
+    assert list(np.flatnonzero(data.columns["marker"])) == [6]
+    assert data.columns["marker"][6] == MARKER_EVENT
+
+
+def test_journal_with_a_torn_row_reads_every_whole_row(tmp_path: Path) -> None:
+    path = tmp_path / "run.npz"
+    rec = Recorder(path, {}, flush_rows=3)
+    rec.start(_raw_layout())
+    for k in range(6):
+        rec.rows.append((k, k, 0.0, 0))
+        rec.maybe_flush()
+    journal = tmp_path / "run.npz.journal"
+    with open(journal, "ab") as handle:  # a crash in the middle of a write
+        handle.write(b"\x07" * 5)
+    data = read_recording(path)
+    assert list(data.columns["seq"]) == [0.0, 1.0, 2.0, 3.0, 4.0, 5.0]
+
+
+def test_a_layout_set_after_rows_were_appended_is_refused(tmp_path: Path) -> None:
+    rec = Recorder(tmp_path / "run.npz", {})
+    rec.append(_row(0))
+    with pytest.raises(RecordingError, match="before the layout"):
+        rec.start(_raw_layout())

@@ -6,9 +6,14 @@ Two formats share one column schema:
   a header whose names carry units, then rows. Events (parameter changes, faults, scenario
   actions) are ``# event`` comment lines between rows, at the row where they happened, and the
   ``marker`` column is non-zero on that row. numpy.loadtxt and pandas (comment="#") read it.
-* NPZ (``run.npz``): rows go to an append-only binary journal ``run.npz.journal`` (float64
-  records) flushed every chunk; a clean close writes the ``.npz`` atomically and removes the
-  journal. ``read_recording`` reads either, so a killed run is still readable.
+* NPZ (``run.npz``): rows go to an append-only binary journal ``run.npz.journal`` flushed every
+  chunk; a clean close writes the ``.npz`` (one float64 array per column) atomically and removes
+  the journal. ``read_recording`` reads either, so a killed run is still readable.
+
+The hot loop appends *raw* rows: the period's values in their own types (firmware integers stay
+integers), packed by a `RowLayout` that also says how each column is made of them (a field times a
+scale). The journal keeps raw rows as they are, with the layout in its header, so it is written
+without a conversion and a killed run's journal reads back on its own.
 
 A chunk is ``flush_rows`` periods (by default one simulated second at the run's period).
 """
@@ -64,7 +69,11 @@ MARKER_PARAM = 2
 MARKER_FAULT = 3
 MARKER_END = 4
 
-_JOURNAL_MAGIC = b"HBJ1"
+_JOURNAL_MAGIC = b"HBJ2"
+
+#: struct codes a layout may use and their NumPy types (little-endian, packed without padding)
+_CODE_DTYPES = {"B": "u1", "h": "<i2", "H": "<u2", "i": "<i4", "I": "<u4", "q": "<i8", "Q": "<u8",
+                "f": "<f4", "d": "<f8"}
 
 
 def csv_header() -> str:
@@ -72,23 +81,80 @@ def csv_header() -> str:
     return ",".join(f"{name}[{unit}]" if unit else name for name, unit, _ in COLUMNS)
 
 
-class RowBuffer:
-    """Rows of float64 packed into one bytearray: cheap to append (struct), free to view (numpy).
+@dataclass(frozen=True)
+class RowLayout:
+    """What one raw row holds and how the recording's COLUMNS are made of it.
 
-    The hot path binds ``pack`` and ``extend`` and calls ``extend(pack(v0, v1, ...))``: about 0.3 µs
-    for a row of 22 numbers, where array('d').extend(tuple) costs 1.5 µs.
+    ``fields`` are (name, struct code) packed little-endian in order; ``columns`` gives, for each
+    entry of COLUMNS, the field it comes from and the scale applied (column = field × scale; a NaN
+    scale marks a quantity the target does not report). A ``marker`` field is required: events
+    and faults are written into it.
     """
 
-    def __init__(self, width: int = N_COLUMNS) -> None:
-        self.configure(width)
+    fields: tuple[tuple[str, str], ...]
+    columns: tuple[tuple[str, float], ...]
 
-    def configure(self, width: int) -> None:
-        """Set the row width (empties the buffer: call it before the first row)."""
-        self.width = width
-        self.struct = struct.Struct(f"<{width}d")
+    def __post_init__(self) -> None:
+        names = [name for name, _ in self.fields]
+        bad = [code for _, code in self.fields if code not in _CODE_DTYPES]
+        missing = [src for src, _ in self.columns if src not in names]
+        if bad or missing or len(self.columns) != N_COLUMNS or "marker" not in names:
+            raise ValueError(f"RowLayout: bad codes {bad}, unknown fields {missing}, "
+                             f"{len(self.columns)} columns for {N_COLUMNS}, marker field: {'marker' in names}")
+
+    @property
+    def struct_format(self) -> str:
+        return "<" + "".join(code for _, code in self.fields)
+
+    @property
+    def dtype(self) -> np.dtype:
+        return np.dtype([(name, _CODE_DTYPES[code]) for name, code in self.fields])
+
+    def to_columns(self, raw: Any) -> dict[str, np.ndarray]:
+        """Raw rows (bytes or a structured array) to one contiguous float64 array per column."""
+        rows = raw if isinstance(raw, np.ndarray) else np.frombuffer(raw, dtype=self.dtype)
+        out: dict[str, np.ndarray] = {}
+        for name, (src, scale) in zip(COLUMN_NAMES, self.columns):
+            column = rows[src].astype(np.float64)  # a new contiguous array
+            if scale != 1.0:
+                column *= scale
+            out[name] = column
+        return out
+
+    def as_json(self) -> dict[str, Any]:
+        return {"fields": [list(f) for f in self.fields], "columns": [list(c) for c in self.columns]}
+
+    @classmethod
+    def from_json(cls, obj: dict[str, Any]) -> "RowLayout":
+        return cls(tuple((str(n), str(c)) for n, c in obj["fields"]),
+                   tuple((str(n), float(k)) for n, k in obj["columns"]))
+
+
+#: Rows that already are the COLUMNS, as float64 (tests, exports, any caller without its own layout).
+COLUMN_LAYOUT = RowLayout(tuple((name, "d") for name in COLUMN_NAMES), tuple((name, 1.0) for name in COLUMN_NAMES))
+
+
+class RowBuffer:
+    """Raw rows packed into one bytearray: cheap to append (struct), free to view (numpy).
+
+    The hot path binds ``pack`` and ``extend`` and calls ``extend(pack(v0, v1, ...))``: a few
+    hundred ns per row, where array('d').extend(tuple) costs 1.5 µs.
+    """
+
+    def __init__(self, layout: RowLayout = COLUMN_LAYOUT) -> None:
+        self.configure(layout)
+
+    def configure(self, layout: RowLayout) -> None:
+        """Set the row layout (empties the buffer: call it before the first row)."""
+        self.layout = layout
+        self.struct = struct.Struct(layout.struct_format)
         self.pack = self.struct.pack
         self.data = bytearray()
         self.extend = self.data.extend
+        names = [name for name, _ in layout.fields]
+        marker = names.index("marker")
+        self._marker_code = "<" + layout.fields[marker][1]
+        self._marker_offset = struct.calcsize("<" + "".join(code for _, code in layout.fields[:marker]))
 
     def append(self, row: Sequence[float]) -> None:
         self.extend(self.pack(*row))
@@ -96,13 +162,17 @@ class RowBuffer:
     def __len__(self) -> int:
         return len(self.data) // self.struct.size
 
-    def mark_last(self, value: float) -> None:
-        """Overwrite the last value of the newest row (the marker column)."""
-        if self.data:
-            struct.pack_into("<d", self.data, len(self.data) - 8, value)
+    def mark(self, index: int, value: int) -> None:
+        """Set the marker field of pending row ``index``."""
+        struct.pack_into(self._marker_code, self.data, index * self.struct.size + self._marker_offset, value)
 
-    def table(self) -> np.ndarray:
-        return np.frombuffer(self.data, dtype="<f8").reshape(-1, self.width).copy()
+    def mark_last(self, value: int) -> None:
+        """Set the marker field of the newest row."""
+        if self.data:
+            self.mark(len(self) - 1, value)
+
+    def columns(self) -> dict[str, np.ndarray]:
+        return self.layout.to_columns(self.data)
 
     def clear(self) -> None:
         del self.data[:]
@@ -110,19 +180,17 @@ class RowBuffer:
 
 @dataclass
 class Recorder:
-    """Collects rows in memory and writes them out every ``flush_rows`` rows."""
+    """Collects raw rows in memory and writes them out every ``flush_rows`` rows."""
 
     path: Path
     metadata: dict[str, Any]
     flush_rows: int = 20_000
     rows: RowBuffer = field(default_factory=RowBuffer, repr=False)
-    _events: list[tuple[int, str]] = field(default_factory=list, repr=False)
+    _events: list[tuple[int, str, int]] = field(default_factory=list, repr=False)
     _file: Any = field(default=None, repr=False)
     rows_written: int = 0
     closed: bool = False
-    #: turns a chunk of appended rows (an array) into the COLUMNS; the session appends raw values
-    #: cheaply (``rows.configure(width)``) and scales them here, once per chunk
-    transform: Any = None
+    started: bool = False
 
     def __post_init__(self) -> None:
         self.path = Path(self.path)
@@ -130,32 +198,51 @@ class Recorder:
         if suffix not in (".csv", ".npz"):
             raise RecordingError(f"recording {self.path}: unknown format {suffix!r} (use .csv or .npz)")
         self.is_npz = suffix == ".npz"
-        try:
+        try:  # open now, so an unwritable path fails before the run starts
             if self.is_npz:
                 self._file = open(self._journal_path(), "wb")
-                meta = json.dumps(self.metadata, default=str).encode()
-                self._file.write(_JOURNAL_MAGIC + struct.pack("<II", N_COLUMNS, len(meta)) + meta)
             else:
                 self._file = open(self.path, "w", encoding="utf-8", newline="\n")
-                for key, value in self.metadata.items():
-                    self._file.write(f"# {key}: {json.dumps(value, default=str)}\n")
-                self._file.write(csv_header() + "\n")
-            self._file.flush()
         except OSError as exc:
             raise RecordingError(f"recording {self.path}: cannot write ({exc.strerror})") from None
         self._fmt = ",".join(fmt for _, _, fmt in COLUMNS) + "\n"
         self.append = self.rows.append
 
+    def start(self, layout: RowLayout = COLUMN_LAYOUT) -> None:
+        """Fix the row layout and write the header (before the first row; flush starts a
+        recorder that was not started with COLUMN_LAYOUT)."""
+        if self.started:
+            if layout != self.rows.layout:
+                raise RecordingError(f"recording {self.path}: row layout changed after the start")
+            return
+        if layout != self.rows.layout:
+            if len(self.rows):
+                raise RecordingError(f"recording {self.path}: rows were appended before the layout was set")
+            self.rows.configure(layout)
+            self.append = self.rows.append
+        try:
+            if self.is_npz:
+                head = json.dumps({"layout": layout.as_json(), "metadata": self.metadata}, default=str).encode()
+                self._file.write(_JOURNAL_MAGIC + struct.pack("<I", len(head)) + head)
+            else:
+                for key, value in self.metadata.items():
+                    self._file.write(f"# {key}: {json.dumps(value, default=str)}\n")
+                self._file.write(csv_header() + "\n")
+            self._file.flush()
+        except OSError as exc:
+            raise RecordingError(f"recording {self.path}: write failed ({exc.strerror})") from None
+        self.started = True
+
     def _journal_path(self) -> Path:
         return self.path.with_name(self.path.name + ".journal")
 
-    def event(self, text: str) -> None:
-        """Note an event at the next row to be appended (after the rows appended so far)."""
-        self._events.append((len(self.rows), text.replace("\n", " ")))
+    def event(self, text: str, marker: int = MARKER_NONE) -> None:
+        """Note an event at the next row to be appended; a marker goes into that row."""
+        self._events.append((len(self.rows), text.replace("\n", " "), marker))
 
     def mark_last(self, marker: int) -> None:
-        """Set the marker (the last value) of the newest pending row: the last good period."""
-        self.rows.mark_last(float(marker))
+        """Set the marker of the newest pending row: the last good period."""
+        self.rows.mark_last(marker)
 
     def maybe_flush(self) -> None:
         """Write out the pending chunk if it is full; cheap to call every period."""
@@ -164,41 +251,39 @@ class Recorder:
 
     def flush(self) -> None:
         """Write every pending row and event and push them to the OS."""
+        if not self.started:
+            self.start()
         events = self._events
-        n_rows = len(self.rows)
+        rows = self.rows
+        n_rows = len(rows)
         if not n_rows and not events:
             return
+        for index, _, marker in events:
+            if marker and index < n_rows:
+                rows.mark(index, marker)
         try:
-            table = self._table() if n_rows else np.zeros((0, N_COLUMNS))
             if self.is_npz:
-                if n_rows:
-                    self._file.write(np.ascontiguousarray(table, dtype="<f8").tobytes())
-                for _, text in events:  # NPZ keeps events in the metadata at close
-                    self.metadata.setdefault("events", []).append(text)
+                self._file.write(rows.data)  # raw rows as they are: the layout is in the header
+                if events:  # NPZ keeps events in the metadata at close
+                    self.metadata.setdefault("events", []).extend(text for _, text, _ in events)
             else:
+                columns = rows.columns()
+                table = np.column_stack([columns[name] for name in COLUMN_NAMES]) if n_rows else np.zeros((0, N_COLUMNS))
                 self._file.write(self._format_csv(list(map(tuple, table.tolist())), events))
             self._file.flush()
         except OSError as exc:
             raise RecordingError(f"recording {self.path}: write failed ({exc.strerror})") from None
         self.rows_written += n_rows
-        self.rows.clear()
+        rows.clear()
         events.clear()
 
-    def _table(self) -> np.ndarray:
-        table = self.rows.table()
-        if self.transform is not None:
-            table = self.transform(table)
-        if table.ndim != 2 or table.shape[1] != N_COLUMNS:
-            raise RecordingError(f"recording {self.path}: rows have {table.shape} columns, expected {N_COLUMNS}")
-        return table
-
-    def _format_csv(self, rows: list[tuple[float, ...]], events: list[tuple[int, str]]) -> str:
+    def _format_csv(self, rows: list[tuple[float, ...]], events: list[tuple[int, str, int]]) -> str:
         fmt = self._fmt
         if not events:
             return "".join([fmt % row for row in rows])
         parts: list[str] = []
         start = 0
-        for index, text in events:
+        for index, text, _ in events:
             parts.extend(fmt % row for row in rows[start:index])
             parts.append(f"# event: {text}\n")
             start = index
@@ -216,10 +301,10 @@ class Recorder:
         self.closed = True
         self._file.close()
         if self.is_npz:
-            table = _journal_table(self._journal_path())
-            tmp = self.path.with_name(self.path.name + ".tmp.npz")
-            arrays: dict[str, np.ndarray] = {name: table[:, i] for i, name in enumerate(COLUMN_NAMES)}
+            _, rows = _read_journal_rows(self._journal_path())
+            arrays: dict[str, np.ndarray] = self.rows.layout.to_columns(rows)
             arrays["metadata"] = np.asarray(json.dumps(self.metadata, default=str))
+            tmp = self.path.with_name(self.path.name + ".tmp.npz")
             _write_npz_deterministic(tmp, arrays)
             os.replace(tmp, self.path)
             self._journal_path().unlink()
@@ -305,30 +390,26 @@ def _read_csv(path: Path) -> RecordingData:
     return RecordingData(path, _columns(table), metadata, tuple(events))
 
 
-def _journal_table(path: Path) -> np.ndarray:
-    """The rows of a journal as an (n, columns) array read straight from the file."""
-    with open(path, "rb") as handle:
-        head = handle.read(12)
-        if head[:4] != _JOURNAL_MAGIC:
-            raise RecordingError(f"recording {path}: not a hilbench journal")
-        n_columns, meta_len = struct.unpack_from("<II", head, 4)
-        handle.seek(12 + meta_len)
-        body = np.fromfile(handle, dtype="<f8")
-    usable = len(body) - len(body) % n_columns
-    return body[:usable].reshape(-1, n_columns)
+def _read_journal_rows(path: Path) -> tuple[dict[str, Any], np.ndarray]:
+    """A journal's header (layout, metadata) and its whole raw rows; a torn last row is dropped."""
+    raw = path.read_bytes()
+    if raw[:4] != _JOURNAL_MAGIC or len(raw) < 8:
+        raise RecordingError(f"recording {path}: not a hilbench journal (or written before its first row)")
+    (head_len,) = struct.unpack_from("<I", raw, 4)
+    start = 8 + head_len
+    head = json.loads(raw[8:start])
+    layout = RowLayout.from_json(head["layout"])
+    size = layout.dtype.itemsize
+    body = memoryview(raw)[start:]
+    usable = len(body) - len(body) % size
+    return head, np.frombuffer(body[:usable], dtype=layout.dtype)
 
 
 def _read_journal(path: Path) -> RecordingData:
-    raw = path.read_bytes()
-    if raw[:4] != _JOURNAL_MAGIC:
-        raise RecordingError(f"recording {path}: not a hilbench journal")
-    n_columns, meta_len = struct.unpack_from("<II", raw, 4)
-    start = 12 + meta_len
-    metadata = json.loads(raw[12:start])
-    body = raw[start:]
-    usable = len(body) - len(body) % (8 * n_columns)
-    table = np.frombuffer(body[:usable], dtype="<f8").reshape(-1, n_columns)
-    return RecordingData(path, _columns(table), metadata, tuple(metadata.get("events", ())))
+    head, rows = _read_journal_rows(path)
+    metadata = head["metadata"]
+    columns = RowLayout.from_json(head["layout"]).to_columns(rows)
+    return RecordingData(path, columns, metadata, tuple(metadata.get("events", ())))
 
 
 def _read_npz(path: Path) -> RecordingData:
@@ -349,20 +430,24 @@ class MemoryRecorder:
         self.path = Path("<memory>")
         self.metadata = dict(metadata or {})
         self.rows = RowBuffer()
-        self.events: list[tuple[int, str]] = []
+        self.events: list[tuple[int, str, int]] = []
         self.append = self.rows.append
         self.closed = False
-        self.transform: Any = None
+
+    def start(self, layout: RowLayout = COLUMN_LAYOUT) -> None:
+        if layout != self.rows.layout:
+            self.rows.configure(layout)
+            self.append = self.rows.append
 
     @property
     def rows_written(self) -> int:
         return len(self.rows)
 
-    def event(self, text: str) -> None:
-        self.events.append((self.rows_written, text))
+    def event(self, text: str, marker: int = MARKER_NONE) -> None:
+        self.events.append((self.rows_written, text, marker))
 
     def mark_last(self, marker: int) -> None:
-        self.rows.mark_last(float(marker))
+        self.rows.mark_last(marker)
 
     def maybe_flush(self) -> None:
         """Nothing to flush: rows stay in memory."""
@@ -376,16 +461,17 @@ class MemoryRecorder:
         self.closed = True
 
     def columns(self) -> dict[str, np.ndarray]:
-        """Every column as an array."""
-        table = self.rows.table()
-        if self.transform is not None and len(table):
-            table = self.transform(table)
-        return _columns(np.asarray(table).reshape(-1, N_COLUMNS))
+        """Every column as an array, markers applied."""
+        for index, _, marker in self.events:
+            if marker and index < len(self.rows):
+                self.rows.mark(index, marker)
+        return self.rows.columns()
 
 
 def export_csv(data: RecordingData, path: str | Path) -> Path:
     """Write a recording (e.g. a fast NPZ one) as the same CSV a `--record run.csv` run writes."""
     out = Recorder(Path(path), dict(data.metadata), flush_rows=max(1, data.n_rows))
+    out.start(COLUMN_LAYOUT)
     table = np.column_stack([data.columns[name] for name in COLUMN_NAMES]) if data.n_rows else np.zeros((0, N_COLUMNS))
     out.rows.extend(np.ascontiguousarray(table, dtype="<f8").tobytes())
     out.close()

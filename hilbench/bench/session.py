@@ -21,9 +21,9 @@ from hilbench.bench.clock import Pacer
 from hilbench.bench.recorder import (
     MARKER_EVENT,
     MARKER_FAULT,
-    MARKER_NONE,
     MARKER_PARAM,
     Recorder,
+    RowLayout,
 )
 from hilbench.bench.scenario import Event, Ramp, ScenarioPlayer
 from hilbench.errors import HilbenchError, LinkError, ParamError, TargetError
@@ -56,7 +56,6 @@ RESULT_NAMES = {
 }
 
 RPM_PER_RAD_S = 60.0 / (2.0 * math.pi)
-RAW_ROW_WIDTH = 22  # the values the hot loop appends per period (see _columns_from_raw)
 
 #: the plant's step is accurate to 1e-6 at 50 us; longer periods are integrated in substeps
 MAX_PLANT_STEP_US = 50
@@ -352,8 +351,7 @@ class Session:
         self.param_log.append((when, text))
         self.messages.append(f"{when:.3f} s: {text}")
         if self.recorder is not None:
-            self.recorder.event(f"t={when:.6f} {text}")
-        self._marker = MARKER_PARAM
+            self.recorder.event(f"t={when:.6f} {text}", MARKER_PARAM)
         if guard and previous and self.guard.enabled:
             self._arm_guard(when, previous)
 
@@ -425,8 +423,7 @@ class Session:
         elif event.end:
             self._end_requested = True
         if self.recorder is not None:
-            self.recorder.event(f"t={t_s:.6f} {event.describe()}")
-        self._marker = MARKER_EVENT
+            self.recorder.event(f"t={t_s:.6f} {event.describe()}", MARKER_EVENT)
 
     def set_load(self, kind: str, value: float) -> None:
         """A load profile from here on: constant N*m, linear/quadratic coefficient, or locked."""
@@ -502,8 +499,7 @@ class Session:
         target_step = self.target.step
         recorder = self.recorder
         if recorder is not None:
-            recorder.rows.configure(RAW_ROW_WIDTH)
-            recorder.transform = self._columns_from_raw
+            recorder.start(self._row_layout(period_s))
             rec_pack, rec_extend = recorder.rows.pack, recorder.rows.extend
         rec_on = recorder is not None
         observe_every = options.observe_every_periods
@@ -518,7 +514,6 @@ class Session:
         last_obs_wall = wall_start
         last_obs_k = 0
         k = 0
-        self._marker = MARKER_NONE
         self._last_hall = plant.hall_bits
         drive = None
         last_ref = 0.0
@@ -625,13 +620,12 @@ class Session:
                 meas_raw = tele[tele_meas] if tele_meas >= 0 else 0
                 ref_raw = tele[tele_ref] if tele_ref >= 0 else self._ref_rpm
                 ctrl = tele[tele_ctrl] if tele_ctrl >= 0 else 0
-                if rec_on:  # raw values; _columns_from_raw scales them per chunk
+                if rec_on:  # raw values in their own types (see _row_layout); events set the marker
                     rec_extend(rec_pack(
                         k, hall, sector, plant.theta_e, plant.w_m, meas_raw, ref_raw, ctrl,
                         plant.i_a, plant.i_b, plant.i_c, plant.i_bus, duty_a, duty_b, duty_c, mode, state,
-                        fault, plant.load_nm, rtt, late, self._marker,
+                        fault, plant.load_nm, rtt, late, 0,
                     ))
-                    self._marker = MARKER_NONE
                 if k % history_every == 0:
                     meas = meas_raw * rpm_q15 if tele_meas >= 0 else math.nan
                     last_ref = ref_raw * rpm_q15 if tele_ref >= 0 else ref_raw
@@ -667,18 +661,27 @@ class Session:
         self._finish(summary, wall_start, rtts, lateness, overruns, f"end: {summary.end_reason} at period {k}")
         return summary
 
-    def _columns_from_raw(self, raw: Any) -> Any:
-        """Raw recorded rows (the hot path's cheap tuple) to the recording's columns and units."""
-        import numpy as np
-
+    def _row_layout(self, period_s: float) -> RowLayout:
+        """The raw row the hot loop packs, and the recording's columns and units made of it."""
         rpm_q15 = self.profile.rpm_per_speed_q15
-        k = raw[:, 0]
-        meas = raw[:, 5] * rpm_q15 if (self._tele_meas >= 0 and rpm_q15) else np.full(len(raw), np.nan)
-        ref = raw[:, 6] * rpm_q15 if (self._tele_ref >= 0 and rpm_q15) else raw[:, 6]
-        return np.column_stack((
-            k * self._period_s, k, raw[:, 1], raw[:, 2], np.degrees(raw[:, 3]) % 360.0,
-            raw[:, 4] * RPM_PER_RAD_S, meas, ref, raw[:, 7:19], raw[:, 19:21] * 1e6, raw[:, 21:],
-        ))
+        meas_scale = rpm_q15 if (self._tele_meas >= 0 and rpm_q15) else math.nan
+        ref_scale = rpm_q15 if (self._tele_ref >= 0 and rpm_q15) else 1.0
+        ref_code = "i" if self._tele_ref >= 0 else "d"  # the firmware's Q15, or the host's rpm
+        fields = (
+            ("k", "Q"), ("hall", "i"), ("sector", "i"), ("theta_e_rad", "d"), ("w_m_rad_s", "d"),
+            ("meas_raw", "i"), ("ref_raw", ref_code), ("ctrl_q15", "i"), ("ia_a", "d"), ("ib_a", "d"),
+            ("ic_a", "d"), ("ibus_a", "d"), ("duty_a", "i"), ("duty_b", "i"), ("duty_c", "i"),
+            ("output_mode", "i"), ("state", "i"), ("fault", "i"), ("load_nm", "d"), ("rtt_s", "d"),
+            ("lateness_s", "d"), ("marker", "B"),
+        )
+        columns = (
+            ("k", period_s), ("k", 1.0), ("hall", 1.0), ("sector", 1.0), ("theta_e_rad", 180.0 / math.pi),
+            ("w_m_rad_s", RPM_PER_RAD_S), ("meas_raw", meas_scale), ("ref_raw", ref_scale), ("ctrl_q15", 1.0),
+            ("ia_a", 1.0), ("ib_a", 1.0), ("ic_a", 1.0), ("ibus_a", 1.0), ("duty_a", 1.0), ("duty_b", 1.0),
+            ("duty_c", 1.0), ("output_mode", 1.0), ("state", 1.0), ("fault", 1.0), ("load_nm", 1.0),
+            ("rtt_s", 1e6), ("lateness_s", 1e6), ("marker", 1.0),
+        )
+        return RowLayout(fields, columns)
 
     def _stop_target(self) -> None:
         """A clean end: the target stops its outputs (S2 as a command)."""
@@ -777,8 +780,7 @@ class Session:
     def _note(self, t_s: float, text: str) -> None:
         self.messages.append(f"{t_s:.3f} s: {text}")
         if self.recorder is not None:
-            self.recorder.event(f"t={t_s:.6f} {text}")
-        self._marker = MARKER_EVENT
+            self.recorder.event(f"t={t_s:.6f} {text}", MARKER_EVENT)
 
     def _snapshot(self, t_s, k, drive, meas, ctrl, rate, rtts, overruns) -> Snapshot:  # type: ignore[no-untyped-def]
         recent = rtts[-256:]

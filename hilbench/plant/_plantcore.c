@@ -670,6 +670,7 @@ static PyMemberDef Core_members[] = {
     {"last_edge_s", T_OBJECT_EX, offsetof(Core, last_edge_s), 0, NULL},
     {"_noise", T_OBJECT_EX, offsetof(Core, noise), 0, NULL},
     LM("_noise_i", noise_i), DM("pot_fraction", pot_fraction),
+    {"theta_e", T_DOUBLE, offsetof(Core, th), READONLY, "Electrical rotor angle in [0, 2 pi) (read-only)."},
     {NULL, 0, 0, 0, NULL},
 };
 

@@ -768,6 +768,7 @@ if _plantcore is not None:
         backend = "c"
         step = _plantcore.Core.step
         adc_codes = _plantcore.Core.adc_codes
+        theta_e = _plantcore.Core.theta_e  # the same read-only angle, without a Python property call
 
         def __init__(self, params: PlantParams, seed: int = 0, *, substeps: int = DEFAULT_SUBSTEPS,
                      backend: str | None = None) -> None:
