@@ -120,3 +120,20 @@ def test_backends_agree_in_off_mode_above_the_bus():
             pl.step(0.5, 0.5, 0.5, 0, DT)
         assert_close(*(snapshot(pl) for pl in plants), f"period {k}")
     assert plants[0].w_m < 400.0 and plants[0].i_abc == (0.0, 0.0, 0.0)
+
+
+def test_append_state_writes_the_recorded_state_in_both_backends() -> None:
+    """append_state is the recorder's one-call view of the plant: STATE_FIELDS, little-endian doubles."""
+    import struct
+
+    from hilbench.plant.model import STATE_FIELDS
+
+    for backend in available_backends():
+        plant = Plant(plant_params_from_config(load_config(CONFIGS / "hurst_mclv.toml")), seed=3, backend=backend)
+        for _ in range(40):
+            plant.step(0.62, 0.41, 0.47, 1, 50e-6)
+        buf = bytearray(b"ab")
+        plant.append_state(buf)
+        values = struct.unpack("<" + "d" * len(STATE_FIELDS), buf[2:])
+        assert buf[:2] == b"ab"
+        assert values == (plant.theta_e, plant.w_m, plant.i_a, plant.i_b, plant.i_c, plant.i_bus, plant.load_nm)

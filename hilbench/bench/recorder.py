@@ -81,6 +81,11 @@ def csv_header() -> str:
     return ",".join(f"{name}[{unit}]" if unit else name for name, unit, _ in COLUMNS)
 
 
+def fields_struct(fields: Sequence[tuple[str, str]]) -> struct.Struct:
+    """The packer of (name, code) fields, little-endian without padding: a part of a raw row."""
+    return struct.Struct("<" + "".join(code for _, code in fields))
+
+
 @dataclass(frozen=True)
 class RowLayout:
     """What one raw row holds and how the recording's COLUMNS are made of it.
@@ -104,7 +109,7 @@ class RowLayout:
 
     @property
     def struct_format(self) -> str:
-        return "<" + "".join(code for _, code in self.fields)
+        return fields_struct(self.fields).format
 
     @property
     def dtype(self) -> np.dtype:
@@ -115,10 +120,8 @@ class RowLayout:
         rows = raw if isinstance(raw, np.ndarray) else np.frombuffer(raw, dtype=self.dtype)
         out: dict[str, np.ndarray] = {}
         for name, (src, scale) in zip(COLUMN_NAMES, self.columns):
-            column = rows[src].astype(np.float64)  # a new contiguous array
-            if scale != 1.0:
-                column *= scale
-            out[name] = column
+            field_values = rows[src]  # strided view into the rows
+            out[name] = field_values.astype(np.float64) if scale == 1.0 else np.multiply(field_values, scale, dtype=np.float64)
         return out
 
     def as_json(self) -> dict[str, Any]:
@@ -154,7 +157,7 @@ class RowBuffer:
         names = [name for name, _ in layout.fields]
         marker = names.index("marker")
         self._marker_code = "<" + layout.fields[marker][1]
-        self._marker_offset = struct.calcsize("<" + "".join(code for _, code in layout.fields[:marker]))
+        self._marker_offset = fields_struct(layout.fields[:marker]).size
 
     def append(self, row: Sequence[float]) -> None:
         self.extend(self.pack(*row))

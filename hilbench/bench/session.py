@@ -24,6 +24,7 @@ from hilbench.bench.recorder import (
     MARKER_PARAM,
     Recorder,
     RowLayout,
+    fields_struct,
 )
 from hilbench.bench.scenario import Event, Ramp, ScenarioPlayer
 from hilbench.errors import HilbenchError, LinkError, ParamError, TargetError
@@ -41,6 +42,7 @@ from hilbench.protocol import (
     TargetHello,
     TelemetryId,
 )
+from hilbench.plant.model import STATE_FIELDS
 from hilbench.targets.profiles import TargetProfile, profile_for
 
 # The schema's constants as plain ints: the hot loop puts them into Sensors and compares with them.
@@ -499,8 +501,11 @@ class Session:
         target_step = self.target.step
         recorder = self.recorder
         if recorder is not None:
-            recorder.start(self._row_layout(period_s))
-            rec_pack, rec_extend = recorder.rows.pack, recorder.rows.extend
+            layout, own_fields = self._row_layout(period_s)
+            recorder.start(layout)
+            rec_pack = fields_struct(own_fields).pack
+            rec_extend = recorder.rows.extend
+            rec_data, plant_state = recorder.rows.data, plant.append_state
         rec_on = recorder is not None
         observe_every = options.observe_every_periods
         history_every = options.history_every_periods
@@ -520,16 +525,17 @@ class Session:
         self.periods_done = 0
         self._period_s = period_s
         new_sensors = tuple.__new__
-        next_event_s = self.player.next_t_s
+        next_event_k = self._first_period_at(self.player.next_t_s, period_s)
         sensor_faults = False
+        late = rtt = 0.0  # lockstep: not measured, so that recordings are reproducible
         gc_was_enabled = gc.isenabled()
         gc.disable()  # no collector pauses inside periods (recorded rows are plain numbers)
         if pacer is not None:
             pacer.start()
         try:
             for k in range(n_periods):
-                t_s = k * period_s
-                if t_s >= next_event_s:  # scenario events, ramps, button release, fault expiry
+                if k >= next_event_k:  # scenario events, ramps, button release, fault expiry
+                    t_s = k * period_s
                     if t_s >= self.player.next_t_s:
                         for event in self.player.due(t_s):
                             self._apply(event, t_s)
@@ -544,9 +550,11 @@ class Session:
                     if t_s >= self._fault_clear_s:
                         self._apply_fault(Event(at_s=t_s, fault="clear"), t_s)
                     sensor_faults = bool(self._hall_force_high or self._hall_force_low or self._missing_edge_armed)
-                    next_event_s = min(self.player.next_t_s, self._button_release_s, self._fault_clear_s,
-                                       t_s + period_s if self.player.ramps else math.inf)
+                    next_event_k = self._first_period_at(min(
+                        self.player.next_t_s, self._button_release_s, self._fault_clear_s,
+                        t_s + period_s if self.player.ramps else math.inf), period_s)
                 if k % history_every == 0 and drive is not None:
+                    t_s = k * period_s
                     # live changes act from this period on, so they are noted at its time
                     if t_s < self._guard_until:
                         self._guard_check(t_s, last_ref, drive.state, drive.fault)
@@ -557,7 +565,7 @@ class Session:
                         if self._end_requested:
                             summary.end_reason = "stopped by ctl"
                             break
-                        next_event_s = min(next_event_s, t_s + period_s)  # a ctl ref may start a ramp
+                        next_event_k = min(next_event_k, k + 1)  # a ctl ref may start a ramp
                 # -- sample the plant
                 hall = plant.hall_bits
                 edge = EDGE_NONE if edge_s is None else min(int(edge_s * 1e7), edge_limit)
@@ -577,31 +585,33 @@ class Session:
                     rtt = perf() - sent
                     rtts.append(rtt)
                 else:
-                    late = rtt = 0.0
                     if k & 15 == 0:
                         sent = perf()
                         drive = target_step(sensors)
                         rtts.append(perf() - sent)
                     else:
                         drive = target_step(sensors)
+                _, duty_a, duty_b, duty_c, mode, state, sector, _, _, fault, tele = drive
+                # -- integrate the plant over the period with this Drive (or a delayed one)
                 if delay:
                     pending.append(drive)
                     applied = pending.popleft() if len(pending) > delay else None
+                    if applied is None:
+                        da = db = dc = 0.0
+                        applied_mode = OUTPUT_OFF
+                    else:
+                        da, db, dc = applied[1] * duty_scale, applied[2] * duty_scale, applied[3] * duty_scale
+                        applied_mode = applied[4]
                 else:
-                    applied = drive
-                # -- integrate the plant over the period
-                if applied is None:
-                    plant.step(0.0, 0.0, 0.0, OUTPUT_OFF, period_s)
-                    edge_s = plant.last_edge_s
-                elif substeps == 1:
-                    plant.step(applied[1] * duty_scale, applied[2] * duty_scale, applied[3] * duty_scale,
-                               applied[4], period_s)
+                    da, db, dc = duty_a * duty_scale, duty_b * duty_scale, duty_c * duty_scale
+                    applied_mode = mode
+                if substeps == 1:
+                    plant.step(da, db, dc, applied_mode, period_s)
                     edge_s = plant.last_edge_s
                 else:  # long periods: the plant keeps its accurate step, the duties are held
                     edge_s = None
                     for i in range(substeps):
-                        plant.step(applied[1] * duty_scale, applied[2] * duty_scale, applied[3] * duty_scale,
-                                   applied[4], sub_s)
+                        plant.step(da, db, dc, applied_mode, sub_s)
                         if plant.last_edge_s is not None:
                             edge_s = i * sub_s + plant.last_edge_s
                 if pacer is not None:
@@ -616,20 +626,19 @@ class Session:
                             )
                     else:
                         consecutive = 0
-                _, duty_a, duty_b, duty_c, mode, state, sector, _, _, fault, tele = drive
                 meas_raw = tele[tele_meas] if tele_meas >= 0 else 0
                 ref_raw = tele[tele_ref] if tele_ref >= 0 else self._ref_rpm
                 ctrl = tele[tele_ctrl] if tele_ctrl >= 0 else 0
                 if rec_on:  # raw values in their own types (see _row_layout); events set the marker
                     rec_extend(rec_pack(
-                        k, hall, sector, plant.theta_e, plant.w_m, meas_raw, ref_raw, ctrl,
-                        plant.i_a, plant.i_b, plant.i_c, plant.i_bus, duty_a, duty_b, duty_c, mode, state,
-                        fault, plant.load_nm, rtt, late, 0,
+                        k, hall, sector, meas_raw, ref_raw, ctrl, duty_a, duty_b, duty_c, mode, state, fault,
+                        rtt, late, 0,
                     ))
+                    plant_state(rec_data)  # the plant's STATE_FIELDS, appended by the plant itself
                 if k % history_every == 0:
                     meas = meas_raw * rpm_q15 if tele_meas >= 0 else math.nan
                     last_ref = ref_raw * rpm_q15 if tele_ref >= 0 else ref_raw
-                    self.history.append((t_s, self._ref_rpm, plant.w_m * RPM_PER_RAD_S, meas))
+                    self.history.append((k * period_s, self._ref_rpm, plant.w_m * RPM_PER_RAD_S, meas))
                     if k % observe_every == 0 and k:
                         if recorder is not None:
                             recorder.maybe_flush()
@@ -637,7 +646,7 @@ class Session:
                             now = perf()
                             rate = (k - last_obs_k) / max(now - last_obs_wall, 1e-9)
                             last_obs_wall, last_obs_k = now, k
-                            self.observer(self._snapshot(t_s, k, drive, meas, ctrl, rate, rtts, overruns))
+                            self.observer(self._snapshot(k * period_s, k, drive, meas, ctrl, rate, rtts, overruns))
             else:
                 k = n_periods
             self.periods_done = k
@@ -661,18 +670,29 @@ class Session:
         self._finish(summary, wall_start, rtts, lateness, overruns, f"end: {summary.end_reason} at period {k}")
         return summary
 
-    def _row_layout(self, period_s: float) -> RowLayout:
-        """The raw row the hot loop packs, and the recording's columns and units made of it."""
+    @staticmethod
+    def _first_period_at(t_s: float, period_s: float) -> float:
+        """The first period k with k * period_s >= t_s (the hot loop compares k, not times)."""
+        if t_s == math.inf:
+            return math.inf
+        k = max(0, math.ceil(t_s / period_s))
+        while k > 0 and (k - 1) * period_s >= t_s:
+            k -= 1
+        while k * period_s < t_s:
+            k += 1
+        return k
+
+    def _row_layout(self, period_s: float) -> tuple[RowLayout, tuple[tuple[str, str], ...]]:
+        """The raw row of a period, and the recording's columns and units made of it; with the
+        fields the session packs itself (the plant appends STATE_FIELDS after them)."""
         rpm_q15 = self.profile.rpm_per_speed_q15
         meas_scale = rpm_q15 if (self._tele_meas >= 0 and rpm_q15) else math.nan
         ref_scale = rpm_q15 if (self._tele_ref >= 0 and rpm_q15) else 1.0
         ref_code = "i" if self._tele_ref >= 0 else "d"  # the firmware's Q15, or the host's rpm
-        fields = (
-            ("k", "Q"), ("hall", "i"), ("sector", "i"), ("theta_e_rad", "d"), ("w_m_rad_s", "d"),
-            ("meas_raw", "i"), ("ref_raw", ref_code), ("ctrl_q15", "i"), ("ia_a", "d"), ("ib_a", "d"),
-            ("ic_a", "d"), ("ibus_a", "d"), ("duty_a", "i"), ("duty_b", "i"), ("duty_c", "i"),
-            ("output_mode", "i"), ("state", "i"), ("fault", "i"), ("load_nm", "d"), ("rtt_s", "d"),
-            ("lateness_s", "d"), ("marker", "B"),
+        own_fields = (
+            ("k", "Q"), ("hall", "i"), ("sector", "i"), ("meas_raw", "i"), ("ref_raw", ref_code), ("ctrl_q15", "i"),
+            ("duty_a", "i"), ("duty_b", "i"), ("duty_c", "i"), ("output_mode", "i"), ("state", "i"), ("fault", "i"),
+            ("rtt_s", "d"), ("lateness_s", "d"), ("marker", "B"),
         )
         columns = (
             ("k", period_s), ("k", 1.0), ("hall", 1.0), ("sector", 1.0), ("theta_e_rad", 180.0 / math.pi),
@@ -681,7 +701,7 @@ class Session:
             ("duty_c", 1.0), ("output_mode", 1.0), ("state", 1.0), ("fault", 1.0), ("load_nm", 1.0),
             ("rtt_s", 1e6), ("lateness_s", 1e6), ("marker", 1.0),
         )
-        return RowLayout(fields, columns)
+        return RowLayout(own_fields + STATE_FIELDS, columns), own_fields
 
     def _stop_target(self) -> None:
         """A clean end: the target stops its outputs (S2 as a command)."""

@@ -15,6 +15,7 @@
 #include <structmember.h>
 #include <math.h>
 #include <stddef.h>
+#include <string.h>
 
 #define OUTPUT_OFF 0
 #define OUTPUT_PWM 1
@@ -302,6 +303,24 @@ static PyObject *Core_step(Core *s, PyObject *const *args, Py_ssize_t nargs)
 }
 
 /* model.Plant.adc_codes */
+/* append_state(buf): the state a recorder keeps per period, appended to a bytearray as seven
+ * little-endian doubles (model.STATE_FIELDS): one call instead of seven attribute reads. */
+static PyObject *Core_append_state(Core *s, PyObject *buf)
+{
+#if defined(__BYTE_ORDER__) && __BYTE_ORDER__ != __ORDER_LITTLE_ENDIAN__
+#error "append_state writes host doubles as little-endian"
+#endif
+    const double v[7] = {s->th, s->w_m, s->i_a, s->i_b, s->i_c, s->i_bus, s->tl};
+    if (!PyByteArray_Check(buf)) {
+        PyErr_SetString(PyExc_TypeError, "append_state: expected a bytearray");
+        return NULL;
+    }
+    Py_ssize_t n = PyByteArray_GET_SIZE(buf);
+    if (PyByteArray_Resize(buf, n + (Py_ssize_t)sizeof v) < 0) return NULL;
+    memcpy(PyByteArray_AS_STRING(buf) + n, v, sizeof v);
+    Py_RETURN_NONE;
+}
+
 static PyObject *Core_adc_codes(Core *s, PyObject *roles)
 {
     PyObject *seq = PySequence_Fast(roles, "adc_codes: roles must be a sequence of role numbers");
@@ -678,6 +697,8 @@ static PyMethodDef Core_methods[] = {
     {"step", (PyCFunction)(void (*)(void))Core_step, METH_FASTCALL,
      "step(duty_a, duty_b, duty_c, output_mode, dt_s): one period (see model.Plant)."},
     {"adc_codes", (PyCFunction)Core_adc_codes, METH_O, "adc_codes(roles): 10-bit codes (see model.Plant)."},
+    {"append_state", (PyCFunction)Core_append_state, METH_O,
+     "append_state(buf): theta_e, w_m, i_a, i_b, i_c, i_bus, load_nm as 7 doubles onto a bytearray."},
     {"_set_adc", (PyCFunction)(void (*)(void))Core_set_adc, METH_FASTCALL, "_set_adc(role, gain, offset, noise)"},
     {NULL, NULL, 0, NULL},
 };

@@ -35,6 +35,7 @@ from __future__ import annotations
 
 import math
 import os
+import struct
 from typing import Sequence
 
 import numpy as np
@@ -66,6 +67,13 @@ HALL_BY_SECTOR = (0b100, 0b110, 0b010, 0b011, 0b001, 0b101)
 SECTOR0_START_RAD = math.radians(210.0)
 NOISE_BLOCK = 4096
 OFF_SUBSTEPS = 8
+#: what append_state adds to a recording's row, in order: (name, struct code)
+STATE_FIELDS: tuple[tuple[str, str], ...] = (
+    ("theta_e_rad", "d"), ("w_m_rad_s", "d"), ("ia_a", "d"), ("ib_a", "d"), ("ic_a", "d"), ("ibus_a", "d"),
+    ("load_nm", "d"),
+)
+_STATE_STRUCT = struct.Struct("<" + "".join(code for _, code in STATE_FIELDS))
+
 DEFAULT_SUBSTEPS = 2  # energy balance 1.7e-7 at 50 us (1 step: 2.7e-6); C cost +0.17 us/period
 N_ROLES = 6
 
@@ -302,6 +310,10 @@ class Plant:
             code = math.floor(v + 0.5)
             out.append(0 if code < 0 else 1023 if code > 1023 else code)
         return tuple(out)
+
+    def append_state(self, buf: bytearray) -> None:
+        """Append STATE_FIELDS (end of the last step) to a recorder's row buffer in one call."""
+        buf.extend(_STATE_STRUCT.pack(self._th, self.w_m, self.i_a, self.i_b, self.i_c, self.i_bus, self.load_nm))
 
     def _draw_noise(self) -> list[float]:
         """The next block of standard-normal ADC noise (both backends draw the same blocks)."""
@@ -768,6 +780,7 @@ if _plantcore is not None:
         backend = "c"
         step = _plantcore.Core.step
         adc_codes = _plantcore.Core.adc_codes
+        append_state = _plantcore.Core.append_state
         theta_e = _plantcore.Core.theta_e  # the same read-only angle, without a Python property call
 
         def __init__(self, params: PlantParams, seed: int = 0, *, substeps: int = DEFAULT_SUBSTEPS,
