@@ -68,6 +68,7 @@ MARKER_EVENT = 1
 MARKER_PARAM = 2
 MARKER_FAULT = 3
 MARKER_END = 4
+MARKER_SKIPPED = 5  # real time: the host missed the period's slot, no exchange (the Drive is held)
 
 _JOURNAL_MAGIC = b"HBJ2"
 

@@ -17,11 +17,12 @@ from collections import deque
 from dataclasses import dataclass, field
 from typing import Any, Callable, Iterable, Literal
 
-from hilbench.bench.clock import Pacer
+from hilbench.bench.clock import CpuLatencyRequest, Pacer
 from hilbench.bench.recorder import (
     MARKER_EVENT,
     MARKER_FAULT,
     MARKER_PARAM,
+    MARKER_SKIPPED,
     Recorder,
     RowLayout,
     fields_struct,
@@ -83,6 +84,7 @@ class SessionOptions:
     watchdog_ms: int = 100
     overrun_policy: Literal["continue", "abort"] = "continue"
     max_consecutive_overruns: int = 10
+    cpu_latency_qos: bool = True  # real time: keep idle CPUs from halting (clock.CpuLatencyRequest)
     seed: int = 0
     observe_every_periods: int = 400
     history_every_periods: int = 20
@@ -143,6 +145,10 @@ class Summary:
     rtt_us: dict[str, float] = field(default_factory=dict)
     lateness_us: dict[str, float] = field(default_factory=dict)
     overruns: int = 0
+    #: overruns in which the host was a whole period late, so no exchange took place (Drive held)
+    skipped_periods: int = 0
+    #: real time: whether idle CPUs were kept awake (the PM QoS request), or why not
+    cpu_latency: str = ""
     link: dict[str, int] = field(default_factory=dict)
     params: dict[str, float] = field(default_factory=dict)
     recording: str | None = None
@@ -177,6 +183,8 @@ class Summary:
             "rtt_us": self.rtt_us,
             "lateness_us": self.lateness_us,
             "overruns": self.overruns,
+            "skipped_periods": self.skipped_periods,
+            "cpu_latency": self.cpu_latency,
             "link": self.link,
             "params": self.params,
             "recording": self.recording,
@@ -528,8 +536,16 @@ class Session:
         next_event_k = self._first_period_at(self.player.next_t_s, period_s)
         sensor_faults = False
         late = rtt = 0.0  # lockstep: not measured, so that recordings are reproducible
+        marker = 0  # events set theirs at flush; a skipped real-time period sets it here
+        skipped = 0
         gc_was_enabled = gc.isenabled()
         gc.disable()  # no collector pauses inside periods (recorded rows are plain numbers)
+        qos = CpuLatencyRequest() if realtime and options.cpu_latency_qos else None
+        if qos is not None:
+            qos.__enter__()
+            summary.cpu_latency = qos.status
+        elif realtime:
+            summary.cpu_latency = "not requested ([link] cpu_latency_qos = false)"
         if pacer is not None:
             pacer.start()
         try:
@@ -580,10 +596,19 @@ class Session:
                 if pacer is not None:
                     late = pacer.wait_for(k)
                     lateness.append(late)
-                    sent = perf()
-                    drive = target_step(sensors)
-                    rtt = perf() - sent
-                    rtts.append(rtt)
+                    if late >= period_s and drive is not None:
+                        # the host stalled past this period's whole slot: no exchange, the Drive is
+                        # held (as the board holds its PWM) and the plant keeps to the wall clock;
+                        # the period counts as an overrun below
+                        skipped += 1
+                        rtt = 0.0
+                        marker = MARKER_SKIPPED
+                    else:
+                        sent = perf()
+                        drive = target_step(sensors)
+                        rtt = perf() - sent
+                        rtts.append(rtt)
+                        marker = 0
                 else:
                     if k & 15 == 0:
                         sent = perf()
@@ -632,7 +657,7 @@ class Session:
                 if rec_on:  # raw values in their own types (see _row_layout); events set the marker
                     rec_extend(rec_pack(
                         k, hall, sector, meas_raw, ref_raw, ctrl, duty_a, duty_b, duty_c, mode, state, fault,
-                        rtt, late, 0,
+                        rtt, late, marker,
                     ))
                     plant_state(rec_data)  # the plant's STATE_FIELDS, appended by the plant itself
                 if k % history_every == 0:
@@ -654,6 +679,7 @@ class Session:
             summary.end_reason = "interrupted"
             self.periods_done = k
             self._stop_target()
+            summary.skipped_periods = skipped
             self._finish(summary, wall_start, rtts, lateness, overruns, f"interrupted at period {k}")
             raise
         except (LinkError, TargetError, SessionAborted) as exc:
@@ -661,12 +687,16 @@ class Session:
             summary.end_reason = "fault"
             summary.fault = str(exc)
             self._deenergise()
+            summary.skipped_periods = skipped
             self._finish(summary, wall_start, rtts, lateness, overruns, f"fault at period {k}: {exc}", fault=True)
             raise
         finally:
+            if qos is not None:
+                qos.__exit__(None, None, None)
             if gc_was_enabled:
                 gc.enable()
         self._stop_target()
+        summary.skipped_periods = skipped
         self._finish(summary, wall_start, rtts, lateness, overruns, f"end: {summary.end_reason} at period {k}")
         return summary
 

@@ -42,6 +42,7 @@ class LinkSection:
     actuation_delay_periods: int = field(default=0, metadata=spec(ge=0, le=100, doc="extra whole periods before duties reach the plant"))
     overrun_policy: Literal["continue", "abort"] = "continue"
     max_consecutive_overruns: int = field(default=10, metadata=spec(ge=1, le=1_000_000))
+    cpu_latency_qos: bool = field(default=True, metadata=spec(doc="real time: hold /dev/cpu_dma_latency at 0 so idle CPUs poll, not halt (needs root)"))
 
 
 @dataclass(frozen=True)
@@ -122,6 +123,7 @@ def session_options(cfg: BenchConfig) -> SessionOptions:
         watchdog_ms=link.watchdog_ms,
         overrun_policy=link.overrun_policy,
         max_consecutive_overruns=link.max_consecutive_overruns,
+        cpu_latency_qos=link.cpu_latency_qos,
         seed=run.seed,
     )
 

@@ -142,7 +142,9 @@ def summary_table(summary: Summary) -> Group:
         head.add_row("RTT", f"p50 {summary.rtt_us['p50']:.0f} µs, p99 {summary.rtt_us['p99']:.0f} µs, max {summary.rtt_us['max']:.0f} µs")
     if summary.lateness_us:
         lat = summary.lateness_us
-        head.add_row("lateness", f"p50 {lat['p50']:.1f} µs, p99 {lat['p99']:.1f} µs, max {lat['max']:.0f} µs; overruns {summary.overruns}")
+        head.add_row("lateness", f"p50 {lat['p50']:.1f} µs, p99 {lat['p99']:.1f} µs, max {lat['max']:.0f} µs; {_overruns_text(summary)}")
+    if summary.cpu_latency:
+        head.add_row("CPU wake-up", summary.cpu_latency)
     if summary.link:
         head.add_row("link", ", ".join(f"{k} {v}" for k, v in summary.link.items()))
     if summary.params:
@@ -174,7 +176,9 @@ def summary_text(summary: Summary) -> str:
         lines.append(f"rtt_us: p50 {summary.rtt_us['p50']:.1f} p99 {summary.rtt_us['p99']:.1f} max {summary.rtt_us['max']:.1f}")
     if summary.lateness_us:
         lat = summary.lateness_us
-        lines.append(f"lateness_us: p50 {lat['p50']:.1f} p99 {lat['p99']:.1f} max {lat['max']:.1f}; overruns {summary.overruns}")
+        lines.append(f"lateness_us: p50 {lat['p50']:.1f} p99 {lat['p99']:.1f} max {lat['max']:.1f}; {_overruns_text(summary)}")
+    if summary.cpu_latency:
+        lines.append(f"cpu latency request: {summary.cpu_latency}")
     if summary.link:
         lines.append("link: " + ", ".join(f"{k} {v}" for k, v in summary.link.items()))
     for s in summary.segments:
@@ -185,3 +189,10 @@ def summary_text(summary: Summary) -> str:
     if summary.recording:
         lines.append(f"recording: {summary.recording} ({summary.rows_recorded} rows)")
     return "\n".join(lines)
+
+
+def _overruns_text(summary: Summary) -> str:
+    """Overruns as a count and a share of periods, with those the host skipped after a stall."""
+    share = summary.overruns / max(1, summary.periods)
+    skipped = f", {summary.skipped_periods} of them skipped (host stalled a whole period)" if summary.skipped_periods else ""
+    return f"overruns {summary.overruns} ({share:.2%}){skipped}"

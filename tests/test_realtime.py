@@ -1,0 +1,149 @@
+"""Real-time mode: pacing to the wall clock, lateness/RTT/overrun reporting, stalls and the abort policy.
+
+Nothing here asserts a wall-clock figure: the stalls are made by a target that holds the CPU for a
+known number of periods, and the assertions are about what the session does with them.
+"""
+
+from __future__ import annotations
+
+import time
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pytest
+
+from conftest import hurst_bench_config, run_cli
+from hilbench.bench.launcher import open_target
+from hilbench.bench.recorder import MARKER_SKIPPED, Recorder, read_recording
+from hilbench.bench.run import RunRequest, load_run_config, run_bench
+from hilbench.bench.scenario import Event
+from hilbench.bench.session import Session, SessionAborted, SessionOptions
+from hilbench.config import load_config, plant_params_from_config
+from hilbench.plant.model import Plant
+
+PERIOD_US = 1000
+
+
+class StallingTarget:
+    """An in-process target that holds the CPU for ``stall_periods`` inside chosen exchanges."""
+
+    def __init__(self, inner: Any, stall_at: set[int], stall_periods: float) -> None:
+        self._inner = inner
+        self._stall_at = stall_at
+        self._stall_s = stall_periods * PERIOD_US * 1e-6
+        self.exchanges = 0
+
+    def __getattr__(self, name: str) -> Any:
+        return getattr(self._inner, name)
+
+    def step(self, sensors: Any) -> Any:
+        if self.exchanges in self._stall_at:
+            until = time.perf_counter() + self._stall_s
+            while time.perf_counter() < until:  # a stall: the CPU is taken, as a hypervisor would
+                pass
+        self.exchanges += 1
+        return self._inner.step(sensors)
+
+
+def _session(target: Any, tmp_path: Path, seconds: float, **options: Any) -> tuple[Session, Recorder]:
+    cfg = load_config(None)
+    plant = Plant(plant_params_from_config(cfg), seed=0)
+    events = (Event(at_s=0.0, ref_rpm=1000.0), Event(at_s=0.005, press="s2"))
+    opts = SessionOptions(period_us=PERIOD_US, mode="realtime", duration_s=seconds, **options)
+    recorder = Recorder(tmp_path / "rt.npz", {"test": True})
+    return Session(target, plant, events, opts, recorder=recorder, target_label="stalling"), recorder
+
+
+def test_a_stall_past_whole_periods_skips_them_holding_the_drive(tmp_path: Path) -> None:
+    with open_target("inprocess:an1017", timeout_s=2.0) as handle:
+        target = StallingTarget(handle.target, stall_at={40}, stall_periods=4.5)
+        session, _ = _session(target, tmp_path, 0.1)
+        summary = session.run()
+    data = read_recording(tmp_path / "rt.npz")
+    skipped_rows = np.flatnonzero(data.columns["marker"] == MARKER_SKIPPED)
+    # the exchange of period 40 ends 4.5 periods after its start: periods 41, 42 and 43 start 3.5,
+    # 2.5 and 1.5 periods late, so they are not exchanged (the machine may add stalls of its own)
+    assert {41, 42, 43} <= set(skipped_rows.tolist())
+    assert summary.skipped_periods == len(skipped_rows)
+    assert target.exchanges == summary.periods - summary.skipped_periods  # skipped = no exchange
+    assert summary.overruns >= summary.skipped_periods + 1  # period 40 itself ended late too
+    for row in skipped_rows:  # the Drive is held: the duties of the period before
+        for name in ("duty_a", "duty_b", "duty_c", "output_mode"):
+            assert data.columns[name][row] == data.columns[name][row - 1]
+        assert data.columns["rtt_us"][row] == 0.0
+        assert data.columns["lateness_us"][row] >= PERIOD_US
+    # the plant kept to the wall clock: one row per period, no gaps
+    assert list(data.columns["seq"]) == list(range(summary.periods))
+    assert summary.as_dict()["skipped_periods"] == summary.skipped_periods
+
+
+def test_abort_policy_stops_after_consecutive_overruns(tmp_path: Path) -> None:
+    with open_target("inprocess:an1017", timeout_s=2.0) as handle:
+        target = StallingTarget(handle.target, stall_at=set(range(30, 200)), stall_periods=1.2)
+        session, _ = _session(target, tmp_path, 0.3, overrun_policy="abort", max_consecutive_overruns=5)
+        with pytest.raises(SessionAborted, match="5 consecutive overruns"):
+            session.run()
+    data = read_recording(tmp_path / "rt.npz")  # closed, with the fault marked
+    assert data.n_rows > 30
+    assert "fault" in data.metadata["end"]
+
+
+@pytest.mark.slow
+def test_realtime_against_the_emulator_process_reports_timing(tmp_path: Path) -> None:
+    """1 kHz against the emulator on a pty: lateness, RTT and overruns are measured and reported."""
+    config = hurst_bench_config(tmp_path, 0.5)
+    cfg = load_run_config(RunRequest(str(config), overrides=(f"link.period_us={PERIOD_US}",),
+                                     target="emulator:an1017", mode="realtime", duration_s=0.5))
+    summary = run_bench(cfg, record=tmp_path / "rt.csv")
+    assert summary.mode == "realtime" and summary.periods == 500
+    assert set(summary.rtt_us) >= {"p50", "p99", "max"} and summary.rtt_us["p50"] > 0
+    assert set(summary.lateness_us) >= {"p50", "p99", "max"}
+    assert 0 <= summary.skipped_periods <= summary.overruns <= summary.periods
+    data = read_recording(tmp_path / "rt.csv")
+    exchanged = data.columns["marker"] != MARKER_SKIPPED
+    assert (data.columns["rtt_us"][exchanged] > 0).all()  # every exchange was timed
+    assert data.columns["t_s"][-1] == pytest.approx(0.499)
+
+
+@pytest.mark.slow
+def test_realtime_cli_summary_names_overruns(tmp_path: Path) -> None:
+    config = hurst_bench_config(tmp_path, 0.3)
+    result = run_cli("run", str(config), "--mode", "realtime", "--set", f"link.period_us={PERIOD_US}",
+                     "--no-ui", timeout=60)
+    assert result.returncode == 0, result.stderr
+    assert "lateness_us: p50" in result.stdout and "overruns" in result.stdout
+    assert "rtt_us: p50" in result.stdout
+
+
+def test_cpu_latency_request_holds_the_value_and_releases_it(tmp_path: Path) -> None:
+    """The PM QoS request writes a 32-bit 0 and keeps the file open until the run ends."""
+    from hilbench.bench.clock import CpuLatencyRequest
+
+    qos_file = tmp_path / "cpu_dma_latency"  # a plain file stands in for the device
+    qos_file.write_bytes(b"")
+    with CpuLatencyRequest(path=str(qos_file)) as request:
+        assert request.held
+        assert "held at 0 us" in request.status
+        assert qos_file.read_bytes() == b"\x00\x00\x00\x00"
+    assert not request.held
+
+
+def test_cpu_latency_request_without_the_device_says_why(tmp_path: Path) -> None:
+    from hilbench.bench.clock import CpuLatencyRequest
+
+    with CpuLatencyRequest(path=str(tmp_path / "missing")) as request:
+        assert not request.held
+        assert request.status.startswith("not held:") and "missing" in request.status
+
+
+def test_realtime_summary_says_whether_cpus_were_kept_awake(tmp_path: Path) -> None:
+    with open_target("inprocess:an1017", timeout_s=2.0) as handle:
+        session, _ = _session(handle.target, tmp_path, 0.02, cpu_latency_qos=False)
+        summary = session.run()
+    assert summary.cpu_latency.startswith("not requested")
+    with open_target("inprocess:an1017", timeout_s=2.0) as handle:
+        session, _ = _session(handle.target, tmp_path, 0.02)
+        summary = session.run()
+    assert summary.cpu_latency.startswith(("held at 0 us", "not held:"))  # root or not
+    assert summary.as_dict()["cpu_latency"] == summary.cpu_latency
