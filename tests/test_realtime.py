@@ -26,19 +26,25 @@ PERIOD_US = 1000
 
 
 class StallingTarget:
-    """An in-process target that holds the CPU for ``stall_periods`` inside chosen exchanges."""
+    """An in-process target that holds the CPU for ``stall_periods`` inside the exchanges of the
+    periods in ``stall_at`` (the first exchange at or after each, should the machine's own stalls
+    have skipped that period)."""
 
     def __init__(self, inner: Any, stall_at: set[int], stall_periods: float) -> None:
         self._inner = inner
-        self._stall_at = stall_at
+        self._pending = sorted(stall_at)
         self._stall_s = stall_periods * PERIOD_US * 1e-6
         self.exchanges = 0
+        self.stalled_periods: list[int] = []
 
     def __getattr__(self, name: str) -> Any:
         return getattr(self._inner, name)
 
     def step(self, sensors: Any) -> Any:
-        if self.exchanges in self._stall_at:
+        if self._pending and sensors.seq >= self._pending[0]:  # periods < 256 here: seq is k
+            while self._pending and sensors.seq >= self._pending[0]:
+                self._pending.pop(0)
+            self.stalled_periods.append(sensors.seq)
             until = time.perf_counter() + self._stall_s
             while time.perf_counter() < until:  # a stall: the CPU is taken, as a hypervisor would
                 pass
@@ -62,9 +68,11 @@ def test_a_stall_past_whole_periods_skips_them_holding_the_drive(tmp_path: Path)
         summary = session.run()
     data = read_recording(tmp_path / "rt.npz")
     skipped_rows = np.flatnonzero(data.columns["marker"] == MARKER_SKIPPED)
-    # the exchange of period 40 ends 4.5 periods after its start: periods 41, 42 and 43 start 3.5,
-    # 2.5 and 1.5 periods late, so they are not exchanged (the machine may add stalls of its own)
-    assert {41, 42, 43} <= set(skipped_rows.tolist())
+    # the exchange of period s (40, or later if the machine's own stalls skipped 40) ends 4.5
+    # periods after its start: periods s+1..s+3 start 3.5, 2.5 and 1.5 periods late, so they are
+    # not exchanged (the machine may add stalls of its own)
+    (s,) = target.stalled_periods
+    assert {s + 1, s + 2, s + 3} <= set(skipped_rows.tolist())
     assert summary.skipped_periods == len(skipped_rows)
     assert target.exchanges == summary.periods - summary.skipped_periods  # skipped = no exchange
     assert summary.overruns >= summary.skipped_periods + 1  # period 40 itself ended late too
@@ -80,7 +88,7 @@ def test_a_stall_past_whole_periods_skips_them_holding_the_drive(tmp_path: Path)
 
 def test_abort_policy_stops_after_consecutive_overruns(tmp_path: Path) -> None:
     with open_target("inprocess:an1017", timeout_s=2.0) as handle:
-        target = StallingTarget(handle.target, stall_at=set(range(30, 200)), stall_periods=1.2)
+        target = StallingTarget(handle.target, stall_at=set(range(30, 250)), stall_periods=1.2)
         session, _ = _session(target, tmp_path, 0.3, overrun_policy="abort", max_consecutive_overruns=5)
         with pytest.raises(SessionAborted, match="5 consecutive overruns"):
             session.run()

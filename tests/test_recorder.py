@@ -71,6 +71,8 @@ from hilbench.bench.recorder import Recorder, N_COLUMNS
 for suffix in ('.csv', '.npz'):
     rec = Recorder({str(tmp_path)!r} + '/run' + suffix, {{'seed': 1}}, flush_rows=100)
     for k in range(250):
+        if k == 50:
+            rec.event('press s2')
         rec.append(tuple([float(k)] * N_COLUMNS))
         rec.maybe_flush()
 os.kill(os.getpid(), signal.SIGKILL)
@@ -81,6 +83,7 @@ os.kill(os.getpid(), signal.SIGKILL)
         data = read_recording(tmp_path / name)
         assert data.n_rows == 200  # two full chunks flushed, the third lost
         assert list(data.columns["seq"][:3]) == [0.0, 1.0, 2.0]
+        assert data.events == ("press s2",)  # events flushed with their chunk survive too
 
 
 def test_npz_is_byte_identical_for_identical_rows(tmp_path: Path) -> None:

@@ -268,8 +268,10 @@ class Recorder:
         try:
             if self.is_npz:
                 self._file.write(rows.data)  # raw rows as they are: the layout is in the header
-                if events:  # NPZ keeps events in the metadata at close
+                if events:  # the metadata keeps them at close; the side file until then
                     self.metadata.setdefault("events", []).extend(text for _, text, _ in events)
+                    with open(_events_path(self._journal_path()), "a", encoding="utf-8") as side:
+                        side.write("".join(f"{text}\n" for _, text, _ in events))
             else:
                 columns = rows.columns()
                 table = np.column_stack([columns[name] for name in COLUMN_NAMES]) if n_rows else np.zeros((0, N_COLUMNS))
@@ -312,6 +314,7 @@ class Recorder:
             _write_npz_deterministic(tmp, arrays)
             os.replace(tmp, self.path)
             self._journal_path().unlink()
+            _events_path(self._journal_path()).unlink(missing_ok=True)
 
 
 def _write_npz_deterministic(path: Path, arrays: dict[str, np.ndarray]) -> None:
@@ -409,11 +412,18 @@ def _read_journal_rows(path: Path) -> tuple[dict[str, Any], np.ndarray]:
     return head, np.frombuffer(body[:usable], dtype=layout.dtype)
 
 
+def _events_path(journal: Path) -> Path:
+    """The side file where an NPZ run's events wait, a line each, until the archive is written."""
+    return journal.with_name(journal.name + ".events")
+
+
 def _read_journal(path: Path) -> RecordingData:
     head, rows = _read_journal_rows(path)
     metadata = head["metadata"]
     columns = RowLayout.from_json(head["layout"]).to_columns(rows)
-    return RecordingData(path, columns, metadata, tuple(metadata.get("events", ())))
+    side = _events_path(path)
+    events = side.read_text(encoding="utf-8").splitlines() if side.exists() else []
+    return RecordingData(path, columns, metadata, tuple(events))
 
 
 def _read_npz(path: Path) -> RecordingData:
