@@ -167,7 +167,7 @@ def link_test(target: str, periods: int, period_us: int, timeout_ms: int) -> Non
               help="emulator:an1017 (default: the emulator process on a virtual serial pair), "
                    "emulator:loopback, inprocess:an1017, or a board: serial:/dev/ttyUSB0?baud=250000.")
 @click.option("--mode", type=click.Choice(["lockstep", "realtime"]), default=None,
-              help="lockstep: the host is the clock (deterministic); realtime: periods paced to the wall clock.")
+              help="lockstep: the host is the clock (deterministic); realtime: periods paced to the wall clock (idle CPUs kept awake while it runs when allowed: link.cpu_latency_qos).")
 @click.option("--duration", "duration_s", type=click.FloatRange(min=0, min_open=True), default=None,
               metavar="S", help="Simulated seconds (default: the scenario's end).")
 @click.option("--record", type=click.Path(dir_okay=False), default=None, metavar="FILE",
