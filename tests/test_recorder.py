@@ -15,6 +15,7 @@ from hilbench.bench.recorder import (
     MARKER_EVENT,
     MARKER_FAULT,
     N_COLUMNS,
+    MemoryRecorder,
     Recorder,
     RowLayout,
     read_recording,
@@ -170,3 +171,79 @@ def test_a_layout_set_after_rows_were_appended_is_refused(tmp_path: Path) -> Non
     rec.append(_row(0))
     with pytest.raises(RecordingError, match="before the layout"):
         rec.start(_raw_layout())
+
+
+@pytest.mark.parametrize("suffix", [".csv", ".npz"])
+def test_a_fault_marker_wins_over_an_event_on_the_same_row(tmp_path: Path, suffix: str) -> None:
+    path = tmp_path / f"run{suffix}"
+    rec = Recorder(path, {})
+    rec.start(_raw_layout())
+    rec.rows.append((0, 0, 0.0, 0))
+    rec.event("ref 1500 rpm", MARKER_EVENT)
+    rec.rows.append((1, 0, 0.0, 0))
+    rec.mark_last(MARKER_FAULT)  # the last good period, which also had an event
+    rec.close("fault at period 1")
+    assert list(read_recording(path).columns["marker"]) == [0.0, MARKER_FAULT]
+
+
+def test_an_event_keeps_the_marker_a_row_already_has(tmp_path: Path) -> None:
+    """A real-time period the host skipped stays marked as skipped when an event also falls on it."""
+    from hilbench.bench.recorder import MARKER_SKIPPED
+
+    rec = MemoryRecorder()
+    rec.start(_raw_layout())
+    rec.event("press s2", MARKER_EVENT)
+    rec.rows.append((0, 0, 0.0, MARKER_SKIPPED))
+    rec.event("press s3", MARKER_EVENT)
+    rec.rows.append((1, 0, 0.0, 0))
+    assert list(rec.columns()["marker"]) == [MARKER_SKIPPED, MARKER_EVENT]
+
+
+@pytest.mark.parametrize("suffix", [".csv", ".npz"])
+def test_a_half_appended_row_is_dropped_not_fatal(tmp_path: Path, suffix: str) -> None:
+    """An interrupt between a row's two appends (session fields, then the plant's) leaves a torn row."""
+    path = tmp_path / f"run{suffix}"
+    rec = Recorder(path, {})
+    rec.start(_raw_layout())
+    for k in range(3):
+        rec.rows.append((k, k, 0.5, 0))
+    rec.rows.extend(b"\x05\x00\x00\x00")  # the first part of row 3 only
+    rec.mark_last(MARKER_FAULT)
+    rec.close("interrupted at period 3")
+    data = read_recording(path)
+    assert list(data.columns["seq"]) == [0.0, 1.0, 2.0]
+    assert data.columns["marker"][-1] == MARKER_FAULT
+
+
+def test_columns_do_not_pin_the_row_buffer() -> None:
+    rec = MemoryRecorder()
+    rec.start(_raw_layout())
+    rec.rows.append((0, 2, 0.0, 0))
+    columns = rec.columns()  # kept alive, as an interrupted flush's frame would keep them
+    rec.rows.clear()  # a view into the bytearray would make this raise BufferError
+    rec.rows.append((1, 4, 0.0, 0))
+    assert columns["speed_rpm"][0] == 1.0
+
+
+def test_a_new_npz_run_does_not_inherit_a_killed_runs_events(tmp_path: Path) -> None:
+    path = tmp_path / "run.npz"
+    (tmp_path / "run.npz.journal.events").write_text("old run's event\n")  # left by a killed run
+    rec = Recorder(path, {}, flush_rows=1)
+    rec.start(_raw_layout())
+    rec.event("new run's event")
+    rec.rows.append((0, 0, 0.0, 0))
+    rec.flush()  # then killed: the journal is what remains
+    assert read_recording(path).events == ("new run's event",)
+
+
+def test_wrapped_columns_stay_below_their_modulo() -> None:
+    base = _raw_layout()
+    layout = RowLayout(base.fields, tuple(("amps", 1.0) if name == "theta_e_deg" else src
+                                          for name, src in zip(COLUMN_NAMES, base.columns)),
+                       wrap=(("theta_e_deg", 360.0),))
+    rec = MemoryRecorder()
+    rec.start(layout)
+    for amps in (359.5, 360.0, 0.25):
+        rec.rows.append((0, 0, amps, 0))
+    assert list(rec.columns()["theta_e_deg"]) == [359.5, 0.0, 0.25]
+    assert RowLayout.from_json(layout.as_json()) == layout

@@ -93,12 +93,14 @@ class RowLayout:
 
     ``fields`` are (name, struct code) packed little-endian in order; ``columns`` gives, for each
     entry of COLUMNS, the field it comes from and the scale applied (column = field × scale; a NaN
-    scale marks a quantity the target does not report). A ``marker`` field is required: events
-    and faults are written into it.
+    scale marks a quantity the target does not report). ``wrap`` names columns kept within
+    [0, modulo) after scaling (an angle). A ``marker`` field is required: events and faults are
+    written into it.
     """
 
     fields: tuple[tuple[str, str], ...]
     columns: tuple[tuple[str, float], ...]
+    wrap: tuple[tuple[str, float], ...] = ()
 
     def __post_init__(self) -> None:
         names = [name for name, _ in self.fields]
@@ -117,21 +119,30 @@ class RowLayout:
         return np.dtype([(name, _CODE_DTYPES[code]) for name, code in self.fields])
 
     def to_columns(self, raw: Any) -> dict[str, np.ndarray]:
-        """Raw rows (bytes or a structured array) to one contiguous float64 array per column."""
-        rows = raw if isinstance(raw, np.ndarray) else np.frombuffer(raw, dtype=self.dtype)
+        """Raw rows (bytes or a structured array; a torn last row is dropped) to one contiguous
+        float64 array per column."""
+        if isinstance(raw, np.ndarray):
+            rows = raw
+        else:
+            size = self.dtype.itemsize
+            rows = np.frombuffer(raw, dtype=self.dtype, count=len(raw) // size)
         out: dict[str, np.ndarray] = {}
         for name, (src, scale) in zip(COLUMN_NAMES, self.columns):
             field_values = rows[src]  # strided view into the rows
             out[name] = field_values.astype(np.float64) if scale == 1.0 else np.multiply(field_values, scale, dtype=np.float64)
+        for name, modulo in self.wrap:
+            np.mod(out[name], modulo, out=out[name])
         return out
 
     def as_json(self) -> dict[str, Any]:
-        return {"fields": [list(f) for f in self.fields], "columns": [list(c) for c in self.columns]}
+        return {"fields": [list(f) for f in self.fields], "columns": [list(c) for c in self.columns],
+                "wrap": [list(w) for w in self.wrap]}
 
     @classmethod
     def from_json(cls, obj: dict[str, Any]) -> "RowLayout":
         return cls(tuple((str(n), str(c)) for n, c in obj["fields"]),
-                   tuple((str(n), float(k)) for n, k in obj["columns"]))
+                   tuple((str(n), float(k)) for n, k in obj["columns"]),
+                   tuple((str(n), float(m)) for n, m in obj.get("wrap", ())))
 
 
 #: Rows that already are the COLUMNS, as float64 (tests, exports, any caller without its own layout).
@@ -170,13 +181,37 @@ class RowBuffer:
         """Set the marker field of pending row ``index``."""
         struct.pack_into(self._marker_code, self.data, index * self.struct.size + self._marker_offset, value)
 
+    def marker_at(self, index: int) -> int:
+        return int(struct.unpack_from(self._marker_code, self.data, index * self.struct.size + self._marker_offset)[0])
+
+    def apply_event_markers(self, events: list[tuple[int, str, int]]) -> None:
+        """Write the markers of pending events into their rows, then forget them (entries kept
+        for their text). The last event of a row wins among events; a marker the row already
+        has (a skipped period, a fault) is kept."""
+        by_row: dict[int, int] = {}
+        n_rows = len(self)
+        for i, (index, text, marker) in enumerate(events):
+            if marker and index < n_rows:
+                by_row[index] = marker
+                events[i] = (index, text, MARKER_NONE)
+        for index, marker in by_row.items():
+            if self.marker_at(index) == MARKER_NONE:
+                self.mark(index, marker)
+
+    def drop_partial_row(self) -> None:
+        """Cut a row left half-appended (an interrupt between its two appends)."""
+        extra = len(self.data) % self.struct.size
+        if extra:
+            del self.data[-extra:]
+
     def mark_last(self, value: int) -> None:
-        """Set the marker field of the newest row."""
-        if self.data:
+        """Set the marker field of the newest whole row."""
+        if len(self):
             self.mark(len(self) - 1, value)
 
     def columns(self) -> dict[str, np.ndarray]:
-        return self.layout.to_columns(self.data)
+        # a copy: a view into the bytearray would block its later resizing for as long as it lives
+        return self.layout.to_columns(bytes(self.data))
 
     def clear(self) -> None:
         del self.data[:]
@@ -205,6 +240,7 @@ class Recorder:
         try:  # open now, so an unwritable path fails before the run starts
             if self.is_npz:
                 self._file = open(self._journal_path(), "wb")
+                _events_path(self._journal_path()).unlink(missing_ok=True)  # a killed earlier run's
             else:
                 self._file = open(self.path, "w", encoding="utf-8", newline="\n")
         except OSError as exc:
@@ -245,7 +281,9 @@ class Recorder:
         self._events.append((len(self.rows), text.replace("\n", " "), marker))
 
     def mark_last(self, marker: int) -> None:
-        """Set the marker of the newest pending row: the last good period."""
+        """Set the marker of the newest pending row (the last good period): it wins over events."""
+        self.rows.drop_partial_row()
+        self.rows.apply_event_markers(self._events)
         self.rows.mark_last(marker)
 
     def maybe_flush(self) -> None:
@@ -259,12 +297,11 @@ class Recorder:
             self.start()
         events = self._events
         rows = self.rows
+        rows.drop_partial_row()
         n_rows = len(rows)
         if not n_rows and not events:
             return
-        for index, _, marker in events:
-            if marker and index < n_rows:
-                rows.mark(index, marker)
+        rows.apply_event_markers(events)
         try:
             if self.is_npz:
                 self._file.write(rows.data)  # raw rows as they are: the layout is in the header
@@ -461,6 +498,8 @@ class MemoryRecorder:
         self.events.append((self.rows_written, text, marker))
 
     def mark_last(self, marker: int) -> None:
+        self.rows.drop_partial_row()
+        self.rows.apply_event_markers(self.events)
         self.rows.mark_last(marker)
 
     def maybe_flush(self) -> None:
@@ -476,9 +515,8 @@ class MemoryRecorder:
 
     def columns(self) -> dict[str, np.ndarray]:
         """Every column as an array, markers applied."""
-        for index, _, marker in self.events:
-            if marker and index < len(self.rows):
-                self.rows.mark(index, marker)
+        self.rows.drop_partial_row()
+        self.rows.apply_event_markers(self.events)
         return self.rows.columns()
 
 

@@ -541,14 +541,14 @@ class Session:
         gc_was_enabled = gc.isenabled()
         gc.disable()  # no collector pauses inside periods (recorded rows are plain numbers)
         qos = CpuLatencyRequest() if realtime and options.cpu_latency_qos else None
-        if qos is not None:
-            qos.__enter__()
-            summary.cpu_latency = qos.status
-        elif realtime:
+        if realtime and qos is None:
             summary.cpu_latency = "not requested ([link] cpu_latency_qos = false)"
-        if pacer is not None:
-            pacer.start()
         try:
+            if qos is not None:
+                qos.__enter__()  # released in the finally below, however the run ends
+                summary.cpu_latency = qos.status
+            if pacer is not None:
+                pacer.start()
             for k in range(n_periods):
                 if k >= next_event_k:  # scenario events, ramps, button release, fault expiry
                     t_s = k * period_s
@@ -731,7 +731,7 @@ class Session:
             ("duty_c", 1.0), ("output_mode", 1.0), ("state", 1.0), ("fault", 1.0), ("load_nm", 1.0),
             ("rtt_s", 1e6), ("lateness_s", 1e6), ("marker", 1.0),
         )
-        return RowLayout(own_fields + STATE_FIELDS, columns), own_fields
+        return RowLayout(own_fields + STATE_FIELDS, columns, wrap=(("theta_e_deg", 360.0),)), own_fields
 
     def _stop_target(self) -> None:
         """A clean end: the target stops its outputs (S2 as a command)."""
