@@ -5,8 +5,9 @@
 Issue 5's goal: at 1 kHz for 60 s, fewer than 0.5 % of periods overrun on this machine. The
 machine is a shared 2-core VM, so the figures move with its load; run it when nothing else does.
 The baseline, a raw two-process pty echo paced the same way, runs for half the time before the
-bench and half after it. Both hold the CPU wake-up latency request (/dev/cpu_dma_latency) as the
-session does by default; --no-qos measures both without it.
+bench and half after it. Both hold the CPU wake-up latency request (/dev/cpu_dma_latency) and put
+host and target on one CPU, as the session does by default; --no-qos and --no-pin measure both
+without them.
 """
 
 from __future__ import annotations
@@ -27,6 +28,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 from bench_link import echo_child, frame_sizes  # noqa: E402
 
 from hilbench.bench.clock import CpuLatencyRequest, Pacer  # noqa: E402
+from hilbench.bench.cpus import CpuPinning  # noqa: E402
 
 from hilbench.bench.run import RunRequest, load_run_config, run_bench
 from hilbench.config import default_config_text
@@ -51,7 +53,7 @@ ref_rpm = -1000.0
 """
 
 
-def paced_raw_echo(seconds: float, period_us: int, qos: bool) -> tuple[float, float, int, int]:
+def paced_raw_echo(seconds: float, period_us: int, qos: bool, pin: bool) -> tuple[float, float, int, int]:
     """The baseline: the same pacing with a raw two-process pty echo of the same frame sizes.
 
     Returns (lateness p99 us, round-trip p99 us, overruns, periods) — an overrun is a period whose
@@ -65,7 +67,8 @@ def paced_raw_echo(seconds: float, period_us: int, qos: bool) -> tuple[float, fl
     rtt: list[float] = []
     overruns = 0
     request = b"\xaa" * req_len
-    with echo_child(req_len, resp_len) as (fd, _), CpuLatencyRequest() if qos else _no_request():
+    with echo_child(req_len, resp_len) as (fd, child), CpuLatencyRequest() if qos else _no_request(), \
+            CpuPinning([child.pid]) if pin else _no_request():
         pacer = Pacer(period_s)
         pacer.start()
         for k in range(n):
@@ -101,21 +104,24 @@ def main() -> None:
     parser.add_argument("--period-us", type=int, default=1000)
     parser.add_argument("--no-qos", action="store_true",
                         help="without the CPU wake-up latency request, in the bench and its baseline")
+    parser.add_argument("--no-pin", action="store_true",
+                        help="host and target processes free to run on any CPU, in the bench and its baseline")
     args = parser.parse_args()
     # the Hurst bench with the motor running for the whole span
     config = Path(tempfile.mkdtemp()) / "realtime.toml"
     config.write_text(default_config_text() + SCENARIO)
     cfg = load_run_config(RunRequest(
         str(config),
-        overrides=(f"link.period_us={args.period_us}", f"link.cpu_latency_qos={'false' if args.no_qos else 'true'}"),
+        overrides=(f"link.period_us={args.period_us}", f"link.cpu_latency_qos={'false' if args.no_qos else 'true'}",
+                   f"link.pin_realtime={'false' if args.no_pin else 'true'}"),
         target="emulator:an1017",
         mode="realtime",
         duration_s=args.seconds,
     ))
     half = args.seconds / 2
-    before = paced_raw_echo(half, args.period_us, not args.no_qos)  # the baseline on both sides of the run
+    before = paced_raw_echo(half, args.period_us, not args.no_qos, not args.no_pin)  # the baseline on both sides of the run
     summary = run_bench(cfg)
-    after = paced_raw_echo(half, args.period_us, not args.no_qos)
+    after = paced_raw_echo(half, args.period_us, not args.no_qos, not args.no_pin)
     lat, rtt = summary.lateness_us, summary.rtt_us
     print(f"real time, {args.period_us} us periods, {summary.periods} periods "
           f"({summary.sim_s:.1f} s) against {summary.target}")
@@ -124,7 +130,7 @@ def main() -> None:
     share = summary.overruns / max(1, summary.periods)
     print(f"  overruns   {summary.overruns} of {summary.periods} = {share:.3%} (goal < 0.5 %), "
           f"{summary.skipped_periods} of them skipped after host stalls")
-    print(f"  CPU wake-up latency request: {summary.cpu_latency}")
+    print(f"  CPU wake-up latency request: {summary.cpu_latency}; CPUs: {summary.cpus or 'not pinned'}")
     print(f"  link: {summary.link}")
     base_over = before[2] + after[2]
     base_n = before[3] + after[3]

@@ -6,6 +6,7 @@ known number of periods, and the assertions are about what the session does with
 
 from __future__ import annotations
 
+import os
 import time
 from pathlib import Path
 from typing import Any
@@ -155,3 +156,43 @@ def test_realtime_summary_says_whether_cpus_were_kept_awake(tmp_path: Path) -> N
         summary = session.run()
     assert summary.cpu_latency.startswith(("held at 0 us", "not held:"))  # root or not
     assert summary.as_dict()["cpu_latency"] == summary.cpu_latency
+
+
+def test_cpu_pinning_puts_host_and_child_on_one_cpu_and_restores_the_host() -> None:
+    import subprocess
+    import sys
+
+    from hilbench.bench.cpus import CpuPinning
+
+    before = os.sched_getaffinity(0)
+    child = subprocess.Popen([sys.executable, "-c", "import sys; sys.stdin.read()"], stdin=subprocess.PIPE)
+    try:
+        with CpuPinning([child.pid]) as pinning:
+            assert os.sched_getaffinity(0) == {pinning.cpu} == os.sched_getaffinity(child.pid)
+            assert pinning.cpu == max(before)
+            assert pinning.status == f"host and pid {child.pid} on CPU {pinning.cpu}"
+        assert os.sched_getaffinity(0) == before
+    finally:
+        child.communicate(b"", timeout=10)  # end of input: the child exits and is reaped
+
+
+def test_a_cpu_this_process_may_not_use_is_a_config_error() -> None:
+    from hilbench.bench.cpus import CpuPinning
+    from hilbench.errors import ConfigError
+
+    with pytest.raises(ConfigError, match=r"\[link\] realtime_cpu 4095: not one of this process's CPUs"):
+        CpuPinning([], cpu=4095)
+
+
+@pytest.mark.slow
+def test_realtime_run_pins_the_emulator_with_the_host(tmp_path: Path) -> None:
+    config = hurst_bench_config(tmp_path, 0.2)
+    cfg = load_run_config(RunRequest(str(config), overrides=(f"link.period_us={PERIOD_US}",),
+                                     target="emulator:an1017", mode="realtime", duration_s=0.2))
+    before = os.sched_getaffinity(0)
+    summary = run_bench(cfg)
+    assert summary.cpus.startswith("host and pid ") and summary.cpus.endswith(f"on CPU {max(before)}")
+    assert os.sched_getaffinity(0) == before  # the caller's CPUs are back
+    no_pin = load_run_config(RunRequest(str(config), overrides=(f"link.period_us={PERIOD_US}", "link.pin_realtime=false"),
+                                        target="emulator:an1017", mode="realtime", duration_s=0.2))
+    assert run_bench(no_pin).cpus == ""

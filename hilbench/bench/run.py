@@ -14,6 +14,7 @@ from typing import TYPE_CHECKING, Any, Callable, Sequence
 from hilbench import __version__
 from hilbench.bench import settings
 from hilbench.bench.launcher import TargetHandle, open_target
+from hilbench.bench.cpus import CpuPinning
 from hilbench.bench.recorder import Recorder
 from hilbench.bench.session import Session, SessionOptions, Snapshot, Summary
 from hilbench.config import BenchConfig, load_config, plant_params_from_config
@@ -126,6 +127,11 @@ def run_bench(
         if on_ready is not None:
             on_ready(session)
         try:
+            if options.mode == "realtime" and cfg.link.pin_realtime and handle.process is not None:
+                with CpuPinning([handle.process.pid], cfg.link.realtime_cpu) as pinning:
+                    summary = session.run()
+                summary.cpus = pinning.status
+                return summary
             return session.run()
         except LinkError as exc:
             raise LinkError(

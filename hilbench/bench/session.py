@@ -149,6 +149,8 @@ class Summary:
     skipped_periods: int = 0
     #: real time: whether idle CPUs were kept awake (the PM QoS request), or why not
     cpu_latency: str = ""
+    #: real time: which CPU the host loop and the emulator process shared (set by bench.run)
+    cpus: str = ""
     link: dict[str, int] = field(default_factory=dict)
     params: dict[str, float] = field(default_factory=dict)
     recording: str | None = None
@@ -185,6 +187,7 @@ class Summary:
             "overruns": self.overruns,
             "skipped_periods": self.skipped_periods,
             "cpu_latency": self.cpu_latency,
+            "cpus": self.cpus,
             "link": self.link,
             "params": self.params,
             "recording": self.recording,

@@ -43,6 +43,8 @@ class LinkSection:
     overrun_policy: Literal["continue", "abort"] = "continue"
     max_consecutive_overruns: int = field(default=10, metadata=spec(ge=1, le=1_000_000))
     cpu_latency_qos: bool = field(default=True, metadata=spec(doc="real time: hold /dev/cpu_dma_latency at 0 so idle CPUs poll, not halt (needs root)"))
+    pin_realtime: bool = field(default=True, metadata=spec(doc="real time: the host loop and the emulator process it started share one CPU"))
+    realtime_cpu: int | None = field(default=None, metadata=spec(ge=0, le=4095, doc="that CPU (default: the last one this process may use)"))
 
 
 @dataclass(frozen=True)

@@ -145,6 +145,8 @@ def summary_table(summary: Summary) -> Group:
         head.add_row("lateness", f"p50 {lat['p50']:.1f} µs, p99 {lat['p99']:.1f} µs, max {lat['max']:.0f} µs; {_overruns_text(summary)}")
     if summary.cpu_latency:
         head.add_row("CPU wake-up", summary.cpu_latency)
+    if summary.cpus:
+        head.add_row("CPUs", summary.cpus)
     if summary.link:
         head.add_row("link", ", ".join(f"{k} {v}" for k, v in summary.link.items()))
     if summary.params:
@@ -179,6 +181,8 @@ def summary_text(summary: Summary) -> str:
         lines.append(f"lateness_us: p50 {lat['p50']:.1f} p99 {lat['p99']:.1f} max {lat['max']:.1f}; {_overruns_text(summary)}")
     if summary.cpu_latency:
         lines.append(f"cpu latency request: {summary.cpu_latency}")
+    if summary.cpus:
+        lines.append(f"cpus: {summary.cpus}")
     if summary.link:
         lines.append("link: " + ", ".join(f"{k} {v}" for k, v in summary.link.items()))
     for s in summary.segments:
