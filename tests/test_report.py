@@ -42,3 +42,23 @@ def test_npz_recording_exports_the_same_csv_as_a_csv_run(tmp_path: Path) -> None
         return [ln for ln in path.read_text().splitlines() if not ln.startswith("#")]
 
     assert rows(tmp_path / "export.csv") == rows(tmp_path / "run.csv")
+
+
+def test_report_of_a_realtime_recording_gives_its_timing(tmp_path: Path) -> None:
+    """Lateness and RTT spreads from the rows, and the periods the host skipped (marker 5)."""
+    from hilbench.bench.recorder import COLUMN_NAMES, MARKER_SKIPPED, Recorder, read_recording
+    from hilbench.bench.report import summarise
+
+    path = tmp_path / "rt.csv"
+    rec = Recorder(path, {"mode": "realtime", "period_us": 1000})
+    for k in range(100):
+        row = dict.fromkeys(COLUMN_NAMES, 0.0)
+        skipped = k in (50, 51)
+        row.update(t_s=k * 1e-3, seq=k, rtt_us=0.0 if skipped else 100.0 + k, lateness_us=2500.0 if k == 50 else 1500.0 if k == 51 else 1.0,
+                   marker=MARKER_SKIPPED if skipped else 0)
+        rec.append(tuple(row[name] for name in COLUMN_NAMES))
+    rec.close("end")
+    info = summarise(read_recording(path))
+    assert info["skipped_periods"] == 2
+    assert info["lateness_us"].endswith("max 2500.0")
+    assert info["rtt_us"].startswith("p50 148.5") and info["rtt_us"].endswith("max 199.0")  # skipped rows left out

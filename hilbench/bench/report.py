@@ -7,7 +7,7 @@ from typing import Any
 
 import numpy as np
 
-from hilbench.bench.recorder import MARKER_FAULT, RecordingData
+from hilbench.bench.recorder import MARKER_FAULT, MARKER_SKIPPED, RecordingData
 from hilbench.bench.session import START_PRESS_S
 
 _EVENT_TIME = re.compile(r"^t=([0-9.]+) (.*)$")
@@ -75,6 +75,8 @@ def summarise(data: RecordingData) -> dict[str, Any]:
         info["max_speed_rpm"] = round(float(np.max(np.abs(c["speed_rpm"]))), 2)
         info["max_phase_current_a"] = round(float(np.max(np.abs(np.stack([c["ia_a"], c["ib_a"], c["ic_a"]])))), 4)
         info["max_bus_current_a"] = round(float(np.max(np.abs(c["ibus_a"]))), 4)
+    if n and meta.get("mode") == "realtime":
+        info.update(realtime_timing(data))
     info["segments"] = [
         f"{s['from_s']:.2f}-{s['to_s']:.2f} s: ref {s['ref_rpm']:+.0f} rpm, plant {s['plant_rpm']:+.1f}, "
         f"firmware {s['firmware_rpm']:+.1f}, error {s['error_pct']:+.2f} %"
@@ -82,3 +84,18 @@ def summarise(data: RecordingData) -> dict[str, Any]:
     ]
     info["events"] = [f"{when:.4f} s {text}" for when, text in timed_events(data)]
     return info
+
+
+def realtime_timing(data: RecordingData) -> dict[str, str | int]:
+    """Lateness and round trip of a real-time recording, and the periods the host skipped."""
+    c = data.columns
+    skipped = c["marker"] == MARKER_SKIPPED
+    rtt = c["rtt_us"][~skipped]
+
+    def spread(values: np.ndarray) -> str:
+        if not len(values):
+            return "-"
+        p50, p99 = np.percentile(values, [50, 99])
+        return f"p50 {p50:.1f}, p99 {p99:.1f}, max {np.max(values):.1f}"
+
+    return {"lateness_us": spread(c["lateness_us"]), "rtt_us": spread(rtt), "skipped_periods": int(np.sum(skipped))}
