@@ -54,7 +54,8 @@ def test_report_of_a_realtime_recording_gives_its_timing(tmp_path: Path) -> None
     for k in range(100):
         row = dict.fromkeys(COLUMN_NAMES, 0.0)
         skipped = k in (50, 51)
-        row.update(t_s=k * 1e-3, seq=k, rtt_us=0.0 if skipped else 100.0 + k, lateness_us=2500.0 if k == 50 else 1500.0 if k == 51 else 1.0,
+        lateness = {50: 2500.0, 51: 1500.0}.get(k, 1.0)
+        row.update(t_s=k * 1e-3, seq=k, rtt_us=0.0 if skipped else 100.0 + k, lateness_us=lateness,
                    marker=MARKER_SKIPPED if skipped else 0)
         rec.append(tuple(row[name] for name in COLUMN_NAMES))
     rec.close("end")
