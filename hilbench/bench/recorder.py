@@ -111,10 +111,6 @@ class RowLayout:
                              f"{len(self.columns)} columns for {N_COLUMNS}, marker field: {'marker' in names}")
 
     @property
-    def struct_format(self) -> str:
-        return fields_struct(self.fields).format
-
-    @property
     def dtype(self) -> np.dtype:
         return np.dtype([(name, _CODE_DTYPES[code]) for name, code in self.fields])
 
@@ -124,8 +120,8 @@ class RowLayout:
         if isinstance(raw, np.ndarray):
             rows = raw
         else:
-            size = self.dtype.itemsize
-            rows = np.frombuffer(raw, dtype=self.dtype, count=len(raw) // size)
+            dtype = self.dtype
+            rows = np.frombuffer(raw, dtype=dtype, count=len(raw) // dtype.itemsize)
         out: dict[str, np.ndarray] = {}
         for name, (src, scale) in zip(COLUMN_NAMES, self.columns):
             field_values = rows[src]  # strided view into the rows
@@ -162,7 +158,7 @@ class RowBuffer:
     def configure(self, layout: RowLayout) -> None:
         """Set the row layout (empties the buffer: call it before the first row)."""
         self.layout = layout
-        self.struct = struct.Struct(layout.struct_format)
+        self.struct = fields_struct(layout.fields)
         self.pack = self.struct.pack
         self.data = bytearray()
         self.extend = self.data.extend
@@ -184,10 +180,14 @@ class RowBuffer:
     def marker_at(self, index: int) -> int:
         return int(struct.unpack_from(self._marker_code, self.data, index * self.struct.size + self._marker_offset)[0])
 
-    def apply_event_markers(self, events: list[tuple[int, str, int]]) -> None:
-        """Write the markers of pending events into their rows, then forget them (entries kept
-        for their text). The last event of a row wins among events; a marker the row already
-        has (a skipped period, a fault) is kept."""
+    def settle(self, events: list[tuple[int, str, int]]) -> None:
+        """Make the pending rows final: cut a row left half-appended (an interrupt between its two
+        appends), then write the markers of pending events into their rows and forget them
+        (entries kept for their text). The last event of a row wins among events; a marker the
+        row already has (a skipped period, a fault) is kept."""
+        extra = len(self.data) % self.struct.size
+        if extra:
+            del self.data[-extra:]
         by_row: dict[int, int] = {}
         n_rows = len(self)
         for i, (index, text, marker) in enumerate(events):
@@ -197,12 +197,6 @@ class RowBuffer:
         for index, marker in by_row.items():
             if self.marker_at(index) == MARKER_NONE:
                 self.mark(index, marker)
-
-    def drop_partial_row(self) -> None:
-        """Cut a row left half-appended (an interrupt between its two appends)."""
-        extra = len(self.data) % self.struct.size
-        if extra:
-            del self.data[-extra:]
 
     def mark_last(self, value: int) -> None:
         """Set the marker field of the newest whole row."""
@@ -282,8 +276,7 @@ class Recorder:
 
     def mark_last(self, marker: int) -> None:
         """Set the marker of the newest pending row (the last good period): it wins over events."""
-        self.rows.drop_partial_row()
-        self.rows.apply_event_markers(self._events)
+        self.rows.settle(self._events)
         self.rows.mark_last(marker)
 
     def maybe_flush(self) -> None:
@@ -297,11 +290,10 @@ class Recorder:
             self.start()
         events = self._events
         rows = self.rows
-        rows.drop_partial_row()
+        rows.settle(events)
         n_rows = len(rows)
         if not n_rows and not events:
             return
-        rows.apply_event_markers(events)
         try:
             if self.is_npz:
                 self._file.write(rows.data)  # raw rows as they are: the layout is in the header
@@ -344,7 +336,7 @@ class Recorder:
         self.closed = True
         self._file.close()
         if self.is_npz:
-            _, rows = _read_journal_rows(self._journal_path())
+            _, _, rows = _read_journal_rows(self._journal_path())
             arrays: dict[str, np.ndarray] = self.rows.layout.to_columns(rows)
             arrays["metadata"] = np.asarray(json.dumps(self.metadata, default=str))
             tmp = self.path.with_name(self.path.name + ".tmp.npz")
@@ -434,19 +426,15 @@ def _read_csv(path: Path) -> RecordingData:
     return RecordingData(path, _columns(table), metadata, tuple(events))
 
 
-def _read_journal_rows(path: Path) -> tuple[dict[str, Any], np.ndarray]:
-    """A journal's header (layout, metadata) and its whole raw rows; a torn last row is dropped."""
+def _read_journal_rows(path: Path) -> tuple[dict[str, Any], RowLayout, memoryview]:
+    """A journal's metadata, row layout and raw rows (to_columns drops a torn last row)."""
     raw = path.read_bytes()
     if raw[:4] != _JOURNAL_MAGIC or len(raw) < 8:
         raise RecordingError(f"recording {path}: not a hilbench journal (or written before its first row)")
     (head_len,) = struct.unpack_from("<I", raw, 4)
     start = 8 + head_len
     head = json.loads(raw[8:start])
-    layout = RowLayout.from_json(head["layout"])
-    size = layout.dtype.itemsize
-    body = memoryview(raw)[start:]
-    usable = len(body) - len(body) % size
-    return head, np.frombuffer(body[:usable], dtype=layout.dtype)
+    return head["metadata"], RowLayout.from_json(head["layout"]), memoryview(raw)[start:]
 
 
 def _events_path(journal: Path) -> Path:
@@ -455,9 +443,8 @@ def _events_path(journal: Path) -> Path:
 
 
 def _read_journal(path: Path) -> RecordingData:
-    head, rows = _read_journal_rows(path)
-    metadata = head["metadata"]
-    columns = RowLayout.from_json(head["layout"]).to_columns(rows)
+    metadata, layout, rows = _read_journal_rows(path)
+    columns = layout.to_columns(rows)
     side = _events_path(path)
     events = side.read_text(encoding="utf-8").splitlines() if side.exists() else []
     return RecordingData(path, columns, metadata, tuple(events))
@@ -498,8 +485,7 @@ class MemoryRecorder:
         self.events.append((self.rows_written, text, marker))
 
     def mark_last(self, marker: int) -> None:
-        self.rows.drop_partial_row()
-        self.rows.apply_event_markers(self.events)
+        self.rows.settle(self.events)
         self.rows.mark_last(marker)
 
     def maybe_flush(self) -> None:
@@ -515,8 +501,7 @@ class MemoryRecorder:
 
     def columns(self) -> dict[str, np.ndarray]:
         """Every column as an array, markers applied."""
-        self.rows.drop_partial_row()
-        self.rows.apply_event_markers(self.events)
+        self.rows.settle(self.events)
         return self.rows.columns()
 
 

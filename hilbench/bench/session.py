@@ -682,16 +682,15 @@ class Session:
             summary.end_reason = "interrupted"
             self.periods_done = k
             self._stop_target()
-            summary.skipped_periods = skipped
-            self._finish(summary, wall_start, rtts, lateness, overruns, f"interrupted at period {k}")
+            self._finish(summary, wall_start, rtts, lateness, overruns, skipped, f"interrupted at period {k}")
             raise
         except (LinkError, TargetError, SessionAborted) as exc:
             self.periods_done = k
             summary.end_reason = "fault"
             summary.fault = str(exc)
             self._deenergise()
-            summary.skipped_periods = skipped
-            self._finish(summary, wall_start, rtts, lateness, overruns, f"fault at period {k}: {exc}", fault=True)
+            self._finish(summary, wall_start, rtts, lateness, overruns, skipped, f"fault at period {k}: {exc}",
+                         fault=True)
             raise
         finally:
             if qos is not None:
@@ -699,8 +698,7 @@ class Session:
             if gc_was_enabled:
                 gc.enable()
         self._stop_target()
-        summary.skipped_periods = skipped
-        self._finish(summary, wall_start, rtts, lateness, overruns, f"end: {summary.end_reason} at period {k}")
+        self._finish(summary, wall_start, rtts, lateness, overruns, skipped, f"end: {summary.end_reason} at period {k}")
         return summary
 
     @staticmethod
@@ -863,7 +861,7 @@ class Session:
             history=self.history,  # the dashboard decimates it to its width
         )
 
-    def _finish(self, summary: Summary, wall_start: float, rtts, lateness, overruns, note, fault=False) -> None:  # type: ignore[no-untyped-def]
+    def _finish(self, summary: Summary, wall_start: float, rtts, lateness, overruns, skipped, note, fault=False) -> None:  # type: ignore[no-untyped-def]
         period_s = self.options.period_us * 1e-6
         summary.periods = self.periods_done
         summary.sim_s = self.periods_done * period_s
@@ -871,6 +869,7 @@ class Session:
         summary.rtt_us = _percentiles([r * 1e6 for r in rtts])
         summary.lateness_us = _percentiles([x * 1e6 for x in lateness])
         summary.overruns = overruns
+        summary.skipped_periods = skipped
         summary.link = self.link_stats()
         summary.segments = self._segments(summary.sim_s)
         try:

@@ -302,7 +302,6 @@ static PyObject *Core_step(Core *s, PyObject *const *args, Py_ssize_t nargs)
     Py_RETURN_NONE;
 }
 
-/* model.Plant.adc_codes */
 /* append_state(buf): the state a recorder keeps per period, appended to a bytearray as seven
  * little-endian doubles (model.STATE_FIELDS): one call instead of seven attribute reads. */
 static PyObject *Core_append_state(Core *s, PyObject *buf)
@@ -321,6 +320,7 @@ static PyObject *Core_append_state(Core *s, PyObject *buf)
     Py_RETURN_NONE;
 }
 
+/* model.Plant.adc_codes */
 static PyObject *Core_adc_codes(Core *s, PyObject *roles)
 {
     PyObject *seq = PySequence_Fast(roles, "adc_codes: roles must be a sequence of role numbers");
