@@ -21,7 +21,6 @@ import sys
 import tempfile
 import time
 from pathlib import Path
-from typing import Iterator
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
@@ -67,8 +66,8 @@ def paced_raw_echo(seconds: float, period_us: int, qos: bool, pin: bool) -> tupl
     rtt: list[float] = []
     overruns = 0
     request = b"\xaa" * req_len
-    with echo_child(req_len, resp_len) as (fd, child), CpuLatencyRequest() if qos else _no_request(), \
-            CpuPinning([child.pid]) if pin else _no_request():
+    with echo_child(req_len, resp_len) as (fd, child), CpuLatencyRequest() if qos else contextlib.nullcontext(), \
+            CpuPinning([child.pid]) if pin else contextlib.nullcontext():
         pacer = Pacer(period_s)
         pacer.start()
         for k in range(n):
@@ -91,11 +90,6 @@ def paced_raw_echo(seconds: float, period_us: int, qos: bool, pin: bool) -> tupl
         return statistics.quantiles(values, n=100)[98] * 1e6
 
     return p99(late), p99(rtt), overruns, n
-
-
-@contextlib.contextmanager
-def _no_request() -> Iterator[None]:
-    yield
 
 
 def main() -> None:
