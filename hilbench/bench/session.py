@@ -153,6 +153,9 @@ class Session:
         self._obs_last = (0.0, 0)
         self._lockstep_rtts: list[float] = []
         self._tele_index: dict[str, tuple[int, float]] = {}
+        self._closed = False
+        self._qos: CpuLatencyRequest | None = None
+        self._pacing: RealtimePacing | None = None
 
     # ------------------------------------------------------------------ handshake
     def handshake(self) -> TargetHello:
@@ -254,6 +257,11 @@ class Session:
         if self.recorder is not None:
             self.recorder.event(f"t={t_s:.6f} {event.describe()}", MARKER_EVENT)
 
+    def apply_now(self, event: Event) -> None:
+        """An event from a script or a test at the current period (recorded like a scenario event)."""
+        self._apply(event, event.at_s)
+        self._scenario_k = min(self._scenario_k, self.periods_done)  # ramps, the button's release
+
     def _tick_ramps(self, t_s: float) -> None:
         for kind, ramp in list(self.player.ramps.items()):
             value = ramp.value(t_s)
@@ -309,70 +317,104 @@ class Session:
     # ------------------------------------------------------------------ the loop
     def run(self) -> Summary:
         """Handshake if needed, then run periods until the duration or the scenario ends."""
+        self.begin()
+        self.advance(self.planned_periods)
+        return self.end()
+
+    def begin(self) -> None:
+        """Get ready to run: handshake if needed, the recorder's layout, pacing and the CPU request.
+        Then `advance` runs periods, as many calls as wanted, and `end` closes the run."""
         options = self.options
         if self.hello is None:
             self.handshake()
         assert self.hello is not None
         summary = Summary(self.target_label, options.mode, options.period_us, firmware=self.hello.firmware_name)
         summary.recording = str(self.recorder.path) if self.recorder is not None else None
-        period_s = self._period_s
+        self.summary = summary
         duration = options.duration_s if options.duration_s is not None else self.player.end_s
-        n_periods = max(1, round((5.0 if duration is None else duration) / period_s))
-        self._duration_s = n_periods * period_s
+        self.planned_periods = max(1, round((5.0 if duration is None else duration) / self._period_s))
+        self._duration_s = self.planned_periods * self._period_s
         realtime = options.mode == "realtime"
-        pacing = RealtimePacing(
+        self._pacing = RealtimePacing(
             options.period_us, label=self.target_label,
             abort_after=options.max_consecutive_overruns if options.overrun_policy == "abort" else None,
         ) if realtime else None
-        qos = CpuLatencyRequest() if realtime and options.cpu_latency_qos else None
-        if realtime and qos is None:
+        self._qos = CpuLatencyRequest() if realtime and options.cpu_latency_qos else None
+        if realtime and self._qos is None:
             summary.cpu_latency = "not requested ([link] cpu_latency_qos = false)"
+        if self._qos is not None:
+            self._qos.__enter__()  # released by end(), however the run ends
+            summary.cpu_latency = self._qos.status
         self._lockstep_rtts = []
-        self._scenario_k = first_period_at(self.player.next_t_s, period_s)
+        self._scenario_k = first_period_at(self.player.next_t_s, self._period_s)
         self.faults.last_hall = self.plant.hall_bits
+        self._wall_start = time.perf_counter()
+        self._obs_last = (self._wall_start, 0)
+        self._record = self._row_writer()
+        self._actuate = self._actuator()
+        self._next_k = 0
+        self._edge_s = self.plant.last_edge_s
+        self._drive: Any = None
+        self._guard_ref = 0.0
+
+    @property
+    def ended(self) -> bool:
+        """The scenario's end, `ctl stop` or a fault ended the run."""
+        return self._end_reason is not None
+
+    def advance(self, n_periods: int) -> bool:
+        """Run up to ``n_periods`` more periods; False once the run has ended. A fault or Ctrl-C
+        closes the run (recording with a fault marker) and propagates."""
+        if self.ended:
+            return False
+        summary = self.summary
         gc_was_enabled = gc.isenabled()
         gc.disable()  # no collector pauses inside periods (recorded rows are plain numbers)
-        wall_start = time.perf_counter()
-        self._obs_last = (wall_start, 0)
-        k = 0
         try:
-            if qos is not None:
-                qos.__enter__()  # released in the finally below, however the run ends
-                summary.cpu_latency = qos.status
-            k = self._loop(n_periods, pacing)
-            self.periods_done = k
-            if self._end_reason is not None:
-                summary.end_reason = self._end_reason
+            self.periods_done = self._loop(self._next_k, self._next_k + n_periods, self._pacing)
+            self._next_k = self.periods_done
         except KeyboardInterrupt:
             summary.end_reason = "interrupted"
             self._stop_target()
-            self._finish(summary, wall_start, pacing, f"interrupted at period {self.periods_done}")
+            self._close(f"interrupted at period {self.periods_done}")
             raise
         except (LinkError, TargetError, SessionAborted) as exc:
             summary.end_reason = "fault"
             summary.fault = str(exc)
+            self._end_reason = "fault"
             self._deenergise()
-            self._finish(summary, wall_start, pacing, f"fault at period {self.periods_done}: {exc}", fault=True)
+            self._close(f"fault at period {self.periods_done}: {exc}", fault=True)
             raise
         finally:
-            if qos is not None:
-                qos.__exit__(None, None, None)
             if gc_was_enabled:
                 gc.enable()
-        self._stop_target()
-        self._finish(summary, wall_start, pacing, f"end: {summary.end_reason} at period {k}")
+        return not self.ended
+
+    def end(self) -> Summary:
+        """Close the run: the target stops, the recording is closed, the summary is made."""
+        summary = self.summary
+        if not self._closed:
+            if self._end_reason is not None:
+                summary.end_reason = self._end_reason
+            self._stop_target()
+            self._close(f"end: {summary.end_reason} at period {self.periods_done}")
         return summary
 
-    def _loop(self, n_periods: int, pacing: RealtimePacing | None) -> int:
-        """The periods: the parts run in the periods they are due; returns the periods done."""
+    def _close(self, note: str, fault: bool = False) -> None:
+        self._closed = True
+        if self._qos is not None:
+            self._qos.__exit__(None, None, None)
+        self._finish(self.summary, self._wall_start, self._pacing, note, fault=fault)
+
+    def _loop(self, k_from: int, k_to: int, pacing: RealtimePacing | None) -> int:
+        """Periods k_from..k_to-1: the parts run in the periods they are due; returns the next period."""
         plant, target_step, faults, history_every = self.plant, self.target.step, self.faults, self.options.history_every_periods
-        period_s, roles, actuate = self._period_s, tuple(self.hello.adc_roles), self._actuator()  # type: ignore[union-attr]
-        record = self._row_writer()
+        roles, actuate, record = tuple(self.hello.adc_roles), self._actuate, self._record  # type: ignore[union-attr]
         edge_limit, new_sensors, perf, rtts = self.options.period_us * 10 - 1, tuple.__new__, time.perf_counter, self._lockstep_rtts
-        edge_s, drive, guard_ref = plant.last_edge_s, None, 0.0
+        edge_s, drive, guard_ref = self._edge_s, self._drive, self._guard_ref
         if pacing is not None:
-            pacing.start()
-        for k in range(n_periods):
+            pacing.start_at(k_from)
+        for k in range(k_from, k_to):
             self.periods_done = k
             if k >= self._scenario_k:
                 self._scenario_due(k)
@@ -403,7 +445,8 @@ class Session:
                 record(k, hall, drive, pacing)
             if k % history_every == 0:
                 guard_ref = self._sample(k, drive, pacing)
-        return n_periods
+            self._edge_s, self._drive, self._guard_ref = edge_s, drive, guard_ref
+        return k_to
 
     def _actuator(self) -> Callable[[Any], float | None]:
         """Integrate the plant over a period with a Drive (or the one `actuation_delay_periods` before);

@@ -119,6 +119,11 @@ def session_options(cfg: BenchConfig) -> SessionOptions:
     )
 
 
+def effective_seed(cfg: BenchConfig) -> int:
+    """[run] seed when given, else [plant] seed."""
+    return cfg.run.seed if cfg.run.seed is not None else cfg.plant.seed
+
+
 def guard_settings(cfg: BenchConfig) -> GuardSettings:
     """GuardSettings from the [tuning] table."""
     t = cfg.tuning
