@@ -1,7 +1,7 @@
 """A bench opened on any target, for Python scripts, tests and the CLI alike.
 
     import hilbench
-    with hilbench.Bench(target="inprocess:an1017") as bench:
+    with hilbench.Bench(target="inprocess:NAME") as bench:   # NAME: `hilbench targets`
         bench.set_reference(1500)
         bench.press("s2")
         bench.run(1.0)
