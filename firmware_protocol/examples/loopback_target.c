@@ -24,12 +24,12 @@ static const hbp_param_def_t param_defs[3] = {
     {"ki", 0, 32767, HBP_PTYPE_Q15, HBP_ACCESS_RW},
     {"version", 1, 1, HBP_PTYPE_INT, HBP_ACCESS_RO},
 };
-static int16_t param_values[3] = {3277, 328, 1};
+static int32_t param_values[3] = {3277, 328, 1};
 
 /* Constraint 1: kp + ki <= 32767. */
 static uint8_t check_params(const hbp_params_t *p, const hbp_param_set_t *req, uint8_t *param_id, uint8_t *detail)
 {
-    int32_t sum = (int32_t)hbp_param_candidate(p, req, 0u) + (int32_t)hbp_param_candidate(p, req, 1u);
+    int32_t sum = hbp_param_candidate(p, req, 0u) + hbp_param_candidate(p, req, 1u); /* both <= 32767 */
     if (sum > 32767L) {
         *param_id = 0u;
         *detail = 1u;
@@ -62,9 +62,7 @@ static int send_error(uint8_t seq, uint8_t code, uint8_t detail)
 {
     hbp_error_report_t e;
     uint8_t frame[HBP_MAX_FRAME];
-    e.seq = seq;
-    e.code = code;
-    e.detail = detail;
+    hbp_error_report(seq, code, detail, &e);
     return send_frame(frame, hbp_pack_error_report(&e, frame));
 }
 
@@ -85,7 +83,7 @@ static uint16_t duty_from_adc(const hbp_sensors_t *s, uint8_t i)
     if (i >= s->n_adc) {
         return 0u;
     }
-    return (s->adc[i] > 1023u) ? 1023u : s->adc[i];
+    return s->adc[i]; /* the full u16: a duty is a compare count of pwm_period_counts */
 }
 
 static int handle(const uint8_t *buf, uint8_t len)
@@ -97,19 +95,22 @@ static int handle(const uint8_t *buf, uint8_t len)
     case HBP_MSG_HOST_HELLO: {
         hbp_host_hello_t h;
         hbp_target_hello_t t;
-        if (hbp_unpack_host_hello(buf, len, &h) != HBP_ERROR_NONE) {
-            return send_error(seq, HBP_ERROR_LENGTH, type);
-        }
-        if (hbp_check_hello(&h) != HBP_ERROR_NONE) {
+        uint8_t check = hbp_check_host_hello(buf, len, &h);
+        if (check == HBP_ERROR_VERSION) {
             return send_error(seq, HBP_ERROR_VERSION, HBP_PROTOCOL_VERSION);
+        }
+        if (check != HBP_ERROR_NONE) {
+            return send_error(seq, HBP_ERROR_LENGTH, type);
         }
         memset(&t, 0, sizeof t);
         t.seq = seq;
         t.protocol_version = HBP_PROTOCOL_VERSION;
+        t.schema_fingerprint = HBP_SCHEMA_FINGERPRINT;
         t.firmware_version = 1u;
         t.pwm_period_counts = 1000u;
         t.pwm_freq_hz = 20000u;
         t.n_params = params.count;
+        t.adc_bits = 10u;
         strcpy(t.firmware_name, "loopback");
         t.n_adc_roles = 3u;
         t.adc_roles[0] = HBP_ADC_POT;

@@ -42,6 +42,7 @@ from hilbench.protocol import (
     State,
     TargetHello,
     TelemetryId,
+    check_target_hello,
 )
 from hilbench.plant.model import STATE_FIELDS
 from hilbench.targets.profiles import TargetProfile, profile_for
@@ -296,6 +297,7 @@ class Session:
         mode = 0 if self.options.mode == "lockstep" else 1
         host = HostHello(0, PROTOCOL_VERSION, self.options.period_us, mode, self.options.watchdog_ms)
         hello = self.target.hello(host)
+        check_target_hello(hello, where=self.target_label)  # protocol version and schema fingerprint
         self.hello = hello
         self.profile = profile_for(hello.firmware_name)
         for param_id in range(hello.n_params):
