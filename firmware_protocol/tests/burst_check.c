@@ -9,7 +9,8 @@
  * CRC), followed by the 0x00 delimiter, and fed byte by byte to hbp_rx_byte.
  * Build with -DHBP_RX_MAX=64u. Prints "bursts N accepted A frames F"; exit 0 iff A == 0.
  * With a second argument "wire" the bursts hit the COBS-encoded bytes instead (the delimiter kept):
- * then it only reports the count (a burst that rewrites a COBS code byte reshapes the whole frame).
+ * then it only reports the count (a burst that rewrites a COBS code byte reshapes the whole frame)
+ * and prints the first three accepted cases.
  */
 #include <stdio.h>
 #include <stdlib.h>
@@ -93,6 +94,14 @@ static unsigned long long run(const uint8_t *buf, unsigned n, int on_wire, unsig
                     w = n + 1u;
                     if (accepted(work, w)) {
                         (*bad)++;
+                        if (*bad <= 3u) {
+                            unsigned q;
+                            printf("accepted on the wire: burst of %u bits at bit %u:", len, start);
+                            for (q = 0u; q < w; q++) {
+                                printf(" %02x", work[q]);
+                            }
+                            printf("\n");
+                        }
                     }
                 } else {
                     w = cobs_encode(work, n, wire);
