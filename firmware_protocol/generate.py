@@ -172,9 +172,15 @@ def _py_bits_check(f: Field, ref: Callable[[str], str] = lambda n: f"m.{n}") -> 
     for name, width, kind in f.bits:
         if kind != "bool":
             groups.setdefault(width, []).append(name)
-    for width, names in groups.items():
-        lines.append(f"    if ({' | '.join(ref(n) for n in names)}) >> {width}:")
-        lines.append(f"        raise ProtocolError(f\"encode {{type(m).__name__}}: {'/'.join(names)} "
+    tests = [(f"({' | '.join(ref(n) for n in names)}) >> {width}", names, width) for width, names in groups.items()]
+    if len(tests) > 1:  # one branch on the hot path; which field is wrong is found only on failure
+        lines.append("    if " + " | ".join(f"({t})" for t, _, _ in tests) + ":")
+        indent = "    "
+    else:
+        indent = ""
+    for test, names, width in tests:
+        lines.append(f"    {indent}if {test}:")
+        lines.append(f"    {indent}    raise ProtocolError(f\"encode {{type(m).__name__}}: {'/'.join(names)} "
                      f"must be 0..{(1 << width) - 1}\")")
     return lines
 
@@ -333,6 +339,9 @@ _WIRE_LINES = [
     "    if k == 3:",
     "        a, b, c = p",
     "        return b''.join((_CODE[len(a)], a, _CODE[len(b)], b, _CODE[len(c)], c, b'\\x00'))",
+    "    if k == 4:  # u16 duties and counts below 256 make three zeros common",
+    "        a, b, c, d = p",
+    "        return b''.join((_CODE[len(a)], a, _CODE[len(b)], b, _CODE[len(c)], c, _CODE[len(d)], d, b'\\x00'))",
     "    return cobs_join(p)",
 ]
 

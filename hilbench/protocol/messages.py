@@ -493,12 +493,13 @@ def pack_sensors(m: Sensors) -> bytes:
 
 def pack_drive(m: Drive) -> bytes:
     """Drive -> type . seq . payload (no CRC)."""
-    if (m.output_mode) >> 2:
-        raise ProtocolError(f"encode {type(m).__name__}: output_mode must be 0..3")
-    if (m.state | m.sector) >> 3:
-        raise ProtocolError(f"encode {type(m).__name__}: state/sector must be 0..7")
-    if (m.fault) >> 6:
-        raise ProtocolError(f"encode {type(m).__name__}: fault must be 0..63")
+    if ((m.output_mode) >> 2) | ((m.state | m.sector) >> 3) | ((m.fault) >> 6):
+        if (m.output_mode) >> 2:
+            raise ProtocolError(f"encode {type(m).__name__}: output_mode must be 0..3")
+        if (m.state | m.sector) >> 3:
+            raise ProtocolError(f"encode {type(m).__name__}: state/sector must be 0..7")
+        if (m.fault) >> 6:
+            raise ProtocolError(f"encode {type(m).__name__}: fault must be 0..63")
     arr = m.telemetry
     if len(arr) > 8:
         raise ProtocolError(f"encode Drive: telemetry has {len(arr)} entries, at most 8")
@@ -766,6 +767,9 @@ def encode_host_hello(m: HostHello) -> bytes:
     if k == 3:
         a, b, c = p
         return b''.join((_CODE[len(a)], a, _CODE[len(b)], b, _CODE[len(c)], c, b'\x00'))
+    if k == 4:  # u16 duties and counts below 256 make three zeros common
+        a, b, c, d = p
+        return b''.join((_CODE[len(a)], a, _CODE[len(b)], b, _CODE[len(c)], c, _CODE[len(d)], d, b'\x00'))
     return cobs_join(p)
 
 
@@ -793,18 +797,22 @@ def encode_sensors(m: Sensors) -> bytes:
     if k == 3:
         a, b, c = p
         return b''.join((_CODE[len(a)], a, _CODE[len(b)], b, _CODE[len(c)], c, b'\x00'))
+    if k == 4:  # u16 duties and counts below 256 make three zeros common
+        a, b, c, d = p
+        return b''.join((_CODE[len(a)], a, _CODE[len(b)], b, _CODE[len(c)], c, _CODE[len(d)], d, b'\x00'))
     return cobs_join(p)
 
 
 def encode_drive(m: Drive) -> bytes:
     """Drive -> complete wire bytes (CRC, COBS, 0x00); ProtocolError/struct.error if unencodable."""
     x_seq, x_duty_a, x_duty_b, x_duty_c, x_output_mode, x_state, x_sector, x_direction_ccw, x_required_ccw, x_fault, x_telemetry = m
-    if (x_output_mode) >> 2:
-        raise ProtocolError(f"encode {type(m).__name__}: output_mode must be 0..3")
-    if (x_state | x_sector) >> 3:
-        raise ProtocolError(f"encode {type(m).__name__}: state/sector must be 0..7")
-    if (x_fault) >> 6:
-        raise ProtocolError(f"encode {type(m).__name__}: fault must be 0..63")
+    if ((x_output_mode) >> 2) | ((x_state | x_sector) >> 3) | ((x_fault) >> 6):
+        if (x_output_mode) >> 2:
+            raise ProtocolError(f"encode {type(m).__name__}: output_mode must be 0..3")
+        if (x_state | x_sector) >> 3:
+            raise ProtocolError(f"encode {type(m).__name__}: state/sector must be 0..7")
+        if (x_fault) >> 6:
+            raise ProtocolError(f"encode {type(m).__name__}: fault must be 0..63")
     w_flags = (x_output_mode | x_state << 2 | x_sector << 5 | (256 if x_direction_ccw else 0) | (512 if x_required_ccw else 0) | x_fault << 10)
     n = len(x_telemetry)
     if n == 3:
@@ -822,6 +830,9 @@ def encode_drive(m: Drive) -> bytes:
     if k == 3:
         a, b, c = p
         return b''.join((_CODE[len(a)], a, _CODE[len(b)], b, _CODE[len(c)], c, b'\x00'))
+    if k == 4:  # u16 duties and counts below 256 make three zeros common
+        a, b, c, d = p
+        return b''.join((_CODE[len(a)], a, _CODE[len(b)], b, _CODE[len(c)], c, _CODE[len(d)], d, b'\x00'))
     return cobs_join(p)
 
 
@@ -845,6 +856,9 @@ def encode_drive_unchecked(m: Drive) -> bytes:
     if k == 3:
         a, b, c = p
         return b''.join((_CODE[len(a)], a, _CODE[len(b)], b, _CODE[len(c)], c, b'\x00'))
+    if k == 4:  # u16 duties and counts below 256 make three zeros common
+        a, b, c, d = p
+        return b''.join((_CODE[len(a)], a, _CODE[len(b)], b, _CODE[len(c)], c, _CODE[len(d)], d, b'\x00'))
     return cobs_join(p)
 
 
@@ -860,6 +874,9 @@ def encode_param_describe(m: ParamDescribe) -> bytes:
     if k == 3:
         a, b, c = p
         return b''.join((_CODE[len(a)], a, _CODE[len(b)], b, _CODE[len(c)], c, b'\x00'))
+    if k == 4:  # u16 duties and counts below 256 make three zeros common
+        a, b, c, d = p
+        return b''.join((_CODE[len(a)], a, _CODE[len(b)], b, _CODE[len(c)], c, _CODE[len(d)], d, b'\x00'))
     return cobs_join(p)
 
 
@@ -880,6 +897,9 @@ def encode_param_get(m: ParamGet) -> bytes:
     if k == 3:
         a, b, c = p
         return b''.join((_CODE[len(a)], a, _CODE[len(b)], b, _CODE[len(c)], c, b'\x00'))
+    if k == 4:  # u16 duties and counts below 256 make three zeros common
+        a, b, c, d = p
+        return b''.join((_CODE[len(a)], a, _CODE[len(b)], b, _CODE[len(c)], c, _CODE[len(d)], d, b'\x00'))
     return cobs_join(p)
 
 
@@ -895,6 +915,9 @@ def encode_param_value(m: ParamValue) -> bytes:
     if k == 3:
         a, b, c = p
         return b''.join((_CODE[len(a)], a, _CODE[len(b)], b, _CODE[len(c)], c, b'\x00'))
+    if k == 4:  # u16 duties and counts below 256 make three zeros common
+        a, b, c, d = p
+        return b''.join((_CODE[len(a)], a, _CODE[len(b)], b, _CODE[len(c)], c, _CODE[len(d)], d, b'\x00'))
     return cobs_join(p)
 
 
@@ -914,6 +937,9 @@ def encode_param_set(m: ParamSet) -> bytes:
     if k == 3:
         a, b, c = p
         return b''.join((_CODE[len(a)], a, _CODE[len(b)], b, _CODE[len(c)], c, b'\x00'))
+    if k == 4:  # u16 duties and counts below 256 make three zeros common
+        a, b, c, d = p
+        return b''.join((_CODE[len(a)], a, _CODE[len(b)], b, _CODE[len(c)], c, _CODE[len(d)], d, b'\x00'))
     return cobs_join(p)
 
 
@@ -929,6 +955,9 @@ def encode_param_set_result(m: ParamSetResult) -> bytes:
     if k == 3:
         a, b, c = p
         return b''.join((_CODE[len(a)], a, _CODE[len(b)], b, _CODE[len(c)], c, b'\x00'))
+    if k == 4:  # u16 duties and counts below 256 make three zeros common
+        a, b, c, d = p
+        return b''.join((_CODE[len(a)], a, _CODE[len(b)], b, _CODE[len(c)], c, _CODE[len(d)], d, b'\x00'))
     return cobs_join(p)
 
 
@@ -944,6 +973,9 @@ def encode_start(m: Start) -> bytes:
     if k == 3:
         a, b, c = p
         return b''.join((_CODE[len(a)], a, _CODE[len(b)], b, _CODE[len(c)], c, b'\x00'))
+    if k == 4:  # u16 duties and counts below 256 make three zeros common
+        a, b, c, d = p
+        return b''.join((_CODE[len(a)], a, _CODE[len(b)], b, _CODE[len(c)], c, _CODE[len(d)], d, b'\x00'))
     return cobs_join(p)
 
 
@@ -959,6 +991,9 @@ def encode_stop(m: Stop) -> bytes:
     if k == 3:
         a, b, c = p
         return b''.join((_CODE[len(a)], a, _CODE[len(b)], b, _CODE[len(c)], c, b'\x00'))
+    if k == 4:  # u16 duties and counts below 256 make three zeros common
+        a, b, c, d = p
+        return b''.join((_CODE[len(a)], a, _CODE[len(b)], b, _CODE[len(c)], c, _CODE[len(d)], d, b'\x00'))
     return cobs_join(p)
 
 
@@ -974,6 +1009,9 @@ def encode_status_request(m: StatusRequest) -> bytes:
     if k == 3:
         a, b, c = p
         return b''.join((_CODE[len(a)], a, _CODE[len(b)], b, _CODE[len(c)], c, b'\x00'))
+    if k == 4:  # u16 duties and counts below 256 make three zeros common
+        a, b, c, d = p
+        return b''.join((_CODE[len(a)], a, _CODE[len(b)], b, _CODE[len(c)], c, _CODE[len(d)], d, b'\x00'))
     return cobs_join(p)
 
 
@@ -989,6 +1027,9 @@ def encode_status(m: Status) -> bytes:
     if k == 3:
         a, b, c = p
         return b''.join((_CODE[len(a)], a, _CODE[len(b)], b, _CODE[len(c)], c, b'\x00'))
+    if k == 4:  # u16 duties and counts below 256 make three zeros common
+        a, b, c, d = p
+        return b''.join((_CODE[len(a)], a, _CODE[len(b)], b, _CODE[len(c)], c, _CODE[len(d)], d, b'\x00'))
     return cobs_join(p)
 
 
@@ -1004,6 +1045,9 @@ def encode_error_report(m: ErrorReport) -> bytes:
     if k == 3:
         a, b, c = p
         return b''.join((_CODE[len(a)], a, _CODE[len(b)], b, _CODE[len(c)], c, b'\x00'))
+    if k == 4:  # u16 duties and counts below 256 make three zeros common
+        a, b, c, d = p
+        return b''.join((_CODE[len(a)], a, _CODE[len(b)], b, _CODE[len(c)], c, _CODE[len(d)], d, b'\x00'))
     return cobs_join(p)
 
 
@@ -1206,12 +1250,13 @@ def encode_frame(m: Message, validate: bool = True) -> bytes:
         elif t is Drive:
             x_seq, x_duty_a, x_duty_b, x_duty_c, x_output_mode, x_state, x_sector, x_direction_ccw, x_required_ccw, x_fault, x_telemetry = m
             if validate:
-                if (x_output_mode) >> 2:
-                    raise ProtocolError(f"encode {type(m).__name__}: output_mode must be 0..3")
-                if (x_state | x_sector) >> 3:
-                    raise ProtocolError(f"encode {type(m).__name__}: state/sector must be 0..7")
-                if (x_fault) >> 6:
-                    raise ProtocolError(f"encode {type(m).__name__}: fault must be 0..63")
+                if ((x_output_mode) >> 2) | ((x_state | x_sector) >> 3) | ((x_fault) >> 6):
+                    if (x_output_mode) >> 2:
+                        raise ProtocolError(f"encode {type(m).__name__}: output_mode must be 0..3")
+                    if (x_state | x_sector) >> 3:
+                        raise ProtocolError(f"encode {type(m).__name__}: state/sector must be 0..7")
+                    if (x_fault) >> 6:
+                        raise ProtocolError(f"encode {type(m).__name__}: fault must be 0..63")
             w_flags = (x_output_mode | x_state << 2 | x_sector << 5 | (256 if x_direction_ccw else 0) | (512 if x_required_ccw else 0) | x_fault << 10)
             n = len(x_telemetry)
             if n == 3:
@@ -1236,6 +1281,9 @@ def encode_frame(m: Message, validate: bool = True) -> bytes:
     if k == 3:
         a, b, c = p
         return b''.join((_CODE[len(a)], a, _CODE[len(b)], b, _CODE[len(c)], c, b'\x00'))
+    if k == 4:  # u16 duties and counts below 256 make three zeros common
+        a, b, c, d = p
+        return b''.join((_CODE[len(a)], a, _CODE[len(b)], b, _CODE[len(c)], c, _CODE[len(d)], d, b'\x00'))
     return cobs_join(p)
 
 
