@@ -10,7 +10,7 @@ reverse. This prints, all measured in the same run (median over interleaved repe
 - v2: hilbench.protocol encode_frame / decode_frame / FrameDecoder.feed (one frame per read).
 
 The machine is a noisy shared 2-core VM: compare the ratios, not the absolute times.
-Run: python benchmarks/bench_protocol.py [--baseline-rev REV] [--profile]
+Run: python benchmarks/bench_protocol.py [--baseline-rev REV] [--repeats N] [--profile]
 """
 
 from __future__ import annotations
@@ -53,11 +53,11 @@ def load_codec(rev: str) -> ModuleType:
     return importlib.import_module("hbv1.protocol")
 
 
-def measure(cases: dict[str, str], env: dict) -> dict[str, float]:
+def measure(cases: dict[str, str], env: dict, repeats: int = REPEATS) -> dict[str, float]:
     """Median µs per call of each statement; the cases take turns so drift hits them alike."""
     timers = {name: timeit.Timer(stmt, globals=env) for name, stmt in cases.items()}
     samples: dict[str, list[float]] = {name: [] for name in cases}
-    for _ in range(REPEATS):
+    for _ in range(repeats):
         for name, timer in timers.items():
             samples[name].append(timer.timeit(NUMBER) / NUMBER * 1e6)
     return {name: statistics.median(v) for name, v in samples.items()}
@@ -66,6 +66,7 @@ def measure(cases: dict[str, str], env: dict) -> dict[str, float]:
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--baseline-rev", default=V1_REV, help="git revision of the v1 codec (default %(default)s)")
+    parser.add_argument("--repeats", type=int, default=REPEATS, help="interleaved repeats (default %(default)s)")
     parser.add_argument("--profile", action="store_true", help="also print a cProfile of the v2 path")
     args = parser.parse_args()
 
@@ -103,7 +104,7 @@ def main() -> None:
         "v2 feed Sensors (1 frame/read)": "dec.feed(wire_s)",
         "v2 feed Drive (1 frame/read)": "dec.feed(wire_d)",
     }
-    r = measure(cases, env)
+    r = measure(cases, env, args.repeats)
     print(f"wire bytes: v1 Sensors {len(wire_s1)}, Drive {len(wire_d1)}; v2 Sensors {len(wire_s)}, "
           f"Drive {len(wire_d)} (delimiter included)")
     print(f"{'case':38s} {'µs/frame (median)':>18s} {'x baseline':>11s}")

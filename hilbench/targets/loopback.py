@@ -1,6 +1,6 @@
 """The loopback target: a documented, deterministic Sensors -> Drive mapping for end-to-end tests.
 
-The same mapping is written in C (firmware_protocol/examples/loopback_target.c) and documented
+The same mapping is written in C (firmware_protocol/examples/loopback_core.c) and documented
 in firmware_protocol/PROTOCOL.md, so a test can assert every field of every Drive exactly:
 
 - duty_a/b/c = adc[0]/adc[1]/adc[2] (0 when the channel is absent);
