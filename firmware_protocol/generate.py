@@ -910,9 +910,8 @@ def gen_c(data: dict, enums: list, msgs: list[Message]) -> str:
         off = 2
         for f in m.fixed:
             if f.bits:
-                # every term is computed in the word's own unsigned type (never int): correct and
+                # every term is unsigned (bits32: uint32_t), never a signed int: correct and
                 # -Wconversion clean with a 16-bit int
-                ctype = {"bits8": "uint8_t", "bits16": "uint16_t", "bits32": "uint32_t"}[f.type]
                 suffix = "UL" if f.type == "bits32" else "u"
                 terms = []
                 shift = 0
