@@ -31,7 +31,7 @@ from hilbench.protocol import (
     param_scale,
     version_refusal,
 )
-from hilbench.targets.loopback import LoopbackTarget
+from hilbench.targets.loopback.target import LoopbackTarget
 from hilbench.targets.remote import RemoteTarget
 from hilbench.targets.serve import serve
 
@@ -112,7 +112,7 @@ def test_defaults_carry_the_real_fingerprint() -> None:
 
 
 def test_python_targets_send_the_real_fingerprint() -> None:
-    from hilbench.targets.an1017 import An1017Target
+    from hilbench.targets.an1017.target import An1017Target
 
     for target, adc_bits in ((LoopbackTarget(), 10), (An1017Target(), 10)):
         hello = target.hello(HostHello(3, PROTOCOL_VERSION, 1000, 0, 0))
