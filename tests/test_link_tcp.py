@@ -8,6 +8,7 @@ HostHello: a link only carries bytes, so what comes back must be exactly what th
 from __future__ import annotations
 
 import queue
+import select
 import socket
 import subprocess
 import sys
@@ -318,8 +319,6 @@ def test_an1017_served_by_a_child_process_over_tcp() -> None:
                             stderr=subprocess.PIPE, stdin=subprocess.DEVNULL, text=True)
     try:
         assert proc.stdout is not None
-        import select
-
         ready, _, _ = select.select([proc.stdout], [], [], 30)
         assert ready, "the child announced no URL"
         url = proc.stdout.readline().strip()
