@@ -13,7 +13,9 @@ than the rates are.
 
 --baseline REV also times the framed pty exchange with the code of git revision REV (exported to
 a temporary directory), each side in its own fresh process, interleaved with the same exchange
-with this tree's code: a before/after of a change to the link, in one run.
+with this tree's code: a before/after of a change to the link, in one run. Round trips between
+processes swing by 2-5x on this shared VM, so it also times the link's own work alone: send +
+recv on an fd whose far end is played by the same process (min of 5 runs, per tree, per repeat).
 """
 
 from __future__ import annotations
@@ -188,6 +190,43 @@ print(r.rate, r.host_cpu_us, r.far_cpu_us)
 """
 
 
+_HOST_CHILD = r"""
+import os, socket, sys, time
+import hilbench
+from hilbench.link import open_link
+from hilbench.protocol import Drive, Sensors, encode_frame
+assert hilbench.__file__.startswith(sys.argv[2]), (hilbench.__file__, sys.argv[2])
+periods = int(sys.argv[1])
+a, b = socket.socketpair()
+link = open_link(f"fd:{a.detach()}", timeout_s=1.0)
+fd = b.fileno()
+sensors = [Sensors(k & 0xFF, 1, 0, 0, (k & 0x3FF, 0, 0)) for k in range(256)]
+drives = [encode_frame(Drive(k & 0xFF, 500, 500, 500, 1, 2, 3, False, False, 0, (k, 0, 0))) for k in range(256)]
+best = []
+for _ in range(5):
+    t0 = time.perf_counter()
+    for k in range(periods):
+        link.send(sensors[k & 0xFF])
+        os.read(fd, 4096)
+        os.write(fd, drives[k & 0xFF])
+        link.recv()
+    best.append((time.perf_counter() - t0) / periods * 1e6)
+print(min(best))
+"""
+
+
+def host_path_in_tree(tree: str, periods: int) -> float:
+    """Microseconds per exchange of this end's send + recv on an fd (a socketpair whose other end
+    this same process plays, so no scheduling between processes): min of 5, in a fresh process
+    importing hilbench from tree. The link's own CPU cost, much steadier than round trips/s."""
+    env = dict(os.environ, PYTHONPATH=tree)
+    out = subprocess.run([sys.executable, "-c", _HOST_CHILD, str(periods), tree], cwd=tree, env=env,
+                         capture_output=True, text=True, timeout=600)
+    if out.returncode != 0:
+        raise RuntimeError(f"host-path run in {tree} failed: {out.stderr.strip().splitlines()[-1:]}")
+    return float(out.stdout.split()[-1])
+
+
 def framed_in_tree(tree: str, periods: int) -> Run:
     """framed() in a fresh process importing hilbench (host and emulator child) from tree."""
     env = dict(os.environ, PYTHONPATH=tree)
@@ -245,6 +284,7 @@ def main() -> None:
         c_program = None if args.no_c else build_c_loopback(tmp)
         baseline = None if args.baseline is None else export_tree(args.baseline, tmp)
         results: dict[str, list[Run]] = {"raw": [], "py": [], "c": [], "tcp": [], "base": [], "this": []}
+        host_us: dict[str, list[float]] = {"base": [], "this": []}
         for i in range(args.repeats):
             results["raw"].append(raw_echo(args.periods, req_len, resp_len))
             results["py"].append(framed(args.periods))
@@ -258,6 +298,8 @@ def main() -> None:
             if baseline is not None:
                 results["base"].append(framed_in_tree(baseline, args.periods))
                 results["this"].append(framed_in_tree(str(REPO), args.periods))
+                host_us["base"].append(host_path_in_tree(baseline, args.periods))
+                host_us["this"].append(host_path_in_tree(str(REPO), args.periods))
                 line += f"  {args.baseline} {results['base'][-1].rate:7.0f}/s  this {results['this'][-1].rate:7.0f}/s"
             print(line, flush=True)
     raw = _median(results["raw"], "rate")
@@ -281,6 +323,9 @@ def main() -> None:
         rates = _median(results["this"], "rate") / _median(results["base"], "rate")
         print(f"this tree / {args.baseline}: {rates:.3f} of median rates, per-repeat median "
               f"{statistics.median(pairs):.3f}; host CPU per round trip {cpu:.3f}")
+        base_us, this_us = statistics.median(host_us["base"]), statistics.median(host_us["this"])
+        print(f"link send+recv on an fd, one process (median of per-repeat minima): {args.baseline} "
+              f"{base_us:.2f} us, this tree {this_us:.2f} us, ratio {this_us / base_us:.3f}")
 
 
 if __name__ == "__main__":
