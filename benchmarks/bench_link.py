@@ -296,10 +296,10 @@ def main() -> None:
                 results["tcp"].append(framed_tcp(args.periods))
                 line += f"  framed tcp {results['tcp'][-1].rate:7.0f}/s"
             if baseline is not None:
-                results["base"].append(framed_in_tree(baseline, args.periods))
-                results["this"].append(framed_in_tree(str(REPO), args.periods))
-                host_us["base"].append(host_path_in_tree(baseline, args.periods))
-                host_us["this"].append(host_path_in_tree(str(REPO), args.periods))
+                trees = [("base", baseline), ("this", str(REPO))]
+                for key, tree in trees if i % 2 == 0 else trees[::-1]:  # alternate who goes first
+                    results[key].append(framed_in_tree(tree, args.periods))
+                    host_us[key].append(host_path_in_tree(tree, args.periods))
                 line += f"  {args.baseline} {results['base'][-1].rate:7.0f}/s  this {results['this'][-1].rate:7.0f}/s"
             print(line, flush=True)
     raw = _median(results["raw"], "rate")
