@@ -7,25 +7,26 @@ HostHello: a link only carries bytes, so what comes back must be exactly what th
 
 from __future__ import annotations
 
-import queue
 import select
 import socket
 import subprocess
 import sys
 import threading
 import time
-from typing import Any, Callable
+from typing import Any
 
 import pytest
 import serial
 import serial.rfc2217
 
 from hilbench.errors import LinkClosed, LinkError, LinkTimeout
-from hilbench.link import FaultyLink, TcpListener, open_link, serve_tcp_once
+from hilbench.link import FaultyLink, TcpListener, open_link
 from hilbench.protocol import EDGE_NONE, INPUT_S2, MODE_LOCKSTEP, PROTOCOL_VERSION, HostHello, Sensors
 from hilbench.targets import make_target
 from hilbench.targets.remote import RemoteTarget
 from hilbench.targets.serve import serve
+
+from _tcp_serve import ServedInThread
 
 PERIOD_US = 50
 HALL_SEQUENCE = (0b001, 0b011, 0b010, 0b110, 0b100, 0b101)  # one electrical turn, 60 degrees a step
@@ -46,36 +47,6 @@ def reference_drives(script: list[Sensors]) -> list[Any]:
     model = make_target("an1017")
     model.hello(HostHello(1, PROTOCOL_VERSION, PERIOD_US, MODE_LOCKSTEP, 0))
     return [model.step(s) for s in script]
-
-
-class ServedInThread:
-    """serve_tcp_once(0, serve(target)) in a thread; .url once it listens; joined on close."""
-
-    def __init__(self, target_name: str = "an1017", make_link: Callable[[Any], Any] | None = None) -> None:
-        self.urls: queue.Queue[str] = queue.Queue()
-        self.stop = threading.Event()
-        self.error: BaseException | None = None
-        self.report: Any = None
-        target = make_target(target_name)
-
-        def handler(link: Any) -> Any:
-            return serve(target, link if make_link is None else make_link(link), stop_event=self.stop)
-
-        def run() -> None:
-            try:
-                self.report = serve_tcp_once(0, handler, accept_timeout_s=20.0, announce=self.urls.put,
-                                             stop_event=self.stop)
-            except BaseException as exc:  # noqa: BLE001 - reported by close()
-                self.error = exc
-
-        self.thread = threading.Thread(target=run, daemon=True)
-        self.thread.start()
-        self.url = self.urls.get(timeout=10)
-
-    def close(self) -> None:
-        self.stop.set()
-        self.thread.join(timeout=10)
-        assert not self.thread.is_alive(), "the TCP server thread did not stop"
 
 
 @pytest.fixture
