@@ -141,9 +141,9 @@ def framed(periods: int, program: str | None = None) -> Run:
 
 _TCP_CHILD = r"""
 from hilbench.link import serve_tcp_once
-from hilbench.targets.loopback import LoopbackTarget
+from hilbench.targets import make_target
 from hilbench.targets.serve import serve
-serve_tcp_once(0, lambda link: serve(LoopbackTarget(), link), accept_timeout_s=60.0,
+serve_tcp_once(0, lambda link: serve(make_target("loopback"), link), accept_timeout_s=60.0,
                announce=lambda url: print(url, flush=True))
 """
 
@@ -194,14 +194,17 @@ _HOST_CHILD = r"""
 import os, socket, sys, time
 import hilbench
 from hilbench.link import open_link
-from hilbench.protocol import Drive, Sensors, encode_frame
+from hilbench.bench.linktest import sensors_for_period
+from hilbench.protocol import encode_frame
+from hilbench.targets import make_target
 assert hilbench.__file__.startswith(sys.argv[2]), (hilbench.__file__, sys.argv[2])
 periods = int(sys.argv[1])
 a, b = socket.socketpair()
 link = open_link(f"fd:{a.detach()}", timeout_s=1.0)
 fd = b.fileno()
-sensors = [Sensors(k & 0xFF, 1, 0, 0, (k & 0x3FF, 0, 0)) for k in range(256)]
-drives = [encode_frame(Drive(k & 0xFF, 500, 500, 500, 1, 2, 3, False, False, 0, (k, 0, 0))) for k in range(256)]
+sensors = [sensors_for_period(k) for k in range(256)]
+loopback = make_target("loopback")
+drives = [encode_frame(loopback.step(s)) for s in sensors]
 best = []
 for _ in range(5):
     t0 = time.perf_counter()
