@@ -19,8 +19,8 @@ import pytest
 import serial
 import serial.rfc2217
 
-from hilbench.errors import LinkClosed, LinkError, LinkTimeout
-from hilbench.link import FaultyLink, TcpListener, open_link
+from hilbench.errors import ConfigError, LinkClosed, LinkError, LinkTimeout
+from hilbench.link import FaultyLink, TcpListener, open_link, parse_tcp_listen
 from hilbench.protocol import EDGE_NONE, INPUT_S2, MODE_LOCKSTEP, PROTOCOL_VERSION, HostHello, Sensors
 from hilbench.targets import make_target
 from hilbench.targets.remote import RemoteTarget
@@ -116,6 +116,23 @@ def test_accept_deadline_and_stop() -> None:
         stop.set()
         with pytest.raises(LinkClosed):
             listener.accept(None, stop_event=stop)
+
+
+@pytest.mark.parametrize("text, expected", [
+    ("tcp:0", ("127.0.0.1", 0)),
+    ("tcp:5000", ("127.0.0.1", 5000)),
+    ("tcp:0.0.0.0:5000", ("0.0.0.0", 5000)),
+    ("tcp:[::1]:65535", ("::1", 65535)),
+])
+def test_parse_tcp_listen(text: str, expected: tuple[str, int]) -> None:
+    assert parse_tcp_listen(text) == expected
+
+
+@pytest.mark.parametrize("text", ["tcp:", "tcp:x", "tcp:65536", "tcp:-1", "socket://127.0.0.1:5", "5000"])
+def test_parse_tcp_listen_refuses(text: str) -> None:
+    with pytest.raises(ConfigError) as info:
+        parse_tcp_listen(text)
+    assert repr(text) in str(info.value)
 
 
 def test_nothing_listening_is_one_line_link_error() -> None:

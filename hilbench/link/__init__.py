@@ -11,7 +11,7 @@ from hilbench.link.link import DEFAULT_TIMEOUT_S, Link, LinkStats
 from hilbench.link.ports import apply_faults, open_link
 from hilbench.link.pty import PtyPair, open_pty_pair
 from hilbench.link.spec import DEFAULT_BAUD, FaultSpec, TargetSpec, describe_spec_forms, parse_target_spec
-from hilbench.link.tcp import TcpListener, serve_tcp_once
+from hilbench.link.tcp import TcpListener, parse_tcp_listen, serve_tcp_once
 
 __all__ = [
     "DEFAULT_BAUD",
@@ -29,5 +29,6 @@ __all__ = [
     "open_link",
     "open_pty_pair",
     "parse_target_spec",
+    "parse_tcp_listen",
     "serve_tcp_once",
 ]

@@ -82,6 +82,22 @@ class TcpListener:
         self.close()
 
 
+def parse_tcp_listen(text: str) -> tuple[str, int]:
+    """`tcp:PORT` or `tcp:HOST:PORT` (a far end's --port: where to listen) -> (host, port).
+
+    HOST defaults to 127.0.0.1 (listening on every interface must be asked for: tcp:0.0.0.0:PORT);
+    PORT 0 lets the system pick. ConfigError otherwise.
+    """
+    body = text.strip()
+    if not body.startswith("tcp:"):
+        raise ConfigError(f"listen spec {text!r}: expected tcp:PORT or tcp:HOST:PORT")
+    host, _, port = body[len("tcp:"):].rpartition(":")
+    host = host.strip("[]") or "127.0.0.1"
+    if not port.isdigit() or not 0 <= int(port) < 65536:
+        raise ConfigError(f"listen spec {text!r}: port must be a whole number in 0..65535 (0: any free port)")
+    return host, int(port)
+
+
 def serve_tcp_once(port: int, handler: Callable[[Link], T], *, host: str = "127.0.0.1",
                    accept_timeout_s: float | None = None, link_timeout_s: float = DEFAULT_TIMEOUT_S,
                    announce: Callable[[str], None] | None = None,
@@ -100,4 +116,4 @@ def serve_tcp_once(port: int, handler: Callable[[Link], T], *, host: str = "127.
         return handler(link)
 
 
-__all__ = ["TcpListener", "serve_tcp_once"]
+__all__ = ["TcpListener", "parse_tcp_listen", "serve_tcp_once"]
