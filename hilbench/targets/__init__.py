@@ -39,9 +39,16 @@ def _make_an1017(**options: Any) -> Any:
     return An1017Target(given, reference=reference)
 
 
+def _make_foc(**options: Any) -> Any:
+    from hilbench.targets.foc import make_foc_target
+
+    return make_foc_target(**options)
+
+
 TARGET_FACTORIES: dict[str, Callable[..., Any]] = {
     "loopback": _make_loopback,
     "an1017": _make_an1017,
+    "foc": _make_foc,
 }
 
 

@@ -51,9 +51,11 @@ class TargetProfile:
 AN1017_PROFILE = TargetProfile(
     "AN1017", AN1017_RPM_PER_Q15, 1 / 64, ("kp", "ki", "kd"), "hilbench.targets.an1017_firmware"
 )
+#: F2812 FOC: speed telemetry is SPEED_FR's Speed (pu of BaseRpm 3000) shifted to Q15; no pot.
+F2812FOC_PROFILE = TargetProfile("F2812FOC", 3000 / 32768, None)
 GENERIC_PROFILE = TargetProfile("generic", None, None)
 
-_PROFILES = {"AN1017": AN1017_PROFILE}
+_PROFILES = {"AN1017": AN1017_PROFILE, "F2812FOC": F2812FOC_PROFILE}
 
 
 def profile_for(firmware_name: str) -> TargetProfile:

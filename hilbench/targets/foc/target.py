@@ -1,0 +1,297 @@
+"""`FocTarget`: the F2812 FOC firmware behind the Target interface (hilbench/targets/base.py).
+
+Exchange timing (docs/foc.md "Exchange"): the agreed period is 50 µs, half a PWM period. The
+exchange at an even half (k = 0, 2, …) is timer 1's underflow: the ISR runs on that exchange's
+Sensors and writes new compare values, which the Event Manager loads at the period match 50 µs
+later. So the Drive of an underflow half carries the compare values of the *previous* ISR and
+the Drive of the following half the new ones; the plant integrates each half with its own
+duties. A period of n·50 µs runs n halves and reports their mean duty (an approximation).
+
+Duties are high-side on-times in T1 counts, 0..7500 (`pwm_period_counts` = 7500 = T1PR).
+Encoder: Sensors.encoder is the 16-bit x4 count; T2 follows its differences. Index: bit
+`INPUT_INDEX` of Sensors.inputs (protocol v2; 0x40 until then) says a pulse passed since the
+last exchange; the CAP3 ISR then runs at the exchange.
+
+Every protocol message this target builds is built in this module's `_hello`, `_drive` and
+`_param_*` helpers, so the move to protocol v2 (u16 duties, IQ24 parameters, adc_bits, telemetry
+ids) is a local edit.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+from hilbench.errors import ConfigError, ParamError
+from hilbench.protocol import (
+    PROTOCOL_VERSION,
+    Access,
+    AdcRole,
+    Drive,
+    ErrorCode,
+    Input,
+    ParamInfo,
+    ParamSetResult,
+    ParamType,
+    ParamValue,
+    Result,
+    Sensors,
+    Status,
+    TargetHello,
+    TelemetryId,
+)
+from hilbench.targets.foc.firmware import (
+    FAULT_WATCHDOG,
+    HALF_PERIOD_US,
+    STATE_ALIGN,
+    STATE_FAULT,
+    STATE_RUN,
+    FocFirmware,
+    FocOptions,
+    rpm_to_iq,
+)
+from hilbench.targets.foc.iqmath import iq_to_iq15
+from hilbench.targets.foc.svpwm import T1PR
+
+FIRMWARE_NAME = "F2812FOC"
+FIRMWARE_VERSION = 0x0100
+PWM_FREQ_HZ = 10_000
+ADC_BITS = 12
+INPUT_S2 = int(Input.S2)
+INPUT_INDEX = int(getattr(Input, "INDEX", 0x40))  # protocol v2's bit; 0x40 is free in v1
+PTYPE_INT, PTYPE_BOOL = int(ParamType.INT), int(ParamType.BOOL)
+#: IQ24 parameters: ParamType.IQ24 in protocol v2 (value / 2^24); until then INT carrying the raw IQ24
+PTYPE_IQ24 = int(getattr(ParamType, "IQ24", ParamType.INT))
+ACCESS_RW = int(Access.RW)
+OUTPUT_OFF, OUTPUT_PWM = 0, 1
+ADC_ROLES = (int(AdcRole.IA), int(AdcRole.IB), int(AdcRole.VBUS))
+
+
+def _tid(name: str, fallback: int) -> int:
+    """A telemetry id: the protocol's when it names it, else this target's own (0x80-0xFE)."""
+    return int(getattr(TelemetryId, name, fallback))
+
+
+#: telemetry (all Q15 per unit: speed of base_rpm, currents of base_current_a, voltages of Udc/sqrt3,
+#: angle in turns): (key of FocFirmware.telemetry_q15, id)
+TELEMETRY: tuple[tuple[str, int], ...] = (
+    ("ref_speed", _tid("REF_SPEED", 1)),
+    ("speed", _tid("MEASURED_SPEED", 2)),
+    ("iq_ref", _tid("IQ_REF", 0x81)),
+    ("i_d", _tid("ID", 5)),
+    ("i_q", _tid("IQ", 6)),
+    ("id_ref", _tid("ID_REF", 0x80)),
+    ("theta_e", _tid("THETA_E", 0x82)),
+    ("v_d", _tid("VD", 0x83)),
+    ("v_q", _tid("VQ", 0x84)),
+)
+TELEMETRY_IDS = tuple(i for _, i in TELEMETRY)
+TELEMETRY_KEYS = tuple(k for k, _ in TELEMETRY)
+
+# declared parameters: id -> (name, ptype, min, max); IQ24 limits as raw values
+_ONE = 1 << 24
+PARAMS: dict[int, tuple[str, int, int, int]] = {
+    0: ("speed_ref_rpm", PTYPE_INT, -3000, 3000),
+    1: ("id_ref", PTYPE_IQ24, -_ONE // 2, _ONE // 2),
+    2: ("spd_kp", PTYPE_IQ24, 0, 8 * _ONE),
+    3: ("spd_ki", PTYPE_IQ24, 0, _ONE),
+    4: ("spd_kc", PTYPE_IQ24, 0, _ONE),
+    5: ("spd_out_max", PTYPE_IQ24, 0, _ONE),
+    6: ("id_kp", PTYPE_IQ24, 0, 8 * _ONE),
+    7: ("id_ki", PTYPE_IQ24, 0, _ONE),
+    8: ("id_kc", PTYPE_IQ24, 0, _ONE),
+    9: ("id_out_max", PTYPE_IQ24, 0, _ONE),
+    10: ("iq_kp", PTYPE_IQ24, 0, 8 * _ONE),
+    11: ("iq_ki", PTYPE_IQ24, 0, _ONE),
+    12: ("iq_kc", PTYPE_IQ24, 0, _ONE),
+    13: ("iq_out_max", PTYPE_IQ24, 0, _ONE),
+}
+PARAM_IDS = {name: pid for pid, (name, *_rest) in PARAMS.items()}
+_PID_FIELDS = {"kp": "kp", "ki": "ki", "kc": "kc"}
+
+
+class FocTarget:
+    """F2812 FOC firmware as a Target: lockstep `step`, real-time `advance`, declared parameters."""
+
+    firmware_name = FIRMWARE_NAME
+
+    def __init__(self, options: FocOptions = FocOptions()) -> None:
+        self.options = options
+        self.fw = FocFirmware(options)
+        self.period_us = HALF_PERIOD_US
+        self._halves = 1
+        self._half = 0  # 0: the next half starts at an underflow (ISR), 1: at a period match
+        self._frac_us = 0.0
+        self._s2_last = False
+        self._last_seq = 0
+        self.mode = 0
+        self.watchdog_ms = 0
+        self.watchdog_trips = 0
+        self.last_error = 0
+        self.speed_ref_rpm = 0
+
+    # ---- messages (the one place they are built) -----------------------------------------
+    def _hello(self, host: Any) -> TargetHello:
+        return TargetHello(host.seq, PROTOCOL_VERSION, FIRMWARE_VERSION, T1PR, PWM_FREQ_HZ, len(PARAMS),
+                           FIRMWARE_NAME, ADC_ROLES, TELEMETRY_IDS)
+
+    def _drive(self, seq: int, duties: tuple[int, int, int]) -> Drive:
+        fw = self.fw
+        tel = fw.telemetry_q15()
+        state = fw.state
+        return Drive(seq, duties[0], duties[1], duties[2], OUTPUT_PWM if fw.outputs_on else OUTPUT_OFF,
+                     state, fw.sector & 7, fw.speed.speed < 0, fw.speed_ref < 0, fw.fault,
+                     tuple(tel[k] for k in TELEMETRY_KEYS))
+
+    def _param_info(self, pid: int) -> ParamInfo:
+        name, ptype, lo, hi = PARAMS[pid]
+        return ParamInfo(0, pid, ptype, ACCESS_RW, lo, hi, self._value(pid), name)
+
+    # ---- handshake and parameters ------------------------------------------------------------
+    def hello(self, host: Any) -> TargetHello:
+        """Agree the period: a whole number of 50 µs half PWM periods (50 µs is the faithful one)."""
+        period_us = int(host.period_us)
+        if period_us <= 0 or period_us % HALF_PERIOD_US:
+            raise ConfigError(f"foc hello: period_us {period_us} is not a positive multiple of {HALF_PERIOD_US}")
+        self.period_us = period_us
+        self._halves = period_us // HALF_PERIOD_US
+        self.mode = int(host.mode)
+        self.watchdog_ms = int(host.watchdog_ms)
+        return self._hello(host)
+
+    def _pi(self, name: str) -> Any:
+        fw = self.fw
+        return {"spd": fw.pid_spd, "id": fw.pid_id, "iq": fw.pid_iq}[name.split("_")[0]]
+
+    def _value(self, pid: int) -> int:
+        name = PARAMS[pid][0]
+        if name == "speed_ref_rpm":
+            return self.speed_ref_rpm
+        if name == "id_ref":
+            return self.fw.id_ref
+        pi = self._pi(name)
+        field = name.split("_", 1)[1]
+        return pi.out_max if field == "out_max" else getattr(pi, field)
+
+    def describe(self, param_id: int) -> ParamInfo:
+        if param_id not in PARAMS:
+            raise ParamError(f"foc describe: unknown param id {param_id}")
+        return self._param_info(param_id)
+
+    def get_param(self, param_id: int) -> ParamValue:
+        if param_id not in PARAMS:
+            return ParamValue(0, param_id, int(Result.UNKNOWN_ID), 0)
+        return ParamValue(0, param_id, int(Result.OK), self._value(param_id))
+
+    def set_params(self, pairs: tuple[tuple[int, int], ...]) -> ParamSetResult:
+        """All or nothing: ids and ranges checked before any write. Limits are symmetric (±max)."""
+        if not pairs or len(pairs) > 4:
+            return ParamSetResult(0, int(Result.BAD_REQUEST), 0, 0)
+        for pid, value in pairs:
+            if pid not in PARAMS:
+                return ParamSetResult(0, int(Result.UNKNOWN_ID), pid, 0)
+            _, _, lo, hi = PARAMS[pid]
+            if not lo <= value <= hi:
+                return ParamSetResult(0, int(Result.OUT_OF_RANGE), pid, 0)
+        fw = self.fw
+        for pid, value in pairs:
+            name = PARAMS[pid][0]
+            if name == "speed_ref_rpm":
+                self.speed_ref_rpm = int(value)
+                fw.speed_ref = rpm_to_iq(value, fw.options.base_rpm)
+            elif name == "id_ref":
+                fw.id_ref = int(value)
+            else:
+                pi = self._pi(name)
+                field = name.split("_", 1)[1]
+                if field == "out_max":
+                    pi.out_max, pi.out_min = int(value), -int(value)
+                else:
+                    setattr(pi, field, int(value))
+        return ParamSetResult(0, int(Result.OK), pairs[-1][0], 0)
+
+    # ---- run control -------------------------------------------------------------------------
+    def start(self) -> None:
+        self.fw.start()
+
+    def stop(self) -> None:
+        self.fw.stop()
+
+    def _inputs(self, inputs: int) -> None:
+        s2 = bool(inputs & INPUT_S2)
+        if s2 and not self._s2_last:  # S2 toggles start/stop on its press
+            if self.fw.state in (STATE_ALIGN, STATE_RUN):
+                self.fw.stop()
+            else:
+                self.fw.start()
+        self._s2_last = s2
+
+    def _run_halves(self, n: int, sensors: Sensors) -> tuple[int, int, int]:
+        """n half periods from now with these sensors; the mean high-side duty over them."""
+        fw = self.fw
+        adc = sensors.adc
+        fw.encoder(sensors.encoder, bool(sensors.inputs & INPUT_INDEX))
+        sa = sb = sc = 0
+        for _ in range(n):
+            if self._half == 0:
+                fw.underflow(adc[0], adc[1], adc[2])
+                self._half = 1
+            else:
+                fw.period_match()
+                self._half = 0
+            if fw.outputs_on:
+                c1, c2, c3 = fw.compare_active
+                sa += T1PR - c1 if c1 < T1PR else 0
+                sb += T1PR - c2 if c2 < T1PR else 0
+                sc += T1PR - c3 if c3 < T1PR else 0
+        if n == 1:
+            return sa, sb, sc
+        return (round(sa / n), round(sb / n), round(sc / n)) if n else (0, 0, 0)
+
+    def step(self, sensors: Sensors) -> Drive:
+        """Lockstep: the agreed period (see the module doc for the halves and their duties)."""
+        self._last_seq = sensors.seq
+        self._inputs(sensors.inputs)
+        return self._drive(sensors.seq, self._run_halves(self._halves, sensors))
+
+    def advance(self, duration_us: float, sensors: Sensors) -> Drive:
+        """Real time: whole half periods of `duration_us` (the remainder carries over)."""
+        total = duration_us + self._frac_us
+        n = int(total // HALF_PERIOD_US)
+        self._frac_us = total - n * HALF_PERIOD_US
+        self._last_seq = sensors.seq
+        self._inputs(sensors.inputs)
+        duties = self._run_halves(n, sensors) if n else self._active_duties()
+        return self._drive(sensors.seq, duties)
+
+    def _active_duties(self) -> tuple[int, int, int]:
+        if not self.fw.outputs_on:
+            return (0, 0, 0)
+        return tuple(T1PR - c if c < T1PR else 0 for c in self.fw.compare_active)  # type: ignore[return-value]
+
+    def watchdog_trip(self) -> Drive:
+        self.watchdog_trips += 1
+        self.last_error = int(ErrorCode.WATCHDOG)
+        self.fw.stop(STATE_FAULT, FAULT_WATCHDOG)
+        return self._drive(self._last_seq, (0, 0, 0))
+
+    def status(self) -> Status:
+        return Status(0, 0, 0, 0, 0, 0, self.watchdog_trips & 0xFFFF, self.last_error)
+
+    @property
+    def time_us(self) -> float:
+        return self.fw.isr_count * 2 * HALF_PERIOD_US
+
+
+def make_foc_target(**options: Any) -> FocTarget:
+    """The factory `make_target("foc", ...)` uses: FocOptions fields by name (ConfigError otherwise)."""
+    import dataclasses
+
+    known = {f.name for f in dataclasses.fields(FocOptions)}
+    unknown = sorted(set(options) - known)
+    if unknown:
+        raise ConfigError(f"target foc: unknown option {unknown[0]!r} (known: {', '.join(sorted(known))})")
+    return FocTarget(FocOptions(**options))
+
+
+__all__ = ["FocTarget", "make_foc_target", "FIRMWARE_NAME", "PARAMS", "PARAM_IDS", "TELEMETRY",
+           "INPUT_INDEX", "ADC_BITS", "iq_to_iq15"]
