@@ -117,6 +117,8 @@ class FocFirmware:
         self.ramp_step = iq(o.speed_ramp_rpm_per_s / o.base_rpm * t_spd) if o.speed_ramp_rpm_per_s > 0 else 0
         self.id_ref = 0
         self.iq_ref = 0
+        self.torque_mode = False  # current-loop test: i_q reference from iq_ref_set, no speed loop
+        self.iq_ref_set = 0
         self.state = STATE_STOPPED
         self.fault = FAULT_NONE
         self.isr_count = 0
@@ -206,7 +208,10 @@ class FocFirmware:
         self.i_d, self.i_q = i_d, i_q
         if state == STATE_RUN:
             self.speed_loop_count += 1
-            if self.speed_loop_count >= self.options.speed_loop_prescaler:
+            if self.torque_mode:
+                self.iq_ref = self.iq_ref_set
+                self.speed_loop_count = 0
+            elif self.speed_loop_count >= self.options.speed_loop_prescaler:
                 self.speed_loop_count = 0
                 spd = self.pid_spd
                 ref = self.speed_ref

@@ -104,6 +104,8 @@ PARAMS: dict[int, tuple[str, int, int, int]] = {
     11: ("iq_ki", PTYPE_IQ24, 0, _ONE),
     12: ("iq_kc", PTYPE_IQ24, 0, _ONE),
     13: ("iq_out_max", PTYPE_IQ24, 0, _ONE),
+    14: ("torque_mode", PTYPE_BOOL, 0, 1),  # 1: the speed loop is bypassed, i_q follows iq_ref_set
+    15: ("iq_ref_set", PTYPE_IQ24, -_ONE, _ONE),
 }
 PARAM_IDS = {name: pid for pid, (name, *_rest) in PARAMS.items()}
 _PID_FIELDS = {"kp": "kp", "ki": "ki", "kc": "kc"}
@@ -168,6 +170,10 @@ class FocTarget:
             return self.speed_ref_rpm
         if name == "id_ref":
             return self.fw.id_ref
+        if name == "torque_mode":
+            return int(self.fw.torque_mode)
+        if name == "iq_ref_set":
+            return self.fw.iq_ref_set
         pi = self._pi(name)
         field = name.split("_", 1)[1]
         return pi.out_max if field == "out_max" else getattr(pi, field)
@@ -200,6 +206,10 @@ class FocTarget:
                 fw.speed_ref = rpm_to_iq(value, fw.options.base_rpm)
             elif name == "id_ref":
                 fw.id_ref = int(value)
+            elif name == "torque_mode":
+                fw.torque_mode = bool(value)
+            elif name == "iq_ref_set":
+                fw.iq_ref_set = int(value)
             else:
                 pi = self._pi(name)
                 field = name.split("_", 1)[1]
