@@ -90,3 +90,48 @@ def run(events: list[Event], *, dead_time: bool = False, target: FocTarget | Non
     session = Session(target, plant, events, SessionOptions(period_us=50, observe_every_periods=10 ** 9))
     session.run()
     return trace.arrays(), target, plant
+
+
+def param_value(name: str, value_pu: float) -> float:
+    """What the session must be given for an IQ24 parameter: pu under protocol v2's IQ24 type,
+    the raw IQ24 integer while the target declares such parameters as INT."""
+    from hilbench.protocol import ParamType
+    from hilbench.targets.foc.iqmath import iq
+    from hilbench.targets.foc.target import PARAM_IDS, PARAMS
+
+    ptype = PARAMS[PARAM_IDS[name]][1]
+    if hasattr(ParamType, "IQ24") and ptype == int(ParamType.IQ24):
+        return value_pu
+    return float(iq(value_pu))
+
+
+def recorded_run(tmp_dir: Path, events: list[Event], *, dead_time: bool, target: FocTarget | None = None,
+                 name: str = "run"):
+    """A lockstep session at 50 us recorded to NPZ; returns (columns, target, plant)."""
+    from hilbench.bench.recorder import Recorder, read_recording
+
+    target = target or FocTarget()
+    plant = IndexPlant(servo_params(dead_time_enabled=dead_time), seed=0, substeps=1)
+    path = Path(tmp_dir) / f"{name}.npz"
+    session = Session(target, plant, events, SessionOptions(period_us=50, observe_every_periods=10 ** 9),
+                      recorder=Recorder(path, {"test": name}))
+    session.run()
+    return read_recording(path).columns, target, plant
+
+
+def dq_currents(cols: dict[str, np.ndarray]) -> tuple[np.ndarray, np.ndarray]:
+    """The plant's true i_d, i_q (A, amplitude-invariant) from recorded phase currents and angle."""
+    th = np.radians(cols["theta_e_deg"])
+    ia, ib = cols["ia_a"], cols["ib_a"]
+    beta = (ia + 2 * ib) / math.sqrt(3)
+    return ia * np.cos(th) + beta * np.sin(th), -ia * np.sin(th) + beta * np.cos(th)
+
+
+def thd(x: np.ndarray, dt_s: float, f1_hz: float) -> float:
+    """THD (harmonics 2..40 over the fundamental) of a whole number of cycles of x."""
+    n = int(round(len(x) * dt_s * f1_hz)) / f1_hz / dt_s
+    x = x[-int(n):]
+    spec = np.abs(np.fft.rfft(x))
+    k1 = int(round(len(x) * dt_s * f1_hz))
+    harm = [spec[k1 * h] for h in range(2, 41) if k1 * h < len(spec)]
+    return math.sqrt(sum(h * h for h in harm)) / spec[k1]

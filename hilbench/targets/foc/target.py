@@ -76,7 +76,7 @@ def _tid(name: str, fallback: int) -> int:
 TELEMETRY: tuple[tuple[str, int], ...] = (
     ("ref_speed", _tid("REF_SPEED", 1)),
     ("speed", _tid("MEASURED_SPEED", 2)),
-    ("iq_ref", _tid("IQ_REF", 0x81)),
+    ("iq_ref", _tid("IQ_REF", int(TelemetryId.CONTROL_OUTPUT))),  # the speed PI's output
     ("i_d", _tid("ID", 5)),
     ("i_q", _tid("IQ", 6)),
     ("id_ref", _tid("ID_REF", 0x80)),
