@@ -7,6 +7,7 @@ import pytest
 from hilbench.errors import ConfigError
 from hilbench.protocol import HostHello, Sensors
 from hilbench.targets import make_target
+from hilbench.targets.foc import make_foc_target
 from hilbench.targets.base import Target
 from hilbench.targets.foc.firmware import STATE_ALIGN, STATE_FAULT, STATE_RUN, STATE_STOPPED, FocOptions, adc_to_iq
 from hilbench.targets.foc.iqmath import ONE, iq
@@ -32,7 +33,10 @@ def test_factory_interface_and_hello():
     with pytest.raises(ConfigError):
         hello(FocTarget(), 75)
     with pytest.raises(ConfigError):
-        make_target("foc", no_such_option=1)
+        make_foc_target(no_such_option=1)
+    with pytest.raises(ConfigError):
+        make_target("foc", FocOptions(pi_form="pid"))  # type: ignore[arg-type]
+    assert make_foc_target(pi_form="pi_clamp").fw.pid_spd.__class__.__name__ == "PiClamp"
 
 
 def test_adc_reading():
@@ -51,7 +55,7 @@ def alignment_duties():
 
 
 def test_compare_values_apply_from_the_next_period_match():
-    t = FocTarget()
+    t = FocTarget(FocOptions(align_current_a=0.0))  # PMSM3_1's fixed alignment voltage
     hello(t)
     t.start()
     d0 = t.step(sensors(0))  # underflow: the ISR writes CMPR; the pins still follow the old values
@@ -64,7 +68,7 @@ def test_compare_values_apply_from_the_next_period_match():
 
 
 def test_a_100us_exchange_reports_the_mean_of_both_halves():
-    t = FocTarget()
+    t = FocTarget(FocOptions(align_current_a=0.0))
     hello(t, 100)
     t.start()
     d = t.step(sensors(0))

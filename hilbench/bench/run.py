@@ -20,6 +20,7 @@ from hilbench.bench.session import Session, SessionOptions, Snapshot, Summary
 from hilbench.config import BenchConfig, load_config, plant_params_from_config
 from hilbench.errors import ConfigError, LinkError
 from hilbench.protocol import PROTOCOL_VERSION
+from hilbench.targets.profile import TargetProfile
 
 if TYPE_CHECKING:
     from hilbench.bench.steptest import StepResult, StepTest
@@ -54,28 +55,34 @@ def effective_seed(cfg: BenchConfig) -> int:
     return cfg.run.seed if cfg.run.seed is not None else cfg.plant.seed
 
 
-def emulator_args(cfg: BenchConfig) -> tuple[str, ...]:
-    """Options the emulator process needs at start (the rest goes over the wire)."""
-    spec = cfg.link.target
-    if spec.endswith("an1017"):
-        return ("--variant", cfg.target.variant)
-    return ()
+def configured_profile(cfg: BenchConfig) -> TargetProfile | None:
+    """The profile the config names (by its target spec, or [link] firmware for a port), else None:
+    a board's profile is then found by the firmware name in its HELLO."""
+    if settings.target_name(cfg.link.target) is None and cfg.link.firmware is None:
+        return None
+    return settings.target_profile(cfg.link)
 
 
-def target_options(cfg: BenchConfig) -> dict[str, Any]:
-    """Options for an in-process target model."""
-    return {"variant": cfg.target.variant} if cfg.link.target.endswith("an1017") else {}
+def settings_profile(cfg: BenchConfig) -> TargetProfile:
+    """The configured target's profile (the default target's for a port with no [link] firmware)."""
+    return settings.target_profile(cfg.link)
+
+
+def in_process(cfg: BenchConfig) -> BenchConfig:
+    """The same config on the configured target's in-process model (sweeps run there)."""
+    profile = settings_profile(cfg)
+    return cfg.replace(link=dataclasses.replace(cfg.link, target=f"inprocess:{profile.name}", firmware=None))
 
 
 def connect(cfg: BenchConfig, options: SessionOptions) -> TargetHandle:
     """Open the configured target (spawning the emulator if asked)."""
     return open_target(
         cfg.link.target,
+        profile=configured_profile(cfg),
+        options=cfg.target,
         mode=options.mode,
         timeout_s=options.timeout_s,
         watchdog_ms=options.watchdog_ms,
-        emulator_args=emulator_args(cfg),
-        target_options=target_options(cfg),
     )
 
 
@@ -97,7 +104,7 @@ def run_bench(
     recorder: Recorder | None = None
     try:
         session = Session(
-            handle.target, plant, events, options, observer=observer, control=control,
+            handle.target, plant, events, options, profile=configured_profile(cfg), observer=observer, control=control,
             link_stats=handle.link_stats, target_label=handle.label, guard=settings.guard_settings(cfg),
         )
         try:
@@ -106,9 +113,9 @@ def run_bench(
             raise LinkError(f"{handle.label}: handshake failed: {exc}{handle.child_status()}") from None
         if hasattr(handle.target, "timeout_s"):
             handle.target.timeout_s = options.timeout_s  # the first answer may wait for the process to start
-        gains = settings.configured_gains(cfg)
-        if gains:
-            session.set_params(gains, 0.0, guard=False)
+        initial = settings.initial_params(cfg)
+        if initial:
+            session.set_params(initial, 0.0, guard=False)
         if record is not None:
             metadata = {
                 "hilbench_version": __version__,
@@ -172,7 +179,7 @@ def run_step_tests(
         try:
             def make(events, opts, recorder, handle=handle):  # type: ignore[no-untyped-def]
                 plant = Plant(plant_params_from_config(cfg), seed=opts.seed, substeps=cfg.plant.substeps)
-                return Session(handle.target, plant, events, opts, recorder=recorder,
+                return Session(handle.target, plant, events, opts, recorder=recorder, profile=configured_profile(cfg),
                                link_stats=handle.link_stats, target_label=handle.label)
 
             results.append(run_step(make, test, gains, options))

@@ -10,8 +10,9 @@ Compare values written here are loaded by the Event Manager at the next period m
 reload on underflow or period), half a PWM period later: `compare_active` is what the pins
 follow, `compare_shadow` what the ISR wrote; `period_match()` and `underflow()` do the reloads.
 
-Start-up (as PMSM3_1 does, sized for this motor): a fixed voltage vector on the phase-A axis
-pulls the rotor's d axis to θe = 0 for `align_s`; then T2CNT is set to 0 (the aligned angle),
+Start-up (as PMSM3_1 does, sized for this motor): a vector on the phase-A axis (PMSM3_1's
+angle −0.25 pu; its size from the current loops, 1 A, or a fixed voltage) pulls the rotor's d
+axis to θe = 0 for `align_s`; then T2CNT is set to 0 (the aligned angle),
 the controllers are reset and the loops close. Per-unit bases: current `base_current_a` (the
 sensor's ± full scale), voltage Udc/√3 (SVPWM's linear limit; no bus compensation, as in TI's
 projects), speed `base_rpm` (SPEED_FR's BaseRpm = 120·BASE_FREQ/POLES = 3000 rpm).
@@ -57,7 +58,10 @@ class FocOptions:
     learn_index: bool = True  # first index pulse: fold T2CNT into CalibratedAngle (angle stays continuous)
     qep_signed16: bool = False  # read RawTheta as signed in __qmpy32by16 (facts §3a, unverified)
     align_s: float = 0.2
-    align_v_pu: float = 0.03  # 5.4 V at 311 V: 1.0 A in 5.4 ohm (PMSM3_1's 0.18 pu would be 6 A)
+    align_v_pu: float = 0.03  # voltage alignment: 5.4 V at 311 V = 1.0 A in 5.4 ohm (PMSM3_1's 0.18 pu: 6 A)
+    # > 0: the alignment vector's size comes from the current loops (i_q PI to this current in
+    # PMSM3_1's alignment frame, angle -0.25 pu), so the 3.2 us dead band (10 V) cannot eat it
+    align_current_a: float = 1.0
     # current loops: crossover 2000 rad/s, zero on the electrical pole R/L
     cur_kp: float = 0.37
     cur_ki: float = 0.0813
@@ -74,13 +78,27 @@ class FocOptions:
     # reference, as TI's RMPCNTL block does; not in the seed (its Fig. 12 shows a smooth rise)
     speed_ramp_rpm_per_s: float = 2500.0
 
-    def check(self) -> None:
+    def check(self) -> list[tuple[str, str]]:
+        """(key, reason) for every inconsistent setting (the config collects them)."""
+        bad: list[tuple[str, str]] = []
         if self.pi_form not in ("pid_reg3", "pi_clamp"):
-            raise ConfigError(f"foc pi_form {self.pi_form!r}: expected 'pid_reg3' or 'pi_clamp'")
-        if self.line_encoder <= 0 or self.pole_pairs <= 0 or self.speed_loop_prescaler <= 0:
-            raise ConfigError("foc: line_encoder, pole_pairs and speed_loop_prescaler must be positive")
-        if not 0 <= self.align_v_pu <= 0.5 or self.align_s < 0:
-            raise ConfigError(f"foc align: {self.align_v_pu} pu for {self.align_s} s is out of range")
+            bad.append(("pi_form", f"{self.pi_form!r}: expected 'pid_reg3' or 'pi_clamp'"))
+        for key in ("line_encoder", "pole_pairs", "base_rpm", "speed_loop_prescaler"):
+            if getattr(self, key) <= 0:
+                bad.append((key, "must be positive"))
+        if not 0 <= self.align_current_a <= 2 * self.base_current_a:
+            bad.append(("align_current_a", f"{self.align_current_a}: out of range 0..2 x base_current_a"))
+        if not 0 <= self.align_v_pu <= 0.5:
+            bad.append(("align_v_pu", f"{self.align_v_pu}: out of range 0..0.5"))
+        if self.align_s < 0 or self.speed_ramp_rpm_per_s < 0 or self.base_current_a <= 0 or self.speed_filter_hz <= 0:
+            bad.append(("align_s", "align_s, speed_ramp_rpm_per_s >= 0; base_current_a, speed_filter_hz > 0"))
+        for key in ("cur_kp", "cur_ki", "cur_kc", "spd_kp", "spd_ki", "spd_kc"):
+            if not 0 <= getattr(self, key) < 8:
+                bad.append((key, f"{getattr(self, key)}: out of range 0..8"))
+        for key in ("id_out_max", "iq_out_max", "spd_out_max"):
+            if not 0 <= getattr(self, key) <= 1:
+                bad.append((key, f"{getattr(self, key)}: out of range 0..1"))
+        return bad
 
     @property
     def base_freq_hz(self) -> float:
@@ -101,7 +119,9 @@ class FocFirmware:
     """State and ISR of the F2812 FOC firmware; plain ints, time in half PWM periods."""
 
     def __init__(self, options: FocOptions = FocOptions()) -> None:
-        options.check()
+        bad = options.check()
+        if bad:
+            raise ConfigError(f"foc option {bad[0][0]}: {bad[0][1]}")
         self.options = o = options
         pi = PidReg3 if o.pi_form == "pid_reg3" else PiClamp
         self.pid_id = pi(iq(o.cur_kp), iq(o.cur_ki), iq(o.cur_kc), iq(o.id_out_max), -iq(o.id_out_max))
@@ -111,6 +131,7 @@ class FocFirmware:
         self.speed = SpeedFr(o.base_freq_hz, ISR_PERIOD_S, o.speed_filter_hz, o.base_rpm)
         self.align_isrs = round(o.align_s / ISR_PERIOD_S)
         self.align_v = iq(o.align_v_pu)
+        self.align_i = iq(o.align_current_a / o.base_current_a) if o.align_current_a > 0 else 0
         self.speed_ref = 0  # IQ24 pu of base_rpm: the reference as set
         self.speed_setpoint = 0  # what the speed PI follows (the reference through the slew limit)
         t_spd = ISR_PERIOD_S * o.speed_loop_prescaler
@@ -232,7 +253,17 @@ class FocFirmware:
             pid.fdb = i_d
             v_d = pid.calc()
         elif state == STATE_ALIGN:
-            v_d, v_q = 0, self.align_v
+            if self.align_i:
+                piq = self.pid_iq
+                piq.ref = self.align_i
+                piq.fdb = i_q
+                v_q = piq.calc()
+                pid = self.pid_id
+                pid.ref = 0
+                pid.fdb = i_d
+                v_d = pid.calc()
+            else:
+                v_d, v_q = 0, self.align_v
             self.state_isrs += 1
             if self.state_isrs >= self.align_isrs:
                 self.qep.t2cnt = 0  # the rotor's d axis is at θe = 0 now
