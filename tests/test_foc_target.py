@@ -13,6 +13,7 @@ from hilbench.targets.foc.firmware import STATE_ALIGN, STATE_FAULT, STATE_RUN, S
 from hilbench.targets.foc.iqmath import ONE, iq
 from hilbench.targets.foc.target import INPUT_INDEX, PARAM_IDS, PARAMS, FocTarget
 
+BACKEND = None  # the default backend (C when built); the module is also run on python below
 MID = (2048, 2048, 3185)  # zero currents, 311 V on a 400 V full-scale divider
 
 
@@ -36,7 +37,7 @@ def test_factory_interface_and_hello():
         make_foc_target(no_such_option=1)
     with pytest.raises(ConfigError):
         make_target("foc", FocOptions(pi_form="pid"))  # type: ignore[arg-type]
-    assert make_foc_target(pi_form="pi_clamp").fw.pid_spd.__class__.__name__ == "PiClamp"
+    assert make_foc_target(pi_form="pi_clamp", backend="python").fw.pid_spd.__class__.__name__ == "PiClamp"
 
 
 def test_adc_reading():
@@ -55,7 +56,7 @@ def alignment_duties():
 
 
 def test_compare_values_apply_from_the_next_period_match():
-    t = FocTarget(FocOptions(align_current_a=0.0))  # PMSM3_1's fixed alignment voltage
+    t = FocTarget(FocOptions(align_current_a=0.0), backend=BACKEND)  # PMSM3_1's fixed alignment voltage
     hello(t)
     t.start()
     d0 = t.step(sensors(0))  # underflow: the ISR writes CMPR; the pins still follow the old values
@@ -68,7 +69,7 @@ def test_compare_values_apply_from_the_next_period_match():
 
 
 def test_a_100us_exchange_reports_the_mean_of_both_halves():
-    t = FocTarget(FocOptions(align_current_a=0.0))
+    t = FocTarget(FocOptions(align_current_a=0.0), backend=BACKEND)
     hello(t, 100)
     t.start()
     d = t.step(sensors(0))
@@ -77,7 +78,7 @@ def test_a_100us_exchange_reports_the_mean_of_both_halves():
 
 
 def test_alignment_then_closed_loop_with_t2cnt_zeroed():
-    t = FocTarget(FocOptions(align_s=0.001))  # 10 ISRs
+    t = FocTarget(FocOptions(align_s=0.001), backend=BACKEND)  # 10 ISRs
     hello(t)
     t.start()
     for k in range(18):
@@ -88,7 +89,7 @@ def test_alignment_then_closed_loop_with_t2cnt_zeroed():
 
 
 def test_s2_toggles_and_watchdog_stops():
-    t = FocTarget()
+    t = FocTarget(backend=BACKEND)
     hello(t)
     t.step(sensors(0, inputs=8))
     assert t.fw.state == STATE_ALIGN
@@ -103,23 +104,23 @@ def test_s2_toggles_and_watchdog_stops():
 
 
 def test_parameters_round_trip_and_atomic_refusal():
-    t = FocTarget()
+    t = FocTarget(backend=BACKEND)
     hello(t)
     names = {t.describe(i).name for i in PARAMS}
     assert {"speed_ref_rpm", "id_ref", "spd_kp", "spd_ki", "spd_kc", "iq_kp", "id_out_max"} <= names
     assert t.get_param(PARAM_IDS["spd_kp"]).value == iq(0.7)
     r = t.set_params(((PARAM_IDS["speed_ref_rpm"], 1000), (PARAM_IDS["iq_kp"], iq(0.5))))
     assert r.result == 0
-    assert t.fw.speed_ref == iq(1000 / 3000) and t.fw.pid_iq.kp == iq(0.5)
+    assert t.fw.speed_ref == iq(1000 / 3000) and t.fw.gain("iq", "kp") == iq(0.5)
     r = t.set_params(((PARAM_IDS["speed_ref_rpm"], 0), (PARAM_IDS["spd_out_max"], 2 * ONE)))
     assert r.result == 3 and t.fw.speed_ref == iq(1000 / 3000)  # nothing written
     t.set_params(((PARAM_IDS["iq_out_max"], iq(0.5)),))
-    assert (t.fw.pid_iq.out_max, t.fw.pid_iq.out_min) == (iq(0.5), -iq(0.5))
+    assert (t.fw.gain("iq", "out_max"), t.fw.gain("iq", "out_min")) == (iq(0.5), -iq(0.5))
     assert t.get_param(99).result == 1
 
 
 def test_encoder_direction_and_index_reset():
-    t = FocTarget()
+    t = FocTarget(backend="python")  # calls the Python QEP block directly
     hello(t)
     t.step(sensors(0, enc=65530))
     for k, enc in enumerate((65535, 4, 20), start=1):  # forward across the 16-bit wrap

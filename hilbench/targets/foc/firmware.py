@@ -182,6 +182,20 @@ class FocFirmware:
         self.speed_loop_count = 0
         self.speed_setpoint = 0
 
+    def gain(self, loop: str, field: str) -> int:
+        """A controller setting: loop "spd", "id" or "iq"; field "kp", "ki", "kc" or "out_max"."""
+        return getattr(self._loop(loop), field)
+
+    def set_gain(self, loop: str, field: str, value: int) -> None:
+        """Write a controller setting; out_max also sets out_min = −out_max."""
+        pi = self._loop(loop)
+        setattr(pi, field, int(value))
+        if field == "out_max":
+            pi.out_min = -int(value)
+
+    def _loop(self, loop: str) -> PidReg3 | PiClamp:
+        return {"spd": self.pid_spd, "id": self.pid_id, "iq": self.pid_iq}[loop]
+
     # ---- the Event Manager -------------------------------------------------------------------
     def encoder(self, count16: int, index: bool) -> None:
         """The QEP circuit between two samples: T2 follows the encoder's edges, CAP3 the index."""

@@ -111,14 +111,51 @@ PARAM_IDS = {name: pid for pid, (name, *_rest) in PARAMS.items()}
 _PID_FIELDS = {"kp": "kp", "ki": "ki", "kc": "kc"}
 
 
+try:
+    from hilbench.targets.foc import _core
+except ImportError:  # pragma: no cover - built without a C compiler
+    _core = None
+else:
+    from hilbench.targets.foc.iqmath import SIN_Q15_TABLE
+
+    _core.init(Drive, SIN_Q15_TABLE, INPUT_INDEX)
+
+
+def available_backends() -> tuple[str, ...]:
+    """The firmware-model backends usable here ("c" only when the extension is built)."""
+    return ("c", "python") if _core is not None else ("python",)
+
+
+def _choose_backend(backend: str | None) -> str:
+    """backend argument, else HILBENCH_FOC_BACKEND, else "c" when built."""
+    import os
+
+    choice = backend or os.environ.get("HILBENCH_FOC_BACKEND", "") or ("c" if _core is not None else "python")
+    if choice not in ("c", "python"):
+        raise ConfigError(f"foc backend {choice!r}: expected 'c' or 'python'")
+    if choice == "c" and _core is None:
+        raise ConfigError("foc backend 'c': hilbench.targets.foc._core is not built (pip install . with a C compiler)")
+    return choice
+
+
 class FocTarget:
-    """F2812 FOC firmware as a Target: lockstep `step`, real-time `advance`, declared parameters."""
+    """F2812 FOC firmware as a Target: lockstep `step`, real-time `advance`, declared parameters.
+
+    Two backends with identical Drives (tests/test_foc_core.py): "c" (`_core.c`, the firmware
+    state in a C struct) and "python" (`FocFirmware`, the readable model). "c" is chosen when
+    built unless HILBENCH_FOC_BACKEND=python or backend="python"; `target.backend` says which."""
 
     firmware_name = FIRMWARE_NAME
+    backend = "python"
 
-    def __init__(self, options: FocOptions = FocOptions()) -> None:
+    def __new__(cls, options: FocOptions = FocOptions(), *, backend: str | None = None) -> "FocTarget":
+        if cls is FocTarget and _choose_backend(backend) == "c":
+            return object.__new__(_CFocTarget)
+        return object.__new__(cls)
+
+    def __init__(self, options: FocOptions = FocOptions(), *, backend: str | None = None) -> None:
         self.options = options
-        self.fw = FocFirmware(options)
+        self.fw = _CFirmware(options) if self.backend == "c" else FocFirmware(options)
         self.period_us = HALF_PERIOD_US
         self._halves = 1
         self._half = 0  # 0: the next half starts at an underflow (ISR), 1: at a period match
@@ -160,10 +197,6 @@ class FocTarget:
         self.watchdog_ms = int(host.watchdog_ms)
         return self._hello(host)
 
-    def _pi(self, name: str) -> Any:
-        fw = self.fw
-        return {"spd": fw.pid_spd, "id": fw.pid_id, "iq": fw.pid_iq}[name.split("_")[0]]
-
     def _value(self, pid: int) -> int:
         name = PARAMS[pid][0]
         if name == "speed_ref_rpm":
@@ -174,9 +207,8 @@ class FocTarget:
             return int(self.fw.torque_mode)
         if name == "iq_ref_set":
             return self.fw.iq_ref_set
-        pi = self._pi(name)
-        field = name.split("_", 1)[1]
-        return pi.out_max if field == "out_max" else getattr(pi, field)
+        loop, field = name.split("_", 1)
+        return self.fw.gain(loop, field)
 
     def describe(self, param_id: int) -> ParamInfo:
         if param_id not in PARAMS:
@@ -211,12 +243,8 @@ class FocTarget:
             elif name == "iq_ref_set":
                 fw.iq_ref_set = int(value)
             else:
-                pi = self._pi(name)
-                field = name.split("_", 1)[1]
-                if field == "out_max":
-                    pi.out_max, pi.out_min = int(value), -int(value)
-                else:
-                    setattr(pi, field, int(value))
+                loop, field = name.split("_", 1)
+                fw.set_gain(loop, field, int(value))
         return ParamSetResult(0, int(Result.OK), pairs[-1][0], 0)
 
     # ---- run control -------------------------------------------------------------------------
@@ -292,16 +320,112 @@ class FocTarget:
         return self.fw.isr_count * 2 * HALF_PERIOD_US
 
 
+if _core is not None:
+
+    class _View:
+        """Read-only attributes of a C firmware's block, under the Python block's names."""
+
+        def __init__(self, fw: Any, prefix: str) -> None:
+            object.__setattr__(self, "_fw", fw)
+            object.__setattr__(self, "_prefix", prefix)
+
+        def __getattr__(self, name: str) -> Any:
+            return getattr(self._fw, self._prefix + name)
+
+    class _CFirmware(_core.Core):  # type: ignore[misc,name-defined]
+        """FocFirmware's state in the C struct: initialised from a Python FocFirmware so both
+        start identical; the blocks' fields are flat members (`spd_kp`, `qep_t2cnt`, `sp_speed`)."""
+
+        _COPY = ("state", "fault", "speed_ref", "speed_setpoint", "id_ref", "iq_ref", "iq_ref_set", "isr_count",
+                 "state_isrs", "speed_loop_count", "elec_theta", "align_isrs", "align_v", "align_i", "ramp_step")
+
+        def __init__(self, options: FocOptions) -> None:
+            py = FocFirmware(options)
+            self.options = options
+            for name in self._COPY:
+                setattr(self, name, getattr(py, name))
+            self.pi_form = 0 if options.pi_form == "pid_reg3" else 1
+            self.prescaler = options.speed_loop_prescaler
+            self.learn_index = int(options.learn_index)
+            for loop in ("spd", "id", "iq"):
+                for field in ("kp", "ki", "kc", "out_max", "out_min"):
+                    setattr(self, f"{loop}_{field}", getattr(py._loop(loop), field))
+            q = py.qep
+            self.qep_line_encoder, self.qep_pole_pairs, self.qep_calibrated_angle = q.line_encoder, q.pole_pairs, q.calibrated_angle
+            self.qep_mech_scaler, self.qep_t2pr, self.qep_signed16 = q.mech_scaler, q.t2pr, int(q.signed16)
+            sp = py.speed
+            self.sp_k1, self.sp_k2, self.sp_k3, self.sp_base_rpm = sp.k1, sp.k2, sp.k3, sp.base_rpm
+
+        def gain(self, loop: str, field: str) -> int:
+            return getattr(self, f"{loop}_{field}")
+
+        def set_gain(self, loop: str, field: str, value: int) -> None:
+            setattr(self, f"{loop}_{field}", int(value))
+            if field == "out_max":
+                setattr(self, f"{loop}_out_min", -int(value))
+
+        outputs_on = property(lambda self: bool(self._outputs_on))
+        index_learned = property(lambda self: bool(self._index_learned))
+        torque_mode = property(lambda self: bool(self._torque_mode),
+                               lambda self, v: setattr(self, "_torque_mode", int(bool(v))))
+        compare_active = property(lambda self: (self.ca1, self.ca2, self.ca3))
+        compare_shadow = property(lambda self: (self.cs1, self.cs2, self.cs3))
+        qep = property(lambda self: _View(self, "qep_"))
+        speed = property(lambda self: _View(self, "sp_"))
+
+    class _CFocTarget(FocTarget):
+        """FocTarget on the compiled firmware: `step` is the C method of `fw` itself; the half
+        period, S2 level and last seq live in the struct."""
+
+        backend = "c"
+
+        def __init__(self, options: FocOptions = FocOptions(), *, backend: str | None = None) -> None:
+            super().__init__(options, backend=backend)
+            self.step = self.fw.step  # type: ignore[method-assign]  # no Python frame per exchange
+
+        def hello(self, host: Any) -> TargetHello:
+            out = super().hello(host)
+            self.fw.halves = self._halves
+            return out
+
+        @property
+        def _last_seq(self) -> int:  # type: ignore[override]
+            return self.fw.last_seq
+
+        @_last_seq.setter
+        def _last_seq(self, value: int) -> None:
+            self.fw.last_seq = value
+
+        def advance(self, duration_us: float, sensors: Sensors) -> Drive:
+            total = duration_us + self._frac_us
+            n = int(total // HALF_PERIOD_US)
+            self._frac_us = total - n * HALF_PERIOD_US
+            self.fw.last_seq = sensors.seq
+            self.fw.inputs(sensors.inputs)
+            duties = self.fw.run_halves(n, sensors) if n else self._active_duties()
+            return self.fw.drive(sensors.seq, *duties)
+
+        def watchdog_trip(self) -> Drive:
+            self.watchdog_trips += 1
+            self.last_error = int(ErrorCode.WATCHDOG)
+            self.fw.stop(STATE_FAULT, FAULT_WATCHDOG)
+            return self.fw.drive(self.fw.last_seq, 0, 0, 0)
+
+else:  # pragma: no cover
+    _CFirmware = _CFocTarget = None  # type: ignore[assignment,misc]
+
+
 def make_foc_target(**options: Any) -> FocTarget:
     """The factory `make_target("foc", ...)` uses: FocOptions fields by name (ConfigError otherwise)."""
     import dataclasses
 
+    backend = options.pop("backend", None)
     known = {f.name for f in dataclasses.fields(FocOptions)}
     unknown = sorted(set(options) - known)
     if unknown:
         raise ConfigError(f"target foc: unknown option {unknown[0]!r} (known: {', '.join(sorted(known))})")
-    return FocTarget(FocOptions(**options))
+    return FocTarget(FocOptions(**options), backend=backend)
 
 
-__all__ = ["FocTarget", "make_foc_target", "FIRMWARE_NAME", "PARAMS", "PARAM_IDS", "TELEMETRY",
+__all__ = ["FocTarget", "make_foc_target", "available_backends", "FIRMWARE_NAME", "PARAMS", "PARAM_IDS", "TELEMETRY",
            "INPUT_INDEX", "ADC_BITS", "iq_to_iq15"]
