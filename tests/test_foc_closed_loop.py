@@ -87,7 +87,7 @@ def test_load_step_dip_and_recovery(scenario):
 
 def test_reversal_through_zero(scenario):
     cols, _, _ = scenario
-    t, y = cols["t_s"], cols["speed_rpm"]
+    y = cols["speed_rpm"]
     m = window(cols, 4.2, 5.7)
     assert y[m].min() < -390 and np.any(np.abs(y[m]) < 5)
     assert np.all(np.abs(y[window(cols, 5.4, 5.7)] + 400.0) < 8.0)

@@ -1,6 +1,5 @@
 """Plant additions for the FOC target: encoder A/B order and index, 12-bit ADC, both backends."""
 
-import dataclasses
 import math
 
 import pytest

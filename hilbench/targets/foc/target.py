@@ -37,8 +37,8 @@ from hilbench.protocol import (
     Sensors,
     Status,
     TargetHello,
-    TelemetryId,
 )
+from hilbench.targets.foc import TELEMETRY_SPEC
 from hilbench.targets.foc.firmware import (
     FAULT_WATCHDOG,
     HALF_PERIOD_US,
@@ -66,24 +66,13 @@ OUTPUT_OFF, OUTPUT_PWM = 0, 1
 ADC_ROLES = (int(AdcRole.IA), int(AdcRole.IB), int(AdcRole.VBUS))
 
 
-def _tid(name: str, fallback: int) -> int:
-    """A telemetry id: the protocol's when it names it, else this target's own (0x80-0xFE)."""
-    return int(getattr(TelemetryId, name, fallback))
+if Drive._fields[1:4] != ("duty_a", "duty_b", "duty_c") or len(Drive._fields) != 11:
+    # _drive and the C core build Drives positionally: a changed message must not go unnoticed
+    raise ConfigError(f"foc: Drive fields changed to {Drive._fields}; update target.py and _core.c")
 
 
-#: telemetry (all Q15 per unit: speed of base_rpm, currents of base_current_a, voltages of Udc/sqrt3,
-#: angle in turns): (key of FocFirmware.telemetry_q15, id)
-TELEMETRY: tuple[tuple[str, int], ...] = (
-    ("ref_speed", _tid("REF_SPEED", 1)),
-    ("speed", _tid("MEASURED_SPEED", 2)),
-    ("iq_ref", _tid("IQ_REF", int(TelemetryId.CONTROL_OUTPUT))),  # the speed PI's output
-    ("i_d", _tid("ID", 5)),
-    ("i_q", _tid("IQ", 6)),
-    ("id_ref", _tid("ID_REF", 0x80)),
-    ("theta_e", _tid("THETA_E", 0x82)),
-    ("v_d", _tid("VD", 0x83)),
-    ("v_q", _tid("VQ", 0x84)),
-)
+#: (key of FocFirmware.telemetry_q15, id) in Drive order; the table lives in the package's profile
+TELEMETRY: tuple[tuple[str, int], ...] = tuple((key, tid) for key, tid, *_ in TELEMETRY_SPEC)
 TELEMETRY_IDS = tuple(i for _, i in TELEMETRY)
 TELEMETRY_KEYS = tuple(k for k, _ in TELEMETRY)
 
@@ -170,8 +159,16 @@ class FocTarget:
 
     # ---- messages (the one place they are built) -----------------------------------------
     def _hello(self, host: Any) -> TargetHello:
-        return TargetHello(host.seq, PROTOCOL_VERSION, FIRMWARE_VERSION, T1PR, PWM_FREQ_HZ, len(PARAMS),
-                           FIRMWARE_NAME, ADC_ROLES, TELEMETRY_IDS)
+        """By field name: protocol v2 adds schema_fingerprint and adc_bits (12 here)."""
+        import hilbench.protocol as proto
+
+        values = {
+            "seq": host.seq, "protocol_version": PROTOCOL_VERSION, "firmware_version": FIRMWARE_VERSION,
+            "pwm_period_counts": T1PR, "pwm_freq_hz": PWM_FREQ_HZ, "n_params": len(PARAMS),
+            "firmware_name": FIRMWARE_NAME, "adc_roles": ADC_ROLES, "telemetry_ids": TELEMETRY_IDS,
+            "adc_bits": ADC_BITS, "schema_fingerprint": getattr(proto, "SCHEMA_FINGERPRINT", 0),
+        }
+        return TargetHello(**{name: values[name] for name in TargetHello._fields})
 
     def _drive(self, seq: int, duties: tuple[int, int, int]) -> Drive:
         fw = self.fw
