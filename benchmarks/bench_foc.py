@@ -52,7 +52,7 @@ def foc_run(seconds: float, out: Path, backend: str | None = None, timed: bool =
 
     if timed:
         target.step = timed_step
-    events = (Event(at_s=0.0, press="s2"), Event(at_s=0.2, params=(("speed_ref_rpm", 1000.0),)),
+    events = (Event(at_s=0.0, press="s2"), Event(at_s=0.2, params=(("ref_rpm", 1000.0),)),
               Event(at_s=seconds, end=True))
     session = Session(target, plant, events, SessionOptions(period_us=50, observe_every_periods=10 ** 9),
                       recorder=Recorder(out, {"bench": "foc"}))

@@ -50,7 +50,7 @@ def servo_params(**inverter: object):
 def speed_events(*steps: tuple[float, float], end_s: float, loads: tuple[tuple[float, float], ...] = ()) -> list[Event]:
     """S2 at 0, the speed reference as the target's parameter at the given times, loads, end."""
     ev = [Event(at_s=0.0, press="s2")]
-    ev += [Event(at_s=t, params=(("speed_ref_rpm", float(rpm)),)) for t, rpm in steps]
+    ev += [Event(at_s=t, params=(("ref_rpm", float(rpm)),)) for t, rpm in steps]
     ev += [Event(at_s=t, load_nm=nm) for t, nm in loads]
     ev.append(Event(at_s=end_s, end=True))
     return ev

@@ -141,7 +141,7 @@ def test_index_calibration_matches_the_plants_index(scenario):
 
 def run_400(tmp_path, dead_time: bool, name: str):
     ev = [Event(at_s=0.0, press="s2"), Event(at_s=0.2, load_nm=0.3),
-          Event(at_s=0.25, params=(("speed_ref_rpm", 400.0),)), Event(at_s=2.0, end=True)]
+          Event(at_s=0.25, params=(("ref_rpm", 400.0),)), Event(at_s=2.0, end=True)]
     return recorded_run(tmp_path, ev, dead_time=dead_time, name=name)[0]
 
 

@@ -68,7 +68,7 @@ def test_random_streams_identical():
         adc = (rng.randint(0, 4095), rng.randint(0, 4095), rng.randint(3000, 3300))
         s = Sensors(k & 0xFF, inputs, 0xFFFF, enc, adc)
         if k % 5000 == 2500:
-            pairs = ((PARAM_IDS["speed_ref_rpm"], rng.randint(-3000, 3000)), (PARAM_IDS["id_kp"], iq(rng.random())))
+            pairs = ((PARAM_IDS["ref_rpm"], rng.randint(-3000, 3000)), (PARAM_IDS["id_kp"], iq(rng.random())))
             assert [t.set_params(pairs) for t in targets][0] == targets[1].set_params(pairs)
         if k % 7000 == 3000:
             for t in targets:

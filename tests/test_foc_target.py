@@ -107,12 +107,12 @@ def test_parameters_round_trip_and_atomic_refusal():
     t = FocTarget(backend=BACKEND)
     hello(t)
     names = {t.describe(i).name for i in PARAMS}
-    assert {"speed_ref_rpm", "id_ref", "spd_kp", "spd_ki", "spd_kc", "iq_kp", "id_out_max"} <= names
+    assert {"ref_rpm", "id_ref", "spd_kp", "spd_ki", "spd_kc", "iq_kp", "id_out_max"} <= names
     assert t.get_param(PARAM_IDS["spd_kp"]).value == iq(0.7)
-    r = t.set_params(((PARAM_IDS["speed_ref_rpm"], 1000), (PARAM_IDS["iq_kp"], iq(0.5))))
+    r = t.set_params(((PARAM_IDS["ref_rpm"], 1000), (PARAM_IDS["iq_kp"], iq(0.5))))
     assert r.result == 0
     assert t.fw.speed_ref == iq(1000 / 3000) and t.fw.gain("iq", "kp") == iq(0.5)
-    r = t.set_params(((PARAM_IDS["speed_ref_rpm"], 0), (PARAM_IDS["spd_out_max"], 2 * ONE)))
+    r = t.set_params(((PARAM_IDS["ref_rpm"], 0), (PARAM_IDS["spd_out_max"], 2 * ONE)))
     assert r.result == 3 and t.fw.speed_ref == iq(1000 / 3000)  # nothing written
     t.set_params(((PARAM_IDS["iq_out_max"], iq(0.5)),))
     assert (t.fw.gain("iq", "out_max"), t.fw.gain("iq", "out_min")) == (iq(0.5), -iq(0.5))
@@ -138,3 +138,24 @@ def test_encoder_direction_and_index_reset():
     t.step(sensors(6, enc=15))
     t.step(sensors(7, inputs=INPUT_INDEX, enc=15))
     assert q.t2cnt == 0 and q.calibrated_angle == 16  # later pulses only reset the counter
+
+
+def test_declaration_fits_the_protocol_limits():
+    t = FocTarget()
+    h = hello(t)
+    assert len(h.telemetry_ids) <= 8 and len(h.firmware_name) <= 12  # max_telemetry, max_name_chars
+    assert all(len(t.describe(i).name) <= 12 for i in PARAMS)
+
+
+@pytest.mark.skipif(not hasattr(__import__("hilbench.protocol", fromlist=["ParamType"]).ParamType, "IQ24"),
+                    reason="protocol v1 carries 10-bit duties and 16-bit parameter values; v2 is needed")
+def test_every_message_encodes_with_protocol_v2():
+    import hilbench.protocol as proto
+
+    t = FocTarget()
+    proto.encode_frame(hello(t))
+    for i in PARAMS:
+        proto.encode_frame(t.describe(i))
+    t.start()
+    for k in range(4):
+        proto.encode_frame(t.step(sensors(k)))

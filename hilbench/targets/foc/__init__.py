@@ -24,14 +24,14 @@ def _tid(name: str, fallback: int) -> int:
 
 
 #: the one telemetry table: (FocFirmware.telemetry_q15 key, id, column, unit, scale, format), in the
-#: order the Drive carries them. Ids are protocol v2's where it names them, else 0x80-0xFE.
+#: order the Drive carries them. Ids are protocol v2's where it names them, else 0x80-0xFE. At most
+#: 8 (the protocol's max_telemetry): the i_d reference is a parameter, read with get_param.
 TELEMETRY_SPEC: tuple[tuple[str, int, str, str, float, str], ...] = (
     ("ref_speed", _tid("REF_SPEED", 1), "ref_speed_rpm", "rpm", RPM_PER_Q15, "%.3f"),
     ("speed", _tid("MEASURED_SPEED", 2), "measured_speed_rpm", "rpm", RPM_PER_Q15, "%.3f"),
     ("iq_ref", _tid("IQ_REF", int(TelemetryId.CONTROL_OUTPUT)), "iq_ref_a", "A", AMP_PER_Q15, "%.4f"),
     ("i_d", _tid("ID", 5), "i_d_a", "A", AMP_PER_Q15, "%.4f"),
     ("i_q", _tid("IQ", 6), "i_q_a", "A", AMP_PER_Q15, "%.4f"),
-    ("id_ref", _tid("ID_REF", 0x80), "id_ref_a", "A", AMP_PER_Q15, "%.4f"),
     ("theta_e", _tid("THETA_E", 0x82), "fw_theta_e_deg", "deg", 360 / 32768, "%.3f"),
     ("v_d", _tid("VD", 0x83), "v_d_pu", "pu of Udc/sqrt3", 1 / 32768, "%.4f"),
     ("v_q", _tid("VQ", 0x84), "v_q_pu", "pu of Udc/sqrt3", 1 / 32768, "%.4f"),
@@ -58,7 +58,7 @@ PROFILE = TargetProfile(
     description="sensored FOC with the simplified SVPWM, TMS320F2812 in IQ24 (the second seed's 200 W servo)",
     options_type=FocOptions,
     tunable=("spd_kp", "spd_ki", "spd_kc"),
-    reference=ParamReference("speed_ref_rpm", 1.0),
+    reference=ParamReference("ref_rpm", 1.0),
     telemetry=tuple(TelemetryColumn(tid, col, unit, scale, fmt) for _, tid, col, unit, scale, fmt in TELEMETRY_SPEC),
     speed_column="measured_speed_rpm",
     built_for=lambda options: MotorBuild(pole_pairs=getattr(options, "pole_pairs", 3), max_speed_rpm=3000.0),

@@ -326,10 +326,9 @@ static PyObject *make_drive(Core *s, PyObject *seq, const int64_t duty[3])
         return NULL;
     }
     int64_t ref = s->ramp_step ? s->speed_setpoint : s->speed_ref;
-    PyObject *tel = Py_BuildValue("(LLLLLLLLL)", (long long)asr(ref, 9), (long long)asr(s->sp_speed, 9),
+    PyObject *tel = Py_BuildValue("(LLLLLLLL)", (long long)asr(ref, 9), (long long)asr(s->sp_speed, 9),
                                   (long long)asr(s->iq_ref, 9), (long long)asr(s->i_d, 9), (long long)asr(s->i_q, 9),
-                                  (long long)asr(s->id_ref, 9), (long long)asr(s->elec_theta, 9),
-                                  (long long)asr(s->v_d, 9), (long long)asr(s->v_q, 9));
+                                  (long long)asr(s->elec_theta, 9), (long long)asr(s->v_d, 9), (long long)asr(s->v_q, 9));
     if (tel == NULL) return NULL;
     PyObject *d = drive_type->tp_alloc(drive_type, 11);
     if (d == NULL) { Py_DECREF(tel); return NULL; }

@@ -79,7 +79,7 @@ TELEMETRY_KEYS = tuple(k for k, _ in TELEMETRY)
 # declared parameters: id -> (name, ptype, min, max); IQ24 limits as raw values
 _ONE = 1 << 24
 PARAMS: dict[int, tuple[str, int, int, int]] = {
-    0: ("speed_ref_rpm", PTYPE_INT, -3000, 3000),
+    0: ("ref_rpm", PTYPE_INT, -3000, 3000),
     1: ("id_ref", PTYPE_IQ24, -_ONE // 2, _ONE // 2),
     2: ("spd_kp", PTYPE_IQ24, 0, 8 * _ONE),
     3: ("spd_ki", PTYPE_IQ24, 0, _ONE),
@@ -196,7 +196,7 @@ class FocTarget:
 
     def _value(self, pid: int) -> int:
         name = PARAMS[pid][0]
-        if name == "speed_ref_rpm":
+        if name == "ref_rpm":
             return self.speed_ref_rpm
         if name == "id_ref":
             return self.fw.id_ref
@@ -230,7 +230,7 @@ class FocTarget:
         fw = self.fw
         for pid, value in pairs:
             name = PARAMS[pid][0]
-            if name == "speed_ref_rpm":
+            if name == "ref_rpm":
                 self.speed_ref_rpm = int(value)
                 fw.speed_ref = rpm_to_iq(value, fw.options.base_rpm)
             elif name == "id_ref":
