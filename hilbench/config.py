@@ -446,8 +446,8 @@ def _build_chosen(sec: _Section, data: Mapping[str, Any], built: dict[str, Any],
     assert sec.chooser is not None
     try:
         cls = sec.chooser(built)
-    except ConfigError as exc:
-        col.add(sec.name, "", str(exc))
+    except ConfigError as exc:  # the chooser names the table at fault
+        col.add("", "", str(exc))
         return
     if cls is None:
         if data.get(sec.name):

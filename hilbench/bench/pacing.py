@@ -38,8 +38,10 @@ class RealtimePacing:
         self.late = 0.0
         self.marker = 0
 
-    def start(self) -> None:
+    def start_at(self, k: int) -> None:
+        """Period k starts one period from now (the run starts, or resumes after a pause)."""
         self.pacer.start()
+        self.pacer.t0 -= k * self.period_s
 
     def exchange(self, k: int, sensors: Sensors, drive: Drive | None, step: Callable[[Sensors], Drive]) -> Drive:
         """Wait for period k's slot, then exchange — or hold ``drive`` if the slot has gone."""

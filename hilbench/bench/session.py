@@ -29,7 +29,16 @@ from hilbench.bench.recorder import MARKER_EVENT, MARKER_FAULT, MARKER_PARAM, Re
 from hilbench.bench.scenario import Event, Ramp, ScenarioPlayer
 from hilbench.bench.summary import Segment, Snapshot, Summary, percentiles
 from hilbench.errors import HilbenchError, LinkError, ParamError, TargetError
-from hilbench.protocol import PROTOCOL_VERSION, Edge, HostHello, Input, OutputMode, Sensors, TargetHello
+from hilbench.protocol import (
+    PROTOCOL_VERSION,
+    Edge,
+    HostHello,
+    Input,
+    OutputMode,
+    Sensors,
+    TargetHello,
+    check_target_hello,
+)
 from hilbench.targets.base import Target
 from hilbench.targets.profile import ParamReference, PotReference, TargetProfile
 from hilbench.targets.registry import profile_for_firmware
@@ -153,6 +162,10 @@ class Session:
         self._obs_last = (0.0, 0)
         self._lockstep_rtts: list[float] = []
         self._tele_index: dict[str, tuple[int, float]] = {}
+        self._closed = False
+        self._record_host_ref = False
+        self._qos: CpuLatencyRequest | None = None
+        self._pacing: RealtimePacing | None = None
 
     # ------------------------------------------------------------------ handshake
     def handshake(self) -> TargetHello:
@@ -160,6 +173,7 @@ class Session:
         mode = 0 if self.options.mode == "lockstep" else 1
         host = HostHello(0, PROTOCOL_VERSION, self.options.period_us, mode, self.options.watchdog_ms)
         hello = self.target.hello(host)
+        check_target_hello(hello, where=self.target_label)  # protocol version and schema fingerprint
         self.hello = hello
         found = profile_for_firmware(hello.firmware_name)
         expected = self.expected_profile
@@ -172,6 +186,9 @@ class Session:
         for index, tid in enumerate(hello.telemetry_ids):
             column = self.profile.telemetry_column(tid)
             self._tele_index[column.column] = (index, column.scale)
+        missing = (-1, 0.0)  # (telemetry index, scale) of the firmware's measured speed and reference
+        self._speed_telemetry = (self._tele_index.get(self.profile.speed_column or "", missing),
+                                 self._tele_index.get("ref_speed_rpm", missing))
         return hello
 
     # ------------------------------------------------------------------ parameters
@@ -254,6 +271,11 @@ class Session:
         if self.recorder is not None:
             self.recorder.event(f"t={t_s:.6f} {event.describe()}", MARKER_EVENT)
 
+    def apply_now(self, event: Event) -> None:
+        """An event from a script or a test at the current period (recorded like a scenario event)."""
+        self._apply(event, event.at_s)
+        self._scenario_k = min(self._scenario_k, self.periods_done)  # ramps, the button's release
+
     def _tick_ramps(self, t_s: float) -> None:
         for kind, ramp in list(self.player.ramps.items()):
             value = ramp.value(t_s)
@@ -302,108 +324,160 @@ class Session:
                 return
             self._scenario_k = min(self._scenario_k, k + 1)  # a ctl ref may start a ramp
 
-    def _telemetry_rpm(self, tele: tuple[int, ...], column: str | None, default: float) -> float:
-        entry = self._tele_index.get(column or "")
-        return default if entry is None else tele[entry[0]] * entry[1]
-
     # ------------------------------------------------------------------ the loop
     def run(self) -> Summary:
         """Handshake if needed, then run periods until the duration or the scenario ends."""
+        self.begin()
+        self.advance(self.planned_periods)
+        return self.end()
+
+    def begin(self) -> None:
+        """Get ready to run: handshake if needed, the recorder's layout, pacing and the CPU request.
+        Then `advance` runs periods, as many calls as wanted, and `end` closes the run."""
         options = self.options
         if self.hello is None:
             self.handshake()
         assert self.hello is not None
         summary = Summary(self.target_label, options.mode, options.period_us, firmware=self.hello.firmware_name)
         summary.recording = str(self.recorder.path) if self.recorder is not None else None
-        period_s = self._period_s
+        self.summary = summary
         duration = options.duration_s if options.duration_s is not None else self.player.end_s
-        n_periods = max(1, round((5.0 if duration is None else duration) / period_s))
-        self._duration_s = n_periods * period_s
+        self.planned_periods = max(1, round((5.0 if duration is None else duration) / self._period_s))
+        self._duration_s = self.planned_periods * self._period_s
         realtime = options.mode == "realtime"
-        pacing = RealtimePacing(
+        self._pacing = RealtimePacing(
             options.period_us, label=self.target_label,
             abort_after=options.max_consecutive_overruns if options.overrun_policy == "abort" else None,
         ) if realtime else None
-        qos = CpuLatencyRequest() if realtime and options.cpu_latency_qos else None
-        if realtime and qos is None:
+        self._qos = CpuLatencyRequest() if realtime and options.cpu_latency_qos else None
+        if realtime and self._qos is None:
             summary.cpu_latency = "not requested ([link] cpu_latency_qos = false)"
+        if self._qos is not None:
+            self._qos.__enter__()  # released by end(), however the run ends
+            summary.cpu_latency = self._qos.status
         self._lockstep_rtts = []
-        self._scenario_k = first_period_at(self.player.next_t_s, period_s)
+        self._scenario_k = first_period_at(self.player.next_t_s, self._period_s)
         self.faults.last_hall = self.plant.hall_bits
+        self._wall_start = time.perf_counter()
+        self._obs_last = (self._wall_start, 0)
+        self._record = self._row_writer()
+        self._actuate = self._actuator()
+        self._next_k = 0
+        self._edge_s = self.plant.last_edge_s
+        self._drive: Any = None
+        self._guard_ref = 0.0
+
+    @property
+    def ended(self) -> bool:
+        """The scenario's end, `ctl stop` or a fault ended the run."""
+        return self._end_reason is not None
+
+    def advance(self, n_periods: int) -> bool:
+        """Run up to ``n_periods`` more periods; False once the run has ended. A fault or Ctrl-C
+        closes the run (recording with a fault marker) and propagates."""
+        if self.ended:
+            return False
+        summary = self.summary
         gc_was_enabled = gc.isenabled()
         gc.disable()  # no collector pauses inside periods (recorded rows are plain numbers)
-        wall_start = time.perf_counter()
-        self._obs_last = (wall_start, 0)
-        k = 0
         try:
-            if qos is not None:
-                qos.__enter__()  # released in the finally below, however the run ends
-                summary.cpu_latency = qos.status
-            k = self._loop(n_periods, pacing)
-            self.periods_done = k
-            if self._end_reason is not None:
-                summary.end_reason = self._end_reason
+            self.periods_done = self._loop(self._next_k, self._next_k + n_periods, self._pacing)
+            self._next_k = self.periods_done
         except KeyboardInterrupt:
             summary.end_reason = "interrupted"
             self._stop_target()
-            self._finish(summary, wall_start, pacing, f"interrupted at period {self.periods_done}")
+            self._close(f"interrupted at period {self.periods_done}")
             raise
         except (LinkError, TargetError, SessionAborted) as exc:
             summary.end_reason = "fault"
             summary.fault = str(exc)
+            self._end_reason = "fault"
             self._deenergise()
-            self._finish(summary, wall_start, pacing, f"fault at period {self.periods_done}: {exc}", fault=True)
+            self._close(f"fault at period {self.periods_done}: {exc}", fault=True)
             raise
         finally:
-            if qos is not None:
-                qos.__exit__(None, None, None)
             if gc_was_enabled:
                 gc.enable()
-        self._stop_target()
-        self._finish(summary, wall_start, pacing, f"end: {summary.end_reason} at period {k}")
+        return not self.ended
+
+    def end(self) -> Summary:
+        """Close the run: the target stops, the recording is closed, the summary is made."""
+        summary = self.summary
+        if not self._closed:
+            if self._end_reason is not None:
+                summary.end_reason = self._end_reason
+            self._stop_target()
+            self._close(f"end: {summary.end_reason} at period {self.periods_done}")
         return summary
 
-    def _loop(self, n_periods: int, pacing: RealtimePacing | None) -> int:
-        """The periods: the parts run in the periods they are due; returns the periods done."""
+    def _close(self, note: str, fault: bool = False) -> None:
+        self._closed = True
+        if self._qos is not None:
+            self._qos.__exit__(None, None, None)
+        self._finish(self.summary, self._wall_start, self._pacing, note, fault=fault)
+
+    def _loop(self, k_from: int, k_to: int, pacing: RealtimePacing | None) -> int:
+        """Periods k_from..k_to-1: the parts run in the periods they are due; returns the next period.
+        The hot path keeps its state in locals (a period is ~2 µs in process)."""
         plant, target_step, faults, history_every = self.plant, self.target.step, self.faults, self.options.history_every_periods
-        period_s, roles, actuate = self._period_s, tuple(self.hello.adc_roles), self._actuator()  # type: ignore[union-attr]
-        record = self._row_writer()
-        edge_limit, new_sensors, perf, rtts = self.options.period_us * 10 - 1, tuple.__new__, time.perf_counter, self._lockstep_rtts
-        edge_s, drive, guard_ref = plant.last_edge_s, None, 0.0
+        roles, edge_limit, new_sensors = tuple(self.hello.adc_roles), self.options.period_us * 10 - 1, tuple.__new__  # type: ignore[union-attr]
+        actuate, (plant_step, scale, period_s) = self._actuate, self._simple_step
+        pack, extend, rows, plant_state = self._record or (None, None, None, None)
+        host_ref = self._record_host_ref
+        perf, rtts, rtt, late, marker = time.perf_counter, self._lockstep_rtts, 0.0, 0.0, 0
+        edge_s, drive, guard_ref, sensor_faults, k = self._edge_s, self._drive, self._guard_ref, self.faults.active, k_from
+        due_k = self._scenario_k  # the next period the scenario part asked for
+        buttons, encoder_offset = self._buttons, faults.encoder_offset  # both change only when a part is due
         if pacing is not None:
-            pacing.start()
-        for k in range(n_periods):
+            pacing.start_at(k_from)
+        try:
+            for k in range(k_from, k_to):
+                if k >= due_k:
+                    self._scenario_due(k)
+                    due_k, sensor_faults, buttons, encoder_offset = self._scenario_k, faults.active, self._buttons, faults.encoder_offset
+                    if self._end_reason is not None:
+                        return k
+                if k % history_every == 0 and drive is not None:
+                    self._live_due(k, drive, guard_ref)
+                    due_k, buttons = self._scenario_k, self._buttons  # a ctl command may start a ramp
+                    if self._end_reason is not None:
+                        return k
+                hall = plant.hall_bits
+                edge = EDGE_NONE if edge_s is None else min(int(edge_s * 1e7), edge_limit)
+                if sensor_faults:
+                    hall, edge = faults.filter(hall, edge)
+                    sensor_faults = faults.active
+                sensors = new_sensors(Sensors, (k & 0xFF, hall | buttons, edge, (plant.encoder_count + encoder_offset) & 0xFFFF,
+                                                plant.adc_codes(roles)))
+                if pacing is not None:
+                    drive = pacing.exchange(k, sensors, drive, target_step)
+                    rtt, late, marker = pacing.rtt, pacing.late, pacing.marker
+                elif k & 15:
+                    drive = target_step(sensors)
+                else:  # lockstep: a sample of round-trip times, not every period's
+                    sent = perf()
+                    drive = target_step(sensors)
+                    rtts.append(perf() - sent)
+                _, da, db, dc, mode, state, sector, _, _, fault, tele = drive
+                if scale:  # no delay, one plant step per period
+                    plant_step(da * scale, db * scale, dc * scale, mode, period_s)
+                    edge_s = plant.last_edge_s
+                else:
+                    edge_s = actuate(drive)
+                if pacing is not None:
+                    pacing.finished(k)
+                if pack is not None:  # raw values in their own types (columns.session_row); the plant appends its state
+                    if host_ref:
+                        extend(pack(k, hall, sector, da, db, dc, mode, state, fault, rtt, late, marker, self._ref_rpm, *tele))
+                    else:
+                        extend(pack(k, hall, sector, da, db, dc, mode, state, fault, rtt, late, marker, *tele))
+                    plant_state(rows)
+                if k % history_every == 0:
+                    guard_ref = self._sample(k, drive, pacing)
+        finally:
             self.periods_done = k
-            if k >= self._scenario_k:
-                self._scenario_due(k)
-                if self._end_reason is not None:
-                    return k
-            if k % history_every == 0 and drive is not None:
-                self._live_due(k, drive, guard_ref)
-                if self._end_reason is not None:
-                    return k
-            hall = plant.hall_bits
-            edge = EDGE_NONE if edge_s is None else min(int(edge_s * 1e7), edge_limit)
-            if faults.active:
-                hall, edge = faults.filter(hall, edge)
-            sensors = new_sensors(Sensors, (k & 0xFF, hall | self._buttons, edge,
-                                            (plant.encoder_count + faults.encoder_offset) & 0xFFFF, plant.adc_codes(roles)))
-            if pacing is not None:
-                drive = pacing.exchange(k, sensors, drive, target_step)
-            elif k & 15:
-                drive = target_step(sensors)
-            else:  # lockstep: a sample of round-trip times, not every period's
-                sent = perf()
-                drive = target_step(sensors)
-                rtts.append(perf() - sent)
-            edge_s = actuate(drive)
-            if pacing is not None:
-                pacing.finished(k)
-            if record is not None:
-                record(k, hall, drive, pacing)
-            if k % history_every == 0:
-                guard_ref = self._sample(k, drive, pacing)
-        return n_periods
+            self._edge_s, self._drive, self._guard_ref = edge_s, drive, guard_ref
+        return k_to
 
     def _actuator(self) -> Callable[[Any], float | None]:
         """Integrate the plant over a period with a Drive (or the one `actuation_delay_periods` before);
@@ -415,10 +489,6 @@ class Session:
         sub_s = period_s / substeps
         pending: deque[Any] = deque()
         step = plant.step
-
-        def simple(drive: Any) -> float | None:
-            step(drive[1] * scale, drive[2] * scale, drive[3] * scale, drive[4], period_s)
-            return plant.last_edge_s
 
         def general(drive: Any) -> float | None:
             if delay:
@@ -436,34 +506,27 @@ class Session:
                     edge_s = i * sub_s + plant.last_edge_s
             return edge_s
 
-        return simple if (not delay and substeps == 1) else general
+        self._simple_step = (step, scale, period_s) if (not delay and substeps == 1) else (step, 0.0, period_s)
+        return general
 
-    def _row_writer(self) -> Callable[[int, int, Any, RealtimePacing | None], None] | None:
-        """The recorder's per-period append: the session's raw fields, then the plant's state."""
+    def _row_writer(self) -> tuple[Callable[..., bytes], Callable[[bytes], None], bytearray, Callable[[bytearray], None]] | None:
+        """The recorder's per-period pieces: the packer of the session's raw fields, the row buffer's
+        extend, the buffer, and the plant's append of its own state."""
         recorder = self.recorder
         if recorder is None:
             return None
         row = session_row(self.profile, tuple(self.hello.telemetry_ids), self._period_s)  # type: ignore[union-attr]
         recorder.start(row.layout)
-        pack, extend, data, plant_state = fields_struct(row.own_fields).pack, recorder.rows.extend, recorder.rows.data, self.plant.append_state
-
-        def record(k: int, hall: int, drive: Any, pacing: RealtimePacing | None) -> None:
-            _, da, db, dc, mode, state, sector, _, _, fault, tele = drive
-            if pacing is None:  # lockstep: no timing, so that recordings are reproducible
-                extend(pack(k, hall, sector, da, db, dc, mode, state, fault, 0.0, 0.0, 0, self._ref_rpm, *tele))
-            else:
-                extend(pack(k, hall, sector, da, db, dc, mode, state, fault, pacing.rtt, pacing.late, pacing.marker,
-                            self._ref_rpm, *tele))
-            plant_state(data)
-
-        return record
+        self._record_host_ref = any(name == "host_ref_rpm" for name, _ in row.own_fields)
+        return fields_struct(row.own_fields).pack, recorder.rows.extend, recorder.rows.data, self.plant.append_state
 
     def _sample(self, k: int, drive: Any, pacing: RealtimePacing | None) -> float:
         """Every history period: the speed history, a flush, the observer. Returns the reference the
         guard compares with (the firmware's own when it reports one)."""
         tele = drive[10]
-        meas = self._telemetry_rpm(tele, self.profile.speed_column, math.nan)
-        guard_ref = self._telemetry_rpm(tele, "ref_speed_rpm", self._ref_rpm)
+        (i_meas, s_meas), (i_ref, s_ref) = self._speed_telemetry
+        meas = tele[i_meas] * s_meas if i_meas >= 0 else math.nan
+        guard_ref = tele[i_ref] * s_ref if i_ref >= 0 else self._ref_rpm
         self.history.append((k * self._period_s, self._ref_rpm, self.plant.w_m * RPM_PER_RAD_S, meas))
         if k % self.options.observe_every_periods == 0 and k:
             if self.recorder is not None:

@@ -12,6 +12,7 @@ from typing import Any, Literal
 from hilbench.bench.scenario import FAULT_KINDS, LOAD_KINDS, Event, default_scenario
 from hilbench.bench.session import GuardSettings, SessionOptions
 from hilbench.config import BenchConfig, register_section, spec
+from hilbench.errors import ConfigError
 from hilbench.targets.profile import TargetProfile
 from hilbench.targets.registry import DEFAULT_TARGET, get_profile
 
@@ -119,6 +120,11 @@ def session_options(cfg: BenchConfig) -> SessionOptions:
     )
 
 
+def effective_seed(cfg: BenchConfig) -> int:
+    """[run] seed when given, else [plant] seed."""
+    return cfg.run.seed if cfg.run.seed is not None else cfg.plant.seed
+
+
 def guard_settings(cfg: BenchConfig) -> GuardSettings:
     """GuardSettings from the [tuning] table."""
     t = cfg.tuning
@@ -139,7 +145,10 @@ def target_profile(link: "LinkSection | None") -> TargetProfile:
     spec_text = link.target if link is not None else DEFAULT_TARGET
     name = target_name(spec_text) or (link.firmware if link is not None else None) or target_name(DEFAULT_TARGET)
     assert name is not None
-    return get_profile(name)
+    try:
+        return get_profile(name)
+    except ConfigError as exc:
+        raise ConfigError(f"[link] target {spec_text!r}: {exc}") from None
 
 
 def params_file_overrides(path: str) -> tuple[str, ...]:

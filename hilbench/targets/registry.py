@@ -79,7 +79,7 @@ def get_profile(name: str) -> TargetProfile:
     _load_all()
     profile = _profiles.get(name)
     if profile is None:
-        raise ConfigError(f"target {name!r}: unknown target (known: {', '.join(known_targets())})")
+        raise ConfigError(f"unknown target {name!r} (known: {', '.join(known_targets())})")
     return profile
 
 
