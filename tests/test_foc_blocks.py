@@ -129,3 +129,16 @@ def test_qep_index_isr():
     q.count(1234)
     q.index()
     assert (q.qep_count_index, q.t2cnt, q.index_sync_flag) == (1234, 0, 0x00F0)
+
+
+def test_speed_fr_v43_unwraps_instead_of_holding():
+    sp = b.SpeedFr(150.0, 1e-4, 30.0, 3000, unwrap=True)
+    sp.old_elec_theta, sp.elec_theta = iq(0.998), iq(0.003)  # across the wrap: +0.005 turn
+    sp.calc()
+    tmp = (sp.k1 * (iq(0.003) + ONE - iq(0.998))) >> 24
+    assert sp.speed == ((sp.k3 * tmp) >> 24) << 3
+    sp.old_elec_theta, sp.elec_theta = iq(0.003), iq(0.998)  # backwards across it: -0.005 turn
+    before = sp.speed
+    sp.calc()
+    tmp = (sp.k1 * (iq(0.998) - ONE - iq(0.003))) >> 24
+    assert sp.speed == (((sp.k2 * (before >> 3)) >> 24) + ((sp.k3 * tmp) >> 24)) << 3

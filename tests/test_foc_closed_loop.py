@@ -189,3 +189,19 @@ def test_clamping_pi_option_reaches_speed(tmp_path):
     y = cols["speed_rpm"]
     assert np.all(np.abs(y[window(cols, 1.1, 1.3)] - 1000.0) < 20.0)
     assert (y.max() - 1000.0) / 10.0 <= 5.0
+
+
+def test_speed_fr_v43_lags_like_a_plain_30hz_filter(tmp_path):
+    """The v4.3 estimate uses every sample (no hold near the wrap): on a ramp it lags by slope*tau."""
+    ev = speed_events((0.2, 1000.0), end_s=0.8)
+    cols, _, _ = recorded_run(tmp_path, ev, dead_time=False, target=FocTarget(FocOptions(speed_fr="v4.3")),
+                              name="v43")
+    t, y, meas = cols["t_s"], cols["speed_rpm"], cols["measured_speed_rpm"]
+    k = np.arange(2, len(t), 2)
+    ramp = (t[k] >= 0.35) & (t[k] < 0.5)
+    slope = np.polyfit(t[k][ramp], y[k][ramp], 1)[0]
+    tau = 1.0 / (2 * math.pi * 30.0)
+    lag = (y[k - 1][ramp] - meas[k][ramp]).mean()
+    print(f"v4.3: ramp {slope:.0f} rpm/s, lag {lag:.2f} rpm, slope * (tau + T/2) = {slope * (tau + 0.5e-4):.2f} rpm")
+    assert abs(lag - slope * (tau + 0.5e-4)) < 0.1 * slope * tau
+    assert (y[window(cols, 0.2, 0.8)].max() - 1000.0) / 10.0 <= 5.0

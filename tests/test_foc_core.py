@@ -45,7 +45,7 @@ def closed_loop(backend: str, options: FocOptions, period_us: int, dead_time: bo
 
 @pytest.mark.parametrize("options,period_us,dead_time", [
     (FocOptions(), 50, True),
-    (FocOptions(pi_form="pi_clamp", align_current_a=0.0), 50, False),
+    (FocOptions(pi_form="pi_clamp", align_current_a=0.0, speed_fr="v4.3"), 50, False),
     (FocOptions(speed_ramp_rpm_per_s=0.0, learn_index=False, calibrated_angle=-1250), 100, True),
 ])
 def test_closed_loop_drives_identical(options, period_us, dead_time):

@@ -60,7 +60,7 @@ typedef struct {
     long long line_encoder, pole_pairs, cal, mech_scaler, t2pr, t2cnt, direction, raw_theta, mech_theta,
         qep_theta, qep_count_index, index_sync_flag, signed16;
     /* SPEED_FR */
-    long long sp_speed, sp_old, sp_rpm, sp_k1, sp_k2, sp_k3, sp_base_rpm;
+    long long sp_speed, sp_old, sp_rpm, sp_k1, sp_k2, sp_k3, sp_base_rpm, sp_unwrap;
     /* target */
     long long half, halves, s2_last, last_seq;
 } Core;
@@ -136,7 +136,12 @@ static int64_t qep_calc(Core *s)
 static void speed_calc(Core *s)
 {
     int64_t theta = s->elec_theta, tmp;
-    if (1677721 < theta && theta < 15099494)
+    if (s->sp_unwrap) {  /* v4.3 */
+        int64_t d = wrap32(theta - s->sp_old);
+        if (d < -(ONE >> 1)) d = wrap32(d + ONE);
+        else if (d > (ONE >> 1)) d = wrap32(d - ONE);
+        tmp = mpy(s->sp_k1, d);
+    } else if (1677721 < theta && theta < 15099494)
         tmp = mpy(s->sp_k1, wrap32(theta - s->sp_old));
     else
         tmp = asr(s->sp_speed, 3);
@@ -463,7 +468,7 @@ static PyMemberDef Core_members[] = {
     LM("qep_qep_count_index", qep_count_index), LM("qep_index_sync_flag", index_sync_flag),
     LM("qep_signed16", signed16),
     LM("sp_speed", sp_speed), LM("sp_old_elec_theta", sp_old), LM("sp_speed_rpm", sp_rpm), LM("sp_k1", sp_k1),
-    LM("sp_k2", sp_k2), LM("sp_k3", sp_k3), LM("sp_base_rpm", sp_base_rpm),
+    LM("sp_k2", sp_k2), LM("sp_k3", sp_k3), LM("sp_base_rpm", sp_base_rpm), LM("sp_unwrap", sp_unwrap),
     LM("half", half), LM("halves", halves), LM("s2_last", s2_last), LM("last_seq", last_seq),
     {NULL, 0, 0, 0, NULL},
 };

@@ -122,22 +122,34 @@ class SpeedFr:
         if 0.1 < θ < 0.9: Tmp = K1·(θ − θ_old)   (Q21 = Q21·Q24)   else Tmp = Speed (Q21)
         Tmp = K2·Speed + K3·Tmp; Speed = sat(Tmp, ±1) (Q21 → Q24); θ_old = θ; rpm = BaseRpm·Speed
 
-    K1 = _IQ21(1/(f_base·T)), K2 = _IQ(1/(1 + T·2π·f_c)), K3 = _IQ(1) − K2 (PMSM3_1's formulas)."""
+    K1 = _IQ21(1/(f_base·T)), K2 = _IQ(1/(1 + T·2π·f_c)), K3 = _IQ(1) − K2 (PMSM3_1's formulas).
 
-    __slots__ = ("elec_theta", "old_elec_theta", "speed", "speed_rpm", "k1", "k2", "k3", "base_rpm")
+    `unwrap=True` is the math_blocks v4.3 SPEED_FR_MACRO instead: every sample is used, the
+    difference unwrapped by ±1 turn when it exceeds ±0.5 (no hold near the wrap)."""
 
-    def __init__(self, base_freq_hz: float, isr_period_s: float, cutoff_hz: float, base_rpm: int) -> None:
+    __slots__ = ("elec_theta", "old_elec_theta", "speed", "speed_rpm", "k1", "k2", "k3", "base_rpm", "unwrap")
+
+    def __init__(self, base_freq_hz: float, isr_period_s: float, cutoff_hz: float, base_rpm: int,
+                 unwrap: bool = False) -> None:
         import math
 
         self.k1 = iqn(1.0 / (base_freq_hz * isr_period_s), 21)
         self.k2 = iq(1.0 / (1.0 + isr_period_s * 2.0 * math.pi * cutoff_hz))
         self.k3 = ONE - self.k2
         self.base_rpm = base_rpm
+        self.unwrap = unwrap
         self.elec_theta = self.old_elec_theta = self.speed = self.speed_rpm = 0
 
     def calc(self) -> int:
         theta = self.elec_theta
-        if 1677721 < theta < 15099494:  # _IQ(0.1) < θ < _IQ(0.9)
+        if self.unwrap:  # v4.3
+            d = wrap32(theta - self.old_elec_theta)
+            if d < -(ONE >> 1):
+                d = wrap32(d + ONE)
+            elif d > ONE >> 1:
+                d = wrap32(d - ONE)
+            tmp = iq_mpy(self.k1, d)
+        elif 1677721 < theta < 15099494:  # _IQ(0.1) < θ < _IQ(0.9)
             tmp = iq_mpy(self.k1, wrap32(theta - self.old_elec_theta))
         else:
             tmp = iq_to_iq21(self.speed)

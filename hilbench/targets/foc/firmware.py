@@ -53,6 +53,7 @@ class FocOptions:
     base_current_a: float = 5.0
     speed_loop_prescaler: int = 10
     speed_filter_hz: float = 30.0
+    speed_fr: Literal["v3.20", "v4.3"] = "v3.20"  # v3.20 holds near the wrap; v4.3 unwraps every sample
     t2pr: int | None = None  # None: the driver's 4*LineEncoder
     calibrated_angle: int = 0  # T2CNT offset of the d axis; the aligned start makes it 0
     learn_index: bool = True  # first index pulse: fold T2CNT into CalibratedAngle (angle stays continuous)
@@ -81,6 +82,8 @@ class FocOptions:
     def check(self) -> list[tuple[str, str]]:
         """(key, reason) for every inconsistent setting (the config collects them)."""
         bad: list[tuple[str, str]] = []
+        if self.speed_fr not in ("v3.20", "v4.3"):
+            bad.append(("speed_fr", f"{self.speed_fr!r}: expected 'v3.20' or 'v4.3'"))
         if self.pi_form not in ("pid_reg3", "pi_clamp"):
             bad.append(("pi_form", f"{self.pi_form!r}: expected 'pid_reg3' or 'pi_clamp'"))
         for key in ("line_encoder", "pole_pairs", "base_rpm", "speed_loop_prescaler"):
@@ -128,7 +131,7 @@ class FocFirmware:
         self.pid_iq = pi(iq(o.cur_kp), iq(o.cur_ki), iq(o.cur_kc), iq(o.iq_out_max), -iq(o.iq_out_max))
         self.pid_spd = pi(iq(o.spd_kp), iq(o.spd_ki), iq(o.spd_kc), iq(o.spd_out_max), -iq(o.spd_out_max))
         self.qep = Qep(o.line_encoder, o.pole_pairs, o.calibrated_angle, o.t2pr, o.qep_signed16)
-        self.speed = SpeedFr(o.base_freq_hz, ISR_PERIOD_S, o.speed_filter_hz, o.base_rpm)
+        self.speed = SpeedFr(o.base_freq_hz, ISR_PERIOD_S, o.speed_filter_hz, o.base_rpm, unwrap=o.speed_fr == "v4.3")
         self.align_isrs = round(o.align_s / ISR_PERIOD_S)
         self.align_v = iq(o.align_v_pu)
         self.align_i = iq(o.align_current_a / o.base_current_a) if o.align_current_a > 0 else 0

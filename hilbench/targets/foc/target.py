@@ -352,6 +352,7 @@ if _core is not None:
             self.qep_mech_scaler, self.qep_t2pr, self.qep_signed16 = q.mech_scaler, q.t2pr, int(q.signed16)
             sp = py.speed
             self.sp_k1, self.sp_k2, self.sp_k3, self.sp_base_rpm = sp.k1, sp.k2, sp.k3, sp.base_rpm
+            self.sp_unwrap = int(sp.unwrap)
 
         def gain(self, loop: str, field: str) -> int:
             return getattr(self, f"{loop}_{field}")
