@@ -205,3 +205,21 @@ def test_speed_fr_v43_lags_like_a_plain_30hz_filter(tmp_path):
     print(f"v4.3: ramp {slope:.0f} rpm/s, lag {lag:.2f} rpm, slope * (tau + T/2) = {slope * (tau + 0.5e-4):.2f} rpm")
     assert abs(lag - slope * (tau + 0.5e-4)) < 0.1 * slope * tau
     assert (y[window(cols, 0.2, 0.8)].max() - 1000.0) / 10.0 <= 5.0
+
+
+def test_ramp_tracking_dead_band_and_speed_fr_hold(tmp_path):
+    """Largest deviation from the ramping setpoint (0 -> 1000, then 1000 -> 400 rpm): the dead band
+    (its +-10 V error at the ~0.1 A the ramps need) and SPEED_FR v3.20's hold both add to it."""
+    dev = {}
+    for dead in (False, True):
+        for fr in ("v3.20", "v4.3"):
+            cols, _, _ = recorded_run(tmp_path, speed_events((0.2, 1000.0), (1.5, 400.0), end_s=2.2), dead_time=dead,
+                                      target=FocTarget(FocOptions(speed_fr=fr)), name=f"ramp_{dead}_{fr}")
+            y, r = cols["speed_rpm"], cols["ref_speed_rpm"]
+            up, down = window(cols, 0.25, 0.6), window(cols, 1.52, 1.74)
+            dev[dead, fr] = (np.abs(y[up] - r[up]).max(), np.abs(y[down] - r[down]).max())
+            print(f"dead time {dead}, SPEED_FR {fr}: deviation {dev[dead, fr][0]:.0f} rpm on the way up, "
+                  f"{dev[dead, fr][1]:.0f} rpm on the way down")
+    for fr in ("v3.20", "v4.3"):
+        assert sum(dev[True, fr]) > sum(dev[False, fr])
+    assert dev[False, "v4.3"][0] < dev[False, "v3.20"][0]
