@@ -218,8 +218,9 @@ def test_ramp_tracking_dead_band_and_speed_fr_hold(tmp_path):
             y, r = cols["speed_rpm"], cols["ref_speed_rpm"]
             up, down = window(cols, 0.25, 0.6), window(cols, 1.52, 1.74)
             dev[dead, fr] = (np.abs(y[up] - r[up]).max(), np.abs(y[down] - r[down]).max())
+            overshoot = (y[window(cols, 0.2, 1.5)].max() - 1000.0) / 10.0
             print(f"dead time {dead}, SPEED_FR {fr}: deviation {dev[dead, fr][0]:.0f} rpm on the way up, "
-                  f"{dev[dead, fr][1]:.0f} rpm on the way down")
+                  f"{dev[dead, fr][1]:.0f} rpm on the way down; 0 -> 1000 overshoot {overshoot:.1f} %")
     for fr in ("v3.20", "v4.3"):
         assert sum(dev[True, fr]) > sum(dev[False, fr])
     assert dev[False, "v4.3"][0] < dev[False, "v3.20"][0]
