@@ -174,7 +174,7 @@ def test_current_loop_step_locked_rotor(tmp_path):
     m = t >= 0.25
     final = i_q[t >= 0.29].mean()
     # Kp = 0.37 pu = 0.37 * 179.6 V / 5 A = 13.3 V/A; with the zero on R/L the loop is 1st order
-    # with w_c = Kp/L = 2000 rad/s (tau 0.5 ms) behind about 1.5 ISR of delay
+    # with w_c = Kp/L = 2000 rad/s (tau 0.5 ms) behind a delay of under one ISR (the reload is T/2 later)
     t63 = t[m][np.argmax(i_q[m] >= 0.632 * 1.0)] - 0.25
     print(f"i_q step: final {final:.3f} A, 63 % after {t63 * 1e3:.2f} ms, peak {i_q[m].max():.3f} A")
     assert abs(final - 1.0) < 0.02
