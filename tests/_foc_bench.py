@@ -26,8 +26,9 @@ _Base = _CPlant if _CPlant is not None else Plant
 class IndexPlant(_Base):  # type: ignore[misc,valid-type]
     """The plant with its index pulse in bit INPUT_INDEX of `hall_bits` (see the module doc)."""
 
-    _raw_hall = _Base.__dict__.get("hall_bits") or property(lambda s: s.__dict__["_hb"],
-                                                             lambda s, v: s.__dict__.__setitem__("_hb", v))
+    # the base's own hall_bits: the C struct's member descriptor, or a plain attribute in Python
+    _raw_hall = next((k.__dict__["hall_bits"] for k in _Base.__mro__ if "hall_bits" in k.__dict__),
+                     property(lambda s: s.__dict__["_hb"], lambda s, v: s.__dict__.__setitem__("_hb", v)))
 
     @property
     def hall_bits(self) -> int:
