@@ -1,0 +1,305 @@
+/* an1017_bridge.c: see an1017_bridge.h. */
+#include "an1017_bridge.h"
+
+/* Declared parameters (ids 0..7, the same table as hilbench/targets/an1017.py's PARAMS). */
+static const hbp_param_def_t param_defs[AN1017_N_PARAMS] = {
+    {"kp", 0, 32767, HBP_PTYPE_Q15, HBP_ACCESS_RW},
+    {"ki", 0, 32767, HBP_PTYPE_Q15, HBP_ACCESS_RW},
+    {"kd", 0, 32767, HBP_PTYPE_Q15, HBP_ACCESS_RW},
+    {"ph_adv_on", 0, 1, HBP_PTYPE_BOOL, HBP_ACCESS_RW},
+    {"ph_adv_deg", 0, 60, HBP_PTYPE_INT, HBP_ACCESS_RW},
+    {"ref_ovr_on", 0, 1, HBP_PTYPE_BOOL, HBP_ACCESS_RW},
+    {"ref_override", -32767 - 1, 32767, HBP_PTYPE_Q15, HBP_ACCESS_RW},
+    {"stall_ms", 10, 30000, HBP_PTYPE_INT, HBP_ACCESS_RW},
+};
+
+static uint8_t is_gain(uint8_t id)
+{
+    return (uint8_t)(id <= AN1017_PARAM_KD);
+}
+
+/* The note's PID constraints on the candidate gains, checked only when a gain is written. The
+ * offending id is the first written gain that takes part in the broken constraint. */
+static uint8_t check_gains(const struct hbp_params *params, const hbp_param_set_t *request, uint8_t *param_id,
+                           uint8_t *detail)
+{
+    uint8_t i;
+    uint8_t broken;
+    uint8_t first_gain = 0xFFu;
+    for (i = 0u; i < request->n_pairs; i++) {
+        if (is_gain(request->pairs[i].id) && first_gain == 0xFFu) {
+            first_gain = request->pairs[i].id;
+        }
+    }
+    if (first_gain == 0xFFu) {
+        return HBP_RESULT_OK;
+    }
+    broken = an1017_check_gains(hbp_param_candidate(params, request, AN1017_PARAM_KP),
+                                hbp_param_candidate(params, request, AN1017_PARAM_KI),
+                                hbp_param_candidate(params, request, AN1017_PARAM_KD));
+    if (broken == 0u) {
+        return HBP_RESULT_OK;
+    }
+    *param_id = first_gain;
+    for (i = 0u; i < request->n_pairs; i++) {
+        uint8_t id = request->pairs[i].id;
+        uint8_t involved = (uint8_t)((broken == 1u && is_gain(id)) ||
+                                     (broken == 2u && (id == AN1017_PARAM_KP || id == AN1017_PARAM_KD)) ||
+                                     (broken == 3u && id == AN1017_PARAM_KD));
+        if (involved) {
+            *param_id = id;
+            break;
+        }
+    }
+    *detail = broken;
+    return HBP_RESULT_CONSTRAINT;
+}
+
+static void params_of(an1017_bridge_t *b, hbp_params_t *p)
+{
+    uint8_t i;
+    for (i = 0u; i < AN1017_N_PARAMS; i++) {
+        b->values[i] = an1017_param_value(&b->fw, i);
+    }
+    p->defs = param_defs;
+    p->values = b->values;
+    p->count = AN1017_N_PARAMS;
+    p->check = check_gains;
+}
+
+void an1017_bridge_init(an1017_bridge_t *b, uint8_t variant)
+{
+    an1017_init(&b->fw, variant);
+    hbp_rx_init(&b->rx);
+    b->period_tcy = (uint32_t)AN1017_PERIOD_STEP_US * AN1017_TCY_PER_US;
+    b->last_sensors_tcy = 0u;
+    b->watchdog_ms = 0u;
+    b->watchdog_trips = 0u;
+    b->mode = HBP_MODE_LOCKSTEP;
+    b->have_sensors = 0u;
+    b->tripped = 0u;
+    b->last_error = HBP_ERROR_NONE;
+    b->last_seq = 0u;
+}
+
+static void send_frame(const uint8_t *frame, uint8_t len)
+{
+    uint8_t wire[HBP_MAX_WIRE];
+    uint8_t n = hbp_encode_frame(frame, len, wire);
+    if (n > 0u) {
+        an1017_port_send(wire, n);
+    }
+}
+
+static void send_error(an1017_bridge_t *b, uint8_t seq, uint8_t code, uint8_t detail)
+{
+    uint8_t frame[HBP_MAX_FRAME];
+    hbp_error_report_t e;
+    e.seq = seq;
+    e.code = code;
+    e.detail = detail;
+    b->last_error = code;
+    send_frame(frame, hbp_pack_error_report(&e, frame));
+}
+
+static void send_drive(an1017_bridge_t *b, uint8_t seq)
+{
+    uint8_t frame[HBP_MAX_FRAME];
+    an1017_out_t o;
+    hbp_drive_t d;
+    an1017_outputs(&b->fw, &o);
+    d.seq = seq;
+    d.duty_a = o.duty[0];
+    d.duty_b = o.duty[1];
+    d.duty_c = o.duty[2];
+    d.output_mode = o.output_mode;
+    d.state = o.state;
+    d.sector = o.sector;
+    d.direction_ccw = o.ccw;
+    d.required_ccw = o.req_ccw;
+    d.fault = o.fault;
+    d.n_telemetry = 3u;
+    d.telemetry[0] = o.telemetry[0];
+    d.telemetry[1] = o.telemetry[1];
+    d.telemetry[2] = o.telemetry[2];
+    send_frame(frame, hbp_pack_drive(&d, frame));
+}
+
+static void on_hello(an1017_bridge_t *b, const uint8_t *buf, uint8_t len, uint8_t seq)
+{
+    uint8_t frame[HBP_MAX_FRAME];
+    hbp_host_hello_t h;
+    hbp_target_hello_t t;
+    uint8_t i;
+    if (hbp_unpack_host_hello(buf, len, &h) != HBP_ERROR_NONE) {
+        send_error(b, seq, HBP_ERROR_LENGTH, buf[0]);
+        return;
+    }
+    if (hbp_check_hello(&h) != HBP_ERROR_NONE) {
+        send_error(b, seq, HBP_ERROR_VERSION, HBP_PROTOCOL_VERSION);
+        return;
+    }
+    if (h.period_us == 0u || h.period_us % AN1017_PERIOD_STEP_US != 0u ||
+        (h.mode != HBP_MODE_LOCKSTEP && h.mode != HBP_MODE_REALTIME)) {
+        send_error(b, seq, HBP_ERROR_BAD_REQUEST, 0u);
+        return;
+    }
+    b->period_tcy = (uint32_t)h.period_us * AN1017_TCY_PER_US;
+    b->mode = h.mode;
+    b->watchdog_ms = h.watchdog_ms;
+    b->have_sensors = 0u;
+    b->tripped = 0u;
+    t.seq = seq;
+    t.protocol_version = HBP_PROTOCOL_VERSION;
+    t.firmware_version = AN1017_FIRMWARE_VERSION;
+    t.pwm_period_counts = AN1017_DUTY_MAX;
+    t.pwm_freq_hz = AN1017_PWM_FREQ_HZ;
+    t.n_params = AN1017_N_PARAMS;
+    for (i = 0u; AN1017_FIRMWARE_NAME[i] != '\0'; i++) {
+        t.firmware_name[i] = AN1017_FIRMWARE_NAME[i];
+    }
+    t.firmware_name[i] = '\0';
+    t.n_adc_roles = 3u; /* AN2 pot, AN1 bus current, AN0 bus voltage: only the pot is used */
+    t.adc_roles[0] = HBP_ADC_POT;
+    t.adc_roles[1] = HBP_ADC_IBUS;
+    t.adc_roles[2] = HBP_ADC_VBUS;
+    t.n_telemetry_ids = 3u;
+    t.telemetry_ids[0] = HBP_TELEMETRY_REF_SPEED;
+    t.telemetry_ids[1] = HBP_TELEMETRY_MEASURED_SPEED;
+    t.telemetry_ids[2] = HBP_TELEMETRY_CONTROL_OUTPUT;
+    send_frame(frame, hbp_pack_target_hello(&t, frame));
+}
+
+static void on_sensors(an1017_bridge_t *b, const uint8_t *buf, uint8_t len, uint8_t seq)
+{
+    hbp_sensors_t s;
+    uint32_t span = b->period_tcy;
+    if (hbp_unpack_sensors(buf, len, &s) != HBP_ERROR_NONE) {
+        send_error(b, seq, HBP_ERROR_LENGTH, buf[0]);
+        return;
+    }
+    if (b->mode == HBP_MODE_REALTIME) {
+        uint32_t now = an1017_port_now_tcy();
+        if (b->have_sensors) {
+            span = now - b->last_sensors_tcy; /* the time that really passed */
+        }
+        b->last_sensors_tcy = now;
+        b->have_sensors = 1u;
+        b->tripped = 0u;
+    }
+    an1017_run(&b->fw, span, s.inputs, (uint8_t)(s.edge_time_100ns != HBP_EDGE_NONE),
+               (uint32_t)s.edge_time_100ns * 2u, (uint8_t)(s.n_adc > 0u), (s.n_adc > 0u) ? s.adc[0] : 0u);
+    b->last_seq = s.seq;
+    send_drive(b, s.seq);
+}
+
+static void on_params(an1017_bridge_t *b, const uint8_t *buf, uint8_t len, uint8_t seq)
+{
+    uint8_t frame[HBP_MAX_FRAME];
+    hbp_params_t p;
+    params_of(b, &p);
+    switch (buf[0]) {
+    case HBP_MSG_PARAM_DESCRIBE: {
+        hbp_param_describe_t q;
+        hbp_param_info_t info;
+        if (hbp_unpack_param_describe(buf, len, &q) != HBP_ERROR_NONE) {
+            send_error(b, seq, HBP_ERROR_LENGTH, buf[0]);
+        } else if (hbp_param_describe(&p, q.param_id, seq, &info) != HBP_RESULT_OK) {
+            send_error(b, seq, HBP_ERROR_UNKNOWN_PARAM, q.param_id);
+        } else {
+            send_frame(frame, hbp_pack_param_info(&info, frame));
+        }
+        break;
+    }
+    case HBP_MSG_PARAM_GET: {
+        hbp_param_get_t q;
+        hbp_param_value_t v;
+        if (hbp_unpack_param_get(buf, len, &q) != HBP_ERROR_NONE) {
+            send_error(b, seq, HBP_ERROR_LENGTH, buf[0]);
+        } else {
+            hbp_param_get(&p, q.param_id, seq, &v);
+            send_frame(frame, hbp_pack_param_value(&v, frame));
+        }
+        break;
+    }
+    default: { /* HBP_MSG_PARAM_SET: checked whole, applied all or nothing */
+        hbp_param_set_t q;
+        hbp_param_set_result_t r;
+        uint8_t i;
+        uint8_t gains = 0u;
+        if (hbp_unpack_param_set(buf, len, &q) != HBP_ERROR_NONE) {
+            send_error(b, seq, HBP_ERROR_LENGTH, buf[0]);
+            break;
+        }
+        hbp_param_set(&p, &q, seq, &r);
+        if (r.result == HBP_RESULT_OK) {
+            for (i = 0u; i < q.n_pairs; i++) {
+                gains = (uint8_t)(gains | is_gain(q.pairs[i].id));
+            }
+            an1017_apply_params(&b->fw, b->values, gains);
+            r.param_id = q.pairs[q.n_pairs - 1u].id; /* as the Python model answers */
+        }
+        send_frame(frame, hbp_pack_param_set_result(&r, frame));
+        break;
+    }
+    }
+}
+
+void an1017_bridge_handle(an1017_bridge_t *b, const uint8_t *frame, uint8_t len)
+{
+    uint8_t type = frame[0];
+    uint8_t seq = frame[1];
+    switch (type) {
+    case HBP_MSG_SENSORS:
+        on_sensors(b, frame, len, seq);
+        break;
+    case HBP_MSG_HOST_HELLO:
+        on_hello(b, frame, len, seq);
+        break;
+    case HBP_MSG_PARAM_DESCRIBE:
+    case HBP_MSG_PARAM_GET:
+    case HBP_MSG_PARAM_SET:
+        on_params(b, frame, len, seq);
+        break;
+    case HBP_MSG_START:
+        an1017_press_start(&b->fw); /* S2 as a command; no reply */
+        break;
+    case HBP_MSG_STOP:
+        if (b->fw.running || b->fw.booting) {
+            an1017_press_stop(&b->fw, AN1017_STATE_STOPPED, AN1017_FAULT_NONE);
+        }
+        break;
+    case HBP_MSG_STATUS_REQUEST: {
+        uint8_t out[HBP_MAX_FRAME];
+        hbp_status_t st;
+        hbp_rx_status(&b->rx, seq, b->watchdog_trips, &st);
+        if (b->last_error != HBP_ERROR_NONE) {
+            st.last_error = b->last_error;
+        }
+        send_frame(out, hbp_pack_status(&st, out));
+        break;
+    }
+    default:
+        send_error(b, seq, HBP_ERROR_BAD_REQUEST, 0u); /* a target -> host message */
+        break;
+    }
+}
+
+void an1017_bridge_poll(an1017_bridge_t *b)
+{
+    if (b->rx.ready) {
+        an1017_bridge_handle(b, b->rx.buf, b->rx.frame_len);
+        hbp_rx_release(&b->rx);
+    }
+    if (b->mode == HBP_MODE_REALTIME && b->watchdog_ms != 0u && b->have_sensors && !b->tripped) {
+        uint32_t quiet = an1017_port_now_tcy() - b->last_sensors_tcy;
+        if (quiet >= (uint32_t)b->watchdog_ms * 1000UL * AN1017_TCY_PER_US) {
+            /* frames stopped: StopMotor, state FAULT, fault WATCHDOG, one unsolicited Drive */
+            b->tripped = 1u;
+            b->watchdog_trips = (uint16_t)(b->watchdog_trips + 1u);
+            b->last_error = HBP_ERROR_WATCHDOG;
+            an1017_press_stop(&b->fw, AN1017_STATE_FAULT, AN1017_FAULT_WATCHDOG);
+            send_drive(b, b->last_seq);
+        }
+    }
+}
