@@ -136,11 +136,11 @@ class SilTarget:
     label: str
 
     @classmethod
-    def open(cls, variant: Variant = "seed", *, timeout_s: float = 2.0) -> "SilTarget":
+    def open(cls, variant: Variant = "seed", *, timeout_s: float = 2.0, exe: Path | None = None) -> "SilTarget":
         from hilbench.link import open_link
         from hilbench.targets.remote import RemoteTarget
 
-        exe = build_sil()  # before the pty exists: a build error leaves nothing to clean up
+        exe = exe or build_sil()  # before the pty exists: a build error leaves nothing to clean up
         link = open_link("pty", timeout_s=timeout_s)
         try:
             process = start_sil(link.peer_path, variant, exe=exe)
