@@ -82,29 +82,31 @@ void an1017_bridge_init(an1017_bridge_t *b, uint8_t variant)
     b->last_seq = 0u;
 }
 
-static void send_frame(const uint8_t *frame, uint8_t len)
+/* Encode and send the frame packed into b->tx (len 0: the pack function refused it). */
+static void send_frame(an1017_bridge_t *b, uint8_t len)
 {
-    uint8_t wire[HBP_MAX_WIRE];
-    uint8_t n = hbp_encode_frame(frame, len, wire);
+    uint8_t n;
+    if (len == 0u || len > AN1017_TX_FRAME_MAX) {
+        return;
+    }
+    n = hbp_encode_frame(b->tx, len, b->wire);
     if (n > 0u) {
-        an1017_port_send(wire, n);
+        an1017_port_send(b->wire, n);
     }
 }
 
 static void send_error(an1017_bridge_t *b, uint8_t seq, uint8_t code, uint8_t detail)
 {
-    uint8_t frame[HBP_MAX_FRAME];
     hbp_error_report_t e;
     e.seq = seq;
     e.code = code;
     e.detail = detail;
     b->last_error = code;
-    send_frame(frame, hbp_pack_error_report(&e, frame));
+    send_frame(b, hbp_pack_error_report(&e, b->tx));
 }
 
 static void send_drive(an1017_bridge_t *b, uint8_t seq)
 {
-    uint8_t frame[HBP_MAX_FRAME];
     an1017_out_t o;
     hbp_drive_t d;
     an1017_outputs(&b->fw, &o);
@@ -122,12 +124,11 @@ static void send_drive(an1017_bridge_t *b, uint8_t seq)
     d.telemetry[0] = o.telemetry[0];
     d.telemetry[1] = o.telemetry[1];
     d.telemetry[2] = o.telemetry[2];
-    send_frame(frame, hbp_pack_drive(&d, frame));
+    send_frame(b, hbp_pack_drive(&d, b->tx));
 }
 
 static void on_hello(an1017_bridge_t *b, const uint8_t *buf, uint8_t len, uint8_t seq)
 {
-    uint8_t frame[HBP_MAX_FRAME];
     hbp_host_hello_t h;
     hbp_target_hello_t t;
     uint8_t i;
@@ -167,7 +168,7 @@ static void on_hello(an1017_bridge_t *b, const uint8_t *buf, uint8_t len, uint8_
     t.telemetry_ids[0] = HBP_TELEMETRY_REF_SPEED;
     t.telemetry_ids[1] = HBP_TELEMETRY_MEASURED_SPEED;
     t.telemetry_ids[2] = HBP_TELEMETRY_CONTROL_OUTPUT;
-    send_frame(frame, hbp_pack_target_hello(&t, frame));
+    send_frame(b, hbp_pack_target_hello(&t, b->tx));
 }
 
 static void on_sensors(an1017_bridge_t *b, const uint8_t *buf, uint8_t len, uint8_t seq)
@@ -195,7 +196,6 @@ static void on_sensors(an1017_bridge_t *b, const uint8_t *buf, uint8_t len, uint
 
 static void on_params(an1017_bridge_t *b, const uint8_t *buf, uint8_t len, uint8_t seq)
 {
-    uint8_t frame[HBP_MAX_FRAME];
     hbp_params_t p;
     params_of(b, &p);
     switch (buf[0]) {
@@ -207,7 +207,7 @@ static void on_params(an1017_bridge_t *b, const uint8_t *buf, uint8_t len, uint8
         } else if (hbp_param_describe(&p, q.param_id, seq, &info) != HBP_RESULT_OK) {
             send_error(b, seq, HBP_ERROR_UNKNOWN_PARAM, q.param_id);
         } else {
-            send_frame(frame, hbp_pack_param_info(&info, frame));
+            send_frame(b, hbp_pack_param_info(&info, b->tx));
         }
         break;
     }
@@ -218,7 +218,7 @@ static void on_params(an1017_bridge_t *b, const uint8_t *buf, uint8_t len, uint8
             send_error(b, seq, HBP_ERROR_LENGTH, buf[0]);
         } else {
             hbp_param_get(&p, q.param_id, seq, &v);
-            send_frame(frame, hbp_pack_param_value(&v, frame));
+            send_frame(b, hbp_pack_param_value(&v, b->tx));
         }
         break;
     }
@@ -239,7 +239,7 @@ static void on_params(an1017_bridge_t *b, const uint8_t *buf, uint8_t len, uint8
             an1017_apply_params(&b->fw, b->values, gains);
             r.param_id = q.pairs[q.n_pairs - 1u].id; /* as the Python model answers */
         }
-        send_frame(frame, hbp_pack_param_set_result(&r, frame));
+        send_frame(b, hbp_pack_param_set_result(&r, b->tx));
         break;
     }
     }
@@ -270,13 +270,12 @@ void an1017_bridge_handle(an1017_bridge_t *b, const uint8_t *frame, uint8_t len)
         }
         break;
     case HBP_MSG_STATUS_REQUEST: {
-        uint8_t out[HBP_MAX_FRAME];
         hbp_status_t st;
         hbp_rx_status(&b->rx, seq, b->watchdog_trips, &st);
         if (b->last_error != HBP_ERROR_NONE) {
             st.last_error = b->last_error;
         }
-        send_frame(out, hbp_pack_status(&st, out));
+        send_frame(b, hbp_pack_status(&st, b->tx));
         break;
     }
     default:

@@ -23,6 +23,12 @@
 #define AN1017_FIRMWARE_VERSION 0x0101u /* v1.1 */
 #define AN1017_PWM_FREQ_HZ 20000UL
 #define AN1017_PERIOD_STEP_US 50u       /* the agreed period is a whole number of PWM periods */
+/* The largest frame this firmware sends (type..payload, before the CRC): TargetHello, 12 fixed +
+ * name (1 + 6) + ADC roles (1 + 3) + telemetry ids (3) = 26 bytes; ParamInfo of "ref_override",
+ * 11 + 12 = 23; Drive 8 + 6 = 14. One static transmit buffer of 32 bytes instead of HBP_MAX_FRAME
+ * (64) keeps RAM inside the dsPIC30F2010's 512 bytes; COBS adds 1 byte, CRC 2, the delimiter 1. */
+#define AN1017_TX_FRAME_MAX 32u
+#define AN1017_TX_WIRE_MAX (AN1017_TX_FRAME_MAX + 4u)
 
 /* ---- what a port provides ---- */
 /* Send wire bytes (a whole encoded frame, at most HBP_MAX_WIRE). */
@@ -43,6 +49,8 @@ typedef struct {
     uint8_t tripped;
     uint8_t last_error;              /* HBP_ERROR_* of the last ErrorReport or the watchdog */
     uint8_t last_seq;
+    uint8_t tx[AN1017_TX_FRAME_MAX];  /* the frame being sent (main-loop context only) */
+    uint8_t wire[AN1017_TX_WIRE_MAX]; /* its encoded bytes */
 } an1017_bridge_t;
 
 void an1017_bridge_init(an1017_bridge_t *b, uint8_t variant);
