@@ -21,6 +21,14 @@ from hilbench.protocol import EDGE_NONE, INPUT_S2, Sensors
 CW_HALLS = (0b100, 0b110, 0b010, 0b011, 0b001, 0b101)
 
 
+def require_file(path: str, package: str, why: str) -> None:
+    """Skip (or fail under HILBENCH_REQUIRE_TOOLS=1) when a file a package installs is missing."""
+    if not os.path.exists(path):
+        if os.environ.get("HILBENCH_REQUIRE_TOOLS") == "1":
+            pytest.fail(f"{path} ({package}) is required (HILBENCH_REQUIRE_TOOLS=1) for {why}")
+        pytest.skip(f"{package} not installed ({why})")
+
+
 def require_tool(name: str, why: str) -> str:
     """Path of a system tool; skip with a one-line reason, or fail under HILBENCH_REQUIRE_TOOLS=1."""
     path = shutil.which(name)
