@@ -337,7 +337,7 @@ void an1017_isr_hall(an1017_t *s, uint8_t which)
          * flush the rest of the 4-deep FIFO, so it is empty afterwards */
         s->past_capture = s->actual_capture;
         if (s->ic7_n > 0u) {
-            s->actual_capture = s->ic7_fifo[0];
+            s->actual_capture = s->ic7_first;
         }
         s->ic7_n = 0u;
     }
@@ -380,8 +380,12 @@ void an1017_apply_hall(an1017_t *s, uint8_t new_bits, uint32_t offset_tcy)
     uint8_t changed = (uint8_t)((s->hall ^ new_bits) & 7u);
     s->hall = (uint8_t)(new_bits & 7u);
     if ((changed & 2u) && s->ic7_n < 4u) {
-        /* IC7 captures every B edge into its 4-deep FIFO, interrupt enabled or not */
-        s->ic7_fifo[s->ic7_n++] = (uint16_t)(((s->tmr3_tcy + offset_tcy) & AN1017_TMR3_MASK) >> 6);
+        /* IC7 captures every B edge into its 4-deep FIFO, interrupt enabled or not; the ISR reads
+         * the oldest and flushes the others, so only the oldest is kept */
+        if (s->ic7_n == 0u) {
+            s->ic7_first = (uint16_t)(((s->tmr3_tcy + offset_tcy) & AN1017_TMR3_MASK) >> 6);
+        }
+        s->ic7_n++;
     }
     if (!s->running) {
         return;
@@ -421,7 +425,6 @@ static void pwm_boundary(an1017_t *s)
 void an1017_run(an1017_t *s, uint32_t duration_tcy, uint8_t inputs, uint8_t have_edge, uint32_t edge_offset_tcy,
                 uint8_t have_pot, uint16_t pot_code)
 {
-    uint32_t t = 0u;
     uint32_t next_boundary = (s->pwm_off_tcy == 0u) ? 0u : (uint32_t)(AN1017_PWM_PERIOD_TCY - s->pwm_off_tcy);
     uint8_t new_hall = (uint8_t)(inputs & 7u);
     uint8_t edge_pending = 0u;
@@ -456,7 +459,6 @@ void an1017_run(an1017_t *s, uint32_t duration_tcy, uint8_t inputs, uint8_t have
             pwm_boundary(s);
             next_boundary += AN1017_PWM_PERIOD_TCY;
         }
-        t = nxt;
         if (kind == EV_END) {
             break;
         }
@@ -465,11 +467,11 @@ void an1017_run(an1017_t *s, uint32_t duration_tcy, uint8_t inputs, uint8_t have
             an1017_isr_timer1(s);
         } else if (kind == EV_BOOT) {
             an1017_run_motor(s);
-            s->t1_at = t + AN1017_TIMER1_PERIOD_TCY; /* TMR1 = 0 */
-            s->tmr3_tcy = (uint32_t)(0u - t) & AN1017_TMR3_MASK; /* TMR3 = 0 at t */
+            s->t1_at = nxt + AN1017_TIMER1_PERIOD_TCY; /* TMR1 = 0 */
+            s->tmr3_tcy = (uint32_t)(0u - nxt) & AN1017_TMR3_MASK; /* TMR3 = 0 at this instant */
         } else {
             edge_pending = 0u;
-            an1017_apply_hall(s, new_hall, t);
+            an1017_apply_hall(s, new_hall, nxt);
         }
     }
     /* carry the time bases over to the next span */
@@ -480,17 +482,27 @@ void an1017_run(an1017_t *s, uint32_t duration_tcy, uint8_t inputs, uint8_t have
                                                                : AN1017_PWM_PERIOD_TCY - (next_boundary - duration_tcy));
 }
 
+uint16_t an1017_duty(const an1017_t *s, uint8_t phase)
+{
+    uint16_t d = s->pdc_active[phase];
+    return (d > AN1017_DUTY_MAX) ? (uint16_t)AN1017_DUTY_MAX : d;
+}
+
+uint8_t an1017_sector_reported(const an1017_t *s)
+{
+    uint16_t sec = s->running ? s->sector : sector_of(s->hall);
+    return (uint8_t)((sec == AN1017_SECTOR_INVALID) ? 7u : sec);
+}
+
 void an1017_outputs(const an1017_t *s, an1017_out_t *out)
 {
     uint8_t i;
-    uint16_t sec = s->running ? s->sector : sector_of(s->hall);
     for (i = 0u; i < 3u; i++) {
-        uint16_t d = s->pdc_active[i];
-        out->duty[i] = (d > AN1017_DUTY_MAX) ? AN1017_DUTY_MAX : d;
+        out->duty[i] = an1017_duty(s, i);
     }
     out->output_mode = s->output_mode;
     out->state = s->state;
-    out->sector = (uint8_t)((sec == AN1017_SECTOR_INVALID) ? 7u : sec);
+    out->sector = an1017_sector_reported(s);
     out->ccw = s->cur_ccw;
     out->req_ccw = s->req_ccw;
     out->fault = s->fault;

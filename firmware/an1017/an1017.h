@@ -101,8 +101,8 @@ typedef struct {
     uint16_t pdc_active[3];   /* latched at the period boundary (PWMCON2.IUE = 0) */
     /* virtual peripherals (the pins and timers under the bench) */
     uint8_t hall;             /* bit0 A (RB3/CN5), bit1 B (RB4/IC7), bit2 C (RB5/IC8) */
-    uint8_t ic7_n;            /* IC7 capture FIFO depth (4 on the chip) */
-    uint16_t ic7_fifo[4];
+    uint8_t ic7_n;            /* captures in the IC7 FIFO (4 deep on the chip) */
+    uint16_t ic7_first;       /* the oldest one: the only one the firmware reads (it flushes the rest) */
     uint16_t pot_code;        /* AN2, 10-bit code */
     uint16_t pwm_off_tcy;     /* Tcy since the last PWM period boundary */
     uint16_t pwm_index;       /* number of the next PWM boundary (mod 2^16) */
@@ -144,6 +144,8 @@ void an1017_run(an1017_t *s, uint32_t duration_tcy, uint8_t inputs, uint8_t have
 void an1017_apply_hall(an1017_t *s, uint8_t new_bits, uint32_t offset_tcy);
 
 void an1017_outputs(const an1017_t *s, an1017_out_t *out);
+uint16_t an1017_duty(const an1017_t *s, uint8_t phase);     /* PDC in effect, 0..1000 */
+uint8_t an1017_sector_reported(const an1017_t *s);          /* 0..5, 7 = invalid */
 
 /* ---- parameters ---- */
 int16_t an1017_param_value(const an1017_t *s, uint8_t id);   /* declared value (pending gains included) */

@@ -1,6 +1,14 @@
 /* an1017_bridge.c: see an1017_bridge.h. */
 #include "an1017_bridge.h"
 
+/* The rare requests (handshake, parameters) keep their message structs in their own frames, off
+ * the lockstep path's stack (GCC and XC16; other compilers may inline them). */
+#if defined(__GNUC__)
+#define AN1017_NOINLINE __attribute__((noinline))
+#else
+#define AN1017_NOINLINE
+#endif
+
 /* Declared parameters (ids 0..7, the same table as hilbench/targets/an1017.py's PARAMS). */
 static const hbp_param_def_t param_defs[AN1017_N_PARAMS] = {
     {"kp", 0, 32767, HBP_PTYPE_Q15, HBP_ACCESS_RW},
@@ -82,14 +90,20 @@ void an1017_bridge_init(an1017_bridge_t *b, uint8_t variant)
     b->last_seq = 0u;
 }
 
-/* Encode and send the frame packed into b->tx (len 0: the pack function refused it). */
+#define TX (&b->wire[1]) /* where a reply is packed */
+
+/* Encode in place and send the frame packed at b->wire[1] (len 0: the pack function refused it).
+ * In place is safe with hbp_encode_frame's single forward pass: it computes the CRC first, output
+ * byte i + 1 is input byte i (a data byte lands on itself) and a code byte goes to the position of
+ * a byte already read (or wire[0]); the CRC and the delimiter land after the frame. The SIL and AVR
+ * tests exercise every reply type through this path. */
 static void send_frame(an1017_bridge_t *b, uint8_t len)
 {
     uint8_t n;
     if (len == 0u || len > AN1017_TX_FRAME_MAX) {
         return;
     }
-    n = hbp_encode_frame(b->tx, len, b->wire);
+    n = hbp_encode_frame(TX, len, b->wire);
     if (n > 0u) {
         an1017_port_send(b->wire, n);
     }
@@ -102,32 +116,30 @@ static void send_error(an1017_bridge_t *b, uint8_t seq, uint8_t code, uint8_t de
     e.code = code;
     e.detail = detail;
     b->last_error = code;
-    send_frame(b, hbp_pack_error_report(&e, b->tx));
+    send_frame(b, hbp_pack_error_report(&e, TX));
 }
 
-static void send_drive(an1017_bridge_t *b, uint8_t seq)
+void an1017_bridge_send_drive(an1017_bridge_t *b, uint8_t seq)
 {
-    an1017_out_t o;
     hbp_drive_t d;
-    an1017_outputs(&b->fw, &o);
     d.seq = seq;
-    d.duty_a = o.duty[0];
-    d.duty_b = o.duty[1];
-    d.duty_c = o.duty[2];
-    d.output_mode = o.output_mode;
-    d.state = o.state;
-    d.sector = o.sector;
-    d.direction_ccw = o.ccw;
-    d.required_ccw = o.req_ccw;
-    d.fault = o.fault;
+    d.duty_a = an1017_duty(&b->fw, 0u);
+    d.duty_b = an1017_duty(&b->fw, 1u);
+    d.duty_c = an1017_duty(&b->fw, 2u);
+    d.output_mode = b->fw.output_mode;
+    d.state = b->fw.state;
+    d.sector = an1017_sector_reported(&b->fw);
+    d.direction_ccw = b->fw.cur_ccw;
+    d.required_ccw = b->fw.req_ccw;
+    d.fault = b->fw.fault;
     d.n_telemetry = 3u;
-    d.telemetry[0] = o.telemetry[0];
-    d.telemetry[1] = o.telemetry[1];
-    d.telemetry[2] = o.telemetry[2];
-    send_frame(b, hbp_pack_drive(&d, b->tx));
+    d.telemetry[0] = b->fw.ref_speed;
+    d.telemetry[1] = b->fw.measured_speed;
+    d.telemetry[2] = b->fw.control_output;
+    send_frame(b, hbp_pack_drive(&d, TX));
 }
 
-static void on_hello(an1017_bridge_t *b, const uint8_t *buf, uint8_t len, uint8_t seq)
+static AN1017_NOINLINE void on_hello(an1017_bridge_t *b, const uint8_t *buf, uint8_t len, uint8_t seq)
 {
     hbp_host_hello_t h;
     hbp_target_hello_t t;
@@ -168,10 +180,10 @@ static void on_hello(an1017_bridge_t *b, const uint8_t *buf, uint8_t len, uint8_
     t.telemetry_ids[0] = HBP_TELEMETRY_REF_SPEED;
     t.telemetry_ids[1] = HBP_TELEMETRY_MEASURED_SPEED;
     t.telemetry_ids[2] = HBP_TELEMETRY_CONTROL_OUTPUT;
-    send_frame(b, hbp_pack_target_hello(&t, b->tx));
+    send_frame(b, hbp_pack_target_hello(&t, TX));
 }
 
-static void on_sensors(an1017_bridge_t *b, const uint8_t *buf, uint8_t len, uint8_t seq)
+static AN1017_NOINLINE void on_sensors(an1017_bridge_t *b, const uint8_t *buf, uint8_t len, uint8_t seq)
 {
     hbp_sensors_t s;
     uint32_t span = b->period_tcy;
@@ -191,10 +203,10 @@ static void on_sensors(an1017_bridge_t *b, const uint8_t *buf, uint8_t len, uint
     an1017_run(&b->fw, span, s.inputs, (uint8_t)(s.edge_time_100ns != HBP_EDGE_NONE),
                (uint32_t)s.edge_time_100ns * 2u, (uint8_t)(s.n_adc > 0u), (s.n_adc > 0u) ? s.adc[0] : 0u);
     b->last_seq = s.seq;
-    send_drive(b, s.seq);
+    an1017_bridge_send_drive(b, s.seq);
 }
 
-static void on_params(an1017_bridge_t *b, const uint8_t *buf, uint8_t len, uint8_t seq)
+static AN1017_NOINLINE void on_params(an1017_bridge_t *b, const uint8_t *buf, uint8_t len, uint8_t seq)
 {
     hbp_params_t p;
     params_of(b, &p);
@@ -207,7 +219,7 @@ static void on_params(an1017_bridge_t *b, const uint8_t *buf, uint8_t len, uint8
         } else if (hbp_param_describe(&p, q.param_id, seq, &info) != HBP_RESULT_OK) {
             send_error(b, seq, HBP_ERROR_UNKNOWN_PARAM, q.param_id);
         } else {
-            send_frame(b, hbp_pack_param_info(&info, b->tx));
+            send_frame(b, hbp_pack_param_info(&info, TX));
         }
         break;
     }
@@ -218,7 +230,7 @@ static void on_params(an1017_bridge_t *b, const uint8_t *buf, uint8_t len, uint8
             send_error(b, seq, HBP_ERROR_LENGTH, buf[0]);
         } else {
             hbp_param_get(&p, q.param_id, seq, &v);
-            send_frame(b, hbp_pack_param_value(&v, b->tx));
+            send_frame(b, hbp_pack_param_value(&v, TX));
         }
         break;
     }
@@ -236,10 +248,12 @@ static void on_params(an1017_bridge_t *b, const uint8_t *buf, uint8_t len, uint8
             for (i = 0u; i < q.n_pairs; i++) {
                 gains = (uint8_t)(gains | is_gain(q.pairs[i].id));
             }
+            an1017_port_lock();
             an1017_apply_params(&b->fw, b->values, gains);
+            an1017_port_unlock();
             r.param_id = q.pairs[q.n_pairs - 1u].id; /* as the Python model answers */
         }
-        send_frame(b, hbp_pack_param_set_result(&r, b->tx));
+        send_frame(b, hbp_pack_param_set_result(&r, TX));
         break;
     }
     }
@@ -262,12 +276,16 @@ void an1017_bridge_handle(an1017_bridge_t *b, const uint8_t *frame, uint8_t len)
         on_params(b, frame, len, seq);
         break;
     case HBP_MSG_START:
+        an1017_port_lock();
         an1017_press_start(&b->fw); /* S2 as a command; no reply */
+        an1017_port_unlock();
         break;
     case HBP_MSG_STOP:
+        an1017_port_lock();
         if (b->fw.running || b->fw.booting) {
             an1017_press_stop(&b->fw, AN1017_STATE_STOPPED, AN1017_FAULT_NONE);
         }
+        an1017_port_unlock();
         break;
     case HBP_MSG_STATUS_REQUEST: {
         hbp_status_t st;
@@ -275,7 +293,7 @@ void an1017_bridge_handle(an1017_bridge_t *b, const uint8_t *frame, uint8_t len)
         if (b->last_error != HBP_ERROR_NONE) {
             st.last_error = b->last_error;
         }
-        send_frame(b, hbp_pack_status(&st, b->tx));
+        send_frame(b, hbp_pack_status(&st, TX));
         break;
     }
     default:
@@ -297,8 +315,10 @@ void an1017_bridge_poll(an1017_bridge_t *b)
             b->tripped = 1u;
             b->watchdog_trips = (uint16_t)(b->watchdog_trips + 1u);
             b->last_error = HBP_ERROR_WATCHDOG;
+            an1017_port_lock();
             an1017_press_stop(&b->fw, AN1017_STATE_FAULT, AN1017_FAULT_WATCHDOG);
-            send_drive(b, b->last_seq);
+            an1017_port_unlock();
+            an1017_bridge_send_drive(b, b->last_seq);
         }
     }
 }

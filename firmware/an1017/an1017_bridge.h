@@ -25,8 +25,10 @@
 #define AN1017_PERIOD_STEP_US 50u       /* the agreed period is a whole number of PWM periods */
 /* The largest frame this firmware sends (type..payload, before the CRC): TargetHello, 12 fixed +
  * name (1 + 6) + ADC roles (1 + 3) + telemetry ids (3) = 26 bytes; ParamInfo of "ref_override",
- * 11 + 12 = 23; Drive 8 + 6 = 14. One static transmit buffer of 32 bytes instead of HBP_MAX_FRAME
- * (64) keeps RAM inside the dsPIC30F2010's 512 bytes; COBS adds 1 byte, CRC 2, the delimiter 1. */
+ * 11 + 12 = 23; Drive 8 + 6 = 14. One static transmit buffer of 32 + 4 bytes (COBS code byte, CRC 2,
+ * delimiter) instead of a frame and a wire buffer of HBP_MAX_FRAME keeps RAM inside the
+ * dsPIC30F2010's 512 bytes: messages are packed at wire[1] and COBS-encoded in place (see
+ * send_frame). */
 #define AN1017_TX_FRAME_MAX 32u
 #define AN1017_TX_WIRE_MAX (AN1017_TX_FRAME_MAX + 4u)
 
@@ -35,6 +37,10 @@
 void an1017_port_send(const uint8_t *wire, uint8_t len);
 /* A free-running count of Tcy (50 ns), wrapping at 2^32 (real-time mode and the watchdog only). */
 uint32_t an1017_port_now_tcy(void);
+/* Hold off / let in again the interrupts that run ISR bodies (a port whose hardware interrupts run
+ * them in real time); the bridge brackets every change it makes to the firmware's state. */
+void an1017_port_lock(void);
+void an1017_port_unlock(void);
 
 typedef struct {
     an1017_t fw;
@@ -49,13 +55,14 @@ typedef struct {
     uint8_t tripped;
     uint8_t last_error;              /* HBP_ERROR_* of the last ErrorReport or the watchdog */
     uint8_t last_seq;
-    uint8_t tx[AN1017_TX_FRAME_MAX];  /* the frame being sent (main-loop context only) */
-    uint8_t wire[AN1017_TX_WIRE_MAX]; /* its encoded bytes */
+    uint8_t wire[AN1017_TX_WIRE_MAX]; /* the frame being sent, packed at wire[1], encoded in place */
 } an1017_bridge_t;
 
 void an1017_bridge_init(an1017_bridge_t *b, uint8_t variant);
 /* Handle the frame waiting in b->rx, if any, and release it; check the watchdog (real time). */
 void an1017_bridge_poll(an1017_bridge_t *b);
+/* Send the Drive of the firmware's present state (a port whose own interrupts run the ISR bodies). */
+void an1017_bridge_send_drive(an1017_bridge_t *b, uint8_t seq);
 /* Handle one frame (type, seq, payload; CRC stripped) and send its reply, if it has one. */
 void an1017_bridge_handle(an1017_bridge_t *b, const uint8_t *frame, uint8_t len);
 

@@ -41,6 +41,15 @@ void an1017_port_send(const uint8_t *wire, uint8_t len)
     }
 }
 
+void an1017_port_lock(void)
+{
+    /* only the UART RX interrupt runs, and it touches no firmware state */
+}
+
+void an1017_port_unlock(void)
+{
+}
+
 uint32_t an1017_port_now_tcy(void)
 {
     uint16_t high;

@@ -54,6 +54,15 @@ void an1017_port_send(const uint8_t *wire, uint8_t len)
     out_len += len;
 }
 
+void an1017_port_lock(void)
+{
+    /* one thread, no interrupts: nothing to hold off */
+}
+
+void an1017_port_unlock(void)
+{
+}
+
 uint32_t an1017_port_now_tcy(void)
 {
     struct timespec ts;
