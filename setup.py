@@ -1,5 +1,5 @@
 """Build hook for the optional compiled cores: the plant (hilbench/plant/_plantcore.c) and the
-AN1017 firmware model (hilbench/targets/_an1017core.c).
+AN1017 firmware model (hilbench/targets/an1017/_core.c).
 
 All metadata is in pyproject.toml. The extension is `optional`: without a C compiler
 `pip install .` still succeeds and hilbench.plant falls back to its pure-Python step
@@ -25,8 +25,8 @@ setup(
             optional=True,
         ),
         Extension(
-            "hilbench.targets._an1017core",
-            sources=["hilbench/targets/_an1017core.c"],
+            "hilbench.targets.an1017._core",
+            sources=["hilbench/targets/an1017/_core.c"],
             extra_compile_args=_flags,
             optional=True,
         ),

@@ -24,7 +24,7 @@ import time
 from typing import Callable
 
 from hilbench.protocol import PROTOCOL_VERSION, Drive, HostHello, Sensors
-from hilbench.targets.an1017 import An1017Target, available_backends
+from hilbench.targets.an1017.target import An1017Target, available_backends
 
 HALL_OF_SECTOR = (0b100, 0b110, 0b010, 0b011, 0b001, 0b101)
 SIM_S = 1.0

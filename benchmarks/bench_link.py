@@ -28,7 +28,7 @@ from typing import Iterator, NamedTuple
 from hilbench.bench.linktest import _Spawned, sensors_for_period
 from hilbench.link import open_pty_pair
 from hilbench.protocol import MODE_LOCKSTEP, encode_frame
-from hilbench.targets.loopback import LoopbackTarget
+from hilbench.targets.loopback.target import LoopbackTarget
 from hilbench.targets.remote import RemoteTarget
 
 REPO = Path(__file__).resolve().parent.parent

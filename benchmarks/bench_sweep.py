@@ -20,7 +20,7 @@ from hilbench.bench.metrics import step_metrics
 from hilbench.bench.session import Session, SessionOptions
 from hilbench.bench.sweep import best_fragment, grid_values, run_step_batch, step_scenario, sweep_grid
 from hilbench.config import load_config, plant_from_config
-from hilbench.targets.an1017 import An1017Target
+from hilbench.targets.an1017.target import An1017Target
 from hilbench.targets.profiles import AN1017_PROFILE
 
 DEFAULT_GAINS = (0.1, 0.01, 0.0)

@@ -39,16 +39,42 @@ def cli() -> None:
     """hilbench: hardware-in-the-loop bench for PMSM motor-control firmware.
 
     A host-side plant (PMSM, inverter, hall/encoder/ADC sensors, load) exchanges sensor values
-    and PWM duties with a target every period: a dsPIC30F2010 running AN1017 on a serial port,
-    or the included emulator of that firmware on a virtual serial pair.
+    and PWM duties with a target every period: a board on a serial port running firmware built
+    with hilbench's protocol library, or an emulator of that firmware on a virtual serial pair.
 
     \b
     Start here:
-      hilbench run                      the default bench: AN1017 emulator + Hurst motor
+      hilbench run                      the default bench (emulator process + the Hurst motor)
+      hilbench targets                  the targets this installation knows
       hilbench link-test                round trips against the loopback target on a pty
       hilbench ports                    list serial ports
-      hilbench emulate an1017           serve the emulated firmware on a virtual serial pair
+      hilbench emulate                  serve the default firmware's emulator on a virtual serial pair
     """
+
+
+def _default_target_name() -> str:
+    from hilbench.targets import DEFAULT_TARGET
+
+    return DEFAULT_TARGET.partition(":")[2]
+
+
+@cli.command()
+@_friendly
+def targets() -> None:
+    """List the registered targets (built in, and from installed plug-ins) with what they offer."""
+    from rich.console import Console
+    from rich.table import Table
+
+    from hilbench.targets import get_profile, known_targets
+
+    table = Table(title="targets (use as inprocess:NAME or emulator:NAME)")
+    for column in ("name", "firmware", "tunable", "reference", "telemetry", "description"):
+        table.add_column(column)
+    for name in known_targets():
+        p = get_profile(name)
+        table.add_row(name, p.firmware_name, " ".join(p.tunable) or "—", p.reference.kind if p.reference else "—",
+                      " ".join(c.column for c in p.telemetry) or "—", p.description)
+    Console().print(table)
 
 
 @cli.command()
@@ -69,14 +95,14 @@ def ports() -> None:
     if found:
         console.print(table)
     else:
-        console.print("no serial ports found (a virtual pair: `hilbench emulate an1017 --port pty`)")
+        console.print("no serial ports found (a virtual pair: `hilbench emulate --port pty`)")
 
 
 _MODES = {"auto": None, "lockstep": 0, "realtime": 1}
 
 
 @cli.command()
-@click.argument("target", default="an1017")
+@click.argument("target", default=None, required=False)
 @click.option("--port", "port_spec", default="pty", show_default=True,
               help="`pty` makes a virtual serial pair and prints the path to connect to; "
                    "or a tty PATH / serial:PATH?baud=N to serve on.")
@@ -84,12 +110,14 @@ _MODES = {"auto": None, "lockstep": 0, "realtime": 1}
               help="auto follows the host's handshake; lockstep/realtime refuse a host asking otherwise.")
 @click.option("--watchdog-ms", type=click.IntRange(0, 65535), default=None,
               help="Override the host's watchdog time in real-time mode (0 disables it).")
-@click.option("--variant", type=click.Choice(["seed", "v11"]), default=None,
-              help="AN1017 only: the seed document's behaviour (default) or the v1.1 source's.")
+@click.option("--option", "-o", "options", multiple=True, metavar="KEY=VALUE",
+              help="A [target] option of TARGET, e.g. -o variant=v11 (see the target's config docs).")
 @click.option("--quiet", "-q", is_flag=True, help="Log only warnings and errors.")
 @_friendly
-def emulate(target: str, port_spec: str, mode: str, watchdog_ms: int | None, variant: str | None, quiet: bool) -> None:
-    """Serve an emulated TARGET (an1017, loopback) on a virtual serial pair or a tty.
+def emulate(target: str | None, port_spec: str, mode: str, watchdog_ms: int | None, options: tuple[str, ...],
+            quiet: bool) -> None:
+    """Serve an emulated TARGET (default: the default target; `hilbench targets` lists them) on a
+    virtual serial pair or a tty.
 
     The first line on stdout is the path the host opens, e.g.
     `hilbench link-test serial:/dev/pts/5`. Serves until the host hangs up or Ctrl-C.
@@ -105,7 +133,18 @@ def emulate(target: str, port_spec: str, mode: str, watchdog_ms: int | None, var
         click.echo(path)
         sys.stdout.flush()
 
-    options = {"variant": variant} if variant is not None else {}
+    import tomllib
+
+    values: dict[str, object] = {}
+    for word in options:
+        key, sep, text = word.partition("=")
+        if not sep:
+            raise ConfigError(f"--option {word!r}: expected KEY=VALUE, e.g. variant=v11")
+        try:
+            values[key.strip()] = tomllib.loads(f"v = {text}")["v"]
+        except tomllib.TOMLDecodeError:
+            values[key.strip()] = text
+    target = target or _default_target_name()
     report = serve_on_port(target, port_spec, _MODES[mode], options, watchdog_ms=watchdog_ms, announce=announce)
     logging.getLogger("hilbench.serve").info(
         "served %d periods and %d requests; %s", report.sensors, report.requests, report.reason or "done"
@@ -164,8 +203,9 @@ def link_test(target: str, periods: int, period_us: int, timeout_ms: int) -> Non
 @cli.command(context_settings={"show_default": True})
 @click.argument("config", required=False, type=click.Path(dir_okay=False))
 @click.option("--target", "target_spec", default=None, metavar="SPEC",
-              help="emulator:an1017 (default: the emulator process on a virtual serial pair), "
-                   "emulator:loopback, inprocess:an1017, or a board: serial:/dev/ttyUSB0?baud=250000.")
+              help="emulator:NAME (the default: its own process on a virtual serial pair), inprocess:NAME, "
+                   "a board: serial:/dev/ttyUSB0?baud=250000, or a pyserial URL (socket://HOST:PORT, rfc2217://...). "
+                   "`hilbench targets` lists the NAMEs.")
 @click.option("--mode", type=click.Choice(["lockstep", "realtime"]), default=None,
               help="lockstep: the host is the clock (deterministic); realtime: periods paced to the wall clock (idle CPUs kept awake while it runs when allowed: link.cpu_latency_qos).")
 @click.option("--duration", "duration_s", type=click.FloatRange(min=0, min_open=True), default=None,
@@ -175,7 +215,7 @@ def link_test(target: str, periods: int, period_us: int, timeout_ms: int) -> Non
 @click.option("--set", "overrides", multiple=True, metavar="TABLE.KEY=VALUE",
               help="Override one config value, e.g. --set target.kp=0.2 --set link.period_us=100.")
 @click.option("--gains-file", type=click.Path(dir_okay=False), default=None, metavar="FILE",
-              help="Start with the gains saved by `hilbench ctl save` or `hilbench sweep --save`.")
+              help="Start with the parameters saved by `hilbench ctl save` or `hilbench sweep --save`.")
 @click.option("--no-ui", is_flag=True, help="No live dashboard; print a plain summary at the end.")
 @click.option("--json", "as_json", is_flag=True, help="Print the summary as JSON (implies --no-ui).")
 @click.option("--no-control", is_flag=True, help="Do not open the control socket for `hilbench ctl`.")
@@ -185,8 +225,8 @@ def run(config: str | None, target_spec: str | None, mode: str | None, duration_
         no_control: bool) -> None:
     """Run a bench session: target + plant + scenario, live, recorded.
 
-    With no arguments: the AN1017 emulator as its own process on a virtual serial pair, the Hurst
-    DMB0224C10002 on the MCLV board, and the default scenario (S2, ramp to 1500 rpm, step to 2500,
+    With no arguments: the default target's emulator as its own process on a virtual serial pair,
+    the Hurst DMB0224C10002 on the MCLV board, and the default scenario (S2, ramp to 1500 rpm, step to 2500,
     reverse to -1500, stop), lockstep at 20 kHz, with the live dashboard and a summary at the end.
 
     \b
@@ -204,9 +244,9 @@ def run(config: str | None, target_spec: str | None, mode: str | None, duration_
     from hilbench.bench.run import RunRequest, check_overrides, load_run_config, run_bench
     from hilbench.ui.dashboard import Dashboard, summary_table, summary_text
 
-    from hilbench.bench.settings import gains_file_overrides
+    from hilbench.bench.settings import params_file_overrides
 
-    extra = gains_file_overrides(gains_file) if gains_file else ()
+    extra = params_file_overrides(gains_file) if gains_file else ()
     request = RunRequest(config, check_overrides(overrides) + extra, target_spec, mode, duration_s, record)
     cfg = load_run_config(request)
     control = None
@@ -316,12 +356,12 @@ def ctl(words: tuple[str, ...], socket_path: str | None, timeout_s: float) -> No
     request = parse_ctl_args(list(words))
     client = ControlClient(socket_path, timeout_s=timeout_s)
     if request["cmd"] == "save":  # the file is written here, where the user is, from the session's values
-        from hilbench.bench.tuning import gains_fragment
+        from hilbench.bench.tuning import saved_fragment
 
         reply = client.request({"cmd": "get"}, timeout_s=timeout_s)
         if not reply.get("ok"):
             raise TargetError(str(reply.get("message", "refused")))
-        text = gains_fragment(reply["data"]["params"])
+        text = saved_fragment(reply["data"])
         try:
             with open(request["file"], "w", encoding="utf-8") as handle:
                 handle.write(text)
@@ -341,10 +381,12 @@ def ctl(words: tuple[str, ...], socket_path: str | None, timeout_s: float) -> No
 @click.argument("config", required=False, type=click.Path(dir_okay=False))
 @click.option("--from", "from_rpm", type=float, default=1000.0, help="Speed before the step, rpm (0: start from rest).")
 @click.option("--to", "to_rpm", type=float, default=2000.0, help="Speed after the step, rpm (negative: reverse).")
-@click.option("--gains", "gains", multiple=True, metavar="KP,KI,KD",
-              help="A gain set (Q15 fractions); repeat to compare several. Default: the firmware's own.")
-@click.option("--target", "target_spec", default="inprocess:an1017", metavar="SPEC",
-              help="inprocess:an1017 (fast), emulator:an1017 (its own process on a pty) or a board's serial port.")
+@click.option("--gains", "gains", multiple=True, metavar="V1,V2,...|NAME=V,...",
+              help="A set of the target's tunable parameters (in their order, or by name); repeat to compare "
+                   "several. Default: the firmware's own.")
+@click.option("--target", "target_spec", default=None, metavar="SPEC",
+              help="Default: the configured target's in-process model (fast); emulator:NAME (its own process "
+                   "on a pty) or a board's serial port.")
 @click.option("--settle", "settle_s", type=float, default=0.5, help="Seconds at --from before the step.")
 @click.option("--after", "after_s", type=float, default=0.5, help="Seconds recorded after the step (0.5 + 0.5 s: the same test as `hilbench sweep`).")
 @click.option("--set", "overrides", multiple=True, metavar="TABLE.KEY=VALUE", help="Override a config value.")
@@ -354,7 +396,7 @@ def ctl(words: tuple[str, ...], socket_path: str | None, timeout_s: float) -> No
               help="Write the metrics of every gain set as CSV.")
 @click.option("--json", "as_json", is_flag=True, help="Print the metrics as JSON.")
 @_friendly
-def step(config: str | None, from_rpm: float, to_rpm: float, gains: tuple[str, ...], target_spec: str,
+def step(config: str | None, from_rpm: float, to_rpm: float, gains: tuple[str, ...], target_spec: str | None,
          settle_s: float, after_s: float, overrides: tuple[str, ...], plot_file: str | None,
          csv_file: str | None, as_json: bool) -> None:
     """Run a speed step and measure it: rise (10-90 %), overshoot, settling (2 %), steady-state
@@ -364,7 +406,7 @@ def step(config: str | None, from_rpm: float, to_rpm: float, gains: tuple[str, .
     Examples:
       hilbench step --from 1000 --to 2000
       hilbench step --gains 0.1,0.01,0 --gains 0.2,0.02,0 --plot steps.png
-      hilbench step --from 1500 --to -1500 --target emulator:an1017
+      hilbench step --gains kp=0.2,ki=0.02 --from 1500 --to -1500
     """
     import json as json_module
     from pathlib import Path
@@ -374,12 +416,17 @@ def step(config: str | None, from_rpm: float, to_rpm: float, gains: tuple[str, .
     from rich.table import Table
 
     from hilbench.bench.metrics import METRIC_COLUMNS, compare_table
-    from hilbench.bench.run import RunRequest, check_overrides, load_run_config, run_step_tests
-    from hilbench.bench.steptest import StepTest, parse_gain_sets, result_row
+    from hilbench.bench.run import RunRequest, check_overrides, in_process, load_run_config, run_step_tests, settings_profile
+    from hilbench.bench.steptest import StepTest, parse_gain_sets, require_speed_loop, result_row
 
     test = StepTest(from_rpm, to_rpm, settle_s, after_s)
-    sets = parse_gain_sets(gains)
     cfg = load_run_config(RunRequest(config, check_overrides(overrides), target_spec, "lockstep"))
+    if target_spec is None:
+        cfg = in_process(cfg)
+    profile = settings_profile(cfg)
+    require_speed_loop(profile, "step")
+    sets = parse_gain_sets(gains, profile.tunable)
+    target_spec = cfg.link.target
     console = Console(stderr=True)
     with Progress(console=console, transient=True) as progress:
         task = progress.add_task("step tests", total=max(1, len(sets)))
@@ -441,9 +488,11 @@ def step_table(rows, title: str, sort_by: str | None = None):  # type: ignore[no
 
 @cli.command(context_settings={"show_default": True})
 @click.argument("config", required=False, type=click.Path(dir_okay=False))
-@click.option("--kp", "kp_spec", default="0.05:0.85:10", metavar="A:B:N", help="Kp grid: N values from A to B (or a single value).")
-@click.option("--ki", "ki_spec", default="0.005:0.12:10", metavar="A:B:N", help="Ki grid.")
-@click.option("--kd", "kd_spec", default="0", metavar="A:B:N", help="Kd grid.")
+@click.option("--param", "-p", "axes", multiple=True, metavar="NAME=A:B:N",
+              help="A grid axis: N values of parameter NAME from A to B (or NAME=V). Repeat per parameter; "
+                   "default: the target's own default grid (`hilbench targets`).")
+@click.option("--workers", type=click.IntRange(min=1), default=None,
+              help="Processes running step tests (default: one per core; 1: in this process).")
 @click.option("--metric", type=click.Choice(["itae", "iae", "settling_time_s", "rise_time_s", "overshoot_pct", "ss_error"]),
               default="itae", help="What ranks the gain sets (smaller is better).")
 @click.option("--from", "from_rpm", type=float, default=1000.0, help="Speed before the step, rpm.")
@@ -457,18 +506,20 @@ def step_table(rows, title: str, sort_by: str | None = None):  # type: ignore[no
 @click.option("--set", "overrides", multiple=True, metavar="TABLE.KEY=VALUE", help="Override a config value.")
 @click.option("--json", "as_json", is_flag=True, help="Print the ranked results as JSON.")
 @_friendly
-def sweep(config: str | None, kp_spec: str, ki_spec: str, kd_spec: str, metric: str, from_rpm: float,
+def sweep(config: str | None, axes: tuple[str, ...], workers: int | None, metric: str, from_rpm: float,
           to_rpm: float, duration_s: float, step_at_s: float, csv_file: str | None, save_file: str | None,
           top: int, overrides: tuple[str, ...], as_json: bool) -> None:
-    """Find gains offline: a grid of speed-step tests on the AN1017 emulator (batched), ranked.
+    """Find gains offline: a grid of speed-step tests on the configured target's in-process model,
+    run on every core, ranked.
 
-    Gain sets that break the AN1017 constraints (Kp+Ki+Kd < 0.9999, -Kp-2Kd > -1, Kd < 0.9999) are
-    skipped and counted, not simulated. Every point can go to a CSV; the best to a config fragment.
+    Points that break the firmware's own constraints (its profile states them; the default
+    target's are Kp+Ki+Kd < 0.9999, -Kp-2Kd > -1, Kd < 0.9999) are skipped and counted, not
+    simulated. Every point can go to a CSV; the best to a config fragment.
 
     \b
     Examples:
       hilbench sweep
-      hilbench sweep --kp 0.1:0.9:9 --ki 0.01:0.2:8 --metric settling_time_s --save best.toml
+      hilbench sweep -p kp=0.1:0.9:9 -p ki=0.01:0.2:8 -p kd=0 --metric settling_time_s --save best.toml
     """
     import json as json_module
     import time
@@ -476,20 +527,21 @@ def sweep(config: str | None, kp_spec: str, ki_spec: str, kd_spec: str, metric: 
     from rich.console import Console
     from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn
 
-    from hilbench.bench.run import RunRequest, check_overrides, load_run_config
-    from hilbench.bench.sweep import best_fragment, parse_grid_spec, sweep_grid, write_sweep_csv
+    from hilbench.bench.run import RunRequest, check_overrides, load_run_config, settings_profile
+    from hilbench.bench.steptest import StepTest
+    from hilbench.bench.sweep import best_fragment, parse_axis, sweep_grid, write_sweep_csv
 
-    kp = parse_grid_spec(kp_spec, "--kp")
-    ki = parse_grid_spec(ki_spec, "--ki")
-    kd = parse_grid_spec(kd_spec, "--kd")
     cfg = load_run_config(RunRequest(config, check_overrides(overrides)))
+    profile = settings_profile(cfg)
+    grid = [parse_axis(word) for word in (axes or tuple(f"{n}={g}" for n, g in profile.sweep_defaults))]
+    test = StepTest(from_rpm, to_rpm, step_at_s, duration_s - step_at_s)
     console = Console(stderr=True)
     started = time.perf_counter()
     with Progress(TextColumn("[bold]sweep"), BarColumn(), TextColumn("{task.completed}/{task.total} gain sets"),
                   TimeElapsedColumn(), console=console, transient=True) as progress:
         task = progress.add_task("sweep", total=None)
-        result = sweep_grid(cfg, kp, ki, kd, metric, from_rpm=from_rpm, to_rpm=to_rpm, duration_s=duration_s,
-                            step_at_s=step_at_s, progress=lambda done, total: progress.update(task, completed=done, total=total))
+        result = sweep_grid(cfg, grid, test, metric, workers=workers,
+                            progress=lambda done, total: progress.update(task, completed=done, total=total))
     wall_s = time.perf_counter() - started
     if csv_file:
         write_sweep_csv(csv_file, result)
@@ -502,16 +554,17 @@ def sweep(config: str | None, kp_spec: str, ki_spec: str, kd_spec: str, metric: 
     ranked = result.ranked[:top]
     if as_json:
         click.echo(json_module.dumps([
-            {"rank": p.rank, "kp": p.gains[0], "ki": p.gains[1], "kd": p.gains[2], **p.result.metrics.as_dict()}
+            {"rank": p.rank, **dict(p.params), **p.result.metrics.as_dict()}
             for p in ranked if p.result is not None
         ], indent=2, default=str))
         return
     out = _wide_console()
-    rows = [(f"{p.gains[0]:.4g}/{p.gains[1]:.4g}/{p.gains[2]:.4g}", p.result.metrics) for p in ranked if p.result is not None]
+    rows = [(p.label, p.result.metrics) for p in ranked if p.result is not None]
     out.print(step_table(rows, f"sweep: best {len(rows)} of {len(result.points)} by {result.metric} "
                                f"(step {from_rpm:g} → {to_rpm:g} rpm)", sort_by=result.metric))
-    out.print(f"{len(result.points) - result.skipped} gain sets simulated, {result.skipped} skipped (AN1017 constraints); "
-              f"{result.sim_s:.0f} simulated s in {wall_s:.1f} s wall ({result.sim_s / wall_s:.1f} plant-s/s)")
+    out.print(f"{'/'.join(result.axes)}: {len(result.points) - result.skipped} points simulated, {result.skipped} "
+              f"skipped (firmware constraints); {result.sim_s:.0f} simulated s in {wall_s:.1f} s wall "
+              f"({result.sim_s / wall_s:.1f} plant-s/s, {result.extras.get('workers', 1)} workers)")
     if csv_file:
         out.print(f"every point: {csv_file}")
     if save_file:

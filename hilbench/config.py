@@ -30,9 +30,10 @@ import typing
 from dataclasses import MISSING, dataclass, field
 from importlib import resources
 from pathlib import Path
-from typing import Any, Literal, Mapping, Sequence
+from typing import Any, Callable, Literal, Mapping, Sequence
 
 from hilbench.errors import ConfigError
+from hilbench.fieldspec import spec
 from hilbench.plant.params import (
     AdcChannel,
     EncoderParams,
@@ -57,12 +58,6 @@ __all__ = [
 ]
 
 DEFAULT_CONFIG_NAME = "hurst_mclv.toml"
-
-
-def spec(*, unit: str = "", doc: str = "", ge: float | None = None, gt: float | None = None,
-         le: float | None = None, lt: float | None = None) -> dict[str, Any]:
-    """Field metadata: unit, one-line doc and an inclusive/exclusive physical range."""
-    return {"unit": unit, "doc": doc, "ge": ge, "gt": gt, "le": le, "lt": lt}
 
 
 # ---------------------------------------------------------------- sections owned here
@@ -135,21 +130,26 @@ _RANGES: dict[type, dict[str, dict[str, Any]]] = {
 @dataclass(frozen=True)
 class _Section:
     name: str
-    cls: type
+    cls: type | None
     required: bool
     many: bool  # an array of tables
+    #: a table whose dataclass depends on the others (the [target] table: the target's options)
+    chooser: Callable[[Mapping[str, Any]], type | None] | None = None
 
 
 _SECTIONS: dict[str, _Section] = {}
 
 
-def register_section(name: str, cls: type, *, required: bool = False, many: bool = False) -> None:
+def register_section(name: str, cls: type | None, *, required: bool = False, many: bool = False,
+                     chooser: Callable[[Mapping[str, Any]], type | None] | None = None) -> None:
     """Add a top-level table `[name]` (or `[[name]]` when many) validated into dataclass `cls`.
 
-    Optional sections are built from the dataclass defaults when absent (all fields need one)."""
-    if not dataclasses.is_dataclass(cls):
+    Optional sections are built from the dataclass defaults when absent (all fields need one).
+    With ``chooser`` the dataclass is chosen after every other table is built (None: the table
+    must be absent, and the section is None)."""
+    if chooser is None and not dataclasses.is_dataclass(cls):
         raise TypeError(f"register_section {name!r}: {cls!r} is not a dataclass")
-    _SECTIONS[name] = _Section(name, cls, required, many)
+    _SECTIONS[name] = _Section(name, cls, required, many, chooser)
 
 
 register_section("motor", MotorSection, required=True)
@@ -176,6 +176,17 @@ class BenchConfig:
 
     def __getitem__(self, name: str) -> Any:
         return self.sections[name]
+
+    def __reduce__(self) -> tuple[Any, ...]:  # picklable for process-pool sweeps
+        return (_rebuild_config, (dict(self.sections), self.source))
+
+    def replace(self, **sections: Any) -> "BenchConfig":
+        """A copy with some tables replaced (e.g. ``cfg.replace(link=...)``)."""
+        return BenchConfig(types.MappingProxyType({**self.sections, **sections}), self.source)
+
+
+def _rebuild_config(sections: dict[str, Any], source: str) -> BenchConfig:
+    return BenchConfig(types.MappingProxyType(sections), source)
 
 
 # ---------------------------------------------------------------- validation
@@ -231,6 +242,18 @@ def _convert(value: Any, tp: Any, table: str, key: str, col: _Collector) -> tupl
             ok = ok and good
             out.append(obj)
         return ok, tuple(out)
+    if origin is dict:  # a table of named values, e.g. a scenario's `set = { kp = 0.1 }`
+        key_tp, item_tp = typing.get_args(tp)
+        if not isinstance(value, dict):
+            col.add(table, key, f"expected a table, got {type(value).__name__}")
+            return False, None
+        items = {}
+        ok = True
+        for name, item in value.items():
+            good, obj = _convert(item, item_tp, table, f"{key}.{name}", col)
+            ok = ok and good
+            items[str(name)] = obj
+        return ok, items
     if dataclasses.is_dataclass(tp):
         return _build(tp, value, f"{table}.{key}", col)
     if tp is float:
@@ -360,6 +383,7 @@ def default_config_text() -> str:
 
 def load_config(path: str | Path | None = None, overrides: Sequence[str] = ()) -> BenchConfig:
     """Read, merge `overrides` ("table.key=value", TOML value syntax), validate everything, build."""
+    import hilbench.bench.settings  # noqa: F401 - registers the bench's tables, whoever imported first
     if path is None:
         source = f"<packaged {DEFAULT_CONFIG_NAME}>"
         text = default_config_text()
@@ -383,7 +407,10 @@ def load_config(path: str | Path | None = None, overrides: Sequence[str] = ()) -
         if key not in _SECTIONS:
             col.add("", "", f"unknown table [{key}]{_suggest(key, list(_SECTIONS))}")
     built: dict[str, Any] = {}
+    chosen = [sec for sec in _SECTIONS.values() if sec.chooser is not None]
     for name, sec in _SECTIONS.items():
+        if sec.chooser is not None:
+            continue
         if name not in data:
             if sec.required:
                 col.add(name, "", "missing table")
@@ -401,6 +428,8 @@ def load_config(path: str | Path | None = None, overrides: Sequence[str] = ()) -
             good, obj = _build(sec.cls, data[name], name, col)
         if good:
             built[name] = obj
+    for sec in chosen:
+        _build_chosen(sec, data, built, col)
     if col.lines:
         err = ConfigError("\n".join(col.lines))
         err.lines = list(col.lines)  # type: ignore[attr-defined]
@@ -408,6 +437,24 @@ def load_config(path: str | Path | None = None, overrides: Sequence[str] = ()) -
     if "adc" in built and "adc" not in data and "inverter" in built:
         built["adc"] = default_adc_channels(built["inverter"].vbus_v)
     return BenchConfig(sections=types.MappingProxyType(built), source=source)
+
+
+def _build_chosen(sec: _Section, data: Mapping[str, Any], built: dict[str, Any], col: _Collector) -> None:
+    """Build a table whose dataclass the other tables choose (the target's options)."""
+    assert sec.chooser is not None
+    try:
+        cls = sec.chooser(built)
+    except ConfigError as exc:  # the chooser names the table at fault
+        col.add("", "", str(exc))
+        return
+    if cls is None:
+        if data.get(sec.name):
+            col.add(sec.name, "", f"this target takes no [{sec.name}] options (keys: {', '.join(data[sec.name])})")
+        built[sec.name] = None
+        return
+    good, obj = _build(cls, data.get(sec.name, {}), sec.name, col)
+    if good:
+        built[sec.name] = obj
 
 
 def plant_params_from_config(cfg: BenchConfig) -> PlantParams:

@@ -81,7 +81,7 @@ def require_c_plant() -> bool:
 
 
 def require_c_an1017() -> bool:
-    """The compiled AN1017 firmware core (hilbench/targets/_an1017core.c)."""
-    from hilbench.targets.an1017 import available_backends
+    """The compiled AN1017 firmware core (hilbench/targets/an1017/_core.c)."""
+    from hilbench.targets.an1017.target import available_backends
 
     return _require_compiled("AN1017", available_backends())

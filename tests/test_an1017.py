@@ -8,7 +8,7 @@ from __future__ import annotations
 
 import pytest
 
-from hilbench.targets.an1017 import (
+from hilbench.targets.an1017.target import (
     PARAM_KD,
     PARAM_KI,
     PARAM_KP,
@@ -18,7 +18,7 @@ from hilbench.targets.an1017 import (
     PARAMS,
     An1017Target,
 )
-from hilbench.targets.an1017_firmware import (
+from hilbench.targets.an1017.firmware import (
     MAXPERIOD,
     MINPERIOD,
     MINPERIOD_DIVF,
@@ -29,7 +29,7 @@ from hilbench.targets.an1017_firmware import (
     check_gain_constraints,
     speed_control,
 )
-from hilbench.targets.fixedpoint import divf
+from hilbench.targets.an1017.fixedpoint import divf
 
 from hilbench.protocol import HostHello, Sensors, decode_frame, encode_frame
 

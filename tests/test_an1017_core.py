@@ -1,4 +1,4 @@
-"""The compiled AN1017 firmware core (hilbench/targets/_an1017core.c) against the reference path.
+"""The compiled AN1017 firmware core (hilbench/targets/an1017/_core.c) against the reference path.
 
 The reference path (`reference=True`, pure Python, every PWM ISR with the full SVM) is the spec;
 the C backend must give the identical Drive at every period over the seeded random streams of
@@ -20,8 +20,8 @@ from hilbench.config import load_config, plant_params_from_config
 from hilbench.errors import ConfigError
 from hilbench.plant import Plant
 from hilbench.protocol import PROTOCOL_VERSION, Drive, HostHello, Sensors
-from hilbench.targets.an1017 import An1017Target, available_backends
-from hilbench.targets.an1017_firmware import An1017Firmware, An1017Options
+from hilbench.targets.an1017.target import An1017Target, available_backends
+from hilbench.targets.an1017.firmware import An1017Firmware, An1017Options
 from test_an1017_fastpath import first_difference, play, play_with_advances, random_script
 
 pytestmark = pytest.mark.skipif(not require_c_an1017(), reason="compiled AN1017 core not built")
@@ -80,7 +80,7 @@ def test_backend_selection(monkeypatch):
     ],
 )
 def test_c_svm_reference_vectors(volts, angle, duties):
-    from hilbench.targets import _an1017core
+    from hilbench.targets.an1017 import _core as _an1017core
 
     assert _an1017core.svm(volts, angle) == duties
 

@@ -17,7 +17,7 @@ import random
 import pytest
 
 from hilbench.protocol import Drive, Sensors
-from hilbench.targets.an1017 import (
+from hilbench.targets.an1017.target import (
     PARAM_KD,
     PARAM_KI,
     PARAM_KP,
@@ -28,8 +28,8 @@ from hilbench.targets.an1017 import (
     PARAM_STALL_MS,
     An1017Target,
 )
-from hilbench.targets.an1017_firmware import An1017Options
-from hilbench.targets.svm import svm
+from hilbench.targets.an1017.firmware import An1017Options
+from hilbench.targets.an1017.svm import svm
 
 EDGE_NONE = 0xFFFF
 S2 = 0x08

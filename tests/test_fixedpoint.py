@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import pytest
 
-from hilbench.targets.fixedpoint import (
+from hilbench.targets.an1017.fixedpoint import (
     adc_signed_fractional,
     divf,
     float_to_q15,

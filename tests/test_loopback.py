@@ -8,7 +8,7 @@ from hilbench.errors import ConfigError, ParamError
 from hilbench.protocol import PROTOCOL_VERSION, Drive, HostHello, Sensors
 from hilbench.targets import make_target
 from hilbench.targets.base import Target
-from hilbench.targets.loopback import LoopbackTarget
+from hilbench.targets.loopback.target import LoopbackTarget
 
 # AN1017 Table 8 (C B A -> sector) as printed in the seed summary; 000 and 111 are invalid (7)
 TABLE_8 = {0b001: 4, 0b010: 2, 0b011: 3, 0b100: 0, 0b101: 5, 0b110: 1, 0b000: 7, 0b111: 7}

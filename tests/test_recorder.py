@@ -12,6 +12,7 @@ import pytest
 
 from hilbench.bench.recorder import (
     COLUMN_NAMES,
+    COLUMNS,
     MARKER_EVENT,
     MARKER_FAULT,
     N_COLUMNS,
@@ -128,7 +129,7 @@ def _raw_layout() -> RowLayout:
     fields = (("k", "Q"), ("speed_raw", "i"), ("amps", "d"), ("marker", "B"))
     sources = {"t_s": ("k", 50e-6), "seq": ("k", 1.0), "speed_rpm": ("speed_raw", 0.5),
                "measured_speed_rpm": ("speed_raw", float("nan")), "ia_a": ("amps", 1.0), "marker": ("marker", 1.0)}
-    return RowLayout(fields, tuple(sources.get(name, ("k", 0.0)) for name in COLUMN_NAMES))
+    return RowLayout(fields, tuple((name, unit, fmt, *sources.get(name, ("k", 0.0))) for name, unit, fmt in COLUMNS))
 
 
 @pytest.mark.parametrize("suffix", [".csv", ".npz"])
@@ -238,8 +239,8 @@ def test_a_new_npz_run_does_not_inherit_a_killed_runs_events(tmp_path: Path) -> 
 
 def test_wrapped_columns_stay_below_their_modulo() -> None:
     base = _raw_layout()
-    layout = RowLayout(base.fields, tuple(("amps", 1.0) if name == "theta_e_deg" else src
-                                          for name, src in zip(COLUMN_NAMES, base.columns)),
+    layout = RowLayout(base.fields, tuple((*c[:3], "amps", 1.0) if c[0] == "theta_e_deg" else c
+                                          for c in base.columns),
                        wrap=(("theta_e_deg", 360.0),))
     rec = MemoryRecorder()
     rec.start(layout)

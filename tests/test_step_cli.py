@@ -11,20 +11,6 @@ import pytest
 from conftest import run_cli
 from hilbench.bench.run import RunRequest, load_run_config, run_step_tests
 from hilbench.bench.steptest import StepTest
-from hilbench.bench.sweep import run_step_batch
-
-
-def test_scalar_step_and_batch_sweep_agree() -> None:
-    cfg = load_run_config(RunRequest(None, target="inprocess:an1017"))
-    gains = [(0.1, 0.01, 0.0), (0.3, 0.05, 0.0)]
-    scalar = run_step_tests(cfg, StepTest(1000.0, 2000.0, 0.5, 0.5), [dict(zip(("kp", "ki", "kd"), g)) for g in gains])
-    batch = run_step_batch(cfg, gains, 1000.0, 2000.0, 1.0, 0.5, record_every=1)
-    for s, b in zip(scalar, batch):
-        assert s.metrics.itae == pytest.approx(b.metrics.itae, rel=1e-3)
-        assert s.metrics.iae == pytest.approx(b.metrics.iae, rel=1e-3)
-        assert s.metrics.overshoot_pct == pytest.approx(b.metrics.overshoot_pct, abs=0.05)
-        assert s.metrics.rise_time_s == pytest.approx(b.metrics.rise_time_s, abs=1e-4)
-        assert s.metrics.peak_current_a == pytest.approx(b.metrics.peak_current_a, rel=1e-3)
 
 
 def test_step_cli_compares_gain_sets(tmp_path: Path) -> None:
@@ -45,7 +31,8 @@ def test_step_cli_compares_gain_sets(tmp_path: Path) -> None:
         (("step", "--from", "1000", "--to", "1000"), "a step needs two speeds"),
         (("step", "--gains", "0.1,x"), "not numbers"),
         (("step", "--gains", "0.7,0.5,0"), "Kp + Ki + Kd < 0.9999"),
-        (("sweep", "--kp", "0.1:0.2"), "--kp"),
+        (("sweep", "--param", "kp=0.1:0.2"), "--param kp"),
+        (("step", "--target", "inprocess:loopback"), "no speed loop"),
     ],
 )
 def test_step_and_sweep_bad_input(args: tuple[str, ...], needle: str) -> None:
@@ -60,7 +47,7 @@ def test_step_and_sweep_bad_input(args: tuple[str, ...], needle: str) -> None:
 def test_sweep_cli_ranks_skips_and_saves(tmp_path: Path) -> None:
     save = tmp_path / "best.toml"
     table = tmp_path / "sweep.csv"
-    result = run_cli("sweep", "--kp", "0.1:0.9:3", "--ki", "0.01:0.3:3", "--csv", str(table), "--save", str(save),
+    result = run_cli("sweep", "-p", "kp=0.1:0.9:3", "-p", "ki=0.01:0.3:3", "-p", "kd=0", "--csv", str(table), "--save", str(save),
                      "--json", timeout=300)
     assert result.returncode == 0, result.stderr
     ranked = json.loads(result.stdout)

@@ -7,7 +7,7 @@ import math
 import numpy as np
 import pytest
 
-from hilbench.targets.svm import SINE_TABLE, svm, svm_fast, svm_sector
+from hilbench.targets.an1017.svm import SINE_TABLE, svm, svm_fast, svm_sector
 
 
 def test_sine_table_shape_and_end_values():

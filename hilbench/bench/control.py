@@ -15,7 +15,7 @@ reply line per request ``{"ok": bool, "message": str, "data": object | null}``. 
 This module checks only the *shape* of a request (known command, the right fields with the
 right JSON types, finite numbers); malformed, oversized, unknown or ill-typed lines are answered
 here with a one-line reason and never reach the session. Whether a parameter exists, is in
-range and meets the AN1017 constraints is the session's business.
+range and meets the firmware's constraints is the session's business.
 
 Where it lives: a fresh directory of mode 0700 (``mkdtemp`` under ``$XDG_RUNTIME_DIR`` when
 that is set, else the system temp dir) holding the socket ``ctl.sock`` (mode 0600). The

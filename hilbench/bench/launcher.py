@@ -1,11 +1,12 @@
 """Turn a target spec into a connected Target, and always clean up what was started.
 
-Specs:
+Specs (NAME is any registered target, see `hilbench.targets.known_targets()`):
 
-* ``emulator:an1017`` (default), ``emulator:loopback`` — the firmware model as its own process
-  (``python -m hilbench emulate NAME --port PTY``) on a virtual serial pair made here;
-* ``inprocess:an1017`` — the same model stepped in this process (fast, for tests and sweeps);
-* ``serial:/dev/ttyUSB0?baud=250000`` or a device path — a real board.
+* ``emulator:NAME`` — the target's model as its own process (``python -m
+  hilbench.targets.emulator NAME --port PTY``) on a virtual serial pair made here;
+* ``inprocess:NAME`` — the same model stepped in this process (fast, for tests and sweeps);
+* ``serial:/dev/ttyUSB0?baud=250000``, a device path or a pyserial URL (``socket://host:port``,
+  ``rfc2217://host:port``, ``loop://``) — a board, or anything that speaks the protocol there.
 
 The session sees only the Target interface; this module owns the link and the child process and
 reaps the child on every exit path.
@@ -22,6 +23,8 @@ from dataclasses import dataclass, field
 from typing import Any, Callable
 
 from hilbench.errors import ConfigError, LinkError
+from hilbench.targets.base import Target
+from hilbench.targets.profile import TargetProfile
 
 EMULATOR_PREFIX = "emulator:"
 INPROCESS_PREFIX = "inprocess:"
@@ -31,7 +34,7 @@ INPROCESS_PREFIX = "inprocess:"
 class TargetHandle:
     """A connected target plus what must be closed when the run ends."""
 
-    target: Any
+    target: Target
     label: str
     link: Any = None
     process: subprocess.Popen[bytes] | None = None
@@ -82,46 +85,66 @@ def reap(process: subprocess.Popen[bytes], timeout_s: float = 3.0) -> int:
     return process.returncode
 
 
+PORT_PREFIXES = ("serial:", "/dev/", "loop://", "fd:", "socket://", "rfc2217://", "spy://", "hwgrep://", "pty")
+
+
 def open_target(
     spec: str,
     *,
+    profile: TargetProfile | None = None,
+    options: object | None = None,
     mode: str = "lockstep",
     timeout_s: float = 0.5,
     watchdog_ms: int = 100,
-    emulator_args: tuple[str, ...] = (),
-    target_options: dict[str, Any] | None = None,
 ) -> TargetHandle:
-    """Connect to the target named by ``spec`` (see the module docstring)."""
-    from hilbench.targets import make_target
+    """Connect to the target named by ``spec`` (see the module docstring); ``profile`` and its
+    ``options`` build an in-process model or an emulator process."""
+    from hilbench.targets.registry import get_profile
 
-    if spec.startswith(INPROCESS_PREFIX):
-        name = spec[len(INPROCESS_PREFIX):]
-        return TargetHandle(make_target(name, **(target_options or {})), label=spec)
-    if spec.startswith(EMULATOR_PREFIX):
-        return _spawn_emulator(spec[len(EMULATOR_PREFIX):], mode, timeout_s, watchdog_ms, emulator_args)
-    if spec.startswith(("serial:", "/dev/", "loop://", "fd:")):
+    kind, _, name = spec.partition(":")
+    if kind in (INPROCESS_PREFIX[:-1], EMULATOR_PREFIX[:-1]) and not name.startswith("//"):
+        profile = profile if profile is not None and profile.name == name else get_profile(name)
+        options = profile.default_options() if options is None else options
+        if kind == "inprocess":
+            return TargetHandle(profile.make(options), label=spec)  # type: ignore[arg-type]
+        return _spawn_emulator(profile, options, mode, timeout_s, watchdog_ms)
+    if spec.startswith(PORT_PREFIXES) and spec != "pty":
         from hilbench.link import open_link
         from hilbench.targets.remote import RemoteTarget
 
         link = open_link(spec, timeout_s=timeout_s)
         return TargetHandle(RemoteTarget(link, timeout_s=timeout_s), label=spec, link=link)
     raise ConfigError(
-        f"target {spec!r}: unknown target spec (use emulator:an1017, emulator:loopback, "
-        "inprocess:an1017, serial:/dev/ttyUSB0?baud=250000 or a device path)"
+        f"target {spec!r}: unknown target spec (use emulator:NAME or inprocess:NAME with NAME one of "
+        f"{', '.join(get_profile_names())}; serial:/dev/ttyUSB0?baud=250000, a device path, "
+        "socket://HOST:PORT, rfc2217://HOST:PORT or loop://)"
     )
 
 
-def _spawn_emulator(name: str, mode: str, timeout_s: float, watchdog_ms: int, extra: tuple[str, ...]) -> TargetHandle:
+def get_profile_names() -> tuple[str, ...]:
+    from hilbench.targets.registry import known_targets
+
+    return known_targets()
+
+
+def emulator_command(profile: TargetProfile, options: object, port: str, mode: str, watchdog_ms: int) -> list[str]:
+    """The emulator process's command line. ``-P``: the working directory is not put on the import
+    path, so a folder named like a package there cannot shadow hilbench."""
+    import json
+
+    return [
+        sys.executable, "-P", "-m", profile.emulator_module, profile.name, "--port", port, "--mode", mode,
+        "--watchdog-ms", str(watchdog_ms), "--options", json.dumps(profile.options_as_dict(options)),
+    ]
+
+
+def _spawn_emulator(profile: TargetProfile, options: object, mode: str, timeout_s: float,
+                    watchdog_ms: int) -> TargetHandle:
     from hilbench.link import open_link
-    from hilbench.targets import make_target
     from hilbench.targets.remote import RemoteTarget
 
-    make_target(name)  # an unknown name fails here, before any process starts
     link = open_link("pty", timeout_s=timeout_s)
-    command = [
-        sys.executable, "-m", "hilbench", "emulate", name,
-        "--port", link.peer_path, "--mode", mode, "--watchdog-ms", str(watchdog_ms), *extra,
-    ]
+    command = emulator_command(profile, options, link.peer_path, mode, watchdog_ms)
     log = tempfile.TemporaryFile()  # the child's stderr: a file never fills up and blocks it
     try:
         process = subprocess.Popen(
@@ -135,8 +158,8 @@ def _spawn_emulator(name: str, mode: str, timeout_s: float, watchdog_ms: int, ex
     except OSError as exc:
         link.close()
         log.close()
-        raise LinkError(f"emulator {name}: cannot start ({exc.strerror})") from None
-    label = f"emulator:{name} on {link.peer_path} (pid {process.pid})"
+        raise LinkError(f"emulator {profile.name}: cannot start ({exc.strerror})") from None
+    label = f"emulator:{profile.name} on {link.peer_path} (pid {process.pid})"
     handle = TargetHandle(RemoteTarget(link, timeout_s=timeout_s), label=label, link=link, process=process)
     handle._closers.append(log.close)
     handle.child_log = log

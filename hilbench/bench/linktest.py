@@ -21,7 +21,7 @@ import numpy as np
 from hilbench.errors import LinkError, LinkTimeout
 from hilbench.link import open_link
 from hilbench.protocol import INPUT_S3, MODE_LOCKSTEP, Sensors
-from hilbench.targets.loopback import LoopbackTarget
+from hilbench.targets.loopback.target import LoopbackTarget
 from hilbench.targets.remote import RemoteTarget
 
 DEFAULT_TARGET = "pty"

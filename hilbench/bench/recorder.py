@@ -33,7 +33,8 @@ import numpy as np
 
 from hilbench.errors import RecordingError
 
-#: (name, unit, CSV format) of every column, in order.
+#: (name, unit, CSV format) of the columns every bench recording has, in order; a target's
+#: telemetry columns (from its profile) go after ``speed_rpm`` (see hilbench.bench.columns).
 COLUMNS: tuple[tuple[str, str, str], ...] = (
     ("t_s", "s", "%.6f"),
     ("seq", "", "%d"),
@@ -77,9 +78,9 @@ _CODE_DTYPES = {"B": "u1", "h": "<i2", "H": "<u2", "i": "<i4", "I": "<u4", "q": 
                 "f": "<f4", "d": "<f8"}
 
 
-def csv_header() -> str:
+def csv_header(columns: Sequence[tuple[str, str, str]] = COLUMNS) -> str:
     """The CSV header line: ``name[unit]`` per column."""
-    return ",".join(f"{name}[{unit}]" if unit else name for name, unit, _ in COLUMNS)
+    return ",".join(f"{name}[{unit}]" if unit else name for name, unit, _ in columns)
 
 
 def fields_struct(fields: Sequence[tuple[str, str]]) -> struct.Struct:
@@ -89,26 +90,37 @@ def fields_struct(fields: Sequence[tuple[str, str]]) -> struct.Struct:
 
 @dataclass(frozen=True)
 class RowLayout:
-    """What one raw row holds and how the recording's COLUMNS are made of it.
+    """What one raw row holds and how the recording's columns are made of it.
 
-    ``fields`` are (name, struct code) packed little-endian in order; ``columns`` gives, for each
-    entry of COLUMNS, the field it comes from and the scale applied (column = field × scale; a NaN
-    scale marks a quantity the target does not report). ``wrap`` names columns kept within
-    [0, modulo) after scaling (an angle). A ``marker`` field is required: events and faults are
-    written into it.
+    ``fields`` are (name, struct code) packed little-endian in order; ``columns`` are, in the
+    recording's order, (column name, unit, CSV format, source field, scale): column = field × scale
+    (a NaN scale marks a quantity the target does not report). ``wrap`` names columns kept within
+    [0, modulo) after scaling (an angle). A ``marker`` field and ``t_s`` and ``marker`` columns are
+    required: events and faults are written into the marker.
     """
 
     fields: tuple[tuple[str, str], ...]
-    columns: tuple[tuple[str, float], ...]
+    columns: tuple[tuple[str, str, str, str, float], ...]
     wrap: tuple[tuple[str, float], ...] = ()
 
     def __post_init__(self) -> None:
         names = [name for name, _ in self.fields]
         bad = [code for _, code in self.fields if code not in _CODE_DTYPES]
-        missing = [src for src, _ in self.columns if src not in names]
-        if bad or missing or len(self.columns) != N_COLUMNS or "marker" not in names:
-            raise ValueError(f"RowLayout: bad codes {bad}, unknown fields {missing}, "
-                             f"{len(self.columns)} columns for {N_COLUMNS}, marker field: {'marker' in names}")
+        missing = [c[3] for c in self.columns if c[3] not in names]
+        column_names = [c[0] for c in self.columns]
+        if bad or missing or "marker" not in names or not {"t_s", "marker"} <= set(column_names) \
+                or len(set(column_names)) != len(column_names):
+            raise ValueError(f"RowLayout: bad codes {bad}, unknown fields {missing}, columns {column_names}, "
+                             f"marker field: {'marker' in names}")
+
+    @property
+    def column_specs(self) -> tuple[tuple[str, str, str], ...]:
+        """(name, unit, CSV format) of each column, in order."""
+        return tuple((name, unit, fmt) for name, unit, fmt, _, _ in self.columns)
+
+    @property
+    def column_names(self) -> tuple[str, ...]:
+        return tuple(c[0] for c in self.columns)
 
     @property
     def dtype(self) -> np.dtype:
@@ -123,7 +135,7 @@ class RowLayout:
             dtype = self.dtype
             rows = np.frombuffer(raw, dtype=dtype, count=len(raw) // dtype.itemsize)
         out: dict[str, np.ndarray] = {}
-        for name, (src, scale) in zip(COLUMN_NAMES, self.columns):
+        for name, _, _, src, scale in self.columns:
             field_values = rows[src]  # strided view into the rows
             out[name] = field_values.astype(np.float64) if scale == 1.0 else np.multiply(field_values, scale, dtype=np.float64)
         for name, modulo in self.wrap:
@@ -136,13 +148,24 @@ class RowLayout:
 
     @classmethod
     def from_json(cls, obj: dict[str, Any]) -> "RowLayout":
-        return cls(tuple((str(n), str(c)) for n, c in obj["fields"]),
-                   tuple((str(n), float(k)) for n, k in obj["columns"]),
+        raw_columns = obj["columns"]
+        if raw_columns and len(raw_columns[0]) == 2:  # journals written before columns had names
+            columns = tuple((name, unit, fmt, str(src), float(k))
+                            for (name, unit, fmt), (src, k) in zip(COLUMNS, raw_columns))
+        else:
+            columns = tuple((str(n), str(u), str(f), str(src), float(k)) for n, u, f, src, k in raw_columns)
+        return cls(tuple((str(n), str(c)) for n, c in obj["fields"]), columns,
                    tuple((str(n), float(m)) for n, m in obj.get("wrap", ())))
 
 
-#: Rows that already are the COLUMNS, as float64 (tests, exports, any caller without its own layout).
-COLUMN_LAYOUT = RowLayout(tuple((name, "d") for name in COLUMN_NAMES), tuple((name, 1.0) for name in COLUMN_NAMES))
+def float_layout(columns: Sequence[tuple[str, str, str]]) -> RowLayout:
+    """Rows that already are the columns, as float64 (tests, exports, a caller without its own layout)."""
+    return RowLayout(tuple((name, "d") for name, _, _ in columns),
+                     tuple((name, unit, fmt, name, 1.0) for name, unit, fmt in columns))
+
+
+#: The bench's base columns as float64 rows.
+COLUMN_LAYOUT = float_layout(COLUMNS)
 
 
 class RowBuffer:
@@ -239,7 +262,6 @@ class Recorder:
                 self._file = open(self.path, "w", encoding="utf-8", newline="\n")
         except OSError as exc:
             raise RecordingError(f"recording {self.path}: cannot write ({exc.strerror})") from None
-        self._fmt = ",".join(fmt for _, _, fmt in COLUMNS) + "\n"
         self.append = self.rows.append
 
     def start(self, layout: RowLayout = COLUMN_LAYOUT) -> None:
@@ -261,7 +283,7 @@ class Recorder:
             else:
                 for key, value in self.metadata.items():
                     self._file.write(f"# {key}: {json.dumps(value, default=str)}\n")
-                self._file.write(csv_header() + "\n")
+                self._file.write(csv_header(layout.column_specs) + "\n")
             self._file.flush()
         except OSError as exc:
             raise RecordingError(f"recording {self.path}: write failed ({exc.strerror})") from None
@@ -303,7 +325,8 @@ class Recorder:
                         side.write("".join(f"{text}\n" for _, text, _ in events))
             else:
                 columns = rows.columns()
-                table = np.column_stack([columns[name] for name in COLUMN_NAMES]) if n_rows else np.zeros((0, N_COLUMNS))
+                names = rows.layout.column_names
+                table = np.column_stack([columns[name] for name in names]) if n_rows else np.zeros((0, len(names)))
                 self._file.write(self._format_csv(list(map(tuple, table.tolist())), events))
             self._file.flush()
         except OSError as exc:
@@ -313,7 +336,7 @@ class Recorder:
         events.clear()
 
     def _format_csv(self, rows: list[tuple[float, ...]], events: list[tuple[int, str, int]]) -> str:
-        fmt = self._fmt
+        fmt = ",".join(f for _, _, f in self.rows.layout.column_specs) + "\n"
         if not events:
             return "".join([fmt % row for row in rows])
         parts: list[str] = []
@@ -338,6 +361,7 @@ class Recorder:
         if self.is_npz:
             _, _, rows = _read_journal_rows(self._journal_path())
             arrays: dict[str, np.ndarray] = self.rows.layout.to_columns(rows)
+            self.metadata["columns"] = [[name, unit] for name, unit, _ in self.rows.layout.column_specs]
             arrays["metadata"] = np.asarray(json.dumps(self.metadata, default=str))
             tmp = self.path.with_name(self.path.name + ".tmp.npz")
             _write_npz_deterministic(tmp, arrays)
@@ -366,6 +390,7 @@ class RecordingData:
     columns: dict[str, np.ndarray]
     metadata: dict[str, Any]
     events: tuple[str, ...]
+    units: dict[str, str] = field(default_factory=dict)
 
     @property
     def n_rows(self) -> int:
@@ -398,6 +423,8 @@ def _read_csv(path: Path) -> RecordingData:
     events: list[str] = []
     values: list[list[float]] = []
     header_seen = False
+    names: list[str] = []
+    units: dict[str, str] = {}
     with open(path, encoding="utf-8") as handle:
         for line in handle:
             if line.startswith("# event: "):
@@ -411,19 +438,22 @@ def _read_csv(path: Path) -> RecordingData:
                     metadata[key] = value.rstrip("\n")
                 continue
             if not header_seen:
-                names = [cell.split("[", 1)[0] for cell in line.strip().split(",")]
-                if tuple(names) != COLUMN_NAMES:
+                cells = line.strip().split(",")
+                names = [cell.split("[", 1)[0] for cell in cells]
+                units = {cell.split("[", 1)[0]: cell.split("[", 1)[1].rstrip("]") for cell in cells if "[" in cell}
+                if "t_s" not in names or "marker" not in names or len(set(names)) != len(names):
                     raise RecordingError(f"recording {path}: not a hilbench CSV (header does not match)")
                 header_seen = True
                 continue
             cells = line.rstrip("\n").split(",")
-            if len(cells) != N_COLUMNS or not line.endswith("\n"):
+            if len(cells) != len(names) or not line.endswith("\n"):
                 break  # a row cut by a crash: everything before it stands
             values.append([float(cell) for cell in cells])
     if not header_seen:
         raise RecordingError(f"recording {path}: no header line (empty or not a hilbench CSV)")
-    table = np.asarray(values, dtype=float).reshape(-1, N_COLUMNS)
-    return RecordingData(path, _columns(table), metadata, tuple(events))
+    table = np.asarray(values, dtype=float).reshape(-1, len(names))
+    columns = {name: table[:, i].copy() for i, name in enumerate(names)}
+    return RecordingData(path, columns, metadata, tuple(events), units)
 
 
 def _read_journal_rows(path: Path) -> tuple[dict[str, Any], RowLayout, memoryview]:
@@ -447,18 +477,17 @@ def _read_journal(path: Path) -> RecordingData:
     columns = layout.to_columns(rows)
     side = _events_path(path)
     events = side.read_text(encoding="utf-8").splitlines() if side.exists() else []
-    return RecordingData(path, columns, metadata, tuple(events))
+    units = {name: unit for name, unit, _ in layout.column_specs}
+    return RecordingData(path, columns, metadata, tuple(events), units)
 
 
 def _read_npz(path: Path) -> RecordingData:
     with np.load(path, allow_pickle=False) as archive:
-        columns = {name: archive[name] for name in COLUMN_NAMES}
         metadata = json.loads(str(archive["metadata"]))
-    return RecordingData(path, columns, metadata, tuple(metadata.get("events", ())))
-
-
-def _columns(table: np.ndarray) -> dict[str, np.ndarray]:
-    return {name: table[:, i].copy() for i, name in enumerate(COLUMN_NAMES)}
+        specs = metadata.get("columns") or [[name, unit] for name, unit, _ in COLUMNS]
+        columns = {str(name): archive[str(name)] for name, _ in specs}
+    units = {str(name): str(unit) for name, unit in specs}
+    return RecordingData(path, columns, metadata, tuple(metadata.get("events", ())), units)
 
 
 class MemoryRecorder:
@@ -508,8 +537,12 @@ class MemoryRecorder:
 def export_csv(data: RecordingData, path: str | Path) -> Path:
     """Write a recording (e.g. a fast NPZ one) as the same CSV a `--record run.csv` run writes."""
     out = Recorder(Path(path), dict(data.metadata), flush_rows=max(1, data.n_rows))
-    out.start(COLUMN_LAYOUT)
-    table = np.column_stack([data.columns[name] for name in COLUMN_NAMES]) if data.n_rows else np.zeros((0, N_COLUMNS))
+    out.metadata.pop("columns", None)
+    fmts = {name: fmt for name, _, fmt in COLUMNS}
+    specs = [(name, data.units.get(name, ""), fmts.get(name, "%.6g")) for name in data.columns]
+    out.start(float_layout(specs))
+    names = list(data.columns)
+    table = np.column_stack([data.columns[name] for name in names]) if data.n_rows else np.zeros((0, len(names)))
     out.rows.extend(np.ascontiguousarray(table, dtype="<f8").tobytes())
     out.close()
     return out.path

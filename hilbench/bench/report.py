@@ -44,7 +44,8 @@ def reference_segments(data: RecordingData) -> list[dict[str, float]]:
         if not window.any():
             continue
         plant = float(np.mean(c["speed_rpm"][window]))
-        measured = float(np.nanmean(c["measured_speed_rpm"][window])) if not np.all(np.isnan(c["measured_speed_rpm"][window])) else float("nan")
+        firmware = c.get("measured_speed_rpm")  # the target's own speed, where it reports one
+        measured = float(np.nanmean(firmware[window])) if firmware is not None and not np.all(np.isnan(firmware[window])) else float("nan")
         segments.append({
             "from_s": round(start, 4), "to_s": round(end, 4), "ref_rpm": ref,
             "plant_rpm": round(plant, 2), "firmware_rpm": round(measured, 2),

@@ -1,7 +1,7 @@
-"""One bench run from a config: connect the target, build the plant, record, run, clean up.
+"""One bench run from a config, and step tests: what `hilbench run` and `hilbench step` call.
 
-Used by `hilbench run` and by tests; it prints nothing. Whatever happens — a fault, Ctrl-C, a
-bad parameter — the recording is closed and any process the run started is reaped.
+They print nothing. Whatever happens — a fault, Ctrl-C, a bad parameter — the recording is closed
+and any process the run started is reaped (the `Bench` owns them).
 """
 
 from __future__ import annotations
@@ -9,19 +9,18 @@ from __future__ import annotations
 import dataclasses
 from dataclasses import dataclass
 from pathlib import Path
-from typing import TYPE_CHECKING, Any, Callable, Sequence
+from typing import TYPE_CHECKING, Callable, Sequence
 
-from hilbench import __version__
 from hilbench.bench import settings
+from hilbench.bench.bench import Bench, configured_profile
 from hilbench.bench.launcher import TargetHandle, open_target
-from hilbench.bench.cpus import CpuPinning
-from hilbench.bench.recorder import Recorder
 from hilbench.bench.session import Session, SessionOptions, Snapshot, Summary
 from hilbench.config import BenchConfig, load_config, plant_params_from_config
 from hilbench.errors import ConfigError, LinkError
-from hilbench.protocol import PROTOCOL_VERSION
+from hilbench.targets.profile import TargetProfile
 
 if TYPE_CHECKING:
+    from hilbench.bench.control import ControlServer
     from hilbench.bench.steptest import StepResult, StepTest
 
 
@@ -49,34 +48,24 @@ def load_run_config(request: RunRequest) -> BenchConfig:
     return load_config(request.config_path, overrides)
 
 
-def effective_seed(cfg: BenchConfig) -> int:
-    """[run] seed when given, else [plant] seed."""
-    return cfg.run.seed if cfg.run.seed is not None else cfg.plant.seed
+effective_seed = settings.effective_seed
 
 
-def emulator_args(cfg: BenchConfig) -> tuple[str, ...]:
-    """Options the emulator process needs at start (the rest goes over the wire)."""
-    spec = cfg.link.target
-    if spec.endswith("an1017"):
-        return ("--variant", cfg.target.variant)
-    return ()
+def settings_profile(cfg: BenchConfig) -> TargetProfile:
+    """The configured target's profile (the default target's for a port with no [link] firmware)."""
+    return settings.target_profile(cfg.link)
 
 
-def target_options(cfg: BenchConfig) -> dict[str, Any]:
-    """Options for an in-process target model."""
-    return {"variant": cfg.target.variant} if cfg.link.target.endswith("an1017") else {}
+def in_process(cfg: BenchConfig) -> BenchConfig:
+    """The same config on the configured target's in-process model (sweeps run there)."""
+    profile = settings_profile(cfg)
+    return cfg.replace(link=dataclasses.replace(cfg.link, target=f"inprocess:{profile.name}", firmware=None))
 
 
 def connect(cfg: BenchConfig, options: SessionOptions) -> TargetHandle:
     """Open the configured target (spawning the emulator if asked)."""
-    return open_target(
-        cfg.link.target,
-        mode=options.mode,
-        timeout_s=options.timeout_s,
-        watchdog_ms=options.watchdog_ms,
-        emulator_args=emulator_args(cfg),
-        target_options=target_options(cfg),
-    )
+    return open_target(cfg.link.target, profile=configured_profile(cfg), options=cfg.target, mode=options.mode,
+                       timeout_s=options.timeout_s, watchdog_ms=options.watchdog_ms)
 
 
 def run_bench(
@@ -84,64 +73,27 @@ def run_bench(
     *,
     record: str | Path | None = None,
     observer: Callable[[Snapshot], None] | None = None,
-    control: Any = None,
+    control: "ControlServer | None" = None,
     on_ready: Callable[[Session], None] | None = None,
 ) -> Summary:
-    """Run the bench described by ``cfg``; raises HilbenchError kinds on faults."""
-    from hilbench.plant.model import Plant
-
-    options = dataclasses.replace(settings.session_options(cfg), seed=effective_seed(cfg))
-    events = settings.scenario_events(cfg)
-    plant = Plant(plant_params_from_config(cfg), seed=options.seed, substeps=cfg.plant.substeps)
-    handle = connect(cfg, options)
-    recorder: Recorder | None = None
-    try:
-        session = Session(
-            handle.target, plant, events, options, observer=observer, control=control,
-            link_stats=handle.link_stats, target_label=handle.label, guard=settings.guard_settings(cfg),
-        )
-        try:
-            hello = session.handshake()
-        except LinkError as exc:
-            raise LinkError(f"{handle.label}: handshake failed: {exc}{handle.child_status()}") from None
-        if hasattr(handle.target, "timeout_s"):
-            handle.target.timeout_s = options.timeout_s  # the first answer may wait for the process to start
-        gains = settings.configured_gains(cfg)
-        if gains:
-            session.set_params(gains, 0.0, guard=False)
-        if record is not None:
-            metadata = {
-                "hilbench_version": __version__,
-                "protocol_version": PROTOCOL_VERSION,
-                "seed": options.seed,
-                "target": cfg.link.target,
-                "target_hello": hello._asdict(),
-                "params": session.param_values(),
-                "config_source": cfg.source,
-                "config": settings.config_metadata(cfg),
-                "period_us": options.period_us,
-                "mode": options.mode,
-            }
-            recorder = Recorder(Path(record), metadata, flush_rows=max(1, round(1e6 / options.period_us)))
-            session.recorder = recorder
+    """Run the bench described by ``cfg`` with its scenario; raises HilbenchError kinds on faults."""
+    bench = Bench(cfg, record=record, scenario=True, observer=observer, control=control)
+    with bench:
+        session = bench._session
         if on_ready is not None:
             on_ready(session)
         try:
-            if options.mode == "realtime" and cfg.link.pin_realtime and handle.process is not None:
-                with CpuPinning([handle.process.pid], cfg.link.realtime_cpu) as pinning:
-                    summary = session.run()
-                summary.cpus = pinning.status
-                return summary
-            return session.run()
+            bench.run()
         except LinkError as exc:
+            recording = bench.recorder.path if bench._record_path is not None and bench.recorder else None
+            child = bench._handle.child_status() if bench._handle is not None else ""
             raise LinkError(
-                f"{exc}{handle.child_status()}; last good period {session.periods_done - 1}"
-                + (f"; recording {recorder.path} closed with a fault marker" if recorder else "")
+                f"{exc}{child}; last good period {session.periods_done - 1}"
+                + (f"; recording {recording} closed with a fault marker" if recording else "")
             ) from None
-    finally:
-        if recorder is not None and not recorder.closed:
-            recorder.close("aborted")
-        handle.close()
+        summary = bench.close()
+    assert summary is not None
+    return summary
 
 
 def check_overrides(words: Sequence[str]) -> tuple[str, ...]:
@@ -158,7 +110,7 @@ def run_step_tests(
     gain_sets: Sequence[dict[str, float]],
     progress: Callable[[int, int], None] | None = None,
 ) -> list["StepResult"]:
-    """One step test per gain set on the configured target (a fresh target and plant each)."""
+    """One step test per parameter set on the configured target (a fresh target and plant each)."""
     from hilbench.bench.steptest import run_step
     from hilbench.plant.model import Plant
 
@@ -172,7 +124,7 @@ def run_step_tests(
         try:
             def make(events, opts, recorder, handle=handle):  # type: ignore[no-untyped-def]
                 plant = Plant(plant_params_from_config(cfg), seed=opts.seed, substeps=cfg.plant.substeps)
-                return Session(handle.target, plant, events, opts, recorder=recorder,
+                return Session(handle.target, plant, events, opts, recorder=recorder, profile=configured_profile(cfg),
                                link_stats=handle.link_stats, target_label=handle.label)
 
             results.append(run_step(make, test, gains, options))
@@ -181,4 +133,3 @@ def run_step_tests(
         if progress is not None:
             progress(index + 1, len(sets))
     return results
-

@@ -138,10 +138,11 @@ def default_scenario() -> tuple[Event, ...]:
     """The default bench: pot ramp to 1500 rpm with S2, step to 2500, reverse to -1500, stop.
 
     The pot starts turning before S2 so that the firmware sees a non-zero reference at start:
-    with the reference at zero AN1017 applies no voltage and its stall timer stops it again.
+    with the reference at zero the default firmware applies no voltage and its stall timer stops it
+    again.
 
-    Each reference is held about 1 s, longer than the 0.6-0.7 s the AN1017 default gains need to
-    settle; the reversal gets more because it brakes through zero first.
+    Each reference is held about 1 s, longer than the 0.6-0.7 s the default firmware's gains need
+    to settle; the reversal gets more because it brakes through zero first.
     """
     return (
         Event(at_s=0.0, ref_rpm=1500.0, ramp_s=0.3),

@@ -12,6 +12,9 @@ from typing import Any, Literal
 from hilbench.bench.scenario import FAULT_KINDS, LOAD_KINDS, Event, default_scenario
 from hilbench.bench.session import GuardSettings, SessionOptions
 from hilbench.config import BenchConfig, register_section, spec
+from hilbench.errors import ConfigError
+from hilbench.targets.profile import TargetProfile
+from hilbench.targets.registry import DEFAULT_TARGET, get_profile
 
 FaultName = Literal[
     "hall_a_high", "hall_a_low", "hall_b_high", "hall_b_low", "hall_c_high", "hall_c_low",
@@ -35,7 +38,8 @@ class RunSection:
 class LinkSection:
     """[link]: which target, the exchange period and the timing policy."""
 
-    target: str = field(default="emulator:an1017", metadata=spec(doc="emulator:NAME, inprocess:NAME, serial:PORT?baud=N or a device path"))
+    target: str = field(default=DEFAULT_TARGET, metadata=spec(doc="emulator:NAME, inprocess:NAME, serial:PORT?baud=N, a pyserial URL or a device path"))
+    firmware: str | None = field(default=None, metadata=spec(doc="the registered target a board on a port runs (for its [target] options)"))
     period_us: int = field(default=50, metadata=spec(unit="us", ge=50, le=6000, doc="one exchange per period"))
     timeout_ms: int = field(default=500, metadata=spec(unit="ms", ge=1, le=60000, doc="silence that ends the run"))
     watchdog_ms: int = field(default=100, metadata=spec(unit="ms", ge=0, le=60000, doc="target turns PWM off after this silence (real time)"))
@@ -45,16 +49,6 @@ class LinkSection:
     cpu_latency_qos: bool = field(default=True, metadata=spec(doc="real time: hold /dev/cpu_dma_latency at 0 so idle CPUs poll, not halt (needs root)"))
     pin_realtime: bool = field(default=True, metadata=spec(doc="real time: the host loop and the emulator process it started share one CPU"))
     realtime_cpu: int | None = field(default=None, metadata=spec(ge=0, le=4095, doc="that CPU (default: the last one this process may use)"))
-
-
-@dataclass(frozen=True)
-class TargetSection:
-    """[target]: firmware variant and the gains written after the handshake (None: firmware's own)."""
-
-    variant: Literal["seed", "v11"] = field(default="seed", metadata=spec(doc="AN1017 seed-document behaviour or the v1.1 source's"))
-    kp: float | None = field(default=None, metadata=spec(ge=0, lt=1, doc="speed PID Kp (Q15 fraction)"))
-    ki: float | None = field(default=None, metadata=spec(ge=0, lt=1))
-    kd: float | None = field(default=None, metadata=spec(ge=0, lt=1))
 
 
 @dataclass(frozen=True)
@@ -71,23 +65,19 @@ class ScenarioEntry:
     press: Literal["s2", "s3"] | None = None
     fault: FaultName | None = None
     fault_duration_s: float | None = field(default=None, metadata=spec(unit="s", gt=0))
-    kp: float | None = field(default=None, metadata=spec(ge=0, lt=1))
-    ki: float | None = field(default=None, metadata=spec(ge=0, lt=1))
-    kd: float | None = field(default=None, metadata=spec(ge=0, lt=1))
+    set: dict[str, float] | None = field(default=None, metadata=spec(doc="live parameter change, e.g. { kp = 0.12 }"))
     end: bool = False
 
     def check(self) -> list[tuple[str, str]]:
-        actions = [k for k in ("ref_rpm", "pot", "load_nm", "vbus_v", "press", "fault") if getattr(self, k) is not None]
-        if any(getattr(self, k) is not None for k in ("kp", "ki", "kd")):
-            actions.append("kp/ki/kd")
+        actions = [k for k in ("ref_rpm", "pot", "load_nm", "vbus_v", "press", "fault", "set") if getattr(self, k) is not None]
         if self.end:
             actions.append("end")
         if len(actions) != 1:
-            return [("at_s", f"needs exactly one action of ref_rpm, pot, load_nm, vbus_v, press, fault, kp/ki/kd, end (found {actions or 'none'})")]
+            return [("at_s", f"needs exactly one action of ref_rpm, pot, load_nm, vbus_v, press, fault, set, end (found {actions or 'none'})")]
         return []
 
     def to_event(self) -> Event:
-        params = tuple((k, float(getattr(self, k))) for k in ("kp", "ki", "kd") if getattr(self, k) is not None)
+        params = tuple((k, float(v)) for k, v in (self.set or {}).items())
         return Event(
             at_s=self.at_s, ref_rpm=self.ref_rpm, pot=self.pot, ramp_s=self.ramp_s, load_nm=self.load_nm,
             load_kind=self.load_kind, vbus_v=self.vbus_v, press=self.press, fault=self.fault,
@@ -109,7 +99,7 @@ class TuningSection:
 register_section("tuning", TuningSection)
 register_section("run", RunSection)
 register_section("link", LinkSection)
-register_section("target", TargetSection)
+register_section("target", None, chooser=lambda built: target_profile(built.get("link")).options_type)
 register_section("scenario", ScenarioEntry, many=True)
 
 
@@ -130,14 +120,39 @@ def session_options(cfg: BenchConfig) -> SessionOptions:
     )
 
 
+def effective_seed(cfg: BenchConfig) -> int:
+    """[run] seed when given, else [plant] seed."""
+    return cfg.run.seed if cfg.run.seed is not None else cfg.plant.seed
+
+
 def guard_settings(cfg: BenchConfig) -> GuardSettings:
     """GuardSettings from the [tuning] table."""
     t = cfg.tuning
     return GuardSettings(t.guard, t.guard_window_s, t.guard_oscillation_rpm, t.guard_swings, t.guard_current_a)
 
 
-def gains_file_overrides(path: str) -> tuple[str, ...]:
-    """`--gains-file FILE`: the kp/ki/kd of a saved fragment's [target] table as overrides."""
+def target_name(spec_text: str) -> str | None:
+    """The registered target a spec names (`inprocess:NAME`, `emulator:NAME`, `sil:NAME`), else None."""
+    kind, sep, rest = spec_text.partition(":")
+    if sep and kind in ("inprocess", "emulator", "sil") and not rest.startswith("//"):
+        return rest.split("?", 1)[0]
+    return None
+
+
+def target_profile(link: "LinkSection | None") -> TargetProfile:
+    """The profile of the configured target: named by the spec, by [link] firmware for a port,
+    else the default target's."""
+    spec_text = link.target if link is not None else DEFAULT_TARGET
+    name = target_name(spec_text) or (link.firmware if link is not None else None) or target_name(DEFAULT_TARGET)
+    assert name is not None
+    try:
+        return get_profile(name)
+    except ConfigError as exc:
+        raise ConfigError(f"[link] target {spec_text!r}: {exc}") from None
+
+
+def params_file_overrides(path: str) -> tuple[str, ...]:
+    """`--gains-file FILE`: the values of a saved fragment's [target] table as overrides."""
     import tomllib
 
     from hilbench.errors import ConfigError
@@ -150,9 +165,9 @@ def gains_file_overrides(path: str) -> tuple[str, ...]:
     except tomllib.TOMLDecodeError as exc:
         raise ConfigError(f"{path}: not valid TOML: {exc}") from None
     table = data.get("target")
-    if not isinstance(table, dict) or not any(k in table for k in ("kp", "ki", "kd")):
-        raise ConfigError(f"{path}: no [target] table with kp/ki/kd (write one with `hilbench ctl save`)")
-    return tuple(f"target.{k}={table[k]!r}" for k in ("kp", "ki", "kd") if k in table)
+    if not isinstance(table, dict) or not table:
+        raise ConfigError(f"{path}: no [target] table with parameters (write one with `hilbench ctl save`)")
+    return tuple(f"target.{k}={v!r}" for k, v in table.items())
 
 
 def scenario_events(cfg: BenchConfig) -> tuple[Event, ...]:
@@ -163,9 +178,9 @@ def scenario_events(cfg: BenchConfig) -> tuple[Event, ...]:
     return tuple(sorted((e.to_event() for e in entries), key=lambda e: e.at_s))
 
 
-def configured_gains(cfg: BenchConfig) -> dict[str, float]:
-    """Gains the [target] table asks for (those left out keep the firmware's defaults)."""
-    return {k: v for k in ("kp", "ki", "kd") if (v := getattr(cfg.target, k)) is not None}
+def initial_params(cfg: BenchConfig) -> dict[str, float]:
+    """Parameters the [target] table asks to write after the handshake (the rest keep the firmware's)."""
+    return target_profile(cfg.link).initial_params(cfg.target)
 
 
 def config_metadata(cfg: BenchConfig) -> dict[str, Any]:

@@ -1,10 +1,9 @@
-"""Speed-step tests: one definition used by `hilbench step`, the control socket and sweeps.
+"""Speed-step tests: one definition used by `hilbench step`, the control socket, sweeps and the API.
 
-A step test starts the motor with the pot at ``from_rpm``, holds ``settle_s`` so the loop settles,
-steps the pot to ``to_rpm`` and keeps ``after_s`` seconds. The metrics are computed on the plant's
-speed from the step on, against the reference the firmware actually gets (the pot code's RefSpeed:
-the 10-bit pot quantises the reference by ~11.7 rpm on AN1017), so a perfect loop scores zero
-steady-state error.
+A step test starts the motor with the reference at ``from_rpm``, holds ``settle_s`` so the loop
+settles, steps the reference to ``to_rpm`` and keeps ``after_s`` seconds. The metrics are computed
+on the plant's speed from the step on, against the reference the firmware actually gets (the
+profile's `effective_rpm`: a pot quantises it), so a perfect loop scores zero steady-state error.
 """
 
 from __future__ import annotations
@@ -19,7 +18,26 @@ from hilbench.bench.recorder import MemoryRecorder
 from hilbench.bench.scenario import Event
 from hilbench.bench.session import Session, SessionOptions
 from hilbench.errors import ConfigError
-from hilbench.targets.profiles import TargetProfile
+from hilbench.protocol import State
+from hilbench.targets.profile import TargetProfile
+
+STATE_STALLED = int(State.STALLED)
+
+
+def step_scenario(
+    from_rpm: float, to_rpm: float, step_at_s: float, duration_s: float, press_at_s: float = 0.0
+) -> tuple[Event, ...]:
+    """The step test as session events: reference, start button, step, end."""
+    if not 0.0 <= press_at_s < step_at_s < duration_s:
+        raise ConfigError(
+            f"step test: need 0 <= press_at_s < step_at_s < duration_s (got {press_at_s}, {step_at_s}, {duration_s})"
+        )
+    return (
+        Event(at_s=0.0, ref_rpm=float(from_rpm)),
+        Event(at_s=press_at_s, press="s2"),
+        Event(at_s=step_at_s, ref_rpm=float(to_rpm)),
+        Event(at_s=duration_s, end=True),
+    )
 
 
 @dataclass(frozen=True)
@@ -34,7 +52,7 @@ class StepTest:
     def __post_init__(self) -> None:
         if self.from_rpm == self.to_rpm:
             raise ConfigError(f"step: --from and --to are both {self.from_rpm:g} rpm; a step needs two speeds")
-        if self.settle_s <= 0.02 or self.after_s <= 0:
+        if not (self.settle_s > 0.02 and self.after_s > 0):
             raise ConfigError("step: settle and after times must be positive (settle > 20 ms)")
 
     @property
@@ -42,7 +60,7 @@ class StepTest:
         return self.settle_s + self.after_s
 
     def events(self) -> tuple[Event, ...]:
-        """Pot at from_rpm, S2, step at settle_s, end. From standstill, S2 comes with the step."""
+        """Reference at from_rpm, S2, step at settle_s, end. From standstill, S2 comes with the step."""
         if self.from_rpm == 0:
             return (
                 Event(at_s=0.0, ref_rpm=0.0),
@@ -50,21 +68,16 @@ class StepTest:
                 Event(at_s=self.settle_s, press="s2"),
                 Event(at_s=self.duration_s, end=True),
             )
-        from hilbench.bench.sweep import step_scenario  # one step test for `step` and `sweep`
-
         return step_scenario(self.from_rpm, self.to_rpm, self.settle_s, self.duration_s)
 
     def quantised_rpm(self, profile: TargetProfile, rpm: float) -> float:
-        """The reference the firmware gets for ``rpm`` through the pot."""
-        if profile.rpm_per_speed_q15 is None or profile.pot_counts_per_q15 is None:
-            return rpm
-        code = profile.pot_code_for_rpm(rpm)
-        return (code - 512) / profile.pot_counts_per_q15 * profile.rpm_per_speed_q15
+        """The reference the firmware gets for ``rpm``."""
+        return profile.reference.effective_rpm(rpm) if profile.reference is not None else rpm
 
 
 @dataclass
 class StepResult:
-    """One gain set's step response and its figures."""
+    """One parameter set's step response and its figures."""
 
     label: str
     gains: dict[str, float]
@@ -72,6 +85,14 @@ class StepResult:
     t_s: np.ndarray = field(repr=False)  # from the step, s
     speed_rpm: np.ndarray = field(repr=False)
     ref_rpm: float = 0.0
+    stalled: bool = False  # the firmware stopped on its stall protection (metrics not meaningful)
+
+
+def require_speed_loop(profile: TargetProfile, where: str) -> None:
+    """A step test needs a target with a speed loop and a reference input."""
+    if not profile.has("speed_loop") or profile.reference is None:
+        raise ConfigError(f"{where}: target {profile.name!r} has no speed loop to step "
+                          "(its profile declares no speed_loop capability or reference input)")
 
 
 def analyse(columns: dict[str, np.ndarray], test: StepTest, profile: TargetProfile, label: str,
@@ -84,7 +105,7 @@ def analyse(columns: dict[str, np.ndarray], test: StepTest, profile: TargetProfi
     t_start = columns["t_s"]
     t = t_start + period_s
     speed = columns["speed_rpm"]
-    y0 = test.quantised_rpm(profile, test.from_rpm)  # the firmware's references, as `sweep` does
+    y0 = test.quantised_rpm(profile, test.from_rpm)
     y_ref = test.quantised_rpm(profile, test.to_rpm)
     stepped = np.flatnonzero(t_start >= test.settle_s)
     t_step = float(t_start[stepped[0]]) if stepped.size else test.settle_s
@@ -93,7 +114,8 @@ def analyse(columns: dict[str, np.ndarray], test: StepTest, profile: TargetProfi
     currents = np.hypot(i_alpha, i_beta)  # the phase-current amplitude |i_dq|
     metrics = step_metrics(t, speed, y0=y0, y_final_ref=y_ref, current_a=currents, t_step_s=t_step)
     after = t >= t_step
-    return StepResult(label, gains, metrics, t[after] - t_step, speed[after], y_ref)
+    stalled = bool(columns["state"].size and columns["state"][-1] == STATE_STALLED)
+    return StepResult(label, gains, metrics, t[after] - t_step, speed[after], y_ref, stalled)
 
 
 def run_step(
@@ -107,6 +129,7 @@ def run_step(
     recorder = MemoryRecorder()
     session = make_session(test.events(), options, recorder)
     session.handshake()
+    require_speed_loop(session.profile, "step")
     if gains:
         session.set_params(gains, 0.0, guard=False)
     session.run()
@@ -114,17 +137,21 @@ def run_step(
     return analyse(recorder.columns(), test, session.profile, name, gains, options.period_us * 1e-6)
 
 
-def parse_gain_sets(words: Sequence[str], names: Sequence[str] = ("kp", "ki", "kd")) -> list[dict[str, float]]:
-    """`--gains 0.1,0.01,0` → [{"kp": 0.1, "ki": 0.01, "kd": 0.0}]; fewer values leave the rest."""
+def parse_gain_sets(words: Sequence[str], names: Sequence[str]) -> list[dict[str, float]]:
+    """`--gains 0.1,0.01,0` → [{"kp": 0.1, "ki": 0.01, "kd": 0.0}] for names (kp, ki, kd); fewer
+    values leave the rest. `--gains kp=0.1,ki=0.01` names them."""
     sets: list[dict[str, float]] = []
     for word in words:
-        parts = [p for p in word.split(",")]
-        if not 1 <= len(parts) <= len(names):
-            raise ConfigError(f"--gains {word!r}: expected up to {len(names)} comma-separated values ({','.join(names)})")
+        parts = [p.strip() for p in word.split(",")]
         try:
+            if all("=" in p for p in parts):
+                sets.append({k.strip(): float(v) for k, v in (p.split("=", 1) for p in parts)})
+                continue
             values = [float(p) for p in parts]
         except ValueError:
-            raise ConfigError(f"--gains {word!r}: not numbers (e.g. 0.1,0.01,0)") from None
+            raise ConfigError(f"--gains {word!r}: not numbers (e.g. 0.1,0.01,0 or kp=0.1,ki=0.01)") from None
+        if not 1 <= len(values) <= len(names):
+            raise ConfigError(f"--gains {word!r}: expected up to {len(names)} comma-separated values ({','.join(names)})")
         sets.append(dict(zip(names, values)))
     return sets
 

@@ -1,17 +1,21 @@
-"""Gains as config fragments: what `ctl save` and `sweep --save` write and `run` loads back."""
+"""Parameters as config fragments: what `ctl save` and `sweep --save` write and `run` loads back."""
 
 from __future__ import annotations
 
 from typing import Mapping
 
-GAIN_NAMES = ("kp", "ki", "kd")
 
-
-def gains_fragment(params: Mapping[str, float], comment: str | None = None) -> str:
-    """A `[target]` table with the gains, loadable with `hilbench run CONFIG` or merged by hand."""
+def params_fragment(params: Mapping[str, float], comment: str | None = None) -> str:
+    """A `[target]` table with the given parameters, loadable with `hilbench run --gains-file`."""
     lines = [f"# {comment}"] if comment else []
     lines.append("[target]")
-    for name in GAIN_NAMES:
-        if name in params:
-            lines.append(f"{name} = {float(params[name]):.6f}")
+    for name, value in params.items():
+        lines.append(f"{name} = {float(value):.6f}")
     return "\n".join(lines) + "\n"
+
+
+def saved_fragment(get_reply: Mapping[str, object]) -> str:
+    """What `ctl save` writes: the tunable parameters of a control socket `get` reply's data."""
+    params = dict(get_reply.get("params", {}))  # type: ignore[call-overload]
+    tunable = list(get_reply.get("tunable") or params)  # type: ignore[call-overload]
+    return params_fragment({name: params[name] for name in tunable if name in params})

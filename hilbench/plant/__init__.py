@@ -1,6 +1,6 @@
 """The plant: PMSM + averaged inverter + hall/encoder/ADC sensors + load (no I/O, no wall clock).
 
-Public: `Plant(params, seed)`, `BatchPlant`, the parameter dataclasses, `plant_from_config`
+Public: `Plant(params, seed)`, the parameter dataclasses, `plant_from_config`
 (in hilbench.config).
 """
 

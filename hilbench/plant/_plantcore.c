@@ -8,7 +8,6 @@
  *
  * The arithmetic mirrors model.py operation by operation (same order, no FMA contraction:
  * build with -ffp-contract=off), so both backends agree to the last bit on the same libm.
- * Batch runs BatchPlant.step's loop over N plants on arrays it keeps (see the batch section).
  */
 #define PY_SSIZE_T_CLEAN
 #include <Python.h>
@@ -385,269 +384,6 @@ static PyObject *Core_set_adc(Core *s, PyObject *const *args, Py_ssize_t nargs)
     Py_RETURN_NONE;
 }
 
-/* ------------------------------------------------------------------ batch */
-/* Batch(params, state, hall_bits, last_edge_s, tl, substeps): N plants whose state lives in
- * arrays handed in once (BatchPlant's numpy rows, structure of arrays); the object keeps their
- * buffers, so step() only reads the three duty vectors and writes the state rows in place.
- *   params:      float64 (NP, N) rows [rd, rq, pq, pd, ppsi, p, ild, ilq, kt, kr, ij, kvj, tc, j, base, locked,
- *                vbus_v]
- *   state:       float64 (NS, N) rows [i_d, i_q, w_m, theta_e, nidx, stuck]
- *   hall_bits:   int64 (N,);  last_edge_s: float64 (N,) (NaN = no edge);  tl: float64 (N,) load torque
- * step(duty_a, duty_b, duty_c, output_mode, dt_s): duties are float64 (N,) C-contiguous buffers or
- * Python floats (the same duty for every plant).
- *
- * Arithmetic (batch.BatchPlant._substep is the same, operation by operation): the alpha-beta
- * voltage is Park-transformed once per period with libm sin/cos of theta at the period start;
- * each RK4 stage and each later substep start rotates that dq voltage by its angle offset
- * delta = h p w (|delta| ~ 0.04 rad at full speed), whose sin/cos come from small_sincos. */
-enum { NP = 17, NS = 6 };
-
-#define SMALL_ANGLE 0.1
-/* Taylor coefficients 1/k! (rounded once); for |d| <= 0.1 the first omitted terms are
- * d^11/11! (2.5e-18 relative to sin d) and d^12/12! (2e-21), far below half an ulp. */
-static const double S3 = -1.0 / 6.0, S5 = 1.0 / 120.0, S7 = -1.0 / 5040.0, S9 = 1.0 / 362880.0;
-static const double C2 = -1.0 / 2.0, C4 = 1.0 / 24.0, C6 = -1.0 / 720.0, C8 = 1.0 / 40320.0,
-                    C10 = -1.0 / 3628800.0;
-
-static inline void small_sincos(double d, double *s, double *c)
-{
-    if (fabs(d) <= SMALL_ANGLE) {
-        double z = d * d;
-        *s = d + d * z * (S3 + z * (S5 + z * (S7 + z * S9)));
-        *c = 1.0 + z * (C2 + z * (C4 + z * (C6 + z * (C8 + z * C10))));
-    } else {
-        *s = sin(d);
-        *c = cos(d);
-    }
-}
-
-typedef struct {
-    PyObject_HEAD
-    Py_ssize_t n;
-    long nsub;
-    Py_buffer bufs[5];
-    int nbufs;
-} BatchCore;
-
-static int get_buf(PyObject *o, Py_buffer *b, Py_ssize_t n, int writable, int want_int, const char *what)
-{
-    if (PyObject_GetBuffer(o, b, PyBUF_C_CONTIGUOUS | PyBUF_FORMAT | (writable ? PyBUF_WRITABLE : 0)) < 0)
-        return -1;
-    const char *f = b->format;
-    int ok = b->itemsize == 8 && f != NULL && f[1] == '\0'
-             && (want_int ? (f[0] == 'l' || f[0] == 'q') : f[0] == 'd') && b->len == n * 8;
-    if (!ok) {
-        PyErr_Format(PyExc_ValueError, "Batch: %s must be C-contiguous %s with %zd items", what,
-                     want_int ? "int64" : "float64", n);
-        PyBuffer_Release(b);
-        return -1;
-    }
-    return 0;
-}
-
-static void Batch_release(BatchCore *s)
-{
-    for (int k = 0; k < s->nbufs; k++) PyBuffer_Release(&s->bufs[k]);
-    s->nbufs = 0;
-}
-
-static int Batch_init(BatchCore *s, PyObject *args, PyObject *kwds)
-{
-    PyObject *o[5];
-    long nsub;
-    if (kwds != NULL && PyDict_GET_SIZE(kwds) != 0) {
-        PyErr_SetString(PyExc_TypeError, "Batch: no keyword arguments");
-        return -1;
-    }
-    if (!PyArg_ParseTuple(args, "OOOOOl:Batch", &o[0], &o[1], &o[2], &o[3], &o[4], &nsub)) return -1;
-    if (nsub < 1) { PyErr_SetString(PyExc_ValueError, "Batch: substeps must be >= 1"); return -1; }
-    Batch_release(s);
-    Py_buffer probe;
-    if (PyObject_GetBuffer(o[3], &probe, PyBUF_C_CONTIGUOUS) < 0) return -1;
-    Py_ssize_t n = probe.len / 8;
-    PyBuffer_Release(&probe);
-    if (n < 1) { PyErr_SetString(PyExc_ValueError, "Batch: no plants"); return -1; }
-    static const char *names[5] = {"params", "state", "hall_bits", "last_edge_s", "tl"};
-    static const Py_ssize_t rows[5] = {NP, NS, 1, 1, 1};
-    for (int k = 0; k < 5; k++) {
-        if (get_buf(o[k], &s->bufs[k], n * rows[k], k > 0, k == 2, names[k])) {
-            Batch_release(s);
-            return -1;
-        }
-        s->nbufs = k + 1;
-    }
-    s->n = n;
-    s->nsub = nsub;
-    return 0;
-}
-
-static void Batch_dealloc(BatchCore *s)
-{
-    Batch_release(s);
-    Py_TYPE(s)->tp_free((PyObject *)s);
-}
-
-/* A duty argument: a Python float/int (same for all plants, stride 0) or a float64 (N,) buffer. */
-static int duty_arg(PyObject *o, Py_buffer *b, int *have, double *scalar, const double **ptr,
-                    Py_ssize_t *stride, Py_ssize_t n, const char *what)
-{
-    *have = 0;
-    if (PyFloat_CheckExact(o) || PyLong_CheckExact(o)) {
-        *scalar = PyFloat_AsDouble(o);
-        if (*scalar == -1.0 && PyErr_Occurred()) return -1;
-        *ptr = scalar;
-        *stride = 0;
-        return 0;
-    }
-    if (get_buf(o, b, n, 0, 0, what)) return -1;
-    *have = 1;
-    *ptr = b->buf;
-    *stride = 1;
-    return 0;
-}
-
-static PyObject *Batch_step(BatchCore *s, PyObject *const *args, Py_ssize_t nargs)
-{
-    if (nargs != 5) {
-        PyErr_SetString(PyExc_TypeError, "Batch.step(duty_a, duty_b, duty_c, output_mode, dt_s)");
-        return NULL;
-    }
-    if (s->nbufs != 5) { PyErr_SetString(PyExc_RuntimeError, "Batch: not initialised"); return NULL; }
-    double dt_s;
-    if (get_double(args[4], &dt_s)) return NULL;
-    long mode = PyLong_AsLong(args[3]);
-    if (mode == -1 && PyErr_Occurred()) return NULL;
-    if (mode != OUTPUT_PWM && mode != OUTPUT_LOW_SIDE) {
-        PyErr_Format(PyExc_ValueError, "Batch.step: output mode %ld is not PWM (1) or LOW_SIDE (2)", mode);
-        return NULL;
-    }
-    const Py_ssize_t n = s->n;
-    Py_buffer db[3];
-    int have[3] = {0, 0, 0};
-    double sc[3];
-    const double *D[3];
-    Py_ssize_t ds[3];
-    static const char *dnames[3] = {"duty_a", "duty_b", "duty_c"};
-    if (mode == OUTPUT_PWM) {
-        for (int k = 0; k < 3; k++) {
-            if (duty_arg(args[k], &db[k], &have[k], &sc[k], &D[k], &ds[k], n, dnames[k])) {
-                for (int m = 0; m < k; m++) if (have[m]) PyBuffer_Release(&db[m]);
-                return NULL;
-            }
-        }
-    }
-    const double *P = s->bufs[0].buf, *TL = s->bufs[4].buf;
-    double *S = s->bufs[1].buf, *EDGE = s->bufs[3].buf;
-    long long *HALL = s->bufs[2].buf;
-    const long nsub = s->nsub;
-    const double sqrt3 = sqrt(3.0);
-    const double h = dt_s / (double)nsub, h2 = 0.5 * h, h6 = h / 6.0;
-    Py_BEGIN_ALLOW_THREADS
-    for (Py_ssize_t i = 0; i < n; i++) {
-#define PAR(k) P[(k) * n + i]
-        const double rd = PAR(0), rq = PAR(1), pq = PAR(2), pd = PAR(3), ppsi = PAR(4), p = PAR(5);
-        const double ild = PAR(6), ilq = PAR(7), kt = PAR(8), kr = PAR(9), ijv = PAR(10), kvjv = PAR(11);
-        const double tc = PAR(12), jm = PAR(13), base = PAR(14), vbus = PAR(16);
-        const int locked = PAR(15) != 0.0;
-#undef PAR
-#define ST(k) S[(k) * n + i]
-        double id0 = ST(0), iq0 = ST(1), w0 = ST(2), th0 = ST(3), n0 = ST(4);
-        int stuck = ST(5) != 0.0, have_edge = 0;
-        const double tl = TL[i];
-        /* dq voltage at the period start (Park of the held alpha-beta voltage) */
-        double ud = 0.0, uq = 0.0;
-        int live = 0;
-        if (mode == OUTPUT_PWM) {
-            const double da = D[0][ds[0] * i], dbv = D[1][ds[1] * i], dc = D[2][ds[2] * i];
-            const double va = vbus * (2.0 * da - dbv - dc) / 3.0;
-            const double vb = vbus * (dbv - dc) / sqrt3;
-            if (va != 0.0 || vb != 0.0) {
-                const double c0 = cos(th0), s0 = sin(th0);
-                ud = va * c0 + vb * s0;
-                uq = vb * c0 - va * s0;
-                live = 1;
-            }
-        }
-        double edge = NAN;
-        for (long jj = 0; jj < nsub; jj++) {
-            double ij, fr;
-            if (locked) {
-                ij = 0.0; fr = 0.0; w0 = 0.0;
-            } else if (stuck) {
-                double net = (kt + kr * id0) * iq0 * jm - tl;
-                if (fabs(net) <= tc) {
-                    ij = 0.0; fr = 0.0;
-                } else {
-                    stuck = 0;
-                    ij = ijv;
-                    fr = copysign(tc, net);
-                }
-            } else {
-                ij = ijv;
-                fr = w0 > 0.0 ? tc : w0 < 0.0 ? -tc : 0.0;
-            }
-            double ftj = (fr + tl) * ij, kvj = ij == 0.0 ? 0.0 : kvjv, ktj, krj;
-            if (ij == 0.0) { ktj = krj = 0.0; } else { ktj = kt; krj = kr; }
-            double a, b, w, sd, cd, uds, uqs;
-            double k1d = ild * ud + w0 * pq * iq0 - rd * id0;
-            double k1q = ilq * uq - w0 * (pd * id0 + ppsi) - rq * iq0;
-            double k1w = iq0 * (ktj + krj * id0) - kvj * w0 - ftj;
-            a = id0 + h2 * k1d; b = iq0 + h2 * k1q; w = w0 + h2 * k1w;
-            if (live) { small_sincos(h2 * p * w0, &sd, &cd); uds = cd * ud + sd * uq; uqs = cd * uq - sd * ud; }
-            else { uds = uqs = 0.0; }
-            double k2d = ild * uds + w * pq * b - rd * a;
-            double k2q = ilq * uqs - w * (pd * a + ppsi) - rq * b;
-            double k2w = b * (ktj + krj * a) - kvj * w - ftj;
-            double w2 = w;
-            a = id0 + h2 * k2d; b = iq0 + h2 * k2q; w = w0 + h2 * k2w;
-            if (live) { small_sincos(h2 * p * w2, &sd, &cd); uds = cd * ud + sd * uq; uqs = cd * uq - sd * ud; }
-            double k3d = ild * uds + w * pq * b - rd * a;
-            double k3q = ilq * uqs - w * (pd * a + ppsi) - rq * b;
-            double k3w = b * (ktj + krj * a) - kvj * w - ftj;
-            double w3 = w;
-            a = id0 + h * k3d; b = iq0 + h * k3q; w = w0 + h * k3w;
-            if (live) { small_sincos(h * p * w3, &sd, &cd); uds = cd * ud + sd * uq; uqs = cd * uq - sd * ud; }
-            double k4d = ild * uds + w * pq * b - rd * a;
-            double k4q = ilq * uqs - w * (pd * a + ppsi) - rq * b;
-            double k4w = b * (ktj + krj * a) - kvj * w - ftj;
-            id0 = id0 + h6 * (k1d + 2.0 * (k2d + k3d) + k4d);
-            iq0 = iq0 + h6 * (k1q + 2.0 * (k2q + k3q) + k4q);
-            double w1 = w0 + h6 * (k1w + 2.0 * (k2w + k3w) + k4w);
-            double dth = h6 * p * (w0 + 2.0 * (w2 + w3) + w);
-            if (fr != 0.0 && w0 != 0.0 && ((w1 > 0.0) != (w0 > 0.0))) {
-                w1 = 0.0;
-                stuck = 1;
-            }
-            double th1 = th0 + dth;
-            double n1 = floor((th1 - base) / SIXTY);
-            if (n1 != n0) {
-                edge = (double)jj * h + edge_time(base, th0, th1, (long long)n0, (long long)n1, p * w0, p * w1, h);
-                have_edge = 1;
-                HALL[i] = HALL_BY_SECTOR[mod6((long long)n1)];
-            }
-            if (th1 >= TWO_PI || th1 < 0.0) {
-                double k = floor(th1 / TWO_PI);
-                th1 -= k * TWO_PI;
-                n1 -= 6.0 * k;
-            }
-            if (live && jj + 1 < nsub) {  /* dq voltage at the next substep's start */
-                small_sincos(dth, &sd, &cd);
-                double u = cd * ud + sd * uq;
-                uq = cd * uq - sd * ud;
-                ud = u;
-            }
-            n0 = n1; th0 = th1; w0 = w1;
-        }
-        ST(0) = id0; ST(1) = iq0; ST(2) = w0; ST(3) = th0; ST(4) = n0; ST(5) = stuck;
-#undef ST
-        EDGE[i] = have_edge ? edge : NAN;
-    }
-    Py_END_ALLOW_THREADS
-    for (int k = 0; k < 3; k++) if (have[k]) PyBuffer_Release(&db[k]);
-    Py_RETURN_NONE;
-}
-
-/* ------------------------------------------------------------------ type */
 static PyObject *Core_new(PyTypeObject *type, PyObject *args, PyObject *kwds)
 {
     (void)args; (void)kwds;
@@ -715,24 +451,6 @@ static PyTypeObject CoreType = {
     .tp_methods = Core_methods,
 };
 
-static PyMethodDef Batch_methods[] = {
-    {"step", (PyCFunction)(void (*)(void))Batch_step, METH_FASTCALL,
-     "step(duty_a, duty_b, duty_c, output_mode, dt_s): one period of every plant, state updated in place."},
-    {NULL, NULL, 0, NULL},
-};
-
-static PyTypeObject BatchType = {
-    PyVarObject_HEAD_INIT(NULL, 0)
-    .tp_name = "hilbench.plant._plantcore.Batch",
-    .tp_basicsize = sizeof(BatchCore),
-    .tp_flags = Py_TPFLAGS_DEFAULT,
-    .tp_doc = "Batch(params, state, hall_bits, last_edge_s, tl, substeps): compiled BatchPlant step over caller-owned arrays.",
-    .tp_new = PyType_GenericNew,
-    .tp_init = (initproc)Batch_init,
-    .tp_dealloc = (destructor)Batch_dealloc,
-    .tp_methods = Batch_methods,
-};
-
 static PyMethodDef module_methods[] = {
     {NULL, NULL, 0, NULL},
 };
@@ -752,18 +470,12 @@ PyMODINIT_FUNC PyInit__plantcore(void)
     str_update_load = PyUnicode_InternFromString("_update_load");
     str_draw_noise = PyUnicode_InternFromString("_draw_noise");
     if (str_step_py == NULL || str_update_load == NULL || str_draw_noise == NULL) return NULL;
-    if (PyType_Ready(&CoreType) < 0 || PyType_Ready(&BatchType) < 0) return NULL;
+    if (PyType_Ready(&CoreType) < 0) return NULL;
     PyObject *m = PyModule_Create(&moduledef);
     if (m == NULL) return NULL;
     Py_INCREF(&CoreType);
     if (PyModule_AddObject(m, "Core", (PyObject *)&CoreType) < 0) {
         Py_DECREF(&CoreType);
-        Py_DECREF(m);
-        return NULL;
-    }
-    Py_INCREF(&BatchType);
-    if (PyModule_AddObject(m, "Batch", (PyObject *)&BatchType) < 0) {
-        Py_DECREF(&BatchType);
         Py_DECREF(m);
         return NULL;
     }

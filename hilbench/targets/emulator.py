@@ -1,26 +1,37 @@
-"""Run a named target model as a server on a port: the far end of a virtual serial pair or a tty."""
+"""Run a registered target model as a server on a port: the far end of a virtual serial pair or a tty.
+
+The bench starts emulator processes as ``python -m hilbench.targets.emulator NAME --port PATH
+[--mode lockstep|realtime] [--watchdog-ms N] [--options JSON]`` — not through the CLI, so the bench
+does not depend on the CLI's flag names. The process prints the path it serves on one line once it
+answers, and serves until the host hangs up or it is terminated.
+"""
 
 from __future__ import annotations
 
+import argparse
+import json
+import sys
 import threading
-from typing import Any, Callable, Mapping
+from typing import Callable, Mapping
 
 from hilbench.link import open_link
-from hilbench.targets import make_target
+from hilbench.targets.registry import get_profile
 from hilbench.targets.serve import ServeReport, serve
 
 
 def serve_on_port(name: str, port_spec: str = "pty", mode: int | None = None,
-                  options: Mapping[str, Any] | None = None, *, watchdog_ms: int | None = None,
+                  options: Mapping[str, object] | None = None, *, watchdog_ms: int | None = None,
                   announce: Callable[[str], None] | None = None,
                   stop_event: threading.Event | None = None) -> ServeReport:
     """Build target `name` and serve it on `port_spec` until the link closes or stop_event is set.
 
     port_spec "pty" makes a pair and serves on its master; any other spec (a tty path,
     serial:..., fd:N) is opened as it is. `announce` gets the path the host should open
-    (the pty slave, or port_spec itself) once the server is ready to answer.
+    (the pty slave, or port_spec itself) once the server is ready to answer. `options` are the
+    profile's `[target]` options as plain values.
     """
-    target = make_target(name, **dict(options or {}))
+    profile = get_profile(name)
+    target = profile.make(profile.options_from(dict(options or {})))
     link = open_link(port_spec, timeout_s=1.0)
     try:
         if announce is not None:
@@ -30,4 +41,31 @@ def serve_on_port(name: str, port_spec: str = "pty", mode: int | None = None,
         link.close()
 
 
-__all__ = ["serve_on_port"]
+def main(argv: list[str] | None = None) -> int:
+    """The emulator process's entry point (see the module docstring)."""
+    from hilbench.errors import HilbenchError
+
+    parser = argparse.ArgumentParser(prog="python -m hilbench.targets.emulator")
+    parser.add_argument("name")
+    parser.add_argument("--port", default="pty")
+    parser.add_argument("--mode", choices=("lockstep", "realtime"), default=None)
+    parser.add_argument("--watchdog-ms", type=int, default=None)
+    parser.add_argument("--options", default="{}", help="the profile's [target] options as JSON")
+    args = parser.parse_args(argv)
+    mode = None if args.mode is None else (0 if args.mode == "lockstep" else 1)
+    try:
+        options = json.loads(args.options)
+        serve_on_port(args.name, args.port, mode, options, watchdog_ms=args.watchdog_ms,
+                      announce=lambda path: print(path, flush=True))
+    except HilbenchError as exc:
+        print(f"emulator {args.name}: {exc}", file=sys.stderr)
+        return 1
+    except KeyboardInterrupt:
+        return 130
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
+
+__all__ = ["main", "serve_on_port"]

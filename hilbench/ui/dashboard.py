@@ -53,7 +53,9 @@ def render_snapshot(snap: Snapshot, params: dict[str, float], target_label: str)
     motor.add_row("duties", " ".join(str(d) for d in snap.duties))
     motor.add_row("i a/b/c", " ".join(f"{i:+.2f}" for i in snap.i_abc) + " A")
     motor.add_row("i bus", f"{snap.i_bus:+.3f} A")
-    motor.add_row("controller", f"{snap.control_output_q15}")
+    for name, value in snap.telemetry.items():  # the target's own telemetry, as its profile names it
+        if name not in ("measured_speed_rpm", "ref_speed_rpm"):
+            motor.add_row(name.replace("_", " "), _fmt(value))
 
     link = Table.grid(padding=(0, 2))
     link.add_column(style="bold")

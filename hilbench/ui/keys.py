@@ -84,10 +84,10 @@ class CommandLine:
         try:
             request = parse_ctl_args(line.split())
             if request["cmd"] == "save":
-                from hilbench.bench.tuning import gains_fragment
+                from hilbench.bench.tuning import saved_fragment
 
                 reply = ControlClient(self.socket_path, timeout_s=5.0).request({"cmd": "get"}, timeout_s=5.0)
-                Path(request["file"]).write_text(gains_fragment(reply["data"]["params"]), encoding="utf-8")
+                Path(request["file"]).write_text(saved_fragment(reply["data"]), encoding="utf-8")
                 return f"> {line}: saved"
             reply = ControlClient(self.socket_path, timeout_s=5.0).request(request, timeout_s=15.0)
         except (HilbenchError, OSError) as exc:

@@ -64,9 +64,15 @@ def plot_recording(data: RecordingData, out_dir: Path, stem: str | None = None) 
 
     speeds = [("ref_speed_rpm", "reference (firmware)", {"lw": 1.2, "color": "k", "ls": "--"}),
               ("speed_rpm", "speed (plant)", {"lw": 1.0})]
-    if not np.all(np.isnan(c["measured_speed_rpm"])):
+    if "measured_speed_rpm" in c and not np.all(np.isnan(c["measured_speed_rpm"])):
         speeds.append(("measured_speed_rpm", "speed (firmware measured)", {"lw": 0.8, "alpha": 0.8}))
     save(_line_figure(plt, t, c, speeds, "speed [rpm]", "speed vs reference"), "speed")
+    from hilbench.bench.recorder import COLUMN_NAMES
+
+    own = [name for name in c if name not in COLUMN_NAMES]  # the target's own telemetry columns
+    if own:
+        lines = [(name, f"{name} [{data.units.get(name, '')}]", {"lw": 0.8}) for name in own]
+        save(_line_figure(plt, t, c, lines, "value", "target telemetry"), "telemetry")
     currents = [(name, label, {"lw": 0.6}) for name, label in (("ia_a", "i_a"), ("ib_a", "i_b"), ("ic_a", "i_c"))]
     currents.append(("ibus_a", "i_bus", {"lw": 0.8, "color": "k"}))
     save(_line_figure(plt, t, c, currents, "current [A]", "phase and bus currents"), "currents")

@@ -23,7 +23,7 @@ import os
 from typing import Any
 
 from hilbench.errors import ConfigError, ParamError
-from hilbench.targets.an1017_firmware import (
+from hilbench.targets.an1017.firmware import (
     GAIN_CONSTRAINT_NAMES,
     INPUT_S2,
     PWM_PERIOD_TCY,
@@ -38,7 +38,7 @@ from hilbench.targets.an1017_firmware import (
     check_gain_constraints,
     max_phase_advance_from_deg,
 )
-from hilbench.targets.svm import SINE_TABLE, VOLTS_LIMIT, svm_fast
+from hilbench.targets.an1017.svm import SINE_TABLE, VOLTS_LIMIT, svm_fast
 
 from hilbench.protocol import (
     PROTOCOL_VERSION,
@@ -113,7 +113,7 @@ __all__ = [
 
 
 try:
-    from hilbench.targets import _an1017core
+    from hilbench.targets.an1017 import _core as _an1017core
 except ImportError:  # pragma: no cover - built without a C compiler
     _an1017core = None
 else:
@@ -135,7 +135,7 @@ def _choose_backend(backend: str | None, reference: bool) -> str:
             raise ConfigError("an1017 backend 'c': the reference path (reference=True) is pure Python")
         return "python"
     if choice == "c" and _an1017core is None:
-        raise ConfigError("an1017 backend 'c': hilbench.targets._an1017core is not built (pip install . with a C compiler)")
+        raise ConfigError("an1017 backend 'c': hilbench.targets.an1017._core is not built (pip install . with a C compiler)")
     return choice
 
 

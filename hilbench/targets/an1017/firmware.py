@@ -30,8 +30,8 @@ from dataclasses import dataclass
 from typing import Literal
 
 from hilbench.errors import ConfigError
-from hilbench.targets.fixedpoint import divf, float_to_q15, sat16, wrap16
-from hilbench.targets.svm import PTPER, VOLTS_LIMIT, svm, svm_fast
+from hilbench.targets.an1017.fixedpoint import divf, float_to_q15, sat16, wrap16
+from hilbench.targets.an1017.svm import PTPER, VOLTS_LIMIT, svm, svm_fast
 
 # ---- time base -------------------------------------------------------------------------------
 FCY_HZ = 20_000_000

@@ -586,7 +586,7 @@ static PyMethodDef Core_methods[] = {
 
 static PyTypeObject CoreType = {
     PyVarObject_HEAD_INIT(NULL, 0)
-    .tp_name = "hilbench.targets._an1017core.Core",
+    .tp_name = "hilbench.targets.an1017._core.Core",
     .tp_basicsize = sizeof(Core),
     .tp_flags = Py_TPFLAGS_DEFAULT | Py_TPFLAGS_BASETYPE | Py_TPFLAGS_HAVE_GC,
     .tp_doc = "Firmware state and compiled step of the AN1017 C backend (base of an1017._CFirmware).",
@@ -645,11 +645,11 @@ static PyMethodDef module_methods[] = {
 };
 
 static struct PyModuleDef moduledef = {
-    PyModuleDef_HEAD_INIT, "_an1017core", "Compiled AN1017 firmware model (optional).", -1, module_methods,
+    PyModuleDef_HEAD_INIT, "_core", "Compiled AN1017 firmware model (optional).", -1, module_methods,
     NULL, NULL, NULL, NULL,
 };
 
-PyMODINIT_FUNC PyInit__an1017core(void)
+PyMODINIT_FUNC PyInit__core(void)
 {
     for (int i = 0; i <= 1000; i++) {
         duty_ints[i] = PyLong_FromLong(i);

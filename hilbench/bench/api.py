@@ -1,0 +1,55 @@
+"""Step tests and sweeps for Python callers: the functions behind `hilbench step` and `hilbench sweep`."""
+
+from __future__ import annotations
+
+import os
+from typing import Callable, Mapping, Sequence
+
+from hilbench.bench.bench import _as_config
+from hilbench.bench.run import in_process, run_step_tests, settings_profile
+from hilbench.bench.steptest import StepResult, StepTest, require_speed_loop
+from hilbench.bench.sweep import SweepResult, sweep_grid
+from hilbench.config import BenchConfig
+
+
+def step_test(
+    config: BenchConfig | str | os.PathLike[str] | None = None,
+    *,
+    target: str | None = None,
+    from_rpm: float = 1000.0,
+    to_rpm: float = 2000.0,
+    settle_s: float = 0.5,
+    after_s: float = 0.5,
+    params: Mapping[str, float] | None = None,
+    overrides: Sequence[str] = (),
+) -> StepResult:
+    """One speed step on a fresh target (default: the configured target's in-process model) with
+    ``params`` written first; returns the response and its metrics (rise, overshoot, settling, …)."""
+    cfg = _as_config(config, target, overrides)
+    if target is None:
+        cfg = in_process(cfg)
+    require_speed_loop(settings_profile(cfg), "step_test")
+    return run_step_tests(cfg, StepTest(from_rpm, to_rpm, settle_s, after_s), [dict(params or {})])[0]
+
+
+def sweep(
+    axes: Mapping[str, Sequence[float]],
+    config: BenchConfig | str | os.PathLike[str] | None = None,
+    *,
+    from_rpm: float = 1000.0,
+    to_rpm: float = 2000.0,
+    settle_s: float = 0.5,
+    after_s: float = 0.5,
+    metric: str = "itae",
+    workers: int | None = None,
+    overrides: Sequence[str] = (),
+    progress: Callable[[int, int], None] | None = None,
+) -> SweepResult:
+    """Step-test every point of a grid, e.g. ``sweep({"kp": [0.1, 0.2], "ki": [0.01, 0.02]})``,
+    on a process pool (``workers``: None = one per core); ranked by ``metric``."""
+    cfg = _as_config(config, None, overrides)
+    test = StepTest(from_rpm, to_rpm, settle_s, after_s)
+    return sweep_grid(cfg, list(axes.items()), test, metric, workers=workers, progress=progress)
+
+
+__all__ = ["step_test", "sweep"]

@@ -1,0 +1,316 @@
+"""A bench opened on any target, for Python scripts, tests and the CLI alike.
+
+    import hilbench
+    with hilbench.Bench(target="inprocess:NAME") as bench:   # NAME: `hilbench targets`
+        bench.set_reference(1500)
+        bench.press("s2")
+        bench.run(1.0)
+        speed = bench.signals()["speed_rpm"]
+
+The bench owns what it opened (an emulator process, a link, a recording) and closes all of it on
+exit, whatever happened. Everything goes through the session's own paths: parameter writes are
+checked and guarded as `hilbench ctl set` is, references reach the firmware as its profile says,
+and every action is an event in the recording.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+import os
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Callable, Iterator, Mapping, Sequence
+
+import numpy as np
+
+from hilbench import __version__
+from hilbench.bench import settings
+from hilbench.bench.cpus import CpuPinning
+from hilbench.bench.launcher import TargetHandle, open_target
+from hilbench.bench.recorder import MemoryRecorder, Recorder, read_recording
+from hilbench.bench.scenario import Event
+from hilbench.bench.session import Session, Snapshot, Summary
+from hilbench.config import BenchConfig, load_config, plant_params_from_config
+from hilbench.errors import ConfigError, LinkError
+from hilbench.protocol import PROTOCOL_VERSION, TargetHello
+from hilbench.targets.profile import TargetProfile
+
+#: how often `run(until=...)` looks at its condition
+CONDITION_EVERY_S = 0.001
+
+
+@dataclass(frozen=True)
+class Signals(Mapping[str, np.ndarray]):
+    """Everything recorded so far: one float64 array per column, with its unit."""
+
+    columns: Mapping[str, np.ndarray]
+    units: Mapping[str, str]
+
+    def __getitem__(self, name: str) -> np.ndarray:
+        try:
+            return self.columns[name]
+        except KeyError:
+            raise KeyError(f"no column {name!r} (recorded: {', '.join(self.columns)})") from None
+
+    def __iter__(self) -> Iterator[str]:
+        return iter(self.columns)
+
+    def __len__(self) -> int:
+        return len(self.columns)
+
+    def unit(self, name: str) -> str:
+        return self.units.get(name, "")
+
+
+def _as_config(config: BenchConfig | str | os.PathLike[str] | None, target: str | None,
+               overrides: Sequence[str]) -> BenchConfig:
+    if isinstance(config, BenchConfig):
+        if not target and not overrides:
+            return config
+        raise ConfigError("Bench: give target= and overrides= with a config path, not with a loaded BenchConfig")
+    extra = list(overrides) + ([f'link.target="{target}"'] if target else [])
+    return load_config(config, extra)
+
+
+class Bench:
+    """A target, a plant and a session, opened together; a context manager."""
+
+    def __init__(
+        self,
+        config: BenchConfig | str | os.PathLike[str] | None = None,
+        *,
+        target: str | None = None,
+        overrides: Sequence[str] = (),
+        record: str | os.PathLike[str] | None = None,
+        scenario: bool = False,
+        observer: Callable[[Snapshot], None] | None = None,
+        control: object | None = None,
+    ) -> None:
+        """``config``: a path, a loaded config or None (the packaged default); ``target``: a target
+        spec; ``overrides``: `TABLE.KEY=VALUE` words; ``record``: a .csv/.npz path (default: kept in
+        memory); ``scenario``: play the config's scenario (off: the script drives)."""
+        self.config = _as_config(config, target, overrides)
+        self._record_path = Path(record) if record is not None else None
+        self._play_scenario = scenario
+        self._observer = observer
+        self._control = control
+        self._handle: TargetHandle | None = None
+        self._pinning: CpuPinning | None = None
+        self.session: Session | None = None
+        self.recorder: Recorder | MemoryRecorder | None = None
+
+    # ------------------------------------------------------------------ open and close
+    def open(self) -> "Bench":
+        """Connect the target, build the plant, handshake, write the configured parameters."""
+        from hilbench.plant.model import Plant
+
+        cfg = self.config
+        options = dataclasses.replace(settings.session_options(cfg), seed=settings.effective_seed(cfg))
+        events = settings.scenario_events(cfg) if self._play_scenario else ()
+        profile = configured_profile(cfg)
+        plant = Plant(plant_params_from_config(cfg), seed=options.seed, substeps=cfg.plant.substeps)
+        handle = self._handle = open_target(cfg.link.target, profile=profile, options=cfg.target, mode=options.mode,
+                                            timeout_s=options.timeout_s, watchdog_ms=options.watchdog_ms)
+        try:
+            session = self.session = Session(
+                handle.target, plant, events, options, profile=profile, observer=self._observer,
+                control=self._control, link_stats=handle.link_stats, target_label=handle.label,
+                guard=settings.guard_settings(cfg),
+            )
+            try:
+                hello = session.handshake()
+            except LinkError as exc:
+                raise LinkError(f"{handle.label}: handshake failed: {exc}{handle.child_status()}") from None
+            if hasattr(handle.target, "timeout_s"):
+                handle.target.timeout_s = options.timeout_s  # type: ignore[attr-defined]
+            initial = settings.initial_params(cfg)
+            if initial:
+                session.set_params(initial, 0.0, guard=False)
+            self.recorder = self._make_recorder(hello, session, options.period_us)
+            session.recorder = self.recorder
+            if options.mode == "realtime" and cfg.link.pin_realtime and handle.process is not None:
+                self._pinning = CpuPinning([handle.process.pid], cfg.link.realtime_cpu).__enter__()
+            session.begin()
+        except BaseException:
+            self.close()
+            raise
+        return self
+
+    def _make_recorder(self, hello: TargetHello, session: Session, period_us: int) -> Recorder | MemoryRecorder:
+        cfg = self.config
+        metadata = {
+            "hilbench_version": __version__,
+            "protocol_version": PROTOCOL_VERSION,
+            "seed": session.options.seed,
+            "target": cfg.link.target,
+            "target_hello": hello._asdict(),
+            "params": session.param_values(),
+            "config_source": cfg.source,
+            "config": settings.config_metadata(cfg),
+            "period_us": period_us,
+            "mode": session.options.mode,
+        }
+        if self._record_path is None:
+            return MemoryRecorder(metadata)
+        return Recorder(self._record_path, metadata, flush_rows=max(1, round(1e6 / period_us)))
+
+    def close(self) -> Summary | None:
+        """End the run (target stopped, recording closed) and release everything; idempotent."""
+        summary = None
+        try:
+            if self.session is not None and hasattr(self.session, "summary"):
+                summary = self.session.end()
+                if self._pinning is not None:
+                    summary.cpus = self._pinning.status
+        finally:
+            if self._pinning is not None:
+                self._pinning.__exit__(None, None, None)
+                self._pinning = None
+            if isinstance(self.recorder, Recorder) and not self.recorder.closed:
+                self.recorder.close("aborted")
+            if self._handle is not None:
+                self._handle.close()
+                self._handle = None
+        return summary
+
+    def __enter__(self) -> "Bench":
+        return self.open()
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+    # ------------------------------------------------------------------ running
+    @property
+    def _session(self) -> Session:
+        if self.session is None:
+            raise ConfigError("Bench: not open (use `with Bench(...) as bench:` or bench.open())")
+        return self.session
+
+    @property
+    def t_s(self) -> float:
+        """Simulated time now (the start of the next period)."""
+        session = self._session
+        return session.periods_done * session.options.period_us * 1e-6
+
+    def run(self, seconds: float | None = None, *, until: Callable[["Bench"], bool] | None = None,
+            timeout_s: float = 60.0) -> bool:
+        """Run ``seconds`` of simulated time, or until ``until(bench)`` is true (looked at every
+        millisecond, at most ``timeout_s``), or the config's scenario to its end when neither is
+        given. Returns False when the run has ended (scenario end, `ctl stop`)."""
+        session = self._session
+        period_s = session.options.period_us * 1e-6
+        if until is None:
+            if seconds is None:
+                return session.advance(max(0, session.planned_periods - session.periods_done))
+            return session.advance(_periods(seconds, period_s, "seconds"))
+        limit = session.periods_done + _periods(seconds if seconds is not None else timeout_s, period_s, "timeout_s")
+        chunk = max(1, round(CONDITION_EVERY_S / period_s))
+        while session.periods_done < limit:
+            if until(self):
+                return True
+            if not session.advance(min(chunk, limit - session.periods_done)):
+                return False
+        return bool(until(self))
+
+    # ------------------------------------------------------------------ steering
+    def _act(self, event: Event) -> None:
+        session = self._session
+        session.apply_now(dataclasses.replace(event, at_s=self.t_s))
+
+    def press(self, button: str = "s2") -> None:
+        """Press a button: s2 starts and stops the motor (as the board's S2), s3 the other."""
+        if button not in ("s2", "s3"):
+            raise ConfigError(f"press {button!r}: buttons are s2 and s3")
+        self._act(Event(at_s=0.0, press=button))
+
+    def set_reference(self, rpm: float, ramp_s: float = 0.0) -> None:
+        """The speed reference, by the way the target takes it (a pot, a parameter)."""
+        self._act(Event(at_s=0.0, ref_rpm=_finite(rpm, "rpm"), ramp_s=_finite(ramp_s, "ramp_s")))
+
+    def set_load(self, torque_nm: float, kind: str = "constant") -> None:
+        """The load from now on: constant N*m, linear/quadratic coefficient, or locked."""
+        self._act(Event(at_s=0.0, load_nm=_finite(torque_nm, "torque_nm"), load_kind=kind))
+
+    def inject_fault(self, kind: str, duration_s: float | None = None) -> None:
+        """A sensor fault (hall_a_high … hall_c_low, hall_missing_edge, encoder_glitch, clear)."""
+        from hilbench.bench.scenario import FAULT_KINDS
+
+        if kind not in FAULT_KINDS:
+            raise ConfigError(f"inject_fault {kind!r}: one of {', '.join(FAULT_KINDS)}")
+        self._act(Event(at_s=0.0, fault=kind, fault_duration_s=duration_s))
+
+    def get_params(self) -> dict[str, float]:
+        """Every declared parameter in its units (Q15 ones as fractions)."""
+        return self._session.param_values()
+
+    def set_params(self, guard: bool = True, **values: float) -> None:
+        """Write parameters at once, checked and guarded as `hilbench ctl set` is."""
+        self._session.set_params({k: float(v) for k, v in values.items()}, self.t_s, guard=guard)
+
+    # ------------------------------------------------------------------ reading
+    @property
+    def hello(self) -> TargetHello:
+        assert self._session.hello is not None
+        return self._session.hello
+
+    @property
+    def profile(self) -> TargetProfile:
+        return self._session.profile
+
+    @property
+    def speed_rpm(self) -> float:
+        """The plant's shaft speed now."""
+        return float(self._session.plant.speed_rpm)  # type: ignore[attr-defined]
+
+    def signals(self) -> Signals:
+        """Every recorded column so far as arrays (one row per period), with units."""
+        recorder = self.recorder
+        if isinstance(recorder, MemoryRecorder):
+            columns = recorder.columns()
+            units = {name: unit for name, unit, _ in recorder.rows.layout.column_specs}
+            return Signals(columns, units)
+        if recorder is None:
+            raise ConfigError("Bench: nothing recorded yet")
+        if not recorder.closed:
+            recorder.flush()
+        data = read_recording(recorder.path)
+        return Signals(data.columns, data.units)
+
+    @property
+    def events(self) -> tuple[str, ...]:
+        """The events so far, as text (`t=… what`)."""
+        recorder = self.recorder
+        if isinstance(recorder, MemoryRecorder):
+            return tuple(text for _, text, _ in recorder.events)
+        return tuple(self._session.messages)
+
+    def summary(self) -> Summary:
+        """The run's summary now (closes the run: call it at the end)."""
+        summary = self.close()
+        if summary is None:
+            raise ConfigError("Bench: never opened")
+        return summary
+
+
+def configured_profile(cfg: BenchConfig) -> TargetProfile | None:
+    """The profile the config names (by its target spec, or [link] firmware for a port), else None:
+    a board's profile is then found by the firmware name in its HELLO."""
+    if settings.target_name(cfg.link.target) is None and cfg.link.firmware is None:
+        return None
+    return settings.target_profile(cfg.link)
+
+
+def _finite(value: float, what: str) -> float:
+    if not isinstance(value, (int, float)) or not math.isfinite(value):
+        raise ConfigError(f"{what}={value!r}: expected a finite number")
+    return float(value)
+
+
+def _periods(seconds: float, period_s: float, what: str) -> int:
+    if not isinstance(seconds, (int, float)) or not math.isfinite(seconds) or seconds < 0 or seconds > 1e7:
+        raise ConfigError(f"run {what}={seconds!r}: expected 0..1e7 s")
+    return round(seconds / period_s)
+
+
+__all__ = ["Bench", "Signals", "configured_profile"]

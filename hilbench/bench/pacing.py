@@ -1,0 +1,76 @@
+"""Real-time pacing: each period waits for its wall-clock slot; lateness, RTT and overruns measured.
+
+A period whose slot has gone by the time its wait returns is not exchanged: the Drive is held
+(as the board holds its PWM), the plant keeps to the wall clock, the row is marked and the
+period counts as an overrun and a skipped period. Lockstep has no pacing object at all.
+"""
+
+from __future__ import annotations
+
+import time
+from typing import Callable
+
+from hilbench.bench.clock import Pacer
+from hilbench.bench.recorder import MARKER_SKIPPED
+from hilbench.errors import HilbenchError
+from hilbench.protocol import Drive, Sensors
+
+
+class SessionAborted(HilbenchError):
+    """The session stopped on a fault; the recording is closed with a fault marker."""
+
+
+class RealtimePacing:
+    """The wall clock's side of a real-time session."""
+
+    def __init__(self, period_us: int, *, abort_after: int | None, label: str) -> None:
+        self.period_us = period_us
+        self.period_s = period_us * 1e-6
+        self.pacer = Pacer(self.period_s)
+        self.abort_after = abort_after  # consecutive overruns that end the run (None: never)
+        self.label = label
+        self.rtts: list[float] = []
+        self.lateness: list[float] = []
+        self.overruns = 0
+        self.consecutive = 0
+        self.skipped = 0
+        self.rtt = 0.0
+        self.late = 0.0
+        self.marker = 0
+
+    def start_at(self, k: int) -> None:
+        """Period k starts one period from now (the run starts, or resumes after a pause)."""
+        self.pacer.start()
+        self.pacer.t0 -= k * self.period_s
+
+    def exchange(self, k: int, sensors: Sensors, drive: Drive | None, step: Callable[[Sensors], Drive]) -> Drive:
+        """Wait for period k's slot, then exchange — or hold ``drive`` if the slot has gone."""
+        self.late = late = self.pacer.wait_for(k)
+        self.lateness.append(late)
+        if late >= self.period_s and drive is not None:
+            self.skipped += 1
+            self.rtt = 0.0
+            self.marker = MARKER_SKIPPED
+            return drive
+        sent = time.perf_counter()
+        drive = step(sensors)
+        self.rtt = time.perf_counter() - sent
+        self.rtts.append(self.rtt)
+        self.marker = 0
+        return drive
+
+    def finished(self, k: int) -> None:
+        """Period k's work is done: count an overrun if it ended after its slot."""
+        if time.perf_counter() - self.pacer.t0 - k * self.period_s <= self.period_s:
+            self.consecutive = 0
+            return
+        self.overruns += 1
+        self.consecutive += 1
+        if self.abort_after is not None and self.consecutive >= self.abort_after:
+            raise SessionAborted(
+                f"{self.label}: {self.consecutive} consecutive overruns at period {k} "
+                f"(period {self.period_us} us); try a longer period or --mode lockstep"
+            )
+
+
+__all__ = ["RealtimePacing", "SessionAborted"]

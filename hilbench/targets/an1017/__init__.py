@@ -1,0 +1,100 @@
+"""The AN1017 sinusoidal-drive firmware (dsPIC30F2010, PICDEM MC LV) as a hilbench target.
+
+`firmware` is the readable fixed-point model, `target` puts it behind the Target interface (with
+the compiled core `_core` as its accelerator), `svm` and `fixedpoint` are the firmware's tables and
+Q15 arithmetic. This module declares the target's PROFILE: its `[target]` options, gains and their
+constraints, the pot that carries the speed reference, and its telemetry columns.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Literal, Mapping
+
+from hilbench.fieldspec import spec
+from hilbench.protocol import TelemetryId
+from hilbench.targets.profile import MotorBuild, PotReference, TargetProfile, TelemetryColumn
+
+#: MeasuredSpeed = trunc(312·32768/Period) and rpm = 1 875 000/Period (the application note's
+#: Table 6), so one Q15 step of speed is 1 875 000/(312·32768) rpm; 32767 ≈ 6009.6 rpm.
+RPM_PER_SPEED_Q15 = 1_875_000 / (312 * 32768)
+#: the pot in ADC FORM = 11 (signed fractional): RefSpeed = (code − 512) << 6
+POT_MID_CODE = 512
+POT_Q15_PER_COUNT = 64
+POT_MAX_CODE = 1023
+GAIN_NAMES = ("kp", "ki", "kd")
+POLE_PAIRS = 5  # the Hurst DMB0224C10002: 10 poles (the firmware's speed scale assumes them)
+
+
+def ref_speed_q15_for_code(code: int) -> int:
+    """The firmware's RefSpeed for a 10-bit pot code."""
+    return ((code & 0x3FF) - POT_MID_CODE) * POT_Q15_PER_COUNT
+
+
+def pot_code_for_rpm(speed_rpm: float) -> int:
+    """The 10-bit pot code whose RefSpeed is nearest to ``speed_rpm`` (clamped to the pot)."""
+    ref_q15 = speed_rpm / RPM_PER_SPEED_Q15
+    code = POT_MID_CODE + round(ref_q15 / POT_Q15_PER_COUNT)
+    return min(POT_MAX_CODE, max(0, code))
+
+
+def rpm_for_pot_code(code: int) -> float:
+    """The speed reference in rpm the firmware makes of a pot code."""
+    return ref_speed_q15_for_code(code) * RPM_PER_SPEED_Q15
+
+
+@dataclass(frozen=True)
+class An1017Settings:
+    """[target] for AN1017: the firmware variant and the gains written after the handshake."""
+
+    variant: Literal["seed", "v11"] = field(default="seed", metadata=spec(doc="the application note's behaviour (seed) or the v1.1 source's"))
+    kp: float | None = field(default=None, metadata=spec(ge=0, lt=1, doc="speed PID Kp (Q15 fraction; default: the firmware's 0.1)"))
+    ki: float | None = field(default=None, metadata=spec(ge=0, lt=1, doc="speed PID Ki (default 0.01)"))
+    kd: float | None = field(default=None, metadata=spec(ge=0, lt=1, doc="speed PID Kd (default 0)"))
+
+
+def _make(settings: object) -> object:
+    from hilbench.targets.an1017.firmware import An1017Options
+    from hilbench.targets.an1017.target import An1017Target
+
+    variant = settings.variant if isinstance(settings, An1017Settings) else "seed"
+    return An1017Target(An1017Options(variant=variant))
+
+
+def _check_gains(raw: Mapping[str, int]) -> str | None:
+    from hilbench.targets.an1017.firmware import GAIN_CONSTRAINT_NAMES, check_gain_constraints
+
+    if not all(name in raw for name in GAIN_NAMES):
+        return None
+    broken = check_gain_constraints(raw["kp"], raw["ki"], raw["kd"])
+    return None if broken is None else f"constraint #{broken} {GAIN_CONSTRAINT_NAMES[broken]}"
+
+
+def _initial_params(settings: object) -> dict[str, float]:
+    if not isinstance(settings, An1017Settings):
+        return {}
+    return {name: value for name in GAIN_NAMES if (value := getattr(settings, name)) is not None}
+
+
+PROFILE = TargetProfile(
+    name="an1017",
+    firmware_name="AN1017",
+    make=_make,
+    description="Microchip AN1017 hall-sensored sinusoidal drive, dsPIC30F2010 (PICDEM MC LV)",
+    options_type=An1017Settings,
+    tunable=GAIN_NAMES,
+    check_params=_check_gains,
+    reference=PotReference(pot_code_for_rpm, rpm_for_pot_code, POT_MAX_CODE),
+    telemetry=(
+        TelemetryColumn(int(TelemetryId.MEASURED_SPEED), "measured_speed_rpm", "rpm", RPM_PER_SPEED_Q15),
+        TelemetryColumn(int(TelemetryId.REF_SPEED), "ref_speed_rpm", "rpm", RPM_PER_SPEED_Q15),
+        TelemetryColumn(int(TelemetryId.CONTROL_OUTPUT), "control_output_q15", "q15", 1.0, "%d"),
+    ),
+    speed_column="measured_speed_rpm",
+    built_for=lambda settings: MotorBuild(pole_pairs=POLE_PAIRS),
+    initial_params=_initial_params,
+    capabilities=frozenset({"speed_loop", "realtime", "fault_injection", "tuning", "hall_sensors"}),
+    sweep_defaults=(("kp", "0.05:0.85:10"), ("ki", "0.005:0.12:10"), ("kd", "0")),
+)
+
+__all__ = ["An1017Settings", "PROFILE", "RPM_PER_SPEED_Q15", "pot_code_for_rpm", "rpm_for_pot_code"]

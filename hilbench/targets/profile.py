@@ -1,0 +1,158 @@
+"""A target's profile: everything the bench needs to know about one firmware, declared by its package.
+
+The bench names no firmware. It learns from a profile how to build the firmware in-process or as
+an emulator process, which `[target]` options it takes, which of its parameters are gains and what
+constraints they obey, how a speed reference reaches it (a pot ADC channel or a parameter), which
+telemetry it sends and how each becomes a recording column, and the motor constants it was built
+for. Profiles are registered in `hilbench.targets.registry` (built-ins, and outside packages
+through the ``hilbench.targets`` entry-point group).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from dataclasses import dataclass, field
+from typing import TYPE_CHECKING, Callable, Literal, Mapping, Protocol
+
+if TYPE_CHECKING:
+    from hilbench.targets.base import Target
+
+#: capabilities a profile may declare (the pytest plugin's `hil_requires` and the CLI check them)
+CAPABILITIES = ("speed_loop", "realtime", "fault_injection", "tuning", "batch")
+
+
+@dataclass(frozen=True)
+class TelemetryColumn:
+    """One telemetry id of the Drive as a recording column: column = raw × scale."""
+
+    telemetry_id: int
+    column: str  # e.g. "measured_speed_rpm"
+    unit: str = ""
+    scale: float = 1.0
+    fmt: str = "%.3f"
+
+
+class ReferenceInput(Protocol):
+    """How a speed reference in rpm reaches the firmware."""
+
+    kind: Literal["pot", "param"]
+
+    def effective_rpm(self, speed_rpm: float) -> float:
+        """The reference the firmware actually gets for ``speed_rpm`` (after its quantisation)."""
+
+
+@dataclass(frozen=True)
+class PotReference:
+    """Through the speed pot: an ADC channel whose code the firmware scales into its reference."""
+
+    code_for_rpm: Callable[[float], int]
+    rpm_for_code: Callable[[int], float]
+    full_scale_code: int = 1023
+    kind: Literal["pot", "param"] = "pot"
+
+    def pot_fraction(self, speed_rpm: float) -> float:
+        return self.code_for_rpm(speed_rpm) / self.full_scale_code
+
+    def effective_rpm(self, speed_rpm: float) -> float:
+        return self.rpm_for_code(self.code_for_rpm(speed_rpm))
+
+
+@dataclass(frozen=True)
+class ParamReference:
+    """Through a declared parameter: value = rpm × value_per_rpm, as the host writes it."""
+
+    param: str
+    value_per_rpm: float
+    kind: Literal["pot", "param"] = "param"
+
+    def value(self, speed_rpm: float) -> float:
+        return speed_rpm * self.value_per_rpm
+
+    def effective_rpm(self, speed_rpm: float) -> float:
+        return speed_rpm
+
+
+@dataclass(frozen=True)
+class MotorBuild:
+    """The motor constants a firmware build assumes (the bench checks them against the plant)."""
+
+    pole_pairs: int
+    max_speed_rpm: float = math.inf
+
+
+class OptionsType(Protocol):
+    """A frozen dataclass whose fields are the target's `[target]` config table."""
+
+    __dataclass_fields__: dict
+
+
+@dataclass(frozen=True)
+class TargetProfile:
+    """One firmware as the bench sees it. Only ``name``, ``firmware_name`` and ``make`` are required."""
+
+    name: str  # the spec name: `inprocess:NAME`, `emulator:NAME`
+    firmware_name: str  # the name its HELLO carries
+    make: Callable[[object], "Target"]  # options -> an in-process Target
+    description: str = ""
+    options_type: type | None = None  # frozen dataclass validated from the [target] table
+    tunable: tuple[str, ...] = ()  # the gains `step`, `sweep` and the guard work on
+    check_params: Callable[[Mapping[str, int]], str | None] | None = None  # raw values -> broken constraint
+    reference: PotReference | ParamReference | None = None
+    telemetry: tuple[TelemetryColumn, ...] = ()
+    speed_column: str | None = None  # the telemetry column that is the firmware's measured speed
+    built_for: Callable[[object], MotorBuild | None] = field(default=lambda options: None)
+    initial_params: Callable[[object], dict[str, float]] = field(default=lambda options: {})
+    capabilities: frozenset[str] = frozenset()
+    #: the default grid of `hilbench sweep`: (parameter, "A:B:N") pairs
+    sweep_defaults: tuple[tuple[str, str], ...] = ()
+    emulator_module: str = "hilbench.targets.emulator"  # `python -m MODULE NAME --port ...`
+
+    def default_options(self) -> object:
+        """The options dataclass with every default (None when the target takes no options)."""
+        return None if self.options_type is None else self.options_type()
+
+    def options_from(self, values: Mapping[str, object]) -> object:
+        """Options from plain values (the emulator process gets them as JSON)."""
+        if self.options_type is None:
+            return None
+        known = {f.name for f in dataclasses.fields(self.options_type)}
+        return self.options_type(**{k: v for k, v in values.items() if k in known})
+
+    def options_as_dict(self, options: object) -> dict[str, object]:
+        if options is None or not dataclasses.is_dataclass(options):
+            return {}
+        return {f.name: getattr(options, f.name) for f in dataclasses.fields(options)}
+
+    def telemetry_column(self, telemetry_id: int) -> TelemetryColumn:
+        """The column of a telemetry id (a raw `telemetry_<id>` column for ids it does not name)."""
+        for column in self.telemetry:
+            if column.telemetry_id == telemetry_id:
+                return column
+        return TelemetryColumn(telemetry_id, f"telemetry_{telemetry_id}", "raw", 1.0, "%d")
+
+    def has(self, capability: str) -> bool:
+        return capability in self.capabilities
+
+
+def generic_profile(firmware_name: str) -> TargetProfile:
+    """The profile of a firmware met only through its HELLO (a board with no registered profile)."""
+
+    def cannot_make(options: object) -> "Target":
+        from hilbench.errors import ConfigError
+
+        raise ConfigError(f"firmware {firmware_name!r}: no in-process model is registered")
+
+    return TargetProfile(name=firmware_name.lower() or "generic", firmware_name=firmware_name, make=cannot_make)
+
+
+__all__ = [
+    "CAPABILITIES",
+    "MotorBuild",
+    "ParamReference",
+    "PotReference",
+    "ReferenceInput",
+    "TargetProfile",
+    "TelemetryColumn",
+    "generic_profile",
+]

@@ -1,0 +1,110 @@
+"""The one registry of target profiles: built-ins and outside packages alike.
+
+A package adds a target by declaring an entry point in the ``hilbench.targets`` group whose object
+is a `TargetProfile` (or a function returning one), e.g. in its pyproject.toml::
+
+    [project.entry-points."hilbench.targets"]
+    mytarget = "my_package.hil:PROFILE"
+
+It then works in ``--target inprocess:mytarget`` / ``emulator:mytarget``, ``run``, ``step``,
+``sweep``, ``ctl`` and the recorder with no edit to hilbench. Built-in targets register the same
+way from their own subpackages, imported lazily.
+"""
+
+from __future__ import annotations
+
+import importlib
+import threading
+from importlib.metadata import entry_points
+
+from hilbench.errors import ConfigError
+from hilbench.targets.profile import TargetProfile, generic_profile
+
+ENTRY_POINT_GROUP = "hilbench.targets"
+
+#: the target a bench uses when the config names none
+DEFAULT_TARGET = "emulator:an1017"
+
+#: built-in targets: name -> module whose PROFILE attribute is the profile
+_BUILTIN = {
+    "an1017": "hilbench.targets.an1017",
+    "loopback": "hilbench.targets.loopback",
+    "foc": "hilbench.targets.foc",
+}
+
+_profiles: dict[str, TargetProfile] = {}
+_lock = threading.Lock()
+_loaded = False
+
+
+def register(profile: TargetProfile) -> TargetProfile:
+    """Add a profile (a later registration of the same name replaces the earlier one)."""
+    if not profile.name.isidentifier() or profile.name != profile.name.lower():
+        raise ConfigError(f"target profile {profile.name!r}: names are lowercase identifiers")
+    _profiles[profile.name] = profile
+    return profile
+
+
+def _load_all() -> None:
+    global _loaded
+    with _lock:
+        if _loaded:
+            return
+        for name, module in _BUILTIN.items():
+            try:
+                register(importlib.import_module(module).PROFILE)
+            except ModuleNotFoundError as exc:  # a built-in still being written is simply absent
+                if exc.name != module:
+                    raise
+        for entry in entry_points(group=ENTRY_POINT_GROUP):
+            try:
+                obj = entry.load()
+            except Exception as exc:  # noqa: BLE001 - a broken plug-in must not break the bench
+                raise ConfigError(f"target plug-in {entry.name!r} ({entry.value}): cannot load: {exc}") from None
+            profile = obj() if callable(obj) and not isinstance(obj, TargetProfile) else obj
+            if not isinstance(profile, TargetProfile):
+                raise ConfigError(f"target plug-in {entry.name!r} ({entry.value}): not a TargetProfile")
+            register(profile)
+        _loaded = True
+
+
+def known_targets() -> tuple[str, ...]:
+    """Every registered target name, sorted."""
+    _load_all()
+    return tuple(sorted(_profiles))
+
+
+def get_profile(name: str) -> TargetProfile:
+    """The profile registered as ``name`` (ConfigError listing the known names otherwise)."""
+    _load_all()
+    profile = _profiles.get(name)
+    if profile is None:
+        raise ConfigError(f"unknown target {name!r} (known: {', '.join(known_targets())})")
+    return profile
+
+
+def profile_for_firmware(firmware_name: str) -> TargetProfile:
+    """The profile of a firmware by the name in its HELLO; a neutral one for unknown firmware."""
+    _load_all()
+    wanted = firmware_name.strip().upper()
+    for profile in _profiles.values():
+        if profile.firmware_name.upper() == wanted:
+            return profile
+    return generic_profile(firmware_name.strip())
+
+
+def make_target(name: str, options: object | None = None) -> object:
+    """An in-process target by name, with its options dataclass (defaults when None)."""
+    profile = get_profile(name)
+    return profile.make(profile.default_options() if options is None else options)
+
+
+__all__ = [
+    "DEFAULT_TARGET",
+    "ENTRY_POINT_GROUP",
+    "get_profile",
+    "known_targets",
+    "make_target",
+    "profile_for_firmware",
+    "register",
+]
