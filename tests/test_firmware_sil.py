@@ -35,8 +35,8 @@ from hilbench.protocol import (
     HostHello,
     Sensors,
 )
-from hilbench.targets.an1017 import An1017Target
-from hilbench.targets.an1017_firmware import An1017Options
+from hilbench.targets.an1017.target import An1017Target
+from hilbench.targets.an1017.firmware import An1017Options
 from hilbench.targets.sil import FIRMWARE_DIR, SilTarget, build_sil, start_sil, stop_sil
 
 pytestmark = pytest.mark.slow
@@ -135,7 +135,7 @@ def test_sil_exits_on_hangup_and_rejects_a_missing_tty(sil_exe: Path, tmp_path: 
 
 
 # The default scenario (hilbench.bench.scenario.default_scenario) written out, plus live writes of
-# the gains while the motor runs (the firmware takes them at its next Timer1 ISR).
+# the gains and the phase advance while the motor runs (the firmware takes gains at its next Timer1 ISR).
 DEFAULT_SCENARIO_WITH_TUNING = """
 [[scenario]]
 at_s = 0.0
@@ -148,8 +148,11 @@ press = "s2"
 
 [[scenario]]
 at_s = 1.0
-kp = 0.12
-ki = 0.012
+set = { kp = 0.12, ki = 0.012 }
+
+[[scenario]]
+at_s = 1.6
+set = { ph_adv_on = 1, ph_adv_deg = 30 }
 
 [[scenario]]
 at_s = 1.2
@@ -157,7 +160,7 @@ ref_rpm = 2500.0
 
 [[scenario]]
 at_s = 2.6
-kd = 0.01
+set = { kd = 0.01 }
 
 [[scenario]]
 at_s = 2.2
