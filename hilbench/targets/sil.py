@@ -6,6 +6,10 @@ simulator. `build_sil()` compiles it once into a cache directory keyed by the so
 compiler; `start_sil(tty_path)` starts it serving that tty and returns when it listens;
 `SilTarget` opens a pty link, starts the process on it and hands back a RemoteTarget (what the
 bench's `sil:an1017` spec needs). Every process started here is reaped by its owner's close().
+
+From a shell, `python -m hilbench.targets.sil [--variant v11]` builds it and runs it on a pty of
+its own, like a board on a serial port: it prints `ready /dev/pts/N` and serves any number of
+sessions (`hilbench run --target /dev/pts/N`) until Ctrl-C.
 """
 
 from __future__ import annotations
@@ -164,4 +168,23 @@ class SilTarget:
         self.close()
 
 
-__all__ = ["SilTarget", "build_sil", "cache_dir", "start_sil", "stop_sil"]
+def main(argv: list[str] | None = None) -> None:
+    """Build the SIL firmware and become it, serving its own pty (docs/board.md, "Without a board")."""
+    import argparse
+
+    parser = argparse.ArgumentParser(prog="python -m hilbench.targets.sil", description=main.__doc__)
+    parser.add_argument("--variant", choices=("seed", "v11"), default="seed")
+    parser.add_argument("--build-only", action="store_true", help="print the executable's path and exit")
+    args = parser.parse_args(argv)
+    exe = build_sil()
+    if args.build_only:
+        print(exe)
+        return
+    os.execv(exe, [str(exe), "--variant", args.variant, "--pty"])
+
+
+__all__ = ["SilTarget", "build_sil", "cache_dir", "main", "start_sil", "stop_sil"]
+
+
+if __name__ == "__main__":
+    main()

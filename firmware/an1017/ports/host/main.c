@@ -1,16 +1,21 @@
 /* ports/host/main.c: the AN1017 firmware as a host process (software in the loop) on a tty.
  *
  * Usage: an1017_sil [--variant seed|v11] [--ready] TTY_PATH
+ *        an1017_sil [--variant seed|v11] --pty
  * Serves the hilbench protocol on TTY_PATH (a pty slave, a serial device) until it hangs up; exit
  * 0 then, 1 on errors, 2 on bad usage. With --ready it prints "ready TTY_PATH" on stdout once the
- * tty is open, so a launcher knows when bytes can be sent. The same core and bridge as the board:
+ * tty is open, so a launcher knows when bytes can be sent. With --pty it makes its own pty, prints
+ * "ready /dev/pts/N" and serves its master like a board on a serial port: across any number of
+ * host sessions (it holds the slave open itself, so a host closing the port is not a hang-up)
+ * until SIGINT/SIGTERM. The same core and bridge as the board:
  * this file only replaces the UART (read/write on the tty) and the clock (CLOCK_MONOTONIC in Tcy).
  * Lockstep waits for frames without a timeout; real time wakes for the watchdog.
  */
-#define _POSIX_C_SOURCE 200809L
+#define _XOPEN_SOURCE 600
 #include <errno.h>
 #include <fcntl.h>
 #include <poll.h>
+#include <stdlib.h>
 #include <stdio.h>
 #include <string.h>
 #include <termios.h>
@@ -97,6 +102,8 @@ int main(int argc, char **argv)
     uint8_t buf[4096];
     uint8_t variant = AN1017_VARIANT_SEED;
     int ready = 0;
+    int own_pty = 0;
+    int slave_keep = -1;
     const char *path = NULL;
     int i;
     for (i = 1; i < argc; i++) {
@@ -111,21 +118,37 @@ int main(int argc, char **argv)
             }
         } else if (strcmp(argv[i], "--ready") == 0) {
             ready = 1;
+        } else if (strcmp(argv[i], "--pty") == 0) {
+            own_pty = 1;
         } else if (argv[i][0] == '-' || path != NULL) {
             return usage(argv[0]);
         } else {
             path = argv[i];
         }
     }
-    if (path == NULL) {
+    if ((path == NULL) == (own_pty == 0)) {
         return usage(argv[0]);
     }
-    tty = open(path, O_RDWR | O_NOCTTY);
+    if (own_pty) {
+        tty = posix_openpt(O_RDWR | O_NOCTTY);
+        if (tty < 0 || grantpt(tty) != 0 || unlockpt(tty) != 0 || (path = ptsname(tty)) == NULL) {
+            fprintf(stderr, "an1017_sil: cannot make a pty: %s\n", strerror(errno));
+            return 1;
+        }
+        slave_keep = open(path, O_RDWR | O_NOCTTY);
+        if (slave_keep < 0 || make_raw(slave_keep) != 0) {
+            fprintf(stderr, "an1017_sil: cannot open %s: %s\n", path, strerror(errno));
+            return 1;
+        }
+        ready = 1;
+    } else {
+        tty = open(path, O_RDWR | O_NOCTTY);
+    }
     if (tty < 0) {
         fprintf(stderr, "an1017_sil: cannot open %s: %s\n", path, strerror(errno));
         return 1;
     }
-    if (make_raw(tty) != 0) {
+    if (!own_pty && make_raw(tty) != 0) {
         fprintf(stderr, "an1017_sil: %s is not a tty: %s\n", path, strerror(errno));
         return 1;
     }
@@ -176,5 +199,8 @@ int main(int argc, char **argv)
         }
     }
     close(tty);
+    if (slave_keep >= 0) {
+        close(slave_keep);
+    }
     return 0;
 }
