@@ -239,3 +239,26 @@ int main(void) {
                                 "284,714,714", "644,354,567", "791,361,207"]
     # MAX_PH_ADV = (int)(deg / 360 * 65536): 7281.78 -> 7281, 10922.67 -> 10922, 182.04 -> 182
     assert lines[5] == "7281 10922 182"
+
+
+def test_sil_on_its_own_pty_serves_the_cli_like_a_board(sil_exe: Path) -> None:
+    """docs/board.md's "without a board" commands: link-test and run against `an1017_sil --pty`."""
+    from conftest import run_cli
+
+    process = subprocess.Popen([str(sil_exe), "--pty"], stdin=subprocess.DEVNULL, stdout=subprocess.PIPE,
+                               stderr=subprocess.PIPE)
+    try:
+        assert process.stdout is not None
+        line = process.stdout.readline().decode().split()  # blocking: the first line comes at once
+        assert line[0] == "ready", line
+        port = f"serial:{line[1]}"
+        result = run_cli("link-test", port, "--periods", "500", timeout=120)
+        assert result.returncode == 0, result.stderr
+        assert "500 / 500" in result.stdout and "AN1017" in result.stdout
+        # a second session on the same port: the firmware stays up between sessions, like a board
+        result = run_cli("run", "--target", port, "--no-ui", "--no-control", "--json", "--set",
+                         "run.duration_s=0.3", timeout=120)
+        assert result.returncode == 0, result.stderr
+        assert '"end_reason": "completed"' in result.stdout and '"crc_errors": 0' in result.stdout
+    finally:
+        stop_sil(process)
