@@ -46,7 +46,9 @@ _FWDT(WDT_OFF);
 _FBORPOR(PBOR_OFF & MCLR_EN);
 _FGS(CODE_PROT_OFF);
 
-#define UART_BRG 4u           /* 250 000 baud at FCY = 20 MHz */
+#ifndef UART_BRG
+#define UART_BRG 4u           /* 250 000 baud at FCY = 20 MHz (docs/board.md: the baud table) */
+#endif
 #define OVDCON_ALL_OFF 0x0000u
 #define OVDCON_PWM 0x3F00u    /* all six outputs from the PWM generator */
 #define OVDCON_LOW_SIDE 0x0015u
