@@ -13,9 +13,8 @@ RAM figure = static + a computed stack bound:
   hbp_param_set -> check_gains added by hand), with the dsPIC's larger costs added: +2 bytes per
   call (its return address is 4 bytes, the AVR's 2) and +24 bytes per interrupt level (PC, SR and
   IPL pushed by the hardware: 4; W0-W7 saved by the compiler for an ISR that calls functions: 16;
-  RCOUNT and one spare word: 4). On main's stack sit one priority-4 ISR (PWM, Timer1, Timer2,
-  FLTA share the priority: no nesting) and the priority-6 UART1 RX ISR on top. In lockstep PWM and
-  Timer1 interrupts are off (the firmware's timers are gated); in real time Sensors frames do not
+  RCOUNT and one spare word: 4). On main's stack sits one ISR: PWM, Timer1, Timer2, FLTA and
+  UART1 RX share priority 4, so they never nest. In lockstep PWM and Timer1 interrupts are off (the firmware's timers are gated); in real time Sensors frames do not
   go through the bridge's on_sensors/an1017_run (the ISRs run the firmware): the bound is the
   larger of the two modes.
 """
@@ -38,12 +37,11 @@ SOURCES = (PORT / "main.c", FIRMWARE_DIR / "an1017.c", FIRMWARE_DIR / "an1017_br
 DEFS = ("-DHBP_MAX_ADC=3u", "-DHBP_MAX_TELEMETRY=3u", f"-I{PORT / 'hostcheck'}", f"-I{FIRMWARE_DIR}",
         f"-I{PROTOCOL_DIR}")
 DSPIC30F2010_RAM_BYTES = 512
-PRIORITY4_ISRS = ("_PWMInterrupt", "_T1Interrupt", "_T2Interrupt", "_FLTAInterrupt")
-PRIORITY6_ISRS = ("_U1RXInterrupt",)
+ISRS = ("_PWMInterrupt", "_T1Interrupt", "_T2Interrupt", "_FLTAInterrupt", "_U1RXInterrupt")
 DSPIC_EXTRA_PER_CALL = 2
 DSPIC_ISR_CONTEXT = 24
-LOCKSTEP_ISRS = ("_T2Interrupt", "_FLTAInterrupt")
-MARGIN_BYTES = 16
+LOCKSTEP_ISRS = ("_T2Interrupt", "_FLTAInterrupt", "_U1RXInterrupt")
+MARGIN_BYTES = 32
 
 
 @pytest.mark.parametrize("options", [(), ("-DHIL_DRIVE_BRIDGE", "-DHIL_LOCAL_POT"),
@@ -112,11 +110,10 @@ def stack_bound_bytes(tmp_path: Path) -> tuple[int, dict[str, tuple[int, list[st
                 best, path = depth, sub
         return frames.get(fn, 0) + best, [fn, *path]
 
-    paths = {fn: deepest(fn) for fn in ("main", *PRIORITY4_ISRS, *PRIORITY6_ISRS)}
+    paths = {fn: deepest(fn) for fn in ("main", *ISRS)}
     paths["main (real time)"] = deepest("main", skip="on_sensors")
-    uart = max(paths[f][0] for f in PRIORITY6_ISRS) + DSPIC_ISR_CONTEXT
-    lockstep = paths["main"][0] + max(paths[f][0] for f in LOCKSTEP_ISRS) + DSPIC_ISR_CONTEXT + uart
-    realtime = paths["main (real time)"][0] + max(paths[f][0] for f in PRIORITY4_ISRS) + DSPIC_ISR_CONTEXT + uart
+    lockstep = paths["main"][0] + max(paths[f][0] for f in LOCKSTEP_ISRS) + DSPIC_ISR_CONTEXT
+    realtime = paths["main (real time)"][0] + max(paths[f][0] for f in ISRS) + DSPIC_ISR_CONTEXT
     return max(lockstep, realtime), paths
 
 

@@ -4,7 +4,8 @@
  * Peripherals (register values from the AN1017 v1.1 firmware and the data sheet; see docs/board.md):
  * - Clock: 5 MHz crystal, XT with PLLx16 -> FCY = 20 MHz (Tcy 50 ns).
  * - UART1 on RF2 (U1RX) / RF3 (U1TX), the board's RS-232 (ALTIO = 0): U1BRG = 4 -> 20 MHz / (16 * 5)
- *   = 250 000 baud, exact. The RX interrupt feeds hbp_rx_byte; the main loop handles frames.
+ *   = 250 000 baud, exact. The RX interrupt (priority 4, like the motor ISRs: they never nest)
+ *   feeds hbp_rx_byte; the main loop handles frames.
  *   RF2/RF3 are also PGC/PGD: debug with the ICD on EMUC2/EMUD2, or unplug the ICD to talk.
  * - MCPWM: PTPER = 499, PTCON = 0x8002 (centre-aligned, 20 kHz), PWMCON1 = 0x0077 (three
  *   complementary pairs), PWMCON2 = 0x0F02 (OSYNC, IUE = 0: duties latch at the period boundary,
@@ -197,7 +198,10 @@ static void init_uart(void)
     U1BRG = UART_BRG;
     U1MODE = 0x8000u;  /* UARTEN, 8N1, ALTIO = 0 (RF2/RF3) */
     U1STA = 0x0400u;   /* UTXEN; interrupt on every received character */
-    IPC2bits.U1RXIP = 6; /* above the motor interrupts: no byte is lost while an ISR body runs */
+    /* the default priority 4, as the motor interrupts: no nesting, so the stack holds one ISR frame.
+     * No byte is lost meanwhile: UART1's 4-character receive FIFO covers 160 us at 250 kbaud, much
+     * longer than a PWM or Timer1 ISR body (a few hundred instructions, < 20 us at 20 MIPS) */
+    IPC2bits.U1RXIP = 4;
     IFS0bits.U1RXIF = 0;
     IEC0bits.U1RXIE = 1;
 }
