@@ -5,22 +5,26 @@ Prints, in one run (medians over repeats; the machine is a noisy 2-core VM):
   (b) periods/s with the firmware as its own process on a pty (goal >= 50 % of the raw echo),
   and a raw two-process pty echo of the same frame sizes as the baseline for (b).
 
-    python benchmarks/bench_session.py [--seconds 1.0] [--repeats 3]
+With ``--baseline-python PY`` it also runs (a) under another installation of hilbench (e.g. the
+commit before a change, installed in its own venv), interleaved with this one, and prints the
+ratio: the "no slowdown" check of a redesign, measured in the same run.
+
+    python benchmarks/bench_session.py [--seconds 1.0] [--repeats 3] [--baseline-python PY]
 """
 
 from __future__ import annotations
 
 import argparse
 import dataclasses
+import json
 import statistics
+import subprocess
 import sys
 import tempfile
 import time
 from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-
-from bench_link import frame_sizes, raw_echo  # noqa: E402
 
 from hilbench.bench import settings  # noqa: E402
 from hilbench.bench.launcher import open_target  # noqa: E402
@@ -62,11 +66,37 @@ def closed_loop(spec: str, seconds: float, record_dir: str, fmt: str) -> tuple[f
     return summary.periods / elapsed, getattr(plant, "backend", "python"), summary.periods / summary.wall_s
 
 
+def measure_in(python: str, seconds: float) -> float:
+    """(a) measured by another interpreter (another hilbench installation) running this file."""
+    out = subprocess.run([python, __file__, "--measure-inprocess", "--seconds", str(seconds)], capture_output=True,
+                         text=True, timeout=600, cwd=tempfile.gettempdir(), check=True)
+    return float(json.loads(out.stdout.strip().splitlines()[-1])["rate"])
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     parser.add_argument("--seconds", type=float, default=1.0, help="simulated seconds per run")
     parser.add_argument("--repeats", type=int, default=3)
+    parser.add_argument("--baseline-python", default=None, metavar="PY",
+                        help="an interpreter with another hilbench installed: (a) is measured there too")
+    parser.add_argument("--measure-inprocess", action="store_true", help=argparse.SUPPRESS)
     args = parser.parse_args()
+    if args.measure_inprocess:  # one (a) figure for --baseline-python, as JSON
+        with tempfile.TemporaryDirectory() as tmp:
+            print(json.dumps({"rate": closed_loop("inprocess:an1017", args.seconds, tmp, "npz")[0]}))
+        return
+    if args.baseline_python:
+        pairs: dict[str, list[float]] = {"this": [], "baseline": []}
+        for _ in range(args.repeats):  # interleaved: both see the same machine load
+            pairs["this"].append(measure_in(sys.executable, args.seconds))
+            pairs["baseline"].append(measure_in(args.baseline_python, args.seconds))
+        this, base = statistics.median(pairs["this"]), statistics.median(pairs["baseline"])
+        print(f"(a) in-process with NPZ recording, median of {args.repeats}: this tree {this:,.0f} periods/s, "
+              f"baseline ({args.baseline_python}) {base:,.0f} periods/s, ratio {this / base:.3f}")
+        print(f"    runs this: {', '.join(f'{r:,.0f}' for r in pairs['this'])}; "
+              f"baseline: {', '.join(f'{r:,.0f}' for r in pairs['baseline'])}")
+    from bench_link import frame_sizes, raw_echo  # this tree's only: the baseline interpreter skips it
+
     sensors_len, drive_len = frame_sizes()
     rates: dict[str, list[float]] = {"inproc_npz": [], "inproc_npz_loop": [], "inproc_csv": [], "pty": [], "raw": []}
     backend = "?"

@@ -17,11 +17,12 @@ from hilbench.targets.profile import TargetProfile
 
 RPM_PER_RAD_S = 60.0 / (2.0 * math.pi)
 
-#: fields the session packs for every period, in this order, before the telemetry
+#: fields the session packs for every period, in this order, before the host's reference (only
+#: for a target that reports none) and the telemetry
 OWN_FIELDS: tuple[tuple[str, str], ...] = (
     ("k", "Q"), ("hall", "i"), ("sector", "i"), ("duty_a", "i"), ("duty_b", "i"), ("duty_c", "i"),
     ("output_mode", "i"), ("state", "i"), ("fault", "i"), ("rtt_s", "d"), ("lateness_s", "d"),
-    ("marker", "B"), ("host_ref_rpm", "d"),
+    ("marker", "B"),
 )
 
 
@@ -41,8 +42,10 @@ def session_row(profile: TargetProfile, telemetry_ids: tuple[int, ...], period_s
     tele_columns = tuple(
         (telemetry[i].column, telemetry[i].unit, telemetry[i].fmt, f"tele_{i}", telemetry[i].scale) for i in ordered
     )
-    if not any(c[0] == "ref_speed_rpm" for c in tele_columns):
+    own = OWN_FIELDS
+    if not any(c[0] == "ref_speed_rpm" for c in tele_columns):  # the host's reference instead
         tele_columns += (("ref_speed_rpm", "rpm", "%.3f", "host_ref_rpm", 1.0),)
+        own += (("host_ref_rpm", "d"),)
     columns = (
         ("t_s", "s", "%.6f", "k", period_s), ("seq", "", "%d", "k", 1.0), ("hall", "bits CBA", "%d", "hall", 1.0),
         ("sector", "", "%d", "sector", 1.0), ("theta_e_deg", "deg", "%.3f", "theta_e_rad", 180.0 / math.pi),
@@ -56,7 +59,7 @@ def session_row(profile: TargetProfile, telemetry_ids: tuple[int, ...], period_s
         ("rtt_us", "us", "%.1f", "rtt_s", 1e6), ("lateness_us", "us", "%.1f", "lateness_s", 1e6),
         ("marker", "", "%d", "marker", 1.0),
     )
-    own = OWN_FIELDS + tele_fields
+    own += tele_fields
     return SessionRow(RowLayout(own + STATE_FIELDS, columns, wrap=(("theta_e_deg", 360.0),)), own)
 
 

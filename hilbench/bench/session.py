@@ -29,7 +29,16 @@ from hilbench.bench.recorder import MARKER_EVENT, MARKER_FAULT, MARKER_PARAM, Re
 from hilbench.bench.scenario import Event, Ramp, ScenarioPlayer
 from hilbench.bench.summary import Segment, Snapshot, Summary, percentiles
 from hilbench.errors import HilbenchError, LinkError, ParamError, TargetError
-from hilbench.protocol import PROTOCOL_VERSION, Edge, HostHello, Input, OutputMode, Sensors, TargetHello
+from hilbench.protocol import (
+    PROTOCOL_VERSION,
+    Edge,
+    HostHello,
+    Input,
+    OutputMode,
+    Sensors,
+    TargetHello,
+    check_target_hello,
+)
 from hilbench.targets.base import Target
 from hilbench.targets.profile import ParamReference, PotReference, TargetProfile
 from hilbench.targets.registry import profile_for_firmware
@@ -154,6 +163,7 @@ class Session:
         self._lockstep_rtts: list[float] = []
         self._tele_index: dict[str, tuple[int, float]] = {}
         self._closed = False
+        self._record_host_ref = False
         self._qos: CpuLatencyRequest | None = None
         self._pacing: RealtimePacing | None = None
 
@@ -163,6 +173,7 @@ class Session:
         mode = 0 if self.options.mode == "lockstep" else 1
         host = HostHello(0, PROTOCOL_VERSION, self.options.period_us, mode, self.options.watchdog_ms)
         hello = self.target.hello(host)
+        check_target_hello(hello, where=self.target_label)  # protocol version and schema fingerprint
         self.hello = hello
         found = profile_for_firmware(hello.firmware_name)
         expected = self.expected_profile
@@ -175,6 +186,9 @@ class Session:
         for index, tid in enumerate(hello.telemetry_ids):
             column = self.profile.telemetry_column(tid)
             self._tele_index[column.column] = (index, column.scale)
+        missing = (-1, 0.0)  # (telemetry index, scale) of the firmware's measured speed and reference
+        self._speed_telemetry = (self._tele_index.get(self.profile.speed_column or "", missing),
+                                 self._tele_index.get("ref_speed_rpm", missing))
         return hello
 
     # ------------------------------------------------------------------ parameters
@@ -310,10 +324,6 @@ class Session:
                 return
             self._scenario_k = min(self._scenario_k, k + 1)  # a ctl ref may start a ramp
 
-    def _telemetry_rpm(self, tele: tuple[int, ...], column: str | None, default: float) -> float:
-        entry = self._tele_index.get(column or "")
-        return default if entry is None else tele[entry[0]] * entry[1]
-
     # ------------------------------------------------------------------ the loop
     def run(self) -> Summary:
         """Handshake if needed, then run periods until the duration or the scenario ends."""
@@ -407,44 +417,65 @@ class Session:
         self._finish(self.summary, self._wall_start, self._pacing, note, fault=fault)
 
     def _loop(self, k_from: int, k_to: int, pacing: RealtimePacing | None) -> int:
-        """Periods k_from..k_to-1: the parts run in the periods they are due; returns the next period."""
+        """Periods k_from..k_to-1: the parts run in the periods they are due; returns the next period.
+        The hot path keeps its state in locals (a period is ~2 µs in process)."""
         plant, target_step, faults, history_every = self.plant, self.target.step, self.faults, self.options.history_every_periods
-        roles, actuate, record = tuple(self.hello.adc_roles), self._actuate, self._record  # type: ignore[union-attr]
-        edge_limit, new_sensors, perf, rtts = self.options.period_us * 10 - 1, tuple.__new__, time.perf_counter, self._lockstep_rtts
-        edge_s, drive, guard_ref = self._edge_s, self._drive, self._guard_ref
+        roles, edge_limit, new_sensors = tuple(self.hello.adc_roles), self.options.period_us * 10 - 1, tuple.__new__  # type: ignore[union-attr]
+        actuate, (plant_step, scale, period_s) = self._actuate, self._simple_step
+        pack, extend, rows, plant_state = self._record or (None, None, None, None)
+        host_ref = self._record_host_ref
+        perf, rtts, rtt, late, marker = time.perf_counter, self._lockstep_rtts, 0.0, 0.0, 0
+        edge_s, drive, guard_ref, sensor_faults, k = self._edge_s, self._drive, self._guard_ref, self.faults.active, k_from
+        due_k = self._scenario_k  # the next period the scenario part asked for
+        buttons, encoder_offset = self._buttons, faults.encoder_offset  # both change only when a part is due
         if pacing is not None:
             pacing.start_at(k_from)
-        for k in range(k_from, k_to):
+        try:
+            for k in range(k_from, k_to):
+                if k >= due_k:
+                    self._scenario_due(k)
+                    due_k, sensor_faults, buttons, encoder_offset = self._scenario_k, faults.active, self._buttons, faults.encoder_offset
+                    if self._end_reason is not None:
+                        return k
+                if k % history_every == 0 and drive is not None:
+                    self._live_due(k, drive, guard_ref)
+                    due_k, buttons = self._scenario_k, self._buttons  # a ctl command may start a ramp
+                    if self._end_reason is not None:
+                        return k
+                hall = plant.hall_bits
+                edge = EDGE_NONE if edge_s is None else min(int(edge_s * 1e7), edge_limit)
+                if sensor_faults:
+                    hall, edge = faults.filter(hall, edge)
+                    sensor_faults = faults.active
+                sensors = new_sensors(Sensors, (k & 0xFF, hall | buttons, edge, (plant.encoder_count + encoder_offset) & 0xFFFF,
+                                                plant.adc_codes(roles)))
+                if pacing is not None:
+                    drive = pacing.exchange(k, sensors, drive, target_step)
+                    rtt, late, marker = pacing.rtt, pacing.late, pacing.marker
+                elif k & 15:
+                    drive = target_step(sensors)
+                else:  # lockstep: a sample of round-trip times, not every period's
+                    sent = perf()
+                    drive = target_step(sensors)
+                    rtts.append(perf() - sent)
+                _, da, db, dc, mode, state, sector, _, _, fault, tele = drive
+                if scale:  # no delay, one plant step per period
+                    plant_step(da * scale, db * scale, dc * scale, mode, period_s)
+                    edge_s = plant.last_edge_s
+                else:
+                    edge_s = actuate(drive)
+                if pacing is not None:
+                    pacing.finished(k)
+                if pack is not None:  # raw values in their own types (columns.session_row); the plant appends its state
+                    if host_ref:
+                        extend(pack(k, hall, sector, da, db, dc, mode, state, fault, rtt, late, marker, self._ref_rpm, *tele))
+                    else:
+                        extend(pack(k, hall, sector, da, db, dc, mode, state, fault, rtt, late, marker, *tele))
+                    plant_state(rows)
+                if k % history_every == 0:
+                    guard_ref = self._sample(k, drive, pacing)
+        finally:
             self.periods_done = k
-            if k >= self._scenario_k:
-                self._scenario_due(k)
-                if self._end_reason is not None:
-                    return k
-            if k % history_every == 0 and drive is not None:
-                self._live_due(k, drive, guard_ref)
-                if self._end_reason is not None:
-                    return k
-            hall = plant.hall_bits
-            edge = EDGE_NONE if edge_s is None else min(int(edge_s * 1e7), edge_limit)
-            if faults.active:
-                hall, edge = faults.filter(hall, edge)
-            sensors = new_sensors(Sensors, (k & 0xFF, hall | self._buttons, edge,
-                                            (plant.encoder_count + faults.encoder_offset) & 0xFFFF, plant.adc_codes(roles)))
-            if pacing is not None:
-                drive = pacing.exchange(k, sensors, drive, target_step)
-            elif k & 15:
-                drive = target_step(sensors)
-            else:  # lockstep: a sample of round-trip times, not every period's
-                sent = perf()
-                drive = target_step(sensors)
-                rtts.append(perf() - sent)
-            edge_s = actuate(drive)
-            if pacing is not None:
-                pacing.finished(k)
-            if record is not None:
-                record(k, hall, drive, pacing)
-            if k % history_every == 0:
-                guard_ref = self._sample(k, drive, pacing)
             self._edge_s, self._drive, self._guard_ref = edge_s, drive, guard_ref
         return k_to
 
@@ -458,10 +489,6 @@ class Session:
         sub_s = period_s / substeps
         pending: deque[Any] = deque()
         step = plant.step
-
-        def simple(drive: Any) -> float | None:
-            step(drive[1] * scale, drive[2] * scale, drive[3] * scale, drive[4], period_s)
-            return plant.last_edge_s
 
         def general(drive: Any) -> float | None:
             if delay:
@@ -479,34 +506,27 @@ class Session:
                     edge_s = i * sub_s + plant.last_edge_s
             return edge_s
 
-        return simple if (not delay and substeps == 1) else general
+        self._simple_step = (step, scale, period_s) if (not delay and substeps == 1) else (step, 0.0, period_s)
+        return general
 
-    def _row_writer(self) -> Callable[[int, int, Any, RealtimePacing | None], None] | None:
-        """The recorder's per-period append: the session's raw fields, then the plant's state."""
+    def _row_writer(self) -> tuple[Callable[..., bytes], Callable[[bytes], None], bytearray, Callable[[bytearray], None]] | None:
+        """The recorder's per-period pieces: the packer of the session's raw fields, the row buffer's
+        extend, the buffer, and the plant's append of its own state."""
         recorder = self.recorder
         if recorder is None:
             return None
         row = session_row(self.profile, tuple(self.hello.telemetry_ids), self._period_s)  # type: ignore[union-attr]
         recorder.start(row.layout)
-        pack, extend, data, plant_state = fields_struct(row.own_fields).pack, recorder.rows.extend, recorder.rows.data, self.plant.append_state
-
-        def record(k: int, hall: int, drive: Any, pacing: RealtimePacing | None) -> None:
-            _, da, db, dc, mode, state, sector, _, _, fault, tele = drive
-            if pacing is None:  # lockstep: no timing, so that recordings are reproducible
-                extend(pack(k, hall, sector, da, db, dc, mode, state, fault, 0.0, 0.0, 0, self._ref_rpm, *tele))
-            else:
-                extend(pack(k, hall, sector, da, db, dc, mode, state, fault, pacing.rtt, pacing.late, pacing.marker,
-                            self._ref_rpm, *tele))
-            plant_state(data)
-
-        return record
+        self._record_host_ref = any(name == "host_ref_rpm" for name, _ in row.own_fields)
+        return fields_struct(row.own_fields).pack, recorder.rows.extend, recorder.rows.data, self.plant.append_state
 
     def _sample(self, k: int, drive: Any, pacing: RealtimePacing | None) -> float:
         """Every history period: the speed history, a flush, the observer. Returns the reference the
         guard compares with (the firmware's own when it reports one)."""
         tele = drive[10]
-        meas = self._telemetry_rpm(tele, self.profile.speed_column, math.nan)
-        guard_ref = self._telemetry_rpm(tele, "ref_speed_rpm", self._ref_rpm)
+        (i_meas, s_meas), (i_ref, s_ref) = self._speed_telemetry
+        meas = tele[i_meas] * s_meas if i_meas >= 0 else math.nan
+        guard_ref = tele[i_ref] * s_ref if i_ref >= 0 else self._ref_rpm
         self.history.append((k * self._period_s, self._ref_rpm, self.plant.w_m * RPM_PER_RAD_S, meas))
         if k % self.options.observe_every_periods == 0 and k:
             if self.recorder is not None:
