@@ -50,18 +50,11 @@ def avr_build(tmp_path_factory, avr_gcc: str, gcc: str) -> Path:
 
 
 @pytest.mark.parametrize("source", [FIRMWARE_DIR / "an1017.c", FIRMWARE_DIR / "an1017_bridge.c",
-                                    PROTOCOL_DIR / "hbp.c", AVR_DIR / "main.c"], ids=lambda p: p.name)
+                                    PROTOCOL_DIR / "hbp.c", PROTOCOL_DIR / "hbp_messages.c", AVR_DIR / "main.c"],
+                         ids=lambda p: p.name)
 def test_avr_gcc_strict_flags_16bit_int(avr_gcc: str, tmp_path: Path, source: Path) -> None:
     result = subprocess.run([avr_gcc, *STRICT, *AVR_FLAGS, "-c", str(source), "-o", str(tmp_path / "x.o")],
                             capture_output=True, text=True, timeout=120)
-    assert result.returncode == 0, result.stderr
-
-
-@pytest.mark.xfail(reason="hbp_messages.c:240 -Wsign-conversion under a 16-bit int: fixed by protocol v2",
-                   strict=False)
-def test_avr_gcc_strict_flags_generated_messages(avr_gcc: str, tmp_path: Path) -> None:
-    result = subprocess.run([avr_gcc, *STRICT, *AVR_FLAGS, "-c", str(PROTOCOL_DIR / "hbp_messages.c"),
-                             "-o", str(tmp_path / "x.o")], capture_output=True, text=True, timeout=120)
     assert result.returncode == 0, result.stderr
 
 

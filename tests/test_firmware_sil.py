@@ -262,3 +262,22 @@ def test_sil_on_its_own_pty_serves_the_cli_like_a_board(sil_exe: Path) -> None:
         assert '"end_reason": "completed"' in result.stdout and '"crc_errors": 0' in result.stdout
     finally:
         stop_sil(process)
+
+
+def test_sil_refuses_another_protocol_or_schema(sil_exe: Path) -> None:
+    """HELLO with another version or schema fingerprint: ErrorReport VERSION naming the firmware's."""
+    from hilbench.protocol import SCHEMA_FINGERPRINT, ErrorCode, ErrorReport, TargetHello
+
+    with SilTarget.open("seed", exe=sil_exe) as sil:
+        link = sil.link
+        for hello in (HostHello(3, PROTOCOL_VERSION, 50, MODE_LOCKSTEP, 0, SCHEMA_FINGERPRINT ^ 1),
+                      HostHello(4, PROTOCOL_VERSION + 1, 50, MODE_LOCKSTEP, 0)):
+            link.send(hello)
+            reply = link.recv(2.0)
+            assert reply == ErrorReport(hello.seq, ErrorCode.VERSION, PROTOCOL_VERSION, SCHEMA_FINGERPRINT)
+        link.send(HostHello(5, PROTOCOL_VERSION, 70, MODE_LOCKSTEP, 0))  # not a multiple of 50 us
+        assert link.recv(2.0) == ErrorReport(5, ErrorCode.BAD_REQUEST, 0, SCHEMA_FINGERPRINT)
+        link.send(HostHello(6, PROTOCOL_VERSION, 100, MODE_LOCKSTEP, 0))
+        reply = link.recv(2.0)
+        assert isinstance(reply, TargetHello) and reply.schema_fingerprint == SCHEMA_FINGERPRINT
+        assert reply.adc_bits == 10 and reply.seq == 6

@@ -528,32 +528,34 @@ int16_t an1017_param_value(const an1017_t *s, uint8_t id)
     }
 }
 
-uint8_t an1017_check_gains(int16_t kp, int16_t ki, int16_t kd)
+uint8_t an1017_check_gains(int32_t kp, int32_t ki, int32_t kd)
 {
     /* [PID] the note's constraints on the 1.15 gains */
-    if (!((int32_t)kp + ki + kd < GAIN_LIMIT_Q15)) {
+    if (!(kp + ki + kd < GAIN_LIMIT_Q15)) {
         return 1u;
     }
-    if (!(-(int32_t)kp - (int32_t)2 * kd > (int32_t)-32768)) {
+    if (!(-kp - (int32_t)2 * kd > (int32_t)-32768)) {
         return 2u;
     }
-    if (!((int32_t)kd < GAIN_LIMIT_Q15)) {
+    if (!(kd < GAIN_LIMIT_Q15)) {
         return 3u;
     }
     return 0u;
 }
 
-void an1017_apply_params(an1017_t *s, const int16_t values[AN1017_N_PARAMS], uint8_t gains_touched)
+void an1017_apply_params(an1017_t *s, const int32_t values[AN1017_N_PARAMS], uint8_t gains_touched)
 {
+    int16_t deg = (int16_t)values[AN1017_PARAM_PH_ADV_DEG];
     if (gains_touched) {
-        an1017_set_gains(s, values[AN1017_PARAM_KP], values[AN1017_PARAM_KI], values[AN1017_PARAM_KD]);
+        an1017_set_gains(s, (int16_t)values[AN1017_PARAM_KP], (int16_t)values[AN1017_PARAM_KI],
+                         (int16_t)values[AN1017_PARAM_KD]);
     }
     s->phase_advance_on = (uint8_t)(values[AN1017_PARAM_PH_ADV_ON] != 0);
-    if (values[AN1017_PARAM_PH_ADV_DEG] != s->max_ph_adv_deg) {
-        s->max_ph_adv_deg = values[AN1017_PARAM_PH_ADV_DEG];
-        s->max_ph_adv = an1017_max_ph_adv(s->max_ph_adv_deg);
+    if (deg != s->max_ph_adv_deg) {
+        s->max_ph_adv_deg = deg;
+        s->max_ph_adv = an1017_max_ph_adv(deg);
     }
     s->ref_override_on = (uint8_t)(values[AN1017_PARAM_REF_OVR_ON] != 0);
-    s->ref_override = values[AN1017_PARAM_REF_OVR];
+    s->ref_override = (int16_t)values[AN1017_PARAM_REF_OVR];
     s->stall_limit = (uint16_t)values[AN1017_PARAM_STALL_MS];
 }

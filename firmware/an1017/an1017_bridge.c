@@ -112,9 +112,7 @@ static void send_frame(an1017_bridge_t *b, uint8_t len)
 static void send_error(an1017_bridge_t *b, uint8_t seq, uint8_t code, uint8_t detail)
 {
     hbp_error_report_t e;
-    e.seq = seq;
-    e.code = code;
-    e.detail = detail;
+    hbp_error_report(seq, code, detail, &e); /* carries this build's schema fingerprint */
     b->last_error = code;
     send_frame(b, hbp_pack_error_report(&e, TX));
 }
@@ -144,12 +142,13 @@ static AN1017_NOINLINE void on_hello(an1017_bridge_t *b, const uint8_t *buf, uin
     hbp_host_hello_t h;
     hbp_target_hello_t t;
     uint8_t i;
-    if (hbp_unpack_host_hello(buf, len, &h) != HBP_ERROR_NONE) {
-        send_error(b, seq, HBP_ERROR_LENGTH, buf[0]);
+    uint8_t err = hbp_check_host_hello(buf, len, &h); /* version and schema fingerprint */
+    if (err == HBP_ERROR_VERSION) {
+        send_error(b, seq, HBP_ERROR_VERSION, HBP_PROTOCOL_VERSION);
         return;
     }
-    if (hbp_check_hello(&h) != HBP_ERROR_NONE) {
-        send_error(b, seq, HBP_ERROR_VERSION, HBP_PROTOCOL_VERSION);
+    if (err != HBP_ERROR_NONE) {
+        send_error(b, seq, HBP_ERROR_LENGTH, buf[0]);
         return;
     }
     if (h.period_us == 0u || h.period_us % AN1017_PERIOD_STEP_US != 0u ||
@@ -164,6 +163,8 @@ static AN1017_NOINLINE void on_hello(an1017_bridge_t *b, const uint8_t *buf, uin
     b->tripped = 0u;
     t.seq = seq;
     t.protocol_version = HBP_PROTOCOL_VERSION;
+    t.schema_fingerprint = HBP_SCHEMA_FINGERPRINT;
+    t.adc_bits = AN1017_ADC_BITS;
     t.firmware_version = AN1017_FIRMWARE_VERSION;
     t.pwm_period_counts = AN1017_DUTY_MAX;
     t.pwm_freq_hz = AN1017_PWM_FREQ_HZ;

@@ -23,9 +23,10 @@
 #define AN1017_FIRMWARE_VERSION 0x0101u /* v1.1 */
 #define AN1017_PWM_FREQ_HZ 20000UL
 #define AN1017_PERIOD_STEP_US 50u       /* the agreed period is a whole number of PWM periods */
-/* The largest frame this firmware sends (type..payload, before the CRC): TargetHello, 12 fixed +
- * name (1 + 6) + ADC roles (1 + 3) + telemetry ids (3) = 26 bytes; ParamInfo of "ref_override",
- * 11 + 12 = 23; Drive 8 + 6 = 14. One static transmit buffer of 32 + 4 bytes (COBS code byte, CRC 2,
+#define AN1017_ADC_BITS 10u             /* the dsPIC30F2010's 10-bit ADC */
+/* The largest frame this firmware sends (type..payload, before the CRC): TargetHello, 17 fixed +
+ * name (1 + 6) + ADC roles (1 + 3) + telemetry ids (3) = 31 bytes; ParamInfo of "ref_override",
+ * 17 + 12 = 29; Drive 11 + 6 = 17. One static transmit buffer of 32 + 4 bytes (COBS code byte, CRC 2,
  * delimiter) instead of a frame and a wire buffer of HBP_MAX_FRAME keeps RAM inside the
  * dsPIC30F2010's 512 bytes: messages are packed at wire[1] and COBS-encoded in place (see
  * send_frame). */
@@ -45,7 +46,7 @@ void an1017_port_unlock(void);
 typedef struct {
     an1017_t fw;
     hbp_rx_t rx;
-    int16_t values[AN1017_N_PARAMS]; /* the declared parameter values */
+    int32_t values[AN1017_N_PARAMS]; /* the declared parameter values */
     uint32_t period_tcy;             /* the agreed period */
     uint32_t last_sensors_tcy;       /* port clock at the last Sensors (real time) */
     uint16_t watchdog_ms;
