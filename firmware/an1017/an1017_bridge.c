@@ -303,12 +303,8 @@ void an1017_bridge_handle(an1017_bridge_t *b, const uint8_t *frame, uint8_t len)
     }
 }
 
-void an1017_bridge_poll(an1017_bridge_t *b)
+void an1017_bridge_watchdog(an1017_bridge_t *b)
 {
-    if (b->rx.ready) {
-        an1017_bridge_handle(b, b->rx.buf, b->rx.frame_len);
-        hbp_rx_release(&b->rx);
-    }
     if (b->mode == HBP_MODE_REALTIME && b->watchdog_ms != 0u && b->have_sensors && !b->tripped) {
         uint32_t quiet = an1017_port_now_tcy() - b->last_sensors_tcy;
         if (quiet >= (uint32_t)b->watchdog_ms * 1000UL * AN1017_TCY_PER_US) {
@@ -322,4 +318,13 @@ void an1017_bridge_poll(an1017_bridge_t *b)
             an1017_bridge_send_drive(b, b->last_seq);
         }
     }
+}
+
+void an1017_bridge_poll(an1017_bridge_t *b)
+{
+    if (b->rx.ready) {
+        an1017_bridge_handle(b, b->rx.buf, b->rx.frame_len);
+        hbp_rx_release(&b->rx);
+    }
+    an1017_bridge_watchdog(b);
 }

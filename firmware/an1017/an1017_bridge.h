@@ -62,6 +62,8 @@ typedef struct {
 void an1017_bridge_init(an1017_bridge_t *b, uint8_t variant);
 /* Handle the frame waiting in b->rx, if any, and release it; check the watchdog (real time). */
 void an1017_bridge_poll(an1017_bridge_t *b);
+/* Only the watchdog: in real time, StopMotor and an unsolicited Drive when Sensors stop. */
+void an1017_bridge_watchdog(an1017_bridge_t *b);
 /* Send the Drive of the firmware's present state (a port whose own interrupts run the ISR bodies). */
 void an1017_bridge_send_drive(an1017_bridge_t *b, uint8_t seq);
 /* Handle one frame (type, seq, payload; CRC stripped) and send its reply, if it has one. */

@@ -337,6 +337,6 @@ int main(void)
             an1017_port_unlock();
             s2_board_was = s2_board;
         }
-        an1017_bridge_poll(&bridge); /* the watchdog (real time): StopMotor when Sensors stop */
+        an1017_bridge_watchdog(&bridge); /* real time: StopMotor when Sensors stop (frames are handled above) */
     }
 }
