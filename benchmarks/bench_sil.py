@@ -56,7 +56,8 @@ def main() -> None:
     print(f"AN1017 + Hurst closed loop, lockstep over a pty, {PERIOD_US} us periods, {args.seconds:g} s simulated, "
           f"NPZ recording, median of {args.repeats}")
     print(f"  SIL firmware process (C)      : {med['sil']:9,.0f} periods/s = {med['sil'] / real:5.2f}x real time")
-    print(f"  Python emulator process       : {med['emulator']:9,.0f} periods/s = {med['emulator'] / real:5.2f}x real time")
+    emu = med["emulator"]
+    print(f"  Python emulator process       : {emu:9,.0f} periods/s = {emu / real:5.2f}x real time")
     print(f"  raw pty echo {sensors_len}/{drive_len} B (baseline): {med['raw']:9,.0f} round trips/s")
     print(f"  SIL / raw echo                : {med['sil'] / med['raw']:6.1%} (goal >= 80 %)")
     print(f"  emulator / raw echo           : {med['emulator'] / med['raw']:6.1%}")

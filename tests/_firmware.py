@@ -54,7 +54,10 @@ def random_stream(seed: int, periods: int, period_us: int = 50) -> Iterator[Sens
     speed = 0.0  # sectors per period, signed
     pot = 600
     period_100ns = period_us * 10
-    yield Command("start") if rng.random() < 0.5 else Sensors(0, CW_HALLS[pos] | INPUT_S2, EDGE_NONE, 0, (pot, 512, 700))
+    if rng.random() < 0.5:
+        yield Command("start")
+    else:
+        yield Sensors(0, CW_HALLS[pos] | INPUT_S2, EDGE_NONE, 0, (pot, 512, 700))
     phase = 0.0
     hold = 0  # periods left of a stall
     for k in range(periods):

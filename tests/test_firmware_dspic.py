@@ -14,9 +14,9 @@ RAM figure = static + a computed stack bound:
   call (its return address is 4 bytes, the AVR's 2) and +24 bytes per interrupt level (PC, SR and
   IPL pushed by the hardware: 4; W0-W7 saved by the compiler for an ISR that calls functions: 16;
   RCOUNT and one spare word: 4). On main's stack sits one ISR: PWM, Timer1, Timer2, FLTA and
-  UART1 RX share priority 4, so they never nest. In lockstep PWM and Timer1 interrupts are off (the firmware's timers are gated); in real time Sensors frames do not
-  go through the bridge's on_sensors/an1017_run (the ISRs run the firmware): the bound is the
-  larger of the two modes.
+  UART1 RX share priority 4, so they never nest. In lockstep PWM and Timer1 interrupts are off
+  (the firmware's timers are gated); in real time Sensors frames do not go through the bridge's
+  on_sensors/an1017_run (the ISRs run the firmware): the bound is the larger of the two modes.
 """
 
 from __future__ import annotations

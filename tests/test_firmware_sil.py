@@ -10,15 +10,13 @@ from __future__ import annotations
 
 import os
 import subprocess
-import time
 from pathlib import Path
 
 import pytest
 
 from _firmware import Command, random_stream
 from c_build import build_c
-from conftest import BENCH_CONFIGS, REPO_ROOT
-from hilbench.bench.recorder import read_recording
+from conftest import BENCH_CONFIGS
 from hilbench.bench.run import RunRequest, load_run_config, run_bench
 from hilbench.link.pty import open_pty_pair
 from hilbench.protocol import (

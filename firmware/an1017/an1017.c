@@ -478,8 +478,9 @@ void an1017_run(an1017_t *s, uint32_t duration_tcy, uint8_t inputs, uint8_t have
     s->t1_at = (s->t1_at >= duration_tcy) ? s->t1_at - duration_tcy : 0u;
     s->boot_at = (s->boot_at >= duration_tcy) ? s->boot_at - duration_tcy : 0u;
     s->tmr3_tcy = (s->tmr3_tcy + duration_tcy) & AN1017_TMR3_MASK;
-    s->pwm_off_tcy = (uint16_t)((next_boundary == duration_tcy) ? 0u
-                                                               : AN1017_PWM_PERIOD_TCY - (next_boundary - duration_tcy));
+    s->pwm_off_tcy = (uint16_t)((next_boundary == duration_tcy)
+                                    ? 0u
+                                    : AN1017_PWM_PERIOD_TCY - (next_boundary - duration_tcy));
 }
 
 uint16_t an1017_duty(const an1017_t *s, uint8_t phase)

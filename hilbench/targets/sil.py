@@ -22,9 +22,13 @@ import subprocess
 import tempfile
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Literal
+from typing import TYPE_CHECKING, Literal
 
 from hilbench.errors import ConfigError, LinkError
+
+if TYPE_CHECKING:
+    from hilbench.link.link import Link
+    from hilbench.targets.remote import RemoteTarget
 
 REPO = Path(__file__).resolve().parent.parent.parent
 FIRMWARE_DIR = REPO / "firmware" / "an1017"
@@ -134,8 +138,8 @@ def stop_sil(process: subprocess.Popen[bytes], timeout_s: float = 3.0) -> int:
 class SilTarget:
     """A running SIL firmware on a fresh pty, with the RemoteTarget that talks to it. close() reaps it."""
 
-    target: object
-    link: object
+    target: RemoteTarget
+    link: Link
     process: subprocess.Popen[bytes]
     label: str
 
