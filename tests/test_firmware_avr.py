@@ -40,6 +40,7 @@ def avr_gcc() -> str:
 
 @pytest.fixture(scope="module")
 def avr_build(tmp_path_factory, avr_gcc: str, gcc: str) -> Path:
+    require_tool("make", "the AVR build's Makefile (apt: make)")
     require_tool("simavr", "running the AVR build (apt: simavr)")
     require_file("/usr/include/simavr/parts/uart_pty.h", "libsimavr-dev", "the simavr runner with a UART pty")
     out = tmp_path_factory.mktemp("avr")
