@@ -16,7 +16,7 @@ from dataclasses import dataclass
 
 import pytest
 
-from hilbench.protocol import EDGE_NONE, INPUT_S2, Sensors
+from hilbench.protocol import EDGE_NONE, INPUT_S2, MODE_LOCKSTEP, PROTOCOL_VERSION, HostHello, Sensors
 
 CW_HALLS = (0b100, 0b110, 0b010, 0b011, 0b001, 0b101)
 
@@ -96,3 +96,33 @@ def random_stream(seed: int, periods: int, period_us: int = 50) -> Iterator[Sens
                           6: (-32768, 32767), 7: (5, 3000), 8: (0, 1)}[pid]
                 pairs.append((pid, rng.randint(lo, hi)))
             yield Command("set", tuple(pairs))
+
+
+def play(stream, targets, period_us: int) -> tuple[int, set]:
+    """Feed one stream to every target; every answer must be equal.
+
+    Returns the number of Drives compared and the (state, direction_ccw, fault) triples seen."""
+    hello = HostHello(0, PROTOCOL_VERSION, period_us, MODE_LOCKSTEP, 0)
+    answers = [t.hello(hello) for t in targets]
+    assert all(a == answers[0] for a in answers), answers
+    n = 0
+    seen = set()
+    for item in stream:
+        if isinstance(item, Command):
+            if item.kind == "start":
+                for t in targets:
+                    t.start()
+            elif item.kind == "stop":
+                for t in targets:
+                    t.stop()
+            else:
+                replies = [tuple(t.set_params(item.pairs))[1:] for t in targets]
+                assert all(r == replies[0] for r in replies), (item, replies)
+                values = [[tuple(t.get_param(i))[1:] for i in range(9)] for t in targets]
+                assert all(v == values[0] for v in values), (item, values)
+            continue
+        drives = [tuple(t.step(item)) for t in targets]
+        assert drives[0] == drives[1], (n, item, drives)
+        seen.add((drives[0][5], drives[0][7], drives[0][9]))
+        n += 1
+    return n, seen

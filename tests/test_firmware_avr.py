@@ -19,9 +19,13 @@ from pathlib import Path
 
 import pytest
 
-from _firmware import require_file, require_tool
+from _firmware import play, random_stream, require_file, require_tool
 from conftest import BENCH_CONFIGS
 from hilbench.bench.run import RunRequest, load_run_config, run_bench
+from hilbench.link import open_link
+from hilbench.targets.an1017.firmware import An1017Options
+from hilbench.targets.an1017.target import An1017Target
+from hilbench.targets.remote import RemoteTarget
 from hilbench.targets.sil import FIRMWARE_DIR, PROTOCOL_DIR
 
 pytestmark = pytest.mark.slow
@@ -126,3 +130,21 @@ def test_avr_in_simavr_holds_a_lockstep_session_equal_to_the_python_model(avr_bu
         print(f"\nAVR (ATmega328P) RAM: static {data + bss} B (data {data} + bss {bss}) + stack {stack} B measured "
               f"in simavr = {data + bss + stack} of {ATMEGA328P_RAM_BYTES} B")
     assert data + bss + stack < ATMEGA328P_RAM_BYTES
+
+
+def test_avr_in_simavr_drive_for_drive_on_a_seeded_stream(avr_build: Path) -> None:
+    """Every Drive field (directions included) and every parameter reply, on a random stream."""
+    process, pty_path = start_simavr(avr_build)
+    try:
+        link = open_link(pty_path, timeout_s=2.0)
+        try:
+            avr = RemoteTarget(link, timeout_s=2.0)
+            model = An1017Target(An1017Options(variant="seed"))
+            n, seen = play(random_stream(5, 1500, 1000), [model, avr], 1000)
+            assert n >= 1500 and {1, 2} <= {state for state, _, _ in seen}, seen
+            status = avr.status()
+            assert (status.rx_errors, status.overruns) == (0, 0), status
+        finally:
+            link.close()
+    finally:
+        stop_simavr(process)

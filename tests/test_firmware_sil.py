@@ -14,7 +14,7 @@ from pathlib import Path
 
 import pytest
 
-from _firmware import Command, random_stream
+from _firmware import play, random_stream
 from c_build import build_c
 from conftest import BENCH_CONFIGS
 from hilbench.bench.run import RunRequest, load_run_config, run_bench
@@ -43,36 +43,6 @@ pytestmark = pytest.mark.slow
 @pytest.fixture(scope="module")
 def sil_exe(tmp_path_factory, gcc: str) -> Path:
     return build_sil(tmp_path_factory.mktemp("sil"))
-
-
-def play(stream, targets, period_us: int) -> tuple[int, set]:
-    """Feed one stream to every target; every answer must be equal.
-
-    Returns the number of Drives compared and the (state, direction_ccw, fault) triples seen."""
-    hello = HostHello(0, PROTOCOL_VERSION, period_us, MODE_LOCKSTEP, 0)
-    answers = [t.hello(hello) for t in targets]
-    assert all(a == answers[0] for a in answers), answers
-    n = 0
-    seen = set()
-    for item in stream:
-        if isinstance(item, Command):
-            if item.kind == "start":
-                for t in targets:
-                    t.start()
-            elif item.kind == "stop":
-                for t in targets:
-                    t.stop()
-            else:
-                replies = [tuple(t.set_params(item.pairs))[1:] for t in targets]
-                assert all(r == replies[0] for r in replies), (item, replies)
-                values = [[tuple(t.get_param(i))[1:] for i in range(9)] for t in targets]
-                assert all(v == values[0] for v in values), (item, values)
-            continue
-        drives = [tuple(t.step(item)) for t in targets]
-        assert drives[0] == drives[1], (n, item, drives)
-        seen.add((drives[0][5], drives[0][7], drives[0][9]))
-        n += 1
-    return n, seen
 
 
 @pytest.mark.parametrize("variant", ["seed", "v11"])
