@@ -201,8 +201,10 @@ static AN1017_NOINLINE void on_sensors(an1017_bridge_t *b, const uint8_t *buf, u
         b->have_sensors = 1u;
         b->tripped = 0u;
     }
-    an1017_run(&b->fw, span, s.inputs, (uint8_t)(s.edge_time_100ns != HBP_EDGE_NONE),
-               (uint32_t)s.edge_time_100ns * 2u, (uint8_t)(s.n_adc > 0u), (s.n_adc > 0u) ? s.adc[0] : 0u);
+    if (span > 0u) { /* (real time: no Tcy has passed, nothing to run, as the Python model) */
+        an1017_run(&b->fw, span, s.inputs, (uint8_t)(s.edge_time_100ns != HBP_EDGE_NONE),
+                   (uint32_t)s.edge_time_100ns * 2u, (uint8_t)(s.n_adc > 0u), (s.n_adc > 0u) ? s.adc[0] : 0u);
+    }
     b->last_seq = s.seq;
     an1017_bridge_send_drive(b, s.seq);
 }
