@@ -10,7 +10,7 @@
  * - MCPWM: PTPER = 499, PTCON = 0x8002 (centre-aligned, 20 kHz), PWMCON1 = 0x0077 (three
  *   complementary pairs), PWMCON2 = 0x0F02 (OSYNC, IUE = 0: duties latch at the period boundary,
  *   SEVOPS 1:16), DTCON1 = 0x0010 (0.8 us dead time). The duties the firmware computes are written
- *   to PDC1..3 (a scope on the PWM pins sees them), but OVDCON keeps all six outputs inactive unless
+ *   to PDC1..3, but OVDCON keeps all six outputs overridden inactive unless
  *   HIL_DRIVE_BRIDGE is defined: under the bench the plant is simulated and the power stage must
  *   stay off (no motor is connected, or one is, and must not be driven twice).
  * - FLTA (RE8, the board's over-current comparator): FLTACON = 0x0007 drives all pairs inactive on
