@@ -249,3 +249,40 @@ def test_sil_refuses_another_protocol_or_schema(sil_exe: Path) -> None:
         reply = link.recv(2.0)
         assert isinstance(reply, TargetHello) and reply.schema_fingerprint == SCHEMA_FINGERPRINT
         assert reply.adc_bits == 10 and reply.seq == 6
+
+
+def test_in_place_cobs_encoding_the_bridge_relies_on(tmp_path: Path, gcc: str) -> None:
+    """The bridge packs replies at wire[1] and calls hbp_encode_frame(wire + 1, len, wire): the bytes
+    must equal an encoding into a separate buffer, for every length and zero pattern."""
+    from c_build import LIBRARY_SOURCES
+
+    src = tmp_path / "inplace.c"
+    src.write_text(r'''
+#include <stdio.h>
+#include <string.h>
+#include "hbp.h"
+int main(void) {
+    uint8_t frame[HBP_MAX_FRAME], out[HBP_MAX_WIRE], wire[HBP_MAX_WIRE];
+    uint32_t x = 12345u;
+    unsigned bad = 0u, n = 0u;
+    uint8_t len, i, k;
+    for (len = 2u; len <= (uint8_t)(HBP_MAX_FRAME - 2u); len++) {
+        for (k = 0u; k < 200u; k++) {
+            for (i = 0u; i < len; i++) {
+                x = x * 1103515245u + 12345u;
+                frame[i] = (uint8_t)((x >> 16) % 4u == 0u ? 0u : (x >> 8));  /* zeros one byte in four */
+            }
+            uint8_t a = hbp_encode_frame(frame, len, out);
+            memcpy(&wire[1], frame, len);
+            uint8_t b = hbp_encode_frame(&wire[1], len, wire);
+            if (a != b || memcmp(out, wire, a) != 0) bad++;
+            n++;
+        }
+    }
+    printf("%u %u\n", n, bad);
+    return 0;
+}
+''')
+    exe = build_c([src, *LIBRARY_SOURCES], tmp_path / "inplace")
+    n, bad = subprocess.run([str(exe)], capture_output=True, text=True, timeout=30, check=True).stdout.split()
+    assert int(n) == 61 * 200 and bad == "0"
