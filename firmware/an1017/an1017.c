@@ -151,10 +151,11 @@ static void coefficients(an1017_t *s)
 void an1017_init(an1017_t *s, uint8_t variant)
 {
     uint8_t i;
+    uint16_t k;
     uint8_t v11 = (uint8_t)(variant == AN1017_VARIANT_V11);
     uint8_t *p = (uint8_t *)s;
-    for (i = 0u; i < (uint8_t)sizeof *s; i++) {
-        p[i] = 0u;
+    for (k = 0u; k < (uint16_t)sizeof *s; k++) { /* no memset: no C library needed */
+        p[k] = 0u;
     }
     s->adc_every = (uint8_t)!v11;
     s->c1_textbook = (uint8_t)!v11;
