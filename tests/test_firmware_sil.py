@@ -286,3 +286,20 @@ int main(void) {
     exe = build_c([src, *LIBRARY_SOURCES], tmp_path / "inplace")
     n, bad = subprocess.run([str(exe)], capture_output=True, text=True, timeout=30, check=True).stdout.split()
     assert int(n) == 61 * 200 and bad == "0"
+
+
+def test_sil_under_address_and_undefined_behaviour_sanitizers(tmp_path: Path, gcc: str) -> None:
+    """The firmware built with ASan + UBSan (any overflow, bad shift or out-of-bounds read aborts it)
+    through a random stream with every kind of event, both variants."""
+    from c_build import build_c
+    from hilbench.targets.sil import CFLAGS, SOURCES, PROTOCOL_DIR
+
+    defines = tuple(f for f in CFLAGS if f.startswith("-D"))
+    exe = build_c(SOURCES, tmp_path / "an1017_sil_sanitized", sanitize=True,
+                  extra_flags=(*defines, f"-I{FIRMWARE_DIR}", f"-I{PROTOCOL_DIR}"))
+    for variant in ("seed", "v11"):
+        with SilTarget.open(variant, exe=exe) as sil:
+            model = An1017Target(An1017Options(variant=variant))
+            n, _ = play(random_stream(21, 6000, 100), [model, sil.target], 100)
+            assert n >= 6000
+            assert sil.process.poll() is None  # still alive: no sanitizer report
