@@ -175,6 +175,10 @@ class Bench:
                 self._handle = None
         return summary
 
+    def child_status(self) -> str:
+        """How the emulator process this bench started is doing, for error lines ("" if none)."""
+        return self._handle.child_status() if self._handle is not None else ""
+
     def __enter__(self) -> "Bench":
         return self.open()
 
