@@ -37,7 +37,7 @@ BUCKET_PERIODS = 10
 #: at most this many buckets per frame (the bucket doubles until the take fits)
 MAX_FRAME_BUCKETS = 600
 #: a take at least this often while a scope is attached (wall time)
-TAKE_EVERY_S = 0.05
+TAKE_EVERY_S = 0.1
 #: frames kept for scopes that connect or fall behind
 RING_FRAMES = 400
 #: at most this many buckets (summed over frames) in one reply
@@ -95,16 +95,13 @@ class Frame:
     seq: int
     t0_s: float
     bucket_s: float
-    mins: np.ndarray  # (n buckets, n columns) float32
-    maxs: np.ndarray
+    n: int
+    envelopes: dict[str, tuple[np.ndarray, np.ndarray]]  # column -> (mins, maxs), float32
 
-    @property
-    def n(self) -> int:
-        return len(self.mins)
-
-    def as_json(self, indices: Sequence[int], names: Sequence[str]) -> dict[str, Any]:
+    def as_json(self, names: Sequence[str]) -> dict[str, Any]:
         return {"seq": self.seq, "t0": self.t0_s, "dt": self.bucket_s, "n": self.n,
-                "cols": {name: [b64_f32(self.mins[:, i]), b64_f32(self.maxs[:, i])] for i, name in zip(indices, names)}}
+                "cols": {name: [b64_f32(self.envelopes[name][0]), b64_f32(self.envelopes[name][1])]
+                         for name in names if name in self.envelopes}}
 
 
 class DisplayStream:
@@ -128,6 +125,8 @@ class DisplayStream:
         self._last_take = -math.inf
         self._layout: Any = None
         self._names: tuple[str, ...] = ()
+        self._specs: dict[str, tuple[str, Any, float, float]] = {}
+        self._tracked: tuple[str, ...] = ()
         self._units: dict[str, str] = {}
         self._drive: Any = None
         self._pacing: "RealtimePacing | None" = None
@@ -150,7 +149,8 @@ class DisplayStream:
             self.take()
 
     def take(self) -> None:
-        """Decimate the rows appended since the last take into one frame."""
+        """Decimate the rows appended since the last take into one frame (the tracked columns only:
+        min/max of each raw field, scaled afterwards, so a take costs two reductions per column)."""
         self._last_take = self.clock()
         recorder = self.session.recorder
         if recorder is None:
@@ -165,28 +165,33 @@ class DisplayStream:
         end = len(data) - (len(data) % size)  # a row may be half-appended
         if end <= self._offset:
             return
-        raw = bytes(data[self._offset:end])
+        raw = np.frombuffer(bytes(data[self._offset:end]), dtype=rows.layout.dtype)
         row_from, row_to = self._offset // size, end // size
         self._offset = end
         self.seq += 1
         self._take_events(recorder, row_from, row_to)
-        columns = rows.layout.to_columns(raw)
-        hall = columns.get("hall")
-        table = np.empty((len(raw) // size, len(self._names)), dtype=np.float64)
-        for i, name in enumerate(self._names):
-            source = columns.get(name)
-            if source is None and hall is not None:
-                bit = next(b for b, n in HALL_BITS if n == name)
-                source = (hall.astype(np.int64) >> bit) & 1
-            table[:, i] = source if source is not None else math.nan
         bucket = self.bucket_periods
-        while len(table) > bucket * self.max_frame_buckets:
+        while len(raw) > bucket * self.max_frame_buckets:
             bucket *= 2
-        mins, maxs = envelope(table, bucket)
+        starts = np.arange(0, len(raw), bucket)
+        envelopes = {name: self._envelope(raw, name, starts) for name in self._tracked}
         period_s = self.session.options.period_us * 1e-6
+        t_field, t_scale = self._specs["t_s"][1], self._specs["t_s"][2]
         self.takes += 1
-        self.frames.append(Frame(self.seq, float(table[0, 0]), bucket * period_s,
-                                 mins.astype(np.float32), maxs.astype(np.float32)))
+        self.frames.append(Frame(self.seq, float(raw[t_field][0]) * t_scale, bucket * period_s, len(starts), envelopes))
+
+    def _envelope(self, raw: np.ndarray, name: str, starts: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        kind, source, scale, modulo = self._specs[name]
+        if kind == "bit":
+            values = (raw["hall"] >> source) & 1
+        elif modulo:
+            values = np.mod(raw[source] * scale, modulo)
+        else:
+            values = raw[source]
+        lo, hi = np.minimum.reduceat(values, starts), np.maximum.reduceat(values, starts)
+        if kind == "field" and not modulo and scale != 1.0:
+            lo, hi = (lo * scale, hi * scale) if scale >= 0 else (hi * scale, lo * scale)
+        return lo.astype(np.float32), hi.astype(np.float32)
 
     def _take_events(self, recorder: Any, row_from: int, row_to: int) -> None:
         """The recorder's events at the rows taken (its pending list: a file recorder empties it
@@ -208,13 +213,34 @@ class DisplayStream:
         self._layout = layout
         names = list(layout.column_names)
         units = {name: unit for name, unit, _ in layout.column_specs}
+        wrap = dict(layout.wrap)
+        specs: dict[str, tuple[str, Any, float, float]] = {
+            name: ("field", src, scale, wrap.get(name, 0.0)) for name, _, _, src, scale in layout.columns}
         if "hall" in names:
             at = names.index("hall") + 1
             names[at:at] = [n for _, n in HALL_BITS]
             units.update({n: "bit" for _, n in HALL_BITS})
-        assert names[0] == "t_s", "the recording's first column is t_s"
+            specs.update({n: ("bit", bit, 1.0, 0.0) for bit, n in HALL_BITS})
         self._names = tuple(names)
         self._units = units
+        self._specs = specs
+        self._tracked = tuple(n for n in self._tracked if n in specs)
+        self.frames.clear()
+
+    def _track(self, columns: Sequence[str]) -> None:
+        """Decimate these columns from now on, and again the history the buffer still holds."""
+        new = [c for c in columns if c in self._specs and c not in self._tracked]
+        if new:
+            self._tracked += tuple(new)
+            self._rewind()
+
+    def _rewind(self) -> None:
+        recorder = self.session.recorder
+        if recorder is None:
+            return
+        size = recorder.rows.struct.size
+        keep = int(HISTORY_S / (self.session.options.period_us * 1e-6)) * size
+        self._offset = max(0, len(recorder.rows.data) - len(recorder.rows.data) % size - keep)
         self.frames.clear()
 
     # ------------------------------------------------------------------ a scope's request
@@ -223,13 +249,14 @@ class DisplayStream:
         first = self._asked_at == -math.inf or not self.active
         self._asked_at = self.clock()
         recorder = self.session.recorder
-        if first and recorder is not None:  # wake up: history from what the buffer still holds
-            size = recorder.rows.struct.size
-            keep = int(HISTORY_S / (self.session.options.period_us * 1e-6)) * size
-            self._offset = max(0, len(recorder.rows.data) - len(recorder.rows.data) % size - keep)
+        if recorder is not None and recorder.rows.layout is not self._layout:
+            self._learn(recorder.rows.layout)
+        if first:  # wake up: history from what the buffer still holds
+            self._tracked = ()
+            self._rewind()
+        self._track(columns)
         self.take()
-        names = [c for c in columns if c in self._names]
-        indices = [self._names.index(c) for c in names]
+        names = [c for c in columns if c in self._tracked]
         frames = [f for f in self.frames if f.seq > since]
         total, chosen = 0, []
         for frame in reversed(frames):  # the newest first, up to the reply's budget
@@ -239,7 +266,7 @@ class DisplayStream:
             chosen.append(frame)
         chosen.reverse()
         out: dict[str, Any] = {
-            "seq": self.seq, "frames": [f.as_json(indices, names) for f in chosen],
+            "seq": self.seq, "frames": [f.as_json(names) for f in chosen],
             "status": self.status(t_s), "markers": [[t, kind, text] for seq, t, kind, text in self.marks if seq > since],
         }
         if since < 0:
