@@ -300,9 +300,11 @@ def run(config: str | None, target_spec: str | None, mode: str | None, duration_
 @click.option("--csv", "csv_file", type=click.Path(dir_okay=False), default=None, metavar="FILE.csv",
               help="Also write the recording as CSV (e.g. from a fast .npz run).")
 @click.option("--json", "as_json", is_flag=True, help="Print the summary as JSON.")
+@click.option("--window", "window", default=None, metavar="T0:T1", help="Plot only simulated seconds T0..T1 (e.g. 1.0:1.05).")
 @click.option("--open", "open_viewer", is_flag=True, help="Show the recording in the scope's viewer (served on 127.0.0.1 until Ctrl-C).")
 @_friendly
-def report(recording: str, plot_dir: str | None, csv_file: str | None, as_json: bool, open_viewer: bool = False) -> None:
+def report(recording: str, plot_dir: str | None, csv_file: str | None, as_json: bool, window: str | None = None,
+           open_viewer: bool = False) -> None:
     """Summarise a recording (CSV, NPZ, or the journal of a run that was killed).
 
     \b
@@ -329,7 +331,9 @@ def report(recording: str, plot_dir: str | None, csv_file: str | None, as_json: 
     if plot_dir is not None:
         from hilbench.ui.plots import plot_recording
 
-        info["plots"] = [str(p) for p in plot_recording(data, Path(plot_dir))]
+        from hilbench.ui.plots import parse_window
+
+        info["plots"] = [str(p) for p in plot_recording(data, Path(plot_dir), window=parse_window(window))]
     if as_json:
         click.echo(json_module.dumps(info, indent=2, default=str))
         return
