@@ -312,13 +312,18 @@ class ScopeServer:
     async def _websocket(self, request: Any) -> Any:
         from aiohttp import WSMsgType, web
 
-        ws = web.WebSocketResponse(max_msg_size=MAX_WS_MESSAGE, heartbeat=20.0)
+        # no per-message deflate: base64 float32 barely compresses, and deflating would cost the
+        # session's process CPU (and GIL) for every frame
+        ws = web.WebSocketResponse(max_msg_size=MAX_WS_MESSAGE, heartbeat=20.0, compress=False)
         await ws.prepare(request)
         inbox: asyncio.Queue[dict[str, Any]] = asyncio.Queue()
 
         async def send(message: dict[str, Any]) -> None:
             if not ws.closed:
-                await ws.send_str(json.dumps(message, allow_nan=False, default=_nan_none))
+                try:
+                    await ws.send_str(json.dumps(message, allow_nan=False, default=_nan_none))
+                except ConnectionError:  # the page went away mid-send: the receive loop ends too
+                    pass
 
         serving = asyncio.ensure_future(self.source.serve(send, inbox))
         try:

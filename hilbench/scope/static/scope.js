@@ -237,6 +237,7 @@ const canvas = $("plot"), ctx = canvas.getContext("2d");
 const AXIS_W = 84, TIME_H = 22;
 
 function lanes(names) {
+  names = [...names.filter((n) => S.units[n] !== "bit"), ...names.filter((n) => S.units[n] === "bit")];  // digital at the bottom
   const H = canvas.clientHeight - TIME_H, digital = names.filter((n) => S.units[n] === "bit").length;
   const dh = Math.min(30, H / Math.max(1, names.length));
   const ah = (H - digital * dh) / Math.max(1, names.length - digital);
@@ -322,7 +323,7 @@ function draw() {
     const x = xOf(t); ctx.beginPath(); ctx.moveTo(x, 0); ctx.lineTo(x, H - TIME_H); ctx.stroke();
     ctx.fillText(`${Number(t.toPrecision(6))} s`, x, H - 6);
   }
-  if (relative) { ctx.textAlign = "left"; ctx.fillText("time from the trigger", 4, H - 6); }
+  if (relative) { ctx.textAlign = "left"; ctx.fillStyle = "#e8b44c"; ctx.fillText("t − t(trigger)", 4, H - 6); }
   ls.forEach((lane, li) => {
     const colour = COLOURS[li % COLOURS.length];
     const layers = [];
