@@ -77,15 +77,15 @@ def test_frames_are_the_envelopes_of_the_recorded_rows() -> None:
     reference = {"speed_rpm": signals["speed_rpm"], "ia_a": signals["ia_a"], "duty_a": signals["duty_a"],
                  "hall_a": hall & 1, "hall_b": (hall >> 1) & 1, "hall_c": (hall >> 2) & 1}
     covered = 0
-    for frame in frames:
-        start = int(round(frame["t0"] / period_s))
+    starts = [int(round(f["t0"] / period_s)) for f in frames] + [len(t)]  # each frame's rows end where the next begin
+    for frame, start, end in zip(frames, starts, starts[1:]):
         per_bucket = int(round(frame["dt"] / period_s))
         assert per_bucket >= 10
         for name, values in reference.items():
             lo, hi = decode(frame["cols"][name][0]), decode(frame["cols"][name][1])
             assert len(lo) == frame["n"]
             for i in range(frame["n"]):  # a plain loop over the rows: the reference
-                rows = values[start + i * per_bucket: start + (i + 1) * per_bucket]
+                rows = values[start + i * per_bucket: min(end, start + (i + 1) * per_bucket)]
                 if i < frame["n"] - 1:
                     assert len(rows) == per_bucket
                 assert lo[i] == np.float32(min(rows)) and hi[i] == np.float32(max(rows)), (name, frame["seq"], i)
@@ -149,3 +149,23 @@ def test_stream_and_press_request_shapes(obj: dict[str, Any], reason: str) -> No
         validate_request(obj)
     assert validate_request({"cmd": "stream", "since": -1, "columns": ["speed_rpm"]}) == (
         "stream", {"since": -1, "columns": ["speed_rpm"]})
+
+
+def test_a_failing_stream_never_ends_the_run(monkeypatch: pytest.MonkeyPatch) -> None:
+    from hilbench.scope.stream import DisplayStream
+
+    with hilbench.Bench(target="inprocess:an1017") as bench:
+        bench.run(0.02)
+        ask(bench, -1, ["speed_rpm"])
+
+        def broken(self: DisplayStream) -> None:
+            raise RuntimeError("boom")
+
+        monkeypatch.setattr(DisplayStream, "take", broken)
+        bench.session.display.take_every_s = 0.0  # type: ignore[union-attr]  # a take at every chance
+        assert bench.run(0.5)  # the take due during the run fails: the stream sleeps, the run goes on
+        assert "boom" in (bench.session.display.error or "")  # type: ignore[union-attr]
+        request = Request("stream", since=-1, columns=["speed_rpm"])
+        bench.session.handle_control(request, bench.t_s)  # type: ignore[union-attr]
+        assert request.answer is not None and not request.answer[0] and "boom" in request.answer[1]
+        assert bench.run(0.05)

@@ -18,6 +18,7 @@ guard trips, ctl actions, faults: "t=... text" with its marker code), kept with 
 from __future__ import annotations
 
 import base64
+import json
 import math
 import time
 from collections import deque
@@ -27,6 +28,7 @@ from typing import TYPE_CHECKING, Any, Mapping, Sequence
 import numpy as np
 
 from hilbench.bench.recorder import MARKER_FAULT, MARKER_PARAM
+from hilbench.errors import HilbenchError
 
 if TYPE_CHECKING:
     from hilbench.bench.pacing import RealtimePacing
@@ -48,6 +50,12 @@ IDLE_AFTER_S = 5.0
 HISTORY_S = 2.0
 #: the digital columns made of ``hall`` (bit, name)
 HALL_BITS = ((0, "hall_a"), (1, "hall_b"), (2, "hall_c"))
+
+
+class ScopeError(HilbenchError):
+    """The scope's stream could not answer (the run goes on)."""
+
+    kind = "scope"
 
 
 def envelope(values: np.ndarray, bucket: int) -> tuple[np.ndarray, np.ndarray]:
@@ -118,6 +126,7 @@ class DisplayStream:
         self.frames: deque[Frame] = deque(maxlen=RING_FRAMES)
         self.seq = 0
         self.takes = 0
+        self.error: str | None = None
         self._offset = 0  # bytes of recorder.rows.data already taken
         self._boundary: set[tuple[int, str]] = set()
         self.marks: deque[tuple[int, float, str, str]] = deque(maxlen=1000)  # (seq, t_s, kind, text)
@@ -146,7 +155,11 @@ class DisplayStream:
         recorder = self.session.recorder
         flush_coming = recorder is not None and len(recorder.rows) >= getattr(recorder, "flush_rows", math.inf)
         if flush_coming or self.clock() - self._last_take >= self.take_every_s:
-            self.take()
+            try:
+                self.take()
+            except Exception as exc:  # noqa: BLE001 - a scope must never end a run: it goes to sleep instead
+                self.error = f"scope stream stopped: {type(exc).__name__}: {exc}"
+                self._asked_at = -math.inf
 
     def take(self) -> None:
         """Decimate the rows appended since the last take into one frame (the tracked columns only:
@@ -250,7 +263,16 @@ class DisplayStream:
 
     # ------------------------------------------------------------------ a scope's request
     def request(self, since: int, columns: Sequence[str], t_s: float) -> dict[str, Any]:
-        """The reply to ``stream``: frames after ``since`` (-1: a new scope; meta and history)."""
+        """The reply to ``stream``: frames after ``since`` (-1: a new scope; meta and history).
+        Raises ScopeError (a refusal the session answers with) rather than anything that would end the run."""
+        try:
+            reply = self._request(since, columns, t_s)
+            json.dumps(reply, allow_nan=False)  # the control socket's reply must not fail later
+            return reply
+        except Exception as exc:  # noqa: BLE001
+            raise ScopeError(f"scope stream: {type(exc).__name__}: {exc}") from None
+
+    def _request(self, since: int, columns: Sequence[str], t_s: float) -> dict[str, Any]:
         first = self._asked_at == -math.inf or not self.active
         self._asked_at = self.clock()
         recorder = self.session.recorder
