@@ -1,17 +1,17 @@
 """What an open scope costs the session, measured against the same loop without it in one run.
 
-    python benchmarks/bench_scope.py [--seconds 3] [--repeats 5] [--realtime-seconds 20]
+    python benchmarks/bench_scope.py [--seconds 15] [--repeats 7] [--realtime-seconds 15] [--realtime-repeats 2]
 
 (a) Lockstep, firmware in process (the fastest loop, so the worst case for a relative cost): the
     AN1017 bench at 20 kHz periods with its control socket open, every period recorded in memory,
-    run ``--seconds`` simulated seconds; alternately without a scope and with `run --scope`'s
-    arrangement: the scope's server in a thread of the same process, relaying the stream to a
-    WebSocket client that subscribes to the page's default columns and reads every frame (the
-    page's part, without a browser). Medians over ``--repeats`` pairs and their ratio (goal: the
-    scope costs <= 10 %).
-(b) Real time at 1 kHz against the emulator process (as benchmarks/bench_realtime.py), for
-    ``--realtime-seconds`` without and then with the scope open: overruns and lateness p99.
-    Skipped with --realtime-seconds 0.
+    run ``--seconds`` simulated seconds, interleaved: without a scope; with `run --scope`'s
+    arrangement (`hilbench scope` as a child process on the control socket, and a page — a
+    WebSocket client subscribed to the page's default columns reading every frame — in another
+    process, as a browser is); and with server and page both as threads of the session's own process
+    (the worst case). Medians over ``--repeats`` and their ratios (goal: the scope costs <= 10 %).
+(b) Real time at 1 kHz against the emulator process (as benchmarks/bench_realtime.py), without and
+    with `run --scope`'s arrangement, alternated ``--realtime-repeats`` times: overruns and lateness
+    p99. Skipped with --realtime-seconds 0. The figures move with the machine's load.
 """
 
 from __future__ import annotations
@@ -20,6 +20,7 @@ import argparse
 import asyncio
 import json
 import statistics
+import subprocess
 import sys
 import tempfile
 import threading
@@ -74,27 +75,74 @@ class PageClient:
         self._thread.join(10)
 
 
-def lockstep_once(seconds: float, scope: bool) -> tuple[float, str]:
-    """Wall seconds for ``seconds`` simulated seconds (and a note on what the page received)."""
+class PageProcess:
+    """The page as its own process (this script with --page URL), as a browser is."""
+
+    def __init__(self, url: str) -> None:
+        self.proc = subprocess.Popen([sys.executable, __file__, "--page", url], stdin=subprocess.PIPE,
+                                     stdout=subprocess.PIPE, text=True)
+        self.proc.stdout.readline()  # "subscribed"  # type: ignore[union-attr]
+        self.stats: dict[str, Any] = {}
+
+    @property
+    def messages(self) -> int:
+        return 2  # subscribed: its first replies are on their way
+
+    def close(self) -> None:
+        try:
+            out, _ = self.proc.communicate("", timeout=20)
+            self.stats = json.loads(out.strip().splitlines()[-1])
+        except (subprocess.TimeoutExpired, ValueError, IndexError):
+            self.proc.kill()
+            self.proc.wait(10)
+
+
+def page_main(url: str) -> None:
+    """--page URL: subscribe, read every message until stdin closes, print counts as JSON."""
+    page = PageClient(url)
+    with page:
+        print("subscribed", flush=True)
+        sys.stdin.read()
+    print(json.dumps({"messages": page.messages, "bytes": page.bytes, "buckets": page.buckets}), flush=True)
+
+
+def lockstep_once(seconds: float, scope: str) -> tuple[float, str]:
+    """Wall seconds for ``seconds`` simulated seconds (and a note on what the page received).
+    ``scope``: "none", "process" (`run --scope`'s arrangement) or "thread" (all in this process)."""
+    from hilbench.scope.launch import ScopeProcess
+
     folder = Path(tempfile.mkdtemp(prefix="hb-bench-scope-"))
     control = ControlServer(folder / "ctl" / "ctl.sock", publish=False)
     try:
         with hilbench.Bench(target="inprocess:an1017", control=control) as bench:
             bench.set_reference(1500)
             bench.press("s2")
-            bench.run(0.05)  # warm up (and a scope's first stream request is answered here)
-            if not scope:
+            bench.run(0.05)  # warm up
+            if scope == "none":
                 start = time.perf_counter()
                 bench.run(seconds)
                 return time.perf_counter() - start, ""
-            with ScopeServer(ControlSource(control.path)) as server, PageClient(server.url + "ws") as page:
-                while page.messages < 2:  # the page is connected and subscribed
+            if scope == "thread":
+                with ScopeServer(ControlSource(control.path)) as server, PageClient(server.url + "ws") as page:
+                    while bench.session.display is None or not bench.session.display.frames:  # type: ignore[union-attr]
+                        bench.run(0.01)  # the page is connected, subscribed and served
+                    start = time.perf_counter()
+                    bench.run(seconds)
+                    wall = time.perf_counter() - start
+                return wall, f"{page.messages} messages, {page.bytes / 1e6:.1f} MB, {page.buckets} buckets"
+            server_process = ScopeProcess(control.path)
+            page_process = PageProcess(server_process.url + "ws")
+            try:
+                while bench.session.display is None or not bench.session.display.frames:  # type: ignore[union-attr]
                     bench.run(0.01)
                 start = time.perf_counter()
                 bench.run(seconds)
                 wall = time.perf_counter() - start
-                takes = bench.session.display.takes  # type: ignore[union-attr]
-            return wall, f"{page.messages} messages, {page.bytes / 1e6:.1f} MB, {page.buckets} buckets, {takes} takes"
+            finally:
+                page_process.close()
+                server_process.close()
+            stats = page_process.stats
+            return wall, f"{stats.get('messages')} messages, {stats.get('bytes', 0) / 1e6:.1f} MB, {stats.get('buckets')} buckets"
     finally:
         control.close()
 
@@ -113,42 +161,58 @@ def realtime_once(seconds: float, scope: bool) -> Any:
     try:
         if not scope:
             return run_bench(cfg, control=control), ""
-        with ScopeServer(ControlSource(control.path)) as server, PageClient(server.url + "ws") as page:
+        from hilbench.scope.launch import ScopeProcess
+
+        server_process = ScopeProcess(control.path)
+        page_process = PageProcess(server_process.url + "ws")
+        try:
             summary = run_bench(cfg, control=control)
-            return summary, f"{page.messages} messages, {page.bytes / 1e6:.1f} MB"
+        finally:
+            page_process.close()
+            server_process.close()
+        stats = page_process.stats
+        return summary, f"{stats.get('messages')} messages, {stats.get('bytes', 0) / 1e6:.1f} MB"
     finally:
         control.close()
 
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("--seconds", type=float, default=3.0)
-    parser.add_argument("--repeats", type=int, default=5)
-    parser.add_argument("--realtime-seconds", type=float, default=20.0)
+    parser.add_argument("--page", default=None, help=argparse.SUPPRESS)
+    parser.add_argument("--seconds", type=float, default=15.0)
+    parser.add_argument("--repeats", type=int, default=7)
+    parser.add_argument("--realtime-seconds", type=float, default=15.0)
+    parser.add_argument("--realtime-repeats", type=int, default=1)
     args = parser.parse_args()
+    if args.page:
+        page_main(args.page)
+        return
 
-    without: list[float] = []
-    with_scope: list[float] = []
-    note = ""
-    for _ in range(args.repeats):  # interleaved, so the machine's load drifts into both alike
-        without.append(lockstep_once(args.seconds, scope=False)[0])
-        wall, note = lockstep_once(args.seconds, scope=True)
-        with_scope.append(wall)
-    base, scoped = statistics.median(without), statistics.median(with_scope)
+    walls: dict[str, list[float]] = {"none": [], "process": [], "thread": []}
+    notes: dict[str, str] = {}
+    for _ in range(args.repeats):  # interleaved, so the machine's load drifts into all alike
+        for kind in walls:
+            wall, notes[kind] = lockstep_once(args.seconds, kind)
+            walls[kind].append(wall)
+    base = statistics.median(walls["none"])
     periods = args.seconds / 50e-6
     print(f"(a) lockstep in process, AN1017 at 20 kHz, {args.seconds:g} s simulated, median of {args.repeats}:")
-    print(f"    without a scope   {base:7.3f} s wall  {periods / base:10,.0f} periods/s")
-    print(f"    with a scope open {scoped:7.3f} s wall  {periods / scoped:10,.0f} periods/s   ({note})")
-    print(f"    ratio {scoped / base:.3f}  (the scope costs {100 * (scoped / base - 1):+.1f} %; goal <= +10 %)")
+    print(f"    without a scope                   {base:7.3f} s wall  {periods / base:10,.0f} periods/s")
+    for kind, label in (("process", "with a scope (run --scope)      "), ("thread", "with a scope, all in-process    ")):
+        wall = statistics.median(walls[kind])
+        print(f"    {label}  {wall:7.3f} s wall  {periods / wall:10,.0f} periods/s   ratio {wall / base:.3f} "
+              f"({100 * (wall / base - 1):+.1f} %; goal <= +10 %)   [{notes[kind]}]")
     sys.stdout.flush()
     if args.realtime_seconds > 0:
-        print(f"(b) real time at 1 kHz against the emulator process, {args.realtime_seconds:g} s each:")
-        for scope in (False, True):
+        print(f"(b) real time at 1 kHz against the emulator process, {args.realtime_seconds:g} s each, "
+              f"{args.realtime_repeats} pair(s) alternated:")
+        for scope in [False, True] * args.realtime_repeats:
             summary, note = realtime_once(args.realtime_seconds, scope)
             lat = summary.lateness_us
             print(f"    {'with a scope open' if scope else 'without a scope  '}  overruns {summary.overruns} of {summary.periods} "
                   f"({summary.overruns / max(1, summary.periods):.3%}), lateness p99 {lat['p99']:.1f} us, "
                   f"max {lat['max']:.1f} us {('(' + note + ')') if note else ''}")
+            sys.stdout.flush()
 
 
 if __name__ == "__main__":

@@ -257,13 +257,13 @@ def run(config: str | None, target_spec: str | None, mode: str | None, duration_
 
         control = ControlServer()
     scope_server: Any = None
-    if scope:  # the scope talks to the run through its control socket, as `hilbench scope` does
+    if scope:  # `hilbench scope` on the run's control socket, as a child process
         from hilbench.errors import ConfigError
-        from hilbench.scope.launch import scope_for_socket
+        from hilbench.scope.launch import ScopeProcess
 
         if control is None:
             raise ConfigError("run --scope needs the control socket (drop --no-control)")
-        scope_server = scope_for_socket(control.path, open_browser=open_browser)
+        scope_server = ScopeProcess(control.path, open_browser=open_browser)
     console = Console()
     try:
         if no_ui or as_json or not console.is_terminal:

@@ -10,6 +10,8 @@ from hilbench.errors import ConfigError
 
 def _server_class():  # type: ignore[no-untyped-def]
     try:
+        import aiohttp  # noqa: F401
+
         from hilbench.scope.server import ScopeServer
     except ImportError as exc:  # aiohttp is the extra's dependency
         raise ConfigError(f"scope: needs the scope extra (pip install 'hilbench[scope]'): {exc}") from None
@@ -42,4 +44,67 @@ def scope_for_recording(path: str | os.PathLike[str], port: int = 0, open_browse
     return start_scope(RecordingSource(path), port, open_browser)
 
 
-__all__ = ["scope_for_recording", "scope_for_socket", "start_scope"]
+
+
+class ScopeProcess:
+    """`hilbench scope --socket PATH` as a child process (what `run --scope` starts): the page's
+    server and its JSON work then never take the session's interpreter lock, which matters in real
+    time. Its URL line is passed on to stderr; `close()` stops it (and it dies with its parent)."""
+
+    def __init__(self, socket_path: str | os.PathLike[str], port: int = 0, open_browser: bool = False,
+                 timeout_s: float = 30.0) -> None:
+        import subprocess
+        import sys
+        import threading
+
+        command = [sys.executable, "-m", "hilbench", "scope", "--socket", str(socket_path), "--port", str(port)]
+        if open_browser:
+            command.append("--open")
+        self.url = ""
+        self._found = threading.Event()
+        self.proc = subprocess.Popen(command, stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL,
+                                     stderr=subprocess.PIPE, text=True, preexec_fn=_die_with_parent)
+        self._reader = threading.Thread(target=self._read, name="hilbench-scope-stderr", daemon=True)
+        self._reader.start()
+        if not self._found.wait(timeout_s) or not self.url:
+            self.close()
+            raise ConfigError(f"scope: `hilbench scope` printed no URL within {timeout_s:g} s")
+
+    def _read(self) -> None:
+        import re
+        import sys
+
+        assert self.proc.stderr is not None
+        for line in self.proc.stderr:
+            sys.stderr.write(line)
+            match = re.search(r"scope: (http://\S+)", line)
+            if match and not self.url:
+                self.url = match.group(1)
+                self._found.set()
+        self._found.set()  # the child ended (with or without its URL)
+
+    def close(self) -> None:
+        import subprocess
+
+        if self.proc.poll() is None:
+            self.proc.terminate()
+            try:
+                self.proc.wait(5)
+            except subprocess.TimeoutExpired:
+                self.proc.kill()
+                self.proc.wait(5)
+        self._reader.join(5)
+
+
+def _die_with_parent() -> None:
+    """In the child, before exec: SIGTERM when the parent dies (Linux prctl PR_SET_PDEATHSIG)."""
+    try:
+        import ctypes
+        import signal
+
+        ctypes.CDLL(None).prctl(1, int(signal.SIGTERM), 0, 0, 0)
+    except (OSError, AttributeError):
+        pass
+
+
+__all__ = ["ScopeProcess", "scope_for_recording", "scope_for_socket", "start_scope"]

@@ -18,7 +18,6 @@ guard trips, ctl actions, faults: "t=... text" with its marker code), kept with 
 from __future__ import annotations
 
 import base64
-import json
 import math
 import time
 from collections import deque
@@ -223,7 +222,7 @@ class DisplayStream:
                 if index == row_to:
                     boundary.add((index, text))
                 parsed = parse_event(text)
-                if parsed is not None:
+                if parsed is not None and math.isfinite(parsed[0]):
                     self.marks.append((self.seq, parsed[0], marker_kind(parsed[1], marker), parsed[1]))
         self._boundary = boundary
 
@@ -265,10 +264,8 @@ class DisplayStream:
     def request(self, since: int, columns: Sequence[str], t_s: float) -> dict[str, Any]:
         """The reply to ``stream``: frames after ``since`` (-1: a new scope; meta and history).
         Raises ScopeError (a refusal the session answers with) rather than anything that would end the run."""
-        try:
-            reply = self._request(since, columns, t_s)
-            json.dumps(reply, allow_nan=False)  # the control socket's reply must not fail later
-            return reply
+        try:  # every number in the reply is finite by construction (the reply line refuses NaN)
+            return self._request(since, columns, t_s)
         except Exception as exc:  # noqa: BLE001
             raise ScopeError(f"scope stream: {type(exc).__name__}: {exc}") from None
 
@@ -337,10 +334,10 @@ class DisplayStream:
         except Exception:  # noqa: BLE001 - a status must not fail on a target that stopped answering
             params = {}
         return {
-            "t_s": t_s, "state": None if drive is None else int(drive.state),
+            "t_s": _num(t_s), "state": None if drive is None else int(drive.state),
             "fault": None if drive is None else int(drive.fault),
-            "ref_rpm": session._ref_rpm, "params": _finite(params),  # noqa: SLF001
-            "guard": bool(session.tuning.guard.enabled), "periods_per_s": rate,
+            "ref_rpm": _num(session._ref_rpm), "params": _finite(params),  # noqa: SLF001
+            "guard": bool(session.tuning.guard.enabled), "periods_per_s": _num(rate),
             "rtt_p50_us": _num(stats.get("p50")), "rtt_p99_us": _num(stats.get("p99")),
             "overruns": pacing.overruns if pacing is not None else 0,
             "link": {k: v for k, v in session.link_stats().items() if isinstance(v, (int, float))},

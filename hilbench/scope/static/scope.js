@@ -442,10 +442,13 @@ $("fit").addEventListener("click", () => {
   S.showCapture = false; dirty = true;
 });
 $("trig-arm").addEventListener("click", () => {
-  S.trigger = { state: "armed", source: $("trig-source").value, armedAt: S.tLatest, tTrig: null };
+  // live: the next trigger from now on; a recording: the first one after the view's start
+  const from = S.meta && !S.meta.live && S.view ? S.view.ta : S.tLatest;
+  S.trigger = { state: "armed", source: $("trig-source").value, armedAt: from, tTrig: null };
   S.showCapture = false;
-  $("trig-state").textContent = `armed at t = ${S.tLatest.toFixed(3)} s on ${$("trig-source").selectedOptions[0].text}`;
+  $("trig-state").textContent = `armed at t = ${from.toFixed(3)} s on ${$("trig-source").selectedOptions[0].text}`;
   $("trig-state").className = "result"; dirty = true;
+  checkTrigger();
 });
 $("trig-live").addEventListener("click", () => { S.showCapture = false; setPaused(false); });
 $("trig-compare").addEventListener("change", () => { dirty = true; });
