@@ -95,3 +95,35 @@ def test_scope_page_in_headless_chromium(browser_page, tmp_path: Path) -> None: 
         page.screenshot(path=str(shot))
     assert shot.stat().st_size > 10_000 and _not_blank(shot) > 0.05
     assert not errors, errors
+
+
+@pytest.mark.slow
+def test_recording_in_the_same_viewer(browser_page, tmp_path: Path) -> None:  # type: ignore[no-untyped-def]
+    import hilbench
+    from hilbench.scope.server import RecordingSource, ScopeServer
+
+    with hilbench.Bench(target="inprocess:an1017", record=tmp_path / "run.npz") as bench:
+        bench.set_reference(1500)
+        bench.press("s2")
+        bench.run(0.4)
+        bench.set_params(kp=0.2)
+        bench.set_reference(2000)
+        bench.run(0.4)
+    page, errors = browser_page
+    with ScopeServer(RecordingSource(tmp_path / "run.npz")) as server:
+        page.goto(server.url)
+        page.wait_for_function("window.scope.frames >= 1 && window.scope.data.has('speed_rpm')", timeout=20_000)
+        assert page.evaluate("window.scope.meta.live") is False
+        assert page.is_hidden("#params")  # nothing to steer in a recording
+        assert abs(page.evaluate("window.scope.tLatest") - 0.8) < 1e-3
+        assert page.evaluate("window.scope.markers.some(m => m[1] === 'param' && m[2] === 'set kp=0.2')")
+        page.select_option("#window", "0.2")  # a 0.2 s view ending at 0.5 s (as a drag would pan it)
+        page.evaluate("window.scope.viewEnd = 0.5; window.scopeRedraw()")
+        page.wait_for_function("window.scope.view && Math.abs(window.scope.view.ta - 0.3) < 1e-6", timeout=10_000)
+        page.click("#trig-arm")  # on a recording: the first reference step after the view's start
+        page.wait_for_function("window.scope.trigger.state === 'captured'", timeout=10_000)
+        assert abs(page.evaluate("window.scope.captures[0].tTrig") - 0.4) < 0.01
+        shot = tmp_path / "recording.png"
+        page.screenshot(path=str(shot))
+    assert _not_blank(shot) > 0.05
+    assert not errors, errors

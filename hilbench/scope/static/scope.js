@@ -392,6 +392,8 @@ function readout() {
   } else $("readout").textContent = "";
 }
 
+window.scopeRedraw = () => { dirty = true; };  // for scripts and tests that move the view
+
 function frame() {
   if (dirty || !S.paused) { draw(); dirty = false; }
   requestAnimationFrame(frame);
