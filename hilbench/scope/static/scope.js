@@ -155,7 +155,9 @@ function setStatus(st) {
   $("st-rtt").textContent = st.rtt_p50_us != null ? `${st.rtt_p50_us.toFixed(1)} / ${(st.rtt_p99_us ?? 0).toFixed(1)}` : "–";
   $("st-over").textContent = st.overruns ?? "–";
   const link = st.link || {};
-  $("st-link").textContent = Object.keys(link).length ? Object.entries(link).slice(0, 4).map(([k, v]) => `${k} ${v}`).join(" · ") : "in process";
+  // frames received and every error counter that is not zero (a serial or socket link)
+  const shown = Object.entries(link).filter(([k, v]) => k === "frames_rx" || (v && !k.startsWith("frames_") && !k.startsWith("bytes_")));
+  $("st-link").textContent = Object.keys(link).length ? shown.map(([k, v]) => `${k} ${v}`).join(" · ") : "in process";
   if (!S.closed) { $("conn").textContent = st.ended ? "run ended" : "live"; $("conn").className = "fig ok"; }
   if (st.params) for (const [n, v] of Object.entries(st.params)) { const el = $(`now-${n}`); if (el && v != null) el.textContent = fmt(v); }
   if (st.guard != null) $("guard").checked = st.guard;
