@@ -267,7 +267,8 @@ def run(config: str | None, target_spec: str | None, mode: str | None, duration_
     console = Console()
     try:
         if no_ui or as_json or not console.is_terminal:
-            summary = run_bench(cfg, record=record, control=control)
+            summary = run_bench(cfg, record=record, control=control,
+                                warn=lambda text: click.echo(f"hilbench: warning: {text}", err=True))
         else:
             dashboard = Dashboard(cfg.link.target, cfg.run.duration_s, console=console)
 
@@ -279,7 +280,8 @@ def run(config: str | None, target_spec: str | None, mode: str | None, duration_
 
                 keys = dashboard.command_line = CommandLine(control.path, dashboard.replies.append)
             with keys, dashboard:
-                summary = run_bench(cfg, record=record, observer=dashboard, control=control, on_ready=dashboard.attach)
+                summary = run_bench(cfg, record=record, observer=dashboard, control=control, on_ready=dashboard.attach,
+                                    warn=lambda text: console.print(f"[yellow]warning: {text}[/]"))
     finally:
         if scope_server is not None:
             scope_server.close()

@@ -99,6 +99,7 @@ class Bench:
         self._pinning: CpuPinning | None = None
         self.session: Session | None = None
         self.recorder: Recorder | MemoryRecorder | None = None
+        self.warnings: list[str] = []  # what the caller should tell the user before the run
 
     # ------------------------------------------------------------------ open and close
     def open(self) -> "Bench":
@@ -107,6 +108,7 @@ class Bench:
 
         cfg = self.config
         options = dataclasses.replace(settings.session_options(cfg), seed=settings.effective_seed(cfg))
+        self.warnings = settings.link_warnings(cfg)
         events = settings.scenario_events(cfg) if self._play_scenario else ()
         profile = configured_profile(cfg)
         plant = Plant(plant_params_from_config(cfg), seed=options.seed, substeps=cfg.plant.substeps)

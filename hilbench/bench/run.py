@@ -76,10 +76,15 @@ def run_bench(
     observer: Callable[[Snapshot], None] | None = None,
     control: "ControlServer | None" = None,
     on_ready: Callable[[Session], None] | None = None,
+    warn: Callable[[str], None] | None = None,
 ) -> Summary:
-    """Run the bench described by ``cfg`` with its scenario; raises HilbenchError kinds on faults."""
+    """Run the bench described by ``cfg`` with its scenario; raises HilbenchError kinds on faults.
+    ``warn`` gets the bench's warnings (e.g. real time over a network link) before the run."""
     bench = Bench(cfg, record=record, scenario=True, observer=observer, control=control)
     with bench:
+        for text in bench.warnings:
+            if warn is not None:
+                warn(text)
         session = bench.session
         assert session is not None
         if on_ready is not None:

@@ -178,6 +178,18 @@ def scenario_events(cfg: BenchConfig) -> tuple[Event, ...]:
     return tuple(sorted((e.to_event() for e in entries), key=lambda e: e.at_s))
 
 
+def link_warnings(cfg: BenchConfig) -> list[str]:
+    """What a user should know about the configured link before a run starts."""
+    from hilbench.link.spec import parse_target_spec
+
+    spec = parse_target_spec(cfg.link.target)
+    out = []
+    if cfg.run.mode == "realtime" and spec.port_kind == "url" and not spec.port.startswith("loop://"):
+        out.append(f"real time over {spec.port.split('://')[0]}:// : the network's latency and jitter add to the "
+                   f"loop's ({cfg.link.period_us} us periods); check the summary's RTT and overruns")
+    return out
+
+
 def initial_params(cfg: BenchConfig) -> dict[str, float]:
     """Parameters the [target] table asks to write after the handshake (the rest keep the firmware's)."""
     return target_profile(cfg.link).initial_params(cfg.target)
