@@ -46,6 +46,7 @@ from hilbench.targets.registry import profile_for_firmware
 EDGE_NONE = int(Edge.NONE)
 INPUT_S2 = int(Input.S2)
 INPUT_S3 = int(Input.S3)
+INPUT_INDEX = int(Input.INDEX)
 OUTPUT_OFF = int(OutputMode.OFF)
 
 #: the plant's step is accurate to 1e-6 at 50 us; longer periods are integrated in substeps
@@ -429,6 +430,7 @@ class Session:
         edge_s, drive, guard_ref, sensor_faults, k = self._edge_s, self._drive, self._guard_ref, self.faults.active, k_from
         due_k = self._scenario_k  # the next period the scenario part asked for
         buttons, encoder_offset = self._buttons, faults.encoder_offset  # both change only when a part is due
+        index_bit = INPUT_INDEX if self.profile.has("encoder") else 0  # the encoder's index mark, when read
         if pacing is not None:
             pacing.start_at(k_from)
         try:
@@ -448,7 +450,10 @@ class Session:
                 if sensor_faults:
                     hall, edge = faults.filter(hall, edge)
                     sensor_faults = faults.active
-                sensors = new_sensors(Sensors, (k & 0xFF, hall | buttons, edge, (plant.encoder_count + encoder_offset) & 0xFFFF,
+                inputs = hall | buttons
+                if index_bit and plant.encoder_index:
+                    inputs |= index_bit
+                sensors = new_sensors(Sensors, (k & 0xFF, inputs, edge, (plant.encoder_count + encoder_offset) & 0xFFFF,
                                                 plant.adc_codes(roles)))
                 if pacing is not None:
                     drive = pacing.exchange(k, sensors, drive, target_step)
