@@ -63,7 +63,7 @@ class Signals(Mapping[str, np.ndarray]):
         return self.units.get(name, "")
 
 
-def _as_config(config: BenchConfig | str | os.PathLike[str] | None, target: str | None,
+def as_config(config: BenchConfig | str | os.PathLike[str] | None, target: str | None,
                overrides: Sequence[str]) -> BenchConfig:
     if isinstance(config, BenchConfig):
         if not target and not overrides:
@@ -90,7 +90,7 @@ class Bench:
         """``config``: a path, a loaded config or None (the packaged default); ``target``: a target
         spec; ``overrides``: `TABLE.KEY=VALUE` words; ``record``: a .csv/.npz path (default: kept in
         memory); ``scenario``: play the config's scenario (off: the script drives)."""
-        self.config = _as_config(config, target, overrides)
+        self.config = as_config(config, target, overrides)
         self._record_path = Path(record) if record is not None else None
         self._play_scenario = scenario
         self._observer = observer
