@@ -67,15 +67,36 @@ _NAME_RE = re.compile(r"^[A-Za-z_][A-Za-z0-9_.]{0,31}$")
 # Request shape
 
 
+#: the limits of a reference and a load, as a scenario's [[scenario]] events have them (settings.py)
+MAX_REF_RPM = 20000.0
+MAX_LOAD_NM = 1000.0
+#: a parameter value beyond this is no parameter any target declares (checked again by the session)
+MAX_PARAM_ABS = 1e9
+
+
 def _is_number(v: Any) -> bool:
-    return isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v)
+    """A JSON number that is finite and fits a float (a 400-digit integer does not: no OverflowError)."""
+    if isinstance(v, bool) or not isinstance(v, (int, float)):
+        return False
+    if isinstance(v, int):
+        return -(2**63) <= v < 2**63
+    return math.isfinite(v)
 
 
-def _number(cmd: str, key: str) -> Callable[[Any], Any]:
+def _short(v: Any) -> str:
+    try:
+        return json.dumps(v)[:40]
+    except (TypeError, ValueError):
+        return repr(v)[:40]
+
+
+def _number(cmd: str, key: str, limit: float | None = None, unit: str = "") -> Callable[[Any], Any]:
     def check(v: Any) -> Any:
         if not _is_number(v):
-            raise ValueError(f"{cmd}: {key} must be a finite number, got {json.dumps(v)[:40]}")
-        return v
+            raise ValueError(f"{cmd}: {key} must be a finite number, got {_short(v)}")
+        if limit is not None and not -limit <= v <= limit:
+            raise ValueError(f"{cmd}: {key} {v:g}{unit} is out of range (-{limit:g} .. {limit:g}{unit})")
+        return float(v)
 
     return check
 
@@ -90,7 +111,9 @@ def _check_params(v: Any) -> dict[str, int | float]:
         if not _NAME_RE.match(name):
             raise ValueError(f"set: bad parameter name {name[:40]!r}")
         if not _is_number(value):
-            raise ValueError(f"set: {name} must be a finite number, got {json.dumps(value)[:40]}")
+            raise ValueError(f"set: {name} must be a finite number, got {_short(value)}")
+        if abs(value) > MAX_PARAM_ABS:
+            raise ValueError(f"set: {name} = {value:g} is out of any parameter's range (|value| <= {MAX_PARAM_ABS:g})")
         out[name] = value
     return out
 
@@ -103,7 +126,7 @@ def _check_file(v: Any) -> str:
 
 def _check_bool(v: Any) -> bool:
     if not isinstance(v, bool):
-        raise ValueError(f"guard: on must be true or false, got {json.dumps(v)[:40]}")
+        raise ValueError(f"guard: on must be true or false, got {_short(v)}")
     return v
 
 
@@ -112,9 +135,10 @@ COMMANDS: Mapping[str, Mapping[str, Callable[[Any], Any]]] = MappingProxyType(
     {
         "get": {},
         "set": {"params": _check_params},
-        "ref": {"rpm": _number("ref", "rpm")},
-        "load": {"nm": _number("load", "nm")},
-        "step": {"from_rpm": _number("step", "from_rpm"), "to_rpm": _number("step", "to_rpm")},
+        "ref": {"rpm": _number("ref", "rpm", MAX_REF_RPM, " rpm")},
+        "load": {"nm": _number("load", "nm", MAX_LOAD_NM, " N*m")},
+        "step": {"from_rpm": _number("step", "from_rpm", MAX_REF_RPM, " rpm"),
+                 "to_rpm": _number("step", "to_rpm", MAX_REF_RPM, " rpm")},
         "save": {"file": _check_file},
         "guard": {"on": _check_bool},
         "stop": {},
@@ -504,7 +528,15 @@ class ControlServer:
         conn.wbuf += _reply_line(False, reason, None, request_id)
 
     def _handle_line(self, conn: _Conn, line: bytes) -> bool:
-        """Queue a valid request for the session; answer a bad one here. True if answered here."""
+        """Queue a valid request for the session; answer a bad one here. True if answered here.
+        Nothing a client sends may end the I/O thread: every failure becomes a one-line reply."""
+        try:
+            return self._handle_line_unguarded(conn, line)
+        except Exception as exc:  # noqa: BLE001 - the thread must survive any request
+            self._reject(conn, None, f"request refused: {type(exc).__name__}", "malformed")
+            return True
+
+    def _handle_line_unguarded(self, conn: _Conn, line: bytes) -> bool:
         try:
             obj = json.loads(line.decode("utf-8"))
         except UnicodeDecodeError:
@@ -512,6 +544,9 @@ class ControlServer:
             return True
         except json.JSONDecodeError as exc:
             self._reject(conn, None, f"malformed JSON: {exc.msg} at column {exc.colno}", "malformed")
+            return True
+        except (ValueError, RecursionError) as exc:  # an integer of over 4300 digits, nesting too deep
+            self._reject(conn, None, f"malformed JSON: {str(exc).splitlines()[0][:80]}", "malformed")
             return True
         rid = obj.get("id") if isinstance(obj, dict) else None
         if not (isinstance(rid, (str, int)) and not isinstance(rid, bool)):
@@ -621,15 +656,16 @@ _USAGE = "get | set NAME=VALUE ... | ref RPM | load NM | step FROM_RPM TO_RPM | 
 
 
 def _parse_number(cmd: str, what: str, word: str) -> int | float:
+    shown = word if len(word) <= 24 else word[:20] + "..."
     try:
         value: int | float = int(word, 10)
     except ValueError:
         try:
             value = float(word)
         except ValueError:
-            raise ConfigError(f"ctl {cmd}: {what} {word!r} is not a number") from None
-    if not math.isfinite(value):
-        raise ConfigError(f"ctl {cmd}: {what} {word!r} is not finite")
+            raise ConfigError(f"ctl {cmd}: {what} {shown!r} is not a number") from None
+    if not _is_number(value):
+        raise ConfigError(f"ctl {cmd}: {what} {shown!r} is not finite or too large")
     return value
 
 

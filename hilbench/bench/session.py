@@ -588,6 +588,9 @@ class Session:
                 request.reply(False, f"command {cmd!r} is not available in this session")
         except HilbenchError as exc:
             request.reply(False, str(exc))
+        except (ValueError, TypeError, ArithmeticError, KeyError) as exc:  # a request must never end the run
+            if not getattr(request, "replied", False):
+                request.reply(False, f"{cmd}: refused ({type(exc).__name__}: {str(exc)[:80]})")
 
     def _start_ctl_step(self, request: ControlRequest, from_rpm: float, to_rpm: float, t_s: float) -> None:
         """`ctl step A B`: reference A now, B after a 1 s hold; reply with the metrics 1 s later."""
