@@ -24,11 +24,17 @@ def _friendly(func: Callable[..., Any]) -> Callable[..., Any]:
         try:
             return func(*args, **kwargs)
         except HilbenchError as exc:
-            click.echo(f"hilbench: {exc.kind}: {exc}", err=True)
+            lines = [line.strip() for line in str(exc).splitlines() if line.strip()]
+            text = lines[0] if len(lines) == 1 else f"{len(lines)} problems: " + "; ".join(lines)
+            click.echo(f"hilbench: {exc.kind}: {text}", err=True)  # one line, however many problems
             sys.exit(exc.exit_code)
         except KeyboardInterrupt:
             click.echo("hilbench: interrupted", err=True)
             sys.exit(130)
+        except OSError as exc:  # a file the user named: a directory, a missing folder, no permission
+            name = f"{exc.filename}: " if exc.filename else ""
+            click.echo(f"hilbench: file error: {name}{exc.strerror or exc}", err=True)
+            sys.exit(1)
 
     return wrapper
 

@@ -208,6 +208,12 @@ def _suggest(name: str, known: Sequence[str]) -> str:
     return f" (did you mean {close[0]!r}?)" if close else ""
 
 
+def _show(value: Any) -> str:
+    """A value as a message shows it: short, one line (a fuzzed value may be 5000 characters)."""
+    text = " ".join(repr(value).split())
+    return text if len(text) <= 40 else text[:37] + "..."
+
+
 def _type_name(tp: Any) -> str:
     return getattr(tp, "__name__", str(tp))
 
@@ -224,7 +230,7 @@ def _convert(value: Any, tp: Any, table: str, key: str, col: _Collector) -> tupl
         if value in choices:
             return True, value
         hint = _suggest(str(value), [str(c) for c in choices]) if isinstance(value, str) else ""
-        col.add(table, key, f"{value!r} is not one of {', '.join(repr(c) for c in choices)}{hint}")
+        col.add(table, key, f"{_show(value)} is not one of {', '.join(repr(c) for c in choices)}{hint}")
         return False, None
     if origin is tuple:
         args = typing.get_args(tp)
@@ -258,25 +264,25 @@ def _convert(value: Any, tp: Any, table: str, key: str, col: _Collector) -> tupl
         return _build(tp, value, f"{table}.{key}", col)
     if tp is float:
         if isinstance(value, bool) or not isinstance(value, (int, float)):
-            col.add(table, key, f"expected a number, got {type(value).__name__} {value!r}")
+            col.add(table, key, f"expected a number, got {type(value).__name__} {_show(value)}")
             return False, None
         if not math.isfinite(value):
-            col.add(table, key, f"expected a finite number, got {value!r}")
+            col.add(table, key, f"expected a finite number, got {_show(value)}")
             return False, None
         return True, float(value)
     if tp is int:
         if isinstance(value, bool) or not isinstance(value, int):
-            col.add(table, key, f"expected an integer, got {type(value).__name__} {value!r}")
+            col.add(table, key, f"expected an integer, got {type(value).__name__} {_show(value)}")
             return False, None
         return True, value
     if tp is bool:
         if not isinstance(value, bool):
-            col.add(table, key, f"expected true or false, got {type(value).__name__} {value!r}")
+            col.add(table, key, f"expected true or false, got {type(value).__name__} {_show(value)}")
             return False, None
         return True, value
     if tp is str:
         if not isinstance(value, str):
-            col.add(table, key, f"expected a string, got {type(value).__name__} {value!r}")
+            col.add(table, key, f"expected a string, got {type(value).__name__} {_show(value)}")
             return False, None
         return True, value
     col.add(table, key, f"unsupported field type {_type_name(tp)}")
@@ -288,13 +294,13 @@ def _range_reason(value: Any, meta: Mapping[str, Any]) -> str | None:
         return None
     unit = f" {meta['unit']}" if meta.get("unit") else ""
     if meta.get("gt") is not None and not value > meta["gt"]:
-        return f"{value}{unit} is out of range: must be > {meta['gt']}{unit}"
+        return f"{_show(value)}{unit} is out of range: must be > {meta['gt']}{unit}"
     if meta.get("ge") is not None and not value >= meta["ge"]:
-        return f"{value}{unit} is out of range: must be >= {meta['ge']}{unit}"
+        return f"{_show(value)}{unit} is out of range: must be >= {meta['ge']}{unit}"
     if meta.get("lt") is not None and not value < meta["lt"]:
-        return f"{value}{unit} is out of range: must be < {meta['lt']}{unit}"
+        return f"{_show(value)}{unit} is out of range: must be < {meta['lt']}{unit}"
     if meta.get("le") is not None and not value <= meta["le"]:
-        return f"{value}{unit} is out of range: must be <= {meta['le']}{unit}"
+        return f"{_show(value)}{unit} is out of range: must be <= {meta['le']}{unit}"
     return None
 
 
@@ -381,6 +387,16 @@ def default_config_text() -> str:
     return resources.files("hilbench").joinpath("data", DEFAULT_CONFIG_NAME).read_text(encoding="utf-8")
 
 
+def _parse_toml(text: str, source: str) -> dict[str, Any]:
+    """tomllib, with every failure one line naming the file."""
+    try:
+        return tomllib.loads(text)
+    except tomllib.TOMLDecodeError as exc:
+        raise ConfigError(f"{source}: not valid TOML: {str(exc).splitlines()[0]}") from None
+    except RecursionError:
+        raise ConfigError(f"{source}: not valid TOML for hilbench: arrays or tables nested too deep") from None
+
+
 def load_config(path: str | Path | None = None, overrides: Sequence[str] = ()) -> BenchConfig:
     """Read, merge `overrides` ("table.key=value", TOML value syntax), validate everything, build."""
     import hilbench.bench.settings  # noqa: F401 - registers the bench's tables, whoever imported first
@@ -390,13 +406,14 @@ def load_config(path: str | Path | None = None, overrides: Sequence[str] = ()) -
     else:
         source = str(path)
         try:
-            text = Path(path).read_text(encoding="utf-8")
+            raw = Path(path).read_bytes()
         except OSError as exc:
             raise ConfigError(f"{source}: cannot read: {exc.strerror or exc}") from None
-    try:
-        data = tomllib.loads(text)
-    except tomllib.TOMLDecodeError as exc:
-        raise ConfigError(f"{source}: not valid TOML: {exc}") from None
+        try:
+            text = raw.decode("utf-8")
+        except UnicodeDecodeError as exc:
+            raise ConfigError(f"{source}: not UTF-8 (byte {exc.start}); TOML files are UTF-8 text") from None
+    data = _parse_toml(text, source)
     override_keys: set[str] = set()
     col = _Collector(source, override_keys)
     for item in overrides:
@@ -430,6 +447,8 @@ def load_config(path: str | Path | None = None, overrides: Sequence[str] = ()) -
             built[name] = obj
     for sec in chosen:
         _build_chosen(sec, data, built, col)
+    if not col.lines:
+        _check_integrator(built, col)
     if col.lines:
         err = ConfigError("\n".join(col.lines))
         err.lines = list(col.lines)  # type: ignore[attr-defined]
@@ -437,6 +456,48 @@ def load_config(path: str | Path | None = None, overrides: Sequence[str] = ()) -
     if "adc" in built and "adc" not in data and "inverter" in built:
         built["adc"] = default_adc_channels(built["inverter"].vbus_v)
     return BenchConfig(sections=types.MappingProxyType(built), source=source)
+
+
+#: RK4's stability limit on the negative real axis is |lambda dt| < 2.785; keep a margin
+RK4_MAX_LAMBDA_DT = 2.5
+#: the session integrates periods longer than this in chunks of at most this (session.MAX_PLANT_STEP_US)
+PLANT_CHUNK_US = 50
+
+
+def _check_integrator(built: Mapping[str, Any], col: _Collector) -> None:
+    """Refuse a motor whose fastest mode the plant's RK4 step cannot follow (it would diverge).
+
+    The fastest rates of the motor: electrical R/L, mechanical B/J and the electromechanical
+    oscillation sqrt(1.5 p^2 psi^2 / (L J)) (the speed/current loop through the back-EMF). Each
+    times the RK4 step (the period in chunks of at most 50 us, divided by [plant] substeps) must
+    stay under RK4's stability limit."""
+    motor, link, plant = built.get("motor"), built.get("link"), built.get("plant")
+    if motor is None or plant is None:
+        return
+    period_us = getattr(link, "period_us", PLANT_CHUNK_US)
+    chunk_s = period_us * 1e-6 / max(1, math.ceil(period_us / PLANT_CHUNK_US))
+    try:
+        m = motor.to_params()
+        l_min = min(m.ld_h, m.lq_h)
+        rates = {  # the keys each rate depends on: the first one overridden is blamed
+            ("l_h", "ld_h", "lq_h", "rs_ohm"): (m.rs_ohm / l_min, f"R/L = {m.rs_ohm:g} ohm / {l_min:g} H"),
+            ("b_nms_per_rad", "j_kgm2"): (m.b_nms_per_rad / m.j_kgm2, f"B/J = {m.b_nms_per_rad:g} / {m.j_kgm2:g} kg*m^2"),
+            ("j_kgm2", "l_h", "ld_h", "lq_h", "ke_v_per_krpm", "psi_wb", "pole_pairs"): (
+                math.sqrt(1.5 * m.pole_pairs**2 * m.psi_wb**2 / (l_min * m.j_kgm2)),
+                "the back-EMF loop sqrt(1.5 p^2 psi^2/(L J))"),
+        }
+    except (ArithmeticError, ValueError):
+        col.add("motor", "", "these values overflow the plant's equations")
+        return
+    for keys, (rate, what) in rates.items():
+        needed = rate * chunk_s / RK4_MAX_LAMBDA_DT
+        if not math.isfinite(needed) or needed > plant.substeps:
+            n = "over 10^12" if not math.isfinite(needed) or needed > 1e12 else str(math.ceil(needed))
+            present = [k for k in keys if getattr(motor, k, None) is not None]
+            key = next((k for k in present if f"motor.{k}" in col.override_keys), present[0])
+            col.add("motor", key, f"too stiff for the plant's integrator: {what} is {rate:.3g}/s, so a "
+                                  f"{period_us} us period needs {n} [plant] substeps (have {plant.substeps}, at most 64)")
+            return
 
 
 def _build_chosen(sec: _Section, data: Mapping[str, Any], built: dict[str, Any], col: _Collector) -> None:

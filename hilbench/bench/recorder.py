@@ -414,8 +414,12 @@ def read_recording(path: str | Path) -> RecordingData:
         return _read_csv(path)
     except RecordingError:
         raise
-    except (OSError, ValueError, KeyError, json.JSONDecodeError, UnicodeDecodeError) as exc:
-        raise RecordingError(f"recording {path}: unreadable ({exc})") from None
+    except (OSError, ValueError, KeyError, EOFError, IndexError, TypeError, struct.error, zipfile.BadZipFile,
+            json.JSONDecodeError, UnicodeDecodeError) as exc:
+        reason = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
+        if "allow_pickle" in reason or "pickle" in reason.lower():  # NumPy's advice for foreign bytes: never give it
+            reason = "not an NPZ archive written by hilbench"
+        raise RecordingError(f"recording {path}: unreadable ({reason[:160]})") from None
 
 
 def _read_csv(path: Path) -> RecordingData:

@@ -15,6 +15,7 @@ from __future__ import annotations
 import dataclasses
 import gc
 import math
+import struct
 import time
 from collections import deque
 from dataclasses import dataclass
@@ -28,7 +29,7 @@ from hilbench.bench.pacing import RealtimePacing, SessionAborted
 from hilbench.bench.recorder import MARKER_EVENT, MARKER_FAULT, MARKER_PARAM, Recorder, fields_struct
 from hilbench.bench.scenario import Event, Ramp, ScenarioPlayer
 from hilbench.bench.summary import Segment, Snapshot, Summary, percentiles
-from hilbench.errors import HilbenchError, LinkError, ParamError, TargetError
+from hilbench.errors import HilbenchError, LinkError, ParamError, ProtocolError, SimulationError, TargetError
 from hilbench.protocol import (
     PROTOCOL_VERSION,
     Edge,
@@ -381,14 +382,20 @@ class Session:
         gc_was_enabled = gc.isenabled()
         gc.disable()  # no collector pauses inside periods (recorded rows are plain numbers)
         try:
-            self.periods_done = self._loop(self._next_k, self._next_k + n_periods, self._pacing)
+            try:
+                self.periods_done = self._loop(self._next_k, self._next_k + n_periods, self._pacing)
+            except (ValueError, OverflowError, ZeroDivisionError, struct.error, ProtocolError) as exc:
+                diverged = self._divergence()
+                if diverged is None:
+                    raise
+                raise SimulationError(diverged) from None
             self._next_k = self.periods_done
         except KeyboardInterrupt:
             summary.end_reason = "interrupted"
             self._stop_target()
             self._close(f"interrupted at period {self.periods_done}")
             raise
-        except (LinkError, TargetError, SessionAborted) as exc:
+        except (LinkError, TargetError, SessionAborted, SimulationError) as exc:
             summary.end_reason = "fault"
             summary.fault = str(exc)
             self._end_reason = "fault"
@@ -399,6 +406,22 @@ class Session:
             if gc_was_enabled:
                 gc.enable()
         return not self.ended
+
+    def _divergence(self) -> str | None:
+        """What is wrong when the plant's state left the physical (None: it did not)."""
+        plant = self.plant
+        try:
+            state = {"speed": plant.w_m * RPM_PER_RAD_S, **{f"i{p}": i for p, i in zip("abc", plant.i_abc)}}  # type: ignore[attr-defined]
+        except (AttributeError, ValueError, OverflowError):
+            return None
+        bad = {k: v for k, v in state.items() if not math.isfinite(v) or abs(v) > 1e9}
+        if not bad:
+            return None
+        t_s = self.periods_done * self._period_s
+        what = ", ".join(f"{k} {v:.3g}" for k, v in bad.items())
+        return (f"the plant diverged at t={t_s:.6f} s (period {self.periods_done}: {what}); the config's motor "
+                f"or load is beyond what the integrator follows at this period (try more [plant] substeps, "
+                f"a larger j_kgm2 or l_h, a smaller load)")
 
     def end(self) -> Summary:
         """Close the run: the target stops, the recording is closed, the summary is made."""
