@@ -77,7 +77,7 @@ def run_bench(
     on_ready: Callable[[Session], None] | None = None,
 ) -> Summary:
     """Run the bench described by ``cfg`` with its scenario; raises HilbenchError kinds on faults."""
-    bench = Bench(cfg, record=record, scenario=True, observer=observer, control=control)
+    bench = Bench(cfg, record=record, scenario=True, observer=observer, control=control, keep_rows=False)
     with bench:
         session = bench._session
         if on_ready is not None:

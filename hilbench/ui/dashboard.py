@@ -78,7 +78,8 @@ def render_snapshot(snap: Snapshot, params: dict[str, float], target_label: str)
     parts: list[Any] = [
         Text(f"hilbench run — {target_label}", style="bold"),
         grid,
-        Panel(chart, title="speed (plant) since the start"),
+        Panel(chart, title=f"speed (plant), the last {snap.history[-1][0] - snap.history[0][0]:.1f} s" if snap.history
+              else "speed (plant)"),
     ]
     if snap.messages:
         parts.append(Text("\n".join(snap.messages), style="yellow"))
