@@ -130,3 +130,30 @@ def test_item10_summary_and_report_agree_and_follow_ctl_references(tmp_path: Pat
         assert rep["plant_rpm"] == pytest.approx(round(seg.plant_rpm, 2), abs=tolerance + 1e-9)
         assert rep["error_pct"] == pytest.approx(round(seg.error_pct, 3), abs=tolerance / 10 + 1e-9)
         assert rep["to_s"] == pytest.approx(round(seg.t_end_s, 4))
+
+
+def test_item9_killed_recording_reported_as_cut_short(tmp_path: Path) -> None:
+    """Item 9: `report hup.npz.journal` said "ended t=0.030000 press s2" (its last event)."""
+    from hilbench.bench.report import summarise
+
+    path = tmp_path / "run.npz"
+    bench = hilbench.Bench(target="inprocess:an1017", record=path).open()
+    try:
+        bench.set_reference(1000)
+        bench.run(0.01)
+        bench.press("s2")
+        bench.run(0.01)
+        bench.recorder.flush()  # as far as a killed run gets: the journal, no end note
+        info = summarise(read_recording(path.with_name(path.name + ".journal")))
+        assert info["ended"].startswith("cut short") and "t=0.019950 s" in info["ended"] and "400 rows" in info["ended"]
+    finally:
+        bench.close()
+    info = summarise(read_recording(path))
+    assert info["ended"].startswith("end: ") or info["ended"].startswith("aborted"), info["ended"]
+    csv = tmp_path / "run.csv"
+    with hilbench.Bench(target="inprocess:an1017", record=csv) as bench:
+        bench.run(0.01)
+    text = csv.read_text().splitlines()
+    cut = tmp_path / "cut.csv"
+    cut.write_text("\n".join(line for line in text if not line.startswith("# event: end")) + "\n")
+    assert summarise(read_recording(cut))["ended"].startswith("cut short")

@@ -47,6 +47,25 @@ def reference_segments(data: RecordingData) -> list[dict[str, float]]:
     return segments
 
 
+#: the notes a closing run writes last (session._close, Bench.close)
+_END_NOTES = ("end:", "interrupted at period", "fault at period", "aborted")
+
+
+def how_it_ended(data: RecordingData) -> str:
+    """The run's own end note, or — for a killed or truncated recording — that it was cut short
+    and where (the last event is not how it ended: issue 16, item 9)."""
+    end = data.metadata.get("end")
+    if isinstance(end, str) and end:
+        return end
+    for text in reversed(data.events):
+        if text.startswith(_END_NOTES):
+            return text
+    if data.n_rows:
+        t_last = float(data.columns["t_s"][-1])
+        return f"cut short (no end note: killed or truncated) after t={t_last:.6f} s, {data.n_rows} rows"
+    return "cut short (no end note and no rows: killed or truncated before the first row)"
+
+
 def summarise(data: RecordingData) -> dict[str, Any]:
     """The facts of a recording as plain data."""
     c = data.columns
@@ -62,7 +81,7 @@ def summarise(data: RecordingData) -> dict[str, Any]:
         "mode": meta.get("mode", "?"),
         "period_us": meta.get("period_us", "?"),
         "seed": meta.get("seed", "?"),
-        "ended": meta.get("end", data.events[-1] if data.events else "no end note (killed run?)"),
+        "ended": how_it_ended(data),
         "fault_rows": [int(c["seq"][i]) for i in faults],
     }
     if n:
