@@ -352,6 +352,8 @@ def ctl(words: tuple[str, ...], socket_path: str | None, timeout_s: float) -> No
     hilbench ctl step 1000 2000          reference step from 1000 to 2000 rpm
     hilbench ctl save gains.toml         write the gains as a config fragment
     hilbench ctl guard on|off            guarded tuning: restore gains after a bad response
+    hilbench ctl press s2|s3             press a board button (S2 starts and stops the motor)
+    hilbench ctl start                   the target's Start command (restart after a stop)
     hilbench ctl stop                    end the run (recording closed, target stopped)
     """
     import json as json_module

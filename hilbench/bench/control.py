@@ -11,6 +11,9 @@ reply line per request ``{"ok": bool, "message": str, "data": object | null}``. 
     {"cmd": "step",  "from_rpm": 1000, "to_rpm": 2000}
     {"cmd": "save",  "file": "gains.toml"}
     {"cmd": "guard", "on": true}                             guarded tuning on/off
+    {"cmd": "start"}                                         the target's Start command
+    {"cmd": "press", "button": "s2"}                         press a board button (s2, s3)
+    {"cmd": "stop"}                                          end the run
 
 This module checks only the *shape* of a request (known command, the right fields with the
 right JSON types, finite numbers); malformed, oversized, unknown or ill-typed lines are answered
@@ -124,6 +127,12 @@ def _check_file(v: Any) -> str:
     return v
 
 
+def _check_button(v: Any) -> str:
+    if v not in ("s2", "s3"):
+        raise ValueError(f"press: button must be \"s2\" or \"s3\", got {_short(v)}")
+    return str(v)
+
+
 def _check_bool(v: Any) -> bool:
     if not isinstance(v, bool):
         raise ValueError(f"guard: on must be true or false, got {_short(v)}")
@@ -142,6 +151,8 @@ COMMANDS: Mapping[str, Mapping[str, Callable[[Any], Any]]] = MappingProxyType(
         "save": {"file": _check_file},
         "guard": {"on": _check_bool},
         "stop": {},
+        "start": {},
+        "press": {"button": _check_button},
     }
 )
 
@@ -652,7 +663,8 @@ class ControlClient:
 # CLI words
 
 
-_USAGE = "get | set NAME=VALUE ... | ref RPM | load NM | step FROM_RPM TO_RPM | save FILE | guard on|off | stop"
+_USAGE = ("get | set NAME=VALUE ... | ref RPM | load NM | step FROM_RPM TO_RPM | save FILE | guard on|off | start | "
+          "press s2|s3 | stop | list")
 
 
 def _parse_number(cmd: str, what: str, word: str) -> int | float:
@@ -674,7 +686,7 @@ def parse_ctl_args(words: Sequence[str]) -> dict[str, Any]:
     if not words:
         raise ConfigError(f"ctl: missing command (usage: {_USAGE})")
     cmd, rest = words[0], list(words[1:])
-    counts = {"get": 0, "ref": 1, "load": 1, "step": 2, "save": 1, "guard": 1, "stop": 0}
+    counts = {"get": 0, "ref": 1, "load": 1, "step": 2, "save": 1, "guard": 1, "stop": 0, "start": 0, "press": 1}
     if cmd == "set":
         if not rest:
             raise ConfigError("ctl set: give at least one NAME=VALUE (e.g. set kp=0.1 ki=0.01)")
@@ -692,12 +704,15 @@ def parse_ctl_args(words: Sequence[str]) -> dict[str, Any]:
         req: dict[str, Any] = {"cmd": "set", "params": params}
     elif cmd in counts:
         if len(rest) != counts[cmd]:
-            expected = {"get": "no arguments", "stop": "no arguments", "ref": "one speed in rpm", "load": "one torque in N·m",
+            expected = {"get": "no arguments", "stop": "no arguments", "start": "no arguments", "press": "s2 or s3",
+                        "ref": "one speed in rpm", "load": "one torque in N·m",
                         "step": "two speeds in rpm (from, to)", "save": "one file name",
                         "guard": "on or off"}[cmd]
             raise ConfigError(f"ctl {cmd}: expected {expected}, got {len(rest)} word(s)")
-        if cmd in ("get", "stop"):
+        if cmd in ("get", "stop", "start"):
             req = {"cmd": cmd}
+        elif cmd == "press":
+            req = {"cmd": "press", "button": rest[0].lower()}
         elif cmd == "ref":
             req = {"cmd": "ref", "rpm": _parse_number("ref", "speed", rest[0])}
         elif cmd == "load":

@@ -298,7 +298,10 @@ class Session:
             except ParamError as exc:
                 self._message(f"{t_s:.3f} s: {exc}")
         elif event.end:
-            self._end_reason = "scenario end"
+            if self.options.duration_s is None:
+                self._end_reason = "scenario end"
+            else:  # --duration wins: the state is held after the scenario's last event
+                self._note(t_s, f"scenario end: held until the duration ({self.options.duration_s:g} s)")
         if self.recorder is not None:
             self.recorder.event(f"t={t_s:.6f} {event.describe()}", MARKER_EVENT)
 
@@ -633,6 +636,18 @@ class Session:
                 self._segment("end", t_s)
                 self._note(t_s, "stop (ctl)")
                 request.reply(True, f"run ends at t={t_s:.4f} s")
+            elif cmd == "start":
+                self.target.start()
+                self._note(t_s, "start (ctl)")
+                request.reply(True, f"start command sent at t={t_s:.4f} s")
+            elif cmd == "press":
+                button = str(args["button"])
+                self.press(button, t_s)
+                self._scenario_k = min(self._scenario_k, self.periods_done)  # its release is due
+                if button == "s2":
+                    self._segment("press", t_s)
+                self._note(t_s, f"press {button} (ctl)")
+                request.reply(True, f"{button} pressed at t={t_s:.4f} s")
             elif cmd == "guard":
                 self.tuning.guard = dataclasses.replace(self.tuning.guard, enabled=bool(args["on"]))
                 state = "on" if self.tuning.guard.enabled else "off"

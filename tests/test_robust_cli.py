@@ -1,0 +1,104 @@
+"""Issue 16: CLI behaviour a user trips over (items 6, 11, 13, 14, 15, 16)."""
+
+from __future__ import annotations
+
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+
+def _run(args: list[str], cwd: Path, timeout_s: float = 120) -> subprocess.CompletedProcess[str]:
+    proc = subprocess.Popen(args, cwd=cwd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    try:
+        out, err = proc.communicate(timeout=timeout_s)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.communicate()
+    return subprocess.CompletedProcess(args, proc.returncode, out, err)
+
+
+@pytest.mark.slow
+def test_item6_a_hilbench_folder_in_the_working_directory_does_not_shadow_the_package(tmp_path: Path) -> None:
+    """Item 6: `hilbench run` from a directory holding `hilbench/` failed (exit 4, ImportError in the
+    emulator child: its `python -m` put the working directory first on the import path)."""
+    shadow = tmp_path / "hilbench"
+    shadow.mkdir()
+    (shadow / "__init__.py").write_text("raise ImportError('the shadowing folder was imported')\n")
+    result = _run([sys.executable, "-P", "-m", "hilbench", "run", "--target", "emulator:an1017", "--duration", "0.02",
+                   "--no-ui", "--no-control"], cwd=tmp_path)
+    assert result.returncode == 0, result.stderr
+    assert "shadowing" not in result.stderr
+
+
+def _scenario_config(tmp_path: Path, duration: str) -> Path:
+    from hilbench.config import default_config_text
+
+    path = tmp_path / "ends.toml"
+    path.write_text(default_config_text() + f"""
+[run]
+{duration}
+
+[[scenario]]
+at_s = 0.0
+ref_rpm = 1000.0
+
+[[scenario]]
+at_s = 0.01
+press = "s2"
+
+[[scenario]]
+at_s = 0.1
+end = true
+""")
+    return path
+
+
+def test_item11_duration_wins_over_the_scenario_end(tmp_path: Path) -> None:
+    """Item 11: `run --duration 20` stopped at the scenario's end (3.8 s) while the bar read /20 s."""
+    from hilbench.bench.run import RunRequest, load_run_config, run_bench
+
+    cfg = load_run_config(RunRequest(str(_scenario_config(tmp_path, "")), target="inprocess:an1017", duration_s=0.3))
+    summary = run_bench(cfg)
+    assert summary.sim_s == pytest.approx(0.3) and summary.end_reason == "completed"
+    cfg = load_run_config(RunRequest(str(_scenario_config(tmp_path, "")), target="inprocess:an1017"))
+    summary = run_bench(cfg)  # without a duration the scenario's end ends the run
+    assert summary.sim_s == pytest.approx(0.1)
+
+
+def test_item11_ctl_press_and_start() -> None:
+    """Item 11: there was no way to restart the motor from `ctl` (no start, no press)."""
+    from typing import Any
+
+    import hilbench
+    from hilbench.bench.control import parse_ctl_args, validate_request
+
+    assert parse_ctl_args(["press", "S2"]) == {"cmd": "press", "button": "s2"}
+    assert parse_ctl_args(["start"]) == {"cmd": "start"}
+    with pytest.raises(ValueError):
+        validate_request({"cmd": "press", "button": "s9"})
+
+    class Request:
+        def __init__(self, cmd: str, args: dict[str, Any]) -> None:
+            self.cmd, self.args, self.replies = cmd, args, []
+
+        def reply(self, ok: bool, text: str, data: dict[str, Any] | None = None) -> None:
+            self.replies.append((ok, text))
+
+    with hilbench.Bench(target="inprocess:an1017") as bench:
+        session = bench._session
+        bench.set_reference(1200)
+        press = Request("press", {"button": "s2"})
+        session.handle_control(press, bench.t_s)
+        bench.run(0.6)
+        assert press.replies[0][0] and bench.speed_rpm > 600  # S2 from ctl started the motor
+        session.handle_control(Request("press", {"button": "s2"}), bench.t_s)
+        bench.run(0.6)
+        assert bench.speed_rpm < 300  # and stopped it
+        start = Request("start", {})
+        session.handle_control(start, bench.t_s)
+        bench.run(0.6)
+        assert start.replies[0][0] and bench.speed_rpm > 600  # the Start command restarted it
