@@ -260,6 +260,7 @@ def run(config: str | None, target_spec: str | None, mode: str | None, duration_
         from hilbench.bench.control import ControlServer
 
         control = ControlServer()
+        click.echo(f"hilbench: control socket {control.path} (hilbench ctl --socket {control.path} ...)", err=True)
     console = Console()
     try:
         if no_ui or as_json or not console.is_terminal:
@@ -338,10 +339,12 @@ def report(recording: str, plot_dir: str | None, csv_file: str | None, as_json: 
 @cli.command(context_settings={"ignore_unknown_options": True})
 @click.argument("words", nargs=-1, type=click.UNPROCESSED)
 @click.option("--socket", "socket_path", default=None, metavar="PATH",
-              help="The session's control socket (default: the newest running session).")
-@click.option("--timeout", "timeout_s", type=click.FloatRange(min=0.1), default=5.0, show_default=True)
+              help="The session's control socket (default: the newest running session; `ctl list` shows them all).")
+@click.option("--timeout", "timeout_s", type=click.FloatRange(min=0.1), default=None,
+              help="Seconds to wait for the answer (default: 5; `step`: 120, it answers after the step).")
+@click.option("--json", "as_json", is_flag=True, help="Print the session's whole reply as one JSON object.")
 @_friendly
-def ctl(words: tuple[str, ...], socket_path: str | None, timeout_s: float) -> None:
+def ctl(words: tuple[str, ...], socket_path: str | None, timeout_s: float | None, as_json: bool) -> None:
     """Talk to a running `hilbench run` through its control socket.
 
     \b
@@ -355,13 +358,35 @@ def ctl(words: tuple[str, ...], socket_path: str | None, timeout_s: float) -> No
     hilbench ctl press s2|s3             press a board button (S2 starts and stops the motor)
     hilbench ctl start                   the target's Start command (restart after a stop)
     hilbench ctl stop                    end the run (recording closed, target stopped)
+    hilbench ctl list                    the running sessions and their sockets
     """
     import json as json_module
 
-    from hilbench.bench.control import ControlClient, parse_ctl_args
+    from hilbench.bench.control import ControlClient, list_sessions, parse_ctl_args
     from hilbench.errors import TargetError
 
+    if list(words[:1]) == ["list"]:
+        sessions = list_sessions()
+        rows = [{"socket": str(i.socket_path), "pid": i.pid, "started_s": i.started_s, "cwd": i.cwd} for i in sessions]
+        if as_json:
+            click.echo(json_module.dumps(rows))
+        elif not rows:
+            click.echo("no running sessions")
+        else:
+            import time as time_module
+
+            for row in rows:
+                age = time_module.time() - float(row["started_s"])
+                click.echo(f"pid {row['pid']}  {row['socket']}  started {age:.0f} s ago in {row['cwd']}")
+        return
     request = parse_ctl_args(list(words))
+    if timeout_s is None:
+        timeout_s = 120.0 if request["cmd"] == "step" else 5.0
+    if socket_path is None:
+        running = list_sessions()
+        if len(running) > 1 and not as_json:
+            click.echo(f"hilbench: {len(running)} sessions running; talking to the newest (pid {running[0].pid}, "
+                       f"{running[0].socket_path}); `hilbench ctl list` shows them, --socket picks one", err=True)
     client = ControlClient(socket_path, timeout_s=timeout_s)
     if request["cmd"] == "save":  # the file is written here, where the user is, from the session's values
         from hilbench.bench.tuning import saved_fragment
@@ -375,14 +400,24 @@ def ctl(words: tuple[str, ...], socket_path: str | None, timeout_s: float) -> No
                 handle.write(text)
         except OSError as exc:
             raise TargetError(f"ctl save {request['file']}: {exc.strerror}") from None
-        click.echo(f"wrote {request['file']}:\n{text}", nl=False)
+        if as_json:
+            click.echo(json_module.dumps({"ok": True, "message": f"wrote {request['file']}", "data": reply["data"]}))
+        else:
+            click.echo(f"wrote {request['file']}:\n{text}", nl=False)
         return
     reply = client.request(request, timeout_s=timeout_s)
+    if as_json:  # the reply as it came, refusals included (exit status 5 then)
+        click.echo(json_module.dumps(reply))
+        if not reply.get("ok"):
+            sys.exit(TargetError.exit_code)
+        return
     if not reply.get("ok"):
         raise TargetError(str(reply.get("message", "refused")))
-    click.echo(reply.get("message", "ok"))
     if reply.get("data"):
-        click.echo(json_module.dumps(reply["data"], indent=2, default=str))
+        click.echo(json_module.dumps(reply["data"], indent=2, default=str))  # JSON alone on stdout: pipe it
+        click.echo(reply.get("message", "ok"), err=True)
+    else:
+        click.echo(reply.get("message", "ok"))
 
 
 @cli.command(context_settings={"show_default": True})

@@ -102,3 +102,25 @@ def test_item11_ctl_press_and_start() -> None:
         session.handle_control(start, bench.t_s)
         bench.run(0.6)
         assert start.replies[0][0] and bench.speed_rpm > 600  # the Start command restarted it
+
+
+def test_item13_ctl_save_answered_by_the_session_itself(tmp_path: Path) -> None:
+    """Item 13: `save` was "not available in this session" when no dashboard was there to do it."""
+    from typing import Any
+
+    import hilbench
+
+    class Request:
+        def __init__(self, cmd: str, args: dict[str, Any]) -> None:
+            self.cmd, self.args, self.replies = cmd, args, []
+
+        def reply(self, ok: bool, text: str, data: dict[str, Any] | None = None) -> None:
+            self.replies.append((ok, text))
+
+    with hilbench.Bench(target="inprocess:an1017") as bench:
+        save = Request("save", {"file": str(tmp_path / "gains.toml")})
+        bench._session.handle_control(save, bench.t_s)
+        bad = Request("save", {"file": str(tmp_path / "gains.toml" / "x")})
+        bench._session.handle_control(bad, bench.t_s)
+    assert save.replies[0][0] and (tmp_path / "gains.toml").read_text().startswith("[target]\nkp = 0.100006")
+    assert not bad.replies[0][0] and "\n" not in bad.replies[0][1]

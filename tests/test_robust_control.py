@@ -147,3 +147,113 @@ def test_control_socket_fuzz_session_keeps_running_and_answering(tmp_path: Path)
     assert len(answers) >= 100
     assert all(isinstance(a.get("ok"), bool) and "\n" not in a["message"] for a in answers)
     assert all(not math.isnan(v) for v in final["get"]["data"]["params"].values())
+
+
+# ---------------------------------------------------------------- item 13: finding sessions, ctl output
+def test_item13_every_session_found_stale_ones_cleaned(monkeypatch: pytest.MonkeyPatch) -> None:
+    """Item 13: one global pointer file made the older of two sessions unreachable; kill -9 left
+    `hilbench-ctl-*` behind. Now: a discovery file per session, `list_sessions` finds both (newest
+    first), and a starting server removes dead sessions' files and socket directories."""
+    import os
+    import socket as socket_module
+
+    from hilbench.bench.control import clean_stale, list_sessions, read_discovery
+
+    with tempfile.TemporaryDirectory(dir="/tmp") as d:
+        runtime = Path(d)
+        monkeypatch.setenv("XDG_RUNTIME_DIR", str(runtime))
+        sessions = runtime / "hilbench" / "sessions"
+        sessions.mkdir(parents=True, mode=0o700)
+        dead = sessions / "999999999-hilbench-ctl-dead.session"  # a pid that cannot exist
+        dead.write_text("/nowhere/ctl.sock\n999999999\n{}\n")
+        leftover = runtime / "hilbench-ctl-leftover"
+        leftover.mkdir(mode=0o700)
+        sock = socket_module.socket(socket_module.AF_UNIX, socket_module.SOCK_STREAM)
+        sock.bind(str(leftover / "ctl.sock"))  # bound, nobody listening: a kill -9 leftover
+        sock.close()
+        older = ControlServer()
+        newer = ControlServer()
+        try:
+            assert not dead.exists() and not leftover.exists()
+            found = list_sessions()
+            assert [s.socket_path for s in found] == [newer.path, older.path]
+            assert all(s.pid == os.getpid() for s in found)
+            assert read_discovery() == newer.path
+            with ControlClient(older.path, timeout_s=5) as client:  # the older one stays reachable
+                client._sock.sendall(b"{}\n")
+                assert b"cmd" in client._sock.recv(4096)
+        finally:
+            older.close()
+            newer.close()
+        assert list_sessions() == [] and clean_stale() == 0
+
+
+def test_item13_ctl_json_list_and_step_timeout(monkeypatch: pytest.MonkeyPatch) -> None:
+    """Item 13: `ctl get` printed "ok" before its JSON; no --json; no `ctl list`; the socket path
+    never printed; `ctl step` had the 5 s timeout of a quick command."""
+    from click.testing import CliRunner
+
+    from hilbench.cli import cli
+
+    with tempfile.TemporaryDirectory(dir="/tmp") as d:
+        monkeypatch.setenv("XDG_RUNTIME_DIR", d)
+        server = ControlServer()
+        stop = threading.Event()
+        timeouts: list[float] = []
+
+        def session() -> None:
+            while not stop.is_set():
+                for request in server.poll():
+                    request.reply(True, "done", {"params": {"kp": 0.1}, "t_s": 1.0, "ref_rpm": 0, "tunable": ["kp"]})
+                stop.wait(0.001)
+
+        thread = threading.Thread(target=session, daemon=True)
+        thread.start()
+        real_request = ControlClient.request
+
+        def spy(self: ControlClient, req: dict, timeout_s: float = 5.0) -> dict:
+            timeouts.append(timeout_s)
+            return real_request(self, req, timeout_s)
+
+        monkeypatch.setattr(ControlClient, "request", spy)
+        try:
+            runner = CliRunner()
+            result = runner.invoke(cli, ["ctl", "get"])
+            assert result.exit_code == 0 and json.loads(result.stdout) == {"params": {"kp": 0.1}, "t_s": 1.0,
+                                                                            "ref_rpm": 0, "tunable": ["kp"]}
+            result = runner.invoke(cli, ["ctl", "--json", "ref", "1000"])
+            assert json.loads(result.stdout)["ok"] is True
+            result = runner.invoke(cli, ["ctl", "list", "--json"])
+            assert [Path(r["socket"]) for r in json.loads(result.stdout)] == [server.path]
+            runner.invoke(cli, ["ctl", "step", "1000", "2000"])
+            assert timeouts[-1] >= 60
+        finally:
+            stop.set()
+            thread.join(timeout=5)
+            server.close()
+
+
+def test_item13_dashboard_prompt_get_and_help() -> None:
+    """Item 13: `get` and `help` at the dashboard prompt printed nothing useful."""
+    from hilbench.ui.keys import CommandLine
+
+    with tempfile.TemporaryDirectory(dir="/tmp") as d:
+        server = ControlServer(Path(d) / "s" / "ctl.sock", publish=False)
+        stop = threading.Event()
+
+        def session() -> None:
+            while not stop.is_set():
+                for request in server.poll():
+                    request.reply(True, "ok", {"params": {"kp": 0.1, "ki": 0.01}, "t_s": 2.5, "ref_rpm": 1500.0})
+                stop.wait(0.001)
+
+        thread = threading.Thread(target=session, daemon=True)
+        thread.start()
+        try:
+            line = CommandLine(server.path, on_message=lambda text: None)
+            assert line.execute("get") == "> get: kp=0.1 ki=0.01; ref 1500 rpm at t=2.500 s"
+            assert "press s2|s3" in line.execute("help") and "\n" not in line.execute("help")
+        finally:
+            stop.set()
+            thread.join(timeout=5)
+            server.close()

@@ -25,10 +25,14 @@ that is set, else the system temp dir) holding the socket ``ctl.sock`` (mode 060
 directory is what keeps other users out (the socket is chmod-ed after bind, and the directory
 already forbids entry during that instant).
 
-Discovery: the server writes ``<socket path>\\n<pid>\\n`` to ``$XDG_RUNTIME_DIR/hilbench/current``
-(or ``~/.cache/hilbench/current-session`` without ``XDG_RUNTIME_DIR``; the directory is created
-0700), so ``hilbench ctl`` finds the running session without arguments. The newest session
-wins; ``close()`` removes the file only if it still names this server's socket.
+Discovery: each server writes its own file ``<pid>-<name>.session`` holding
+``<socket path>\\n<pid>\\n<JSON: started, cwd>\\n`` into ``$XDG_RUNTIME_DIR/hilbench/sessions/`` (or
+``~/.cache/hilbench/sessions/`` without ``XDG_RUNTIME_DIR``; the directory is created 0700), so
+every running session can be found (``hilbench ctl list``), not only the newest; ``hilbench ctl``
+without ``--socket`` talks to the newest. A server starting removes what dead sessions left
+(``kill -9``): discovery files whose process is gone and ``hilbench-ctl-*`` directories whose
+socket nobody listens on. ``close()`` removes its own file. (An explicit ``discovery_file`` is
+written as before: one file naming the newest server.)
 
 Threading: a daemon I/O thread blocks in a selector, accepts connections, splits lines, parses
 and validates them and appends ``ControlRequest``s to a deque. ``poll()`` on the session thread
@@ -202,8 +206,131 @@ def _private_dir(path: Path) -> None:
         raise ConfigError(f"control directory {path}: mode {stat.S_IMODE(st.st_mode):o} lets other users in (want 700)")
 
 
+def sessions_dir() -> Path:
+    """The per-user directory of discovery files, one per running session."""
+    runtime = os.environ.get("XDG_RUNTIME_DIR")
+    if runtime and os.path.isdir(runtime):
+        return Path(runtime) / "hilbench" / "sessions"
+    return Path.home() / ".cache" / "hilbench" / "sessions"
+
+
+def _pid_alive(pid: int) -> bool:
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:
+        return True
+    except (OverflowError, ValueError):
+        return False
+    return True
+
+
+def _listening(path: Path) -> bool:
+    probe = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
+    try:
+        probe.settimeout(0.5)
+        probe.connect(str(path))
+        return True
+    except OSError:
+        return False
+    finally:
+        probe.close()
+
+
+@dataclass(frozen=True)
+class SessionInfo:
+    """One running session as its discovery file names it."""
+
+    socket_path: Path
+    pid: int
+    started_s: float
+    cwd: str
+    file: Path
+
+
+def _read_session_file(f: Path) -> SessionInfo | None:
+    try:
+        lines = f.read_text(encoding="utf-8").splitlines()
+        extra = json.loads(lines[2]) if len(lines) > 2 else {}
+        return SessionInfo(Path(lines[0].strip()), int(lines[1]), float(extra.get("started_s", 0.0)),
+                           str(extra.get("cwd", "")), f)
+    except (OSError, IndexError, ValueError, UnicodeDecodeError, AttributeError):
+        return None
+
+
+def list_sessions(directory: Path | None = None) -> list[SessionInfo]:
+    """The running sessions (newest first); files of dead ones are skipped (and removed)."""
+    d = directory or sessions_dir()
+    try:
+        files = sorted(d.glob("*.session"))
+    except OSError:
+        return []
+    out = []
+    for f in files:
+        info = _read_session_file(f)
+        if info is None or not _pid_alive(info.pid) or not info.socket_path.exists():
+            try:
+                if info is None or not _pid_alive(info.pid):
+                    f.unlink()
+            except OSError:
+                pass
+            continue
+        out.append(info)
+    return sorted(out, key=lambda i: (i.started_s, i.pid), reverse=True)
+
+
+def clean_stale(directory: Path | None = None, temp_base: Path | None = None) -> int:
+    """Remove what killed sessions left: discovery files of dead processes and ``hilbench-ctl-*``
+    directories (ours) whose socket nobody listens on. Returns how many things were removed."""
+    removed = 0
+    d = directory or sessions_dir()
+    try:
+        files = list(d.glob("*.session"))
+    except OSError:
+        files = []
+    for f in files:
+        info = _read_session_file(f)
+        if info is None or not _pid_alive(info.pid):
+            try:
+                f.unlink()
+                removed += 1
+            except OSError:
+                pass
+    runtime = os.environ.get("XDG_RUNTIME_DIR")
+    bases = {temp_base} if temp_base is not None else {Path(tempfile.gettempdir())} | (
+        {Path(runtime)} if runtime and os.path.isdir(runtime) else set())
+    for base in bases:
+        try:
+            candidates = list(base.glob("hilbench-ctl-*"))
+        except OSError:
+            continue
+        for cand in candidates:
+            try:
+                st = cand.lstat()
+                if not stat.S_ISDIR(st.st_mode) or st.st_uid != os.getuid():
+                    continue
+                sock = cand / SOCKET_NAME
+                if sock.exists() and _listening(sock):
+                    continue
+                if time.time() - st.st_mtime < 2.0 and not sock.exists():
+                    continue  # a server being set up right now
+                for child in cand.iterdir():
+                    child.unlink()
+                cand.rmdir()
+                removed += 1
+            except OSError:
+                continue
+    return removed
+
+
 def read_discovery(discovery_file: Path | None = None) -> Path:
-    """Socket path of the running session from the discovery file; LinkError if there is none."""
+    """Socket path of the running session (the newest of the per-session files, or the named
+    discovery file); LinkError if there is none."""
+    if discovery_file is None:
+        sessions = list_sessions()
+        if sessions:
+            return sessions[0].socket_path
     f = discovery_file or default_discovery_file()
     try:
         first = f.read_text(encoding="utf-8").splitlines()[0].strip()
@@ -307,8 +434,13 @@ class ControlServer:
             self._sel.register(self._listener, selectors.EVENT_READ, None)
             self._sel.register(self._wake_r, selectors.EVENT_READ, None)
             if publish:
-                self.discovery_file = Path(discovery_file) if discovery_file is not None else default_discovery_file()
-                self._publish(self.discovery_file)
+                if discovery_file is not None:
+                    self.discovery_file = Path(discovery_file)
+                    self._publish(self.discovery_file)
+                else:
+                    clean_stale()
+                    self.discovery_file = sessions_dir() / f"{os.getpid()}-{self.directory.name}.session"
+                    self._publish(self.discovery_file)
         except (OSError, ConfigError) as exc:
             self._listener.close()
             self._sel.close()
@@ -377,8 +509,9 @@ class ControlServer:
         _private_dir(f.parent)
         tmp = f.with_name(f".{f.name}.{os.getpid()}.tmp")
         fd = os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_TRUNC, 0o600)
+        info = json.dumps({"started_s": time.time(), "cwd": os.getcwd()})
         with os.fdopen(fd, "w", encoding="utf-8") as fh:
-            fh.write(f"{self.path}\n{os.getpid()}\n")
+            fh.write(f"{self.path}\n{os.getpid()}\n{info}\n")
         os.replace(tmp, f)
 
     def _cleanup_fs(self) -> None:
@@ -746,4 +879,8 @@ __all__ = [
     "parse_ctl_args",
     "default_discovery_file",
     "read_discovery",
+    "sessions_dir",
+    "list_sessions",
+    "clean_stale",
+    "SessionInfo",
 ]

@@ -636,6 +636,18 @@ class Session:
                 self._segment("end", t_s)
                 self._note(t_s, "stop (ctl)")
                 request.reply(True, f"run ends at t={t_s:.4f} s")
+            elif cmd == "save":  # a raw-socket client's save; `hilbench ctl save` writes where the user is
+                from hilbench.bench.tuning import saved_fragment
+
+                data = {"params": self.param_values(), "t_s": t_s, "ref_rpm": self._ref_rpm,
+                        "tunable": list(self.profile.tunable)}
+                try:
+                    with open(str(args["file"]), "w", encoding="utf-8") as handle:
+                        handle.write(saved_fragment(data))
+                except OSError as exc:
+                    request.reply(False, f"save {args['file']}: {exc.strerror or exc}")
+                else:
+                    request.reply(True, f"wrote {args['file']}", data)
             elif cmd == "start":
                 self.target.start()
                 self._note(t_s, "start (ctl)")
