@@ -219,7 +219,10 @@ def link_test(target: str, periods: int, period_us: int, timeout_ms: int) -> Non
 @click.option("--record", type=click.Path(dir_okay=False), default=None, metavar="FILE",
               help="Keep every period in FILE (.csv or .npz), written as the run goes.")
 @click.option("--set", "overrides", multiple=True, metavar="TABLE.KEY=VALUE",
-              help="Override one config value, e.g. --set target.kp=0.2 --set link.period_us=100.")
+              help="Override one config value, e.g. --set target.kp=0.2 --set link.period_us=100, an item of an "
+                   "array of tables (--set adc.1.gain_codes_per_unit=150) or a whole one (--set 'scenario=[{...}]').")
+@click.option("--scenario", "scenario_file", type=click.Path(dir_okay=False), default=None, metavar="FILE",
+              help="A file of [[scenario]] tables that replaces the config's scenario.")
 @click.option("--gains-file", type=click.Path(dir_okay=False), default=None, metavar="FILE",
               help="Start with the parameters saved by `hilbench ctl save` or `hilbench sweep --save`.")
 @click.option("--no-ui", is_flag=True, help="No live dashboard; print a plain summary at the end.")
@@ -227,8 +230,8 @@ def link_test(target: str, periods: int, period_us: int, timeout_ms: int) -> Non
 @click.option("--no-control", is_flag=True, help="Do not open the control socket for `hilbench ctl`.")
 @_friendly
 def run(config: str | None, target_spec: str | None, mode: str | None, duration_s: float | None,
-        record: str | None, overrides: tuple[str, ...], gains_file: str | None, no_ui: bool, as_json: bool,
-        no_control: bool) -> None:
+        record: str | None, overrides: tuple[str, ...], scenario_file: str | None, gains_file: str | None, no_ui: bool,
+        as_json: bool, no_control: bool) -> None:
     """Run a bench session: target + plant + scenario, live, recorded.
 
     With no arguments: the default target's emulator as its own process on a virtual serial pair,
@@ -253,7 +256,8 @@ def run(config: str | None, target_spec: str | None, mode: str | None, duration_
     from hilbench.bench.settings import params_file_overrides
 
     extra = params_file_overrides(gains_file) if gains_file else ()
-    request = RunRequest(config, check_overrides(overrides) + extra, target_spec, mode, duration_s, record)
+    request = RunRequest(config, check_overrides(overrides) + extra, target_spec, mode, duration_s, record,
+                         scenario=scenario_file)
     cfg = load_run_config(request)
     control = None
     if not no_control:

@@ -361,11 +361,18 @@ def _apply_override(data: dict[str, Any], item: str, col: _Collector) -> str | N
         return None
     path, text = item.split("=", 1)
     parts = [p.strip() for p in path.strip().split(".")]
+    if len(parts) == 1 and parts[0] in _SECTIONS and _SECTIONS[parts[0]].many:  # scenario=[{...}, ...]
+        data[parts[0]] = _parse_value(text)
+        return parts[0]
     if len(parts) < 2 or not all(parts):
         col.lines.append(f"--set {item}: expected TABLE.KEY=VALUE")
         return None
     node: Any = data
-    for part in parts[:-1]:
+    for i, part in enumerate(parts[:-1]):
+        if isinstance(node, dict) and part not in node and parts[i + 1].isdigit():
+            col.lines.append(f"--set {item}: the config has no [[{part}]] array to index (replace it whole: "
+                             f"--set '{part}=[{{...}}, ...]')")
+            return None
         if isinstance(node, list):
             if not part.isdigit() or int(part) >= len(node):
                 col.lines.append(f"--set {item}: no item {part} in this array")
@@ -397,23 +404,80 @@ def _parse_toml(text: str, source: str) -> dict[str, Any]:
         raise ConfigError(f"{source}: not valid TOML for hilbench: arrays or tables nested too deep") from None
 
 
-def load_config(path: str | Path | None = None, overrides: Sequence[str] = ()) -> BenchConfig:
-    """Read, merge `overrides` ("table.key=value", TOML value syntax), validate everything, build."""
-    import hilbench.bench.settings  # noqa: F401 - registers the bench's tables, whoever imported first
-    if path is None:
-        source = f"<packaged {DEFAULT_CONFIG_NAME}>"
-        text = default_config_text()
-    else:
-        source = str(path)
-        try:
-            raw = Path(path).read_bytes()
-        except OSError as exc:
-            raise ConfigError(f"{source}: cannot read: {exc.strerror or exc}") from None
-        try:
-            text = raw.decode("utf-8")
-        except UnicodeDecodeError as exc:
-            raise ConfigError(f"{source}: not UTF-8 (byte {exc.start}); TOML files are UTF-8 text") from None
+#: how many configs an `extends` chain may hold
+MAX_EXTENDS_DEPTH = 8
+PACKAGED_PREFIX = "packaged"
+
+
+def _read_text(path: Path, source: str) -> str:
+    try:
+        raw = path.read_bytes()
+    except OSError as exc:
+        raise ConfigError(f"{source}: cannot read: {exc.strerror or exc}") from None
+    try:
+        return raw.decode("utf-8")
+    except UnicodeDecodeError as exc:
+        raise ConfigError(f"{source}: not UTF-8 (byte {exc.start}); TOML files are UTF-8 text") from None
+
+
+def _merge(base: dict[str, Any], child: Mapping[str, Any]) -> dict[str, Any]:
+    """``child`` over ``base``: tables merge key by key; arrays of tables ([[adc]], [[scenario]]) and
+    values are replaced whole."""
+    out = dict(base)
+    for key, value in child.items():
+        if isinstance(value, dict) and isinstance(out.get(key), dict):
+            out[key] = _merge(out[key], value)
+        else:
+            out[key] = value
+    return out
+
+
+def _load_data(path: Path | None, source: str, chain: tuple[str, ...] = ()) -> dict[str, Any]:
+    """A config file's tables with its ``extends = "other.toml"`` chain merged under them
+    (``extends = "packaged"``: the packaged default; a relative name is beside the file)."""
+    text = default_config_text() if path is None else _read_text(path, source)
     data = _parse_toml(text, source)
+    base = data.pop("extends", None)
+    if base is None:
+        return data
+    if not isinstance(base, str) or not base.strip():
+        raise ConfigError(f"{source}: extends: expected a config file name (or \"packaged\"), got {_show(base)}")
+    if len(chain) >= MAX_EXTENDS_DEPTH:
+        raise ConfigError(f"{source}: extends: more than {MAX_EXTENDS_DEPTH} configs in the chain")
+    if base.strip() in (PACKAGED_PREFIX, f"{PACKAGED_PREFIX}:{DEFAULT_CONFIG_NAME}"):
+        parent_path, parent_source = None, f"<packaged {DEFAULT_CONFIG_NAME}>"
+    else:
+        parent_path = Path(base) if path is None or Path(base).is_absolute() else path.parent / base
+        parent_source = str(parent_path)
+    key = parent_source if parent_path is None else str(parent_path.resolve())
+    if key in chain:
+        raise ConfigError(f"{source}: extends {base!r}: a loop ({' -> '.join(chain + (key,))})")
+    parent = _load_data(parent_path, parent_source, chain + (key,))
+    return _merge(parent, data)
+
+
+def load_scenario_file(path: str | Path) -> list[Any]:
+    """The [[scenario]] entries of a file (`--scenario FILE`): a file of [[scenario]] tables."""
+    source = str(path)
+    data = _parse_toml(_read_text(Path(path), source), source)
+    unknown = sorted(set(data) - {"scenario"})
+    if unknown or not isinstance(data.get("scenario"), list):
+        raise ConfigError(f"{source}: a scenario file holds [[scenario]] tables only"
+                          + (f" (found [{unknown[0]}])" if unknown else " (none found)"))
+    return list(data["scenario"])
+
+
+def load_config(path: str | Path | None = None, overrides: Sequence[str] = (), *,
+                scenario_path: str | Path | None = None) -> BenchConfig:
+    """Read (with its `extends` chain), merge `overrides` ("table.key=value", TOML value syntax;
+    "scenario=[...]" replaces a whole array of tables) and a scenario file, validate, build."""
+    import hilbench.bench.settings  # noqa: F401 - registers the bench's tables, whoever imported first
+    source = f"<packaged {DEFAULT_CONFIG_NAME}>" if path is None else str(path)
+    data = _load_data(None if path is None else Path(path), source,
+                      () if path is None else (str(Path(path).resolve()),))
+    if scenario_path is not None:
+        data["scenario"] = load_scenario_file(scenario_path)
+    in_file = set(data)
     override_keys: set[str] = set()
     col = _Collector(source, override_keys)
     for item in overrides:
@@ -422,7 +486,9 @@ def load_config(path: str | Path | None = None, overrides: Sequence[str] = ()) -
             override_keys.add(key)
     for key in data:
         if key not in _SECTIONS:
-            col.add("", "", f"unknown table [{key}]{_suggest(key, list(_SECTIONS))}")
+            culprit = next((item for item in overrides if item.split("=", 1)[0].strip().split(".")[0] == key), None)
+            where = f"--set {culprit.split('=', 1)[0].strip()}" if key not in in_file and culprit else col.source
+            col.lines.append(f"{where}: unknown table [{key}]{_suggest(key, list(_SECTIONS))}")
     built: dict[str, Any] = {}
     chosen = [sec for sec in _SECTIONS.values() if sec.chooser is not None]
     for name, sec in _SECTIONS.items():

@@ -294,3 +294,46 @@ def test_item4_recordings_and_output_paths_fail_in_one_line(tmp_path: Path) -> N
         assert code != 0, args
         _check_outcome(" ".join(args), code, stderr, exc)
         assert "allow_pickle" not in stderr
+
+
+# ---------------------------------------------------------------- item 16: extends, --scenario, array overrides
+def test_item16_set_of_an_unknown_table_is_blamed_on_set() -> None:
+    """Item 16: `--set nosuch.key=1` blamed "<packaged hurst_mclv.toml>"."""
+    with pytest.raises(ConfigError) as info:
+        load_config(None, ["nosuch.key=1"])
+    assert str(info.value).startswith("--set nosuch.key: unknown table [nosuch]")
+
+
+def test_item16_extends_the_packaged_default_and_another_file(tmp_path: Path) -> None:
+    """Item 16: a config changing only the scenario had to repeat every table."""
+    (tmp_path / "base.toml").write_text('extends = "packaged"\n[motor]\nrs_ohm = 3.0\n')
+    child = tmp_path / "child.toml"
+    child.write_text('extends = "base.toml"\n[run]\nseed = 5\n[[scenario]]\nat_s = 0.0\nref_rpm = 700.0\n')
+    cfg = load_config(child)
+    packaged = load_config(None)
+    assert cfg.motor.rs_ohm == 3.0 and cfg.motor.l_h == packaged.motor.l_h  # merged key by key
+    assert cfg.run.seed == 5 and [e.ref_rpm for e in cfg.scenario] == [700.0]
+    assert cfg.adc == packaged.adc
+    loop = tmp_path / "loop.toml"
+    loop.write_text('extends = "loop.toml"\n')
+    with pytest.raises(ConfigError, match="a loop"):
+        load_config(loop)
+    missing = tmp_path / "m.toml"
+    missing.write_text('extends = "nowhere.toml"\n')
+    with pytest.raises(ConfigError, match="nowhere.toml: cannot read"):
+        load_config(missing)
+
+
+def test_item16_scenario_file_and_array_of_tables_overrides(tmp_path: Path) -> None:
+    """Item 16: [[adc]] and [[scenario]] entries could not be overridden; no --scenario FILE."""
+    scenario = tmp_path / "s.toml"
+    scenario.write_text("[[scenario]]\nat_s = 0.0\nref_rpm = 900.0\n[[scenario]]\nat_s = 0.5\nend = true\n")
+    cfg = load_config(None, scenario_path=scenario)
+    assert [e.at_s for e in cfg.scenario] == [0.0, 0.5]
+    cfg = load_config(None, ["adc.1.gain_codes_per_unit=150", "scenario=[{at_s = 0.0, ref_rpm = 100.0}]"])
+    assert cfg.adc[1].gain_codes_per_unit == 150 and cfg.scenario[0].ref_rpm == 100.0
+    with pytest.raises(ConfigError, match="no \\[\\[scenario\\]\\] array to index"):
+        load_config(None, ["scenario.0.at_s=1"])
+    code, stderr, exc = run_cli_in_process(["run", *RUN_ARGS, "--scenario", str(scenario),
+                                            "--set", "scenario=[{at_s = 0.0, ref_rpm = 100.0}]"])
+    assert code == 0 and exc is None, stderr
