@@ -593,9 +593,10 @@ def sweep(config: str | None, axes: tuple[str, ...], workers: int | None, metric
     if csv_file:
         write_sweep_csv(csv_file, result)
     if save_file:
+        fragment = best_fragment(result)  # before the file is opened: nothing simulated leaves no empty file
         try:
             with open(save_file, "w", encoding="utf-8") as handle:
-                handle.write(best_fragment(result))
+                handle.write(fragment)
         except OSError as exc:
             raise ConfigError(f"sweep --save {save_file}: {exc.strerror}") from None
     ranked = result.ranked[:top]

@@ -124,3 +124,30 @@ def test_item13_ctl_save_answered_by_the_session_itself(tmp_path: Path) -> None:
         bench._session.handle_control(bad, bench.t_s)
     assert save.replies[0][0] and (tmp_path / "gains.toml").read_text().startswith("[target]\nkp = 0.100006")
     assert not bad.replies[0][0] and "\n" not in bad.replies[0][1]
+
+
+def test_item15_sweep_save_leaves_no_empty_file_and_names_the_option(tmp_path: Path) -> None:
+    """Item 15: `--save` left an empty file when nothing was simulated; a bad axis read
+    "sweep ----kp '0.1:0.2'"."""
+    from click.testing import CliRunner
+
+    from hilbench.cli import cli
+
+    save = tmp_path / "best.toml"
+    result = CliRunner().invoke(cli, ["sweep", "-p", "kp=0.9", "-p", "ki=0.5", "-p", "kd=0", "--workers", "1",
+                                      "--save", str(save)])
+    assert result.exit_code == 2 and "no simulated parameter set" in result.stderr
+    assert not save.exists()
+    for word in ("--kp=0.1:0.2:2", "kp=0.1:0.2"):
+        result = CliRunner().invoke(cli, ["sweep", "-p", word, "--workers", "1"])
+        assert result.exit_code == 2 and "----" not in result.stderr and "sweep --param" in result.stderr
+
+
+def test_item15_step_refuses_a_target_without_a_speed_loop() -> None:
+    """Item 15: `step --target emulator:loopback` printed a 199.99 % steady-state error and exited 0."""
+    from click.testing import CliRunner
+
+    from hilbench.cli import cli
+
+    result = CliRunner().invoke(cli, ["step", "--target", "inprocess:loopback"])
+    assert result.exit_code != 0 and "speed" in result.stderr and len(result.stderr.splitlines()) == 1
