@@ -119,14 +119,17 @@ _MODES = {"auto": None, "lockstep": 0, "realtime": 1}
 @click.option("--option", "-o", "options", multiple=True, metavar="KEY=VALUE",
               help="A [target] option of TARGET, e.g. -o variant=v11 (see the target's config docs).")
 @click.option("--quiet", "-q", is_flag=True, help="Log only warnings and errors.")
+@click.option("--once", is_flag=True, help="Exit when the first host hangs up (default: serve host after host, "
+                                           "as a board does, until Ctrl-C).")
 @_friendly
 def emulate(target: str | None, port_spec: str, mode: str, watchdog_ms: int | None, options: tuple[str, ...],
-            quiet: bool) -> None:
+            quiet: bool, once: bool) -> None:
     """Serve an emulated TARGET (default: the default target; `hilbench targets` lists them) on a
     virtual serial pair or a tty.
 
     The first line on stdout is the path the host opens, e.g.
-    `hilbench link-test serial:/dev/pts/5`. Serves until the host hangs up or Ctrl-C.
+    `hilbench link-test serial:/dev/pts/5`. Serves one host after another until Ctrl-C (--once: until
+    the first host hangs up).
     """
     import logging
 
@@ -151,7 +154,8 @@ def emulate(target: str | None, port_spec: str, mode: str, watchdog_ms: int | No
         except tomllib.TOMLDecodeError:
             values[key.strip()] = text
     target = target or _default_target_name()
-    report = serve_on_port(target, port_spec, _MODES[mode], options, watchdog_ms=watchdog_ms, announce=announce)
+    report = serve_on_port(target, port_spec, _MODES[mode], values, watchdog_ms=watchdog_ms, announce=announce,
+                           keep_serving=not once)
     logging.getLogger("hilbench.serve").info(
         "served %d periods and %d requests; %s", report.sensors, report.requests, report.reason or "done"
     )

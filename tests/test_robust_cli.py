@@ -151,3 +151,31 @@ def test_item15_step_refuses_a_target_without_a_speed_loop() -> None:
 
     result = CliRunner().invoke(cli, ["step", "--target", "inprocess:loopback"])
     assert result.exit_code != 0 and "speed" in result.stderr and len(result.stderr.splitlines()) == 1
+
+
+@pytest.mark.slow
+def test_item14_emulate_serves_host_after_host() -> None:
+    """Item 14: `emulate` served one host session and exited ("far end hung up" twice)."""
+    import queue
+    import threading
+
+    from hilbench.bench.linktest import run_link_test
+    from hilbench.targets.emulator import serve_on_port
+
+    paths: queue.Queue[str] = queue.Queue()
+    stop = threading.Event()
+    reports: list = []
+    thread = threading.Thread(target=lambda: reports.append(serve_on_port(
+        "loopback", "pty", None, None, announce=paths.put, stop_event=stop, keep_serving=True)), daemon=True)
+    thread.start()
+    try:
+        path = paths.get(timeout=20)
+        for _ in range(3):  # three hosts, one after another, each opening and closing the port
+            result = run_link_test(f"serial:{path}", periods=200, period_us=50, timeout_s=2.0)
+            assert result.good == 200 and result.timeouts == 0
+        assert thread.is_alive()
+    finally:
+        stop.set()
+        thread.join(timeout=20)
+    assert not thread.is_alive() and reports and reports[0].reason == "stopped"
+    assert reports[0].sensors == 600
