@@ -157,3 +157,20 @@ def test_item9_killed_recording_reported_as_cut_short(tmp_path: Path) -> None:
     cut = tmp_path / "cut.csv"
     cut.write_text("\n".join(line for line in text if not line.startswith("# event: end")) + "\n")
     assert summarise(read_recording(cut))["ended"].startswith("cut short")
+
+
+def test_item19_csv_reads_with_pandas_comment_and_numpy_without_counting(tmp_path: Path) -> None:
+    """Item 19: reading the CSV needed a computed `skiprows` (the metadata lines came first)."""
+    path = tmp_path / "run.csv"
+    with hilbench.Bench(target="inprocess:an1017", record=path) as bench:
+        bench.set_reference(1000)
+        bench.press("s2")  # events between rows
+        bench.run(0.01)
+    rows = np.loadtxt(path, delimiter=",", skiprows=1)
+    names = open(path, encoding="utf-8").readline().strip().split(",")
+    assert rows.shape == (200, len(names)) and names[0] == "t_s[s]"
+    np.testing.assert_allclose(rows[:, 0], np.arange(200) * 50e-6, atol=1e-9)  # hand: k * 50 us
+    pandas = pytest.importorskip("pandas", reason="pandas is not installed (the claim is checked where it is)")
+    frame = pandas.read_csv(path, comment="#")
+    assert list(frame.columns) == names and len(frame) == 200
+    np.testing.assert_allclose(frame["speed_rpm[rpm]"].to_numpy(), rows[:, names.index("speed_rpm[rpm]")])

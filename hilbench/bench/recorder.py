@@ -294,9 +294,11 @@ class Recorder:
                 head = json.dumps({"layout": layout.as_json(), "metadata": self.metadata}, default=str).encode()
                 self._file.write(_JOURNAL_MAGIC + struct.pack("<I", len(head)) + head)
             else:
+                # the header first: pandas.read_csv(f, comment="#") and numpy.loadtxt(f, delimiter=",",
+                # skiprows=1) read the file with no line counting (metadata and events are # lines)
+                self._file.write(csv_header(layout.column_specs) + "\n")
                 for key, value in self.metadata.items():
                     self._file.write(f"# {key}: {json.dumps(value, default=str)}\n")
-                self._file.write(csv_header(layout.column_specs) + "\n")
             self._file.flush()
         except OSError as exc:
             raise RecordingError(f"recording {self.path}: write failed ({exc.strerror})") from None

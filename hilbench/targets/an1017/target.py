@@ -258,7 +258,7 @@ class An1017Target:
         return ParamValue(0, param_id, RESULT_OK, self._value(param_id))
 
     def set_params(self, pairs: tuple[tuple[int, int], ...]) -> ParamSetResult:
-        """All or nothing: ids, ranges and the seed's gain constraints are checked before any write."""
+        """All or nothing: ids, ranges and the application note's gain constraints are checked before any write."""
         if not pairs or len(pairs) > 4:
             return ParamSetResult(0, RESULT_BAD_REQUEST, 0, 0)
         new = {pid: self._value(pid) for pid in PARAMS}
@@ -402,13 +402,13 @@ class An1017Target:
                     pot = adc[0]
                     if pot != fw.pot_code:
                         fw.pot_code = pot
-                        if adc_every and ovr is None:  # seed: the ADC ISR runs at every boundary
+                        if adc_every and ovr is None:  # appnote: the ADC ISR runs at every boundary
                             ref = ((pot & 0x3FF) - 512) << 6
                             if ref != fw.ref_speed:
                                 fw.ref_speed = ref
                                 tel = tail[6]
                                 tail = self._tail = tail[:6] + ((ref, tel[1], tel[2]),)
-                # (seed, pot unchanged: RefSpeed is already this pot's value — see _finish)
+                # (appnote, pot unchanged: RefSpeed is already this pot's value — see _finish)
                 if not adc_every and t % 16_000 == 0:  # v11: the ADC ISR at every 16th boundary
                     ref = (((fw.pot_code & 0x3FF) - 512) << 6) if ovr is None else ovr
                     if ref != fw.ref_speed:
