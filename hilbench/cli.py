@@ -263,6 +263,10 @@ def run(config: str | None, target_spec: str | None, mode: str | None, duration_
     request = RunRequest(config, check_overrides(overrides) + extra, target_spec, mode, duration_s, record,
                          scenario=scenario_file)
     cfg = load_run_config(request)
+    from hilbench.bench.feasibility import check_run
+
+    for warning in check_run(cfg):
+        click.echo(f"hilbench: warning: {warning}", err=True)
     control = None
     if not no_control:
         from hilbench.bench.control import ControlServer

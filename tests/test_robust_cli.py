@@ -179,3 +179,33 @@ def test_item14_emulate_serves_host_after_host() -> None:
         thread.join(timeout=20)
     assert not thread.is_alive() and reports and reports[0].reason == "stopped"
     assert reports[0].sensors == 600
+
+
+def test_item12_impossible_and_doubtful_settings_said_before_the_run() -> None:
+    """Item 12: realtime at 50 us ran with 97.5 % overruns and exited 0; at 1 ms periods the hall edge
+    rate at 2500 rpm (2500/60 * 5 pole pairs * 6 = 1250 edges/s) exceeded 1000 exchanges/s silently."""
+    from hilbench.bench.feasibility import check_run, overrun_warning
+    from hilbench.config import load_config
+    from hilbench.errors import ConfigError
+
+    warnings = check_run(load_config(None, ["link.period_us=1000"]))  # the default scenario reaches 2500 rpm
+    assert any("1250 times/s" in w and "1000 times/s" in w and "link.period_us <= 800" in w for w in warnings)
+    assert check_run(load_config(None)) == []  # 50 us: 20000 exchanges/s
+    warnings = check_run(load_config(None, ['run.mode="realtime"']))
+    assert any("real time at 50 us" in w for w in warnings)
+    # 37 bytes per exchange (17 + 20 at their largest) * 10 bits at 9600 baud = 38.5 ms > 1 ms
+    with pytest.raises(ConfigError, match="9600 baud"):
+        check_run(load_config(None, ['run.mode="realtime"', 'link.target="serial:/dev/ttyX?baud=9600"',
+                                     "link.period_us=1000"]))
+    assert overrun_warning(1000, 975).startswith("real time NOT held: 975 of 1000 periods (97.5 %)")
+    assert overrun_warning(1000, 10) is None
+
+
+def test_item17_no_ui_summary_has_the_parameters_line(tmp_path: Path) -> None:
+    """Item 17: --no-ui omitted the parameters line the dashboard's table has."""
+    from click.testing import CliRunner
+
+    from hilbench.cli import cli
+
+    result = CliRunner().invoke(cli, ["run", "--no-ui", "--no-control", "--target", "inprocess:an1017", "--duration", "0.01"])
+    assert result.exit_code == 0 and "parameters: kp 0.10001, ki 0.01001" in result.stdout

@@ -78,6 +78,9 @@ def run_bench(
     on_ready: Callable[[Session], None] | None = None,
 ) -> Summary:
     """Run the bench described by ``cfg`` with its scenario; raises HilbenchError kinds on faults."""
+    from hilbench.bench.feasibility import check_run, overrun_warning
+
+    warnings = check_run(cfg)  # impossible settings raise here, before anything is opened
     bench = Bench(cfg, record=record, scenario=True, observer=observer, control=control, keep_rows=False)
     with bench:
         session = bench._session
@@ -94,6 +97,7 @@ def run_bench(
             ) from None
         summary = bench.close()
     assert summary is not None
+    summary.warnings = warnings + [w for w in [overrun_warning(summary.periods, summary.overruns)] if w]
     return summary
 
 

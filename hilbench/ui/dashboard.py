@@ -156,6 +156,8 @@ def summary_table(summary: Summary) -> Group:
         head.add_row("parameters", ", ".join(f"{k} {v:.5g}" for k, v in summary.params.items()))
     if summary.recording:
         head.add_row("recording", f"{summary.recording} ({summary.rows_recorded:,} rows)")
+    for warning in summary.warnings:
+        head.add_row("[yellow]warning[/]", warning)
     seg = Table(title="steady state per reference (last 30 % of each hold)")
     for col in ("from [s]", "to [s]", "reference [rpm]", "plant [rpm]", "firmware [rpm]", "error [%]", "within 2 %"):
         seg.add_column(col, justify="right")
@@ -188,6 +190,8 @@ def summary_text(summary: Summary) -> str:
         lines.append(f"cpus: {summary.cpus}")
     if summary.link:
         lines.append("link: " + ", ".join(f"{k} {v}" for k, v in summary.link.items()))
+    if summary.params:  # as the dashboard's table has them (issue 16, item 17)
+        lines.append("parameters: " + ", ".join(f"{k} {v:.5g}" for k, v in summary.params.items()))
     for s in summary.segments:
         lines.append(
             f"ref {s.ref_rpm:+.0f} rpm [{s.t_start_s:.2f}-{s.t_end_s:.2f} s]: plant {s.plant_rpm:+.1f} rpm, "
@@ -195,6 +199,7 @@ def summary_text(summary: Summary) -> str:
         )
     if summary.recording:
         lines.append(f"recording: {summary.recording} ({summary.rows_recorded} rows)")
+    lines += [f"warning: {w}" for w in summary.warnings]
     return "\n".join(lines)
 
 
