@@ -192,7 +192,8 @@ def link_test(target: str, periods: int, period_us: int, timeout_ms: int) -> Non
     table.add_column("figure")
     table.add_column("value", justify="right")
     rows: list[tuple[str, str]] = [
-        ("periods (good / asked)", f"{result.good} / {result.periods}"),
+        ("periods (good / asked)", f"{result.good} / {result.periods}"
+                                   + (f" (interrupted after {result.attempted})" if result.interrupted else "")),
         ("round trips/s", f"{result.round_trips_per_s:,.0f}"),
         ("RTT p50", f"{result.rtt_p50_us:.1f} µs"),
         ("RTT p99", f"{result.rtt_p99_us:.1f} µs"),
@@ -208,6 +209,9 @@ def link_test(target: str, periods: int, period_us: int, timeout_ms: int) -> Non
     console.print(table)
     if result.errors:
         console.print(f"[yellow]{result.errors} errors counted[/yellow]")
+    if result.interrupted:
+        click.echo("hilbench: interrupted: the figures above are those of the periods run", err=True)
+        sys.exit(130)
 
 
 @cli.command(context_settings={"show_default": True})

@@ -209,3 +209,25 @@ def test_item17_no_ui_summary_has_the_parameters_line(tmp_path: Path) -> None:
 
     result = CliRunner().invoke(cli, ["run", "--no-ui", "--no-control", "--target", "inprocess:an1017", "--duration", "0.01"])
     assert result.exit_code == 0 and "parameters: kp 0.10001, ki 0.01001" in result.stdout
+
+
+@pytest.mark.slow
+def test_item18_link_test_keeps_its_figures_on_ctrl_c(monkeypatch: pytest.MonkeyPatch) -> None:
+    """Item 18: Ctrl-C during `link-test` lost every figure; progress is reported as it goes."""
+    from hilbench.bench.linktest import run_link_test
+    from hilbench.targets.remote import RemoteTarget
+
+    real_step = RemoteTarget.step
+    calls = {"n": 0}
+
+    def step(self: RemoteTarget, sensors):  # type: ignore[no-untyped-def]
+        calls["n"] += 1
+        if calls["n"] == 501:
+            raise KeyboardInterrupt
+        return real_step(self, sensors)
+
+    monkeypatch.setattr(RemoteTarget, "step", step)
+    seen: list[int] = []
+    result = run_link_test("pty", periods=2000, timeout_s=2.0, progress=seen.append)
+    assert result.interrupted and result.attempted == 500 and result.good == 500
+    assert result.rtt_p50_us > 0 and seen[:3] == [0, 20, 40]  # progress every 1 % of 2000
