@@ -231,3 +231,32 @@ def test_item18_link_test_keeps_its_figures_on_ctrl_c(monkeypatch: pytest.Monkey
     result = run_link_test("pty", periods=2000, timeout_s=2.0, progress=seen.append)
     assert result.interrupted and result.attempted == 500 and result.good == 500
     assert result.rtt_p50_us > 0 and seen[:3] == [0, 20, 40]  # progress every 1 % of 2000
+
+
+def test_item17_dashboard_fits_80x24_with_a_scale_and_no_stale_values() -> None:
+    """Item 17: at 80x24 the dashboard wrapped rows; the sparkline had no scale; after a stop it
+    showed stale firmware speed and duties as if they applied."""
+    import io
+
+    from rich.console import Console
+
+    import hilbench
+    from hilbench.ui.dashboard import render_snapshot
+
+    snaps: list = []
+    with hilbench.Bench(target="inprocess:an1017", observer=snaps.append) as bench:
+        bench.set_reference(1500)
+        bench.press("s2")
+        bench.run(0.6)
+        bench.press("s2")  # stop
+        bench.run(0.3)
+    running, stopped = snaps[len(snaps) // 2], snaps[-1]
+    for snap in (running, stopped):
+        out = io.StringIO()
+        Console(file=out, width=80, height=24, color_system=None).print(
+            render_snapshot(snap, bench_params := {"kp": 0.1, "ki": 0.01, "kd": 0.0}, "inprocess:an1017", 80))
+        lines = out.getvalue().splitlines()
+        assert all(len(line) <= 80 for line in lines) and len(lines) <= 24 - 3, lines  # + progress and prompt
+        assert " rpm" in next(line for line in lines if "speed (plant), the last" in line).split("the last")[1]
+    text = out.getvalue()
+    assert stopped.output_mode == 0 and "(outputs off)" in text and "(held)" in text

@@ -40,17 +40,19 @@ def _fmt(value: float, spec: str = ".0f") -> str:
     return "—" if value is None or (isinstance(value, float) and math.isnan(value)) else format(value, spec)
 
 
-def render_snapshot(snap: Snapshot, params: dict[str, float], target_label: str) -> Group:
-    """Everything one frame of the dashboard shows."""
+def render_snapshot(snap: Snapshot, params: dict[str, float], target_label: str, width: int = 100) -> Group:
+    """Everything one frame of the dashboard shows (``width``: the terminal's columns)."""
+    outputs_off = snap.output_mode == 0
     motor = Table.grid(padding=(0, 2))
     motor.add_column(style="bold")
     motor.add_column(justify="right")
     motor.add_row("reference", f"{_fmt(snap.ref_rpm)} rpm")
     motor.add_row("speed (plant)", f"{_fmt(snap.speed_rpm)} rpm")
-    motor.add_row("speed (firmware)", f"{_fmt(snap.measured_rpm)} rpm")
+    # a stopped firmware keeps its last MeasuredSpeed and duties: show that they do not apply now
+    motor.add_row("speed (firmware)", f"{_fmt(snap.measured_rpm)} rpm" + (" (held)" if outputs_off else ""))
     motor.add_row("state", f"{STATE_NAMES.get(snap.state, snap.state)}, outputs {OUTPUT_NAMES.get(snap.output_mode, '?')}")
     motor.add_row("sector / dir", f"{snap.sector} / {'CCW' if snap.direction_ccw else 'CW'}")
-    motor.add_row("duties", " ".join(str(d) for d in snap.duties))
+    motor.add_row("duties", "— (outputs off)" if outputs_off else " ".join(str(d) for d in snap.duties))
     motor.add_row("i a/b/c", " ".join(f"{i:+.2f}" for i in snap.i_abc) + " A")
     motor.add_row("i bus", f"{snap.i_bus:+.3f} A")
     for name, value in snap.telemetry.items():  # the target's own telemetry, as its profile names it
@@ -74,15 +76,17 @@ def render_snapshot(snap: Snapshot, params: dict[str, float], target_label: str)
     grid.add_column(ratio=1)
     grid.add_row(Panel(motor, title="motor"), Panel(link, title="link & gains"))
     speeds = [h[2] for h in snap.history]
-    chart = Text(sparkline(speeds), style="cyan")
+    chart = Text(sparkline(speeds, width=max(10, width - 4)), style="cyan")
+    clean = [v for v in speeds if not math.isnan(v)]
+    scale = f": {min(clean):.0f} … {max(clean):.0f} rpm" if clean else ""
     parts: list[Any] = [
         Text(f"hilbench run — {target_label}", style="bold"),
         grid,
-        Panel(chart, title=f"speed (plant), the last {snap.history[-1][0] - snap.history[0][0]:.1f} s" if snap.history
-              else "speed (plant)"),
+        Panel(chart, title=f"speed (plant), the last {snap.history[-1][0] - snap.history[0][0]:.1f} s{scale}"
+              if snap.history else "speed (plant)"),
     ]
     if snap.messages:
-        parts.append(Text("\n".join(snap.messages), style="yellow"))
+        parts.append(Text("\n".join(snap.messages[-2:]), style="yellow", no_wrap=True, overflow="ellipsis"))
     return Group(*parts)
 
 
@@ -125,7 +129,7 @@ class Dashboard:
             return
         self._last = now
         self.progress.update(self.task, completed=snap.t_s, total=snap.duration_s)
-        parts: list[Any] = [render_snapshot(snap, self.params, self.target_label), self.progress]
+        parts: list[Any] = [render_snapshot(snap, self.params, self.target_label, self.console.width), self.progress]
         if self.command_line is not None and self.command_line.active:
             from hilbench.ui.keys import PROMPT_HELP
 
