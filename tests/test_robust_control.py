@@ -109,7 +109,7 @@ def test_control_socket_fuzz_session_keeps_running_and_answering(tmp_path: Path)
     answered and `stop` ends the run cleanly (no fault, the control thread alive)."""
     from conftest import hurst_bench_config
 
-    cfg = load_run_config(RunRequest(str(hurst_bench_config(tmp_path, 600.0)), target="inprocess:an1017"))
+    cfg = load_run_config(RunRequest(str(hurst_bench_config(tmp_path, 86400.0)), target="inprocess:an1017"))  # ends by ctl stop
     with tempfile.TemporaryDirectory(dir="/tmp") as d:
         server = ControlServer(Path(d) / "s" / "ctl.sock", publish=False)
         answers: list[dict] = []
