@@ -75,14 +75,21 @@ def test_item1_request_ranges_match_the_scenario_limits() -> None:
     assert meta["ref_rpm"]["le"] == 20000 and meta["load_nm"]["le"] == 1000
 
 
+def _is_finite_in_range(value: object, limit: float) -> bool:
+    return isinstance(value, (int, float)) and not isinstance(value, bool) and math.isfinite(value) and abs(value) <= limit
+
+
 def _fuzz_lines(seed: int) -> list[bytes]:
     """Malformed JSON, huge numbers and lines, binary garbage, every command with bad arguments."""
     rng = random.Random(seed)
     bad_numbers: list[object] = [1e308, -1e308, 10**400, -(10**30), 1e6, -1e6, 0, 3.5, "nan", None, True, [], {}]
     raw_numbers = [b"NaN", b"Infinity", b"-Infinity", b"1e999", b"9" * 400, b"-" + b"9" * 5000]
     lines: list[bytes] = []
+    # (in-range loads are left out: a large one legitimately ends the run as a diverging plant)
     for cmd, keys in (("ref", ["rpm"]), ("load", ["nm"]), ("step", ["from_rpm", "to_rpm"])):
         for value in bad_numbers:
+            if cmd == "load" and _is_finite_in_range(value, 1000.0) and value != 0:
+                continue
             lines.append(json.dumps({"cmd": cmd, **{k: value for k in keys}}).encode())
         for raw in raw_numbers:
             lines.append(b'{"cmd":"' + cmd.encode() + b'",' + b",".join(b'"' + k.encode() + b'":' + raw for k in keys) + b"}")
@@ -104,10 +111,12 @@ def _fuzz_lines(seed: int) -> list[bytes]:
 
 
 @pytest.mark.slow
-def test_control_socket_fuzz_session_keeps_running_and_answering(tmp_path: Path) -> None:
+def test_control_socket_fuzz_session_keeps_running_and_answering(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
     """Acceptance: a hostile client against a running in-process session; afterwards `get` is
     answered and `stop` ends the run cleanly (no fault, the control thread alive)."""
     from conftest import hurst_bench_config
+
+    monkeypatch.chdir(tmp_path)  # a fuzzed `save` writes its file here
 
     cfg = load_run_config(RunRequest(str(hurst_bench_config(tmp_path, 86400.0)), target="inprocess:an1017"))  # ends by ctl stop
     with tempfile.TemporaryDirectory(dir="/tmp") as d:
@@ -119,7 +128,10 @@ def test_control_socket_fuzz_session_keeps_running_and_answering(tmp_path: Path)
         def client() -> None:
             try:
                 for line in _fuzz_lines(16):
-                    reply = _raw_exchange(server.path, line + b"\n")
+                    try:
+                        reply = _raw_exchange(server.path, line + b"\n")
+                    except TimeoutError:
+                        raise AssertionError(f"no reply to {line[:80]!r}") from None
                     for text in reply.splitlines():
                         answers.append(json.loads(text))
                 with ControlClient(server.path, timeout_s=TIMEOUT_S) as c:
