@@ -1,10 +1,14 @@
-"""A gain sweep of speed-step tests: wall time on 1 worker and on every core, the speed-up, and the
-simulated plant-seconds per wall second; the best gains against the firmware's default gains.
+"""Sweeps of speed-step tests on executors, and the refinement against a full grid.
 
-Every point is the scalar session's step test on the in-process model (the same code `hilbench step`
-runs), so the figures are those of the real bench, on a process pool.
+Prints, in one run (medians of --repeats, interleaved so machine load hits every figure alike):
+  * a G × G grid of 1-second step tests (kp × ki, the default target) on 1 worker, on every local
+    core and on a local Dask cluster: wall time, speed-up over 1 worker (goal ≥ 1.7× on 2 cores) and
+    simulated plant-seconds per wall second;
+  * the refinement (a 5 × 5 grid, then rounds zooming around the best point) against the full grid:
+    the best ITAE each finds and how many step tests each needed (goal: at least as good with fewer
+    than a quarter of the tests).
 
-    python benchmarks/bench_sweep.py [--grid 10] [--repeats 3] [--from 1000 --to 2000]
+    python benchmarks/bench_sweep.py [--grid 20] [--repeats 3] [--no-dask]
 """
 
 from __future__ import annotations
@@ -15,37 +19,52 @@ import statistics
 import time
 
 import hilbench
-from hilbench.bench.sweep import grid_values
+from hilbench.bench.sampling import Axis
+from hilbench.bench.steptest import StepTest
+from hilbench.bench.sweep import refine, sweep_grid
+from hilbench.config import load_config
+
+KP, KI = (0.05, 0.85), (0.005, 0.12)
 
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    parser.add_argument("--grid", type=int, default=10, help="points per axis (kp × ki)")
+    parser.add_argument("--grid", type=int, default=20, help="points per axis (kp × ki)")
     parser.add_argument("--repeats", type=int, default=3)
-    parser.add_argument("--from", dest="from_rpm", type=float, default=1000.0)
-    parser.add_argument("--to", dest="to_rpm", type=float, default=2000.0)
+    parser.add_argument("--no-dask", action="store_true", help="skip the local Dask cluster")
     args = parser.parse_args()
-    axes = {"kp": grid_values(0.05, 0.85, args.grid), "ki": grid_values(0.005, 0.12, args.grid), "kd": (0.0,)}
+    cfg = load_config(None)
+    test = StepTest(1000.0, 2000.0, 0.5, 0.5)
+    axes = [("kp", Axis("kp", *KP, args.grid).values()), ("ki", Axis("ki", *KI, args.grid).values()), ("kd", (0.0,))]
     cores = os.cpu_count() or 1
-    walls: dict[int, list[float]] = {1: [], cores: []}
+    runs = {"1 worker": ("local", 1), f"{cores} local workers": ("local", cores)}
+    if not args.no_dask:
+        runs[f"local Dask cluster, {cores} workers"] = (f"local-dask:{cores}", None)
+    walls: dict[str, list[float]] = {name: [] for name in runs}
     result = None
-    for _ in range(args.repeats):  # interleaved: both see the same machine load
-        for workers in walls:
+    for _ in range(args.repeats):
+        for name, (executor, workers) in runs.items():
             t0 = time.perf_counter()
-            result = hilbench.sweep(axes, from_rpm=args.from_rpm, to_rpm=args.to_rpm, workers=workers)
-            walls[workers].append(time.perf_counter() - t0)
+            result = sweep_grid(cfg, axes, test, executor=executor, workers=workers)
+            walls[name].append(time.perf_counter() - t0)
     assert result is not None
-    simulated = result.sim_s
-    one, many = statistics.median(walls[1]), statistics.median(walls[cores])
-    print(f"{args.grid} x {args.grid} sweep of 1 s step tests ({len(result.points)} points, "
-          f"{result.skipped} skipped by the firmware's constraints, {simulated:.0f} simulated s), median of {args.repeats}")
-    print(f"  1 worker      : {one:6.2f} s wall, {simulated / one:6.1f} plant-s/s")
-    print(f"  {cores} workers     : {many:6.2f} s wall, {simulated / many:6.1f} plant-s/s, speed-up {one / many:4.2f}x")
-    best = result.best
-    default = hilbench.step_test(from_rpm=args.from_rpm, to_rpm=args.to_rpm, params={"kp": 0.1, "ki": 0.01, "kd": 0.0})
-    if best is not None and best.result is not None:
-        print(f"  best {dict(best.params)}: ITAE {best.result.metrics.itae:.4f}; "
-              f"the firmware's default gains 0.1/0.01/0: ITAE {default.metrics.itae:.4f}")
+    one = statistics.median(walls["1 worker"])
+    print(f"{args.grid} x {args.grid} grid of 1 s step tests: {len(result.points)} points, {result.skipped} skipped by the "
+          f"firmware's constraints, {result.sim_s:.0f} simulated s; median of {args.repeats} ({cores} cores)")
+    for name in runs:
+        wall = statistics.median(walls[name])
+        print(f"  {name:28s}: {wall:6.2f} s wall, {result.sim_s / wall:6.1f} plant-s/s, speed-up {one / wall:4.2f}x")
+    box = [Axis("kp", *KP, 5), Axis("ki", *KI, 5), Axis("kd", 0.0, 0.0, 1)]
+    refined = refine(cfg, box, test, rounds=3, shrink=0.4)
+    best_grid, best_refined = result.best, refined.best
+    assert best_grid is not None and best_refined is not None
+    print(f"  full grid : best ITAE {best_grid.result.metrics.itae:.4f} at {dict(best_grid.params)} "
+          f"({result.step_tests} step tests)")
+    print(f"  refinement: best ITAE {best_refined.result.metrics.itae:.4f} at {dict(best_refined.params)} "
+          f"({refined.step_tests} step tests = {refined.step_tests / result.step_tests:.0%} of the grid's; goal < 25 % "
+          f"and ITAE <= the grid's: {'yes' if best_refined.result.metrics.itae <= best_grid.result.metrics.itae else 'no'})")
+    default = hilbench.step_test(params={"kp": 0.1, "ki": 0.01, "kd": 0.0})
+    print(f"  the firmware's default gains 0.1/0.01/0: ITAE {default.metrics.itae:.4f}")
 
 
 if __name__ == "__main__":

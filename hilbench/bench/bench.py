@@ -114,7 +114,8 @@ class Bench:
         profile = configured_profile(cfg)
         plant = Plant(plant_params_from_config(cfg), seed=options.seed, substeps=cfg.plant.substeps)
         handle = self._handle = open_target(cfg.link.target, profile=profile, options=cfg.target, mode=options.mode,
-                                            timeout_s=options.timeout_s, watchdog_ms=options.watchdog_ms)
+                                            timeout_s=options.timeout_s, watchdog_ms=options.watchdog_ms,
+                                            retry_s=cfg.link.retry_ms / 1000.0)
         try:
             session = self.session = Session(
                 handle.target, plant, events, options, profile=profile, observer=self._observer,
@@ -177,6 +178,10 @@ class Bench:
                 self._handle.close()
                 self._handle = None
         return summary
+
+    def child_status(self) -> str:
+        """How the emulator process this bench started is doing, for error lines ("" if none)."""
+        return self._handle.child_status() if self._handle is not None else ""
 
     def __enter__(self) -> "Bench":
         return self.open()

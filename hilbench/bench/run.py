@@ -66,7 +66,8 @@ def in_process(cfg: BenchConfig) -> BenchConfig:
 def connect(cfg: BenchConfig, options: SessionOptions) -> TargetHandle:
     """Open the configured target (spawning the emulator if asked)."""
     return open_target(cfg.link.target, profile=configured_profile(cfg), options=cfg.target, mode=options.mode,
-                       timeout_s=options.timeout_s, watchdog_ms=options.watchdog_ms)
+                       timeout_s=options.timeout_s, watchdog_ms=options.watchdog_ms,
+                                            retry_s=cfg.link.retry_ms / 1000.0)
 
 
 def run_bench(
@@ -83,17 +84,16 @@ def run_bench(
     warnings = check_run(cfg)  # impossible settings raise here, before anything is opened
     bench = Bench(cfg, record=record, scenario=True, observer=observer, control=control, keep_rows=False)
     with bench:
-        session = bench._session
+        session = bench.session
+        assert session is not None
         if on_ready is not None:
             on_ready(session)
         try:
             bench.run()
         except LinkError as exc:
-            recording = bench.recorder.path if bench._record_path is not None and bench.recorder else None
-            child = bench._handle.child_status() if bench._handle is not None else ""
             raise LinkError(
-                f"{exc}{child}; last good period {session.periods_done - 1}"
-                + (f"; recording {recording} closed with a fault marker" if recording else "")
+                f"{exc}{bench.child_status()}; last good period {session.periods_done - 1}"
+                + (f"; recording {record} closed with a fault marker" if record is not None else "")
             ) from None
         summary = bench.close()
     assert summary is not None

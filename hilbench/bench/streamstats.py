@@ -60,6 +60,13 @@ class StreamingPercentiles:
     def __len__(self) -> int:
         return self.n
 
+    def __getitem__(self, index: slice) -> list[float]:
+        """Slices of the newest values only (``rtts[-256:]``, as live displays ask): older ones
+        are folded into the histogram."""
+        if not isinstance(index, slice):
+            raise TypeError("StreamingPercentiles: only slices of the recent window")
+        return list(self.recent)[index]
+
     def percentiles(self, scale: float = 1.0) -> dict[str, float]:
         """p50, p99, max and n (values times ``scale``); empty for no values."""
         if not self.n:

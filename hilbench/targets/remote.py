@@ -44,9 +44,14 @@ def _error_name(code: int) -> str:
 class RemoteTarget:
     """A target on the far end of a link, seen through the Target interface."""
 
-    def __init__(self, link: Any, *, timeout_s: float = 1.0, protocol_version: int = PROTOCOL_VERSION) -> None:
+    def __init__(self, link: Any, *, timeout_s: float = 1.0, retry_s: float = 0.1,
+                 protocol_version: int = PROTOCOL_VERSION) -> None:
+        """``retry_s``: send a frame again after this long without its answer (a lost frame on a
+        noisy line then costs one retry, not the run); a repeated Sensors is answered by the target
+        with its last Drive, not acted on twice (the protocol's rule), so a retry is safe."""
         self.link = link
         self.timeout_s = timeout_s
+        self.retry_s = retry_s
         self.protocol_version = protocol_version
         self.firmware_name = ""
         self.target_hello: TargetHello | None = None
@@ -54,6 +59,7 @@ class RemoteTarget:
         self.error_reports = 0
         self.last_error_report: ErrorReport | None = None
         self.watchdog_ms = 0
+        self.retries = 0  # frames sent again after no answer within retry_s (a lost frame either way)
         self._req_seq = 0
         self._send = link.send
         self._recv = link.recv
@@ -66,17 +72,23 @@ class RemoteTarget:
     def _request(self, msg: Any, reply_type: type, timeout_s: float | None = None) -> Any:
         """Send msg and wait for reply_type (or an ErrorReport) with msg's seq."""
         self._send(msg)
+        sent = time.monotonic()
         timeout = self.timeout_s if timeout_s is None else timeout_s
-        deadline = time.monotonic() + timeout
+        deadline = sent + timeout
+        resend_at = sent + self.retry_s
         while True:
-            remaining = deadline - time.monotonic()
+            now = time.monotonic()
+            remaining = deadline - now
             if remaining <= 0:
                 raise LinkTimeout(
                     f"link {self.link.name}: no {reply_type.__name__} for {type(msg).__name__} within {timeout * 1000:.0f} ms"
                 )
-            try:
-                reply = self._recv(remaining)
-            except LinkTimeout:
+            if now >= resend_at:  # requests are idempotent: asking again is safe
+                self.retries += 1
+                self._send(msg)
+                resend_at = now + self.retry_s
+            reply = self.link.recv_or_none(min(remaining, max(resend_at - now, 1e-4)))
+            if reply is None:
                 continue
             kind = type(reply)
             if reply.seq == msg.seq and (kind is reply_type or kind is ErrorReport):
@@ -175,22 +187,33 @@ class RemoteTarget:
     def step(self, sensors: Sensors) -> Drive:
         """One exchange: Sensors out, the Drive with the same seq back (LinkTimeout if none)."""
         self._send(sensors)
-        seq = sensors.seq
-        msg = self._recv(self.timeout_s)
-        if type(msg) is Drive and msg.seq == seq:
+        msg = self.link.recv_or_none(self.retry_s)
+        if type(msg) is Drive and msg.seq == sensors.seq:
             return msg
-        self._note_stray(msg)
-        return self._step_slow(seq)
+        if msg is not None:
+            self._note_stray(msg)
+        return self._step_slow(sensors)
 
-    def _step_slow(self, seq: int) -> Drive:
-        # the first frame was something else (late Drive, stray reply): skip until ours or timeout
-        deadline = time.monotonic() + self.timeout_s
+    def _step_slow(self, sensors: Sensors) -> Drive:
+        """The first answer was late, lost or something else: skip strays, send the same Sensors
+        again every retry_s (the target answers a repeated seq with its last Drive), until ours
+        arrives or the timeout."""
+        seq = sensors.seq
+        start = time.monotonic()
+        deadline = start + self.timeout_s
+        resend_at = start + self.retry_s
         while True:
-            remaining = deadline - time.monotonic()
-            if remaining <= 0:
+            now = time.monotonic()
+            if now >= deadline:
                 raise LinkTimeout(f"link {self.link.name}: no Drive for Sensors seq {seq} within "
-                                  f"{self.timeout_s * 1000:.0f} ms")
-            msg = self._recv(remaining)
+                                  f"{self.timeout_s * 1000:.0f} ms ({self.retries} retries so far)")
+            if now >= resend_at:
+                self.retries += 1
+                self._send(sensors)
+                resend_at = now + self.retry_s
+            msg = self.link.recv_or_none(min(deadline - now, max(resend_at - now, 1e-4)))
+            if msg is None:
+                continue
             if type(msg) is Drive and msg.seq == seq:
                 return msg
             self._note_stray(msg)
