@@ -26,7 +26,7 @@ from hilbench.bench.faults import SensorFaults
 from hilbench.bench.livetuning import GuardSettings, LiveTuning
 from hilbench.bench.pacing import RealtimePacing, SessionAborted
 from hilbench.bench.recorder import MARKER_EVENT, MARKER_FAULT, MARKER_PARAM, Recorder, fields_struct
-from hilbench.bench.scenario import Event, Ramp, ScenarioPlayer
+from hilbench.bench.scenario import PERIOD_TOLERANCE, Event, Ramp, ScenarioPlayer, first_period_at
 from hilbench.bench.summary import Segment, Snapshot, Summary, percentiles
 from hilbench.errors import HilbenchError, LinkError, ParamError, TargetError
 from hilbench.protocol import (
@@ -290,22 +290,22 @@ class Session:
     # ------------------------------------------------------------------ the parts' periods
     def _scenario_due(self, k: int) -> None:
         """Scenario events, ramps, the button release and fault expiry due in period k."""
-        t_s = k * self._period_s
-        if t_s >= self.player.next_t_s:
-            for event in self.player.due(t_s):
+        t_s, period_s = k * self._period_s, self._period_s
+        if first_period_at(self.player.next_t_s, period_s) <= k:
+            for event in self.player.due(t_s, period_s):
                 self._apply(event, t_s)
             if self._end_reason is not None:
                 return
         if self.player.ramps:
             self._tick_ramps(t_s)
-        if t_s >= self._button_release_s:
+        if first_period_at(self._button_release_s, period_s) <= k:
             self._buttons = 0
             self._button_release_s = math.inf
-        if t_s >= self.faults.clear_at_s:
+        if first_period_at(self.faults.clear_at_s, period_s) <= k:
             self.faults.apply("clear", t_s, None)
         self._scenario_k = first_period_at(min(
             self.player.next_t_s, self._button_release_s, self.faults.clear_at_s,
-            t_s + self._period_s if self.player.ramps else math.inf), self._period_s)
+            t_s + period_s if self.player.ramps else math.inf), period_s)
 
     def _live_due(self, k: int, drive: Any, guard_ref_rpm: float) -> None:
         """Every history period: the guard's look, `ctl step` progress, the control socket."""
@@ -709,19 +709,6 @@ class Session:
         return segments
 
 
-def first_period_at(t_s: float, period_s: float) -> float:
-    """The first period k with k * period_s >= t_s (the loop compares k, not times); inf beyond
-    any run (k * period_s no longer changes by one period when k passes 2^52)."""
-    if t_s == math.inf or not t_s / period_s < 2.0**50:
-        return math.inf
-    k = max(0, math.ceil(t_s / period_s))
-    while k > 0 and (k - 1) * period_s >= t_s:
-        k -= 1
-    while k * period_s < t_s:
-        k += 1
-    return k
-
-
 __all__ = [
     "GuardSettings",
     "Segment",
@@ -731,4 +718,5 @@ __all__ = [
     "Snapshot",
     "Summary",
     "first_period_at",
+    "PERIOD_TOLERANCE",
 ]
