@@ -240,6 +240,7 @@ static PyObject *Core_step(Core *s, PyObject *const *args, Py_ssize_t nargs)
     long long n0 = s->nidx;
     int have_edge = 0;
     double edge = 0.0;
+    double e_in = 0.0; /* the period's input energy / (1.5 |v|), as model.py */
     for (int jj = 0; jj < nsub; jj++) {
         double ij, fr;
         if (s->locked) {
@@ -260,22 +261,31 @@ static PyObject *Core_step(Core *s, PyObject *const *args, Py_ssize_t nargs)
         double ftj = (fr + tl) * ij, kvj = kv * ij, ktj, krj;
         if (ij == 0.0) { ktj = krj = 0.0; } else { ktj = kt; krj = kr; }
         double x0 = phi - th0, a, b, w, x;
-        double k1d = vdm * cos(x0) + w0 * pq * iq0 - rd * id0;
-        double k1q = vqm * sin(x0) - w0 * (pd * id0 + ppsi) - rq * iq0;
+        double cc = cos(x0), ss = sin(x0);
+        double p1 = cc * id0 + ss * iq0;
+        double k1d = vdm * cc + w0 * pq * iq0 - rd * id0;
+        double k1q = vqm * ss - w0 * (pd * id0 + ppsi) - rq * iq0;
         double k1w = iq0 * (ktj + krj * id0) - kvj * w0 - ftj;
         a = id0 + h2 * k1d; b = iq0 + h2 * k1q; w = w0 + h2 * k1w; x = x0 - h2 * p * w0;
-        double k2d = vdm * cos(x) + w * pq * b - rd * a;
-        double k2q = vqm * sin(x) - w * (pd * a + ppsi) - rq * b;
+        cc = cos(x); ss = sin(x);
+        double p2 = cc * a + ss * b;
+        double k2d = vdm * cc + w * pq * b - rd * a;
+        double k2q = vqm * ss - w * (pd * a + ppsi) - rq * b;
         double k2w = b * (ktj + krj * a) - kvj * w - ftj;
         double w2 = w;
         a = id0 + h2 * k2d; b = iq0 + h2 * k2q; w = w0 + h2 * k2w; x = x0 - h2 * p * w2;
-        double k3d = vdm * cos(x) + w * pq * b - rd * a;
-        double k3q = vqm * sin(x) - w * (pd * a + ppsi) - rq * b;
+        cc = cos(x); ss = sin(x);
+        double p3 = cc * a + ss * b;
+        double k3d = vdm * cc + w * pq * b - rd * a;
+        double k3q = vqm * ss - w * (pd * a + ppsi) - rq * b;
         double k3w = b * (ktj + krj * a) - kvj * w - ftj;
         double w3 = w;
         a = id0 + h * k3d; b = iq0 + h * k3q; w = w0 + h * k3w; x = x0 - h * p * w3;
-        double k4d = vdm * cos(x) + w * pq * b - rd * a;
-        double k4q = vqm * sin(x) - w * (pd * a + ppsi) - rq * b;
+        cc = cos(x); ss = sin(x);
+        double p4 = cc * a + ss * b;
+        e_in += h6 * (p1 + 2.0 * (p2 + p3) + p4);
+        double k4d = vdm * cc + w * pq * b - rd * a;
+        double k4q = vqm * ss - w * (pd * a + ppsi) - rq * b;
         double k4w = b * (ktj + krj * a) - kvj * w - ftj;
         id0 = id0 + h6 * (k1d + 2.0 * (k2d + k3d) + k4d);
         iq0 = iq0 + h6 * (k1q + 2.0 * (k2q + k3q) + k4q);
@@ -310,7 +320,8 @@ static PyObject *Core_step(Core *s, PyObject *const *args, Py_ssize_t nargs)
     double ib = -0.5 * ia + HALF_SQRT3 * ibe;
     double ic = -0.5 * ia - HALF_SQRT3 * ibe;
     s->i_a = ia; s->i_b = ib; s->i_c = ic;
-    s->i_bus = mode == OUTPUT_PWM ? s->da * ia + s->db * ib + s->dc * ic : 0.0;
+    /* model.Plant._bus_average: the period's mean bus current from its input energy */
+    s->i_bus = (s->vbus_v > 0.0 && dt_s > 0.0) ? (1.5 * vmag * e_in) / (s->vbus_v * dt_s) : 0.0;
     long long n = (long long)floor(((double)s->turns + th0 / TWO_PI) * (double)s->enc_cpt / p);
     set_encoder(s, n);
     Py_RETURN_NONE;

@@ -374,22 +374,26 @@ class Plant:
             self._last_mode = OUTPUT_OFF
             th0 = self._th
             self.last_edge_s = None
+            e_in0 = self.e_in_j
             self._step_off(dt_s)
             self._finish(th0, self._th - th0 + self._dturns * TWO_PI, dt_s, 0.0)
             self.t_s += dt_s
             self._sense()
+            self.i_bus = self._bus_average(self.e_in_j - e_in0, dt_s)
             return
         self._last_mode = output_mode
         nsub = self._substeps
         if self.track_energy or self._kq_any:
             h = dt_s / nsub
             self.last_edge_s = None
+            e_in0 = self.e_in_j
             for j in range(nsub):
                 th0 = self._th
                 self._rk4_general(va, vb, h)
                 self._finish(th0, self._th - th0 + self._dturns * TWO_PI, h, j * h)
             self.t_s += dt_s
             self._sense()
+            self.i_bus = self._bus_average(self.e_in_j - e_in0, dt_s)
             return
 
         # ---- hot path: RK4 in dq, inlined; the C core (_plantcore.c) mirrors it line by line ----
@@ -418,6 +422,7 @@ class Plant:
         th0 = self._th
         n0 = self._nidx
         edge = None
+        e_in = 0.0  # the period's input energy / (1.5 |v|): RK4 quadrature of vd id + vq iq
         for j in range(nsub):
             if self._locked:
                 ij = 0.0
@@ -444,16 +449,22 @@ class Plant:
                 krj = kr
             x0 = phi - th0
             # stage 1
-            k1d = vdm * cos(x0) + w0 * pq * iq0 - rd * id0
-            k1q = vqm * sin(x0) - w0 * (pd * id0 + ppsi) - rq * iq0
+            c = cos(x0)
+            s = sin(x0)
+            p1 = c * id0 + s * iq0
+            k1d = vdm * c + w0 * pq * iq0 - rd * id0
+            k1q = vqm * s - w0 * (pd * id0 + ppsi) - rq * iq0
             k1w = iq0 * (ktj + krj * id0) - kvj * w0 - ftj
             # stage 2
             a = id0 + h2 * k1d
             b = iq0 + h2 * k1q
             w = w0 + h2 * k1w
             x = x0 - h2 * p * w0
-            k2d = vdm * cos(x) + w * pq * b - rd * a
-            k2q = vqm * sin(x) - w * (pd * a + ppsi) - rq * b
+            c = cos(x)
+            s = sin(x)
+            p2 = c * a + s * b
+            k2d = vdm * c + w * pq * b - rd * a
+            k2q = vqm * s - w * (pd * a + ppsi) - rq * b
             k2w = b * (ktj + krj * a) - kvj * w - ftj
             w2 = w
             # stage 3
@@ -461,8 +472,11 @@ class Plant:
             b = iq0 + h2 * k2q
             w = w0 + h2 * k2w
             x = x0 - h2 * p * w2
-            k3d = vdm * cos(x) + w * pq * b - rd * a
-            k3q = vqm * sin(x) - w * (pd * a + ppsi) - rq * b
+            c = cos(x)
+            s = sin(x)
+            p3 = c * a + s * b
+            k3d = vdm * c + w * pq * b - rd * a
+            k3q = vqm * s - w * (pd * a + ppsi) - rq * b
             k3w = b * (ktj + krj * a) - kvj * w - ftj
             w3 = w
             # stage 4
@@ -470,8 +484,12 @@ class Plant:
             b = iq0 + h * k3q
             w = w0 + h * k3w
             x = x0 - h * p * w3
-            k4d = vdm * cos(x) + w * pq * b - rd * a
-            k4q = vqm * sin(x) - w * (pd * a + ppsi) - rq * b
+            c = cos(x)
+            s = sin(x)
+            p4 = c * a + s * b
+            e_in += h6 * (p1 + 2.0 * (p2 + p3) + p4)
+            k4d = vdm * c + w * pq * b - rd * a
+            k4q = vqm * s - w * (pd * a + ppsi) - rq * b
             k4w = b * (ktj + krj * a) - kvj * w - ftj
             id0 = id0 + h6 * (k1d + 2.0 * (k2d + k3d) + k4d)
             iq0 = iq0 + h6 * (k1q + 2.0 * (k2q + k3q) + k4q)
@@ -512,7 +530,7 @@ class Plant:
         self.i_a = ia
         self.i_b = ib
         self.i_c = ic
-        self.i_bus = self._da * ia + self._db * ib + self._dc * ic if output_mode == OUTPUT_PWM else 0.0
+        self.i_bus = self._bus_average(1.5 * vmag * e_in, dt_s)
         n = floor((self._turns + th0 / TWO_PI) * self._enc_cpt / p)
         self.encoder_count = (self._enc_sign * n + self._enc_offset) & 0xFFFF
         m = (n - self._enc_idx) // self._enc_cpt
@@ -520,6 +538,12 @@ class Plant:
         self._enc_m = m
 
     step = _step_py
+
+    def _bus_average(self, e_in_j: float, dt_s: float) -> float:
+        """The period's average bus current: the energy the inverter drew over it / (Vbus dt).
+        With the phases' own duties (or diodes) it is the mean of sum(d_x i_x), not the end sample."""
+        vbus = self.vbus_v
+        return e_in_j / (vbus * dt_s) if vbus > 0.0 and dt_s > 0.0 else 0.0
 
     def _finish(self, th0: float, dth: float, h: float, t_off: float) -> None:
         """Sector/edge bookkeeping after a (sub)step done outside the hot path (angle already
