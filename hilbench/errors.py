@@ -68,6 +68,13 @@ class RecordingError(HilbenchError):
     kind = "recording error"
 
 
+class BenchLimitError(HilbenchError):
+    """A bench limit ended the run (overspeed, bus over-voltage): what a dyno's guard would stop."""
+
+    exit_code = 7
+    kind = "bench limit"
+
+
 __all__ = [
     "HilbenchError",
     "ConfigError",
@@ -80,4 +87,5 @@ __all__ = [
     "TargetError",
     "ParamError",
     "RecordingError",
+    "BenchLimitError",
 ]

@@ -28,7 +28,7 @@ from hilbench.bench.pacing import RealtimePacing, SessionAborted
 from hilbench.bench.recorder import MARKER_EVENT, MARKER_FAULT, MARKER_PARAM, Recorder, fields_struct
 from hilbench.bench.scenario import PERIOD_TOLERANCE, Event, Ramp, ScenarioPlayer, first_period_at
 from hilbench.bench.summary import Segment, Snapshot, Summary, percentiles
-from hilbench.errors import HilbenchError, LinkError, ParamError, TargetError
+from hilbench.errors import BenchLimitError, HilbenchError, LinkError, ParamError, TargetError
 from hilbench.protocol import (
     PROTOCOL_VERSION,
     Edge,
@@ -46,6 +46,7 @@ from hilbench.targets.registry import profile_for_firmware
 EDGE_NONE = int(Edge.NONE)
 INPUT_S2 = int(Input.S2)
 INPUT_S3 = int(Input.S3)
+INPUT_FAULT = int(Input.FAULT)
 OUTPUT_OFF = int(OutputMode.OFF)
 
 #: the plant's step is accurate to 1e-6 at 50 us; longer periods are integrated in substeps
@@ -70,6 +71,7 @@ class PlantLike(Protocol):
     vbus_v: float
     w_m: float
     t_s: float
+    fault_input: bool  # the board's overcurrent comparator, latched (drives the target's FAULT input)
 
     def step(self, duty_a: float, duty_b: float, duty_c: float, output_mode: int, dt_s: float) -> None: ...
     def adc_codes(self, roles: tuple[int, ...]) -> tuple[int, ...]: ...
@@ -101,6 +103,7 @@ class SessionOptions:
     seed: int = 0
     observe_every_periods: int = 400
     history_every_periods: int = 20
+    overspeed_rpm: float = 0.0  # bench limit ([protection] overspeed_rpm): the run ends with a fault; 0: none
 
 
 @dataclass
@@ -166,6 +169,7 @@ class Session:
         self._record_host_ref = False
         self._qos: CpuLatencyRequest | None = None
         self._pacing: RealtimePacing | None = None
+        self._trip_noted = False  # the overcurrent comparator's trip is an event once per latch
         self.display: Any = None  # the scope's display stream (hilbench.scope.stream), made by `stream`
 
     # ------------------------------------------------------------------ handshake
@@ -389,7 +393,7 @@ class Session:
             self._stop_target()
             self._close(f"interrupted at period {self.periods_done}")
             raise
-        except (LinkError, TargetError, SessionAborted) as exc:
+        except (LinkError, TargetError, SessionAborted, BenchLimitError) as exc:
             summary.end_reason = "fault"
             summary.fault = str(exc)
             self._end_reason = "fault"
@@ -429,6 +433,7 @@ class Session:
         edge_s, drive, guard_ref, sensor_faults, k = self._edge_s, self._drive, self._guard_ref, self.faults.active, k_from
         due_k = self._scenario_k  # the next period the scenario part asked for
         buttons, encoder_offset = self._buttons, faults.encoder_offset  # both change only when a part is due
+        overspeed = self.options.overspeed_rpm / RPM_PER_RAD_S if self.options.overspeed_rpm > 0 else math.inf
         if pacing is not None:
             pacing.start_at(k_from)
         try:
@@ -448,7 +453,8 @@ class Session:
                 if sensor_faults:
                     hall, edge = faults.filter(hall, edge)
                     sensor_faults = faults.active
-                sensors = new_sensors(Sensors, (k & 0xFF, hall | buttons, edge, (plant.encoder_count + encoder_offset) & 0xFFFF,
+                tripped = plant.fault_input  # the board's overcurrent comparator drives FAULT
+                sensors = new_sensors(Sensors, (k & 0xFF, (hall | buttons | INPUT_FAULT) if tripped else (hall | buttons), edge, (plant.encoder_count + encoder_offset) & 0xFFFF,
                                                 plant.adc_codes(roles)))
                 if pacing is not None:
                     drive = pacing.exchange(k, sensors, drive, target_step)
@@ -460,6 +466,8 @@ class Session:
                     drive = target_step(sensors)
                     rtts.append(perf() - sent)
                 _, da, db, dc, mode, state, sector, _, _, fault, tele = drive
+                if tripped:
+                    self._comparator(k, mode)
                 if scale:  # no delay, one plant step per period
                     plant_step(da * scale, db * scale, dc * scale, mode, period_s)
                     edge_s = plant.last_edge_s
@@ -475,10 +483,28 @@ class Session:
                     plant_state(rows)
                 if k % history_every == 0:
                     guard_ref = self._sample(k, drive, pacing)
+                if not k & 15 and not -overspeed <= plant.w_m <= overspeed:
+                    self._end_on_limit(k, f"overspeed: the plant turns at {plant.w_m * RPM_PER_RAD_S:.0f} rpm, beyond the "
+                                          f"{self.options.overspeed_rpm:g} rpm limit ([protection] overspeed_rpm)")
         finally:
             self.periods_done = k
             self._edge_s, self._drive, self._guard_ref = edge_s, drive, guard_ref
         return k_to
+
+    def _comparator(self, k: int, mode: int) -> None:
+        """The overcurrent comparator's latch is set: note the trip once; the firmware turning its
+        outputs off (its stop) clears the latch, as a stop/start re-arms the MCLV's FLTA."""
+        if not self._trip_noted:
+            self._trip_noted = True
+            self._note(k * self._period_s, "overcurrent: the board's comparator tripped, FAULT input set")
+        if mode == OUTPUT_OFF:
+            self.plant.fault_input = False
+            self._trip_noted = False
+
+    def _end_on_limit(self, k: int, reason: str) -> None:
+        """A bench limit ends the run (the caller's `advance` closes it with a fault marker)."""
+        self._note(k * self._period_s, reason)
+        raise BenchLimitError(f"{self.target_label}: {reason} at t={k * self._period_s:.4f} s")
 
     def _actuator(self) -> Callable[[Any], float | None]:
         """Integrate the plant over a period with a Drive (or the one `actuation_delay_periods` before);

@@ -119,6 +119,7 @@ def session_options(cfg: BenchConfig) -> SessionOptions:
         max_consecutive_overruns=link.max_consecutive_overruns,
         cpu_latency_qos=link.cpu_latency_qos,
         seed=run.seed,
+        overspeed_rpm=cfg.protection.overspeed_rpm,
     )
 
 

@@ -27,6 +27,10 @@ speed that crosses zero inside a substep is set to zero and the rotor sticks aga
 Sensors (`i_a, i_b, i_c, i_bus, encoder_count, hall_bits, last_edge_s`) are plain attributes
 refreshed at the end of every step, so the bench reads them at attribute cost.
 
+Protection (ProtectionParams): an overcurrent comparator on the end-of-period phase currents sets
+`fault_input` (latched; the bench clears it) and, with `gate_off_on_fault`, every later period runs
+OFF until it is cleared: the board's hardware trip, whatever the firmware does.
+
 Output modes: PWM (1) averaged duties; LOW_SIDE (2) the three phases shorted to the negative rail;
 OFF (0, and the reserved 3) all six switches open: see `_step_off`.
 """
@@ -123,6 +127,9 @@ class Plant:
         inv = params.inverter
         self.vbus_v = float(inv.vbus_v)
         self._dt_duty = float(inv.dead_time_s * inv.pwm_freq_hz) if inv.dead_time_enabled else 0.0
+        prot = params.protection
+        self._oc = float(prot.overcurrent_a)  # the board's comparator on |phase current| (0: none)
+        self._gate_off = bool(prot.gate_off_on_fault)
         self._hall_base = (SECTOR0_START_RAD + math.radians(params.hall.offset_deg)) % TWO_PI
         enc = params.encoder
         self._enc_cpt = 4 * int(enc.lines)
@@ -165,6 +172,7 @@ class Plant:
         self._turns = math.floor(th / TWO_PI)
         self._th = th - self._turns * TWO_PI
         self.t_s = 0.0
+        self.fault_input = False  # the overcurrent comparator's latched output (the target's FAULT input)
         self._stuck = self.w_m == 0.0 and self._tc > 0.0
         self._nidx = math.floor((self._th - self._hall_base) / SIXTY)
         self._sector = self._nidx % 6
@@ -197,6 +205,9 @@ class Plant:
         self.i_a = ia
         self.i_b = ib
         self.i_c = ic
+        oc = self._oc
+        if oc > 0.0 and (ia > oc or ia < -oc or ib > oc or ib < -oc or ic > oc or ic < -oc):
+            self.fault_input = True
         mode = self._last_mode
         if mode == OUTPUT_PWM:
             self.i_bus = self._da * ia + self._db * ib + self._dc * ic
@@ -352,7 +363,10 @@ class Plant:
     # ----------------------------------------------------------------- stepping
     def _step_py(self, duty_a: float, duty_b: float, duty_c: float, output_mode: int, dt_s: float) -> None:
         """Integrate one period with the duties (fractions 0..1) held over it (Python backend;
-        the C backend calls this for the cases it leaves to Python)."""
+        the C backend calls this for the cases it leaves to Python). While the overcurrent comparator's
+        latch is set and gates the switches off, every mode is OFF."""
+        if self.fault_input and self._gate_off:
+            output_mode = OUTPUT_OFF
         if output_mode == OUTPUT_PWM:
             vbus = self.vbus_v
             dtd = self._dt_duty
@@ -530,6 +544,9 @@ class Plant:
         self.i_a = ia
         self.i_b = ib
         self.i_c = ic
+        oc = self._oc
+        if oc > 0.0 and (ia > oc or ia < -oc or ib > oc or ib < -oc or ic > oc or ic < -oc):
+            self.fault_input = True
         self.i_bus = self._bus_average(1.5 * vmag * e_in, dt_s)
         n = floor((self._turns + th0 / TWO_PI) * self._enc_cpt / p)
         self.encoder_count = (self._enc_sign * n + self._enc_offset) & 0xFFFF
