@@ -124,6 +124,8 @@ _RANGES: dict[type, dict[str, dict[str, Any]]] = {
     ProtectionParams: {
         "overcurrent_a": spec(unit="A", ge=0, le=1e5, doc="overcurrent comparator on the peak phase current, drives FAULT (0: none)"),
         "overspeed_rpm": spec(unit="rpm", ge=0, le=1e6, doc="bench limit: the run ends with a fault (0: none)"),
+        "bus_capacitance_f": spec(unit="F", ge=0, le=10, doc="bus capacitor charged by regeneration (0: a stiff bus)"),
+        "overvoltage_v": spec(unit="V", ge=0, le=1e4, doc="bench limit on the bus voltage (0: none)"),
     },
     LoadProfile: {
         "torque_nm": spec(unit="N*m", ge=-1e3, le=1e3),

@@ -145,3 +145,19 @@ def test_an_active_load_turns_a_stopped_motor_to_the_bench_limit_a_passive_one_d
             assert bench.speed_rpm == 0.0
     if LOAD_IS_ACTIVE[kind]:
         assert bench.signals()["marker"][-1] == MARKER_FAULT
+
+
+def test_regeneration_charges_the_bus_capacitor_to_the_over_voltage_limit() -> None:
+    """An active load turns the stopped motor past the speed where its line back-EMF (7.32 V/krpm)
+    exceeds the 24 V bus: the open bridge's diodes return current, which charges 100 uF."""
+    cfg = hilbench.load_config(None, ['link.target="inprocess:an1017"', "protection.overspeed_rpm=0",
+                                      "protection.bus_capacitance_f=100e-6", "protection.overvoltage_v=30"])
+    with hilbench.Bench(cfg) as bench:
+        bench.set_load(0.2)
+        with pytest.raises(BenchLimitError, match="over-voltage"):
+            bench.run(1.0)
+    signals = bench.signals()
+    assert signals["marker"][-1] == MARKER_FAULT
+    speed = abs(float(signals["speed_rpm"][-1]))
+    assert speed > 24.0 / 7.32 * 1000  # the diodes conduct only above ~3.3 krpm
+    assert float(np.min(signals["ibus_a"])) < 0.0  # regeneration: current back into the bus

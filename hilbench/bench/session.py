@@ -104,6 +104,8 @@ class SessionOptions:
     observe_every_periods: int = 400
     history_every_periods: int = 20
     overspeed_rpm: float = 0.0  # bench limit ([protection] overspeed_rpm): the run ends with a fault; 0: none
+    bus_capacitance_f: float = 0.0  # the bus capacitor regeneration charges ([protection]); 0: a stiff bus
+    overvoltage_v: float = 0.0  # bench limit on the bus voltage; 0: none
 
 
 @dataclass
@@ -170,6 +172,7 @@ class Session:
         self._qos: CpuLatencyRequest | None = None
         self._pacing: RealtimePacing | None = None
         self._trip_noted = False  # the overcurrent comparator's trip is an event once per latch
+        self._supply_v = plant.vbus_v  # the bench supply's voltage (the bus rises above it only with a capacitor)
         self.display: Any = None  # the scope's display stream (hilbench.scope.stream), made by `stream`
 
     # ------------------------------------------------------------------ handshake
@@ -261,7 +264,7 @@ class Session:
             if event.ramp_s > 0:
                 self.player.ramps["vbus_v"] = Ramp(t_s, t_s + event.ramp_s, plant.vbus_v, event.vbus_v)
             else:
-                plant.vbus_v = event.vbus_v
+                plant.vbus_v = self._supply_v = event.vbus_v
         elif event.press is not None:
             self.press(event.press, t_s)
         elif event.fault is not None:
@@ -287,7 +290,7 @@ class Session:
             if kind == "ref_rpm":
                 self.set_reference(value)
             elif kind == "vbus_v":
-                self.plant.vbus_v = value
+                self.plant.vbus_v = self._supply_v = value
             if t_s >= ramp.t1:
                 del self.player.ramps[kind]
 
@@ -434,6 +437,7 @@ class Session:
         due_k = self._scenario_k  # the next period the scenario part asked for
         buttons, encoder_offset = self._buttons, faults.encoder_offset  # both change only when a part is due
         overspeed = self.options.overspeed_rpm / RPM_PER_RAD_S if self.options.overspeed_rpm > 0 else math.inf
+        capacitor = self.options.bus_capacitance_f > 0.0 or self.options.overvoltage_v > 0.0
         if pacing is not None:
             pacing.start_at(k_from)
         try:
@@ -486,6 +490,8 @@ class Session:
                 if not k & 15 and not -overspeed <= plant.w_m <= overspeed:
                     self._end_on_limit(k, f"overspeed: the plant turns at {plant.w_m * RPM_PER_RAD_S:.0f} rpm, beyond the "
                                           f"{self.options.overspeed_rpm:g} rpm limit ([protection] overspeed_rpm)")
+                if capacitor:
+                    self._bus(k)
         finally:
             self.periods_done = k
             self._edge_s, self._drive, self._guard_ref = edge_s, drive, guard_ref
@@ -500,6 +506,18 @@ class Session:
         if mode == OUTPUT_OFF:
             self.plant.fault_input = False
             self._trip_noted = False
+
+    def _bus(self, k: int) -> None:
+        """The bus capacitor over period k: the supply only sources, so the bus rises above it while
+        the bridge returns energy (the period's mean bus current is negative), and falls back to it as
+        the bridge draws again; then the over-voltage limit."""
+        plant, options = self.plant, self.options
+        if options.bus_capacitance_f > 0.0:
+            charged = plant.vbus_v - plant.i_bus * self._period_s / options.bus_capacitance_f  # type: ignore[attr-defined]
+            plant.vbus_v = charged if charged > self._supply_v else self._supply_v
+        if 0.0 < options.overvoltage_v < plant.vbus_v:
+            self._end_on_limit(k, f"over-voltage: the bus is at {plant.vbus_v:.1f} V, beyond the {options.overvoltage_v:g} V "
+                                  f"limit ([protection] overvoltage_v)")
 
     def _end_on_limit(self, k: int, reason: str) -> None:
         """A bench limit ends the run (the caller's `advance` closes it with a fault marker)."""

@@ -120,6 +120,8 @@ def session_options(cfg: BenchConfig) -> SessionOptions:
         cpu_latency_qos=link.cpu_latency_qos,
         seed=run.seed,
         overspeed_rpm=cfg.protection.overspeed_rpm,
+        bus_capacitance_f=cfg.protection.bus_capacitance_f,
+        overvoltage_v=cfg.protection.overvoltage_v,
     )
 
 

@@ -202,11 +202,17 @@ class ProtectionParams:
     Hurst's maximum in Microchip's Harmony motor table (hurst075.h: 3500 rpm with field
     weakening), above the 3.2-3.3 krpm the motor reaches at 24 V (Ke = 7.32 V/krpm) and below
     the speed at which its back-EMF, rectified by the open bridge's diodes, would drive more than
-    1 A into the 24 V bus ((7.32 x 4 - 24) V / 2 Rs)."""
+    1 A into the 24 V bus ((7.32 x 4 - 24) V / 2 Rs).
+    bus_capacitance_f: the bus capacitor that regeneration charges (0: a stiff bus, the default:
+    the MCLV's capacitance and its supply's behaviour are not public). With it the supply only
+    sources: Vbus rises above the supply's voltage while the bridge returns energy.
+    overvoltage_v: a bench limit on that bus voltage (0: none)."""
 
     overcurrent_a: float = 3.0
     gate_off_on_fault: bool = True
     overspeed_rpm: float = 4000.0
+    bus_capacitance_f: float = 0.0
+    overvoltage_v: float = 0.0
 
 
 @dataclass(frozen=True)
@@ -219,7 +225,7 @@ class PlantParams:
     load: LoadProfile = field(default_factory=LoadProfile)
     #: a bare plant has no board around it (physics tests drive it past any limit); a bench
     #: config's [protection] table (its defaults: ProtectionParams()) gives it the board's
-    protection: ProtectionParams = field(default_factory=lambda: ProtectionParams(0.0, False, 0.0))
+    protection: ProtectionParams = field(default_factory=lambda: ProtectionParams(0.0, False, 0.0, 0.0, 0.0))
 
     @classmethod
     def hurst(cls) -> "PlantParams":
