@@ -42,6 +42,7 @@ from hilbench.plant.params import (
     LoadProfile,
     MotorParams,
     PlantParams,
+    ProtectionParams,
     default_adc_channels,
     psi_from_ke,
 )
@@ -120,6 +121,12 @@ _RANGES: dict[type, dict[str, dict[str, Any]]] = {
         "noise_lsb": spec(unit="codes", ge=0, le=65535),
         "bits": spec(ge=8, le=16),
     },
+    ProtectionParams: {
+        "overcurrent_a": spec(unit="A", ge=0, le=1e5, doc="overcurrent comparator on the peak phase current, drives FAULT (0: none)"),
+        "overspeed_rpm": spec(unit="rpm", ge=0, le=1e6, doc="bench limit: the run ends with a fault (0: none)"),
+        "bus_capacitance_f": spec(unit="F", ge=0, le=10, doc="bus capacitor charged by regeneration (0: a stiff bus)"),
+        "overvoltage_v": spec(unit="V", ge=0, le=1e4, doc="bench limit on the bus voltage (0: none)"),
+    },
     LoadProfile: {
         "torque_nm": spec(unit="N*m", ge=-1e3, le=1e3),
         "step_time_s": spec(unit="s", ge=0),
@@ -161,6 +168,7 @@ register_section("encoder", EncoderParams)
 register_section("adc", AdcChannel, many=True)
 register_section("load", LoadProfile)
 register_section("plant", PlantSection)
+register_section("protection", ProtectionParams)
 
 
 @dataclass(frozen=True)
@@ -594,6 +602,7 @@ def plant_params_from_config(cfg: BenchConfig) -> PlantParams:
         encoder=cfg.encoder,
         adc=tuple(cfg.adc),
         load=cfg.load,
+        protection=cfg.protection,
     )
 
 

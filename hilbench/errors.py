@@ -76,6 +76,13 @@ class SimulationError(HilbenchError):
     kind = "simulation error"
 
 
+class BenchLimitError(HilbenchError):
+    """A bench limit ended the run (overspeed, bus over-voltage): what a dyno's guard would stop."""
+
+    exit_code = 8
+    kind = "bench limit"
+
+
 __all__ = [
     "HilbenchError",
     "ConfigError",
@@ -89,4 +96,5 @@ __all__ = [
     "ParamError",
     "RecordingError",
     "SimulationError",
+    "BenchLimitError",
 ]

@@ -306,10 +306,13 @@ class Bench:
 
 def configured_profile(cfg: BenchConfig) -> TargetProfile | None:
     """The profile the config names (by its target spec, or [link] firmware for a port), else None:
-    a board's profile is then found by the firmware name in its HELLO."""
+    a board's profile is then found by the firmware name in its HELLO.
+    Refuses a plant whose pole pairs differ from the firmware's build (settings.check_motor_build)."""
     if settings.target_name(cfg.link.target) is None and cfg.link.firmware is None:
         return None
-    return settings.target_profile(cfg.link)
+    profile = settings.target_profile(cfg.link)
+    settings.check_motor_build(cfg, profile)
+    return profile
 
 
 def _finite(value: float, what: str) -> float:

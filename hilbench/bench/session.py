@@ -27,11 +27,11 @@ from hilbench.bench.faults import SensorFaults
 from hilbench.bench.livetuning import GuardSettings, LiveTuning
 from hilbench.bench.pacing import RealtimePacing, SessionAborted
 from hilbench.bench.recorder import MARKER_EVENT, MARKER_FAULT, MARKER_PARAM, Recorder, fields_struct
-from hilbench.bench.scenario import Event, Ramp, ScenarioPlayer
+from hilbench.bench.scenario import PERIOD_TOLERANCE, Event, Ramp, ScenarioPlayer, first_period_at
 from hilbench.bench import segments as segmentation
 from hilbench.bench.streamstats import StreamingPercentiles
 from hilbench.bench.summary import Segment, Snapshot, Summary, percentiles
-from hilbench.errors import HilbenchError, LinkError, ParamError, ProtocolError, SimulationError, TargetError
+from hilbench.errors import BenchLimitError, HilbenchError, LinkError, ParamError, ProtocolError, SimulationError, TargetError
 from hilbench.protocol import (
     PROTOCOL_VERSION,
     Edge,
@@ -50,6 +50,7 @@ EDGE_NONE = int(Edge.NONE)
 INPUT_S2 = int(Input.S2)
 INPUT_S3 = int(Input.S3)
 INPUT_INDEX = int(Input.INDEX)
+INPUT_FAULT = int(Input.FAULT)
 OUTPUT_OFF = int(OutputMode.OFF)
 
 #: the plant's step is accurate to 1e-6 at 50 us; longer periods are integrated in substeps
@@ -78,6 +79,7 @@ class PlantLike(Protocol):
     vbus_v: float
     w_m: float
     t_s: float
+    fault_input: bool  # the board's overcurrent comparator, latched (drives the target's FAULT input)
 
     def step(self, duty_a: float, duty_b: float, duty_c: float, output_mode: int, dt_s: float) -> None: ...
     def adc_codes(self, roles: tuple[int, ...]) -> tuple[int, ...]: ...
@@ -109,6 +111,9 @@ class SessionOptions:
     seed: int = 0
     observe_every_periods: int = 400
     history_every_periods: int = 20
+    overspeed_rpm: float = 0.0  # bench limit ([protection] overspeed_rpm): the run ends with a fault; 0: none
+    bus_capacitance_f: float = 0.0  # the bus capacitor regeneration charges ([protection]); 0: a stiff bus
+    overvoltage_v: float = 0.0  # bench limit on the bus voltage; 0: none
 
 
 @dataclass
@@ -176,6 +181,8 @@ class Session:
         self._record_host_ref = False
         self._qos: CpuLatencyRequest | None = None
         self._pacing: RealtimePacing | None = None
+        self._trip_noted = False  # the overcurrent comparator's trip is an event once per latch
+        self._supply_v = plant.vbus_v  # the bench supply's voltage (the bus rises above it only with a capacitor)
         self.display: Any = None  # the scope's display stream (hilbench.scope.stream), made by `stream`
 
     # ------------------------------------------------------------------ handshake
@@ -287,7 +294,7 @@ class Session:
             if event.ramp_s > 0:
                 self.player.ramps["vbus_v"] = Ramp(t_s, t_s + event.ramp_s, plant.vbus_v, event.vbus_v)
             else:
-                plant.vbus_v = event.vbus_v
+                plant.vbus_v = self._supply_v = event.vbus_v
         elif event.press is not None:
             self.press(event.press, t_s)
             if event.press == "s2":
@@ -318,29 +325,29 @@ class Session:
             if kind == "ref_rpm":
                 self.set_reference(value)
             elif kind == "vbus_v":
-                self.plant.vbus_v = value
+                self.plant.vbus_v = self._supply_v = value
             if t_s >= ramp.t1:
                 del self.player.ramps[kind]
 
     # ------------------------------------------------------------------ the parts' periods
     def _scenario_due(self, k: int) -> None:
         """Scenario events, ramps, the button release and fault expiry due in period k."""
-        t_s = k * self._period_s
-        if t_s >= self.player.next_t_s:
-            for event in self.player.due(t_s):
+        t_s, period_s = k * self._period_s, self._period_s
+        if first_period_at(self.player.next_t_s, period_s) <= k:
+            for event in self.player.due(t_s, period_s):
                 self._apply(event, t_s)
             if self._end_reason is not None:
                 return
         if self.player.ramps:
             self._tick_ramps(t_s)
-        if t_s >= self._button_release_s:
+        if first_period_at(self._button_release_s, period_s) <= k:
             self._buttons = 0
             self._button_release_s = math.inf
-        if t_s >= self.faults.clear_at_s:
+        if first_period_at(self.faults.clear_at_s, period_s) <= k:
             self.faults.apply("clear", t_s, None)
         self._scenario_k = first_period_at(min(
             self.player.next_t_s, self._button_release_s, self.faults.clear_at_s,
-            t_s + self._period_s if self.player.ramps else math.inf), self._period_s)
+            t_s + period_s if self.player.ramps else math.inf), period_s)
 
     def _live_due(self, k: int, drive: Any, guard_ref_rpm: float) -> None:
         """Every history period: the guard's look, `ctl step` progress, the control socket."""
@@ -430,7 +437,7 @@ class Session:
             self._stop_target()
             self._close(f"interrupted at period {self.periods_done}")
             raise
-        except (LinkError, TargetError, SessionAborted, SimulationError) as exc:
+        except (LinkError, TargetError, SessionAborted, SimulationError, BenchLimitError) as exc:
             summary.end_reason = "fault"
             summary.fault = str(exc)
             self._end_reason = "fault"
@@ -487,6 +494,8 @@ class Session:
         due_k = self._scenario_k  # the next period the scenario part asked for
         buttons, encoder_offset = self._buttons, faults.encoder_offset  # both change only when a part is due
         index_bit = INPUT_INDEX if self.profile.has("encoder") else 0  # the encoder's index mark, when read
+        overspeed = self.options.overspeed_rpm / RPM_PER_RAD_S if self.options.overspeed_rpm > 0 else math.inf
+        capacitor = self.options.bus_capacitance_f > 0.0 or self.options.overvoltage_v > 0.0
         if pacing is not None:
             pacing.start_at(k_from)
         try:
@@ -509,6 +518,8 @@ class Session:
                 inputs = hall | buttons
                 if index_bit and plant.encoder_index:
                     inputs |= index_bit
+                if plant.fault_input:  # the board's overcurrent comparator drives FAULT
+                    inputs |= INPUT_FAULT
                 sensors = new_sensors(Sensors, (k & 0xFF, inputs, edge, (plant.encoder_count + encoder_offset) & 0xFFFF,
                                                 plant.adc_codes(roles)))
                 if pacing is not None:
@@ -521,6 +532,8 @@ class Session:
                     drive = target_step(sensors)
                     rtts.append(perf() - sent)
                 _, da, db, dc, mode, state, sector, _, _, fault, tele = drive
+                if tripped:
+                    self._comparator(k, mode)
                 if scale:  # no delay, one plant step per period
                     plant_step(da * scale, db * scale, dc * scale, mode, period_s)
                     edge_s = plant.last_edge_s
@@ -536,10 +549,42 @@ class Session:
                     plant_state(rows)
                 if k % history_every == 0:
                     guard_ref = self._sample(k, drive, pacing)
+                if not k & 15 and not -overspeed <= plant.w_m <= overspeed:
+                    self._end_on_limit(k, f"overspeed: the plant turns at {plant.w_m * RPM_PER_RAD_S:.0f} rpm, beyond the "
+                                          f"{self.options.overspeed_rpm:g} rpm limit ([protection] overspeed_rpm)")
+                if capacitor:
+                    self._bus(k)
         finally:
             self.periods_done = k
             self._edge_s, self._drive, self._guard_ref = edge_s, drive, guard_ref
         return k_to
+
+    def _comparator(self, k: int, mode: int) -> None:
+        """The overcurrent comparator's latch is set: note the trip once; the firmware turning its
+        outputs off (its stop) clears the latch, as a stop/start re-arms the MCLV's FLTA."""
+        if not self._trip_noted:
+            self._trip_noted = True
+            self._note(k * self._period_s, "overcurrent: the board's comparator tripped, FAULT input set")
+        if mode == OUTPUT_OFF:
+            self.plant.fault_input = False
+            self._trip_noted = False
+
+    def _bus(self, k: int) -> None:
+        """The bus capacitor over period k: the supply only sources, so the bus rises above it while
+        the bridge returns energy (the period's mean bus current is negative), and falls back to it as
+        the bridge draws again; then the over-voltage limit."""
+        plant, options = self.plant, self.options
+        if options.bus_capacitance_f > 0.0:
+            charged = plant.vbus_v - plant.i_bus * self._period_s / options.bus_capacitance_f  # type: ignore[attr-defined]
+            plant.vbus_v = charged if charged > self._supply_v else self._supply_v
+        if 0.0 < options.overvoltage_v < plant.vbus_v:
+            self._end_on_limit(k, f"over-voltage: the bus is at {plant.vbus_v:.1f} V, beyond the {options.overvoltage_v:g} V "
+                                  f"limit ([protection] overvoltage_v)")
+
+    def _end_on_limit(self, k: int, reason: str) -> None:
+        """A bench limit ends the run (the caller's `advance` closes it with a fault marker)."""
+        self._note(k * self._period_s, reason)
+        raise BenchLimitError(f"{self.target_label}: {reason} at t={k * self._period_s:.4f} s")
 
     def _actuator(self) -> Callable[[Any], float | None]:
         """Integrate the plant over a period with a Drive (or the one `actuation_delay_periods` before);
@@ -779,19 +824,6 @@ class Session:
             summary.rows_recorded = self.recorder.rows_written
 
 
-def first_period_at(t_s: float, period_s: float) -> float:
-    """The first period k with k * period_s >= t_s (the loop compares k, not times); inf beyond
-    any run (k * period_s no longer changes by one period when k passes 2^52)."""
-    if t_s == math.inf or not t_s / period_s < 2.0**50:
-        return math.inf
-    k = max(0, math.ceil(t_s / period_s))
-    while k > 0 and (k - 1) * period_s >= t_s:
-        k -= 1
-    while k * period_s < t_s:
-        k += 1
-    return k
-
-
 __all__ = [
     "GuardSettings",
     "Segment",
@@ -801,4 +833,5 @@ __all__ = [
     "Snapshot",
     "Summary",
     "first_period_at",
+    "PERIOD_TOLERANCE",
 ]
