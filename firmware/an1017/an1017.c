@@ -486,7 +486,7 @@ void an1017_run(an1017_t *s, uint32_t duration_tcy, uint8_t inputs, uint8_t have
 
 uint16_t an1017_duty(const an1017_t *s, uint8_t phase)
 {
-    uint16_t d = s->pdc_active[phase];
+    uint16_t d = s->pdc_pending[phase]; /* as the PWM ISR wrote them: PDC for the next period */
     return (d > AN1017_DUTY_MAX) ? (uint16_t)AN1017_DUTY_MAX : d;
 }
 

@@ -113,7 +113,7 @@ typedef struct {
 
 /* The firmware's outputs as a Drive carries them. */
 typedef struct {
-    uint16_t duty[3];         /* PDC1..3 in effect, 0..1000 (1000 = 100 %) */
+    uint16_t duty[3];         /* PDC1..3 for the next period (the PWM ISR's last write), 0..1000 (1000 = 100 %) */
     uint8_t output_mode, state, sector, ccw, req_ccw, fault;
     int16_t telemetry[3];     /* RefSpeed, MeasuredSpeed, ControlOutput */
 } an1017_out_t;
@@ -144,7 +144,7 @@ void an1017_run(an1017_t *s, uint32_t duration_tcy, uint8_t inputs, uint8_t have
 void an1017_apply_hall(an1017_t *s, uint8_t new_bits, uint32_t offset_tcy);
 
 void an1017_outputs(const an1017_t *s, an1017_out_t *out);
-uint16_t an1017_duty(const an1017_t *s, uint8_t phase);     /* PDC in effect, 0..1000 */
+uint16_t an1017_duty(const an1017_t *s, uint8_t phase);     /* PDC as the PWM ISR last wrote it (in effect from the next boundary), 0..1000 */
 uint8_t an1017_sector_reported(const an1017_t *s);          /* 0..5, 7 = invalid */
 
 /* ---- parameters ---- */

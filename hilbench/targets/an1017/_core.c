@@ -346,7 +346,7 @@ static inline PyObject *duty_obj(int64_t d)
 
 static PyObject *fw_finish(Core *s, PyObject *seq)
 {
-    int64_t key = s->act_key, duty[3];
+    int64_t key = s->pend_key, duty[3]; /* what the PWM ISR wrote: PDC for the next period */
     svm_duties(asr(key, 16), key & 0xFFFF, duty);
     int sec = s->running ? s->sector : (SECTOR_TABLE[s->hall] & 0xFFFF);
     PyObject *tel = s->tel;

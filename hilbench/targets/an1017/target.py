@@ -3,9 +3,10 @@
 The firmware itself lives in `an1017_firmware` (plain ints, Tcy time); this module translates
 protocol messages to its inputs and its state to Drive, and owns the declared parameter table.
 
-Drive semantics: `duty_a..c` are the duty registers in effect during the last PWM period of the
-step (they were written by the PWM ISR one period earlier), so the register-update latency is
-already inside the model — the host should add no extra delay for it. PDC values above 1000
+Drive semantics (the timing contract, docs/design.md "Timing"): `duty_a..c` are the duty
+registers the PWM ISR wrote during the step's span, i.e. what PDC1..3 hold for the next PWM
+period (PWMCON2.IUE = 0 latches them at the next boundary). The plant applies them in that next
+period, so the chip's one-period register latency is there once and no more. PDC values above 1000
 (only produced by the firmware's volts = −1 start-up transient in CCW) mean 100 % and are
 reported as 1000.
 
@@ -315,11 +316,11 @@ class An1017Target:
         """
         fw = self.fw
         if fw.reference:
-            a, b, c = fw.act_duty
+            a, b, c = fw.pend_duty
             if a > 1000 or b > 1000 or c > 1000:
                 a, b, c = min(a, 1000), min(b, 1000), min(c, 1000)
         else:
-            a, b, c = self._duty_cache[fw.act_key]
+            a, b, c = self._duty_cache[fw.pend_key]
         running = fw.running
         s = fw.sector if running else SECTOR_TABLE[fw.hall] & 0xFFFF
         co = fw.control_output
@@ -408,14 +409,13 @@ class An1017Target:
                         fw.ref_speed = ref
                         tel = tail[6]
                         tail = self._tail = tail[:6] + ((ref, tel[1], tel[2]),)
-                act = fw.pend_key  # PWM ISR: last period's registers take effect ...
-                fw.act_key = act
-                phase = (fw.phase + dphase) & 0xFFFF  # ... and it writes the next ones
+                fw.act_key = fw.pend_key  # PWM ISR: last period's registers take effect ...
+                phase = (fw.phase + dphase) & 0xFFFF  # ... and it writes the next ones,
                 fw.phase = phase
-                fw.pend_key = vkey | ((phase + adv) & 0xFFFF)
+                pend = fw.pend_key = vkey | ((phase + adv) & 0xFFFF)
                 fw.t = t + 1000
                 self._last_seq = seq
-                return _tuple_new(Drive, (seq,) + cache[act] + tail)
+                return _tuple_new(Drive, (seq,) + cache[pend] + tail)  # which the Drive carries
         idle = self._idle
         if idle is not None:
             hall, pot, drives, body = idle
