@@ -82,10 +82,14 @@ def test_other_builds_are_bit_exact_with_the_reference(backend, pole_pairs, max_
     assert fast == ref, first_difference(fast, ref)
 
 
-def test_four_pole_pair_motor_follows_with_a_four_pole_pair_build():
-    """Acceptance: firmware pole pairs 4 on a 4-pole-pair motor follow 800 / 3000 / −2000 rpm within 2 %."""
+@pytest.mark.parametrize("spec", ["emulator:an1017", "sil:an1017"])
+def test_four_pole_pair_motor_follows_with_a_four_pole_pair_build(request, spec):
+    """Acceptance: firmware pole pairs 4 on a 4-pole-pair motor follow 800 / 3000 / −2000 rpm within
+    2 %, on the model (emulator process) and on the board firmware built with the defines (sil)."""
+    if spec.startswith("sil:"):
+        request.getfixturevalue("gcc")  # the board firmware is compiled for this host
     overrides = ["motor.pole_pairs=4", "target.pole_pairs=4"]
-    with Bench(None, target="emulator:an1017", overrides=overrides) as bench:
+    with Bench(None, target=spec, overrides=overrides) as bench:
         bench.set_reference(800.0)
         bench.run(0.02)
         bench.press()
@@ -96,3 +100,44 @@ def test_four_pole_pair_motor_follows_with_a_four_pole_pair_build():
             bench.run(0.2)
             speed = bench.signals()["speed_rpm"][start:]
             assert speed.mean() == pytest.approx(ref_rpm, rel=0.02), (ref_rpm, speed.mean())
+
+
+@pytest.mark.parametrize("pole_pairs,max_speed_rpm", [(4, 6000), (3, 3000)])
+def test_board_firmware_built_for_the_motor_equals_the_model(tmp_path, gcc, pole_pairs, max_speed_rpm):
+    """firmware/an1017 compiled with the build-time defines (docs/board.md) gives the Python
+    model's Drive at every period of a seeded random stream."""
+    import ctypes
+
+    from _firmware import Command, random_stream
+    from c_build import build_c
+    from hilbench.protocol import MODE_LOCKSTEP, PROTOCOL_VERSION, HostHello
+    from hilbench.targets.sil import FIRMWARE_DIR, motor_defines
+    from test_firmware_core_inprocess import InProcessCore
+
+    out = tmp_path / "liban1017.so"
+    build_c([FIRMWARE_DIR / "an1017.c"], out,
+            extra_flags=("-shared", "-fPIC", f"-I{FIRMWARE_DIR}", *motor_defines(pole_pairs, max_speed_rpm)))
+    lib = ctypes.CDLL(str(out))
+    lib.an1017_run.argtypes = [ctypes.c_void_p, ctypes.c_uint32, ctypes.c_uint8, ctypes.c_uint8, ctypes.c_uint32,
+                               ctypes.c_uint8, ctypes.c_uint16]
+    lib.an1017_param_value.restype = ctypes.c_int16
+    model = An1017Target(An1017Options(pole_pairs=pole_pairs, max_speed_rpm=max_speed_rpm))
+    model.hello(HostHello(0, PROTOCOL_VERSION, 50, MODE_LOCKSTEP, 0))
+    core = InProcessCore(lib, "seed", 50)
+    compared = 0
+    for item in random_stream(21, 20000, 50):
+        if isinstance(item, Command):
+            if item.kind == "start":
+                model.start()
+                lib.an1017_press_start(core.state)
+            elif item.kind == "stop":
+                if model.fw.running or model.fw.booting:
+                    lib.an1017_press_stop(core.state, 0, 0)
+                model.stop()
+            elif model.set_params(item.pairs).result == 0:
+                core.apply(item.pairs)
+            continue
+        assert core.step(item) == tuple(model.step(item)), (compared, item)
+        compared += 1
+    assert compared >= 20000
+    assert model.fw.min_period == build_periods(pole_pairs, max_speed_rpm)[0]

@@ -43,7 +43,7 @@ static const uint16_t phase_values[6] AN1017_ROM = {57344u, 2730u, 13652u, 24574
 static const uint16_t sector_table[8] AN1017_ROM = {0xFFFFu, 4u, 2u, 3u, 0u, 5u, 1u, 0xFFFFu};
 
 #define SIXTY_DEG 0x2AAAu
-#define MINPERIOD_DIVF 312              /* _MINPERIOD = MINPERIOD - 1 keeps DIVF's |num| < |den| */
+#define MINPERIOD_DIVF ((int16_t)(AN1017_MINPERIOD - 1u)) /* _MINPERIOD = MINPERIOD - 1 keeps DIVF's |num| < |den| */
 #define PHASEINC_NUMERATOR 512000UL     /* 65536 * 1000 Tcy / (2 * 64 Tcy): FCY-independent */
 #define FORCE_COMMUTATION_TICKS 10u     /* _10MILLISEC */
 #define ADC_POSTSCALE_MASK 15u          /* SEVOPS 1:16 (v1.1) */
@@ -295,7 +295,7 @@ void an1017_isr_timer1(an1017_t *s)
     }
     s->period = period;
     s->phase_inc = (uint16_t)(PHASEINC_NUMERATOR / period);
-    /* MeasuredSpeed = DIVF(_MINPERIOD, Period); 313 <= Period <= 31250 fits a positive int16 */
+    /* MeasuredSpeed = DIVF(_MINPERIOD, Period); MINPERIOD <= Period <= MAXPERIOD <= 32767 fits a positive int16 */
     ms = q15_divf(MINPERIOD_DIVF, (int16_t)period);
     if (s->cur_ccw) {
         ms = (int16_t)-ms;

@@ -33,8 +33,26 @@
 #define AN1017_PTPER 499u
 #define AN1017_TPWM 998u                  /* PTPER << 1: the period in duty-register units */
 #define AN1017_VOLTS_LIMIT 28300          /* 0.866 = sqrt(3)/2 in Q15 */
-#define AN1017_MINPERIOD 313u             /* 6000 rpm, 10 poles, TMR3 at Tcy/64 */
-#define AN1017_MAXPERIOD 31250u           /* 60 rpm */
+/* The motor the firmware is built for (docs/board.md "Building for a motor"): override with
+ * -DAN1017_POLE_PAIRS=4 -DAN1017_MAX_SPEED_RPM=6000. Period counts TMR3 ticks (Tcy/64 = 3.2 us)
+ * between two hall-B edges, half an electrical revolution: Period = 9375000 / (pole pairs * rpm).
+ * MINPERIOD rounds up at the maximum speed; MAXPERIOD is the 60 rpm period, kept a positive
+ * 16-bit DIVF divisor. The note's build (10 poles, 6000 rpm) gives 313 and 31250. */
+#ifndef AN1017_POLE_PAIRS
+#define AN1017_POLE_PAIRS 5UL
+#endif
+#ifndef AN1017_MAX_SPEED_RPM
+#define AN1017_MAX_SPEED_RPM 6000UL
+#endif
+#define AN1017_PERIOD_X_RPM 9375000UL     /* 60 s / (2 * 3.2 us) */
+#define AN1017_POLES_X_RPM (1UL * (AN1017_POLE_PAIRS) * (AN1017_MAX_SPEED_RPM)) /* unsigned long, also in #if */
+#define AN1017_MINPERIOD_RAW ((AN1017_PERIOD_X_RPM + AN1017_POLES_X_RPM - 1UL) / AN1017_POLES_X_RPM)
+#define AN1017_MAXPERIOD_RAW (AN1017_PERIOD_X_RPM / (1UL * (AN1017_POLE_PAIRS) * 60UL))
+#define AN1017_MINPERIOD ((uint16_t)AN1017_MINPERIOD_RAW)
+#define AN1017_MAXPERIOD ((uint16_t)((AN1017_MAXPERIOD_RAW > 32767UL) ? 32767UL : AN1017_MAXPERIOD_RAW))
+#if (AN1017_MINPERIOD_RAW < 2UL) || (AN1017_MINPERIOD_RAW >= AN1017_MAXPERIOD_RAW) || (AN1017_MINPERIOD_RAW >= 32767UL)
+#error "AN1017_POLE_PAIRS / AN1017_MAX_SPEED_RPM: MINPERIOD out of 2..MAXPERIOD-1"
+#endif
 #define AN1017_PHASE_OFFSET 4100          /* 22.5 deg, the CCW offset of the 30F source */
 #define AN1017_SECTOR_INVALID 0xFFFFu     /* -1 in the firmware's unsigned Sector */
 #define AN1017_DUTY_MAX 1000u             /* a duty above 100 % (CCW start-up only) is reported as 1000 */

@@ -73,9 +73,11 @@ def _make(settings: object) -> object:
 
 def _start_sil(settings: object, tty_path: str) -> "subprocess.Popen[bytes]":
     """The board firmware (firmware/an1017) built for this host, serving tty_path."""
-    from hilbench.targets.sil import start_sil
+    from hilbench.targets.sil import motor_defines, start_sil
 
-    return start_sil(tty_path, settings.variant if isinstance(settings, An1017Settings) else "seed")
+    if not isinstance(settings, An1017Settings):
+        settings = An1017Settings()
+    return start_sil(tty_path, settings.variant, defines=motor_defines(settings.pole_pairs, settings.max_speed_rpm))
 
 
 def _check_gains(raw: Mapping[str, int]) -> str | None:
