@@ -141,3 +141,114 @@ def test_board_firmware_built_for_the_motor_equals_the_model(tmp_path, gcc, pole
         compared += 1
     assert compared >= 20000
     assert model.fw.min_period == build_periods(pole_pairs, max_speed_rpm)[0]
+
+
+# ---- FLTA (issue 11, finding 3, the firmware side) -------------------------------------------------
+FAULT_BIT, S2_BIT = 0x20, 0x08  # Sensors.inputs: the over-current comparator (FLTA), the S2 button
+
+
+def _with_fault_bursts(script: list[tuple], seed: int) -> list[tuple]:
+    """A script whose Sensors carry the FAULT bit in seeded bursts of 1..40 periods."""
+    import random
+
+    from hilbench.protocol import Sensors
+
+    rng = random.Random(seed)
+    out, left = [], 0
+    for item in script:
+        if item[0] == "sensors":
+            if left == 0 and rng.random() < 0.003:
+                left = rng.randint(1, 40)
+            if left:
+                left -= 1
+                s = item[1]
+                item = ("sensors", Sensors(s.seq, s.inputs | FAULT_BIT, s.edge_time_100ns, s.encoder, s.adc))
+        out.append(item)
+    return out
+
+
+def test_flta_stops_the_motor_latched_until_a_stop_start():
+    from test_an1017 import _hall_stream
+    from hilbench.protocol import Sensors
+
+    t = An1017Target()
+    stream = _hall_stream(20_000, 2000.0, 50)
+    k = 0
+
+    def step(extra: int = 0):
+        nonlocal k
+        hall, edge = stream[k]
+        d = t.step(Sensors(k & 0xFF, hall | extra, edge, 0, (900, 0, 0)))
+        k += 1
+        return d
+
+    t.start()
+    for _ in range(6000):
+        d = step()
+    assert (d.output_mode, d.state, d.fault) == (1, 2, 0)  # PWM, RUNNING
+    d = step(FAULT_BIT)
+    assert (d.output_mode, d.state, d.fault) == (0, 4, 3)  # outputs off, FAULT, OVERCURRENT
+    for _ in range(100):  # latched: the comparator releasing does not restart anything
+        d = step()
+    assert (d.output_mode, d.state, d.fault) == (0, 4, 3)
+    step(S2_BIT)  # a start while the pin is still asserted is stopped again at once
+    d = step(FAULT_BIT)
+    assert (d.output_mode, d.state, d.fault) == (0, 4, 3)
+    step(S2_BIT)  # S2 (press, release) with the pin quiet: ChargeBootstraps, then running
+    d = step()
+    assert (d.output_mode, d.state, d.fault) == (2, 1, 0)  # LOW_SIDE, BOOTSTRAP
+    for _ in range(400):
+        d = step()
+    assert (d.output_mode, d.state) == (1, 2)
+
+
+@pytest.mark.parametrize("backend", available_backends())
+def test_flta_is_bit_exact_with_the_reference(backend):
+    script = _with_fault_bursts(random_script(5, 30_000, 50), 5)
+    fast = play(An1017Target(backend=backend), script)
+    ref = play(An1017Target(reference=True), script)
+    assert fast == ref, first_difference(fast, ref)
+    assert sum(1 for d in ref if hasattr(d, "fault") and d.fault == 3) > 10
+
+
+def test_flta_board_firmware_equals_the_model(tmp_path, gcc):
+    import ctypes
+
+    from _firmware import Command, random_stream
+    from c_build import build_c
+    from hilbench.protocol import MODE_LOCKSTEP, PROTOCOL_VERSION, HostHello, Sensors
+    from hilbench.targets.sil import FIRMWARE_DIR
+    from test_firmware_core_inprocess import InProcessCore
+    import random
+
+    out = tmp_path / "liban1017.so"
+    build_c([FIRMWARE_DIR / "an1017.c"], out, extra_flags=("-shared", "-fPIC", f"-I{FIRMWARE_DIR}"))
+    lib = ctypes.CDLL(str(out))
+    lib.an1017_run.argtypes = [ctypes.c_void_p, ctypes.c_uint32, ctypes.c_uint8, ctypes.c_uint8, ctypes.c_uint32,
+                               ctypes.c_uint8, ctypes.c_uint16]
+    lib.an1017_param_value.restype = ctypes.c_int16
+    model = An1017Target()
+    model.hello(HostHello(0, PROTOCOL_VERSION, 50, MODE_LOCKSTEP, 0))
+    core = InProcessCore(lib, "seed", 50)
+    rng, left, faults = random.Random(9), 0, 0
+    for item in random_stream(9, 30000, 50):
+        if isinstance(item, Command):
+            if item.kind == "start":
+                model.start()
+                lib.an1017_press_start(core.state)
+            elif item.kind == "stop":
+                if model.fw.running or model.fw.booting:
+                    lib.an1017_press_stop(core.state, 0, 0)
+                model.stop()
+            elif model.set_params(item.pairs).result == 0:
+                core.apply(item.pairs)
+            continue
+        if left == 0 and rng.random() < 0.003:
+            left = rng.randint(1, 40)
+        if left:
+            left -= 1
+            item = Sensors(item.seq, item.inputs | FAULT_BIT, item.edge_time_100ns, item.encoder, item.adc)
+        d = tuple(model.step(item))
+        assert core.step(item) == d, item
+        faults += d[9] == 3
+    assert faults > 10

@@ -434,6 +434,11 @@ void an1017_run(an1017_t *s, uint32_t duration_tcy, uint8_t inputs, uint8_t have
         s->pot_code = pot_code;
     }
     an1017_main_loop_buttons(s, inputs);
+    if ((inputs & AN1017_INPUT_FAULT) && (s->running || s->booting)) {
+        /* FLTA (FLTACON = 0x0007, latched): outputs inactive, the FLTA ISR stops with FAULT; only a
+         * stop/start restarts, not while the pin is asserted. The span's fault bit acts at its start. */
+        an1017_press_stop(s, AN1017_STATE_FAULT, AN1017_FAULT_OVERCURRENT);
+    }
     if (new_hall != s->hall && duration_tcy > 0u) {
         edge_pending = 1u;
         edge_at = have_edge ? edge_offset_tcy : 0u;

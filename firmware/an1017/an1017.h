@@ -70,6 +70,8 @@
 #define AN1017_FAULT_WATCHDOG 1u
 #define AN1017_FAULT_STALL 2u
 #define AN1017_INPUT_S2 0x08u
+#define AN1017_INPUT_FAULT 0x20u          /* FLTA, the board's over-current comparator (Sensors bit) */
+#define AN1017_FAULT_OVERCURRENT 3u
 
 /* ---- declared parameters (ids as the protocol numbers them) ---- */
 #define AN1017_PARAM_KP 0u

@@ -40,7 +40,10 @@
 #define MODE_LOW_SIDE 2
 #define FAULT_NONE 0
 #define FAULT_STALL 2
+#define FAULT_OVERCURRENT 3
+#define STATE_FAULT 4
 #define INPUT_S2 0x08
+#define INPUT_FAULT 0x20
 #define PTPER 499
 #define TPWM 998
 #define VOLTS_LIMIT 28300
@@ -306,6 +309,8 @@ static void fw_run(Core *s, long long duration, int inputs, long long edge_offse
 {
     if (have_pot) s->pot_code = pot;
     main_loop_buttons(s, inputs);
+    if ((inputs & INPUT_FAULT) && (s->running || s->booting)) /* FLTA: An1017Firmware._flta */
+        press_stop(s, STATE_FAULT, FAULT_OVERCURRENT);
     long long t = s->t, t_end = t + duration;
     int new_hall = inputs & 7;
     long long edge_at = -1;

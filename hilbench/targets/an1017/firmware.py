@@ -85,8 +85,9 @@ KD_DEFAULT_Q15 = float_to_q15(0.0)  # 0
 # ---- states / modes (design.md constants) ----------------------------------------------------
 STATE_STOPPED, STATE_BOOTSTRAP, STATE_RUNNING, STATE_STALLED, STATE_FAULT = 0, 1, 2, 3, 4
 MODE_OFF, MODE_PWM, MODE_LOW_SIDE = 0, 1, 2
-FAULT_NONE, FAULT_WATCHDOG, FAULT_STALL = 0, 1, 2
+FAULT_NONE, FAULT_WATCHDOG, FAULT_STALL, FAULT_OVERCURRENT = 0, 1, 2, 3
 INPUT_S2 = 0x08
+INPUT_FAULT = 0x20  # the FLTA pin (the board's over-current comparator), as Sensors carries it
 
 # ---- gain constraints (seed, PID section) ----------------------------------------------------
 GAIN_LIMIT_Q15 = float_to_q15(0.9999)  # 32764
@@ -582,12 +583,20 @@ class An1017Firmware:
                 self.press_start()
         self.s2_level = s2
 
+    def _flta(self, inputs: int) -> None:
+        """FLTA (FLTACON = 0x0007, latched): the PWM module drives every output inactive and the FLTA
+        ISR stops the motor with state FAULT, fault OVERCURRENT. Only a stop/start (S2) restarts it,
+        and not while the pin is still asserted. The span's fault bit acts at the span's start."""
+        if inputs & INPUT_FAULT and (self.running or self.booting):
+            self.press_stop(STATE_FAULT, FAULT_OVERCURRENT)
+
     # ---- the step function -------------------------------------------------------------------
     def run(self, duration_tcy: int, inputs: int, edge_offset_tcy: int | None, pot_code: int | None) -> None:
         """Advance by duration_tcy with these inputs; halls change at edge_offset_tcy (None = at 0)."""
         if pot_code is not None:
             self.pot_code = pot_code
         self._main_loop_buttons(inputs)
+        self._flta(inputs)
         t = self.t
         t_end = t + duration_tcy
         new_hall = inputs & 7

@@ -26,6 +26,7 @@ from typing import Any
 from hilbench.errors import ConfigError, ParamError
 from hilbench.targets.an1017.firmware import (
     GAIN_CONSTRAINT_NAMES,
+    INPUT_FAULT,
     INPUT_S2,
     PWM_PERIOD_TCY,
     STATE_FAULT,
@@ -390,7 +391,7 @@ class An1017Target:
             seq, inputs, _, _, adc = sensors
             fw = self.fw
             t = fw.t
-            if (inputs & 15) == hall and t <= t_last:
+            if (inputs & 0x2F) == hall and t <= t_last:  # halls unchanged, S2 up, FLTA quiet
                 tail = self._tail
                 if adc:
                     pot = adc[0]
@@ -441,7 +442,7 @@ class An1017Target:
         t = fw.t
         t1 = fw.t1_next
         ctx = self._ctx
-        if ctx is not None and not inputs & INPUT_S2 and t1 > t:
+        if ctx is not None and not inputs & (INPUT_S2 | INPUT_FAULT) and t1 > t:
             new_hall = inputs & 7
             edge_at = -1
             if new_hall != fw.hall:
