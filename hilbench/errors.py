@@ -68,6 +68,14 @@ class RecordingError(HilbenchError):
     kind = "recording error"
 
 
+class SimulationError(HilbenchError):
+    """The plant's integration left the physical (a diverging plant: too stiff for its step, or
+    driven far past anything the config describes)."""
+
+    exit_code = 7
+    kind = "simulation error"
+
+
 __all__ = [
     "HilbenchError",
     "ConfigError",
@@ -80,4 +88,5 @@ __all__ = [
     "TargetError",
     "ParamError",
     "RecordingError",
+    "SimulationError",
 ]

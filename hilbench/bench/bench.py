@@ -63,7 +63,7 @@ class Signals(Mapping[str, np.ndarray]):
         return self.units.get(name, "")
 
 
-def _as_config(config: BenchConfig | str | os.PathLike[str] | None, target: str | None,
+def as_config(config: BenchConfig | str | os.PathLike[str] | None, target: str | None,
                overrides: Sequence[str]) -> BenchConfig:
     if isinstance(config, BenchConfig):
         if not target and not overrides:
@@ -86,11 +86,14 @@ class Bench:
         scenario: bool = False,
         observer: Callable[[Snapshot], None] | None = None,
         control: object | None = None,
+        keep_rows: bool = True,
     ) -> None:
         """``config``: a path, a loaded config or None (the packaged default); ``target``: a target
         spec; ``overrides``: `TABLE.KEY=VALUE` words; ``record``: a .csv/.npz path (default: kept in
-        memory); ``scenario``: play the config's scenario (off: the script drives)."""
-        self.config = _as_config(config, target, overrides)
+        memory); ``scenario``: play the config's scenario (off: the script drives); ``keep_rows=False``
+        without ``record``: keep no rows at all (a run of any length in flat memory; no signals())."""
+        self._keep_rows = keep_rows
+        self.config = as_config(config, target, overrides)
         self._record_path = Path(record) if record is not None else None
         self._play_scenario = scenario
         self._observer = observer
@@ -140,7 +143,7 @@ class Bench:
             raise
         return self
 
-    def _make_recorder(self, hello: TargetHello, session: Session, period_us: int) -> Recorder | MemoryRecorder:
+    def _make_recorder(self, hello: TargetHello, session: Session, period_us: int) -> Recorder | MemoryRecorder | None:
         cfg = self.config
         metadata = {
             "hilbench_version": __version__,
@@ -156,7 +159,7 @@ class Bench:
             "mode": session.options.mode,
         }
         if self._record_path is None:
-            return MemoryRecorder(metadata)
+            return MemoryRecorder(metadata) if self._keep_rows else None
         return Recorder(self._record_path, metadata, flush_rows=max(1, round(1e6 / period_us)))
 
     def close(self) -> Summary | None:
@@ -290,7 +293,7 @@ class Bench:
         """The events so far, as text (`t=… what`)."""
         recorder = self.recorder
         if isinstance(recorder, MemoryRecorder):
-            return tuple(text for _, text, _ in recorder.events)
+            return tuple(text for _, text, _ in recorder.events if not text.startswith("segment:"))
         return tuple(self._session.messages)
 
     def summary(self) -> Summary:

@@ -50,6 +50,8 @@ class Summary:
     recording: str | None = None
     rows_recorded: int = 0
     firmware: str = ""
+    #: what the run's settings did not allow (checked before the start, and real time not held)
+    warnings: list[str] = field(default_factory=list)
 
     @property
     def realtime_factor(self) -> float:

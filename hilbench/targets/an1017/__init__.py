@@ -53,7 +53,9 @@ class An1017Settings:
     """[target] for AN1017: the firmware variant, the gains written after the handshake, and the
     motor the firmware is built for (the note's build constants; defaults: its 10-pole, 6000 rpm)."""
 
-    variant: Literal["seed", "v11"] = field(default="seed", metadata=spec(doc="the application note's behaviour (seed) or the v1.1 source's"))
+    variant: Literal["appnote", "v11", "seed"] = field(default="appnote", metadata=spec(
+        doc="appnote: the AN1017 application note's behaviour; v11: the v1.1 firmware source's (what a board "
+            "flashed with Microchip's v1.1 build runs); \"seed\" is an older name for appnote"))
     kp: float | None = field(default=None, metadata=spec(ge=0, lt=1, doc="speed PID Kp (Q15 fraction; default: the firmware's 0.1)"))
     ki: float | None = field(default=None, metadata=spec(ge=0, lt=1, doc="speed PID Ki (default 0.01)"))
     kd: float | None = field(default=None, metadata=spec(ge=0, lt=1, doc="speed PID Kd (default 0)"))
@@ -77,7 +79,8 @@ def _start_sil(settings: object, tty_path: str) -> "subprocess.Popen[bytes]":
 
     if not isinstance(settings, An1017Settings):
         settings = An1017Settings()
-    return start_sil(tty_path, settings.variant, defines=motor_defines(settings.pole_pairs, settings.max_speed_rpm))
+    return start_sil(tty_path, "v11" if settings.variant == "v11" else "seed",  # the firmware build's own word
+                     defines=motor_defines(settings.pole_pairs, settings.max_speed_rpm))
 
 
 def _check_gains(raw: Mapping[str, int]) -> str | None:
