@@ -399,6 +399,7 @@ class Session:
             self._qos.__enter__()  # released by end(), however the run ends
             summary.cpu_latency = self._qos.status
         self._lockstep_rtts = StreamingPercentiles()
+        self._supply_v = self.plant.vbus_v
         self._scenario_k = first_period_at(self.player.next_t_s, self._period_s)
         self.faults.last_hall = self.plant.hall_bits
         self._wall_start = time.perf_counter()
