@@ -584,7 +584,11 @@ class Session:
                                   f"limit ([protection] overvoltage_v)")
 
     def _end_on_limit(self, k: int, reason: str) -> None:
-        """A bench limit ends the run (the caller's `advance` closes it with a fault marker)."""
+        """A bench limit ends the run (the caller's `advance` closes it with a fault marker); a plant
+        that left the physical (NaN, absurd values) is a diverged simulation, not a limit."""
+        diverged = self._divergence()
+        if diverged is not None:
+            raise SimulationError(diverged)
         self._note(k * self._period_s, reason)
         raise BenchLimitError(f"{self.target_label}: {reason} at t={k * self._period_s:.4f} s")
 
