@@ -84,14 +84,14 @@
 #define AN1017_PARAM_STALL_MS 7u
 #define AN1017_N_PARAMS 8u
 
-/* Variants: where the seed document and the v1.1 source differ (docs/board.md). */
+/* Variants: where the application note and the v1.1 source differ (docs/board.md). */
 #define AN1017_VARIANT_SEED 0u
 #define AN1017_VARIANT_V11 1u
 
 typedef struct {
     /* options (fixed at init) */
-    uint8_t adc_every;        /* seed: ADC ISR every PWM period; v1.1: every 16th (SEVOPS 1:16) */
-    uint8_t c1_textbook;      /* seed: C1 = -Kp - 2Kd; v1.1: C1 = -(Ki + 2Kd) */
+    uint8_t adc_every;        /* app note: ADC ISR every PWM period; v1.1: every 16th (SEVOPS 1:16) */
+    uint8_t c1_textbook;      /* app note: C1 = -Kp - 2Kd; v1.1: C1 = -(Ki + 2Kd) */
     int16_t phase_offset;     /* PhaseOffset, CCW */
     /* declared, tunable values */
     int16_t kp, ki, kd;       /* gains in use (Q15) */

@@ -67,7 +67,7 @@ INV_SQRT3 = 1.0 / SQRT3
 HALF_SQRT3 = 0.5 * SQRT3
 # AN1017 Table 8 in the forward direction: sector 0..5 -> hall bits (bit0 A, bit1 B, bit2 C).
 HALL_BY_SECTOR = (0b100, 0b110, 0b010, 0b011, 0b001, 0b101)
-# Sector 0 (CBA 100) starts at theta_e = 210 deg for offset 0 (an1017_facts.md §2.5).
+# Sector 0 (CBA 100) starts at theta_e = 210 deg for offset 0 (docs/facts.md §2.5).
 SECTOR0_START_RAD = math.radians(210.0)
 NOISE_BLOCK = 4096
 OFF_SUBSTEPS = 8

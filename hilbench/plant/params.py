@@ -106,7 +106,7 @@ class InverterParams:
 
 @dataclass(frozen=True)
 class HallParams:
-    """Hall placement. offset_deg = 0 reproduces an1017_facts.md section 2.5:
+    """Hall placement. offset_deg = 0 reproduces docs/facts.md §2.5:
     A = 1 for theta_e in [30, 210), B = 1 for [270, 90), C = 1 for [150, 330) (degrees electrical,
     theta_e = rotor d-axis angle, 0 = phase-1 axis). A positive offset moves every edge to a
     larger angle."""
@@ -229,7 +229,7 @@ class PlantParams:
 
     @classmethod
     def hurst(cls) -> "PlantParams":
-        """The Hurst DMB0224C10002 on the MCLV board (an1017_facts.md §5 recommended defaults)."""
+        """The Hurst DMB0224C10002 on the MCLV board (docs/facts.md §5, recommended defaults)."""
         motor = MotorParams.from_ke(
             rs_ohm=2.54, l_h=2.21e-3, ke_v_per_krpm=7.32, pole_pairs=5,
             j_kgm2=5.5e-6, b_nms_per_rad=1.53e-5, coulomb_nm=0.0,

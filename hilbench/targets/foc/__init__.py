@@ -1,6 +1,6 @@
-"""The second seed's target: sensored FOC with the simplified SVPWM on a TMS320F2812 (IQ24).
+"""The F2812 FOC paper's target: sensored FOC with the simplified SVPWM on a TMS320F2812 (IQ24).
 
-Modules: iqmath (IQmath semantics), blocks (TI DMC blocks), svpwm (the seed's SVPWM), firmware
+Modules: iqmath (IQmath semantics), blocks (TI DMC blocks), svpwm (the paper's simplified SVPWM), firmware
 (the ISR, start-up, options and gains), target (the Target interface). docs/foc.md says what it
 models and how. This module declares the target's PROFILE: its `[target]` options (FocOptions),
 tunable speed-loop gains, the speed reference as the `speed_rpm` parameter, telemetry columns.
@@ -55,7 +55,7 @@ PROFILE = TargetProfile(
     name="foc",
     firmware_name="F2812FOC",
     make=_make,
-    description="sensored FOC with the simplified SVPWM, TMS320F2812 in IQ24 (the second seed's 200 W servo)",
+    description="sensored FOC with the simplified SVPWM, TMS320F2812 in IQ24 (the 200 W servo of the F2812 FOC paper)",
     options_type=FocOptions,
     tunable=("spd_kp", "spd_ki", "spd_kc"),
     reference=ParamReference("ref_rpm", 1.0),

@@ -1,10 +1,10 @@
-"""The F2812 sensored-FOC firmware of the second seed as a deterministic step function in IQ24.
+"""The F2812 sensored-FOC firmware of the F2812 FOC paper as a deterministic step function in IQ24.
 
 One `isr()` is the timer-1 underflow interrupt, once per 10 kHz PWM period, in the order of
 TI's PMSM3_1 level 5 (docs/foc.md):
 
     ADC → CLARKE → PARK (angle of the previous ISR) → speed PI every `speed_loop_prescaler`
-    ISRs → i_q and i_d PI → IPARK → the seed's SVPWM → CMPR1..3 (shadow) → QEP angle, SPEED_FR
+    ISRs → i_q and i_d PI → IPARK → the paper's SVPWM → CMPR1..3 (shadow) → QEP angle, SPEED_FR
 
 Compare values written here are loaded by the Event Manager at the next period match (COMCONA
 reload on underflow or period), half a PWM period later: `compare_active` is what the pins
@@ -31,7 +31,7 @@ from hilbench.targets.foc.svpwm import T1PR, svpwm
 __all__ = ["FocOptions", "FocFirmware", "STATE_STOPPED", "STATE_ALIGN", "STATE_RUN", "STATE_FAULT",
            "FAULT_NONE", "FAULT_WATCHDOG", "ISR_PERIOD_S", "HALF_PERIOD_US"]
 
-ISR_PERIOD_S = 1e-4  # 10 kHz, one ISR per PWM period (seed)
+ISR_PERIOD_S = 1e-4  # 10 kHz, one ISR per PWM period (the paper)
 HALF_PERIOD_US = 50  # one up- or down-count of timer 1
 STATE_STOPPED, STATE_ALIGN, STATE_RUN, STATE_FAULT = 0, 1, 2, 4  # protocol State: ALIGN is BOOTSTRAP
 FAULT_NONE, FAULT_WATCHDOG = 0, 1
@@ -42,7 +42,7 @@ class FocOptions:
     """Build-time settings of the firmware (the [target] table). Gains are per unit, floats,
     converted with `_IQ()` (truncating) as the C source's `_IQ(...)` constants would be.
 
-    Default gains: tuned for the seed's 200 W servo (Rs 5.4 Ω, L 6.64 mH, J 3.8e-5 kg·m²,
+    Default gains: tuned for the paper's 200 W servo (Rs 5.4 Ω, L 6.64 mH, J 3.8e-5 kg·m²,
     ψ 0.0834 Wb) with base current 5 A and base voltage 311 V/√3 = 179.6 V; derivation in
     docs/foc.md "Gains". The reference project's (Kp 0.75, alignment 0.18 pu) do not fit it."""
 
@@ -76,7 +76,7 @@ class FocOptions:
     spd_kc: float = 0.2
     spd_out_max: float = 0.5  # i_q reference limit: 2.5 A peak
     # speed setpoint slew limit (rpm/s, 0 = none): the speed PI follows a ramp toward the
-    # reference, as TI's RMPCNTL block does; not in the seed (its Fig. 12 shows a smooth rise)
+    # reference, as TI's RMPCNTL block does; not in the paper (its Fig. 12 shows a smooth rise)
     speed_ramp_rpm_per_s: float = 2500.0
 
     def check(self) -> list[tuple[str, str]]:
