@@ -68,6 +68,13 @@ class RecordingError(HilbenchError):
     kind = "recording error"
 
 
+class CheckFailed(HilbenchError):
+    """The run completed but a `[[check]]` of its config failed (hilbench.bench.checks)."""
+
+    exit_code = 7
+    kind = "check failed"
+
+
 __all__ = [
     "HilbenchError",
     "ConfigError",
@@ -80,4 +87,5 @@ __all__ = [
     "TargetError",
     "ParamError",
     "RecordingError",
+    "CheckFailed",
 ]

@@ -92,7 +92,11 @@ def run_bench(
                 + (f"; recording {recording} closed with a fault marker" if recording else "")
             ) from None
         summary = bench.close()
-    assert summary is not None
+        assert summary is not None
+        if cfg.check:  # the config's pass/fail criteria, on what was recorded
+            from hilbench.bench.checks import run_checks
+
+            summary.checks = run_checks(cfg.check, summary, bench.signals)
     return summary
 
 
