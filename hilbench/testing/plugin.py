@@ -94,6 +94,7 @@ def pytest_configure(config: pytest.Config) -> None:
     config_path = config.getoption("hil_config") or os.environ.get(CONFIG_ENV) or None
     record = config.getoption("hil_record")
     config.stash[_STATE] = _State(config_path, targets, Path(record).resolve() if record else None)
+    config.pluginmanager.register(_Attachments(config), "hilbench-attachments")
 
 
 def _state(config: pytest.Config) -> _State:
@@ -193,55 +194,50 @@ def pytest_runtest_protocol(item: pytest.Item, nextitem: pytest.Item | None) -> 
     """While a test runs, the assertions' figures become its properties."""
     from hilbench.testing import assertions
 
+    outer = assertions._metric_sink  # a pytest run inside a test (pytester) gives it back after
     assertions._metric_sink = lambda name, value: item.user_properties.append((f"hil.{name}", value))
     try:
         yield
     finally:
-        assertions._metric_sink = None
+        assertions._metric_sink = outer
 
 
-@pytest.hookimpl(tryfirst=True)
-def pytest_runtest_logreport(report: pytest.TestReport) -> None:
-    """Attachment lines into the JUnit <system-out> when captured output is not written there."""
-    if report.when != "teardown":
-        return
-    lines = [value for name, value in report.user_properties if name in ("hil_recording", "hil_plot")]
-    if not lines:
-        return
-    config = _CONFIG[0] if _CONFIG else None
-    if config is None:
-        return
-    try:
-        from _pytest.junitxml import xml_key
-    except ImportError:  # pragma: no cover - pytest without junitxml
-        return
-    xml = config.stash.get(xml_key, None)
-    if xml is None or config.getini("junit_logging") in ("system-out", "out-err", "all"):
-        return  # no JUnit file, or our printed lines are already in <system-out>
-    import xml.etree.ElementTree as ET
+class _Attachments:
+    """Attachment lines into the JUnit <system-out> when captured output is not written there, and
+    the failed tests' kept files at the end of the terminal report (registered per config)."""
 
-    node = ET.Element("system-out")
-    node.text = "\n".join(ATTACHMENT.format(p) for p in lines) + "\n"
-    xml.node_reporter(report).append(node)
+    def __init__(self, config: pytest.Config) -> None:
+        self.config = config
 
+    @pytest.hookimpl(tryfirst=True)
+    def pytest_runtest_logreport(self, report: pytest.TestReport) -> None:
+        if report.when != "teardown":
+            return
+        lines = [value for name, value in report.user_properties if name in ("hil_recording", "hil_plot")]
+        if not lines:
+            return
+        try:
+            from _pytest.junitxml import xml_key
+        except ImportError:  # pragma: no cover - a pytest without junitxml
+            return
+        xml = self.config.stash.get(xml_key, None)
+        if xml is None or self.config.getini("junit_logging") in ("system-out", "out-err", "all"):
+            return  # no JUnit file, or the lines printed at teardown are already in <system-out>
+        import xml.etree.ElementTree as ET
 
-_CONFIG: list[pytest.Config] = []
+        node = ET.Element("system-out")
+        node.text = "\n".join(ATTACHMENT.format(p) for p in lines) + "\n"
+        xml.node_reporter(report).append(node)
 
-
-@pytest.hookimpl(trylast=True)
-def pytest_sessionstart(session: pytest.Session) -> None:
-    _CONFIG[:] = [session.config]
-
-
-def pytest_terminal_summary(terminalreporter: Any, exitstatus: int, config: pytest.Config) -> None:
-    kept = _state(config).kept
-    if not kept:
-        return
-    terminalreporter.section("hilbench: recordings of failed tests")
-    for nodeid, paths in kept:
-        terminalreporter.write_line(nodeid)
-        for path in paths:
-            terminalreporter.write_line(f"  {path}")
+    def pytest_terminal_summary(self, terminalreporter: Any) -> None:
+        kept = _state(self.config).kept
+        if not kept:
+            return
+        terminalreporter.section("hilbench: recordings of failed tests")
+        for nodeid, paths in kept:
+            terminalreporter.write_line(nodeid)
+            for path in paths:
+                terminalreporter.write_line(f"  {path}")
 
 
 # ---------------------------------------------------------------- fixtures
