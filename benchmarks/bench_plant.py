@@ -1,6 +1,5 @@
 """Plant cost per 50 us period and real-time factor (both bench motors, both backends, 1 and 2
-RK4 substeps), sensor-read and OFF-coast cost, batch plant-seconds per wall second for N = 256 on
-both backends, and the same open-loop start-up of the Hurst motor on gym-electric-motor and
+RK4 substeps), sensor-read and OFF-coast cost, and the same open-loop start-up of the Hurst motor on gym-electric-motor and
 motulator next to ours in one table.
 
 Run: python benchmarks/bench_plant.py   (medians of 5 runs; the VM is noisy, compare ratios)
@@ -28,7 +27,6 @@ import numpy as np
 
 from hilbench.config import load_config, plant_params_from_config
 from hilbench.plant import Plant
-from hilbench.plant.batch import BatchPlant
 from hilbench.plant.model import DEFAULT_SUBSTEPS, available_backends
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -82,26 +80,6 @@ def sensor_and_off_cost_us(backend: str) -> tuple[float, float]:
             plant.step(0.0, 0.0, 0.0, 0, DT)
         off.append((time.perf_counter() - t0) / n * 1e6)
     return statistics.median(reads), statistics.median(off)
-
-
-def batch_rate(backend: str, substeps: int, n_plants: int = 256, n: int = 1000) -> tuple[float, float]:
-    """Median plant-seconds per wall second: with the numpy duty computation in the loop, and step alone."""
-    params = plant_params_from_config(load_config(ROOT / "bench_configs" / "hurst_mclv.toml"))
-    rates, bare = [], []
-    vq = np.linspace(6.0, 12.0, n_plants)
-    for _ in range(3):
-        bp = BatchPlant([params] * n_plants, backend=backend, substeps=substeps)
-        t0 = time.perf_counter()
-        for _ in range(n):
-            d = [0.5 + vq * np.cos(bp.theta_e + math.pi / 2 + ph) / 24.0 for ph in PHI]
-            bp.step(d[0], d[1], d[2], 1, DT)
-        rates.append(n_plants * n * DT / (time.perf_counter() - t0))
-        step = bp.step
-        t0 = time.perf_counter()
-        for _ in range(n):
-            step(d[0], d[1], d[2], 1, DT)
-        bare.append(n_plants * n * DT / (time.perf_counter() - t0))
-    return statistics.median(rates), statistics.median(bare)
 
 
 # ------------------------------------------------------------------ peers
@@ -273,11 +251,6 @@ def main() -> None:
         reads, off = sensor_and_off_cost_us(backend)
         print(f"{backend:6s} sensor reads (hall, edge, encoder, adc(1,2,3), i_abc, i_bus) {reads:5.2f} us;"
               f" OFF coast period {off:5.2f} us")
-    for backend in available_backends()[::-1]:
-        for substeps in (1, 2):
-            with_duties, bare = batch_rate(backend, substeps)
-            print(f"{backend:6s} substeps {substeps} batch N=256: {with_duties:6.1f} plant-s per wall-s incl. numpy duty"
-                  f" computation, {bare:6.1f} step alone (goal 200)")
     peers_table()
 
 

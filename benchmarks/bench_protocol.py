@@ -1,76 +1,63 @@
-"""Codec cost per frame of the hot-path messages (Sensors, Drive): before/after and a struct baseline.
+"""Codec cost per frame of the hot-path messages (Sensors, Drive): protocol v1 vs v2 and a struct baseline.
 
 One lockstep period costs the host an encode of Sensors and a decode of Drive, and the target the
 reverse. This prints, all measured in the same run (median over interleaved repeats, µs per frame):
 
 - baseline: a bare struct.pack / struct.unpack of the same fields (no CRC, no COBS, no message
   object), the least any pure-Python codec could cost;
-- before: the previous codec (dict lookup, pack_X + CRC + COBS by list comprehension; decode by
-  block slices joined, CRC over a slice, dict dispatch) rebuilt here from the generated
-  PACKERS/UNPACKERS tables;
-- after: hilbench.protocol encode_frame / decode_frame / FrameDecoder.feed (one frame per read).
+- v1: the protocol-1 codec (10-bit duties in a u32 word, CRC low byte first checked by a table),
+  loaded from git at --baseline-rev (default: the last protocol-1 commit) into a private package;
+- v2: hilbench.protocol encode_frame / decode_frame / FrameDecoder.feed (one frame per read).
 
 The machine is a noisy shared 2-core VM: compare the ratios, not the absolute times.
-Run: python benchmarks/bench_protocol.py [--profile]
+Run: python benchmarks/bench_protocol.py [--baseline-rev REV] [--repeats N] [--profile]
 """
 
 from __future__ import annotations
 
 import argparse
 import cProfile
+import importlib
 import pstats
 import statistics
 import struct
+import subprocess
+import sys
+import tempfile
 import timeit
-from binascii import crc_hqx
+from pathlib import Path
+from types import ModuleType
 
 from hilbench.protocol import Drive, FrameDecoder, Sensors, decode_frame, encode_frame
-from hilbench.protocol.messages import PACKERS, UNPACKERS
 
+REPO = Path(__file__).resolve().parent.parent
+V1_REV = "c0fb63a"  # the last commit of protocol version 1
 REPEATS = 15
 NUMBER = 20_000
 
 SENSORS = Sensors(17, 0x0B, 1234, 40000, (512, 300, 800))  # AN1017 profile: 3 ADC channels
 DRIVE = Drive(17, 1000, 512, 3, 1, 2, 4, True, False, 0, (-1234, 300, 17))  # 3 telemetry slots
 
-_CODE = tuple(bytes((i,)) for i in range(256))
+
+def load_codec(rev: str) -> ModuleType:
+    """hilbench.protocol as of `rev`, imported as the private package hbv1.protocol (git show)."""
+    root = Path(tempfile.mkdtemp(prefix="hbv1-"))
+    pkg = root / "hbv1" / "protocol"
+    pkg.mkdir(parents=True)
+    (root / "hbv1" / "__init__.py").write_text("")
+    for name in ("__init__", "framing", "codec", "messages"):
+        text = subprocess.run(["git", "-C", str(REPO), "show", f"{rev}:hilbench/protocol/{name}.py"],
+                              capture_output=True, text=True, check=True, timeout=30).stdout
+        (pkg / f"{name}.py").write_text(text.replace("hilbench.protocol", "hbv1.protocol"))
+    sys.path.insert(0, str(root))
+    return importlib.import_module("hbv1.protocol")
 
 
-def before_encode(msg) -> bytes:
-    """The codec as of commit 5cea6ca: generic packer, CRC, COBS by a list comprehension."""
-    body = PACKERS[type(msg)](msg)
-    crc = crc_hqx(body, 0xFFFF)
-    code = _CODE
-    return b"".join([code[len(p) + 1] + p for p in (body + code[crc & 0xFF] + code[crc >> 8]).split(b"\x00")]) + b"\x00"
-
-
-def before_decode(body: bytes):
-    """The codec as of commit 5cea6ca: COBS blocks sliced and joined, CRC over a slice, dict dispatch."""
-    n = len(body)
-    if n > 65 or n == 0 or 0 in body:
-        raise ValueError("bad frame")
-    i = 0
-    parts = []
-    while True:
-        j = i + body[i]
-        if j > n:
-            raise ValueError("bad COBS")
-        parts.append(body[i + 1:j])
-        if j == n:
-            break
-        i = j
-    raw = parts[0] if len(parts) == 1 else b"\x00".join(parts)
-    frame = raw[:-2]
-    if crc_hqx(frame, 0xFFFF) != raw[-2] | raw[-1] << 8:
-        raise ValueError("bad CRC")
-    return UNPACKERS[frame[0]](frame)
-
-
-def measure(cases: dict[str, str], env: dict) -> dict[str, float]:
+def measure(cases: dict[str, str], env: dict, repeats: int = REPEATS) -> dict[str, float]:
     """Median µs per call of each statement; the cases take turns so drift hits them alike."""
     timers = {name: timeit.Timer(stmt, globals=env) for name, stmt in cases.items()}
     samples: dict[str, list[float]] = {name: [] for name in cases}
-    for _ in range(REPEATS):
+    for _ in range(repeats):
         for name, timer in timers.items():
             samples[name].append(timer.timeit(NUMBER) / NUMBER * 1e6)
     return {name: statistics.median(v) for name, v in samples.items()}
@@ -78,38 +65,48 @@ def measure(cases: dict[str, str], env: dict) -> dict[str, float]:
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--profile", action="store_true", help="also print a cProfile of the after path")
+    parser.add_argument("--baseline-rev", default=V1_REV, help="git revision of the v1 codec (default %(default)s)")
+    parser.add_argument("--repeats", type=int, default=REPEATS, help="interleaved repeats (default %(default)s)")
+    parser.add_argument("--profile", action="store_true", help="also print a cProfile of the v2 path")
     args = parser.parse_args()
 
+    v1 = load_codec(args.baseline_rev)
+    s1 = v1.Sensors(*SENSORS)
+    d1 = v1.Drive(*DRIVE)
     wire_s, wire_d = encode_frame(SENSORS), encode_frame(DRIVE)
-    assert before_encode(SENSORS) == wire_s and before_encode(DRIVE) == wire_d
-    assert before_decode(wire_s[:-1]) == SENSORS and before_decode(wire_d[:-1]) == DRIVE
+    wire_s1, wire_d1 = v1.encode_frame(s1), v1.encode_frame(d1)
+    assert decode_frame(wire_s[:-1]) == SENSORS and decode_frame(wire_d[:-1]) == DRIVE
+    assert v1.decode_frame(wire_s1[:-1]) == s1 and v1.decode_frame(wire_d1[:-1]) == d1
     base_s = struct.Struct("<BBBHH3H")
-    base_d = struct.Struct("<BBIBB3h")
+    base_d = struct.Struct("<BB3HH3h")  # v2 layout: three u16 duties, a u16 flags word, telemetry
     packed_s = base_s.pack(0x10, 17, 0x0B, 1234, 40000, 512, 300, 800)
-    packed_d = base_d.pack(0x11, 17, 0x40080BE8, 0x62, 0, -1234, 300, 17)
+    packed_d = base_d.pack(0x11, 17, 1000, 512, 3, 0x189, -1234, 300, 17)
     env = dict(globals(), base_s=base_s, base_d=base_d, packed_s=packed_s, packed_d=packed_d,
                body_s=wire_s[:-1], body_d=wire_d[:-1], dec=FrameDecoder(), s=SENSORS, d=DRIVE,
-               wire_s=wire_s, wire_d=wire_d)
+               wire_s=wire_s, wire_d=wire_d, v1=v1, s1=s1, d1=d1, body_s1=wire_s1[:-1], body_d1=wire_d1[:-1],
+               dec1=v1.FrameDecoder(), wire_s1=wire_s1, wire_d1=wire_d1)
     cases = {
         "baseline struct.pack Sensors": "base_s.pack(0x10, 17, 0x0B, 1234, 40000, 512, 300, 800)",
         "baseline struct.unpack Sensors": "base_s.unpack(packed_s)",
-        "baseline struct.pack Drive": "base_d.pack(0x11, 17, 0x40080BE8, 0x62, 0, -1234, 300, 17)",
+        "baseline struct.pack Drive": "base_d.pack(0x11, 17, 1000, 512, 3, 0x189, -1234, 300, 17)",
         "baseline struct.unpack Drive": "base_d.unpack(packed_d)",
-        "before encode Sensors": "before_encode(s)",
-        "before decode Sensors": "before_decode(body_s)",
-        "before encode Drive": "before_encode(d)",
-        "before decode Drive": "before_decode(body_d)",
-        "after encode Sensors": "encode_frame(s)",
-        "after decode Sensors": "decode_frame(body_s)",
-        "after encode Drive": "encode_frame(d)",
-        "after decode Drive": "decode_frame(body_d)",
-        "after encode Drive validate=False": "encode_frame(d, False)",
-        "after feed Sensors (1 frame/read)": "dec.feed(wire_s)",
-        "after feed Drive (1 frame/read)": "dec.feed(wire_d)",
+        "v1 encode Sensors": "v1.encode_frame(s1)",
+        "v1 decode Sensors": "v1.decode_frame(body_s1)",
+        "v1 encode Drive": "v1.encode_frame(d1)",
+        "v1 decode Drive": "v1.decode_frame(body_d1)",
+        "v1 feed Sensors (1 frame/read)": "dec1.feed(wire_s1)",
+        "v1 feed Drive (1 frame/read)": "dec1.feed(wire_d1)",
+        "v2 encode Sensors": "encode_frame(s)",
+        "v2 decode Sensors": "decode_frame(body_s)",
+        "v2 encode Drive": "encode_frame(d)",
+        "v2 decode Drive": "decode_frame(body_d)",
+        "v2 encode Drive validate=False": "encode_frame(d, False)",
+        "v2 feed Sensors (1 frame/read)": "dec.feed(wire_s)",
+        "v2 feed Drive (1 frame/read)": "dec.feed(wire_d)",
     }
-    r = measure(cases, env)
-    print(f"wire bytes: Sensors {len(wire_s)}, Drive {len(wire_d)} (delimiter included)")
+    r = measure(cases, env, args.repeats)
+    print(f"wire bytes: v1 Sensors {len(wire_s1)}, Drive {len(wire_d1)}; v2 Sensors {len(wire_s)}, "
+          f"Drive {len(wire_d)} (delimiter included)")
     print(f"{'case':38s} {'µs/frame (median)':>18s} {'x baseline':>11s}")
     for name, us in r.items():
         kind = "Sensors" if "Sensors" in name else "Drive"
@@ -118,13 +115,14 @@ def main() -> None:
         print(f"{name:38s} {us:18.2f} {us / base:10.1f}x")
     print()
     for kind in ("Sensors", "Drive"):
-        for op in ("encode", "decode"):
-            before, after = r[f"before {op} {kind}"], r[f"after {op} {kind}"]
-            print(f"{op} {kind:8s} before {before:5.2f} µs  after {after:5.2f} µs  speed-up {before / after:4.1f}x")
-    for label, prefix in (("before", "before"), ("after", "after")):
-        host = r[f"{prefix} encode Sensors"] + r[f"{prefix} decode Drive"]
-        target = r[f"{prefix} decode Sensors"] + r[f"{prefix} encode Drive"]
-        print(f"{label:6s} per lockstep period: host {host:5.2f} µs, target {target:5.2f} µs "
+        for op in ("encode", "decode", "feed"):
+            key = f"{op} {kind}" + (" (1 frame/read)" if op == "feed" else "")
+            old, new = r[f"v1 {key}"], r[f"v2 {key}"]
+            print(f"{op:6s} {kind:8s} v1 {old:5.2f} µs  v2 {new:5.2f} µs  v2/v1 {new / old:5.2f}")
+    for label in ("v1", "v2"):
+        host = r[f"{label} encode Sensors"] + r[f"{label} decode Drive"]
+        target = r[f"{label} decode Sensors"] + r[f"{label} encode Drive"]
+        print(f"{label} per lockstep period: host {host:5.2f} µs, target {target:5.2f} µs "
               f"-> {1e6 / (host + target):9,.0f} periods/s of pure codec time")
     if args.profile:
         def loop() -> None:

@@ -1,120 +1,70 @@
-"""10 × 10 gain sweep of 1-second speed-step tests (issue 6 acceptance: < 10 s on 2 cores).
+"""Sweeps of speed-step tests on executors, and the refinement against a full grid.
 
-Prints the sweep's wall time (median of --repeats), simulated plant-seconds per wall second,
-and the same figure for the scalar in-process closed loop (Session + An1017Target + Plant)
-measured in this run as the baseline; then the best gains and their ITAE next to the AN1017
-default gains' (Kp 0.1, Ki 0.01, Kd 0) ITAE from the scalar session.
+Prints, in one run (medians of --repeats, interleaved so machine load hits every figure alike):
+  * a G × G grid of 1-second step tests (kp × ki, the default target) on 1 worker, on every local
+    core and on a local Dask cluster: wall time, speed-up over 1 worker (goal ≥ 1.7× on 2 cores) and
+    simulated plant-seconds per wall second;
+  * the refinement (a 5 × 5 grid, then rounds zooming around the best point) against the full grid:
+    the best ITAE each finds and how many step tests each needed (goal: at least as good with fewer
+    than a quarter of the tests).
 
-    python benchmarks/bench_sweep.py [--repeats 3] [--from 1000 --to 2000] [--profile]
+    python benchmarks/bench_sweep.py [--grid 20] [--repeats 3] [--no-dask]
 """
 
 from __future__ import annotations
 
 import argparse
+import os
 import statistics
 import time
 
-import numpy as np
+import hilbench
+from hilbench.bench.sampling import Axis
+from hilbench.bench.steptest import StepTest
+from hilbench.bench.sweep import refine, sweep_grid
+from hilbench.config import load_config
 
-from hilbench.bench.metrics import step_metrics
-from hilbench.bench.session import Session, SessionOptions
-from hilbench.bench.sweep import best_fragment, grid_values, run_step_batch, step_scenario, sweep_grid
-from hilbench.config import load_config, plant_from_config
-from hilbench.targets.an1017.target import An1017Target
-from hilbench.targets.profiles import AN1017_PROFILE
-
-DEFAULT_GAINS = (0.1, 0.01, 0.0)
-
-
-class _Rec:
-    """Plant proxy recording the speed after every period (for the scalar baseline's metrics)."""
-
-    def __init__(self, inner: object) -> None:
-        object.__setattr__(self, "_inner", inner)
-        object.__setattr__(self, "speeds", [])
-
-    def __getattr__(self, name: str) -> object:
-        return getattr(self._inner, name)
-
-    def __setattr__(self, name: str, value: object) -> None:
-        setattr(self._inner, name, value)
-
-    def step(self, *args: object) -> None:
-        self._inner.step(*args)
-        self.speeds.append(self._inner.speed_rpm)
-
-
-def scalar_step(cfg, gains, from_rpm, to_rpm, duration_s, step_at_s):  # type: ignore[no-untyped-def]
-    """One step test on the scalar bench; returns (ITAE, wall seconds)."""
-    plant = _Rec(plant_from_config(cfg))
-    session = Session(An1017Target(), plant, step_scenario(from_rpm, to_rpm, step_at_s, duration_s),
-                      SessionOptions(duration_s=duration_s))
-    session.handshake()
-    session.set_params(dict(zip(("kp", "ki", "kd"), gains)), 0.0)
-    t0 = time.perf_counter()
-    session.run()
-    wall = time.perf_counter() - t0
-    speeds = np.array(plant.speeds)
-    idx = np.arange(3, speeds.size, 4)
-    t = (idx + 1) * (50 * 1e-6)
-    q = AN1017_PROFILE.rpm_per_speed_q15 or 0.0
-    y0 = (AN1017_PROFILE.pot_code_for_rpm(from_rpm) - 512) * 64 * q
-    yf = (AN1017_PROFILE.pot_code_for_rpm(to_rpm) - 512) * 64 * q
-    k_step = next(k for k in range(10**9) if k * (50 * 1e-6) >= step_at_s)
-    m = step_metrics(t, speeds[idx], y0=y0, y_final_ref=yf, t_step_s=k_step * (50 * 1e-6))
-    return m.itae, wall
+KP, KI = (0.05, 0.85), (0.005, 0.12)
 
 
 def main() -> None:
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--repeats", type=int, default=3)
-    ap.add_argument("--from", dest="from_rpm", type=float, default=1000.0)
-    ap.add_argument("--to", dest="to_rpm", type=float, default=2000.0)
-    ap.add_argument("--duration", type=float, default=1.0)
-    ap.add_argument("--step-at", type=float, default=0.5)
-    ap.add_argument("--profile", action="store_true", help="cProfile one sweep instead of timing")
-    args = ap.parse_args()
+    parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    parser.add_argument("--grid", type=int, default=20, help="points per axis (kp × ki)")
+    parser.add_argument("--repeats", type=int, default=3)
+    parser.add_argument("--no-dask", action="store_true", help="skip the local Dask cluster")
+    args = parser.parse_args()
     cfg = load_config(None)
-    kp = grid_values(0.05, 0.85, 10)
-    ki = grid_values(0.005, 0.12, 10)
-    step = (args.from_rpm, args.to_rpm, args.duration, args.step_at)
-    if args.profile:
-        import cProfile
-        import pstats
-
-        cProfile.runctx("sweep_grid(cfg, kp, ki, [0.0], from_rpm=step[0], to_rpm=step[1], duration_s=step[2], "
-                        "step_at_s=step[3])", globals(), locals(), "/tmp/bench_sweep.prof")
-        pstats.Stats("/tmp/bench_sweep.prof").sort_stats("tottime").print_stats(15)
-        return
-
-    default_itae, scalar_wall = scalar_step(cfg, DEFAULT_GAINS, *step)
-    scalar_rate = args.duration / scalar_wall
-    walls = []
-    sweep = None
+    test = StepTest(1000.0, 2000.0, 0.5, 0.5)
+    axes = [("kp", Axis("kp", *KP, args.grid).values()), ("ki", Axis("ki", *KI, args.grid).values()), ("kd", (0.0,))]
+    cores = os.cpu_count() or 1
+    runs = {"1 worker": ("local", 1), f"{cores} local workers": ("local", cores)}
+    if not args.no_dask:
+        runs[f"local Dask cluster, {cores} workers"] = (f"local-dask:{cores}", None)
+    walls: dict[str, list[float]] = {name: [] for name in runs}
+    result = None
     for _ in range(args.repeats):
-        t0 = time.perf_counter()
-        sweep = sweep_grid(cfg, kp, ki, [0.0], metric="itae", from_rpm=step[0], to_rpm=step[1],
-                           duration_s=step[2], step_at_s=step[3])
-        walls.append(time.perf_counter() - t0)
-    assert sweep is not None and sweep.best is not None and sweep.best.result is not None
-    wall = statistics.median(walls)
-    rate = sweep.sim_s / wall
-    # the default gains through the batch path too (cross-check of the scalar baseline's ITAE)
-    batch_default = run_step_batch(cfg, [DEFAULT_GAINS], *step)[0].metrics.itae
-    best = sweep.best
-    bm = best.result.metrics
-    print(f"sweep: {len(sweep.points)} points ({sweep.skipped} skipped), step {step[0]:g} -> {step[1]:g} rpm "
-          f"at {step[3]:g} s, {step[2]:g} s each")
-    print(f"wall time: median {wall:.2f} s over {len(walls)} runs ({', '.join(f'{w:.2f}' for w in walls)}); "
-          f"goal < 10 s: {'met' if wall < 10 else 'NOT met'}")
-    print(f"simulated plant-seconds per wall second: sweep {rate:.1f}, scalar closed loop {scalar_rate:.2f} "
-          f"(ratio {rate / scalar_rate:.1f}x)")
-    print(f"best: kp={best.gains[0]:.4g} ki={best.gains[1]:.4g} kd={best.gains[2]:.4g}  ITAE {bm.itae:.4g} rpm*s^2, "
-          f"rise {bm.rise_time_s}, overshoot {bm.overshoot_pct:.2f} %, settling {bm.settling_time_s}")
-    print(f"AN1017 default (kp 0.1 ki 0.01 kd 0): ITAE {default_itae:.4g} (scalar session), "
-          f"{batch_default:.4g} (batch); best/default = {bm.itae / default_itae:.3f}; "
-          f"{'best beats default' if bm.itae < default_itae else 'best does NOT beat default'}")
-    print(best_fragment(sweep), end="")
+        for name, (executor, workers) in runs.items():
+            t0 = time.perf_counter()
+            result = sweep_grid(cfg, axes, test, executor=executor, workers=workers)
+            walls[name].append(time.perf_counter() - t0)
+    assert result is not None
+    one = statistics.median(walls["1 worker"])
+    print(f"{args.grid} x {args.grid} grid of 1 s step tests: {len(result.points)} points, {result.skipped} skipped by the "
+          f"firmware's constraints, {result.sim_s:.0f} simulated s; median of {args.repeats} ({cores} cores)")
+    for name in runs:
+        wall = statistics.median(walls[name])
+        print(f"  {name:28s}: {wall:6.2f} s wall, {result.sim_s / wall:6.1f} plant-s/s, speed-up {one / wall:4.2f}x")
+    box = [Axis("kp", *KP, 5), Axis("ki", *KI, 5), Axis("kd", 0.0, 0.0, 1)]
+    refined = refine(cfg, box, test, rounds=3, shrink=0.4)
+    best_grid, best_refined = result.best, refined.best
+    assert best_grid is not None and best_refined is not None
+    print(f"  full grid : best ITAE {best_grid.result.metrics.itae:.4f} at {dict(best_grid.params)} "
+          f"({result.step_tests} step tests)")
+    print(f"  refinement: best ITAE {best_refined.result.metrics.itae:.4f} at {dict(best_refined.params)} "
+          f"({refined.step_tests} step tests = {refined.step_tests / result.step_tests:.0%} of the grid's; goal < 25 % "
+          f"and ITAE <= the grid's: {'yes' if best_refined.result.metrics.itae <= best_grid.result.metrics.itae else 'no'})")
+    default = hilbench.step_test(params={"kp": 0.1, "ki": 0.01, "kd": 0.0})
+    print(f"  the firmware's default gains 0.1/0.01/0: ITAE {default.metrics.itae:.4f}")
 
 
 if __name__ == "__main__":

@@ -15,6 +15,8 @@ host and the firmware cannot drift. `python firmware_protocol/generate.py` rewri
 from __future__ import annotations
 
 import argparse
+import hashlib
+import json
 import sys
 import tomllib
 from dataclasses import dataclass
@@ -29,12 +31,38 @@ H_OUT = HERE / "hbp_messages.h"
 C_OUT = HERE / "hbp_messages.c"
 TEST_OUT = HERE / "tests" / "hbp_test_fields.h"
 
-SCALAR_FMT = {"u8": "B", "u16": "H", "u32": "I", "i16": "h", "bool": "B", "bits8": "B", "bits32": "I"}
-SCALAR_SIZE = {"u8": 1, "u16": 2, "u32": 4, "i16": 2, "bool": 1, "bits8": 1, "bits32": 4}
-ARRAY_ELEM = {"u8[]": ("B", 1), "u16[]": ("H", 2), "i16[]": ("h", 2), "pair[]": ("Bh", 3)}
-C_SCALAR = {"u8": "uint8_t", "u16": "uint16_t", "u32": "uint32_t", "i16": "int16_t", "bool": "uint8_t"}
+SCALAR_FMT = {"u8": "B", "u16": "H", "u32": "I", "i16": "h", "i32": "i", "bool": "B", "bits8": "B", "bits16": "H",
+              "bits32": "I"}
+SCALAR_SIZE = {"u8": 1, "u16": 2, "u32": 4, "i16": 2, "i32": 4, "bool": 1, "bits8": 1, "bits16": 2, "bits32": 4}
+ARRAY_ELEM = {"u8[]": ("B", 1), "u16[]": ("H", 2), "i16[]": ("h", 2), "pair[]": ("Bi", 5)}
+C_SCALAR = {"u8": "uint8_t", "u16": "uint16_t", "u32": "uint32_t", "i16": "int16_t", "i32": "int32_t",
+            "bool": "uint8_t"}
 C_ELEM = {"u8[]": "uint8_t", "u16[]": "uint16_t", "i16[]": "int16_t", "pair[]": "hbp_pair_t"}
-RANGE = {"u8": (0, 0xFF), "u16": (0, 0xFFFF), "u32": (0, 0xFFFFFFFF), "i16": (-0x8000, 0x7FFF)}
+RANGE = {"u8": (0, 0xFF), "u16": (0, 0xFFFF), "u32": (0, 0xFFFFFFFF), "i16": (-0x8000, 0x7FFF),
+         "i32": (-0x80000000, 0x7FFFFFFF)}
+BITS_WIDTH = {"bits8": 8, "bits16": 16, "bits32": 32}
+# Keys that do not describe the wire (documentation, Python fast-path hints, Python defaults): left out
+# of the schema fingerprint so that editing them does not make every built firmware "mismatched".
+NON_WIRE_KEYS = frozenset({"doc", "hot", "hot_n", "default"})
+
+
+def _wire_content(value: object) -> object:
+    """The parsed schema without NON_WIRE_KEYS, at every level."""
+    if isinstance(value, dict):
+        return {k: _wire_content(v) for k, v in value.items() if k not in NON_WIRE_KEYS}
+    if isinstance(value, list):
+        return [_wire_content(v) for v in value]
+    return value
+
+
+def schema_fingerprint(data: dict) -> int:
+    """First 4 bytes (big-endian) of SHA-256 over the canonical JSON of the schema's wire content.
+
+    Canonical: NON_WIRE_KEYS removed, keys sorted, separators "," and ":", ASCII only. TOML comments
+    and layout never reach the parsed data, so only a change of the wire format changes the value.
+    """
+    canonical = json.dumps(_wire_content(data), sort_keys=True, separators=(",", ":"), ensure_ascii=True)
+    return int.from_bytes(hashlib.sha256(canonical.encode("ascii")).digest()[:4], "big")
 
 
 @dataclass(frozen=True)
@@ -45,6 +73,7 @@ class Field:
     bits: tuple[tuple[str, int, str], ...]
     last: bool
     hot_n: int | None = None  # array count the Python encoder unrolls (the AN1017 profile's)
+    default: str | None = None  # Python only: the NamedTuple default (a name in messages.py)
 
     @property
     def variable(self) -> bool:
@@ -99,7 +128,12 @@ def load(path: Path = SCHEMA) -> tuple[dict, list[tuple[str, str, str, list]], l
         fields = []
         for i, f in enumerate(raw):
             fields.append(Field(f["name"], f["type"], f.get("max"),
-                                tuple(tuple(b) for b in f.get("bits", ())), i == len(raw) - 1, f.get("hot_n")))
+                                tuple(tuple(b) for b in f.get("bits", ())), i == len(raw) - 1, f.get("hot_n"),
+                                f.get("default")))
+        defaults = [f.default is not None for f in fields]
+        if any(defaults) and (defaults.index(True) + defaults.count(True) != len(fields)
+                              or any(f.bits for f in fields if f.default)):
+            raise SystemExit(f"schema.toml message {m['name']}: only the trailing plain fields may have a default")
         seen_var = False
         for f in fields:  # the codec relies on all fixed fields coming first
             if f.variable:
@@ -138,9 +172,15 @@ def _py_bits_check(f: Field, ref: Callable[[str], str] = lambda n: f"m.{n}") -> 
     for name, width, kind in f.bits:
         if kind != "bool":
             groups.setdefault(width, []).append(name)
-    for width, names in groups.items():
-        lines.append(f"    if ({' | '.join(ref(n) for n in names)}) >> {width}:")
-        lines.append(f"        raise ProtocolError(f\"encode {{type(m).__name__}}: {'/'.join(names)} "
+    tests = [(f"({' | '.join(ref(n) for n in names)}) >> {width}", names, width) for width, names in groups.items()]
+    if len(tests) > 1:  # one branch on the hot path; which field is wrong is found only on failure
+        lines.append("    if " + " | ".join(f"({t})" for t, _, _ in tests) + ":")
+        indent = "    "
+    else:
+        indent = ""
+    for test, names, width in tests:
+        lines.append(f"    {indent}if {test}:")
+        lines.append(f"    {indent}    raise ProtocolError(f\"encode {{type(m).__name__}}: {'/'.join(names)} "
                      f"must be 0..{(1 << width) - 1}\")")
     return lines
 
@@ -154,6 +194,8 @@ def _py_unpack_scalar(f: Field, v: str) -> list[str]:
         for _name, width, kind in f.bits:
             if kind == "bool":
                 out.append(f"({v} >> {shift} & 1) != 0")
+            elif shift + width == BITS_WIDTH[f.type]:  # the topmost field needs no mask
+                out.append(f"{v} >> {shift}" if shift else v)
             else:
                 out.append(f"{v} >> {shift} & {(1 << width) - 1}" if shift else f"{v} & {(1 << width) - 1}")
             shift += width
@@ -289,7 +331,7 @@ def _pack_lines(data: dict, m: Message, checks: str) -> list[str]:
 
 # CRC appended, then COBS: below 254 bytes each split part is one block behind its code byte.
 _WIRE_LINES = [
-    "    p = (body + _le16(_crc(body, 0xFFFF))).split(b'\\x00')",
+    "    p = (body + _be16(_crc(body, 0xFFFF))).split(b'\\x00')",
     "    k = len(p)",
     "    if k == 2:  # one 0x00 in the frame",
     "        a, b = p",
@@ -297,6 +339,9 @@ _WIRE_LINES = [
     "    if k == 3:",
     "        a, b, c = p",
     "        return b''.join((_CODE[len(a)], a, _CODE[len(b)], b, _CODE[len(c)], c, b'\\x00'))",
+    "    if k == 4:  # u16 duties and counts below 256 make three zeros common",
+    "        a, b, c, d = p",
+    "        return b''.join((_CODE[len(a)], a, _CODE[len(b)], b, _CODE[len(c)], c, _CODE[len(d)], d, b'\\x00'))",
     "    return cobs_join(p)",
 ]
 
@@ -349,7 +394,8 @@ def _gen_decode_body(w: Callable[[str], None], data: dict, msgs: list[Message]) 
     w("")
     w("    Raises CobsError, LengthError, CrcError or UnknownTypeError. The COBS code bytes after the")
     w("    first stand where the frame's 0x00s were, so they are zeroed in a copy; the CRC is checked")
-    w("    on that buffer as it is (see framing.CRC_PRE/CRC_OK); the type byte picks the decoder.")
+    w("    on that buffer as it is (see framing.CRC_PRE: the register after frame . crc_hi . crc_lo is 0")
+    w("    exactly when the CRC matches); the type byte picks the decoder.")
     w('    """')
     w("    i = body[0]")
     w("    if i < n:")
@@ -366,7 +412,7 @@ def _gen_decode_body(w: Callable[[str], None], data: dict, msgs: list[Message]) 
     w("        raise CobsError(f\"COBS: block at offset 0 runs {i - n} bytes past the frame end\")")
     w("    if n < 5:")
     w("        raise LengthError(f\"frame of {n - 1} bytes is shorter than 4\")")
-    w("    if _crc(raw, _CRC_PRE[raw[0]]) != _CRC_OK[raw[-1] ^ raw[-2]]:")
+    w("    if _crc(raw, _CRC_PRE[raw[0]]):")
     w("        raise CrcError(f\"CRC mismatch in a {n - 1}-byte frame (type {raw[1]:#04x})\")")
     w("    t = raw[1]")
     for i, m in enumerate(m for m in msgs if m.hot):
@@ -470,12 +516,13 @@ def gen_python(data: dict, enums: list, msgs: list[Message]) -> str:
     w("")
     w("from hilbench.errors import ProtocolError")
     w("from hilbench.protocol.framing import COBS_CODE as _CODE")
-    w("from hilbench.protocol.framing import CRC_OK as _CRC_OK")
     w("from hilbench.protocol.framing import CRC_PRE as _CRC_PRE")
     w("from hilbench.protocol.framing import CobsError, CrcError, LengthError, UnknownTypeError, cobs_join, frame_bytes")
     w("")
-    w("_le16 = struct.Struct('<H').pack")
+    w("_be16 = struct.Struct('>H').pack  # the CRC goes high byte first (PROTOCOL.md, Framing)")
     w(f"PROTOCOL_VERSION = {data['protocol_version']}")
+    w("# First 4 bytes of SHA-256 over the schema's canonical wire content (generate.schema_fingerprint).")
+    w(f"SCHEMA_FINGERPRINT = {schema_fingerprint(data):#010x}")
     w(f"MAX_FRAME_BYTES = {data['max_frame_bytes']}")
     w(f"MAX_NAME_CHARS = {data['max_name_chars']}")
     w(f"MAX_ADC = {data['max_adc']}")
@@ -515,6 +562,8 @@ def gen_python(data: dict, enums: list, msgs: list[Message]) -> str:
                 w(f"    {f.name}: tuple[tuple[int, int], ...]")
             elif f.variable:
                 w(f"    {f.name}: tuple[int, ...]")
+            elif f.default is not None:
+                w(f"    {f.name}: int = {f.default}")
             else:
                 w(f"    {f.name}: int")
         w("")
@@ -682,7 +731,7 @@ def gen_python(data: dict, enums: list, msgs: list[Message]) -> str:
     w("HOST_TO_TARGET = frozenset({" + ", ".join(m.name for m in msgs if m.dir == "h2t") + "})")
     w("TARGET_TO_HOST = frozenset({" + ", ".join(m.name for m in msgs if m.dir == "t2h") + "})")
     w("")
-    names = ["PROTOCOL_VERSION", "MAX_FRAME_BYTES", "MAX_NAME_CHARS", "MAX_ADC", "MAX_TELEMETRY",
+    names = ["PROTOCOL_VERSION", "SCHEMA_FINGERPRINT", "MAX_FRAME_BYTES", "MAX_NAME_CHARS", "MAX_ADC", "MAX_TELEMETRY",
              "MAX_PARAM_PAIRS", "Message", "PACKERS", "UNPACKERS", "ENCODERS", "UNCHECKED_ENCODERS",
              "DECODERS", "MESSAGE_TYPES", "HOST_TO_TARGET",
              "TARGET_TO_HOST"]
@@ -716,6 +765,12 @@ def gen_header(data: dict, enums: list, msgs: list[Message]) -> str:
     w("#include <stdint.h>")
     w("")
     w(f"#define HBP_PROTOCOL_VERSION {data['protocol_version']}u")
+    w("/* First 4 bytes of SHA-256 over schema.toml's canonical wire content (see PROTOCOL.md). The #ifndef")
+    w("   exists only so that a test can build a deliberately mismatched target; never override it in a")
+    w("   firmware. */")
+    w("#ifndef HBP_SCHEMA_FINGERPRINT")
+    w(f"#define HBP_SCHEMA_FINGERPRINT {schema_fingerprint(data):#010x}UL")
+    w("#endif")
     w(f"#define HBP_MAX_FRAME {data['max_frame_bytes']}u /* decoded frame: type, seq, payload, crc16 */")
     w(f"#define HBP_MAX_NAME {data['max_name_chars']}u")
     w(f"#define HBP_MAX_PARAM_PAIRS {data['max_param_pairs']}u")
@@ -735,7 +790,7 @@ def gen_header(data: dict, enums: list, msgs: list[Message]) -> str:
     w("/* One (parameter id, value) pair of ParamSet. */")
     w("typedef struct {")
     w("    uint8_t id;")
-    w("    int16_t value;")
+    w("    int32_t value;")
     w("} hbp_pair_t;")
     w("")
     for m in msgs:
@@ -820,6 +875,21 @@ def gen_c(data: dict, enums: list, msgs: list[Message]) -> str:
     w("    return (int16_t)(-(int16_t)(0xFFFFu - u) - 1); /* no implementation-defined conversion */")
     w("}")
     w("")
+    if any(f.type == "i32" or f.type == "pair[]" for m in msgs for f in m.fields):
+        w("static void puti32(uint8_t *p, int32_t v)")
+        w("{")
+        w("    put32(p, (uint32_t)v); /* two's complement: conversion to unsigned is well defined */")
+        w("}")
+        w("")
+        w("static int32_t geti32(const uint8_t *p)")
+        w("{")
+        w("    uint32_t u = get32(p);")
+        w("    if (u < 0x80000000UL) {")
+        w("        return (int32_t)u;")
+        w("    }")
+        w("    return (int32_t)(-(int32_t)(0xFFFFFFFFUL - u) - 1); /* no implementation-defined conversion */")
+        w("}")
+        w("")
     used = set()
     for m in msgs:
         for f in m.fields:
@@ -840,23 +910,26 @@ def gen_c(data: dict, enums: list, msgs: list[Message]) -> str:
         off = 2
         for f in m.fixed:
             if f.bits:
-                ctype = "uint32_t" if f.type == "bits32" else "uint8_t"
+                # every term is unsigned (bits32: uint32_t), never a signed int: correct and
+                # -Wconversion clean with a 16-bit int
+                suffix = "UL" if f.type == "bits32" else "u"
                 terms = []
                 shift = 0
                 for bname, width, kind in f.bits:
                     mask = (1 << width) - 1
                     if kind == "bool":
-                        t = f"(m->{bname} ? {1 << shift}u : 0u)"
-                        t = f"(uint32_t){t}" if ctype == "uint32_t" else t
-                    elif ctype == "uint32_t":
+                        t = f"(m->{bname} ? {1 << shift:#x}{suffix} : 0{suffix})"
+                    elif f.type == "bits32":
                         t = f"((uint32_t)(m->{bname} & {mask:#x}u) << {shift})"
                     else:
-                        t = f"(unsigned)((m->{bname} & {mask:#x}u) << {shift})"
+                        t = f"(unsigned)((unsigned)(m->{bname} & {mask:#x}u) << {shift})"
                     terms.append(t)
                     shift += width
                 expr = " | ".join(terms)
-                if ctype == "uint32_t":
+                if f.type == "bits32":
                     w(f"    put32(&frame[{off}], {expr});")
+                elif f.type == "bits16":
+                    w(f"    put16(&frame[{off}], (uint16_t)({expr}));")
                 else:
                     w(f"    frame[{off}] = (uint8_t)({expr});")
             elif f.type in ("u8", "bool"):
@@ -867,6 +940,8 @@ def gen_c(data: dict, enums: list, msgs: list[Message]) -> str:
                 w(f"    put32(&frame[{off}], m->{f.name});")
             elif f.type == "i16":
                 w(f"    puti16(&frame[{off}], m->{f.name});")
+            elif f.type == "i32":
+                w(f"    puti32(&frame[{off}], m->{f.name});")
             off += SCALAR_SIZE[f.type]
         for f in m.fields:
             if not f.variable:
@@ -895,8 +970,8 @@ def gen_c(data: dict, enums: list, msgs: list[Message]) -> str:
                     w("        pos = (uint8_t)(pos + 2u);")
                 elif f.type == "pair[]":
                     w(f"        frame[pos] = m->{f.name}[i].id;")
-                    w(f"        puti16(&frame[pos + 1u], m->{f.name}[i].value);")
-                    w("        pos = (uint8_t)(pos + 3u);")
+                    w(f"        puti32(&frame[pos + 1u], m->{f.name}[i].value);")
+                    w("        pos = (uint8_t)(pos + 5u);")
                 w("    }")
         w("    return pos;")
         w("}")
@@ -919,20 +994,21 @@ def gen_c(data: dict, enums: list, msgs: list[Message]) -> str:
         off = 2
         for f in m.fixed:
             if f.bits:
-                if f.type == "bits32":
-                    w("    {")
-                    w(f"        uint32_t word = get32(&frame[{off}]);")
-                    shift = 0
-                    for bname, width, kind in f.bits:
-                        ct = "uint8_t" if width <= 8 else "uint16_t"
-                        w(f"        m->{bname} = ({ct})((word >> {shift}) & {(1 << width) - 1:#x}u);")
-                        shift += width
-                    w("    }")
-                else:
-                    shift = 0
-                    for bname, width, kind in f.bits:
-                        w(f"    m->{bname} = (uint8_t)((frame[{off}] >> {shift}) & {(1 << width) - 1:#x}u);")
-                        shift += width
+                # the word in its own unsigned type, shifted and masked as that type: no int operand
+                # (frame[k] >> s would be a signed int: a -Wconversion error with a 16-bit int)
+                wtype = {"bits8": "uint8_t", "bits16": "uint16_t", "bits32": "uint32_t"}[f.type]
+                getter = {"bits8": f"frame[{off}]", "bits16": f"get16(&frame[{off}])",
+                          "bits32": f"get32(&frame[{off}])"}[f.type]
+                suffix = "UL" if f.type == "bits32" else "u"
+                w("    {")
+                w(f"        {wtype} word = {getter};")
+                shift = 0
+                for bname, width, kind in f.bits:
+                    ct = "uint8_t" if width <= 8 else "uint16_t"
+                    src = "word" if f.type == "bits32" else "(unsigned)word"
+                    w(f"        m->{bname} = ({ct})(({src} >> {shift}) & {(1 << width) - 1:#x}{suffix});")
+                    shift += width
+                w("    }")
             elif f.type == "u8":
                 w(f"    m->{f.name} = frame[{off}];")
             elif f.type == "bool":
@@ -943,6 +1019,8 @@ def gen_c(data: dict, enums: list, msgs: list[Message]) -> str:
                 w(f"    m->{f.name} = get32(&frame[{off}]);")
             elif f.type == "i16":
                 w(f"    m->{f.name} = geti16(&frame[{off}]);")
+            elif f.type == "i32":
+                w(f"    m->{f.name} = geti32(&frame[{off}]);")
             off += SCALAR_SIZE[f.type]
         for f in var:
             cm = c_max(data, f.max)
@@ -985,8 +1063,8 @@ def gen_c(data: dict, enums: list, msgs: list[Message]) -> str:
                     w("        pos = (uint8_t)(pos + 2u);")
                 elif f.type == "pair[]":
                     w(f"        m->{f.name}[i].id = frame[pos];")
-                    w(f"        m->{f.name}[i].value = geti16(&frame[pos + 1u]);")
-                    w("        pos = (uint8_t)(pos + 3u);")
+                    w(f"        m->{f.name}[i].value = geti32(&frame[pos + 1u]);")
+                    w("        pos = (uint8_t)(pos + 5u);")
                 w("    }")
         w("    return HBP_ERROR_NONE;")
         w("}")

@@ -42,9 +42,9 @@ uint8_t hbp_encode_frame(const uint8_t *frame, uint8_t len, uint8_t *out)
         if (i < len) {
             b = frame[i];
         } else if (i == len) {
-            b = (uint8_t)(crc & 0xFFu);
+            b = (uint8_t)(crc >> 8); /* high byte first: the wire bit order is the division's */
         } else {
-            b = (uint8_t)(crc >> 8);
+            b = (uint8_t)(crc & 0xFFu);
         }
         if (b == 0u) {
             out[code_at] = (uint8_t)(o - code_at);
@@ -107,7 +107,7 @@ static uint8_t rx_end_of_frame(hbp_rx_t *rx)
         return 0u;
     }
     crc = hbp_crc16(rx->buf, (uint8_t)(n - 2u));
-    if (crc != (uint16_t)((uint16_t)rx->buf[n - 2u] | (uint16_t)((uint16_t)rx->buf[n - 1u] << 8))) {
+    if (crc != (uint16_t)((uint16_t)((uint16_t)rx->buf[n - 2u] << 8) | (uint16_t)rx->buf[n - 1u])) {
         rx_fail(rx, HBP_ERROR_CRC);
         return 0u;
     }
@@ -198,13 +198,36 @@ void hbp_rx_status(const hbp_rx_t *rx, uint8_t seq, uint16_t watchdog_trips, hbp
 
 uint8_t hbp_check_hello(const hbp_host_hello_t *hello)
 {
-    return (uint8_t)((hello->protocol_version == HBP_PROTOCOL_VERSION) ? HBP_ERROR_NONE : HBP_ERROR_VERSION);
+    if (hello->protocol_version != HBP_PROTOCOL_VERSION || hello->schema_fingerprint != HBP_SCHEMA_FINGERPRINT) {
+        return HBP_ERROR_VERSION;
+    }
+    return HBP_ERROR_NONE;
 }
 
-int16_t hbp_param_candidate(const hbp_params_t *params, const hbp_param_set_t *request, uint8_t id)
+uint8_t hbp_check_host_hello(const uint8_t *frame, uint8_t len, hbp_host_hello_t *out)
+{
+    /* the version byte first: a HostHello of another protocol version may have another length */
+    if (len >= 3u && frame[0] == HBP_MSG_HOST_HELLO && frame[2] != HBP_PROTOCOL_VERSION) {
+        return HBP_ERROR_VERSION;
+    }
+    if (hbp_unpack_host_hello(frame, len, out) != HBP_ERROR_NONE) {
+        return HBP_ERROR_LENGTH;
+    }
+    return hbp_check_hello(out);
+}
+
+void hbp_error_report(uint8_t seq, uint8_t code, uint8_t detail, hbp_error_report_t *out)
+{
+    out->seq = seq;
+    out->code = code;
+    out->detail = detail;
+    out->schema_fingerprint = HBP_SCHEMA_FINGERPRINT;
+}
+
+int32_t hbp_param_candidate(const hbp_params_t *params, const hbp_param_set_t *request, uint8_t id)
 {
     uint8_t i;
-    int16_t value = params->values[id];
+    int32_t value = params->values[id];
     for (i = 0u; i < request->n_pairs; i++) {
         if (request->pairs[i].id == id) {
             value = request->pairs[i].value;
@@ -262,7 +285,7 @@ void hbp_param_set(hbp_params_t *params, const hbp_param_set_t *request, uint8_t
     }
     for (i = 0u; i < request->n_pairs; i++) {
         uint8_t id = request->pairs[i].id;
-        int16_t value = request->pairs[i].value;
+        int32_t value = request->pairs[i].value;
         out->param_id = id;
         if (id >= params->count) {
             out->result = HBP_RESULT_UNKNOWN_ID;

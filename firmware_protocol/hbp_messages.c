@@ -40,21 +40,36 @@ static int16_t geti16(const uint8_t *p)
     return (int16_t)(-(int16_t)(0xFFFFu - u) - 1); /* no implementation-defined conversion */
 }
 
+static void puti32(uint8_t *p, int32_t v)
+{
+    put32(p, (uint32_t)v); /* two's complement: conversion to unsigned is well defined */
+}
+
+static int32_t geti32(const uint8_t *p)
+{
+    uint32_t u = get32(p);
+    if (u < 0x80000000UL) {
+        return (int32_t)u;
+    }
+    return (int32_t)(-(int32_t)(0xFFFFFFFFUL - u) - 1); /* no implementation-defined conversion */
+}
+
 uint8_t hbp_pack_host_hello(const hbp_host_hello_t *m, uint8_t *frame)
 {
-    uint8_t pos = 8;
+    uint8_t pos = 12;
     frame[0] = HBP_MSG_HOST_HELLO;
     frame[1] = m->seq;
     frame[2] = m->protocol_version;
     put16(&frame[3], m->period_us);
     frame[5] = m->mode;
     put16(&frame[6], m->watchdog_ms);
+    put32(&frame[8], m->schema_fingerprint);
     return pos;
 }
 
 uint8_t hbp_unpack_host_hello(const uint8_t *frame, uint8_t len, hbp_host_hello_t *m)
 {
-    if (len != 8u || frame[0] != HBP_MSG_HOST_HELLO) {
+    if (len != 12u || frame[0] != HBP_MSG_HOST_HELLO) {
         return HBP_ERROR_LENGTH;
     }
     m->seq = frame[1];
@@ -62,20 +77,23 @@ uint8_t hbp_unpack_host_hello(const uint8_t *frame, uint8_t len, hbp_host_hello_
     m->period_us = get16(&frame[3]);
     m->mode = frame[5];
     m->watchdog_ms = get16(&frame[6]);
+    m->schema_fingerprint = get32(&frame[8]);
     return HBP_ERROR_NONE;
 }
 
 uint8_t hbp_pack_target_hello(const hbp_target_hello_t *m, uint8_t *frame)
 {
-    uint8_t pos = 12;
+    uint8_t pos = 17;
     uint8_t i;
     frame[0] = HBP_MSG_TARGET_HELLO;
     frame[1] = m->seq;
     frame[2] = m->protocol_version;
-    put16(&frame[3], m->firmware_version);
-    put16(&frame[5], m->pwm_period_counts);
-    put32(&frame[7], m->pwm_freq_hz);
-    frame[11] = m->n_params;
+    put32(&frame[3], m->schema_fingerprint);
+    put16(&frame[7], m->firmware_version);
+    put16(&frame[9], m->pwm_period_counts);
+    put32(&frame[11], m->pwm_freq_hz);
+    frame[15] = m->n_params;
+    frame[16] = m->adc_bits;
     for (i = 0u; i < HBP_MAX_NAME && m->firmware_name[i] != '\0'; i++) {
     }
     frame[pos++] = i;
@@ -98,18 +116,20 @@ uint8_t hbp_pack_target_hello(const hbp_target_hello_t *m, uint8_t *frame)
 
 uint8_t hbp_unpack_target_hello(const uint8_t *frame, uint8_t len, hbp_target_hello_t *m)
 {
-    uint8_t pos = 12;
+    uint8_t pos = 17;
     uint8_t i;
     uint8_t n;
-    if (len < 12u || frame[0] != HBP_MSG_TARGET_HELLO) {
+    if (len < 17u || frame[0] != HBP_MSG_TARGET_HELLO) {
         return HBP_ERROR_LENGTH;
     }
     m->seq = frame[1];
     m->protocol_version = frame[2];
-    m->firmware_version = get16(&frame[3]);
-    m->pwm_period_counts = get16(&frame[5]);
-    m->pwm_freq_hz = get32(&frame[7]);
-    m->n_params = frame[11];
+    m->schema_fingerprint = get32(&frame[3]);
+    m->firmware_version = get16(&frame[7]);
+    m->pwm_period_counts = get16(&frame[9]);
+    m->pwm_freq_hz = get32(&frame[11]);
+    m->n_params = frame[15];
+    m->adc_bits = frame[16];
     if (pos >= len) {
         return HBP_ERROR_LENGTH;
     }
@@ -204,13 +224,14 @@ uint8_t hbp_unpack_sensors(const uint8_t *frame, uint8_t len, hbp_sensors_t *m)
 
 uint8_t hbp_pack_drive(const hbp_drive_t *m, uint8_t *frame)
 {
-    uint8_t pos = 8;
+    uint8_t pos = 10;
     uint8_t i;
     frame[0] = HBP_MSG_DRIVE;
     frame[1] = m->seq;
-    put32(&frame[2], ((uint32_t)(m->duty_a & 0x3ffu) << 0) | ((uint32_t)(m->duty_b & 0x3ffu) << 10) | ((uint32_t)(m->duty_c & 0x3ffu) << 20) | ((uint32_t)(m->output_mode & 0x3u) << 30));
-    frame[6] = (uint8_t)((unsigned)((m->state & 0x7u) << 0) | (unsigned)((m->sector & 0x7u) << 3) | (m->direction_ccw ? 64u : 0u) | (m->required_ccw ? 128u : 0u));
-    frame[7] = m->fault;
+    put16(&frame[2], m->duty_a);
+    put16(&frame[4], m->duty_b);
+    put16(&frame[6], m->duty_c);
+    put16(&frame[8], (uint16_t)((unsigned)((unsigned)(m->output_mode & 0x3u) << 0) | (unsigned)((unsigned)(m->state & 0x7u) << 2) | (unsigned)((unsigned)(m->sector & 0x7u) << 5) | (m->direction_ccw ? 0x100u : 0u) | (m->required_ccw ? 0x200u : 0u) | (unsigned)((unsigned)(m->fault & 0x3fu) << 10)));
     if (m->n_telemetry > HBP_MAX_TELEMETRY) {
         return 0u;
     }
@@ -223,25 +244,25 @@ uint8_t hbp_pack_drive(const hbp_drive_t *m, uint8_t *frame)
 
 uint8_t hbp_unpack_drive(const uint8_t *frame, uint8_t len, hbp_drive_t *m)
 {
-    uint8_t pos = 8;
+    uint8_t pos = 10;
     uint8_t i;
     uint8_t n;
-    if (len < 8u || frame[0] != HBP_MSG_DRIVE) {
+    if (len < 10u || frame[0] != HBP_MSG_DRIVE) {
         return HBP_ERROR_LENGTH;
     }
     m->seq = frame[1];
+    m->duty_a = get16(&frame[2]);
+    m->duty_b = get16(&frame[4]);
+    m->duty_c = get16(&frame[6]);
     {
-        uint32_t word = get32(&frame[2]);
-        m->duty_a = (uint16_t)((word >> 0) & 0x3ffu);
-        m->duty_b = (uint16_t)((word >> 10) & 0x3ffu);
-        m->duty_c = (uint16_t)((word >> 20) & 0x3ffu);
-        m->output_mode = (uint8_t)((word >> 30) & 0x3u);
+        uint16_t word = get16(&frame[8]);
+        m->output_mode = (uint8_t)(((unsigned)word >> 0) & 0x3u);
+        m->state = (uint8_t)(((unsigned)word >> 2) & 0x7u);
+        m->sector = (uint8_t)(((unsigned)word >> 5) & 0x7u);
+        m->direction_ccw = (uint8_t)(((unsigned)word >> 8) & 0x1u);
+        m->required_ccw = (uint8_t)(((unsigned)word >> 9) & 0x1u);
+        m->fault = (uint8_t)(((unsigned)word >> 10) & 0x3fu);
     }
-    m->state = (uint8_t)((frame[6] >> 0) & 0x7u);
-    m->sector = (uint8_t)((frame[6] >> 3) & 0x7u);
-    m->direction_ccw = (uint8_t)((frame[6] >> 6) & 0x1u);
-    m->required_ccw = (uint8_t)((frame[6] >> 7) & 0x1u);
-    m->fault = frame[7];
     n = (uint8_t)((uint8_t)(len - pos) / 2u);
     if ((uint8_t)(len - pos) != (uint8_t)(n * 2u)) {
         return HBP_ERROR_LENGTH;
@@ -278,16 +299,16 @@ uint8_t hbp_unpack_param_describe(const uint8_t *frame, uint8_t len, hbp_param_d
 
 uint8_t hbp_pack_param_info(const hbp_param_info_t *m, uint8_t *frame)
 {
-    uint8_t pos = 11;
+    uint8_t pos = 17;
     uint8_t i;
     frame[0] = HBP_MSG_PARAM_INFO;
     frame[1] = m->seq;
     frame[2] = m->param_id;
     frame[3] = m->ptype;
     frame[4] = m->access;
-    puti16(&frame[5], m->min_value);
-    puti16(&frame[7], m->max_value);
-    puti16(&frame[9], m->value);
+    puti32(&frame[5], m->min_value);
+    puti32(&frame[9], m->max_value);
+    puti32(&frame[13], m->value);
     for (i = 0u; i < HBP_MAX_NAME && m->name[i] != '\0'; i++) {
     }
     { uint8_t k; for (k = 0u; k < i; k++) { frame[pos++] = (uint8_t)m->name[k]; } }
@@ -296,19 +317,19 @@ uint8_t hbp_pack_param_info(const hbp_param_info_t *m, uint8_t *frame)
 
 uint8_t hbp_unpack_param_info(const uint8_t *frame, uint8_t len, hbp_param_info_t *m)
 {
-    uint8_t pos = 11;
+    uint8_t pos = 17;
     uint8_t i;
     uint8_t n;
-    if (len < 11u || frame[0] != HBP_MSG_PARAM_INFO) {
+    if (len < 17u || frame[0] != HBP_MSG_PARAM_INFO) {
         return HBP_ERROR_LENGTH;
     }
     m->seq = frame[1];
     m->param_id = frame[2];
     m->ptype = frame[3];
     m->access = frame[4];
-    m->min_value = geti16(&frame[5]);
-    m->max_value = geti16(&frame[7]);
-    m->value = geti16(&frame[9]);
+    m->min_value = geti32(&frame[5]);
+    m->max_value = geti32(&frame[9]);
+    m->value = geti32(&frame[13]);
     n = (uint8_t)((uint8_t)(len - pos) / 1u);
     if ((uint8_t)(len - pos) != (uint8_t)(n * 1u)) {
         return HBP_ERROR_LENGTH;
@@ -348,24 +369,24 @@ uint8_t hbp_unpack_param_get(const uint8_t *frame, uint8_t len, hbp_param_get_t 
 
 uint8_t hbp_pack_param_value(const hbp_param_value_t *m, uint8_t *frame)
 {
-    uint8_t pos = 6;
+    uint8_t pos = 8;
     frame[0] = HBP_MSG_PARAM_VALUE;
     frame[1] = m->seq;
     frame[2] = m->param_id;
     frame[3] = m->result;
-    puti16(&frame[4], m->value);
+    puti32(&frame[4], m->value);
     return pos;
 }
 
 uint8_t hbp_unpack_param_value(const uint8_t *frame, uint8_t len, hbp_param_value_t *m)
 {
-    if (len != 6u || frame[0] != HBP_MSG_PARAM_VALUE) {
+    if (len != 8u || frame[0] != HBP_MSG_PARAM_VALUE) {
         return HBP_ERROR_LENGTH;
     }
     m->seq = frame[1];
     m->param_id = frame[2];
     m->result = frame[3];
-    m->value = geti16(&frame[4]);
+    m->value = geti32(&frame[4]);
     return HBP_ERROR_NONE;
 }
 
@@ -380,8 +401,8 @@ uint8_t hbp_pack_param_set(const hbp_param_set_t *m, uint8_t *frame)
     }
     for (i = 0u; i < m->n_pairs; i++) {
         frame[pos] = m->pairs[i].id;
-        puti16(&frame[pos + 1u], m->pairs[i].value);
-        pos = (uint8_t)(pos + 3u);
+        puti32(&frame[pos + 1u], m->pairs[i].value);
+        pos = (uint8_t)(pos + 5u);
     }
     return pos;
 }
@@ -395,8 +416,8 @@ uint8_t hbp_unpack_param_set(const uint8_t *frame, uint8_t len, hbp_param_set_t 
         return HBP_ERROR_LENGTH;
     }
     m->seq = frame[1];
-    n = (uint8_t)((uint8_t)(len - pos) / 3u);
-    if ((uint8_t)(len - pos) != (uint8_t)(n * 3u)) {
+    n = (uint8_t)((uint8_t)(len - pos) / 5u);
+    if ((uint8_t)(len - pos) != (uint8_t)(n * 5u)) {
         return HBP_ERROR_LENGTH;
     }
     if (n > HBP_MAX_PARAM_PAIRS) {
@@ -405,8 +426,8 @@ uint8_t hbp_unpack_param_set(const uint8_t *frame, uint8_t len, hbp_param_set_t 
     m->n_pairs = n;
     for (i = 0u; i < n; i++) {
         m->pairs[i].id = frame[pos];
-        m->pairs[i].value = geti16(&frame[pos + 1u]);
-        pos = (uint8_t)(pos + 3u);
+        m->pairs[i].value = geti32(&frame[pos + 1u]);
+        pos = (uint8_t)(pos + 5u);
     }
     return HBP_ERROR_NONE;
 }
@@ -521,22 +542,24 @@ uint8_t hbp_unpack_status(const uint8_t *frame, uint8_t len, hbp_status_t *m)
 
 uint8_t hbp_pack_error_report(const hbp_error_report_t *m, uint8_t *frame)
 {
-    uint8_t pos = 4;
+    uint8_t pos = 8;
     frame[0] = HBP_MSG_ERROR_REPORT;
     frame[1] = m->seq;
     frame[2] = m->code;
     frame[3] = m->detail;
+    put32(&frame[4], m->schema_fingerprint);
     return pos;
 }
 
 uint8_t hbp_unpack_error_report(const uint8_t *frame, uint8_t len, hbp_error_report_t *m)
 {
-    if (len != 4u || frame[0] != HBP_MSG_ERROR_REPORT) {
+    if (len != 8u || frame[0] != HBP_MSG_ERROR_REPORT) {
         return HBP_ERROR_LENGTH;
     }
     m->seq = frame[1];
     m->code = frame[2];
     m->detail = frame[3];
+    m->schema_fingerprint = get32(&frame[4]);
     return HBP_ERROR_NONE;
 }
 

@@ -4,7 +4,13 @@
 
 #include <stdint.h>
 
-#define HBP_PROTOCOL_VERSION 1u
+#define HBP_PROTOCOL_VERSION 2u
+/* First 4 bytes of SHA-256 over schema.toml's canonical wire content (see PROTOCOL.md). The #ifndef
+   exists only so that a test can build a deliberately mismatched target; never override it in a
+   firmware. */
+#ifndef HBP_SCHEMA_FINGERPRINT
+#define HBP_SCHEMA_FINGERPRINT 0x6fcf503fUL
+#endif
 #define HBP_MAX_FRAME 64u /* decoded frame: type, seq, payload, crc16 */
 #define HBP_MAX_NAME 12u
 #define HBP_MAX_PARAM_PAIRS 4u
@@ -40,6 +46,7 @@
 #define HBP_INPUT_S2 0x08u
 #define HBP_INPUT_S3 0x10u
 #define HBP_INPUT_FAULT 0x20u
+#define HBP_INPUT_INDEX 0x40u
 
 /* Special values of Sensors.edge_time_100ns */
 #define HBP_EDGE_NONE 0xffffu
@@ -75,14 +82,22 @@
 #define HBP_TELEMETRY_PHASE 0x04u
 #define HBP_TELEMETRY_ID 0x05u
 #define HBP_TELEMETRY_IQ 0x06u
+#define HBP_TELEMETRY_ID_REF 0x07u
+#define HBP_TELEMETRY_IQ_REF 0x08u
+#define HBP_TELEMETRY_THETA_E 0x09u
 #define HBP_TELEMETRY_ECHO_ENCODER 0x0au
 #define HBP_TELEMETRY_ECHO_EDGE 0x0bu
 #define HBP_TELEMETRY_ECHO_SEQ 0x0cu
+#define HBP_TELEMETRY_VD 0x0du
+#define HBP_TELEMETRY_VQ 0x0eu
+#define HBP_TELEMETRY_TARGET_FIRST 0x80u
+#define HBP_TELEMETRY_TARGET_LAST 0xfeu
 
 /* ParamInfo.ptype */
 #define HBP_PTYPE_Q15 0x00u
 #define HBP_PTYPE_INT 0x01u
 #define HBP_PTYPE_BOOL 0x02u
+#define HBP_PTYPE_IQ24 0x03u
 
 /* ParamInfo.access */
 #define HBP_ACCESS_RO 0x00u
@@ -119,28 +134,31 @@
 /* One (parameter id, value) pair of ParamSet. */
 typedef struct {
     uint8_t id;
-    int16_t value;
+    int32_t value;
 } hbp_pair_t;
 
-/* HostHello: host -> target, type 0x01, 6 fixed payload bytes. */
-#define HBP_HOST_HELLO_FIXED_LEN 8u /* type + seq + fixed fields */
+/* HostHello: host -> target, type 0x01, 10 fixed payload bytes. */
+#define HBP_HOST_HELLO_FIXED_LEN 12u /* type + seq + fixed fields */
 typedef struct {
     uint8_t seq;
     uint8_t protocol_version;
     uint16_t period_us;
     uint8_t mode;
     uint16_t watchdog_ms;
+    uint32_t schema_fingerprint;
 } hbp_host_hello_t;
 
-/* TargetHello: target -> host, type 0x02, 10 fixed payload bytes. */
-#define HBP_TARGET_HELLO_FIXED_LEN 12u /* type + seq + fixed fields */
+/* TargetHello: target -> host, type 0x02, 15 fixed payload bytes. */
+#define HBP_TARGET_HELLO_FIXED_LEN 17u /* type + seq + fixed fields */
 typedef struct {
     uint8_t seq;
     uint8_t protocol_version;
+    uint32_t schema_fingerprint;
     uint16_t firmware_version;
     uint16_t pwm_period_counts;
     uint32_t pwm_freq_hz;
     uint8_t n_params;
+    uint8_t adc_bits;
     char firmware_name[HBP_MAX_NAME + 1u]; /* NUL-terminated ASCII */
     uint8_t n_adc_roles;
     uint8_t adc_roles[HBP_MAX_ADC];
@@ -159,8 +177,8 @@ typedef struct {
     uint16_t adc[HBP_MAX_ADC];
 } hbp_sensors_t;
 
-/* Drive: target -> host, type 0x11, 6 fixed payload bytes. */
-#define HBP_DRIVE_FIXED_LEN 8u /* type + seq + fixed fields */
+/* Drive: target -> host, type 0x11, 8 fixed payload bytes. */
+#define HBP_DRIVE_FIXED_LEN 10u /* type + seq + fixed fields */
 typedef struct {
     uint8_t seq;
     uint16_t duty_a;
@@ -183,16 +201,16 @@ typedef struct {
     uint8_t param_id;
 } hbp_param_describe_t;
 
-/* ParamInfo: target -> host, type 0x21, 9 fixed payload bytes. */
-#define HBP_PARAM_INFO_FIXED_LEN 11u /* type + seq + fixed fields */
+/* ParamInfo: target -> host, type 0x21, 15 fixed payload bytes. */
+#define HBP_PARAM_INFO_FIXED_LEN 17u /* type + seq + fixed fields */
 typedef struct {
     uint8_t seq;
     uint8_t param_id;
     uint8_t ptype;
     uint8_t access;
-    int16_t min_value;
-    int16_t max_value;
-    int16_t value;
+    int32_t min_value;
+    int32_t max_value;
+    int32_t value;
     char name[HBP_MAX_NAME + 1u]; /* NUL-terminated ASCII */
 } hbp_param_info_t;
 
@@ -203,13 +221,13 @@ typedef struct {
     uint8_t param_id;
 } hbp_param_get_t;
 
-/* ParamValue: target -> host, type 0x23, 4 fixed payload bytes. */
-#define HBP_PARAM_VALUE_FIXED_LEN 6u /* type + seq + fixed fields */
+/* ParamValue: target -> host, type 0x23, 6 fixed payload bytes. */
+#define HBP_PARAM_VALUE_FIXED_LEN 8u /* type + seq + fixed fields */
 typedef struct {
     uint8_t seq;
     uint8_t param_id;
     uint8_t result;
-    int16_t value;
+    int32_t value;
 } hbp_param_value_t;
 
 /* ParamSet: host -> target, type 0x24, 0 fixed payload bytes. */
@@ -260,12 +278,13 @@ typedef struct {
     uint8_t last_error;
 } hbp_status_t;
 
-/* ErrorReport: target -> host, type 0x42, 2 fixed payload bytes. */
-#define HBP_ERROR_REPORT_FIXED_LEN 4u /* type + seq + fixed fields */
+/* ErrorReport: target -> host, type 0x42, 6 fixed payload bytes. */
+#define HBP_ERROR_REPORT_FIXED_LEN 8u /* type + seq + fixed fields */
 typedef struct {
     uint8_t seq;
     uint8_t code;
     uint8_t detail;
+    uint32_t schema_fingerprint;
 } hbp_error_report_t;
 
 /* hbp_pack_X writes type, seq and payload (no CRC) to frame[0..] (room for HBP_MAX_FRAME bytes)

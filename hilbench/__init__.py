@@ -44,6 +44,7 @@ _LAZY = {
     "StepResult": "hilbench.bench.steptest",
     "step_test": "hilbench.bench.api",
     "sweep": "hilbench.bench.api",
+    "Tolerances": "hilbench.bench.sweep",
     "TargetProfile": "hilbench.targets.profile",
     "TelemetryColumn": "hilbench.targets.profile",
     "PotReference": "hilbench.targets.profile",
@@ -59,6 +60,7 @@ if TYPE_CHECKING:
     from hilbench.bench.recorder import RecordingData, read_recording
     from hilbench.bench.steptest import StepResult, StepTest
     from hilbench.bench.summary import Summary
+    from hilbench.bench.sweep import Tolerances
     from hilbench.config import BenchConfig, load_config
     from hilbench.targets.profile import ParamReference, PotReference, TargetProfile, TelemetryColumn
     from hilbench.targets.registry import get_profile, known_targets
@@ -99,6 +101,7 @@ __all__ = [
     "TargetError",
     "TargetProfile",
     "TelemetryColumn",
+    "Tolerances",
     "__version__",
     "get_profile",
     "known_targets",

@@ -506,28 +506,44 @@ def step_table(rows, title: str, sort_by: str | None = None):  # type: ignore[no
 @cli.command(context_settings={"show_default": True})
 @click.argument("config", required=False, type=click.Path(dir_okay=False))
 @click.option("--param", "-p", "axes", multiple=True, metavar="NAME=A:B:N",
-              help="A grid axis: N values of parameter NAME from A to B (or NAME=V). Repeat per parameter; "
+              help="A swept parameter: N values of NAME from A to B (or NAME=V). Repeat per parameter; "
                    "default: the target's own default grid (`hilbench targets`).")
+@click.option("--sample", default="grid", metavar="grid|lhs:N|random:N",
+              help="Where the points go: every grid combination, or N Latin-hypercube / uniform samples of the box.")
+@click.option("--refine", "rounds", type=click.IntRange(1, 20), default=1,
+              help="Grid rounds: each next one as many points, --shrink times as wide, around the best so far.")
+@click.option("--shrink", type=click.FloatRange(0.05, 0.95), default=0.4, help="Window of each --refine round.")
+@click.option("--seed", type=click.IntRange(min=0), default=0, help="Seed of --sample lhs/random.")
+@click.option("--tolerance", "tolerance", default=None, metavar="rs=F,l=F,psi=F,j=F",
+              help="Motor tolerances (fractions, e.g. rs=0.1,psi=0.05): each point runs at every corner and "
+                   "reports its worst case.")
+@click.option("--executor", default="local", metavar="SPEC",
+              help="local (a process pool), local-dask[:N] (a Dask LocalCluster) or tcp://HOST:8786 (a Dask scheduler; "
+                   "pip install 'hilbench[dask]').")
 @click.option("--workers", type=click.IntRange(min=1), default=None,
-              help="Processes running step tests (default: one per core; 1: in this process).")
+              help="Local processes (default: one per core; 1: in this process).")
+@click.option("--resume", "store", type=click.Path(dir_okay=False), default=None, metavar="FILE.jsonl",
+              help="Append each finished point to FILE as it arrives; a sweep restarted with the same FILE runs only "
+                   "the points it lacks.")
 @click.option("--metric", type=click.Choice(["itae", "iae", "settling_time_s", "rise_time_s", "overshoot_pct", "ss_error"]),
-              default="itae", help="What ranks the gain sets (smaller is better).")
+              default="itae", help="What ranks the points (smaller is better).")
 @click.option("--from", "from_rpm", type=float, default=1000.0, help="Speed before the step, rpm.")
 @click.option("--to", "to_rpm", type=float, default=2000.0, help="Speed after the step, rpm.")
 @click.option("--duration", "duration_s", type=float, default=1.0, help="Seconds per step test.")
 @click.option("--step-at", "step_at_s", type=float, default=0.5, help="When the step comes, s.")
-@click.option("--csv", "csv_file", type=click.Path(dir_okay=False), default=None, metavar="FILE", help="Every grid point as CSV.")
+@click.option("--csv", "csv_file", type=click.Path(dir_okay=False), default=None, metavar="FILE", help="Every point as CSV.")
 @click.option("--save", "save_file", type=click.Path(dir_okay=False), default=None, metavar="FILE",
-              help="The best gains as a [target] fragment (load it with `hilbench run --gains-file FILE`).")
+              help="The best parameters as a [target] fragment (load it with `hilbench run --gains-file FILE`).")
 @click.option("--top", type=click.IntRange(1, 1000), default=10, help="Rows of the ranked table.")
 @click.option("--set", "overrides", multiple=True, metavar="TABLE.KEY=VALUE", help="Override a config value.")
 @click.option("--json", "as_json", is_flag=True, help="Print the ranked results as JSON.")
 @_friendly
-def sweep(config: str | None, axes: tuple[str, ...], workers: int | None, metric: str, from_rpm: float,
+def sweep(config: str | None, axes: tuple[str, ...], sample: str, rounds: int, shrink: float, seed: int,
+          tolerance: str | None, executor: str, workers: int | None, store: str | None, metric: str, from_rpm: float,
           to_rpm: float, duration_s: float, step_at_s: float, csv_file: str | None, save_file: str | None,
           top: int, overrides: tuple[str, ...], as_json: bool) -> None:
-    """Find gains offline: a grid of speed-step tests on the configured target's in-process model,
-    run on every core, ranked.
+    """Find gains offline: speed-step tests on the configured target's in-process model, on every
+    core or a Dask cluster, ranked; resumable; optionally worst-case over motor tolerances.
 
     Points that break the firmware's own constraints (its profile states them; the default
     target's are Kp+Ki+Kd < 0.9999, -Kp-2Kd > -1, Kd < 0.9999) are skipped and counted, not
@@ -537,6 +553,9 @@ def sweep(config: str | None, axes: tuple[str, ...], workers: int | None, metric
     Examples:
       hilbench sweep
       hilbench sweep -p kp=0.1:0.9:9 -p ki=0.01:0.2:8 -p kd=0 --metric settling_time_s --save best.toml
+      hilbench sweep -p kp=0.05:0.95:5 -p ki=0.005:0.2:5 --refine 3          # zoom in around the best
+      hilbench sweep --sample lhs:64 -p kp=0.05:0.95:1 -p ki=0.005:0.2:1 --resume s.jsonl
+      hilbench sweep --tolerance rs=0.1,psi=0.05,j=0.2 --executor local-dask:2
     """
     import json as json_module
     import time
@@ -544,48 +563,84 @@ def sweep(config: str | None, axes: tuple[str, ...], workers: int | None, metric
     from rich.console import Console
     from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn
 
+    from hilbench.bench import sampling
     from hilbench.bench.run import RunRequest, check_overrides, load_run_config, settings_profile
     from hilbench.bench.steptest import StepTest
-    from hilbench.bench.sweep import best_fragment, parse_axis, sweep_grid, write_sweep_csv
+    from hilbench.bench.sweep import Tolerances, best_fragment, parse_axis, refine, sweep_points, write_sweep_csv
 
     cfg = load_run_config(RunRequest(config, check_overrides(overrides)))
     profile = settings_profile(cfg)
-    grid = [parse_axis(word) for word in (axes or tuple(f"{n}={g}" for n, g in profile.sweep_defaults))]
+    parsed = [parse_axis(word) for word in (axes or tuple(f"{n}={g}" for n, g in profile.sweep_defaults))]
+    box = [sampling.Axis(name, values[0], values[-1], len(values)) for name, values in parsed]
     test = StepTest(from_rpm, to_rpm, step_at_s, duration_s - step_at_s)
+    tolerances = _parse_tolerances(tolerance)
+    kind, _, count = sample.partition(":")
+    if kind == "grid" and not count:
+        points = sampling.grid(box)
+    elif kind in ("lhs", "random") and count.isdigit() and 1 <= int(count) <= 100_000:
+        points = (sampling.latin_hypercube if kind == "lhs" else sampling.random_points)(box, int(count), seed)
+    else:
+        raise ConfigError(f"sweep --sample {sample!r}: expected grid, lhs:N or random:N")
     console = Console(stderr=True)
     started = time.perf_counter()
-    with Progress(TextColumn("[bold]sweep"), BarColumn(), TextColumn("{task.completed}/{task.total} gain sets"),
+    options = dict(executor=executor, workers=workers, tolerances=tolerances, store=store)
+    with Progress(TextColumn("[bold]sweep"), BarColumn(), TextColumn("{task.completed}/{task.total} points"),
                   TimeElapsedColumn(), console=console, transient=True) as progress:
         task = progress.add_task("sweep", total=None)
-        result = sweep_grid(cfg, grid, test, metric, workers=workers,
-                            progress=lambda done, total: progress.update(task, completed=done, total=total))
+        report = lambda done, total: progress.update(task, completed=done, total=total)  # noqa: E731
+        if rounds > 1:
+            if kind != "grid":
+                raise ConfigError("sweep --refine works on a grid (--sample grid)")
+            result = refine(cfg, box, test, metric, rounds=rounds, shrink=shrink, progress=report, **options)
+        else:
+            result = sweep_points(cfg, points, test, metric, progress=report, **options)
     wall_s = time.perf_counter() - started
     if csv_file:
         write_sweep_csv(csv_file, result)
     if save_file:
+        text = best_fragment(result)  # before opening the file: nothing simulated leaves no empty file
         try:
             with open(save_file, "w", encoding="utf-8") as handle:
-                handle.write(best_fragment(result))
+                handle.write(text)
         except OSError as exc:
             raise ConfigError(f"sweep --save {save_file}: {exc.strerror}") from None
     ranked = result.ranked[:top]
     if as_json:
         click.echo(json_module.dumps([
-            {"rank": p.rank, **dict(p.params), **p.result.metrics.as_dict()}
+            {"rank": p.rank, **dict(p.params), "cases": p.cases, **p.result.metrics.as_dict()}
             for p in ranked if p.result is not None
         ], indent=2, default=str))
         return
     out = _wide_console()
     rows = [(p.label, p.result.metrics) for p in ranked if p.result is not None]
-    out.print(step_table(rows, f"sweep: best {len(rows)} of {len(result.points)} by {result.metric} "
+    worst = " (worst of each point's tolerance cases)" if len(tolerances.cases()) > 1 else ""
+    out.print(step_table(rows, f"sweep: best {len(rows)} of {len(result.points)} by {result.metric}{worst} "
                                f"(step {from_rpm:g} → {to_rpm:g} rpm)", sort_by=result.metric))
-    out.print(f"{'/'.join(result.axes)}: {len(result.points) - result.skipped} points simulated, {result.skipped} "
-              f"skipped (firmware constraints); {result.sim_s:.0f} simulated s in {wall_s:.1f} s wall "
-              f"({result.sim_s / wall_s:.1f} plant-s/s, {result.extras.get('workers', 1)} workers)")
+    out.print(f"{'/'.join(result.axes)}: {len(result.points)} points ({result.skipped} skipped by the firmware's "
+              f"constraints), {result.step_tests} step tests; {result.sim_s:.0f} simulated s "
+              f"in {wall_s:.1f} s wall ({result.sim_s / wall_s:.1f} plant-s/s) on {result.extras.get('executor')}")
     if csv_file:
         out.print(f"every point: {csv_file}")
     if save_file:
         out.print(f"best gains: {save_file} (hilbench run --gains-file {save_file})")
+
+
+def _parse_tolerances(text: str | None) -> "Tolerances":
+    """`rs=0.1,l=0.1,psi=0.05,j=0.2` → Tolerances."""
+    from hilbench.bench.sweep import Tolerances
+
+    if not text:
+        return Tolerances()
+    values: dict[str, float] = {}
+    for word in text.split(","):
+        name, sep, value = word.partition("=")
+        try:
+            if not sep or name.strip() not in ("rs", "l", "psi", "j"):
+                raise ValueError
+            values[name.strip()] = float(value)
+        except ValueError:
+            raise ConfigError(f"sweep --tolerance {text!r}: expected rs=F,l=F,psi=F,j=F (fractions, e.g. rs=0.1)") from None
+    return Tolerances(**values)
 
 
 def main() -> None:

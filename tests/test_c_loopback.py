@@ -17,8 +17,11 @@ from pathlib import Path
 import pytest
 
 from c_build import FIRMWARE_DIR, LIBRARY_SOURCES, build_c
+from hilbench.errors import VersionMismatch
+from hilbench.link import open_link
 from hilbench.protocol import (
     PROTOCOL_VERSION,
+    SCHEMA_FINGERPRINT,
     AdcRole,
     Drive,
     ErrorCode,
@@ -44,6 +47,8 @@ from hilbench.protocol import (
     TelemetryId,
     encode_frame,
 )
+from hilbench.targets.remote import RemoteTarget
+from reference_codec import wire as ref_wire  # independent CRC and COBS
 
 TABLE8 = {0b001: 4, 0b010: 2, 0b011: 3, 0b100: 0, 0b101: 5, 0b110: 1}
 
@@ -113,7 +118,7 @@ def expected_drive(s: Sensors, running: bool) -> Drive:
     def i16(v: int) -> int:
         return v - 0x10000 if v >= 0x8000 else v
 
-    return Drive(s.seq, min(adc[0], 1023), min(adc[1], 1023), min(adc[2], 1023),
+    return Drive(s.seq, adc[0], adc[1], adc[2],
                  OutputMode.PWM if running else OutputMode.OFF, State.RUNNING if running else State.STOPPED,
                  TABLE8.get(hall, 7), bool(s.inputs & Input.S3), False, 0,
                  (i16(s.encoder), i16(s.edge_time_100ns), s.seq))
@@ -122,7 +127,7 @@ def expected_drive(s: Sensors, running: bool) -> Drive:
 @pytest.mark.slow
 def test_handshake_params_and_periods(target: PtyTarget) -> None:
     hello = target.ask(HostHello(0, PROTOCOL_VERSION, 1000, 0, 100))
-    assert hello == TargetHello(0, PROTOCOL_VERSION, 1, 1000, 20000, 3, "loopback",
+    assert hello == TargetHello(0, PROTOCOL_VERSION, SCHEMA_FINGERPRINT, 1, 1000, 20000, 3, 10, "loopback",
                                 (AdcRole.POT, AdcRole.IBUS, AdcRole.VBUS),
                                 (TelemetryId.ECHO_ENCODER, TelemetryId.ECHO_EDGE, TelemetryId.ECHO_SEQ))
     assert target.ask(ParamDescribe(1, 0)) == ParamInfo(1, 0, 0, 1, 0, 32767, 3277, "kp")
@@ -175,7 +180,7 @@ def test_handshake_params_and_periods(target: PtyTarget) -> None:
 @pytest.mark.slow
 def test_wrong_version_gets_error_report_and_no_hello(target: PtyTarget) -> None:
     reply = target.ask(HostHello(3, PROTOCOL_VERSION + 1, 1000, 0, 100))
-    assert reply == ErrorReport(3, ErrorCode.VERSION, PROTOCOL_VERSION)
+    assert reply == ErrorReport(3, ErrorCode.VERSION, PROTOCOL_VERSION, SCHEMA_FINGERPRINT)
     # garbage then a good request: the target resynchronises and counts the bad frame
     os.write(target.master, b"\x07\x01\x02\x00")
     status = target.ask(StatusRequest(4))
@@ -190,3 +195,58 @@ def test_exits_on_hangup_and_rejects_a_missing_tty(loopback_exe: Path, tmp_path:
     result = subprocess.run([str(loopback_exe), str(tmp_path / "no-such-tty")], capture_output=True,
                             text=True, timeout=10)
     assert result.returncode != 0 and "cannot open" in result.stderr
+
+
+OTHER_FINGERPRINT = 0x0BADF00D  # a firmware built from another schema.toml
+
+
+@pytest.fixture(scope="module")
+def other_schema_exe(tmp_path_factory, gcc: str) -> Path:
+    """The loopback target as if built from a different schema: only its fingerprint differs."""
+    assert OTHER_FINGERPRINT != SCHEMA_FINGERPRINT
+    out = tmp_path_factory.mktemp("other_schema")
+    return build_c([FIRMWARE_DIR / "examples" / "loopback_target.c", *LIBRARY_SOURCES], out / "loopback_other",
+                   extra_flags=("-DHBP_MAX_ADC=3u", "-DHBP_MAX_TELEMETRY=3u",
+                                f"-DHBP_SCHEMA_FINGERPRINT={OTHER_FINGERPRINT:#010x}UL"))
+
+
+@pytest.mark.slow
+def test_other_schema_is_refused_at_the_handshake_naming_both_fingerprints(other_schema_exe: Path) -> None:
+    # on the wire: ErrorReport(VERSION, its protocol version, its fingerprint) and no TargetHello
+    t = PtyTarget(other_schema_exe)
+    try:
+        assert t.ask(HostHello(3, PROTOCOL_VERSION, 1000, 0, 100)) == ErrorReport(
+            3, ErrorCode.VERSION, PROTOCOL_VERSION, OTHER_FINGERPRINT)
+        # nothing else was sent: the next request gets its own answer
+        assert isinstance(t.ask(StatusRequest(4)), Status)
+    finally:
+        t.close()
+    # through the host's real handshake (RemoteTarget over a pty): one line naming both
+    host_link = open_link("pty", timeout_s=1.0)
+    proc = subprocess.Popen([str(other_schema_exe), host_link.peer_path], stdin=subprocess.DEVNULL)
+    try:
+        with pytest.raises(VersionMismatch) as info:
+            RemoteTarget(host_link, timeout_s=2.0).handshake(1000, attempts=3)
+        text = str(info.value)
+        assert "\n" not in text
+        assert f"{OTHER_FINGERPRINT:#010x}" in text and f"{SCHEMA_FINGERPRINT:#010x}" in text, text
+        assert f"protocol version {PROTOCOL_VERSION}" in text and "rebuild the firmware" in text
+    finally:
+        host_link.close()
+        try:
+            proc.wait(timeout=5)
+        finally:
+            if proc.poll() is None:
+                proc.kill()
+            proc.wait()
+
+
+@pytest.mark.slow
+def test_the_version_byte_is_checked_before_the_length(target: PtyTarget) -> None:
+    """A HostHello of another protocol version may be longer: it still gets ErrorReport(VERSION)."""
+    raw = bytes([0x01, 5, PROTOCOL_VERSION + 1]) + bytes(range(1, 20))  # a future, longer HostHello
+    os.write(target.master, ref_wire(raw))
+    assert target.recv() == ErrorReport(5, ErrorCode.VERSION, PROTOCOL_VERSION, SCHEMA_FINGERPRINT)
+    raw = bytes([0x01, 6, PROTOCOL_VERSION]) + bytes(range(1, 20))  # our version, wrong length
+    os.write(target.master, ref_wire(raw))
+    assert target.recv() == ErrorReport(6, ErrorCode.LENGTH, 0x01, SCHEMA_FINGERPRINT)

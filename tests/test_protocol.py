@@ -45,27 +45,29 @@ u8 = st.integers(0, 0xFF)
 u16 = st.integers(0, 0xFFFF)
 u32 = st.integers(0, 0xFFFFFFFF)
 i16 = st.integers(-0x8000, 0x7FFF)
+i32 = st.integers(-0x80000000, 0x7FFFFFFF)
 name = st.text(st.characters(min_codepoint=0x20, max_codepoint=0x7E), max_size=12)
 
 MESSAGES = st.one_of(
-    st.builds(HostHello, u8, u8, u16, u8, u16),
-    st.builds(TargetHello, u8, u8, u16, u16, u32, u8, name,
+    st.builds(HostHello, u8, u8, u16, u8, u16, u32),
+    st.builds(TargetHello, u8, u8, u32, u16, u16, u32, u8, u8, name,
               st.lists(u8, max_size=8).map(tuple), st.lists(u8, max_size=8).map(tuple)),
     st.builds(Sensors, u8, u8, u16, u16, st.lists(u16, max_size=8).map(tuple)),
-    st.builds(Drive, u8, st.integers(0, 1023), st.integers(0, 1023), st.integers(0, 1023),
-              st.integers(0, 3), st.integers(0, 7), st.integers(0, 7), st.booleans(), st.booleans(), u8,
+    st.builds(Drive, u8, u16, u16, u16,
+              st.integers(0, 3), st.integers(0, 7), st.integers(0, 7), st.booleans(), st.booleans(),
+              st.integers(0, 63),
               st.lists(i16, max_size=8).map(tuple)),
     st.builds(ParamDescribe, u8, u8),
-    st.builds(ParamInfo, u8, u8, u8, u8, i16, i16, i16, name),
+    st.builds(ParamInfo, u8, u8, u8, u8, i32, i32, i32, name),
     st.builds(ParamGet, u8, u8),
-    st.builds(ParamValue, u8, u8, u8, i16),
-    st.builds(ParamSet, u8, st.lists(st.tuples(u8, i16), max_size=4).map(tuple)),
+    st.builds(ParamValue, u8, u8, u8, i32),
+    st.builds(ParamSet, u8, st.lists(st.tuples(u8, i32), max_size=4).map(tuple)),
     st.builds(ParamSetResult, u8, u8, u8, u8),
     st.builds(Start, u8),
     st.builds(Stop, u8),
     st.builds(StatusRequest, u8),
     st.builds(Status, u8, u16, u16, u16, u16, u16, u16, u8),
-    st.builds(ErrorReport, u8, u8, u8),
+    st.builds(ErrorReport, u8, u8, u8, u32),
 )
 
 
@@ -97,23 +99,29 @@ def test_sensors_bytes_by_hand() -> None:
 
 
 def test_drive_bit_layout_by_hand() -> None:
-    msg = Drive(seq=200, duty_a=1, duty_b=2, duty_c=3, output_mode=1, state=2, sector=5,
+    msg = Drive(seq=200, duty_a=7500, duty_b=2, duty_c=0xFFFF, output_mode=1, state=2, sector=5,
                 direction_ccw=True, required_ccw=False, fault=4, telemetry=(-1, 2, -32768))
-    word = 1 | 2 << 10 | 3 << 20 | 1 << 30
-    flags = 2 | 5 << 3 | 0x40
-    raw = bytes([0x11, 200]) + word.to_bytes(4, "little") + bytes([flags, 4]) + bytes(
-        [0xFF, 0xFF, 0x02, 0x00, 0x00, 0x80])
+    # duties u16 LE; flags u16: mode 0-1, state 2-4, sector 5-7, ccw 8, required 9, fault 10-15
+    flags = 1 | 2 << 2 | 5 << 5 | 1 << 8 | 4 << 10
+    assert flags == 0x11A9
+    raw = bytes([0x11, 200, 0x4C, 0x1D, 0x02, 0x00, 0xFF, 0xFF, 0xA9, 0x11, 0xFF, 0xFF, 0x02, 0x00, 0x00, 0x80])
     assert encode_frame(msg) == ref_wire(raw)
-    assert len(encode_frame(msg)) == 18
+    assert len(encode_frame(msg)) == 20
+
+
+def test_crc_goes_high_byte_first() -> None:
+    """Start(seq=1): CRC-16/CCITT-FALSE of 30 01, computed by hand with the bitwise reference."""
+    crc = ref_crc(bytes([0x30, 0x01]))
+    assert encode_frame(Start(1)) == ref_cobs(bytes([0x30, 0x01, crc >> 8, crc & 0xFF])) + b"\x00"
 
 
 def test_an1017_profile_fits_the_budget() -> None:
-    """1 kHz full duplex at 250 000 baud: 25 bytes per period per direction, 25 % spare -> <= 18.75."""
+    """1 kHz full duplex at 250 000 baud: 25 bytes per period per direction; v2 uses 20 (80 %)."""
     sensors = encode_frame(Sensors(0xFF, 0xFF, 0xFFFF, 0xFFFF, (1023, 1023, 1023)))
-    drive = encode_frame(Drive(0xFF, 1023, 1023, 1023, 3, 7, 7, True, True, 0xFF, (-1, -1, -1)))
+    drive = encode_frame(Drive(0xFF, 1000, 1000, 1000, 3, 7, 7, True, True, 63, (-1, -1, -1)))
     assert len(sensors) == 17
-    assert len(drive) == 18
-    assert max(len(sensors), len(drive)) <= 0.75 * 250_000 / 10 / 1000
+    assert len(drive) == 20
+    assert max(len(sensors), len(drive)) <= 0.8 * 250_000 / 10 / 1000
 
 
 @settings(max_examples=1500, suppress_health_check=[HealthCheck.too_slow])
@@ -136,16 +144,21 @@ def test_round_trip_gives_bools_and_tuples() -> None:
 @pytest.mark.parametrize(
     "msg",
     [
-        Drive(0, 1024, 0, 0, 0, 0, 0, False, False, 0, ()),
+        Drive(0, 0x10000, 0, 0, 0, 0, 0, False, False, 0, ()),
+        Drive(0, -1, 0, 0, 0, 0, 0, False, False, 0, ()),
         Drive(0, 0, 0, 0, 4, 0, 0, False, False, 0, ()),
+        Drive(0, 0, 0, 0, 0, 0, 0, False, False, 64, ()),
         Drive(0, 0, 0, 0, 0, 8, 0, False, False, 0, ()),
         Drive(0, 0, 0, 0, 0, 0, 0, False, False, 0, (0,) * 9),
         Sensors(256, 0, 0, 0, ()),
         Sensors(0, 0, 0, 0x10000, ()),
         Sensors(0, 0, 0, 0, (-1,)),
         ParamSet(0, ((0, 0),) * 5),
+        ParamSet(0, ((0, 2**31),)),
         ParamInfo(0, 0, 0, 0, 0, 0, 0, "x" * 13),
-        TargetHello(0, 1, 1, 1, 1, 0, "caf\u00e9", (), ()),
+        ParamValue(0, 0, 0, -2**31 - 1),
+        HostHello(0, 2, 1000, 0, 0, 2**32),
+        TargetHello(0, 1, 0, 1, 1, 1, 0, 10, "caf\u00e9", (), ()),
         ("not", "a", "message"),
     ],
 )
@@ -198,7 +211,7 @@ def test_decoder_survives_garbage_and_finds_the_next_frame(garbage: bytes, msg, 
 
 
 def _largest_frame() -> bytes:
-    msg = TargetHello(0xA5, PROTOCOL_VERSION, 0xFFFF, 1000, 20000, 3, "W" * 12, tuple(range(8)),
+    msg = TargetHello(0xA5, PROTOCOL_VERSION, 0xFFFFFFFF, 0xFFFF, 1000, 20000, 3, 12, "W" * 12, tuple(range(8)),
                       tuple(range(10, 18)))
     return encode_frame(msg)
 
@@ -207,12 +220,12 @@ def test_every_1_and_2_bit_error_in_a_64_byte_frame_fails_the_crc() -> None:
     """CRC level: a maximum (64-byte) decoded frame, every single and double bit error."""
     body = bytes((i * 37 + 11) & 0xFF for i in range(62))
     crc = crc16(body)
-    frame = bytearray(body + bytes((crc & 0xFF, crc >> 8)))
+    frame = bytearray(body + bytes((crc >> 8, crc & 0xFF)))
     nbits = len(frame) * 8
     from binascii import crc_hqx
 
     def ok(f: bytearray) -> bool:
-        return crc_hqx(bytes(f[:-2]), 0xFFFF) == f[-2] | f[-1] << 8
+        return crc_hqx(bytes(f[:-2]), 0xFFFF) == f[-2] << 8 | f[-1]
 
     assert ok(frame)
     for a in range(nbits):
@@ -248,13 +261,13 @@ def test_decoder_counts_each_kind_of_error() -> None:
     good = encode_frame(Start(1))
     raw = bytes([0x30, 1])
     crc = ref_crc(raw)
-    bad_crc = ref_cobs(raw + bytes(((crc & 0xFF) ^ 1, crc >> 8))) + b"\x00"
+    bad_crc = ref_cobs(raw + bytes((crc >> 8, (crc & 0xFF) ^ 1))) + b"\x00"
     raw_unknown = bytes([0x7E, 1])
     c2 = ref_crc(raw_unknown)
-    unknown = ref_cobs(raw_unknown + bytes((c2 & 0xFF, c2 >> 8))) + b"\x00"
+    unknown = ref_cobs(raw_unknown + bytes((c2 >> 8, c2 & 0xFF))) + b"\x00"
     raw_len = bytes([0x30, 1, 0x55])  # Start carries no payload
     c3 = ref_crc(raw_len)
-    bad_len = ref_cobs(raw_len + bytes((c3 & 0xFF, c3 >> 8))) + b"\x00"
+    bad_len = ref_cobs(raw_len + bytes((c3 >> 8, c3 & 0xFF))) + b"\x00"
     bad_cobs = b"\x05\x01\x02\x00"  # block runs past the end
     oversized = b"\x01" * 200 + b"\x00"
     decoder = FrameDecoder()

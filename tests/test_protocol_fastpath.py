@@ -14,7 +14,7 @@ from hypothesis import strategies as st
 
 from hilbench.errors import ProtocolError
 from hilbench.protocol import Drive, FrameDecoder, LengthError, Sensors, decode_frame, encode_frame
-from hilbench.protocol.framing import CRC_OK, CRC_PRE
+from hilbench.protocol.framing import CRC_PRE
 from reference_codec import cobs as ref_cobs, crc16 as ref_crc, wire as ref_wire  # independent
 
 # Values rich in 0x00 bytes, so frames with 0, 1, 2, 3 and more COBS blocks all occur.
@@ -24,8 +24,9 @@ U8_ZEROISH = st.one_of(st.just(0), st.integers(0, 0xFF))
 
 SENSORS = st.builds(Sensors, U8_ZEROISH, U8_ZEROISH, U16_ZEROISH, U16_ZEROISH,
                     st.lists(st.integers(0, 1023) | U16_ZEROISH, max_size=8).map(tuple))
-DRIVE = st.builds(Drive, U8_ZEROISH, st.integers(0, 1023), st.integers(0, 1023), st.integers(0, 1023),
-                  st.integers(0, 3), st.integers(0, 7), st.integers(0, 7), st.booleans(), st.booleans(), U8_ZEROISH,
+DRIVE = st.builds(Drive, U8_ZEROISH, U16_ZEROISH, U16_ZEROISH, U16_ZEROISH,
+                  st.integers(0, 3), st.integers(0, 7), st.integers(0, 7), st.booleans(), st.booleans(),
+                  st.sampled_from([0, 1, 63]) | st.integers(0, 63),
                   st.lists(I16_ZEROISH, max_size=8).map(tuple))
 
 
@@ -39,10 +40,11 @@ def sensors_frame(m: Sensors) -> bytes:
 
 
 def drive_frame(m: Drive) -> bytes:
-    """type 0x11 . seq . duties word (a | b<<10 | c<<20 | mode<<30) . flags . fault . telemetry i16 each."""
-    word = m.duty_a + (m.duty_b << 10) + (m.duty_c << 20) + (m.output_mode << 30)
-    flags = m.state + (m.sector << 3) + (64 if m.direction_ccw else 0) + (128 if m.required_ccw else 0)
-    return (bytes([0x11, m.seq]) + word.to_bytes(4, "little") + bytes([flags, m.fault])
+    """type 0x11 . seq . duty_a/b/c u16 . flags u16 (mode | state<<2 | sector<<5 | ccw<<8 | req<<9 |
+    fault<<10) . telemetry i16 each."""
+    flags = (m.output_mode + (m.state << 2) + (m.sector << 5) + (256 if m.direction_ccw else 0)
+             + (512 if m.required_ccw else 0) + (m.fault << 10))
+    return (bytes([0x11, m.seq]) + le16(m.duty_a) + le16(m.duty_b) + le16(m.duty_c) + le16(flags)
             + b"".join(map(le16, m.telemetry)))
 
 
@@ -67,25 +69,24 @@ def test_drive_fast_path_bytes_and_round_trip(msg: Drive) -> None:
     assert type(got.direction_ccw) is bool and type(got.telemetry) is tuple
 
 
-def test_crc_tables_accept_exactly_the_right_crc() -> None:
-    """Every possible stored CRC (all 65 536) behind three frames: the table check says yes once, at ref_crc."""
+def test_crc_table_accepts_exactly_the_right_crc() -> None:
+    """Every possible stored CRC (all 65 536) behind three frames: the check says yes once, at ref_crc."""
     rng = random.Random(2)
     for size in (2, 13, 61):
         frame = bytes(rng.randrange(256) for _ in range(size))
         want = ref_crc(frame)
         code = rng.randrange(1, 256)
         accepted = [stored for stored in range(0x10000)
-                    if crc_hqx(bytes([code]) + frame + bytes((stored & 0xFF, stored >> 8)), CRC_PRE[code])
-                    == CRC_OK[(stored & 0xFF) ^ (stored >> 8)]]
+                    if crc_hqx(bytes([code]) + frame + bytes((stored >> 8, stored & 0xFF)), CRC_PRE[code]) == 0]
         assert accepted == [want]
 
 
 @pytest.mark.parametrize(
     ("msg", "same_bits_as"),
     [
-        # duty_a = 1024 spills into duty_b's bit 0; sector 8 spills into direction_ccw (bit 6)
-        (Drive(0, 1024, 0, 0, 0, 0, 0, False, False, 0, (1, 2, 3)),
-         Drive(0, 0, 1, 0, 0, 0, 0, False, False, 0, (1, 2, 3))),
+        # output_mode 4 spills into state's bit 0; sector 8 spills into direction_ccw (bit 8)
+        (Drive(0, 0, 0, 0, 4, 0, 0, False, False, 0, (1, 2, 3)),
+         Drive(0, 0, 0, 0, 0, 1, 0, False, False, 0, (1, 2, 3))),
         (Drive(0, 0, 0, 0, 0, 0, 8, False, False, 0, ()),
          Drive(0, 0, 0, 0, 0, 0, 0, True, False, 0, ())),
     ],
@@ -101,6 +102,7 @@ def test_validate_false_skips_only_the_bit_field_checks(msg: Drive, same_bits_as
     "msg",
     [
         Drive(256, 0, 0, 0, 0, 0, 0, False, False, 0, (0, 0, 0)),
+        Drive(0, 0x10000, 0, 0, 0, 0, 0, False, False, 0, (0, 0, 0)),
         Drive(0, 0, 0, 0, 0, 0, 0, False, False, 0, (0, 0x8000, 0)),
         Drive(0, 0, 0, 0, 0, 0, 0, False, False, 0, (0,) * 9),
         Sensors(0, 0, 0, 0, (0, -1, 0)),
@@ -124,8 +126,8 @@ def _framed(raw_no_crc: bytes) -> bytes:
     [
         bytes([0x10, 1, 0, 1, 1, 2, 2, 5]),  # Sensors with half an adc entry
         bytes([0x10, 1, 0, 1, 1, 2]),  # Sensors without its encoder
-        bytes([0x11, 1, 1, 1, 1, 1, 1]),  # Drive without its fault byte
-        bytes([0x11, 1, 1, 1, 1, 1, 1, 1, 9]),  # Drive with half a telemetry entry
+        bytes([0x11, 1, 1, 1, 1, 1, 1, 1, 1]),  # Drive without the high byte of its flags
+        bytes([0x11, 1, 1, 1, 1, 1, 1, 1, 1, 1, 9]),  # Drive with half a telemetry entry
     ],
 )
 def test_hot_types_with_a_bad_length_raise_length_error(frame: bytes) -> None:
@@ -143,7 +145,7 @@ def test_one_frame_per_read_counts_like_the_general_path() -> None:
     good = encode_frame(Sensors(1, 2, 3, 4, (5, 6, 7)))
     raw = sensors_frame(Sensors(9, 2, 3, 4, (5, 6, 7)))
     crc = ref_crc(raw)
-    bad = ref_cobs(raw + bytes(((crc & 0xFF) ^ 0x10, crc >> 8))) + b"\x00"
+    bad = ref_cobs(raw + bytes((crc >> 8, (crc & 0xFF) ^ 0x10))) + b"\x00"
     per_call = FrameDecoder()
     got = [m for chunk in (good, bad, good) for m in per_call.feed(chunk)]
     at_once = FrameDecoder()

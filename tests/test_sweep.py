@@ -76,3 +76,112 @@ def test_grid_spec_parsing() -> None:
         sweep_grid(load_config(None), [("kp", (1.5,))], SHORT, workers=1)
     with pytest.raises(ConfigError, match="unknown parameter"):
         sweep_grid(load_config(None), [("kq", (0.1,))], SHORT, workers=1)
+
+
+# ---------------------------------------------------------------- executors, resume, tolerances, refinement
+import json  # noqa: E402
+import os  # noqa: E402
+import shutil  # noqa: E402
+import signal  # noqa: E402
+import subprocess  # noqa: E402
+import sys  # noqa: E402
+import time  # noqa: E402
+
+from conftest import REPO_ROOT  # noqa: E402
+from hilbench.bench.sampling import Axis, grid, latin_hypercube, random_points  # noqa: E402
+from hilbench.bench.sweep import Tolerances, refine, sweep_points  # noqa: E402
+
+AXES = [("kp", (0.1, 0.3, 0.5)), ("ki", (0.01, 0.05))]
+
+
+def _fingerprint(result) -> list[tuple]:  # type: ignore[no-untyped-def]
+    return [(p.params, p.constraint, None if p.result is None else p.result.metrics.as_dict()) for p in result.points]
+
+
+def test_the_same_sweep_in_process_on_a_pool_and_on_a_dask_cluster_is_identical() -> None:
+    """Results and order do not depend on what ran them (each point seeded from the config)."""
+    if shutil.which("gcc") is None and os.environ.get("HILBENCH_REQUIRE_TOOLS") != "1":
+        pytest.skip("needs the compiled cores for speed")
+    pytest.importorskip("distributed", reason="the dask extra is not installed (pip install 'hilbench[dask]')") \
+        if os.environ.get("HILBENCH_REQUIRE_TOOLS") != "1" else None
+    cfg = load_config(None)
+    alone = sweep_grid(cfg, AXES, SHORT, executor="local", workers=1)
+    pooled = sweep_grid(cfg, AXES, SHORT, executor="local", workers=2)
+    dask = sweep_grid(cfg, AXES, SHORT, executor="local-dask:2")
+    assert _fingerprint(alone) == _fingerprint(pooled) == _fingerprint(dask)
+    assert "Dask" in dask.extras["executor"]
+
+
+def test_an_interrupted_sweep_resumes_with_only_the_missing_points(tmp_path) -> None:
+    store = tmp_path / "sweep.jsonl"
+    cfg = load_config(None)
+    points = grid([Axis("kp", 0.1, 0.5, 3), Axis("ki", 0.01, 0.05, 2)])
+
+    def interrupt_after_two(done: int, total: int) -> None:
+        if done >= 2:
+            raise KeyboardInterrupt
+
+    with pytest.raises(KeyboardInterrupt):
+        sweep_points(cfg, points, SHORT, workers=1, store=store, progress=interrupt_after_two)
+    assert len(store.read_text().splitlines()) == 2
+    resumed = sweep_points(cfg, points, SHORT, workers=1, store=store)
+    assert resumed.sim_s == pytest.approx(4 * SHORT.duration_s)  # only the 4 missing points ran
+    whole = sweep_points(cfg, points, SHORT, workers=1)
+    assert [p.result.metrics.itae for p in resumed.points] == [p.result.metrics.itae for p in whole.points]
+    with pytest.raises(ConfigError, match="another sweep"):
+        sweep_points(cfg, points[:3], SHORT, workers=1, store=store)
+
+
+@pytest.mark.slow
+def test_ctrl_c_on_the_cli_sweep_then_a_restart_finishes_only_the_missing_points(tmp_path) -> None:
+    store = tmp_path / "s.jsonl"
+    args = [sys.executable, "-m", "hilbench", "sweep", "-p", "kp=0.1:0.5:10", "-p", "ki=0.01:0.05:6", "-p", "kd=0",
+            "--duration", "1.0", "--step-at", "0.5", "--workers", "1", "--resume", str(store), "--json"]
+    process = subprocess.Popen(args, cwd=REPO_ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    try:
+        deadline = time.monotonic() + 60
+        while time.monotonic() < deadline and process.poll() is None:
+            if store.exists() and len(store.read_text().splitlines()) >= 3:
+                break
+            time.sleep(0.02)  # polling the store with a deadline
+        process.send_signal(signal.SIGINT)
+        _, err = process.communicate(timeout=60)
+    finally:
+        if process.poll() is None:
+            process.kill()
+            process.communicate(timeout=10)
+    assert process.returncode == 130 and "Traceback" not in err, err
+    kept = len(store.read_text().splitlines())
+    assert 3 <= kept < 60
+    again = subprocess.run(args, cwd=REPO_ROOT, capture_output=True, text=True, timeout=300)
+    assert again.returncode == 0, again.stderr
+    assert len(store.read_text().splitlines()) == 60 and len(json.loads(again.stdout)) == 10  # --top 10 of 60
+
+
+def test_a_tolerance_sweep_reports_the_worst_case_of_each_point() -> None:
+    cfg = load_config(None)
+    nominal = sweep_grid(cfg, [("kp", (0.2,)), ("ki", (0.02,))], SHORT, workers=1)
+    robust = sweep_grid(cfg, [("kp", (0.2,)), ("ki", (0.02,))], SHORT, workers=1, tolerances=Tolerances(rs=0.2, j=0.3))
+    point = robust.points[0]
+    assert point.cases == 4 and robust.step_tests == 4
+    assert point.result.metrics.itae >= nominal.points[0].result.metrics.itae
+    with pytest.raises(ConfigError, match="fraction"):
+        Tolerances(rs=1.5).cases()
+
+
+def test_samplers_are_seeded_and_stay_in_the_box() -> None:
+    box = [Axis("kp", 0.1, 0.5, 1), Axis("ki", 0.01, 0.05, 1)]
+    lhs = latin_hypercube(box, 8, seed=3)
+    assert lhs == latin_hypercube(box, 8, seed=3) and lhs != latin_hypercube(box, 8, seed=4)
+    kp = sorted(v for (_, v), _ in lhs)
+    assert all(0.1 + 0.4 * i / 8 <= x < 0.1 + 0.4 * (i + 1) / 8 for i, x in enumerate(kp))  # one per stratum
+    assert all(0.01 <= ki <= 0.05 for _, (_, ki) in random_points(box, 20, seed=1))
+
+
+def test_refinement_zooms_around_the_best_point_and_keeps_every_round() -> None:
+    cfg = load_config(None)
+    box = [Axis("kp", 0.05, 0.85, 3), Axis("ki", 0.005, 0.12, 3)]
+    once = refine(cfg, box, SHORT, rounds=1, workers=1)
+    thrice = refine(cfg, box, SHORT, rounds=3, workers=1)
+    assert len(thrice.points) > len(once.points)
+    assert thrice.best.result.metrics.itae <= once.best.result.metrics.itae

@@ -1,8 +1,8 @@
 /* loopback_target.c: a host-built target that serves the hilbench protocol on a tty with the C library.
  *
  * Usage: loopback_target TTY_PATH   (serves until the tty hangs up; exit 0 then, 1 on errors)
- * The Sensors -> Drive mapping is the documented loopback mapping of PROTOCOL.md, identical to the
- * Python loopback target, so end-to-end tests can assert exact values.
+ * The protocol handling is loopback_core.c (the documented loopback mapping of PROTOCOL.md); this
+ * file is the POSIX platform: the tty, and the read loop that feeds the receive state machine.
  */
 #define _POSIX_C_SOURCE 200809L
 #include <errno.h>
@@ -12,38 +12,13 @@
 #include <termios.h>
 #include <unistd.h>
 
-#include "hbp.h"
+/* The platform-free part, compiled in this translation unit (so one source file builds the target). */
+#include "loopback_core.c"
 
-static hbp_rx_t rx;
 static int tty = -1;
-static uint8_t running = 0u;
-static uint8_t last_s2 = 0u;
 
-static const hbp_param_def_t param_defs[3] = {
-    {"kp", 0, 32767, HBP_PTYPE_Q15, HBP_ACCESS_RW},
-    {"ki", 0, 32767, HBP_PTYPE_Q15, HBP_ACCESS_RW},
-    {"version", 1, 1, HBP_PTYPE_INT, HBP_ACCESS_RO},
-};
-static int16_t param_values[3] = {3277, 328, 1};
-
-/* Constraint 1: kp + ki <= 32767. */
-static uint8_t check_params(const hbp_params_t *p, const hbp_param_set_t *req, uint8_t *param_id, uint8_t *detail)
+int loopback_send(const uint8_t *out, uint8_t n)
 {
-    int32_t sum = (int32_t)hbp_param_candidate(p, req, 0u) + (int32_t)hbp_param_candidate(p, req, 1u);
-    if (sum > 32767L) {
-        *param_id = 0u;
-        *detail = 1u;
-        return HBP_RESULT_CONSTRAINT;
-    }
-    return HBP_RESULT_OK;
-}
-
-static hbp_params_t params = {param_defs, param_values, 3u, check_params};
-
-static int send_frame(const uint8_t *frame, uint8_t len)
-{
-    uint8_t out[HBP_MAX_WIRE];
-    uint8_t n = hbp_encode_frame(frame, len, out);
     uint8_t done = 0u;
     while (done < n) {
         ssize_t w = write(tty, &out[done], (size_t)(n - done));
@@ -56,147 +31,6 @@ static int send_frame(const uint8_t *frame, uint8_t len)
         done = (uint8_t)(done + (uint8_t)w);
     }
     return 0;
-}
-
-static int send_error(uint8_t seq, uint8_t code, uint8_t detail)
-{
-    hbp_error_report_t e;
-    uint8_t frame[HBP_MAX_FRAME];
-    e.seq = seq;
-    e.code = code;
-    e.detail = detail;
-    return send_frame(frame, hbp_pack_error_report(&e, frame));
-}
-
-static uint8_t sector_from_halls(uint8_t inputs)
-{
-    /* AN1017 Table 8, C B A -> sector */
-    static const uint8_t table[8] = {7u, 4u, 2u, 3u, 0u, 5u, 1u, 7u};
-    return table[inputs & 0x07u];
-}
-
-static int16_t as_int16(uint16_t u)
-{
-    return (u < 0x8000u) ? (int16_t)u : (int16_t)(-(int16_t)(0xFFFFu - u) - 1);
-}
-
-static uint16_t duty_from_adc(const hbp_sensors_t *s, uint8_t i)
-{
-    if (i >= s->n_adc) {
-        return 0u;
-    }
-    return (s->adc[i] > 1023u) ? 1023u : s->adc[i];
-}
-
-static int handle(const uint8_t *buf, uint8_t len)
-{
-    uint8_t frame[HBP_MAX_FRAME];
-    uint8_t type = buf[0];
-    uint8_t seq = buf[1];
-    switch (type) {
-    case HBP_MSG_HOST_HELLO: {
-        hbp_host_hello_t h;
-        hbp_target_hello_t t;
-        if (hbp_unpack_host_hello(buf, len, &h) != HBP_ERROR_NONE) {
-            return send_error(seq, HBP_ERROR_LENGTH, type);
-        }
-        if (hbp_check_hello(&h) != HBP_ERROR_NONE) {
-            return send_error(seq, HBP_ERROR_VERSION, HBP_PROTOCOL_VERSION);
-        }
-        memset(&t, 0, sizeof t);
-        t.seq = seq;
-        t.protocol_version = HBP_PROTOCOL_VERSION;
-        t.firmware_version = 1u;
-        t.pwm_period_counts = 1000u;
-        t.pwm_freq_hz = 20000u;
-        t.n_params = params.count;
-        strcpy(t.firmware_name, "loopback");
-        t.n_adc_roles = 3u;
-        t.adc_roles[0] = HBP_ADC_POT;
-        t.adc_roles[1] = HBP_ADC_IBUS;
-        t.adc_roles[2] = HBP_ADC_VBUS;
-        t.n_telemetry_ids = 3u;
-        t.telemetry_ids[0] = HBP_TELEMETRY_ECHO_ENCODER;
-        t.telemetry_ids[1] = HBP_TELEMETRY_ECHO_EDGE;
-        t.telemetry_ids[2] = HBP_TELEMETRY_ECHO_SEQ;
-        running = 0u;
-        return send_frame(frame, hbp_pack_target_hello(&t, frame));
-    }
-    case HBP_MSG_SENSORS: {
-        hbp_sensors_t s;
-        hbp_drive_t d;
-        uint8_t s2;
-        if (hbp_unpack_sensors(buf, len, &s) != HBP_ERROR_NONE) {
-            return send_error(seq, HBP_ERROR_LENGTH, type);
-        }
-        s2 = (uint8_t)((s.inputs & HBP_INPUT_S2) != 0u);
-        if (s2 && !last_s2) {
-            running = (uint8_t)!running;
-        }
-        last_s2 = s2;
-        d.seq = s.seq;
-        d.duty_a = duty_from_adc(&s, 0u);
-        d.duty_b = duty_from_adc(&s, 1u);
-        d.duty_c = duty_from_adc(&s, 2u);
-        d.output_mode = running ? HBP_OUTPUT_PWM : HBP_OUTPUT_OFF;
-        d.state = running ? HBP_STATE_RUNNING : HBP_STATE_STOPPED;
-        d.sector = sector_from_halls(s.inputs);
-        d.direction_ccw = (uint8_t)((s.inputs & HBP_INPUT_S3) != 0u);
-        d.required_ccw = 0u;
-        d.fault = HBP_FAULT_NONE;
-        d.n_telemetry = 3u;
-        d.telemetry[0] = as_int16(s.encoder);
-        d.telemetry[1] = as_int16(s.edge_time_100ns);
-        d.telemetry[2] = (int16_t)s.seq;
-        return send_frame(frame, hbp_pack_drive(&d, frame));
-    }
-    case HBP_MSG_PARAM_DESCRIBE: {
-        hbp_param_describe_t q;
-        hbp_param_info_t info;
-        if (hbp_unpack_param_describe(buf, len, &q) != HBP_ERROR_NONE) {
-            return send_error(seq, HBP_ERROR_LENGTH, type);
-        }
-        if (hbp_param_describe(&params, q.param_id, seq, &info) != HBP_RESULT_OK) {
-            return send_error(seq, HBP_ERROR_UNKNOWN_PARAM, q.param_id);
-        }
-        return send_frame(frame, hbp_pack_param_info(&info, frame));
-    }
-    case HBP_MSG_PARAM_GET: {
-        hbp_param_get_t q;
-        hbp_param_value_t v;
-        if (hbp_unpack_param_get(buf, len, &q) != HBP_ERROR_NONE) {
-            return send_error(seq, HBP_ERROR_LENGTH, type);
-        }
-        hbp_param_get(&params, q.param_id, seq, &v);
-        return send_frame(frame, hbp_pack_param_value(&v, frame));
-    }
-    case HBP_MSG_PARAM_SET: {
-        hbp_param_set_t q;
-        hbp_param_set_result_t r;
-        if (hbp_unpack_param_set(buf, len, &q) != HBP_ERROR_NONE) {
-            return send_error(seq, HBP_ERROR_LENGTH, type);
-        }
-        hbp_param_set(&params, &q, seq, &r);
-        return send_frame(frame, hbp_pack_param_set_result(&r, frame));
-    }
-    case HBP_MSG_START:
-    case HBP_MSG_STOP:
-        if (len != 2u) {
-            return send_error(seq, HBP_ERROR_LENGTH, type);
-        }
-        running = (uint8_t)(type == HBP_MSG_START);
-        return 0;
-    case HBP_MSG_STATUS_REQUEST: {
-        hbp_status_t st;
-        if (len != 2u) {
-            return send_error(seq, HBP_ERROR_LENGTH, type);
-        }
-        hbp_rx_status(&rx, seq, 0u, &st);
-        return send_frame(frame, hbp_pack_status(&st, frame));
-    }
-    default:
-        return send_error(seq, HBP_ERROR_BAD_REQUEST, type); /* a target -> host message */
-    }
 }
 
 static int make_raw(int fd)
@@ -231,7 +65,7 @@ int main(int argc, char **argv)
         fprintf(stderr, "loopback_target: %s is not a tty: %s\n", argv[1], strerror(errno));
         return 1;
     }
-    hbp_rx_init(&rx);
+    hbp_rx_init(&loopback_rx);
     for (;;) {
         ssize_t n = read(tty, buf, sizeof buf);
         ssize_t i;
@@ -246,9 +80,9 @@ int main(int argc, char **argv)
             return 1;
         }
         for (i = 0; i < n; i++) {
-            if (hbp_rx_byte(&rx, buf[i])) {
-                int r = handle(rx.buf, rx.frame_len);
-                hbp_rx_release(&rx);
+            if (hbp_rx_byte(&loopback_rx, buf[i])) {
+                int r = loopback_handle(loopback_rx.buf, loopback_rx.frame_len);
+                hbp_rx_release(&loopback_rx);
                 if (r != 0) {
                     return (errno == EIO) ? 0 : 1;
                 }

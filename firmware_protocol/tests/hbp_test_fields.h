@@ -102,15 +102,18 @@ static int hbp_test_field(uint8_t type, const hbp_any_t *m, const char *name, un
         if (strcmp(name, "period_us") == 0) { *value = x->period_us; return 1; }
         if (strcmp(name, "mode") == 0) { *value = x->mode; return 1; }
         if (strcmp(name, "watchdog_ms") == 0) { *value = x->watchdog_ms; return 1; }
+        if (strcmp(name, "schema_fingerprint") == 0) { *value = x->schema_fingerprint; return 1; }
     }
     if (type == HBP_MSG_TARGET_HELLO) {
         const hbp_target_hello_t *x = &m->target_hello;
         if (strcmp(name, "seq") == 0) { *value = x->seq; return 1; }
         if (strcmp(name, "protocol_version") == 0) { *value = x->protocol_version; return 1; }
+        if (strcmp(name, "schema_fingerprint") == 0) { *value = x->schema_fingerprint; return 1; }
         if (strcmp(name, "firmware_version") == 0) { *value = x->firmware_version; return 1; }
         if (strcmp(name, "pwm_period_counts") == 0) { *value = x->pwm_period_counts; return 1; }
         if (strcmp(name, "pwm_freq_hz") == 0) { *value = x->pwm_freq_hz; return 1; }
         if (strcmp(name, "n_params") == 0) { *value = x->n_params; return 1; }
+        if (strcmp(name, "adc_bits") == 0) { *value = x->adc_bits; return 1; }
         if (strcmp(name, "firmware_name") == 0) { *str = x->firmware_name; return 3; }
         if (strcmp(name, "adc_roles") == 0) {
             *count = x->n_adc_roles;
@@ -225,6 +228,7 @@ static int hbp_test_field(uint8_t type, const hbp_any_t *m, const char *name, un
         if (strcmp(name, "seq") == 0) { *value = x->seq; return 1; }
         if (strcmp(name, "code") == 0) { *value = x->code; return 1; }
         if (strcmp(name, "detail") == 0) { *value = x->detail; return 1; }
+        if (strcmp(name, "schema_fingerprint") == 0) { *value = x->schema_fingerprint; return 1; }
     }
     return 0;
 }

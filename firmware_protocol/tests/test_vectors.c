@@ -149,8 +149,10 @@ static int run_vector(const vector_t *v)
                     return 1;
                 }
                 if (v->hello >= 0) {
+                    hbp_host_hello_t h;
                     uint8_t r = hbp_check_hello(&m.host_hello);
-                    if ((r == HBP_ERROR_NONE) != (v->hello == 1)) {
+                    uint8_t r2 = hbp_check_host_hello(rx.buf, rx.frame_len, &h);
+                    if ((r == HBP_ERROR_NONE) != (v->hello == 1) || r2 != r) {
                         return fail(v, "hello check differs");
                     }
                 }

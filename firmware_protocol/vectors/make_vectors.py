@@ -2,7 +2,8 @@
 """Write vectors.txt: golden frames for the Python and C decoders.
 
 Deliberately independent of the codec: every frame is laid out here by hand from the byte layout in
-PROTOCOL.md, the CRC is a bitwise CRC-16/CCITT-FALSE and COBS is a byte-by-byte encoder.
+PROTOCOL.md, the CRC is a bitwise CRC-16/CCITT-FALSE sent high byte first and COBS is a byte-by-byte
+encoder. The schema fingerprint is computed here from schema.toml by the recipe in PROTOCOL.md.
 
 Format, one block per vector:
     vector NAME
@@ -16,17 +17,36 @@ Arrays are comma-separated (empty after '='), bools 0/1, names contain no spaces
 
 from __future__ import annotations
 
+import hashlib
+import json
 import struct
+import tomllib
 from pathlib import Path
 
 from reference_codec import cobs, crc16  # the independent CRC/COBS beside this script
 
-OUT = Path(__file__).resolve().parent / "vectors.txt"
+HERE = Path(__file__).resolve().parent
+OUT = HERE / "vectors.txt"
+
+
+def _strip(value: object) -> object:
+    if isinstance(value, dict):
+        return {k: _strip(v) for k, v in value.items() if k not in ("doc", "hot", "hot_n", "default")}
+    if isinstance(value, list):
+        return [_strip(v) for v in value]
+    return value
+
+
+# PROTOCOL.md: SHA-256 of the schema's JSON (non-wire keys dropped, sorted keys, no spaces), first 4 bytes
+FP = int.from_bytes(hashlib.sha256(json.dumps(
+    _strip(tomllib.loads((HERE.parent / "schema.toml").read_text(encoding="utf-8"))),
+    sort_keys=True, separators=(",", ":"), ensure_ascii=True).encode("ascii")).digest()[:4], "big")
+OTHER_FP = FP ^ 0x00010000  # a firmware built from another schema
 
 
 def with_crc(raw: bytes, flip: int = 0) -> bytes:
     c = crc16(raw) ^ flip
-    return raw + bytes((c & 0xFF, c >> 8))
+    return raw + bytes((c >> 8, c & 0xFF))  # high byte first
 
 
 def wire(raw: bytes, flip: int = 0) -> bytes:
@@ -40,47 +60,75 @@ def add(name: str, data: bytes, expects: list[str], hello: str | None = None) ->
     VECTORS.append((name, data, expects, hello))
 
 
+def drive(seq: int, duties: tuple[int, int, int], mode: int, state: int, sector: int, ccw: int, req: int,
+          fault: int, telemetry: tuple[int, ...]) -> bytes:
+    """Drive: duty_a/b/c u16; u16 = mode bits 0-1, state 2-4, sector 5-7, ccw 8, required 9, fault 10-15."""
+    flags = mode | state << 2 | sector << 5 | ccw << 8 | req << 9 | fault << 10
+    return bytes([0x11, seq]) + struct.pack(f"<3HH{len(telemetry)}h", *duties, flags, *telemetry)
+
+
 def build() -> None:
-    # HostHello: version u8, period_us u16, mode u8, watchdog_ms u16
-    add("host_hello_v1", wire(bytes([0x01, 0]) + struct.pack("<BHBH", 1, 1000, 0, 100)),
-        ["HostHello seq=0 protocol_version=1 period_us=1000 mode=0 watchdog_ms=100"], "accept")
-    add("host_hello_wrong_version", wire(bytes([0x01, 7]) + struct.pack("<BHBH", 2, 50, 1, 0)),
-        ["HostHello seq=7 protocol_version=2 period_us=50 mode=1 watchdog_ms=0"], "reject")
-    # TargetHello: version, fw version u16, pwm counts u16, pwm Hz u32, n_params, name (count-prefixed),
-    # adc roles (count-prefixed), telemetry ids (rest)
+    # HostHello: version u8, period_us u16, mode u8, watchdog_ms u16, schema fingerprint u32
+    add("host_hello_v2", wire(bytes([0x01, 0]) + struct.pack("<BHBHI", 2, 1000, 0, 100, FP)),
+        [f"HostHello seq=0 protocol_version=2 period_us=1000 mode=0 watchdog_ms=100 schema_fingerprint={FP}"],
+        "accept")
+    add("host_hello_wrong_version", wire(bytes([0x01, 7]) + struct.pack("<BHBHI", 3, 50, 1, 0, FP)),
+        [f"HostHello seq=7 protocol_version=3 period_us=50 mode=1 watchdog_ms=0 schema_fingerprint={FP}"], "reject")
+    add("host_hello_other_schema", wire(bytes([0x01, 8]) + struct.pack("<BHBHI", 2, 50, 0, 0, OTHER_FP)),
+        [f"HostHello seq=8 protocol_version=2 period_us=50 mode=0 watchdog_ms=0 schema_fingerprint={OTHER_FP}"],
+        "reject")
+    # TargetHello: version, fingerprint u32, fw version u16, pwm counts u16, pwm Hz u32, n_params, adc_bits,
+    # name (count-prefixed), adc roles (count-prefixed), telemetry ids (rest)
     add("target_hello_loopback",
-        wire(bytes([0x02, 0]) + struct.pack("<BHHIB", 1, 1, 1000, 20000, 3) + bytes([8]) + b"loopback"
+        wire(bytes([0x02, 0]) + struct.pack("<BIHHIBB", 2, FP, 1, 1000, 20000, 3, 10) + bytes([8]) + b"loopback"
              + bytes([3, 1, 2, 3]) + bytes([10, 11, 12])),
-        ["TargetHello seq=0 protocol_version=1 firmware_version=1 pwm_period_counts=1000 pwm_freq_hz=20000 "
-         "n_params=3 firmware_name=loopback adc_roles=1,2,3 telemetry_ids=10,11,12"])
+        [f"TargetHello seq=0 protocol_version=2 schema_fingerprint={FP} firmware_version=1 pwm_period_counts=1000 "
+         "pwm_freq_hz=20000 n_params=3 adc_bits=10 firmware_name=loopback adc_roles=1,2,3 telemetry_ids=10,11,12"])
+    add("target_hello_foc",
+        wire(bytes([0x02, 1]) + struct.pack("<BIHHIBB", 2, FP, 0x0200, 7500, 10000, 6, 12) + bytes([11])
+             + b"f2812_foc_1" + bytes([3, 4, 5, 3]) + bytes([1, 2, 5, 6, 9, 0x80, 0xFE])),
+        [f"TargetHello seq=1 protocol_version=2 schema_fingerprint={FP} firmware_version=512 "
+         "pwm_period_counts=7500 pwm_freq_hz=10000 n_params=6 adc_bits=12 firmware_name=f2812_foc_1 "
+         "adc_roles=4,5,3 telemetry_ids=1,2,5,6,9,128,254"])
     add("target_hello_empty_lists",
-        wire(bytes([0x02, 255]) + struct.pack("<BHHIB", 1, 65535, 0, 4294967295, 0) + bytes([0]) + bytes([0])),
-        ["TargetHello seq=255 protocol_version=1 firmware_version=65535 pwm_period_counts=0 "
-         "pwm_freq_hz=4294967295 n_params=0 firmware_name= adc_roles= telemetry_ids="])
+        wire(bytes([0x02, 255]) + struct.pack("<BIHHIBB", 2, 0xFFFFFFFF, 65535, 0, 4294967295, 0, 0)
+             + bytes([0]) + bytes([0])),
+        ["TargetHello seq=255 protocol_version=2 schema_fingerprint=4294967295 firmware_version=65535 "
+         "pwm_period_counts=0 pwm_freq_hz=4294967295 n_params=0 adc_bits=0 firmware_name= adc_roles= telemetry_ids="])
     # Sensors: inputs u8, edge u16, encoder u16, adc u16...
     add("sensors_an1017", wire(bytes([0x10, 5]) + struct.pack("<BHH3H", 0x0B, 1234, 0xFFFF, 512, 0, 1023)),
         ["Sensors seq=5 inputs=11 edge_time_100ns=1234 encoder=65535 adc=512,0,1023"])
+    add("sensors_foc_index", wire(bytes([0x10, 6]) + struct.pack("<BHH3H", 0x40, 0xFFFF, 9999, 4095, 2048, 0)),
+        ["Sensors seq=6 inputs=64 edge_time_100ns=65535 encoder=9999 adc=4095,2048,0"])
     add("sensors_no_edge_no_adc", wire(bytes([0x10, 0]) + struct.pack("<BHH", 0, 0xFFFF, 0)),
         ["Sensors seq=0 inputs=0 edge_time_100ns=65535 encoder=0 adc="])
-    # Drive: u32 = duty_a | duty_b<<10 | duty_c<<20 | mode<<30; u8 = state | sector<<3 | dir<<6 | req<<7
-    word = 1023 | 512 << 10 | 1 << 20 | 1 << 30
-    flags = 2 | 4 << 3 | 1 << 6 | 0 << 7
-    add("drive_an1017", wire(bytes([0x11, 5]) + struct.pack("<IBB3h", word, flags, 0, -2, 32767, -32768)),
-        ["Drive seq=5 duty_a=1023 duty_b=512 duty_c=1 output_mode=1 state=2 sector=4 direction_ccw=1 "
+    add("drive_an1017", wire(drive(5, (1000, 512, 1), 1, 2, 4, 1, 0, 0, (-2, 32767, -32768))),
+        ["Drive seq=5 duty_a=1000 duty_b=512 duty_c=1 output_mode=1 state=2 sector=4 direction_ccw=1 "
          "required_ccw=0 fault=0 telemetry=-2,32767,-32768"])
-    word = 0 | 0 << 10 | 0 << 20 | 2 << 30
-    flags = 1 | 7 << 3 | 0 << 6 | 1 << 7
-    add("drive_zeros_low_side", wire(bytes([0x11, 0]) + struct.pack("<IBB3h", word, flags, 1, 0, 0, 0)),
+    add("drive_foc_full_counts", wire(drive(6, (7500, 65535, 3750), 1, 2, 7, 0, 1, 63, (1, -1))),
+        ["Drive seq=6 duty_a=7500 duty_b=65535 duty_c=3750 output_mode=1 state=2 sector=7 direction_ccw=0 "
+         "required_ccw=1 fault=63 telemetry=1,-1"])
+    add("drive_zeros_low_side", wire(drive(0, (0, 0, 0), 2, 1, 7, 0, 1, 1, (0, 0, 0))),
         ["Drive seq=0 duty_a=0 duty_b=0 duty_c=0 output_mode=2 state=1 sector=7 direction_ccw=0 "
          "required_ccw=1 fault=1 telemetry=0,0,0"])
     add("param_describe", wire(bytes([0x20, 3, 1])), ["ParamDescribe seq=3 param_id=1"])
-    add("param_info_kp", wire(bytes([0x21, 3]) + struct.pack("<BBBhhh", 0, 0, 1, 0, 32767, 3277) + b"kp"),
+    add("param_info_kp", wire(bytes([0x21, 3]) + struct.pack("<BBBiii", 0, 0, 1, 0, 32767, 3277) + b"kp"),
         ["ParamInfo seq=3 param_id=0 ptype=0 access=1 min_value=0 max_value=32767 value=3277 name=kp"])
+    # an IQ24 gain: 0.75 = 12582912, range [0, 127.99...]
+    add("param_info_iq24", wire(bytes([0x21, 4]) + struct.pack("<BBBiii", 5, 3, 1, -2**31, 2**31 - 1, 12582912)
+                                + b"iq_kp"),
+        ["ParamInfo seq=4 param_id=5 ptype=3 access=1 min_value=-2147483648 max_value=2147483647 value=12582912 "
+         "name=iq_kp"])
     add("param_get", wire(bytes([0x22, 4, 2])), ["ParamGet seq=4 param_id=2"])
-    add("param_value_unknown", wire(bytes([0x23, 4]) + struct.pack("<BBh", 9, 1, 0)),
+    add("param_value_unknown", wire(bytes([0x23, 4]) + struct.pack("<BBi", 9, 1, 0)),
         ["ParamValue seq=4 param_id=9 result=1 value=0"])
-    add("param_set_two", wire(bytes([0x24, 6]) + struct.pack("<BhBh", 0, 16000, 1, -1)),
+    add("param_value_iq24", wire(bytes([0x23, 5]) + struct.pack("<BBi", 5, 0, -16777216)),
+        ["ParamValue seq=5 param_id=5 result=0 value=-16777216"])
+    add("param_set_two", wire(bytes([0x24, 6]) + struct.pack("<BiBi", 0, 16000, 1, -1)),
         ["ParamSet seq=6 pairs=0,16000,1,-1"])
+    add("param_set_four", wire(bytes([0x24, 7]) + struct.pack("<BiBiBiBi", 0, 2**31 - 1, 1, -2**31, 2, 1677722,
+                                                              3, 0)),
+        ["ParamSet seq=7 pairs=0,2147483647,1,-2147483648,2,1677722,3,0"])
     add("param_set_result_constraint", wire(bytes([0x25, 6, 4, 0, 1])),
         ["ParamSetResult seq=6 result=4 param_id=0 detail=1"])
     add("start", wire(bytes([0x30, 1])), ["Start seq=1"])
@@ -89,9 +137,14 @@ def build() -> None:
     add("status", wire(bytes([0x41, 3]) + struct.pack("<6HB", 10000, 3, 2, 1, 0, 65535, 2)),
         ["Status seq=3 rx_frames=10000 rx_errors=3 resyncs=2 unknown=1 overruns=0 watchdog_trips=65535 "
          "last_error=2"])
-    add("error_report_version", wire(bytes([0x42, 7, 1, 1])), ["ErrorReport seq=7 code=1 detail=1"])
+    # ErrorReport: code u8, detail u8, the sender's schema fingerprint u32
+    add("error_report_version", wire(bytes([0x42, 7, 1, 2]) + struct.pack("<I", FP)),
+        [f"ErrorReport seq=7 code=1 detail=2 schema_fingerprint={FP}"])
     # ---- malformed
-    add("bad_crc", wire(bytes([0x10, 5]) + struct.pack("<BHH3H", 0x0B, 1234, 0xFFFF, 512, 0, 1023), flip=0x0100),
+    add("bad_crc", wire(bytes([0x10, 5]) + struct.pack("<BHH3H", 0x0B, 1234, 0xFFFF, 512, 0, 1023), flip=0x0001),
+        ["error crc"])
+    add("crc_low_byte_first", cobs(bytes([0x30, 0x11]) + bytes((crc16(bytes([0x30, 0x11])) & 0xFF,
+                                                                crc16(bytes([0x30, 0x11])) >> 8))) + b"\x00",
         ["error crc"])
     start = with_crc(bytes([0x30, 0x11]))
     assert 0 not in start, "pick a seq whose frame has no zero byte"
@@ -102,16 +155,17 @@ def build() -> None:
     add("unknown_type", wire(bytes([0x7E, 9, 1, 2])), ["error unknown_type"])
     add("start_with_payload", wire(bytes([0x30, 1, 0x55])), ["error length"])
     add("sensors_odd_payload", wire(bytes([0x10, 1]) + struct.pack("<BHH", 0, 0, 0) + b"\x01"), ["error length"])
-    add("drive_too_many_telemetry", wire(bytes([0x11, 1]) + struct.pack("<IBB9h", 0, 0, 0, *range(9))),
-        ["error length"])
-    add("param_set_partial_pair", wire(bytes([0x24, 1, 0, 1])), ["error length"])
+    add("drive_too_many_telemetry", wire(drive(1, (0, 0, 0), 0, 0, 0, 0, 0, 0, tuple(range(9)))), ["error length"])
+    add("param_set_partial_pair", wire(bytes([0x24, 1, 0, 1, 2, 3])), ["error length"])
+    add("param_set_v1_pair", wire(bytes([0x24, 1, 0, 1, 0])), ["error length"])
+    add("error_report_v1_layout", wire(bytes([0x42, 7, 1, 1])), ["error length"])
     add("target_hello_name_past_end",
-        wire(bytes([0x02, 0]) + struct.pack("<BHHIB", 1, 1, 1000, 20000, 3) + bytes([20]) + b"abc"),
+        wire(bytes([0x02, 0]) + struct.pack("<BIHHIBB", 2, FP, 1, 1000, 20000, 3, 10) + bytes([20]) + b"abc"),
         ["error length"])
     add("param_info_name_not_ascii",
-        wire(bytes([0x21, 3]) + struct.pack("<BBBhhh", 0, 0, 1, 0, 1, 0) + b"k\x01"), ["error length"])
+        wire(bytes([0x21, 3]) + struct.pack("<BBBiii", 0, 0, 1, 0, 1, 0) + b"k\x01"), ["error length"])
     s = wire(bytes([0x10, 9]) + struct.pack("<BHH3H", 0x08, 0xFFFF, 7, 1, 2, 3))
-    d = wire(bytes([0x11, 9]) + struct.pack("<IBB3h", 5 | 6 << 10 | 7 << 20 | 1 << 30, 2, 0, 7, 0xFFFF - 65536, 9))
+    d = wire(drive(9, (5, 6, 7), 1, 2, 0, 0, 0, 0, (7, -1, 9)))
     add("garbage_between_frames", b"\xde\xad\xbe\xef\x00" + s + b"\xff\xff\x00\x00" + d + b"\x00\x00",
         ["error cobs", "Sensors seq=9 inputs=8 edge_time_100ns=65535 encoder=7 adc=1,2,3",
          "error cobs", "Drive seq=9 duty_a=5 duty_b=6 duty_c=7 output_mode=1 state=2 sector=0 direction_ccw=0 "

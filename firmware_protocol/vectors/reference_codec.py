@@ -33,6 +33,6 @@ def cobs(raw: bytes) -> bytes:
 
 
 def wire(frame: bytes) -> bytes:
-    """type · seq · payload → its bytes on the wire: COBS(frame · CRC little-endian) · 0x00."""
+    """type · seq · payload → its bytes on the wire: COBS(frame · CRC high byte first) · 0x00."""
     crc = crc16(frame)
-    return cobs(frame + bytes((crc & 0xFF, crc >> 8))) + b"\x00"
+    return cobs(frame + bytes((crc >> 8, crc & 0xFF))) + b"\x00"

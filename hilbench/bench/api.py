@@ -8,7 +8,7 @@ from typing import Callable, Mapping, Sequence
 from hilbench.bench.bench import _as_config
 from hilbench.bench.run import in_process, run_step_tests, settings_profile
 from hilbench.bench.steptest import StepResult, StepTest, require_speed_loop
-from hilbench.bench.sweep import SweepResult, sweep_grid
+from hilbench.bench.sweep import SweepResult, Tolerances, sweep_grid
 from hilbench.config import BenchConfig
 
 
@@ -41,15 +41,21 @@ def sweep(
     settle_s: float = 0.5,
     after_s: float = 0.5,
     metric: str = "itae",
+    executor: str | None = None,
     workers: int | None = None,
+    tolerances: Tolerances = Tolerances(),
+    store: str | os.PathLike[str] | None = None,
     overrides: Sequence[str] = (),
     progress: Callable[[int, int], None] | None = None,
 ) -> SweepResult:
-    """Step-test every point of a grid, e.g. ``sweep({"kp": [0.1, 0.2], "ki": [0.01, 0.02]})``,
-    on a process pool (``workers``: None = one per core); ranked by ``metric``."""
+    """Step-test every point of a grid, e.g. ``sweep({"kp": [0.1, 0.2], "ki": [0.01, 0.02]})``, on
+    ``executor`` (None: a local process pool of ``workers``, one per core by default; "local-dask:N";
+    a Dask scheduler's "tcp://host:8786"), worst case over motor ``tolerances``, appending finished
+    points to ``store`` (a restarted sweep runs only the missing ones); ranked by ``metric``."""
     cfg = _as_config(config, None, overrides)
     test = StepTest(from_rpm, to_rpm, settle_s, after_s)
-    return sweep_grid(cfg, list(axes.items()), test, metric, workers=workers, progress=progress)
+    return sweep_grid(cfg, list(axes.items()), test, metric, executor=executor, workers=workers,
+                      tolerances=tolerances, store=store, progress=progress)
 
 
 __all__ = ["step_test", "sweep"]

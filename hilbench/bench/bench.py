@@ -33,7 +33,7 @@ from hilbench.bench.scenario import Event
 from hilbench.bench.session import Session, Snapshot, Summary
 from hilbench.config import BenchConfig, load_config, plant_params_from_config
 from hilbench.errors import ConfigError, LinkError
-from hilbench.protocol import PROTOCOL_VERSION, TargetHello
+from hilbench.protocol import PROTOCOL_VERSION, SCHEMA_FINGERPRINT, TargetHello
 from hilbench.targets.profile import TargetProfile
 
 #: how often `run(until=...)` looks at its condition
@@ -142,6 +142,7 @@ class Bench:
         metadata = {
             "hilbench_version": __version__,
             "protocol_version": PROTOCOL_VERSION,
+            "schema_fingerprint": f"0x{SCHEMA_FINGERPRINT:08x}",
             "seed": session.options.seed,
             "target": cfg.link.target,
             "target_hello": hello._asdict(),
@@ -173,6 +174,10 @@ class Bench:
                 self._handle.close()
                 self._handle = None
         return summary
+
+    def child_status(self) -> str:
+        """How the emulator process this bench started is doing, for error lines ("" if none)."""
+        return self._handle.child_status() if self._handle is not None else ""
 
     def __enter__(self) -> "Bench":
         return self.open()

@@ -14,7 +14,7 @@ from dataclasses import dataclass
 from typing import Callable
 
 from hilbench.errors import HilbenchError, ParamError
-from hilbench.protocol import Fault, ParamInfo, ParamType, Result, State
+from hilbench.protocol import Fault, ParamInfo, ParamType, Result, State, param_scale
 from hilbench.targets.base import Target
 from hilbench.targets.profile import TargetProfile
 
@@ -27,13 +27,12 @@ RESULT_NAMES = {
 
 
 def raw_per_unit(ptype: int) -> float:
-    """How many raw counts one unit of a parameter is (Q15: 32768; IQ24: 2^24; integers: 1)."""
-    if ptype == ParamType.Q15:
-        return 32768.0
-    iq24 = getattr(ParamType, "IQ24", None)
-    if iq24 is not None and ptype == iq24:
-        return float(1 << 24)
-    return 1.0
+    """How many raw counts one unit of a parameter is (Q15: 32768; IQ24: 2^24; integers: 1); a type
+    this host does not know counts as an integer."""
+    try:
+        return 1.0 / param_scale(ptype)
+    except ValueError:
+        return 1.0
 
 
 @dataclass(frozen=True)

@@ -79,17 +79,16 @@ def run_bench(
     """Run the bench described by ``cfg`` with its scenario; raises HilbenchError kinds on faults."""
     bench = Bench(cfg, record=record, scenario=True, observer=observer, control=control)
     with bench:
-        session = bench._session
+        session = bench.session
+        assert session is not None
         if on_ready is not None:
             on_ready(session)
         try:
             bench.run()
         except LinkError as exc:
-            recording = bench.recorder.path if bench._record_path is not None and bench.recorder else None
-            child = bench._handle.child_status() if bench._handle is not None else ""
             raise LinkError(
-                f"{exc}{child}; last good period {session.periods_done - 1}"
-                + (f"; recording {recording} closed with a fault marker" if recording else "")
+                f"{exc}{bench.child_status()}; last good period {session.periods_done - 1}"
+                + (f"; recording {record} closed with a fault marker" if record is not None else "")
             ) from None
         summary = bench.close()
         assert summary is not None

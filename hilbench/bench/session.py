@@ -29,7 +29,16 @@ from hilbench.bench.recorder import MARKER_EVENT, MARKER_FAULT, MARKER_PARAM, Re
 from hilbench.bench.scenario import Event, Ramp, ScenarioPlayer
 from hilbench.bench.summary import Segment, Snapshot, Summary, percentiles
 from hilbench.errors import HilbenchError, LinkError, ParamError, TargetError
-from hilbench.protocol import PROTOCOL_VERSION, Edge, HostHello, Input, OutputMode, Sensors, TargetHello
+from hilbench.protocol import (
+    PROTOCOL_VERSION,
+    Edge,
+    HostHello,
+    Input,
+    OutputMode,
+    Sensors,
+    TargetHello,
+    check_target_hello,
+)
 from hilbench.targets.base import Target
 from hilbench.targets.profile import ParamReference, PotReference, TargetProfile
 from hilbench.targets.registry import profile_for_firmware
@@ -164,6 +173,7 @@ class Session:
         mode = 0 if self.options.mode == "lockstep" else 1
         host = HostHello(0, PROTOCOL_VERSION, self.options.period_us, mode, self.options.watchdog_ms)
         hello = self.target.hello(host)
+        check_target_hello(hello, where=self.target_label)  # protocol version and schema fingerprint
         self.hello = hello
         found = profile_for_firmware(hello.firmware_name)
         expected = self.expected_profile

@@ -1,41 +1,48 @@
-"""Offline step tests over many parameter sets: a grid, run on a local executor, ranked.
+"""Offline step tests over many parameter sets, on an executor, ranked; resumable; robust to tolerances.
 
 Every point is the same step test `hilbench step` runs (`steptest.StepTest`), through the same
 session, on the configured target's in-process model — there is no second simulation loop. Points
 that break the firmware's own constraints (its profile's `check_params`) are skipped and counted.
-Points run in chunks on a process pool (one worker per core by default, ``workers=1`` in this
-process); each point is seeded from the config alone, so the results do not depend on which
-worker ran it, and they come back in grid order.
+Tasks are chunks of points on an executor (`executors.open_executor`: this process, a local pool,
+a Dask cluster); each point is seeded from the config alone, so results do not depend on which
+worker ran it, and they come back in point order. With a store (a JSON-lines file) every finished
+point is appended as it arrives, and a restarted sweep runs only the points the store lacks. With
+motor tolerances each point runs once per tolerance case and reports its worst case.
 """
 
 from __future__ import annotations
 
 import csv
 import dataclasses
+import hashlib
 import itertools
+import json
 import math
-import os
-from concurrent.futures import ProcessPoolExecutor
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Callable, Sequence
 
 import numpy as np
 
-from hilbench.bench.metrics import METRIC_COLUMNS
+from hilbench.bench.executors import open_executor
+from hilbench.bench.metrics import METRIC_COLUMNS, StepMetrics
+from hilbench.bench.sampling import Axis, Point, zoom
 from hilbench.bench.steptest import StepResult, StepTest, require_speed_loop
 from hilbench.config import BenchConfig
-from hilbench.errors import ConfigError, ParamError
+from hilbench.errors import ConfigError, ParamError, RecordingError
 from hilbench.targets.profile import TargetProfile
 
 __all__ = [
     "SweepPoint",
     "SweepResult",
+    "Tolerances",
     "best_fragment",
     "grid_values",
     "parse_axis",
     "parse_grid_spec",
+    "refine",
     "sweep_grid",
+    "sweep_points",
     "write_sweep_csv",
 ]
 
@@ -49,19 +56,54 @@ METRIC_ALIASES = {
     "ripple": "ss_ripple",
     "peak_current": "peak_current_a",
 }
-CHUNK_POINTS = 8  # points per task: enough to amortise a worker's start-up and the pickling
+CHUNK_TESTS = 8  # step tests per task: enough to amortise a worker's start-up and the pickling
 
-Params = tuple[tuple[str, float], ...]
+Params = Point
+
+
+@dataclass(frozen=True)
+class Tolerances:
+    """Motor parameter tolerances, ± fractions: each point runs at every corner of the box."""
+
+    rs: float = 0.0
+    l: float = 0.0  # noqa: E741 - the inductance
+    psi: float = 0.0
+    j: float = 0.0
+
+    def cases(self) -> list[dict[str, float]]:
+        """Multipliers of (rs, l, psi, j) at each corner; one nominal case when there are none."""
+        spans = [(name, value) for name, value in dataclasses.asdict(self).items() if value]
+        if not spans:
+            return [{}]
+        if any(not 0 < v < 1 for _, v in spans):
+            raise ConfigError("sweep tolerances: each must be a fraction between 0 and 1 (e.g. 0.1 for ±10 %)")
+        return [{name: 1.0 + sign * v for (name, v), sign in zip(spans, signs)}
+                for signs in itertools.product((-1.0, 1.0), repeat=len(spans))]
+
+
+def _with_tolerance(cfg: BenchConfig, case: dict[str, float]) -> BenchConfig:
+    if not case:
+        return cfg
+    motor = cfg.motor
+    scaled: dict[str, Any] = {"rs_ohm": motor.rs_ohm * case.get("rs", 1.0), "j_kgm2": motor.j_kgm2 * case.get("j", 1.0)}
+    for name in ("l_h", "ld_h", "lq_h"):
+        if getattr(motor, name) is not None:
+            scaled[name] = getattr(motor, name) * case.get("l", 1.0)
+    for name in ("psi_wb", "ke_v_per_krpm"):
+        if getattr(motor, name) is not None:
+            scaled[name] = getattr(motor, name) * case.get("psi", 1.0)
+    return cfg.replace(motor=dataclasses.replace(motor, **scaled))
 
 
 @dataclass(frozen=True)
 class SweepPoint:
-    """One grid point: simulated (result set) or skipped for a broken firmware constraint."""
+    """One point: simulated (result set; the worst tolerance case) or skipped for a broken constraint."""
 
     params: Params
     constraint: str | None = None  # the broken constraint, None when simulated
     result: StepResult | None = None
     rank: int | None = None
+    cases: int = 1  # tolerance cases run
 
     @property
     def skipped(self) -> bool:
@@ -74,7 +116,7 @@ class SweepPoint:
 
 @dataclass(frozen=True)
 class SweepResult:
-    """A whole grid: every point in grid order, the ranking, and the skipped count."""
+    """A whole sweep: every point in order, the ranking, and the skipped count."""
 
     metric: str  # a StepMetrics key
     axes: tuple[str, ...]
@@ -82,22 +124,24 @@ class SweepResult:
     ranked: tuple[SweepPoint, ...]  # simulated points, best first
     skipped: int
     test: StepTest
-    sim_s: float = 0.0  # simulated plant-seconds
+    sim_s: float = 0.0  # simulated plant-seconds in this call (resumed points not counted)
     extras: dict[str, Any] = field(default_factory=dict)
 
     @property
     def best(self) -> SweepPoint | None:
         return self.ranked[0] if self.ranked else None
 
+    @property
+    def step_tests(self) -> int:
+        return sum(p.cases for p in self.points if not p.skipped)
 
-# ---------------------------------------------------------------------------- grids
+
+# ---------------------------------------------------------------------------- parsing
 def grid_values(start: float, stop: float, count: int) -> tuple[float, ...]:
     """``count`` evenly spaced values from start to stop inclusive (count 1: start)."""
     if count < 1:
         raise ConfigError(f"sweep grid: count must be >= 1, got {count}")
-    if count == 1:
-        return (float(start),)
-    return tuple(float(x) for x in np.linspace(start, stop, count))
+    return Axis("", start, stop, count).values()
 
 
 def parse_grid_spec(text: str, name: str = "grid") -> tuple[float, ...]:
@@ -110,7 +154,7 @@ def parse_grid_spec(text: str, name: str = "grid") -> tuple[float, ...]:
             values = grid_values(float(parts[0]), float(parts[1]), int(parts[2]))
         else:
             values = ()
-        if values and all(math.isfinite(v) for v in values) and len(values) <= 10_000:
+        if values and all(math.isfinite(v) for v in values):
             return values
     except (ValueError, OverflowError):
         pass
@@ -119,10 +163,10 @@ def parse_grid_spec(text: str, name: str = "grid") -> tuple[float, ...]:
 
 def parse_axis(text: str) -> tuple[str, tuple[float, ...]]:
     """``NAME=A:B:N`` (a `--param` word) → (NAME, values)."""
-    name, sep, grid = text.partition("=")
+    name, sep, spec_text = text.partition("=")
     if not sep or not name.strip():
         raise ConfigError(f"sweep --param {text!r}: expected NAME=A:B:N, e.g. kp=0.05:0.5:10")
-    return name.strip(), parse_grid_spec(grid, f"--param {name.strip()}")
+    return name.strip(), parse_grid_spec(spec_text, f"--param {name.strip()}")
 
 
 def _metric_key(metric: str) -> str:
@@ -133,15 +177,15 @@ def _metric_key(metric: str) -> str:
     return key
 
 
-def _order(point: SweepPoint, key: str) -> tuple[int, float]:
-    r = point.result
-    assert r is not None
-    v = getattr(r.metrics, key)
-    if r.stalled or v is None or (isinstance(v, float) and math.isnan(v)):
+def _order(result: StepResult, key: str) -> tuple[int, float]:
+    """Smaller is better; stalled or unmeasured responses last."""
+    v = getattr(result.metrics, key)
+    if result.stalled or v is None or (isinstance(v, float) and math.isnan(v)):
         return (1, 0.0)
     return (0, abs(v) if key in ("ss_error", "ss_error_pct") else float(v))
 
 
+# ---------------------------------------------------------------------------- checks and tasks
 def _constraint_checker(profile: TargetProfile, period_us: int) -> Callable[[Params], str | None]:
     """Judge a point as the session would: each value encoded and range-checked as `ctl set` does
     (a bad value is a ConfigError), then the firmware's constraints on the tunable set, with the
@@ -167,89 +211,190 @@ def _constraint_checker(profile: TargetProfile, period_us: int) -> Callable[[Par
     return check
 
 
-def _run_chunk(cfg: BenchConfig, test: StepTest, sets: list[dict[str, float]]) -> list[StepResult]:
-    """One task: step tests of a few parameter sets (a worker process runs this)."""
+def _run_task(cfgs: list[BenchConfig], test: StepTest, jobs: list[tuple[int, int, dict[str, float]]]) -> list[tuple[int, StepResult]]:
+    """One task: step tests of a few (point index, tolerance case, parameters) (a worker runs this)."""
     from hilbench.bench.run import run_step_tests
 
-    return run_step_tests(cfg, test, sets)
+    return [(index, run_step_tests(cfgs[case], test, [params])[0]) for index, case, params in jobs]
 
 
-def sweep_grid(
+class SweepStore:
+    """Finished points as JSON lines, appended as they arrive; the key names the sweep they belong to."""
+
+    def __init__(self, path: Path, key: str) -> None:
+        self.path = path
+        self.key = key
+        self.done: dict[int, tuple[StepMetrics, bool, int]] = {}
+        if path.exists():
+            try:
+                lines = path.read_text(encoding="utf-8").splitlines()
+            except (OSError, UnicodeDecodeError) as exc:
+                raise RecordingError(f"sweep store {path}: unreadable ({exc})") from None
+            for n, line in enumerate(lines, 1):
+                try:
+                    row = json.loads(line)
+                except json.JSONDecodeError:
+                    if n == len(lines):
+                        break  # a line cut by a kill: the point runs again
+                    raise RecordingError(f"sweep store {path}:{n}: not a JSON line") from None
+                if row.get("key") != key:
+                    raise ConfigError(f"sweep store {path}: it holds another sweep (other config, test or points); "
+                                      "give a new file to start over")
+                self.done[int(row["index"])] = (StepMetrics(**row["metrics"]), bool(row["stalled"]), int(row["cases"]))
+
+    def append(self, index: int, result: StepResult, cases: int) -> None:
+        row = {"key": self.key, "index": index, "params": result.gains, "metrics": result.metrics.as_dict(),
+               "stalled": result.stalled, "cases": cases}
+        try:
+            with self.path.open("a", encoding="utf-8") as handle:
+                handle.write(json.dumps(row) + "\n")
+        except OSError as exc:
+            raise RecordingError(f"sweep store {self.path}: cannot write ({exc.strerror})") from None
+
+
+def _sweep_key(cfg: BenchConfig, test: StepTest, points: Sequence[Params], tolerances: Tolerances, metric: str) -> str:
+    from hilbench.bench.settings import config_metadata
+
+    text = json.dumps([config_metadata(cfg), dataclasses.asdict(test), points, dataclasses.asdict(tolerances)],
+                      sort_keys=True, default=str)
+    return hashlib.sha256(text.encode()).hexdigest()[:16]
+
+
+# ---------------------------------------------------------------------------- the sweep
+def sweep_points(
     cfg: BenchConfig,
-    axes: Sequence[tuple[str, Sequence[float]]],
+    points: Sequence[Params],
     test: StepTest,
     metric: str = "itae",
     *,
+    executor: str | None = None,
     workers: int | None = None,
+    tolerances: Tolerances = Tolerances(),
+    store: str | Path | None = None,
     progress: Callable[[int, int], None] | None = None,
 ) -> SweepResult:
-    """Step-test every point of the grid over ``axes``; constraint breakers are skipped and counted.
-
-    ``workers``: processes (None: one per core; 1: in this process). ``progress(done, total)``
-    counts simulated points.
-    """
+    """Step-test every point; constraint breakers are skipped and counted. ``executor``: None/local
+    (``workers`` processes, one per core by default; 1: this process), local-dask[:N] or a Dask
+    scheduler's tcp:// address. ``progress(done, total)`` counts points."""
     from hilbench.bench.run import in_process, settings_profile
 
     key = _metric_key(metric)
     cfg = in_process(cfg)
     profile = settings_profile(cfg)
     require_speed_loop(profile, "sweep")
-    names = tuple(name for name, _ in axes)
-    grid: list[Params] = [tuple(zip(names, values)) for values in itertools.product(*(v for _, v in axes))]
-    if not grid or not names:
-        raise ConfigError("sweep: the grid is empty (give --param NAME=A:B:N)")
+    if not points or not points[0]:
+        raise ConfigError("sweep: no points (give --param NAME=A:B:N)")
     check = _constraint_checker(profile, cfg.link.period_us)
-    points = [SweepPoint(p, check(p)) for p in grid]
-    to_run = [i for i, p in enumerate(points) if not p.skipped]
-    chunks = [to_run[i:i + CHUNK_POINTS] for i in range(0, len(to_run), CHUNK_POINTS)]
-    n_workers = max(1, min(workers or os.cpu_count() or 1, len(chunks) or 1))
+    swept = [SweepPoint(tuple(p), check(tuple(p))) for p in points]
+    cases = tolerances.cases()
+    cfgs = [_with_tolerance(cfg, case) for case in cases]
+    saved = SweepStore(Path(store), _sweep_key(cfg, test, points, tolerances, key)) if store is not None else None
+    results: dict[int, list[StepResult]] = {}
+    if saved is not None:
+        for index, (metrics, stalled, n_cases) in saved.done.items():
+            results[index] = [StepResult("resumed", dict(swept[index].params), metrics, np.empty(0), np.empty(0),
+                                         metrics.y_final_ref, stalled)] * n_cases
+    to_run = [i for i, p in enumerate(swept) if not p.skipped and i not in results]
+    jobs = [(i, c, dict(swept[i].params)) for i in to_run for c in range(len(cases))]
+    tasks = [jobs[i:i + CHUNK_TESTS] for i in range(0, len(jobs), CHUNK_TESTS)]
+    total = sum(1 for p in swept if not p.skipped)
+    done = len(results)
     if progress is not None:
-        progress(0, len(to_run))
-    done = 0
-
-    def take(chunk: list[int], results: list[StepResult]) -> None:
-        nonlocal done
-        for i, r in zip(chunk, results):
-            points[i] = dataclasses.replace(points[i], result=r)
-        done += len(chunk)
-        if progress is not None:
-            progress(done, len(to_run))
-
-    if n_workers == 1:
-        for chunk in chunks:
-            take(chunk, _run_chunk(cfg, test, [dict(grid[i]) for i in chunk]))
-    else:
-        with ProcessPoolExecutor(max_workers=n_workers) as pool:
-            futures = [pool.submit(_run_chunk, cfg, test, [dict(grid[i]) for i in chunk]) for chunk in chunks]
-            for chunk, future in zip(chunks, futures):  # grid order, whatever finishes first
-                take(chunk, future.result())
-    simulated = [p for p in points if p.result is not None]
-    ordered = sorted(simulated, key=lambda p: _order(p, key))
+        progress(done, total)
+    with open_executor(executor, workers) as (pool, where):
+        futures = [pool.submit(_run_task, cfgs, test, task) for task in tasks]
+        for future in futures:  # point order, whatever finishes first
+            for index, result in future.result():
+                results.setdefault(index, []).append(result)
+                if len(results[index]) == len(cases):  # the point's last tolerance case
+                    done += 1
+                    if saved is not None:
+                        saved.append(index, max(results[index], key=lambda r: _order(r, key)), len(cases))
+                    if progress is not None:
+                        progress(done, total)
+    final = []
+    for index, point in enumerate(swept):
+        runs = results.get(index)
+        if runs:
+            point = dataclasses.replace(point, result=max(runs, key=lambda r: _order(r, key)), cases=len(runs))
+        final.append(point)
+    ordered = sorted((p for p in final if p.result is not None), key=lambda p: _order(p.result, key))  # type: ignore[arg-type]
     ranks = {id(p): n for n, p in enumerate(ordered, start=1)}
-    final = tuple(dataclasses.replace(p, rank=ranks.get(id(p))) for p in points)
+    final = [dataclasses.replace(p, rank=ranks.get(id(p))) for p in final]
     ranked = tuple(sorted((p for p in final if p.rank is not None), key=lambda p: p.rank or 0))
-    return SweepResult(metric=key, axes=names, points=final, ranked=ranked, skipped=len(grid) - len(to_run),
-                       test=test, sim_s=len(to_run) * test.duration_s, extras={"workers": n_workers})
+    axes = tuple(name for name, _ in points[0])
+    return SweepResult(metric=key, axes=axes, points=tuple(final), ranked=ranked, skipped=len(swept) - total,
+                       test=test, sim_s=len(jobs) * test.duration_s, extras={"executor": where})
+
+
+def sweep_grid(cfg: BenchConfig, axes: Sequence[tuple[str, Sequence[float]]], test: StepTest, metric: str = "itae",
+               **options: Any) -> SweepResult:
+    """Every combination of the axes' values (the first axis slowest); see `sweep_points`."""
+    names = [name for name, _ in axes]
+    points = [tuple(zip(names, values)) for values in itertools.product(*(v for _, v in axes))]
+    if not names:
+        raise ConfigError("sweep: the grid is empty (give --param NAME=A:B:N)")
+    return sweep_points(cfg, points, test, metric, **options)
+
+
+def refine(cfg: BenchConfig, axes: Sequence[Axis], test: StepTest, metric: str = "itae", *, rounds: int = 3,
+           shrink: float = 0.4, **options: Any) -> SweepResult:
+    """A grid over ``axes``, then ``rounds - 1`` grids as many points, ``shrink`` times as wide,
+    centred on the best point so far and kept inside the first grid's box; every point of every
+    round is in the result, ranked together."""
+    if rounds < 1:
+        raise ConfigError("refine: rounds must be >= 1")
+    limits = [(a.low, a.high) for a in axes]
+    window = list(axes)
+    seen: dict[Params, SweepPoint] = {}
+    last: SweepResult | None = None
+    sim_s = 0.0
+    for _ in range(rounds):
+        names = [a.name for a in window]
+        points = [p for p in (tuple(zip(names, v)) for v in itertools.product(*(a.values() for a in window)))
+                  if p not in seen]
+        if points:
+            last = sweep_points(cfg, points, test, metric, **options)
+            sim_s += last.sim_s
+            seen.update({p.params: p for p in last.points})
+        best = min((p for p in seen.values() if p.result is not None), key=lambda p: _order(p.result, _metric_key(metric)),  # type: ignore[arg-type]
+                   default=None)
+        if best is None:
+            break
+        window = zoom(window, best.params, shrink, limits)
+    assert last is not None
+    key = last.metric
+    every = list(seen.values())
+    ordered = sorted((p for p in every if p.result is not None), key=lambda p: _order(p.result, key))  # type: ignore[arg-type]
+    ranks = {id(p): n for n, p in enumerate(ordered, start=1)}
+    final = tuple(dataclasses.replace(p, rank=ranks.get(id(p))) for p in every)
+    ranked = tuple(sorted((p for p in final if p.rank is not None), key=lambda p: p.rank or 0))
+    return SweepResult(metric=key, axes=last.axes, points=final, ranked=ranked,
+                       skipped=sum(p.skipped for p in final), test=test, sim_s=sim_s,
+                       extras={**last.extras, "rounds": rounds})
 
 
 # ---------------------------------------------------------------------------- output
 def write_sweep_csv(path: str | Path, sweep: SweepResult) -> Path:
-    """Every grid point, one row each, in grid order (skipped points with their constraint)."""
+    """Every point, one row each, in order (skipped points with their constraint)."""
     out = Path(path)
-    with out.open("w", newline="") as fh:
-        writer = csv.writer(fh)
-        writer.writerow((*sweep.axes, "status", "constraint", "rank", "stalled", "settled",
-                         *(k for k, _, _ in METRIC_COLUMNS)))
-        for p in sweep.points:
-            r = p.result
-            row: list[Any] = [v for _, v in p.params]
-            if r is None:
-                row += ["skipped", p.constraint, "", "", ""] + [""] * len(METRIC_COLUMNS)
-            else:
-                m = r.metrics
-                row += ["ok", "", p.rank, int(r.stalled), int(m.settled)]
-                row += ["" if (v := getattr(m, k)) is None else repr(float(v)) for k, _, _ in METRIC_COLUMNS]
-            writer.writerow(row)
+    try:
+        with out.open("w", newline="") as fh:
+            writer = csv.writer(fh)
+            writer.writerow((*sweep.axes, "status", "constraint", "rank", "stalled", "settled", "cases",
+                             *(k for k, _, _ in METRIC_COLUMNS)))
+            for p in sweep.points:
+                r = p.result
+                row: list[Any] = [v for _, v in p.params]
+                if r is None:
+                    row += ["skipped", p.constraint, "", "", "", ""] + [""] * len(METRIC_COLUMNS)
+                else:
+                    m = r.metrics
+                    row += ["ok", "", p.rank, int(r.stalled), int(m.settled), p.cases]
+                    row += ["" if (v := getattr(m, k)) is None else repr(float(v)) for k, _, _ in METRIC_COLUMNS]
+                writer.writerow(row)
+    except OSError as exc:
+        raise RecordingError(f"sweep --csv {out}: cannot write ({exc.strerror})") from None
     return out
 
 

@@ -1,6 +1,8 @@
 """COBS framing and CRC-16/CCITT-FALSE: the byte layer under the messages.
 
-A frame on the wire is COBS(type . seq . payload . crc16_le) followed by one 0x00. COBS removes
+A frame on the wire is COBS(type . seq . payload . crc16_be) followed by one 0x00. The CRC goes high
+byte first, so frame and CRC read MSB first are one codeword of the polynomial division: every
+burst of up to 16 bits is detected (a CRC sent low byte first is not, PROTOCOL.md). COBS removes
 every 0x00 from the frame, so the next 0x00 is always a frame boundary: a receiver that lost its
 place resynchronises there. Decoded frames are at most MAX_FRAME_BYTES (64), so COBS never needs a
 0xFF block and adds exactly one byte.
@@ -22,24 +24,21 @@ _CODE = tuple(bytes((i,)) for i in range(256))
 COBS_CODE = tuple(bytes((k + 1,)) for k in range(254))
 
 
-def _crc_tables() -> tuple[tuple[int, ...], tuple[int, ...]]:
-    """CRC_PRE and CRC_OK: check a COBS-decoded frame's CRC in one crc_hqx call, without slicing.
+def _crc_pre() -> tuple[int, ...]:
+    """CRC_PRE: check a COBS-decoded frame's CRC in one crc_hqx call, without slicing.
 
-    The decoder's buffer is code . frame . crc_lo . crc_hi. CRC_PRE[code] is the register value
+    The decoder's buffer is code . frame . crc_hi . crc_lo. CRC_PRE[code] is the register value
     from which the code byte steps to 0xFFFF (the CCITT-FALSE init), so crc_hqx(buf, CRC_PRE[code])
-    is the CRC register after frame . lo . hi. Appending two bytes maps the register c to
-    F(c ^ (lo << 8 | hi)) with F(x) = x * X^16 mod P, a bijection; so the result equals
-    F((lo | hi << 8) ^ (lo << 8 | hi)) exactly when c == lo | hi << 8 (the CRC sent), and that
-    value depends only on lo ^ hi: CRC_OK[lo ^ hi].
+    is the CRC register after frame . hi . lo. Feeding a register c the two bytes hi . lo leaves
+    F(c ^ (hi << 8 | lo)) with F(x) = x * X^16 mod P, linear and a bijection (P(0) = 1), so the
+    result is 0 exactly when c == hi << 8 | lo: the CRC sent matches.
     """
     table = [crc_hqx(bytes((k,)), 0) for k in range(256)]  # one-byte step: s -> s << 8 ^ T[s >> 8 ^ b]
     k_ff = next(k for k, t in enumerate(table) if t & 0xFF == 0xFF)  # the low byte of T is a bijection
-    pre = tuple(((k_ff ^ b) << 8) | (0xFF ^ (table[k_ff] >> 8)) for b in range(256))
-    ok = tuple(crc_hqx(bytes((d, 0)), d) for d in range(256))
-    return pre, ok
+    return tuple(((k_ff ^ b) << 8) | (0xFF ^ (table[k_ff] >> 8)) for b in range(256))
 
 
-CRC_PRE, CRC_OK = _crc_tables()
+CRC_PRE = _crc_pre()
 
 
 class CobsError(DecodeError):
@@ -126,7 +125,7 @@ def cobs_decode(enc: bytes) -> bytes:
 def frame_bytes(body: bytes) -> bytes:
     """type . seq . payload -> complete wire bytes (CRC appended, COBS, 0x00 delimiter)."""
     crc = crc_hqx(body, 0xFFFF)
-    return cobs_join((body + _CODE[crc & 0xFF] + _CODE[crc >> 8]).split(b"\x00"))
+    return cobs_join((body + _CODE[crc >> 8] + _CODE[crc & 0xFF]).split(b"\x00"))
 
 
 def unframe(enc: bytes) -> bytes:
@@ -138,7 +137,7 @@ def unframe(enc: bytes) -> bytes:
     if n < MIN_FRAME_BYTES:
         raise LengthError(f"frame of {n} bytes is shorter than {MIN_FRAME_BYTES}")
     body = raw[:-2]
-    if crc_hqx(body, 0xFFFF) != raw[-2] | raw[-1] << 8:
+    if crc_hqx(body, 0xFFFF) != raw[-2] << 8 | raw[-1]:
         raise CrcError(f"CRC mismatch in a {n}-byte frame (type {raw[0]:#04x})")
     return body
 
@@ -153,7 +152,6 @@ __all__ = [
     "OversizedError",
     "COBS_CODE",
     "CRC_PRE",
-    "CRC_OK",
     "crc16",
     "cobs_encode",
     "cobs_join",

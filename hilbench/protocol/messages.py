@@ -17,12 +17,13 @@ from binascii import crc_hqx as _crc
 
 from hilbench.errors import ProtocolError
 from hilbench.protocol.framing import COBS_CODE as _CODE
-from hilbench.protocol.framing import CRC_OK as _CRC_OK
 from hilbench.protocol.framing import CRC_PRE as _CRC_PRE
 from hilbench.protocol.framing import CobsError, CrcError, LengthError, UnknownTypeError, cobs_join, frame_bytes
 
-_le16 = struct.Struct('<H').pack
-PROTOCOL_VERSION = 1
+_be16 = struct.Struct('>H').pack  # the CRC goes high byte first (PROTOCOL.md, Framing)
+PROTOCOL_VERSION = 2
+# First 4 bytes of SHA-256 over the schema's canonical wire content (generate.schema_fingerprint).
+SCHEMA_FINGERPRINT = 0x6fcf503f
 MAX_FRAME_BYTES = 64
 MAX_NAME_CHARS = 12
 MAX_ADC = 8
@@ -61,6 +62,7 @@ class Input(IntEnum):
     S2 = 8
     S3 = 0x10
     FAULT = 0x20
+    INDEX = 0x40
 
 
 class Edge(IntEnum):
@@ -114,9 +116,16 @@ class TelemetryId(IntEnum):
     PHASE = 4
     ID = 5
     IQ = 6
+    ID_REF = 7
+    IQ_REF = 8
+    THETA_E = 9
     ECHO_ENCODER = 0xa
     ECHO_EDGE = 0xb
     ECHO_SEQ = 0xc
+    VD = 0xd
+    VQ = 0xe
+    TARGET_FIRST = 0x80
+    TARGET_LAST = 0xfe
 
 
 class ParamType(IntEnum):
@@ -125,6 +134,7 @@ class ParamType(IntEnum):
     Q15 = 0
     INT = 1
     BOOL = 2
+    IQ24 = 3
 
 
 class Access(IntEnum):
@@ -192,6 +202,7 @@ INPUT_HALL_C = Input.HALL_C
 INPUT_S2 = Input.S2
 INPUT_S3 = Input.S3
 INPUT_FAULT = Input.FAULT
+INPUT_INDEX = Input.INDEX
 EDGE_NONE = Edge.NONE
 MODE_LOCKSTEP = Mode.LOCKSTEP
 MODE_REALTIME = Mode.REALTIME
@@ -215,12 +226,20 @@ TELEMETRY_CONTROL_OUTPUT = TelemetryId.CONTROL_OUTPUT
 TELEMETRY_PHASE = TelemetryId.PHASE
 TELEMETRY_ID = TelemetryId.ID
 TELEMETRY_IQ = TelemetryId.IQ
+TELEMETRY_ID_REF = TelemetryId.ID_REF
+TELEMETRY_IQ_REF = TelemetryId.IQ_REF
+TELEMETRY_THETA_E = TelemetryId.THETA_E
 TELEMETRY_ECHO_ENCODER = TelemetryId.ECHO_ENCODER
 TELEMETRY_ECHO_EDGE = TelemetryId.ECHO_EDGE
 TELEMETRY_ECHO_SEQ = TelemetryId.ECHO_SEQ
+TELEMETRY_VD = TelemetryId.VD
+TELEMETRY_VQ = TelemetryId.VQ
+TELEMETRY_TARGET_FIRST = TelemetryId.TARGET_FIRST
+TELEMETRY_TARGET_LAST = TelemetryId.TARGET_LAST
 PTYPE_Q15 = ParamType.Q15
 PTYPE_INT = ParamType.INT
 PTYPE_BOOL = ParamType.BOOL
+PTYPE_IQ24 = ParamType.IQ24
 ACCESS_RO = Access.RO
 ACCESS_RW = Access.RW
 RESULT_OK = Result.OK
@@ -255,6 +274,7 @@ class HostHello(NamedTuple):
     period_us: int
     mode: int
     watchdog_ms: int
+    schema_fingerprint: int = SCHEMA_FINGERPRINT
 
     TYPE = 0x01
 
@@ -264,10 +284,12 @@ class TargetHello(NamedTuple):
 
     seq: int
     protocol_version: int
+    schema_fingerprint: int
     firmware_version: int
     pwm_period_counts: int
     pwm_freq_hz: int
     n_params: int
+    adc_bits: int
     firmware_name: str
     adc_roles: tuple[int, ...]
     telemetry_ids: tuple[int, ...]
@@ -414,37 +436,38 @@ class ErrorReport(NamedTuple):
     seq: int
     code: int
     detail: int
+    schema_fingerprint: int = SCHEMA_FINGERPRINT
 
     TYPE = 0x42
 
 
 Message = Union[HostHello, TargetHello, Sensors, Drive, ParamDescribe, ParamInfo, ParamGet, ParamValue, ParamSet, ParamSetResult, Start, Stop, StatusRequest, Status, ErrorReport]
 
-_HOSTHELLO_ST = struct.Struct('<BBBHBH')
-_TARGETHELLO_ST = struct.Struct('<BBBHHIB')
+_HOSTHELLO_ST = struct.Struct('<BBBHBHI')
+_TARGETHELLO_ST = struct.Struct('<BBBIHHIBB')
 _SENSORS_ST = tuple(struct.Struct('<BBBHH' + 'H' * n) for n in range(8 + 1))
-_DRIVE_ST = tuple(struct.Struct('<BBIBB' + 'h' * n) for n in range(8 + 1))
+_DRIVE_ST = tuple(struct.Struct('<BBHHHH' + 'h' * n) for n in range(8 + 1))
 _PARAMDESCRIBE_ST = struct.Struct('<BBB')
-_PARAMINFO_ST = struct.Struct('<BBBBBhhh')
+_PARAMINFO_ST = struct.Struct('<BBBBBiii')
 _PARAMGET_ST = struct.Struct('<BBB')
-_PARAMVALUE_ST = struct.Struct('<BBBBh')
-_PARAMSET_ST = tuple(struct.Struct('<BB' + 'Bh' * n) for n in range(4 + 1))
+_PARAMVALUE_ST = struct.Struct('<BBBBi')
+_PARAMSET_ST = tuple(struct.Struct('<BB' + 'Bi' * n) for n in range(4 + 1))
 _PARAMSETRESULT_ST = struct.Struct('<BBBBB')
 _START_ST = struct.Struct('<BB')
 _STOP_ST = struct.Struct('<BB')
 _STATUSREQUEST_ST = struct.Struct('<BB')
 _STATUS_ST = struct.Struct('<BBHHHHHHB')
-_ERRORREPORT_ST = struct.Struct('<BBBB')
+_ERRORREPORT_ST = struct.Struct('<BBBBI')
 
 
 def pack_host_hello(m: HostHello) -> bytes:
     """HostHello -> type . seq . payload (no CRC)."""
-    return _HOSTHELLO_ST.pack(1, m.seq, m.protocol_version, m.period_us, m.mode, m.watchdog_ms)
+    return _HOSTHELLO_ST.pack(1, m.seq, m.protocol_version, m.period_us, m.mode, m.watchdog_ms, m.schema_fingerprint)
 
 
 def pack_target_hello(m: TargetHello) -> bytes:
     """TargetHello -> type . seq . payload (no CRC)."""
-    parts = [_TARGETHELLO_ST.pack(2, m.seq, m.protocol_version, m.firmware_version, m.pwm_period_counts, m.pwm_freq_hz, m.n_params)]
+    parts = [_TARGETHELLO_ST.pack(2, m.seq, m.protocol_version, m.schema_fingerprint, m.firmware_version, m.pwm_period_counts, m.pwm_freq_hz, m.n_params, m.adc_bits)]
     raw = _ascii(m.firmware_name, 12, 'TargetHello', 'firmware_name')
     parts.append(bytes((len(raw),)))
     parts.append(raw)
@@ -470,16 +493,17 @@ def pack_sensors(m: Sensors) -> bytes:
 
 def pack_drive(m: Drive) -> bytes:
     """Drive -> type . seq . payload (no CRC)."""
-    if (m.duty_a | m.duty_b | m.duty_c) >> 10:
-        raise ProtocolError(f"encode {type(m).__name__}: duty_a/duty_b/duty_c must be 0..1023")
-    if (m.output_mode) >> 2:
-        raise ProtocolError(f"encode {type(m).__name__}: output_mode must be 0..3")
-    if (m.state | m.sector) >> 3:
-        raise ProtocolError(f"encode {type(m).__name__}: state/sector must be 0..7")
+    if ((m.output_mode) >> 2) | ((m.state | m.sector) >> 3) | ((m.fault) >> 6):
+        if (m.output_mode) >> 2:
+            raise ProtocolError(f"encode {type(m).__name__}: output_mode must be 0..3")
+        if (m.state | m.sector) >> 3:
+            raise ProtocolError(f"encode {type(m).__name__}: state/sector must be 0..7")
+        if (m.fault) >> 6:
+            raise ProtocolError(f"encode {type(m).__name__}: fault must be 0..63")
     arr = m.telemetry
     if len(arr) > 8:
         raise ProtocolError(f"encode Drive: telemetry has {len(arr)} entries, at most 8")
-    return _DRIVE_ST[len(arr)].pack(17, m.seq, (m.duty_a | m.duty_b << 10 | m.duty_c << 20 | m.output_mode << 30), (m.state | m.sector << 3 | (64 if m.direction_ccw else 0) | (128 if m.required_ccw else 0)), m.fault, *arr)
+    return _DRIVE_ST[len(arr)].pack(17, m.seq, m.duty_a, m.duty_b, m.duty_c, (m.output_mode | m.state << 2 | m.sector << 5 | (256 if m.direction_ccw else 0) | (512 if m.required_ccw else 0) | m.fault << 10), *arr)
 
 
 def pack_param_describe(m: ParamDescribe) -> bytes:
@@ -540,23 +564,23 @@ def pack_status(m: Status) -> bytes:
 
 def pack_error_report(m: ErrorReport) -> bytes:
     """ErrorReport -> type . seq . payload (no CRC)."""
-    return _ERRORREPORT_ST.pack(66, m.seq, m.code, m.detail)
+    return _ERRORREPORT_ST.pack(66, m.seq, m.code, m.detail, m.schema_fingerprint)
 
 
 def unpack_host_hello(b: bytes) -> HostHello:
     """type . seq . payload (no CRC) -> HostHello; LengthError if malformed."""
-    if len(b) != 8:
-        raise LengthError(f"HostHello: payload of {len(b) - 2} bytes, expected 6")
+    if len(b) != 12:
+        raise LengthError(f"HostHello: payload of {len(b) - 2} bytes, expected 10")
     v = _HOSTHELLO_ST.unpack(b)
     return _tnew(HostHello, v[1:])
 
 
 def unpack_target_hello(b: bytes) -> TargetHello:
     """type . seq . payload (no CRC) -> TargetHello; LengthError if malformed."""
-    if len(b) < 12:
-        raise LengthError(f"TargetHello: payload of {len(b) - 2} bytes, at least 10")
+    if len(b) < 17:
+        raise LengthError(f"TargetHello: payload of {len(b) - 2} bytes, at least 15")
     v = _TARGETHELLO_ST.unpack_from(b)
-    pos = 12
+    pos = 17
     if pos >= len(b):
         raise LengthError("TargetHello: missing the count of firmware_name")
     n = b[pos]
@@ -584,7 +608,7 @@ def unpack_target_hello(b: bytes) -> TargetHello:
         raise LengthError(f"TargetHello: telemetry_ids has {n} entries, at most 8")
     f_telemetry_ids = tuple(b[pos:pos + n])
     pos += n * 1
-    return _tnew(TargetHello, (v[1], v[2], v[3], v[4], v[5], v[6], f_firmware_name, f_adc_roles, f_telemetry_ids,))
+    return _tnew(TargetHello, (v[1], v[2], v[3], v[4], v[5], v[6], v[7], v[8], f_firmware_name, f_adc_roles, f_telemetry_ids,))
 
 
 def unpack_sensors(b: bytes) -> Sensors:
@@ -598,11 +622,11 @@ def unpack_sensors(b: bytes) -> Sensors:
 
 def unpack_drive(b: bytes) -> Drive:
     """type . seq . payload (no CRC) -> Drive; LengthError if malformed."""
-    n, r = divmod(len(b) - 8, 2)
+    n, r = divmod(len(b) - 10, 2)
     if r or n < 0 or n > 8:
-        raise LengthError(f"Drive: payload of {len(b) - 2} bytes is not 6 + 2*n (n <= 8)")
+        raise LengthError(f"Drive: payload of {len(b) - 2} bytes is not 8 + 2*n (n <= 8)")
     v = _DRIVE_ST[n].unpack(b)
-    return _tnew(Drive, (v[1], v[2] & 1023, v[2] >> 10 & 1023, v[2] >> 20 & 1023, v[2] >> 30 & 3, v[3] & 7, v[3] >> 3 & 7, (v[3] >> 6 & 1) != 0, (v[3] >> 7 & 1) != 0, v[4], v[5:],))
+    return _tnew(Drive, (v[1], v[2], v[3], v[4], v[5] & 3, v[5] >> 2 & 7, v[5] >> 5 & 7, (v[5] >> 8 & 1) != 0, (v[5] >> 9 & 1) != 0, v[5] >> 10, v[6:],))
 
 
 def unpack_param_describe(b: bytes) -> ParamDescribe:
@@ -615,10 +639,10 @@ def unpack_param_describe(b: bytes) -> ParamDescribe:
 
 def unpack_param_info(b: bytes) -> ParamInfo:
     """type . seq . payload (no CRC) -> ParamInfo; LengthError if malformed."""
-    if len(b) < 11:
-        raise LengthError(f"ParamInfo: payload of {len(b) - 2} bytes, at least 9")
+    if len(b) < 17:
+        raise LengthError(f"ParamInfo: payload of {len(b) - 2} bytes, at least 15")
     v = _PARAMINFO_ST.unpack_from(b)
-    pos = 11
+    pos = 17
     n, r = divmod(len(b) - pos, 1)
     if r:
         raise LengthError("ParamInfo: name has a partial entry")
@@ -639,17 +663,17 @@ def unpack_param_get(b: bytes) -> ParamGet:
 
 def unpack_param_value(b: bytes) -> ParamValue:
     """type . seq . payload (no CRC) -> ParamValue; LengthError if malformed."""
-    if len(b) != 6:
-        raise LengthError(f"ParamValue: payload of {len(b) - 2} bytes, expected 4")
+    if len(b) != 8:
+        raise LengthError(f"ParamValue: payload of {len(b) - 2} bytes, expected 6")
     v = _PARAMVALUE_ST.unpack(b)
     return _tnew(ParamValue, v[1:])
 
 
 def unpack_param_set(b: bytes) -> ParamSet:
     """type . seq . payload (no CRC) -> ParamSet; LengthError if malformed."""
-    n, r = divmod(len(b) - 2, 3)
+    n, r = divmod(len(b) - 2, 5)
     if r or n < 0 or n > 4:
-        raise LengthError(f"ParamSet: payload of {len(b) - 2} bytes is not 0 + 3*n (n <= 4)")
+        raise LengthError(f"ParamSet: payload of {len(b) - 2} bytes is not 0 + 5*n (n <= 4)")
     v = _PARAMSET_ST[n].unpack(b)
     return _tnew(ParamSet, (v[1], tuple(zip(v[2::2], v[3::2])),))
 
@@ -696,8 +720,8 @@ def unpack_status(b: bytes) -> Status:
 
 def unpack_error_report(b: bytes) -> ErrorReport:
     """type . seq . payload (no CRC) -> ErrorReport; LengthError if malformed."""
-    if len(b) != 4:
-        raise LengthError(f"ErrorReport: payload of {len(b) - 2} bytes, expected 2")
+    if len(b) != 8:
+        raise LengthError(f"ErrorReport: payload of {len(b) - 2} bytes, expected 6")
     v = _ERRORREPORT_ST.unpack(b)
     return _tnew(ErrorReport, v[1:])
 
@@ -726,16 +750,16 @@ def _unascii(raw: bytes, msg: str, field: str) -> str:
 
 _SENSORS_BY_LEN = tuple(_SENSORS_ST[(k - 10) // 2] if k >= 10 and (k - 10) % 2 == 0 and (k - 10) // 2 <= 8 else None for k in range(66))
 _SENSORS_ST3 = _SENSORS_ST[3]
-_DRIVE_BY_LEN = tuple(_DRIVE_ST[(k - 11) // 2] if k >= 11 and (k - 11) % 2 == 0 and (k - 11) // 2 <= 8 else None for k in range(66))
+_DRIVE_BY_LEN = tuple(_DRIVE_ST[(k - 13) // 2] if k >= 13 and (k - 13) % 2 == 0 and (k - 13) // 2 <= 8 else None for k in range(66))
 _DRIVE_ST3 = _DRIVE_ST[3]
-_PARAMSET_BY_LEN = tuple(_PARAMSET_ST[(k - 5) // 3] if k >= 5 and (k - 5) % 3 == 0 and (k - 5) // 3 <= 4 else None for k in range(66))
+_PARAMSET_BY_LEN = tuple(_PARAMSET_ST[(k - 5) // 5] if k >= 5 and (k - 5) % 5 == 0 and (k - 5) // 5 <= 4 else None for k in range(66))
 
 
 def encode_host_hello(m: HostHello) -> bytes:
     """HostHello -> complete wire bytes (CRC, COBS, 0x00); ProtocolError/struct.error if unencodable."""
-    x_seq, x_protocol_version, x_period_us, x_mode, x_watchdog_ms = m
-    body = _HOSTHELLO_ST.pack(1, x_seq, x_protocol_version, x_period_us, x_mode, x_watchdog_ms)
-    p = (body + _le16(_crc(body, 0xFFFF))).split(b'\x00')
+    x_seq, x_protocol_version, x_period_us, x_mode, x_watchdog_ms, x_schema_fingerprint = m
+    body = _HOSTHELLO_ST.pack(1, x_seq, x_protocol_version, x_period_us, x_mode, x_watchdog_ms, x_schema_fingerprint)
+    p = (body + _be16(_crc(body, 0xFFFF))).split(b'\x00')
     k = len(p)
     if k == 2:  # one 0x00 in the frame
         a, b = p
@@ -743,6 +767,9 @@ def encode_host_hello(m: HostHello) -> bytes:
     if k == 3:
         a, b, c = p
         return b''.join((_CODE[len(a)], a, _CODE[len(b)], b, _CODE[len(c)], c, b'\x00'))
+    if k == 4:  # u16 duties and counts below 256 make three zeros common
+        a, b, c, d = p
+        return b''.join((_CODE[len(a)], a, _CODE[len(b)], b, _CODE[len(c)], c, _CODE[len(d)], d, b'\x00'))
     return cobs_join(p)
 
 
@@ -762,7 +789,7 @@ def encode_sensors(m: Sensors) -> bytes:
         body = _SENSORS_ST[n].pack(16, x_seq, x_inputs, x_edge_time_100ns, x_encoder, *x_adc)
     else:
         raise ProtocolError(f"encode Sensors: adc has {n} entries, at most 8")
-    p = (body + _le16(_crc(body, 0xFFFF))).split(b'\x00')
+    p = (body + _be16(_crc(body, 0xFFFF))).split(b'\x00')
     k = len(p)
     if k == 2:  # one 0x00 in the frame
         a, b = p
@@ -770,29 +797,32 @@ def encode_sensors(m: Sensors) -> bytes:
     if k == 3:
         a, b, c = p
         return b''.join((_CODE[len(a)], a, _CODE[len(b)], b, _CODE[len(c)], c, b'\x00'))
+    if k == 4:  # u16 duties and counts below 256 make three zeros common
+        a, b, c, d = p
+        return b''.join((_CODE[len(a)], a, _CODE[len(b)], b, _CODE[len(c)], c, _CODE[len(d)], d, b'\x00'))
     return cobs_join(p)
 
 
 def encode_drive(m: Drive) -> bytes:
     """Drive -> complete wire bytes (CRC, COBS, 0x00); ProtocolError/struct.error if unencodable."""
     x_seq, x_duty_a, x_duty_b, x_duty_c, x_output_mode, x_state, x_sector, x_direction_ccw, x_required_ccw, x_fault, x_telemetry = m
-    if (x_duty_a | x_duty_b | x_duty_c) >> 10:
-        raise ProtocolError(f"encode {type(m).__name__}: duty_a/duty_b/duty_c must be 0..1023")
-    if (x_output_mode) >> 2:
-        raise ProtocolError(f"encode {type(m).__name__}: output_mode must be 0..3")
-    if (x_state | x_sector) >> 3:
-        raise ProtocolError(f"encode {type(m).__name__}: state/sector must be 0..7")
-    w_duties = (x_duty_a | x_duty_b << 10 | x_duty_c << 20 | x_output_mode << 30)
-    w_flags = (x_state | x_sector << 3 | (64 if x_direction_ccw else 0) | (128 if x_required_ccw else 0))
+    if ((x_output_mode) >> 2) | ((x_state | x_sector) >> 3) | ((x_fault) >> 6):
+        if (x_output_mode) >> 2:
+            raise ProtocolError(f"encode {type(m).__name__}: output_mode must be 0..3")
+        if (x_state | x_sector) >> 3:
+            raise ProtocolError(f"encode {type(m).__name__}: state/sector must be 0..7")
+        if (x_fault) >> 6:
+            raise ProtocolError(f"encode {type(m).__name__}: fault must be 0..63")
+    w_flags = (x_output_mode | x_state << 2 | x_sector << 5 | (256 if x_direction_ccw else 0) | (512 if x_required_ccw else 0) | x_fault << 10)
     n = len(x_telemetry)
     if n == 3:
         e0, e1, e2 = x_telemetry
-        body = _DRIVE_ST3.pack(17, x_seq, w_duties, w_flags, x_fault, e0, e1, e2)
+        body = _DRIVE_ST3.pack(17, x_seq, x_duty_a, x_duty_b, x_duty_c, w_flags, e0, e1, e2)
     elif n <= 8:
-        body = _DRIVE_ST[n].pack(17, x_seq, w_duties, w_flags, x_fault, *x_telemetry)
+        body = _DRIVE_ST[n].pack(17, x_seq, x_duty_a, x_duty_b, x_duty_c, w_flags, *x_telemetry)
     else:
         raise ProtocolError(f"encode Drive: telemetry has {n} entries, at most 8")
-    p = (body + _le16(_crc(body, 0xFFFF))).split(b'\x00')
+    p = (body + _be16(_crc(body, 0xFFFF))).split(b'\x00')
     k = len(p)
     if k == 2:  # one 0x00 in the frame
         a, b = p
@@ -800,23 +830,25 @@ def encode_drive(m: Drive) -> bytes:
     if k == 3:
         a, b, c = p
         return b''.join((_CODE[len(a)], a, _CODE[len(b)], b, _CODE[len(c)], c, b'\x00'))
+    if k == 4:  # u16 duties and counts below 256 make three zeros common
+        a, b, c, d = p
+        return b''.join((_CODE[len(a)], a, _CODE[len(b)], b, _CODE[len(c)], c, _CODE[len(d)], d, b'\x00'))
     return cobs_join(p)
 
 
 def encode_drive_unchecked(m: Drive) -> bytes:
     """encode_drive without the bit-field range checks: for messages built by trusted code only."""
     x_seq, x_duty_a, x_duty_b, x_duty_c, x_output_mode, x_state, x_sector, x_direction_ccw, x_required_ccw, x_fault, x_telemetry = m
-    w_duties = (x_duty_a | x_duty_b << 10 | x_duty_c << 20 | x_output_mode << 30)
-    w_flags = (x_state | x_sector << 3 | (64 if x_direction_ccw else 0) | (128 if x_required_ccw else 0))
+    w_flags = (x_output_mode | x_state << 2 | x_sector << 5 | (256 if x_direction_ccw else 0) | (512 if x_required_ccw else 0) | x_fault << 10)
     n = len(x_telemetry)
     if n == 3:
         e0, e1, e2 = x_telemetry
-        body = _DRIVE_ST3.pack(17, x_seq, w_duties, w_flags, x_fault, e0, e1, e2)
+        body = _DRIVE_ST3.pack(17, x_seq, x_duty_a, x_duty_b, x_duty_c, w_flags, e0, e1, e2)
     elif n <= 8:
-        body = _DRIVE_ST[n].pack(17, x_seq, w_duties, w_flags, x_fault, *x_telemetry)
+        body = _DRIVE_ST[n].pack(17, x_seq, x_duty_a, x_duty_b, x_duty_c, w_flags, *x_telemetry)
     else:
         raise ProtocolError(f"encode Drive: telemetry has {n} entries, at most 8")
-    p = (body + _le16(_crc(body, 0xFFFF))).split(b'\x00')
+    p = (body + _be16(_crc(body, 0xFFFF))).split(b'\x00')
     k = len(p)
     if k == 2:  # one 0x00 in the frame
         a, b = p
@@ -824,6 +856,9 @@ def encode_drive_unchecked(m: Drive) -> bytes:
     if k == 3:
         a, b, c = p
         return b''.join((_CODE[len(a)], a, _CODE[len(b)], b, _CODE[len(c)], c, b'\x00'))
+    if k == 4:  # u16 duties and counts below 256 make three zeros common
+        a, b, c, d = p
+        return b''.join((_CODE[len(a)], a, _CODE[len(b)], b, _CODE[len(c)], c, _CODE[len(d)], d, b'\x00'))
     return cobs_join(p)
 
 
@@ -831,7 +866,7 @@ def encode_param_describe(m: ParamDescribe) -> bytes:
     """ParamDescribe -> complete wire bytes (CRC, COBS, 0x00); ProtocolError/struct.error if unencodable."""
     x_seq, x_param_id = m
     body = _PARAMDESCRIBE_ST.pack(32, x_seq, x_param_id)
-    p = (body + _le16(_crc(body, 0xFFFF))).split(b'\x00')
+    p = (body + _be16(_crc(body, 0xFFFF))).split(b'\x00')
     k = len(p)
     if k == 2:  # one 0x00 in the frame
         a, b = p
@@ -839,6 +874,9 @@ def encode_param_describe(m: ParamDescribe) -> bytes:
     if k == 3:
         a, b, c = p
         return b''.join((_CODE[len(a)], a, _CODE[len(b)], b, _CODE[len(c)], c, b'\x00'))
+    if k == 4:  # u16 duties and counts below 256 make three zeros common
+        a, b, c, d = p
+        return b''.join((_CODE[len(a)], a, _CODE[len(b)], b, _CODE[len(c)], c, _CODE[len(d)], d, b'\x00'))
     return cobs_join(p)
 
 
@@ -851,7 +889,7 @@ def encode_param_get(m: ParamGet) -> bytes:
     """ParamGet -> complete wire bytes (CRC, COBS, 0x00); ProtocolError/struct.error if unencodable."""
     x_seq, x_param_id = m
     body = _PARAMGET_ST.pack(34, x_seq, x_param_id)
-    p = (body + _le16(_crc(body, 0xFFFF))).split(b'\x00')
+    p = (body + _be16(_crc(body, 0xFFFF))).split(b'\x00')
     k = len(p)
     if k == 2:  # one 0x00 in the frame
         a, b = p
@@ -859,6 +897,9 @@ def encode_param_get(m: ParamGet) -> bytes:
     if k == 3:
         a, b, c = p
         return b''.join((_CODE[len(a)], a, _CODE[len(b)], b, _CODE[len(c)], c, b'\x00'))
+    if k == 4:  # u16 duties and counts below 256 make three zeros common
+        a, b, c, d = p
+        return b''.join((_CODE[len(a)], a, _CODE[len(b)], b, _CODE[len(c)], c, _CODE[len(d)], d, b'\x00'))
     return cobs_join(p)
 
 
@@ -866,7 +907,7 @@ def encode_param_value(m: ParamValue) -> bytes:
     """ParamValue -> complete wire bytes (CRC, COBS, 0x00); ProtocolError/struct.error if unencodable."""
     x_seq, x_param_id, x_result, x_value = m
     body = _PARAMVALUE_ST.pack(35, x_seq, x_param_id, x_result, x_value)
-    p = (body + _le16(_crc(body, 0xFFFF))).split(b'\x00')
+    p = (body + _be16(_crc(body, 0xFFFF))).split(b'\x00')
     k = len(p)
     if k == 2:  # one 0x00 in the frame
         a, b = p
@@ -874,6 +915,9 @@ def encode_param_value(m: ParamValue) -> bytes:
     if k == 3:
         a, b, c = p
         return b''.join((_CODE[len(a)], a, _CODE[len(b)], b, _CODE[len(c)], c, b'\x00'))
+    if k == 4:  # u16 duties and counts below 256 make three zeros common
+        a, b, c, d = p
+        return b''.join((_CODE[len(a)], a, _CODE[len(b)], b, _CODE[len(c)], c, _CODE[len(d)], d, b'\x00'))
     return cobs_join(p)
 
 
@@ -885,7 +929,7 @@ def encode_param_set(m: ParamSet) -> bytes:
         body = _PARAMSET_ST[n].pack(36, x_seq, *[v for pair in x_pairs for v in pair])
     else:
         raise ProtocolError(f"encode ParamSet: pairs has {n} entries, at most 4")
-    p = (body + _le16(_crc(body, 0xFFFF))).split(b'\x00')
+    p = (body + _be16(_crc(body, 0xFFFF))).split(b'\x00')
     k = len(p)
     if k == 2:  # one 0x00 in the frame
         a, b = p
@@ -893,6 +937,9 @@ def encode_param_set(m: ParamSet) -> bytes:
     if k == 3:
         a, b, c = p
         return b''.join((_CODE[len(a)], a, _CODE[len(b)], b, _CODE[len(c)], c, b'\x00'))
+    if k == 4:  # u16 duties and counts below 256 make three zeros common
+        a, b, c, d = p
+        return b''.join((_CODE[len(a)], a, _CODE[len(b)], b, _CODE[len(c)], c, _CODE[len(d)], d, b'\x00'))
     return cobs_join(p)
 
 
@@ -900,7 +947,7 @@ def encode_param_set_result(m: ParamSetResult) -> bytes:
     """ParamSetResult -> complete wire bytes (CRC, COBS, 0x00); ProtocolError/struct.error if unencodable."""
     x_seq, x_result, x_param_id, x_detail = m
     body = _PARAMSETRESULT_ST.pack(37, x_seq, x_result, x_param_id, x_detail)
-    p = (body + _le16(_crc(body, 0xFFFF))).split(b'\x00')
+    p = (body + _be16(_crc(body, 0xFFFF))).split(b'\x00')
     k = len(p)
     if k == 2:  # one 0x00 in the frame
         a, b = p
@@ -908,6 +955,9 @@ def encode_param_set_result(m: ParamSetResult) -> bytes:
     if k == 3:
         a, b, c = p
         return b''.join((_CODE[len(a)], a, _CODE[len(b)], b, _CODE[len(c)], c, b'\x00'))
+    if k == 4:  # u16 duties and counts below 256 make three zeros common
+        a, b, c, d = p
+        return b''.join((_CODE[len(a)], a, _CODE[len(b)], b, _CODE[len(c)], c, _CODE[len(d)], d, b'\x00'))
     return cobs_join(p)
 
 
@@ -915,7 +965,7 @@ def encode_start(m: Start) -> bytes:
     """Start -> complete wire bytes (CRC, COBS, 0x00); ProtocolError/struct.error if unencodable."""
     x_seq, = m
     body = _START_ST.pack(48, x_seq)
-    p = (body + _le16(_crc(body, 0xFFFF))).split(b'\x00')
+    p = (body + _be16(_crc(body, 0xFFFF))).split(b'\x00')
     k = len(p)
     if k == 2:  # one 0x00 in the frame
         a, b = p
@@ -923,6 +973,9 @@ def encode_start(m: Start) -> bytes:
     if k == 3:
         a, b, c = p
         return b''.join((_CODE[len(a)], a, _CODE[len(b)], b, _CODE[len(c)], c, b'\x00'))
+    if k == 4:  # u16 duties and counts below 256 make three zeros common
+        a, b, c, d = p
+        return b''.join((_CODE[len(a)], a, _CODE[len(b)], b, _CODE[len(c)], c, _CODE[len(d)], d, b'\x00'))
     return cobs_join(p)
 
 
@@ -930,7 +983,7 @@ def encode_stop(m: Stop) -> bytes:
     """Stop -> complete wire bytes (CRC, COBS, 0x00); ProtocolError/struct.error if unencodable."""
     x_seq, = m
     body = _STOP_ST.pack(49, x_seq)
-    p = (body + _le16(_crc(body, 0xFFFF))).split(b'\x00')
+    p = (body + _be16(_crc(body, 0xFFFF))).split(b'\x00')
     k = len(p)
     if k == 2:  # one 0x00 in the frame
         a, b = p
@@ -938,6 +991,9 @@ def encode_stop(m: Stop) -> bytes:
     if k == 3:
         a, b, c = p
         return b''.join((_CODE[len(a)], a, _CODE[len(b)], b, _CODE[len(c)], c, b'\x00'))
+    if k == 4:  # u16 duties and counts below 256 make three zeros common
+        a, b, c, d = p
+        return b''.join((_CODE[len(a)], a, _CODE[len(b)], b, _CODE[len(c)], c, _CODE[len(d)], d, b'\x00'))
     return cobs_join(p)
 
 
@@ -945,7 +1001,7 @@ def encode_status_request(m: StatusRequest) -> bytes:
     """StatusRequest -> complete wire bytes (CRC, COBS, 0x00); ProtocolError/struct.error if unencodable."""
     x_seq, = m
     body = _STATUSREQUEST_ST.pack(64, x_seq)
-    p = (body + _le16(_crc(body, 0xFFFF))).split(b'\x00')
+    p = (body + _be16(_crc(body, 0xFFFF))).split(b'\x00')
     k = len(p)
     if k == 2:  # one 0x00 in the frame
         a, b = p
@@ -953,6 +1009,9 @@ def encode_status_request(m: StatusRequest) -> bytes:
     if k == 3:
         a, b, c = p
         return b''.join((_CODE[len(a)], a, _CODE[len(b)], b, _CODE[len(c)], c, b'\x00'))
+    if k == 4:  # u16 duties and counts below 256 make three zeros common
+        a, b, c, d = p
+        return b''.join((_CODE[len(a)], a, _CODE[len(b)], b, _CODE[len(c)], c, _CODE[len(d)], d, b'\x00'))
     return cobs_join(p)
 
 
@@ -960,7 +1019,7 @@ def encode_status(m: Status) -> bytes:
     """Status -> complete wire bytes (CRC, COBS, 0x00); ProtocolError/struct.error if unencodable."""
     x_seq, x_rx_frames, x_rx_errors, x_resyncs, x_unknown, x_overruns, x_watchdog_trips, x_last_error = m
     body = _STATUS_ST.pack(65, x_seq, x_rx_frames, x_rx_errors, x_resyncs, x_unknown, x_overruns, x_watchdog_trips, x_last_error)
-    p = (body + _le16(_crc(body, 0xFFFF))).split(b'\x00')
+    p = (body + _be16(_crc(body, 0xFFFF))).split(b'\x00')
     k = len(p)
     if k == 2:  # one 0x00 in the frame
         a, b = p
@@ -968,14 +1027,17 @@ def encode_status(m: Status) -> bytes:
     if k == 3:
         a, b, c = p
         return b''.join((_CODE[len(a)], a, _CODE[len(b)], b, _CODE[len(c)], c, b'\x00'))
+    if k == 4:  # u16 duties and counts below 256 make three zeros common
+        a, b, c, d = p
+        return b''.join((_CODE[len(a)], a, _CODE[len(b)], b, _CODE[len(c)], c, _CODE[len(d)], d, b'\x00'))
     return cobs_join(p)
 
 
 def encode_error_report(m: ErrorReport) -> bytes:
     """ErrorReport -> complete wire bytes (CRC, COBS, 0x00); ProtocolError/struct.error if unencodable."""
-    x_seq, x_code, x_detail = m
-    body = _ERRORREPORT_ST.pack(66, x_seq, x_code, x_detail)
-    p = (body + _le16(_crc(body, 0xFFFF))).split(b'\x00')
+    x_seq, x_code, x_detail, x_schema_fingerprint = m
+    body = _ERRORREPORT_ST.pack(66, x_seq, x_code, x_detail, x_schema_fingerprint)
+    p = (body + _be16(_crc(body, 0xFFFF))).split(b'\x00')
     k = len(p)
     if k == 2:  # one 0x00 in the frame
         a, b = p
@@ -983,13 +1045,16 @@ def encode_error_report(m: ErrorReport) -> bytes:
     if k == 3:
         a, b, c = p
         return b''.join((_CODE[len(a)], a, _CODE[len(b)], b, _CODE[len(c)], c, b'\x00'))
+    if k == 4:  # u16 duties and counts below 256 make three zeros common
+        a, b, c, d = p
+        return b''.join((_CODE[len(a)], a, _CODE[len(b)], b, _CODE[len(c)], c, _CODE[len(d)], d, b'\x00'))
     return cobs_join(p)
 
 
 def _decode_host_hello(raw: bytes, n: int) -> HostHello:
     """COBS-decoded frame of n bytes (first code byte, type . seq . payload, CRC checked) -> HostHello."""
-    if n != 11:
-        raise LengthError(f"HostHello: payload of {n - 5} bytes, expected 6")
+    if n != 15:
+        raise LengthError(f"HostHello: payload of {n - 5} bytes, expected 10")
     v = _HOSTHELLO_ST.unpack_from(raw, 1)
     return _tnew(HostHello, v[1:])
 
@@ -1012,11 +1077,10 @@ def _decode_drive(raw: bytes, n: int) -> Drive:
     """COBS-decoded frame of n bytes (first code byte, type . seq . payload, CRC checked) -> Drive."""
     st = _DRIVE_BY_LEN[n]
     if st is None:
-        raise LengthError(f"Drive: payload of {n - 5} bytes is not 6 + 2*n (n <= 8)")
+        raise LengthError(f"Drive: payload of {n - 5} bytes is not 8 + 2*n (n <= 8)")
     v = st.unpack_from(raw, 1)
-    w2 = v[2]
-    w3 = v[3]
-    return _tnew(Drive, (v[1], w2 & 1023, w2 >> 10 & 1023, w2 >> 20 & 1023, w2 >> 30 & 3, w3 & 7, w3 >> 3 & 7, (w3 >> 6 & 1) != 0, (w3 >> 7 & 1) != 0, v[4], v[5:]))
+    w5 = v[5]
+    return _tnew(Drive, (v[1], v[2], v[3], v[4], w5 & 3, w5 >> 2 & 7, w5 >> 5 & 7, (w5 >> 8 & 1) != 0, (w5 >> 9 & 1) != 0, w5 >> 10, v[6:]))
 
 
 def _decode_param_describe(raw: bytes, n: int) -> ParamDescribe:
@@ -1042,8 +1106,8 @@ def _decode_param_get(raw: bytes, n: int) -> ParamGet:
 
 def _decode_param_value(raw: bytes, n: int) -> ParamValue:
     """COBS-decoded frame of n bytes (first code byte, type . seq . payload, CRC checked) -> ParamValue."""
-    if n != 9:
-        raise LengthError(f"ParamValue: payload of {n - 5} bytes, expected 4")
+    if n != 11:
+        raise LengthError(f"ParamValue: payload of {n - 5} bytes, expected 6")
     v = _PARAMVALUE_ST.unpack_from(raw, 1)
     return _tnew(ParamValue, v[1:])
 
@@ -1052,7 +1116,7 @@ def _decode_param_set(raw: bytes, n: int) -> ParamSet:
     """COBS-decoded frame of n bytes (first code byte, type . seq . payload, CRC checked) -> ParamSet."""
     st = _PARAMSET_BY_LEN[n]
     if st is None:
-        raise LengthError(f"ParamSet: payload of {n - 5} bytes is not 0 + 3*n (n <= 4)")
+        raise LengthError(f"ParamSet: payload of {n - 5} bytes is not 0 + 5*n (n <= 4)")
     v = st.unpack_from(raw, 1)
     return _tnew(ParamSet, (v[1], tuple(zip(v[2::2], v[3::2]))))
 
@@ -1099,8 +1163,8 @@ def _decode_status(raw: bytes, n: int) -> Status:
 
 def _decode_error_report(raw: bytes, n: int) -> ErrorReport:
     """COBS-decoded frame of n bytes (first code byte, type . seq . payload, CRC checked) -> ErrorReport."""
-    if n != 7:
-        raise LengthError(f"ErrorReport: payload of {n - 5} bytes, expected 2")
+    if n != 11:
+        raise LengthError(f"ErrorReport: payload of {n - 5} bytes, expected 6")
     v = _ERRORREPORT_ST.unpack_from(raw, 1)
     return _tnew(ErrorReport, v[1:])
 
@@ -1186,20 +1250,20 @@ def encode_frame(m: Message, validate: bool = True) -> bytes:
         elif t is Drive:
             x_seq, x_duty_a, x_duty_b, x_duty_c, x_output_mode, x_state, x_sector, x_direction_ccw, x_required_ccw, x_fault, x_telemetry = m
             if validate:
-                if (x_duty_a | x_duty_b | x_duty_c) >> 10:
-                    raise ProtocolError(f"encode {type(m).__name__}: duty_a/duty_b/duty_c must be 0..1023")
-                if (x_output_mode) >> 2:
-                    raise ProtocolError(f"encode {type(m).__name__}: output_mode must be 0..3")
-                if (x_state | x_sector) >> 3:
-                    raise ProtocolError(f"encode {type(m).__name__}: state/sector must be 0..7")
-            w_duties = (x_duty_a | x_duty_b << 10 | x_duty_c << 20 | x_output_mode << 30)
-            w_flags = (x_state | x_sector << 3 | (64 if x_direction_ccw else 0) | (128 if x_required_ccw else 0))
+                if ((x_output_mode) >> 2) | ((x_state | x_sector) >> 3) | ((x_fault) >> 6):
+                    if (x_output_mode) >> 2:
+                        raise ProtocolError(f"encode {type(m).__name__}: output_mode must be 0..3")
+                    if (x_state | x_sector) >> 3:
+                        raise ProtocolError(f"encode {type(m).__name__}: state/sector must be 0..7")
+                    if (x_fault) >> 6:
+                        raise ProtocolError(f"encode {type(m).__name__}: fault must be 0..63")
+            w_flags = (x_output_mode | x_state << 2 | x_sector << 5 | (256 if x_direction_ccw else 0) | (512 if x_required_ccw else 0) | x_fault << 10)
             n = len(x_telemetry)
             if n == 3:
                 e0, e1, e2 = x_telemetry
-                body = _DRIVE_ST3.pack(17, x_seq, w_duties, w_flags, x_fault, e0, e1, e2)
+                body = _DRIVE_ST3.pack(17, x_seq, x_duty_a, x_duty_b, x_duty_c, w_flags, e0, e1, e2)
             elif n <= 8:
-                body = _DRIVE_ST[n].pack(17, x_seq, w_duties, w_flags, x_fault, *x_telemetry)
+                body = _DRIVE_ST[n].pack(17, x_seq, x_duty_a, x_duty_b, x_duty_c, w_flags, *x_telemetry)
             else:
                 raise ProtocolError(f"encode Drive: telemetry has {n} entries, at most 8")
         else:
@@ -1207,7 +1271,7 @@ def encode_frame(m: Message, validate: bool = True) -> bytes:
             if enc is None:
                 raise ProtocolError(f"encode: {t.__name__} is not a protocol message")
             return enc(m)
-        p = (body + _le16(_crc(body, 0xFFFF))).split(b'\x00')
+        p = (body + _be16(_crc(body, 0xFFFF))).split(b'\x00')
     except _ENCODE_ERRORS as exc:
         raise ProtocolError(f"encode {t.__name__}: {exc}") from None
     k = len(p)
@@ -1217,6 +1281,9 @@ def encode_frame(m: Message, validate: bool = True) -> bytes:
     if k == 3:
         a, b, c = p
         return b''.join((_CODE[len(a)], a, _CODE[len(b)], b, _CODE[len(c)], c, b'\x00'))
+    if k == 4:  # u16 duties and counts below 256 make three zeros common
+        a, b, c, d = p
+        return b''.join((_CODE[len(a)], a, _CODE[len(b)], b, _CODE[len(c)], c, _CODE[len(d)], d, b'\x00'))
     return cobs_join(p)
 
 
@@ -1225,7 +1292,8 @@ def decode_body(body: bytes, n: int) -> Message:
 
     Raises CobsError, LengthError, CrcError or UnknownTypeError. The COBS code bytes after the
     first stand where the frame's 0x00s were, so they are zeroed in a copy; the CRC is checked
-    on that buffer as it is (see framing.CRC_PRE/CRC_OK); the type byte picks the decoder.
+    on that buffer as it is (see framing.CRC_PRE: the register after frame . crc_hi . crc_lo is 0
+    exactly when the CRC matches); the type byte picks the decoder.
     """
     i = body[0]
     if i < n:
@@ -1242,7 +1310,7 @@ def decode_body(body: bytes, n: int) -> Message:
         raise CobsError(f"COBS: block at offset 0 runs {i - n} bytes past the frame end")
     if n < 5:
         raise LengthError(f"frame of {n - 1} bytes is shorter than 4")
-    if _crc(raw, _CRC_PRE[raw[0]]) != _CRC_OK[raw[-1] ^ raw[-2]]:
+    if _crc(raw, _CRC_PRE[raw[0]]):
         raise CrcError(f"CRC mismatch in a {n - 1}-byte frame (type {raw[1]:#04x})")
     t = raw[1]
     if t == 0x10:
@@ -1254,9 +1322,8 @@ def decode_body(body: bytes, n: int) -> Message:
         st = _DRIVE_BY_LEN[n]
         if st is not None:
             v = st.unpack_from(raw, 1)
-            w2 = v[2]
-            w3 = v[3]
-            return _tnew(Drive, (v[1], w2 & 1023, w2 >> 10 & 1023, w2 >> 20 & 1023, w2 >> 30 & 3, w3 & 7, w3 >> 3 & 7, (w3 >> 6 & 1) != 0, (w3 >> 7 & 1) != 0, v[4], v[5:]))
+            w5 = v[5]
+            return _tnew(Drive, (v[1], v[2], v[3], v[4], w5 & 3, w5 >> 2 & 7, w5 >> 5 & 7, (w5 >> 8 & 1) != 0, (w5 >> 9 & 1) != 0, w5 >> 10, v[6:]))
     decode = DECODERS[t]
     if decode is None:
         raise UnknownTypeError(f"unknown frame type {t:#04x}")
@@ -1322,6 +1389,7 @@ TARGET_TO_HOST = frozenset({TargetHello, Drive, ParamInfo, ParamValue, ParamSetR
 
 __all__ = [
     'PROTOCOL_VERSION',
+    'SCHEMA_FINGERPRINT',
     'MAX_FRAME_BYTES',
     'MAX_NAME_CHARS',
     'MAX_ADC',
@@ -1370,6 +1438,7 @@ __all__ = [
     'INPUT_S2',
     'INPUT_S3',
     'INPUT_FAULT',
+    'INPUT_INDEX',
     'EDGE_NONE',
     'MODE_LOCKSTEP',
     'MODE_REALTIME',
@@ -1393,12 +1462,20 @@ __all__ = [
     'TELEMETRY_PHASE',
     'TELEMETRY_ID',
     'TELEMETRY_IQ',
+    'TELEMETRY_ID_REF',
+    'TELEMETRY_IQ_REF',
+    'TELEMETRY_THETA_E',
     'TELEMETRY_ECHO_ENCODER',
     'TELEMETRY_ECHO_EDGE',
     'TELEMETRY_ECHO_SEQ',
+    'TELEMETRY_VD',
+    'TELEMETRY_VQ',
+    'TELEMETRY_TARGET_FIRST',
+    'TELEMETRY_TARGET_LAST',
     'PTYPE_Q15',
     'PTYPE_INT',
     'PTYPE_BOOL',
+    'PTYPE_IQ24',
     'ACCESS_RO',
     'ACCESS_RW',
     'RESULT_OK',

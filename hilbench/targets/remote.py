@@ -30,6 +30,7 @@ from hilbench.protocol import (
     StatusRequest,
     Stop,
     TargetHello,
+    version_refusal,
 )
 
 
@@ -117,11 +118,8 @@ class RemoteTarget:
     def hello(self, host: HostHello) -> TargetHello:
         reply = self._request(host, TargetHello)
         if type(reply) is ErrorReport:
-            if reply.code == ErrorCode.VERSION:
-                raise VersionMismatch(
-                    f"link {self.link.name}: host speaks protocol version {host.protocol_version}, "
-                    f"target speaks version {reply.detail}"
-                )
+            if reply.code == ErrorCode.VERSION:  # both fingerprints and versions, one line
+                raise version_refusal(reply, host, where=f"target {self.link.name}")
             raise self._refused(f"HostHello (period {host.period_us} us, mode {host.mode})", reply)
         if reply.protocol_version != host.protocol_version:
             raise VersionMismatch(

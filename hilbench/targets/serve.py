@@ -33,6 +33,7 @@ from hilbench.protocol import (
     Status,
     StatusRequest,
     Stop,
+    host_hello_mismatch,
 )
 
 log = logging.getLogger("hilbench.serve")
@@ -78,11 +79,8 @@ class _Server:
         self.link.send(ErrorReport(seq, int(code), detail & 0xFF))
 
     def on_hello(self, msg: HostHello) -> None:
-        if msg.protocol_version != PROTOCOL_VERSION:
-            log.error(
-                "%s: host speaks protocol version %d, this target speaks %d; handshake refused",
-                self.link.name, msg.protocol_version, PROTOCOL_VERSION,
-            )
+        if host_hello_mismatch(msg) is not None:  # version or schema fingerprint (protocol.handshake)
+            log.error("%s: %s; handshake refused", self.link.name, host_hello_mismatch(msg))
             self.error(msg.seq, ErrorCode.VERSION, PROTOCOL_VERSION)
             return
         if self.forced_mode is not None and msg.mode != self.forced_mode:

@@ -42,6 +42,7 @@ from hilbench.targets.an1017.svm import SINE_TABLE, VOLTS_LIMIT, svm_fast
 
 from hilbench.protocol import (
     PROTOCOL_VERSION,
+    SCHEMA_FINGERPRINT,
     Access,
     AdcRole,
     Drive,
@@ -209,10 +210,12 @@ class An1017Target:
         return TargetHello(
             host.seq,
             PROTOCOL_VERSION,
+            SCHEMA_FINGERPRINT,
             FIRMWARE_VERSION,
             PWM_PERIOD_COUNTS,
             PWM_FREQ_HZ,
             len(PARAMS),
+            10,  # adc_bits: the dsPIC30F2010's 10-bit ADC
             FIRMWARE_NAME,
             ADC_ROLES,
             TELEMETRY_IDS,

@@ -1,6 +1,6 @@
 """The loopback target: a documented, deterministic Sensors -> Drive mapping for end-to-end tests.
 
-The same mapping is written in C (firmware_protocol/examples/loopback_target.c) and documented
+The same mapping is written in C (firmware_protocol/examples/loopback_core.c) and documented
 in firmware_protocol/PROTOCOL.md, so a test can assert every field of every Drive exactly:
 
 - duty_a/b/c = adc[0]/adc[1]/adc[2] (0 when the channel is absent);
@@ -31,6 +31,7 @@ from hilbench.protocol import (
     OUTPUT_OFF,
     OUTPUT_PWM,
     PROTOCOL_VERSION,
+    SCHEMA_FINGERPRINT,
     PTYPE_INT,
     PTYPE_Q15,
     RESULT_BAD_REQUEST,
@@ -100,8 +101,8 @@ class LoopbackTarget:
     def hello(self, host: HostHello) -> TargetHello:
         """A handshake starts a session stopped."""
         self.running = False
-        return TargetHello(host.seq, PROTOCOL_VERSION, FIRMWARE_VERSION, PWM_PERIOD_COUNTS, PWM_FREQ_HZ,
-                           len(PARAMS), FIRMWARE_NAME, ADC_ROLES, TELEMETRY_IDS)
+        return TargetHello(host.seq, PROTOCOL_VERSION, SCHEMA_FINGERPRINT, FIRMWARE_VERSION, PWM_PERIOD_COUNTS,
+                           PWM_FREQ_HZ, len(PARAMS), 10, FIRMWARE_NAME, ADC_ROLES, TELEMETRY_IDS)  # 10-bit ADC
 
     def describe(self, param_id: int) -> ParamInfo:
         spec = PARAMS.get(param_id)

@@ -14,6 +14,7 @@ from dataclasses import dataclass, field
 from hilbench.fieldspec import spec
 from hilbench.protocol import (
     PROTOCOL_VERSION,
+    SCHEMA_FINGERPRINT,
     Drive,
     ParamInfo,
     ParamSetResult,
@@ -61,7 +62,8 @@ class TinyTarget:
 
     def hello(self, host: object) -> TargetHello:
         self.period_s = getattr(host, "period_us") * 1e-6
-        return TargetHello(getattr(host, "seq"), PROTOCOL_VERSION, 1, PWM_COUNTS, 20000, len(PARAMS), "TINY", (),
+        return TargetHello(getattr(host, "seq"), PROTOCOL_VERSION, SCHEMA_FINGERPRINT, 1, PWM_COUNTS, 20000,
+                           len(PARAMS), 10, "TINY", (),
                            (int(TelemetryId.REF_SPEED), TELEMETRY_ANGLE, TELEMETRY_MODULATION))
 
     def describe(self, param_id: int) -> ParamInfo:

@@ -1,0 +1,78 @@
+"""Where a batch of step tests runs: this process, a local process pool, or a Dask cluster.
+
+Everything returned has the `concurrent.futures` shape the sweep uses — ``submit(fn, *args)``
+giving a future with ``result()`` — so one code path serves them all (a `distributed.Client`
+has that shape too). hilbench runs no coordinator of its own: a lab's Dask scheduler is named by
+its address, ``tcp://host:8786``; ``local-dask[:N]`` starts a LocalCluster for trying it.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import os
+from concurrent.futures import Future, ProcessPoolExecutor
+from typing import Any, Callable, Iterator, Protocol
+
+from hilbench.errors import ConfigError
+
+EXECUTOR_FORMS = "local (a process pool; --workers N), local-dask[:N] (a Dask LocalCluster) or tcp://HOST:PORT (a Dask scheduler)"
+
+
+class Executor(Protocol):
+    def submit(self, fn: Callable[..., Any], *args: Any) -> Any: ...
+
+
+class InThisProcess:
+    """The executor of one worker: runs each task when submitted (no pickling, no process)."""
+
+    def submit(self, fn: Callable[..., Any], *args: Any) -> Future[Any]:
+        future: Future[Any] = Future()
+        future.set_result(fn(*args))
+        return future
+
+
+def _dask() -> Any:
+    try:
+        import distributed
+    except ImportError:
+        raise ConfigError("a Dask executor needs the dask extra: pip install 'hilbench[dask]'") from None
+    return distributed
+
+
+@contextlib.contextmanager
+def open_executor(spec: str | None, workers: int | None) -> Iterator[tuple[Executor, str]]:
+    """The executor named by ``spec`` (None: local) and a one-line description of it."""
+    spec = (spec or "local").strip()
+    if spec == "local":
+        n = max(1, workers or os.cpu_count() or 1)
+        if n == 1:
+            yield InThisProcess(), "this process"
+            return
+        with ProcessPoolExecutor(max_workers=n) as pool:
+            yield pool, f"a local pool of {n} processes"
+        return
+    if spec == "local-dask" or spec.startswith("local-dask:"):
+        count = spec.partition(":")[2]
+        try:
+            n = int(count) if count else max(1, workers or os.cpu_count() or 1)
+        except ValueError:
+            raise ConfigError(f"executor {spec!r}: expected local-dask:N with N a number of workers") from None
+        distributed = _dask()
+        with distributed.LocalCluster(n_workers=n, threads_per_worker=1, processes=True,
+                                      dashboard_address=None) as cluster, distributed.Client(cluster) as client:
+            yield client, f"a local Dask cluster of {n} workers"
+        return
+    if spec.startswith(("tcp://", "tls://", "dask://")):
+        address = "tcp://" + spec.split("://", 1)[1] if spec.startswith("dask://") else spec
+        distributed = _dask()
+        try:
+            client = distributed.Client(address, timeout="10s")
+        except OSError as exc:
+            raise ConfigError(f"executor {spec}: cannot reach the Dask scheduler ({exc})") from None
+        with client:
+            yield client, f"the Dask cluster at {address}"
+        return
+    raise ConfigError(f"executor {spec!r}: unknown (use {EXECUTOR_FORMS})")
+
+
+__all__ = ["EXECUTOR_FORMS", "Executor", "InThisProcess", "open_executor"]
