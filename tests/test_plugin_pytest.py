@@ -191,7 +191,9 @@ def test_suite_and_test_properties_in_junit(pytester: pytest.Pytester) -> None:
     assert re.fullmatch(r"[0-9a-f]{16}", suite["hil_config_sha256"])
     import hilbench.protocol as protocol
 
-    assert ("schema_fingerprint" in suite) == hasattr(protocol, "SCHEMA_FINGERPRINT")
+    if hasattr(protocol, "SCHEMA_FINGERPRINT"):  # host and target agree (the handshake checks it)
+        assert suite["schema_fingerprint"] == f"0x{protocol.SCHEMA_FINGERPRINT:08x}"
+        assert suite["schema_fingerprint[inprocess-an1017]"] == suite["schema_fingerprint"]
     props = dict(_case_props(_cases(root)["test_speed[inprocess-an1017]"]))
     assert props["hil_target"] == INPROC and 300 < float(props["hil.speed_rpm.worst_from_0s"]) < 1100
 

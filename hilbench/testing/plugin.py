@@ -284,7 +284,7 @@ def _suite_properties(request: pytest.FixtureRequest, bench: "Bench", spec: str)
         record("protocol_version", protocol.PROTOCOL_VERSION)
         fingerprint = getattr(protocol, "SCHEMA_FINGERPRINT", None)
         if fingerprint is not None:
-            record("schema_fingerprint", fingerprint)
+            record("schema_fingerprint", f"0x{fingerprint:08x}")
     if spec not in state.suite_recorded:
         from hilbench.testing.targets import hello_text, target_id
 
@@ -292,6 +292,9 @@ def _suite_properties(request: pytest.FixtureRequest, bench: "Bench", spec: str)
         tid = target_id(spec)
         record(f"hil_target[{tid}]", spec)
         record(f"firmware[{tid}]", hello_text(bench.hello))
+        target_fingerprint = getattr(bench.hello, "schema_fingerprint", None)
+        if target_fingerprint is not None:
+            record(f"schema_fingerprint[{tid}]", f"0x{target_fingerprint:08x}")
 
 
 def _safe_name(nodeid: str) -> str:
