@@ -440,7 +440,7 @@ def step(config: str | None, from_rpm: float, to_rpm: float, gains: tuple[str, .
         results = run_step_tests(cfg, test, sets, progress=lambda done, total: progress.update(task, completed=done))
     from hilbench.bench.checks import checks_text, raise_if_failed, step_checks
 
-    verdicts = [step_checks(cfg.check, r) for r in results]
+    verdicts = [step_checks(cfg.check, r, profile.firmware_name) for r in results]
     rows = [result_row(r) for r in results]
     if csv_file:
         import csv

@@ -80,6 +80,15 @@ def test_speed_error_per_segment_and_segments_too_short_to_judge() -> None:
     assert not _judge(kind="speed_error", max_pct=0.5, segment=2).passed  # asked for, absent
 
 
+def test_checks_written_for_one_firmware_are_not_judged_on_another() -> None:
+    summary, columns = _synthetic()
+    summary.firmware = "TINY"
+    result = run_checks([CheckEntry(kind="peak_current", max_a=1.0, firmware="AN1017")], summary, lambda: columns)[0]
+    assert result.passed and result.figure == "not judged: written for AN1017, the run's firmware is TINY"
+    summary.firmware = "an1017"  # the HELLO's name, compared without case
+    assert not run_checks([CheckEntry(kind="peak_current", max_a=1.0, firmware="AN1017")], summary, lambda: columns)[0].passed
+
+
 def test_no_fault_and_overruns() -> None:
     summary, columns = _synthetic()
     columns["fault"][5000:5010] = 3

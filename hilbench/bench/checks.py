@@ -26,6 +26,9 @@ Step kinds (judged by `hilbench step` on every gain set's response; `run` ignore
 step_rise_time (max_s), step_settling_time (max_s), step_overshoot (max_pct), step_error
 (max_pct: |steady-state error| in % of the step), step_peak_current (max_a).
 
+Any check may name the firmware its bounds were written for (``firmware = "AN1017"``, the name in
+the target's HELLO): a run of another firmware passes it as "not judged".
+
 Every result is one line: the check, PASS/FAIL and its figure against the bound. A check that
 cannot be judged fails and says why (no such column, no samples in its window, a `segment = N`
 the run does not have); the segment kinds over every segment pass with "not judged" when no
@@ -93,6 +96,7 @@ class CheckEntry:
     band_pct: float = field(default=5.0, metadata=spec(unit="%", gt=0, le=100))
     from_s: float = field(default=0.0, metadata=spec(unit="s", ge=0))
     to_s: float | None = field(default=None, metadata=spec(unit="s", gt=0))
+    firmware: str | None = field(default=None, metadata=spec(doc="judge only runs of this firmware (the name in its HELLO)"))
 
     def check(self) -> list[tuple[str, str]]:
         bad: list[tuple[str, str]] = []
@@ -149,12 +153,24 @@ def run_checks(entries: Sequence[CheckEntry], summary: "Summary", signals: Signa
             cache["s"] = signals()
         return cache["s"]
 
-    return [_judge_run(entry, summary, columns) for entry in entries if entry.kind in RUN_KINDS]
+    return [_judge_run(entry, summary, columns) if _for_firmware(entry, summary.firmware) else _other_firmware(entry, summary.firmware)
+            for entry in entries if entry.kind in RUN_KINDS]
 
 
-def step_checks(entries: Sequence[CheckEntry], result: "StepResult") -> list[CheckResult]:
-    """Judge every step kind of ``entries`` on one step response."""
-    return [_judge_step(entry, result) for entry in entries if entry.kind in STEP_KINDS]
+def _for_firmware(entry: CheckEntry, firmware: str) -> bool:
+    return entry.firmware is None or entry.firmware.strip().upper() == firmware.strip().upper()
+
+
+def _other_firmware(entry: CheckEntry, firmware: str) -> CheckResult:
+    """Bounds written for one firmware say nothing about another: passed, as not judged."""
+    return CheckResult(entry.label, entry.kind, True, f"not judged: written for {entry.firmware}, "
+                                                      f"the run's firmware is {firmware or 'unknown'}")
+
+
+def step_checks(entries: Sequence[CheckEntry], result: "StepResult", firmware: str) -> list[CheckResult]:
+    """Judge every step kind of ``entries`` on one step response of ``firmware``."""
+    return [_judge_step(entry, result) if _for_firmware(entry, firmware) else _other_firmware(entry, firmware)
+            for entry in entries if entry.kind in STEP_KINDS]
 
 
 def raise_if_failed(results: Sequence[CheckResult], where: str = "") -> None:
