@@ -26,7 +26,7 @@ Step kinds (judged by `hilbench step` on every gain set's response; `run` ignore
 step_rise_time (max_s), step_settling_time (max_s), step_overshoot (max_pct), step_error
 (max_pct: |steady-state error| in % of the step), step_peak_current (max_a).
 
-Any check may name the firmware its bounds were written for (``firmware = "AN1017"``, the name in
+Any check may name the firmware its bounds were written for (``firmware = "NAME"``, the name in
 the target's HELLO): a run of another firmware passes it as "not judged".
 
 Every result is one line: the check, PASS/FAIL and its figure against the bound. A check that
