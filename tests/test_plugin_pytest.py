@@ -279,3 +279,31 @@ def test_the_examples_pass_on_both_targets_and_junit_carries_the_properties(tmp_
     step = dict(_case_props(cases["test_step_1000_to_2000_rpm_within_limits[emulator-an1017]"]))
     assert 0.3 < float(step["hil.step.rise_time_s"]) < 0.45
     assert not list(root.iter("failure")) and not list(root.iter("error"))
+
+
+@pytest.mark.slow
+def test_a_timeout_that_raises_mid_run_still_reaps_the_emulator(pytester: pytest.Pytester) -> None:
+    """What pytest-timeout's signal method does: an exception raised inside bench.run."""
+    pids = pytester.path / "pids.txt"
+    pytester.makepyfile(test_timeout=f"""
+        import signal
+        from hilbench.testing import bench_process
+
+        def _timeout(signum, frame):
+            raise TimeoutError("test timed out")
+
+        def test_slow(bench):
+            open({str(pids)!r}, "a").write(f"{{bench_process(bench).pid}}\\n")
+            signal.signal(signal.SIGALRM, _timeout)
+            signal.setitimer(signal.ITIMER_REAL, 0.5)
+            bench.set_reference(1000)
+            bench.press("s2")
+            bench.run(60.0)  # far longer than the timeout
+    """)
+    before = _children_running("hilbench.targets.emulator")
+    result = pytester.runpytest("--hil-target", "emulator:an1017", "-p", "no:cacheprovider")
+    result.assert_outcomes(failed=1)
+    result.stdout.fnmatch_lines(["E       TimeoutError: test timed out", "FAILED *test_slow* - TimeoutError*"])
+    pid = int(pids.read_text())
+    assert not Path(f"/proc/{pid}").exists(), f"emulator {pid} left behind (or not reaped)"
+    assert _children_running("hilbench.targets.emulator") == before
