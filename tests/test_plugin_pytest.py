@@ -283,14 +283,15 @@ def test_the_examples_pass_on_both_targets_and_junit_carries_the_properties(tmp_
 
 @pytest.mark.slow
 def test_a_timeout_that_raises_mid_run_still_reaps_the_emulator(pytester: pytest.Pytester) -> None:
-    """What pytest-timeout's signal method does: an exception raised inside bench.run."""
+    """What pytest-timeout's signal method does: pytest.fail from a SIGALRM handler, inside bench.run."""
     pids = pytester.path / "pids.txt"
     pytester.makepyfile(test_timeout=f"""
         import signal
+        import pytest
         from hilbench.testing import bench_process
 
         def _timeout(signum, frame):
-            raise TimeoutError("test timed out")
+            pytest.fail("Timeout >0.5s")
 
         def test_slow(bench):
             open({str(pids)!r}, "a").write(f"{{bench_process(bench).pid}}\\n")
@@ -303,7 +304,7 @@ def test_a_timeout_that_raises_mid_run_still_reaps_the_emulator(pytester: pytest
     before = _children_running("hilbench.targets.emulator")
     result = pytester.runpytest("--hil-target", "emulator:an1017", "-p", "no:cacheprovider")
     result.assert_outcomes(failed=1)
-    result.stdout.fnmatch_lines(["E       TimeoutError: test timed out", "FAILED *test_slow* - TimeoutError*"])
+    result.stdout.fnmatch_lines(["E       Failed: Timeout >0.5s", "FAILED *test_slow* - Failed: Timeout*"])
     pid = int(pids.read_text())
     assert not Path(f"/proc/{pid}").exists(), f"emulator {pid} left behind (or not reaped)"
     assert _children_running("hilbench.targets.emulator") == before
