@@ -1,5 +1,6 @@
-"""Build hook for the optional compiled cores: the plant (hilbench/plant/_plantcore.c) and the
-AN1017 firmware model (hilbench/targets/an1017/_core.c).
+"""Build hook for the optional compiled cores: the plant (hilbench/plant/_plantcore.c), the
+AN1017 firmware model (hilbench/targets/an1017/_core.c) and the F2812 FOC firmware model
+(hilbench/targets/foc/_core.c).
 
 All metadata is in pyproject.toml. The extension is `optional`: without a C compiler
 `pip install .` still succeeds and hilbench.plant falls back to its pure-Python step
@@ -21,6 +22,12 @@ setup(
         Extension(
             "hilbench.plant._plantcore",
             sources=["hilbench/plant/_plantcore.c"],
+            extra_compile_args=_flags,
+            optional=True,
+        ),
+        Extension(
+            "hilbench.targets.foc._core",
+            sources=["hilbench/targets/foc/_core.c"],
             extra_compile_args=_flags,
             optional=True,
         ),

@@ -104,8 +104,8 @@ _MODES = {"auto": None, "lockstep": 0, "realtime": 1}
 @cli.command()
 @click.argument("target", default=None, required=False)
 @click.option("--port", "port_spec", default="pty", show_default=True,
-              help="`pty` makes a virtual serial pair and prints the path to connect to; "
-                   "or a tty PATH / serial:PATH?baud=N to serve on.")
+              help="`pty` makes a virtual serial pair and prints the path to connect to; tcp:PORT (0: any "
+                   "free port) listens and prints the socket://HOST:PORT URL; or a tty PATH / serial:PATH?baud=N.")
 @click.option("--mode", type=click.Choice(sorted(_MODES)), default="auto", show_default=True,
               help="auto follows the host's handshake; lockstep/realtime refuse a host asking otherwise.")
 @click.option("--watchdog-ms", type=click.IntRange(0, 65535), default=None,

@@ -112,11 +112,13 @@ _RANGES: dict[type, dict[str, dict[str, Any]]] = {
         "dead_time_s": spec(unit="s", ge=0, le=1e-4),
     },
     HallParams: {"offset_deg": spec(unit="deg", ge=-360, le=360)},
-    EncoderParams: {"lines": spec(ge=1, le=1_000_000), "offset_counts": spec(ge=0, le=65535)},
+    EncoderParams: {"lines": spec(ge=1, le=1_000_000), "offset_counts": spec(ge=0, le=65535),
+                    "index_counts": spec(ge=0, le=4_000_000)},
     AdcChannel: {
         "gain_codes_per_unit": spec(unit="codes/unit", ge=-1e6, le=1e6),
-        "offset_codes": spec(unit="codes", ge=-1023, le=2046),
-        "noise_lsb": spec(unit="codes", ge=0, le=1023),
+        "offset_codes": spec(unit="codes", ge=-65535, le=131070),
+        "noise_lsb": spec(unit="codes", ge=0, le=65535),
+        "bits": spec(ge=8, le=16),
     },
     LoadProfile: {
         "torque_nm": spec(unit="N*m", ge=-1e3, le=1e3),

@@ -9,6 +9,7 @@ import subprocess
 import sys
 
 import pytest
+from _tcp_serve import ServedInThread
 from conftest import REPO_ROOT, run_cli
 
 from hilbench.link import open_link
@@ -92,3 +93,27 @@ def test_emulate_ctrl_c_exits_cleanly() -> None:
         proc.wait()
         proc.stdout.close()
         proc.stderr.close()
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("faults", ["", "?corrupt=0.0005&fault_seed=3"])
+def test_link_test_over_socket_url_clean_and_lossy(faults: str) -> None:
+    """`hilbench link-test socket://HOST:PORT[?fault keys]`: the loopback target served over TCP by
+    this test process; the lossy spec injects faults with no code and no Drive is wrong."""
+    served = ServedInThread("loopback")
+    try:
+        # a lossy run waits out each lost frame: a short deadline keeps it quick
+        timeout_ms = "50" if faults else "1000"
+        result = run_cli("link-test", served.url + faults, "--periods", "300", "--timeout-ms", timeout_ms, timeout=120)
+    finally:
+        served.close()
+    assert result.returncode == 0, result.stderr
+    assert "Traceback" not in result.stderr
+    rows = {line.strip("│┃ ").split("│")[0].strip(): line.split("│")[-2].strip()
+            for line in result.stdout.splitlines() if line.count("│") >= 3}
+    assert rows["mismatched Drives"] == "0"
+    if faults:
+        assert int(rows["host link crc_errors"]) + int(rows["host link cobs_errors"]) > 0
+    else:
+        assert rows["periods (good / asked)"] == "300 / 300"
+        assert rows["host link frame_errors"] == "0"

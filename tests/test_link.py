@@ -2,7 +2,9 @@
 
 from __future__ import annotations
 
+import dataclasses
 import fcntl
+import math
 import os
 import socket
 import stat
@@ -10,8 +12,8 @@ import termios
 
 import pytest
 
-from hilbench.errors import LinkClosed, LinkError, LinkTimeout
-from hilbench.link import FaultyLink, open_link
+from hilbench.errors import ConfigError, LinkClosed, LinkError, LinkTimeout
+from hilbench.link import FaultyLink, Link, open_link, parse_target_spec
 from hilbench.protocol import Drive, HostHello, Sensors, encode_frame
 
 
@@ -113,10 +115,68 @@ def test_busy_port_is_refused(pty_pair) -> None:
     assert host.peer_path in str(info.value) and "busy" in str(info.value)
 
 
-@pytest.mark.parametrize("spec", ["bogus", "fd:x", "fd:987654", "serial:", "serial:/dev/x?speed=3"])
-def test_bad_specs_raise_link_error(spec: str) -> None:
-    with pytest.raises(LinkError):
+@pytest.mark.parametrize("spec", ["bogus", "fd:x", "serial:", "serial:/dev/x?speed=3", "pty?baud=9600",
+                                  "loop://?drop=2"])
+def test_malformed_specs_are_config_errors(spec: str) -> None:
+    with pytest.raises(ConfigError):
         open_link(spec)
+
+
+def test_fd_not_open_is_a_link_error() -> None:
+    with pytest.raises(LinkError) as info:
+        open_link("fd:987654")
+    assert "987654" in str(info.value)
+
+
+def test_inprocess_has_no_link() -> None:
+    with pytest.raises(ConfigError):
+        open_link("inprocess:an1017")
+
+
+def test_open_link_takes_a_parsed_spec() -> None:
+    link = open_link(parse_target_spec("loop://"), timeout_s=0.5)
+    try:
+        link.send(_sensors(3))
+        assert link.recv() == _sensors(3)
+    finally:
+        link.close()
+
+
+@pytest.mark.parametrize("spec", ["emulator:an1017", "sil:an1017", "exec:/bin/cat"])
+def test_process_kinds_open_a_pty_for_their_far_end(spec: str) -> None:
+    host = open_link(spec, timeout_s=0.5)
+    try:
+        assert isinstance(host, Link) and host.peer_path is not None and host.peer_path.startswith("/dev/")
+        far = open_link(host.peer_path, timeout_s=0.5)
+        try:
+            far.send(_sensors(4))
+            assert host.recv() == _sensors(4)
+        finally:
+            far.close()
+    finally:
+        host.close()
+
+
+def test_spy_url_reads_a_tty_through_pyserial_with_deadlines(tmp_path) -> None:
+    """spy:// wraps a tty in pyserial's logger: read through pyserial, same frames, same deadlines."""
+    host = open_link("pty", timeout_s=0.5)
+    log = tmp_path / "spy.txt"
+    link = open_link(f"spy://{host.peer_path}?file={log}", timeout_s=0.05)
+    try:
+        assert link.fileno() is None
+        with pytest.raises(LinkTimeout):
+            link.recv()
+        assert link.stats.timeouts == 1
+        for k in range(20):
+            host.send(_sensors(k))
+        assert [link.recv(1.0).seq for _ in range(20)] == list(range(20))
+        link.send(_sensors(99))
+        assert host.recv() == _sensors(99)
+        assert link.stats.frames_rx == 20 and link.stats.frames_tx == 1
+    finally:
+        link.close()
+        host.close()
+    assert "RX" in log.read_text() or "read" in log.read_text()
 
 
 def test_reads_are_bulk(pty_pair, monkeypatch) -> None:
@@ -277,6 +337,40 @@ def test_faulty_link_corrupts_received_bytes(pty_pair) -> None:
     assert counts.corrupted_frames_rx > 0
     assert len(got) <= 200 - counts.corrupted_frames_rx
     assert far.stats.frame_errors > 0
+
+
+def test_lossy_spec_gives_a_seeded_faulty_link_with_its_rates() -> None:
+    """~1 % of bytes corrupted by spec alone (bit error rate 0.01/8): a FaultyLink with exactly
+    those options, whose counts are deterministic for the seed and match the bytes bit by bit."""
+    n = 2000
+    clean = b"".join(encode_frame(_sensors(k & 0xFF)) for k in range(n))
+
+    def run(spec: str) -> tuple[bytes, object]:
+        link = open_link(spec, timeout_s=0.2)
+        assert isinstance(link, FaultyLink)
+        assert (link.seed, link._tx_bits.log_keep) == (5, math.log1p(-0.00125))
+        assert link._rx_bits.log_keep == 0.0  # corrupt_dir=tx
+        assert (link.drop_rate, link.duplicate_rate, link.delay_s, link.silent_after) == (0.0, 0.0, 0.0, None)
+        out = bytearray()
+        port = link.inner.transport._port
+        try:
+            for k in range(n):
+                link.send(_sensors(k & 0xFF))
+                while port.in_waiting:
+                    out += port.read(port.in_waiting)
+            return bytes(out), dataclasses.replace(link.injected)
+        finally:
+            link.close()
+
+    spec = "loop://?corrupt=0.00125&corrupt_dir=tx&fault_seed=5"
+    out, counts = run(spec)
+    again, counts_again = run(spec)
+    assert (out, counts) == (again, counts_again)
+    assert counts.corrupted_bits_tx == sum(bin(x ^ y).count("1") for x, y in zip(out, clean))
+    assert counts.corrupted_bytes_tx == sum(1 for x, y in zip(out, clean) if x != y)
+    p = 1 - (1 - 0.00125) ** 8  # a byte is hit when any of its 8 bits is
+    mean, sigma = len(clean) * p, (len(clean) * p * (1 - p)) ** 0.5
+    assert abs(counts.corrupted_bytes_tx - mean) < 6 * sigma
 
 
 def test_faulty_link_rejects_bad_rates() -> None:

@@ -9,6 +9,7 @@ period start, held over the period (what a controller does)."""
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from pathlib import Path
 
@@ -49,6 +50,8 @@ def reference_rhs(motor, vbus, duties, t_load):
 def run_both(cfg_name: str, vq: float, t_step: float, load_nm: float, n_periods: int, backend: str, substeps: int):
     cfg = load_config(CONFIGS / cfg_name)
     params = plant_params_from_config(cfg)
+    # the reference is the ideal averaged inverter: no dead band (servo_200w.toml turns it on)
+    params = dataclasses.replace(params, inverter=dataclasses.replace(params.inverter, dead_time_enabled=False))
     motor = params.motor
     assert motor.ld_h == motor.lq_h  # the abc reference is written for a round rotor
     vbus = params.inverter.vbus_v

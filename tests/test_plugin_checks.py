@@ -149,7 +149,7 @@ def test_run_shows_each_check_and_exits_0_when_they_hold() -> None:
 
 def test_the_runaway_and_the_servo_with_the_an1017_firmware_exit_7(tmp_path: Path) -> None:
     """The issue's cases: a 0.5 N*m load at 0.8 s in the default scenario (-218 895 rpm), and the
-    servo config run with the AN1017 firmware (+59 % speed error)."""
+    servo motor run with the AN1017 firmware (+59 % speed error); the servo config's own firmware passes."""
     runaway = tmp_path / "runaway.toml"
     scenario = "".join(f"\n[[scenario]]\nat_s = {at}\n{action}\n" for at, action in (
         (0.0, "ref_rpm = 1500.0\nramp_s = 0.3"), (0.03, 'press = "s2"'), (0.8, "load_nm = 0.5"),
@@ -159,10 +159,24 @@ def test_the_runaway_and_the_servo_with_the_an1017_firmware_exit_7(tmp_path: Pat
     assert run.returncode == CheckFailed.exit_code == 7, run.stderr
     assert "check speed_limit: FAIL" in run.stdout and "check speed_error: FAIL" in run.stdout
     assert run.stderr.startswith("hilbench: check failed: ") and len(run.stderr.strip().splitlines()) == 1
-    servo = _cli("run", str(BENCH_CONFIGS / "servo_200w.toml"), "--target", "inprocess:an1017", "--json", "--no-control")
+    # the servo config names its own firmware's options now: with the AN1017 target it is refused
+    as_is = _cli("run", str(BENCH_CONFIGS / "servo_200w.toml"), "--target", "inprocess:an1017", "--no-ui", "--no-control")
+    assert as_is.returncode == 2 and "[target]" in as_is.stderr
+    # its motor, inverter, sensors and checks alone (no [target], [link], [[scenario]]), as the issue ran it
+    kept, table = [], ""
+    for line in (BENCH_CONFIGS / "servo_200w.toml").read_text().splitlines():
+        if line.startswith("["):
+            table = line.strip("[] ")
+        if table not in ("target", "link", "scenario"):
+            kept.append(line)
+    motor_only = tmp_path / "servo_motor.toml"
+    motor_only.write_text("\n".join(kept) + "\n")
+    servo = _cli("run", str(motor_only), "--target", "inprocess:an1017", "--json", "--no-control")
     assert servo.returncode == 7, servo.stderr
     failed = [c for c in json.loads(servo.stdout)["checks"] if not c["passed"]]
     assert [c["kind"] for c in failed] == ["speed_error"] and failed[0]["value"] > 50
+    own = _cli("run", str(BENCH_CONFIGS / "servo_200w.toml"), "--json", "--no-control")
+    assert own.returncode == 0 and json.loads(own.stdout)["checks_passed"], own.stderr
 
 
 def test_step_judges_the_step_kinds(tmp_path: Path) -> None:

@@ -96,12 +96,14 @@ def test_step_and_sweep_use_the_plugins_parameters(tmp_path: Path) -> None:
 
 
 @pytest.mark.slow
-def test_ctl_sets_and_reads_the_plugins_parameters() -> None:
+def test_ctl_sets_and_reads_the_plugins_parameters(tmp_path: Path) -> None:
+    config = tmp_path / "hold.toml"  # a scenario with no end: the run lasts until `ctl stop`
+    config.write_text((REPO_ROOT / "bench_configs" / "hurst_mclv.toml").read_text()
+                      + "\n[[scenario]]\nat_s = 0.0\nref_rpm = 500.0\n\n[[scenario]]\nat_s = 0.01\npress = \"s2\"\n")
     with tempfile.TemporaryDirectory(prefix="hb") as runtime:  # a short path for the Unix socket
         env = {"XDG_RUNTIME_DIR": runtime}
-        process = subprocess.Popen([sys.executable, "-m", "hilbench", "run", "--target", "inprocess:tiny",
-                                    "--duration", "600", "--no-ui", "--set", "run.mode=\"realtime\"",
-                                    "--set", "link.period_us=1000"],
+        process = subprocess.Popen([sys.executable, "-m", "hilbench", "run", str(config), "--target", "inprocess:tiny",
+                                    "--duration", "86400", "--no-ui", "--set", "tuning.guard=false"],
                                    stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=_env(**env),
                                    cwd=REPO_ROOT)
         try:

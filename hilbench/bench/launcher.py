@@ -20,14 +20,15 @@ import subprocess
 import sys
 import tempfile
 from dataclasses import dataclass, field
-from typing import Any, Callable
+from typing import TYPE_CHECKING, Any, Callable
 
 from hilbench.errors import ConfigError, LinkError
 from hilbench.targets.base import Target
 from hilbench.targets.profile import TargetProfile
 
-EMULATOR_PREFIX = "emulator:"
-INPROCESS_PREFIX = "inprocess:"
+if TYPE_CHECKING:
+    from hilbench.link import TargetSpec
+
 
 
 @dataclass
@@ -42,8 +43,12 @@ class TargetHandle:
     _closers: list[Callable[[], None]] = field(default_factory=list)
 
     def link_stats(self) -> dict[str, int]:
-        """The link's counters as plain ints (empty for an in-process target)."""
-        return {} if self.link is None else self.link.stats.as_dict()
+        """The link's counters as plain ints, with the host's retries (empty for an in-process target)."""
+        if self.link is None:
+            return {}
+        stats = self.link.stats.as_dict()
+        stats["retries"] = int(getattr(self.target, "retries", 0))
+        return stats
 
     def child_status(self) -> str:
         """How the emulator process is doing, for error lines."""
@@ -85,9 +90,6 @@ def reap(process: subprocess.Popen[bytes], timeout_s: float = 3.0) -> int:
     return process.returncode
 
 
-PORT_PREFIXES = ("serial:", "/dev/", "loop://", "fd:", "socket://", "rfc2217://", "spy://", "hwgrep://", "pty")
-
-
 def open_target(
     spec: str,
     *,
@@ -97,34 +99,25 @@ def open_target(
     timeout_s: float = 0.5,
     watchdog_ms: int = 100,
 ) -> TargetHandle:
-    """Connect to the target named by ``spec`` (see the module docstring); ``profile`` and its
-    ``options`` build an in-process model or an emulator process."""
+    """Connect to the target named by ``spec`` (the link layer's one grammar, see
+    `hilbench.link.describe_spec_forms`); ``profile`` and its ``options`` build an in-process model
+    or an emulator process. Fault-injection keys in the spec's query wrap the link."""
+    from hilbench.link import open_link, parse_target_spec
     from hilbench.targets.registry import get_profile
+    from hilbench.targets.remote import RemoteTarget
 
-    kind, _, name = spec.partition(":")
-    if kind in (INPROCESS_PREFIX[:-1], EMULATOR_PREFIX[:-1]) and not name.startswith("//"):
-        profile = profile if profile is not None and profile.name == name else get_profile(name)
+    parsed = parse_target_spec(spec)
+    if parsed.kind in ("inprocess", "emulator"):
+        profile = profile if profile is not None and profile.name == parsed.name else get_profile(parsed.name)
         options = profile.default_options() if options is None else options
-        if kind == "inprocess":
+        if parsed.kind == "inprocess":
             return TargetHandle(profile.make(options), label=spec)  # type: ignore[arg-type]
-        return _spawn_emulator(profile, options, mode, timeout_s, watchdog_ms)
-    if spec.startswith(PORT_PREFIXES) and spec != "pty":
-        from hilbench.link import open_link
-        from hilbench.targets.remote import RemoteTarget
-
-        link = open_link(spec, timeout_s=timeout_s)
+        return _spawn_emulator(parsed, profile, options, mode, timeout_s, watchdog_ms)
+    if parsed.kind == "port":
+        link = open_link(parsed, timeout_s=timeout_s)
         return TargetHandle(RemoteTarget(link, timeout_s=timeout_s), label=spec, link=link)
-    raise ConfigError(
-        f"target {spec!r}: unknown target spec (use emulator:NAME or inprocess:NAME with NAME one of "
-        f"{', '.join(get_profile_names())}; serial:/dev/ttyUSB0?baud=250000, a device path, "
-        "socket://HOST:PORT, rfc2217://HOST:PORT or loop://)"
-    )
-
-
-def get_profile_names() -> tuple[str, ...]:
-    from hilbench.targets.registry import known_targets
-
-    return known_targets()
+    raise ConfigError(f"target {spec!r}: a {parsed.kind}: target is started by its own tool "
+                      "(use emulator:NAME, inprocess:NAME or a port)")
 
 
 def emulator_command(profile: TargetProfile, options: object, port: str, mode: str, watchdog_ms: int) -> list[str]:
@@ -138,12 +131,12 @@ def emulator_command(profile: TargetProfile, options: object, port: str, mode: s
     ]
 
 
-def _spawn_emulator(profile: TargetProfile, options: object, mode: str, timeout_s: float,
+def _spawn_emulator(parsed: "TargetSpec", profile: TargetProfile, options: object, mode: str, timeout_s: float,
                     watchdog_ms: int) -> TargetHandle:
     from hilbench.link import open_link
     from hilbench.targets.remote import RemoteTarget
 
-    link = open_link("pty", timeout_s=timeout_s)
+    link = open_link(parsed, timeout_s=timeout_s)  # a pty pair made here (with the spec's faults)
     command = emulator_command(profile, options, link.peer_path, mode, watchdog_ms)
     log = tempfile.TemporaryFile()  # the child's stderr: a file never fills up and blocks it
     try:

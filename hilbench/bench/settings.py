@@ -135,10 +135,9 @@ def guard_settings(cfg: BenchConfig) -> GuardSettings:
 
 def target_name(spec_text: str) -> str | None:
     """The registered target a spec names (`inprocess:NAME`, `emulator:NAME`, `sil:NAME`), else None."""
-    kind, sep, rest = spec_text.partition(":")
-    if sep and kind in ("inprocess", "emulator", "sil") and not rest.startswith("//"):
-        return rest.split("?", 1)[0]
-    return None
+    from hilbench.link.spec import parse_target_spec
+
+    return parse_target_spec(spec_text).name or None
 
 
 def target_profile(link: "LinkSection | None") -> TargetProfile:

@@ -178,6 +178,10 @@ class FaultyLink:
     def fileno(self) -> int | None:
         return self.inner.fileno()
 
+    @property
+    def closed(self) -> bool:
+        return self.inner.closed
+
     def close(self) -> None:
         self.inner.close()
 

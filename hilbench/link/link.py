@@ -9,20 +9,16 @@ Drive), so it can count sequence gaps.
 from __future__ import annotations
 
 import os
-import stat
 import termios
 from time import monotonic
 from collections import deque
 from dataclasses import asdict, dataclass
 from typing import Any, Callable, Iterable
-from urllib.parse import parse_qs, urlsplit
 
 from hilbench.errors import DecodeError, LinkError, LinkTimeout
-from hilbench.link.pty import open_pty_pair
-from hilbench.link.transport import _READ_CHUNK, FdTransport, PtyMasterTransport, SerialUrlTransport, Transport
+from hilbench.link.transport import _READ_CHUNK, FdTransport, Transport
 from hilbench.protocol import Drive, FrameDecoder, Sensors, decode_frame, encode_frame
 
-DEFAULT_BAUD = 250_000
 DEFAULT_TIMEOUT_S = 1.0
 _UNSEQUENCED = object()  # _next_seq.get default: a message type without a running seq
 _DECODER_ERROR_KEYS = ("crc_errors", "cobs_errors", "length_errors", "unknown_type", "oversized")
@@ -382,86 +378,3 @@ class Link:
 
     def __repr__(self) -> str:
         return f"Link({self.name!r})"
-
-
-# -- opening links from specs -------------------------------------------------------------
-def _open_serial(device: str, baud: int, name: str, timeout_s: float) -> Link:
-    import serial  # pyserial
-
-    if not os.path.exists(device):
-        raise LinkError(f"link {name}: no such port {device} (try `hilbench ports`)")
-    try:
-        port = serial.Serial(device, baudrate=baud, timeout=0, exclusive=True)
-    except serial.SerialException as exc:
-        text = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
-        if "lock" in text.lower():
-            raise LinkError(f"link {name}: port {device} is busy (another program has it open)") from None
-        raise LinkError(f"link {name}: cannot open port {device}: {text}") from None
-    except (OSError, ValueError) as exc:
-        raise LinkError(f"link {name}: cannot open port {device}: {exc}") from None
-    transport = FdTransport(port.fd, name, owns_fd=False, on_close=port.close)
-    return Link(transport, name, timeout_s=timeout_s)
-
-
-def _parse_baud(query: str, name: str) -> int:
-    params = parse_qs(query)
-    unknown = sorted(set(params) - {"baud"})
-    if unknown:
-        raise LinkError(f"link {name}: unknown option {unknown[0]!r} (known: baud)")
-    if "baud" not in params:
-        return DEFAULT_BAUD
-    try:
-        baud = int(params["baud"][-1])
-    except ValueError:
-        raise LinkError(f"link {name}: baud must be a whole number, got {params['baud'][-1]!r}") from None
-    if baud <= 0:
-        raise LinkError(f"link {name}: baud must be positive, got {baud}")
-    return baud
-
-
-def open_link(spec: str, *, timeout_s: float = DEFAULT_TIMEOUT_S) -> Link:
-    """Open a link from a spec: serial:/dev/X?baud=N, /dev/X, loop://, pty, fd:N.
-
-    `pty` makes a raw-mode pty pair and keeps the master; `link.peer_path` is the slave the far
-    end opens.
-    """
-    spec = spec.strip()
-    if spec == "pty":
-        pair = open_pty_pair()
-        name = f"pty:{pair.slave_path}"
-        transport = PtyMasterTransport(pair.master_fd, pair.slave_fd, pair.slave_path, name)
-        return Link(transport, name, timeout_s=timeout_s, peer_path=pair.slave_path)
-    if spec.startswith("loop://"):
-        import serial
-
-        port = serial.serial_for_url(spec, timeout=0)
-        return Link(SerialUrlTransport(port, spec), spec, timeout_s=timeout_s)
-    if spec.startswith("fd:"):
-        try:
-            fd = int(spec[3:])
-            os.fstat(fd)
-        except ValueError:
-            raise LinkError(f"link {spec}: fd:N needs a file descriptor number") from None
-        except OSError as exc:
-            raise LinkError(f"link {spec}: file descriptor {spec[3:]} is not open: {exc.strerror}") from None
-        return Link(FdTransport(fd, spec), spec, timeout_s=timeout_s)
-    if spec.startswith("serial:"):
-        parts = urlsplit(spec[len("serial:"):])
-        device = parts.path
-        if not device:
-            raise LinkError(f"link {spec}: serial: needs a device path, e.g. serial:/dev/ttyUSB0?baud=250000")
-        return _open_serial(device, _parse_baud(parts.query, spec), spec, timeout_s)
-    if spec.startswith("/"):
-        device, _, query = spec.partition("?")
-        return _open_serial(device, _parse_baud(query, spec), spec, timeout_s)
-    raise LinkError(
-        f"link {spec}: unknown link spec (use serial:/dev/ttyUSB0?baud=250000, /dev/PATH, loop://, pty or fd:N)"
-    )
-
-
-def is_char_device(path: str) -> bool:
-    """True when path names a character device (a tty), for friendlier messages."""
-    try:
-        return stat.S_ISCHR(os.stat(path).st_mode)
-    except OSError:
-        return False

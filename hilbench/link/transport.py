@@ -167,11 +167,18 @@ class PtyMasterTransport(FdTransport):
 
 
 class SerialUrlTransport(Transport):
-    """A pyserial object without a file descriptor (loop://): read what is waiting in one call."""
+    """A pyserial port read through pyserial (rfc2217://, loop://, spy://, ...), with deadlines.
+
+    What is waiting is taken in one call; otherwise one byte is awaited for at most timeout_s,
+    then whatever followed it. The deadline goes into the port's `_timeout` directly: the public
+    `timeout` setter reconfigures the port, which on rfc2217:// renegotiates the line settings
+    with the server (50 ms sleeps) on every read, and rfc2217 refuses any write_timeout there.
+    """
 
     def __init__(self, port: Any, name: str) -> None:
         self.name = name
         self._port = port
+        self._direct = hasattr(port, "_timeout") and hasattr(port, "_write_timeout")
 
     def read(self, timeout_s: float | None) -> bytes:
         port = self._port
@@ -179,24 +186,43 @@ class SerialUrlTransport(Transport):
             waiting = port.in_waiting
             if waiting:
                 return bytes(port.read(waiting))
-            port.timeout = timeout_s
+            if timeout_s is not None and timeout_s <= 0:
+                return b""
+            if self._direct:
+                port._timeout = timeout_s
+            else:  # pragma: no cover
+                port.timeout = timeout_s
             first = port.read(1)
             if not first:
                 return b""
             waiting = port.in_waiting
             return bytes(first) + (bytes(port.read(waiting)) if waiting else b"")
         except Exception as exc:  # pyserial raises SerialException / PortNotOpenError
-            raise LinkClosed(f"link {self.name}: {exc}") from None
+            raise LinkClosed(f"link {self.name}: {_first_line(exc)}") from None
 
     def write(self, data: bytes, timeout_s: float) -> None:
+        import serial
+
         try:
-            self._port.write_timeout = timeout_s
+            if self._direct:
+                self._port._write_timeout = timeout_s
+            else:  # pragma: no cover
+                self._port.write_timeout = timeout_s
             self._port.write(data)
+        except serial.SerialTimeoutException:
+            raise LinkTimeout(
+                f"link {self.name}: the far end did not take {len(data)} bytes in {timeout_s * 1000:.0f} ms"
+            ) from None
         except Exception as exc:
-            raise LinkClosed(f"link {self.name}: {exc}") from None
+            raise LinkClosed(f"link {self.name}: {_first_line(exc)}") from None
 
     def close(self) -> None:
         try:
             self._port.close()
         except Exception:
             pass
+
+
+def _first_line(exc: BaseException) -> str:
+    text = str(exc).strip()
+    return text.splitlines()[0] if text else type(exc).__name__

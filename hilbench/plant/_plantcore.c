@@ -30,18 +30,33 @@ typedef struct {
     double i_a, i_b, i_c, i_bus;
     double rd, rq, pq, pd, ppsi, p, ild, ilq, kt, kr, ijv;
     double da, db, dc, ell;
-    long long turns, nidx;
-    int sector, hall_bits, encoder_count, last_mode, enc_sign, enc_offset, enc_cpt, substeps;
-    char stuck, locked, track_energy, kq_any;
+    long long turns, nidx, enc_m;
+    int sector, hall_bits, encoder_count, last_mode, enc_sign, enc_offset, enc_cpt, enc_idx, substeps;
+    char stuck, locked, track_energy, kq_any, encoder_index;
     PyObject *last_edge_s;
     /* ADC: per role (0..5) gain, offset, noise, present; pre-drawn noise list and its index */
-    double pot_fraction, adc_gain[6], adc_off[6], adc_nz[6];
+    double pot_fraction, adc_gain[6], adc_off[6], adc_nz[6], adc_max[6];
     char adc_has[6];
     PyObject *noise;
     long long noise_i;
 } Core;
 
 static long long mod6(long long n) { long long r = n % 6; return r < 0 ? r + 6 : r; }
+
+static long long floordiv(long long a, long long b)
+{
+    long long q = a / b;
+    return (a % b != 0 && ((a < 0) != (b < 0))) ? q - 1 : q;
+}
+
+/* The encoder count and the index mark from the unwrapped x4 count n (model.Plant._sense). */
+static void set_encoder(Core *s, long long n)
+{
+    s->encoder_count = (int)(((long long)s->enc_sign * n + s->enc_offset) & 0xFFFF);
+    long long m = floordiv(n - s->enc_idx, s->enc_cpt);
+    s->encoder_index = (char)(m != s->enc_m);
+    s->enc_m = m;
+}
 
 /* Time of the last hall edge inside a (sub)step: Newton on the cubic Hermite (model._edge). */
 static double edge_time(double base, double th0, double th1, long long n0, long long n1,
@@ -98,7 +113,7 @@ static void sense(Core *s)
     else
         s->i_bus = (ia < 0.0 ? ia : 0.0) + (ib < 0.0 ? ib : 0.0) + (ic < 0.0 ? ic : 0.0);
     long long n = (long long)floor(((double)s->turns + th / TWO_PI) * (double)s->enc_cpt / s->p);
-    s->encoder_count = (int)(((long long)s->enc_sign * n + s->enc_offset) & 0xFFFF);
+    set_encoder(s, n);
 }
 
 /* OFF with zero currents and the back-EMF below the bus: model.Plant._coast over the period,
@@ -297,7 +312,7 @@ static PyObject *Core_step(Core *s, PyObject *const *args, Py_ssize_t nargs)
     s->i_a = ia; s->i_b = ib; s->i_c = ic;
     s->i_bus = mode == OUTPUT_PWM ? s->da * ia + s->db * ib + s->dc * ic : 0.0;
     long long n = (long long)floor(((double)s->turns + th0 / TWO_PI) * (double)s->enc_cpt / p);
-    s->encoder_count = (int)(((long long)s->enc_sign * n + s->enc_offset) & 0xFFFF);
+    set_encoder(s, n);
     Py_RETURN_NONE;
 }
 
@@ -358,7 +373,7 @@ static PyObject *Core_adc_codes(Core *s, PyObject *roles)
                 v += nz * g;
             }
             double c = floor(v + 0.5);
-            code = c < 0.0 ? 0 : c > 1023.0 ? 1023 : (long)c;
+            code = c < 0.0 ? 0 : c > s->adc_max[r] ? (long)s->adc_max[r] : (long)c;
         }
         PyObject *o = PyLong_FromLong(code);
         if (o == NULL) goto fail;
@@ -374,13 +389,14 @@ fail:
 
 static PyObject *Core_set_adc(Core *s, PyObject *const *args, Py_ssize_t nargs)
 {
-    if (nargs != 4) { PyErr_SetString(PyExc_TypeError, "_set_adc(role, gain, offset, noise)"); return NULL; }
+    if (nargs != 5) { PyErr_SetString(PyExc_TypeError, "_set_adc(role, gain, offset, noise, max_code)"); return NULL; }
     long r = PyLong_AsLong(args[0]);
     if (r == -1 && PyErr_Occurred()) return NULL;
     if (r < 0 || r > 5) { PyErr_Format(PyExc_IndexError, "_set_adc: role %ld is not 0..5", r); return NULL; }
-    double g, o, nz;
-    if (get_double(args[1], &g) || get_double(args[2], &o) || get_double(args[3], &nz)) return NULL;
-    s->adc_gain[r] = g; s->adc_off[r] = o; s->adc_nz[r] = nz; s->adc_has[r] = 1;
+    double g, o, nz, top;
+    if (get_double(args[1], &g) || get_double(args[2], &o) || get_double(args[3], &nz) || get_double(args[4], &top))
+        return NULL;
+    s->adc_gain[r] = g; s->adc_off[r] = o; s->adc_nz[r] = nz; s->adc_max[r] = top; s->adc_has[r] = 1;
     Py_RETURN_NONE;
 }
 
@@ -420,7 +436,8 @@ static PyMemberDef Core_members[] = {
     LM("_turns", turns), LM("_nidx", nidx),
     IM("_sector", sector), IM("hall_bits", hall_bits), IM("encoder_count", encoder_count),
     IM("_last_mode", last_mode), IM("_enc_sign", enc_sign), IM("_enc_offset", enc_offset),
-    IM("_enc_cpt", enc_cpt), IM("_substeps", substeps),
+    IM("_enc_cpt", enc_cpt), IM("_enc_idx", enc_idx), LM("_enc_m", enc_m), BM("encoder_index", encoder_index),
+    IM("_substeps", substeps),
     BM("_stuck", stuck), BM("_locked", locked), BM("track_energy", track_energy), BM("_kq_any", kq_any),
     {"last_edge_s", T_OBJECT_EX, offsetof(Core, last_edge_s), 0, NULL},
     {"_noise", T_OBJECT_EX, offsetof(Core, noise), 0, NULL},
@@ -432,7 +449,7 @@ static PyMemberDef Core_members[] = {
 static PyMethodDef Core_methods[] = {
     {"step", (PyCFunction)(void (*)(void))Core_step, METH_FASTCALL,
      "step(duty_a, duty_b, duty_c, output_mode, dt_s): one period (see model.Plant)."},
-    {"adc_codes", (PyCFunction)Core_adc_codes, METH_O, "adc_codes(roles): 10-bit codes (see model.Plant)."},
+    {"adc_codes", (PyCFunction)Core_adc_codes, METH_O, "adc_codes(roles): ADC codes (see model.Plant)."},
     {"append_state", (PyCFunction)Core_append_state, METH_O,
      "append_state(buf): theta_e, w_m, i_a, i_b, i_c, i_bus, load_nm as 7 doubles onto a bytearray."},
     {"_set_adc", (PyCFunction)(void (*)(void))Core_set_adc, METH_FASTCALL, "_set_adc(role, gain, offset, noise)"},

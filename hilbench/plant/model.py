@@ -128,10 +128,12 @@ class Plant:
         self._enc_cpt = 4 * int(enc.lines)
         self._enc_sign = -1 if enc.reverse else 1
         self._enc_offset = int(enc.offset_counts)
-        # ADC: one (gain, offset, noise) per role number, None for an absent role
-        tab: list[tuple[float, float, float] | None] = [None] * N_ROLES
+        self._enc_idx = int(enc.index_counts) % self._enc_cpt
+        # ADC: one (gain, offset, noise, largest code) per role number, None for an absent role
+        tab: list[tuple[float, float, float, float] | None] = [None] * N_ROLES
         for ch in params.adc:
-            tab[ADC_ROLE_CODES[ch.role]] = (float(ch.gain_codes_per_unit), float(ch.offset_codes), float(ch.noise_lsb))
+            tab[ADC_ROLE_CODES[ch.role]] = (float(ch.gain_codes_per_unit), float(ch.offset_codes), float(ch.noise_lsb),
+                                            float((1 << int(ch.bits)) - 1))
         self._adc_tab = tab
         self._rng = np.random.Generator(np.random.PCG64(seed))
         self._noise: list[float] = []
@@ -174,6 +176,8 @@ class Plant:
         self.last_edge_s: float | None = None
         self._da = self._db = self._dc = 0.5
         self._last_mode = OUTPUT_OFF
+        n0 = math.floor((self._turns + self._th / TWO_PI) * self._enc_cpt / self._p)
+        self._enc_m = (n0 - self._enc_idx) // self._enc_cpt  # index marks passed, counted from below
         # energy accounts (J), integrated only when track_energy is set
         self.e_in_j = 0.0
         self.e_cu_j = 0.0
@@ -202,6 +206,15 @@ class Plant:
             self.i_bus = (ia if ia < 0.0 else 0.0) + (ib if ib < 0.0 else 0.0) + (ic if ic < 0.0 else 0.0)
         n = math.floor((self._turns + th / TWO_PI) * self._enc_cpt / self._p)
         self.encoder_count = (self._enc_sign * n + self._enc_offset) & 0xFFFF
+        m = (n - self._enc_idx) // self._enc_cpt
+        self.encoder_index = m != self._enc_m  # an index mark passed since the last refresh
+        self._enc_m = m
+
+    @property
+    def encoder_ab(self) -> tuple[int, int]:
+        """Levels of the encoder's A and B channels now: x4 state (A, B) = 00, 10, 11, 01 in
+        order of increasing count, so A leads B when the count rises (forward, unless reversed)."""
+        return ((0, 0), (1, 0), (1, 1), (0, 1))[self.encoder_count & 3]
 
     @property
     def theta_e(self) -> float:
@@ -277,7 +290,7 @@ class Plant:
 
     # ----------------------------------------------------------------- sensors
     def adc_codes(self, roles: Sequence[int]) -> tuple[int, ...]:
-        """10-bit codes for the given ADC roles (docs/design.md role numbers); NONE -> 0.
+        """ADC codes (each channel's own bits) for the given ADC roles (docs/design.md role numbers); NONE -> 0.
 
         Per-role gain/offset/noise precomputed; Gaussian noise from a pre-drawn block."""
         tab = self._adc_tab
@@ -297,7 +310,7 @@ class Plant:
                 x = self.vbus_v
             else:
                 x = self.pot_fraction
-            g, v, nz = ch
+            g, v, nz, top = ch
             v += g * x
             if nz:
                 i = self._noise_i
@@ -308,7 +321,7 @@ class Plant:
                 self._noise_i = i + 1
                 v += nz * noise[i]
             code = math.floor(v + 0.5)
-            out.append(0 if code < 0 else 1023 if code > 1023 else code)
+            out.append(0 if code < 0 else int(top) if code > top else code)
         return tuple(out)
 
     def append_state(self, buf: bytearray) -> None:
@@ -502,6 +515,9 @@ class Plant:
         self.i_bus = self._da * ia + self._db * ib + self._dc * ic if output_mode == OUTPUT_PWM else 0.0
         n = floor((self._turns + th0 / TWO_PI) * self._enc_cpt / p)
         self.encoder_count = (self._enc_sign * n + self._enc_offset) & 0xFFFF
+        m = (n - self._enc_idx) // self._enc_cpt
+        self.encoder_index = m != self._enc_m
+        self._enc_m = m
 
     step = _step_py
 

@@ -117,11 +117,14 @@ class EncoderParams:
     """Quadrature encoder: `lines` per mechanical turn, x4 decoding, 16-bit counter.
 
     Counts increase with theta (forward rotation) unless `reverse`; zero at theta_e = 0 plus
-    `offset_counts`."""
+    `offset_counts`. Forward rotation means channel A leads B by 90 deg (the seed's Fig. 10): the
+    x4 states run (A, B) = 00, 10, 11, 01. The index mark sits at `index_counts` x4 counts of
+    forward rotation from theta_m = 0 (before `reverse`/`offset_counts`), once per turn."""
 
     lines: int = 500
     reverse: bool = False
     offset_counts: int = 0
+    index_counts: int = 0
 
 
 # ADC roles as in docs/design.md (NONE=0, POT=1, IBUS=2, VBUS=3, IA=4, IB=5).
@@ -130,15 +133,17 @@ ADC_ROLE_CODES: dict[str, int] = {"none": 0, "pot": 1, "ibus": 2, "vbus": 3, "ia
 
 @dataclass(frozen=True)
 class AdcChannel:
-    """One 10-bit ADC channel: code = round(offset_codes + gain_codes_per_unit * x + noise), 0..1023.
+    """One ADC channel: code = round(offset_codes + gain_codes_per_unit * x + noise), 0..2^bits - 1.
 
     x is the role's physical quantity: pot fraction 0..1, bus current A, bus voltage V, phase
-    current A. `noise_lsb` is the standard deviation of seeded Gaussian noise in codes."""
+    current A. `noise_lsb` is the standard deviation of seeded Gaussian noise in codes. `bits`:
+    10 for the dsPIC30F2010, 12 for the F2812's converter."""
 
     role: Literal["pot", "ibus", "vbus", "ia", "ib"]
     gain_codes_per_unit: float
     offset_codes: float = 0.0
     noise_lsb: float = 0.0
+    bits: int = 10
 
 
 def default_adc_channels(vbus_v: float = 24.0) -> tuple[AdcChannel, ...]:

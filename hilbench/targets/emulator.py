@@ -14,7 +14,7 @@ import sys
 import threading
 from typing import Callable, Mapping
 
-from hilbench.link import open_link
+from hilbench.link import open_link, parse_tcp_listen, serve_tcp_once
 from hilbench.targets.registry import get_profile
 from hilbench.targets.serve import ServeReport, serve
 
@@ -25,13 +25,19 @@ def serve_on_port(name: str, port_spec: str = "pty", mode: int | None = None,
                   stop_event: threading.Event | None = None) -> ServeReport:
     """Build target `name` and serve it on `port_spec` until the link closes or stop_event is set.
 
-    port_spec "pty" makes a pair and serves on its master; any other spec (a tty path,
-    serial:..., fd:N) is opened as it is. `announce` gets the path the host should open
+    port_spec "pty" makes a pair and serves on its master; "tcp:PORT" or "tcp:HOST:PORT" listens
+    there (port 0: any free one) and serves the first host that connects; any other spec (a tty
+    path, serial:..., fd:N, a pyserial URL) is opened as it is. `announce` gets the path the host should open
     (the pty slave, or port_spec itself) once the server is ready to answer. `options` are the
     profile's `[target]` options as plain values.
     """
     profile = get_profile(name)
     target = profile.make(profile.options_from(dict(options or {})))
+    if port_spec.startswith("tcp:"):  # a TCP port: serve the one host that connects (socket://HOST:PORT)
+        host, port = parse_tcp_listen(port_spec)
+        return serve_tcp_once(port, lambda link: serve(target, link, stop_event=stop_event, mode=mode,
+                                                       watchdog_ms=watchdog_ms),
+                              host=host, announce=announce, stop_event=stop_event)
     link = open_link(port_spec, timeout_s=1.0)
     try:
         if announce is not None:

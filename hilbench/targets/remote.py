@@ -54,9 +54,20 @@ class RemoteTarget:
         self.error_reports = 0
         self.last_error_report: ErrorReport | None = None
         self.watchdog_ms = 0
+        self.retries = 0  # frames sent again after no answer within retry_s (a lost frame either way)
+        self.best_rtt_s = float("inf")  # the quickest request round trip seen: what the line can do
         self._req_seq = 0
         self._send = link.send
         self._recv = link.recv
+
+    @property
+    def retry_s(self) -> float:
+        """How long to wait for an answer before sending again: ten times the quickest round trip
+        seen, at least 1 ms, at most 20 ms and a tenth of the timeout (a lost frame on a noisy line
+        then costs one retry, not the run). A repeated Sensors is answered by the target with its
+        last Drive, not acted on twice (the protocol's rule)."""
+        ceiling = min(0.02, self.timeout_s / 10.0)
+        return ceiling if self.best_rtt_s == float("inf") else min(ceiling, max(0.001, 10.0 * self.best_rtt_s))
 
     # -- plumbing ------------------------------------------------------------------------
     def _next_seq(self) -> int:
@@ -66,20 +77,31 @@ class RemoteTarget:
     def _request(self, msg: Any, reply_type: type, timeout_s: float | None = None) -> Any:
         """Send msg and wait for reply_type (or an ErrorReport) with msg's seq."""
         self._send(msg)
+        sent = time.monotonic()
         timeout = self.timeout_s if timeout_s is None else timeout_s
-        deadline = time.monotonic() + timeout
+        deadline = sent + timeout
+        resend_at = sent + self.retry_s
+        first = True
         while True:
-            remaining = deadline - time.monotonic()
+            now = time.monotonic()
+            remaining = deadline - now
             if remaining <= 0:
                 raise LinkTimeout(
                     f"link {self.link.name}: no {reply_type.__name__} for {type(msg).__name__} within {timeout * 1000:.0f} ms"
                 )
+            if now >= resend_at:  # requests are idempotent: asking again is safe
+                self.retries += 1
+                self._send(msg)
+                resend_at = now + self.retry_s
+                first = False
             try:
-                reply = self._recv(remaining)
+                reply = self._recv(min(remaining, max(resend_at - now, 1e-4)))
             except LinkTimeout:
                 continue
             kind = type(reply)
             if reply.seq == msg.seq and (kind is reply_type or kind is ErrorReport):
+                if first and kind is not TargetHello:  # (the first HELLO may wait for a process to start)
+                    self.best_rtt_s = min(self.best_rtt_s, time.monotonic() - sent)
                 if kind is ErrorReport:
                     self.error_reports += 1
                     self.last_error_report = reply
@@ -176,21 +198,36 @@ class RemoteTarget:
         """One exchange: Sensors out, the Drive with the same seq back (LinkTimeout if none)."""
         self._send(sensors)
         seq = sensors.seq
-        msg = self._recv(self.timeout_s)
+        try:
+            msg = self._recv(self.retry_s)
+        except LinkTimeout:
+            return self._step_slow(sensors)
         if type(msg) is Drive and msg.seq == seq:
             return msg
         self._note_stray(msg)
-        return self._step_slow(seq)
+        return self._step_slow(sensors)
 
-    def _step_slow(self, seq: int) -> Drive:
-        # the first frame was something else (late Drive, stray reply): skip until ours or timeout
-        deadline = time.monotonic() + self.timeout_s
+    def _step_slow(self, sensors: Sensors) -> Drive:
+        """The first answer was late, lost or something else: skip strays, send the same Sensors
+        again every retry_s (the target answers a repeated seq with its last Drive), until ours
+        arrives or the timeout."""
+        seq = sensors.seq
+        start = time.monotonic()
+        deadline = start + self.timeout_s
+        resend_at = start + self.retry_s
         while True:
-            remaining = deadline - time.monotonic()
-            if remaining <= 0:
+            now = time.monotonic()
+            if now >= deadline:
                 raise LinkTimeout(f"link {self.link.name}: no Drive for Sensors seq {seq} within "
-                                  f"{self.timeout_s * 1000:.0f} ms")
-            msg = self._recv(remaining)
+                                  f"{self.timeout_s * 1000:.0f} ms ({self.retries} retries so far)")
+            if now >= resend_at:
+                self.retries += 1
+                self._send(sensors)
+                resend_at = now + self.retry_s
+            try:
+                msg = self._recv(min(deadline - now, max(resend_at - now, 1e-4)))
+            except LinkTimeout:
+                continue
             if type(msg) is Drive and msg.seq == seq:
                 return msg
             self._note_stray(msg)

@@ -1,0 +1,563 @@
+/* an1017.c: the AN1017 firmware core (see an1017.h). Written for hilbench; facts and sources in
+ * docs/board.md ("Facts and sources"), tags [SVM], [T1], [HALL], [PID], [PWM], [ADC] below refer to
+ * its sections. */
+#include "an1017.h"
+
+#include "q15.h"
+
+/* Constant tables live in flash: program space on AVR (read with pgm_read_word), PSV/const
+ * section on the dsPIC (XC16 places const data in program memory by default). */
+#if defined(__AVR__)
+#include <avr/pgmspace.h>
+#define AN1017_ROM PROGMEM
+#define AN1017_ROM_U16(p) ((uint16_t)pgm_read_word(p))
+#else
+#define AN1017_ROM
+#define AN1017_ROM_U16(p) (*(p))
+#endif
+
+/* [SVM] round(32767 * sin(i * 60 deg / 171)), i = 0..171: 1024 points per electrical cycle over
+ * 60 degrees; index 171 is never reached (the largest index is 0x2AAA >> 6 = 170). */
+static const uint16_t sine_table[172] AN1017_ROM = {
+    0u, 201u, 401u, 602u, 803u, 1003u, 1204u, 1404u, 1605u, 1805u, 2005u, 2206u,
+    2406u, 2606u, 2806u, 3006u, 3205u, 3405u, 3605u, 3804u, 4003u, 4202u, 4401u, 4600u,
+    4799u, 4997u, 5195u, 5393u, 5591u, 5789u, 5986u, 6183u, 6380u, 6577u, 6773u, 6970u,
+    7166u, 7361u, 7557u, 7752u, 7947u, 8141u, 8335u, 8529u, 8723u, 8916u, 9109u, 9302u,
+    9494u, 9686u, 9877u, 10068u, 10259u, 10449u, 10639u, 10829u, 11018u, 11207u, 11395u, 11583u,
+    11771u, 11958u, 12144u, 12331u, 12516u, 12701u, 12886u, 13070u, 13254u, 13437u, 13620u, 13802u,
+    13984u, 14165u, 14346u, 14526u, 14706u, 14885u, 15063u, 15241u, 15419u, 15595u, 15772u, 15947u,
+    16122u, 16297u, 16470u, 16643u, 16816u, 16988u, 17159u, 17330u, 17500u, 17669u, 17838u, 18006u,
+    18173u, 18340u, 18506u, 18671u, 18835u, 18999u, 19162u, 19325u, 19487u, 19647u, 19808u, 19967u,
+    20126u, 20284u, 20441u, 20598u, 20753u, 20908u, 21062u, 21216u, 21368u, 21520u, 21671u, 21821u,
+    21970u, 22119u, 22266u, 22413u, 22559u, 22704u, 22848u, 22992u, 23134u, 23276u, 23417u, 23557u,
+    23696u, 23834u, 23971u, 24107u, 24243u, 24377u, 24511u, 24644u, 24776u, 24906u, 25036u, 25165u,
+    25293u, 25420u, 25547u, 25672u, 25796u, 25919u, 26042u, 26163u, 26283u, 26403u, 26521u, 26638u,
+    26755u, 26870u, 26984u, 27098u, 27210u, 27321u, 27431u, 27541u, 27649u, 27756u, 27862u, 27967u,
+    28071u, 28174u, 28276u, 28377u
+};
+
+/* [HALL] PhaseValues: 57344 (315 deg), then + 65536/6 each. */
+static const uint16_t phase_values[6] AN1017_ROM = {57344u, 2730u, 13652u, 24574u, 35496u, 46418u};
+
+/* [HALL] SectorTable indexed by hall C B A; 0xFFFF (-1) = the illegal states 000 and 111. */
+static const uint16_t sector_table[8] AN1017_ROM = {0xFFFFu, 4u, 2u, 3u, 0u, 5u, 1u, 0xFFFFu};
+
+#define SIXTY_DEG 0x2AAAu
+#define MINPERIOD_DIVF 312              /* _MINPERIOD = MINPERIOD - 1 keeps DIVF's |num| < |den| */
+#define PHASEINC_NUMERATOR 512000UL     /* 65536 * 1000 Tcy / (2 * 64 Tcy): FCY-independent */
+#define FORCE_COMMUTATION_TICKS 10u     /* _10MILLISEC */
+#define ADC_POSTSCALE_MASK 15u          /* SEVOPS 1:16 (v1.1) */
+#define GAIN_LIMIT_Q15 ((int32_t)32764)          /* SFloat_To_SFrac16(0.9999) = (int)(32767 * 0.9999 + 0.5) */
+#define KP_DEFAULT 3277                 /* 0.1 */
+#define KI_DEFAULT 328                  /* 0.01 */
+#define KD_DEFAULT 0
+
+static uint16_t sector_of(uint8_t hall)
+{
+    return AN1017_ROM_U16(&sector_table[hall & 7u]);
+}
+
+/* ------------------------------------------------------------------------------------- SVM */
+
+/* t * k >> 15 in the firmware's 32-bit intermediate, truncated to an unsigned 16-bit result. */
+static uint16_t scale15(uint16_t t, int16_t k)
+{
+    return (uint16_t)((uint32_t)q15_asr32((int32_t)t * (int32_t)k, 15u) & 0xFFFFu);
+}
+
+void an1017_svm(int16_t volts, uint16_t angle, uint16_t pdc[3])
+{
+    uint8_t sector;
+    uint16_t angle1, angle2, t1, t2, h, x, y1, y2;
+    if (volts > AN1017_VOLTS_LIMIT) {
+        volts = AN1017_VOLTS_LIMIT; /* only an upper clamp: volts >= -1 by construction */
+    }
+    /* [SVM] sector k by the `angle < VECTORk+1` tests in order */
+    if (angle < 0x2AAAu) {
+        sector = 1u;
+        angle2 = angle;
+    } else if (angle < 0x5555u) {
+        sector = 2u;
+        angle2 = (uint16_t)(angle - 0x2AAAu);
+    } else if (angle < 0x8000u) {
+        sector = 3u;
+        angle2 = (uint16_t)(angle - 0x5555u);
+    } else if (angle < 0xAAAAu) {
+        sector = 4u;
+        angle2 = (uint16_t)(angle - 0x8000u);
+    } else if (angle < 0xD555u) {
+        sector = 5u;
+        angle2 = (uint16_t)(angle - 0xAAAAu);
+    } else {
+        sector = 6u;
+        angle2 = (uint16_t)(angle - 0xD555u);
+    }
+    angle1 = (uint16_t)(SIXTY_DEG - angle2);
+    t1 = AN1017_ROM_U16(&sine_table[(uint8_t)(angle1 >> 6)]);
+    t2 = AN1017_ROM_U16(&sine_table[(uint8_t)(angle2 >> 6)]);
+    t1 = scale15(t1, volts);
+    t1 = (uint16_t)(((uint32_t)t1 * AN1017_TPWM) >> 15);
+    t2 = scale15(t2, volts);
+    t2 = (uint16_t)(((uint32_t)t2 * AN1017_TPWM) >> 15);
+    h = (uint16_t)((uint16_t)(AN1017_TPWM - t1 - t2) >> 1);
+    x = (uint16_t)(t1 + t2 + h);
+    y1 = (uint16_t)(t1 + h);
+    y2 = (uint16_t)(t2 + h);
+    switch (sector) {
+    case 1u: pdc[0] = x; pdc[1] = y2; pdc[2] = h; break;
+    case 2u: pdc[0] = y1; pdc[1] = x; pdc[2] = h; break;
+    case 3u: pdc[0] = h; pdc[1] = x; pdc[2] = y2; break;
+    case 4u: pdc[0] = h; pdc[1] = y1; pdc[2] = x; break;
+    case 5u: pdc[0] = y2; pdc[1] = h; pdc[2] = x; break;
+    default: pdc[0] = x; pdc[1] = h; pdc[2] = y1; break;
+    }
+}
+
+/* -------------------------------------------------------------------------------- routines */
+
+int16_t an1017_max_ph_adv(int16_t deg)
+{
+    /* MAX_PH_ADV = (int)(deg / 360 * 65536), deg in 0..60 */
+    return (int16_t)(((uint32_t)(uint16_t)deg * 65536UL) / 360UL);
+}
+
+/* [HALL] re-sync: PhaseValues[Sector] (CW) or PhaseValues[(Sector + 3) % 6] + PhaseOffset (CCW).
+ * An invalid sector (0xFFFF) wraps to index (0xFFFF + 3) % 6 = 2 in CCW; in CW the chip would read
+ * PhaseValues[-1] (out of bounds, not reproducible), so Phase is left as it is. */
+static uint16_t phase_for_sector(const an1017_t *s, uint16_t sector, uint8_t required_ccw)
+{
+    if (required_ccw) {
+        uint16_t idx = (uint16_t)((uint16_t)(sector + 3u) % 6u);
+        return (uint16_t)(AN1017_ROM_U16(&phase_values[idx]) + (uint16_t)s->phase_offset);
+    }
+    if (sector == AN1017_SECTOR_INVALID) {
+        return s->phase;
+    }
+    return AN1017_ROM_U16(&phase_values[sector]);
+}
+
+static void coefficients(an1017_t *s)
+{
+    /* [PID] C0 = Kp + Ki + Kd; C1 = -Kp - 2Kd (seed) or -(Ki + 2Kd) (v1.1); C2 = Kd; 16-bit words */
+    s->c0 = q15_wrap((int32_t)s->kp + s->ki + s->kd);
+    if (s->c1_textbook) {
+        s->c1 = q15_wrap(-(int32_t)s->kp - (int32_t)2 * s->kd);
+    } else {
+        s->c1 = q15_wrap(-((int32_t)s->ki + (int32_t)2 * s->kd));
+    }
+    s->c2 = s->kd;
+}
+
+void an1017_init(an1017_t *s, uint8_t variant)
+{
+    uint8_t i;
+    uint16_t k;
+    uint8_t v11 = (uint8_t)(variant == AN1017_VARIANT_V11);
+    uint8_t *p = (uint8_t *)s;
+    for (k = 0u; k < (uint16_t)sizeof *s; k++) { /* no memset: no C library needed */
+        p[k] = 0u;
+    }
+    s->adc_every = (uint8_t)!v11;
+    s->c1_textbook = (uint8_t)!v11;
+    s->phase_offset = AN1017_PHASE_OFFSET;
+    s->kp = KP_DEFAULT;
+    s->ki = KI_DEFAULT;
+    s->kd = KD_DEFAULT;
+    s->phase_advance_on = v11;
+    s->max_ph_adv_deg = 40;
+    s->max_ph_adv = an1017_max_ph_adv(40);
+    s->stall_limit = v11 ? 1000u : 100u; /* [T1] _1000MILLISEC (v1.1) / "(i.e. 100 ms)" */
+    s->state = AN1017_STATE_STOPPED;
+    s->fault = AN1017_FAULT_NONE;
+    s->output_mode = AN1017_MODE_OFF;
+    s->sector = AN1017_SECTOR_INVALID;
+    s->last_sector = AN1017_SECTOR_INVALID;
+    s->period = AN1017_MAXPERIOD;
+    for (i = 0u; i < 3u; i++) {
+        s->pdc_pending[i] = AN1017_PTPER;
+        s->pdc_active[i] = AN1017_PTPER;
+    }
+    s->pot_code = 512u;
+}
+
+void an1017_press_start(an1017_t *s)
+{
+    if (s->running || s->booting) {
+        return;
+    }
+    s->booting = 1u;
+    s->state = AN1017_STATE_BOOTSTRAP;
+    s->fault = AN1017_FAULT_NONE;
+    s->output_mode = AN1017_MODE_LOW_SIDE; /* OVDCON = 0x0015: PWM1L/2L/3L on */
+    /* the busy loop of ChargeBootstraps ends just after the 10 ms boundary */
+    s->boot_at = AN1017_BOOTSTRAP_TCY + 1UL;
+}
+
+void an1017_press_stop(an1017_t *s, uint8_t state, uint8_t fault)
+{
+    /* StopMotor(): OVDCON = 0 (all six switches off, the motor coasts), motor interrupts off */
+    s->running = 0u;
+    s->booting = 0u;
+    s->output_mode = AN1017_MODE_OFF;
+    s->state = state;
+    s->fault = fault;
+}
+
+void an1017_run_motor(an1017_t *s)
+{
+    uint8_t i;
+    s->booting = 0u;
+    s->output_mode = AN1017_MODE_PWM; /* PDC1..3 = PTPER, OVDCON = 0x3F00 */
+    for (i = 0u; i < 3u; i++) {
+        s->pdc_pending[i] = AN1017_PTPER;
+        s->pdc_active[i] = AN1017_PTPER;
+    }
+    s->e1 = 0;
+    s->e2 = 0;
+    coefficients(s);
+    s->actual_capture = AN1017_MAXPERIOD; /* the first Period is 31250 */
+    s->past_capture = 0u;
+    s->sector = sector_of(s->hall);
+    s->last_sector = s->sector;
+    s->control_output = 0;
+    s->cur_ccw = (uint8_t)(s->ref_speed < 0);
+    s->req_ccw = s->cur_ccw;
+    s->phase = phase_for_sector(s, s->sector, s->req_ccw);
+    s->stall_counter = 0u;
+    s->phase_inc = (uint16_t)(PHASEINC_NUMERATOR / AN1017_MAXPERIOD);
+    s->running = 1u;
+    s->state = AN1017_STATE_RUNNING;
+}
+
+void an1017_set_gains(an1017_t *s, int16_t kp, int16_t ki, int16_t kd)
+{
+    if (s->running) { /* taken by the next Timer1 ISR */
+        s->pend_kp = kp;
+        s->pend_ki = ki;
+        s->pend_kd = kd;
+        s->has_pending = 1u;
+    } else { /* RunMotor computes the coefficients */
+        s->kp = kp;
+        s->ki = ki;
+        s->kd = kd;
+        s->has_pending = 0u;
+    }
+}
+
+/* ------------------------------------------------------------------------------ ISR bodies */
+
+void an1017_isr_adc(an1017_t *s)
+{
+    /* [ADC] FORM = 11 signed fractional: ADCBUF0 = (code - 512) << 6; RefSpeed = ADCBUF0 */
+    if (s->ref_override_on) {
+        s->ref_speed = s->ref_override;
+    } else {
+        s->ref_speed = (int16_t)(((int16_t)(s->pot_code & 0x3FFu) - 512) * 64);
+    }
+}
+
+void an1017_isr_pwm(an1017_t *s)
+{
+    int16_t volts;
+    if (s->req_ccw) {
+        if (s->cur_ccw) {
+            s->phase = (uint16_t)(s->phase - s->phase_inc);
+        }
+        volts = (int16_t)(-((int32_t)s->control_output + 1L)); /* SVM(-(ControlOutput + 1), ...) */
+    } else {
+        if (!s->cur_ccw) {
+            s->phase = (uint16_t)(s->phase + s->phase_inc);
+        }
+        volts = s->control_output;
+    }
+    /* without PHASE_ADVANCE the firmware adds nothing: phase_adv stays 0 */
+    an1017_svm(volts, (uint16_t)(s->phase + (uint16_t)s->phase_adv), s->pdc_pending);
+}
+
+void an1017_isr_timer1(an1017_t *s)
+{
+    uint16_t period;
+    int16_t ms, e0;
+    int32_t acc;
+    if (s->has_pending) {
+        s->kp = s->pend_kp;
+        s->ki = s->pend_ki;
+        s->kd = s->pend_kd;
+        s->has_pending = 0u;
+        coefficients(s);
+    }
+    /* [T1] Period between the last two IC7 captures (16-bit wrap), clamped */
+    period = (uint16_t)(s->actual_capture - s->past_capture);
+    if (period < AN1017_MINPERIOD) {
+        period = AN1017_MINPERIOD;
+    } else if (period > AN1017_MAXPERIOD) {
+        period = AN1017_MAXPERIOD;
+    }
+    s->period = period;
+    s->phase_inc = (uint16_t)(PHASEINC_NUMERATOR / period);
+    /* MeasuredSpeed = DIVF(_MINPERIOD, Period); 313 <= Period <= 31250 fits a positive int16 */
+    ms = q15_divf(MINPERIOD_DIVF, (int16_t)period);
+    if (s->cur_ccw) {
+        ms = (int16_t)-ms;
+    }
+    s->measured_speed = ms;
+    /* [PID] SpeedControl: e0 = SAC(Ref - Meas); A = LAC ControlOutput; three MACs with SATA;
+     * ControlOutput = SAC A (truncating) */
+    e0 = q15_sat((int32_t)s->ref_speed - ms);
+    acc = q15_lac(s->control_output);
+    acc = q15_mac_sata(acc, e0, s->c0);
+    acc = q15_mac_sata(acc, s->e1, s->c1);
+    acc = q15_mac_sata(acc, s->e2, s->c2);
+    s->control_output = q15_sac(acc);
+    s->e2 = s->e1;
+    s->e1 = e0;
+    s->req_ccw = (uint8_t)(s->control_output < 0);
+    /* [T1] PhaseAdvance = MPY MAX_PH_ADV * MeasuredSpeed, SAC A (no rounding) */
+    s->phase_adv = s->phase_advance_on ? q15_mul(s->max_ph_adv, ms) : 0;
+    /* [T1] stall: force a commutation every 10 ticks without a hall edge, stop at the limit */
+    s->stall_counter = (uint16_t)(s->stall_counter + 1u);
+    if (s->stall_counter % FORCE_COMMUTATION_TICKS == 0u) {
+        s->sector = sector_of(s->hall);
+        if (s->sector != AN1017_SECTOR_INVALID) {
+            s->phase = phase_for_sector(s, s->sector, s->req_ccw);
+        }
+    } else if (s->stall_counter >= s->stall_limit) {
+        an1017_press_stop(s, AN1017_STATE_STALLED, AN1017_FAULT_STALL);
+    }
+}
+
+void an1017_isr_hall(an1017_t *s, uint8_t which)
+{
+    uint16_t sec = sector_of(s->hall);
+    s->sector = sec;
+    if (sec == s->last_sector) {
+        return; /* a slow edge's glitch: nothing changed */
+    }
+    if (which == 1u) {
+        /* IC7: PastCapture = ActualCapture; ActualCapture = IC7BUF; three more reads of IC7BUF
+         * flush the rest of the 4-deep FIFO, so it is empty afterwards */
+        s->past_capture = s->actual_capture;
+        if (s->ic7_n > 0u) {
+            s->actual_capture = s->ic7_first;
+        }
+        s->ic7_n = 0u;
+    }
+    s->stall_counter = 0u;
+    /* [HALL] direction from the new sector: CW = sector index increasing */
+    if (which == 0u) {
+        s->cur_ccw = (uint8_t)(sec == 5u || sec == 2u);
+    } else if (which == 1u) {
+        s->cur_ccw = (uint8_t)(sec == 3u || sec == 0u);
+    } else {
+        s->cur_ccw = (uint8_t)(sec == 1u || sec == 4u);
+    }
+    s->phase = phase_for_sector(s, sec, s->req_ccw);
+    s->last_sector = sec;
+}
+
+void an1017_main_loop_buttons(an1017_t *s, uint8_t inputs)
+{
+    /* main(): S2 (RC14, active low; here the Sensors bit) acts on release, toggling Run/Stop */
+    uint8_t s2 = (uint8_t)((inputs & AN1017_INPUT_S2) != 0u);
+    if (s->booting) {
+        return; /* main() is busy in ChargeBootstraps */
+    }
+    if (s2) {
+        s->s2_wait_release = 1u;
+    } else if (s->s2_wait_release) {
+        s->s2_wait_release = 0u;
+        if (s->running) {
+            an1017_press_stop(s, AN1017_STATE_STOPPED, AN1017_FAULT_NONE);
+        } else {
+            an1017_press_start(s);
+        }
+    }
+}
+
+/* --------------------------------------------------------------------- virtual peripherals */
+
+void an1017_apply_hall(an1017_t *s, uint8_t new_bits, uint32_t offset_tcy)
+{
+    uint8_t changed = (uint8_t)((s->hall ^ new_bits) & 7u);
+    s->hall = (uint8_t)(new_bits & 7u);
+    if ((changed & 2u) && s->ic7_n < 4u) {
+        /* IC7 captures every B edge into its 4-deep FIFO, interrupt enabled or not; the ISR reads
+         * the oldest and flushes the others, so only the oldest is kept */
+        if (s->ic7_n == 0u) {
+            s->ic7_first = (uint16_t)(((s->tmr3_tcy + offset_tcy) & AN1017_TMR3_MASK) >> 6);
+        }
+        s->ic7_n++;
+    }
+    if (!s->running) {
+        return;
+    }
+    if (changed & 1u) {
+        an1017_isr_hall(s, 0u);
+    }
+    if ((changed & 2u) && s->running) {
+        an1017_isr_hall(s, 1u);
+    }
+    if ((changed & 4u) && s->running) {
+        an1017_isr_hall(s, 2u);
+    }
+}
+
+/* One PWM period boundary: the ADC ISR when due, the duty registers latch, the PWM ISR. */
+static void pwm_boundary(an1017_t *s)
+{
+    uint8_t i;
+    if (s->adc_every || (s->pwm_index & ADC_POSTSCALE_MASK) == 0u) {
+        an1017_isr_adc(s);
+    }
+    for (i = 0u; i < 3u; i++) {
+        s->pdc_active[i] = s->pdc_pending[i];
+    }
+    if (s->running) {
+        an1017_isr_pwm(s);
+    }
+    s->pwm_index = (uint16_t)(s->pwm_index + 1u);
+}
+
+#define EV_END 0u
+#define EV_TIMER1 1u
+#define EV_BOOT 2u
+#define EV_HALL 3u
+
+void an1017_run(an1017_t *s, uint32_t duration_tcy, uint8_t inputs, uint8_t have_edge, uint32_t edge_offset_tcy,
+                uint8_t have_pot, uint16_t pot_code)
+{
+    uint32_t next_boundary = (s->pwm_off_tcy == 0u) ? 0u : (uint32_t)(AN1017_PWM_PERIOD_TCY - s->pwm_off_tcy);
+    uint8_t new_hall = (uint8_t)(inputs & 7u);
+    uint8_t edge_pending = 0u;
+    uint32_t edge_at = 0u;
+    if (have_pot) {
+        s->pot_code = pot_code;
+    }
+    an1017_main_loop_buttons(s, inputs);
+    if (new_hall != s->hall && duration_tcy > 0u) {
+        edge_pending = 1u;
+        edge_at = have_edge ? edge_offset_tcy : 0u;
+        if (edge_at >= duration_tcy) {
+            edge_at = duration_tcy - 1u;
+        }
+    }
+    for (;;) {
+        uint32_t nxt = duration_tcy;
+        uint8_t kind = EV_END;
+        if (s->running && s->t1_at < nxt) {
+            nxt = s->t1_at;
+            kind = EV_TIMER1;
+        }
+        if (s->booting && s->boot_at < nxt) {
+            nxt = s->boot_at;
+            kind = EV_BOOT;
+        }
+        if (edge_pending && edge_at < nxt) {
+            nxt = edge_at;
+            kind = EV_HALL;
+        }
+        while (next_boundary < nxt) { /* boundaries at an event's own instant come after it */
+            pwm_boundary(s);
+            next_boundary += AN1017_PWM_PERIOD_TCY;
+        }
+        if (kind == EV_END) {
+            break;
+        }
+        if (kind == EV_TIMER1) {
+            s->t1_at += AN1017_TIMER1_PERIOD_TCY;
+            an1017_isr_timer1(s);
+        } else if (kind == EV_BOOT) {
+            an1017_run_motor(s);
+            s->t1_at = nxt + AN1017_TIMER1_PERIOD_TCY; /* TMR1 = 0 */
+            s->tmr3_tcy = (uint32_t)(0u - nxt) & AN1017_TMR3_MASK; /* TMR3 = 0 at this instant */
+        } else {
+            edge_pending = 0u;
+            an1017_apply_hall(s, new_hall, nxt);
+        }
+    }
+    /* carry the time bases over to the next span */
+    s->t1_at = (s->t1_at >= duration_tcy) ? s->t1_at - duration_tcy : 0u;
+    s->boot_at = (s->boot_at >= duration_tcy) ? s->boot_at - duration_tcy : 0u;
+    s->tmr3_tcy = (s->tmr3_tcy + duration_tcy) & AN1017_TMR3_MASK;
+    s->pwm_off_tcy = (uint16_t)((next_boundary == duration_tcy)
+                                    ? 0u
+                                    : AN1017_PWM_PERIOD_TCY - (next_boundary - duration_tcy));
+}
+
+uint16_t an1017_duty(const an1017_t *s, uint8_t phase)
+{
+    uint16_t d = s->pdc_active[phase];
+    return (d > AN1017_DUTY_MAX) ? (uint16_t)AN1017_DUTY_MAX : d;
+}
+
+uint8_t an1017_sector_reported(const an1017_t *s)
+{
+    uint16_t sec = s->running ? s->sector : sector_of(s->hall);
+    return (uint8_t)((sec == AN1017_SECTOR_INVALID) ? 7u : sec);
+}
+
+void an1017_outputs(const an1017_t *s, an1017_out_t *out)
+{
+    uint8_t i;
+    for (i = 0u; i < 3u; i++) {
+        out->duty[i] = an1017_duty(s, i);
+    }
+    out->output_mode = s->output_mode;
+    out->state = s->state;
+    out->sector = an1017_sector_reported(s);
+    out->ccw = s->cur_ccw;
+    out->req_ccw = s->req_ccw;
+    out->fault = s->fault;
+    out->telemetry[0] = s->ref_speed;
+    out->telemetry[1] = s->measured_speed;
+    out->telemetry[2] = s->control_output;
+}
+
+/* ------------------------------------------------------------------------------ parameters */
+
+int16_t an1017_param_value(const an1017_t *s, uint8_t id)
+{
+    switch (id) {
+    case AN1017_PARAM_KP: return s->has_pending ? s->pend_kp : s->kp;
+    case AN1017_PARAM_KI: return s->has_pending ? s->pend_ki : s->ki;
+    case AN1017_PARAM_KD: return s->has_pending ? s->pend_kd : s->kd;
+    case AN1017_PARAM_PH_ADV_ON: return (int16_t)s->phase_advance_on;
+    case AN1017_PARAM_PH_ADV_DEG: return s->max_ph_adv_deg;
+    case AN1017_PARAM_REF_OVR_ON: return (int16_t)s->ref_override_on;
+    case AN1017_PARAM_REF_OVR: return s->ref_override;
+    case AN1017_PARAM_STALL_MS: return (int16_t)s->stall_limit;
+    default: return 0;
+    }
+}
+
+uint8_t an1017_check_gains(int32_t kp, int32_t ki, int32_t kd)
+{
+    /* [PID] the note's constraints on the 1.15 gains */
+    if (!(kp + ki + kd < GAIN_LIMIT_Q15)) {
+        return 1u;
+    }
+    if (!(-kp - (int32_t)2 * kd > (int32_t)-32768)) {
+        return 2u;
+    }
+    if (!(kd < GAIN_LIMIT_Q15)) {
+        return 3u;
+    }
+    return 0u;
+}
+
+void an1017_apply_params(an1017_t *s, const int32_t values[AN1017_N_PARAMS], uint8_t gains_touched)
+{
+    int16_t deg = (int16_t)values[AN1017_PARAM_PH_ADV_DEG];
+    if (gains_touched) {
+        an1017_set_gains(s, (int16_t)values[AN1017_PARAM_KP], (int16_t)values[AN1017_PARAM_KI],
+                         (int16_t)values[AN1017_PARAM_KD]);
+    }
+    s->phase_advance_on = (uint8_t)(values[AN1017_PARAM_PH_ADV_ON] != 0);
+    if (deg != s->max_ph_adv_deg) {
+        s->max_ph_adv_deg = deg;
+        s->max_ph_adv = an1017_max_ph_adv(deg);
+    }
+    s->ref_override_on = (uint8_t)(values[AN1017_PARAM_REF_OVR_ON] != 0);
+    s->ref_override = (int16_t)values[AN1017_PARAM_REF_OVR];
+    s->stall_limit = (uint16_t)values[AN1017_PARAM_STALL_MS];
+}

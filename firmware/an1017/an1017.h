@@ -1,0 +1,161 @@
+/* an1017.h: hilbench's AN1017 sinusoidal BLDC firmware for the dsPIC30F2010, as a portable C99 core.
+ *
+ * Written for hilbench from the application note's description and docs/board.md's fact table
+ * (not from Microchip's source). One struct holds everything the firmware owns: its variables (as
+ * the chip keeps them: 16-bit words), its declared parameters, and the "virtual peripherals" that
+ * replace the chip's timers and pins when the firmware runs under the bench (hall states and the
+ * pot from Sensors frames, Timer1/Timer3/PWM time bases counted in Tcy).
+ *
+ * The ISR bodies (an1017_isr_*) are what the chip's interrupt vectors run; an1017_run() is the
+ * lockstep scheduler that calls them at their true times inside a span of virtual time (the dsPIC's
+ * natural order for simultaneous interrupts: Timer1, then RunMotor's end of ChargeBootstraps, then
+ * the hall ISRs CN5/IC7/IC8, then the PWM/ADC boundary). Every value equals the Python reference
+ * model hilbench/targets/an1017_firmware.py (tests/test_firmware_sil.py compares whole sessions).
+ *
+ * Time: Tcy = 50 ns (FCY = 20 MHz, 5 MHz crystal with PLLx16). PWM period 1000 Tcy (PTPER 499,
+ * centre-aligned, 20 kHz); Timer1 every (PR1 + 1) * 64 = 20096 Tcy; TMR3 ticks every 64 Tcy.
+ * No heap, no floating point, exact with a 16-bit `int`.
+ */
+#ifndef AN1017_H
+#define AN1017_H
+
+#include <stdint.h>
+
+/* ---- time base (Tcy) ---- */
+#define AN1017_FCY_HZ 20000000UL
+#define AN1017_TCY_PER_US 20u
+#define AN1017_PWM_PERIOD_TCY 1000u       /* 2 * (PTPER + 1) */
+#define AN1017_TIMER1_PERIOD_TCY 20096u   /* (PR1 + 1) * 64, PR1 = 313 */
+#define AN1017_BOOTSTRAP_TCY 200000UL     /* ChargeBootstraps: 10 ms of low sides on */
+#define AN1017_TMR3_MASK 0x3FFFFFUL       /* TMR3 counts Tcy/64 in 16 bits: 2^22 Tcy per wrap */
+
+/* ---- firmware constants ---- */
+#define AN1017_PTPER 499u
+#define AN1017_TPWM 998u                  /* PTPER << 1: the period in duty-register units */
+#define AN1017_VOLTS_LIMIT 28300          /* 0.866 = sqrt(3)/2 in Q15 */
+#define AN1017_MINPERIOD 313u             /* 6000 rpm, 10 poles, TMR3 at Tcy/64 */
+#define AN1017_MAXPERIOD 31250u           /* 60 rpm */
+#define AN1017_PHASE_OFFSET 4100          /* 22.5 deg, the CCW offset of the 30F source */
+#define AN1017_SECTOR_INVALID 0xFFFFu     /* -1 in the firmware's unsigned Sector */
+#define AN1017_DUTY_MAX 1000u             /* a duty above 100 % (CCW start-up only) is reported as 1000 */
+
+/* ---- Drive codes (the same numbers as the protocol's) ---- */
+#define AN1017_MODE_OFF 0u
+#define AN1017_MODE_PWM 1u
+#define AN1017_MODE_LOW_SIDE 2u
+#define AN1017_STATE_STOPPED 0u
+#define AN1017_STATE_BOOTSTRAP 1u
+#define AN1017_STATE_RUNNING 2u
+#define AN1017_STATE_STALLED 3u
+#define AN1017_STATE_FAULT 4u
+#define AN1017_FAULT_NONE 0u
+#define AN1017_FAULT_WATCHDOG 1u
+#define AN1017_FAULT_STALL 2u
+#define AN1017_INPUT_S2 0x08u
+
+/* ---- declared parameters (ids as the protocol numbers them) ---- */
+#define AN1017_PARAM_KP 0u
+#define AN1017_PARAM_KI 1u
+#define AN1017_PARAM_KD 2u
+#define AN1017_PARAM_PH_ADV_ON 3u
+#define AN1017_PARAM_PH_ADV_DEG 4u
+#define AN1017_PARAM_REF_OVR_ON 5u
+#define AN1017_PARAM_REF_OVR 6u
+#define AN1017_PARAM_STALL_MS 7u
+#define AN1017_N_PARAMS 8u
+
+/* Variants: where the seed document and the v1.1 source differ (docs/board.md). */
+#define AN1017_VARIANT_SEED 0u
+#define AN1017_VARIANT_V11 1u
+
+typedef struct {
+    /* options (fixed at init) */
+    uint8_t adc_every;        /* seed: ADC ISR every PWM period; v1.1: every 16th (SEVOPS 1:16) */
+    uint8_t c1_textbook;      /* seed: C1 = -Kp - 2Kd; v1.1: C1 = -(Ki + 2Kd) */
+    int16_t phase_offset;     /* PhaseOffset, CCW */
+    /* declared, tunable values */
+    int16_t kp, ki, kd;       /* gains in use (Q15) */
+    int16_t pend_kp, pend_ki, pend_kd;
+    uint8_t has_pending;      /* gains written while running wait for the next Timer1 ISR */
+    uint8_t phase_advance_on;
+    uint8_t ref_override_on;
+    int16_t max_ph_adv_deg;
+    int16_t max_ph_adv;       /* (int)(deg / 360 * 65536) */
+    int16_t ref_override;
+    uint16_t stall_limit;     /* Timer1 ticks without a hall edge before StopMotor */
+    /* firmware variables */
+    uint8_t running;          /* Flags.MotorRunning */
+    uint8_t booting;          /* main() is inside ChargeBootstraps */
+    uint8_t state, fault, output_mode;
+    uint8_t cur_ccw, req_ccw; /* Current_Direction, Required_Direction */
+    uint8_t s2_wait_release;
+    int16_t ref_speed, measured_speed, control_output;
+    int16_t e1, e2;           /* ControlDifference[1], [2] */
+    int16_t c0, c1, c2;       /* PIDCoefficients */
+    uint16_t phase, phase_inc;
+    int16_t phase_adv;
+    uint16_t sector, last_sector;
+    uint16_t stall_counter;
+    uint16_t period, actual_capture, past_capture;
+    uint16_t pdc_pending[3];  /* PDC1..3 as the PWM ISR wrote them */
+    uint16_t pdc_active[3];   /* latched at the period boundary (PWMCON2.IUE = 0) */
+    /* virtual peripherals (the pins and timers under the bench) */
+    uint8_t hall;             /* bit0 A (RB3/CN5), bit1 B (RB4/IC7), bit2 C (RB5/IC8) */
+    uint8_t ic7_n;            /* captures in the IC7 FIFO (4 deep on the chip) */
+    uint16_t ic7_first;       /* the oldest one: the only one the firmware reads (it flushes the rest) */
+    uint16_t pot_code;        /* AN2, 10-bit code */
+    uint16_t pwm_off_tcy;     /* Tcy since the last PWM period boundary */
+    uint16_t pwm_index;       /* number of the next PWM boundary (mod 2^16) */
+    uint32_t t1_at;           /* Tcy to the next Timer1 interrupt (valid while running) */
+    uint32_t boot_at;         /* Tcy to the end of ChargeBootstraps (valid while booting) */
+    uint32_t tmr3_tcy;        /* Tcy since TMR3 was cleared, mod 2^22 */
+} an1017_t;
+
+/* The firmware's outputs as a Drive carries them. */
+typedef struct {
+    uint16_t duty[3];         /* PDC1..3 in effect, 0..1000 (1000 = 100 %) */
+    uint8_t output_mode, state, sector, ccw, req_ccw, fault;
+    int16_t telemetry[3];     /* RefSpeed, MeasuredSpeed, ControlOutput */
+} an1017_out_t;
+
+void an1017_init(an1017_t *s, uint8_t variant);
+
+/* SVM(volts, angle): PDC1..3 for amplitude volts (Q15, >= -1) at a 16-bit angle (65536 = 360 deg). */
+void an1017_svm(int16_t volts, uint16_t angle, uint16_t pdc[3]);
+
+/* ---- ISR bodies ---- */
+void an1017_isr_adc(an1017_t *s);           /* RefSpeed = ADCBUF0 (or the reference override) */
+void an1017_isr_pwm(an1017_t *s);           /* Phase += PhaseInc, SVM into the PDC registers */
+void an1017_isr_timer1(an1017_t *s);        /* speed, SpeedControl, phase advance, stall */
+void an1017_isr_hall(an1017_t *s, uint8_t which); /* 0 = CN5 (A), 1 = IC7 (B), 2 = IC8 (C) */
+void an1017_run_motor(an1017_t *s);          /* RunMotor() after ChargeBootstraps */
+
+/* ---- commands ---- */
+void an1017_press_start(an1017_t *s);        /* S2 while stopped: ChargeBootstraps, then RunMotor */
+void an1017_press_stop(an1017_t *s, uint8_t state, uint8_t fault); /* StopMotor() */
+void an1017_main_loop_buttons(an1017_t *s, uint8_t inputs);
+
+/* ---- virtual peripherals: lockstep scheduler ----
+ * Advance by duration_tcy with these inputs: the pot code (if have_pot), S2 seen by main(), and the
+ * hall pins changing at edge_offset_tcy from the start of the span (at 0 without have_edge). */
+void an1017_run(an1017_t *s, uint32_t duration_tcy, uint8_t inputs, uint8_t have_edge, uint32_t edge_offset_tcy,
+                uint8_t have_pot, uint16_t pot_code);
+/* The hall pins change now, at offset_tcy into the current span: IC7 capture, then the ISRs. */
+void an1017_apply_hall(an1017_t *s, uint8_t new_bits, uint32_t offset_tcy);
+
+void an1017_outputs(const an1017_t *s, an1017_out_t *out);
+uint16_t an1017_duty(const an1017_t *s, uint8_t phase);     /* PDC in effect, 0..1000 */
+uint8_t an1017_sector_reported(const an1017_t *s);          /* 0..5, 7 = invalid */
+
+/* ---- parameters ---- */
+int16_t an1017_param_value(const an1017_t *s, uint8_t id);   /* declared value (pending gains included) */
+void an1017_set_gains(an1017_t *s, int16_t kp, int16_t ki, int16_t kd);
+/* The note's PID constraints: 0 when all hold, else the first broken one:
+ * 1 Kp + Ki + Kd < 0.9999, 2 -Kp - 2Kd > -1.0, 3 Kd < 0.9999. */
+uint8_t an1017_check_gains(int32_t kp, int32_t ki, int32_t kd);
+/* Apply a complete set of declared values (ids 0..7) already checked against their declared ranges
+ * (all fit 16 bits); the gains only if gains_touched. */
+void an1017_apply_params(an1017_t *s, const int32_t values[AN1017_N_PARAMS], uint8_t gains_touched);
+int16_t an1017_max_ph_adv(int16_t deg);
+
+#endif /* AN1017_H */

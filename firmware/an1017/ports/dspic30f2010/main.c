@@ -1,0 +1,342 @@
+/* ports/dspic30f2010/main.c: the AN1017 firmware on a dsPIC30F2010 on the PICDEM MC LV board, under
+ * the hilbench bench (hardware in the loop: the motor, its halls and the pot are the bench's plant).
+ *
+ * Peripherals (register values from the AN1017 v1.1 firmware and the data sheet; see docs/board.md):
+ * - Clock: 5 MHz crystal, XT with PLLx16 -> FCY = 20 MHz (Tcy 50 ns).
+ * - UART1 on RF2 (U1RX) / RF3 (U1TX), the board's RS-232 (ALTIO = 0): U1BRG = 4 -> 20 MHz / (16 * 5)
+ *   = 250 000 baud, exact. The RX interrupt (priority 4, like the motor ISRs: they never nest)
+ *   feeds hbp_rx_byte; the main loop handles frames.
+ *   RF2/RF3 are also PGC/PGD: debug with the ICD on EMUC2/EMUD2, or unplug the ICD to talk.
+ * - MCPWM: PTPER = 499, PTCON = 0x8002 (centre-aligned, 20 kHz), PWMCON1 = 0x0077 (three
+ *   complementary pairs), PWMCON2 = 0x0F02 (OSYNC, IUE = 0: duties latch at the period boundary,
+ *   SEVOPS 1:16), DTCON1 = 0x0010 (0.8 us dead time). The duties the firmware computes are written
+ *   to PDC1..3, but OVDCON keeps all six outputs overridden inactive unless
+ *   HIL_DRIVE_BRIDGE is defined: under the bench the plant is simulated and the power stage must
+ *   stay off (no motor is connected, or one is, and must not be driven twice).
+ * - FLTA (RE8, the board's over-current comparator): FLTACON = 0x0007 drives all pairs inactive on
+ *   a fault, and its interrupt stops the firmware with state FAULT, fault OVERCURRENT.
+ * - Timer1: Tcy/64, PR1 = 313 (1.0048 ms), the speed-loop tick in real-time mode.
+ * - Timer3: Tcy/64, PR3 = 0xFFFF, the IC7 capture time base; in real-time mode a hall change that a
+ *   Sensors frame reports is captured as TMR3 at the frame's edge time (IC7 itself is not used:
+ *   the hall pins are frames). Timer2 at Tcy counts the Tcy clock for the watchdog.
+ * - ADC: configured as AN1017 does (AN2 = pot R14, signed fractional, started by the PWM special
+ *   event); the pot value comes from Sensors unless HIL_LOCAL_POT is defined, then from ADCBUF0.
+ * - S2 (RC14, active low): pressing the board's S2 acts like the Sensors S2 bit.
+ * Lockstep: Timer1/Timer3 stay off (the firmware's timers are gated); each Sensors runs one period
+ * of ISR bodies at their virtual times (an1017_run). Real time: PWM and Timer1 interrupts run the
+ * ISR bodies on the chip's own clock, and each Sensors updates the inputs they read.
+ *
+ * Build: make (XC16, see Makefile). CI compiles this file with host gcc against hostcheck/xc.h.
+ */
+#include <xc.h>
+
+#include "an1017_bridge.h"
+
+#if defined(__XC16__)
+#define AN1017_ISR __attribute__((__interrupt__, no_auto_psv))
+#else
+#define AN1017_ISR
+#endif
+
+#ifndef AN1017_VARIANT
+#define AN1017_VARIANT AN1017_VARIANT_SEED
+#endif
+
+_FOSC(CSW_FSCM_OFF & XT_PLL16);
+_FWDT(WDT_OFF);
+_FBORPOR(PBOR_OFF & MCLR_EN);
+_FGS(CODE_PROT_OFF);
+
+#ifndef UART_BRG
+#define UART_BRG 4u           /* 250 000 baud at FCY = 20 MHz (docs/board.md: the baud table) */
+#endif
+#define OVDCON_ALL_OFF 0x0000u
+#define OVDCON_PWM 0x3F00u    /* all six outputs from the PWM generator */
+#define OVDCON_LOW_SIDE 0x0015u
+#define TMR3_TICK_TCY 64u
+
+static an1017_bridge_t bridge;
+static volatile uint16_t tcy_high; /* Timer2 overflows: bits 31:16 of the Tcy clock */
+static uint8_t rt_boot_pending;
+
+void an1017_port_send(const uint8_t *wire, uint8_t len)
+{
+    uint8_t i;
+    for (i = 0u; i < len; i++) {
+        while (U1STAbits.UTXBF) {
+        }
+        U1TXREG = wire[i];
+    }
+}
+
+static uint8_t realtime_on;
+
+void an1017_port_lock(void)
+{
+    IEC2bits.PWMIE = 0;
+    IEC0bits.T1IE = 0;
+    IEC2bits.FLTAIE = 0;
+}
+
+void an1017_port_unlock(void)
+{
+    IEC2bits.FLTAIE = 1;
+    if (realtime_on) {
+        IEC0bits.T1IE = 1;
+        IEC2bits.PWMIE = 1;
+    }
+}
+
+uint32_t an1017_port_now_tcy(void)
+{
+    uint16_t high;
+    uint16_t low;
+    do {
+        high = tcy_high;
+        low = TMR2;
+    } while (high != tcy_high);
+    return ((uint32_t)high << 16) | low;
+}
+
+static void write_outputs(void)
+{
+    const an1017_t *fw = &bridge.fw;
+    PDC1 = fw->pdc_pending[0];
+    PDC2 = fw->pdc_pending[1];
+    PDC3 = fw->pdc_pending[2];
+#if defined(HIL_DRIVE_BRIDGE)
+    OVDCON = (fw->output_mode == AN1017_MODE_PWM) ? OVDCON_PWM
+             : (fw->output_mode == AN1017_MODE_LOW_SIDE) ? OVDCON_LOW_SIDE : OVDCON_ALL_OFF;
+#else
+    OVDCON = OVDCON_ALL_OFF;
+#endif
+}
+
+/* ---- interrupts ---- */
+
+void AN1017_ISR _U1RXInterrupt(void)
+{
+    IFS0bits.U1RXIF = 0;
+    while (U1STAbits.URXDA) {
+        (void)hbp_rx_byte(&bridge.rx, (uint8_t)U1RXREG);
+    }
+    if (U1STAbits.OERR) {
+        U1STAbits.OERR = 0; /* the hardware FIFO overflowed: bytes were lost, the CRC will tell */
+    }
+}
+
+void AN1017_ISR _T2Interrupt(void)
+{
+    IFS0bits.T2IF = 0;
+    tcy_high = (uint16_t)(tcy_high + 1u);
+}
+
+/* Real time only: one PWM period boundary, the same work as the lockstep scheduler's. */
+void AN1017_ISR _PWMInterrupt(void)
+{
+    an1017_t *fw = &bridge.fw;
+    uint8_t i;
+    IFS2bits.PWMIF = 0;
+    if (fw->adc_every || (fw->pwm_index & 15u) == 0u) {
+#if defined(HIL_LOCAL_POT)
+        fw->pot_code = (uint16_t)((uint16_t)(ADCBUF0 >> 6) ^ 0x200u); /* signed fractional -> code */
+#endif
+        an1017_isr_adc(fw);
+    }
+    for (i = 0u; i < 3u; i++) {
+        fw->pdc_active[i] = fw->pdc_pending[i];
+    }
+    if (fw->running) {
+        an1017_isr_pwm(fw);
+    }
+    fw->pwm_index = (uint16_t)(fw->pwm_index + 1u);
+    if (fw->booting) {
+        if (fw->boot_at > AN1017_PWM_PERIOD_TCY) {
+            fw->boot_at -= AN1017_PWM_PERIOD_TCY;
+        } else {
+            rt_boot_pending = 1u;
+        }
+    }
+    if (rt_boot_pending) {
+        rt_boot_pending = 0u;
+        an1017_run_motor(fw);
+        TMR1 = 0u;
+        TMR3 = 0u;
+    }
+    write_outputs();
+}
+
+void AN1017_ISR _T1Interrupt(void)
+{
+    IFS0bits.T1IF = 0;
+    if (bridge.fw.running) {
+        an1017_isr_timer1(&bridge.fw);
+    }
+}
+
+void AN1017_ISR _FLTAInterrupt(void)
+{
+    IFS2bits.FLTAIF = 0;
+    an1017_press_stop(&bridge.fw, AN1017_STATE_FAULT, HBP_FAULT_OVERCURRENT);
+    write_outputs();
+}
+
+/* ---- initialisation ---- */
+
+static void init_io(void)
+{
+    ADPCFG = 0x0038u;  /* RB3..RB5 digital (halls on the board; unused under the bench) */
+    TRISB = 0xFFFFu;
+    TRISC = 0xFFFFu;   /* RC13 = S3, RC14 = S2 */
+    TRISE = 0x0100u;   /* RE8 = FLTA input, PWM pins outputs */
+    LATF = 0x0008u;    /* RS-232 idle high */
+    TRISF = 0xFFF7u;   /* RF3 = U1TX output, RF2 = U1RX input */
+}
+
+static void init_uart(void)
+{
+    U1BRG = UART_BRG;
+    U1MODE = 0x8000u;  /* UARTEN, 8N1, ALTIO = 0 (RF2/RF3) */
+    U1STA = 0x0400u;   /* UTXEN; interrupt on every received character */
+    /* the default priority 4, as the motor interrupts: no nesting, so the stack holds one ISR frame.
+     * No byte is lost meanwhile: UART1's 4-character receive FIFO covers 160 us at 250 kbaud, much
+     * longer than a PWM or Timer1 ISR body (a few hundred instructions, < 20 us at 20 MIPS) */
+    IPC2bits.U1RXIP = 4;
+    IFS0bits.U1RXIF = 0;
+    IEC0bits.U1RXIE = 1;
+}
+
+static void init_pwm(void)
+{
+    PTPER = AN1017_PTPER;
+    PWMCON1 = 0x0077u;
+    PWMCON2 = 0x0F02u;
+    DTCON1 = 0x0010u;
+    FLTACON = 0x0007u;
+    OVDCON = OVDCON_ALL_OFF;
+    PDC1 = AN1017_PTPER;
+    PDC2 = AN1017_PTPER;
+    PDC3 = AN1017_PTPER;
+    SEVTCMP = 1u;
+    IFS2bits.FLTAIF = 0;
+    IEC2bits.FLTAIE = 1;
+    PTCON = 0x8002u;
+}
+
+static void init_timers(void)
+{
+    T1CON = 0x0020u;   /* Tcy/64, off until real time starts */
+    PR1 = 313u;
+    T3CON = 0x0020u;   /* Tcy/64, off until real time starts */
+    PR3 = 0xFFFFu;
+    T2CON = 0x8000u;   /* Tcy, free running: the Tcy clock */
+    PR2 = 0xFFFFu;
+    IFS0bits.T2IF = 0;
+    IEC0bits.T2IE = 1;
+}
+
+static void init_adc(void)
+{
+    ADCHS = 0x0002u;   /* CH0+ = AN2, the pot */
+    ADCON3 = 0x0003u;
+    ADCON2 = 0x0000u;
+    ADCON1 = 0x836Eu;  /* ADON, signed fractional, PWM special-event trigger, auto-sample */
+}
+
+/* Real time: the timers run and the ISRs take the newest Sensors. Entered at the first Sensors. */
+static void start_realtime(void)
+{
+    TMR1 = 0u;
+    TMR3 = 0u;
+    T1CON = 0x8020u;
+    T3CON = 0x8020u;
+    IFS0bits.T1IF = 0;
+    IEC0bits.T1IE = 1;
+    IFS2bits.PWMIF = 0;
+    IEC2bits.PWMIE = 1;
+}
+
+static void stop_realtime(void)
+{
+    IEC2bits.PWMIE = 0;
+    IEC0bits.T1IE = 0;
+    T1CON = 0x0020u;
+    T3CON = 0x0020u;
+}
+
+/* A Sensors frame in real time: buttons, pot and halls into the firmware that the ISRs run. */
+static void realtime_sensors(const uint8_t *frame, uint8_t len)
+{
+    hbp_sensors_t s;
+    an1017_t *fw = &bridge.fw;
+    if (hbp_unpack_sensors(frame, len, &s) != HBP_ERROR_NONE) {
+        an1017_bridge_handle(&bridge, frame, len); /* answers the LENGTH error */
+        return;
+    }
+    an1017_port_lock(); /* the ISR bodies share the firmware struct with this update */
+    if (s.n_adc > 0u) {
+        fw->pot_code = s.adc[0];
+    }
+    an1017_main_loop_buttons(fw, s.inputs);
+    if ((s.inputs & 7u) != fw->hall) {
+        /* TMR3 now, less the time since the edge: the edge was edge_time into the period that
+         * ended when the host sent this frame (an estimate: the frame's own transit is not known) */
+        uint32_t back_tcy = 0u;
+        if (s.edge_time_100ns != HBP_EDGE_NONE) {
+            uint32_t period_100ns = bridge.period_tcy / 2u;
+            if ((uint32_t)s.edge_time_100ns < period_100ns) {
+                back_tcy = (period_100ns - s.edge_time_100ns) * 2u;
+            }
+        }
+        fw->tmr3_tcy = ((uint32_t)TMR3 * TMR3_TICK_TCY - back_tcy) & AN1017_TMR3_MASK;
+        an1017_apply_hall(fw, (uint8_t)(s.inputs & 7u), 0u);
+    }
+    bridge.last_seq = s.seq;
+    bridge.last_sensors_tcy = an1017_port_now_tcy();
+    bridge.have_sensors = 1u;
+    bridge.tripped = 0u;
+    an1017_port_unlock();
+}
+
+int main(void)
+{
+    uint8_t s2_board_was = 0u;
+    an1017_bridge_init(&bridge, AN1017_VARIANT);
+    init_io();
+    init_timers();
+    init_pwm();
+    init_adc();
+    init_uart();
+    for (;;) {
+        uint8_t s2_board = (uint8_t)(PORTCbits.RC14 == 0);
+        if (bridge.rx.ready) {
+            const uint8_t *frame = bridge.rx.buf;
+            uint8_t len = bridge.rx.frame_len;
+            if (frame[0] == HBP_MSG_SENSORS && bridge.mode == HBP_MODE_REALTIME) {
+                if (!realtime_on) {
+                    start_realtime();
+                    realtime_on = 1u;
+                }
+                realtime_sensors(frame, len);
+                an1017_bridge_send_drive(&bridge, bridge.last_seq);
+            } else {
+                if (frame[0] == HBP_MSG_HOST_HELLO && realtime_on) {
+                    stop_realtime();
+                    realtime_on = 0u;
+                }
+                an1017_bridge_handle(&bridge, frame, len);
+                an1017_port_lock();
+                write_outputs();
+                an1017_port_unlock();
+            }
+            hbp_rx_release(&bridge.rx);
+        }
+        if (s2_board != s2_board_was) { /* the board's own S2: released -> toggle, as main() does */
+            an1017_port_lock();
+            an1017_main_loop_buttons(&bridge.fw, (uint8_t)(s2_board ? AN1017_INPUT_S2 : 0u));
+            an1017_port_unlock();
+            s2_board_was = s2_board;
+        }
+        an1017_bridge_watchdog(&bridge); /* real time: StopMotor when Sensors stop (frames are handled above) */
+    }
+}

@@ -1,0 +1,69 @@
+"""The second seed's target: sensored FOC with the simplified SVPWM on a TMS320F2812 (IQ24).
+
+Modules: iqmath (IQmath semantics), blocks (TI DMC blocks), svpwm (the seed's SVPWM), firmware
+(the ISR, start-up, options and gains), target (the Target interface). docs/foc.md says what it
+models and how. This module declares the target's PROFILE: its `[target]` options (FocOptions),
+tunable speed-loop gains, the speed reference as the `speed_rpm` parameter, telemetry columns.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+from hilbench.protocol import TelemetryId
+from hilbench.targets.foc.firmware import FocOptions
+from hilbench.targets.profile import MotorBuild, ParamReference, TargetProfile, TelemetryColumn
+
+#: telemetry is Q15 per unit: speed of BaseRpm 3000, currents of the 5 A base (FocOptions defaults)
+RPM_PER_Q15 = 3000 / 32768
+AMP_PER_Q15 = 5.0 / 32768
+
+
+def _tid(name: str, fallback: int) -> int:
+    return int(getattr(TelemetryId, name, fallback))
+
+
+#: the one telemetry table: (FocFirmware.telemetry_q15 key, id, column, unit, scale, format), in the
+#: order the Drive carries them. Ids are protocol v2's where it names them, else 0x80-0xFE. At most
+#: 8 (the protocol's max_telemetry): the i_d reference is a parameter, read with get_param.
+TELEMETRY_SPEC: tuple[tuple[str, int, str, str, float, str], ...] = (
+    ("ref_speed", _tid("REF_SPEED", 1), "ref_speed_rpm", "rpm", RPM_PER_Q15, "%.3f"),
+    ("speed", _tid("MEASURED_SPEED", 2), "measured_speed_rpm", "rpm", RPM_PER_Q15, "%.3f"),
+    ("iq_ref", _tid("IQ_REF", int(TelemetryId.CONTROL_OUTPUT)), "iq_ref_a", "A", AMP_PER_Q15, "%.4f"),
+    ("i_d", _tid("ID", 5), "i_d_a", "A", AMP_PER_Q15, "%.4f"),
+    ("i_q", _tid("IQ", 6), "i_q_a", "A", AMP_PER_Q15, "%.4f"),
+    ("theta_e", _tid("THETA_E", 0x82), "fw_theta_e_deg", "deg", 360 / 32768, "%.3f"),
+    ("v_d", _tid("VD", 0x83), "v_d_pu", "pu of Udc/sqrt3", 1 / 32768, "%.4f"),
+    ("v_q", _tid("VQ", 0x84), "v_q_pu", "pu of Udc/sqrt3", 1 / 32768, "%.4f"),
+)
+
+
+def _make(options: object) -> Any:
+    from hilbench.targets.foc.target import FocTarget
+
+    return FocTarget(options if isinstance(options, FocOptions) else FocOptions())
+
+
+def make_foc_target(**options: Any) -> Any:
+    """A `FocTarget` with `FocOptions` fields as keyword options."""
+    from hilbench.targets.foc.target import make_foc_target as _make_named
+
+    return _make_named(**options)
+
+
+PROFILE = TargetProfile(
+    name="foc",
+    firmware_name="F2812FOC",
+    make=_make,
+    description="sensored FOC with the simplified SVPWM, TMS320F2812 in IQ24 (the second seed's 200 W servo)",
+    options_type=FocOptions,
+    tunable=("spd_kp", "spd_ki", "spd_kc"),
+    reference=ParamReference("ref_rpm", 1.0),
+    telemetry=tuple(TelemetryColumn(tid, col, unit, scale, fmt) for _, tid, col, unit, scale, fmt in TELEMETRY_SPEC),
+    speed_column="measured_speed_rpm",
+    built_for=lambda options: MotorBuild(pole_pairs=getattr(options, "pole_pairs", 3), max_speed_rpm=3000.0),
+    capabilities=frozenset({"speed_loop", "realtime", "tuning"}),
+    sweep_defaults=(("spd_kp", "0.2:1.2:6"), ("spd_ki", "0.002:0.03:6")),
+)
+
+__all__ = ["PROFILE", "FocOptions", "TELEMETRY_SPEC", "make_foc_target"]

@@ -1,0 +1,94 @@
+"""The C firmware core in this process, without the protocol: what a CPython extension built from
+firmware/an1017/an1017.c would drive (issue 12: one C source for the board, the host build and the
+in-process core).
+
+The core is compiled as a shared library and called through ctypes: an1017_run per period with the
+Sensors' inputs, edge time and pot, an1017_outputs for the Drive, the command and parameter entry
+points for Start/Stop and writes the Python model accepts. Every Drive must equal the Python
+model's (hilbench/targets/an1017/firmware.py through An1017Target) on the seeded random streams.
+"""
+
+from __future__ import annotations
+
+import ctypes
+from pathlib import Path
+
+import pytest
+
+from _firmware import Command, random_stream
+from c_build import build_c
+from hilbench.protocol import EDGE_NONE, HostHello, MODE_LOCKSTEP, PROTOCOL_VERSION, Sensors
+from hilbench.targets.an1017.firmware import An1017Options
+from hilbench.targets.an1017.target import An1017Target
+from hilbench.targets.sil import FIRMWARE_DIR
+
+STATE_BYTES = 512  # more than sizeof(an1017_t) on any host (104 on x86-64)
+OK = 0
+
+
+class Out(ctypes.Structure):
+    _fields_ = [("duty", ctypes.c_uint16 * 3), ("output_mode", ctypes.c_uint8), ("state", ctypes.c_uint8),
+                ("sector", ctypes.c_uint8), ("ccw", ctypes.c_uint8), ("req_ccw", ctypes.c_uint8),
+                ("fault", ctypes.c_uint8), ("telemetry", ctypes.c_int16 * 3)]
+
+
+@pytest.fixture(scope="module")
+def core(tmp_path_factory, gcc: str) -> ctypes.CDLL:
+    out = tmp_path_factory.mktemp("core") / "liban1017.so"
+    build_c([FIRMWARE_DIR / "an1017.c"], out, extra_flags=("-shared", "-fPIC", f"-I{FIRMWARE_DIR}"))
+    lib = ctypes.CDLL(str(out))
+    lib.an1017_run.argtypes = [ctypes.c_void_p, ctypes.c_uint32, ctypes.c_uint8, ctypes.c_uint8, ctypes.c_uint32,
+                               ctypes.c_uint8, ctypes.c_uint16]
+    lib.an1017_param_value.restype = ctypes.c_int16
+    return lib
+
+
+class InProcessCore:
+    """The core behind the calls the Python model's target makes (no protocol, no bridge)."""
+
+    def __init__(self, lib: ctypes.CDLL, variant: str, period_us: int) -> None:
+        self.lib = lib
+        self.state = ctypes.create_string_buffer(STATE_BYTES)
+        lib.an1017_init(self.state, 1 if variant == "v11" else 0)
+        self.period_tcy = period_us * 20
+
+    def step(self, s: Sensors) -> tuple:
+        have_edge = s.edge_time_100ns != EDGE_NONE
+        self.lib.an1017_run(self.state, self.period_tcy, s.inputs, int(have_edge),
+                            s.edge_time_100ns * 2 if have_edge else 0, int(bool(s.adc)), s.adc[0] if s.adc else 0)
+        o = Out()
+        self.lib.an1017_outputs(self.state, ctypes.byref(o))
+        return (s.seq, *o.duty, o.output_mode, o.state, o.sector, bool(o.ccw), bool(o.req_ccw), o.fault,
+                tuple(o.telemetry))
+
+    def apply(self, pairs: tuple[tuple[int, int], ...]) -> None:
+        values = (ctypes.c_int32 * 8)(*(self.lib.an1017_param_value(self.state, i) for i in range(8)))
+        for pid, value in pairs:
+            values[pid] = value
+        self.lib.an1017_apply_params(self.state, values, int(any(pid <= 2 for pid, _ in pairs)))
+
+
+@pytest.mark.parametrize("variant", ["seed", "v11"])
+@pytest.mark.parametrize("seed,period_us", [(11, 50), (12, 250)])
+def test_core_in_process_equals_python_model(core: ctypes.CDLL, variant: str, seed: int, period_us: int) -> None:
+    model = An1017Target(An1017Options(variant=variant))
+    model.hello(HostHello(0, PROTOCOL_VERSION, period_us, MODE_LOCKSTEP, 0))
+    c = InProcessCore(core, variant, period_us)
+    compared = 0
+    for item in random_stream(seed, 20000, period_us):
+        if isinstance(item, Command):
+            if item.kind == "start":
+                model.start()
+                core.an1017_press_start(c.state)
+            elif item.kind == "stop":
+                if model.fw.running or model.fw.booting:
+                    core.an1017_press_stop(c.state, 0, 0)
+                model.stop()
+            elif model.set_params(item.pairs).result == OK:  # the model checks; the core applies
+                c.apply(item.pairs)
+            assert [core.an1017_param_value(c.state, i) for i in range(8)] == \
+                [model.get_param(i).value for i in range(8)]
+            continue
+        assert c.step(item) == tuple(model.step(item)), (compared, item)
+        compared += 1
+    assert compared >= 20000

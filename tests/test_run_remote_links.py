@@ -1,0 +1,56 @@
+"""`hilbench run` over any link the one spec grammar names: the emulator served over TCP and reached
+through socket://, and a lossy pty chosen by spec (issue "targets as plug-ins", link acceptance)."""
+
+from __future__ import annotations
+
+import json
+import select
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from conftest import REPO_ROOT, run_cli
+from hilbench.bench.recorder import read_recording
+
+
+def _data_columns(path: Path) -> dict[str, np.ndarray]:
+    return {k: v for k, v in read_recording(path).columns.items() if k not in ("rtt_us", "lateness_us")}
+
+
+@pytest.mark.slow
+def test_a_session_over_socket_to_the_emulator_served_on_tcp_equals_the_in_process_one(tmp_path: Path) -> None:
+    server = subprocess.Popen([sys.executable, "-m", "hilbench", "emulate", "--port", "tcp:0", "--quiet"],
+                              stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, cwd=REPO_ROOT)
+    try:
+        ready, _, _ = select.select([server.stdout], [], [], 30)
+        assert ready, "the emulator printed no URL"
+        url = server.stdout.readline().strip()  # type: ignore[union-attr]
+        assert url.startswith("socket://127.0.0.1:")
+        remote = run_cli("run", "--target", url, "--duration", "0.5", "--record", str(tmp_path / "tcp.npz"),
+                         "--no-ui", "--no-control", timeout=120)
+        assert remote.returncode == 0, remote.stderr
+        server.wait(timeout=30)  # it served the one host that connected, which hung up
+    finally:
+        if server.poll() is None:
+            server.kill()
+        server.communicate(timeout=10)
+    local = run_cli("run", "--target", "inprocess:an1017", "--duration", "0.5", "--record", str(tmp_path / "in.npz"),
+                    "--no-ui", "--no-control", timeout=120)
+    assert local.returncode == 0, local.stderr
+    a, b = _data_columns(tmp_path / "tcp.npz"), _data_columns(tmp_path / "in.npz")
+    assert list(a) == list(b)
+    assert all(np.array_equal(a[k], b[k], equal_nan=True) for k in a), [k for k in a if not np.array_equal(a[k], b[k], equal_nan=True)]
+
+
+@pytest.mark.slow
+def test_a_session_over_a_lossy_link_chosen_by_spec_survives() -> None:
+    spec = "emulator:an1017?corrupt=3e-5&drop=1e-3&fault_seed=5"
+    result = run_cli("run", "--target", spec, "--duration", "0.3", "--json", "--no-control", timeout=300)
+    assert result.returncode == 0, result.stderr
+    summary = json.loads(result.stdout)
+    assert summary["end_reason"] == "completed" and summary["periods"] == 6000
+    link = summary["link"]
+    assert link["frame_errors"] > 0 and link["retries"] > 0  # frames were lost and sent again
