@@ -308,3 +308,28 @@ def test_a_timeout_that_raises_mid_run_still_reaps_the_emulator(pytester: pytest
     pid = int(pids.read_text())
     assert not Path(f"/proc/{pid}").exists(), f"emulator {pid} left behind (or not reaped)"
     assert _children_running("hilbench.targets.emulator") == before
+
+
+def test_hil_open_plays_the_config_scenario_and_its_checks(pytester: pytest.Pytester) -> None:
+    """assert_config_checks judges the config's [[check]] tables on a bench that ran its scenario."""
+    pytester.makepyfile(test_scenario="""
+        import pytest
+        from hilbench.testing import assert_config_checks
+
+        def test_default_scenario_holds(hil_open):
+            bench = hil_open(["run.duration_s=3.8"], scenario=True)
+            bench.run()
+            results = assert_config_checks(bench)
+            assert len(results) == 5
+
+        def test_a_runaway_fails_its_checks(hil_open):
+            bench = hil_open(scenario=True)
+            bench.run(0.8)
+            bench.set_load(0.5)
+            bench.run()
+            assert_config_checks(bench)
+    """)
+    result = pytester.runpytest("--hil-target", INPROC, "-p", "no:cacheprovider")
+    result.assert_outcomes(passed=1, failed=1)
+    errors = [line for line in result.stdout.lines if line.startswith("E ")]
+    assert len(errors) == 1 and "check speed_error: worst" in errors[0] and "check speed_limit: max" in errors[0]

@@ -305,7 +305,7 @@ def _safe_name(nodeid: str) -> str:
 @pytest.fixture
 def hil_open(request: pytest.FixtureRequest, hil_target: str,
              tmp_path_factory: pytest.TempPathFactory) -> Iterator[Callable[..., "Bench"]]:
-    """``hil_open(overrides=(), scenario=False)``: open a bench on this test's target (recorded);
+    """``hil_open(overrides=(), scenario=False, target=None)``: open a bench on this test's target (recorded);
     every bench it opened is closed, and its process reaped, when the test ends."""
     from hilbench.bench.bench import Bench
 
@@ -325,10 +325,11 @@ def hil_open(request: pytest.FixtureRequest, hil_target: str,
 
     node.stash[_ATTACHED] = planned
 
-    def open_bench(overrides: Sequence[str] = (), *, scenario: bool = False) -> Bench:
+    def open_bench(overrides: Sequence[str] = (), *, scenario: bool = False, target: str | None = None) -> Bench:
+        """``target``: another spec than the test's (e.g. the test's with link fault keys)."""
         folder.mkdir(parents=True, exist_ok=True)
         path = folder / (f"bench{len(opened) + 1}.npz" if opened else "bench.npz")
-        bench = Bench(state.config_path, target=hil_target, overrides=list(overrides), record=path,
+        bench = Bench(state.config_path, target=target or hil_target, overrides=list(overrides), record=path,
                       scenario=scenario)
         planned.extend([str(path), str(folder / "plots")])
         bench.open()
