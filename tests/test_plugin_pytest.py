@@ -37,7 +37,7 @@ def _case_props(case: ET.Element) -> list[tuple[str, str]]:
 
 
 def test_tests_run_once_per_target_with_readable_ids(pytester: pytest.Pytester) -> None:
-    pytester.makepyfile(test_ids="""
+    pytester.makepyfile(test_hilx_ids="""
         def test_a(bench, hil_target):
             assert bench.hello.firmware_name and hil_target.startswith("inprocess:")
 
@@ -52,7 +52,7 @@ def test_tests_run_once_per_target_with_readable_ids(pytester: pytest.Pytester) 
 
 def test_the_target_comes_from_the_environment_then_the_config(pytester: pytest.Pytester,
                                                               monkeypatch: pytest.MonkeyPatch) -> None:
-    pytester.makepyfile(test_env="""
+    pytester.makepyfile(test_hilx_env="""
         def test_a(hil_target, hil_config):
             assert hil_config.link.target == hil_target
     """)
@@ -70,7 +70,7 @@ def test_the_target_comes_from_the_environment_then_the_config(pytester: pytest.
 
 
 def test_a_test_may_pin_its_own_targets_indirectly(pytester: pytest.Pytester) -> None:
-    pytester.makepyfile(test_pin="""
+    pytester.makepyfile(test_hilx_pin="""
         import pytest
 
         @pytest.mark.parametrize("hil_target", ["inprocess:loopback"], indirect=True)
@@ -82,7 +82,7 @@ def test_a_test_may_pin_its_own_targets_indirectly(pytester: pytest.Pytester) ->
 
 
 def test_hil_requires_skips_with_the_reason(pytester: pytest.Pytester) -> None:
-    pytester.makepyfile(test_req="""
+    pytester.makepyfile(test_hilx_req="""
         from hilbench.testing import hil_requires
 
         @hil_requires("speed_loop")
@@ -109,7 +109,7 @@ def test_hil_requires_skips_with_the_reason(pytester: pytest.Pytester) -> None:
 
 def test_a_failing_bound_fails_in_one_line_and_keeps_recording_and_plots(pytester: pytest.Pytester) -> None:
     """The acceptance's deliberately failing example: a band tighter than the firmware reaches."""
-    pytester.makepyfile(test_tight="""
+    pytester.makepyfile(test_hilx_tight="""
         from hilbench.testing import assert_settles
 
         def test_too_tight(bench):
@@ -153,7 +153,7 @@ def test_a_failing_bound_fails_in_one_line_and_keeps_recording_and_plots(pyteste
 
 
 def test_hil_record_keeps_every_recording(pytester: pytest.Pytester, tmp_path: Path) -> None:
-    pytester.makepyfile(test_rec="""
+    pytester.makepyfile(test_hilx_rec="""
         def test_one(bench):
             bench.run(0.02)
     """)
@@ -168,7 +168,7 @@ def test_hil_record_keeps_every_recording(pytester: pytest.Pytester, tmp_path: P
 
 
 def test_suite_and_test_properties_in_junit(pytester: pytest.Pytester) -> None:
-    pytester.makepyfile(test_props="""
+    pytester.makepyfile(test_hilx_props="""
         from hilbench.testing import assert_within
 
         def test_speed(bench):
@@ -219,7 +219,7 @@ def _children_running(module: str) -> list[int]:
 @pytest.mark.slow
 def test_a_killed_emulator_fails_its_test_and_the_next_test_gets_a_fresh_one(pytester: pytest.Pytester) -> None:
     pids = pytester.path / "pids.txt"
-    pytester.makepyfile(test_kill=f"""
+    pytester.makepyfile(test_hilx_kill=f"""
         import os, signal
         from hilbench.testing import bench_process
 
@@ -285,7 +285,7 @@ def test_the_examples_pass_on_both_targets_and_junit_carries_the_properties(tmp_
 def test_a_timeout_that_raises_mid_run_still_reaps_the_emulator(pytester: pytest.Pytester) -> None:
     """What pytest-timeout's signal method does: pytest.fail from a SIGALRM handler, inside bench.run."""
     pids = pytester.path / "pids.txt"
-    pytester.makepyfile(test_timeout=f"""
+    pytester.makepyfile(test_hilx_timeout=f"""
         import signal
         import pytest
         from hilbench.testing import bench_process
@@ -312,7 +312,7 @@ def test_a_timeout_that_raises_mid_run_still_reaps_the_emulator(pytester: pytest
 
 def test_hil_open_plays_the_config_scenario_and_its_checks(pytester: pytest.Pytester) -> None:
     """assert_config_checks judges the config's [[check]] tables on a bench that ran its scenario."""
-    pytester.makepyfile(test_scenario="""
+    pytester.makepyfile(test_hilx_scenario="""
         import pytest
         from hilbench.testing import assert_config_checks
 
