@@ -219,10 +219,12 @@ def link_test(target: str, periods: int, period_us: int, timeout_ms: int) -> Non
 @click.option("--no-ui", is_flag=True, help="No live dashboard; print a plain summary at the end.")
 @click.option("--json", "as_json", is_flag=True, help="Print the summary as JSON (implies --no-ui).")
 @click.option("--no-control", is_flag=True, help="Do not open the control socket for `hilbench ctl`.")
+@click.option("--scope", "scope", is_flag=True, help="Serve the live scope page on 127.0.0.1 (URL printed; needs the scope extra).")
+@click.option("--open", "open_browser", is_flag=True, help="With --scope: open the page in the browser.")
 @_friendly
 def run(config: str | None, target_spec: str | None, mode: str | None, duration_s: float | None,
         record: str | None, overrides: tuple[str, ...], gains_file: str | None, no_ui: bool, as_json: bool,
-        no_control: bool) -> None:
+        no_control: bool, scope: bool = False, open_browser: bool = False) -> None:
     """Run a bench session: target + plant + scenario, live, recorded.
 
     With no arguments: the default target's emulator as its own process on a virtual serial pair,
@@ -255,6 +257,14 @@ def run(config: str | None, target_spec: str | None, mode: str | None, duration_
         from hilbench.bench.control import ControlServer
 
         control = ControlServer()
+    scope_server: Any = None
+    if scope:  # `hilbench scope` on the run's control socket, as a child process
+        from hilbench.errors import ConfigError
+        from hilbench.scope.launch import ScopeProcess
+
+        if control is None:
+            raise ConfigError("run --scope needs the control socket (drop --no-control)")
+        scope_server = ScopeProcess(control.path, open_browser=open_browser)
     console = Console()
     try:
         if no_ui or as_json or not console.is_terminal:
@@ -272,6 +282,8 @@ def run(config: str | None, target_spec: str | None, mode: str | None, duration_
             with keys, dashboard:
                 summary = run_bench(cfg, record=record, observer=dashboard, control=control, on_ready=dashboard.attach)
     finally:
+        if scope_server is not None:
+            scope_server.close()
         if control is not None:
             control.close()
     from hilbench.bench.checks import checks_text, raise_if_failed
@@ -294,14 +306,18 @@ def run(config: str | None, target_spec: str | None, mode: str | None, duration_
 @click.option("--csv", "csv_file", type=click.Path(dir_okay=False), default=None, metavar="FILE.csv",
               help="Also write the recording as CSV (e.g. from a fast .npz run).")
 @click.option("--json", "as_json", is_flag=True, help="Print the summary as JSON.")
+@click.option("--window", "window", default=None, metavar="T0:T1", help="Plot only simulated seconds T0..T1 (e.g. 1.0:1.05).")
+@click.option("--open", "open_viewer", is_flag=True, help="Show the recording in the scope's viewer (served on 127.0.0.1 until Ctrl-C).")
 @_friendly
-def report(recording: str, plot_dir: str | None, csv_file: str | None, as_json: bool) -> None:
+def report(recording: str, plot_dir: str | None, csv_file: str | None, as_json: bool, window: str | None = None,
+           open_viewer: bool = False) -> None:
     """Summarise a recording (CSV, NPZ, or the journal of a run that was killed).
 
     \b
     Examples:
       hilbench report run.npz --plot plots/
       hilbench report run.npz --csv run.csv
+      hilbench report run.npz --open
     """
     import json as json_module
     from pathlib import Path
@@ -321,7 +337,9 @@ def report(recording: str, plot_dir: str | None, csv_file: str | None, as_json: 
     if plot_dir is not None:
         from hilbench.ui.plots import plot_recording
 
-        info["plots"] = [str(p) for p in plot_recording(data, Path(plot_dir))]
+        from hilbench.ui.plots import parse_window
+
+        info["plots"] = [str(p) for p in plot_recording(data, Path(plot_dir), window=parse_window(window))]
     if as_json:
         click.echo(json_module.dumps(info, indent=2, default=str))
         return
@@ -333,6 +351,29 @@ def report(recording: str, plot_dir: str | None, csv_file: str | None, as_json: 
             value = "\n".join(str(v) for v in value) or "—"
         table.add_row(key.replace("_", " "), str(value))
     Console().print(table)
+    if open_viewer:
+        from hilbench.scope.launch import scope_for_recording
+
+        scope_for_recording(recording, open_browser=True).serve_forever()  # type: ignore[attr-defined]
+
+
+@cli.command()
+@click.option("--socket", "socket_path", default=None, metavar="PATH",
+              help="The session's control socket (default: the newest running session, as `hilbench ctl` finds it).")
+@click.option("--port", type=click.IntRange(0, 65535), default=0, show_default=True, help="TCP port on 127.0.0.1 (0: any free one).")
+@click.option("--open", "open_browser", is_flag=True, help="Open the page in the browser.")
+@_friendly
+def scope(socket_path: str | None, port: int, open_browser: bool) -> None:
+    """Serve the live scope page for a running `hilbench run` (until Ctrl-C).
+
+    The page (127.0.0.1, a secret token in its URL) shows any recorded column live, with
+    trigger, cursors and markers, and tunes the target's parameters through the control socket.
+    """
+    from hilbench.bench.control import read_discovery
+    from hilbench.scope.launch import scope_for_socket
+
+    path = socket_path if socket_path is not None else read_discovery()
+    scope_for_socket(path, port, open_browser).serve_forever()  # type: ignore[attr-defined]
 
 
 @cli.command(context_settings={"ignore_unknown_options": True})

@@ -84,7 +84,7 @@ def random_stream(seed: int, periods: int, period_us: int = 50) -> Iterator[Sens
         if rng.random() < 0.00015:
             inputs |= INPUT_S2
         adc = (pot, rng.randrange(1024), rng.randrange(1024))[: rng.choice((3, 3, 3, 1, 0))]
-        yield Sensors(k & 0xFF, inputs, edge, rng.randrange(0x10000), adc)
+        yield Sensors((k + 1) & 0xFF, inputs, edge, rng.randrange(0x10000), adc)  # seq 0 went with S2
         c = rng.random()
         if c < 0.0001:
             yield Command(rng.choice(("start", "stop")))

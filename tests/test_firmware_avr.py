@@ -143,7 +143,7 @@ def test_avr_in_simavr_drive_for_drive_on_a_seeded_stream(avr_build: Path) -> No
             n, seen = play(random_stream(5, 1500, 1000), [model, avr], 1000)
             assert n >= 1500 and {1, 2} <= {state for state, _, _ in seen}, seen
             status = avr.status()
-            assert (status.rx_errors, status.overruns) == (0, 0), status
+            assert (status.rx_errors, status.overruns) == (0, 0), (status, avr.retries, avr.slow_rtt_s)
         finally:
             link.close()
     finally:

@@ -48,7 +48,8 @@ def test_a_session_over_socket_to_the_emulator_served_on_tcp_equals_the_in_proce
 @pytest.mark.slow
 def test_a_session_over_a_lossy_link_chosen_by_spec_survives() -> None:
     spec = "emulator:an1017?corrupt=3e-5&drop=1e-3&fault_seed=5"
-    result = run_cli("run", "--target", spec, "--duration", "0.3", "--json", "--no-control", timeout=300)
+    result = run_cli("run", "--target", spec, "--duration", "0.3", "--set", "link.retry_ms=5", "--json", "--no-control",
+                     timeout=300)
     assert result.returncode == 0, result.stderr
     summary = json.loads(result.stdout)
     assert summary["end_reason"] == "completed" and summary["periods"] == 6000

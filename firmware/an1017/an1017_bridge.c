@@ -88,6 +88,7 @@ void an1017_bridge_init(an1017_bridge_t *b, uint8_t variant)
     b->tripped = 0u;
     b->last_error = HBP_ERROR_NONE;
     b->last_seq = 0u;
+    b->answered = 0u;
 }
 
 #define TX (&b->wire[1]) /* where a reply is packed */
@@ -161,6 +162,7 @@ static AN1017_NOINLINE void on_hello(an1017_bridge_t *b, const uint8_t *buf, uin
     b->watchdog_ms = h.watchdog_ms;
     b->have_sensors = 0u;
     b->tripped = 0u;
+    b->answered = 0u; /* a new session numbers its Sensors from 0 again */
     t.seq = seq;
     t.protocol_version = HBP_PROTOCOL_VERSION;
     t.schema_fingerprint = HBP_SCHEMA_FINGERPRINT;
@@ -192,6 +194,11 @@ static AN1017_NOINLINE void on_sensors(an1017_bridge_t *b, const uint8_t *buf, u
         send_error(b, seq, HBP_ERROR_LENGTH, buf[0]);
         return;
     }
+    if (b->answered && s.seq == b->last_seq) {
+        /* the host sent it again (our Drive was lost or late): the same answer, no second step */
+        an1017_bridge_send_drive(b, s.seq);
+        return;
+    }
     if (b->mode == HBP_MODE_REALTIME) {
         uint32_t now = an1017_port_now_tcy();
         if (b->have_sensors) {
@@ -206,6 +213,7 @@ static AN1017_NOINLINE void on_sensors(an1017_bridge_t *b, const uint8_t *buf, u
                    (uint32_t)s.edge_time_100ns * 2u, (uint8_t)(s.n_adc > 0u), (s.n_adc > 0u) ? s.adc[0] : 0u);
     }
     b->last_seq = s.seq;
+    b->answered = 1u;
     an1017_bridge_send_drive(b, s.seq);
 }
 

@@ -56,6 +56,7 @@ typedef struct {
     uint8_t tripped;
     uint8_t last_error;              /* HBP_ERROR_* of the last ErrorReport or the watchdog */
     uint8_t last_seq;
+    uint8_t answered;                /* a Drive went out since the handshake: last_seq is valid */
     uint8_t wire[AN1017_TX_WIRE_MAX]; /* the frame being sent, packed at wire[1], encoded in place */
 } an1017_bridge_t;
 

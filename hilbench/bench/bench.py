@@ -111,7 +111,8 @@ class Bench:
         profile = configured_profile(cfg)
         plant = Plant(plant_params_from_config(cfg), seed=options.seed, substeps=cfg.plant.substeps)
         handle = self._handle = open_target(cfg.link.target, profile=profile, options=cfg.target, mode=options.mode,
-                                            timeout_s=options.timeout_s, watchdog_ms=options.watchdog_ms)
+                                            timeout_s=options.timeout_s, watchdog_ms=options.watchdog_ms,
+                                            retry_s=cfg.link.retry_ms / 1000.0)
         try:
             session = self.session = Session(
                 handle.target, plant, events, options, profile=profile, observer=self._observer,

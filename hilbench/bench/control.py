@@ -11,6 +11,8 @@ reply line per request ``{"ok": bool, "message": str, "data": object | null}``. 
     {"cmd": "step",  "from_rpm": 1000, "to_rpm": 2000}
     {"cmd": "save",  "file": "gains.toml"}
     {"cmd": "guard", "on": true}                             guarded tuning on/off
+    {"cmd": "press", "button": "s2"}                         the start/stop button
+    {"cmd": "stream", "since": -1, "columns": ["speed_rpm"]} a scope's decimated frames
 
 This module checks only the *shape* of a request (known command, the right fields with the
 right JSON types, finite numbers); malformed, oversized, unknown or ill-typed lines are answered
@@ -59,6 +61,7 @@ MAX_LINE_BYTES = 4096
 MAX_PENDING = 64  # requests queued for the session before new ones are refused as busy
 MAX_CONNECTIONS = 16
 MAX_SET_PARAMS = 16
+MAX_STREAM_COLUMNS = 48
 SOCKET_NAME = "ctl.sock"
 _NAME_RE = re.compile(r"^[A-Za-z_][A-Za-z0-9_.]{0,31}$")
 
@@ -101,6 +104,24 @@ def _check_file(v: Any) -> str:
     return v
 
 
+def _check_columns(v: Any) -> list[str]:
+    if not isinstance(v, list) or len(v) > MAX_STREAM_COLUMNS or not all(isinstance(c, str) and _NAME_RE.match(c) for c in v):
+        raise ValueError(f"stream: columns must be a list of at most {MAX_STREAM_COLUMNS} column names")
+    return v
+
+
+def _check_since(v: Any) -> int:
+    if not isinstance(v, int) or isinstance(v, bool) or not -1 <= v < 2**53:
+        raise ValueError(f"stream: since must be an integer >= -1, got {json.dumps(v)[:40]}")
+    return v
+
+
+def _check_button(v: Any) -> str:
+    if v not in ("s2", "s3"):
+        raise ValueError(f"press: button must be \"s2\" or \"s3\", got {json.dumps(v)[:40]}")
+    return str(v)
+
+
 def _check_bool(v: Any) -> bool:
     if not isinstance(v, bool):
         raise ValueError(f"guard: on must be true or false, got {json.dumps(v)[:40]}")
@@ -118,6 +139,8 @@ COMMANDS: Mapping[str, Mapping[str, Callable[[Any], Any]]] = MappingProxyType(
         "save": {"file": _check_file},
         "guard": {"on": _check_bool},
         "stop": {},
+        "press": {"button": _check_button},
+        "stream": {"since": _check_since, "columns": _check_columns},  # the scope (hilbench.scope.stream)
     }
 )
 

@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import contextlib
 import os
-from concurrent.futures import Future, ProcessPoolExecutor
+from concurrent.futures import ProcessPoolExecutor
 from typing import Any, Callable, Iterator, Protocol
 
 from hilbench.errors import ConfigError
@@ -22,13 +22,23 @@ class Executor(Protocol):
     def submit(self, fn: Callable[..., Any], *args: Any) -> Any: ...
 
 
-class InThisProcess:
-    """The executor of one worker: runs each task when submitted (no pickling, no process)."""
+class _Deferred:
+    """A task of `InThisProcess`: it runs when its result is asked for, so a sweep collecting
+    results in order runs (and stores) them one by one."""
 
-    def submit(self, fn: Callable[..., Any], *args: Any) -> Future[Any]:
-        future: Future[Any] = Future()
-        future.set_result(fn(*args))
-        return future
+    def __init__(self, fn: Callable[..., Any], args: tuple[Any, ...]) -> None:
+        self._fn, self._args = fn, args
+
+    def result(self) -> Any:
+        return self._fn(*self._args)
+
+
+class InThisProcess:
+    """The executor of one worker: each task runs in this process when its result is asked for
+    (no pickling, no process)."""
+
+    def submit(self, fn: Callable[..., Any], *args: Any) -> _Deferred:
+        return _Deferred(fn, args)
 
 
 def _dask() -> Any:

@@ -27,7 +27,7 @@ from hilbench.targets.base import Target
 from hilbench.targets.profile import TargetProfile
 
 if TYPE_CHECKING:
-    from hilbench.link import TargetSpec
+    from hilbench.targets.remote import RemoteTarget
 
 
 
@@ -98,6 +98,7 @@ def open_target(
     mode: str = "lockstep",
     timeout_s: float = 0.5,
     watchdog_ms: int = 100,
+    retry_s: float = 0.1,
 ) -> TargetHandle:
     """Connect to the target named by ``spec`` (the link layer's one grammar, see
     `hilbench.link.describe_spec_forms`); ``profile`` and its ``options`` build an in-process model
@@ -107,17 +108,24 @@ def open_target(
     from hilbench.targets.remote import RemoteTarget
 
     parsed = parse_target_spec(spec)
-    if parsed.kind in ("inprocess", "emulator"):
+    if parsed.kind in ("inprocess", "emulator", "sil"):
         profile = profile if profile is not None and profile.name == parsed.name else get_profile(parsed.name)
         options = profile.default_options() if options is None else options
         if parsed.kind == "inprocess":
             return TargetHandle(profile.make(options), label=spec)  # type: ignore[arg-type]
-        return _spawn_emulator(parsed, profile, options, mode, timeout_s, watchdog_ms)
+        if parsed.kind == "sil" and profile.start_sil is None:
+            raise ConfigError(f"target {spec!r}: {profile.name} has no firmware-in-the-loop build "
+                              "(use emulator: or inprocess:)")
+        link = open_link(parsed, timeout_s=timeout_s)  # a pty pair made here (with the spec's faults)
+        remote = RemoteTarget(link, timeout_s=timeout_s, retry_s=min(retry_s, timeout_s))
+        if parsed.kind == "sil":
+            return _start_sil(profile, options, remote)
+        return _spawn_emulator(profile, options, mode, watchdog_ms, remote)
     if parsed.kind == "port":
         link = open_link(parsed, timeout_s=timeout_s)
-        return TargetHandle(RemoteTarget(link, timeout_s=timeout_s), label=spec, link=link)
+        return TargetHandle(RemoteTarget(link, timeout_s=timeout_s, retry_s=min(retry_s, timeout_s)), label=spec, link=link)
     raise ConfigError(f"target {spec!r}: a {parsed.kind}: target is started by its own tool "
-                      "(use emulator:NAME, inprocess:NAME or a port)")
+                      "(use emulator:NAME, inprocess:NAME, sil:NAME or a port)")
 
 
 def emulator_command(profile: TargetProfile, options: object, port: str, mode: str, watchdog_ms: int) -> list[str]:
@@ -131,12 +139,10 @@ def emulator_command(profile: TargetProfile, options: object, port: str, mode: s
     ]
 
 
-def _spawn_emulator(parsed: "TargetSpec", profile: TargetProfile, options: object, mode: str, timeout_s: float,
-                    watchdog_ms: int) -> TargetHandle:
-    from hilbench.link import open_link
-    from hilbench.targets.remote import RemoteTarget
-
-    link = open_link(parsed, timeout_s=timeout_s)  # a pty pair made here (with the spec's faults)
+def _spawn_emulator(profile: TargetProfile, options: object, mode: str, watchdog_ms: int,
+                    remote: "RemoteTarget") -> TargetHandle:
+    """The target's model as its own process, serving the far end of the remote's pty."""
+    link = remote.link
     command = emulator_command(profile, options, link.peer_path, mode, watchdog_ms)
     log = tempfile.TemporaryFile()  # the child's stderr: a file never fills up and blocks it
     try:
@@ -153,7 +159,7 @@ def _spawn_emulator(parsed: "TargetSpec", profile: TargetProfile, options: objec
         log.close()
         raise LinkError(f"emulator {profile.name}: cannot start ({exc.strerror})") from None
     label = f"emulator:{profile.name} on {link.peer_path} (pid {process.pid})"
-    handle = TargetHandle(RemoteTarget(link, timeout_s=timeout_s), label=label, link=link, process=process)
+    handle = TargetHandle(remote, label=label, link=link, process=process)
     handle._closers.append(log.close)
     handle.child_log = log
     try:
@@ -162,6 +168,20 @@ def _spawn_emulator(parsed: "TargetSpec", profile: TargetProfile, options: objec
         handle.close()
         raise
     return handle
+
+
+def _start_sil(profile: TargetProfile, options: object, remote: "RemoteTarget") -> TargetHandle:
+    """The target's firmware-in-the-loop build, serving the far end of the remote's pty (built first
+    if needed)."""
+    link = remote.link
+    assert profile.start_sil is not None
+    try:
+        process = profile.start_sil(options, link.peer_path)
+    except BaseException:
+        link.close()
+        raise
+    label = f"sil:{profile.name} on {link.peer_path} (pid {process.pid})"
+    return TargetHandle(remote, label=label, link=link, process=process)
 
 
 def _wait_ready(process: subprocess.Popen[bytes], label: str, log: Any, timeout_s: float = 20.0) -> None:

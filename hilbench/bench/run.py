@@ -65,7 +65,8 @@ def in_process(cfg: BenchConfig) -> BenchConfig:
 def connect(cfg: BenchConfig, options: SessionOptions) -> TargetHandle:
     """Open the configured target (spawning the emulator if asked)."""
     return open_target(cfg.link.target, profile=configured_profile(cfg), options=cfg.target, mode=options.mode,
-                       timeout_s=options.timeout_s, watchdog_ms=options.watchdog_ms)
+                       timeout_s=options.timeout_s, watchdog_ms=options.watchdog_ms,
+                                            retry_s=cfg.link.retry_ms / 1000.0)
 
 
 def run_bench(

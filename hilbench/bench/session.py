@@ -166,6 +166,7 @@ class Session:
         self._record_host_ref = False
         self._qos: CpuLatencyRequest | None = None
         self._pacing: RealtimePacing | None = None
+        self.display: Any = None  # the scope's display stream (hilbench.scope.stream), made by `stream`
 
     # ------------------------------------------------------------------ handshake
     def handshake(self) -> TargetHello:
@@ -529,6 +530,8 @@ class Session:
         guard_ref = tele[i_ref] * s_ref if i_ref >= 0 else self._ref_rpm
         self.history.append((k * self._period_s, self._ref_rpm, self.plant.w_m * RPM_PER_RAD_S, meas))
         if k % self.options.observe_every_periods == 0 and k:
+            if self.display is not None:  # the scope takes its rows before a flush empties the buffer
+                self.display.due(k, drive, pacing)
             if self.recorder is not None:
                 self.recorder.maybe_flush()
             if self.observer is not None:
@@ -580,6 +583,16 @@ class Session:
                 state = "on" if self.tuning.guard.enabled else "off"
                 self._note(t_s, f"guard {state} (ctl)")
                 request.reply(True, f"guarded tuning {state}")
+            elif cmd == "stream":  # a scope's decimated view (hilbench.scope)
+                if self.display is None:
+                    from hilbench.scope.stream import DisplayStream
+
+                    self.display = DisplayStream(self)
+                request.reply(True, "stream", self.display.request(int(args["since"]), args["columns"], t_s))
+            elif cmd == "press":
+                self.press(str(args["button"]), t_s)
+                self._note(t_s, f"press {args['button']} (ctl)")
+                request.reply(True, f"{args['button']} pressed at t={t_s:.4f} s")
             elif cmd == "load":
                 self.set_load("constant", float(args["nm"]))
                 self._note(t_s, f"load {args['nm']} N*m (ctl)")

@@ -42,6 +42,7 @@ class LinkSection:
     firmware: str | None = field(default=None, metadata=spec(doc="the registered target a board on a port runs (for its [target] options)"))
     period_us: int = field(default=50, metadata=spec(unit="us", ge=50, le=6000, doc="one exchange per period"))
     timeout_ms: int = field(default=500, metadata=spec(unit="ms", ge=1, le=60000, doc="silence that ends the run"))
+    retry_ms: int = field(default=100, metadata=spec(unit="ms", ge=1, le=60000, doc="send a frame again after this long without its answer (a lost frame costs a retry, not the run)"))
     watchdog_ms: int = field(default=100, metadata=spec(unit="ms", ge=0, le=60000, doc="target turns PWM off after this silence (real time)"))
     actuation_delay_periods: int = field(default=0, metadata=spec(ge=0, le=100, doc="extra whole periods before duties reach the plant"))
     overrun_policy: Literal["continue", "abort"] = "continue"

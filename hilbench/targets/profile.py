@@ -16,6 +16,8 @@ from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Callable, Literal, Mapping, Protocol
 
 if TYPE_CHECKING:
+    import subprocess
+
     from hilbench.targets.base import Target
 
 #: capabilities a profile may declare (the pytest plugin's `hil_requires` and the CLI check them)
@@ -107,6 +109,9 @@ class TargetProfile:
     #: the default grid of `hilbench sweep`: (parameter, "A:B:N") pairs
     sweep_defaults: tuple[tuple[str, str], ...] = ()
     emulator_module: str = "hilbench.targets.emulator"  # `python -m MODULE NAME --port ...`
+    #: a firmware-in-the-loop build of the board's own C firmware: (options, tty path) -> the started
+    #: process, serving that tty once this returns (`sil:NAME`); None: the target has none
+    start_sil: "Callable[[object, str], subprocess.Popen[bytes]] | None" = None
 
     def default_options(self) -> object:
         """The options dataclass with every default (None when the target takes no options)."""

@@ -44,9 +44,14 @@ def _error_name(code: int) -> str:
 class RemoteTarget:
     """A target on the far end of a link, seen through the Target interface."""
 
-    def __init__(self, link: Any, *, timeout_s: float = 1.0, protocol_version: int = PROTOCOL_VERSION) -> None:
+    def __init__(self, link: Any, *, timeout_s: float = 1.0, retry_s: float = 0.1,
+                 protocol_version: int = PROTOCOL_VERSION) -> None:
+        """``retry_s``: send a frame again after this long without its answer (a lost frame on a
+        noisy line then costs one retry, not the run); a repeated Sensors is answered by the target
+        with its last Drive, not acted on twice (the protocol's rule), so a retry is safe."""
         self.link = link
         self.timeout_s = timeout_s
+        self.retry_s = retry_s
         self.protocol_version = protocol_version
         self.firmware_name = ""
         self.target_hello: TargetHello | None = None
@@ -55,19 +60,9 @@ class RemoteTarget:
         self.last_error_report: ErrorReport | None = None
         self.watchdog_ms = 0
         self.retries = 0  # frames sent again after no answer within retry_s (a lost frame either way)
-        self.best_rtt_s = float("inf")  # the quickest request round trip seen: what the line can do
         self._req_seq = 0
         self._send = link.send
         self._recv = link.recv
-
-    @property
-    def retry_s(self) -> float:
-        """How long to wait for an answer before sending again: ten times the quickest round trip
-        seen, at least 1 ms, at most 20 ms and a tenth of the timeout (a lost frame on a noisy line
-        then costs one retry, not the run). A repeated Sensors is answered by the target with its
-        last Drive, not acted on twice (the protocol's rule)."""
-        ceiling = min(0.02, self.timeout_s / 10.0)
-        return ceiling if self.best_rtt_s == float("inf") else min(ceiling, max(0.001, 10.0 * self.best_rtt_s))
 
     # -- plumbing ------------------------------------------------------------------------
     def _next_seq(self) -> int:
@@ -81,7 +76,6 @@ class RemoteTarget:
         timeout = self.timeout_s if timeout_s is None else timeout_s
         deadline = sent + timeout
         resend_at = sent + self.retry_s
-        first = True
         while True:
             now = time.monotonic()
             remaining = deadline - now
@@ -93,15 +87,11 @@ class RemoteTarget:
                 self.retries += 1
                 self._send(msg)
                 resend_at = now + self.retry_s
-                first = False
-            try:
-                reply = self._recv(min(remaining, max(resend_at - now, 1e-4)))
-            except LinkTimeout:
+            reply = self.link.recv_or_none(min(remaining, max(resend_at - now, 1e-4)))
+            if reply is None:
                 continue
             kind = type(reply)
             if reply.seq == msg.seq and (kind is reply_type or kind is ErrorReport):
-                if first and kind is not TargetHello:  # (the first HELLO may wait for a process to start)
-                    self.best_rtt_s = min(self.best_rtt_s, time.monotonic() - sent)
                 if kind is ErrorReport:
                     self.error_reports += 1
                     self.last_error_report = reply
@@ -197,14 +187,11 @@ class RemoteTarget:
     def step(self, sensors: Sensors) -> Drive:
         """One exchange: Sensors out, the Drive with the same seq back (LinkTimeout if none)."""
         self._send(sensors)
-        seq = sensors.seq
-        try:
-            msg = self._recv(self.retry_s)
-        except LinkTimeout:
-            return self._step_slow(sensors)
-        if type(msg) is Drive and msg.seq == seq:
+        msg = self.link.recv_or_none(self.retry_s)
+        if type(msg) is Drive and msg.seq == sensors.seq:
             return msg
-        self._note_stray(msg)
+        if msg is not None:
+            self._note_stray(msg)
         return self._step_slow(sensors)
 
     def _step_slow(self, sensors: Sensors) -> Drive:
@@ -224,9 +211,8 @@ class RemoteTarget:
                 self.retries += 1
                 self._send(sensors)
                 resend_at = now + self.retry_s
-            try:
-                msg = self._recv(min(deadline - now, max(resend_at - now, 1e-4)))
-            except LinkTimeout:
+            msg = self.link.recv_or_none(min(deadline - now, max(resend_at - now, 1e-4)))
+            if msg is None:
                 continue
             if type(msg) is Drive and msg.seq == seq:
                 return msg

@@ -12,7 +12,7 @@ from pathlib import Path
 import numpy as np
 
 from hilbench.bench.recorder import RecordingData
-from hilbench.errors import HilbenchError
+from hilbench.errors import ConfigError, HilbenchError
 
 
 class PlotUnavailable(HilbenchError):
@@ -33,26 +33,105 @@ def _pyplot():  # type: ignore[no-untyped-def]
     return plt
 
 
-def _line_figure(plt, t, columns, series, ylabel: str, title: str):  # type: ignore[no-untyped-def]
-    """One axis of lines against time: (column, label, line style) per series."""
+#: above this many points in view a trace is drawn as its min/max envelope per bucket
+MAX_POINTS = 2000
+
+
+def parse_window(text: str | None) -> tuple[float, float] | None:
+    """`--window T0:T1` (simulated seconds) as (t0, t1)."""
+    if text is None:
+        return None
+    try:
+        t0, t1 = (float(x) for x in text.split(":"))
+    except ValueError:
+        raise ConfigError(f"--window {text!r}: expected T0:T1 in seconds, e.g. 1.0:1.05") from None
+    if not t1 > t0:
+        raise ConfigError(f"--window {text!r}: T1 must be after T0")
+    return t0, t1
+
+
+def _events(data: RecordingData) -> list[tuple[float, str]]:
+    """The recording's events as (t_s, text): "t=1.234500 text" lines."""
+    from hilbench.scope.stream import parse_event
+
+    return [parsed for parsed in (parse_event(text) for text in data.events) if parsed is not None]
+
+
+def _trace(ax, t: np.ndarray, y: np.ndarray, label: str, style: dict, offset: float = 0.0,  # type: ignore[no-untyped-def]
+           digital: bool = False) -> None:
+    """A line, or its min/max envelope per bucket when there are more points than pixels: a 20 kHz
+    current over seconds shows its true extent, not a blob of overdrawn lines or aliasing. A
+    digital trace (halls, sector) is drawn in steps, and decimated as its band only."""
+    from hilbench.scope.stream import envelope
+
+    if len(t) <= 2 * MAX_POINTS:
+        if digital:
+            ax.step(t, y + offset, where="post", label=label, **style)
+        else:
+            ax.plot(t, y + offset, label=label, **style)
+        return
+    bucket = -(-len(t) // MAX_POINTS)
+    lo, hi = envelope(np.asarray(y, dtype=np.float64), bucket)
+    tb = t[::bucket]
+    colour = style.get("color")
+    if digital:
+        band = ax.fill_between(tb, lo + offset, hi + offset, step="post", color=colour, alpha=0.85, lw=0.6, label=label)
+        band.set_edgecolor(band.get_facecolor())
+        return
+    (line,) = ax.plot(tb, (lo + hi) / 2 + offset, label=label, lw=style.get("lw", 0.8) * 0.6,
+                      ls=style.get("ls", "-"), color=colour, alpha=0.9)
+    ax.fill_between(tb, lo + offset, hi + offset, step="post", color=line.get_color(), alpha=0.35, lw=0)
+
+
+def _mark_events(ax, events: list[tuple[float, str]], t0: float, t1: float, label: bool = False) -> None:  # type: ignore[no-untyped-def]
+    """Event markers: a dotted vertical line each (with its text on the first axis)."""
+    groups: list[tuple[float, list[str]]] = []  # events closer than 1/200 of the span share a label
+    for t_s, text in sorted(e for e in events if t0 <= e[0] <= t1):
+        if groups and t_s - groups[-1][0] < (t1 - t0) / 200:
+            groups[-1][1].append(text)
+        else:
+            groups.append((t_s, [text]))
+    for t_s, texts in groups:
+        joined = "; ".join(texts)
+        colour = "tab:red" if "fault" in joined or "guard" in joined else ("tab:green" if any(x.startswith("set ") for x in texts) else "0.45")
+        ax.axvline(t_s, color=colour, lw=0.7, ls=":", alpha=0.9)
+        if label:
+            ax.text(t_s, 0.98, " " + (joined if len(joined) <= 48 else joined[:47] + "…"), transform=ax.get_xaxis_transform(),
+                    rotation=90, va="top", ha="left", fontsize=6.5, color=colour, alpha=0.9, clip_on=True)
+
+
+def _line_figure(plt, t, columns, series, ylabel: str, title: str, events=(), label_events=True):  # type: ignore[no-untyped-def]
+    """One axis of traces against time: (column, label, line style) per series."""
     fig, ax = plt.subplots(figsize=(10, 4.5))
     for name, label, style in series:
-        ax.plot(t, columns[name], label=label, **style)
+        _trace(ax, t, columns[name], label, style)
     ax.set_xlabel("time [s]")
     ax.set_ylabel(ylabel)
     ax.set_title(title)
     ax.grid(alpha=0.3)
+    if len(t):
+        _mark_events(ax, list(events), float(t[0]), float(t[-1]), label_events)
     ax.legend(loc="best")
     return fig
 
 
-def plot_recording(data: RecordingData, out_dir: Path, stem: str | None = None) -> list[Path]:
-    """Write the standard plots of a recording into ``out_dir``; returns their paths."""
+def plot_recording(data: RecordingData, out_dir: Path, stem: str | None = None,
+                   window: tuple[float, float] | None = None) -> list[Path]:
+    """Write the standard plots of a recording into ``out_dir``; returns their paths. ``window``:
+    only simulated seconds t0..t1 (every period drawn when it is short enough)."""
     plt = _pyplot()
     out_dir.mkdir(parents=True, exist_ok=True)
     stem = stem or data.path.name.split(".")[0]
     c = data.columns
     t = c["t_s"]
+    if window is not None:
+        keep = (t >= window[0]) & (t <= window[1])
+        if not keep.any():
+            raise ConfigError(f"plot window {window[0]:g}..{window[1]:g} s: the recording spans "
+                                f"{t[0]:g}..{t[-1]:g} s" if len(t) else "plot window: the recording is empty")
+        c = {name: values[keep] for name, values in c.items()}
+        t = c["t_s"]
+    events = _events(data)
     written: list[Path] = []
 
     def save(fig, name: str) -> None:  # type: ignore[no-untyped-def]
@@ -66,32 +145,41 @@ def plot_recording(data: RecordingData, out_dir: Path, stem: str | None = None) 
               ("speed_rpm", "speed (plant)", {"lw": 1.0})]
     if "measured_speed_rpm" in c and not np.all(np.isnan(c["measured_speed_rpm"])):
         speeds.append(("measured_speed_rpm", "speed (firmware measured)", {"lw": 0.8, "alpha": 0.8}))
-    save(_line_figure(plt, t, c, speeds, "speed [rpm]", "speed vs reference"), "speed")
+    save(_line_figure(plt, t, c, speeds, "speed [rpm]", "speed vs reference", events), "speed")
     from hilbench.bench.recorder import COLUMN_NAMES
 
     own = [name for name in c if name not in COLUMN_NAMES]  # the target's own telemetry columns
     if own:
         lines = [(name, f"{name} [{data.units.get(name, '')}]", {"lw": 0.8}) for name in own]
-        save(_line_figure(plt, t, c, lines, "value", "target telemetry"), "telemetry")
+        save(_line_figure(plt, t, c, lines, "value", "target telemetry", events, False), "telemetry")
     currents = [(name, label, {"lw": 0.6}) for name, label in (("ia_a", "i_a"), ("ib_a", "i_b"), ("ic_a", "i_c"))]
     currents.append(("ibus_a", "i_bus", {"lw": 0.8, "color": "k"}))
-    save(_line_figure(plt, t, c, currents, "current [A]", "phase and bus currents"), "currents")
+    save(_line_figure(plt, t, c, currents, "current [A]", "phase and bus currents", events, False), "currents")
     duties = [(name, name, {"lw": 0.6}) for name in ("duty_a", "duty_b", "duty_c")]
-    save(_line_figure(plt, t, c, duties, "duty [counts]", "PWM duties from the target"), "duties")
+    save(_line_figure(plt, t, c, duties, "duty [counts]", "PWM duties from the target", events, False), "duties")
 
-    fig, (ax1, ax2) = plt.subplots(2, 1, figsize=(10, 5), sharex=True)
-    ax1.step(t, c["hall"], where="post", lw=0.8)
-    ax1.set_ylabel("hall CBA")
-    ax2.step(t, c["sector"], where="post", lw=0.8, color="C1")
+    # halls as three digital traces (bit 0 = A), the firmware's sector below
+    fig, (ax1, ax2) = plt.subplots(2, 1, figsize=(10, 5), sharex=True, gridspec_kw={"height_ratios": [3, 2]})
+    hall = c["hall"].astype(np.int64)
+    for bit, name in enumerate(("A", "B", "C")):
+        _trace(ax1, t, ((hall >> bit) & 1).astype(np.float64) * 0.8, f"hall {name}", {"lw": 0.8, "color": f"C{bit}"},
+               offset=1.2 * bit, digital=True)
+    ax1.set_yticks([0.4, 1.6, 2.8], ["A", "B", "C"])
+    ax1.set_ylabel("hall")
+    _trace(ax2, t, c["sector"], "sector", {"lw": 0.8, "color": "C3"}, digital=True)
     ax2.set_ylabel("sector")
     ax2.set_xlabel("time [s]")
-    ax1.set_title("hall state and firmware sector")
+    ax1.set_title("hall signals and firmware sector")
+    if len(t):
+        for ax in (ax1, ax2):
+            _mark_events(ax, events, float(t[0]), float(t[-1]))
     save(fig, "hall")
 
-    timing = [("rtt_us", "round trip [µs]", {"lw": 0.5}), ("lateness_us", "lateness [µs]", {"lw": 0.5})]
-    fig = _line_figure(plt, t, c, timing, "µs", "link timing (real-time runs; zero in lockstep)")
-    fig.axes[0].set_yscale("symlog")
-    save(fig, "link")
+    if np.any(c["rtt_us"] != 0) or np.any(c["lateness_us"] != 0):  # real time only: lockstep keeps no timing
+        timing = [("rtt_us", "round trip [µs]", {"lw": 0.5}), ("lateness_us", "lateness [µs]", {"lw": 0.5})]
+        fig = _line_figure(plt, t, c, timing, "µs", "link timing (real time)", events, False)
+        fig.axes[0].set_yscale("symlog")
+        save(fig, "link")
     return written
 
 

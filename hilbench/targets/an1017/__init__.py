@@ -9,11 +9,14 @@ constraints, the pot that carries the speed reference, and its telemetry columns
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from typing import Literal, Mapping
+from typing import TYPE_CHECKING, Literal, Mapping
 
 from hilbench.fieldspec import spec
 from hilbench.protocol import TelemetryId
 from hilbench.targets.profile import MotorBuild, PotReference, TargetProfile, TelemetryColumn
+
+if TYPE_CHECKING:
+    import subprocess
 
 #: MeasuredSpeed = trunc(312·32768/Period) and rpm = 1 875 000/Period (the application note's
 #: Table 6), so one Q15 step of speed is 1 875 000/(312·32768) rpm; 32767 ≈ 6009.6 rpm.
@@ -61,6 +64,13 @@ def _make(settings: object) -> object:
     return An1017Target(An1017Options(variant=variant))
 
 
+def _start_sil(settings: object, tty_path: str) -> "subprocess.Popen[bytes]":
+    """The board firmware (firmware/an1017) built for this host, serving tty_path."""
+    from hilbench.targets.sil import start_sil
+
+    return start_sil(tty_path, settings.variant if isinstance(settings, An1017Settings) else "seed")
+
+
 def _check_gains(raw: Mapping[str, int]) -> str | None:
     from hilbench.targets.an1017.firmware import GAIN_CONSTRAINT_NAMES, check_gain_constraints
 
@@ -95,6 +105,7 @@ PROFILE = TargetProfile(
     initial_params=_initial_params,
     capabilities=frozenset({"speed_loop", "realtime", "fault_injection", "tuning", "hall_sensors"}),
     sweep_defaults=(("kp", "0.05:0.85:10"), ("ki", "0.005:0.12:10"), ("kd", "0")),
+    start_sil=_start_sil,
 )
 
 __all__ = ["An1017Settings", "PROFILE", "RPM_PER_SPEED_Q15", "pot_code_for_rpm", "rpm_for_pot_code"]

@@ -1,0 +1,68 @@
+"""The report's PNGs: min/max envelopes keep a one-sample spike, a window draws every period,
+halls as digital traces, event markers, and no link plot for a lockstep run."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+matplotlib = pytest.importorskip("matplotlib", reason="the plot extra (matplotlib) is not installed")
+
+from hilbench.bench.recorder import COLUMN_NAMES, RecordingData  # noqa: E402
+from hilbench.errors import ConfigError  # noqa: E402
+from hilbench.ui.plots import MAX_POINTS, _mark_events, _pyplot, _trace, parse_window, plot_recording  # noqa: E402
+
+
+def recording(tmp_path: Path, lateness_us: float = 0.0) -> RecordingData:
+    """One second at 20 kHz: a 50 Hz current with a one-sample 5 A spike at t = 0.3 s."""
+    t = np.arange(20_000) * 50e-6
+    columns = {name: np.zeros_like(t) for name in COLUMN_NAMES}
+    columns["t_s"] = t
+    columns["ia_a"] = np.sin(2 * np.pi * 50 * t)
+    columns["ia_a"][6000] = 5.0
+    columns["hall"] = np.array([1, 3, 2, 6, 4, 5])[(t * 300).astype(int) % 6].astype(float)
+    columns["lateness_us"] = np.full_like(t, lateness_us)
+    return RecordingData(tmp_path / "run.npz", columns, {}, ("t=0.250000 set kp=0.2", "t=0.500000 ref 2000 rpm"))
+
+
+def test_envelope_keeps_a_one_sample_spike(tmp_path: Path) -> None:
+    data = recording(tmp_path)
+    plt = _pyplot()
+    fig, ax = plt.subplots()
+    _trace(ax, data.columns["t_s"], data.columns["ia_a"], "i_a", {"lw": 0.6})
+    band = ax.collections[0]
+    top = max(path.vertices[:, 1].max() for path in band.get_paths())
+    bottom = min(path.vertices[:, 1].min() for path in band.get_paths())
+    assert top == pytest.approx(5.0) and bottom == pytest.approx(-1.0, abs=1e-3)
+    assert len(ax.lines[0].get_xdata()) <= MAX_POINTS
+    plt.close(fig)
+
+
+def test_event_markers_at_their_times(tmp_path: Path) -> None:
+    plt = _pyplot()
+    fig, ax = plt.subplots()
+    _mark_events(ax, [(0.25, "set kp=0.2"), (0.5, "ref 2000 rpm"), (0.501, "press s2"), (2.0, "outside")], 0.0, 1.0,
+                 label=True)
+    assert sorted(line.get_xdata()[0] for line in ax.lines) == [0.25, 0.5]
+    assert {text.get_text().strip() for text in ax.texts} == {"set kp=0.2", "ref 2000 rpm; press s2"}
+    plt.close(fig)
+
+
+def test_no_link_plot_in_lockstep_and_one_in_real_time(tmp_path: Path) -> None:
+    lockstep = {p.name for p in plot_recording(recording(tmp_path), tmp_path / "a")}
+    assert lockstep == {"run_speed.png", "run_currents.png", "run_duties.png", "run_hall.png"}
+    realtime = {p.name for p in plot_recording(recording(tmp_path, lateness_us=12.0), tmp_path / "b")}
+    assert "run_link.png" in realtime
+
+
+def test_a_window_and_its_errors(tmp_path: Path) -> None:
+    assert parse_window("1.0:1.05") == (1.0, 1.05) and parse_window(None) is None
+    for bad in ("1.0", "a:b", "2:1"):
+        with pytest.raises(ConfigError, match="--window"):
+            parse_window(bad)
+    written = plot_recording(recording(tmp_path), tmp_path / "w", window=(0.29, 0.31))
+    assert all(p.stat().st_size > 5_000 for p in written)
+    with pytest.raises(ConfigError, match="spans"):
+        plot_recording(recording(tmp_path), tmp_path / "x", window=(5.0, 6.0))
