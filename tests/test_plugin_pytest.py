@@ -17,6 +17,26 @@ from conftest import REPO_ROOT
 
 pytest_plugins = ["pytester"]
 
+# Loaded here, before pytester's in-process runs: a module first imported inside one is dropped
+# from sys.modules after it, while objects made of it live on (the target registry's profiles; a
+# later matplotlib import mixing old and new classes: "... must be a three-digit integer, not GridSpec").
+import hilbench.bench.bench  # noqa: E402,F401
+import hilbench.testing.assertions  # noqa: E402,F401
+import hilbench.testing.link  # noqa: E402,F401
+import hilbench.testing.steps  # noqa: E402,F401
+from hilbench.targets.registry import known_targets  # noqa: E402
+
+known_targets()  # every built-in target's module imported now
+try:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot  # noqa: F401
+
+    import hilbench.ui.plots  # noqa: F401
+except ImportError:  # no plot extra: the plugin says the plots were skipped
+    pass
+
 INPROC = "inprocess:an1017"
 
 

@@ -385,6 +385,8 @@ def _keep(request: pytest.FixtureRequest, state: _State, paths: list[Path], fold
             except PlotUnavailable as exc:
                 notes.append(f"plots skipped: {exc}")
                 break
+            except Exception as exc:  # noqa: BLE001 - a plot must never turn a failure into a teardown error
+                notes.append(f"plots of {path.name} failed: {type(exc).__name__}: {exc}")
         state.kept.append((request.node.nodeid, attached + notes))
     for line in attached:  # captured into the report (and <system-out> with junit_logging=system-out)
         print(ATTACHMENT.format(line))
