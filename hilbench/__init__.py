@@ -26,6 +26,7 @@ from hilbench.errors import (
     ParamError,
     ProtocolError,
     RecordingError,
+    BenchLimitError,
     TargetError,
 )
 
@@ -94,6 +95,7 @@ __all__ = [
     "ProtocolError",
     "RecordingData",
     "RecordingError",
+    "BenchLimitError",
     "Signals",
     "StepResult",
     "StepTest",

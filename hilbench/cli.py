@@ -24,11 +24,17 @@ def _friendly(func: Callable[..., Any]) -> Callable[..., Any]:
         try:
             return func(*args, **kwargs)
         except HilbenchError as exc:
-            click.echo(f"hilbench: {exc.kind}: {exc}", err=True)
+            lines = [line.strip() for line in str(exc).splitlines() if line.strip()]
+            text = lines[0] if len(lines) == 1 else f"{len(lines)} problems: " + "; ".join(lines)
+            click.echo(f"hilbench: {exc.kind}: {text}", err=True)  # one line, however many problems
             sys.exit(exc.exit_code)
         except KeyboardInterrupt:
             click.echo("hilbench: interrupted", err=True)
             sys.exit(130)
+        except OSError as exc:  # a file the user named: a directory, a missing folder, no permission
+            name = f"{exc.filename}: " if exc.filename else ""
+            click.echo(f"hilbench: file error: {name}{exc.strerror or exc}", err=True)
+            sys.exit(1)
 
     return wrapper
 
@@ -113,14 +119,17 @@ _MODES = {"auto": None, "lockstep": 0, "realtime": 1}
 @click.option("--option", "-o", "options", multiple=True, metavar="KEY=VALUE",
               help="A [target] option of TARGET, e.g. -o variant=v11 (see the target's config docs).")
 @click.option("--quiet", "-q", is_flag=True, help="Log only warnings and errors.")
+@click.option("--once", is_flag=True, help="Exit when the first host hangs up (default: serve host after host, "
+                                           "as a board does, until Ctrl-C).")
 @_friendly
 def emulate(target: str | None, port_spec: str, mode: str, watchdog_ms: int | None, options: tuple[str, ...],
-            quiet: bool) -> None:
+            quiet: bool, once: bool) -> None:
     """Serve an emulated TARGET (default: the default target; `hilbench targets` lists them) on a
     virtual serial pair or a tty.
 
     The first line on stdout is the path the host opens, e.g.
-    `hilbench link-test serial:/dev/pts/5`. Serves until the host hangs up or Ctrl-C.
+    `hilbench link-test serial:/dev/pts/5`. Serves one host after another until Ctrl-C (--once: until
+    the first host hangs up).
     """
     import logging
 
@@ -145,7 +154,8 @@ def emulate(target: str | None, port_spec: str, mode: str, watchdog_ms: int | No
         except tomllib.TOMLDecodeError:
             values[key.strip()] = text
     target = target or _default_target_name()
-    report = serve_on_port(target, port_spec, _MODES[mode], options, watchdog_ms=watchdog_ms, announce=announce)
+    report = serve_on_port(target, port_spec, _MODES[mode], values, watchdog_ms=watchdog_ms, announce=announce,
+                           keep_serving=not once)
     logging.getLogger("hilbench.serve").info(
         "served %d periods and %d requests; %s", report.sensors, report.requests, report.reason or "done"
     )
@@ -182,7 +192,8 @@ def link_test(target: str, periods: int, period_us: int, timeout_ms: int) -> Non
     table.add_column("figure")
     table.add_column("value", justify="right")
     rows: list[tuple[str, str]] = [
-        ("periods (good / asked)", f"{result.good} / {result.periods}"),
+        ("periods (good / asked)", f"{result.good} / {result.periods}"
+                                   + (f" (interrupted after {result.attempted})" if result.interrupted else "")),
         ("round trips/s", f"{result.round_trips_per_s:,.0f}"),
         ("RTT p50", f"{result.rtt_p50_us:.1f} µs"),
         ("RTT p99", f"{result.rtt_p99_us:.1f} µs"),
@@ -198,6 +209,9 @@ def link_test(target: str, periods: int, period_us: int, timeout_ms: int) -> Non
     console.print(table)
     if result.errors:
         console.print(f"[yellow]{result.errors} errors counted[/yellow]")
+    if result.interrupted:
+        click.echo("hilbench: interrupted: the figures above are those of the periods run", err=True)
+        sys.exit(130)
 
 
 @cli.command(context_settings={"show_default": True})
@@ -213,7 +227,10 @@ def link_test(target: str, periods: int, period_us: int, timeout_ms: int) -> Non
 @click.option("--record", type=click.Path(dir_okay=False), default=None, metavar="FILE",
               help="Keep every period in FILE (.csv or .npz), written as the run goes.")
 @click.option("--set", "overrides", multiple=True, metavar="TABLE.KEY=VALUE",
-              help="Override one config value, e.g. --set target.kp=0.2 --set link.period_us=100.")
+              help="Override one config value, e.g. --set target.kp=0.2 --set link.period_us=100, an item of an "
+                   "array of tables (--set adc.1.gain_codes_per_unit=150) or a whole one (--set 'scenario=[{...}]').")
+@click.option("--scenario", "scenario_file", type=click.Path(dir_okay=False), default=None, metavar="FILE",
+              help="A file of [[scenario]] tables that replaces the config's scenario.")
 @click.option("--gains-file", type=click.Path(dir_okay=False), default=None, metavar="FILE",
               help="Start with the parameters saved by `hilbench ctl save` or `hilbench sweep --save`.")
 @click.option("--no-ui", is_flag=True, help="No live dashboard; print a plain summary at the end.")
@@ -224,7 +241,7 @@ def link_test(target: str, periods: int, period_us: int, timeout_ms: int) -> Non
 @_friendly
 def run(config: str | None, target_spec: str | None, mode: str | None, duration_s: float | None,
         record: str | None, overrides: tuple[str, ...], gains_file: str | None, no_ui: bool, as_json: bool,
-        no_control: bool, scope: bool = False, open_browser: bool = False) -> None:
+        no_control: bool, scope: bool = False, open_browser: bool = False, scenario_file: str | None = None) -> None:
     """Run a bench session: target + plant + scenario, live, recorded.
 
     With no arguments: the default target's emulator as its own process on a virtual serial pair,
@@ -238,7 +255,7 @@ def run(config: str | None, target_spec: str | None, mode: str | None, duration_
       hilbench run --set target.kp=0.15 --duration 2 --no-ui
       hilbench run --target serial:/dev/ttyUSB0?baud=250000 --mode realtime --set link.period_us=1000
     While it runs, `hilbench ctl get|set|ref|load` talks to it from another terminal.
-    The summary ends with the config's [[check]] verdicts; a failed check exits with code 7.
+    The summary ends with the config's [[check]] verdicts; a failed check exits with code 9.
     """
     import json as json_module
 
@@ -250,13 +267,19 @@ def run(config: str | None, target_spec: str | None, mode: str | None, duration_
     from hilbench.bench.settings import params_file_overrides
 
     extra = params_file_overrides(gains_file) if gains_file else ()
-    request = RunRequest(config, check_overrides(overrides) + extra, target_spec, mode, duration_s, record)
+    request = RunRequest(config, check_overrides(overrides) + extra, target_spec, mode, duration_s, record,
+                         scenario=scenario_file)
     cfg = load_run_config(request)
+    from hilbench.bench.feasibility import check_run
+
+    for warning in check_run(cfg):
+        click.echo(f"hilbench: warning: {warning}", err=True)
     control = None
     if not no_control:
         from hilbench.bench.control import ControlServer
 
         control = ControlServer()
+        click.echo(f"hilbench: control socket {control.path} (hilbench ctl --socket {control.path} ...)", err=True)
     scope_server: Any = None
     if scope:  # `hilbench scope` on the run's control socket, as a child process
         from hilbench.errors import ConfigError
@@ -268,7 +291,8 @@ def run(config: str | None, target_spec: str | None, mode: str | None, duration_
     console = Console()
     try:
         if no_ui or as_json or not console.is_terminal:
-            summary = run_bench(cfg, record=record, control=control)
+            summary = run_bench(cfg, record=record, control=control,
+                                warn=lambda text: click.echo(f"hilbench: warning: {text}", err=True))
         else:
             dashboard = Dashboard(cfg.link.target, cfg.run.duration_s, console=console)
 
@@ -280,7 +304,8 @@ def run(config: str | None, target_spec: str | None, mode: str | None, duration_
 
                 keys = dashboard.command_line = CommandLine(control.path, dashboard.replies.append)
             with keys, dashboard:
-                summary = run_bench(cfg, record=record, observer=dashboard, control=control, on_ready=dashboard.attach)
+                summary = run_bench(cfg, record=record, observer=dashboard, control=control, on_ready=dashboard.attach,
+                                    warn=lambda text: console.print(f"[yellow]warning: {text}[/]"))
     finally:
         if scope_server is not None:
             scope_server.close()
@@ -296,7 +321,7 @@ def run(config: str | None, target_spec: str | None, mode: str | None, duration_
         console.print(summary_table(summary))
     if summary.checks and not as_json:
         click.echo(checks_text(summary.checks))
-    raise_if_failed(summary.checks)  # exit code 7: the run completed, a [[check]] did not hold
+    raise_if_failed(summary.checks)  # exit code 9: the run completed, a [[check]] did not hold
 
 
 @cli.command()
@@ -379,10 +404,12 @@ def scope(socket_path: str | None, port: int, open_browser: bool) -> None:
 @cli.command(context_settings={"ignore_unknown_options": True})
 @click.argument("words", nargs=-1, type=click.UNPROCESSED)
 @click.option("--socket", "socket_path", default=None, metavar="PATH",
-              help="The session's control socket (default: the newest running session).")
-@click.option("--timeout", "timeout_s", type=click.FloatRange(min=0.1), default=5.0, show_default=True)
+              help="The session's control socket (default: the newest running session; `ctl list` shows them all).")
+@click.option("--timeout", "timeout_s", type=click.FloatRange(min=0.1), default=None,
+              help="Seconds to wait for the answer (default: 5; `step`: 120, it answers after the step).")
+@click.option("--json", "as_json", is_flag=True, help="Print the session's whole reply as one JSON object.")
 @_friendly
-def ctl(words: tuple[str, ...], socket_path: str | None, timeout_s: float) -> None:
+def ctl(words: tuple[str, ...], socket_path: str | None, timeout_s: float | None, as_json: bool) -> None:
     """Talk to a running `hilbench run` through its control socket.
 
     \b
@@ -393,14 +420,38 @@ def ctl(words: tuple[str, ...], socket_path: str | None, timeout_s: float) -> No
     hilbench ctl step 1000 2000          reference step from 1000 to 2000 rpm
     hilbench ctl save gains.toml         write the gains as a config fragment
     hilbench ctl guard on|off            guarded tuning: restore gains after a bad response
+    hilbench ctl press s2|s3             press a board button (S2 starts and stops the motor)
+    hilbench ctl start                   the target's Start command (restart after a stop)
     hilbench ctl stop                    end the run (recording closed, target stopped)
+    hilbench ctl list                    the running sessions and their sockets
     """
     import json as json_module
 
-    from hilbench.bench.control import ControlClient, parse_ctl_args
+    from hilbench.bench.control import ControlClient, list_sessions, parse_ctl_args
     from hilbench.errors import TargetError
 
+    if list(words[:1]) == ["list"]:
+        sessions = list_sessions()
+        rows = [{"socket": str(i.socket_path), "pid": i.pid, "started_s": i.started_s, "cwd": i.cwd} for i in sessions]
+        if as_json:
+            click.echo(json_module.dumps(rows))
+        elif not rows:
+            click.echo("no running sessions")
+        else:
+            import time as time_module
+
+            for row in rows:
+                age = time_module.time() - float(row["started_s"])
+                click.echo(f"pid {row['pid']}  {row['socket']}  started {age:.0f} s ago in {row['cwd']}")
+        return
     request = parse_ctl_args(list(words))
+    if timeout_s is None:
+        timeout_s = 120.0 if request["cmd"] == "step" else 5.0
+    if socket_path is None:
+        running = list_sessions()
+        if len(running) > 1 and not as_json:
+            click.echo(f"hilbench: {len(running)} sessions running; talking to the newest (pid {running[0].pid}, "
+                       f"{running[0].socket_path}); `hilbench ctl list` shows them, --socket picks one", err=True)
     client = ControlClient(socket_path, timeout_s=timeout_s)
     if request["cmd"] == "save":  # the file is written here, where the user is, from the session's values
         from hilbench.bench.tuning import saved_fragment
@@ -414,14 +465,24 @@ def ctl(words: tuple[str, ...], socket_path: str | None, timeout_s: float) -> No
                 handle.write(text)
         except OSError as exc:
             raise TargetError(f"ctl save {request['file']}: {exc.strerror}") from None
-        click.echo(f"wrote {request['file']}:\n{text}", nl=False)
+        if as_json:
+            click.echo(json_module.dumps({"ok": True, "message": f"wrote {request['file']}", "data": reply["data"]}))
+        else:
+            click.echo(f"wrote {request['file']}:\n{text}", nl=False)
         return
     reply = client.request(request, timeout_s=timeout_s)
+    if as_json:  # the reply as it came, refusals included (exit status 5 then)
+        click.echo(json_module.dumps(reply))
+        if not reply.get("ok"):
+            sys.exit(TargetError.exit_code)
+        return
     if not reply.get("ok"):
         raise TargetError(str(reply.get("message", "refused")))
-    click.echo(reply.get("message", "ok"))
     if reply.get("data"):
-        click.echo(json_module.dumps(reply["data"], indent=2, default=str))
+        click.echo(json_module.dumps(reply["data"], indent=2, default=str))  # JSON alone on stdout: pipe it
+        click.echo(reply.get("message", "ok"), err=True)
+    else:
+        click.echo(reply.get("message", "ok"))
 
 
 @cli.command(context_settings={"show_default": True})
@@ -454,7 +515,7 @@ def step(config: str | None, from_rpm: float, to_rpm: float, gains: tuple[str, .
       hilbench step --from 1000 --to 2000
       hilbench step --gains 0.1,0.01,0 --gains 0.2,0.02,0 --plot steps.png
       hilbench step --gains kp=0.2,ki=0.02 --from 1500 --to -1500
-    The config's step_* [[check]] tables are judged on every gain set; a failed one exits with code 7.
+    The config's step_* [[check]] tables are judged on every gain set; a failed one exits with code 9.
     """
     import json as json_module
     from pathlib import Path
@@ -509,7 +570,7 @@ def step(config: str | None, from_rpm: float, to_rpm: float, gains: tuple[str, .
         Console().print(f"plot: {plot_file}")
     if every:
         click.echo(checks_text(every))
-    raise_if_failed(every)  # exit code 7: a step [[check]] of the config did not hold
+    raise_if_failed(every)  # exit code 9: a step [[check]] of the config did not hold
 
 
 def _wide_console():  # type: ignore[no-untyped-def]

@@ -42,6 +42,7 @@ from hilbench.plant.params import (
     LoadProfile,
     MotorParams,
     PlantParams,
+    ProtectionParams,
     default_adc_channels,
     psi_from_ke,
 )
@@ -120,6 +121,12 @@ _RANGES: dict[type, dict[str, dict[str, Any]]] = {
         "noise_lsb": spec(unit="codes", ge=0, le=65535),
         "bits": spec(ge=8, le=16),
     },
+    ProtectionParams: {
+        "overcurrent_a": spec(unit="A", ge=0, le=1e5, doc="overcurrent comparator on the peak phase current, drives FAULT (0: none)"),
+        "overspeed_rpm": spec(unit="rpm", ge=0, le=1e6, doc="bench limit: the run ends with a fault (0: none)"),
+        "bus_capacitance_f": spec(unit="F", ge=0, le=10, doc="bus capacitor charged by regeneration (0: a stiff bus)"),
+        "overvoltage_v": spec(unit="V", ge=0, le=1e4, doc="bench limit on the bus voltage (0: none)"),
+    },
     LoadProfile: {
         "torque_nm": spec(unit="N*m", ge=-1e3, le=1e3),
         "step_time_s": spec(unit="s", ge=0),
@@ -161,6 +168,7 @@ register_section("encoder", EncoderParams)
 register_section("adc", AdcChannel, many=True)
 register_section("load", LoadProfile)
 register_section("plant", PlantSection)
+register_section("protection", ProtectionParams)
 
 
 @dataclass(frozen=True)
@@ -210,6 +218,12 @@ def _suggest(name: str, known: Sequence[str]) -> str:
     return f" (did you mean {close[0]!r}?)" if close else ""
 
 
+def _show(value: Any) -> str:
+    """A value as a message shows it: short, one line (a fuzzed value may be 5000 characters)."""
+    text = " ".join(repr(value).split())
+    return text if len(text) <= 40 else text[:37] + "..."
+
+
 def _type_name(tp: Any) -> str:
     return getattr(tp, "__name__", str(tp))
 
@@ -226,7 +240,7 @@ def _convert(value: Any, tp: Any, table: str, key: str, col: _Collector) -> tupl
         if value in choices:
             return True, value
         hint = _suggest(str(value), [str(c) for c in choices]) if isinstance(value, str) else ""
-        col.add(table, key, f"{value!r} is not one of {', '.join(repr(c) for c in choices)}{hint}")
+        col.add(table, key, f"{_show(value)} is not one of {', '.join(repr(c) for c in choices)}{hint}")
         return False, None
     if origin is tuple:
         args = typing.get_args(tp)
@@ -260,25 +274,25 @@ def _convert(value: Any, tp: Any, table: str, key: str, col: _Collector) -> tupl
         return _build(tp, value, f"{table}.{key}", col)
     if tp is float:
         if isinstance(value, bool) or not isinstance(value, (int, float)):
-            col.add(table, key, f"expected a number, got {type(value).__name__} {value!r}")
+            col.add(table, key, f"expected a number, got {type(value).__name__} {_show(value)}")
             return False, None
         if not math.isfinite(value):
-            col.add(table, key, f"expected a finite number, got {value!r}")
+            col.add(table, key, f"expected a finite number, got {_show(value)}")
             return False, None
         return True, float(value)
     if tp is int:
         if isinstance(value, bool) or not isinstance(value, int):
-            col.add(table, key, f"expected an integer, got {type(value).__name__} {value!r}")
+            col.add(table, key, f"expected an integer, got {type(value).__name__} {_show(value)}")
             return False, None
         return True, value
     if tp is bool:
         if not isinstance(value, bool):
-            col.add(table, key, f"expected true or false, got {type(value).__name__} {value!r}")
+            col.add(table, key, f"expected true or false, got {type(value).__name__} {_show(value)}")
             return False, None
         return True, value
     if tp is str:
         if not isinstance(value, str):
-            col.add(table, key, f"expected a string, got {type(value).__name__} {value!r}")
+            col.add(table, key, f"expected a string, got {type(value).__name__} {_show(value)}")
             return False, None
         return True, value
     col.add(table, key, f"unsupported field type {_type_name(tp)}")
@@ -290,13 +304,13 @@ def _range_reason(value: Any, meta: Mapping[str, Any]) -> str | None:
         return None
     unit = f" {meta['unit']}" if meta.get("unit") else ""
     if meta.get("gt") is not None and not value > meta["gt"]:
-        return f"{value}{unit} is out of range: must be > {meta['gt']}{unit}"
+        return f"{_show(value)}{unit} is out of range: must be > {meta['gt']}{unit}"
     if meta.get("ge") is not None and not value >= meta["ge"]:
-        return f"{value}{unit} is out of range: must be >= {meta['ge']}{unit}"
+        return f"{_show(value)}{unit} is out of range: must be >= {meta['ge']}{unit}"
     if meta.get("lt") is not None and not value < meta["lt"]:
-        return f"{value}{unit} is out of range: must be < {meta['lt']}{unit}"
+        return f"{_show(value)}{unit} is out of range: must be < {meta['lt']}{unit}"
     if meta.get("le") is not None and not value <= meta["le"]:
-        return f"{value}{unit} is out of range: must be <= {meta['le']}{unit}"
+        return f"{_show(value)}{unit} is out of range: must be <= {meta['le']}{unit}"
     return None
 
 
@@ -357,11 +371,18 @@ def _apply_override(data: dict[str, Any], item: str, col: _Collector) -> str | N
         return None
     path, text = item.split("=", 1)
     parts = [p.strip() for p in path.strip().split(".")]
+    if len(parts) == 1 and parts[0] in _SECTIONS and _SECTIONS[parts[0]].many:  # scenario=[{...}, ...]
+        data[parts[0]] = _parse_value(text)
+        return parts[0]
     if len(parts) < 2 or not all(parts):
         col.lines.append(f"--set {item}: expected TABLE.KEY=VALUE")
         return None
     node: Any = data
-    for part in parts[:-1]:
+    for i, part in enumerate(parts[:-1]):
+        if isinstance(node, dict) and part not in node and parts[i + 1].isdigit():
+            col.lines.append(f"--set {item}: the config has no [[{part}]] array to index (replace it whole: "
+                             f"--set '{part}=[{{...}}, ...]')")
+            return None
         if isinstance(node, list):
             if not part.isdigit() or int(part) >= len(node):
                 col.lines.append(f"--set {item}: no item {part} in this array")
@@ -383,22 +404,90 @@ def default_config_text() -> str:
     return resources.files("hilbench").joinpath("data", DEFAULT_CONFIG_NAME).read_text(encoding="utf-8")
 
 
-def load_config(path: str | Path | None = None, overrides: Sequence[str] = ()) -> BenchConfig:
-    """Read, merge `overrides` ("table.key=value", TOML value syntax), validate everything, build."""
-    import hilbench.bench.settings  # noqa: F401 - registers the bench's tables, whoever imported first
-    if path is None:
-        source = f"<packaged {DEFAULT_CONFIG_NAME}>"
-        text = default_config_text()
-    else:
-        source = str(path)
-        try:
-            text = Path(path).read_text(encoding="utf-8")
-        except OSError as exc:
-            raise ConfigError(f"{source}: cannot read: {exc.strerror or exc}") from None
+def _parse_toml(text: str, source: str) -> dict[str, Any]:
+    """tomllib, with every failure one line naming the file."""
     try:
-        data = tomllib.loads(text)
+        return tomllib.loads(text)
     except tomllib.TOMLDecodeError as exc:
-        raise ConfigError(f"{source}: not valid TOML: {exc}") from None
+        raise ConfigError(f"{source}: not valid TOML: {str(exc).splitlines()[0]}") from None
+    except RecursionError:
+        raise ConfigError(f"{source}: not valid TOML for hilbench: arrays or tables nested too deep") from None
+
+
+#: how many configs an `extends` chain may hold
+MAX_EXTENDS_DEPTH = 8
+PACKAGED_PREFIX = "packaged"
+
+
+def _read_text(path: Path, source: str) -> str:
+    try:
+        raw = path.read_bytes()
+    except OSError as exc:
+        raise ConfigError(f"{source}: cannot read: {exc.strerror or exc}") from None
+    try:
+        return raw.decode("utf-8")
+    except UnicodeDecodeError as exc:
+        raise ConfigError(f"{source}: not UTF-8 (byte {exc.start}); TOML files are UTF-8 text") from None
+
+
+def _merge(base: dict[str, Any], child: Mapping[str, Any]) -> dict[str, Any]:
+    """``child`` over ``base``: tables merge key by key; arrays of tables ([[adc]], [[scenario]]) and
+    values are replaced whole."""
+    out = dict(base)
+    for key, value in child.items():
+        if isinstance(value, dict) and isinstance(out.get(key), dict):
+            out[key] = _merge(out[key], value)
+        else:
+            out[key] = value
+    return out
+
+
+def _load_data(path: Path | None, source: str, chain: tuple[str, ...] = ()) -> dict[str, Any]:
+    """A config file's tables with its ``extends = "other.toml"`` chain merged under them
+    (``extends = "packaged"``: the packaged default; a relative name is beside the file)."""
+    text = default_config_text() if path is None else _read_text(path, source)
+    data = _parse_toml(text, source)
+    base = data.pop("extends", None)
+    if base is None:
+        return data
+    if not isinstance(base, str) or not base.strip():
+        raise ConfigError(f"{source}: extends: expected a config file name (or \"packaged\"), got {_show(base)}")
+    if len(chain) >= MAX_EXTENDS_DEPTH:
+        raise ConfigError(f"{source}: extends: more than {MAX_EXTENDS_DEPTH} configs in the chain")
+    if base.strip() in (PACKAGED_PREFIX, f"{PACKAGED_PREFIX}:{DEFAULT_CONFIG_NAME}"):
+        parent_path, parent_source = None, f"<packaged {DEFAULT_CONFIG_NAME}>"
+    else:
+        parent_path = Path(base) if path is None or Path(base).is_absolute() else path.parent / base
+        parent_source = str(parent_path)
+    key = parent_source if parent_path is None else str(parent_path.resolve())
+    if key in chain:
+        raise ConfigError(f"{source}: extends {base!r}: a loop ({' -> '.join(chain + (key,))})")
+    parent = _load_data(parent_path, parent_source, chain + (key,))
+    return _merge(parent, data)
+
+
+def load_scenario_file(path: str | Path) -> list[Any]:
+    """The [[scenario]] entries of a file (`--scenario FILE`): a file of [[scenario]] tables."""
+    source = str(path)
+    data = _parse_toml(_read_text(Path(path), source), source)
+    unknown = sorted(set(data) - {"scenario"})
+    if unknown or not isinstance(data.get("scenario"), list):
+        raise ConfigError(f"{source}: a scenario file holds [[scenario]] tables only"
+                          + (f" (found [{unknown[0]}])" if unknown else " (none found)"))
+    return list(data["scenario"])
+
+
+def load_config(path: str | Path | None = None, overrides: Sequence[str] = (), *,
+                scenario_path: str | Path | None = None) -> BenchConfig:
+    """Read (with its `extends` chain), merge `overrides` ("table.key=value", TOML value syntax;
+    "scenario=[...]" replaces a whole array of tables) and a scenario file, validate, build."""
+    import hilbench.bench.settings  # noqa: F401 - registers the bench's tables, whoever imported first
+    source = f"<packaged {DEFAULT_CONFIG_NAME}>" if path is None else str(path)
+    data = _load_data(None if path is None else Path(path), source,
+                      () if path is None else (str(Path(path).resolve()),))
+    if scenario_path is not None:
+        data["scenario"] = load_scenario_file(scenario_path)
+    in_file = set(data)
     override_keys: set[str] = set()
     col = _Collector(source, override_keys)
     for item in overrides:
@@ -407,7 +496,9 @@ def load_config(path: str | Path | None = None, overrides: Sequence[str] = ()) -
             override_keys.add(key)
     for key in data:
         if key not in _SECTIONS:
-            col.add("", "", f"unknown table [{key}]{_suggest(key, list(_SECTIONS))}")
+            culprit = next((item for item in overrides if item.split("=", 1)[0].strip().split(".")[0] == key), None)
+            where = f"--set {culprit.split('=', 1)[0].strip()}" if key not in in_file and culprit else col.source
+            col.lines.append(f"{where}: unknown table [{key}]{_suggest(key, list(_SECTIONS))}")
     built: dict[str, Any] = {}
     chosen = [sec for sec in _SECTIONS.values() if sec.chooser is not None]
     for name, sec in _SECTIONS.items():
@@ -432,6 +523,8 @@ def load_config(path: str | Path | None = None, overrides: Sequence[str] = ()) -
             built[name] = obj
     for sec in chosen:
         _build_chosen(sec, data, built, col)
+    if not col.lines:
+        _check_integrator(built, col)
     if col.lines:
         err = ConfigError("\n".join(col.lines))
         err.lines = list(col.lines)  # type: ignore[attr-defined]
@@ -439,6 +532,48 @@ def load_config(path: str | Path | None = None, overrides: Sequence[str] = ()) -
     if "adc" in built and "adc" not in data and "inverter" in built:
         built["adc"] = default_adc_channels(built["inverter"].vbus_v)
     return BenchConfig(sections=types.MappingProxyType(built), source=source)
+
+
+#: RK4's stability limit on the negative real axis is |lambda dt| < 2.785; keep a margin
+RK4_MAX_LAMBDA_DT = 2.5
+#: the session integrates periods longer than this in chunks of at most this (session.MAX_PLANT_STEP_US)
+PLANT_CHUNK_US = 50
+
+
+def _check_integrator(built: Mapping[str, Any], col: _Collector) -> None:
+    """Refuse a motor whose fastest mode the plant's RK4 step cannot follow (it would diverge).
+
+    The fastest rates of the motor: electrical R/L, mechanical B/J and the electromechanical
+    oscillation sqrt(1.5 p^2 psi^2 / (L J)) (the speed/current loop through the back-EMF). Each
+    times the RK4 step (the period in chunks of at most 50 us, divided by [plant] substeps) must
+    stay under RK4's stability limit."""
+    motor, link, plant = built.get("motor"), built.get("link"), built.get("plant")
+    if motor is None or plant is None:
+        return
+    period_us = getattr(link, "period_us", PLANT_CHUNK_US)
+    chunk_s = period_us * 1e-6 / max(1, math.ceil(period_us / PLANT_CHUNK_US))
+    try:
+        m = motor.to_params()
+        l_min = min(m.ld_h, m.lq_h)
+        rates = {  # the keys each rate depends on: the first one overridden is blamed
+            ("l_h", "ld_h", "lq_h", "rs_ohm"): (m.rs_ohm / l_min, f"R/L = {m.rs_ohm:g} ohm / {l_min:g} H"),
+            ("b_nms_per_rad", "j_kgm2"): (m.b_nms_per_rad / m.j_kgm2, f"B/J = {m.b_nms_per_rad:g} / {m.j_kgm2:g} kg*m^2"),
+            ("j_kgm2", "l_h", "ld_h", "lq_h", "ke_v_per_krpm", "psi_wb", "pole_pairs"): (
+                math.sqrt(1.5 * m.pole_pairs**2 * m.psi_wb**2 / (l_min * m.j_kgm2)),
+                "the back-EMF loop sqrt(1.5 p^2 psi^2/(L J))"),
+        }
+    except (ArithmeticError, ValueError):
+        col.add("motor", "", "these values overflow the plant's equations")
+        return
+    for keys, (rate, what) in rates.items():
+        needed = rate * chunk_s / RK4_MAX_LAMBDA_DT
+        if not math.isfinite(needed) or needed > plant.substeps:
+            n = "over 10^12" if not math.isfinite(needed) or needed > 1e12 else str(math.ceil(needed))
+            present = [k for k in keys if getattr(motor, k, None) is not None]
+            key = next((k for k in present if f"motor.{k}" in col.override_keys), present[0])
+            col.add("motor", key, f"too stiff for the plant's integrator: {what} is {rate:.3g}/s, so a "
+                                  f"{period_us} us period needs {n} [plant] substeps (have {plant.substeps}, at most 64)")
+            return
 
 
 def _build_chosen(sec: _Section, data: Mapping[str, Any], built: dict[str, Any], col: _Collector) -> None:
@@ -467,6 +602,7 @@ def plant_params_from_config(cfg: BenchConfig) -> PlantParams:
         encoder=cfg.encoder,
         adc=tuple(cfg.adc),
         load=cfg.load,
+        protection=cfg.protection,
     )
 
 

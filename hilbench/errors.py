@@ -68,10 +68,25 @@ class RecordingError(HilbenchError):
     kind = "recording error"
 
 
+class SimulationError(HilbenchError):
+    """The plant's integration left the physical (a diverging plant: too stiff for its step, or
+    driven far past anything the config describes)."""
+
+    exit_code = 7
+    kind = "simulation error"
+
+
+class BenchLimitError(HilbenchError):
+    """A bench limit ended the run (overspeed, bus over-voltage): what a dyno's guard would stop."""
+
+    exit_code = 8
+    kind = "bench limit"
+
+
 class CheckFailed(HilbenchError):
     """The run completed but a `[[check]]` of its config failed (hilbench.bench.checks)."""
 
-    exit_code = 7
+    exit_code = 9
     kind = "check failed"
 
 
@@ -87,5 +102,7 @@ __all__ = [
     "TargetError",
     "ParamError",
     "RecordingError",
+    "SimulationError",
+    "BenchLimitError",
     "CheckFailed",
 ]

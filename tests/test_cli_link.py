@@ -57,7 +57,7 @@ def _read_line(proc: subprocess.Popen, timeout_s: float) -> str:
 
 @pytest.mark.slow
 def test_emulate_pty_prints_path_and_exits_when_host_hangs_up() -> None:
-    proc = subprocess.Popen([sys.executable, "-m", "hilbench", "emulate", "loopback", "--port", "pty"],
+    proc = subprocess.Popen([sys.executable, "-m", "hilbench", "emulate", "loopback", "--port", "pty", "--once"],
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, cwd=REPO_ROOT)
     try:
         path = _read_line(proc, 30)

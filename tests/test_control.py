@@ -134,7 +134,7 @@ def test_directory_0700_socket_0600_owned_by_user(server: ControlServer) -> None
 
 def test_discovery_file_names_socket(server: ControlServer, tmpdir_short: Path) -> None:
     lines = (tmpdir_short / "current").read_text().splitlines()
-    assert lines == [str(server.path), str(os.getpid())]
+    assert lines[:2] == [str(server.path), str(os.getpid())]  # then a JSON line (start time, cwd)
     assert stat.S_IMODE(os.stat(tmpdir_short / "current").st_mode) & 0o077 == 0
 
 
@@ -166,11 +166,12 @@ def test_default_discovery_file_locations(monkeypatch: pytest.MonkeyPatch, tmpdi
 
 def test_socket_under_xdg_runtime_dir(monkeypatch: pytest.MonkeyPatch, tmpdir_short: Path) -> None:
     monkeypatch.setenv("XDG_RUNTIME_DIR", str(tmpdir_short))
-    with ControlServer() as srv:  # default discovery file, inside the fake runtime dir
+    with ControlServer() as srv:  # its own discovery file, inside the fake runtime dir (issue 16, item 13)
         assert srv.directory.parent == tmpdir_short
-        assert (tmpdir_short / "hilbench" / "current").read_text().splitlines()[0] == str(srv.path)
-        assert stat.S_IMODE(os.stat(tmpdir_short / "hilbench").st_mode) == 0o700
-    assert not (tmpdir_short / "hilbench" / "current").exists()
+        assert srv.discovery_file is not None and srv.discovery_file.parent == tmpdir_short / "hilbench" / "sessions"
+        assert srv.discovery_file.read_text().splitlines()[0] == str(srv.path)
+        assert stat.S_IMODE(os.stat(tmpdir_short / "hilbench" / "sessions").st_mode) == 0o700
+    assert not srv.discovery_file.exists()
 
 
 # ---- requests ----------------------------------------------------------------------------

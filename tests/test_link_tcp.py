@@ -59,7 +59,7 @@ def served():
 
 
 def lockstep(link: Any, script: list[Sensors]) -> list[Any]:
-    remote = RemoteTarget(link, timeout_s=2.0)
+    remote = RemoteTarget(link, timeout_s=2.0, retry_s=2.0)  # no retries: the frame counts below are exact
     hello = remote.handshake(PERIOD_US, MODE_LOCKSTEP, 0, attempts=3)
     assert hello.firmware_name.upper().startswith("AN1017")
     return [remote.step(s) for s in script]

@@ -56,10 +56,11 @@ def test_start_stop_and_s2_edges() -> None:
     t.stop()
     assert t.step(s).state == 0
     pressed = s._replace(inputs=1 | S2)
-    assert t.step(pressed).state == 2  # rising S2 starts
-    assert t.step(pressed).state == 2  # held: no new edge
-    assert t.step(s).state == 2  # released
-    assert t.step(pressed).state == 0  # the next press stops
+    # one seq per period (a repeated seq is a duplicated frame: answered again, no step)
+    assert t.step(pressed._replace(seq=1)).state == 2  # rising S2 starts
+    assert t.step(pressed._replace(seq=2)).state == 2  # held: no new edge
+    assert t.step(s._replace(seq=3)).state == 2  # released
+    assert t.step(pressed._replace(seq=4)).state == 0  # the next press stops
 
 
 def test_hello_starts_stopped() -> None:

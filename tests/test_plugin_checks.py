@@ -1,5 +1,5 @@
 """[[check]] tables: each kind judged against hand-derived figures on synthetic signals, the
-config's validation, and the CLI's exit code 7 (the runaway and the servo-with-AN1017 runs)."""
+config's validation, and the CLI's exit code 9 (the runaway and the servo-with-AN1017 runs)."""
 
 from __future__ import annotations
 
@@ -156,7 +156,7 @@ def test_the_runaway_and_the_servo_with_the_an1017_firmware_exit_7(tmp_path: Pat
         (1.2, "ref_rpm = 2500.0"), (2.2, "ref_rpm = -1500.0"), (3.6, 'press = "s2"'), (3.8, "end = true")))
     runaway.write_text((BENCH_CONFIGS / "hurst_mclv.toml").read_text() + scenario)
     run = _cli("run", str(runaway), "--target", "inprocess:an1017", "--no-ui", "--no-control")
-    assert run.returncode == CheckFailed.exit_code == 7, run.stderr
+    assert run.returncode == CheckFailed.exit_code == 9, run.stderr
     assert "check speed_limit: FAIL" in run.stdout and "check speed_error: FAIL" in run.stdout
     assert run.stderr.startswith("hilbench: check failed: ") and len(run.stderr.strip().splitlines()) == 1
     # the servo config names its own firmware's options now: with the AN1017 target it is refused
@@ -172,7 +172,7 @@ def test_the_runaway_and_the_servo_with_the_an1017_firmware_exit_7(tmp_path: Pat
     motor_only = tmp_path / "servo_motor.toml"
     motor_only.write_text("\n".join(kept) + "\n")
     servo = _cli("run", str(motor_only), "--target", "inprocess:an1017", "--json", "--no-control")
-    assert servo.returncode == 7, servo.stderr
+    assert servo.returncode == 9, servo.stderr
     failed = [c for c in json.loads(servo.stdout)["checks"] if not c["passed"]]
     assert failed[0]["kind"] == "speed_error" and failed[0]["value"] > 50
     own = _cli("run", str(BENCH_CONFIGS / "servo_200w.toml"), "--json", "--no-control")
@@ -184,7 +184,7 @@ def test_step_judges_the_step_kinds(tmp_path: Path) -> None:
     config.write_text((BENCH_CONFIGS / "hurst_mclv.toml").read_text()
                       + '\n[[check]]\nkind = "step_rise_time"\nmax_s = 0.2\n\n[[check]]\nkind = "step_peak_current"\nmax_a = 2.0\n')
     step = _cli("step", str(config), "--json")
-    assert step.returncode == 7, step.stderr
+    assert step.returncode == 9, step.stderr
     rows = json.loads(step.stdout)
     verdicts = {c["kind"]: c for c in rows[0]["checks"]}
     assert not verdicts["step_rise_time"]["passed"] and verdicts["step_peak_current"]["passed"]

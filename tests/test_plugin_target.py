@@ -107,11 +107,15 @@ def test_ctl_sets_and_reads_the_plugins_parameters(tmp_path: Path) -> None:
                                    stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=_env(**env),
                                    cwd=REPO_ROOT)
         try:
-            pointer = Path(runtime) / "hilbench" / "current"
+            sessions = Path(runtime) / "hilbench" / "sessions"  # one discovery file per session
+
+            def published() -> bool:
+                return sessions.is_dir() and any(sessions.glob("*.session"))
+
             deadline = time.monotonic() + 30
-            while not pointer.exists() and time.monotonic() < deadline and process.poll() is None:
+            while not published() and time.monotonic() < deadline and process.poll() is None:
                 time.sleep(0.05)  # polling for the session's socket with a deadline
-            assert pointer.exists(), process.stderr.read() if process.poll() is not None else "no socket"
+            assert published(), process.stderr.read() if process.poll() is not None else "no socket"
             changed = _cli("ctl", "set", "v_per_krpm=33", timeout=30, **env)
             assert changed.returncode == 0, changed.stderr
             got = _cli("ctl", "get", timeout=30, **env)

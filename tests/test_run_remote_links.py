@@ -55,3 +55,13 @@ def test_a_session_over_a_lossy_link_chosen_by_spec_survives() -> None:
     assert summary["end_reason"] == "completed" and summary["periods"] == 6000
     link = summary["link"]
     assert link["frame_errors"] > 0 and link["retries"] > 0  # frames were lost and sent again
+
+
+def test_real_time_over_a_network_link_warns_that_its_latency_adds_to_the_loops() -> None:
+    from hilbench.bench.settings import link_warnings
+    from hilbench.config import load_config
+
+    far = load_config(None, ['link.target="socket://10.0.0.7:5000"', 'run.mode="realtime"', "link.period_us=1000"])
+    assert any("network's latency" in w for w in link_warnings(far))
+    assert link_warnings(load_config(None, ['link.target="socket://10.0.0.7:5000"'])) == []  # lockstep: no effect
+    assert link_warnings(load_config(None, ['run.mode="realtime"', "link.period_us=1000"])) == []

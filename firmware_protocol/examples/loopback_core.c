@@ -19,6 +19,9 @@ static int send_frame(const uint8_t *frame, uint8_t len)
 hbp_rx_t loopback_rx;
 static uint8_t running = 0u;
 static uint8_t last_s2 = 0u;
+/* A Sensors repeating the last seq (a duplicated frame) gets the last Drive again, no second step. */
+static hbp_drive_t last_drive;
+static uint8_t have_last_drive = 0u;
 
 static const hbp_param_def_t param_defs[3] = {
     {"kp", 0, 32767, HBP_PTYPE_Q15, HBP_ACCESS_RW},
@@ -104,6 +107,7 @@ int loopback_handle(const uint8_t *buf, uint8_t len)
         t.telemetry_ids[1] = HBP_TELEMETRY_ECHO_EDGE;
         t.telemetry_ids[2] = HBP_TELEMETRY_ECHO_SEQ;
         running = 0u;
+        have_last_drive = 0u;
         return send_frame(frame, hbp_pack_target_hello(&t, frame));
     }
     case HBP_MSG_SENSORS: {
@@ -112,6 +116,9 @@ int loopback_handle(const uint8_t *buf, uint8_t len)
         uint8_t s2;
         if (hbp_unpack_sensors(buf, len, &s) != HBP_ERROR_NONE) {
             return send_error(seq, HBP_ERROR_LENGTH, type);
+        }
+        if (have_last_drive && s.seq == last_drive.seq) {
+            return send_frame(frame, hbp_pack_drive(&last_drive, frame));
         }
         s2 = (uint8_t)((s.inputs & HBP_INPUT_S2) != 0u);
         if (s2 && !last_s2) {
@@ -132,6 +139,8 @@ int loopback_handle(const uint8_t *buf, uint8_t len)
         d.telemetry[0] = as_int16(s.encoder);
         d.telemetry[1] = as_int16(s.edge_time_100ns);
         d.telemetry[2] = (int16_t)s.seq;
+        last_drive = d;
+        have_last_drive = 1u;
         return send_frame(frame, hbp_pack_drive(&d, frame));
     }
     case HBP_MSG_PARAM_DESCRIBE: {
@@ -169,6 +178,7 @@ int loopback_handle(const uint8_t *buf, uint8_t len)
             return send_error(seq, HBP_ERROR_LENGTH, type);
         }
         running = (uint8_t)(type == HBP_MSG_START);
+        have_last_drive = 0u;
         return 0;
     case HBP_MSG_STATUS_REQUEST: {
         hbp_status_t st;

@@ -5,7 +5,7 @@ from __future__ import annotations
 import os
 from typing import Callable, Mapping, Sequence
 
-from hilbench.bench.bench import _as_config
+from hilbench.bench.bench import as_config
 from hilbench.bench.run import in_process, run_step_tests, settings_profile
 from hilbench.bench.steptest import StepResult, StepTest, require_speed_loop
 from hilbench.bench.sweep import SweepResult, Tolerances, sweep_grid
@@ -25,7 +25,7 @@ def step_test(
 ) -> StepResult:
     """One speed step on a fresh target (default: the configured target's in-process model) with
     ``params`` written first; returns the response and its metrics (rise, overshoot, settling, …)."""
-    cfg = _as_config(config, target, overrides)
+    cfg = as_config(config, target, overrides)
     if target is None:
         cfg = in_process(cfg)
     require_speed_loop(settings_profile(cfg), "step_test")
@@ -52,7 +52,7 @@ def sweep(
     ``executor`` (None: a local process pool of ``workers``, one per core by default; "local-dask:N";
     a Dask scheduler's "tcp://host:8786"), worst case over motor ``tolerances``, appending finished
     points to ``store`` (a restarted sweep runs only the missing ones); ranked by ``metric``."""
-    cfg = _as_config(config, None, overrides)
+    cfg = as_config(config, None, overrides)
     test = StepTest(from_rpm, to_rpm, settle_s, after_s)
     return sweep_grid(cfg, list(axes.items()), test, metric, executor=executor, workers=workers,
                       tolerances=tolerances, store=store, progress=progress)

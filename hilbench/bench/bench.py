@@ -63,7 +63,7 @@ class Signals(Mapping[str, np.ndarray]):
         return self.units.get(name, "")
 
 
-def _as_config(config: BenchConfig | str | os.PathLike[str] | None, target: str | None,
+def as_config(config: BenchConfig | str | os.PathLike[str] | None, target: str | None,
                overrides: Sequence[str]) -> BenchConfig:
     if isinstance(config, BenchConfig):
         if not target and not overrides:
@@ -86,11 +86,14 @@ class Bench:
         scenario: bool = False,
         observer: Callable[[Snapshot], None] | None = None,
         control: object | None = None,
+        keep_rows: bool = True,
     ) -> None:
         """``config``: a path, a loaded config or None (the packaged default); ``target``: a target
         spec; ``overrides``: `TABLE.KEY=VALUE` words; ``record``: a .csv/.npz path (default: kept in
-        memory); ``scenario``: play the config's scenario (off: the script drives)."""
-        self.config = _as_config(config, target, overrides)
+        memory); ``scenario``: play the config's scenario (off: the script drives); ``keep_rows=False``
+        without ``record``: keep no rows at all (a run of any length in flat memory; no signals())."""
+        self._keep_rows = keep_rows
+        self.config = as_config(config, target, overrides)
         self._record_path = Path(record) if record is not None else None
         self._play_scenario = scenario
         self._observer = observer
@@ -99,6 +102,7 @@ class Bench:
         self._pinning: CpuPinning | None = None
         self.session: Session | None = None
         self.recorder: Recorder | MemoryRecorder | None = None
+        self.warnings: list[str] = []  # what the caller should tell the user before the run
 
     # ------------------------------------------------------------------ open and close
     def open(self) -> "Bench":
@@ -107,6 +111,7 @@ class Bench:
 
         cfg = self.config
         options = dataclasses.replace(settings.session_options(cfg), seed=settings.effective_seed(cfg))
+        self.warnings = settings.link_warnings(cfg)
         events = settings.scenario_events(cfg) if self._play_scenario else ()
         profile = configured_profile(cfg)
         plant = Plant(plant_params_from_config(cfg), seed=options.seed, substeps=cfg.plant.substeps)
@@ -138,7 +143,7 @@ class Bench:
             raise
         return self
 
-    def _make_recorder(self, hello: TargetHello, session: Session, period_us: int) -> Recorder | MemoryRecorder:
+    def _make_recorder(self, hello: TargetHello, session: Session, period_us: int) -> Recorder | MemoryRecorder | None:
         cfg = self.config
         metadata = {
             "hilbench_version": __version__,
@@ -154,7 +159,7 @@ class Bench:
             "mode": session.options.mode,
         }
         if self._record_path is None:
-            return MemoryRecorder(metadata)
+            return MemoryRecorder(metadata) if self._keep_rows else None
         return Recorder(self._record_path, metadata, flush_rows=max(1, round(1e6 / period_us)))
 
     def close(self) -> Summary | None:
@@ -288,7 +293,7 @@ class Bench:
         """The events so far, as text (`t=… what`)."""
         recorder = self.recorder
         if isinstance(recorder, MemoryRecorder):
-            return tuple(text for _, text, _ in recorder.events)
+            return tuple(text for _, text, _ in recorder.events if not text.startswith("segment:"))
         return tuple(self._session.messages)
 
     def summary(self) -> Summary:
@@ -301,10 +306,13 @@ class Bench:
 
 def configured_profile(cfg: BenchConfig) -> TargetProfile | None:
     """The profile the config names (by its target spec, or [link] firmware for a port), else None:
-    a board's profile is then found by the firmware name in its HELLO."""
+    a board's profile is then found by the firmware name in its HELLO.
+    Refuses a plant whose pole pairs differ from the firmware's build (settings.check_motor_build)."""
     if settings.target_name(cfg.link.target) is None and cfg.link.firmware is None:
         return None
-    return settings.target_profile(cfg.link)
+    profile = settings.target_profile(cfg.link)
+    settings.check_motor_build(cfg, profile)
+    return profile
 
 
 def _finite(value: float, what: str) -> float:

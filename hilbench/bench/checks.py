@@ -32,7 +32,7 @@ the target's HELLO): a run of another firmware passes it as "not judged".
 Every result is one line: the check, PASS/FAIL and its figure against the bound. A check that
 cannot be judged fails and says why (no such column, no samples in its window, a `segment = N`
 the run does not have); the segment kinds over every segment pass with "not judged" when no
-segment was held `min_hold_s` (a short run is not a failed one; the other kinds still look at it). The CLI exits with `CheckFailed.exit_code` (7) when one fails.
+segment was held `min_hold_s` (a short run is not a failed one; the other kinds still look at it). The CLI exits with `CheckFailed.exit_code` (9) when one fails.
 """
 
 from __future__ import annotations
@@ -174,7 +174,7 @@ def step_checks(entries: Sequence[CheckEntry], result: "StepResult", firmware: s
 
 
 def raise_if_failed(results: Sequence[CheckResult], where: str = "") -> None:
-    """CheckFailed (exit code 7) naming every failed check, when one failed."""
+    """CheckFailed (exit code 9) naming every failed check, when one failed."""
     failed = [r for r in results if not r.passed]
     if failed:
         what = "; ".join(f"{r.name}: {r.figure}" for r in failed)

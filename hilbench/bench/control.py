@@ -11,8 +11,10 @@ reply line per request ``{"ok": bool, "message": str, "data": object | null}``. 
     {"cmd": "step",  "from_rpm": 1000, "to_rpm": 2000}
     {"cmd": "save",  "file": "gains.toml"}
     {"cmd": "guard", "on": true}                             guarded tuning on/off
-    {"cmd": "press", "button": "s2"}                         the start/stop button
+    {"cmd": "start"}                                         the target's Start command
+    {"cmd": "press", "button": "s2"}                         press a board button (s2, s3)
     {"cmd": "stream", "since": -1, "columns": ["speed_rpm"]} a scope's decimated frames
+    {"cmd": "stop"}                                          end the run
 
 This module checks only the *shape* of a request (known command, the right fields with the
 right JSON types, finite numbers); malformed, oversized, unknown or ill-typed lines are answered
@@ -24,10 +26,14 @@ that is set, else the system temp dir) holding the socket ``ctl.sock`` (mode 060
 directory is what keeps other users out (the socket is chmod-ed after bind, and the directory
 already forbids entry during that instant).
 
-Discovery: the server writes ``<socket path>\\n<pid>\\n`` to ``$XDG_RUNTIME_DIR/hilbench/current``
-(or ``~/.cache/hilbench/current-session`` without ``XDG_RUNTIME_DIR``; the directory is created
-0700), so ``hilbench ctl`` finds the running session without arguments. The newest session
-wins; ``close()`` removes the file only if it still names this server's socket.
+Discovery: each server writes its own file ``<pid>-<name>.session`` holding
+``<socket path>\\n<pid>\\n<JSON: started, cwd>\\n`` into ``$XDG_RUNTIME_DIR/hilbench/sessions/`` (or
+``~/.cache/hilbench/sessions/`` without ``XDG_RUNTIME_DIR``; the directory is created 0700), so
+every running session can be found (``hilbench ctl list``), not only the newest; ``hilbench ctl``
+without ``--socket`` talks to the newest. A server starting removes what dead sessions left
+(``kill -9``): discovery files whose process is gone and ``hilbench-ctl-*`` directories whose
+socket nobody listens on. ``close()`` removes its own file. (An explicit ``discovery_file`` is
+written as before: one file naming the newest server.)
 
 Threading: a daemon I/O thread blocks in a selector, accepts connections, splits lines, parses
 and validates them and appends ``ControlRequest``s to a deque. ``poll()`` on the session thread
@@ -70,15 +76,36 @@ _NAME_RE = re.compile(r"^[A-Za-z_][A-Za-z0-9_.]{0,31}$")
 # Request shape
 
 
+#: the limits of a reference and a load, as a scenario's [[scenario]] events have them (settings.py)
+MAX_REF_RPM = 20000.0
+MAX_LOAD_NM = 1000.0
+#: a parameter value beyond this is no parameter any target declares (checked again by the session)
+MAX_PARAM_ABS = 1e9
+
+
 def _is_number(v: Any) -> bool:
-    return isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v)
+    """A JSON number that is finite and fits a float (a 400-digit integer does not: no OverflowError)."""
+    if isinstance(v, bool) or not isinstance(v, (int, float)):
+        return False
+    if isinstance(v, int):
+        return -(2**63) <= v < 2**63
+    return math.isfinite(v)
 
 
-def _number(cmd: str, key: str) -> Callable[[Any], Any]:
+def _short(v: Any) -> str:
+    try:
+        return json.dumps(v)[:40]
+    except (TypeError, ValueError):
+        return repr(v)[:40]
+
+
+def _number(cmd: str, key: str, limit: float | None = None, unit: str = "") -> Callable[[Any], Any]:
     def check(v: Any) -> Any:
         if not _is_number(v):
-            raise ValueError(f"{cmd}: {key} must be a finite number, got {json.dumps(v)[:40]}")
-        return v
+            raise ValueError(f"{cmd}: {key} must be a finite number, got {_short(v)}")
+        if limit is not None and not -limit <= v <= limit:
+            raise ValueError(f"{cmd}: {key} {v:g}{unit} is out of range (-{limit:g} .. {limit:g}{unit})")
+        return float(v)
 
     return check
 
@@ -93,7 +120,9 @@ def _check_params(v: Any) -> dict[str, int | float]:
         if not _NAME_RE.match(name):
             raise ValueError(f"set: bad parameter name {name[:40]!r}")
         if not _is_number(value):
-            raise ValueError(f"set: {name} must be a finite number, got {json.dumps(value)[:40]}")
+            raise ValueError(f"set: {name} must be a finite number, got {_short(value)}")
+        if abs(value) > MAX_PARAM_ABS:
+            raise ValueError(f"set: {name} = {value:g} is out of any parameter's range (|value| <= {MAX_PARAM_ABS:g})")
         out[name] = value
     return out
 
@@ -118,13 +147,13 @@ def _check_since(v: Any) -> int:
 
 def _check_button(v: Any) -> str:
     if v not in ("s2", "s3"):
-        raise ValueError(f"press: button must be \"s2\" or \"s3\", got {json.dumps(v)[:40]}")
+        raise ValueError(f"press: button must be \"s2\" or \"s3\", got {_short(v)}")
     return str(v)
 
 
 def _check_bool(v: Any) -> bool:
     if not isinstance(v, bool):
-        raise ValueError(f"guard: on must be true or false, got {json.dumps(v)[:40]}")
+        raise ValueError(f"guard: on must be true or false, got {_short(v)}")
     return v
 
 
@@ -133,12 +162,14 @@ COMMANDS: Mapping[str, Mapping[str, Callable[[Any], Any]]] = MappingProxyType(
     {
         "get": {},
         "set": {"params": _check_params},
-        "ref": {"rpm": _number("ref", "rpm")},
-        "load": {"nm": _number("load", "nm")},
-        "step": {"from_rpm": _number("step", "from_rpm"), "to_rpm": _number("step", "to_rpm")},
+        "ref": {"rpm": _number("ref", "rpm", MAX_REF_RPM, " rpm")},
+        "load": {"nm": _number("load", "nm", MAX_LOAD_NM, " N*m")},
+        "step": {"from_rpm": _number("step", "from_rpm", MAX_REF_RPM, " rpm"),
+                 "to_rpm": _number("step", "to_rpm", MAX_REF_RPM, " rpm")},
         "save": {"file": _check_file},
         "guard": {"on": _check_bool},
         "stop": {},
+        "start": {},
         "press": {"button": _check_button},
         "stream": {"since": _check_since, "columns": _check_columns},  # the scope (hilbench.scope.stream)
     }
@@ -190,8 +221,131 @@ def _private_dir(path: Path) -> None:
         raise ConfigError(f"control directory {path}: mode {stat.S_IMODE(st.st_mode):o} lets other users in (want 700)")
 
 
+def sessions_dir() -> Path:
+    """The per-user directory of discovery files, one per running session."""
+    runtime = os.environ.get("XDG_RUNTIME_DIR")
+    if runtime and os.path.isdir(runtime):
+        return Path(runtime) / "hilbench" / "sessions"
+    return Path.home() / ".cache" / "hilbench" / "sessions"
+
+
+def _pid_alive(pid: int) -> bool:
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:
+        return True
+    except (OverflowError, ValueError):
+        return False
+    return True
+
+
+def _listening(path: Path) -> bool:
+    probe = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
+    try:
+        probe.settimeout(0.5)
+        probe.connect(str(path))
+        return True
+    except OSError:
+        return False
+    finally:
+        probe.close()
+
+
+@dataclass(frozen=True)
+class SessionInfo:
+    """One running session as its discovery file names it."""
+
+    socket_path: Path
+    pid: int
+    started_s: float
+    cwd: str
+    file: Path
+
+
+def _read_session_file(f: Path) -> SessionInfo | None:
+    try:
+        lines = f.read_text(encoding="utf-8").splitlines()
+        extra = json.loads(lines[2]) if len(lines) > 2 else {}
+        return SessionInfo(Path(lines[0].strip()), int(lines[1]), float(extra.get("started_s", 0.0)),
+                           str(extra.get("cwd", "")), f)
+    except (OSError, IndexError, ValueError, UnicodeDecodeError, AttributeError):
+        return None
+
+
+def list_sessions(directory: Path | None = None) -> list[SessionInfo]:
+    """The running sessions (newest first); files of dead ones are skipped (and removed)."""
+    d = directory or sessions_dir()
+    try:
+        files = sorted(d.glob("*.session"))
+    except OSError:
+        return []
+    out = []
+    for f in files:
+        info = _read_session_file(f)
+        if info is None or not _pid_alive(info.pid) or not info.socket_path.exists():
+            try:
+                if info is None or not _pid_alive(info.pid):
+                    f.unlink()
+            except OSError:
+                pass
+            continue
+        out.append(info)
+    return sorted(out, key=lambda i: (i.started_s, i.pid), reverse=True)
+
+
+def clean_stale(directory: Path | None = None, temp_base: Path | None = None) -> int:
+    """Remove what killed sessions left: discovery files of dead processes and ``hilbench-ctl-*``
+    directories (ours) whose socket nobody listens on. Returns how many things were removed."""
+    removed = 0
+    d = directory or sessions_dir()
+    try:
+        files = list(d.glob("*.session"))
+    except OSError:
+        files = []
+    for f in files:
+        info = _read_session_file(f)
+        if info is None or not _pid_alive(info.pid):
+            try:
+                f.unlink()
+                removed += 1
+            except OSError:
+                pass
+    runtime = os.environ.get("XDG_RUNTIME_DIR")
+    bases = {temp_base} if temp_base is not None else {Path(tempfile.gettempdir())} | (
+        {Path(runtime)} if runtime and os.path.isdir(runtime) else set())
+    for base in bases:
+        try:
+            candidates = list(base.glob("hilbench-ctl-*"))
+        except OSError:
+            continue
+        for cand in candidates:
+            try:
+                st = cand.lstat()
+                if not stat.S_ISDIR(st.st_mode) or st.st_uid != os.getuid():
+                    continue
+                sock = cand / SOCKET_NAME
+                if sock.exists() and _listening(sock):
+                    continue
+                if time.time() - st.st_mtime < 2.0 and not sock.exists():
+                    continue  # a server being set up right now
+                for child in cand.iterdir():
+                    child.unlink()
+                cand.rmdir()
+                removed += 1
+            except OSError:
+                continue
+    return removed
+
+
 def read_discovery(discovery_file: Path | None = None) -> Path:
-    """Socket path of the running session from the discovery file; LinkError if there is none."""
+    """Socket path of the running session (the newest of the per-session files, or the named
+    discovery file); LinkError if there is none."""
+    if discovery_file is None:
+        sessions = list_sessions()
+        if sessions:
+            return sessions[0].socket_path
     f = discovery_file or default_discovery_file()
     try:
         first = f.read_text(encoding="utf-8").splitlines()[0].strip()
@@ -295,8 +449,13 @@ class ControlServer:
             self._sel.register(self._listener, selectors.EVENT_READ, None)
             self._sel.register(self._wake_r, selectors.EVENT_READ, None)
             if publish:
-                self.discovery_file = Path(discovery_file) if discovery_file is not None else default_discovery_file()
-                self._publish(self.discovery_file)
+                if discovery_file is not None:
+                    self.discovery_file = Path(discovery_file)
+                    self._publish(self.discovery_file)
+                else:
+                    clean_stale()
+                    self.discovery_file = sessions_dir() / f"{os.getpid()}-{self.directory.name}.session"
+                    self._publish(self.discovery_file)
         except (OSError, ConfigError) as exc:
             self._listener.close()
             self._sel.close()
@@ -365,8 +524,9 @@ class ControlServer:
         _private_dir(f.parent)
         tmp = f.with_name(f".{f.name}.{os.getpid()}.tmp")
         fd = os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_TRUNC, 0o600)
+        info = json.dumps({"started_s": time.time(), "cwd": os.getcwd()})
         with os.fdopen(fd, "w", encoding="utf-8") as fh:
-            fh.write(f"{self.path}\n{os.getpid()}\n")
+            fh.write(f"{self.path}\n{os.getpid()}\n{info}\n")
         os.replace(tmp, f)
 
     def _cleanup_fs(self) -> None:
@@ -527,7 +687,15 @@ class ControlServer:
         conn.wbuf += _reply_line(False, reason, None, request_id)
 
     def _handle_line(self, conn: _Conn, line: bytes) -> bool:
-        """Queue a valid request for the session; answer a bad one here. True if answered here."""
+        """Queue a valid request for the session; answer a bad one here. True if answered here.
+        Nothing a client sends may end the I/O thread: every failure becomes a one-line reply."""
+        try:
+            return self._handle_line_unguarded(conn, line)
+        except Exception as exc:  # noqa: BLE001 - the thread must survive any request
+            self._reject(conn, None, f"request refused: {type(exc).__name__}", "malformed")
+            return True
+
+    def _handle_line_unguarded(self, conn: _Conn, line: bytes) -> bool:
         try:
             obj = json.loads(line.decode("utf-8"))
         except UnicodeDecodeError:
@@ -535,6 +703,9 @@ class ControlServer:
             return True
         except json.JSONDecodeError as exc:
             self._reject(conn, None, f"malformed JSON: {exc.msg} at column {exc.colno}", "malformed")
+            return True
+        except (ValueError, RecursionError) as exc:  # an integer of over 4300 digits, nesting too deep
+            self._reject(conn, None, f"malformed JSON: {str(exc).splitlines()[0][:80]}", "malformed")
             return True
         rid = obj.get("id") if isinstance(obj, dict) else None
         if not (isinstance(rid, (str, int)) and not isinstance(rid, bool)):
@@ -640,19 +811,21 @@ class ControlClient:
 # CLI words
 
 
-_USAGE = "get | set NAME=VALUE ... | ref RPM | load NM | step FROM_RPM TO_RPM | save FILE | guard on|off | stop"
+_USAGE = ("get | set NAME=VALUE ... | ref RPM | load NM | step FROM_RPM TO_RPM | save FILE | guard on|off | start | "
+          "press s2|s3 | stop | list")
 
 
 def _parse_number(cmd: str, what: str, word: str) -> int | float:
+    shown = word if len(word) <= 24 else word[:20] + "..."
     try:
         value: int | float = int(word, 10)
     except ValueError:
         try:
             value = float(word)
         except ValueError:
-            raise ConfigError(f"ctl {cmd}: {what} {word!r} is not a number") from None
-    if not math.isfinite(value):
-        raise ConfigError(f"ctl {cmd}: {what} {word!r} is not finite")
+            raise ConfigError(f"ctl {cmd}: {what} {shown!r} is not a number") from None
+    if not _is_number(value):
+        raise ConfigError(f"ctl {cmd}: {what} {shown!r} is not finite or too large")
     return value
 
 
@@ -661,7 +834,7 @@ def parse_ctl_args(words: Sequence[str]) -> dict[str, Any]:
     if not words:
         raise ConfigError(f"ctl: missing command (usage: {_USAGE})")
     cmd, rest = words[0], list(words[1:])
-    counts = {"get": 0, "ref": 1, "load": 1, "step": 2, "save": 1, "guard": 1, "stop": 0}
+    counts = {"get": 0, "ref": 1, "load": 1, "step": 2, "save": 1, "guard": 1, "stop": 0, "start": 0, "press": 1}
     if cmd == "set":
         if not rest:
             raise ConfigError("ctl set: give at least one NAME=VALUE (e.g. set kp=0.1 ki=0.01)")
@@ -679,12 +852,15 @@ def parse_ctl_args(words: Sequence[str]) -> dict[str, Any]:
         req: dict[str, Any] = {"cmd": "set", "params": params}
     elif cmd in counts:
         if len(rest) != counts[cmd]:
-            expected = {"get": "no arguments", "stop": "no arguments", "ref": "one speed in rpm", "load": "one torque in N·m",
+            expected = {"get": "no arguments", "stop": "no arguments", "start": "no arguments", "press": "s2 or s3",
+                        "ref": "one speed in rpm", "load": "one torque in N·m",
                         "step": "two speeds in rpm (from, to)", "save": "one file name",
                         "guard": "on or off"}[cmd]
             raise ConfigError(f"ctl {cmd}: expected {expected}, got {len(rest)} word(s)")
-        if cmd in ("get", "stop"):
+        if cmd in ("get", "stop", "start"):
             req = {"cmd": cmd}
+        elif cmd == "press":
+            req = {"cmd": "press", "button": rest[0].lower()}
         elif cmd == "ref":
             req = {"cmd": "ref", "rpm": _parse_number("ref", "speed", rest[0])}
         elif cmd == "load":
@@ -718,4 +894,8 @@ __all__ = [
     "parse_ctl_args",
     "default_discovery_file",
     "read_discovery",
+    "sessions_dir",
+    "list_sessions",
+    "clean_stale",
+    "SessionInfo",
 ]

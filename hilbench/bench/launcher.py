@@ -23,6 +23,7 @@ from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any, Callable
 
 from hilbench.errors import ConfigError, LinkError
+from hilbench.processes import reap
 from hilbench.targets.base import Target
 from hilbench.targets.profile import TargetProfile
 
@@ -76,18 +77,6 @@ class TargetHandle:
 
     def __exit__(self, *exc: object) -> None:
         self.close()
-
-
-def reap(process: subprocess.Popen[bytes], timeout_s: float = 3.0) -> int:
-    """Terminate a child and wait for it; kill it if it will not go."""
-    if process.poll() is None:
-        process.terminate()
-        try:
-            process.wait(timeout=timeout_s)
-        except subprocess.TimeoutExpired:
-            process.kill()
-            process.wait(timeout=timeout_s)
-    return process.returncode
 
 
 def open_target(

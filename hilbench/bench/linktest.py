@@ -47,6 +47,9 @@ class LinkTestResult:
     link: dict[str, int] = field(default_factory=dict)
     remote: dict[str, int] = field(default_factory=dict)
     target_status: dict[str, int] = field(default_factory=dict)
+    #: Ctrl-C ended the test early: the figures are those of the periods run (``attempted``)
+    interrupted: bool = False
+    attempted: int = 0
 
     @property
     def errors(self) -> int:
@@ -165,11 +168,16 @@ def run_link_test(target: str = DEFAULT_TARGET, *, periods: int = 10_000, period
         clock = time.perf_counter_ns
         every = max(1, periods // 100)
         t_start = clock()
+        interrupted = False
+        attempted = 0
         for k in range(periods):
             sensors = sensors_for_period(k)
             t0 = clock()
             try:
                 drive = step(sensors)
+            except KeyboardInterrupt:  # Ctrl-C: keep the figures so far (issue 16, item 18)
+                interrupted = True
+                break
             except LinkTimeout:
                 timeouts += 1
                 consecutive += 1
@@ -183,11 +191,16 @@ def run_link_test(target: str = DEFAULT_TARGET, *, periods: int = 10_000, period
             consecutive = 0
             if check is not None and drive != check.step(sensors):
                 mismatches += 1
+            attempted = k + 1
             if progress is not None and k % every == 0:
                 progress(k)
+        else:
+            attempted = periods
         elapsed_s = (clock() - t_start) / 1e9
         status: dict[str, int] = {}
         try:
+            if interrupted:
+                raise LinkError("interrupted: no status request")
             st = remote.status()
             status = {name: int(getattr(st, name)) for name in st._fields if name != "seq"}
         except LinkError:
@@ -208,6 +221,8 @@ def run_link_test(target: str = DEFAULT_TARGET, *, periods: int = 10_000, period
             link=link.stats.as_dict(),
             remote={"stale_frames": remote.stale_frames, "error_reports": remote.error_reports},
             target_status=status,
+            interrupted=interrupted,
+            attempted=attempted,
         )
     finally:
         if spawned is not None:

@@ -12,6 +12,7 @@ from typing import Callable
 
 from hilbench.bench.clock import Pacer
 from hilbench.bench.recorder import MARKER_SKIPPED
+from hilbench.bench.streamstats import StreamingPercentiles
 from hilbench.errors import HilbenchError
 from hilbench.protocol import Drive, Sensors
 
@@ -29,8 +30,8 @@ class RealtimePacing:
         self.pacer = Pacer(self.period_s)
         self.abort_after = abort_after  # consecutive overruns that end the run (None: never)
         self.label = label
-        self.rtts: list[float] = []
-        self.lateness: list[float] = []
+        self.rtts = StreamingPercentiles()  # bounded memory however long the run
+        self.lateness = StreamingPercentiles()
         self.overruns = 0
         self.consecutive = 0
         self.skipped = 0

@@ -142,6 +142,19 @@ class RowLayout:
             np.mod(out[name], modulo, out=out[name])
         return out
 
+    def to_column(self, raw: bytes, name: str) -> np.ndarray:
+        """One column of raw rows (as `to_columns` gives it), without converting the others."""
+        dtype = self.dtype
+        rows = np.frombuffer(raw, dtype=dtype, count=len(raw) // dtype.itemsize)
+        for column, _, _, src, scale in self.columns:
+            if column == name:
+                values = rows[src].astype(np.float64) if scale == 1.0 else np.multiply(rows[src], scale, dtype=np.float64)
+                for wrapped, modulo in self.wrap:
+                    if wrapped == name:
+                        np.mod(values, modulo, out=values)
+                return values
+        raise KeyError(name)
+
     def as_json(self) -> dict[str, Any]:
         return {"fields": [list(f) for f in self.fields], "columns": [list(c) for c in self.columns],
                 "wrap": [list(w) for w in self.wrap]}
@@ -281,9 +294,11 @@ class Recorder:
                 head = json.dumps({"layout": layout.as_json(), "metadata": self.metadata}, default=str).encode()
                 self._file.write(_JOURNAL_MAGIC + struct.pack("<I", len(head)) + head)
             else:
+                # the header first: pandas.read_csv(f, comment="#") and numpy.loadtxt(f, delimiter=",",
+                # skiprows=1) read the file with no line counting (metadata and events are # lines)
+                self._file.write(csv_header(layout.column_specs) + "\n")
                 for key, value in self.metadata.items():
                     self._file.write(f"# {key}: {json.dumps(value, default=str)}\n")
-                self._file.write(csv_header(layout.column_specs) + "\n")
             self._file.flush()
         except OSError as exc:
             raise RecordingError(f"recording {self.path}: write failed ({exc.strerror})") from None
@@ -359,15 +374,44 @@ class Recorder:
         self.closed = True
         self._file.close()
         if self.is_npz:
-            _, _, rows = _read_journal_rows(self._journal_path())
-            arrays: dict[str, np.ndarray] = self.rows.layout.to_columns(rows)
             self.metadata["columns"] = [[name, unit] for name, unit, _ in self.rows.layout.column_specs]
-            arrays["metadata"] = np.asarray(json.dumps(self.metadata, default=str))
             tmp = self.path.with_name(self.path.name + ".tmp.npz")
-            _write_npz_deterministic(tmp, arrays)
+            _write_npz_from_journal(tmp, self._journal_path(), self.metadata)
             os.replace(tmp, self.path)
             self._journal_path().unlink()
             _events_path(self._journal_path()).unlink(missing_ok=True)
+
+
+#: rows converted at a time when an NPZ archive is written from its journal (bounded memory)
+NPZ_CHUNK_ROWS = 65536
+
+
+def _write_npz_from_journal(path: Path, journal: Path, metadata: dict[str, Any]) -> None:
+    """The archive, column by column, from the journal read in chunks of NPZ_CHUNK_ROWS rows:
+    memory stays bounded however long the run (a 1 GB journal used to be loaded whole)."""
+    _, layout, _ = _read_journal_rows(journal, head_only=True)
+    with open(journal, "rb") as handle:
+        handle.seek(4)
+        (head_len,) = struct.unpack("<I", handle.read(4))
+    start = 8 + head_len
+    itemsize = layout.dtype.itemsize
+    n_rows = max(0, (journal.stat().st_size - start) // itemsize)  # a torn last row is dropped
+    names = [name for name, _, _ in layout.column_specs]
+    with zipfile.ZipFile(path, "w", compression=zipfile.ZIP_STORED) as archive, open(journal, "rb") as source:
+        for name in names:
+            info = zipfile.ZipInfo(name + ".npy", date_time=(1980, 1, 1, 0, 0, 0))
+            with archive.open(info, "w", force_zip64=True) as member:
+                np.lib.format.write_array_header_1_0(member, {"descr": np.lib.format.dtype_to_descr(np.dtype("<f8")),
+                                                             "fortran_order": False, "shape": (n_rows,)})
+                for first in range(0, n_rows, NPZ_CHUNK_ROWS):
+                    count = min(NPZ_CHUNK_ROWS, n_rows - first)
+                    source.seek(start + first * itemsize)
+                    raw = source.read(count * itemsize)
+                    column = layout.to_column(raw, name)
+                    member.write(np.ascontiguousarray(column, dtype="<f8").tobytes())
+        info = zipfile.ZipInfo("metadata.npy", date_time=(1980, 1, 1, 0, 0, 0))
+        with archive.open(info, "w", force_zip64=True) as member:
+            np.lib.format.write_array(member, np.asarray(json.dumps(metadata, default=str)), allow_pickle=False)
 
 
 def _write_npz_deterministic(path: Path, arrays: dict[str, np.ndarray]) -> None:
@@ -414,8 +458,12 @@ def read_recording(path: str | Path) -> RecordingData:
         return _read_csv(path)
     except RecordingError:
         raise
-    except (OSError, ValueError, KeyError, json.JSONDecodeError, UnicodeDecodeError) as exc:
-        raise RecordingError(f"recording {path}: unreadable ({exc})") from None
+    except (OSError, ValueError, KeyError, EOFError, IndexError, TypeError, struct.error, zipfile.BadZipFile,
+            json.JSONDecodeError, UnicodeDecodeError) as exc:
+        reason = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
+        if "allow_pickle" in reason or "pickle" in reason.lower():  # NumPy's advice for foreign bytes: never give it
+            reason = "not an NPZ archive written by hilbench"
+        raise RecordingError(f"recording {path}: unreadable ({reason[:160]})") from None
 
 
 def _read_csv(path: Path) -> RecordingData:
@@ -456,9 +504,16 @@ def _read_csv(path: Path) -> RecordingData:
     return RecordingData(path, columns, metadata, tuple(events), units)
 
 
-def _read_journal_rows(path: Path) -> tuple[dict[str, Any], RowLayout, memoryview]:
-    """A journal's metadata, row layout and raw rows (to_columns drops a torn last row)."""
-    raw = path.read_bytes()
+def _read_journal_rows(path: Path, head_only: bool = False) -> tuple[dict[str, Any], RowLayout, memoryview]:
+    """A journal's metadata, row layout and raw rows (to_columns drops a torn last row; with
+    ``head_only`` no rows are read)."""
+    if head_only:
+        with open(path, "rb") as handle:
+            raw = handle.read(8)
+            if raw[:4] == _JOURNAL_MAGIC and len(raw) == 8:
+                raw += handle.read(struct.unpack_from("<I", raw, 4)[0])
+    else:
+        raw = path.read_bytes()
     if raw[:4] != _JOURNAL_MAGIC or len(raw) < 8:
         raise RecordingError(f"recording {path}: not a hilbench journal (or written before its first row)")
     (head_len,) = struct.unpack_from("<I", raw, 4)

@@ -8,7 +8,7 @@ from typing import Any
 import numpy as np
 
 from hilbench.bench.recorder import MARKER_FAULT, MARKER_SKIPPED, RecordingData
-from hilbench.bench.session import START_PRESS_S
+from hilbench.bench import segments as segmentation
 
 _EVENT_TIME = re.compile(r"^t=([0-9.]+) (.*)$")
 _REF = re.compile(r"^ref (-?[0-9.]+) rpm")
@@ -19,39 +19,51 @@ def timed_events(data: RecordingData) -> list[tuple[float, str]]:
     out: list[tuple[float, str]] = []
     for text in data.events:
         match = _EVENT_TIME.match(text)
-        if match:
+        if match and not segmentation.is_segment_event(match.group(2)):
             out.append((float(match.group(1)), match.group(2)))
     return out
 
 
 def reference_segments(data: RecordingData) -> list[dict[str, float]]:
-    """Each reference hold: mean plant and firmware speed over its last 30 %."""
+    """Each reference hold: mean plant and firmware speed over its last 30 % — the run summary's
+    own segmentation (hilbench.bench.segments) replayed over the recorded rows."""
     c = data.columns
     t = c["t_s"]
-    if len(t) == 0:
+    period_us = data.metadata.get("period_us")
+    if len(t) == 0 or not isinstance(period_us, (int, float)) or period_us <= 0:
         return []
-    events = timed_events(data)
-    refs = [(when, float(m.group(1))) for when, text in events if (m := _REF.match(text))]
+    period_s = period_us * 1e-6
+    every = int(data.metadata.get("history_every_periods", 20) or 20)
+    firmware = c.get("measured_speed_rpm")  # the target's own speed, where it reports one
+    measured = firmware if firmware is not None else np.full(len(t), np.nan)
+    end_s = (round(float(t[-1]) / period_s) + 1) * period_s  # a killed run: its last row
     segments: list[dict[str, float]] = []
-    for i, (start, ref) in enumerate(refs):
-        end = refs[i + 1][0] if i + 1 < len(refs) else float(t[-1])
-        later_stops = [w for w, text in events if text.startswith("press") and start + START_PRESS_S < w < end]
-        if later_stops:
-            end = later_stops[0]
-        if end - start < 0.05 or ref == 0:
-            continue
-        window = (t >= end - 0.3 * (end - start)) & (t < end)
-        if not window.any():
-            continue
-        plant = float(np.mean(c["speed_rpm"][window]))
-        firmware = c.get("measured_speed_rpm")  # the target's own speed, where it reports one
-        measured = float(np.nanmean(firmware[window])) if firmware is not None and not np.all(np.isnan(firmware[window])) else float("nan")
+    for seg in segmentation.replay(data.events, t, c["speed_rpm"], measured, period_s, every, end_s):
         segments.append({
-            "from_s": round(start, 4), "to_s": round(end, 4), "ref_rpm": ref,
-            "plant_rpm": round(plant, 2), "firmware_rpm": round(measured, 2),
-            "error_pct": round(100.0 * (plant - ref) / abs(ref), 3),
+            "from_s": round(seg.t_start_s, 4), "to_s": round(seg.t_end_s, 4), "ref_rpm": seg.ref_rpm,
+            "plant_rpm": round(seg.plant_rpm, 2), "firmware_rpm": round(seg.measured_rpm, 2),
+            "error_pct": round(seg.error_pct, 3),
         })
     return segments
+
+
+#: the notes a closing run writes last (session._close, Bench.close)
+_END_NOTES = ("end:", "interrupted at period", "fault at period", "aborted")
+
+
+def how_it_ended(data: RecordingData) -> str:
+    """The run's own end note, or — for a killed or truncated recording — that it was cut short
+    and where (the last event is not how it ended: issue 16, item 9)."""
+    end = data.metadata.get("end")
+    if isinstance(end, str) and end:
+        return end
+    for text in reversed(data.events):
+        if text.startswith(_END_NOTES):
+            return text
+    if data.n_rows:
+        t_last = float(data.columns["t_s"][-1])
+        return f"cut short (no end note: killed or truncated) after t={t_last:.6f} s, {data.n_rows} rows"
+    return "cut short (no end note and no rows: killed or truncated before the first row)"
 
 
 def summarise(data: RecordingData) -> dict[str, Any]:
@@ -69,7 +81,7 @@ def summarise(data: RecordingData) -> dict[str, Any]:
         "mode": meta.get("mode", "?"),
         "period_us": meta.get("period_us", "?"),
         "seed": meta.get("seed", "?"),
-        "ended": meta.get("end", data.events[-1] if data.events else "no end note (killed run?)"),
+        "ended": how_it_ended(data),
         "fault_rows": [int(c["seq"][i]) for i in faults],
     }
     if n:

@@ -34,6 +34,7 @@ class RunRequest:
     mode: str | None = None
     duration_s: float | None = None
     record: str | None = None
+    scenario: str | None = None  # a file of [[scenario]] tables replacing the config's
 
 
 def load_run_config(request: RunRequest) -> BenchConfig:
@@ -45,7 +46,7 @@ def load_run_config(request: RunRequest) -> BenchConfig:
         overrides.append(f'run.mode="{request.mode}"')
     if request.duration_s is not None:
         overrides.append(f"run.duration_s={request.duration_s!r}")
-    return load_config(request.config_path, overrides)
+    return load_config(request.config_path, overrides, scenario_path=request.scenario)
 
 
 effective_seed = settings.effective_seed
@@ -76,10 +77,19 @@ def run_bench(
     observer: Callable[[Snapshot], None] | None = None,
     control: "ControlServer | None" = None,
     on_ready: Callable[[Session], None] | None = None,
+    warn: Callable[[str], None] | None = None,
 ) -> Summary:
-    """Run the bench described by ``cfg`` with its scenario; raises HilbenchError kinds on faults."""
-    bench = Bench(cfg, record=record, scenario=True, observer=observer, control=control)
+    """Run the bench described by ``cfg`` with its scenario; raises HilbenchError kinds on faults.
+    ``warn`` gets the warnings (impossible-looking settings, real time over a network) before the run."""
+    from hilbench.bench.feasibility import check_run, overrun_warning
+
+    warnings = check_run(cfg)  # impossible settings raise here, before anything is opened
+    bench = Bench(cfg, record=record, scenario=True, observer=observer, control=control, keep_rows=False)
     with bench:
+        warnings += bench.warnings
+        for text in warnings:
+            if warn is not None:
+                warn(text)
         session = bench.session
         assert session is not None
         if on_ready is not None:
@@ -97,12 +107,16 @@ def run_bench(
             from hilbench.bench.checks import run_checks
 
             summary.checks = run_checks(cfg.check, summary, bench.signals)
+    assert summary is not None
+    summary.warnings = warnings + [w for w in [overrun_warning(summary.periods, summary.overruns)] if w]
     return summary
 
 
 def check_overrides(words: Sequence[str]) -> tuple[str, ...]:
     """`--set KEY=VALUE` words, each checked for its shape (values are validated with the config)."""
     for word in words:
+        if word.split("=", 1)[0].strip() in ("scenario", "adc") and "=" in word:
+            continue  # a whole array of tables: scenario=[{at_s = 0.0, ref_rpm = 1000.0}, ...]
         if "=" not in word or "." not in word.split("=", 1)[0]:
             raise ConfigError(f"--set {word!r}: expected TABLE.KEY=VALUE, e.g. motor.rs_ohm=2.6 or target.kp=0.2")
     return tuple(words)

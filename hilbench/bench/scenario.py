@@ -2,11 +2,13 @@
 
 A scenario is a sorted tuple of events. Each event acts at ``at_s``; a reference or bus change
 with ``ramp_s > 0`` ramps linearly from the value in force to the new one. The session asks
-``ScenarioPlayer.due(t_s)`` once per period, which is one float comparison while nothing is due.
+``ScenarioPlayer.due(t_s, period_s)`` in the period that contains the next event's time
+(`first_period_at`: integer period index, a documented tolerance for binary round-off).
 """
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 from typing import Any, Iterable, Literal, Mapping
 
@@ -154,6 +156,24 @@ def default_scenario() -> tuple[Event, ...]:
     )
 
 
+#: a time within this fraction of a period of a period boundary is on the boundary (2.2 s is not
+#: representable in binary: 2.2 / 50e-6 = 43999.99999999999; it belongs to period 44 000)
+PERIOD_TOLERANCE = 1e-6
+
+
+def first_period_at(t_s: float, period_s: float) -> float:
+    """The period that contains time ``t_s``: period k covers [k * period_s, (k + 1) * period_s),
+    so an event at t_s fires in period floor(t_s / period_s), a time within PERIOD_TOLERANCE of a
+    period of a boundary counting as on it. inf beyond any run (t_s / period_s >= 2^50)."""
+    if t_s == math.inf or not t_s / period_s < 2.0**50:
+        return math.inf
+    q = t_s / period_s
+    k = math.floor(q)
+    if q - k > 1.0 - PERIOD_TOLERANCE:  # just below a boundary by float round-off: on it
+        k += 1
+    return max(0, k)
+
+
 @dataclass
 class Ramp:
     """A linear change from v0 at t0 to v1 at t1 (reference or bus voltage)."""
@@ -178,10 +198,19 @@ class ScenarioPlayer:
         self.next_t_s = self.events[0].at_s if self.events else float("inf")
         self.ramps: dict[str, Ramp] = {}
 
-    def due(self, t_s: float) -> list[Event]:
-        """Events whose time has come (call only when ``t_s >= next_t_s``)."""
+    def due(self, t_s: float, period_s: float | None = None) -> list[Event]:
+        """Events whose time has come: with ``period_s``, every event in the period that starts at
+        ``t_s`` or before (hilbench.bench.session.first_period_at: the period containing its time);
+        without, every event at or before ``t_s``."""
         out: list[Event] = []
         events = self.events
+        if period_s is not None:
+            k = round(t_s / period_s)
+            while self._index < len(events) and first_period_at(events[self._index].at_s, period_s) <= k:
+                out.append(events[self._index])
+                self._index += 1
+            self.next_t_s = events[self._index].at_s if self._index < len(events) else float("inf")
+            return out
         while self._index < len(events) and events[self._index].at_s <= t_s + 1e-12:
             out.append(events[self._index])
             self._index += 1

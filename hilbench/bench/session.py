@@ -15,6 +15,7 @@ from __future__ import annotations
 import dataclasses
 import gc
 import math
+import struct
 import time
 from collections import deque
 from dataclasses import dataclass
@@ -26,9 +27,11 @@ from hilbench.bench.faults import SensorFaults
 from hilbench.bench.livetuning import GuardSettings, LiveTuning
 from hilbench.bench.pacing import RealtimePacing, SessionAborted
 from hilbench.bench.recorder import MARKER_EVENT, MARKER_FAULT, MARKER_PARAM, Recorder, fields_struct
-from hilbench.bench.scenario import Event, Ramp, ScenarioPlayer
+from hilbench.bench.scenario import PERIOD_TOLERANCE, Event, Ramp, ScenarioPlayer, first_period_at
+from hilbench.bench import segments as segmentation
+from hilbench.bench.streamstats import StreamingPercentiles
 from hilbench.bench.summary import Segment, Snapshot, Summary, percentiles
-from hilbench.errors import HilbenchError, LinkError, ParamError, TargetError
+from hilbench.errors import BenchLimitError, HilbenchError, LinkError, ParamError, ProtocolError, SimulationError, TargetError
 from hilbench.protocol import (
     PROTOCOL_VERSION,
     Edge,
@@ -46,12 +49,18 @@ from hilbench.targets.registry import profile_for_firmware
 EDGE_NONE = int(Edge.NONE)
 INPUT_S2 = int(Input.S2)
 INPUT_S3 = int(Input.S3)
+INPUT_INDEX = int(Input.INDEX)
+INPUT_FAULT = int(Input.FAULT)
 OUTPUT_OFF = int(OutputMode.OFF)
 
 #: the plant's step is accurate to 1e-6 at 50 us; longer periods are integrated in substeps
 MAX_PLANT_STEP_US = 50
 
-START_PRESS_S = 0.05  # presses this soon after a reference are starts, not stops (segments)
+START_PRESS_S = segmentation.START_PRESS_S  # presses this soon after a reference are starts, not stops
+#: speed samples kept for the dashboard and `ctl step` (the newest; ~8 s at the default 1 ms)
+HISTORY_SAMPLES = 8192
+#: messages kept for the dashboard
+MAX_MESSAGES = 64
 CTL_STEP_HOLD_S = 1.0
 CTL_STEP_AFTER_S = 1.0
 STEP_REPLY_KEYS = ("rise_time_s", "overshoot_pct", "settling_time_s", "ss_error", "ss_error_pct", "ss_ripple", "iae", "itae")
@@ -70,6 +79,7 @@ class PlantLike(Protocol):
     vbus_v: float
     w_m: float
     t_s: float
+    fault_input: bool  # the board's overcurrent comparator, latched (drives the target's FAULT input)
 
     def step(self, duty_a: float, duty_b: float, duty_c: float, output_mode: int, dt_s: float) -> None: ...
     def adc_codes(self, roles: tuple[int, ...]) -> tuple[int, ...]: ...
@@ -101,6 +111,9 @@ class SessionOptions:
     seed: int = 0
     observe_every_periods: int = 400
     history_every_periods: int = 20
+    overspeed_rpm: float = 0.0  # bench limit ([protection] overspeed_rpm): the run ends with a fault; 0: none
+    bus_capacitance_f: float = 0.0  # the bus capacitor regeneration charges ([protection]); 0: a stiff bus
+    overvoltage_v: float = 0.0  # bench limit on the bus voltage; 0: none
 
 
 @dataclass
@@ -148,7 +161,9 @@ class Session:
         self.tuning.on_change = self._on_param_change
         self.faults = SensorFaults()
         self.messages: list[str] = []
-        self.history: list[tuple[float, float, float, float]] = []
+        #: (t_s, ref_rpm, plant_rpm, measured_rpm): the newest HISTORY_SAMPLES (memory stays flat)
+        self.history: deque[tuple[float, float, float, float]] = deque(maxlen=HISTORY_SAMPLES)
+        self.segmenter = segmentation.Segmenter()
         self.on_params: Callable[[dict[str, float]], None] | None = None
         self.periods_done = 0
         self._buttons = 0
@@ -160,12 +175,14 @@ class Session:
         self._duration_s = 0.0
         self._scenario_k: float = 0
         self._obs_last = (0.0, 0)
-        self._lockstep_rtts: list[float] = []
+        self._lockstep_rtts = StreamingPercentiles()
         self._tele_index: dict[str, tuple[int, float]] = {}
         self._closed = False
         self._record_host_ref = False
         self._qos: CpuLatencyRequest | None = None
         self._pacing: RealtimePacing | None = None
+        self._trip_noted = False  # the overcurrent comparator's trip is an event once per latch
+        self._supply_v = plant.vbus_v  # the bench supply's voltage (the bus rises above it only with a capacitor)
         self.display: Any = None  # the scope's display stream (hilbench.scope.stream), made by `stream`
 
     # ------------------------------------------------------------------ handshake
@@ -209,10 +226,29 @@ class Session:
         """Write a parameter set atomically (checked here first, then by the target; guarded)."""
         self.tuning.set(values, self.plant.t_s if t_s is None else t_s, guard=guard)
 
+    def _message(self, text: str) -> None:
+        self.messages.append(text)
+        if len(self.messages) > 2 * MAX_MESSAGES:
+            del self.messages[:-MAX_MESSAGES]
+
+    def _segment(self, kind: str, t_s: float, ref_rpm: float = 0.0, ramp_s: float = 0.0) -> None:
+        """Tell the segmentation (and the recording, for `report`) of a reference change, a press, the end."""
+        if kind == "ref":
+            self.segmenter.reference(t_s, ref_rpm, ramp_s)
+            text = segmentation.reference_event(t_s, ref_rpm, ramp_s)
+        elif kind == "press":
+            self.segmenter.press(t_s)
+            text = segmentation.press_event(t_s)
+        else:
+            self.segmenter.end(t_s)
+            text = segmentation.end_event(t_s)
+        if self.recorder is not None:
+            self.recorder.event(text)
+
     def _on_param_change(self, t_s: float, text: str, values: dict[str, float]) -> None:
         if self.on_params is not None:
             self.on_params(values)
-        self.messages.append(f"{t_s:.3f} s: {text}")
+        self._message(f"{t_s:.3f} s: {text}")
         if self.recorder is not None:
             self.recorder.event(f"t={t_s:.6f} {text}", MARKER_PARAM)
 
@@ -244,6 +280,7 @@ class Session:
         """One scenario event."""
         plant = self.plant
         if event.ref_rpm is not None:
+            self._segment("ref", t_s, event.ref_rpm, event.ramp_s)
             if event.ramp_s > 0:
                 self.player.ramps["ref_rpm"] = Ramp(t_s, t_s + event.ramp_s, self._ref_rpm, event.ref_rpm)
             else:
@@ -257,18 +294,23 @@ class Session:
             if event.ramp_s > 0:
                 self.player.ramps["vbus_v"] = Ramp(t_s, t_s + event.ramp_s, plant.vbus_v, event.vbus_v)
             else:
-                plant.vbus_v = event.vbus_v
+                plant.vbus_v = self._supply_v = event.vbus_v
         elif event.press is not None:
             self.press(event.press, t_s)
+            if event.press == "s2":
+                self._segment("press", t_s)
         elif event.fault is not None:
             self.faults.apply(event.fault, t_s, event.fault_duration_s)
         elif event.params:
             try:
                 self.tuning.set(dict(event.params), t_s)
             except ParamError as exc:
-                self.messages.append(f"{t_s:.3f} s: {exc}")
+                self._message(f"{t_s:.3f} s: {exc}")
         elif event.end:
-            self._end_reason = "scenario end"
+            if self.options.duration_s is None:
+                self._end_reason = "scenario end"
+            else:  # --duration wins: the state is held after the scenario's last event
+                self._note(t_s, f"scenario end: held until the duration ({self.options.duration_s:g} s)")
         if self.recorder is not None:
             self.recorder.event(f"t={t_s:.6f} {event.describe()}", MARKER_EVENT)
 
@@ -283,29 +325,29 @@ class Session:
             if kind == "ref_rpm":
                 self.set_reference(value)
             elif kind == "vbus_v":
-                self.plant.vbus_v = value
+                self.plant.vbus_v = self._supply_v = value
             if t_s >= ramp.t1:
                 del self.player.ramps[kind]
 
     # ------------------------------------------------------------------ the parts' periods
     def _scenario_due(self, k: int) -> None:
         """Scenario events, ramps, the button release and fault expiry due in period k."""
-        t_s = k * self._period_s
-        if t_s >= self.player.next_t_s:
-            for event in self.player.due(t_s):
+        t_s, period_s = k * self._period_s, self._period_s
+        if first_period_at(self.player.next_t_s, period_s) <= k:
+            for event in self.player.due(t_s, period_s):
                 self._apply(event, t_s)
             if self._end_reason is not None:
                 return
         if self.player.ramps:
             self._tick_ramps(t_s)
-        if t_s >= self._button_release_s:
+        if first_period_at(self._button_release_s, period_s) <= k:
             self._buttons = 0
             self._button_release_s = math.inf
-        if t_s >= self.faults.clear_at_s:
+        if first_period_at(self.faults.clear_at_s, period_s) <= k:
             self.faults.apply("clear", t_s, None)
         self._scenario_k = first_period_at(min(
             self.player.next_t_s, self._button_release_s, self.faults.clear_at_s,
-            t_s + self._period_s if self.player.ramps else math.inf), self._period_s)
+            t_s + period_s if self.player.ramps else math.inf), period_s)
 
     def _live_due(self, k: int, drive: Any, guard_ref_rpm: float) -> None:
         """Every history period: the guard's look, `ctl step` progress, the control socket."""
@@ -356,7 +398,7 @@ class Session:
         if self._qos is not None:
             self._qos.__enter__()  # released by end(), however the run ends
             summary.cpu_latency = self._qos.status
-        self._lockstep_rtts = []
+        self._lockstep_rtts = StreamingPercentiles()
         self._scenario_k = first_period_at(self.player.next_t_s, self._period_s)
         self.faults.last_hall = self.plant.hall_bits
         self._wall_start = time.perf_counter()
@@ -382,14 +424,20 @@ class Session:
         gc_was_enabled = gc.isenabled()
         gc.disable()  # no collector pauses inside periods (recorded rows are plain numbers)
         try:
-            self.periods_done = self._loop(self._next_k, self._next_k + n_periods, self._pacing)
+            try:
+                self.periods_done = self._loop(self._next_k, self._next_k + n_periods, self._pacing)
+            except (ValueError, OverflowError, ZeroDivisionError, struct.error, ProtocolError) as exc:
+                diverged = self._divergence()
+                if diverged is None:
+                    raise
+                raise SimulationError(diverged) from None
             self._next_k = self.periods_done
         except KeyboardInterrupt:
             summary.end_reason = "interrupted"
             self._stop_target()
             self._close(f"interrupted at period {self.periods_done}")
             raise
-        except (LinkError, TargetError, SessionAborted) as exc:
+        except (LinkError, TargetError, SessionAborted, SimulationError, BenchLimitError) as exc:
             summary.end_reason = "fault"
             summary.fault = str(exc)
             self._end_reason = "fault"
@@ -400,6 +448,22 @@ class Session:
             if gc_was_enabled:
                 gc.enable()
         return not self.ended
+
+    def _divergence(self) -> str | None:
+        """What is wrong when the plant's state left the physical (None: it did not)."""
+        plant = self.plant
+        try:
+            state = {"speed": plant.w_m * RPM_PER_RAD_S, **{f"i{p}": i for p, i in zip("abc", plant.i_abc)}}  # type: ignore[attr-defined]
+        except (AttributeError, ValueError, OverflowError):
+            return None
+        bad = {k: v for k, v in state.items() if not math.isfinite(v) or abs(v) > 1e9}
+        if not bad:
+            return None
+        t_s = self.periods_done * self._period_s
+        what = ", ".join(f"{k} {v:.3g}" for k, v in bad.items())
+        return (f"the plant diverged at t={t_s:.6f} s (period {self.periods_done}: {what}); the config's motor "
+                f"or load is beyond what the integrator follows at this period (try more [plant] substeps, "
+                f"a larger j_kgm2 or l_h, a smaller load)")
 
     def end(self) -> Summary:
         """Close the run: the target stops, the recording is closed, the summary is made."""
@@ -429,6 +493,9 @@ class Session:
         edge_s, drive, guard_ref, sensor_faults, k = self._edge_s, self._drive, self._guard_ref, self.faults.active, k_from
         due_k = self._scenario_k  # the next period the scenario part asked for
         buttons, encoder_offset = self._buttons, faults.encoder_offset  # both change only when a part is due
+        index_bit = INPUT_INDEX if self.profile.has("encoder") else 0  # the encoder's index mark, when read
+        overspeed = self.options.overspeed_rpm / RPM_PER_RAD_S if self.options.overspeed_rpm > 0 else math.inf
+        capacitor = self.options.bus_capacitance_f > 0.0 or self.options.overvoltage_v > 0.0
         if pacing is not None:
             pacing.start_at(k_from)
         try:
@@ -448,7 +515,12 @@ class Session:
                 if sensor_faults:
                     hall, edge = faults.filter(hall, edge)
                     sensor_faults = faults.active
-                sensors = new_sensors(Sensors, (k & 0xFF, hall | buttons, edge, (plant.encoder_count + encoder_offset) & 0xFFFF,
+                inputs = hall | buttons
+                if index_bit and plant.encoder_index:
+                    inputs |= index_bit
+                if plant.fault_input:  # the board's overcurrent comparator drives FAULT
+                    inputs |= INPUT_FAULT
+                sensors = new_sensors(Sensors, (k & 0xFF, inputs, edge, (plant.encoder_count + encoder_offset) & 0xFFFF,
                                                 plant.adc_codes(roles)))
                 if pacing is not None:
                     drive = pacing.exchange(k, sensors, drive, target_step)
@@ -460,6 +532,8 @@ class Session:
                     drive = target_step(sensors)
                     rtts.append(perf() - sent)
                 _, da, db, dc, mode, state, sector, _, _, fault, tele = drive
+                if tripped:
+                    self._comparator(k, mode)
                 if scale:  # no delay, one plant step per period
                     plant_step(da * scale, db * scale, dc * scale, mode, period_s)
                     edge_s = plant.last_edge_s
@@ -475,10 +549,42 @@ class Session:
                     plant_state(rows)
                 if k % history_every == 0:
                     guard_ref = self._sample(k, drive, pacing)
+                if not k & 15 and not -overspeed <= plant.w_m <= overspeed:
+                    self._end_on_limit(k, f"overspeed: the plant turns at {plant.w_m * RPM_PER_RAD_S:.0f} rpm, beyond the "
+                                          f"{self.options.overspeed_rpm:g} rpm limit ([protection] overspeed_rpm)")
+                if capacitor:
+                    self._bus(k)
         finally:
             self.periods_done = k
             self._edge_s, self._drive, self._guard_ref = edge_s, drive, guard_ref
         return k_to
+
+    def _comparator(self, k: int, mode: int) -> None:
+        """The overcurrent comparator's latch is set: note the trip once; the firmware turning its
+        outputs off (its stop) clears the latch, as a stop/start re-arms the MCLV's FLTA."""
+        if not self._trip_noted:
+            self._trip_noted = True
+            self._note(k * self._period_s, "overcurrent: the board's comparator tripped, FAULT input set")
+        if mode == OUTPUT_OFF:
+            self.plant.fault_input = False
+            self._trip_noted = False
+
+    def _bus(self, k: int) -> None:
+        """The bus capacitor over period k: the supply only sources, so the bus rises above it while
+        the bridge returns energy (the period's mean bus current is negative), and falls back to it as
+        the bridge draws again; then the over-voltage limit."""
+        plant, options = self.plant, self.options
+        if options.bus_capacitance_f > 0.0:
+            charged = plant.vbus_v - plant.i_bus * self._period_s / options.bus_capacitance_f  # type: ignore[attr-defined]
+            plant.vbus_v = charged if charged > self._supply_v else self._supply_v
+        if 0.0 < options.overvoltage_v < plant.vbus_v:
+            self._end_on_limit(k, f"over-voltage: the bus is at {plant.vbus_v:.1f} V, beyond the {options.overvoltage_v:g} V "
+                                  f"limit ([protection] overvoltage_v)")
+
+    def _end_on_limit(self, k: int, reason: str) -> None:
+        """A bench limit ends the run (the caller's `advance` closes it with a fault marker)."""
+        self._note(k * self._period_s, reason)
+        raise BenchLimitError(f"{self.target_label}: {reason} at t={k * self._period_s:.4f} s")
 
     def _actuator(self) -> Callable[[Any], float | None]:
         """Integrate the plant over a period with a Drive (or the one `actuation_delay_periods` before);
@@ -517,6 +623,7 @@ class Session:
         if recorder is None:
             return None
         row = session_row(self.profile, tuple(self.hello.telemetry_ids), self._period_s)  # type: ignore[union-attr]
+        recorder.metadata["history_every_periods"] = self.options.history_every_periods  # the report's segments
         recorder.start(row.layout)
         self._record_host_ref = any(name == "host_ref_rpm" for name, _ in row.own_fields)
         return fields_struct(row.own_fields).pack, recorder.rows.extend, recorder.rows.data, self.plant.append_state
@@ -528,7 +635,9 @@ class Session:
         (i_meas, s_meas), (i_ref, s_ref) = self._speed_telemetry
         meas = tele[i_meas] * s_meas if i_meas >= 0 else math.nan
         guard_ref = tele[i_ref] * s_ref if i_ref >= 0 else self._ref_rpm
-        self.history.append((k * self._period_s, self._ref_rpm, self.plant.w_m * RPM_PER_RAD_S, meas))
+        t_s, plant_rpm = k * self._period_s, self.plant.w_m * RPM_PER_RAD_S
+        self.history.append((t_s, self._ref_rpm, plant_rpm, meas))
+        self.segmenter.sample(t_s, plant_rpm, meas)
         if k % self.options.observe_every_periods == 0 and k:
             if self.display is not None:  # the scope takes its rows before a flush empties the buffer
                 self.display.due(k, drive, pacing)
@@ -570,14 +679,40 @@ class Session:
             elif cmd == "ref":
                 self.player.ramps.pop("ref_rpm", None)
                 self.set_reference(float(args["rpm"]))
+                self._segment("ref", t_s, float(args["rpm"]))
                 self._note(t_s, f"ref {args['rpm']} rpm (ctl)")
                 request.reply(True, f"reference {args['rpm']} rpm at t={t_s:.4f} s")
             elif cmd == "step":
                 self._start_ctl_step(request, float(args["from_rpm"]), float(args["to_rpm"]), t_s)
             elif cmd == "stop":
                 self._end_reason = "stopped by ctl"
+                self._segment("end", t_s)
                 self._note(t_s, "stop (ctl)")
                 request.reply(True, f"run ends at t={t_s:.4f} s")
+            elif cmd == "save":  # a raw-socket client's save; `hilbench ctl save` writes where the user is
+                from hilbench.bench.tuning import saved_fragment
+
+                data = {"params": self.param_values(), "t_s": t_s, "ref_rpm": self._ref_rpm,
+                        "tunable": list(self.profile.tunable)}
+                try:
+                    with open(str(args["file"]), "w", encoding="utf-8") as handle:
+                        handle.write(saved_fragment(data))
+                except OSError as exc:
+                    request.reply(False, f"save {args['file']}: {exc.strerror or exc}")
+                else:
+                    request.reply(True, f"wrote {args['file']}", data)
+            elif cmd == "start":
+                self.target.start()
+                self._note(t_s, "start (ctl)")
+                request.reply(True, f"start command sent at t={t_s:.4f} s")
+            elif cmd == "press":
+                button = str(args["button"])
+                self.press(button, t_s)
+                self._scenario_k = min(self._scenario_k, self.periods_done)  # its release is due
+                if button == "s2":
+                    self._segment("press", t_s)
+                self._note(t_s, f"press {button} (ctl)")
+                request.reply(True, f"{button} pressed at t={t_s:.4f} s")
             elif cmd == "guard":
                 self.tuning.guard = dataclasses.replace(self.tuning.guard, enabled=bool(args["on"]))
                 state = "on" if self.tuning.guard.enabled else "off"
@@ -589,10 +724,6 @@ class Session:
 
                     self.display = DisplayStream(self)
                 request.reply(True, "stream", self.display.request(int(args["since"]), args["columns"], t_s))
-            elif cmd == "press":
-                self.press(str(args["button"]), t_s)
-                self._note(t_s, f"press {args['button']} (ctl)")
-                request.reply(True, f"{args['button']} pressed at t={t_s:.4f} s")
             elif cmd == "load":
                 self.set_load("constant", float(args["nm"]))
                 self._note(t_s, f"load {args['nm']} N*m (ctl)")
@@ -601,11 +732,15 @@ class Session:
                 request.reply(False, f"command {cmd!r} is not available in this session")
         except HilbenchError as exc:
             request.reply(False, str(exc))
+        except (ValueError, TypeError, ArithmeticError, KeyError) as exc:  # a request must never end the run
+            if not getattr(request, "replied", False):
+                request.reply(False, f"{cmd}: refused ({type(exc).__name__}: {str(exc)[:80]})")
 
     def _start_ctl_step(self, request: ControlRequest, from_rpm: float, to_rpm: float, t_s: float) -> None:
         """`ctl step A B`: reference A now, B after a 1 s hold; reply with the metrics 1 s later."""
         self.player.ramps.pop("ref_rpm", None)
         self.set_reference(from_rpm)
+        self._segment("ref", t_s, from_rpm)
         self._note(t_s, f"step {from_rpm:g} -> {to_rpm:g} rpm (ctl): hold {from_rpm:g}")
         self._pending_steps.append(_CtlStep(request, from_rpm, to_rpm, t_s + CTL_STEP_HOLD_S))
 
@@ -615,6 +750,7 @@ class Session:
                 continue
             if step.t_step_s is None:  # the hold is over: step now
                 self.set_reference(step.to_rpm)
+                self._segment("ref", t_s, step.to_rpm)
                 self._note(t_s, f"step to {step.to_rpm:g} rpm (ctl)")
                 step.t_step_s = t_s
                 step.due_s = t_s + CTL_STEP_AFTER_S
@@ -637,14 +773,14 @@ class Session:
         return {k: v for k, v in metrics.as_dict().items() if k in STEP_REPLY_KEYS}
 
     def _note(self, t_s: float, text: str) -> None:
-        self.messages.append(f"{t_s:.3f} s: {text}")
+        self._message(f"{t_s:.3f} s: {text}")
         if self.recorder is not None:
             self.recorder.event(f"t={t_s:.6f} {text}", MARKER_EVENT)
 
     # ------------------------------------------------------------------ reports
     def _snapshot(self, k: int, drive: Any, meas: float, pacing: RealtimePacing | None) -> Snapshot:
         rtts = pacing.rtts if pacing is not None else self._lockstep_rtts
-        stats = percentiles([r * 1e6 for r in rtts[-256:]])
+        stats = percentiles([r * 1e6 for r in rtts.recent])
         now = time.perf_counter()
         last_wall, last_k = self._obs_last
         rate = (k - last_k) / max(now - last_wall, 1e-9)
@@ -668,13 +804,15 @@ class Session:
         summary.sim_s = self.periods_done * self._period_s
         summary.wall_s = time.perf_counter() - wall_start
         rtts = pacing.rtts if pacing is not None else self._lockstep_rtts
-        summary.rtt_us = percentiles([r * 1e6 for r in rtts])
+        summary.rtt_us = rtts.percentiles(1e6)
         if pacing is not None:
-            summary.lateness_us = percentiles([x * 1e6 for x in pacing.lateness])
+            summary.lateness_us = pacing.lateness.percentiles(1e6)
             summary.overruns = pacing.overruns
             summary.skipped_periods = pacing.skipped
         summary.link = self.link_stats()
-        summary.segments = self._segments(summary.sim_s)
+        if self.recorder is not None:
+            self.recorder.event(segmentation.end_event(summary.sim_s))
+        summary.segments = self.segmenter.finish(summary.sim_s)
         try:
             summary.params = self.param_values() if not fault else {}
         except HilbenchError:
@@ -684,42 +822,6 @@ class Session:
                 self.recorder.mark_last(MARKER_FAULT)
             self.recorder.close(note)
             summary.rows_recorded = self.recorder.rows_written
-
-    def _segments(self, sim_s: float) -> list[Segment]:
-        """Each held reference: the mean speed over the last 30 % of its hold."""
-        refs = [e for e in self.player.events if e.ref_rpm is not None and e.at_s < sim_s]
-        bounds = [e.at_s for e in self.player.events if e.ref_rpm is not None or e.end]
-        presses = [e.at_s for e in self.player.events if e.press]
-        segments: list[Segment] = []
-        for event in refs:
-            start = event.at_s + event.ramp_s
-            # a press soon after the hold starts is the start button; a later one stops the motor
-            later = sorted([b for b in bounds if b > start] + [p for p in presses if p > start + START_PRESS_S])
-            end = min(later[0] if later else sim_s, sim_s)
-            if end - start <= 0.05 or event.ref_rpm == 0:
-                continue
-            window_start = end - 0.3 * (end - start)
-            samples = [(p, m) for (t, _, p, m) in self.history if window_start <= t < end]
-            if not samples:
-                continue
-            plant_mean = sum(p for p, _ in samples) / len(samples)
-            meas_values = [m for _, m in samples if not math.isnan(m)]
-            meas_mean = sum(meas_values) / len(meas_values) if meas_values else math.nan
-            segments.append(Segment(event.at_s, end, float(event.ref_rpm or 0.0), plant_mean, meas_mean))
-        return segments
-
-
-def first_period_at(t_s: float, period_s: float) -> float:
-    """The first period k with k * period_s >= t_s (the loop compares k, not times); inf beyond
-    any run (k * period_s no longer changes by one period when k passes 2^52)."""
-    if t_s == math.inf or not t_s / period_s < 2.0**50:
-        return math.inf
-    k = max(0, math.ceil(t_s / period_s))
-    while k > 0 and (k - 1) * period_s >= t_s:
-        k -= 1
-    while k * period_s < t_s:
-        k += 1
-    return k
 
 
 __all__ = [
@@ -731,4 +833,5 @@ __all__ = [
     "Snapshot",
     "Summary",
     "first_period_at",
+    "PERIOD_TOLERANCE",
 ]

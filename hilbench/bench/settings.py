@@ -50,6 +50,7 @@ class LinkSection:
     cpu_latency_qos: bool = field(default=True, metadata=spec(doc="real time: hold /dev/cpu_dma_latency at 0 so idle CPUs poll, not halt (needs root)"))
     pin_realtime: bool = field(default=True, metadata=spec(doc="real time: the host loop and the emulator process it started share one CPU"))
     realtime_cpu: int | None = field(default=None, metadata=spec(ge=0, le=4095, doc="that CPU (default: the last one this process may use)"))
+    allow_pole_pair_mismatch: bool = field(default=False, metadata=spec(doc="run a plant whose [motor] pole_pairs differ from the firmware's build (its speeds then scale by the ratio)"))
 
 
 @dataclass(frozen=True)
@@ -120,6 +121,9 @@ def session_options(cfg: BenchConfig) -> SessionOptions:
         max_consecutive_overruns=link.max_consecutive_overruns,
         cpu_latency_qos=link.cpu_latency_qos,
         seed=run.seed,
+        overspeed_rpm=cfg.protection.overspeed_rpm,
+        bus_capacitance_f=cfg.protection.bus_capacitance_f,
+        overvoltage_v=cfg.protection.overvoltage_v,
     )
 
 
@@ -178,6 +182,31 @@ def scenario_events(cfg: BenchConfig) -> tuple[Event, ...]:
     if not entries:
         return default_scenario()
     return tuple(sorted((e.to_event() for e in entries), key=lambda e: e.at_s))
+
+
+def link_warnings(cfg: BenchConfig) -> list[str]:
+    """What a user should know about the configured link before a run starts."""
+    from hilbench.link.spec import parse_target_spec
+
+    spec = parse_target_spec(cfg.link.target)
+    out = []
+    if cfg.run.mode == "realtime" and spec.port_kind == "url" and not spec.port.startswith("loop://"):
+        out.append(f"real time over {spec.port.split('://')[0]}:// : the network's latency and jitter add to the "
+                   f"loop's ({cfg.link.period_us} us periods); check the summary's RTT and overruns")
+    return out
+
+
+def check_motor_build(cfg: BenchConfig, profile: TargetProfile) -> None:
+    """Refuse a plant the firmware is not built for: a firmware's speed scale follows from the pole
+    pairs it was built for, so a motor with others runs at the ratio of its reference. A profile
+    that states no build is not checked; [link] allow_pole_pair_mismatch = true runs it anyway."""
+    build = profile.built_for(cfg.target)
+    if build is None or cfg.link.allow_pole_pair_mismatch:
+        return
+    if build.pole_pairs != cfg.motor.pole_pairs:
+        raise ConfigError(
+            f"{cfg.source} [motor] pole_pairs: the plant has {cfg.motor.pole_pairs} pole pairs, the {profile.name} "
+            f"firmware is built for {build.pole_pairs} (set the firmware's, or [link] allow_pole_pair_mismatch = true)")
 
 
 def initial_params(cfg: BenchConfig) -> dict[str, float]:

@@ -53,6 +53,8 @@ class Summary:
     recording: str | None = None
     rows_recorded: int = 0
     firmware: str = ""
+    #: what the run's settings did not allow (checked before the start, and real time not held)
+    warnings: list[str] = field(default_factory=list)
     #: the config's [[check]] verdicts (hilbench.bench.checks), judged when the run ended
     checks: list["CheckResult"] = field(default_factory=list)
 

@@ -164,7 +164,7 @@ def parse_grid_spec(text: str, name: str = "grid") -> tuple[float, ...]:
 def parse_axis(text: str) -> tuple[str, tuple[float, ...]]:
     """``NAME=A:B:N`` (a `--param` word) → (NAME, values)."""
     name, sep, spec_text = text.partition("=")
-    if not sep or not name.strip():
+    if not sep or not name.strip() or not name.strip().replace("_", "a").isalnum():
         raise ConfigError(f"sweep --param {text!r}: expected NAME=A:B:N, e.g. kp=0.05:0.5:10")
     return name.strip(), parse_grid_spec(spec_text, f"--param {name.strip()}")
 

@@ -29,10 +29,10 @@ typedef struct {
     double i_d, i_q, w_m, th, t_s, vbus_v, dt_duty, hall_base, tl, kv, tc, j, t_load_change;
     double i_a, i_b, i_c, i_bus;
     double rd, rq, pq, pd, ppsi, p, ild, ilq, kt, kr, ijv;
-    double da, db, dc, ell;
+    double da, db, dc, ell, oc;
     long long turns, nidx, enc_m;
     int sector, hall_bits, encoder_count, last_mode, enc_sign, enc_offset, enc_cpt, enc_idx, substeps;
-    char stuck, locked, track_energy, kq_any, encoder_index;
+    char stuck, locked, track_energy, kq_any, encoder_index, fault_input, gate_off;
     PyObject *last_edge_s;
     /* ADC: per role (0..5) gain, offset, noise, present; pre-drawn noise list and its index */
     double pot_fraction, adc_gain[6], adc_off[6], adc_nz[6], adc_max[6];
@@ -97,6 +97,14 @@ static void set_edge(Core *s, int have, double edge)
     Py_XDECREF(old);
 }
 
+/* the overcurrent comparator (model.Plant._sense): latches fault_input */
+static void compare(Core *s)
+{
+    double oc = s->oc, ia = s->i_a, ib = s->i_b, ic = s->i_c;
+    if (oc > 0.0 && (ia > oc || ia < -oc || ib > oc || ib < -oc || ic > oc || ic < -oc))
+        s->fault_input = 1;
+}
+
 /* model.Plant._sense */
 static void sense(Core *s)
 {
@@ -106,6 +114,7 @@ static void sense(Core *s)
     double ib = -0.5 * ia + HALF_SQRT3 * ibe;
     double ic = -0.5 * ia - HALF_SQRT3 * ibe;
     s->i_a = ia; s->i_b = ib; s->i_c = ic;
+    compare(s);
     if (s->last_mode == OUTPUT_PWM)
         s->i_bus = s->da * ia + s->db * ib + s->dc * ic;
     else if (s->last_mode == OUTPUT_LOW_SIDE)
@@ -195,6 +204,7 @@ static PyObject *Core_step(Core *s, PyObject *const *args, Py_ssize_t nargs)
         return NULL;
     long mode = PyLong_AsLong(args[3]);
     if (mode == -1 && PyErr_Occurred()) return NULL;
+    if (s->fault_input && s->gate_off) mode = OUTPUT_OFF; /* the comparator's hardware trip */
     int hot = (mode == OUTPUT_PWM || mode == OUTPUT_LOW_SIDE);
     if (s->track_energy || s->kq_any || (!hot && !(s->i_d == 0.0 && s->i_q == 0.0 && s->ell * fabs(s->w_m) < s->vbus_v))) {
         PyObject *cargs[6] = {(PyObject *)s, args[0], args[1], args[2], args[3], args[4]};
@@ -240,6 +250,7 @@ static PyObject *Core_step(Core *s, PyObject *const *args, Py_ssize_t nargs)
     long long n0 = s->nidx;
     int have_edge = 0;
     double edge = 0.0;
+    double e_in = 0.0; /* the period's input energy / (1.5 |v|), as model.py */
     for (int jj = 0; jj < nsub; jj++) {
         double ij, fr;
         if (s->locked) {
@@ -260,22 +271,31 @@ static PyObject *Core_step(Core *s, PyObject *const *args, Py_ssize_t nargs)
         double ftj = (fr + tl) * ij, kvj = kv * ij, ktj, krj;
         if (ij == 0.0) { ktj = krj = 0.0; } else { ktj = kt; krj = kr; }
         double x0 = phi - th0, a, b, w, x;
-        double k1d = vdm * cos(x0) + w0 * pq * iq0 - rd * id0;
-        double k1q = vqm * sin(x0) - w0 * (pd * id0 + ppsi) - rq * iq0;
+        double cc = cos(x0), ss = sin(x0);
+        double p1 = cc * id0 + ss * iq0;
+        double k1d = vdm * cc + w0 * pq * iq0 - rd * id0;
+        double k1q = vqm * ss - w0 * (pd * id0 + ppsi) - rq * iq0;
         double k1w = iq0 * (ktj + krj * id0) - kvj * w0 - ftj;
         a = id0 + h2 * k1d; b = iq0 + h2 * k1q; w = w0 + h2 * k1w; x = x0 - h2 * p * w0;
-        double k2d = vdm * cos(x) + w * pq * b - rd * a;
-        double k2q = vqm * sin(x) - w * (pd * a + ppsi) - rq * b;
+        cc = cos(x); ss = sin(x);
+        double p2 = cc * a + ss * b;
+        double k2d = vdm * cc + w * pq * b - rd * a;
+        double k2q = vqm * ss - w * (pd * a + ppsi) - rq * b;
         double k2w = b * (ktj + krj * a) - kvj * w - ftj;
         double w2 = w;
         a = id0 + h2 * k2d; b = iq0 + h2 * k2q; w = w0 + h2 * k2w; x = x0 - h2 * p * w2;
-        double k3d = vdm * cos(x) + w * pq * b - rd * a;
-        double k3q = vqm * sin(x) - w * (pd * a + ppsi) - rq * b;
+        cc = cos(x); ss = sin(x);
+        double p3 = cc * a + ss * b;
+        double k3d = vdm * cc + w * pq * b - rd * a;
+        double k3q = vqm * ss - w * (pd * a + ppsi) - rq * b;
         double k3w = b * (ktj + krj * a) - kvj * w - ftj;
         double w3 = w;
         a = id0 + h * k3d; b = iq0 + h * k3q; w = w0 + h * k3w; x = x0 - h * p * w3;
-        double k4d = vdm * cos(x) + w * pq * b - rd * a;
-        double k4q = vqm * sin(x) - w * (pd * a + ppsi) - rq * b;
+        cc = cos(x); ss = sin(x);
+        double p4 = cc * a + ss * b;
+        e_in += h6 * (p1 + 2.0 * (p2 + p3) + p4);
+        double k4d = vdm * cc + w * pq * b - rd * a;
+        double k4q = vqm * ss - w * (pd * a + ppsi) - rq * b;
         double k4w = b * (ktj + krj * a) - kvj * w - ftj;
         id0 = id0 + h6 * (k1d + 2.0 * (k2d + k3d) + k4d);
         iq0 = iq0 + h6 * (k1q + 2.0 * (k2q + k3q) + k4q);
@@ -310,7 +330,9 @@ static PyObject *Core_step(Core *s, PyObject *const *args, Py_ssize_t nargs)
     double ib = -0.5 * ia + HALF_SQRT3 * ibe;
     double ic = -0.5 * ia - HALF_SQRT3 * ibe;
     s->i_a = ia; s->i_b = ib; s->i_c = ic;
-    s->i_bus = mode == OUTPUT_PWM ? s->da * ia + s->db * ib + s->dc * ic : 0.0;
+    compare(s);
+    /* model.Plant._bus_average: the period's mean bus current from its input energy */
+    s->i_bus = (s->vbus_v > 0.0 && dt_s > 0.0) ? (1.5 * vmag * e_in) / (s->vbus_v * dt_s) : 0.0;
     long long n = (long long)floor(((double)s->turns + th0 / TWO_PI) * (double)s->enc_cpt / p);
     set_encoder(s, n);
     Py_RETURN_NONE;
@@ -428,7 +450,7 @@ static void Core_dealloc(Core *s)
 
 static PyMemberDef Core_members[] = {
     DM("i_d", i_d), DM("i_q", i_q), DM("w_m", w_m), DM("_th", th), DM("t_s", t_s), DM("vbus_v", vbus_v),
-    DM("_dt_duty", dt_duty), DM("_hall_base", hall_base), DM("_tl", tl), DM("_kv", kv), DM("_tc", tc),
+    DM("_dt_duty", dt_duty), DM("_hall_base", hall_base), DM("_tl", tl), DM("_kv", kv), DM("_tc", tc), DM("_oc", oc),
     DM("_j", j), DM("_t_load_change", t_load_change), DM("i_a", i_a), DM("i_b", i_b), DM("i_c", i_c),
     DM("i_bus", i_bus), DM("_rd", rd), DM("_rq", rq), DM("_pq", pq), DM("_pd", pd), DM("_ppsi", ppsi),
     DM("_p", p), DM("_ild", ild), DM("_ilq", ilq), DM("_kt", kt), DM("_kr", kr), DM("_ijv", ijv),
@@ -438,7 +460,7 @@ static PyMemberDef Core_members[] = {
     IM("_last_mode", last_mode), IM("_enc_sign", enc_sign), IM("_enc_offset", enc_offset),
     IM("_enc_cpt", enc_cpt), IM("_enc_idx", enc_idx), LM("_enc_m", enc_m), BM("encoder_index", encoder_index),
     IM("_substeps", substeps),
-    BM("_stuck", stuck), BM("_locked", locked), BM("track_energy", track_energy), BM("_kq_any", kq_any),
+    BM("_stuck", stuck), BM("_locked", locked), BM("track_energy", track_energy), BM("_kq_any", kq_any), BM("fault_input", fault_input), BM("_gate_off", gate_off),
     {"last_edge_s", T_OBJECT_EX, offsetof(Core, last_edge_s), 0, NULL},
     {"_noise", T_OBJECT_EX, offsetof(Core, noise), 0, NULL},
     LM("_noise_i", noise_i), DM("pot_fraction", pot_fraction),

@@ -27,6 +27,10 @@ speed that crosses zero inside a substep is set to zero and the rotor sticks aga
 Sensors (`i_a, i_b, i_c, i_bus, encoder_count, hall_bits, last_edge_s`) are plain attributes
 refreshed at the end of every step, so the bench reads them at attribute cost.
 
+Protection (ProtectionParams): an overcurrent comparator on the end-of-period phase currents sets
+`fault_input` (latched; the bench clears it) and, with `gate_off_on_fault`, every later period runs
+OFF until it is cleared: the board's hardware trip, whatever the firmware does.
+
 Output modes: PWM (1) averaged duties; LOW_SIDE (2) the three phases shorted to the negative rail;
 OFF (0, and the reserved 3) all six switches open: see `_step_off`.
 """
@@ -123,6 +127,9 @@ class Plant:
         inv = params.inverter
         self.vbus_v = float(inv.vbus_v)
         self._dt_duty = float(inv.dead_time_s * inv.pwm_freq_hz) if inv.dead_time_enabled else 0.0
+        prot = params.protection
+        self._oc = float(prot.overcurrent_a)  # the board's comparator on |phase current| (0: none)
+        self._gate_off = bool(prot.gate_off_on_fault)
         self._hall_base = (SECTOR0_START_RAD + math.radians(params.hall.offset_deg)) % TWO_PI
         enc = params.encoder
         self._enc_cpt = 4 * int(enc.lines)
@@ -165,6 +172,7 @@ class Plant:
         self._turns = math.floor(th / TWO_PI)
         self._th = th - self._turns * TWO_PI
         self.t_s = 0.0
+        self.fault_input = False  # the overcurrent comparator's latched output (the target's FAULT input)
         self._stuck = self.w_m == 0.0 and self._tc > 0.0
         self._nidx = math.floor((self._th - self._hall_base) / SIXTY)
         self._sector = self._nidx % 6
@@ -197,6 +205,9 @@ class Plant:
         self.i_a = ia
         self.i_b = ib
         self.i_c = ic
+        oc = self._oc
+        if oc > 0.0 and (ia > oc or ia < -oc or ib > oc or ib < -oc or ic > oc or ic < -oc):
+            self.fault_input = True
         mode = self._last_mode
         if mode == OUTPUT_PWM:
             self.i_bus = self._da * ia + self._db * ib + self._dc * ic
@@ -352,7 +363,10 @@ class Plant:
     # ----------------------------------------------------------------- stepping
     def _step_py(self, duty_a: float, duty_b: float, duty_c: float, output_mode: int, dt_s: float) -> None:
         """Integrate one period with the duties (fractions 0..1) held over it (Python backend;
-        the C backend calls this for the cases it leaves to Python)."""
+        the C backend calls this for the cases it leaves to Python). While the overcurrent comparator's
+        latch is set and gates the switches off, every mode is OFF."""
+        if self.fault_input and self._gate_off:
+            output_mode = OUTPUT_OFF
         if output_mode == OUTPUT_PWM:
             vbus = self.vbus_v
             dtd = self._dt_duty
@@ -374,22 +388,26 @@ class Plant:
             self._last_mode = OUTPUT_OFF
             th0 = self._th
             self.last_edge_s = None
+            e_in0 = self.e_in_j
             self._step_off(dt_s)
             self._finish(th0, self._th - th0 + self._dturns * TWO_PI, dt_s, 0.0)
             self.t_s += dt_s
             self._sense()
+            self.i_bus = self._bus_average(self.e_in_j - e_in0, dt_s)
             return
         self._last_mode = output_mode
         nsub = self._substeps
         if self.track_energy or self._kq_any:
             h = dt_s / nsub
             self.last_edge_s = None
+            e_in0 = self.e_in_j
             for j in range(nsub):
                 th0 = self._th
                 self._rk4_general(va, vb, h)
                 self._finish(th0, self._th - th0 + self._dturns * TWO_PI, h, j * h)
             self.t_s += dt_s
             self._sense()
+            self.i_bus = self._bus_average(self.e_in_j - e_in0, dt_s)
             return
 
         # ---- hot path: RK4 in dq, inlined; the C core (_plantcore.c) mirrors it line by line ----
@@ -418,6 +436,7 @@ class Plant:
         th0 = self._th
         n0 = self._nidx
         edge = None
+        e_in = 0.0  # the period's input energy / (1.5 |v|): RK4 quadrature of vd id + vq iq
         for j in range(nsub):
             if self._locked:
                 ij = 0.0
@@ -444,16 +463,22 @@ class Plant:
                 krj = kr
             x0 = phi - th0
             # stage 1
-            k1d = vdm * cos(x0) + w0 * pq * iq0 - rd * id0
-            k1q = vqm * sin(x0) - w0 * (pd * id0 + ppsi) - rq * iq0
+            c = cos(x0)
+            s = sin(x0)
+            p1 = c * id0 + s * iq0
+            k1d = vdm * c + w0 * pq * iq0 - rd * id0
+            k1q = vqm * s - w0 * (pd * id0 + ppsi) - rq * iq0
             k1w = iq0 * (ktj + krj * id0) - kvj * w0 - ftj
             # stage 2
             a = id0 + h2 * k1d
             b = iq0 + h2 * k1q
             w = w0 + h2 * k1w
             x = x0 - h2 * p * w0
-            k2d = vdm * cos(x) + w * pq * b - rd * a
-            k2q = vqm * sin(x) - w * (pd * a + ppsi) - rq * b
+            c = cos(x)
+            s = sin(x)
+            p2 = c * a + s * b
+            k2d = vdm * c + w * pq * b - rd * a
+            k2q = vqm * s - w * (pd * a + ppsi) - rq * b
             k2w = b * (ktj + krj * a) - kvj * w - ftj
             w2 = w
             # stage 3
@@ -461,8 +486,11 @@ class Plant:
             b = iq0 + h2 * k2q
             w = w0 + h2 * k2w
             x = x0 - h2 * p * w2
-            k3d = vdm * cos(x) + w * pq * b - rd * a
-            k3q = vqm * sin(x) - w * (pd * a + ppsi) - rq * b
+            c = cos(x)
+            s = sin(x)
+            p3 = c * a + s * b
+            k3d = vdm * c + w * pq * b - rd * a
+            k3q = vqm * s - w * (pd * a + ppsi) - rq * b
             k3w = b * (ktj + krj * a) - kvj * w - ftj
             w3 = w
             # stage 4
@@ -470,8 +498,12 @@ class Plant:
             b = iq0 + h * k3q
             w = w0 + h * k3w
             x = x0 - h * p * w3
-            k4d = vdm * cos(x) + w * pq * b - rd * a
-            k4q = vqm * sin(x) - w * (pd * a + ppsi) - rq * b
+            c = cos(x)
+            s = sin(x)
+            p4 = c * a + s * b
+            e_in += h6 * (p1 + 2.0 * (p2 + p3) + p4)
+            k4d = vdm * c + w * pq * b - rd * a
+            k4q = vqm * s - w * (pd * a + ppsi) - rq * b
             k4w = b * (ktj + krj * a) - kvj * w - ftj
             id0 = id0 + h6 * (k1d + 2.0 * (k2d + k3d) + k4d)
             iq0 = iq0 + h6 * (k1q + 2.0 * (k2q + k3q) + k4q)
@@ -512,7 +544,10 @@ class Plant:
         self.i_a = ia
         self.i_b = ib
         self.i_c = ic
-        self.i_bus = self._da * ia + self._db * ib + self._dc * ic if output_mode == OUTPUT_PWM else 0.0
+        oc = self._oc
+        if oc > 0.0 and (ia > oc or ia < -oc or ib > oc or ib < -oc or ic > oc or ic < -oc):
+            self.fault_input = True
+        self.i_bus = self._bus_average(1.5 * vmag * e_in, dt_s)
         n = floor((self._turns + th0 / TWO_PI) * self._enc_cpt / p)
         self.encoder_count = (self._enc_sign * n + self._enc_offset) & 0xFFFF
         m = (n - self._enc_idx) // self._enc_cpt
@@ -520,6 +555,12 @@ class Plant:
         self._enc_m = m
 
     step = _step_py
+
+    def _bus_average(self, e_in_j: float, dt_s: float) -> float:
+        """The period's average bus current: the energy the inverter drew over it / (Vbus dt).
+        With the phases' own duties (or diodes) it is the mean of sum(d_x i_x), not the end sample."""
+        vbus = self.vbus_v
+        return e_in_j / (vbus * dt_s) if vbus > 0.0 and dt_s > 0.0 else 0.0
 
     def _finish(self, th0: float, dth: float, h: float, t_off: float) -> None:
         """Sector/edge bookkeeping after a (sub)step done outside the hot path (angle already

@@ -23,6 +23,8 @@ __all__ = [
     "EncoderParams",
     "AdcChannel",
     "LoadProfile",
+    "LOAD_IS_ACTIVE",
+    "ProtectionParams",
     "PlantParams",
     "psi_from_ke",
     "ke_from_psi",
@@ -178,6 +180,41 @@ class LoadProfile:
     coeff: float = 0.0
 
 
+#: Whether a load kind can drive the motor (active: a weight, gravity; it turns a stopped motor
+#: backwards until a bench limit stops the run) or only opposes motion (passive: a fan, viscous
+#: drag, a brake that holds).
+LOAD_IS_ACTIVE: dict[str, bool] = {"constant": True, "step": True, "linear": False, "quadratic": False, "locked": False}
+
+
+@dataclass(frozen=True)
+class ProtectionParams:
+    """Board and bench protections (docs/design.md, protections). Defaults: the Hurst motor on
+    the MCLV board.
+
+    overcurrent_a: the board's overcurrent comparator on the peak phase current (A; 0: none). Its
+    output is latched and drives the target's FAULT input (the dsPIC's FLTA pin); the MCLV's trip
+    level is set by a resistor (R60) whose value is not public, so the default 3.0 A is the
+    Hurst075 motor file's overcurrent limit (Microchip hurst075.h, six-step project): 1.8 x the
+    motor's rated 1.64 A peak, 4.4 x the default run's 0.68 A peak.
+    gate_off_on_fault: the comparator also opens every switch in hardware (the PWM module's fault
+    input), whatever the firmware does, until the firmware turns its outputs off (its stop).
+    overspeed_rpm: a bench limit (0: none): the run ends with a fault. Default 4000 rpm: the
+    Hurst's maximum in Microchip's Harmony motor table (hurst075.h: 3500 rpm with field
+    weakening), above the 3.2-3.3 krpm the motor reaches at 24 V (Ke = 7.32 V/krpm) and below
+    the speed at which its back-EMF, rectified by the open bridge's diodes, would drive more than
+    1 A into the 24 V bus ((7.32 x 4 - 24) V / 2 Rs).
+    bus_capacitance_f: the bus capacitor that regeneration charges (0: a stiff bus, the default:
+    the MCLV's capacitance and its supply's behaviour are not public). With it the supply only
+    sources: Vbus rises above the supply's voltage while the bridge returns energy.
+    overvoltage_v: a bench limit on that bus voltage (0: none)."""
+
+    overcurrent_a: float = 3.0
+    gate_off_on_fault: bool = True
+    overspeed_rpm: float = 4000.0
+    bus_capacitance_f: float = 0.0
+    overvoltage_v: float = 0.0
+
+
 @dataclass(frozen=True)
 class PlantParams:
     motor: MotorParams
@@ -186,6 +223,9 @@ class PlantParams:
     encoder: EncoderParams = field(default_factory=EncoderParams)
     adc: tuple[AdcChannel, ...] = field(default_factory=default_adc_channels)
     load: LoadProfile = field(default_factory=LoadProfile)
+    #: a bare plant has no board around it (physics tests drive it past any limit); a bench
+    #: config's [protection] table (its defaults: ProtectionParams()) gives it the board's
+    protection: ProtectionParams = field(default_factory=lambda: ProtectionParams(0.0, False, 0.0, 0.0, 0.0))
 
     @classmethod
     def hurst(cls) -> "PlantParams":

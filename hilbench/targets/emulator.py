@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
 import sys
 import threading
 from typing import Callable, Mapping
@@ -22,14 +23,16 @@ from hilbench.targets.serve import ServeReport, serve
 def serve_on_port(name: str, port_spec: str = "pty", mode: int | None = None,
                   options: Mapping[str, object] | None = None, *, watchdog_ms: int | None = None,
                   announce: Callable[[str], None] | None = None,
-                  stop_event: threading.Event | None = None) -> ServeReport:
+                  stop_event: threading.Event | None = None, keep_serving: bool = False) -> ServeReport:
     """Build target `name` and serve it on `port_spec` until the link closes or stop_event is set.
 
     port_spec "pty" makes a pair and serves on its master; "tcp:PORT" or "tcp:HOST:PORT" listens
     there (port 0: any free one) and serves the first host that connects; any other spec (a tty
     path, serial:..., fd:N, a pyserial URL) is opened as it is. `announce` gets the path the host should open
     (the pty slave, or port_spec itself) once the server is ready to answer. `options` are the
-    profile's `[target]` options as plain values.
+    profile's `[target]` options as plain values. ``keep_serving`` (a pty): serve one host after
+    another, as a board does, until stop_event or Ctrl-C — the pty's slave is held open here, so a
+    host hanging up is not the end.
     """
     profile = get_profile(name)
     target = profile.make(profile.options_from(dict(options or {})))
@@ -39,12 +42,17 @@ def serve_on_port(name: str, port_spec: str = "pty", mode: int | None = None,
                                                        watchdog_ms=watchdog_ms),
                               host=host, announce=announce, stop_event=stop_event)
     link = open_link(port_spec, timeout_s=1.0)
+    held: int | None = None
     try:
+        if keep_serving and link.peer_path is not None:
+            held = os.open(link.peer_path, os.O_RDWR | os.O_NOCTTY)  # the master never sees a hang-up
         if announce is not None:
             announce(link.peer_path if link.peer_path is not None else port_spec)
         return serve(target, link, stop_event=stop_event, mode=mode, watchdog_ms=watchdog_ms)
     finally:
         link.close()
+        if held is not None:
+            os.close(held)
 
 
 def main(argv: list[str] | None = None) -> int:

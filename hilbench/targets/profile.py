@@ -20,8 +20,9 @@ if TYPE_CHECKING:
 
     from hilbench.targets.base import Target
 
-#: capabilities a profile may declare (the pytest plugin's `hil_requires` and the CLI check them)
-CAPABILITIES = ("speed_loop", "realtime", "fault_injection", "tuning", "batch")
+#: capabilities a profile may declare (the pytest plugin's `hil_requires` and the CLI check them);
+#: "encoder": the target reads the quadrature encoder and its index (the session forwards the index)
+CAPABILITIES = ("speed_loop", "realtime", "fault_injection", "tuning", "hall_sensors", "encoder")
 
 
 @dataclass(frozen=True)

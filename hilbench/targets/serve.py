@@ -18,6 +18,7 @@ from typing import Any
 
 from hilbench.errors import HilbenchError, LinkClosed, ParamError
 from hilbench.protocol import (
+    Drive,
     MODE_LOCKSTEP,
     MODE_REALTIME,
     PROTOCOL_VERSION,
@@ -52,6 +53,7 @@ class ServeReport:
     error_reports: int = 0
     watchdog_trips: int = 0
     handler_faults: int = 0
+    duplicates: int = 0  # Sensors repeating the last seq, answered with the last Drive
     mode: int = MODE_LOCKSTEP
     link_stats: dict[str, int] = field(default_factory=dict)
 
@@ -163,6 +165,7 @@ class _Server:
         # lockstep with nobody to ask us to stop: wait for frames without a timeout (one blocking
         # read per period, no poll); otherwise wake every _POLL_S to look at stop_event
         lockstep_wait = None if stop_event is None else _POLL_S
+        last_drive: Drive | None = None  # the answer to a repeated seq
         try:
             while True:
                 if lockstep:
@@ -170,10 +173,15 @@ class _Server:
                     msg = recv(lockstep_wait)
                     if type(msg) is Sensors:
                         report.sensors += 1
+                        if last_drive is not None and msg.seq == last_drive.seq:  # a duplicated frame:
+                            report.duplicates += 1  # the same answer, no second step (item 8)
+                            send(last_drive)
+                            continue
                         try:
                             drive = step(msg)
                             if drive.seq != msg.seq:
                                 drive = drive._replace(seq=msg.seq)
+                            last_drive = drive
                             send(drive)
                         except LinkClosed:
                             raise
@@ -193,7 +201,11 @@ class _Server:
                     continue
                 kind = type(msg)
                 try:
-                    if kind is Sensors:
+                    if kind is Sensors and last_drive is not None and msg.seq == last_drive.seq:
+                        report.sensors += 1
+                        report.duplicates += 1
+                        send(last_drive)
+                    elif kind is Sensors:
                         report.sensors += 1
                         now = time.monotonic()
                         last = self.last_sensors_t
@@ -203,10 +215,12 @@ class _Server:
                         drive = target.advance(span_us, msg)
                         if drive.seq != msg.seq:
                             drive = drive._replace(seq=msg.seq)
+                        last_drive = drive
                         send(drive)
                     else:
                         report.requests += 1
                         handler = handlers.get(kind)
+                        last_drive = None  # a request between periods: the next Sensors is new
                         if handler is None:
                             self.error(msg.seq, ErrorCode.BAD_REQUEST, 0)
                         else:

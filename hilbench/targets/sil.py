@@ -24,6 +24,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, Literal
 
+from hilbench.processes import reap
 from hilbench.errors import ConfigError, LinkError
 
 if TYPE_CHECKING:
@@ -103,22 +104,11 @@ def start_sil(tty_path: str, variant: Variant = "seed", *, exe: Path | None = No
     ready, _, _ = select.select([process.stdout], [], [], READY_TIMEOUT_S)
     line = process.stdout.readline() if ready else b""
     if not line.startswith(b"ready"):
-        _reap(process)
+        reap(process)
         err = process.stderr.read().decode(errors="replace").strip() if process.stderr else ""
         _close_pipes(process)
         raise LinkError(f"sil:an1017 on {tty_path}: firmware did not start: {err or 'no ready line'}")
     return process
-
-
-def _reap(process: subprocess.Popen[bytes], timeout_s: float = 3.0) -> int:
-    if process.poll() is None:
-        process.terminate()
-        try:
-            process.wait(timeout=timeout_s)
-        except subprocess.TimeoutExpired:
-            process.kill()
-            process.wait(timeout=timeout_s)
-    return process.returncode
 
 
 def _close_pipes(process: subprocess.Popen[bytes]) -> None:
@@ -129,7 +119,7 @@ def _close_pipes(process: subprocess.Popen[bytes]) -> None:
 
 def stop_sil(process: subprocess.Popen[bytes], timeout_s: float = 3.0) -> int:
     """Terminate the SIL process (it also exits by itself when its tty hangs up) and reap it."""
-    code = _reap(process, timeout_s)
+    code = reap(process, timeout_s)
     _close_pipes(process)
     return code
 

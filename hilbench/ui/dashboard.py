@@ -40,17 +40,19 @@ def _fmt(value: float, spec: str = ".0f") -> str:
     return "—" if value is None or (isinstance(value, float) and math.isnan(value)) else format(value, spec)
 
 
-def render_snapshot(snap: Snapshot, params: dict[str, float], target_label: str) -> Group:
-    """Everything one frame of the dashboard shows."""
+def render_snapshot(snap: Snapshot, params: dict[str, float], target_label: str, width: int = 100) -> Group:
+    """Everything one frame of the dashboard shows (``width``: the terminal's columns)."""
+    outputs_off = snap.output_mode == 0
     motor = Table.grid(padding=(0, 2))
     motor.add_column(style="bold")
     motor.add_column(justify="right")
     motor.add_row("reference", f"{_fmt(snap.ref_rpm)} rpm")
     motor.add_row("speed (plant)", f"{_fmt(snap.speed_rpm)} rpm")
-    motor.add_row("speed (firmware)", f"{_fmt(snap.measured_rpm)} rpm")
+    # a stopped firmware keeps its last MeasuredSpeed and duties: show that they do not apply now
+    motor.add_row("speed (firmware)", f"{_fmt(snap.measured_rpm)} rpm" + (" (held)" if outputs_off else ""))
     motor.add_row("state", f"{STATE_NAMES.get(snap.state, snap.state)}, outputs {OUTPUT_NAMES.get(snap.output_mode, '?')}")
     motor.add_row("sector / dir", f"{snap.sector} / {'CCW' if snap.direction_ccw else 'CW'}")
-    motor.add_row("duties", " ".join(str(d) for d in snap.duties))
+    motor.add_row("duties", "— (outputs off)" if outputs_off else " ".join(str(d) for d in snap.duties))
     motor.add_row("i a/b/c", " ".join(f"{i:+.2f}" for i in snap.i_abc) + " A")
     motor.add_row("i bus", f"{snap.i_bus:+.3f} A")
     for name, value in snap.telemetry.items():  # the target's own telemetry, as its profile names it
@@ -74,14 +76,17 @@ def render_snapshot(snap: Snapshot, params: dict[str, float], target_label: str)
     grid.add_column(ratio=1)
     grid.add_row(Panel(motor, title="motor"), Panel(link, title="link & gains"))
     speeds = [h[2] for h in snap.history]
-    chart = Text(sparkline(speeds), style="cyan")
+    chart = Text(sparkline(speeds, width=max(10, width - 4)), style="cyan")
+    clean = [v for v in speeds if not math.isnan(v)]
+    scale = f": {min(clean):.0f} … {max(clean):.0f} rpm" if clean else ""
     parts: list[Any] = [
         Text(f"hilbench run — {target_label}", style="bold"),
         grid,
-        Panel(chart, title="speed (plant) since the start"),
+        Panel(chart, title=f"speed (plant), the last {snap.history[-1][0] - snap.history[0][0]:.1f} s{scale}"
+              if snap.history else "speed (plant)"),
     ]
     if snap.messages:
-        parts.append(Text("\n".join(snap.messages), style="yellow"))
+        parts.append(Text("\n".join(snap.messages[-2:]), style="yellow", no_wrap=True, overflow="ellipsis"))
     return Group(*parts)
 
 
@@ -124,7 +129,7 @@ class Dashboard:
             return
         self._last = now
         self.progress.update(self.task, completed=snap.t_s, total=snap.duration_s)
-        parts: list[Any] = [render_snapshot(snap, self.params, self.target_label), self.progress]
+        parts: list[Any] = [render_snapshot(snap, self.params, self.target_label, self.console.width), self.progress]
         if self.command_line is not None and self.command_line.active:
             from hilbench.ui.keys import PROMPT_HELP
 
@@ -155,6 +160,8 @@ def summary_table(summary: Summary) -> Group:
         head.add_row("parameters", ", ".join(f"{k} {v:.5g}" for k, v in summary.params.items()))
     if summary.recording:
         head.add_row("recording", f"{summary.recording} ({summary.rows_recorded:,} rows)")
+    for warning in summary.warnings:
+        head.add_row("[yellow]warning[/]", warning)
     seg = Table(title="steady state per reference (last 30 % of each hold)")
     for col in ("from [s]", "to [s]", "reference [rpm]", "plant [rpm]", "firmware [rpm]", "error [%]", "within 2 %"):
         seg.add_column(col, justify="right")
@@ -187,6 +194,8 @@ def summary_text(summary: Summary) -> str:
         lines.append(f"cpus: {summary.cpus}")
     if summary.link:
         lines.append("link: " + ", ".join(f"{k} {v}" for k, v in summary.link.items()))
+    if summary.params:  # as the dashboard's table has them (issue 16, item 17)
+        lines.append("parameters: " + ", ".join(f"{k} {v:.5g}" for k, v in summary.params.items()))
     for s in summary.segments:
         lines.append(
             f"ref {s.ref_rpm:+.0f} rpm [{s.t_start_s:.2f}-{s.t_end_s:.2f} s]: plant {s.plant_rpm:+.1f} rpm, "
@@ -194,6 +203,7 @@ def summary_text(summary: Summary) -> str:
         )
     if summary.recording:
         lines.append(f"recording: {summary.recording} ({summary.rows_recorded} rows)")
+    lines += [f"warning: {w}" for w in summary.warnings]
     return "\n".join(lines)
 
 

@@ -18,7 +18,9 @@ from typing import Callable
 
 from hilbench.errors import HilbenchError
 
-PROMPT_HELP = "type: set kp=0.2 | ref 1500 | load 0.02 | step 1000 2000 | guard off | get | stop  (Enter)"
+PROMPT_HELP = "type: set kp=0.2 | ref 1500 | step 1000 2000 | get | help  (Enter)"
+FULL_HELP = ("get | set NAME=V ... | ref RPM | load NM | step FROM TO | save FILE | guard on|off | press s2|s3 | "
+             "start | stop")
 
 
 class CommandLine:
@@ -81,6 +83,8 @@ class CommandLine:
         """Send one typed command; returns the one-line answer to show."""
         from hilbench.bench.control import ControlClient, parse_ctl_args
 
+        if line.split()[:1] == ["help"]:
+            return f"> help: {FULL_HELP}"
         try:
             request = parse_ctl_args(line.split())
             if request["cmd"] == "save":
@@ -92,4 +96,9 @@ class CommandLine:
             reply = ControlClient(self.socket_path, timeout_s=5.0).request(request, timeout_s=15.0)
         except (HilbenchError, OSError) as exc:
             return f"> {line}: {exc}"
+        if request["cmd"] == "get" and reply.get("ok") and isinstance(reply.get("data"), dict):
+            data = reply["data"]
+            params = " ".join(f"{k}={v:.5g}" for k, v in dict(data.get("params") or {}).items()
+                              if isinstance(v, (int, float)))
+            return f"> get: {params}; ref {data.get('ref_rpm', 0):g} rpm at t={data.get('t_s', 0):.3f} s"
         return f"> {line}: {'ok' if reply.get('ok') else 'refused'}: {reply.get('message', '')}"

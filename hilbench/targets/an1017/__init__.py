@@ -50,7 +50,9 @@ def rpm_for_pot_code(code: int) -> float:
 class An1017Settings:
     """[target] for AN1017: the firmware variant and the gains written after the handshake."""
 
-    variant: Literal["seed", "v11"] = field(default="seed", metadata=spec(doc="the application note's behaviour (seed) or the v1.1 source's"))
+    variant: Literal["appnote", "v11", "seed"] = field(default="appnote", metadata=spec(
+        doc="appnote: the AN1017 application note's behaviour; v11: the v1.1 firmware source's (what a board "
+            "flashed with Microchip's v1.1 build runs); \"seed\" is an older name for appnote"))
     kp: float | None = field(default=None, metadata=spec(ge=0, lt=1, doc="speed PID Kp (Q15 fraction; default: the firmware's 0.1)"))
     ki: float | None = field(default=None, metadata=spec(ge=0, lt=1, doc="speed PID Ki (default 0.01)"))
     kd: float | None = field(default=None, metadata=spec(ge=0, lt=1, doc="speed PID Kd (default 0)"))
@@ -60,7 +62,7 @@ def _make(settings: object) -> object:
     from hilbench.targets.an1017.firmware import An1017Options
     from hilbench.targets.an1017.target import An1017Target
 
-    variant = settings.variant if isinstance(settings, An1017Settings) else "seed"
+    variant = settings.variant if isinstance(settings, An1017Settings) else "appnote"
     return An1017Target(An1017Options(variant=variant))
 
 
@@ -68,7 +70,8 @@ def _start_sil(settings: object, tty_path: str) -> "subprocess.Popen[bytes]":
     """The board firmware (firmware/an1017) built for this host, serving tty_path."""
     from hilbench.targets.sil import start_sil
 
-    return start_sil(tty_path, settings.variant if isinstance(settings, An1017Settings) else "seed")
+    variant = settings.variant if isinstance(settings, An1017Settings) else "appnote"
+    return start_sil(tty_path, "v11" if variant == "v11" else "seed")  # the firmware build's own word
 
 
 def _check_gains(raw: Mapping[str, int]) -> str | None:

@@ -85,6 +85,7 @@ typedef struct {
     /* target side */
     long long period_tcy, last_seq;
     PyObject *tel; /* the last telemetry tuple, reused while its values do not change */
+    PyObject *last_drive; /* the answer to a repeated seq (a duplicated frame): no second step */
 } Core;
 
 /* ---------------------------------------------------------------- SVM (svm.svm, exact) */
@@ -422,12 +423,21 @@ static PyObject *Core_step(Core *s, PyObject *sensors)
     long edge = PyLong_AsLong(PyTuple_GET_ITEM(sensors, 2));
     long long seqv = PyLong_AsLongLong(seq);
     if (PyErr_Occurred()) return NULL;
+    if (s->last_drive != NULL && seqv == s->last_seq) {
+        Py_INCREF(s->last_drive);
+        return s->last_drive;
+    }
     int pot = 0, have_pot = 0;
     if (pot_of(PyTuple_GET_ITEM(sensors, 4), &pot, &have_pot) < 0) return NULL;
     int have_edge = edge != EDGE_NONE;
     fw_run(s, s->period_tcy, (int)inputs, have_edge ? (long long)edge * 2 : 0, have_edge, pot, have_pot);
     s->last_seq = seqv;
-    return fw_finish(s, seq);
+    PyObject *drive = fw_finish(s, seq);
+    if (drive != NULL) {
+        Py_INCREF(drive);
+        Py_XSETREF(s->last_drive, drive);
+    }
+    return drive;
 }
 
 static PyObject *Core_run(Core *s, PyObject *const *args, Py_ssize_t nargs)
@@ -477,12 +487,14 @@ static PyObject *Core_new(PyTypeObject *type, PyObject *args, PyObject *kwds)
 static int Core_traverse(Core *s, visitproc visit, void *arg)
 {
     Py_VISIT(s->tel);
+    Py_VISIT(s->last_drive);
     return 0;
 }
 
 static int Core_clear(Core *s)
 {
     Py_CLEAR(s->tel);
+    Py_CLEAR(s->last_drive);
     return 0;
 }
 
@@ -547,7 +559,28 @@ static int set_fifo(Core *s, PyObject *v, void *c)
     return 0;
 }
 
+/* last_drive: None or the Drive a repeated seq gets; only None may be written (forget it) */
+static PyObject *get_last_drive(Core *s, void *c)
+{
+    (void)c;
+    if (s->last_drive == NULL) Py_RETURN_NONE;
+    Py_INCREF(s->last_drive);
+    return s->last_drive;
+}
+
+static int set_last_drive(Core *s, PyObject *v, void *c)
+{
+    (void)c;
+    if (v != NULL && v != Py_None) {
+        PyErr_SetString(PyExc_TypeError, "an1017 core last_drive: only None may be written");
+        return -1;
+    }
+    Py_CLEAR(s->last_drive);
+    return 0;
+}
+
 static PyGetSetDef Core_getset[] = {
+    {"last_drive", (getter)get_last_drive, (setter)set_last_drive, "the Drive a repeated seq gets (None: none)", NULL},
     {"pending_gains", (getter)get_pending, (setter)set_pending, "gains waiting for the next Timer1 ISR", NULL},
     {"ic7_fifo", (getter)get_fifo, (setter)set_fifo, "IC7 capture FIFO (copy)", NULL},
     {NULL, NULL, NULL, NULL, NULL},

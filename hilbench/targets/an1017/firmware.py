@@ -2,7 +2,7 @@
 
 Virtual time is counted in Tcy = 50 ns (FCY = 20 MHz). Interrupts run at their own times inside
 each span: the PWM ISR at every PWM period boundary (1000 Tcy), the ADC ISR at the PWM rate
-(seed) or every 16th period (v1.1), Timer1 every (PR1+1)·64 = 20096 Tcy after RunMotor, the hall
+(the application note) or every 16th period (v1.1), Timer1 every (PR1+1)·64 = 20096 Tcy after RunMotor, the hall
 ISRs (CN5 = A, IC7 = B, IC8 = C) at the edge time the host reports. Simultaneous interrupts run in
 the dsPIC's natural order (T1, ADC, CN, IC7, IC8, PWM). Duty registers written by the PWM ISR take
 effect at the next period boundary (PWMCON2.IUE = 0).
@@ -12,13 +12,14 @@ events into O(1) arithmetic (Phase advances linearly, the SVM is only evaluated 
 that are reported); the reference one (`reference=True`) executes every PWM ISR with the full
 SVM. Tests run both over scripted streams and require identical Drive sequences.
 
-Seed/source differences (An1017Options, default = the seed document, variant "v11" = the source):
-- ADC ISR rate. Seed: "将 A/D 转换器配置为中断触发模式且中断频率为 PWM 速率（本应用中为 20 kHz）"
+Where the AN1017 application note (Chinese edition) and the v1.1 firmware source differ
+(An1017Options: default variant "appnote" = the note, "v11" = the source):
+- ADC ISR rate. The note: "将 A/D 转换器配置为中断触发模式且中断频率为 PWM 速率（本应用中为 20 kHz）"
   and Table 4 "A/D 20 kHz" → every PWM period. v1.1: PWMCON2 SEVOPS 1:16 → every 16th period.
-- PID C1. Seed Table 7: "PIDCoefficients[1] = -Kp - 2Kd". v1.1 RunMotor: -(Ki + 2*Kd).
-- Phase advance. Seed: "该算法可通过在 SinusoidalBLDC v1.1.c 文件中定义 PHASE_ADVANCE 来使能。
+- PID C1. The note's Table 7: "PIDCoefficients[1] = -Kp - 2Kd". v1.1 RunMotor: -(Ki + 2*Kd).
+- Phase advance. The note: "该算法可通过在 SinusoidalBLDC v1.1.c 文件中定义 PHASE_ADVANCE 来使能。
   在本应用笔记中该功能被禁止。" (disabled in this note) → off. v1.1 #defines PHASE_ADVANCE → on.
-- Stall timeout. The seed only says Timer1 "提供电机堵转保护" (Table 4) without a figure; the
+- Stall timeout. The note only says Timer1 "提供电机堵转保护" (Table 4) without a figure; the
   firmware's own Timer1 header says "(i.e. 100 ms)" and the 33F port uses _100MILLISEC, so the
   default is 100 ms (stop at the 101st tick without a hall edge, since 100 % 10 == 0 force-
   commutates). v1.1 uses _1000MILLISEC → stop at tick 1001.
@@ -73,7 +74,7 @@ GAIN_CONSTRAINT_NAMES = {
 
 
 def check_gain_constraints(kp_q15: int, ki_q15: int, kd_q15: int) -> int | None:
-    """The seed's PID gain constraints; None when all hold, else the first broken one (1, 2, 3)."""
+    """The application note's PID gain constraints; None when all hold, else the first broken one (1, 2, 3)."""
     if not kp_q15 + ki_q15 + kd_q15 < GAIN_LIMIT_Q15:
         return 1
     if not -kp_q15 - 2 * kd_q15 > -32768:
@@ -85,23 +86,27 @@ def check_gain_constraints(kp_q15: int, ki_q15: int, kd_q15: int) -> int | None:
 
 @dataclass(frozen=True)
 class An1017Options:
-    """Where the seed document and the v1.1 source differ; defaults follow the seed document.
+    """Where the AN1017 application note and the v1.1 firmware source differ; defaults follow the
+    application note's behaviour (variant "appnote"; "seed" is that variant's former name).
 
     `variant="v11"` switches every difference to the source's behaviour; the individual fields
     (None = take the variant's value) override single points.
     """
 
-    variant: Literal["seed", "v11"] = "seed"
+    variant: Literal["appnote", "v11", "seed"] = "appnote"
     adc_every_pwm_period: bool | None = None
-    pid_c1_textbook: bool | None = None  # C1 = -Kp-2Kd (seed) vs -(Ki+2Kd) (v11)
+    pid_c1_textbook: bool | None = None  # C1 = -Kp-2Kd (the note) vs -(Ki+2Kd) (v11)
     phase_advance: bool | None = None
     stall_timeout_ms: int | None = None
     phase_offset_ccw: int = PHASE_OFFSET_CCW
     max_phase_advance_deg: int = 40
 
     def __post_init__(self) -> None:
-        if self.variant not in ("seed", "v11"):
-            raise ConfigError(f"an1017 options variant: {self.variant!r} is not 'seed' or 'v11'")
+        if self.variant == "seed":  # the former name of the application note's behaviour
+            object.__setattr__(self, "variant", "appnote")
+        if self.variant not in ("appnote", "v11"):
+            raise ConfigError(f"an1017 options variant: {self.variant!r} is not 'appnote' (the application note's "
+                              f"behaviour) or 'v11' (the v1.1 firmware source's)")
         if self.stall_timeout_ms is not None and not 10 <= self.stall_timeout_ms <= 30000:
             raise ConfigError(f"an1017 options stall_timeout_ms: {self.stall_timeout_ms} not in 10..30000")
         if not 0 <= self.max_phase_advance_deg <= 60:

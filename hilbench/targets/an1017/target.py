@@ -187,6 +187,7 @@ class An1017Target:
         self.mode = 0
         self.watchdog_ms = 0
         self._last_seq = 0
+        self._last_drive: Drive | None = None  # a repeated seq is answered with it, without a step
         self._frac_tcy = 0.0
         self.watchdog_trips = 0
         self.last_error = 0
@@ -205,6 +206,7 @@ class An1017Target:
         self.period_us = period_us
         self._period_tcy = period_us * TCY_PER_US
         self._ctx = self._idle = None
+        self._last_drive = None
         self.mode = int(host.mode)
         self.watchdog_ms = int(host.watchdog_ms)
         return TargetHello(
@@ -256,7 +258,7 @@ class An1017Target:
         return ParamValue(0, param_id, RESULT_OK, self._value(param_id))
 
     def set_params(self, pairs: tuple[tuple[int, int], ...]) -> ParamSetResult:
-        """All or nothing: ids, ranges and the seed's gain constraints are checked before any write."""
+        """All or nothing: ids, ranges and the application note's gain constraints are checked before any write."""
         if not pairs or len(pairs) > 4:
             return ParamSetResult(0, RESULT_BAD_REQUEST, 0, 0)
         new = {pid: self._value(pid) for pid in PARAMS}
@@ -382,7 +384,12 @@ class An1017Target:
         only advances time and reuses its Drives (one per seq). Everything else goes through
         `_step_events`. All paths give the reference path's Drive exactly
         (tests/test_an1017_fastpath.py compares every Drive over randomised streams).
+        A Sensors repeating the last one's seq (a duplicated frame) gets the last Drive again and
+        the firmware does not step: a board answers a repeat the same way (issue 16, item 8).
         """
+        last = self._last_drive
+        if last is not None and sensors[0] == last[0]:
+            return last
         ctx = self._ctx
         if ctx is not None:
             hall, t_last, vkey, dphase, adv, ovr, adc_every, cache = ctx
@@ -395,13 +402,13 @@ class An1017Target:
                     pot = adc[0]
                     if pot != fw.pot_code:
                         fw.pot_code = pot
-                        if adc_every and ovr is None:  # seed: the ADC ISR runs at every boundary
+                        if adc_every and ovr is None:  # appnote: the ADC ISR runs at every boundary
                             ref = ((pot & 0x3FF) - 512) << 6
                             if ref != fw.ref_speed:
                                 fw.ref_speed = ref
                                 tel = tail[6]
                                 tail = self._tail = tail[:6] + ((ref, tel[1], tel[2]),)
-                # (seed, pot unchanged: RefSpeed is already this pot's value — see _finish)
+                # (appnote, pot unchanged: RefSpeed is already this pot's value — see _finish)
                 if not adc_every and t % 16_000 == 0:  # v11: the ADC ISR at every 16th boundary
                     ref = (((fw.pot_code & 0x3FF) - 512) << 6) if ovr is None else ovr
                     if ref != fw.ref_speed:
@@ -415,7 +422,8 @@ class An1017Target:
                 fw.pend_key = vkey | ((phase + adv) & 0xFFFF)
                 fw.t = t + 1000
                 self._last_seq = seq
-                return _tuple_new(Drive, (seq,) + cache[act] + tail)
+                d = self._last_drive = _tuple_new(Drive, (seq,) + cache[act] + tail)
+                return d
         idle = self._idle
         if idle is not None:
             hall, pot, drives, body = idle
@@ -428,8 +436,10 @@ class An1017Target:
                     if len(drives) >= 4096:
                         drives.clear()
                     d = drives[seq] = _tuple_new(Drive, (seq,) + body)
+                self._last_drive = d
                 return d
-        return self._step_events(sensors)
+        d = self._last_drive = self._step_events(sensors)
+        return d
 
     def _step_events(self, sensors: Any) -> Drive:
         """A period with a Timer1 tick or a timed hall edge after its PWM boundary, or the general path."""
@@ -495,6 +505,7 @@ class An1017Target:
     def watchdog_trip(self) -> Drive:
         """Sensors stopped arriving: StopMotor, state FAULT, fault WATCHDOG."""
         self.watchdog_trips += 1
+        self._last_drive = None
         self.last_error = int(ErrorCode.WATCHDOG)  # Status.last_error speaks ErrorCode; FAULT_WATCHDOG is for Drive.fault
         self.fw.press_stop(STATE_FAULT, FAULT_WATCHDOG)
         return self._finish(self._last_seq)
@@ -550,6 +561,15 @@ if _an1017core is not None:
         @_period_tcy.setter
         def _period_tcy(self, value: int) -> None:
             self.fw.period_tcy = value
+
+        @property
+        def _last_drive(self) -> Drive | None:  # type: ignore[override]
+            return self.fw.last_drive
+
+        @_last_drive.setter
+        def _last_drive(self, value: Drive | None) -> None:
+            if value is None:
+                self.fw.last_drive = None  # the C step keeps the others itself
 
         @property
         def _last_seq(self) -> int:  # type: ignore[override]

@@ -62,7 +62,7 @@ PROFILE = TargetProfile(
     telemetry=tuple(TelemetryColumn(tid, col, unit, scale, fmt) for _, tid, col, unit, scale, fmt in TELEMETRY_SPEC),
     speed_column="measured_speed_rpm",
     built_for=lambda options: MotorBuild(pole_pairs=getattr(options, "pole_pairs", 3), max_speed_rpm=3000.0),
-    capabilities=frozenset({"speed_loop", "realtime", "tuning"}),
+    capabilities=frozenset({"speed_loop", "realtime", "tuning", "encoder"}),
     sweep_defaults=(("spd_kp", "0.2:1.2:6"), ("spd_ki", "0.002:0.03:6")),
 )
 

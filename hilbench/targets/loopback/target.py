@@ -97,10 +97,12 @@ class LoopbackTarget:
         self.watchdog_trips = 0
         self.last_error = 0
         self._last_sensors: Sensors | None = None
+        self._last_drive: Drive | None = None
 
     def hello(self, host: HostHello) -> TargetHello:
         """A handshake starts a session stopped."""
         self.running = False
+        self._last_drive = None
         return TargetHello(host.seq, PROTOCOL_VERSION, SCHEMA_FINGERPRINT, FIRMWARE_VERSION, PWM_PERIOD_COUNTS,
                            PWM_FREQ_HZ, len(PARAMS), 10, FIRMWARE_NAME, ADC_ROLES, TELEMETRY_IDS)  # 10-bit ADC
 
@@ -138,11 +140,21 @@ class LoopbackTarget:
 
     def start(self) -> None:
         self.running = True
+        self._last_drive = None
 
     def stop(self) -> None:
         self.running = False
+        self._last_drive = None
 
     def step(self, sensors: Sensors) -> Drive:
+        """One period; a repeated seq (a duplicated frame) gets the last Drive, with no step."""
+        last = self._last_drive
+        if last is not None and sensors.seq == last.seq:
+            return last
+        self._last_drive = drive = self._map(sensors)
+        return drive
+
+    def _map(self, sensors: Sensors) -> Drive:
         inputs = sensors.inputs
         s2 = bool(inputs & INPUT_S2)
         if s2 and not self._s2_prev:
@@ -173,6 +185,7 @@ class LoopbackTarget:
     def watchdog_trip(self) -> Drive:
         """Outputs off, stopped, fault WATCHDOG; duties zero, sector invalid, telemetry zero."""
         self.running = False
+        self._last_drive = None
         self.watchdog_trips += 1
         self.last_error = int(ErrorCode.WATCHDOG)
         seq = self._last_sensors.seq if self._last_sensors is not None else 0

@@ -1,0 +1,153 @@
+"""The run's reference segments: one segmentation for the run summary and `hilbench report`.
+
+A segment is one held speed reference, from the moment it is reached (after its ramp) until the
+next reference, a stop (a press of the start/stop button after the start) or the end; its figure
+is the mean plant (and firmware) speed over the last 30 % of the hold. The session tells a
+`Segmenter` every reference change however it was made (scenario, ramp, `ctl ref`, `ctl step`,
+the Python API) and records the same calls as ``segment:`` events; `hilbench report` replays
+those events over the recorded rows, so both see the same samples and give the same numbers
+(issue 16, item 10). Memory is bounded: a hold's samples are decimated beyond ``capacity``.
+"""
+
+from __future__ import annotations
+
+import math
+import re
+from dataclasses import dataclass, field
+from typing import Iterable, Sequence
+
+from hilbench.bench.summary import Segment
+
+#: presses this soon after a reference are starts, not stops
+START_PRESS_S = 0.05
+#: holds shorter than this give no segment
+MIN_HOLD_S = 0.05
+#: the segment's figure is the mean over this last fraction of the hold
+WINDOW_FRACTION = 0.3
+EVENT_PREFIX = "segment:"
+_EVENT = re.compile(r"^segment: (ref|press|end) at (\S+)(?: ref (\S+) ramp (\S+))?$")
+
+
+@dataclass
+class _Open:
+    t_s: float
+    hold_from_s: float
+    ref_rpm: float
+    stride: int = 1
+    seen: int = 0
+    samples: list[tuple[float, float, float]] = field(default_factory=list)
+
+
+class Segmenter:
+    """Reference changes, stops and speed samples in; `Segment`s out, in bounded memory."""
+
+    def __init__(self, capacity: int = 4096) -> None:
+        self.capacity = capacity
+        self.segments: list[Segment] = []
+        self._open: _Open | None = None
+
+    def reference(self, t_s: float, ref_rpm: float, ramp_s: float = 0.0) -> None:
+        """A new reference at t_s, held from t_s + ramp_s (the same reference again changes nothing)."""
+        current = self._open
+        if current is not None and current.ref_rpm == ref_rpm and ramp_s == 0.0 and t_s >= current.hold_from_s:
+            return
+        self._close(t_s)
+        self._open = _Open(t_s, t_s + ramp_s, ref_rpm)
+
+    def press(self, t_s: float) -> None:
+        """The start/stop button: a stop unless it comes right after the reference (a start)."""
+        current = self._open
+        if current is not None and t_s > current.hold_from_s + START_PRESS_S:
+            self._close(t_s)
+
+    def end(self, t_s: float) -> None:
+        self._close(t_s)
+
+    def sample(self, t_s: float, plant_rpm: float, measured_rpm: float) -> None:
+        current = self._open
+        if current is None or t_s < current.hold_from_s:
+            return
+        current.seen += 1
+        if (current.seen - 1) % current.stride:
+            return
+        current.samples.append((t_s, plant_rpm, measured_rpm))
+        if len(current.samples) >= self.capacity:  # keep every other one: half the rate from now on
+            del current.samples[1::2]
+            current.stride *= 2
+
+    def finish(self, t_s: float) -> list[Segment]:
+        """Close the open hold at t_s; every segment of the run."""
+        self._close(t_s)
+        return list(self.segments)
+
+    def _close(self, end_s: float) -> None:
+        current, self._open = self._open, None
+        if current is None:
+            return
+        start = current.hold_from_s
+        if end_s - start <= MIN_HOLD_S or current.ref_rpm == 0:
+            return
+        window_start = end_s - WINDOW_FRACTION * (end_s - start)
+        window = [(p, m) for t, p, m in current.samples if window_start <= t < end_s]
+        if not window:
+            return
+        plant = sum(p for p, _ in window) / len(window)
+        measured = [m for _, m in window if not math.isnan(m)]
+        self.segments.append(Segment(current.t_s, end_s, float(current.ref_rpm), plant,
+                                     sum(measured) / len(measured) if measured else math.nan))
+
+
+def reference_event(t_s: float, ref_rpm: float, ramp_s: float = 0.0) -> str:
+    """The recording's note of a reference change (exact values: the report replays it)."""
+    return f"{EVENT_PREFIX} ref at {t_s!r} ref {float(ref_rpm)!r} ramp {float(ramp_s)!r}"
+
+
+def press_event(t_s: float) -> str:
+    return f"{EVENT_PREFIX} press at {t_s!r}"
+
+
+def end_event(t_s: float) -> str:
+    return f"{EVENT_PREFIX} end at {t_s!r}"
+
+
+def is_segment_event(text: str) -> bool:
+    return text.startswith(EVENT_PREFIX)
+
+
+def replay(events: Iterable[str], t_s: Sequence[float], plant_rpm: Sequence[float], measured_rpm: Sequence[float],
+           period_s: float, every_periods: int, end_s: float) -> list[Segment]:
+    """The segments of a recording: its ``segment:`` events over the rows the session sampled
+    (every ``every_periods``-th period, at k * period_s, as the session's own history)."""
+    calls: list[tuple[float, str, float, float]] = []
+    for text in events:
+        match = _EVENT.match(text)
+        if match:
+            kind, when, ref, ramp = match.groups()
+            calls.append((float(when), kind, float(ref or 0.0), float(ramp or 0.0)))
+    segmenter = Segmenter()
+    i = 0
+    for row in range(len(t_s)):
+        k = round(t_s[row] / period_s)
+        if k % every_periods:
+            continue
+        t = k * period_s
+        while i < len(calls) and round(calls[i][0] / period_s) <= k:  # by period, as the session ran them
+            _apply(segmenter, calls[i])
+            i += 1
+        segmenter.sample(t, float(plant_rpm[row]), float(measured_rpm[row]))
+    for call in calls[i:]:
+        _apply(segmenter, call)
+    return segmenter.finish(end_s)
+
+
+def _apply(segmenter: Segmenter, call: tuple[float, str, float, float]) -> None:
+    when, kind, ref, ramp = call
+    if kind == "ref":
+        segmenter.reference(when, ref, ramp)
+    elif kind == "press":
+        segmenter.press(when)
+    else:
+        segmenter.end(when)
+
+
+__all__ = ["Segmenter", "replay", "reference_event", "press_event", "end_event", "is_segment_event", "START_PRESS_S"]
