@@ -155,7 +155,12 @@ def test_the_runaway_and_the_servo_with_the_an1017_firmware_exit_7(tmp_path: Pat
         (0.0, "ref_rpm = 1500.0\nramp_s = 0.3"), (0.03, 'press = "s2"'), (0.8, "load_nm = 0.5"),
         (1.2, "ref_rpm = 2500.0"), (2.2, "ref_rpm = -1500.0"), (3.6, 'press = "s2"'), (3.8, "end = true")))
     runaway.write_text((BENCH_CONFIGS / "hurst_mclv.toml").read_text() + scenario)
-    run = _cli("run", str(runaway), "--target", "inprocess:an1017", "--no-ui", "--no-control")
+    # with the board's protections the run is stopped by them (overcurrent trip, overspeed limit)
+    protected = _cli("run", str(runaway), "--target", "inprocess:an1017", "--no-ui", "--no-control")
+    assert protected.returncode != 0, protected.stdout
+    # without them, the checks catch it
+    run = _cli("run", str(runaway), "--target", "inprocess:an1017", "--no-ui", "--no-control",
+               "--set", "protection.overcurrent_a=0", "--set", "protection.overspeed_rpm=0")
     assert run.returncode == CheckFailed.exit_code == 9, run.stderr
     assert "check speed_limit: FAIL" in run.stdout and "check speed_error: FAIL" in run.stdout
     assert run.stderr.startswith("hilbench: check failed: ") and len(run.stderr.strip().splitlines()) == 1
@@ -171,7 +176,11 @@ def test_the_runaway_and_the_servo_with_the_an1017_firmware_exit_7(tmp_path: Pat
             kept.append(line)
     motor_only = tmp_path / "servo_motor.toml"
     motor_only.write_text("\n".join(kept) + "\n")
-    servo = _cli("run", str(motor_only), "--target", "inprocess:an1017", "--json", "--no-control")
+    refused = _cli("run", str(motor_only), "--target", "inprocess:an1017", "--no-ui", "--no-control")
+    assert refused.returncode == 2 and "pole pairs" in refused.stderr  # the bench's own check, first
+    servo = _cli("run", str(motor_only), "--target", "inprocess:an1017", "--json", "--no-control",
+                 "--set", "link.allow_pole_pair_mismatch=true", "--set", "protection.overspeed_rpm=0",
+                 "--set", "protection.overcurrent_a=0")
     assert servo.returncode == 9, servo.stderr
     failed = [c for c in json.loads(servo.stdout)["checks"] if not c["passed"]]
     assert failed[0]["kind"] == "speed_error" and failed[0]["value"] > 50

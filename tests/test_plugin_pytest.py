@@ -342,8 +342,8 @@ def test_hil_open_plays_the_config_scenario_and_its_checks(pytester: pytest.Pyte
             results = assert_config_checks(bench)
             assert len(results) == 5
 
-        def test_a_runaway_fails_its_checks(hil_open):
-            bench = hil_open(scenario=True)
+        def test_a_runaway_fails_its_checks(hil_open):  # the board's protections off: the checks see it
+            bench = hil_open(["protection.overspeed_rpm=0", "protection.overcurrent_a=0"], scenario=True)
             bench.run(0.8)
             bench.set_load(0.5)
             bench.run()

@@ -44,10 +44,11 @@ from typing import TYPE_CHECKING, Callable, Literal, Mapping, Sequence
 import numpy as np
 
 from hilbench.config import register_section, spec
-from hilbench.errors import CheckFailed
+from hilbench.errors import CheckFailed, HilbenchError
 
 if TYPE_CHECKING:
     from hilbench.bench.steptest import StepResult
+    from hilbench.config import BenchConfig
     from hilbench.bench.summary import Segment, Summary
 
 RUN_KINDS = ("speed_error", "settling_time", "peak_current", "speed_limit", "signal", "no_fault", "overruns")
@@ -143,6 +144,25 @@ class CheckResult:
 
 SignalsSource = Callable[[], Mapping[str, np.ndarray]]
 
+#: kinds judged on the summary alone; the others read the recorded signals
+SUMMARY_KINDS = ("speed_error", "overruns")
+#: an unrecorded run keeps its rows in memory for the checks up to this long (simulated)
+KEEP_ROWS_MAX_S = 60.0
+
+
+def keep_rows_for_checks(cfg: "BenchConfig") -> bool:
+    """Whether an unrecorded run must keep its rows for its checks: some run kind reads signals
+    and the run is short enough to hold in memory (longer ones: record it, `--record run.npz`)."""
+    from hilbench.bench import settings
+
+    if not any(c.kind in RUN_KINDS and c.kind not in SUMMARY_KINDS for c in cfg.check):
+        return False
+    duration = cfg.run.duration_s
+    if duration is None:
+        ends = [e.at_s for e in settings.scenario_events(cfg) if e.end]
+        duration = min(ends) if ends else 5.0
+    return duration <= KEEP_ROWS_MAX_S
+
 
 def run_checks(entries: Sequence[CheckEntry], summary: "Summary", signals: SignalsSource) -> list[CheckResult]:
     """Judge every run kind of ``entries`` on a finished run; ``signals`` is read only if needed."""
@@ -150,11 +170,26 @@ def run_checks(entries: Sequence[CheckEntry], summary: "Summary", signals: Signa
 
     def columns() -> Mapping[str, np.ndarray]:
         if "s" not in cache:
-            cache["s"] = signals()
+            try:
+                cache["s"] = signals()
+            except HilbenchError as exc:  # nothing recorded: a long run without --record
+                raise _NoRows(str(exc)) from None
         return cache["s"]
 
-    return [_judge_run(entry, summary, columns) if _for_firmware(entry, summary.firmware) else _other_firmware(entry, summary.firmware)
-            for entry in entries if entry.kind in RUN_KINDS]
+    def judge(entry: CheckEntry) -> CheckResult:
+        if not _for_firmware(entry, summary.firmware):
+            return _other_firmware(entry, summary.firmware)
+        try:
+            return _judge_run(entry, summary, columns)
+        except _NoRows:
+            return CheckResult(entry.label, entry.kind, True, "not judged: the run kept no rows "
+                               f"(longer than {KEEP_ROWS_MAX_S:g} s without --record)")
+
+    return [judge(entry) for entry in entries if entry.kind in RUN_KINDS]
+
+
+class _NoRows(Exception):
+    """The run kept no rows to judge signals on."""
 
 
 def _for_firmware(entry: CheckEntry, firmware: str) -> bool:
