@@ -269,17 +269,17 @@ def run(config: str | None, target_spec: str | None, mode: str | None, duration_
     extra = params_file_overrides(gains_file) if gains_file else ()
     request = RunRequest(config, check_overrides(overrides) + extra, target_spec, mode, duration_s, record,
                          scenario=scenario_file)
-    cfg = load_run_config(request)
-    from hilbench.bench.feasibility import check_run
-
-    for warning in check_run(cfg):
-        click.echo(f"hilbench: warning: {warning}", err=True)
+    cfg = load_run_config(request)  # (run_bench checks what the host and link allow, and warns)
     control = None
     if not no_control:
         from hilbench.bench.control import ControlServer
 
         control = ControlServer()
-        click.echo(f"hilbench: control socket {control.path} (hilbench ctl --socket {control.path} ...)", err=True)
+
+    def announce(session: Any) -> None:  # once the target answered: an error stays one line
+        if control is not None:
+            click.echo(f"hilbench: control socket {control.path} (hilbench ctl --socket {control.path} ...)", err=True)
+
     scope_server: Any = None
     if scope:  # `hilbench scope` on the run's control socket, as a child process
         from hilbench.errors import ConfigError
@@ -291,7 +291,7 @@ def run(config: str | None, target_spec: str | None, mode: str | None, duration_
     console = Console()
     try:
         if no_ui or as_json or not console.is_terminal:
-            summary = run_bench(cfg, record=record, control=control,
+            summary = run_bench(cfg, record=record, control=control, on_ready=announce,
                                 warn=lambda text: click.echo(f"hilbench: warning: {text}", err=True))
         else:
             dashboard = Dashboard(cfg.link.target, cfg.run.duration_s, console=console)

@@ -43,7 +43,7 @@ static const uint16_t phase_values[6] AN1017_ROM = {57344u, 2730u, 13652u, 24574
 static const uint16_t sector_table[8] AN1017_ROM = {0xFFFFu, 4u, 2u, 3u, 0u, 5u, 1u, 0xFFFFu};
 
 #define SIXTY_DEG 0x2AAAu
-#define MINPERIOD_DIVF 312              /* _MINPERIOD = MINPERIOD - 1 keeps DIVF's |num| < |den| */
+#define MINPERIOD_DIVF ((int16_t)(AN1017_MINPERIOD - 1u)) /* _MINPERIOD = MINPERIOD - 1 keeps DIVF's |num| < |den| */
 #define PHASEINC_NUMERATOR 512000UL     /* 65536 * 1000 Tcy / (2 * 64 Tcy): FCY-independent */
 #define FORCE_COMMUTATION_TICKS 10u     /* _10MILLISEC */
 #define ADC_POSTSCALE_MASK 15u          /* SEVOPS 1:16 (v1.1) */
@@ -295,7 +295,7 @@ void an1017_isr_timer1(an1017_t *s)
     }
     s->period = period;
     s->phase_inc = (uint16_t)(PHASEINC_NUMERATOR / period);
-    /* MeasuredSpeed = DIVF(_MINPERIOD, Period); 313 <= Period <= 31250 fits a positive int16 */
+    /* MeasuredSpeed = DIVF(_MINPERIOD, Period); MINPERIOD <= Period <= MAXPERIOD <= 32767 fits a positive int16 */
     ms = q15_divf(MINPERIOD_DIVF, (int16_t)period);
     if (s->cur_ccw) {
         ms = (int16_t)-ms;
@@ -434,6 +434,11 @@ void an1017_run(an1017_t *s, uint32_t duration_tcy, uint8_t inputs, uint8_t have
         s->pot_code = pot_code;
     }
     an1017_main_loop_buttons(s, inputs);
+    if ((inputs & AN1017_INPUT_FAULT) && (s->running || s->booting)) {
+        /* FLTA (FLTACON = 0x0007, latched): outputs inactive, the FLTA ISR stops with FAULT; only a
+         * stop/start restarts, not while the pin is asserted. The span's fault bit acts at its start. */
+        an1017_press_stop(s, AN1017_STATE_FAULT, AN1017_FAULT_OVERCURRENT);
+    }
     if (new_hall != s->hall && duration_tcy > 0u) {
         edge_pending = 1u;
         edge_at = have_edge ? edge_offset_tcy : 0u;
@@ -486,7 +491,7 @@ void an1017_run(an1017_t *s, uint32_t duration_tcy, uint8_t inputs, uint8_t have
 
 uint16_t an1017_duty(const an1017_t *s, uint8_t phase)
 {
-    uint16_t d = s->pdc_active[phase];
+    uint16_t d = s->pdc_pending[phase]; /* as the PWM ISR wrote them: PDC for the next period */
     return (d > AN1017_DUTY_MAX) ? (uint16_t)AN1017_DUTY_MAX : d;
 }
 

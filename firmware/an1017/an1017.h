@@ -33,8 +33,26 @@
 #define AN1017_PTPER 499u
 #define AN1017_TPWM 998u                  /* PTPER << 1: the period in duty-register units */
 #define AN1017_VOLTS_LIMIT 28300          /* 0.866 = sqrt(3)/2 in Q15 */
-#define AN1017_MINPERIOD 313u             /* 6000 rpm, 10 poles, TMR3 at Tcy/64 */
-#define AN1017_MAXPERIOD 31250u           /* 60 rpm */
+/* The motor the firmware is built for (docs/board.md "Building for a motor"): override with
+ * -DAN1017_POLE_PAIRS=4 -DAN1017_MAX_SPEED_RPM=6000. Period counts TMR3 ticks (Tcy/64 = 3.2 us)
+ * between two hall-B edges, half an electrical revolution: Period = 9375000 / (pole pairs * rpm).
+ * MINPERIOD rounds up at the maximum speed; MAXPERIOD is the 60 rpm period, kept a positive
+ * 16-bit DIVF divisor. The note's build (10 poles, 6000 rpm) gives 313 and 31250. */
+#ifndef AN1017_POLE_PAIRS
+#define AN1017_POLE_PAIRS 5UL
+#endif
+#ifndef AN1017_MAX_SPEED_RPM
+#define AN1017_MAX_SPEED_RPM 6000UL
+#endif
+#define AN1017_PERIOD_X_RPM 9375000UL     /* 60 s / (2 * 3.2 us) */
+#define AN1017_POLES_X_RPM (1UL * (AN1017_POLE_PAIRS) * (AN1017_MAX_SPEED_RPM)) /* unsigned long, also in #if */
+#define AN1017_MINPERIOD_RAW ((AN1017_PERIOD_X_RPM + AN1017_POLES_X_RPM - 1UL) / AN1017_POLES_X_RPM)
+#define AN1017_MAXPERIOD_RAW (AN1017_PERIOD_X_RPM / (1UL * (AN1017_POLE_PAIRS) * 60UL))
+#define AN1017_MINPERIOD ((uint16_t)AN1017_MINPERIOD_RAW)
+#define AN1017_MAXPERIOD ((uint16_t)((AN1017_MAXPERIOD_RAW > 32767UL) ? 32767UL : AN1017_MAXPERIOD_RAW))
+#if (AN1017_MINPERIOD_RAW < 2UL) || (AN1017_MINPERIOD_RAW >= AN1017_MAXPERIOD_RAW) || (AN1017_MINPERIOD_RAW >= 32767UL)
+#error "AN1017_POLE_PAIRS / AN1017_MAX_SPEED_RPM: MINPERIOD out of 2..MAXPERIOD-1"
+#endif
 #define AN1017_PHASE_OFFSET 4100          /* 22.5 deg, the CCW offset of the 30F source */
 #define AN1017_SECTOR_INVALID 0xFFFFu     /* -1 in the firmware's unsigned Sector */
 #define AN1017_DUTY_MAX 1000u             /* a duty above 100 % (CCW start-up only) is reported as 1000 */
@@ -52,6 +70,8 @@
 #define AN1017_FAULT_WATCHDOG 1u
 #define AN1017_FAULT_STALL 2u
 #define AN1017_INPUT_S2 0x08u
+#define AN1017_INPUT_FAULT 0x20u          /* FLTA, the board's over-current comparator (Sensors bit) */
+#define AN1017_FAULT_OVERCURRENT 3u
 
 /* ---- declared parameters (ids as the protocol numbers them) ---- */
 #define AN1017_PARAM_KP 0u
@@ -113,7 +133,7 @@ typedef struct {
 
 /* The firmware's outputs as a Drive carries them. */
 typedef struct {
-    uint16_t duty[3];         /* PDC1..3 in effect, 0..1000 (1000 = 100 %) */
+    uint16_t duty[3];         /* PDC1..3 for the next period (the PWM ISR's last write), 0..1000 (1000 = 100 %) */
     uint8_t output_mode, state, sector, ccw, req_ccw, fault;
     int16_t telemetry[3];     /* RefSpeed, MeasuredSpeed, ControlOutput */
 } an1017_out_t;
@@ -144,7 +164,7 @@ void an1017_run(an1017_t *s, uint32_t duration_tcy, uint8_t inputs, uint8_t have
 void an1017_apply_hall(an1017_t *s, uint8_t new_bits, uint32_t offset_tcy);
 
 void an1017_outputs(const an1017_t *s, an1017_out_t *out);
-uint16_t an1017_duty(const an1017_t *s, uint8_t phase);     /* PDC in effect, 0..1000 */
+uint16_t an1017_duty(const an1017_t *s, uint8_t phase);     /* PDC as the PWM ISR last wrote it (in effect from the next boundary), 0..1000 */
 uint8_t an1017_sector_reported(const an1017_t *s);          /* 0..5, 7 = invalid */
 
 /* ---- parameters ---- */

@@ -310,7 +310,7 @@ def configured_profile(cfg: BenchConfig) -> TargetProfile | None:
     Refuses a plant whose pole pairs differ from the firmware's build (settings.check_motor_build)."""
     if settings.target_name(cfg.link.target) is None and cfg.link.firmware is None:
         return None
-    profile = settings.target_profile(cfg.link)
+    profile = settings.configured_target_profile(cfg)
     settings.check_motor_build(cfg, profile)
     return profile
 

@@ -54,7 +54,7 @@ effective_seed = settings.effective_seed
 
 def settings_profile(cfg: BenchConfig) -> TargetProfile:
     """The configured target's profile (the default target's for a port with no [link] firmware)."""
-    return settings.target_profile(cfg.link)
+    return settings.configured_target_profile(cfg)
 
 
 def in_process(cfg: BenchConfig) -> BenchConfig:

@@ -182,7 +182,7 @@ class Session:
         self._qos: CpuLatencyRequest | None = None
         self._pacing: RealtimePacing | None = None
         self._trip_noted = False  # the overcurrent comparator's trip is an event once per latch
-        self._supply_v = plant.vbus_v  # the bench supply's voltage (the bus rises above it only with a capacitor)
+        self._supply_v = 0.0  # the bench supply's voltage (the bus rises above it only with a capacitor): begin()
         self.display: Any = None  # the scope's display stream (hilbench.scope.stream), made by `stream`
 
     # ------------------------------------------------------------------ handshake
@@ -399,6 +399,7 @@ class Session:
             self._qos.__enter__()  # released by end(), however the run ends
             summary.cpu_latency = self._qos.status
         self._lockstep_rtts = StreamingPercentiles()
+        self._supply_v = self.plant.vbus_v
         self._scenario_k = first_period_at(self.player.next_t_s, self._period_s)
         self.faults.last_hall = self.plant.hall_bits
         self._wall_start = time.perf_counter()
@@ -518,7 +519,8 @@ class Session:
                 inputs = hall | buttons
                 if index_bit and plant.encoder_index:
                     inputs |= index_bit
-                if plant.fault_input:  # the board's overcurrent comparator drives FAULT
+                tripped = plant.fault_input  # the board's overcurrent comparator drives FAULT
+                if tripped:
                     inputs |= INPUT_FAULT
                 sensors = new_sensors(Sensors, (k & 0xFF, inputs, edge, (plant.encoder_count + encoder_offset) & 0xFFFF,
                                                 plant.adc_codes(roles)))
@@ -547,11 +549,11 @@ class Session:
                     else:
                         extend(pack(k, hall, sector, da, db, dc, mode, state, fault, rtt, late, marker, *tele))
                     plant_state(rows)
-                if k % history_every == 0:
+                if k % history_every == 0:  # (1 ms at 20 kHz)
                     guard_ref = self._sample(k, drive, pacing)
-                if not k & 15 and not -overspeed <= plant.w_m <= overspeed:
-                    self._end_on_limit(k, f"overspeed: the plant turns at {plant.w_m * RPM_PER_RAD_S:.0f} rpm, beyond the "
-                                          f"{self.options.overspeed_rpm:g} rpm limit ([protection] overspeed_rpm)")
+                    if not -overspeed <= plant.w_m <= overspeed:
+                        self._end_on_limit(k, f"overspeed: the plant turns at {plant.w_m * RPM_PER_RAD_S:.0f} rpm, beyond "
+                                              f"the {self.options.overspeed_rpm:g} rpm limit ([protection] overspeed_rpm)")
                 if capacitor:
                     self._bus(k)
         finally:

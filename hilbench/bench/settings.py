@@ -157,6 +157,12 @@ def target_profile(link: "LinkSection | None") -> TargetProfile:
         raise ConfigError(f"[link] target {spec_text!r}: {exc}") from None
 
 
+def configured_target_profile(cfg: BenchConfig) -> TargetProfile:
+    """The configured target's profile as its `[target]` options build it (a firmware built for
+    another motor reads its pot and telemetry with other scales)."""
+    return target_profile(cfg.link).configured(cfg.target)
+
+
 def params_file_overrides(path: str) -> tuple[str, ...]:
     """`--gains-file FILE`: the values of a saved fragment's [target] table as overrides."""
     import tomllib

@@ -113,6 +113,13 @@ class TargetProfile:
     #: a firmware-in-the-loop build of the board's own C firmware: (options, tty path) -> the started
     #: process, serving that tty once this returns (`sil:NAME`); None: the target has none
     start_sil: "Callable[[object, str], subprocess.Popen[bytes]] | None" = None
+    #: the profile of a build with these options, for a firmware whose build constants are options
+    #: (its reference scale, telemetry scales and `built_for` follow them); None: options change none
+    configure: "Callable[[object], TargetProfile] | None" = None
+
+    def configured(self, options: object) -> "TargetProfile":
+        """This profile as built with ``options`` (itself when the target has no build constants)."""
+        return self if self.configure is None or options is None else self.configure(options)
 
     def default_options(self) -> object:
         """The options dataclass with every default (None when the target takes no options)."""

@@ -62,8 +62,15 @@ def cache_dir() -> Path:
     return Path(root) / "sil"
 
 
-def build_sil(out_dir: Path | None = None, *, cc: str | None = None) -> Path:
-    """The SIL executable, compiled now unless an identical build (same sources, flags, compiler) exists."""
+def motor_defines(pole_pairs: int = 5, max_speed_rpm: int = 6000) -> tuple[str, ...]:
+    """The build-time defines of the motor the firmware is built for (docs/board.md); none for the note's."""
+    if (pole_pairs, max_speed_rpm) == (5, 6000):
+        return ()
+    return (f"-DAN1017_POLE_PAIRS={int(pole_pairs)}UL", f"-DAN1017_MAX_SPEED_RPM={int(max_speed_rpm)}UL")
+
+
+def build_sil(out_dir: Path | None = None, *, cc: str | None = None, defines: tuple[str, ...] = ()) -> Path:
+    """The SIL executable, compiled now unless an identical build (same sources, flags, defines, compiler) exists."""
     compiler = cc or shutil.which("gcc") or shutil.which("cc")
     if compiler is None:
         raise ConfigError("sil:an1017: no C compiler (gcc) on PATH to build the firmware")
@@ -73,7 +80,7 @@ def build_sil(out_dir: Path | None = None, *, cc: str | None = None) -> Path:
     digest = hashlib.sha256()
     for path in SOURCES + HEADERS:
         digest.update(path.name.encode() + b"\0" + path.read_bytes())
-    digest.update(" ".join(CFLAGS).encode() + b"\0" + compiler.encode())
+    digest.update(" ".join(CFLAGS + defines).encode() + b"\0" + compiler.encode())
     directory = out_dir or cache_dir()
     directory.mkdir(parents=True, exist_ok=True)
     exe = directory / f"an1017_sil-{digest.hexdigest()[:16]}"
@@ -81,7 +88,7 @@ def build_sil(out_dir: Path | None = None, *, cc: str | None = None) -> Path:
         return exe
     fd, tmp = tempfile.mkstemp(prefix=exe.name + ".", dir=directory)
     os.close(fd)
-    cmd = [compiler, *CFLAGS, f"-I{FIRMWARE_DIR}", f"-I{PROTOCOL_DIR}", *(str(s) for s in SOURCES), "-o", tmp]
+    cmd = [compiler, *CFLAGS, *defines, f"-I{FIRMWARE_DIR}", f"-I{PROTOCOL_DIR}", *(str(s) for s in SOURCES), "-o", tmp]
     try:
         result = subprocess.run(cmd, capture_output=True, text=True, timeout=120)
         if result.returncode != 0:
@@ -93,11 +100,13 @@ def build_sil(out_dir: Path | None = None, *, cc: str | None = None) -> Path:
     return exe
 
 
-def start_sil(tty_path: str, variant: Variant = "seed", *, exe: Path | None = None) -> subprocess.Popen[bytes]:
-    """Start the SIL firmware serving tty_path; returns once it has opened the tty (its "ready" line)."""
+def start_sil(tty_path: str, variant: Variant = "seed", *, exe: Path | None = None,
+              defines: tuple[str, ...] = ()) -> subprocess.Popen[bytes]:
+    """Start the SIL firmware (built with `defines`, see `motor_defines`) serving tty_path; returns
+    once it has opened the tty (its "ready" line)."""
     if variant not in ("seed", "v11"):
         raise ConfigError(f"sil:an1017 variant {variant!r}: expected 'seed' or 'v11'")
-    program = exe or build_sil()
+    program = exe or build_sil(defines=defines)
     process = subprocess.Popen([str(program), "--variant", variant, "--ready", tty_path],
                                stdin=subprocess.DEVNULL, stdout=subprocess.PIPE, stderr=subprocess.PIPE)
     assert process.stdout is not None

@@ -8,7 +8,7 @@ constraints, the pot that carries the speed reference, and its telemetry columns
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import TYPE_CHECKING, Literal, Mapping
 
 from hilbench.fieldspec import spec
@@ -19,14 +19,16 @@ if TYPE_CHECKING:
     import subprocess
 
 #: MeasuredSpeed = trunc(312·32768/Period) and rpm = 1 875 000/Period (the application note's
-#: Table 6), so one Q15 step of speed is 1 875 000/(312·32768) rpm; 32767 ≈ 6009.6 rpm.
+#: Table 6), so one Q15 step of speed is 1 875 000/(312·32768) rpm; 32767 ≈ 6009.6 rpm. That is
+#: the note's build (10 poles, 6000 rpm); other builds: `firmware.rpm_per_speed_q15`.
 RPM_PER_SPEED_Q15 = 1_875_000 / (312 * 32768)
 #: the pot in ADC FORM = 11 (signed fractional): RefSpeed = (code − 512) << 6
 POT_MID_CODE = 512
 POT_Q15_PER_COUNT = 64
 POT_MAX_CODE = 1023
 GAIN_NAMES = ("kp", "ki", "kd")
-POLE_PAIRS = 5  # the Hurst DMB0224C10002: 10 poles (the firmware's speed scale assumes them)
+POLE_PAIRS = 5  # the Hurst DMB0224C10002: 10 poles (the note's build; `[target] pole_pairs`)
+MAX_SPEED_RPM = 6000  # the note's MINPERIOD: "6000 max rpm and 10 poles motor"
 
 
 def ref_speed_q15_for_code(code: int) -> int:
@@ -34,21 +36,22 @@ def ref_speed_q15_for_code(code: int) -> int:
     return ((code & 0x3FF) - POT_MID_CODE) * POT_Q15_PER_COUNT
 
 
-def pot_code_for_rpm(speed_rpm: float) -> int:
+def pot_code_for_rpm(speed_rpm: float, rpm_per_speed_q15: float = RPM_PER_SPEED_Q15) -> int:
     """The 10-bit pot code whose RefSpeed is nearest to ``speed_rpm`` (clamped to the pot)."""
-    ref_q15 = speed_rpm / RPM_PER_SPEED_Q15
+    ref_q15 = speed_rpm / rpm_per_speed_q15
     code = POT_MID_CODE + round(ref_q15 / POT_Q15_PER_COUNT)
     return min(POT_MAX_CODE, max(0, code))
 
 
-def rpm_for_pot_code(code: int) -> float:
+def rpm_for_pot_code(code: int, rpm_per_speed_q15: float = RPM_PER_SPEED_Q15) -> float:
     """The speed reference in rpm the firmware makes of a pot code."""
-    return ref_speed_q15_for_code(code) * RPM_PER_SPEED_Q15
+    return ref_speed_q15_for_code(code) * rpm_per_speed_q15
 
 
 @dataclass(frozen=True)
 class An1017Settings:
-    """[target] for AN1017: the firmware variant and the gains written after the handshake."""
+    """[target] for AN1017: the firmware variant, the gains written after the handshake, and the
+    motor the firmware is built for (the note's build constants; defaults: its 10-pole, 6000 rpm)."""
 
     variant: Literal["appnote", "v11", "seed"] = field(default="appnote", metadata=spec(
         doc="appnote: the AN1017 application note's behaviour; v11: the v1.1 firmware source's (what a board "
@@ -56,22 +59,28 @@ class An1017Settings:
     kp: float | None = field(default=None, metadata=spec(ge=0, lt=1, doc="speed PID Kp (Q15 fraction; default: the firmware's 0.1)"))
     ki: float | None = field(default=None, metadata=spec(ge=0, lt=1, doc="speed PID Ki (default 0.01)"))
     kd: float | None = field(default=None, metadata=spec(ge=0, lt=1, doc="speed PID Kd (default 0)"))
+    pole_pairs: int = field(default=POLE_PAIRS, metadata=spec(ge=1, le=32, doc="the motor the firmware is built for: its speed scale (MINPERIOD, MAXPERIOD, the pot's and telemetry's rpm)"))
+    max_speed_rpm: int = field(default=MAX_SPEED_RPM, metadata=spec(ge=100, le=60000, doc="the build's maximum speed: MeasuredSpeed 1.0 (MINPERIOD)"))
 
 
 def _make(settings: object) -> object:
     from hilbench.targets.an1017.firmware import An1017Options
     from hilbench.targets.an1017.target import An1017Target
 
-    variant = settings.variant if isinstance(settings, An1017Settings) else "appnote"
-    return An1017Target(An1017Options(variant=variant))
+    if not isinstance(settings, An1017Settings):
+        settings = An1017Settings()
+    return An1017Target(An1017Options(variant=settings.variant, pole_pairs=settings.pole_pairs,
+                                      max_speed_rpm=settings.max_speed_rpm))
 
 
 def _start_sil(settings: object, tty_path: str) -> "subprocess.Popen[bytes]":
     """The board firmware (firmware/an1017) built for this host, serving tty_path."""
-    from hilbench.targets.sil import start_sil
+    from hilbench.targets.sil import motor_defines, start_sil
 
-    variant = settings.variant if isinstance(settings, An1017Settings) else "appnote"
-    return start_sil(tty_path, "v11" if variant == "v11" else "seed")  # the firmware build's own word
+    if not isinstance(settings, An1017Settings):
+        settings = An1017Settings()
+    return start_sil(tty_path, "v11" if settings.variant == "v11" else "seed",  # the firmware build's own word
+                     defines=motor_defines(settings.pole_pairs, settings.max_speed_rpm))
 
 
 def _check_gains(raw: Mapping[str, int]) -> str | None:
@@ -89,6 +98,36 @@ def _initial_params(settings: object) -> dict[str, float]:
     return {name: value for name in GAIN_NAMES if (value := getattr(settings, name)) is not None}
 
 
+def _telemetry(rpm_per_speed_q15: float) -> tuple[TelemetryColumn, ...]:
+    return (
+        TelemetryColumn(int(TelemetryId.MEASURED_SPEED), "measured_speed_rpm", "rpm", rpm_per_speed_q15),
+        TelemetryColumn(int(TelemetryId.REF_SPEED), "ref_speed_rpm", "rpm", rpm_per_speed_q15),
+        TelemetryColumn(int(TelemetryId.CONTROL_OUTPUT), "control_output_q15", "q15", 1.0, "%d"),
+    )
+
+
+def _pot(rpm_per_speed_q15: float) -> PotReference:
+    return PotReference(lambda rpm: pot_code_for_rpm(rpm, rpm_per_speed_q15),
+                        lambda code: rpm_for_pot_code(code, rpm_per_speed_q15), POT_MAX_CODE)
+
+
+def _built_for(settings: object) -> MotorBuild:
+    if not isinstance(settings, An1017Settings):
+        settings = An1017Settings()
+    return MotorBuild(pole_pairs=settings.pole_pairs, max_speed_rpm=float(settings.max_speed_rpm))
+
+
+def _configure(settings: object) -> TargetProfile:
+    """The profile of the build these options ask for: its pot and telemetry rpm scales."""
+    if not isinstance(settings, An1017Settings) or (settings.pole_pairs, settings.max_speed_rpm) == (POLE_PAIRS, MAX_SPEED_RPM):
+        return PROFILE
+    from hilbench.targets.an1017.firmware import An1017Options, rpm_per_speed_q15
+
+    An1017Options(pole_pairs=settings.pole_pairs, max_speed_rpm=settings.max_speed_rpm)  # checks the build
+    scale = rpm_per_speed_q15(settings.pole_pairs, settings.max_speed_rpm)
+    return replace(PROFILE, reference=_pot(scale), telemetry=_telemetry(scale))
+
+
 PROFILE = TargetProfile(
     name="an1017",
     firmware_name="AN1017",
@@ -98,17 +137,14 @@ PROFILE = TargetProfile(
     tunable=GAIN_NAMES,
     check_params=_check_gains,
     reference=PotReference(pot_code_for_rpm, rpm_for_pot_code, POT_MAX_CODE),
-    telemetry=(
-        TelemetryColumn(int(TelemetryId.MEASURED_SPEED), "measured_speed_rpm", "rpm", RPM_PER_SPEED_Q15),
-        TelemetryColumn(int(TelemetryId.REF_SPEED), "ref_speed_rpm", "rpm", RPM_PER_SPEED_Q15),
-        TelemetryColumn(int(TelemetryId.CONTROL_OUTPUT), "control_output_q15", "q15", 1.0, "%d"),
-    ),
+    telemetry=_telemetry(RPM_PER_SPEED_Q15),
     speed_column="measured_speed_rpm",
-    built_for=lambda settings: MotorBuild(pole_pairs=POLE_PAIRS),
+    built_for=_built_for,
     initial_params=_initial_params,
     capabilities=frozenset({"speed_loop", "realtime", "fault_injection", "tuning", "hall_sensors"}),
     sweep_defaults=(("kp", "0.05:0.85:10"), ("ki", "0.005:0.12:10"), ("kd", "0")),
     start_sil=_start_sil,
+    configure=_configure,
 )
 
 __all__ = ["An1017Settings", "PROFILE", "RPM_PER_SPEED_Q15", "pot_code_for_rpm", "rpm_for_pot_code"]

@@ -40,7 +40,10 @@
 #define MODE_LOW_SIDE 2
 #define FAULT_NONE 0
 #define FAULT_STALL 2
+#define FAULT_OVERCURRENT 3
+#define STATE_FAULT 4
 #define INPUT_S2 0x08
+#define INPUT_FAULT 0x20
 #define PTPER 499
 #define TPWM 998
 #define VOLTS_LIMIT 28300
@@ -70,7 +73,7 @@ typedef struct {
     PyObject_HEAD
     /* options and declared values */
     char adc_every, c1_textbook, phase_advance_on, ref_override_on;
-    int phase_offset, kp, ki, kd, max_ph_adv_deg, max_ph_adv, ref_override, stall_limit;
+    int phase_offset, min_period, max_period, kp, ki, kd, max_ph_adv_deg, max_ph_adv, ref_override, stall_limit;
     char has_pending;
     int pend_kp, pend_ki, pend_kd;
     /* time and peripherals */
@@ -162,7 +165,7 @@ static void run_motor(Core *s)
     long long now = s->boot_end;
     s->t1_next = now + TIMER1_PERIOD_TCY;
     s->t3_zero = now;
-    s->actual_capture = MAXPERIOD;
+    s->actual_capture = s->max_period;
     s->past_capture = 0;
     int sec = SECTOR_TABLE[s->hall] & 0xFFFF;
     s->sector = s->last_sector = sec;
@@ -171,7 +174,7 @@ static void run_motor(Core *s)
     s->cur_ccw = s->req_ccw = (char)ccw;
     s->phase = phase_for_sector(sec, ccw, s->phase, s->phase_offset);
     s->stall_counter = 0;
-    s->phase_inc = PHASEINC_NUMERATOR / MAXPERIOD;
+    s->phase_inc = PHASEINC_NUMERATOR / s->max_period;
     s->running = 1;
     s->state = STATE_RUNNING;
 }
@@ -186,12 +189,12 @@ static void timer1(Core *s)
         coefficients(s);
     }
     int64_t period = ((int64_t)s->actual_capture - s->past_capture) & 0xFFFF;
-    if (period < MINPERIOD) period = MINPERIOD;
-    else if (period > MAXPERIOD) period = MAXPERIOD;
+    if (period < s->min_period) period = s->min_period;
+    else if (period > s->max_period) period = s->max_period;
     s->period = (int)period;
     s->phase_inc = (int)(PHASEINC_NUMERATOR / period);
-    /* DIVF: 0 < 312 < period, so the truncating quotient is a plain positive division */
-    int64_t ms = ((int64_t)MINPERIOD_DIVF << 15) / period;
+    /* DIVF: 0 < MINPERIOD - 1 < period, so the truncating quotient is a plain positive division */
+    int64_t ms = ((int64_t)(s->min_period - 1) << 15) / period; /* DIVF(MINPERIOD - 1, Period) */
     if (s->cur_ccw) ms = -ms;
     s->measured_speed = (int)ms;
     /* SpeedControl: e0 = SAC(SUB), LAC ControlOutput, three MACs with SATA, SAC (bits 31:16) */
@@ -307,6 +310,8 @@ static void fw_run(Core *s, long long duration, int inputs, long long edge_offse
 {
     if (have_pot) s->pot_code = pot;
     main_loop_buttons(s, inputs);
+    if ((inputs & INPUT_FAULT) && (s->running || s->booting)) /* FLTA: An1017Firmware._flta */
+        press_stop(s, STATE_FAULT, FAULT_OVERCURRENT);
     long long t = s->t, t_end = t + duration;
     int new_hall = inputs & 7;
     long long edge_at = -1;
@@ -347,7 +352,7 @@ static inline PyObject *duty_obj(int64_t d)
 
 static PyObject *fw_finish(Core *s, PyObject *seq)
 {
-    int64_t key = s->act_key, duty[3];
+    int64_t key = s->pend_key, duty[3]; /* what the PWM ISR wrote: PDC for the next period */
     svm_duties(asr(key, 16), key & 0xFFFF, duty);
     int sec = s->running ? s->sector : (SECTOR_TABLE[s->hall] & 0xFFFF);
     PyObject *tel = s->tel;
@@ -478,6 +483,8 @@ static PyObject *Core_new(PyTypeObject *type, PyObject *args, PyObject *kwds)
     s->phase_offset = PHASE_OFFSET_DEFAULT;
     s->pot_code = 512;
     s->sector = s->last_sector = SECTOR_INVALID;
+    s->min_period = MINPERIOD; /* the note's build; An1017Firmware.__init__ sets the options' */
+    s->max_period = MAXPERIOD;
     s->period = MAXPERIOD;
     s->stall_limit = 100;
     s->period_tcy = PWM_PERIOD_TCY;
@@ -593,7 +600,7 @@ static PyGetSetDef Core_getset[] = {
 static PyMemberDef Core_members[] = {
     BM("_adc_every", adc_every), BM("_c1_textbook", c1_textbook), BM("phase_advance_on", phase_advance_on),
     BM("ref_override_on", ref_override_on),
-    IM("phase_offset", phase_offset), IM("kp", kp), IM("ki", ki), IM("kd", kd), IM("max_ph_adv_deg", max_ph_adv_deg),
+    IM("phase_offset", phase_offset), IM("min_period", min_period), IM("max_period", max_period), IM("kp", kp), IM("ki", ki), IM("kd", kd), IM("max_ph_adv_deg", max_ph_adv_deg),
     IM("max_ph_adv", max_ph_adv), IM("ref_override", ref_override), IM("stall_limit", stall_limit),
     LM("t", t), LM("t3_zero", t3_zero), LM("boot_end", boot_end), LM("t1_next", t1_next),
     LM("pend_key", pend_key), LM("act_key", act_key),

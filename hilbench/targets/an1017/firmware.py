@@ -44,8 +44,33 @@ BOOTSTRAP_TCY = 200_000  # ChargeBootstraps: 10 ms of low-side switches on
 ADC_POSTSCALE_V11 = 16  # SEVOPS = 1111 → 1:16
 
 # ---- firmware constants (facts §2, §3) -------------------------------------------------------
-MINPERIOD = 313
-MAXPERIOD = 31250
+# The speed scale is a build constant of the motor: Period counts TMR3 ticks (Tcy/64 = 3.2 µs)
+# between two hall-B edges (IC7 captures both), half an electrical revolution, so a motor with p
+# pole pairs at n rpm gives Period = 60 s/(2·3.2 µs)/(p·n) = 9 375 000/(p·n). The note builds for
+# 10 poles: "#define MINPERIOD 313 // For 6000 max rpm and 10 poles motor", MAXPERIOD 31250 for
+# 60 rpm. MINPERIOD rounds up (the measured speed never exceeds the maximum); MAXPERIOD is kept
+# within a signed 16-bit divisor (DIVF) for motors with more poles.
+PERIOD_X_RPM_X_POLE_PAIRS = 9_375_000
+POLE_PAIRS_DEFAULT = 5
+MAX_SPEED_RPM_DEFAULT = 6000
+MIN_SPEED_RPM = 60
+MAXPERIOD_LIMIT = 32767
+
+
+def build_periods(pole_pairs: int, max_speed_rpm: int) -> tuple[int, int]:
+    """(MINPERIOD, MAXPERIOD) of a build for this motor: (313, 31250) for 5 pole pairs, 6000 rpm."""
+    min_period = -(-PERIOD_X_RPM_X_POLE_PAIRS // (pole_pairs * max_speed_rpm))
+    max_period = min(MAXPERIOD_LIMIT, PERIOD_X_RPM_X_POLE_PAIRS // (pole_pairs * MIN_SPEED_RPM))
+    return min_period, max_period
+
+
+def rpm_per_speed_q15(pole_pairs: int, max_speed_rpm: int) -> float:
+    """One Q15 step of MeasuredSpeed = DIVF(MINPERIOD − 1, Period) in rpm (Table 6 for the note's build)."""
+    min_period, _ = build_periods(pole_pairs, max_speed_rpm)
+    return PERIOD_X_RPM_X_POLE_PAIRS / (pole_pairs * (min_period - 1) * 32768)
+
+
+MINPERIOD, MAXPERIOD = build_periods(POLE_PAIRS_DEFAULT, MAX_SPEED_RPM_DEFAULT)  # 313, 31250
 MINPERIOD_DIVF = MINPERIOD - 1  # _MINPERIOD = 312, so divf's |num| < |den| always holds
 PHASE_VALUES = (57344, 2730, 13652, 24574, 35496, 46418)
 PHASE_OFFSET_CCW = 4100
@@ -61,8 +86,9 @@ KD_DEFAULT_Q15 = float_to_q15(0.0)  # 0
 # ---- states / modes (design.md constants) ----------------------------------------------------
 STATE_STOPPED, STATE_BOOTSTRAP, STATE_RUNNING, STATE_STALLED, STATE_FAULT = 0, 1, 2, 3, 4
 MODE_OFF, MODE_PWM, MODE_LOW_SIDE = 0, 1, 2
-FAULT_NONE, FAULT_WATCHDOG, FAULT_STALL = 0, 1, 2
+FAULT_NONE, FAULT_WATCHDOG, FAULT_STALL, FAULT_OVERCURRENT = 0, 1, 2, 3
 INPUT_S2 = 0x08
+INPUT_FAULT = 0x20  # the FLTA pin (the board's over-current comparator), as Sensors carries it
 
 # ---- gain constraints (seed, PID section) ----------------------------------------------------
 GAIN_LIMIT_Q15 = float_to_q15(0.9999)  # 32764
@@ -100,6 +126,8 @@ class An1017Options:
     stall_timeout_ms: int | None = None
     phase_offset_ccw: int = PHASE_OFFSET_CCW
     max_phase_advance_deg: int = 40
+    pole_pairs: int = POLE_PAIRS_DEFAULT  # the motor the firmware is built for (its speed scale)
+    max_speed_rpm: int = MAX_SPEED_RPM_DEFAULT
 
     def __post_init__(self) -> None:
         if self.variant == "seed":  # the former name of the application note's behaviour
@@ -107,6 +135,14 @@ class An1017Options:
         if self.variant not in ("appnote", "v11"):
             raise ConfigError(f"an1017 options variant: {self.variant!r} is not 'appnote' (the application note's "
                               f"behaviour) or 'v11' (the v1.1 firmware source's)")
+        if not 1 <= self.pole_pairs <= 32:
+            raise ConfigError(f"an1017 options pole_pairs: {self.pole_pairs} not in 1..32")
+        if not 100 <= self.max_speed_rpm <= 60000:
+            raise ConfigError(f"an1017 options max_speed_rpm: {self.max_speed_rpm} not in 100..60000")
+        lo, hi = build_periods(self.pole_pairs, self.max_speed_rpm)
+        if not 2 <= lo < hi:
+            raise ConfigError(f"an1017 options: MINPERIOD {lo} for {self.pole_pairs} pole pairs at "
+                              f"{self.max_speed_rpm} rpm is not within 2..{hi - 1}")
         if self.stall_timeout_ms is not None and not 10 <= self.stall_timeout_ms <= 30000:
             raise ConfigError(f"an1017 options stall_timeout_ms: {self.stall_timeout_ms} not in 10..30000")
         if not 0 <= self.max_phase_advance_deg <= 60:
@@ -123,6 +159,8 @@ class An1017Options:
             stall_timeout_ms=(1000 if v11 else 100) if self.stall_timeout_ms is None else self.stall_timeout_ms,
             phase_offset_ccw=self.phase_offset_ccw,
             max_phase_advance_deg=self.max_phase_advance_deg,
+            pole_pairs=self.pole_pairs,
+            max_speed_rpm=self.max_speed_rpm,
         )
 
 
@@ -174,6 +212,8 @@ class An1017Firmware:
         "_adc_every",
         "_c1_textbook",
         "phase_offset",
+        "min_period",
+        "max_period",
         "kp",
         "ki",
         "kd",
@@ -231,6 +271,7 @@ class An1017Firmware:
         self._adc_every = bool(opts.adc_every_pwm_period)
         self._c1_textbook = bool(opts.pid_c1_textbook)
         self.phase_offset = opts.phase_offset_ccw
+        self.min_period, self.max_period = build_periods(opts.pole_pairs, opts.max_speed_rpm)
         # declared, tunable values
         self.kp = KP_DEFAULT_Q15
         self.ki = KI_DEFAULT_Q15
@@ -278,7 +319,7 @@ class An1017Firmware:
         self.stall_counter = 0
         self.cur_ccw = False
         self.req_ccw = False
-        self.period = MAXPERIOD
+        self.period = self.max_period
         self.actual_capture = 0
         self.past_capture = 0
         self.t1_next = 0
@@ -335,7 +376,7 @@ class An1017Firmware:
         now = self.boot_end
         self.t1_next = now + TIMER1_PERIOD_TCY  # TMR1 = 0
         self.t3_zero = now  # TMR3 = 0
-        self.actual_capture = MAXPERIOD
+        self.actual_capture = self.max_period
         self.past_capture = 0
         s = SECTOR_TABLE[self.hall]
         self.sector = self.last_sector = s & 0xFFFF
@@ -344,14 +385,14 @@ class An1017Firmware:
         self.cur_ccw = self.req_ccw = ccw
         self.phase = phase_for_sector(self.sector, ccw, self.phase, self.phase_offset)
         self.stall_counter = 0
-        self.phase_inc = PHASEINC_NUMERATOR // MAXPERIOD
+        self.phase_inc = PHASEINC_NUMERATOR // self.max_period
         self.running = True
         self.state = STATE_RUNNING
 
     def _timer1(self) -> None:
         """Timer1 ISR, the fast path's version: `_timer1_reference` with divf and speed_control inlined.
 
-        Why: it runs 1000 times per simulated second. Period ≥ MINPERIOD > MINPERIOD_DIVF > 0,
+        Why: it runs 1000 times per simulated second. Period ≥ MINPERIOD > MINPERIOD − 1 > 0,
         so DIVF's operands are positive and its quotient is a plain floor division. The
         randomised fast == reference tests compare every Drive of the two versions.
         """
@@ -361,13 +402,13 @@ class An1017Firmware:
             self.pending_gains = None
             self._coefficients()
         period = (self.actual_capture - self.past_capture) & 0xFFFF
-        if period < MINPERIOD:
-            period = MINPERIOD
-        elif period > MAXPERIOD:
-            period = MAXPERIOD
+        if period < self.min_period:
+            period = self.min_period
+        elif period > self.max_period:
+            period = self.max_period
         self.period = period
         self.phase_inc = PHASEINC_NUMERATOR // period
-        ms = (MINPERIOD_DIVF << 15) // period
+        ms = ((self.min_period - 1) << 15) // period
         if self.cur_ccw:
             ms = -ms
         self.measured_speed = ms
@@ -417,13 +458,13 @@ class An1017Firmware:
             self.pending_gains = None
             self._coefficients()
         period = (self.actual_capture - self.past_capture) & 0xFFFF
-        if period < MINPERIOD:
-            period = MINPERIOD
-        elif period > MAXPERIOD:
-            period = MAXPERIOD
+        if period < self.min_period:
+            period = self.min_period
+        elif period > self.max_period:
+            period = self.max_period
         self.period = period
         self.phase_inc = PHASEINC_NUMERATOR // period
-        ms = divf(MINPERIOD_DIVF, period)
+        ms = divf(self.min_period - 1, period)  # DIVF(_MINPERIOD, Period), _MINPERIOD = MINPERIOD − 1
         if self.cur_ccw:
             ms = -ms
         self.measured_speed = ms
@@ -547,12 +588,20 @@ class An1017Firmware:
                 self.press_start()
         self.s2_level = s2
 
+    def _flta(self, inputs: int) -> None:
+        """FLTA (FLTACON = 0x0007, latched): the PWM module drives every output inactive and the FLTA
+        ISR stops the motor with state FAULT, fault OVERCURRENT. Only a stop/start (S2) restarts it,
+        and not while the pin is still asserted. The span's fault bit acts at the span's start."""
+        if inputs & INPUT_FAULT and (self.running or self.booting):
+            self.press_stop(STATE_FAULT, FAULT_OVERCURRENT)
+
     # ---- the step function -------------------------------------------------------------------
     def run(self, duration_tcy: int, inputs: int, edge_offset_tcy: int | None, pot_code: int | None) -> None:
         """Advance by duration_tcy with these inputs; halls change at edge_offset_tcy (None = at 0)."""
         if pot_code is not None:
             self.pot_code = pot_code
         self._main_loop_buttons(inputs)
+        self._flta(inputs)
         t = self.t
         t_end = t + duration_tcy
         new_hall = inputs & 7

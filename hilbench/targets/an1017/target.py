@@ -3,9 +3,10 @@
 The firmware itself lives in `an1017_firmware` (plain ints, Tcy time); this module translates
 protocol messages to its inputs and its state to Drive, and owns the declared parameter table.
 
-Drive semantics: `duty_a..c` are the duty registers in effect during the last PWM period of the
-step (they were written by the PWM ISR one period earlier), so the register-update latency is
-already inside the model — the host should add no extra delay for it. PDC values above 1000
+Drive semantics (the timing contract, docs/design.md "Timing"): `duty_a..c` are the duty
+registers the PWM ISR wrote during the step's span, i.e. what PDC1..3 hold for the next PWM
+period (PWMCON2.IUE = 0 latches them at the next boundary). The plant applies them in that next
+period, so the chip's one-period register latency is there once and no more. PDC values above 1000
 (only produced by the firmware's volts = −1 start-up transient in CCW) mean 100 % and are
 reported as 1000.
 
@@ -25,6 +26,7 @@ from typing import Any
 from hilbench.errors import ConfigError, ParamError
 from hilbench.targets.an1017.firmware import (
     GAIN_CONSTRAINT_NAMES,
+    INPUT_FAULT,
     INPUT_S2,
     PWM_PERIOD_TCY,
     STATE_FAULT,
@@ -317,11 +319,11 @@ class An1017Target:
         """
         fw = self.fw
         if fw.reference:
-            a, b, c = fw.act_duty
+            a, b, c = fw.pend_duty
             if a > 1000 or b > 1000 or c > 1000:
                 a, b, c = min(a, 1000), min(b, 1000), min(c, 1000)
         else:
-            a, b, c = self._duty_cache[fw.act_key]
+            a, b, c = self._duty_cache[fw.pend_key]
         running = fw.running
         s = fw.sector if running else SECTOR_TABLE[fw.hall] & 0xFFFF
         co = fw.control_output
@@ -396,7 +398,7 @@ class An1017Target:
             seq, inputs, _, _, adc = sensors
             fw = self.fw
             t = fw.t
-            if (inputs & 15) == hall and t <= t_last:
+            if (inputs & 0x2F) == hall and t <= t_last:  # halls unchanged, S2 up, FLTA quiet
                 tail = self._tail
                 if adc:
                     pot = adc[0]
@@ -415,14 +417,13 @@ class An1017Target:
                         fw.ref_speed = ref
                         tel = tail[6]
                         tail = self._tail = tail[:6] + ((ref, tel[1], tel[2]),)
-                act = fw.pend_key  # PWM ISR: last period's registers take effect ...
-                fw.act_key = act
-                phase = (fw.phase + dphase) & 0xFFFF  # ... and it writes the next ones
+                fw.act_key = fw.pend_key  # PWM ISR: last period's registers take effect ...
+                phase = (fw.phase + dphase) & 0xFFFF  # ... and it writes the next ones,
                 fw.phase = phase
-                fw.pend_key = vkey | ((phase + adv) & 0xFFFF)
+                pend = fw.pend_key = vkey | ((phase + adv) & 0xFFFF)
                 fw.t = t + 1000
                 self._last_seq = seq
-                d = self._last_drive = _tuple_new(Drive, (seq,) + cache[act] + tail)
+                d = self._last_drive = _tuple_new(Drive, (seq,) + cache[pend] + tail)  # which the Drive carries
                 return d
         idle = self._idle
         if idle is not None:
@@ -451,7 +452,7 @@ class An1017Target:
         t = fw.t
         t1 = fw.t1_next
         ctx = self._ctx
-        if ctx is not None and not inputs & INPUT_S2 and t1 > t:
+        if ctx is not None and not inputs & (INPUT_S2 | INPUT_FAULT) and t1 > t:
             new_hall = inputs & 7
             edge_at = -1
             if new_hall != fw.hall:
