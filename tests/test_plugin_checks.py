@@ -137,14 +137,16 @@ def _cli(*args: str, timeout: float = 180) -> subprocess.CompletedProcess[str]:
                           cwd=REPO_ROOT)
 
 
-def test_run_shows_each_check_and_exits_0_when_they_hold() -> None:
-    run = _cli("run", "--target", "inprocess:an1017", "--json", "--no-control")
+def test_run_shows_each_check_and_exits_0_when_they_hold(tmp_path: Path) -> None:
+    run = _cli("run", "--target", "inprocess:an1017", "--json", "--no-control", "--record", str(tmp_path / "run.npz"))
     assert run.returncode == 0, run.stderr
     summary = json.loads(run.stdout)
     assert summary["checks_passed"] is True and len(summary["checks"]) == 5
     assert all(c["passed"] and c["figure"] for c in summary["checks"])
-    plain = _cli("run", "--target", "inprocess:an1017", "--no-ui", "--no-control")
-    assert plain.returncode == 0 and "check speed_error: PASS worst -0." in plain.stdout
+    assert all("not judged" not in c["figure"] for c in summary["checks"])
+    plain = _cli("run", "--target", "inprocess:an1017", "--no-ui", "--no-control")  # no rows kept:
+    assert plain.returncode == 0 and "check speed_error: PASS worst -0." in plain.stdout  # the summary's kinds
+    assert "check peak_current: PASS not judged: no rows were kept" in plain.stdout
 
 
 def test_the_runaway_and_the_servo_with_the_an1017_firmware_exit_7(tmp_path: Path) -> None:
@@ -160,7 +162,8 @@ def test_the_runaway_and_the_servo_with_the_an1017_firmware_exit_7(tmp_path: Pat
     assert protected.returncode != 0, protected.stdout
     # without them, the checks catch it
     run = _cli("run", str(runaway), "--target", "inprocess:an1017", "--no-ui", "--no-control",
-               "--set", "protection.overcurrent_a=0", "--set", "protection.overspeed_rpm=0")
+               "--set", "protection.overcurrent_a=0", "--set", "protection.overspeed_rpm=0",
+               "--record", str(tmp_path / "runaway.npz"))  # the signal kinds are judged on the recording
     assert run.returncode == CheckFailed.exit_code == 9, run.stderr
     assert "check speed_limit: FAIL" in run.stdout and "check speed_error: FAIL" in run.stdout
     assert run.stderr.startswith("hilbench: check failed: ") and len(run.stderr.strip().splitlines()) == 1

@@ -48,7 +48,6 @@ from hilbench.errors import CheckFailed, HilbenchError
 
 if TYPE_CHECKING:
     from hilbench.bench.steptest import StepResult
-    from hilbench.config import BenchConfig
     from hilbench.bench.summary import Segment, Summary
 
 RUN_KINDS = ("speed_error", "settling_time", "peak_current", "speed_limit", "signal", "no_fault", "overruns")
@@ -146,24 +145,6 @@ SignalsSource = Callable[[], Mapping[str, np.ndarray]]
 
 #: kinds judged on the summary alone; the others read the recorded signals
 SUMMARY_KINDS = ("speed_error", "overruns")
-#: an unrecorded run keeps its rows in memory for the checks up to this long (simulated)
-KEEP_ROWS_MAX_S = 60.0
-
-
-def keep_rows_for_checks(cfg: "BenchConfig") -> bool:
-    """Whether an unrecorded run must keep its rows for its checks: some run kind reads signals
-    and the run is short enough to hold in memory (longer ones: record it, `--record run.npz`)."""
-    from hilbench.bench import settings
-
-    if not any(c.kind in RUN_KINDS and c.kind not in SUMMARY_KINDS for c in cfg.check):
-        return False
-    duration = cfg.run.duration_s
-    if duration is None:
-        ends = [e.at_s for e in settings.scenario_events(cfg) if e.end]
-        duration = min(ends) if ends else 5.0
-    return duration <= KEEP_ROWS_MAX_S
-
-
 def run_checks(entries: Sequence[CheckEntry], summary: "Summary", signals: SignalsSource) -> list[CheckResult]:
     """Judge every run kind of ``entries`` on a finished run; ``signals`` is read only if needed."""
     cache: dict[str, Mapping[str, np.ndarray]] = {}
@@ -172,7 +153,7 @@ def run_checks(entries: Sequence[CheckEntry], summary: "Summary", signals: Signa
         if "s" not in cache:
             try:
                 cache["s"] = signals()
-            except HilbenchError as exc:  # nothing recorded: a long run without --record
+            except HilbenchError as exc:  # nothing recorded: `hilbench run` without --record keeps no rows
                 raise _NoRows(str(exc)) from None
         return cache["s"]
 
@@ -182,8 +163,8 @@ def run_checks(entries: Sequence[CheckEntry], summary: "Summary", signals: Signa
         try:
             return _judge_run(entry, summary, columns)
         except _NoRows:
-            return CheckResult(entry.label, entry.kind, True, "not judged: the run kept no rows "
-                               f"(longer than {KEEP_ROWS_MAX_S:g} s without --record)")
+            return CheckResult(entry.label, entry.kind, True, "not judged: no rows were kept "
+                               "(record the run, --record run.npz, to judge the signals)")
 
     return [judge(entry) for entry in entries if entry.kind in RUN_KINDS]
 

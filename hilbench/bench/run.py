@@ -84,10 +84,7 @@ def run_bench(
     from hilbench.bench.feasibility import check_run, overrun_warning
 
     warnings = check_run(cfg)  # impossible settings raise here, before anything is opened
-    from hilbench.bench.checks import keep_rows_for_checks
-
-    bench = Bench(cfg, record=record, scenario=True, observer=observer, control=control,
-                  keep_rows=record is None and keep_rows_for_checks(cfg))
+    bench = Bench(cfg, record=record, scenario=True, observer=observer, control=control, keep_rows=False)
     with bench:
         warnings += bench.warnings
         for text in warnings:
