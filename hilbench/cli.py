@@ -255,6 +255,7 @@ def run(config: str | None, target_spec: str | None, mode: str | None, duration_
       hilbench run --set target.kp=0.15 --duration 2 --no-ui
       hilbench run --target serial:/dev/ttyUSB0?baud=250000 --mode realtime --set link.period_us=1000
     While it runs, `hilbench ctl get|set|ref|load` talks to it from another terminal.
+    The summary ends with the config's [[check]] verdicts; a failed check exits with code 9.
     """
     import json as json_module
 
@@ -310,12 +311,17 @@ def run(config: str | None, target_spec: str | None, mode: str | None, duration_
             scope_server.close()
         if control is not None:
             control.close()
+    from hilbench.bench.checks import checks_text, raise_if_failed
+
     if as_json:
         click.echo(json_module.dumps(summary.as_dict(), indent=2, default=str))
     elif no_ui or not console.is_terminal:
         click.echo(summary_text(summary))
     else:
         console.print(summary_table(summary))
+    if summary.checks and not as_json:
+        click.echo(checks_text(summary.checks))
+    raise_if_failed(summary.checks)  # exit code 9: the run completed, a [[check]] did not hold
 
 
 @cli.command()
@@ -509,6 +515,7 @@ def step(config: str | None, from_rpm: float, to_rpm: float, gains: tuple[str, .
       hilbench step --from 1000 --to 2000
       hilbench step --gains 0.1,0.01,0 --gains 0.2,0.02,0 --plot steps.png
       hilbench step --gains kp=0.2,ki=0.02 --from 1500 --to -1500
+    The config's step_* [[check]] tables are judged on every gain set; a failed one exits with code 9.
     """
     import json as json_module
     from pathlib import Path
@@ -533,6 +540,9 @@ def step(config: str | None, from_rpm: float, to_rpm: float, gains: tuple[str, .
     with Progress(console=console, transient=True) as progress:
         task = progress.add_task("step tests", total=max(1, len(sets)))
         results = run_step_tests(cfg, test, sets, progress=lambda done, total: progress.update(task, completed=done))
+    from hilbench.bench.checks import checks_text, raise_if_failed, step_checks
+
+    verdicts = [step_checks(cfg.check, r, profile.firmware_name) for r in results]
     rows = [result_row(r) for r in results]
     if csv_file:
         import csv
@@ -548,12 +558,19 @@ def step(config: str | None, from_rpm: float, to_rpm: float, gains: tuple[str, .
         t_ref = results[0].t_s
         plot_overlay(curves, (t_ref, [results[0].ref_rpm] * len(t_ref)), Path(plot_file),
                      f"speed step {from_rpm:g} → {to_rpm:g} rpm")
+    every = [v for per_set in verdicts for v in per_set]
     if as_json:
+        if every:  # each gain set's verdicts beside its metrics
+            rows = [{**row, "checks": [v.as_dict() for v in per_set]} for row, per_set in zip(rows, verdicts)]
         click.echo(json_module.dumps(rows, indent=2, default=str))
+        raise_if_failed(every)
         return
     _wide_console().print(step_table([(r.label, r.metrics) for r in results], f"speed step {from_rpm:g} → {to_rpm:g} rpm ({target_spec})"))
     if plot_file:
         Console().print(f"plot: {plot_file}")
+    if every:
+        click.echo(checks_text(every))
+    raise_if_failed(every)  # exit code 9: a step [[check]] of the config did not hold
 
 
 def _wide_console():  # type: ignore[no-untyped-def]

@@ -83,6 +83,13 @@ class BenchLimitError(HilbenchError):
     kind = "bench limit"
 
 
+class CheckFailed(HilbenchError):
+    """The run completed but a `[[check]]` of its config failed (hilbench.bench.checks)."""
+
+    exit_code = 9
+    kind = "check failed"
+
+
 __all__ = [
     "HilbenchError",
     "ConfigError",
@@ -97,4 +104,5 @@ __all__ = [
     "RecordingError",
     "SimulationError",
     "BenchLimitError",
+    "CheckFailed",
 ]

@@ -102,6 +102,11 @@ def run_bench(
                 + (f"; recording {record} closed with a fault marker" if record is not None else "")
             ) from None
         summary = bench.close()
+        assert summary is not None
+        if cfg.check:  # the config's pass/fail criteria, on what was recorded
+            from hilbench.bench.checks import run_checks
+
+            summary.checks = run_checks(cfg.check, summary, bench.signals)
     assert summary is not None
     summary.warnings = warnings + [w for w in [overrun_warning(summary.periods, summary.overruns)] if w]
     return summary

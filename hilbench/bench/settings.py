@@ -104,6 +104,8 @@ register_section("link", LinkSection)
 register_section("target", None, chooser=lambda built: target_profile(built.get("link")).options_type)
 register_section("scenario", ScenarioEntry, many=True)
 
+import hilbench.bench.checks  # noqa: E402,F401 - registers [[check]] (pass/fail criteria of a run)
+
 
 def session_options(cfg: BenchConfig) -> SessionOptions:
     """SessionOptions from the [run] and [link] tables."""

@@ -3,7 +3,10 @@
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from typing import Any
+from typing import TYPE_CHECKING, Any
+
+if TYPE_CHECKING:
+    from hilbench.bench.checks import CheckResult
 
 
 @dataclass
@@ -52,6 +55,12 @@ class Summary:
     firmware: str = ""
     #: what the run's settings did not allow (checked before the start, and real time not held)
     warnings: list[str] = field(default_factory=list)
+    #: the config's [[check]] verdicts (hilbench.bench.checks), judged when the run ended
+    checks: list["CheckResult"] = field(default_factory=list)
+
+    @property
+    def checks_passed(self) -> bool:
+        return all(c.passed for c in self.checks)
 
     @property
     def realtime_factor(self) -> float:
@@ -90,6 +99,8 @@ class Summary:
             "params": self.params,
             "recording": self.recording,
             "rows_recorded": self.rows_recorded,
+            "checks": [c.as_dict() for c in self.checks],
+            "checks_passed": self.checks_passed,
         }
 
 
