@@ -506,7 +506,8 @@ class Session:
                     due_k, sensor_faults, buttons, encoder_offset = self._scenario_k, faults.active, self._buttons, faults.encoder_offset
                     if self._end_reason is not None:
                         return k
-                if k % history_every == 0 and drive is not None:
+                sample = not k % history_every  # a history period (1 ms at 20 kHz)
+                if sample and drive is not None:
                     self._live_due(k, drive, guard_ref)
                     due_k, buttons = self._scenario_k, self._buttons  # a ctl command may start a ramp
                     if self._end_reason is not None:
@@ -522,20 +523,21 @@ class Session:
                 tripped = plant.fault_input  # the board's overcurrent comparator drives FAULT
                 if tripped:
                     inputs |= INPUT_FAULT
+                    self._comparator(k)
                 sensors = new_sensors(Sensors, (k & 0xFF, inputs, edge, (plant.encoder_count + encoder_offset) & 0xFFFF,
                                                 plant.adc_codes(roles)))
                 if pacing is not None:
                     drive = pacing.exchange(k, sensors, drive, target_step)
                     rtt, late, marker = pacing.rtt, pacing.late, pacing.marker
-                elif k & 15:
+                elif k & 63:
                     drive = target_step(sensors)
                 else:  # lockstep: a sample of round-trip times, not every period's
                     sent = perf()
                     drive = target_step(sensors)
                     rtts.append(perf() - sent)
                 _, da, db, dc, mode, state, sector, _, _, fault, tele = drive
-                if tripped:
-                    self._comparator(k, mode)
+                if tripped and mode == OUTPUT_OFF:  # the firmware's stop re-arms the comparator
+                    self._comparator_cleared()
                 if scale:  # no delay, one plant step per period
                     plant_step(da * scale, db * scale, dc * scale, mode, period_s)
                     edge_s = plant.last_edge_s
@@ -549,7 +551,7 @@ class Session:
                     else:
                         extend(pack(k, hall, sector, da, db, dc, mode, state, fault, rtt, late, marker, *tele))
                     plant_state(rows)
-                if k % history_every == 0:  # (1 ms at 20 kHz)
+                if sample:
                     guard_ref = self._sample(k, drive, pacing)
                     if not -overspeed <= plant.w_m <= overspeed:
                         self._end_on_limit(k, f"overspeed: the plant turns at {plant.w_m * RPM_PER_RAD_S:.0f} rpm, beyond "
@@ -561,15 +563,17 @@ class Session:
             self._edge_s, self._drive, self._guard_ref = edge_s, drive, guard_ref
         return k_to
 
-    def _comparator(self, k: int, mode: int) -> None:
-        """The overcurrent comparator's latch is set: note the trip once; the firmware turning its
-        outputs off (its stop) clears the latch, as a stop/start re-arms the MCLV's FLTA."""
+    def _comparator(self, k: int) -> None:
+        """The overcurrent comparator's latch is set: note the trip once."""
         if not self._trip_noted:
             self._trip_noted = True
             self._note(k * self._period_s, "overcurrent: the board's comparator tripped, FAULT input set")
-        if mode == OUTPUT_OFF:
-            self.plant.fault_input = False
-            self._trip_noted = False
+
+    def _comparator_cleared(self) -> None:
+        """The firmware turned its outputs off (its stop): the latch clears, as a stop/start re-arms
+        the MCLV's FLTA."""
+        self.plant.fault_input = False
+        self._trip_noted = False
 
     def _bus(self, k: int) -> None:
         """The bus capacitor over period k: the supply only sources, so the bus rises above it while
