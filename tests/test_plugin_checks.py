@@ -203,3 +203,14 @@ def test_step_judges_the_step_kinds(tmp_path: Path) -> None:
     assert verdicts["step_rise_time"]["value"] == pytest.approx(rows[0]["rise_time_s"])
     default = _cli("step")  # the default config has no step checks: nothing judged, exit 0
     assert default.returncode == 0, default.stderr
+
+
+def test_the_last_hold_of_a_run_the_user_stopped_early_is_not_judged() -> None:
+    """A run ended by `ctl stop` (or the scope's stop) cut its last hold short: its speed is not a
+    steady state, so a speed_error check does not judge it (the scope's stop gave exit 9)."""
+    summary, columns = _synthetic()  # one segment, 1 % off
+    strict = CheckEntry(kind="speed_error", max_pct=0.5)
+    assert not run_checks([strict], summary, lambda: columns)[0].passed
+    summary.end_reason = "stopped by ctl"
+    result = run_checks([strict], summary, lambda: columns)[0]
+    assert result.passed and result.figure.startswith("not judged")

@@ -214,9 +214,17 @@ def _window(entry: CheckEntry, t: np.ndarray) -> tuple[np.ndarray, str]:
     return mask, f"{entry.from_s:.3f}-{min(end, last):.3f} s"
 
 
+#: how a run can end before its scenario: the last held reference was cut short, not completed
+STOPPED_EARLY = ("stopped by ctl", "interrupted")
+
+
 def _segments(entry: CheckEntry, summary: "Summary") -> tuple[list[tuple[int, "Segment"]], str]:
+    """The held references a check judges: those it names, held long enough, and not the last one of
+    a run the user stopped early (its hold was cut short, not completed)."""
+    cut = len(summary.segments) if summary.end_reason in STOPPED_EARLY else 0
     chosen = [(n, s) for n, s in enumerate(summary.segments, 1)
-              if (entry.segment is None or n == entry.segment) and s.t_end_s - s.t_start_s >= entry.min_hold_s]
+              if (entry.segment is None or n == entry.segment) and s.t_end_s - s.t_start_s >= entry.min_hold_s
+              and n != cut]
     if chosen:
         return chosen, ""
     what = f"segment {entry.segment}" if entry.segment is not None else "held speed reference"
