@@ -30,7 +30,7 @@ from hilbench.bench.cpus import CpuPinning
 from hilbench.bench.launcher import TargetHandle, open_target
 from hilbench.bench.recorder import MemoryRecorder, Recorder, read_recording
 from hilbench.bench.scenario import Event
-from hilbench.bench.session import Session, Snapshot, Summary
+from hilbench.bench.session import Session, SessionOptions, Snapshot, Summary
 from hilbench.config import BenchConfig, load_config, plant_params_from_config
 from hilbench.errors import ConfigError, LinkError
 from hilbench.protocol import PROTOCOL_VERSION, SCHEMA_FINGERPRINT, TargetHello
@@ -115,9 +115,7 @@ class Bench:
         events = settings.scenario_events(cfg) if self._play_scenario else ()
         profile = configured_profile(cfg)
         plant = Plant(plant_params_from_config(cfg), seed=options.seed, substeps=cfg.plant.substeps)
-        handle = self._handle = open_target(cfg.link.target, profile=profile, options=cfg.target, mode=options.mode,
-                                            timeout_s=options.timeout_s, watchdog_ms=options.watchdog_ms,
-                                            retry_s=cfg.link.retry_ms / 1000.0)
+        handle = self._handle = connect(cfg, options, profile)
         try:
             session = self.session = Session(
                 handle.target, plant, events, options, profile=profile, observer=self._observer,
@@ -302,6 +300,12 @@ class Bench:
         if summary is None:
             raise ConfigError("Bench: never opened")
         return summary
+
+
+def connect(cfg: BenchConfig, options: SessionOptions, profile: TargetProfile | None) -> TargetHandle:
+    """Open the configured target (spawning its emulator or firmware build if the spec asks)."""
+    return open_target(cfg.link.target, profile=profile, options=cfg.target, mode=options.mode,
+                       timeout_s=options.timeout_s, watchdog_ms=options.watchdog_ms, retry_s=cfg.link.retry_ms / 1000.0)
 
 
 def configured_profile(cfg: BenchConfig) -> TargetProfile | None:

@@ -12,8 +12,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Callable, Sequence
 
 from hilbench.bench import settings
-from hilbench.bench.bench import Bench, configured_profile
-from hilbench.bench.launcher import TargetHandle, open_target
+from hilbench.bench.bench import Bench, configured_profile, connect
 from hilbench.bench.session import Session, SessionOptions, Snapshot, Summary
 from hilbench.config import BenchConfig, load_config, plant_params_from_config
 from hilbench.errors import ConfigError, LinkError
@@ -49,9 +48,6 @@ def load_run_config(request: RunRequest) -> BenchConfig:
     return load_config(request.config_path, overrides, scenario_path=request.scenario)
 
 
-effective_seed = settings.effective_seed
-
-
 def settings_profile(cfg: BenchConfig) -> TargetProfile:
     """The configured target's profile (the default target's for a port with no [link] firmware)."""
     return settings.configured_target_profile(cfg)
@@ -61,13 +57,6 @@ def in_process(cfg: BenchConfig) -> BenchConfig:
     """The same config on the configured target's in-process model (sweeps run there)."""
     profile = settings_profile(cfg)
     return cfg.replace(link=dataclasses.replace(cfg.link, target=f"inprocess:{profile.name}", firmware=None))
-
-
-def connect(cfg: BenchConfig, options: SessionOptions) -> TargetHandle:
-    """Open the configured target (spawning the emulator if asked)."""
-    return open_target(cfg.link.target, profile=configured_profile(cfg), options=cfg.target, mode=options.mode,
-                       timeout_s=options.timeout_s, watchdog_ms=options.watchdog_ms,
-                                            retry_s=cfg.link.retry_ms / 1000.0)
 
 
 def run_bench(
@@ -133,16 +122,17 @@ def run_step_tests(
     from hilbench.plant.model import Plant
 
     options = dataclasses.replace(
-        settings.session_options(cfg), seed=effective_seed(cfg), duration_s=test.duration_s, history_every_periods=1_000_000
+        settings.session_options(cfg), seed=settings.effective_seed(cfg), duration_s=test.duration_s, history_every_periods=1_000_000
     )
     results = []
     sets = list(gain_sets) or [{}]
+    profile = configured_profile(cfg)
     for index, gains in enumerate(sets):
-        handle = connect(cfg, options)
+        handle = connect(cfg, options, profile)
         try:
             def make(events, opts, recorder, handle=handle):  # type: ignore[no-untyped-def]
                 plant = Plant(plant_params_from_config(cfg), seed=opts.seed, substeps=cfg.plant.substeps)
-                return Session(handle.target, plant, events, opts, recorder=recorder, profile=configured_profile(cfg),
+                return Session(handle.target, plant, events, opts, recorder=recorder, profile=profile,
                                link_stats=handle.link_stats, target_label=handle.label)
 
             results.append(run_step(make, test, gains, options))

@@ -657,10 +657,6 @@ class Session:
                 self.observer(self._snapshot(k, drive, meas, pacing))
         return guard_ref
 
-    @staticmethod
-    def _first_period_at(t_s: float, period_s: float) -> float:
-        return first_period_at(t_s, period_s)
-
     def _stop_target(self) -> None:
         """A clean end: the target stops its outputs (S2 as a command)."""
         try:

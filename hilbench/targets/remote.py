@@ -70,31 +70,35 @@ class RemoteTarget:
         return self._req_seq
 
     def _request(self, msg: Any, reply_type: type, timeout_s: float | None = None) -> Any:
-        """Send msg and wait for reply_type (or an ErrorReport) with msg's seq."""
+        """Send msg and wait for reply_type (or an ErrorReport) with msg's seq; requests are
+        idempotent, so asking again after retry_s is safe."""
         self._send(msg)
-        sent = time.monotonic()
         timeout = self.timeout_s if timeout_s is None else timeout_s
-        deadline = sent + timeout
-        resend_at = sent + self.retry_s
+        reply = self._await(msg, (reply_type, ErrorReport), time.monotonic(), timeout,
+                            f"no {reply_type.__name__} for {type(msg).__name__}")
+        if type(reply) is ErrorReport:
+            self._note_stray(reply)  # (counted and kept as the last one, like any ErrorReport)
+        return reply
+
+    def _await(self, msg: Any, kinds: tuple[type, ...], start: float, timeout_s: float, what: str) -> Any:
+        """The answer to ``msg`` sent at ``start``: a frame of one of ``kinds`` with its seq. Strays
+        are counted and skipped; ``msg`` is sent again every retry_s (a lost frame either way);
+        LinkTimeout after ``timeout_s``."""
+        deadline = start + timeout_s
+        resend_at = start + self.retry_s
         while True:
             now = time.monotonic()
-            remaining = deadline - now
-            if remaining <= 0:
-                raise LinkTimeout(
-                    f"link {self.link.name}: no {reply_type.__name__} for {type(msg).__name__} within {timeout * 1000:.0f} ms"
-                )
-            if now >= resend_at:  # requests are idempotent: asking again is safe
+            if now >= deadline:
+                raise LinkTimeout(f"link {self.link.name}: {what} within {timeout_s * 1000:.0f} ms "
+                                  f"({self.retries} retries so far)")
+            if now >= resend_at:
                 self.retries += 1
                 self._send(msg)
                 resend_at = now + self.retry_s
-            reply = self.link.recv_or_none(min(remaining, max(resend_at - now, 1e-4)))
+            reply = self.link.recv_or_none(min(deadline - now, max(resend_at - now, 1e-4)))
             if reply is None:
                 continue
-            kind = type(reply)
-            if reply.seq == msg.seq and (kind is reply_type or kind is ErrorReport):
-                if kind is ErrorReport:
-                    self.error_reports += 1
-                    self.last_error_report = reply
+            if type(reply) in kinds and reply.seq == msg.seq:
                 return reply
             self._note_stray(reply)
 
@@ -198,25 +202,7 @@ class RemoteTarget:
         """The first answer was late, lost or something else: skip strays, send the same Sensors
         again every retry_s (the target answers a repeated seq with its last Drive), until ours
         arrives or the timeout."""
-        seq = sensors.seq
-        start = time.monotonic()
-        deadline = start + self.timeout_s
-        resend_at = start + self.retry_s
-        while True:
-            now = time.monotonic()
-            if now >= deadline:
-                raise LinkTimeout(f"link {self.link.name}: no Drive for Sensors seq {seq} within "
-                                  f"{self.timeout_s * 1000:.0f} ms ({self.retries} retries so far)")
-            if now >= resend_at:
-                self.retries += 1
-                self._send(sensors)
-                resend_at = now + self.retry_s
-            msg = self.link.recv_or_none(min(deadline - now, max(resend_at - now, 1e-4)))
-            if msg is None:
-                continue
-            if type(msg) is Drive and msg.seq == seq:
-                return msg
-            self._note_stray(msg)
+        return self._await(sensors, (Drive,), time.monotonic(), self.timeout_s, f"no Drive for Sensors seq {sensors.seq}")
 
     def advance(self, duration_us: float, sensors: Sensors) -> Drive:
         """Real time: the far end runs on its own clock; the exchange is the same."""
