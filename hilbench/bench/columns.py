@@ -1,7 +1,7 @@
 """The recording's row for a session: the bench's columns plus the target's telemetry columns.
 
 The session packs its own fields (period, hall, sector, duties, state, link timing, marker, the
-host's reference and the raw telemetry) and the plant appends its STATE_FIELDS. The target's
+host's reference), then the raw telemetry, and the plant appends its STATE_FIELDS. The target's
 profile says how each telemetry id becomes a column (name, unit, scale); they go after
 ``speed_rpm``. A target that reports no ``ref_speed_rpm`` gets the host's reference there.
 """
@@ -31,7 +31,8 @@ class SessionRow:
     """The layout of a session's recorded row and the session's own part of it."""
 
     layout: RowLayout
-    own_fields: tuple[tuple[str, str], ...]
+    own_fields: tuple[tuple[str, str], ...]  # the session's fields before the telemetry
+    telemetry_fields: tuple[tuple[str, str], ...]  # the raw telemetry, packed on its own (no `*` in the hot call)
 
 
 def session_row(profile: TargetProfile, telemetry_ids: tuple[int, ...], period_s: float) -> SessionRow:
@@ -59,8 +60,8 @@ def session_row(profile: TargetProfile, telemetry_ids: tuple[int, ...], period_s
         ("rtt_us", "us", "%.1f", "rtt_s", 1e6), ("lateness_us", "us", "%.1f", "lateness_s", 1e6),
         ("marker", "", "%d", "marker", 1.0),
     )
-    own += tele_fields
-    return SessionRow(RowLayout(own + STATE_FIELDS, columns, wrap=(("theta_e_deg", 360.0),)), own)
+    return SessionRow(RowLayout(own + tele_fields + STATE_FIELDS, columns, wrap=(("theta_e_deg", 360.0),)), own,
+                      tele_fields)
 
 
 def _declared_order(profile: TargetProfile, telemetry_id: int) -> int:

@@ -81,8 +81,10 @@ class PlantLike(Protocol):
     t_s: float
     fault_input: bool  # the board's overcurrent comparator, latched (drives the target's FAULT input)
 
-    def step(self, duty_a: float, duty_b: float, duty_c: float, output_mode: int, dt_s: float) -> None: ...
+    def step(self, duty_a: float, duty_b: float, duty_c: float, output_mode: int, dt_s: float,
+             state_to: bytearray | None = None) -> float | None: ...
     def adc_codes(self, roles: tuple[int, ...]) -> tuple[int, ...]: ...
+    def sense(self, roles: tuple[int, ...]) -> tuple[int, bool, bool, int, tuple[int, ...]]: ...
     def append_state(self, buf: bytearray) -> None: ...
 
 
@@ -349,6 +351,11 @@ class Session:
             self.player.next_t_s, self._button_release_s, self.faults.clear_at_s,
             t_s + period_s if self.player.ramps else math.inf), period_s)
 
+    def _live_wanted(self, k: int) -> bool:
+        """Whether the live part has work in the history periods from k on: a control socket, a
+        `ctl step` in progress or a guard watching (the loop skips the call otherwise)."""
+        return self.control is not None or bool(self._pending_steps) or k * self._period_s < self.tuning.watching
+
     def _live_due(self, k: int, drive: Any, guard_ref_rpm: float) -> None:
         """Every history period: the guard's look, `ctl step` progress, the control socket."""
         t_s = k * self._period_s
@@ -486,15 +493,19 @@ class Session:
         """Periods k_from..k_to-1: the parts run in the periods they are due; returns the next period.
         The hot path keeps its state in locals (a period is ~2 µs in process)."""
         plant, target_step, faults, history_every = self.plant, self.target.step, self.faults, self.options.history_every_periods
+        plant_sense = plant.sense
         roles, edge_limit, new_sensors = tuple(self.hello.adc_roles), self.options.period_us * 10 - 1, tuple.__new__  # type: ignore[union-attr]
-        actuate, (plant_step, scale, period_s) = self._actuate, self._simple_step
-        pack, extend, rows, plant_state = self._record or (None, None, None, None)
+        actuate, (plant_step, scale, period_s) = self._actuate, self._simple_step or (None, 0.0, 0.0)
+        one_step = self._simple_step is not None  # a bool: the hot branches test no float or int
+        pack, pack_telemetry, extend, rows = self._record or (None, None, None, None)
         host_ref = self._record_host_ref
         perf, rtts, rtt, late, marker = time.perf_counter, self._lockstep_rtts, 0.0, 0.0, 0
         edge_s, drive, guard_ref, sensor_faults, k = self._edge_s, self._drive, self._guard_ref, self.faults.active, k_from
         due_k = self._scenario_k  # the next period the scenario part asked for
         buttons, encoder_offset = self._buttons, faults.encoder_offset  # both change only when a part is due
-        index_bit = INPUT_INDEX if self.profile.has("encoder") else 0  # the encoder's index mark, when read
+        live = self._live_wanted(k_from)  # changes only when a part is due
+        sample_k = -(-k_from // history_every) * history_every  # the next history period
+        read_index = self.profile.has("encoder")  # the encoder's index mark drives INPUT_INDEX
         overspeed = self.options.overspeed_rpm / RPM_PER_RAD_S if self.options.overspeed_rpm > 0 else math.inf
         capacitor = self.options.bus_capacitance_f > 0.0 or self.options.overvoltage_v > 0.0
         if pacing is not None:
@@ -504,28 +515,27 @@ class Session:
                 if k >= due_k:
                     self._scenario_due(k)
                     due_k, sensor_faults, buttons, encoder_offset = self._scenario_k, faults.active, self._buttons, faults.encoder_offset
+                    live = self._live_wanted(k)
                     if self._end_reason is not None:
                         return k
-                sample = not k % history_every  # a history period (1 ms at 20 kHz)
-                if sample and drive is not None:
+                sample = k >= sample_k  # a history period (1 ms at 20 kHz): a compare, not a modulo
+                if sample and live and drive is not None:
                     self._live_due(k, drive, guard_ref)
-                    due_k, buttons = self._scenario_k, self._buttons  # a ctl command may start a ramp
+                    due_k, buttons, live = self._scenario_k, self._buttons, self._live_wanted(k)  # a ctl command may start a ramp
                     if self._end_reason is not None:
                         return k
-                hall = plant.hall_bits
+                hall, tripped, index, count, adc = plant_sense(roles)  # the plant's sensors after the last period
                 edge = EDGE_NONE if edge_s is None else min(int(edge_s * 1e7), edge_limit)
                 if sensor_faults:
                     hall, edge = faults.filter(hall, edge)
                     sensor_faults = faults.active
                 inputs = hall | buttons
-                if index_bit and plant.encoder_index:
-                    inputs |= index_bit
-                tripped = plant.fault_input  # the board's overcurrent comparator drives FAULT
-                if tripped:
+                if read_index and index:
+                    inputs |= INPUT_INDEX
+                if tripped:  # the board's overcurrent comparator drives FAULT
                     inputs |= INPUT_FAULT
                     self._comparator(k)
-                sensors = new_sensors(Sensors, (k & 0xFF, inputs, edge, (plant.encoder_count + encoder_offset) & 0xFFFF,
-                                                plant.adc_codes(roles)))
+                sensors = new_sensors(Sensors, (k & 0xFF, inputs, edge, (count + encoder_offset) & 0xFFFF, adc))
                 if pacing is not None:
                     drive = pacing.exchange(k, sensors, drive, target_step)
                     rtt, late, marker = pacing.rtt, pacing.late, pacing.marker
@@ -538,20 +548,20 @@ class Session:
                 _, da, db, dc, mode, state, sector, _, _, fault, tele = drive
                 if tripped and mode == OUTPUT_OFF:  # the firmware's stop re-arms the comparator
                     self._comparator_cleared()
-                if scale:  # no delay, one plant step per period
-                    plant_step(da * scale, db * scale, dc * scale, mode, period_s)
-                    edge_s = plant.last_edge_s
-                else:
-                    edge_s = actuate(drive)
-                if pacing is not None:
-                    pacing.finished(k)
                 if pack is not None:  # raw values in their own types (columns.session_row); the plant appends its state
                     if host_ref:
-                        extend(pack(k, hall, sector, da, db, dc, mode, state, fault, rtt, late, marker, self._ref_rpm, *tele))
+                        extend(pack(k, hall, sector, da, db, dc, mode, state, fault, rtt, late, marker, self._ref_rpm))
                     else:
-                        extend(pack(k, hall, sector, da, db, dc, mode, state, fault, rtt, late, marker, *tele))
-                    plant_state(rows)
+                        extend(pack(k, hall, sector, da, db, dc, mode, state, fault, rtt, late, marker))
+                    extend(pack_telemetry(*tele))  # a call on the tuple itself: cheaper than a `*` among positionals
+                if one_step:  # no delay, one plant step per period; it appends its state to the row
+                    edge_s = plant_step(da * scale, db * scale, dc * scale, mode, period_s, rows)
+                else:
+                    edge_s = actuate(drive, rows)
+                if pacing is not None:
+                    pacing.finished(k)
                 if sample:
+                    sample_k += history_every
                     guard_ref = self._sample(k, drive, pacing)
                     if not -overspeed <= plant.w_m <= overspeed:
                         self._end_on_limit(k, f"overspeed: the plant turns at {plant.w_m * RPM_PER_RAD_S:.0f} rpm, beyond "
@@ -596,9 +606,10 @@ class Session:
         self._note(k * self._period_s, reason)
         raise BenchLimitError(f"{self.target_label}: {reason} at t={k * self._period_s:.4f} s")
 
-    def _actuator(self) -> Callable[[Any], float | None]:
-        """Integrate the plant over a period with a Drive (or the one `actuation_delay_periods` before);
-        returns the time of the last hall edge in the period."""
+    def _actuator(self) -> Callable[[Any, bytearray | None], float | None]:
+        """Integrate the plant over a period with a Drive (or the one `actuation_delay_periods` before)
+        and append its state to the row buffer (None: not recording); returns the time of the last
+        hall edge in the period."""
         plant, period_s = self.plant, self._period_s
         scale = 1.0 / self.hello.pwm_period_counts  # type: ignore[union-attr]
         delay = self.options.actuation_delay_periods
@@ -607,7 +618,7 @@ class Session:
         pending: deque[Any] = deque()
         step = plant.step
 
-        def general(drive: Any) -> float | None:
+        def general(drive: Any, state_to: bytearray | None) -> float | None:
             if delay:
                 pending.append(drive)
                 drive = pending.popleft() if len(pending) > delay else None
@@ -618,17 +629,17 @@ class Session:
                 da, db, dc, mode = drive[1] * scale, drive[2] * scale, drive[3] * scale, drive[4]
             edge_s = None
             for i in range(substeps):  # long periods: the plant keeps its accurate step, duties held
-                step(da, db, dc, mode, sub_s)
-                if plant.last_edge_s is not None:
-                    edge_s = i * sub_s + plant.last_edge_s
+                sub_edge_s = step(da, db, dc, mode, sub_s, state_to if i == substeps - 1 else None)
+                if sub_edge_s is not None:
+                    edge_s = i * sub_s + sub_edge_s
             return edge_s
 
-        self._simple_step = (step, scale, period_s) if (not delay and substeps == 1) else (step, 0.0, period_s)
+        self._simple_step = (step, scale, period_s) if (not delay and substeps == 1) else None
         return general
 
-    def _row_writer(self) -> tuple[Callable[..., bytes], Callable[[bytes], None], bytearray, Callable[[bytearray], None]] | None:
-        """The recorder's per-period pieces: the packer of the session's raw fields, the row buffer's
-        extend, the buffer, and the plant's append of its own state."""
+    def _row_writer(self) -> tuple[Callable[..., bytes], Callable[..., bytes], Callable[[bytes], None], bytearray] | None:
+        """The recorder's per-period pieces: the packers of the session's raw fields and of the
+        telemetry, the row buffer's extend and the buffer (the plant's step appends its own state)."""
         recorder = self.recorder
         if recorder is None:
             return None
@@ -636,7 +647,8 @@ class Session:
         recorder.metadata["history_every_periods"] = self.options.history_every_periods  # the report's segments
         recorder.start(row.layout)
         self._record_host_ref = any(name == "host_ref_rpm" for name, _ in row.own_fields)
-        return fields_struct(row.own_fields).pack, recorder.rows.extend, recorder.rows.data, self.plant.append_state
+        return (fields_struct(row.own_fields).pack, fields_struct(row.telemetry_fields).pack, recorder.rows.extend,
+                recorder.rows.data)
 
     def _sample(self, k: int, drive: Any, pacing: RealtimePacing | None) -> float:
         """Every history period: the speed history, a flush, the observer. Returns the reference the

@@ -192,32 +192,52 @@ static int get_double(PyObject *o, double *out)
     return (*out == -1.0 && PyErr_Occurred()) ? -1 : 0;
 }
 
+static PyObject *Core_append_state(Core *s, PyObject *buf);
+static int step_period(Core *s, PyObject *const *args);
+
+/* step(duty_a, duty_b, duty_c, output_mode, dt_s[, state_to]) -> last_edge_s: one period (model.Plant.step);
+ * with a bytearray ``state_to`` the state is appended to it after the step (append_state). */
 static PyObject *Core_step(Core *s, PyObject *const *args, Py_ssize_t nargs)
 {
-    if (nargs != 5) {
-        PyErr_Format(PyExc_TypeError, "Plant.step: expected 5 arguments (duty_a, duty_b, duty_c, output_mode, dt_s), got %zd", nargs);
+    if (nargs != 5 && nargs != 6) {
+        PyErr_Format(PyExc_TypeError, "Plant.step: expected 5 or 6 arguments (duty_a, duty_b, duty_c, output_mode, dt_s[, state_to]), got %zd", nargs);
         return NULL;
     }
+    if (step_period(s, args) < 0) return NULL;
+    if (nargs == 6 && args[5] != Py_None) {
+        PyObject *r = Core_append_state(s, args[5]);
+        if (r == NULL) return NULL;
+        Py_DECREF(r);
+    }
+    return Py_NewRef(s->last_edge_s != NULL ? s->last_edge_s : Py_None);
+}
+
+/* The period itself: 0, or -1 with an exception set. */
+static int step_period(Core *s, PyObject *const *args)
+{
     double duty_a, duty_b, duty_c, dt_s;
     if (get_double(args[0], &duty_a) || get_double(args[1], &duty_b) || get_double(args[2], &duty_c)
         || get_double(args[4], &dt_s))
-        return NULL;
+        return -1;
     long mode = PyLong_AsLong(args[3]);
-    if (mode == -1 && PyErr_Occurred()) return NULL;
+    if (mode == -1 && PyErr_Occurred()) return -1;
     if (s->fault_input && s->gate_off) mode = OUTPUT_OFF; /* the comparator's hardware trip */
     int hot = (mode == OUTPUT_PWM || mode == OUTPUT_LOW_SIDE);
     if (s->track_energy || s->kq_any || (!hot && !(s->i_d == 0.0 && s->i_q == 0.0 && s->ell * fabs(s->w_m) < s->vbus_v))) {
         PyObject *cargs[6] = {(PyObject *)s, args[0], args[1], args[2], args[3], args[4]};
-        return PyObject_VectorcallMethod(str_step_py, cargs, 6, NULL);
+        PyObject *r = PyObject_VectorcallMethod(str_step_py, cargs, 6, NULL);
+        if (r == NULL) return -1;
+        Py_DECREF(r);
+        return 0;
     }
     if (s->t_load_change <= s->t_s + 1e-12) {
         PyObject *r = PyObject_CallMethodNoArgs((PyObject *)s, str_update_load);
-        if (r == NULL) return NULL;
+        if (r == NULL) return -1;
         Py_DECREF(r);
     }
     if (!hot) {
         coast_period(s, dt_s);
-        Py_RETURN_NONE;
+        return 0;
     }
     double va, vb;
     if (mode == OUTPUT_PWM) {
@@ -335,7 +355,7 @@ static PyObject *Core_step(Core *s, PyObject *const *args, Py_ssize_t nargs)
     s->i_bus = (s->vbus_v > 0.0 && dt_s > 0.0) ? (1.5 * vmag * e_in) / (s->vbus_v * dt_s) : 0.0;
     long long n = (long long)floor(((double)s->turns + th0 / TWO_PI) * (double)s->enc_cpt / p);
     set_encoder(s, n);
-    Py_RETURN_NONE;
+    return 0;
 }
 
 /* append_state(buf): the state a recorder keeps per period, appended to a bytearray as seven
@@ -468,10 +488,31 @@ static PyMemberDef Core_members[] = {
     {NULL, 0, 0, 0, NULL},
 };
 
+/* model.Plant.sense: (hall_bits, fault_input, encoder_index, encoder_count, adc_codes(roles)) in one call */
+static PyObject *Core_sense(Core *s, PyObject *roles)
+{
+    PyObject *codes = Core_adc_codes(s, roles);
+    if (codes == NULL) return NULL;
+    PyObject *out = PyTuple_New(5);
+    PyObject *hall = PyLong_FromLong(s->hall_bits), *count = PyLong_FromLong(s->encoder_count);
+    if (out == NULL || hall == NULL || count == NULL) {
+        Py_XDECREF(out); Py_XDECREF(hall); Py_XDECREF(count); Py_DECREF(codes);
+        return NULL;
+    }
+    PyTuple_SET_ITEM(out, 0, hall);
+    PyTuple_SET_ITEM(out, 1, Py_NewRef(s->fault_input ? Py_True : Py_False));
+    PyTuple_SET_ITEM(out, 2, Py_NewRef(s->encoder_index ? Py_True : Py_False));
+    PyTuple_SET_ITEM(out, 3, count);
+    PyTuple_SET_ITEM(out, 4, codes);
+    return out;
+}
+
 static PyMethodDef Core_methods[] = {
     {"step", (PyCFunction)(void (*)(void))Core_step, METH_FASTCALL,
-     "step(duty_a, duty_b, duty_c, output_mode, dt_s): one period (see model.Plant)."},
+     "step(duty_a, duty_b, duty_c, output_mode, dt_s[, state_to]) -> last_edge_s: one period (see model.Plant)."},
     {"adc_codes", (PyCFunction)Core_adc_codes, METH_O, "adc_codes(roles): ADC codes (see model.Plant)."},
+    {"sense", (PyCFunction)Core_sense, METH_O,
+     "sense(roles): (hall_bits, fault_input, encoder_index, encoder_count, adc_codes(roles)) (see model.Plant)."},
     {"append_state", (PyCFunction)Core_append_state, METH_O,
      "append_state(buf): theta_e, w_m, i_a, i_b, i_c, i_bus, load_nm as 7 doubles onto a bytearray."},
     {"_set_adc", (PyCFunction)(void (*)(void))Core_set_adc, METH_FASTCALL, "_set_adc(role, gain, offset, noise)"},

@@ -300,6 +300,11 @@ class Plant:
         return 0.5 * self._j * self.w_m * self.w_m
 
     # ----------------------------------------------------------------- sensors
+    def sense(self, roles: Sequence[int]) -> tuple[int, bool, bool, int, tuple[int, ...]]:
+        """What the board's sensors read after the last step, in one call (the bench's hot loop):
+        (hall_bits, fault_input, encoder_index, encoder_count, adc_codes(roles))."""
+        return self.hall_bits, self.fault_input, self.encoder_index, self.encoder_count, self.adc_codes(roles)
+
     def adc_codes(self, roles: Sequence[int]) -> tuple[int, ...]:
         """ADC codes (each channel's own bits) for the given ADC roles (docs/design.md role numbers); NONE -> 0.
 
@@ -554,7 +559,15 @@ class Plant:
         self.encoder_index = m != self._enc_m
         self._enc_m = m
 
-    step = _step_py
+    def step(self, duty_a: float, duty_b: float, duty_c: float, output_mode: int, dt_s: float,
+             state_to: bytearray | None = None) -> float | None:
+        """Integrate one period (`_step_py`); returns `last_edge_s`. With ``state_to`` the state is
+        appended to that row buffer after the step (`append_state`): the bench's hot loop makes one
+        call of the two (the C backend has the same signature)."""
+        self._step_py(duty_a, duty_b, duty_c, output_mode, dt_s)
+        if state_to is not None:
+            self.append_state(state_to)
+        return self.last_edge_s
 
     def _bus_average(self, e_in_j: float, dt_s: float) -> float:
         """The period's average bus current: the energy the inverter drew over it / (Vbus dt).
@@ -837,6 +850,7 @@ if _plantcore is not None:
         backend = "c"
         step = _plantcore.Core.step
         adc_codes = _plantcore.Core.adc_codes
+        sense = _plantcore.Core.sense
         append_state = _plantcore.Core.append_state
         theta_e = _plantcore.Core.theta_e  # the same read-only angle, without a Python property call
 
