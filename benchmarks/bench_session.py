@@ -9,7 +9,13 @@ With ``--baseline-python PY`` it also runs (a) under another installation of hil
 commit before a change, installed in its own venv), interleaved with this one, and prints the
 ratio: the "no slowdown" check of a redesign, measured in the same run.
 
-    python benchmarks/bench_session.py [--seconds 1.0] [--repeats 3] [--baseline-python PY]
+With ``--instructions`` (needs valgrind) it counts the CPU instructions of (a) per period instead,
+for this tree and the baseline: deterministic, so a few-percent difference is visible on a shared,
+noisy machine where wall-clock medians scatter by as much. Each interpreter runs (a) under
+callgrind for a short and a long scenario; the difference over the extra periods is the per-period
+cost with start-up, handshake and imports cancelled out (the close of the recording stays in).
+
+    python benchmarks/bench_session.py [--seconds 1.0] [--repeats 3] [--baseline-python PY] [--instructions]
 """
 
 from __future__ import annotations
@@ -17,6 +23,8 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import json
+import os
+import shutil
 import statistics
 import subprocess
 import sys
@@ -73,14 +81,41 @@ def measure_in(python: str, seconds: float) -> float:
     return float(json.loads(out.stdout.strip().splitlines()[-1])["rate"])
 
 
+def instructions_per_period(python: str, short_s: float = 0.2, long_s: float = 1.2) -> float:
+    """(a)'s CPU instructions per period under ``python``, counted by callgrind (deterministic)."""
+    totals = []
+    env = dict(os.environ, OPENBLAS_NUM_THREADS="1", PYTHONHASHSEED="0")  # no BLAS threads spinning, fixed hashes
+    with tempfile.TemporaryDirectory() as tmp:
+        for seconds in (short_s, long_s):
+            out = Path(tmp) / "callgrind.out"
+            subprocess.run(["valgrind", "--tool=callgrind", f"--callgrind-out-file={out}", python, __file__,
+                            "--measure-inprocess", "--seconds", str(seconds)],
+                           capture_output=True, text=True, timeout=900, cwd=tmp, env=env, check=True)
+            line = next(ln for ln in out.read_text().splitlines() if ln.startswith(("summary:", "totals:")))
+            totals.append(int(line.split()[1]))
+    return (totals[1] - totals[0]) / ((long_s - short_s) * 1e6 / PERIOD_US)
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     parser.add_argument("--seconds", type=float, default=1.0, help="simulated seconds per run")
     parser.add_argument("--repeats", type=int, default=3)
     parser.add_argument("--baseline-python", default=None, metavar="PY",
                         help="an interpreter with another hilbench installed: (a) is measured there too")
+    parser.add_argument("--instructions", action="store_true",
+                        help="count (a)'s instructions per period with valgrind (this tree and the baseline) and stop")
     parser.add_argument("--measure-inprocess", action="store_true", help=argparse.SUPPRESS)
     args = parser.parse_args()
+    if args.instructions:
+        if shutil.which("valgrind") is None:
+            parser.error("--instructions needs valgrind on PATH (apt-get install valgrind)")
+        this = instructions_per_period(sys.executable)
+        print(f"(a) in-process with NPZ recording, CPU instructions per period (callgrind): this tree {this:,.0f}")
+        if args.baseline_python:
+            base = instructions_per_period(args.baseline_python)
+            print(f"    baseline ({args.baseline_python}) {base:,.0f}; ratio {this / base:.3f} "
+                  f"(below 1: fewer instructions than the baseline)")
+        return
     if args.measure_inprocess:  # one (a) figure for --baseline-python, as JSON
         with tempfile.TemporaryDirectory() as tmp:
             print(json.dumps({"rate": closed_loop("inprocess:an1017", args.seconds, tmp, "npz")[0]}))
