@@ -137,3 +137,25 @@ def test_append_state_writes_the_recorded_state_in_both_backends() -> None:
         values = struct.unpack("<" + "d" * len(STATE_FIELDS), buf[2:])
         assert buf[:2] == b"ab"
         assert values == (plant.theta_e, plant.w_m, plant.i_a, plant.i_b, plant.i_c, plant.i_bus, plant.load_nm)
+
+
+def test_the_hot_loop_calls_equal_the_attribute_reads_in_both_backends() -> None:
+    """The session's per-period calls: ``step(..., state_to)`` returns last_edge_s and appends what
+    append_state appends; ``sense(roles)`` is hall, comparator, index, count and adc_codes(roles)
+    (one plant stepped with the calls, a twin with the attribute reads; same seed, same noise)."""
+    roles = (1, 4, 5, 2, 3)
+    for backend in available_backends():
+        params = plant_params_from_config(load_config(CONFIGS / "hurst_mclv.toml"))
+        fast, slow = (Plant(params, seed=7, backend=backend) for _ in range(2))
+        rows, expected = bytearray(), bytearray()
+        edges = 0
+        for k in range(3000):
+            duties = q_duties(fast.theta_e, 9.0, fast.vbus_v)
+            edge_s = fast.step(*duties, 1, DT, rows)
+            assert slow.step(*duties, 1, DT) == edge_s == slow.last_edge_s
+            slow.append_state(expected)
+            edges += edge_s is not None
+            reading = fast.sense(roles)
+            assert reading == (slow.hall_bits, slow.fault_input, slow.encoder_index, slow.encoder_count,
+                               slow.adc_codes(roles)), f"{backend} period {k}"
+        assert rows == expected and edges > 20
