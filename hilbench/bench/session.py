@@ -207,6 +207,7 @@ class Session:
             column = self.profile.telemetry_column(tid)
             self._tele_index[column.column] = (index, column.scale)
         missing = (-1, 0.0)  # (telemetry index, scale) of the firmware's measured speed and reference
+        self._overspeed_rpm = self.options.overspeed_rpm if self.options.overspeed_rpm > 0 else math.inf
         self._speed_telemetry = (self._tele_index.get(self.profile.speed_column or "", missing),
                                  self._tele_index.get("ref_speed_rpm", missing))
         return hello
@@ -506,7 +507,6 @@ class Session:
         live = self._live_wanted(k_from)  # changes only when a part is due
         sample_k = -(-k_from // history_every) * history_every  # the next history period
         read_index = self.profile.has("encoder")  # the encoder's index mark drives INPUT_INDEX
-        overspeed = self.options.overspeed_rpm / RPM_PER_RAD_S if self.options.overspeed_rpm > 0 else math.inf
         capacitor = self.options.bus_capacitance_f > 0.0 or self.options.overvoltage_v > 0.0
         if pacing is not None:
             pacing.start_at(k_from)
@@ -563,9 +563,6 @@ class Session:
                 if sample:
                     sample_k += history_every
                     guard_ref = self._sample(k, drive, pacing)
-                    if not -overspeed <= plant.w_m <= overspeed:
-                        self._end_on_limit(k, f"overspeed: the plant turns at {plant.w_m * RPM_PER_RAD_S:.0f} rpm, beyond "
-                                              f"the {self.options.overspeed_rpm:g} rpm limit ([protection] overspeed_rpm)")
                 if capacitor:
                     self._bus(k)
         finally:
@@ -651,8 +648,8 @@ class Session:
                 recorder.rows.data)
 
     def _sample(self, k: int, drive: Any, pacing: RealtimePacing | None) -> float:
-        """Every history period: the speed history, a flush, the observer. Returns the reference the
-        guard compares with (the firmware's own when it reports one)."""
+        """Every history period: the overspeed limit, the speed history, a flush, the observer.
+        Returns the reference the guard compares with (the firmware's own when it reports one)."""
         tele = drive[10]
         (i_meas, s_meas), (i_ref, s_ref) = self._speed_telemetry
         meas = tele[i_meas] * s_meas if i_meas >= 0 else math.nan
@@ -667,6 +664,9 @@ class Session:
                 self.recorder.maybe_flush()
             if self.observer is not None:
                 self.observer(self._snapshot(k, drive, meas, pacing))
+        if not -self._overspeed_rpm <= plant_rpm <= self._overspeed_rpm:
+            self._end_on_limit(k, f"overspeed: the plant turns at {plant_rpm:.0f} rpm, beyond the "
+                                  f"{self.options.overspeed_rpm:g} rpm limit ([protection] overspeed_rpm)")
         return guard_ref
 
     def _stop_target(self) -> None:
