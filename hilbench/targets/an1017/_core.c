@@ -4,14 +4,16 @@
  * an1017_firmware.An1017Firmware lives in this struct and is exposed as members with the same
  * attribute names, so the Python methods that the host-side commands use (press_start,
  * press_stop, set_gains, declared_gains, duties, __init__) run unchanged on it. The per-period
- * work runs here: Core.run is An1017Firmware.run (every ISR at its Tcy time, the fast path's
- * packed duty keys), Core.finish builds the Drive as An1017Target._finish does, Core.step is
- * one lockstep period (run + finish).
+ * work runs here: Core.run is An1017Firmware.run (every ISR at its Tcy time; a run of PWM
+ * periods between other events is one step of arithmetic, and the duty registers are held as
+ * the SVM's packed arguments, volts << 16 | angle, evaluated only when a Drive reports them),
+ * Core.finish builds the Drive as An1017Target._finish does, Core.step is one lockstep period
+ * (run + finish).
  *
  * Arithmetic: int64_t for everything, with Python's semantics made explicit where they differ
  * from C's: right shifts of negative values floor (asr), `% 6` / `% 16` of possibly negative
  * values are taken non-negative, `& 0xFFFF` is the two's-complement mask (as Python's & on
- * negative ints). tests/test_an1017_core.py compares every Drive with the reference path.
+ * negative ints). tests/test_an1017_core.py compares every Drive with the Python reference.
  */
 #define PY_SSIZE_T_CLEAN
 #include <Python.h>
