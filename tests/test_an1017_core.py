@@ -1,6 +1,7 @@
 """The compiled AN1017 firmware core (hilbench/targets/an1017/_core.c) against the reference path.
 
-The Python backend (`reference=True`: pure Python, every PWM ISR with the full SVM) is the spec;
+The C backend is the board firmware (firmware/an1017/an1017.c) compiled into this process behind a
+thin glue. The Python backend (`reference=True`: every PWM ISR with the full SVM) is the spec;
 the C backend must give the identical Drive at every period over the seeded random streams of
 tests/_an1017_streams.py (hall edges anywhere, invalid halls, reversals, stalls, S2, gain
 writes accepted and refused, pot changes, watchdog, advance() spans, 50/100/250/1000 µs periods,
@@ -29,9 +30,14 @@ pytestmark = pytest.mark.skipif(not require_c_an1017(), reason="compiled AN1017 
 S2 = 0x08
 EDGE_NONE = 0xFFFF
 PERIOD_S = 50e-6
-# firmware state compared at the end of a stream (the duty registers through duties() and
-# pending_duties(): the C core holds them as the SVM's arguments)
-STATE_FIELDS = tuple(f for f in An1017Firmware.__slots__ if f not in ("options", "pend_duty", "act_duty", "t_frac_us"))
+# firmware state compared at the end of a stream: every variable of the Python model that the board
+# firmware has too (the duty registers through duties() and pending_duties(); the next Timer1 tick
+# and the end of the bootstrap only while they are pending: the firmware counts them from now)
+STATE_FIELDS = tuple(
+    f for f in An1017Firmware.__slots__
+    if f not in ("options", "pend_duty", "act_duty", "t_frac_us", "t3_zero", "ic7_fifo", "s2_level", "t1_next",
+                 "boot_end")
+)
 
 
 def pair(variant: str = "seed", period_us: int = 50) -> tuple[An1017Target, An1017Target]:
@@ -48,6 +54,10 @@ def assert_same_state(c_t: An1017Target, ref_t: An1017Target) -> None:
         assert getattr(c_t.fw, f) == getattr(ref_t.fw, f), f"firmware field {f}"
     assert c_t.fw.duties() == ref_t.fw.duties()
     assert c_t.fw.pending_duties() == ref_t.fw.pending_duties()
+    if ref_t.fw.running:
+        assert c_t.fw.t1_next == ref_t.fw.t1_next
+    if ref_t.fw.booting:
+        assert c_t.fw.boot_end == ref_t.fw.boot_end
 
 
 def test_backend_selection(monkeypatch):

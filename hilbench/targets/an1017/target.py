@@ -11,9 +11,10 @@ period, so the chip's one-period register latency is there once and no more. PDC
 reported as 1000.
 
 Two backends with identical outputs: "python", the readable reference (An1017Firmware, every ISR
-as the firmware runs it), and "c", its one accelerator (hilbench/targets/an1017/_core.c, an
-optional compiled extension holding the firmware state in a C struct, exposed under
-An1017Firmware's attribute names); tests/test_an1017_core.py compares every Drive of the two.
+as the firmware runs it), and "c", its one accelerator: the board firmware firmware/an1017/an1017.c
+compiled into this process behind a thin glue (hilbench/targets/an1017/_core.c, an optional
+extension; its state is exposed under An1017Firmware's attribute names); tests/test_an1017_core.py
+compares every Drive of the two.
 "c" is chosen when the extension is built unless HILBENCH_AN1017_BACKEND=python (or
 backend="python") asks otherwise; `reference=True` means the Python reference (it cannot be
 combined with backend="c"). `target.backend` says which one runs.
@@ -34,10 +35,10 @@ from hilbench.targets.an1017.firmware import (
     TCY_PER_US,
     An1017Firmware,
     An1017Options,
+    build_periods,
     check_gain_constraints,
     max_phase_advance_from_deg,
 )
-from hilbench.targets.an1017.svm import SINE_TABLE
 
 from hilbench.protocol import (
     PROTOCOL_VERSION,
@@ -116,7 +117,7 @@ try:
 except ImportError:  # pragma: no cover - built without a C compiler
     _an1017core = None
 else:
-    _an1017core.init(Drive, SINE_TABLE)
+    _an1017core.init(Drive)
 
 
 def available_backends() -> tuple[str, ...]:
@@ -156,7 +157,7 @@ class An1017Target:
     def __init__(self, options: An1017Options = An1017Options(), *, reference: bool = False,
                  backend: str | None = None) -> None:
         self.options = options.resolved()
-        self.fw = (_CFirmware if self.backend == "c" else An1017Firmware)(options)
+        self.fw = _c_firmware(self.options) if self.backend == "c" else An1017Firmware(options)
         self.period_us = PWM_PERIOD_US
         self._period_tcy = PWM_PERIOD_US * TCY_PER_US
         self.mode = 0
@@ -242,12 +243,19 @@ class An1017Target:
             new[pid] = value
         gains_touched = [pid for pid, _ in pairs if pid in (PARAM_KP, PARAM_KI, PARAM_KD)]
         if gains_touched:
-            broken = check_gain_constraints(new[PARAM_KP], new[PARAM_KI], new[PARAM_KD])
+            broken = self._check_gains(new[PARAM_KP], new[PARAM_KI], new[PARAM_KD])
             if broken is not None:
                 # name the written gain that takes part in the broken constraint
                 involved = {1: (PARAM_KP, PARAM_KI, PARAM_KD), 2: (PARAM_KP, PARAM_KD), 3: (PARAM_KD,)}[broken]
                 offender = next((p for p in gains_touched if p in involved), gains_touched[0])
                 return ParamSetResult(0, RESULT_CONSTRAINT, offender, broken)
+        self._apply_params(new, bool(gains_touched))
+        return ParamSetResult(0, RESULT_OK, pairs[-1][0], 0)
+
+    _check_gains = staticmethod(check_gain_constraints)
+
+    def _apply_params(self, new: dict[int, int], gains_touched: bool) -> None:
+        """Write a checked, complete set of declared values (the gains only when written)."""
         fw = self.fw
         if gains_touched:
             fw.set_gains(new[PARAM_KP], new[PARAM_KI], new[PARAM_KD])
@@ -258,7 +266,6 @@ class An1017Target:
         fw.ref_override_on = bool(new[PARAM_REF_OVR_ON])
         fw.ref_override = new[PARAM_REF_OVR]
         fw.stall_limit = new[PARAM_STALL_MS]
-        return ParamSetResult(0, RESULT_OK, pairs[-1][0], 0)
 
     # ---- run control -------------------------------------------------------------------------
     def start(self) -> None:
@@ -331,42 +338,29 @@ class An1017Target:
 
 if _an1017core is not None:
 
-    class _CFirmware(_an1017core.Core):
-        """An1017Firmware whose state is the C struct of `_an1017core.Core`.
-
-        The host-command methods are An1017Firmware's own (they only read and write attributes,
-        which are the struct's members here); `run` is the compiled one, plus `step` (one lockstep
-        period → Drive) and `finish` (the Drive of the current state) used by _CAn1017Target. The
-        duty registers are held as the SVM's arguments (`act_key`/`pend_key` = volts << 16 | angle).
-        """
-
-        def __init__(self, options: An1017Options = An1017Options()) -> None:
-            An1017Firmware.__init__(self, options)  # type: ignore[arg-type]
-            del self.pend_duty, self.act_duty  # (the struct's keys hold them)
-
-        press_start = An1017Firmware.press_start
-        press_stop = An1017Firmware.press_stop
-        set_gains = An1017Firmware.set_gains
-        declared_gains = An1017Firmware.declared_gains
-        _coefficients = An1017Firmware._coefficients
-
-        def duties(self) -> tuple[int, int, int]:
-            """The duty registers in effect now (latched at the last boundary)."""
-            key = self.act_key
-            return _an1017core.svm(key >> 16, key & 0xFFFF)
-
-        def pending_duties(self) -> tuple[int, int, int]:
-            """The duty registers the PWM ISR wrote last (they take effect at the next boundary)."""
-            key = self.pend_key
-            return _an1017core.svm(key >> 16, key & 0xFFFF)
+    def _c_firmware(options: An1017Options) -> Any:
+        """The board firmware firmware/an1017/an1017.c in this process (`_an1017core.Core`), built
+        for these (resolved) options. Its members carry An1017Firmware's attribute names."""
+        min_period, max_period = build_periods(options.pole_pairs, options.max_speed_rpm)
+        return _an1017core.Core(
+            variant_v11=options.variant == "v11",
+            adc_every=bool(options.adc_every_pwm_period),
+            c1_textbook=bool(options.pid_c1_textbook),
+            phase_advance=bool(options.phase_advance),
+            stall_limit=int(options.stall_timeout_ms or 100),
+            phase_offset=options.phase_offset_ccw,
+            max_ph_adv_deg=options.max_phase_advance_deg,
+            min_period=min_period,
+            max_period=max_period,
+        )
 
     class _CAn1017Target(An1017Target):
-        """An1017Target on the compiled firmware: `step` is the C method of `fw` itself.
+        """An1017Target on the board firmware's C core: `step` is the C method of `fw` itself.
 
-        Parameter writes, hello, start/stop, watchdog and status are the Python ones; their
-        effects land in the C struct through its members (gains through `pending_gains`, taken
-        at the next Timer1 ISR as in the Python model). The lockstep period and the last seq
-        live in the struct, behind `_period_tcy` and `_last_seq`.
+        Parameters go through the firmware's own an1017_param_value / an1017_check_gains /
+        an1017_apply_params; hello, start/stop, watchdog and status are the Python ones. The
+        lockstep period, the last seq and its Drive live in the core, behind `_period_tcy`,
+        `_last_seq` and `_last_drive`.
         """
 
         backend = "c"
@@ -375,6 +369,16 @@ if _an1017core is not None:
                      backend: str | None = None) -> None:
             super().__init__(options, reference=reference, backend=backend)
             self.step = self.fw.step  # type: ignore[method-assign]  # no Python frame per period
+
+        def _value(self, param_id: int) -> int:
+            if param_id not in PARAMS:
+                raise ParamError(f"an1017 param {param_id}: unknown id")
+            return self.fw.param_value(param_id)
+
+        _check_gains = staticmethod(_an1017core.check_gains)
+
+        def _apply_params(self, new: dict[int, int], gains_touched: bool) -> None:
+            self.fw.apply_params(tuple(new[pid] for pid in sorted(PARAMS)), gains_touched)
 
         @property
         def _period_tcy(self) -> int:  # type: ignore[override]
@@ -405,7 +409,7 @@ if _an1017core is not None:
             return self.fw.finish(seq)
 
 else:  # pragma: no cover
-    _CFirmware = _CAn1017Target = None  # type: ignore[assignment,misc]
+    _c_firmware = _CAn1017Target = None  # type: ignore[assignment,misc]
 
 
 def constraint_name(number: int) -> str:
