@@ -1,6 +1,6 @@
 """Build hook for the optional compiled cores: the plant (hilbench/plant/_plantcore.c), the
-AN1017 firmware model (hilbench/targets/an1017/_core.c) and the F2812 FOC firmware model
-(hilbench/targets/foc/_core.c).
+AN1017 board firmware (firmware/an1017/an1017.c behind the glue hilbench/targets/an1017/_core.c)
+and the F2812 FOC firmware model (hilbench/targets/foc/_core.c).
 
 All metadata is in pyproject.toml. The extension is `optional`: without a C compiler
 `pip install .` still succeeds and hilbench.plant falls back to its pure-Python step
@@ -31,9 +31,11 @@ setup(
             extra_compile_args=_flags,
             optional=True,
         ),
-        Extension(
+        Extension(  # the board firmware's own source behind a CPython glue (MANIFEST.in ships it)
             "hilbench.targets.an1017._core",
-            sources=["hilbench/targets/an1017/_core.c"],
+            sources=["hilbench/targets/an1017/_core.c", "firmware/an1017/an1017.c"],
+            include_dirs=["firmware/an1017"],
+            depends=["firmware/an1017/an1017.h", "firmware/an1017/q15.h"],
             extra_compile_args=_flags,
             optional=True,
         ),

@@ -1,15 +1,15 @@
 """Cost of the AN1017 firmware model per PWM period, and its real-time factor.
 
 Runs one simulated second (20 000 PWM periods) of a motor started from rest with a scripted hall
-stream (≈ 1000 rpm; the speed loop ramps ControlOutput for the first ~200 ms, so the SVM cache
-starts cold), in lockstep steps of 50 µs (one Drive per PWM period: the bench's closed loop) and
+stream (≈ 1000 rpm; the speed loop ramps ControlOutput for the first ~200 ms), in lockstep steps of 50 µs (one Drive per PWM period: the bench's closed loop) and
 of 1000 µs; a stopped motor at rest (halls and pot constant) in 50 µs steps; and a trivial baseline loop (a call building a Drive
 with the NamedTuple constructor per step) measured in the same run, interleaved with the model
 runs. The machine is a noisy 2-core VM whose speed changes by up to 2x over seconds, so besides
 medians of the times it prints the median of per-repeat ratios to the baseline.
 
 Both firmware-model backends run in the same loop: "c" (the compiled core, the default when
-built) and "python" (An1017Firmware with the target's fast path); the goal line is printed for each.
+built) and "python" (the readable reference An1017Firmware: every PWM ISR with the full SVM); the
+goal line is printed for each.
 
 Usage: python benchmarks/bench_an1017.py [--repeats N] [--profile]
 """

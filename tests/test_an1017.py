@@ -1,4 +1,4 @@
-"""AN1017 firmware model: seed tables, PID, timing, state machine, parameters, fast == reference.
+"""AN1017 firmware model: seed tables, PID, timing, state machine, parameters, the default backend == the reference.
 
 Expected values come from the seed document (Tables 6, 8, 9, Table 7 formulas), the facts file
 and hand arithmetic in the comments — never from the model's own output.
@@ -342,7 +342,7 @@ def _run_stream(target, stream, pot_of_step, stop_at=None):
 
 @pytest.mark.parametrize("variant", ["seed", "v11"])
 @pytest.mark.parametrize("step_us", [50, 1000, 250])
-def test_fast_path_equals_reference_path(variant, step_us):
+def test_default_backend_equals_reference_path(variant, step_us):
     opts = An1017Options(variant=variant)
     n = 30_000 // step_us * 10  # 300 ms
     stream = _hall_stream(n, 1500.0 * (1 + 0.3 * (step_us == 250)), step_us)
@@ -351,18 +351,18 @@ def test_fast_path_equals_reference_path(variant, step_us):
         ms = k * step_us / 1000
         return 900 if ms < 120 else (150 if ms < 220 else 1000)
 
-    fast = _run_stream(An1017Target(opts), stream, pot)
+    got = _run_stream(An1017Target(opts), stream, pot)
     ref = _run_stream(An1017Target(opts, reference=True), stream, pot)
-    assert fast == ref
-    assert any(d.required_ccw for d in fast) and any(d.output_mode == PWM for d in fast)
+    assert got == ref
+    assert any(d.required_ccw for d in got) and any(d.output_mode == PWM for d in got)
 
 
-def test_fast_equals_reference_with_stall_and_invalid_halls():
+def test_default_backend_equals_reference_with_stall_and_invalid_halls():
     stream = [(HALL_OF_SECTOR[(k // 40) % 6] if k < 1500 else (0 if k < 1600 else 7), EDGE_NONE) for k in range(6000)]
-    fast = _run_stream(An1017Target(), stream, lambda k: 300)
+    got = _run_stream(An1017Target(), stream, lambda k: 300)
     ref = _run_stream(An1017Target(reference=True), stream, lambda k: 300)
-    assert fast == ref
-    assert fast[-1].state == STALLED
+    assert got == ref
+    assert got[-1].state == STALLED
 
 
 def test_advance_real_time_matches_lockstep_for_whole_periods():

@@ -76,7 +76,7 @@ def pwm_isr(fw: An1017Firmware) -> tuple[int, int, int]:
 
 def chip_timeline_run(plant: Plant) -> dict[str, np.ndarray]:
     """The default scenario on the chip's timeline; per period: t_s, speed_rpm, max |i_phase|."""
-    fw = An1017Firmware(reference=True)
+    fw = An1017Firmware()
     n = round(END_S / PERIOD_S)
     pdc_written = (500, 500, 500)  # PDC = PTPER after reset (50 %): outputs are off anyway
     speed = np.empty(n)
@@ -112,14 +112,14 @@ def chip_timeline_run(plant: Plant) -> dict[str, np.ndarray]:
         for at, kind in sorted(events):
             while fw.running and fw.t1_next <= at:
                 fw.t1_next += 20096  # Timer1: (PR1 + 1)·64 Tcy
-                fw._timer1_reference()
+                fw._timer1()
             if kind == 0:
                 fw._run_motor()
             else:
                 fw._apply_hall(plant.hall_bits, at)
         while fw.running and fw.t1_next < t0 + PWM_TCY:
             fw.t1_next += 20096
-            fw._timer1_reference()
+            fw._timer1()
         fw.t = t0 + PWM_TCY
         speed[k] = plant.speed_rpm
         i_peak[k] = max(abs(i) for i in plant.i_abc)

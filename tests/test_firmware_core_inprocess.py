@@ -1,8 +1,8 @@
-"""The C firmware core in this process, without the protocol: what a CPython extension built from
-firmware/an1017/an1017.c would drive (issue 12: one C source for the board, the host build and the
-in-process core).
+"""The C firmware core in this process, without the protocol and without hilbench's glue (issue 12:
+one C source for the board, the host build and the in-process core; the extension
+hilbench.targets.an1017._core is that source behind a CPython glue, tests/test_an1017_core.py).
 
-The core is compiled as a shared library and called through ctypes: an1017_run per period with the
+The core is compiled here as a plain shared library with gcc and called through ctypes: an1017_run per period with the
 Sensors' inputs, edge time and pot, an1017_outputs for the Drive, the command and parameter entry
 points for Start/Stop and writes the Python model accepts. Every Drive must equal the Python
 model's (hilbench/targets/an1017/firmware.py through An1017Target) on the seeded random streams.

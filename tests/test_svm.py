@@ -7,7 +7,7 @@ import math
 import numpy as np
 import pytest
 
-from hilbench.targets.an1017.svm import SINE_TABLE, svm, svm_fast, svm_sector
+from hilbench.targets.an1017.svm import SINE_TABLE, svm, svm_sector
 
 
 def test_sine_table_shape_and_end_values():
@@ -81,18 +81,30 @@ def test_line_to_line_is_sinusoid_low_thd():
 
 
 @pytest.mark.parametrize("volts", [-1, 0, 1, 163, 16384, 22640, 28299, 28300, 28301, 32767])
-def test_svm_fast_equals_svm_at_every_angle(volts):
-    # the unrolled variant must agree with the readable one everywhere, including volts = -1
+def test_c_core_svm_equals_svm_at_every_angle(volts):
+    # the compiled core's SVM must agree with the readable one everywhere, including volts = -1
     # (the CCW start-up value) and amplitudes above the 0.866 clamp
+    core = _c_core()
     for a in range(65536):
-        assert svm_fast(volts, a) == svm(volts, a), (volts, a)
+        assert core.svm(volts, a) == svm(volts, a), (volts, a)
 
 
-def test_svm_fast_equals_svm_random_pairs():
+def test_c_core_svm_equals_svm_random_pairs():
     import random
 
+    core = _c_core()
     rng = random.Random(2)
     for _ in range(50_000):
         v, a = rng.randrange(-1, 32768), rng.randrange(65536)
-        assert svm_fast(v, a) == svm(v, a), (v, a)
-    assert svm_fast(16384, 0x1555) == (747, 499, 251)  # facts §1.3 vector
+        assert core.svm(v, a) == svm(v, a), (v, a)
+    assert core.svm(16384, 0x1555) == (747, 499, 251)  # facts §1.3 vector
+
+
+def _c_core():
+    from conftest import require_c_an1017
+
+    if not require_c_an1017():
+        pytest.skip("compiled AN1017 core not built")
+    from hilbench.targets.an1017 import _core
+
+    return _core

@@ -43,7 +43,6 @@ static const uint16_t phase_values[6] AN1017_ROM = {57344u, 2730u, 13652u, 24574
 static const uint16_t sector_table[8] AN1017_ROM = {0xFFFFu, 4u, 2u, 3u, 0u, 5u, 1u, 0xFFFFu};
 
 #define SIXTY_DEG 0x2AAAu
-#define MINPERIOD_DIVF ((int16_t)(AN1017_MINPERIOD - 1u)) /* _MINPERIOD = MINPERIOD - 1 keeps DIVF's |num| < |den| */
 #define PHASEINC_NUMERATOR 512000UL     /* 65536 * 1000 Tcy / (2 * 64 Tcy): FCY-independent */
 #define FORCE_COMMUTATION_TICKS 10u     /* _10MILLISEC */
 #define ADC_POSTSCALE_MASK 15u          /* SEVOPS 1:16 (v1.1) */
@@ -160,6 +159,7 @@ void an1017_init(an1017_t *s, uint8_t variant)
     s->adc_every = (uint8_t)!v11;
     s->c1_textbook = (uint8_t)!v11;
     s->phase_offset = AN1017_PHASE_OFFSET;
+    an1017_set_periods(s, AN1017_MINPERIOD, AN1017_MAXPERIOD);
     s->kp = KP_DEFAULT;
     s->ki = KI_DEFAULT;
     s->kd = KD_DEFAULT;
@@ -172,12 +172,18 @@ void an1017_init(an1017_t *s, uint8_t variant)
     s->output_mode = AN1017_MODE_OFF;
     s->sector = AN1017_SECTOR_INVALID;
     s->last_sector = AN1017_SECTOR_INVALID;
-    s->period = AN1017_MAXPERIOD;
     for (i = 0u; i < 3u; i++) {
         s->pdc_pending[i] = AN1017_PTPER;
         s->pdc_active[i] = AN1017_PTPER;
     }
     s->pot_code = 512u;
+}
+
+void an1017_set_periods(an1017_t *s, uint16_t min_period, uint16_t max_period)
+{
+    s->min_period = min_period;
+    s->max_period = max_period;
+    s->period = max_period;
 }
 
 void an1017_press_start(an1017_t *s)
@@ -215,7 +221,7 @@ void an1017_run_motor(an1017_t *s)
     s->e1 = 0;
     s->e2 = 0;
     coefficients(s);
-    s->actual_capture = AN1017_MAXPERIOD; /* the first Period is 31250 */
+    s->actual_capture = s->max_period; /* the first Period is MAXPERIOD (31250) */
     s->past_capture = 0u;
     s->sector = sector_of(s->hall);
     s->last_sector = s->sector;
@@ -224,7 +230,7 @@ void an1017_run_motor(an1017_t *s)
     s->req_ccw = s->cur_ccw;
     s->phase = phase_for_sector(s, s->sector, s->req_ccw);
     s->stall_counter = 0u;
-    s->phase_inc = (uint16_t)(PHASEINC_NUMERATOR / AN1017_MAXPERIOD);
+    s->phase_inc = (uint16_t)(PHASEINC_NUMERATOR / s->max_period);
     s->running = 1u;
     s->state = AN1017_STATE_RUNNING;
 }
@@ -288,15 +294,16 @@ void an1017_isr_timer1(an1017_t *s)
     }
     /* [T1] Period between the last two IC7 captures (16-bit wrap), clamped */
     period = (uint16_t)(s->actual_capture - s->past_capture);
-    if (period < AN1017_MINPERIOD) {
-        period = AN1017_MINPERIOD;
-    } else if (period > AN1017_MAXPERIOD) {
-        period = AN1017_MAXPERIOD;
+    if (period < s->min_period) {
+        period = s->min_period;
+    } else if (period > s->max_period) {
+        period = s->max_period;
     }
     s->period = period;
     s->phase_inc = (uint16_t)(PHASEINC_NUMERATOR / period);
-    /* MeasuredSpeed = DIVF(_MINPERIOD, Period); MINPERIOD <= Period <= MAXPERIOD <= 32767 fits a positive int16 */
-    ms = q15_divf(MINPERIOD_DIVF, (int16_t)period);
+    /* MeasuredSpeed = DIVF(_MINPERIOD, Period), _MINPERIOD = MINPERIOD - 1 keeps DIVF's |num| < |den|;
+     * MINPERIOD <= Period <= MAXPERIOD <= 32767 fits a positive int16 */
+    ms = q15_divf((int16_t)(s->min_period - 1u), (int16_t)period);
     if (s->cur_ccw) {
         ms = (int16_t)-ms;
     }

@@ -10,7 +10,8 @@
  * lockstep scheduler that calls them at their true times inside a span of virtual time (the dsPIC's
  * natural order for simultaneous interrupts: Timer1, then RunMotor's end of ChargeBootstraps, then
  * the hall ISRs CN5/IC7/IC8, then the PWM/ADC boundary). Every value equals the Python reference
- * model hilbench/targets/an1017_firmware.py (tests/test_firmware_sil.py compares whole sessions).
+ * model hilbench/targets/an1017/firmware.py (tests/test_firmware_sil.py compares whole sessions;
+ * hilbench/targets/an1017/_core.c runs this file in the bench's own process).
  *
  * Time: Tcy = 50 ns (FCY = 20 MHz, 5 MHz crystal with PLLx16). PWM period 1000 Tcy (PTPER 499,
  * centre-aligned, 20 kHz); Timer1 every (PR1 + 1) * 64 = 20096 Tcy; TMR3 ticks every 64 Tcy.
@@ -93,6 +94,8 @@ typedef struct {
     uint8_t adc_every;        /* app note: ADC ISR every PWM period; v1.1: every 16th (SEVOPS 1:16) */
     uint8_t c1_textbook;      /* app note: C1 = -Kp - 2Kd; v1.1: C1 = -(Ki + 2Kd) */
     int16_t phase_offset;     /* PhaseOffset, CCW */
+    uint16_t min_period;      /* MINPERIOD, MAXPERIOD of the motor built for: an1017_init sets the */
+    uint16_t max_period;      /* macros' values; a host may set others (then an1017_set_periods) */
     /* declared, tunable values */
     int16_t kp, ki, kd;       /* gains in use (Q15) */
     int16_t pend_kp, pend_ki, pend_kd;
@@ -139,6 +142,9 @@ typedef struct {
 } an1017_out_t;
 
 void an1017_init(an1017_t *s, uint8_t variant);
+/* Another motor build at run time (the in-process host): MINPERIOD and MAXPERIOD as
+ * build_periods() gives them (2 <= min_period < max_period <= 32767), before the motor starts. */
+void an1017_set_periods(an1017_t *s, uint16_t min_period, uint16_t max_period);
 
 /* SVM(volts, angle): PDC1..3 for amplitude volts (Q15, >= -1) at a 16-bit angle (65536 = 360 deg). */
 void an1017_svm(int16_t volts, uint16_t angle, uint16_t pdc[3]);

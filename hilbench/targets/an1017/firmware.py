@@ -7,10 +7,10 @@ ISRs (CN5 = A, IC7 = B, IC8 = C) at the edge time the host reports. Simultaneous
 the dsPIC's natural order (T1, ADC, CN, IC7, IC8, PWM). Duty registers written by the PWM ISR take
 effect at the next period boundary (PWMCON2.IUE = 0).
 
-Two paths compute the same outputs: the fast one collapses a run of PWM periods between other
-events into O(1) arithmetic (Phase advances linearly, the SVM is only evaluated for the duties
-that are reported); the reference one (`reference=True`) executes every PWM ISR with the full
-SVM. Tests run both over scripted streams and require identical Drive sequences.
+This is the readable reference: every ISR runs as the firmware runs it, every PWM ISR with the
+full SVM, nothing collapsed or cached. The one accelerator is the compiled core (the "c" backend
+of hilbench.targets.an1017.target); tests/test_an1017_core.py requires its Drives to equal this
+model's at every period over seeded random streams.
 
 Where the AN1017 application note (Chinese edition) and the v1.1 firmware source differ
 (An1017Options: default variant "appnote" = the note, "v11" = the source):
@@ -32,7 +32,7 @@ from typing import Literal
 
 from hilbench.errors import ConfigError
 from hilbench.targets.an1017.fixedpoint import divf, float_to_q15, sat16, wrap16
-from hilbench.targets.an1017.svm import PTPER, VOLTS_LIMIT, svm, svm_fast
+from hilbench.targets.an1017.svm import PTPER, svm
 
 # ---- time base -------------------------------------------------------------------------------
 FCY_HZ = 20_000_000
@@ -208,7 +208,6 @@ class An1017Firmware:
 
     __slots__ = (
         "options",
-        "reference",
         "_adc_every",
         "_c1_textbook",
         "phase_offset",
@@ -231,8 +230,6 @@ class An1017Firmware:
         "t3_zero",
         "ic7_fifo",
         "output_mode",
-        "pend_key",
-        "act_key",
         "pend_duty",
         "act_duty",
         "running",
@@ -264,10 +261,9 @@ class An1017Firmware:
         "s2_wait_release",
     )
 
-    def __init__(self, options: An1017Options = An1017Options(), *, reference: bool = False) -> None:
+    def __init__(self, options: An1017Options = An1017Options()) -> None:
         opts = options.resolved()
         self.options = opts
-        self.reference = reference
         self._adc_every = bool(opts.adc_every_pwm_period)
         self._c1_textbook = bool(opts.pid_c1_textbook)
         self.phase_offset = opts.phase_offset_ccw
@@ -292,12 +288,9 @@ class An1017Firmware:
         self.t3_zero = 0  # time TMR3 was last cleared
         self.ic7_fifo: list[int] = []
         self.output_mode = MODE_OFF
-        # duties as SVM arguments packed into one int, (volts << 16) | angle (volts ≥ −1 here,
-        # so the packing is unique): pending = written by the PWM ISR, active = latched at the
-        # last period boundary. One int per register set keeps the per-period path to one store.
-        self.pend_key = 0
-        self.act_key = 0
-        self.pend_duty = (PTPER, PTPER, PTPER)  # reference path only
+        # duty registers PDC1..3: pending = written by the PWM ISR, active = latched at the last
+        # period boundary (PWMCON2.IUE = 0)
+        self.pend_duty = (PTPER, PTPER, PTPER)
         self.act_duty = (PTPER, PTPER, PTPER)
         # firmware variables
         self.running = False  # Flags.MotorRunning: T1/CN/IC7/IC8/PWM interrupts enabled
@@ -369,7 +362,6 @@ class An1017Firmware:
         """RunMotor() after ChargeBootstraps(): PDC = PTPER, OVDCON = 0x3F00, variables, interrupts."""
         self.booting = False
         self.output_mode = MODE_PWM
-        self.pend_key = self.act_key = 0
         self.pend_duty = self.act_duty = (PTPER, PTPER, PTPER)
         self.e1 = self.e2 = 0
         self._coefficients()
@@ -390,68 +382,6 @@ class An1017Firmware:
         self.state = STATE_RUNNING
 
     def _timer1(self) -> None:
-        """Timer1 ISR, the fast path's version: `_timer1_reference` with divf and speed_control inlined.
-
-        Why: it runs 1000 times per simulated second. Period ≥ MINPERIOD > MINPERIOD − 1 > 0,
-        so DIVF's operands are positive and its quotient is a plain floor division. The
-        randomised fast == reference tests compare every Drive of the two versions.
-        """
-        pg = self.pending_gains
-        if pg is not None:
-            self.kp, self.ki, self.kd = pg
-            self.pending_gains = None
-            self._coefficients()
-        period = (self.actual_capture - self.past_capture) & 0xFFFF
-        if period < self.min_period:
-            period = self.min_period
-        elif period > self.max_period:
-            period = self.max_period
-        self.period = period
-        self.phase_inc = PHASEINC_NUMERATOR // period
-        ms = ((self.min_period - 1) << 15) // period
-        if self.cur_ccw:
-            ms = -ms
-        self.measured_speed = ms
-        e0 = self.ref_speed - ms
-        if e0 > 32767:
-            e0 = 32767
-        elif e0 < -32768:
-            e0 = -32768
-        acc = (self.control_output << 16) + ((e0 * self.c0) << 1)
-        if acc > 0x7FFFFFFF:
-            acc = 0x7FFFFFFF
-        elif acc < -0x80000000:
-            acc = -0x80000000
-        acc += (self.e1 * self.c1) << 1
-        if acc > 0x7FFFFFFF:
-            acc = 0x7FFFFFFF
-        elif acc < -0x80000000:
-            acc = -0x80000000
-        acc += (self.e2 * self.c2) << 1
-        if acc > 0x7FFFFFFF:
-            acc = 0x7FFFFFFF
-        elif acc < -0x80000000:
-            acc = -0x80000000
-        co = acc >> 16  # within −32768..32767 after the 1.31 clamp: SAC's saturation never acts
-        self.e2 = self.e1
-        self.e1 = e0
-        self.control_output = co
-        self.req_ccw = co < 0
-        if self.phase_advance_on:
-            self.phase_adv = sat16((self.max_ph_adv * ms * 2) >> 16)
-        else:
-            self.phase_adv = 0
-        sc = self.stall_counter + 1
-        self.stall_counter = sc
-        if sc % FORCE_COMMUTATION_TICKS == 0:
-            s = SECTOR_TABLE[self.hall]
-            self.sector = s & 0xFFFF
-            if s >= 0:
-                self.phase = phase_for_sector(s, self.req_ccw, self.phase, self.phase_offset)
-        elif sc >= self.stall_limit:
-            self.press_stop(STATE_STALLED, FAULT_STALL)
-
-    def _timer1_reference(self) -> None:
         """Timer1 ISR: Period, PhaseInc, MeasuredSpeed, SpeedControl, PhaseAdvance, stall logic."""
         if self.pending_gains is not None:
             self.kp, self.ki, self.kd = self.pending_gains
@@ -534,43 +464,29 @@ class An1017Firmware:
             # an ADC ISR happens at boundary k when k % 16 == 0
             if (-first_index) % ADC_POSTSCALE_V11 < n:
                 self.ref_speed = self._ref_input()
-        if not self.running:
-            if self.reference:
-                for _ in range(n):
-                    self.act_duty = self.pend_duty
-            else:
-                self.act_key = self.pend_key
+        if not self.running:  # PDC keeps its value: the latch changes nothing after the first boundary
+            self.act_duty = self.pend_duty
             return
         co = self.control_output
-        if self.req_ccw:
+        if self.req_ccw:  # CCW drives with the one's complement of the negative output
             volts = -(co + 1)
             dphase = -self.phase_inc if self.cur_ccw else 0
         else:
             volts = co
             dphase = self.phase_inc if not self.cur_ccw else 0
         adv = self.phase_adv
-        if self.reference:
-            for _ in range(n):
-                self.act_duty = self.pend_duty
-                self.phase = (self.phase + dphase) & 0xFFFF
-                self.pend_duty = svm(volts, (self.phase + adv) & 0xFFFF)
-            return
-        phase = self.phase
-        vkey = (volts if volts < VOLTS_LIMIT else VOLTS_LIMIT) << 16  # svm clamps there: more cache hits
-        if n >= 2:
-            self.act_key = vkey | ((phase + (n - 1) * dphase + adv) & 0xFFFF)
-        else:
-            self.act_key = self.pend_key
-        phase = (phase + n * dphase) & 0xFFFF
-        self.phase = phase
-        self.pend_key = vkey | ((phase + adv) & 0xFFFF)
+        for _ in range(n):  # each boundary: the last period's registers take effect, the ISR writes new ones
+            self.act_duty = self.pend_duty
+            self.phase = (self.phase + dphase) & 0xFFFF
+            self.pend_duty = svm(volts, (self.phase + adv) & 0xFFFF)
 
     def duties(self) -> tuple[int, int, int]:
         """The duty registers in effect now (latched at the last boundary)."""
-        if self.reference:
-            return self.act_duty
-        key = self.act_key
-        return svm_fast(key >> 16, key & 0xFFFF)
+        return self.act_duty
+
+    def pending_duties(self) -> tuple[int, int, int]:
+        """The duty registers the PWM ISR wrote last (they take effect at the next boundary)."""
+        return self.pend_duty
 
     def _main_loop_buttons(self, inputs: int) -> None:
         """main(): if S2 is down, wait for its release, then toggle RunMotor/StopMotor."""
@@ -630,10 +546,7 @@ class An1017Firmware:
                 break
             if kind == 1:
                 self.t1_next += TIMER1_PERIOD_TCY
-                if self.reference:
-                    self._timer1_reference()
-                else:
-                    self._timer1()
+                self._timer1()
             elif kind == 2:
                 self._run_motor()
             else:

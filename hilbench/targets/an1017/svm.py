@@ -40,7 +40,8 @@ def svm_sector(angle_u16: int) -> int:
 def svm(volts: int, angle_u16: int) -> tuple[int, int, int]:
     """Duty registers (PDC1, PDC2, PDC3) for amplitude `volts` (Q15, ≥ 0) at `angle_u16`.
 
-    Reference implementation: readable, used to check the fast table in the firmware model.
+    The firmware model calls it at every PWM ISR; the compiled core has its own copy, checked
+    against this one at every angle (tests/test_svm.py).
     """
     if volts > VOLTS_LIMIT:
         volts = VOLTS_LIMIT
@@ -66,48 +67,3 @@ def svm(volts: int, angle_u16: int) -> tuple[int, int, int]:
     if sector == 5:
         return (t2 + h) & 0xFFFF, h, (t1 + t2 + h) & 0xFFFF
     return (t1 + t2 + h) & 0xFFFF, h, (t1 + h) & 0xFFFF
-
-
-
-def svm_fast(volts: int, angle_u16: int) -> tuple[int, int, int]:
-    """The same duties as `svm`, with the sector search unrolled and the no-op masks dropped.
-
-    Why: the firmware model's cache misses call this (thousands of times per simulated second
-    while the amplitude ramps). For 0 ≤ volts ≤ VOLTS_LIMIT every `& 0xFFFF` / `& 0xFF` of
-    `svm` is a no-op: inside a sector angle2 ≤ 0x2AAA, so both table indices are ≤ 170; the
-    scaled times are < 998 and t1 + t2 ≤ 0.866·998 < TPWM, so h ≥ 0 and every sum is < 998.
-    Negative volts (only −1, the CCW start-up value) take `svm` itself.
-    tests/test_svm.py checks it against `svm` at every angle for a set of amplitudes.
-    """
-    if volts < 0:
-        return svm(volts, angle_u16)
-    if volts > VOLTS_LIMIT:
-        volts = VOLTS_LIMIT
-    a = angle_u16 & 0xFFFF
-    if a < 0x8000:
-        if a < 0x2AAA:
-            sector, a2 = 1, a
-        elif a < 0x5555:
-            sector, a2 = 2, a - 0x2AAA
-        else:
-            sector, a2 = 3, a - 0x5555
-    elif a < 0xAAAA:
-        sector, a2 = 4, a - 0x8000
-    elif a < 0xD555:
-        sector, a2 = 5, a - 0xAAAA
-    else:
-        sector, a2 = 6, a - 0xD555
-    t1 = ((SINE_TABLE[(SIXTY_DEG - a2) >> 6] * volts >> 15) * TPWM) >> 15
-    t2 = ((SINE_TABLE[a2 >> 6] * volts >> 15) * TPWM) >> 15
-    h = (TPWM - t1 - t2) >> 1
-    if sector == 1:
-        return t1 + t2 + h, t2 + h, h
-    if sector == 2:
-        return t1 + h, t1 + t2 + h, h
-    if sector == 3:
-        return h, t1 + t2 + h, t2 + h
-    if sector == 4:
-        return h, t1 + h, t1 + t2 + h
-    if sector == 5:
-        return t2 + h, h, t1 + t2 + h
-    return t1 + t2 + h, h, t1 + h

@@ -10,12 +10,14 @@ period, so the chip's one-period register latency is there once and no more. PDC
 (only produced by the firmware's volts = −1 start-up transient in CCW) mean 100 % and are
 reported as 1000.
 
-Two backends with identical outputs (tests/test_an1017_core.py compares every Drive with the
-reference path): "c" (hilbench/targets/_an1017core.c, an optional compiled extension holding the
-firmware state in a C struct, exposed under An1017Firmware's attribute names) and "python"
-(An1017Firmware with this module's fast path). "c" is chosen when the extension is built unless
-HILBENCH_AN1017_BACKEND=python (or backend="python") asks otherwise; `reference=True` is always
-pure Python (it is the readable spec). `target.backend` says which one runs.
+Two backends with identical outputs: "python", the readable reference (An1017Firmware, every ISR
+as the firmware runs it), and "c", its one accelerator: the board firmware firmware/an1017/an1017.c
+compiled into this process behind a thin glue (hilbench/targets/an1017/_core.c, an optional
+extension; its state is exposed under An1017Firmware's attribute names); tests/test_an1017_core.py
+compares every Drive of the two.
+"c" is chosen when the extension is built unless HILBENCH_AN1017_BACKEND=python (or
+backend="python") asks otherwise; `reference=True` means the Python reference (it cannot be
+combined with backend="c"). `target.backend` says which one runs.
 """
 
 from __future__ import annotations
@@ -26,21 +28,17 @@ from typing import Any
 from hilbench.errors import ConfigError, ParamError
 from hilbench.targets.an1017.firmware import (
     GAIN_CONSTRAINT_NAMES,
-    INPUT_FAULT,
-    INPUT_S2,
-    PWM_PERIOD_TCY,
     STATE_FAULT,
-    TIMER1_PERIOD_TCY,
     FAULT_WATCHDOG,
     SECTOR_INVALID,
     SECTOR_TABLE,
     TCY_PER_US,
     An1017Firmware,
     An1017Options,
+    build_periods,
     check_gain_constraints,
     max_phase_advance_from_deg,
 )
-from hilbench.targets.an1017.svm import SINE_TABLE, VOLTS_LIMIT, svm_fast
 
 from hilbench.protocol import (
     PROTOCOL_VERSION,
@@ -79,10 +77,9 @@ FIRMWARE_VERSION = 0x0101  # v1.1
 PWM_PERIOD_COUNTS = 1000
 PWM_FREQ_HZ = 20000
 PWM_PERIOD_US = 50
-DUTY_CACHE_MAX = 200_000  # entries of (a, b, c): bounded memory, cleared when full
 _tuple_new = tuple.__new__  # Drive is a NamedTuple: this skips its Python-level __new__ (~3x cheaper)
 if Drive._fields[1:4] != ("duty_a", "duty_b", "duty_c") or len(Drive._fields) != 11:
-    # _finish/step build Drives from positional tuples: a changed message must not go unnoticed
+    # _finish builds Drives from positional tuples: a changed message must not go unnoticed
     raise ConfigError(f"an1017: Drive fields changed to {Drive._fields}; update the tuple layout in an1017.py")
 if Sensors._fields != ("seq", "inputs", "edge_time_100ns", "encoder", "adc"):
     raise ConfigError(f"an1017: Sensors fields changed to {Sensors._fields}; update the unpacking in step()")
@@ -120,7 +117,7 @@ try:
 except ImportError:  # pragma: no cover - built without a C compiler
     _an1017core = None
 else:
-    _an1017core.init(Drive, SINE_TABLE)
+    _an1017core.init(Drive)
 
 
 def available_backends() -> tuple[str, ...]:
@@ -142,33 +139,10 @@ def _choose_backend(backend: str | None, reference: bool) -> str:
     return choice
 
 
-class DutyCache(dict):
-    """Packed SVM arguments (volts << 16 | angle, see An1017Firmware.pend_key) → reported duties.
-
-    Filled on first use (`__missing__`), so the per-period lookup is one subscript. It is what
-    makes the SVM a one-off per amplitude: angles repeat from one electrical cycle to the next.
-    PDC values above 1000 (volts = −1 only) are reported as 1000; the size is bounded.
-    """
-
-    __slots__ = ()
-
-    def __missing__(self, key: int) -> tuple[int, int, int]:
-        volts = key >> 16
-        a, b, c = svm_fast(volts, key & 0xFFFF)
-        if volts < 0:
-            a, b, c = min(a, 1000), min(b, 1000), min(c, 1000)
-        if len(self) >= DUTY_CACHE_MAX:
-            self.clear()
-        d = self[key] = (a, b, c)
-        return d
-
-
 class An1017Target:
     """AN1017 firmware as a Target: lockstep `step`, real-time `advance`, declared parameters.
 
-    `fw` is up to date after every call and may be read freely. Change it only through these
-    methods: `step` keeps a per-period context (see `_finish`) that direct writes to `fw`
-    between steps would bypass.
+    `fw` is up to date after every call and may be read freely; change it through these methods.
     """
 
     firmware_name = FIRMWARE_NAME
@@ -183,7 +157,7 @@ class An1017Target:
     def __init__(self, options: An1017Options = An1017Options(), *, reference: bool = False,
                  backend: str | None = None) -> None:
         self.options = options.resolved()
-        self.fw = (_CFirmware if self.backend == "c" else An1017Firmware)(options, reference=reference)
+        self.fw = _c_firmware(self.options) if self.backend == "c" else An1017Firmware(options)
         self.period_us = PWM_PERIOD_US
         self._period_tcy = PWM_PERIOD_US * TCY_PER_US
         self.mode = 0
@@ -193,11 +167,6 @@ class An1017Target:
         self._frac_tcy = 0.0
         self.watchdog_trips = 0
         self.last_error = 0
-        self._duty_cache = DutyCache()
-        # the Drive after its duties (mode, state, sector, ccw, required ccw, fault, telemetry)
-        self._tail: tuple = (0, 0, 7, False, False, 0, (0, 0, 0))
-        self._ctx: tuple | None = None  # the plain-period context (see _finish)
-        self._idle: tuple | None = None  # the stopped-motor context (see _finish)
 
     # ---- handshake and parameters ------------------------------------------------------------
     def hello(self, host: Any) -> TargetHello:
@@ -207,7 +176,6 @@ class An1017Target:
             raise ConfigError(f"an1017 hello: period_us {period_us} is not a positive multiple of {PWM_PERIOD_US}")
         self.period_us = period_us
         self._period_tcy = period_us * TCY_PER_US
-        self._ctx = self._idle = None
         self._last_drive = None
         self.mode = int(host.mode)
         self.watchdog_ms = int(host.watchdog_ms)
@@ -275,12 +243,19 @@ class An1017Target:
             new[pid] = value
         gains_touched = [pid for pid, _ in pairs if pid in (PARAM_KP, PARAM_KI, PARAM_KD)]
         if gains_touched:
-            broken = check_gain_constraints(new[PARAM_KP], new[PARAM_KI], new[PARAM_KD])
+            broken = self._check_gains(new[PARAM_KP], new[PARAM_KI], new[PARAM_KD])
             if broken is not None:
                 # name the written gain that takes part in the broken constraint
                 involved = {1: (PARAM_KP, PARAM_KI, PARAM_KD), 2: (PARAM_KP, PARAM_KD), 3: (PARAM_KD,)}[broken]
                 offender = next((p for p in gains_touched if p in involved), gains_touched[0])
                 return ParamSetResult(0, RESULT_CONSTRAINT, offender, broken)
+        self._apply_params(new, bool(gains_touched))
+        return ParamSetResult(0, RESULT_OK, pairs[-1][0], 0)
+
+    _check_gains = staticmethod(check_gain_constraints)
+
+    def _apply_params(self, new: dict[int, int], gains_touched: bool) -> None:
+        """Write a checked, complete set of declared values (the gains only when written)."""
         fw = self.fw
         if gains_touched:
             fw.set_gains(new[PARAM_KP], new[PARAM_KI], new[PARAM_KD])
@@ -291,205 +266,45 @@ class An1017Target:
         fw.ref_override_on = bool(new[PARAM_REF_OVR_ON])
         fw.ref_override = new[PARAM_REF_OVR]
         fw.stall_limit = new[PARAM_STALL_MS]
-        self._ctx = self._idle = None  # the reference override is part of both contexts
-        return ParamSetResult(0, RESULT_OK, pairs[-1][0], 0)
 
     # ---- run control -------------------------------------------------------------------------
     def start(self) -> None:
         """S2 as a command: start (ChargeBootstraps, then RunMotor) when stopped."""
         self.fw.press_start()
-        self._ctx = self._idle = None
 
     def stop(self) -> None:
         """StopMotor(): all six switches off, motor coasts (also aborts a bootstrap)."""
         if self.fw.running or self.fw.booting:
             self.fw.press_stop()
-        self._ctx = self._idle = None
 
-    # ---- the per-period paths ------------------------------------------------------------------
+    # ---- the per-period path ------------------------------------------------------------------
     def _finish(self, seq: int) -> Drive:
-        """The Drive after a step that was not a plain period, and the context for the next ones.
-
-        The context (`_ctx`) caches what plain periods need — motor running, 50 µs lockstep, S2
-        up, halls unchanged, no Timer1 tick in the period — which then change only Phase, the duty
-        pipeline, time and, through the ADC ISR, RefSpeed. Everything in it stays valid until an
-        ISR other than PWM/ADC runs or the host changes something; every such path ends here or
-        sets `_ctx = None`. `_tail` is the Drive after its duties (mode … telemetry), reused
-        while only the duties change.
-        """
+        """The Drive of the firmware's state now: the duty registers the PWM ISR wrote during the
+        span (PDC values above 1000 reported as 1000), then mode … telemetry."""
         fw = self.fw
-        if fw.reference:
-            a, b, c = fw.pend_duty
-            if a > 1000 or b > 1000 or c > 1000:
-                a, b, c = min(a, 1000), min(b, 1000), min(c, 1000)
-        else:
-            a, b, c = self._duty_cache[fw.pend_key]
-        running = fw.running
-        s = fw.sector if running else SECTOR_TABLE[fw.hall] & 0xFFFF
-        co = fw.control_output
-        tel = self._tail[6]
-        if tel[0] != fw.ref_speed or tel[1] != fw.measured_speed or tel[2] != co:
-            tel = (fw.ref_speed, fw.measured_speed, co)
-        self._tail = tail = (
-            fw.output_mode, fw.state, 7 if s == SECTOR_INVALID else s, fw.cur_ccw, fw.req_ccw, fw.fault, tel,
-        )
-        if (
-            running
-            and self._period_tcy == PWM_PERIOD_TCY
-            and not fw.reference
-            and fw.t % PWM_PERIOD_TCY == 0
-            and not fw.s2_wait_release
-            and (not fw._adc_every or fw.ref_speed == (  # the pot's value (see step())
-                fw.ref_override if fw.ref_override_on else ((fw.pot_code & 0x3FF) - 512) << 6))
-        ):
-            if fw.req_ccw:
-                volts = -(co + 1)
-                dphase = -fw.phase_inc if fw.cur_ccw else 0
-            else:
-                volts = co
-                dphase = 0 if fw.cur_ccw else fw.phase_inc
-            self._ctx = (
-                fw.hall,
-                fw.t1_next - PWM_PERIOD_TCY,  # the last start time of a period without a Timer1 tick
-                (volts if volts < VOLTS_LIMIT else VOLTS_LIMIT) << 16,  # svm clamps it there too
-                dphase,
-                fw.phase_adv,
-                fw.ref_override if fw.ref_override_on else None,
-                fw._adc_every,
-                self._duty_cache,
-            )
-        else:
-            self._ctx = None
-        d = _tuple_new(Drive, (seq, a, b, c) + tail)
-        if (
-            not running
-            and not fw.booting
-            and not fw.reference
-            and self._period_tcy == PWM_PERIOD_TCY
-            and fw.t % PWM_PERIOD_TCY == 0
-            and not fw.s2_wait_release
-            and fw.act_key == fw.pend_key
-            and fw.ref_speed == (fw.ref_override if fw.ref_override_on else ((fw.pot_code & 0x3FF) - 512) << 6)
-        ):
-            # Stopped, registers settled, RefSpeed = the pot's: while halls, S2 and the pot stay
-            # as they are, a period only advances time and the Drive differs only in seq.
-            self._idle = (fw.hall, fw.pot_code, {seq: d}, (a, b, c) + tail)
-        else:
-            self._idle = None
-        return d
+        a, b, c = fw.pend_duty
+        if a > 1000 or b > 1000 or c > 1000:
+            a, b, c = min(a, 1000), min(b, 1000), min(c, 1000)
+        s = fw.sector if fw.running else SECTOR_TABLE[fw.hall] & 0xFFFF
+        return _tuple_new(Drive, (
+            seq, a, b, c, fw.output_mode, fw.state, 7 if s == SECTOR_INVALID else s, fw.cur_ccw, fw.req_ccw,
+            fw.fault, (fw.ref_speed, fw.measured_speed, fw.control_output),
+        ))
 
     def step(self, sensors: Sensors) -> Drive:
-        """Lockstep: exactly one agreed period with these sensors.
+        """Lockstep: exactly one agreed period with these sensors (An1017Firmware.run, then the Drive).
 
-        Plain 50 µs periods (see `_finish`) run inline here: the ADC ISR when due, one PWM ISR,
-        one cached SVM lookup, a Drive from the cached tail. A stopped motor with nothing changing
-        only advances time and reuses its Drives (one per seq). Everything else goes through
-        `_step_events`. All paths give the reference path's Drive exactly
-        (tests/test_an1017_fastpath.py compares every Drive over randomised streams).
         A Sensors repeating the last one's seq (a duplicated frame) gets the last Drive again and
         the firmware does not step: a board answers a repeat the same way (issue 16, item 8).
         """
         last = self._last_drive
         if last is not None and sensors[0] == last[0]:
             return last
-        ctx = self._ctx
-        if ctx is not None:
-            hall, t_last, vkey, dphase, adv, ovr, adc_every, cache = ctx
-            seq, inputs, _, _, adc = sensors
-            fw = self.fw
-            t = fw.t
-            if (inputs & 0x2F) == hall and t <= t_last:  # halls unchanged, S2 up, FLTA quiet
-                tail = self._tail
-                if adc:
-                    pot = adc[0]
-                    if pot != fw.pot_code:
-                        fw.pot_code = pot
-                        if adc_every and ovr is None:  # appnote: the ADC ISR runs at every boundary
-                            ref = ((pot & 0x3FF) - 512) << 6
-                            if ref != fw.ref_speed:
-                                fw.ref_speed = ref
-                                tel = tail[6]
-                                tail = self._tail = tail[:6] + ((ref, tel[1], tel[2]),)
-                # (appnote, pot unchanged: RefSpeed is already this pot's value — see _finish)
-                if not adc_every and t % 16_000 == 0:  # v11: the ADC ISR at every 16th boundary
-                    ref = (((fw.pot_code & 0x3FF) - 512) << 6) if ovr is None else ovr
-                    if ref != fw.ref_speed:
-                        fw.ref_speed = ref
-                        tel = tail[6]
-                        tail = self._tail = tail[:6] + ((ref, tel[1], tel[2]),)
-                fw.act_key = fw.pend_key  # PWM ISR: last period's registers take effect ...
-                phase = (fw.phase + dphase) & 0xFFFF  # ... and it writes the next ones,
-                fw.phase = phase
-                pend = fw.pend_key = vkey | ((phase + adv) & 0xFFFF)
-                fw.t = t + 1000
-                self._last_seq = seq
-                d = self._last_drive = _tuple_new(Drive, (seq,) + cache[pend] + tail)  # which the Drive carries
-                return d
-        idle = self._idle
-        if idle is not None:
-            hall, pot, drives, body = idle
-            seq, inputs, _, _, adc = sensors
-            if (inputs & 15) == hall and (not adc or adc[0] == pot):
-                self.fw.t += PWM_PERIOD_TCY
-                self._last_seq = seq
-                d = drives.get(seq)
-                if d is None:
-                    if len(drives) >= 4096:
-                        drives.clear()
-                    d = drives[seq] = _tuple_new(Drive, (seq,) + body)
-                self._last_drive = d
-                return d
-        d = self._last_drive = self._step_events(sensors)
-        return d
-
-    def _step_events(self, sensors: Any) -> Drive:
-        """A period with a Timer1 tick or a timed hall edge after its PWM boundary, or the general path."""
-        fw = self.fw
-        inputs = sensors.inputs
-        adc = sensors.adc
-        seq = sensors.seq
+        seq, inputs, edge, _, adc = sensors
         self._last_seq = seq
-        t = fw.t
-        t1 = fw.t1_next
-        ctx = self._ctx
-        if ctx is not None and not inputs & (INPUT_S2 | INPUT_FAULT) and t1 > t:
-            new_hall = inputs & 7
-            edge_at = -1
-            if new_hall != fw.hall:
-                edge = sensors.edge_time_100ns
-                if edge != EDGE_NONE and edge != 0:  # an edge at the boundary precedes the PWM ISR
-                    edge_at = t + min(edge << 1, PWM_PERIOD_TCY - 1)
-                else:
-                    edge_at = t  # → the general path below
-            if edge_at != t:
-                # the plain period's ADC and PWM ISRs (An1017Firmware._pwm_run for n = 1)
-                _, _, vkey, dphase, adv, ovr, adc_every, _ = ctx
-                if adc:
-                    fw.pot_code = adc[0]
-                fw.s2_level = False
-                if adc_every or t % 16_000 == 0:
-                    fw.ref_speed = (((fw.pot_code & 0x3FF) - 512) << 6) if ovr is None else ovr
-                fw.act_key = fw.pend_key
-                phase = (fw.phase + dphase) & 0xFFFF
-                fw.phase = phase
-                fw.pend_key = vkey | ((phase + adv) & 0xFFFF)
-                t_end = t + PWM_PERIOD_TCY
-                # the later events in the dsPIC's order: by time, Timer1 first on a tie
-                if t1 < t_end and (edge_at < 0 or t1 <= edge_at):
-                    fw.t1_next = t1 + TIMER1_PERIOD_TCY
-                    fw._timer1()
-                    if edge_at >= 0:
-                        fw._apply_hall(new_hall, edge_at)
-                elif edge_at >= 0:
-                    fw._apply_hall(new_hall, edge_at)
-                    if t1 < t_end and fw.running:
-                        fw.t1_next = t1 + TIMER1_PERIOD_TCY
-                        fw._timer1()
-                fw.t = t_end
-                return self._finish(seq)
-        edge = sensors.edge_time_100ns
-        fw.run(self._period_tcy, inputs, None if edge == EDGE_NONE else edge << 1, adc[0] if adc else None)
-        return self._finish(seq)
+        self.fw.run(self._period_tcy, inputs, None if edge == EDGE_NONE else edge << 1, adc[0] if adc else None)
+        d = self._last_drive = self._finish(seq)
+        return d
 
     def advance(self, duration_us: float, sensors: Any) -> Drive:
         """Real time: any span of wall time (sub-Tcy remainders carry over)."""
@@ -523,29 +338,29 @@ class An1017Target:
 
 if _an1017core is not None:
 
-    class _CFirmware(_an1017core.Core):
-        """An1017Firmware whose state is the C struct of `_an1017core.Core`.
-
-        The host-command methods are An1017Firmware's own (they only read and write attributes,
-        which are the struct's members here); `run` is the compiled one, plus `step` (one lockstep
-        period → Drive) and `finish` (the Drive of the current state) used by _CAn1017Target.
-        """
-
-        __init__ = An1017Firmware.__init__
-        press_start = An1017Firmware.press_start
-        press_stop = An1017Firmware.press_stop
-        set_gains = An1017Firmware.set_gains
-        declared_gains = An1017Firmware.declared_gains
-        _coefficients = An1017Firmware._coefficients
-        duties = An1017Firmware.duties
+    def _c_firmware(options: An1017Options) -> Any:
+        """The board firmware firmware/an1017/an1017.c in this process (`_an1017core.Core`), built
+        for these (resolved) options. Its members carry An1017Firmware's attribute names."""
+        min_period, max_period = build_periods(options.pole_pairs, options.max_speed_rpm)
+        return _an1017core.Core(
+            variant_v11=options.variant == "v11",
+            adc_every=bool(options.adc_every_pwm_period),
+            c1_textbook=bool(options.pid_c1_textbook),
+            phase_advance=bool(options.phase_advance),
+            stall_limit=int(options.stall_timeout_ms or 100),
+            phase_offset=options.phase_offset_ccw,
+            max_ph_adv_deg=options.max_phase_advance_deg,
+            min_period=min_period,
+            max_period=max_period,
+        )
 
     class _CAn1017Target(An1017Target):
-        """An1017Target on the compiled firmware: `step` is the C method of `fw` itself.
+        """An1017Target on the board firmware's C core: `step` is the C method of `fw` itself.
 
-        Parameter writes, hello, start/stop, watchdog and status are the Python ones; their
-        effects land in the C struct through its members (gains through `pending_gains`, taken
-        at the next Timer1 ISR as in the Python model). The lockstep period and the last seq
-        live in the struct, behind `_period_tcy` and `_last_seq`.
+        Parameters go through the firmware's own an1017_param_value / an1017_check_gains /
+        an1017_apply_params; hello, start/stop, watchdog and status are the Python ones. The
+        lockstep period, the last seq and its Drive live in the core, behind `_period_tcy`,
+        `_last_seq` and `_last_drive`.
         """
 
         backend = "c"
@@ -554,6 +369,16 @@ if _an1017core is not None:
                      backend: str | None = None) -> None:
             super().__init__(options, reference=reference, backend=backend)
             self.step = self.fw.step  # type: ignore[method-assign]  # no Python frame per period
+
+        def _value(self, param_id: int) -> int:
+            if param_id not in PARAMS:
+                raise ParamError(f"an1017 param {param_id}: unknown id")
+            return self.fw.param_value(param_id)
+
+        _check_gains = staticmethod(_an1017core.check_gains)
+
+        def _apply_params(self, new: dict[int, int], gains_touched: bool) -> None:
+            self.fw.apply_params(tuple(new[pid] for pid in sorted(PARAMS)), gains_touched)
 
         @property
         def _period_tcy(self) -> int:  # type: ignore[override]
@@ -584,7 +409,7 @@ if _an1017core is not None:
             return self.fw.finish(seq)
 
 else:  # pragma: no cover
-    _CFirmware = _CAn1017Target = None  # type: ignore[assignment,misc]
+    _c_firmware = _CAn1017Target = None  # type: ignore[assignment,misc]
 
 
 def constraint_name(number: int) -> str:
