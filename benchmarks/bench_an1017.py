@@ -8,8 +8,9 @@ runs. The machine is a noisy 2-core VM whose speed changes by up to 2x over seco
 medians of the times it prints the median of per-repeat ratios to the baseline.
 
 Both firmware-model backends run in the same loop: "c" (the compiled core, the default when
-built) and "python" (the readable reference An1017Firmware: every PWM ISR with the full SVM); the
-goal line is printed for each.
+built) and "python" (the readable reference An1017Firmware: every PWM ISR with the full SVM). The
+goal line is the default backend's: the reference is the spec the core is checked against, kept
+readable rather than fast (issue 10: one reference, one accelerator).
 
 Usage: python benchmarks/bench_an1017.py [--repeats N] [--profile]
 """
@@ -122,7 +123,7 @@ def main() -> None:
     if len(backends) == 2:
         sp = statistics.median(p / c for c, p in zip(res["c:m50"], res["python:m50"]))
         print(f"  c vs python, running 50 us steps: {sp:.1f}x faster (median of per-repeat ratios)")
-    for b in backends:
+    for b in backends[:1]:  # the goal is the bench's model's; the Python reference is the readable spec
         m50 = res[f"{b}:m50"]
         m50_ms = med[f"{b}:m50"] * 1e3
         verdict = "met" if m50_ms < GOAL_MS else "NOT met"
