@@ -74,11 +74,13 @@ def closed_loop(spec: str, seconds: float, record_dir: str, fmt: str) -> tuple[f
     return summary.periods / elapsed, getattr(plant, "backend", "python"), summary.periods / summary.wall_s
 
 
-def measure_in(python: str, seconds: float) -> float:
-    """(a) measured by another interpreter (another hilbench installation) running this file."""
+def measure_in(python: str, seconds: float) -> tuple[float, float]:
+    """(a) measured by another interpreter (another hilbench installation) running this file:
+    (periods/s with the recording's close, periods/s of the loop alone)."""
     out = subprocess.run([python, __file__, "--measure-inprocess", "--seconds", str(seconds)], capture_output=True,
                          text=True, timeout=600, cwd=tempfile.gettempdir(), check=True)
-    return float(json.loads(out.stdout.strip().splitlines()[-1])["rate"])
+    figures = json.loads(out.stdout.strip().splitlines()[-1])
+    return float(figures["rate"]), float(figures.get("loop_rate", "nan"))
 
 
 def instructions_per_period(python: str, short_s: float = 0.2, long_s: float = 1.2) -> float:
@@ -118,18 +120,21 @@ def main() -> None:
         return
     if args.measure_inprocess:  # one (a) figure for --baseline-python, as JSON
         with tempfile.TemporaryDirectory() as tmp:
-            print(json.dumps({"rate": closed_loop("inprocess:an1017", args.seconds, tmp, "npz")[0]}))
+            rate, _, loop_rate = closed_loop("inprocess:an1017", args.seconds, tmp, "npz")
+            print(json.dumps({"rate": rate, "loop_rate": loop_rate}))
         return
     if args.baseline_python:
-        pairs: dict[str, list[float]] = {"this": [], "baseline": []}
+        pairs: dict[str, list[tuple[float, float]]] = {"this": [], "baseline": []}
         for _ in range(args.repeats):  # interleaved: both see the same machine load
             pairs["this"].append(measure_in(sys.executable, args.seconds))
             pairs["baseline"].append(measure_in(args.baseline_python, args.seconds))
-        this, base = statistics.median(pairs["this"]), statistics.median(pairs["baseline"])
-        print(f"(a) in-process with NPZ recording, median of {args.repeats}: this tree {this:,.0f} periods/s, "
-              f"baseline ({args.baseline_python}) {base:,.0f} periods/s, ratio {this / base:.3f}")
-        print(f"    runs this: {', '.join(f'{r:,.0f}' for r in pairs['this'])}; "
-              f"baseline: {', '.join(f'{r:,.0f}' for r in pairs['baseline'])}")
+        for i, what in enumerate(("with NPZ recording", "the loop alone (without the .npz's close)")):
+            this = statistics.median(r[i] for r in pairs["this"])
+            base = statistics.median(r[i] for r in pairs["baseline"])
+            print(f"(a) in-process, {what}, median of {args.repeats}: this tree {this:,.0f} periods/s, "
+                  f"baseline ({args.baseline_python}) {base:,.0f} periods/s, ratio {this / base:.3f}")
+            print(f"    runs this: {', '.join(f'{r[i]:,.0f}' for r in pairs['this'])}; "
+                  f"baseline: {', '.join(f'{r[i]:,.0f}' for r in pairs['baseline'])}")
     from bench_link import frame_sizes, raw_echo  # this tree's only: the baseline interpreter skips it
 
     sensors_len, drive_len = frame_sizes()
