@@ -82,7 +82,7 @@ class PlantLike(Protocol):
     fault_input: bool  # the board's overcurrent comparator, latched (drives the target's FAULT input)
 
     def step(self, duty_a: float, duty_b: float, duty_c: float, output_mode: int, dt_s: float,
-             state_to: bytearray | None = None) -> float | None: ...
+             state_to: bytearray | None = None, /) -> float | None: ...
     def adc_codes(self, roles: tuple[int, ...]) -> tuple[int, ...]: ...
     def sense(self, roles: tuple[int, ...]) -> tuple[int, bool, bool, int, tuple[int, ...]]: ...
     def append_state(self, buf: bytearray) -> None: ...
@@ -453,6 +453,13 @@ class Session:
             self._deenergise()
             self._close(f"fault at period {self.periods_done}: {exc}", fault=True)
             raise
+        except Exception as exc:  # anything else (a bug, an observer's own error) left a period half done:
+            summary.end_reason = "fault"  # the run cannot go on from there; what was recorded is kept
+            summary.fault = f"{type(exc).__name__}: {exc}"
+            self._end_reason = "fault"
+            self._deenergise()
+            self._close(f"error at period {self.periods_done}: {summary.fault}", fault=True)
+            raise
         finally:
             if gc_was_enabled:
                 gc.enable()
@@ -563,6 +570,7 @@ class Session:
                 if sample:
                     sample_k += history_every
                     guard_ref = self._sample(k, drive, pacing)
+                    due_k = self._scenario_k  # an observer may have written parameters (see _sample)
                 if capacitor:
                     self._bus(k)
         finally:
@@ -664,6 +672,7 @@ class Session:
                 self.recorder.maybe_flush()
             if self.observer is not None:
                 self.observer(self._snapshot(k, drive, meas, pacing))
+                self._scenario_k = min(self._scenario_k, k + 1)  # its writes arm the guard: the parts look again
         if not -self._overspeed_rpm <= plant_rpm <= self._overspeed_rpm:
             self._end_on_limit(k, f"overspeed: the plant turns at {plant_rpm:.0f} rpm, beyond the "
                                   f"{self.options.overspeed_rpm:g} rpm limit ([protection] overspeed_rpm)")

@@ -203,6 +203,10 @@ static PyObject *Core_step(Core *s, PyObject *const *args, Py_ssize_t nargs)
         PyErr_Format(PyExc_TypeError, "Plant.step: expected 5 or 6 arguments (duty_a, duty_b, duty_c, output_mode, dt_s[, state_to]), got %zd", nargs);
         return NULL;
     }
+    if (nargs == 6 && args[5] != Py_None && !PyByteArray_Check(args[5])) {
+        PyErr_SetString(PyExc_TypeError, "Plant.step: state_to must be a bytearray (a recorder's row buffer) or None");
+        return NULL;
+    }
     if (step_period(s, args) < 0) return NULL;
     if (nargs == 6 && args[5] != Py_None) {
         PyObject *r = Core_append_state(s, args[5]);

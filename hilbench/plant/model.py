@@ -560,10 +560,12 @@ class Plant:
         self._enc_m = m
 
     def step(self, duty_a: float, duty_b: float, duty_c: float, output_mode: int, dt_s: float,
-             state_to: bytearray | None = None) -> float | None:
+             state_to: bytearray | None = None, /) -> float | None:
         """Integrate one period (`_step_py`); returns `last_edge_s`. With ``state_to`` the state is
         appended to that row buffer after the step (`append_state`): the bench's hot loop makes one
         call of the two (the C backend has the same signature)."""
+        if state_to is not None and not isinstance(state_to, bytearray):
+            raise TypeError("Plant.step: state_to must be a bytearray (a recorder's row buffer) or None")
         self._step_py(duty_a, duty_b, duty_c, output_mode, dt_s)
         if state_to is not None:
             self.append_state(state_to)

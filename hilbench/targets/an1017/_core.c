@@ -127,12 +127,15 @@ static PyObject *Core_step(Core *s, PyObject *sensors)
     PyObject *seq = PyTuple_GET_ITEM(sensors, 0);
     long long seqv = PyLong_AsLongLong(seq);
     if (seqv == -1 && PyErr_Occurred()) return NULL;
-    if (s->last_drive != NULL && seqv == s->last_seq) {
-        return Py_NewRef(s->last_drive);
+    if (s->last_drive != NULL) { /* a repeat of the last Drive's own seq (as the Python model): no step */
+        PyObject *last_seq = PyTuple_GET_ITEM(s->last_drive, 0);
+        if (last_seq == seq || PyLong_AsLongLong(last_seq) == seqv) return Py_NewRef(s->last_drive);
+        if (PyErr_Occurred()) return NULL;
     }
     long inputs = PyLong_AsLong(PyTuple_GET_ITEM(sensors, 1));
+    if (inputs == -1 && PyErr_Occurred()) return NULL;
     long edge = PyLong_AsLong(PyTuple_GET_ITEM(sensors, 2));
-    if (PyErr_Occurred()) return NULL;
+    if (edge == -1 && PyErr_Occurred()) return NULL;
     long pot = 0;
     int have_pot = 0;
     if (pot_of(PyTuple_GET_ITEM(sensors, 4), &pot, &have_pot) < 0) return NULL;
@@ -153,8 +156,13 @@ static PyObject *Core_run(Core *s, PyObject *const *args, Py_ssize_t nargs)
         return NULL;
     }
     long long duration = PyLong_AsLongLong(args[0]);
+    if (duration == -1 && PyErr_Occurred()) return NULL;
+    if (duration < 0) {
+        PyErr_Format(PyExc_ValueError, "an1017 core run: duration_tcy %lld is negative", duration);
+        return NULL;
+    }
     long inputs = PyLong_AsLong(args[1]);
-    if (PyErr_Occurred()) return NULL;
+    if (inputs == -1 && PyErr_Occurred()) return NULL;
     long long edge = 0;
     long pot = 0;
     int have_edge = args[2] != Py_None, have_pot = args[3] != Py_None;
@@ -369,10 +377,11 @@ static PyGetSetDef Core_getset[] = {
 #define UB(name, field) {name, T_UBYTE, FW(field), 0, NULL}
 #define SH(name, field) {name, T_SHORT, FW(field), 0, NULL}
 #define US(name, field) {name, T_USHORT, FW(field), 0, NULL}
+#define RO(name, field) {name, T_USHORT, FW(field), READONLY, NULL} /* divisors: set by the constructor only */
 
 static PyMemberDef Core_members[] = {
     BM("_adc_every", adc_every), BM("_c1_textbook", c1_textbook), SH("phase_offset", phase_offset),
-    US("min_period", min_period), US("max_period", max_period),
+    RO("min_period", min_period), RO("max_period", max_period),
     SH("kp", kp), SH("ki", ki), SH("kd", kd),
     BM("phase_advance_on", phase_advance_on), SH("max_ph_adv_deg", max_ph_adv_deg), SH("max_ph_adv", max_ph_adv),
     BM("ref_override_on", ref_override_on), SH("ref_override", ref_override), US("stall_limit", stall_limit),
