@@ -147,6 +147,8 @@ class An1017Options:
             raise ConfigError(f"an1017 options stall_timeout_ms: {self.stall_timeout_ms} not in 10..30000")
         if not 0 <= self.max_phase_advance_deg <= 60:
             raise ConfigError(f"an1017 options max_phase_advance_deg: {self.max_phase_advance_deg} not in 0..60")
+        if not -32768 <= self.phase_offset_ccw <= 32767:  # a 16-bit word on the chip
+            raise ConfigError(f"an1017 options phase_offset_ccw: {self.phase_offset_ccw} not in -32768..32767")
 
     def resolved(self) -> "An1017Options":
         """All None fields replaced by the variant's value."""
