@@ -1,6 +1,6 @@
 """The AN1017 firmware model behind the Target interface (docs/design.md, hilbench/targets/base.py).
 
-The firmware itself lives in `an1017_firmware` (plain ints, Tcy time); this module translates
+The firmware itself lives in `hilbench.targets.an1017.firmware` (plain ints, Tcy time); this module translates
 protocol messages to its inputs and its state to Drive, and owns the declared parameter table.
 
 Drive semantics (the timing contract, docs/design.md "Timing"): `duty_a..c` are the duty
