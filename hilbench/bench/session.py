@@ -249,6 +249,7 @@ class Session:
             self.recorder.event(text)
 
     def _on_param_change(self, t_s: float, text: str, values: dict[str, float]) -> None:
+        self._scenario_k = min(self._scenario_k, self.periods_done)  # the write arms the guard: the parts look again
         if self.on_params is not None:
             self.on_params(values)
         self._message(f"{t_s:.3f} s: {text}")
@@ -570,7 +571,7 @@ class Session:
                 if sample:
                     sample_k += history_every
                     guard_ref = self._sample(k, drive, pacing)
-                    due_k = self._scenario_k  # an observer may have written parameters (see _sample)
+                    due_k = self._scenario_k  # the observer may have acted (a write, a press, apply_now)
                 if capacitor:
                     self._bus(k)
         finally:
@@ -672,7 +673,6 @@ class Session:
                 self.recorder.maybe_flush()
             if self.observer is not None:
                 self.observer(self._snapshot(k, drive, meas, pacing))
-                self._scenario_k = min(self._scenario_k, k + 1)  # its writes arm the guard: the parts look again
         if not -self._overspeed_rpm <= plant_rpm <= self._overspeed_rpm:
             self._end_on_limit(k, f"overspeed: the plant turns at {plant_rpm:.0f} rpm, beyond the "
                                   f"{self.options.overspeed_rpm:g} rpm limit ([protection] overspeed_rpm)")
