@@ -109,36 +109,19 @@ def test_four_pole_pair_motor_follows_with_a_four_pole_pair_build(request, spec)
 def test_board_firmware_built_for_the_motor_equals_the_model(tmp_path, gcc, pole_pairs, max_speed_rpm):
     """firmware/an1017 compiled with the build-time defines (docs/board.md) gives the Python
     model's Drive at every period of a seeded random stream."""
-    import ctypes
-
     from _firmware import Command, random_stream
-    from c_build import build_c
     from hilbench.protocol import MODE_LOCKSTEP, PROTOCOL_VERSION, HostHello
-    from hilbench.targets.sil import FIRMWARE_DIR, motor_defines
-    from test_firmware_core_inprocess import InProcessCore
+    from hilbench.targets.sil import motor_defines
+    from test_firmware_core_inprocess import InProcessCore, load_core_library
 
-    out = tmp_path / "liban1017.so"
-    build_c([FIRMWARE_DIR / "an1017.c"], out,
-            extra_flags=("-shared", "-fPIC", f"-I{FIRMWARE_DIR}", *motor_defines(pole_pairs, max_speed_rpm)))
-    lib = ctypes.CDLL(str(out))
-    lib.an1017_run.argtypes = [ctypes.c_void_p, ctypes.c_uint32, ctypes.c_uint8, ctypes.c_uint8, ctypes.c_uint32,
-                               ctypes.c_uint8, ctypes.c_uint16]
-    lib.an1017_param_value.restype = ctypes.c_int16
+    lib = load_core_library(tmp_path / "liban1017.so", motor_defines(pole_pairs, max_speed_rpm))
     model = An1017Target(An1017Options(pole_pairs=pole_pairs, max_speed_rpm=max_speed_rpm))
     model.hello(HostHello(0, PROTOCOL_VERSION, 50, MODE_LOCKSTEP, 0))
     core = InProcessCore(lib, "seed", 50)
     compared = 0
     for item in random_stream(21, 20000, 50):
         if isinstance(item, Command):
-            if item.kind == "start":
-                model.start()
-                lib.an1017_press_start(core.state)
-            elif item.kind == "stop":
-                if model.fw.running or model.fw.booting:
-                    lib.an1017_press_stop(core.state, 0, 0)
-                model.stop()
-            elif model.set_params(item.pairs).result == 0:
-                core.apply(item.pairs)
+            core.follow(item, model)
             continue
         assert core.step(item) == tuple(model.step(item)), (compared, item)
         compared += 1
@@ -215,36 +198,19 @@ def test_flta_is_bit_exact_with_the_reference(backend):
 
 
 def test_flta_board_firmware_equals_the_model(tmp_path, gcc):
-    import ctypes
-
     from _firmware import Command, random_stream
-    from c_build import build_c
     from hilbench.protocol import MODE_LOCKSTEP, PROTOCOL_VERSION, HostHello, Sensors
-    from hilbench.targets.sil import FIRMWARE_DIR
-    from test_firmware_core_inprocess import InProcessCore
+    from test_firmware_core_inprocess import InProcessCore, load_core_library
     import random
 
-    out = tmp_path / "liban1017.so"
-    build_c([FIRMWARE_DIR / "an1017.c"], out, extra_flags=("-shared", "-fPIC", f"-I{FIRMWARE_DIR}"))
-    lib = ctypes.CDLL(str(out))
-    lib.an1017_run.argtypes = [ctypes.c_void_p, ctypes.c_uint32, ctypes.c_uint8, ctypes.c_uint8, ctypes.c_uint32,
-                               ctypes.c_uint8, ctypes.c_uint16]
-    lib.an1017_param_value.restype = ctypes.c_int16
+    lib = load_core_library(tmp_path / "liban1017.so")
     model = An1017Target()
     model.hello(HostHello(0, PROTOCOL_VERSION, 50, MODE_LOCKSTEP, 0))
     core = InProcessCore(lib, "seed", 50)
     rng, left, faults = random.Random(9), 0, 0
     for item in random_stream(9, 30000, 50):
         if isinstance(item, Command):
-            if item.kind == "start":
-                model.start()
-                lib.an1017_press_start(core.state)
-            elif item.kind == "stop":
-                if model.fw.running or model.fw.booting:
-                    lib.an1017_press_stop(core.state, 0, 0)
-                model.stop()
-            elif model.set_params(item.pairs).result == 0:
-                core.apply(item.pairs)
+            core.follow(item, model)
             continue
         if left == 0 and rng.random() < 0.003:
             left = rng.randint(1, 40)

@@ -32,15 +32,19 @@ class Out(ctypes.Structure):
                 ("fault", ctypes.c_uint8), ("telemetry", ctypes.c_int16 * 3)]
 
 
-@pytest.fixture(scope="module")
-def core(tmp_path_factory, gcc: str) -> ctypes.CDLL:
-    out = tmp_path_factory.mktemp("core") / "liban1017.so"
-    build_c([FIRMWARE_DIR / "an1017.c"], out, extra_flags=("-shared", "-fPIC", f"-I{FIRMWARE_DIR}"))
+def load_core_library(out: Path, defines: tuple[str, ...] = ()) -> ctypes.CDLL:
+    """firmware/an1017/an1017.c built as a shared library at ``out`` (with build-time ``defines``)."""
+    build_c([FIRMWARE_DIR / "an1017.c"], out, extra_flags=("-shared", "-fPIC", f"-I{FIRMWARE_DIR}", *defines))
     lib = ctypes.CDLL(str(out))
     lib.an1017_run.argtypes = [ctypes.c_void_p, ctypes.c_uint32, ctypes.c_uint8, ctypes.c_uint8, ctypes.c_uint32,
                                ctypes.c_uint8, ctypes.c_uint16]
     lib.an1017_param_value.restype = ctypes.c_int16
     return lib
+
+
+@pytest.fixture(scope="module")
+def core(tmp_path_factory, gcc: str) -> ctypes.CDLL:
+    return load_core_library(tmp_path_factory.mktemp("core") / "liban1017.so")
 
 
 class InProcessCore:
@@ -61,6 +65,19 @@ class InProcessCore:
         return (s.seq, *o.duty, o.output_mode, o.state, o.sector, bool(o.ccw), bool(o.req_ccw), o.fault,
                 tuple(o.telemetry))
 
+    def follow(self, command: Command, model: An1017Target) -> None:
+        """A scripted command, on the model and on the core alike (a write the model refuses is not
+        applied: the model checks, the core applies)."""
+        if command.kind == "start":
+            model.start()
+            self.lib.an1017_press_start(self.state)
+        elif command.kind == "stop":
+            if model.fw.running or model.fw.booting:
+                self.lib.an1017_press_stop(self.state, 0, 0)
+            model.stop()
+        elif model.set_params(command.pairs).result == OK:
+            self.apply(command.pairs)
+
     def apply(self, pairs: tuple[tuple[int, int], ...]) -> None:
         values = (ctypes.c_int32 * 8)(*(self.lib.an1017_param_value(self.state, i) for i in range(8)))
         for pid, value in pairs:
@@ -77,15 +94,7 @@ def test_core_in_process_equals_python_model(core: ctypes.CDLL, variant: str, se
     compared = 0
     for item in random_stream(seed, 20000, period_us):
         if isinstance(item, Command):
-            if item.kind == "start":
-                model.start()
-                core.an1017_press_start(c.state)
-            elif item.kind == "stop":
-                if model.fw.running or model.fw.booting:
-                    core.an1017_press_stop(c.state, 0, 0)
-                model.stop()
-            elif model.set_params(item.pairs).result == OK:  # the model checks; the core applies
-                c.apply(item.pairs)
+            c.follow(item, model)
             assert [core.an1017_param_value(c.state, i) for i in range(8)] == \
                 [model.get_param(i).value for i in range(8)]
             continue
