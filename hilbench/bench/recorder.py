@@ -129,35 +129,28 @@ class RowLayout:
     def to_columns(self, raw: Any) -> dict[str, np.ndarray]:
         """Raw rows (bytes or a structured array; a torn last row is dropped) to one contiguous
         float64 array per column."""
-        if isinstance(raw, np.ndarray):
-            rows = raw
-        else:
-            dtype = self.dtype
-            rows = np.frombuffer(raw, dtype=dtype, count=len(raw) // dtype.itemsize)
-        out: dict[str, np.ndarray] = {}
-        for name, _, _, src, scale in self.columns:
-            field_values = rows[src]  # strided view into the rows
-            out[name] = field_values.astype(np.float64) if scale == 1.0 else np.multiply(field_values, scale, dtype=np.float64)
-        for name, modulo in self.wrap:
-            np.mod(out[name], modulo, out=out[name])
-        return out
+        rows = self._rows(raw)
+        return {name: self.to_column(rows, name) for name in self.column_names}
 
     def to_column(self, raw: Any, name: str) -> np.ndarray:
-        """One column of raw rows (bytes or a structured array, as `to_columns` takes them),
-        without converting the others."""
-        if isinstance(raw, np.ndarray):
-            rows = raw
-        else:
-            dtype = self.dtype
-            rows = np.frombuffer(raw, dtype=dtype, count=len(raw) // dtype.itemsize)
+        """One column of raw rows (as `to_columns` takes them), without converting the others."""
+        rows = self._rows(raw)
         for column, _, _, src, scale in self.columns:
             if column == name:
-                values = rows[src].astype(np.float64) if scale == 1.0 else np.multiply(rows[src], scale, dtype=np.float64)
+                field_values = rows[src]  # strided view into the rows
+                values = field_values.astype(np.float64) if scale == 1.0 else np.multiply(field_values, scale, dtype=np.float64)
                 for wrapped, modulo in self.wrap:
                     if wrapped == name:
                         np.mod(values, modulo, out=values)
                 return values
         raise KeyError(name)
+
+    def _rows(self, raw: Any) -> np.ndarray:
+        """Raw rows as a structured array (a view of bytes; a torn last row is dropped)."""
+        if isinstance(raw, np.ndarray):
+            return raw
+        dtype = self.dtype
+        return np.frombuffer(raw, dtype=dtype, count=len(raw) // dtype.itemsize)
 
     def as_json(self) -> dict[str, Any]:
         return {"fields": [list(f) for f in self.fields], "columns": [list(c) for c in self.columns],
