@@ -20,7 +20,6 @@ A chunk is ``flush_rows`` periods (by default one simulated second at the run's 
 
 from __future__ import annotations
 
-import io
 import json
 import os
 import struct

@@ -436,7 +436,7 @@ class Session:
         try:
             try:
                 self.periods_done = self._loop(self._next_k, self._next_k + n_periods, self._pacing)
-            except (ValueError, OverflowError, ZeroDivisionError, struct.error, ProtocolError) as exc:
+            except (ValueError, OverflowError, ZeroDivisionError, struct.error, ProtocolError):
                 diverged = self._divergence()
                 if diverged is None:
                     raise
