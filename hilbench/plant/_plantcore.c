@@ -39,6 +39,13 @@ typedef struct {
     char adc_has[6];
     PyObject *noise;
     long long noise_i;
+    /* the switching inverter (_switching.c): motor constants as model.Plant holds them, the bridge's
+     * constants and state (switching.py's attributes), the ADC's held sample */
+    double rs, ld, lq, psi, w_start;
+    long long dturns;
+    double sw_f, sw_td, sw_c, sw_smp, sw_u, sw_e[3], ia_s, ib_s;
+    int sw_s[3];
+    char sw_on, adc_live;
 } Core;
 
 static long long mod6(long long n) { long long r = n % 6; return r < 0 ? r + 6 : r; }
@@ -185,6 +192,8 @@ static void coast_period(Core *s, double h)
     sense(s);
 }
 
+#include "_switching.c"
+
 static int get_double(PyObject *o, double *out)
 {
     if (PyFloat_CheckExact(o)) { *out = PyFloat_AS_DOUBLE(o); return 0; }
@@ -238,6 +247,10 @@ static int step_period(Core *s, PyObject *const *args)
         PyObject *r = PyObject_CallMethodNoArgs((PyObject *)s, str_update_load);
         if (r == NULL) return -1;
         Py_DECREF(r);
+    }
+    if (s->sw_on) { /* the switching inverter (_switching.c) */
+        if (mode == OUTPUT_PWM) return sw_step_pwm(s, duty_a, duty_b, duty_c, dt_s);
+        sw_idle(s, dt_s);
     }
     if (!hot) {
         coast_period(s, dt_s);
@@ -398,7 +411,8 @@ static PyObject *Core_adc_codes(Core *s, PyObject *roles)
         }
         long code = 0;
         if (s->adc_has[r]) {
-            double x = r == 4 ? s->i_a : r == 2 ? s->i_bus : r == 5 ? s->i_b : r == 3 ? s->vbus_v : s->pot_fraction;
+            double x = r == 4 ? (s->adc_live ? s->i_a : s->ia_s) : r == 2 ? s->i_bus
+                       : r == 5 ? (s->adc_live ? s->i_b : s->ib_s) : r == 3 ? s->vbus_v : s->pot_fraction;
             double v = s->adc_off[r];
             v += s->adc_gain[r] * x;
             double nz = s->adc_nz[r];
@@ -457,6 +471,8 @@ static PyObject *Core_new(PyTypeObject *type, PyObject *args, PyObject *kwds)
     s->j = 1.0;
     s->enc_cpt = 4;
     s->t_load_change = INFINITY;
+    s->sw_e[0] = s->sw_e[1] = s->sw_e[2] = -INFINITY;
+    s->adc_live = 1;
     return (PyObject *)s;
 }
 
@@ -488,6 +504,11 @@ static PyMemberDef Core_members[] = {
     {"last_edge_s", T_OBJECT_EX, offsetof(Core, last_edge_s), 0, NULL},
     {"_noise", T_OBJECT_EX, offsetof(Core, noise), 0, NULL},
     LM("_noise_i", noise_i), DM("pot_fraction", pot_fraction),
+    DM("_rs", rs), DM("_ld", ld), DM("_lq", lq), DM("_psi", psi), DM("_w_start", w_start), LM("_dturns", dturns),
+    DM("_sw_f", sw_f), DM("_sw_td", sw_td), DM("_sw_c", sw_c), DM("_sw_smp", sw_smp), DM("_sw_u", sw_u),
+    DM("_sw_e0", sw_e[0]), DM("_sw_e1", sw_e[1]), DM("_sw_e2", sw_e[2]),
+    IM("_sw_s0", sw_s[0]), IM("_sw_s1", sw_s[1]), IM("_sw_s2", sw_s[2]),
+    DM("_ia_s", ia_s), DM("_ib_s", ib_s), BM("_sw_on", sw_on), BM("_adc_live", adc_live),
     {"theta_e", T_DOUBLE, offsetof(Core, th), READONLY, "Electrical rotor angle in [0, 2 pi) (read-only)."},
     {NULL, 0, 0, 0, NULL},
 };

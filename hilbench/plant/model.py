@@ -44,6 +44,7 @@ from typing import Sequence
 
 import numpy as np
 
+from hilbench.plant import switching
 from hilbench.plant.params import ADC_ROLE_CODES, LoadProfile, PlantParams
 
 try:  # the optional compiled core (setup.py builds it when a C compiler is present)
@@ -127,6 +128,7 @@ class Plant:
         inv = params.inverter
         self.vbus_v = float(inv.vbus_v)
         self._dt_duty = float(inv.dead_time_s * inv.pwm_freq_hz) if inv.dead_time_enabled else 0.0
+        self._bridge = switching.BridgeConstants.of(params)  # None: the averaged inverter
         prot = params.protection
         self._oc = float(prot.overcurrent_a)  # the board's comparator on |phase current| (0: none)
         self._gate_off = bool(prot.gate_off_on_fault)
@@ -191,6 +193,7 @@ class Plant:
         self.e_cu_j = 0.0
         self.e_fric_j = 0.0
         self.e_load_j = 0.0
+        switching.reset(self)
         self._sense()
 
     def _sense(self) -> None:
@@ -317,11 +320,11 @@ class Plant:
                 out.append(0)
                 continue
             if r == 4:
-                x = self.i_a
+                x = self.i_a if self._adc_live else self._ia_s
             elif r == 2:
                 x = self.i_bus
             elif r == 5:
-                x = self.i_b
+                x = self.i_b if self._adc_live else self._ib_s
             elif r == 3:
                 x = self.vbus_v
             else:
@@ -372,6 +375,11 @@ class Plant:
         latch is set and gates the switches off, every mode is OFF."""
         if self.fault_input and self._gate_off:
             output_mode = OUTPUT_OFF
+        if self._bridge is not None:  # the switching inverter (hilbench/plant/switching.py)
+            if output_mode == OUTPUT_PWM:
+                switching.step_pwm(self, duty_a, duty_b, duty_c, dt_s)
+                return
+            switching.idle(self, dt_s)
         if output_mode == OUTPUT_PWM:
             vbus = self.vbus_v
             dtd = self._dt_duty
@@ -635,8 +643,9 @@ class Plant:
         p_ld = (self._tl_now + (kv - self._b) * wm + kq * wm * abs(wm)) * wm
         return did, diq, dw, we if ij else 0.0, p_in, p_cu, p_fr, p_ld
 
-    def _rk4_general(self, va: float, vb: float, h: float) -> None:
-        """One RK4 step with energy accounts; same stiction logic as the hot path. Angle wrapped."""
+    def _rk4_general(self, va: float, vb: float, h: float) -> float:
+        """One RK4 step with energy accounts; same stiction logic as the hot path. Angle wrapped.
+        Returns the step's input energy (J)."""
         tl, kl, kq, locked = self._load_terms()
         self._tl_now = tl
         kv = self._b + kl
@@ -678,6 +687,7 @@ class Plant:
         self.e_cu_j += y1[5]
         self.e_fric_j += y1[6]
         self.e_load_j += y1[7]
+        return y1[4]
 
     # ----------------------------------------------------------------- outputs off
     def _abc_now(self) -> tuple[float, float, float]:
@@ -862,5 +872,9 @@ if _plantcore is not None:
             for role, ch in enumerate(self._adc_tab):
                 if ch is not None:
                     self._set_adc(role, *ch)
+            bridge = self._bridge
+            if bridge is not None:  # the switching inverter's constants, for _switching.c
+                self._sw_on = True
+                self._sw_f, self._sw_td, self._sw_c, self._sw_smp = bridge.freq_hz, bridge.dead_s, bridge.centre, bridge.sample
 else:  # pragma: no cover
     _CPlant = None  # type: ignore[assignment,misc]

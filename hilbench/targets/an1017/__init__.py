@@ -13,6 +13,7 @@ from typing import TYPE_CHECKING, Literal, Mapping
 
 from hilbench.fieldspec import spec
 from hilbench.protocol import TelemetryId
+from hilbench.plant.params import PwmTiming
 from hilbench.targets.profile import MotorBuild, PotReference, TargetProfile, TelemetryColumn
 
 if TYPE_CHECKING:
@@ -145,6 +146,10 @@ PROFILE = TargetProfile(
     sweep_defaults=(("kp", "0.05:0.85:10"), ("ki", "0.005:0.12:10"), ("kd", "0")),
     start_sil=_start_sil,
     configure=_configure,
+    # dsPIC30F MCPWM in continuous up/down mode (PTCON 0x8002): a pin is active while PTMR < PDC, so
+    # the pulses are centred on the counter's zero; the ADC's special event (SEVTCMP = 1, counting
+    # up) falls one Tcy (0.1 % of the period) after it: taken as the zero
+    pwm_timing=PwmTiming(pulse_centre="zero", adc_sample_phase=0.0),
 )
 
 __all__ = ["An1017Settings", "PROFILE", "RPM_PER_SPEED_Q15", "pot_code_for_rpm", "rpm_for_pot_code"]

@@ -12,6 +12,7 @@ from typing import Any
 
 from hilbench.protocol import TelemetryId
 from hilbench.targets.foc.firmware import FocOptions
+from hilbench.plant.params import PwmTiming
 from hilbench.targets.profile import MotorBuild, ParamReference, TargetProfile, TelemetryColumn
 
 #: telemetry is Q15 per unit: speed of BaseRpm 3000, currents of the 5 A base (FocOptions defaults)
@@ -64,6 +65,9 @@ PROFILE = TargetProfile(
     built_for=lambda options: MotorBuild(pole_pairs=getattr(options, "pole_pairs", 3), max_speed_rpm=3000.0),
     capabilities=frozenset({"speed_loop", "realtime", "tuning", "encoder"}),
     sweep_defaults=(("spd_kp", "0.2:1.2:6"), ("spd_ki", "0.002:0.03:6")),
+    # F2812 Event Manager, timer 1 continuous up/down, active-high outputs: high while T1CNT > CMPR,
+    # so the pulses are centred on the counter's peak (period match); the ADC starts on underflow
+    pwm_timing=PwmTiming(pulse_centre="peak", adc_sample_phase=0.0),
 )
 
 __all__ = ["PROFILE", "FocOptions", "TELEMETRY_SPEC", "make_foc_target"]

@@ -1,0 +1,347 @@
+"""The inverter edge by edge: a switching model of the three-phase bridge (the readable reference).
+
+`[inverter] model = "switching"` replaces the averaged bridge (each period's mean leg voltages)
+with this one. Within a period every leg switches at its own PWM edges, at the exact times the
+duty and the carrier give; after every edge both switches of the leg stay off for the dead time,
+and meanwhile the leg's voltage is set by its current at that instant: a current into the motor
+flows through the low-side diode (the leg at 0 V), a current out of it through the high-side diode
+(the leg at the bus). A current that reaches zero inside the dead time stays there (the diode
+blocks): the leg floats at the voltage that keeps its current at zero, the zero-crossing clamp,
+unless that voltage would leave [0, Vbus] and a diode conducts again. The motor is integrated
+between these events (RK4 in dq with the interval's constant alpha-beta voltage, Plant._rk4_general;
+an interval is never longer than the averaged model's step), so the PWM ripple, the clamp and the
+instant at which the ADC samples come out of the model rather than from a formula.
+
+The carrier (hilbench.plant.params.PwmTiming): a centre-aligned counter whose zero falls on
+t = 0, T, 2T, … of the plant's time; each leg's high-side pulse is d·T wide and centred on the
+counter's zero or peak, as the target's PWM unit does. Time inside a period runs from 0 (its start)
+to dt; the carrier's phase u (in periods, [0, 1)) is carried from period to period, so a period may
+be any length (a half PWM period for the F2812 FOC's exchanges, whole periods for AN1017).
+
+State on the plant (flat attributes, so the C core keeps the same ones as members): `_sw_u` the
+carrier phase at the next period's start; `_sw_s0.._sw_s2` each leg's ideal high-side command
+(1 high, 0 low) at the end of the last period; `_sw_e0.._sw_e2` the time of its last ideal edge
+relative to the next period's start (−inf: none pending); `_ia_s`, `_ib_s` the phase currents the
+ADC last sampled and `_adc_live` (the ADC reads the end-of-period currents: the sampling instant
+is the period's end, or the bridge is off).
+
+`hilbench/plant/_switching.c` mirrors this file operation by operation (the C backend);
+tests/test_switching_backends.py checks they agree.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import TYPE_CHECKING
+
+from hilbench.plant.params import PlantParams
+
+if TYPE_CHECKING:
+    from hilbench.plant.model import Plant
+
+__all__ = ["BridgeConstants", "reset", "idle", "step_pwm", "HIGH", "LOW", "DEAD"]
+
+HIGH = 1  # the leg's high-side switch is on: the leg at the bus
+LOW = 0  # the low-side switch is on: the leg at 0 V
+DEAD = 2  # both off (dead time): a diode decides, or the leg floats at zero current
+
+#: carrier phases (in PWM periods) closer than this are one instant (1e-13 s at 10 kHz)
+PHASE_EPS = 1e-9
+#: a duty within this of 0 or 1 has no edges (a compare count is 1/7500 of a period at the finest)
+DUTY_EPS = 1e-6
+TWO_PI = 2.0 * math.pi
+SQRT3 = math.sqrt(3.0)
+INV_SQRT3 = 1.0 / SQRT3
+HALF_SQRT3 = 0.5 * SQRT3
+
+
+class BridgeConstants:
+    """What the switching bridge needs of the parameters: carrier frequency, dead time, where the
+    pulses are centred (0.0 the counter's zero, 0.5 its peak) and the ADC's sampling phase."""
+
+    __slots__ = ("freq_hz", "dead_s", "centre", "sample")
+
+    def __init__(self, freq_hz: float, dead_s: float, centre: float, sample: float) -> None:
+        self.freq_hz = freq_hz
+        self.dead_s = dead_s
+        self.centre = centre
+        self.sample = sample
+
+    @classmethod
+    def of(cls, params: PlantParams) -> "BridgeConstants | None":
+        """The bridge of these parameters, or None for the averaged model."""
+        inv = params.inverter
+        if inv.model != "switching":
+            return None
+        sample = float(params.pwm.adc_sample_phase)
+        return cls(float(inv.pwm_freq_hz), float(inv.dead_time_s) if inv.dead_time_enabled else 0.0,
+                   0.0 if params.pwm.pulse_centre == "zero" else 0.5, sample - math.floor(sample))
+
+
+def reset(plant: "Plant") -> None:
+    """Carrier at its zero, every leg low with no dead time pending, the ADC reading live."""
+    plant._sw_u = 0.0
+    plant._sw_s0 = plant._sw_s1 = plant._sw_s2 = 0
+    plant._sw_e0 = plant._sw_e1 = plant._sw_e2 = -math.inf
+    plant._ia_s = plant._ib_s = 0.0
+    plant._adc_live = True
+
+
+def advance_phase(u: float, dt_s: float, freq_hz: float) -> float:
+    """The carrier's phase dt later, in [0, 1); a whole number of periods within PHASE_EPS is exact."""
+    u = u + dt_s * freq_hz
+    n = math.floor(u + 0.5)
+    if -PHASE_EPS < u - n < PHASE_EPS:
+        u = float(n)
+    return u - math.floor(u)
+
+
+def idle(plant: "Plant", dt_s: float) -> None:
+    """A period with the outputs off or the low sides on: the carrier runs on, no leg switches,
+    no dead time is pending afterwards; the ADC reads the period's end."""
+    b = plant._bridge
+    plant._sw_u = advance_phase(plant._sw_u, dt_s, b.freq_hz)
+    plant._sw_s0 = plant._sw_s1 = plant._sw_s2 = 0
+    plant._sw_e0 = plant._sw_e1 = plant._sw_e2 = -math.inf
+    plant._adc_live = True
+
+
+def ideal_high(u: float, centre: float, duty: float) -> int:
+    """The leg's ideal high-side command just after carrier phase u (pulses [c − d/2, c + d/2))."""
+    if duty <= DUTY_EPS:
+        return 0
+    if duty >= 1.0 - DUTY_EPS:
+        return 1
+    x = u + PHASE_EPS - centre + 0.5 * duty
+    return 1 if x - math.floor(x) < duty else 0
+
+
+def next_edge(u: float, centre: float, duty: float) -> tuple[float, int]:
+    """(phase, new command) of the leg's first ideal edge later than u + PHASE_EPS; (inf, 0) for none."""
+    if duty <= DUTY_EPS or duty >= 1.0 - DUTY_EPS:
+        return math.inf, 0
+    w = 0.5 * duty
+    x = u - centre + w  # an integer at every rising edge
+    r = math.floor(x) + 1.0 - x
+    y = u - centre - w  # an integer at every falling edge
+    f = math.floor(y) + 1.0 - y
+    if r <= PHASE_EPS:
+        r += 1.0
+    if f <= PHASE_EPS:
+        f += 1.0
+    return (u + r, 1) if r < f else (u + f, 0)
+
+
+def next_sample(u: float, sample: float) -> float:
+    """The carrier phase of the first ADC sample later than u + PHASE_EPS."""
+    x = u - sample
+    r = math.floor(x) + 1.0 - x
+    if r <= PHASE_EPS:
+        r += 1.0
+    return u + r
+
+
+def back_emf_abc(plant: "Plant") -> list[float]:
+    """The phase back-EMFs now (V): d/dt of psi·cos(theta − phase axis)."""
+    we = plant._p * plant.w_m
+    e_al = -we * plant._psi * math.sin(plant._th)
+    e_be = we * plant._psi * math.cos(plant._th)
+    return [e_al, -0.5 * e_al + HALF_SQRT3 * e_be, -0.5 * e_al - HALF_SQRT3 * e_be]
+
+
+def phase_slopes(plant: "Plant", v: list[float]) -> list[float]:
+    """di/dt of the three phase currents now with terminal voltages v (the dq model's derivative,
+    turned back to phases; the neutral's voltage drops out of the alpha-beta voltage)."""
+    va = (2.0 * v[0] - v[1] - v[2]) / 3.0
+    vb = (v[1] - v[2]) * INV_SQRT3
+    th = plant._th
+    c = math.cos(th)
+    s = math.sin(th)
+    idv = plant.i_d
+    iqv = plant.i_q
+    we = plant._p * plant.w_m
+    vd = va * c + vb * s
+    vq = vb * c - va * s
+    did = (vd - plant._rs * idv + we * plant._lq * iqv) / plant._ld
+    diq = (vq - plant._rs * iqv - we * (plant._ld * idv + plant._psi)) / plant._lq
+    dal = did * c - diq * s - we * (idv * s + iqv * c)
+    dbe = did * s + diq * c + we * (idv * c - iqv * s)
+    return [dal, -0.5 * dal + HALF_SQRT3 * dbe, -0.5 * dal - HALF_SQRT3 * dbe]
+
+
+def open_leg_voltage(plant: "Plant", v: list[float], o: int, vbus: float) -> float:
+    """The terminal voltage of leg o that keeps its (zero) current from changing, the others held:
+    di_o/dt is affine in it, so two evaluations give it."""
+    lo = list(v)
+    lo[o] = 0.0
+    hi = list(v)
+    hi[o] = vbus
+    f0 = phase_slopes(plant, lo)[o]
+    f1 = phase_slopes(plant, hi)[o]
+    return -f0 * vbus / (f1 - f0)
+
+
+def leg_voltages(plant: "Plant", gates: list[int], i: list[float], vbus: float) -> tuple[list[float], list[int]]:
+    """Terminal voltages (V) of the three legs for one interval, and the legs left open (both
+    switches off, zero current: they float and their current is held at zero).
+
+    A switch that is on fixes its leg; a leg in dead time is fixed by its diode while it carries
+    current. Two open legs mean no current at all: each open terminal sits at the neutral plus its
+    back-EMF (the neutral fixed by a driven leg, else centred in the bus). A floating voltage outside
+    [0, Vbus] is clamped to that rail, whose diode then conducts: the furthest out first."""
+    v = [0.0, 0.0, 0.0]
+    open_: list[int] = []
+    for x in range(3):
+        g = gates[x]
+        if g == HIGH:
+            v[x] = vbus
+        elif g == LOW:
+            v[x] = 0.0
+        elif i[x] > 0.0:
+            v[x] = 0.0  # the low-side diode carries a current into the motor
+        elif i[x] < 0.0:
+            v[x] = vbus  # the high-side diode carries a current out of it
+        else:
+            open_.append(x)
+    while len(open_) >= 2:
+        e = back_emf_abc(plant)
+        fixed = [x for x in range(3) if x not in open_]
+        if fixed:
+            vn = v[fixed[0]] - e[fixed[0]]
+        else:
+            vn = 0.5 * (vbus - max(e) - min(e))
+        worst = -1
+        excess = 0.0
+        for o in open_:
+            v[o] = vn + e[o]
+            out = v[o] - vbus if v[o] > vbus else -v[o] if v[o] < 0.0 else 0.0
+            if out > excess:
+                worst = o
+                excess = out
+        if worst < 0:
+            return v, open_
+        v[worst] = vbus if v[worst] > vbus else 0.0
+        open_.remove(worst)
+    if open_:
+        o = open_[0]
+        vo = open_leg_voltage(plant, v, o, vbus)
+        if vo > vbus or vo < 0.0:
+            v[o] = vbus if vo > vbus else 0.0
+            open_ = []
+        else:
+            v[o] = vo
+    return v, open_
+
+
+def interval(plant: "Plant", gates: list[int], h: float, t_off: float) -> tuple[float, float]:
+    """Integrate up to h seconds with these gate states; returns (time used, input energy J).
+
+    Ends early where a diode's current reaches zero in dead time (found by linear interpolation
+    within the step, then integrated to exactly there): that leg is open from then on."""
+    vbus = plant.vbus_v
+    i = plant._phase_currents()
+    v, open_ = leg_voltages(plant, gates, i, vbus)
+    va = (2.0 * v[0] - v[1] - v[2]) / 3.0
+    vb = (v[1] - v[2]) * INV_SQRT3
+    saved = (plant.i_d, plant.i_q, plant.w_m, plant._th, plant._turns, plant._stuck,
+             plant.e_in_j, plant.e_cu_j, plant.e_fric_j, plant.e_load_j)
+    th0 = plant._th
+    energy = plant._rk4_general(va, vb, h)
+    i1 = plant._phase_currents()
+    fx = [2.0, 2.0, 2.0]  # where each diode's current crossed zero, as a fraction of the step (2: no crossing)
+    for x in range(3):
+        if gates[x] == DEAD and i[x] != 0.0 and (i1[x] > 0.0) != (i[x] > 0.0):
+            fx[x] = i[x] / (i[x] - i1[x])
+    frac = min(fx)
+    if frac < 1.0:  # the first to cross ends the interval there
+        (plant.i_d, plant.i_q, plant.w_m, plant._th, plant._turns, plant._stuck,
+         plant.e_in_j, plant.e_cu_j, plant.e_fric_j, plant.e_load_j) = saved
+        h = h * frac
+        energy = plant._rk4_general(va, vb, h)
+        i1 = plant._phase_currents()
+        for x in range(3):
+            if fx[x] <= frac * (1.0 + 1e-9) + 1e-12:
+                open_.append(x)
+    plant._finish(th0, plant._th - th0 + plant._dturns * TWO_PI, h, t_off)
+    plant._project(i1, open_)
+    return h, energy
+
+
+def step_pwm(plant: "Plant", duty_a: float, duty_b: float, duty_c: float, dt_s: float) -> None:
+    """One period of complementary PWM with these duties (fractions 0..1), edge by edge."""
+    if plant._t_load_change <= plant.t_s + 1e-12:
+        plant._update_load()
+    b = plant._bridge
+    f = b.freq_hz
+    td = b.dead_s
+    c = b.centre
+    u0 = plant._sw_u
+    if plant._adc_live:  # the last sample fell on the last period's end: hold what it read
+        plant._ia_s = plant.i_a
+        plant._ib_s = plant.i_b
+    duties = (min(1.0, max(0.0, duty_a)), min(1.0, max(0.0, duty_b)), min(1.0, max(0.0, duty_c)))
+    s = [plant._sw_s0, plant._sw_s1, plant._sw_s2]
+    te = [plant._sw_e0, plant._sw_e1, plant._sw_e2]
+    nt = [0.0, 0.0, 0.0]  # each leg's next ideal edge: time, and the command it sets
+    nk = [0, 0, 0]
+    for x in range(3):
+        now = ideal_high(u0, c, duties[x])
+        if now != s[x]:  # the new duty switches the leg at the period's start
+            s[x] = now
+            te[x] = 0.0
+        ph, nk[x] = next_edge(u0, c, duties[x])
+        nt[x] = (ph - u0) / f
+    t_end = dt_s - PHASE_EPS / f
+    ts = (next_sample(u0, b.sample) - u0) / f
+    h_max = dt_s / plant._substeps
+    accounts = (plant.e_in_j, plant.e_cu_j, plant.e_fric_j, plant.e_load_j)
+    plant.last_edge_s = None
+    plant._last_mode = 1
+    plant._da, plant._db, plant._dc = duties
+    energy = 0.0
+    tau = 0.0
+    gates = [0, 0, 0]
+    while True:
+        t_next = dt_s
+        for x in range(3):
+            if nt[x] < t_next:
+                t_next = nt[x]
+            dead_end = te[x] + td
+            if tau < dead_end < t_next:
+                t_next = dead_end
+        if ts < t_next:
+            t_next = ts
+        if t_next > t_end:
+            t_next = dt_s
+        for x in range(3):
+            gates[x] = (HIGH if s[x] else LOW) if tau >= te[x] + td else DEAD
+        while tau < t_next:
+            h = t_next - tau
+            if h > h_max:
+                h = h_max
+            used, e = interval(plant, gates, h, tau)  # may end early: a diode stopped conducting
+            energy += e
+            tau = t_next if used == t_next - tau else tau + used
+        if t_next >= dt_s:
+            break
+        for x in range(3):
+            if nt[x] <= t_next:
+                s[x] = nk[x]
+                te[x] = t_next
+                ph, nk[x] = next_edge(u0 + t_next * f, c, duties[x])
+                nt[x] = (ph - u0) / f
+        if ts <= t_next:
+            i = plant._abc_now()
+            plant._ia_s = i[0]
+            plant._ib_s = i[1]
+            ts = (next_sample(u0 + t_next * f, b.sample) - u0) / f
+    if not plant.track_energy:  # the energy accounts move only when asked (as in the C backend)
+        plant.e_in_j, plant.e_cu_j, plant.e_fric_j, plant.e_load_j = accounts
+    plant._sw_s0, plant._sw_s1, plant._sw_s2 = s
+    plant._sw_e0, plant._sw_e1, plant._sw_e2 = (te[0] - dt_s, te[1] - dt_s, te[2] - dt_s)
+    plant._sw_u = advance_phase(u0, dt_s, f)
+    # the ADC reads the period's end when a sample falls there (within PHASE_EPS), else its held sample
+    plant._adc_live = ts <= dt_s + PHASE_EPS / f
+    plant.t_s += dt_s
+    plant._sense()
+    plant.i_bus = plant._bus_average(energy, dt_s)
