@@ -114,6 +114,8 @@ _RANGES: dict[type, dict[str, dict[str, Any]]] = {
         "dead_time_s": spec(unit="s", ge=0, le=1e-4),
         "model": spec(doc="\"average\": each period's mean leg voltages (fast); \"switching\": every PWM edge "
                           "at its time, the dead time by the current at each edge (docs/design.md, inverter)"),
+        "average_dead_time": spec(doc="the averaged model's dead band: \"sign\" of the current at the period's start "
+                                      "(the default), or \"edges\": the current's sign at each PWM edge, ripple included"),
     },
     HallParams: {"offset_deg": spec(unit="deg", ge=-360, le=360)},
     EncoderParams: {"lines": spec(ge=1, le=1_000_000), "offset_counts": spec(ge=0, le=65535),

@@ -43,9 +43,9 @@ typedef struct {
      * constants and state (switching.py's attributes), the ADC's held sample */
     double rs, ld, lq, psi, w_start;
     long long dturns;
-    double sw_f, sw_td, sw_c, sw_smp, sw_u, sw_e[3], ia_s, ib_s;
+    double sw_f, sw_td, sw_c, sw_smp, sw_l, sw_u, sw_e[3], ia_s, ib_s;
     int sw_s[3];
-    char sw_on, adc_live;
+    char sw_on, sw_avg, adc_live;
 } Core;
 
 static long long mod6(long long n) { long long r = n % 6; return r < 0 ? r + 6 : r; }
@@ -248,9 +248,10 @@ static int step_period(Core *s, PyObject *const *args)
         if (r == NULL) return -1;
         Py_DECREF(r);
     }
-    if (s->sw_on) { /* the switching inverter (_switching.c) */
-        if (mode == OUTPUT_PWM) return sw_step_pwm(s, duty_a, duty_b, duty_c, dt_s);
-        sw_idle(s, dt_s);
+    double u0 = 0.0;
+    if (s->sw_on || s->sw_avg) { /* the switching inverter, or the averaged one's carrier (_switching.c) */
+        if (s->sw_on && mode == OUTPUT_PWM) return sw_step_pwm(s, duty_a, duty_b, duty_c, dt_s);
+        u0 = sw_idle(s, dt_s);
     }
     if (!hot) {
         coast_period(s, dt_s);
@@ -259,7 +260,9 @@ static int step_period(Core *s, PyObject *const *args)
     double va, vb;
     if (mode == OUTPUT_PWM) {
         double vbus = s->vbus_v, dtd = s->dt_duty;
-        if (dtd != 0.0) {
+        if (dtd != 0.0 && s->sw_avg) { /* average_dead_time = "edges" */
+            sw_average_dead_time(s, u0, &duty_a, &duty_b, &duty_c, dt_s);
+        } else if (dtd != 0.0) {
             double ia = s->i_a, ib = s->i_b, ic = s->i_c, x;
             x = duty_a - (ia > 0.0 ? dtd : ia < 0.0 ? -dtd : 0.0);
             x = x > 0.0 ? x : 0.0; duty_a = x < 1.0 ? x : 1.0;
@@ -505,7 +508,7 @@ static PyMemberDef Core_members[] = {
     {"_noise", T_OBJECT_EX, offsetof(Core, noise), 0, NULL},
     LM("_noise_i", noise_i), DM("pot_fraction", pot_fraction),
     DM("_rs", rs), DM("_ld", ld), DM("_lq", lq), DM("_psi", psi), DM("_w_start", w_start), LM("_dturns", dturns),
-    DM("_sw_f", sw_f), DM("_sw_td", sw_td), DM("_sw_c", sw_c), DM("_sw_smp", sw_smp), DM("_sw_u", sw_u),
+    DM("_sw_f", sw_f), DM("_sw_td", sw_td), DM("_sw_c", sw_c), DM("_sw_smp", sw_smp), DM("_sw_l", sw_l), BM("_sw_avg", sw_avg), DM("_sw_u", sw_u),
     DM("_sw_e0", sw_e[0]), DM("_sw_e1", sw_e[1]), DM("_sw_e2", sw_e[2]),
     IM("_sw_s0", sw_s[0]), IM("_sw_s1", sw_s[1]), IM("_sw_s2", sw_s[2]),
     DM("_ia_s", ia_s), DM("_ib_s", ib_s), BM("_sw_on", sw_on), BM("_adc_live", adc_live),

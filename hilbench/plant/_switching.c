@@ -23,13 +23,15 @@ static double sw_advance_phase(double u, double dt_s, double freq_hz)
     return u - floor(u);
 }
 
-/* switching.idle */
-static void sw_idle(Core *s, double dt_s)
+/* switching.idle: returns the carrier's phase at the period's start */
+static double sw_idle(Core *s, double dt_s)
 {
-    s->sw_u = sw_advance_phase(s->sw_u, dt_s, s->sw_f);
+    double u0 = s->sw_u;
+    s->sw_u = sw_advance_phase(u0, dt_s, s->sw_f);
     s->sw_s[0] = s->sw_s[1] = s->sw_s[2] = 0;
     s->sw_e[0] = s->sw_e[1] = s->sw_e[2] = -INFINITY;
     s->adc_live = 1;
+    return u0;
 }
 
 /* switching.ideal_high */
@@ -64,6 +66,72 @@ static double sw_next_sample(double u, double sample)
     double r = floor(x) + 1.0 - x;
     if (r <= SW_PHASE_EPS) r += 1.0;
     return u + r;
+}
+
+static void sw_back_emf_abc(Core *s, double e[3]);
+
+/* switching.dead_band_volt_seconds */
+static double sw_dead_band_volt_seconds(int rising, double i_e, double lo_v, double hi_v, double v_f, double vbus,
+                                        double td, double rs, double l_h)
+{
+    double v, slope;
+    if (i_e > 0.0) {
+        v = 0.0;
+        slope = (lo_v - rs * i_e) / l_h;
+    } else if (i_e < 0.0) {
+        v = vbus;
+        slope = (hi_v - rs * i_e) / l_h;
+    } else {
+        v = v_f;
+        slope = 0.0;
+    }
+    double t_z = td;
+    if (i_e != 0.0 && slope != 0.0 && ((slope > 0.0) != (i_e > 0.0))) {
+        t_z = -i_e / slope;
+        if (t_z > td) t_z = td;
+    }
+    double held = v * t_z + v_f * (td - t_z);
+    return held - (rising ? vbus * td : 0.0);
+}
+
+/* switching.average_dead_time: the averaged bridge's duties with the dead band edge by edge */
+static void sw_average_dead_time(Core *s, double u0, double *duty_a, double *duty_b, double *duty_c, double dt_s)
+{
+    const double f = s->sw_f, td = s->sw_td, c = s->sw_c, vbus = s->vbus_v;
+    double da = *duty_a, db = *duty_b, dc = *duty_c;
+    double duties[3] = {da, db, dc}, out[3], e[3];
+    double mean_d = (da + db + dc) / 3.0;
+    double i0[3] = {s->i_a, s->i_b, s->i_c};
+    sw_back_emf_abc(s, e);
+    double half_t = 0.5 / f;
+    for (int x = 0; x < 3; x++) {
+        double d = duties[x];
+        if (d <= SW_DUTY_EPS || d >= 1.0 - SW_DUTY_EPS) {
+            out[x] = d;
+            continue;
+        }
+        double g = d - ((d < da ? d : da) + (d < db ? d : db) + (d < dc ? d : dc)) / 3.0 - d * (d - mean_d);
+        double ripple = vbus * half_t * g / s->sw_l;
+        double slope = (vbus * (d - mean_d) - s->rs * i0[x] - e[x]) / s->sw_l;
+        int n_hi = (da > d) + (db > d) + (dc > d);
+        double lo_v = -vbus * n_hi / 3.0 - e[x];
+        double hi_v = vbus * (2 - n_hi) / 3.0 - e[x];
+        double v_f = 1.5 * e[x] + 0.5 * vbus * n_hi;
+        v_f = v_f < 0.0 ? 0.0 : v_f > vbus ? vbus : v_f;
+        double err = 0.0, u = u0;
+        for (;;) {
+            int kind;
+            double ph = sw_next_edge(u, c, d, &kind);
+            double t = (ph - u0) / f;
+            if (t >= dt_s - SW_PHASE_EPS / f) break;
+            double i_e = i0[x] + slope * t + (kind ? -ripple : ripple);
+            err += sw_dead_band_volt_seconds(kind, i_e, lo_v, hi_v, v_f, vbus, td, s->rs, s->sw_l) / vbus;
+            u = ph;
+        }
+        double xd = d + err / dt_s;
+        out[x] = xd < 0.0 ? 0.0 : xd > 1.0 ? 1.0 : xd;
+    }
+    *duty_a = out[0]; *duty_b = out[1]; *duty_c = out[2];
 }
 
 /* model.Plant._abc_now and _phase_currents (round-off of an open phase snapped to zero) */

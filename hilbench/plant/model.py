@@ -375,15 +375,18 @@ class Plant:
         latch is set and gates the switches off, every mode is OFF."""
         if self.fault_input and self._gate_off:
             output_mode = OUTPUT_OFF
-        if self._bridge is not None:  # the switching inverter (hilbench/plant/switching.py)
-            if output_mode == OUTPUT_PWM:
+        bridge = self._bridge
+        if bridge is not None:  # the switching inverter, or the averaged one's carrier (hilbench/plant/switching.py)
+            if bridge.switching and output_mode == OUTPUT_PWM:
                 switching.step_pwm(self, duty_a, duty_b, duty_c, dt_s)
                 return
-            switching.idle(self, dt_s)
+            u0 = switching.idle(self, dt_s)
         if output_mode == OUTPUT_PWM:
             vbus = self.vbus_v
             dtd = self._dt_duty
-            if dtd:
+            if dtd and bridge is not None:  # average_dead_time = "edges"
+                duty_a, duty_b, duty_c = switching.average_dead_time(self, u0, duty_a, duty_b, duty_c, dt_s)
+            elif dtd:
                 ia = self.i_a
                 ib = self.i_b
                 ic = self.i_c
@@ -873,8 +876,10 @@ if _plantcore is not None:
                 if ch is not None:
                     self._set_adc(role, *ch)
             bridge = self._bridge
-            if bridge is not None:  # the switching inverter's constants, for _switching.c
-                self._sw_on = True
+            if bridge is not None:  # the bridge's constants, for _switching.c
+                self._sw_on = bridge.switching
+                self._sw_avg = not bridge.switching
                 self._sw_f, self._sw_td, self._sw_c, self._sw_smp = bridge.freq_hz, bridge.dead_s, bridge.centre, bridge.sample
+                self._sw_l = bridge.l_h
 else:  # pragma: no cover
     _CPlant = None  # type: ignore[assignment,misc]

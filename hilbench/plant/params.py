@@ -99,16 +99,21 @@ class MotorParams:
 class InverterParams:
     """Two-level three-phase inverter.
 
-    model: "average" (the default) applies each period's mean leg voltages (duty minus the dead
-    band's sign(i)·Td·f, with i the phase current at the period's start); "switching" switches every
-    leg at its PWM edges, with the dead time at each edge and the conducting device chosen by the
-    phase current at that instant (hilbench/plant/switching.py)."""
+    model: "average" (the default) applies each period's mean leg voltages; "switching" switches
+    every leg at its PWM edges, with the dead time at each edge and the conducting device chosen by
+    the phase current at that instant (hilbench/plant/switching.py).
+    average_dead_time: the averaged model's dead-band term. "sign" (the default): duty minus
+    sign(i)·Td·f, with i the phase current at the period's start; "edges": what the switching model
+    does on average, one Td per PWM edge inside the period with the current's sign at that edge
+    (estimated from the period-start current, its mean slope and the PWM ripple the duties make),
+    and none for a leg that does not switch (duty 0 or 1)."""
 
     vbus_v: float = 24.0
     pwm_freq_hz: float = 20000.0
     dead_time_s: float = 0.8e-6
     dead_time_enabled: bool = False
     model: Literal["average", "switching"] = "average"
+    average_dead_time: Literal["sign", "edges"] = "sign"
 
 
 @dataclass(frozen=True)

@@ -56,26 +56,33 @@ HALF_SQRT3 = 0.5 * SQRT3
 
 
 class BridgeConstants:
-    """What the switching bridge needs of the parameters: carrier frequency, dead time, where the
-    pulses are centred (0.0 the counter's zero, 0.5 its peak) and the ADC's sampling phase."""
+    """What the bridge needs of the parameters: whether it switches (else it is the averaged bridge
+    whose dead band follows the edges, average_dead_time = "edges"), carrier frequency, dead time,
+    where the pulses are centred (0.0 the counter's zero, 0.5 its peak), the ADC's sampling phase,
+    and the phase inductance the averaged bridge's ripple estimate uses."""
 
-    __slots__ = ("freq_hz", "dead_s", "centre", "sample")
+    __slots__ = ("switching", "freq_hz", "dead_s", "centre", "sample", "l_h")
 
-    def __init__(self, freq_hz: float, dead_s: float, centre: float, sample: float) -> None:
+    def __init__(self, switching: bool, freq_hz: float, dead_s: float, centre: float, sample: float,
+                 l_h: float) -> None:
+        self.switching = switching
         self.freq_hz = freq_hz
         self.dead_s = dead_s
         self.centre = centre
         self.sample = sample
+        self.l_h = l_h
 
     @classmethod
     def of(cls, params: PlantParams) -> "BridgeConstants | None":
-        """The bridge of these parameters, or None for the averaged model."""
+        """The bridge of these parameters, or None for the averaged model with its default dead band."""
         inv = params.inverter
-        if inv.model != "switching":
+        switching = inv.model == "switching"
+        if not switching and not (inv.average_dead_time == "edges" and inv.dead_time_enabled):
             return None
         sample = float(params.pwm.adc_sample_phase)
-        return cls(float(inv.pwm_freq_hz), float(inv.dead_time_s) if inv.dead_time_enabled else 0.0,
-                   0.0 if params.pwm.pulse_centre == "zero" else 0.5, sample - math.floor(sample))
+        return cls(switching, float(inv.pwm_freq_hz), float(inv.dead_time_s) if inv.dead_time_enabled else 0.0,
+                   0.0 if params.pwm.pulse_centre == "zero" else 0.5, sample - math.floor(sample),
+                   0.5 * (params.motor.ld_h + params.motor.lq_h))
 
 
 def reset(plant: "Plant") -> None:
@@ -96,14 +103,95 @@ def advance_phase(u: float, dt_s: float, freq_hz: float) -> float:
     return u - math.floor(u)
 
 
-def idle(plant: "Plant", dt_s: float) -> None:
-    """A period with the outputs off or the low sides on: the carrier runs on, no leg switches,
-    no dead time is pending afterwards; the ADC reads the period's end."""
+def idle(plant: "Plant", dt_s: float) -> float:
+    """A period the switching bridge does not switch (outputs off, low sides on; or any period of
+    the averaged bridge): the carrier runs on, no dead time is pending afterwards, the ADC reads the
+    period's end. Returns the carrier's phase at the period's start."""
     b = plant._bridge
-    plant._sw_u = advance_phase(plant._sw_u, dt_s, b.freq_hz)
+    u0 = plant._sw_u
+    plant._sw_u = advance_phase(u0, dt_s, b.freq_hz)
     plant._sw_s0 = plant._sw_s1 = plant._sw_s2 = 0
     plant._sw_e0 = plant._sw_e1 = plant._sw_e2 = -math.inf
     plant._adc_live = True
+    return u0
+
+
+def dead_band_volt_seconds(rising: int, i_e: float, lo_v: float, hi_v: float, v_f: float, vbus: float,
+                           td: float, rs: float, l_h: float) -> float:
+    """What one dead time adds to a leg's volt-seconds (V·s; negative: lost) against its ideal edge
+    (a rising edge should put the bus on the leg, a falling one 0 V). The current i_e at the edge
+    picks the diode (into the motor: the low one, the leg at 0 V; out: the high one, at the bus);
+    a current that reaches zero inside the dead time (the slope L di/dt = lo_v or hi_v − R i) stays
+    there and the leg floats at v_f for the rest of it."""
+    if i_e > 0.0:
+        v = 0.0
+        slope = (lo_v - rs * i_e) / l_h
+    elif i_e < 0.0:
+        v = vbus
+        slope = (hi_v - rs * i_e) / l_h
+    else:
+        v = v_f
+        slope = 0.0
+    t_z = td
+    if i_e != 0.0 and slope != 0.0 and (slope > 0.0) != (i_e > 0.0):
+        t_z = -i_e / slope  # where the diode's current reaches zero
+        if t_z > td:
+            t_z = td
+    held = v * t_z + v_f * (td - t_z)  # what the leg has over the dead time
+    return held - (vbus * td if rising else 0.0)
+
+
+def average_dead_time(plant: "Plant", u0: float, duty_a: float, duty_b: float, duty_c: float,
+                      dt_s: float) -> tuple[float, float, float]:
+    """The averaged bridge's duties with the dead band as the switching bridge has it on average
+    (average_dead_time = "edges"): each ideal edge of a leg inside the period costs Td of the bus
+    when the current flows into the motor at a rising edge (the low diode holds the leg at 0 V) and
+    gives Td when it flows out at a falling edge (the high diode holds it at the bus); a leg that
+    does not switch has no dead band. The current at an edge: the period-start current, plus its
+    mean slope (the period's mean phase voltage, the resistance and the back-EMF over L), minus
+    (rising) or plus (falling) half the ripple across the pulse, which the three duties give in
+    closed form: each leg's pulse is d·T wide around the same centre, so over the half pulse of
+    leg x, ∫(v_xn − mean) dt = Vbus·T/2·(d_x − Σ_y min(d_x, d_y)/3 − d_x·(d_x − mean d)).
+    Not modelled: a current that reaches zero inside the dead time (the clamp), the ripple's
+    curvature (R, the back-EMF's change within a period), Ld ≠ Lq (L is their mean)."""
+    b = plant._bridge
+    f = b.freq_hz
+    td = b.dead_s
+    c = b.centre
+    vbus = plant.vbus_v
+    duties = (duty_a, duty_b, duty_c)
+    mean_d = (duty_a + duty_b + duty_c) / 3.0
+    i0 = (plant.i_a, plant.i_b, plant.i_c)
+    e = back_emf_abc(plant)
+    half_t = 0.5 / f
+    out = [0.0, 0.0, 0.0]
+    for x in range(3):
+        d = duties[x]
+        if d <= DUTY_EPS or d >= 1.0 - DUTY_EPS:
+            out[x] = d
+            continue
+        g = d - (min(d, duty_a) + min(d, duty_b) + min(d, duty_c)) / 3.0 - d * (d - mean_d)
+        ripple = vbus * half_t * g / b.l_h
+        slope = (vbus * (d - mean_d) - plant._rs * i0[x] - e[x]) / b.l_h
+        # the other legs during this leg's dead times: high if their pulse is wider (same centre)
+        n_hi = (duty_a > d) + (duty_b > d) + (duty_c > d)
+        lo_v = -vbus * n_hi / 3.0 - e[x]  # L di/dt + R i with this leg at 0 V, at the bus, floating
+        hi_v = vbus * (2 - n_hi) / 3.0 - e[x]
+        v_f = 1.5 * e[x] + 0.5 * vbus * n_hi
+        v_f = 0.0 if v_f < 0.0 else vbus if v_f > vbus else v_f
+        err = 0.0
+        u = u0
+        while True:
+            ph, kind = next_edge(u, c, d)
+            t = (ph - u0) / f
+            if t >= dt_s - PHASE_EPS / f:
+                break
+            i_e = i0[x] + slope * t + (-ripple if kind else ripple)
+            err += dead_band_volt_seconds(kind, i_e, lo_v, hi_v, v_f, vbus, td, plant._rs, b.l_h) / vbus
+            u = ph
+        x_d = d + err / dt_s
+        out[x] = 0.0 if x_d < 0.0 else 1.0 if x_d > 1.0 else x_d
+    return out[0], out[1], out[2]
 
 
 def ideal_high(u: float, centre: float, duty: float) -> int:
