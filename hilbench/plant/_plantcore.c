@@ -46,6 +46,8 @@ typedef struct {
     double sw_f, sw_td, sw_c, sw_smp, sw_l, sw_u, sw_e[3], ia_s, ib_s;
     int sw_s[3];
     char sw_on, sw_avg, adc_live;
+    double trig_th, trig_c, trig_s; /* _switching.c's sw_trig */
+    char trig_ok;
 } Core;
 
 static long long mod6(long long n) { long long r = n % 6; return r < 0 ? r + 6 : r; }

@@ -134,10 +134,25 @@ static void sw_average_dead_time(Core *s, double u0, double *duty_a, double *dut
     *duty_a = out[0]; *duty_b = out[1]; *duty_c = out[2];
 }
 
+/* cos and sin of the rotor angle, remembered for the angle last asked (the start of an interval
+ * is the end of the one before): the same values, computed once */
+static void sw_trig(Core *s, double th, double *c, double *sn)
+{
+    if (!(s->trig_ok && th == s->trig_th)) {
+        s->trig_th = th;
+        s->trig_c = cos(th);
+        s->trig_s = sin(th);
+        s->trig_ok = 1;
+    }
+    *c = s->trig_c;
+    *sn = s->trig_s;
+}
+
 /* model.Plant._abc_now and _phase_currents (round-off of an open phase snapped to zero) */
 static void sw_abc_now(Core *s, double out[3])
 {
-    double c = cos(s->th), sn = sin(s->th);
+    double c, sn;
+    sw_trig(s, s->th, &c, &sn);
     double ia = s->i_d * c - s->i_q * sn;
     double ibe = s->i_d * sn + s->i_q * c;
     out[0] = ia;
@@ -170,7 +185,8 @@ static void sw_project(Core *s, const double i[3], const int open_[3], int n_ope
     out[b] = -x;
     if (x == 0.0) { s->i_d = 0.0; s->i_q = 0.0; return; }
     /* model.Plant._set_phase_currents */
-    double c = cos(s->th), sn = sin(s->th);
+    double c, sn;
+    sw_trig(s, s->th, &c, &sn);
     double ial = out[0];
     double ibe = (out[0] + 2.0 * out[1]) * INV_SQRT3;
     s->i_d = ial * c + ibe * sn;
@@ -180,9 +196,10 @@ static void sw_project(Core *s, const double i[3], const int open_[3], int n_ope
 /* switching.back_emf_abc */
 static void sw_back_emf_abc(Core *s, double e[3])
 {
-    double we = s->p * s->w_m;
-    double e_al = -we * s->psi * sin(s->th);
-    double e_be = we * s->psi * cos(s->th);
+    double we = s->p * s->w_m, c, sn;
+    sw_trig(s, s->th, &c, &sn);
+    double e_al = -we * s->psi * sn;
+    double e_be = we * s->psi * c;
     e[0] = e_al;
     e[1] = -0.5 * e_al + HALF_SQRT3 * e_be;
     e[2] = -0.5 * e_al - HALF_SQRT3 * e_be;
@@ -193,7 +210,8 @@ static void sw_phase_slopes(Core *s, const double v[3], double out[3])
 {
     double va = (2.0 * v[0] - v[1] - v[2]) / 3.0;
     double vb = (v[1] - v[2]) * INV_SQRT3;
-    double th = s->th, c = cos(th), sn = sin(th);
+    double c, sn;
+    sw_trig(s, s->th, &c, &sn);
     double idv = s->i_d, iqv = s->i_q, we = s->p * s->w_m;
     double vd = va * c + vb * sn;
     double vq = vb * c - va * sn;
@@ -277,69 +295,103 @@ static int sw_leg_voltages(Core *s, const int gates[3], const double i[3], doubl
     return n_open;
 }
 
-/* model.Plant._deriv: (did, diq, dw, dth, p_in) with the load's kv (kq = 0 here: a quadratic load
- * runs in Python) */
-static void sw_deriv(Core *s, double idv, double iqv, double w, double th, double va, double vb,
-                     double kv, double kq, double ft, double ij, double out[5])
+/* switching.small_rotation */
+static void sw_small_rotation(double delta, double *cd, double *sd)
 {
-    double c = cos(th), sn = sin(th);
-    double vd = va * c + vb * sn;
-    double vq = vb * c - va * sn;
-    double we = s->p * w;
-    double te = 1.5 * s->p * iqv * (s->psi + (s->ld - s->lq) * idv);
-    out[0] = (vd - s->rs * idv + we * s->lq * iqv) / s->ld;
-    out[1] = (vq - s->rs * iqv - we * (s->ld * idv + s->psi)) / s->lq;
-    out[2] = (te - kv * w - kq * w * fabs(w) - ft) * ij;
-    out[3] = ij != 0.0 ? we : 0.0;
-    out[4] = 1.5 * (vd * idv + vq * iqv);
+    if (-0.1 < delta && delta < 0.1) {
+        double d2 = delta * delta;
+        *cd = 1.0 - d2 * (1.0 / 2) * (1.0 - d2 * (1.0 / 12) * (1.0 - d2 * (1.0 / 30) * (1.0 - d2 * (1.0 / 56) * (1.0 - d2 * (1.0 / 90)))));
+        *sd = delta * (1.0 - d2 * (1.0 / 6) * (1.0 - d2 * (1.0 / 20) * (1.0 - d2 * (1.0 / 42) * (1.0 - d2 * (1.0 / 72) * (1.0 - d2 * (1.0 / 110))))));
+        return;
+    }
+    *cd = cos(delta);
+    *sd = sin(delta);
 }
 
-/* model.Plant._rk4_general without the energy accounts: one RK4 step, the angle wrapped;
- * returns the step's input energy. The load terms are the period's (Core.tl, Core.kv). */
-static double sw_rk4_general(Core *s, double va, double vb, double h)
+static void sw_trig(Core *s, double th, double *c, double *sn);
+
+/* switching.rk4_dq: one RK4 step with the alpha-beta voltage held (the averaged model's step), the
+ * angle wrapped; returns the input energy */
+static double sw_rk4_dq(Core *s, double va, double vb, double h)
 {
-    const double tl = s->tl, kv = s->kv, kq = 0.0;
+    const double rd = s->rd, rq = s->rq, pq = s->pq, pd = s->pd, ppsi = s->ppsi, p = s->p;
+    const double ild = s->ild, ilq = s->ilq, kt = s->kt, kr = s->kr, ijv = s->ijv;
+    const double tl = s->tl, kv = s->kv, tc = s->tc;
+    double vmag = sqrt(va * va + vb * vb);
+    double vdm = vmag * ild, vqm = vmag * ilq;
+    double h2 = 0.5 * h, h6 = h / 6.0;
     double id0 = s->i_d, iq0 = s->i_q, w0 = s->w_m, th0 = s->th;
     double ij, fr;
     s->w_start = w0;
     if (s->locked) {
         ij = 0.0; fr = 0.0; w0 = 0.0;
     } else if (s->stuck) {
-        double net = 1.5 * s->p * iq0 * (s->psi + (s->ld - s->lq) * id0) - tl;
-        if (fabs(net) <= s->tc) {
+        double net = (kt + kr * id0) * iq0 * s->j - tl;
+        if (-tc <= net && net <= tc) {
             ij = 0.0; fr = 0.0;
         } else {
             s->stuck = 0;
-            ij = 1.0 / s->j;
-            fr = copysign(s->tc, net);
+            ij = ijv;
+            fr = net > 0.0 ? tc : -tc;
         }
     } else {
-        ij = 1.0 / s->j;
-        fr = w0 > 0.0 ? s->tc : w0 < 0.0 ? -s->tc : 0.0;
+        ij = ijv;
+        fr = w0 > 0.0 ? tc : w0 < 0.0 ? -tc : 0.0;
     }
-    double ft = fr + tl;
-    double y0[5] = {id0, iq0, w0, th0, 0.0}, y[5], k1[5], k2[5], k3[5], k4[5];
-    sw_deriv(s, y0[0], y0[1], y0[2], y0[3], va, vb, kv, kq, ft, ij, k1);
-    for (int n = 0; n < 5; n++) y[n] = y0[n] + 0.5 * h * k1[n];
-    sw_deriv(s, y[0], y[1], y[2], y[3], va, vb, kv, kq, ft, ij, k2);
-    for (int n = 0; n < 5; n++) y[n] = y0[n] + 0.5 * h * k2[n];
-    sw_deriv(s, y[0], y[1], y[2], y[3], va, vb, kv, kq, ft, ij, k3);
-    for (int n = 0; n < 5; n++) y[n] = y0[n] + h * k3[n];
-    sw_deriv(s, y[0], y[1], y[2], y[3], va, vb, kv, kq, ft, ij, k4);
-    double y1[5];
-    for (int n = 0; n < 5; n++) y1[n] = y0[n] + h / 6.0 * (k1[n] + 2.0 * (k2[n] + k3[n]) + k4[n]);
-    double w1 = y1[2];
+    double ftj = (fr + tl) * ij, kvj = kv * ij;
+    double ktj = ij != 0.0 ? kt : 0.0, krj = ij != 0.0 ? kr : 0.0;
+    double ct, st, c0, s0, a, b, c, sn, cd, sd;
+    sw_trig(s, th0, &ct, &st);
+    if (vmag > 0.0) {
+        c0 = (va * ct + vb * st) / vmag;
+        s0 = (vb * ct - va * st) / vmag;
+    } else {
+        c0 = 1.0;
+        s0 = 0.0;
+    }
+    c = c0; sn = s0;
+    double p1 = c * id0 + sn * iq0;
+    double k1d = vdm * c + w0 * pq * iq0 - rd * id0;
+    double k1q = vqm * sn - w0 * (pd * id0 + ppsi) - rq * iq0;
+    double k1w = iq0 * (ktj + krj * id0) - kvj * w0 - ftj;
+    a = id0 + h2 * k1d; b = iq0 + h2 * k1q;
+    double w2 = w0 + h2 * k1w;
+    sw_small_rotation(h2 * p * w0, &cd, &sd);
+    c = c0 * cd + s0 * sd; sn = s0 * cd - c0 * sd;
+    double p2 = c * a + sn * b;
+    double k2d = vdm * c + w2 * pq * b - rd * a;
+    double k2q = vqm * sn - w2 * (pd * a + ppsi) - rq * b;
+    double k2w = b * (ktj + krj * a) - kvj * w2 - ftj;
+    a = id0 + h2 * k2d; b = iq0 + h2 * k2q;
+    double w3 = w0 + h2 * k2w;
+    sw_small_rotation(h2 * p * w2, &cd, &sd);
+    c = c0 * cd + s0 * sd; sn = s0 * cd - c0 * sd;
+    double p3 = c * a + sn * b;
+    double k3d = vdm * c + w3 * pq * b - rd * a;
+    double k3q = vqm * sn - w3 * (pd * a + ppsi) - rq * b;
+    double k3w = b * (ktj + krj * a) - kvj * w3 - ftj;
+    a = id0 + h * k3d; b = iq0 + h * k3q;
+    double w4 = w0 + h * k3w;
+    sw_small_rotation(h * p * w3, &cd, &sd);
+    c = c0 * cd + s0 * sd; sn = s0 * cd - c0 * sd;
+    double p4 = c * a + sn * b;
+    double k4d = vdm * c + w4 * pq * b - rd * a;
+    double k4q = vqm * sn - w4 * (pd * a + ppsi) - rq * b;
+    double k4w = b * (ktj + krj * a) - kvj * w4 - ftj;
+    s->i_d = id0 + h6 * (k1d + 2.0 * (k2d + k3d) + k4d);
+    s->i_q = iq0 + h6 * (k1q + 2.0 * (k2q + k3q) + k4q);
+    double w1 = w0 + h6 * (k1w + 2.0 * (k2w + k3w) + k4w);
     if (fr != 0.0 && w0 != 0.0 && ((w1 > 0.0) != (w0 > 0.0))) {
         w1 = 0.0;
         s->stuck = 1;
     }
-    s->i_d = y1[0]; s->i_q = y1[1]; s->w_m = w1;
-    double th1 = y1[3];
+    s->w_m = w1;
+    double th1 = th0 + h6 * p * (w0 + 2.0 * (w2 + w3) + w4);
     double k = floor(th1 / TWO_PI);
     s->dturns = (long long)k;
     s->turns += (long long)k;
     s->th = th1 - k * TWO_PI;
-    return y1[4];
+    return 1.5 * vmag * h6 * (p1 + 2.0 * (p2 + p3) + p4);
 }
 
 /* model.Plant._finish: the hall sector and the edge's time after a step (angle already wrapped) */
@@ -361,9 +413,12 @@ static void sw_finish(Core *s, double th0, double dth, double h, double t_off, i
 static double sw_interval(Core *s, const int gates[3], double h, double t_off, double *energy,
                           int *have_edge, double *edge)
 {
-    double vbus = s->vbus_v, i[3], v[3], i1[3];
+    double vbus = s->vbus_v, i[3] = {0.0, 0.0, 0.0}, v[3], i1[3] = {0.0, 0.0, 0.0};
     int open_[3];
-    sw_phase_currents(s, i);
+    /* with every leg driven nothing here depends on the currents (switching.interval computes them
+     * all the same; skipping them changes no result) */
+    int any_dead = gates[0] == SW_DEAD || gates[1] == SW_DEAD || gates[2] == SW_DEAD;
+    if (any_dead) sw_phase_currents(s, i);
     int n_open = sw_leg_voltages(s, gates, i, vbus, v, open_);
     double va = (2.0 * v[0] - v[1] - v[2]) / 3.0;
     double vb = (v[1] - v[2]) * INV_SQRT3;
@@ -371,8 +426,8 @@ static double sw_interval(Core *s, const int gates[3], double h, double t_off, d
     long long sturns = s->turns;
     char sstuck = s->stuck;
     double th0 = s->th;
-    double e = sw_rk4_general(s, va, vb, h);
-    sw_phase_currents(s, i1);
+    double e = sw_rk4_dq(s, va, vb, h);
+    if (any_dead) sw_phase_currents(s, i1);
     double fx[3] = {2.0, 2.0, 2.0};
     for (int x = 0; x < 3; x++)
         if (gates[x] == SW_DEAD && i[x] != 0.0 && ((i1[x] > 0.0) != (i[x] > 0.0)))
@@ -383,7 +438,7 @@ static double sw_interval(Core *s, const int gates[3], double h, double t_off, d
     if (frac < 1.0) {
         s->i_d = sid; s->i_q = siq; s->w_m = sw; s->th = sth; s->turns = sturns; s->stuck = sstuck;
         h = h * frac;
-        e = sw_rk4_general(s, va, vb, h);
+        e = sw_rk4_dq(s, va, vb, h);
         sw_phase_currents(s, i1);
         for (int x = 0; x < 3; x++)
             if (fx[x] <= frac * (1.0 + 1e-9) + 1e-12) open_[n_open++] = x;
