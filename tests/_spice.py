@@ -213,17 +213,30 @@ def run_ngspice(ngspice: str, case: BridgeCase, *, max_step_s: float = 50e-9, wo
 
 def plant_for(case: BridgeCase, *, model: str = "switching", backend: str | None = None,
               substeps: int = 1) -> Plant:
-    """The case's motor at fixed speed on the plant's inverter (`model`), currents as the case starts."""
+    """The case's motor at fixed speed on the plant's inverter (`model`: "switching", "average", or
+    "average-edges": the averaged one with average_dead_time = "edges"), currents as the case starts."""
     motor = MotorParams(rs_ohm=case.rs_ohm, ld_h=case.l_h, lq_h=case.l_h, psi_wb=case.psi_wb,
                         pole_pairs=case.pole_pairs, j_kgm2=1e6)
+    dead = "edges" if model == "average-edges" else "sign"
     inv = InverterParams(vbus_v=case.vbus_v, pwm_freq_hz=case.pwm_freq_hz, dead_time_s=case.dead_s,
-                         dead_time_enabled=case.dead_s > 0.0, model=model)  # type: ignore[arg-type]
+                         dead_time_enabled=case.dead_s > 0.0, model=model.split("-")[0],  # type: ignore[arg-type]
+                         average_dead_time=dead)  # type: ignore[arg-type]
     params = PlantParams(motor=motor, inverter=inv, pwm=PwmTiming(pulse_centre=case.pulse_centre))  # type: ignore[arg-type]
     plant = Plant(params, backend=backend, substeps=substeps)
     plant.reset(theta_e=case.theta0_rad, speed_rad_s=case.speed_rpm * 2.0 * math.pi / 60.0)
     plant.i_d, plant.i_q = case.i0_dq
     plant._sense()  # the sensors (and the averaged dead band's current sign) from these currents
     return plant
+
+
+def pwm_period_means(case: BridgeCase, *, model: str, points: int) -> np.ndarray:
+    """Each phase current's mean over every whole PWM period of the case (trapezoids over `points`
+    samples per exchange period), shape (PWM periods, 3)."""
+    t, i = run_plant(case, model=model, points=points)
+    per = round(1.0 / (case.pwm_freq_hz * case.period_s)) * points  # samples per PWM period
+    n = (len(t) - 1) // per
+    return np.array([(i[k * per] / 2 + i[k * per + 1:(k + 1) * per].sum(axis=0) + i[(k + 1) * per] / 2) / per
+                     for k in range(n)])
 
 
 def run_plant(case: BridgeCase, *, model: str = "switching", backend: str | None = None, points: int = 10,
