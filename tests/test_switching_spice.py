@@ -129,4 +129,4 @@ def test_the_zero_current_clamp_is_where_ngspice_has_it(name, spice_runs):
         return
     minimum = 20 if case.dead_s > 1e-6 else 3  # servo: tens of us per turn; Hurst: a few tenths of a us
     assert held_model.sum() >= minimum and flat_spice.sum() >= minimum
-    assert both / either >= (0.8 if case.dead_s > 1e-6 else 0.6)
+    assert both / either >= (0.8 if case.dead_s > 1e-6 else 0.5)  # Hurst: clamps of 0.1-0.3 us on a 0.1 us grid
