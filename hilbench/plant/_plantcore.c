@@ -38,6 +38,7 @@ typedef struct {
     double i_a, i_b, i_c, i_bus;
     double rd, rq, pq, pd, ppsi, p, ild, ilq, kt, kr, ijv;
     double da, db, dc, ell, oc;
+    double psi, ld_lq, te_nm; /* the electrical torque (recorded) and its constants */
     long long turns, nidx, enc_m;
     int sector, hall_bits, encoder_count, last_mode, enc_sign, enc_offset, enc_cpt, enc_idx, substeps;
     char stuck, locked, track_energy, kq_any, encoder_index, fault_input, gate_off;
@@ -126,6 +127,7 @@ static void sense_currents(Core *s)
     double oc = s->oc;
     if (oc > 0.0 && (ia > oc || ia < -oc || ib > oc || ib < -oc || ic > oc || ic < -oc))
         s->fault_input = 1;
+    s->te_nm = 1.5 * s->p * s->i_q * (s->psi + s->ld_lq * s->i_d);
 }
 
 /* model.Plant._sense_encoder */
@@ -607,6 +609,7 @@ static PyMemberDef Core_members[] = {
     DM("i_bus", i_bus), DM("_rd", rd), DM("_rq", rq), DM("_pq", pq), DM("_pd", pd), DM("_ppsi", ppsi),
     DM("_p", p), DM("_ild", ild), DM("_ilq", ilq), DM("_kt", kt), DM("_kr", kr), DM("_ijv", ijv),
     DM("_da", da), DM("_db", db), DM("_dc", dc), DM("_ell", ell),
+    DM("_psi", psi), DM("_ld_lq", ld_lq), DM("te_nm", te_nm),
     LM("_turns", turns), LM("_nidx", nidx),
     IM("_sector", sector), IM("hall_bits", hall_bits), IM("encoder_count", encoder_count),
     IM("_last_mode", last_mode), IM("_enc_sign", enc_sign), IM("_enc_offset", enc_offset),

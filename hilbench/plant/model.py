@@ -107,6 +107,7 @@ OUTPUTS: tuple[PlantOutput, ...] = (
     PlantOutput("i_c", "ic_a", "ic_a", "A"),
     PlantOutput("i_bus", "ibus_a", "ibus_a", "A"),
     PlantOutput("load_nm", "load_nm", "load_nm", "N*m"),
+    PlantOutput("te_nm", "te_nm", "torque_nm", "N*m"),  # the electrical torque 1.5 p (psi iq + (Ld - Lq) id iq)
 )
 
 DEFAULT_SUBSTEPS = 2  # energy balance 1.7e-7 at 50 us (1 step: 2.7e-6); C cost +0.17 us/period
@@ -155,6 +156,7 @@ class Plant:
         self._tc = float(m.coulomb_nm)
         # back-EMF line-line peak per unit mechanical speed (the OFF coast test)
         self._ell = SQRT3 * self._p * self._psi
+        self._ld_lq = self._ld - self._lq  # the reluctance torque's inductance difference
         inv = params.inverter
         self.vbus_v = float(inv.vbus_v)
         self._dt_duty = float(inv.dead_time_s * inv.pwm_freq_hz) if inv.dead_time_enabled else 0.0
@@ -245,7 +247,7 @@ class Plant:
 
     def _sense_currents(self) -> None:
         """The phase currents from the dq state, and the board's overcurrent comparator on them
-        (it latches `fault_input`)."""
+        (it latches `fault_input`); the electrical torque of the same state (recorded)."""
         th = self._th
         c = math.cos(th)
         s = math.sin(th)
@@ -259,6 +261,7 @@ class Plant:
         oc = self._oc
         if oc > 0.0 and (ia > oc or ia < -oc or ib > oc or ib < -oc or ic > oc or ic < -oc):
             self.fault_input = True
+        self.te_nm = 1.5 * self._p * self.i_q * (self._psi + self._ld_lq * self.i_d)
 
     def _sense_encoder(self) -> None:
         """The quadrature encoder's x4 count from the unwrapped angle, and whether an index mark
