@@ -847,62 +847,87 @@ class Plant:
                 break
             h = min(h_nom, t_left)
             i = self._phase_currents()
-            cond = [x != 0.0 for x in i]
-            th = self._th
-            we = self._p * self.w_m
-            e_al = -we * self._psi * math.sin(th)
-            e_be = we * self._psi * math.cos(th)
-            e = [e_al, -0.5 * e_al + HALF_SQRT3 * e_be, -0.5 * e_al - HALF_SQRT3 * e_be]
-            if not any(cond):
-                if max(e) - min(e) <= vbus:
-                    self._coast(h)
-                    t_left -= h
-                    continue
-                hi = e.index(max(e))
-                lo = e.index(min(e))
-                v = [0.0, 0.0, 0.0]
-                v[hi] = vbus
-                open_ = [k for k in range(3) if k not in (hi, lo)]
-                fixed = {hi, lo}
-            else:
-                v = [0.0 if x > 0.0 else vbus for x in i]
-                open_ = [k for k in range(3) if not cond[k]]
-                fixed = {k for k in range(3) if cond[k]}
-            for o in open_:
-                others = [v[k] for k in range(3) if k != o]
-                vo = 1.5 * e[o] + 0.5 * (others[0] + others[1])
-                if vo > vbus or vo < 0.0:
-                    v[o] = vbus if vo > vbus else 0.0
-                    fixed.add(o)
-                else:
-                    v[o] = vo
-            still_open = [k for k in range(3) if k not in fixed]
-            va = (2.0 * v[0] - v[1] - v[2]) / 3.0
-            vb = (v[1] - v[2]) * INV_SQRT3
-            saved = (self.i_d, self.i_q, self.w_m, self._th, self._turns, self._stuck,
-                     self.e_in_j, self.e_cu_j, self.e_fric_j, self.e_load_j)
-            self._rk4_general(va, vb, h)
-            i_new = self._phase_currents()
-            # a conducting phase whose current changed sign: cut at the crossing
-            fracs = [1.0, 1.0, 1.0]
-            for k in range(3):
-                if cond[k] and (i_new[k] > 0.0) != (i[k] > 0.0):
-                    fracs[k] = i[k] / (i[k] - i_new[k])
-            frac = min(fracs)
-            if frac < 1.0:
-                (self.i_d, self.i_q, self.w_m, self._th, self._turns, self._stuck,
-                 self.e_in_j, self.e_cu_j, self.e_fric_j, self.e_load_j) = saved
-                hf = h * frac
-                if hf > 0.0:
-                    self._rk4_general(va, vb, hf)
-                i_new = self._phase_currents()
-                still_open += [k for k in range(3) if fracs[k] <= frac * (1.0 + 1e-9) + 1e-12]
-                t_left -= hf
-            else:
+            terminals = self._diode_terminals(i, vbus)
+            if terminals is None:  # no current and the line back-EMF within the bus: a coast
+                self._coast(h)
                 t_left -= h
-            self._project(i_new, still_open)
+                continue
+            t_left -= self._off_substep(h, i, *terminals)
         self._dturns = self._turns - turns0
         self._w_start = w_start
+
+    def _back_emf_abc(self) -> list[float]:
+        """The phases' back-EMF now."""
+        th = self._th
+        we = self._p * self.w_m
+        e_al = -we * self._psi * math.sin(th)
+        e_be = we * self._psi * math.cos(th)
+        return [e_al, -0.5 * e_al + HALF_SQRT3 * e_be, -0.5 * e_al - HALF_SQRT3 * e_be]
+
+    def _diode_terminals(self, i: list[float], vbus: float) -> tuple[list[float], list[int]] | None:
+        """The terminal voltages of an open bridge over the next substep and the phases left open:
+        a conducting phase sits on the rail its diode clamps it to (positive current: the negative
+        rail), an open one floats where its current stays zero unless that leaves [0, vbus]. With
+        no current, the phases of the largest and smallest back-EMF start conducting once the line
+        back-EMF exceeds the bus; None while it does not (a coast)."""
+        e = self._back_emf_abc()
+        cond = [x != 0.0 for x in i]
+        if not any(cond):
+            if max(e) - min(e) <= vbus:
+                return None
+            hi = e.index(max(e))
+            lo = e.index(min(e))
+            v = [0.0, 0.0, 0.0]
+            v[hi] = vbus
+            open_ = [k for k in range(3) if k not in (hi, lo)]
+            fixed = {hi, lo}
+        else:
+            v = [0.0 if x > 0.0 else vbus for x in i]
+            open_ = [k for k in range(3) if not cond[k]]
+            fixed = {k for k in range(3) if cond[k]}
+        return v, self._float_open_phases(v, open_, fixed, e, vbus)
+
+    @staticmethod
+    def _float_open_phases(v: list[float], open_: list[int], fixed: set[int], e: list[float], vbus: float) -> list[int]:
+        """Each open phase floats to the voltage that keeps its current at zero, or its diode
+        clamps it to a rail when that voltage leaves [0, vbus] (then it conducts); returns the
+        phases still open (v is set in place)."""
+        for o in open_:
+            others = [v[k] for k in range(3) if k != o]
+            vo = 1.5 * e[o] + 0.5 * (others[0] + others[1])
+            if vo > vbus or vo < 0.0:
+                v[o] = vbus if vo > vbus else 0.0
+                fixed.add(o)
+            else:
+                v[o] = vo
+        return [k for k in range(3) if k not in fixed]
+
+    def _off_substep(self, h: float, i: list[float], v: list[float], still_open: list[int]) -> float:
+        """One substep of an open bridge under terminal voltages v: a conducting phase whose current
+        changes sign is cut at the crossing (the substep ends there, that phase opens); the open
+        phases' currents are projected back to zero. Returns the time integrated."""
+        va = (2.0 * v[0] - v[1] - v[2]) / 3.0
+        vb = (v[1] - v[2]) * INV_SQRT3
+        saved = (self.i_d, self.i_q, self.w_m, self._th, self._turns, self._stuck,
+                 self.e_in_j, self.e_cu_j, self.e_fric_j, self.e_load_j)
+        self._rk4_general(va, vb, h)
+        i_new = self._phase_currents()
+        fracs = [1.0, 1.0, 1.0]
+        for k in range(3):
+            if i[k] != 0.0 and (i_new[k] > 0.0) != (i[k] > 0.0):
+                fracs[k] = i[k] / (i[k] - i_new[k])
+        frac = min(fracs)
+        used = h
+        if frac < 1.0:
+            (self.i_d, self.i_q, self.w_m, self._th, self._turns, self._stuck,
+             self.e_in_j, self.e_cu_j, self.e_fric_j, self.e_load_j) = saved
+            used = h * frac
+            if used > 0.0:
+                self._rk4_general(va, vb, used)
+            i_new = self._phase_currents()
+            still_open = still_open + [k for k in range(3) if fracs[k] <= frac * (1.0 + 1e-9) + 1e-12]
+        self._project(i_new, still_open)
+        return used
 
     def _project(self, i: list[float], open_: list[int]) -> None:
         """Force the open phases' currents to exactly zero, keeping the sum of currents zero."""
