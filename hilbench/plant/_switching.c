@@ -1,6 +1,7 @@
 /* The switching inverter of the C plant backend: hilbench/plant/switching.py, operation by operation.
  *
- * Included by _plantcore.c after the Core struct and its helpers (edge_time, set_edge, sense):
+ * Included by _plantcore.c after the Core struct and the functions it shares (edge_time, friction,
+ * rk4_dq, sense):
  * one compilation unit, the bridge kept in its own file. Every function here has the name of the
  * Python function it mirrors; the arithmetic is in the same order (built with -ffp-contract=off),
  * so the two backends agree to the last bit on the same libm (tests/test_switching_backends.py).
@@ -295,103 +296,30 @@ static int sw_leg_voltages(Core *s, const int gates[3], const double i[3], doubl
     return n_open;
 }
 
-/* switching.small_rotation */
-static void sw_small_rotation(double delta, double *cd, double *sd)
-{
-    if (-0.1 < delta && delta < 0.1) {
-        double d2 = delta * delta;
-        *cd = 1.0 - d2 * (1.0 / 2) * (1.0 - d2 * (1.0 / 12) * (1.0 - d2 * (1.0 / 30) * (1.0 - d2 * (1.0 / 56) * (1.0 - d2 * (1.0 / 90)))));
-        *sd = delta * (1.0 - d2 * (1.0 / 6) * (1.0 - d2 * (1.0 / 20) * (1.0 - d2 * (1.0 / 42) * (1.0 - d2 * (1.0 / 72) * (1.0 - d2 * (1.0 / 110))))));
-        return;
-    }
-    *cd = cos(delta);
-    *sd = sin(delta);
-}
-
 static void sw_trig(Core *s, double th, double *c, double *sn);
 
-/* switching.rk4_dq: one RK4 step with the alpha-beta voltage held (the averaged model's step), the
- * angle wrapped; returns the input energy */
+/* switching.rk4_dq: one RK4 step with the alpha-beta voltage held, the averaged model's (friction,
+ * rk4_dq), the angle wrapped; returns the input energy */
 static double sw_rk4_dq(Core *s, double va, double vb, double h)
 {
-    const double rd = s->rd, rq = s->rq, pq = s->pq, pd = s->pd, ppsi = s->ppsi, p = s->p;
-    const double ild = s->ild, ilq = s->ilq, kt = s->kt, kr = s->kr, ijv = s->ijv;
-    const double tl = s->tl, kv = s->kv, tc = s->tc;
     double vmag = sqrt(va * va + vb * vb);
-    double vdm = vmag * ild, vqm = vmag * ilq;
-    double h2 = 0.5 * h, h6 = h / 6.0;
-    double id0 = s->i_d, iq0 = s->i_q, w0 = s->w_m, th0 = s->th;
-    double ij, fr;
+    double th0 = s->th, w0 = s->w_m, ij, fr;
     s->w_start = w0;
-    if (s->locked) {
-        ij = 0.0; fr = 0.0; w0 = 0.0;
-    } else if (s->stuck) {
-        double net = (kt + kr * id0) * iq0 * s->j - tl;
-        if (-tc <= net && net <= tc) {
-            ij = 0.0; fr = 0.0;
-        } else {
-            s->stuck = 0;
-            ij = ijv;
-            fr = net > 0.0 ? tc : -tc;
-        }
-    } else {
-        ij = ijv;
-        fr = w0 > 0.0 ? tc : w0 < 0.0 ? -tc : 0.0;
-    }
-    double ftj = (fr + tl) * ij, kvj = kv * ij;
-    double ktj = ij != 0.0 ? kt : 0.0, krj = ij != 0.0 ? kr : 0.0;
-    double ct, st, c0, s0, a, b, c, sn, cd, sd;
-    sw_trig(s, th0, &ct, &st);
-    if (vmag > 0.0) {
-        c0 = (va * ct + vb * st) / vmag;
-        s0 = (vb * ct - va * st) / vmag;
-    } else {
-        c0 = 1.0;
-        s0 = 0.0;
-    }
-    c = c0; sn = s0;
-    double p1 = c * id0 + sn * iq0;
-    double k1d = vdm * c + w0 * pq * iq0 - rd * id0;
-    double k1q = vqm * sn - w0 * (pd * id0 + ppsi) - rq * iq0;
-    double k1w = iq0 * (ktj + krj * id0) - kvj * w0 - ftj;
-    a = id0 + h2 * k1d; b = iq0 + h2 * k1q;
-    double w2 = w0 + h2 * k1w;
-    sw_small_rotation(h2 * p * w0, &cd, &sd);
-    c = c0 * cd + s0 * sd; sn = s0 * cd - c0 * sd;
-    double p2 = c * a + sn * b;
-    double k2d = vdm * c + w2 * pq * b - rd * a;
-    double k2q = vqm * sn - w2 * (pd * a + ppsi) - rq * b;
-    double k2w = b * (ktj + krj * a) - kvj * w2 - ftj;
-    a = id0 + h2 * k2d; b = iq0 + h2 * k2q;
-    double w3 = w0 + h2 * k2w;
-    sw_small_rotation(h2 * p * w2, &cd, &sd);
-    c = c0 * cd + s0 * sd; sn = s0 * cd - c0 * sd;
-    double p3 = c * a + sn * b;
-    double k3d = vdm * c + w3 * pq * b - rd * a;
-    double k3q = vqm * sn - w3 * (pd * a + ppsi) - rq * b;
-    double k3w = b * (ktj + krj * a) - kvj * w3 - ftj;
-    a = id0 + h * k3d; b = iq0 + h * k3q;
-    double w4 = w0 + h * k3w;
-    sw_small_rotation(h * p * w3, &cd, &sd);
-    c = c0 * cd + s0 * sd; sn = s0 * cd - c0 * sd;
-    double p4 = c * a + sn * b;
-    double k4d = vdm * c + w4 * pq * b - rd * a;
-    double k4q = vqm * sn - w4 * (pd * a + ppsi) - rq * b;
-    double k4w = b * (ktj + krj * a) - kvj * w4 - ftj;
-    s->i_d = id0 + h6 * (k1d + 2.0 * (k2d + k3d) + k4d);
-    s->i_q = iq0 + h6 * (k1q + 2.0 * (k2q + k3q) + k4q);
-    double w1 = w0 + h6 * (k1w + 2.0 * (k2w + k3w) + k4w);
+    friction(s, s->i_d, s->i_q, &w0, &ij, &fr);
+    double y[5] = {s->i_d, s->i_q, w0, 0.0, 0.0};
+    rk4_dq(s, y, atan2(vb, va) - th0, vmag, ij, fr, h);
+    double w1 = y[2];
     if (fr != 0.0 && w0 != 0.0 && ((w1 > 0.0) != (w0 > 0.0))) {
         w1 = 0.0;
         s->stuck = 1;
     }
-    s->w_m = w1;
-    double th1 = th0 + h6 * p * (w0 + 2.0 * (w2 + w3) + w4);
+    s->i_d = y[0]; s->i_q = y[1]; s->w_m = w1;
+    double th1 = th0 + y[3];
     double k = floor(th1 / TWO_PI);
     s->dturns = (long long)k;
     s->turns += (long long)k;
     s->th = th1 - k * TWO_PI;
-    return 1.5 * vmag * h6 * (p1 + 2.0 * (p2 + p3) + p4);
+    return 1.5 * vmag * y[4];
 }
 
 /* model.Plant._finish: the hall sector and the edge's time after a step (angle already wrapped) */
@@ -449,8 +377,10 @@ static double sw_interval(Core *s, const int gates[3], double h, double t_off, d
     return h;
 }
 
-/* switching.step_pwm: one period of complementary PWM, edge by edge. 0, or -1 with an exception. */
-static int sw_step_pwm(Core *s, double duty_a, double duty_b, double duty_c, double dt_s)
+/* switching.step_pwm: one step of complementary PWM, edge by edge; the step's last hall edge in
+ * *have_edge and *edge. 0, or -1 with an exception. */
+static int sw_step_pwm(Core *s, double duty_a, double duty_b, double duty_c, double dt_s, int *have_edge,
+                       double *edge)
 {
     if (s->t_load_change <= s->t_s + 1e-12) {
         PyObject *r = PyObject_CallMethodNoArgs((PyObject *)s, str_update_load);
@@ -481,8 +411,8 @@ static int sw_step_pwm(Core *s, double duty_a, double duty_b, double duty_c, dou
     double t_end = dt_s - SW_PHASE_EPS / f;
     double ts = (sw_next_sample(u0, s->sw_smp) - u0) / f;
     double h_max = dt_s / (double)s->substeps;
-    int have_edge = 0;
-    double edge = 0.0;
+    *have_edge = 0;
+    *edge = 0.0;
     s->last_mode = OUTPUT_PWM;
     s->da = duties[0]; s->db = duties[1]; s->dc = duties[2];
     double energy = 0.0, tau = 0.0;
@@ -500,7 +430,7 @@ static int sw_step_pwm(Core *s, double duty_a, double duty_b, double duty_c, dou
         while (tau < t_next) {
             double h = t_next - tau;
             if (h > h_max) h = h_max;
-            double used = sw_interval(s, gates, h, tau, &energy, &have_edge, &edge);
+            double used = sw_interval(s, gates, h, tau, &energy, have_edge, edge);
             tau = used == t_next - tau ? t_next : tau + used;
         }
         if (t_next >= dt_s) break;
@@ -526,7 +456,6 @@ static int sw_step_pwm(Core *s, double duty_a, double duty_b, double duty_c, dou
     }
     s->sw_u = sw_advance_phase(u0, dt_s, f);
     s->adc_live = ts <= dt_s + SW_PHASE_EPS / f;
-    set_edge(s, have_edge, edge);
     s->t_s += dt_s;
     sense(s);
     s->i_bus = (s->vbus_v > 0.0 && dt_s > 0.0) ? energy / (s->vbus_v * dt_s) : 0.0;

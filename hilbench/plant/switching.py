@@ -8,8 +8,8 @@ flows through the low-side diode (the leg at 0 V), a current out of it through t
 (the leg at the bus). A current that reaches zero inside the dead time stays there (the diode
 blocks): the leg floats at the voltage that keeps its current at zero, the zero-crossing clamp,
 unless that voltage would leave [0, Vbus] and a diode conducts again. The motor is integrated
-between these events (RK4 in dq with the interval's constant alpha-beta voltage, the averaged
-model's step; an interval is never longer than the averaged model's step), so the PWM ripple, the clamp and the
+between these events (the averaged model's RK4 step in dq under the interval's constant
+alpha-beta voltage; an interval is never longer than the averaged model's step), so the PWM ripple, the clamp and the
 instant at which the ADC samples come out of the model rather than from a formula.
 
 The carrier (hilbench.plant.params.PwmTiming): a centre-aligned counter whose zero falls on
@@ -321,116 +321,27 @@ def leg_voltages(plant: "Plant", gates: list[int], i: list[float], vbus: float) 
     return v, open_
 
 
-def small_rotation(delta: float) -> tuple[float, float]:
-    """(cos, sin) of a small angle: Taylor series to the 12th/11th power below 0.1 rad (the rest is
-    under 1e-19), libm above."""
-    if -0.1 < delta < 0.1:
-        d2 = delta * delta
-        cd = 1.0 - d2 * (1 / 2) * (1.0 - d2 * (1 / 12) * (1.0 - d2 * (1 / 30) * (1.0 - d2 * (1 / 56) * (1.0 - d2 * (1 / 90)))))
-        sd = delta * (1.0 - d2 * (1 / 6) * (1.0 - d2 * (1 / 20) * (1.0 - d2 * (1 / 42) * (1.0 - d2 * (1 / 72) * (1.0 - d2 * (1 / 110))))))
-        return cd, sd
-    return math.cos(delta), math.sin(delta)
-
-
 def rk4_dq(plant: "Plant", va: float, vb: float, h: float) -> float:
-    """One RK4 step of h seconds with the alpha-beta voltage (va, vb) held: the motor in dq and its
-    mechanics, as the averaged model's step does it (model.Plant._step_py's loop: the voltage's
-    angle to the rotor, x = its angle − theta, carried through the stages; Coulomb friction frozen
-    over the step, a speed that crosses zero sticks). cos and sin of x come from the voltage and
-    the rotor angle's own at the start, and each later stage's by turning that by the small angle
-    the stage adds (one libm sin/cos per step instead of four). Angle wrapped. Returns the input
-    energy (J)."""
-    rd, rq, pq, pd, ppsi, p, ild, ilq, kt, kr, ijv = plant._hot
-    tl = plant._tl
-    kv = plant._kv
-    tc = plant._tc
+    """One RK4 step of h seconds with the alpha-beta voltage (va, vb) held: the averaged model's
+    step (model.Plant: `_friction`, `_rk4_dq`, a speed crossing zero under Coulomb friction sticks),
+    the angle wrapped (`_finish` times the hall edge). Returns the input energy (J)."""
     vmag = math.sqrt(va * va + vb * vb)
-    vdm = vmag * ild
-    vqm = vmag * ilq
-    h2 = 0.5 * h
-    h6 = h / 6.0
-    id0 = plant.i_d
-    iq0 = plant.i_q
-    w0 = plant.w_m
     th0 = plant._th
-    plant._w_start = w0
-    if plant._locked:
-        ij = 0.0
-        fr = 0.0
-        w0 = 0.0
-    elif plant._stuck:
-        net = (kt + kr * id0) * iq0 * plant._j - tl
-        if -tc <= net <= tc:
-            ij = 0.0
-            fr = 0.0
-        else:
-            plant._stuck = False
-            ij = ijv
-            fr = tc if net > 0.0 else -tc
-    else:
-        ij = ijv
-        fr = tc if w0 > 0.0 else -tc if w0 < 0.0 else 0.0
-    ftj = (fr + tl) * ij
-    kvj = kv * ij
-    ktj = kt if ij != 0.0 else 0.0
-    krj = kr if ij != 0.0 else 0.0
-    ct = math.cos(th0)
-    st = math.sin(th0)
-    if vmag > 0.0:
-        c0 = (va * ct + vb * st) / vmag  # cos and sin of x = (the voltage's angle) - theta
-        s0 = (vb * ct - va * st) / vmag
-    else:  # no voltage: x plays no part
-        c0 = 1.0
-        s0 = 0.0
-    c = c0
-    s = s0
-    p1 = c * id0 + s * iq0
-    k1d = vdm * c + w0 * pq * iq0 - rd * id0
-    k1q = vqm * s - w0 * (pd * id0 + ppsi) - rq * iq0
-    k1w = iq0 * (ktj + krj * id0) - kvj * w0 - ftj
-    a = id0 + h2 * k1d
-    b = iq0 + h2 * k1q
-    w2 = w0 + h2 * k1w
-    cd, sd = small_rotation(h2 * p * w0)  # x = x0 - that
-    c = c0 * cd + s0 * sd
-    s = s0 * cd - c0 * sd
-    p2 = c * a + s * b
-    k2d = vdm * c + w2 * pq * b - rd * a
-    k2q = vqm * s - w2 * (pd * a + ppsi) - rq * b
-    k2w = b * (ktj + krj * a) - kvj * w2 - ftj
-    a = id0 + h2 * k2d
-    b = iq0 + h2 * k2q
-    w3 = w0 + h2 * k2w
-    cd, sd = small_rotation(h2 * p * w2)
-    c = c0 * cd + s0 * sd
-    s = s0 * cd - c0 * sd
-    p3 = c * a + s * b
-    k3d = vdm * c + w3 * pq * b - rd * a
-    k3q = vqm * s - w3 * (pd * a + ppsi) - rq * b
-    k3w = b * (ktj + krj * a) - kvj * w3 - ftj
-    a = id0 + h * k3d
-    b = iq0 + h * k3q
-    w4 = w0 + h * k3w
-    cd, sd = small_rotation(h * p * w3)
-    c = c0 * cd + s0 * sd
-    s = s0 * cd - c0 * sd
-    p4 = c * a + s * b
-    k4d = vdm * c + w4 * pq * b - rd * a
-    k4q = vqm * s - w4 * (pd * a + ppsi) - rq * b
-    k4w = b * (ktj + krj * a) - kvj * w4 - ftj
-    plant.i_d = id0 + h6 * (k1d + 2.0 * (k2d + k3d) + k4d)
-    plant.i_q = iq0 + h6 * (k1q + 2.0 * (k2q + k3q) + k4q)
-    w1 = w0 + h6 * (k1w + 2.0 * (k2w + k3w) + k4w)
+    plant._w_start = plant.w_m
+    ij, fr, w0 = plant._friction(plant.i_d, plant.i_q, plant.w_m)
+    i_d, i_q, w1, dth, e_part = plant._rk4_dq(plant.i_d, plant.i_q, w0, math.atan2(vb, va) - th0, vmag, ij, fr, h)
     if fr != 0.0 and w0 != 0.0 and (w1 > 0.0) != (w0 > 0.0):
         w1 = 0.0  # the speed crossed zero under Coulomb friction: it sticks
         plant._stuck = True
+    plant.i_d = i_d
+    plant.i_q = i_q
     plant.w_m = w1
-    th1 = th0 + h6 * p * (w0 + 2.0 * (w2 + w3) + w4)
+    th1 = th0 + dth
     k = math.floor(th1 / TWO_PI)
     plant._dturns = k
     plant._turns += k
     plant._th = th1 - k * TWO_PI
-    return 1.5 * vmag * h6 * (p1 + 2.0 * (p2 + p3) + p4)
+    return 1.5 * vmag * e_part
 
 
 def interval(plant: "Plant", gates: list[int], h: float, t_off: float) -> tuple[float, float]:
