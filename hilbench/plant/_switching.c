@@ -338,8 +338,8 @@ static void sw_finish(Core *s, double th0, double dth, double h, double t_off, i
 }
 
 /* switching.interval: up to h seconds with these gates; returns the time used, adds the energy */
-static double sw_interval(Core *s, const int gates[3], double h, double t_off, double *energy,
-                          int *have_edge, double *edge)
+static double sw_interval(Core *s, const int gates[3], const double dead_until[3], double h, double t_off,
+                          double *energy, int *have_edge, double *edge)
 {
     double vbus = s->vbus_v, i[3] = {0.0, 0.0, 0.0}, v[3], i1[3] = {0.0, 0.0, 0.0};
     int open_[3];
@@ -357,9 +357,12 @@ static double sw_interval(Core *s, const int gates[3], double h, double t_off, d
     double e = sw_rk4_dq(s, va, vb, h);
     if (any_dead) sw_phase_currents(s, i1);
     double fx[3] = {2.0, 2.0, 2.0};
-    for (int x = 0; x < 3; x++)
-        if (gates[x] == SW_DEAD && i[x] != 0.0 && ((i1[x] > 0.0) != (i[x] > 0.0)))
-            fx[x] = i[x] / (i[x] - i1[x]);
+    for (int x = 0; x < 3; x++) {
+        if (gates[x] == SW_DEAD && i[x] != 0.0 && ((i1[x] > 0.0) != (i[x] > 0.0))) {
+            double f = i[x] / (i[x] - i1[x]);
+            if (t_off + f * h < dead_until[x]) fx[x] = f;
+        }
+    }
     double frac = fx[0];
     if (fx[1] < frac) frac = fx[1];
     if (fx[2] < frac) frac = fx[2];
@@ -415,24 +418,28 @@ static int sw_step_pwm(Core *s, double duty_a, double duty_b, double duty_c, dou
     *edge = 0.0;
     s->last_mode = OUTPUT_PWM;
     s->da = duties[0]; s->db = duties[1]; s->dc = duties[2];
-    double energy = 0.0, tau = 0.0;
+    double energy = 0.0, tau = 0.0, dead_until[3], i[3] = {0.0, 0.0, 0.0};
     for (;;) {
+        int any_dead = 0;
+        for (int x = 0; x < 3; x++) {
+            dead_until[x] = te[x] + td;
+            gates[x] = tau >= dead_until[x] ? (sx[x] ? SW_HIGH : SW_LOW) : SW_DEAD;
+            any_dead |= gates[x] == SW_DEAD;
+        }
+        if (any_dead) sw_phase_currents(s, i);
         double t_next = dt_s;
         for (int x = 0; x < 3; x++) {
             if (nt[x] < t_next) t_next = nt[x];
-            double dead_end = te[x] + td;
-            if (tau < dead_end && dead_end < t_next) t_next = dead_end;
+            if (tau < dead_until[x] && dead_until[x] < t_next && !(sx[x] ? i[x] < 0.0 : i[x] > 0.0))
+                t_next = dead_until[x];
         }
         if (ts < t_next) t_next = ts;
         if (t_next > t_end) t_next = dt_s;
-        for (int x = 0; x < 3; x++)
-            gates[x] = tau >= te[x] + td ? (sx[x] ? SW_HIGH : SW_LOW) : SW_DEAD;
-        while (tau < t_next) {
-            double h = t_next - tau;
-            if (h > h_max) h = h_max;
-            double used = sw_interval(s, gates, h, tau, &energy, have_edge, edge);
-            tau = used == t_next - tau ? t_next : tau + used;
-        }
+        double h = t_next - tau;
+        if (h > h_max) h = h_max;
+        double used = sw_interval(s, gates, dead_until, h, tau, &energy, have_edge, edge);
+        tau = used == t_next - tau ? t_next : tau + used;
+        if (tau < t_next) continue;
         if (t_next >= dt_s) break;
         for (int x = 0; x < 3; x++) {
             if (nt[x] <= t_next) {
@@ -443,10 +450,10 @@ static int sw_step_pwm(Core *s, double duty_a, double duty_b, double duty_c, dou
             }
         }
         if (ts <= t_next) {
-            double i[3];
-            sw_abc_now(s, i);
-            s->ia_s = i[0];
-            s->ib_s = i[1];
+            double now[3];
+            sw_abc_now(s, now);
+            s->ia_s = now[0];
+            s->ib_s = now[1];
             ts = (sw_next_sample(u0 + t_next * f, s->sw_smp) - u0) / f;
         }
     }

@@ -344,11 +344,15 @@ def rk4_dq(plant: "Plant", va: float, vb: float, h: float) -> float:
     return 1.5 * vmag * e_part
 
 
-def interval(plant: "Plant", gates: list[int], h: float, t_off: float) -> tuple[float, float]:
-    """Integrate up to h seconds with these gate states; returns (time used, input energy J).
+def interval(plant: "Plant", gates: list[int], dead_until: list[float], h: float, t_off: float) -> tuple[float, float]:
+    """Integrate up to h seconds from t_off with these gate states; returns (time used, input
+    energy J). A leg in dead time stays so until its `dead_until`, which may fall inside the
+    interval when its diode holds it at the rail its switch then takes over (the step_pwm loop
+    does not split there).
 
     Ends early where a diode's current reaches zero in dead time (found by linear interpolation
-    within the step, then integrated to exactly there): that leg is open from then on."""
+    within the step, then integrated to exactly there): that leg is open from then on. A current
+    that crosses zero after its leg's dead time flows through the switch: no clamp."""
     vbus = plant.vbus_v
     i = plant._phase_currents()
     v, open_ = leg_voltages(plant, gates, i, vbus)
@@ -364,7 +368,9 @@ def interval(plant: "Plant", gates: list[int], h: float, t_off: float) -> tuple[
     fx = [2.0, 2.0, 2.0]  # where each diode's current crossed zero, as a fraction of the step (2: no crossing)
     for x in range(3):
         if gates[x] == DEAD and i[x] != 0.0 and (i1[x] > 0.0) != (i[x] > 0.0):
-            fx[x] = i[x] / (i[x] - i1[x])
+            f = i[x] / (i[x] - i1[x])
+            if t_off + f * h < dead_until[x]:
+                fx[x] = f
     frac = min(fx)
     if frac < 1.0:  # the first to cross ends the interval there
         (plant.i_d, plant.i_q, plant.w_m, plant._th, plant._turns, plant._stuck,
@@ -413,27 +419,31 @@ def step_pwm(plant: "Plant", duty_a: float, duty_b: float, duty_c: float, dt_s: 
     energy = 0.0
     tau = 0.0
     gates = [0, 0, 0]
+    dead_until = [0.0, 0.0, 0.0]
     while True:
+        for x in range(3):
+            dead_until[x] = te[x] + td
+            gates[x] = (HIGH if s[x] else LOW) if tau >= dead_until[x] else DEAD
+        i = plant._phase_currents() if DEAD in gates else None
         t_next = dt_s
         for x in range(3):
             if nt[x] < t_next:
                 t_next = nt[x]
-            dead_end = te[x] + td
-            if tau < dead_end < t_next:
-                t_next = dead_end
+            # a dead time's end is an event unless the leg's diode holds it where its switch will
+            if tau < dead_until[x] < t_next and not (i[x] < 0.0 if s[x] else i[x] > 0.0):  # type: ignore[index]
+                t_next = dead_until[x]
         if ts < t_next:
             t_next = ts
         if t_next > t_end:
             t_next = dt_s
-        for x in range(3):
-            gates[x] = (HIGH if s[x] else LOW) if tau >= te[x] + td else DEAD
-        while tau < t_next:
-            h = t_next - tau
-            if h > h_max:
-                h = h_max
-            used, e = interval(plant, gates, h, tau)  # may end early: a diode stopped conducting
-            energy += e
-            tau = t_next if used == t_next - tau else tau + used
+        h = t_next - tau
+        if h > h_max:
+            h = h_max
+        used, e = interval(plant, gates, dead_until, h, tau)
+        energy += e
+        tau = t_next if used == t_next - tau else tau + used
+        if tau < t_next:  # a diode stopped conducting, or the longest step: look again
+            continue
         if t_next >= dt_s:
             break
         for x in range(3):
