@@ -79,3 +79,22 @@ def test_c_and_python_switching_agree(name):
             roles = (1, 2, 3, 4, 5, 0)
             assert plants[0].adc_codes(roles) == plants[1].adc_codes(roles), f"period {k}"
     assert edges > 2  # hall edges were crossed and timed on both
+
+
+@needs_c
+@pytest.mark.parametrize("speed_rad_s", [300.0, 420.0])
+def test_backends_agree_with_every_leg_open_at_once(speed_rad_s):
+    """Equal duties from zero current on a spinning rotor: every leg's dead time starts at the same
+    instant with no current, all three float (below the bus: no current; above it at 420 rad/s,
+    28 V of line back-EMF on 24 V: the diodes clamp the extremes and current flows)."""
+    params = plant_params_from_config(load_config(CONFIGS / "hurst_mclv.toml"), PwmTiming("zero"))
+    params = dataclasses.replace(params, inverter=dataclasses.replace(params.inverter, model="switching",
+                                                                      dead_time_enabled=True))
+    plants = [Plant(params, seed=3, backend=b) for b in ("c", "python")]
+    for pl in plants:
+        pl.reset(theta_e=0.4, speed_rad_s=speed_rad_s)
+    for k in range(200):
+        for pl in plants:
+            pl.step(0.5, 0.5, 0.5, 1, DT)
+        close(extended(plants[0]), extended(plants[1]), f"period {k}")
+    assert max(abs(x) for x in plants[0].i_abc) > 0.0

@@ -238,19 +238,9 @@ static double sw_open_leg_voltage(Core *s, const double v[3], int o, double vbus
     return -f0 * vbus / (f1 - f0);
 }
 
-/* switching.leg_voltages: the legs' voltages; open_ gets the open legs (n returned) */
-static int sw_leg_voltages(Core *s, const int gates[3], const double i[3], double vbus, double v[3], int open_[3])
+/* switching.float_open_legs: v of the open legs; returns how many stay open */
+static int sw_float_open_legs(Core *s, double v[3], int open_[3], int n_open, double vbus)
 {
-    int n_open = 0;
-    for (int x = 0; x < 3; x++) {
-        int g = gates[x];
-        v[x] = 0.0;
-        if (g == SW_HIGH) v[x] = vbus;
-        else if (g == SW_LOW) v[x] = 0.0;
-        else if (i[x] > 0.0) v[x] = 0.0;
-        else if (i[x] < 0.0) v[x] = vbus;
-        else open_[n_open++] = x;
-    }
     while (n_open >= 2) {
         double e[3], vn;
         sw_back_emf_abc(s, e);
@@ -283,6 +273,23 @@ static int sw_leg_voltages(Core *s, const int gates[3], const double i[3], doubl
         for (int m = worst_at; m + 1 < n_open; m++) open_[m] = open_[m + 1];
         n_open--;
     }
+    return n_open;
+}
+
+/* switching.leg_voltages: the legs' voltages; open_ gets the open legs (n returned) */
+static int sw_leg_voltages(Core *s, const int gates[3], const double i[3], double vbus, double v[3], int open_[3])
+{
+    int n_open = 0;
+    for (int x = 0; x < 3; x++) {
+        int g = gates[x];
+        v[x] = 0.0;
+        if (g == SW_HIGH) v[x] = vbus;
+        else if (g == SW_LOW) v[x] = 0.0;
+        else if (i[x] > 0.0) v[x] = 0.0;
+        else if (i[x] < 0.0) v[x] = vbus;
+        else open_[n_open++] = x;
+    }
+    if (n_open >= 2) n_open = sw_float_open_legs(s, v, open_, n_open, vbus);
     if (n_open == 1) {
         int o = open_[0];
         double vo = sw_open_leg_voltage(s, v, o, vbus);
@@ -380,6 +387,38 @@ static double sw_interval(Core *s, const int gates[3], const double dead_until[3
     return h;
 }
 
+/* switching.start_legs: at the period's start, a leg whose command the new duty changes switches
+ * there (sx, te); each leg's next ideal edge into nt, nk */
+static void sw_start_legs(double u0, double c, double f, const double duties[3], int sx[3], double te[3],
+                          double nt[3], int nk[3])
+{
+    for (int x = 0; x < 3; x++) {
+        int now = sw_ideal_high(u0, c, duties[x]);
+        if (now != sx[x]) {
+            sx[x] = now;
+            te[x] = 0.0;
+        }
+        double ph = sw_next_edge(u0, c, duties[x], &nk[x]);
+        nt[x] = (ph - u0) / f;
+    }
+}
+
+/* switching.next_event */
+static double sw_next_event(Core *s, double tau, const int gates[3], const int sx[3], const double dead_until[3],
+                            const double nt[3], double ts, double t_end, double dt_s)
+{
+    double i[3] = {0.0, 0.0, 0.0};
+    if (gates[0] == SW_DEAD || gates[1] == SW_DEAD || gates[2] == SW_DEAD) sw_phase_currents(s, i);
+    double t_next = dt_s;
+    for (int x = 0; x < 3; x++) {
+        if (nt[x] < t_next) t_next = nt[x];
+        if (tau < dead_until[x] && dead_until[x] < t_next && !(sx[x] ? i[x] < 0.0 : i[x] > 0.0))
+            t_next = dead_until[x];
+    }
+    if (ts < t_next) t_next = ts;
+    return t_next > t_end ? dt_s : t_next;
+}
+
 /* switching.step_pwm: one step of complementary PWM, edge by edge; the step's last hall edge in
  * *have_edge and *edge. 0, or -1 with an exception. */
 static int sw_step_pwm(Core *s, double duty_a, double duty_b, double duty_c, double dt_s, int *have_edge,
@@ -402,15 +441,7 @@ static int sw_step_pwm(Core *s, double duty_a, double duty_b, double duty_c, dou
     }
     int sx[3] = {s->sw_s[0], s->sw_s[1], s->sw_s[2]}, nk[3], gates[3];
     double te[3] = {s->sw_e[0], s->sw_e[1], s->sw_e[2]}, nt[3];
-    for (int x = 0; x < 3; x++) {
-        int now = sw_ideal_high(u0, c, duties[x]);
-        if (now != sx[x]) {
-            sx[x] = now;
-            te[x] = 0.0;
-        }
-        double ph = sw_next_edge(u0, c, duties[x], &nk[x]);
-        nt[x] = (ph - u0) / f;
-    }
+    sw_start_legs(u0, c, f, duties, sx, te, nt, nk);
     double t_end = dt_s - SW_PHASE_EPS / f;
     double ts = (sw_next_sample(u0, s->sw_smp) - u0) / f;
     double h_max = dt_s / (double)s->substeps;
@@ -418,23 +449,13 @@ static int sw_step_pwm(Core *s, double duty_a, double duty_b, double duty_c, dou
     *edge = 0.0;
     s->last_mode = OUTPUT_PWM;
     s->da = duties[0]; s->db = duties[1]; s->dc = duties[2];
-    double energy = 0.0, tau = 0.0, dead_until[3], i[3] = {0.0, 0.0, 0.0};
+    double energy = 0.0, tau = 0.0, dead_until[3];
     for (;;) {
-        int any_dead = 0;
         for (int x = 0; x < 3; x++) {
             dead_until[x] = te[x] + td;
             gates[x] = tau >= dead_until[x] ? (sx[x] ? SW_HIGH : SW_LOW) : SW_DEAD;
-            any_dead |= gates[x] == SW_DEAD;
         }
-        if (any_dead) sw_phase_currents(s, i);
-        double t_next = dt_s;
-        for (int x = 0; x < 3; x++) {
-            if (nt[x] < t_next) t_next = nt[x];
-            if (tau < dead_until[x] && dead_until[x] < t_next && !(sx[x] ? i[x] < 0.0 : i[x] > 0.0))
-                t_next = dead_until[x];
-        }
-        if (ts < t_next) t_next = ts;
-        if (t_next > t_end) t_next = dt_s;
+        double t_next = sw_next_event(s, tau, gates, sx, dead_until, nt, ts, t_end, dt_s);
         double h = t_next - tau;
         if (h > h_max) h = h_max;
         double used = sw_interval(s, gates, dead_until, h, tau, &energy, have_edge, edge);
@@ -465,6 +486,6 @@ static int sw_step_pwm(Core *s, double duty_a, double duty_b, double duty_c, dou
     s->adc_live = ts <= dt_s + SW_PHASE_EPS / f;
     s->t_s += dt_s;
     sense(s);
-    s->i_bus = (s->vbus_v > 0.0 && dt_s > 0.0) ? energy / (s->vbus_v * dt_s) : 0.0;
+    s->i_bus = bus_average(s, energy, dt_s);
     return 0;
 }

@@ -9,8 +9,9 @@ flows through the low-side diode (the leg at 0 V), a current out of it through t
 blocks): the leg floats at the voltage that keeps its current at zero, the zero-crossing clamp,
 unless that voltage would leave [0, Vbus] and a diode conducts again. The motor is integrated
 between these events (the averaged model's RK4 step in dq under the interval's constant
-alpha-beta voltage; an interval is never longer than the averaged model's step), so the PWM ripple, the clamp and the
-instant at which the ADC samples come out of the model rather than from a formula.
+alpha-beta voltage; an interval is never longer than the averaged model's step), so the PWM
+ripple, the clamp and the instant at which the ADC samples come out of the model rather than from
+a formula.
 
 The carrier (hilbench.plant.params.PwmTiming): a centre-aligned counter whose zero falls on
 t = 0, T, 2T, … of the plant's time; each leg's high-side pulse is d·T wide and centred on the
@@ -274,9 +275,8 @@ def leg_voltages(plant: "Plant", gates: list[int], i: list[float], vbus: float) 
     switches off, zero current: they float and their current is held at zero).
 
     A switch that is on fixes its leg; a leg in dead time is fixed by its diode while it carries
-    current. Two open legs mean no current at all: each open terminal sits at the neutral plus its
-    back-EMF (the neutral fixed by a driven leg, else centred in the bus). A floating voltage outside
-    [0, Vbus] is clamped to that rail, whose diode then conducts: the furthest out first."""
+    current. A floating voltage outside [0, Vbus] is clamped to that rail, whose diode then
+    conducts."""
     v = [0.0, 0.0, 0.0]
     open_: list[int] = []
     for x in range(3):
@@ -291,6 +291,24 @@ def leg_voltages(plant: "Plant", gates: list[int], i: list[float], vbus: float) 
             v[x] = vbus  # the high-side diode carries a current out of it
         else:
             open_.append(x)
+    if len(open_) >= 2:
+        open_ = float_open_legs(plant, v, open_, vbus)
+    if len(open_) == 1:
+        o = open_[0]
+        vo = open_leg_voltage(plant, v, o, vbus)
+        if vo > vbus or vo < 0.0:
+            v[o] = vbus if vo > vbus else 0.0
+            open_ = []
+        else:
+            v[o] = vo
+    return v, open_
+
+
+def float_open_legs(plant: "Plant", v: list[float], open_: list[int], vbus: float) -> list[int]:
+    """Two or more open legs: no current flows at all, so each open terminal sits at the neutral
+    plus its back-EMF (the neutral fixed by a driven leg, else centred in the bus). Sets v of the
+    open legs; one that would leave [0, Vbus] is clamped to that rail (the furthest out first, then
+    the rest again). Returns the legs still open (one left: its voltage is for the caller)."""
     while len(open_) >= 2:
         e = back_emf_abc(plant)
         fixed = [x for x in range(3) if x not in open_]
@@ -307,18 +325,10 @@ def leg_voltages(plant: "Plant", gates: list[int], i: list[float], vbus: float) 
                 worst = o
                 excess = out
         if worst < 0:
-            return v, open_
+            return open_
         v[worst] = vbus if v[worst] > vbus else 0.0
         open_.remove(worst)
-    if open_:
-        o = open_[0]
-        vo = open_leg_voltage(plant, v, o, vbus)
-        if vo > vbus or vo < 0.0:
-            v[o] = vbus if vo > vbus else 0.0
-            open_ = []
-        else:
-            v[o] = vo
-    return v, open_
+    return open_
 
 
 def rk4_dq(plant: "Plant", va: float, vb: float, h: float) -> float:
@@ -386,6 +396,39 @@ def interval(plant: "Plant", gates: list[int], dead_until: list[float], h: float
     return h, energy
 
 
+def start_legs(u0: float, centre: float, freq_hz: float, duties: tuple[float, float, float], s: list[int],
+               te: list[float]) -> tuple[list[float], list[int]]:
+    """At the period's start: a leg whose command the new duty changes switches there (s, te
+    updated); returns each leg's next ideal edge (time, command)."""
+    nt = [0.0, 0.0, 0.0]
+    nk = [0, 0, 0]
+    for x in range(3):
+        now = ideal_high(u0, centre, duties[x])
+        if now != s[x]:
+            s[x] = now
+            te[x] = 0.0
+        ph, nk[x] = next_edge(u0, centre, duties[x])
+        nt[x] = (ph - u0) / freq_hz
+    return nt, nk
+
+
+def next_event(plant: "Plant", tau: float, gates: list[int], s: list[int], dead_until: list[float], nt: list[float],
+               ts: float, t_end: float, dt_s: float) -> float:
+    """The next instant something changes after tau: an ideal edge, the end of a dead time (unless
+    the leg's diode already holds it at the rail its switch will), an ADC sample, the period's end
+    (what falls within PHASE_EPS of it is the next period's)."""
+    i = plant._phase_currents() if DEAD in gates else None
+    t_next = dt_s
+    for x in range(3):
+        if nt[x] < t_next:
+            t_next = nt[x]
+        if tau < dead_until[x] < t_next and not (i[x] < 0.0 if s[x] else i[x] > 0.0):  # type: ignore[index]
+            t_next = dead_until[x]
+    if ts < t_next:
+        t_next = ts
+    return dt_s if t_next > t_end else t_next
+
+
 def step_pwm(plant: "Plant", duty_a: float, duty_b: float, duty_c: float, dt_s: float) -> None:
     """One period of complementary PWM with these duties (fractions 0..1), edge by edge."""
     if plant._t_load_change <= plant.t_s + 1e-12:
@@ -401,15 +444,7 @@ def step_pwm(plant: "Plant", duty_a: float, duty_b: float, duty_c: float, dt_s: 
     duties = (min(1.0, max(0.0, duty_a)), min(1.0, max(0.0, duty_b)), min(1.0, max(0.0, duty_c)))
     s = [plant._sw_s0, plant._sw_s1, plant._sw_s2]
     te = [plant._sw_e0, plant._sw_e1, plant._sw_e2]
-    nt = [0.0, 0.0, 0.0]  # each leg's next ideal edge: time, and the command it sets
-    nk = [0, 0, 0]
-    for x in range(3):
-        now = ideal_high(u0, c, duties[x])
-        if now != s[x]:  # the new duty switches the leg at the period's start
-            s[x] = now
-            te[x] = 0.0
-        ph, nk[x] = next_edge(u0, c, duties[x])
-        nt[x] = (ph - u0) / f
+    nt, nk = start_legs(u0, c, f, duties, s, te)
     t_end = dt_s - PHASE_EPS / f
     ts = (next_sample(u0, b.sample) - u0) / f
     h_max = dt_s / plant._substeps
@@ -418,41 +453,24 @@ def step_pwm(plant: "Plant", duty_a: float, duty_b: float, duty_c: float, dt_s: 
     plant._da, plant._db, plant._dc = duties
     energy = 0.0
     tau = 0.0
-    gates = [0, 0, 0]
-    dead_until = [0.0, 0.0, 0.0]
     while True:
-        for x in range(3):
-            dead_until[x] = te[x] + td
-            gates[x] = (HIGH if s[x] else LOW) if tau >= dead_until[x] else DEAD
-        i = plant._phase_currents() if DEAD in gates else None
-        t_next = dt_s
-        for x in range(3):
-            if nt[x] < t_next:
-                t_next = nt[x]
-            # a dead time's end is an event unless the leg's diode holds it where its switch will
-            if tau < dead_until[x] < t_next and not (i[x] < 0.0 if s[x] else i[x] > 0.0):  # type: ignore[index]
-                t_next = dead_until[x]
-        if ts < t_next:
-            t_next = ts
-        if t_next > t_end:
-            t_next = dt_s
-        h = t_next - tau
-        if h > h_max:
-            h = h_max
-        used, e = interval(plant, gates, dead_until, h, tau)
+        dead_until = [te[x] + td for x in range(3)]
+        gates = [((HIGH if s[x] else LOW) if tau >= dead_until[x] else DEAD) for x in range(3)]
+        t_next = next_event(plant, tau, gates, s, dead_until, nt, ts, t_end, dt_s)
+        used, e = interval(plant, gates, dead_until, min(t_next - tau, h_max), tau)
         energy += e
         tau = t_next if used == t_next - tau else tau + used
         if tau < t_next:  # a diode stopped conducting, or the longest step: look again
             continue
         if t_next >= dt_s:
             break
-        for x in range(3):
+        for x in range(3):  # the ideal edges due now
             if nt[x] <= t_next:
                 s[x] = nk[x]
                 te[x] = t_next
                 ph, nk[x] = next_edge(u0 + t_next * f, c, duties[x])
                 nt[x] = (ph - u0) / f
-        if ts <= t_next:
+        if ts <= t_next:  # the ADC samples now
             i = plant._abc_now()
             plant._ia_s = i[0]
             plant._ib_s = i[1]
