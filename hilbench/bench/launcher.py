@@ -97,7 +97,7 @@ def open_target(
     from hilbench.targets.remote import RemoteTarget
 
     parsed = parse_target_spec(spec)
-    if parsed.kind in ("inprocess", "emulator", "sil"):
+    if parsed.kind in ("inprocess", "emulator", "sil", "qemu"):
         profile = profile if profile is not None and profile.name == parsed.name else get_profile(parsed.name)
         options = profile.default_options() if options is None else options
         if parsed.kind == "inprocess":
@@ -105,16 +105,20 @@ def open_target(
         if parsed.kind == "sil" and profile.start_sil is None:
             raise ConfigError(f"target {spec!r}: {profile.name} has no firmware-in-the-loop build "
                               "(use emulator: or inprocess:)")
+        if parsed.kind == "qemu" and profile.qemu_build is None:
+            raise ConfigError(f"target {spec!r}: {profile.name} has no Cortex-M4 build (use sil:, emulator: or inprocess:)")
         link = open_link(parsed, timeout_s=timeout_s)  # a pty pair made here (with the spec's faults)
         remote = RemoteTarget(link, timeout_s=timeout_s, retry_s=min(retry_s, timeout_s))
         if parsed.kind == "sil":
             return _start_sil(profile, options, remote)
+        if parsed.kind == "qemu":
+            return _start_qemu(profile, options, remote)
         return _spawn_emulator(profile, options, mode, watchdog_ms, remote)
     if parsed.kind == "port":
         link = open_link(parsed, timeout_s=timeout_s)
         return TargetHandle(RemoteTarget(link, timeout_s=timeout_s, retry_s=min(retry_s, timeout_s)), label=spec, link=link)
     raise ConfigError(f"target {spec!r}: a {parsed.kind}: target is started by its own tool "
-                      "(use emulator:NAME, inprocess:NAME, sil:NAME or a port)")
+                      "(use emulator:NAME, inprocess:NAME, sil:NAME, qemu:NAME or a port)")
 
 
 def emulator_command(profile: TargetProfile, options: object, port: str, mode: str, watchdog_ms: int) -> list[str]:
@@ -170,6 +174,22 @@ def _start_sil(profile: TargetProfile, options: object, remote: "RemoteTarget") 
         link.close()
         raise
     label = f"sil:{profile.name} on {link.peer_path} (pid {process.pid})"
+    return TargetHandle(remote, label=label, link=link, process=process)
+
+
+def _start_qemu(profile: TargetProfile, options: object, remote: "RemoteTarget") -> TargetHandle:
+    """The target's firmware built for a Cortex-M4 (first if needed) and run in QEMU, its UART on
+    the far end of the remote's pty."""
+    from hilbench.targets.qemu import build_m4, start_qemu
+
+    link = remote.link
+    assert profile.qemu_build is not None
+    try:
+        process = start_qemu(build_m4(profile.qemu_build(options)), link.peer_path)
+    except BaseException:
+        link.close()
+        raise
+    label = f"qemu:{profile.name} on {link.peer_path} (pid {process.pid})"
     return TargetHandle(remote, label=label, link=link, process=process)
 
 

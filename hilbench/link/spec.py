@@ -25,9 +25,10 @@ DEFAULT_BAUD = 250_000
 KIND_INPROCESS = "inprocess"  # the model stepped in this process: no link at all
 KIND_EMULATOR = "emulator"  # the model as its own Python process, on a pty pair the host makes
 KIND_SIL = "sil"  # a host build of the C firmware as its own process, on a pty pair the host makes
+KIND_QEMU = "qemu"  # the C firmware built for a Cortex-M4 in QEMU, on a pty pair the host makes
 KIND_EXEC = "exec"  # any program given the pty path as its one argument (e.g. the C loopback)
 KIND_PORT = "port"  # a port the far end already sits on: a tty, an fd, a pyserial URL
-_NAMED_KINDS = (KIND_INPROCESS, KIND_EMULATOR, KIND_SIL)
+_NAMED_KINDS = (KIND_INPROCESS, KIND_EMULATOR, KIND_SIL, KIND_QEMU)
 
 PORT_PTY = "pty"  # make a pty pair here; link.peer_path is the slave the far end opens
 PORT_DEVICE = "device"  # a tty device path (a real board, a pty slave someone else made)
@@ -53,6 +54,7 @@ FORMS = (
     ("inprocess:NAME", "the target model stepped in this process (no link)"),
     ("emulator:NAME", "the target model as its own process on a virtual serial pair (pty)"),
     ("sil:NAME", "a host build of the target's C firmware as its own process on a pty"),
+    ("qemu:NAME", "the target's C firmware on a Cortex-M4 in QEMU (mps2-an386), its UART on a pty"),
     ("exec:PROGRAM", "any program, given the pty path as its argument (e.g. the C loopback)"),
     ("pty", "a virtual serial pair made here; the far end opens the printed path"),
     ("/dev/PATH[?baud=N]", "a serial device (a board, a pty slave)"),
@@ -93,7 +95,7 @@ class FaultSpec:
 class TargetSpec:
     """A parsed target spec. `kind` says which fields mean something:
 
-    inprocess / emulator / sil: `name`; exec: `program`; port: `port`, `port_kind`, `baud`.
+    inprocess / emulator / sil / qemu: `name`; exec: `program`; port: `port`, `port_kind`, `baud`.
     `faults` (any kind with a link, i.e. all but inprocess) asks for a FaultyLink around it.
     """
 
@@ -113,8 +115,8 @@ class TargetSpec:
 
     @property
     def spawns_process(self) -> bool:
-        """True for emulator, sil and exec: the host makes a pty and starts the far end on it."""
-        return self.kind in (KIND_EMULATOR, KIND_SIL, KIND_EXEC)
+        """True for emulator, sil, qemu and exec: the host makes a pty and starts the far end on it."""
+        return self.kind in (KIND_EMULATOR, KIND_SIL, KIND_QEMU, KIND_EXEC)
 
 
 def describe_spec_forms() -> str:
@@ -364,6 +366,7 @@ __all__ = [
     "KIND_EXEC",
     "KIND_INPROCESS",
     "KIND_PORT",
+    "KIND_QEMU",
     "KIND_SIL",
     "PORT_DEVICE",
     "PORT_FD",

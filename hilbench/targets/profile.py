@@ -16,6 +16,7 @@ from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Callable, Literal, Mapping, Protocol
 
 if TYPE_CHECKING:
+    from hilbench.targets.qemu import M4Build
     import subprocess
 
     from hilbench.targets.base import Target
@@ -113,6 +114,9 @@ class TargetProfile:
     #: a firmware-in-the-loop build of the board's own C firmware: (options, tty path) -> the started
     #: process, serving that tty once this returns (`sil:NAME`); None: the target has none
     start_sil: "Callable[[object, str], subprocess.Popen[bytes]] | None" = None
+    #: the board's C firmware built for a Cortex-M4 (`qemu:NAME`): options -> what to make
+    #: (hilbench.targets.qemu.M4Build); None: the target has none
+    qemu_build: "Callable[[object], M4Build] | None" = None
     #: the profile of a build with these options, for a firmware whose build constants are options
     #: (its reference scale, telemetry scales and `built_for` follow them); None: options change none
     configure: "Callable[[object], TargetProfile] | None" = None

@@ -18,6 +18,8 @@ from hilbench.targets.profile import MotorBuild, PotReference, TargetProfile, Te
 if TYPE_CHECKING:
     import subprocess
 
+    from hilbench.targets.qemu import M4Build
+
 #: MeasuredSpeed = trunc(312·32768/Period) and rpm = 1 875 000/Period (the application note's
 #: Table 6), so one Q15 step of speed is 1 875 000/(312·32768) rpm; 32767 ≈ 6009.6 rpm. That is
 #: the note's build (10 poles, 6000 rpm); other builds: `firmware.rpm_per_speed_q15`.
@@ -83,6 +85,19 @@ def _start_sil(settings: object, tty_path: str) -> "subprocess.Popen[bytes]":
                      defines=motor_defines(settings.pole_pairs, settings.max_speed_rpm))
 
 
+def _qemu_build(settings: object) -> "M4Build":
+    """The board firmware (firmware/an1017) built for the Cortex-M4 in QEMU (`qemu:an1017`)."""
+    from hilbench.targets.qemu import REPO, M4Build
+    from hilbench.targets.sil import motor_defines
+
+    if not isinstance(settings, An1017Settings):
+        settings = An1017Settings()
+    variant = "v11" if settings.variant == "v11" else "seed"
+    return M4Build("an1017", f"an1017_m4_{variant}.elf",
+                   (f"VARIANT={variant}", "DEFS=" + " ".join(motor_defines(settings.pole_pairs, settings.max_speed_rpm))),
+                   (REPO / "firmware" / "an1017", REPO / "firmware_protocol"))
+
+
 def _check_gains(raw: Mapping[str, int]) -> str | None:
     from hilbench.targets.an1017.firmware import GAIN_CONSTRAINT_NAMES, check_gain_constraints
 
@@ -144,6 +159,7 @@ PROFILE = TargetProfile(
     capabilities=frozenset({"speed_loop", "realtime", "fault_injection", "tuning", "hall_sensors"}),
     sweep_defaults=(("kp", "0.05:0.85:10"), ("ki", "0.005:0.12:10"), ("kd", "0")),
     start_sil=_start_sil,
+    qemu_build=_qemu_build,
     configure=_configure,
 )
 

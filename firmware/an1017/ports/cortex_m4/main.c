@@ -1,0 +1,52 @@
+/* ports/cortex_m4/main.c: the AN1017 firmware on a Cortex-M4 (the Arm MPS2 AN386 image, run in QEMU's
+ * mps2-an386 machine): the same core and protocol bridge as the dsPIC30F2010 and AVR ports, with the
+ * board support of firmware/ports/cortex_m4 (startup code, memory map, UART0, clock).
+ *
+ * UART0's receive interrupt feeds the receive state machine; the main loop handles a complete
+ * frame and writes the reply by polling the transmit buffer, and sleeps (WFI) while lockstep waits
+ * for a byte. Timer 0 (25 MHz, extended to 64 bits) is the clock of real-time mode and the watchdog,
+ * scaled to the firmware's 20 MHz Tcy.
+ */
+#include "an1017_bridge.h"
+#include "m4_port.h"
+
+static an1017_bridge_t bridge;
+
+static void on_rx(uint8_t byte)
+{
+    (void)hbp_rx_byte(&bridge.rx, byte);
+}
+
+void an1017_port_send(const uint8_t *wire, uint8_t len)
+{
+    m4_uart_write(wire, len);
+}
+
+void an1017_port_lock(void)
+{
+    /* only the UART RX interrupt runs, and it touches no firmware state */
+}
+
+void an1017_port_unlock(void)
+{
+}
+
+uint32_t an1017_port_now_tcy(void)
+{
+    /* 25 MHz ticks -> 20 MHz Tcy: x4/5 on the 64-bit count, then the low 32 bits (a wrapping counter) */
+    return (uint32_t)((m4_clock_ticks() * 4u) / 5u);
+}
+
+int main(void)
+{
+    an1017_bridge_init(&bridge, AN1017_VARIANT);
+    m4_init(on_rx);
+    for (;;) {
+        an1017_bridge_poll(&bridge);
+        m4_irq_off();
+        if (!bridge.rx.ready && bridge.mode == HBP_MODE_LOCKSTEP) {
+            m4_wait_for_interrupt(); /* a pending interrupt wakes WFI even while masked */
+        }
+        m4_irq_on();
+    }
+}
