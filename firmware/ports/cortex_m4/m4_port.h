@@ -10,7 +10,7 @@
 #define M4_UART_BAUD 1562500UL          /* PCLK / 16, the fastest BAUDDIV allows */
 
 /* UART0 on (8N1), its RX interrupt calling on_rx(byte) for every received byte; timer 0 as the
- * clock; then interrupts enabled. */
+ * clock; SysTick at 1 kHz (it only wakes a sleeping main loop, for a watchdog); then interrupts on. */
 void m4_init(void (*on_rx)(uint8_t byte));
 /* Send bytes (waits while the transmit buffer is full). */
 void m4_uart_write(const uint8_t *bytes, uint16_t len);

@@ -44,6 +44,18 @@ def _make(options: object) -> Any:
     return FocTarget(options if isinstance(options, FocOptions) else FocOptions())
 
 
+def _start_sil(options: object, tty_path: str) -> Any:
+    from hilbench.targets.foc.build import start_sil
+
+    return start_sil(options, tty_path)
+
+
+def _qemu_build(options: object) -> Any:
+    from hilbench.targets.foc.build import qemu_build
+
+    return qemu_build(options)
+
+
 def make_foc_target(**options: Any) -> Any:
     """A `FocTarget` with `FocOptions` fields as keyword options."""
     from hilbench.targets.foc.target import make_foc_target as _make_named
@@ -64,6 +76,8 @@ PROFILE = TargetProfile(
     built_for=lambda options: MotorBuild(pole_pairs=getattr(options, "pole_pairs", 3), max_speed_rpm=3000.0),
     capabilities=frozenset({"speed_loop", "realtime", "tuning", "encoder"}),
     sweep_defaults=(("spd_kp", "0.2:1.2:6"), ("spd_ki", "0.002:0.03:6")),
+    start_sil=_start_sil,
+    qemu_build=_qemu_build,
 )
 
 __all__ = ["PROFILE", "FocOptions", "TELEMETRY_SPEC", "make_foc_target"]

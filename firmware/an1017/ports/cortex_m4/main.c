@@ -3,8 +3,8 @@
  * board support of firmware/ports/cortex_m4 (startup code, memory map, UART0, clock).
  *
  * UART0's receive interrupt feeds the receive state machine; the main loop handles a complete
- * frame and writes the reply by polling the transmit buffer, and sleeps (WFI) while lockstep waits
- * for a byte. Timer 0 (25 MHz, extended to 64 bits) is the clock of real-time mode and the watchdog,
+ * frame and writes the reply by polling the transmit buffer, and sleeps (WFI) until a byte or the
+ * 1 kHz SysTick (the watchdog's look) wakes it. Timer 0 (25 MHz, extended to 64 bits) is the clock of real-time mode and the watchdog,
  * scaled to the firmware's 20 MHz Tcy.
  */
 #include "an1017_bridge.h"
@@ -44,8 +44,8 @@ int main(void)
     for (;;) {
         an1017_bridge_poll(&bridge);
         m4_irq_off();
-        if (!bridge.rx.ready && bridge.mode == HBP_MODE_LOCKSTEP) {
-            m4_wait_for_interrupt(); /* a pending interrupt wakes WFI even while masked */
+        if (!bridge.rx.ready) {
+            m4_wait_for_interrupt(); /* a byte, or SysTick's millisecond for the watchdog */
         }
         m4_irq_on();
     }
