@@ -1,8 +1,8 @@
 """The AN1017 firmware in the loop on the host (SIL): build firmware/an1017 with gcc, run it on a pty.
 
-The C firmware (firmware/an1017/: the core, the protocol bridge and ports/host/main.c, with the
-firmware_protocol/ C library) is the very source that runs on the dsPIC30F2010 and in the AVR
-simulator. `build_sil()` compiles it once into a cache directory keyed by the sources, flags and
+The C firmware (firmware/an1017/: its ISR bodies and state, and ports/host/main.c, on the runtime
+firmware/runtime/ and the firmware_protocol/ C library) is the very source that runs on the
+dsPIC30F2010 and in the AVR simulator. `build_sil()` compiles it once into a cache directory keyed by the sources, flags and
 compiler; `start_sil(tty_path)` starts it serving that tty and returns when it listens;
 `SilTarget` opens a pty link, starts the process on it and hands back a RemoteTarget (what the
 bench's `sil:an1017` spec needs). Every process started here is reaped by its owner's close().
@@ -33,21 +33,15 @@ if TYPE_CHECKING:
 
 REPO = Path(__file__).resolve().parent.parent.parent
 FIRMWARE_DIR = REPO / "firmware" / "an1017"
+RUNTIME_DIR = REPO / "firmware" / "runtime"
 PROTOCOL_DIR = REPO / "firmware_protocol"
-SOURCES = (
-    FIRMWARE_DIR / "an1017.c",
-    FIRMWARE_DIR / "an1017_bridge.c",
-    FIRMWARE_DIR / "ports" / "host" / "main.c",
-    PROTOCOL_DIR / "hbp.c",
-    PROTOCOL_DIR / "hbp_messages.c",
-)
-HEADERS = (
-    FIRMWARE_DIR / "an1017.h",
-    FIRMWARE_DIR / "an1017_bridge.h",
-    FIRMWARE_DIR / "q15.h",
-    PROTOCOL_DIR / "hbp.h",
-    PROTOCOL_DIR / "hbp_messages.h",
-)
+#: the runtime (scheduler, real-time glue, the protocol's side) and the wire library, under every firmware
+RUNTIME_SOURCES = (RUNTIME_DIR / "hrt.c", RUNTIME_DIR / "hrt_link.c", PROTOCOL_DIR / "hbp.c",
+                   PROTOCOL_DIR / "hbp_messages.c")
+RUNTIME_HEADERS = (RUNTIME_DIR / "hrt.h", RUNTIME_DIR / "hrt_link.h", PROTOCOL_DIR / "hbp.h",
+                   PROTOCOL_DIR / "hbp_messages.h")
+SOURCES = (FIRMWARE_DIR / "an1017.c", FIRMWARE_DIR / "ports" / "host" / "main.c", *RUNTIME_SOURCES)
+HEADERS = (FIRMWARE_DIR / "an1017.h", FIRMWARE_DIR / "hrt_config.h", FIRMWARE_DIR / "q15.h", *RUNTIME_HEADERS)
 # the strict flags every firmware build uses, and the AN1017 profile's protocol capacities
 CFLAGS = ("-std=c99", "-pedantic", "-Wall", "-Wextra", "-Wconversion", "-Werror", "-O2",
           "-DHBP_MAX_ADC=3u", "-DHBP_MAX_TELEMETRY=3u")
@@ -88,7 +82,8 @@ def build_sil(out_dir: Path | None = None, *, cc: str | None = None, defines: tu
         return exe
     fd, tmp = tempfile.mkstemp(prefix=exe.name + ".", dir=directory)
     os.close(fd)
-    cmd = [compiler, *CFLAGS, *defines, f"-I{FIRMWARE_DIR}", f"-I{PROTOCOL_DIR}", *(str(s) for s in SOURCES), "-o", tmp]
+    cmd = [compiler, *CFLAGS, *defines, f"-I{FIRMWARE_DIR}", f"-I{RUNTIME_DIR}", f"-I{PROTOCOL_DIR}",
+           *(str(s) for s in SOURCES), "-o", tmp]
     try:
         result = subprocess.run(cmd, capture_output=True, text=True, timeout=120)
         if result.returncode != 0:
