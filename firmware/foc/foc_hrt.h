@@ -16,6 +16,7 @@
 #define FOC_PARAM_TORQUE_MODE 14u
 #define FOC_PARAM_IQ_REF_SET 15u
 #define FOC_N_PARAMS 16u
+#define FOC_TIMER_PERIOD_MATCH 0u /* the declared timer: T1's period match, the compare reload */
 
 typedef struct {
     hrt_t rt;         /* the runtime's state: first, so a body finds the firmware from rt */
