@@ -61,6 +61,14 @@ def test_qemu_foc_equals_inprocess(tmp_path: Path) -> None:
                  _record("inprocess:foc", tmp_path / "inprocess.npz", 0.5), "qemu:foc")
 
 
+def test_simavr_foc_equals_inprocess(tmp_path: Path) -> None:
+    """The ATmega1284P (8-bit core, 16-bit int, the 16-bit-limb IQ24 product) in simavr."""
+    require_tool("avr-gcc", "the AVR build (apt: gcc-avr avr-libc)")
+    require_tool("simavr", "running the AVR build (apt: simavr libsimavr-dev)")
+    _assert_same(_record("simavr:foc", tmp_path / "avr.npz", 0.2),
+                 _record("inprocess:foc", tmp_path / "inprocess.npz", 0.2), "simavr:foc")
+
+
 @pytest.mark.parametrize("cc", ["gcc", "clang"])
 @pytest.mark.parametrize("defines", [(), ("-DHIL_DRIVE_BRIDGE", "-DHIL_LOCAL_SENSORS")], ids=["bench", "board"])
 def test_f2812_port_compiles_and_links_warning_free(cc: str, defines: tuple[str, ...], tmp_path: Path) -> None:

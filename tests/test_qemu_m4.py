@@ -53,7 +53,7 @@ def test_bring_up_echo_and_clock(m4_tools, tmp_path: Path) -> None:
     elf = build_m4(M4Build("echo", "echo_m4.elf"), tmp_path)
     master, slave = os.openpty()
     tty.setraw(slave)
-    process = start_qemu(elf, os.ttyname(slave))
+    process = start_qemu(elf, os.ttyname(slave)).process
     try:
         payload = bytes(range(0, 0xFF)) * 2  # every byte value but the clock request, twice
         os.write(master, payload)
@@ -116,7 +116,7 @@ def test_qemu_dies_with_its_parent(m4_tools, tmp_path: Path) -> None:
     code = ("import sys, time\nfrom pathlib import Path\nfrom hilbench.link import open_link\n"
             "from hilbench.targets.qemu import start_qemu\n"
             "link = open_link('pty', timeout_s=5)\n"
-            f"p = start_qemu(Path({str(elf)!r}), link.peer_path)\n"
+            f"p = start_qemu(Path({str(elf)!r}), link.peer_path).process\n"
             "print(p.pid, flush=True)\ntime.sleep(600)\n")
     parent = subprocess.Popen([sys.executable, "-c", code], stdout=subprocess.PIPE, text=True)
     try:

@@ -26,9 +26,11 @@ import tempfile
 import time
 from dataclasses import dataclass
 from pathlib import Path
+from typing import IO, Callable
 
 from hilbench.errors import ConfigError, LinkError
 from hilbench.processes import reap
+from hilbench.targets.starters import Started, cache_root
 
 REPO = Path(__file__).resolve().parent.parent.parent
 PORT_DIR = REPO / "firmware" / "ports" / "cortex_m4"
@@ -48,10 +50,8 @@ class M4Build:
 
 
 def cache_dir() -> Path:
-    """$HILBENCH_CACHE_DIR/qemu, else $XDG_CACHE_HOME/hilbench/qemu, else ~/.cache/hilbench/qemu."""
-    root = os.environ.get("HILBENCH_CACHE_DIR") or os.path.join(
-        os.environ.get("XDG_CACHE_HOME") or os.path.expanduser("~/.cache"), "hilbench")
-    return Path(root) / "qemu"
+    """Where Cortex-M4 builds are kept: the starters' cache root, folder qemu."""
+    return cache_root() / "qemu"
 
 
 def _files(paths: tuple[Path, ...]) -> list[Path]:
@@ -123,10 +123,11 @@ def qemu_command(elf: Path, serial: str, extra: tuple[str, ...] = ()) -> list[st
     return [qemu, "-M", MACHINE, "-nographic", "-kernel", str(elf), "-serial", serial, "-monitor", "none", *extra]
 
 
-def start_qemu(elf: Path, tty_path: str, extra: tuple[str, ...] = ()) -> subprocess.Popen[bytes]:
+def start_qemu(elf: Path, tty_path: str, extra: tuple[str, ...] = (), label: str = "qemu") -> Started:
     """Start QEMU on `elf` with the board's UART0 on `tty_path`; returns once QEMU has opened it
     (or fails with its one-line complaint). QEMU's messages go to a temporary file (a pipe nobody
-    reads could block it). Bytes sent before the firmware enables its UART wait in the tty."""
+    reads could block it), which the Started keeps for its exit note. Bytes sent before the
+    firmware enables its UART wait in the tty."""
     log = tempfile.TemporaryFile()
     parent = os.getpid()
     try:
@@ -142,11 +143,47 @@ def start_qemu(elf: Path, tty_path: str, extra: tuple[str, ...] = ()) -> subproc
         reap(process)
         log.close()
         raise
-    log.close()  # QEMU keeps writing to its own descriptor of the (unlinked) file
-    return process
+    return Started(process, tty_path, f"{label} (pid {process.pid})", log)
 
 
-def _wait_open(process: subprocess.Popen[bytes], tty_path: str, log: "tempfile._TemporaryFileWrapper[bytes]") -> None:
+@dataclass(frozen=True)
+class QemuStarter:
+    """`qemu:NAME`: the target's firmware built for the Cortex-M4 (`build`: options -> what to make),
+    run in QEMU with its UART0 on the slave of the host's pty pair (hilbench.targets.starters)."""
+
+    build: Callable[[object], M4Build]
+    name: str = "firmware"
+    kind: str = "qemu"
+    serves_host_pty: bool = True
+
+    def start(self, options: object, host_tty: str | None) -> Started:
+        assert host_tty is not None
+        return start_qemu(build_m4(self.build(options)), host_tty, label=f"qemu:{self.name}")
+
+
+@dataclass(frozen=True)
+class _ElfStarter:
+    """`qemu:PATH`: an ELF built for the MPS2 AN386 with a hilbench Cortex-M4 port."""
+
+    elf: Path
+    name: str
+    kind: str = "qemu"
+    serves_host_pty: bool = True
+
+    def start(self, options: object, host_tty: str | None) -> Started:
+        assert host_tty is not None
+        if not self.elf.is_file():
+            raise ConfigError(f"qemu:{self.name}: no ELF there (build the firmware's Cortex-M4 port first, "
+                              "e.g. make -C firmware/ports/cortex_m4 foc)")
+        return start_qemu(self.elf, host_tty, label=f"qemu:{self.name}")
+
+
+def qemu_path_starter(path: str) -> _ElfStarter:
+    """`qemu:PATH`: a firmware ELF for the MPS2 AN386 (firmware/ports/cortex_m4), run as it is."""
+    return _ElfStarter(Path(path).expanduser(), str(path))
+
+
+def _wait_open(process: subprocess.Popen[bytes], tty_path: str, log: IO[bytes]) -> None:
     """Until QEMU holds tty_path open (its /proc fd table names it), or it exits."""
     deadline = time.monotonic() + READY_TIMEOUT_S
     fd_dir = Path(f"/proc/{process.pid}/fd")
@@ -178,16 +215,18 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--build-only", action="store_true", help="print the ELF's path and exit")
     args = parser.parse_args(argv)
     profile = get_profile(args.name)
-    if profile.qemu_build is None:
+    starter = profile.starters.get("qemu")
+    if not isinstance(starter, QemuStarter):
         raise SystemExit(f"qemu: target {args.name!r} has no Cortex-M4 build")
-    elf = build_m4(profile.qemu_build(profile.default_options()))
+    elf = build_m4(starter.build(profile.default_options()))
     if args.build_only:
         print(elf)
         return
     os.execv(qemu_command(elf, "pty")[0], qemu_command(elf, "pty"))
 
 
-__all__ = ["M4Build", "MACHINE", "PORT_DIR", "build_m4", "cache_dir", "main", "qemu_command", "start_qemu"]
+__all__ = ["M4Build", "MACHINE", "PORT_DIR", "QemuStarter", "build_m4", "cache_dir", "main", "qemu_command",
+           "qemu_path_starter", "start_qemu"]
 
 
 if __name__ == "__main__":

@@ -181,7 +181,30 @@ def main(argv: list[str] | None = None) -> None:
     os.execv(exe, [str(exe), "--variant", args.variant, "--pty"])
 
 
-__all__ = ["SilTarget", "build_sil", "cache_dir", "main", "start_sil", "stop_sil"]
+AVR_DIR = FIRMWARE_DIR / "ports" / "avr"
+#: the AVR port's build (its Makefile's flags): an ATmega328P at 16 MHz, USART0 at 250 kbaud
+AVR_MCU = "atmega328p"
+AVR_F_CPU_HZ = 16_000_000
+AVR_CFLAGS = (f"-mmcu={AVR_MCU}", f"-DF_CPU={AVR_F_CPU_HZ}UL", "-Os", "-std=c99", "-pedantic", "-Wall", "-Wextra",
+              "-Wconversion", "-Werror", "-DHBP_MAX_ADC=3u", "-DHBP_MAX_TELEMETRY=3u")
+
+
+def build_avr(variant: Variant = "seed", defines: tuple[str, ...] = ()) -> Path:
+    """The AVR port's ELF (firmware/an1017/ports/avr with the runtime), compiled with avr-gcc into the
+    build cache unless an identical build exists (the same sources, flags and defines)."""
+    from hilbench.targets.starters import cached_build, need_tool, run_build
+
+    avr_gcc = need_tool("simavr:an1017", "avr-gcc", "gcc-avr avr-libc")
+    sources = (AVR_DIR / "main.c", FIRMWARE_DIR / "an1017.c", *RUNTIME_SOURCES)
+    variant_define = "-DAN1017_VARIANT=" + ("AN1017_VARIANT_V11" if variant == "v11" else "AN1017_VARIANT_SEED")
+    cmd = [avr_gcc, *AVR_CFLAGS, variant_define, *defines, f"-I{FIRMWARE_DIR}", f"-I{RUNTIME_DIR}",
+           f"-I{PROTOCOL_DIR}", *(str(s) for s in sources)]
+    return cached_build("simavr", f"an1017_{variant}", [*sources, *HEADERS], cmd,
+                        lambda out: run_build("simavr", "an1017", [*cmd, "-o", str(out)]))
+
+
+__all__ = ["AVR_F_CPU_HZ", "AVR_MCU", "SilTarget", "build_avr", "build_sil", "cache_dir", "main", "start_sil",
+           "stop_sil"]
 
 
 if __name__ == "__main__":

@@ -1,5 +1,6 @@
 """How the FOC firmware (firmware/foc) is built for a given `[target]` table, and the builds that
-run it as a process: `sil:foc` (this host, on a pty) and `qemu:foc` (a Cortex-M4 in QEMU).
+run it as a process: `sil:foc` (this host), `simavr:foc` (an ATmega1284P in simavr) and
+`qemu:foc` (a Cortex-M4 in QEMU); the profile's starters (hilbench.targets.starters) run them.
 
 The in-process core takes the settings at run time (`firmware_config`); every other build (SIL,
 the simulated MCUs, a board) compiles them in: firmware/foc/foc_config.h holds the servo build's
@@ -10,17 +11,9 @@ builds the same firmware everywhere. The builds link the firmware with the runti
 
 from __future__ import annotations
 
-import hashlib
-import os
-import select
-import shutil
-import subprocess
-import tempfile
 from pathlib import Path
 from typing import TYPE_CHECKING
 
-from hilbench.errors import ConfigError, LinkError
-from hilbench.processes import reap
 from hilbench.targets.foc.firmware import FocOptions, firmware_config
 
 if TYPE_CHECKING:
@@ -31,7 +24,6 @@ FIRMWARE_DIR = REPO / "firmware" / "foc"
 RUNTIME_DIR = REPO / "firmware" / "runtime"
 PROTOCOL_DIR = REPO / "firmware_protocol"
 STRICT_FLAGS = ("-std=c99", "-pedantic", "-Wall", "-Wextra", "-Wconversion", "-Werror", "-O2")
-READY_TIMEOUT_S = 10.0
 #: the firmware's portable sources (every build compiles these three)
 SOURCES = (FIRMWARE_DIR / "foc.c", FIRMWARE_DIR / "foc_blocks.c", FIRMWARE_DIR / "foc_sin_table.c")
 HEADERS = (FIRMWARE_DIR / "foc.h", FIRMWARE_DIR / "foc_blocks.h", FIRMWARE_DIR / "foc_config.h",
@@ -67,58 +59,31 @@ def _headers() -> list[Path]:
     return sorted(p for d in (FIRMWARE_DIR, RUNTIME_DIR, PROTOCOL_DIR) if d.is_dir() for p in d.glob("*.h"))
 
 
-def build_sil(options: FocOptions = FocOptions(), out_dir: Path | None = None) -> Path:
-    """The SIL executable of this `[target]` table, compiled now unless an identical build exists."""
-    from hilbench.targets.sil import cache_dir
+def build_sil(options: FocOptions = FocOptions()) -> Path:
+    """The SIL executable of this `[target]` table (gcc, the strict flags), cached by content."""
+    from hilbench.targets.starters import cached_build, need_tool, run_build
 
-    compiler = shutil.which("gcc") or shutil.which("cc")
-    if compiler is None:
-        raise ConfigError("sil:foc: no C compiler (gcc) on PATH to build the firmware")
-    sources = sil_sources()
-    missing = [str(p) for p in sources if not p.is_file()]
-    if missing:
-        raise ConfigError(f"sil:foc: firmware source {missing[0]} not found (needs a source checkout)")
-    flags = (*STRICT_FLAGS, *config_defines(options))
-    digest = hashlib.sha256(" ".join((*flags, compiler)).encode())
-    for path in (*sources, *_headers()):
-        digest.update(str(path.relative_to(REPO)).encode() + b"\0" + path.read_bytes())
-    directory = out_dir or cache_dir()
-    directory.mkdir(parents=True, exist_ok=True)
-    exe = directory / f"foc_sil-{digest.hexdigest()[:16]}"
-    if exe.is_file():
-        return exe
-    fd, tmp = tempfile.mkstemp(prefix=exe.name + ".", dir=directory)
-    os.close(fd)
-    includes = [f"-I{d}" for d in (FIRMWARE_DIR, RUNTIME_DIR, PROTOCOL_DIR)]
-    try:
-        done = subprocess.run([compiler, *flags, *includes, *(str(s) for s in sources), "-o", tmp],
-                              capture_output=True, text=True, timeout=180)
-        if done.returncode != 0:
-            lines = (done.stderr or done.stdout).strip().splitlines() or ["no output"]
-            raise ConfigError(f"sil:foc: build failed: {lines[0]}")
-        os.replace(tmp, exe)  # atomic: a concurrent build never sees a half-written binary
-    finally:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
-    return exe
+    gcc = need_tool("sil", "gcc", "gcc")
+    sources = list(sil_sources())
+    cmd = [gcc, *STRICT_FLAGS, *config_defines(options), *(f"-I{d}" for d in (FIRMWARE_DIR, RUNTIME_DIR, PROTOCOL_DIR)),
+           *(str(s) for s in sources)]
+    return cached_build("sil", "foc_sil", [*sources, *_headers()], cmd,
+                        lambda out: run_build("sil", "foc", [*cmd, "-o", str(out)]))
 
 
-def start_sil(settings: object, tty_path: str) -> "subprocess.Popen[bytes]":
-    """The FOC firmware built for this host (first if needed), serving tty_path once this returns."""
-    exe = build_sil(_options(settings))
-    with tempfile.TemporaryFile() as log:  # its complaints, if it fails to start (a file never blocks it)
-        process = subprocess.Popen([str(exe), "--ready", tty_path], stdin=subprocess.DEVNULL,
-                                   stdout=subprocess.PIPE, stderr=log)
-        assert process.stdout is not None
-        ready, _, _ = select.select([process.stdout], [], [], READY_TIMEOUT_S)
-        line = process.stdout.readline() if ready else b""
-        if not line.startswith(b"ready"):
-            reap(process)
-            process.stdout.close()
-            log.seek(0)
-            err = log.read().decode(errors="replace").strip()
-            raise LinkError(f"sil:foc on {tty_path}: firmware did not start: {err or 'no ready line'}")
-    return process
+def build_avr(settings: object) -> Path:
+    """The ATmega1284P ELF of this `[target]` table (firmware/foc/ports/avr with avr-gcc), cached."""
+    from hilbench.targets.starters import cached_build, need_tool, run_build
+
+    avr_gcc = need_tool("simavr", "avr-gcc", "gcc-avr avr-libc")
+    folder = FIRMWARE_DIR / "ports" / "avr"
+    sources = [folder / "main.c", *SOURCES, FIRMWARE_DIR / "foc_hrt.c", RUNTIME_DIR / "hrt.c",
+               RUNTIME_DIR / "hrt_link.c", PROTOCOL_DIR / "hbp.c", PROTOCOL_DIR / "hbp_messages.c"]
+    cmd = [avr_gcc, "-mmcu=atmega1284p", "-DF_CPU=16000000UL", "-Os", *STRICT_FLAGS[:-1],
+           *config_defines(_options(settings)), *(f"-I{d}" for d in (FIRMWARE_DIR, RUNTIME_DIR, PROTOCOL_DIR)),
+           *(str(s) for s in sources)]
+    return cached_build("simavr", "foc_avr", [*sources, *_headers()], cmd,
+                        lambda out: run_build("simavr", "foc", [*cmd, "-o", str(out)]))
 
 
 def qemu_build(settings: object) -> "M4Build":
@@ -129,5 +94,5 @@ def qemu_build(settings: object) -> "M4Build":
                    (FIRMWARE_DIR, RUNTIME_DIR, PROTOCOL_DIR))
 
 
-__all__ = ["FIRMWARE_DIR", "HEADERS", "SOURCES", "build_sil", "config_defines", "qemu_build", "sil_sources",
-           "start_sil"]
+__all__ = ["FIRMWARE_DIR", "HEADERS", "SOURCES", "build_avr", "build_sil", "config_defines", "qemu_build",
+           "sil_sources"]
