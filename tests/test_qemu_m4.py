@@ -77,7 +77,8 @@ def _record(spec: str, out: Path, seconds: float, config: str | None = None, sce
     argv = [sys.executable, "-m", "hilbench", "run"]
     if config:
         argv.append(str(REPO / config))
-    argv += ["--target", spec, "--duration", str(seconds), "--no-ui", "--no-control", "--record", str(out)]
+    argv += ["--target", spec, "--duration", str(seconds), "--no-ui", "--no-control", "--record", str(out),
+             "--set", "link.timeout_ms=10000"]  # a simulator starved by a loaded machine is slow, not lost
     if scenario:
         argv += ["--scenario", str(REPO / scenario)]
     done = subprocess.run(argv, capture_output=True, text=True, timeout=900, cwd=REPO)
