@@ -60,12 +60,12 @@ def foc_loop(seconds: float, record_dir: str) -> Loop:
     plant = Plant(plant_params_from_config(cfg), seed=0, substeps=cfg.plant.substeps)
     events = (Event(at_s=0.0, press="s2"), Event(at_s=0.2, params=(("ref_rpm", 1000.0),)), Event(at_s=seconds, end=True))
     with open_target("sil:foc", timeout_s=2.0) as handle:
-        assert handle.process is not None
+        assert handle.started is not None
         recorder = Recorder(Path(record_dir) / "bench.npz", {"bench": True}, flush_rows=20_000)
         session = Session(handle.target, plant, events, options, recorder=recorder, link_stats=handle.link_stats,
                           target_label=handle.label)
         session.handshake()
-        pid = handle.process.pid
+        pid = handle.started.process.pid
         f0, c0, t0 = _proc_cpu_s(pid), time.process_time(), time.perf_counter()
         summary = session.run()
         elapsed, host, far = time.perf_counter() - t0, time.process_time() - c0, _proc_cpu_s(pid) - f0
