@@ -370,7 +370,7 @@ class Recorder:
         self.closed = True
         self._file.close()
         if self.is_npz:
-            self.metadata["columns"] = [[name, unit] for name, unit, _ in self.rows.layout.column_specs]
+            self.metadata["columns"] = [list(spec) for spec in self.rows.layout.column_specs]  # name, unit, CSV format
             tmp = self.path.with_name(self.path.name + ".tmp.npz")
             _write_npz_from_journal(tmp, self._journal_path(), self.metadata)
             os.replace(tmp, self.path)
@@ -438,6 +438,7 @@ class RecordingData:
     metadata: dict[str, Any]
     events: tuple[str, ...]
     units: dict[str, str] = field(default_factory=dict)
+    formats: dict[str, str] = field(default_factory=dict)  # each column's CSV format, when the file says
 
     @property
     def n_rows(self) -> int:
@@ -536,16 +537,18 @@ def _read_journal(path: Path) -> RecordingData:
     side = _events_path(path)
     events = side.read_text(encoding="utf-8").splitlines() if side.exists() else []
     units = {name: unit for name, unit, _ in layout.column_specs}
-    return RecordingData(path, columns, metadata, tuple(events), units)
+    formats = {name: fmt for name, _, fmt in layout.column_specs}
+    return RecordingData(path, columns, metadata, tuple(events), units, formats)
 
 
 def _read_npz(path: Path) -> RecordingData:
     with np.load(path, allow_pickle=False) as archive:
         metadata = json.loads(str(archive["metadata"]))
-        specs = metadata.get("columns") or [[name, unit] for name, unit, _ in COLUMNS]
-        columns = {str(name): archive[str(name)] for name, _ in specs}
-    units = {str(name): str(unit) for name, unit in specs}
-    return RecordingData(path, columns, metadata, tuple(metadata.get("events", ())), units)
+        specs = metadata.get("columns") or [list(spec) for spec in COLUMNS]  # [name, unit(, format)]
+        columns = {str(spec[0]): archive[str(spec[0])] for spec in specs}
+    units = {str(spec[0]): str(spec[1]) for spec in specs}
+    formats = {str(spec[0]): str(spec[2]) for spec in specs if len(spec) > 2}
+    return RecordingData(path, columns, metadata, tuple(metadata.get("events", ())), units, formats)
 
 
 class MemoryRecorder:
@@ -597,7 +600,7 @@ def export_csv(data: RecordingData, path: str | Path) -> Path:
     out = Recorder(Path(path), dict(data.metadata), flush_rows=max(1, data.n_rows))
     out.metadata.pop("columns", None)
     fmts = {name: fmt for name, _, fmt in COLUMNS}
-    specs = [(name, data.units.get(name, ""), fmts.get(name, "%.6g")) for name in data.columns]
+    specs = [(name, data.units.get(name, ""), data.formats.get(name) or fmts.get(name, "%.6g")) for name in data.columns]
     out.start(float_layout(specs))
     names = list(data.columns)
     table = np.column_stack([data.columns[name] for name in names]) if data.n_rows else np.zeros((0, len(names)))
