@@ -73,15 +73,36 @@ uint16_t hrt_duty_active(const hrt_t *rt, uint8_t phase)
     return (hrt_firmware.duty_timing == HRT_DUTY_IMMEDIATE) ? rt->duty[phase] : rt->duty_active[phase];
 }
 
+static void active_changes(hrt_t *rt);
+
 void hrt_pwm_write(hrt_t *rt, uint16_t a, uint16_t b, uint16_t c)
 {
+    if (hrt_firmware.duty_timing == HRT_DUTY_IMMEDIATE) {
+        active_changes(rt); /* the registers are the outputs */
+    }
     rt->duty[0] = a;
     rt->duty[1] = b;
     rt->duty[2] = c;
 }
 
+/* The active duties are about to change: count the present ones up to now (HRT_REPORT_MEAN). */
+static void active_changes(hrt_t *rt)
+{
+#if HRT_REPORT_MEAN
+    uint32_t dt = rt->now - rt->acc_mark;
+    uint8_t i;
+    for (i = 0u; i < 3u; i++) {
+        rt->duty_acc[i] += (uint64_t)hrt_duty_active(rt, i) * dt;
+    }
+    rt->acc_mark = rt->now;
+#else
+    (void)rt;
+#endif
+}
+
 void hrt_pwm_preset(hrt_t *rt, uint16_t a, uint16_t b, uint16_t c)
 {
+    active_changes(rt);
     hrt_pwm_write(rt, a, b, c);
     rt->duty_active[0] = a;
     rt->duty_active[1] = b;
@@ -199,6 +220,7 @@ static void pwm_boundary(hrt_t *rt)
 {
     const hrt_firmware_t *d = &hrt_firmware;
     if (d->duty_timing == HRT_DUTY_NEXT_PERIOD) {
+        active_changes(rt);
         rt->duty_active[0] = rt->duty[0];
         rt->duty_active[1] = rt->duty[1];
         rt->duty_active[2] = rt->duty[2];
@@ -213,6 +235,7 @@ static void pwm_boundary(hrt_t *rt)
 
 static void reload(hrt_t *rt)
 {
+    active_changes(rt);
     rt->flags = (uint8_t)(rt->flags & (uint8_t)~HRT_F_RELOAD);
     rt->duty_active[0] = rt->duty[0];
     rt->duty_active[1] = rt->duty[1];
@@ -333,6 +356,13 @@ void hrt_span_begin(hrt_t *rt, uint8_t inputs, uint8_t n_edges, uint8_t edges_ha
     const hrt_firmware_t *d = &hrt_firmware;
     uint8_t start = 0u;
     uint8_t hall = (uint8_t)(rt->in & HRT_IN_HALLS);
+#if HRT_REPORT_MEAN
+    rt->duty_acc[0] = 0u;
+    rt->duty_acc[1] = 0u;
+    rt->duty_acc[2] = 0u;
+    rt->acc_mark = rt->now;
+    rt->span_start = rt->now;
+#endif
     hrt_rt_levels(rt, inputs, adc, n_adc, encoder);
     if (d->main_body != 0 && d->main_period_ticks == 0u) {
         d->main_body(rt);
@@ -367,6 +397,21 @@ void hrt_span_end(hrt_t *rt, uint32_t end_ticks)
     if (end_ticks - rt->now < HRT_HALF_RANGE) {
         advance_to(rt, end_ticks);
     }
+#if HRT_REPORT_MEAN
+    {
+        uint32_t span = rt->now - rt->span_start;
+        uint8_t i;
+        active_changes(rt);
+        for (i = 0u; i < 3u; i++) {
+            uint64_t q = span ? rt->duty_acc[i] / span : hrt_duty_active(rt, i);
+            uint64_t r2 = span ? 2u * (rt->duty_acc[i] % span) : 0u;
+            if (r2 > span || (r2 == span && span != 0u && (q & 1u) != 0u)) {
+                q++; /* half to even */
+            }
+            rt->duty_mean[i] = (uint16_t)q;
+        }
+    }
+#endif
 }
 
 /* ------------------------------------------------------------------------------ real time */
@@ -512,12 +557,26 @@ static uint16_t clamp_duty(uint16_t v)
     return (v > hrt_firmware.pwm_counts) ? hrt_firmware.pwm_counts : v;
 }
 
+/* The duty the declaration's duty_report names, of one phase. */
+static uint16_t reported_duty(const hrt_t *rt, uint8_t phase)
+{
+    if (hrt_firmware.duty_report != HRT_REPORT_ACTIVE) {
+        return rt->duty[phase]; /* the registers as written: in effect from the next latch */
+    }
+#if HRT_REPORT_MEAN
+    if ((rt->flags & HRT_F_HW) == 0u) {
+        return rt->duty_mean[phase];
+    }
+#endif
+    return hrt_duty_active(rt, phase);
+}
+
 void hrt_report(hrt_t *rt, uint8_t seq, hrt_report_t *out)
 {
     out->seq = seq;
-    out->duty_a = clamp_duty(rt->duty[0]); /* the registers as written: in effect from the next latch */
-    out->duty_b = clamp_duty(rt->duty[1]);
-    out->duty_c = clamp_duty(rt->duty[2]);
+    out->duty_a = clamp_duty(reported_duty(rt, 0u));
+    out->duty_b = clamp_duty(reported_duty(rt, 1u));
+    out->duty_c = clamp_duty(reported_duty(rt, 2u));
     out->n_telemetry = hrt_firmware.n_telemetry;
     hrt_firmware.report(rt, out);
 }

@@ -55,6 +55,9 @@
 #ifndef HRT_MICROS
 #define HRT_MICROS 1           /* hrt_micros (0: saves the 2 bytes of the tick counter's wraps) */
 #endif
+#ifndef HRT_REPORT_MEAN
+#define HRT_REPORT_MEAN 0      /* HRT_REPORT_ACTIVE as a mean over the span (1: 3 x 64-bit accumulators) */
+#endif
 #define HRT_NONE 0xFFu
 
 /* ---- input lines: the bits of Sensors.inputs (the protocol's HBP_INPUT_*) ---- */
@@ -74,6 +77,13 @@
 #define HRT_DUTY_IMMEDIATE 0u   /* at once (the compare register is the output) */
 #define HRT_DUTY_NEXT_PERIOD 1u /* at the next PWM period boundary (dsPIC MCPWM with IUE = 0) */
 #define HRT_DUTY_HALF_PERIOD 2u /* half a PWM period after each boundary (F28x compare reload at period match) */
+
+/* Which duties the Drive reports (hrt_firmware_t.duty_report). */
+#define HRT_REPORT_WRITTEN 0u /* the compare registers as written: in effect from the next latch (AN1017) */
+/* the duties active at the outputs over the span: their time-weighted mean, an integer rounded half
+ * to even (with HRT_REPORT_MEAN 1 in hrt_config.h; else the active ones at the span's end). With the
+ * latches on the span's boundaries that is the value active during the span. */
+#define HRT_REPORT_ACTIVE 1u
 
 #define HRT_EDGE_BOTH 0u
 #define HRT_EDGE_RISING 1u
@@ -145,6 +155,7 @@ typedef struct {
     uint32_t pwm_period_ticks;   /* one PWM period (the PWM-period ISR's rate) */
     uint16_t pwm_counts;         /* the compare count of 100 % duty (Drive's scale) */
     uint8_t duty_timing;         /* HRT_DUTY_* */
+    uint8_t duty_report;         /* HRT_REPORT_* (default 0: WRITTEN) */
     uint8_t pwm_priority;
     hrt_body_fn pwm_isr;         /* at every PWM period boundary, after the duty latch; may be 0 */
     /* inputs */
@@ -184,6 +195,10 @@ typedef struct {
 
 /* The one firmware of this program (the firmware's source defines it). */
 extern const hrt_firmware_t hrt_firmware;
+/* The firmware's power-on, for the runtime's shared ports (firmware/runtime/ports/CHIP): initialise its
+ * one static state (hrt_init first) and return its runtime. A firmware with ports of its own (AN1017)
+ * need not define it. */
+hrt_t *hrt_firmware_init(void);
 
 /* ---- runtime state (the first member of the firmware's struct; the fields are the runtime's) ---- */
 typedef struct {
@@ -211,6 +226,12 @@ struct hrt {
     uint8_t in;                  /* input levels now (HRT_IN_*; INDEX set only during its edge) */
     uint8_t changed;             /* the lines of the edge being served */
     uint8_t flags;               /* HRT_F_* */
+#if HRT_REPORT_MEAN
+    uint64_t duty_acc[3];        /* sum of duty_active x ticks since acc_mark's span began */
+    uint32_t acc_mark;           /* the tick up to which duty_acc counts */
+    uint32_t span_start;
+    uint16_t duty_mean[3];       /* over the last lockstep span */
+#endif
 #if HRT_MAX_ATTACH > 0
     hrt_attached_t attached[HRT_MAX_ATTACH];
 #endif
@@ -333,8 +354,8 @@ int32_t hrt_param_candidate(hrt_t *rt, const hrt_param_request_t *req, uint8_t i
 uint8_t hrt_param_write(hrt_t *rt, const hrt_param_request_t *req, uint8_t *param_id, uint8_t *detail);
 
 /* ---- outputs ---- */
-/* The Drive of the present state: the duty registers as written (in effect from the next latch;
- * clamped to pwm_counts), then the firmware's report. */
+/* The Drive of the present state: the duties the declaration's duty_report names (clamped to
+ * pwm_counts), then the firmware's report. */
 void hrt_report(hrt_t *rt, uint8_t seq, hrt_report_t *out);
 
 #endif /* HRT_H */
