@@ -3,13 +3,12 @@
  * What the runtime is told (docs/foc.md "The ISR, and when its outputs act"):
  * - the clock: HSPCLK, 150 MHz; the agreed period a multiple of 50 us (half a PWM period);
  * - the PWM: 10 kHz (15 000 ticks), 7 500 compare counts = 100 % (T1PR); the PWM-period ISR is
- *   the timer-1 underflow ISR. The compare values it writes (the CMPR shadows) are loaded half a
- *   period later, at the period match (COMCONA = 0xA200): a one-shot timer started by the ISR is
- *   that reload, and it writes the duty registers, which act at once (HRT_DUTY_IMMEDIATE) and hold
- *   the high-side on-time (T1PR - CMPRx, 0 for a CMPR above T1PR): the Drive reports the duty in
- *   effect during its span, as the in-process core does. (The runtime's HRT_DUTY_HALF_PERIOD
- *   reloads at the same instant but its Drive reports the registers as written, half a period
- *   early for this firmware: asked of the runtime as a report rule, issue #27.)
+ *   the timer-1 underflow ISR. The compare values it writes (the CMPR shadows; a duty register
+ *   holds the high-side on-time T1PR - CMPRx, 0 for a CMPR above T1PR) are loaded half a period
+ *   later, at the period match (COMCONA = 0xA200; its reload at the underflow finds nothing new):
+ *   HRT_DUTY_HALF_PERIOD. The Drive reports the duties ACTIVE over its span, their mean when a
+ *   reload falls inside it (HRT_REPORT_ACTIVE, HRT_REPORT_MEAN in hrt_config.h), as the in-process
+ *   core does (foc_run_halves);
  * - the inputs: S2, the encoder's 16-bit x4 count (timer 2 follows it in the main body, once at a
  *   span's start, as the QEP circuit counts between two looks) and its index (CAP3, an edge body
  *   that runs before the PWM boundary of the same instant); i_a, i_b, Udc on 12-bit ADC channels;
@@ -33,38 +32,19 @@ static uint16_t on_time(int32_t cmpr)
     return cmpr < FOC_T1PR ? (uint16_t)(FOC_T1PR - cmpr) : 0u;
 }
 
-/* The compare reload: the shadows become the active values, the outputs follow them. */
-static void reload(hrt_t *rt)
-{
-    foc_t *s = &FW(rt)->foc;
-    uint16_t k;
-    for (k = 0u; k < 3u; k++) {
-        s->compare_active[k] = s->compare_shadow[k];
-    }
-    if (s->outputs_on) {
-        hrt_pwm_write(rt, on_time(s->compare_active[0]), on_time(s->compare_active[1]),
-                      on_time(s->compare_active[2]));
-    } else {
-        hrt_pwm_write(rt, 0u, 0u, 0u);
-    }
-}
-
-/* T1 underflow: the ADC results sampled at it, the ISR; its compare values load at the period match. */
+/* T1 underflow: the ADC results sampled at it, the ISR, the compare values it wrote (the runtime
+ * loads them at the period match). */
 static void body_t1_underflow(hrt_t *rt)
 {
     foc_t *s = &FW(rt)->foc;
-    reload(rt); /* the underflow's own reload (a no-op but after start or stop: nothing was written since) */
     s->adc_result[0] = hrt_adc(rt, 0u);
     s->adc_result[1] = hrt_adc(rt, 1u);
     s->adc_result[2] = hrt_adc(rt, 2u);
     foc_isr_t1_underflow(s);
-    hrt_timer_start(rt, FOC_TIMER_PERIOD_MATCH, FOC_PWM_PERIOD_TICKS / 2u);
-}
-
-/* T1 period match, half a period after the underflow: the reload of what the ISR wrote. */
-static void body_period_match(hrt_t *rt)
-{
-    reload(rt);
+    if (s->outputs_on) {
+        hrt_pwm_write(rt, on_time(s->compare_shadow[0]), on_time(s->compare_shadow[1]),
+                      on_time(s->compare_shadow[2]));
+    }
 }
 
 /* CAP3 (QEPI1): the index ISR. */
@@ -81,7 +61,7 @@ static void body_main(hrt_t *rt)
     foc_buttons(s, hrt_inputs(rt));
     foc_encoder(s, hrt_encoder(rt), 0u);
     if (was_on != s->outputs_on) {
-        hrt_pwm_write(rt, 0u, 0u, 0u); /* started (compares at T1PR) or stopped: no on-time */
+        hrt_pwm_preset(rt, 0u, 0u, 0u); /* started (compares at T1PR) or stopped: no on-time, at once */
     }
 }
 
@@ -90,7 +70,7 @@ static void body_main(hrt_t *rt)
 static void decl_start(hrt_t *rt)
 {
     foc_start(&FW(rt)->foc);
-    hrt_pwm_write(rt, 0u, 0u, 0u);
+    hrt_pwm_preset(rt, 0u, 0u, 0u);
 }
 
 static void decl_stop(hrt_t *rt, uint8_t why)
@@ -100,7 +80,7 @@ static void decl_stop(hrt_t *rt, uint8_t why)
     } else {
         foc_stop(&FW(rt)->foc, FOC_STATE_STOPPED, FOC_FAULT_NONE);
     }
-    hrt_pwm_write(rt, 0u, 0u, 0u);
+    hrt_pwm_preset(rt, 0u, 0u, 0u);
 }
 
 /* ---------------------------------------------------------------------------- parameters */
@@ -236,10 +216,6 @@ static const hrt_telemetry_decl_t telemetry[FOC_N_TELEMETRY] = {
 
 static const uint8_t adc_roles[3] = {HBP_ADC_IA, HBP_ADC_IB, HBP_ADC_VBUS};
 
-static const hrt_timer_decl_t timers[1] = {
-    {body_period_match, 0u, 0u}, /* one-shot, started by each underflow ISR */
-};
-
 static const hrt_edge_decl_t edges[1] = {
     {body_index, HRT_IN_INDEX, HRT_EDGE_RISING},
 };
@@ -251,7 +227,8 @@ const hrt_firmware_t hrt_firmware = {
     .period_step_us = FOC_HALF_PERIOD_US,
     .pwm_period_ticks = FOC_PWM_PERIOD_TICKS,
     .pwm_counts = FOC_T1PR,
-    .duty_timing = HRT_DUTY_IMMEDIATE, /* the period-match timer is the compare reload */
+    .duty_timing = HRT_DUTY_HALF_PERIOD, /* COMCONA = 0xA200: the ISR's values load at the period match */
+    .duty_report = HRT_REPORT_ACTIVE,
     .pwm_priority = 2u,
     .pwm_isr = body_t1_underflow,
     .inputs = (uint8_t)(HRT_IN_S2 | HRT_IN_INDEX),
@@ -259,8 +236,8 @@ const hrt_firmware_t hrt_firmware = {
     .adc_bits = 12u,
     .n_adc = 3u,
     .adc_roles = adc_roles,
-    .timers = timers,
-    .n_timers = 1u,
+    .timers = 0,
+    .n_timers = 0u,
     .edges = edges,
     .n_edges = 1u,
     .edge_priority = 1u, /* the index before the underflow of the same instant */
@@ -283,5 +260,19 @@ void foc_app_init(foc_app_t *app, const foc_config_t *config)
     hrt_init(&app->rt);
     foc_init(&app->foc, config);
     app->ref_rpm = 0;
-    hrt_pwm_write(&app->rt, 0u, 0u, 0u); /* outputs off: no on-time */
+    hrt_pwm_preset(&app->rt, 0u, 0u, 0u); /* outputs off: no on-time */
 }
+
+#if !defined(FOC_NO_FIRMWARE_INIT)
+static foc_app_t the_app;
+
+/* Power-on for the runtime's shared ports (firmware/runtime/ports/): the build's settings
+ * (foc_config.h, -DFOC_CFG_*). */
+hrt_t *hrt_firmware_init(void)
+{
+    foc_config_t config;
+    foc_config_default(&config);
+    foc_app_init(&the_app, &config);
+    return &the_app.rt;
+}
+#endif

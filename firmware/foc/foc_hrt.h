@@ -1,5 +1,6 @@
-/* foc_hrt.h: the FOC firmware on the hilbench runtime (see foc_hrt.c). A port keeps one foc_app_t,
- * calls foc_app_init, and serves the wire with hrt_link (firmware/runtime/hrt_link.h). */
+/* foc_hrt.h: the FOC firmware on the hilbench runtime (see foc_hrt.c). The runtime's shared ports
+ * call hrt_firmware_init() (one static foc_app_t with the build's settings); a port of its own keeps
+ * its foc_app_t, calls foc_app_init, and serves the wire with hrt_link (firmware/runtime/hrt_link.h). */
 #ifndef FOC_HRT_H
 #define FOC_HRT_H
 
@@ -16,7 +17,6 @@
 #define FOC_PARAM_TORQUE_MODE 14u
 #define FOC_PARAM_IQ_REF_SET 15u
 #define FOC_N_PARAMS 16u
-#define FOC_TIMER_PERIOD_MATCH 0u /* the declared timer: T1's period match, the compare reload */
 
 typedef struct {
     hrt_t rt;         /* the runtime's state: first, so a body finds the firmware from rt */

@@ -50,8 +50,9 @@ def _options(settings: object) -> FocOptions:
 
 
 def sil_sources() -> tuple[Path, ...]:
-    """The host build: the firmware, its runtime binding and host port, the runtime, the protocol."""
-    return (*SOURCES, FIRMWARE_DIR / "foc_hrt.c", FIRMWARE_DIR / "ports" / "host" / "main.c",
+    """The host build: the firmware, its runtime binding, the runtime's shared host port, the runtime,
+    the protocol."""
+    return (*SOURCES, FIRMWARE_DIR / "foc_hrt.c", RUNTIME_DIR / "ports" / "host" / "hrt_host.c",
             RUNTIME_DIR / "hrt.c", RUNTIME_DIR / "hrt_link.c", PROTOCOL_DIR / "hbp.c", PROTOCOL_DIR / "hbp_messages.c")
 
 

@@ -27,7 +27,6 @@
 #define UART_UBRR 1u /* 1 000 000 baud with U2X0 at 16 MHz */
 #endif
 
-static foc_app_t app;
 static hrt_link_t host_link;
 static volatile uint16_t timer1_overflows;
 
@@ -77,10 +76,7 @@ uint32_t hrt_port_now(void)
 
 int main(void)
 {
-    foc_config_t config;
-    foc_config_default(&config);
-    foc_app_init(&app, &config);
-    hrt_link_init(&host_link, &app.rt);
+    hrt_link_init(&host_link, hrt_firmware_init()); /* the build's settings (foc_config.h) */
     UBRR0H = (uint8_t)(UART_UBRR >> 8);
     UBRR0L = (uint8_t)(UART_UBRR & 0xFFu);
     UCSR0A = (uint8_t)(1u << U2X0);

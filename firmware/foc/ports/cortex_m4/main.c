@@ -12,7 +12,6 @@
 #include "hrt_link.h"
 #include "m4_port.h"
 
-static foc_app_t app;
 static hrt_link_t link_state;
 
 static void on_rx(uint8_t byte)
@@ -41,10 +40,7 @@ uint32_t hrt_port_now(void)
 
 int main(void)
 {
-    foc_config_t config;
-    foc_config_default(&config);
-    foc_app_init(&app, &config);
-    hrt_link_init(&link_state, &app.rt);
+    hrt_link_init(&link_state, hrt_firmware_init()); /* the build's settings (foc_config.h) */
     m4_init(on_rx);
     for (;;) {
         hrt_link_poll(&link_state);

@@ -18,9 +18,8 @@
  *   T2PR = 10000, CAPCONA = 0x9004 (CAP1/2 QEP, CAP3 the index on rising edges).
  * Lockstep: the EV interrupts stay off; each Sensors runs one span of virtual time (hrt_link).
  * Real time (HRT_PORT_HW): T1UFINT runs hrt_rt_pwm (the underflow ISR body), whose compare values
- * go to CMPR1..3 (the hardware loads them at the period match); the firmware's period-match timer
- * (its model of that reload) is T1PINT itself (hrt_port_timer says so, T1PINT runs hrt_rt_timer);
- * CAPINT3 the index edge. The ADC codes and the encoder count come from Sensors
+ * go to CMPR1..3 (the hardware loads them at the period match); T1PINT runs hrt_rt_reload (the
+ * runtime's model of that reload); CAPINT3 the index edge. The ADC codes and the encoder count come from Sensors
  * (the plant's), unless HIL_LOCAL_SENSORS reads ADCRESULT0..2 and T2CNT.
  *
  * Build: TI's C2000 compiler with TI's DSP281x headers (not available here); CI compiles this file
@@ -36,7 +35,7 @@
 #define ACTRA_DRIVE 0x0666u
 #define ACTRA_OFF 0x0000u
 
-static foc_app_t app;
+static hrt_t *rt;         /* the firmware's (hrt_firmware_init) */
 static hrt_link_t host_link;
 
 /* ---------------------------------------------------------------------------- the port */
@@ -71,10 +70,10 @@ void hrt_port_unlock(void)
 
 uint8_t hrt_port_timer(uint8_t id, uint8_t on, uint32_t first_ticks)
 {
+    (void)id;
     (void)on;
     (void)first_ticks;
-    /* the one declared timer is T1's period match, half a period after each underflow: T1PINT */
-    return (uint8_t)(id == FOC_TIMER_PERIOD_MATCH);
+    return 0u; /* the firmware declares no timers */
 }
 
 void hrt_port_realtime(uint8_t on)
@@ -94,7 +93,7 @@ void hrt_port_realtime(uint8_t on)
 static void write_compares(void)
 {
 #if defined(HIL_DRIVE_BRIDGE)
-    const int32_t *c = app.foc.compare_shadow;
+    const int32_t *c = ((const foc_app_t *)(const void *)rt)->foc.compare_shadow;
     EvaRegs.CMPR1 = (Uint16)(c[0] > FOC_T1PR ? FOC_T1PR + 1 : c[0]);
     EvaRegs.CMPR2 = (Uint16)(c[1] > FOC_T1PR ? FOC_T1PR + 1 : c[1]);
     EvaRegs.CMPR3 = (Uint16)(c[2] > FOC_T1PR ? FOC_T1PR + 1 : c[2]);
@@ -108,9 +107,9 @@ interrupt void isr_t1_underflow(void)
     adc[0] = (Uint16)(AdcRegs.ADCRESULT0 >> 4);
     adc[1] = (Uint16)(AdcRegs.ADCRESULT1 >> 4);
     adc[2] = (Uint16)(AdcRegs.ADCRESULT2 >> 4);
-    hrt_rt_levels(&app.rt, hrt_inputs(&app.rt), adc, 3u, EvaRegs.T2CNT);
+    hrt_rt_levels(rt, hrt_inputs(rt), adc, 3u, EvaRegs.T2CNT);
 #endif
-    hrt_rt_pwm(&app.rt, hrt_port_now());
+    hrt_rt_pwm(rt, hrt_port_now());
     write_compares();
     EvaRegs.EVAIFRA.all = EVA_T1UFINT;
     PieCtrlRegs.PIEACK.all = PIEACK_GROUP2;
@@ -118,14 +117,14 @@ interrupt void isr_t1_underflow(void)
 
 interrupt void isr_t1_period(void)
 {
-    hrt_rt_timer(&app.rt, FOC_TIMER_PERIOD_MATCH, hrt_port_now());
+    hrt_rt_reload(rt, hrt_port_now());
     EvaRegs.EVAIFRA.all = EVA_T1PINT;
     PieCtrlRegs.PIEACK.all = PIEACK_GROUP2;
 }
 
 interrupt void isr_index(void)
 {
-    hrt_rt_edge(&app.rt, HRT_IN_INDEX, hrt_port_now());
+    hrt_rt_edge(rt, HRT_IN_INDEX, hrt_port_now());
     EvaRegs.EVAIFRC.all = EVA_CAP3INT;
     PieCtrlRegs.PIEACK.all = PIEACK_GROUP3;
 }
@@ -205,12 +204,10 @@ static void init_event_manager(void)
 
 int main(void)
 {
-    foc_config_t config;
     DINT;
     init_system();
-    foc_config_default(&config);
-    foc_app_init(&app, &config);
-    hrt_link_init(&host_link, &app.rt);
+    rt = hrt_firmware_init(); /* the build's settings (foc_config.h) */
+    hrt_link_init(&host_link, rt);
     init_sci();
     init_event_manager();
     IER = M_INT9; /* SCI-A now; the motor ISRs only in real time (hrt_port_realtime) */
