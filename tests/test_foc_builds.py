@@ -109,7 +109,7 @@ def test_mcu_builds_are_warning_free(goal: str, tool: str, why: str, tmp_path: P
     """The Makefiles build with -Werror and the strict flags: a warning fails the build."""
     require_tool(tool, why)
     require_tool("make", "the firmware Makefiles (apt: make)")
-    folder = build.FIRMWARE_DIR / "ports" / "avr" if goal == "avr" else REPO / "firmware" / "ports" / "cortex_m4"
+    folder = build.FIRMWARE_DIR / "ports" / "avr" if goal == "avr" else REPO / "firmware" / "runtime" / "ports" / "cortex_m4"
     done = subprocess.run(["make", "-s", "-C", str(folder), *([] if goal == "avr" else ["foc"]), f"OUT={tmp_path}"],
                           capture_output=True, text=True, timeout=300)
     assert done.returncode == 0 and not done.stderr.strip(), done.stdout + done.stderr

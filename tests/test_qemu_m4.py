@@ -1,4 +1,4 @@
-"""Firmware on a simulated Cortex-M4: the MPS2 AN386 port (firmware/ports/cortex_m4) in QEMU.
+"""Firmware on a simulated Cortex-M4: the MPS2 AN386 port (firmware/runtime/ports/cortex_m4) in QEMU.
 
 The board support written here (vector table, reset code, memory map, UART0 with its receive
 interrupt, the timer-0 clock) is brought up with an echo program; then each firmware built for it

@@ -1,6 +1,6 @@
 """Firmware on a simulated Cortex-M4: built with arm-none-eabi-gcc, run in QEMU's mps2-an386 machine.
 
-`qemu:NAME` builds the target's firmware for the Arm MPS2 AN386 image (firmware/ports/cortex_m4:
+`qemu:NAME` builds the target's firmware for the Arm MPS2 AN386 image (firmware/runtime/ports/cortex_m4:
 startup code, memory map, UART0 and clock of our own, the firmware's portable C source) with
 `make`, and starts `qemu-system-arm -M mps2-an386 -nographic -kernel FW.elf -serial TTY -monitor
 none` with the board's UART0 on the slave of a pty pair the bench made (as `sil:` does). Builds are
@@ -33,14 +33,14 @@ from hilbench.processes import reap
 from hilbench.targets.starters import Started, cache_root
 
 REPO = Path(__file__).resolve().parent.parent.parent
-PORT_DIR = REPO / "firmware" / "ports" / "cortex_m4"
+PORT_DIR = REPO / "firmware" / "runtime" / "ports" / "cortex_m4"
 MACHINE = "mps2-an386"
 READY_TIMEOUT_S = 20.0
 
 
 @dataclass(frozen=True)
 class M4Build:
-    """One firmware build for the Cortex-M4 port: `make -C firmware/ports/cortex_m4 GOAL VARS...`
+    """One firmware build for the Cortex-M4 port: `make -C firmware/runtime/ports/cortex_m4 GOAL VARS...`
     writes `elf_name` into OUT; `sources` (files or folders) key the cache."""
 
     goal: str
@@ -174,12 +174,12 @@ class _ElfStarter:
         assert host_tty is not None
         if not self.elf.is_file():
             raise ConfigError(f"qemu:{self.name}: no ELF there (build the firmware's Cortex-M4 port first, "
-                              "e.g. make -C firmware/ports/cortex_m4 foc)")
+                              "e.g. make -C firmware/runtime/ports/cortex_m4 foc)")
         return start_qemu(self.elf, host_tty, label=f"qemu:{self.name}")
 
 
 def qemu_path_starter(path: str) -> _ElfStarter:
-    """`qemu:PATH`: a firmware ELF for the MPS2 AN386 (firmware/ports/cortex_m4), run as it is."""
+    """`qemu:PATH`: a firmware ELF for the MPS2 AN386 (firmware/runtime/ports/cortex_m4), run as it is."""
     return _ElfStarter(Path(path).expanduser(), str(path))
 
 

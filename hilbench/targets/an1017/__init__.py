@@ -107,7 +107,7 @@ def _avr_elf(settings: object) -> "Path":
 
 
 def _m4_build(settings: object) -> "M4Build":
-    """The board firmware built for the Cortex-M4 in QEMU (firmware/ports/cortex_m4, goal an1017)."""
+    """The board firmware built for the Cortex-M4 in QEMU (firmware/runtime/ports/cortex_m4, goal an1017)."""
     from hilbench.targets.qemu import REPO, M4Build
 
     variant = _build_variant(settings)

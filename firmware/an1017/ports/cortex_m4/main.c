@@ -1,6 +1,6 @@
 /* ports/cortex_m4/main.c: the AN1017 firmware on a Cortex-M4 (the Arm MPS2 AN386 image, run in QEMU's
  * mps2-an386 machine): the same firmware and runtime as the dsPIC30F2010 and AVR ports, with the
- * board support of firmware/ports/cortex_m4 (startup code, memory map, UART0, clock).
+ * board support of firmware/runtime/ports/cortex_m4 (startup code, memory map, UART0, clock).
  *
  * UART0's receive interrupt feeds the link's receiver; the main loop handles a complete frame and
  * writes the reply by polling the transmit buffer, and sleeps (WFI) until a byte or the 1 kHz
