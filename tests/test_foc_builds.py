@@ -113,3 +113,34 @@ def test_mcu_builds_are_warning_free(goal: str, tool: str, why: str, tmp_path: P
     done = subprocess.run(["make", "-s", "-C", str(folder), *([] if goal == "avr" else ["foc"]), f"OUT={tmp_path}"],
                           capture_output=True, text=True, timeout=300)
     assert done.returncode == 0 and not done.stderr.strip(), done.stdout + done.stderr
+
+
+def test_sil_foc_start_while_running_keeps_the_duties(gcc) -> None:
+    """A Start (`hilbench ctl start`) while the firmware runs changes nothing in the model
+    (foc_start only acts when stopped or faulted): the SIL build must not drop its duties to zero
+    for the span either, exchange for exchange against inprocess:foc."""
+    import random
+
+    from hilbench.bench.launcher import open_target
+    from hilbench.protocol import EDGE_NONE, MODE_LOCKSTEP, PROTOCOL_VERSION, HostHello, Sensors
+
+    hello = HostHello(0, PROTOCOL_VERSION, 50, MODE_LOCKSTEP, 0)
+    with open_target("sil:foc", timeout_s=2.0) as sil, open_target("inprocess:foc") as inproc:
+        targets = (inproc.target, sil.target)
+        assert targets[0].hello(hello) == targets[1].hello(hello)
+        rng = random.Random(5)
+        encoder = 0
+        states = set()
+        for t in targets:
+            t.start()
+        for k in range(5000):
+            if k in (1000, 4500):  # aligning (4000 halves), then in the closed loop
+                for t in targets:
+                    t.start()
+            encoder = (encoder + rng.randint(0, 3)) & 0xFFFF
+            adc = (rng.randint(1900, 2200), rng.randint(1900, 2200), 3000)
+            sensors = Sensors((k + 1) & 0xFF, 0, EDGE_NONE, encoder, adc)
+            drives = [tuple(t.step(sensors)) for t in targets]
+            assert drives[0] == drives[1], (k, drives)
+            states.add(drives[0][5])
+        assert {1, 2} <= states  # the Starts fell in the alignment and in the closed loop
