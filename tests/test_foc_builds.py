@@ -92,6 +92,16 @@ def test_f2812_port_compiles_and_links_warning_free(cc: str, defines: tuple[str,
     assert done.returncode == 0, done.stderr
 
 
+def test_f2812_port_refuses_to_drive_the_bridge_from_simulated_sensors(gcc, tmp_path: Path) -> None:
+    """HIL_DRIVE_BRIDGE without HIL_LOCAL_SENSORS would switch a real bridge from the plant's
+    currents and encoder: the build stops with one line that says so."""
+    includes = [f"-I{d}" for d in (F2812 / "hostcheck", build.FIRMWARE_DIR, build.RUNTIME_DIR, build.PROTOCOL_DIR)]
+    done = subprocess.run([gcc, *STRICT_FLAGS, "-DHRT_PORT_HW=1", "-DHIL_DRIVE_BRIDGE", *includes, "-c",
+                           str(F2812 / "main.c"), "-o", str(tmp_path / "main.o")], capture_output=True, text=True,
+                          timeout=120)
+    assert done.returncode != 0 and "HIL_DRIVE_BRIDGE needs HIL_LOCAL_SENSORS" in done.stderr, done.stderr
+
+
 @pytest.mark.parametrize("source", build.SOURCES, ids=lambda p: p.name)
 def test_firmware_sources_have_no_8_bit_types(gcc, source: Path, tmp_path: Path) -> None:
     """What the C28x (no int8_t/uint8_t: CHAR_BIT = 16) asks of the firmware, checked with them poisoned."""
