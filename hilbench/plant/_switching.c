@@ -194,6 +194,18 @@ static void sw_project(Core *s, const double i[3], const int open_[3], int n_ope
     s->i_q = -ial * sn + ibe * c;
 }
 
+/* model.Plant._compare_now: the overcurrent comparator at an interval's end (the ripple's peaks) */
+static void sw_compare_now(Core *s)
+{
+    double oc = s->oc;
+    if (s->i_d * s->i_d + s->i_q * s->i_q > oc * oc) {
+        double i[3];
+        sw_abc_now(s, i);
+        if (i[0] > oc || i[0] < -oc || i[1] > oc || i[1] < -oc || i[2] > oc || i[2] < -oc)
+            s->fault_input = 1;
+    }
+}
+
 /* switching.back_emf_abc */
 static void sw_back_emf_abc(Core *s, double e[3])
 {
@@ -383,6 +395,7 @@ static double sw_interval(Core *s, const int gates[3], const double dead_until[3
     }
     sw_finish(s, th0, s->th - th0 + (double)s->dturns * TWO_PI, h, t_off, have_edge, edge);
     sw_project(s, i1, open_, n_open);
+    if (s->oc > 0.0) sw_compare_now(s);
     *energy += e;
     return h;
 }

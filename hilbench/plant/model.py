@@ -266,6 +266,16 @@ class Plant:
             self.fault_input = True
         self.te_nm = 1.5 * self._p * self.i_q * (self._psi + self._ld_lq * self.i_d)
 
+    def _compare_now(self) -> None:
+        """The overcurrent comparator between two sensor reads (the switching bridge's interval
+        ends, where its ripple peaks): no phase current can exceed |i_dq|, so the phases are only
+        computed when that does."""
+        oc = self._oc
+        if self.i_d * self.i_d + self.i_q * self.i_q > oc * oc:
+            ia, ib, ic = self._abc_now()
+            if ia > oc or ia < -oc or ib > oc or ib < -oc or ic > oc or ic < -oc:
+                self.fault_input = True
+
     def _sense_encoder(self) -> None:
         """The quadrature encoder's x4 count from the unwrapped angle, and whether an index mark
         passed since the last refresh."""

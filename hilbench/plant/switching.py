@@ -393,6 +393,8 @@ def interval(plant: "Plant", gates: list[int], dead_until: list[float], h: float
                 open_.append(x)
     plant._finish(th0, plant._th - th0 + plant._dturns * TWO_PI, h, t_off)
     plant._project(i1, open_)
+    if plant._oc > 0.0:  # the board's comparator sees the ripple's peaks, which fall on these instants
+        plant._compare_now()
     return h, energy
 
 
