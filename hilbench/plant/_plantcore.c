@@ -166,6 +166,22 @@ static double bus_average(const Core *s, double e_in_j, double dt_s)
     return (s->vbus_v > 0.0 && dt_s > 0.0) ? e_in_j / (s->vbus_v * dt_s) : 0.0;
 }
 
+/* model.Plant._finish: the hall sector and the edge's time (t_off + its time inside the step) after a
+ * step done outside the hot path (angle already wrapped); *have and *edge are set only for an edge */
+static void finish(Core *s, double th0, double dth, double h, double t_off, double w_start, int *have, double *edge)
+{
+    double th1 = th0 + dth, base = s->hall_base;
+    long long n0 = (long long)floor((th0 - base) / SIXTY);
+    long long n1 = (long long)floor((th1 - base) / SIXTY);
+    if (n1 != n0) {
+        *edge = t_off + edge_time(base, th0, th1, n0, n1, s->p * w_start, s->p * s->w_m, h);
+        *have = 1;
+        s->sector = (int)mod6(n1);
+        s->hall_bits = HALL_BY_SECTOR[s->sector];
+    }
+    s->nidx = (long long)floor((s->th - base) / SIXTY);
+}
+
 /* OFF with zero currents and the back-EMF below the bus: model.Plant._coast over the step,
  * then model.Plant._finish and _sense. The step's hall edge, if any, goes to *edge (*have = 1). */
 static void coast_step(Core *s, double h, int *have, double *edge)
@@ -207,20 +223,8 @@ static void coast_step(Core *s, double h, int *have, double *edge)
         s->turns += (long long)k;
         s->th = th1 - k * TWO_PI;
     }
-    /* _finish */
-    long long dturns = s->turns - turns0;
-    double dth = s->th - th0 + (double)dturns * TWO_PI;
-    double th1 = th0 + dth, base = s->hall_base;
-    long long n0 = (long long)floor((th0 - base) / SIXTY);
-    long long n1 = (long long)floor((th1 - base) / SIXTY);
     *have = 0;
-    if (n1 != n0) {
-        *edge = 0.0 + edge_time(base, th0, th1, n0, n1, s->p * w_start, s->p * s->w_m, h);
-        *have = 1;
-        s->sector = (int)mod6(n1);
-        s->hall_bits = HALL_BY_SECTOR[s->sector];
-    }
-    s->nidx = (long long)floor((s->th - base) / SIXTY);
+    finish(s, th0, s->th - th0 + (double)(s->turns - turns0) * TWO_PI, h, 0.0, w_start, have, edge);
     s->t_s += h;
     sense(s);
 }
