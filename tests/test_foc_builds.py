@@ -70,6 +70,19 @@ def test_qemu_foc_equals_inprocess(tmp_path: Path) -> None:
                  _record("inprocess:foc", tmp_path / "inprocess.npz", 0.5), "qemu:foc")
 
 
+def test_qemu_foc_builds_with_negative_settings(tmp_path: Path) -> None:
+    """A [target] table with a negative setting (a calibrated angle below zero) reaches make's shell
+    as -DFOC_CFG_CALIBRATED_ANGLE=(-1250L): quoted, it builds."""
+    require_tool("arm-none-eabi-gcc", "the Cortex-M4 build (apt: gcc-arm-none-eabi libnewlib-arm-none-eabi)")
+    require_tool("make", "the Cortex-M4 Makefile (apt: make)")
+    from hilbench.targets.foc.firmware import FocOptions
+    from hilbench.targets.qemu import build_m4
+
+    options = FocOptions(calibrated_angle=-1250, learn_index=False)
+    assert "-DFOC_CFG_CALIBRATED_ANGLE=(-1250L)" in build.config_defines(options)
+    assert build_m4(build.qemu_build(options), tmp_path).is_file()
+
+
 def test_simavr_foc_equals_inprocess(tmp_path: Path) -> None:
     """The ATmega1284P (8-bit core, 16-bit int, the 16-bit-limb IQ24 product) in simavr."""
     require_tool("avr-gcc", "the AVR build (apt: gcc-avr avr-libc)")
