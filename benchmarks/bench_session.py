@@ -39,7 +39,8 @@ from hilbench.bench.launcher import open_target  # noqa: E402
 from hilbench.bench.recorder import Recorder  # noqa: E402
 from hilbench.bench.scenario import Event  # noqa: E402
 from hilbench.bench.session import Session  # noqa: E402
-from hilbench.config import load_config, plant_params_from_config  # noqa: E402
+from hilbench import load_config  # noqa: E402
+from hilbench.config import plant_params_from_config  # noqa: E402
 from hilbench.plant.model import Plant  # noqa: E402
 
 PERIOD_US = 50

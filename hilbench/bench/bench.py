@@ -24,14 +24,15 @@ from typing import Callable, Iterator, Mapping, Sequence
 
 import numpy as np
 
-from hilbench import __version__
+from hilbench.version import __version__
 from hilbench.bench import settings
 from hilbench.bench.cpus import CpuPinning
 from hilbench.bench.launcher import TargetHandle, open_target
 from hilbench.bench.recorder import MemoryRecorder, Recorder, read_recording
 from hilbench.bench.scenario import Event
 from hilbench.bench.session import Session, SessionOptions, Snapshot, Summary
-from hilbench.config import BenchConfig, load_config, plant_params_from_config
+from hilbench.bench.settings import load_config
+from hilbench.config import BenchConfig, plant_params_from_config
 from hilbench.errors import ConfigError, LinkError
 from hilbench.protocol import PROTOCOL_VERSION, SCHEMA_FINGERPRINT, TargetHello
 from hilbench.targets.profile import TargetProfile

@@ -43,7 +43,7 @@ from typing import TYPE_CHECKING, Callable, Literal, Mapping, Sequence
 
 import numpy as np
 
-from hilbench.config import register_section, spec
+from hilbench.fieldspec import spec
 from hilbench.errors import CheckFailed, HilbenchError
 
 if TYPE_CHECKING:
@@ -117,9 +117,6 @@ class CheckEntry:
     @property
     def label(self) -> str:
         return self.name or self.kind
-
-
-register_section("check", CheckEntry, many=True)
 
 
 @dataclass(frozen=True)

@@ -171,7 +171,7 @@ COMMANDS: Mapping[str, Mapping[str, Callable[[Any], Any]]] = MappingProxyType(
         "stop": {},
         "start": {},
         "press": {"button": _check_button},
-        "stream": {"since": _check_since, "columns": _check_columns},  # the scope (hilbench.scope.stream)
+        "stream": {"since": _check_since, "columns": _check_columns},  # the scope (hilbench.bench.display)
     }
 )
 

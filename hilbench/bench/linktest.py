@@ -1,9 +1,10 @@
 """The link test: N lockstep periods against a target, timing every round trip and counting errors.
 
-Default target: the Python loopback target as its own process (`python -m hilbench emulate
-loopback`) on a pty pair this process makes. Against a loopback target every Drive is checked
-field by field against the documented mapping, so a corrupted frame accepted as good shows up
-as a mismatch.
+Default target: the registry's link-test target (`targets.registry.LINK_TEST_TARGET`) as its own
+process (`python -m hilbench emulate NAME`) on a pty pair this process makes. Against a target
+whose profile declares "link_check" (every Drive a documented function of the Sensors alone) every
+Drive is checked field by field against its in-process model, so a corrupted frame accepted as
+good shows up as a mismatch.
 """
 
 from __future__ import annotations
@@ -21,7 +22,8 @@ import numpy as np
 from hilbench.errors import LinkError, LinkTimeout
 from hilbench.link import open_link
 from hilbench.protocol import INPUT_S3, MODE_LOCKSTEP, Sensors
-from hilbench.targets.loopback.target import LoopbackTarget
+from hilbench.targets.base import Target
+from hilbench.targets.registry import LINK_TEST_TARGET, profile_for_firmware
 from hilbench.targets.remote import RemoteTarget
 
 DEFAULT_TARGET = "pty"
@@ -138,19 +140,25 @@ class _Spawned:
                     stream.close()
 
 
+def _checker(firmware_name: str) -> Target | None:
+    """The in-process model every Drive of this firmware is checked against (None: not checked)."""
+    profile = profile_for_firmware(firmware_name)
+    return profile.make(profile.default_options()) if profile.has("link_check") else None
+
+
 def run_link_test(target: str = DEFAULT_TARGET, *, periods: int = 10_000, period_us: int = 50,
                   timeout_s: float = 1.0, progress: Callable[[int], None] | None = None,
                   link_wrapper: Callable[[Any], Any] | None = None) -> LinkTestResult:
-    """Run `periods` lockstep exchanges against target: a link spec, "pty" (spawn the Python
-    loopback emulator on a pty pair) or "exec:PROGRAM" (spawn PROGRAM with the pty path).
+    """Run `periods` lockstep exchanges against target: a link spec, "pty" (spawn the link-test
+    target's emulator on a pty pair) or "exec:PROGRAM" (spawn PROGRAM with the pty path).
 
     link_wrapper (for example a FaultyLink factory) wraps the host's link before use.
     """
     if periods <= 0:
         raise LinkError(f"link-test: periods must be positive, got {periods}")
     spawned: _Spawned | None = None
-    if target in ("pty", "loopback"):
-        spawned = _Spawned("loopback", timeout_s)
+    if target in ("pty", LINK_TEST_TARGET):
+        spawned = _Spawned(LINK_TEST_TARGET, timeout_s)
         link = spawned.link
     elif target.startswith("exec:"):
         spawned = _Spawned("", timeout_s, program=target[len("exec:"):])
@@ -161,7 +169,7 @@ def run_link_test(target: str = DEFAULT_TARGET, *, periods: int = 10_000, period
         host_link = link_wrapper(link) if link_wrapper is not None else link
         remote = RemoteTarget(host_link, timeout_s=timeout_s)
         hello = remote.handshake(period_us, MODE_LOCKSTEP, 0, attempts=5)
-        check = LoopbackTarget() if hello.firmware_name == "loopback" else None
+        check = _checker(hello.firmware_name)
         rtt_ns = np.zeros(periods, dtype=np.int64)
         good = timeouts = mismatches = consecutive = 0
         step = remote.step

@@ -14,7 +14,8 @@ from typing import TYPE_CHECKING, Callable, Sequence
 from hilbench.bench import settings
 from hilbench.bench.bench import Bench, configured_profile, connect
 from hilbench.bench.session import Session, SessionOptions, Snapshot, Summary
-from hilbench.config import BenchConfig, load_config, plant_params_from_config
+from hilbench.bench.settings import load_config
+from hilbench.config import BenchConfig, plant_params_from_config
 from hilbench.errors import ConfigError, LinkError
 from hilbench.targets.profile import TargetProfile
 

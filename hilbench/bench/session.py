@@ -28,6 +28,7 @@ from hilbench.bench.livetuning import GuardSettings, LiveTuning
 from hilbench.bench.pacing import RealtimePacing, SessionAborted
 from hilbench.bench.recorder import MARKER_EVENT, MARKER_FAULT, MARKER_PARAM, Recorder, fields_struct
 from hilbench.bench.scenario import PERIOD_TOLERANCE, Event, Ramp, ScenarioPlayer, first_period_at
+from hilbench.bench.settings import SessionOptions
 from hilbench.bench import segments as segmentation
 from hilbench.bench.streamstats import StreamingPercentiles
 from hilbench.bench.summary import Segment, Snapshot, Summary, percentiles
@@ -99,27 +100,6 @@ class ControlRequest(Protocol):
     def reply(self, ok: bool, text: str, data: dict[str, Any] | None = None) -> None: ...
 
 
-@dataclass(frozen=True)
-class SessionOptions:
-    """How a session runs (the [run] and [link] tables of a bench config)."""
-
-    period_us: int = 50
-    mode: Literal["lockstep", "realtime"] = "lockstep"
-    duration_s: float | None = None  # None: until the scenario's end event
-    actuation_delay_periods: int = 0
-    timeout_s: float = 0.5
-    watchdog_ms: int = 100
-    overrun_policy: Literal["continue", "abort"] = "continue"
-    max_consecutive_overruns: int = 10
-    cpu_latency_qos: bool = True  # real time: keep idle CPUs from halting (clock.CpuLatencyRequest)
-    seed: int = 0
-    observe_every_periods: int = 400
-    history_every_periods: int = 20
-    overspeed_rpm: float = 0.0  # bench limit ([protection] overspeed_rpm): the run ends with a fault; 0: none
-    bus_capacitance_f: float = 0.0  # the bus capacitor regeneration charges ([protection]); 0: a stiff bus
-    overvoltage_v: float = 0.0  # bench limit on the bus voltage; 0: none
-
-
 @dataclass
 class _CtlStep:
     """A `ctl step` in progress: hold, step, then answer with the metrics."""
@@ -187,7 +167,7 @@ class Session:
         self._pacing: RealtimePacing | None = None
         self._trip_noted = False  # the overcurrent comparator's trip is an event once per latch
         self._supply_v = 0.0  # the bench supply's voltage (the bus rises above it only with a capacitor): begin()
-        self.display: Any = None  # the scope's display stream (hilbench.scope.stream), made by `stream`
+        self.display: Any = None  # the scope's display stream (hilbench.bench.display), made by `stream`
 
     # ------------------------------------------------------------------ handshake
     def handshake(self) -> TargetHello:
@@ -714,7 +694,7 @@ class Session:
                 request.reply(True, f"guarded tuning {state}")
             elif cmd == "stream":  # a scope's decimated view (hilbench.scope)
                 if self.display is None:
-                    from hilbench.scope.stream import DisplayStream
+                    from hilbench.bench.display import DisplayStream
 
                     self.display = DisplayStream(self)
                 request.reply(True, "stream", self.display.request(int(args["since"]), args["columns"], t_s))

@@ -21,8 +21,10 @@ if TYPE_CHECKING:
     from hilbench.targets.base import Target
 
 #: capabilities a profile may declare (the pytest plugin's `hil_requires` and the CLI check them);
-#: "encoder": the target reads the quadrature encoder and its index (the session forwards the index)
-CAPABILITIES = ("speed_loop", "realtime", "fault_injection", "tuning", "hall_sensors", "encoder")
+#: "encoder": the target reads the quadrature encoder and its index (the session forwards the index);
+#: "link_check": every Drive is a documented function of the Sensors alone, so `link-test` checks
+#: each against the in-process model
+CAPABILITIES = ("speed_loop", "realtime", "fault_injection", "tuning", "hall_sensors", "encoder", "link_check")
 
 
 @dataclass(frozen=True)

@@ -24,6 +24,8 @@ ENTRY_POINT_GROUP = "hilbench.targets"
 
 #: the target a bench uses when the config names none
 DEFAULT_TARGET = "emulator:an1017"
+#: the target `hilbench link-test` starts when it is given none (its Drives are checked, "link_check")
+LINK_TEST_TARGET = "loopback"
 
 #: built-in targets: name -> module whose PROFILE attribute is the profile
 _BUILTIN = {
@@ -102,6 +104,7 @@ def make_target(name: str, options: object | None = None) -> object:
 __all__ = [
     "DEFAULT_TARGET",
     "ENTRY_POINT_GROUP",
+    "LINK_TEST_TARGET",
     "get_profile",
     "known_targets",
     "make_target",

@@ -25,7 +25,7 @@ PROFILE = TargetProfile(
         TelemetryColumn(int(TelemetryId.ECHO_EDGE), "echo_edge_100ns", "100 ns", 1.0, "%d"),
         TelemetryColumn(int(TelemetryId.ECHO_SEQ), "echo_seq", "", 1.0, "%d"),
     ),
-    capabilities=frozenset({"realtime", "tuning"}),
+    capabilities=frozenset({"realtime", "tuning", "link_check"}),
 )
 
 __all__ = ["PROFILE"]

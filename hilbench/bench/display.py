@@ -1,4 +1,4 @@
-"""The scope's display stream: the session's recorded rows, decimated for a screen.
+"""The display stream: the session's recorded rows, decimated for a screen (a scope asks for it).
 
 The recording stays full-rate; a scope only needs, per display bucket of ``bucket_periods``
 periods, the minimum and maximum of each column (an envelope: a 20 kHz current shows its true
