@@ -243,8 +243,9 @@ class Bench:
         self._act(Event(at_s=0.0, load_nm=_finite(torque_nm, "torque_nm"), load_kind=kind))
 
     def inject_fault(self, kind: str, duration_s: float | None = None) -> None:
-        """A sensor fault (hall_a_high … hall_c_low, hall_missing_edge, encoder_glitch, clear)."""
-        from hilbench.bench.scenario import FAULT_KINDS
+        """A sensor fault: one of `faults.FAULT_KINDS` (hall_a_high … hall_c_low, hall_missing_edge,
+        encoder_glitch, …, clear)."""
+        from hilbench.bench.faults import FAULT_KINDS
 
         if kind not in FAULT_KINDS:
             raise ConfigError(f"inject_fault {kind!r}: one of {', '.join(FAULT_KINDS)}")

@@ -327,7 +327,7 @@ class DisplayStream:
         if now - wall >= 0.5:
             rate = (self._k - k0) / (now - wall)
             self._rate = (now, self._k, rate)
-        rtts = pacing.rtts if pacing is not None else session._lockstep_rtts  # noqa: SLF001 - the session's own figures
+        rtts = pacing.rtts if pacing is not None else session.lockstep_rtts
         stats = percentiles([r * 1e6 for r in rtts[-256:]]) if rtts else {}
         try:
             params = session.param_values()
@@ -336,7 +336,7 @@ class DisplayStream:
         return {
             "t_s": _num(t_s), "state": None if drive is None else int(drive.state),
             "fault": None if drive is None else int(drive.fault),
-            "ref_rpm": _num(session._ref_rpm), "params": _finite(params),  # noqa: SLF001
+            "ref_rpm": _num(session.ref_rpm), "params": _finite(params),
             "guard": bool(session.tuning.guard.enabled), "periods_per_s": _num(rate),
             "rtt_p50_us": _num(stats.get("p50")), "rtt_p99_us": _num(stats.get("p99")),
             "overruns": pacing.overruns if pacing is not None else 0,

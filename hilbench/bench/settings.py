@@ -8,13 +8,15 @@ a whole — plant and bench tables together, every problem at once. `load_config
 
 from __future__ import annotations
 
+import difflib
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Literal, Sequence
 
 from hilbench.bench.checks import CheckEntry
 from hilbench.bench.livetuning import GuardSettings
-from hilbench.bench.scenario import FAULT_KINDS, LOAD_KINDS, Event, default_scenario
+from hilbench.bench.faults import FAULT_KINDS
+from hilbench.bench.scenario import LOAD_KINDS, Event, default_scenario
 from hilbench.config import PLANT_SECTIONS, BenchConfig
 from hilbench.config import load_config as _load_tables
 from hilbench.errors import ConfigError
@@ -22,11 +24,6 @@ from hilbench.fieldspec import spec
 from hilbench.targets.profile import TargetProfile
 from hilbench.targets.registry import DEFAULT_TARGET, get_profile
 
-FaultName = Literal[
-    "hall_a_high", "hall_a_low", "hall_b_high", "hall_b_low", "hall_c_high", "hall_c_low",
-    "hall_missing_edge", "encoder_glitch", "clear",
-]
-assert FaultName.__args__ == FAULT_KINDS  # type: ignore[attr-defined]
 LoadKind = Literal["constant", "linear", "quadratic", "locked"]
 assert LoadKind.__args__ == LOAD_KINDS  # type: ignore[attr-defined]
 
@@ -71,7 +68,7 @@ class ScenarioEntry:
     load_kind: LoadKind = "constant"
     vbus_v: float | None = field(default=None, metadata=spec(unit="V", ge=0, le=1500))
     press: Literal["s2", "s3"] | None = None
-    fault: FaultName | None = None
+    fault: str | None = field(default=None, metadata=spec(doc="a sensor fault (bench.faults.FAULT_KINDS)"))
     fault_duration_s: float | None = field(default=None, metadata=spec(unit="s", gt=0))
     set: dict[str, float] | None = field(default=None, metadata=spec(doc="live parameter change, e.g. { kp = 0.12 }"))
     end: bool = False
@@ -82,6 +79,10 @@ class ScenarioEntry:
             actions.append("end")
         if len(actions) != 1:
             return [("at_s", f"needs exactly one action of ref_rpm, pot, load_nm, vbus_v, press, fault, set, end (found {actions or 'none'})")]
+        if self.fault is not None and self.fault not in FAULT_KINDS:
+            close = difflib.get_close_matches(self.fault, FAULT_KINDS, n=1)
+            hint = f" (did you mean {close[0]!r}?)" if close else ""
+            return [("fault", f"{self.fault[:40]!r} is not one of {', '.join(repr(k) for k in FAULT_KINDS)}{hint}")]
         return []
 
     def to_event(self) -> Event:
