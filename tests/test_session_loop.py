@@ -1,5 +1,5 @@
 """The session's loop: parts act only in the periods they ask for, and the tight lockstep loop
-records exactly what its readable form (`Session._paced_periods` without pacing) records."""
+records exactly what its readable form (`Session._periods_one_by_one`) records."""
 
 from __future__ import annotations
 

@@ -18,6 +18,7 @@ from __future__ import annotations
 import dataclasses
 import math
 import os
+import subprocess
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Callable, Iterator, Mapping, Sequence
@@ -177,6 +178,11 @@ class Bench:
                 self._parts.close()
                 self._parts = None
         return summary
+
+    @property
+    def target_process(self) -> "subprocess.Popen[bytes] | None":
+        """The emulator or firmware-build process this bench started (None: in process, or a port)."""
+        return self._parts.handle.process if self._parts is not None else None
 
     def child_status(self) -> str:
         """How the emulator process this bench started is doing, for error lines ("" if none)."""

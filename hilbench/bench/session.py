@@ -5,7 +5,7 @@ Drive(seq=k), and the plant integrates its period with that Drive (its actuation
 plant's). Around that hot path each concern is a part (hilbench.bench.parts) that says the next
 period it acts in: the scenario (references, load, buttons, bus, faults), live tuning with its
 guard and the control socket, the history sample with the observer and the display stream, the
-bus capacitor. `_loop` runs the periods between in a tight loop (`_lockstep_runner`) up to the
+bus capacitor. `_loop` runs the periods between in a tight loop (`_tight_runner`) up to the
 next period any part is due in, and the due parts there; sensor faults filter the Sensors while
 one is in force (hilbench.bench.faults); real time paces each exchange (`RealtimePacing`). The
 session knows no terminal and no firmware: what it needs of the target comes from the target's
@@ -425,26 +425,28 @@ class Session:
         return k
 
     def _periods_runner(self) -> Callable[[int, int], int]:
-        """What runs the periods between the parts': the tight lockstep loop, or the paced one."""
-        if self.pacing is None and not getattr(self, "_readable_periods", False):
-            return self._lockstep_runner()
-        return self._paced_periods
+        """What runs the periods between the parts': the tight loop (`_tight_runner`), or its
+        readable form period by period (`_periods_one_by_one`, for tests)."""
+        if getattr(self, "_readable_periods", False):
+            return self._periods_one_by_one
+        return self._tight_runner()
 
-    def _lockstep_runner(self) -> Callable[[int, int], int]:
-        """The lockstep periods [k, stop): `_paced_periods` without pacing, with `_sensors` and
-        `_period` inlined (a period is ~2 µs in process, a call 0.1 µs) and the loop's locals bound
-        as default arguments (tests/test_session_loop.py checks both give the same recording)."""
+    def _tight_runner(self) -> Callable[[int, int], int]:
+        """The periods [k, stop): `_periods_one_by_one` with `_sensors` and `_period` inlined (a
+        period is ~2 µs in process, a call 0.1 µs) and the loop's locals bound as default arguments
+        (tests/test_session_loop.py checks both give the same recording)."""
         pack, pack_telemetry, extend, rows = self._record or (None, None, None, None)
         session, faults, hello = self, self.faults, self.hello
         assert hello is not None
 
         def run(k: int, stop: int, sense: Any = self.plant.sense, advance: Any = self.plant.advance,
-                step: Any = self.target.step, roles: tuple[int, ...] = tuple(hello.adc_roles),
-                edge_limit: int = self.options.period_us * 10 - 1, read_index: bool = self.profile.has("encoder"),
-                new: Any = tuple.__new__, pack: Any = pack, pack_telemetry: Any = pack_telemetry,
-                extend: Any = extend, rows: Any = rows, host_ref: bool = self._record_host_ref,
-                rtts: Any = self.lockstep_rtts, perf: Any = time.perf_counter) -> int:
+                step: Any = self.target.step, pacing: RealtimePacing | None = self.pacing,
+                roles: tuple[int, ...] = tuple(hello.adc_roles), edge_limit: int = self.options.period_us * 10 - 1,
+                read_index: bool = self.profile.has("encoder"), new: Any = tuple.__new__, pack: Any = pack,
+                pack_telemetry: Any = pack_telemetry, extend: Any = extend, rows: Any = rows,
+                host_ref: bool = self._record_host_ref, rtts: Any = self.lockstep_rtts, perf: Any = time.perf_counter) -> int:
             buttons, filtering, edge_s, drive = session.scenario.buttons, faults.active, session._edge_s, session.drive
+            rtt, late, marker = 0.0, 0.0, 0  # lockstep: no wall-clock figures in the row
             try:
                 for k in range(k, stop):
                     hall, tripped, index, count, adc = sense(roles)  # the plant's sensors after the last period
@@ -459,9 +461,12 @@ class Session:
                     if filtering:  # a sensor fault is in force: the target gets what it leaves
                         sensors = faults.filter(sensors)
                         hall, filtering = sensors[1] & HALL_MASK, faults.active
-                    if k & 63:
+                    if pacing is not None:  # real time: the period's wall-clock slot, or the Drive held
+                        drive = pacing.exchange(k, sensors, drive, step)
+                        rtt, late, marker = pacing.rtt, pacing.late, pacing.marker
+                    elif k & 63:
                         drive = step(sensors)
-                    else:  # a sample of round-trip times, not every period's
+                    else:  # lockstep: a sample of round-trip times, not every period's
                         sent = perf()
                         drive = step(sensors)
                         rtts.append(perf() - sent)
@@ -470,12 +475,15 @@ class Session:
                         session._comparator_cleared()
                     if rows is not None:  # raw values in their own types (columns.session_row)
                         if host_ref:
-                            extend(pack(k, hall, sector, duty_a, duty_b, duty_c, output_mode, state, fault, 0.0, 0.0, 0,
-                                        session.ref_rpm))
+                            extend(pack(k, hall, sector, duty_a, duty_b, duty_c, output_mode, state, fault, rtt, late,
+                                        marker, session.ref_rpm))
                         else:
-                            extend(pack(k, hall, sector, duty_a, duty_b, duty_c, output_mode, state, fault, 0.0, 0.0, 0))
+                            extend(pack(k, hall, sector, duty_a, duty_b, duty_c, output_mode, state, fault, rtt, late,
+                                        marker))
                         extend(pack_telemetry(*telemetry))  # a call on the tuple itself: cheaper than a `*` among positionals
                     edge_s = advance(duty_a, duty_b, duty_c, output_mode, rows)  # the plant's period; it appends its outputs
+                    if pacing is not None:
+                        pacing.finished(k)
             except BaseException:
                 session.periods_done = k
                 raise
@@ -485,9 +493,9 @@ class Session:
 
         return run
 
-    def _paced_periods(self, k: int, stop: int) -> int:
-        """Periods [k, stop), each exchanged in its wall-clock slot (real time; without pacing, a
-        plain lockstep exchange: the readable form of `_lockstep_runner`)."""
+    def _periods_one_by_one(self, k: int, stop: int) -> int:
+        """Periods [k, stop), each exchanged (in its wall-clock slot in real time): the readable
+        form of `_tight_runner`."""
         pacing = self.pacing
         try:
             for k in range(k, stop):
