@@ -28,6 +28,7 @@ from hilbench.targets.base import Target
 from hilbench.targets.profile import TargetProfile
 
 if TYPE_CHECKING:
+    from hilbench.link import Link
     from hilbench.targets.remote import RemoteTarget
 
 
@@ -38,7 +39,7 @@ class TargetHandle:
 
     target: Target
     label: str
-    link: Any = None
+    link: "Link | None" = None
     process: subprocess.Popen[bytes] | None = None
     child_log: Any = None
     _closers: list[Callable[[], None]] = field(default_factory=list)

@@ -8,11 +8,14 @@ tunable speed-loop gains, the speed reference as the `speed_rpm` parameter, tele
 
 from __future__ import annotations
 
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from hilbench.protocol import TelemetryId
 from hilbench.targets.foc.firmware import FocOptions
 from hilbench.targets.profile import MotorBuild, ParamReference, TargetProfile, TelemetryColumn
+
+if TYPE_CHECKING:
+    from hilbench.targets.base import Target
 
 #: telemetry is Q15 per unit: speed of BaseRpm 3000, currents of the 5 A base (FocOptions defaults)
 RPM_PER_Q15 = 3000 / 32768
@@ -38,7 +41,7 @@ TELEMETRY_SPEC: tuple[tuple[str, int, str, str, float, str], ...] = (
 )
 
 
-def _make(options: object) -> Any:
+def _make(options: FocOptions | None) -> "Target":
     from hilbench.targets.foc.target import FocTarget
 
     return FocTarget(options if isinstance(options, FocOptions) else FocOptions())
@@ -51,7 +54,7 @@ def make_foc_target(**options: Any) -> Any:
     return _make_named(**options)
 
 
-PROFILE = TargetProfile(
+PROFILE: TargetProfile[FocOptions] = TargetProfile(
     name="foc",
     firmware_name="F2812FOC",
     make=_make,
