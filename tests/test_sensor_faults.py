@@ -75,3 +75,25 @@ def test_an_unknown_kind_is_refused_with_the_nearest_name() -> None:
             bench.inject_fault("encoder_glich")
     with pytest.raises(hilbench.ConfigError, match="did you mean 'encoder_glitch'"):
         hilbench.load_config(None, ['scenario=[{at_s = 0.1, fault = "encoder_glich"}]'])
+
+
+def test_an_adc_offset_shifts_every_channel_by_a_32nd_of_full_scale() -> None:
+    """The 10-bit ADC of the loopback target (full scale 1023): 32 codes more, 1023 at most; the
+    loopback's duties echo its ADC codes (the pot's and the bus voltage's do not depend on the
+    plant), so a twin run without the fault differs by exactly that while the fault lasts."""
+    faults = SensorFaults()
+    faults.apply("adc_offset", 0.0, None)
+    assert faults.filter(sensors(0, adc=(1000, 10, 1023))) == sensors(0, adc=(1023, 42, 1023))
+    duties = []
+    for fault in (False, True):
+        with hilbench.Bench(target="inprocess:loopback") as bench:
+            bench.run(0.005)  # periods 0..99
+            if fault:
+                bench.inject_fault("adc_offset", duration_s=0.005)  # periods 100..199
+            bench.run(0.01)
+            signals = bench.signals()
+        duties.append(np.stack([signals["duty_a"], signals["duty_c"]]))  # the pot and bus channels: not the plant's currents
+    shift = duties[1] - duties[0]
+    assert np.all(shift[:, :100] == 0) and np.all(shift[:, 200:] == 0)
+    during = duties[0][:, 100:200]
+    assert np.array_equal(shift[:, 100:200], np.minimum(during + 32, 1023) - during) and np.all(shift[:, 100:200] > 0)

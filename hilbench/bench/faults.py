@@ -109,6 +109,19 @@ class EncoderGlitch(SensorFault):
         return _new_sensors(Sensors, (*sensors[:3], (sensors[3] + self.LOST_COUNTS) & 0xFFFF, sensors[4]))
 
 
+@fault_kind
+class AdcOffset(SensorFault):
+    """Every ADC channel reads 1/32 of its full scale high (a shifted reference), clamped to it."""
+
+    kinds = ("adc_offset",)
+
+    def filter(self, sensors: Sensors) -> Sensors:
+        top = self.spec.adc_full_scale
+        shift = (top + 1) // 32
+        adc = tuple(code + shift if code + shift < top else top for code in sensors[4])
+        return _new_sensors(Sensors, (*sensors[:4], adc))
+
+
 class SensorFaults:
     """The faults in force and when the passing ones end."""
 
