@@ -6,11 +6,17 @@ All metadata is in pyproject.toml. The extension is `optional`: without a C comp
 `pip install .` still succeeds and hilbench.plant falls back to its pure-Python step
 (and hilbench.targets.an1017 to its pure-Python firmware model).
 -ffp-contract=off keeps the C arithmetic identical to the Python backend (no fused multiply-add).
+The three extensions share their CPython glue: hilbench/_cglue/hbglue.h, a header on each one's
+include path.
 """
 
 import sys
 
 from setuptools import Extension, setup
+
+#: the CPython glue every extension shares (a header; MANIFEST.in ships it in the sdist)
+GLUE = ["hilbench/_cglue"]
+GLUE_HEADER = ["hilbench/_cglue/hbglue.h"]
 
 if sys.platform == "win32":
     _flags: list[str] = ["/O2", "/fp:precise"]
@@ -22,20 +28,24 @@ setup(
         Extension(
             "hilbench.plant._plantcore",
             sources=["hilbench/plant/_plantcore.c"],
+            include_dirs=GLUE,
+            depends=GLUE_HEADER,
             extra_compile_args=_flags,
             optional=True,
         ),
         Extension(
             "hilbench.targets.foc._core",
             sources=["hilbench/targets/foc/_core.c"],
+            include_dirs=GLUE,
+            depends=GLUE_HEADER,
             extra_compile_args=_flags,
             optional=True,
         ),
         Extension(  # the board firmware's own source behind a CPython glue (MANIFEST.in ships it)
             "hilbench.targets.an1017._core",
             sources=["hilbench/targets/an1017/_core.c", "firmware/an1017/an1017.c"],
-            include_dirs=["firmware/an1017"],
-            depends=["firmware/an1017/an1017.h", "firmware/an1017/q15.h"],
+            include_dirs=GLUE + ["firmware/an1017"],
+            depends=GLUE_HEADER + ["firmware/an1017/an1017.h", "firmware/an1017/q15.h"],
             extra_compile_args=_flags,
             optional=True,
         ),

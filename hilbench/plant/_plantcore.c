@@ -14,9 +14,7 @@
  * Recorded outputs (model.OUTPUTS): append_state copies the double members the declaration names
  * (resolved once by _set_outputs), so a new recorded quantity is a double here, set with the state.
  */
-#define PY_SSIZE_T_CLEAN
-#include <Python.h>
-#include <structmember.h>
+#include "hbglue.h"
 #include <math.h>
 #include <stddef.h>
 #include <string.h>
@@ -359,13 +357,7 @@ static void step_dq(Core *s, double va, double vb, double dt_s, int *have, doubl
     sense_encoder(s);
 }
 
-static int get_double(PyObject *o, double *out)
-{
-    if (PyFloat_CheckExact(o)) { *out = PyFloat_AS_DOUBLE(o); return 0; }
-    if (PyLong_CheckExact(o)) *out = PyLong_AsDouble(o); /* a duty in counts: exact, no float made */
-    else *out = PyFloat_AsDouble(o);
-    return (*out == -1.0 && PyErr_Occurred()) ? -1 : 0;
-}
+#define get_double hb_double /* the shared glue's number argument */
 
 /* model.Plant._step_py in Python, for the steps the C core leaves to it */
 static int step_in_python(Core *s, const double duty[3], long mode, double dt_s, int *have, double *edge)
@@ -616,10 +608,10 @@ static void Core_dealloc(Core *s)
     Py_TYPE(s)->tp_free((PyObject *)s);
 }
 
-#define DM(name, field) {name, T_DOUBLE, offsetof(Core, field), 0, NULL}
-#define IM(name, field) {name, T_INT, offsetof(Core, field), 0, NULL}
-#define LM(name, field) {name, T_LONGLONG, offsetof(Core, field), 0, NULL}
-#define BM(name, field) {name, T_BOOL, offsetof(Core, field), 0, NULL}
+#define DM(name, field) HB_MEMBER(name, T_DOUBLE, Core, field, 0)
+#define IM(name, field) HB_MEMBER(name, T_INT, Core, field, 0)
+#define LM(name, field) HB_MEMBER(name, T_LONGLONG, Core, field, 0)
+#define BM(name, field) HB_MEMBER(name, T_BOOL, Core, field, 0)
 
 static PyMemberDef Core_members[] = {
     DM("load_nm", tl), /* the constant part of the load now, recorded (model.Plant.load_nm) */
@@ -740,14 +732,5 @@ PyMODINIT_FUNC PyInit__plantcore(void)
     str_update_load = PyUnicode_InternFromString("_update_load");
     str_draw_noise = PyUnicode_InternFromString("_draw_noise");
     if (str_step_py == NULL || str_update_load == NULL || str_draw_noise == NULL) return NULL;
-    if (PyType_Ready(&CoreType) < 0) return NULL;
-    PyObject *m = PyModule_Create(&moduledef);
-    if (m == NULL) return NULL;
-    Py_INCREF(&CoreType);
-    if (PyModule_AddObject(m, "Core", (PyObject *)&CoreType) < 0) {
-        Py_DECREF(&CoreType);
-        Py_DECREF(m);
-        return NULL;
-    }
-    return m;
+    return hb_module(&moduledef, &CoreType, "Core");
 }

@@ -9,10 +9,7 @@
  *
  * Arithmetic: int64_t for everything; wrap32 is IQmath's 32-bit long, asr Python's floor shift.
  */
-#define PY_SSIZE_T_CLEAN
-#include <Python.h>
-#include <structmember.h>
-#include <stddef.h>
+#include "hbglue.h"
 #include <stdint.h>
 
 #define ONE 16777216LL
@@ -335,37 +332,22 @@ static PyObject *make_drive(Core *s, PyObject *seq, const int64_t duty[3])
                                   (long long)asr(s->iq_ref, 9), (long long)asr(s->i_d, 9), (long long)asr(s->i_q, 9),
                                   (long long)asr(s->elec_theta, 9), (long long)asr(s->v_d, 9), (long long)asr(s->v_q, 9));
     if (tel == NULL) return NULL;
-    PyObject *d = drive_type->tp_alloc(drive_type, 11);
-    if (d == NULL) { Py_DECREF(tel); return NULL; }
-    PyTuple_SET_ITEM(d, 0, Py_NewRef(seq));
-    PyTuple_SET_ITEM(d, 1, PyLong_FromLongLong(duty[0]));
-    PyTuple_SET_ITEM(d, 2, PyLong_FromLongLong(duty[1]));
-    PyTuple_SET_ITEM(d, 3, PyLong_FromLongLong(duty[2]));
-    PyTuple_SET_ITEM(d, 4, PyLong_FromLong(s->outputs_on ? 1 : 0));
-    PyTuple_SET_ITEM(d, 5, PyLong_FromLongLong(s->state));
-    PyTuple_SET_ITEM(d, 6, PyLong_FromLongLong(s->sector & 7));
-    PyTuple_SET_ITEM(d, 7, PyBool_FromLong(s->sp_speed < 0));
-    PyTuple_SET_ITEM(d, 8, PyBool_FromLong(s->speed_ref < 0));
-    PyTuple_SET_ITEM(d, 9, PyLong_FromLongLong(s->fault));
-    PyTuple_SET_ITEM(d, 10, tel);
-    for (int i = 1; i < 10; i++) {
-        if (PyTuple_GET_ITEM(d, i) == NULL) { Py_DECREF(d); return NULL; }
-    }
-    return d;
+    PyObject *fields[HB_DRIVE_FIELDS] = {
+        Py_NewRef(seq), PyLong_FromLongLong(duty[0]), PyLong_FromLongLong(duty[1]), PyLong_FromLongLong(duty[2]),
+        PyLong_FromLong(s->outputs_on ? 1 : 0), PyLong_FromLongLong(s->state), PyLong_FromLongLong(s->sector & 7),
+        PyBool_FromLong(s->sp_speed < 0), PyBool_FromLong(s->speed_ref < 0), PyLong_FromLongLong(s->fault), tel,
+    };
+    return hb_drive(drive_type, fields);
 }
 
 static int unpack_sensors(PyObject *sensors, PyObject **seq, long *in, int64_t *enc, PyObject **adc)
 {
-    if (!PyTuple_Check(sensors) || PyTuple_GET_SIZE(sensors) != 5) {
-        PyErr_SetString(PyExc_TypeError, "foc core: sensors must be a 5-field Sensors tuple");
-        return -1;
-    }
-    *seq = PyTuple_GET_ITEM(sensors, 0);
-    *in = PyLong_AsLong(PyTuple_GET_ITEM(sensors, 1));
-    if (*in == -1 && PyErr_Occurred()) return -1;
-    *enc = PyLong_AsLongLong(PyTuple_GET_ITEM(sensors, 3));
-    if (*enc == -1 && PyErr_Occurred()) return -1;
-    *adc = PyTuple_GET_ITEM(sensors, 4);
+    hb_sensors_t f;
+    if (hb_sensors(sensors, &f, "foc core") < 0) return -1;
+    *seq = f.seq;
+    *in = f.inputs;
+    *enc = f.encoder;
+    *adc = f.adc;
     return 0;
 }
 
@@ -445,7 +427,7 @@ static PyObject *Core_new(PyTypeObject *type, PyObject *args, PyObject *kwds)
     return (PyObject *)s;
 }
 
-#define LM(name, field) {name, T_LONGLONG, offsetof(Core, field), 0, NULL}
+#define LM(name, field) HB_MEMBER(name, T_LONGLONG, Core, field, 0)
 #define PIM(nm, f) LM(nm "_kp", f.kp), LM(nm "_ki", f.ki), LM(nm "_kc", f.kc), LM(nm "_out_max", f.out_max), \
     LM(nm "_out_min", f.out_min), LM(nm "_ui", f.ui), LM(nm "_up", f.up), LM(nm "_sat_err", f.sat_err), \
     LM(nm "_up1", f.up1), LM(nm "_out", f.out), LM(nm "_v1", f.v1), LM(nm "_i1", f.i1), LM(nm "_pre", f.pre)
@@ -513,14 +495,7 @@ static PyObject *mod_init(PyObject *self, PyObject *const *args, Py_ssize_t narg
         SIN_TABLE[i] = v;
     }
     Py_DECREF(table);
-    input_index = PyLong_AsLong(args[2]);
-    if (input_index == -1 && PyErr_Occurred()) return NULL;
-    if (!PyType_Check(drive) || !PyType_IsSubtype((PyTypeObject *)drive, &PyTuple_Type)) {
-        PyErr_SetString(PyExc_TypeError, "foc core init: Drive must be a tuple subclass (NamedTuple)");
-        return NULL;
-    }
-    Py_INCREF(drive);
-    Py_XSETREF(drive_type, (PyTypeObject *)drive);
+    if (hb_long(args[2], &input_index) < 0 || hb_set_tuple_type(drive, &drive_type, "foc core init") < 0) return NULL;
     Py_RETURN_NONE;
 }
 
@@ -537,14 +512,5 @@ static struct PyModuleDef moduledef = {
 
 PyMODINIT_FUNC PyInit__core(void)
 {
-    if (PyType_Ready(&CoreType) < 0) return NULL;
-    PyObject *m = PyModule_Create(&moduledef);
-    if (m == NULL) return NULL;
-    Py_INCREF(&CoreType);
-    if (PyModule_AddObject(m, "Core", (PyObject *)&CoreType) < 0) {
-        Py_DECREF(&CoreType);
-        Py_DECREF(m);
-        return NULL;
-    }
-    return m;
+    return hb_module(&moduledef, &CoreType, "Core");
 }
