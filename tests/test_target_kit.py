@@ -45,6 +45,9 @@ def test_a_set_is_checked_whole_in_the_c_runtimes_order_before_any_write() -> No
     assert writes == [] and values == {0: 100, 1: 200, 2: 7}  # nothing written by any refusal
     assert tuple(params.set(((1, 300),))) == (0, ok, 0, 0)  # OK names parameter 0, as hbp_param_set
     assert writes == [({0: 100, 1: 300, 2: 7}, (1,))] and values[1] == 300
+    params.ok_names_last = True  # the AN1017 board firmware's bridge names the last parameter written
+    assert tuple(params.set(((1, 310), (0, 20)))) == (0, ok, 0, 0)
+    assert tuple(params.set(((0, 30), (1, 320)))) == (0, ok, 1, 0)
 
 
 def test_describe_and_get_speak_the_protocol() -> None:

@@ -60,9 +60,12 @@ import time
 from dataclasses import dataclass, field
 from pathlib import Path
 from types import MappingProxyType
-from typing import Any, Callable, Mapping, Protocol, Sequence
+from typing import TYPE_CHECKING, Any, Callable, Mapping, Protocol, Sequence
 
 from hilbench.errors import ConfigError, LinkClosed, LinkError, LinkTimeout, ProtocolError
+
+if TYPE_CHECKING:
+    from hilbench.bench.display import DisplayStream
 
 MAX_LINE_BYTES = 4096
 MAX_PENDING = 64  # requests queued for the session before new ones are refused as busy
@@ -174,7 +177,7 @@ class ControlledSession(Protocol):
     def segment(self, kind: str, t_s: float, ref_rpm: float = 0.0, ramp_s: float = 0.0) -> None: ...
     def set_load(self, kind: str, value: float) -> None: ...
     def note(self, t_s: float, text: str) -> None: ...
-    def display_stream(self) -> Any: ...
+    def display_stream(self) -> "DisplayStream": ...
 
 
 def _tuning_state(session: ControlledSession, t_s: float) -> dict[str, Any]:

@@ -31,6 +31,7 @@ from hilbench.errors import HilbenchError
 
 if TYPE_CHECKING:
     from hilbench.bench.pacing import RealtimePacing
+    from hilbench.protocol import Drive
     from hilbench.bench.session import Session
 
 #: periods per display bucket at the start (0.5 ms at 20 kHz); doubled in a take with many rows
@@ -146,7 +147,7 @@ class DisplayStream:
     def active(self) -> bool:
         return self.clock() - self._asked_at < IDLE_AFTER_S
 
-    def due(self, k: int, drive: Any, pacing: "RealtimePacing | None") -> None:
+    def due(self, k: int, drive: "Drive | None", pacing: "RealtimePacing | None") -> None:
         """Every observe period: note the status; take new rows when a take is due or a flush comes."""
         self._drive, self._pacing, self._k = drive, pacing, k
         if self._asked_at == -math.inf or not self.active:

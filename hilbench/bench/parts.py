@@ -19,7 +19,7 @@ from hilbench.bench.scenario import Event, Ramp, ScenarioPlayer
 from hilbench.bench.summary import Snapshot, percentiles
 from hilbench.errors import ParamError
 from hilbench.plant.model import RPM_PER_RAD_S
-from hilbench.protocol import Input
+from hilbench.protocol import Drive, Input
 
 if TYPE_CHECKING:
     from hilbench.bench.control import ControlRequest
@@ -309,7 +309,7 @@ class HistoryPart:
             session.end_on_limit(k, f"overspeed: the plant turns at {plant_rpm:.0f} rpm, beyond the "
                                     f"{session.options.overspeed_rpm:g} rpm limit ([protection] overspeed_rpm)")
 
-    def _observe(self, k: int, drive: Any, meas: float) -> None:
+    def _observe(self, k: int, drive: Drive, meas: float) -> None:
         session, pacing = self.session, self.session.pacing
         if session.display is not None:  # the scope takes its rows before a flush empties the buffer
             session.display.due(k, drive, pacing)
@@ -318,7 +318,7 @@ class HistoryPart:
         if session.observer is not None:
             session.observer(self.snapshot(k, drive, meas))
 
-    def snapshot(self, k: int, drive: Any, meas: float) -> Snapshot:
+    def snapshot(self, k: int, drive: Drive, meas: float) -> Snapshot:
         import time
 
         session, pacing = self.session, self.session.pacing

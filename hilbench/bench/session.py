@@ -19,7 +19,7 @@ import math
 import struct
 import time
 from collections import deque
-from typing import Any, Callable, Iterable, Protocol
+from typing import TYPE_CHECKING, Any, Callable, Iterable, Protocol
 
 from hilbench.bench import segments as segmentation
 from hilbench.bench.clock import CpuLatencyRequest
@@ -30,7 +30,7 @@ from hilbench.bench.livetuning import GuardSettings, LiveTuning
 from hilbench.bench.pacing import RealtimePacing, SessionAborted
 from hilbench.bench.parts import BusPart, HistoryPart, LivePart, ScenarioPart, Schedule
 from hilbench.bench.recorder import MARKER_EVENT, MARKER_FAULT, MARKER_PARAM, Recorder, fields_struct
-from hilbench.bench.scenario import PERIOD_TOLERANCE, Event, first_period_at
+from hilbench.bench.scenario import PERIOD_TOLERANCE, Event, ScenarioPlayer, first_period_at
 from hilbench.bench.settings import SessionOptions
 from hilbench.bench.streamstats import StreamingPercentiles
 from hilbench.bench.summary import Segment, Snapshot, Summary
@@ -41,6 +41,9 @@ from hilbench.protocol import PROTOCOL_VERSION, Drive, Edge, HostHello, Input, O
 from hilbench.targets.base import Target
 from hilbench.targets.profile import ParamReference, PotReference, TargetProfile
 from hilbench.targets.registry import profile_for_firmware
+
+if TYPE_CHECKING:
+    from hilbench.bench.display import DisplayStream
 
 EDGE_NONE = int(Edge.NONE)
 INPUT_INDEX = int(Input.INDEX)
@@ -150,7 +153,7 @@ class Session:
         self._next_k = 0
 
     @property
-    def player(self) -> Any:
+    def player(self) -> ScenarioPlayer:
         """The scenario's player (its events and ramps)."""
         return self.scenario.player
 
@@ -258,7 +261,7 @@ class Session:
         self.segment("end", t_s)
         self.note(t_s, note)
 
-    def display_stream(self) -> Any:
+    def display_stream(self) -> "DisplayStream":
         """The scope's display stream, made on the first request."""
         if self.display is None:
             from hilbench.bench.display import DisplayStream
@@ -439,12 +442,14 @@ class Session:
         session, faults, hello = self, self.faults, self.hello
         assert hello is not None
 
-        def run(k: int, stop: int, sense: Any = self.plant.sense, advance: Any = self.plant.advance,
-                step: Any = self.target.step, pacing: RealtimePacing | None = self.pacing,
-                roles: tuple[int, ...] = tuple(hello.adc_roles), edge_limit: int = self.options.period_us * 10 - 1,
-                read_index: bool = self.profile.has("encoder"), new: Any = tuple.__new__, pack: Any = pack,
-                pack_telemetry: Any = pack_telemetry, extend: Any = extend, rows: Any = rows,
-                host_ref: bool = self._record_host_ref, rtts: Any = self.lockstep_rtts, perf: Any = time.perf_counter) -> int:
+        def run(k: int, stop: int, sense: Callable[[tuple[int, ...]], tuple[int, bool, bool, int, tuple[int, ...]]] = self.plant.sense,
+                advance: Callable[..., float | None] = self.plant.advance, step: Callable[[Sensors], Drive] = self.target.step,
+                pacing: RealtimePacing | None = self.pacing, roles: tuple[int, ...] = tuple(hello.adc_roles),
+                edge_limit: int = self.options.period_us * 10 - 1, read_index: bool = self.profile.has("encoder"),
+                new: Callable[..., Sensors] = tuple.__new__, pack: Callable[..., bytes] | None = pack,
+                pack_telemetry: Callable[..., bytes] | None = pack_telemetry, extend: Callable[[bytes], None] | None = extend,
+                rows: bytearray | None = rows, host_ref: bool = self._record_host_ref,
+                rtts: StreamingPercentiles = self.lockstep_rtts, perf: Callable[[], float] = time.perf_counter) -> int:
             buttons, filtering, edge_s, drive = session.scenario.buttons, faults.active, session._edge_s, session.drive
             rtt, late, marker = 0.0, 0.0, 0  # lockstep: no wall-clock figures in the row
             try:

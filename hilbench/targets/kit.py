@@ -4,7 +4,9 @@
   range, unit) with `describe`, `get` and `set` speaking the protocol's result codes. A set is all
   or nothing, checked in the order the C runtime checks it (firmware_protocol/hbp.c
   `hbp_param_set`): the request's size, then per pair its id, access, range and no id twice, then
-  the firmware's own constraint on the candidate values, and only then any write.
+  the firmware's own constraint on the candidate values, and only then any write. OK names
+  parameter 0, as `hbp_param_set` does, or the last one written for a firmware whose bridge says so
+  (the AN1017 board firmware's, firmware/an1017/an1017_bridge.c).
 * `RepeatAnswer`: the answer to a repeated sequence number (a duplicated Sensors frame): the last
   Drive again, the firmware not stepped.
 
@@ -54,11 +56,13 @@ class ParamTable:
     applies a checked candidate set (every declared id; ``written``: the ids the request set)."""
 
     def __init__(self, specs: Iterable[ParamSpec], read: Callable[[int], int],
-                 write: Callable[[dict[int, int], tuple[int, ...]], None], check: ConstraintCheck | None = None) -> None:
+                 write: Callable[[dict[int, int], tuple[int, ...]], None], check: ConstraintCheck | None = None,
+                 *, ok_names_last: bool = False) -> None:
         self.specs = {spec.param_id: spec for spec in specs}
         self.read = read
         self.write = write
         self.check = check
+        self.ok_names_last = ok_names_last  # OK names the last parameter written (else 0)
 
     def __len__(self) -> int:
         return len(self.specs)
@@ -82,7 +86,7 @@ class ParamTable:
         return {pid: self.read(pid) for pid in self.specs}
 
     def set(self, pairs: Sequence[tuple[int, int]]) -> ParamSetResult:
-        """All or nothing (see the module docstring); OK carries parameter 0, as the C runtime's."""
+        """All or nothing (see the module docstring)."""
         if not pairs or len(pairs) > MAX_SET_PAIRS:
             return ParamSetResult(0, RESULT_BAD_REQUEST, 0, 0)
         for index, (pid, value) in enumerate(pairs):
@@ -96,7 +100,7 @@ class ParamTable:
         if broken is not None:
             return ParamSetResult(0, RESULT_CONSTRAINT, broken[0], broken[1])
         self.write(candidate, written)
-        return ParamSetResult(0, RESULT_OK, 0, 0)
+        return ParamSetResult(0, RESULT_OK, written[-1] if self.ok_names_last else 0, 0)
 
     def _refusal(self, pid: int, value: int, before: Sequence[tuple[int, int]]) -> int | None:
         """Why one pair is refused (a result code), or None."""

@@ -14,7 +14,7 @@ import gc
 import threading
 import time
 from dataclasses import dataclass, field
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from hilbench.errors import HilbenchError, LinkClosed, ParamError
 from hilbench.targets.kit import RepeatAnswer
@@ -37,6 +37,10 @@ from hilbench.protocol import (
     Stop,
     host_hello_mismatch,
 )
+
+if TYPE_CHECKING:
+    from hilbench.link import Link
+    from hilbench.targets.base import Target
 
 log = logging.getLogger("hilbench.serve")
 
@@ -289,7 +293,7 @@ def status_last_error(server_error: int, target_value: int) -> int:
     return int(ErrorCode.NONE)
 
 
-def serve(target: Any, link: Any, *, stop_event: threading.Event | None = None, mode: int | None = None,
+def serve(target: "Target", link: "Link", *, stop_event: threading.Event | None = None, mode: int | None = None,
           watchdog_ms: int | None = None) -> ServeReport:
     """Answer frames on link with target until the link closes or stop_event is set.
 

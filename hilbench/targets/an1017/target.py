@@ -49,6 +49,7 @@ from hilbench.protocol import (
     Drive,
     Edge,
     ErrorCode,
+    HostHello,
     ParamInfo,
     ParamSetResult,
     ParamType,
@@ -165,7 +166,7 @@ class An1017Target:
                  backend: str | None = None) -> None:
         self.options = options.resolved()
         self.fw = _c_firmware(self.options) if self.backend == "c" else An1017Firmware(options)
-        self.params = ParamTable(PARAM_SPECS, self._value, self._write, self._constraint)
+        self.params = ParamTable(PARAM_SPECS, self._value, self._write, self._constraint, ok_names_last=True)  # as the board's bridge
         self.period_us = PWM_PERIOD_US
         self._period_tcy = PWM_PERIOD_US * TCY_PER_US
         self.mode = 0
@@ -178,7 +179,7 @@ class An1017Target:
         self.last_error = 0
 
     # ---- handshake and parameters ------------------------------------------------------------
-    def hello(self, host: Any) -> TargetHello:
+    def hello(self, host: HostHello) -> TargetHello:
         """Agree the period (a whole number of 50 µs PWM periods) and the mode."""
         period_us = int(host.period_us)
         if period_us <= 0 or period_us % PWM_PERIOD_US:
@@ -306,7 +307,7 @@ class An1017Target:
     def _forget_repeat(self) -> None:
         self._repeat.forget()
 
-    def advance(self, duration_us: float, sensors: Any) -> Drive:
+    def advance(self, duration_us: float, sensors: Sensors) -> Drive:
         """Real time: any span of wall time (sub-Tcy remainders carry over)."""
         total = duration_us * TCY_PER_US + self._frac_tcy
         tcy = int(total)

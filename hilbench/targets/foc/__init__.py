@@ -47,7 +47,7 @@ def _make(options: FocOptions | None) -> "Target":
     return FocTarget(options if isinstance(options, FocOptions) else FocOptions())
 
 
-def make_foc_target(**options: Any) -> Any:
+def make_foc_target(**options: Any) -> "Target":
     """A `FocTarget` with `FocOptions` fields as keyword options."""
     from hilbench.targets.foc.target import make_foc_target as _make_named
 

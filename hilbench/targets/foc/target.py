@@ -29,6 +29,7 @@ from hilbench.protocol import (
     AdcRole,
     Drive,
     ErrorCode,
+    HostHello,
     Input,
     ParamInfo,
     ParamSetResult,
@@ -150,7 +151,7 @@ class FocTarget:
     def __init__(self, options: FocOptions = FocOptions(), *, backend: str | None = None) -> None:
         self.options = options
         self.fw = _CFirmware(options) if self.backend == "c" else FocFirmware(options)
-        self.params = ParamTable(PARAM_SPECS, self._value, self._write)
+        self.params = ParamTable(PARAM_SPECS, self._value, self._write, ok_names_last=True)
         self._repeat = RepeatAnswer(self._step_new)  # a repeated seq (a duplicated frame) gets the last Drive
         self.step = self._repeat.step  # type: ignore[method-assign]
         self.period_us = HALF_PERIOD_US
@@ -187,7 +188,7 @@ class FocTarget:
                      tuple(tel[k] for k in TELEMETRY_KEYS))
 
     # ---- handshake and parameters ------------------------------------------------------------
-    def hello(self, host: Any) -> TargetHello:
+    def hello(self, host: HostHello) -> TargetHello:
         """Agree the period: a whole number of 50 µs half PWM periods (50 µs is the faithful one)."""
         period_us = int(host.period_us)
         if period_us <= 0 or period_us % HALF_PERIOD_US:
@@ -382,7 +383,7 @@ if _core is not None:
             self._repeat = RepeatAnswer(self.fw.step)  # the C step, behind the kit's answer to a repeat
             self.step = self._repeat.step  # type: ignore[method-assign]
 
-        def hello(self, host: Any) -> TargetHello:
+        def hello(self, host: HostHello) -> TargetHello:
             out = super().hello(host)
             self.fw.halves = self._halves
             return out
