@@ -35,6 +35,7 @@ from hilbench.bench.session import ControlSource, PlantLike, Session, Snapshot, 
 from hilbench.bench.settings import load_config
 from hilbench.config import BenchConfig
 from hilbench.errors import ConfigError, LinkError
+from hilbench.plant.period import Period
 from hilbench.protocol import PROTOCOL_VERSION, SCHEMA_FINGERPRINT, TargetHello
 from hilbench.targets.base import Target
 from hilbench.targets.profile import TargetProfile
@@ -158,7 +159,7 @@ class Bench:
         }
         if self._record_path is None:
             return MemoryRecorder(metadata) if self._keep_rows else None
-        return Recorder(self._record_path, metadata, flush_rows=max(1, round(1e6 / period_us)))
+        return Recorder(self._record_path, metadata, flush_rows=max(1, round(Period(period_us).per_s)))  # a second
 
     def close(self) -> Summary | None:
         """End the run (target stopped, recording closed) and release everything; idempotent."""
@@ -204,8 +205,7 @@ class Bench:
     @property
     def t_s(self) -> float:
         """Simulated time now (the start of the next period)."""
-        session = self._session
-        return session.periods_done * session.options.period_us * 1e-6
+        return self._session.now_s
 
     def run(self, seconds: float | None = None, *, until: Callable[["Bench"], bool] | None = None,
             timeout_s: float = 60.0) -> bool:
@@ -213,7 +213,7 @@ class Bench:
         millisecond, at most ``timeout_s``), or the config's scenario to its end when neither is
         given. Returns False when the run has ended (scenario end, `ctl stop`)."""
         session = self._session
-        period_s = session.options.period_us * 1e-6
+        period_s = session.period.s
         if until is None:
             if seconds is None:
                 return session.advance(max(0, session.planned_periods - session.periods_done))

@@ -196,7 +196,7 @@ class DisplayStream:
         finally:
             del raw
         self.takes += 1
-        self.frames.append(Frame(self.seq, t0_s, bucket * self.session.options.period_us * 1e-6, len(starts), envelopes))
+        self.frames.append(Frame(self.seq, t0_s, bucket * self.session.period.s, len(starts), envelopes))
 
     def _envelope(self, raw: np.ndarray, name: str, starts: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         kind, source, scale, modulo = self._specs[name]
@@ -257,7 +257,7 @@ class DisplayStream:
         if recorder is None:
             return
         size = recorder.rows.struct.size
-        keep = int(HISTORY_S / (self.session.options.period_us * 1e-6)) * size
+        keep = int(HISTORY_S / self.session.period.s) * size
         self._offset = max(0, len(recorder.rows.data) - len(recorder.rows.data) % size - keep)
         self.frames.clear()
 
@@ -312,7 +312,7 @@ class DisplayStream:
         return {
             "columns": [[name, self._units.get(name, "")] for name in self._names],
             "params": params, "tunable": list(session.profile.tunable),
-            "period_s": session.options.period_us * 1e-6, "mode": session.options.mode,
+            "period_s": session.period.s, "mode": session.options.mode,
             "target": session.target_label,
             "firmware": session.hello.firmware_name if session.hello is not None else "",
             "live": True,
