@@ -36,9 +36,10 @@ class BenchParts:
         self.handle.close()
 
 
-def build_plant(cfg: BenchConfig) -> PlantLike:
-    """The config's plant, seeded by the run's seed."""
-    return plant_from_config(cfg, seed=settings.effective_seed(cfg))
+def build_plant(cfg: BenchConfig, profile: TargetProfile | None = None) -> PlantLike:
+    """The config's plant, seeded by the run's seed, with the PWM timing of ``profile``'s target
+    (where its PWM centres its pulses and when its ADC samples; None: the default)."""
+    return plant_from_config(cfg, seed=settings.effective_seed(cfg), pwm=profile.pwm_timing if profile else None)
 
 
 def configured_profile(cfg: BenchConfig) -> TargetProfile | None:
@@ -76,7 +77,7 @@ def build_bench(
     profile = configured_profile(cfg) if target is None else None
     handle = connect(cfg, options, profile) if target is None else given_target(target)
     try:
-        plant = plant if plant is not None else build_plant(cfg)
+        plant = plant if plant is not None else build_plant(cfg, profile)
         session = Session(handle.target, plant, events, options, profile=profile, recorder=recorder,  # type: ignore[arg-type]
                           observer=observer, control=control, link_stats=handle.link_stats,
                           target_label=handle.label, guard=settings.guard_settings(cfg))

@@ -15,12 +15,14 @@ import math
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any, Callable, Generic, Literal, Mapping, Protocol, TypeVar
 
+from hilbench.pwm import PwmTiming
 from hilbench.targets.kit import ParamSpec
 
 if TYPE_CHECKING:
     import subprocess
 
     from hilbench.targets.base import Target
+    from hilbench.targets.starters import FirmwareStarter
 
 #: a target's options: the frozen dataclass of its `[target]` table (None for a target with none)
 Options = TypeVar("Options")
@@ -124,11 +126,18 @@ class TargetProfile(Generic[Options]):
     sweep_defaults: tuple[tuple[str, str], ...] = ()
     emulator_module: str = "hilbench.targets.emulator"  # `python -m MODULE NAME --port ...`
     #: a firmware-in-the-loop build of the board's own C firmware: (options, tty path) -> the started
-    #: process, serving that tty once this returns (`sil:NAME`); None: the target has none
+    #: process, serving that tty once this returns (`sil:NAME`); None: the target has none. (Older
+    #: form of starters["sil"]; the launcher takes either.)
     start_sil: "Callable[[Options, str], subprocess.Popen[bytes]] | None" = None
+    #: the builds of its C firmware that run as processes, by spec kind: "sil", "simavr", "qemu"
+    #: (hilbench.targets.starters)
+    starters: "Mapping[str, FirmwareStarter]" = field(default_factory=dict)
     #: the profile of a build with these options, for a firmware whose build constants are options
     #: (its reference scale, telemetry scales and `built_for` follow them); None: options change none
     configure: "Callable[[Options], TargetProfile[Options]] | None" = None
+    #: where its PWM unit centres the pulses and when its ADC samples the phase currents (the plant's
+    #: switching inverter reads it); None: the plant's default (PwmTiming())
+    pwm_timing: PwmTiming | None = None
 
     def configured(self, options: Options | None) -> "TargetProfile[Options]":
         """This profile as built with ``options`` (itself when the target has no build constants)."""

@@ -10,9 +10,15 @@ from __future__ import annotations
 
 from typing import TYPE_CHECKING, Any
 
+from hilbench.pwm import PwmTiming
 from hilbench.protocol import TelemetryId
 from hilbench.targets.foc.firmware import FocOptions
 from hilbench.targets.profile import MotorBuild, ParamReference, TargetProfile, TelemetryColumn
+from hilbench.targets.qemu import QemuStarter
+from hilbench.targets.starters import HostExecutableStarter, SimavrStarter
+
+#: the AVR the FOC build runs on in simavr (its 32 KB sine table needs more flash than a 328P has)
+AVR_MCU = "atmega1284p"
 
 if TYPE_CHECKING:
     from hilbench.targets.base import Target
@@ -47,6 +53,24 @@ def _make(options: FocOptions | None) -> "Target":
     return FocTarget(options if isinstance(options, FocOptions) else FocOptions())
 
 
+def _sil_exe(options: object) -> Any:
+    from hilbench.targets.foc.build import build_sil
+
+    return build_sil(options if isinstance(options, FocOptions) else FocOptions())
+
+
+def _avr_elf(options: object) -> Any:
+    from hilbench.targets.foc.build import build_avr
+
+    return build_avr(options)
+
+
+def _m4_build(options: object) -> Any:
+    from hilbench.targets.foc.build import qemu_build
+
+    return qemu_build(options)
+
+
 def make_foc_target(**options: Any) -> "Target":
     """A `FocTarget` with `FocOptions` fields as keyword options."""
     from hilbench.targets.foc.target import make_foc_target as _make_named
@@ -67,6 +91,14 @@ PROFILE: TargetProfile[FocOptions] = TargetProfile(
     built_for=lambda options: MotorBuild(pole_pairs=getattr(options, "pole_pairs", 3), max_speed_rpm=3000.0),
     capabilities=frozenset({"speed_loop", "realtime", "tuning", "encoder"}),
     sweep_defaults=(("spd_kp", "0.2:1.2:6"), ("spd_ki", "0.002:0.03:6")),
+    starters={
+        "sil": HostExecutableStarter(_sil_exe, name="foc"),
+        "simavr": SimavrStarter(_avr_elf, mcu=AVR_MCU, name="foc"),
+        "qemu": QemuStarter(_m4_build, name="foc"),
+    },
+    # F2812 Event Manager, timer 1 continuous up/down, active-high outputs: high while T1CNT > CMPR,
+    # so the pulses are centred on the counter's peak (period match); the ADC starts on underflow
+    pwm_timing=PwmTiming(pulse_centre="peak", adc_sample_phase=0.0),
 )
 
 __all__ = ["PROFILE", "FocOptions", "TELEMETRY_SPEC", "make_foc_target"]
