@@ -17,6 +17,7 @@
 #include <Python.h>
 #include <structmember.h>
 #include <stddef.h>
+#include <string.h>
 
 /* ---- arguments ---------------------------------------------------------------------------- */
 
@@ -47,14 +48,14 @@ static inline int hb_longlong(PyObject *o, long long *out)
 
 /* ---- messages ----------------------------------------------------------------------------- */
 
-/* The fields of a Sensors tuple (protocol: seq, inputs, edge_time_100ns, encoder, adc); seq and adc
- * are borrowed from the tuple. */
+/* The fields of a Sensors tuple (protocol: seq, inputs, edge_time_100ns, encoder, adc); seq, encoder
+ * and adc are borrowed from the tuple (a core that reads the encoder converts it: hb_longlong). */
 typedef struct {
     PyObject *seq;
     long long seq_value;
     long inputs;
     long edge;
-    long long encoder;
+    PyObject *encoder;
     PyObject *adc;
 } hb_sensors_t;
 
@@ -66,10 +67,10 @@ static inline int hb_sensors(PyObject *sensors, hb_sensors_t *out, const char *w
         return -1;
     }
     out->seq = PyTuple_GET_ITEM(sensors, 0);
+    out->encoder = PyTuple_GET_ITEM(sensors, 3);
     out->adc = PyTuple_GET_ITEM(sensors, 4);
     if (hb_longlong(out->seq, &out->seq_value) < 0 || hb_long(PyTuple_GET_ITEM(sensors, 1), &out->inputs) < 0
-        || hb_long(PyTuple_GET_ITEM(sensors, 2), &out->edge) < 0
-        || hb_longlong(PyTuple_GET_ITEM(sensors, 3), &out->encoder) < 0)
+        || hb_long(PyTuple_GET_ITEM(sensors, 2), &out->edge) < 0)
         return -1;
     return 0;
 }
@@ -94,15 +95,16 @@ static inline int hb_set_tuple_type(PyObject *type, PyTypeObject **slot, const c
 static inline PyObject *hb_drive(PyTypeObject *type, PyObject *fields[HB_DRIVE_FIELDS])
 {
     PyObject *d = NULL;
-    int ok = type != NULL;
-    for (int i = 0; i < HB_DRIVE_FIELDS; i++) ok = ok && fields[i] != NULL;
-    if (ok) d = type->tp_alloc(type, HB_DRIVE_FIELDS);
+    int i;
+    for (i = 0; i < HB_DRIVE_FIELDS && fields[i] != NULL; i++) {
+    }
+    if (i == HB_DRIVE_FIELDS && type != NULL) d = type->tp_alloc(type, HB_DRIVE_FIELDS);
     if (d == NULL) {
-        for (int i = 0; i < HB_DRIVE_FIELDS; i++) Py_XDECREF(fields[i]);
+        for (i = 0; i < HB_DRIVE_FIELDS; i++) Py_XDECREF(fields[i]);
         if (type == NULL && !PyErr_Occurred()) PyErr_SetString(PyExc_RuntimeError, "core: init(Drive) was not called");
         return NULL;
     }
-    for (int i = 0; i < HB_DRIVE_FIELDS; i++) PyTuple_SET_ITEM(d, i, fields[i]);
+    memcpy(((PyTupleObject *)d)->ob_item, fields, sizeof(PyObject *) * HB_DRIVE_FIELDS); /* PyTuple_SET_ITEM x 11 */
     return d;
 }
 

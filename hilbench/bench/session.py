@@ -450,7 +450,7 @@ class Session:
                 pack_telemetry: Callable[..., bytes] | None = pack_telemetry, extend: Callable[[bytes], None] | None = extend,
                 rows: bytearray | None = rows, host_ref: bool = self._record_host_ref,
                 rtts: StreamingPercentiles = self.lockstep_rtts, perf: Callable[[], float] = time.perf_counter) -> int:
-            buttons, filtering, edge_s, drive = session.scenario.buttons, faults.active, session._edge_s, session.drive
+            buttons, filtering, edge_s, drive = session.scenario.buttons, faults.on, session._edge_s, session.drive
             rtt, late, marker = 0.0, 0.0, 0  # lockstep: no wall-clock figures in the row
             try:
                 for k in range(k, stop):
@@ -465,7 +465,7 @@ class Session:
                     sensors = new(Sensors, (k & 0xFF, inputs, edge, count, adc))
                     if filtering:  # a sensor fault is in force: the target gets what it leaves
                         sensors = faults.filter(sensors)
-                        hall, filtering = sensors[1] & HALL_MASK, faults.active
+                        hall, filtering = sensors[1] & HALL_MASK, faults.on
                     if pacing is not None:  # real time: the period's wall-clock slot, or the Drive held
                         drive = pacing.exchange(k, sensors, drive, step)
                         rtt, late, marker = pacing.rtt, pacing.late, pacing.marker

@@ -272,7 +272,10 @@ static void friction(Core *s, double i_d, double i_q, double *w, double *ij, dou
 
 /* model.Plant._rk4_dq: one RK4 step of (i_d, i_q, w_m) with x0 = phi - theta; y[] = i_d, i_q, w_m
  * in, and out with y[3] = the angle turned, y[4] = the input energy part */
-static void rk4_dq(const Core *s, double y[5], double x0, double vmag, double ij, double fr, double h)
+#if defined(__GNUC__)
+__attribute__((always_inline)) /* the period's hot loop; _switching.c calls it too */
+#endif
+static inline void rk4_dq(const Core *s, double y[5], double x0, double vmag, double ij, double fr, double h)
 {
     const double rd = s->rd, rq = s->rq, pq = s->pq, pd = s->pd, ppsi = s->ppsi, p = s->p;
     const double id0 = y[0], iq0 = y[1], w0 = y[2];

@@ -71,9 +71,8 @@ static int unpack_sensors(PyObject *sensors, sensors_t *out)
     if (hb_sensors(sensors, &f, "foc core") < 0) return -1;
     out->seq = f.seq;
     out->inputs = f.inputs;
-    out->encoder = f.encoder;
     out->adc = f.adc;
-    return 0;
+    return hb_longlong(f.encoder, &out->encoder);
 }
 
 /* The ADC results the underflow samples: read only when an underflow falls in the n halves. */
