@@ -17,7 +17,6 @@
 #include <Python.h>
 #include <structmember.h>
 #include <stddef.h>
-#include <string.h>
 
 /* ---- arguments ---------------------------------------------------------------------------- */
 
@@ -88,23 +87,36 @@ static inline int hb_set_tuple_type(PyObject *type, PyTypeObject **slot, const c
     return 0;
 }
 
-#define HB_DRIVE_FIELDS 11 /* seq, duty_a..c, output_mode, state, sector, direction_ccw, required_ccw, fault, telemetry */
+#define HB_DRIVE_FIELDS 11
 
-/* A new Drive of ``type`` from its fields (new references, stolen; a NULL among them, a failed
- * conversion, releases the others): NULL with an exception, or the Drive. */
-static inline PyObject *hb_drive(PyTypeObject *type, PyObject *fields[HB_DRIVE_FIELDS])
+/* A new Drive of ``type`` from its fields by name (new references, stolen; a NULL among them, a
+ * failed conversion, releases the others): NULL with an exception, or the Drive. */
+static inline PyObject *hb_drive(PyTypeObject *type, PyObject *seq, PyObject *duty_a, PyObject *duty_b,
+                                 PyObject *duty_c, PyObject *output_mode, PyObject *state, PyObject *sector,
+                                 PyObject *direction_ccw, PyObject *required_ccw, PyObject *fault, PyObject *telemetry)
 {
     PyObject *d = NULL;
-    int i;
-    for (i = 0; i < HB_DRIVE_FIELDS && fields[i] != NULL; i++) {
-    }
-    if (i == HB_DRIVE_FIELDS && type != NULL) d = type->tp_alloc(type, HB_DRIVE_FIELDS);
+    if (type != NULL && seq && duty_a && duty_b && duty_c && output_mode && state && sector && direction_ccw
+        && required_ccw && fault && telemetry)
+        d = type->tp_alloc(type, HB_DRIVE_FIELDS);
     if (d == NULL) {
-        for (i = 0; i < HB_DRIVE_FIELDS; i++) Py_XDECREF(fields[i]);
+        Py_XDECREF(seq); Py_XDECREF(duty_a); Py_XDECREF(duty_b); Py_XDECREF(duty_c); Py_XDECREF(output_mode);
+        Py_XDECREF(state); Py_XDECREF(sector); Py_XDECREF(direction_ccw); Py_XDECREF(required_ccw);
+        Py_XDECREF(fault); Py_XDECREF(telemetry);
         if (type == NULL && !PyErr_Occurred()) PyErr_SetString(PyExc_RuntimeError, "core: init(Drive) was not called");
         return NULL;
     }
-    memcpy(((PyTupleObject *)d)->ob_item, fields, sizeof(PyObject *) * HB_DRIVE_FIELDS); /* PyTuple_SET_ITEM x 11 */
+    PyTuple_SET_ITEM(d, 0, seq);
+    PyTuple_SET_ITEM(d, 1, duty_a);
+    PyTuple_SET_ITEM(d, 2, duty_b);
+    PyTuple_SET_ITEM(d, 3, duty_c);
+    PyTuple_SET_ITEM(d, 4, output_mode);
+    PyTuple_SET_ITEM(d, 5, state);
+    PyTuple_SET_ITEM(d, 6, sector);
+    PyTuple_SET_ITEM(d, 7, direction_ccw);
+    PyTuple_SET_ITEM(d, 8, required_ccw);
+    PyTuple_SET_ITEM(d, 9, fault);
+    PyTuple_SET_ITEM(d, 10, telemetry);
     return d;
 }
 

@@ -80,7 +80,7 @@ class Schedule:
         return False
 
     def run_after(self, k: int) -> None:
-        """The parts due in period k, after its exchange and the plant's period."""
+        """The parts due in period k (as `plan` found them), after its exchange and the plant's period."""
         for part in self.after:
             if part.due_at(k) <= k:
                 part.run(k)
@@ -213,7 +213,7 @@ class LivePart:
     def due_at(self, k: int) -> float:
         session = self.session
         if session.drive is None or not (self.control is not None or self.steps
-                                         or session.period.t_s(k) < session.tuning.watching):
+                                         or k * session.period.s < session.tuning.watching):
             return math.inf
         every = session.options.history_every_periods
         return -(-k // every) * every

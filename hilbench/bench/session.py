@@ -19,7 +19,7 @@ import math
 import struct
 import time
 from collections import deque
-from typing import TYPE_CHECKING, Any, Callable, Iterable, Protocol
+from typing import TYPE_CHECKING, Any, Callable, Generator, Iterable, Protocol
 
 from hilbench.bench import segments as segmentation
 from hilbench.bench.clock import CpuLatencyRequest
@@ -421,82 +421,89 @@ class Session:
             stop = after_k + 1  # a history part is always there: an int
             if before_k < stop:
                 stop = before_k
-            k = run(k, k_to if k_to < stop else int(stop))
+            k = run((k, k_to if k_to < stop else int(stop)))
             if after_k == k - 1:
                 self.periods_done = after_k
                 schedule.run_after(after_k)
         return k
 
-    def _periods_runner(self) -> Callable[[int, int], int]:
-        """What runs the periods between the parts': the tight loop (`_tight_runner`), or its
-        readable form period by period (`_periods_one_by_one`, for tests)."""
+    def _periods_runner(self) -> Callable[[tuple[int, int]], int]:
+        """What runs the periods [k, stop) between the parts': the tight loop (`_tight_runner`), or
+        its readable form period by period (`_periods_one_by_one`, for tests); returns `stop`."""
         if getattr(self, "_readable_periods", False):
-            return self._periods_one_by_one
+            return lambda span: self._periods_one_by_one(*span)
         return self._tight_runner()
 
-    def _tight_runner(self) -> Callable[[int, int], int]:
-        """The periods [k, stop): `_periods_one_by_one` with `_sensors` and `_period` inlined (a
-        period is ~2 µs in process, a call 0.1 µs) and the loop's locals bound as default arguments
-        (tests/test_session_loop.py checks both give the same recording)."""
+    def _tight_runner(self) -> Callable[[tuple[int, int]], int]:
+        """`_periods_one_by_one` with `_sensors` and `_period` inlined (a period is ~2 µs in
+        process, a call 0.1 µs; tests/test_session_loop.py checks both give the same recording).
+        The loop's locals live in a generator's frame, bound once (default arguments) and resumed
+        at each due period: ``send((k, stop))`` runs [k, stop) and gives back ``stop``."""
         pack, pack_telemetry, extend, rows = self._record or (None, None, None, None)
         session, faults, hello = self, self.faults, self.hello
         assert hello is not None
 
-        def run(k: int, stop: int, sense: Callable[[tuple[int, ...]], tuple[int, bool, bool, int, tuple[int, ...]]] = self.plant.sense,
-                advance: Callable[..., float | None] = self.plant.advance, step: Callable[[Sensors], Drive] = self.target.step,
-                pacing: RealtimePacing | None = self.pacing, roles: tuple[int, ...] = tuple(hello.adc_roles),
-                edge_limit: int = self.options.period_us * 10 - 1, read_index: bool = self.profile.has("encoder"),
-                new: Callable[..., Sensors] = tuple.__new__, pack: Callable[..., bytes] | None = pack,
-                pack_telemetry: Callable[..., bytes] | None = pack_telemetry, extend: Callable[[bytes], None] | None = extend,
-                rows: bytearray | None = rows, host_ref: bool = self._record_host_ref,
-                rtts: StreamingPercentiles = self.lockstep_rtts, perf: Callable[[], float] = time.perf_counter) -> int:
-            buttons, filtering, edge_s, drive = session.scenario.buttons, faults.on, session._edge_s, session.drive
+        def periods(sense: Callable[[tuple[int, ...]], tuple[int, bool, bool, int, tuple[int, ...]]] = self.plant.sense,
+                    advance: Callable[..., float | None] = self.plant.advance, step: Callable[[Sensors], Drive] = self.target.step,
+                    pacing: RealtimePacing | None = self.pacing, roles: tuple[int, ...] = tuple(hello.adc_roles),
+                    edge_limit: int = self.options.period_us * 10 - 1, read_index: bool = self.profile.has("encoder"),
+                    new: Callable[..., Sensors] = tuple.__new__, pack: Callable[..., bytes] | None = pack,
+                    pack_telemetry: Callable[..., bytes] | None = pack_telemetry,
+                    extend: Callable[[bytes], None] | None = extend, rows: bytearray | None = rows,
+                    host_ref: bool = self._record_host_ref, rtts: StreamingPercentiles = self.lockstep_rtts,
+                    perf: Callable[[], float] = time.perf_counter) -> Generator[int, tuple[int, int], None]:
+            k, stop = yield 0
+            edge_s, drive = session._edge_s, session.drive
             rtt, late, marker = 0.0, 0.0, 0  # lockstep: no wall-clock figures in the row
-            try:
-                for k in range(k, stop):
-                    hall, tripped, index, count, adc = sense(roles)  # the plant's sensors after the last period
-                    inputs = hall | buttons
-                    if index and read_index:  # the encoder's index mark passed
-                        inputs |= INPUT_INDEX
-                    if tripped:  # the board's overcurrent comparator drives FAULT
-                        inputs |= INPUT_FAULT
-                        session._comparator(k)
-                    edge = EDGE_NONE if edge_s is None else min(int(edge_s * 1e7), edge_limit)
-                    sensors = new(Sensors, (k & 0xFF, inputs, edge, count, adc))
-                    if filtering:  # a sensor fault is in force: the target gets what it leaves
-                        sensors = faults.filter(sensors)
-                        hall, filtering = sensors[1] & HALL_MASK, faults.on
-                    if pacing is not None:  # real time: the period's wall-clock slot, or the Drive held
-                        drive = pacing.exchange(k, sensors, drive, step)
-                        rtt, late, marker = pacing.rtt, pacing.late, pacing.marker
-                    elif k & 63:
-                        drive = step(sensors)
-                    else:  # lockstep: a sample of round-trip times, not every period's
-                        sent = perf()
-                        drive = step(sensors)
-                        rtts.append(perf() - sent)
-                    _seq, duty_a, duty_b, duty_c, output_mode, state, sector, _ccw, _req, fault, telemetry = drive
-                    if tripped and output_mode == OUTPUT_OFF:  # the firmware's stop re-arms the comparator
-                        session._comparator_cleared()
-                    if rows is not None:  # raw values in their own types (columns.session_row)
-                        if host_ref:
-                            extend(pack(k, hall, sector, duty_a, duty_b, duty_c, output_mode, state, fault, rtt, late,
-                                        marker, session.ref_rpm))
-                        else:
-                            extend(pack(k, hall, sector, duty_a, duty_b, duty_c, output_mode, state, fault, rtt, late,
-                                        marker))
-                        extend(pack_telemetry(*telemetry))  # a call on the tuple itself: cheaper than a `*` among positionals
-                    edge_s = advance(duty_a, duty_b, duty_c, output_mode, rows)  # the plant's period; it appends its outputs
-                    if pacing is not None:
-                        pacing.finished(k)
-            except BaseException:
-                session.periods_done = k
-                raise
-            finally:
-                session._edge_s, session.drive = edge_s, drive
-            return stop
+            while True:
+                buttons, filtering = session.scenario.buttons, faults.on  # the parts may have changed them
+                try:
+                    for k in range(k, stop):
+                        hall, tripped, index, count, adc = sense(roles)  # the plant's sensors after the last period
+                        inputs = hall | buttons
+                        if index and read_index:  # the encoder's index mark passed
+                            inputs |= INPUT_INDEX
+                        if tripped:  # the board's overcurrent comparator drives FAULT
+                            inputs |= INPUT_FAULT
+                            session._comparator(k)
+                        edge = EDGE_NONE if edge_s is None else min(int(edge_s * 1e7), edge_limit)
+                        sensors = new(Sensors, (k & 0xFF, inputs, edge, count, adc))
+                        if filtering:  # a sensor fault is in force: the target gets what it leaves
+                            sensors = faults.filter(sensors)
+                            hall, filtering = sensors[1] & HALL_MASK, faults.on
+                        if pacing is not None:  # real time: the period's wall-clock slot, or the Drive held
+                            drive = pacing.exchange(k, sensors, drive, step)
+                            rtt, late, marker = pacing.rtt, pacing.late, pacing.marker
+                        elif k & 63:
+                            drive = step(sensors)
+                        else:  # lockstep: a sample of round-trip times, not every period's
+                            sent = perf()
+                            drive = step(sensors)
+                            rtts.append(perf() - sent)
+                        _seq, duty_a, duty_b, duty_c, output_mode, state, sector, _ccw, _req, fault, telemetry = drive
+                        if tripped and output_mode == OUTPUT_OFF:  # the firmware's stop re-arms the comparator
+                            session._comparator_cleared()
+                        if rows is not None:  # raw values in their own types (columns.session_row)
+                            if host_ref:
+                                extend(pack(k, hall, sector, duty_a, duty_b, duty_c, output_mode, state, fault, rtt,
+                                            late, marker, session.ref_rpm))
+                            else:
+                                extend(pack(k, hall, sector, duty_a, duty_b, duty_c, output_mode, state, fault, rtt,
+                                            late, marker))
+                            extend(pack_telemetry(*telemetry))  # a call on the tuple itself: cheaper than a `*` among positionals
+                        edge_s = advance(duty_a, duty_b, duty_c, output_mode, rows)  # the plant's period; it appends its outputs
+                        if pacing is not None:
+                            pacing.finished(k)
+                except BaseException:
+                    session.periods_done = k
+                    raise
+                finally:
+                    session._edge_s, session.drive = edge_s, drive
+                k, stop = yield stop
 
-        return run
+        runner = periods()
+        next(runner)
+        return runner.send
 
     def _periods_one_by_one(self, k: int, stop: int) -> int:
         """Periods [k, stop), each exchanged (in its wall-clock slot in real time): the readable

@@ -82,13 +82,10 @@ static PyObject *finish(Core *s, PyObject *seq)
         s->tel_vals[2] = o.telemetry[2];
         tel = n;
     }
-    PyObject *fields[HB_DRIVE_FIELDS] = {
-        Py_NewRef(seq), Py_NewRef(duty_ints[o.duty_a]), Py_NewRef(duty_ints[o.duty_b]),
-        Py_NewRef(duty_ints[o.duty_c]), Py_NewRef(duty_ints[o.output_mode]), Py_NewRef(duty_ints[o.state]),
-        Py_NewRef(duty_ints[o.sector]), PyBool_FromLong(o.direction_ccw), PyBool_FromLong(o.required_ccw),
-        Py_NewRef(duty_ints[o.fault]), Py_NewRef(tel),
-    };
-    return hb_drive(drive_type, fields);
+    return hb_drive(drive_type, Py_NewRef(seq), Py_NewRef(duty_ints[o.duty_a]), Py_NewRef(duty_ints[o.duty_b]),
+                    Py_NewRef(duty_ints[o.duty_c]), Py_NewRef(duty_ints[o.output_mode]), Py_NewRef(duty_ints[o.state]),
+                    Py_NewRef(duty_ints[o.sector]), PyBool_FromLong(o.direction_ccw), PyBool_FromLong(o.required_ccw),
+                    Py_NewRef(duty_ints[o.fault]), Py_NewRef(tel));
 }
 
 /* ---------------------------------------------------------------- Python methods */

@@ -36,14 +36,11 @@ static PyObject *make_drive(Core *s, PyObject *seq, const uint16_t duty[3])
     const int16_t *t = o.telemetry;
     PyObject *tel = Py_BuildValue("(hhhhhhhh)", t[0], t[1], t[2], t[3], t[4], t[5], t[6], t[7]);
     if (tel == NULL) return NULL;
-    PyObject *fields[HB_DRIVE_FIELDS] = {
-        Py_NewRef(seq), Py_NewRef(duty_ints[duty[0] <= FOC_T1PR ? duty[0] : FOC_T1PR]),
-        Py_NewRef(duty_ints[duty[1] <= FOC_T1PR ? duty[1] : FOC_T1PR]),
-        Py_NewRef(duty_ints[duty[2] <= FOC_T1PR ? duty[2] : FOC_T1PR]), Py_NewRef(duty_ints[o.output_mode]),
-        Py_NewRef(duty_ints[o.state]), Py_NewRef(duty_ints[o.sector]), PyBool_FromLong(o.ccw),
-        PyBool_FromLong(o.req_ccw), Py_NewRef(duty_ints[o.fault & 63u]), tel,
-    };
-    return hb_drive(drive_type, fields);
+    return hb_drive(drive_type, Py_NewRef(seq), Py_NewRef(duty_ints[duty[0] <= FOC_T1PR ? duty[0] : FOC_T1PR]),
+                    Py_NewRef(duty_ints[duty[1] <= FOC_T1PR ? duty[1] : FOC_T1PR]),
+                    Py_NewRef(duty_ints[duty[2] <= FOC_T1PR ? duty[2] : FOC_T1PR]), Py_NewRef(duty_ints[o.output_mode]),
+                    Py_NewRef(duty_ints[o.state]), Py_NewRef(duty_ints[o.sector]), PyBool_FromLong(o.ccw),
+                    PyBool_FromLong(o.req_ccw), Py_NewRef(duty_ints[o.fault & 63u]), tel);
 }
 
 static int need_drive(void)
