@@ -31,7 +31,8 @@ from hilbench.bench.launcher import open_target  # noqa: E402
 from hilbench.bench.recorder import Recorder  # noqa: E402
 from hilbench.bench.scenario import Event  # noqa: E402
 from hilbench.bench.session import Session  # noqa: E402
-from hilbench.config import load_config, plant_params_from_config  # noqa: E402
+from hilbench.bench.settings import load_config  # noqa: E402
+from hilbench.config import plant_params_from_config  # noqa: E402
 from hilbench.plant.model import Plant  # noqa: E402
 from hilbench.protocol import Drive, Sensors, encode_frame  # noqa: E402
 from hilbench.targets.foc.build import build_sil  # noqa: E402

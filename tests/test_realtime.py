@@ -20,7 +20,8 @@ from hilbench.bench.recorder import MARKER_SKIPPED, Recorder, read_recording
 from hilbench.bench.run import RunRequest, load_run_config, run_bench
 from hilbench.bench.scenario import Event
 from hilbench.bench.session import Session, SessionAborted, SessionOptions
-from hilbench.config import load_config, plant_params_from_config
+from hilbench.bench.settings import load_config
+from hilbench.config import plant_params_from_config
 from hilbench.plant.model import Plant
 
 PERIOD_US = 1000

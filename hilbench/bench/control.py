@@ -46,6 +46,7 @@ sleeps in the kernel while idle and holds the GIL only while handling bytes.
 from __future__ import annotations
 
 import collections
+import dataclasses
 import json
 import math
 import os
@@ -59,9 +60,12 @@ import time
 from dataclasses import dataclass, field
 from pathlib import Path
 from types import MappingProxyType
-from typing import Any, Callable, Mapping, Sequence
+from typing import TYPE_CHECKING, Any, Callable, Mapping, Protocol, Sequence
 
 from hilbench.errors import ConfigError, LinkClosed, LinkError, LinkTimeout, ProtocolError
+
+if TYPE_CHECKING:
+    from hilbench.bench.display import DisplayStream
 
 MAX_LINE_BYTES = 4096
 MAX_PENDING = 64  # requests queued for the session before new ones are refused as busy
@@ -157,21 +161,127 @@ def _check_bool(v: Any) -> bool:
     return v
 
 
-# cmd -> {field: checker}; every field is required, no others allowed (besides "cmd" and "id").
-COMMANDS: Mapping[str, Mapping[str, Callable[[Any], Any]]] = MappingProxyType(
+class ControlledSession(Protocol):
+    """What a command acts on: a running session (hilbench.bench.session.Session)."""
+
+    tuning: Any  # hilbench.bench.livetuning.LiveTuning
+    profile: Any  # hilbench.targets.profile.TargetProfile
+    target: Any  # hilbench.targets.base.Target
+    live: Any  # hilbench.bench.parts.LivePart
+    ref_rpm: float
+
+    def param_values(self) -> dict[str, float]: ...
+    def reference_now(self, rpm: float, t_s: float, note: str) -> None: ...
+    def stop_run(self, t_s: float, reason: str, note: str) -> None: ...
+    def press(self, button: str, t_s: float) -> None: ...
+    def segment(self, kind: str, t_s: float, ref_rpm: float = 0.0, ramp_s: float = 0.0) -> None: ...
+    def set_load(self, kind: str, value: float) -> None: ...
+    def note(self, t_s: float, text: str) -> None: ...
+    def display_stream(self) -> "DisplayStream": ...
+
+
+def _tuning_state(session: ControlledSession, t_s: float) -> dict[str, Any]:
+    return {"params": session.param_values(), "t_s": t_s, "ref_rpm": session.ref_rpm,
+            "tunable": list(session.profile.tunable)}
+
+
+def _get(session: ControlledSession, request: "ControlRequest", t_s: float) -> None:
+    request.reply(True, "ok", _tuning_state(session, t_s))
+
+
+def _set(session: ControlledSession, request: "ControlRequest", t_s: float) -> None:
+    session.tuning.set({str(k): float(v) for k, v in request.args["params"].items()}, t_s)
+    request.reply(True, f"applied at t={t_s:.4f} s", {"params": session.param_values()})
+
+
+def _ref(session: ControlledSession, request: "ControlRequest", t_s: float) -> None:
+    rpm = request.args["rpm"]
+    session.reference_now(float(rpm), t_s, f"ref {rpm} rpm (ctl)")
+    request.reply(True, f"reference {rpm} rpm at t={t_s:.4f} s")
+
+
+def _step(session: ControlledSession, request: "ControlRequest", t_s: float) -> None:
+    session.live.start_step(request, float(request.args["from_rpm"]), float(request.args["to_rpm"]), t_s)
+
+
+def _stop(session: ControlledSession, request: "ControlRequest", t_s: float) -> None:
+    session.stop_run(t_s, "stopped by ctl", "stop (ctl)")
+    request.reply(True, f"run ends at t={t_s:.4f} s")
+
+
+def _save(session: ControlledSession, request: "ControlRequest", t_s: float) -> None:
+    """A raw-socket client's save; `hilbench ctl save` writes where the user is."""
+    from hilbench.bench.tuning import saved_fragment
+
+    data = _tuning_state(session, t_s)
+    path = str(request.args["file"])
+    try:
+        with open(path, "w", encoding="utf-8") as handle:
+            handle.write(saved_fragment(data))
+    except OSError as exc:
+        request.reply(False, f"save {path}: {exc.strerror or exc}")
+    else:
+        request.reply(True, f"wrote {path}", data)
+
+
+def _start(session: ControlledSession, request: "ControlRequest", t_s: float) -> None:
+    session.target.start()
+    session.note(t_s, "start (ctl)")
+    request.reply(True, f"start command sent at t={t_s:.4f} s")
+
+
+def _press(session: ControlledSession, request: "ControlRequest", t_s: float) -> None:
+    button = str(request.args["button"])
+    session.press(button, t_s)
+    if button == "s2":
+        session.segment("press", t_s)
+    session.note(t_s, f"press {button} (ctl)")
+    request.reply(True, f"{button} pressed at t={t_s:.4f} s")
+
+
+def _guard(session: ControlledSession, request: "ControlRequest", t_s: float) -> None:
+    session.tuning.guard = dataclasses.replace(session.tuning.guard, enabled=bool(request.args["on"]))
+    state = "on" if session.tuning.guard.enabled else "off"
+    session.note(t_s, f"guard {state} (ctl)")
+    request.reply(True, f"guarded tuning {state}")
+
+
+def _stream(session: ControlledSession, request: "ControlRequest", t_s: float) -> None:
+    """A scope's decimated view (hilbench.bench.display)."""
+    request.reply(True, "stream", session.display_stream().request(int(request.args["since"]), request.args["columns"], t_s))
+
+
+def _load(session: ControlledSession, request: "ControlRequest", t_s: float) -> None:
+    nm = request.args["nm"]
+    session.set_load("constant", float(nm))
+    session.note(t_s, f"load {nm} N*m (ctl)")
+    request.reply(True, f"load {nm} N*m at t={t_s:.4f} s")
+
+
+@dataclass(frozen=True)
+class Command:
+    """One control command: its fields, each checked for its shape here (every one required, no
+    others), and what it does to the session (`act(session, request, t_s)`, replying)."""
+
+    fields: Mapping[str, Callable[[Any], Any]]
+    act: Callable[[ControlledSession, "ControlRequest", float], None]
+
+
+#: every command a session answers: cmd -> its fields' shape checks and its action
+COMMANDS: Mapping[str, Command] = MappingProxyType(
     {
-        "get": {},
-        "set": {"params": _check_params},
-        "ref": {"rpm": _number("ref", "rpm", MAX_REF_RPM, " rpm")},
-        "load": {"nm": _number("load", "nm", MAX_LOAD_NM, " N*m")},
-        "step": {"from_rpm": _number("step", "from_rpm", MAX_REF_RPM, " rpm"),
-                 "to_rpm": _number("step", "to_rpm", MAX_REF_RPM, " rpm")},
-        "save": {"file": _check_file},
-        "guard": {"on": _check_bool},
-        "stop": {},
-        "start": {},
-        "press": {"button": _check_button},
-        "stream": {"since": _check_since, "columns": _check_columns},  # the scope (hilbench.scope.stream)
+        "get": Command({}, _get),
+        "set": Command({"params": _check_params}, _set),
+        "ref": Command({"rpm": _number("ref", "rpm", MAX_REF_RPM, " rpm")}, _ref),
+        "load": Command({"nm": _number("load", "nm", MAX_LOAD_NM, " N*m")}, _load),
+        "step": Command({"from_rpm": _number("step", "from_rpm", MAX_REF_RPM, " rpm"),
+                         "to_rpm": _number("step", "to_rpm", MAX_REF_RPM, " rpm")}, _step),
+        "save": Command({"file": _check_file}, _save),
+        "guard": Command({"on": _check_bool}, _guard),
+        "stop": Command({}, _stop),
+        "start": Command({}, _start),
+        "press": Command({"button": _check_button}, _press),
+        "stream": Command({"since": _check_since, "columns": _check_columns}, _stream),  # the scope
     }
 )
 
@@ -187,7 +297,7 @@ def validate_request(obj: Any) -> tuple[str, dict[str, Any]]:
         raise ValueError(f"unknown cmd {cmd[:40]!r} (known: {', '.join(COMMANDS)})")
     if "id" in obj and not (isinstance(obj["id"], (str, int)) and not isinstance(obj["id"], bool)):
         raise ValueError("id must be a string or an integer")
-    spec = COMMANDS[cmd]
+    spec = COMMANDS[cmd].fields
     extra = sorted(set(obj) - set(spec) - {"cmd", "id"})
     if extra:
         raise ValueError(f"{cmd}: unexpected field {extra[0][:40]!r} (expected: {', '.join(spec) or 'none'})")
@@ -887,6 +997,8 @@ def parse_ctl_args(words: Sequence[str]) -> dict[str, Any]:
 __all__ = [
     "MAX_LINE_BYTES",
     "COMMANDS",
+    "Command",
+    "ControlledSession",
     "ControlRequest",
     "ControlServer",
     "ControlClient",

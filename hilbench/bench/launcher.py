@@ -31,6 +31,7 @@ from hilbench.targets.base import Target
 from hilbench.targets.profile import TargetProfile
 
 if TYPE_CHECKING:
+    from hilbench.link import Link
     from hilbench.link.spec import TargetSpec
     from hilbench.targets.remote import RemoteTarget
     from hilbench.targets.starters import FirmwareStarter, Started
@@ -43,7 +44,7 @@ class TargetHandle:
 
     target: Target
     label: str
-    link: Any = None
+    link: "Link | None" = None
     process: subprocess.Popen[bytes] | None = None
     child_log: Any = None
     started: "Started | None" = None  # a firmware build's process (sil:, simavr:, qemu:)

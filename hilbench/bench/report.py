@@ -7,8 +7,9 @@ from typing import Any
 
 import numpy as np
 
-from hilbench.bench.recorder import MARKER_FAULT, MARKER_SKIPPED, RecordingData
 from hilbench.bench import segments as segmentation
+from hilbench.bench.recorder import MARKER_FAULT, MARKER_SKIPPED, RecordingData
+from hilbench.plant.period import Period
 
 _EVENT_TIME = re.compile(r"^t=([0-9.]+) (.*)$")
 _REF = re.compile(r"^ref (-?[0-9.]+) rpm")
@@ -30,9 +31,9 @@ def reference_segments(data: RecordingData) -> list[dict[str, float]]:
     c = data.columns
     t = c["t_s"]
     period_us = data.metadata.get("period_us")
-    if len(t) == 0 or not isinstance(period_us, (int, float)) or period_us <= 0:
+    if len(t) == 0 or not isinstance(period_us, int) or period_us <= 0:
         return []
-    period_s = period_us * 1e-6
+    period_s = Period(period_us).s
     every = int(data.metadata.get("history_every_periods", 20) or 20)
     firmware = c.get("measured_speed_rpm")  # the target's own speed, where it reports one
     measured = firmware if firmware is not None else np.full(len(t), np.nan)

@@ -431,15 +431,19 @@ class Plant:
         return ld.torque_nm, 0.0, 0.0, True
 
     # ----------------------------------------------------------------- the exchange period
-    def set_period(self, period_us: int, actuation_delay_periods: int = 0) -> None:
-        """The period `advance` integrates (in chunks of at most MAX_STEP_US) and the whole periods
-        the duties wait before they reach the switches (the delay starts with all switches open)."""
+    def set_period(self, period_us: int, actuation_delay_periods: int = 0, duty_full_scale: float = 1.0) -> None:
+        """The period `advance` integrates (in chunks of at most MAX_STEP_US), the whole periods the
+        duties wait before they reach the switches (the delay starts with all switches open) and the
+        full scale of the duties `advance` gets (a PWM period's counts; 1.0: fractions)."""
         period = Period(int(period_us))
         if period.chunks > MAX_CHUNKS:
             raise ValueError(f"Plant.set_period: {period_us} us is more than {MAX_CHUNKS} steps of {MAX_STEP_US} us")
         if not 0 <= int(actuation_delay_periods) <= MAX_DELAY_PERIODS:
             raise ValueError(f"Plant.set_period: actuation delay {actuation_delay_periods} is not 0..{MAX_DELAY_PERIODS} periods")
+        if not duty_full_scale > 0:
+            raise ValueError(f"Plant.set_period: duty full scale {duty_full_scale!r} is not positive")
         self.period = period
+        self._duty_scale = 1.0 / duty_full_scale
         self._period_s = period.s
         self._chunks = period.chunks
         self._chunk_s = period.chunk_s
@@ -463,12 +467,15 @@ class Plant:
 
     def _advance_py(self, duty_a: float, duty_b: float, duty_c: float, output_mode: int,
                     state_to: bytearray | None = None, /) -> float | None:
-        """One exchange period (`set_period`) with these duties (fractions 0..1) held over it: its
-        chunks, the clock, and the state appended to ``state_to`` (a recorder's row buffer, or None).
+        """One exchange period (`set_period`) with these duties (in counts of its full scale) held
+        over it: its chunks, the clock, and the recorded outputs appended to ``state_to`` (a
+        recorder's row buffer, or None).
         Returns the time of the period's last hall edge from its start (None: no edge); `edges()`
         has every one."""
         if state_to is not None and not isinstance(state_to, bytearray):
             raise TypeError("Plant.advance: state_to must be a bytearray (a recorder's row buffer) or None")
+        scale = self._duty_scale
+        duty_a, duty_b, duty_c = duty_a * scale, duty_b * scale, duty_c * scale
         h = self._chunk_s
         edges: list[tuple[float, int]] = []
         edge_s = None

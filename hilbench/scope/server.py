@@ -173,7 +173,7 @@ class RecordingSource:
         self.data = read_recording(self.path)
 
     def _names(self) -> list[tuple[str, str]]:
-        from hilbench.scope.stream import HALL_BITS
+        from hilbench.bench.display import HALL_BITS
 
         names = [(name, self.data.units.get(name, "")) for name in self.data.columns]
         if "hall" in self.data.columns:
@@ -183,7 +183,7 @@ class RecordingSource:
 
     def frame(self, columns: list[str]) -> dict[str, Any]:
         """Everything in one frame (buckets of a fixed size, at most MAX_BUCKETS of them)."""
-        from hilbench.scope.stream import HALL_BITS, b64_f32, envelope
+        from hilbench.bench.display import HALL_BITS, b64_f32, envelope
 
         data = self.data
         t = np.asarray(data.columns["t_s"], dtype=np.float64)
@@ -205,7 +205,7 @@ class RecordingSource:
         return {"seq": 1, "t0": float(t[0]) if n else 0.0, "dt": bucket * period_s, "n": n_buckets, "cols": cols}
 
     def markers(self) -> list[list[Any]]:
-        from hilbench.scope.stream import marker_kind, parse_event
+        from hilbench.bench.display import marker_kind, parse_event
 
         out = []
         for text in self.data.events:

@@ -14,9 +14,10 @@ import gc
 import threading
 import time
 from dataclasses import dataclass, field
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from hilbench.errors import HilbenchError, LinkClosed, ParamError
+from hilbench.targets.kit import RepeatAnswer
 from hilbench.protocol import (
     Drive,
     MODE_LOCKSTEP,
@@ -36,6 +37,10 @@ from hilbench.protocol import (
     Stop,
     host_hello_mismatch,
 )
+
+if TYPE_CHECKING:
+    from hilbench.link import Link
+    from hilbench.targets.base import Target
 
 log = logging.getLogger("hilbench.serve")
 
@@ -145,99 +150,93 @@ class _Server:
 
     # -- the loop ----------------------------------------------------------------------------
     def run(self) -> ServeReport:
-        link = self.link
-        target = self.target
-        recv = link.recv_or_none
-        send = link.send
-        step = target.step
-        stop_event = self.stop_event
-        report = self.report
+        """Answer frames until the link closes or stop_event is set."""
+        self.answer = RepeatAnswer(self._new_period)  # a repeated seq: the last Drive again, no step
         handlers = {
-            HostHello: self.on_hello,
-            ParamDescribe: self.on_describe,
-            ParamGet: self.on_get,
-            ParamSet: self.on_set,
-            Start: self.on_start,
-            Stop: self.on_stop,
-            StatusRequest: self.on_status,
+            HostHello: self.on_hello, ParamDescribe: self.on_describe, ParamGet: self.on_get,
+            ParamSet: self.on_set, Start: self.on_start, Stop: self.on_stop, StatusRequest: self.on_status,
         }
-        lockstep = self.mode != MODE_REALTIME
-        # lockstep with nobody to ask us to stop: wait for frames without a timeout (one blocking
-        # read per period, no poll); otherwise wake every _POLL_S to look at stop_event
-        lockstep_wait = None if stop_event is None else _POLL_S
-        last_drive: Drive | None = None  # the answer to a repeated seq
         try:
-            while True:
-                if lockstep:
-                    # the hot path: one Sensors in, one Drive out, nothing else per period
-                    msg = recv(lockstep_wait)
-                    if type(msg) is Sensors:
-                        report.sensors += 1
-                        if last_drive is not None and msg.seq == last_drive.seq:  # a duplicated frame:
-                            report.duplicates += 1  # the same answer, no second step (item 8)
-                            send(last_drive)
-                            continue
-                        try:
-                            drive = step(msg)
-                            if drive.seq != msg.seq:
-                                drive = drive._replace(seq=msg.seq)
-                            last_drive = drive
-                            send(drive)
-                        except LinkClosed:
-                            raise
-                        except Exception as exc:  # noqa: BLE001 - a model bug must not take the server down
-                            self.handler_fault(msg, exc)
-                        if stop_event is not None and stop_event.is_set():
-                            report.reason = "stopped"
-                            break
-                        continue
-                else:
-                    msg = recv(self.realtime_wait())
+            while not self._stopped():
+                msg = self._lockstep() if self.mode != MODE_REALTIME else self.link.recv_or_none(self.realtime_wait())
                 if msg is None:
-                    if stop_event is not None and stop_event.is_set():
-                        report.reason = "stopped"
-                        break
                     self.check_watchdog()
-                    continue
-                kind = type(msg)
-                try:
-                    if kind is Sensors and last_drive is not None and msg.seq == last_drive.seq:
-                        report.sensors += 1
-                        report.duplicates += 1
-                        send(last_drive)
-                    elif kind is Sensors:
-                        report.sensors += 1
-                        now = time.monotonic()
-                        last = self.last_sensors_t
-                        span_us = (now - last) * 1e6 if last is not None else float(self.period_us)
-                        self.last_sensors_t = now
-                        self.tripped = False
-                        drive = target.advance(span_us, msg)
-                        if drive.seq != msg.seq:
-                            drive = drive._replace(seq=msg.seq)
-                        last_drive = drive
-                        send(drive)
-                    else:
-                        report.requests += 1
-                        handler = handlers.get(kind)
-                        last_drive = None  # a request between periods: the next Sensors is new
-                        if handler is None:
-                            self.error(msg.seq, ErrorCode.BAD_REQUEST, 0)
-                        else:
-                            handler(msg)
-                            lockstep = self.mode != MODE_REALTIME
-                except LinkClosed:
-                    raise
-                except Exception as exc:  # noqa: BLE001 - a model bug must not take the server down
-                    self.handler_fault(msg, exc)
-                if stop_event is not None and stop_event.is_set():
-                    report.reason = "stopped"
-                    break
+                elif type(msg) is Sensors:
+                    self._sensors(msg)
+                else:
+                    self._request(msg, handlers)
         except LinkClosed as exc:
-            report.reason = str(exc)
+            self.report.reason = str(exc)
             log.info("%s", exc)
-        report.link_stats = link.stats.as_dict()
-        return report
+        self.report.duplicates = self.answer.repeats
+        self.report.link_stats = self.link.stats.as_dict()
+        return self.report
+
+    def _stopped(self) -> bool:
+        stop_event = self.stop_event
+        if stop_event is not None and stop_event.is_set():
+            self.report.reason = "stopped"
+            return True
+        return False
+
+    def _lockstep(self) -> Any:
+        """Lockstep's hot path: one Sensors in, one Drive out, nothing else per period; returns the
+        first other message (None: a poll's timeout, stop_event is to be looked at). With nobody to
+        ask us to stop, wait for frames without a timeout (one blocking read per period, no poll)."""
+        recv, send, answer, report, stop_event = self.link.recv_or_none, self.link.send, self.answer, self.report, self.stop_event
+        wait = None if stop_event is None else _POLL_S
+        while True:
+            msg = recv(wait)
+            if type(msg) is not Sensors:
+                return msg
+            report.sensors += 1
+            try:
+                send(answer.step(msg))
+            except LinkClosed:
+                raise
+            except Exception as exc:  # noqa: BLE001 - a model bug must not take the server down
+                self.handler_fault(msg, exc)
+            if stop_event is not None and stop_event.is_set():
+                return None
+
+    def _new_period(self, msg: Sensors) -> Drive:
+        """A new Sensors (not a repeat): lockstep steps one period, real time the wall time since the
+        last one; the Drive answers with the Sensors' seq."""
+        if self.mode != MODE_REALTIME:
+            drive = self.target.step(msg)
+        else:
+            now = time.monotonic()
+            last = self.last_sensors_t
+            span_us = (now - last) * 1e6 if last is not None else float(self.period_us)
+            self.last_sensors_t = now
+            self.tripped = False
+            drive = self.target.advance(span_us, msg)
+        return drive if drive.seq == msg.seq else drive._replace(seq=msg.seq)
+
+    def _sensors(self, msg: Sensors) -> None:
+        """A Sensors outside the lockstep loop (real time)."""
+        self.report.sensors += 1
+        try:
+            self.link.send(self.answer.step(msg))
+        except LinkClosed:
+            raise
+        except Exception as exc:  # noqa: BLE001 - a model bug must not take the server down
+            self.handler_fault(msg, exc)
+
+    def _request(self, msg: Any, handlers: dict[type, Any]) -> None:
+        """A request between periods: the next Sensors is a new period whatever its seq."""
+        self.report.requests += 1
+        self.answer.forget()
+        handler = handlers.get(type(msg))
+        try:
+            if handler is None:
+                self.error(msg.seq, ErrorCode.BAD_REQUEST, 0)
+            else:
+                handler(msg)
+        except LinkClosed:
+            raise
+        except Exception as exc:  # noqa: BLE001 - a model bug must not take the server down
+            self.handler_fault(msg, exc)
 
     def realtime_wait(self) -> float:
         """How long the real-time loop may wait for a frame: until the watchdog is due, at most _POLL_S."""
@@ -294,7 +293,7 @@ def status_last_error(server_error: int, target_value: int) -> int:
     return int(ErrorCode.NONE)
 
 
-def serve(target: Any, link: Any, *, stop_event: threading.Event | None = None, mode: int | None = None,
+def serve(target: "Target", link: "Link", *, stop_event: threading.Event | None = None, mode: int | None = None,
           watchdog_ms: int | None = None) -> ServeReport:
     """Answer frames on link with target until the link closes or stop_event is set.
 

@@ -105,7 +105,7 @@ def _targets(config: pytest.Config) -> list[str]:
     """The targets given, else the config's own [link] target (read once)."""
     state = _state(config)
     if not state.targets:
-        from hilbench.config import load_config
+        from hilbench.bench.settings import load_config
 
         state.targets = [load_config(state.config_path).link.target]
     return state.targets
@@ -147,7 +147,7 @@ def _info(config: pytest.Config, spec: str) -> "TargetInfo":
         firmware = None
         hello_firmware = None
         if kind == "board":
-            from hilbench.config import load_config
+            from hilbench.bench.settings import load_config
 
             firmware = load_config(state.config_path).link.firmware
             if firmware is None:
@@ -256,7 +256,7 @@ def hil_target_info(request: pytest.FixtureRequest, hil_target: str) -> "TargetI
 @pytest.fixture
 def hil_config(request: pytest.FixtureRequest, hil_target: str) -> "BenchConfig":
     """The bench config (--hil-config, or the packaged one) with this test's target."""
-    from hilbench.config import load_config
+    from hilbench.bench.settings import load_config
 
     return load_config(_state(request.config).config_path, [f"link.target={json.dumps(hil_target)}"])
 

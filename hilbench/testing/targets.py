@@ -112,8 +112,7 @@ def hello_text(hello: "TargetHello") -> str:
 def bench_process(bench: "Bench") -> subprocess.Popen[bytes] | None:
     """The emulator process a bench started (None for in-process targets and ports): a test may
     kill it to see the firmware's host go away; the bench reaps it on close."""
-    handle = getattr(bench, "_handle", None)
-    return getattr(handle, "process", None) if handle is not None else None
+    return bench.target_process
 
 
 __all__ = ["SPEC_CAPABILITIES", "TargetInfo", "bench_process", "describe_target", "hello_text", "spec_kind",

@@ -52,7 +52,7 @@ def parse_window(text: str | None) -> tuple[float, float] | None:
 
 def _events(data: RecordingData) -> list[tuple[float, str]]:
     """The recording's events as (t_s, text): "t=1.234500 text" lines."""
-    from hilbench.scope.stream import parse_event
+    from hilbench.bench.display import parse_event
 
     return [parsed for parsed in (parse_event(text) for text in data.events) if parsed is not None]
 
@@ -62,7 +62,7 @@ def _trace(ax, t: np.ndarray, y: np.ndarray, label: str, style: dict, offset: fl
     """A line, or its min/max envelope per bucket when there are more points than pixels: a 20 kHz
     current over seconds shows its true extent, not a blob of overdrawn lines or aliasing. A
     digital trace (halls, sector) is drawn in steps, and decimated as its band only."""
-    from hilbench.scope.stream import envelope
+    from hilbench.bench.display import envelope
 
     if len(t) <= 2 * MAX_POINTS:
         if digital:
