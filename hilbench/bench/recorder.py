@@ -445,7 +445,8 @@ class RecordingData:
 
 
 def read_recording(path: str | Path) -> RecordingData:
-    """Read a CSV, NPZ or NPZ journal recording; a truncated tail is tolerated."""
+    """Read a CSV, NPZ or NPZ journal recording; a truncated tail is tolerated. What is read is
+    checked (hilbench.bench.recording_checks): a damaged file is one RecordingError line."""
     path = Path(path)
     if not path.exists():
         journal = path.with_name(path.name + ".journal")
@@ -455,29 +456,61 @@ def read_recording(path: str | Path) -> RecordingData:
             raise RecordingError(f"recording {path}: no such file")
     try:
         if path.name.endswith(".journal"):
-            return _read_journal(path)
-        if path.suffix.lower() == ".npz":
-            return _read_npz(path)
-        return _read_csv(path)
+            data = _read_journal(path)
+        elif path.suffix.lower() == ".npz":
+            data = _read_npz(path)
+        else:
+            data = _read_csv(path)
+        return _checked(data)
     except RecordingError:
         raise
-    except (OSError, ValueError, KeyError, EOFError, IndexError, TypeError, struct.error, zipfile.BadZipFile,
-            json.JSONDecodeError, UnicodeDecodeError) as exc:
+    except (OSError, ValueError, KeyError, EOFError, IndexError, TypeError, AttributeError, OverflowError,
+            RecursionError, struct.error, zipfile.BadZipFile, json.JSONDecodeError, UnicodeDecodeError) as exc:
         reason = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
         if "allow_pickle" in reason or "pickle" in reason.lower():  # NumPy's advice for foreign bytes: never give it
             reason = "not an NPZ archive written by hilbench"
         raise RecordingError(f"recording {path}: unreadable ({reason[:160]})") from None
 
 
+def _checked(data: RecordingData) -> RecordingData:
+    from hilbench.bench import recording_checks as check
+
+    where = str(data.path)
+    metadata = check.check_metadata(where, data.metadata)
+    columns = check.check_columns(where, data.columns, ("t_s", "marker"))
+    events = check.check_events(where, data.events)
+    units = {str(k): str(v) for k, v in data.units.items()}
+    return RecordingData(data.path, columns, metadata, events, units)
+
+
+def _csv_line(handle: Any, path: Path, limit: int) -> str:
+    """The next line (at most ``limit`` characters; "" at the end)."""
+    line = handle.readline(limit + 1)
+    if len(line) > limit and not line.endswith("\n"):
+        raise RecordingError(f"recording {path}: a line longer than {limit} characters")
+    return line
+
+
 def _read_csv(path: Path) -> RecordingData:
+    from hilbench.bench.recording_checks import check_columns_fit
+    from hilbench.limits import RECORDING_LINE_MAX_BYTES, RECORDING_META_MAX_BYTES
+
     metadata: dict[str, Any] = {}
     events: list[str] = []
-    values: list[list[float]] = []
+    blocks: list[np.ndarray] = []
+    block: list[list[float]] = []
     header_seen = False
     names: list[str] = []
     units: dict[str, str] = {}
+    n_rows = 0
     with open(path, encoding="utf-8") as handle:
-        for line in handle:
+        while True:
+            line = _csv_line(handle, path, RECORDING_META_MAX_BYTES)
+            if not line:
+                break
+            if len(line) > RECORDING_LINE_MAX_BYTES and not line.startswith("#"):
+                raise RecordingError(f"recording {path}: a row or header longer than {RECORDING_LINE_MAX_BYTES} "
+                                     "characters")
             if line.startswith("# event: "):
                 events.append(line[len("# event: "):].rstrip("\n"))
                 continue
@@ -494,35 +527,56 @@ def _read_csv(path: Path) -> RecordingData:
                 units = {cell.split("[", 1)[0]: cell.split("[", 1)[1].rstrip("]") for cell in cells if "[" in cell}
                 if "t_s" not in names or "marker" not in names or len(set(names)) != len(names):
                     raise RecordingError(f"recording {path}: not a hilbench CSV (header does not match)")
+                check_columns_fit(str(path), len(names), 0)
                 header_seen = True
                 continue
             cells = line.rstrip("\n").split(",")
             if len(cells) != len(names) or not line.endswith("\n"):
                 break  # a row cut by a crash: everything before it stands
-            values.append([float(cell) for cell in cells])
+            block.append([float(cell) for cell in cells])
+            if len(block) >= 4096:  # rows as arrays as they come: a list of floats is 4x their size
+                n_rows += len(block)
+                check_columns_fit(str(path), len(names), n_rows)
+                blocks.append(np.asarray(block, dtype=float))
+                block = []
     if not header_seen:
         raise RecordingError(f"recording {path}: no header line (empty or not a hilbench CSV)")
-    table = np.asarray(values, dtype=float).reshape(-1, len(names))
+    blocks.append(np.asarray(block, dtype=float).reshape(-1, len(names)))
+    table = np.concatenate(blocks) if len(blocks) > 1 else blocks[0]
     columns = {name: table[:, i].copy() for i, name in enumerate(names)}
     return RecordingData(path, columns, metadata, tuple(events), units)
 
 
-def _read_journal_rows(path: Path, head_only: bool = False) -> tuple[dict[str, Any], RowLayout, memoryview]:
+def _read_journal_rows(path: Path, head_only: bool = False) -> tuple[dict[str, Any], RowLayout, Any]:
     """A journal's metadata, row layout and raw rows (to_columns drops a torn last row; with
-    ``head_only`` no rows are read)."""
+    ``head_only`` no rows are read; else they are mapped, not read into memory)."""
+    from hilbench.limits import RECORDING_META_MAX_BYTES
+
+    with open(path, "rb") as handle:
+        raw = handle.read(8)
+        if raw[:4] != _JOURNAL_MAGIC or len(raw) < 8:
+            raise RecordingError(f"recording {path}: not a hilbench journal (or written before its first row)")
+        (head_len,) = struct.unpack_from("<I", raw, 4)
+        if head_len > RECORDING_META_MAX_BYTES:
+            raise RecordingError(f"recording {path}: a header of {head_len} bytes, more than the limit of "
+                                 f"{RECORDING_META_MAX_BYTES // (1024 * 1024)} MiB")
+        head_bytes = handle.read(head_len)
+    if len(head_bytes) < head_len:
+        raise RecordingError(f"recording {path}: the header is cut short")
+    head = json.loads(head_bytes)
+    if not isinstance(head, dict) or not isinstance(head.get("layout"), dict):
+        raise RecordingError(f"recording {path}: not a hilbench journal (no row layout in its header)")
+    layout = RowLayout.from_json(head["layout"])
     if head_only:
-        with open(path, "rb") as handle:
-            raw = handle.read(8)
-            if raw[:4] == _JOURNAL_MAGIC and len(raw) == 8:
-                raw += handle.read(struct.unpack_from("<I", raw, 4)[0])
-    else:
-        raw = path.read_bytes()
-    if raw[:4] != _JOURNAL_MAGIC or len(raw) < 8:
-        raise RecordingError(f"recording {path}: not a hilbench journal (or written before its first row)")
-    (head_len,) = struct.unpack_from("<I", raw, 4)
+        return head.get("metadata"), layout, b""
     start = 8 + head_len
-    head = json.loads(raw[8:start])
-    return head["metadata"], RowLayout.from_json(head["layout"]), memoryview(raw)[start:]
+    n_rows = max(0, (path.stat().st_size - start) // layout.dtype.itemsize)  # a torn last row is dropped
+    from hilbench.bench.recording_checks import check_columns_fit
+
+    check_columns_fit(str(path), len(layout.columns), n_rows)
+    rows = np.memmap(path, dtype=layout.dtype, mode="r", offset=start, shape=(n_rows,)) if n_rows else \
+        np.zeros(0, dtype=layout.dtype)
+    return head.get("metadata"), layout, rows
 
 
 def _events_path(journal: Path) -> Path:
@@ -531,18 +585,62 @@ def _events_path(journal: Path) -> Path:
 
 
 def _read_journal(path: Path) -> RecordingData:
+    from hilbench.limits import RECORDING_META_MAX_BYTES, read_text_bounded
+
     metadata, layout, rows = _read_journal_rows(path)
     columns = layout.to_columns(rows)
+    del rows
     side = _events_path(path)
-    events = side.read_text(encoding="utf-8").splitlines() if side.exists() else []
+    events = read_text_bounded(side, RECORDING_META_MAX_BYTES, RecordingError, f"recording {side}").splitlines() \
+        if side.exists() else []
     units = {name: unit for name, unit, _ in layout.column_specs}
     return RecordingData(path, columns, metadata, tuple(events), units)
 
 
+def _npz_members(path: Path, archive: zipfile.ZipFile) -> None:
+    """Refuse an archive before NumPy reads it: too many members, a metadata member beyond its
+    limit, a member whose header promises more values than the member holds (np.load would
+    allocate what the header says), or more column data than a recording may have."""
+    from hilbench.bench.recording_checks import check_columns_fit
+    from hilbench.limits import RECORDING_META_MAX_BYTES
+
+    infos = archive.infolist()
+    check_columns_fit(str(path), len(infos) - 1, 0)
+    n_rows = 0
+    for info in infos:
+        if info.filename == "metadata.npy":
+            if info.file_size > RECORDING_META_MAX_BYTES:
+                raise RecordingError(f"recording {path}: metadata of {info.file_size} bytes, more than the limit of "
+                                     f"{RECORDING_META_MAX_BYTES // (1024 * 1024)} MiB")
+            continue
+        with archive.open(info) as member:
+            version = np.lib.format.read_magic(member)
+            read_header = np.lib.format.read_array_header_1_0 if version == (1, 0) else \
+                np.lib.format.read_array_header_2_0
+            shape, _, dtype = read_header(member)
+            header_end = member.tell()
+        count = int(np.prod(shape, dtype=np.int64)) if shape else 1
+        if dtype.hasobject or count < 0 or header_end + count * dtype.itemsize > info.file_size:
+            raise RecordingError(f"recording {path}: member {info.filename[:40]} promises {count} values of "
+                                 f"{dtype} in {info.file_size} bytes")
+        n_rows = max(n_rows, count)
+    check_columns_fit(str(path), len(infos) - 1, n_rows)
+
+
 def _read_npz(path: Path) -> RecordingData:
+    with zipfile.ZipFile(path) as archive:
+        _npz_members(path, archive)
     with np.load(path, allow_pickle=False) as archive:
         metadata = json.loads(str(archive["metadata"]))
+        if not isinstance(metadata, dict):
+            raise RecordingError(f"recording {path}: metadata is not a table")
         specs = metadata.get("columns") or [[name, unit] for name, unit, _ in COLUMNS]
+        if not isinstance(specs, list) or not all(isinstance(s, list) and len(s) == 2 for s in specs):
+            raise RecordingError(f"recording {path}: metadata columns is not a list of [name, unit]")
+        members = set(archive.files)
+        missing = [str(name) for name, _ in specs if str(name) not in members]
+        if missing:
+            raise RecordingError(f"recording {path}: no column {missing[0][:40]} in the archive")
         columns = {str(name): archive[str(name)] for name, _ in specs}
     units = {str(name): str(unit) for name, unit in specs}
     return RecordingData(path, columns, metadata, tuple(metadata.get("events", ())), units)
