@@ -311,6 +311,9 @@ def run(config: str | None, target_spec: str | None, mode: str | None, duration_
             scope_server.close()
         if control is not None:
             control.close()
+            note = control.trouble()
+            if note:
+                click.echo(f"hilbench: warning: control socket: {note}", err=True)
     from hilbench.bench.checks import checks_text, raise_if_failed
 
     if as_json:
