@@ -56,6 +56,9 @@ def cli() -> None:
       hilbench ports                    list serial ports
       hilbench emulate                  serve the default firmware's emulator on a virtual serial pair
     """
+    from hilbench.processes import watch_parent
+
+    watch_parent()  # started by a bench (run --scope's scope, link-test's emulator): end with it
 
 
 def _default_target_name() -> str:

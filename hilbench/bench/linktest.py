@@ -20,6 +20,7 @@ import numpy as np
 
 from hilbench.errors import LinkError, LinkTimeout
 from hilbench.link import open_link
+from hilbench.processes import spawn
 from hilbench.protocol import INPUT_S3, MODE_LOCKSTEP, Sensors
 from hilbench.targets.loopback.target import LoopbackTarget
 from hilbench.targets.remote import RemoteTarget
@@ -81,12 +82,11 @@ class _Spawned:
         self.proc: subprocess.Popen[bytes] | None = None
         try:
             if program is None:
-                argv = [sys.executable, "-m", "hilbench", "emulate", target_name, "-q",
+                argv = [sys.executable, "-P", "-m", "hilbench", "emulate", target_name, "-q",
                         "--port", str(self.link.peer_path), *emulate_args]
             else:
                 argv = [program, str(self.link.peer_path)]
-            self.proc = subprocess.Popen(argv, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
-                                         stdin=subprocess.DEVNULL)
+            self.proc = spawn(argv, stdout=subprocess.PIPE, stderr=subprocess.PIPE, stdin=subprocess.DEVNULL)
             if program is None:
                 self._wait_ready()
         except BaseException:

@@ -16,6 +16,7 @@ import threading
 from typing import Callable, Mapping
 
 from hilbench.link import open_link, parse_tcp_listen, serve_tcp_once
+from hilbench.processes import watch_parent
 from hilbench.targets.registry import get_profile
 from hilbench.targets.serve import ServeReport, serve
 
@@ -66,6 +67,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--watchdog-ms", type=int, default=None)
     parser.add_argument("--options", default="{}", help="the profile's [target] options as JSON")
     args = parser.parse_args(argv)
+    watch_parent()  # the bench that started this process may be killed: then this one ends too
     mode = None if args.mode is None else (0 if args.mode == "lockstep" else 1)
     try:
         options = json.loads(args.options)
