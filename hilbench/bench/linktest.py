@@ -19,7 +19,7 @@ from typing import Any, Callable, Sequence
 import numpy as np
 
 from hilbench.errors import LinkError, LinkTimeout
-from hilbench.link import open_link
+from hilbench.link import open_link, parse_target_spec
 from hilbench.processes import spawn
 from hilbench.protocol import INPUT_S3, MODE_LOCKSTEP, Sensors
 from hilbench.targets.loopback.target import LoopbackTarget
@@ -142,18 +142,25 @@ def run_link_test(target: str = DEFAULT_TARGET, *, periods: int = 10_000, period
                   timeout_s: float = 1.0, progress: Callable[[int], None] | None = None,
                   link_wrapper: Callable[[Any], Any] | None = None) -> LinkTestResult:
     """Run `periods` lockstep exchanges against target: a link spec, "pty" (spawn the Python
-    loopback emulator on a pty pair) or "exec:PROGRAM" (spawn PROGRAM with the pty path).
+    loopback emulator on a pty pair), "exec:PROGRAM" (spawn PROGRAM with the pty path), or
+    emulator:NAME / sil:NAME (started as `hilbench run` starts them; an unknown NAME is the same
+    "unknown target" ConfigError).
 
     link_wrapper (for example a FaultyLink factory) wraps the host's link before use.
     """
     if periods <= 0:
         raise LinkError(f"link-test: periods must be positive, got {periods}")
-    spawned: _Spawned | None = None
+    spawned: _Spawned | Any = None
     if target in ("pty", "loopback"):
         spawned = _Spawned("loopback", timeout_s)
         link = spawned.link
     elif target.startswith("exec:"):
         spawned = _Spawned("", timeout_s, program=target[len("exec:"):])
+        link = spawned.link
+    elif parse_target_spec(target).spawns_process:  # emulator:NAME, sil:NAME: started as the bench starts them
+        from hilbench.bench.launcher import open_target
+
+        spawned = open_target(target, mode="lockstep", timeout_s=timeout_s)  # unknown NAME: ConfigError, exit 2
         link = spawned.link
     else:
         link = open_link(target, timeout_s=timeout_s)
