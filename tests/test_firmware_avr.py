@@ -23,6 +23,7 @@ from _firmware import play, random_stream, require_file, require_tool
 from conftest import BENCH_CONFIGS
 from hilbench.bench.run import RunRequest, load_run_config, run_bench
 from hilbench.link import open_link
+from hilbench.processes import spawn
 from hilbench.targets.an1017.firmware import An1017Options
 from hilbench.targets.an1017.target import An1017Target
 from hilbench.targets.remote import RemoteTarget
@@ -64,8 +65,8 @@ def test_avr_gcc_strict_flags_16bit_int(avr_gcc: str, tmp_path: Path, source: Pa
 
 
 def start_simavr(build: Path) -> tuple[subprocess.Popen[bytes], str]:
-    process = subprocess.Popen([str(build / "run_simavr"), str(build / "an1017_avr_seed.elf")],
-                               stdin=subprocess.DEVNULL, stdout=subprocess.PIPE, stderr=subprocess.PIPE)
+    process = spawn([str(build / "run_simavr"), str(build / "an1017_avr_seed.elf")],  # dies with the test run
+                    stdin=subprocess.DEVNULL, stdout=subprocess.PIPE, stderr=subprocess.PIPE)
     assert process.stdout is not None
     fd = process.stdout.fileno()
     seen = b""
