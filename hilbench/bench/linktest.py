@@ -8,6 +8,7 @@ as a mismatch.
 
 from __future__ import annotations
 
+import math
 import os
 import select
 import subprocess
@@ -28,6 +29,8 @@ from hilbench.targets.remote import RemoteTarget
 DEFAULT_TARGET = "pty"
 _READY_TIMEOUT_S = 15.0
 _MAX_CONSECUTIVE_TIMEOUTS = 20
+#: how long link-test keeps sending HostHello at least, whatever --timeout-ms says
+HANDSHAKE_S = 5.0
 
 
 @dataclass(frozen=True)
@@ -167,7 +170,9 @@ def run_link_test(target: str = DEFAULT_TARGET, *, periods: int = 10_000, period
     try:
         host_link = link_wrapper(link) if link_wrapper is not None else link
         remote = RemoteTarget(host_link, timeout_s=timeout_s)
-        hello = remote.handshake(period_us, MODE_LOCKSTEP, 0, attempts=5)
+        # a short per-exchange deadline must not make the handshake fragile (a target still starting,
+        # a loaded machine): HostHello is sent again for HANDSHAKE_S at least
+        hello = remote.handshake(period_us, MODE_LOCKSTEP, 0, attempts=max(5, math.ceil(HANDSHAKE_S / timeout_s)))
         check = LoopbackTarget() if hello.firmware_name == "loopback" else None
         rtt_ns = np.zeros(periods, dtype=np.int64)
         good = timeouts = mismatches = consecutive = 0
