@@ -640,10 +640,7 @@ class ControlServer:
                 events = self._sel.select(timeout=1.0 if paused else None)
             except OSError:  # selector closed under us
                 return
-            now = time.monotonic()
-            for conn in paused:
-                if conn.paused_since is not None and now - conn.paused_since > SLOW_READER_S:
-                    self._drop_slow(conn)
+            self._close_slow_readers(paused)
             for key, mask in events:
                 obj = key.fileobj
                 if obj is self._listener:
@@ -654,22 +651,33 @@ class ControlServer:
                             pass
                     except (BlockingIOError, OSError):
                         pass
-                else:
+                elif key.data.cid in self._conns:
                     conn: _Conn = key.data
                     if mask & selectors.EVENT_READ:
                         self._read(conn)
                     if mask & selectors.EVENT_WRITE and conn.cid in self._conns:
                         self._flush(conn)
-            while self._outbox:
-                cid, line = self._outbox.popleft()
-                conn2 = self._conns.get(cid)
-                if conn2 is None:  # the client has gone: drop the reply
-                    self.counters["dropped_replies"] += 1
-                elif len(conn2.wbuf) + len(line) > MAX_UNSENT_BYTES:
-                    self._drop_slow(conn2)
-                else:
-                    conn2.wbuf += line
-                    self._flush(conn2)
+            self._deliver_replies()
+
+    def _close_slow_readers(self, paused: list[_Conn]) -> None:
+        now = time.monotonic()
+        for conn in paused:
+            if conn.paused_since is not None and now - conn.paused_since > SLOW_READER_S:
+                self._drop_slow(conn)
+
+    def _deliver_replies(self) -> None:
+        """The session's replies to their connections (dropped and counted when the client has gone;
+        a client with MAX_UNSENT_BYTES unread is closed)."""
+        while self._outbox:
+            cid, line = self._outbox.popleft()
+            conn = self._conns.get(cid)
+            if conn is None:
+                self.counters["dropped_replies"] += 1
+            elif len(conn.wbuf) + len(line) > MAX_UNSENT_BYTES:
+                self._drop_slow(conn)
+            else:
+                conn.wbuf += line
+                self._flush(conn)
 
     def _accept(self) -> None:
         while True:

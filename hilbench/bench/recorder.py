@@ -478,63 +478,71 @@ def _checked(data: RecordingData) -> RecordingData:
     return RecordingData(data.path, columns, metadata, events, units)
 
 
-def _csv_line(handle: Any, path: Path, limit: int) -> str:
-    """The next line (at most ``limit`` characters; "" at the end)."""
-    line = handle.readline(limit + 1)
-    if len(line) > limit and not line.endswith("\n"):
-        raise RecordingError(f"recording {path}: a line longer than {limit} characters")
-    return line
+def _csv_lines(handle: Any, path: Path) -> Any:
+    """The file's lines, each within its limit (a ``#`` line RECORDING_META_MAX_BYTES, a row or the
+    header RECORDING_LINE_MAX_BYTES): RecordingError at the first longer one."""
+    from hilbench.limits import RECORDING_LINE_MAX_BYTES, RECORDING_META_MAX_BYTES
+
+    while line := handle.readline(RECORDING_META_MAX_BYTES + 1):
+        if len(line) > RECORDING_META_MAX_BYTES and not line.endswith("\n"):
+            raise RecordingError(f"recording {path}: a line longer than {RECORDING_META_MAX_BYTES} characters")
+        if len(line) > RECORDING_LINE_MAX_BYTES and not line.startswith("#"):
+            raise RecordingError(f"recording {path}: a row or header longer than {RECORDING_LINE_MAX_BYTES} characters")
+        yield line
+
+
+def _csv_comment(line: str, metadata: dict[str, Any], events: list[str]) -> bool:
+    """A ``# event: ...`` or ``# key: JSON`` line into events or metadata (False: not a comment)."""
+    if line.startswith("# event: "):
+        events.append(line[len("# event: "):].rstrip("\n"))
+        return True
+    if not line.startswith("# "):
+        return False
+    key, _, value = line[2:].partition(": ")
+    try:
+        metadata[key] = json.loads(value)
+    except (json.JSONDecodeError, RecursionError):
+        metadata[key] = value.rstrip("\n")
+    return True
+
+
+def _csv_header(path: Path, line: str) -> tuple[list[str], dict[str, str]]:
+    from hilbench.bench.recording_checks import check_columns_fit
+
+    cells = line.strip().split(",")
+    names = [cell.split("[", 1)[0] for cell in cells]
+    units = {cell.split("[", 1)[0]: cell.split("[", 1)[1].rstrip("]") for cell in cells if "[" in cell}
+    if "t_s" not in names or "marker" not in names or len(set(names)) != len(names):
+        raise RecordingError(f"recording {path}: not a hilbench CSV (header does not match)")
+    check_columns_fit(str(path), len(names), 0)
+    return names, units
 
 
 def _read_csv(path: Path) -> RecordingData:
     from hilbench.bench.recording_checks import check_columns_fit
-    from hilbench.limits import RECORDING_LINE_MAX_BYTES, RECORDING_META_MAX_BYTES
 
     metadata: dict[str, Any] = {}
     events: list[str] = []
     blocks: list[np.ndarray] = []
     block: list[list[float]] = []
-    header_seen = False
-    names: list[str] = []
+    names: list[str] | None = None
     units: dict[str, str] = {}
-    n_rows = 0
     with open(path, encoding="utf-8") as handle:
-        while True:
-            line = _csv_line(handle, path, RECORDING_META_MAX_BYTES)
-            if not line:
-                break
-            if len(line) > RECORDING_LINE_MAX_BYTES and not line.startswith("#"):
-                raise RecordingError(f"recording {path}: a row or header longer than {RECORDING_LINE_MAX_BYTES} "
-                                     "characters")
-            if line.startswith("# event: "):
-                events.append(line[len("# event: "):].rstrip("\n"))
+        for line in _csv_lines(handle, path):
+            if _csv_comment(line, metadata, events):
                 continue
-            if line.startswith("# "):
-                key, _, value = line[2:].partition(": ")
-                try:
-                    metadata[key] = json.loads(value)
-                except json.JSONDecodeError:
-                    metadata[key] = value.rstrip("\n")
-                continue
-            if not header_seen:
-                cells = line.strip().split(",")
-                names = [cell.split("[", 1)[0] for cell in cells]
-                units = {cell.split("[", 1)[0]: cell.split("[", 1)[1].rstrip("]") for cell in cells if "[" in cell}
-                if "t_s" not in names or "marker" not in names or len(set(names)) != len(names):
-                    raise RecordingError(f"recording {path}: not a hilbench CSV (header does not match)")
-                check_columns_fit(str(path), len(names), 0)
-                header_seen = True
+            if names is None:
+                names, units = _csv_header(path, line)
                 continue
             cells = line.rstrip("\n").split(",")
             if len(cells) != len(names) or not line.endswith("\n"):
                 break  # a row cut by a crash: everything before it stands
             block.append([float(cell) for cell in cells])
-            if len(block) >= 4096:  # rows as arrays as they come: a list of floats is 4x their size
-                n_rows += len(block)
-                check_columns_fit(str(path), len(names), n_rows)
+            if len(block) >= 4096:  # rows into arrays as they come: a list of floats is 4x their size
                 blocks.append(np.asarray(block, dtype=float))
                 block = []
-    if not header_seen:
+                check_columns_fit(str(path), len(names), 4096 * len(blocks))
+    if names is None:
         raise RecordingError(f"recording {path}: no header line (empty or not a hilbench CSV)")
     blocks.append(np.asarray(block, dtype=float).reshape(-1, len(names)))
     table = np.concatenate(blocks) if len(blocks) > 1 else blocks[0]

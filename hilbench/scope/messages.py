@@ -61,22 +61,30 @@ def parse_page_message(text: str) -> Subscribe | Command:
     kind = message.get("type")
     page_id = _page_id(message.get("id"))
     if kind == "subscribe":
-        columns = message.get("columns")
-        if not isinstance(columns, list) or len(columns) > MAX_COLUMNS or \
-                not all(isinstance(c, str) and _NAME.match(c) for c in columns):
-            raise Refused(f"subscribe: columns must be a list of at most {MAX_COLUMNS} column names", page_id)
-        return Subscribe(tuple(columns))
+        return _subscribe(message, page_id)
     if kind == "cmd":
-        if "id" in message and page_id is None:
-            raise Refused("cmd: id must be a short string or an integer")
-        request = {k: v for k, v in message.items() if k not in ("type", "id")}
-        if not isinstance(request.get("cmd"), str) or request["cmd"] == "stream":
-            raise Refused("cmd: needs \"cmd\", a command name (not stream: the page subscribes)", page_id)
-        if not _finite(request):
-            raise Refused("cmd: numbers must be finite", page_id)
-        return Command(page_id, request)
+        return _command(message, page_id)
     shown = json.dumps(kind)[:40] if _finite(kind) else "?"
     raise Refused(f"unknown message type {shown} (subscribe or cmd)", page_id)
+
+
+def _subscribe(message: dict[str, Any], page_id: str | int | None) -> Subscribe:
+    columns = message.get("columns")
+    if not isinstance(columns, list) or len(columns) > MAX_COLUMNS or \
+            not all(isinstance(c, str) and _NAME.match(c) for c in columns):
+        raise Refused(f"subscribe: columns must be a list of at most {MAX_COLUMNS} column names", page_id)
+    return Subscribe(tuple(columns))
+
+
+def _command(message: dict[str, Any], page_id: str | int | None) -> Command:
+    if "id" in message and page_id is None:
+        raise Refused("cmd: id must be a short string or an integer")
+    request = {k: v for k, v in message.items() if k not in ("type", "id")}
+    if not isinstance(request.get("cmd"), str) or request["cmd"] == "stream":
+        raise Refused("cmd: needs \"cmd\", a command name (not stream: the page subscribes)", page_id)
+    if not _finite(request):
+        raise Refused("cmd: numbers must be finite", page_id)
+    return Command(page_id, request)
 
 
 def _finite(value: Any) -> bool:
