@@ -1,6 +1,7 @@
 """Build hook for the optional compiled cores: the plant (hilbench/plant/_plantcore.c), the
-AN1017 board firmware (firmware/an1017/an1017.c behind the glue hilbench/targets/an1017/_core.c)
-and the F2812 FOC firmware model (hilbench/targets/foc/_core.c).
+AN1017 board firmware (firmware/an1017/an1017.c on the runtime firmware/runtime/hrt.c, behind the
+glue hilbench/targets/an1017/_core.c) and the F2812 FOC firmware (firmware/foc/*.c behind the glue
+hilbench/targets/foc/_core.c).
 
 All metadata is in pyproject.toml. The extension is `optional`: without a C compiler
 `pip install .` still succeeds and hilbench.plant falls back to its pure-Python step
@@ -25,17 +26,22 @@ setup(
             extra_compile_args=_flags,
             optional=True,
         ),
-        Extension(
+        Extension(  # the FOC firmware's own source behind a CPython glue (MANIFEST.in ships it)
             "hilbench.targets.foc._core",
-            sources=["hilbench/targets/foc/_core.c"],
+            sources=["hilbench/targets/foc/_core.c", "firmware/foc/foc.c", "firmware/foc/foc_blocks.c",
+                     "firmware/foc/foc_sin_table.c"],
+            include_dirs=["firmware/foc"],
+            depends=["firmware/foc/foc.h", "firmware/foc/foc_blocks.h", "firmware/foc/foc_config.h",
+                     "firmware/foc/iq24.h"],
             extra_compile_args=_flags,
             optional=True,
         ),
-        Extension(  # the board firmware's own source behind a CPython glue (MANIFEST.in ships it)
+        Extension(  # the board firmware's own source on the runtime behind a CPython glue (MANIFEST.in ships them)
             "hilbench.targets.an1017._core",
-            sources=["hilbench/targets/an1017/_core.c", "firmware/an1017/an1017.c"],
-            include_dirs=["firmware/an1017"],
-            depends=["firmware/an1017/an1017.h", "firmware/an1017/q15.h"],
+            sources=["hilbench/targets/an1017/_core.c", "firmware/an1017/an1017.c", "firmware/runtime/hrt.c"],
+            include_dirs=["firmware/an1017", "firmware/runtime", "firmware_protocol"],
+            depends=["firmware/an1017/an1017.h", "firmware/an1017/q15.h", "firmware/an1017/hrt_config.h",
+                     "firmware/runtime/hrt.h", "firmware_protocol/hbp_messages.h"],
             extra_compile_args=_flags,
             optional=True,
         ),

@@ -529,46 +529,35 @@ def load_config(path: str | Path | None = None, overrides: Sequence[str] = (), *
     return BenchConfig(sections=types.MappingProxyType(built), source=source)
 
 
-#: RK4's stability limit on the negative real axis is |lambda dt| < 2.785; keep a margin
-RK4_MAX_LAMBDA_DT = 2.5
-#: the session integrates periods longer than this in chunks of at most this (session.MAX_PLANT_STEP_US)
-PLANT_CHUNK_US = 50
+#: the config keys of each MotorParams field a stiffness depends on (the first overridden is blamed)
+_MOTOR_KEYS = {"ld_h": ("l_h", "ld_h"), "lq_h": ("l_h", "lq_h"), "psi_wb": ("ke_v_per_krpm", "psi_wb")}
 
 
 def _check_integrator(built: Mapping[str, Any], col: _Collector) -> None:
-    """Refuse a motor whose fastest mode the plant's RK4 step cannot follow (it would diverge).
+    """Refuse a motor whose fastest mode the plant's integrator cannot follow at the configured
+    period (it would diverge): the plant says which (hilbench.plant.stiffness)."""
+    from hilbench.plant.period import MAX_STEP_US
+    from hilbench.plant.stiffness import stiff_modes
 
-    The fastest rates of the motor: electrical R/L, mechanical B/J and the electromechanical
-    oscillation sqrt(1.5 p^2 psi^2 / (L J)) (the speed/current loop through the back-EMF). Each
-    times the RK4 step (the period in chunks of at most 50 us, divided by [plant] substeps) must
-    stay under RK4's stability limit."""
     motor, link, plant = built.get("motor"), built.get("link"), built.get("plant")
     if motor is None or plant is None:
         return
-    period_us = getattr(link, "period_us", PLANT_CHUNK_US)
-    chunk_s = period_us * 1e-6 / max(1, math.ceil(period_us / PLANT_CHUNK_US))
+    period_us = getattr(link, "period_us", MAX_STEP_US)
     try:
-        m = motor.to_params()
-        l_min = min(m.ld_h, m.lq_h)
-        rates = {  # the keys each rate depends on: the first one overridden is blamed
-            ("l_h", "ld_h", "lq_h", "rs_ohm"): (m.rs_ohm / l_min, f"R/L = {m.rs_ohm:g} ohm / {l_min:g} H"),
-            ("b_nms_per_rad", "j_kgm2"): (m.b_nms_per_rad / m.j_kgm2, f"B/J = {m.b_nms_per_rad:g} / {m.j_kgm2:g} kg*m^2"),
-            ("j_kgm2", "l_h", "ld_h", "lq_h", "ke_v_per_krpm", "psi_wb", "pole_pairs"): (
-                math.sqrt(1.5 * m.pole_pairs**2 * m.psi_wb**2 / (l_min * m.j_kgm2)),
-                "the back-EMF loop sqrt(1.5 p^2 psi^2/(L J))"),
-        }
+        modes = stiff_modes(motor.to_params(), period_us, plant.substeps)
     except (ArithmeticError, ValueError):
         col.add("motor", "", "these values overflow the plant's equations")
         return
-    for keys, (rate, what) in rates.items():
-        needed = rate * chunk_s / RK4_MAX_LAMBDA_DT
-        if not math.isfinite(needed) or needed > plant.substeps:
-            n = "over 10^12" if not math.isfinite(needed) or needed > 1e12 else str(math.ceil(needed))
-            present = [k for k in keys if getattr(motor, k, None) is not None]
-            key = next((k for k in present if f"motor.{k}" in col.override_keys), present[0])
-            col.add("motor", key, f"too stiff for the plant's integrator: {what} is {rate:.3g}/s, so a "
-                                  f"{period_us} us period needs {n} [plant] substeps (have {plant.substeps}, at most 64)")
-            return
+    if not modes:
+        return
+    mode = modes[0]
+    needed = mode.substeps_needed
+    n = "over 10^12" if needed > 1e12 else str(math.ceil(needed))
+    keys = dict.fromkeys(key for name in mode.depends_on for key in _MOTOR_KEYS.get(name, (name,)))
+    present = [k for k in keys if getattr(motor, k, None) is not None]
+    key = next((k for k in present if f"motor.{k}" in col.override_keys), present[0])
+    col.add("motor", key, f"too stiff for the plant's integrator: {mode.what} is {mode.rate_per_s:.3g}/s, so a "
+                          f"{period_us} us period needs {n} [plant] substeps (have {plant.substeps}, at most 64)")
 
 
 def _build_chosen(sec: _Section, data: Mapping[str, Any], built: dict[str, Any], col: _Collector) -> None:

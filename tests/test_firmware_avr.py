@@ -1,6 +1,6 @@
 """Issue 12, 16-bit MCU in the loop: the AN1017 firmware built with avr-gcc, run in simavr.
 
-The same core, bridge and C library as the SIL and dsPIC builds, for an ATmega328P (16-bit int,
+The same firmware, runtime and C library as the SIL and dsPIC builds, for an ATmega328P (16-bit int,
 2 KB RAM, no FPU), executed instruction by instruction by simavr with USART0 on a pty at 250 kbaud.
 The bench drives it in lockstep over that serial line through a whole default-scenario session of
 2 simulated seconds (1 ms periods: the simulated UART carries ~35 bytes per exchange) and its
@@ -27,14 +27,14 @@ from hilbench.processes import spawn
 from hilbench.targets.an1017.firmware import An1017Options
 from hilbench.targets.an1017.target import An1017Target
 from hilbench.targets.remote import RemoteTarget
-from hilbench.targets.sil import FIRMWARE_DIR, PROTOCOL_DIR
+from hilbench.targets.sil import FIRMWARE_DIR, PROTOCOL_DIR, RUNTIME_DIR
 
 pytestmark = pytest.mark.slow
 
 AVR_DIR = FIRMWARE_DIR / "ports" / "avr"
 STRICT = ("-std=c99", "-pedantic", "-Wall", "-Wextra", "-Wconversion", "-Werror")
 AVR_FLAGS = ("-mmcu=atmega328p", "-DF_CPU=16000000UL", "-Os", "-DHBP_MAX_ADC=3u", "-DHBP_MAX_TELEMETRY=3u",
-             "-DAN1017_VARIANT=AN1017_VARIANT_SEED", f"-I{FIRMWARE_DIR}", f"-I{PROTOCOL_DIR}")
+             "-DAN1017_VARIANT=AN1017_VARIANT_SEED", f"-I{FIRMWARE_DIR}", f"-I{RUNTIME_DIR}", f"-I{PROTOCOL_DIR}")
 ATMEGA328P_RAM_BYTES = 2048
 
 
@@ -55,7 +55,7 @@ def avr_build(tmp_path_factory, avr_gcc: str, gcc: str) -> Path:
     return out
 
 
-@pytest.mark.parametrize("source", [FIRMWARE_DIR / "an1017.c", FIRMWARE_DIR / "an1017_bridge.c",
+@pytest.mark.parametrize("source", [FIRMWARE_DIR / "an1017.c", RUNTIME_DIR / "hrt.c", RUNTIME_DIR / "hrt_link.c",
                                     PROTOCOL_DIR / "hbp.c", PROTOCOL_DIR / "hbp_messages.c", AVR_DIR / "main.c"],
                          ids=lambda p: p.name)
 def test_avr_gcc_strict_flags_16bit_int(avr_gcc: str, tmp_path: Path, source: Path) -> None:

@@ -2,9 +2,10 @@
 one C source for the board, the host build and the in-process core; the extension
 hilbench.targets.an1017._core is that source behind a CPython glue, tests/test_an1017_core.py).
 
-The core is compiled here as a plain shared library with gcc and called through ctypes: an1017_run per period with the
-Sensors' inputs, edge time and pot, an1017_outputs for the Drive, the command and parameter entry
-points for Start/Stop and writes the Python model accepts. Every Drive must equal the Python
+The firmware and the runtime are compiled here as a plain shared library with gcc and called through
+ctypes: one runtime span per period (hrt_span_begin / hrt_span_edge / hrt_span_end with the
+Sensors' inputs, edge time and pot), hrt_report for the Drive, the firmware's command and parameter
+entry points for Start/Stop and writes the Python model accepts. Every Drive must equal the Python
 model's (hilbench/targets/an1017/firmware.py through An1017Target) on the seeded random streams.
 """
 
@@ -20,24 +21,33 @@ from c_build import build_c
 from hilbench.protocol import EDGE_NONE, HostHello, MODE_LOCKSTEP, PROTOCOL_VERSION, Sensors
 from hilbench.targets.an1017.firmware import An1017Options
 from hilbench.targets.an1017.target import An1017Target
-from hilbench.targets.sil import FIRMWARE_DIR
+from hilbench.targets.sil import FIRMWARE_DIR, RUNTIME_DIR
 
-STATE_BYTES = 512  # more than sizeof(an1017_t) on any host (104 on x86-64)
+STATE_BYTES = 512  # more than sizeof(an1017_t) on any host (124 on x86-64)
 OK = 0
+N_TELEMETRY = 3  # the library's -DHBP_MAX_TELEMETRY
 
 
-class Out(ctypes.Structure):
-    _fields_ = [("duty", ctypes.c_uint16 * 3), ("output_mode", ctypes.c_uint8), ("state", ctypes.c_uint8),
-                ("sector", ctypes.c_uint8), ("ccw", ctypes.c_uint8), ("req_ccw", ctypes.c_uint8),
-                ("fault", ctypes.c_uint8), ("telemetry", ctypes.c_int16 * 3)]
+class Drive(ctypes.Structure):
+    """hbp_drive_t (= hrt_report_t): seq, the duties, the flags' fields one byte each, the telemetry."""
+
+    _fields_ = [("seq", ctypes.c_uint8), ("duty", ctypes.c_uint16 * 3), ("output_mode", ctypes.c_uint8),
+                ("state", ctypes.c_uint8), ("sector", ctypes.c_uint8), ("ccw", ctypes.c_uint8),
+                ("req_ccw", ctypes.c_uint8), ("fault", ctypes.c_uint8), ("n_telemetry", ctypes.c_uint8),
+                ("telemetry", ctypes.c_int16 * N_TELEMETRY)]
 
 
 def load_core_library(out: Path, defines: tuple[str, ...] = ()) -> ctypes.CDLL:
-    """firmware/an1017/an1017.c built as a shared library at ``out`` (with build-time ``defines``)."""
-    build_c([FIRMWARE_DIR / "an1017.c"], out, extra_flags=("-shared", "-fPIC", f"-I{FIRMWARE_DIR}", *defines))
+    """firmware/an1017/an1017.c on the runtime, built as a shared library at ``out`` (with build-time ``defines``)."""
+    build_c([FIRMWARE_DIR / "an1017.c", RUNTIME_DIR / "hrt.c"], out,
+            extra_flags=("-shared", "-fPIC", f"-I{FIRMWARE_DIR}", f"-I{RUNTIME_DIR}",
+                         f"-DHBP_MAX_TELEMETRY={N_TELEMETRY}u", *defines))
     lib = ctypes.CDLL(str(out))
-    lib.an1017_run.argtypes = [ctypes.c_void_p, ctypes.c_uint32, ctypes.c_uint8, ctypes.c_uint8, ctypes.c_uint32,
-                               ctypes.c_uint8, ctypes.c_uint16]
+    lib.hrt_span_begin.argtypes = [ctypes.c_void_p, ctypes.c_uint8, ctypes.c_uint8, ctypes.c_uint8,
+                                   ctypes.POINTER(ctypes.c_uint16), ctypes.c_uint8, ctypes.c_uint16]
+    lib.hrt_span_edge.argtypes = [ctypes.c_void_p, ctypes.c_uint32, ctypes.c_uint8]
+    lib.hrt_span_end.argtypes = [ctypes.c_void_p, ctypes.c_uint32]
+    lib.hrt_report.argtypes = [ctypes.c_void_p, ctypes.c_uint8, ctypes.c_void_p]
     lib.an1017_param_value.restype = ctypes.c_int16
     return lib
 
@@ -57,11 +67,17 @@ class InProcessCore:
         self.period_tcy = period_us * 20
 
     def step(self, s: Sensors) -> tuple:
+        """One span of the runtime, as its link serves a Sensors with (at most) one edge."""
         have_edge = s.edge_time_100ns != EDGE_NONE
-        self.lib.an1017_run(self.state, self.period_tcy, s.inputs, int(have_edge),
-                            s.edge_time_100ns * 2 if have_edge else 0, int(bool(s.adc)), s.adc[0] if s.adc else 0)
-        o = Out()
-        self.lib.an1017_outputs(self.state, ctypes.byref(o))
+        start = ctypes.c_uint32.from_buffer(self.state).value  # hrt_t.now, the state's first field
+        pot = (ctypes.c_uint16 * 1)(s.adc[0] if s.adc else 0)
+        self.lib.hrt_span_begin(self.state, s.inputs, int(have_edge), 0, pot, min(1, len(s.adc)), s.encoder)
+        if have_edge:
+            offset = min(s.edge_time_100ns * 2, self.period_tcy - 1)
+            self.lib.hrt_span_edge(self.state, (start + offset) & 0xFFFFFFFF, s.inputs & 7)
+        self.lib.hrt_span_end(self.state, (start + self.period_tcy) & 0xFFFFFFFF)
+        o = Drive()
+        self.lib.hrt_report(self.state, s.seq, ctypes.byref(o))
         return (s.seq, *o.duty, o.output_mode, o.state, o.sector, bool(o.ccw), bool(o.req_ccw), o.fault,
                 tuple(o.telemetry))
 

@@ -1,22 +1,25 @@
 """Issue 12, the dsPIC30F2010 port: compiles warning-free, and its RAM fits the chip's 512 bytes.
 
-XC16 cannot be installed here, so the port (ports/dspic30f2010/main.c with the core, the bridge
-and the C library) is compiled with host gcc, strict flags, against hostcheck/xc.h, a register
-header written for this test.
+XC16 cannot be installed here, so the port (ports/dspic30f2010/main.c with the firmware, the
+runtime and the C library) is compiled with host gcc, strict flags, against hostcheck/xc.h, a
+register header written for this test.
 
 RAM figure = static + a computed stack bound:
 - static: the RAM objects (.bss/.data, not const: XC16 keeps const data in program memory) of the
   host build. No RAM object holds a pointer and x86-64 aligns uint32_t to 4 bytes where the dsPIC
   aligns to 2, so this is an upper bound of the dsPIC's figure.
 - stack: the deepest call path of the same sources built for a 16-bit-int, 16-bit-pointer target
-  (avr-gcc: -fstack-usage frame sizes, call edges from the disassembly, the one indirect call
-  hbp_param_set -> check_gains added by hand), with the dsPIC's larger costs added: +2 bytes per
+  (avr-gcc: -fstack-usage frame sizes, call edges from the disassembly; every indirect call — the
+  runtime calling the firmware's declared bodies and callbacks — counted as a call of any of them,
+  an upper bound), with the dsPIC's larger costs added: +2 bytes per
   call (its return address is 4 bytes, the AVR's 2) and +24 bytes per interrupt level (PC, SR and
   IPL pushed by the hardware: 4; W0-W7 saved by the compiler for an ISR that calls functions: 16;
-  RCOUNT and one spare word: 4). On main's stack sits one ISR: PWM, Timer1, Timer2, FLTA and
+  RCOUNT and one spare word: 4). The runtime serves the timers the port does not run in hardware
+  from the PWM interrupt; Timer1 is the port's, so its body is not counted there. On main's stack
+  sits one ISR: PWM, Timer1, Timer2, FLTA and
   UART1 RX share priority 4, so they never nest. In lockstep PWM and Timer1 interrupts are off
-  (the firmware's timers are gated); in real time Sensors frames do not go through the bridge's
-  on_sensors/an1017_run (the ISRs run the firmware): the bound is the larger of the two modes.
+  (the firmware's timers are gated); in real time Sensors frames update the inputs instead of
+  running spans (the ISRs run the firmware): the bound is the larger of the two modes.
 """
 
 from __future__ import annotations
@@ -29,13 +32,28 @@ import pytest
 
 from _firmware import require_tool
 from c_build import STRICT_FLAGS
-from hilbench.targets.sil import FIRMWARE_DIR, PROTOCOL_DIR
+from hilbench.targets.sil import FIRMWARE_DIR, PROTOCOL_DIR, RUNTIME_DIR, RUNTIME_SOURCES
 
 PORT = FIRMWARE_DIR / "ports" / "dspic30f2010"
-SOURCES = (PORT / "main.c", FIRMWARE_DIR / "an1017.c", FIRMWARE_DIR / "an1017_bridge.c", PROTOCOL_DIR / "hbp.c",
-           PROTOCOL_DIR / "hbp_messages.c")
-DEFS = ("-DHBP_MAX_ADC=3u", "-DHBP_MAX_TELEMETRY=3u", f"-I{PORT / 'hostcheck'}", f"-I{FIRMWARE_DIR}",
-        f"-I{PROTOCOL_DIR}")
+SOURCES = (PORT / "main.c", FIRMWARE_DIR / "an1017.c", *RUNTIME_SOURCES)
+DEFS = ("-DHBP_MAX_ADC=3u", "-DHBP_MAX_TELEMETRY=3u", "-DHRT_PORT_HW=1", f"-I{PORT / 'hostcheck'}",
+        f"-I{FIRMWARE_DIR}", f"-I{RUNTIME_DIR}", f"-I{PROTOCOL_DIR}")
+#: the firmware's functions the runtime calls through its declaration (an1017_firmware), by the
+#: function that holds the indirect call; any other holder is the scheduler, which calls the bodies
+CALLBACKS = {
+    "pwm_boundary": {"body_pwm"},
+    "expire": {"body_timer1", "body_boot"},
+    "apply_edge": {"body_hall_a", "body_hall_b", "body_hall_c"},
+    "hrt_span_begin": {"body_main"},
+    "hrt_rt_main": {"body_main"},
+    "hrt_param_candidate": {"decl_param_get"},
+    "hrt_param_write": {"decl_param_set", "decl_param_check"},
+    "hrt_report": {"decl_report"},
+    "on_describe": {"decl_param_get"},
+    "on_get": {"decl_param_get"},
+    "hrt_link_handle": {"decl_start", "decl_stop"},
+    "hrt_link_watchdog": {"decl_stop"},
+}
 DSPIC30F2010_RAM_BYTES = 512
 ISRS = ("_PWMInterrupt", "_T1Interrupt", "_T2Interrupt", "_FLTAInterrupt", "_U1RXInterrupt")
 DSPIC_EXTRA_PER_CALL = 2
@@ -87,22 +105,28 @@ def stack_bound_bytes(tmp_path: Path) -> tuple[int, dict[str, tuple[int, list[st
     disasm = subprocess.run(["avr-objdump", "-d", str(elf)], capture_output=True, text=True, check=True,
                             timeout=60).stdout
     calls: dict[str, set[str]] = {}
+    indirect: set[str] = set()  # functions with an icall: the runtime calling the declaration
     current = None
     for line in disasm.splitlines():
         head = re.match(r"^[0-9a-f]+ <([^>]+)>:$", line)
         if head:
             current = head.group(1)
             continue
+        if current and re.search(r"\ti(call|jmp)\b", line):
+            indirect.add(current)
         call = re.search(r"\t(r?call|jmp|rjmp)\t.*<([^>+]+)>$", line)
         if current and call and call.group(2) != current and call.group(2) in frames:
             calls.setdefault(current, set()).add(call.group(2))
-    calls.setdefault("hbp_param_set", set()).add("check_gains")  # the constraint callback (icall)
+    bodies = {fn for fn in frames if fn.startswith("body_")}
+    assert bodies and indirect, (bodies, indirect)
+    for fn in indirect:
+        calls.setdefault(fn, set()).update(CALLBACKS.get(fn, bodies))
 
-    def deepest(fn: str, seen: tuple[str, ...] = (), skip: str = "") -> tuple[int, list[str]]:
+    def deepest(fn: str, seen: tuple[str, ...] = (), skip: tuple[str, ...] = ()) -> tuple[int, list[str]]:
         assert fn not in seen, f"recursion through {fn}"
         best, path = 0, []
         for callee in calls.get(fn, ()):
-            if callee == skip:
+            if callee in skip:
                 continue
             depth, sub = deepest(callee, seen + (fn,), skip)
             depth += 2 + DSPIC_EXTRA_PER_CALL  # the return address, dsPIC-sized
@@ -111,7 +135,10 @@ def stack_bound_bytes(tmp_path: Path) -> tuple[int, dict[str, tuple[int, list[st
         return frames.get(fn, 0) + best, [fn, *path]
 
     paths = {fn: deepest(fn) for fn in ("main", *ISRS)}
-    paths["main (real time)"] = deepest("main", skip="on_sensors")
+    # the port runs Timer1 in hardware (hrt_port_timer says so), so the PWM interrupt's soft timers
+    # never include its body: that one runs from _T1Interrupt
+    paths["_PWMInterrupt"] = deepest("_PWMInterrupt", skip=("body_timer1",))
+    paths["main (real time)"] = deepest("main", skip=("hrt_span_edge", "hrt_span_end", "hrt_span_begin"))
     lockstep = paths["main"][0] + max(paths[f][0] for f in LOCKSTEP_ISRS) + DSPIC_ISR_CONTEXT
     realtime = paths["main (real time)"][0] + max(paths[f][0] for f in ISRS) + DSPIC_ISR_CONTEXT
     return max(lockstep, realtime), paths
@@ -119,10 +146,10 @@ def stack_bound_bytes(tmp_path: Path) -> tuple[int, dict[str, tuple[int, list[st
 
 def test_dspic_port_ram_fits_512_bytes(gcc: str, tmp_path: Path, capsys) -> None:
     sizes = static_ram_bytes(gcc, tmp_path)
-    assert set(sizes) == {"bridge", "tcy_high", "rt_boot_pending", "realtime_on"}, sizes
+    assert set(sizes) == {"fw", "host_link", "tcy_high", "realtime_on"}, sizes
     static = sum(sizes.values())
     stack, paths = stack_bound_bytes(tmp_path)
-    assert "an1017_bridge_handle" in paths["main"][1], paths["main"]  # the analysis found the frame path
+    assert "hrt_link_handle" in paths["main"][1], paths["main"]  # the analysis found the frame path
     with capsys.disabled():
         print(f"\ndsPIC30F2010 RAM: static {static} B ({', '.join(f'{k} {v}' for k, v in sorted(sizes.items()))}) "
               f"+ stack bound {stack} B = {static + stack} of {DSPIC30F2010_RAM_BYTES} B (margin {MARGIN_BYTES} B "

@@ -36,7 +36,7 @@ from hilbench.protocol import (
 )
 from hilbench.targets.an1017.target import An1017Target
 from hilbench.targets.an1017.firmware import An1017Options
-from hilbench.targets.sil import FIRMWARE_DIR, SilTarget, build_sil, start_sil, stop_sil
+from hilbench.targets.sil import FIRMWARE_DIR, RUNTIME_DIR, SilTarget, build_sil, start_sil, stop_sil
 
 pytestmark = pytest.mark.slow
 
@@ -195,7 +195,8 @@ int main(void) {
     return 0;
 }
 ''')
-    exe = build_c([src, FIRMWARE_DIR / "an1017.c"], tmp_path / "t", extra_flags=(f"-I{FIRMWARE_DIR}",))
+    exe = build_c([src, FIRMWARE_DIR / "an1017.c", RUNTIME_DIR / "hrt.c"], tmp_path / "t",
+                  extra_flags=(f"-I{FIRMWARE_DIR}", f"-I{RUNTIME_DIR}"))
     lines = subprocess.run([str(exe)], capture_output=True, text=True, timeout=10, check=True).stdout.splitlines()
     # -1*-1 saturates; 0.5*0.5 = 0.25; -0.5 * 3/32768 = -1.5/32768 truncates (floors) to -2; 0.5 * -1/32768 -> -1
     assert lines[0] == "32767 8192 -2 -1"
@@ -252,8 +253,8 @@ def test_sil_refuses_another_protocol_or_schema(sil_exe: Path) -> None:
         assert reply.adc_bits == 10 and reply.seq == 6
 
 
-def test_in_place_cobs_encoding_the_bridge_relies_on(tmp_path: Path, gcc: str) -> None:
-    """The bridge packs replies at wire[1] and calls hbp_encode_frame(wire + 1, len, wire): the bytes
+def test_in_place_cobs_encoding_the_runtime_relies_on(tmp_path: Path, gcc: str) -> None:
+    """The runtime's link packs replies at wire[1] and calls hbp_encode_frame(wire + 1, len, wire): the bytes
     must equal an encoding into a separate buffer, for every length and zero pattern."""
     from c_build import LIBRARY_SOURCES
 
@@ -297,7 +298,7 @@ def test_sil_under_address_and_undefined_behaviour_sanitizers(tmp_path: Path, gc
 
     defines = tuple(f for f in CFLAGS if f.startswith("-D"))
     exe = build_c(SOURCES, tmp_path / "an1017_sil_sanitized", sanitize=True,
-                  extra_flags=(*defines, f"-I{FIRMWARE_DIR}", f"-I{PROTOCOL_DIR}"))
+                  extra_flags=(*defines, f"-I{FIRMWARE_DIR}", f"-I{RUNTIME_DIR}", f"-I{PROTOCOL_DIR}"))
     for variant in ("seed", "v11"):
         with SilTarget.open(variant, exe=exe) as sil:
             model = An1017Target(An1017Options(variant=variant))

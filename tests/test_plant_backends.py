@@ -123,10 +123,10 @@ def test_backends_agree_in_off_mode_above_the_bus():
 
 
 def test_append_state_writes_the_recorded_state_in_both_backends() -> None:
-    """append_state is the recorder's one-call view of the plant: STATE_FIELDS, little-endian doubles."""
+    """append_state is the recorder's one-call view of the plant: its declared outputs, little-endian doubles."""
     import struct
 
-    from hilbench.plant.model import STATE_FIELDS
+    from hilbench.plant.model import OUTPUTS
 
     for backend in available_backends():
         plant = Plant(plant_params_from_config(load_config(CONFIGS / "hurst_mclv.toml")), seed=3, backend=backend)
@@ -134,9 +134,10 @@ def test_append_state_writes_the_recorded_state_in_both_backends() -> None:
             plant.step(0.62, 0.41, 0.47, 1, 50e-6)
         buf = bytearray(b"ab")
         plant.append_state(buf)
-        values = struct.unpack("<" + "d" * len(STATE_FIELDS), buf[2:])
+        values = struct.unpack("<" + "d" * len(OUTPUTS), buf[2:])
         assert buf[:2] == b"ab"
-        assert values == (plant.theta_e, plant.w_m, plant.i_a, plant.i_b, plant.i_c, plant.i_bus, plant.load_nm)
+        assert values == tuple(getattr(plant, out.source) for out in OUTPUTS)
+        assert values[:7] == (plant.theta_e, plant.w_m, plant.i_a, plant.i_b, plant.i_c, plant.i_bus, plant.load_nm)
 
 
 def test_the_hot_loop_calls_equal_the_attribute_reads_in_both_backends() -> None:

@@ -58,16 +58,16 @@ def test_an_error_inside_a_period_ends_the_run_with_whole_rows_and_a_fault_marke
         bench.press("s2")
         bench.run(0.05)
         session = bench.session
-        step, scale, period_s = session._simple_step
+        advance = session.plant.advance
         calls = {"n": 0}
 
         def flaky(*args: object) -> object:
             calls["n"] += 1
             if calls["n"] == 10:
                 raise RuntimeError("plant hiccup")
-            return step(*args)
+            return advance(*args)
 
-        session._simple_step = (flaky, scale, period_s)
+        session.plant.advance = flaky
         with pytest.raises(RuntimeError, match="plant hiccup"):
             bench.run(0.05)
         assert session.ended and session.summary.end_reason == "fault"

@@ -1,6 +1,6 @@
-/* an1017.c: the AN1017 firmware core (see an1017.h). Written for hilbench; facts and sources in
- * docs/board.md ("Facts and sources"), tags [SVM], [T1], [HALL], [PID], [PWM], [ADC] below refer to
- * its sections. */
+/* an1017.c: the AN1017 firmware: its state, its ISR bodies and their declaration to the runtime
+ * (see an1017.h). Written for hilbench; facts and sources in docs/board.md ("Facts and sources"),
+ * tags [SVM], [T1], [HALL], [PID], [PWM], [ADC] below refer to its sections. */
 #include "an1017.h"
 
 #include "q15.h"
@@ -50,6 +50,8 @@ static const uint16_t sector_table[8] AN1017_ROM = {0xFFFFu, 4u, 2u, 3u, 0u, 5u,
 #define KP_DEFAULT 3277                 /* 0.1 */
 #define KI_DEFAULT 328                  /* 0.01 */
 #define KD_DEFAULT 0
+
+#define FW(rt) ((an1017_t *)(void *)(rt)) /* the runtime's state is the firmware's first member */
 
 static uint16_t sector_of(uint8_t hall)
 {
@@ -149,13 +151,14 @@ static void coefficients(an1017_t *s)
 
 void an1017_init(an1017_t *s, uint8_t variant)
 {
-    uint8_t i;
     uint16_t k;
     uint8_t v11 = (uint8_t)(variant == AN1017_VARIANT_V11);
     uint8_t *p = (uint8_t *)s;
     for (k = 0u; k < (uint16_t)sizeof *s; k++) { /* no memset: no C library needed */
         p[k] = 0u;
     }
+    hrt_init(&s->rt);
+    hrt_pwm_preset(&s->rt, AN1017_PTPER, AN1017_PTPER, AN1017_PTPER); /* PDC1..3 = PTPER */
     s->adc_every = (uint8_t)!v11;
     s->c1_textbook = (uint8_t)!v11;
     s->phase_offset = AN1017_PHASE_OFFSET;
@@ -172,11 +175,6 @@ void an1017_init(an1017_t *s, uint8_t variant)
     s->output_mode = AN1017_MODE_OFF;
     s->sector = AN1017_SECTOR_INVALID;
     s->last_sector = AN1017_SECTOR_INVALID;
-    for (i = 0u; i < 3u; i++) {
-        s->pdc_pending[i] = AN1017_PTPER;
-        s->pdc_active[i] = AN1017_PTPER;
-    }
-    s->pot_code = 512u;
 }
 
 void an1017_set_periods(an1017_t *s, uint16_t min_period, uint16_t max_period)
@@ -196,7 +194,7 @@ void an1017_press_start(an1017_t *s)
     s->fault = AN1017_FAULT_NONE;
     s->output_mode = AN1017_MODE_LOW_SIDE; /* OVDCON = 0x0015: PWM1L/2L/3L on */
     /* the busy loop of ChargeBootstraps ends just after the 10 ms boundary */
-    s->boot_at = AN1017_BOOTSTRAP_TCY + 1UL;
+    hrt_timer_start(&s->rt, AN1017_TIMER_BOOT, AN1017_BOOTSTRAP_TCY + 1UL);
 }
 
 void an1017_press_stop(an1017_t *s, uint8_t state, uint8_t fault)
@@ -204,6 +202,8 @@ void an1017_press_stop(an1017_t *s, uint8_t state, uint8_t fault)
     /* StopMotor(): OVDCON = 0 (all six switches off, the motor coasts), motor interrupts off */
     s->running = 0u;
     s->booting = 0u;
+    hrt_timer_stop(&s->rt, AN1017_TIMER_T1);
+    hrt_timer_stop(&s->rt, AN1017_TIMER_BOOT);
     s->output_mode = AN1017_MODE_OFF;
     s->state = state;
     s->fault = fault;
@@ -211,19 +211,15 @@ void an1017_press_stop(an1017_t *s, uint8_t state, uint8_t fault)
 
 void an1017_run_motor(an1017_t *s)
 {
-    uint8_t i;
     s->booting = 0u;
     s->output_mode = AN1017_MODE_PWM; /* PDC1..3 = PTPER, OVDCON = 0x3F00 */
-    for (i = 0u; i < 3u; i++) {
-        s->pdc_pending[i] = AN1017_PTPER;
-        s->pdc_active[i] = AN1017_PTPER;
-    }
+    hrt_pwm_preset(&s->rt, AN1017_PTPER, AN1017_PTPER, AN1017_PTPER);
     s->e1 = 0;
     s->e2 = 0;
     coefficients(s);
     s->actual_capture = s->max_period; /* the first Period is MAXPERIOD (31250) */
     s->past_capture = 0u;
-    s->sector = sector_of(s->hall);
+    s->sector = sector_of(AN1017_HALL(s));
     s->last_sector = s->sector;
     s->control_output = 0;
     s->cur_ccw = (uint8_t)(s->ref_speed < 0);
@@ -233,6 +229,8 @@ void an1017_run_motor(an1017_t *s)
     s->phase_inc = (uint16_t)(PHASEINC_NUMERATOR / s->max_period);
     s->running = 1u;
     s->state = AN1017_STATE_RUNNING;
+    hrt_timer_start(&s->rt, AN1017_TIMER_T1, AN1017_TIMER1_PERIOD_TCY); /* TMR1 = 0 */
+    s->tmr3_zero = hrt_now(&s->rt);                                     /* TMR3 = 0 */
 }
 
 void an1017_set_gains(an1017_t *s, int16_t kp, int16_t ki, int16_t kd)
@@ -258,7 +256,7 @@ void an1017_isr_adc(an1017_t *s)
     if (s->ref_override_on) {
         s->ref_speed = s->ref_override;
     } else {
-        s->ref_speed = (int16_t)(((int16_t)(s->pot_code & 0x3FFu) - 512) * 64);
+        s->ref_speed = (int16_t)(((int16_t)(hrt_adc(&s->rt, 0u) & 0x3FFu) - 512) * 64);
     }
 }
 
@@ -277,7 +275,7 @@ void an1017_isr_pwm(an1017_t *s)
         volts = s->control_output;
     }
     /* without PHASE_ADVANCE the firmware adds nothing: phase_adv stays 0 */
-    an1017_svm(volts, (uint16_t)(s->phase + (uint16_t)s->phase_adv), s->pdc_pending);
+    an1017_svm(volts, (uint16_t)(s->phase + (uint16_t)s->phase_adv), hrt_duty_registers(&s->rt));
 }
 
 void an1017_isr_timer1(an1017_t *s)
@@ -324,7 +322,7 @@ void an1017_isr_timer1(an1017_t *s)
     /* [T1] stall: force a commutation every 10 ticks without a hall edge, stop at the limit */
     s->stall_counter = (uint16_t)(s->stall_counter + 1u);
     if (s->stall_counter % FORCE_COMMUTATION_TICKS == 0u) {
-        s->sector = sector_of(s->hall);
+        s->sector = sector_of(AN1017_HALL(s));
         if (s->sector != AN1017_SECTOR_INVALID) {
             s->phase = phase_for_sector(s, s->sector, s->req_ccw);
         }
@@ -335,7 +333,7 @@ void an1017_isr_timer1(an1017_t *s)
 
 void an1017_isr_hall(an1017_t *s, uint8_t which)
 {
-    uint16_t sec = sector_of(s->hall);
+    uint16_t sec = sector_of(AN1017_HALL(s));
     s->sector = sec;
     if (sec == s->last_sector) {
         return; /* a slow edge's glitch: nothing changed */
@@ -381,148 +379,10 @@ void an1017_main_loop_buttons(an1017_t *s, uint8_t inputs)
     }
 }
 
-/* --------------------------------------------------------------------- virtual peripherals */
-
-void an1017_apply_hall(an1017_t *s, uint8_t new_bits, uint32_t offset_tcy)
-{
-    uint8_t changed = (uint8_t)((s->hall ^ new_bits) & 7u);
-    s->hall = (uint8_t)(new_bits & 7u);
-    if ((changed & 2u) && s->ic7_n < 4u) {
-        /* IC7 captures every B edge into its 4-deep FIFO, interrupt enabled or not; the ISR reads
-         * the oldest and flushes the others, so only the oldest is kept */
-        if (s->ic7_n == 0u) {
-            s->ic7_first = (uint16_t)(((s->tmr3_tcy + offset_tcy) & AN1017_TMR3_MASK) >> 6);
-        }
-        s->ic7_n++;
-    }
-    if (!s->running) {
-        return;
-    }
-    if (changed & 1u) {
-        an1017_isr_hall(s, 0u);
-    }
-    if ((changed & 2u) && s->running) {
-        an1017_isr_hall(s, 1u);
-    }
-    if ((changed & 4u) && s->running) {
-        an1017_isr_hall(s, 2u);
-    }
-}
-
-/* One PWM period boundary: the ADC ISR when due, the duty registers latch, the PWM ISR. */
-static void pwm_boundary(an1017_t *s)
-{
-    uint8_t i;
-    if (s->adc_every || (s->pwm_index & ADC_POSTSCALE_MASK) == 0u) {
-        an1017_isr_adc(s);
-    }
-    for (i = 0u; i < 3u; i++) {
-        s->pdc_active[i] = s->pdc_pending[i];
-    }
-    if (s->running) {
-        an1017_isr_pwm(s);
-    }
-    s->pwm_index = (uint16_t)(s->pwm_index + 1u);
-}
-
-#define EV_END 0u
-#define EV_TIMER1 1u
-#define EV_BOOT 2u
-#define EV_HALL 3u
-
-void an1017_run(an1017_t *s, uint32_t duration_tcy, uint8_t inputs, uint8_t have_edge, uint32_t edge_offset_tcy,
-                uint8_t have_pot, uint16_t pot_code)
-{
-    uint32_t next_boundary = (s->pwm_off_tcy == 0u) ? 0u : (uint32_t)(AN1017_PWM_PERIOD_TCY - s->pwm_off_tcy);
-    uint8_t new_hall = (uint8_t)(inputs & 7u);
-    uint8_t edge_pending = 0u;
-    uint32_t edge_at = 0u;
-    if (have_pot) {
-        s->pot_code = pot_code;
-    }
-    an1017_main_loop_buttons(s, inputs);
-    if ((inputs & AN1017_INPUT_FAULT) && (s->running || s->booting)) {
-        /* FLTA (FLTACON = 0x0007, latched): outputs inactive, the FLTA ISR stops with FAULT; only a
-         * stop/start restarts, not while the pin is asserted. The span's fault bit acts at its start. */
-        an1017_press_stop(s, AN1017_STATE_FAULT, AN1017_FAULT_OVERCURRENT);
-    }
-    if (new_hall != s->hall && duration_tcy > 0u) {
-        edge_pending = 1u;
-        edge_at = have_edge ? edge_offset_tcy : 0u;
-        if (edge_at >= duration_tcy) {
-            edge_at = duration_tcy - 1u;
-        }
-    }
-    for (;;) {
-        uint32_t nxt = duration_tcy;
-        uint8_t kind = EV_END;
-        if (s->running && s->t1_at < nxt) {
-            nxt = s->t1_at;
-            kind = EV_TIMER1;
-        }
-        if (s->booting && s->boot_at < nxt) {
-            nxt = s->boot_at;
-            kind = EV_BOOT;
-        }
-        if (edge_pending && edge_at < nxt) {
-            nxt = edge_at;
-            kind = EV_HALL;
-        }
-        while (next_boundary < nxt) { /* boundaries at an event's own instant come after it */
-            pwm_boundary(s);
-            next_boundary += AN1017_PWM_PERIOD_TCY;
-        }
-        if (kind == EV_END) {
-            break;
-        }
-        if (kind == EV_TIMER1) {
-            s->t1_at += AN1017_TIMER1_PERIOD_TCY;
-            an1017_isr_timer1(s);
-        } else if (kind == EV_BOOT) {
-            an1017_run_motor(s);
-            s->t1_at = nxt + AN1017_TIMER1_PERIOD_TCY; /* TMR1 = 0 */
-            s->tmr3_tcy = (uint32_t)(0u - nxt) & AN1017_TMR3_MASK; /* TMR3 = 0 at this instant */
-        } else {
-            edge_pending = 0u;
-            an1017_apply_hall(s, new_hall, nxt);
-        }
-    }
-    /* carry the time bases over to the next span */
-    s->t1_at = (s->t1_at >= duration_tcy) ? s->t1_at - duration_tcy : 0u;
-    s->boot_at = (s->boot_at >= duration_tcy) ? s->boot_at - duration_tcy : 0u;
-    s->tmr3_tcy = (s->tmr3_tcy + duration_tcy) & AN1017_TMR3_MASK;
-    s->pwm_off_tcy = (uint16_t)((next_boundary == duration_tcy)
-                                    ? 0u
-                                    : AN1017_PWM_PERIOD_TCY - (next_boundary - duration_tcy));
-}
-
-uint16_t an1017_duty(const an1017_t *s, uint8_t phase)
-{
-    uint16_t d = s->pdc_pending[phase]; /* as the PWM ISR wrote them: PDC for the next period */
-    return (d > AN1017_DUTY_MAX) ? (uint16_t)AN1017_DUTY_MAX : d;
-}
-
 uint8_t an1017_sector_reported(const an1017_t *s)
 {
-    uint16_t sec = s->running ? s->sector : sector_of(s->hall);
+    uint16_t sec = s->running ? s->sector : sector_of(AN1017_HALL(s));
     return (uint8_t)((sec == AN1017_SECTOR_INVALID) ? 7u : sec);
-}
-
-void an1017_outputs(const an1017_t *s, an1017_out_t *out)
-{
-    uint8_t i;
-    for (i = 0u; i < 3u; i++) {
-        out->duty[i] = an1017_duty(s, i);
-    }
-    out->output_mode = s->output_mode;
-    out->state = s->state;
-    out->sector = an1017_sector_reported(s);
-    out->ccw = s->cur_ccw;
-    out->req_ccw = s->req_ccw;
-    out->fault = s->fault;
-    out->telemetry[0] = s->ref_speed;
-    out->telemetry[1] = s->measured_speed;
-    out->telemetry[2] = s->control_output;
 }
 
 /* ------------------------------------------------------------------------------ parameters */
@@ -557,19 +417,275 @@ uint8_t an1017_check_gains(int32_t kp, int32_t ki, int32_t kd)
     return 0u;
 }
 
+/* One checked value (ids of a write in order: gains written together end as one pending set). */
+static void param_set(an1017_t *s, uint8_t id, int32_t value)
+{
+    int16_t v = (int16_t)value; /* every declared range fits 16 bits */
+    switch (id) {
+    case AN1017_PARAM_KP:
+        an1017_set_gains(s, v, an1017_param_value(s, AN1017_PARAM_KI), an1017_param_value(s, AN1017_PARAM_KD));
+        break;
+    case AN1017_PARAM_KI:
+        an1017_set_gains(s, an1017_param_value(s, AN1017_PARAM_KP), v, an1017_param_value(s, AN1017_PARAM_KD));
+        break;
+    case AN1017_PARAM_KD:
+        an1017_set_gains(s, an1017_param_value(s, AN1017_PARAM_KP), an1017_param_value(s, AN1017_PARAM_KI), v);
+        break;
+    case AN1017_PARAM_PH_ADV_ON:
+        s->phase_advance_on = (uint8_t)(v != 0);
+        break;
+    case AN1017_PARAM_PH_ADV_DEG:
+        if (v != s->max_ph_adv_deg) {
+            s->max_ph_adv_deg = v;
+            s->max_ph_adv = an1017_max_ph_adv(v);
+        }
+        break;
+    case AN1017_PARAM_REF_OVR_ON:
+        s->ref_override_on = (uint8_t)(v != 0);
+        break;
+    case AN1017_PARAM_REF_OVR:
+        s->ref_override = v;
+        break;
+    default: /* AN1017_PARAM_STALL_MS */
+        s->stall_limit = (uint16_t)v;
+        break;
+    }
+}
+
 void an1017_apply_params(an1017_t *s, const int32_t values[AN1017_N_PARAMS], uint8_t gains_touched)
 {
-    int16_t deg = (int16_t)values[AN1017_PARAM_PH_ADV_DEG];
+    uint8_t id;
     if (gains_touched) {
         an1017_set_gains(s, (int16_t)values[AN1017_PARAM_KP], (int16_t)values[AN1017_PARAM_KI],
                          (int16_t)values[AN1017_PARAM_KD]);
     }
-    s->phase_advance_on = (uint8_t)(values[AN1017_PARAM_PH_ADV_ON] != 0);
-    if (deg != s->max_ph_adv_deg) {
-        s->max_ph_adv_deg = deg;
-        s->max_ph_adv = an1017_max_ph_adv(deg);
+    for (id = AN1017_PARAM_PH_ADV_ON; id < AN1017_N_PARAMS; id++) {
+        param_set(s, id, values[id]);
     }
-    s->ref_override_on = (uint8_t)(values[AN1017_PARAM_REF_OVR_ON] != 0);
-    s->ref_override = (int16_t)values[AN1017_PARAM_REF_OVR];
-    s->stall_limit = (uint16_t)values[AN1017_PARAM_STALL_MS];
 }
+
+/* ------------------------------------------------------------------ the runtime's declaration */
+
+static uint8_t is_gain(uint8_t id)
+{
+    return (uint8_t)(id <= AN1017_PARAM_KD);
+}
+
+static int32_t decl_param_get(hrt_t *rt, uint8_t id)
+{
+    return an1017_param_value(FW(rt), id);
+}
+
+static void decl_param_set(hrt_t *rt, uint8_t id, int32_t value)
+{
+    param_set(FW(rt), id, value);
+}
+
+/* The note's PID constraints on the candidate gains, checked only when a gain is written. The
+ * offending id is the first written gain that takes part in the broken constraint. */
+static uint8_t decl_param_check(hrt_t *rt, const hrt_param_request_t *req, uint8_t *param_id, uint8_t *detail)
+{
+    uint8_t i;
+    uint8_t broken;
+    uint8_t first_gain = HRT_NONE;
+    for (i = 0u; i < req->n; i++) {
+        if (is_gain(req->id[i]) && first_gain == HRT_NONE) {
+            first_gain = req->id[i];
+        }
+    }
+    if (first_gain == HRT_NONE) {
+        return HBP_RESULT_OK;
+    }
+    broken = an1017_check_gains(hrt_param_candidate(rt, req, AN1017_PARAM_KP),
+                                hrt_param_candidate(rt, req, AN1017_PARAM_KI),
+                                hrt_param_candidate(rt, req, AN1017_PARAM_KD));
+    if (broken == 0u) {
+        return HBP_RESULT_OK;
+    }
+    *param_id = first_gain;
+    for (i = 0u; i < req->n; i++) {
+        uint8_t id = req->id[i];
+        uint8_t involved = (uint8_t)((broken == 1u && is_gain(id)) ||
+                                     (broken == 2u && (id == AN1017_PARAM_KP || id == AN1017_PARAM_KD)) ||
+                                     (broken == 3u && id == AN1017_PARAM_KD));
+        if (involved) {
+            *param_id = id;
+            break;
+        }
+    }
+    *detail = broken;
+    return HBP_RESULT_CONSTRAINT;
+}
+
+/* The PWM period boundary: the ADC ISR when due (every period, or every 16th with SEVOPS 1:16),
+ * then, after the duty latch, the PWM ISR. */
+static void body_pwm(hrt_t *rt)
+{
+    an1017_t *s = FW(rt);
+    if (s->adc_every || (hrt_pwm_count(rt) & ADC_POSTSCALE_MASK) == 0u) {
+        an1017_isr_adc(s);
+    }
+    if (s->running) {
+        an1017_isr_pwm(s);
+    }
+}
+
+static void body_timer1(hrt_t *rt)
+{
+    an1017_isr_timer1(FW(rt)); /* Timer1 runs only while the motor does */
+}
+
+static void body_boot(hrt_t *rt)
+{
+    an1017_run_motor(FW(rt)); /* ChargeBootstraps is over */
+}
+
+/* The hall lines' interrupts: CN5 (A), IC7 (B, which captures TMR3 at every B edge into its 4-deep
+ * FIFO, interrupt enabled or not; the ISR reads the oldest and flushes the others, so only the
+ * oldest is kept), IC8 (C). They act only while the motor runs. */
+static void body_hall_a(hrt_t *rt)
+{
+    an1017_t *s = FW(rt);
+    if (s->running) {
+        an1017_isr_hall(s, 0u);
+    }
+}
+
+static void body_hall_b(hrt_t *rt)
+{
+    an1017_t *s = FW(rt);
+    if (s->ic7_n < 4u) {
+        if (s->ic7_n == 0u) {
+            s->ic7_first = (uint16_t)(((hrt_now(rt) - s->tmr3_zero) & AN1017_TMR3_MASK) >> 6);
+        }
+        s->ic7_n++;
+    }
+    if (s->running) {
+        an1017_isr_hall(s, 1u);
+    }
+}
+
+static void body_hall_c(hrt_t *rt)
+{
+    an1017_t *s = FW(rt);
+    if (s->running) {
+        an1017_isr_hall(s, 2u);
+    }
+}
+
+/* main(): S2 as the main loop polls it, then FLTA (FLTACON = 0x0007, latched): outputs inactive,
+ * the FLTA ISR stops with FAULT; only a stop/start restarts, not while the pin is asserted. Under
+ * the bench the span's fault bit acts at its start. */
+static void body_main(hrt_t *rt)
+{
+    an1017_t *s = FW(rt);
+    uint8_t in = hrt_inputs(rt);
+    an1017_main_loop_buttons(s, in);
+    if ((in & AN1017_INPUT_FAULT) && (s->running || s->booting)) {
+        an1017_press_stop(s, AN1017_STATE_FAULT, AN1017_FAULT_OVERCURRENT);
+    }
+}
+
+static void decl_report(hrt_t *rt, hrt_report_t *out)
+{
+    const an1017_t *s = FW(rt);
+    out->output_mode = s->output_mode;
+    out->state = s->state;
+    out->sector = an1017_sector_reported(s);
+    out->direction_ccw = s->cur_ccw;
+    out->required_ccw = s->req_ccw;
+    out->fault = s->fault;
+    out->telemetry[0] = s->ref_speed;
+    out->telemetry[1] = s->measured_speed;
+    out->telemetry[2] = s->control_output;
+}
+
+static void decl_start(hrt_t *rt)
+{
+    an1017_press_start(FW(rt)); /* S2 as a command */
+}
+
+static void decl_stop(hrt_t *rt, uint8_t why)
+{
+    an1017_t *s = FW(rt);
+    if (why == HRT_STOP_WATCHDOG) {
+        an1017_press_stop(s, AN1017_STATE_FAULT, AN1017_FAULT_WATCHDOG);
+    } else if (s->running || s->booting) {
+        an1017_press_stop(s, AN1017_STATE_STOPPED, AN1017_FAULT_NONE);
+    }
+}
+
+/* Declared parameters (ids 0..7, the same table as hilbench/targets/an1017/target.py's PARAMS). */
+static const hrt_param_decl_t params[AN1017_N_PARAMS] = {
+    {"kp", "", 0, 32767, HBP_PTYPE_Q15, HBP_ACCESS_RW},
+    {"ki", "", 0, 32767, HBP_PTYPE_Q15, HBP_ACCESS_RW},
+    {"kd", "", 0, 32767, HBP_PTYPE_Q15, HBP_ACCESS_RW},
+    {"ph_adv_on", "", 0, 1, HBP_PTYPE_BOOL, HBP_ACCESS_RW},
+    {"ph_adv_deg", "deg", 0, 60, HBP_PTYPE_INT, HBP_ACCESS_RW},
+    {"ref_ovr_on", "", 0, 1, HBP_PTYPE_BOOL, HBP_ACCESS_RW},
+    {"ref_override", "", -32767 - 1, 32767, HBP_PTYPE_Q15, HBP_ACCESS_RW},
+    {"stall_ms", "ms", 10, 30000, HBP_PTYPE_INT, HBP_ACCESS_RW},
+};
+
+/* RefSpeed, MeasuredSpeed in rpm: one Q15 step is 9 375 000 / (pole pairs * (MINPERIOD - 1) * 32768) rpm
+ * (the note's Table 6 for its build: 1 875 000 / (312 * 32768)). */
+#define AN1017_RPM_NUM ((int32_t)AN1017_PERIOD_X_RPM)
+#define AN1017_RPM_DEN ((int32_t)(AN1017_POLE_PAIRS * (AN1017_MINPERIOD_RAW - 1UL) * 32768UL))
+static const hrt_telemetry_decl_t telemetry[3] = {
+    {"ref_speed", "rpm", AN1017_RPM_NUM, AN1017_RPM_DEN, HBP_TELEMETRY_REF_SPEED, HBP_PTYPE_Q15},
+    {"measured_speed", "rpm", AN1017_RPM_NUM, AN1017_RPM_DEN, HBP_TELEMETRY_MEASURED_SPEED, HBP_PTYPE_Q15},
+    {"control_output", "q15", 1, 1, HBP_TELEMETRY_CONTROL_OUTPUT, HBP_PTYPE_Q15},
+};
+
+/* AN2 pot, AN1 bus current, AN0 bus voltage: only the pot is used */
+static const uint8_t adc_roles[3] = {HBP_ADC_POT, HBP_ADC_IBUS, HBP_ADC_VBUS};
+
+/* Simultaneous interrupts in the dsPIC's natural order: Timer1, the end of ChargeBootstraps (the
+ * main loop's), the hall ISRs, the PWM/ADC boundary. */
+static const hrt_timer_decl_t timers[2] = {
+    {body_timer1, AN1017_TIMER1_PERIOD_TCY, 0u},
+    {body_boot, 0u, 1u},
+};
+
+static const hrt_edge_decl_t edges[3] = {
+    {body_hall_a, HRT_IN_HALL_A, HRT_EDGE_BOTH},
+    {body_hall_b, HRT_IN_HALL_B, HRT_EDGE_BOTH},
+    {body_hall_c, HRT_IN_HALL_C, HRT_EDGE_BOTH},
+};
+
+const hrt_firmware_t hrt_firmware = {
+    .name = AN1017_FIRMWARE_NAME,
+    .version = AN1017_FIRMWARE_VERSION,
+    .ticks_per_us = AN1017_TCY_PER_US,
+    .period_step_us = AN1017_PERIOD_STEP_US,
+    /* PWM: 20 kHz centre-aligned, 1000 counts = 100 %, PWMCON2.IUE = 0 */
+    .pwm_period_ticks = AN1017_PWM_PERIOD_TCY,
+    .pwm_counts = AN1017_DUTY_MAX,
+    .duty_timing = HRT_DUTY_NEXT_PERIOD,
+    .pwm_priority = 3u,
+    .pwm_isr = body_pwm,
+    /* inputs: the halls, S2, FLTA; AN2, AN1, AN0 */
+    .inputs = (uint8_t)(HRT_IN_HALLS | HRT_IN_S2 | HRT_IN_FAULT),
+    .adc_bits = AN1017_ADC_BITS,
+    .n_adc = 3u,
+    .adc_roles = adc_roles,
+    /* interrupt bodies */
+    .timers = timers,
+    .n_timers = 2u,
+    .edges = edges,
+    .n_edges = 3u,
+    .edge_priority = 2u,
+    .main_body = body_main,
+    /* parameters */
+    .params = params,
+    .n_params = AN1017_N_PARAMS,
+    .param_get = decl_param_get,
+    .param_set = decl_param_set,
+    .param_check = decl_param_check,
+    /* telemetry, the Drive, commands */
+    .telemetry = telemetry,
+    .n_telemetry = 3u,
+    .report = decl_report,
+    .start = decl_start,
+    .stop = decl_stop,
+};

@@ -6,12 +6,16 @@
  * replace the chip's timers and pins when the firmware runs under the bench (hall states and the
  * pot from Sensors frames, Timer1/Timer3/PWM time bases counted in Tcy).
  *
- * The ISR bodies (an1017_isr_*) are what the chip's interrupt vectors run; an1017_run() is the
- * lockstep scheduler that calls them at their true times inside a span of virtual time (the dsPIC's
- * natural order for simultaneous interrupts: Timer1, then RunMotor's end of ChargeBootstraps, then
- * the hall ISRs CN5/IC7/IC8, then the PWM/ADC boundary). Every value equals the Python reference
- * model hilbench/targets/an1017/firmware.py (tests/test_firmware_sil.py compares whole sessions;
- * hilbench/targets/an1017/_core.c runs this file in the bench's own process).
+ * The firmware runs on the hilbench runtime (firmware/runtime/hrt.h): this file keeps only the
+ * firmware's state and its ISR bodies (an1017_isr_*), and declares them in `hrt_firmware` — the
+ * PWM period boundary (ADC ISR when due, PWM ISR after the duty latch), Timer1 and the end of
+ * ChargeBootstraps as runtime timers, the hall lines' edges (CN5 = A, IC7 = B with its capture,
+ * IC8 = C) — in the dsPIC's natural order for simultaneous interrupts: Timer1, then RunMotor's end
+ * of ChargeBootstraps, then the hall ISRs, then the PWM/ADC boundary. The runtime schedules them in
+ * virtual time (lockstep), runs them from the chip's interrupts (real time) and speaks the
+ * protocol. Every value equals the Python reference model hilbench/targets/an1017/firmware.py
+ * (tests/test_firmware_sil.py compares whole sessions; hilbench/targets/an1017/_core.c runs this
+ * file in the bench's own process).
  *
  * Time: Tcy = 50 ns (FCY = 20 MHz, 5 MHz crystal with PLLx16). PWM period 1000 Tcy (PTPER 499,
  * centre-aligned, 20 kHz); Timer1 every (PR1 + 1) * 64 = 20096 Tcy; TMR3 ticks every 64 Tcy.
@@ -22,6 +26,8 @@
 
 #include <stdint.h>
 
+#include "hrt.h"
+
 /* ---- time base (Tcy) ---- */
 #define AN1017_FCY_HZ 20000000UL
 #define AN1017_TCY_PER_US 20u
@@ -29,6 +35,15 @@
 #define AN1017_TIMER1_PERIOD_TCY 20096u   /* (PR1 + 1) * 64, PR1 = 313 */
 #define AN1017_BOOTSTRAP_TCY 200000UL     /* ChargeBootstraps: 10 ms of low sides on */
 #define AN1017_TMR3_MASK 0x3FFFFFUL       /* TMR3 counts Tcy/64 in 16 bits: 2^22 Tcy per wrap */
+#define AN1017_PWM_FREQ_HZ 20000UL
+#define AN1017_PERIOD_STEP_US 50u         /* an agreed period is a whole number of PWM periods */
+#define AN1017_ADC_BITS 10u               /* the dsPIC30F2010's 10-bit ADC */
+#define AN1017_FIRMWARE_NAME "AN1017"
+#define AN1017_FIRMWARE_VERSION 0x0101u   /* v1.1 */
+
+/* ---- runtime timers (ids into hrt_firmware.timers) ---- */
+#define AN1017_TIMER_T1 0u                /* Timer1, the speed loop tick, while the motor runs */
+#define AN1017_TIMER_BOOT 1u              /* the end of ChargeBootstraps, while booting */
 
 /* ---- firmware constants ---- */
 #define AN1017_PTPER 499u
@@ -90,6 +105,7 @@
 #define AN1017_VARIANT_V11 1u
 
 typedef struct {
+    hrt_t rt;                 /* the runtime's state: time, timers, inputs, ADC codes, duty registers */
     /* options (fixed at init) */
     uint8_t adc_every;        /* app note: ADC ISR every PWM period; v1.1: every 16th (SEVOPS 1:16) */
     uint8_t c1_textbook;      /* app note: C1 = -Kp - 2Kd; v1.1: C1 = -(Ki + 2Kd) */
@@ -120,27 +136,16 @@ typedef struct {
     uint16_t sector, last_sector;
     uint16_t stall_counter;
     uint16_t period, actual_capture, past_capture;
-    uint16_t pdc_pending[3];  /* PDC1..3 as the PWM ISR wrote them */
-    uint16_t pdc_active[3];   /* latched at the period boundary (PWMCON2.IUE = 0) */
-    /* virtual peripherals (the pins and timers under the bench) */
-    uint8_t hall;             /* bit0 A (RB3/CN5), bit1 B (RB4/IC7), bit2 C (RB5/IC8) */
+    /* peripherals the runtime does not model */
     uint8_t ic7_n;            /* captures in the IC7 FIFO (4 deep on the chip) */
     uint16_t ic7_first;       /* the oldest one: the only one the firmware reads (it flushes the rest) */
-    uint16_t pot_code;        /* AN2, 10-bit code */
-    uint16_t pwm_off_tcy;     /* Tcy since the last PWM period boundary */
-    uint16_t pwm_index;       /* number of the next PWM boundary (mod 2^16) */
-    uint32_t t1_at;           /* Tcy to the next Timer1 interrupt (valid while running) */
-    uint32_t boot_at;         /* Tcy to the end of ChargeBootstraps (valid while booting) */
-    uint32_t tmr3_tcy;        /* Tcy since TMR3 was cleared, mod 2^22 */
+    uint32_t tmr3_zero;       /* the tick at which TMR3 was cleared (TMR3 = (now - tmr3_zero) / 64) */
 } an1017_t;
 
-/* The firmware's outputs as a Drive carries them. */
-typedef struct {
-    uint16_t duty[3];         /* PDC1..3 for the next period (the PWM ISR's last write), 0..1000 (1000 = 100 %) */
-    uint8_t output_mode, state, sector, ccw, req_ccw, fault;
-    int16_t telemetry[3];     /* RefSpeed, MeasuredSpeed, ControlOutput */
-} an1017_out_t;
+/* The hall lines C B A (bit0 A = RB3/CN5, bit1 B = RB4/IC7, bit2 C = RB5/IC8) as the firmware reads them. */
+#define AN1017_HALL(s) ((uint8_t)(hrt_inputs(&(s)->rt) & 7u))
 
+/* The firmware at power-on, with its runtime (hrt_init) at time 0. */
 void an1017_init(an1017_t *s, uint8_t variant);
 /* Another motor build at run time (the in-process host): MINPERIOD and MAXPERIOD as
  * build_periods() gives them (2 <= min_period < max_period <= 32767), before the motor starts. */
@@ -154,23 +159,13 @@ void an1017_isr_adc(an1017_t *s);           /* RefSpeed = ADCBUF0 (or the refere
 void an1017_isr_pwm(an1017_t *s);           /* Phase += PhaseInc, SVM into the PDC registers */
 void an1017_isr_timer1(an1017_t *s);        /* speed, SpeedControl, phase advance, stall */
 void an1017_isr_hall(an1017_t *s, uint8_t which); /* 0 = CN5 (A), 1 = IC7 (B), 2 = IC8 (C) */
-void an1017_run_motor(an1017_t *s);          /* RunMotor() after ChargeBootstraps */
+void an1017_run_motor(an1017_t *s);          /* RunMotor() after ChargeBootstraps: Timer1 and TMR3 from now */
 
 /* ---- commands ---- */
 void an1017_press_start(an1017_t *s);        /* S2 while stopped: ChargeBootstraps, then RunMotor */
 void an1017_press_stop(an1017_t *s, uint8_t state, uint8_t fault); /* StopMotor() */
 void an1017_main_loop_buttons(an1017_t *s, uint8_t inputs);
 
-/* ---- virtual peripherals: lockstep scheduler ----
- * Advance by duration_tcy with these inputs: the pot code (if have_pot), S2 seen by main(), and the
- * hall pins changing at edge_offset_tcy from the start of the span (at 0 without have_edge). */
-void an1017_run(an1017_t *s, uint32_t duration_tcy, uint8_t inputs, uint8_t have_edge, uint32_t edge_offset_tcy,
-                uint8_t have_pot, uint16_t pot_code);
-/* The hall pins change now, at offset_tcy into the current span: IC7 capture, then the ISRs. */
-void an1017_apply_hall(an1017_t *s, uint8_t new_bits, uint32_t offset_tcy);
-
-void an1017_outputs(const an1017_t *s, an1017_out_t *out);
-uint16_t an1017_duty(const an1017_t *s, uint8_t phase);     /* PDC as the PWM ISR last wrote it (in effect from the next boundary), 0..1000 */
 uint8_t an1017_sector_reported(const an1017_t *s);          /* 0..5, 7 = invalid */
 
 /* ---- parameters ---- */

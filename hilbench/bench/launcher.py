@@ -5,6 +5,8 @@ Specs (NAME is any registered target, see `hilbench.targets.known_targets()`):
 * ``emulator:NAME`` — the target's model as its own process (``python -m
   hilbench.targets.emulator NAME --port PTY``) on a virtual serial pair made here;
 * ``inprocess:NAME`` — the same model stepped in this process (fast, for tests and sweeps);
+* ``sil:NAME``, ``simavr:NAME``, ``qemu:NAME`` — a build of the target's C firmware as a process
+  (hilbench.targets.starters); ``sil:PATH`` … — a build of any firmware on the runtime;
 * ``serial:/dev/ttyUSB0?baud=250000``, a device path or a pyserial URL (``socket://host:port``,
   ``rfc2217://host:port``, ``loop://``) — a board, or anything that speaks the protocol there.
 
@@ -23,12 +25,15 @@ from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any, Callable
 
 from hilbench.errors import ConfigError, LinkError
+from hilbench.link.spec import FIRMWARE_KINDS
 from hilbench.processes import reap, spawn
 from hilbench.targets.base import Target
 from hilbench.targets.profile import TargetProfile
 
 if TYPE_CHECKING:
+    from hilbench.link.spec import TargetSpec
     from hilbench.targets.remote import RemoteTarget
+    from hilbench.targets.starters import FirmwareStarter, Started
 
 
 
@@ -41,6 +46,7 @@ class TargetHandle:
     link: Any = None
     process: subprocess.Popen[bytes] | None = None
     child_log: Any = None
+    started: "Started | None" = None  # a firmware build's process (sil:, simavr:, qemu:)
     _closers: list[Callable[[], None]] = field(default_factory=list)
 
     def link_stats(self) -> dict[str, int]:
@@ -52,7 +58,9 @@ class TargetHandle:
         return stats
 
     def child_status(self) -> str:
-        """How the emulator process is doing, for error lines."""
+        """How the emulator or firmware process is doing, for error lines."""
+        if self.started is not None:
+            return self.started.exit_note()
         if self.process is None:
             return ""
         code = self.process.poll()
@@ -97,24 +105,21 @@ def open_target(
     from hilbench.targets.remote import RemoteTarget
 
     parsed = parse_target_spec(spec)
-    if parsed.kind in ("inprocess", "emulator", "sil"):
+    if parsed.kind in FIRMWARE_KINDS:
+        return _start_firmware(parsed, profile, options, timeout_s, retry_s)
+    if parsed.kind in ("inprocess", "emulator"):
         profile = profile if profile is not None and profile.name == parsed.name else get_profile(parsed.name)
         options = profile.default_options() if options is None else options
         if parsed.kind == "inprocess":
             return TargetHandle(profile.make(options), label=spec)  # type: ignore[arg-type]
-        if parsed.kind == "sil" and profile.start_sil is None:
-            raise ConfigError(f"target {spec!r}: {profile.name} has no firmware-in-the-loop build "
-                              "(use emulator: or inprocess:)")
         link = open_link(parsed, timeout_s=timeout_s)  # a pty pair made here (with the spec's faults)
         remote = RemoteTarget(link, timeout_s=timeout_s, retry_s=min(retry_s, timeout_s))
-        if parsed.kind == "sil":
-            return _start_sil(profile, options, remote)
         return _spawn_emulator(profile, options, mode, watchdog_ms, remote)
     if parsed.kind == "port":
         link = open_link(parsed, timeout_s=timeout_s)
         return TargetHandle(RemoteTarget(link, timeout_s=timeout_s, retry_s=min(retry_s, timeout_s)), label=spec, link=link)
     raise ConfigError(f"target {spec!r}: a {parsed.kind}: target is started by its own tool "
-                      "(use emulator:NAME, inprocess:NAME, sil:NAME or a port)")
+                      "(use emulator:NAME, inprocess:NAME, sil:NAME, simavr:NAME or a port)")
 
 
 def emulator_command(profile: TargetProfile, options: object, port: str, mode: str, watchdog_ms: int) -> list[str]:
@@ -159,18 +164,72 @@ def _spawn_emulator(profile: TargetProfile, options: object, mode: str, watchdog
     return handle
 
 
-def _start_sil(profile: TargetProfile, options: object, remote: "RemoteTarget") -> TargetHandle:
-    """The target's firmware-in-the-loop build, serving the far end of the remote's pty (built first
-    if needed)."""
-    link = remote.link
-    assert profile.start_sil is not None
-    try:
-        process = profile.start_sil(options, link.peer_path)
-    except BaseException:
-        link.close()
-        raise
-    label = f"sil:{profile.name} on {link.peer_path} (pid {process.pid})"
-    return TargetHandle(remote, label=label, link=link, process=process)
+def _starter(parsed: "TargetSpec", profile: TargetProfile | None) -> tuple["FirmwareStarter", object | None, str]:
+    """The starter a firmware spec names: a registered target's build, or a build at a path."""
+    from hilbench.targets.registry import get_profile
+    from hilbench.targets.starters import PATH_STARTERS, HostExecutableStarter, starter_for
+
+    if parsed.program:
+        make = PATH_STARTERS.get(parsed.kind)
+        if make is None:
+            raise ConfigError(f"target {parsed.text!r}: {parsed.kind}:PATH is not available in this hilbench")
+        return make(parsed.program), None, parsed.program
+    profile = profile if profile is not None and profile.name == parsed.name else get_profile(parsed.name)
+    starters = dict(profile.starters)
+    if "sil" not in starters and profile.start_sil is not None:  # the older single-function form
+        start_sil = profile.start_sil
+        starters["sil"] = _LegacySil(start_sil, profile.name)  # type: ignore[assignment]
+    return starter_for(parsed.kind, starters, profile.name), profile, profile.name
+
+
+@dataclass(frozen=True)
+class _LegacySil:
+    """A profile's start_sil (options, tty) -> process, as a starter."""
+
+    start_sil: Callable[[object, str], subprocess.Popen[bytes]]
+    name: str
+    kind: str = "sil"
+    serves_host_pty: bool = True
+
+    def start(self, options: object, host_tty: str | None) -> "Started":
+        from hilbench.targets.starters import Started
+
+        assert host_tty is not None
+        process = self.start_sil(options, host_tty)
+        return Started(process, host_tty, f"sil:{self.name} on {host_tty} (pid {process.pid})")
+
+
+def _start_firmware(parsed: "TargetSpec", profile: TargetProfile | None, options: object | None,
+                    timeout_s: float, retry_s: float) -> TargetHandle:
+    """A build of a firmware as its own process (built first if needed), on a pty: the host's pty
+    pair's slave, or the pty the process made. The spec's faults wrap the link either way."""
+    from hilbench.link import open_link
+    from hilbench.link.ports import apply_faults
+    from hilbench.targets.remote import RemoteTarget
+
+    starter, profile, name = _starter(parsed, profile)
+    if profile is not None:
+        options = profile.default_options() if options is None else options
+    if starter.serves_host_pty:
+        link = open_link(parsed, timeout_s=timeout_s)
+        try:
+            started = starter.start(options, link.peer_path)
+        except BaseException:
+            link.close()
+            raise
+    else:
+        started = starter.start(options, None)
+        try:
+            link = apply_faults(open_link(started.tty_path, timeout_s=timeout_s), parsed.faults)
+        except BaseException:
+            started.close()
+            raise
+    label = f"{parsed.kind}:{name} on {started.tty_path} (pid {started.process.pid})"
+    remote = RemoteTarget(link, timeout_s=timeout_s, retry_s=min(retry_s, timeout_s))
+    handle = TargetHandle(remote, label=label, link=link)
+    handle._closers.append(started.close)  # reaps the process after the link is closed
+    handle.started = started
+    return handle
 
 
 def _wait_ready(process: subprocess.Popen[bytes], label: str, log: Any, timeout_s: float = 20.0) -> None:

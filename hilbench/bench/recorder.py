@@ -370,7 +370,7 @@ class Recorder:
         self.closed = True
         self._file.close()
         if self.is_npz:
-            self.metadata["columns"] = [[name, unit] for name, unit, _ in self.rows.layout.column_specs]
+            self.metadata["columns"] = [list(spec) for spec in self.rows.layout.column_specs]  # name, unit, CSV format
             tmp = self.path.with_name(self.path.name + ".tmp.npz")
             _write_npz_from_journal(tmp, self._journal_path(), self.metadata)
             os.replace(tmp, self.path)
@@ -433,6 +433,7 @@ class RecordingData:
     metadata: dict[str, Any]
     events: tuple[str, ...]
     units: dict[str, str] = field(default_factory=dict)
+    formats: dict[str, str] = field(default_factory=dict)  # each column's CSV format, when the file says
 
     @property
     def n_rows(self) -> int:
@@ -475,7 +476,15 @@ def _checked(data: RecordingData) -> RecordingData:
     columns = check.check_columns(where, data.columns, ("t_s", "marker"))
     events = check.check_events(where, data.events)
     units = {str(k): str(v) for k, v in data.units.items()}
-    return RecordingData(data.path, columns, metadata, events, units)
+    formats = {str(k): str(v) for k, v in data.formats.items() if _csv_format(v)}
+    return RecordingData(data.path, columns, metadata, events, units, formats)
+
+
+def _csv_format(text: object) -> bool:
+    """A printf format of one number (what export_csv may use), e.g. %.3f or %d; nothing else."""
+    import re
+
+    return isinstance(text, str) and re.fullmatch(r"%[-+ 0#]?\d{0,2}(\.\d{1,2})?[dfgeE]", text) is not None
 
 
 def _csv_lines(handle: Any, path: Path) -> Any:
@@ -597,7 +606,8 @@ def _read_journal(path: Path) -> RecordingData:
     events = read_text_bounded(side, RECORDING_META_MAX_BYTES, RecordingError, f"recording {side}").splitlines() \
         if side.exists() else []
     units = {name: unit for name, unit, _ in layout.column_specs}
-    return RecordingData(path, columns, metadata, tuple(events), units)
+    formats = {name: fmt for name, _, fmt in layout.column_specs}
+    return RecordingData(path, columns, metadata, tuple(events), units, formats)
 
 
 def _npz_members(path: Path, archive: zipfile.ZipFile) -> None:
@@ -637,16 +647,17 @@ def _read_npz(path: Path) -> RecordingData:
         metadata = json.loads(str(archive["metadata"]))
         if not isinstance(metadata, dict):
             raise RecordingError(f"recording {path}: metadata is not a table")
-        specs = metadata.get("columns") or [[name, unit] for name, unit, _ in COLUMNS]
-        if not isinstance(specs, list) or not all(isinstance(s, list) and len(s) == 2 for s in specs):
-            raise RecordingError(f"recording {path}: metadata columns is not a list of [name, unit]")
+        specs = metadata.get("columns") or [list(spec) for spec in COLUMNS]  # [name, unit(, format)]
+        if not isinstance(specs, list) or not all(isinstance(s, list) and len(s) in (2, 3) for s in specs):
+            raise RecordingError(f"recording {path}: metadata columns is not a list of [name, unit(, format)]")
         members = set(archive.files)
-        missing = [str(name) for name, _ in specs if str(name) not in members]
+        missing = [str(spec[0]) for spec in specs if str(spec[0]) not in members]
         if missing:
             raise RecordingError(f"recording {path}: no column {missing[0][:40]} in the archive")
-        columns = {str(name): archive[str(name)] for name, _ in specs}
-    units = {str(name): str(unit) for name, unit in specs}
-    return RecordingData(path, columns, metadata, tuple(metadata.get("events", ())), units)
+        columns = {str(spec[0]): archive[str(spec[0])] for spec in specs}
+    units = {str(spec[0]): str(spec[1]) for spec in specs}
+    formats = {str(spec[0]): str(spec[2]) for spec in specs if len(spec) > 2}
+    return RecordingData(path, columns, metadata, tuple(metadata.get("events", ())), units, formats)
 
 
 class MemoryRecorder:
@@ -698,7 +709,7 @@ def export_csv(data: RecordingData, path: str | Path) -> Path:
     out = Recorder(Path(path), dict(data.metadata), flush_rows=max(1, data.n_rows))
     out.metadata.pop("columns", None)
     fmts = {name: fmt for name, _, fmt in COLUMNS}
-    specs = [(name, data.units.get(name, ""), fmts.get(name, "%.6g")) for name in data.columns]
+    specs = [(name, data.units.get(name, ""), data.formats.get(name) or fmts.get(name, "%.6g")) for name in data.columns]
     out.start(float_layout(specs))
     names = list(data.columns)
     table = np.column_stack([data.columns[name] for name in names]) if data.n_rows else np.zeros((0, len(names)))

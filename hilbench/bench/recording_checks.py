@@ -39,7 +39,7 @@ def _text_list(value: Any) -> bool:
 
 def _column_specs(value: Any) -> bool:
     return isinstance(value, list) and all(
-        isinstance(v, list) and len(v) == 2 and all(isinstance(x, str) for x in v) for v in value)
+        isinstance(v, list) and len(v) in (2, 3) and all(isinstance(x, str) for x in v) for v in value)
 
 
 #: metadata key -> (what it must be, the check); keys not named here are kept as they are
@@ -53,7 +53,7 @@ METADATA_TYPES: Mapping[str, tuple[str, Callable[[Any], bool]]] = {
     "target": ("text", lambda v: isinstance(v, str)),
     "end": ("text", lambda v: isinstance(v, str)),
     "events": ("a list of text", _text_list),
-    "columns": ("a list of [name, unit]", _column_specs),
+    "columns": ("a list of [name, unit(, format)]", _column_specs),
 }
 
 

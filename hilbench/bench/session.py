@@ -31,6 +31,7 @@ from hilbench.bench.scenario import PERIOD_TOLERANCE, Event, Ramp, ScenarioPlaye
 from hilbench.bench import segments as segmentation
 from hilbench.bench.streamstats import StreamingPercentiles
 from hilbench.bench.summary import Segment, Snapshot, Summary, percentiles
+from hilbench.plant.model import PlantOutput
 from hilbench.errors import BenchLimitError, HilbenchError, LinkError, ParamError, ProtocolError, SimulationError, TargetError
 from hilbench.protocol import (
     PROTOCOL_VERSION,
@@ -52,9 +53,6 @@ INPUT_S3 = int(Input.S3)
 INPUT_INDEX = int(Input.INDEX)
 INPUT_FAULT = int(Input.FAULT)
 OUTPUT_OFF = int(OutputMode.OFF)
-
-#: the plant's step is accurate to 1e-6 at 50 us; longer periods are integrated in substeps
-MAX_PLANT_STEP_US = 50
 
 START_PRESS_S = segmentation.START_PRESS_S  # presses this soon after a reference are starts, not stops
 #: speed samples kept for the dashboard and `ctl step` (the newest; ~8 s at the default 1 ms)
@@ -80,7 +78,11 @@ class PlantLike(Protocol):
     w_m: float
     t_s: float
     fault_input: bool  # the board's overcurrent comparator, latched (drives the target's FAULT input)
+    outputs: tuple[PlantOutput, ...]  # what it records every period (append_state)
 
+    def set_period(self, period_us: int, actuation_delay_periods: int = 0) -> None: ...
+    def advance(self, duty_a: float, duty_b: float, duty_c: float, output_mode: int,
+                state_to: bytearray | None = None, /) -> float | None: ...
     def step(self, duty_a: float, duty_b: float, duty_c: float, output_mode: int, dt_s: float,
              state_to: bytearray | None = None, /) -> float | None: ...
     def adc_codes(self, roles: tuple[int, ...]) -> tuple[int, ...]: ...
@@ -414,7 +416,7 @@ class Session:
         self._wall_start = time.perf_counter()
         self._obs_last = (self._wall_start, 0)
         self._record = self._row_writer()
-        self._actuate = self._actuator()
+        self.plant.set_period(options.period_us, options.actuation_delay_periods)  # the plant's chunks and delay
         self._next_k = 0
         self._edge_s = self.plant.last_edge_s
         self._drive: Any = None
@@ -504,8 +506,7 @@ class Session:
         plant, target_step, faults, history_every = self.plant, self.target.step, self.faults, self.options.history_every_periods
         plant_sense = plant.sense
         roles, edge_limit, new_sensors = tuple(self.hello.adc_roles), self.options.period_us * 10 - 1, tuple.__new__  # type: ignore[union-attr]
-        actuate, (plant_step, scale, period_s) = self._actuate, self._simple_step or (None, 0.0, 0.0)
-        one_step = self._simple_step is not None  # a bool: the hot branches test no float or int
+        plant_advance, scale = plant.advance, 1.0 / self.hello.pwm_period_counts  # type: ignore[union-attr]
         pack, pack_telemetry, extend, rows = self._record or (None, None, None, None)
         host_ref = self._record_host_ref
         perf, rtts, rtt, late, marker = time.perf_counter, self._lockstep_rtts, 0.0, 0.0, 0
@@ -562,10 +563,7 @@ class Session:
                     else:
                         extend(pack(k, hall, sector, da, db, dc, mode, state, fault, rtt, late, marker))
                     extend(pack_telemetry(*tele))  # a call on the tuple itself: cheaper than a `*` among positionals
-                if one_step:  # no delay, one plant step per period; it appends its state to the row
-                    edge_s = plant_step(da * scale, db * scale, dc * scale, mode, period_s, rows)
-                else:
-                    edge_s = actuate(drive, rows)
+                edge_s = plant_advance(da * scale, db * scale, dc * scale, mode, rows)  # it appends its outputs to the row
                 if pacing is not None:
                     pacing.finished(k)
                 if sample:
@@ -612,44 +610,13 @@ class Session:
         self._note(k * self._period_s, reason)
         raise BenchLimitError(f"{self.target_label}: {reason} at t={k * self._period_s:.4f} s")
 
-    def _actuator(self) -> Callable[[Any, bytearray | None], float | None]:
-        """Integrate the plant over a period with a Drive (or the one `actuation_delay_periods` before)
-        and append its state to the row buffer (None: not recording); returns the time of the last
-        hall edge in the period."""
-        plant, period_s = self.plant, self._period_s
-        scale = 1.0 / self.hello.pwm_period_counts  # type: ignore[union-attr]
-        delay = self.options.actuation_delay_periods
-        substeps = max(1, math.ceil(self.options.period_us / MAX_PLANT_STEP_US))
-        sub_s = period_s / substeps
-        pending: deque[Any] = deque()
-        step = plant.step
-
-        def general(drive: Any, state_to: bytearray | None) -> float | None:
-            if delay:
-                pending.append(drive)
-                drive = pending.popleft() if len(pending) > delay else None
-            if drive is None:
-                da = db = dc = 0.0
-                mode = OUTPUT_OFF
-            else:
-                da, db, dc, mode = drive[1] * scale, drive[2] * scale, drive[3] * scale, drive[4]
-            edge_s = None
-            for i in range(substeps):  # long periods: the plant keeps its accurate step, duties held
-                sub_edge_s = step(da, db, dc, mode, sub_s, state_to if i == substeps - 1 else None)
-                if sub_edge_s is not None:
-                    edge_s = i * sub_s + sub_edge_s
-            return edge_s
-
-        self._simple_step = (step, scale, period_s) if (not delay and substeps == 1) else None
-        return general
-
     def _row_writer(self) -> tuple[Callable[..., bytes], Callable[..., bytes], Callable[[bytes], None], bytearray] | None:
         """The recorder's per-period pieces: the packers of the session's raw fields and of the
         telemetry, the row buffer's extend and the buffer (the plant's step appends its own state)."""
         recorder = self.recorder
         if recorder is None:
             return None
-        row = session_row(self.profile, tuple(self.hello.telemetry_ids), self._period_s)  # type: ignore[union-attr]
+        row = session_row(self.profile, tuple(self.hello.telemetry_ids), self._period_s, self.plant.outputs)  # type: ignore[union-attr]
         recorder.metadata["history_every_periods"] = self.options.history_every_periods  # the report's segments
         recorder.start(row.layout)
         self._record_host_ref = any(name == "host_ref_rpm" for name, _ in row.own_fields)

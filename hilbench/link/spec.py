@@ -25,9 +25,13 @@ DEFAULT_BAUD = 250_000
 KIND_INPROCESS = "inprocess"  # the model stepped in this process: no link at all
 KIND_EMULATOR = "emulator"  # the model as its own Python process, on a pty pair the host makes
 KIND_SIL = "sil"  # a host build of the C firmware as its own process, on a pty pair the host makes
+KIND_SIMAVR = "simavr"  # an AVR build of the C firmware in the simavr simulator, on the pty it makes
+KIND_QEMU = "qemu"  # a Cortex-M build of the C firmware in QEMU
 KIND_EXEC = "exec"  # any program given the pty path as its one argument (e.g. the C loopback)
 KIND_PORT = "port"  # a port the far end already sits on: a tty, an fd, a pyserial URL
-_NAMED_KINDS = (KIND_INPROCESS, KIND_EMULATOR, KIND_SIL)
+#: kinds that start a build of a target's C firmware (hilbench.targets.starters): NAME or a PATH
+FIRMWARE_KINDS = (KIND_SIL, KIND_SIMAVR, KIND_QEMU)
+_NAMED_KINDS = (KIND_INPROCESS, KIND_EMULATOR, *FIRMWARE_KINDS)
 
 PORT_PTY = "pty"  # make a pty pair here; link.peer_path is the slave the far end opens
 PORT_DEVICE = "device"  # a tty device path (a real board, a pty slave someone else made)
@@ -53,6 +57,9 @@ FORMS = (
     ("inprocess:NAME", "the target model stepped in this process (no link)"),
     ("emulator:NAME", "the target model as its own process on a virtual serial pair (pty)"),
     ("sil:NAME", "a host build of the target's C firmware as its own process on a pty"),
+    ("simavr:NAME", "an AVR build of the target's C firmware in the simavr simulator"),
+    ("qemu:NAME", "a Cortex-M4 build of the target's C firmware in QEMU"),
+    ("sil:PATH, simavr:PATH, qemu:PATH", "a build of any firmware on hilbench's runtime (it describes itself)"),
     ("exec:PROGRAM", "any program, given the pty path as its argument (e.g. the C loopback)"),
     ("pty", "a virtual serial pair made here; the far end opens the printed path"),
     ("/dev/PATH[?baud=N]", "a serial device (a board, a pty slave)"),
@@ -93,7 +100,8 @@ class FaultSpec:
 class TargetSpec:
     """A parsed target spec. `kind` says which fields mean something:
 
-    inprocess / emulator / sil: `name`; exec: `program`; port: `port`, `port_kind`, `baud`.
+    inprocess / emulator / sil / simavr / qemu: `name` (or, for the firmware kinds, `program`: a
+    path to a build); exec: `program`; port: `port`, `port_kind`, `baud`.
     `faults` (any kind with a link, i.e. all but inprocess) asks for a FaultyLink around it.
     """
 
@@ -113,8 +121,8 @@ class TargetSpec:
 
     @property
     def spawns_process(self) -> bool:
-        """True for emulator, sil and exec: the host makes a pty and starts the far end on it."""
-        return self.kind in (KIND_EMULATOR, KIND_SIL, KIND_EXEC)
+        """True for emulator, the firmware kinds and exec: the host starts the far end as a process."""
+        return self.kind in (KIND_EMULATOR, KIND_EXEC, *FIRMWARE_KINDS)
 
 
 def describe_spec_forms() -> str:
@@ -326,6 +334,9 @@ def parse_target_spec(text: str) -> TargetSpec:
         return _parse_url(text, body, scheme.group(1))
     head, _, query = body.partition("?")
     prefix, colon, rest = head.partition(":")
+    if colon and prefix in FIRMWARE_KINDS and ("/" in rest or rest.startswith(("~", "."))):
+        values, _ = _split_query(text, query, FAULT_KEYS, ())  # a path to a build of any firmware
+        return TargetSpec(text, prefix, program=rest, faults=_faults(text, values))
     if colon and prefix in _NAMED_KINDS:
         if not _NAME_RE.fullmatch(rest):
             raise _fail(text, f"{prefix}: needs a target name (a lowercase identifier, e.g. {prefix}:an1017)")
@@ -364,7 +375,10 @@ __all__ = [
     "KIND_EXEC",
     "KIND_INPROCESS",
     "KIND_PORT",
+    "KIND_QEMU",
     "KIND_SIL",
+    "KIND_SIMAVR",
+    "FIRMWARE_KINDS",
     "PORT_DEVICE",
     "PORT_FD",
     "PORT_PTY",

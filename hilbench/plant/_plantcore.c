@@ -1,13 +1,18 @@
-/* Compiled per-period step of hilbench.plant.model.Plant (the "c" backend).
+/* Compiled period of hilbench.plant.model.Plant (the "c" backend).
  *
  * Core is the base type of model._CPlant: the plant's state and cached parameters live in this
  * struct and are exposed to the Python code as members with the Python attribute names, so the
  * Python paths (energy tracking, quadratic load, OFF with current or above-bus back-EMF) keep
- * working on the same state. Core.step runs PWM and LOW_SIDE periods and the zero-current OFF
- * coast here and calls Plant._step_py for the rest.
+ * working on the same state. Core.advance runs an exchange period in its chunks and Core.step one
+ * step; PWM and LOW_SIDE steps and the zero-current OFF coast run here, the rest in
+ * Plant._step_py. The functions are model.py's, one for one, in the same order (averaged_inverter,
+ * friction, rk4_dq, rotate, step_dq, sense_*).
  *
  * The arithmetic mirrors model.py operation by operation (same order, no FMA contraction:
  * build with -ffp-contract=off), so both backends agree to the last bit on the same libm.
+ *
+ * Recorded outputs (model.OUTPUTS): append_state copies the double members the declaration names
+ * (resolved once by _set_outputs), so a new recorded quantity is a double here, set with the state.
  */
 #define PY_SSIZE_T_CLEAN
 #include <Python.h>
@@ -24,12 +29,16 @@ static double TWO_PI, SIXTY, INV_SQRT3, HALF_SQRT3;
 static const int HALL_BY_SECTOR[6] = {4, 6, 2, 3, 1, 5};
 static PyObject *str_step_py, *str_update_load, *str_draw_noise;
 
+#define MAX_CHUNKS 256 /* model.MAX_CHUNKS: steps per period, so hall edges per period */
+#define MAX_OUTPUTS 32 /* recorded outputs (model.OUTPUTS) */
+
 typedef struct {
     PyObject_HEAD
     double i_d, i_q, w_m, th, t_s, vbus_v, dt_duty, hall_base, tl, kv, tc, j, t_load_change;
     double i_a, i_b, i_c, i_bus;
     double rd, rq, pq, pd, ppsi, p, ild, ilq, kt, kr, ijv;
     double da, db, dc, ell, oc;
+    double psi, ld_lq, te_nm; /* the electrical torque (recorded) and its constants */
     long long turns, nidx, enc_m;
     int sector, hall_bits, encoder_count, last_mode, enc_sign, enc_offset, enc_cpt, enc_idx, substeps;
     char stuck, locked, track_energy, kq_any, encoder_index, fault_input, gate_off;
@@ -39,6 +48,15 @@ typedef struct {
     char adc_has[6];
     PyObject *noise;
     long long noise_i;
+    /* the exchange period (model.Plant.set_period) and the hall edges of the last one */
+    double period_s, chunk_s;
+    int chunks, n_edges;
+    long long periods;
+    double edge_t[MAX_CHUNKS];
+    int edge_hall[MAX_CHUNKS];
+    /* the recorded outputs: offsets of double members, in model.OUTPUTS order */
+    Py_ssize_t out_off[MAX_OUTPUTS];
+    int n_out;
 } Core;
 
 static long long mod6(long long n) { long long r = n % 6; return r < 0 ? r + 6 : r; }
@@ -97,16 +115,8 @@ static void set_edge(Core *s, int have, double edge)
     Py_XDECREF(old);
 }
 
-/* the overcurrent comparator (model.Plant._sense): latches fault_input */
-static void compare(Core *s)
-{
-    double oc = s->oc, ia = s->i_a, ib = s->i_b, ic = s->i_c;
-    if (oc > 0.0 && (ia > oc || ia < -oc || ib > oc || ib < -oc || ic > oc || ic < -oc))
-        s->fault_input = 1;
-}
-
-/* model.Plant._sense */
-static void sense(Core *s)
+/* model.Plant._sense_currents: the phase currents and the overcurrent comparator (latches fault_input) */
+static void sense_currents(Core *s)
 {
     double th = s->th, c = cos(th), sn = sin(th);
     double ia = s->i_d * c - s->i_q * sn;
@@ -114,20 +124,42 @@ static void sense(Core *s)
     double ib = -0.5 * ia + HALF_SQRT3 * ibe;
     double ic = -0.5 * ia - HALF_SQRT3 * ibe;
     s->i_a = ia; s->i_b = ib; s->i_c = ic;
-    compare(s);
+    double oc = s->oc;
+    if (oc > 0.0 && (ia > oc || ia < -oc || ib > oc || ib < -oc || ic > oc || ic < -oc))
+        s->fault_input = 1;
+    s->te_nm = 1.5 * s->p * s->i_q * (s->psi + s->ld_lq * s->i_d);
+}
+
+/* model.Plant._sense_encoder */
+static void sense_encoder(Core *s)
+{
+    long long n = (long long)floor(((double)s->turns + s->th / TWO_PI) * (double)s->enc_cpt / s->p);
+    set_encoder(s, n);
+}
+
+/* model.Plant._sense */
+static void sense(Core *s)
+{
+    sense_currents(s);
+    double ia = s->i_a, ib = s->i_b, ic = s->i_c;
     if (s->last_mode == OUTPUT_PWM)
         s->i_bus = s->da * ia + s->db * ib + s->dc * ic;
     else if (s->last_mode == OUTPUT_LOW_SIDE)
         s->i_bus = 0.0;
     else
         s->i_bus = (ia < 0.0 ? ia : 0.0) + (ib < 0.0 ? ib : 0.0) + (ic < 0.0 ? ic : 0.0);
-    long long n = (long long)floor(((double)s->turns + th / TWO_PI) * (double)s->enc_cpt / s->p);
-    set_encoder(s, n);
+    sense_encoder(s);
 }
 
-/* OFF with zero currents and the back-EMF below the bus: model.Plant._coast over the period,
- * then model.Plant._finish and _sense. */
-static void coast_period(Core *s, double h)
+/* model.Plant._bus_average */
+static double bus_average(const Core *s, double e_in_j, double dt_s)
+{
+    return (s->vbus_v > 0.0 && dt_s > 0.0) ? e_in_j / (s->vbus_v * dt_s) : 0.0;
+}
+
+/* OFF with zero currents and the back-EMF below the bus: model.Plant._coast over the step,
+ * then model.Plant._finish and _sense. The step's hall edge, if any, goes to *edge (*have = 1). */
+static void coast_step(Core *s, double h, int *have, double *edge)
 {
     double th0 = s->th, w_start = s->w_m;
     long long turns0 = s->turns;
@@ -172,17 +204,159 @@ static void coast_period(Core *s, double h)
     double th1 = th0 + dth, base = s->hall_base;
     long long n0 = (long long)floor((th0 - base) / SIXTY);
     long long n1 = (long long)floor((th1 - base) / SIXTY);
+    *have = 0;
     if (n1 != n0) {
-        double e = 0.0 + edge_time(base, th0, th1, n0, n1, s->p * w_start, s->p * s->w_m, h);
-        set_edge(s, 1, e);
+        *edge = 0.0 + edge_time(base, th0, th1, n0, n1, s->p * w_start, s->p * s->w_m, h);
+        *have = 1;
         s->sector = (int)mod6(n1);
         s->hall_bits = HALL_BY_SECTOR[s->sector];
-    } else {
-        set_edge(s, 0, 0.0);
     }
     s->nidx = (long long)floor((s->th - base) / SIXTY);
     s->t_s += h;
     sense(s);
+}
+
+/* model.Plant._averaged_inverter: the alpha-beta voltage of the duties held over the step, each
+ * duty corrected for the dead time against its phase current's sign. */
+static void averaged_inverter(Core *s, double duty_a, double duty_b, double duty_c, double *va, double *vb)
+{
+    double dtd = s->dt_duty;
+    if (dtd != 0.0) {
+        double ia = s->i_a, ib = s->i_b, ic = s->i_c, x;
+        x = duty_a - (ia > 0.0 ? dtd : ia < 0.0 ? -dtd : 0.0);
+        x = x > 0.0 ? x : 0.0; duty_a = x < 1.0 ? x : 1.0;
+        x = duty_b - (ib > 0.0 ? dtd : ib < 0.0 ? -dtd : 0.0);
+        x = x > 0.0 ? x : 0.0; duty_b = x < 1.0 ? x : 1.0;
+        x = duty_c - (ic > 0.0 ? dtd : ic < 0.0 ? -dtd : 0.0);
+        x = x > 0.0 ? x : 0.0; duty_c = x < 1.0 ? x : 1.0;
+    }
+    s->da = duty_a; s->db = duty_b; s->dc = duty_c;
+    double vbus = s->vbus_v;
+    *va = vbus * (2.0 * duty_a - duty_b - duty_c) / 3.0;
+    *vb = vbus * (duty_b - duty_c) * INV_SQRT3;
+}
+
+/* model.Plant._friction: 1/J (0 while held) and the Coulomb friction frozen over the substep */
+static void friction(Core *s, double i_d, double i_q, double *w, double *ij, double *fr)
+{
+    const double tc = s->tc;
+    if (s->locked) {
+        *ij = 0.0; *fr = 0.0; *w = 0.0;
+    } else if (s->stuck) {
+        double net = (s->kt + s->kr * i_d) * i_q * s->j - s->tl;
+        if (-tc <= net && net <= tc) {
+            *ij = 0.0; *fr = 0.0;
+        } else {
+            s->stuck = 0;
+            *ij = s->ijv;
+            *fr = net > 0.0 ? tc : -tc;
+        }
+    } else {
+        *ij = s->ijv;
+        *fr = *w > 0.0 ? tc : *w < 0.0 ? -tc : 0.0;
+    }
+}
+
+/* model.Plant._rk4_dq: one RK4 step of (i_d, i_q, w_m) with x0 = phi - theta; y[] = i_d, i_q, w_m
+ * in, and out with y[3] = the angle turned, y[4] = the input energy part */
+static void rk4_dq(const Core *s, double y[5], double x0, double vmag, double ij, double fr, double h)
+{
+    const double rd = s->rd, rq = s->rq, pq = s->pq, pd = s->pd, ppsi = s->ppsi, p = s->p;
+    const double id0 = y[0], iq0 = y[1], w0 = y[2];
+    double vdm = vmag * s->ild, vqm = vmag * s->ilq;
+    double h2 = 0.5 * h, h6 = h / 6.0;
+    double ftj = (fr + s->tl) * ij, kvj = s->kv * ij, ktj, krj;
+    if (ij == 0.0) { ktj = krj = 0.0; } else { ktj = s->kt; krj = s->kr; }
+    double a, b, w, x;
+    double cc = cos(x0), ss = sin(x0);
+    double p1 = cc * id0 + ss * iq0;
+    double k1d = vdm * cc + w0 * pq * iq0 - rd * id0;
+    double k1q = vqm * ss - w0 * (pd * id0 + ppsi) - rq * iq0;
+    double k1w = iq0 * (ktj + krj * id0) - kvj * w0 - ftj;
+    a = id0 + h2 * k1d; b = iq0 + h2 * k1q; w = w0 + h2 * k1w; x = x0 - h2 * p * w0;
+    cc = cos(x); ss = sin(x);
+    double p2 = cc * a + ss * b;
+    double k2d = vdm * cc + w * pq * b - rd * a;
+    double k2q = vqm * ss - w * (pd * a + ppsi) - rq * b;
+    double k2w = b * (ktj + krj * a) - kvj * w - ftj;
+    double w2 = w;
+    a = id0 + h2 * k2d; b = iq0 + h2 * k2q; w = w0 + h2 * k2w; x = x0 - h2 * p * w2;
+    cc = cos(x); ss = sin(x);
+    double p3 = cc * a + ss * b;
+    double k3d = vdm * cc + w * pq * b - rd * a;
+    double k3q = vqm * ss - w * (pd * a + ppsi) - rq * b;
+    double k3w = b * (ktj + krj * a) - kvj * w - ftj;
+    double w3 = w;
+    a = id0 + h * k3d; b = iq0 + h * k3q; w = w0 + h * k3w; x = x0 - h * p * w3;
+    cc = cos(x); ss = sin(x);
+    double p4 = cc * a + ss * b;
+    double k4d = vdm * cc + w * pq * b - rd * a;
+    double k4q = vqm * ss - w * (pd * a + ppsi) - rq * b;
+    double k4w = b * (ktj + krj * a) - kvj * w - ftj;
+    y[0] = id0 + h6 * (k1d + 2.0 * (k2d + k3d) + k4d);
+    y[1] = iq0 + h6 * (k1q + 2.0 * (k2q + k3q) + k4q);
+    y[2] = w0 + h6 * (k1w + 2.0 * (k2w + k3w) + k4w);
+    y[3] = h6 * p * (w0 + 2.0 * (w2 + w3) + w);
+    y[4] = h6 * (p1 + 2.0 * (p2 + p3) + p4);
+}
+
+/* model.Plant._rotate: the new angle (wrapped) and sector index; 1 and *edge when a sector changed */
+static int rotate(Core *s, double *th, long long *n, double dth, double w0, double w1, double h, double *edge)
+{
+    double th0 = *th, th1 = th0 + dth, base = s->hall_base;
+    long long n0 = *n, n1 = (long long)floor((th1 - base) / SIXTY);
+    int have = 0;
+    if (n1 != n0) {
+        *edge = edge_time(base, th0, th1, n0, n1, s->p * w0, s->p * w1, h);
+        have = 1;
+        s->sector = (int)mod6(n1);
+    }
+    if (th1 >= TWO_PI || th1 < 0.0) {
+        double k = floor(th1 / TWO_PI);
+        s->turns += (long long)k;
+        th1 -= k * TWO_PI;
+        n1 -= 6 * (long long)k;
+    }
+    *th = th1;
+    *n = n1;
+    return have;
+}
+
+/* model.Plant._step_dq: substeps of RK4 in the rotor frame under a held voltage, then the sensors */
+static void step_dq(Core *s, double va, double vb, double dt_s, int *have, double *edge)
+{
+    double vmag = sqrt(va * va + vb * vb);
+    double phi = atan2(vb, va);
+    const int nsub = s->substeps;
+    double h = dt_s / (double)nsub;
+    double y[5] = {s->i_d, s->i_q, s->w_m, 0.0, 0.0};
+    double th0 = s->th;
+    long long n0 = s->nidx;
+    double e_in = 0.0; /* the step's input energy / (1.5 |v|), as model.py */
+    *have = 0;
+    for (int jj = 0; jj < nsub; jj++) {
+        double ij, fr, w0 = y[2], sub_edge = 0.0;
+        friction(s, y[0], y[1], &w0, &ij, &fr);
+        y[2] = w0;
+        rk4_dq(s, y, phi - th0, vmag, ij, fr, h);
+        e_in += y[4];
+        double w1 = y[2];
+        if (fr != 0.0 && w0 != 0.0 && ((w1 > 0.0) != (w0 > 0.0))) {
+            w1 = 0.0; /* speed crossed zero under Coulomb friction: stick */
+            s->stuck = 1;
+        }
+        if (rotate(s, &th0, &n0, y[3], w0, w1, h, &sub_edge)) {
+            *edge = (double)jj * h + sub_edge;
+            *have = 1;
+        }
+        y[2] = w1;
+    }
+    s->i_d = y[0]; s->i_q = y[1]; s->w_m = y[2]; s->nidx = n0; s->th = th0;
+    s->hall_bits = HALL_BY_SECTOR[s->sector];
+    s->t_s += dt_s;
+    sense_currents(s);
+    s->i_bus = bus_average(s, 1.5 * vmag * e_in, dt_s);
+    sense_encoder(s);
 }
 
 static int get_double(PyObject *o, double *out)
@@ -192,46 +366,28 @@ static int get_double(PyObject *o, double *out)
     return (*out == -1.0 && PyErr_Occurred()) ? -1 : 0;
 }
 
-static PyObject *Core_append_state(Core *s, PyObject *buf);
-static int step_period(Core *s, PyObject *const *args);
-
-/* step(duty_a, duty_b, duty_c, output_mode, dt_s[, state_to]) -> last_edge_s: one period (model.Plant.step);
- * with a bytearray ``state_to`` the state is appended to it after the step (append_state). */
-static PyObject *Core_step(Core *s, PyObject *const *args, Py_ssize_t nargs)
+/* model.Plant._step_py for one step of dt_s with the duties and mode of args[0..3]: the steps with
+ * energy accounts, a quadratic load or current in an open bridge go to Python. 0, or -1 with an
+ * exception set; the step's hall edge in *have and *edge. */
+static int integrate(Core *s, PyObject *const *args, double dt_s, int *have, double *edge)
 {
-    if (nargs != 5 && nargs != 6) {
-        PyErr_Format(PyExc_TypeError, "Plant.step: expected 5 or 6 arguments (duty_a, duty_b, duty_c, output_mode, dt_s[, state_to]), got %zd", nargs);
-        return NULL;
-    }
-    if (nargs == 6 && args[5] != Py_None && !PyByteArray_Check(args[5])) {
-        PyErr_SetString(PyExc_TypeError, "Plant.step: state_to must be a bytearray (a recorder's row buffer) or None");
-        return NULL;
-    }
-    if (step_period(s, args) < 0) return NULL;
-    if (nargs == 6 && args[5] != Py_None) {
-        PyObject *r = Core_append_state(s, args[5]);
-        if (r == NULL) return NULL;
-        Py_DECREF(r);
-    }
-    return Py_NewRef(s->last_edge_s != NULL ? s->last_edge_s : Py_None);
-}
-
-/* The period itself: 0, or -1 with an exception set. */
-static int step_period(Core *s, PyObject *const *args)
-{
-    double duty_a, duty_b, duty_c, dt_s;
-    if (get_double(args[0], &duty_a) || get_double(args[1], &duty_b) || get_double(args[2], &duty_c)
-        || get_double(args[4], &dt_s))
+    double duty_a, duty_b, duty_c;
+    if (get_double(args[0], &duty_a) || get_double(args[1], &duty_b) || get_double(args[2], &duty_c))
         return -1;
     long mode = PyLong_AsLong(args[3]);
     if (mode == -1 && PyErr_Occurred()) return -1;
     if (s->fault_input && s->gate_off) mode = OUTPUT_OFF; /* the comparator's hardware trip */
-    int hot = (mode == OUTPUT_PWM || mode == OUTPUT_LOW_SIDE);
-    if (s->track_energy || s->kq_any || (!hot && !(s->i_d == 0.0 && s->i_q == 0.0 && s->ell * fabs(s->w_m) < s->vbus_v))) {
-        PyObject *cargs[6] = {(PyObject *)s, args[0], args[1], args[2], args[3], args[4]};
+    int driven = (mode == OUTPUT_PWM || mode == OUTPUT_LOW_SIDE);
+    if (s->track_energy || s->kq_any || (!driven && !(s->i_d == 0.0 && s->i_q == 0.0 && s->ell * fabs(s->w_m) < s->vbus_v))) {
+        PyObject *dt = PyFloat_FromDouble(dt_s);
+        if (dt == NULL) return -1;
+        PyObject *cargs[6] = {(PyObject *)s, args[0], args[1], args[2], args[3], dt};
         PyObject *r = PyObject_VectorcallMethod(str_step_py, cargs, 6, NULL);
+        Py_DECREF(dt);
         if (r == NULL) return -1;
         Py_DECREF(r);
+        *have = s->last_edge_s != NULL && s->last_edge_s != Py_None;
+        if (*have && get_double(s->last_edge_s, edge) < 0) return -1;
         return 0;
     }
     if (s->t_load_change <= s->t_s + 1e-12) {
@@ -239,144 +395,116 @@ static int step_period(Core *s, PyObject *const *args)
         if (r == NULL) return -1;
         Py_DECREF(r);
     }
-    if (!hot) {
-        coast_period(s, dt_s);
+    if (!driven) {
+        coast_step(s, dt_s, have, edge);
         return 0;
     }
-    double va, vb;
-    if (mode == OUTPUT_PWM) {
-        double vbus = s->vbus_v, dtd = s->dt_duty;
-        if (dtd != 0.0) {
-            double ia = s->i_a, ib = s->i_b, ic = s->i_c, x;
-            x = duty_a - (ia > 0.0 ? dtd : ia < 0.0 ? -dtd : 0.0);
-            x = x > 0.0 ? x : 0.0; duty_a = x < 1.0 ? x : 1.0;
-            x = duty_b - (ib > 0.0 ? dtd : ib < 0.0 ? -dtd : 0.0);
-            x = x > 0.0 ? x : 0.0; duty_b = x < 1.0 ? x : 1.0;
-            x = duty_c - (ic > 0.0 ? dtd : ic < 0.0 ? -dtd : 0.0);
-            x = x > 0.0 ? x : 0.0; duty_c = x < 1.0 ? x : 1.0;
-        }
-        s->da = duty_a; s->db = duty_b; s->dc = duty_c;
-        va = vbus * (2.0 * duty_a - duty_b - duty_c) / 3.0;
-        vb = vbus * (duty_b - duty_c) * INV_SQRT3;
-    } else {
-        va = vb = 0.0;
-    }
+    double va = 0.0, vb = 0.0;
+    if (mode == OUTPUT_PWM)
+        averaged_inverter(s, duty_a, duty_b, duty_c, &va, &vb);
     s->last_mode = (int)mode;
-    const double rd = s->rd, rq = s->rq, pq = s->pq, pd = s->pd, ppsi = s->ppsi, p = s->p;
-    const double ild = s->ild, ilq = s->ilq, kt = s->kt, kr = s->kr, ijv = s->ijv;
-    const double tl = s->tl, kv = s->kv, tc = s->tc, base = s->hall_base;
-    const int nsub = s->substeps;
-    double vmag = sqrt(va * va + vb * vb);
-    double vdm = vmag * ild, vqm = vmag * ilq;
-    double phi = atan2(vb, va);
-    double h = dt_s / (double)nsub, h2 = 0.5 * h, h6 = h / 6.0;
-    double id0 = s->i_d, iq0 = s->i_q, w0 = s->w_m, th0 = s->th;
-    long long n0 = s->nidx;
-    int have_edge = 0;
-    double edge = 0.0;
-    double e_in = 0.0; /* the period's input energy / (1.5 |v|), as model.py */
-    for (int jj = 0; jj < nsub; jj++) {
-        double ij, fr;
-        if (s->locked) {
-            ij = 0.0; fr = 0.0; w0 = 0.0;
-        } else if (s->stuck) {
-            double net = (kt + kr * id0) * iq0 * s->j - tl;
-            if (-tc <= net && net <= tc) {
-                ij = 0.0; fr = 0.0;
-            } else {
-                s->stuck = 0;
-                ij = ijv;
-                fr = net > 0.0 ? tc : -tc;
-            }
-        } else {
-            ij = ijv;
-            fr = w0 > 0.0 ? tc : w0 < 0.0 ? -tc : 0.0;
-        }
-        double ftj = (fr + tl) * ij, kvj = kv * ij, ktj, krj;
-        if (ij == 0.0) { ktj = krj = 0.0; } else { ktj = kt; krj = kr; }
-        double x0 = phi - th0, a, b, w, x;
-        double cc = cos(x0), ss = sin(x0);
-        double p1 = cc * id0 + ss * iq0;
-        double k1d = vdm * cc + w0 * pq * iq0 - rd * id0;
-        double k1q = vqm * ss - w0 * (pd * id0 + ppsi) - rq * iq0;
-        double k1w = iq0 * (ktj + krj * id0) - kvj * w0 - ftj;
-        a = id0 + h2 * k1d; b = iq0 + h2 * k1q; w = w0 + h2 * k1w; x = x0 - h2 * p * w0;
-        cc = cos(x); ss = sin(x);
-        double p2 = cc * a + ss * b;
-        double k2d = vdm * cc + w * pq * b - rd * a;
-        double k2q = vqm * ss - w * (pd * a + ppsi) - rq * b;
-        double k2w = b * (ktj + krj * a) - kvj * w - ftj;
-        double w2 = w;
-        a = id0 + h2 * k2d; b = iq0 + h2 * k2q; w = w0 + h2 * k2w; x = x0 - h2 * p * w2;
-        cc = cos(x); ss = sin(x);
-        double p3 = cc * a + ss * b;
-        double k3d = vdm * cc + w * pq * b - rd * a;
-        double k3q = vqm * ss - w * (pd * a + ppsi) - rq * b;
-        double k3w = b * (ktj + krj * a) - kvj * w - ftj;
-        double w3 = w;
-        a = id0 + h * k3d; b = iq0 + h * k3q; w = w0 + h * k3w; x = x0 - h * p * w3;
-        cc = cos(x); ss = sin(x);
-        double p4 = cc * a + ss * b;
-        e_in += h6 * (p1 + 2.0 * (p2 + p3) + p4);
-        double k4d = vdm * cc + w * pq * b - rd * a;
-        double k4q = vqm * ss - w * (pd * a + ppsi) - rq * b;
-        double k4w = b * (ktj + krj * a) - kvj * w - ftj;
-        id0 = id0 + h6 * (k1d + 2.0 * (k2d + k3d) + k4d);
-        iq0 = iq0 + h6 * (k1q + 2.0 * (k2q + k3q) + k4q);
-        double w1 = w0 + h6 * (k1w + 2.0 * (k2w + k3w) + k4w);
-        double dth = h6 * p * (w0 + 2.0 * (w2 + w3) + w);
-        if (fr != 0.0 && w0 != 0.0 && ((w1 > 0.0) != (w0 > 0.0))) {
-            w1 = 0.0;
-            s->stuck = 1;
-        }
-        double th1 = th0 + dth;
-        long long n1 = (long long)floor((th1 - base) / SIXTY);
-        if (n1 != n0) {
-            edge = (double)jj * h + edge_time(base, th0, th1, n0, n1, p * w0, p * w1, h);
-            have_edge = 1;
-            s->sector = (int)mod6(n1);
-        }
-        if (th1 >= TWO_PI || th1 < 0.0) {
-            double k = floor(th1 / TWO_PI);
-            s->turns += (long long)k;
-            th1 -= k * TWO_PI;
-            n1 -= 6 * (long long)k;
-        }
-        n0 = n1; th0 = th1; w0 = w1;
-    }
-    s->i_d = id0; s->i_q = iq0; s->w_m = w0; s->nidx = n0; s->th = th0;
-    s->hall_bits = HALL_BY_SECTOR[s->sector];
-    set_edge(s, have_edge, edge);
-    s->t_s += dt_s;
-    double c = cos(th0), sn = sin(th0);
-    double ia = id0 * c - iq0 * sn;
-    double ibe = id0 * sn + iq0 * c;
-    double ib = -0.5 * ia + HALF_SQRT3 * ibe;
-    double ic = -0.5 * ia - HALF_SQRT3 * ibe;
-    s->i_a = ia; s->i_b = ib; s->i_c = ic;
-    compare(s);
-    /* model.Plant._bus_average: the period's mean bus current from its input energy */
-    s->i_bus = (s->vbus_v > 0.0 && dt_s > 0.0) ? (1.5 * vmag * e_in) / (s->vbus_v * dt_s) : 0.0;
-    long long n = (long long)floor(((double)s->turns + th0 / TWO_PI) * (double)s->enc_cpt / p);
-    set_encoder(s, n);
+    step_dq(s, va, vb, dt_s, have, edge);
     return 0;
 }
 
-/* append_state(buf): the state a recorder keeps per period, appended to a bytearray as seven
- * little-endian doubles (model.STATE_FIELDS): one call instead of seven attribute reads. */
+static PyObject *Core_append_state(Core *s, PyObject *buf);
+
+static int check_state_to(PyObject *const *args, Py_ssize_t nargs, Py_ssize_t at, const char *what)
+{
+    if (nargs > at && args[at] != Py_None && !PyByteArray_Check(args[at])) {
+        PyErr_Format(PyExc_TypeError, "Plant.%s: state_to must be a bytearray (a recorder's row buffer) or None", what);
+        return -1;
+    }
+    return 0;
+}
+
+/* the recorded outputs onto state_to, when given; the step's return value (last_edge_s) */
+static PyObject *finish_call(Core *s, PyObject *const *args, Py_ssize_t nargs, Py_ssize_t at, int have, double edge)
+{
+    set_edge(s, have, edge);
+    if (nargs > at && args[at] != Py_None) {
+        PyObject *r = Core_append_state(s, args[at]);
+        if (r == NULL) return NULL;
+        Py_DECREF(r);
+    }
+    return Py_NewRef(s->last_edge_s != NULL ? s->last_edge_s : Py_None);
+}
+
+/* step(duty_a, duty_b, duty_c, output_mode, dt_s[, state_to]) -> last_edge_s: one step (model.Plant.step) */
+static PyObject *Core_step(Core *s, PyObject *const *args, Py_ssize_t nargs)
+{
+    if (nargs != 5 && nargs != 6) {
+        PyErr_Format(PyExc_TypeError, "Plant.step: expected 5 or 6 arguments (duty_a, duty_b, duty_c, output_mode, dt_s[, state_to]), got %zd", nargs);
+        return NULL;
+    }
+    if (check_state_to(args, nargs, 5, "step") < 0) return NULL;
+    double dt_s, edge = 0.0;
+    int have = 0;
+    if (get_double(args[4], &dt_s) < 0 || integrate(s, args, dt_s, &have, &edge) < 0) return NULL;
+    return finish_call(s, args, nargs, 5, have, edge);
+}
+
+/* advance(duty_a, duty_b, duty_c, output_mode[, state_to]) -> last_edge_s: one exchange period in
+ * its chunks (model.Plant._advance_py; the actuation delay stays in Python) */
+static PyObject *Core_advance(Core *s, PyObject *const *args, Py_ssize_t nargs)
+{
+    if (nargs != 4 && nargs != 5) {
+        PyErr_Format(PyExc_TypeError, "Plant.advance: expected 4 or 5 arguments (duty_a, duty_b, duty_c, output_mode[, state_to]), got %zd", nargs);
+        return NULL;
+    }
+    if (check_state_to(args, nargs, 4, "advance") < 0) return NULL;
+    const double h = s->chunk_s;
+    const int chunks = s->chunks < 1 ? 1 : s->chunks > MAX_CHUNKS ? MAX_CHUNKS : s->chunks;
+    int have = 0;
+    double edge = 0.0;
+    s->n_edges = 0;
+    for (int i = 0; i < chunks; i++) { /* long periods: the plant keeps its accurate step, duties held */
+        int sub_have = 0;
+        double sub_edge = 0.0;
+        if (integrate(s, args, h, &sub_have, &sub_edge) < 0) return NULL;
+        if (sub_have) {
+            edge = (double)i * h + sub_edge;
+            have = 1;
+            s->edge_t[s->n_edges] = edge;
+            s->edge_hall[s->n_edges] = s->hall_bits;
+            s->n_edges++;
+        }
+    }
+    s->periods += 1;
+    s->t_s = (double)s->periods * s->period_s; /* one time base: k periods are Period.t_s(k) */
+    return finish_call(s, args, nargs, 4, have, edge);
+}
+
+/* edges() -> ((t_s, hall_bits), ...): every hall edge of the last advance (model.Plant.edges) */
+static PyObject *Core_edges(Core *s, PyObject *unused)
+{
+    (void)unused;
+    PyObject *out = PyTuple_New(s->n_edges);
+    if (out == NULL) return NULL;
+    for (int i = 0; i < s->n_edges; i++) {
+        PyObject *e = Py_BuildValue("(di)", s->edge_t[i], s->edge_hall[i]);
+        if (e == NULL) { Py_DECREF(out); return NULL; }
+        PyTuple_SET_ITEM(out, i, e);
+    }
+    return out;
+}
+
+/* append_state(buf): the recorded outputs (model.OUTPUTS) appended to a bytearray as
+ * little-endian doubles: one call instead of an attribute read each. */
 static PyObject *Core_append_state(Core *s, PyObject *buf)
 {
 #if defined(__BYTE_ORDER__) && __BYTE_ORDER__ != __ORDER_LITTLE_ENDIAN__
 #error "append_state writes host doubles as little-endian"
 #endif
-    const double v[7] = {s->th, s->w_m, s->i_a, s->i_b, s->i_c, s->i_bus, s->tl};
     if (!PyByteArray_Check(buf)) {
         PyErr_SetString(PyExc_TypeError, "append_state: expected a bytearray");
         return NULL;
     }
     Py_ssize_t n = PyByteArray_GET_SIZE(buf);
-    if (PyByteArray_Resize(buf, n + (Py_ssize_t)sizeof v) < 0) return NULL;
-    memcpy(PyByteArray_AS_STRING(buf) + n, v, sizeof v);
+    if (PyByteArray_Resize(buf, n + (Py_ssize_t)sizeof(double) * s->n_out) < 0) return NULL;
+    char *out = PyByteArray_AS_STRING(buf) + n;
+    for (int i = 0; i < s->n_out; i++)
+        memcpy(out + i * sizeof(double), (const char *)s + s->out_off[i], sizeof(double));
     Py_RETURN_NONE;
 }
 
@@ -457,6 +585,7 @@ static PyObject *Core_new(PyTypeObject *type, PyObject *args, PyObject *kwds)
     s->j = 1.0;
     s->enc_cpt = 4;
     s->t_load_change = INFINITY;
+    s->chunks = 1;
     return (PyObject *)s;
 }
 
@@ -473,12 +602,14 @@ static void Core_dealloc(Core *s)
 #define BM(name, field) {name, T_BOOL, offsetof(Core, field), 0, NULL}
 
 static PyMemberDef Core_members[] = {
+    DM("load_nm", tl), /* the constant part of the load now, recorded (model.Plant.load_nm) */
     DM("i_d", i_d), DM("i_q", i_q), DM("w_m", w_m), DM("_th", th), DM("t_s", t_s), DM("vbus_v", vbus_v),
     DM("_dt_duty", dt_duty), DM("_hall_base", hall_base), DM("_tl", tl), DM("_kv", kv), DM("_tc", tc), DM("_oc", oc),
     DM("_j", j), DM("_t_load_change", t_load_change), DM("i_a", i_a), DM("i_b", i_b), DM("i_c", i_c),
     DM("i_bus", i_bus), DM("_rd", rd), DM("_rq", rq), DM("_pq", pq), DM("_pd", pd), DM("_ppsi", ppsi),
     DM("_p", p), DM("_ild", ild), DM("_ilq", ilq), DM("_kt", kt), DM("_kr", kr), DM("_ijv", ijv),
     DM("_da", da), DM("_db", db), DM("_dc", dc), DM("_ell", ell),
+    DM("_psi", psi), DM("_ld_lq", ld_lq), DM("te_nm", te_nm),
     LM("_turns", turns), LM("_nidx", nidx),
     IM("_sector", sector), IM("hall_bits", hall_bits), IM("encoder_count", encoder_count),
     IM("_last_mode", last_mode), IM("_enc_sign", enc_sign), IM("_enc_offset", enc_offset),
@@ -489,8 +620,38 @@ static PyMemberDef Core_members[] = {
     {"_noise", T_OBJECT_EX, offsetof(Core, noise), 0, NULL},
     LM("_noise_i", noise_i), DM("pot_fraction", pot_fraction),
     {"theta_e", T_DOUBLE, offsetof(Core, th), READONLY, "Electrical rotor angle in [0, 2 pi) (read-only)."},
+    DM("_period_s", period_s), DM("_chunk_s", chunk_s), IM("_chunks", chunks), LM("_periods", periods),
     {NULL, 0, 0, 0, NULL},
 };
+
+/* _set_outputs(names): the double members append_state copies, in order (model.OUTPUTS' sources) */
+static PyObject *Core_set_outputs(Core *s, PyObject *names)
+{
+    PyObject *seq = PySequence_Fast(names, "_set_outputs: expected a sequence of member names");
+    if (seq == NULL) return NULL;
+    Py_ssize_t n = PySequence_Fast_GET_SIZE(seq);
+    if (n > MAX_OUTPUTS) {
+        Py_DECREF(seq);
+        return PyErr_Format(PyExc_ValueError, "_set_outputs: at most %d outputs, got %zd", MAX_OUTPUTS, n);
+    }
+    Py_ssize_t off[MAX_OUTPUTS];
+    for (Py_ssize_t i = 0; i < n; i++) {
+        const char *name = PyUnicode_AsUTF8(PySequence_Fast_GET_ITEM(seq, i));
+        const PyMemberDef *m = Core_members;
+        if (name == NULL) { Py_DECREF(seq); return NULL; }
+        while (m->name != NULL && !(m->type == T_DOUBLE && strcmp(m->name, name) == 0)) m++;
+        if (m->name == NULL) {
+            PyErr_Format(PyExc_ValueError, "_set_outputs: %s is not a double of the C core (add it to Core)", name);
+            Py_DECREF(seq);
+            return NULL;
+        }
+        off[i] = m->offset;
+    }
+    Py_DECREF(seq);
+    memcpy(s->out_off, off, sizeof(Py_ssize_t) * (size_t)n);
+    s->n_out = (int)n;
+    Py_RETURN_NONE;
+}
 
 /* model.Plant.sense: (hall_bits, fault_input, encoder_index, encoder_count, adc_codes(roles)) in one call */
 static PyObject *Core_sense(Core *s, PyObject *roles)
@@ -513,12 +674,16 @@ static PyObject *Core_sense(Core *s, PyObject *roles)
 
 static PyMethodDef Core_methods[] = {
     {"step", (PyCFunction)(void (*)(void))Core_step, METH_FASTCALL,
-     "step(duty_a, duty_b, duty_c, output_mode, dt_s[, state_to]) -> last_edge_s: one period (see model.Plant)."},
+     "step(duty_a, duty_b, duty_c, output_mode, dt_s[, state_to]) -> last_edge_s: one step (see model.Plant)."},
+    {"advance", (PyCFunction)(void (*)(void))Core_advance, METH_FASTCALL,
+     "advance(duty_a, duty_b, duty_c, output_mode[, state_to]) -> last_edge_s: one exchange period (see model.Plant)."},
+    {"edges", (PyCFunction)Core_edges, METH_NOARGS, "edges(): ((t_s, hall_bits), ...) of the last advance."},
+    {"_set_outputs", (PyCFunction)Core_set_outputs, METH_O, "_set_outputs(names): what append_state copies."},
     {"adc_codes", (PyCFunction)Core_adc_codes, METH_O, "adc_codes(roles): ADC codes (see model.Plant)."},
     {"sense", (PyCFunction)Core_sense, METH_O,
      "sense(roles): (hall_bits, fault_input, encoder_index, encoder_count, adc_codes(roles)) (see model.Plant)."},
     {"append_state", (PyCFunction)Core_append_state, METH_O,
-     "append_state(buf): theta_e, w_m, i_a, i_b, i_c, i_bus, load_nm as 7 doubles onto a bytearray."},
+     "append_state(buf): the recorded outputs (model.OUTPUTS) as doubles onto a bytearray."},
     {"_set_adc", (PyCFunction)(void (*)(void))Core_set_adc, METH_FASTCALL, "_set_adc(role, gain, offset, noise)"},
     {NULL, NULL, 0, NULL},
 };

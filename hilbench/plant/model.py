@@ -38,13 +38,17 @@ OFF (0, and the reserved 3) all six switches open: see `_step_off`.
 from __future__ import annotations
 
 import math
+import operator
 import os
 import struct
+from collections import deque
+from dataclasses import dataclass
 from typing import Sequence
 
 import numpy as np
 
 from hilbench.plant.params import ADC_ROLE_CODES, LoadProfile, PlantParams
+from hilbench.plant.period import MAX_STEP_US, Period
 
 try:  # the optional compiled core (setup.py builds it when a C compiler is present)
     from hilbench.plant import _plantcore
@@ -52,8 +56,8 @@ except ImportError:  # pragma: no cover - depends on the build
     _plantcore = None
 
 __all__ = [
-    "Plant", "HALL_BY_SECTOR", "OUTPUT_OFF", "OUTPUT_PWM", "OUTPUT_LOW_SIDE",
-    "DEFAULT_SUBSTEPS", "available_backends",
+    "Plant", "PlantOutput", "OUTPUTS", "HALL_BY_SECTOR", "OUTPUT_OFF", "OUTPUT_PWM", "OUTPUT_LOW_SIDE",
+    "DEFAULT_SUBSTEPS", "RPM_PER_RAD_S", "available_backends",
 ]
 
 OUTPUT_OFF = 0
@@ -71,12 +75,40 @@ HALL_BY_SECTOR = (0b100, 0b110, 0b010, 0b011, 0b001, 0b101)
 SECTOR0_START_RAD = math.radians(210.0)
 NOISE_BLOCK = 4096
 OFF_SUBSTEPS = 8
-#: what append_state adds to a recording's row, in order: (name, struct code)
-STATE_FIELDS: tuple[tuple[str, str], ...] = (
-    ("theta_e_rad", "d"), ("w_m_rad_s", "d"), ("ia_a", "d"), ("ib_a", "d"), ("ic_a", "d"), ("ibus_a", "d"),
-    ("load_nm", "d"),
+RPM_PER_RAD_S = 60.0 / TWO_PI
+#: the longest period `set_period` takes, in steps of MAX_STEP_US (the C core's edge list holds one per step)
+MAX_CHUNKS = 256
+#: the longest actuation delay `set_period` takes, in periods
+MAX_DELAY_PERIODS = 1000
+
+
+@dataclass(frozen=True)
+class PlantOutput:
+    """One quantity a recording keeps of the plant every period, after the period's step: the
+    plant's attribute ``source`` (SI units; a double member of the C core) as the raw field
+    ``field``, recorded as the column ``column`` = field × ``scale`` in ``unit``."""
+
+    source: str
+    field: str
+    column: str
+    unit: str
+    scale: float = 1.0
+    fmt: str = "%.5f"
+    wrap: float = 0.0  # the column is kept within [0, wrap) (an angle); 0: not wrapped
+
+
+#: what the plant records every period, in order (`append_state` appends them as doubles); a new
+#: recorded quantity is a line here and the attribute in both backends (the C core's struct)
+OUTPUTS: tuple[PlantOutput, ...] = (
+    PlantOutput("theta_e", "theta_e_rad", "theta_e_deg", "deg", 180.0 / math.pi, "%.3f", 360.0),
+    PlantOutput("w_m", "w_m_rad_s", "speed_rpm", "rpm", RPM_PER_RAD_S, "%.3f"),
+    PlantOutput("i_a", "ia_a", "ia_a", "A"),
+    PlantOutput("i_b", "ib_a", "ib_a", "A"),
+    PlantOutput("i_c", "ic_a", "ic_a", "A"),
+    PlantOutput("i_bus", "ibus_a", "ibus_a", "A"),
+    PlantOutput("load_nm", "load_nm", "load_nm", "N*m"),
+    PlantOutput("te_nm", "te_nm", "torque_nm", "N*m"),  # the electrical torque 1.5 p (psi iq + (Ld - Lq) id iq)
 )
-_STATE_STRUCT = struct.Struct("<" + "".join(code for _, code in STATE_FIELDS))
 
 DEFAULT_SUBSTEPS = 2  # energy balance 1.7e-7 at 50 us (1 step: 2.7e-6); C cost +0.17 us/period
 N_ROLES = 6
@@ -124,6 +156,7 @@ class Plant:
         self._tc = float(m.coulomb_nm)
         # back-EMF line-line peak per unit mechanical speed (the OFF coast test)
         self._ell = SQRT3 * self._p * self._psi
+        self._ld_lq = self._ld - self._lq  # the reluctance torque's inductance difference
         inv = params.inverter
         self.vbus_v = float(inv.vbus_v)
         self._dt_duty = float(inv.dead_time_s * inv.pwm_freq_hz) if inv.dead_time_enabled else 0.0
@@ -160,7 +193,11 @@ class Plant:
         self.track_energy = False
         self.t_s = 0.0
         self._load = params.load
+        self.outputs = OUTPUTS
+        self._outputs_get = operator.attrgetter(*(out.source for out in OUTPUTS))
+        self._outputs_struct = struct.Struct("<" + "d" * len(OUTPUTS))
         self.reset()
+        self.set_period(MAX_STEP_US)
 
     # ----------------------------------------------------------------- state
     def reset(self, *, theta_e: float = 0.0, speed_rad_s: float = 0.0) -> None:
@@ -172,6 +209,8 @@ class Plant:
         self._turns = math.floor(th / TWO_PI)
         self._th = th - self._turns * TWO_PI
         self.t_s = 0.0
+        self._periods = 0
+        self._edges: list[tuple[float, int]] = []
         self.fault_input = False  # the overcurrent comparator's latched output (the target's FAULT input)
         self._stuck = self.w_m == 0.0 and self._tc > 0.0
         self._nidx = math.floor((self._th - self._hall_base) / SIXTY)
@@ -194,7 +233,21 @@ class Plant:
         self._sense()
 
     def _sense(self) -> None:
-        """Refresh the sensor attributes from the state (end of every step; same order in C)."""
+        """Refresh the sensor attributes from the state (the end of a step; same order in C)."""
+        self._sense_currents()
+        mode = self._last_mode
+        if mode == OUTPUT_PWM:
+            self.i_bus = self._da * self.i_a + self._db * self.i_b + self._dc * self.i_c
+        elif mode == OUTPUT_LOW_SIDE:
+            self.i_bus = 0.0
+        else:  # the diodes return the negative phase currents to the bus
+            ia, ib, ic = self.i_a, self.i_b, self.i_c
+            self.i_bus = (ia if ia < 0.0 else 0.0) + (ib if ib < 0.0 else 0.0) + (ic if ic < 0.0 else 0.0)
+        self._sense_encoder()
+
+    def _sense_currents(self) -> None:
+        """The phase currents from the dq state, and the board's overcurrent comparator on them
+        (it latches `fault_input`); the electrical torque of the same state (recorded)."""
         th = self._th
         c = math.cos(th)
         s = math.sin(th)
@@ -208,17 +261,15 @@ class Plant:
         oc = self._oc
         if oc > 0.0 and (ia > oc or ia < -oc or ib > oc or ib < -oc or ic > oc or ic < -oc):
             self.fault_input = True
-        mode = self._last_mode
-        if mode == OUTPUT_PWM:
-            self.i_bus = self._da * ia + self._db * ib + self._dc * ic
-        elif mode == OUTPUT_LOW_SIDE:
-            self.i_bus = 0.0
-        else:
-            self.i_bus = (ia if ia < 0.0 else 0.0) + (ib if ib < 0.0 else 0.0) + (ic if ic < 0.0 else 0.0)
-        n = math.floor((self._turns + th / TWO_PI) * self._enc_cpt / self._p)
+        self.te_nm = 1.5 * self._p * self.i_q * (self._psi + self._ld_lq * self.i_d)
+
+    def _sense_encoder(self) -> None:
+        """The quadrature encoder's x4 count from the unwrapped angle, and whether an index mark
+        passed since the last refresh."""
+        n = math.floor((self._turns + self._th / TWO_PI) * self._enc_cpt / self._p)
         self.encoder_count = (self._enc_sign * n + self._enc_offset) & 0xFFFF
         m = (n - self._enc_idx) // self._enc_cpt
-        self.encoder_index = m != self._enc_m  # an index mark passed since the last refresh
+        self.encoder_index = m != self._enc_m
         self._enc_m = m
 
     @property
@@ -341,8 +392,9 @@ class Plant:
         return tuple(out)
 
     def append_state(self, buf: bytearray) -> None:
-        """Append STATE_FIELDS (end of the last step) to a recorder's row buffer in one call."""
-        buf.extend(_STATE_STRUCT.pack(self._th, self.w_m, self.i_a, self.i_b, self.i_c, self.i_bus, self.load_nm))
+        """Append the recorded `outputs` (end of the last step) to a recorder's row buffer as
+        little-endian doubles, in one call."""
+        buf.extend(self._outputs_struct.pack(*self._outputs_get(self)))
 
     def _draw_noise(self) -> list[float]:
         """The next block of standard-normal ADC noise (both backends draw the same blocks)."""
@@ -365,171 +417,173 @@ class Plant:
             return ld.torque_nm, 0.0, ld.coeff, False
         return ld.torque_nm, 0.0, 0.0, True
 
-    # ----------------------------------------------------------------- stepping
+    # ----------------------------------------------------------------- the exchange period
+    def set_period(self, period_us: int, actuation_delay_periods: int = 0) -> None:
+        """The period `advance` integrates (in chunks of at most MAX_STEP_US) and the whole periods
+        the duties wait before they reach the switches (the delay starts with all switches open)."""
+        period = Period(int(period_us))
+        if period.chunks > MAX_CHUNKS:
+            raise ValueError(f"Plant.set_period: {period_us} us is more than {MAX_CHUNKS} steps of {MAX_STEP_US} us")
+        if not 0 <= int(actuation_delay_periods) <= MAX_DELAY_PERIODS:
+            raise ValueError(f"Plant.set_period: actuation delay {actuation_delay_periods} is not 0..{MAX_DELAY_PERIODS} periods")
+        self.period = period
+        self._period_s = period.s
+        self._chunks = period.chunks
+        self._chunk_s = period.chunk_s
+        self._periods = round(self.t_s / period.s)  # the plant's clock in whole periods (0 when fresh)
+        self._pending: deque[tuple[float, float, float, int]] = deque()
+        self._delay = int(actuation_delay_periods)
+        if self._delay:  # the delay's queue in front of the period (rare: a plain method call otherwise)
+            self.advance = self._advance_delayed  # type: ignore[method-assign]
+        else:
+            self.__dict__.pop("advance", None)
+
+    def _advance_delayed(self, duty_a: float, duty_b: float, duty_c: float, output_mode: int,
+                         state_to: bytearray | None = None, /) -> float | None:
+        """`advance` with the duties of ``actuation_delay_periods`` periods before (all switches open
+        until the first of them arrives)."""
+        pending = self._pending
+        pending.append((duty_a, duty_b, duty_c, output_mode))
+        if len(pending) > self._delay:
+            return type(self).advance(self, *pending.popleft(), state_to)
+        return type(self).advance(self, 0.0, 0.0, 0.0, OUTPUT_OFF, state_to)
+
+    def _advance_py(self, duty_a: float, duty_b: float, duty_c: float, output_mode: int,
+                    state_to: bytearray | None = None, /) -> float | None:
+        """One exchange period (`set_period`) with these duties (fractions 0..1) held over it: its
+        chunks, the clock, and the state appended to ``state_to`` (a recorder's row buffer, or None).
+        Returns the time of the period's last hall edge from its start (None: no edge); `edges()`
+        has every one."""
+        if state_to is not None and not isinstance(state_to, bytearray):
+            raise TypeError("Plant.advance: state_to must be a bytearray (a recorder's row buffer) or None")
+        h = self._chunk_s
+        edges: list[tuple[float, int]] = []
+        edge_s = None
+        for i in range(self._chunks):  # long periods: the plant keeps its accurate step, duties held
+            self._step_py(duty_a, duty_b, duty_c, output_mode, h)
+            if self.last_edge_s is not None:
+                edge_s = i * h + self.last_edge_s
+                edges.append((edge_s, self.hall_bits))
+        self._edges = edges
+        self.last_edge_s = edge_s
+        self._periods += 1
+        self.t_s = self._periods * self._period_s  # one time base: k periods are Period.t_s(k)
+        if state_to is not None:
+            self.append_state(state_to)
+        return edge_s
+
+    advance = _advance_py
+
+    def edges(self) -> tuple[tuple[float, int], ...]:
+        """Every hall edge of the last `advance`: (time from the period's start in s, the hall bits
+        after it), in order; one per chunk of at most MAX_STEP_US (two sector changes in 50 us
+        would be above 40 000 rpm with five pole pairs)."""
+        return tuple(self._edges)
+
+    # ----------------------------------------------------------------- one step, by physics
+    def step(self, duty_a: float, duty_b: float, duty_c: float, output_mode: int, dt_s: float,
+             state_to: bytearray | None = None, /) -> float | None:
+        """Integrate ``dt_s`` with the duties held (`_step_py`); returns `last_edge_s`. With
+        ``state_to`` the recorded outputs are appended to that row buffer after the step (the C
+        backend has the same signature). The bench uses `advance`; this is the plant's one step."""
+        if state_to is not None and not isinstance(state_to, bytearray):
+            raise TypeError("Plant.step: state_to must be a bytearray (a recorder's row buffer) or None")
+        self._step_py(duty_a, duty_b, duty_c, output_mode, dt_s)
+        if state_to is not None:
+            self.append_state(state_to)
+        return self.last_edge_s
+
     def _step_py(self, duty_a: float, duty_b: float, duty_c: float, output_mode: int, dt_s: float) -> None:
-        """Integrate one period with the duties (fractions 0..1) held over it (Python backend;
-        the C backend calls this for the cases it leaves to Python). While the overcurrent comparator's
-        latch is set and gates the switches off, every mode is OFF."""
-        if self.fault_input and self._gate_off:
+        """Integrate ``dt_s`` with the duties (fractions 0..1) held over it: the Python backend and
+        the readable reference of the C core (`_plantcore.c` has the same functions in the same
+        order; it calls this for the cases it leaves to Python). The board's comparator gates the
+        switches, the inverter makes the voltage, the motor and its mechanics move, the sensors
+        read the result."""
+        if self.fault_input and self._gate_off:  # the comparator's hardware trip: every switch open
             output_mode = OUTPUT_OFF
         if output_mode == OUTPUT_PWM:
-            vbus = self.vbus_v
-            dtd = self._dt_duty
-            if dtd:
-                ia = self.i_a
-                ib = self.i_b
-                ic = self.i_c
-                duty_a = min(1.0, max(0.0, duty_a - (dtd if ia > 0.0 else -dtd if ia < 0.0 else 0.0)))
-                duty_b = min(1.0, max(0.0, duty_b - (dtd if ib > 0.0 else -dtd if ib < 0.0 else 0.0)))
-                duty_c = min(1.0, max(0.0, duty_c - (dtd if ic > 0.0 else -dtd if ic < 0.0 else 0.0)))
-            self._da = duty_a
-            self._db = duty_b
-            self._dc = duty_c
-            va = vbus * (2.0 * duty_a - duty_b - duty_c) / 3.0
-            vb = vbus * (duty_b - duty_c) * INV_SQRT3
+            va, vb = self._averaged_inverter(duty_a, duty_b, duty_c)
         elif output_mode == OUTPUT_LOW_SIDE:
             va = vb = 0.0
         else:
-            self._last_mode = OUTPUT_OFF
-            th0 = self._th
-            self.last_edge_s = None
-            e_in0 = self.e_in_j
-            self._step_off(dt_s)
-            self._finish(th0, self._th - th0 + self._dturns * TWO_PI, dt_s, 0.0)
-            self.t_s += dt_s
-            self._sense()
-            self.i_bus = self._bus_average(self.e_in_j - e_in0, dt_s)
+            self._step_switches_open(dt_s)
             return
         self._last_mode = output_mode
-        nsub = self._substeps
         if self.track_energy or self._kq_any:
-            h = dt_s / nsub
-            self.last_edge_s = None
-            e_in0 = self.e_in_j
-            for j in range(nsub):
-                th0 = self._th
-                self._rk4_general(va, vb, h)
-                self._finish(th0, self._th - th0 + self._dturns * TWO_PI, h, j * h)
-            self.t_s += dt_s
-            self._sense()
-            self.i_bus = self._bus_average(self.e_in_j - e_in0, dt_s)
-            return
+            self._step_general(va, vb, dt_s)
+        else:
+            self._step_dq(va, vb, dt_s)
 
-        # ---- hot path: RK4 in dq, inlined; the C core (_plantcore.c) mirrors it line by line ----
-        # The held alpha-beta voltage as magnitude/angle: vd = V cos(phi - theta),
-        # vq = V sin(phi - theta); x = phi - theta is carried through the stages.
-        cos = math.cos
-        sin = math.sin
-        floor = math.floor
-        rd, rq, pq, pd, ppsi, p, ild, ilq, kt, kr, ijv = self._hot
+    def _averaged_inverter(self, duty_a: float, duty_b: float, duty_c: float) -> tuple[float, float]:
+        """The averaged inverter: the alpha-beta voltage of the phases' duties over the step (the
+        period average of the PWM), each duty shortened or lengthened by the dead time against its
+        phase current's sign. Another inverter model (switching) would sit beside this one."""
+        dtd = self._dt_duty
+        if dtd:
+            ia = self.i_a
+            ib = self.i_b
+            ic = self.i_c
+            duty_a = min(1.0, max(0.0, duty_a - (dtd if ia > 0.0 else -dtd if ia < 0.0 else 0.0)))
+            duty_b = min(1.0, max(0.0, duty_b - (dtd if ib > 0.0 else -dtd if ib < 0.0 else 0.0)))
+            duty_c = min(1.0, max(0.0, duty_c - (dtd if ic > 0.0 else -dtd if ic < 0.0 else 0.0)))
+        self._da = duty_a
+        self._db = duty_b
+        self._dc = duty_c
+        vbus = self.vbus_v
+        return vbus * (2.0 * duty_a - duty_b - duty_c) / 3.0, vbus * (duty_b - duty_c) * INV_SQRT3
+
+    def _step_switches_open(self, dt_s: float) -> None:
+        """Every switch open: the windings conduct through the freewheel diodes (`_step_off`)."""
+        self._last_mode = OUTPUT_OFF
+        th0 = self._th
+        self.last_edge_s = None
+        e_in0 = self.e_in_j
+        self._step_off(dt_s)
+        self._finish(th0, self._th - th0 + self._dturns * TWO_PI, dt_s, 0.0)
+        self.t_s += dt_s
+        self._sense()
+        self.i_bus = self._bus_average(self.e_in_j - e_in0, dt_s)
+
+    def _step_general(self, va: float, vb: float, dt_s: float) -> None:
+        """The general integrator (energy accounts, a quadratic load): `_rk4_general` per substep."""
+        h = dt_s / self._substeps
+        self.last_edge_s = None
+        e_in0 = self.e_in_j
+        for j in range(self._substeps):
+            th0 = self._th
+            self._rk4_general(va, vb, h)
+            self._finish(th0, self._th - th0 + self._dturns * TWO_PI, h, j * h)
+        self.t_s += dt_s
+        self._sense()
+        self.i_bus = self._bus_average(self.e_in_j - e_in0, dt_s)
+
+    def _step_dq(self, va: float, vb: float, dt_s: float) -> None:
+        """The motor in its rotor frame under a held alpha-beta voltage: `substeps` RK4 steps of the
+        currents, speed and angle (`_rk4_dq`), the friction state before each (`_friction`), the
+        hall sector and edge after each (`_rotate`), then the sensors. The held voltage is carried
+        as magnitude and angle: vd = V cos(phi - theta), vq = V sin(phi - theta)."""
         if self._t_load_change <= self.t_s + 1e-12:
             self._update_load()
-        tl = self._tl
-        kv = self._kv
-        tc = self._tc
-        base = self._hall_base
         vmag = math.sqrt(va * va + vb * vb)
-        vdm = vmag * ild
-        vqm = vmag * ilq
         phi = math.atan2(vb, va)
-        h = dt_s / nsub
-        h2 = 0.5 * h
-        h6 = h / 6.0
+        h = dt_s / self._substeps
         id0 = self.i_d
         iq0 = self.i_q
         w0 = self.w_m
         th0 = self._th
         n0 = self._nidx
         edge = None
-        e_in = 0.0  # the period's input energy / (1.5 |v|): RK4 quadrature of vd id + vq iq
-        for j in range(nsub):
-            if self._locked:
-                ij = 0.0
-                fr = 0.0
-                w0 = 0.0
-            elif self._stuck:
-                net = (kt + kr * id0) * iq0 * self._j - tl
-                if -tc <= net <= tc:
-                    ij = 0.0
-                    fr = 0.0
-                else:
-                    self._stuck = False
-                    ij = ijv
-                    fr = tc if net > 0.0 else -tc
-            else:
-                ij = ijv
-                fr = tc if w0 > 0.0 else -tc if w0 < 0.0 else 0.0
-            ftj = (fr + tl) * ij
-            kvj = kv * ij
-            if ij == 0.0:
-                ktj = krj = 0.0
-            else:
-                ktj = kt
-                krj = kr
-            x0 = phi - th0
-            # stage 1
-            c = cos(x0)
-            s = sin(x0)
-            p1 = c * id0 + s * iq0
-            k1d = vdm * c + w0 * pq * iq0 - rd * id0
-            k1q = vqm * s - w0 * (pd * id0 + ppsi) - rq * iq0
-            k1w = iq0 * (ktj + krj * id0) - kvj * w0 - ftj
-            # stage 2
-            a = id0 + h2 * k1d
-            b = iq0 + h2 * k1q
-            w = w0 + h2 * k1w
-            x = x0 - h2 * p * w0
-            c = cos(x)
-            s = sin(x)
-            p2 = c * a + s * b
-            k2d = vdm * c + w * pq * b - rd * a
-            k2q = vqm * s - w * (pd * a + ppsi) - rq * b
-            k2w = b * (ktj + krj * a) - kvj * w - ftj
-            w2 = w
-            # stage 3
-            a = id0 + h2 * k2d
-            b = iq0 + h2 * k2q
-            w = w0 + h2 * k2w
-            x = x0 - h2 * p * w2
-            c = cos(x)
-            s = sin(x)
-            p3 = c * a + s * b
-            k3d = vdm * c + w * pq * b - rd * a
-            k3q = vqm * s - w * (pd * a + ppsi) - rq * b
-            k3w = b * (ktj + krj * a) - kvj * w - ftj
-            w3 = w
-            # stage 4
-            a = id0 + h * k3d
-            b = iq0 + h * k3q
-            w = w0 + h * k3w
-            x = x0 - h * p * w3
-            c = cos(x)
-            s = sin(x)
-            p4 = c * a + s * b
-            e_in += h6 * (p1 + 2.0 * (p2 + p3) + p4)
-            k4d = vdm * c + w * pq * b - rd * a
-            k4q = vqm * s - w * (pd * a + ppsi) - rq * b
-            k4w = b * (ktj + krj * a) - kvj * w - ftj
-            id0 = id0 + h6 * (k1d + 2.0 * (k2d + k3d) + k4d)
-            iq0 = iq0 + h6 * (k1q + 2.0 * (k2q + k3q) + k4q)
-            w1 = w0 + h6 * (k1w + 2.0 * (k2w + k3w) + k4w)
-            dth = h6 * p * (w0 + 2.0 * (w2 + w3) + w)
+        e_in = 0.0  # the step's input energy / (1.5 |v|): RK4 quadrature of vd id + vq iq
+        for j in range(self._substeps):
+            ij, fr, w0 = self._friction(id0, iq0, w0)
+            id0, iq0, w1, dth, e_part = self._rk4_dq(id0, iq0, w0, phi - th0, vmag, ij, fr, h)
+            e_in += e_part
             if fr != 0.0 and w0 != 0.0 and (w1 > 0.0) != (w0 > 0.0):
                 w1 = 0.0  # speed crossed zero under Coulomb friction: stick
                 self._stuck = True
-            # ---- angle, hall sector, edge time ----
-            th1 = th0 + dth
-            n1 = floor((th1 - base) / SIXTY)
-            if n1 != n0:
-                edge = j * h + self._edge(th0, th1, n0, n1, p * w0, p * w1, h)
-                self._sector = n1 % 6
-            if th1 >= TWO_PI or th1 < 0.0:
-                k = floor(th1 / TWO_PI)
-                self._turns += k
-                th1 -= k * TWO_PI
-                n1 -= 6 * k
-            n0 = n1
-            th0 = th1
+            th0, n0, sub_edge = self._rotate(th0, dth, n0, w0, w1, h)
+            if sub_edge is not None:
+                edge = j * h + sub_edge
             w0 = w1
         self.i_d = id0
         self.i_q = iq0
@@ -539,37 +593,104 @@ class Plant:
         self.hall_bits = HALL_BY_SECTOR[self._sector]
         self.last_edge_s = edge
         self.t_s += dt_s
-        # ---- sensors (as _sense, inlined) ----
-        c = cos(th0)
-        s = sin(th0)
-        ia = id0 * c - iq0 * s
-        ibe = id0 * s + iq0 * c
-        ib = -0.5 * ia + HALF_SQRT3 * ibe
-        ic = -0.5 * ia - HALF_SQRT3 * ibe
-        self.i_a = ia
-        self.i_b = ib
-        self.i_c = ic
-        oc = self._oc
-        if oc > 0.0 and (ia > oc or ia < -oc or ib > oc or ib < -oc or ic > oc or ic < -oc):
-            self.fault_input = True
+        self._sense_currents()
         self.i_bus = self._bus_average(1.5 * vmag * e_in, dt_s)
-        n = floor((self._turns + th0 / TWO_PI) * self._enc_cpt / p)
-        self.encoder_count = (self._enc_sign * n + self._enc_offset) & 0xFFFF
-        m = (n - self._enc_idx) // self._enc_cpt
-        self.encoder_index = m != self._enc_m
-        self._enc_m = m
+        self._sense_encoder()
 
-    def step(self, duty_a: float, duty_b: float, duty_c: float, output_mode: int, dt_s: float,
-             state_to: bytearray | None = None, /) -> float | None:
-        """Integrate one period (`_step_py`); returns `last_edge_s`. With ``state_to`` the state is
-        appended to that row buffer after the step (`append_state`): the bench's hot loop makes one
-        call of the two (the C backend has the same signature)."""
-        if state_to is not None and not isinstance(state_to, bytearray):
-            raise TypeError("Plant.step: state_to must be a bytearray (a recorder's row buffer) or None")
-        self._step_py(duty_a, duty_b, duty_c, output_mode, dt_s)
-        if state_to is not None:
-            self.append_state(state_to)
-        return self.last_edge_s
+    def _friction(self, i_d: float, i_q: float, w: float) -> tuple[float, float, float]:
+        """Mechanics over the next substep: (1/J or 0 while held, the Coulomb friction's signed
+        torque frozen over it, the speed). A locked rotor and a stuck one (|Te - T_load| within
+        the Coulomb torque) do not move; a stuck rotor breaks away against the net torque."""
+        tc = self._tc
+        if self._locked:
+            return 0.0, 0.0, 0.0
+        if self._stuck:
+            net = (self._kt + self._kr * i_d) * i_q * self._j - self._tl
+            if -tc <= net <= tc:
+                return 0.0, 0.0, w
+            self._stuck = False
+            return self._ijv, tc if net > 0.0 else -tc, w
+        return self._ijv, tc if w > 0.0 else -tc if w < 0.0 else 0.0, w
+
+    def _rk4_dq(self, id0: float, iq0: float, w0: float, x0: float, vmag: float, ij: float, fr: float,
+                h: float) -> tuple[float, float, float, float, float]:
+        """One classic RK4 step of (i_d, i_q, w_m) and the angle it turns, with x = phi - theta the
+        voltage's angle in the rotor frame: returns (i_d, i_q, w_m, dtheta, input energy part)."""
+        cos = math.cos
+        sin = math.sin
+        rd, rq, pq, pd, ppsi, p, ild, ilq, kt, kr, _ = self._hot
+        vdm = vmag * ild
+        vqm = vmag * ilq
+        h2 = 0.5 * h
+        h6 = h / 6.0
+        ftj = (fr + self._tl) * ij
+        kvj = self._kv * ij
+        if ij == 0.0:
+            ktj = krj = 0.0
+        else:
+            ktj = kt
+            krj = kr
+        # stage 1
+        c = cos(x0)
+        s = sin(x0)
+        p1 = c * id0 + s * iq0
+        k1d = vdm * c + w0 * pq * iq0 - rd * id0
+        k1q = vqm * s - w0 * (pd * id0 + ppsi) - rq * iq0
+        k1w = iq0 * (ktj + krj * id0) - kvj * w0 - ftj
+        # stage 2
+        a = id0 + h2 * k1d
+        b = iq0 + h2 * k1q
+        w = w0 + h2 * k1w
+        x = x0 - h2 * p * w0
+        c = cos(x)
+        s = sin(x)
+        p2 = c * a + s * b
+        k2d = vdm * c + w * pq * b - rd * a
+        k2q = vqm * s - w * (pd * a + ppsi) - rq * b
+        k2w = b * (ktj + krj * a) - kvj * w - ftj
+        w2 = w
+        # stage 3
+        a = id0 + h2 * k2d
+        b = iq0 + h2 * k2q
+        w = w0 + h2 * k2w
+        x = x0 - h2 * p * w2
+        c = cos(x)
+        s = sin(x)
+        p3 = c * a + s * b
+        k3d = vdm * c + w * pq * b - rd * a
+        k3q = vqm * s - w * (pd * a + ppsi) - rq * b
+        k3w = b * (ktj + krj * a) - kvj * w - ftj
+        w3 = w
+        # stage 4
+        a = id0 + h * k3d
+        b = iq0 + h * k3q
+        w = w0 + h * k3w
+        x = x0 - h * p * w3
+        c = cos(x)
+        s = sin(x)
+        p4 = c * a + s * b
+        k4d = vdm * c + w * pq * b - rd * a
+        k4q = vqm * s - w * (pd * a + ppsi) - rq * b
+        k4w = b * (ktj + krj * a) - kvj * w - ftj
+        return (id0 + h6 * (k1d + 2.0 * (k2d + k3d) + k4d), iq0 + h6 * (k1q + 2.0 * (k2q + k3q) + k4q),
+                w0 + h6 * (k1w + 2.0 * (k2w + k3w) + k4w), h6 * p * (w0 + 2.0 * (w2 + w3) + w),
+                h6 * (p1 + 2.0 * (p2 + p3) + p4))
+
+    def _rotate(self, th0: float, dth: float, n0: int, w0: float, w1: float, h: float) -> tuple[float, int, float | None]:
+        """The rotor turned by dth over a substep: its new angle (wrapped to [0, 2 pi)) and hall
+        sector index, and the time of the substep's hall edge (None: no sector change)."""
+        th1 = th0 + dth
+        n1 = math.floor((th1 - self._hall_base) / SIXTY)
+        edge = None
+        if n1 != n0:
+            edge = self._edge(th0, th1, n0, n1, self._p * w0, self._p * w1, h)
+            self._sector = n1 % 6
+        if th1 >= TWO_PI or th1 < 0.0:
+            k = math.floor(th1 / TWO_PI)
+            self._turns += k
+            th1 -= k * TWO_PI
+            n1 -= 6 * k
+        return th1, n1, edge
 
     def _bus_average(self, e_in_j: float, dt_s: float) -> float:
         """The period's average bus current: the energy the inverter drew over it / (Vbus dt).
@@ -726,62 +847,87 @@ class Plant:
                 break
             h = min(h_nom, t_left)
             i = self._phase_currents()
-            cond = [x != 0.0 for x in i]
-            th = self._th
-            we = self._p * self.w_m
-            e_al = -we * self._psi * math.sin(th)
-            e_be = we * self._psi * math.cos(th)
-            e = [e_al, -0.5 * e_al + HALF_SQRT3 * e_be, -0.5 * e_al - HALF_SQRT3 * e_be]
-            if not any(cond):
-                if max(e) - min(e) <= vbus:
-                    self._coast(h)
-                    t_left -= h
-                    continue
-                hi = e.index(max(e))
-                lo = e.index(min(e))
-                v = [0.0, 0.0, 0.0]
-                v[hi] = vbus
-                open_ = [k for k in range(3) if k not in (hi, lo)]
-                fixed = {hi, lo}
-            else:
-                v = [0.0 if x > 0.0 else vbus for x in i]
-                open_ = [k for k in range(3) if not cond[k]]
-                fixed = {k for k in range(3) if cond[k]}
-            for o in open_:
-                others = [v[k] for k in range(3) if k != o]
-                vo = 1.5 * e[o] + 0.5 * (others[0] + others[1])
-                if vo > vbus or vo < 0.0:
-                    v[o] = vbus if vo > vbus else 0.0
-                    fixed.add(o)
-                else:
-                    v[o] = vo
-            still_open = [k for k in range(3) if k not in fixed]
-            va = (2.0 * v[0] - v[1] - v[2]) / 3.0
-            vb = (v[1] - v[2]) * INV_SQRT3
-            saved = (self.i_d, self.i_q, self.w_m, self._th, self._turns, self._stuck,
-                     self.e_in_j, self.e_cu_j, self.e_fric_j, self.e_load_j)
-            self._rk4_general(va, vb, h)
-            i_new = self._phase_currents()
-            # a conducting phase whose current changed sign: cut at the crossing
-            fracs = [1.0, 1.0, 1.0]
-            for k in range(3):
-                if cond[k] and (i_new[k] > 0.0) != (i[k] > 0.0):
-                    fracs[k] = i[k] / (i[k] - i_new[k])
-            frac = min(fracs)
-            if frac < 1.0:
-                (self.i_d, self.i_q, self.w_m, self._th, self._turns, self._stuck,
-                 self.e_in_j, self.e_cu_j, self.e_fric_j, self.e_load_j) = saved
-                hf = h * frac
-                if hf > 0.0:
-                    self._rk4_general(va, vb, hf)
-                i_new = self._phase_currents()
-                still_open += [k for k in range(3) if fracs[k] <= frac * (1.0 + 1e-9) + 1e-12]
-                t_left -= hf
-            else:
+            terminals = self._diode_terminals(i, vbus)
+            if terminals is None:  # no current and the line back-EMF within the bus: a coast
+                self._coast(h)
                 t_left -= h
-            self._project(i_new, still_open)
+                continue
+            t_left -= self._off_substep(h, i, *terminals)
         self._dturns = self._turns - turns0
         self._w_start = w_start
+
+    def _back_emf_abc(self) -> list[float]:
+        """The phases' back-EMF now."""
+        th = self._th
+        we = self._p * self.w_m
+        e_al = -we * self._psi * math.sin(th)
+        e_be = we * self._psi * math.cos(th)
+        return [e_al, -0.5 * e_al + HALF_SQRT3 * e_be, -0.5 * e_al - HALF_SQRT3 * e_be]
+
+    def _diode_terminals(self, i: list[float], vbus: float) -> tuple[list[float], list[int]] | None:
+        """The terminal voltages of an open bridge over the next substep and the phases left open:
+        a conducting phase sits on the rail its diode clamps it to (positive current: the negative
+        rail), an open one floats where its current stays zero unless that leaves [0, vbus]. With
+        no current, the phases of the largest and smallest back-EMF start conducting once the line
+        back-EMF exceeds the bus; None while it does not (a coast)."""
+        e = self._back_emf_abc()
+        cond = [x != 0.0 for x in i]
+        if not any(cond):
+            if max(e) - min(e) <= vbus:
+                return None
+            hi = e.index(max(e))
+            lo = e.index(min(e))
+            v = [0.0, 0.0, 0.0]
+            v[hi] = vbus
+            open_ = [k for k in range(3) if k not in (hi, lo)]
+            fixed = {hi, lo}
+        else:
+            v = [0.0 if x > 0.0 else vbus for x in i]
+            open_ = [k for k in range(3) if not cond[k]]
+            fixed = {k for k in range(3) if cond[k]}
+        return v, self._float_open_phases(v, open_, fixed, e, vbus)
+
+    @staticmethod
+    def _float_open_phases(v: list[float], open_: list[int], fixed: set[int], e: list[float], vbus: float) -> list[int]:
+        """Each open phase floats to the voltage that keeps its current at zero, or its diode
+        clamps it to a rail when that voltage leaves [0, vbus] (then it conducts); returns the
+        phases still open (v is set in place)."""
+        for o in open_:
+            others = [v[k] for k in range(3) if k != o]
+            vo = 1.5 * e[o] + 0.5 * (others[0] + others[1])
+            if vo > vbus or vo < 0.0:
+                v[o] = vbus if vo > vbus else 0.0
+                fixed.add(o)
+            else:
+                v[o] = vo
+        return [k for k in range(3) if k not in fixed]
+
+    def _off_substep(self, h: float, i: list[float], v: list[float], still_open: list[int]) -> float:
+        """One substep of an open bridge under terminal voltages v: a conducting phase whose current
+        changes sign is cut at the crossing (the substep ends there, that phase opens); the open
+        phases' currents are projected back to zero. Returns the time integrated."""
+        va = (2.0 * v[0] - v[1] - v[2]) / 3.0
+        vb = (v[1] - v[2]) * INV_SQRT3
+        saved = (self.i_d, self.i_q, self.w_m, self._th, self._turns, self._stuck,
+                 self.e_in_j, self.e_cu_j, self.e_fric_j, self.e_load_j)
+        self._rk4_general(va, vb, h)
+        i_new = self._phase_currents()
+        fracs = [1.0, 1.0, 1.0]
+        for k in range(3):
+            if i[k] != 0.0 and (i_new[k] > 0.0) != (i[k] > 0.0):
+                fracs[k] = i[k] / (i[k] - i_new[k])
+        frac = min(fracs)
+        used = h
+        if frac < 1.0:
+            (self.i_d, self.i_q, self.w_m, self._th, self._turns, self._stuck,
+             self.e_in_j, self.e_cu_j, self.e_fric_j, self.e_load_j) = saved
+            used = h * frac
+            if used > 0.0:
+                self._rk4_general(va, vb, used)
+            i_new = self._phase_currents()
+            still_open = still_open + [k for k in range(3) if fracs[k] <= frac * (1.0 + 1e-9) + 1e-12]
+        self._project(i_new, still_open)
+        return used
 
     def _project(self, i: list[float], open_: list[int]) -> None:
         """Force the open phases' currents to exactly zero, keeping the sum of currents zero."""
@@ -846,11 +992,13 @@ class Plant:
 if _plantcore is not None:
 
     class _CPlant(Plant, _plantcore.Core):
-        """Plant whose state lives in the C struct of `_plantcore.Core`; `step` is the C method
-        (it calls `Plant._step_py` for the periods it leaves to Python)."""
+        """Plant whose state lives in the C struct of `_plantcore.Core`; `advance` and `step` are
+        the C methods (they call `Plant._step_py` for the steps they leave to Python)."""
 
         backend = "c"
         step = _plantcore.Core.step
+        advance = _plantcore.Core.advance
+        edges = _plantcore.Core.edges
         adc_codes = _plantcore.Core.adc_codes
         sense = _plantcore.Core.sense
         append_state = _plantcore.Core.append_state
@@ -862,5 +1010,6 @@ if _plantcore is not None:
             for role, ch in enumerate(self._adc_tab):
                 if ch is not None:
                     self._set_adc(role, *ch)
+            self._set_outputs(tuple(out.source for out in self.outputs))  # what append_state copies
 else:  # pragma: no cover
     _CPlant = None  # type: ignore[assignment,misc]

@@ -19,6 +19,7 @@ if TYPE_CHECKING:
     import subprocess
 
     from hilbench.targets.base import Target
+    from hilbench.targets.starters import FirmwareStarter
 
 #: capabilities a profile may declare (the pytest plugin's `hil_requires` and the CLI check them);
 #: "encoder": the target reads the quadrature encoder and its index (the session forwards the index)
@@ -111,8 +112,12 @@ class TargetProfile:
     sweep_defaults: tuple[tuple[str, str], ...] = ()
     emulator_module: str = "hilbench.targets.emulator"  # `python -m MODULE NAME --port ...`
     #: a firmware-in-the-loop build of the board's own C firmware: (options, tty path) -> the started
-    #: process, serving that tty once this returns (`sil:NAME`); None: the target has none
+    #: process, serving that tty once this returns (`sil:NAME`); None: the target has none. (Older
+    #: form of starters["sil"]; the launcher takes either.)
     start_sil: "Callable[[object, str], subprocess.Popen[bytes]] | None" = None
+    #: the builds of its C firmware that run as processes, by spec kind: "sil", "simavr", "qemu"
+    #: (hilbench.targets.starters)
+    starters: "Mapping[str, FirmwareStarter]" = field(default_factory=dict)
     #: the profile of a build with these options, for a firmware whose build constants are options
     #: (its reference scale, telemetry scales and `built_for` follow them); None: options change none
     configure: "Callable[[object], TargetProfile] | None" = None

@@ -1,8 +1,8 @@
 """The AN1017 firmware in the loop on the host (SIL): build firmware/an1017 with gcc, run it on a pty.
 
-The C firmware (firmware/an1017/: the core, the protocol bridge and ports/host/main.c, with the
-firmware_protocol/ C library) is the very source that runs on the dsPIC30F2010 and in the AVR
-simulator. `build_sil()` compiles it once into a cache directory keyed by the sources, flags and
+The C firmware (firmware/an1017/: its ISR bodies and state, and ports/host/main.c, on the runtime
+firmware/runtime/ and the firmware_protocol/ C library) is the very source that runs on the
+dsPIC30F2010 and in the AVR simulator. `build_sil()` compiles it once into a cache directory keyed by the sources, flags and
 compiler; `start_sil(tty_path)` starts it serving that tty and returns when it listens;
 `SilTarget` opens a pty link, starts the process on it and hands back a RemoteTarget (what the
 bench's `sil:an1017` spec needs). Every process started here is reaped by its owner's close().
@@ -33,21 +33,15 @@ if TYPE_CHECKING:
 
 REPO = Path(__file__).resolve().parent.parent.parent
 FIRMWARE_DIR = REPO / "firmware" / "an1017"
+RUNTIME_DIR = REPO / "firmware" / "runtime"
 PROTOCOL_DIR = REPO / "firmware_protocol"
-SOURCES = (
-    FIRMWARE_DIR / "an1017.c",
-    FIRMWARE_DIR / "an1017_bridge.c",
-    FIRMWARE_DIR / "ports" / "host" / "main.c",
-    PROTOCOL_DIR / "hbp.c",
-    PROTOCOL_DIR / "hbp_messages.c",
-)
-HEADERS = (
-    FIRMWARE_DIR / "an1017.h",
-    FIRMWARE_DIR / "an1017_bridge.h",
-    FIRMWARE_DIR / "q15.h",
-    PROTOCOL_DIR / "hbp.h",
-    PROTOCOL_DIR / "hbp_messages.h",
-)
+#: the runtime (scheduler, real-time glue, the protocol's side) and the wire library, under every firmware
+RUNTIME_SOURCES = (RUNTIME_DIR / "hrt.c", RUNTIME_DIR / "hrt_link.c", PROTOCOL_DIR / "hbp.c",
+                   PROTOCOL_DIR / "hbp_messages.c")
+RUNTIME_HEADERS = (RUNTIME_DIR / "hrt.h", RUNTIME_DIR / "hrt_link.h", PROTOCOL_DIR / "hbp.h",
+                   PROTOCOL_DIR / "hbp_messages.h")
+SOURCES = (FIRMWARE_DIR / "an1017.c", FIRMWARE_DIR / "ports" / "host" / "main.c", *RUNTIME_SOURCES)
+HEADERS = (FIRMWARE_DIR / "an1017.h", FIRMWARE_DIR / "hrt_config.h", FIRMWARE_DIR / "q15.h", *RUNTIME_HEADERS)
 # the strict flags every firmware build uses, and the AN1017 profile's protocol capacities
 CFLAGS = ("-std=c99", "-pedantic", "-Wall", "-Wextra", "-Wconversion", "-Werror", "-O2",
           "-DHBP_MAX_ADC=3u", "-DHBP_MAX_TELEMETRY=3u")
@@ -88,7 +82,8 @@ def build_sil(out_dir: Path | None = None, *, cc: str | None = None, defines: tu
         return exe
     fd, tmp = tempfile.mkstemp(prefix=exe.name + ".", dir=directory)
     os.close(fd)
-    cmd = [compiler, *CFLAGS, *defines, f"-I{FIRMWARE_DIR}", f"-I{PROTOCOL_DIR}", *(str(s) for s in SOURCES), "-o", tmp]
+    cmd = [compiler, *CFLAGS, *defines, f"-I{FIRMWARE_DIR}", f"-I{RUNTIME_DIR}", f"-I{PROTOCOL_DIR}",
+           *(str(s) for s in SOURCES), "-o", tmp]
     try:
         result = subprocess.run(cmd, capture_output=True, text=True, timeout=120)
         if result.returncode != 0:
@@ -186,7 +181,30 @@ def main(argv: list[str] | None = None) -> None:
     os.execv(exe, [str(exe), "--variant", args.variant, "--pty"])
 
 
-__all__ = ["SilTarget", "build_sil", "cache_dir", "main", "start_sil", "stop_sil"]
+AVR_DIR = FIRMWARE_DIR / "ports" / "avr"
+#: the AVR port's build (its Makefile's flags): an ATmega328P at 16 MHz, USART0 at 250 kbaud
+AVR_MCU = "atmega328p"
+AVR_F_CPU_HZ = 16_000_000
+AVR_CFLAGS = (f"-mmcu={AVR_MCU}", f"-DF_CPU={AVR_F_CPU_HZ}UL", "-Os", "-std=c99", "-pedantic", "-Wall", "-Wextra",
+              "-Wconversion", "-Werror", "-DHBP_MAX_ADC=3u", "-DHBP_MAX_TELEMETRY=3u")
+
+
+def build_avr(variant: Variant = "seed", defines: tuple[str, ...] = ()) -> Path:
+    """The AVR port's ELF (firmware/an1017/ports/avr with the runtime), compiled with avr-gcc into the
+    build cache unless an identical build exists (the same sources, flags and defines)."""
+    from hilbench.targets.starters import cached_build, need_tool, run_build
+
+    avr_gcc = need_tool("simavr:an1017", "avr-gcc", "gcc-avr avr-libc")
+    sources = (AVR_DIR / "main.c", FIRMWARE_DIR / "an1017.c", *RUNTIME_SOURCES)
+    variant_define = "-DAN1017_VARIANT=" + ("AN1017_VARIANT_V11" if variant == "v11" else "AN1017_VARIANT_SEED")
+    cmd = [avr_gcc, *AVR_CFLAGS, variant_define, *defines, f"-I{FIRMWARE_DIR}", f"-I{RUNTIME_DIR}",
+           f"-I{PROTOCOL_DIR}", *(str(s) for s in sources)]
+    return cached_build("simavr", f"an1017_{variant}", [*sources, *HEADERS], cmd,
+                        lambda out: run_build("simavr", "an1017", [*cmd, "-o", str(out)]))
+
+
+__all__ = ["AVR_F_CPU_HZ", "AVR_MCU", "SilTarget", "build_avr", "build_sil", "cache_dir", "main", "start_sil",
+           "stop_sil"]
 
 
 if __name__ == "__main__":

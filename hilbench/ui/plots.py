@@ -148,8 +148,10 @@ def plot_recording(data: RecordingData, out_dir: Path, stem: str | None = None,
         speeds.append(("measured_speed_rpm", "speed (firmware measured)", {"lw": 0.8, "alpha": 0.8}))
     save(_line_figure(plt, t, c, speeds, "speed [rpm]", "speed vs reference", events), "speed")
     from hilbench.bench.recorder import COLUMN_NAMES
+    from hilbench.plant.model import OUTPUTS
 
-    own = [name for name in c if name not in COLUMN_NAMES]  # the target's own telemetry columns
+    bench_columns = set(COLUMN_NAMES) | {out.column for out in OUTPUTS}  # the bench's and the plant's
+    own = [name for name in c if name not in bench_columns]  # the target's own telemetry columns
     if own:
         lines = [(name, f"{name} [{data.units.get(name, '')}]", {"lw": 0.8}) for name in own]
         save(_line_figure(plt, t, c, lines, "value", "target telemetry", events, False), "telemetry")

@@ -15,8 +15,13 @@ from hilbench.fieldspec import spec
 from hilbench.protocol import TelemetryId
 from hilbench.targets.profile import MotorBuild, PotReference, TargetProfile, TelemetryColumn
 
+from hilbench.targets.qemu import QemuStarter
+from hilbench.targets.starters import HostExecutableStarter, SimavrStarter
+
 if TYPE_CHECKING:
-    import subprocess
+    from pathlib import Path
+
+    from hilbench.targets.qemu import M4Build
 
 #: MeasuredSpeed = trunc(312·32768/Period) and rpm = 1 875 000/Period (the application note's
 #: Table 6), so one Q15 step of speed is 1 875 000/(312·32768) rpm; 32767 ≈ 6009.6 rpm. That is
@@ -73,14 +78,41 @@ def _make(settings: object) -> object:
                                       max_speed_rpm=settings.max_speed_rpm))
 
 
-def _start_sil(settings: object, tty_path: str) -> "subprocess.Popen[bytes]":
-    """The board firmware (firmware/an1017) built for this host, serving tty_path."""
-    from hilbench.targets.sil import motor_defines, start_sil
+def _settings(settings: object) -> An1017Settings:
+    return settings if isinstance(settings, An1017Settings) else An1017Settings()
 
-    if not isinstance(settings, An1017Settings):
-        settings = An1017Settings()
-    return start_sil(tty_path, "v11" if settings.variant == "v11" else "seed",  # the firmware build's own word
-                     defines=motor_defines(settings.pole_pairs, settings.max_speed_rpm))
+
+def _build_variant(settings: object) -> Literal["seed", "v11"]:
+    return "v11" if _settings(settings).variant == "v11" else "seed"  # the firmware build's own word
+
+
+def _defines(settings: object) -> tuple[str, ...]:
+    from hilbench.targets.sil import motor_defines
+
+    return motor_defines(_settings(settings).pole_pairs, _settings(settings).max_speed_rpm)
+
+
+def _sil_exe(settings: object) -> "Path":
+    """The board firmware (firmware/an1017 on the runtime) built for this host."""
+    from hilbench.targets.sil import build_sil
+
+    return build_sil(defines=_defines(settings))
+
+
+def _avr_elf(settings: object) -> "Path":
+    """The board firmware built for the ATmega328P of simavr."""
+    from hilbench.targets.sil import build_avr
+
+    return build_avr(_build_variant(settings), _defines(settings))
+
+
+def _m4_build(settings: object) -> "M4Build":
+    """The board firmware built for the Cortex-M4 in QEMU (firmware/runtime/ports/cortex_m4, goal an1017)."""
+    from hilbench.targets.qemu import REPO, M4Build
+
+    variant = _build_variant(settings)
+    return M4Build("an1017", f"an1017_m4_{variant}.elf", (f"VARIANT={variant}", "DEFS=" + " ".join(_defines(settings))),
+                   (REPO / "firmware" / "an1017", REPO / "firmware" / "runtime", REPO / "firmware_protocol"))
 
 
 def _check_gains(raw: Mapping[str, int]) -> str | None:
@@ -143,7 +175,11 @@ PROFILE = TargetProfile(
     initial_params=_initial_params,
     capabilities=frozenset({"speed_loop", "realtime", "fault_injection", "tuning", "hall_sensors"}),
     sweep_defaults=(("kp", "0.05:0.85:10"), ("ki", "0.005:0.12:10"), ("kd", "0")),
-    start_sil=_start_sil,
+    starters={
+        "sil": HostExecutableStarter(_sil_exe, lambda settings: ["--variant", _build_variant(settings)], "an1017"),
+        "simavr": SimavrStarter(_avr_elf, name="an1017"),
+        "qemu": QemuStarter(_m4_build, name="an1017"),
+    },
     configure=_configure,
 )
 

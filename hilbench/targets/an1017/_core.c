@@ -1,13 +1,15 @@
 /* The in-process AN1017 core (the "c" backend of hilbench.targets.an1017.An1017Target): the board
- * firmware firmware/an1017/an1017.c, compiled into this extension, behind a thin CPython glue.
+ * firmware firmware/an1017/an1017.c on the runtime firmware/runtime/hrt.c, compiled into this
+ * extension, behind a thin CPython glue.
  *
- * The firmware logic is an1017.c's and nothing else: the same source runs on the board (dsPIC,
- * AVR), in the SIL process (sil:an1017) and here. This file owns one an1017_t plus what the Python
- * target needs around it: absolute time in Tcy (the firmware counts relative to the current span),
- * the agreed lockstep period, the last seq and its Drive (a repeated seq is answered without a
- * step), and the Drive type. step(sensors) is an1017_run over one period + an1017_outputs as a
- * Drive; the members carry the Python model's attribute names (hilbench/targets/an1017/firmware.py),
- * so tests and the target read the firmware state the same way on both backends.
+ * The firmware logic is an1017.c's and its scheduling the runtime's, nothing else: the same sources
+ * run on the board (dsPIC, AVR), in the SIL process (sil:an1017) and here. This file owns one
+ * an1017_t (its hrt_t inside) plus what the Python target needs around it: absolute time in Tcy (the
+ * runtime's clock is 32 bits), the agreed lockstep period, the last seq and its Drive (a repeated seq
+ * is answered without a step), and the Drive type. step(sensors) is one runtime span (hrt_span_*)
+ * + hrt_report as a Drive; the members carry the Python model's attribute names
+ * (hilbench/targets/an1017/firmware.py), so tests and the target read the firmware state the same
+ * way on both backends.
  * tests/test_an1017_core.py compares every Drive with the Python reference.
  */
 #define PY_SSIZE_T_CLEAN
@@ -19,7 +21,7 @@
 #include "an1017.h"
 
 #define EDGE_NONE 0xFFFF
-#define SPAN_MAX_TCY 0x40000000LL /* an1017_run counts a span in 32 bits: longer ones are cut */
+#define SPAN_MAX_TCY 0x40000000LL /* the runtime counts a span in 32 bits: longer ones are cut */
 
 static PyTypeObject *drive_type = NULL;
 static PyObject *duty_ints[AN1017_DUTY_MAX + 1];
@@ -35,28 +37,43 @@ typedef struct {
     PyObject *last_drive; /* the answer to a repeated seq (a duplicated frame): no second step */
 } Core;
 
-/* A span of any length from now: an1017_run per at most SPAN_MAX_TCY. The Sensors' FLTA bit acts
- * at the span's start only (as in one call); S2 and the halls are idempotent when repeated. */
+/* One span of the runtime: the Sensors' levels at its start, the hall change at its edge (at its
+ * start without one), as the wire's Sensors with one edge. */
+static void one_span(an1017_t *fw, uint32_t duration, uint8_t in, int have_edge, uint32_t off, int have_pot,
+                     uint16_t pot)
+{
+    hrt_t *rt = &fw->rt;
+    uint32_t start = rt->now;
+    hrt_span_begin(rt, in, (uint8_t)(have_edge != 0), 0u, &pot, (uint8_t)(have_pot != 0), 0u);
+    if (have_edge) {
+        hrt_span_edge(rt, start + (off >= duration ? duration - 1u : off), (uint8_t)(in & HRT_IN_HALLS));
+    }
+    hrt_span_end(rt, start + duration);
+}
+
+/* A span of any length from now: one runtime span per at most SPAN_MAX_TCY. The Sensors' FLTA bit
+ * acts at the span's start only (as in one span); S2 and the halls are idempotent when repeated. */
 static void run_span(Core *s, long long duration, long inputs, int have_edge, long long edge, int have_pot, long pot)
 {
     uint8_t in = (uint8_t)(inputs & 0xFF);
     uint32_t off = have_edge ? (uint32_t)(edge <= 0 ? 0 : edge > 0x7FFFFFFFLL ? 0x7FFFFFFFLL : edge) : 0u;
+    if (duration <= 0) {
+        return;
+    }
     s->t += duration;
     while (duration > SPAN_MAX_TCY) {
-        an1017_run(&s->fw, (uint32_t)SPAN_MAX_TCY, in, (uint8_t)have_edge, off, (uint8_t)have_pot, (uint16_t)pot);
+        one_span(&s->fw, (uint32_t)SPAN_MAX_TCY, in, have_edge, off, have_pot, (uint16_t)pot);
         duration -= SPAN_MAX_TCY;
         in = (uint8_t)(in & ~AN1017_INPUT_FAULT);
         have_edge = 0;
     }
-    if (duration > 0) {
-        an1017_run(&s->fw, (uint32_t)duration, in, (uint8_t)have_edge, off, (uint8_t)have_pot, (uint16_t)pot);
-    }
+    one_span(&s->fw, (uint32_t)duration, in, have_edge, off, have_pot, (uint16_t)pot);
 }
 
 static PyObject *finish(Core *s, PyObject *seq)
 {
-    an1017_out_t o;
-    an1017_outputs(&s->fw, &o);
+    hrt_report_t o;
+    hrt_report(&s->fw.rt, 0u, &o);
     PyObject *tel = s->tel;
     if (tel == NULL || s->tel_vals[0] != o.telemetry[0] || s->tel_vals[1] != o.telemetry[1]
         || s->tel_vals[2] != o.telemetry[2]) {
@@ -71,14 +88,14 @@ static PyObject *finish(Core *s, PyObject *seq)
     PyObject *d = drive_type->tp_alloc(drive_type, 11);
     if (d == NULL) return NULL;
     PyTuple_SET_ITEM(d, 0, Py_NewRef(seq));
-    PyTuple_SET_ITEM(d, 1, Py_NewRef(duty_ints[o.duty[0]]));
-    PyTuple_SET_ITEM(d, 2, Py_NewRef(duty_ints[o.duty[1]]));
-    PyTuple_SET_ITEM(d, 3, Py_NewRef(duty_ints[o.duty[2]]));
+    PyTuple_SET_ITEM(d, 1, Py_NewRef(duty_ints[o.duty_a]));
+    PyTuple_SET_ITEM(d, 2, Py_NewRef(duty_ints[o.duty_b]));
+    PyTuple_SET_ITEM(d, 3, Py_NewRef(duty_ints[o.duty_c]));
     PyTuple_SET_ITEM(d, 4, Py_NewRef(duty_ints[o.output_mode]));
     PyTuple_SET_ITEM(d, 5, Py_NewRef(duty_ints[o.state]));
     PyTuple_SET_ITEM(d, 6, Py_NewRef(duty_ints[o.sector]));
-    PyTuple_SET_ITEM(d, 7, PyBool_FromLong(o.ccw));
-    PyTuple_SET_ITEM(d, 8, PyBool_FromLong(o.req_ccw));
+    PyTuple_SET_ITEM(d, 7, PyBool_FromLong(o.direction_ccw));
+    PyTuple_SET_ITEM(d, 8, PyBool_FromLong(o.required_ccw));
     PyTuple_SET_ITEM(d, 9, Py_NewRef(duty_ints[o.fault]));
     PyTuple_SET_ITEM(d, 10, Py_NewRef(tel));
     return d;
@@ -251,15 +268,15 @@ static PyObject *mod_check_gains(PyObject *self, PyObject *args)
 static PyObject *Core_duties(Core *s, PyObject *unused)
 {
     (void)unused;
-    const uint16_t *d = s->fw.pdc_active;
-    return Py_BuildValue("(HHH)", d[0], d[1], d[2]);
+    const hrt_t *rt = &s->fw.rt;
+    return Py_BuildValue("(HHH)", hrt_duty_active(rt, 0), hrt_duty_active(rt, 1), hrt_duty_active(rt, 2));
 }
 
 static PyObject *Core_pending_duties(Core *s, PyObject *unused)
 {
     (void)unused;
-    const uint16_t *d = s->fw.pdc_pending;
-    return Py_BuildValue("(HHH)", d[0], d[1], d[2]);
+    const hrt_t *rt = &s->fw.rt;
+    return Py_BuildValue("(HHH)", hrt_duty(rt, 0), hrt_duty(rt, 1), hrt_duty(rt, 2));
 }
 
 static int Core_init(Core *s, PyObject *args, PyObject *kwds)
@@ -332,17 +349,56 @@ static PyObject *get_pending(Core *s, void *c)
     return Py_BuildValue("(hhh)", s->fw.pend_kp, s->fw.pend_ki, s->fw.pend_kd);
 }
 
-/* the firmware counts Timer1 and the bootstrap from the current instant: absolute times here */
+/* the runtime's clock is 32 bits: its timers as absolute times here (meaningful while they run) */
 static PyObject *get_t1_next(Core *s, void *c)
 {
     (void)c;
-    return PyLong_FromLongLong(s->t + (long long)s->fw.t1_at);
+    const hrt_t *rt = &s->fw.rt;
+    return PyLong_FromLongLong(s->t + (long long)(uint32_t)(rt->timer_due[AN1017_TIMER_T1] - rt->now));
 }
 
 static PyObject *get_boot_end(Core *s, void *c)
 {
     (void)c;
-    return PyLong_FromLongLong(s->t + (long long)s->fw.boot_at);
+    const hrt_t *rt = &s->fw.rt;
+    return PyLong_FromLongLong(s->t + (long long)(uint32_t)(rt->timer_due[AN1017_TIMER_BOOT] - rt->now));
+}
+
+/* the hall pins and the pot's ADC code are the runtime's inputs */
+static PyObject *get_hall(Core *s, void *c)
+{
+    (void)c;
+    return PyLong_FromLong(AN1017_HALL(&s->fw));
+}
+
+static int set_hall(Core *s, PyObject *v, void *c)
+{
+    (void)c;
+    long x = v == NULL ? -1 : PyLong_AsLong(v);
+    if (x < 0 || x > 7) {
+        if (!PyErr_Occurred()) PyErr_SetString(PyExc_ValueError, "an1017 core hall: 0..7");
+        return -1;
+    }
+    s->fw.rt.in = (uint8_t)((s->fw.rt.in & (uint8_t)~HRT_IN_HALLS) | (uint8_t)x);
+    return 0;
+}
+
+static PyObject *get_pot_code(Core *s, void *c)
+{
+    (void)c;
+    return PyLong_FromLong(hrt_adc(&s->fw.rt, 0u));
+}
+
+static int set_pot_code(Core *s, PyObject *v, void *c)
+{
+    (void)c;
+    long x = v == NULL ? -1 : PyLong_AsLong(v);
+    if (x < 0 || x > 0xFFFF) {
+        if (!PyErr_Occurred()) PyErr_SetString(PyExc_ValueError, "an1017 core pot_code: 0..65535");
+        return -1;
+    }
+    s->fw.rt.adc[0] = (uint16_t)x;
+    return 0;
 }
 
 /* last_drive: None or the Drive a repeated seq gets; only None may be written (forget it) */
@@ -369,6 +425,8 @@ static PyGetSetDef Core_getset[] = {
     {"pending_gains", (getter)get_pending, NULL, "gains waiting for the next Timer1 ISR (None: none)", NULL},
     {"t1_next", (getter)get_t1_next, NULL, "Tcy of the next Timer1 interrupt (while running)", NULL},
     {"boot_end", (getter)get_boot_end, NULL, "Tcy at which ChargeBootstraps ends (while booting)", NULL},
+    {"hall", (getter)get_hall, (setter)set_hall, "the hall pins C B A", NULL},
+    {"pot_code", (getter)get_pot_code, (setter)set_pot_code, "AN2, the pot's 10-bit code", NULL},
     {NULL, NULL, NULL, NULL, NULL},
 };
 
@@ -393,7 +451,6 @@ static PyMemberDef Core_members[] = {
     US("phase", phase), US("phase_inc", phase_inc), SH("phase_adv", phase_adv),
     US("sector", sector), US("last_sector", last_sector), US("stall_counter", stall_counter), US("period", period),
     US("actual_capture", actual_capture), US("past_capture", past_capture),
-    UB("hall", hall), US("pot_code", pot_code),
     {"t", T_LONGLONG, offsetof(Core, t), READONLY, "Tcy since power-on"},
     {"period_tcy", T_LONGLONG, offsetof(Core, period_tcy), 0, "the lockstep period in Tcy"},
     {"last_seq", T_LONGLONG, offsetof(Core, last_seq), 0, "seq of the last Sensors"},

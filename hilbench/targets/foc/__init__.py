@@ -13,6 +13,11 @@ from typing import Any
 from hilbench.protocol import TelemetryId
 from hilbench.targets.foc.firmware import FocOptions
 from hilbench.targets.profile import MotorBuild, ParamReference, TargetProfile, TelemetryColumn
+from hilbench.targets.qemu import QemuStarter
+from hilbench.targets.starters import HostExecutableStarter, SimavrStarter
+
+#: the AVR the FOC build runs on in simavr (its 32 KB sine table needs more flash than a 328P has)
+AVR_MCU = "atmega1284p"
 
 #: telemetry is Q15 per unit: speed of BaseRpm 3000, currents of the 5 A base (FocOptions defaults)
 RPM_PER_Q15 = 3000 / 32768
@@ -44,6 +49,24 @@ def _make(options: object) -> Any:
     return FocTarget(options if isinstance(options, FocOptions) else FocOptions())
 
 
+def _sil_exe(options: object) -> Any:
+    from hilbench.targets.foc.build import build_sil
+
+    return build_sil(options if isinstance(options, FocOptions) else FocOptions())
+
+
+def _avr_elf(options: object) -> Any:
+    from hilbench.targets.foc.build import build_avr
+
+    return build_avr(options)
+
+
+def _m4_build(options: object) -> Any:
+    from hilbench.targets.foc.build import qemu_build
+
+    return qemu_build(options)
+
+
 def make_foc_target(**options: Any) -> Any:
     """A `FocTarget` with `FocOptions` fields as keyword options."""
     from hilbench.targets.foc.target import make_foc_target as _make_named
@@ -64,6 +87,11 @@ PROFILE = TargetProfile(
     built_for=lambda options: MotorBuild(pole_pairs=getattr(options, "pole_pairs", 3), max_speed_rpm=3000.0),
     capabilities=frozenset({"speed_loop", "realtime", "tuning", "encoder"}),
     sweep_defaults=(("spd_kp", "0.2:1.2:6"), ("spd_ki", "0.002:0.03:6")),
+    starters={
+        "sil": HostExecutableStarter(_sil_exe, name="foc"),
+        "simavr": SimavrStarter(_avr_elf, mcu=AVR_MCU, name="foc"),
+        "qemu": QemuStarter(_m4_build, name="foc"),
+    },
 )
 
 __all__ = ["PROFILE", "FocOptions", "TELEMETRY_SPEC", "make_foc_target"]

@@ -1,29 +1,33 @@
-/* ports/avr/main.c: the AN1017 firmware on an ATmega328P (16-bit int, 2 KB RAM, no FPU), the same core
- * and protocol bridge as the dsPIC30F2010 port, for running the firmware cycle by cycle in an MCU
+/* ports/avr/main.c: the AN1017 firmware on an ATmega328P (16-bit int, 2 KB RAM, no FPU), the same
+ * firmware and runtime as the dsPIC30F2010 port, for running the firmware cycle by cycle in an MCU
  * simulator (simavr) with the bench driving it in lockstep over the UART.
  *
  * USART0 at F_CPU / (8 * (UBRR0 + 1)) with U2X0 (16 MHz, UBRR0 = 7: 250 000 baud, exact, the same
  * rate as the dsPIC30F2010 port). Its RX-complete interrupt feeds the receive state machine; the
  * main loop handles a complete frame and writes the reply by polling UDRE0. Timer1 (clk/8, 2 MHz)
- * with an overflow count is the free-running clock of real-time mode and the watchdog.
+ * with an overflow count is the free-running clock of real-time mode and the watchdog; its overflow
+ * interrupt (every 32.8 ms) also wakes the sleeping main loop, so the watchdog is checked while no
+ * bytes arrive.
  */
 #include <avr/interrupt.h>
 #include <avr/io.h>
 #include <avr/sleep.h>
 
-#include "an1017_bridge.h"
+#include "an1017.h"
+#include "hrt_link.h"
 
 #ifndef F_CPU
 #define F_CPU 16000000UL
 #endif
 #define UART_UBRR 7u /* 250 000 baud with U2X0 at 16 MHz */
 
-static an1017_bridge_t bridge;
+static an1017_t fw;
+static hrt_link_t host_link;
 static volatile uint16_t timer1_overflows;
 
 ISR(USART_RX_vect)
 {
-    (void)hbp_rx_byte(&bridge.rx, UDR0);
+    (void)hrt_link_rx_byte(&host_link, UDR0);
 }
 
 ISR(TIMER1_OVF_vect)
@@ -31,7 +35,7 @@ ISR(TIMER1_OVF_vect)
     timer1_overflows = (uint16_t)(timer1_overflows + 1u);
 }
 
-void an1017_port_send(const uint8_t *wire, uint8_t len)
+void hrt_port_send(const uint8_t *wire, uint8_t len)
 {
     uint8_t i;
     for (i = 0u; i < len; i++) {
@@ -41,16 +45,16 @@ void an1017_port_send(const uint8_t *wire, uint8_t len)
     }
 }
 
-void an1017_port_lock(void)
+void hrt_port_lock(void)
 {
     /* only the UART RX interrupt runs, and it touches no firmware state */
 }
 
-void an1017_port_unlock(void)
+void hrt_port_unlock(void)
 {
 }
 
-uint32_t an1017_port_now_tcy(void)
+uint32_t hrt_port_now(void)
 {
     uint16_t high;
     uint16_t low;
@@ -68,7 +72,8 @@ uint32_t an1017_port_now_tcy(void)
 
 int main(void)
 {
-    an1017_bridge_init(&bridge, AN1017_VARIANT);
+    an1017_init(&fw, AN1017_VARIANT);
+    hrt_link_init(&host_link, &fw.rt);
     UBRR0H = (uint8_t)(UART_UBRR >> 8);
     UBRR0L = (uint8_t)(UART_UBRR & 0xFFu);
     UCSR0A = (uint8_t)(1u << U2X0);
@@ -79,10 +84,10 @@ int main(void)
     TIMSK1 = (uint8_t)(1u << TOIE1);
     sei();
     for (;;) {
-        an1017_bridge_poll(&bridge);
+        hrt_link_poll(&host_link);
         cli();
-        if (!bridge.rx.ready && bridge.mode == HBP_MODE_LOCKSTEP) {
-            /* nothing to do until a byte arrives: sleep (sei then sleep is atomic on AVR) */
+        if (!host_link.rx.ready && host_link.mode == HBP_MODE_LOCKSTEP) {
+            /* nothing to do until a byte arrives or Timer1 overflows: sleep (sei then sleep is atomic on AVR) */
             sleep_enable();
             sei();
             sleep_cpu();

@@ -16,21 +16,29 @@
  * - FLTA (RE8, the board's over-current comparator): FLTACON = 0x0007 drives all pairs inactive on
  *   a fault, and its interrupt stops the firmware with state FAULT, fault OVERCURRENT.
  * - Timer1: Tcy/64, PR1 = 313 (1.0048 ms), the speed-loop tick in real-time mode.
- * - Timer3: Tcy/64, PR3 = 0xFFFF, the IC7 capture time base; in real-time mode a hall change that a
- *   Sensors frame reports is captured as TMR3 at the frame's edge time (IC7 itself is not used:
- *   the hall pins are frames). Timer2 at Tcy counts the Tcy clock for the watchdog.
+ * - Timer2 at Tcy, with an overflow count, is the port's clock (hrt_port_now): the runtime's time in
+ *   real time, the capture time of hall edges (the firmware derives TMR3 from it; IC7 itself is not
+ *   used: the hall pins are frames) and the watchdog's.
  * - ADC: configured as AN1017 does (AN2 = pot R14, signed fractional, started by the PWM special
  *   event); the pot value comes from Sensors unless HIL_LOCAL_POT is defined, then from ADCBUF0.
  * - S2 (RC14, active low): pressing the board's S2 acts like the Sensors S2 bit.
  * Lockstep: Timer1/Timer3 stay off (the firmware's timers are gated); each Sensors runs one period
- * of ISR bodies at their virtual times (an1017_run). Real time: PWM and Timer1 interrupts run the
- * ISR bodies on the chip's own clock, and each Sensors updates the inputs they read.
+ * of ISR bodies at their virtual times (the runtime's hrt_span_*). Real time (this port is built
+ * with HRT_PORT_HW = 1): the PWM and Timer1 interrupts run the ISR bodies on the chip's own clock
+ * through the runtime's real-time glue (hrt_rt_pwm, hrt_rt_timer; the end of ChargeBootstraps is a
+ * runtime timer served at PWM-period resolution), and each Sensors updates the inputs they read
+ * (a hall edge with its capture time back-dated by the frame's edge time).
  *
  * Build: make (XC16, see Makefile). CI compiles this file with host gcc against hostcheck/xc.h.
  */
 #include <xc.h>
 
-#include "an1017_bridge.h"
+#include "an1017.h"
+#include "hrt_link.h"
+
+#if !defined(HRT_PORT_HW) || !HRT_PORT_HW
+#error "the dsPIC30F2010 port runs real time on the chip's interrupts: build it with -DHRT_PORT_HW=1"
+#endif
 
 #if defined(__XC16__)
 #define AN1017_ISR __attribute__((__interrupt__, no_auto_psv))
@@ -53,13 +61,13 @@ _FGS(CODE_PROT_OFF);
 #define OVDCON_ALL_OFF 0x0000u
 #define OVDCON_PWM 0x3F00u    /* all six outputs from the PWM generator */
 #define OVDCON_LOW_SIDE 0x0015u
-#define TMR3_TICK_TCY 64u
 
-static an1017_bridge_t bridge;
+static an1017_t fw;
+static hrt_link_t host_link;
 static volatile uint16_t tcy_high; /* Timer2 overflows: bits 31:16 of the Tcy clock */
-static uint8_t rt_boot_pending;
+static uint8_t realtime_on;
 
-void an1017_port_send(const uint8_t *wire, uint8_t len)
+void hrt_port_send(const uint8_t *wire, uint8_t len)
 {
     uint8_t i;
     for (i = 0u; i < len; i++) {
@@ -69,16 +77,14 @@ void an1017_port_send(const uint8_t *wire, uint8_t len)
     }
 }
 
-static uint8_t realtime_on;
-
-void an1017_port_lock(void)
+void hrt_port_lock(void)
 {
     IEC2bits.PWMIE = 0;
     IEC0bits.T1IE = 0;
     IEC2bits.FLTAIE = 0;
 }
 
-void an1017_port_unlock(void)
+void hrt_port_unlock(void)
 {
     IEC2bits.FLTAIE = 1;
     if (realtime_on) {
@@ -87,7 +93,7 @@ void an1017_port_unlock(void)
     }
 }
 
-uint32_t an1017_port_now_tcy(void)
+uint32_t hrt_port_now(void)
 {
     uint16_t high;
     uint16_t low;
@@ -100,16 +106,48 @@ uint32_t an1017_port_now_tcy(void)
 
 static void write_outputs(void)
 {
-    const an1017_t *fw = &bridge.fw;
-    PDC1 = fw->pdc_pending[0];
-    PDC2 = fw->pdc_pending[1];
-    PDC3 = fw->pdc_pending[2];
+    PDC1 = hrt_duty(&fw.rt, 0u); /* the MCPWM latches them at its period boundary (IUE = 0) */
+    PDC2 = hrt_duty(&fw.rt, 1u);
+    PDC3 = hrt_duty(&fw.rt, 2u);
 #if defined(HIL_DRIVE_BRIDGE)
-    OVDCON = (fw->output_mode == AN1017_MODE_PWM) ? OVDCON_PWM
-             : (fw->output_mode == AN1017_MODE_LOW_SIDE) ? OVDCON_LOW_SIDE : OVDCON_ALL_OFF;
+    OVDCON = (fw.output_mode == AN1017_MODE_PWM) ? OVDCON_PWM
+             : (fw.output_mode == AN1017_MODE_LOW_SIDE) ? OVDCON_LOW_SIDE : OVDCON_ALL_OFF;
 #else
     OVDCON = OVDCON_ALL_OFF;
 #endif
+}
+
+/* ---- real time: the chip's timers ---- */
+
+/* Timer1 runs in hardware (PR1 fixed: its period is the declared one); the end of ChargeBootstraps
+ * is left to the runtime. */
+uint8_t hrt_port_timer(uint8_t id, uint8_t on, uint32_t first_ticks)
+{
+    (void)first_ticks;
+    if (id != AN1017_TIMER_T1) {
+        return 0u;
+    }
+    if (on) {
+        TMR1 = 0u;
+        IFS0bits.T1IF = 0;
+    }
+    return 1u;
+}
+
+void hrt_port_realtime(uint8_t on)
+{
+    if (on) {
+        TMR1 = 0u;
+        T1CON = 0x8020u;
+        IFS0bits.T1IF = 0;
+        IFS2bits.PWMIF = 0;
+        realtime_on = 1u;
+    } else {
+        IEC2bits.PWMIE = 0;
+        IEC0bits.T1IE = 0;
+        T1CON = 0x0020u;
+        realtime_on = 0u;
+    }
 }
 
 /* ---- interrupts ---- */
@@ -118,7 +156,7 @@ void AN1017_ISR _U1RXInterrupt(void)
 {
     IFS0bits.U1RXIF = 0;
     while (U1STAbits.URXDA) {
-        (void)hbp_rx_byte(&bridge.rx, (uint8_t)U1RXREG);
+        (void)hrt_link_rx_byte(&host_link, (uint8_t)U1RXREG);
     }
     if (U1STAbits.OERR) {
         U1STAbits.OERR = 0; /* the hardware FIFO overflowed: bytes were lost, the CRC will tell */
@@ -134,50 +172,24 @@ void AN1017_ISR _T2Interrupt(void)
 /* Real time only: one PWM period boundary, the same work as the lockstep scheduler's. */
 void AN1017_ISR _PWMInterrupt(void)
 {
-    an1017_t *fw = &bridge.fw;
-    uint8_t i;
     IFS2bits.PWMIF = 0;
-    if (fw->adc_every || (fw->pwm_index & 15u) == 0u) {
 #if defined(HIL_LOCAL_POT)
-        fw->pot_code = (uint16_t)((uint16_t)(ADCBUF0 >> 6) ^ 0x200u); /* signed fractional -> code */
+    fw.rt.adc[0] = (uint16_t)((uint16_t)(ADCBUF0 >> 6) ^ 0x200u); /* signed fractional -> code */
 #endif
-        an1017_isr_adc(fw);
-    }
-    for (i = 0u; i < 3u; i++) {
-        fw->pdc_active[i] = fw->pdc_pending[i];
-    }
-    if (fw->running) {
-        an1017_isr_pwm(fw);
-    }
-    fw->pwm_index = (uint16_t)(fw->pwm_index + 1u);
-    if (fw->booting) {
-        if (fw->boot_at > AN1017_PWM_PERIOD_TCY) {
-            fw->boot_at -= AN1017_PWM_PERIOD_TCY;
-        } else {
-            rt_boot_pending = 1u;
-        }
-    }
-    if (rt_boot_pending) {
-        rt_boot_pending = 0u;
-        an1017_run_motor(fw);
-        TMR1 = 0u;
-        TMR3 = 0u;
-    }
+    hrt_rt_pwm(&fw.rt, hrt_port_now());
     write_outputs();
 }
 
 void AN1017_ISR _T1Interrupt(void)
 {
     IFS0bits.T1IF = 0;
-    if (bridge.fw.running) {
-        an1017_isr_timer1(&bridge.fw);
-    }
+    hrt_rt_timer(&fw.rt, AN1017_TIMER_T1, hrt_port_now());
 }
 
 void AN1017_ISR _FLTAInterrupt(void)
 {
     IFS2bits.FLTAIF = 0;
-    an1017_press_stop(&bridge.fw, AN1017_STATE_FAULT, HBP_FAULT_OVERCURRENT);
+    an1017_press_stop(&fw, AN1017_STATE_FAULT, AN1017_FAULT_OVERCURRENT);
     write_outputs();
 }
 
@@ -227,8 +239,6 @@ static void init_timers(void)
 {
     T1CON = 0x0020u;   /* Tcy/64, off until real time starts */
     PR1 = 313u;
-    T3CON = 0x0020u;   /* Tcy/64, off until real time starts */
-    PR3 = 0xFFFFu;
     T2CON = 0x8000u;   /* Tcy, free running: the Tcy clock */
     PR2 = 0xFFFFu;
     IFS0bits.T2IF = 0;
@@ -243,65 +253,11 @@ static void init_adc(void)
     ADCON1 = 0x836Eu;  /* ADON, signed fractional, PWM special-event trigger, auto-sample */
 }
 
-/* Real time: the timers run and the ISRs take the newest Sensors. Entered at the first Sensors. */
-static void start_realtime(void)
-{
-    TMR1 = 0u;
-    TMR3 = 0u;
-    T1CON = 0x8020u;
-    T3CON = 0x8020u;
-    IFS0bits.T1IF = 0;
-    IEC0bits.T1IE = 1;
-    IFS2bits.PWMIF = 0;
-    IEC2bits.PWMIE = 1;
-}
-
-static void stop_realtime(void)
-{
-    IEC2bits.PWMIE = 0;
-    IEC0bits.T1IE = 0;
-    T1CON = 0x0020u;
-    T3CON = 0x0020u;
-}
-
-/* A Sensors frame in real time: buttons, pot and halls into the firmware that the ISRs run. */
-static void realtime_sensors(const uint8_t *frame, uint8_t len)
-{
-    hbp_sensors_t s;
-    an1017_t *fw = &bridge.fw;
-    if (hbp_unpack_sensors(frame, len, &s) != HBP_ERROR_NONE) {
-        an1017_bridge_handle(&bridge, frame, len); /* answers the LENGTH error */
-        return;
-    }
-    an1017_port_lock(); /* the ISR bodies share the firmware struct with this update */
-    if (s.n_adc > 0u) {
-        fw->pot_code = s.adc[0];
-    }
-    an1017_main_loop_buttons(fw, s.inputs);
-    if ((s.inputs & 7u) != fw->hall) {
-        /* TMR3 now, less the time since the edge: the edge was edge_time into the period that
-         * ended when the host sent this frame (an estimate: the frame's own transit is not known) */
-        uint32_t back_tcy = 0u;
-        if (s.edge_time_100ns != HBP_EDGE_NONE) {
-            uint32_t period_100ns = bridge.period_tcy / 2u;
-            if ((uint32_t)s.edge_time_100ns < period_100ns) {
-                back_tcy = (period_100ns - s.edge_time_100ns) * 2u;
-            }
-        }
-        fw->tmr3_tcy = ((uint32_t)TMR3 * TMR3_TICK_TCY - back_tcy) & AN1017_TMR3_MASK;
-        an1017_apply_hall(fw, (uint8_t)(s.inputs & 7u), 0u);
-    }
-    bridge.last_seq = s.seq;
-    bridge.last_sensors_tcy = an1017_port_now_tcy();
-    bridge.have_sensors = 1u;
-    bridge.tripped = 0u;
-    an1017_port_unlock();
-}
-
 int main(void)
 {
     uint8_t s2_board_was = 0u;
-    an1017_bridge_init(&bridge, AN1017_VARIANT);
+    an1017_init(&fw, AN1017_VARIANT);
+    hrt_link_init(&host_link, &fw.rt);
     init_io();
     init_timers();
     init_pwm();
@@ -309,34 +265,15 @@ int main(void)
     init_uart();
     for (;;) {
         uint8_t s2_board = (uint8_t)(PORTCbits.RC14 == 0);
-        if (bridge.rx.ready) {
-            const uint8_t *frame = bridge.rx.buf;
-            uint8_t len = bridge.rx.frame_len;
-            if (frame[0] == HBP_MSG_SENSORS && bridge.mode == HBP_MODE_REALTIME) {
-                if (!realtime_on) {
-                    start_realtime();
-                    realtime_on = 1u;
-                }
-                realtime_sensors(frame, len);
-                an1017_bridge_send_drive(&bridge, bridge.last_seq);
-            } else {
-                if (frame[0] == HBP_MSG_HOST_HELLO && realtime_on) {
-                    stop_realtime();
-                    realtime_on = 0u;
-                }
-                an1017_bridge_handle(&bridge, frame, len);
-                an1017_port_lock();
-                write_outputs();
-                an1017_port_unlock();
-            }
-            hbp_rx_release(&bridge.rx);
-        }
+        hrt_link_poll(&host_link); /* lockstep spans, real-time inputs, parameters, the handshake, the watchdog */
         if (s2_board != s2_board_was) { /* the board's own S2: released -> toggle, as main() does */
-            an1017_port_lock();
-            an1017_main_loop_buttons(&bridge.fw, (uint8_t)(s2_board ? AN1017_INPUT_S2 : 0u));
-            an1017_port_unlock();
+            hrt_port_lock();
+            an1017_main_loop_buttons(&fw, (uint8_t)(s2_board ? AN1017_INPUT_S2 : 0u));
+            hrt_port_unlock();
             s2_board_was = s2_board;
         }
-        an1017_bridge_watchdog(&bridge); /* real time: StopMotor when Sensors stop (frames are handled above) */
+        hrt_port_lock(); /* a frame, the button or the watchdog may have changed the outputs */
+        write_outputs();
+        hrt_port_unlock();
     }
 }

@@ -7,9 +7,9 @@
  * tty is open, so a launcher knows when bytes can be sent. With --pty it makes its own pty, prints
  * "ready /dev/pts/N" and serves its master like a board on a serial port: across any number of
  * host sessions (it holds the slave open itself, so a host closing the port is not a hang-up)
- * until SIGINT/SIGTERM. The same core and bridge as the board:
- * this file only replaces the UART (read/write on the tty) and the clock (CLOCK_MONOTONIC in Tcy).
- * Lockstep waits for frames without a timeout; real time wakes for the watchdog.
+ * until SIGINT/SIGTERM. The same firmware and runtime as the board: this file only replaces the UART
+ * (read/write on the tty) and the clock (CLOCK_MONOTONIC in Tcy). With a watchdog agreed it wakes
+ * every millisecond to check it, in both modes.
  */
 #define _XOPEN_SOURCE 600
 #include <errno.h>
@@ -22,9 +22,11 @@
 #include <time.h>
 #include <unistd.h>
 
-#include "an1017_bridge.h"
+#include "an1017.h"
+#include "hrt_link.h"
 
-static an1017_bridge_t bridge;
+static an1017_t fw;
+static hrt_link_t host_link;
 static int tty = -1;
 static int send_failed = 0;
 /* replies are gathered and written once per batch of received bytes: one write per Drive */
@@ -49,7 +51,7 @@ static int flush_out(void)
     return 0;
 }
 
-void an1017_port_send(const uint8_t *wire, uint8_t len)
+void hrt_port_send(const uint8_t *wire, uint8_t len)
 {
     if (out_len + len > sizeof out_buf && flush_out() != 0) {
         send_failed = 1;
@@ -59,16 +61,16 @@ void an1017_port_send(const uint8_t *wire, uint8_t len)
     out_len += len;
 }
 
-void an1017_port_lock(void)
+void hrt_port_lock(void)
 {
     /* one thread, no interrupts: nothing to hold off */
 }
 
-void an1017_port_unlock(void)
+void hrt_port_unlock(void)
 {
 }
 
-uint32_t an1017_port_now_tcy(void)
+uint32_t hrt_port_now(void)
 {
     struct timespec ts;
     clock_gettime(CLOCK_MONOTONIC, &ts);
@@ -152,7 +154,8 @@ int main(int argc, char **argv)
         fprintf(stderr, "an1017_sil: %s is not a tty: %s\n", path, strerror(errno));
         return 1;
     }
-    an1017_bridge_init(&bridge, variant);
+    an1017_init(&fw, variant);
+    hrt_link_init(&host_link, &fw.rt);
     if (ready) {
         printf("ready %s\n", path);
         fflush(stdout);
@@ -160,7 +163,7 @@ int main(int argc, char **argv)
     for (;;) {
         ssize_t n;
         ssize_t k;
-        if (bridge.mode == HBP_MODE_REALTIME && bridge.watchdog_ms != 0u) {
+        if (host_link.watchdog_ms != 0u) {
             struct pollfd p;
             int r;
             p.fd = tty;
@@ -168,7 +171,7 @@ int main(int argc, char **argv)
             p.revents = 0;
             r = poll(&p, 1, 1); /* wake every ms for the watchdog */
             if (r == 0) {
-                an1017_bridge_poll(&bridge);
+                hrt_link_poll(&host_link);
                 if (out_len > 0u && flush_out() != 0) {
                     break;
                 }
@@ -187,8 +190,8 @@ int main(int argc, char **argv)
             return 1;
         }
         for (k = 0; k < n; k++) {
-            if (hbp_rx_byte(&bridge.rx, buf[k])) {
-                an1017_bridge_poll(&bridge); /* handles the frame and releases the buffer */
+            if (hrt_link_rx_byte(&host_link, buf[k])) {
+                hrt_link_poll(&host_link); /* handles the frame and releases the buffer */
             }
         }
         if (out_len > 0u && flush_out() != 0) {
