@@ -101,6 +101,14 @@ def build_m4(build: M4Build, out_dir: Path | None = None) -> Path:
     return elf
 
 
+def qemu_command(elf: Path, serial: str, extra: tuple[str, ...] = ()) -> list[str]:
+    """The QEMU command line of a firmware ELF, its UART0 on `serial` (a tty path, or "pty")."""
+    qemu = shutil.which("qemu-system-arm")
+    if qemu is None:
+        raise ConfigError("qemu: qemu-system-arm is not installed (apt-get install qemu-system-arm)")
+    return [qemu, "-M", MACHINE, "-nographic", "-kernel", str(elf), "-serial", serial, "-monitor", "none", *extra]
+
+
 def start_qemu(elf: Path, tty_path: str, extra: tuple[str, ...] = (), label: str = "qemu") -> Started:
     """Start QEMU on `elf` with the board's UART0 on `tty_path`; returns once QEMU has opened it
     (or fails with its one-line complaint). QEMU's messages go to a temporary file (a pipe nobody
