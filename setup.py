@@ -23,6 +23,7 @@ setup(
         Extension(
             "hilbench.plant._plantcore",
             sources=["hilbench/plant/_plantcore.c"],
+            depends=["hilbench/plant/_switching.c"],  # included by _plantcore.c
             extra_compile_args=_flags,
             optional=True,
         ),

@@ -12,6 +12,7 @@ from dataclasses import dataclass, field, replace
 from typing import TYPE_CHECKING, Literal, Mapping
 
 from hilbench.fieldspec import spec
+from hilbench.plant.params import PwmTiming
 from hilbench.protocol import TelemetryId
 from hilbench.targets.profile import MotorBuild, PotReference, TargetProfile, TelemetryColumn
 
@@ -181,6 +182,10 @@ PROFILE = TargetProfile(
         "qemu": QemuStarter(_m4_build, name="an1017"),
     },
     configure=_configure,
+    # dsPIC30F MCPWM in continuous up/down mode (PTCON 0x8002): a pin is active while PTMR < PDC, so
+    # the pulses are centred on the counter's zero; the ADC's special event (SEVTCMP = 1, counting
+    # up) falls one Tcy (0.1 % of the period) after it: taken as the zero
+    pwm_timing=PwmTiming(pulse_centre="zero", adc_sample_phase=0.0),
 )
 
 __all__ = ["An1017Settings", "PROFILE", "RPM_PER_SPEED_Q15", "pot_code_for_rpm", "rpm_for_pot_code"]

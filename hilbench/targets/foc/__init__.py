@@ -10,6 +10,7 @@ from __future__ import annotations
 
 from typing import Any
 
+from hilbench.plant.params import PwmTiming
 from hilbench.protocol import TelemetryId
 from hilbench.targets.foc.firmware import FocOptions
 from hilbench.targets.profile import MotorBuild, ParamReference, TargetProfile, TelemetryColumn
@@ -92,6 +93,9 @@ PROFILE = TargetProfile(
         "simavr": SimavrStarter(_avr_elf, mcu=AVR_MCU, name="foc"),
         "qemu": QemuStarter(_m4_build, name="foc"),
     },
+    # F2812 Event Manager, timer 1 continuous up/down, active-high outputs: high while T1CNT > CMPR,
+    # so the pulses are centred on the counter's peak (period match); the ADC starts on underflow
+    pwm_timing=PwmTiming(pulse_centre="peak", adc_sample_phase=0.0),
 )
 
 __all__ = ["PROFILE", "FocOptions", "TELEMETRY_SPEC", "make_foc_target"]
