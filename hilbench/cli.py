@@ -56,6 +56,9 @@ def cli() -> None:
       hilbench ports                    list serial ports
       hilbench emulate                  serve the default firmware's emulator on a virtual serial pair
     """
+    from hilbench.processes import watch_parent
+
+    watch_parent()  # started by a bench (run --scope's scope, link-test's emulator): end with it
 
 
 def _default_target_name() -> str:
@@ -311,6 +314,9 @@ def run(config: str | None, target_spec: str | None, mode: str | None, duration_
             scope_server.close()
         if control is not None:
             control.close()
+            note = control.trouble()
+            if note:
+                click.echo(f"hilbench: warning: control socket: {note}", err=True)
     from hilbench.bench.checks import checks_text, raise_if_failed
 
     if as_json:

@@ -36,6 +36,7 @@ from pathlib import Path
 from typing import Any, Callable, Literal, Mapping, Sequence
 
 from hilbench.errors import ConfigError
+from hilbench.limits import CONFIG_MAX_BYTES, read_text_bounded
 from hilbench.fieldspec import spec
 from hilbench.plant.params import (
     AdcChannel,
@@ -462,14 +463,8 @@ PACKAGED_PREFIX = "packaged"
 
 
 def _read_text(path: Path, source: str) -> str:
-    try:
-        raw = path.read_bytes()
-    except OSError as exc:
-        raise ConfigError(f"{source}: cannot read: {exc.strerror or exc}") from None
-    try:
-        return raw.decode("utf-8")
-    except UnicodeDecodeError as exc:
-        raise ConfigError(f"{source}: not UTF-8 (byte {exc.start}); TOML files are UTF-8 text") from None
+    """A config or scenario file as text, at most CONFIG_MAX_BYTES (`extends = "/dev/zero"` is refused)."""
+    return read_text_bounded(path, CONFIG_MAX_BYTES, ConfigError, source)
 
 
 def _merge(base: dict[str, Any], child: Mapping[str, Any]) -> dict[str, Any]:

@@ -95,7 +95,7 @@ def test_abort_policy_stops_after_consecutive_overruns(tmp_path: Path) -> None:
         with pytest.raises(SessionAborted, match="5 consecutive overruns"):
             session.run()
     data = read_recording(tmp_path / "rt.npz")  # closed, with the fault marked
-    assert data.n_rows > 30
+    assert data.n_rows >= 5  # the stall starts at period 30; a loaded machine may overrun 5 in a row sooner
     assert "fault" in data.metadata["end"]
 
 

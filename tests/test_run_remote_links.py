@@ -22,7 +22,7 @@ def _data_columns(path: Path) -> dict[str, np.ndarray]:
 
 @pytest.mark.slow
 def test_a_session_over_socket_to_the_emulator_served_on_tcp_equals_the_in_process_one(tmp_path: Path) -> None:
-    server = subprocess.Popen([sys.executable, "-m", "hilbench", "emulate", "--port", "tcp:0", "--quiet"],
+    server = subprocess.Popen([sys.executable, "-m", "hilbench", "emulate", "--port", "tcp:0", "--once", "--quiet"],
                               stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, cwd=REPO_ROOT)
     try:
         ready, _, _ = select.select([server.stdout], [], [], 30)

@@ -9,6 +9,7 @@ good shows up as a mismatch.
 
 from __future__ import annotations
 
+import math
 import os
 import select
 import subprocess
@@ -20,7 +21,8 @@ from typing import Any, Callable, Sequence
 import numpy as np
 
 from hilbench.errors import LinkError, LinkTimeout
-from hilbench.link import open_link
+from hilbench.link import open_link, parse_target_spec
+from hilbench.processes import spawn
 from hilbench.protocol import INPUT_S3, MODE_LOCKSTEP, Sensors
 from hilbench.targets.base import Target
 from hilbench.targets.registry import LINK_TEST_TARGET, profile_for_firmware
@@ -29,6 +31,8 @@ from hilbench.targets.remote import RemoteTarget
 DEFAULT_TARGET = "pty"
 _READY_TIMEOUT_S = 15.0
 _MAX_CONSECUTIVE_TIMEOUTS = 20
+#: how long link-test keeps sending HostHello at least, whatever --timeout-ms says
+HANDSHAKE_S = 5.0
 
 
 @dataclass(frozen=True)
@@ -83,12 +87,11 @@ class _Spawned:
         self.proc: subprocess.Popen[bytes] | None = None
         try:
             if program is None:
-                argv = [sys.executable, "-m", "hilbench", "emulate", target_name, "-q",
+                argv = [sys.executable, "-P", "-m", "hilbench", "emulate", target_name, "-q",
                         "--port", str(self.link.peer_path), *emulate_args]
             else:
                 argv = [program, str(self.link.peer_path)]
-            self.proc = subprocess.Popen(argv, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
-                                         stdin=subprocess.DEVNULL)
+            self.proc = spawn(argv, stdout=subprocess.PIPE, stderr=subprocess.PIPE, stdin=subprocess.DEVNULL)
             if program is None:
                 self._wait_ready()
         except BaseException:
@@ -150,7 +153,9 @@ def run_link_test(target: str = DEFAULT_TARGET, *, periods: int = 10_000, period
                   timeout_s: float = 1.0, progress: Callable[[int], None] | None = None,
                   link_wrapper: Callable[[Any], Any] | None = None) -> LinkTestResult:
     """Run `periods` lockstep exchanges against target: a link spec, "pty" (spawn the link-test
-    target's emulator on a pty pair) or "exec:PROGRAM" (spawn PROGRAM with the pty path).
+    target's emulator on a pty pair), "exec:PROGRAM" (spawn PROGRAM with the pty path), or
+    emulator:NAME / sil:NAME (started as `hilbench run` starts them; an unknown NAME is the same
+    "unknown target" ConfigError).
 
     link_wrapper (for example a FaultyLink factory) wraps the host's link before use.
     """
@@ -159,7 +164,9 @@ def run_link_test(target: str = DEFAULT_TARGET, *, periods: int = 10_000, period
     spawned, link = _open(target, timeout_s)
     try:
         remote = RemoteTarget(link_wrapper(link) if link_wrapper is not None else link, timeout_s=timeout_s)
-        hello = remote.handshake(period_us, MODE_LOCKSTEP, 0, attempts=5)
+        # a short per-exchange deadline must not make the handshake fragile (a target still starting,
+        # a loaded machine): HostHello is sent again for HANDSHAKE_S at least
+        hello = remote.handshake(period_us, MODE_LOCKSTEP, 0, attempts=max(5, math.ceil(HANDSHAKE_S / timeout_s)))
         run = _exchanges(remote, link.name, periods, _checker(hello.firmware_name), progress)
         rtt_us = run.rtt_ns[:run.good] / 1000.0
         good = run.good
@@ -182,7 +189,7 @@ def run_link_test(target: str = DEFAULT_TARGET, *, periods: int = 10_000, period
             link.close()
 
 
-def _open(target: str, timeout_s: float) -> tuple[_Spawned | None, Any]:
+def _open(target: str, timeout_s: float) -> tuple[Any, Any]:
     """The link to the target: a process this spawns on a pty pair, or the spec opened."""
     if target in ("pty", LINK_TEST_TARGET):
         spawned = _Spawned(LINK_TEST_TARGET, timeout_s)
@@ -190,6 +197,11 @@ def _open(target: str, timeout_s: float) -> tuple[_Spawned | None, Any]:
     if target.startswith("exec:"):
         spawned = _Spawned("", timeout_s, program=target[len("exec:"):])
         return spawned, spawned.link
+    if parse_target_spec(target).spawns_process:  # emulator:NAME, sil:NAME: started as the bench starts them
+        from hilbench.bench.launcher import open_target
+
+        handle = open_target(target, mode="lockstep", timeout_s=timeout_s)  # unknown NAME: ConfigError, exit 2
+        return handle, handle.link
     return None, open_link(target, timeout_s=timeout_s)
 
 

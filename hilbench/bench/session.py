@@ -165,7 +165,11 @@ class Session:
     def handshake(self) -> TargetHello:
         """Agree period and mode; learn the target's profile, telemetry and parameters."""
         mode = 0 if self.options.mode == "lockstep" else 1
-        host = HostHello(0, PROTOCOL_VERSION, self.options.period_us, mode, self.options.watchdog_ms)
+        # lockstep: the host is the clock, so a host that pauses (a loaded machine, a script between
+        # runs) is not gone; a watchdog on the target's wall clock would make the recording depend
+        # on the machine's load (a SIL build tripped it 1.3 s into a suite run beside two CPU hogs)
+        watchdog_ms = self.options.watchdog_ms if mode == 1 else 0
+        host = HostHello(0, PROTOCOL_VERSION, self.options.period_us, mode, watchdog_ms)
         hello = self.target.hello(host)
         check_target_hello(hello, where=self.target_label)  # protocol version and schema fingerprint
         self.hello = hello

@@ -213,13 +213,15 @@ def params_file_overrides(path: str) -> tuple[str, ...]:
 
     from hilbench.errors import ConfigError
 
+    from hilbench.limits import CONFIG_MAX_BYTES, read_text_bounded
+
+    text = read_text_bounded(path, CONFIG_MAX_BYTES, ConfigError, path)
     try:
-        with open(path, "rb") as handle:
-            data = tomllib.load(handle)
-    except OSError as exc:
-        raise ConfigError(f"{path}: cannot read: {exc.strerror}") from None
+        data = tomllib.loads(text)
     except tomllib.TOMLDecodeError as exc:
-        raise ConfigError(f"{path}: not valid TOML: {exc}") from None
+        raise ConfigError(f"{path}: not valid TOML: {str(exc).splitlines()[0]}") from None
+    except RecursionError:
+        raise ConfigError(f"{path}: not valid TOML for hilbench: arrays or tables nested too deep") from None
     table = data.get("target")
     if not isinstance(table, dict) or not table:
         raise ConfigError(f"{path}: no [target] table with parameters (write one with `hilbench ctl save`)")

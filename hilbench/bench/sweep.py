@@ -219,28 +219,39 @@ def _run_task(cfgs: list[BenchConfig], test: StepTest, jobs: list[tuple[int, int
 
 
 class SweepStore:
-    """Finished points as JSON lines, appended as they arrive; the key names the sweep they belong to."""
+    """Finished points as JSON lines, appended as they arrive; the key names the sweep they belong to.
 
-    def __init__(self, path: Path, key: str) -> None:
+    Reading one back is reading input: at most STORE_MAX_BYTES, lines of at most
+    STORE_LINE_MAX_BYTES, each a row of this sweep's shape (`_store_row`), or one line naming the
+    file, the line and what is wrong. Only the last line may be cut (a kill while appending)."""
+
+    def __init__(self, path: Path, key: str, n_points: int) -> None:
+        from hilbench.limits import STORE_LINE_MAX_BYTES, STORE_MAX_BYTES, check_path_size
+
         self.path = path
         self.key = key
         self.done: dict[int, tuple[StepMetrics, bool, int]] = {}
-        if path.exists():
-            try:
-                lines = path.read_text(encoding="utf-8").splitlines()
-            except (OSError, UnicodeDecodeError) as exc:
-                raise RecordingError(f"sweep store {path}: unreadable ({exc})") from None
-            for n, line in enumerate(lines, 1):
-                try:
-                    row = json.loads(line)
-                except json.JSONDecodeError:
-                    if n == len(lines):
+        if not path.exists():
+            return
+        check_path_size(path, STORE_MAX_BYTES, RecordingError, f"sweep store {path}")
+        try:
+            with path.open("rb") as handle:
+                n = 0
+                while line := handle.readline(STORE_LINE_MAX_BYTES + 1):
+                    n += 1
+                    if len(line) > STORE_LINE_MAX_BYTES:
+                        raise RecordingError(f"sweep store {path}:{n}: a line longer than {STORE_LINE_MAX_BYTES} bytes")
+                    last = not line.endswith(b"\n") and not handle.peek(1)
+                    row = _store_line(path, n, line, last)
+                    if row is None:
                         break  # a line cut by a kill: the point runs again
-                    raise RecordingError(f"sweep store {path}:{n}: not a JSON line") from None
-                if row.get("key") != key:
-                    raise ConfigError(f"sweep store {path}: it holds another sweep (other config, test or points); "
-                                      "give a new file to start over")
-                self.done[int(row["index"])] = (StepMetrics(**row["metrics"]), bool(row["stalled"]), int(row["cases"]))
+                    if row.get("key") != key:
+                        raise ConfigError(f"sweep store {path}: it holds another sweep (other config, test or points); "
+                                          "give a new file to start over")
+                    index, metrics, stalled, cases = _store_row(path, n, row, n_points)
+                    self.done[index] = (metrics, stalled, cases)
+        except OSError as exc:
+            raise RecordingError(f"sweep store {path}: unreadable ({exc.strerror or exc})") from None
 
     def append(self, index: int, result: StepResult, cases: int) -> None:
         row = {"key": self.key, "index": index, "params": result.gains, "metrics": result.metrics.as_dict(),
@@ -250,6 +261,46 @@ class SweepStore:
                 handle.write(json.dumps(row) + "\n")
         except OSError as exc:
             raise RecordingError(f"sweep store {self.path}: cannot write ({exc.strerror})") from None
+
+
+def _store_line(path: Path, n: int, line: bytes, last: bool) -> dict[str, Any] | None:
+    """Line ``n`` as a JSON object; None for a last line cut short."""
+    try:
+        row = json.loads(line.decode("utf-8"))
+    except (UnicodeDecodeError, json.JSONDecodeError):
+        if last:
+            return None
+        raise RecordingError(f"sweep store {path}:{n}: not a JSON line") from None
+    except RecursionError:
+        raise RecordingError(f"sweep store {path}:{n}: nested too deep to be a sweep point") from None
+    if not isinstance(row, dict):
+        raise RecordingError(f"sweep store {path}:{n}: a JSON {type(row).__name__}, not a sweep point (an object)")
+    return row
+
+
+_METRIC_FIELDS = {f.name: f for f in dataclasses.fields(StepMetrics)}
+
+
+def _store_row(path: Path, n: int, row: dict[str, Any], n_points: int) -> tuple[int, StepMetrics, bool, int]:
+    """A stored point's (index, metrics, stalled, cases), each checked (RecordingError naming line n)."""
+    where = f"sweep store {path}:{n}"
+    index, stalled, cases, metrics = row.get("index"), row.get("stalled"), row.get("cases"), row.get("metrics")
+    if not isinstance(index, int) or isinstance(index, bool) or not 0 <= index < n_points:
+        raise RecordingError(f"{where}: index {str(index)[:20]} is not a point of this sweep (0..{n_points - 1})")
+    if not isinstance(stalled, bool):
+        raise RecordingError(f"{where}: stalled must be true or false")
+    if not isinstance(cases, int) or isinstance(cases, bool) or not 1 <= cases <= 1_000_000:
+        raise RecordingError(f"{where}: cases must be a whole number >= 1")
+    if not isinstance(metrics, dict) or set(metrics) != set(_METRIC_FIELDS):
+        raise RecordingError(f"{where}: metrics must hold exactly {', '.join(_METRIC_FIELDS)}")
+    for name, value in metrics.items():
+        optional = "None" in str(_METRIC_FIELDS[name].type)
+        number = isinstance(value, (int, float)) and not isinstance(value, bool)
+        if not (number or (optional and value is None)):
+            raise RecordingError(f"{where}: metrics {name} is {str(value)[:20]}, not a number")
+    if not isinstance(metrics["n_samples"], int):
+        raise RecordingError(f"{where}: metrics n_samples must be a whole number")
+    return index, StepMetrics(**metrics), stalled, cases
 
 
 def _sweep_key(cfg: BenchConfig, test: StepTest, points: Sequence[Params], tolerances: Tolerances, metric: str) -> str:
@@ -287,7 +338,7 @@ def sweep_points(
     check = _constraint_checker(profile, cfg.link.period_us)
     swept = [SweepPoint(tuple(p), check(tuple(p))) for p in points]
     cases = tolerances.cases()
-    saved = SweepStore(Path(store), _sweep_key(cfg, test, points, tolerances, key)) if store is not None else None
+    saved = SweepStore(Path(store), _sweep_key(cfg, test, points, tolerances, key), len(swept)) if store is not None else None
     run = _SweepRun(swept, len(cases), key, saved, progress)
     jobs = [(i, c, dict(swept[i].params)) for i in run.to_run() for c in range(len(cases))]
     with open_executor(executor, workers) as (pool, where):
