@@ -542,7 +542,7 @@ class Session:
         plant_api, target_core = getattr(self.plant, "span_api", None), getattr(self.target, "span_core", None)
         papi = plant_api() if plant_api is not None else None
         core = target_core() if target_core is not None else None
-        if papi is None or core is None:
+        if papi is None or core is None or self.target.step != core[1].step:  # a wrapper in front of the step: its own
             return None
         hello = self.hello
         assert hello is not None

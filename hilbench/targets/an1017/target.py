@@ -371,11 +371,9 @@ if _an1017core is not None:
             super().__init__(options, reference=reference, backend=backend)
             self.step = self.fw.step  # type: ignore[method-assign]  # no Python frame per period; it answers repeats itself
 
-        def span_core(self) -> tuple[Any, Any] | None:
-            """The C step the session's C span runs: (hbglue.h's target capsule, the core), or None
-            when `step` is not the core's own (a wrapper put in front of it)."""
-            if self.step != self.fw.step:
-                return None
+        def span_core(self) -> tuple[Any, Any]:
+            """The C step the session's C span runs: (hbglue.h's target capsule, the core whose
+            `step` it stands for)."""
             return _an1017core.SPAN_API, self.fw
 
         def _value(self, param_id: int) -> int:
