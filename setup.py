@@ -34,6 +34,12 @@ setup(
             extra_compile_args=_flags,
             optional=True,
         ),
+        Extension(  # CSV rows in C (Recorder._format_csv is the reference)
+            "hilbench.bench._csvrows",
+            sources=["hilbench/bench/_csvrows.c"],
+            extra_compile_args=_flags,
+            optional=True,
+        ),
         Extension(
             "hilbench.plant._plantcore",
             sources=["hilbench/plant/_plantcore.c"],
