@@ -83,10 +83,15 @@ static int fixed(char *out, double x, int prec)
     }
     char digits[48];
     int nd = 0;
-    do {
+    while (q >> 64) { /* rare: the 128-bit division is a library call */
         digits[nd++] = (char)('0' + (int)(q % 10u));
         q /= 10u;
-    } while (q != 0);
+    }
+    uint64_t q64 = (uint64_t)q;
+    do {
+        digits[nd++] = (char)('0' + (int)(q64 % 10u));
+        q64 /= 10u;
+    } while (q64 != 0);
     while (nd <= prec) digits[nd++] = '0'; /* at least one digit before the point */
     int len = 0;
     if (neg) out[len++] = '-';
@@ -102,7 +107,17 @@ static int cell(char *out, double x, const spec_t *sp)
 {
     if (sp->conv == 'd') {
         if (!isfinite(x) || fabs(x) >= 9.2e18) return -2; /* int(x): Python's own (or its error) */
-        return snprintf(out, CELL_MAX, "%lld", (long long)x);
+        long long v = (long long)x;
+        unsigned long long u = v < 0 ? 0ULL - (unsigned long long)v : (unsigned long long)v;
+        char digits[24];
+        int nd = 0, len = 0;
+        do {
+            digits[nd++] = (char)('0' + (int)(u % 10u));
+            u /= 10u;
+        } while (u != 0);
+        if (v < 0) out[len++] = '-';
+        while (nd > 0) out[len++] = digits[--nd];
+        return len;
     }
     if (sp->conv == 'f' && sp->prec <= 9 && isfinite(x) && fabs(x) < 9.2e18) return fixed(out, x, sp->prec);
     char *s = PyOS_double_to_string(x, sp->conv, sp->prec, 0, NULL);
