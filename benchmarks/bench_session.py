@@ -134,15 +134,17 @@ def measure_in(python: str, seconds: float) -> tuple[float, float, float]:
     return float(figures["rate"]), float(figures.get("loop_rate", "nan")), float(figures.get("cpu_rate", "nan"))
 
 
-def instructions_per_period(python: str, short_s: float = 0.2, long_s: float = 1.2) -> float:
-    """(a)'s CPU instructions per period under ``python``, counted by callgrind (deterministic)."""
+def instructions_per_period(python: str, short_s: float = 0.2, long_s: float = 1.2,
+                            what: str = "--measure-inprocess") -> float:
+    """(a)'s CPU instructions per period under ``python`` (``what="--measure-floor"``: the C
+    floor's), counted by callgrind (deterministic)."""
     totals = []
     env = dict(os.environ, OPENBLAS_NUM_THREADS="1", PYTHONHASHSEED="0")  # no BLAS threads spinning, fixed hashes
     with tempfile.TemporaryDirectory() as tmp:
         for seconds in (short_s, long_s):
             out = Path(tmp) / "callgrind.out"
             subprocess.run(["valgrind", "--tool=callgrind", f"--callgrind-out-file={out}", python, __file__,
-                            "--measure-inprocess", "--seconds", str(seconds)],
+                            what, "--seconds", str(seconds)],
                            capture_output=True, text=True, timeout=900, cwd=tmp, env=env, check=True)
             line = next(ln for ln in out.read_text().splitlines() if ln.startswith(("summary:", "totals:")))
             totals.append(int(line.split()[1]))
@@ -160,16 +162,23 @@ def main() -> None:
     parser.add_argument("--no-process", action="store_true",
                         help="leave out the process paths (emulator, SIL, raw echo): the in-process figures only")
     parser.add_argument("--measure-inprocess", action="store_true", help=argparse.SUPPRESS)
+    parser.add_argument("--measure-floor", action="store_true", help=argparse.SUPPRESS)
     args = parser.parse_args()
     if args.instructions:
         if shutil.which("valgrind") is None:
             parser.error("--instructions needs valgrind on PATH (apt-get install valgrind)")
         this = instructions_per_period(sys.executable)
+        floor = instructions_per_period(sys.executable, what="--measure-floor")
         print(f"(a) in-process with NPZ recording, CPU instructions per period (callgrind): this tree {this:,.0f}")
+        print(f"    C floor (plant + firmware C steps, no session): {floor:,.0f}")
+        print(f"ratio in-process NPZ / C floor (instructions, floor / NPZ): {floor / this:.2f}")
         if args.baseline_python:
             base = instructions_per_period(args.baseline_python)
             print(f"    baseline ({args.baseline_python}) {base:,.0f}; ratio {this / base:.3f} "
                   f"(below 1: fewer instructions than the baseline)")
+        return
+    if args.measure_floor:  # the C floor once (for --instructions)
+        print(json.dumps({"rate": c_floor("inprocess:an1017", args.seconds)}))
         return
     if args.measure_inprocess:  # one (a) figure for --baseline-python, as JSON
         with tempfile.TemporaryDirectory() as tmp:
