@@ -46,6 +46,9 @@ typedef struct {
     char adc_has[6];
     PyObject *noise;
     long long noise_i;
+    PyObject *noise_seen;      /* the block noise_data / noise_n describe (borrowed: compared only) */
+    const double *noise_data;  /* a float64 block's values (NULL: a list's items) */
+    Py_ssize_t noise_n;
     /* the exchange period (model.Plant.set_period) and the hall edges of the last one */
     double period_s, chunk_s, duty_scale;
     int chunks, n_edges;
@@ -561,6 +564,53 @@ static PyObject *Core_append_state(Core *s, PyObject *buf)
     Py_RETURN_NONE;
 }
 
+/* Where the noise block `_noise` keeps its values: a float64 array's in place (as _CPlant._draw_noise
+ * leaves it), or a list's items (Plant._draw_noise). noise_seen holds the block it describes (a
+ * reference: it cannot be freed and another take its address). 0, or -1 with an exception. */
+static int noise_locate(Core *s)
+{
+    Py_XSETREF(s->noise_seen, Py_XNewRef(s->noise));
+    s->noise_data = NULL;
+    s->noise_n = 0;
+    if (s->noise != NULL && PyList_Check(s->noise)) {
+        s->noise_n = PyList_GET_SIZE(s->noise);
+    } else if (s->noise != NULL && PyObject_CheckBuffer(s->noise)) {
+        Py_buffer view;
+        if (PyObject_GetBuffer(s->noise, &view, PyBUF_C_CONTIGUOUS | PyBUF_FORMAT) < 0) return -1;
+        if (view.itemsize == 8 && view.format != NULL && strcmp(view.format, "d") == 0) {
+            s->noise_data = (const double *)view.buf; /* numpy does not move an array's data while it lives */
+            s->noise_n = view.len / 8;
+        }
+        PyBuffer_Release(&view);
+    }
+    return 0;
+}
+
+/* The next standard-normal draw of the noise block, a new block drawn when it is used up. */
+static int noise_next(Core *s, double *g)
+{
+    if (s->noise != s->noise_seen && noise_locate(s) < 0) return -1;
+    if (s->noise_i >= s->noise_n) {
+        PyObject *blk = PyObject_CallMethodNoArgs((PyObject *)s, str_draw_noise);
+        if (blk == NULL) return -1;
+        Py_DECREF(blk);
+        if (noise_locate(s) < 0) return -1;
+        if (s->noise_n == 0) {
+            PyErr_SetString(PyExc_RuntimeError, "adc_codes: _draw_noise left no noise block");
+            return -1;
+        }
+        s->noise_i = 0;
+    }
+    if (s->noise_data != NULL) {
+        *g = s->noise_data[s->noise_i];
+    } else {
+        *g = PyFloat_AsDouble(PyList_GET_ITEM(s->noise, s->noise_i));
+        if (*g == -1.0 && PyErr_Occurred()) return -1;
+    }
+    s->noise_i += 1;
+    return 0;
+}
+
 /* The ADC code of one role (model.Plant.adc_codes): 0, or -1 with an exception. */
 static int adc_code(Core *s, long r, long *code)
 {
@@ -576,19 +626,8 @@ static int adc_code(Core *s, long r, long *code)
     v += s->adc_gain[r] * x;
     double nz = s->adc_nz[r];
     if (nz != 0.0) {
-        if (s->noise == NULL || !PyList_Check(s->noise) || s->noise_i >= PyList_GET_SIZE(s->noise)) {
-            PyObject *lst = PyObject_CallMethodNoArgs((PyObject *)s, str_draw_noise);
-            if (lst == NULL) return -1;
-            Py_DECREF(lst);
-            if (s->noise == NULL || !PyList_Check(s->noise) || PyList_GET_SIZE(s->noise) == 0) {
-                PyErr_SetString(PyExc_RuntimeError, "adc_codes: _draw_noise left no noise list");
-                return -1;
-            }
-            s->noise_i = 0;
-        }
-        double g = PyFloat_AsDouble(PyList_GET_ITEM(s->noise, s->noise_i));
-        if (g == -1.0 && PyErr_Occurred()) return -1;
-        s->noise_i += 1;
+        double g;
+        if (noise_next(s, &g) < 0) return -1;
         v += nz * g;
     }
     double c = floor(v + 0.5);
@@ -655,6 +694,7 @@ static void Core_dealloc(Core *s)
 {
     Py_CLEAR(s->last_edge_s);
     Py_CLEAR(s->noise);
+    Py_CLEAR(s->noise_seen);
     Py_TYPE(s)->tp_free((PyObject *)s);
 }
 
