@@ -240,9 +240,13 @@ class RowBuffer:
         if len(self):
             self.mark(len(self) - 1, value)
 
-    def columns(self) -> dict[str, np.ndarray]:
+    def columns(self, names: Sequence[str] | None = None) -> dict[str, np.ndarray]:
+        """Every column (or those named) of the pending rows as float64 arrays."""
         # a copy: a view into the bytearray would block its later resizing for as long as it lives
-        return self.layout.to_columns(bytes(self.data))
+        if names is None:
+            return self.layout.to_columns(bytes(self.data))
+        rows = self.layout._rows(bytes(self.data))
+        return {name: self.layout.to_column(rows, name) for name in names}
 
     def clear(self) -> None:
         del self.data[:]
@@ -718,10 +722,10 @@ class MemoryRecorder:
             self.event(final_note)
         self.closed = True
 
-    def columns(self) -> dict[str, np.ndarray]:
-        """Every column as an array, markers applied."""
+    def columns(self, names: Sequence[str] | None = None) -> dict[str, np.ndarray]:
+        """Every column (or those named: a step test's few) as an array, markers applied."""
         self.rows.settle(self.events)
-        return self.rows.columns()
+        return self.rows.columns(names)
 
 
 def _export_format(fmt: str, values: np.ndarray) -> str:
