@@ -62,13 +62,24 @@ LOCKSTEP_ISRS = ("_T2Interrupt", "_FLTAInterrupt", "_U1RXInterrupt")
 MARGIN_BYTES = 32
 
 
-@pytest.mark.parametrize("options", [(), ("-DHIL_DRIVE_BRIDGE", "-DHIL_LOCAL_POT"),
+@pytest.mark.parametrize("options", [(), ("-DHIL_LOCAL_POT",),
                                      ("-DAN1017_VARIANT=AN1017_VARIANT_V11",)], ids=["default", "options", "v11"])
 def test_dspic_port_compiles_warning_free(gcc: str, tmp_path: Path, options: tuple[str, ...]) -> None:
     for source in SOURCES:
         result = subprocess.run([gcc, *STRICT_FLAGS, "-Os", *DEFS, *options, "-c", str(source), "-o",
                                  str(tmp_path / (source.stem + ".o"))], capture_output=True, text=True, timeout=120)
         assert result.returncode == 0, result.stderr
+
+
+@pytest.mark.parametrize("options", [("-DHIL_DRIVE_BRIDGE",), ("-DHIL_DRIVE_BRIDGE", "-DHIL_LOCAL_POT")],
+                         ids=["bridge", "bridge+pot"])
+def test_dspic_port_refuses_to_drive_the_bridge_from_simulated_halls(gcc: str, tmp_path: Path,
+                                                                     options: tuple[str, ...]) -> None:
+    """Issue 24: HIL_DRIVE_BRIDGE without the motor's own halls would commutate a real motor from the
+    plant's simulated rotor; the port stops the compiler with #error."""
+    done = subprocess.run([gcc, *STRICT_FLAGS, "-Os", *DEFS, *options, "-c", str(PORT / "main.c"), "-o",
+                           str(tmp_path / "main.o")], capture_output=True, text=True, timeout=120)
+    assert done.returncode != 0 and "HIL_DRIVE_BRIDGE needs HIL_LOCAL_HALLS" in done.stderr, done.stderr
 
 
 def static_ram_bytes(gcc: str, tmp_path: Path) -> dict[str, int]:

@@ -10,9 +10,9 @@
  * - MCPWM: PTPER = 499, PTCON = 0x8002 (centre-aligned, 20 kHz), PWMCON1 = 0x0077 (three
  *   complementary pairs), PWMCON2 = 0x0F02 (OSYNC, IUE = 0: duties latch at the period boundary,
  *   SEVOPS 1:16), DTCON1 = 0x0010 (0.8 us dead time). The duties the firmware computes are written
- *   to PDC1..3, but OVDCON keeps all six outputs overridden inactive unless
- *   HIL_DRIVE_BRIDGE is defined: under the bench the plant is simulated and the power stage must
- *   stay off (no motor is connected, or one is, and must not be driven twice).
+ *   to PDC1..3, but OVDCON keeps all six outputs overridden inactive: under the bench the plant is
+ *   simulated and the power stage must stay off (no motor is connected, or one is, and must not be
+ *   driven twice). HIL_DRIVE_BRIDGE stops the compiler unless the halls come from the motor (below).
  * - FLTA (RE8, the board's over-current comparator): FLTACON = 0x0007 drives all pairs inactive on
  *   a fault, and its interrupt stops the firmware with state FAULT, fault OVERCURRENT.
  * - Timer1: Tcy/64, PR1 = 313 (1.0048 ms), the speed-loop tick in real-time mode.
@@ -38,6 +38,17 @@
 
 #if !defined(HRT_PORT_HW) || !HRT_PORT_HW
 #error "the dsPIC30F2010 port runs real time on the chip's interrupts: build it with -DHRT_PORT_HW=1"
+#endif
+
+/* Safety (docs/board.md, "Safety rules of each build"): the six MOSFETs may only be switched by a
+ * build that commutates from the motor's own hall sensors (RB3-RB5 through CN5/IC7/IC8). This port
+ * takes the halls from the bench's Sensors frames, i.e. from a simulated rotor: a real motor would be
+ * commutated from a model. No such build may exist, so the combination stops the compiler. */
+#if defined(HIL_DRIVE_BRIDGE) && !defined(HIL_LOCAL_HALLS)
+#error "HIL_DRIVE_BRIDGE needs HIL_LOCAL_HALLS: the bridge is never switched from the bench's simulated halls"
+#endif
+#if defined(HIL_LOCAL_HALLS)
+#error "HIL_LOCAL_HALLS (the real-motor mode: halls from RB3-RB5) is not implemented in this port yet (issue 24)"
 #endif
 
 #if defined(__XC16__)
