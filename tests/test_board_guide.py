@@ -20,6 +20,7 @@ import subprocess
 import sys
 import time
 from pathlib import Path
+from typing import IO
 
 import pytest
 
@@ -97,9 +98,8 @@ def _ready(process: subprocess.Popen[bytes], timeout_s: float = 120.0) -> str:
     pytest.fail(f"no 'ready' line from {process.args[0]}: {data[-300:]!r}")
 
 
-def _start(argv: list[str]) -> tuple[subprocess.Popen[bytes], str]:
-    process = spawn(argv, stdin=subprocess.DEVNULL, stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, bufsize=0,
-                    cwd=REPO)
+def _start(argv: list[str], stderr: int | IO[bytes] = subprocess.DEVNULL) -> tuple[subprocess.Popen[bytes], str]:
+    process = spawn(argv, stdin=subprocess.DEVNULL, stdout=subprocess.PIPE, stderr=stderr, bufsize=0, cwd=REPO)
     try:
         return process, _ready(process)
     except BaseException:
