@@ -65,8 +65,17 @@ def _cli(command: str, timeout: float) -> subprocess.CompletedProcess[str]:
                           timeout=timeout, cwd=REPO)
 
 
+#: what the page says a command does instead of passing (section 8: real time at 250 kbaud loses edges)
+EXPECTED_FAILURE = {
+    f"hilbench run --target {BOARD_PORT} --mode realtime --set link.period_us=1800": "hall edges are lost",
+}
+
+
 def _passes(command: str, done: subprocess.CompletedProcess[str]) -> None:
     text = done.stdout + done.stderr
+    if command in EXPECTED_FAILURE:
+        assert done.returncode == 9 and EXPECTED_FAILURE[command] in text, (command, text[-2500:])
+        return
     if "--mode realtime" in command and done.returncode == 9 and NOT_HELD in text:
         print(f"\n{command}: checks failed with real time not held by this host (allowed, see the module doc)")
         return
@@ -161,7 +170,7 @@ def test_board_guide_against_the_stand_ins(tmp_path: Path, monkeypatch) -> None:
             elif command == "python -m hilbench.targets.sil":
                 pass  # started above: it is the stand-in
             else:
-                real = command.replace(BOARD_PORT, f"serial:{sil_pty}").replace("/dev/pts/N", sil_pty)
+                real = command.replace(BOARD_PORT, f"serial:{sil_pty}?baud=250000").replace("/dev/pts/N", sil_pty)
                 real = real.replace("--record board.csv", f"--record {tmp_path / 'board.csv'}")
                 _passes(command, _cli(real, 600))
             ran.add(command)
