@@ -166,3 +166,31 @@ def test_dspic_port_ram_fits_512_bytes(gcc: str, tmp_path: Path, capsys) -> None
               f"+ stack bound {stack} B = {static + stack} of {DSPIC30F2010_RAM_BYTES} B (margin {MARGIN_BYTES} B "
               f"required); deepest main path {' > '.join(paths['main'][1])}")
     assert static + stack <= DSPIC30F2010_RAM_BYTES - MARGIN_BYTES
+
+
+def test_dspic_clock_counts_a_pending_timer2_overflow(gcc: str, tmp_path: Path) -> None:
+    """Issue 24: hrt_port_now() inside a priority-4 ISR, where the Timer2 overflow interrupt cannot
+    run yet: TMR2 has wrapped to a low value and T2IF is set, so the clock is one overflow later,
+    not 65 536 Tcy earlier (which could trip the watchdog). A high TMR2 read with T2IF set was read
+    before the overflow and stays as it is."""
+    harness = tmp_path / "clock.c"
+    harness.write_text(f'#define main port_main\n#include "{PORT / "main.c"}"\n#undef main\n' r'''
+#include <stdio.h>
+int main(void) {
+    tcy_high = 7u;
+    TMR2 = 0xFFF0u; IFS0bits.T2IF = 0;
+    printf("%lu\n", (unsigned long)hrt_port_now());
+    TMR2 = 0x0005u; IFS0bits.T2IF = 1;   /* wrapped, interrupt pending */
+    printf("%lu\n", (unsigned long)hrt_port_now());
+    TMR2 = 0xFFFEu; IFS0bits.T2IF = 1;   /* read before the wrap that set the flag */
+    printf("%lu\n", (unsigned long)hrt_port_now());
+    return 0;
+}
+''')
+    exe = tmp_path / "clock"
+    done = subprocess.run([gcc, "-std=c99", *DEFS, str(harness), *(str(s) for s in SOURCES[1:]),
+                           str(PORT / "hostcheck" / "sfr.c"), "-o", str(exe)], capture_output=True, text=True,
+                          timeout=120)
+    assert done.returncode == 0, done.stderr
+    lines = subprocess.run([str(exe)], capture_output=True, text=True, timeout=10, check=True).stdout.split()
+    assert [int(v) for v in lines] == [7 * 65536 + 0xFFF0, 8 * 65536 + 5, 7 * 65536 + 0xFFFE]

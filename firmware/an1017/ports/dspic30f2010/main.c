@@ -104,14 +104,23 @@ void hrt_port_unlock(void)
     }
 }
 
+/* Called from the main loop and from the priority-4 ISRs, where the Timer2 interrupt (the same
+ * priority) cannot run: an overflow may be pending, not yet counted in tcy_high. A low TMR2 read
+ * with T2IF set is after that overflow, so it counts here (else the time would step back 65 536 Tcy
+ * and could trip the watchdog). */
 uint32_t hrt_port_now(void)
 {
     uint16_t high;
     uint16_t low;
+    uint8_t pending;
     do {
         high = tcy_high;
         low = TMR2;
-    } while (high != tcy_high);
+        pending = (uint8_t)IFS0bits.T2IF;
+    } while (high != tcy_high); /* the Timer2 interrupt ran meanwhile: read again */
+    if (pending && low < 0x8000u) {
+        high = (uint16_t)(high + 1u); /* an overflow not yet served (a high TMR2 was read before it) */
+    }
     return ((uint32_t)high << 16) | low;
 }
 
