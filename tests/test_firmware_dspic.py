@@ -157,7 +157,7 @@ def stack_bound_bytes(tmp_path: Path) -> tuple[int, dict[str, tuple[int, list[st
 
 def test_dspic_port_ram_fits_512_bytes(gcc: str, tmp_path: Path, capsys) -> None:
     sizes = static_ram_bytes(gcc, tmp_path)
-    assert set(sizes) == {"fw", "host_link", "tcy_high", "realtime_on"}, sizes
+    assert set(sizes) == {"fw", "host_link", "tcy_high", "realtime_on", "s2_changed_at", "s2_raw_was"}, sizes
     static = sum(sizes.values())
     stack, paths = stack_bound_bytes(tmp_path)
     assert "hrt_link_handle" in paths["main"][1], paths["main"]  # the analysis found the frame path
@@ -194,3 +194,36 @@ int main(void) {
     assert done.returncode == 0, done.stderr
     lines = subprocess.run([str(exe)], capture_output=True, text=True, timeout=10, check=True).stdout.split()
     assert [int(v) for v in lines] == [7 * 65536 + 0xFFF0, 8 * 65536 + 5, 7 * 65536 + 0xFFFE]
+
+
+def test_dspic_board_s2_is_debounced(gcc: str, tmp_path: Path) -> None:
+    """Issue 24: the board's S2 contact bounces; a level counts once it held 20 ms (400 000 Tcy), so a
+    press with bounces on both edges toggles start/stop once for the press and once for the release."""
+    harness = tmp_path / "s2.c"
+    harness.write_text(f'#define main port_main\n#include "{PORT / "main.c"}"\n#undef main\n' r'''
+#include <stdio.h>
+int main(void) {
+    /* (time in us, raw pressed level): bounces at 0-3 ms, pressed until 100 ms, bounces at release */
+    static const unsigned long t_us[] = {0, 500, 900, 1500, 3000, 10000, 22000, 23100, 50000,
+                                         100000, 100400, 101000, 101300, 110000, 121400, 129900, 130500};
+    static const unsigned char raw[] = {1, 0, 1, 0, 1, 1, 1, 1, 1, 0, 1, 0, 1, 0, 0, 0, 0};
+    uint8_t level = 0u;
+    unsigned i;
+    for (i = 0u; i < sizeof raw; i++) {
+        if (s2_debounced(raw[i], (uint32_t)(t_us[i] * 20ul), &level)) {
+            printf("%lu:%u ", t_us[i], (unsigned)level);
+        }
+    }
+    printf("\n");
+    return 0;
+}
+''')
+    exe = tmp_path / "s2"
+    done = subprocess.run([gcc, "-std=c99", *DEFS, str(harness), *(str(s) for s in SOURCES[1:]),
+                           str(PORT / "hostcheck" / "sfr.c"), "-o", str(exe)], capture_output=True, text=True,
+                          timeout=120)
+    assert done.returncode == 0, done.stderr
+    out = subprocess.run([str(exe)], capture_output=True, text=True, timeout=10, check=True).stdout.split()
+    # pressed for good at 3 ms (the last bounce) -> counts at 23.1 ms, the first sample 20 ms later;
+    # released for good at 110 ms -> not at 129.9 ms (19.9 ms), at 130.5 ms
+    assert out == ["23100:1", "130500:0"]

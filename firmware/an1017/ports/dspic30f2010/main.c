@@ -213,6 +213,28 @@ void AN1017_ISR _FLTAInterrupt(void)
     write_outputs();
 }
 
+/* ---- the board's S2 (RC14, active low): a mechanical contact bounces for a few ms ---- */
+
+#define S2_STABLE_TCY 400000UL /* 20 ms at FCY = 20 MHz: a level must hold this long to count */
+
+static uint32_t s2_changed_at;
+static uint8_t s2_raw_was;
+
+/* Feed the raw pressed level and the time; returns 1 when the debounced level (*level) changed. */
+static uint8_t s2_debounced(uint8_t raw, uint32_t now, uint8_t *level)
+{
+    if (raw != s2_raw_was) {
+        s2_raw_was = raw;
+        s2_changed_at = now;
+        return 0u;
+    }
+    if (raw != *level && (uint32_t)(now - s2_changed_at) >= S2_STABLE_TCY) {
+        *level = raw;
+        return 1u;
+    }
+    return 0u;
+}
+
 /* ---- initialisation ---- */
 
 static void init_io(void)
@@ -275,7 +297,7 @@ static void init_adc(void)
 
 int main(void)
 {
-    uint8_t s2_board_was = 0u;
+    uint8_t s2_level = 0u;
     an1017_init(&fw, AN1017_VARIANT);
     hrt_link_init(&host_link, &fw.rt);
     init_io();
@@ -284,13 +306,12 @@ int main(void)
     init_adc();
     init_uart();
     for (;;) {
-        uint8_t s2_board = (uint8_t)(PORTCbits.RC14 == 0);
         hrt_link_poll(&host_link); /* lockstep spans, real-time inputs, parameters, the handshake, the watchdog */
-        if (s2_board != s2_board_was) { /* the board's own S2: released -> toggle, as main() does */
+        if (s2_debounced((uint8_t)(PORTCbits.RC14 == 0), hrt_port_now(), &s2_level)) {
+            /* the board's own S2: released -> toggle, as main() does */
             hrt_port_lock();
-            an1017_main_loop_buttons(&fw, (uint8_t)(s2_board ? AN1017_INPUT_S2 : 0u));
+            an1017_main_loop_buttons(&fw, (uint8_t)(s2_level ? AN1017_INPUT_S2 : 0u));
             hrt_port_unlock();
-            s2_board_was = s2_board;
         }
         hrt_port_lock(); /* a frame, the button or the watchdog may have changed the outputs */
         write_outputs();

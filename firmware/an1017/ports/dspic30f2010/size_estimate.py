@@ -173,9 +173,10 @@ def main(argv: list[str]) -> int:
             print(f"  {level}: {k.instructions} instructions ({k.code_bytes} B msp430 code), constants {k.const_bytes} B, "
                   f"data {k.data_bytes} B, bss {k.bss_bytes} B, library calls {', '.join(k.helpers) or 'none'} "
                   f"-> {words} words = {words * 3} B")
-    print(f"static RAM (msp430, 2-byte alignment as on the dsPIC): {k.data_bytes + k.bss_bytes} B of {ram_bytes} B; "
-          f"stack bound: tests/test_firmware_dspic.py")
-    print(f"flash estimate: {grouped(words * 3)} of {grouped(flash_bytes)} bytes = {100.0 * words * 3 / flash_bytes:.1f} %")
+    print(f"static RAM (msp430, 2-byte alignment as on the dsPIC): {k.data_bytes + k.bss_bytes} B of "
+          f"{ram_bytes} B; stack bound: tests/test_firmware_dspic.py")
+    percent = 100.0 * words * 3 / flash_bytes
+    print(f"flash estimate: {grouped(words * 3)} of {grouped(flash_bytes)} bytes = {percent:.1f} %")
     return 0
 
 
