@@ -546,10 +546,13 @@ class Session:
             return None
         hello = self.hello
         assert hello is not None
-        return _span.Span(plant=self.plant, plant_api=papi, core=core[1], target_api=core[0], roles=tuple(hello.adc_roles),
+        span = _span.Span(plant=self.plant, plant_api=papi, core=core[1], target_api=core[0], roles=tuple(hello.adc_roles),
                           edge_limit=self.options.period_us * 10 - 1, read_index=self.profile.has("encoder"), rows=rows,
                           n_telemetry=len(hello.telemetry_ids), host_ref=self._record_host_ref,
                           rtt_append=self.lockstep_rtts.append)
+        if rows is not None and self.recorder is not None and span.row_bytes != self.recorder.rows.struct.size:
+            return None  # a row the C span does not write (columns.OWN_FIELDS changed without _span.c)
+        return span
 
     def _periods_one_by_one(self, k: int, stop: int) -> int:
         """Periods [k, stop), each exchanged (in its wall-clock slot in real time): the readable
