@@ -97,3 +97,28 @@ def test_an_error_inside_a_span_leaves_what_the_python_loop_leaves(monkeypatch: 
         monkeypatch.undo()
     assert results[0][0] > 100
     assert results[0] == results[1]
+
+
+def test_a_plant_whose_sense_is_its_own_is_stepped_by_the_python_loop() -> None:
+    """An instance (or a subclass) with its own `sense` in front of the C core's: the C span would
+    read the C core's sensors past it, so the loop stays Python and records what the override reads."""
+    halls = []
+    for mode in ("c", "python"):
+        cfg = hilbench.load_config(None, ['link.target="inprocess:an1017"', "run.duration_s=0.1"])
+        with hilbench.Bench(cfg, scenario=True) as bench:
+            session = bench.session
+            assert isinstance(session, Session)
+            session.c_span = mode == "c"  # type: ignore[misc]
+            plant = session.plant
+            c_sense = plant.sense
+
+            def stuck_a(roles: tuple[int, ...], c_sense=c_sense) -> tuple:  # hall A stuck high at the sensor
+                hall, tripped, index, count, adc = c_sense(roles)
+                return hall | 1, tripped, index, count, adc
+
+            plant.sense = stuck_a  # type: ignore[method-assign]
+            assert plant.span_api() is None
+            bench.run()
+            halls.append(np.asarray(bench.signals()["hall"]))
+    assert np.all(halls[0] % 2 == 1)  # what the override reads, every period
+    assert np.array_equal(halls[0], halls[1])

@@ -1046,9 +1046,15 @@ if _plantcore is not None:
             return self._noise
 
         def span_api(self) -> Any:
-            """The C step the session's C span runs (hbglue.h's plant capsule), or None while an
-            actuation delay's queue sits in front of the period (its `advance` is Python then)."""
-            return _plantcore.SPAN_API if "advance" not in self.__dict__ else None
+            """The C step the session's C span runs (hbglue.h's plant capsule), or None while the
+            loop's `sense` or `advance` is not the C core's: an actuation delay's queue in front of
+            the period, or a subclass or an instance that put its own in their place (the C span
+            would step past them)."""
+            cls, mine = type(self), self.__dict__
+            if "advance" in mine or "sense" in mine or cls.advance is not _plantcore.Core.advance \
+                    or cls.sense is not _plantcore.Core.sense:
+                return None
+            return _plantcore.SPAN_API
 
         def __init__(self, params: PlantParams, seed: int = 0, *, substeps: int = DEFAULT_SUBSTEPS,
                      backend: str | None = None) -> None:
