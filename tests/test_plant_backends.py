@@ -4,6 +4,7 @@ and coast), LOW_SIDE, stiction and dead time, on both bench motors and for 1 and
 
 from __future__ import annotations
 
+import array
 import dataclasses
 import math
 from pathlib import Path
@@ -162,3 +163,36 @@ def test_the_hot_loop_calls_equal_the_attribute_reads_in_both_backends() -> None
             assert reading == (slow.hall_bits, slow.fault_input, slow.encoder_index, slow.encoder_count,
                                slow.adc_codes(roles)), f"{backend} period {k}"
         assert rows == expected and edges > 20
+
+
+@needs_c
+def test_a_noise_block_changed_in_place_reads_as_in_python() -> None:
+    """The C core reads the noise block where it lies (a float64 array's buffer, held exported; a
+    list's items, its length asked each draw): a list that shrinks, an index counted from the end
+    and a float64 block that cannot be resized under it give what Plant.adc_codes gives, never a stray read."""
+    params = plant_params_from_config(load_config(CONFIGS / "hurst_mclv.toml"))
+    noisy = (2,)  # the bus current: a noisy ADC channel in this config
+    out = []
+    for backend in ("python", "c"):
+        plant = Plant(params, seed=3, backend=backend)
+        codes = [plant.adc_codes(noisy)]
+        plant._noise = [0.5, -0.5, 1.5]
+        plant._noise_i = 0
+        codes.append(plant.adc_codes(noisy))
+        plant._noise.clear()  # the same list, now empty: a new block is drawn
+        codes.append(plant.adc_codes(noisy))
+        plant._noise = [2.0, -2.0, 3.0]
+        plant._noise_i = -2  # noise[-2]
+        codes.append(plant.adc_codes(noisy))
+        plant._noise_i = -9
+        with pytest.raises(IndexError):
+            plant.adc_codes(noisy)
+        plant._noise = block = array.array("d", [0.25, -1.25, 0.75, 1.0])
+        plant._noise_i = 0
+        codes.append(plant.adc_codes(noisy))
+        if backend == "c":  # the block the core reads in place cannot move under it
+            with pytest.raises(BufferError):
+                block.extend([0.0] * 4096)
+        codes.append(plant.adc_codes(noisy) + plant.adc_codes(noisy) + plant.adc_codes(noisy))
+        out.append((codes, plant._noise_i))
+    assert out[0] == out[1]

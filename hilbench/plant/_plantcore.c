@@ -46,9 +46,9 @@ typedef struct {
     char adc_has[6];
     PyObject *noise;
     long long noise_i;
-    PyObject *noise_seen;      /* the block noise_data / noise_n describe (borrowed: compared only) */
-    const double *noise_data;  /* a float64 block's values (NULL: a list's items) */
-    Py_ssize_t noise_n;
+    PyObject *noise_seen;      /* the block noise_view describes (a reference: compared only) */
+    Py_buffer noise_view;      /* a float64 block's values, held while it is the block (noise_held) */
+    int noise_held;            /* 0: the block is a list (its items read, its length asked each draw) */
     /* the exchange period (model.Plant.set_period) and the hall edges of the last one */
     double period_s, chunk_s, duty_scale;
     int chunks, n_edges;
@@ -565,50 +565,71 @@ static PyObject *Core_append_state(Core *s, PyObject *buf)
 }
 
 /* Where the noise block `_noise` keeps its values: a float64 array's in place (as _CPlant._draw_noise
- * leaves it), or a list's items (Plant._draw_noise). noise_seen holds the block it describes (a
- * reference: it cannot be freed and another take its address). 0, or -1 with an exception. */
+ * leaves it), or a list's items (Plant._draw_noise). The array's buffer stays exported while it is
+ * the block (nothing can resize or free its data under the pointer); a list's length is asked at
+ * every draw (the list may shrink). noise_seen holds the block it describes. 0, or -1. */
+static void noise_release(Core *s)
+{
+    if (s->noise_held) {
+        s->noise_held = 0;
+        PyBuffer_Release(&s->noise_view);
+    }
+}
+
 static int noise_locate(Core *s)
 {
+    noise_release(s);
     Py_XSETREF(s->noise_seen, Py_XNewRef(s->noise));
-    s->noise_data = NULL;
-    s->noise_n = 0;
-    if (s->noise != NULL && PyList_Check(s->noise)) {
-        s->noise_n = PyList_GET_SIZE(s->noise);
-    } else if (s->noise != NULL && PyObject_CheckBuffer(s->noise)) {
-        Py_buffer view;
-        if (PyObject_GetBuffer(s->noise, &view, PyBUF_C_CONTIGUOUS | PyBUF_FORMAT) < 0) return -1;
-        if (view.itemsize == 8 && view.format != NULL && strcmp(view.format, "d") == 0) {
-            s->noise_data = (const double *)view.buf; /* numpy does not move an array's data while it lives */
-            s->noise_n = view.len / 8;
+    if (s->noise != NULL && !PyList_Check(s->noise) && PyObject_CheckBuffer(s->noise)) {
+        Py_buffer *view = &s->noise_view;
+        if (PyObject_GetBuffer(s->noise, view, PyBUF_C_CONTIGUOUS | PyBUF_FORMAT) < 0) {
+            Py_CLEAR(s->noise_seen); /* looked at again next time */
+            return -1;
         }
-        PyBuffer_Release(&view);
+        if (view->itemsize == 8 && view->format != NULL && strcmp(view->format, "d") == 0) s->noise_held = 1;
+        else PyBuffer_Release(view);
     }
     return 0;
 }
 
-/* The next standard-normal draw of the noise block, a new block drawn when it is used up. */
+static Py_ssize_t noise_len(const Core *s)
+{
+    if (s->noise_held) return s->noise_view.len / 8;
+    return s->noise != NULL && PyList_Check(s->noise) ? PyList_GET_SIZE(s->noise) : 0;
+}
+
+/* The next standard-normal draw of the noise block, a new block drawn when it is used up; an index
+ * below 0 counts from the block's end, as Plant.adc_codes's `noise[i]`. */
 static int noise_next(Core *s, double *g)
 {
     if (s->noise != s->noise_seen && noise_locate(s) < 0) return -1;
-    if (s->noise_i >= s->noise_n) {
+    long long i = s->noise_i;
+    if (i >= noise_len(s)) {
         PyObject *blk = PyObject_CallMethodNoArgs((PyObject *)s, str_draw_noise);
         if (blk == NULL) return -1;
         Py_DECREF(blk);
         if (noise_locate(s) < 0) return -1;
-        if (s->noise_n == 0) {
+        if (noise_len(s) == 0) {
             PyErr_SetString(PyExc_RuntimeError, "adc_codes: _draw_noise left no noise block");
             return -1;
         }
-        s->noise_i = 0;
+        i = 0;
     }
-    if (s->noise_data != NULL) {
-        *g = s->noise_data[s->noise_i];
-    } else {
-        *g = PyFloat_AsDouble(PyList_GET_ITEM(s->noise, s->noise_i));
-        if (*g == -1.0 && PyErr_Occurred()) return -1;
+    Py_ssize_t n = noise_len(s);
+    long long at = i < 0 ? i + n : i;
+    s->noise_i = i + 1;
+    if (at < 0) {
+        PyErr_Format(PyExc_IndexError, "adc_codes: noise index %lld is outside the block of %zd", i, n);
+        return -1;
     }
-    s->noise_i += 1;
-    return 0;
+    if (s->noise_held) {
+        *g = ((const double *)s->noise_view.buf)[at];
+        return 0;
+    }
+    PyObject *item = Py_NewRef(PyList_GET_ITEM(s->noise, (Py_ssize_t)at)); /* its __float__ may change the list */
+    *g = PyFloat_AsDouble(item);
+    Py_DECREF(item);
+    return *g == -1.0 && PyErr_Occurred() ? -1 : 0;
 }
 
 /* The ADC code of one role (model.Plant.adc_codes): 0, or -1 with an exception. */
@@ -693,6 +714,7 @@ static PyObject *Core_new(PyTypeObject *type, PyObject *args, PyObject *kwds)
 static void Core_dealloc(Core *s)
 {
     Py_CLEAR(s->last_edge_s);
+    noise_release(s); /* before the block itself goes */
     Py_CLEAR(s->noise);
     Py_CLEAR(s->noise_seen);
     Py_TYPE(s)->tp_free((PyObject *)s);
