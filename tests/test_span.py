@@ -4,6 +4,7 @@ comparator's trip (its period goes back to Python), and an error inside a span."
 
 from __future__ import annotations
 
+import signal
 from pathlib import Path
 
 import numpy as np
@@ -122,3 +123,69 @@ def test_a_plant_whose_sense_is_its_own_is_stepped_by_the_python_loop() -> None:
             halls.append(np.asarray(bench.signals()["hall"]))
     assert np.all(halls[0] % 2 == 1)  # what the override reads, every period
     assert np.array_equal(halls[0], halls[1])
+
+
+def _bare_span(session: Session, rows: bytearray | None, rtt_append: object) -> object:
+    """A C span over this session's plant and target (no recorder's row check)."""
+    hello = session.hello
+    assert hello is not None
+    target_api, core = session.target.span_core()  # type: ignore[attr-defined]
+    return _span.Span(plant=session.plant, plant_api=session.plant.span_api(), core=core, target_api=target_api,
+                      roles=tuple(hello.adc_roles), edge_limit=session.options.period_us * 10 - 1,
+                      read_index=session.profile.has("encoder"), rows=rows, n_telemetry=len(hello.telemetry_ids),
+                      host_ref=False, rtt_append=rtt_append)
+
+
+@pytest.mark.skipif(not hasattr(signal, "setitimer"), reason="no interval timer here")
+def test_ctrl_c_ends_a_long_span_between_periods_with_no_python_inside_it() -> None:
+    """A span with no Python call in it (the servo's plant draws no noise, no round-trip sample)
+    still stops at Ctrl-C: at a period's start, its rows whole, as the Python loop stops."""
+    cfg = hilbench.load_config(SERVO, ['link.target="inprocess:foc"', "run.duration_s=0.01"])
+    with hilbench.Bench(cfg) as bench:
+        session = bench.session
+        assert isinstance(session, Session)
+        rows = bytearray()
+        span = _bare_span(session, rows, None)
+        stop = 5_000_000  # seconds of periods: the alarm comes long before the end
+
+        def interrupt(signum: int, frame: object) -> None:
+            raise KeyboardInterrupt
+
+        before = signal.signal(signal.SIGALRM, interrupt)
+        signal.setitimer(signal.ITIMER_REAL, 0.05)
+        try:
+            with pytest.raises(KeyboardInterrupt):
+                span.run(0, stop, 0, 0.0, None, None)  # type: ignore[attr-defined]
+        finally:
+            signal.setitimer(signal.ITIMER_REAL, 0.0)
+            signal.signal(signal.SIGALRM, before)
+        k = span.k  # type: ignore[attr-defined]
+        assert 0 < k < stop and k % 64 == 0  # at a period's start
+        assert len(rows) == k * span.row_bytes  # type: ignore[attr-defined]
+        assert span.drive is not None and span.drive[0] == (k - 1) & 0xFF  # type: ignore[attr-defined]
+
+
+def test_a_span_cannot_run_inside_itself_nor_uninitialised() -> None:
+    """A Python call inside a span (its round-trip sample) that runs the span again would resize the
+    rows under the running one: refused. A Span never initialised is refused, not dereferenced."""
+    with pytest.raises(RuntimeError, match="not initialised"):
+        _span.Span.__new__(_span.Span).run(0, 1, 0, 0.0, None, None)
+    cfg = hilbench.load_config(None, ['link.target="inprocess:an1017"', "run.duration_s=0.01"])
+    with hilbench.Bench(cfg) as bench:
+        session = bench.session
+        assert isinstance(session, Session)
+        rows = bytearray()
+        refused = []
+
+        def again(rtt_s: float) -> None:  # swallows the refusal: the outer run goes on
+            try:
+                span.run(10_000, 10_100, 0, 0.0, None, None)  # type: ignore[attr-defined]
+            except RuntimeError as exc:
+                refused.append(str(exc))
+
+        span = _bare_span(session, rows, again)
+        assert span.run(0, 200, 0, 0.0, None, None) == 200  # type: ignore[attr-defined]
+        assert len(refused) == 4 and "already running" in refused[0]  # periods 0, 64, 128, 192
+        assert len(rows) == 200 * span.row_bytes  # type: ignore[attr-defined]
+        size = span.row_bytes  # type: ignore[attr-defined]
+        assert [int.from_bytes(rows[i * size:i * size + 8], "little") for i in range(200)] == list(range(200))

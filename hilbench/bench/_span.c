@@ -30,6 +30,7 @@ typedef struct {
     long edge_limit;
     Py_ssize_t row_bytes;
     long long k;      /* where the last run stopped (the failing period after an exception) */
+    int running;      /* a run is in progress (a Python call inside it must not start another) */
     PyObject *edge_s; /* the last period's hall edge (None: none), as Plant.advance returns it */
     PyObject *drive;  /* the last Drive (the one given when the span stepped nothing) */
 } Span;
@@ -76,10 +77,27 @@ static double now_s(void)
 /* run(k, stop, buttons, ref_rpm, edge_s, drive) -> the period it stopped before: stop, or the first
  * period whose Sensors carry the comparator's trip. edge_s and drive are the members after it (also
  * after an exception, with k the failing period). */
+static PyObject *span_run(Span *s, PyObject *const *args, Py_ssize_t nargs);
+
 static PyObject *Span_run(Span *s, PyObject *const *args, Py_ssize_t nargs)
+{
+    if (s->running) { /* its rows buffer is resized under the running one's pointer otherwise */
+        PyErr_SetString(PyExc_RuntimeError, "Span.run: already running (called from inside a span)");
+        return NULL;
+    }
+    PyObject *out = span_run(s, args, nargs);
+    s->running = 0;
+    return out;
+}
+
+static PyObject *span_run(Span *s, PyObject *const *args, Py_ssize_t nargs)
 {
     if (nargs != 6) {
         PyErr_SetString(PyExc_TypeError, "Span.run(k, stop, buttons, ref_rpm, edge_s, drive)");
+        return NULL;
+    }
+    if (s->papi == NULL || s->tapi == NULL || s->plant == NULL || s->core == NULL) {
+        PyErr_SetString(PyExc_RuntimeError, "Span.run: the Span was not initialised (Span(plant, ...))");
         return NULL;
     }
     long long k = PyLong_AsLongLong(args[0]), stop = PyLong_AsLongLong(args[1]);
@@ -89,6 +107,7 @@ static PyObject *Span_run(Span *s, PyObject *const *args, Py_ssize_t nargs)
     int have_edge = args[4] != Py_None;
     double edge_s = have_edge ? PyFloat_AsDouble(args[4]) : 0.0;
     if (have_edge && edge_s == -1.0 && PyErr_Occurred()) return NULL;
+    s->running = 1;
     Py_XSETREF(s->edge_s, Py_NewRef(args[4]));
     Py_XSETREF(s->drive, Py_NewRef(args[5]));
     s->k = k;
@@ -105,6 +124,8 @@ static PyObject *Span_run(Span *s, PyObject *const *args, Py_ssize_t nargs)
     hb_csensors_t in;
     hb_cdrive_t d;
     for (; k < stop; k++) {
+        /* Ctrl-C between periods, as in the Python loop (not left to the Python calls a span may make) */
+        if (!(k & RTT_EVERY_MASK) && PyErr_CheckSignals() < 0) { failed = 1; break; }
         if (s->papi->fault_input(s->plant)) break; /* the trip is the Python loop's (it notes it) */
         if (s->papi->sense(s->plant, s->roles, s->n_roles, &ps) < 0) { failed = 1; break; }
         long inputs = ps.hall | buttons;
@@ -184,12 +205,16 @@ static int Span_init(Span *s, PyObject *args, PyObject *kwds)
     PyObject *plant, *papi, *core, *tapi, *roles, *rows, *rtt;
     long edge_limit;
     int read_index, n_tel, host_ref;
+    if (s->running) {
+        PyErr_SetString(PyExc_RuntimeError, "Span: cannot be initialised again while it runs");
+        return -1;
+    }
     if (!PyArg_ParseTupleAndKeywords(args, kwds, "OOOOOlpOipO:Span", kw, &plant, &papi, &core, &tapi, &roles,
                                      &edge_limit, &read_index, &rows, &n_tel, &host_ref, &rtt))
         return -1;
-    s->papi = PyCapsule_GetPointer(papi, HB_PLANT_API);
-    s->tapi = PyCapsule_GetPointer(tapi, HB_TARGET_API);
-    if (s->papi == NULL || s->tapi == NULL) return -1;
+    const hb_plant_api_t *plant_api = PyCapsule_GetPointer(papi, HB_PLANT_API);
+    const hb_target_api_t *target_api = PyCapsule_GetPointer(tapi, HB_TARGET_API);
+    if (plant_api == NULL || target_api == NULL) return -1;
     if (rows != Py_None && !PyByteArray_Check(rows)) {
         PyErr_SetString(PyExc_TypeError, "Span: rows must be a bytearray or None");
         return -1;
@@ -206,12 +231,17 @@ static int Span_init(Span *s, PyObject *args, PyObject *kwds)
         PyErr_Format(PyExc_ValueError, "Span: %zd ADC roles (at most %d)", n, HB_SPAN_MAX_ADC);
         return -1;
     }
+    int role[HB_SPAN_MAX_ADC];
     for (Py_ssize_t i = 0; i < n; i++) {
         long r = PyLong_AsLong(PySequence_Fast_GET_ITEM(seq, i));
         if (r == -1 && PyErr_Occurred()) { Py_DECREF(seq); return -1; }
-        s->roles[i] = (int)r;
+        role[i] = (int)r;
     }
     Py_DECREF(seq);
+    /* every argument is good: the members change together (a failed init leaves the old ones) */
+    s->papi = plant_api;
+    s->tapi = target_api;
+    memcpy(s->roles, role, sizeof(int) * (size_t)n);
     s->n_roles = (int)n;
     Py_XSETREF(s->plant, Py_NewRef(plant));
     Py_XSETREF(s->core, Py_NewRef(core));
