@@ -372,8 +372,14 @@ class Recorder:
         if self.is_npz:
             self.metadata["columns"] = [list(spec) for spec in self.rows.layout.column_specs]  # name, unit, CSV format
             tmp = self.path.with_name(self.path.name + ".tmp.npz")
-            _write_npz_from_journal(tmp, self._journal_path(), self.metadata)
-            os.replace(tmp, self.path)
+            try:
+                _write_npz_from_journal(tmp, self._journal_path(), self.metadata)
+                os.replace(tmp, self.path)
+            except (OSError, RecordingError) as exc:  # a full disk, a file size limit: the journal stays
+                tmp.unlink(missing_ok=True)
+                reason = (exc.strerror or str(exc)) if isinstance(exc, OSError) else str(exc)
+                raise RecordingError(f"recording {self.path}: the archive could not be written ({reason}); "
+                                     f"every row is kept in {self._journal_path()}") from None
             self._journal_path().unlink()
             _events_path(self._journal_path()).unlink(missing_ok=True)
 
