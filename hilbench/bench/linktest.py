@@ -20,7 +20,7 @@ from typing import Any, Callable, Sequence
 
 import numpy as np
 
-from hilbench.errors import LinkError, LinkTimeout
+from hilbench.errors import ConfigError, LinkError, LinkTimeout
 from hilbench.link import open_link, parse_target_spec
 from hilbench.processes import spawn
 from hilbench.protocol import INPUT_S3, MODE_LOCKSTEP, Sensors
@@ -91,7 +91,12 @@ class _Spawned:
                         "--port", str(self.link.peer_path), *emulate_args]
             else:
                 argv = [program, str(self.link.peer_path)]
-            self.proc = spawn(argv, stdout=subprocess.PIPE, stderr=subprocess.PIPE, stdin=subprocess.DEVNULL)
+            try:
+                self.proc = spawn(argv, stdout=subprocess.PIPE, stderr=subprocess.PIPE, stdin=subprocess.DEVNULL)
+            except OSError as exc:  # exec:PATH with nothing runnable there: as `sil:PATH` says it
+                what = f"exec:{program}: no program to run there" if program is not None else \
+                    f"link {self.link.name}: cannot start the {target_name} emulator"
+                raise ConfigError(f"{what} ({exc.strerror or exc})") from None
             if program is None:
                 self._wait_ready()
         except BaseException:
