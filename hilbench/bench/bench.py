@@ -16,6 +16,7 @@ and every action is an event in the recording.
 from __future__ import annotations
 
 import dataclasses
+import json
 import math
 import os
 import subprocess
@@ -73,7 +74,7 @@ def as_config(config: BenchConfig | str | os.PathLike[str] | None, target: str |
         if not target and not overrides:
             return config
         raise ConfigError("Bench: give target= and overrides= with a config path, not with a loaded BenchConfig")
-    extra = list(overrides) + ([f'link.target="{target}"'] if target else [])
+    extra = list(overrides) + ([f"link.target={json.dumps(target)}"] if target else [])  # a TOML string, escaped
     return load_config(config, extra)
 
 
