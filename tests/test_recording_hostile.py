@@ -130,3 +130,19 @@ def test_the_recordings_read_back_whole(recorded: dict[str, Path]) -> None:
     a, b = read_recording(recorded["csv"]), read_recording(recorded["npz"])
     assert a.n_rows == b.n_rows == 400
     np.testing.assert_allclose(a.columns["speed_rpm"], b.columns["speed_rpm"], atol=1e-3)
+
+
+def test_a_damaged_row_in_the_middle_of_a_csv_is_refused_not_cut(recorded: dict[str, Path], tmp_path: Path) -> None:
+    """Only the last row may be cut (a crash while writing it): a row that lost a value with rows
+    after it used to end the reading there, silently dropping every later row."""
+    whole = recorded["csv"].read_text().splitlines(keepends=True)
+    rows = [n for n, line in enumerate(whole) if line[:1].isdigit() or line[:1] == "-"]
+    middle = rows[len(rows) // 2]
+    lines = list(whole)
+    lines[middle] = lines[middle].rsplit(",", 1)[0] + "\n"
+    damaged = tmp_path / "damaged.csv"
+    damaged.write_text("".join(lines))
+    assert_one_line_error(run_hilbench("report", str(damaged)), 6, "damaged.csv", f"line {middle + 1}:", "rows follow")
+    torn = tmp_path / "torn.csv"  # a crash's cut: the last row without its end, every earlier row stands
+    torn.write_text("".join(whole[:rows[-1]]) + whole[rows[-1]][:7])
+    assert read_recording(torn).n_rows == len(rows) - 1

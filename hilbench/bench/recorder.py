@@ -542,16 +542,21 @@ def _read_csv(path: Path) -> RecordingData:
     block: list[list[float]] = []
     names: list[str] | None = None
     units: dict[str, str] = {}
+    torn: tuple[int, int] | None = None  # (line, cells) of a row cut by a crash: only the last row may be
     with open(path, encoding="utf-8") as handle:
-        for line in _csv_lines(handle, path):
+        for n, line in enumerate(_csv_lines(handle, path), 1):
             if _csv_comment(line, metadata, events):
                 continue
             if names is None:
                 names, units = _csv_header(path, line)
                 continue
+            if torn is not None:  # rows after a damaged one: not a crash's cut, the file is damaged
+                raise RecordingError(f"recording {path}: line {torn[0]}: a row of {torn[1]} values, the header names "
+                                     f"{len(names)}, and rows follow it")
             cells = line.rstrip("\n").split(",")
             if len(cells) != len(names) or not line.endswith("\n"):
-                break  # a row cut by a crash: everything before it stands
+                torn = (n, len(cells))  # a row cut by a crash: everything before it stands
+                continue
             block.append([float(cell) for cell in cells])
             if len(block) >= 4096:  # rows into arrays as they come: a list of floats is 4x their size
                 blocks.append(np.asarray(block, dtype=float))
