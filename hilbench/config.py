@@ -154,6 +154,8 @@ class _Section:
     many: bool  # an array of tables
     #: a table whose dataclass depends on the others (the [target] table: the target's options)
     chooser: Callable[[Mapping[str, Any]], type | None] | None = None
+    #: the tables the chooser reads: when one of them is wrong, this one is not judged (its dataclass is unknown)
+    needs: tuple[str, ...] = ()
 
 
 @dataclass(frozen=True)
@@ -164,15 +166,18 @@ class Sections:
     tables: Mapping[str, _Section] = field(default_factory=lambda: types.MappingProxyType({}))
 
     def with_table(self, name: str, cls: type | None, *, required: bool = False, many: bool = False,
-                   chooser: Callable[[Mapping[str, Any]], type | None] | None = None) -> "Sections":
+                   chooser: Callable[[Mapping[str, Any]], type | None] | None = None,
+                   needs: tuple[str, ...] = ()) -> "Sections":
         """These tables and `[name]` (or `[[name]]` when many) validated into dataclass `cls`.
 
         Optional tables are built from the dataclass defaults when absent (all fields need one).
         With ``chooser`` the dataclass is chosen after every other table is built (None: the table
-        must be absent, and the section is None)."""
+        must be absent, and the section is None), from the tables ``needs`` names: when one of them
+        has a problem (reported), this table is not judged against a dataclass chosen without it."""
         if chooser is None and not dataclasses.is_dataclass(cls):
             raise TypeError(f"Sections.with_table {name!r}: {cls!r} is not a dataclass")
-        return Sections(types.MappingProxyType({**self.tables, name: _Section(name, cls, required, many, chooser)}))
+        section = _Section(name, cls, required, many, chooser, tuple(needs))
+        return Sections(types.MappingProxyType({**self.tables, name: section}))
 
     def __contains__(self, name: object) -> bool:
         return name in self.tables
@@ -618,6 +623,8 @@ def _check_integrator(built: Mapping[str, Any], col: _Collector) -> None:
 def _build_chosen(sec: _Section, data: Mapping[str, Any], built: dict[str, Any], col: _Collector) -> None:
     """Build a table whose dataclass the other tables choose (the target's options)."""
     assert sec.chooser is not None
+    if any(name not in built for name in sec.needs):  # a table it is chosen by is wrong (and reported)
+        return
     try:
         cls = sec.chooser(built)
     except ConfigError as exc:  # the chooser names the table at fault

@@ -137,7 +137,7 @@ SECTIONS = (
     .with_table("tuning", TuningSection)
     .with_table("run", RunSection)
     .with_table("link", LinkSection)
-    .with_table("target", None, chooser=_target_options_type)
+    .with_table("target", None, chooser=_target_options_type, needs=("link",))
     .with_table("scenario", ScenarioEntry, many=True)
     .with_table("check", CheckEntry, many=True)  # pass/fail criteria of a run (hilbench.bench.checks)
 )
