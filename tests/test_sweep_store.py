@@ -6,6 +6,7 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 from _hostile import assert_one_line_error, hilbench
@@ -87,3 +88,34 @@ def test_a_store_beyond_its_limit(tmp_path: Path, monkeypatch: pytest.MonkeyPatc
     store.write_text(_row())
     with pytest.raises(RecordingError, match="more than the limit of 100 bytes"):
         SweepStore(store, "K", 1)
+
+
+def test_a_resume_after_a_cut_line_appends_on_a_line_of_its_own(tmp_path: Path) -> None:
+    """A kill while a row was appended leaves the last line cut; the resumed sweep's rows used to be
+    appended to it ('{"key": "K", "ind{"key": ...}'), so the store was refused at the next resume
+    ("not a JSON line"). The cut line goes; the point it held runs again."""
+    from hilbench.bench.steptest import StepResult
+
+    store = tmp_path / "s.jsonl"
+    store.write_text(_row() + '{"key": "K", "ind')  # killed while appending point 1
+    resumed = SweepStore(store, "K", 3)
+    assert sorted(resumed.done) == [0]
+    metrics = resumed.done[0][0]
+    for index in (1, 2):  # the resumed sweep finishes its points
+        resumed.append(index, StepResult("x", {"kp": 0.2}, metrics, np.empty(0), np.empty(0)), 1)
+    again = SweepStore(store, "K", 3)  # a second resume (or a look at the store) reads every point
+    assert sorted(again.done) == [0, 1, 2]
+    assert all(json.loads(line)["key"] == "K" for line in store.read_text().splitlines())
+
+
+def test_a_resume_after_a_whole_last_row_without_its_newline_starts_a_new_line(tmp_path: Path) -> None:
+    """The kill fell between a row and its newline: the row counts, and the next one still gets a
+    line of its own."""
+    from hilbench.bench.steptest import StepResult
+
+    store = tmp_path / "s.jsonl"
+    store.write_text(_row() + _row(index=1).rstrip("\n"))
+    resumed = SweepStore(store, "K", 3)
+    assert sorted(resumed.done) == [0, 1]
+    resumed.append(2, StepResult("x", {"kp": 0.2}, resumed.done[0][0], np.empty(0), np.empty(0)), 1)
+    assert sorted(SweepStore(store, "K", 3).done) == [0, 1, 2]

@@ -18,6 +18,7 @@ import hashlib
 import itertools
 import json
 import math
+import os
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Callable, Iterable, Sequence
@@ -231,6 +232,10 @@ class SweepStore:
         self.path = path
         self.key = key
         self.done: dict[int, tuple[StepMetrics, bool, int]] = {}
+        #: where a last line cut by a kill starts (removed before the first append), and whether the
+        #: last line, whole, lacks its newline: appended rows must start a line of their own
+        self._cut_at: int | None = None
+        self._newline_first = False
         if not path.exists():
             return
         check_path_size(path, STORE_MAX_BYTES, RecordingError, f"sweep store {path}")
@@ -244,7 +249,9 @@ class SweepStore:
                     last = not line.endswith(b"\n") and not handle.peek(1)
                     row = _store_line(path, n, line, last)
                     if row is None:
+                        self._cut_at = handle.tell() - len(line)
                         break  # a line cut by a kill: the point runs again
+                    self._newline_first = last
                     if row.get("key") != key:
                         raise ConfigError(f"sweep store {path}: it holds another sweep (other config, test or points); "
                                           "give a new file to start over")
@@ -256,9 +263,13 @@ class SweepStore:
     def append(self, index: int, result: StepResult, cases: int) -> None:
         row = {"key": self.key, "index": index, "params": result.gains, "metrics": result.metrics.as_dict(),
                "stalled": result.stalled, "cases": cases}
+        text = ("\n" if self._newline_first else "") + json.dumps(row) + "\n"
         try:
+            if self._cut_at is not None:
+                os.truncate(self.path, self._cut_at)
             with self.path.open("a", encoding="utf-8") as handle:
-                handle.write(json.dumps(row) + "\n")
+                handle.write(text)
+            self._cut_at, self._newline_first = None, False
         except OSError as exc:
             raise RecordingError(f"sweep store {self.path}: cannot write ({exc.strerror})") from None
 
