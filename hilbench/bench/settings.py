@@ -9,6 +9,8 @@ a whole — plant and bench tables together, every problem at once. `load_config
 from __future__ import annotations
 
 import difflib
+import json
+import math
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Literal, Sequence
@@ -225,7 +227,22 @@ def params_file_overrides(path: str) -> tuple[str, ...]:
     table = data.get("target")
     if not isinstance(table, dict) or not table:
         raise ConfigError(f"{path}: no [target] table with parameters (write one with `hilbench ctl save`)")
-    return tuple(f"target.{k}={v!r}" for k, v in table.items())
+    return tuple(f"target.{k}={_toml_value(v)}" for k, v in table.items())
+
+
+def _toml_value(value: object) -> str:
+    """A value read from TOML written back as TOML (`repr` wrote True for true: a string to the loader)."""
+    if isinstance(value, bool):
+        return "true" if value else "false"
+    if isinstance(value, float) and not math.isfinite(value):
+        return "nan" if math.isnan(value) else ("inf" if value > 0 else "-inf")
+    if isinstance(value, (int, float)):
+        return repr(value)
+    if isinstance(value, list):
+        return "[" + ", ".join(_toml_value(v) for v in value) + "]"
+    if isinstance(value, dict):
+        return "{" + ", ".join(f"{json.dumps(str(k))} = {_toml_value(v)}" for k, v in value.items()) + "}"
+    return json.dumps(str(value))  # a string (TOML's basic strings take JSON's escapes)
 
 
 def scenario_events(cfg: BenchConfig) -> tuple[Event, ...]:
