@@ -146,3 +146,17 @@ def test_a_damaged_row_in_the_middle_of_a_csv_is_refused_not_cut(recorded: dict[
     torn = tmp_path / "torn.csv"  # a crash's cut: the last row without its end, every earlier row stands
     torn.write_text("".join(whole[:rows[-1]]) + whole[rows[-1]][:7])
     assert read_recording(torn).n_rows == len(rows) - 1
+
+
+@pytest.mark.parametrize("value", [np.nan, np.inf])
+def test_a_fault_row_whose_seq_is_not_a_number(recorded: dict[str, Path], tmp_path: Path, value: float) -> None:
+    """Repro: `report` on a recording whose fault row has seq NaN (or infinity) ended in a traceback
+    (ValueError/OverflowError converting it to the fault row's number); seq and marker are whole
+    numbers in every row the recorder writes."""
+    from hilbench.bench.recorder import MARKER_FAULT
+
+    arrays = _npz_arrays(recorded["npz"])
+    arrays["marker"][50] = MARKER_FAULT
+    arrays["seq"][50] = value
+    path = _save(tmp_path / "seq.npz", arrays)
+    assert_one_line_error(run_hilbench("report", str(path)), 6, "seq.npz", f"seq is {value} at row 50")
