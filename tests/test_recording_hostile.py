@@ -160,3 +160,16 @@ def test_a_fault_row_whose_seq_is_not_a_number(recorded: dict[str, Path], tmp_pa
     arrays["seq"][50] = value
     path = _save(tmp_path / "seq.npz", arrays)
     assert_one_line_error(run_hilbench("report", str(path)), 6, "seq.npz", f"seq is {value} at row 50")
+
+
+def test_a_segment_event_beyond_any_period(recorded: dict[str, Path], tmp_path: Path) -> None:
+    """Repro (a seeded fuzz of report's inputs): a `segment:` event at 1e308 s (finite, so the event
+    check let it by) ended `report` in an OverflowError traceback rounding its period index."""
+    arrays = _npz_arrays(recorded["npz"])
+    metadata = json.loads(str(arrays["metadata"]))
+    metadata["events"] = ["segment: ref at 1e308 ref 2000.0 ramp 0.0", *metadata.get("events", [])]
+    arrays["metadata"] = np.asarray(json.dumps(metadata))
+    path = _save(tmp_path / "far.npz", arrays)
+    result = run_hilbench("report", str(path), "--json")
+    assert result.returncode == 0 and "Traceback" not in result.stderr, result.stderr[-2000:]
+    assert json.loads(result.stdout)["rows"] == read_recording(recorded["npz"]).n_rows
