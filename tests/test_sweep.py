@@ -186,3 +186,20 @@ def test_refinement_zooms_around_the_best_point_and_keeps_every_round() -> None:
     thrice = refine(cfg, box, SHORT, rounds=3, workers=1)
     assert len(thrice.points) > len(once.points)
     assert thrice.best.result.metrics.itae <= once.best.result.metrics.itae
+
+
+def test_a_failed_task_cancels_the_queued_ones() -> None:
+    """A sweep whose task fails (a diverged plant, a lost target) stops there: the tasks still
+    queued are cancelled, not run first (a 800-point sweep reported its first task's error after
+    every other task had run)."""
+    import time
+
+    from hilbench.bench.executors import open_executor
+
+    queued = []
+    with pytest.raises(ValueError):
+        with open_executor("local", 2) as (pool, _):
+            failing = pool.submit(int, "not a number")
+            queued = [pool.submit(time.sleep, 0.05) for _ in range(400)]  # 10 s of work for two workers
+            failing.result()
+    assert sum(f.cancelled() for f in queued) > 300
