@@ -34,6 +34,12 @@ class Case:
     config: str | None = None  # repository-relative; None: the packaged default
     scenario: str | None = None  # repository-relative scenario file
     tools: tuple[str, ...] = ()  # system tools the target needs (gcc for sil:)
+    same_as: str | None = None  # a target 730876f did not have: it must record that case's digests
+
+    @property
+    def golden_name(self) -> str:
+        """The case in recordings.json this one is held to."""
+        return self.same_as or self.name
 
     def argv(self, record: Path) -> list[str]:
         argv = [sys.executable, "-m", "hilbench", "run"]
@@ -56,6 +62,8 @@ CASES: tuple[Case, ...] = (
     Case("random-sil", "sil:an1017", scenario=RANDOM, tools=("gcc",)),
     Case("servo-inprocess", "inprocess:foc", config=SERVO),
     Case("servo-emulator", "emulator:foc", config=SERVO),
+    # the FOC firmware in C came after 730876f: its SIL build is held to 730876f's in-process servo
+    Case("servo-sil", "sil:foc", config=SERVO, tools=("gcc",), same_as="servo-inprocess"),
 )
 
 
