@@ -78,6 +78,14 @@ def closed_loop(spec: str, seconds: float, record_dir: str, fmt: str) -> tuple[f
             summary.periods / cpu if cpu > 0 else float("nan"))
 
 
+def warm_up(record_dir: str) -> None:
+    """A short run first, so the timed one holds no first-run costs: modules a run imports lazily
+    (the NPZ writer at the close) are compiled from source at each run where no bytecode is cached
+    (PYTHONDONTWRITEBYTECODE=1 on an editable tree, against a pip-installed baseline with its .pyc:
+    ~14 ms of a 1 s run's ~100 ms), and the first run's page faults."""
+    closed_loop("inprocess:an1017", 0.01, record_dir, "npz")
+
+
 def measure_in(python: str, seconds: float) -> tuple[float, float, float]:
     """(a) measured by another interpreter (another hilbench installation) running this file:
     (periods/s with the recording's close, periods/s of the loop alone, periods per CPU second)."""
@@ -124,6 +132,7 @@ def main() -> None:
         return
     if args.measure_inprocess:  # one (a) figure for --baseline-python, as JSON
         with tempfile.TemporaryDirectory() as tmp:
+            warm_up(tmp)
             rate, _, loop_rate, cpu_rate = closed_loop("inprocess:an1017", args.seconds, tmp, "npz")
             print(json.dumps({"rate": rate, "loop_rate": loop_rate, "cpu_rate": cpu_rate}))
         return
@@ -146,6 +155,7 @@ def main() -> None:
     rates: dict[str, list[float]] = {"inproc_npz": [], "inproc_npz_loop": [], "inproc_csv": [], "pty": [], "raw": []}
     backend = "?"
     with tempfile.TemporaryDirectory() as tmp:
+        warm_up(tmp)
         for _ in range(args.repeats):  # interleaved, so drifts in machine load hit every figure alike
             rate, backend, loop_rate, _ = closed_loop("inprocess:an1017", args.seconds, tmp, "npz")
             rates["inproc_npz"].append(rate)
