@@ -409,7 +409,8 @@ def _write_npz_from_journal(path: Path, journal: Path, metadata: dict[str, Any])
                 if handle.readinto(view) != len(view):  # the journal is read in order, once
                     raise RecordingError(f"recording {journal}: shorter than it was a moment ago")
                 rows = np.frombuffer(view, dtype=layout.dtype, count=count)
-                archive.write(first, {name: layout.to_column(rows, name) for name in names})
+                for name in names:  # one column alive at a time: its block is reused, not a chunk's worth
+                    archive.write(first, {name: layout.to_column(rows, name)})
                 del rows
             archive.add("metadata", np.asarray(json.dumps(metadata, default=str)))
 
