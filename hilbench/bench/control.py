@@ -446,12 +446,19 @@ def list_sessions(directory: Path | None = None) -> list[SessionInfo]:
 def clean_stale(directory: Path | None = None, temp_base: Path | None = None) -> int:
     """Remove what killed sessions left: discovery files of dead processes and ``hilbench-ctl-*``
     directories (ours) whose socket nobody listens on. Returns how many things were removed."""
-    removed = 0
-    d = directory or sessions_dir()
+    runtime = os.environ.get("XDG_RUNTIME_DIR")
+    bases = {temp_base} if temp_base is not None else {Path(tempfile.gettempdir())} | (
+        {Path(runtime)} if runtime and os.path.isdir(runtime) else set())
+    return _clean_stale_files(directory or sessions_dir()) + sum(_clean_stale_dirs(base) for base in bases)
+
+
+def _clean_stale_files(directory: Path) -> int:
+    """Discovery files (trusted ones) whose process is gone."""
     try:
-        files = list(d.glob("*.session"))
+        files = list(directory.glob("*.session"))
     except OSError:
-        files = []
+        return 0
+    removed = 0
     for f in files:
         if not _trusted_file(f):
             continue
@@ -462,31 +469,38 @@ def clean_stale(directory: Path | None = None, temp_base: Path | None = None) ->
                 removed += 1
             except OSError:
                 pass
-    runtime = os.environ.get("XDG_RUNTIME_DIR")
-    bases = {temp_base} if temp_base is not None else {Path(tempfile.gettempdir())} | (
-        {Path(runtime)} if runtime and os.path.isdir(runtime) else set())
-    for base in bases:
+    return removed
+
+
+def _clean_stale_dirs(base: Path) -> int:
+    """Our ``hilbench-ctl-*`` directories under ``base`` whose socket nobody listens on."""
+    try:
+        candidates = list(base.glob("hilbench-ctl-*"))
+    except OSError:
+        return 0
+    removed = 0
+    for cand in candidates:
         try:
-            candidates = list(base.glob("hilbench-ctl-*"))
+            if not _stale_ctl_dir(cand):
+                continue
+            for child in cand.iterdir():
+                child.unlink()
+            cand.rmdir()
+            removed += 1
         except OSError:
             continue
-        for cand in candidates:
-            try:
-                st = cand.lstat()
-                if not stat.S_ISDIR(st.st_mode) or st.st_uid != os.getuid():
-                    continue
-                sock = cand / SOCKET_NAME
-                if sock.exists() and _listening(sock):
-                    continue
-                if time.time() - st.st_mtime < 2.0 and not sock.exists():
-                    continue  # a server being set up right now
-                for child in cand.iterdir():
-                    child.unlink()
-                cand.rmdir()
-                removed += 1
-            except OSError:
-                continue
     return removed
+
+
+def _stale_ctl_dir(cand: Path) -> bool:
+    """A directory of ours with no listener on its socket, and not one being set up right now."""
+    st = cand.lstat()
+    if not stat.S_ISDIR(st.st_mode) or st.st_uid != os.getuid():
+        return False
+    sock = cand / SOCKET_NAME
+    if sock.exists() and _listening(sock):
+        return False
+    return not (time.time() - st.st_mtime < 2.0 and not sock.exists())  # else a server being set up
 
 
 def read_discovery(discovery_file: Path | None = None) -> Path:

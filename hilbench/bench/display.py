@@ -22,7 +22,7 @@ import math
 import time
 from collections import deque
 from dataclasses import dataclass
-from typing import TYPE_CHECKING, Any, Mapping, Sequence
+from typing import TYPE_CHECKING, Any, Callable, Mapping, Sequence
 
 import numpy as np
 
@@ -117,7 +117,7 @@ class DisplayStream:
 
     def __init__(self, session: "Session", *, bucket_periods: int = BUCKET_PERIODS,
                  max_frame_buckets: int = MAX_FRAME_BUCKETS, take_every_s: float = TAKE_EVERY_S,
-                 clock: Any = time.perf_counter) -> None:
+                 clock: Callable[[], float] = time.perf_counter) -> None:
         self.session = session
         self.bucket_periods = bucket_periods
         self.max_frame_buckets = max_frame_buckets

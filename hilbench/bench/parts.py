@@ -23,7 +23,7 @@ from hilbench.protocol import Drive, Input
 
 if TYPE_CHECKING:
     from hilbench.bench.control import ControlRequest
-    from hilbench.bench.session import Session
+    from hilbench.bench.session import ControlSource, Session
 
 INPUT_S2 = int(Input.S2)
 INPUT_S3 = int(Input.S3)
@@ -204,7 +204,7 @@ class LivePart:
     """Every history period while it has work: the guard's look after a tuning change, `ctl step`
     in progress, the control socket's requests (every observe period)."""
 
-    def __init__(self, session: "Session", control: Any) -> None:
+    def __init__(self, session: "Session", control: "ControlSource | None") -> None:
         self.session = session
         self.control = control
         self.steps: list[CtlStep] = []

@@ -17,7 +17,7 @@ from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn
 from rich.table import Table
 from rich.text import Text
 
-from hilbench.bench.session import Snapshot, Summary
+from hilbench.bench.session import Session, Snapshot, Summary
 
 STATE_NAMES = {0: "STOPPED", 1: "BOOTSTRAP", 2: "RUNNING", 3: "STALLED", 4: "FAULT"}
 OUTPUT_NAMES = {0: "off", 1: "PWM", 2: "low-side on", 3: "?"}
@@ -111,7 +111,7 @@ class Dashboard:
         self.replies: list[str] = []
         self.live = Live(console=self.console, refresh_per_second=max_fps, transient=False)
 
-    def attach(self, session: Any) -> None:
+    def attach(self, session: Session) -> None:
         """Show the session's parameters and follow every change (ctl, scenario, guard)."""
         self.params = session.param_values()
         session.on_params = self.params.update

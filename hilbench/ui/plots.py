@@ -123,52 +123,57 @@ def plot_recording(data: RecordingData, out_dir: Path, stem: str | None = None,
     plt = _pyplot()
     out_dir.mkdir(parents=True, exist_ok=True)
     stem = stem or data.path.name.split(".")[0]
-    c = data.columns
-    t = c["t_s"]
-    if window is not None:
-        keep = (t >= window[0]) & (t <= window[1])
-        if not keep.any():
-            raise ConfigError(f"plot window {window[0]:g}..{window[1]:g} s: the recording spans "
-                                f"{t[0]:g}..{t[-1]:g} s" if len(t) else "plot window: the recording is empty")
-        c = {name: values[keep] for name, values in c.items()}
-        t = c["t_s"]
-    events = _events(data)
+    c = _in_window(data.columns, window)
     written: list[Path] = []
-
-    def save(fig, name: str) -> None:  # type: ignore[no-untyped-def]
+    for fig, name in _standard_figures(plt, c, data.units, _events(data)):
         path = out_dir / f"{stem}_{name}.png"
         fig.tight_layout()
         fig.savefig(path, dpi=110)
         plt.close(fig)
         written.append(path)
+    return written
 
+
+def _in_window(columns: dict[str, np.ndarray], window: tuple[float, float] | None) -> dict[str, np.ndarray]:
+    """The rows of simulated seconds t0..t1 (all of them without a window); ConfigError if none."""
+    t = columns["t_s"]
+    if window is None:
+        return columns
+    keep = (t >= window[0]) & (t <= window[1])
+    if not keep.any():
+        raise ConfigError(f"plot window {window[0]:g}..{window[1]:g} s: the recording spans "
+                          f"{t[0]:g}..{t[-1]:g} s" if len(t) else "plot window: the recording is empty")
+    return {name: values[keep] for name, values in columns.items()}
+
+
+def _standard_figures(plt, c, units, events):  # type: ignore[no-untyped-def]
+    """(figure, name) of each standard plot the columns allow, made one at a time."""
+    t = c["t_s"]
     speeds = [("ref_speed_rpm", "reference (firmware)", {"lw": 1.2, "color": "k", "ls": "--"}),
               ("speed_rpm", "speed (plant)", {"lw": 1.0})]
     if "measured_speed_rpm" in c and not np.all(np.isnan(c["measured_speed_rpm"])):
         speeds.append(("measured_speed_rpm", "speed (firmware measured)", {"lw": 0.8, "alpha": 0.8}))
-    save(_line_figure(plt, t, c, speeds, "speed [rpm]", "speed vs reference", events), "speed")
+    yield _line_figure(plt, t, c, speeds, "speed [rpm]", "speed vs reference", events), "speed"
     from hilbench.bench.recorder import COLUMN_NAMES
     from hilbench.plant.model import OUTPUTS
 
     bench_columns = set(COLUMN_NAMES) | {out.column for out in OUTPUTS}  # the bench's and the plant's
     own = [name for name in c if name not in bench_columns]  # the target's own telemetry columns
     if own:
-        lines = [(name, f"{name} [{data.units.get(name, '')}]", {"lw": 0.8}) for name in own]
-        save(_line_figure(plt, t, c, lines, "value", "target telemetry", events, False), "telemetry")
+        lines = [(name, f"{name} [{units.get(name, '')}]", {"lw": 0.8}) for name in own]
+        yield _line_figure(plt, t, c, lines, "value", "target telemetry", events, False), "telemetry"
     currents = [(name, label, {"lw": 0.6}) for name, label in (("ia_a", "i_a"), ("ib_a", "i_b"), ("ic_a", "i_c"))]
     currents.append(("ibus_a", "i_bus", {"lw": 0.8, "color": "k"}))
-    save(_line_figure(plt, t, c, currents, "current [A]", "phase and bus currents", events, False), "currents")
+    yield _line_figure(plt, t, c, currents, "current [A]", "phase and bus currents", events, False), "currents"
     duties = [(name, name, {"lw": 0.6}) for name in ("duty_a", "duty_b", "duty_c")]
-    save(_line_figure(plt, t, c, duties, "duty [counts]", "PWM duties from the target", events, False), "duties")
-
+    yield _line_figure(plt, t, c, duties, "duty [counts]", "PWM duties from the target", events, False), "duties"
     if "hall" in c and "sector" in c:
-        save(_hall_figure(plt, t, c, events), "hall")
+        yield _hall_figure(plt, t, c, events), "hall"
     if "rtt_us" in c and "lateness_us" in c and (np.any(c["rtt_us"] != 0) or np.any(c["lateness_us"] != 0)):
         timing = [("rtt_us", "round trip [µs]", {"lw": 0.5}), ("lateness_us", "lateness [µs]", {"lw": 0.5})]
         fig = _line_figure(plt, t, c, timing, "µs", "link timing (real time)", events, False)  # real time only
         fig.axes[0].set_yscale("symlog")
-        save(fig, "link")
-    return written
+        yield fig, "link"
 
 
 def _hall_figure(plt, t, c, events):  # type: ignore[no-untyped-def]
