@@ -3,7 +3,8 @@
 The recording stays full-rate; a scope only needs, per display bucket of ``bucket_periods``
 periods, the minimum and maximum of each column (an envelope: a 20 kHz current shows its true
 extent at any zoom, where plain subsampling would alias). This part is asleep until a scope asks
-for the stream (the control socket's ``stream`` command); then, every time the session calls
+for the stream (a run without a recording then keeps a bounded window of rows for it,
+`Session.watch_rows`, and drops it when no scope has asked for ``IDLE_AFTER_S``) (the control socket's ``stream`` command); then, every time the session calls
 `due` (every ``observe_every_periods``) and at least every ``take_every_s`` of wall time or just
 before the recorder flushes its buffer, it takes the raw rows appended since its last take (a
 slice of ``recorder.rows.data``), turns them into envelopes with one ``reduceat`` per take and
@@ -151,6 +152,9 @@ class DisplayStream:
         """Every observe period: note the status; take new rows when a take is due or a flush comes."""
         self._drive, self._pacing, self._k = drive, pacing, k
         if self._asked_at == -math.inf or not self.active:
+            if self._asked_at != -math.inf:  # no scope asks any more: a run without a recording keeps no rows
+                self.session.watch_rows(False)
+                self._asked_at = -math.inf
             return
         recorder = self.session.recorder
         flush_coming = recorder is not None and len(recorder.rows) >= getattr(recorder, "flush_rows", math.inf)
@@ -273,6 +277,7 @@ class DisplayStream:
     def _request(self, since: int, columns: Sequence[str], t_s: float) -> dict[str, Any]:
         first = self._asked_at == -math.inf or not self.active
         self._asked_at = self.clock()
+        self.session.watch_rows(True)  # a run without a recording: rows for the scope while it watches
         recorder = self.session.recorder
         if recorder is not None and recorder.rows.layout is not self._layout:
             self._learn(recorder.rows.layout)
