@@ -390,11 +390,13 @@ def report(recording: str, plot_dir: str | None, csv_file: str | None, as_json: 
 
 @cli.command()
 @click.option("--socket", "socket_path", default=None, metavar="PATH",
-              help="The session's control socket (default: the newest running session, as `hilbench ctl` finds it).")
+              help="The session's control socket (default: as `hilbench ctl` picks the session).")
+@click.option("--session", "session_selector", default=None, metavar="PID|N",
+              help="The session by its pid or its number in `hilbench ctl list`.")
 @click.option("--port", type=click.IntRange(0, 65535), default=0, show_default=True, help="TCP port on 127.0.0.1 (0: any free one).")
 @click.option("--open", "open_browser", is_flag=True, help="Open the page in the browser.")
 @_friendly
-def scope(socket_path: str | None, port: int, open_browser: bool) -> None:
+def scope(socket_path: str | None, session_selector: str | None, port: int, open_browser: bool) -> None:
     """Serve the live scope page for a running `hilbench run` (until Ctrl-C).
 
     The page (127.0.0.1, a secret token in its URL) shows any recorded column live, with
@@ -403,19 +405,23 @@ def scope(socket_path: str | None, port: int, open_browser: bool) -> None:
     from hilbench.bench.control import read_discovery
     from hilbench.scope.launch import scope_for_socket
 
-    path = socket_path if socket_path is not None else read_discovery()
+    path = socket_path if socket_path is not None else read_discovery(selector=session_selector)
     scope_for_socket(path, port, open_browser).serve_forever()  # type: ignore[attr-defined]
 
 
 @cli.command(context_settings={"ignore_unknown_options": True})
 @click.argument("words", nargs=-1, type=click.UNPROCESSED)
 @click.option("--socket", "socket_path", default=None, metavar="PATH",
-              help="The session's control socket (default: the newest running session; `ctl list` shows them all).")
+              help="The session's control socket (default: the only running session, else the one started in this "
+                   "directory or terminal; otherwise ctl refuses and lists them).")
+@click.option("--session", "session_selector", default=None, metavar="PID|N",
+              help="The session by its pid or its number in `hilbench ctl list` (1: the newest).")
 @click.option("--timeout", "timeout_s", type=click.FloatRange(min=0.1), default=None,
               help="Seconds to wait for the answer (default: 5; `step`: 120, it answers after the step).")
 @click.option("--json", "as_json", is_flag=True, help="Print the session's whole reply as one JSON object.")
 @_friendly
-def ctl(words: tuple[str, ...], socket_path: str | None, timeout_s: float | None, as_json: bool) -> None:
+def ctl(words: tuple[str, ...], socket_path: str | None, session_selector: str | None, timeout_s: float | None,
+        as_json: bool) -> None:
     """Talk to a running `hilbench run` through its control socket.
 
     \b
@@ -429,11 +435,14 @@ def ctl(words: tuple[str, ...], socket_path: str | None, timeout_s: float | None
     hilbench ctl press s2|s3             press a board button (S2 starts and stops the motor)
     hilbench ctl start                   the target's Start command (restart after a stop)
     hilbench ctl stop                    end the run (recording closed, target stopped)
-    hilbench ctl list                    the running sessions and their sockets
+    hilbench ctl list                    the running sessions, numbered (--session N picks one)
+
+    With several sessions running, ctl talks to the one started in this directory (or terminal);
+    otherwise it refuses and lists them: pick one with --session PID|N or --socket PATH.
     """
     import json as json_module
 
-    from hilbench.bench.control import ControlClient, list_sessions, parse_ctl_args
+    from hilbench.bench.control import ControlClient, list_sessions, parse_ctl_args, read_discovery
     from hilbench.errors import TargetError
 
     if list(words[:1]) == ["list"]:
@@ -446,18 +455,17 @@ def ctl(words: tuple[str, ...], socket_path: str | None, timeout_s: float | None
         else:
             import time as time_module
 
-            for row in rows:
+            for n, row in enumerate(rows, 1):
                 age = time_module.time() - float(row["started_s"])
-                click.echo(f"pid {row['pid']}  {row['socket']}  started {age:.0f} s ago in {row['cwd']}")
+                click.echo(f"#{n}  pid {row['pid']}  {row['socket']}  started {age:.0f} s ago in {row['cwd']}")
         return
     request = parse_ctl_args(list(words))
     if timeout_s is None:
         timeout_s = 120.0 if request["cmd"] == "step" else 5.0
-    if socket_path is None:
-        running = list_sessions()
-        if len(running) > 1 and not as_json:
-            click.echo(f"hilbench: {len(running)} sessions running; talking to the newest (pid {running[0].pid}, "
-                       f"{running[0].socket_path}); `hilbench ctl list` shows them, --socket picks one", err=True)
+    if socket_path is None:  # never a guess among several sessions (hilbench.bench.control.choose_session)
+        socket_path = str(read_discovery(selector=session_selector))
+    elif session_selector is not None:
+        raise ConfigError("ctl: give --socket or --session, not both")
     client = ControlClient(socket_path, timeout_s=timeout_s)
     if request["cmd"] == "save":  # the file is written here, where the user is, from the session's values
         from hilbench.bench.tuning import saved_fragment
