@@ -196,7 +196,7 @@ class ControlledSession(Protocol):
 
 def _tuning_state(session: ControlledSession, t_s: float) -> dict[str, Any]:
     return {"params": session.param_values(), "t_s": t_s, "ref_rpm": session.ref_rpm,
-            "tunable": list(session.profile.tunable)}
+            "tunable": list(session.profile.tunable), "guard_trips": list(session.tuning.trips[-4:])}
 
 
 def _get(session: ControlledSession, request: "ControlRequest", t_s: float) -> None:
@@ -211,7 +211,9 @@ def _set(session: ControlledSession, request: "ControlRequest", t_s: float) -> N
 def _ref(session: ControlledSession, request: "ControlRequest", t_s: float) -> None:
     rpm = request.args["rpm"]
     session.reference_now(float(rpm), t_s, f"ref {rpm} rpm (ctl)")
-    request.reply(True, f"reference {rpm} rpm at t={t_s:.4f} s")
+    watching = session.tuning.watching
+    guard = f"; the guard watches the new gains until t={watching:.4f} s" if watching > t_s else ""
+    request.reply(True, f"reference {rpm} rpm at t={t_s:.4f} s{guard}")
 
 
 def _step(session: ControlledSession, request: "ControlRequest", t_s: float) -> None:

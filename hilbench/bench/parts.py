@@ -224,7 +224,8 @@ class LivePart:
         if t_s < session.tuning.watching:  # live changes act from this period on: noted at its time
             drive, plant = session.drive, session.plant
             peak = max(abs(i) for i in plant.i_abc)
-            note = session.tuning.guard_check(t_s, self.guard_ref_rpm, plant.speed_rpm, peak, drive.state, drive.fault)
+            note = session.tuning.guard_check(t_s, self.guard_ref_rpm, plant.speed_rpm, peak, drive.state, drive.fault,
+                                              bool(getattr(plant, "fault_input", False)))
             if note is not None:
                 session.note(t_s, note)
         if self.steps:

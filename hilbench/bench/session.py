@@ -221,6 +221,7 @@ class Session:
     def set_reference(self, rpm: float) -> None:
         """The speed reference, by the way the target's profile says it reaches the firmware."""
         self.ref_rpm = rpm
+        self.tuning.reference_changed(self.now_s)  # gains on probation are watched from here
         reference = self.profile.reference
         if isinstance(reference, PotReference):
             self.plant.pot_fraction = reference.pot_fraction(rpm)
