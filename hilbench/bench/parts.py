@@ -303,6 +303,8 @@ class HistoryPart:
         self.live.guard_ref_rpm = tele[i_ref] * s_ref if i_ref >= 0 else session.ref_rpm  # the firmware's own when it reports one
         t_s, plant_rpm = session.period.t_s(k), session.plant.w_m * RPM_PER_RAD_S
         session.history.append((t_s, session.ref_rpm, plant_rpm, meas))
+        if drive.fault:  # the firmware's fault as the live state shows it (no_fault without a recording)
+            session.fault_seen(t_s, drive.fault)
         session.segmenter.sample(t_s, plant_rpm, meas)
         if k % session.options.observe_every_periods == 0 and k:
             self._observe(k, drive, meas)

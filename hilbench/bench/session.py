@@ -587,6 +587,13 @@ class Session:
             extend(pack_telemetry(*drive.telemetry))
         return self.plant.advance(drive.duty_a, drive.duty_b, drive.duty_c, drive.output_mode, rows)
 
+    def fault_seen(self, t_s: float, code: int) -> None:
+        """The history saw a firmware fault code: the summary keeps the first code and the span."""
+        summary = self.summary
+        if summary.fault_first_s is None:
+            summary.fault_code, summary.fault_first_s = int(code), t_s
+        summary.fault_last_s = t_s
+
     def _comparator(self, k: int) -> None:
         """The overcurrent comparator's latch is set: note the trip once."""
         if not self._trip_noted:
