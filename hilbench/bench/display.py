@@ -23,12 +23,14 @@ import math
 import time
 from collections import deque
 from dataclasses import dataclass
+from enum import IntEnum
 from typing import TYPE_CHECKING, Any, Mapping, Sequence
 
 import numpy as np
 
 from hilbench.bench.recorder import MARKER_FAULT, MARKER_PARAM
 from hilbench.errors import HilbenchError
+from hilbench.protocol import Fault, State
 
 if TYPE_CHECKING:
     from hilbench.bench.pacing import RealtimePacing
@@ -342,6 +344,8 @@ class DisplayStream:
         return {
             "t_s": _num(t_s), "state": None if drive is None else int(drive.state),
             "fault": None if drive is None else int(drive.fault),
+            "state_name": None if drive is None else _name(State, drive.state),
+            "fault_name": None if drive is None else _name(Fault, drive.fault),
             "ref_rpm": _num(session.ref_rpm), "params": _finite(params),
             "guard": bool(session.tuning.guard.enabled), "periods_per_s": _num(rate),
             "rtt_p50_us": _num(stats.get("p50")), "rtt_p99_us": _num(stats.get("p99")),
@@ -349,6 +353,14 @@ class DisplayStream:
             "link": {k: v for k, v in session.link_stats().items() if isinstance(v, (int, float))},
             "ended": session.ended,
         }
+
+
+def _name(kind: type[IntEnum], code: int) -> str:
+    """A protocol state's or fault's name ("4" for a code the schema does not name)."""
+    try:
+        return kind(code).name
+    except ValueError:
+        return str(int(code))
 
 
 def _num(value: float | None) -> float | None:
