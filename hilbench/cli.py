@@ -308,7 +308,7 @@ def run(config: str | None, target_spec: str | None, mode: str | None, duration_
                 keys = dashboard.command_line = CommandLine(control.path, dashboard.replies.append)
             with keys, dashboard:
                 summary = run_bench(cfg, record=record, observer=dashboard, control=control, on_ready=dashboard.attach,
-                                    warn=lambda text: console.print(f"[yellow]warning: {text}[/]"))
+                                    warn=dashboard.warnings.append)  # kept on top of every frame (and in the summary)
     finally:
         if scope_server is not None:
             scope_server.close()
