@@ -183,6 +183,7 @@ class ControlledSession(Protocol):
     target: Any  # hilbench.targets.base.Target
     live: Any  # hilbench.bench.parts.LivePart
     ref_rpm: float
+    drive: Any  # the last Drive (hilbench.protocol.Drive), None before the first exchange
 
     def param_values(self) -> dict[str, float]: ...
     def reference_now(self, rpm: float, t_s: float, note: str) -> None: ...
@@ -217,6 +218,16 @@ def _ref(session: ControlledSession, request: "ControlRequest", t_s: float) -> N
 
 
 def _step(session: ControlledSession, request: "ControlRequest", t_s: float) -> None:
+    """A step needs a running motor: on a stopped (or faulted) one it would measure nothing."""
+    from hilbench.protocol import State
+
+    drive = session.drive
+    state = None if drive is None else int(drive.state)
+    if state is None or state in (State.STOPPED, State.STALLED, State.FAULT):
+        name = "not started" if state is None else State(state).name
+        request.reply(False, f"step refused: the motor is not running (state {name}); start it first "
+                             f"(hilbench ctl press s2)")
+        return
     session.live.start_step(request, float(request.args["from_rpm"]), float(request.args["to_rpm"]), t_s)
 
 

@@ -553,7 +553,13 @@ $("set-together").addEventListener("click", () => {
 });
 $("ref-set").addEventListener("click", () => command({ cmd: "ref", rpm: Number($("ref-input").value) }));
 $("load-set").addEventListener("click", () => command({ cmd: "load", nm: Number($("load-input").value) }));
-$("step-go").addEventListener("click", () => command({ cmd: "step", from_rpm: Number($("step-from").value), to_rpm: Number($("step-to").value) }));
+$("step-go").addEventListener("click", () => {
+  const el = $("result-step");
+  el.className = "result"; el.textContent = "stepping: 1 s hold, the step, 1 s after it…";
+  command({ cmd: "step", from_rpm: Number($("step-from").value), to_rpm: Number($("step-to").value) }, (r) => {
+    el.className = "result " + (r.ok ? "ok" : "bad"); el.textContent = r.ok ? r.message : `refused: ${r.message}`;
+  });
+});
 $("press-s2").addEventListener("click", () => command({ cmd: "press", button: "s2" }));
 $("end-run").addEventListener("click", () => { if (confirm("End the run?")) command({ cmd: "stop" }); });
 $("guard").addEventListener("change", () => command({ cmd: "guard", on: $("guard").checked }));
