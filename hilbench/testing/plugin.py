@@ -112,7 +112,7 @@ def _check_options(targets: Sequence[str], config_path: str | None, where: str) 
         except HilbenchError as exc:
             raise pytest.UsageError(f"{where} {spec}: {exc}") from None
     if config_path is not None:
-        from hilbench.config import load_config
+        from hilbench.bench.settings import load_config
 
         try:
             load_config(config_path)
