@@ -474,11 +474,8 @@ def ctl(words: tuple[str, ...], socket_path: str | None, session_selector: str |
         if not reply.get("ok"):
             raise TargetError(str(reply.get("message", "refused")))
         text = saved_fragment(reply["data"])
-        try:
-            with open(request["file"], "w", encoding="utf-8") as handle:
-                handle.write(text)
-        except OSError as exc:
-            raise TargetError(f"ctl save {request['file']}: {exc.strerror}") from None
+        with open(request["file"], "w", encoding="utf-8") as handle:  # an OSError: a file error, exit 1
+            handle.write(text)
         if as_json:
             click.echo(json_module.dumps({"ok": True, "message": f"wrote {request['file']}", "data": reply["data"]}))
         else:

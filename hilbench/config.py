@@ -238,7 +238,11 @@ class _Collector:
 
 
 def _suggest(name: str, known: Sequence[str]) -> str:
+    """A "did you mean" for an unknown key: the closest known one, or the one that is this name with
+    its unit (``rs`` → ``rs_ohm``: too short for a close match on spelling alone)."""
     close = difflib.get_close_matches(name, list(known), n=1, cutoff=0.6)
+    if not close:
+        close = [key for key in known if key.startswith(name + "_")][:1] if name else []
     return f" (did you mean {close[0]!r}?)" if close else ""
 
 
