@@ -425,7 +425,7 @@ def ctl(words: tuple[str, ...], socket_path: str | None, session_selector: str |
     """Talk to a running `hilbench run` through its control socket.
 
     \b
-    hilbench ctl get                     gains and parameters now
+    hilbench ctl get                     gains and parameters now (JSON when piped)
     hilbench ctl set kp=0.1 ki=0.01      write a gain set (checked, applied atomically)
     hilbench ctl ref 1500                speed reference in rpm (negative: reverse)
     hilbench ctl load 0.02               load torque in N*m
@@ -489,11 +489,28 @@ def ctl(words: tuple[str, ...], socket_path: str | None, session_selector: str |
         return
     if not reply.get("ok"):
         raise TargetError(str(reply.get("message", "refused")))
-    if reply.get("data"):
+    if reply.get("data") and not sys.stdout.isatty():
         click.echo(json_module.dumps(reply["data"], indent=2, default=str))  # JSON alone on stdout: pipe it
         click.echo(reply.get("message", "ok"), err=True)
+    elif reply.get("data"):  # a person reads it: one fact a line, as the dashboard shows them
+        click.echo(ctl_text(str(request["cmd"]), reply))
     else:
         click.echo(reply.get("message", "ok"))
+
+
+def ctl_text(cmd: str, reply: dict[str, Any]) -> str:
+    """A control reply for a terminal: `get` as a table of parameters, others as their message."""
+    data = reply.get("data") or {}
+    if cmd != "get" or not isinstance(data, dict):
+        return str(reply.get("message", "ok"))
+    params = data.get("params") or {}
+    tunable = set(data.get("tunable") or ())
+    width = max((len(str(name)) for name in params), default=0)
+    lines = [f"{name:<{width}}  {value:.6g}" + ("   (tunable)" if name in tunable else "")
+             for name, value in params.items() if isinstance(value, (int, float))]
+    lines.append(f"reference {data.get('ref_rpm', 0):g} rpm at t={data.get('t_s', 0):.3f} s")
+    lines += [str(trip) for trip in data.get("guard_trips") or ()]  # "guard: why; restored ..."
+    return "\n".join(lines)
 
 
 @cli.command(context_settings={"show_default": True})

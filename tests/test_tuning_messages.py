@@ -26,3 +26,15 @@ def test_ctl_save_into_a_missing_folder_is_a_file_error(tmp_path) -> None:  # ty
     assert result.exit_code == 1, result.output
     assert f"hilbench: file error: {target}: No such file or directory" in result.output
     assert "target error" not in result.output
+
+
+def test_ctl_get_in_a_terminal_is_a_table_and_json_when_piped() -> None:
+    from hilbench.cli import ctl_text
+
+    reply = {"ok": True, "message": "ok", "data": {"params": {"kp": 0.100006103515625, "stall_ms": 100.0},
+                                                   "tunable": ["kp"], "ref_rpm": 1500.0, "t_s": 1.25,
+                                                   "guard_trips": ["guard: overcurrent: …; restored kp=0.1"]}}
+    assert ctl_text("get", reply).splitlines() == [
+        "kp        0.100006   (tunable)", "stall_ms  100", "reference 1500 rpm at t=1.250 s",
+        "guard: overcurrent: …; restored kp=0.1"]
+    assert ctl_text("ref", {"ok": True, "message": "reference 1500 rpm at t=1.0000 s"}) == "reference 1500 rpm at t=1.0000 s"
