@@ -225,11 +225,13 @@ class SweepStore:
     STORE_LINE_MAX_BYTES, each a row of this sweep's shape (`_store_row`), or one line naming the
     file, the line and what is wrong. Only the last line may be cut (a kill while appending)."""
 
-    def __init__(self, path: Path, key: str, n_points: int) -> None:
+    def __init__(self, path: Path, key: str, n_points: int, family: str | None = None) -> None:
+        """``family``: the rounds of one `refine` share a file; rows of its other rounds are skipped."""
         from hilbench.limits import STORE_LINE_MAX_BYTES, STORE_MAX_BYTES, check_path_size
 
         self.path = path
         self.key = key
+        self.family = family
         self.done: dict[int, tuple[StepMetrics, bool, int]] = {}
         if not path.exists():
             return
@@ -245,6 +247,8 @@ class SweepStore:
                     row = _store_line(path, n, line, last)
                     if row is None:
                         break  # a line cut by a kill: the point runs again
+                    if row.get("key") != key and family is not None and row.get("family") == family:
+                        continue  # another round of the same refined sweep
                     if row.get("key") != key:
                         raise ConfigError(f"sweep store {path}: it holds another sweep (other config, test or points); "
                                           "give a new file to start over")
@@ -255,7 +259,7 @@ class SweepStore:
 
     def append(self, index: int, result: StepResult, cases: int) -> None:
         row = {"key": self.key, "index": index, "params": result.gains, "metrics": result.metrics.as_dict(),
-               "stalled": result.stalled, "cases": cases}
+               "stalled": result.stalled, "cases": cases, **({"family": self.family} if self.family else {})}
         try:
             with self.path.open("a", encoding="utf-8") as handle:
                 handle.write(json.dumps(row) + "\n")
@@ -323,6 +327,7 @@ def sweep_points(
     tolerances: Tolerances = Tolerances(),
     store: str | Path | None = None,
     progress: Callable[[int, int], None] | None = None,
+    store_family: str | None = None,
 ) -> SweepResult:
     """Step-test every point; constraint breakers are skipped and counted. ``executor``: None/local
     (``workers`` processes, one per core by default; 1: this process), local-dask[:N] or a Dask
@@ -338,7 +343,8 @@ def sweep_points(
     check = _constraint_checker(profile, cfg.link.period_us)
     swept = [SweepPoint(tuple(p), check(tuple(p))) for p in points]
     cases = tolerances.cases()
-    saved = SweepStore(Path(store), _sweep_key(cfg, test, points, tolerances, key), len(swept)) if store is not None else None
+    saved = (SweepStore(Path(store), _sweep_key(cfg, test, points, tolerances, key), len(swept), store_family)
+             if store is not None else None)
     run = _SweepRun(swept, len(cases), key, saved, progress)
     jobs = [(i, c, dict(swept[i].params)) for i in run.to_run() for c in range(len(cases))]
     with open_executor(executor, workers) as (pool, where):
@@ -427,12 +433,18 @@ def refine(cfg: BenchConfig, axes: Sequence[Axis], test: StepTest, metric: str =
     seen: dict[Params, SweepPoint] = {}
     last: SweepResult | None = None
     sim_s = 0.0
+    family = None
     for _ in range(rounds):
         names = [a.name for a in window]
         points = [p for p in (tuple(zip(names, v)) for v in itertools.product(*(a.values() for a in window)))
                   if p not in seen]
+        if family is None and options.get("store") is not None:  # every round's points in one file
+            from hilbench.bench.run import in_process
+
+            family = "refine:" + _sweep_key(in_process(cfg), test, points, options.get("tolerances", Tolerances()),
+                                            f"{_metric_key(metric)}:{rounds}:{shrink}")
         if points:
-            last = sweep_points(cfg, points, test, metric, **options)
+            last = sweep_points(cfg, points, test, metric, store_family=family, **options)
             sim_s += last.sim_s
             seen.update({p.params: p for p in last.points})
         best = min((p for p in seen.values() if p.result is not None), key=lambda p: _order(p.result, _metric_key(metric)),  # type: ignore[arg-type]
