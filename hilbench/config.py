@@ -154,6 +154,8 @@ class _Section:
     many: bool  # an array of tables
     #: a table whose dataclass depends on the others (the [target] table: the target's options)
     chooser: Callable[[Mapping[str, Any]], type | None] | None = None
+    #: for a chosen table: who the keys the chosen dataclass does not know belong to (one line), or None
+    explain: Callable[[frozenset[str]], str | None] | None = None
 
 
 @dataclass(frozen=True)
@@ -164,15 +166,18 @@ class Sections:
     tables: Mapping[str, _Section] = field(default_factory=lambda: types.MappingProxyType({}))
 
     def with_table(self, name: str, cls: type | None, *, required: bool = False, many: bool = False,
-                   chooser: Callable[[Mapping[str, Any]], type | None] | None = None) -> "Sections":
+                   chooser: Callable[[Mapping[str, Any]], type | None] | None = None,
+                   explain: Callable[[frozenset[str]], str | None] | None = None) -> "Sections":
         """These tables and `[name]` (or `[[name]]` when many) validated into dataclass `cls`.
 
         Optional tables are built from the dataclass defaults when absent (all fields need one).
         With ``chooser`` the dataclass is chosen after every other table is built (None: the table
-        must be absent, and the section is None)."""
+        must be absent, and the section is None); ``explain`` names who several keys the chosen
+        dataclass does not know belong to, said once instead of a line per key."""
         if chooser is None and not dataclasses.is_dataclass(cls):
             raise TypeError(f"Sections.with_table {name!r}: {cls!r} is not a dataclass")
-        return Sections(types.MappingProxyType({**self.tables, name: _Section(name, cls, required, many, chooser)}))
+        section = _Section(name, cls, required, many, chooser, explain)
+        return Sections(types.MappingProxyType({**self.tables, name: section}))
 
     def __contains__(self, name: object) -> bool:
         return name in self.tables
@@ -632,7 +637,14 @@ def _build_chosen(sec: _Section, data: Mapping[str, Any], built: dict[str, Any],
             col.add(sec.name, "", f"this target takes no [{sec.name}] options (keys: {', '.join(data[sec.name])})")
         built[sec.name] = None
         return
-    good, obj = _build(cls, data.get(sec.name, {}), sec.name, col)
+    table = data.get(sec.name, {})
+    unknown = frozenset(table) - {f.name for f in dataclasses.fields(cls)} if isinstance(table, Mapping) else frozenset()
+    hint = sec.explain(unknown) if sec.explain is not None and len(unknown) >= 2 else None
+    if hint is not None:  # a table written for something else: one line, not one per key
+        shown = ", ".join(sorted(unknown)[:4]) + (f", … ({len(unknown)} keys)" if len(unknown) > 4 else "")
+        col.add(sec.name, "", f"{shown}: {hint}")
+        return
+    good, obj = _build(cls, table, sec.name, col)
     if good:
         built[sec.name] = obj
 

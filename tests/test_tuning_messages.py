@@ -38,3 +38,18 @@ def test_ctl_get_in_a_terminal_is_a_table_and_json_when_piped() -> None:
         "kp        0.100006   (tunable)", "stall_ms  100", "reference 1500 rpm at t=1.250 s",
         "guard: overcurrent: …; restored kp=0.1"]
     assert ctl_text("ref", {"ok": True, "message": "reference 1500 rpm at t=1.0000 s"}) == "reference 1500 rpm at t=1.0000 s"
+
+
+def test_a_target_table_written_for_another_firmware_is_named_once() -> None:
+    """The servo config's [target] (the FOC firmware's options) with --target inprocess:an1017 listed
+    nine "unknown key" lines; now one line names the target it belongs to. Typos still get theirs."""
+    from conftest import BENCH_CONFIGS
+
+    with pytest.raises(ConfigError) as info:
+        load_config(BENCH_CONFIGS / "servo_200w.toml", ['link.target="inprocess:an1017"'])
+    text = str(info.value)
+    assert "[target]: align_current_a, align_s, cur_ki, cur_kp, … (9 keys): these are the foc target's options" in text
+    assert "unknown key" not in text
+    with pytest.raises(ConfigError) as info:
+        load_config(None, ["target.kpp=0.1", "target.kii=0.1"])
+    assert "[target] kpp: unknown key (did you mean 'kp'?)" in str(info.value)
