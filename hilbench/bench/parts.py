@@ -366,6 +366,7 @@ class HistoryPart:
             rtt_p99_us=stats.get("p99", math.nan), link=session.link_stats(),
             overruns=pacing.overruns if pacing is not None else 0, messages=session.messages[-4:],
             history=session.history,  # the dashboard decimates it to its width
+            fault=drive.fault,
         )
 
 

@@ -137,6 +137,7 @@ class Snapshot:
     overruns: int
     messages: list[str]
     history: list[tuple[float, float, float, float]]
+    fault: int = 0  # the firmware's fault code (0: none)
 
 
 def percentiles(values: list[float]) -> dict[str, float]:

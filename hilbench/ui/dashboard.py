@@ -18,9 +18,11 @@ from rich.table import Table
 from rich.text import Text
 
 from hilbench.bench.session import Snapshot, Summary
+from hilbench.protocol import Fault
 
 STATE_NAMES = {0: "STOPPED", 1: "BOOTSTRAP", 2: "RUNNING", 3: "STALLED", 4: "FAULT"}
 OUTPUT_NAMES = {0: "off", 1: "PWM", 2: "low-side on", 3: "?"}
+FAULT_NAMES = {int(code): code.name for code in Fault}
 SPARK = "▁▂▃▄▅▆▇█"
 
 
@@ -77,7 +79,9 @@ def render_snapshot(snap: Snapshot, params: dict[str, float], target_label: str,
         # a stopped firmware keeps its last MeasuredSpeed and duties: show that they do not apply now
         motor.add_row("speed (firmware)", f"{_fmt(snap.measured_rpm)} rpm{held}")
     state = STATE_NAMES.get(snap.state, str(snap.state))
-    style = "bold red" if state in ("FAULT", "STALLED") else "green" if state == "RUNNING" else ""
+    if snap.fault:  # by name, as the firmware's fault codes say (protocol Fault)
+        state += f" ({FAULT_NAMES.get(snap.fault, f'fault {snap.fault}')})"
+    style = "bold red" if snap.fault or state.startswith(("FAULT", "STALLED")) else "green" if state == "RUNNING" else ""
     motor.add_row("state", Text(f"{state}, outputs {OUTPUT_NAMES.get(snap.output_mode, '?')}", style=style))
     if not compact:
         motor.add_row("sector / dir", f"{snap.sector} / {'CCW' if snap.direction_ccw else 'CW'}")
