@@ -720,7 +720,7 @@ def sweep(config: str | None, axes: tuple[str, ...], sample: str, rounds: int, s
     if csv_file:
         write_sweep_csv(csv_file, result)
     if save_file:
-        _save_best(result, save_file)
+        _save_best(result, save_file, cfg)
     _show_sweep(result, top, as_json, wall_s, len(tolerances.cases()) > 1, csv_file, save_file)
 
 
@@ -744,10 +744,12 @@ def _sweep_sample(sample: str, box: list[Any], seed: int) -> list[Any]:
     raise ConfigError(f"sweep --sample {sample!r}: expected grid, lhs:N or random:N")
 
 
-def _save_best(result: Any, save_file: str) -> None:
-    from hilbench.bench.sweep import best_fragment
+def _save_best(result: Any, save_file: str, cfg: Any) -> None:
+    from hilbench.bench.sweep import best_fragment, held_params
 
-    text = best_fragment(result)  # before opening the file: nothing simulated leaves no empty file
+    best = result.best
+    held = held_params(cfg, best.params) if best is not None and best.result is not None else None
+    text = best_fragment(result, held)  # before opening the file: nothing simulated leaves no empty file
     try:
         with open(save_file, "w", encoding="utf-8") as handle:
             handle.write(text)

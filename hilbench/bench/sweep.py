@@ -20,7 +20,7 @@ import json
 import math
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Callable, Iterable, Sequence
+from typing import Any, Callable, Iterable, Mapping, Sequence
 
 import numpy as np
 
@@ -37,6 +37,7 @@ __all__ = [
     "SweepResult",
     "Tolerances",
     "best_fragment",
+    "held_params",
     "grid_values",
     "parse_axis",
     "parse_grid_spec",
@@ -484,13 +485,30 @@ def write_sweep_csv(path: str | Path, sweep: SweepResult) -> Path:
     return out
 
 
-def best_fragment(sweep: SweepResult) -> str:
-    """The best parameter set as a config fragment a later run can load (``[target]`` table)."""
+def best_fragment(sweep: SweepResult, held: Mapping[str, float] | None = None) -> str:
+    """The best parameter set as a config fragment a later run can load (``[target]`` table);
+    ``held``: the values the firmware holds for them (`held_params`), written instead, the swept
+    value in a comment (0.7611111111111111 is 24940/32768 = 0.7611083984375 in Q15)."""
     best = sweep.best
     if best is None or best.result is None:
         raise ConfigError("sweep: no simulated parameter set to save (all were skipped)")
     value = getattr(best.result.metrics, sweep.metric)
-    lines = [f"# best of a {len(sweep.points)}-point sweep by {sweep.metric} = {value!r}, "
+    lines = [f"# best of a {len(sweep.points)}-point sweep by {sweep.metric} = {value:.6g}, "
              f"step {sweep.test.from_rpm:g} -> {sweep.test.to_rpm:g} rpm", "[target]"]
-    lines += [f"{name} = {v!r}" for name, v in best.params]
+    for name, v in best.params:
+        kept = (held or {}).get(name)
+        lines.append(f"{name} = {v!r}" if kept is None or kept == v else
+                     f"{name} = {kept!r}  # as the firmware holds it (swept: {v:.10g})")
     return "\n".join(lines) + "\n"
+
+
+def held_params(cfg: BenchConfig, params: Sequence[tuple[str, float]]) -> dict[str, float]:
+    """What the configured firmware holds for these parameter values (its fixed-point types: a Q15
+    gain is a whole number of 1/32768), from the in-process target's own declarations."""
+    from hilbench.bench.bench import Bench
+    from hilbench.bench.livetuning import raw_per_unit
+    from hilbench.bench.run import in_process
+
+    with Bench(in_process(cfg), keep_rows=False) as bench:
+        tuning = bench.session.tuning  # type: ignore[union-attr]
+        return {name: tuning.encode(name, value)[1] / raw_per_unit(tuning.info[name].ptype) for name, value in params}
