@@ -27,6 +27,7 @@ from __future__ import annotations
 import dataclasses
 import difflib
 import math
+import os
 import tomllib
 import types
 import typing
@@ -453,7 +454,38 @@ def _apply_override(data: dict[str, Any], item: str, col: _Collector, sections: 
 # ---------------------------------------------------------------- entry points
 def default_config_text() -> str:
     """The packaged default config (the Hurst motor on the MCLV board)."""
-    return resources.files("hilbench").joinpath("data", DEFAULT_CONFIG_NAME).read_text(encoding="utf-8")
+    return packaged_config_text(DEFAULT_CONFIG_NAME)
+
+
+def packaged_configs() -> tuple[str, ...]:
+    """The names of the configs installed with hilbench (`packaged:NAME`, or NAME alone on the
+    command line when no such file is here): the seed systems' benches."""
+    folder = resources.files("hilbench").joinpath("data")
+    return tuple(sorted(item.name[:-5] for item in folder.iterdir() if item.name.endswith(".toml")))
+
+
+def packaged_config_text(name: str) -> str:
+    return resources.files("hilbench").joinpath("data", name).read_text(encoding="utf-8")
+
+
+def packaged_name(text: str) -> str | None:
+    """The packaged config a name means (``packaged``, ``packaged:NAME``, or a bare ``NAME`` or
+    ``NAME.toml`` that is no file here), as its file name; None for a path."""
+    word = str(text).strip()
+    if word == PACKAGED_PREFIX:
+        return DEFAULT_CONFIG_NAME
+    explicit = word.startswith(PACKAGED_PREFIX + ":")
+    if explicit:
+        word = word[len(PACKAGED_PREFIX) + 1:]
+    elif os.sep in word or Path(word).exists():
+        return None
+    stem = word[:-5] if word.endswith(".toml") else word
+    if stem in packaged_configs():
+        return stem + ".toml"
+    if explicit:
+        raise ConfigError(f"{text}: no packaged config of that name (packaged: {', '.join(packaged_configs())})"
+                          f"{_suggest(stem, packaged_configs())}")
+    return None
 
 
 def _parse_toml(text: str, source: str) -> dict[str, Any]:
@@ -469,6 +501,11 @@ def _parse_toml(text: str, source: str) -> dict[str, Any]:
 #: how many configs an `extends` chain may hold
 MAX_EXTENDS_DEPTH = 8
 PACKAGED_PREFIX = "packaged"
+
+
+def _packaged_source_name(source: str) -> str:
+    """The file name in a packaged config's source ``<packaged NAME.toml>``."""
+    return source[len("<packaged "):-1] if source.startswith("<packaged ") else DEFAULT_CONFIG_NAME
 
 
 def _read_text(path: Path, source: str) -> str:
@@ -491,7 +528,7 @@ def _merge(base: dict[str, Any], child: Mapping[str, Any]) -> dict[str, Any]:
 def _load_data(path: Path | None, source: str, chain: tuple[str, ...] = ()) -> dict[str, Any]:
     """A config file's tables with its ``extends = "other.toml"`` chain merged under them
     (``extends = "packaged"``: the packaged default; a relative name is beside the file)."""
-    text = default_config_text() if path is None else _read_text(path, source)
+    text = packaged_config_text(_packaged_source_name(source)) if path is None else _read_text(path, source)
     data = _parse_toml(text, source)
     base = data.pop("extends", None)
     if base is None:
@@ -500,8 +537,9 @@ def _load_data(path: Path | None, source: str, chain: tuple[str, ...] = ()) -> d
         raise ConfigError(f"{source}: extends: expected a config file name (or \"packaged\"), got {_show(base)}")
     if len(chain) >= MAX_EXTENDS_DEPTH:
         raise ConfigError(f"{source}: extends: more than {MAX_EXTENDS_DEPTH} configs in the chain")
-    if base.strip() in (PACKAGED_PREFIX, f"{PACKAGED_PREFIX}:{DEFAULT_CONFIG_NAME}"):
-        parent_path, parent_source = None, f"<packaged {DEFAULT_CONFIG_NAME}>"
+    packaged = packaged_name(base) if base.strip().startswith(PACKAGED_PREFIX) else None
+    if packaged is not None:
+        parent_path, parent_source = None, f"<packaged {packaged}>"
     else:
         parent_path = Path(base) if path is None or Path(base).is_absolute() else path.parent / base
         parent_source = str(parent_path)
@@ -528,9 +566,10 @@ def load_config(path: str | Path | None = None, overrides: Sequence[str] = (), *
     """Read (with its `extends` chain), merge `overrides` ("table.key=value", TOML value syntax;
     "scenario=[...]" replaces a whole array of tables) and a scenario file, validate the tables
     ``sections`` registers (`PLANT_SECTIONS`; a whole bench: `hilbench.load_config`), build."""
-    source = f"<packaged {DEFAULT_CONFIG_NAME}>" if path is None else str(path)
-    data = _load_data(None if path is None else Path(path), source,
-                      () if path is None else (str(Path(path).resolve()),))
+    packaged = DEFAULT_CONFIG_NAME if path is None else packaged_name(str(path))
+    source = f"<packaged {packaged}>" if packaged is not None else str(path)
+    data = _load_data(None if packaged is not None else Path(path), source,  # type: ignore[arg-type]
+                      (source,) if packaged is not None else (str(Path(path).resolve()),))  # type: ignore[arg-type]
     if scenario_path is not None:
         data["scenario"] = load_scenario_file(scenario_path)
     in_file = set(data)
