@@ -200,3 +200,29 @@ def test_live_tuning_on_a_run_without_a_recording(browser_page, tmp_path: Path) 
         page.screenshot(path=str(shot))
     assert _not_blank(shot) > 0.05
     assert not errors, errors
+
+
+@pytest.mark.slow
+def test_auto_trigger_and_what_the_page_cannot_show(browser_page) -> None:  # type: ignore[no-untyped-def]
+    """Auto mode captures without a trigger after a window and re-arms; a page with no trace chosen
+    says so on the canvas instead of staying blank."""
+    from _scope_session import running_session
+    from hilbench.scope.server import ControlSource, ScopeServer
+
+    page, errors = browser_page
+    with running_session(keep_rows=False) as path, ScopeServer(ControlSource(path)) as server:
+        page.goto(server.url)
+        page.wait_for_function("window.scope.frames > 2", timeout=30_000)
+        assert page.evaluate("window.scope.notice") == ""
+        page.select_option("#window", "0.1")
+        page.select_option("#trig-source", "level")
+        page.fill("#trig-level", "100000")  # never reached
+        page.select_option("#trig-mode", "auto")
+        page.click("#trig-arm")
+        page.wait_for_function("window.scope.captures.length >= 2", timeout=30_000)  # free captures, re-armed
+        assert "auto: no trigger within 0.1 s" in page.inner_text("#trig-state")
+        assert page.evaluate("window.scope.trigger.state") in ("armed", "triggered")
+        for box in page.query_selector_all("#cols input:checked"):
+            box.uncheck()
+        page.wait_for_function("window.scope.notice.startsWith('no trace chosen')", timeout=30_000)
+    assert not errors, errors

@@ -234,6 +234,9 @@ function checkTrigger() {
   if (tr.state === "armed") {
     const t = findTrigger(tr.source, tr.armedAt);
     if (t !== null) { tr.tTrig = t; tr.state = "triggered"; }
+    else if (tr.mode === "auto" && S.tLatest >= tr.armedAt + S.windowS) {  // no trigger for a window: capture anyway
+      tr.tTrig = S.tLatest - (1 - preFraction()) * S.windowS; tr.state = "triggered"; tr.forced = true;
+    }
   }
   if (tr.state === "triggered") {
     const W = S.windowS, pre = preFraction();
@@ -242,8 +245,10 @@ function checkTrigger() {
       for (const n of S.selected) cap.data.set(n, clip(S.data.get(n) || [], tr.tTrig - pre * W, tr.tTrig + (1 - pre) * W));
       S.captures.unshift(cap); S.captures.length = Math.min(S.captures.length, 2);
       tr.state = "captured"; S.showCapture = true;
-      if (tr.mode === "normal") S.trigger = { ...tr, state: "armed", armedAt: tr.tTrig + (1 - pre) * W, tTrig: null };
-      $("trig-state").textContent = `captured: trigger at t = ${tr.tTrig.toFixed(4)} s (${S.captures.length > 1 ? "previous capture dimmed" : "first capture"})`;
+      if (tr.mode !== "single") S.trigger = { ...tr, state: "armed", armedAt: tr.tTrig + (1 - pre) * W, tTrig: null, forced: false };
+      $("trig-state").textContent = (tr.forced ? `auto: no trigger within ${fmt(W)} s, free capture at t = ${tr.tTrig.toFixed(4)} s`
+        : `captured: trigger at t = ${tr.tTrig.toFixed(4)} s`) + ` (${S.captures.length > 1 ? "previous capture dimmed" : "first capture"})`
+        + (tr.mode !== "single" ? `; re-armed (${tr.mode})` : "");
       $("trig-state").className = "result ok";
       dirty = true;
     } else {
@@ -459,6 +464,11 @@ function draw() {
     if (t === null || t < ta || t > tb) return;
     const x = xOf(t); ctx.strokeStyle = cursorColours[i]; ctx.beginPath(); ctx.moveTo(x, 0); ctx.lineTo(x, H - TIME_H); ctx.stroke();
   });
+  const why = !S.meta ? "waiting for the session…" : !S.selected.length ? "no trace chosen: tick one on the left"
+    : !S.frames ? "no rows yet: the session sends them while this page watches (a run without --record too)"
+    : S.closed ? `no more rows: ${S.closed}` : "";
+  if (why) { ctx.textAlign = "center"; ctx.fillStyle = "#e8b44c"; ctx.font = "14px system-ui, sans-serif"; ctx.fillText(why, AXIS_W + w / 2, (H - TIME_H) / 2); }
+  S.notice = why;
   S.view = { ta, tb, w, relative };
   S.lanes = ls.map((l) => ({ names: l.names, y: l.y, h: l.h, ymin: l.ymin, ymax: l.ymax }));  // for scripts and tests
   readout();
