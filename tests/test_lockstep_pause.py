@@ -27,7 +27,7 @@ def _record(target: str, path: Path, pause_s: float) -> int:
         bench.run(0.05)
         threading.Event().wait(pause_s)  # the host pauses: the stimulus, not a wait for anything
         bench.run(0.05)
-        remote = bench._handle.target  # type: ignore[union-attr]  # noqa: SLF001 - the firmware's own counters
+        remote = bench._parts.handle.target  # type: ignore[union-attr]  # noqa: SLF001 - the firmware's own counters
         return int(remote.status().watchdog_trips) if hasattr(remote, "status") else 0
 
 
