@@ -582,10 +582,13 @@ def step(config: str | None, from_rpm: float, to_rpm: float, gains: tuple[str, .
     if plot_file:
         from hilbench.ui.plots import plot_overlay
 
-        curves = [(r.label, r.t_s, r.speed_rpm) for r in results]
-        t_ref = results[0].t_s
-        plot_overlay(curves, (t_ref, [results[0].ref_rpm] * len(t_ref)), Path(plot_file),
-                     f"speed step {from_rpm:g} → {to_rpm:g} rpm")
+        # each curve named by its parameters; the reference as the firmware reports it (a FOC firmware
+        # ramps after its alignment), else the ideal step
+        curves = [(" ".join(f"{k}={v:.4g}" for k, v in r.gains.items()) or r.label, r.t_s, r.speed_rpm) for r in results]
+        first = results[0]
+        reference = first.firmware_ref_rpm if first.firmware_ref_rpm is not None else [first.ref_rpm] * len(first.t_s)
+        plot_overlay(curves, (first.t_s, reference), Path(plot_file), f"speed step {from_rpm:g} → {to_rpm:g} rpm",
+                     reference_label="reference (firmware)" if first.firmware_ref_rpm is not None else "reference")
     every = [v for per_set in verdicts for v in per_set]
     if as_json:
         if every:  # each gain set's verdicts beside its metrics

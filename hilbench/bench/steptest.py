@@ -88,6 +88,9 @@ class StepResult:
     speed_rpm: np.ndarray = field(repr=False)
     ref_rpm: float = 0.0
     stalled: bool = False  # the firmware stopped on its stall protection (metrics not meaningful)
+    #: the reference the firmware itself reports after the step (its telemetry; a FOC firmware ramps
+    #: it after its alignment), None when it reports none
+    firmware_ref_rpm: np.ndarray | None = field(default=None, repr=False)
 
 
 def require_speed_loop(profile: TargetProfile, where: str) -> None:
@@ -117,7 +120,9 @@ def analyse(columns: dict[str, np.ndarray], test: StepTest, profile: TargetProfi
     metrics = step_metrics(t, speed, y0=y0, y_final_ref=y_ref, current_a=currents, t_step_s=t_step)
     after = t >= t_step
     stalled = bool(columns["state"].size and columns["state"][-1] == STATE_STALLED)
-    return StepResult(label, gains, metrics, t[after] - t_step, speed[after], y_ref, stalled)
+    reported = columns.get("ref_speed_rpm")
+    firmware_ref = reported[after] if reported is not None and np.isfinite(reported[after]).all() else None
+    return StepResult(label, gains, metrics, t[after] - t_step, speed[after], y_ref, stalled, firmware_ref)
 
 
 def run_step(

@@ -257,12 +257,13 @@ def _sector_rate(ax, t, changes, sector) -> None:  # type: ignore[no-untyped-def
     ax.legend(loc="upper right", fontsize=7)
 
 
-def plot_overlay(curves: list[tuple[str, np.ndarray, np.ndarray]], reference: tuple[np.ndarray, np.ndarray] | None, path: Path, title: str) -> Path:
+def plot_overlay(curves: list[tuple[str, np.ndarray, np.ndarray]], reference: tuple[np.ndarray, np.ndarray] | None, path: Path, title: str,
+                 reference_label: str = "reference") -> Path:
     """Several speed responses on one axis (step comparisons)."""
     plt = _pyplot()
     fig, ax = plt.subplots(figsize=(10, 4.5))
     if reference is not None:
-        ax.plot(reference[0], reference[1], color="k", ls="--", lw=1.0, label="reference")
+        ax.plot(reference[0], reference[1], color="k", ls="--", lw=1.0, label=reference_label)
     for label, t, y in curves:
         ax.plot(t, y, lw=1.0, label=label)
     ax.set_xlabel("time [s]")
