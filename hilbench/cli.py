@@ -582,8 +582,8 @@ def step(config: str | None, from_rpm: float, to_rpm: float, gains: tuple[str, .
     if plot_file:
         from hilbench.ui.plots import plot_overlay
 
-        # each curve named by its parameters; the reference as the firmware reports it (a FOC firmware
-        # ramps after its alignment), else the ideal step
+        # each curve named by its parameters; the reference as the firmware reports it (a firmware may
+        # ramp it after an alignment), else the ideal step
         curves = [(" ".join(f"{k}={v:.4g}" for k, v in r.gains.items()) or r.label, r.t_s, r.speed_rpm) for r in results]
         first = results[0]
         reference = first.firmware_ref_rpm if first.firmware_ref_rpm is not None else [first.ref_rpm] * len(first.t_s)

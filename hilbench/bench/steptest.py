@@ -88,8 +88,8 @@ class StepResult:
     speed_rpm: np.ndarray = field(repr=False)
     ref_rpm: float = 0.0
     stalled: bool = False  # the firmware stopped on its stall protection (metrics not meaningful)
-    #: the reference the firmware itself reports after the step (its telemetry; a FOC firmware ramps
-    #: it after its alignment), None when it reports none
+    #: the reference the firmware itself reports after the step (its telemetry; a firmware may ramp
+    #: it after an alignment), None when it reports none
     firmware_ref_rpm: np.ndarray | None = field(default=None, repr=False)
 
 
