@@ -32,6 +32,11 @@ import numpy as np
 
 from hilbench.errors import RecordingError
 
+try:  # CSV rows in C (optional; `Recorder._format_csv` is the reference)
+    from hilbench.bench import _csvrows
+except ImportError:  # pragma: no cover - no compiler at install time
+    _csvrows = None  # type: ignore[assignment]
+
 #: (name, unit, CSV format) of the columns every bench recording has, in order; a target's
 #: telemetry columns (from its profile) go after ``speed_rpm`` (see hilbench.bench.columns).
 COLUMNS: tuple[tuple[str, str, str], ...] = (
@@ -235,9 +240,13 @@ class RowBuffer:
         if len(self):
             self.mark(len(self) - 1, value)
 
-    def columns(self) -> dict[str, np.ndarray]:
+    def columns(self, names: Sequence[str] | None = None) -> dict[str, np.ndarray]:
+        """Every column (or those named) of the pending rows as float64 arrays."""
         # a copy: a view into the bytearray would block its later resizing for as long as it lives
-        return self.layout.to_columns(bytes(self.data))
+        if names is None:
+            return self.layout.to_columns(bytes(self.data))
+        rows = self.layout._rows(bytes(self.data))
+        return {name: self.layout.to_column(rows, name) for name in names}
 
     def clear(self) -> None:
         del self.data[:]
@@ -337,14 +346,29 @@ class Recorder:
             else:
                 columns = rows.columns()
                 names = rows.layout.column_names
-                table = np.column_stack([columns[name] for name in names]) if n_rows else np.zeros((0, len(names)))
-                self._file.write(self._format_csv(list(map(tuple, table.tolist())), events))
+                self._file.write(self._csv_text([columns[name] for name in names], n_rows, events))
             self._file.flush()
         except OSError as exc:
             raise RecordingError(f"recording {self.path}: write failed ({exc.strerror})") from None
         self.rows_written += n_rows
         rows.clear()
         events.clear()
+
+    def _csv_text(self, columns: list[np.ndarray], n_rows: int, events: list[tuple[int, str, int]]) -> str:
+        """The CSV text of these rows and events: `_format_csv` (the reference), or its accelerator
+        `_csvrows.format_rows` (C; the same text, tests/test_csv_rows.py) between the events."""
+        formats = [f for _, _, f in self.rows.layout.column_specs]
+        if _csvrows is not None and n_rows:
+            parts: list[str | None] = []
+            start = 0
+            for index, text, _ in events:
+                parts += [_csvrows.format_rows(columns, formats, start, index), f"# event: {text}\n"]
+                start = index
+            parts.append(_csvrows.format_rows(columns, formats, start, n_rows))
+            if None not in parts:  # else a format or a value the C path leaves to Python
+                return "".join(parts)  # type: ignore[arg-type]
+        table = np.column_stack(columns) if n_rows else np.zeros((0, len(formats)))
+        return self._format_csv(list(map(tuple, table.tolist())), events)
 
     def _format_csv(self, rows: list[tuple[float, ...]], events: list[tuple[int, str, int]]) -> str:
         fmt = ",".join(f for _, _, f in self.rows.layout.column_specs) + "\n"
@@ -698,10 +722,10 @@ class MemoryRecorder:
             self.event(final_note)
         self.closed = True
 
-    def columns(self) -> dict[str, np.ndarray]:
-        """Every column as an array, markers applied."""
+    def columns(self, names: Sequence[str] | None = None) -> dict[str, np.ndarray]:
+        """Every column (or those named: a step test's few) as an array, markers applied."""
         self.rows.settle(self.events)
-        return self.rows.columns()
+        return self.rows.columns(names)
 
 
 class WindowRecorder:

@@ -100,6 +100,10 @@ def require_speed_loop(profile: TargetProfile, where: str) -> None:
                           "(its profile declares no speed_loop capability or reference input)")
 
 
+#: the columns `analyse` reads (a sweep converts only these of every step test's rows)
+ANALYSED_COLUMNS = ("t_s", "speed_rpm", "ia_a", "ib_a", "state")
+
+
 def analyse(columns: dict[str, np.ndarray], test: StepTest, profile: TargetProfile, label: str,
             gains: dict[str, float], period_s: float) -> StepResult:
     """Metrics of a recorded step test.
@@ -144,7 +148,7 @@ def run_step(
     finally:
         parts.close()
     name = label or ("/".join(f"{v:.4g}" for v in gains.values()) or "firmware defaults")
-    return analyse(recorder.columns(), test, session.profile, name, gains, session.period.s)
+    return analyse(recorder.columns(ANALYSED_COLUMNS), test, session.profile, name, gains, session.period.s)
 
 
 def parse_gain_sets(words: Sequence[str], names: Sequence[str]) -> list[dict[str, float]]:

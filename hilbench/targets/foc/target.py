@@ -354,6 +354,15 @@ if _core is not None:
         qep = property(lambda self: _View(self, "qep_"))
         speed = property(lambda self: _View(self, "sp_"))
 
+    class _CoreRepeat:
+        """The kit's RepeatAnswer where the C core keeps the last Drive: forgetting it clears it."""
+
+        def __init__(self, fw: Any) -> None:
+            self.fw = fw
+
+        def forget(self) -> None:
+            self.fw.last_drive = None
+
     class _CFocTarget(FocTarget):
         """FocTarget on the compiled firmware: `step` is the C method of `fw` itself; the half
         period, S2 level and last seq live in the struct."""
@@ -362,8 +371,13 @@ if _core is not None:
 
         def __init__(self, options: FocOptions = FocOptions(), *, backend: str | None = None) -> None:
             super().__init__(options, backend=backend)
-            self._repeat = RepeatAnswer(self.fw.step)  # the C step, behind the kit's answer to a repeat
-            self.step = self._repeat.step  # type: ignore[method-assign]
+            self._repeat = _CoreRepeat(self.fw)  # the C step answers a repeated seq itself (as AN1017's core)
+            self.step = self.fw.step  # type: ignore[method-assign]
+
+        def span_core(self) -> tuple[Any, Any]:
+            """The C step the session's C span runs: (hbglue.h's target capsule, the core whose
+            `step` it stands for)."""
+            return _core.SPAN_API, self.fw
 
         def hello(self, host: HostHello) -> TargetHello:
             out = super().hello(host)
