@@ -100,8 +100,10 @@ def require_speed_loop(profile: TargetProfile, where: str) -> None:
                           "(its profile declares no speed_loop capability or reference input)")
 
 
-#: the columns `analyse` reads (a sweep converts only these of every step test's rows)
+#: the columns `analyse` reads (a sweep converts only these of every step test's rows), and the
+#: firmware's reported reference when the layout has it (the step plot's reference)
 ANALYSED_COLUMNS = ("t_s", "speed_rpm", "ia_a", "ib_a", "state")
+FIRMWARE_REF_COLUMN = "ref_speed_rpm"
 
 
 def analyse(columns: dict[str, np.ndarray], test: StepTest, profile: TargetProfile, label: str,
@@ -148,7 +150,8 @@ def run_step(
     finally:
         parts.close()
     name = label or ("/".join(f"{v:.4g}" for v in gains.values()) or "firmware defaults")
-    return analyse(recorder.columns(ANALYSED_COLUMNS), test, session.profile, name, gains, session.period.s)
+    names = ANALYSED_COLUMNS + ((FIRMWARE_REF_COLUMN,) if FIRMWARE_REF_COLUMN in recorder.rows.layout.column_names else ())
+    return analyse(recorder.columns(names), test, session.profile, name, gains, session.period.s)
 
 
 def parse_gain_sets(words: Sequence[str], names: Sequence[str]) -> list[dict[str, float]]:
