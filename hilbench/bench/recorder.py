@@ -742,6 +742,56 @@ class MemoryRecorder:
         return self.rows.columns(names)
 
 
+class WindowRecorder:
+    """Rows kept only for a live view, never saved: a run without a recording whose scope asked for
+    its stream. At most ``flush_rows`` rows are held; each flush drops them (the scope's display
+    stream takes them just before), so memory stays flat however long the run. ``path`` is None and
+    ``rows_written`` 0: nothing is recorded."""
+
+    path = None
+    closed = False
+
+    def __init__(self, flush_rows: int) -> None:
+        self.flush_rows = max(1, flush_rows)
+        self.metadata: dict[str, Any] = {}
+        self.rows = RowBuffer()
+        self.events: list[tuple[int, str, int]] = []
+        self.append = self.rows.append
+        self.rows_written = 0
+
+    def start(self, layout: RowLayout = COLUMN_LAYOUT) -> None:
+        if layout != self.rows.layout:
+            self.rows.configure(layout)
+            self.append = self.rows.append
+
+    def event(self, text: str, marker: int = MARKER_NONE) -> None:
+        self.events.append((len(self.rows), text, marker))
+        if len(self.events) > 4 * _WINDOW_EVENTS:  # a script writing events in a loop: keep the newest
+            del self.events[:-_WINDOW_EVENTS]
+
+    def mark_last(self, marker: int) -> None:
+        self.rows.settle(self.events)
+        self.rows.mark_last(marker)
+
+    def maybe_flush(self) -> None:
+        if len(self.rows) >= self.flush_rows:
+            self.flush()
+
+    def flush(self) -> None:
+        """Drop the rows held (the buffer object stays: the session's loop holds it); events noted at
+        the next row to come move to the new first row."""
+        n_rows = len(self.rows)
+        self.events = [(index - n_rows, text, marker) for index, text, marker in self.events if index >= n_rows]
+        self.rows.clear()
+
+    def close(self, final_note: str | None = None) -> None:
+        self.closed = True
+
+
+#: events a `WindowRecorder` keeps at least
+_WINDOW_EVENTS = 1000
+
+
 def _export_format(fmt: str, values: np.ndarray) -> str:
     """``fmt``, unless it is an integer format and the column holds a value that is no integer
     (NaN or infinity: "%d" cannot write them): then one that writes every value."""
