@@ -639,14 +639,16 @@ class _Conn:
 
 
 def peer_uid(sock: socket.socket) -> int | None:
-    """The uid of the process at the other end of a Unix socket (Linux SO_PEERCRED); None elsewhere."""
+    """The uid of the process at the other end of a Unix socket (Linux SO_PEERCRED); None where the
+    system has no such option. A peer whose credentials cannot be read is -1, which no user is: it is
+    refused (fail closed), never taken for ours."""
     option = getattr(socket, "SO_PEERCRED", None)
     if option is None:
         return None
     try:
         _, uid, _ = struct.unpack("3i", sock.getsockopt(socket.SOL_SOCKET, option, struct.calcsize("3i")))
     except OSError:
-        return None
+        return -1
     return uid
 
 
