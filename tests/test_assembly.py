@@ -40,3 +40,26 @@ def test_a_bench_runs_a_target_and_a_plant_the_caller_made() -> None:
         signals = bench.signals()
     assert len(signals["t_s"]) == 200 and np.all(signals["echo_seq"] == np.arange(200) % 256)
     assert plant.t_s == Period(50).t_s(200)  # the bench advanced the caller's plant, on its clock
+
+
+def test_a_target_object_runs_the_physics_of_its_spec() -> None:
+    """The plant a Bench builds around a Target object has that target's PWM timing (found by its
+    firmware name), as around its spec: with the switching inverter, where the pulses sit matters.
+    (It used to get the default timing: an AN1017 object ran peak-centred pulses, its spec zero-centred.)"""
+    from hilbench.targets.registry import make_target
+
+    switching = ['inverter.model="switching"']
+
+    def run(target: object) -> dict[str, np.ndarray]:
+        with hilbench.Bench(target=target, overrides=switching) as bench:  # type: ignore[arg-type]
+            bench.set_reference(1000)
+            bench.press("s2")
+            bench.run(0.02)
+            signals = bench.signals()
+            return {name: np.asarray(signals[name]) for name in signals}
+
+    by_spec = run("inprocess:an1017")
+    by_object = run(make_target("an1017"))
+    assert set(by_spec) == set(by_object)
+    for name, column in by_spec.items():
+        np.testing.assert_array_equal(by_object[name], column, err_msg=name)

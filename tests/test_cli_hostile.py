@@ -28,6 +28,20 @@ def test_link_test_names_an_unknown_target_as_run_does() -> None:
     assert line.startswith("hilbench: config error:")
 
 
+@pytest.mark.parametrize("kind", ["missing", "not executable"])
+def test_link_test_names_an_exec_program_it_cannot_run(kind: str, tmp_path: Path) -> None:
+    """Repro: `link-test exec:/nonexistent/target` printed "file error" with exit 1 (an OSError
+    past the error hierarchy); a program that is missing or not executable is a config error, as
+    `sil:PATH` says it."""
+    program = str(tmp_path / "target")
+    if kind == "not executable":
+        Path(program).write_text("not a program\n")
+        os.chmod(program, 0o644)
+    line = assert_one_line_error(hilbench("link-test", f"exec:{program}", "--periods", "10"), 2,
+                                 f"exec:{program}: no program to run there")
+    assert line.startswith("hilbench: config error:")
+
+
 @pytest.mark.slow
 def test_link_test_starts_an_emulator_spec_as_run_does() -> None:
     """`link-test emulator:an1017` used to open a pty with nobody at its far end."""

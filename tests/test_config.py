@@ -152,3 +152,28 @@ def test_the_plant_registry_alone_reads_a_plant_config_and_refuses_the_bench_tab
     with pytest.raises(ConfigError, match=r"unknown table \[check\]"):  # a bench file: its bench tables are unknown
         load_tables(CONFIGS / "hurst_mclv.toml", sections=PLANT_SECTIONS)
     assert set(SECTIONS.names()) >= set(PLANT_SECTIONS.names()) | {"run", "link", "target", "scenario", "check"}
+
+
+def test_a_wrong_link_table_does_not_judge_the_target_table_against_another_target() -> None:
+    """[target] is validated against the options of the target [link] names; with [link] wrong, the
+    servo config's FOC options were judged against the default target's: one bad period gave nine
+    "unknown key" lines about a [target] table that is right."""
+    servo = Path(__file__).resolve().parent.parent / "bench_configs" / "servo_200w.toml"
+    with pytest.raises(ConfigError) as info:
+        load_config(servo, ["link.period_us=-5"])
+    assert info.value.lines == ["--set link.period_us [link] period_us: -5 us is out of range: must be >= 50 us"]  # type: ignore[attr-defined]
+    with pytest.raises(ConfigError) as info:  # with [link] right, [target] is judged as before
+        load_config(servo, ["target.nope=1"])
+    assert any("[target] nope: unknown key" in line for line in info.value.lines)  # type: ignore[attr-defined]
+
+
+def test_a_gains_file_reaches_the_config_with_its_toml_types(tmp_path: Path) -> None:
+    """`--gains-file`'s [target] values become overrides: a boolean used to go over as Python's
+    `True` (read back as the text 'True': "expected true or false, got str 'False'")."""
+    from hilbench.bench.settings import params_file_overrides
+
+    fragment = tmp_path / "gains.toml"
+    fragment.write_text('[target]\nlearn_index = false\nspd_kp = 0.25\npi_form = "pi_clamp"\n')
+    servo = Path(__file__).resolve().parent.parent / "bench_configs" / "servo_200w.toml"
+    cfg = load_config(servo, params_file_overrides(str(fragment)))
+    assert (cfg.target.learn_index, cfg.target.spd_kp, cfg.target.pi_form) == (False, 0.25, "pi_clamp")

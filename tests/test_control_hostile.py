@@ -233,3 +233,20 @@ def test_discovery_files_others_may_write_are_not_believed(tmp_path: Path, monke
             read_discovery(named)
     finally:
         server.close()
+
+
+def test_a_peer_whose_credentials_cannot_be_read_is_not_taken_for_ours() -> None:
+    """peer_uid fails closed: an unreadable SO_PEERCRED is uid -1 (refused), not None (accepted)."""
+    import socket as _socket
+
+    from hilbench.bench.control import peer_uid
+
+    class Unreadable(_socket.socket):
+        def getsockopt(self, *args):  # type: ignore[no-untyped-def, override]
+            raise OSError("no credentials")
+
+    sock = Unreadable(_socket.AF_UNIX, _socket.SOCK_STREAM)
+    try:
+        assert peer_uid(sock) == -1
+    finally:
+        sock.close()

@@ -130,3 +130,46 @@ def test_the_recordings_read_back_whole(recorded: dict[str, Path]) -> None:
     a, b = read_recording(recorded["csv"]), read_recording(recorded["npz"])
     assert a.n_rows == b.n_rows == 400
     np.testing.assert_allclose(a.columns["speed_rpm"], b.columns["speed_rpm"], atol=1e-3)
+
+
+def test_a_damaged_row_in_the_middle_of_a_csv_is_refused_not_cut(recorded: dict[str, Path], tmp_path: Path) -> None:
+    """Only the last row may be cut (a crash while writing it): a row that lost a value with rows
+    after it used to end the reading there, silently dropping every later row."""
+    whole = recorded["csv"].read_text().splitlines(keepends=True)
+    rows = [n for n, line in enumerate(whole) if line[:1].isdigit() or line[:1] == "-"]
+    middle = rows[len(rows) // 2]
+    lines = list(whole)
+    lines[middle] = lines[middle].rsplit(",", 1)[0] + "\n"
+    damaged = tmp_path / "damaged.csv"
+    damaged.write_text("".join(lines))
+    assert_one_line_error(run_hilbench("report", str(damaged)), 6, "damaged.csv", f"line {middle + 1}:", "rows follow")
+    torn = tmp_path / "torn.csv"  # a crash's cut: the last row without its end, every earlier row stands
+    torn.write_text("".join(whole[:rows[-1]]) + whole[rows[-1]][:7])
+    assert read_recording(torn).n_rows == len(rows) - 1
+
+
+@pytest.mark.parametrize("value", [np.nan, np.inf])
+def test_a_fault_row_whose_seq_is_not_a_number(recorded: dict[str, Path], tmp_path: Path, value: float) -> None:
+    """Repro: `report` on a recording whose fault row has seq NaN (or infinity) ended in a traceback
+    (ValueError/OverflowError converting it to the fault row's number); seq and marker are whole
+    numbers in every row the recorder writes."""
+    from hilbench.bench.recorder import MARKER_FAULT
+
+    arrays = _npz_arrays(recorded["npz"])
+    arrays["marker"][50] = MARKER_FAULT
+    arrays["seq"][50] = value
+    path = _save(tmp_path / "seq.npz", arrays)
+    assert_one_line_error(run_hilbench("report", str(path)), 6, "seq.npz", f"seq is {value} at row 50")
+
+
+def test_a_segment_event_beyond_any_period(recorded: dict[str, Path], tmp_path: Path) -> None:
+    """Repro (a seeded fuzz of report's inputs): a `segment:` event at 1e308 s (finite, so the event
+    check let it by) ended `report` in an OverflowError traceback rounding its period index."""
+    arrays = _npz_arrays(recorded["npz"])
+    metadata = json.loads(str(arrays["metadata"]))
+    metadata["events"] = ["segment: ref at 1e308 ref 2000.0 ramp 0.0", *metadata.get("events", [])]
+    arrays["metadata"] = np.asarray(json.dumps(metadata))
+    path = _save(tmp_path / "far.npz", arrays)
+    result = run_hilbench("report", str(path), "--json")
+    assert result.returncode == 0 and "Traceback" not in result.stderr, result.stderr[-2000:]
+    assert json.loads(result.stdout)["rows"] == read_recording(recorded["npz"]).n_rows

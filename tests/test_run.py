@@ -188,3 +188,16 @@ def test_unreadable_recording_is_one_line(tmp_path: Path) -> None:
     result = run_cli("report", str(junk))
     assert result.returncode == 6
     assert "not a hilbench CSV" in result.stderr
+
+
+@pytest.mark.parametrize("spec", ["sil:/tmp/a\\build/fw", 'exec:/tmp/with "quotes"/target', "sil:/tmp/tab\\there"])
+def test_a_target_spec_reaches_the_config_as_written(spec: str) -> None:
+    """--target and Bench(target=...) hand the spec over as a TOML string: its backslashes and quotes
+    are the spec's own (``sil:/tmp/a\\build`` used to become "sil:/tmp/a" + a backspace + "uild",
+    a quote a config error about the packaged config)."""
+    import hilbench
+    from hilbench.bench.bench import as_config
+
+    assert load_run_config(RunRequest(target=spec)).link.target == spec
+    assert as_config(None, spec, ()).link.target == spec
+    assert hilbench.Bench(target=spec).config.link.target == spec

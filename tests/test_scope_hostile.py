@@ -306,3 +306,21 @@ def test_the_http_log_is_one_line_per_window() -> None:
         "when reading (1 more in the last 10 s)",
     ]
     assert log.count == 7 and logging.getLogger("hilbench.scope.http").handlers == []
+
+
+@pytest.mark.parametrize("depth", [17, 900, 950, 990, 5000])
+def test_a_deeply_nested_page_message_is_refused_not_raised(depth: int) -> None:
+    """A command nested ~950 levels deep passed json.loads and overflowed the finite-number check's
+    recursion (RecursionError ended the page's handler); it is one refusal now, at any depth."""
+    from hilbench.scope.messages import MAX_DEPTH, Refused, parse_page_message
+
+    text = '{"type":"cmd","cmd":"x","a":' + "[" * depth + "]" * depth + "}"
+    # json.loads itself gives up somewhere near 1000 levels: "not a JSON message", also a refusal
+    with pytest.raises(Refused, match=f"at most {MAX_DEPTH} levels|not a JSON message"):
+        parse_page_message(text)
+
+
+def test_a_flat_command_still_parses() -> None:
+    from hilbench.scope.messages import Command, parse_page_message
+
+    assert isinstance(parse_page_message('{"type":"cmd","cmd":"set","params":{"kp":[0.1]}}'), Command)

@@ -20,6 +20,7 @@ from hilbench.bench.session import ControlSource, PlantLike, Session, SessionOpt
 from hilbench.config import BenchConfig, plant_from_config
 from hilbench.targets.base import Target
 from hilbench.targets.profile import TargetProfile
+from hilbench.targets.registry import profile_for_firmware
 
 
 @dataclass
@@ -72,12 +73,15 @@ def build_bench(
 ) -> BenchParts:
     """A target (``target``, or the one ``cfg`` names), a plant (``plant``, or the config's) and a
     session over them with ``options`` (default: the config's). The caller handshakes and runs;
-    `BenchParts.close` releases what was opened, whatever happened."""
+    `BenchParts.close` releases what was opened, whatever happened. The config's plant takes its
+    PWM timing from the target's profile, a ``target`` object's found by its firmware name (as the
+    handshake finds it): a Target object and its spec run the same physics."""
     options = options or settings.session_options(cfg)
     profile = configured_profile(cfg) if target is None else None
     handle = connect(cfg, options, profile) if target is None else given_target(target)
     try:
-        plant = plant if plant is not None else build_plant(cfg, profile)
+        if plant is None:
+            plant = build_plant(cfg, profile if target is None else profile_for_firmware(target.firmware_name))
         session = Session(handle.target, plant, events, options, profile=profile, recorder=recorder,  # type: ignore[arg-type]
                           observer=observer, control=control, link_stats=handle.link_stats,
                           target_label=handle.label, guard=settings.guard_settings(cfg))

@@ -16,6 +16,7 @@ and every action is an event in the recording.
 from __future__ import annotations
 
 import dataclasses
+import json
 import math
 import os
 import subprocess
@@ -73,7 +74,7 @@ def as_config(config: BenchConfig | str | os.PathLike[str] | None, target: str |
         if not target and not overrides:
             return config
         raise ConfigError("Bench: give target= and overrides= with a config path, not with a loaded BenchConfig")
-    extra = list(overrides) + ([f'link.target="{target}"'] if target else [])
+    extra = list(overrides) + ([f"link.target={json.dumps(target)}"] if target else [])  # a TOML string, escaped
     return load_config(config, extra)
 
 
@@ -259,9 +260,19 @@ class Bench:
         """Every declared parameter in its units (Q15 ones as fractions)."""
         return self._session.param_values()
 
-    def set_params(self, guard: bool = True, **values: float) -> None:
-        """Write parameters at once, checked and guarded as `hilbench ctl set` is."""
-        self._session.set_params({k: float(v) for k, v in values.items()}, self.t_s, guard=guard)
+    def set_params(self, params: Mapping[str, float] | None = None, /, *, guard: bool = True,
+                   **values: float) -> None:
+        """Write parameters at once, checked and guarded as `hilbench ctl set` is:
+        ``bench.set_params(kp=0.1, ki=0.02)`` or ``bench.set_params({"kp": 0.1, "ki": 0.02})``."""
+        if params is not None and not isinstance(params, Mapping):
+            raise ConfigError(f"set_params: expected a mapping of parameter names to values, got {params!r}")
+        merged = {**(params or {}), **values}
+        if not merged:
+            raise ConfigError("set_params: no parameter given (e.g. set_params(kp=0.1))")
+        bad = {k: v for k, v in merged.items() if isinstance(v, bool) or not isinstance(v, (int, float))}
+        if bad:
+            raise ConfigError(f"set_params: values must be numbers, got {bad!r}")
+        self._session.set_params({str(k): float(v) for k, v in merged.items()}, self.t_s, guard=bool(guard))
 
     # ------------------------------------------------------------------ reading
     @property

@@ -61,7 +61,11 @@ def open_executor(spec: str | None, workers: int | None) -> Iterator[tuple[Execu
         from hilbench.processes import worker_init
 
         with ProcessPoolExecutor(max_workers=n, initializer=worker_init, initargs=(os.getpid(),)) as pool:  # die with us
-            yield pool, f"a local pool of {n} processes"
+            try:
+                yield pool, f"a local pool of {n} processes"
+            except BaseException:  # a task failed, Ctrl-C: the queued tasks are not run first
+                pool.shutdown(wait=True, cancel_futures=True)
+                raise
         return
     if spec == "local-dask" or spec.startswith("local-dask:"):
         count = spec.partition(":")[2]

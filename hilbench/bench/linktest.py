@@ -20,8 +20,8 @@ from typing import Any, Callable, Sequence
 
 import numpy as np
 
-from hilbench.errors import LinkError, LinkTimeout
-from hilbench.link import open_link, parse_target_spec
+from hilbench.errors import ConfigError, LinkError, LinkTimeout
+from hilbench.link import FaultyLink, Link, open_link, parse_target_spec
 from hilbench.processes import spawn
 from hilbench.protocol import INPUT_S3, MODE_LOCKSTEP, Sensors
 from hilbench.targets.base import Target
@@ -91,7 +91,12 @@ class _Spawned:
                         "--port", str(self.link.peer_path), *emulate_args]
             else:
                 argv = [program, str(self.link.peer_path)]
-            self.proc = spawn(argv, stdout=subprocess.PIPE, stderr=subprocess.PIPE, stdin=subprocess.DEVNULL)
+            try:
+                self.proc = spawn(argv, stdout=subprocess.PIPE, stderr=subprocess.PIPE, stdin=subprocess.DEVNULL)
+            except OSError as exc:  # exec:PATH with nothing runnable there: as `sil:PATH` says it
+                what = f"exec:{program}: no program to run there" if program is not None else \
+                    f"link {self.link.name}: cannot start the {target_name} emulator"
+                raise ConfigError(f"{what} ({exc.strerror or exc})") from None
             if program is None:
                 self._wait_ready()
         except BaseException:
@@ -151,7 +156,7 @@ def _checker(firmware_name: str) -> Target | None:
 
 def run_link_test(target: str = DEFAULT_TARGET, *, periods: int = 10_000, period_us: int = 50,
                   timeout_s: float = 1.0, progress: Callable[[int], None] | None = None,
-                  link_wrapper: Callable[[Any], Any] | None = None) -> LinkTestResult:
+                  link_wrapper: Callable[[Link], Link | FaultyLink] | None = None) -> LinkTestResult:
     """Run `periods` lockstep exchanges against target: a link spec, "pty" (spawn the link-test
     target's emulator on a pty pair), "exec:PROGRAM" (spawn PROGRAM with the pty path), or
     emulator:NAME / sil:NAME (started as `hilbench run` starts them; an unknown NAME is the same

@@ -139,10 +139,11 @@ class ColumnArchive:
         return self
 
     def __exit__(self, kind: object, *rest: object) -> None:
-        if kind is None:
-            self.close()
-        else:
-            self.abandon()
+        try:
+            if kind is None:
+                self.close()
+        finally:
+            self.abandon()  # the descriptor is closed whatever went wrong, a failed close too
 
 
 def _pwrite_all(fd: int, data: memoryview, offset: int) -> None:

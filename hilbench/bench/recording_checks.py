@@ -57,6 +57,10 @@ METADATA_TYPES: Mapping[str, tuple[str, Callable[[Any], bool]]] = {
 }
 
 
+#: columns the recorder writes as whole numbers in every row (a report names fault rows by seq)
+WHOLE_COLUMNS = ("seq", "marker")
+
+
 def _shown(value: Any) -> str:
     text = repr(value)
     return text if len(text) <= 40 else text[:37] + "..."
@@ -108,6 +112,10 @@ def check_columns(where: str, columns: Mapping[str, Any], required: tuple[str, .
         raise RecordingError(f"recording {where}: t_s does not increase at row {back[0] + 1} "
                              f"({t[back[0]]!r} then {t[back[0] + 1]!r})")
     out = {name: (t if name == "t_s" else _numbers(where, name, values, len(t))) for name, values in columns.items()}
+    for name in WHOLE_COLUMNS:
+        bad = np.flatnonzero(~np.isfinite(out[name])) if name in out else ()
+        if len(bad):
+            raise RecordingError(f"recording {where}: {name} is {out[name][bad[0]]} at row {bad[0]}")
     return out
 
 
@@ -123,4 +131,4 @@ def check_events(where: str, events: Any) -> tuple[str, ...]:
     return tuple(events)
 
 
-__all__ = ["METADATA_TYPES", "check_columns", "check_columns_fit", "check_events", "check_metadata"]
+__all__ = ["METADATA_TYPES", "WHOLE_COLUMNS", "check_columns", "check_columns_fit", "check_events", "check_metadata"]

@@ -7,6 +7,7 @@ and any process the run started is reaped (the `Bench` owns them).
 from __future__ import annotations
 
 import dataclasses
+import json
 from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, Callable, Sequence
@@ -42,7 +43,7 @@ def load_run_config(request: RunRequest) -> BenchConfig:
     """The config with the command line's choices folded in as overrides (validated together)."""
     overrides = list(request.overrides)
     if request.target is not None:
-        overrides.append(f'link.target="{request.target}"')
+        overrides.append(f"link.target={json.dumps(request.target)}")  # a TOML string whatever the spec holds
     if request.mode is not None:
         overrides.append(f'run.mode="{request.mode}"')
     if request.duration_s is not None:

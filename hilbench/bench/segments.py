@@ -139,13 +139,20 @@ def replay(events: Iterable[str], t_s: Sequence[float], plant_rpm: Sequence[floa
         if k % every_periods:
             continue
         t = k * period_s
-        while i < len(calls) and round(calls[i][0] / period_s) <= k:  # by period, as the session ran them
+        while i < len(calls) and _period_of(calls[i][0], period_s) <= k:  # by period, as the session ran them
             _apply(segmenter, calls[i])
             i += 1
         segmenter.sample(t, float(plant_rpm[row]), float(measured_rpm[row]))
     for call in calls[i:]:
         _apply(segmenter, call)
     return segmenter.finish(end_s)
+
+
+def _period_of(t_s: float, period_s: float) -> float:
+    """The period an event at ``t_s`` fell in (rounded, as the session ran it); ±inf for a time no
+    period index holds (a damaged recording's 1e308 s)."""
+    q = t_s / period_s
+    return round(q) if math.isfinite(q) else math.copysign(math.inf, q)
 
 
 def _apply(segmenter: Segmenter, call: tuple[float, str, float, float]) -> None:

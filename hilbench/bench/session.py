@@ -159,6 +159,7 @@ class Session:
         self._trip_noted = False  # the overcurrent comparator's trip is an event once per latch
         self._edge_s: float | None = None
         self._next_k = 0
+        self._rows_changed = False  # watch_rows changed the row writer: the tight loop is made again
 
     @property
     def player(self) -> ScenarioPlayer:
@@ -228,6 +229,7 @@ class Session:
     def set_reference(self, rpm: float) -> None:
         """The speed reference, by the way the target's profile says it reaches the firmware."""
         self.ref_rpm = rpm
+        self.tuning.reference_changed(self.now_s)  # gains on probation are watched from here
         reference = self.profile.reference
         if isinstance(reference, PotReference):
             self.plant.pot_fraction = reference.pot_fraction(rpm)
@@ -272,6 +274,23 @@ class Session:
         self._end_reason = reason
         self.segment("end", t_s)
         self.note(t_s, note)
+
+    def watch_rows(self, on: bool) -> None:
+        """Rows for the scope in a run that records none: a `WindowRecorder` (bounded, never saved)
+        while a scope watches, nothing again when it stops. Between periods only (the parts' thread);
+        the tight loop picks the new row writer up before its next periods."""
+        from hilbench.bench.recorder import WindowRecorder
+
+        window = isinstance(self.recorder, WindowRecorder)
+        if on and self.recorder is None and self.hello is not None:
+            self.recorder = WindowRecorder(max(1, round(self.period.per_s)))  # type: ignore[assignment]
+        elif not on and window:
+            self.recorder = None
+        else:
+            return
+        if hasattr(self, "summary"):  # begun: the loop's row writer follows
+            self._record = self._row_writer()
+            self._rows_changed = True
 
     def display_stream(self) -> "DisplayStream":
         """The scope's display stream, made on the first request."""
@@ -433,6 +452,9 @@ class Session:
             stop = after_k + 1  # a history part is always there: an int
             if before_k < stop:
                 stop = before_k
+            if self._rows_changed:  # a scope started or stopped watching a run without a recording
+                self._rows_changed = False
+                run = self._periods_runner()
             k = run((k, k_to if k_to < stop else int(stop)))
             if after_k == k - 1:
                 self.periods_done = after_k
@@ -609,6 +631,13 @@ class Session:
             extend(pack(*own, *((self.ref_rpm,) if self._record_host_ref else ())))
             extend(pack_telemetry(*drive.telemetry))
         return self.plant.advance(drive.duty_a, drive.duty_b, drive.duty_c, drive.output_mode, rows)
+
+    def fault_seen(self, t_s: float, code: int) -> None:
+        """The history saw a firmware fault code: the summary keeps the first code and the span."""
+        summary = self.summary
+        if summary.fault_first_s is None:
+            summary.fault_code, summary.fault_first_s = int(code), t_s
+        summary.fault_last_s = t_s
 
     def _comparator(self, k: int) -> None:
         """The overcurrent comparator's latch is set: note the trip once."""

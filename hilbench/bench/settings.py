@@ -9,6 +9,8 @@ a whole — plant and bench tables together, every problem at once. `load_config
 from __future__ import annotations
 
 import difflib
+import json
+import math
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Literal, Sequence
@@ -131,13 +133,33 @@ def _target_options_type(built: Any) -> type | None:
     return target_profile(built.get("link")).options_type
 
 
+def _target_owner(keys: frozenset[str]) -> str | None:
+    """Which other known target's [target] options these keys are (a config written for it)."""
+    import dataclasses as dc
+
+    from hilbench.targets.registry import get_profile, known_targets
+
+    owners = []
+    for name in known_targets():
+        try:
+            options = get_profile(name).options_type
+        except ConfigError:
+            continue
+        if options is not None and dc.is_dataclass(options) and keys <= {f.name for f in dc.fields(options)}:
+            owners.append(name)
+    if not owners:
+        return None
+    return (f"these are the {' or '.join(owners)} target's options: this [target] table belongs to "
+            f"{owners[0]} (run it with its own target, or drop the table for this one)")
+
+
 #: every table of a bench config: the plant's and the bench's (an explicit registry)
 SECTIONS = (
     PLANT_SECTIONS
     .with_table("tuning", TuningSection)
     .with_table("run", RunSection)
     .with_table("link", LinkSection)
-    .with_table("target", None, chooser=_target_options_type)
+    .with_table("target", None, chooser=_target_options_type, needs=("link",), explain=_target_owner)
     .with_table("scenario", ScenarioEntry, many=True)
     .with_table("check", CheckEntry, many=True)  # pass/fail criteria of a run (hilbench.bench.checks)
 )
@@ -225,7 +247,22 @@ def params_file_overrides(path: str) -> tuple[str, ...]:
     table = data.get("target")
     if not isinstance(table, dict) or not table:
         raise ConfigError(f"{path}: no [target] table with parameters (write one with `hilbench ctl save`)")
-    return tuple(f"target.{k}={v!r}" for k, v in table.items())
+    return tuple(f"target.{k}={_toml_value(v)}" for k, v in table.items())
+
+
+def _toml_value(value: object) -> str:
+    """A value read from TOML written back as TOML (`repr` wrote True for true: a string to the loader)."""
+    if isinstance(value, bool):
+        return "true" if value else "false"
+    if isinstance(value, float) and not math.isfinite(value):
+        return "nan" if math.isnan(value) else ("inf" if value > 0 else "-inf")
+    if isinstance(value, (int, float)):
+        return repr(value)
+    if isinstance(value, list):
+        return "[" + ", ".join(_toml_value(v) for v in value) + "]"
+    if isinstance(value, dict):
+        return "{" + ", ".join(f"{json.dumps(str(k))} = {_toml_value(v)}" for k, v in value.items()) + "}"
+    return json.dumps(str(value))  # a string (TOML's basic strings take JSON's escapes)
 
 
 def scenario_events(cfg: BenchConfig) -> tuple[Event, ...]:

@@ -18,6 +18,8 @@ from typing import Any
 
 #: the most columns a page may draw at once (the control socket's stream allows as many)
 MAX_COLUMNS = 48
+#: how deeply a page's message may nest lists and objects (a command's arguments are flat)
+MAX_DEPTH = 16
 _NAME = re.compile(r"^[A-Za-z_][A-Za-z0-9_.]{0,31}$")
 
 
@@ -58,6 +60,8 @@ def parse_page_message(text: str) -> Subscribe | Command:
         raise Refused("not a JSON message") from None
     if not isinstance(message, dict):
         raise Refused("a message must be a JSON object")
+    if _depth(message) > MAX_DEPTH:  # the checks below recurse: refuse before they can overflow
+        raise Refused(f"a message may nest at most {MAX_DEPTH} levels")
     kind = message.get("type")
     page_id = _page_id(message.get("id"))
     if kind == "subscribe":
@@ -85,6 +89,19 @@ def _command(message: dict[str, Any], page_id: str | int | None) -> Command:
     if not _finite(request):
         raise Refused("cmd: numbers must be finite", page_id)
     return Command(page_id, request)
+
+
+def _depth(value: Any) -> int:
+    """How deeply lists and objects nest in a parsed JSON value (iterative: any depth is measured)."""
+    deepest, stack = 0, [(value, 1)]
+    while stack:
+        item, level = stack.pop()
+        children = item.values() if isinstance(item, dict) else item if isinstance(item, list) else ()
+        for child in children:
+            if isinstance(child, (dict, list)):
+                stack.append((child, level + 1))
+        deepest = max(deepest, level)
+    return deepest
 
 
 def _finite(value: Any) -> bool:
