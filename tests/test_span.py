@@ -189,3 +189,44 @@ def test_a_span_cannot_run_inside_itself_nor_uninitialised() -> None:
         assert len(rows) == 200 * span.row_bytes  # type: ignore[attr-defined]
         size = span.row_bytes  # type: ignore[attr-defined]
         assert [int.from_bytes(rows[i * size:i * size + 8], "little") for i in range(200)] == list(range(200))
+
+
+def _busy_scenario(path: Path) -> Path:
+    """An event in nearly every period for 400 events: faults that start and end within a period or
+    two, reference, load, bus, gain and button changes (spans of zero, one or two periods)."""
+    import random
+
+    draw = random.Random(5)
+    period_s = 50e-6
+    lines = ['[[scenario]]\nat_s = 0.0\npress = "s2"\n', '[[scenario]]\nat_s = 0.005\nref_rpm = 1500.0\nramp_s = 0.1\n']
+    t_s = 0.15
+    for _ in range(400):
+        t_s += period_s * draw.choice([1, 1, 1, 2, 0.5])
+        at, c = f"[[scenario]]\nat_s = {t_s:.7f}\n", draw.random()
+        if c < 0.3:
+            kind = draw.choice(["hall_a_high", "hall_b_low", "hall_missing_edge", "adc_offset", "clear"])
+            lasting = kind != "clear" and draw.random() < 0.7
+            lines.append(at + f'fault = "{kind}"\n' + (f"fault_duration_s = {period_s * draw.choice([0.5, 1, 2]):.7f}\n"
+                                                       if lasting else ""))
+        elif c < 0.5:
+            lines.append(at + f"ref_rpm = {draw.uniform(500, 2500):.1f}\n")
+        elif c < 0.65:
+            lines.append(at + f"load_nm = {draw.uniform(0, 0.02):.4f}\n")
+        elif c < 0.8:
+            lines.append(at + f"set = {{ kp = {draw.uniform(0.1, 0.3):.3f} }}\n")
+        elif c < 0.9:
+            lines.append(at + f"vbus_v = {draw.uniform(20, 24):.2f}\n")
+        else:
+            lines.append(at + 'press = "s2"\n')
+    path.write_text("".join(lines))
+    return path
+
+
+def test_an_event_in_nearly_every_period_records_what_the_python_loop_records(tmp_path: Path) -> None:
+    scenario = _busy_scenario(tmp_path / "busy.toml")
+    c, c_events, c_periods = _run("c", "inprocess:an1017", None, scenario, 0.2)
+    py, py_events, _ = _run("python", "inprocess:an1017", None, scenario, 0.2)
+    readable, readable_events, _ = _run("readable", "inprocess:an1017", None, scenario, 0.2)
+    assert not _same(c, py) and not _same(c, readable)
+    assert c_events == py_events == readable_events and len(c_events) > 400
+    assert c_periods > 0
