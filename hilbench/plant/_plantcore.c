@@ -50,10 +50,11 @@ typedef struct {
     long long noise_i;
     /* the exchange period (model.Plant.set_period) and the hall edges of the last one */
     double period_s, chunk_s;
-    int chunks, n_edges;
+    int chunks, n_edges, n_marks;
     long long periods;
     double edge_t[MAX_CHUNKS];
     int edge_hall[MAX_CHUNKS];
+    double mark_t[MAX_CHUNKS]; /* the encoder's index marks of the last advance (chunk ends) */
     /* the recorded outputs: offsets of double members, in model.OUTPUTS order */
     Py_ssize_t out_off[MAX_OUTPUTS];
     int n_out;
@@ -458,6 +459,7 @@ static PyObject *Core_advance(Core *s, PyObject *const *args, Py_ssize_t nargs)
     int have = 0;
     double edge = 0.0;
     s->n_edges = 0;
+    s->n_marks = 0;
     for (int i = 0; i < chunks; i++) { /* long periods: the plant keeps its accurate step, duties held */
         int sub_have = 0;
         double sub_edge = 0.0;
@@ -469,7 +471,10 @@ static PyObject *Core_advance(Core *s, PyObject *const *args, Py_ssize_t nargs)
             s->edge_hall[s->n_edges] = s->hall_bits;
             s->n_edges++;
         }
+        if (s->encoder_index) /* an index mark passed in this chunk: timed at its end */
+            s->mark_t[s->n_marks++] = (double)(i + 1) * h;
     }
+    s->encoder_index = (char)(s->n_marks > 0); /* a mark anywhere in the period */
     s->periods += 1;
     s->t_s = (double)s->periods * s->period_s; /* one time base: k periods are Period.t_s(k) */
     return finish_call(s, args, nargs, 4, have, edge);
@@ -485,6 +490,20 @@ static PyObject *Core_edges(Core *s, PyObject *unused)
         PyObject *e = Py_BuildValue("(di)", s->edge_t[i], s->edge_hall[i]);
         if (e == NULL) { Py_DECREF(out); return NULL; }
         PyTuple_SET_ITEM(out, i, e);
+    }
+    return out;
+}
+
+/* index_marks() -> (t_s, ...): the encoder's index marks of the last advance (model.Plant.index_marks) */
+static PyObject *Core_index_marks(Core *s, PyObject *unused)
+{
+    (void)unused;
+    PyObject *out = PyTuple_New(s->n_marks);
+    if (out == NULL) return NULL;
+    for (int i = 0; i < s->n_marks; i++) {
+        PyObject *t = PyFloat_FromDouble(s->mark_t[i]);
+        if (t == NULL) { Py_DECREF(out); return NULL; }
+        PyTuple_SET_ITEM(out, i, t);
     }
     return out;
 }
@@ -678,6 +697,7 @@ static PyMethodDef Core_methods[] = {
     {"advance", (PyCFunction)(void (*)(void))Core_advance, METH_FASTCALL,
      "advance(duty_a, duty_b, duty_c, output_mode[, state_to]) -> last_edge_s: one exchange period (see model.Plant)."},
     {"edges", (PyCFunction)Core_edges, METH_NOARGS, "edges(): ((t_s, hall_bits), ...) of the last advance."},
+    {"index_marks", (PyCFunction)Core_index_marks, METH_NOARGS, "index_marks(): (t_s, ...) of the last advance."},
     {"_set_outputs", (PyCFunction)Core_set_outputs, METH_O, "_set_outputs(names): what append_state copies."},
     {"adc_codes", (PyCFunction)Core_adc_codes, METH_O, "adc_codes(roles): ADC codes (see model.Plant)."},
     {"sense", (PyCFunction)Core_sense, METH_O,
