@@ -1,15 +1,12 @@
 """Injected sensor faults: a hall line stuck high or low, a missing hall edge, an encoder glitch.
 
-The session asks `filter(hall, edge)` only while a fault is active, so a clean run pays nothing.
+The session asks `filter(hall, edges)` only while a fault is active, so a clean run pays nothing.
 """
 
 from __future__ import annotations
 
 import math
 
-from hilbench.protocol import Edge
-
-EDGE_NONE = int(Edge.NONE)
 _HALL_BITS = {"a": 1, "b": 2, "c": 4}
 
 
@@ -47,14 +44,18 @@ class SensorFaults:
         if duration_s:
             self.clear_at_s = t_s + duration_s
 
-    def filter(self, hall: int, edge: int) -> tuple[int, int]:
-        """The hall bits and edge time the target gets this period."""
+    def filter(self, hall: int, edges: tuple[tuple[int, int], ...]) -> tuple[int, tuple[tuple[int, int], ...]]:
+        """The hall bits and input edges (Sensors.edges) the target gets this period: a missing edge
+        keeps the halls it saw last and drops the period's edges; a forced line reads forced on
+        every edge too (an edge stays, its time is what the other lines did)."""
         if self.missing_edge_armed and hall != self.last_hall:
             self.missing_edge_armed = False
-            return self.last_hall, EDGE_NONE  # this edge never reaches the target
+            return self.last_hall, ()  # this edge never reaches the target
         self.last_hall = hall
-        forced = (hall | self.force_high) & ~self.force_low & 0x7
-        return forced, (EDGE_NONE if forced == hall and edge == EDGE_NONE else edge)
+        high, low = self.force_high, self.force_low
+        if edges and (high or low):
+            edges = tuple([(t, (lines | high) & ~low) for t, lines in edges])
+        return (hall | high) & ~low & 0x7, edges
 
 
 __all__ = ["SensorFaults"]

@@ -22,11 +22,12 @@ from dataclasses import dataclass
 from typing import Any, Callable, Iterable, Literal, Protocol
 
 from hilbench.bench.clock import CpuLatencyRequest
-from hilbench.bench.columns import RPM_PER_RAD_S, session_row
+from hilbench.bench.columns import BENCH_COLUMNS, RPM_PER_RAD_S, session_row
 from hilbench.bench.faults import SensorFaults
 from hilbench.bench.livetuning import GuardSettings, LiveTuning
 from hilbench.bench.pacing import RealtimePacing, SessionAborted
 from hilbench.bench.recorder import MARKER_EVENT, MARKER_FAULT, MARKER_PARAM, Recorder, fields_struct
+from hilbench.bench.sensing import hall_edges, with_index_marks
 from hilbench.bench.scenario import PERIOD_TOLERANCE, Event, Ramp, ScenarioPlayer, first_period_at
 from hilbench.bench import segments as segmentation
 from hilbench.bench.streamstats import StreamingPercentiles
@@ -35,19 +36,20 @@ from hilbench.plant.model import PlantOutput
 from hilbench.errors import BenchLimitError, HilbenchError, LinkError, ParamError, ProtocolError, SimulationError, TargetError
 from hilbench.protocol import (
     PROTOCOL_VERSION,
-    Edge,
     HostHello,
     Input,
     OutputMode,
+    MAX_EDGES,
     Sensors,
     TargetHello,
+    TargetInfo,
     check_target_hello,
 )
 from hilbench.targets.base import Target
 from hilbench.targets.profile import ParamReference, PotReference, TargetProfile
-from hilbench.targets.registry import profile_for_firmware
+from hilbench.targets.describe import describe as describe_firmware, described_profile
+from hilbench.targets.registry import profile_for_firmware, registered_for_firmware
 
-EDGE_NONE = int(Edge.NONE)
 INPUT_S2 = int(Input.S2)
 INPUT_S3 = int(Input.S3)
 INPUT_INDEX = int(Input.INDEX)
@@ -85,6 +87,8 @@ class PlantLike(Protocol):
                 state_to: bytearray | None = None, /) -> float | None: ...
     def step(self, duty_a: float, duty_b: float, duty_c: float, output_mode: int, dt_s: float,
              state_to: bytearray | None = None, /) -> float | None: ...
+    def edges(self) -> tuple[tuple[float, int], ...]: ...  # every hall edge of the last advance
+    def index_marks(self) -> tuple[float, ...]: ...  # every encoder index mark of the last advance
     def adc_codes(self, roles: tuple[int, ...]) -> tuple[int, ...]: ...
     def sense(self, roles: tuple[int, ...]) -> tuple[int, bool, bool, int, tuple[int, ...]]: ...
     def append_state(self, buf: bytearray) -> None: ...
@@ -161,6 +165,7 @@ class Session:
         self.expected_profile = profile
         self.profile: TargetProfile = profile or profile_for_firmware("")
         self.hello: TargetHello | None = None
+        self.target_info: TargetInfo | None = None  # TargetDescribe's answer (None: the target has none)
         self.tuning = LiveTuning(target, self.profile, target_label, guard)
         self.tuning.on_change = self._on_param_change
         self.faults = SensorFaults()
@@ -197,7 +202,15 @@ class Session:
         hello = self.target.hello(host)
         check_target_hello(hello, where=self.target_label)  # protocol version and schema fingerprint
         self.hello = hello
-        found = profile_for_firmware(hello.firmware_name)
+        found = registered_for_firmware(hello.firmware_name)
+        if found is None:  # no module knows it: the firmware's own description (protocol 3)
+            description = describe_firmware(self.target, hello)
+            self.target_info = description.target
+            reserved = frozenset(BENCH_COLUMNS) | {out.column for out in self.plant.outputs}
+            found = described_profile(profile_for_firmware(hello.firmware_name), description, reserved)
+        else:
+            describe = getattr(self.target, "describe_target", None)
+            self.target_info = describe() if describe is not None else None
         expected = self.expected_profile
         if expected is not None and found.firmware_name.upper() != expected.firmware_name.upper():
             raise TargetError(f"{self.target_label}: the target says it runs {hello.firmware_name!r}, "
@@ -213,6 +226,19 @@ class Session:
         self._speed_telemetry = (self._tele_index.get(self.profile.speed_column or "", missing),
                                  self._tele_index.get("ref_speed_rpm", missing))
         return hello
+
+    def target_max_edges(self) -> int:
+        """The input edges one Sensors may carry: the target's TargetInfo.max_edges, else the protocol's."""
+        info = self.target_info
+        return min(int(info.max_edges), MAX_EDGES) if info is not None and info.max_edges else MAX_EDGES
+
+    def _too_many_edges(self, k: int, n: int) -> None:
+        period_us = self.options.period_us
+        raise BenchLimitError(
+            f"{self.target_label}: period {k} has {n} input edges (hall and index), the target takes at most "
+            f"{self._max_edges} a period (its TargetInfo.max_edges); use a shorter link.period_us (at most "
+            f"{max(1, period_us * self._max_edges // (n + 1))} us at this speed) or a firmware built with a "
+            f"larger HBP_MAX_EDGES")
 
     # ------------------------------------------------------------------ parameters
     @property
@@ -419,6 +445,8 @@ class Session:
         self.plant.set_period(options.period_us, options.actuation_delay_periods)  # the plant's chunks and delay
         self._next_k = 0
         self._edge_s = self.plant.last_edge_s
+        self._hall_before = self.plant.hall_bits  # the halls the target saw last (before a period's edges)
+        self._max_edges = self.target_max_edges()
         self._drive: Any = None
         self._guard_ref = 0.0
 
@@ -507,6 +535,7 @@ class Session:
         plant_sense = plant.sense
         roles, edge_limit, new_sensors = tuple(self.hello.adc_roles), self.options.period_us * 10 - 1, tuple.__new__  # type: ignore[union-attr]
         plant_advance, scale = plant.advance, 1.0 / self.hello.pwm_period_counts  # type: ignore[union-attr]
+        plant_edges, plant_marks, max_edges, hall_before = plant.edges, plant.index_marks, self._max_edges, self._hall_before
         pack, pack_telemetry, extend, rows = self._record or (None, None, None, None)
         host_ref = self._record_host_ref
         perf, rtts, rtt, late, marker = time.perf_counter, self._lockstep_rtts, 0.0, 0.0, 0
@@ -534,17 +563,21 @@ class Session:
                     if self._end_reason is not None:
                         return k
                 hall, tripped, index, count, adc = plant_sense(roles)  # the plant's sensors after the last period
-                edge = EDGE_NONE if edge_s is None else min(int(edge_s * 1e7), edge_limit)
+                edges = () if edge_s is None else hall_edges(plant_edges(), edge_limit)  # every hall edge, timed
                 if sensor_faults:
-                    hall, edge = faults.filter(hall, edge)
+                    hall, edges = faults.filter(hall, edges)
                     sensor_faults = faults.active
                 inputs = hall | buttons
                 if read_index and index:
                     inputs |= INPUT_INDEX
+                    edges = with_index_marks(edges, plant_marks(), edge_limit, hall_before)
+                hall_before = hall
+                if len(edges) > max_edges:
+                    self._too_many_edges(k, len(edges))
                 if tripped:  # the board's overcurrent comparator drives FAULT
                     inputs |= INPUT_FAULT
                     self._comparator(k)
-                sensors = new_sensors(Sensors, (k & 0xFF, inputs, edge, (count + encoder_offset) & 0xFFFF, adc))
+                sensors = new_sensors(Sensors, (k & 0xFF, inputs, edges, (count + encoder_offset) & 0xFFFF, adc))
                 if pacing is not None:
                     drive = pacing.exchange(k, sensors, drive, target_step)
                     rtt, late, marker = pacing.rtt, pacing.late, pacing.marker
@@ -574,7 +607,7 @@ class Session:
                     self._bus(k)
         finally:
             self.periods_done = k
-            self._edge_s, self._drive, self._guard_ref = edge_s, drive, guard_ref
+            self._edge_s, self._drive, self._guard_ref, self._hall_before = edge_s, drive, guard_ref, hall_before
         return k_to
 
     def _comparator(self, k: int) -> None:

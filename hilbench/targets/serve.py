@@ -33,6 +33,8 @@ from hilbench.protocol import (
     Start,
     Status,
     StatusRequest,
+    TargetDescribe,
+    TelemetryDescribe,
     Stop,
     host_hello_mismatch,
 )
@@ -117,6 +119,22 @@ class _Server:
             return
         self.link.send(reply._replace(seq=msg.seq))
 
+    def on_describe_target(self, msg: TargetDescribe) -> None:
+        describe = getattr(self.target, "describe_target", None)
+        info = describe() if describe is not None else None
+        if info is None:  # a model that does not describe itself
+            self.error(msg.seq, ErrorCode.BAD_REQUEST, int(TargetDescribe.TYPE))
+            return
+        self.link.send(info._replace(seq=msg.seq))
+
+    def on_describe_telemetry(self, msg: TelemetryDescribe) -> None:
+        describe = getattr(self.target, "describe_telemetry", None)
+        info = describe(msg.index) if describe is not None else None
+        if info is None:
+            self.error(msg.seq, ErrorCode.UNKNOWN_TELEMETRY, msg.index)
+            return
+        self.link.send(info._replace(seq=msg.seq))
+
     def on_get(self, msg: ParamGet) -> None:
         self.link.send(self.target.get_param(msg.param_id)._replace(seq=msg.seq))
 
@@ -160,6 +178,8 @@ class _Server:
             Start: self.on_start,
             Stop: self.on_stop,
             StatusRequest: self.on_status,
+            TargetDescribe: self.on_describe_target,
+            TelemetryDescribe: self.on_describe_telemetry,
         }
         lockstep = self.mode != MODE_REALTIME
         # lockstep with nobody to ask us to stop: wait for frames without a timeout (one blocking
