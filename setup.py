@@ -1,7 +1,7 @@
 """Build hook for the optional compiled cores: the plant (hilbench/plant/_plantcore.c), the
 AN1017 board firmware (firmware/an1017/an1017.c on the runtime firmware/runtime/hrt.c, behind the
-glue hilbench/targets/an1017/_core.c)
-and the F2812 FOC firmware model (hilbench/targets/foc/_core.c).
+glue hilbench/targets/an1017/_core.c) and the F2812 FOC firmware (firmware/foc/*.c behind the glue
+hilbench/targets/foc/_core.c).
 
 All metadata is in pyproject.toml. The extension is `optional`: without a C compiler
 `pip install .` still succeeds and hilbench.plant falls back to its pure-Python step
@@ -23,12 +23,17 @@ setup(
         Extension(
             "hilbench.plant._plantcore",
             sources=["hilbench/plant/_plantcore.c"],
+            depends=["hilbench/plant/_switching.c"],  # included by _plantcore.c
             extra_compile_args=_flags,
             optional=True,
         ),
-        Extension(
+        Extension(  # the FOC firmware's own source behind a CPython glue (MANIFEST.in ships it)
             "hilbench.targets.foc._core",
-            sources=["hilbench/targets/foc/_core.c"],
+            sources=["hilbench/targets/foc/_core.c", "firmware/foc/foc.c", "firmware/foc/foc_blocks.c",
+                     "firmware/foc/foc_sin_table.c"],
+            include_dirs=["firmware/foc"],
+            depends=["firmware/foc/foc.h", "firmware/foc/foc_blocks.h", "firmware/foc/foc_config.h",
+                     "firmware/foc/iq24.h"],
             extra_compile_args=_flags,
             optional=True,
         ),

@@ -9,13 +9,22 @@ repeats of
   (c) a profile split of (a) (a timed run): the share of the wall time spent inside FocTarget.step,
       and the pure-Python firmware's speed for comparison.
 
-    python benchmarks/bench_foc.py [--seconds 1.0] [--repeats 3]
+With ``--baseline-python PY`` it runs (a) alternately under this tree and under another
+installation of hilbench (e.g. /work/venv-730876f/bin/python) and prints the ratio of the medians;
+with ``--instructions`` (needs valgrind) it counts (a)'s CPU instructions per exchange under
+callgrind instead, for this tree and the baseline: deterministic where wall medians scatter.
+
+    python benchmarks/bench_foc.py [--seconds 1.0] [--repeats 3] [--baseline-python PY] [--instructions]
 """
 
 from __future__ import annotations
 
 import argparse
+import json
+import os
+import shutil
 import statistics
+import subprocess
 import sys
 import tempfile
 import time
@@ -75,11 +84,66 @@ def an1017_run(seconds: float, out: Path) -> float:
     return time.perf_counter() - t0
 
 
+def measure_in(python: str, seconds: float) -> float:
+    """(a)'s wall seconds measured by another interpreter (another hilbench installation) running this file."""
+    out = subprocess.run([python, __file__, "--measure-foc", "--seconds", str(seconds)], capture_output=True,
+                         text=True, timeout=600, cwd=tempfile.gettempdir(), check=True)
+    return float(json.loads(out.stdout.strip().splitlines()[-1])["wall_s"])
+
+
+def instructions_per_exchange(python: str, short_s: float = 0.3, long_s: float = 1.3) -> float:
+    """(a)'s CPU instructions per 50 us exchange under ``python``, counted by callgrind (deterministic)."""
+    totals = []
+    env = dict(os.environ, OPENBLAS_NUM_THREADS="1", PYTHONHASHSEED="0")
+    with tempfile.TemporaryDirectory() as tmp:
+        for seconds in (short_s, long_s):
+            out = Path(tmp) / "callgrind.out"
+            subprocess.run(["valgrind", "--tool=callgrind", f"--callgrind-out-file={out}", python, __file__,
+                            "--measure-foc", "--seconds", str(seconds)],
+                           capture_output=True, text=True, timeout=1800, cwd=tmp, env=env, check=True)
+            line = next(ln for ln in out.read_text().splitlines() if ln.startswith(("summary:", "totals:")))
+            totals.append(int(line.split()[1]))
+    return (totals[1] - totals[0]) / ((long_s - short_s) * 2e4)
+
+
+def compare(args: argparse.Namespace) -> None:
+    """(a) under this tree and under --baseline-python, alternating; or their instruction counts."""
+    base_py = args.baseline_python
+    if args.instructions:
+        if shutil.which("valgrind") is None:
+            raise SystemExit("bench_foc: --instructions needs valgrind on PATH (apt-get install valgrind)")
+        this, base = instructions_per_exchange(sys.executable), instructions_per_exchange(base_py)
+        print(f"(a) FOC closed loop in process, CPU instructions per exchange (callgrind): this tree {this:,.0f}, "
+              f"baseline ({base_py}) {base:,.0f}; baseline/this {base / this:.3f} (above 1: fewer than the baseline)")
+        return
+    this_w, base_w = [], []
+    for _ in range(args.repeats):
+        this_w.append(measure_in(sys.executable, args.seconds))
+        base_w.append(measure_in(base_py, args.seconds))
+    this, base = statistics.median(this_w), statistics.median(base_w)
+    print(f"(a) FOC closed loop in process, {args.seconds:g} s simulated, median of {args.repeats} alternating runs: "
+          f"this tree {args.seconds * 2e4 / this:,.0f} exchanges/s, baseline ({base_py}) "
+          f"{args.seconds * 2e4 / base:,.0f}; speed ratio this/baseline {base / this:.3f}")
+    print(f"    walls (s): this {', '.join(f'{w:.3f}' for w in this_w)}; baseline {', '.join(f'{w:.3f}' for w in base_w)}")
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--seconds", type=float, default=1.0)
     ap.add_argument("--repeats", type=int, default=3)
+    ap.add_argument("--baseline-python", default=None, metavar="PY",
+                    help="also run (a) under this interpreter (another hilbench installation) and print the ratio")
+    ap.add_argument("--instructions", action="store_true",
+                    help="with --baseline-python: compare callgrind instruction counts per exchange instead")
+    ap.add_argument("--measure-foc", action="store_true", help=argparse.SUPPRESS)
     args = ap.parse_args()
+    if args.measure_foc:  # one (a) figure for --baseline-python, as JSON
+        with tempfile.TemporaryDirectory() as tmp:
+            print(json.dumps({"wall_s": foc_run(args.seconds, Path(tmp) / "foc.npz")[0]}))
+        return
+    if args.baseline_python:
+        compare(args)
+        return
     foc, share, base, py = [], [], [], []
     with tempfile.TemporaryDirectory() as tmp:
         for r in range(args.repeats):

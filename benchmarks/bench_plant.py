@@ -1,8 +1,11 @@
 """Plant cost per 50 us period and real-time factor (both bench motors, both backends, 1 and 2
-RK4 substeps), sensor-read and OFF-coast cost, and the same open-loop start-up of the Hurst motor on gym-electric-motor and
-motulator next to ours in one table.
+RK4 substeps), sensor-read and OFF-coast cost, the switching inverter's cost per period against the
+averaged one in the same run, the FOC closed loop's real-time factor in process with each (goal for
+the switching model: >= 5x real time at 10 kHz), and the same open-loop start-up of the Hurst motor
+on gym-electric-motor and motulator next to ours in one table.
 
-Run: python benchmarks/bench_plant.py   (medians of 5 runs; the VM is noisy, compare ratios)
+Run: python benchmarks/bench_plant.py [--switching-only]   (medians of 5 runs; the VM is noisy,
+compare ratios)
 
 Peers are never project dependencies. They run in their own interpreter: $HILBENCH_PEER_PYTHON,
 else /tmp/peers/bin/python if it exists, else this one. Install them with
@@ -236,7 +239,95 @@ def peers_table(periods: int = 2000) -> None:
     print(f"(medians: ours of 5 runs, peers of 3 subprocess runs; cost/ours against {rows[0][0]}; peers via {py})")
 
 
+def switching_params(cfg_name: str, model: str):
+    """A bench config's plant with its dead time on and the inverter `model`; the PWM timing of the
+    target each config is written for (Hurst: AN1017's dsPIC, pulses on the counter's zero; servo:
+    the F2812's, on its peak)."""
+    import dataclasses
+
+    from hilbench.plant.params import PwmTiming
+
+    from hilbench.plant.params import ProtectionParams
+
+    params = plant_params_from_config(load_config(ROOT / "bench_configs" / cfg_name))
+    inv = dataclasses.replace(params.inverter, model=model, dead_time_enabled=True)
+    return dataclasses.replace(params, inverter=inv, pwm=PwmTiming("zero" if "hurst" in cfg_name else "peak"),
+                               protection=ProtectionParams(0.0, False, 0.0, 0.0, 0.0))
+
+
+def switching_cost_us(cfg_name: str, backend: str, model: str, n: int) -> float:
+    """Median cost (us) of one 50 us plant.step on an open-loop start-up (vq about 3 A worth of the
+    motor's resistance at rest), dead time on."""
+    params = switching_params(cfg_name, model)
+    vbus = params.inverter.vbus_v
+    vq = 3.0 * params.motor.rs_ohm
+    duty_list = []
+    plant = Plant(params, backend=backend, substeps=1)
+    for _ in range(n):
+        d = tuple(0.5 + vq * math.cos(plant.theta_e + math.pi / 2 + ph) / vbus for ph in PHI)
+        duty_list.append(d)
+        plant.step(*d, 1, DT)
+    runs = []
+    for _ in range(5):
+        plant = Plant(params, backend=backend, substeps=1)
+        step = plant.step
+        t0 = time.perf_counter()
+        for d in duty_list:
+            step(d[0], d[1], d[2], 1, DT)
+        runs.append((time.perf_counter() - t0) / n * 1e6)
+    return statistics.median(runs)
+
+
+def foc_closed_loop_rt(model: str, seconds: float) -> float:
+    """Real-time factor of the FOC closed loop in process (FOC C core, C plant, NPZ recording,
+    0 -> 1000 rpm, dead time on) with the inverter `model`."""
+    import dataclasses
+
+    from hilbench.bench.recorder import Recorder
+    from hilbench.bench.scenario import Event
+    from hilbench.bench.session import Session, SessionOptions
+    from hilbench.targets.foc import PROFILE
+    from hilbench.targets.foc.target import FocTarget
+
+    cfg = load_config(ROOT / "bench_configs" / "servo_200w.toml")
+    params = plant_params_from_config(cfg, PROFILE.pwm_timing)
+    params = dataclasses.replace(params, inverter=dataclasses.replace(params.inverter, model=model))
+    plant = Plant(params, seed=0, substeps=cfg.plant.substeps)
+    events = (Event(at_s=0.0, press="s2"), Event(at_s=0.2, params=(("ref_rpm", 1000.0),)), Event(at_s=seconds, end=True))
+    with tempfile.TemporaryDirectory() as tmp:
+        session = Session(FocTarget(), plant, events, SessionOptions(period_us=50, observe_every_periods=10 ** 9),
+                          recorder=Recorder(Path(tmp) / "foc.npz", {"bench": "switching"}))
+        session.handshake()
+        t0 = time.perf_counter()
+        session.run()
+        wall = time.perf_counter() - t0
+    return seconds / wall
+
+
+def switching_section(repeats: int = 3, seconds: float = 1.0) -> None:
+    print("\nswitching inverter ([inverter] model = \"switching\", dead time on) against the averaged one, same run;"
+          " one 50 us step each (Hurst: one 20 kHz PWM period; servo: half a 10 kHz one)")
+    for cfg in ("hurst_mclv.toml", "servo_200w.toml"):
+        for backend in available_backends():
+            n = 2000 if backend == "c" else 300
+            avg = switching_cost_us(cfg, backend, "average", n)
+            sw = switching_cost_us(cfg, backend, "switching", n)
+            per_pwm = sw * (1 if "hurst" in cfg else 2)
+            print(f"  {cfg:16s} {backend:6s} switching {sw:7.2f} us/step ({per_pwm:7.2f} us per PWM period), "
+                  f"averaged {avg:5.2f} us/step: ratio {sw / avg:5.1f}x")
+    rts = {m: [] for m in ("average", "switching")}
+    for _ in range(repeats):
+        for model in rts:
+            rts[model].append(foc_closed_loop_rt(model, seconds))
+    avg_rt, sw_rt = statistics.median(rts["average"]), statistics.median(rts["switching"])
+    print(f"  FOC closed loop in process (C firmware core, C plant, NPZ), {seconds:g} s simulated, median of {repeats}:"
+          f" switching {sw_rt:.2f}x real time at 10 kHz (goal >= 5x), averaged {avg_rt:.2f}x; ratio {sw_rt / avg_rt:.2f}")
+
+
 def main() -> None:
+    if "--switching-only" in sys.argv:
+        switching_section()
+        return
     print("period 50 us (20 kHz); real-time factor = 50 us / cost; backends:", ", ".join(available_backends()))
     base = None
     for backend in available_backends()[::-1]:
@@ -251,6 +342,7 @@ def main() -> None:
         reads, off = sensor_and_off_cost_us(backend)
         print(f"{backend:6s} sensor reads (hall, edge, encoder, adc(1,2,3), i_abc, i_bus) {reads:5.2f} us;"
               f" OFF coast period {off:5.2f} us")
+    switching_section()
     peers_table()
 
 

@@ -43,6 +43,7 @@ from hilbench.plant.params import (
     MotorParams,
     PlantParams,
     ProtectionParams,
+    PwmTiming,
     default_adc_channels,
     psi_from_ke,
 )
@@ -111,6 +112,10 @@ _RANGES: dict[type, dict[str, dict[str, Any]]] = {
         "vbus_v": spec(unit="V", gt=0, le=1500),
         "pwm_freq_hz": spec(unit="Hz", ge=100, le=1e6),
         "dead_time_s": spec(unit="s", ge=0, le=1e-4),
+        "model": spec(doc="\"average\": each period's mean leg voltages (fast); \"switching\": every PWM edge "
+                          "at its time, the dead time by the current at each edge (docs/design.md, inverter)"),
+        "average_dead_time": spec(doc="the averaged model's dead band: \"sign\" of the current at the period's start "
+                                      "(the default), or \"edges\": the current's sign at each PWM edge, ripple included"),
     },
     HallParams: {"offset_deg": spec(unit="deg", ge=-360, le=360)},
     EncoderParams: {"lines": spec(ge=1, le=1_000_000), "offset_counts": spec(ge=0, le=65535),
@@ -583,7 +588,8 @@ def _build_chosen(sec: _Section, data: Mapping[str, Any], built: dict[str, Any],
         built[sec.name] = obj
 
 
-def plant_params_from_config(cfg: BenchConfig) -> PlantParams:
+def plant_params_from_config(cfg: BenchConfig, pwm: PwmTiming | None = None) -> PlantParams:
+    """The plant of a config; ``pwm``: the target's PWM timing (its profile's), else the default."""
     return PlantParams(
         motor=cfg.motor.to_params(),
         inverter=cfg.inverter,
@@ -592,6 +598,7 @@ def plant_params_from_config(cfg: BenchConfig) -> PlantParams:
         adc=tuple(cfg.adc),
         load=cfg.load,
         protection=cfg.protection,
+        pwm=pwm if pwm is not None else PwmTiming(),
     )
 
 

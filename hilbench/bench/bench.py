@@ -114,7 +114,8 @@ class Bench:
         self.warnings = settings.link_warnings(cfg)
         events = settings.scenario_events(cfg) if self._play_scenario else ()
         profile = configured_profile(cfg)
-        plant = Plant(plant_params_from_config(cfg), seed=options.seed, substeps=cfg.plant.substeps)
+        plant = Plant(plant_params_from_config(cfg, profile.pwm_timing if profile else None), seed=options.seed,
+                      substeps=cfg.plant.substeps)
         handle = self._handle = connect(cfg, options, profile)
         try:
             session = self.session = Session(

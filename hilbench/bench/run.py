@@ -131,7 +131,8 @@ def run_step_tests(
         handle = connect(cfg, options, profile)
         try:
             def make(events, opts, recorder, handle=handle):  # type: ignore[no-untyped-def]
-                plant = Plant(plant_params_from_config(cfg), seed=opts.seed, substeps=cfg.plant.substeps)
+                plant = Plant(plant_params_from_config(cfg, profile.pwm_timing if profile else None), seed=opts.seed,
+                              substeps=cfg.plant.substeps)
                 return Session(handle.target, plant, events, opts, recorder=recorder, profile=profile,
                                link_stats=handle.link_stats, target_label=handle.label)
 

@@ -58,6 +58,15 @@ typedef struct {
     /* the recorded outputs: offsets of double members, in model.OUTPUTS order */
     Py_ssize_t out_off[MAX_OUTPUTS];
     int n_out;
+    /* the switching inverter (_switching.c): motor constants as model.Plant holds them, the bridge's
+     * constants and state (switching.py's attributes), the ADC's held sample */
+    double rs, ld, lq, w_start;
+    long long dturns;
+    double sw_f, sw_td, sw_c, sw_smp, sw_l, sw_u, sw_e[3], ia_s, ib_s;
+    int sw_s[3];
+    char sw_on, sw_avg, adc_live;
+    double trig_th, trig_c, trig_s; /* _switching.c's sw_trig */
+    char trig_ok;
 } Core;
 
 static long long mod6(long long n) { long long r = n % 6; return r < 0 ? r + 6 : r; }
@@ -217,12 +226,18 @@ static void coast_step(Core *s, double h, int *have, double *edge)
     sense(s);
 }
 
+static void sw_average_dead_time(Core *s, double u0, double *duty_a, double *duty_b, double *duty_c, double dt_s);
+
 /* model.Plant._averaged_inverter: the alpha-beta voltage of the duties held over the step, each
- * duty corrected for the dead time against its phase current's sign. */
-static void averaged_inverter(Core *s, double duty_a, double duty_b, double duty_c, double *va, double *vb)
+ * duty corrected for the dead time against its phase current's sign (or, average_dead_time =
+ * "edges", by each PWM edge's: _switching.c; u0 the carrier's phase at the step's start). */
+static void averaged_inverter(Core *s, double duty_a, double duty_b, double duty_c, double u0, double dt_s,
+                              double *va, double *vb)
 {
     double dtd = s->dt_duty;
-    if (dtd != 0.0) {
+    if (dtd != 0.0 && s->sw_avg) {
+        sw_average_dead_time(s, u0, &duty_a, &duty_b, &duty_c, dt_s);
+    } else if (dtd != 0.0) {
         double ia = s->i_a, ib = s->i_b, ic = s->i_c, x;
         x = duty_a - (ia > 0.0 ? dtd : ia < 0.0 ? -dtd : 0.0);
         x = x > 0.0 ? x : 0.0; duty_a = x < 1.0 ? x : 1.0;
@@ -360,6 +375,8 @@ static void step_dq(Core *s, double va, double vb, double dt_s, int *have, doubl
     sense_encoder(s);
 }
 
+#include "_switching.c"
+
 static int get_double(PyObject *o, double *out)
 {
     if (PyFloat_CheckExact(o)) { *out = PyFloat_AS_DOUBLE(o); return 0; }
@@ -396,13 +413,18 @@ static int integrate(Core *s, PyObject *const *args, double dt_s, int *have, dou
         if (r == NULL) return -1;
         Py_DECREF(r);
     }
+    double u0 = 0.0;
+    if (s->sw_on || s->sw_avg) { /* the switching inverter, or the averaged one's carrier (_switching.c) */
+        if (s->sw_on && mode == OUTPUT_PWM) return sw_step_pwm(s, duty_a, duty_b, duty_c, dt_s, have, edge);
+        u0 = sw_idle(s, dt_s);
+    }
     if (!driven) {
         coast_step(s, dt_s, have, edge);
         return 0;
     }
     double va = 0.0, vb = 0.0;
     if (mode == OUTPUT_PWM)
-        averaged_inverter(s, duty_a, duty_b, duty_c, &va, &vb);
+        averaged_inverter(s, duty_a, duty_b, duty_c, u0, dt_s, &va, &vb);
     s->last_mode = (int)mode;
     step_dq(s, va, vb, dt_s, have, edge);
     return 0;
@@ -545,7 +567,8 @@ static PyObject *Core_adc_codes(Core *s, PyObject *roles)
         }
         long code = 0;
         if (s->adc_has[r]) {
-            double x = r == 4 ? s->i_a : r == 2 ? s->i_bus : r == 5 ? s->i_b : r == 3 ? s->vbus_v : s->pot_fraction;
+            double x = r == 4 ? (s->adc_live ? s->i_a : s->ia_s) : r == 2 ? s->i_bus
+                       : r == 5 ? (s->adc_live ? s->i_b : s->ib_s) : r == 3 ? s->vbus_v : s->pot_fraction;
             double v = s->adc_off[r];
             v += s->adc_gain[r] * x;
             double nz = s->adc_nz[r];
@@ -604,6 +627,8 @@ static PyObject *Core_new(PyTypeObject *type, PyObject *args, PyObject *kwds)
     s->j = 1.0;
     s->enc_cpt = 4;
     s->t_load_change = INFINITY;
+    s->sw_e[0] = s->sw_e[1] = s->sw_e[2] = -INFINITY;
+    s->adc_live = 1;
     s->chunks = 1;
     return (PyObject *)s;
 }
@@ -640,6 +665,11 @@ static PyMemberDef Core_members[] = {
     LM("_noise_i", noise_i), DM("pot_fraction", pot_fraction),
     {"theta_e", T_DOUBLE, offsetof(Core, th), READONLY, "Electrical rotor angle in [0, 2 pi) (read-only)."},
     DM("_period_s", period_s), DM("_chunk_s", chunk_s), IM("_chunks", chunks), LM("_periods", periods),
+    DM("_rs", rs), DM("_ld", ld), DM("_lq", lq), DM("_w_start", w_start), LM("_dturns", dturns),
+    DM("_sw_f", sw_f), DM("_sw_td", sw_td), DM("_sw_c", sw_c), DM("_sw_smp", sw_smp), DM("_sw_l", sw_l), BM("_sw_avg", sw_avg),
+    DM("_sw_u", sw_u), DM("_sw_e0", sw_e[0]), DM("_sw_e1", sw_e[1]), DM("_sw_e2", sw_e[2]),
+    IM("_sw_s0", sw_s[0]), IM("_sw_s1", sw_s[1]), IM("_sw_s2", sw_s[2]),
+    DM("_ia_s", ia_s), DM("_ib_s", ib_s), BM("_sw_on", sw_on), BM("_adc_live", adc_live),
     {NULL, 0, 0, 0, NULL},
 };
 

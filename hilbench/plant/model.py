@@ -47,6 +47,7 @@ from typing import Sequence
 
 import numpy as np
 
+from hilbench.plant import switching
 from hilbench.plant.params import ADC_ROLE_CODES, LoadProfile, PlantParams
 from hilbench.plant.period import MAX_STEP_US, Period
 
@@ -160,6 +161,7 @@ class Plant:
         inv = params.inverter
         self.vbus_v = float(inv.vbus_v)
         self._dt_duty = float(inv.dead_time_s * inv.pwm_freq_hz) if inv.dead_time_enabled else 0.0
+        self._bridge = switching.BridgeConstants.of(params)  # None: the averaged inverter
         prot = params.protection
         self._oc = float(prot.overcurrent_a)  # the board's comparator on |phase current| (0: none)
         self._gate_off = bool(prot.gate_off_on_fault)
@@ -231,6 +233,7 @@ class Plant:
         self.e_cu_j = 0.0
         self.e_fric_j = 0.0
         self.e_load_j = 0.0
+        switching.reset(self)
         self._sense()
 
     def _sense(self) -> None:
@@ -369,11 +372,11 @@ class Plant:
                 out.append(0)
                 continue
             if r == 4:
-                x = self.i_a
+                x = self.i_a if self._adc_live else self._ia_s
             elif r == 2:
                 x = self.i_bus
             elif r == 5:
-                x = self.i_b
+                x = self.i_b if self._adc_live else self._ib_s
             elif r == 3:
                 x = self.vbus_v
             else:
@@ -512,8 +515,15 @@ class Plant:
         read the result."""
         if self.fault_input and self._gate_off:  # the comparator's hardware trip: every switch open
             output_mode = OUTPUT_OFF
+        bridge = self._bridge
+        u0 = 0.0
+        if bridge is not None:  # the switching inverter, or the averaged one's carrier (hilbench/plant/switching.py)
+            if bridge.switching and output_mode == OUTPUT_PWM:
+                switching.step_pwm(self, duty_a, duty_b, duty_c, dt_s)
+                return
+            u0 = switching.idle(self, dt_s)
         if output_mode == OUTPUT_PWM:
-            va, vb = self._averaged_inverter(duty_a, duty_b, duty_c)
+            va, vb = self._averaged_inverter(duty_a, duty_b, duty_c, u0, dt_s)
         elif output_mode == OUTPUT_LOW_SIDE:
             va = vb = 0.0
         else:
@@ -525,12 +535,17 @@ class Plant:
         else:
             self._step_dq(va, vb, dt_s)
 
-    def _averaged_inverter(self, duty_a: float, duty_b: float, duty_c: float) -> tuple[float, float]:
+    def _averaged_inverter(self, duty_a: float, duty_b: float, duty_c: float, u0: float,
+                           dt_s: float) -> tuple[float, float]:
         """The averaged inverter: the alpha-beta voltage of the phases' duties over the step (the
         period average of the PWM), each duty shortened or lengthened by the dead time against its
-        phase current's sign. Another inverter model (switching) would sit beside this one."""
+        phase current's sign; with average_dead_time = "edges", by the dead time of each PWM edge
+        in the step (switching.average_dead_time; u0: the carrier's phase at the step's start).
+        The switching inverter sits beside this one (hilbench/plant/switching.py)."""
         dtd = self._dt_duty
-        if dtd:
+        if dtd and self._bridge is not None:  # average_dead_time = "edges"
+            duty_a, duty_b, duty_c = switching.average_dead_time(self, u0, duty_a, duty_b, duty_c, dt_s)
+        elif dtd:
             ia = self.i_a
             ib = self.i_b
             ic = self.i_c
@@ -767,8 +782,9 @@ class Plant:
         p_ld = (self._tl_now + (kv - self._b) * wm + kq * wm * abs(wm)) * wm
         return did, diq, dw, we if ij else 0.0, p_in, p_cu, p_fr, p_ld
 
-    def _rk4_general(self, va: float, vb: float, h: float) -> None:
-        """One RK4 step with energy accounts; same stiction logic as the hot path. Angle wrapped."""
+    def _rk4_general(self, va: float, vb: float, h: float) -> float:
+        """One RK4 step with energy accounts; same stiction logic as the hot path. Angle wrapped.
+        Returns the step's input energy (J)."""
         tl, kl, kq, locked = self._load_terms()
         self._tl_now = tl
         kv = self._b + kl
@@ -810,6 +826,7 @@ class Plant:
         self.e_cu_j += y1[5]
         self.e_fric_j += y1[6]
         self.e_load_j += y1[7]
+        return y1[4]
 
     # ----------------------------------------------------------------- outputs off
     def _abc_now(self) -> tuple[float, float, float]:
@@ -1023,5 +1040,11 @@ if _plantcore is not None:
                 if ch is not None:
                     self._set_adc(role, *ch)
             self._set_outputs(tuple(out.source for out in self.outputs))  # what append_state copies
+            bridge = self._bridge
+            if bridge is not None:  # the bridge's constants, for _switching.c
+                self._sw_on = bridge.switching
+                self._sw_avg = not bridge.switching
+                self._sw_f, self._sw_td, self._sw_c, self._sw_smp = bridge.freq_hz, bridge.dead_s, bridge.centre, bridge.sample
+                self._sw_l = bridge.l_h
 else:  # pragma: no cover
     _CPlant = None  # type: ignore[assignment,misc]

@@ -26,6 +26,7 @@ __all__ = [
     "LOAD_IS_ACTIVE",
     "ProtectionParams",
     "PlantParams",
+    "PwmTiming",
     "psi_from_ke",
     "ke_from_psi",
     "ADC_ROLE_CODES",
@@ -96,12 +97,39 @@ class MotorParams:
 
 @dataclass(frozen=True)
 class InverterParams:
-    """Two-level three-phase inverter, averaged over a PWM period."""
+    """Two-level three-phase inverter.
+
+    model: "average" (the default) applies each period's mean leg voltages; "switching" switches
+    every leg at its PWM edges, with the dead time at each edge and the conducting device chosen by
+    the phase current at that instant (hilbench/plant/switching.py).
+    average_dead_time: the averaged model's dead-band term. "sign" (the default): duty minus
+    sign(i)·Td·f, with i the phase current at the period's start; "edges": what the switching model
+    does on average, one Td per PWM edge inside the period with the current's sign at that edge
+    (estimated from the period-start current, its mean slope and the PWM ripple the duties make),
+    and none for a leg that does not switch (duty 0 or 1)."""
 
     vbus_v: float = 24.0
     pwm_freq_hz: float = 20000.0
     dead_time_s: float = 0.8e-6
     dead_time_enabled: bool = False
+    model: Literal["average", "switching"] = "average"
+    average_dead_time: Literal["sign", "edges"] = "sign"
+
+
+@dataclass(frozen=True)
+class PwmTiming:
+    """Where a target's PWM puts its pulses and samples its currents, in the carrier's own terms.
+
+    The carrier is a centre-aligned (up/down) counter whose zero falls on t = 0, T, 2T, ... of the
+    plant's time (T = 1/pwm_freq_hz). `pulse_centre`: each leg's high-side pulse of duty d is d·T
+    wide and centred on the counter's "zero" (the dsPIC30F MCPWM in up/down mode: active while
+    PTMR < PDC) or on its "peak" (the F2812 Event Manager with active-high outputs: high while
+    T1CNT > CMPR). `adc_sample_phase`: the instant, as a fraction of T after the counter's zero, at
+    which the ADC samples the phase currents (0: at the zero). Only the switching inverter model
+    reads it; the averaged model has no instant within a period."""
+
+    pulse_centre: Literal["zero", "peak"] = "peak"
+    adc_sample_phase: float = 0.0
 
 
 @dataclass(frozen=True)
@@ -226,6 +254,8 @@ class PlantParams:
     #: a bare plant has no board around it (physics tests drive it past any limit); a bench
     #: config's [protection] table (its defaults: ProtectionParams()) gives it the board's
     protection: ProtectionParams = field(default_factory=lambda: ProtectionParams(0.0, False, 0.0, 0.0, 0.0))
+    #: the target's PWM geometry (its profile's `pwm_timing`; the bench fills it in)
+    pwm: PwmTiming = field(default_factory=PwmTiming)
 
     @classmethod
     def hurst(cls) -> "PlantParams":

@@ -15,6 +15,8 @@ import math
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Callable, Literal, Mapping, Protocol
 
+from hilbench.plant.params import PwmTiming
+
 if TYPE_CHECKING:
     import subprocess
 
@@ -121,6 +123,9 @@ class TargetProfile:
     #: the profile of a build with these options, for a firmware whose build constants are options
     #: (its reference scale, telemetry scales and `built_for` follow them); None: options change none
     configure: "Callable[[object], TargetProfile] | None" = None
+    #: where its PWM unit centres the pulses and when its ADC samples the phase currents (the plant's
+    #: switching inverter reads it); None: the plant's default (PwmTiming())
+    pwm_timing: PwmTiming | None = None
 
     def configured(self, options: object) -> "TargetProfile":
         """This profile as built with ``options`` (itself when the target has no build constants)."""

@@ -285,10 +285,18 @@ def simavr_path_starter(path: str) -> SimavrStarter:
     return SimavrStarter(build, name=str(path))
 
 
-#: `KIND:PATH` specs: a build of a firmware no hilbench module knows (the qemu: one comes with its port)
+def qemu_path_starter(path: str) -> FirmwareStarter:
+    """`qemu:PATH`: an ELF built with hilbench's Cortex-M4 port (hilbench.targets.qemu)."""
+    from hilbench.targets.qemu import qemu_path_starter as make
+
+    return make(path)
+
+
+#: `KIND:PATH` specs: a build of a firmware no hilbench module knows
 PATH_STARTERS: dict[str, Callable[[str], FirmwareStarter]] = {
     "sil": sil_path_starter,
     "simavr": simavr_path_starter,
+    "qemu": qemu_path_starter,
 }
 
 #: the spec kinds that start a firmware build

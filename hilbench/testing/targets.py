@@ -73,7 +73,7 @@ def unique_ids(specs: Sequence[str]) -> list[str]:
 def spec_kind(spec: str) -> tuple[str, str | None]:
     """(kind, registered target name or None) of a spec."""
     kind, sep, rest = spec.partition(":")
-    if sep and kind in ("inprocess", "emulator", "sil") and not rest.startswith("//"):
+    if sep and kind in ("inprocess", "emulator", "sil", "simavr", "qemu") and not rest.startswith("//"):
         name = re.split(r"[?&]", rest, maxsplit=1)[0]
         return ("inprocess" if kind == "inprocess" else "emulator"), name
     return "board", None

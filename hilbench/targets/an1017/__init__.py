@@ -12,13 +12,17 @@ from dataclasses import dataclass, field, replace
 from typing import TYPE_CHECKING, Literal, Mapping
 
 from hilbench.fieldspec import spec
+from hilbench.plant.params import PwmTiming
 from hilbench.protocol import TelemetryId
 from hilbench.targets.profile import MotorBuild, PotReference, TargetProfile, TelemetryColumn
 
+from hilbench.targets.qemu import QemuStarter
 from hilbench.targets.starters import HostExecutableStarter, SimavrStarter
 
 if TYPE_CHECKING:
     from pathlib import Path
+
+    from hilbench.targets.qemu import M4Build
 
 #: MeasuredSpeed = trunc(312·32768/Period) and rpm = 1 875 000/Period (the application note's
 #: Table 6), so one Q15 step of speed is 1 875 000/(312·32768) rpm; 32767 ≈ 6009.6 rpm. That is
@@ -103,6 +107,15 @@ def _avr_elf(settings: object) -> "Path":
     return build_avr(_build_variant(settings), _defines(settings))
 
 
+def _m4_build(settings: object) -> "M4Build":
+    """The board firmware built for the Cortex-M4 in QEMU (firmware/runtime/ports/cortex_m4, goal an1017)."""
+    from hilbench.targets.qemu import REPO, M4Build
+
+    variant = _build_variant(settings)
+    return M4Build("an1017", f"an1017_m4_{variant}.elf", (f"VARIANT={variant}", "DEFS=" + " ".join(_defines(settings))),
+                   (REPO / "firmware" / "an1017", REPO / "firmware" / "runtime", REPO / "firmware_protocol"))
+
+
 def _check_gains(raw: Mapping[str, int]) -> str | None:
     from hilbench.targets.an1017.firmware import GAIN_CONSTRAINT_NAMES, check_gain_constraints
 
@@ -166,8 +179,13 @@ PROFILE = TargetProfile(
     starters={
         "sil": HostExecutableStarter(_sil_exe, lambda settings: ["--variant", _build_variant(settings)], "an1017"),
         "simavr": SimavrStarter(_avr_elf, name="an1017"),
+        "qemu": QemuStarter(_m4_build, name="an1017"),
     },
     configure=_configure,
+    # dsPIC30F MCPWM in continuous up/down mode (PTCON 0x8002): a pin is active while PTMR < PDC, so
+    # the pulses are centred on the counter's zero; the ADC's special event (SEVTCMP = 1, counting
+    # up) falls one Tcy (0.1 % of the period) after it: taken as the zero
+    pwm_timing=PwmTiming(pulse_centre="zero", adc_sample_phase=0.0),
 )
 
 __all__ = ["An1017Settings", "PROFILE", "RPM_PER_SPEED_Q15", "pot_code_for_rpm", "rpm_for_pot_code"]

@@ -10,9 +10,15 @@ from __future__ import annotations
 
 from typing import Any
 
+from hilbench.plant.params import PwmTiming
 from hilbench.protocol import TelemetryId
 from hilbench.targets.foc.firmware import FocOptions
 from hilbench.targets.profile import MotorBuild, ParamReference, TargetProfile, TelemetryColumn
+from hilbench.targets.qemu import QemuStarter
+from hilbench.targets.starters import HostExecutableStarter, SimavrStarter
+
+#: the AVR the FOC build runs on in simavr (its 32 KB sine table needs more flash than a 328P has)
+AVR_MCU = "atmega1284p"
 
 #: telemetry is Q15 per unit: speed of BaseRpm 3000, currents of the 5 A base (FocOptions defaults)
 RPM_PER_Q15 = 3000 / 32768
@@ -44,6 +50,24 @@ def _make(options: object) -> Any:
     return FocTarget(options if isinstance(options, FocOptions) else FocOptions())
 
 
+def _sil_exe(options: object) -> Any:
+    from hilbench.targets.foc.build import build_sil
+
+    return build_sil(options if isinstance(options, FocOptions) else FocOptions())
+
+
+def _avr_elf(options: object) -> Any:
+    from hilbench.targets.foc.build import build_avr
+
+    return build_avr(options)
+
+
+def _m4_build(options: object) -> Any:
+    from hilbench.targets.foc.build import qemu_build
+
+    return qemu_build(options)
+
+
 def make_foc_target(**options: Any) -> Any:
     """A `FocTarget` with `FocOptions` fields as keyword options."""
     from hilbench.targets.foc.target import make_foc_target as _make_named
@@ -64,6 +88,14 @@ PROFILE = TargetProfile(
     built_for=lambda options: MotorBuild(pole_pairs=getattr(options, "pole_pairs", 3), max_speed_rpm=3000.0),
     capabilities=frozenset({"speed_loop", "realtime", "tuning", "encoder"}),
     sweep_defaults=(("spd_kp", "0.2:1.2:6"), ("spd_ki", "0.002:0.03:6")),
+    starters={
+        "sil": HostExecutableStarter(_sil_exe, name="foc"),
+        "simavr": SimavrStarter(_avr_elf, mcu=AVR_MCU, name="foc"),
+        "qemu": QemuStarter(_m4_build, name="foc"),
+    },
+    # F2812 Event Manager, timer 1 continuous up/down, active-high outputs: high while T1CNT > CMPR,
+    # so the pulses are centred on the counter's peak (period match); the ADC starts on underflow
+    pwm_timing=PwmTiming(pulse_centre="peak", adc_sample_phase=0.0),
 )
 
 __all__ = ["PROFILE", "FocOptions", "TELEMETRY_SPEC", "make_foc_target"]

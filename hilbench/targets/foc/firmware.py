@@ -28,7 +28,7 @@ from hilbench.targets.foc.blocks import PiClamp, PidReg3, Qep, SpeedFr, clarke, 
 from hilbench.targets.foc.iqmath import ONE, iq, iq15_to_iq, iq_to_iq15
 from hilbench.targets.foc.svpwm import T1PR, svpwm
 
-__all__ = ["FocOptions", "FocFirmware", "STATE_STOPPED", "STATE_ALIGN", "STATE_RUN", "STATE_FAULT",
+__all__ = ["FocOptions", "FocFirmware", "firmware_config", "q15_word", "STATE_STOPPED", "STATE_ALIGN", "STATE_RUN", "STATE_FAULT",
            "FAULT_NONE", "FAULT_WATCHDOG", "ISR_PERIOD_S", "HALF_PERIOD_US"]
 
 ISR_PERIOD_S = 1e-4  # 10 kHz, one ISR per PWM period (the paper)
@@ -95,6 +95,9 @@ class FocOptions:
             bad.append(("align_v_pu", f"{self.align_v_pu}: out of range 0..0.5"))
         if self.align_s < 0 or self.speed_ramp_rpm_per_s < 0 or self.base_current_a <= 0 or self.speed_filter_hz <= 0:
             bad.append(("align_s", "align_s, speed_ramp_rpm_per_s >= 0; base_current_a, speed_filter_hz > 0"))
+        if self.base_rpm > 0 and self.pole_pairs > 0 and self.base_freq_hz * ISR_PERIOD_S <= 1 / 1024:
+            # SPEED_FR's K1 = _IQ21(1/(BASE_FREQ*T)) must fit a 32-bit long (1024 in Q21)
+            bad.append(("base_rpm", f"{self.base_rpm}: base_rpm x pole_pairs must exceed 586 (SPEED_FR's K1 in Q21)"))
         for key in ("cur_kp", "cur_ki", "cur_kc", "spd_kp", "spd_ki", "spd_kc"):
             if not 0 <= getattr(self, key) < 8:
                 bad.append((key, f"{getattr(self, key)}: out of range 0..8"))
@@ -160,6 +163,10 @@ class FocFirmware:
         self._enc_last: int | None = None
 
     # ---- host-side commands ---------------------------------------------------------------
+    def set_speed_ref_rpm(self, rpm: int) -> None:
+        """The speed reference parameter: `_IQ(rpm/BaseRpm)`, truncating, within ±1."""
+        self.speed_ref = rpm_to_iq(rpm, self.options.base_rpm)
+
     def start(self) -> None:
         """Stopped → rotor alignment (outputs on), then closed loop."""
         if self.state in (STATE_STOPPED, STATE_FAULT):
@@ -303,13 +310,39 @@ class FocFirmware:
 
     # ---- read-outs ------------------------------------------------------------------------------
     def telemetry_q15(self) -> dict[str, int]:
-        """The values the target reports, as Q15 per unit (IQ24 >> 9)."""
+        """The values the target reports, as Q15 per unit (IQ24 >> 9) saturated to the wire's
+        16 bits (+1.0 pu, e.g. a 3000 rpm reference, reads 32767)."""
         return {
-            "ref_speed": iq_to_iq15(self.speed_setpoint if self.ramp_step else self.speed_ref), "speed": iq_to_iq15(self.speed.speed),
-            "i_d": iq_to_iq15(self.i_d), "i_q": iq_to_iq15(self.i_q),
-            "id_ref": iq_to_iq15(self.id_ref), "iq_ref": iq_to_iq15(self.iq_ref),
-            "theta_e": iq_to_iq15(self.elec_theta), "v_d": iq_to_iq15(self.v_d), "v_q": iq_to_iq15(self.v_q),
+            "ref_speed": q15_word(self.speed_setpoint if self.ramp_step else self.speed_ref),
+            "speed": q15_word(self.speed.speed), "i_d": q15_word(self.i_d), "i_q": q15_word(self.i_q),
+            "id_ref": q15_word(self.id_ref), "iq_ref": q15_word(self.iq_ref),
+            "theta_e": q15_word(self.elec_theta), "v_d": q15_word(self.v_d), "v_q": q15_word(self.v_q),
         }
+
+
+def q15_word(value: int) -> int:
+    """An IQ24 value as a telemetry word: `_IQtoIQ15`, saturated to a signed 16-bit value."""
+    return max(-32768, min(32767, iq_to_iq15(value)))
+
+
+def firmware_config(options: FocOptions) -> dict[str, int]:
+    """The firmware's build settings as the integers the chip holds (firmware/foc/foc.h
+    `foc_config_t`, by field name): what the C core is built from, in process or with -D."""
+    fw = FocFirmware(options)
+    q, sp = fw.qep, fw.speed
+    return {
+        "pi_form": int(options.pi_form == "pi_clamp"), "speed_fr_unwrap": int(sp.unwrap),
+        "learn_index": int(options.learn_index), "qep_signed16": int(q.signed16),
+        "line_encoder": q.line_encoder, "pole_pairs": q.pole_pairs, "t2pr": q.t2pr,
+        "calibrated_angle": q.calibrated_angle, "mech_scaler": q.mech_scaler,
+        "sp_k1": sp.k1, "sp_k2": sp.k2, "sp_k3": sp.k3, "base_rpm": sp.base_rpm,
+        "speed_loop_prescaler": options.speed_loop_prescaler, "align_isrs": fw.align_isrs,
+        "align_v": fw.align_v, "align_i": fw.align_i, "ramp_step": fw.ramp_step,
+        "cur_kp": fw.pid_iq.kp, "cur_ki": fw.pid_iq.ki, "cur_kc": fw.pid_iq.kc,
+        "id_out_max": fw.pid_id.out_max, "iq_out_max": fw.pid_iq.out_max,
+        "spd_kp": fw.pid_spd.kp, "spd_ki": fw.pid_spd.ki, "spd_kc": fw.pid_spd.kc,
+        "spd_out_max": fw.pid_spd.out_max,
+    }
 
 
 def rpm_to_iq(rpm: float, base_rpm: int) -> int:

@@ -47,7 +47,7 @@ from hilbench.targets.foc.firmware import (
     STATE_RUN,
     FocFirmware,
     FocOptions,
-    rpm_to_iq,
+    firmware_config,
 )
 from hilbench.targets.foc.iqmath import iq_to_iq15
 from hilbench.targets.foc.svpwm import T1PR
@@ -105,9 +105,7 @@ try:
 except ImportError:  # pragma: no cover - built without a C compiler
     _core = None
 else:
-    from hilbench.targets.foc.iqmath import SIN_Q15_TABLE
-
-    _core.init(Drive, SIN_Q15_TABLE, INPUT_INDEX)
+    _core.init(Drive, INPUT_INDEX)
 
 
 def available_backends() -> tuple[str, ...]:
@@ -232,7 +230,7 @@ class FocTarget:
             name = PARAMS[pid][0]
             if name == "ref_rpm":
                 self.speed_ref_rpm = int(value)
-                fw.speed_ref = rpm_to_iq(value, fw.options.base_rpm)
+                fw.set_speed_ref_rpm(int(value))
             elif name == "id_ref":
                 fw.id_ref = int(value)
             elif name == "torque_mode":
@@ -330,29 +328,13 @@ if _core is not None:
             return getattr(self._fw, self._prefix + name)
 
     class _CFirmware(_core.Core):  # type: ignore[misc,name-defined]
-        """FocFirmware's state in the C struct: initialised from a Python FocFirmware so both
-        start identical; the blocks' fields are flat members (`spd_kp`, `qep_t2cnt`, `sp_speed`)."""
-
-        _COPY = ("state", "fault", "speed_ref", "speed_setpoint", "id_ref", "iq_ref", "iq_ref_set", "isr_count",
-                 "state_isrs", "speed_loop_count", "elec_theta", "align_isrs", "align_v", "align_i", "ramp_step")
+        """The firmware's foc_t (firmware/foc) behind FocFirmware's interface: built from the same
+        integers the Python model computes (`firmware_config`); the blocks' fields are flat
+        members (`spd_kp`, `qep_t2cnt`, `sp_speed`)."""
 
         def __init__(self, options: FocOptions) -> None:
-            py = FocFirmware(options)
+            super().__init__(**firmware_config(options))
             self.options = options
-            for name in self._COPY:
-                setattr(self, name, getattr(py, name))
-            self.pi_form = 0 if options.pi_form == "pid_reg3" else 1
-            self.prescaler = options.speed_loop_prescaler
-            self.learn_index = int(options.learn_index)
-            for loop in ("spd", "id", "iq"):
-                for field in ("kp", "ki", "kc", "out_max", "out_min"):
-                    setattr(self, f"{loop}_{field}", getattr(py._loop(loop), field))
-            q = py.qep
-            self.qep_line_encoder, self.qep_pole_pairs, self.qep_calibrated_angle = q.line_encoder, q.pole_pairs, q.calibrated_angle
-            self.qep_mech_scaler, self.qep_t2pr, self.qep_signed16 = q.mech_scaler, q.t2pr, int(q.signed16)
-            sp = py.speed
-            self.sp_k1, self.sp_k2, self.sp_k3, self.sp_base_rpm = sp.k1, sp.k2, sp.k3, sp.base_rpm
-            self.sp_unwrap = int(sp.unwrap)
 
         def gain(self, loop: str, field: str) -> int:
             return getattr(self, f"{loop}_{field}")
@@ -400,7 +382,7 @@ if _core is not None:
             self._frac_us = total - n * HALF_PERIOD_US
             self.fw.last_seq = sensors.seq
             self.fw.inputs(sensors.inputs)
-            duties = self.fw.run_halves(n, sensors) if n else self._active_duties()
+            duties = self.fw.run_halves(n, sensors) if n else self.fw.active_duties()
             return self.fw.drive(sensors.seq, *duties)
 
         def watchdog_trip(self) -> Drive:
