@@ -128,7 +128,7 @@ def test_the_plant_says_which_mode_its_integrator_cannot_follow() -> None:
 @pytest.mark.parametrize("backend", available_backends())
 def test_a_long_period_lists_every_index_mark(backend: str) -> None:
     """An index mark in any chunk of a long period is kept (sense() reports it, not only a mark in the
-    last chunk) and timed at the end of its chunk, as the chunk-by-chunk steps see it."""
+    last chunk) and timed at the start of its chunk, as the chunk-by-chunk steps see it."""
     fast, slow = Plant(params(), seed=1, backend=backend), Plant(params(), seed=1, backend=backend)
     fast.set_period(1000)
     for plant in (fast, slow):
@@ -141,7 +141,7 @@ def test_a_long_period_lists_every_index_mark(backend: str) -> None:
         for i in range(20):
             slow.step(0.0, 0.0, 0.0, OUTPUT_OFF, h)
             if slow.encoder_index:
-                want.append((i + 1) * h)
+                want.append(i * h)
         assert fast.index_marks() == tuple(want)
         assert fast.encoder_index == bool(want) == fast.sense(())[2]
         marks += len(want)

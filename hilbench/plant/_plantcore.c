@@ -54,7 +54,7 @@ typedef struct {
     long long periods;
     double edge_t[MAX_CHUNKS];
     int edge_hall[MAX_CHUNKS];
-    double mark_t[MAX_CHUNKS]; /* the encoder's index marks of the last advance (chunk ends) */
+    double mark_t[MAX_CHUNKS]; /* the encoder's index marks of the last advance (chunk starts) */
     /* the recorded outputs: offsets of double members, in model.OUTPUTS order */
     Py_ssize_t out_off[MAX_OUTPUTS];
     int n_out;
@@ -493,8 +493,8 @@ static PyObject *Core_advance(Core *s, PyObject *const *args, Py_ssize_t nargs)
             s->edge_hall[s->n_edges] = s->hall_bits;
             s->n_edges++;
         }
-        if (s->encoder_index) /* an index mark passed in this chunk: timed at its end */
-            s->mark_t[s->n_marks++] = (double)(i + 1) * h;
+        if (s->encoder_index) /* an index mark passed in this chunk: timed at its start */
+            s->mark_t[s->n_marks++] = (double)i * h;
     }
     s->encoder_index = (char)(s->n_marks > 0); /* a mark anywhere in the period */
     s->periods += 1;

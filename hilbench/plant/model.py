@@ -469,8 +469,8 @@ class Plant:
             if self.last_edge_s is not None:
                 edge_s = i * h + self.last_edge_s
                 edges.append((edge_s, self.hall_bits))
-            if self.encoder_index:  # an index mark passed in this chunk: timed at its end
-                marks.append((i + 1) * h)
+            if self.encoder_index:  # an index mark passed in this chunk: timed at its start
+                marks.append(i * h)
         self._edges = edges
         self._index_marks = marks
         self.encoder_index = bool(marks)  # a mark anywhere in the period, not only in its last chunk
@@ -490,8 +490,9 @@ class Plant:
         return tuple(self._edges)
 
     def index_marks(self) -> tuple[float, ...]:
-        """The encoder's index marks of the last `advance`: the end of each chunk (at most MAX_STEP_US)
-        in which one passed, from the period's start, in order."""
+        """The encoder's index marks of the last `advance`: the start of each chunk (at most MAX_STEP_US)
+        in which one passed, from the period's start, in order (a period of one chunk: its start, where
+        a target that reads only Sensors.inputs' INDEX bit takes it too)."""
         return tuple(self._index_marks)
 
     # ----------------------------------------------------------------- one step, by physics
