@@ -7,11 +7,17 @@ All metadata is in pyproject.toml. The extension is `optional`: without a C comp
 `pip install .` still succeeds and hilbench.plant falls back to its pure-Python step
 (and hilbench.targets.an1017 to its pure-Python firmware model).
 -ffp-contract=off keeps the C arithmetic identical to the Python backend (no fused multiply-add).
+The three extensions share their CPython glue: hilbench/_cglue/hbglue.h, a header on each one's
+include path.
 """
 
 import sys
 
 from setuptools import Extension, setup
+
+#: the CPython glue every extension shares (a header; MANIFEST.in ships it in the sdist)
+GLUE = ["hilbench/_cglue"]
+GLUE_HEADER = ["hilbench/_cglue/hbglue.h"]
 
 if sys.platform == "win32":
     _flags: list[str] = ["/O2", "/fp:precise"]
@@ -23,7 +29,8 @@ setup(
         Extension(
             "hilbench.plant._plantcore",
             sources=["hilbench/plant/_plantcore.c"],
-            depends=["hilbench/plant/_switching.c"],  # included by _plantcore.c
+            include_dirs=GLUE,
+            depends=GLUE_HEADER + ["hilbench/plant/_switching.c"],  # included by _plantcore.c
             extra_compile_args=_flags,
             optional=True,
         ),
@@ -31,18 +38,18 @@ setup(
             "hilbench.targets.foc._core",
             sources=["hilbench/targets/foc/_core.c", "firmware/foc/foc.c", "firmware/foc/foc_blocks.c",
                      "firmware/foc/foc_sin_table.c"],
-            include_dirs=["firmware/foc"],
-            depends=["firmware/foc/foc.h", "firmware/foc/foc_blocks.h", "firmware/foc/foc_config.h",
-                     "firmware/foc/iq24.h"],
+            include_dirs=GLUE + ["firmware/foc"],
+            depends=GLUE_HEADER + ["firmware/foc/foc.h", "firmware/foc/foc_blocks.h", "firmware/foc/foc_config.h",
+                                   "firmware/foc/iq24.h"],
             extra_compile_args=_flags,
             optional=True,
         ),
         Extension(  # the board firmware's own source on the runtime behind a CPython glue (MANIFEST.in ships them)
             "hilbench.targets.an1017._core",
             sources=["hilbench/targets/an1017/_core.c", "firmware/an1017/an1017.c", "firmware/runtime/hrt.c"],
-            include_dirs=["firmware/an1017", "firmware/runtime", "firmware_protocol"],
-            depends=["firmware/an1017/an1017.h", "firmware/an1017/q15.h", "firmware/an1017/hrt_config.h",
-                     "firmware/runtime/hrt.h", "firmware_protocol/hbp_messages.h"],
+            include_dirs=GLUE + ["firmware/an1017", "firmware/runtime", "firmware_protocol"],
+            depends=GLUE_HEADER + ["firmware/an1017/an1017.h", "firmware/an1017/q15.h", "firmware/an1017/hrt_config.h",
+                                   "firmware/runtime/hrt.h", "firmware_protocol/hbp_messages.h"],
             extra_compile_args=_flags,
             optional=True,
         ),

@@ -33,7 +33,8 @@ from pathlib import Path
 from hilbench.bench.recorder import Recorder
 from hilbench.bench.scenario import Event
 from hilbench.bench.session import Session, SessionOptions
-from hilbench.config import load_config, plant_params_from_config
+from hilbench.bench.settings import load_config
+from hilbench.config import plant_params_from_config
 from hilbench.plant.model import Plant
 from hilbench.targets import make_target
 from hilbench.targets.foc.firmware import FocOptions

@@ -28,7 +28,9 @@ from pathlib import Path
 
 import numpy as np
 
-from hilbench.config import load_config, plant_params_from_config
+from hilbench.bench.settings import load_config
+
+from hilbench.config import plant_params_from_config
 from hilbench.plant import Plant
 from hilbench.plant.model import DEFAULT_SUBSTEPS, available_backends
 

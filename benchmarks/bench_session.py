@@ -39,7 +39,8 @@ from hilbench.bench.launcher import open_target  # noqa: E402
 from hilbench.bench.recorder import Recorder  # noqa: E402
 from hilbench.bench.scenario import Event  # noqa: E402
 from hilbench.bench.session import Session  # noqa: E402
-from hilbench.config import load_config, plant_params_from_config  # noqa: E402
+from hilbench import load_config  # noqa: E402
+from hilbench.config import plant_params_from_config  # noqa: E402
 from hilbench.plant.model import Plant  # noqa: E402
 
 PERIOD_US = 50
@@ -55,10 +56,12 @@ def scenario(seconds: float) -> tuple[Event, ...]:
     )
 
 
-def closed_loop(spec: str, seconds: float, record_dir: str, fmt: str) -> tuple[float, str, float]:
+def closed_loop(spec: str, seconds: float, record_dir: str, fmt: str) -> tuple[float, str, float, float]:
     """Periods/s of one lockstep run against ``spec``, every period recorded to ``fmt``.
 
-    Returns (periods/s including closing the recording, plant backend, periods/s of the loop alone).
+    Returns (periods/s including closing the recording, plant backend, periods/s of the loop alone,
+    periods per CPU second of this process including the close: time the machine's other load took
+    from it left out).
     """
     cfg = load_config(None)
     options = dataclasses.replace(settings.session_options(cfg), duration_s=seconds, period_us=PERIOD_US)
@@ -68,19 +71,20 @@ def closed_loop(spec: str, seconds: float, record_dir: str, fmt: str) -> tuple[f
         session = Session(handle.target, plant, scenario(seconds), options, recorder=recorder,
                           link_stats=handle.link_stats, target_label=spec)
         session.handshake()
-        t0 = time.perf_counter()
+        t0, cpu0 = time.perf_counter(), time.process_time()
         summary = session.run()
-        elapsed = time.perf_counter() - t0
-    return summary.periods / elapsed, getattr(plant, "backend", "python"), summary.periods / summary.wall_s
+        elapsed, cpu = time.perf_counter() - t0, time.process_time() - cpu0
+    return (summary.periods / elapsed, getattr(plant, "backend", "python"), summary.periods / summary.wall_s,
+            summary.periods / cpu if cpu > 0 else float("nan"))
 
 
-def measure_in(python: str, seconds: float) -> tuple[float, float]:
+def measure_in(python: str, seconds: float) -> tuple[float, float, float]:
     """(a) measured by another interpreter (another hilbench installation) running this file:
-    (periods/s with the recording's close, periods/s of the loop alone)."""
+    (periods/s with the recording's close, periods/s of the loop alone, periods per CPU second)."""
     out = subprocess.run([python, __file__, "--measure-inprocess", "--seconds", str(seconds)], capture_output=True,
                          text=True, timeout=600, cwd=tempfile.gettempdir(), check=True)
     figures = json.loads(out.stdout.strip().splitlines()[-1])
-    return float(figures["rate"]), float(figures.get("loop_rate", "nan"))
+    return float(figures["rate"]), float(figures.get("loop_rate", "nan")), float(figures.get("cpu_rate", "nan"))
 
 
 def instructions_per_period(python: str, short_s: float = 0.2, long_s: float = 1.2) -> float:
@@ -120,15 +124,16 @@ def main() -> None:
         return
     if args.measure_inprocess:  # one (a) figure for --baseline-python, as JSON
         with tempfile.TemporaryDirectory() as tmp:
-            rate, _, loop_rate = closed_loop("inprocess:an1017", args.seconds, tmp, "npz")
-            print(json.dumps({"rate": rate, "loop_rate": loop_rate}))
+            rate, _, loop_rate, cpu_rate = closed_loop("inprocess:an1017", args.seconds, tmp, "npz")
+            print(json.dumps({"rate": rate, "loop_rate": loop_rate, "cpu_rate": cpu_rate}))
         return
     if args.baseline_python:
-        pairs: dict[str, list[tuple[float, float]]] = {"this": [], "baseline": []}
+        pairs: dict[str, list[tuple[float, float, float]]] = {"this": [], "baseline": []}
         for _ in range(args.repeats):  # interleaved: both see the same machine load
             pairs["this"].append(measure_in(sys.executable, args.seconds))
             pairs["baseline"].append(measure_in(args.baseline_python, args.seconds))
-        for i, what in enumerate(("with NPZ recording", "the loop alone (without the .npz's close)")):
+        for i, what in enumerate(("with NPZ recording", "the loop alone (without the .npz's close)",
+                                  "per CPU second of the process, with the close (the machine's other load left out)")):
             this = statistics.median(r[i] for r in pairs["this"])
             base = statistics.median(r[i] for r in pairs["baseline"])
             print(f"(a) in-process, {what}, median of {args.repeats}: this tree {this:,.0f} periods/s, "
@@ -142,7 +147,7 @@ def main() -> None:
     backend = "?"
     with tempfile.TemporaryDirectory() as tmp:
         for _ in range(args.repeats):  # interleaved, so drifts in machine load hit every figure alike
-            rate, backend, loop_rate = closed_loop("inprocess:an1017", args.seconds, tmp, "npz")
+            rate, backend, loop_rate, _ = closed_loop("inprocess:an1017", args.seconds, tmp, "npz")
             rates["inproc_npz"].append(rate)
             rates["inproc_npz_loop"].append(loop_rate)
             rates["inproc_csv"].append(closed_loop("inprocess:an1017", args.seconds, tmp, "csv")[0])

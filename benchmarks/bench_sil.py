@@ -32,7 +32,8 @@ from hilbench.bench import settings  # noqa: E402
 from hilbench.bench.launcher import TargetHandle, open_target  # noqa: E402
 from hilbench.bench.recorder import Recorder  # noqa: E402
 from hilbench.bench.session import Session  # noqa: E402
-from hilbench.config import load_config, plant_params_from_config  # noqa: E402
+from hilbench.bench.settings import load_config  # noqa: E402
+from hilbench.config import plant_params_from_config  # noqa: E402
 from hilbench.link.pty import open_pty_pair  # noqa: E402
 from hilbench.plant.model import Plant  # noqa: E402
 from hilbench.targets.sil import build_sil, start_sil, stop_sil  # noqa: E402

@@ -22,7 +22,7 @@ import hilbench
 from hilbench.bench.sampling import Axis
 from hilbench.bench.steptest import StepTest
 from hilbench.bench.sweep import refine, sweep_grid
-from hilbench.config import load_config
+from hilbench.bench.settings import load_config
 
 KP, KI = (0.05, 0.85), (0.005, 0.12)
 

@@ -30,13 +30,13 @@ from hilbench.errors import (
     TargetError,
 )
 
-__version__ = "0.2.0"
+from hilbench.version import __version__
 
 _LAZY = {
     "Bench": "hilbench.bench.bench",
     "Signals": "hilbench.bench.bench",
     "Summary": "hilbench.bench.summary",
-    "load_config": "hilbench.config",
+    "load_config": "hilbench.bench.settings",
     "BenchConfig": "hilbench.config",
     "read_recording": "hilbench.bench.recorder",
     "RecordingData": "hilbench.bench.recorder",
@@ -62,7 +62,8 @@ if TYPE_CHECKING:
     from hilbench.bench.steptest import StepResult, StepTest
     from hilbench.bench.summary import Summary
     from hilbench.bench.sweep import Tolerances
-    from hilbench.config import BenchConfig, load_config
+    from hilbench.bench.settings import load_config
+    from hilbench.config import BenchConfig
     from hilbench.targets.profile import ParamReference, PotReference, TargetProfile, TelemetryColumn
     from hilbench.targets.registry import get_profile, known_targets
 

@@ -8,7 +8,7 @@ from __future__ import annotations
 
 import functools
 import sys
-from typing import Any, Callable
+from typing import Any, Callable, Sequence
 
 import click
 
@@ -56,6 +56,9 @@ def cli() -> None:
       hilbench ports                    list serial ports
       hilbench emulate                  serve the default firmware's emulator on a virtual serial pair
     """
+    from hilbench.processes import watch_parent
+
+    watch_parent()  # started by a bench (run --scope's scope, link-test's emulator): end with it
 
 
 def _default_target_name() -> str:
@@ -311,6 +314,9 @@ def run(config: str | None, target_spec: str | None, mode: str | None, duration_
             scope_server.close()
         if control is not None:
             control.close()
+            note = control.trouble()
+            if note:
+                click.echo(f"hilbench: warning: control socket: {note}", err=True)
     from hilbench.bench.checks import checks_text, raise_if_failed
 
     if as_json:
@@ -659,7 +665,6 @@ def sweep(config: str | None, axes: tuple[str, ...], sample: str, rounds: int, s
       hilbench sweep --sample lhs:64 -p kp=0.05:0.95:1 -p ki=0.005:0.2:1 --resume s.jsonl
       hilbench sweep --tolerance rs=0.1,psi=0.05,j=0.2 --executor local-dask:2
     """
-    import json as json_module
     import time
 
     from rich.console import Console
@@ -668,31 +673,24 @@ def sweep(config: str | None, axes: tuple[str, ...], sample: str, rounds: int, s
     from hilbench.bench import sampling
     from hilbench.bench.run import RunRequest, check_overrides, load_run_config, settings_profile
     from hilbench.bench.steptest import StepTest
-    from hilbench.bench.sweep import Tolerances, best_fragment, parse_axis, refine, sweep_points, write_sweep_csv
+    from hilbench.bench.sweep import refine, sweep_points, write_sweep_csv
 
     cfg = load_run_config(RunRequest(config, check_overrides(overrides)))
     profile = settings_profile(cfg)
-    parsed = [parse_axis(word) for word in (axes or tuple(f"{n}={g}" for n, g in profile.sweep_defaults))]
-    box = [sampling.Axis(name, values[0], values[-1], len(values)) for name, values in parsed]
+    box = _sweep_box(axes or tuple(f"{n}={g}" for n, g in profile.sweep_defaults))
     test = StepTest(from_rpm, to_rpm, step_at_s, duration_s - step_at_s)
     tolerances = _parse_tolerances(tolerance)
-    kind, _, count = sample.partition(":")
-    if kind == "grid" and not count:
-        points = sampling.grid(box)
-    elif kind in ("lhs", "random") and count.isdigit() and 1 <= int(count) <= 100_000:
-        points = (sampling.latin_hypercube if kind == "lhs" else sampling.random_points)(box, int(count), seed)
-    else:
-        raise ConfigError(f"sweep --sample {sample!r}: expected grid, lhs:N or random:N")
-    console = Console(stderr=True)
+    kind = sample.partition(":")[0]
+    if rounds > 1 and kind != "grid":
+        raise ConfigError("sweep --refine works on a grid (--sample grid)")
+    points = _sweep_sample(sample, box, seed)
     started = time.perf_counter()
     options = dict(executor=executor, workers=workers, tolerances=tolerances, store=store)
     with Progress(TextColumn("[bold]sweep"), BarColumn(), TextColumn("{task.completed}/{task.total} points"),
-                  TimeElapsedColumn(), console=console, transient=True) as progress:
+                  TimeElapsedColumn(), console=Console(stderr=True), transient=True) as progress:
         task = progress.add_task("sweep", total=None)
         report = lambda done, total: progress.update(task, completed=done, total=total)  # noqa: E731
         if rounds > 1:
-            if kind != "grid":
-                raise ConfigError("sweep --refine works on a grid (--sample grid)")
             result = refine(cfg, box, test, metric, rounds=rounds, shrink=shrink, progress=report, **options)
         else:
             result = sweep_points(cfg, points, test, metric, progress=report, **options)
@@ -700,12 +698,46 @@ def sweep(config: str | None, axes: tuple[str, ...], sample: str, rounds: int, s
     if csv_file:
         write_sweep_csv(csv_file, result)
     if save_file:
-        text = best_fragment(result)  # before opening the file: nothing simulated leaves no empty file
-        try:
-            with open(save_file, "w", encoding="utf-8") as handle:
-                handle.write(text)
-        except OSError as exc:
-            raise ConfigError(f"sweep --save {save_file}: {exc.strerror}") from None
+        _save_best(result, save_file)
+    _show_sweep(result, top, as_json, wall_s, len(tolerances.cases()) > 1, csv_file, save_file)
+
+
+def _sweep_box(words: Sequence[str]) -> list[Any]:
+    """The swept box: one axis per `--param NAME=A:B:N` word."""
+    from hilbench.bench import sampling
+    from hilbench.bench.sweep import parse_axis
+
+    return [sampling.Axis(name, values[0], values[-1], len(values)) for name, values in map(parse_axis, words)]
+
+
+def _sweep_sample(sample: str, box: list[Any], seed: int) -> list[Any]:
+    """`--sample grid | lhs:N | random:N`: the points of the box."""
+    from hilbench.bench import sampling
+
+    kind, _, count = sample.partition(":")
+    if kind == "grid" and not count:
+        return sampling.grid(box)
+    if kind in ("lhs", "random") and count.isdigit() and 1 <= int(count) <= 100_000:
+        return (sampling.latin_hypercube if kind == "lhs" else sampling.random_points)(box, int(count), seed)
+    raise ConfigError(f"sweep --sample {sample!r}: expected grid, lhs:N or random:N")
+
+
+def _save_best(result: Any, save_file: str) -> None:
+    from hilbench.bench.sweep import best_fragment
+
+    text = best_fragment(result)  # before opening the file: nothing simulated leaves no empty file
+    try:
+        with open(save_file, "w", encoding="utf-8") as handle:
+            handle.write(text)
+    except OSError as exc:
+        raise ConfigError(f"sweep --save {save_file}: {exc.strerror}") from None
+
+
+def _show_sweep(result: Any, top: int, as_json: bool, wall_s: float, worst_case: bool, csv_file: str | None,
+                save_file: str | None) -> None:
+    """The ranked table and the sweep's figures (or the ranked points as JSON)."""
+    import json as json_module
+
     ranked = result.ranked[:top]
     if as_json:
         click.echo(json_module.dumps([
@@ -715,9 +747,10 @@ def sweep(config: str | None, axes: tuple[str, ...], sample: str, rounds: int, s
         return
     out = _wide_console()
     rows = [(p.label, p.result.metrics) for p in ranked if p.result is not None]
-    worst = " (worst of each point's tolerance cases)" if len(tolerances.cases()) > 1 else ""
+    worst = " (worst of each point's tolerance cases)" if worst_case else ""
+    test = result.test
     out.print(step_table(rows, f"sweep: best {len(rows)} of {len(result.points)} by {result.metric}{worst} "
-                               f"(step {from_rpm:g} → {to_rpm:g} rpm)", sort_by=result.metric))
+                               f"(step {test.from_rpm:g} → {test.to_rpm:g} rpm)", sort_by=result.metric))
     out.print(f"{'/'.join(result.axes)}: {len(result.points)} points ({result.skipped} skipped by the firmware's "
               f"constraints), {result.step_tests} step tests; {result.sim_s:.0f} simulated s "
               f"in {wall_s:.1f} s wall ({result.sim_s / wall_s:.1f} plant-s/s) on {result.extras.get('executor')}")

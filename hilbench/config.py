@@ -5,13 +5,16 @@ the physical range and a one-line doc. `load_config` collects *every* problem â€
 wrong type, out of range, unknown key (with a "did you mean"), bad choice â€” and raises one
 `ConfigError` whose lines read `FILE [table] key: reason`.
 
-Extending: a later layer adds a section with a few lines, no edit here:
+The tables a config may hold are an explicit registry (`Sections`), passed to `load_config`: this
+module owns the plant's (`PLANT_SECTIONS`); the bench adds its own to them
+(`hilbench.bench.settings.SECTIONS`, what `hilbench.load_config` reads). Nothing registers a
+table by being imported. A later layer extends a registry with a few lines, no edit here:
 
     @dataclass(frozen=True)
     class RunSection:
         duration_s: float = field(default=1.0, metadata=spec(unit="s", gt=0))
-    register_section("run", RunSection)          # optional table, defaults when absent
-    cfg = load_config(path); cfg.run.duration_s  # or cfg.sections["run"]
+    sections = PLANT_SECTIONS.with_table("run", RunSection)   # optional table, defaults when absent
+    cfg = load_config(path, sections=sections); cfg.run.duration_s  # or cfg.sections["run"]
 
 Supported field types: float (ints accepted), int, bool, str, `Literal[...]` choices, nested
 dataclasses (sub-tables), `tuple[Dataclass, ...]` (arrays of tables, validated per item),
@@ -33,6 +36,7 @@ from pathlib import Path
 from typing import Any, Callable, Literal, Mapping, Sequence
 
 from hilbench.errors import ConfigError
+from hilbench.limits import CONFIG_MAX_BYTES, read_text_bounded
 from hilbench.fieldspec import spec
 from hilbench.plant.params import (
     AdcChannel,
@@ -54,7 +58,8 @@ __all__ = [
     "PlantSection",
     "load_config",
     "plant_from_config",
-    "register_section",
+    "PLANT_SECTIONS",
+    "Sections",
     "spec",
     "DEFAULT_CONFIG_NAME",
 ]
@@ -151,29 +156,43 @@ class _Section:
     chooser: Callable[[Mapping[str, Any]], type | None] | None = None
 
 
-_SECTIONS: dict[str, _Section] = {}
+@dataclass(frozen=True)
+class Sections:
+    """The tables a config may hold, each validated into its dataclass: an explicit registry,
+    extended by value (`with_table`) and handed to `load_config`."""
+
+    tables: Mapping[str, _Section] = field(default_factory=lambda: types.MappingProxyType({}))
+
+    def with_table(self, name: str, cls: type | None, *, required: bool = False, many: bool = False,
+                   chooser: Callable[[Mapping[str, Any]], type | None] | None = None) -> "Sections":
+        """These tables and `[name]` (or `[[name]]` when many) validated into dataclass `cls`.
+
+        Optional tables are built from the dataclass defaults when absent (all fields need one).
+        With ``chooser`` the dataclass is chosen after every other table is built (None: the table
+        must be absent, and the section is None)."""
+        if chooser is None and not dataclasses.is_dataclass(cls):
+            raise TypeError(f"Sections.with_table {name!r}: {cls!r} is not a dataclass")
+        return Sections(types.MappingProxyType({**self.tables, name: _Section(name, cls, required, many, chooser)}))
+
+    def __contains__(self, name: object) -> bool:
+        return name in self.tables
+
+    def names(self) -> list[str]:
+        return list(self.tables)
 
 
-def register_section(name: str, cls: type | None, *, required: bool = False, many: bool = False,
-                     chooser: Callable[[Mapping[str, Any]], type | None] | None = None) -> None:
-    """Add a top-level table `[name]` (or `[[name]]` when many) validated into dataclass `cls`.
-
-    Optional sections are built from the dataclass defaults when absent (all fields need one).
-    With ``chooser`` the dataclass is chosen after every other table is built (None: the table
-    must be absent, and the section is None)."""
-    if chooser is None and not dataclasses.is_dataclass(cls):
-        raise TypeError(f"register_section {name!r}: {cls!r} is not a dataclass")
-    _SECTIONS[name] = _Section(name, cls, required, many, chooser)
-
-
-register_section("motor", MotorSection, required=True)
-register_section("inverter", InverterParams)
-register_section("hall", HallParams)
-register_section("encoder", EncoderParams)
-register_section("adc", AdcChannel, many=True)
-register_section("load", LoadProfile)
-register_section("plant", PlantSection)
-register_section("protection", ProtectionParams)
+#: the plant's tables: what a config of the plant alone holds
+PLANT_SECTIONS = (
+    Sections()
+    .with_table("motor", MotorSection, required=True)
+    .with_table("inverter", InverterParams)
+    .with_table("hall", HallParams)
+    .with_table("encoder", EncoderParams)
+    .with_table("adc", AdcChannel, many=True)
+    .with_table("load", LoadProfile)
+    .with_table("plant", PlantSection)
+    .with_table("protection", ProtectionParams)
+)
 
 
 @dataclass(frozen=True)
@@ -238,70 +257,88 @@ def _convert(value: Any, tp: Any, table: str, key: str, col: _Collector) -> tupl
     origin = typing.get_origin(tp)
     if origin in (typing.Union, types.UnionType):
         args = [a for a in typing.get_args(tp) if a is not type(None)]
-        if len(args) == 1:
+        if len(args) == 1:  # X | None: absent is the default, a given value is an X
             return _convert(value, args[0], table, key, col)
-    if origin is Literal:
-        choices = typing.get_args(tp)
-        if value in choices:
-            return True, value
-        hint = _suggest(str(value), [str(c) for c in choices]) if isinstance(value, str) else ""
-        col.add(table, key, f"{_show(value)} is not one of {', '.join(repr(c) for c in choices)}{hint}")
-        return False, None
-    if origin is tuple:
-        args = typing.get_args(tp)
-        item_tp = args[0]
-        if not isinstance(value, list):
-            col.add(table, key, f"expected an array, got {type(value).__name__}")
-            return False, None
-        out = []
-        ok = True
-        for n, item in enumerate(value):
-            if dataclasses.is_dataclass(item_tp):
-                good, obj = _build(item_tp, item, f"{table}.{key}[{n}]" if key else f"{table}[{n}]", col)
-            else:
-                good, obj = _convert(item, item_tp, table, f"{key}[{n}]", col)
-            ok = ok and good
-            out.append(obj)
-        return ok, tuple(out)
-    if origin is dict:  # a table of named values, e.g. a scenario's `set = { kp = 0.1 }`
-        key_tp, item_tp = typing.get_args(tp)
-        if not isinstance(value, dict):
-            col.add(table, key, f"expected a table, got {type(value).__name__}")
-            return False, None
-        items = {}
-        ok = True
-        for name, item in value.items():
-            good, obj = _convert(item, item_tp, table, f"{key}.{name}", col)
-            ok = ok and good
-            items[str(name)] = obj
-        return ok, items
+    by_origin = _CONVERT_BY_ORIGIN.get(origin)
+    if by_origin is not None:
+        return by_origin(value, tp, table, key, col)
     if dataclasses.is_dataclass(tp):
         return _build(tp, value, f"{table}.{key}", col)
-    if tp is float:
-        if isinstance(value, bool) or not isinstance(value, (int, float)):
-            col.add(table, key, f"expected a number, got {type(value).__name__} {_show(value)}")
-            return False, None
-        if not math.isfinite(value):
-            col.add(table, key, f"expected a finite number, got {_show(value)}")
-            return False, None
-        return True, float(value)
-    if tp is int:
-        if isinstance(value, bool) or not isinstance(value, int):
-            col.add(table, key, f"expected an integer, got {type(value).__name__} {_show(value)}")
-            return False, None
-        return True, value
-    if tp is bool:
-        if not isinstance(value, bool):
-            col.add(table, key, f"expected true or false, got {type(value).__name__} {_show(value)}")
-            return False, None
-        return True, value
-    if tp is str:
-        if not isinstance(value, str):
-            col.add(table, key, f"expected a string, got {type(value).__name__} {_show(value)}")
-            return False, None
-        return True, value
+    if tp in _SCALARS:
+        return _convert_scalar(value, tp, table, key, col)
     col.add(table, key, f"unsupported field type {_type_name(tp)}")
     return False, None
+
+
+def _convert_literal(value: Any, tp: Any, table: str, key: str, col: _Collector) -> tuple[bool, Any]:
+    """One of the `Literal[...]` choices."""
+    choices = typing.get_args(tp)
+    if value in choices:
+        return True, value
+    hint = _suggest(str(value), [str(c) for c in choices]) if isinstance(value, str) else ""
+    col.add(table, key, f"{_show(value)} is not one of {', '.join(repr(c) for c in choices)}{hint}")
+    return False, None
+
+
+def _convert_tuple(value: Any, tp: Any, table: str, key: str, col: _Collector) -> tuple[bool, Any]:
+    """An array: `tuple[Dataclass, ...]` (an array of tables, each validated) or of scalars."""
+    item_tp = typing.get_args(tp)[0]
+    if not isinstance(value, list):
+        col.add(table, key, f"expected an array, got {type(value).__name__}")
+        return False, None
+    out = []
+    ok = True
+    for n, item in enumerate(value):
+        if dataclasses.is_dataclass(item_tp):
+            good, obj = _build(item_tp, item, f"{table}.{key}[{n}]" if key else f"{table}[{n}]", col)
+        else:
+            good, obj = _convert(item, item_tp, table, f"{key}[{n}]", col)
+        ok = ok and good
+        out.append(obj)
+    return ok, tuple(out)
+
+
+def _convert_dict(value: Any, tp: Any, table: str, key: str, col: _Collector) -> tuple[bool, Any]:
+    """A table of named values, e.g. a scenario's `set = { kp = 0.1 }`."""
+    _, item_tp = typing.get_args(tp)
+    if not isinstance(value, dict):
+        col.add(table, key, f"expected a table, got {type(value).__name__}")
+        return False, None
+    items = {}
+    ok = True
+    for name, item in value.items():
+        good, obj = _convert(item, item_tp, table, f"{key}.{name}", col)
+        ok = ok and good
+        items[str(name)] = obj
+    return ok, items
+
+
+#: scalar type -> (whether a TOML value is one, what the message says was expected)
+_SCALARS: dict[type, tuple[Callable[[Any], bool], str]] = {
+    float: (lambda v: isinstance(v, (int, float)) and not isinstance(v, bool), "a number"),
+    int: (lambda v: isinstance(v, int) and not isinstance(v, bool), "an integer"),
+    bool: (lambda v: isinstance(v, bool), "true or false"),
+    str: (lambda v: isinstance(v, str), "a string"),
+}
+
+
+def _convert_scalar(value: Any, tp: type, table: str, key: str, col: _Collector) -> tuple[bool, Any]:
+    """A float (an int is accepted; finite only), int, bool or str."""
+    accepts, expected = _SCALARS[tp]
+    if not accepts(value):
+        col.add(table, key, f"expected {expected}, got {type(value).__name__} {_show(value)}")
+        return False, None
+    if tp is not float:
+        return True, value
+    if not math.isfinite(value):
+        col.add(table, key, f"expected a finite number, got {_show(value)}")
+        return False, None
+    return True, float(value)
+
+
+_CONVERT_BY_ORIGIN: dict[Any, Callable[[Any, Any, str, str, _Collector], tuple[bool, Any]]] = {
+    Literal: _convert_literal, tuple: _convert_tuple, dict: _convert_dict,
+}
 
 
 def _range_reason(value: Any, meta: Mapping[str, Any]) -> str | None:
@@ -370,13 +407,14 @@ def _parse_value(text: str) -> Any:
         return text.strip()
 
 
-def _apply_override(data: dict[str, Any], item: str, col: _Collector) -> str | None:
+def _apply_override(data: dict[str, Any], item: str, col: _Collector, sections: Sections) -> str | None:
+    """One `--set TABLE.KEY=VALUE` into the raw tables; returns the dotted key it set (None: refused)."""
     if "=" not in item:
         col.lines.append(f"--set {item}: expected TABLE.KEY=VALUE")
         return None
     path, text = item.split("=", 1)
     parts = [p.strip() for p in path.strip().split(".")]
-    if len(parts) == 1 and parts[0] in _SECTIONS and _SECTIONS[parts[0]].many:  # scenario=[{...}, ...]
+    if len(parts) == 1 and parts[0] in sections and sections.tables[parts[0]].many:  # scenario=[{...}, ...]
         data[parts[0]] = _parse_value(text)
         return parts[0]
     if len(parts) < 2 or not all(parts):
@@ -425,14 +463,8 @@ PACKAGED_PREFIX = "packaged"
 
 
 def _read_text(path: Path, source: str) -> str:
-    try:
-        raw = path.read_bytes()
-    except OSError as exc:
-        raise ConfigError(f"{source}: cannot read: {exc.strerror or exc}") from None
-    try:
-        return raw.decode("utf-8")
-    except UnicodeDecodeError as exc:
-        raise ConfigError(f"{source}: not UTF-8 (byte {exc.start}); TOML files are UTF-8 text") from None
+    """A config or scenario file as text, at most CONFIG_MAX_BYTES (`extends = "/dev/zero"` is refused)."""
+    return read_text_bounded(path, CONFIG_MAX_BYTES, ConfigError, source)
 
 
 def _merge(base: dict[str, Any], child: Mapping[str, Any]) -> dict[str, Any]:
@@ -482,52 +514,24 @@ def load_scenario_file(path: str | Path) -> list[Any]:
     return list(data["scenario"])
 
 
-def load_config(path: str | Path | None = None, overrides: Sequence[str] = (), *,
+def load_config(path: str | Path | None = None, overrides: Sequence[str] = (), *, sections: Sections,
                 scenario_path: str | Path | None = None) -> BenchConfig:
     """Read (with its `extends` chain), merge `overrides` ("table.key=value", TOML value syntax;
-    "scenario=[...]" replaces a whole array of tables) and a scenario file, validate, build."""
-    import hilbench.bench.settings  # noqa: F401 - registers the bench's tables, whoever imported first
+    "scenario=[...]" replaces a whole array of tables) and a scenario file, validate the tables
+    ``sections`` registers (`PLANT_SECTIONS`; a whole bench: `hilbench.load_config`), build."""
     source = f"<packaged {DEFAULT_CONFIG_NAME}>" if path is None else str(path)
     data = _load_data(None if path is None else Path(path), source,
                       () if path is None else (str(Path(path).resolve()),))
     if scenario_path is not None:
         data["scenario"] = load_scenario_file(scenario_path)
     in_file = set(data)
-    override_keys: set[str] = set()
-    col = _Collector(source, override_keys)
+    col = _Collector(source, set())
     for item in overrides:
-        key = _apply_override(data, item, col)
+        key = _apply_override(data, item, col, sections)
         if key:
-            override_keys.add(key)
-    for key in data:
-        if key not in _SECTIONS:
-            culprit = next((item for item in overrides if item.split("=", 1)[0].strip().split(".")[0] == key), None)
-            where = f"--set {culprit.split('=', 1)[0].strip()}" if key not in in_file and culprit else col.source
-            col.lines.append(f"{where}: unknown table [{key}]{_suggest(key, list(_SECTIONS))}")
-    built: dict[str, Any] = {}
-    chosen = [sec for sec in _SECTIONS.values() if sec.chooser is not None]
-    for name, sec in _SECTIONS.items():
-        if sec.chooser is not None:
-            continue
-        if name not in data:
-            if sec.required:
-                col.add(name, "", "missing table")
-                continue
-            if sec.many:
-                built[name] = default_adc_channels() if sec.cls is AdcChannel else ()
-                continue
-            good, obj = _build(sec.cls, {}, name, col)
-            if good:
-                built[name] = obj
-            continue
-        if sec.many:
-            good, obj = _convert(data[name], tuple[sec.cls, ...], name, "", col)  # type: ignore[valid-type]
-        else:
-            good, obj = _build(sec.cls, data[name], name, col)
-        if good:
-            built[name] = obj
-    for sec in chosen:
-        _build_chosen(sec, data, built, col)
+            col.override_keys.add(key)
+    _unknown_tables(data, in_file, overrides, sections, col)
+    built = _build_tables(data, sections, col)
     if not col.lines:
         _check_integrator(built, col)
     if col.lines:
@@ -537,6 +541,47 @@ def load_config(path: str | Path | None = None, overrides: Sequence[str] = (), *
     if "adc" in built and "adc" not in data and "inverter" in built:
         built["adc"] = default_adc_channels(built["inverter"].vbus_v)
     return BenchConfig(sections=types.MappingProxyType(built), source=source)
+
+
+def _unknown_tables(data: Mapping[str, Any], in_file: set[str], overrides: Sequence[str], sections: Sections,
+                    col: _Collector) -> None:
+    """A table no section registers, blamed on the `--set` that made it when a file did not."""
+    for key in data:
+        if key not in sections:
+            culprit = next((item for item in overrides if item.split("=", 1)[0].strip().split(".")[0] == key), None)
+            where = f"--set {culprit.split('=', 1)[0].strip()}" if key not in in_file and culprit else col.source
+            col.lines.append(f"{where}: unknown table [{key}]{_suggest(key, sections.names())}")
+
+
+def _build_tables(data: Mapping[str, Any], sections: Sections, col: _Collector) -> dict[str, Any]:
+    """Every registered table, then those whose dataclass the others choose."""
+    built: dict[str, Any] = {}
+    for sec in sections.tables.values():
+        if sec.chooser is None:
+            _build_table(sec, data, built, col)
+    for sec in sections.tables.values():
+        if sec.chooser is not None:
+            _build_chosen(sec, data, built, col)
+    return built
+
+
+def _build_table(sec: _Section, data: Mapping[str, Any], built: dict[str, Any], col: _Collector) -> None:
+    """One table (absent: its defaults, an empty array, or "missing" when required)."""
+    name = sec.name
+    if name not in data:
+        if sec.required:
+            col.add(name, "", "missing table")
+            return
+        if sec.many:
+            built[name] = default_adc_channels() if sec.cls is AdcChannel else ()
+            return
+        good, obj = _build(sec.cls, {}, name, col)  # type: ignore[arg-type]
+    elif sec.many:
+        good, obj = _convert(data[name], tuple[sec.cls, ...], name, "", col)  # type: ignore[name-defined]
+    else:
+        good, obj = _build(sec.cls, data[name], name, col)  # type: ignore[arg-type]
+    if good:
+        built[name] = obj
 
 
 #: the config keys of each MotorParams field a stiffness depends on (the first overridden is blamed)
@@ -602,11 +647,14 @@ def plant_params_from_config(cfg: BenchConfig, pwm: PwmTiming | None = None) -> 
     )
 
 
-def plant_from_config(cfg: BenchConfig) -> "Plant":
-    """A Plant built from a validated config, seeded from [plant] seed, [plant] substeps per period."""
+def plant_from_config(cfg: BenchConfig, seed: int | None = None, pwm: PwmTiming | None = None) -> "Plant":
+    """A Plant built from a validated config ([plant] substeps per period), seeded with ``seed``
+    (None: [plant] seed; a bench passes its run's seed, `hilbench.bench.assembly.build_plant`), with
+    the target's PWM timing ``pwm`` (its profile's; None: the default)."""
     from hilbench.plant.model import Plant
 
-    return Plant(plant_params_from_config(cfg), seed=cfg.plant.seed, substeps=cfg.plant.substeps)
+    return Plant(plant_params_from_config(cfg, pwm), seed=cfg.plant.seed if seed is None else seed,
+                 substeps=cfg.plant.substeps)
 
 
 if typing.TYPE_CHECKING:

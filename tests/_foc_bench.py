@@ -14,7 +14,8 @@ import numpy as np
 
 from hilbench.bench.scenario import Event
 from hilbench.bench.session import Session, SessionOptions
-from hilbench.config import load_config, plant_params_from_config
+from hilbench.bench.settings import load_config
+from hilbench.config import plant_params_from_config
 from hilbench.plant.model import Plant, _CPlant
 from hilbench.targets.foc.target import INPUT_INDEX, FocTarget
 

@@ -18,7 +18,8 @@ from _firmware import one_edge
 import pytest
 
 from conftest import require_c_an1017
-from hilbench.config import load_config, plant_params_from_config
+from hilbench.bench.settings import load_config
+from hilbench.config import plant_params_from_config
 from hilbench.errors import ConfigError
 from hilbench.plant import Plant
 from hilbench.protocol import PROTOCOL_VERSION, Drive, HostHello, Sensors

@@ -19,6 +19,7 @@ import pytest
 from c_build import FIRMWARE_DIR, LIBRARY_SOURCES, build_c
 from hilbench.errors import VersionMismatch
 from hilbench.link import open_link
+from hilbench.processes import spawn
 from hilbench.protocol.framing import check_bytes, crc16
 from hilbench.protocol import (
     PROTOCOL_VERSION,
@@ -63,7 +64,7 @@ class PtyTarget:
         tty.setraw(self.slave)
         path = os.ttyname(self.slave)
         # the parent keeps the slave open until close(): a pty whose slave nobody holds reads EIO
-        self.proc = subprocess.Popen([str(exe), path], stdin=subprocess.DEVNULL)
+        self.proc = spawn([str(exe), path], stdin=subprocess.DEVNULL)
         self.decoder = FrameDecoder()
         self.pending: list = []
 
@@ -227,7 +228,7 @@ def test_other_schema_is_refused_at_the_handshake_naming_both_fingerprints(other
         t.close()
     # through the host's real handshake (RemoteTarget over a pty): one line naming both
     host_link = open_link("pty", timeout_s=1.0)
-    proc = subprocess.Popen([str(other_schema_exe), host_link.peer_path], stdin=subprocess.DEVNULL)
+    proc = spawn([str(other_schema_exe), host_link.peer_path], stdin=subprocess.DEVNULL)
     try:
         with pytest.raises(VersionMismatch) as info:
             RemoteTarget(host_link, timeout_s=2.0).handshake(1000, attempts=3)

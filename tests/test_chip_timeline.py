@@ -21,7 +21,8 @@ import numpy as np
 import pytest
 
 from hilbench.bench.bench import Bench
-from hilbench.config import load_config, plant_params_from_config
+from hilbench.bench.settings import load_config
+from hilbench.config import plant_params_from_config
 from hilbench.plant.model import Plant
 from hilbench.targets.an1017.firmware import An1017Firmware
 from hilbench.targets.an1017.svm import svm

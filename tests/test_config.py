@@ -9,7 +9,9 @@ from typing import Literal
 
 import pytest
 
-from hilbench.config import load_config, plant_from_config, register_section, spec
+from hilbench.bench.settings import SECTIONS, load_config
+from hilbench.config import PLANT_SECTIONS, plant_from_config, spec
+from hilbench.config import load_config as load_tables
 from hilbench.errors import ConfigError
 
 CONFIGS = Path(__file__).resolve().parent.parent / "bench_configs"
@@ -121,17 +123,32 @@ class Scenario:
     events: tuple[Event, ...] = ()
 
 
-def test_register_section_extends_with_nested_lists_and_choices(tmp_path):
-    register_section("scenario_test", Scenario)
+def test_a_registry_extends_with_nested_lists_and_choices(tmp_path):
+    sections = SECTIONS.with_table("scenario_test", Scenario)
     p = tmp_path / "s.toml"
     base = (CONFIGS / "hurst_mclv.toml").read_text(encoding="utf-8")
     p.write_text(base + '\n[scenario_test]\nname = "x"\n[[scenario_test.events]]\nat_s = 0.1\naction = "stop"\n'
                  '[[scenario_test.events]]\nat_s = -1\naction = "strat"\n', encoding="utf-8")
     with pytest.raises(ConfigError) as exc:
-        load_config(p)
+        load_tables(p, sections=sections)
     msg = str(exc.value)
     assert "[scenario_test.events[1]] at_s: -1.0 s is out of range" in msg
     assert "[scenario_test.events[1]] action:" in msg and "did you mean 'start'" in msg
-    cfg = load_config(p, ["scenario_test.events.1.at_s=0.2", 'scenario_test.events.1.action="set_ref"'])
+    cfg = load_tables(p, ["scenario_test.events.1.at_s=0.2", 'scenario_test.events.1.action="set_ref"'], sections=sections)
     assert cfg.scenario_test.events[1] == Event(0.2, "set_ref", None)
-    assert load_config(None).scenario_test == Scenario()
+    assert load_tables(None, sections=sections).scenario_test == Scenario()
+    with pytest.raises(ConfigError, match=r"unknown table \[scenario_test\]"):
+        load_config(p)  # the bench's own registry: nothing was added to it by the extension
+
+
+def test_the_plant_registry_alone_reads_a_plant_config_and_refuses_the_bench_tables(tmp_path):
+    """Registries are explicit values: importing the bench registers nothing into the plant's."""
+    import hilbench.bench.settings  # noqa: F401 - imported, and still no side effect
+
+    plant_only = tmp_path / "plant.toml"
+    plant_only.write_text("[motor]\nrs_ohm = 1.0\npole_pairs = 4\nj_kgm2 = 1e-4\nl_h = 1e-3\npsi_wb = 0.01\n")
+    cfg = load_tables(plant_only, sections=PLANT_SECTIONS)
+    assert cfg.motor.pole_pairs == 4 and "run" not in cfg.sections and cfg.plant.substeps == 2
+    with pytest.raises(ConfigError, match=r"unknown table \[check\]"):  # a bench file: its bench tables are unknown
+        load_tables(CONFIGS / "hurst_mclv.toml", sections=PLANT_SECTIONS)
+    assert set(SECTIONS.names()) >= set(PLANT_SECTIONS.names()) | {"run", "link", "target", "scenario", "check"}

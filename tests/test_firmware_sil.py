@@ -19,6 +19,7 @@ from c_build import build_c
 from conftest import BENCH_CONFIGS
 from hilbench.bench.run import RunRequest, load_run_config, run_bench
 from hilbench.link.pty import open_pty_pair
+from hilbench.processes import spawn
 from hilbench.protocol import (
     EDGE_NONE,
     FAULT_WATCHDOG,
@@ -214,8 +215,8 @@ def test_sil_on_its_own_pty_serves_the_cli_like_a_board(sil_exe: Path) -> None:
     """docs/board.md's "without a board" commands: link-test and run against `an1017_sil --pty`."""
     from conftest import run_cli
 
-    process = subprocess.Popen([str(sil_exe), "--pty"], stdin=subprocess.DEVNULL, stdout=subprocess.PIPE,
-                               stderr=subprocess.PIPE)
+    process = spawn([str(sil_exe), "--pty"], stdin=subprocess.DEVNULL, stdout=subprocess.PIPE,
+                    stderr=subprocess.PIPE)
     try:
         assert process.stdout is not None
         line = process.stdout.readline().decode().split()  # blocking: the first line comes at once

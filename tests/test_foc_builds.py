@@ -70,6 +70,19 @@ def test_qemu_foc_equals_inprocess(tmp_path: Path) -> None:
                  _record("inprocess:foc", tmp_path / "inprocess.npz", 0.5), "qemu:foc")
 
 
+def test_qemu_foc_builds_with_negative_settings(tmp_path: Path) -> None:
+    """A [target] table with a negative setting (a calibrated angle below zero) reaches make's shell
+    as -DFOC_CFG_CALIBRATED_ANGLE=(-1250L): quoted, it builds."""
+    require_tool("arm-none-eabi-gcc", "the Cortex-M4 build (apt: gcc-arm-none-eabi libnewlib-arm-none-eabi)")
+    require_tool("make", "the Cortex-M4 Makefile (apt: make)")
+    from hilbench.targets.foc.firmware import FocOptions
+    from hilbench.targets.qemu import build_m4
+
+    options = FocOptions(calibrated_angle=-1250, learn_index=False)
+    assert "-DFOC_CFG_CALIBRATED_ANGLE=(-1250L)" in build.config_defines(options)
+    assert build_m4(build.qemu_build(options), tmp_path).is_file()
+
+
 def test_simavr_foc_equals_inprocess(tmp_path: Path) -> None:
     """The ATmega1284P (8-bit core, 16-bit int, the 16-bit-limb IQ24 product) in simavr."""
     require_tool("avr-gcc", "the AVR build (apt: gcc-avr avr-libc)")
@@ -90,6 +103,16 @@ def test_f2812_port_compiles_and_links_warning_free(cc: str, defines: tuple[str,
                            *(str(s) for s in sources), "-o", str(tmp_path / "f2812")],
                           capture_output=True, text=True, timeout=180)
     assert done.returncode == 0, done.stderr
+
+
+def test_f2812_port_refuses_to_drive_the_bridge_from_simulated_sensors(gcc, tmp_path: Path) -> None:
+    """HIL_DRIVE_BRIDGE without HIL_LOCAL_SENSORS would switch a real bridge from the plant's
+    currents and encoder: the build stops with one line that says so."""
+    includes = [f"-I{d}" for d in (F2812 / "hostcheck", build.FIRMWARE_DIR, build.RUNTIME_DIR, build.PROTOCOL_DIR)]
+    done = subprocess.run([gcc, *STRICT_FLAGS, "-DHRT_PORT_HW=1", "-DHIL_DRIVE_BRIDGE", *includes, "-c",
+                           str(F2812 / "main.c"), "-o", str(tmp_path / "main.o")], capture_output=True, text=True,
+                          timeout=120)
+    assert done.returncode != 0 and "HIL_DRIVE_BRIDGE needs HIL_LOCAL_SENSORS" in done.stderr, done.stderr
 
 
 @pytest.mark.parametrize("source", build.SOURCES, ids=lambda p: p.name)
@@ -113,3 +136,34 @@ def test_mcu_builds_are_warning_free(goal: str, tool: str, why: str, tmp_path: P
     done = subprocess.run(["make", "-s", "-C", str(folder), *([] if goal == "avr" else ["foc"]), f"OUT={tmp_path}"],
                           capture_output=True, text=True, timeout=300)
     assert done.returncode == 0 and not done.stderr.strip(), done.stdout + done.stderr
+
+
+def test_sil_foc_start_while_running_keeps_the_duties(gcc) -> None:
+    """A Start (`hilbench ctl start`) while the firmware runs changes nothing in the model
+    (foc_start only acts when stopped or faulted): the SIL build must not drop its duties to zero
+    for the span either, exchange for exchange against inprocess:foc."""
+    import random
+
+    from hilbench.bench.launcher import open_target
+    from hilbench.protocol import MODE_LOCKSTEP, PROTOCOL_VERSION, HostHello, Sensors
+
+    hello = HostHello(0, PROTOCOL_VERSION, 50, MODE_LOCKSTEP, 0)
+    with open_target("sil:foc", timeout_s=2.0) as sil, open_target("inprocess:foc") as inproc:
+        targets = (inproc.target, sil.target)
+        assert targets[0].hello(hello) == targets[1].hello(hello)
+        rng = random.Random(5)
+        encoder = 0
+        states = set()
+        for t in targets:
+            t.start()
+        for k in range(5000):
+            if k in (1000, 4500):  # aligning (4000 halves), then in the closed loop
+                for t in targets:
+                    t.start()
+            encoder = (encoder + rng.randint(0, 3)) & 0xFFFF
+            adc = (rng.randint(1900, 2200), rng.randint(1900, 2200), 3000)
+            sensors = Sensors((k + 1) & 0xFF, 0, (), encoder, adc)
+            drives = [tuple(t.step(sensors)) for t in targets]
+            assert drives[0] == drives[1], (k, drives)
+            states.add(drives[0][5])
+        assert {1, 2} <= states  # the Starts fell in the alignment and in the closed loop

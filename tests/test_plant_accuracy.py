@@ -17,7 +17,9 @@ import numpy as np
 import pytest
 from scipy.integrate import solve_ivp
 
-from hilbench.config import load_config, plant_params_from_config
+from hilbench.bench.settings import load_config
+
+from hilbench.config import plant_params_from_config
 from hilbench.plant.params import ProtectionParams
 from hilbench.plant import LoadProfile, Plant
 from hilbench.plant.model import available_backends

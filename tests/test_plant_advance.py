@@ -9,7 +9,9 @@ from pathlib import Path
 
 import pytest
 
-from hilbench.config import load_config, plant_params_from_config
+from hilbench.bench.settings import load_config
+
+from hilbench.config import plant_params_from_config
 from hilbench.plant import Plant
 from hilbench.plant.model import OUTPUT_OFF, OUTPUT_PWM, available_backends
 from hilbench.plant.params import MotorParams

@@ -15,7 +15,7 @@ import pytest
 from conftest import BENCH_CONFIGS, REPO_ROOT
 from hilbench.bench.checks import CheckEntry, checks_text, run_checks
 from hilbench.bench.summary import Segment, Summary
-from hilbench.config import load_config
+from hilbench.bench.settings import load_config
 from hilbench.errors import CheckFailed, ConfigError
 
 DT = 1e-4

@@ -121,7 +121,7 @@ def test_hil_requires_skips_with_the_reason(pytester: pytest.Pytester) -> None:
     # loopback: no speed loop, not AN1017; in-process targets have no link
     result.assert_outcomes(passed=2, skipped=4)
     result.stdout.fnmatch_lines([
-        "*target inprocess:loopback lacks speed_loop (has: inprocess, realtime, tuning)*",
+        "*target inprocess:loopback lacks speed_loop (has: inprocess, link_check, realtime, tuning)*",
         "*target inprocess:loopback runs loopback, not AN1017*",
         "*target inprocess:an1017 lacks link*",
     ])

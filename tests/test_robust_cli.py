@@ -185,7 +185,7 @@ def test_item12_impossible_and_doubtful_settings_said_before_the_run() -> None:
     """Item 12: realtime at 50 us ran with 97.5 % overruns and exited 0; at 1 ms periods the hall edge
     rate at 2500 rpm (2500/60 * 5 pole pairs * 6 = 1250 edges/s) exceeded 1000 exchanges/s silently."""
     from hilbench.bench.feasibility import check_run, overrun_warning
-    from hilbench.config import load_config
+    from hilbench.bench.settings import load_config
     from hilbench.errors import ConfigError
 
     # protocol 3 carries every edge of a period: 1 ms at 2500 rpm (1250 edges/s) is fine now

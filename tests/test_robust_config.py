@@ -19,7 +19,8 @@ from click.testing import CliRunner
 
 from hilbench.bench.session import first_period_at
 from hilbench.cli import cli
-from hilbench.config import default_config_text, load_config
+from hilbench.bench.settings import load_config
+from hilbench.config import default_config_text
 from hilbench.errors import ConfigError
 
 CASE_TIMEOUT_S = 20

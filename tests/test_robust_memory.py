@@ -48,7 +48,7 @@ def test_item7_session_keeps_bounded_history_and_run_keeps_no_rows(tmp_path: Pat
     with hilbench.Bench(target="inprocess:an1017") as bench:
         history = bench._session.history
         assert isinstance(history, deque) and history.maxlen == HISTORY_SAMPLES
-        assert not isinstance(bench._session._lockstep_rtts, list)
+        assert not isinstance(bench._session.lockstep_rtts, list)
     cfg = load_run_config(RunRequest(str(hurst_bench_config(tmp_path, 0.05)), target="inprocess:an1017"))
     summary = run_bench(cfg)
     assert summary.recording is None and summary.rows_recorded == 0

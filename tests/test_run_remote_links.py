@@ -22,7 +22,7 @@ def _data_columns(path: Path) -> dict[str, np.ndarray]:
 
 @pytest.mark.slow
 def test_a_session_over_socket_to_the_emulator_served_on_tcp_equals_the_in_process_one(tmp_path: Path) -> None:
-    server = subprocess.Popen([sys.executable, "-m", "hilbench", "emulate", "--port", "tcp:0", "--quiet"],
+    server = subprocess.Popen([sys.executable, "-m", "hilbench", "emulate", "--port", "tcp:0", "--once", "--quiet"],
                               stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, cwd=REPO_ROOT)
     try:
         ready, _, _ = select.select([server.stdout], [], [], 30)
@@ -59,7 +59,7 @@ def test_a_session_over_a_lossy_link_chosen_by_spec_survives() -> None:
 
 def test_real_time_over_a_network_link_warns_that_its_latency_adds_to_the_loops() -> None:
     from hilbench.bench.settings import link_warnings
-    from hilbench.config import load_config
+    from hilbench.bench.settings import load_config
 
     far = load_config(None, ['link.target="socket://10.0.0.7:5000"', 'run.mode="realtime"', "link.period_us=1000"])
     assert any("network's latency" in w for w in link_warnings(far))

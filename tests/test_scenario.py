@@ -4,30 +4,27 @@ from __future__ import annotations
 
 import pytest
 
-from hilbench.bench.scenario import Event, Ramp, ScenarioPlayer, default_scenario, scenario_from_list
+from hilbench.bench.scenario import Event, Ramp, ScenarioPlayer, default_scenario
+from hilbench.bench.settings import load_config, scenario_events
 from hilbench.errors import ConfigError
 
 
 def test_every_problem_reported_at_once() -> None:
-    raw = [
-        {"at_s": 0.1, "ref_rmp": 1500},
-        {"at_s": -1, "press": "s9"},
-        {"at_s": 0.2, "fault": "hall_a_hi"},
-        {"at_s": 0.3, "pot": 1.5},
-    ]
+    """The [[scenario]] tables are validated with the whole config: one ConfigError, a line each."""
+    raw = ('scenario=[{at_s = 0.1, ref_rmp = 1500.0}, {at_s = -1.0, press = "s9"}, '
+           '{at_s = 0.2, fault = "hall_a_hi"}, {at_s = 0.3, pot = 1.5}]')
     with pytest.raises(ConfigError) as info:
-        scenario_from_list(raw, "bench.toml")
-    text = str(info.value)
-    assert "#1 ref_rmp: unknown key (did you mean 'ref_rpm'?)" in text
-    assert "#2 at_s" in text and "#2 press" in text
-    assert "did you mean 'hall_a_high'?" in text
-    assert "#4 pot: must be within 0..1" in text
-    assert "\n" not in text
+        load_config(None, [raw])
+    lines = info.value.lines  # type: ignore[attr-defined]
+    assert any("[scenario[0]] ref_rmp: unknown key (did you mean 'ref_rpm'?)" in ln for ln in lines)
+    assert any("[scenario[1]] at_s" in ln for ln in lines) and any("[scenario[1]] press" in ln for ln in lines)
+    assert any("[scenario[2]] fault" in ln and "did you mean 'hall_a_high'?" in ln for ln in lines)
+    assert any("[scenario[3]] pot: 1.5 is out of range" in ln for ln in lines)
 
 
 def test_events_sorted_and_due_in_order() -> None:
-    events = scenario_from_list([{"at_s": 0.5, "press": "s2"}, {"at_s": 0.1, "ref_rpm": 100}], "f")
-    player = ScenarioPlayer(events)
+    cfg = load_config(None, ['scenario=[{at_s = 0.5, press = "s2"}, {at_s = 0.1, ref_rpm = 100.0}]'])
+    player = ScenarioPlayer(scenario_events(cfg))
     assert player.next_t_s == 0.1
     assert player.due(0.05) == []
     assert [e.ref_rpm for e in player.due(0.1)] == [100.0]

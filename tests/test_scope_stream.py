@@ -12,7 +12,7 @@ import pytest
 
 import hilbench
 from hilbench.bench.control import validate_request
-from hilbench.scope.stream import MAX_FRAME_BUCKETS, envelope
+from hilbench.bench.display import MAX_FRAME_BUCKETS, envelope
 
 
 class Request:
@@ -152,7 +152,7 @@ def test_stream_and_press_request_shapes(obj: dict[str, Any], reason: str) -> No
 
 
 def test_a_failing_stream_never_ends_the_run(monkeypatch: pytest.MonkeyPatch) -> None:
-    from hilbench.scope.stream import DisplayStream
+    from hilbench.bench.display import DisplayStream
 
     with hilbench.Bench(target="inprocess:an1017") as bench:
         bench.run(0.02)

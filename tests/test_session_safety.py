@@ -18,21 +18,21 @@ import pytest
 
 import hilbench
 from hilbench.bench.recorder import MARKER_FAULT
-from hilbench.bench.session import Session
+from hilbench.bench.parts import LivePart
 from hilbench.protocol import Sensors
 from hilbench.targets.an1017.target import An1017Target, available_backends
 
 
 def test_a_parameter_written_by_the_observer_arms_the_guard_at_once(monkeypatch: pytest.MonkeyPatch) -> None:
     looks: list[int] = []
-    original = Session._live_due
+    original = LivePart.run
 
-    def spy(self: Session, k: int, drive: object, ref: float) -> None:
-        if k * self._period_s < self.tuning.watching:
+    def spy(self: LivePart, k: int) -> None:
+        if self.session.period.t_s(k) < self.session.tuning.watching:
             looks.append(k)
-        original(self, k, drive, ref)
+        original(self, k)
 
-    monkeypatch.setattr(Session, "_live_due", spy)
+    monkeypatch.setattr(LivePart, "run", spy)
     armed: dict[str, float] = {}
 
     def observer(snapshot: hilbench.Snapshot) -> None:
@@ -44,7 +44,7 @@ def test_a_parameter_written_by_the_observer_arms_the_guard_at_once(monkeypatch:
         bench.set_reference(1500)
         bench.press("s2")
         bench.run(0.6)
-        period_s = bench.session._period_s
+        period_s = bench.session.period.s
         every_s = bench.session.options.history_every_periods * period_s
     assert armed and looks, "the observer's write was never guarded"
     first_s = looks[0] * period_s

@@ -10,7 +10,8 @@ import pytest
 from hilbench.bench.run import in_process, run_step_tests
 from hilbench.bench.steptest import StepTest, step_scenario
 from hilbench.bench.sweep import best_fragment, parse_axis, parse_grid_spec, sweep_grid, write_sweep_csv
-from hilbench.config import default_config_text, load_config
+from hilbench.bench.settings import load_config
+from hilbench.config import default_config_text
 from hilbench.errors import ConfigError
 
 SHORT = StepTest(800.0, 1200.0, 0.08, 0.04)

@@ -15,7 +15,9 @@ import pytest
 from conftest import require_c_plant
 from test_plant_backends import assert_close, q_duties, schedule, snapshot
 
-from hilbench.config import load_config, plant_params_from_config
+from hilbench.bench.settings import load_config
+
+from hilbench.config import plant_params_from_config
 from hilbench.plant import LoadProfile, Plant
 from hilbench.plant.params import PwmTiming
 

@@ -22,6 +22,7 @@ does not switch: within 0.5 % there.
 
 from __future__ import annotations
 
+import dataclasses
 import math
 
 import numpy as np
@@ -96,6 +97,37 @@ def test_phase_currents_follow_the_carrier_and_the_dead_time_by_hand(centre, dea
         ripple = max(ripple, float(np.abs(want - np.asarray(i0)).max()))
     assert worst < 1e-9
     assert ripple > 0.02  # the check is not trivially flat
+
+
+@pytest.mark.parametrize("backend", ["python", "c"])
+def test_the_overcurrent_comparator_sees_the_ripple_peak(backend):
+    """The board's comparator watches the current all the time, not at the period's end: with the
+    pulses on the peak, phase c's current (-6 A at the start) swings to -6.011 A at mid-period by
+    hand and back to -5.990 A, so a 6.0 A comparator trips inside a period it ends below, and one
+    at 6.02 A never does."""
+    from conftest import require_c_plant
+    from hilbench.plant.params import ProtectionParams
+
+    if backend == "c" and not require_c_plant():
+        pytest.skip("C plant core not built")
+    i_d, i_q = 4.0, 8.0 / math.sqrt(3)
+    duties = (0.62, 0.35, 0.51)
+    intervals = [high_intervals("peak", d, 1) for d in duties]
+    tripped = {}
+    for oc in (6.0, 6.02):
+        base = held_rotor_plant("peak", 0.0, (i_d, i_q)).params
+        params = dataclasses.replace(base, protection=ProtectionParams(oc, False, 0.0, 0.0, 0.0))
+        plant = Plant(params, backend=backend)
+        plant.load = LoadProfile("locked")
+        plant.i_d, plant.i_q = i_d, i_q
+        plant._sense()
+        i0 = plant.i_abc
+        peak = max(float(np.abs(expected_currents(i0, intervals, t)).max()) for t in np.linspace(0.0, T, 2001))
+        assert plant.fault_input is False and max(abs(x) for x in i0) <= oc
+        plant.step(*duties, 1, T)
+        assert max(abs(x) for x in plant.i_abc) < 6.0 < peak < 6.02  # the end is below, the peak between
+        tripped[oc] = plant.fault_input
+    assert tripped == {6.0: True, 6.02: False}
 
 
 @pytest.mark.parametrize("centre", ["zero", "peak"])

@@ -67,10 +67,16 @@ static void body_main(hrt_t *rt)
 
 /* ---------------------------------------------------------------------------- commands */
 
+/* Start: from stopped or faulted, the outputs come on with no on-time (compares at T1PR), at once.
+ * While running it changes nothing (foc_start), so the duties in effect stay as they are. */
 static void decl_start(hrt_t *rt)
 {
-    foc_start(&FW(rt)->foc);
-    hrt_pwm_preset(rt, 0u, 0u, 0u);
+    foc_t *s = &FW(rt)->foc;
+    uint16_t was_on = s->outputs_on;
+    foc_start(s);
+    if (was_on != s->outputs_on) {
+        hrt_pwm_preset(rt, 0u, 0u, 0u);
+    }
 }
 
 static void decl_stop(hrt_t *rt, uint8_t why)

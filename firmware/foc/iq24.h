@@ -83,7 +83,7 @@ static inline int32_t iq24_asr(int32_t a, uint16_t n)
     if (a >= 0) {
         return (int32_t)((uint32_t)a >> n);
     }
-    return (int32_t)~(((uint32_t)~(uint32_t)a) >> n);
+    return iq24_from_u32(~(((uint32_t)~(uint32_t)a) >> n));
 }
 
 static inline int32_t iq24_sat(int32_t a, int32_t pos, int32_t neg)

@@ -129,6 +129,12 @@ void hrt_link_send_drive(hrt_link_t *l, hbp_u8 seq)
     hrt_report_t d;
     hbp_u8 i;
     hrt_report(l->rt, seq, &d);
+    if ((l->flags & HRT_LINK_F_TRIPPED) != 0u) { /* the watchdog turned the outputs off: say so */
+        d.output_mode = HBP_OUTPUT_OFF;
+        if (d.fault == HBP_FAULT_NONE) {
+            d.fault = HBP_FAULT_WATCHDOG;
+        }
+    }
     begin(l, HBP_MSG_DRIVE, seq);
     w16(l, d.duty_a);
     w16(l, d.duty_b);
@@ -298,6 +304,10 @@ static HRT_NOINLINE void on_sensors(hrt_link_t *l, const hbp_u8 *buf, hbp_u8 len
         (hbp_u8)(len - edges_at) % 3u != 0u || (hbp_u8)(len - edges_at) / 3u > HBP_MAX_EDGES) {
         send_error(l, seq, HBP_ERROR_LENGTH, buf[0]);
         return;
+    }
+    if (l->mode == HBP_MODE_LOCKSTEP) { /* the host is there: a tripped watchdog gives the outputs back */
+        l->last_rx = hrt_port_now();
+        l->flags = (hbp_u8)(l->flags & (hbp_u8)~HRT_LINK_F_TRIPPED);
     }
     if ((l->flags & HRT_LINK_F_ANSWERED) != 0u && seq == l->last_seq) {
         /* the host sent it again (our Drive was lost or late): the same answer, no second step */
@@ -506,13 +516,20 @@ void hrt_link_watchdog(hrt_link_t *l)
     }
     ticks_per_ms = TICKS_PER_US * 1000u;
     if ((hrt_port_now() - l->last_rx) / ticks_per_ms >= limit_ms) {
-        /* frames stopped: outputs off, one unsolicited Drive that says so */
+        /* frames stopped: outputs off, one unsolicited Drive that says so. In lockstep the firmware's
+         * virtual time stands still while the host is away, so its state is left as it is (a host
+         * pausing on a loaded machine changes no recording): the port turns the outputs off and the
+         * Drives say OFF until the next Sensors. In real time the firmware stops (HRT_STOP_WATCHDOG). */
         l->flags = (hbp_u8)(l->flags | HRT_LINK_F_TRIPPED);
         l->watchdog_trips = (uint16_t)(l->watchdog_trips + 1u);
         l->rx.last_error = HBP_ERROR_WATCHDOG;
-        hrt_port_lock();
-        (&hrt_firmware)->stop(l->rt, HRT_STOP_WATCHDOG);
-        hrt_port_unlock();
+        if (l->mode == HBP_MODE_LOCKSTEP) {
+            HRT_PORT_OUTPUTS_OFF();
+        } else {
+            hrt_port_lock();
+            (&hrt_firmware)->stop(l->rt, HRT_STOP_WATCHDOG);
+            hrt_port_unlock();
+        }
         hrt_link_send_drive(l, l->last_seq);
     }
 }

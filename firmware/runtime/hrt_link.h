@@ -6,9 +6,11 @@
  * scales), the parameter protocol (describe, get, all-or-nothing set), Start/Stop, Status,
  * the answer to a repeated seq (the last Drive again, no second step), telemetry packing, and the
  * watchdog in every mode: when no valid Sensors arrived for the agreed watchdog_ms (in lockstep at
- * least HRT_LOCKSTEP_WATCHDOG_MIN_MS, so that a host pausing between periods is not mistaken for a
- * host gone) the firmware is stopped (HRT_STOP_WATCHDOG: outputs off) and one unsolicited Drive says
- * so. Lockstep: one Sensors = one agreed period of virtual time (hrt_span_*), every input edge it
+ * least HRT_LOCKSTEP_WATCHDOG_MIN_MS) the outputs go off and one unsolicited Drive says so (OFF,
+ * fault WATCHDOG), counted in Status. Real time: the firmware is stopped (HRT_STOP_WATCHDOG).
+ * Lockstep: the firmware's state is left as it is (virtual time stands still while the host is
+ * away), the port forces the outputs off (HRT_PORT_OUTPUTS_OFF) and the next Sensors gives them
+ * back, so a host pausing on a loaded machine changes no recording. Lockstep: one Sensors = one agreed period of virtual time (hrt_span_*), every input edge it
  * carries at its time. Real time: each Sensors
  * advances the firmware by the time that passed on the port's clock, or, on a port whose own
  * interrupts run the bodies (HRT_PORT_HW), updates the inputs they read.
@@ -40,6 +42,12 @@
 #endif
 #ifndef HRT_LOCKSTEP_WATCHDOG_MIN_MS
 #define HRT_LOCKSTEP_WATCHDOG_MIN_MS 1000u
+#endif
+/* A lockstep watchdog trip leaves the firmware's state alone (its virtual time stands still): a
+ * port whose pins can switch something (a bridge in lockstep) defines this to force them off until
+ * the next Sensors; on the others the Drives saying OFF are the outputs. */
+#ifndef HRT_PORT_OUTPUTS_OFF
+#define HRT_PORT_OUTPUTS_OFF() ((void)0)
 #endif
 
 /* ---- what a port provides ---- */

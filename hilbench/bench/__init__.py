@@ -1,6 +1,2 @@
-"""The bench: sessions, scenarios, recordings, step metrics, tuning.
-
-Importing it registers the bench's config tables ([run], [link], [target], [tuning], [[scenario]]).
-"""
-
-from hilbench.bench import settings as _settings  # noqa: F401
+"""The bench: config tables, the one place a bench is assembled, sessions, scenarios, recordings,
+step tests, sweeps and reports. Importing it imports nothing else (no side effects)."""

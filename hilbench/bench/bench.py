@@ -18,22 +18,26 @@ from __future__ import annotations
 import dataclasses
 import math
 import os
+import subprocess
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Callable, Iterator, Mapping, Sequence
 
 import numpy as np
 
-from hilbench import __version__
+from hilbench.version import __version__
 from hilbench.bench import settings
 from hilbench.bench.cpus import CpuPinning
-from hilbench.bench.launcher import TargetHandle, open_target
+from hilbench.bench.assembly import BenchParts, build_bench, configured_profile, connect
 from hilbench.bench.recorder import MemoryRecorder, Recorder, read_recording
 from hilbench.bench.scenario import Event
-from hilbench.bench.session import Session, SessionOptions, Snapshot, Summary
-from hilbench.config import BenchConfig, load_config, plant_params_from_config
+from hilbench.bench.session import ControlSource, PlantLike, Session, Snapshot, Summary
+from hilbench.bench.settings import load_config
+from hilbench.config import BenchConfig
 from hilbench.errors import ConfigError, LinkError
+from hilbench.plant.period import Period
 from hilbench.protocol import PROTOCOL_VERSION, SCHEMA_FINGERPRINT, TargetHello
+from hilbench.targets.base import Target
 from hilbench.targets.profile import TargetProfile
 
 #: how often `run(until=...)` looks at its condition
@@ -80,25 +84,29 @@ class Bench:
         self,
         config: BenchConfig | str | os.PathLike[str] | None = None,
         *,
-        target: str | None = None,
+        target: str | Target | None = None,
+        plant: PlantLike | None = None,
         overrides: Sequence[str] = (),
         record: str | os.PathLike[str] | None = None,
         scenario: bool = False,
         observer: Callable[[Snapshot], None] | None = None,
-        control: object | None = None,
+        control: ControlSource | None = None,
         keep_rows: bool = True,
     ) -> None:
         """``config``: a path, a loaded config or None (the packaged default); ``target``: a target
-        spec; ``overrides``: `TABLE.KEY=VALUE` words; ``record``: a .csv/.npz path (default: kept in
+        spec, or a `Target` object the caller made (it is not closed with the bench); ``plant``: a
+        plant object instead of the config's; ``overrides``: `TABLE.KEY=VALUE` words; ``record``: a .csv/.npz path (default: kept in
         memory); ``scenario``: play the config's scenario (off: the script drives); ``keep_rows=False``
         without ``record``: keep no rows at all (a run of any length in flat memory; no signals())."""
         self._keep_rows = keep_rows
-        self.config = as_config(config, target, overrides)
+        self._target_object = None if target is None or isinstance(target, str) else target
+        self._plant_object = plant
+        self.config = as_config(config, target if isinstance(target, str) else None, overrides)
         self._record_path = Path(record) if record is not None else None
         self._play_scenario = scenario
         self._observer = observer
         self._control = control
-        self._handle: TargetHandle | None = None
+        self._parts: BenchParts | None = None
         self._pinning: CpuPinning | None = None
         self.session: Session | None = None
         self.recorder: Recorder | MemoryRecorder | None = None
@@ -107,22 +115,14 @@ class Bench:
     # ------------------------------------------------------------------ open and close
     def open(self) -> "Bench":
         """Connect the target, build the plant, handshake, write the configured parameters."""
-        from hilbench.plant.model import Plant
-
         cfg = self.config
-        options = dataclasses.replace(settings.session_options(cfg), seed=settings.effective_seed(cfg))
-        self.warnings = settings.link_warnings(cfg)
+        self.warnings = settings.link_warnings(cfg) if self._target_object is None else []
         events = settings.scenario_events(cfg) if self._play_scenario else ()
-        profile = configured_profile(cfg)
-        plant = Plant(plant_params_from_config(cfg, profile.pwm_timing if profile else None), seed=options.seed,
-                      substeps=cfg.plant.substeps)
-        handle = self._handle = connect(cfg, options, profile)
+        parts = self._parts = build_bench(cfg, target=self._target_object, plant=self._plant_object, events=events,
+                                          observer=self._observer, control=self._control)
+        session = self.session = parts.session
+        handle, options = parts.handle, parts.options
         try:
-            session = self.session = Session(
-                handle.target, plant, events, options, profile=profile, observer=self._observer,
-                control=self._control, link_stats=handle.link_stats, target_label=handle.label,
-                guard=settings.guard_settings(cfg),
-            )
             try:
                 hello = session.handshake()
             except LinkError as exc:
@@ -159,7 +159,7 @@ class Bench:
         }
         if self._record_path is None:
             return MemoryRecorder(metadata) if self._keep_rows else None
-        return Recorder(self._record_path, metadata, flush_rows=max(1, round(1e6 / period_us)))
+        return Recorder(self._record_path, metadata, flush_rows=max(1, round(Period(period_us).per_s)))  # a second
 
     def close(self) -> Summary | None:
         """End the run (target stopped, recording closed) and release everything; idempotent."""
@@ -175,14 +175,19 @@ class Bench:
                 self._pinning = None
             if isinstance(self.recorder, Recorder) and not self.recorder.closed:
                 self.recorder.close("aborted")
-            if self._handle is not None:
-                self._handle.close()
-                self._handle = None
+            if self._parts is not None:
+                self._parts.close()
+                self._parts = None
         return summary
+
+    @property
+    def target_process(self) -> "subprocess.Popen[bytes] | None":
+        """The emulator or firmware-build process this bench started (None: in process, or a port)."""
+        return self._parts.handle.process if self._parts is not None else None
 
     def child_status(self) -> str:
         """How the emulator process this bench started is doing, for error lines ("" if none)."""
-        return self._handle.child_status() if self._handle is not None else ""
+        return self._parts.handle.child_status() if self._parts is not None else ""
 
     def __enter__(self) -> "Bench":
         return self.open()
@@ -200,8 +205,7 @@ class Bench:
     @property
     def t_s(self) -> float:
         """Simulated time now (the start of the next period)."""
-        session = self._session
-        return session.periods_done * session.options.period_us * 1e-6
+        return self._session.now_s
 
     def run(self, seconds: float | None = None, *, until: Callable[["Bench"], bool] | None = None,
             timeout_s: float = 60.0) -> bool:
@@ -209,7 +213,7 @@ class Bench:
         millisecond, at most ``timeout_s``), or the config's scenario to its end when neither is
         given. Returns False when the run has ended (scenario end, `ctl stop`)."""
         session = self._session
-        period_s = session.options.period_us * 1e-6
+        period_s = session.period.s
         if until is None:
             if seconds is None:
                 return session.advance(max(0, session.planned_periods - session.periods_done))
@@ -243,8 +247,9 @@ class Bench:
         self._act(Event(at_s=0.0, load_nm=_finite(torque_nm, "torque_nm"), load_kind=kind))
 
     def inject_fault(self, kind: str, duration_s: float | None = None) -> None:
-        """A sensor fault (hall_a_high … hall_c_low, hall_missing_edge, encoder_glitch, clear)."""
-        from hilbench.bench.scenario import FAULT_KINDS
+        """A sensor fault: one of `faults.FAULT_KINDS` (hall_a_high … hall_c_low, hall_missing_edge,
+        encoder_glitch, …, clear)."""
+        from hilbench.bench.faults import FAULT_KINDS
 
         if kind not in FAULT_KINDS:
             raise ConfigError(f"inject_fault {kind!r}: one of {', '.join(FAULT_KINDS)}")
@@ -303,23 +308,6 @@ class Bench:
         return summary
 
 
-def connect(cfg: BenchConfig, options: SessionOptions, profile: TargetProfile | None) -> TargetHandle:
-    """Open the configured target (spawning its emulator or firmware build if the spec asks)."""
-    return open_target(cfg.link.target, profile=profile, options=cfg.target, mode=options.mode,
-                       timeout_s=options.timeout_s, watchdog_ms=options.watchdog_ms, retry_s=cfg.link.retry_ms / 1000.0)
-
-
-def configured_profile(cfg: BenchConfig) -> TargetProfile | None:
-    """The profile the config names (by its target spec, or [link] firmware for a port), else None:
-    a board's profile is then found by the firmware name in its HELLO.
-    Refuses a plant whose pole pairs differ from the firmware's build (settings.check_motor_build)."""
-    if settings.target_name(cfg.link.target) is None and cfg.link.firmware is None:
-        return None
-    profile = settings.configured_target_profile(cfg)
-    settings.check_motor_build(cfg, profile)
-    return profile
-
-
 def _finite(value: float, what: str) -> float:
     if not isinstance(value, (int, float)) or not math.isfinite(value):
         raise ConfigError(f"{what}={value!r}: expected a finite number")
@@ -332,4 +320,4 @@ def _periods(seconds: float, period_s: float, what: str) -> int:
     return round(seconds / period_s)
 
 
-__all__ = ["Bench", "Signals", "configured_profile"]
+__all__ = ["Bench", "Signals", "configured_profile", "connect"]

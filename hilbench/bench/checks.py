@@ -43,7 +43,7 @@ from typing import TYPE_CHECKING, Callable, Literal, Mapping, Sequence
 
 import numpy as np
 
-from hilbench.config import register_section, spec
+from hilbench.fieldspec import spec
 from hilbench.errors import CheckFailed, HilbenchError
 
 if TYPE_CHECKING:
@@ -119,9 +119,6 @@ class CheckEntry:
         return self.name or self.kind
 
 
-register_section("check", CheckEntry, many=True)
-
-
 @dataclass(frozen=True)
 class CheckResult:
     """One check's verdict: its figure against its bound, as one line."""
@@ -145,6 +142,8 @@ SignalsSource = Callable[[], Mapping[str, np.ndarray]]
 
 #: kinds judged on the summary alone; the others read the recorded signals
 SUMMARY_KINDS = ("speed_error", "overruns")
+
+
 def run_checks(entries: Sequence[CheckEntry], summary: "Summary", signals: SignalsSource) -> list[CheckResult]:
     """Judge every run kind of ``entries`` on a finished run; ``signals`` is read only if needed."""
     cache: dict[str, Mapping[str, np.ndarray]] = {}
@@ -240,72 +239,101 @@ def _unjudged(entry: CheckEntry, why: str, bound: float | None) -> CheckResult:
     return _result(entry, True, f"not judged: {why}", None, bound)
 
 
-def _judge_run(entry: CheckEntry, summary: "Summary", columns: Callable[[], Mapping[str, np.ndarray]]) -> CheckResult:
-    kind = entry.kind
-    if kind == "speed_error":
-        chosen, why = _segments(entry, summary)
-        if not chosen:
-            return _unjudged(entry, why, entry.max_pct)
-        n, worst = max(chosen, key=lambda ns: abs(ns[1].error_pct) if not math.isnan(ns[1].error_pct) else math.inf)
-        err = worst.error_pct
-        bound = float(entry.max_pct or 0.0)
-        ok = not math.isnan(err) and abs(err) <= bound
-        return _result(entry, ok, f"worst {err:+.2f} % (segment {n}, {worst.ref_rpm:+.0f} rpm, "
-                                  f"{worst.t_start_s:.2f}-{worst.t_end_s:.2f} s) {'<=' if ok else '>'} {bound:g} %",
-                       abs(err), bound)
-    if kind == "settling_time":
-        chosen, why = _segments(entry, summary)
-        if not chosen:
-            return _unjudged(entry, why, entry.max_s)
-        c = columns()
-        t, speed = c["t_s"], c["speed_rpm"]
-        band = entry.band_pct / 100.0
-        worst_n, worst_s, worst_seg = 0, -1.0, chosen[0][1]
-        for n, seg in chosen:
-            mask = (t >= seg.t_start_s) & (t < seg.t_end_s)
-            tt, yy = t[mask], speed[mask]
-            outside = np.flatnonzero(np.abs(yy - seg.ref_rpm) > band * abs(seg.ref_rpm))
-            if outside.size == 0:
-                settle = 0.0
-            elif outside[-1] == yy.size - 1:
-                settle = math.inf  # still outside at the segment's end
-            else:
-                settle = float(tt[outside[-1] + 1] - seg.t_start_s)
-            if settle > worst_s:
-                worst_n, worst_s, worst_seg = n, settle, seg
-        bound = float(entry.max_s or 0.0)
-        ok = worst_s <= bound
-        shown = "never (outside the band at the segment's end)" if math.isinf(worst_s) else f"{worst_s:.3f} s"
-        return _result(entry, ok, f"slowest {shown} to stay within {entry.band_pct:g} % (segment {worst_n}, "
-                                  f"{worst_seg.ref_rpm:+.0f} rpm from {worst_seg.t_start_s:.2f} s) "
-                                  f"{'<=' if ok else '>'} {bound:g} s", worst_s, bound)
-    if kind in ("peak_current", "speed_limit", "signal"):
-        c = columns()
-        mask, window = _window(entry, c["t_s"])
-        if kind == "peak_current":
-            stacked = np.abs(np.stack([c["ia_a"][mask], c["ib_a"][mask], c["ic_a"][mask]]))
-            return _max_abs(entry, "|ia|,|ib|,|ic|", stacked.max(axis=0) if stacked.size else stacked,
-                            c["t_s"][mask], float(entry.max_a or 0.0), "A", window)
-        if kind == "speed_limit":
-            return _max_abs(entry, "|speed_rpm|", np.abs(c["speed_rpm"][mask]), c["t_s"][mask],
-                            float(entry.max_rpm or 0.0), "rpm", window)
-        name = entry.signal or ""
-        if name not in c:
-            return _result(entry, False, f"no column {name!r} in the recording", None, None)
-        return _within(entry, name, c[name][mask], c["t_s"][mask], window)
-    if kind == "no_fault":
-        if summary.end_reason == "fault" or summary.fault:
-            return _result(entry, False, f"the run ended on a fault: {summary.fault}", 1.0, 0.0)
-        c = columns()
-        mask, window = _window(entry, c["t_s"])
-        codes = c["fault"][mask]
-        bad = np.flatnonzero(codes != 0)
-        if bad.size:
-            i = int(bad[0])
-            return _result(entry, False, f"firmware fault code {int(codes[i])} at {float(c['t_s'][mask][i]):.4f} s "
-                                         f"(over {window}, {bad.size} periods with a fault)", float(bad.size), 0.0)
-        return _result(entry, True, f"no fault over {window}", 0.0, 0.0)
-    # overruns
+Columns = Callable[[], Mapping[str, np.ndarray]]
+
+
+def _judge_run(entry: CheckEntry, summary: "Summary", columns: Columns) -> CheckResult:
+    """One run kind's verdict (`_RUN_JUDGES`)."""
+    return _RUN_JUDGES[entry.kind](entry, summary, columns)
+
+
+def _speed_error(entry: CheckEntry, summary: "Summary", columns: Columns) -> CheckResult:
+    """The worst steady-state error of the held references judged."""
+    chosen, why = _segments(entry, summary)
+    if not chosen:
+        return _unjudged(entry, why, entry.max_pct)
+    n, worst = max(chosen, key=lambda ns: abs(ns[1].error_pct) if not math.isnan(ns[1].error_pct) else math.inf)
+    err = worst.error_pct
+    bound = float(entry.max_pct or 0.0)
+    ok = not math.isnan(err) and abs(err) <= bound
+    return _result(entry, ok, f"worst {err:+.2f} % (segment {n}, {worst.ref_rpm:+.0f} rpm, "
+                              f"{worst.t_start_s:.2f}-{worst.t_end_s:.2f} s) {'<=' if ok else '>'} {bound:g} %",
+                   abs(err), bound)
+
+
+def _settle_time(t: np.ndarray, speed: np.ndarray, seg: "Segment", band: float) -> float:
+    """From a segment's start until the speed stays within ``band`` of its reference to its end
+    (inf: outside the band at the end)."""
+    mask = (t >= seg.t_start_s) & (t < seg.t_end_s)
+    tt, yy = t[mask], speed[mask]
+    outside = np.flatnonzero(np.abs(yy - seg.ref_rpm) > band * abs(seg.ref_rpm))
+    if outside.size == 0:
+        return 0.0
+    if outside[-1] == yy.size - 1:
+        return math.inf  # still outside at the segment's end
+    return float(tt[outside[-1] + 1] - seg.t_start_s)
+
+
+def _settling_time(entry: CheckEntry, summary: "Summary", columns: Columns) -> CheckResult:
+    """The slowest settling into the band of the held references judged."""
+    chosen, why = _segments(entry, summary)
+    if not chosen:
+        return _unjudged(entry, why, entry.max_s)
+    c = columns()
+    band = entry.band_pct / 100.0
+    worst_n, worst_s, worst_seg = 0, -1.0, chosen[0][1]
+    for n, seg in chosen:
+        settle = _settle_time(c["t_s"], c["speed_rpm"], seg, band)
+        if settle > worst_s:
+            worst_n, worst_s, worst_seg = n, settle, seg
+    bound = float(entry.max_s or 0.0)
+    ok = worst_s <= bound
+    shown = "never (outside the band at the segment's end)" if math.isinf(worst_s) else f"{worst_s:.3f} s"
+    return _result(entry, ok, f"slowest {shown} to stay within {entry.band_pct:g} % (segment {worst_n}, "
+                              f"{worst_seg.ref_rpm:+.0f} rpm from {worst_seg.t_start_s:.2f} s) "
+                              f"{'<=' if ok else '>'} {bound:g} s", worst_s, bound)
+
+
+def _peak_current(entry: CheckEntry, summary: "Summary", columns: Columns) -> CheckResult:
+    c = columns()
+    mask, window = _window(entry, c["t_s"])
+    stacked = np.abs(np.stack([c["ia_a"][mask], c["ib_a"][mask], c["ic_a"][mask]]))
+    return _max_abs(entry, "|ia|,|ib|,|ic|", stacked.max(axis=0) if stacked.size else stacked,
+                    c["t_s"][mask], float(entry.max_a or 0.0), "A", window)
+
+
+def _speed_limit(entry: CheckEntry, summary: "Summary", columns: Columns) -> CheckResult:
+    c = columns()
+    mask, window = _window(entry, c["t_s"])
+    return _max_abs(entry, "|speed_rpm|", np.abs(c["speed_rpm"][mask]), c["t_s"][mask],
+                    float(entry.max_rpm or 0.0), "rpm", window)
+
+
+def _signal(entry: CheckEntry, summary: "Summary", columns: Columns) -> CheckResult:
+    c = columns()
+    mask, window = _window(entry, c["t_s"])
+    name = entry.signal or ""
+    if name not in c:
+        return _result(entry, False, f"no column {name!r} in the recording", None, None)
+    return _within(entry, name, c[name][mask], c["t_s"][mask], window)
+
+
+def _no_fault(entry: CheckEntry, summary: "Summary", columns: Columns) -> CheckResult:
+    """The run did not end on a fault and the firmware's fault column stayed 0 over the window."""
+    if summary.end_reason == "fault" or summary.fault:
+        return _result(entry, False, f"the run ended on a fault: {summary.fault}", 1.0, 0.0)
+    c = columns()
+    mask, window = _window(entry, c["t_s"])
+    codes = c["fault"][mask]
+    bad = np.flatnonzero(codes != 0)
+    if bad.size:
+        i = int(bad[0])
+        return _result(entry, False, f"firmware fault code {int(codes[i])} at {float(c['t_s'][mask][i]):.4f} s "
+                                     f"(over {window}, {bad.size} periods with a fault)", float(bad.size), 0.0)
+    return _result(entry, True, f"no fault over {window}", 0.0, 0.0)
+
+
+def _overruns(entry: CheckEntry, summary: "Summary", columns: Columns) -> CheckResult:
     count, periods = summary.overruns, max(1, summary.periods)
     pct = 100.0 * count / periods
     ok = (entry.max is None or count <= entry.max) and (entry.max_pct is None or pct <= entry.max_pct)
@@ -314,6 +342,14 @@ def _judge_run(entry: CheckEntry, summary: "Summary", columns: Callable[[], Mapp
     return _result(entry, ok, f"{count} overruns ({pct:.2f} % of {summary.periods} periods) "
                               f"{'within' if ok else 'beyond'} {bounds}", float(count),
                    entry.max if entry.max is not None else entry.max_pct)
+
+
+#: each run kind's judge
+_RUN_JUDGES: dict[str, Callable[[CheckEntry, "Summary", Columns], CheckResult]] = {
+    "speed_error": _speed_error, "settling_time": _settling_time, "peak_current": _peak_current,
+    "speed_limit": _speed_limit, "signal": _signal, "no_fault": _no_fault, "overruns": _overruns,
+}
+assert tuple(_RUN_JUDGES) == RUN_KINDS
 
 
 def _max_abs(entry: CheckEntry, what: str, values: np.ndarray, t: np.ndarray, bound: float, unit: str,

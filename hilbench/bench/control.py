@@ -46,6 +46,7 @@ sleeps in the kernel while idle and holds the GIL only while handling bytes.
 from __future__ import annotations
 
 import collections
+import dataclasses
 import json
 import math
 import os
@@ -53,19 +54,35 @@ import re
 import selectors
 import socket
 import stat
+import struct
 import tempfile
 import threading
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
 from types import MappingProxyType
-from typing import Any, Callable, Mapping, Sequence
+from typing import TYPE_CHECKING, Any, Callable, Mapping, Protocol, Sequence
 
 from hilbench.errors import ConfigError, LinkClosed, LinkError, LinkTimeout, ProtocolError
 
+if TYPE_CHECKING:
+    from hilbench.bench.display import DisplayStream
+
 MAX_LINE_BYTES = 4096
 MAX_PENDING = 64  # requests queued for the session before new ones are refused as busy
+#: connections for `hilbench ctl` and scripts; a scope's streams have their own (below), so pages
+#: can never take these
 MAX_CONNECTIONS = 16
+#: connections that asked for the `stream` (scopes: a scope process multiplexes its pages on one)
+MAX_STREAM_CONNECTIONS = 4
+#: the longest reply line a client reads (a stream reply of 20 000 buckets of 48 columns is ~10 MB)
+MAX_REPLY_BYTES = 16 * 1024 * 1024
+#: replies a connection has not read: past PAUSE_UNSENT_BYTES its requests are not read (the client
+#: blocks on its own send), past MAX_UNSENT_BYTES or after SLOW_READER_S without draining the
+#: connection is closed and counted (``slow_readers``); its pending replies are dropped
+PAUSE_UNSENT_BYTES = 64 * 1024
+MAX_UNSENT_BYTES = MAX_REPLY_BYTES
+SLOW_READER_S = 10.0
 MAX_SET_PARAMS = 16
 MAX_STREAM_COLUMNS = 48
 SOCKET_NAME = "ctl.sock"
@@ -157,21 +174,127 @@ def _check_bool(v: Any) -> bool:
     return v
 
 
-# cmd -> {field: checker}; every field is required, no others allowed (besides "cmd" and "id").
-COMMANDS: Mapping[str, Mapping[str, Callable[[Any], Any]]] = MappingProxyType(
+class ControlledSession(Protocol):
+    """What a command acts on: a running session (hilbench.bench.session.Session)."""
+
+    tuning: Any  # hilbench.bench.livetuning.LiveTuning
+    profile: Any  # hilbench.targets.profile.TargetProfile
+    target: Any  # hilbench.targets.base.Target
+    live: Any  # hilbench.bench.parts.LivePart
+    ref_rpm: float
+
+    def param_values(self) -> dict[str, float]: ...
+    def reference_now(self, rpm: float, t_s: float, note: str) -> None: ...
+    def stop_run(self, t_s: float, reason: str, note: str) -> None: ...
+    def press(self, button: str, t_s: float) -> None: ...
+    def segment(self, kind: str, t_s: float, ref_rpm: float = 0.0, ramp_s: float = 0.0) -> None: ...
+    def set_load(self, kind: str, value: float) -> None: ...
+    def note(self, t_s: float, text: str) -> None: ...
+    def display_stream(self) -> "DisplayStream": ...
+
+
+def _tuning_state(session: ControlledSession, t_s: float) -> dict[str, Any]:
+    return {"params": session.param_values(), "t_s": t_s, "ref_rpm": session.ref_rpm,
+            "tunable": list(session.profile.tunable)}
+
+
+def _get(session: ControlledSession, request: "ControlRequest", t_s: float) -> None:
+    request.reply(True, "ok", _tuning_state(session, t_s))
+
+
+def _set(session: ControlledSession, request: "ControlRequest", t_s: float) -> None:
+    session.tuning.set({str(k): float(v) for k, v in request.args["params"].items()}, t_s)
+    request.reply(True, f"applied at t={t_s:.4f} s", {"params": session.param_values()})
+
+
+def _ref(session: ControlledSession, request: "ControlRequest", t_s: float) -> None:
+    rpm = request.args["rpm"]
+    session.reference_now(float(rpm), t_s, f"ref {rpm} rpm (ctl)")
+    request.reply(True, f"reference {rpm} rpm at t={t_s:.4f} s")
+
+
+def _step(session: ControlledSession, request: "ControlRequest", t_s: float) -> None:
+    session.live.start_step(request, float(request.args["from_rpm"]), float(request.args["to_rpm"]), t_s)
+
+
+def _stop(session: ControlledSession, request: "ControlRequest", t_s: float) -> None:
+    session.stop_run(t_s, "stopped by ctl", "stop (ctl)")
+    request.reply(True, f"run ends at t={t_s:.4f} s")
+
+
+def _save(session: ControlledSession, request: "ControlRequest", t_s: float) -> None:
+    """A raw-socket client's save; `hilbench ctl save` writes where the user is."""
+    from hilbench.bench.tuning import saved_fragment
+
+    data = _tuning_state(session, t_s)
+    path = str(request.args["file"])
+    try:
+        with open(path, "w", encoding="utf-8") as handle:
+            handle.write(saved_fragment(data))
+    except OSError as exc:
+        request.reply(False, f"save {path}: {exc.strerror or exc}")
+    else:
+        request.reply(True, f"wrote {path}", data)
+
+
+def _start(session: ControlledSession, request: "ControlRequest", t_s: float) -> None:
+    session.target.start()
+    session.note(t_s, "start (ctl)")
+    request.reply(True, f"start command sent at t={t_s:.4f} s")
+
+
+def _press(session: ControlledSession, request: "ControlRequest", t_s: float) -> None:
+    button = str(request.args["button"])
+    session.press(button, t_s)
+    if button == "s2":
+        session.segment("press", t_s)
+    session.note(t_s, f"press {button} (ctl)")
+    request.reply(True, f"{button} pressed at t={t_s:.4f} s")
+
+
+def _guard(session: ControlledSession, request: "ControlRequest", t_s: float) -> None:
+    session.tuning.guard = dataclasses.replace(session.tuning.guard, enabled=bool(request.args["on"]))
+    state = "on" if session.tuning.guard.enabled else "off"
+    session.note(t_s, f"guard {state} (ctl)")
+    request.reply(True, f"guarded tuning {state}")
+
+
+def _stream(session: ControlledSession, request: "ControlRequest", t_s: float) -> None:
+    """A scope's decimated view (hilbench.bench.display)."""
+    request.reply(True, "stream", session.display_stream().request(int(request.args["since"]), request.args["columns"], t_s))
+
+
+def _load(session: ControlledSession, request: "ControlRequest", t_s: float) -> None:
+    nm = request.args["nm"]
+    session.set_load("constant", float(nm))
+    session.note(t_s, f"load {nm} N*m (ctl)")
+    request.reply(True, f"load {nm} N*m at t={t_s:.4f} s")
+
+
+@dataclass(frozen=True)
+class Command:
+    """One control command: its fields, each checked for its shape here (every one required, no
+    others), and what it does to the session (`act(session, request, t_s)`, replying)."""
+
+    fields: Mapping[str, Callable[[Any], Any]]
+    act: Callable[[ControlledSession, "ControlRequest", float], None]
+
+
+#: every command a session answers: cmd -> its fields' shape checks and its action
+COMMANDS: Mapping[str, Command] = MappingProxyType(
     {
-        "get": {},
-        "set": {"params": _check_params},
-        "ref": {"rpm": _number("ref", "rpm", MAX_REF_RPM, " rpm")},
-        "load": {"nm": _number("load", "nm", MAX_LOAD_NM, " N*m")},
-        "step": {"from_rpm": _number("step", "from_rpm", MAX_REF_RPM, " rpm"),
-                 "to_rpm": _number("step", "to_rpm", MAX_REF_RPM, " rpm")},
-        "save": {"file": _check_file},
-        "guard": {"on": _check_bool},
-        "stop": {},
-        "start": {},
-        "press": {"button": _check_button},
-        "stream": {"since": _check_since, "columns": _check_columns},  # the scope (hilbench.scope.stream)
+        "get": Command({}, _get),
+        "set": Command({"params": _check_params}, _set),
+        "ref": Command({"rpm": _number("ref", "rpm", MAX_REF_RPM, " rpm")}, _ref),
+        "load": Command({"nm": _number("load", "nm", MAX_LOAD_NM, " N*m")}, _load),
+        "step": Command({"from_rpm": _number("step", "from_rpm", MAX_REF_RPM, " rpm"),
+                         "to_rpm": _number("step", "to_rpm", MAX_REF_RPM, " rpm")}, _step),
+        "save": Command({"file": _check_file}, _save),
+        "guard": Command({"on": _check_bool}, _guard),
+        "stop": Command({}, _stop),
+        "start": Command({}, _start),
+        "press": Command({"button": _check_button}, _press),
+        "stream": Command({"since": _check_since, "columns": _check_columns}, _stream),  # the scope
     }
 )
 
@@ -187,7 +310,7 @@ def validate_request(obj: Any) -> tuple[str, dict[str, Any]]:
         raise ValueError(f"unknown cmd {cmd[:40]!r} (known: {', '.join(COMMANDS)})")
     if "id" in obj and not (isinstance(obj["id"], (str, int)) and not isinstance(obj["id"], bool)):
         raise ValueError("id must be a string or an integer")
-    spec = COMMANDS[cmd]
+    spec = COMMANDS[cmd].fields
     extra = sorted(set(obj) - set(spec) - {"cmd", "id"})
     if extra:
         raise ValueError(f"{cmd}: unexpected field {extra[0][:40]!r} (expected: {', '.join(spec) or 'none'})")
@@ -264,9 +387,30 @@ class SessionInfo:
     file: Path
 
 
-def _read_session_file(f: Path) -> SessionInfo | None:
+def _trusted_file(f: Path) -> bool:
+    """A discovery file this user wrote and nobody else may change (a regular file, ours, not
+    writable by group or others): anything else is not believed."""
     try:
-        lines = f.read_text(encoding="utf-8").splitlines()
+        st = f.lstat()
+    except OSError:
+        return False
+    return stat.S_ISREG(st.st_mode) and st.st_uid == os.getuid() and not stat.S_IMODE(st.st_mode) & 0o022
+
+
+def _trusted_dir(d: Path) -> bool:
+    """The discovery directory: ours, and nobody else may add or replace files in it."""
+    try:
+        st = d.stat()
+    except OSError:
+        return False
+    return st.st_uid == os.getuid() and not stat.S_IMODE(st.st_mode) & 0o022
+
+
+def _read_session_file(f: Path) -> SessionInfo | None:
+    if not _trusted_file(f):
+        return None
+    try:
+        lines = f.read_text(encoding="utf-8")[:8192].splitlines()
         extra = json.loads(lines[2]) if len(lines) > 2 else {}
         return SessionInfo(Path(lines[0].strip()), int(lines[1]), float(extra.get("started_s", 0.0)),
                            str(extra.get("cwd", "")), f)
@@ -277,12 +421,16 @@ def _read_session_file(f: Path) -> SessionInfo | None:
 def list_sessions(directory: Path | None = None) -> list[SessionInfo]:
     """The running sessions (newest first); files of dead ones are skipped (and removed)."""
     d = directory or sessions_dir()
+    if not _trusted_dir(d):
+        return []
     try:
         files = sorted(d.glob("*.session"))
     except OSError:
         return []
     out = []
     for f in files:
+        if not _trusted_file(f):
+            continue  # not believed, and not ours to remove
         info = _read_session_file(f)
         if info is None or not _pid_alive(info.pid) or not info.socket_path.exists():
             try:
@@ -305,6 +453,8 @@ def clean_stale(directory: Path | None = None, temp_base: Path | None = None) ->
     except OSError:
         files = []
     for f in files:
+        if not _trusted_file(f):
+            continue
         info = _read_session_file(f)
         if info is None or not _pid_alive(info.pid):
             try:
@@ -347,8 +497,11 @@ def read_discovery(discovery_file: Path | None = None) -> Path:
         if sessions:
             return sessions[0].socket_path
     f = discovery_file or default_discovery_file()
+    if f.exists() and not _trusted_file(f):
+        raise LinkError(f"control socket: discovery file {f} is not this user's own or others may write it; "
+                        "not believed (give --socket)")
     try:
-        first = f.read_text(encoding="utf-8").splitlines()[0].strip()
+        first = f.read_text(encoding="utf-8")[:8192].splitlines()[0].strip()
     except (OSError, IndexError, UnicodeDecodeError):
         raise LinkError(f"control socket: no running session found ({f} missing or empty; is `hilbench run` running?)") from None
     return Path(first)
@@ -392,7 +545,7 @@ def _reply_line(ok: bool, message: str, data: Mapping[str, Any] | None, request_
 
 
 class _Conn:
-    __slots__ = ("sock", "cid", "rbuf", "wbuf", "discarding", "closing")
+    __slots__ = ("sock", "cid", "rbuf", "wbuf", "discarding", "closing", "stream", "paused_since")
 
     def __init__(self, sock: socket.socket, cid: int) -> None:
         self.sock = sock
@@ -401,6 +554,20 @@ class _Conn:
         self.wbuf = bytearray()
         self.discarding = False  # inside an oversized line: drop bytes until its newline
         self.closing = False  # close once wbuf is flushed
+        self.stream = False  # asked for the stream: counted among MAX_STREAM_CONNECTIONS
+        self.paused_since: float | None = None  # reading paused: its replies are not being read
+
+
+def peer_uid(sock: socket.socket) -> int | None:
+    """The uid of the process at the other end of a Unix socket (Linux SO_PEERCRED); None elsewhere."""
+    option = getattr(socket, "SO_PEERCRED", None)
+    if option is None:
+        return None
+    try:
+        _, uid, _ = struct.unpack("3i", sock.getsockopt(socket.SOL_SOCKET, option, struct.calcsize("3i")))
+    except OSError:
+        return None
+    return uid
 
 
 class ControlServer:
@@ -425,6 +592,9 @@ class ControlServer:
             _private_dir(self.directory)
         os.chmod(self.directory, 0o700)
         self.discovery_file: Path | None = None
+        self.uid = os.getuid()
+        #: connections, requests, rejected (malformed, invalid, oversized, busy), refused_connections,
+        #: refused_users, slow_readers, dropped_replies
         self.counters: collections.Counter[str] = collections.Counter()
         self._inbox: collections.deque[ControlRequest] = collections.deque()
         self._outbox: collections.deque[tuple[int, bytes]] = collections.deque()
@@ -442,7 +612,7 @@ class ControlServer:
             self._listener.bind(str(self.path))
             self._bound = True
             os.chmod(self.path, 0o600)
-            self._listener.listen(8)
+            self._listener.listen(64)
             self._listener.setblocking(False)
             os.set_blocking(self._wake_r, False)
             os.set_blocking(self._wake_w, False)
@@ -496,6 +666,16 @@ class ControlServer:
         os.close(self._wake_r)
         os.close(self._wake_w)
         self._cleanup_fs()
+
+    def trouble(self) -> str:
+        """What clients did wrong, in one line ("" when nothing): the counts a run reports."""
+        c = self.counters
+        parts = [f"{c[key]} {what}" for key, what in (
+            ("slow_readers", "clients closed for not reading their replies"),
+            ("dropped_replies", "replies dropped"),
+            ("refused_connections", "connections refused (over the limit)"),
+            ("refused_users", "connections of another user refused")) if c[key]]
+        return ", ".join(parts)
 
     def __enter__(self) -> "ControlServer":
         return self
@@ -565,10 +745,12 @@ class ControlServer:
 
     def _run(self) -> None:
         while not self._stop.is_set():
+            paused = [c for c in self._conns.values() if c.paused_since is not None]
             try:
-                events = self._sel.select(timeout=None)
+                events = self._sel.select(timeout=1.0 if paused else None)
             except OSError:  # selector closed under us
                 return
+            self._close_slow_readers(paused)
             for key, mask in events:
                 obj = key.fileobj
                 if obj is self._listener:
@@ -579,18 +761,33 @@ class ControlServer:
                             pass
                     except (BlockingIOError, OSError):
                         pass
-                else:
+                elif key.data.cid in self._conns:
                     conn: _Conn = key.data
                     if mask & selectors.EVENT_READ:
                         self._read(conn)
                     if mask & selectors.EVENT_WRITE and conn.cid in self._conns:
                         self._flush(conn)
-            while self._outbox:
-                cid, line = self._outbox.popleft()
-                conn2 = self._conns.get(cid)
-                if conn2 is not None:  # else the client has gone: drop the reply
-                    conn2.wbuf += line
-                    self._flush(conn2)
+            self._deliver_replies()
+
+    def _close_slow_readers(self, paused: list[_Conn]) -> None:
+        now = time.monotonic()
+        for conn in paused:
+            if conn.paused_since is not None and now - conn.paused_since > SLOW_READER_S:
+                self._drop_slow(conn)
+
+    def _deliver_replies(self) -> None:
+        """The session's replies to their connections (dropped and counted when the client has gone;
+        a client with MAX_UNSENT_BYTES unread is closed)."""
+        while self._outbox:
+            cid, line = self._outbox.popleft()
+            conn = self._conns.get(cid)
+            if conn is None:
+                self.counters["dropped_replies"] += 1
+            elif len(conn.wbuf) + len(line) > MAX_UNSENT_BYTES:
+                self._drop_slow(conn)
+            else:
+                conn.wbuf += line
+                self._flush(conn)
 
     def _accept(self) -> None:
         while True:
@@ -600,6 +797,16 @@ class ControlServer:
                 return
             except OSError:
                 return
+            uid = peer_uid(sock)
+            if uid is not None and uid != self.uid:  # never another user's, whatever the file modes
+                self.counters["refused_users"] += 1
+                try:
+                    sock.setblocking(False)
+                    sock.send(_reply_line(False, f"refused: this session belongs to uid {self.uid}", None, None))
+                except OSError:
+                    pass
+                sock.close()
+                continue
             sock.setblocking(False)
             self.counters["connections"] += 1
             cid = self._next_cid
@@ -607,11 +814,22 @@ class ControlServer:
             conn = _Conn(sock, cid)
             self._conns[cid] = conn
             self._sel.register(sock, selectors.EVENT_READ, conn)
-            if len(self._conns) > MAX_CONNECTIONS:
-                self.counters["refused_connections"] += 1
-                conn.wbuf += _reply_line(False, f"too many control connections (max {MAX_CONNECTIONS})", None, None)
-                conn.closing = True
-                self._flush(conn)
+            if sum(1 for c in self._conns.values() if not c.stream) > MAX_CONNECTIONS:
+                self._refuse(conn, f"too many control connections (max {MAX_CONNECTIONS})")
+
+    def _refuse(self, conn: _Conn, reason: str) -> None:
+        """Answer one line and close (a connection over its class's limit)."""
+        self.counters["refused_connections"] += 1
+        conn.wbuf += _reply_line(False, reason, None, None)
+        conn.closing = True
+        conn.rbuf.clear()
+        self._flush(conn)
+
+    def _drop_slow(self, conn: _Conn) -> None:
+        """A client that does not read its replies: close it, count it and what it did not read."""
+        self.counters["slow_readers"] += 1
+        self.counters["dropped_replies"] += conn.wbuf.count(b"\n")
+        self._drop(conn)
 
     def _drop(self, conn: _Conn) -> None:
         self._conns.pop(conn.cid, None)
@@ -622,6 +840,8 @@ class ControlServer:
         conn.sock.close()
 
     def _flush(self, conn: _Conn) -> None:
+        """Send what the socket takes; read no more requests from a client that leaves more than
+        PAUSE_UNSENT_BYTES of replies unread (it is closed if that lasts SLOW_READER_S)."""
         try:
             while conn.wbuf:
                 n = conn.sock.send(conn.wbuf)
@@ -631,12 +851,16 @@ class ControlServer:
         except OSError:
             self._drop(conn)
             return
-        if conn.wbuf:
-            self._sel.modify(conn.sock, selectors.EVENT_READ | selectors.EVENT_WRITE, conn)
-        elif conn.closing:
+        if conn.closing and not conn.wbuf:
             self._drop(conn)
-        else:
-            self._sel.modify(conn.sock, selectors.EVENT_READ, conn)
+            return
+        pause = len(conn.wbuf) > PAUSE_UNSENT_BYTES or conn.closing
+        if pause and conn.paused_since is None:
+            conn.paused_since = time.monotonic()
+        elif not pause:
+            conn.paused_since = None
+        events = (0 if pause else selectors.EVENT_READ) | (selectors.EVENT_WRITE if conn.wbuf else 0)
+        self._sel.modify(conn.sock, events or selectors.EVENT_READ, conn)
 
     def _read(self, conn: _Conn) -> None:
         try:
@@ -715,6 +939,11 @@ class ControlServer:
         except ValueError as exc:
             self._reject(conn, rid, str(exc), "invalid")
             return True
+        if cmd == "stream" and not conn.stream:
+            if sum(1 for c in self._conns.values() if c.stream) >= MAX_STREAM_CONNECTIONS:
+                self._refuse(conn, f"too many scopes on this session (max {MAX_STREAM_CONNECTIONS} stream connections)")
+                return True
+            conn.stream = True  # from now on a scope's connection: it no longer holds one of ctl's
         if len(self._inbox) >= MAX_PENDING:
             self._reject(conn, rid, f"busy: {MAX_PENDING} requests already waiting for the session", "busy")
             return True
@@ -736,6 +965,22 @@ class ControlServer:
 # Client
 
 
+def _connect(sock: socket.socket, path: Path, timeout_s: float) -> None:
+    """connect(), again while the listener's backlog is full (EAGAIN: the session's I/O thread is
+    accepting others) until ``timeout_s``."""
+    deadline = time.monotonic() + timeout_s
+    delay_s = 0.001
+    while True:
+        try:
+            sock.connect(str(path))
+            return
+        except BlockingIOError:
+            if time.monotonic() + delay_s > deadline:
+                raise socket.timeout from None
+            time.sleep(delay_s)
+            delay_s = min(delay_s * 2, 0.05)
+
+
 class ControlClient:
     """The `hilbench ctl` end: connect to a session's socket (found by discovery if not given)."""
 
@@ -750,7 +995,7 @@ class ControlClient:
         self._sock = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
         self._sock.settimeout(timeout_s)
         try:
-            self._sock.connect(str(self.path))
+            _connect(self._sock, self.path, timeout_s)
         except (FileNotFoundError, ConnectionRefusedError):
             self._sock.close()
             raise LinkError(f"control socket {self.path}: no session listening (is `hilbench run` still running?)") from None
@@ -760,6 +1005,10 @@ class ControlClient:
         except OSError as exc:
             self._sock.close()
             raise LinkError(f"control socket {self.path}: {exc.strerror or exc}") from None
+        uid = peer_uid(self._sock)
+        if uid is not None and uid != os.getuid():  # another user's session: never talk to it
+            self._sock.close()
+            raise LinkError(f"control socket {self.path}: the session there runs as uid {uid}, not as this user")
         self._buf = bytearray()
 
     def request(self, req: Mapping[str, Any], timeout_s: float = 5.0) -> dict[str, Any]:
@@ -780,6 +1029,8 @@ class ControlClient:
                 remaining = deadline - time.monotonic()
                 if remaining <= 0:
                     raise socket.timeout
+                if len(self._buf) > MAX_REPLY_BYTES:
+                    raise ProtocolError(f"control socket {self.path}: a reply longer than {MAX_REPLY_BYTES} bytes")
                 self._sock.settimeout(remaining)
                 chunk = self._sock.recv(65536)
                 if not chunk:
@@ -887,6 +1138,8 @@ def parse_ctl_args(words: Sequence[str]) -> dict[str, Any]:
 __all__ = [
     "MAX_LINE_BYTES",
     "COMMANDS",
+    "Command",
+    "ControlledSession",
     "ControlRequest",
     "ControlServer",
     "ControlClient",

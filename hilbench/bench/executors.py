@@ -58,7 +58,9 @@ def open_executor(spec: str | None, workers: int | None) -> Iterator[tuple[Execu
         if n == 1:
             yield InThisProcess(), "this process"
             return
-        with ProcessPoolExecutor(max_workers=n) as pool:
+        from hilbench.processes import worker_init
+
+        with ProcessPoolExecutor(max_workers=n, initializer=worker_init, initargs=(os.getpid(),)) as pool:  # die with us
             yield pool, f"a local pool of {n} processes"
         return
     if spec == "local-dask" or spec.startswith("local-dask:"):

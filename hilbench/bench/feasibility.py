@@ -16,6 +16,7 @@ import re
 
 from hilbench.config import BenchConfig
 from hilbench.errors import ConfigError
+from hilbench.plant.period import Period
 
 #: hall transitions per electrical revolution (three sensors, 60° apart)
 HALL_EDGES_PER_ELECTRICAL_REV = 6
@@ -40,7 +41,7 @@ def check_run(cfg: BenchConfig, events: tuple = ()) -> list[str]:
 
     warnings: list[str] = []
     period_us = cfg.link.period_us
-    exchanges_per_s = 1e6 / period_us
+    exchanges_per_s = Period(period_us).per_s
     refs = [abs(e.ref_rpm) for e in (events or settings.scenario_events(cfg)) if getattr(e, "ref_rpm", None) is not None]
     edges_per_period = 1
     if refs:

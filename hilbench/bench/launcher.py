@@ -25,12 +25,13 @@ from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any, Callable
 
 from hilbench.errors import ConfigError, LinkError
-from hilbench.processes import reap
 from hilbench.link.spec import FIRMWARE_KINDS
+from hilbench.processes import reap, spawn
 from hilbench.targets.base import Target
 from hilbench.targets.profile import TargetProfile
 
 if TYPE_CHECKING:
+    from hilbench.link import Link
     from hilbench.link.spec import TargetSpec
     from hilbench.targets.remote import RemoteTarget
     from hilbench.targets.starters import FirmwareStarter, Started
@@ -43,7 +44,7 @@ class TargetHandle:
 
     target: Target
     label: str
-    link: Any = None
+    link: "Link | None" = None
     process: subprocess.Popen[bytes] | None = None
     child_log: Any = None
     started: "Started | None" = None  # a firmware build's process (sil:, simavr:, qemu:)
@@ -140,7 +141,7 @@ def _spawn_emulator(profile: TargetProfile, options: object, mode: str, watchdog
     command = emulator_command(profile, options, link.peer_path, mode, watchdog_ms)
     log = tempfile.TemporaryFile()  # the child's stderr: a file never fills up and blocks it
     try:
-        process = subprocess.Popen(
+        process = spawn(  # it dies with this process, whatever kills it (hilbench.processes)
             command,
             stdin=subprocess.DEVNULL,
             stdout=subprocess.PIPE,

@@ -1,13 +1,15 @@
 """The link test: N lockstep periods against a target, timing every round trip and counting errors.
 
-Default target: the Python loopback target as its own process (`python -m hilbench emulate
-loopback`) on a pty pair this process makes. Against a loopback target every Drive is checked
-field by field against the documented mapping, so a corrupted frame accepted as good shows up
-as a mismatch.
+Default target: the registry's link-test target (`targets.registry.LINK_TEST_TARGET`) as its own
+process (`python -m hilbench emulate NAME`) on a pty pair this process makes. Against a target
+whose profile declares "link_check" (every Drive a documented function of the Sensors alone) every
+Drive is checked field by field against its in-process model, so a corrupted frame accepted as
+good shows up as a mismatch.
 """
 
 from __future__ import annotations
 
+import math
 import os
 import select
 import subprocess
@@ -19,14 +21,18 @@ from typing import Any, Callable, Sequence
 import numpy as np
 
 from hilbench.errors import LinkError, LinkTimeout
-from hilbench.link import open_link
+from hilbench.link import open_link, parse_target_spec
+from hilbench.processes import spawn
 from hilbench.protocol import INPUT_S3, MODE_LOCKSTEP, Sensors
-from hilbench.targets.loopback.target import LoopbackTarget
+from hilbench.targets.base import Target
+from hilbench.targets.registry import LINK_TEST_TARGET, profile_for_firmware
 from hilbench.targets.remote import RemoteTarget
 
 DEFAULT_TARGET = "pty"
 _READY_TIMEOUT_S = 15.0
 _MAX_CONSECUTIVE_TIMEOUTS = 20
+#: how long link-test keeps sending HostHello at least, whatever --timeout-ms says
+HANDSHAKE_S = 5.0
 
 
 @dataclass(frozen=True)
@@ -82,12 +88,11 @@ class _Spawned:
         self.proc: subprocess.Popen[bytes] | None = None
         try:
             if program is None:
-                argv = [sys.executable, "-m", "hilbench", "emulate", target_name, "-q",
+                argv = [sys.executable, "-P", "-m", "hilbench", "emulate", target_name, "-q",
                         "--port", str(self.link.peer_path), *emulate_args]
             else:
                 argv = [program, str(self.link.peer_path)]
-            self.proc = subprocess.Popen(argv, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
-                                         stdin=subprocess.DEVNULL)
+            self.proc = spawn(argv, stdout=subprocess.PIPE, stderr=subprocess.PIPE, stdin=subprocess.DEVNULL)
             if program is None:
                 self._wait_ready()
         except BaseException:
@@ -139,97 +144,124 @@ class _Spawned:
                     stream.close()
 
 
+def _checker(firmware_name: str) -> Target | None:
+    """The in-process model every Drive of this firmware is checked against (None: not checked)."""
+    profile = profile_for_firmware(firmware_name)
+    return profile.make(profile.default_options()) if profile.has("link_check") else None
+
+
 def run_link_test(target: str = DEFAULT_TARGET, *, periods: int = 10_000, period_us: int = 50,
                   timeout_s: float = 1.0, progress: Callable[[int], None] | None = None,
                   link_wrapper: Callable[[Any], Any] | None = None) -> LinkTestResult:
-    """Run `periods` lockstep exchanges against target: a link spec, "pty" (spawn the Python
-    loopback emulator on a pty pair) or "exec:PROGRAM" (spawn PROGRAM with the pty path).
+    """Run `periods` lockstep exchanges against target: a link spec, "pty" (spawn the link-test
+    target's emulator on a pty pair), "exec:PROGRAM" (spawn PROGRAM with the pty path), or
+    emulator:NAME / sil:NAME (started as `hilbench run` starts them; an unknown NAME is the same
+    "unknown target" ConfigError).
 
     link_wrapper (for example a FaultyLink factory) wraps the host's link before use.
     """
     if periods <= 0:
         raise LinkError(f"link-test: periods must be positive, got {periods}")
-    spawned: _Spawned | None = None
-    if target in ("pty", "loopback"):
-        spawned = _Spawned("loopback", timeout_s)
-        link = spawned.link
-    elif target.startswith("exec:"):
-        spawned = _Spawned("", timeout_s, program=target[len("exec:"):])
-        link = spawned.link
-    else:
-        link = open_link(target, timeout_s=timeout_s)
+    spawned, link = _open(target, timeout_s)
     try:
-        host_link = link_wrapper(link) if link_wrapper is not None else link
-        remote = RemoteTarget(host_link, timeout_s=timeout_s)
-        hello = remote.handshake(period_us, MODE_LOCKSTEP, 0, attempts=5)
-        check = LoopbackTarget() if hello.firmware_name == "loopback" else None
-        rtt_ns = np.zeros(periods, dtype=np.int64)
-        good = timeouts = mismatches = consecutive = 0
-        step = remote.step
-        clock = time.perf_counter_ns
-        every = max(1, periods // 100)
-        t_start = clock()
-        interrupted = False
-        attempted = 0
-        for k in range(periods):
-            sensors = sensors_for_period(k)
-            t0 = clock()
-            try:
-                drive = step(sensors)
-            except KeyboardInterrupt:  # Ctrl-C: keep the figures so far (issue 16, item 18)
-                interrupted = True
-                break
-            except LinkTimeout:
-                timeouts += 1
-                consecutive += 1
-                if consecutive >= _MAX_CONSECUTIVE_TIMEOUTS:
-                    raise LinkError(
-                        f"link {link.name}: {consecutive} periods in a row without a Drive (period {k})"
-                    ) from None
-                continue
-            rtt_ns[good] = clock() - t0
-            good += 1
-            consecutive = 0
-            if check is not None and drive != check.step(sensors):
-                mismatches += 1
-            attempted = k + 1
-            if progress is not None and k % every == 0:
-                progress(k)
-        else:
-            attempted = periods
-        elapsed_s = (clock() - t_start) / 1e9
-        status: dict[str, int] = {}
-        try:
-            if interrupted:
-                raise LinkError("interrupted: no status request")
-            st = remote.status()
-            status = {name: int(getattr(st, name)) for name in st._fields if name != "seq"}
-        except LinkError:
-            pass
-        rtt_us = rtt_ns[:good] / 1000.0
+        remote = RemoteTarget(link_wrapper(link) if link_wrapper is not None else link, timeout_s=timeout_s)
+        # a short per-exchange deadline must not make the handshake fragile (a target still starting,
+        # a loaded machine): HostHello is sent again for HANDSHAKE_S at least
+        hello = remote.handshake(period_us, MODE_LOCKSTEP, 0, attempts=max(5, math.ceil(HANDSHAKE_S / timeout_s)))
+        run = _exchanges(remote, link.name, periods, _checker(hello.firmware_name), progress)
+        rtt_us = run.rtt_ns[:run.good] / 1000.0
+        good = run.good
         return LinkTestResult(
             target=target if spawned is None else f"{target} process on {link.name}",
-            firmware_name=hello.firmware_name,
-            periods=periods,
-            good=good,
-            timeouts=timeouts,
-            mismatches=mismatches,
-            elapsed_s=elapsed_s,
-            round_trips_per_s=good / elapsed_s if elapsed_s > 0 else 0.0,
+            firmware_name=hello.firmware_name, periods=periods, good=good, timeouts=run.timeouts,
+            mismatches=run.mismatches, elapsed_s=run.elapsed_s,
+            round_trips_per_s=good / run.elapsed_s if run.elapsed_s > 0 else 0.0,
             rtt_p50_us=float(np.percentile(rtt_us, 50)) if good else float("nan"),
             rtt_p99_us=float(np.percentile(rtt_us, 99)) if good else float("nan"),
             rtt_max_us=float(rtt_us.max()) if good else float("nan"),
             link=link.stats.as_dict(),
             remote={"stale_frames": remote.stale_frames, "error_reports": remote.error_reports},
-            target_status=status,
-            interrupted=interrupted,
-            attempted=attempted,
+            target_status=_status(remote, run.interrupted), interrupted=run.interrupted, attempted=run.attempted,
         )
     finally:
         if spawned is not None:
             spawned.close()
         else:
             link.close()
+
+
+def _open(target: str, timeout_s: float) -> tuple[Any, Any]:
+    """The link to the target: a process this spawns on a pty pair, or the spec opened."""
+    if target in ("pty", LINK_TEST_TARGET):
+        spawned = _Spawned(LINK_TEST_TARGET, timeout_s)
+        return spawned, spawned.link
+    if target.startswith("exec:"):
+        spawned = _Spawned("", timeout_s, program=target[len("exec:"):])
+        return spawned, spawned.link
+    if parse_target_spec(target).spawns_process:  # emulator:NAME, sil:NAME: started as the bench starts them
+        from hilbench.bench.launcher import open_target
+
+        handle = open_target(target, mode="lockstep", timeout_s=timeout_s)  # unknown NAME: ConfigError, exit 2
+        return handle, handle.link
+    return None, open_link(target, timeout_s=timeout_s)
+
+
+@dataclass
+class _Run:
+    """What the exchanges measured."""
+
+    rtt_ns: np.ndarray
+    good: int = 0
+    timeouts: int = 0
+    mismatches: int = 0
+    elapsed_s: float = 0.0
+    interrupted: bool = False
+    attempted: int = 0
+
+
+def _exchanges(remote: RemoteTarget, link_name: str, periods: int, check: Target | None,
+               progress: Callable[[int], None] | None) -> _Run:
+    """The lockstep periods, each round trip timed; Ctrl-C keeps the figures so far (issue 16, item 18)."""
+    run = _Run(np.zeros(periods, dtype=np.int64))
+    step, clock = remote.step, time.perf_counter_ns
+    every = max(1, periods // 100)
+    consecutive = 0
+    t_start = clock()
+    run.attempted = periods
+    for k in range(periods):
+        sensors = sensors_for_period(k)
+        t0 = clock()
+        try:
+            drive = step(sensors)
+        except KeyboardInterrupt:
+            run.interrupted, run.attempted = True, k
+            break
+        except LinkTimeout:
+            run.timeouts += 1
+            consecutive += 1
+            if consecutive >= _MAX_CONSECUTIVE_TIMEOUTS:
+                raise LinkError(f"link {link_name}: {consecutive} periods in a row without a Drive (period {k})") from None
+            continue
+        run.rtt_ns[run.good] = clock() - t0
+        run.good += 1
+        consecutive = 0
+        if check is not None and drive != check.step(sensors):
+            run.mismatches += 1
+        if progress is not None and k % every == 0:
+            progress(k)
+    run.elapsed_s = (clock() - t_start) / 1e9
+    return run
+
+
+def _status(remote: RemoteTarget, interrupted: bool) -> dict[str, int]:
+    """The target's Status counters (none after an interrupt, or when it does not answer)."""
+    if interrupted:
+        return {}
+    try:
+        st = remote.status()
+    except LinkError:
+        return {}
+    return {name: int(getattr(st, name)) for name in st._fields if name != "seq"}
 
 
 __all__ = ["LinkTestResult", "run_link_test", "sensors_for_period"]

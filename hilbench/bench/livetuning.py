@@ -59,7 +59,7 @@ class LiveTuning:
         self.log: list[tuple[float, str]] = []
         self.trips: list[str] = []
         self.on_change: Callable[[float, str, dict[str, float]], None] | None = None
-        self._guard_until = -math.inf
+        self.watching = -math.inf  # until when the guard watches (−inf: not armed)
         self._guard_prev: dict[str, float] = {}
         self._guard_sign = 0
         self._guard_swings = 0
@@ -110,7 +110,7 @@ class LiveTuning:
         if self.on_change is not None:
             self.on_change(t_s, text, dict(values))
         if guard and previous and self.guard.enabled:
-            self._guard_until = t_s + self.guard.window_s
+            self.watching = t_s + self.guard.window_s
             self._guard_prev = previous
             self._guard_sign = 0
             self._guard_swings = 0
@@ -129,11 +129,6 @@ class LiveTuning:
             text = " ".join(f"{k}={v:g}" for k, v in values.items())
             raise ParamError(f"{self.label}: gains {text} break the firmware's {broken}")
         return previous
-
-    @property
-    def watching(self) -> float:
-        """Until when the guard watches (−inf: not armed)."""
-        return self._guard_until
 
     def guard_check(self, t_s: float, ref_rpm: float, speed_rpm: float, peak_a: float, state: int,
                     fault: int) -> str | None:
@@ -155,7 +150,7 @@ class LiveTuning:
                 reason = f"speed error oscillates beyond ±{guard.oscillation_rpm:g} rpm"
         if reason is None:
             return None
-        self._guard_until = -math.inf
+        self.watching = -math.inf
         restored = " ".join(f"{k}={v:g}" for k, v in self._guard_prev.items())
         try:
             self.set(self._guard_prev, t_s, guard=False)

@@ -96,101 +96,87 @@ def step_metrics(
     ``t_s`` must be increasing. ``current_a`` (same length) may be phase or bus current; its
     largest magnitude after the step is reported.
     """
-    t = np.asarray(t_s, dtype=float)
-    yy = np.asarray(y, dtype=float)
-    if t.ndim != 1 or t.shape != yy.shape:
-        raise ConfigError(f"step_metrics: t_s and y must be 1-D of equal length (got {t.shape} and {yy.shape})")
     step = float(y_final_ref) - float(y0)
-    if step == 0.0 or not math.isfinite(step):
-        raise ConfigError(f"step_metrics: step size must be finite and non-zero (y0={y0}, y_final_ref={y_final_ref})")
-    if not 0.0 < settle_band < 1.0:
-        raise ConfigError(f"step_metrics: settle_band must be in (0, 1), got {settle_band}")
-    if not 0.0 < ss_fraction <= 1.0:
-        raise ConfigError(f"step_metrics: ss_fraction must be in (0, 1], got {ss_fraction}")
-    cur = None
-    if current_a is not None:
-        cur = np.asarray(current_a, dtype=float)
-        if cur.shape != t.shape:
-            raise ConfigError(f"step_metrics: current_a has shape {cur.shape}, t_s has {t.shape}")
-    if t_step_s is None:
-        t_step = float(t[0]) if t.size else 0.0
-    else:
-        t_step = float(t_step_s)
-    keep = t >= t_step
-    t = t[keep] - t_step
-    yy = yy[keep]
-    if cur is not None:
-        cur = cur[keep]
-    if t.size < 2:
-        raise ConfigError(f"step_metrics: need at least 2 samples after the step at t={t_step} s, got {t.size}")
-    if np.any(np.diff(t) <= 0.0):
-        raise ConfigError("step_metrics: t_s must be strictly increasing")
-
+    _check_shape(step, y0, y_final_ref, settle_band, ss_fraction)
+    t, yy, cur = _after_step(t_s, y, current_a, t_step_s)
     z = (yy - y0) / step  # normalised: 0 before, 1 at the reference, in the step's direction
     abs_step = abs(step)
     duration = float(t[-1])
-
     t10 = _first_crossing(t, z, 0.1)
     t90 = _first_crossing(t, z, 0.9)
-    rise = (t90 - t10) if (t10 is not None and t90 is not None) else None
-
     i_peak = int(np.argmax(z))
     z_peak = float(z[i_peak])
-    overshoot_pct = max(0.0, (z_peak - 1.0) * 100.0)
-    peak_time = float(t[i_peak]) if z_peak > 1.0 else None
-    peak_value = float(yy[i_peak])
-
-    # Steady-state window: the last ss_fraction of the record (by time, at least one sample).
+    # steady state: the last ss_fraction of the record (by time, at least one sample)
     win = t >= duration * (1.0 - ss_fraction)
     if not np.any(win):
         win[-1] = True
     y_win = yy[win]
     ss_error = float(np.mean(y_final_ref - y_win)) * math.copysign(1.0, step)
     ss_ripple = float(np.max(y_win) - np.min(y_win))
-
-    # Settling: distance outside the band, > 0 means outside.
-    out = np.abs(z - 1.0) - settle_band
-    outside = out > 0.0
-    settling: float | None
-    if np.any(outside[win]):
-        settling = None
-    elif not np.any(outside):
-        settling = 0.0
-    else:
-        i = int(np.flatnonzero(outside)[-1])  # last sample outside; i + 1 is inside (window is)
-        d0, d1 = out[i], out[i + 1]
-        settling = float(t[i] + (t[i + 1] - t[i]) * d0 / (d0 - d1))
-
-    err = np.abs(y_final_ref - yy)
-    dt = np.diff(t)
-    iae = float(np.dot(0.5 * (err[1:] + err[:-1]), dt))  # trapezoid (np.trapz/trapezoid differ by numpy version)
-    te = t * err
-    itae = float(np.dot(0.5 * (te[1:] + te[:-1]), dt))
-
-    peak_current = float(np.max(np.abs(cur))) if cur is not None else None
-
+    iae, itae = _integrals(t, np.abs(y_final_ref - yy))
     return StepMetrics(
-        y0=float(y0),
-        y_final_ref=float(y_final_ref),
-        step_size=step,
-        rise_time_s=rise,
-        t10_s=t10,
-        t90_s=t90,
-        overshoot_pct=overshoot_pct,
-        peak_time_s=peak_time,
-        peak_value=peak_value,
-        settling_time_s=settling,
-        settle_band=float(settle_band),
-        ss_error=ss_error,
-        ss_error_pct=ss_error / abs_step * 100.0,
-        ss_ripple=ss_ripple,
-        ss_ripple_pct=ss_ripple / abs_step * 100.0,
-        iae=iae,
-        itae=itae,
-        peak_current_a=peak_current,
-        duration_s=duration,
-        n_samples=int(t.size),
+        y0=float(y0), y_final_ref=float(y_final_ref), step_size=step,
+        rise_time_s=(t90 - t10) if (t10 is not None and t90 is not None) else None, t10_s=t10, t90_s=t90,
+        overshoot_pct=max(0.0, (z_peak - 1.0) * 100.0), peak_time_s=float(t[i_peak]) if z_peak > 1.0 else None,
+        peak_value=float(yy[i_peak]), settling_time_s=_settling(t, z, win, settle_band),
+        settle_band=float(settle_band), ss_error=ss_error, ss_error_pct=ss_error / abs_step * 100.0,
+        ss_ripple=ss_ripple, ss_ripple_pct=ss_ripple / abs_step * 100.0, iae=iae, itae=itae,
+        peak_current_a=float(np.max(np.abs(cur))) if cur is not None else None,
+        duration_s=duration, n_samples=int(t.size),
     )
+
+
+def _check_shape(step: float, y0: float, y_final_ref: float, settle_band: float, ss_fraction: float) -> None:
+    if step == 0.0 or not math.isfinite(step):
+        raise ConfigError(f"step_metrics: step size must be finite and non-zero (y0={y0}, y_final_ref={y_final_ref})")
+    if not 0.0 < settle_band < 1.0:
+        raise ConfigError(f"step_metrics: settle_band must be in (0, 1), got {settle_band}")
+    if not 0.0 < ss_fraction <= 1.0:
+        raise ConfigError(f"step_metrics: ss_fraction must be in (0, 1], got {ss_fraction}")
+
+
+def _after_step(t_s: Sequence[float] | np.ndarray, y: Sequence[float] | np.ndarray,
+                current_a: Sequence[float] | np.ndarray | None,
+                t_step_s: float | None) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
+    """The samples from the step on, time from the step (checked: 1-D, equal lengths, increasing)."""
+    t = np.asarray(t_s, dtype=float)
+    yy = np.asarray(y, dtype=float)
+    if t.ndim != 1 or t.shape != yy.shape:
+        raise ConfigError(f"step_metrics: t_s and y must be 1-D of equal length (got {t.shape} and {yy.shape})")
+    cur = None
+    if current_a is not None:
+        cur = np.asarray(current_a, dtype=float)
+        if cur.shape != t.shape:
+            raise ConfigError(f"step_metrics: current_a has shape {cur.shape}, t_s has {t.shape}")
+    t_step = (float(t[0]) if t.size else 0.0) if t_step_s is None else float(t_step_s)
+    keep = t >= t_step
+    t = t[keep] - t_step
+    if t.size < 2:
+        raise ConfigError(f"step_metrics: need at least 2 samples after the step at t={t_step} s, got {t.size}")
+    if np.any(np.diff(t) <= 0.0):
+        raise ConfigError("step_metrics: t_s must be strictly increasing")
+    return t, yy[keep], (cur[keep] if cur is not None else None)
+
+
+def _settling(t: np.ndarray, z: np.ndarray, win: np.ndarray, settle_band: float) -> float | None:
+    """When the normalised response enters the band for good (None: outside it in the steady window)."""
+    out = np.abs(z - 1.0) - settle_band  # > 0: outside the band
+    outside = out > 0.0
+    if np.any(outside[win]):
+        return None
+    if not np.any(outside):
+        return 0.0
+    i = int(np.flatnonzero(outside)[-1])  # last sample outside; i + 1 is inside (window is)
+    d0, d1 = out[i], out[i + 1]
+    return float(t[i] + (t[i + 1] - t[i]) * d0 / (d0 - d1))
+
+
+def _integrals(t: np.ndarray, err: np.ndarray) -> tuple[float, float]:
+    """IAE and ITAE by the trapezoid rule (np.trapz/trapezoid differ by numpy version)."""
+    dt = np.diff(t)
+    iae = float(np.dot(0.5 * (err[1:] + err[:-1]), dt))
+    te = t * err
+    return iae, float(np.dot(0.5 * (te[1:] + te[:-1]), dt))
 
 
 # (key in StepMetrics, column header, unit) in the order tables and CSVs show them.

@@ -14,6 +14,7 @@ from hilbench.bench.clock import Pacer
 from hilbench.bench.recorder import MARKER_SKIPPED
 from hilbench.bench.streamstats import StreamingPercentiles
 from hilbench.errors import HilbenchError
+from hilbench.plant.period import Period
 from hilbench.protocol import Drive, Sensors
 
 
@@ -26,7 +27,7 @@ class RealtimePacing:
 
     def __init__(self, period_us: int, *, abort_after: int | None, label: str) -> None:
         self.period_us = period_us
-        self.period_s = period_us * 1e-6
+        self.period_s = Period(period_us).s
         self.pacer = Pacer(self.period_s)
         self.abort_after = abort_after  # consecutive overruns that end the run (None: never)
         self.label = label

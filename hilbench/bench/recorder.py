@@ -383,38 +383,33 @@ NPZ_CHUNK_ROWS = 65536
 
 
 def _write_npz_from_journal(path: Path, journal: Path, metadata: dict[str, Any]) -> None:
-    """The archive, column by column, from the journal mapped into memory and converted in chunks
-    of NPZ_CHUNK_ROWS rows: memory stays bounded however long the run (a 1 GB journal used to be
-    loaded whole), and the journal is not read once per column (the page cache serves the map)."""
+    """The archive from the journal in one pass: NPZ_CHUNK_ROWS raw rows at a time are read into
+    one reused buffer, every column of them converted and written at its place in the archive
+    (hilbench.bench.npzwriter). The close's memory is one chunk however long the run (a mapping
+    of the whole journal counted every page in the process's RSS: 1.5 GB at the close of a 600 s
+    run), and the journal is read once, not once per column."""
+    from hilbench.bench.npzwriter import ColumnArchive
+
     _, layout, _ = _read_journal_rows(journal, head_only=True)
     with open(journal, "rb") as handle:
         handle.seek(4)
         (head_len,) = struct.unpack("<I", handle.read(4))
-    start = 8 + head_len
-    dtype = layout.dtype
-    n_rows = max(0, (journal.stat().st_size - start) // dtype.itemsize)  # a torn last row is dropped
-    rows = np.memmap(journal, dtype=dtype, mode="r", offset=start, shape=(n_rows,)) if n_rows else \
-        np.zeros(0, dtype=dtype)
-    names = [name for name, _, _ in layout.column_specs]
-    try:
-        with zipfile.ZipFile(path, "w", compression=zipfile.ZIP_STORED) as archive:
-            for name in names:
-                info = zipfile.ZipInfo(name + ".npy", date_time=(1980, 1, 1, 0, 0, 0))
-                with archive.open(info, "w", force_zip64=True) as member:
-                    np.lib.format.write_array_header_1_0(
-                        member, {"descr": np.lib.format.dtype_to_descr(np.dtype("<f8")),
-                                 "fortran_order": False, "shape": (n_rows,)})
-                    for first in range(0, n_rows, NPZ_CHUNK_ROWS):
-                        column = layout.to_column(rows[first:first + NPZ_CHUNK_ROWS], name)
-                        member.write(np.ascontiguousarray(column, dtype="<f8").data)
-            info = zipfile.ZipInfo("metadata.npy", date_time=(1980, 1, 1, 0, 0, 0))
-            with archive.open(info, "w", force_zip64=True) as member:
-                np.lib.format.write_array(member, np.asarray(json.dumps(metadata, default=str)), allow_pickle=False)
-    finally:
-        mapping = getattr(rows, "_mmap", None)
-        del rows
-        if mapping is not None:
-            mapping.close()
+        start = 8 + head_len
+        handle.seek(start)
+        itemsize = layout.dtype.itemsize
+        n_rows = max(0, (os.fstat(handle.fileno()).st_size - start) // itemsize)  # a torn last row is dropped
+        names = [name for name, _, _ in layout.column_specs]
+        buffer = bytearray(min(NPZ_CHUNK_ROWS, max(n_rows, 1)) * itemsize)
+        with ColumnArchive(path, names, n_rows) as archive:
+            for first in range(0, n_rows, NPZ_CHUNK_ROWS):
+                count = min(NPZ_CHUNK_ROWS, n_rows - first)
+                view = memoryview(buffer)[: count * itemsize]
+                if handle.readinto(view) != len(view):  # the journal is read in order, once
+                    raise RecordingError(f"recording {journal}: shorter than it was a moment ago")
+                rows = np.frombuffer(view, dtype=layout.dtype, count=count)
+                archive.write(first, {name: layout.to_column(rows, name) for name in names})
+                del rows
+            archive.add("metadata", np.asarray(json.dumps(metadata, default=str)))
 
 
 def _write_npz_deterministic(path: Path, arrays: dict[str, np.ndarray]) -> None:
@@ -446,7 +441,8 @@ class RecordingData:
 
 
 def read_recording(path: str | Path) -> RecordingData:
-    """Read a CSV, NPZ or NPZ journal recording; a truncated tail is tolerated."""
+    """Read a CSV, NPZ or NPZ journal recording; a truncated tail is tolerated. What is read is
+    checked (hilbench.bench.recording_checks): a damaged file is one RecordingError line."""
     path = Path(path)
     if not path.exists():
         journal = path.with_name(path.name + ".journal")
@@ -456,74 +452,143 @@ def read_recording(path: str | Path) -> RecordingData:
             raise RecordingError(f"recording {path}: no such file")
     try:
         if path.name.endswith(".journal"):
-            return _read_journal(path)
-        if path.suffix.lower() == ".npz":
-            return _read_npz(path)
-        return _read_csv(path)
+            data = _read_journal(path)
+        elif path.suffix.lower() == ".npz":
+            data = _read_npz(path)
+        else:
+            data = _read_csv(path)
+        return _checked(data)
     except RecordingError:
         raise
-    except (OSError, ValueError, KeyError, EOFError, IndexError, TypeError, struct.error, zipfile.BadZipFile,
-            json.JSONDecodeError, UnicodeDecodeError) as exc:
+    except (OSError, ValueError, KeyError, EOFError, IndexError, TypeError, AttributeError, OverflowError,
+            RecursionError, struct.error, zipfile.BadZipFile, json.JSONDecodeError, UnicodeDecodeError) as exc:
         reason = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
         if "allow_pickle" in reason or "pickle" in reason.lower():  # NumPy's advice for foreign bytes: never give it
             reason = "not an NPZ archive written by hilbench"
         raise RecordingError(f"recording {path}: unreadable ({reason[:160]})") from None
 
 
+def _checked(data: RecordingData) -> RecordingData:
+    from hilbench.bench import recording_checks as check
+
+    where = str(data.path)
+    metadata = check.check_metadata(where, data.metadata)
+    columns = check.check_columns(where, data.columns, ("t_s", "marker"))
+    events = check.check_events(where, data.events)
+    units = {str(k): str(v) for k, v in data.units.items()}
+    formats = {str(k): str(v) for k, v in data.formats.items() if _csv_format(v)}
+    return RecordingData(data.path, columns, metadata, events, units, formats)
+
+
+def _csv_format(text: object) -> bool:
+    """A printf format of one number (what export_csv may use), e.g. %.3f or %d; nothing else."""
+    import re
+
+    return isinstance(text, str) and re.fullmatch(r"%[-+ 0#]?\d{0,2}(\.\d{1,2})?[dfgeE]", text) is not None
+
+
+def _csv_lines(handle: Any, path: Path) -> Any:
+    """The file's lines, each within its limit (a ``#`` line RECORDING_META_MAX_BYTES, a row or the
+    header RECORDING_LINE_MAX_BYTES): RecordingError at the first longer one."""
+    from hilbench.limits import RECORDING_LINE_MAX_BYTES, RECORDING_META_MAX_BYTES
+
+    while line := handle.readline(RECORDING_META_MAX_BYTES + 1):
+        if len(line) > RECORDING_META_MAX_BYTES and not line.endswith("\n"):
+            raise RecordingError(f"recording {path}: a line longer than {RECORDING_META_MAX_BYTES} characters")
+        if len(line) > RECORDING_LINE_MAX_BYTES and not line.startswith("#"):
+            raise RecordingError(f"recording {path}: a row or header longer than {RECORDING_LINE_MAX_BYTES} characters")
+        yield line
+
+
+def _csv_comment(line: str, metadata: dict[str, Any], events: list[str]) -> bool:
+    """A ``# event: ...`` or ``# key: JSON`` line into events or metadata (False: not a comment)."""
+    if line.startswith("# event: "):
+        events.append(line[len("# event: "):].rstrip("\n"))
+        return True
+    if not line.startswith("# "):
+        return False
+    key, _, value = line[2:].partition(": ")
+    try:
+        metadata[key] = json.loads(value)
+    except (json.JSONDecodeError, RecursionError):
+        metadata[key] = value.rstrip("\n")
+    return True
+
+
+def _csv_header(path: Path, line: str) -> tuple[list[str], dict[str, str]]:
+    from hilbench.bench.recording_checks import check_columns_fit
+
+    cells = line.strip().split(",")
+    names = [cell.split("[", 1)[0] for cell in cells]
+    units = {cell.split("[", 1)[0]: cell.split("[", 1)[1].rstrip("]") for cell in cells if "[" in cell}
+    if "t_s" not in names or "marker" not in names or len(set(names)) != len(names):
+        raise RecordingError(f"recording {path}: not a hilbench CSV (header does not match)")
+    check_columns_fit(str(path), len(names), 0)
+    return names, units
+
+
 def _read_csv(path: Path) -> RecordingData:
+    from hilbench.bench.recording_checks import check_columns_fit
+
     metadata: dict[str, Any] = {}
     events: list[str] = []
-    values: list[list[float]] = []
-    header_seen = False
-    names: list[str] = []
+    blocks: list[np.ndarray] = []
+    block: list[list[float]] = []
+    names: list[str] | None = None
     units: dict[str, str] = {}
     with open(path, encoding="utf-8") as handle:
-        for line in handle:
-            if line.startswith("# event: "):
-                events.append(line[len("# event: "):].rstrip("\n"))
+        for line in _csv_lines(handle, path):
+            if _csv_comment(line, metadata, events):
                 continue
-            if line.startswith("# "):
-                key, _, value = line[2:].partition(": ")
-                try:
-                    metadata[key] = json.loads(value)
-                except json.JSONDecodeError:
-                    metadata[key] = value.rstrip("\n")
-                continue
-            if not header_seen:
-                cells = line.strip().split(",")
-                names = [cell.split("[", 1)[0] for cell in cells]
-                units = {cell.split("[", 1)[0]: cell.split("[", 1)[1].rstrip("]") for cell in cells if "[" in cell}
-                if "t_s" not in names or "marker" not in names or len(set(names)) != len(names):
-                    raise RecordingError(f"recording {path}: not a hilbench CSV (header does not match)")
-                header_seen = True
+            if names is None:
+                names, units = _csv_header(path, line)
                 continue
             cells = line.rstrip("\n").split(",")
             if len(cells) != len(names) or not line.endswith("\n"):
                 break  # a row cut by a crash: everything before it stands
-            values.append([float(cell) for cell in cells])
-    if not header_seen:
+            block.append([float(cell) for cell in cells])
+            if len(block) >= 4096:  # rows into arrays as they come: a list of floats is 4x their size
+                blocks.append(np.asarray(block, dtype=float))
+                block = []
+                check_columns_fit(str(path), len(names), 4096 * len(blocks))
+    if names is None:
         raise RecordingError(f"recording {path}: no header line (empty or not a hilbench CSV)")
-    table = np.asarray(values, dtype=float).reshape(-1, len(names))
+    blocks.append(np.asarray(block, dtype=float).reshape(-1, len(names)))
+    table = np.concatenate(blocks) if len(blocks) > 1 else blocks[0]
     columns = {name: table[:, i].copy() for i, name in enumerate(names)}
     return RecordingData(path, columns, metadata, tuple(events), units)
 
 
-def _read_journal_rows(path: Path, head_only: bool = False) -> tuple[dict[str, Any], RowLayout, memoryview]:
+def _read_journal_rows(path: Path, head_only: bool = False) -> tuple[dict[str, Any], RowLayout, Any]:
     """A journal's metadata, row layout and raw rows (to_columns drops a torn last row; with
-    ``head_only`` no rows are read)."""
+    ``head_only`` no rows are read; else they are mapped, not read into memory)."""
+    from hilbench.limits import RECORDING_META_MAX_BYTES
+
+    with open(path, "rb") as handle:
+        raw = handle.read(8)
+        if raw[:4] != _JOURNAL_MAGIC or len(raw) < 8:
+            raise RecordingError(f"recording {path}: not a hilbench journal (or written before its first row)")
+        (head_len,) = struct.unpack_from("<I", raw, 4)
+        if head_len > RECORDING_META_MAX_BYTES:
+            raise RecordingError(f"recording {path}: a header of {head_len} bytes, more than the limit of "
+                                 f"{RECORDING_META_MAX_BYTES // (1024 * 1024)} MiB")
+        head_bytes = handle.read(head_len)
+    if len(head_bytes) < head_len:
+        raise RecordingError(f"recording {path}: the header is cut short")
+    head = json.loads(head_bytes)
+    if not isinstance(head, dict) or not isinstance(head.get("layout"), dict):
+        raise RecordingError(f"recording {path}: not a hilbench journal (no row layout in its header)")
+    layout = RowLayout.from_json(head["layout"])
     if head_only:
-        with open(path, "rb") as handle:
-            raw = handle.read(8)
-            if raw[:4] == _JOURNAL_MAGIC and len(raw) == 8:
-                raw += handle.read(struct.unpack_from("<I", raw, 4)[0])
-    else:
-        raw = path.read_bytes()
-    if raw[:4] != _JOURNAL_MAGIC or len(raw) < 8:
-        raise RecordingError(f"recording {path}: not a hilbench journal (or written before its first row)")
-    (head_len,) = struct.unpack_from("<I", raw, 4)
+        return head.get("metadata"), layout, b""
     start = 8 + head_len
-    head = json.loads(raw[8:start])
-    return head["metadata"], RowLayout.from_json(head["layout"]), memoryview(raw)[start:]
+    n_rows = max(0, (path.stat().st_size - start) // layout.dtype.itemsize)  # a torn last row is dropped
+    from hilbench.bench.recording_checks import check_columns_fit
+
+    check_columns_fit(str(path), len(layout.columns), n_rows)
+    rows = np.memmap(path, dtype=layout.dtype, mode="r", offset=start, shape=(n_rows,)) if n_rows else \
+        np.zeros(0, dtype=layout.dtype)
+    return head.get("metadata"), layout, rows
 
 
 def _events_path(journal: Path) -> Path:
@@ -532,19 +597,63 @@ def _events_path(journal: Path) -> Path:
 
 
 def _read_journal(path: Path) -> RecordingData:
+    from hilbench.limits import RECORDING_META_MAX_BYTES, read_text_bounded
+
     metadata, layout, rows = _read_journal_rows(path)
     columns = layout.to_columns(rows)
+    del rows
     side = _events_path(path)
-    events = side.read_text(encoding="utf-8").splitlines() if side.exists() else []
+    events = read_text_bounded(side, RECORDING_META_MAX_BYTES, RecordingError, f"recording {side}").splitlines() \
+        if side.exists() else []
     units = {name: unit for name, unit, _ in layout.column_specs}
     formats = {name: fmt for name, _, fmt in layout.column_specs}
     return RecordingData(path, columns, metadata, tuple(events), units, formats)
 
 
+def _npz_members(path: Path, archive: zipfile.ZipFile) -> None:
+    """Refuse an archive before NumPy reads it: too many members, a metadata member beyond its
+    limit, a member whose header promises more values than the member holds (np.load would
+    allocate what the header says), or more column data than a recording may have."""
+    from hilbench.bench.recording_checks import check_columns_fit
+    from hilbench.limits import RECORDING_META_MAX_BYTES
+
+    infos = archive.infolist()
+    check_columns_fit(str(path), len(infos) - 1, 0)
+    n_rows = 0
+    for info in infos:
+        if info.filename == "metadata.npy":
+            if info.file_size > RECORDING_META_MAX_BYTES:
+                raise RecordingError(f"recording {path}: metadata of {info.file_size} bytes, more than the limit of "
+                                     f"{RECORDING_META_MAX_BYTES // (1024 * 1024)} MiB")
+            continue
+        with archive.open(info) as member:
+            version = np.lib.format.read_magic(member)
+            read_header = np.lib.format.read_array_header_1_0 if version == (1, 0) else \
+                np.lib.format.read_array_header_2_0
+            shape, _, dtype = read_header(member)
+            header_end = member.tell()
+        count = int(np.prod(shape, dtype=np.int64)) if shape else 1
+        if dtype.hasobject or count < 0 or header_end + count * dtype.itemsize > info.file_size:
+            raise RecordingError(f"recording {path}: member {info.filename[:40]} promises {count} values of "
+                                 f"{dtype} in {info.file_size} bytes")
+        n_rows = max(n_rows, count)
+    check_columns_fit(str(path), len(infos) - 1, n_rows)
+
+
 def _read_npz(path: Path) -> RecordingData:
+    with zipfile.ZipFile(path) as archive:
+        _npz_members(path, archive)
     with np.load(path, allow_pickle=False) as archive:
         metadata = json.loads(str(archive["metadata"]))
+        if not isinstance(metadata, dict):
+            raise RecordingError(f"recording {path}: metadata is not a table")
         specs = metadata.get("columns") or [list(spec) for spec in COLUMNS]  # [name, unit(, format)]
+        if not isinstance(specs, list) or not all(isinstance(s, list) and len(s) in (2, 3) for s in specs):
+            raise RecordingError(f"recording {path}: metadata columns is not a list of [name, unit(, format)]")
+        members = set(archive.files)
+        missing = [str(spec[0]) for spec in specs if str(spec[0]) not in members]
+        if missing:
+            raise RecordingError(f"recording {path}: no column {missing[0][:40]} in the archive")
         columns = {str(spec[0]): archive[str(spec[0])] for spec in specs}
     units = {str(spec[0]): str(spec[1]) for spec in specs}
     formats = {str(spec[0]): str(spec[2]) for spec in specs if len(spec) > 2}
@@ -595,12 +704,21 @@ class MemoryRecorder:
         return self.rows.columns()
 
 
+def _export_format(fmt: str, values: np.ndarray) -> str:
+    """``fmt``, unless it is an integer format and the column holds a value that is no integer
+    (NaN or infinity: "%d" cannot write them): then one that writes every value."""
+    if fmt.endswith("d") and not np.isfinite(values).all():
+        return "%.6g"
+    return fmt
+
+
 def export_csv(data: RecordingData, path: str | Path) -> Path:
     """Write a recording (e.g. a fast NPZ one) as the same CSV a `--record run.csv` run writes."""
     out = Recorder(Path(path), dict(data.metadata), flush_rows=max(1, data.n_rows))
     out.metadata.pop("columns", None)
     fmts = {name: fmt for name, _, fmt in COLUMNS}
-    specs = [(name, data.units.get(name, ""), data.formats.get(name) or fmts.get(name, "%.6g")) for name in data.columns]
+    specs = [(name, data.units.get(name, ""), _export_format(data.formats.get(name) or fmts.get(name, "%.6g"),
+                                                           data.columns[name])) for name in data.columns]
     out.start(float_layout(specs))
     names = list(data.columns)
     table = np.column_stack([data.columns[name] for name in names]) if data.n_rows else np.zeros((0, len(names)))

@@ -7,8 +7,9 @@ from typing import Any
 
 import numpy as np
 
-from hilbench.bench.recorder import MARKER_FAULT, MARKER_SKIPPED, RecordingData
 from hilbench.bench import segments as segmentation
+from hilbench.bench.recorder import MARKER_FAULT, MARKER_SKIPPED, RecordingData
+from hilbench.plant.period import Period
 
 _EVENT_TIME = re.compile(r"^t=([0-9.]+) (.*)$")
 _REF = re.compile(r"^ref (-?[0-9.]+) rpm")
@@ -30,9 +31,9 @@ def reference_segments(data: RecordingData) -> list[dict[str, float]]:
     c = data.columns
     t = c["t_s"]
     period_us = data.metadata.get("period_us")
-    if len(t) == 0 or not isinstance(period_us, (int, float)) or period_us <= 0:
+    if len(t) == 0 or "speed_rpm" not in c or not isinstance(period_us, int) or period_us <= 0:
         return []
-    period_s = period_us * 1e-6
+    period_s = Period(period_us).s
     every = int(data.metadata.get("history_every_periods", 20) or 20)
     firmware = c.get("measured_speed_rpm")  # the target's own speed, where it reports one
     measured = firmware if firmware is not None else np.full(len(t), np.nan)
@@ -82,13 +83,15 @@ def summarise(data: RecordingData) -> dict[str, Any]:
         "period_us": meta.get("period_us", "?"),
         "seed": meta.get("seed", "?"),
         "ended": how_it_ended(data),
-        "fault_rows": [int(c["seq"][i]) for i in faults],
+        "fault_rows": [int(c["seq"][i]) if "seq" in c else int(i) for i in faults],
     }
-    if n:
+    if n and "speed_rpm" in c:
         info["max_speed_rpm"] = round(float(np.max(np.abs(c["speed_rpm"]))), 2)
+    if n and all(name in c for name in ("ia_a", "ib_a", "ic_a")):
         info["max_phase_current_a"] = round(float(np.max(np.abs(np.stack([c["ia_a"], c["ib_a"], c["ic_a"]])))), 4)
+    if n and "ibus_a" in c:
         info["max_bus_current_a"] = round(float(np.max(np.abs(c["ibus_a"]))), 4)
-    if n and meta.get("mode") == "realtime":
+    if n and meta.get("mode") == "realtime" and "rtt_us" in c and "lateness_us" in c:
         info.update(realtime_timing(data))
     info["segments"] = [
         f"{s['from_s']:.2f}-{s['to_s']:.2f} s: ref {s['ref_rpm']:+.0f} rpm, plant {s['plant_rpm']:+.1f}, "

@@ -12,9 +12,11 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Callable, Sequence
 
 from hilbench.bench import settings
-from hilbench.bench.bench import Bench, configured_profile, connect
-from hilbench.bench.session import Session, SessionOptions, Snapshot, Summary
-from hilbench.config import BenchConfig, load_config, plant_params_from_config
+from hilbench.bench.assembly import build_bench
+from hilbench.bench.bench import Bench
+from hilbench.bench.session import Session, Snapshot, Summary
+from hilbench.bench.settings import load_config
+from hilbench.config import BenchConfig
 from hilbench.errors import ConfigError, LinkError
 from hilbench.targets.profile import TargetProfile
 
@@ -117,28 +119,16 @@ def run_step_tests(
     gain_sets: Sequence[dict[str, float]],
     progress: Callable[[int, int], None] | None = None,
 ) -> list["StepResult"]:
-    """One step test per parameter set on the configured target (a fresh target and plant each)."""
+    """One step test per parameter set on the configured target (a fresh bench each)."""
     from hilbench.bench.steptest import run_step
-    from hilbench.plant.model import Plant
 
-    options = dataclasses.replace(
-        settings.session_options(cfg), seed=settings.effective_seed(cfg), duration_s=test.duration_s, history_every_periods=1_000_000
-    )
+    options = dataclasses.replace(settings.session_options(cfg), duration_s=test.duration_s,
+                                  history_every_periods=1_000_000)
     results = []
     sets = list(gain_sets) or [{}]
-    profile = configured_profile(cfg)
     for index, gains in enumerate(sets):
-        handle = connect(cfg, options, profile)
-        try:
-            def make(events, opts, recorder, handle=handle):  # type: ignore[no-untyped-def]
-                plant = Plant(plant_params_from_config(cfg, profile.pwm_timing if profile else None), seed=opts.seed,
-                              substeps=cfg.plant.substeps)
-                return Session(handle.target, plant, events, opts, recorder=recorder, profile=profile,
-                               link_stats=handle.link_stats, target_label=handle.label)
-
-            results.append(run_step(make, test, gains, options))
-        finally:
-            handle.close()
+        results.append(run_step(lambda events, recorder: build_bench(cfg, events=events, options=options,
+                                                                    recorder=recorder), test, gains))
         if progress is not None:
             progress(index + 1, len(sets))
     return results

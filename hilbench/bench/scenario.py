@@ -3,29 +3,18 @@
 A scenario is a sorted tuple of events. Each event acts at ``at_s``; a reference or bus change
 with ``ramp_s > 0`` ramps linearly from the value in force to the new one. The session asks
 ``ScenarioPlayer.due(t_s, period_s)`` in the period that contains the next event's time
-(`first_period_at`: integer period index, a documented tolerance for binary round-off).
+(`plant.period.first_period_at`: integer period index, a documented tolerance for binary
+round-off). The `[[scenario]]` tables are validated with the whole config (`settings.ScenarioEntry`).
 """
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass
-from typing import Any, Iterable, Literal, Mapping
+from typing import Iterable
 
-from hilbench.errors import ConfigError
+from hilbench.bench.faults import FAULT_KINDS
+from hilbench.plant.period import PERIOD_TOLERANCE, first_period_at
 
-FaultKind = Literal[
-    "hall_a_high",
-    "hall_a_low",
-    "hall_b_high",
-    "hall_b_low",
-    "hall_c_high",
-    "hall_c_low",
-    "hall_missing_edge",
-    "encoder_glitch",
-    "clear",
-]
-FAULT_KINDS: tuple[str, ...] = FaultKind.__args__  # type: ignore[attr-defined]
 BUTTONS = ("s2", "s3")
 
 
@@ -41,7 +30,7 @@ class Event:
     load_kind: str = "constant"       # constant N*m | linear N*m per rad/s | quadratic N*m per (rad/s)^2 | locked
     vbus_v: float | None = None
     press: str | None = None          # "s2" (start/stop) or "s3"
-    fault: str | None = None          # a FaultKind
+    fault: str | None = None          # one of faults.FAULT_KINDS
     fault_duration_s: float | None = None
     params: tuple[tuple[str, float], ...] = ()  # live parameter writes, e.g. (("kp", 0.2),)
     end: bool = False                 # end the run here
@@ -65,75 +54,7 @@ class Event:
         return "end"
 
 
-_ACTION_KEYS = ("ref_rpm", "pot", "load_nm", "vbus_v", "press", "fault", "params", "end")
-_ALLOWED_KEYS = set(_ACTION_KEYS) | {"at_s", "ramp_s", "load_kind", "fault_duration_s"}
 LOAD_KINDS = ("constant", "linear", "quadratic", "locked")
-
-
-def event_from_mapping(raw: Mapping[str, Any], where: str) -> tuple[Event | None, list[str]]:
-    """Validate one ``[[scenario]]`` table; returns the event or the list of problems."""
-    import difflib
-
-    problems: list[str] = []
-    for key in raw:
-        if key not in _ALLOWED_KEYS:
-            close = difflib.get_close_matches(key, sorted(_ALLOWED_KEYS), n=1)
-            hint = f" (did you mean {close[0]!r}?)" if close else ""
-            problems.append(f"{where} {key}: unknown key{hint}")
-    actions = [key for key in _ACTION_KEYS if key in raw]
-    if len(actions) != 1:
-        problems.append(f"{where}: needs exactly one of {', '.join(_ACTION_KEYS)} (found {actions or 'none'})")
-    at_s = raw.get("at_s")
-    if not isinstance(at_s, (int, float)) or isinstance(at_s, bool) or at_s < 0:
-        problems.append(f"{where} at_s: must be a number of seconds >= 0 (got {at_s!r})")
-    for key in ("ref_rpm", "pot", "load_nm", "vbus_v", "ramp_s", "fault_duration_s"):
-        if key in raw and (not isinstance(raw[key], (int, float)) or isinstance(raw[key], bool)):
-            problems.append(f"{where} {key}: must be a number (got {raw[key]!r})")
-    if isinstance(raw.get("pot"), (int, float)) and not 0.0 <= raw["pot"] <= 1.0:
-        problems.append(f"{where} pot: must be within 0..1 (got {raw['pot']!r})")
-    if isinstance(raw.get("vbus_v"), (int, float)) and not 0.0 <= raw["vbus_v"] <= 1000.0:
-        problems.append(f"{where} vbus_v: must be within 0..1000 V (got {raw['vbus_v']!r})")
-    if isinstance(raw.get("ramp_s"), (int, float)) and raw["ramp_s"] < 0:
-        problems.append(f"{where} ramp_s: must be >= 0")
-    if "press" in raw and raw["press"] not in BUTTONS:
-        problems.append(f"{where} press: must be one of {', '.join(BUTTONS)} (got {raw['press']!r})")
-    if "fault" in raw and raw["fault"] not in FAULT_KINDS:
-        close = difflib.get_close_matches(str(raw["fault"]), FAULT_KINDS, n=1)
-        hint = f" (did you mean {close[0]!r}?)" if close else ""
-        problems.append(f"{where} fault: unknown fault {raw['fault']!r}{hint}; known: {', '.join(FAULT_KINDS)}")
-    if "load_kind" in raw and raw["load_kind"] not in LOAD_KINDS:
-        problems.append(f"{where} load_kind: must be one of {', '.join(LOAD_KINDS)}")
-    params: tuple[tuple[str, float], ...] = ()
-    if "params" in raw:
-        if not isinstance(raw["params"], Mapping) or not all(
-            isinstance(v, (int, float)) and not isinstance(v, bool) for v in raw["params"].values()
-        ):
-            problems.append(f"{where} params: must be a table of name = number")
-        else:
-            params = tuple((str(k), float(v)) for k, v in raw["params"].items())
-    if "end" in raw and raw["end"] is not True:
-        problems.append(f"{where} end: must be true")
-    if problems:
-        return None, problems
-    fields = {k: v for k, v in raw.items() if k not in ("params",)}
-    for key in ("ref_rpm", "pot", "load_nm", "vbus_v", "ramp_s", "fault_duration_s", "at_s"):
-        if key in fields:
-            fields[key] = float(fields[key])
-    return Event(params=params, **fields), []
-
-
-def scenario_from_list(raw_events: Iterable[Mapping[str, Any]], where: str) -> tuple[Event, ...]:
-    """Validate a whole ``[[scenario]]`` list; raises one ConfigError with every problem."""
-    events: list[Event] = []
-    problems: list[str] = []
-    for index, raw in enumerate(raw_events):
-        event, errs = event_from_mapping(raw, f"{where} [[scenario]] #{index + 1}")
-        problems.extend(errs)
-        if event is not None:
-            events.append(event)
-    if problems:
-        raise ConfigError("; ".join(problems))
-    return tuple(sorted(events, key=lambda e: e.at_s))
 
 
 def default_scenario() -> tuple[Event, ...]:
@@ -154,24 +75,6 @@ def default_scenario() -> tuple[Event, ...]:
         Event(at_s=3.6, press="s2"),
         Event(at_s=3.8, end=True),
     )
-
-
-#: a time within this fraction of a period of a period boundary is on the boundary (2.2 s is not
-#: representable in binary: 2.2 / 50e-6 = 43999.99999999999; it belongs to period 44 000)
-PERIOD_TOLERANCE = 1e-6
-
-
-def first_period_at(t_s: float, period_s: float) -> float:
-    """The period that contains time ``t_s``: period k covers [k * period_s, (k + 1) * period_s),
-    so an event at t_s fires in period floor(t_s / period_s), a time within PERIOD_TOLERANCE of a
-    period of a boundary counting as on it. inf beyond any run (t_s / period_s >= 2^50)."""
-    if t_s == math.inf or not t_s / period_s < 2.0**50:
-        return math.inf
-    q = t_s / period_s
-    k = math.floor(q)
-    if q - k > 1.0 - PERIOD_TOLERANCE:  # just below a boundary by float round-off: on it
-        k += 1
-    return max(0, k)
 
 
 @dataclass
@@ -200,7 +103,7 @@ class ScenarioPlayer:
 
     def due(self, t_s: float, period_s: float | None = None) -> list[Event]:
         """Events whose time has come: with ``period_s``, every event in the period that starts at
-        ``t_s`` or before (hilbench.bench.session.first_period_at: the period containing its time);
+        ``t_s`` or before (`first_period_at`: the period containing its time);
         without, every event at or before ``t_s``."""
         out: list[Event] = []
         events = self.events
@@ -234,3 +137,7 @@ class ScenarioPlayer:
             if event.ref_rpm is not None:
                 value = event.ref_rpm
         return value
+
+
+__all__ = ["BUTTONS", "Event", "FAULT_KINDS", "LOAD_KINDS", "PERIOD_TOLERANCE", "Ramp", "ScenarioPlayer",
+           "default_scenario", "first_period_at"]

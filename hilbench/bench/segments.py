@@ -114,16 +114,24 @@ def is_segment_event(text: str) -> bool:
     return text.startswith(EVENT_PREFIX)
 
 
+def parse_segment_event(text: str) -> tuple[float, str, float, float] | None:
+    """A ``segment:`` event as (time, kind, ref, ramp); None for other events; ValueError for one
+    whose numbers are not finite (no session writes that: a damaged recording)."""
+    match = _EVENT.match(text)
+    if not match:
+        return None
+    kind, when, ref, ramp = match.groups()
+    numbers = (float(when), float(ref or 0.0), float(ramp or 0.0))
+    if not all(math.isfinite(x) for x in numbers):
+        raise ValueError(f"segment event {text[:60]!r}: a number that is not finite")
+    return numbers[0], kind, numbers[1], numbers[2]
+
+
 def replay(events: Iterable[str], t_s: Sequence[float], plant_rpm: Sequence[float], measured_rpm: Sequence[float],
            period_s: float, every_periods: int, end_s: float) -> list[Segment]:
     """The segments of a recording: its ``segment:`` events over the rows the session sampled
     (every ``every_periods``-th period, at k * period_s, as the session's own history)."""
-    calls: list[tuple[float, str, float, float]] = []
-    for text in events:
-        match = _EVENT.match(text)
-        if match:
-            kind, when, ref, ramp = match.groups()
-            calls.append((float(when), kind, float(ref or 0.0), float(ramp or 0.0)))
+    calls = [call for call in map(parse_segment_event, events) if call is not None]
     segmenter = Segmenter()
     i = 0
     for row in range(len(t_s)):
@@ -150,4 +158,5 @@ def _apply(segmenter: Segmenter, call: tuple[float, str, float, float]) -> None:
         segmenter.end(when)
 
 
-__all__ = ["Segmenter", "replay", "reference_event", "press_event", "end_event", "is_segment_event", "START_PRESS_S"]
+__all__ = ["Segmenter", "replay", "reference_event", "press_event", "end_event", "is_segment_event", "parse_segment_event",
+           "START_PRESS_S"]

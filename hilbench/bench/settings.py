@@ -1,26 +1,29 @@
-"""The bench's config tables: [run], [link], [target] and [[scenario]].
+"""The bench's config tables ([run], [link], [target], [tuning], [[scenario]], [[check]]) and
+what a session is made of them (`SessionOptions`, `GuardSettings`).
 
-Registered with hilbench.config so a bench file is validated as a whole — plant and bench
-tables together, every problem at once.
+`SECTIONS` is the bench's registry: the plant's tables and these, so a bench file is validated as
+a whole — plant and bench tables together, every problem at once. `load_config` here (the API's
+`hilbench.load_config`) reads a bench config with it.
 """
 
 from __future__ import annotations
 
+import difflib
 from dataclasses import dataclass, field
-from typing import Any, Literal
+from pathlib import Path
+from typing import Any, Literal, Sequence
 
-from hilbench.bench.scenario import FAULT_KINDS, LOAD_KINDS, Event, default_scenario
-from hilbench.bench.session import GuardSettings, SessionOptions
-from hilbench.config import BenchConfig, register_section, spec
+from hilbench.bench.checks import CheckEntry
+from hilbench.bench.livetuning import GuardSettings
+from hilbench.bench.faults import FAULT_KINDS
+from hilbench.bench.scenario import LOAD_KINDS, Event, default_scenario
+from hilbench.config import PLANT_SECTIONS, BenchConfig
+from hilbench.config import load_config as _load_tables
 from hilbench.errors import ConfigError
+from hilbench.fieldspec import spec
 from hilbench.targets.profile import TargetProfile
 from hilbench.targets.registry import DEFAULT_TARGET, get_profile
 
-FaultName = Literal[
-    "hall_a_high", "hall_a_low", "hall_b_high", "hall_b_low", "hall_c_high", "hall_c_low",
-    "hall_missing_edge", "encoder_glitch", "clear",
-]
-assert FaultName.__args__ == FAULT_KINDS  # type: ignore[attr-defined]
 LoadKind = Literal["constant", "linear", "quadratic", "locked"]
 assert LoadKind.__args__ == LOAD_KINDS  # type: ignore[attr-defined]
 
@@ -43,7 +46,7 @@ class LinkSection:
     period_us: int = field(default=50, metadata=spec(unit="us", ge=50, le=6000, doc="one exchange per period"))
     timeout_ms: int = field(default=500, metadata=spec(unit="ms", ge=1, le=60000, doc="silence that ends the run"))
     retry_ms: int = field(default=100, metadata=spec(unit="ms", ge=1, le=60000, doc="send a frame again after this long without its answer (a lost frame costs a retry, not the run)"))
-    watchdog_ms: int = field(default=100, metadata=spec(unit="ms", ge=0, le=60000, doc="target turns PWM off after this silence (real time)"))
+    watchdog_ms: int = field(default=100, metadata=spec(unit="ms", ge=0, le=60000, doc="target turns its outputs off after this silence (real time; lockstep: at least 1 s, the firmware left as it was, the next Sensors gives them back)"))
     actuation_delay_periods: int = field(default=0, metadata=spec(ge=0, le=100, doc="extra whole periods before duties reach the plant"))
     overrun_policy: Literal["continue", "abort"] = "continue"
     max_consecutive_overruns: int = field(default=10, metadata=spec(ge=1, le=1_000_000))
@@ -65,7 +68,7 @@ class ScenarioEntry:
     load_kind: LoadKind = "constant"
     vbus_v: float | None = field(default=None, metadata=spec(unit="V", ge=0, le=1500))
     press: Literal["s2", "s3"] | None = None
-    fault: FaultName | None = None
+    fault: str | None = field(default=None, metadata=spec(doc="a sensor fault (bench.faults.FAULT_KINDS)"))
     fault_duration_s: float | None = field(default=None, metadata=spec(unit="s", gt=0))
     set: dict[str, float] | None = field(default=None, metadata=spec(doc="live parameter change, e.g. { kp = 0.12 }"))
     end: bool = False
@@ -76,6 +79,10 @@ class ScenarioEntry:
             actions.append("end")
         if len(actions) != 1:
             return [("at_s", f"needs exactly one action of ref_rpm, pot, load_nm, vbus_v, press, fault, set, end (found {actions or 'none'})")]
+        if self.fault is not None and self.fault not in FAULT_KINDS:
+            close = difflib.get_close_matches(self.fault, FAULT_KINDS, n=1)
+            hint = f" (did you mean {close[0]!r}?)" if close else ""
+            return [("fault", f"{self.fault[:40]!r} is not one of {', '.join(repr(k) for k in FAULT_KINDS)}{hint}")]
         return []
 
     def to_event(self) -> Event:
@@ -98,13 +105,50 @@ class TuningSection:
     guard_current_a: float = field(default=3.0, metadata=spec(unit="A", gt=0, le=1000))
 
 
-register_section("tuning", TuningSection)
-register_section("run", RunSection)
-register_section("link", LinkSection)
-register_section("target", None, chooser=lambda built: target_profile(built.get("link")).options_type)
-register_section("scenario", ScenarioEntry, many=True)
+@dataclass(frozen=True)
+class SessionOptions:
+    """How a session runs (the [run], [link] and [protection] tables of a bench config)."""
 
-import hilbench.bench.checks  # noqa: E402,F401 - registers [[check]] (pass/fail criteria of a run)
+    period_us: int = 50
+    mode: Literal["lockstep", "realtime"] = "lockstep"
+    duration_s: float | None = None  # None: until the scenario's end event
+    actuation_delay_periods: int = 0
+    timeout_s: float = 0.5
+    watchdog_ms: int = 100
+    overrun_policy: Literal["continue", "abort"] = "continue"
+    max_consecutive_overruns: int = 10
+    cpu_latency_qos: bool = True  # real time: keep idle CPUs from halting (clock.CpuLatencyRequest)
+    seed: int = 0
+    observe_every_periods: int = 400
+    history_every_periods: int = 20
+    overspeed_rpm: float = 0.0  # bench limit ([protection] overspeed_rpm): the run ends with a fault; 0: none
+    bus_capacitance_f: float = 0.0  # the bus capacitor regeneration charges ([protection]); 0: a stiff bus
+    overvoltage_v: float = 0.0  # bench limit on the bus voltage; 0: none
+
+
+def _target_options_type(built: Any) -> type | None:
+    """[target]'s dataclass: the options of the target [link] names."""
+    return target_profile(built.get("link")).options_type
+
+
+#: every table of a bench config: the plant's and the bench's (an explicit registry)
+SECTIONS = (
+    PLANT_SECTIONS
+    .with_table("tuning", TuningSection)
+    .with_table("run", RunSection)
+    .with_table("link", LinkSection)
+    .with_table("target", None, chooser=_target_options_type)
+    .with_table("scenario", ScenarioEntry, many=True)
+    .with_table("check", CheckEntry, many=True)  # pass/fail criteria of a run (hilbench.bench.checks)
+)
+
+
+def load_config(path: str | Path | None = None, overrides: Sequence[str] = (), *,
+                scenario_path: str | Path | None = None) -> BenchConfig:
+    """A bench config: a file (None: the packaged default) with its `extends` chain, `overrides`
+    ("table.key=value") and a scenario file, validated as a whole (hilbench.config.load_config
+    with `SECTIONS`)."""
+    return _load_tables(path, overrides, sections=SECTIONS, scenario_path=scenario_path)
 
 
 def session_options(cfg: BenchConfig) -> SessionOptions:
@@ -120,7 +164,7 @@ def session_options(cfg: BenchConfig) -> SessionOptions:
         overrun_policy=link.overrun_policy,
         max_consecutive_overruns=link.max_consecutive_overruns,
         cpu_latency_qos=link.cpu_latency_qos,
-        seed=run.seed,
+        seed=effective_seed(cfg),
         overspeed_rpm=cfg.protection.overspeed_rpm,
         bus_capacitance_f=cfg.protection.bus_capacitance_f,
         overvoltage_v=cfg.protection.overvoltage_v,
@@ -169,13 +213,15 @@ def params_file_overrides(path: str) -> tuple[str, ...]:
 
     from hilbench.errors import ConfigError
 
+    from hilbench.limits import CONFIG_MAX_BYTES, read_text_bounded
+
+    text = read_text_bounded(path, CONFIG_MAX_BYTES, ConfigError, path)
     try:
-        with open(path, "rb") as handle:
-            data = tomllib.load(handle)
-    except OSError as exc:
-        raise ConfigError(f"{path}: cannot read: {exc.strerror}") from None
+        data = tomllib.loads(text)
     except tomllib.TOMLDecodeError as exc:
-        raise ConfigError(f"{path}: not valid TOML: {exc}") from None
+        raise ConfigError(f"{path}: not valid TOML: {str(exc).splitlines()[0]}") from None
+    except RecursionError:
+        raise ConfigError(f"{path}: not valid TOML for hilbench: arrays or tables nested too deep") from None
     table = data.get("target")
     if not isinstance(table, dict) or not table:
         raise ConfigError(f"{path}: no [target] table with parameters (write one with `hilbench ctl save`)")

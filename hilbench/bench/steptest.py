@@ -9,17 +9,19 @@ profile's `effective_rpm`: a pot quantises it), so a perfect loop scores zero st
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from typing import Any, Callable, Sequence
+from typing import TYPE_CHECKING, Any, Callable, Sequence
 
 import numpy as np
 
 from hilbench.bench.metrics import StepMetrics, step_metrics
 from hilbench.bench.recorder import MemoryRecorder
 from hilbench.bench.scenario import Event
-from hilbench.bench.session import Session, SessionOptions
 from hilbench.errors import ConfigError
 from hilbench.protocol import State
 from hilbench.targets.profile import TargetProfile
+
+if TYPE_CHECKING:
+    from hilbench.bench.assembly import BenchParts
 
 STATE_STALLED = int(State.STALLED)
 
@@ -119,22 +121,25 @@ def analyse(columns: dict[str, np.ndarray], test: StepTest, profile: TargetProfi
 
 
 def run_step(
-    make_session: Callable[[tuple[Event, ...], SessionOptions, MemoryRecorder], Session],
+    build: Callable[[tuple[Event, ...], MemoryRecorder], "BenchParts"],
     test: StepTest,
     gains: dict[str, float],
-    options: SessionOptions,
     label: str | None = None,
 ) -> StepResult:
-    """Run one step test through a session built by ``make_session`` and analyse it."""
+    """Run one step test on a bench ``build`` assembles (`assembly.build_bench`) and analyse it."""
     recorder = MemoryRecorder()
-    session = make_session(test.events(), options, recorder)
-    session.handshake()
-    require_speed_loop(session.profile, "step")
-    if gains:
-        session.set_params(gains, 0.0, guard=False)
-    session.run()
+    parts = build(test.events(), recorder)
+    try:
+        session = parts.session
+        session.handshake()
+        require_speed_loop(session.profile, "step")
+        if gains:
+            session.set_params(gains, 0.0, guard=False)
+        session.run()
+    finally:
+        parts.close()
     name = label or ("/".join(f"{v:.4g}" for v in gains.values()) or "firmware defaults")
-    return analyse(recorder.columns(), test, session.profile, name, gains, options.period_us * 1e-6)
+    return analyse(recorder.columns(), test, session.profile, name, gains, session.period.s)
 
 
 def parse_gain_sets(words: Sequence[str], names: Sequence[str]) -> list[dict[str, float]]:

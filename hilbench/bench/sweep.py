@@ -20,7 +20,7 @@ import json
 import math
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Callable, Sequence
+from typing import Any, Callable, Iterable, Sequence
 
 import numpy as np
 
@@ -219,28 +219,39 @@ def _run_task(cfgs: list[BenchConfig], test: StepTest, jobs: list[tuple[int, int
 
 
 class SweepStore:
-    """Finished points as JSON lines, appended as they arrive; the key names the sweep they belong to."""
+    """Finished points as JSON lines, appended as they arrive; the key names the sweep they belong to.
 
-    def __init__(self, path: Path, key: str) -> None:
+    Reading one back is reading input: at most STORE_MAX_BYTES, lines of at most
+    STORE_LINE_MAX_BYTES, each a row of this sweep's shape (`_store_row`), or one line naming the
+    file, the line and what is wrong. Only the last line may be cut (a kill while appending)."""
+
+    def __init__(self, path: Path, key: str, n_points: int) -> None:
+        from hilbench.limits import STORE_LINE_MAX_BYTES, STORE_MAX_BYTES, check_path_size
+
         self.path = path
         self.key = key
         self.done: dict[int, tuple[StepMetrics, bool, int]] = {}
-        if path.exists():
-            try:
-                lines = path.read_text(encoding="utf-8").splitlines()
-            except (OSError, UnicodeDecodeError) as exc:
-                raise RecordingError(f"sweep store {path}: unreadable ({exc})") from None
-            for n, line in enumerate(lines, 1):
-                try:
-                    row = json.loads(line)
-                except json.JSONDecodeError:
-                    if n == len(lines):
+        if not path.exists():
+            return
+        check_path_size(path, STORE_MAX_BYTES, RecordingError, f"sweep store {path}")
+        try:
+            with path.open("rb") as handle:
+                n = 0
+                while line := handle.readline(STORE_LINE_MAX_BYTES + 1):
+                    n += 1
+                    if len(line) > STORE_LINE_MAX_BYTES:
+                        raise RecordingError(f"sweep store {path}:{n}: a line longer than {STORE_LINE_MAX_BYTES} bytes")
+                    last = not line.endswith(b"\n") and not handle.peek(1)
+                    row = _store_line(path, n, line, last)
+                    if row is None:
                         break  # a line cut by a kill: the point runs again
-                    raise RecordingError(f"sweep store {path}:{n}: not a JSON line") from None
-                if row.get("key") != key:
-                    raise ConfigError(f"sweep store {path}: it holds another sweep (other config, test or points); "
-                                      "give a new file to start over")
-                self.done[int(row["index"])] = (StepMetrics(**row["metrics"]), bool(row["stalled"]), int(row["cases"]))
+                    if row.get("key") != key:
+                        raise ConfigError(f"sweep store {path}: it holds another sweep (other config, test or points); "
+                                          "give a new file to start over")
+                    index, metrics, stalled, cases = _store_row(path, n, row, n_points)
+                    self.done[index] = (metrics, stalled, cases)
+        except OSError as exc:
+            raise RecordingError(f"sweep store {path}: unreadable ({exc.strerror or exc})") from None
 
     def append(self, index: int, result: StepResult, cases: int) -> None:
         row = {"key": self.key, "index": index, "params": result.gains, "metrics": result.metrics.as_dict(),
@@ -250,6 +261,46 @@ class SweepStore:
                 handle.write(json.dumps(row) + "\n")
         except OSError as exc:
             raise RecordingError(f"sweep store {self.path}: cannot write ({exc.strerror})") from None
+
+
+def _store_line(path: Path, n: int, line: bytes, last: bool) -> dict[str, Any] | None:
+    """Line ``n`` as a JSON object; None for a last line cut short."""
+    try:
+        row = json.loads(line.decode("utf-8"))
+    except (UnicodeDecodeError, json.JSONDecodeError):
+        if last:
+            return None
+        raise RecordingError(f"sweep store {path}:{n}: not a JSON line") from None
+    except RecursionError:
+        raise RecordingError(f"sweep store {path}:{n}: nested too deep to be a sweep point") from None
+    if not isinstance(row, dict):
+        raise RecordingError(f"sweep store {path}:{n}: a JSON {type(row).__name__}, not a sweep point (an object)")
+    return row
+
+
+_METRIC_FIELDS = {f.name: f for f in dataclasses.fields(StepMetrics)}
+
+
+def _store_row(path: Path, n: int, row: dict[str, Any], n_points: int) -> tuple[int, StepMetrics, bool, int]:
+    """A stored point's (index, metrics, stalled, cases), each checked (RecordingError naming line n)."""
+    where = f"sweep store {path}:{n}"
+    index, stalled, cases, metrics = row.get("index"), row.get("stalled"), row.get("cases"), row.get("metrics")
+    if not isinstance(index, int) or isinstance(index, bool) or not 0 <= index < n_points:
+        raise RecordingError(f"{where}: index {str(index)[:20]} is not a point of this sweep (0..{n_points - 1})")
+    if not isinstance(stalled, bool):
+        raise RecordingError(f"{where}: stalled must be true or false")
+    if not isinstance(cases, int) or isinstance(cases, bool) or not 1 <= cases <= 1_000_000:
+        raise RecordingError(f"{where}: cases must be a whole number >= 1")
+    if not isinstance(metrics, dict) or set(metrics) != set(_METRIC_FIELDS):
+        raise RecordingError(f"{where}: metrics must hold exactly {', '.join(_METRIC_FIELDS)}")
+    for name, value in metrics.items():
+        optional = "None" in str(_METRIC_FIELDS[name].type)
+        number = isinstance(value, (int, float)) and not isinstance(value, bool)
+        if not (number or (optional and value is None)):
+            raise RecordingError(f"{where}: metrics {name} is {str(value)[:20]}, not a number")
+    if not isinstance(metrics["n_samples"], int):
+        raise RecordingError(f"{where}: metrics n_samples must be a whole number")
+    return index, StepMetrics(**metrics), stalled, cases
 
 
 def _sweep_key(cfg: BenchConfig, test: StepTest, points: Sequence[Params], tolerances: Tolerances, metric: str) -> str:
@@ -287,44 +338,71 @@ def sweep_points(
     check = _constraint_checker(profile, cfg.link.period_us)
     swept = [SweepPoint(tuple(p), check(tuple(p))) for p in points]
     cases = tolerances.cases()
-    cfgs = [_with_tolerance(cfg, case) for case in cases]
-    saved = SweepStore(Path(store), _sweep_key(cfg, test, points, tolerances, key)) if store is not None else None
-    results: dict[int, list[StepResult]] = {}
-    if saved is not None:
-        for index, (metrics, stalled, n_cases) in saved.done.items():
-            results[index] = [StepResult("resumed", dict(swept[index].params), metrics, np.empty(0), np.empty(0),
-                                         metrics.y_final_ref, stalled)] * n_cases
-    to_run = [i for i, p in enumerate(swept) if not p.skipped and i not in results]
-    jobs = [(i, c, dict(swept[i].params)) for i in to_run for c in range(len(cases))]
-    tasks = [jobs[i:i + CHUNK_TESTS] for i in range(0, len(jobs), CHUNK_TESTS)]
-    total = sum(1 for p in swept if not p.skipped)
-    done = len(results)
-    if progress is not None:
-        progress(done, total)
+    saved = SweepStore(Path(store), _sweep_key(cfg, test, points, tolerances, key), len(swept)) if store is not None else None
+    run = _SweepRun(swept, len(cases), key, saved, progress)
+    jobs = [(i, c, dict(swept[i].params)) for i in run.to_run() for c in range(len(cases))]
     with open_executor(executor, workers) as (pool, where):
-        futures = [pool.submit(_run_task, cfgs, test, task) for task in tasks]
-        for future in futures:  # point order, whatever finishes first
+        run.collect(pool.submit(_run_task, [_with_tolerance(cfg, case) for case in cases], test, jobs[i:i + CHUNK_TESTS])
+                    for i in range(0, len(jobs), CHUNK_TESTS))
+    final, ranked = _rank(run.final_points(), key)
+    return SweepResult(metric=key, axes=tuple(name for name, _ in points[0]), points=final, ranked=ranked,
+                       skipped=len(swept) - run.total, test=test, sim_s=len(jobs) * test.duration_s,
+                       extras={"executor": where})
+
+
+class _SweepRun:
+    """The points of one sweep as their step tests come back: resumed from a store, appended to it,
+    counted for ``progress``; a point's result is its worst tolerance case."""
+
+    def __init__(self, swept: list[SweepPoint], n_cases: int, key: str, saved: "SweepStore | None",
+                 progress: Callable[[int, int], None] | None) -> None:
+        self.swept, self.n_cases, self.key, self.saved, self.progress = swept, n_cases, key, saved, progress
+        self.results: dict[int, list[StepResult]] = {}
+        if saved is not None:
+            for index, (metrics, stalled, cases) in saved.done.items():
+                self.results[index] = [StepResult("resumed", dict(swept[index].params), metrics, np.empty(0),
+                                                  np.empty(0), metrics.y_final_ref, stalled)] * cases
+        self.total = sum(1 for p in swept if not p.skipped)
+        self.done = len(self.results)
+        if progress is not None:
+            progress(self.done, self.total)
+
+    def to_run(self) -> list[int]:
+        return [i for i, p in enumerate(self.swept) if not p.skipped and i not in self.results]
+
+    def collect(self, futures: Iterable[Any]) -> None:
+        """Every task's results, in point order whatever finishes first."""
+        for future in list(futures):
             for index, result in future.result():
-                results.setdefault(index, []).append(result)
-                if len(results[index]) == len(cases):  # the point's last tolerance case
-                    done += 1
-                    if saved is not None:
-                        saved.append(index, max(results[index], key=lambda r: _order(r, key)), len(cases))
-                    if progress is not None:
-                        progress(done, total)
-    final = []
-    for index, point in enumerate(swept):
-        runs = results.get(index)
-        if runs:
-            point = dataclasses.replace(point, result=max(runs, key=lambda r: _order(r, key)), cases=len(runs))
-        final.append(point)
-    ordered = sorted((p for p in final if p.result is not None), key=lambda p: _order(p.result, key))  # type: ignore[arg-type]
+                self._add(index, result)
+
+    def _add(self, index: int, result: StepResult) -> None:
+        runs = self.results.setdefault(index, [])
+        runs.append(result)
+        if len(runs) < self.n_cases:
+            return
+        self.done += 1  # the point's last tolerance case
+        if self.saved is not None:
+            self.saved.append(index, max(runs, key=lambda r: _order(r, self.key)), self.n_cases)
+        if self.progress is not None:
+            self.progress(self.done, self.total)
+
+    def final_points(self) -> list[SweepPoint]:
+        out = []
+        for index, point in enumerate(self.swept):
+            runs = self.results.get(index)
+            if runs:
+                point = dataclasses.replace(point, result=max(runs, key=lambda r: _order(r, self.key)), cases=len(runs))
+            out.append(point)
+        return out
+
+
+def _rank(points: Sequence[SweepPoint], key: str) -> tuple[tuple[SweepPoint, ...], tuple[SweepPoint, ...]]:
+    """Every point with its rank by ``key`` (simulated ones; best 1), and the ranked ones in order."""
+    ordered = sorted((p for p in points if p.result is not None), key=lambda p: _order(p.result, key))  # type: ignore[arg-type]
     ranks = {id(p): n for n, p in enumerate(ordered, start=1)}
-    final = [dataclasses.replace(p, rank=ranks.get(id(p))) for p in final]
-    ranked = tuple(sorted((p for p in final if p.rank is not None), key=lambda p: p.rank or 0))
-    axes = tuple(name for name, _ in points[0])
-    return SweepResult(metric=key, axes=axes, points=tuple(final), ranked=ranked, skipped=len(swept) - total,
-                       test=test, sim_s=len(jobs) * test.duration_s, extras={"executor": where})
+    final = tuple(dataclasses.replace(p, rank=ranks.get(id(p))) for p in points)
+    return final, tuple(sorted((p for p in final if p.rank is not None), key=lambda p: p.rank or 0))
 
 
 def sweep_grid(cfg: BenchConfig, axes: Sequence[tuple[str, Sequence[float]]], test: StepTest, metric: str = "itae",
@@ -364,11 +442,7 @@ def refine(cfg: BenchConfig, axes: Sequence[Axis], test: StepTest, metric: str =
         window = zoom(window, best.params, shrink, limits)
     assert last is not None
     key = last.metric
-    every = list(seen.values())
-    ordered = sorted((p for p in every if p.result is not None), key=lambda p: _order(p.result, key))  # type: ignore[arg-type]
-    ranks = {id(p): n for n, p in enumerate(ordered, start=1)}
-    final = tuple(dataclasses.replace(p, rank=ranks.get(id(p))) for p in every)
-    ranked = tuple(sorted((p for p in final if p.rank is not None), key=lambda p: p.rank or 0))
+    final, ranked = _rank(list(seen.values()), key)
     return SweepResult(metric=key, axes=last.axes, points=final, ranked=ranked,
                        skipped=sum(p.skipped for p in final), test=test, sim_s=sim_s,
                        extras={**last.extras, "rounds": rounds})

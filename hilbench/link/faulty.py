@@ -12,10 +12,10 @@ import math
 import random
 import time
 from dataclasses import dataclass, field
-from typing import Any
 
 from hilbench.link.link import Link, LinkStats
 from hilbench.protocol import encode_frame
+from hilbench.protocol.messages import Message
 
 
 @dataclass
@@ -139,7 +139,7 @@ class FaultyLink:
     def stats(self) -> LinkStats:
         return self.inner.stats
 
-    def send(self, msg: Any) -> None:
+    def send(self, msg: Message) -> None:
         """Send msg, unless the dice say drop it; maybe late, maybe twice, maybe bit-flipped."""
         self._sent += 1
         if self.silent_after is not None and self._sent > self.silent_after:
@@ -163,13 +163,13 @@ class FaultyLink:
         for _ in range(copies):
             self.inner.send_bytes(self._tx_bits.corrupt(data))
 
-    def recv(self, timeout_s: float | None = None) -> Any:
+    def recv(self, timeout_s: float | None = None) -> Message:
         return self.inner.recv(timeout_s)
 
-    def recv_or_none(self, timeout_s: float) -> Any | None:
+    def recv_or_none(self, timeout_s: float | None) -> Message | None:
         return self.inner.recv_or_none(timeout_s)
 
-    def poll(self) -> list[Any]:
+    def poll(self) -> list[Message]:
         return self.inner.poll()
 
     def reset_sequence(self) -> None:

@@ -18,6 +18,7 @@ from typing import Any, Callable, Iterable
 from hilbench.errors import DecodeError, LinkError, LinkTimeout
 from hilbench.link.transport import _READ_CHUNK, FdTransport, Transport
 from hilbench.protocol import Drive, FrameDecoder, Sensors, decode_frame, encode_frame
+from hilbench.protocol.messages import Message
 
 DEFAULT_TIMEOUT_S = 1.0
 _UNSEQUENCED = object()  # _next_seq.get default: a message type without a running seq
@@ -81,7 +82,7 @@ class Link:
         self._write = transport.write
         self._decoder = FrameDecoder()
         self._feed = self._decoder.feed
-        self._pending: deque[Any] = deque()
+        self._pending: deque[Message] = deque()
         self._sequenced = frozenset(sequenced_types)
         # the seq each sequenced type should carry next (None: not seen yet); other types absent
         self._next_seq: dict[type, int | None] = dict.fromkeys(self._sequenced)
@@ -124,7 +125,7 @@ class Link:
         self._update_fast_read()
 
     # -- sending -------------------------------------------------------------------------
-    def send(self, msg: Any) -> None:
+    def send(self, msg: Message) -> None:
         """Encode one message and write all of its bytes (LinkTimeout if the far end stalls)."""
         data = encode_frame(msg)
         fd = self._fd_w
@@ -149,7 +150,7 @@ class Link:
         self.bytes_tx += len(data)
 
     # -- receiving -----------------------------------------------------------------------
-    def recv(self, timeout_s: float | None = None) -> Any:
+    def recv(self, timeout_s: float | None = None) -> Message:
         """The next good frame's message; LinkTimeout after timeout_s, LinkClosed on hang-up."""
         if self._pending:
             return self._pending.popleft()
@@ -173,7 +174,7 @@ class Link:
             )
         return msg
 
-    def recv_or_none(self, timeout_s: float | None) -> Any | None:
+    def recv_or_none(self, timeout_s: float | None) -> Message | None:
         """Like recv, but None when nothing arrives in timeout_s (not counted as a timeout).
 
         For servers that wake up periodically to check a stop flag or a watchdog. timeout_s None
@@ -197,7 +198,7 @@ class Link:
             return self._wait(remaining, timeout_s) if remaining > 0 else None
         return self._wait(timeout_s, timeout_s)
 
-    def _read_ready(self, fd: int, timeout_s: float) -> Any | None:
+    def _read_ready(self, fd: int, timeout_s: float) -> Message | None:
         """One poll and one read: the frame that arrived, or None (nothing yet, or part of one).
 
         A read error returns None: the caller's wait reads again through the transport, which
@@ -212,7 +213,7 @@ class Link:
             raise self.transport._hung_up("end of file")  # type: ignore[attr-defined]
         return self._take_read(data)
 
-    def _take_read(self, data: bytes) -> Any | None:
+    def _take_read(self, data: bytes) -> Message | None:
         """What one read brought: the frame itself when it is exactly one good frame (the fast
         path, no streaming decoder), else the first frame the streaming decoder makes of it."""
         if data[-1] == 0 and self._clean:
@@ -233,7 +234,7 @@ class Link:
                 return msg
         return self._take_first(data)
 
-    def _recv_forever(self) -> Any:
+    def _recv_forever(self) -> Message:
         """The next frame, however long it takes: blocking reads, no poll (the lockstep server)."""
         fd = self._fd_r
         if fd < 0:
@@ -270,7 +271,7 @@ class Link:
             os.set_blocking(fd, blocking)
         self._blocking = blocking
 
-    def _wait(self, remaining: float, timeout: float) -> Any | None:
+    def _wait(self, remaining: float, timeout: float) -> Message | None:
         """The general receive loop through the transport: the first frame, or None at the deadline."""
         deadline = monotonic() + remaining
         read = self._read
@@ -285,7 +286,7 @@ class Link:
             if remaining <= 0:
                 return None
 
-    def _take_first(self, data: bytes) -> Any | None:
+    def _take_first(self, data: bytes) -> Message | None:
         frames = self._take(data)
         if not frames:
             return None
@@ -293,7 +294,7 @@ class Link:
             self._pending.extend(frames[1:])
         return frames[0]
 
-    def poll(self) -> list[Any]:
+    def poll(self) -> list[Message]:
         """Every good frame already waiting, without blocking."""
         out = list(self._pending)
         self._pending.clear()
@@ -309,7 +310,7 @@ class Link:
             self.seq_gaps += 1
         self._next_seq[kind] = (seq + 1) & 0xFF
 
-    def _take(self, data: bytes) -> list[Any]:
+    def _take(self, data: bytes) -> list[Message]:
         """Feed the streaming decoder (it counts every fault) and note whether it is left clean."""
         self.bytes_rx += len(data)
         if self._rx_filter is not None:

@@ -14,9 +14,7 @@
  * Recorded outputs (model.OUTPUTS): append_state copies the double members the declaration names
  * (resolved once by _set_outputs), so a new recorded quantity is a double here, set with the state.
  */
-#define PY_SSIZE_T_CLEAN
-#include <Python.h>
-#include <structmember.h>
+#include "hbglue.h"
 #include <math.h>
 #include <stddef.h>
 #include <string.h>
@@ -49,7 +47,7 @@ typedef struct {
     PyObject *noise;
     long long noise_i;
     /* the exchange period (model.Plant.set_period) and the hall edges of the last one */
-    double period_s, chunk_s;
+    double period_s, chunk_s, duty_scale;
     int chunks, n_edges, n_marks;
     long long periods;
     double edge_t[MAX_CHUNKS];
@@ -167,6 +165,22 @@ static double bus_average(const Core *s, double e_in_j, double dt_s)
     return (s->vbus_v > 0.0 && dt_s > 0.0) ? e_in_j / (s->vbus_v * dt_s) : 0.0;
 }
 
+/* model.Plant._finish: the hall sector and the edge's time (t_off + its time inside the step) after a
+ * step done outside the hot path (angle already wrapped); *have and *edge are set only for an edge */
+static void finish(Core *s, double th0, double dth, double h, double t_off, double w_start, int *have, double *edge)
+{
+    double th1 = th0 + dth, base = s->hall_base;
+    long long n0 = (long long)floor((th0 - base) / SIXTY);
+    long long n1 = (long long)floor((th1 - base) / SIXTY);
+    if (n1 != n0) {
+        *edge = t_off + edge_time(base, th0, th1, n0, n1, s->p * w_start, s->p * s->w_m, h);
+        *have = 1;
+        s->sector = (int)mod6(n1);
+        s->hall_bits = HALL_BY_SECTOR[s->sector];
+    }
+    s->nidx = (long long)floor((s->th - base) / SIXTY);
+}
+
 /* OFF with zero currents and the back-EMF below the bus: model.Plant._coast over the step,
  * then model.Plant._finish and _sense. The step's hall edge, if any, goes to *edge (*have = 1). */
 static void coast_step(Core *s, double h, int *have, double *edge)
@@ -208,20 +222,8 @@ static void coast_step(Core *s, double h, int *have, double *edge)
         s->turns += (long long)k;
         s->th = th1 - k * TWO_PI;
     }
-    /* _finish */
-    long long dturns = s->turns - turns0;
-    double dth = s->th - th0 + (double)dturns * TWO_PI;
-    double th1 = th0 + dth, base = s->hall_base;
-    long long n0 = (long long)floor((th0 - base) / SIXTY);
-    long long n1 = (long long)floor((th1 - base) / SIXTY);
     *have = 0;
-    if (n1 != n0) {
-        *edge = 0.0 + edge_time(base, th0, th1, n0, n1, s->p * w_start, s->p * s->w_m, h);
-        *have = 1;
-        s->sector = (int)mod6(n1);
-        s->hall_bits = HALL_BY_SECTOR[s->sector];
-    }
-    s->nidx = (long long)floor((s->th - base) / SIXTY);
+    finish(s, th0, s->th - th0 + (double)(s->turns - turns0) * TWO_PI, h, 0.0, w_start, have, edge);
     s->t_s += h;
     sense(s);
 }
@@ -275,7 +277,10 @@ static void friction(Core *s, double i_d, double i_q, double *w, double *ij, dou
 
 /* model.Plant._rk4_dq: one RK4 step of (i_d, i_q, w_m) with x0 = phi - theta; y[] = i_d, i_q, w_m
  * in, and out with y[3] = the angle turned, y[4] = the input energy part */
-static void rk4_dq(const Core *s, double y[5], double x0, double vmag, double ij, double fr, double h)
+#if defined(__GNUC__)
+__attribute__((always_inline)) /* the period's hot loop; _switching.c calls it too */
+#endif
+static inline void rk4_dq(const Core *s, double y[5], double x0, double vmag, double ij, double fr, double h)
 {
     const double rd = s->rd, rq = s->rq, pq = s->pq, pd = s->pd, ppsi = s->ppsi, p = s->p;
     const double id0 = y[0], iq0 = y[1], w0 = y[2];
@@ -375,39 +380,35 @@ static void step_dq(Core *s, double va, double vb, double dt_s, int *have, doubl
     sense_encoder(s);
 }
 
+#define get_double hb_double /* the shared glue's number argument */
+
 #include "_switching.c"
 
-static int get_double(PyObject *o, double *out)
+/* model.Plant._step_py in Python, for the steps the C core leaves to it */
+static int step_in_python(Core *s, const double duty[3], long mode, double dt_s, int *have, double *edge)
 {
-    if (PyFloat_CheckExact(o)) { *out = PyFloat_AS_DOUBLE(o); return 0; }
-    *out = PyFloat_AsDouble(o);
-    return (*out == -1.0 && PyErr_Occurred()) ? -1 : 0;
+    PyObject *cargs[6] = {(PyObject *)s, PyFloat_FromDouble(duty[0]), PyFloat_FromDouble(duty[1]),
+                          PyFloat_FromDouble(duty[2]), PyLong_FromLong(mode), PyFloat_FromDouble(dt_s)};
+    PyObject *r = NULL;
+    if (cargs[1] && cargs[2] && cargs[3] && cargs[4] && cargs[5])
+        r = PyObject_VectorcallMethod(str_step_py, cargs, 6, NULL);
+    for (int i = 1; i < 6; i++) Py_XDECREF(cargs[i]);
+    if (r == NULL) return -1;
+    Py_DECREF(r);
+    *have = s->last_edge_s != NULL && s->last_edge_s != Py_None;
+    if (*have && get_double(s->last_edge_s, edge) < 0) return -1;
+    return 0;
 }
 
-/* model.Plant._step_py for one step of dt_s with the duties and mode of args[0..3]: the steps with
- * energy accounts, a quadratic load or current in an open bridge go to Python. 0, or -1 with an
- * exception set; the step's hall edge in *have and *edge. */
-static int integrate(Core *s, PyObject *const *args, double dt_s, int *have, double *edge)
+/* model.Plant._step_py: one step of dt_s with the duties (fractions) and output mode held; the
+ * steps with energy accounts, a quadratic load or current in an open bridge go to Python. 0, or -1
+ * with an exception set; the step's hall edge in *have and *edge. */
+static int integrate(Core *s, const double duty[3], long mode, double dt_s, int *have, double *edge)
 {
-    double duty_a, duty_b, duty_c;
-    if (get_double(args[0], &duty_a) || get_double(args[1], &duty_b) || get_double(args[2], &duty_c))
-        return -1;
-    long mode = PyLong_AsLong(args[3]);
-    if (mode == -1 && PyErr_Occurred()) return -1;
-    if (s->fault_input && s->gate_off) mode = OUTPUT_OFF; /* the comparator's hardware trip */
-    int driven = (mode == OUTPUT_PWM || mode == OUTPUT_LOW_SIDE);
-    if (s->track_energy || s->kq_any || (!driven && !(s->i_d == 0.0 && s->i_q == 0.0 && s->ell * fabs(s->w_m) < s->vbus_v))) {
-        PyObject *dt = PyFloat_FromDouble(dt_s);
-        if (dt == NULL) return -1;
-        PyObject *cargs[6] = {(PyObject *)s, args[0], args[1], args[2], args[3], dt};
-        PyObject *r = PyObject_VectorcallMethod(str_step_py, cargs, 6, NULL);
-        Py_DECREF(dt);
-        if (r == NULL) return -1;
-        Py_DECREF(r);
-        *have = s->last_edge_s != NULL && s->last_edge_s != Py_None;
-        if (*have && get_double(s->last_edge_s, edge) < 0) return -1;
-        return 0;
-    }
+    long gated = (s->fault_input && s->gate_off) ? OUTPUT_OFF : mode; /* the comparator's hardware trip */
+    int driven = (gated == OUTPUT_PWM || gated == OUTPUT_LOW_SIDE);
+    if (s->track_energy || s->kq_any || (!driven && !(s->i_d == 0.0 && s->i_q == 0.0 && s->ell * fabs(s->w_m) < s->vbus_v)))
+        return step_in_python(s, duty, mode, dt_s, have, edge);
     if (s->t_load_change <= s->t_s + 1e-12) {
         PyObject *r = PyObject_CallMethodNoArgs((PyObject *)s, str_update_load);
         if (r == NULL) return -1;
@@ -415,7 +416,7 @@ static int integrate(Core *s, PyObject *const *args, double dt_s, int *have, dou
     }
     double u0 = 0.0;
     if (s->sw_on || s->sw_avg) { /* the switching inverter, or the averaged one's carrier (_switching.c) */
-        if (s->sw_on && mode == OUTPUT_PWM) return sw_step_pwm(s, duty_a, duty_b, duty_c, dt_s, have, edge);
+        if (s->sw_on && gated == OUTPUT_PWM) return sw_step_pwm(s, duty[0], duty[1], duty[2], dt_s, have, edge);
         u0 = sw_idle(s, dt_s);
     }
     if (!driven) {
@@ -423,11 +424,21 @@ static int integrate(Core *s, PyObject *const *args, double dt_s, int *have, dou
         return 0;
     }
     double va = 0.0, vb = 0.0;
-    if (mode == OUTPUT_PWM)
-        averaged_inverter(s, duty_a, duty_b, duty_c, u0, dt_s, &va, &vb);
-    s->last_mode = (int)mode;
+    if (gated == OUTPUT_PWM)
+        averaged_inverter(s, duty[0], duty[1], duty[2], u0, dt_s, &va, &vb);
+    s->last_mode = (int)gated;
     step_dq(s, va, vb, dt_s, have, edge);
     return 0;
+}
+
+/* the duties (times scale) and the output mode of args[0..3] */
+static int get_drive(PyObject *const *args, double scale, double duty[3], long *mode)
+{
+    if (get_double(args[0], &duty[0]) || get_double(args[1], &duty[1]) || get_double(args[2], &duty[2]))
+        return -1;
+    duty[0] *= scale; duty[1] *= scale; duty[2] *= scale;
+    *mode = PyLong_AsLong(args[3]);
+    return (*mode == -1 && PyErr_Occurred()) ? -1 : 0;
 }
 
 static PyObject *Core_append_state(Core *s, PyObject *buf);
@@ -461,14 +472,18 @@ static PyObject *Core_step(Core *s, PyObject *const *args, Py_ssize_t nargs)
         return NULL;
     }
     if (check_state_to(args, nargs, 5, "step") < 0) return NULL;
-    double dt_s, edge = 0.0;
+    double duty[3], dt_s, edge = 0.0;
+    long mode;
     int have = 0;
-    if (get_double(args[4], &dt_s) < 0 || integrate(s, args, dt_s, &have, &edge) < 0) return NULL;
+    if (get_drive(args, 1.0, duty, &mode) < 0 || get_double(args[4], &dt_s) < 0
+        || integrate(s, duty, mode, dt_s, &have, &edge) < 0)
+        return NULL;
     return finish_call(s, args, nargs, 5, have, edge);
 }
 
 /* advance(duty_a, duty_b, duty_c, output_mode[, state_to]) -> last_edge_s: one exchange period in
- * its chunks (model.Plant._advance_py; the actuation delay stays in Python) */
+ * its chunks, duties in counts of the full scale set_period gave (model.Plant._advance_py; the
+ * actuation delay stays in Python) */
 static PyObject *Core_advance(Core *s, PyObject *const *args, Py_ssize_t nargs)
 {
     if (nargs != 4 && nargs != 5) {
@@ -476,6 +491,9 @@ static PyObject *Core_advance(Core *s, PyObject *const *args, Py_ssize_t nargs)
         return NULL;
     }
     if (check_state_to(args, nargs, 4, "advance") < 0) return NULL;
+    double duty[3];
+    long mode;
+    if (get_drive(args, s->duty_scale, duty, &mode) < 0) return NULL;
     const double h = s->chunk_s;
     const int chunks = s->chunks < 1 ? 1 : s->chunks > MAX_CHUNKS ? MAX_CHUNKS : s->chunks;
     int have = 0;
@@ -485,7 +503,7 @@ static PyObject *Core_advance(Core *s, PyObject *const *args, Py_ssize_t nargs)
     for (int i = 0; i < chunks; i++) { /* long periods: the plant keeps its accurate step, duties held */
         int sub_have = 0;
         double sub_edge = 0.0;
-        if (integrate(s, args, h, &sub_have, &sub_edge) < 0) return NULL;
+        if (integrate(s, duty, mode, h, &sub_have, &sub_edge) < 0) return NULL;
         if (sub_have) {
             edge = (double)i * h + sub_edge;
             have = 1;
@@ -630,6 +648,7 @@ static PyObject *Core_new(PyTypeObject *type, PyObject *args, PyObject *kwds)
     s->sw_e[0] = s->sw_e[1] = s->sw_e[2] = -INFINITY;
     s->adc_live = 1;
     s->chunks = 1;
+    s->duty_scale = 1.0;
     return (PyObject *)s;
 }
 
@@ -640,10 +659,10 @@ static void Core_dealloc(Core *s)
     Py_TYPE(s)->tp_free((PyObject *)s);
 }
 
-#define DM(name, field) {name, T_DOUBLE, offsetof(Core, field), 0, NULL}
-#define IM(name, field) {name, T_INT, offsetof(Core, field), 0, NULL}
-#define LM(name, field) {name, T_LONGLONG, offsetof(Core, field), 0, NULL}
-#define BM(name, field) {name, T_BOOL, offsetof(Core, field), 0, NULL}
+#define DM(name, field) HB_MEMBER(name, T_DOUBLE, Core, field, 0)
+#define IM(name, field) HB_MEMBER(name, T_INT, Core, field, 0)
+#define LM(name, field) HB_MEMBER(name, T_LONGLONG, Core, field, 0)
+#define BM(name, field) HB_MEMBER(name, T_BOOL, Core, field, 0)
 
 static PyMemberDef Core_members[] = {
     DM("load_nm", tl), /* the constant part of the load now, recorded (model.Plant.load_nm) */
@@ -665,6 +684,7 @@ static PyMemberDef Core_members[] = {
     LM("_noise_i", noise_i), DM("pot_fraction", pot_fraction),
     {"theta_e", T_DOUBLE, offsetof(Core, th), READONLY, "Electrical rotor angle in [0, 2 pi) (read-only)."},
     DM("_period_s", period_s), DM("_chunk_s", chunk_s), IM("_chunks", chunks), LM("_periods", periods),
+    DM("_duty_scale", duty_scale),
     DM("_rs", rs), DM("_ld", ld), DM("_lq", lq), DM("_w_start", w_start), LM("_dturns", dturns),
     DM("_sw_f", sw_f), DM("_sw_td", sw_td), DM("_sw_c", sw_c), DM("_sw_smp", sw_smp), DM("_sw_l", sw_l), BM("_sw_avg", sw_avg),
     DM("_sw_u", sw_u), DM("_sw_e0", sw_e[0]), DM("_sw_e1", sw_e[1]), DM("_sw_e2", sw_e[2]),
@@ -769,14 +789,5 @@ PyMODINIT_FUNC PyInit__plantcore(void)
     str_update_load = PyUnicode_InternFromString("_update_load");
     str_draw_noise = PyUnicode_InternFromString("_draw_noise");
     if (str_step_py == NULL || str_update_load == NULL || str_draw_noise == NULL) return NULL;
-    if (PyType_Ready(&CoreType) < 0) return NULL;
-    PyObject *m = PyModule_Create(&moduledef);
-    if (m == NULL) return NULL;
-    Py_INCREF(&CoreType);
-    if (PyModule_AddObject(m, "Core", (PyObject *)&CoreType) < 0) {
-        Py_DECREF(&CoreType);
-        Py_DECREF(m);
-        return NULL;
-    }
-    return m;
+    return hb_module(&moduledef, &CoreType, "Core");
 }

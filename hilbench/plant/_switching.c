@@ -1,7 +1,7 @@
 /* The switching inverter of the C plant backend: hilbench/plant/switching.py, operation by operation.
  *
- * Included by _plantcore.c after the Core struct and the functions it shares (edge_time, friction,
- * rk4_dq, sense):
+ * Included by _plantcore.c after the Core struct and the functions it shares (edge_time, finish,
+ * friction, rk4_dq, sense):
  * one compilation unit, the bridge kept in its own file. Every function here has the name of the
  * Python function it mirrors; the arithmetic is in the same order (built with -ffp-contract=off),
  * so the two backends agree to the last bit on the same libm (tests/test_switching_backends.py).
@@ -194,7 +194,19 @@ static void sw_project(Core *s, const double i[3], const int open_[3], int n_ope
     s->i_q = -ial * sn + ibe * c;
 }
 
-/* switching.back_emf_abc */
+/* model.Plant._compare_now: the overcurrent comparator at an interval's end (the ripple's peaks) */
+static void sw_compare_now(Core *s)
+{
+    double oc = s->oc;
+    if (s->i_d * s->i_d + s->i_q * s->i_q > oc * oc) {
+        double i[3];
+        sw_abc_now(s, i);
+        if (i[0] > oc || i[0] < -oc || i[1] > oc || i[1] < -oc || i[2] > oc || i[2] < -oc)
+            s->fault_input = 1;
+    }
+}
+
+/* model.Plant._back_emf_abc */
 static void sw_back_emf_abc(Core *s, double e[3])
 {
     double we = s->p * s->w_m, c, sn;
@@ -329,21 +341,6 @@ static double sw_rk4_dq(Core *s, double va, double vb, double h)
     return 1.5 * vmag * y[4];
 }
 
-/* model.Plant._finish: the hall sector and the edge's time after a step (angle already wrapped) */
-static void sw_finish(Core *s, double th0, double dth, double h, double t_off, int *have_edge, double *edge)
-{
-    double th1 = th0 + dth, base = s->hall_base;
-    long long n0 = (long long)floor((th0 - base) / SIXTY);
-    long long n1 = (long long)floor((th1 - base) / SIXTY);
-    if (n1 != n0) {
-        *edge = t_off + edge_time(base, th0, th1, n0, n1, s->p * s->w_start, s->p * s->w_m, h);
-        *have_edge = 1;
-        s->sector = (int)mod6(n1);
-        s->hall_bits = HALL_BY_SECTOR[s->sector];
-    }
-    s->nidx = (long long)floor((s->th - base) / SIXTY);
-}
-
 /* switching.interval: up to h seconds with these gates; returns the time used, adds the energy */
 static double sw_interval(Core *s, const int gates[3], const double dead_until[3], double h, double t_off,
                           double *energy, int *have_edge, double *edge)
@@ -381,8 +378,9 @@ static double sw_interval(Core *s, const int gates[3], const double dead_until[3
         for (int x = 0; x < 3; x++)
             if (fx[x] <= frac * (1.0 + 1e-9) + 1e-12) open_[n_open++] = x;
     }
-    sw_finish(s, th0, s->th - th0 + (double)s->dturns * TWO_PI, h, t_off, have_edge, edge);
+    finish(s, th0, s->th - th0 + (double)s->dturns * TWO_PI, h, t_off, s->w_start, have_edge, edge);
     sw_project(s, i1, open_, n_open);
+    if (s->oc > 0.0) sw_compare_now(s);
     *energy += e;
     return h;
 }

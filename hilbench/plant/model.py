@@ -267,6 +267,16 @@ class Plant:
             self.fault_input = True
         self.te_nm = 1.5 * self._p * self.i_q * (self._psi + self._ld_lq * self.i_d)
 
+    def _compare_now(self) -> None:
+        """The overcurrent comparator between two sensor reads (the switching bridge's interval
+        ends, where its ripple peaks): no phase current can exceed |i_dq|, so the phases are only
+        computed when that does."""
+        oc = self._oc
+        if self.i_d * self.i_d + self.i_q * self.i_q > oc * oc:
+            ia, ib, ic = self._abc_now()
+            if ia > oc or ia < -oc or ib > oc or ib < -oc or ic > oc or ic < -oc:
+                self.fault_input = True
+
     def _sense_encoder(self) -> None:
         """The quadrature encoder's x4 count from the unwrapped angle, and whether an index mark
         passed since the last refresh."""
@@ -422,15 +432,19 @@ class Plant:
         return ld.torque_nm, 0.0, 0.0, True
 
     # ----------------------------------------------------------------- the exchange period
-    def set_period(self, period_us: int, actuation_delay_periods: int = 0) -> None:
-        """The period `advance` integrates (in chunks of at most MAX_STEP_US) and the whole periods
-        the duties wait before they reach the switches (the delay starts with all switches open)."""
+    def set_period(self, period_us: int, actuation_delay_periods: int = 0, duty_full_scale: float = 1.0) -> None:
+        """The period `advance` integrates (in chunks of at most MAX_STEP_US), the whole periods the
+        duties wait before they reach the switches (the delay starts with all switches open) and the
+        full scale of the duties `advance` gets (a PWM period's counts; 1.0: fractions)."""
         period = Period(int(period_us))
         if period.chunks > MAX_CHUNKS:
             raise ValueError(f"Plant.set_period: {period_us} us is more than {MAX_CHUNKS} steps of {MAX_STEP_US} us")
         if not 0 <= int(actuation_delay_periods) <= MAX_DELAY_PERIODS:
             raise ValueError(f"Plant.set_period: actuation delay {actuation_delay_periods} is not 0..{MAX_DELAY_PERIODS} periods")
+        if not duty_full_scale > 0:
+            raise ValueError(f"Plant.set_period: duty full scale {duty_full_scale!r} is not positive")
         self.period = period
+        self._duty_scale = 1.0 / duty_full_scale
         self._period_s = period.s
         self._chunks = period.chunks
         self._chunk_s = period.chunk_s
@@ -454,12 +468,15 @@ class Plant:
 
     def _advance_py(self, duty_a: float, duty_b: float, duty_c: float, output_mode: int,
                     state_to: bytearray | None = None, /) -> float | None:
-        """One exchange period (`set_period`) with these duties (fractions 0..1) held over it: its
-        chunks, the clock, and the state appended to ``state_to`` (a recorder's row buffer, or None).
+        """One exchange period (`set_period`) with these duties (in counts of its full scale) held
+        over it: its chunks, the clock, and the recorded outputs appended to ``state_to`` (a
+        recorder's row buffer, or None).
         Returns the time of the period's last hall edge from its start (None: no edge); `edges()`
         has every one."""
         if state_to is not None and not isinstance(state_to, bytearray):
             raise TypeError("Plant.advance: state_to must be a bytearray (a recorder's row buffer) or None")
+        scale = self._duty_scale
+        duty_a, duty_b, duty_c = duty_a * scale, duty_b * scale, duty_c * scale
         h = self._chunk_s
         edges: list[tuple[float, int]] = []
         marks: list[float] = []

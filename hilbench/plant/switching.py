@@ -163,7 +163,7 @@ def average_dead_time(plant: "Plant", u0: float, duty_a: float, duty_b: float, d
     duties = (duty_a, duty_b, duty_c)
     mean_d = (duty_a + duty_b + duty_c) / 3.0
     i0 = (plant.i_a, plant.i_b, plant.i_c)
-    e = back_emf_abc(plant)
+    e = plant._back_emf_abc()
     half_t = 0.5 / f
     out = [0.0, 0.0, 0.0]
     for x in range(3):
@@ -228,14 +228,6 @@ def next_sample(u: float, sample: float) -> float:
     if r <= PHASE_EPS:
         r += 1.0
     return u + r
-
-
-def back_emf_abc(plant: "Plant") -> list[float]:
-    """The phase back-EMFs now (V): d/dt of psi·cos(theta − phase axis)."""
-    we = plant._p * plant.w_m
-    e_al = -we * plant._psi * math.sin(plant._th)
-    e_be = we * plant._psi * math.cos(plant._th)
-    return [e_al, -0.5 * e_al + HALF_SQRT3 * e_be, -0.5 * e_al - HALF_SQRT3 * e_be]
 
 
 def phase_slopes(plant: "Plant", v: list[float]) -> list[float]:
@@ -310,7 +302,7 @@ def float_open_legs(plant: "Plant", v: list[float], open_: list[int], vbus: floa
     open legs; one that would leave [0, Vbus] is clamped to that rail (the furthest out first, then
     the rest again). Returns the legs still open (one left: its voltage is for the caller)."""
     while len(open_) >= 2:
-        e = back_emf_abc(plant)
+        e = plant._back_emf_abc()
         fixed = [x for x in range(3) if x not in open_]
         if fixed:
             vn = v[fixed[0]] - e[fixed[0]]
@@ -393,6 +385,8 @@ def interval(plant: "Plant", gates: list[int], dead_until: list[float], h: float
                 open_.append(x)
     plant._finish(th0, plant._th - th0 + plant._dturns * TWO_PI, h, t_off)
     plant._project(i1, open_)
+    if plant._oc > 0.0:  # the board's comparator sees the ripple's peaks, which fall on these instants
+        plant._compare_now()
     return h, energy
 
 

@@ -28,13 +28,22 @@ def start_scope(source: object, port: int = 0, open_browser: bool = False) -> "o
     if open_browser:
         from hilbench.scope.server import open_in_browser
 
-        open_in_browser(server.url)
+        open_in_browser(server)  # a one-shot URL: no token file left behind
     return server
+
+
+def check_session_socket(socket_path: str | os.PathLike[str], timeout_s: float = 5.0) -> None:
+    """A session listens at ``socket_path`` and is this user's (LinkError in one line otherwise):
+    `hilbench scope --socket /nonexistent.sock` fails at once instead of serving nothing."""
+    from hilbench.bench.control import ControlClient
+
+    ControlClient(socket_path, timeout_s=timeout_s).close()
 
 
 def scope_for_socket(socket_path: str | os.PathLike[str], port: int = 0, open_browser: bool = False) -> "object":
     from hilbench.scope.server import ControlSource
 
+    check_session_socket(socket_path)
     return start_scope(ControlSource(Path(socket_path)), port, open_browser)
 
 
@@ -44,12 +53,14 @@ def scope_for_recording(path: str | os.PathLike[str], port: int = 0, open_browse
     return start_scope(RecordingSource(path), port, open_browser)
 
 
-
-
 class ScopeProcess:
     """`hilbench scope --socket PATH` as a child process (what `run --scope` starts): the page's
     server and its JSON work then never take the session's interpreter lock, which matters in real
-    time. Its URL line is passed on to stderr; `close()` stops it (and it dies with its parent)."""
+    time. It is started with ``python -P`` (a `hilbench/` folder in the working directory cannot
+    shadow the package) and dies with its parent (hilbench.processes). Of its stderr only its own
+    one-line messages reach the session's terminal (the URL, "scope: ..." and "hilbench: ..."
+    lines); anything else (a traceback) is counted in `hidden_lines`, never shown under the run.
+    `close()` stops it."""
 
     def __init__(self, socket_path: str | os.PathLike[str], port: int = 0, open_browser: bool = False,
                  timeout_s: float = 30.0) -> None:
@@ -57,18 +68,23 @@ class ScopeProcess:
         import sys
         import threading
 
-        command = [sys.executable, "-m", "hilbench", "scope", "--socket", str(socket_path), "--port", str(port)]
+        from hilbench.processes import spawn
+
+        command = [sys.executable, "-P", "-m", "hilbench", "scope", "--socket", str(socket_path), "--port", str(port)]
         if open_browser:
             command.append("--open")
         self.url = ""
+        self.hidden_lines = 0
+        self.last_hidden = ""
         self._found = threading.Event()
-        self.proc = subprocess.Popen(command, stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL,
-                                     stderr=subprocess.PIPE, text=True, preexec_fn=_die_with_parent)
+        self.proc = spawn(command, stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE,
+                          text=True, errors="replace")
         self._reader = threading.Thread(target=self._read, name="hilbench-scope-stderr", daemon=True)
         self._reader.start()
         if not self._found.wait(timeout_s) or not self.url:
             self.close()
-            raise ConfigError(f"scope: `hilbench scope` printed no URL within {timeout_s:g} s")
+            why = f": {self.last_hidden}" if self.last_hidden else ""
+            raise ConfigError(f"scope: `hilbench scope` printed no URL within {timeout_s:g} s{why}")
 
     def _read(self) -> None:
         import re
@@ -76,7 +92,12 @@ class ScopeProcess:
 
         assert self.proc.stderr is not None
         for line in self.proc.stderr:
-            sys.stderr.write(line)
+            if line.startswith(("scope: ", "hilbench: ")) and len(line) <= 400:
+                sys.stderr.write(line)
+            else:
+                self.hidden_lines += 1
+                if line.strip():
+                    self.last_hidden = line.strip()[:160]
             match = re.search(r"scope: (http://\S+)", line)
             if match and not self.url:
                 self.url = match.group(1)
@@ -84,27 +105,12 @@ class ScopeProcess:
         self._found.set()  # the child ended (with or without its URL)
 
     def close(self) -> None:
-        import subprocess
+        from hilbench.processes import reap
 
-        if self.proc.poll() is None:
-            self.proc.terminate()
-            try:
-                self.proc.wait(5)
-            except subprocess.TimeoutExpired:
-                self.proc.kill()
-                self.proc.wait(5)
+        reap(self.proc, 5.0)
         self._reader.join(5)
+        if self.proc.stderr is not None:
+            self.proc.stderr.close()
 
 
-def _die_with_parent() -> None:
-    """In the child, before exec: SIGTERM when the parent dies (Linux prctl PR_SET_PDEATHSIG)."""
-    try:
-        import ctypes
-        import signal
-
-        ctypes.CDLL(None).prctl(1, int(signal.SIGTERM), 0, 0, 0)
-    except (OSError, AttributeError):
-        pass
-
-
-__all__ = ["ScopeProcess", "scope_for_recording", "scope_for_socket", "start_scope"]
+__all__ = ["ScopeProcess", "check_session_socket", "scope_for_recording", "scope_for_socket", "start_scope"]

@@ -4,13 +4,21 @@ Who may look: the URL carries a 128-bit random token (``/s/<token>/``; anything 
 every connection's peer must be a socket of this user: on Linux the kernel's socket tables
 (/proc/net/tcp, /proc/net/tcp6) name the owner uid of the client's end of a loopback connection,
 so another local user holding the URL is still refused (an SSH port-forward arrives from the
-user's own sshd process, so it passes). The browser is opened on a 0600 file in a 0700 directory
-that redirects to the URL, so the token never shows in a process list.
+user's own sshd process, so it passes). The browser is given a one-shot URL (``/o/<nonce>``,
+valid once for two minutes) that redirects to the page, so the token never shows in a process
+list and no file holding it is left behind.
+
+What a page may do is bounded: at most MAX_PAGES pages at once, WebSocket messages of at most
+MAX_WS_MESSAGE bytes checked by `hilbench.scope.messages` (a bad one is refused, the page goes
+on), HTTP requests within aiohttp's parser limits (HTTP_MAX_LINE, HTTP_MAX_FIELD,
+HTTP_MAX_HEADERS), and a malformed request is one rate-limited line (`hilbench.scope.httplog`),
+never a traceback.
 
 Where the data comes from (a `Source`):
 
-* `ControlSource`: a running session's control socket (the one `hilbench ctl` finds). Each page
-  gets its own connection; the server asks ``stream`` a dozen times a second and relays the
+* `ControlSource`: a running session's control socket (the one `hilbench ctl` finds). Every page
+  of a scope shares one connection (a stream connection: the session keeps its ctl connections
+  for `ctl`); for each page the server asks ``stream`` a dozen times a second and relays the
   frames, and relays the page's commands (set, ref, load, press, step, guard, stop) unchanged, so
   a change from the page takes the same checked, guarded path as `hilbench ctl`.
 * `RecordingSource`: a recording file, sent once as frames of the same shape (min/max envelopes).
@@ -27,25 +35,38 @@ import json
 import os
 import secrets
 import socket
-import tempfile
 import threading
 from pathlib import Path
 from typing import Any, Callable, Protocol
 
 import numpy as np
 
-from hilbench.errors import ConfigError
+from hilbench.bench.control import MAX_REPLY_BYTES
+from hilbench.errors import ConfigError, LinkError
+from hilbench.scope.httplog import RateLimitedLog, scope_logger
+from hilbench.scope.messages import Command, Refused, Subscribe, parse_page_message, refusal
 
 STATIC = Path(__file__).with_name("static")
 POLL_EVERY_S = 0.08  # the page's stream requests (a session answers within one observe period)
 MAX_WS_MESSAGE = 64 * 1024  # the page sends commands only
-REPLY_LIMIT = 64 * 1024 * 1024  # the longest reply line from the control socket
+REPLY_LIMIT = MAX_REPLY_BYTES  # the longest reply line from the control socket
+#: how long the one-shot URL given to the browser (`--open`) stays valid
+OPEN_VALID_S = 120.0
+#: pages open at once on one scope (a page more gets 503)
+MAX_PAGES = 8
+#: a page's commands waiting for the session at once (more are refused as busy)
+MAX_RELAYS_PER_PAGE = 8
+#: aiohttp's HTTP parser limits: a request line, a header field, the number of headers
+HTTP_MAX_LINE = 8190
+HTTP_MAX_FIELD = 8190
+HTTP_MAX_HEADERS = 64
 
 
 class Source(Protocol):
-    """Where a page's data comes from."""
+    """Where a page's data comes from: `serve` runs while the page is open and gets the page's
+    checked messages (hilbench.scope.messages) through ``inbox``."""
 
-    async def serve(self, send: Callable[[dict[str, Any]], Any], inbox: "asyncio.Queue[dict[str, Any]]") -> None: ...
+    async def serve(self, send: Callable[[dict[str, Any]], Any], inbox: "asyncio.Queue[Subscribe | Command]") -> None: ...
 
 
 # --------------------------------------------------------------------------------------------
@@ -80,68 +101,115 @@ def socket_owner(peer_port: int, local_port: int, tables: tuple[str, ...] = ("/p
 # sources
 
 
+class _Upstream:
+    """One connection to the session's control socket, shared by every page of this scope: pages
+    never hold control connections of their own (the session keeps MAX_CONNECTIONS for `ctl`)."""
+
+    def __init__(self, reader: asyncio.StreamReader, writer: asyncio.StreamWriter) -> None:
+        self._reader = reader
+        self._writer = writer
+        self._ids = itertools.count(1)
+        self._waiting: dict[int, asyncio.Future[dict[str, Any]]] = {}
+        self.closed = False
+        self._reading = asyncio.ensure_future(self._read_replies())
+
+    async def _read_replies(self) -> None:
+        try:
+            while True:
+                line = await self._reader.readline()
+                if not line:
+                    break
+                try:
+                    reply = json.loads(line)
+                except (ValueError, RecursionError):
+                    continue
+                future = self._waiting.pop(reply.get("id"), None) if isinstance(reply, dict) else None
+                if future is not None and not future.done():
+                    future.set_result(reply)
+        except (ConnectionError, OSError, ValueError, asyncio.LimitOverrunError):
+            pass  # a reply over REPLY_LIMIT or a reset: the connection is done
+        finally:
+            self.close()
+
+    async def ask(self, request: dict[str, Any]) -> dict[str, Any]:
+        """Send one request, wait for its reply (ConnectionError when the session went away)."""
+        from hilbench.bench.control import MAX_LINE_BYTES
+
+        if self.closed:
+            raise ConnectionError("the session closed its control socket")
+        rid = next(self._ids)
+        line = json.dumps({**request, "id": rid}, allow_nan=False, separators=(",", ":")).encode()
+        if len(line) > MAX_LINE_BYTES:
+            return {"ok": False, "message": f"request longer than {MAX_LINE_BYTES} bytes", "data": None}
+        future: asyncio.Future[dict[str, Any]] = asyncio.get_running_loop().create_future()
+        self._waiting[rid] = future
+        self._writer.write(line + b"\n")
+        await self._writer.drain()
+        return await future
+
+    def close(self) -> None:
+        if not self.closed:
+            self.closed = True
+            self._writer.close()
+        for future in self._waiting.values():
+            if not future.done():
+                future.set_exception(ConnectionError("the session closed its control socket"))
+        self._waiting.clear()
+
+
 class ControlSource:
-    """A running session, through its control socket."""
+    """A running session, through its control socket (one connection for every page)."""
 
     def __init__(self, socket_path: str | os.PathLike[str], poll_every_s: float = POLL_EVERY_S) -> None:
         self.socket_path = Path(socket_path)
         self.poll_every_s = poll_every_s
+        self._upstream: _Upstream | None = None
+        self._opening: asyncio.Lock | None = None
 
-    async def serve(self, send: Callable[[dict[str, Any]], Any], inbox: "asyncio.Queue[dict[str, Any]]") -> None:
+    async def _connect(self) -> _Upstream:
+        if self._opening is None:
+            self._opening = asyncio.Lock()
+        async with self._opening:
+            if self._upstream is None or self._upstream.closed:
+                reader, writer = await asyncio.open_unix_connection(str(self.socket_path), limit=REPLY_LIMIT)
+                self._upstream = _Upstream(reader, writer)
+            return self._upstream
+
+    async def serve(self, send: Callable[[dict[str, Any]], Any], inbox: "asyncio.Queue[Subscribe | Command]") -> None:
         try:
-            reader, writer = await asyncio.open_unix_connection(str(self.socket_path), limit=REPLY_LIMIT)
+            upstream = await self._connect()
         except OSError as exc:
             await send({"type": "closed", "reason": f"control socket {self.socket_path}: {exc.strerror or exc}"})
             return
-        ids = itertools.count(1)
-        waiting: dict[int, asyncio.Future[dict[str, Any]]] = {}
         state: dict[str, Any] = {"since": -1, "columns": []}
-
-        async def read_replies() -> None:
-            while True:
-                line = await reader.readline()
-                if not line:
-                    break
-                reply = json.loads(line)
-                future = waiting.pop(reply.get("id"), None)
-                if future is not None and not future.done():
-                    future.set_result(reply)
-            for future in waiting.values():
-                if not future.done():
-                    future.set_exception(ConnectionError("the session closed its control socket"))
-
-        async def ask(request: dict[str, Any]) -> dict[str, Any]:
-            rid = next(ids)
-            future: asyncio.Future[dict[str, Any]] = asyncio.get_running_loop().create_future()
-            waiting[rid] = future
-            writer.write(json.dumps({**request, "id": rid}).encode() + b"\n")
-            await writer.drain()
-            return await future
+        relays: set[asyncio.Future[None]] = set()
 
         async def commands() -> None:
             while True:
                 message = await inbox.get()
-                if message.get("type") == "subscribe":
-                    state["columns"] = [str(c) for c in message.get("columns", [])][:48]
-                    state["since"] = -1
-                elif message.get("type") == "cmd":
-                    request = {k: v for k, v in message.items() if k not in ("type", "id")}
-                    asyncio.ensure_future(relay(message.get("id"), request))
+                if isinstance(message, Subscribe):
+                    state["columns"], state["since"] = list(message.columns), -1
+                elif len(relays) >= MAX_RELAYS_PER_PAGE:
+                    await send(refusal(Refused(f"busy: {MAX_RELAYS_PER_PAGE} commands of this page are waiting",
+                                               message.page_id), message.request.get("cmd")))
+                else:
+                    task = asyncio.ensure_future(relay(message))
+                    relays.add(task)
+                    task.add_done_callback(relays.discard)
 
-        async def relay(page_id: Any, request: dict[str, Any]) -> None:
+        async def relay(message: Command) -> None:
             try:
-                reply = await ask(request)
+                reply = await upstream.ask(message.request)
             except ConnectionError as exc:
                 reply = {"ok": False, "message": str(exc), "data": None}
-            await send({"type": "reply", "id": page_id, "cmd": request.get("cmd"), "ok": reply.get("ok"),
-                        "message": reply.get("message"), "data": reply.get("data")})
+            await send({"type": "reply", "id": message.page_id, "cmd": message.request.get("cmd"),
+                        "ok": reply.get("ok"), "message": reply.get("message"), "data": reply.get("data")})
 
-        reading = asyncio.ensure_future(read_replies())
         handling = asyncio.ensure_future(commands())
         try:
             while True:
                 since = state["since"]
-                reply = await ask({"cmd": "stream", "since": since, "columns": state["columns"]})
+                reply = await upstream.ask({"cmd": "stream", "since": since, "columns": state["columns"]})
                 if not reply.get("ok"):
                     await send({"type": "closed", "reason": reply.get("message", "stream refused")})
                     return
@@ -153,12 +221,12 @@ class ControlSource:
                     await send({"type": "closed", "reason": "the run has ended"})
                     return
                 await asyncio.sleep(self.poll_every_s)
-        except (ConnectionError, OSError, json.JSONDecodeError):
+        except (ConnectionError, OSError, KeyError, TypeError, AttributeError):
             await send({"type": "closed", "reason": "the session closed its control socket"})
         finally:
-            reading.cancel()
             handling.cancel()
-            writer.close()
+            for task in list(relays):
+                task.cancel()
 
 
 class RecordingSource:
@@ -173,7 +241,7 @@ class RecordingSource:
         self.data = read_recording(self.path)
 
     def _names(self) -> list[tuple[str, str]]:
-        from hilbench.scope.stream import HALL_BITS
+        from hilbench.bench.display import HALL_BITS
 
         names = [(name, self.data.units.get(name, "")) for name in self.data.columns]
         if "hall" in self.data.columns:
@@ -183,7 +251,7 @@ class RecordingSource:
 
     def frame(self, columns: list[str]) -> dict[str, Any]:
         """Everything in one frame (buckets of a fixed size, at most MAX_BUCKETS of them)."""
-        from hilbench.scope.stream import HALL_BITS, b64_f32, envelope
+        from hilbench.bench.display import HALL_BITS, b64_f32, envelope
 
         data = self.data
         t = np.asarray(data.columns["t_s"], dtype=np.float64)
@@ -205,7 +273,7 @@ class RecordingSource:
         return {"seq": 1, "t0": float(t[0]) if n else 0.0, "dt": bucket * period_s, "n": n_buckets, "cols": cols}
 
     def markers(self) -> list[list[Any]]:
-        from hilbench.scope.stream import marker_kind, parse_event
+        from hilbench.bench.display import marker_kind, parse_event
 
         out = []
         for text in self.data.events:
@@ -219,19 +287,17 @@ class RecordingSource:
                 "target": str(self.path.name), "firmware": "", "mode": "recording",
                 "period_s": None}
 
-    async def serve(self, send: Callable[[dict[str, Any]], Any], inbox: "asyncio.Queue[dict[str, Any]]") -> None:
+    async def serve(self, send: Callable[[dict[str, Any]], Any], inbox: "asyncio.Queue[Subscribe | Command]") -> None:
         t_end = float(self.data.columns["t_s"][-1]) if self.data.n_rows else 0.0
         status = {"t_s": t_end, "ended": True}
         await send({"type": "stream", "seq": 0, "frames": [], "status": status, "markers": self.markers(), "meta": self.meta()})
         while True:
             message = await inbox.get()
-            if message.get("type") == "subscribe":
-                columns = [str(c) for c in message.get("columns", [])]
-                await send({"type": "stream", "seq": 1, "frames": [self.frame(columns)], "status": status,
+            if isinstance(message, Subscribe):
+                await send({"type": "stream", "seq": 1, "frames": [self.frame(list(message.columns))], "status": status,
                             "markers": [], "replace": True})
-            elif message.get("type") == "cmd":
-                await send({"type": "reply", "id": message.get("id"), "cmd": message.get("cmd"), "ok": False,
-                            "message": "a recording cannot be steered", "data": None})
+            else:
+                await send(refusal(Refused("a recording cannot be steered", message.page_id), message.request.get("cmd")))
 
 
 # --------------------------------------------------------------------------------------------
@@ -249,7 +315,13 @@ class ScopeServer:
         self.token = token or secrets.token_urlsafe(16)
         self.check_owner = check_owner
         self.uid = os.getuid()
-        self.refused: dict[str, int] = {"token": 0, "user": 0}
+        #: refused requests: a wrong token, another user, a page over MAX_PAGES (malformed HTTP
+        #: requests: ``log.count``)
+        self.refused: dict[str, int] = {"token": 0, "user": 0, "pages": 0}
+        self.log = RateLimitedLog()
+        self.pages = 0
+        self._open_nonce: str | None = None
+        self._open_until_s = 0.0
         self._loop: asyncio.AbstractEventLoop | None = None
         self._thread: threading.Thread | None = None
         self._ready = threading.Event()
@@ -261,6 +333,15 @@ class ScopeServer:
     def url(self) -> str:
         return f"http://{self.host}:{self.port}/s/{self.token}/"
 
+    def open_url(self, valid_s: float = OPEN_VALID_S) -> str:
+        """A URL that redirects to the page once, within ``valid_s``: what a browser is given (its
+        command line shows no token, and no file holding one is left behind)."""
+        import time
+
+        self._open_nonce = secrets.token_urlsafe(16)
+        self._open_until_s = time.monotonic() + valid_s
+        return f"http://{self.host}:{self.port}/o/{self._open_nonce}"
+
     # ---- the app
     def app(self) -> Any:
         from aiohttp import web
@@ -270,6 +351,8 @@ class ScopeServer:
             if self.check_owner and not self._same_user(request):
                 self.refused["user"] += 1
                 return web.Response(status=403, text="hilbench scope: this connection is not from the bench's user\n")
+            if "nonce" in request.match_info:
+                return self._opened(request.match_info["nonce"])
             if not hmac.compare_digest(request.match_info.get("token", ""), self.token):
                 self.refused["token"] += 1
                 return web.Response(status=403, text="hilbench scope: wrong or missing token\n")
@@ -279,8 +362,22 @@ class ScopeServer:
         app.router.add_get("/s/{token}/", self._page)
         app.router.add_get("/s/{token}/scope.js", self._script)
         app.router.add_get("/s/{token}/ws", self._websocket)
+        app.router.add_get("/o/{nonce}", self._nothing)
         app.router.add_get("/{tail:.*}", self._nothing)
         return app
+
+    def _opened(self, nonce: str) -> Any:
+        """The one-shot open URL: a redirect to the page the first time, 403 after."""
+        import time
+
+        from aiohttp import web
+
+        expected, self._open_nonce = self._open_nonce, None
+        if expected is None or time.monotonic() > self._open_until_s or not hmac.compare_digest(nonce, expected):
+            self.refused["token"] += 1
+            return web.Response(status=403, text="hilbench scope: this link has been used or has expired\n")
+        return web.Response(status=303, headers={"Location": f"/s/{self.token}/", "Cache-Control": "no-store",
+                                                 "Referrer-Policy": "no-referrer"})
 
     def _same_user(self, request: Any) -> bool:
         transport = request.transport
@@ -314,9 +411,13 @@ class ScopeServer:
 
         # no per-message deflate: base64 float32 barely compresses, and deflating would cost the
         # session's process CPU (and GIL) for every frame
+        if self.pages >= MAX_PAGES:
+            self.refused["pages"] += 1
+            return web.Response(status=503, text=f"hilbench scope: {MAX_PAGES} pages are open already\n")
         ws = web.WebSocketResponse(max_msg_size=MAX_WS_MESSAGE, heartbeat=20.0, compress=False)
         await ws.prepare(request)
-        inbox: asyncio.Queue[dict[str, Any]] = asyncio.Queue()
+        self.pages += 1
+        inbox: asyncio.Queue[Subscribe | Command] = asyncio.Queue(maxsize=64)
 
         async def send(message: dict[str, Any]) -> None:
             if not ws.closed:
@@ -331,12 +432,15 @@ class ScopeServer:
                 if msg.type != WSMsgType.TEXT:
                     continue
                 try:
-                    message = json.loads(msg.data)
-                except json.JSONDecodeError:
+                    message = parse_page_message(msg.data)
+                except Refused as exc:  # answered, and the page goes on
+                    await send(refusal(exc))
                     continue
-                if isinstance(message, dict):
-                    await inbox.put(message)
+                if serving.done():
+                    break
+                await inbox.put(message)
         finally:
+            self.pages -= 1
             serving.cancel()
         return ws
 
@@ -364,7 +468,10 @@ class ScopeServer:
         from aiohttp import web
 
         self._stopping = asyncio.Event()
-        runner = self._runner = web.AppRunner(self.app(), access_log=None)
+        asyncio.get_running_loop().set_exception_handler(self._loop_exception)
+        runner = self._runner = web.AppRunner(  # aiohttp's parser limits, and its errors through our one-line log
+            self.app(), access_log=None, logger=scope_logger(self.log), max_line_size=HTTP_MAX_LINE,
+            max_field_size=HTTP_MAX_FIELD, max_headers=HTTP_MAX_HEADERS)
         await runner.setup()
         site = web.TCPSite(runner, self.host, self.port, reuse_address=True)
         await site.start()
@@ -375,6 +482,15 @@ class ScopeServer:
             await self._stopping.wait()
         finally:
             await runner.cleanup()
+
+    def _loop_exception(self, loop: asyncio.AbstractEventLoop, context: dict[str, Any]) -> None:
+        """An error nobody awaited (a page's task, a transport): one line through the log, no traceback."""
+        import logging
+
+        exc = context.get("exception")
+        record = logging.LogRecord("hilbench.scope", logging.ERROR, __file__, 0, str(context.get("message", "error")),
+                                   None, (type(exc), exc, None) if isinstance(exc, BaseException) else None)
+        self.log.handle(record)
 
     def close(self) -> None:
         """Stop serving (idempotent)."""
@@ -407,17 +523,14 @@ def _nan_none(value: Any) -> Any:
     raise TypeError(f"not JSON: {type(value).__name__}")
 
 
-def open_in_browser(url: str) -> Path:
-    """Open ``url`` through a private redirect file (the token stays out of process lists)."""
+def open_in_browser(server: "ScopeServer") -> str:
+    """Open the page in the browser through the server's one-shot URL (no token on the browser's
+    command line, no file left behind); returns the URL given to the browser."""
     import webbrowser
 
-    folder = Path(tempfile.mkdtemp(prefix="hilbench-scope-"))  # mode 0700
-    page = folder / "open.html"
-    fd = os.open(page, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o600)
-    with os.fdopen(fd, "w", encoding="utf-8") as f:
-        f.write(f'<!doctype html><meta http-equiv="refresh" content="0; url={url}"><a href="{url}">hilbench scope</a>\n')
-    webbrowser.open(page.as_uri())
-    return page
+    url = server.open_url()
+    webbrowser.open(url)
+    return url
 
 
 def free_port_hint() -> int:

@@ -15,7 +15,10 @@ import sys
 import threading
 from typing import Callable, Mapping
 
-from hilbench.link import open_link, parse_tcp_listen, serve_tcp_once
+from hilbench.errors import LinkClosed
+from hilbench.link import Link, open_link, parse_tcp_listen, serve_tcp_once
+from hilbench.link.tcp import TcpListener
+from hilbench.processes import watch_parent
 from hilbench.targets.registry import get_profile
 from hilbench.targets.serve import ServeReport, serve
 
@@ -27,20 +30,25 @@ def serve_on_port(name: str, port_spec: str = "pty", mode: int | None = None,
     """Build target `name` and serve it on `port_spec` until the link closes or stop_event is set.
 
     port_spec "pty" makes a pair and serves on its master; "tcp:PORT" or "tcp:HOST:PORT" listens
-    there (port 0: any free one) and serves the first host that connects; any other spec (a tty
+    there (port 0: any free one) and serves the first host that connects (with ``keep_serving``:
+    one host after another on the same port); any other spec (a tty
     path, serial:..., fd:N, a pyserial URL) is opened as it is. `announce` gets the path the host should open
     (the pty slave, or port_spec itself) once the server is ready to answer. `options` are the
-    profile's `[target]` options as plain values. ``keep_serving`` (a pty): serve one host after
-    another, as a board does, until stop_event or Ctrl-C — the pty's slave is held open here, so a
-    host hanging up is not the end.
+    profile's `[target]` options as plain values. ``keep_serving`` (a pty or a TCP port): serve one
+    host after another, as a board does, until stop_event or Ctrl-C — the pty's slave is held open
+    here, the TCP port keeps listening, so a host hanging up is not the end.
     """
     profile = get_profile(name)
     target = profile.make(profile.options_from(dict(options or {})))
-    if port_spec.startswith("tcp:"):  # a TCP port: serve the one host that connects (socket://HOST:PORT)
+    if port_spec.startswith("tcp:"):  # a TCP port (socket://HOST:PORT)
         host, port = parse_tcp_listen(port_spec)
-        return serve_tcp_once(port, lambda link: serve(target, link, stop_event=stop_event, mode=mode,
-                                                       watchdog_ms=watchdog_ms),
-                              host=host, announce=announce, stop_event=stop_event)
+
+        def handler(link: Link) -> ServeReport:
+            return serve(target, link, stop_event=stop_event, mode=mode, watchdog_ms=watchdog_ms)
+
+        if not keep_serving:
+            return serve_tcp_once(port, handler, host=host, announce=announce, stop_event=stop_event)
+        return _serve_tcp_hosts(host, port, handler, announce, stop_event)
     link = open_link(port_spec, timeout_s=1.0)
     held: int | None = None
     try:
@@ -55,6 +63,31 @@ def serve_on_port(name: str, port_spec: str = "pty", mode: int | None = None,
             os.close(held)
 
 
+def _serve_tcp_hosts(host: str, port: int, handler: Callable[[Link], ServeReport],
+                     announce: Callable[[str], None] | None, stop_event: threading.Event | None) -> ServeReport:
+    """One host after another on one listening port, as a board serves whoever opens its port
+    next, until stop_event or Ctrl-C (a host hanging up is not the end); the totals of every host."""
+    total = ServeReport(reason="stopped")
+    with TcpListener(port, host) as listener:
+        if announce is not None:
+            announce(listener.url)
+        while stop_event is None or not stop_event.is_set():
+            try:
+                link = listener.accept(stop_event=stop_event)
+            except LinkClosed:
+                break
+            with link:
+                report = handler(link)
+            total.sensors += report.sensors
+            total.requests += report.requests
+            total.error_reports += report.error_reports
+            total.watchdog_trips += report.watchdog_trips
+            total.handler_faults += report.handler_faults
+            total.duplicates += report.duplicates
+            total.mode = report.mode
+    return total
+
+
 def main(argv: list[str] | None = None) -> int:
     """The emulator process's entry point (see the module docstring)."""
     from hilbench.errors import HilbenchError
@@ -66,6 +99,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--watchdog-ms", type=int, default=None)
     parser.add_argument("--options", default="{}", help="the profile's [target] options as JSON")
     args = parser.parse_args(argv)
+    watch_parent()  # the bench that started this process may be killed: then this one ends too
     mode = None if args.mode is None else (0 if args.mode == "lockstep" else 1)
     try:
         options = json.loads(args.options)

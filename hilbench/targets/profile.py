@@ -13,9 +13,10 @@ from __future__ import annotations
 import dataclasses
 import math
 from dataclasses import dataclass, field
-from typing import TYPE_CHECKING, Callable, Literal, Mapping, Protocol
+from typing import TYPE_CHECKING, Any, Callable, Generic, Literal, Mapping, Protocol, TypeVar
 
-from hilbench.plant.params import PwmTiming
+from hilbench.pwm import PwmTiming
+from hilbench.targets.kit import ParamSpec
 
 if TYPE_CHECKING:
     import subprocess
@@ -23,9 +24,14 @@ if TYPE_CHECKING:
     from hilbench.targets.base import Target
     from hilbench.targets.starters import FirmwareStarter
 
+#: a target's options: the frozen dataclass of its `[target]` table (None for a target with none)
+Options = TypeVar("Options")
+
 #: capabilities a profile may declare (the pytest plugin's `hil_requires` and the CLI check them);
-#: "encoder": the target reads the quadrature encoder and its index (the session forwards the index)
-CAPABILITIES = ("speed_loop", "realtime", "fault_injection", "tuning", "hall_sensors", "encoder")
+#: "encoder": the target reads the quadrature encoder and its index (the session forwards the index);
+#: "link_check": every Drive is a documented function of the Sensors alone, so `link-test` checks
+#: each against the in-process model
+CAPABILITIES = ("speed_loop", "realtime", "fault_injection", "tuning", "hall_sensors", "encoder", "link_check")
 
 
 @dataclass(frozen=True)
@@ -87,28 +93,34 @@ class MotorBuild:
     max_speed_rpm: float = math.inf
 
 
-class OptionsType(Protocol):
-    """A frozen dataclass whose fields are the target's `[target]` config table."""
+def _no_build(options: Any) -> MotorBuild | None:
+    return None
 
-    __dataclass_fields__: dict
+
+def _no_params(options: Any) -> dict[str, float]:
+    return {}
 
 
 @dataclass(frozen=True)
-class TargetProfile:
-    """One firmware as the bench sees it. Only ``name``, ``firmware_name`` and ``make`` are required."""
+class TargetProfile(Generic[Options]):
+    """One firmware as the bench sees it, for its options type ``Options`` (the dataclass of its
+    `[target]` table; None when it takes none). Only ``name``, ``firmware_name`` and ``make`` are
+    required; a profile built from a self-describing firmware's handshake fills ``params`` and
+    ``telemetry`` from what the firmware declared."""
 
     name: str  # the spec name: `inprocess:NAME`, `emulator:NAME`
     firmware_name: str  # the name its HELLO carries
-    make: Callable[[object], "Target"]  # options -> an in-process Target
+    make: Callable[[Options], "Target"]  # options -> an in-process Target
     description: str = ""
-    options_type: type | None = None  # frozen dataclass validated from the [target] table
+    options_type: type[Options] | None = None  # frozen dataclass validated from the [target] table
     tunable: tuple[str, ...] = ()  # the gains `step`, `sweep` and the guard work on
     check_params: Callable[[Mapping[str, int]], str | None] | None = None  # raw values -> broken constraint
     reference: PotReference | ParamReference | None = None
     telemetry: tuple[TelemetryColumn, ...] = ()
+    params: tuple[ParamSpec, ...] = ()  # the declared parameters (name, type, range, unit), when known
     speed_column: str | None = None  # the telemetry column that is the firmware's measured speed
-    built_for: Callable[[object], MotorBuild | None] = field(default=lambda options: None)
-    initial_params: Callable[[object], dict[str, float]] = field(default=lambda options: {})
+    built_for: Callable[[Options], MotorBuild | None] = field(default=_no_build)
+    initial_params: Callable[[Options], dict[str, float]] = field(default=_no_params)
     capabilities: frozenset[str] = frozenset()
     #: the default grid of `hilbench sweep`: (parameter, "A:B:N") pairs
     sweep_defaults: tuple[tuple[str, str], ...] = ()
@@ -116,33 +128,33 @@ class TargetProfile:
     #: a firmware-in-the-loop build of the board's own C firmware: (options, tty path) -> the started
     #: process, serving that tty once this returns (`sil:NAME`); None: the target has none. (Older
     #: form of starters["sil"]; the launcher takes either.)
-    start_sil: "Callable[[object, str], subprocess.Popen[bytes]] | None" = None
+    start_sil: "Callable[[Options, str], subprocess.Popen[bytes]] | None" = None
     #: the builds of its C firmware that run as processes, by spec kind: "sil", "simavr", "qemu"
     #: (hilbench.targets.starters)
     starters: "Mapping[str, FirmwareStarter]" = field(default_factory=dict)
     #: the profile of a build with these options, for a firmware whose build constants are options
     #: (its reference scale, telemetry scales and `built_for` follow them); None: options change none
-    configure: "Callable[[object], TargetProfile] | None" = None
+    configure: "Callable[[Options], TargetProfile[Options]] | None" = None
     #: where its PWM unit centres the pulses and when its ADC samples the phase currents (the plant's
     #: switching inverter reads it); None: the plant's default (PwmTiming())
     pwm_timing: PwmTiming | None = None
 
-    def configured(self, options: object) -> "TargetProfile":
+    def configured(self, options: Options | None) -> "TargetProfile[Options]":
         """This profile as built with ``options`` (itself when the target has no build constants)."""
         return self if self.configure is None or options is None else self.configure(options)
 
-    def default_options(self) -> object:
+    def default_options(self) -> Options | None:
         """The options dataclass with every default (None when the target takes no options)."""
         return None if self.options_type is None else self.options_type()
 
-    def options_from(self, values: Mapping[str, object]) -> object:
+    def options_from(self, values: Mapping[str, object]) -> Options | None:
         """Options from plain values (the emulator process gets them as JSON)."""
         if self.options_type is None:
             return None
-        known = {f.name for f in dataclasses.fields(self.options_type)}
+        known = {f.name for f in dataclasses.fields(self.options_type)}  # type: ignore[arg-type]
         return self.options_type(**{k: v for k, v in values.items() if k in known})
 
-    def options_as_dict(self, options: object) -> dict[str, object]:
+    def options_as_dict(self, options: Options | None) -> dict[str, object]:
         if options is None or not dataclasses.is_dataclass(options):
             return {}
         return {f.name: getattr(options, f.name) for f in dataclasses.fields(options)}
@@ -158,20 +170,24 @@ class TargetProfile:
         return capability in self.capabilities
 
 
-def generic_profile(firmware_name: str) -> TargetProfile:
-    """The profile of a firmware met only through its HELLO (a board with no registered profile)."""
+def generic_profile(firmware_name: str, *, params: tuple[ParamSpec, ...] = (),
+                    telemetry: tuple[TelemetryColumn, ...] = ()) -> TargetProfile[None]:
+    """The profile of a firmware met only through its HELLO (a board with no registered profile):
+    what it declared of its parameters and telemetry, when it describes itself."""
 
-    def cannot_make(options: object) -> "Target":
+    def cannot_make(options: None) -> "Target":
         from hilbench.errors import ConfigError
 
         raise ConfigError(f"firmware {firmware_name!r}: no in-process model is registered")
 
-    return TargetProfile(name=firmware_name.lower() or "generic", firmware_name=firmware_name, make=cannot_make)
+    return TargetProfile(name=firmware_name.lower() or "generic", firmware_name=firmware_name, make=cannot_make,
+                         params=params, telemetry=telemetry)
 
 
 __all__ = [
     "CAPABILITIES",
     "MotorBuild",
+    "Options",
     "ParamReference",
     "PotReference",
     "ReferenceInput",

@@ -20,7 +20,6 @@ from __future__ import annotations
 import hashlib
 import os
 import shutil
-import signal
 import subprocess
 import tempfile
 import time
@@ -29,7 +28,7 @@ from pathlib import Path
 from typing import IO, Callable
 
 from hilbench.errors import ConfigError, LinkError
-from hilbench.processes import reap
+from hilbench.processes import reap, spawn
 from hilbench.targets.starters import Started, cache_root
 
 REPO = Path(__file__).resolve().parent.parent.parent
@@ -102,19 +101,6 @@ def build_m4(build: M4Build, out_dir: Path | None = None) -> Path:
     return elf
 
 
-def _die_with_parent(parent_pid: int) -> None:
-    """In the child before exec: SIGKILL when the parent dies (Linux prctl PR_SET_PDEATHSIG)."""
-    try:
-        import ctypes
-
-        libc = ctypes.CDLL(None, use_errno=True)
-        libc.prctl(1, int(signal.SIGKILL), 0, 0, 0)  # PR_SET_PDEATHSIG = 1
-    except (OSError, AttributeError):  # not Linux: the session and reap() still stop it
-        return
-    if os.getppid() != parent_pid:  # the parent died before the prctl
-        os._exit(1)
-
-
 def qemu_command(elf: Path, serial: str, extra: tuple[str, ...] = ()) -> list[str]:
     """The QEMU command line of a firmware ELF, its UART0 on `serial` (a tty path, or "pty")."""
     qemu = shutil.which("qemu-system-arm")
@@ -129,11 +115,9 @@ def start_qemu(elf: Path, tty_path: str, extra: tuple[str, ...] = (), label: str
     reads could block it), which the Started keeps for its exit note. Bytes sent before the
     firmware enables its UART wait in the tty."""
     log = tempfile.TemporaryFile()
-    parent = os.getpid()
     try:
-        process = subprocess.Popen(qemu_command(elf, tty_path, extra), stdin=subprocess.DEVNULL, stdout=log,
-                                   stderr=subprocess.STDOUT, start_new_session=True,
-                                   preexec_fn=lambda: _die_with_parent(parent))
+        process = spawn(qemu_command(elf, tty_path, extra), stdin=subprocess.DEVNULL, stdout=log,  # dies with us
+                        stderr=subprocess.STDOUT, start_new_session=True)
     except OSError as exc:
         log.close()
         raise LinkError(f"qemu: cannot start qemu-system-arm ({exc.strerror})") from None

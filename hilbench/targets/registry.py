@@ -15,15 +15,21 @@ from __future__ import annotations
 
 import importlib
 import threading
+from typing import TYPE_CHECKING, Any
 from importlib.metadata import entry_points
 
 from hilbench.errors import ConfigError
 from hilbench.targets.profile import TargetProfile, generic_profile
 
+if TYPE_CHECKING:
+    from hilbench.targets.base import Target
+
 ENTRY_POINT_GROUP = "hilbench.targets"
 
 #: the target a bench uses when the config names none
 DEFAULT_TARGET = "emulator:an1017"
+#: the target `hilbench link-test` starts when it is given none (its Drives are checked, "link_check")
+LINK_TEST_TARGET = "loopback"
 
 #: built-in targets: name -> module whose PROFILE attribute is the profile
 _BUILTIN = {
@@ -100,7 +106,7 @@ def profile_for_firmware(firmware_name: str) -> TargetProfile:
     return found if found is not None else generic_profile(firmware_name.strip())
 
 
-def make_target(name: str, options: object | None = None) -> object:
+def make_target(name: str, options: Any = None) -> "Target":
     """An in-process target by name, with its options dataclass (defaults when None)."""
     profile = get_profile(name)
     return profile.make(profile.default_options() if options is None else options)
@@ -109,6 +115,7 @@ def make_target(name: str, options: object | None = None) -> object:
 __all__ = [
     "DEFAULT_TARGET",
     "ENTRY_POINT_GROUP",
+    "LINK_TEST_TARGET",
     "get_profile",
     "known_targets",
     "make_target",

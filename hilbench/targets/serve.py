@@ -3,7 +3,11 @@
 Lockstep: each Sensors advances the model by exactly one period (target.step) and is answered
 by its Drive with the same seq. Real time (HostHello mode 1, or forced): each Sensors advances
 the model by the wall time since the previous one (target.advance); when no Sensors arrives for
-watchdog_ms the model's watchdog trips and its Drive (outputs off) is sent unsolicited.
+watchdog_ms the model's watchdog trips and its Drive (outputs off) is sent unsolicited. The
+watchdog runs in lockstep too (at least LOCKSTEP_WATCHDOG_MIN_S, as the firmware runtime's
+HRT_LOCKSTEP_WATCHDOG_MIN_MS): a host gone silent gets its outputs off (a Drive saying OFF and
+WATCHDOG, counted in Status), but the model does not step or stop: its time stands still while
+the host is away, so a host pausing on a loaded machine changes no recording.
 Bad frames are counted by the link's decoder; nothing a host sends can crash the server.
 """
 
@@ -14,9 +18,10 @@ import gc
 import threading
 import time
 from dataclasses import dataclass, field
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from hilbench.errors import HilbenchError, LinkClosed, ParamError
+from hilbench.targets.kit import RepeatAnswer
 from hilbench.protocol import (
     Drive,
     MODE_LOCKSTEP,
@@ -26,6 +31,7 @@ from hilbench.protocol import (
     ErrorReport,
     Fault,
     HostHello,
+    OutputMode,
     ParamDescribe,
     ParamGet,
     ParamSet,
@@ -39,9 +45,14 @@ from hilbench.protocol import (
     host_hello_mismatch,
 )
 
+if TYPE_CHECKING:
+    from hilbench.link import Link
+    from hilbench.targets.base import Target
+
 log = logging.getLogger("hilbench.serve")
 
 _POLL_S = 0.2  # how often an idle server looks at stop_event
+LOCKSTEP_WATCHDOG_MIN_S = 1.0  # the firmware runtime's HRT_LOCKSTEP_WATCHDOG_MIN_MS
 _MAX_LOGGED_FAULTS = 5
 
 
@@ -163,101 +174,98 @@ class _Server:
 
     # -- the loop ----------------------------------------------------------------------------
     def run(self) -> ServeReport:
-        link = self.link
-        target = self.target
-        recv = link.recv_or_none
-        send = link.send
-        step = target.step
-        stop_event = self.stop_event
-        report = self.report
+        """Answer frames until the link closes or stop_event is set."""
+        self.answer = RepeatAnswer(self._new_period)  # a repeated seq: the last Drive again, no step
         handlers = {
-            HostHello: self.on_hello,
-            ParamDescribe: self.on_describe,
-            ParamGet: self.on_get,
-            ParamSet: self.on_set,
-            Start: self.on_start,
-            Stop: self.on_stop,
-            StatusRequest: self.on_status,
-            TargetDescribe: self.on_describe_target,
-            TelemetryDescribe: self.on_describe_telemetry,
+            HostHello: self.on_hello, ParamDescribe: self.on_describe, ParamGet: self.on_get,
+            ParamSet: self.on_set, Start: self.on_start, Stop: self.on_stop, StatusRequest: self.on_status,
+            TargetDescribe: self.on_describe_target, TelemetryDescribe: self.on_describe_telemetry,
         }
-        lockstep = self.mode != MODE_REALTIME
-        # lockstep with nobody to ask us to stop: wait for frames without a timeout (one blocking
-        # read per period, no poll); otherwise wake every _POLL_S to look at stop_event
-        lockstep_wait = None if stop_event is None else _POLL_S
-        last_drive: Drive | None = None  # the answer to a repeated seq
         try:
-            while True:
-                if lockstep:
-                    # the hot path: one Sensors in, one Drive out, nothing else per period
-                    msg = recv(lockstep_wait)
-                    if type(msg) is Sensors:
-                        report.sensors += 1
-                        if last_drive is not None and msg.seq == last_drive.seq:  # a duplicated frame:
-                            report.duplicates += 1  # the same answer, no second step (item 8)
-                            send(last_drive)
-                            continue
-                        try:
-                            drive = step(msg)
-                            if drive.seq != msg.seq:
-                                drive = drive._replace(seq=msg.seq)
-                            last_drive = drive
-                            send(drive)
-                        except LinkClosed:
-                            raise
-                        except Exception as exc:  # noqa: BLE001 - a model bug must not take the server down
-                            self.handler_fault(msg, exc)
-                        if stop_event is not None and stop_event.is_set():
-                            report.reason = "stopped"
-                            break
-                        continue
-                else:
-                    msg = recv(self.realtime_wait())
+            while not self._stopped():
+                msg = self._lockstep() if self.mode != MODE_REALTIME else self.link.recv_or_none(self.realtime_wait())
                 if msg is None:
-                    if stop_event is not None and stop_event.is_set():
-                        report.reason = "stopped"
-                        break
                     self.check_watchdog()
-                    continue
-                kind = type(msg)
-                try:
-                    if kind is Sensors and last_drive is not None and msg.seq == last_drive.seq:
-                        report.sensors += 1
-                        report.duplicates += 1
-                        send(last_drive)
-                    elif kind is Sensors:
-                        report.sensors += 1
-                        now = time.monotonic()
-                        last = self.last_sensors_t
-                        span_us = (now - last) * 1e6 if last is not None else float(self.period_us)
-                        self.last_sensors_t = now
-                        self.tripped = False
-                        drive = target.advance(span_us, msg)
-                        if drive.seq != msg.seq:
-                            drive = drive._replace(seq=msg.seq)
-                        last_drive = drive
-                        send(drive)
-                    else:
-                        report.requests += 1
-                        handler = handlers.get(kind)
-                        last_drive = None  # a request between periods: the next Sensors is new
-                        if handler is None:
-                            self.error(msg.seq, ErrorCode.BAD_REQUEST, 0)
-                        else:
-                            handler(msg)
-                            lockstep = self.mode != MODE_REALTIME
-                except LinkClosed:
-                    raise
-                except Exception as exc:  # noqa: BLE001 - a model bug must not take the server down
-                    self.handler_fault(msg, exc)
-                if stop_event is not None and stop_event.is_set():
-                    report.reason = "stopped"
-                    break
+                elif type(msg) is Sensors:
+                    self._sensors(msg)
+                else:
+                    self._request(msg, handlers)
         except LinkClosed as exc:
-            report.reason = str(exc)
+            self.report.reason = str(exc)
             log.info("%s", exc)
-        report.link_stats = link.stats.as_dict()
-        return report
+        self.report.duplicates = self.answer.repeats
+        self.report.link_stats = self.link.stats.as_dict()
+        return self.report
+
+    def _stopped(self) -> bool:
+        stop_event = self.stop_event
+        if stop_event is not None and stop_event.is_set():
+            self.report.reason = "stopped"
+            return True
+        return False
+
+    def _lockstep(self) -> Any:
+        """Lockstep's hot path: one Sensors in, one Drive out, nothing else per period; returns the
+        first other message (None: a poll's timeout, stop_event is to be looked at). With nobody to
+        ask us to stop, wait for frames without a timeout (one blocking read per period, no poll)."""
+        recv, send, answer, report, stop_event = self.link.recv_or_none, self.link.send, self.answer, self.report, self.stop_event
+        watching = self.watchdog_s > 0  # a watchdog agreed: wake to look at it, and note each Sensors' time
+        wait = None if stop_event is None and not watching else _POLL_S
+        while True:
+            msg = recv(wait)
+            if type(msg) is not Sensors:
+                return msg
+            report.sensors += 1
+            if watching:
+                self.last_sensors_t = time.monotonic()
+                self.tripped = False
+            try:
+                send(answer.step(msg))
+            except LinkClosed:
+                raise
+            except Exception as exc:  # noqa: BLE001 - a model bug must not take the server down
+                self.handler_fault(msg, exc)
+            if stop_event is not None and stop_event.is_set():
+                return None
+
+    def _new_period(self, msg: Sensors) -> Drive:
+        """A new Sensors (not a repeat): lockstep steps one period, real time the wall time since the
+        last one; the Drive answers with the Sensors' seq."""
+        if self.mode != MODE_REALTIME:
+            drive = self.target.step(msg)
+        else:
+            now = time.monotonic()
+            last = self.last_sensors_t
+            span_us = (now - last) * 1e6 if last is not None else float(self.period_us)
+            self.last_sensors_t = now
+            self.tripped = False
+            drive = self.target.advance(span_us, msg)
+        return drive if drive.seq == msg.seq else drive._replace(seq=msg.seq)
+
+    def _sensors(self, msg: Sensors) -> None:
+        """A Sensors outside the lockstep loop (real time)."""
+        self.report.sensors += 1
+        try:
+            self.link.send(self.answer.step(msg))
+        except LinkClosed:
+            raise
+        except Exception as exc:  # noqa: BLE001 - a model bug must not take the server down
+            self.handler_fault(msg, exc)
+
+    def _request(self, msg: Any, handlers: dict[type, Any]) -> None:
+        """A request between periods: the next Sensors is a new period whatever its seq."""
+        self.report.requests += 1
+        self.answer.forget()
+        handler = handlers.get(type(msg))
+        try:
+            if handler is None:
+                self.error(msg.seq, ErrorCode.BAD_REQUEST, 0)
+            else:
+                handler(msg)
+        except LinkClosed:
+            raise
+        except Exception as exc:  # noqa: BLE001 - a model bug must not take the server down
+            self.handler_fault(msg, exc)
 
     def realtime_wait(self) -> float:
         """How long the real-time loop may wait for a frame: until the watchdog is due, at most _POLL_S."""
@@ -281,13 +289,20 @@ class _Server:
             pass
 
     def check_watchdog(self) -> None:
-        if self.mode != MODE_REALTIME or self.watchdog_s <= 0 or self.last_sensors_t is None or self.tripped:
+        """No Sensors for the watchdog time: outputs off and one unsolicited Drive that says so (real
+        time: the model's own trip; lockstep: the last Drive with the outputs OFF, the model untouched)."""
+        if self.watchdog_s <= 0 or self.last_sensors_t is None or self.tripped:
             return
-        if time.monotonic() - self.last_sensors_t >= self.watchdog_s:
+        lockstep = self.mode != MODE_REALTIME
+        limit_s = max(self.watchdog_s, LOCKSTEP_WATCHDOG_MIN_S) if lockstep else self.watchdog_s
+        if time.monotonic() - self.last_sensors_t >= limit_s:
             self.tripped = True
             self.report.watchdog_trips += 1
             self.last_error = int(ErrorCode.WATCHDOG)
-            drive = self.target.watchdog_trip()
+            last = self.answer.last
+            if lockstep and last is None:
+                return  # no Drive yet to say it with: the outputs were never on since the last request
+            drive = last._replace(output_mode=OutputMode.OFF, fault=Fault.WATCHDOG) if lockstep else self.target.watchdog_trip()
             log.warning("%s: no Sensors for %.0f ms: watchdog tripped, outputs off", self.link.name,
                         self.watchdog_s * 1000)
             self.link.send(drive)
@@ -314,7 +329,7 @@ def status_last_error(server_error: int, target_value: int) -> int:
     return int(ErrorCode.NONE)
 
 
-def serve(target: Any, link: Any, *, stop_event: threading.Event | None = None, mode: int | None = None,
+def serve(target: "Target", link: "Link", *, stop_event: threading.Event | None = None, mode: int | None = None,
           watchdog_ms: int | None = None) -> ServeReport:
     """Answer frames on link with target until the link closes or stop_event is set.
 

@@ -24,7 +24,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, Literal
 
-from hilbench.processes import reap
+from hilbench.processes import reap, spawn
 from hilbench.errors import ConfigError, LinkError
 
 if TYPE_CHECKING:
@@ -101,8 +101,8 @@ def start_sil(tty_path: str, variant: Variant = "seed", *, exe: Path | None = No
     if variant not in ("seed", "v11"):
         raise ConfigError(f"sil:an1017 variant {variant!r}: expected 'seed' or 'v11'")
     program = exe or build_sil(defines=defines)
-    process = subprocess.Popen([str(program), "--variant", variant, "--ready", tty_path],
-                               stdin=subprocess.DEVNULL, stdout=subprocess.PIPE, stderr=subprocess.PIPE)
+    process = spawn([str(program), "--variant", variant, "--ready", tty_path],  # dies with us (hilbench.processes)
+                    stdin=subprocess.DEVNULL, stdout=subprocess.PIPE, stderr=subprocess.PIPE)
     assert process.stdout is not None
     ready, _, _ = select.select([process.stdout], [], [], READY_TIMEOUT_S)
     line = process.stdout.readline() if ready else b""

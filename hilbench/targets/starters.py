@@ -27,7 +27,7 @@ from pathlib import Path
 from typing import IO, Callable, Mapping, Protocol
 
 from hilbench.errors import ConfigError, LinkError
-from hilbench.processes import reap
+from hilbench.processes import reap, spawn
 
 READY_TIMEOUT_S = 20.0
 #: "ready PATH": the ready line of hilbench's host ports and of run_simavr
@@ -90,9 +90,9 @@ def start_process(argv: list[str], label: str, *, ready: re.Pattern[bytes] = REA
     the bench, which reaps it), its other stream goes to a file that never fills up."""
     log = tempfile.TemporaryFile()
     try:
-        process = subprocess.Popen(argv, stdin=subprocess.DEVNULL,
-                                   stdout=log if stderr_ready else subprocess.PIPE,
-                                   stderr=subprocess.PIPE if stderr_ready else log, start_new_session=True)
+        process = spawn(argv, stdin=subprocess.DEVNULL,  # it dies with this process (hilbench.processes)
+                        stdout=log if stderr_ready else subprocess.PIPE,
+                        stderr=subprocess.PIPE if stderr_ready else log, start_new_session=True)
     except OSError as exc:
         log.close()
         raise LinkError(f"{label}: cannot start {argv[0]}: {exc.strerror}") from None

@@ -93,8 +93,31 @@ def pytest_configure(config: pytest.Config) -> None:
     targets = list(config.getoption("hil_target") or []) or _split_specs(os.environ.get(TARGET_ENV, ""))
     config_path = config.getoption("hil_config") or os.environ.get(CONFIG_ENV) or None
     record = config.getoption("hil_record")
+    _check_options(targets, config_path, TARGET_ENV if not config.getoption("hil_target") else "--hil-target")
     config.stash[_STATE] = _State(config_path, targets, Path(record).resolve() if record else None)
     config.pluginmanager.register(_Attachments(config), "hilbench-attachments")
+
+
+def _check_options(targets: Sequence[str], config_path: str | None, where: str) -> None:
+    """A bad target spec or config is one usage error before the session, not an error at every
+    test's setup (hilbench's own ConfigError line, named by the option it came from)."""
+    if not targets and config_path is None:
+        return
+    from hilbench.errors import HilbenchError
+    from hilbench.testing.targets import check_spec
+
+    for spec in targets:
+        try:
+            check_spec(spec)
+        except HilbenchError as exc:
+            raise pytest.UsageError(f"{where} {spec}: {exc}") from None
+    if config_path is not None:
+        from hilbench.bench.settings import load_config
+
+        try:
+            load_config(config_path)
+        except HilbenchError as exc:
+            raise pytest.UsageError(f"--hil-config: {exc}") from None
 
 
 def _state(config: pytest.Config) -> _State:
@@ -105,7 +128,7 @@ def _targets(config: pytest.Config) -> list[str]:
     """The targets given, else the config's own [link] target (read once)."""
     state = _state(config)
     if not state.targets:
-        from hilbench.config import load_config
+        from hilbench.bench.settings import load_config
 
         state.targets = [load_config(state.config_path).link.target]
     return state.targets
@@ -147,7 +170,7 @@ def _info(config: pytest.Config, spec: str) -> "TargetInfo":
         firmware = None
         hello_firmware = None
         if kind == "board":
-            from hilbench.config import load_config
+            from hilbench.bench.settings import load_config
 
             firmware = load_config(state.config_path).link.firmware
             if firmware is None:
@@ -256,7 +279,7 @@ def hil_target_info(request: pytest.FixtureRequest, hil_target: str) -> "TargetI
 @pytest.fixture
 def hil_config(request: pytest.FixtureRequest, hil_target: str) -> "BenchConfig":
     """The bench config (--hil-config, or the packaged one) with this test's target."""
-    from hilbench.config import load_config
+    from hilbench.bench.settings import load_config
 
     return load_config(_state(request.config).config_path, [f"link.target={json.dumps(hil_target)}"])
 

@@ -20,6 +20,7 @@ def step_response(bench: "Bench", from_rpm: float, to_rpm: float, *, settle_s: f
     record ``after_s``; the response's metrics (rise, overshoot, settling, error, peak current).
     Needs a fresh bench (t = 0) on a target with a speed loop."""
     from hilbench.bench.steptest import StepTest, analyse, require_speed_loop
+    from hilbench.plant.period import Period
     from hilbench.errors import ConfigError
 
     if bench.t_s != 0.0:
@@ -31,7 +32,7 @@ def step_response(bench: "Bench", from_rpm: float, to_rpm: float, *, settle_s: f
     bench.run(settle_s)
     bench.set_reference(to_rpm)
     bench.run(after_s)
-    period_s = bench.config.link.period_us * 1e-6
+    period_s = Period(bench.config.link.period_us).s
     return analyse(dict(bench.signals()), test, bench.profile, f"{from_rpm:g} -> {to_rpm:g} rpm", {}, period_s)
 
 

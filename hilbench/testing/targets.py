@@ -103,6 +103,17 @@ def describe_target(spec: str, firmware: str | None = None, hello_firmware: str 
                       frozenset(caps))
 
 
+def check_spec(spec: str) -> None:
+    """ConfigError (one line) when ``spec`` is not a target spec or names no registered target:
+    what `hilbench run --target SPEC` refuses, refused before any test runs."""
+    from hilbench.link import parse_target_spec
+    from hilbench.targets.registry import get_profile
+
+    parsed = parse_target_spec(spec)
+    if parsed.kind in ("inprocess", "emulator", "sil"):
+        get_profile(parsed.name)
+
+
 def hello_text(hello: "TargetHello") -> str:
     """`AN1017 version 1 (protocol 2)`: the firmware as its HELLO names it (the version is the
     firmware's own u16, PROTOCOL.md)."""
@@ -112,9 +123,8 @@ def hello_text(hello: "TargetHello") -> str:
 def bench_process(bench: "Bench") -> subprocess.Popen[bytes] | None:
     """The emulator process a bench started (None for in-process targets and ports): a test may
     kill it to see the firmware's host go away; the bench reaps it on close."""
-    handle = getattr(bench, "_handle", None)
-    return getattr(handle, "process", None) if handle is not None else None
+    return bench.target_process
 
 
-__all__ = ["SPEC_CAPABILITIES", "TargetInfo", "bench_process", "describe_target", "hello_text", "spec_kind",
+__all__ = ["SPEC_CAPABILITIES", "TargetInfo", "bench_process", "check_spec", "describe_target", "hello_text", "spec_kind",
            "target_id", "unique_ids"]

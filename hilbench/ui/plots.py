@@ -52,7 +52,7 @@ def parse_window(text: str | None) -> tuple[float, float] | None:
 
 def _events(data: RecordingData) -> list[tuple[float, str]]:
     """The recording's events as (t_s, text): "t=1.234500 text" lines."""
-    from hilbench.scope.stream import parse_event
+    from hilbench.bench.display import parse_event
 
     return [parsed for parsed in (parse_event(text) for text in data.events) if parsed is not None]
 
@@ -62,7 +62,7 @@ def _trace(ax, t: np.ndarray, y: np.ndarray, label: str, style: dict, offset: fl
     """A line, or its min/max envelope per bucket when there are more points than pixels: a 20 kHz
     current over seconds shows its true extent, not a blob of overdrawn lines or aliasing. A
     digital trace (halls, sector) is drawn in steps, and decimated as its band only."""
-    from hilbench.scope.stream import envelope
+    from hilbench.bench.display import envelope
 
     if len(t) <= 2 * MAX_POINTS:
         if digital:
@@ -104,7 +104,8 @@ def _line_figure(plt, t, columns, series, ylabel: str, title: str, events=(), la
     """One axis of traces against time: (column, label, line style) per series."""
     fig, ax = plt.subplots(figsize=(10, 4.5))
     for name, label, style in series:
-        _trace(ax, t, columns[name], label, style)
+        if name in columns:  # a target may not record every base column
+            _trace(ax, t, columns[name], label, style)
     ax.set_xlabel("time [s]")
     ax.set_ylabel(ylabel)
     ax.set_title(title)
@@ -160,9 +161,20 @@ def plot_recording(data: RecordingData, out_dir: Path, stem: str | None = None,
     duties = [(name, name, {"lw": 0.6}) for name in ("duty_a", "duty_b", "duty_c")]
     save(_line_figure(plt, t, c, duties, "duty [counts]", "PWM duties from the target", events, False), "duties")
 
-    # halls as three digital traces (bit 0 = A), the firmware's sector below
+    if "hall" in c and "sector" in c:
+        save(_hall_figure(plt, t, c, events), "hall")
+    if "rtt_us" in c and "lateness_us" in c and (np.any(c["rtt_us"] != 0) or np.any(c["lateness_us"] != 0)):
+        timing = [("rtt_us", "round trip [µs]", {"lw": 0.5}), ("lateness_us", "lateness [µs]", {"lw": 0.5})]
+        fig = _line_figure(plt, t, c, timing, "µs", "link timing (real time)", events, False)  # real time only
+        fig.axes[0].set_yscale("symlog")
+        save(fig, "link")
+    return written
+
+
+def _hall_figure(plt, t, c, events):  # type: ignore[no-untyped-def]
+    """Halls as three digital traces (bit 0 = A), the firmware's sector below."""
     fig, (ax1, ax2) = plt.subplots(2, 1, figsize=(10, 5), sharex=True, gridspec_kw={"height_ratios": [3, 2]})
-    hall = c["hall"].astype(np.int64)
+    hall = np.clip(np.nan_to_num(c["hall"], nan=0.0, posinf=0.0, neginf=0.0), 0, 7).astype(np.int64)
     for bit, name in enumerate(("A", "B", "C")):
         _trace(ax1, t, ((hall >> bit) & 1).astype(np.float64) * 0.8, f"hall {name}", {"lw": 0.8, "color": f"C{bit}"},
                offset=1.2 * bit, digital=True)
@@ -175,14 +187,7 @@ def plot_recording(data: RecordingData, out_dir: Path, stem: str | None = None,
     if len(t):
         for ax in (ax1, ax2):
             _mark_events(ax, events, float(t[0]), float(t[-1]))
-    save(fig, "hall")
-
-    if np.any(c["rtt_us"] != 0) or np.any(c["lateness_us"] != 0):  # real time only: lockstep keeps no timing
-        timing = [("rtt_us", "round trip [µs]", {"lw": 0.5}), ("lateness_us", "lateness [µs]", {"lw": 0.5})]
-        fig = _line_figure(plt, t, c, timing, "µs", "link timing (real time)", events, False)
-        fig.axes[0].set_yscale("symlog")
-        save(fig, "link")
-    return written
+    return fig
 
 
 def plot_overlay(curves: list[tuple[str, np.ndarray, np.ndarray]], reference: tuple[np.ndarray, np.ndarray] | None, path: Path, title: str) -> Path:

@@ -12,7 +12,7 @@ from dataclasses import dataclass, field, replace
 from typing import TYPE_CHECKING, Literal, Mapping
 
 from hilbench.fieldspec import spec
-from hilbench.plant.params import PwmTiming
+from hilbench.pwm import PwmTiming
 from hilbench.protocol import TelemetryId
 from hilbench.targets.profile import MotorBuild, PotReference, TargetProfile, TelemetryColumn
 
@@ -23,6 +23,8 @@ if TYPE_CHECKING:
     from pathlib import Path
 
     from hilbench.targets.qemu import M4Build
+
+    from hilbench.targets.base import Target
 
 #: MeasuredSpeed = trunc(312·32768/Period) and rpm = 1 875 000/Period (the application note's
 #: Table 6), so one Q15 step of speed is 1 875 000/(312·32768) rpm; 32767 ≈ 6009.6 rpm. That is
@@ -69,7 +71,7 @@ class An1017Settings:
     max_speed_rpm: int = field(default=MAX_SPEED_RPM, metadata=spec(ge=100, le=60000, doc="the build's maximum speed: MeasuredSpeed 1.0 (MINPERIOD)"))
 
 
-def _make(settings: object) -> object:
+def _make(settings: An1017Settings | None) -> "Target":
     from hilbench.targets.an1017.firmware import An1017Options
     from hilbench.targets.an1017.target import An1017Target
 
@@ -125,7 +127,7 @@ def _check_gains(raw: Mapping[str, int]) -> str | None:
     return None if broken is None else f"constraint #{broken} {GAIN_CONSTRAINT_NAMES[broken]}"
 
 
-def _initial_params(settings: object) -> dict[str, float]:
+def _initial_params(settings: An1017Settings | None) -> dict[str, float]:
     if not isinstance(settings, An1017Settings):
         return {}
     return {name: value for name in GAIN_NAMES if (value := getattr(settings, name)) is not None}
@@ -144,13 +146,13 @@ def _pot(rpm_per_speed_q15: float) -> PotReference:
                         lambda code: rpm_for_pot_code(code, rpm_per_speed_q15), POT_MAX_CODE)
 
 
-def _built_for(settings: object) -> MotorBuild:
+def _built_for(settings: An1017Settings | None) -> MotorBuild:
     if not isinstance(settings, An1017Settings):
         settings = An1017Settings()
     return MotorBuild(pole_pairs=settings.pole_pairs, max_speed_rpm=float(settings.max_speed_rpm))
 
 
-def _configure(settings: object) -> TargetProfile:
+def _configure(settings: An1017Settings | None) -> "TargetProfile[An1017Settings]":
     """The profile of the build these options ask for: its pot and telemetry rpm scales."""
     if not isinstance(settings, An1017Settings) or (settings.pole_pairs, settings.max_speed_rpm) == (POLE_PAIRS, MAX_SPEED_RPM):
         return PROFILE
@@ -161,7 +163,7 @@ def _configure(settings: object) -> TargetProfile:
     return replace(PROFILE, reference=_pot(scale), telemetry=_telemetry(scale))
 
 
-PROFILE = TargetProfile(
+PROFILE: TargetProfile[An1017Settings] = TargetProfile(
     name="an1017",
     firmware_name="AN1017",
     make=_make,

@@ -12,10 +12,7 @@
  * way on both backends.
  * tests/test_an1017_core.py compares every Drive with the Python reference.
  */
-#define PY_SSIZE_T_CLEAN
-#include <Python.h>
-#include <structmember.h>
-#include <stddef.h>
+#include "hbglue.h"
 #include <stdint.h>
 
 #include "an1017.h"
@@ -149,20 +146,10 @@ static PyObject *finish(Core *s, PyObject *seq)
         s->tel_vals[2] = o.telemetry[2];
         tel = n;
     }
-    PyObject *d = drive_type->tp_alloc(drive_type, 11);
-    if (d == NULL) return NULL;
-    PyTuple_SET_ITEM(d, 0, Py_NewRef(seq));
-    PyTuple_SET_ITEM(d, 1, Py_NewRef(duty_ints[o.duty_a]));
-    PyTuple_SET_ITEM(d, 2, Py_NewRef(duty_ints[o.duty_b]));
-    PyTuple_SET_ITEM(d, 3, Py_NewRef(duty_ints[o.duty_c]));
-    PyTuple_SET_ITEM(d, 4, Py_NewRef(duty_ints[o.output_mode]));
-    PyTuple_SET_ITEM(d, 5, Py_NewRef(duty_ints[o.state]));
-    PyTuple_SET_ITEM(d, 6, Py_NewRef(duty_ints[o.sector]));
-    PyTuple_SET_ITEM(d, 7, PyBool_FromLong(o.direction_ccw));
-    PyTuple_SET_ITEM(d, 8, PyBool_FromLong(o.required_ccw));
-    PyTuple_SET_ITEM(d, 9, Py_NewRef(duty_ints[o.fault]));
-    PyTuple_SET_ITEM(d, 10, Py_NewRef(tel));
-    return d;
+    return hb_drive(drive_type, Py_NewRef(seq), Py_NewRef(duty_ints[o.duty_a]), Py_NewRef(duty_ints[o.duty_b]),
+                    Py_NewRef(duty_ints[o.duty_c]), Py_NewRef(duty_ints[o.output_mode]), Py_NewRef(duty_ints[o.state]),
+                    Py_NewRef(duty_ints[o.sector]), PyBool_FromLong(o.direction_ccw), PyBool_FromLong(o.required_ccw),
+                    Py_NewRef(duty_ints[o.fault]), Py_NewRef(tel));
 }
 
 /* ---------------------------------------------------------------- Python methods */
@@ -200,31 +187,23 @@ static int pot_of(PyObject *adc, long *pot, int *have)
 
 static PyObject *Core_step(Core *s, PyObject *sensors)
 {
-    if (need_drive() < 0) return NULL;
-    if (!PyTuple_Check(sensors) || PyTuple_GET_SIZE(sensors) != 5) {
-        PyErr_SetString(PyExc_TypeError, "an1017 core step: sensors must be a 5-field Sensors tuple");
-        return NULL;
-    }
-    PyObject *seq = PyTuple_GET_ITEM(sensors, 0);
-    long long seqv = PyLong_AsLongLong(seq);
-    if (seqv == -1 && PyErr_Occurred()) return NULL;
+    hb_sensors_t in;
+    if (need_drive() < 0 || hb_sensors(sensors, &in, "an1017 core step") < 0) return NULL;
     if (s->last_drive != NULL) { /* a repeat of the last Drive's own seq (as the Python model): no step */
         PyObject *last_seq = PyTuple_GET_ITEM(s->last_drive, 0);
-        if (last_seq == seq || PyLong_AsLongLong(last_seq) == seqv) return Py_NewRef(s->last_drive);
+        if (last_seq == in.seq || PyLong_AsLongLong(last_seq) == in.seq_value) return Py_NewRef(s->last_drive);
         if (PyErr_Occurred()) return NULL;
     }
-    long inputs = PyLong_AsLong(PyTuple_GET_ITEM(sensors, 1));
-    if (inputs == -1 && PyErr_Occurred()) return NULL;
     span_edge_t edges[MAX_SPAN_EDGES];
-    PyObject *given = PyTuple_GET_ITEM(sensors, 2); /* Sensors.edges: (time in 100 ns, lines) pairs */
-    int n = (PyTuple_Check(given) && PyTuple_GET_SIZE(given) == 0) ? 0 : edges_of(given, inputs, 2, edges);
+    PyObject *given = in.edges; /* Sensors.edges: (time in 100 ns, lines) pairs */
+    int n = (PyTuple_Check(given) && PyTuple_GET_SIZE(given) == 0) ? 0 : edges_of(given, in.inputs, 2, edges);
     if (n < 0) return NULL;
     long pot = 0;
     int have_pot = 0;
-    if (pot_of(PyTuple_GET_ITEM(sensors, 4), &pot, &have_pot) < 0) return NULL;
-    run_span(s, s->period_tcy, inputs, edges, n, have_pot, pot);
-    s->last_seq = seqv;
-    PyObject *drive = finish(s, seq);
+    if (pot_of(in.adc, &pot, &have_pot) < 0) return NULL;
+    run_span(s, s->period_tcy, in.inputs, edges, n, have_pot, pot);
+    s->last_seq = in.seq_value;
+    PyObject *drive = finish(s, in.seq);
     if (drive != NULL) {
         Py_XSETREF(s->last_drive, Py_NewRef(drive));
     }
@@ -562,12 +541,7 @@ static PyTypeObject CoreType = {
 static PyObject *mod_init(PyObject *self, PyObject *drive)
 {
     (void)self;
-    if (!PyType_Check(drive) || !PyType_IsSubtype((PyTypeObject *)drive, &PyTuple_Type)) {
-        PyErr_SetString(PyExc_TypeError, "an1017 core init: Drive must be a tuple subclass (NamedTuple)");
-        return NULL;
-    }
-    Py_INCREF(drive);
-    Py_XSETREF(drive_type, (PyTypeObject *)drive);
+    if (hb_set_tuple_type(drive, &drive_type, "an1017 core init") < 0) return NULL;
     Py_RETURN_NONE;
 }
 
@@ -605,14 +579,5 @@ PyMODINIT_FUNC PyInit__core(void)
         duty_ints[i] = PyLong_FromLong(i);
         if (duty_ints[i] == NULL) return NULL;
     }
-    if (PyType_Ready(&CoreType) < 0) return NULL;
-    PyObject *m = PyModule_Create(&moduledef);
-    if (m == NULL) return NULL;
-    Py_INCREF(&CoreType);
-    if (PyModule_AddObject(m, "Core", (PyObject *)&CoreType) < 0) {
-        Py_DECREF(&CoreType);
-        Py_DECREF(m);
-        return NULL;
-    }
-    return m;
+    return hb_module(&moduledef, &CoreType, "Core");
 }

@@ -23,9 +23,10 @@ combined with backend="c"). `target.backend` says which one runs.
 from __future__ import annotations
 
 import os
-from typing import Any
+from typing import Any, Mapping
 
 from hilbench.errors import ConfigError, ParamError
+from hilbench.targets.kit import ParamSpec, ParamTable, RepeatAnswer
 from hilbench.targets.an1017.firmware import (
     GAIN_CONSTRAINT_NAMES,
     STATE_FAULT,
@@ -47,6 +48,7 @@ from hilbench.protocol import (
     AdcRole,
     Drive,
     ErrorCode,
+    HostHello,
     ParamInfo,
     ParamSetResult,
     ParamType,
@@ -87,27 +89,34 @@ if Sensors._fields != ("seq", "inputs", "edges", "encoder", "adc"):
     raise ConfigError(f"an1017: Sensors fields changed to {Sensors._fields}; update the unpacking in step()")
 
 
+
 def edges_tcy(edges: Any) -> "tuple[tuple[int, int], ...] | None":
     """Sensors.edges (time in 100 ns, lines) as the firmware's (offset in Tcy, hall bits); None for none."""
     return tuple((t << 1, lines) for t, lines in edges) if edges else None
 
-# declared parameters: id → (name, ptype, access, min, max)
+
+# declared parameters (the board firmware's table, firmware/an1017)
 PARAM_KP, PARAM_KI, PARAM_KD = 0, 1, 2
 PARAM_PH_ADV_ON, PARAM_PH_ADV_DEG = 3, 4
 PARAM_REF_OVR_ON, PARAM_REF_OVR = 5, 6
 PARAM_STALL_MS = 7
+PARAM_SPECS: tuple[ParamSpec, ...] = (
+    ParamSpec(PARAM_KP, "kp", PTYPE_Q15, ACCESS_RW, 0, 32767),
+    ParamSpec(PARAM_KI, "ki", PTYPE_Q15, ACCESS_RW, 0, 32767),
+    ParamSpec(PARAM_KD, "kd", PTYPE_Q15, ACCESS_RW, 0, 32767),
+    ParamSpec(PARAM_PH_ADV_ON, "ph_adv_on", PTYPE_BOOL, ACCESS_RW, 0, 1),
+    ParamSpec(PARAM_PH_ADV_DEG, "ph_adv_deg", PTYPE_INT, ACCESS_RW, 0, 60, "deg"),
+    ParamSpec(PARAM_REF_OVR_ON, "ref_ovr_on", PTYPE_BOOL, ACCESS_RW, 0, 1),
+    ParamSpec(PARAM_REF_OVR, "ref_override", PTYPE_Q15, ACCESS_RW, -32768, 32767),
+    ParamSpec(PARAM_STALL_MS, "stall_ms", PTYPE_INT, ACCESS_RW, 10, 30000, "ms"),
+)
+#: id → (name, ptype, access, min, max), the table above as plain tuples
 PARAMS: dict[int, tuple[str, int, int, int, int]] = {
-    PARAM_KP: ("kp", PTYPE_Q15, ACCESS_RW, 0, 32767),
-    PARAM_KI: ("ki", PTYPE_Q15, ACCESS_RW, 0, 32767),
-    PARAM_KD: ("kd", PTYPE_Q15, ACCESS_RW, 0, 32767),
-    PARAM_PH_ADV_ON: ("ph_adv_on", PTYPE_BOOL, ACCESS_RW, 0, 1),
-    PARAM_PH_ADV_DEG: ("ph_adv_deg", PTYPE_INT, ACCESS_RW, 0, 60),
-    PARAM_REF_OVR_ON: ("ref_ovr_on", PTYPE_BOOL, ACCESS_RW, 0, 1),
-    PARAM_REF_OVR: ("ref_override", PTYPE_Q15, ACCESS_RW, -32768, 32767),
-    PARAM_STALL_MS: ("stall_ms", PTYPE_INT, ACCESS_RW, 10, 30000),
+    spec.param_id: (spec.name, spec.ptype, spec.access, spec.min_value, spec.max_value) for spec in PARAM_SPECS
 }
-GAIN_PARAM_OF_CONSTRAINT = {1: PARAM_KP, 2: PARAM_KP, 3: PARAM_KD}
-PARAM_UNITS = {PARAM_PH_ADV_DEG: "deg", PARAM_STALL_MS: "ms"}  # the firmware's declaration (an1017.c)
+GAIN_PARAMS = (PARAM_KP, PARAM_KI, PARAM_KD)
+#: the gains each of the application note's constraints involves (the written one is named)
+CONSTRAINT_GAINS = {1: (PARAM_KP, PARAM_KI, PARAM_KD), 2: (PARAM_KP, PARAM_KD), 3: (PARAM_KD,)}
 #: the firmware's self-description (an1017.c's hrt_firmware; tests/test_firmware_sil.py compares them)
 INPUTS_READ = INPUT_HALL_A | INPUT_HALL_B | INPUT_HALL_C | INPUT_S2 | INPUT_FAULT
 TELEMETRY_DECL = (("ref_speed", "rpm"), ("measured_speed", "rpm"), ("control_output", "q15"))
@@ -169,25 +178,27 @@ class An1017Target:
                  backend: str | None = None) -> None:
         self.options = options.resolved()
         self.fw = _c_firmware(self.options) if self.backend == "c" else An1017Firmware(options)
+        self.params = ParamTable(PARAM_SPECS, self._value, self._write, self._constraint, ok_names_last=True)  # as the board's bridge
         self.period_us = PWM_PERIOD_US
         self._period_tcy = PWM_PERIOD_US * TCY_PER_US
         self.mode = 0
         self.watchdog_ms = 0
         self._last_seq = 0
-        self._last_drive: Drive | None = None  # a repeated seq is answered with it, without a step
+        self._repeat = RepeatAnswer(self._step_new)  # a repeated seq is answered with the last Drive, no step
+        self.step = self._repeat.step  # type: ignore[method-assign]
         self._frac_tcy = 0.0
         self.watchdog_trips = 0
         self.last_error = 0
 
     # ---- handshake and parameters ------------------------------------------------------------
-    def hello(self, host: Any) -> TargetHello:
+    def hello(self, host: HostHello) -> TargetHello:
         """Agree the period (a whole number of 50 µs PWM periods) and the mode."""
         period_us = int(host.period_us)
         if period_us <= 0 or period_us % PWM_PERIOD_US:
             raise ConfigError(f"an1017 hello: period_us {period_us} is not a positive multiple of {PWM_PERIOD_US}")
         self.period_us = period_us
         self._period_tcy = period_us * TCY_PER_US
-        self._last_drive = None
+        self._forget_repeat()
         self.mode = int(host.mode)
         self.watchdog_ms = int(host.watchdog_ms)
         return TargetHello(
@@ -197,7 +208,7 @@ class An1017Target:
             FIRMWARE_VERSION,
             PWM_PERIOD_COUNTS,
             PWM_FREQ_HZ,
-            len(PARAMS),
+            len(self.params),
             10,  # adc_bits: the dsPIC30F2010's 10-bit ADC
             FIRMWARE_NAME,
             ADC_ROLES,
@@ -227,10 +238,7 @@ class An1017Target:
 
     def describe(self, param_id: int) -> ParamInfo:
         """The declaration of one parameter; an unknown id raises ParamError."""
-        if param_id not in PARAMS:
-            raise ParamError(f"an1017 describe: unknown param id {param_id}")
-        name, ptype, access, lo, hi = PARAMS[param_id]
-        return ParamInfo(0, param_id, ptype, access, lo, hi, self._value(param_id), name, PARAM_UNITS.get(param_id, ""))
+        return self.params.describe(param_id)
 
     def describe_target(self) -> TargetInfo:
         """The PWM's reload at the next period (PWMCON2.IUE = 0), the Drive's duties as written, the
@@ -252,34 +260,27 @@ class An1017Target:
 
     def get_param(self, param_id: int) -> ParamValue:
         """Read one parameter; result UNKNOWN_ID for an undeclared id."""
-        if param_id not in PARAMS:
-            return ParamValue(0, param_id, RESULT_UNKNOWN_ID, 0)
-        return ParamValue(0, param_id, RESULT_OK, self._value(param_id))
+        return self.params.get(param_id)
 
     def set_params(self, pairs: tuple[tuple[int, int], ...]) -> ParamSetResult:
-        """All or nothing: ids, ranges and the application note's gain constraints are checked before any write."""
-        if not pairs or len(pairs) > 4:
-            return ParamSetResult(0, RESULT_BAD_REQUEST, 0, 0)
-        new = {pid: self._value(pid) for pid in PARAMS}
-        for pid, value in pairs:
-            if pid not in PARAMS:
-                return ParamSetResult(0, RESULT_UNKNOWN_ID, pid, 0)
-            _, _, access, lo, hi = PARAMS[pid]
-            if access != ACCESS_RW:
-                return ParamSetResult(0, RESULT_READ_ONLY, pid, 0)
-            if not lo <= value <= hi:
-                return ParamSetResult(0, RESULT_OUT_OF_RANGE, pid, 0)
-            new[pid] = value
-        gains_touched = [pid for pid, _ in pairs if pid in (PARAM_KP, PARAM_KI, PARAM_KD)]
-        if gains_touched:
-            broken = self._check_gains(new[PARAM_KP], new[PARAM_KI], new[PARAM_KD])
-            if broken is not None:
-                # name the written gain that takes part in the broken constraint
-                involved = {1: (PARAM_KP, PARAM_KI, PARAM_KD), 2: (PARAM_KP, PARAM_KD), 3: (PARAM_KD,)}[broken]
-                offender = next((p for p in gains_touched if p in involved), gains_touched[0])
-                return ParamSetResult(0, RESULT_CONSTRAINT, offender, broken)
-        self._apply_params(new, bool(gains_touched))
-        return ParamSetResult(0, RESULT_OK, pairs[-1][0], 0)
+        """All or nothing (the kit's table): ids, ranges and the application note's gain constraints
+        are checked before any write."""
+        return self.params.set(pairs)
+
+    def _constraint(self, values: Mapping[int, int], written: tuple[int, ...]) -> tuple[int, int] | None:
+        """The note's gain constraints, when a gain is written: (the written gain the broken one
+        involves, its number)."""
+        gains_touched = [pid for pid in written if pid in GAIN_PARAMS]
+        if not gains_touched:
+            return None
+        broken = self._check_gains(values[PARAM_KP], values[PARAM_KI], values[PARAM_KD])
+        if broken is None:
+            return None
+        offender = next((p for p in gains_touched if p in CONSTRAINT_GAINS[broken]), gains_touched[0])
+        return offender, broken
+
+    def _write(self, values: dict[int, int], written: tuple[int, ...]) -> None:
+        self._apply_params(values, any(pid in GAIN_PARAMS for pid in written))
 
     _check_gains = staticmethod(check_gain_constraints)
 
@@ -321,21 +322,22 @@ class An1017Target:
         ))
 
     def step(self, sensors: Sensors) -> Drive:
-        """Lockstep: exactly one agreed period with these sensors (An1017Firmware.run, then the Drive).
+        """Lockstep: exactly one agreed period with these sensors (An1017Firmware.run, then the
+        Drive). A Sensors repeating the last one's seq (a duplicated frame) gets the last Drive
+        again and the firmware does not step (the kit's `RepeatAnswer`), as a board answers it."""
+        return self._repeat.step(sensors)
 
-        A Sensors repeating the last one's seq (a duplicated frame) gets the last Drive again and
-        the firmware does not step: a board answers a repeat the same way (issue 16, item 8).
-        """
-        last = self._last_drive
-        if last is not None and sensors[0] == last[0]:
-            return last
+    def _step_new(self, sensors: Sensors) -> Drive:
+        """One new period (not a repeat)."""
         seq, inputs, edges, _, adc = sensors
         self._last_seq = seq
         self.fw.run(self._period_tcy, inputs, edges_tcy(edges) if edges else None, adc[0] if adc else None)
-        d = self._last_drive = self._finish(seq)
-        return d
+        return self._finish(seq)
 
-    def advance(self, duration_us: float, sensors: Any) -> Drive:
+    def _forget_repeat(self) -> None:
+        self._repeat.forget()
+
+    def advance(self, duration_us: float, sensors: Sensors) -> Drive:
         """Real time: any span of wall time (sub-Tcy remainders carry over)."""
         total = duration_us * TCY_PER_US + self._frac_tcy
         tcy = int(total)
@@ -349,7 +351,7 @@ class An1017Target:
     def watchdog_trip(self) -> Drive:
         """Sensors stopped arriving: StopMotor, state FAULT, fault WATCHDOG."""
         self.watchdog_trips += 1
-        self._last_drive = None
+        self._forget_repeat()
         self.last_error = int(ErrorCode.WATCHDOG)  # Status.last_error speaks ErrorCode; FAULT_WATCHDOG is for Drive.fault
         self.fw.press_stop(STATE_FAULT, FAULT_WATCHDOG)
         return self._finish(self._last_seq)
@@ -387,8 +389,8 @@ if _an1017core is not None:
 
         Parameters go through the firmware's own an1017_param_value / an1017_check_gains /
         an1017_apply_params; hello, start/stop, watchdog and status are the Python ones. The
-        lockstep period, the last seq and its Drive live in the core, behind `_period_tcy`,
-        `_last_seq` and `_last_drive`.
+        lockstep period, the last seq and its Drive live in the core, behind `_period_tcy` and
+        `_last_seq` (the core answers a repeated seq with its last Drive itself).
         """
 
         backend = "c"
@@ -396,7 +398,7 @@ if _an1017core is not None:
         def __init__(self, options: An1017Options = An1017Options(), *, reference: bool = False,
                      backend: str | None = None) -> None:
             super().__init__(options, reference=reference, backend=backend)
-            self.step = self.fw.step  # type: ignore[method-assign]  # no Python frame per period
+            self.step = self.fw.step  # type: ignore[method-assign]  # no Python frame per period; it answers repeats itself
 
         def _value(self, param_id: int) -> int:
             if param_id not in PARAMS:
@@ -416,14 +418,8 @@ if _an1017core is not None:
         def _period_tcy(self, value: int) -> None:
             self.fw.period_tcy = value
 
-        @property
-        def _last_drive(self) -> Drive | None:  # type: ignore[override]
-            return self.fw.last_drive
-
-        @_last_drive.setter
-        def _last_drive(self, value: Drive | None) -> None:
-            if value is None:
-                self.fw.last_drive = None  # the C step keeps the others itself
+        def _forget_repeat(self) -> None:
+            self.fw.last_drive = None  # the C step keeps its last Drive itself (firmware/an1017 glue)
 
         @property
         def _last_seq(self) -> int:  # type: ignore[override]

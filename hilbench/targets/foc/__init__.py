@@ -8,9 +8,9 @@ tunable speed-loop gains, the speed reference as the `speed_rpm` parameter, tele
 
 from __future__ import annotations
 
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
-from hilbench.plant.params import PwmTiming
+from hilbench.pwm import PwmTiming
 from hilbench.protocol import TelemetryId
 from hilbench.targets.foc.firmware import FocOptions
 from hilbench.targets.profile import MotorBuild, ParamReference, TargetProfile, TelemetryColumn
@@ -19,6 +19,9 @@ from hilbench.targets.starters import HostExecutableStarter, SimavrStarter
 
 #: the AVR the FOC build runs on in simavr (its 32 KB sine table needs more flash than a 328P has)
 AVR_MCU = "atmega1284p"
+
+if TYPE_CHECKING:
+    from hilbench.targets.base import Target
 
 #: telemetry is Q15 per unit: speed of BaseRpm 3000, currents of the 5 A base (FocOptions defaults)
 RPM_PER_Q15 = 3000 / 32768
@@ -44,7 +47,7 @@ TELEMETRY_SPEC: tuple[tuple[str, int, str, str, float, str], ...] = (
 )
 
 
-def _make(options: object) -> Any:
+def _make(options: FocOptions | None) -> "Target":
     from hilbench.targets.foc.target import FocTarget
 
     return FocTarget(options if isinstance(options, FocOptions) else FocOptions())
@@ -68,14 +71,14 @@ def _m4_build(options: object) -> Any:
     return qemu_build(options)
 
 
-def make_foc_target(**options: Any) -> Any:
+def make_foc_target(**options: Any) -> "Target":
     """A `FocTarget` with `FocOptions` fields as keyword options."""
     from hilbench.targets.foc.target import make_foc_target as _make_named
 
     return _make_named(**options)
 
 
-PROFILE = TargetProfile(
+PROFILE: TargetProfile[FocOptions] = TargetProfile(
     name="foc",
     firmware_name="F2812FOC",
     make=_make,

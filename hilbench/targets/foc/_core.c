@@ -11,10 +11,7 @@
  * tests read the firmware's state the same way on both backends; tests/test_foc_core.py compares
  * every Drive with the Python reference hilbench/targets/foc/firmware.py.
  */
-#define PY_SSIZE_T_CLEAN
-#include <Python.h>
-#include <structmember.h>
-#include <stddef.h>
+#include "hbglue.h"
 #include <stdint.h>
 
 #include "foc.h"
@@ -39,23 +36,11 @@ static PyObject *make_drive(Core *s, PyObject *seq, const uint16_t duty[3])
     const int16_t *t = o.telemetry;
     PyObject *tel = Py_BuildValue("(hhhhhhhh)", t[0], t[1], t[2], t[3], t[4], t[5], t[6], t[7]);
     if (tel == NULL) return NULL;
-    PyObject *d = drive_type->tp_alloc(drive_type, 11);
-    if (d == NULL) {
-        Py_DECREF(tel);
-        return NULL;
-    }
-    PyTuple_SET_ITEM(d, 0, Py_NewRef(seq));
-    for (int k = 0; k < 3; k++) {
-        PyTuple_SET_ITEM(d, k + 1, Py_NewRef(duty_ints[duty[k] <= FOC_T1PR ? duty[k] : FOC_T1PR]));
-    }
-    PyTuple_SET_ITEM(d, 4, Py_NewRef(duty_ints[o.output_mode]));
-    PyTuple_SET_ITEM(d, 5, Py_NewRef(duty_ints[o.state]));
-    PyTuple_SET_ITEM(d, 6, Py_NewRef(duty_ints[o.sector]));
-    PyTuple_SET_ITEM(d, 7, PyBool_FromLong(o.ccw));
-    PyTuple_SET_ITEM(d, 8, PyBool_FromLong(o.req_ccw));
-    PyTuple_SET_ITEM(d, 9, Py_NewRef(duty_ints[o.fault & 63u]));
-    PyTuple_SET_ITEM(d, 10, tel);
-    return d;
+    return hb_drive(drive_type, Py_NewRef(seq), Py_NewRef(duty_ints[duty[0] <= FOC_T1PR ? duty[0] : FOC_T1PR]),
+                    Py_NewRef(duty_ints[duty[1] <= FOC_T1PR ? duty[1] : FOC_T1PR]),
+                    Py_NewRef(duty_ints[duty[2] <= FOC_T1PR ? duty[2] : FOC_T1PR]), Py_NewRef(duty_ints[o.output_mode]),
+                    Py_NewRef(duty_ints[o.state]), Py_NewRef(duty_ints[o.sector]), PyBool_FromLong(o.ccw),
+                    PyBool_FromLong(o.req_ccw), Py_NewRef(duty_ints[o.fault & 63u]), tel);
 }
 
 static int need_drive(void)
@@ -79,17 +64,12 @@ typedef struct {
 
 static int unpack_sensors(PyObject *sensors, sensors_t *out)
 {
-    if (!PyTuple_Check(sensors) || PyTuple_GET_SIZE(sensors) != 5) {
-        PyErr_SetString(PyExc_TypeError, "foc core: sensors must be a 5-field Sensors tuple");
-        return -1;
-    }
-    out->seq = PyTuple_GET_ITEM(sensors, 0);
-    out->inputs = PyLong_AsLong(PyTuple_GET_ITEM(sensors, 1));
-    if (out->inputs == -1 && PyErr_Occurred()) return -1;
-    out->encoder = PyLong_AsLongLong(PyTuple_GET_ITEM(sensors, 3));
-    if (out->encoder == -1 && PyErr_Occurred()) return -1;
-    out->adc = PyTuple_GET_ITEM(sensors, 4);
-    return 0;
+    hb_sensors_t f; /* the shared glue's reading of a Sensors tuple */
+    if (hb_sensors(sensors, &f, "foc core") < 0) return -1;
+    out->seq = f.seq;
+    out->inputs = f.inputs;
+    out->adc = f.adc;
+    return hb_longlong(f.encoder, &out->encoder);
 }
 
 /* The ADC results the underflow samples: read only when an underflow falls in the n halves. */
@@ -333,16 +313,9 @@ static PyObject *mod_init(PyObject *self, PyObject *const *args, Py_ssize_t narg
         PyErr_SetString(PyExc_TypeError, "init(Drive, INPUT_INDEX)");
         return NULL;
     }
-    PyObject *drive = args[0];
-    if (!PyType_Check(drive) || !PyType_IsSubtype((PyTypeObject *)drive, &PyTuple_Type)) {
-        PyErr_SetString(PyExc_TypeError, "foc core init: Drive must be a tuple subclass (NamedTuple)");
-        return NULL;
-    }
-    long index = PyLong_AsLong(args[1]);
-    if (index == -1 && PyErr_Occurred()) return NULL;
+    long index;
+    if (hb_long(args[1], &index) < 0 || hb_set_tuple_type(args[0], &drive_type, "foc core init") < 0) return NULL;
     input_index = index;
-    Py_INCREF(drive);
-    Py_XSETREF(drive_type, (PyTypeObject *)drive);
     Py_RETURN_NONE;
 }
 
@@ -371,14 +344,5 @@ PyMODINIT_FUNC PyInit__core(void)
     for (int i = 0; i <= FOC_T1PR; i++) {
         if ((duty_ints[i] = PyLong_FromLong(i)) == NULL) return NULL;
     }
-    if (PyType_Ready(&CoreType) < 0) return NULL;
-    PyObject *m = PyModule_Create(&moduledef);
-    if (m == NULL) return NULL;
-    Py_INCREF(&CoreType);
-    if (PyModule_AddObject(m, "Core", (PyObject *)&CoreType) < 0) {
-        Py_DECREF(&CoreType);
-        Py_DECREF(m);
-        return NULL;
-    }
-    return m;
+    return hb_module(&moduledef, &CoreType, "Core");
 }

@@ -89,10 +89,13 @@ def build_avr(settings: object) -> Path:
 
 def qemu_build(settings: object) -> "M4Build":
     """The FOC firmware for the Cortex-M4 in QEMU (`qemu:foc`): make goal, settings, sources."""
+    import shlex
+
     from hilbench.targets.qemu import M4Build
 
-    return M4Build("foc", "foc_m4.elf", ("DEFS=" + " ".join(config_defines(_options(settings))),),
-                   (FIRMWARE_DIR, RUNTIME_DIR, PROTOCOL_DIR))
+    # make hands DEFS to the shell: each define quoted, or a negative value's "(" is a syntax error
+    defines = " ".join(shlex.quote(d) for d in config_defines(_options(settings)))
+    return M4Build("foc", "foc_m4.elf", ("DEFS=" + defines,), (FIRMWARE_DIR, RUNTIME_DIR, PROTOCOL_DIR))
 
 
 __all__ = ["FIRMWARE_DIR", "HEADERS", "SOURCES", "build_avr", "build_sil", "config_defines", "qemu_build",

@@ -21,13 +21,15 @@ from __future__ import annotations
 
 from typing import Any
 
-from hilbench.errors import ConfigError, ParamError
+from hilbench.errors import ConfigError
+from hilbench.targets.kit import ParamSpec, ParamTable, RepeatAnswer
 from hilbench.protocol import (
     PROTOCOL_VERSION,
     Access,
     AdcRole,
     Drive,
     ErrorCode,
+    HostHello,
     Input,
     ParamInfo,
     ParamSetResult,
@@ -76,25 +78,29 @@ TELEMETRY: tuple[tuple[str, int], ...] = tuple((key, tid) for key, tid, *_ in TE
 TELEMETRY_IDS = tuple(i for _, i in TELEMETRY)
 TELEMETRY_KEYS = tuple(k for k, _ in TELEMETRY)
 
-# declared parameters: id -> (name, ptype, min, max); IQ24 limits as raw values
+# declared parameters; IQ24 limits as raw values
 _ONE = 1 << 24
+PARAM_SPECS: tuple[ParamSpec, ...] = tuple(ParamSpec(pid, name, ptype, ACCESS_RW, lo, hi, unit) for pid, (name, ptype, lo, hi, unit) in enumerate((
+    ("ref_rpm", PTYPE_INT, -3000, 3000, "rpm"),
+    ("id_ref", PTYPE_IQ24, -_ONE // 2, _ONE // 2, "pu"),
+    ("spd_kp", PTYPE_IQ24, 0, 8 * _ONE, ""),
+    ("spd_ki", PTYPE_IQ24, 0, _ONE, ""),
+    ("spd_kc", PTYPE_IQ24, 0, _ONE, ""),
+    ("spd_out_max", PTYPE_IQ24, 0, _ONE, "pu"),
+    ("id_kp", PTYPE_IQ24, 0, 8 * _ONE, ""),
+    ("id_ki", PTYPE_IQ24, 0, _ONE, ""),
+    ("id_kc", PTYPE_IQ24, 0, _ONE, ""),
+    ("id_out_max", PTYPE_IQ24, 0, _ONE, "pu"),
+    ("iq_kp", PTYPE_IQ24, 0, 8 * _ONE, ""),
+    ("iq_ki", PTYPE_IQ24, 0, _ONE, ""),
+    ("iq_kc", PTYPE_IQ24, 0, _ONE, ""),
+    ("iq_out_max", PTYPE_IQ24, 0, _ONE, "pu"),
+    ("torque_mode", PTYPE_BOOL, 0, 1, ""),  # 1: the speed loop is bypassed, i_q follows iq_ref_set
+    ("iq_ref_set", PTYPE_IQ24, -_ONE, _ONE, "pu"),
+)))
+#: id -> (name, ptype, min, max), the table above as plain tuples
 PARAMS: dict[int, tuple[str, int, int, int]] = {
-    0: ("ref_rpm", PTYPE_INT, -3000, 3000),
-    1: ("id_ref", PTYPE_IQ24, -_ONE // 2, _ONE // 2),
-    2: ("spd_kp", PTYPE_IQ24, 0, 8 * _ONE),
-    3: ("spd_ki", PTYPE_IQ24, 0, _ONE),
-    4: ("spd_kc", PTYPE_IQ24, 0, _ONE),
-    5: ("spd_out_max", PTYPE_IQ24, 0, _ONE),
-    6: ("id_kp", PTYPE_IQ24, 0, 8 * _ONE),
-    7: ("id_ki", PTYPE_IQ24, 0, _ONE),
-    8: ("id_kc", PTYPE_IQ24, 0, _ONE),
-    9: ("id_out_max", PTYPE_IQ24, 0, _ONE),
-    10: ("iq_kp", PTYPE_IQ24, 0, 8 * _ONE),
-    11: ("iq_ki", PTYPE_IQ24, 0, _ONE),
-    12: ("iq_kc", PTYPE_IQ24, 0, _ONE),
-    13: ("iq_out_max", PTYPE_IQ24, 0, _ONE),
-    14: ("torque_mode", PTYPE_BOOL, 0, 1),  # 1: the speed loop is bypassed, i_q follows iq_ref_set
-    15: ("iq_ref_set", PTYPE_IQ24, -_ONE, _ONE),
+    spec.param_id: (spec.name, spec.ptype, spec.min_value, spec.max_value) for spec in PARAM_SPECS
 }
 PARAM_IDS = {name: pid for pid, (name, *_rest) in PARAMS.items()}
 _PID_FIELDS = {"kp": "kp", "ki": "ki", "kc": "kc"}
@@ -143,6 +149,9 @@ class FocTarget:
     def __init__(self, options: FocOptions = FocOptions(), *, backend: str | None = None) -> None:
         self.options = options
         self.fw = _CFirmware(options) if self.backend == "c" else FocFirmware(options)
+        self.params = ParamTable(PARAM_SPECS, self._value, self._write, ok_names_last=True)
+        self._repeat = RepeatAnswer(self._step_new)  # a repeated seq (a duplicated frame) gets the last Drive
+        self.step = self._repeat.step  # type: ignore[method-assign]
         self.period_us = HALF_PERIOD_US
         self._halves = 1
         self._half = 0  # 0: the next half starts at an underflow (ISR), 1: at a period match
@@ -162,7 +171,7 @@ class FocTarget:
 
         values = {
             "seq": host.seq, "protocol_version": PROTOCOL_VERSION, "firmware_version": FIRMWARE_VERSION,
-            "pwm_period_counts": T1PR, "pwm_freq_hz": PWM_FREQ_HZ, "n_params": len(PARAMS),
+            "pwm_period_counts": T1PR, "pwm_freq_hz": PWM_FREQ_HZ, "n_params": len(self.params),
             "firmware_name": FIRMWARE_NAME, "adc_roles": ADC_ROLES, "telemetry_ids": TELEMETRY_IDS,
             "adc_bits": ADC_BITS, "schema_fingerprint": getattr(proto, "SCHEMA_FINGERPRINT", 0),
         }
@@ -176,12 +185,8 @@ class FocTarget:
                      state, fw.sector & 7, fw.speed.speed < 0, fw.speed_ref < 0, fw.fault,
                      tuple(tel[k] for k in TELEMETRY_KEYS))
 
-    def _param_info(self, pid: int) -> ParamInfo:
-        name, ptype, lo, hi = PARAMS[pid]
-        return ParamInfo(0, pid, ptype, ACCESS_RW, lo, hi, self._value(pid), name)
-
     # ---- handshake and parameters ------------------------------------------------------------
-    def hello(self, host: Any) -> TargetHello:
+    def hello(self, host: HostHello) -> TargetHello:
         """Agree the period: a whole number of 50 µs half PWM periods (50 µs is the faithful one)."""
         period_us = int(host.period_us)
         if period_us <= 0 or period_us % HALF_PERIOD_US:
@@ -190,6 +195,7 @@ class FocTarget:
         self._halves = period_us // HALF_PERIOD_US
         self.mode = int(host.mode)
         self.watchdog_ms = int(host.watchdog_ms)
+        self._repeat.forget()
         return self._hello(host)
 
     def _value(self, pid: int) -> int:
@@ -206,28 +212,19 @@ class FocTarget:
         return self.fw.gain(loop, field)
 
     def describe(self, param_id: int) -> ParamInfo:
-        if param_id not in PARAMS:
-            raise ParamError(f"foc describe: unknown param id {param_id}")
-        return self._param_info(param_id)
+        return self.params.describe(param_id)
 
     def get_param(self, param_id: int) -> ParamValue:
-        if param_id not in PARAMS:
-            return ParamValue(0, param_id, int(Result.UNKNOWN_ID), 0)
-        return ParamValue(0, param_id, int(Result.OK), self._value(param_id))
+        return self.params.get(param_id)
 
     def set_params(self, pairs: tuple[tuple[int, int], ...]) -> ParamSetResult:
-        """All or nothing: ids and ranges checked before any write. Limits are symmetric (±max)."""
-        if not pairs or len(pairs) > 4:
-            return ParamSetResult(0, int(Result.BAD_REQUEST), 0, 0)
-        for pid, value in pairs:
-            if pid not in PARAMS:
-                return ParamSetResult(0, int(Result.UNKNOWN_ID), pid, 0)
-            _, _, lo, hi = PARAMS[pid]
-            if not lo <= value <= hi:
-                return ParamSetResult(0, int(Result.OUT_OF_RANGE), pid, 0)
+        """All or nothing: ids and ranges checked before any write (the kit's table). Limits are symmetric (±max)."""
+        return self.params.set(pairs)
+
+    def _write(self, values: dict[int, int], written: tuple[int, ...]) -> None:
         fw = self.fw
-        for pid, value in pairs:
-            name = PARAMS[pid][0]
+        for pid in written:
+            name, value = PARAMS[pid][0], values[pid]
             if name == "ref_rpm":
                 self.speed_ref_rpm = int(value)
                 fw.set_speed_ref_rpm(int(value))
@@ -240,7 +237,6 @@ class FocTarget:
             else:
                 loop, field = name.split("_", 1)
                 fw.set_gain(loop, field, int(value))
-        return ParamSetResult(0, int(Result.OK), pairs[-1][0], 0)
 
     # ---- run control -------------------------------------------------------------------------
     def start(self) -> None:
@@ -281,7 +277,11 @@ class FocTarget:
         return (round(sa / n), round(sb / n), round(sc / n)) if n else (0, 0, 0)
 
     def step(self, sensors: Sensors) -> Drive:
-        """Lockstep: the agreed period (see the module doc for the halves and their duties)."""
+        """Lockstep: the agreed period (see the module doc for the halves and their duties); a
+        repeated seq (a duplicated frame) gets the last Drive, with no step (the kit's RepeatAnswer)."""
+        return self._repeat.step(sensors)
+
+    def _step_new(self, sensors: Sensors) -> Drive:
         self._last_seq = sensors.seq
         self._inputs(sensors.inputs)
         return self._drive(sensors.seq, self._run_halves(self._halves, sensors))
@@ -303,6 +303,7 @@ class FocTarget:
 
     def watchdog_trip(self) -> Drive:
         self.watchdog_trips += 1
+        self._repeat.forget()
         self.last_error = int(ErrorCode.WATCHDOG)
         self.fw.stop(STATE_FAULT, FAULT_WATCHDOG)
         return self._drive(self._last_seq, (0, 0, 0))
@@ -361,9 +362,10 @@ if _core is not None:
 
         def __init__(self, options: FocOptions = FocOptions(), *, backend: str | None = None) -> None:
             super().__init__(options, backend=backend)
-            self.step = self.fw.step  # type: ignore[method-assign]  # no Python frame per exchange
+            self._repeat = RepeatAnswer(self.fw.step)  # the C step, behind the kit's answer to a repeat
+            self.step = self._repeat.step  # type: ignore[method-assign]
 
-        def hello(self, host: Any) -> TargetHello:
+        def hello(self, host: HostHello) -> TargetHello:
             out = super().hello(host)
             self.fw.halves = self._halves
             return out
@@ -387,6 +389,7 @@ if _core is not None:
 
         def watchdog_trip(self) -> Drive:
             self.watchdog_trips += 1
+            self._repeat.forget()
             self.last_error = int(ErrorCode.WATCHDOG)
             self.fw.stop(STATE_FAULT, FAULT_WATCHDOG)
             return self.fw.drive(self.fw.last_seq, 0, 0, 0)

@@ -15,9 +15,9 @@ RO = 1; constraint 1: kp + ki <= 32767 (else CONSTRAINT, param_id 0, detail 1).
 
 from __future__ import annotations
 
-from typing import Final
+from typing import Final, Mapping
 
-from hilbench.errors import ParamError
+from hilbench.targets.kit import ParamSpec, ParamTable, RepeatAnswer
 from hilbench.protocol import (
     ACCESS_RO,
     ACCESS_RW,
@@ -34,12 +34,6 @@ from hilbench.protocol import (
     SCHEMA_FINGERPRINT,
     PTYPE_INT,
     PTYPE_Q15,
-    RESULT_BAD_REQUEST,
-    RESULT_CONSTRAINT,
-    RESULT_OK,
-    RESULT_OUT_OF_RANGE,
-    RESULT_READ_ONLY,
-    RESULT_UNKNOWN_ID,
     STATE_RUNNING,
     STATE_STOPPED,
     TELEMETRY_ECHO_EDGE,
@@ -68,17 +62,25 @@ TELEMETRY_IDS: Final = (int(TELEMETRY_ECHO_ENCODER), int(TELEMETRY_ECHO_EDGE), i
 PARAM_KP: Final = 0
 PARAM_KI: Final = 1
 PARAM_VERSION: Final = 2
-# id: (name, ptype, access, min, max, default)
-PARAMS: Final = {
-    PARAM_KP: ("kp", int(PTYPE_Q15), int(ACCESS_RW), 0, 32767, 3277),
-    PARAM_KI: ("ki", int(PTYPE_Q15), int(ACCESS_RW), 0, 32767, 328),
-    PARAM_VERSION: ("version", int(PTYPE_INT), int(ACCESS_RO), 1, 1, 1),
-}
+PARAM_SPECS: Final = (
+    ParamSpec(PARAM_KP, "kp", int(PTYPE_Q15), int(ACCESS_RW), 0, 32767),
+    ParamSpec(PARAM_KI, "ki", int(PTYPE_Q15), int(ACCESS_RW), 0, 32767),
+    ParamSpec(PARAM_VERSION, "version", int(PTYPE_INT), int(ACCESS_RO), 1, 1),
+)
+DEFAULTS: Final = {PARAM_KP: 3277, PARAM_KI: 328, PARAM_VERSION: 1}
+#: id: (name, ptype, access, min, max, default), the table above as plain tuples
+PARAMS: Final = {spec.param_id: (spec.name, spec.ptype, spec.access, spec.min_value, spec.max_value,
+                                 DEFAULTS[spec.param_id]) for spec in PARAM_SPECS}
 CONSTRAINT_KP_PLUS_KI: Final = 1
 MAX_SET_PAIRS: Final = 4
 
 # AN1017 Table 8: hall bits C B A (bit2 C, bit1 B, bit0 A) -> sector, 7 = invalid
 SECTOR_OF_HALLS: Final = (7, 4, 2, 3, 0, 5, 1, 7)
+
+
+def _kp_plus_ki(values: Mapping[int, int], written: tuple[int, ...]) -> tuple[int, int] | None:
+    """kp + ki <= 32767, named by kp (as PROTOCOL.md and the C target)."""
+    return (PARAM_KP, CONSTRAINT_KP_PLUS_KI) if values[PARAM_KP] + values[PARAM_KI] > 32767 else None
 
 
 def _int16(value: int) -> int:
@@ -93,20 +95,22 @@ class LoopbackTarget:
     firmware_name = FIRMWARE_NAME
 
     def __init__(self) -> None:
-        self.values = {pid: spec[5] for pid, spec in PARAMS.items()}
+        self.values = dict(DEFAULTS)
+        self.params = ParamTable(PARAM_SPECS, self.values.__getitem__, self._write, _kp_plus_ki)
         self.running = False
         self._s2_prev = False
         self.watchdog_trips = 0
         self.last_error = 0
         self._last_sensors: Sensors | None = None
-        self._last_drive: Drive | None = None
+        self._repeat = RepeatAnswer(self._map)  # a repeated seq (a duplicated frame) gets the last Drive
+        self.step = self._repeat.step  # type: ignore[method-assign]
 
     def hello(self, host: HostHello) -> TargetHello:
         """A handshake starts a session stopped."""
         self.running = False
-        self._last_drive = None
+        self._repeat.forget()
         return TargetHello(host.seq, PROTOCOL_VERSION, SCHEMA_FINGERPRINT, FIRMWARE_VERSION, PWM_PERIOD_COUNTS,
-                           PWM_FREQ_HZ, len(PARAMS), 10, FIRMWARE_NAME, ADC_ROLES, TELEMETRY_IDS)  # 10-bit ADC
+                           PWM_FREQ_HZ, len(self.params), 10, FIRMWARE_NAME, ADC_ROLES, TELEMETRY_IDS)  # 10-bit ADC
 
     def describe_target(self) -> TargetInfo:
         """As the C loopback: duties at once and as written, halls and the buttons, no encoder."""
@@ -114,52 +118,29 @@ class LoopbackTarget:
                           INPUT_HALL_A | INPUT_HALL_B | INPUT_HALL_C | INPUT_S2 | INPUT_S3, 0, MAX_EDGES)
 
     def describe(self, param_id: int) -> ParamInfo:
-        spec = PARAMS.get(param_id)
-        if spec is None:
-            raise ParamError(f"loopback describe: unknown param id {param_id}")
-        name, ptype, access, lo, hi, _ = spec
-        return ParamInfo(0, param_id, ptype, access, lo, hi, self.values[param_id], name)
+        return self.params.describe(param_id)
 
     def get_param(self, param_id: int) -> ParamValue:
-        if param_id not in PARAMS:
-            return ParamValue(0, param_id, RESULT_UNKNOWN_ID, 0)
-        return ParamValue(0, param_id, RESULT_OK, self.values[param_id])
+        return self.params.get(param_id)
 
     def set_params(self, pairs: tuple[tuple[int, int], ...]) -> ParamSetResult:
-        """All or nothing: every id, access and range first, then the kp + ki constraint."""
-        if not pairs or len(pairs) > MAX_SET_PAIRS:
-            return ParamSetResult(0, RESULT_BAD_REQUEST, 0, 0)
-        new = dict(self.values)
-        for pid, value in pairs:
-            spec = PARAMS.get(pid)
-            if spec is None:
-                return ParamSetResult(0, RESULT_UNKNOWN_ID, pid, 0)
-            _, _, access, lo, hi, _ = spec
-            if access != ACCESS_RW:
-                return ParamSetResult(0, RESULT_READ_ONLY, pid, 0)
-            if not lo <= value <= hi:
-                return ParamSetResult(0, RESULT_OUT_OF_RANGE, pid, 0)
-            new[pid] = value
-        if new[PARAM_KP] + new[PARAM_KI] > 32767:
-            return ParamSetResult(0, RESULT_CONSTRAINT, PARAM_KP, CONSTRAINT_KP_PLUS_KI)  # as PROTOCOL.md and the C target
-        self.values = new
-        return ParamSetResult(0, RESULT_OK, 0, 0)
+        """All or nothing: every id, access and range first, then the kp + ki constraint (the kit's table)."""
+        return self.params.set(pairs)
+
+    def _write(self, values: dict[int, int], written: tuple[int, ...]) -> None:
+        self.values.update(values)
 
     def start(self) -> None:
         self.running = True
-        self._last_drive = None
+        self._repeat.forget()
 
     def stop(self) -> None:
         self.running = False
-        self._last_drive = None
+        self._repeat.forget()
 
     def step(self, sensors: Sensors) -> Drive:
         """One period; a repeated seq (a duplicated frame) gets the last Drive, with no step."""
-        last = self._last_drive
-        if last is not None and sensors.seq == last.seq:
-            return last
-        self._last_drive = drive = self._map(sensors)
-        return drive
+        return self._repeat.step(sensors)
 
     def _map(self, sensors: Sensors) -> Drive:
         inputs = sensors.inputs
@@ -192,7 +173,7 @@ class LoopbackTarget:
     def watchdog_trip(self) -> Drive:
         """Outputs off, stopped, fault WATCHDOG; duties zero, sector invalid, telemetry zero."""
         self.running = False
-        self._last_drive = None
+        self._repeat.forget()
         self.watchdog_trips += 1
         self.last_error = int(ErrorCode.WATCHDOG)
         seq = self._last_sensors.seq if self._last_sensors is not None else 0

@@ -23,11 +23,17 @@
  * (the plant's), unless HIL_LOCAL_SENSORS reads ADCRESULT0..2 and T2CNT.
  *
  * Build: TI's C2000 compiler with TI's DSP281x headers (not available here); CI compiles this file
- * with host gcc and clang against hostcheck/ (tests/test_foc_f2812.py).
+ * with host gcc and clang against hostcheck/ (tests/test_foc_builds.py).
  */
 #include "DSP281x_Device.h"
 #include "foc_hrt.h"
 #include "hrt_link.h"
+
+#if defined(HIL_DRIVE_BRIDGE) && !defined(HIL_LOCAL_SENSORS)
+/* Under the bench the currents and the encoder are the plant's: a build that switches a real
+ * bridge must not do so from simulated sensors. */
+#error "HIL_DRIVE_BRIDGE needs HIL_LOCAL_SENSORS: the bridge is never switched from the bench's simulated sensors"
+#endif
 
 #define SCI_BRR 18u
 #define T1CON_UPDOWN 0x0842u /* TMODE continuous up/down, TENABLE, TECMPR, prescale 1 */

@@ -31,7 +31,7 @@
 #define TIMER0_CTRL HIL_REG(TIMER0_BASE + 0x00u)    /* bit0 enable, bit3 interrupt enable */
 #define TIMER0_VALUE HIL_REG(TIMER0_BASE + 0x04u)
 #define TIMER0_RELOAD HIL_REG(TIMER0_BASE + 0x08u)
-#define TIMER0_INTCLEAR HIL_REG(TIMER0_BASE + 0x0Cu)
+#define TIMER0_INTCLEAR HIL_REG(TIMER0_BASE + 0x0Cu) /* INTSTATUS: read bit0 pending, write 1 to clear */
 #define TIMER_CTRL_EN 0x1u
 #define TIMER_CTRL_IRQ_EN 0x8u
 #define TIMER0_IRQ 8u

@@ -1,6 +1,8 @@
 /* echo.c: the Cortex-M4 port's bring-up program: every byte received on UART0 is sent back, and a
- * byte 0xFF is answered with the clock's 8 low bytes (little endian) instead. Checks the startup
- * code, the UART's receive interrupt and the clock (tests/test_qemu_m4.py). */
+ * byte 0xFF is answered with the clock's 8 low bytes (little endian) instead, and 0xFE with the
+ * clock before and after a wrap whose interrupt is held off (16 bytes). Checks the startup code, the
+ * UART's receive interrupt and the clock (tests/test_qemu_m4.py). */
+#include "cmsdk.h"
 #include "m4_port.h"
 
 #define QUEUE 64u
@@ -17,6 +19,17 @@ static void on_rx(uint8_t byte)
     }
 }
 
+/* the clock's 8 low bytes, little endian */
+static void send_ticks(uint64_t t)
+{
+    uint8_t out[8];
+    uint16_t k;
+    for (k = 0u; k < 8u; k++) {
+        out[k] = (uint8_t)(t >> (8u * k));
+    }
+    m4_uart_write(out, 8u);
+}
+
 int main(void)
 {
     m4_init(on_rx);
@@ -25,13 +38,20 @@ int main(void)
             uint8_t byte = queue[tail];
             tail = (uint16_t)((tail + 1u) % QUEUE);
             if (byte == 0xFFu) {
-                uint64_t t = m4_clock_ticks();
-                uint8_t out[8];
-                uint16_t k;
-                for (k = 0u; k < 8u; k++) {
-                    out[k] = (uint8_t)(t >> (8u * k));
+                send_ticks(m4_clock_ticks());
+            } else if (byte == 0xFEu) {
+                /* the clock across a wrap whose interrupt cannot run yet: interrupts masked, the
+                 * counter moved to just above zero, read once it has wrapped */
+                uint64_t before, after;
+                m4_irq_off();
+                before = m4_clock_ticks();
+                TIMER0_VALUE = 1000u;
+                while ((TIMER0_INTCLEAR & 1u) == 0u) {
                 }
-                m4_uart_write(out, 8u);
+                after = m4_clock_ticks();
+                m4_irq_on();
+                send_ticks(before);
+                send_ticks(after);
             } else {
                 m4_uart_write(&byte, 1u);
             }

@@ -2,7 +2,7 @@
  * MPS2 AN386 image, run in QEMU's mps2-an386 machine), with this folder's board support (startup
  * code, memory map, UART0, clock). The firmware defines hrt_firmware and hrt_firmware_init(); link
  * this file, startup.c, m4_port.c, the firmware, hrt.c, hrt_link.c and firmware_protocol/hbp*.c
- * (the Makefile's goal `foc` does so for firmware/foc; FIRMWARE=... for another).
+ * (the Makefile's goals `foc` and `an1017` do so for those firmwares; `app` for another).
  *
  * The runtime's port: UART0's receive interrupt feeds the link's receiver; the main loop handles a
  * complete frame, writes the reply by polling the transmit buffer, and sleeps (WFI) until a byte or

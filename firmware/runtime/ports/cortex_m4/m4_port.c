@@ -83,11 +83,18 @@ void m4_uart_write(const uint8_t *bytes, uint16_t len)
 
 uint64_t m4_clock_ticks(void)
 {
-    uint32_t wraps, value, again;
-    do { /* a wrap between the two reads is seen as a change of the count */
+    uint32_t wraps, value, pending, again;
+    do { /* a wrap interrupt served between the reads is seen as a change of the count */
         wraps = clock_wraps;
         value = TIMER0_VALUE;
+        pending = TIMER0_INTCLEAR & 1u;
         again = clock_wraps;
     } while (wraps != again);
+    if (pending != 0u && value >= 0x80000000UL) {
+        /* the counter wrapped before the read but its interrupt has not run yet (interrupts masked,
+         * or taken a few instructions late): count that wrap here, or the clock would step back
+         * 2^32 ticks (171.8 s) */
+        wraps += 1u;
+    }
     return ((uint64_t)wraps << 32) | (uint64_t)(0xFFFFFFFFUL - value);
 }

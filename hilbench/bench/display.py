@@ -1,4 +1,4 @@
-"""The scope's display stream: the session's recorded rows, decimated for a screen.
+"""The display stream: the session's recorded rows, decimated for a screen (a scope asks for it).
 
 The recording stays full-rate; a scope only needs, per display bucket of ``bucket_periods``
 periods, the minimum and maximum of each column (an envelope: a 20 kHz current shows its true
@@ -31,6 +31,7 @@ from hilbench.errors import HilbenchError
 
 if TYPE_CHECKING:
     from hilbench.bench.pacing import RealtimePacing
+    from hilbench.protocol import Drive
     from hilbench.bench.session import Session
 
 #: periods per display bucket at the start (0.5 ms at 20 kHz); doubled in a take with many rows
@@ -146,7 +147,7 @@ class DisplayStream:
     def active(self) -> bool:
         return self.clock() - self._asked_at < IDLE_AFTER_S
 
-    def due(self, k: int, drive: Any, pacing: "RealtimePacing | None") -> None:
+    def due(self, k: int, drive: "Drive | None", pacing: "RealtimePacing | None") -> None:
         """Every observe period: note the status; take new rows when a take is due or a flush comes."""
         self._drive, self._pacing, self._k = drive, pacing, k
         if self._asked_at == -math.inf or not self.active:
@@ -195,7 +196,7 @@ class DisplayStream:
         finally:
             del raw
         self.takes += 1
-        self.frames.append(Frame(self.seq, t0_s, bucket * self.session.options.period_us * 1e-6, len(starts), envelopes))
+        self.frames.append(Frame(self.seq, t0_s, bucket * self.session.period.s, len(starts), envelopes))
 
     def _envelope(self, raw: np.ndarray, name: str, starts: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         kind, source, scale, modulo = self._specs[name]
@@ -256,7 +257,7 @@ class DisplayStream:
         if recorder is None:
             return
         size = recorder.rows.struct.size
-        keep = int(HISTORY_S / (self.session.options.period_us * 1e-6)) * size
+        keep = int(HISTORY_S / self.session.period.s) * size
         self._offset = max(0, len(recorder.rows.data) - len(recorder.rows.data) % size - keep)
         self.frames.clear()
 
@@ -311,7 +312,7 @@ class DisplayStream:
         return {
             "columns": [[name, self._units.get(name, "")] for name in self._names],
             "params": params, "tunable": list(session.profile.tunable),
-            "period_s": session.options.period_us * 1e-6, "mode": session.options.mode,
+            "period_s": session.period.s, "mode": session.options.mode,
             "target": session.target_label,
             "firmware": session.hello.firmware_name if session.hello is not None else "",
             "live": True,
@@ -327,7 +328,7 @@ class DisplayStream:
         if now - wall >= 0.5:
             rate = (self._k - k0) / (now - wall)
             self._rate = (now, self._k, rate)
-        rtts = pacing.rtts if pacing is not None else session._lockstep_rtts  # noqa: SLF001 - the session's own figures
+        rtts = pacing.rtts if pacing is not None else session.lockstep_rtts
         stats = percentiles([r * 1e6 for r in rtts[-256:]]) if rtts else {}
         try:
             params = session.param_values()
@@ -336,7 +337,7 @@ class DisplayStream:
         return {
             "t_s": _num(t_s), "state": None if drive is None else int(drive.state),
             "fault": None if drive is None else int(drive.fault),
-            "ref_rpm": _num(session._ref_rpm), "params": _finite(params),  # noqa: SLF001
+            "ref_rpm": _num(session.ref_rpm), "params": _finite(params),
             "guard": bool(session.tuning.guard.enabled), "periods_per_s": _num(rate),
             "rtt_p50_us": _num(stats.get("p50")), "rtt_p99_us": _num(stats.get("p99")),
             "overruns": pacing.overruns if pacing is not None else 0,

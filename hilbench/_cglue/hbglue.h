@@ -1,0 +1,145 @@
+/* hbglue.h: the CPython glue the hilbench extensions share (the plant core hilbench/plant/_plantcore.c,
+ * the AN1017 core hilbench/targets/an1017/_core.c, the FOC core hilbench/targets/foc/_core.c).
+ *
+ * Each extension is a thin glue between Python objects and a C model; what every glue needs is here
+ * once: argument conversion (a float or an int argument, an int that must fit), the fields of a
+ * Sensors tuple, the Drive NamedTuple a core builds (registered by the module's init(Drive)) and a
+ * new Drive from its eleven fields, the module with its one type, and member-table rows. Header
+ * only (static inline): setup.py adds this folder to each extension's include path, MANIFEST.in
+ * ships it in the sdist.
+ */
+#ifndef HBGLUE_H
+#define HBGLUE_H
+
+#ifndef PY_SSIZE_T_CLEAN
+#define PY_SSIZE_T_CLEAN
+#endif
+#include <Python.h>
+#include <structmember.h>
+#include <stddef.h>
+
+/* ---- arguments ---------------------------------------------------------------------------- */
+
+/* A number argument as a double: a float as it is, an int exactly (no float object is made, the
+ * fast path for duties in counts), anything else through __float__. 0, or -1 with an exception. */
+static inline int hb_double(PyObject *o, double *out)
+{
+    if (PyFloat_CheckExact(o)) {
+        *out = PyFloat_AS_DOUBLE(o);
+        return 0;
+    }
+    *out = PyLong_CheckExact(o) ? PyLong_AsDouble(o) : PyFloat_AsDouble(o);
+    return (*out == -1.0 && PyErr_Occurred()) ? -1 : 0;
+}
+
+/* An int argument as a long / long long. 0, or -1 with an exception. */
+static inline int hb_long(PyObject *o, long *out)
+{
+    *out = PyLong_AsLong(o);
+    return (*out == -1 && PyErr_Occurred()) ? -1 : 0;
+}
+
+static inline int hb_longlong(PyObject *o, long long *out)
+{
+    *out = PyLong_AsLongLong(o);
+    return (*out == -1 && PyErr_Occurred()) ? -1 : 0;
+}
+
+/* ---- messages ----------------------------------------------------------------------------- */
+
+/* The fields of a Sensors tuple (protocol 3: seq, inputs, edges, encoder, adc); seq, edges, encoder
+ * and adc are borrowed from the tuple (a core that reads the encoder converts it: hb_longlong; one
+ * that reads the edges, (time in 100 ns, lines) pairs, walks them). */
+typedef struct {
+    PyObject *seq;
+    long long seq_value;
+    long inputs;
+    PyObject *edges;
+    PyObject *encoder;
+    PyObject *adc;
+} hb_sensors_t;
+
+/* 0, or -1 with an exception (TypeError naming ``who`` for anything but a 5-field tuple). */
+static inline int hb_sensors(PyObject *sensors, hb_sensors_t *out, const char *who)
+{
+    if (!PyTuple_Check(sensors) || PyTuple_GET_SIZE(sensors) != 5) {
+        PyErr_Format(PyExc_TypeError, "%s: sensors must be a 5-field Sensors tuple", who);
+        return -1;
+    }
+    out->seq = PyTuple_GET_ITEM(sensors, 0);
+    out->encoder = PyTuple_GET_ITEM(sensors, 3);
+    out->adc = PyTuple_GET_ITEM(sensors, 4);
+    out->edges = PyTuple_GET_ITEM(sensors, 2);
+    if (hb_longlong(out->seq, &out->seq_value) < 0 || hb_long(PyTuple_GET_ITEM(sensors, 1), &out->inputs) < 0)
+        return -1;
+    return 0;
+}
+
+/* init(Drive): keep the NamedTuple type a core builds its Drives of in *slot. 0, or -1 with a
+ * TypeError naming ``who`` for anything but a tuple subclass. */
+static inline int hb_set_tuple_type(PyObject *type, PyTypeObject **slot, const char *who)
+{
+    if (!PyType_Check(type) || !PyType_IsSubtype((PyTypeObject *)type, &PyTuple_Type)) {
+        PyErr_Format(PyExc_TypeError, "%s: Drive must be a tuple subclass (NamedTuple)", who);
+        return -1;
+    }
+    Py_INCREF(type);
+    Py_XSETREF(*slot, (PyTypeObject *)type);
+    return 0;
+}
+
+#define HB_DRIVE_FIELDS 11
+
+/* A new Drive of ``type`` from its fields by name (new references, stolen; a NULL among them, a
+ * failed conversion, releases the others): NULL with an exception, or the Drive. */
+static inline PyObject *hb_drive(PyTypeObject *type, PyObject *seq, PyObject *duty_a, PyObject *duty_b,
+                                 PyObject *duty_c, PyObject *output_mode, PyObject *state, PyObject *sector,
+                                 PyObject *direction_ccw, PyObject *required_ccw, PyObject *fault, PyObject *telemetry)
+{
+    PyObject *d = NULL;
+    if (type != NULL && seq && duty_a && duty_b && duty_c && output_mode && state && sector && direction_ccw
+        && required_ccw && fault && telemetry)
+        d = type->tp_alloc(type, HB_DRIVE_FIELDS);
+    if (d == NULL) {
+        Py_XDECREF(seq); Py_XDECREF(duty_a); Py_XDECREF(duty_b); Py_XDECREF(duty_c); Py_XDECREF(output_mode);
+        Py_XDECREF(state); Py_XDECREF(sector); Py_XDECREF(direction_ccw); Py_XDECREF(required_ccw);
+        Py_XDECREF(fault); Py_XDECREF(telemetry);
+        if (type == NULL && !PyErr_Occurred()) PyErr_SetString(PyExc_RuntimeError, "core: init(Drive) was not called");
+        return NULL;
+    }
+    PyTuple_SET_ITEM(d, 0, seq);
+    PyTuple_SET_ITEM(d, 1, duty_a);
+    PyTuple_SET_ITEM(d, 2, duty_b);
+    PyTuple_SET_ITEM(d, 3, duty_c);
+    PyTuple_SET_ITEM(d, 4, output_mode);
+    PyTuple_SET_ITEM(d, 5, state);
+    PyTuple_SET_ITEM(d, 6, sector);
+    PyTuple_SET_ITEM(d, 7, direction_ccw);
+    PyTuple_SET_ITEM(d, 8, required_ccw);
+    PyTuple_SET_ITEM(d, 9, fault);
+    PyTuple_SET_ITEM(d, 10, telemetry);
+    return d;
+}
+
+/* ---- the module ------------------------------------------------------------------------------ */
+
+/* The module of ``def`` with its one type added as ``name``; NULL with an exception. */
+static inline PyObject *hb_module(struct PyModuleDef *def, PyTypeObject *type, const char *name)
+{
+    if (PyType_Ready(type) < 0) return NULL;
+    PyObject *m = PyModule_Create(def);
+    if (m == NULL) return NULL;
+    Py_INCREF(type);
+    if (PyModule_AddObject(m, name, (PyObject *)type) < 0) {
+        Py_DECREF(type);
+        Py_DECREF(m);
+        return NULL;
+    }
+    return m;
+}
+
+/* A member-table row: the Python name, the structmember type (T_DOUBLE, T_LONGLONG, ...), the
+ * field of struct ``st`` and the flags (0 or READONLY). */
+#define HB_MEMBER(pyname, tcode, st, field, flags) {pyname, tcode, offsetof(st, field), flags, NULL}
+
+#endif /* HBGLUE_H */

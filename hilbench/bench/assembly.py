@@ -1,0 +1,96 @@
+"""The one place a bench is put together: a target, a plant and a session from a config.
+
+`build_bench` connects the configured target (spawning its emulator or firmware build when the
+spec asks) or takes a `Target` object, builds the plant from the config (or takes a `Plant`
+object), and makes the session with the config's options, guard and profile. `Bench.open`, the
+run command, step tests and sweeps all come through here, so a bench is the same bench whoever
+opens it. One seed rule: `settings.effective_seed` ([run] seed, else [plant] seed) seeds the plant.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Callable, Iterable
+
+from hilbench.bench import settings
+from hilbench.bench.launcher import TargetHandle, open_target
+from hilbench.bench.recorder import MemoryRecorder, Recorder
+from hilbench.bench.scenario import Event
+from hilbench.bench.session import ControlSource, PlantLike, Session, SessionOptions, Snapshot
+from hilbench.config import BenchConfig, plant_from_config
+from hilbench.targets.base import Target
+from hilbench.targets.profile import TargetProfile
+
+
+@dataclass
+class BenchParts:
+    """What one bench is made of; `close` releases the target (its link, its process)."""
+
+    handle: TargetHandle
+    plant: PlantLike
+    session: Session
+    profile: TargetProfile | None
+    options: SessionOptions
+
+    def close(self) -> None:
+        self.handle.close()
+
+
+def build_plant(cfg: BenchConfig, profile: TargetProfile | None = None) -> PlantLike:
+    """The config's plant, seeded by the run's seed, with the PWM timing of ``profile``'s target
+    (where its PWM centres its pulses and when its ADC samples; None: the default)."""
+    return plant_from_config(cfg, seed=settings.effective_seed(cfg), pwm=profile.pwm_timing if profile else None)
+
+
+def configured_profile(cfg: BenchConfig) -> TargetProfile | None:
+    """The profile the config names (by its target spec, or [link] firmware for a port), else None:
+    a board's profile is then found by the firmware name in its HELLO. Refuses a plant whose pole
+    pairs differ from the firmware's build (settings.check_motor_build)."""
+    if settings.target_name(cfg.link.target) is None and cfg.link.firmware is None:
+        return None
+    profile = settings.configured_target_profile(cfg)
+    settings.check_motor_build(cfg, profile)
+    return profile
+
+
+def connect(cfg: BenchConfig, options: SessionOptions, profile: TargetProfile | None) -> TargetHandle:
+    """Open the configured target (spawning its emulator or firmware build if the spec asks)."""
+    return open_target(cfg.link.target, profile=profile, options=cfg.target, mode=options.mode,
+                       timeout_s=options.timeout_s, watchdog_ms=options.watchdog_ms, retry_s=cfg.link.retry_ms / 1000.0)
+
+
+def build_bench(
+    cfg: BenchConfig,
+    *,
+    target: Target | None = None,
+    plant: PlantLike | None = None,
+    events: Iterable[Event] = (),
+    options: SessionOptions | None = None,
+    recorder: Recorder | MemoryRecorder | None = None,
+    observer: Callable[[Snapshot], None] | None = None,
+    control: ControlSource | None = None,
+) -> BenchParts:
+    """A target (``target``, or the one ``cfg`` names), a plant (``plant``, or the config's) and a
+    session over them with ``options`` (default: the config's). The caller handshakes and runs;
+    `BenchParts.close` releases what was opened, whatever happened."""
+    options = options or settings.session_options(cfg)
+    profile = configured_profile(cfg) if target is None else None
+    handle = connect(cfg, options, profile) if target is None else given_target(target)
+    try:
+        plant = plant if plant is not None else build_plant(cfg, profile)
+        session = Session(handle.target, plant, events, options, profile=profile, recorder=recorder,  # type: ignore[arg-type]
+                          observer=observer, control=control, link_stats=handle.link_stats,
+                          target_label=handle.label, guard=settings.guard_settings(cfg))
+    except BaseException:
+        handle.close()
+        raise
+    return BenchParts(handle, plant, session, profile, options)
+
+
+def given_target(target: Target) -> TargetHandle:
+    """A Target object the caller made (an in-process model, a proxy over its own link) as a
+    handle; the caller keeps it, so closing the bench does not close it."""
+    return TargetHandle(target, label=f"{type(target).__name__} ({target.firmware_name})")
+
+
+__all__ = ["BenchParts", "build_bench", "build_plant", "configured_profile", "connect", "given_target"]

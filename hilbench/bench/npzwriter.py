@@ -1,0 +1,154 @@
+"""An NPZ archive of equal-length float64 columns written in one pass over the rows.
+
+`np.savez` and `zipfile` write one member after another, so an archive of columns made from rows
+either holds every row in memory or reads the rows once per column. Here every member's size is
+known before the first byte (a stored, uncompressed ZIP64 member: the .npy header plus 8 bytes a
+row), so each chunk of rows is converted once and each column's piece written at its own place in
+the file, its CRC-32 carried along; the headers are written last, with the CRCs. Memory is one
+chunk, whatever the number of rows; the rows are read once.
+
+The file is a plain ZIP64 archive as `zipfile` writes one (stored members, fixed 1980-01-01
+stamps, so equal columns give equal bytes), read by `np.load` and any unzip.
+"""
+
+from __future__ import annotations
+
+import io
+import os
+import struct
+import zlib
+from pathlib import Path
+from typing import Sequence
+
+import numpy as np
+
+_DOS_DATE = (0 << 9) | (1 << 5) | 1  # 1980-01-01
+_DOS_TIME = 0
+_VERSION = 45  # ZIP64
+_MADE_BY = (3 << 8) | _VERSION  # Unix
+_FULL32 = 0xFFFFFFFF
+
+
+def _npy(array: np.ndarray) -> bytes:
+    out = io.BytesIO()
+    np.lib.format.write_array(out, array, allow_pickle=False)
+    return out.getvalue()
+
+
+def _column_header(n_rows: int) -> bytes:
+    out = io.BytesIO()
+    np.lib.format.write_array_header_1_0(out, {"descr": "<f8", "fortran_order": False, "shape": (n_rows,)})
+    return out.getvalue()
+
+
+def _local_header(name: bytes, crc: int, size: int) -> bytes:
+    extra = struct.pack("<HHQQ", 0x0001, 16, size, size)
+    return struct.pack("<IHHHHHIIIHH", 0x04034B50, _VERSION, 0, 0, _DOS_TIME, _DOS_DATE, crc, _FULL32, _FULL32,
+                       len(name), len(extra)) + name + extra
+
+
+def _central_header(name: bytes, crc: int, size: int, offset: int) -> bytes:
+    extra = struct.pack("<HHQQQ", 0x0001, 24, size, size, offset)
+    return struct.pack("<IHHHHHHIIIHHHHHII", 0x02014B50, _MADE_BY, _VERSION, 0, 0, _DOS_TIME, _DOS_DATE, crc,
+                       _FULL32, _FULL32, len(name), len(extra), 0, 0, 0, 0o600 << 16, _FULL32) + name + extra
+
+
+def _end_records(n_members: int, directory_offset: int, directory_size: int) -> bytes:
+    zip64_end = struct.pack("<IQHHIIQQQQ", 0x06064B50, 44, _MADE_BY, _VERSION, 0, 0, n_members, n_members,
+                            directory_size, directory_offset)
+    locator = struct.pack("<IIQI", 0x07064B50, 0, directory_offset + directory_size, 1)
+    end = struct.pack("<IHHHHIIH", 0x06054B50, 0, 0, min(n_members, 0xFFFF), min(n_members, 0xFFFF),
+                      min(directory_size, _FULL32), _FULL32, 0)
+    return zip64_end + locator + end
+
+
+class ColumnArchive:
+    """Write ``names`` (float64 columns of ``n_rows``) and then ``extra`` small arrays into ``path``.
+
+        with ColumnArchive(path, names, n_rows) as archive:
+            for first in range(0, n_rows, chunk):
+                archive.write(first, {name: values, ...})   # every column's rows first.. (any order)
+            archive.add("metadata", np.asarray(text))
+    """
+
+    def __init__(self, path: Path, names: Sequence[str], n_rows: int) -> None:
+        self.path = path
+        self.n_rows = n_rows
+        self._header = _column_header(n_rows)
+        self._members: list[tuple[bytes, int, int, int]] = []  # name, local header offset, data offset, size
+        size = len(self._header) + 8 * n_rows
+        offset = 0
+        for name in names:
+            member = f"{name}.npy".encode()
+            data_offset = offset + len(_local_header(member, 0, size))
+            self._members.append((member, offset, data_offset, size))
+            offset = data_offset + size
+        self._end = offset
+        self._crc: dict[str, int] = {}
+        self._written = dict.fromkeys(names, 0)
+        self._index = {name: i for i, name in enumerate(names)}
+        self._small: list[tuple[bytes, int, bytes]] = []  # name, crc, bytes
+        self._fd = os.open(path, os.O_WRONLY | os.O_CREAT | os.O_TRUNC | os.O_CLOEXEC, 0o644)
+        for name in names:
+            _, _, data_offset, _ = self._members[self._index[name]]
+            os.pwrite(self._fd, self._header, data_offset)
+            self._crc[name] = zlib.crc32(self._header)
+
+    def write(self, first: int, columns: dict[str, np.ndarray]) -> None:
+        """Rows ``first..`` of each column; a column's pieces come in row order."""
+        for name, values in columns.items():
+            if self._written[name] != first:
+                raise ValueError(f"column {name}: rows from {first}, expected from {self._written[name]}")
+            data = np.ascontiguousarray(values, dtype="<f8").data.cast("B")
+            _, _, data_offset, _ = self._members[self._index[name]]
+            _pwrite_all(self._fd, data, data_offset + len(self._header) + 8 * first)
+            self._crc[name] = zlib.crc32(data, self._crc[name])
+            self._written[name] = first + len(values)
+
+    def add(self, name: str, array: np.ndarray) -> None:
+        """A small array after the columns (the metadata)."""
+        data = _npy(array)
+        self._small.append((f"{name}.npy".encode(), zlib.crc32(data), data))
+
+    def close(self) -> None:
+        """The local headers with their CRCs, the small members, the central directory."""
+        short = [name for name, n in self._written.items() if n != self.n_rows]
+        if short:
+            raise ValueError(f"column {short[0]}: {self._written[short[0]]} of {self.n_rows} rows written")
+        directory: list[bytes] = []
+        for name, (member, offset, _, size) in zip(self._written, self._members):
+            os.pwrite(self._fd, _local_header(member, self._crc[name], size), offset)
+            directory.append(_central_header(member, self._crc[name], size, offset))
+        offset = self._end
+        for member, crc, data in self._small:
+            local = _local_header(member, crc, len(data))
+            _pwrite_all(self._fd, memoryview(local + data), offset)
+            directory.append(_central_header(member, crc, len(data), offset))
+            offset += len(local) + len(data)
+        table = b"".join(directory)
+        _pwrite_all(self._fd, memoryview(table + _end_records(len(directory), offset, len(table))), offset)
+        os.close(self._fd)
+        self._fd = -1
+
+    def abandon(self) -> None:
+        if self._fd >= 0:
+            os.close(self._fd)
+            self._fd = -1
+
+    def __enter__(self) -> "ColumnArchive":
+        return self
+
+    def __exit__(self, kind: object, *rest: object) -> None:
+        if kind is None:
+            self.close()
+        else:
+            self.abandon()
+
+
+def _pwrite_all(fd: int, data: memoryview, offset: int) -> None:
+    while len(data):
+        n = os.pwrite(fd, data, offset)
+        data, offset = data[n:], offset + n
+
+
+__all__ = ["ColumnArchive"]

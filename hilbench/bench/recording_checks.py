@@ -1,0 +1,126 @@
+"""What a recording read back must be before anything uses it (report, plots, the scope's viewer).
+
+A file on disk is input like any other: a damaged or hand-edited recording is refused here with
+one line naming the file and what is wrong (a column, a row, a metadata key), so `hilbench report`
+and the rest never meet a NaN time, a text column or a column shorter than the others.
+
+The rules are what the recorder itself always writes: the base columns (`recorder.COLUMNS`), each
+a 1-D array of numbers as long as ``t_s``; ``t_s`` finite and increasing; the metadata keys the
+readers use with their types; events as text, ``segment:`` events with finite numbers.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Any, Callable, Mapping
+
+import numpy as np
+
+from hilbench.bench.segments import parse_segment_event
+from hilbench.errors import RecordingError
+from hilbench.limits import RECORDING_MAX_BYTES, RECORDING_MAX_COLUMNS, size_text
+
+
+def _is_number(value: Any) -> bool:
+    return isinstance(value, (int, float)) and not isinstance(value, bool) and math.isfinite(value)
+
+
+def _positive_number(value: Any) -> bool:
+    return _is_number(value) and value > 0
+
+
+def _positive_int(value: Any) -> bool:
+    return isinstance(value, int) and not isinstance(value, bool) and value >= 1
+
+
+def _text_list(value: Any) -> bool:
+    return isinstance(value, list) and all(isinstance(v, str) for v in value)
+
+
+def _column_specs(value: Any) -> bool:
+    return isinstance(value, list) and all(
+        isinstance(v, list) and len(v) in (2, 3) and all(isinstance(x, str) for x in v) for v in value)
+
+
+#: metadata key -> (what it must be, the check); keys not named here are kept as they are
+METADATA_TYPES: Mapping[str, tuple[str, Callable[[Any], bool]]] = {
+    "period_us": ("a positive number", _positive_number),
+    "history_every_periods": ("a whole number >= 1", _positive_int),
+    "target_hello": ("a table", lambda v: isinstance(v, dict)),
+    "config": ("a table", lambda v: isinstance(v, dict)),
+    "params": ("a table", lambda v: isinstance(v, dict)),
+    "mode": ("text", lambda v: isinstance(v, str)),
+    "target": ("text", lambda v: isinstance(v, str)),
+    "end": ("text", lambda v: isinstance(v, str)),
+    "events": ("a list of text", _text_list),
+    "columns": ("a list of [name, unit(, format)]", _column_specs),
+}
+
+
+def _shown(value: Any) -> str:
+    text = repr(value)
+    return text if len(text) <= 40 else text[:37] + "..."
+
+
+def check_metadata(where: str, metadata: Any) -> dict[str, Any]:
+    """The metadata as a dict whose known keys have their types (RecordingError naming the key)."""
+    if not isinstance(metadata, dict):
+        raise RecordingError(f"recording {where}: metadata is {type(metadata).__name__}, not a table")
+    for key, (what, good) in METADATA_TYPES.items():
+        if key in metadata and not good(metadata[key]):
+            raise RecordingError(f"recording {where}: metadata {key} is {_shown(metadata[key])}, not {what}")
+    return metadata
+
+
+def check_columns_fit(where: str, n_columns: int, n_rows: int) -> None:
+    """A recording's size before its columns are read: at most RECORDING_MAX_COLUMNS columns and
+    RECORDING_MAX_BYTES of float64 data."""
+    if n_columns > RECORDING_MAX_COLUMNS:
+        raise RecordingError(f"recording {where}: {n_columns} columns, more than the limit of {RECORDING_MAX_COLUMNS}")
+    if n_columns * n_rows * 8 > RECORDING_MAX_BYTES:
+        raise RecordingError(f"recording {where}: {n_rows} rows of {n_columns} columns need more than the limit of "
+                             f"{size_text(RECORDING_MAX_BYTES)} in memory")
+
+
+def _numbers(where: str, name: str, values: Any, n_rows: int | None) -> np.ndarray:
+    array = np.asarray(values)
+    if array.ndim != 1:
+        raise RecordingError(f"recording {where}: column {name} has shape {array.shape}, not one value per row")
+    if array.dtype.kind not in "biuf":
+        raise RecordingError(f"recording {where}: column {name} holds {array.dtype} values, not numbers")
+    if n_rows is not None and len(array) != n_rows:
+        raise RecordingError(f"recording {where}: column {name} has {len(array)} rows, t_s has {n_rows}")
+    return array if array.dtype == np.float64 else array.astype(np.float64)
+
+
+def check_columns(where: str, columns: Mapping[str, Any], required: tuple[str, ...]) -> dict[str, np.ndarray]:
+    """Every column a 1-D float64 array as long as t_s, the required ones present, t_s finite and
+    increasing."""
+    missing = [name for name in required if name not in columns]
+    if missing:
+        raise RecordingError(f"recording {where}: no column {missing[0]}")
+    t = _numbers(where, "t_s", columns["t_s"], None)
+    bad = np.flatnonzero(~np.isfinite(t))
+    if len(bad):
+        raise RecordingError(f"recording {where}: t_s is {t[bad[0]]} at row {bad[0]}")
+    back = np.flatnonzero(np.diff(t) <= 0)
+    if len(back):
+        raise RecordingError(f"recording {where}: t_s does not increase at row {back[0] + 1} "
+                             f"({t[back[0]]!r} then {t[back[0] + 1]!r})")
+    out = {name: (t if name == "t_s" else _numbers(where, name, values, len(t))) for name, values in columns.items()}
+    return out
+
+
+def check_events(where: str, events: Any) -> tuple[str, ...]:
+    """Events as text; a ``segment:`` event with numbers that are not finite is refused."""
+    if not _text_list(list(events) if isinstance(events, tuple) else events):
+        raise RecordingError(f"recording {where}: events are not a list of text")
+    for n, text in enumerate(events):
+        try:
+            parse_segment_event(text)
+        except ValueError as exc:
+            raise RecordingError(f"recording {where}: event {n}: {exc}") from None
+    return tuple(events)
+
+
+__all__ = ["METADATA_TYPES", "check_columns", "check_columns_fit", "check_events", "check_metadata"]
