@@ -317,7 +317,10 @@ static HRT_NOINLINE void on_sensors(hrt_link_t *l, const hbp_u8 *buf, hbp_u8 len
     if (l->mode == HBP_MODE_REALTIME) {
         uint32_t now = hrt_port_now();
         if ((l->flags & HRT_LINK_F_SENSORS) != 0u) {
-            span = now - l->last_rx; /* the time that really passed */
+            uint32_t passed = now - l->last_rx; /* the time that really passed, at most HRT_RT_MAX_PERIODS
+                                                 * periods: a firmware too slow for real time on its chip
+                                                 * falls behind instead of running ever longer spans */
+            span = (passed < HRT_RT_MAX_PERIODS * span) ? passed : HRT_RT_MAX_PERIODS * span;
         }
     }
     l->last_rx = hrt_port_now();

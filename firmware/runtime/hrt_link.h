@@ -40,6 +40,12 @@
 #ifndef HRT_DESCRIBE
 #define HRT_DESCRIBE 1
 #endif
+/* Real time on a port without its own timers: each Sensors advances the firmware by the time that
+ * passed, at most this many agreed periods (a firmware too slow for real time on its chip falls
+ * behind instead of spending ever longer spans catching up). */
+#ifndef HRT_RT_MAX_PERIODS
+#define HRT_RT_MAX_PERIODS 4u
+#endif
 #ifndef HRT_LOCKSTEP_WATCHDOG_MIN_MS
 #define HRT_LOCKSTEP_WATCHDOG_MIN_MS 1000u
 #endif

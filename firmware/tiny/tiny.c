@@ -26,6 +26,9 @@
 #define TINY_BOOST_PERMILLE 40 /* modulation at zero speed: 4 % */
 #endif
 
+/* one mrpm as electrical angle per PWM period, 2^32 a turn, in Q16 */
+#define TINY_DTHETA_Q16 ((int64_t)TINY_POLE_PAIRS * 281474976710656LL / (60000LL * TINY_PWM_HZ))
+
 #define P_SPEED_REF 0u
 #define P_V_PER_KRPM 1u
 #define P_ACCEL 2u
@@ -95,8 +98,9 @@ static void body_pwm(hrt_t *rt)
         step = 1;
     }
     t->speed_mrpm += (diff > step) ? step : (diff < -step) ? -step : diff;
-    /* d theta = speed / 60 x pole pairs x 2^32 / f_pwm; speed in mrpm: x 2^32 / (60 000 x 20 000) */
-    t->theta += (uint32_t)((int64_t)t->speed_mrpm * TINY_POLE_PAIRS * 4294967296LL / (60000LL * TINY_PWM_HZ));
+    /* d theta = speed / 60 x pole pairs x 2^32 / f_pwm; speed in mrpm: x 2^32 / (60 000 x 20 000), as
+     * a Q16 factor (a multiplication each period, no 64-bit division: the AVR keeps up in real time) */
+    t->theta += (uint32_t)((int64_t)t->speed_mrpm * TINY_DTHETA_Q16 / 65536);
     t->m = (int32_t)TINY_BOOST_PERMILLE + t->value[P_V_PER_KRPM] * (abs32(t->speed_mrpm) / (int32_t)1000) / (int32_t)100;
     if (t->m > (int32_t)1000) {
         t->m = 1000;

@@ -194,6 +194,29 @@ int loopback_handle(const uint8_t *buf, uint8_t len)
         info.max_edges = (uint8_t)HBP_MAX_EDGES;
         return send_frame(frame, hbp_pack_target_info(&info, frame));
     }
+    case HBP_MSG_TELEMETRY_DESCRIBE: {
+        static const char *const names[3] = {"echo_encoder", "echo_edge", "echo_seq"};
+        static const char *const units[3] = {"counts", "100ns", ""};
+        hbp_telemetry_info_t info;
+        uint8_t index;
+        if (len != 3u) {
+            return send_error(seq, HBP_ERROR_LENGTH, type);
+        }
+        index = buf[2];
+        if (index >= 3u) {
+            return send_error(seq, HBP_ERROR_UNKNOWN_TELEMETRY, index);
+        }
+        memset(&info, 0, sizeof info);
+        info.seq = seq;
+        info.index = index;
+        info.telemetry_id = (uint8_t)(HBP_TELEMETRY_ECHO_ENCODER + index);
+        info.ptype = HBP_PTYPE_INT;
+        info.scale_num = 1;
+        info.scale_den = 1;
+        strcpy(info.name, names[index]);
+        strcpy(info.unit, units[index]);
+        return send_frame(frame, hbp_pack_telemetry_info(&info, frame));
+    }
     case HBP_MSG_STATUS_REQUEST: {
         hbp_status_t st;
         if (len != 2u) {

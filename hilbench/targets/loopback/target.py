@@ -49,6 +49,7 @@ from hilbench.protocol import (
     Status,
     TargetHello,
     TargetInfo,
+    TelemetryInfo,
 )
 from hilbench.protocol import DUTY_IMMEDIATE, INPUT_HALL_A, INPUT_HALL_B, INPUT_HALL_C, MAX_EDGES, REPORT_WRITTEN
 
@@ -116,6 +117,13 @@ class LoopbackTarget:
         """As the C loopback: duties at once and as written, halls and the buttons, no encoder."""
         return TargetInfo(0, DUTY_IMMEDIATE, REPORT_WRITTEN,
                           INPUT_HALL_A | INPUT_HALL_B | INPUT_HALL_C | INPUT_S2 | INPUT_S3, 0, MAX_EDGES)
+
+    def describe_telemetry(self, index: int) -> TelemetryInfo | None:
+        """The echoes as the C loopback names them: raw int16 values."""
+        if not 0 <= index < len(TELEMETRY_IDS):
+            return None
+        name, unit = (("echo_encoder", "counts"), ("echo_edge", "100ns"), ("echo_seq", ""))[index]
+        return TelemetryInfo(0, index, TELEMETRY_IDS[index], PTYPE_INT, 1, 1, name, unit)
 
     def describe(self, param_id: int) -> ParamInfo:
         return self.params.describe(param_id)
