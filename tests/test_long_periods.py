@@ -1,26 +1,22 @@
-"""Issue 27, item 7: long exchange periods with the firmware in the loop.
+"""Issue 27: long exchange periods with the firmware in the loop.
 
-- Every hall edge of a period reaches the firmware at its own time (protocol 3's Sensors.edges): the
-  C AN1017 firmware (SIL) fed the same hall edges in 1 ms periods and in 50 us periods measures the
-  same speed, count for count, at every millisecond, at the scenario's top speed and above.
-- HostHello mode PREDICT: a Drive carries the duties the firmware is predicted to output over the
-  next period (a speculative span on a copy of its state, put back after): the firmware's own state
-  and telemetry are those of plain lockstep, only the duties differ; at 1 ms periods the default
-  scenario then passes the config's checks on the SIL build and on the AVR in simavr (plain lockstep
-  holds each period's last duties for 1 ms, 75 electrical degrees at 2500 rpm, and misses them).
+Every hall edge of a period reaches the firmware at its own time (protocol 3's Sensors.edges): the
+C AN1017 firmware (SIL) fed the same hall edges in 1 ms periods and in 50 us periods measures the
+same speed, count for count, at every millisecond, at the scenario's top speed and above.
+
+(What a 1 ms period still costs is the duties: lockstep holds each period's last duties for the
+next 1 ms, 75 electrical degrees at 2500 rpm, so the default scenario at 1 ms misses its 2500 rpm
+segment by 23 % although no edge is lost. The duties predicted over each period, HostHello mode
+PREDICT, are issue 25's: branch twin carries them and the default-scenario tests at 1 ms.)
 """
 
 from __future__ import annotations
 
-import shutil
-import subprocess
-import sys
 from pathlib import Path
 
 import pytest
 
-from conftest import REPO_ROOT
-from hilbench.protocol import MODE_LOCKSTEP, MODE_PREDICT, PROTOCOL_VERSION, HostHello, Sensors
+from hilbench.protocol import MODE_LOCKSTEP, PROTOCOL_VERSION, HostHello, Sensors
 from hilbench.targets.sil import SilTarget, build_sil
 
 pytestmark = pytest.mark.slow
@@ -80,30 +76,3 @@ def test_every_edge_of_a_long_period_reaches_the_firmware_at_its_time(sil_exe: P
     assert all(abs(a - b) <= 1 for a, b in held), [(i, a, b) for i, (a, b) in enumerate(held) if abs(a - b) > 1][:5]
     q15_per_rpm = 1 / (9_375_000 / (POLE_PAIRS * (313 - 1) * 32768))
     assert abs(held[-1][0] - rpm * q15_per_rpm) <= 0.01 * rpm * q15_per_rpm  # and it is the rotor's speed
-
-
-def test_predicted_duties_leave_the_firmware_as_plain_lockstep_leaves_it(sil_exe: Path) -> None:
-    stream = hall_stream(2500.0, 1000, 200)
-    plain = measured_every_ms(sil_exe, stream, 1000, MODE_LOCKSTEP)
-    predicted = measured_every_ms(sil_exe, stream, 1000, MODE_PREDICT)
-    assert [d[4:] for d in plain] == [d[4:] for d in predicted]  # mode, state, sector, ..., telemetry
-    assert [d[1:4] for d in plain] != [d[1:4] for d in predicted]  # the duties: predicted, not the last ones
-
-
-def _run(*args: str, timeout: float = 900) -> subprocess.CompletedProcess[str]:
-    return subprocess.run([sys.executable, "-m", "hilbench", "run", *args, "--no-ui", "--no-control"],
-                          capture_output=True, text=True, timeout=timeout, cwd=REPO_ROOT)
-
-
-def test_the_default_scenario_at_1ms_passes_its_checks_on_sil() -> None:
-    result = _run("--target", "sil:an1017", "--set", "link.period_us=1000")
-    assert result.returncode == 0, result.stdout + result.stderr
-    assert "predicted duties" in result.stdout and "check speed_error: PASS" in result.stdout
-
-
-@pytest.mark.skipif(shutil.which("avr-gcc") is None or not Path("/usr/include/simavr/sim_avr.h").is_file(),
-                    reason="avr-gcc and libsimavr-dev are needed")
-def test_the_default_scenario_at_1ms_passes_its_checks_on_the_avr() -> None:
-    result = _run("--target", "simavr:an1017", "--set", "link.period_us=1000")
-    assert result.returncode == 0, result.stdout + result.stderr
-    assert "predicted duties" in result.stdout and "check settling_time: PASS" in result.stdout
