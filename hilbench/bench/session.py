@@ -507,13 +507,18 @@ class Session:
                     for k in range(k, stop):
                         hall, tripped, index, count, adc = sense(roles)  # the plant's sensors after the last period
                         inputs = hall | buttons
-                        edges = () if edge_s is None else hall_edges(plant_edges(), edge_limit)  # every hall edge, timed
+                        if edge_s is None:  # a period without a hall edge (most): nothing more to do
+                            edges = ()
+                        else:  # every hall edge of the period, timed
+                            edges = hall_edges(plant_edges(), edge_limit)
+                            if len(edges) > max_edges:
+                                session.too_many_edges(k, len(edges))
                         if index and read_index:  # the encoder's index marks passed: among the edges
                             inputs |= INPUT_INDEX
                             edges = with_index_marks(edges, plant_marks(), edge_limit, hall_before)
+                            if len(edges) > max_edges:
+                                session.too_many_edges(k, len(edges))
                         hall_before = hall
-                        if len(edges) > max_edges:
-                            session.too_many_edges(k, len(edges))
                         if tripped:  # the board's overcurrent comparator drives FAULT
                             inputs |= INPUT_FAULT
                             session._comparator(k)

@@ -26,6 +26,7 @@ typedef struct {
     foc_t fw;
     long long halves;   /* half PWM periods per lockstep exchange */
     long long last_seq;
+    PyObject *last_drive; /* the answer to a repeated seq (a duplicated frame): no second step */
 } Core;
 
 /* ---------------------------------------------------------------- Drive */
@@ -108,10 +109,19 @@ static PyObject *Core_step(Core *s, PyObject *sensors)
     if (need_drive() < 0 || unpack_sensors(sensors, &in) < 0) return NULL;
     long long seq = PyLong_AsLongLong(in.seq);
     if (seq == -1 && PyErr_Occurred()) return NULL;
+    if (s->last_drive != NULL) { /* a repeat of the last Drive's own seq (the kit's RepeatAnswer): no step */
+        PyObject *last_seq = PyTuple_GET_ITEM(s->last_drive, 0);
+        if (last_seq == in.seq || PyLong_AsLongLong(last_seq) == seq) return Py_NewRef(s->last_drive);
+        if (PyErr_Occurred()) return NULL;
+    }
     s->last_seq = seq;
     foc_buttons(&s->fw, (uint16_t)(in.inputs & 0xFFFF));
     if (run_halves(s, s->halves, &in, duty) < 0) return NULL;
-    return make_drive(s, in.seq, duty);
+    PyObject *drive = make_drive(s, in.seq, duty);
+    if (drive != NULL) {
+        Py_XSETREF(s->last_drive, Py_NewRef(drive));
+    }
+    return drive;
 }
 
 static PyObject *Core_inputs(Core *s, PyObject *arg)
@@ -227,8 +237,39 @@ static int Core_init(Core *s, PyObject *args, PyObject *kwds)
     foc_init(&s->fw, &c);
     s->halves = 1;
     s->last_seq = 0;
+    Py_CLEAR(s->last_drive);
     return 0;
 }
+
+static void Core_dealloc(Core *s)
+{
+    Py_CLEAR(s->last_drive);
+    Py_TYPE(s)->tp_free((PyObject *)s);
+}
+
+/* last_drive: None or the Drive a repeated seq gets; only None may be written (forget it) */
+static PyObject *get_last_drive(Core *s, void *c)
+{
+    (void)c;
+    if (s->last_drive == NULL) Py_RETURN_NONE;
+    return Py_NewRef(s->last_drive);
+}
+
+static int set_last_drive(Core *s, PyObject *v, void *c)
+{
+    (void)c;
+    if (v != NULL && v != Py_None) {
+        PyErr_SetString(PyExc_TypeError, "foc core last_drive: only None may be written");
+        return -1;
+    }
+    Py_CLEAR(s->last_drive);
+    return 0;
+}
+
+static PyGetSetDef Core_getset[] = {
+    {"last_drive", (getter)get_last_drive, (setter)set_last_drive, "the Drive a repeated seq gets (None: none)", NULL},
+    {NULL, NULL, NULL, NULL, NULL},
+};
 
 static PyObject *Core_new(PyTypeObject *type, PyObject *args, PyObject *kwds)
 {
@@ -302,6 +343,8 @@ static PyTypeObject CoreType = {
     .tp_doc = "The FOC firmware (firmware/foc) in process: Core(**foc_config_t fields).",
     .tp_new = Core_new,
     .tp_init = (initproc)Core_init,
+    .tp_dealloc = (destructor)Core_dealloc,
+    .tp_getset = Core_getset,
     .tp_members = Core_members,
     .tp_methods = Core_methods,
 };

@@ -354,6 +354,22 @@ if _core is not None:
         qep = property(lambda self: _View(self, "qep_"))
         speed = property(lambda self: _View(self, "sp_"))
 
+    class _CoreRepeat(RepeatAnswer):
+        """The kit's answer to a repeated seq as the C step keeps it (the core's last_drive, as the AN1017
+        core does): forget() clears it there."""
+
+        __slots__ = ("core",)
+
+        def __init__(self, core: Any) -> None:
+            super().__init__(core.step)
+            self.core = core
+
+        def step(self, sensors: Sensors) -> Drive:
+            return self.core.step(sensors)  # type: ignore[no-any-return]
+
+        def forget(self) -> None:
+            self.core.last_drive = None
+
     class _CFocTarget(FocTarget):
         """FocTarget on the compiled firmware: `step` is the C method of `fw` itself; the half
         period, S2 level and last seq live in the struct."""
@@ -362,8 +378,8 @@ if _core is not None:
 
         def __init__(self, options: FocOptions = FocOptions(), *, backend: str | None = None) -> None:
             super().__init__(options, backend=backend)
-            self._repeat = RepeatAnswer(self.fw.step)  # the C step, behind the kit's answer to a repeat
-            self.step = self._repeat.step  # type: ignore[method-assign]
+            self._repeat = _CoreRepeat(self.fw)  # the C step answers a repeat itself (its last_drive)
+            self.step = self.fw.step  # type: ignore[method-assign]  # no Python frame per exchange
 
         def hello(self, host: HostHello) -> TargetHello:
             out = super().hello(host)
