@@ -1,8 +1,8 @@
 """Soak: resident memory during a long run and at the close of its NPZ recording (issues 16, 23).
 
 A session keeps streaming statistics and a bounded history; a recording goes to disk as the run
-goes and its NPZ archive is written from the journal column by column, a mapped window of the
-journal per chunk. So neither the run's RSS nor the close's peak may grow with the run's length.
+goes and its NPZ archive is written from the journal in one pass, one chunk of rows read into a
+buffer at a time (nothing of the journal mapped). So neither the run's RSS nor the close's peak may grow with the run's length.
 Each run is its own process (its own peak); per run this prints the RSS every `--every`
 simulated seconds, the largest RSS of the run, and the close's peak (the kernel's high-water
 mark, reset just before the close) with its excess over the RSS the run had before it closed.

@@ -65,13 +65,24 @@ LOCKSTEP_ISRS = ("_T2Interrupt", "_FLTAInterrupt", "_U1RXInterrupt")
 MARGIN_BYTES = 32
 
 
-@pytest.mark.parametrize("options", [(), ("-DHIL_DRIVE_BRIDGE", "-DHIL_LOCAL_POT"),
+@pytest.mark.parametrize("options", [(), ("-DHIL_LOCAL_POT",),
                                      ("-DAN1017_VARIANT=AN1017_VARIANT_V11",)], ids=["default", "options", "v11"])
 def test_dspic_port_compiles_warning_free(gcc: str, tmp_path: Path, options: tuple[str, ...]) -> None:
     for source in SOURCES:
         result = subprocess.run([gcc, *STRICT_FLAGS, "-Os", *DEFS, *options, "-c", str(source), "-o",
                                  str(tmp_path / (source.stem + ".o"))], capture_output=True, text=True, timeout=120)
         assert result.returncode == 0, result.stderr
+
+
+@pytest.mark.parametrize("options", [("-DHIL_DRIVE_BRIDGE",), ("-DHIL_DRIVE_BRIDGE", "-DHIL_LOCAL_POT")],
+                         ids=["bridge", "bridge+pot"])
+def test_dspic_port_refuses_to_drive_the_bridge_from_simulated_halls(gcc: str, tmp_path: Path,
+                                                                     options: tuple[str, ...]) -> None:
+    """Issue 24: HIL_DRIVE_BRIDGE without the motor's own halls would commutate a real motor from the
+    plant's simulated rotor; the port stops the compiler with #error."""
+    done = subprocess.run([gcc, *STRICT_FLAGS, "-Os", *DEFS, *options, "-c", str(PORT / "main.c"), "-o",
+                           str(tmp_path / "main.o")], capture_output=True, text=True, timeout=120)
+    assert done.returncode != 0 and "HIL_DRIVE_BRIDGE needs HIL_LOCAL_HALLS" in done.stderr, done.stderr
 
 
 def static_ram_bytes(gcc: str, tmp_path: Path) -> dict[str, int]:
@@ -149,7 +160,7 @@ def stack_bound_bytes(tmp_path: Path) -> tuple[int, dict[str, tuple[int, list[st
 
 def test_dspic_port_ram_fits_512_bytes(gcc: str, tmp_path: Path, capsys) -> None:
     sizes = static_ram_bytes(gcc, tmp_path)
-    assert set(sizes) == {"fw", "host_link", "tcy_high", "realtime_on"}, sizes
+    assert set(sizes) == {"fw", "host_link", "tcy_high", "realtime_on", "s2_changed_at", "s2_raw_was"}, sizes
     static = sum(sizes.values())
     stack, paths = stack_bound_bytes(tmp_path)
     assert "hrt_link_handle" in paths["main"][1], paths["main"]  # the analysis found the frame path
@@ -158,3 +169,64 @@ def test_dspic_port_ram_fits_512_bytes(gcc: str, tmp_path: Path, capsys) -> None
               f"+ stack bound {stack} B = {static + stack} of {DSPIC30F2010_RAM_BYTES} B (margin {MARGIN_BYTES} B "
               f"required); deepest main path {' > '.join(paths['main'][1])}")
     assert static + stack <= DSPIC30F2010_RAM_BYTES - MARGIN_BYTES
+
+
+def test_dspic_clock_counts_a_pending_timer2_overflow(gcc: str, tmp_path: Path) -> None:
+    """Issue 24: hrt_port_now() inside a priority-4 ISR, where the Timer2 overflow interrupt cannot
+    run yet: TMR2 has wrapped to a low value and T2IF is set, so the clock is one overflow later,
+    not 65 536 Tcy earlier (which could trip the watchdog). A high TMR2 read with T2IF set was read
+    before the overflow and stays as it is."""
+    harness = tmp_path / "clock.c"
+    harness.write_text(f'#define main port_main\n#include "{PORT / "main.c"}"\n#undef main\n' r'''
+#include <stdio.h>
+int main(void) {
+    tcy_high = 7u;
+    TMR2 = 0xFFF0u; IFS0bits.T2IF = 0;
+    printf("%lu\n", (unsigned long)hrt_port_now());
+    TMR2 = 0x0005u; IFS0bits.T2IF = 1;   /* wrapped, interrupt pending */
+    printf("%lu\n", (unsigned long)hrt_port_now());
+    TMR2 = 0xFFFEu; IFS0bits.T2IF = 1;   /* read before the wrap that set the flag */
+    printf("%lu\n", (unsigned long)hrt_port_now());
+    return 0;
+}
+''')
+    exe = tmp_path / "clock"
+    done = subprocess.run([gcc, "-std=c99", *DEFS, str(harness), *(str(s) for s in SOURCES[1:]),
+                           str(PORT / "hostcheck" / "sfr.c"), "-o", str(exe)], capture_output=True, text=True,
+                          timeout=120)
+    assert done.returncode == 0, done.stderr
+    lines = subprocess.run([str(exe)], capture_output=True, text=True, timeout=10, check=True).stdout.split()
+    assert [int(v) for v in lines] == [7 * 65536 + 0xFFF0, 8 * 65536 + 5, 7 * 65536 + 0xFFFE]
+
+
+def test_dspic_board_s2_is_debounced(gcc: str, tmp_path: Path) -> None:
+    """Issue 24: the board's S2 contact bounces; a level counts once it held 20 ms (400 000 Tcy), so a
+    press with bounces on both edges toggles start/stop once for the press and once for the release."""
+    harness = tmp_path / "s2.c"
+    harness.write_text(f'#define main port_main\n#include "{PORT / "main.c"}"\n#undef main\n' r'''
+#include <stdio.h>
+int main(void) {
+    /* (time in us, raw pressed level): bounces at 0-3 ms, pressed until 100 ms, bounces at release */
+    static const unsigned long t_us[] = {0, 500, 900, 1500, 3000, 10000, 22000, 23100, 50000,
+                                         100000, 100400, 101000, 101300, 110000, 121400, 129900, 130500};
+    static const unsigned char raw[] = {1, 0, 1, 0, 1, 1, 1, 1, 1, 0, 1, 0, 1, 0, 0, 0, 0};
+    uint8_t level = 0u;
+    unsigned i;
+    for (i = 0u; i < sizeof raw; i++) {
+        if (s2_debounced(raw[i], (uint32_t)(t_us[i] * 20ul), &level)) {
+            printf("%lu:%u ", t_us[i], (unsigned)level);
+        }
+    }
+    printf("\n");
+    return 0;
+}
+''')
+    exe = tmp_path / "s2"
+    done = subprocess.run([gcc, "-std=c99", *DEFS, str(harness), *(str(s) for s in SOURCES[1:]),
+                           str(PORT / "hostcheck" / "sfr.c"), "-o", str(exe)], capture_output=True, text=True,
+                          timeout=120)
+    assert done.returncode == 0, done.stderr
+    out = subprocess.run([str(exe)], capture_output=True, text=True, timeout=10, check=True).stdout.split()
+    # pressed for good at 3 ms (the last bounce) -> counts at 23.1 ms, the first sample 20 ms later;
+    # released for good at 110 ms -> not at 129.9 ms (19.9 ms), at 130.5 ms
+    assert out == ["23100:1", "130500:0"]

@@ -41,7 +41,7 @@ def test_a_large_regular_file_is_refused_before_it_is_read(tmp_path: Path) -> No
     big = tmp_path / "big.toml"
     with big.open("wb") as handle:
         handle.truncate(limits.CONFIG_MAX_BYTES + 1)  # sparse: nothing is written, the size says it all
-    from hilbench.config import load_config
+    from hilbench.bench.settings import load_config
 
     with pytest.raises(ConfigError, match=r"big.toml: 1048577 bytes, more than the limit of 1 MiB"):
         load_config(big)
@@ -53,7 +53,7 @@ def test_a_fifo_nobody_writes_to_does_not_hang(tmp_path: Path) -> None:
     os.mkfifo(fifo)
     config = tmp_path / "c.toml"
     config.write_text(f'extends = "{fifo}"\n')
-    from hilbench.config import load_config
+    from hilbench.bench.settings import load_config
 
     with pytest.raises(ConfigError, match="missing table"):
         load_config(config)
@@ -61,7 +61,8 @@ def test_a_fifo_nobody_writes_to_does_not_hang(tmp_path: Path) -> None:
 
 def test_a_pipe_is_read_up_to_the_limit(tmp_path: Path) -> None:
     """Process substitution (`hilbench run <(…)`) gives a pipe: it is read in pieces until its end."""
-    from hilbench.config import default_config_text, load_config
+    from hilbench.bench.settings import load_config
+    from hilbench.config import default_config_text
 
     read_fd, write_fd = os.pipe()
     text = default_config_text().encode()

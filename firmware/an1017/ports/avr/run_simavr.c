@@ -1,17 +1,22 @@
 /* run_simavr.c: run the AVR build of the AN1017 firmware in simavr with USART0 on a pty.
  *
- * Usage: run_simavr FIRMWARE.elf [MCU [F_CPU]]      (default atmega328p 16000000)
+ * Usage: run_simavr [--realtime] FIRMWARE.elf [MCU [F_CPU]]      (default atmega328p 16000000)
+ * --realtime paces the simulation to the wall clock (simulated time never runs ahead of it), as a
+ * chip's would: for real-time sessions, whose host paces by the wall clock and whose firmware
+ * watchdog counts simulated time. Without it simavr runs as fast as it can (lockstep needs no more).
  * Prints "ready PTY_PATH" once the simulated UART listens on a pty (simavr's uart_pty part: a
  * thread moves bytes between the pty and the simulated USART0 with its XON/XOFF flow control, and
  * the USART delivers them at the programmed baud rate in simulated cycles). The bench opens
  * PTY_PATH as a serial device. Runs until the firmware crashes or SIGTERM/SIGINT; then prints
  * "stack_bytes N" on stderr: the deepest stack seen (RAMEND - lowest SP, sampled after every
- * instruction), the measured stack figure of docs/board.md.
+ * instruction), the measured stack figure of docs/board.md, and "cycles N", the simulated time in
+ * CPU cycles (tests compare it with the wall time to know the simulator's speed).
  */
 #include <signal.h>
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
+#include <time.h>
 
 #include "sim_avr.h"
 #include "sim_elf.h"
@@ -19,6 +24,31 @@
 
 static uart_pty_t uart_pty;
 static volatile sig_atomic_t stop_requested = 0;
+
+static double wall_s(void)
+{
+    struct timespec ts;
+    clock_gettime(CLOCK_MONOTONIC, &ts);
+    return (double)ts.tv_sec + (double)ts.tv_nsec * 1e-9;
+}
+
+/* Sleep while the simulated time is ahead of the wall time since start (checked every 1/1000 s of
+ * simulated time: the pacing's granularity). */
+static void pace(const avr_t *avr, double start_s, avr_cycle_count_t *next_check)
+{
+    double ahead_s;
+    if (avr->cycle < *next_check) {
+        return;
+    }
+    *next_check = avr->cycle + avr->frequency / 1000u;
+    ahead_s = (double)avr->cycle / (double)avr->frequency - (wall_s() - start_s);
+    if (ahead_s > 0.0) {
+        struct timespec ts;
+        ts.tv_sec = (time_t)ahead_s;
+        ts.tv_nsec = (long)((ahead_s - (double)ts.tv_sec) * 1e9);
+        nanosleep(&ts, NULL);
+    }
+}
 
 static void on_signal(int sig)
 {
@@ -29,12 +59,21 @@ static void on_signal(int sig)
 int main(int argc, char **argv)
 {
     elf_firmware_t fw;
-    const char *mcu = argc > 2 ? argv[2] : "atmega328p";
-    unsigned long freq = argc > 3 ? strtoul(argv[3], NULL, 10) : 16000000UL;
+    int realtime = argc > 1 && strcmp(argv[1], "--realtime") == 0;
+    const char *mcu;
+    unsigned long freq;
     avr_t *avr;
     int state = cpu_Running;
+    avr_cycle_count_t next_check = 0;
+    double start_s;
+    if (realtime) {
+        argv++;
+        argc--;
+    }
+    mcu = argc > 2 ? argv[2] : "atmega328p";
+    freq = argc > 3 ? strtoul(argv[3], NULL, 10) : 16000000UL;
     if (argc < 2) {
-        fprintf(stderr, "usage: %s FIRMWARE.elf [MCU [F_CPU]]\n", argv[0]);
+        fprintf(stderr, "usage: %s [--realtime] FIRMWARE.elf [MCU [F_CPU]]\n", argv[0]);
         return 2;
     }
     memset(&fw, 0, sizeof fw);
@@ -56,6 +95,7 @@ int main(int argc, char **argv)
     signal(SIGINT, on_signal);
     printf("ready %s\n", uart_pty.pty.slavename);
     fflush(stdout);
+    start_s = wall_s();
     {
         uint16_t ramend = (uint16_t)avr->ramend;
         uint16_t lowest_sp = ramend;
@@ -63,6 +103,9 @@ int main(int argc, char **argv)
         while (!stop_requested && state != cpu_Done && state != cpu_Crashed) {
             uint16_t sp;
             state = avr_run(avr);
+            if (realtime) {
+                pace(avr, start_s, &next_check);
+            }
             sp = (uint16_t)(avr->data[R_SPL] | (avr->data[R_SPH] << 8));
             if (sp == ramend) {
                 started = 1; /* the C start-up code has set SP = RAMEND */
@@ -72,6 +115,7 @@ int main(int argc, char **argv)
             }
         }
         fprintf(stderr, "stack_bytes %u\n", (unsigned)(ramend - lowest_sp));
+        fprintf(stderr, "cycles %llu\n", (unsigned long long)avr->cycle); /* simulated time x F_CPU */
     }
     /* no uart_pty_stop(): its thread may sit in select(); exiting the process ends it */
     if (state == cpu_Crashed) {

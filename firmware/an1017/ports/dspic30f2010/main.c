@@ -10,9 +10,9 @@
  * - MCPWM: PTPER = 499, PTCON = 0x8002 (centre-aligned, 20 kHz), PWMCON1 = 0x0077 (three
  *   complementary pairs), PWMCON2 = 0x0F02 (OSYNC, IUE = 0: duties latch at the period boundary,
  *   SEVOPS 1:16), DTCON1 = 0x0010 (0.8 us dead time). The duties the firmware computes are written
- *   to PDC1..3, but OVDCON keeps all six outputs overridden inactive unless
- *   HIL_DRIVE_BRIDGE is defined: under the bench the plant is simulated and the power stage must
- *   stay off (no motor is connected, or one is, and must not be driven twice).
+ *   to PDC1..3, but OVDCON keeps all six outputs overridden inactive: under the bench the plant is
+ *   simulated and the power stage must stay off (no motor is connected, or one is, and must not be
+ *   driven twice). HIL_DRIVE_BRIDGE stops the compiler unless the halls come from the motor (below).
  * - FLTA (RE8, the board's over-current comparator): FLTACON = 0x0007 drives all pairs inactive on
  *   a fault, and its interrupt stops the firmware with state FAULT, fault OVERCURRENT.
  * - Timer1: Tcy/64, PR1 = 313 (1.0048 ms), the speed-loop tick in real-time mode.
@@ -38,6 +38,17 @@
 
 #if !defined(HRT_PORT_HW) || !HRT_PORT_HW
 #error "the dsPIC30F2010 port runs real time on the chip's interrupts: build it with -DHRT_PORT_HW=1"
+#endif
+
+/* Safety (docs/board.md, "Safety rules of each build"): the six MOSFETs may only be switched by a
+ * build that commutates from the motor's own hall sensors (RB3-RB5 through CN5/IC7/IC8). This port
+ * takes the halls from the bench's Sensors frames, i.e. from a simulated rotor: a real motor would be
+ * commutated from a model. No such build may exist, so the combination stops the compiler. */
+#if defined(HIL_DRIVE_BRIDGE) && !defined(HIL_LOCAL_HALLS)
+#error "HIL_DRIVE_BRIDGE needs HIL_LOCAL_HALLS: the bridge is never switched from the bench's simulated halls"
+#endif
+#if defined(HIL_LOCAL_HALLS)
+#error "HIL_LOCAL_HALLS (the real-motor mode: halls from RB3-RB5) is not implemented in this port yet (issue 24)"
 #endif
 
 #if defined(__XC16__)
@@ -93,14 +104,23 @@ void hrt_port_unlock(void)
     }
 }
 
+/* Called from the main loop and from the priority-4 ISRs, where the Timer2 interrupt (the same
+ * priority) cannot run: an overflow may be pending, not yet counted in tcy_high. A low TMR2 read
+ * with T2IF set is after that overflow, so it counts here (else the time would step back 65 536 Tcy
+ * and could trip the watchdog). */
 uint32_t hrt_port_now(void)
 {
     uint16_t high;
     uint16_t low;
+    uint8_t pending;
     do {
         high = tcy_high;
         low = TMR2;
-    } while (high != tcy_high);
+        pending = (uint8_t)IFS0bits.T2IF;
+    } while (high != tcy_high); /* the Timer2 interrupt ran meanwhile: read again */
+    if (pending && low < 0x8000u) {
+        high = (uint16_t)(high + 1u); /* an overflow not yet served (a high TMR2 was read before it) */
+    }
     return ((uint32_t)high << 16) | low;
 }
 
@@ -193,6 +213,28 @@ void AN1017_ISR _FLTAInterrupt(void)
     write_outputs();
 }
 
+/* ---- the board's S2 (RC14, active low): a mechanical contact bounces for a few ms ---- */
+
+#define S2_STABLE_TCY 400000UL /* 20 ms at FCY = 20 MHz: a level must hold this long to count */
+
+static uint32_t s2_changed_at;
+static uint8_t s2_raw_was;
+
+/* Feed the raw pressed level and the time; returns 1 when the debounced level (*level) changed. */
+static uint8_t s2_debounced(uint8_t raw, uint32_t now, uint8_t *level)
+{
+    if (raw != s2_raw_was) {
+        s2_raw_was = raw;
+        s2_changed_at = now;
+        return 0u;
+    }
+    if (raw != *level && (uint32_t)(now - s2_changed_at) >= S2_STABLE_TCY) {
+        *level = raw;
+        return 1u;
+    }
+    return 0u;
+}
+
 /* ---- initialisation ---- */
 
 static void init_io(void)
@@ -255,7 +297,7 @@ static void init_adc(void)
 
 int main(void)
 {
-    uint8_t s2_board_was = 0u;
+    uint8_t s2_level = 0u;
     an1017_init(&fw, AN1017_VARIANT);
     hrt_link_init(&host_link, &fw.rt);
     init_io();
@@ -264,13 +306,12 @@ int main(void)
     init_adc();
     init_uart();
     for (;;) {
-        uint8_t s2_board = (uint8_t)(PORTCbits.RC14 == 0);
         hrt_link_poll(&host_link); /* lockstep spans, real-time inputs, parameters, the handshake, the watchdog */
-        if (s2_board != s2_board_was) { /* the board's own S2: released -> toggle, as main() does */
+        if (s2_debounced((uint8_t)(PORTCbits.RC14 == 0), hrt_port_now(), &s2_level)) {
+            /* the board's own S2: released -> toggle, as main() does */
             hrt_port_lock();
-            an1017_main_loop_buttons(&fw, (uint8_t)(s2_board ? AN1017_INPUT_S2 : 0u));
+            an1017_main_loop_buttons(&fw, (uint8_t)(s2_level ? AN1017_INPUT_S2 : 0u));
             hrt_port_unlock();
-            s2_board_was = s2_board;
         }
         hrt_port_lock(); /* a frame, the button or the watchdog may have changed the outputs */
         write_outputs();

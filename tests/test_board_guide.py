@@ -1,0 +1,202 @@
+"""Issue 24: every command of docs/board.md runs here against the stand-ins and passes its checks.
+
+The commands are read from the page's code blocks. Those that need the board, XC16, a programmer
+or an FTDI adapter are listed in BOARD_ONLY (and nothing else may be skipped: a new command in the
+page fails this test until it runs here or is listed). The board's `serial:/dev/ttyUSB0?baud=250000`
+becomes the SIL firmware's pty (as the page's section 11 says); section 11's own commands run as
+written, `N` and `/tmp/avr` replaced by the stand-ins' pty and a temporary folder.
+
+A real-time run's checks judge the plant's response, which needs a host that answers every period;
+on a shared, loaded 2-CPU machine the host may not. Such a run passes when it passes its checks, or
+when it fails them and the bench itself says real time was NOT held (the summary's overrun verdict):
+the failure is then the host's, stated, not the firmware's or the guide's.
+"""
+
+from __future__ import annotations
+
+import re
+import shlex
+import subprocess
+import sys
+import time
+from pathlib import Path
+from typing import IO
+
+import pytest
+
+from _firmware import require_tool
+from hilbench.processes import reap, spawn
+
+pytestmark = pytest.mark.slow
+
+REPO = Path(__file__).resolve().parent.parent
+GUIDE = REPO / "docs" / "board.md"
+BOARD_PORT = "serial:/dev/ttyUSB0?baud=250000"
+#: commands that need what this machine has not: XC16, a programmer, an FTDI adapter's sysfs
+BOARD_ONLY = {
+    "make",
+    "make VARIANT=v11",
+    "ipecmd -TPPK4 -P30F2010 -M -Fan1017_dspic30f2010.hex",
+    "cat /sys/bus/usb-serial/devices/ttyUSB0/latency_timer",
+    "echo 1 | sudo tee /sys/bus/usb-serial/devices/ttyUSB0/latency_timer",
+}
+NOT_HELD = "real time NOT held"
+
+
+def guide_commands() -> list[str]:
+    """Every command line of the page's code blocks (continuations joined, comments and quotes
+    dropped by shell rules); the layout tree of section 1 is not a command block."""
+    blocks = re.findall(r"^```\n(.*?)^```", GUIDE.read_text(), re.S | re.M)
+    commands = []
+    for block in blocks:
+        if block.startswith("firmware/"):
+            continue
+        for text in block.replace("\\\n", " ").splitlines():
+            words = shlex.split(text, comments=True)
+            if words:
+                commands.append(" ".join(words))
+    return commands
+
+
+def _cli(command: str, timeout: float) -> subprocess.CompletedProcess[str]:
+    argv = shlex.split(command)
+    assert argv[0] == "hilbench", command
+    return subprocess.run([sys.executable, "-m", "hilbench", *argv[1:]], capture_output=True, text=True,
+                          timeout=timeout, cwd=REPO)
+
+
+#: what the page says a command does instead of passing (section 8: real time at 250 kbaud loses edges)
+EXPECTED_FAILURE = {
+    f"hilbench run --target {BOARD_PORT} --mode realtime --set link.period_us=1800": "hall edges are lost",
+}
+
+
+def _passes(command: str, done: subprocess.CompletedProcess[str]) -> None:
+    text = done.stdout + done.stderr
+    if command in EXPECTED_FAILURE:
+        assert done.returncode == 9 and EXPECTED_FAILURE[command] in text, (command, text[-2500:])
+        return
+    if "--mode realtime" in command and done.returncode == 9 and NOT_HELD in text:
+        print(f"\n{command}: checks failed with real time not held by this host (allowed, see the module doc)")
+        return
+    assert done.returncode == 0, f"{command}: exit {done.returncode}\n{text[-2500:]}"
+    assert "FAIL" not in done.stdout, f"{command}:\n{done.stdout[-2500:]}"
+
+
+def _ready(process: subprocess.Popen[bytes], timeout_s: float = 120.0) -> str:
+    """The pty a stand-in prints as "ready PATH", read unbuffered with a deadline (simavr prints what
+    it loaded first)."""
+    import os
+    import selectors
+
+    assert process.stdout is not None
+    fd = process.stdout.fileno()
+    selector = selectors.DefaultSelector()
+    selector.register(fd, selectors.EVENT_READ)
+    deadline = time.monotonic() + timeout_s
+    data = b""
+    while time.monotonic() < deadline and selector.select(max(0.0, deadline - time.monotonic())):
+        chunk = os.read(fd, 512)
+        if not chunk:
+            break
+        data += chunk
+        for line in data.decode(errors="replace").splitlines():
+            words = line.split()
+            if len(words) == 2 and words[0] == "ready" and data.endswith(b"\n"):
+                return words[1]
+    pytest.fail(f"no 'ready' line from {process.args[0]}: {data[-300:]!r}")
+
+
+def _start(argv: list[str], stderr: int | IO[bytes] = subprocess.DEVNULL) -> tuple[subprocess.Popen[bytes], str]:
+    process = spawn(argv, stdin=subprocess.DEVNULL, stdout=subprocess.PIPE, stderr=stderr, bufsize=0, cwd=REPO)
+    try:
+        return process, _ready(process)
+    except BaseException:
+        reap(process)
+        raise
+
+
+def _ctl_during_run(commands: list[str], port: str) -> None:
+    """Section 9: ctl while a run runs (its control socket; XDG_RUNTIME_DIR is the test's own)."""
+    run = spawn([sys.executable, "-m", "hilbench", "run", "--target", port, "--no-ui", "--mode", "realtime",
+                 "--set", "run.duration_s=60", "--set", "link.period_us=1000"], stdout=subprocess.DEVNULL,
+                stderr=subprocess.DEVNULL, cwd=REPO)
+    try:
+        listed = _cli("hilbench ctl list", 30)
+        for _ in range(60):  # until the session's socket answers (each try has its own timeout)
+            if _cli("hilbench ctl get", 30).returncode == 0:
+                break
+        else:
+            pytest.fail(f"no session answered ctl get: {listed.stdout}")
+        for command in commands:
+            done = _cli(command, 60)
+            if "kp=0.9" in command:  # the page: refused, constraint #1
+                assert done.returncode != 0 and "Kp + Ki + Kd" in done.stdout + done.stderr, done
+            else:
+                assert done.returncode == 0, (command, done.stdout, done.stderr)
+        assert _cli("hilbench ctl stop", 60).returncode == 0
+        run.wait(timeout=60)
+    finally:
+        reap(run, 10.0)
+
+
+def test_every_guide_command_is_run_or_needs_the_board() -> None:
+    commands = guide_commands()
+    assert set(BOARD_ONLY) <= set(commands), set(BOARD_ONLY) - set(commands)
+    assert len(commands) >= 20, commands
+
+
+def _sil_part(commands: list[str], tmp_path: Path) -> set[str]:
+    """Sections 3-9 (the board's port -> the SIL's pty) and section 11's SIL commands; ctl last
+    (its gain write stays in the SIL, as it would on a board)."""
+    ran, folder = set(), REPO
+    sil, sil_pty = _start([sys.executable, "-m", "hilbench.targets.sil"])
+    try:
+        for command in commands:
+            if command in ran or command.startswith("hilbench ctl") or _is_avr(command):
+                continue
+            if command.startswith("cd "):
+                folder = REPO / command[3:]
+                assert folder.is_dir(), command
+            elif command == "make size":
+                done = subprocess.run(["make", "-s", "size"], cwd=folder, capture_output=True, text=True, timeout=600)
+                assert done.returncode == 0 and "flash estimate:" in done.stdout.splitlines()[-1], done
+            elif command != "python -m hilbench.targets.sil":  # that one is the stand-in, started above
+                real = command.replace(BOARD_PORT, f"serial:{sil_pty}?baud=250000").replace("/dev/pts/N", sil_pty)
+                _passes(command, _cli(real.replace("--record board.csv", f"--record {tmp_path / 'board.csv'}"), 600))
+            ran.add(command)
+        ctl = [c for c in commands if c.startswith("hilbench ctl")]
+        _ctl_during_run(ctl, f"serial:{sil_pty}")
+        return ran | set(ctl)
+    finally:
+        reap(sil, 10.0)
+
+
+def _is_avr(command: str) -> bool:
+    return "/tmp/avr" in command or "pts/N?baud" in command
+
+
+def _avr_part(commands: list[str], tmp_path: Path) -> set[str]:
+    """Section 11's simavr commands as written, /tmp/avr a fresh folder (make creates it)."""
+    avr = [c for c in commands if _is_avr(c)]
+    out = tmp_path / "avr"
+    build = subprocess.run(shlex.split(avr[0].replace("/tmp/avr", str(out))), cwd=REPO, capture_output=True,
+                           text=True, timeout=600)
+    assert build.returncode == 0, build.stderr
+    simavr, avr_pty = _start(shlex.split(avr[1].replace("/tmp/avr", str(out))))
+    try:
+        for command in avr[2:]:
+            _passes(command, _cli(command.replace("/dev/pts/N", avr_pty), 900))
+    finally:
+        reap(simavr, 10.0)
+    return set(avr)
+
+
+def test_board_guide_against_the_stand_ins(tmp_path: Path) -> None:
+    require_tool("gcc", "the SIL firmware (apt: gcc)")
+    require_tool("avr-gcc", "the AVR stand-in (apt: gcc-avr avr-libc)")
+    require_tool("simavr", "the AVR stand-in (apt: simavr libsimavr-dev libsimavrparts1)")
+    require_tool("clang", "make size (apt: clang llvm)")
+    commands = [c for c in guide_commands() if c not in BOARD_ONLY]
+    ran = _sil_part(commands, tmp_path) | _avr_part(commands, tmp_path)
+    assert ran == set(commands), set(commands) - ran
