@@ -235,7 +235,7 @@ def conformance(target: str, period_us: int, only: tuple[str, ...], as_json: boo
     """
     import json
 
-    from hilbench.conformance import as_dicts, run_checks
+    from hilbench.bench.conformance import as_dicts, run_checks
 
     results = run_checks(target, period_us=period_us, only=only)
     if as_json:

@@ -1,4 +1,4 @@
-"""The conformance suite (hilbench/conformance.py, `hilbench conformance SPEC`, the pytest module
+"""The conformance suite (hilbench/bench/conformance.py, `hilbench conformance SPEC`, the pytest module
 hilbench.testing.conformance) on every kind of target this tree builds: the Python models in
 process and as emulator processes (the target kit and `serve`), the C firmwares on the runtime as
 host processes (SIL), on an ATmega328P in simavr and on a Cortex-M4 in QEMU. Every check passes on
@@ -16,7 +16,7 @@ import pytest
 
 from _firmware import require_file, require_tool
 from conftest import REPO_ROOT
-from hilbench.conformance import CHECKS, run_checks
+from hilbench.bench.conformance import CHECKS, run_checks
 
 #: the tools each kind of target needs (tests/_firmware.py: a skip here, a failure in CI)
 TOOLS = {
@@ -103,7 +103,7 @@ class _SteppingTwice:
 
 def test_a_target_that_steps_a_repeated_seq_twice_fails() -> None:
     """The suite catches what it checks: a repeat answered with another Drive (it was stepped again)."""
-    from hilbench.conformance import ConformanceFailure, Wire, check_repeated_seq
+    from hilbench.bench.conformance import ConformanceFailure, Wire, check_repeated_seq
 
     with pytest.raises(ConformanceFailure, match="repeated Sensors"):
         check_repeated_seq(Wire(_SteppingTwice(), 50))

@@ -119,7 +119,7 @@ def test_avr_in_simavr_turns_outputs_off_when_the_realtime_host_is_killed(tmp_pa
                               stderr=err)
         started = time.monotonic()
         try:
-            drive, delay_s = _kill_and_watch(f"serial:{pty}?baud=250000", 1800, 3.0, AVR_WATCHDOG_MS)
+            drive, delay_s = _kill_and_watch(f"serial:{pty}?baud=250000", 2600, 3.0, AVR_WATCHDOG_MS)
         finally:
             simavr.send_signal(signal.SIGTERM)
             simavr.wait(timeout=30)  # it prints its cycle count on the way out

@@ -1,4 +1,4 @@
-"""The conformance suite (hilbench.conformance) as pytest tests, for a board in CI or on a desk:
+"""The conformance suite (hilbench.bench.conformance) as pytest tests, for a board in CI or on a desk:
 
     pytest --pyargs hilbench.testing.conformance --hil-target serial:/dev/ttyUSB0?baud=250000
     pytest --pyargs hilbench.testing.conformance --hil-target sil:firmware/mydrive -m hil_conformance
@@ -13,7 +13,7 @@ from typing import Any
 
 import pytest
 
-from hilbench.conformance import CHECKS, Connection, ConformanceFailure
+from hilbench.bench.conformance import CHECKS, Connection, ConformanceFailure
 
 pytestmark = pytest.mark.hil_conformance
 _CONNECTIONS: dict[str, Connection] = {}
