@@ -26,6 +26,20 @@ else:
 
 setup(
     ext_modules=[
+        Extension(  # the session's lockstep span in C: the plant's and the target's C steps through their capsules
+            "hilbench.bench._span",
+            sources=["hilbench/bench/_span.c"],
+            include_dirs=GLUE,
+            depends=GLUE_HEADER,
+            extra_compile_args=_flags,
+            optional=True,
+        ),
+        Extension(  # CSV rows in C (Recorder._format_csv is the reference)
+            "hilbench.bench._csvrows",
+            sources=["hilbench/bench/_csvrows.c"],
+            extra_compile_args=_flags,
+            optional=True,
+        ),
         Extension(
             "hilbench.plant._plantcore",
             sources=["hilbench/plant/_plantcore.c"],

@@ -12,6 +12,15 @@
 (b) Real time at 1 kHz against the emulator process (as benchmarks/bench_realtime.py), without and
     with `run --scope`'s arrangement, alternated ``--realtime-repeats`` times: overruns and lateness
     p99. Skipped with --realtime-seconds 0. The figures move with the machine's load.
+(c) Write-to-drawn latency (issue 22): `hilbench run --no-ui --scope` without a recording, lockstep
+    flat out, the page in headless chromium (Playwright). ``--latency-writes`` times the page sets
+    the reference (1500 <-> 1800 rpm, its "set" button), and the page times, with its own clock, until
+    the firmware's reference (`ref_speed_rpm`, the target's telemetry) has crossed the midpoint in
+    a frame that arrived after the write and a frame has been drawn since. Median and p95 of wall
+    time (goal: median <= 150 ms), beside the page's stream poll interval measured in the same run.
+    Skipped with --latency-writes 0 or without chromium/Playwright.
+
+    python benchmarks/bench_scope.py --repeats 0 --realtime-seconds 0 --latency-writes 30   # (c) alone
 """
 
 from __future__ import annotations
@@ -177,6 +186,107 @@ def realtime_once(seconds: float, scope: bool) -> Any:
         control.close()
 
 
+#: in the page: set the reference from its form, then resolve with the milliseconds until the new value
+#: is in a frame that arrived after the write and a frame has been drawn since (two animation frames)
+LATENCY_JS = """async ([target, threshold, rising]) => {
+  const S = window.scope, t0 = performance.now(), old = S.data.get('ref_speed_rpm') || [];
+  const last = old[old.length - 1];  // frames after this one arrived after the write (the page trims old ones)
+  document.getElementById('ref-input').value = String(target);
+  document.getElementById('ref-set').click();
+  const arrived = () => {
+    const segs = S.data.get('ref_speed_rpm') || [];
+    for (let k = segs.indexOf(last) + 1; k < segs.length; k++) {
+      const s = segs[k];
+      for (let i = 0; i < s.n; i++) if (rising ? s.hi[i] >= threshold : s.lo[i] <= threshold) return true;
+    }
+    return false;
+  };
+  const frame = () => new Promise((resolve) => requestAnimationFrame(resolve));
+  while (!arrived()) { await frame(); if (performance.now() - t0 > 10000) return -1; }
+  await frame(); await frame();
+  return performance.now() - t0;
+}"""
+
+#: in the page: the intervals between stream messages over ``ms`` milliseconds
+POLL_JS = """async (ms) => {
+  const S = window.scope, times = [], t0 = performance.now();
+  let last = S.frames;
+  while (performance.now() - t0 < ms) {
+    await new Promise((resolve) => requestAnimationFrame(resolve));
+    if (S.frames !== last) { times.push(performance.now()); last = S.frames; }
+  }
+  return times.slice(1).map((t, i) => t - times[i]);
+}"""
+
+
+def latency(writes: int) -> None:
+    """(c): see the module's docstring."""
+    import os
+    import re
+    import shutil
+
+    try:
+        from playwright.sync_api import sync_playwright
+    except ImportError:
+        print("(c) skipped: Playwright is not installed")
+        return
+    chromium = os.environ.get("HILBENCH_CHROMIUM", "/usr/bin/chromium")
+    chromium = chromium if os.path.exists(chromium) else shutil.which("chromium")
+    if not chromium:
+        print("(c) skipped: no chromium")
+        return
+    env = dict(os.environ, PYTHONUNBUFFERED="1")
+    proc = subprocess.Popen([sys.executable, "-m", "hilbench", "run", "--target", "inprocess:an1017", "--duration", "3600",
+                             "--no-ui", "--scope"], stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True, env=env)
+    url = socket = ""
+    try:
+        assert proc.stderr is not None
+        for line in proc.stderr:
+            found = re.search(r"control socket (\S+)", line)
+            socket = found.group(1) if found else socket
+            found = re.search(r"scope: (http://\S+)", line)
+            if found:
+                url = found.group(1)
+                break
+        if not url:
+            print("(c) failed: the run printed no scope URL")
+            return
+        with sync_playwright() as playwright:
+            browser = playwright.chromium.launch(executable_path=chromium, args=["--headless", "--no-sandbox", "--disable-gpu"])
+            page = browser.new_page(viewport={"width": 1280, "height": 820})
+            page.goto(url)
+            page.wait_for_function("window.scope.frames > 2 && window.scope.selected.includes('ref_speed_rpm')", timeout=30_000)
+            page.fill("#ref-input", "1500")
+            page.click("#ref-set")
+            page.wait_for_timeout(1000)  # the motor follows the first reference (settling, not synchronisation)
+            polls = page.evaluate(POLL_JS, 3000)
+            samples = []
+            for n in range(writes):
+                target = 1800 if n % 2 == 0 else 1500
+                samples.append(page.evaluate(LATENCY_JS, [target, 1650, target > 1650]))
+                page.wait_for_timeout(300)  # the firmware's reference settles before the next write
+            browser.close()
+    finally:
+        if socket:
+            subprocess.run([sys.executable, "-m", "hilbench", "ctl", "--socket", socket, "stop"], capture_output=True, timeout=30)
+        try:
+            proc.wait(30)
+        except subprocess.TimeoutExpired:
+            proc.kill()
+            proc.wait(10)
+    good = sorted(x for x in samples if x >= 0)
+    lost = len(samples) - len(good)
+    if not good:
+        print("(c) failed: no write was seen drawn within 10 s")
+        return
+    p95 = good[min(len(good) - 1, int(0.95 * (len(good) - 1) + 0.5))]
+    poll = statistics.median(polls) if polls else float("nan")
+    print(f"(c) write-to-drawn latency, `run --scope` without a recording, lockstep, headless chromium, {len(good)} writes"
+          f"{f' ({lost} not seen within 10 s)' if lost else ''}:")
+    print(f"    median {statistics.median(good):6.1f} ms   p95 {p95:6.1f} ms   min {good[0]:6.1f} ms   max {good[-1]:6.1f} ms"
+          f"   (goal: median <= 150 ms); the page's stream messages every {poll:.1f} ms (median)")
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--page", default=None, help=argparse.SUPPRESS)
@@ -184,9 +294,15 @@ def main() -> None:
     parser.add_argument("--repeats", type=int, default=7)
     parser.add_argument("--realtime-seconds", type=float, default=15.0)
     parser.add_argument("--realtime-repeats", type=int, default=1)
+    parser.add_argument("--latency-writes", type=int, default=20)
     args = parser.parse_args()
     if args.page:
         page_main(args.page)
+        return
+    if args.latency_writes > 0:
+        latency(args.latency_writes)
+        sys.stdout.flush()
+    if args.repeats <= 0:
         return
 
     walls: dict[str, list[float]] = {"none": [], "process": [], "thread": []}

@@ -1,9 +1,17 @@
-"""Lockstep closed-loop speed of the bench: AN1017 firmware + Hurst plant, every period recorded.
+"""Lockstep closed-loop speed of the bench: AN1017 firmware + Hurst plant (and the FOC on the servo),
+every period recorded.
 
-Prints, in one run (medians over repeats; the machine is a noisy 2-core VM):
-  (a) periods/s and real-time factor with the firmware in-process (goal >= 10x at 20 kHz periods),
-  (b) periods/s with the firmware as its own process on a pty (goal >= 50 % of the raw echo),
-  and a raw two-process pty echo of the same frame sizes as the baseline for (b).
+Prints, in one run (medians over interleaved repeats; the machine is a noisy 2-core VM), each as
+periods/s and real-time factor at 20 kHz exchanges:
+  the C floor: the plant's and the firmware's C steps alone, no session (the C span of
+      hilbench/bench/_span.c run directly, nothing recorded, no part);
+  (a) the firmware in-process with NPZ recording (the session's C span between events), the loop
+      alone, the same with CSV recording, and the session's Python loop (HILBENCH_SESSION_SPAN=python);
+  the FOC on the 200 W servo: its C floor and in-process with NPZ recording;
+  (b) the firmware as its own process on a pty: the Python emulator and the SIL build of the C
+      firmware, and a raw two-process pty echo of the same frame sizes as their baseline;
+and ends with the ratios (issue 28's acceptance lines): in-process NPZ / C floor, CSV / NPZ,
+FOC NPZ / FOC C floor, emulator / raw echo, SIL / raw echo.
 
 With ``--baseline-python PY`` it also runs (a) under another installation of hilbench (e.g. the
 commit before a change, installed in its own venv), interleaved with this one, and prints the
@@ -15,7 +23,7 @@ noisy machine where wall-clock medians scatter by as much. Each interpreter runs
 callgrind for a short and a long scenario; the difference over the extra periods is the per-period
 cost with start-up, handshake and imports cancelled out (the close of the recording stays in).
 
-    python benchmarks/bench_session.py [--seconds 1.0] [--repeats 3] [--baseline-python PY] [--instructions]
+    python benchmarks/bench_session.py [--seconds 1.0] [--repeats 3] [--no-process] [--baseline-python PY] [--instructions]
 """
 
 from __future__ import annotations
@@ -56,26 +64,73 @@ def scenario(seconds: float) -> tuple[Event, ...]:
     )
 
 
-def closed_loop(spec: str, seconds: float, record_dir: str, fmt: str) -> tuple[float, str, float, float]:
+SERVO = Path(__file__).resolve().parent.parent / "bench_configs" / "servo_200w.toml"
+
+
+def foc_scenario(seconds: float) -> tuple[Event, ...]:
+    """The servo at 1000 rpm for the timed span (bench_foc.py's)."""
+    return (Event(at_s=0.0, press="s2"), Event(at_s=0.2, params=(("ref_rpm", 1000.0),)), Event(at_s=seconds, end=True))
+
+
+def _session(handle: object, spec: str, seconds: float | None, config: Path | None, events: tuple[Event, ...],
+             recorder: Recorder | None) -> tuple[Session, Plant]:
+    cfg = load_config(config)
+    options = dataclasses.replace(settings.session_options(cfg), duration_s=seconds, period_us=PERIOD_US)
+    plant = Plant(plant_params_from_config(cfg), seed=0, substeps=cfg.plant.substeps)
+    session = Session(handle.target, plant, events, options, recorder=recorder,  # type: ignore[attr-defined]
+                      link_stats=handle.link_stats, target_label=spec)  # type: ignore[attr-defined]
+    session.handshake()
+    return session, plant
+
+
+def closed_loop(spec: str, seconds: float, record_dir: str, fmt: str, *, config: Path | None = None,
+                c_span: bool = True) -> tuple[float, str, float, float]:
     """Periods/s of one lockstep run against ``spec``, every period recorded to ``fmt``.
 
     Returns (periods/s including closing the recording, plant backend, periods/s of the loop alone,
     periods per CPU second of this process including the close: time the machine's other load took
     from it left out).
     """
-    cfg = load_config(None)
-    options = dataclasses.replace(settings.session_options(cfg), duration_s=seconds, period_us=PERIOD_US)
-    plant = Plant(plant_params_from_config(cfg), seed=0, substeps=cfg.plant.substeps)
+    events = foc_scenario(seconds) if config == SERVO else scenario(seconds)
     with open_target(spec, timeout_s=2.0) as handle:
         recorder = Recorder(Path(record_dir) / f"bench.{fmt}", {"bench": True}, flush_rows=20_000)
-        session = Session(handle.target, plant, scenario(seconds), options, recorder=recorder,
-                          link_stats=handle.link_stats, target_label=spec)
-        session.handshake()
+        session, plant = _session(handle, spec, seconds, config, events, recorder)
+        session.c_span = c_span
         t0, cpu0 = time.perf_counter(), time.process_time()
         summary = session.run()
         elapsed, cpu = time.perf_counter() - t0, time.process_time() - cpu0
     return (summary.periods / elapsed, getattr(plant, "backend", "python"), summary.periods / summary.wall_s,
             summary.periods / cpu if cpu > 0 else float("nan"))
+
+
+def warm_up(record_dir: str) -> None:
+    """A short run first, so the timed one holds no first-run costs: modules a run imports lazily
+    (the NPZ writer at the close) are compiled from source at each run where no bytecode is cached
+    (PYTHONDONTWRITEBYTECODE=1 on an editable tree, against a pip-installed baseline with its .pyc:
+    ~14 ms of a 1 s run's ~100 ms), and the first run's page faults."""
+    closed_loop("inprocess:an1017", 0.01, record_dir, "npz")
+
+
+def c_floor(spec: str, seconds: float, *, config: Path | None = None) -> float:
+    """Periods/s of the plant's and the firmware's C steps alone: a session brought to speed (its
+    scenario's start), then its C span run directly for ``seconds`` with nothing recorded."""
+    warm_s = 0.3 if config == SERVO else 0.05
+    events = foc_scenario(warm_s + seconds) if config == SERVO else scenario(warm_s + seconds)
+    with open_target(spec, timeout_s=2.0) as handle:
+        session, _ = _session(handle, spec, None, config, events, None)
+        session.begin()
+        session.advance(int(warm_s * 1e6 / PERIOD_US))
+        span = session._c_span(None)
+        if span is None:
+            raise SystemExit(f"{spec}: no C span here (the C cores are not built)")
+        k, n = session.periods_done, int(seconds * 1e6 / PERIOD_US)
+        t0 = time.perf_counter()
+        done = span.run(k, k + n, session.scenario.buttons, session.ref_rpm, session._edge_s, session.drive) - k
+        elapsed = time.perf_counter() - t0
+        session.end()
+    if done < n:
+        raise SystemExit(f"{spec}: the C floor's span stopped after {done} of {n} periods (the comparator tripped)")
+    return n / elapsed
 
 
 def measure_in(python: str, seconds: float) -> tuple[float, float, float]:
@@ -87,15 +142,17 @@ def measure_in(python: str, seconds: float) -> tuple[float, float, float]:
     return float(figures["rate"]), float(figures.get("loop_rate", "nan")), float(figures.get("cpu_rate", "nan"))
 
 
-def instructions_per_period(python: str, short_s: float = 0.2, long_s: float = 1.2) -> float:
-    """(a)'s CPU instructions per period under ``python``, counted by callgrind (deterministic)."""
+def instructions_per_period(python: str, short_s: float = 0.2, long_s: float = 1.2,
+                            what: str = "--measure-inprocess") -> float:
+    """(a)'s CPU instructions per period under ``python`` (``what="--measure-floor"``: the C
+    floor's), counted by callgrind (deterministic)."""
     totals = []
     env = dict(os.environ, OPENBLAS_NUM_THREADS="1", PYTHONHASHSEED="0")  # no BLAS threads spinning, fixed hashes
     with tempfile.TemporaryDirectory() as tmp:
         for seconds in (short_s, long_s):
             out = Path(tmp) / "callgrind.out"
             subprocess.run(["valgrind", "--tool=callgrind", f"--callgrind-out-file={out}", python, __file__,
-                            "--measure-inprocess", "--seconds", str(seconds)],
+                            what, "--seconds", str(seconds)],
                            capture_output=True, text=True, timeout=900, cwd=tmp, env=env, check=True)
             line = next(ln for ln in out.read_text().splitlines() if ln.startswith(("summary:", "totals:")))
             totals.append(int(line.split()[1]))
@@ -110,20 +167,30 @@ def main() -> None:
                         help="an interpreter with another hilbench installed: (a) is measured there too")
     parser.add_argument("--instructions", action="store_true",
                         help="count (a)'s instructions per period with valgrind (this tree and the baseline) and stop")
+    parser.add_argument("--no-process", action="store_true",
+                        help="leave out the process paths (emulator, SIL, raw echo): the in-process figures only")
     parser.add_argument("--measure-inprocess", action="store_true", help=argparse.SUPPRESS)
+    parser.add_argument("--measure-floor", action="store_true", help=argparse.SUPPRESS)
     args = parser.parse_args()
     if args.instructions:
         if shutil.which("valgrind") is None:
             parser.error("--instructions needs valgrind on PATH (apt-get install valgrind)")
         this = instructions_per_period(sys.executable)
+        floor = instructions_per_period(sys.executable, what="--measure-floor")
         print(f"(a) in-process with NPZ recording, CPU instructions per period (callgrind): this tree {this:,.0f}")
+        print(f"    C floor (plant + firmware C steps, no session): {floor:,.0f}")
+        print(f"ratio in-process NPZ / C floor (instructions, floor / NPZ): {floor / this:.2f}")
         if args.baseline_python:
             base = instructions_per_period(args.baseline_python)
             print(f"    baseline ({args.baseline_python}) {base:,.0f}; ratio {this / base:.3f} "
                   f"(below 1: fewer instructions than the baseline)")
         return
+    if args.measure_floor:  # the C floor once (for --instructions)
+        print(json.dumps({"rate": c_floor("inprocess:an1017", args.seconds)}))
+        return
     if args.measure_inprocess:  # one (a) figure for --baseline-python, as JSON
         with tempfile.TemporaryDirectory() as tmp:
+            warm_up(tmp)
             rate, _, loop_rate, cpu_rate = closed_loop("inprocess:an1017", args.seconds, tmp, "npz")
             print(json.dumps({"rate": rate, "loop_rate": loop_rate, "cpu_rate": cpu_rate}))
         return
@@ -140,29 +207,67 @@ def main() -> None:
                   f"baseline ({args.baseline_python}) {base:,.0f} periods/s, ratio {this / base:.3f}")
             print(f"    runs this: {', '.join(f'{r[i]:,.0f}' for r in pairs['this'])}; "
                   f"baseline: {', '.join(f'{r[i]:,.0f}' for r in pairs['baseline'])}")
+    run_paths(args)
+
+
+def run_paths(args: argparse.Namespace) -> None:
+    """Every path of the module docstring, interleaved, then the figures and the ratio lines."""
     from bench_link import frame_sizes, raw_echo  # this tree's only: the baseline interpreter skips it
+    from bench_sil import emulator_loop, sil_loop
 
     sensors_len, drive_len = frame_sizes()
-    rates: dict[str, list[float]] = {"inproc_npz": [], "inproc_npz_loop": [], "inproc_csv": [], "pty": [], "raw": []}
+    names = ("floor", "npz", "npz_loop", "csv", "python", "foc_floor", "foc_npz") + (
+        () if args.no_process else ("emulator", "sil", "raw"))
+    rates: dict[str, list[float]] = {name: [] for name in names}
     backend = "?"
+    exe = None
+    if not args.no_process:
+        from hilbench.targets.sil import build_sil
+
+        exe = build_sil()
+    seconds = args.seconds
     with tempfile.TemporaryDirectory() as tmp:
+        warm_up(tmp)
         for _ in range(args.repeats):  # interleaved, so drifts in machine load hit every figure alike
-            rate, backend, loop_rate, _ = closed_loop("inprocess:an1017", args.seconds, tmp, "npz")
-            rates["inproc_npz"].append(rate)
-            rates["inproc_npz_loop"].append(loop_rate)
-            rates["inproc_csv"].append(closed_loop("inprocess:an1017", args.seconds, tmp, "csv")[0])
-            rates["pty"].append(closed_loop("emulator:an1017", args.seconds, tmp, "npz")[0])
-            rates["raw"].append(raw_echo(int(args.seconds * 20_000), sensors_len, drive_len).rate)
+            rates["floor"].append(c_floor("inprocess:an1017", seconds))
+            rate, backend, loop_rate, _ = closed_loop("inprocess:an1017", seconds, tmp, "npz")
+            rates["npz"].append(rate)
+            rates["npz_loop"].append(loop_rate)
+            rates["csv"].append(closed_loop("inprocess:an1017", seconds, tmp, "csv")[0])
+            rates["python"].append(closed_loop("inprocess:an1017", seconds, tmp, "npz", c_span=False)[0])
+            rates["foc_floor"].append(c_floor("inprocess:foc", seconds, config=SERVO))
+            rates["foc_npz"].append(closed_loop("inprocess:foc", seconds, tmp, "npz", config=SERVO)[0])
+            if exe is not None:
+                rates["emulator"].append(emulator_loop(seconds, tmp).rate)
+                rates["sil"].append(sil_loop(exe, seconds, tmp).rate)
+                rates["raw"].append(raw_echo(int(seconds * 1e6 / PERIOD_US), sensors_len, drive_len).rate)
     med = {k: statistics.median(v) for k, v in rates.items()}
     real = 1e6 / PERIOD_US
-    print(f"AN1017 + Hurst closed loop, lockstep, {PERIOD_US} us periods, {args.seconds:g} s simulated, "
-          f"median of {args.repeats} (plant backend: {backend})")
-    print(f"  (a) in-process, NPZ recording : {med['inproc_npz']:9,.0f} periods/s = {med['inproc_npz'] / real:5.2f}x real time (goal >= 10x)")
-    print(f"      the same, loop only       : {med['inproc_npz_loop']:9,.0f} periods/s = {med['inproc_npz_loop'] / real:5.2f}x real time (without writing the final .npz)")
-    print(f"      in-process, CSV recording : {med['inproc_csv']:9,.0f} periods/s = {med['inproc_csv'] / real:5.2f}x real time")
-    print(f"  (b) emulator process on a pty : {med['pty']:9,.0f} periods/s = {med['pty'] / real:5.2f}x real time")
-    print(f"      raw pty echo {sensors_len}/{drive_len} B    : {med['raw']:9,.0f} round trips/s")
-    print(f"      (b) / raw echo            : {med['pty'] / med['raw']:6.1%} (goal >= 50 %)")
+
+    def line(label: str, name: str, note: str = "") -> None:
+        runs = ", ".join(f"{r:,.0f}" for r in rates[name])
+        print(f"  {label:<38}: {med[name]:9,.0f} periods/s = {med[name] / real:6.2f}x real time{note}  [{runs}]")
+
+    print(f"Closed loop, lockstep, {PERIOD_US} us exchanges, {seconds:g} s simulated per run, median of "
+          f"{args.repeats} interleaved runs [each run] (plant backend: {backend})")
+    line("C floor AN1017 (plant + firmware C)", "floor", " (no session, nothing recorded)")
+    line("(a) in-process AN1017, NPZ recording", "npz", " (goal >= 50x, >= 70 % of the floor)")
+    line("    the same, loop only", "npz_loop", " (without writing the final .npz)")
+    line("    in-process AN1017, CSV recording", "csv", " (goal >= 60 % of NPZ)")
+    line("    the session's Python loop, NPZ", "python", " (HILBENCH_SESSION_SPAN=python: the reference)")
+    line("C floor FOC (servo, plant + firmware C)", "foc_floor")
+    line("FOC in-process, NPZ recording", "foc_npz", " (goal >= 40x)")
+    if exe is not None:
+        line("(b) emulator process on a pty", "emulator")
+        line("    SIL firmware process on a pty", "sil")
+        line(f"    raw pty echo {sensors_len}/{drive_len} B", "raw", " (round trips)")
+    print(f"ratio in-process NPZ / C floor: {med['npz'] / med['floor']:.2f}")
+    print(f"ratio in-process CSV / NPZ: {med['csv'] / med['npz']:.2f}")
+    print(f"ratio in-process NPZ C span / Python loop: {med['npz'] / med['python']:.2f}")
+    print(f"ratio FOC NPZ / FOC C floor: {med['foc_npz'] / med['foc_floor']:.2f}")
+    if exe is not None:
+        print(f"ratio emulator / raw echo: {med['emulator'] / med['raw']:.2f}")
+        print(f"ratio SIL / raw echo: {med['sil'] / med['raw']:.2f}")
 
 
 if __name__ == "__main__":

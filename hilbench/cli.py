@@ -348,7 +348,7 @@ def run(config: str | None, target_spec: str | None, mode: str | None, duration_
                 keys = dashboard.command_line = CommandLine(control.path, dashboard.replies.append)
             with keys, dashboard:
                 summary = run_bench(cfg, record=record, observer=dashboard, control=control, on_ready=dashboard.attach,
-                                    warn=lambda text: console.print(f"[yellow]warning: {text}[/]"))
+                                    warn=dashboard.warnings.append)  # kept on top of every frame (and in the summary)
     finally:
         if scope_server is not None:
             scope_server.close()
@@ -430,11 +430,13 @@ def report(recording: str, plot_dir: str | None, csv_file: str | None, as_json: 
 
 @cli.command()
 @click.option("--socket", "socket_path", default=None, metavar="PATH",
-              help="The session's control socket (default: the newest running session, as `hilbench ctl` finds it).")
+              help="The session's control socket (default: as `hilbench ctl` picks the session).")
+@click.option("--session", "session_selector", default=None, metavar="PID|N",
+              help="The session by its pid or its number in `hilbench ctl list`.")
 @click.option("--port", type=click.IntRange(0, 65535), default=0, show_default=True, help="TCP port on 127.0.0.1 (0: any free one).")
 @click.option("--open", "open_browser", is_flag=True, help="Open the page in the browser.")
 @_friendly
-def scope(socket_path: str | None, port: int, open_browser: bool) -> None:
+def scope(socket_path: str | None, session_selector: str | None, port: int, open_browser: bool) -> None:
     """Serve the live scope page for a running `hilbench run` (until Ctrl-C).
 
     The page (127.0.0.1, a secret token in its URL) shows any recorded column live, with
@@ -443,23 +445,27 @@ def scope(socket_path: str | None, port: int, open_browser: bool) -> None:
     from hilbench.bench.control import read_discovery
     from hilbench.scope.launch import scope_for_socket
 
-    path = socket_path if socket_path is not None else read_discovery()
+    path = socket_path if socket_path is not None else read_discovery(selector=session_selector)
     scope_for_socket(path, port, open_browser).serve_forever()  # type: ignore[attr-defined]
 
 
 @cli.command(context_settings={"ignore_unknown_options": True})
 @click.argument("words", nargs=-1, type=click.UNPROCESSED)
 @click.option("--socket", "socket_path", default=None, metavar="PATH",
-              help="The session's control socket (default: the newest running session; `ctl list` shows them all).")
+              help="The session's control socket (default: the only running session, else the one started in this "
+                   "directory or terminal; otherwise ctl refuses and lists them).")
+@click.option("--session", "session_selector", default=None, metavar="PID|N",
+              help="The session by its pid or its number in `hilbench ctl list` (1: the newest).")
 @click.option("--timeout", "timeout_s", type=click.FloatRange(min=0.1), default=None,
               help="Seconds to wait for the answer (default: 5; `step`: 120, it answers after the step).")
 @click.option("--json", "as_json", is_flag=True, help="Print the session's whole reply as one JSON object.")
 @_friendly
-def ctl(words: tuple[str, ...], socket_path: str | None, timeout_s: float | None, as_json: bool) -> None:
+def ctl(words: tuple[str, ...], socket_path: str | None, session_selector: str | None, timeout_s: float | None,
+        as_json: bool) -> None:
     """Talk to a running `hilbench run` through its control socket.
 
     \b
-    hilbench ctl get                     gains and parameters now
+    hilbench ctl get                     gains and parameters now (JSON when piped)
     hilbench ctl set kp=0.1 ki=0.01      write a gain set (checked, applied atomically)
     hilbench ctl ref 1500                speed reference in rpm (negative: reverse)
     hilbench ctl load 0.02               load torque in N*m
@@ -469,11 +475,14 @@ def ctl(words: tuple[str, ...], socket_path: str | None, timeout_s: float | None
     hilbench ctl press s2|s3             press a board button (S2 starts and stops the motor)
     hilbench ctl start                   the target's Start command (restart after a stop)
     hilbench ctl stop                    end the run (recording closed, target stopped)
-    hilbench ctl list                    the running sessions and their sockets
+    hilbench ctl list                    the running sessions, numbered (--session N picks one)
+
+    With several sessions running, ctl talks to the one started in this directory (or terminal);
+    otherwise it refuses and lists them: pick one with --session PID|N or --socket PATH.
     """
     import json as json_module
 
-    from hilbench.bench.control import ControlClient, list_sessions, parse_ctl_args
+    from hilbench.bench.control import ControlClient, list_sessions, parse_ctl_args, read_discovery
     from hilbench.errors import TargetError
 
     if list(words[:1]) == ["list"]:
@@ -486,18 +495,17 @@ def ctl(words: tuple[str, ...], socket_path: str | None, timeout_s: float | None
         else:
             import time as time_module
 
-            for row in rows:
+            for n, row in enumerate(rows, 1):
                 age = time_module.time() - float(row["started_s"])
-                click.echo(f"pid {row['pid']}  {row['socket']}  started {age:.0f} s ago in {row['cwd']}")
+                click.echo(f"#{n}  pid {row['pid']}  {row['socket']}  started {age:.0f} s ago in {row['cwd']}")
         return
     request = parse_ctl_args(list(words))
     if timeout_s is None:
         timeout_s = 120.0 if request["cmd"] == "step" else 5.0
-    if socket_path is None:
-        running = list_sessions()
-        if len(running) > 1 and not as_json:
-            click.echo(f"hilbench: {len(running)} sessions running; talking to the newest (pid {running[0].pid}, "
-                       f"{running[0].socket_path}); `hilbench ctl list` shows them, --socket picks one", err=True)
+    if socket_path is None:  # never a guess among several sessions (hilbench.bench.control.choose_session)
+        socket_path = str(read_discovery(selector=session_selector))
+    elif session_selector is not None:
+        raise ConfigError("ctl: give --socket or --session, not both")
     client = ControlClient(socket_path, timeout_s=timeout_s)
     if request["cmd"] == "save":  # the file is written here, where the user is, from the session's values
         from hilbench.bench.tuning import saved_fragment
@@ -506,11 +514,8 @@ def ctl(words: tuple[str, ...], socket_path: str | None, timeout_s: float | None
         if not reply.get("ok"):
             raise TargetError(str(reply.get("message", "refused")))
         text = saved_fragment(reply["data"])
-        try:
-            with open(request["file"], "w", encoding="utf-8") as handle:
-                handle.write(text)
-        except OSError as exc:
-            raise TargetError(f"ctl save {request['file']}: {exc.strerror}") from None
+        with open(request["file"], "w", encoding="utf-8") as handle:  # an OSError: a file error, exit 1
+            handle.write(text)
         if as_json:
             click.echo(json_module.dumps({"ok": True, "message": f"wrote {request['file']}", "data": reply["data"]}))
         else:
@@ -524,11 +529,28 @@ def ctl(words: tuple[str, ...], socket_path: str | None, timeout_s: float | None
         return
     if not reply.get("ok"):
         raise TargetError(str(reply.get("message", "refused")))
-    if reply.get("data"):
+    if reply.get("data") and not sys.stdout.isatty():
         click.echo(json_module.dumps(reply["data"], indent=2, default=str))  # JSON alone on stdout: pipe it
         click.echo(reply.get("message", "ok"), err=True)
+    elif reply.get("data"):  # a person reads it: one fact a line, as the dashboard shows them
+        click.echo(ctl_text(str(request["cmd"]), reply))
     else:
         click.echo(reply.get("message", "ok"))
+
+
+def ctl_text(cmd: str, reply: dict[str, Any]) -> str:
+    """A control reply for a terminal: `get` as a table of parameters, others as their message."""
+    data = reply.get("data") or {}
+    if cmd != "get" or not isinstance(data, dict):
+        return str(reply.get("message", "ok"))
+    params = data.get("params") or {}
+    tunable = set(data.get("tunable") or ())
+    width = max((len(str(name)) for name in params), default=0)
+    lines = [f"{name:<{width}}  {value:.6g}" + ("   (tunable)" if name in tunable else "")
+             for name, value in params.items() if isinstance(value, (int, float))]
+    lines.append(f"reference {data.get('ref_rpm', 0):g} rpm at t={data.get('t_s', 0):.3f} s")
+    lines += [str(trip) for trip in data.get("guard_trips") or ()]  # "guard: why; restored ..."
+    return "\n".join(lines)
 
 
 @cli.command(context_settings={"show_default": True})
@@ -600,10 +622,13 @@ def step(config: str | None, from_rpm: float, to_rpm: float, gains: tuple[str, .
     if plot_file:
         from hilbench.ui.plots import plot_overlay
 
-        curves = [(r.label, r.t_s, r.speed_rpm) for r in results]
-        t_ref = results[0].t_s
-        plot_overlay(curves, (t_ref, [results[0].ref_rpm] * len(t_ref)), Path(plot_file),
-                     f"speed step {from_rpm:g} → {to_rpm:g} rpm")
+        # each curve named by its parameters; the reference as the firmware reports it (a firmware may
+        # ramp it after an alignment), else the ideal step
+        curves = [(" ".join(f"{k}={v:.4g}" for k, v in r.gains.items()) or r.label, r.t_s, r.speed_rpm) for r in results]
+        first = results[0]
+        reference = first.firmware_ref_rpm if first.firmware_ref_rpm is not None else [first.ref_rpm] * len(first.t_s)
+        plot_overlay(curves, (first.t_s, reference), Path(plot_file), f"speed step {from_rpm:g} → {to_rpm:g} rpm",
+                     reference_label="reference (firmware)" if first.firmware_ref_rpm is not None else "reference")
     every = [v for per_set in verdicts for v in per_set]
     if as_json:
         if every:  # each gain set's verdicts beside its metrics
@@ -738,7 +763,7 @@ def sweep(config: str | None, axes: tuple[str, ...], sample: str, rounds: int, s
     if csv_file:
         write_sweep_csv(csv_file, result)
     if save_file:
-        _save_best(result, save_file)
+        _save_best(result, save_file, cfg)
     _show_sweep(result, top, as_json, wall_s, len(tolerances.cases()) > 1, csv_file, save_file)
 
 
@@ -762,10 +787,12 @@ def _sweep_sample(sample: str, box: list[Any], seed: int) -> list[Any]:
     raise ConfigError(f"sweep --sample {sample!r}: expected grid, lhs:N or random:N")
 
 
-def _save_best(result: Any, save_file: str) -> None:
-    from hilbench.bench.sweep import best_fragment
+def _save_best(result: Any, save_file: str, cfg: Any) -> None:
+    from hilbench.bench.sweep import best_fragment, held_params
 
-    text = best_fragment(result)  # before opening the file: nothing simulated leaves no empty file
+    best = result.best
+    held = held_params(cfg, best.params) if best is not None and best.result is not None else None
+    text = best_fragment(result, held)  # before opening the file: nothing simulated leaves no empty file
     try:
         with open(save_file, "w", encoding="utf-8") as handle:
             handle.write(text)

@@ -27,6 +27,7 @@ from __future__ import annotations
 import dataclasses
 import difflib
 import math
+import os
 import tomllib
 import types
 import typing
@@ -154,6 +155,8 @@ class _Section:
     many: bool  # an array of tables
     #: a table whose dataclass depends on the others (the [target] table: the target's options)
     chooser: Callable[[Mapping[str, Any]], type | None] | None = None
+    #: for a chosen table: who the keys the chosen dataclass does not know belong to (one line), or None
+    explain: Callable[[frozenset[str]], str | None] | None = None
 
 
 @dataclass(frozen=True)
@@ -164,15 +167,18 @@ class Sections:
     tables: Mapping[str, _Section] = field(default_factory=lambda: types.MappingProxyType({}))
 
     def with_table(self, name: str, cls: type | None, *, required: bool = False, many: bool = False,
-                   chooser: Callable[[Mapping[str, Any]], type | None] | None = None) -> "Sections":
+                   chooser: Callable[[Mapping[str, Any]], type | None] | None = None,
+                   explain: Callable[[frozenset[str]], str | None] | None = None) -> "Sections":
         """These tables and `[name]` (or `[[name]]` when many) validated into dataclass `cls`.
 
         Optional tables are built from the dataclass defaults when absent (all fields need one).
         With ``chooser`` the dataclass is chosen after every other table is built (None: the table
-        must be absent, and the section is None)."""
+        must be absent, and the section is None); ``explain`` names who several keys the chosen
+        dataclass does not know belong to, said once instead of a line per key."""
         if chooser is None and not dataclasses.is_dataclass(cls):
             raise TypeError(f"Sections.with_table {name!r}: {cls!r} is not a dataclass")
-        return Sections(types.MappingProxyType({**self.tables, name: _Section(name, cls, required, many, chooser)}))
+        section = _Section(name, cls, required, many, chooser, explain)
+        return Sections(types.MappingProxyType({**self.tables, name: section}))
 
     def __contains__(self, name: object) -> bool:
         return name in self.tables
@@ -238,7 +244,11 @@ class _Collector:
 
 
 def _suggest(name: str, known: Sequence[str]) -> str:
+    """A "did you mean" for an unknown key: the closest known one, or the one that is this name with
+    its unit (``rs`` → ``rs_ohm``: too short for a close match on spelling alone)."""
     close = difflib.get_close_matches(name, list(known), n=1, cutoff=0.6)
+    if not close:
+        close = [key for key in known if key.startswith(name + "_")][:1] if name else []
     return f" (did you mean {close[0]!r}?)" if close else ""
 
 
@@ -444,7 +454,38 @@ def _apply_override(data: dict[str, Any], item: str, col: _Collector, sections: 
 # ---------------------------------------------------------------- entry points
 def default_config_text() -> str:
     """The packaged default config (the Hurst motor on the MCLV board)."""
-    return resources.files("hilbench").joinpath("data", DEFAULT_CONFIG_NAME).read_text(encoding="utf-8")
+    return packaged_config_text(DEFAULT_CONFIG_NAME)
+
+
+def packaged_configs() -> tuple[str, ...]:
+    """The names of the configs installed with hilbench (`packaged:NAME`, or NAME alone on the
+    command line when no such file is here): the seed systems' benches."""
+    folder = resources.files("hilbench").joinpath("data")
+    return tuple(sorted(item.name[:-5] for item in folder.iterdir() if item.name.endswith(".toml")))
+
+
+def packaged_config_text(name: str) -> str:
+    return resources.files("hilbench").joinpath("data", name).read_text(encoding="utf-8")
+
+
+def packaged_name(text: str) -> str | None:
+    """The packaged config a name means (``packaged``, ``packaged:NAME``, or a bare ``NAME`` or
+    ``NAME.toml`` that is no file here), as its file name; None for a path."""
+    word = str(text).strip()
+    if word == PACKAGED_PREFIX:
+        return DEFAULT_CONFIG_NAME
+    explicit = word.startswith(PACKAGED_PREFIX + ":")
+    if explicit:
+        word = word[len(PACKAGED_PREFIX) + 1:]
+    elif os.sep in word or Path(word).exists():
+        return None
+    stem = word[:-5] if word.endswith(".toml") else word
+    if stem in packaged_configs():
+        return stem + ".toml"
+    if explicit:
+        raise ConfigError(f"{text}: no packaged config of that name (packaged: {', '.join(packaged_configs())})"
+                          f"{_suggest(stem, packaged_configs())}")
+    return None
 
 
 def _parse_toml(text: str, source: str) -> dict[str, Any]:
@@ -460,6 +501,11 @@ def _parse_toml(text: str, source: str) -> dict[str, Any]:
 #: how many configs an `extends` chain may hold
 MAX_EXTENDS_DEPTH = 8
 PACKAGED_PREFIX = "packaged"
+
+
+def _packaged_source_name(source: str) -> str:
+    """The file name in a packaged config's source ``<packaged NAME.toml>``."""
+    return source[len("<packaged "):-1] if source.startswith("<packaged ") else DEFAULT_CONFIG_NAME
 
 
 def _read_text(path: Path, source: str) -> str:
@@ -482,7 +528,7 @@ def _merge(base: dict[str, Any], child: Mapping[str, Any]) -> dict[str, Any]:
 def _load_data(path: Path | None, source: str, chain: tuple[str, ...] = ()) -> dict[str, Any]:
     """A config file's tables with its ``extends = "other.toml"`` chain merged under them
     (``extends = "packaged"``: the packaged default; a relative name is beside the file)."""
-    text = default_config_text() if path is None else _read_text(path, source)
+    text = packaged_config_text(_packaged_source_name(source)) if path is None else _read_text(path, source)
     data = _parse_toml(text, source)
     base = data.pop("extends", None)
     if base is None:
@@ -491,8 +537,9 @@ def _load_data(path: Path | None, source: str, chain: tuple[str, ...] = ()) -> d
         raise ConfigError(f"{source}: extends: expected a config file name (or \"packaged\"), got {_show(base)}")
     if len(chain) >= MAX_EXTENDS_DEPTH:
         raise ConfigError(f"{source}: extends: more than {MAX_EXTENDS_DEPTH} configs in the chain")
-    if base.strip() in (PACKAGED_PREFIX, f"{PACKAGED_PREFIX}:{DEFAULT_CONFIG_NAME}"):
-        parent_path, parent_source = None, f"<packaged {DEFAULT_CONFIG_NAME}>"
+    packaged = packaged_name(base) if base.strip().startswith(PACKAGED_PREFIX) else None
+    if packaged is not None:
+        parent_path, parent_source = None, f"<packaged {packaged}>"
     else:
         parent_path = Path(base) if path is None or Path(base).is_absolute() else path.parent / base
         parent_source = str(parent_path)
@@ -519,9 +566,10 @@ def load_config(path: str | Path | None = None, overrides: Sequence[str] = (), *
     """Read (with its `extends` chain), merge `overrides` ("table.key=value", TOML value syntax;
     "scenario=[...]" replaces a whole array of tables) and a scenario file, validate the tables
     ``sections`` registers (`PLANT_SECTIONS`; a whole bench: `hilbench.load_config`), build."""
-    source = f"<packaged {DEFAULT_CONFIG_NAME}>" if path is None else str(path)
-    data = _load_data(None if path is None else Path(path), source,
-                      () if path is None else (str(Path(path).resolve()),))
+    packaged = DEFAULT_CONFIG_NAME if path is None else packaged_name(str(path))
+    source = f"<packaged {packaged}>" if packaged is not None else str(path)
+    data = _load_data(None if packaged is not None else Path(path), source,  # type: ignore[arg-type]
+                      (source,) if packaged is not None else (str(Path(path).resolve()),))  # type: ignore[arg-type]
     if scenario_path is not None:
         data["scenario"] = load_scenario_file(scenario_path)
     in_file = set(data)
@@ -628,7 +676,14 @@ def _build_chosen(sec: _Section, data: Mapping[str, Any], built: dict[str, Any],
             col.add(sec.name, "", f"this target takes no [{sec.name}] options (keys: {', '.join(data[sec.name])})")
         built[sec.name] = None
         return
-    good, obj = _build(cls, data.get(sec.name, {}), sec.name, col)
+    table = data.get(sec.name, {})
+    unknown = frozenset(table) - {f.name for f in dataclasses.fields(cls)} if isinstance(table, Mapping) else frozenset()
+    hint = sec.explain(unknown) if sec.explain is not None and len(unknown) >= 2 else None
+    if hint is not None:  # a table written for something else: one line, not one per key
+        shown = ", ".join(sorted(unknown)[:4]) + (f", … ({len(unknown)} keys)" if len(unknown) > 4 else "")
+        col.add(sec.name, "", f"{shown}: {hint}")
+        return
+    good, obj = _build(cls, table, sec.name, col)
     if good:
         built[sec.name] = obj
 

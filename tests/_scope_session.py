@@ -13,10 +13,11 @@ from hilbench.bench.control import ControlServer
 
 
 @contextlib.contextmanager
-def running_session(chunk_s: float = 0.01, pause_s: float = 0.004) -> Iterator[Path]:
+def running_session(chunk_s: float = 0.01, pause_s: float = 0.004, keep_rows: bool = True) -> Iterator[Path]:
     """Yields the control socket's path of an AN1017 session at 1500 rpm, running until the block ends.
     The session runs ``chunk_s`` simulated seconds, then rests ``pause_s`` (about twice real time,
-    so its in-memory recording stays small however long a test takes)."""
+    so its in-memory recording stays small however long a test takes). ``keep_rows=False``: no rows
+    kept, as `hilbench run` without --record."""
     folder = Path(tempfile.mkdtemp(prefix="hb-scope-"))
     control = ControlServer(folder / "ctl" / "ctl.sock", publish=False)
     stop = threading.Event()
@@ -24,7 +25,7 @@ def running_session(chunk_s: float = 0.01, pause_s: float = 0.004) -> Iterator[P
 
     def drive() -> None:
         try:
-            with hilbench.Bench(target="inprocess:an1017", control=control) as bench:
+            with hilbench.Bench(target="inprocess:an1017", control=control, keep_rows=keep_rows) as bench:
                 bench.set_reference(1500)
                 bench.press("s2")
                 while not stop.is_set() and bench.run(chunk_s):

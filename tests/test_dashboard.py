@@ -38,3 +38,19 @@ def test_dashboard_and_summary_show_the_run(tmp_path: Path) -> None:
 def test_sparkline_spans_the_whole_series() -> None:
     line = sparkline([float(i) for i in range(1000)], width=10)
     assert len(line) == 10 and line[0] == "▁" and line[-1] == "█"
+
+
+def test_a_fault_is_shown_by_name() -> None:
+    """Issue 22, item 9: faults were codes."""
+    import io as io_module
+
+    from hilbench.bench.summary import Snapshot
+    from hilbench.ui.dashboard import render_snapshot
+
+    snap = Snapshot(t_s=1.0, duration_s=5.0, period=20000, ref_rpm=-2000.0, speed_rpm=70.0, measured_rpm=60.0,
+                    state=4, sector=2, direction_ccw=True, output_mode=0, duties=(0, 0, 0), i_abc=(0.0, 0.0, 0.0),
+                    i_bus=0.0, telemetry={}, periods_per_s=1e4, rtt_p50_us=1.0, rtt_p99_us=2.0, link={}, overruns=0,
+                    messages=[], history=[], fault=3)
+    console = Console(file=io_module.StringIO(), width=160)
+    console.print(render_snapshot(snap, {"kp": 0.1}, "inprocess:an1017"))
+    assert "FAULT (OVERCURRENT), outputs off" in console.file.getvalue()  # type: ignore[attr-defined]

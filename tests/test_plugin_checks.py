@@ -146,7 +146,23 @@ def test_run_shows_each_check_and_exits_0_when_they_hold(tmp_path: Path) -> None
     assert all("not judged" not in c["figure"] for c in summary["checks"])
     plain = _cli("run", "--target", "inprocess:an1017", "--no-ui", "--no-control")  # no rows kept:
     assert plain.returncode == 0 and "check speed_error: PASS worst -0." in plain.stdout  # the summary's kinds
-    assert "check peak_current: PASS not judged: no rows were kept" in plain.stdout
+    assert "check peak_current: SKIP not judged: no rows were kept" in plain.stdout  # issue 22: not "PASS"
+    assert "check no_fault: PASS no fault seen live" in plain.stdout  # judged from the live state
+
+
+def test_a_faulted_run_without_rows_fails_no_fault(tmp_path: Path) -> None:
+    """Issue 22, item 4: a run whose firmware faulted ended "completed" with no_fault PASS when it
+    kept no rows. Gains that trip the board's comparator (kp=0.05 ki=0.9 at 1500 rpm, written by a
+    scenario; the guard restores them, the firmware stays in FAULT) latch fault OVERCURRENT; no_fault
+    fails from the live state, the signal kinds SKIP."""
+    config = tmp_path / "trip.toml"
+    scenario = "".join(f"\n[[scenario]]\nat_s = {at}\n{action}\n" for at, action in (
+        (0.0, "ref_rpm = 1500.0"), (0.01, 'press = "s2"'), (0.6, "set = { kp = 0.05, ki = 0.9 }"), (1.2, "end = true")))
+    config.write_text((BENCH_CONFIGS / "hurst_mclv.toml").read_text() + scenario)
+    run = _cli("run", str(config), "--target", "inprocess:an1017", "--no-ui", "--no-control")
+    assert run.returncode == 9, run.stderr
+    assert "check no_fault: FAIL firmware fault code 3 at 0.7" in run.stdout and "no rows kept" in run.stdout
+    assert "check peak_current: SKIP" in run.stdout
 
 
 def test_the_runaway_and_the_servo_with_the_an1017_firmware_exit_7(tmp_path: Path) -> None:

@@ -93,6 +93,37 @@ def test_run_with_scope_ended_from_the_page(tmp_path: Path) -> None:
     assert "stopped by ctl" in served.proc.stdout.read()  # type: ignore[union-attr]
 
 
+async def frames_of(url: str, column: str, then: dict[str, Any]) -> tuple[int, dict[str, Any]]:
+    """Subscribe to ``column``, count the buckets of it that arrive until 200 have, then send ``then``."""
+    buckets = 0
+    async with aiohttp.ClientSession() as client:
+        async with client.ws_connect(url + "ws") as ws:
+            await ws.send_str(json.dumps({"type": "subscribe", "columns": ["t_s", column]}))
+            while buckets < 200:
+                message = json.loads((await asyncio.wait_for(ws.receive(), 30)).data)
+                if message["type"] == "stream":
+                    buckets += sum(f["n"] for f in message["frames"] if column in f["cols"])
+            await ws.send_str(json.dumps(then))
+            while True:
+                reply = json.loads((await asyncio.wait_for(ws.receive(), 30)).data)
+                if reply["type"] == "reply":
+                    return buckets, reply
+
+
+def test_run_scope_without_a_recording_streams_traces() -> None:
+    """Issue 22, item 1: `hilbench run --scope` without --record streamed nothing (an empty page)."""
+    served = Served("run", "--target", "inprocess:an1017", "--duration", "600", "--no-ui", "--scope")
+    try:
+        url = served.wait_url()
+        buckets, reply = asyncio.run(frames_of(url, "speed_rpm", {"type": "cmd", "id": 1, "cmd": "stop"}))
+        assert buckets >= 200 and reply["ok"], reply
+        assert served.proc.wait(60) == 0, "".join(served.lines)
+    finally:
+        served.close()
+    out = served.proc.stdout.read()  # type: ignore[union-attr]
+    assert "stopped by ctl" in out
+
+
 def test_scope_attached_to_a_running_session() -> None:
     with running_session() as path:
         served = Served("scope", "--socket", str(path))

@@ -127,3 +127,102 @@ def test_recording_in_the_same_viewer(browser_page, tmp_path: Path) -> None:  # 
         page.screenshot(path=str(shot))
     assert _not_blank(shot) > 0.05
     assert not errors, errors
+
+
+@pytest.mark.slow
+def test_live_tuning_on_a_run_without_a_recording(browser_page, tmp_path: Path) -> None:  # type: ignore[no-untyped-def]
+    """Issue 22: on a run that keeps no rows (`hilbench run` without --record) the page draws traces;
+    speed and reference share a lane; a falling level trigger on the speed captures a step down;
+    the parameter boxes and sliders start at the firmware's values; two gains written together are
+    one atomic set; the guard's revert after an overcurrent trip is shown beside the gains."""
+    from _scope_session import running_session
+    from hilbench.scope.server import ControlSource, ScopeServer
+
+    page, errors = browser_page
+    timeout_ms = 30_000
+    with running_session(keep_rows=False) as path, ScopeServer(ControlSource(path)) as server:
+        page.goto(server.url)
+        page.wait_for_function("window.scope.frames > 2 && (window.scope.data.get('speed_rpm') || []).length > 0", timeout=timeout_ms)
+        t_before = page.evaluate("window.scope.tLatest")
+        page.wait_for_function(f"window.scope.tLatest > {t_before} + 0.1", timeout=timeout_ms)  # traces advance
+        drawn = page.evaluate("""(() => { const segs = window.scope.data.get('speed_rpm');
+            let hi = -Infinity; for (const s of segs) for (const v of s.hi) hi = Math.max(hi, v); return hi; })()""")
+        assert 1000 < drawn < 2000  # the motor at 1500 rpm, drawn from the window of rows
+
+        # speed and reference in one lane by default; any trace can join another's lane
+        page.wait_for_function("(window.scope.lanes || []).some(l => l.names.includes('speed_rpm') && l.names.includes('ref_speed_rpm'))",
+                               timeout=timeout_ms)
+        page.select_option("#lane-ic_a", "ia_a")
+        page.wait_for_function("window.scope.lanes.some(l => l.names.join() === 'ia_a,ic_a')", timeout=timeout_ms)
+
+        # the boxes and sliders start at the values the firmware holds (kp 0.1, ki 0.01 in Q15)
+        page.wait_for_function("Math.abs(parseFloat(document.getElementById('param-kp').value) - 0.1) < 1e-3", timeout=timeout_ms)
+        assert abs(float(page.input_value("#slider-kp")) - 0.1) < 2e-3
+        assert abs(float(page.input_value("#param-ki")) - 0.01) < 1e-4
+
+        # a level trigger on the speed, falling through 1000 rpm, captures the step down to 500 rpm
+        page.select_option("#window", "0.5")
+        page.select_option("#trig-source", "level")
+        page.select_option("#trig-col", "speed_rpm")
+        page.select_option("#trig-edge", "falling")
+        page.fill("#trig-level", "1000")
+        page.fill("#trig-hyst", "50")
+        page.click("#trig-arm")
+        page.fill("#ref-input", "500")
+        page.click("#ref-set")
+        page.wait_for_function("window.scope.trigger.state === 'captured'", timeout=timeout_ms)
+        t_trigger = page.evaluate("window.scope.captures[0].tTrig")
+        ref_marker = page.evaluate("window.scope.markers.find(m => m[2].includes('ref 500'))")
+        assert ref_marker is not None and ref_marker[0] < t_trigger < ref_marker[0] + 0.5  # the speed falls after the step
+        around = page.evaluate("""(() => { const c = window.scope.captures[0], segs = c.data.get('speed_rpm');
+            const at = (t) => { for (const s of segs) { const i = Math.floor((t - s.t0) / s.dt + 0.5); if (i >= 0 && i < s.n) return [s.lo[i], s.hi[i]]; } return null; };
+            return [at(c.tTrig - 0.002), at(c.tTrig)]; })()""")  # the buckets starting there (t0 + i*dt, rounded)
+        assert around[0][0] > 1000 and around[1][0] <= 1000  # above the level just before, through it at the trigger
+        assert "falling" in page.inner_text("#trig-state") or "captured" in page.inner_text("#trig-state")
+
+        # two gains written together: one atomic set (one event naming both)
+        page.fill("#param-kp", "0.05")
+        page.fill("#param-ki", "0.9")
+        page.click("#set-together")
+        page.wait_for_function("document.getElementById('result-together').textContent.includes('applied at t=')", timeout=timeout_ms)
+        page.wait_for_function("window.scope.markers.some(m => m[1] === 'param' && m[2] === 'set kp=0.05 ki=0.9')", timeout=timeout_ms)
+
+        # those gains trip the board's comparator (at once, or at the next reference): the guard restores
+        # the previous ones and the page says so beside them, with the fault by name
+        page.fill("#ref-input", "-2000")
+        page.click("#ref-set")
+        page.wait_for_function("document.getElementById('result-kp').className.includes('guard')", timeout=timeout_ms)
+        assert "overcurrent" in page.inner_text("#result-kp") and "reverted by the guard" in page.inner_text("#result-ki")
+        page.wait_for_function("Math.abs(parseFloat(document.getElementById('now-kp').textContent) - 0.1) < 1e-3", timeout=timeout_ms)
+        page.wait_for_function("document.getElementById('st-fault').textContent === 'OVERCURRENT'", timeout=timeout_ms)
+        assert "bad" in page.get_attribute("#st-fault", "class")
+        shot = Path(os.environ.get("HILBENCH_SHOT_DIR", str(tmp_path))) / "tuning.png"
+        page.screenshot(path=str(shot))
+    assert _not_blank(shot) > 0.05
+    assert not errors, errors
+
+
+@pytest.mark.slow
+def test_auto_trigger_and_what_the_page_cannot_show(browser_page) -> None:  # type: ignore[no-untyped-def]
+    """Auto mode captures without a trigger after a window and re-arms; a page with no trace chosen
+    says so on the canvas instead of staying blank."""
+    from _scope_session import running_session
+    from hilbench.scope.server import ControlSource, ScopeServer
+
+    page, errors = browser_page
+    with running_session(keep_rows=False) as path, ScopeServer(ControlSource(path)) as server:
+        page.goto(server.url)
+        page.wait_for_function("window.scope.frames > 2", timeout=30_000)
+        assert page.evaluate("window.scope.notice") == ""
+        page.select_option("#window", "0.1")
+        page.select_option("#trig-source", "level")
+        page.fill("#trig-level", "100000")  # never reached
+        page.select_option("#trig-mode", "auto")
+        page.click("#trig-arm")
+        page.wait_for_function("window.scope.captures.length >= 2", timeout=30_000)  # free captures, re-armed
+        assert "auto: no trigger within 0.1 s" in page.inner_text("#trig-state")
+        assert page.evaluate("window.scope.trigger.state") in ("armed", "triggered")
+        for box in page.query_selector_all("#cols input:checked"):
+            box.uncheck()
+        page.wait_for_function("window.scope.notice.startsWith('no trace chosen')", timeout=30_000)
+    assert not errors, errors

@@ -66,3 +66,28 @@ def test_a_window_and_its_errors(tmp_path: Path) -> None:
     assert all(p.stat().st_size > 5_000 for p in written)
     with pytest.raises(ConfigError, match="spans"):
         plot_recording(recording(tmp_path), tmp_path / "x", window=(5.0, 6.0))
+
+
+def test_a_whole_run_is_readable(tmp_path: Path) -> None:
+    """Issue 22, item 7: over a whole run the three phase currents and duties were one block on one
+    axis, the halls solid bars and the link's symlog axis half negative. Now: a lane per phase, the
+    hall edge rate when there are too many edges to draw, a log axis starting at LINK_FLOOR_US."""
+    from hilbench.ui.plots import LINK_FLOOR_US, MAX_HALL_EDGES, _hall_figure, _lanes_figure
+
+    data = recording(tmp_path, lateness_us=-3.0)
+    c = data.columns
+    c["hall"] = np.array([1, 3, 2, 6, 4, 5])[(c["t_s"] * 3000).astype(int) % 6].astype(float)  # a new code every 1/3000 s
+    plt = _pyplot()
+    fig = _lanes_figure(plt, c["t_s"], c, [(n, n, "A", {"color": f"C{k}"}) for k, n in enumerate(("ia_a", "ib_a", "ic_a"))],
+                        "currents")
+    assert len(fig.axes) == 3 and len({ax.lines[0].get_color() for ax in fig.axes}) == 3
+    plt.close(fig)
+    edges = int(np.count_nonzero(np.diff(c["hall"])))
+    assert edges > MAX_HALL_EDGES  # 2999 over the second
+    fig = _hall_figure(plt, c["t_s"], c, [])
+    rate = fig.axes[0].lines[0].get_ydata()
+    assert np.median(rate) == pytest.approx(3000, rel=0.02)  # one edge per code change: 3000 per second
+    plt.close(fig)
+    paths = plot_recording(data, tmp_path / "c")
+    assert any(p.name == "run_link.png" for p in paths)
+    assert LINK_FLOOR_US > 0

@@ -169,3 +169,51 @@ def test_a_failing_stream_never_ends_the_run(monkeypatch: pytest.MonkeyPatch) ->
         bench.session.handle_control(request, bench.t_s)  # type: ignore[union-attr]
         assert request.answer is not None and not request.answer[0] and "boom" in request.answer[1]
         assert bench.run(0.05)
+
+
+def test_a_run_without_a_recording_streams_a_bounded_window() -> None:
+    """`hilbench run` without --record keeps no rows (keep_rows=False): a scope's request opens a
+    bounded window of rows, the frames are the envelopes of the very rows a recorded twin run keeps,
+    and the window is dropped when no scope has asked for a while."""
+    from hilbench.bench.display import IDLE_AFTER_S
+    from hilbench.bench.recorder import WindowRecorder
+
+    columns = ["t_s", "speed_rpm", "ia_a"]
+    with hilbench.Bench(target="inprocess:an1017") as twin:  # the same seed and inputs, every row kept
+        twin.set_reference(1500)
+        twin.press("s2")
+        twin.run(2.6)
+        kept = twin.signals()
+    with hilbench.Bench(target="inprocess:an1017", keep_rows=False) as bench:
+        bench.set_reference(1500)
+        bench.press("s2")
+        bench.run(0.1)
+        assert bench.session.recorder is None  # type: ignore[union-attr]
+        first = ask(bench, -1, columns)
+        window = bench.session.recorder  # type: ignore[union-attr]
+        assert isinstance(window, WindowRecorder)
+        bench.run(2.5)  # the window drops its rows every simulated second; the stream takes them first
+        assert len(window.rows) <= window.flush_rows
+        later = ask(bench, first["seq"], columns)
+        display = bench.session.display  # type: ignore[union-attr]
+        now = display.clock()
+        display.clock = lambda: now + IDLE_AFTER_S + 1  # no scope asked for longer than the idle time
+        bench.run(0.05)
+        assert bench.session.recorder is None  # type: ignore[union-attr]
+        summary = bench.summary()
+    assert summary.recording is None and summary.rows_recorded == 0
+    frames = first["frames"] + later["frames"]
+    assert frames and frames[0]["t0"] == pytest.approx(0.1, abs=0.002)
+    for a, b in zip(frames, frames[1:]):  # contiguous across the window's drops
+        assert a["t0"] + (a["n"] - 1) * a["dt"] < b["t0"] <= a["t0"] + a["n"] * a["dt"] + 1e-9
+    t = kept["t_s"]
+    ends = [int(round(f["t0"] / 50e-6)) for f in frames[1:]] + [None]
+    for frame, stop in zip(frames, ends):
+        bucket = int(round(frame["dt"] / 50e-6))
+        start = int(round(frame["t0"] / 50e-6))
+        rows = kept["speed_rpm"][start:stop if stop is not None else start + frame["n"] * bucket]
+        lo, hi = envelope(rows, bucket)
+        assert np.allclose(decode(frame["cols"]["speed_rpm"][0]), lo, rtol=1e-6, atol=1e-3)
+        assert np.allclose(decode(frame["cols"]["speed_rpm"][1]), hi, rtol=1e-6, atol=1e-3)
+    end = frames[-1]["t0"] + frames[-1]["n"] * frames[-1]["dt"]
+    assert end == pytest.approx(2.6, abs=0.05) and t[-1] >= end - 1e-3

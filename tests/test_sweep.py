@@ -186,3 +186,20 @@ def test_refinement_zooms_around_the_best_point_and_keeps_every_round() -> None:
     thrice = refine(cfg, box, SHORT, rounds=3, workers=1)
     assert len(thrice.points) > len(once.points)
     assert thrice.best.result.metrics.itae <= once.best.result.metrics.itae
+
+
+def test_the_saved_best_is_what_the_firmware_holds(tmp_path: Path) -> None:
+    """Issue 22, item 10: `sweep --save` wrote kp = 0.7611111111111111, a value no Q15 register holds.
+    By hand: 0.7611111 × 32768 = 24940.09, so the firmware holds 24940/32768; 0.01 × 32768 = 327.68 → 328."""
+    from hilbench.bench.sweep import held_params
+
+    cfg = load_config(None)
+    sweep = sweep_grid(cfg, [("kp", (0.7611111111111111,)), ("ki", (0.01,)), ("kd", (0.0,))], SHORT, workers=1)
+    held = held_params(cfg, sweep.best.params)
+    assert held == {"kp": 24940 / 32768, "ki": 328 / 32768, "kd": 0.0}
+    text = best_fragment(sweep, held)
+    assert "kp = 0.7611083984375  # as the firmware holds it (swept: 0.7611111111)" in text
+    assert "kd = 0.0\n" in text
+    frag = tmp_path / "best.toml"
+    frag.write_text(default_config_text() + "\n" + text)
+    assert load_config(frag).target.kp == 24940 / 32768

@@ -87,3 +87,27 @@ def test_a_store_beyond_its_limit(tmp_path: Path, monkeypatch: pytest.MonkeyPatc
     store.write_text(_row())
     with pytest.raises(RecordingError, match="more than the limit of 100 bytes"):
         SweepStore(store, "K", 1)
+
+
+def test_refine_resumes_every_round_from_one_store(tmp_path: Path) -> None:
+    """Issue 22, item 11: `sweep --refine N --resume FILE` failed after round 1 ("it holds another
+    sweep"), even on a new file: each round is a sweep of its own points. Now the rounds share the
+    file as one family; a rerun resumes every round and runs nothing, another sweep is still refused."""
+    from hilbench.bench.run import load_run_config, RunRequest
+    from hilbench.bench.steptest import StepTest
+    from hilbench.bench.sampling import Axis
+    from hilbench.bench.sweep import refine
+
+    cfg = load_run_config(RunRequest(None, target="inprocess:an1017"))
+    test = StepTest(from_rpm=1000.0, to_rpm=1500.0, settle_s=0.3, after_s=0.3)
+    axes = [Axis("kp", 0.05, 0.35, 2), Axis("ki", 0.005, 0.05, 2)]
+    store = tmp_path / "s.jsonl"
+    first = refine(cfg, axes, test, "itae", rounds=2, workers=1, store=store)
+    rows = [json.loads(line) for line in store.read_text().splitlines()]
+    assert len(rows) == len(first.points) and len({r["key"] for r in rows}) == 2  # two rounds, one file
+    assert len({r["family"] for r in rows}) == 1
+    again = refine(cfg, axes, test, "itae", rounds=2, workers=1, store=store)
+    assert again.sim_s == 0.0 and store.read_text().count("\n") == len(rows)  # nothing ran again
+    assert [p.params for p in again.ranked] == [p.params for p in first.ranked]
+    with pytest.raises(ConfigError, match="holds another sweep"):
+        refine(cfg, [Axis("kp", 0.05, 0.35, 2), Axis("ki", 0.005, 0.06, 2)], test, "itae", rounds=2, workers=1, store=store)

@@ -142,4 +142,70 @@ static inline PyObject *hb_module(struct PyModuleDef *def, PyTypeObject *type, c
  * field of struct ``st`` and the flags (0 or READONLY). */
 #define HB_MEMBER(pyname, tcode, st, field, flags) {pyname, tcode, offsetof(st, field), flags, NULL}
 
+/* ---- the lockstep span in C (hilbench/bench/_span.c) --------------------------------------------- */
+
+/* The session's tight loop between parts' events can run in C (hilbench/bench/_span.c): the plant
+ * and the target each hand it their step as a C function through a capsule (PyCapsule named
+ * HB_PLANT_API / HB_TARGET_API holding one of the structs below). The Python loop
+ * (Session._periods_one_by_one) stays the reference; tests/test_span.py checks the C span records
+ * the same bytes. */
+#define HB_SPAN_MAX_ADC 8
+#define HB_SPAN_MAX_TEL 16
+#define HB_PLANT_API "hilbench.plant.span_api"
+#define HB_TARGET_API "hilbench.target.span_api"
+
+/* What a plant's sense() gives, in C. */
+typedef struct {
+    int hall, tripped, index;
+    long encoder;
+    int n_adc;
+    long adc[HB_SPAN_MAX_ADC];
+} hb_plant_sense_t;
+
+typedef struct {
+    /* sense(plant, roles, n_roles, out): the sensors as the last period left them; 0 or -1 with an exception */
+    int (*sense)(PyObject *plant, const int *roles, int n_roles, hb_plant_sense_t *out);
+    /* advance(plant, duty_a, duty_b, duty_c, output_mode, row, &have_edge, &edge_s): one exchange period
+     * (Plant.advance without the actuation delay), its recorded outputs written to row when not NULL
+     * (n_outputs doubles); 0 or -1 with an exception */
+    int (*advance)(PyObject *plant, long duty_a, long duty_b, long duty_c, long output_mode, char *row,
+                   int *have_edge, double *edge_s);
+    int (*n_outputs)(PyObject *plant);
+    int (*fault_input)(PyObject *plant); /* the comparator's latch */
+    /* period_edges(plant, &edge_t, &edge_hall, &n_edges, &mark_t, &n_marks, &index): the hall edges (s from
+     * the period's start, hall bits after) and index marks (s) of the last advance (Plant.edges,
+     * Plant.index_marks: the plant's own arrays, read only) and sense()'s index flag, all without
+     * sense()'s ADC noise draws */
+    void (*period_edges)(PyObject *plant, const double **edge_t, const int **edge_hall, int *n_edges,
+                         const double **mark_t, int *n_marks, int *index);
+} hb_plant_api_t;
+
+#define HB_SPAN_MAX_EDGES 16 /* protocol 3's Sensors: at most MAX_EDGES input edges */
+
+/* A Sensors and a Drive as C values (the protocol's fields; Sensors.edges as n_edges (time in
+ * 100 ns, lines) pairs). */
+typedef struct {
+    long long seq;
+    long inputs, encoder;
+    int n_edges;
+    long edge_t[HB_SPAN_MAX_EDGES], edge_lines[HB_SPAN_MAX_EDGES];
+    int n_adc;
+    long adc[HB_SPAN_MAX_ADC];
+} hb_csensors_t;
+
+typedef struct {
+    long duty_a, duty_b, duty_c, output_mode, state, sector, direction_ccw, required_ccw, fault;
+    int n_tel;
+    long tel[HB_SPAN_MAX_TEL];
+} hb_cdrive_t;
+
+typedef struct {
+    /* step(core, in, out): Target.step on C values (a repeated seq answered without a step, as the
+     * Python step does); 0 or -1 with an exception */
+    int (*step)(PyObject *core, const hb_csensors_t *in, hb_cdrive_t *out);
+    /* drive(core, seq): the Drive object Target.step would have returned for the last step (it
+     * becomes the core's answer to a repeat); a new reference or NULL with an exception */
+    PyObject *(*drive)(PyObject *core, PyObject *seq);
+} hb_target_api_t;
+
 #endif /* HBGLUE_H */

@@ -27,12 +27,14 @@ step_rise_time (max_s), step_settling_time (max_s), step_overshoot (max_pct), st
 (max_pct: |steady-state error| in % of the step), step_peak_current (max_a).
 
 Any check may name the firmware its bounds were written for (``firmware = "NAME"``, the name in
-the target's HELLO): a run of another firmware passes it as "not judged".
+the target's HELLO): a run of another firmware skips it (SKIP, "not judged").
 
 Every result is one line: the check, PASS/FAIL and its figure against the bound. A check that
 cannot be judged fails and says why (no such column, no samples in its window, a `segment = N`
-the run does not have); the segment kinds over every segment pass with "not judged" when no
-segment was held `min_hold_s` (a short run is not a failed one; the other kinds still look at it). The CLI exits with `CheckFailed.exit_code` (9) when one fails.
+the run does not have); the segment kinds over every segment say SKIP ("not judged", passing) when
+no segment was held `min_hold_s` (a short run is not a failed one; the other kinds still look at
+it), and so do the signal kinds of a run that kept no rows; `no_fault` without rows is judged from
+the fault code the live history saw (`Summary.fault_first_s`). The CLI exits with `CheckFailed.exit_code` (9) when one fails.
 """
 
 from __future__ import annotations
@@ -129,13 +131,15 @@ class CheckResult:
     figure: str  # e.g. "worst -0.87 % (segment 1, +1500 rpm) <= 2 %"
     value: float | None = None
     bound: float | None = None
+    skipped: bool = False  # not judged (no rows, another firmware, no held segment): passes, says SKIP
 
     def line(self) -> str:
-        return f"check {self.name}: {'PASS' if self.passed else 'FAIL'} {self.figure}"
+        verdict = "SKIP" if self.skipped else "PASS" if self.passed else "FAIL"
+        return f"check {self.name}: {verdict} {self.figure}"
 
     def as_dict(self) -> dict[str, object]:
-        return {"name": self.name, "kind": self.kind, "passed": self.passed, "figure": self.figure,
-                "value": self.value, "bound": self.bound}
+        return {"name": self.name, "kind": self.kind, "passed": self.passed, "skipped": self.skipped,
+                "figure": self.figure, "value": self.value, "bound": self.bound}
 
 
 SignalsSource = Callable[[], Mapping[str, np.ndarray]]
@@ -163,7 +167,7 @@ def run_checks(entries: Sequence[CheckEntry], summary: "Summary", signals: Signa
             return _judge_run(entry, summary, columns)
         except _NoRows:
             return CheckResult(entry.label, entry.kind, True, "not judged: no rows were kept "
-                               "(record the run, --record run.npz, to judge the signals)")
+                               "(record the run, --record run.npz, to judge the signals)", skipped=True)
 
     return [judge(entry) for entry in entries if entry.kind in RUN_KINDS]
 
@@ -179,7 +183,7 @@ def _for_firmware(entry: CheckEntry, firmware: str) -> bool:
 def _other_firmware(entry: CheckEntry, firmware: str) -> CheckResult:
     """Bounds written for one firmware say nothing about another: passed, as not judged."""
     return CheckResult(entry.label, entry.kind, True, f"not judged: written for {entry.firmware}, "
-                                                      f"the run's firmware is {firmware or 'unknown'}")
+                                                      f"the run's firmware is {firmware or 'unknown'}", skipped=True)
 
 
 def step_checks(entries: Sequence[CheckEntry], result: "StepResult", firmware: str) -> list[CheckResult]:
@@ -236,7 +240,7 @@ def _unjudged(entry: CheckEntry, why: str, bound: float | None) -> CheckResult:
     passes with the reason (a short run, or one with no reference, is not a failed run)."""
     if entry.segment is not None:
         return _result(entry, False, why, None, bound)
-    return _result(entry, True, f"not judged: {why}", None, bound)
+    return CheckResult(entry.label, entry.kind, True, f"not judged: {why}", None, bound, skipped=True)
 
 
 Columns = Callable[[], Mapping[str, np.ndarray]]
@@ -322,7 +326,10 @@ def _no_fault(entry: CheckEntry, summary: "Summary", columns: Columns) -> CheckR
     """The run did not end on a fault and the firmware's fault column stayed 0 over the window."""
     if summary.end_reason == "fault" or summary.fault:
         return _result(entry, False, f"the run ended on a fault: {summary.fault}", 1.0, 0.0)
-    c = columns()
+    try:
+        c = columns()
+    except _NoRows:
+        return _no_fault_live(entry, summary)
     mask, window = _window(entry, c["t_s"])
     codes = c["fault"][mask]
     bad = np.flatnonzero(codes != 0)
@@ -331,6 +338,18 @@ def _no_fault(entry: CheckEntry, summary: "Summary", columns: Columns) -> CheckR
         return _result(entry, False, f"firmware fault code {int(codes[i])} at {float(c['t_s'][mask][i]):.4f} s "
                                      f"(over {window}, {bad.size} periods with a fault)", float(bad.size), 0.0)
     return _result(entry, True, f"no fault over {window}", 0.0, 0.0)
+
+
+def _no_fault_live(entry: CheckEntry, summary: "Summary") -> CheckResult:
+    """No rows kept: the fault code as the live history saw it (every history period; a firmware
+    fault latches until a restart, so none is missed), over the check's window."""
+    end = entry.to_s if entry.to_s is not None else math.inf
+    window = f"{entry.from_s:.3f}-{min(end, summary.sim_s):.3f} s"
+    first, last = summary.fault_first_s, summary.fault_last_s
+    if first is not None and last is not None and first <= end and last >= entry.from_s:
+        return _result(entry, False, f"firmware fault code {summary.fault_code} at {max(first, entry.from_s):.4f} s "
+                                     f"(seen live over {window}; no rows kept)", 1.0, 0.0)
+    return _result(entry, True, f"no fault seen live over {window} (no rows kept)", 0.0, 0.0)
 
 
 def _overruns(entry: CheckEntry, summary: "Summary", columns: Columns) -> CheckResult:

@@ -30,7 +30,8 @@ Discovery: each server writes its own file ``<pid>-<name>.session`` holding
 ``<socket path>\\n<pid>\\n<JSON: started, cwd>\\n`` into ``$XDG_RUNTIME_DIR/hilbench/sessions/`` (or
 ``~/.cache/hilbench/sessions/`` without ``XDG_RUNTIME_DIR``; the directory is created 0700), so
 every running session can be found (``hilbench ctl list``), not only the newest; ``hilbench ctl``
-without ``--socket`` talks to the newest. A server starting removes what dead sessions left
+without ``--socket`` or ``--session`` talks to the only session, else to the only one started in
+its working directory (or terminal), else refuses and lists them (`choose_session`). A server starting removes what dead sessions left
 (``kill -9``): discovery files whose process is gone and ``hilbench-ctl-*`` directories whose
 socket nobody listens on. ``close()`` removes its own file. (An explicit ``discovery_file`` is
 written as before: one file naming the newest server.)
@@ -182,6 +183,7 @@ class ControlledSession(Protocol):
     target: Any  # hilbench.targets.base.Target
     live: Any  # hilbench.bench.parts.LivePart
     ref_rpm: float
+    drive: Any  # the last Drive (hilbench.protocol.Drive), None before the first exchange
 
     def param_values(self) -> dict[str, float]: ...
     def reference_now(self, rpm: float, t_s: float, note: str) -> None: ...
@@ -195,7 +197,7 @@ class ControlledSession(Protocol):
 
 def _tuning_state(session: ControlledSession, t_s: float) -> dict[str, Any]:
     return {"params": session.param_values(), "t_s": t_s, "ref_rpm": session.ref_rpm,
-            "tunable": list(session.profile.tunable)}
+            "tunable": list(session.profile.tunable), "guard_trips": list(session.tuning.trips[-4:])}
 
 
 def _get(session: ControlledSession, request: "ControlRequest", t_s: float) -> None:
@@ -210,10 +212,22 @@ def _set(session: ControlledSession, request: "ControlRequest", t_s: float) -> N
 def _ref(session: ControlledSession, request: "ControlRequest", t_s: float) -> None:
     rpm = request.args["rpm"]
     session.reference_now(float(rpm), t_s, f"ref {rpm} rpm (ctl)")
-    request.reply(True, f"reference {rpm} rpm at t={t_s:.4f} s")
+    watching = session.tuning.watching
+    guard = f"; the guard watches the new gains until t={watching:.4f} s" if watching > t_s else ""
+    request.reply(True, f"reference {rpm} rpm at t={t_s:.4f} s{guard}")
 
 
 def _step(session: ControlledSession, request: "ControlRequest", t_s: float) -> None:
+    """A step needs a running motor: on a stopped (or faulted) one it would measure nothing."""
+    from hilbench.protocol import State
+
+    drive = session.drive
+    state = None if drive is None else int(drive.state)
+    if state is None or state in (State.STOPPED, State.STALLED, State.FAULT):
+        name = "not started" if state is None else State(state).name
+        request.reply(False, f"step refused: the motor is not running (state {name}); start it first "
+                             f"(hilbench ctl press s2)")
+        return
     session.live.start_step(request, float(request.args["from_rpm"]), float(request.args["to_rpm"]), t_s)
 
 
@@ -385,6 +399,7 @@ class SessionInfo:
     started_s: float
     cwd: str
     file: Path
+    tty: str = ""  # the terminal the session was started on ("" without one)
 
 
 def _trusted_file(f: Path) -> bool:
@@ -413,7 +428,7 @@ def _read_session_file(f: Path) -> SessionInfo | None:
         lines = f.read_text(encoding="utf-8")[:8192].splitlines()
         extra = json.loads(lines[2]) if len(lines) > 2 else {}
         return SessionInfo(Path(lines[0].strip()), int(lines[1]), float(extra.get("started_s", 0.0)),
-                           str(extra.get("cwd", "")), f)
+                           str(extra.get("cwd", "")), f, str(extra.get("tty", "")))
     except (OSError, IndexError, ValueError, UnicodeDecodeError, AttributeError):
         return None
 
@@ -446,12 +461,19 @@ def list_sessions(directory: Path | None = None) -> list[SessionInfo]:
 def clean_stale(directory: Path | None = None, temp_base: Path | None = None) -> int:
     """Remove what killed sessions left: discovery files of dead processes and ``hilbench-ctl-*``
     directories (ours) whose socket nobody listens on. Returns how many things were removed."""
-    removed = 0
-    d = directory or sessions_dir()
+    runtime = os.environ.get("XDG_RUNTIME_DIR")
+    bases = {temp_base} if temp_base is not None else {Path(tempfile.gettempdir())} | (
+        {Path(runtime)} if runtime and os.path.isdir(runtime) else set())
+    return _clean_stale_files(directory or sessions_dir()) + sum(_clean_stale_dirs(base) for base in bases)
+
+
+def _clean_stale_files(directory: Path) -> int:
+    """Discovery files (trusted ones) whose process is gone."""
     try:
-        files = list(d.glob("*.session"))
+        files = list(directory.glob("*.session"))
     except OSError:
-        files = []
+        return 0
+    removed = 0
     for f in files:
         if not _trusted_file(f):
             continue
@@ -462,40 +484,98 @@ def clean_stale(directory: Path | None = None, temp_base: Path | None = None) ->
                 removed += 1
             except OSError:
                 pass
-    runtime = os.environ.get("XDG_RUNTIME_DIR")
-    bases = {temp_base} if temp_base is not None else {Path(tempfile.gettempdir())} | (
-        {Path(runtime)} if runtime and os.path.isdir(runtime) else set())
-    for base in bases:
-        try:
-            candidates = list(base.glob("hilbench-ctl-*"))
-        except OSError:
-            continue
-        for cand in candidates:
-            try:
-                st = cand.lstat()
-                if not stat.S_ISDIR(st.st_mode) or st.st_uid != os.getuid():
-                    continue
-                sock = cand / SOCKET_NAME
-                if sock.exists() and _listening(sock):
-                    continue
-                if time.time() - st.st_mtime < 2.0 and not sock.exists():
-                    continue  # a server being set up right now
-                for child in cand.iterdir():
-                    child.unlink()
-                cand.rmdir()
-                removed += 1
-            except OSError:
-                continue
     return removed
 
 
-def read_discovery(discovery_file: Path | None = None) -> Path:
-    """Socket path of the running session (the newest of the per-session files, or the named
-    discovery file); LinkError if there is none."""
+def _clean_stale_dirs(base: Path) -> int:
+    """Our ``hilbench-ctl-*`` directories under ``base`` whose socket nobody listens on."""
+    try:
+        candidates = list(base.glob("hilbench-ctl-*"))
+    except OSError:
+        return 0
+    removed = 0
+    for cand in candidates:
+        try:
+            if not _stale_ctl_dir(cand):
+                continue
+            for child in cand.iterdir():
+                child.unlink()
+            cand.rmdir()
+            removed += 1
+        except OSError:
+            continue
+    return removed
+
+
+def _stale_ctl_dir(cand: Path) -> bool:
+    """A directory of ours with no listener on its socket, and not one being set up right now."""
+    st = cand.lstat()
+    if not stat.S_ISDIR(st.st_mode) or st.st_uid != os.getuid():
+        return False
+    sock = cand / SOCKET_NAME
+    if sock.exists() and _listening(sock):
+        return False
+    return not (time.time() - st.st_mtime < 2.0 and not sock.exists())  # else a server being set up
+
+
+def _terminal() -> str:
+    """The controlling terminal of this process's standard streams ("" without one)."""
+    for fd in (0, 1, 2):
+        try:
+            if os.isatty(fd):
+                return os.ttyname(fd)
+        except OSError:
+            continue
+    return ""
+
+
+def _describe(info: SessionInfo, n: int) -> str:
+    return f"#{n} pid {info.pid} in {info.cwd or '?'}" + (f" on {info.tty}" if info.tty else "")
+
+
+def choose_session(selector: str | None = None, sessions: Sequence[SessionInfo] | None = None, *,
+                   cwd: str | None = None, tty: str | None = None) -> SessionInfo:
+    """The session a command acts on, never by guess: ``selector`` a pid or the number N of
+    `hilbench ctl list` (1: the newest); without one the only session running, else the only one
+    started in this working directory, else the only one started on this terminal. Otherwise a
+    ConfigError that lists them (LinkError when none runs)."""
+    running = list(list_sessions() if sessions is None else sessions)
+    listing = "; ".join(_describe(info, n) for n, info in enumerate(running, 1))
+    if not running:
+        raise LinkError("control socket: no running session found (is `hilbench run` running? `hilbench ctl list`)")
+    if selector is not None:
+        text = str(selector).strip().lstrip("#")
+        if not text.isdigit():
+            raise ConfigError(f"--session {selector!r}: expected a pid or a number from `hilbench ctl list` ({listing})")
+        value = int(text)
+        by_pid = [info for info in running if info.pid == value]
+        if by_pid:
+            return by_pid[0]
+        if 1 <= value <= len(running):
+            return running[value - 1]
+        raise ConfigError(f"--session {selector}: no such pid or number among the running sessions ({listing})")
+    if len(running) == 1:
+        return running[0]
+    here = os.path.realpath(cwd if cwd is not None else os.getcwd())
+    same_dir = [info for info in running if info.cwd and os.path.realpath(info.cwd) == here]
+    if len(same_dir) == 1:
+        return same_dir[0]
+    terminal = _terminal() if tty is None else tty
+    same_tty = [info for info in running if terminal and info.tty == terminal]
+    if not same_dir and len(same_tty) == 1:
+        return same_tty[0]
+    why = f"{len(same_dir)} of them were started in {here}" if same_dir else f"none was started in {here}"
+    raise ConfigError(f"{len(running)} sessions running and {why}: {listing}; pick one with --session PID or N "
+                      f"(or --socket PATH)")
+
+
+def read_discovery(discovery_file: Path | None = None, selector: str | None = None) -> Path:
+    """Socket path of the running session (`choose_session`: never a guess among several), or of
+    the named discovery file; LinkError if there is none."""
     if discovery_file is None:
         sessions = list_sessions()
-        if sessions:
-            return sessions[0].socket_path
+        if sessions or selector is not None:
+            return choose_session(selector, sessions).socket_path
     f = discovery_file or default_discovery_file()
     if f.exists() and not _trusted_file(f):
         raise LinkError(f"control socket: discovery file {f} is not this user's own or others may write it; "
@@ -704,7 +784,7 @@ class ControlServer:
         _private_dir(f.parent)
         tmp = f.with_name(f".{f.name}.{os.getpid()}.tmp")
         fd = os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_TRUNC, 0o600)
-        info = json.dumps({"started_s": time.time(), "cwd": os.getcwd()})
+        info = json.dumps({"started_s": time.time(), "cwd": os.getcwd(), "tty": _terminal()})
         with os.fdopen(fd, "w", encoding="utf-8") as fh:
             fh.write(f"{self.path}\n{os.getpid()}\n{info}\n")
         os.replace(tmp, f)
@@ -1147,6 +1227,7 @@ __all__ = [
     "parse_ctl_args",
     "default_discovery_file",
     "read_discovery",
+    "choose_session",
     "sessions_dir",
     "list_sessions",
     "clean_stale",

@@ -3,7 +3,8 @@
 The recording stays full-rate; a scope only needs, per display bucket of ``bucket_periods``
 periods, the minimum and maximum of each column (an envelope: a 20 kHz current shows its true
 extent at any zoom, where plain subsampling would alias). This part is asleep until a scope asks
-for the stream (the control socket's ``stream`` command); then, every time the session calls
+for the stream (a run without a recording then keeps a bounded window of rows for it,
+`Session.watch_rows`, and drops it when no scope has asked for ``IDLE_AFTER_S``) (the control socket's ``stream`` command); then, every time the session calls
 `due` (every ``observe_every_periods``) and at least every ``take_every_s`` of wall time or just
 before the recorder flushes its buffer, it takes the raw rows appended since its last take (a
 slice of ``recorder.rows.data``), turns them into envelopes with one ``reduceat`` per take and
@@ -22,12 +23,14 @@ import math
 import time
 from collections import deque
 from dataclasses import dataclass
-from typing import TYPE_CHECKING, Any, Mapping, Sequence
+from enum import IntEnum
+from typing import TYPE_CHECKING, Any, Callable, Mapping, Sequence
 
 import numpy as np
 
 from hilbench.bench.recorder import MARKER_FAULT, MARKER_PARAM
 from hilbench.errors import HilbenchError
+from hilbench.protocol import Fault, State
 
 if TYPE_CHECKING:
     from hilbench.bench.pacing import RealtimePacing
@@ -117,7 +120,7 @@ class DisplayStream:
 
     def __init__(self, session: "Session", *, bucket_periods: int = BUCKET_PERIODS,
                  max_frame_buckets: int = MAX_FRAME_BUCKETS, take_every_s: float = TAKE_EVERY_S,
-                 clock: Any = time.perf_counter) -> None:
+                 clock: Callable[[], float] = time.perf_counter) -> None:
         self.session = session
         self.bucket_periods = bucket_periods
         self.max_frame_buckets = max_frame_buckets
@@ -151,6 +154,9 @@ class DisplayStream:
         """Every observe period: note the status; take new rows when a take is due or a flush comes."""
         self._drive, self._pacing, self._k = drive, pacing, k
         if self._asked_at == -math.inf or not self.active:
+            if self._asked_at != -math.inf:  # no scope asks any more: a run without a recording keeps no rows
+                self.session.watch_rows(False)
+                self._asked_at = -math.inf
             return
         recorder = self.session.recorder
         flush_coming = recorder is not None and len(recorder.rows) >= getattr(recorder, "flush_rows", math.inf)
@@ -273,6 +279,7 @@ class DisplayStream:
     def _request(self, since: int, columns: Sequence[str], t_s: float) -> dict[str, Any]:
         first = self._asked_at == -math.inf or not self.active
         self._asked_at = self.clock()
+        self.session.watch_rows(True)  # a run without a recording: rows for the scope while it watches
         recorder = self.session.recorder
         if recorder is not None and recorder.rows.layout is not self._layout:
             self._learn(recorder.rows.layout)
@@ -337,6 +344,8 @@ class DisplayStream:
         return {
             "t_s": _num(t_s), "state": None if drive is None else int(drive.state),
             "fault": None if drive is None else int(drive.fault),
+            "state_name": None if drive is None else _name(State, drive.state),
+            "fault_name": None if drive is None else _name(Fault, drive.fault),
             "ref_rpm": _num(session.ref_rpm), "params": _finite(params),
             "guard": bool(session.tuning.guard.enabled), "periods_per_s": _num(rate),
             "rtt_p50_us": _num(stats.get("p50")), "rtt_p99_us": _num(stats.get("p99")),
@@ -344,6 +353,14 @@ class DisplayStream:
             "link": {k: v for k, v in session.link_stats().items() if isinstance(v, (int, float))},
             "ended": session.ended,
         }
+
+
+def _name(kind: type[IntEnum], code: int) -> str:
+    """A protocol state's or fault's name ("4" for a code the schema does not name)."""
+    try:
+        return kind(code).name
+    except ValueError:
+        return str(int(code))
 
 
 def _num(value: float | None) -> float | None:

@@ -21,7 +21,7 @@ from typing import Any, Callable, Sequence
 import numpy as np
 
 from hilbench.errors import LinkError, LinkTimeout
-from hilbench.link import open_link, parse_target_spec
+from hilbench.link import FaultyLink, Link, open_link, parse_target_spec
 from hilbench.processes import spawn
 from hilbench.protocol import INPUT_S3, MODE_LOCKSTEP, Sensors
 from hilbench.targets.base import Target
@@ -152,7 +152,7 @@ def _checker(firmware_name: str) -> Target | None:
 
 def run_link_test(target: str = DEFAULT_TARGET, *, periods: int = 10_000, period_us: int = 50,
                   timeout_s: float = 1.0, progress: Callable[[int], None] | None = None,
-                  link_wrapper: Callable[[Any], Any] | None = None) -> LinkTestResult:
+                  link_wrapper: Callable[[Link], Link | FaultyLink] | None = None) -> LinkTestResult:
     """Run `periods` lockstep exchanges against target: a link spec, "pty" (spawn the link-test
     target's emulator on a pty pair), "exec:PROGRAM" (spawn PROGRAM with the pty path), or
     emulator:NAME / sil:NAME (started as `hilbench run` starts them; an unknown NAME is the same

@@ -3,8 +3,11 @@
 A write is checked here first — declared, writable, finite, inside its range, and inside the
 firmware's own constraints as its profile states them — then by the target, all at once. The
 guard watches the motor for a window after a change of the profile's tunable parameters and
-writes the previous values back when the speed error oscillates, a phase current passes its
-limit or the firmware stalls.
+writes the previous values back when the firmware reports a fault (an overcurrent trip of the
+board's comparator among them: it cuts the current before a phase current can pass the guard's own
+limit), the speed error oscillates, a phase current passes its limit or the firmware stalls. New
+gains are on probation until they have met one reference change: the first one after a change
+watches a window again (gains are tried by stepping the reference, often seconds after the write).
 """
 
 from __future__ import annotations
@@ -19,7 +22,9 @@ from hilbench.targets.base import Target
 from hilbench.targets.profile import TargetProfile
 
 STATE_STALLED = int(State.STALLED)
+STATE_FAULT = int(State.FAULT)
 FAULT_STALL = int(Fault.STALL)
+FAULT_OVERCURRENT = int(Fault.OVERCURRENT)
 RESULT_NAMES = {
     Result.OK: "ok", Result.UNKNOWN_ID: "unknown parameter", Result.READ_ONLY: "read-only",
     Result.OUT_OF_RANGE: "out of range", Result.CONSTRAINT: "constraint", Result.BAD_REQUEST: "bad request",
@@ -63,6 +68,7 @@ class LiveTuning:
         self._guard_prev: dict[str, float] = {}
         self._guard_sign = 0
         self._guard_swings = 0
+        self._probation = False  # the last guarded change has not met a reference change yet
 
     def declare(self, n_params: int) -> None:
         """Learn every declared parameter (after the HELLO)."""
@@ -114,7 +120,16 @@ class LiveTuning:
             self._guard_prev = previous
             self._guard_sign = 0
             self._guard_swings = 0
+            self._probation = True
         return text
+
+    def reference_changed(self, t_s: float) -> None:
+        """A new speed reference: gains on probation are watched for a window from here."""
+        if self._probation and self.guard.enabled and self._guard_prev:
+            self._probation = False
+            self.watching = max(self.watching, t_s + self.guard.window_s)
+            self._guard_sign = 0
+            self._guard_swings = 0
 
     def _check_constraints(self, values: dict[str, float], pairs: tuple[tuple[int, int], ...]) -> dict[str, float]:
         """The firmware's constraints on the tunable set after this write; returns their values before."""
@@ -131,11 +146,17 @@ class LiveTuning:
         return previous
 
     def guard_check(self, t_s: float, ref_rpm: float, speed_rpm: float, peak_a: float, state: int,
-                    fault: int) -> str | None:
-        """One look at the motor inside the guard window; on trouble restores and returns the note."""
+                    fault: int, tripped: bool = False) -> str | None:
+        """One look at the motor inside the guard window (``tripped``: the board's overcurrent
+        comparator is latched); on trouble restores and returns the note."""
         guard = self.guard
         reason = None
-        if peak_a > guard.current_limit_a:
+        if fault == FAULT_OVERCURRENT or tripped:
+            reason = f"overcurrent: the firmware faulted (fault {_fault_name(fault)}, state {_state_name(state)})" \
+                if fault else "overcurrent: the board's comparator tripped"
+        elif fault and fault != FAULT_STALL or state == STATE_FAULT:
+            reason = f"the firmware faulted (fault {_fault_name(fault)}, state {_state_name(state)})"
+        elif peak_a > guard.current_limit_a:
             reason = f"phase current {peak_a:.2f} A > {guard.current_limit_a:g} A"
         elif state == STATE_STALLED or fault == FAULT_STALL:
             reason = "the firmware stalled"
@@ -151,6 +172,7 @@ class LiveTuning:
         if reason is None:
             return None
         self.watching = -math.inf
+        self._probation = False
         restored = " ".join(f"{k}={v:g}" for k, v in self._guard_prev.items())
         try:
             self.set(self._guard_prev, t_s, guard=False)
@@ -159,6 +181,20 @@ class LiveTuning:
             text = f"guard: {reason}; could not restore {restored}: {exc}"
         self.trips.append(text)
         return text
+
+
+def _fault_name(code: int) -> str:
+    try:
+        return Fault(code).name
+    except ValueError:
+        return str(code)
+
+
+def _state_name(code: int) -> str:
+    try:
+        return State(code).name
+    except ValueError:
+        return str(code)
 
 
 __all__ = ["GuardSettings", "LiveTuning", "raw_per_unit"]

@@ -23,7 +23,7 @@ from hilbench.protocol import Drive, Input
 
 if TYPE_CHECKING:
     from hilbench.bench.control import ControlRequest
-    from hilbench.bench.session import Session
+    from hilbench.bench.session import ControlSource, Session
 
 INPUT_S2 = int(Input.S2)
 INPUT_S3 = int(Input.S3)
@@ -32,6 +32,9 @@ BUTTON_HOLD_S = 0.002
 CTL_STEP_HOLD_S = 1.0
 CTL_STEP_AFTER_S = 1.0
 STEP_REPLY_KEYS = ("rise_time_s", "overshoot_pct", "settling_time_s", "ss_error", "ss_error_pct", "ss_ripple", "iae", "itae")
+#: the unit of each figure of a `ctl step` reply (the speed in rpm)
+STEP_REPLY_UNITS = {"rise_time_s": "s", "overshoot_pct": "%", "settling_time_s": "s", "ss_error": "rpm",
+                    "ss_error_pct": "%", "ss_ripple": "rpm", "iae": "rpm*s", "itae": "rpm*s^2"}
 
 
 class Part(Protocol):
@@ -113,20 +116,22 @@ class ScenarioPart:
         """Scenario events, ramps, the button release and fault expiry due in period k."""
         session, period = self.session, self.session.period
         t_s = period.t_s(k)
-        if period.index_at(self.player.next_t_s) <= k:
+        held = bool(session.live.steps)  # a `ctl step` owns the reference: events wait for its end
+        if not held and period.index_at(self.player.next_t_s) <= k:
             for event in self.player.due(t_s, period.s):
                 self.apply(event, t_s)
             if session.ended:
                 return
-        if self.player.ramps:
+        if self.player.ramps and not held:
             self._tick_ramps(t_s)
         if period.index_at(self.release_s) <= k:
             self.buttons = 0
             self.release_s = math.inf
         if period.index_at(session.faults.clear_at_s) <= k:
             session.faults.apply("clear", t_s, None)
-        self.next_k = period.index_at(min(self.player.next_t_s, self.release_s, session.faults.clear_at_s,
-                                          t_s + period.s if self.player.ramps else math.inf))
+        self.next_k = period.index_at(min(math.inf if held else self.player.next_t_s, self.release_s,
+                                          session.faults.clear_at_s,
+                                          t_s + period.s if self.player.ramps and not held else math.inf))
 
     def press(self, button: str, t_s: float) -> None:
         """Hold a button (s2 start/stop, s3) for BUTTON_HOLD_S."""
@@ -204,7 +209,7 @@ class LivePart:
     """Every history period while it has work: the guard's look after a tuning change, `ctl step`
     in progress, the control socket's requests (every observe period)."""
 
-    def __init__(self, session: "Session", control: Any) -> None:
+    def __init__(self, session: "Session", control: "ControlSource | None") -> None:
         self.session = session
         self.control = control
         self.steps: list[CtlStep] = []
@@ -224,7 +229,8 @@ class LivePart:
         if t_s < session.tuning.watching:  # live changes act from this period on: noted at its time
             drive, plant = session.drive, session.plant
             peak = max(abs(i) for i in plant.i_abc)
-            note = session.tuning.guard_check(t_s, self.guard_ref_rpm, plant.speed_rpm, peak, drive.state, drive.fault)
+            note = session.tuning.guard_check(t_s, self.guard_ref_rpm, plant.speed_rpm, peak, drive.state, drive.fault,
+                                              bool(getattr(plant, "fault_input", False)))
             if note is not None:
                 session.note(t_s, note)
         if self.steps:
@@ -234,10 +240,15 @@ class LivePart:
                 session.handle_control(request, t_s)
 
     def start_step(self, request: "ControlRequest", from_rpm: float, to_rpm: float, t_s: float) -> None:
-        """`ctl step A B`: reference A now, B after a 1 s hold; reply with the metrics 1 s later."""
+        """`ctl step A B`: reference A now, B after a 1 s hold; reply with the metrics 1 s later.
+        The scenario's events and ramps wait until the step has answered (noted when some are due)."""
         session = self.session
-        session.reference_now(from_rpm, t_s, f"step {from_rpm:g} -> {to_rpm:g} rpm (ctl): hold {from_rpm:g}")
+        due = session.player.next_t_s
+        held = (f"; scenario events due from t={due:.3f} s wait until the step ends"
+                if due < t_s + CTL_STEP_HOLD_S + CTL_STEP_AFTER_S or session.player.ramps else "")
+        session.reference_now(from_rpm, t_s, f"step {from_rpm:g} -> {to_rpm:g} rpm (ctl): hold {from_rpm:g}{held}")
         self.steps.append(CtlStep(request, from_rpm, to_rpm, t_s + CTL_STEP_HOLD_S))
+        session.scenario.wake(session.periods_done)  # it looks again, and holds
 
     def _advance_steps(self, t_s: float) -> None:
         session = self.session
@@ -253,7 +264,9 @@ class LivePart:
             else:  # the record after the step is complete: answer
                 self.steps.remove(step)
                 metrics = self._step_metrics(step.t_step_s, step.to_rpm)
-                step.request.reply(True, f"step {step.from_rpm:g} -> {step.to_rpm:g} rpm done", metrics)
+                text = f"step {step.from_rpm:g} -> {step.to_rpm:g} rpm at t={step.t_step_s:.3f} s: {step_text(metrics)}"
+                step.request.reply(True, text, {**metrics, "units": dict(STEP_REPLY_UNITS)})
+                session.scenario.wake(session.periods_done)  # held scenario events go on
 
     def _step_metrics(self, t_step: float, to_rpm: float) -> dict[str, Any]:
         from hilbench.bench.metrics import step_metrics
@@ -268,6 +281,17 @@ class LivePart:
         metrics = step_metrics([a for a, _ in after], [b for _, b in after], y0=sum(before) / len(before),
                                y_final_ref=ref, t_step_s=t_step)
         return {k: v for k, v in metrics.as_dict().items() if k in STEP_REPLY_KEYS}
+
+
+def step_text(metrics: dict[str, Any]) -> str:
+    """A `ctl step` reply's figures in one line, with units and sensible digits."""
+    def sec(v: float | None) -> str:
+        return "never" if v is None else f"{v * 1e3:.1f} ms" if v < 1 else f"{v:.3f} s"
+
+    return (f"rise {sec(metrics.get('rise_time_s'))}, overshoot {metrics.get('overshoot_pct', math.nan):.1f} %, "
+            f"settling {sec(metrics.get('settling_time_s'))}, steady-state error {metrics.get('ss_error', math.nan):+.1f} rpm "
+            f"({metrics.get('ss_error_pct', math.nan):+.2f} %), ripple {metrics.get('ss_ripple', math.nan):.1f} rpm, "
+            f"IAE {metrics.get('iae', math.nan):.2f} rpm*s")
 
 
 # ------------------------------------------------------------------------------------- after the exchange
@@ -302,6 +326,8 @@ class HistoryPart:
         self.live.guard_ref_rpm = tele[i_ref] * s_ref if i_ref >= 0 else session.ref_rpm  # the firmware's own when it reports one
         t_s, plant_rpm = session.period.t_s(k), session.plant.w_m * RPM_PER_RAD_S
         session.history.append((t_s, session.ref_rpm, plant_rpm, meas))
+        if drive.fault:  # the firmware's fault as the live state shows it (no_fault without a recording)
+            session.fault_seen(t_s, drive.fault)
         session.segmenter.sample(t_s, plant_rpm, meas)
         if k % session.options.observe_every_periods == 0 and k:
             self._observe(k, drive, meas)
@@ -340,6 +366,7 @@ class HistoryPart:
             rtt_p99_us=stats.get("p99", math.nan), link=session.link_stats(),
             overruns=pacing.overruns if pacing is not None else 0, messages=session.messages[-4:],
             history=session.history,  # the dashboard decimates it to its width
+            fault=drive.fault,
         )
 
 
@@ -367,4 +394,4 @@ class BusPart:
                                     f"{options.overvoltage_v:g} V limit ([protection] overvoltage_v)")
 
 
-__all__ = ["BUTTON_HOLD_S", "BusPart", "CtlStep", "HistoryPart", "LivePart", "Part", "ScenarioPart", "Schedule"]
+__all__ = ["STEP_REPLY_UNITS", "step_text", "BUTTON_HOLD_S", "BusPart", "CtlStep", "HistoryPart", "LivePart", "Part", "ScenarioPart", "Schedule"]

@@ -32,6 +32,11 @@ import numpy as np
 
 from hilbench.errors import RecordingError
 
+try:  # CSV rows in C (optional; `Recorder._format_csv` is the reference)
+    from hilbench.bench import _csvrows
+except ImportError:  # pragma: no cover - no compiler at install time
+    _csvrows = None  # type: ignore[assignment]
+
 #: (name, unit, CSV format) of the columns every bench recording has, in order; a target's
 #: telemetry columns (from its profile) go after ``speed_rpm`` (see hilbench.bench.columns).
 COLUMNS: tuple[tuple[str, str, str], ...] = (
@@ -235,9 +240,13 @@ class RowBuffer:
         if len(self):
             self.mark(len(self) - 1, value)
 
-    def columns(self) -> dict[str, np.ndarray]:
+    def columns(self, names: Sequence[str] | None = None) -> dict[str, np.ndarray]:
+        """Every column (or those named) of the pending rows as float64 arrays."""
         # a copy: a view into the bytearray would block its later resizing for as long as it lives
-        return self.layout.to_columns(bytes(self.data))
+        if names is None:
+            return self.layout.to_columns(bytes(self.data))
+        rows = self.layout._rows(bytes(self.data))
+        return {name: self.layout.to_column(rows, name) for name in names}
 
     def clear(self) -> None:
         del self.data[:]
@@ -337,14 +346,29 @@ class Recorder:
             else:
                 columns = rows.columns()
                 names = rows.layout.column_names
-                table = np.column_stack([columns[name] for name in names]) if n_rows else np.zeros((0, len(names)))
-                self._file.write(self._format_csv(list(map(tuple, table.tolist())), events))
+                self._file.write(self._csv_text([columns[name] for name in names], n_rows, events))
             self._file.flush()
         except OSError as exc:
             raise RecordingError(f"recording {self.path}: write failed ({exc.strerror})") from None
         self.rows_written += n_rows
         rows.clear()
         events.clear()
+
+    def _csv_text(self, columns: list[np.ndarray], n_rows: int, events: list[tuple[int, str, int]]) -> str:
+        """The CSV text of these rows and events: `_format_csv` (the reference), or its accelerator
+        `_csvrows.format_rows` (C; the same text, tests/test_csv_rows.py) between the events."""
+        formats = [f for _, _, f in self.rows.layout.column_specs]
+        if _csvrows is not None and n_rows:
+            parts: list[str | None] = []
+            start = 0
+            for index, text, _ in events:
+                parts += [_csvrows.format_rows(columns, formats, start, index), f"# event: {text}\n"]
+                start = index
+            parts.append(_csvrows.format_rows(columns, formats, start, n_rows))
+            if None not in parts:  # else a format or a value the C path leaves to Python
+                return "".join(parts)  # type: ignore[arg-type]
+        table = np.column_stack(columns) if n_rows else np.zeros((0, len(formats)))
+        return self._format_csv(list(map(tuple, table.tolist())), events)
 
     def _format_csv(self, rows: list[tuple[float, ...]], events: list[tuple[int, str, int]]) -> str:
         fmt = ",".join(f for _, _, f in self.rows.layout.column_specs) + "\n"
@@ -399,7 +423,9 @@ def _write_npz_from_journal(path: Path, journal: Path, metadata: dict[str, Any])
         itemsize = layout.dtype.itemsize
         n_rows = max(0, (os.fstat(handle.fileno()).st_size - start) // itemsize)  # a torn last row is dropped
         names = [name for name, _, _ in layout.column_specs]
-        buffer = bytearray(min(NPZ_CHUNK_ROWS, max(n_rows, 1)) * itemsize)
+        # uninitialised: readinto fills what is used (zeroing a bytearray cost ~1 instruction a byte
+        # of every row under callgrind, whose count of `rep stosb` is per byte)
+        buffer = np.empty(min(NPZ_CHUNK_ROWS, max(n_rows, 1)) * itemsize, dtype=np.uint8)
         with ColumnArchive(path, names, n_rows) as archive:
             for first in range(0, n_rows, NPZ_CHUNK_ROWS):
                 count = min(NPZ_CHUNK_ROWS, n_rows - first)
@@ -407,7 +433,8 @@ def _write_npz_from_journal(path: Path, journal: Path, metadata: dict[str, Any])
                 if handle.readinto(view) != len(view):  # the journal is read in order, once
                     raise RecordingError(f"recording {journal}: shorter than it was a moment ago")
                 rows = np.frombuffer(view, dtype=layout.dtype, count=count)
-                archive.write(first, {name: layout.to_column(rows, name) for name in names})
+                for name in names:  # one column alive at a time: its block is reused, not a chunk's worth
+                    archive.write(first, {name: layout.to_column(rows, name)})
                 del rows
             archive.add("metadata", np.asarray(json.dumps(metadata, default=str)))
 
@@ -698,10 +725,60 @@ class MemoryRecorder:
             self.event(final_note)
         self.closed = True
 
-    def columns(self) -> dict[str, np.ndarray]:
-        """Every column as an array, markers applied."""
+    def columns(self, names: Sequence[str] | None = None) -> dict[str, np.ndarray]:
+        """Every column (or those named: a step test's few) as an array, markers applied."""
         self.rows.settle(self.events)
-        return self.rows.columns()
+        return self.rows.columns(names)
+
+
+class WindowRecorder:
+    """Rows kept only for a live view, never saved: a run without a recording whose scope asked for
+    its stream. At most ``flush_rows`` rows are held; each flush drops them (the scope's display
+    stream takes them just before), so memory stays flat however long the run. ``path`` is None and
+    ``rows_written`` 0: nothing is recorded."""
+
+    path = None
+    closed = False
+
+    def __init__(self, flush_rows: int) -> None:
+        self.flush_rows = max(1, flush_rows)
+        self.metadata: dict[str, Any] = {}
+        self.rows = RowBuffer()
+        self.events: list[tuple[int, str, int]] = []
+        self.append = self.rows.append
+        self.rows_written = 0
+
+    def start(self, layout: RowLayout = COLUMN_LAYOUT) -> None:
+        if layout != self.rows.layout:
+            self.rows.configure(layout)
+            self.append = self.rows.append
+
+    def event(self, text: str, marker: int = MARKER_NONE) -> None:
+        self.events.append((len(self.rows), text, marker))
+        if len(self.events) > 4 * _WINDOW_EVENTS:  # a script writing events in a loop: keep the newest
+            del self.events[:-_WINDOW_EVENTS]
+
+    def mark_last(self, marker: int) -> None:
+        self.rows.settle(self.events)
+        self.rows.mark_last(marker)
+
+    def maybe_flush(self) -> None:
+        if len(self.rows) >= self.flush_rows:
+            self.flush()
+
+    def flush(self) -> None:
+        """Drop the rows held (the buffer object stays: the session's loop holds it); events noted at
+        the next row to come move to the new first row."""
+        n_rows = len(self.rows)
+        self.events = [(index - n_rows, text, marker) for index, text, marker in self.events if index >= n_rows]
+        self.rows.clear()
+
+    def close(self, final_note: str | None = None) -> None:
+        self.closed = True
+
+
+#: events a `WindowRecorder` keeps at least
+_WINDOW_EVENTS = 1000
 
 
 def _export_format(fmt: str, values: np.ndarray) -> str:

@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import gc
 import math
+import os
 import struct
 import time
 from collections import deque
@@ -58,6 +59,10 @@ from hilbench.targets.registry import profile_for_firmware, registered_for_firmw
 if TYPE_CHECKING:
     from hilbench.bench.display import DisplayStream
 
+try:  # the lockstep span in C (optional, built with the C cores)
+    from hilbench.bench import _span
+except ImportError:  # pragma: no cover - no compiler at install time
+    _span = None  # type: ignore[assignment]
 INPUT_INDEX = int(Input.INDEX)
 INPUT_FAULT = int(Input.FAULT)
 HALL_MASK = int(Input.HALL_A | Input.HALL_B | Input.HALL_C)
@@ -110,6 +115,8 @@ class ControlSource(Protocol):
 
 class Session:
     """One bench run over a target and a plant."""
+
+    c_span = True  # the periods between events in C when plant and target have C steps (`_c_span`)
 
     def __init__(
         self,
@@ -167,6 +174,7 @@ class Session:
         self._edge_s: float | None = None
         self._hall_before = 0
         self._next_k = 0
+        self._rows_changed = False  # watch_rows changed the row writer: the tight loop is made again
 
     @property
     def player(self) -> ScenarioPlayer:
@@ -258,6 +266,7 @@ class Session:
     def set_reference(self, rpm: float) -> None:
         """The speed reference, by the way the target's profile says it reaches the firmware."""
         self.ref_rpm = rpm
+        self.tuning.reference_changed(self.now_s)  # gains on probation are watched from here
         reference = self.profile.reference
         if isinstance(reference, PotReference):
             self.plant.pot_fraction = reference.pot_fraction(rpm)
@@ -302,6 +311,23 @@ class Session:
         self._end_reason = reason
         self.segment("end", t_s)
         self.note(t_s, note)
+
+    def watch_rows(self, on: bool) -> None:
+        """Rows for the scope in a run that records none: a `WindowRecorder` (bounded, never saved)
+        while a scope watches, nothing again when it stops. Between periods only (the parts' thread);
+        the tight loop picks the new row writer up before its next periods."""
+        from hilbench.bench.recorder import WindowRecorder
+
+        window = isinstance(self.recorder, WindowRecorder)
+        if on and self.recorder is None and self.hello is not None:
+            self.recorder = WindowRecorder(max(1, round(self.period.per_s)))  # type: ignore[assignment]
+        elif not on and window:
+            self.recorder = None
+        else:
+            return
+        if hasattr(self, "summary"):  # begun: the loop's row writer follows
+            self._record = self._row_writer()
+            self._rows_changed = True
 
     def display_stream(self) -> "DisplayStream":
         """The scope's display stream, made on the first request."""
@@ -464,6 +490,9 @@ class Session:
             stop = after_k + 1  # a history part is always there: an int
             if before_k < stop:
                 stop = before_k
+            if self._rows_changed:  # a scope started or stopped watching a run without a recording
+                self._rows_changed = False
+                run = self._periods_runner()
             k = run((k, k_to if k_to < stop else int(stop)))
             if after_k == k - 1:
                 self.periods_done = after_k
@@ -497,59 +526,75 @@ class Session:
                     pack_telemetry: Callable[..., bytes] | None = pack_telemetry,
                     extend: Callable[[bytes], None] | None = extend, rows: bytearray | None = rows,
                     host_ref: bool = self._record_host_ref, rtts: StreamingPercentiles = self.lockstep_rtts,
-                    perf: Callable[[], float] = time.perf_counter) -> Generator[int, tuple[int, int], None]:
+                    perf: Callable[[], float] = time.perf_counter,
+                    span: Any = self._c_span(rows)) -> Generator[int, tuple[int, int], None]:
             k, stop = yield 0
             edge_s, drive, hall_before = session._edge_s, session.drive, session._hall_before
             rtt, late, marker = 0.0, 0.0, 0  # lockstep: no wall-clock figures in the row
+            in_span = False
             while True:
                 buttons, filtering = session.scenario.buttons, faults.on  # the parts may have changed them
                 try:
-                    for k in range(k, stop):
-                        hall, tripped, index, count, adc = sense(roles)  # the plant's sensors after the last period
-                        inputs = hall | buttons
-                        if edge_s is None:  # a period without a hall edge (most): nothing more to do
-                            edges = ()
-                        else:  # every hall edge of the period, timed
-                            edges = hall_edges(plant_edges(), edge_limit)
-                            if len(edges) > max_edges:
-                                session.too_many_edges(k, len(edges))
-                        if index and read_index:  # the encoder's index marks passed: among the edges
-                            inputs |= INPUT_INDEX
-                            edges = with_index_marks(edges, plant_marks(), edge_limit, hall_before)
-                            if len(edges) > max_edges:
-                                session.too_many_edges(k, len(edges))
-                        hall_before = hall
-                        if tripped:  # the board's overcurrent comparator drives FAULT
-                            inputs |= INPUT_FAULT
-                            session._comparator(k)
-                        sensors = new(Sensors, (k & 0xFF, inputs, edges, count, adc))
-                        if filtering:  # a sensor fault is in force: the target gets what it leaves
-                            sensors = faults.filter(sensors)
-                            hall, filtering = sensors[1] & HALL_MASK, faults.on
-                        if pacing is not None:  # real time: the period's wall-clock slot, or the Drive held
-                            drive = pacing.exchange(k, sensors, drive, step)
-                            rtt, late, marker = pacing.rtt, pacing.late, pacing.marker
-                        elif k & 63:
-                            drive = step(sensors)
-                        else:  # lockstep: a sample of round-trip times, not every period's
-                            sent = perf()
-                            drive = step(sensors)
-                            rtts.append(perf() - sent)
-                        _seq, duty_a, duty_b, duty_c, output_mode, state, sector, _ccw, _req, fault, telemetry = drive
-                        if tripped and output_mode == OUTPUT_OFF:  # the firmware's stop re-arms the comparator
-                            session._comparator_cleared()
-                        if rows is not None:  # raw values in their own types (columns.session_row)
-                            if host_ref:
-                                extend(pack(k, hall, sector, duty_a, duty_b, duty_c, output_mode, state, fault, rtt,
-                                            late, marker, session.ref_rpm))
-                            else:
-                                extend(pack(k, hall, sector, duty_a, duty_b, duty_c, output_mode, state, fault, rtt,
-                                            late, marker))
-                            extend(pack_telemetry(*telemetry))  # a call on the tuple itself: cheaper than a `*` among positionals
-                        edge_s = advance(duty_a, duty_b, duty_c, output_mode, rows)  # the plant's period; it appends its outputs
-                        if pacing is not None:
-                            pacing.finished(k)
+                    while k < stop:
+                        py_stop = stop
+                        if span is not None and not filtering:  # the periods in C (hilbench/bench/_span.c)
+                            in_span = True
+                            k = span.run(k, stop, buttons, session.ref_rpm, edge_s, drive, hall_before)
+                            in_span = False
+                            edge_s, drive, hall_before = span.edge_s, span.drive, span.hall_before
+                            if k >= stop:
+                                break
+                            py_stop = k + 1  # a comparator trip or too many edges: its period here, then C again
+                        for k in range(k, py_stop):
+                            hall, tripped, index, count, adc = sense(roles)  # the plant's sensors after the last period
+                            inputs = hall | buttons
+                            if edge_s is None:  # a period without a hall edge (most): nothing more to do
+                                edges = ()
+                            else:  # every hall edge of the period, timed
+                                edges = hall_edges(plant_edges(), edge_limit)
+                                if len(edges) > max_edges:
+                                    session.too_many_edges(k, len(edges))
+                            if index and read_index:  # the encoder's index marks passed: among the edges
+                                inputs |= INPUT_INDEX
+                                edges = with_index_marks(edges, plant_marks(), edge_limit, hall_before)
+                                if len(edges) > max_edges:
+                                    session.too_many_edges(k, len(edges))
+                            hall_before = hall
+                            if tripped:  # the board's overcurrent comparator drives FAULT
+                                inputs |= INPUT_FAULT
+                                session._comparator(k)
+                            sensors = new(Sensors, (k & 0xFF, inputs, edges, count, adc))
+                            if filtering:  # a sensor fault is in force: the target gets what it leaves
+                                sensors = faults.filter(sensors)
+                                hall, filtering = sensors[1] & HALL_MASK, faults.on
+                            if pacing is not None:  # real time: the period's wall-clock slot, or the Drive held
+                                drive = pacing.exchange(k, sensors, drive, step)
+                                rtt, late, marker = pacing.rtt, pacing.late, pacing.marker
+                            elif k & 63:
+                                drive = step(sensors)
+                            else:  # lockstep: a sample of round-trip times, not every period's
+                                sent = perf()
+                                drive = step(sensors)
+                                rtts.append(perf() - sent)
+                            _seq, duty_a, duty_b, duty_c, output_mode, state, sector, _ccw, _req, fault, telemetry = drive
+                            if tripped and output_mode == OUTPUT_OFF:  # the firmware's stop re-arms the comparator
+                                session._comparator_cleared()
+                            if rows is not None:  # raw values in their own types (columns.session_row)
+                                if host_ref:
+                                    extend(pack(k, hall, sector, duty_a, duty_b, duty_c, output_mode, state, fault, rtt,
+                                                late, marker, session.ref_rpm))
+                                else:
+                                    extend(pack(k, hall, sector, duty_a, duty_b, duty_c, output_mode, state, fault, rtt,
+                                                late, marker))
+                                extend(pack_telemetry(*telemetry))  # a call on the tuple itself: cheaper than a `*` among positionals
+                            edge_s = advance(duty_a, duty_b, duty_c, output_mode, rows)  # the plant's period; it appends its outputs
+                            if pacing is not None:
+                                pacing.finished(k)
+                        k = py_stop
                 except BaseException:
+                    if in_span:  # where the C span stopped, and what it left
+                        k, edge_s, drive, hall_before = span.k, span.edge_s, span.drive, span.hall_before
+                        in_span = False
                     session.periods_done = k
                     raise
                 finally:
@@ -559,6 +604,27 @@ class Session:
         runner = periods()
         next(runner)
         return runner.send
+
+    def _c_span(self, rows: bytearray | None) -> Any:
+        """The C span runner (hilbench/bench/_span.c: `_tight_runner`'s periods without Python per
+        period) when plant and target both have a C step and the session runs lockstep; else None.
+        `c_span = False` (or HILBENCH_SESSION_SPAN=python) keeps the Python loop."""
+        if _span is None or not self.c_span or self.pacing is not None or os.environ.get("HILBENCH_SESSION_SPAN") == "python":
+            return None
+        plant_api, target_core = getattr(self.plant, "span_api", None), getattr(self.target, "span_core", None)
+        papi = plant_api() if plant_api is not None else None
+        core = target_core() if target_core is not None else None
+        if papi is None or core is None or self.target.step != core[1].step:  # a wrapper in front of the step: its own
+            return None
+        hello = self.hello
+        assert hello is not None
+        span = _span.Span(plant=self.plant, plant_api=papi, core=core[1], target_api=core[0], roles=tuple(hello.adc_roles),
+                          edge_limit=self.options.period_us * 10 - 1, read_index=self.profile.has("encoder"), rows=rows,
+                          n_telemetry=len(hello.telemetry_ids), host_ref=self._record_host_ref,
+                          rtt_append=self.lockstep_rtts.append, max_edges=self.target_max_edges())
+        if rows is not None and self.recorder is not None and span.row_bytes != self.recorder.rows.struct.size:
+            return None  # a row the C span does not write (columns.OWN_FIELDS changed without _span.c)
+        return span
 
     def _periods_one_by_one(self, k: int, stop: int) -> int:
         """Periods [k, stop), each exchanged (in its wall-clock slot in real time): the readable
@@ -620,6 +686,13 @@ class Session:
             extend(pack(*own, *((self.ref_rpm,) if self._record_host_ref else ())))
             extend(pack_telemetry(*drive.telemetry))
         return self.plant.advance(drive.duty_a, drive.duty_b, drive.duty_c, drive.output_mode, rows)
+
+    def fault_seen(self, t_s: float, code: int) -> None:
+        """The history saw a firmware fault code: the summary keeps the first code and the span."""
+        summary = self.summary
+        if summary.fault_first_s is None:
+            summary.fault_code, summary.fault_first_s = int(code), t_s
+        summary.fault_last_s = t_s
 
     def _comparator(self, k: int) -> None:
         """The overcurrent comparator's latch is set: note the trip once."""

@@ -131,13 +131,33 @@ def _target_options_type(built: Any) -> type | None:
     return target_profile(built.get("link")).options_type
 
 
+def _target_owner(keys: frozenset[str]) -> str | None:
+    """Which other known target's [target] options these keys are (a config written for it)."""
+    import dataclasses as dc
+
+    from hilbench.targets.registry import get_profile, known_targets
+
+    owners = []
+    for name in known_targets():
+        try:
+            options = get_profile(name).options_type
+        except ConfigError:
+            continue
+        if options is not None and dc.is_dataclass(options) and keys <= {f.name for f in dc.fields(options)}:
+            owners.append(name)
+    if not owners:
+        return None
+    return (f"these are the {' or '.join(owners)} target's options: this [target] table belongs to "
+            f"{owners[0]} (run it with its own target, or drop the table for this one)")
+
+
 #: every table of a bench config: the plant's and the bench's (an explicit registry)
 SECTIONS = (
     PLANT_SECTIONS
     .with_table("tuning", TuningSection)
     .with_table("run", RunSection)
     .with_table("link", LinkSection)
-    .with_table("target", None, chooser=_target_options_type)
+    .with_table("target", None, chooser=_target_options_type, explain=_target_owner)
     .with_table("scenario", ScenarioEntry, many=True)
     .with_table("check", CheckEntry, many=True)  # pass/fail criteria of a run (hilbench.bench.checks)
 )

@@ -88,6 +88,9 @@ class StepResult:
     speed_rpm: np.ndarray = field(repr=False)
     ref_rpm: float = 0.0
     stalled: bool = False  # the firmware stopped on its stall protection (metrics not meaningful)
+    #: the reference the firmware itself reports after the step (its telemetry; a firmware may ramp
+    #: it after an alignment), None when it reports none
+    firmware_ref_rpm: np.ndarray | None = field(default=None, repr=False)
 
 
 def require_speed_loop(profile: TargetProfile, where: str) -> None:
@@ -95,6 +98,12 @@ def require_speed_loop(profile: TargetProfile, where: str) -> None:
     if not profile.has("speed_loop") or profile.reference is None:
         raise ConfigError(f"{where}: target {profile.name!r} has no speed loop to step "
                           "(its profile declares no speed_loop capability or reference input)")
+
+
+#: the columns `analyse` reads (a sweep converts only these of every step test's rows), and the
+#: firmware's reported reference when the layout has it (the step plot's reference)
+ANALYSED_COLUMNS = ("t_s", "speed_rpm", "ia_a", "ib_a", "state")
+FIRMWARE_REF_COLUMN = "ref_speed_rpm"
 
 
 def analyse(columns: dict[str, np.ndarray], test: StepTest, profile: TargetProfile, label: str,
@@ -117,7 +126,9 @@ def analyse(columns: dict[str, np.ndarray], test: StepTest, profile: TargetProfi
     metrics = step_metrics(t, speed, y0=y0, y_final_ref=y_ref, current_a=currents, t_step_s=t_step)
     after = t >= t_step
     stalled = bool(columns["state"].size and columns["state"][-1] == STATE_STALLED)
-    return StepResult(label, gains, metrics, t[after] - t_step, speed[after], y_ref, stalled)
+    reported = columns.get("ref_speed_rpm")
+    firmware_ref = reported[after] if reported is not None and np.isfinite(reported[after]).all() else None
+    return StepResult(label, gains, metrics, t[after] - t_step, speed[after], y_ref, stalled, firmware_ref)
 
 
 def run_step(
@@ -139,7 +150,8 @@ def run_step(
     finally:
         parts.close()
     name = label or ("/".join(f"{v:.4g}" for v in gains.values()) or "firmware defaults")
-    return analyse(recorder.columns(), test, session.profile, name, gains, session.period.s)
+    names = ANALYSED_COLUMNS + ((FIRMWARE_REF_COLUMN,) if FIRMWARE_REF_COLUMN in recorder.rows.layout.column_names else ())
+    return analyse(recorder.columns(names), test, session.profile, name, gains, session.period.s)
 
 
 def parse_gain_sets(words: Sequence[str], names: Sequence[str]) -> list[dict[str, float]]:

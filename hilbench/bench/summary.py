@@ -55,6 +55,11 @@ class Summary:
     firmware: str = ""
     #: what the run's settings did not allow (checked before the start, and real time not held)
     warnings: list[str] = field(default_factory=list)
+    #: the firmware's fault code as the live history saw it (every history period, rows kept or not):
+    #: the first code, and the first and last times it was non-zero (None: never)
+    fault_code: int = 0
+    fault_first_s: float | None = None
+    fault_last_s: float | None = None
     #: the config's [[check]] verdicts (hilbench.bench.checks), judged when the run ended
     checks: list["CheckResult"] = field(default_factory=list)
 
@@ -99,6 +104,9 @@ class Summary:
             "params": self.params,
             "recording": self.recording,
             "rows_recorded": self.rows_recorded,
+            "fault_code": self.fault_code,
+            "fault_first_s": self.fault_first_s,
+            "fault_last_s": self.fault_last_s,
             "checks": [c.as_dict() for c in self.checks],
             "checks_passed": self.checks_passed,
         }
@@ -129,6 +137,7 @@ class Snapshot:
     overruns: int
     messages: list[str]
     history: list[tuple[float, float, float, float]]
+    fault: int = 0  # the firmware's fault code (0: none)
 
 
 def percentiles(values: list[float]) -> dict[str, float]:

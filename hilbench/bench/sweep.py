@@ -20,7 +20,7 @@ import json
 import math
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Callable, Iterable, Sequence
+from typing import Any, Callable, Iterable, Mapping, Sequence
 
 import numpy as np
 
@@ -37,6 +37,7 @@ __all__ = [
     "SweepResult",
     "Tolerances",
     "best_fragment",
+    "held_params",
     "grid_values",
     "parse_axis",
     "parse_grid_spec",
@@ -225,11 +226,13 @@ class SweepStore:
     STORE_LINE_MAX_BYTES, each a row of this sweep's shape (`_store_row`), or one line naming the
     file, the line and what is wrong. Only the last line may be cut (a kill while appending)."""
 
-    def __init__(self, path: Path, key: str, n_points: int) -> None:
+    def __init__(self, path: Path, key: str, n_points: int, family: str | None = None) -> None:
+        """``family``: the rounds of one `refine` share a file; rows of its other rounds are skipped."""
         from hilbench.limits import STORE_LINE_MAX_BYTES, STORE_MAX_BYTES, check_path_size
 
         self.path = path
         self.key = key
+        self.family = family
         self.done: dict[int, tuple[StepMetrics, bool, int]] = {}
         if not path.exists():
             return
@@ -245,6 +248,8 @@ class SweepStore:
                     row = _store_line(path, n, line, last)
                     if row is None:
                         break  # a line cut by a kill: the point runs again
+                    if row.get("key") != key and family is not None and row.get("family") == family:
+                        continue  # another round of the same refined sweep
                     if row.get("key") != key:
                         raise ConfigError(f"sweep store {path}: it holds another sweep (other config, test or points); "
                                           "give a new file to start over")
@@ -255,7 +260,7 @@ class SweepStore:
 
     def append(self, index: int, result: StepResult, cases: int) -> None:
         row = {"key": self.key, "index": index, "params": result.gains, "metrics": result.metrics.as_dict(),
-               "stalled": result.stalled, "cases": cases}
+               "stalled": result.stalled, "cases": cases, **({"family": self.family} if self.family else {})}
         try:
             with self.path.open("a", encoding="utf-8") as handle:
                 handle.write(json.dumps(row) + "\n")
@@ -323,6 +328,7 @@ def sweep_points(
     tolerances: Tolerances = Tolerances(),
     store: str | Path | None = None,
     progress: Callable[[int, int], None] | None = None,
+    store_family: str | None = None,
 ) -> SweepResult:
     """Step-test every point; constraint breakers are skipped and counted. ``executor``: None/local
     (``workers`` processes, one per core by default; 1: this process), local-dask[:N] or a Dask
@@ -338,7 +344,8 @@ def sweep_points(
     check = _constraint_checker(profile, cfg.link.period_us)
     swept = [SweepPoint(tuple(p), check(tuple(p))) for p in points]
     cases = tolerances.cases()
-    saved = SweepStore(Path(store), _sweep_key(cfg, test, points, tolerances, key), len(swept)) if store is not None else None
+    saved = (SweepStore(Path(store), _sweep_key(cfg, test, points, tolerances, key), len(swept), store_family)
+             if store is not None else None)
     run = _SweepRun(swept, len(cases), key, saved, progress)
     jobs = [(i, c, dict(swept[i].params)) for i in run.to_run() for c in range(len(cases))]
     with open_executor(executor, workers) as (pool, where):
@@ -427,12 +434,18 @@ def refine(cfg: BenchConfig, axes: Sequence[Axis], test: StepTest, metric: str =
     seen: dict[Params, SweepPoint] = {}
     last: SweepResult | None = None
     sim_s = 0.0
+    family = None
     for _ in range(rounds):
         names = [a.name for a in window]
         points = [p for p in (tuple(zip(names, v)) for v in itertools.product(*(a.values() for a in window)))
                   if p not in seen]
+        if family is None and options.get("store") is not None:  # every round's points in one file
+            from hilbench.bench.run import in_process
+
+            family = "refine:" + _sweep_key(in_process(cfg), test, points, options.get("tolerances", Tolerances()),
+                                            f"{_metric_key(metric)}:{rounds}:{shrink}")
         if points:
-            last = sweep_points(cfg, points, test, metric, **options)
+            last = sweep_points(cfg, points, test, metric, store_family=family, **options)
             sim_s += last.sim_s
             seen.update({p.params: p for p in last.points})
         best = min((p for p in seen.values() if p.result is not None), key=lambda p: _order(p.result, _metric_key(metric)),  # type: ignore[arg-type]
@@ -472,13 +485,30 @@ def write_sweep_csv(path: str | Path, sweep: SweepResult) -> Path:
     return out
 
 
-def best_fragment(sweep: SweepResult) -> str:
-    """The best parameter set as a config fragment a later run can load (``[target]`` table)."""
+def best_fragment(sweep: SweepResult, held: Mapping[str, float] | None = None) -> str:
+    """The best parameter set as a config fragment a later run can load (``[target]`` table);
+    ``held``: the values the firmware holds for them (`held_params`), written instead, the swept
+    value in a comment (0.7611111111111111 is 24940/32768 = 0.7611083984375 in Q15)."""
     best = sweep.best
     if best is None or best.result is None:
         raise ConfigError("sweep: no simulated parameter set to save (all were skipped)")
     value = getattr(best.result.metrics, sweep.metric)
-    lines = [f"# best of a {len(sweep.points)}-point sweep by {sweep.metric} = {value!r}, "
+    lines = [f"# best of a {len(sweep.points)}-point sweep by {sweep.metric} = {value:.6g}, "
              f"step {sweep.test.from_rpm:g} -> {sweep.test.to_rpm:g} rpm", "[target]"]
-    lines += [f"{name} = {v!r}" for name, v in best.params]
+    for name, v in best.params:
+        kept = (held or {}).get(name)
+        lines.append(f"{name} = {v!r}" if kept is None or kept == v else
+                     f"{name} = {kept!r}  # as the firmware holds it (swept: {v:.10g})")
     return "\n".join(lines) + "\n"
+
+
+def held_params(cfg: BenchConfig, params: Sequence[tuple[str, float]]) -> dict[str, float]:
+    """What the configured firmware holds for these parameter values (its fixed-point types: a Q15
+    gain is a whole number of 1/32768), from the in-process target's own declarations."""
+    from hilbench.bench.bench import Bench
+    from hilbench.bench.livetuning import raw_per_unit
+    from hilbench.bench.run import in_process
+
+    with Bench(in_process(cfg), keep_rows=False) as bench:
+        tuning = bench.session.tuning  # type: ignore[union-attr]
+        return {name: tuning.encode(name, value)[1] / raw_per_unit(tuning.info[name].ptype) for name, value in params}

@@ -338,18 +338,29 @@ def parse_target_spec(text: str) -> TargetSpec:
         values, _ = _split_query(text, query, FAULT_KEYS, ())  # a path to a build of any firmware
         return TargetSpec(text, prefix, program=rest, faults=_faults(text, values))
     if colon and prefix in _NAMED_KINDS:
-        if not _NAME_RE.fullmatch(rest):
-            raise _fail(text, f"{prefix}: needs a target name (a lowercase identifier, e.g. {prefix}:an1017)")
-        if prefix == KIND_INPROCESS:
-            _split_query(text, query, (), ())  # an in-process target has no link to wrap
-            return TargetSpec(text, KIND_INPROCESS, name=rest)
-        values, _ = _split_query(text, query, FAULT_KEYS, ())
-        return TargetSpec(text, prefix, name=rest, faults=_faults(text, values))
+        return _parse_named(text, prefix, rest, query)
     if colon and prefix == KIND_EXEC:
         if not rest:
             raise _fail(text, "exec: needs a program path")
         values, _ = _split_query(text, query, FAULT_KEYS, ())
         return TargetSpec(text, KIND_EXEC, program=rest, faults=_faults(text, values))
+    return _parse_port(text, head, query)
+
+
+def _parse_named(text: str, kind: str, name: str, query: str) -> TargetSpec:
+    """``inprocess:NAME``, ``emulator:NAME``, ``sil:NAME``...: a registered target by name."""
+    if not _NAME_RE.fullmatch(name):
+        raise _fail(text, f"{kind}: needs a target name (a lowercase identifier, e.g. {kind}:an1017)")
+    if kind == KIND_INPROCESS:
+        _split_query(text, query, (), ())  # an in-process target has no link to wrap
+        return TargetSpec(text, KIND_INPROCESS, name=name)
+    values, _ = _split_query(text, query, FAULT_KEYS, ())
+    return TargetSpec(text, kind, name=name, faults=_faults(text, values))
+
+
+def _parse_port(text: str, head: str, query: str) -> TargetSpec:
+    """``pty``, ``fd:N``, ``serial:/dev/...`` or a bare device path: a port the bench opens."""
+    prefix, colon, rest = head.partition(":")
     if head == "pty" or (colon and prefix == "fd"):
         if prefix == "fd" and not rest.isdigit():
             raise _fail(text, "fd: needs a file descriptor number, e.g. fd:3")

@@ -46,6 +46,9 @@ typedef struct {
     char adc_has[6];
     PyObject *noise;
     long long noise_i;
+    PyObject *noise_seen;      /* the block noise_data / noise_n describe (borrowed: compared only) */
+    const double *noise_data;  /* a float64 block's values (NULL: a list's items) */
+    Py_ssize_t noise_n;
     /* the exchange period (model.Plant.set_period) and the hall edges of the last one */
     double period_s, chunk_s, duty_scale;
     int chunks, n_edges, n_marks;
@@ -481,19 +484,10 @@ static PyObject *Core_step(Core *s, PyObject *const *args, Py_ssize_t nargs)
     return finish_call(s, args, nargs, 5, have, edge);
 }
 
-/* advance(duty_a, duty_b, duty_c, output_mode[, state_to]) -> last_edge_s: one exchange period in
- * its chunks, duties in counts of the full scale set_period gave (model.Plant._advance_py; the
- * actuation delay stays in Python) */
-static PyObject *Core_advance(Core *s, PyObject *const *args, Py_ssize_t nargs)
+/* One exchange period in its chunks with the duties (fractions) held: the clock, the hall edges
+ * (edges()), the index marks (index_marks()), last_edge_s. 0, or -1 with an exception. */
+static int advance_period(Core *s, const double duty[3], long mode)
 {
-    if (nargs != 4 && nargs != 5) {
-        PyErr_Format(PyExc_TypeError, "Plant.advance: expected 4 or 5 arguments (duty_a, duty_b, duty_c, output_mode[, state_to]), got %zd", nargs);
-        return NULL;
-    }
-    if (check_state_to(args, nargs, 4, "advance") < 0) return NULL;
-    double duty[3];
-    long mode;
-    if (get_drive(args, s->duty_scale, duty, &mode) < 0) return NULL;
     const double h = s->chunk_s;
     const int chunks = s->chunks < 1 ? 1 : s->chunks > MAX_CHUNKS ? MAX_CHUNKS : s->chunks;
     int have = 0;
@@ -503,7 +497,7 @@ static PyObject *Core_advance(Core *s, PyObject *const *args, Py_ssize_t nargs)
     for (int i = 0; i < chunks; i++) { /* long periods: the plant keeps its accurate step, duties held */
         int sub_have = 0;
         double sub_edge = 0.0;
-        if (integrate(s, duty, mode, h, &sub_have, &sub_edge) < 0) return NULL;
+        if (integrate(s, duty, mode, h, &sub_have, &sub_edge) < 0) return -1;
         if (sub_have) {
             edge = (double)i * h + sub_edge;
             have = 1;
@@ -517,7 +511,29 @@ static PyObject *Core_advance(Core *s, PyObject *const *args, Py_ssize_t nargs)
     s->encoder_index = (char)(s->n_marks > 0); /* a mark anywhere in the period */
     s->periods += 1;
     s->t_s = (double)s->periods * s->period_s; /* one time base: k periods are Period.t_s(k) */
-    return finish_call(s, args, nargs, 4, have, edge);
+    set_edge(s, have, edge);
+    return 0;
+}
+
+/* advance(duty_a, duty_b, duty_c, output_mode[, state_to]) -> last_edge_s: one exchange period in
+ * its chunks, duties in counts of the full scale set_period gave (model.Plant._advance_py; the
+ * actuation delay stays in Python) */
+static PyObject *Core_advance(Core *s, PyObject *const *args, Py_ssize_t nargs)
+{
+    if (nargs != 4 && nargs != 5) {
+        PyErr_Format(PyExc_TypeError, "Plant.advance: expected 4 or 5 arguments (duty_a, duty_b, duty_c, output_mode[, state_to]), got %zd", nargs);
+        return NULL;
+    }
+    if (check_state_to(args, nargs, 4, "advance") < 0) return NULL;
+    double duty[3];
+    long mode;
+    if (get_drive(args, s->duty_scale, duty, &mode) < 0 || advance_period(s, duty, mode) < 0) return NULL;
+    if (nargs > 4 && args[4] != Py_None) {
+        PyObject *r = Core_append_state(s, args[4]);
+        if (r == NULL) return NULL;
+        Py_DECREF(r);
+    }
+    return Py_NewRef(s->last_edge_s != NULL ? s->last_edge_s : Py_None);
 }
 
 /* edges() -> ((t_s, hall_bits), ...): every hall edge of the last advance (model.Plant.edges) */
@@ -567,6 +583,77 @@ static PyObject *Core_append_state(Core *s, PyObject *buf)
     Py_RETURN_NONE;
 }
 
+/* Where the noise block `_noise` keeps its values: a float64 array's in place (as _CPlant._draw_noise
+ * leaves it), or a list's items (Plant._draw_noise). noise_seen holds the block it describes (a
+ * reference: it cannot be freed and another take its address). 0, or -1 with an exception. */
+static int noise_locate(Core *s)
+{
+    Py_XSETREF(s->noise_seen, Py_XNewRef(s->noise));
+    s->noise_data = NULL;
+    s->noise_n = 0;
+    if (s->noise != NULL && PyList_Check(s->noise)) {
+        s->noise_n = PyList_GET_SIZE(s->noise);
+    } else if (s->noise != NULL && PyObject_CheckBuffer(s->noise)) {
+        Py_buffer view;
+        if (PyObject_GetBuffer(s->noise, &view, PyBUF_C_CONTIGUOUS | PyBUF_FORMAT) < 0) return -1;
+        if (view.itemsize == 8 && view.format != NULL && strcmp(view.format, "d") == 0) {
+            s->noise_data = (const double *)view.buf; /* numpy does not move an array's data while it lives */
+            s->noise_n = view.len / 8;
+        }
+        PyBuffer_Release(&view);
+    }
+    return 0;
+}
+
+/* The next standard-normal draw of the noise block, a new block drawn when it is used up. */
+static int noise_next(Core *s, double *g)
+{
+    if (s->noise != s->noise_seen && noise_locate(s) < 0) return -1;
+    if (s->noise_i >= s->noise_n) {
+        PyObject *blk = PyObject_CallMethodNoArgs((PyObject *)s, str_draw_noise);
+        if (blk == NULL) return -1;
+        Py_DECREF(blk);
+        if (noise_locate(s) < 0) return -1;
+        if (s->noise_n == 0) {
+            PyErr_SetString(PyExc_RuntimeError, "adc_codes: _draw_noise left no noise block");
+            return -1;
+        }
+        s->noise_i = 0;
+    }
+    if (s->noise_data != NULL) {
+        *g = s->noise_data[s->noise_i];
+    } else {
+        *g = PyFloat_AsDouble(PyList_GET_ITEM(s->noise, s->noise_i));
+        if (*g == -1.0 && PyErr_Occurred()) return -1;
+    }
+    s->noise_i += 1;
+    return 0;
+}
+
+/* The ADC code of one role (model.Plant.adc_codes): 0, or -1 with an exception. */
+static int adc_code(Core *s, long r, long *code)
+{
+    if (r < 0 || r > 5) {
+        PyErr_Format(PyExc_IndexError, "adc_codes: role %ld is not 0..5", r);
+        return -1;
+    }
+    *code = 0;
+    if (!s->adc_has[r]) return 0;
+    double x = r == 4 ? (s->adc_live ? s->i_a : s->ia_s) : r == 2 ? s->i_bus
+               : r == 5 ? (s->adc_live ? s->i_b : s->ib_s) : r == 3 ? s->vbus_v : s->pot_fraction;
+    double v = s->adc_off[r];
+    v += s->adc_gain[r] * x;
+    double nz = s->adc_nz[r];
+    if (nz != 0.0) {
+        double g;
+        if (noise_next(s, &g) < 0) return -1;
+        v += nz * g;
+    }
+    double c = floor(v + 0.5);
+    *code = c < 0.0 ? 0 : c > s->adc_max[r] ? (long)s->adc_max[r] : (long)c;
+    return 0;
+}
+
 /* model.Plant.adc_codes */
 static PyObject *Core_adc_codes(Core *s, PyObject *roles)
 {
@@ -577,38 +664,8 @@ static PyObject *Core_adc_codes(Core *s, PyObject *roles)
     PyObject *out = PyTuple_New(n);
     if (out == NULL) { Py_DECREF(seq); return NULL; }
     for (Py_ssize_t k = 0; k < n; k++) {
-        long r = PyLong_AsLong(items[k]);
-        if (r == -1 && PyErr_Occurred()) goto fail;
-        if (r < 0 || r > 5) {
-            PyErr_Format(PyExc_IndexError, "adc_codes: role %ld is not 0..5", r);
-            goto fail;
-        }
-        long code = 0;
-        if (s->adc_has[r]) {
-            double x = r == 4 ? (s->adc_live ? s->i_a : s->ia_s) : r == 2 ? s->i_bus
-                       : r == 5 ? (s->adc_live ? s->i_b : s->ib_s) : r == 3 ? s->vbus_v : s->pot_fraction;
-            double v = s->adc_off[r];
-            v += s->adc_gain[r] * x;
-            double nz = s->adc_nz[r];
-            if (nz != 0.0) {
-                if (s->noise == NULL || !PyList_Check(s->noise) || s->noise_i >= PyList_GET_SIZE(s->noise)) {
-                    PyObject *lst = PyObject_CallMethodNoArgs((PyObject *)s, str_draw_noise);
-                    if (lst == NULL) goto fail;
-                    Py_DECREF(lst);
-                    if (s->noise == NULL || !PyList_Check(s->noise) || PyList_GET_SIZE(s->noise) == 0) {
-                        PyErr_SetString(PyExc_RuntimeError, "adc_codes: _draw_noise left no noise list");
-                        goto fail;
-                    }
-                    s->noise_i = 0;
-                }
-                double g = PyFloat_AsDouble(PyList_GET_ITEM(s->noise, s->noise_i));
-                if (g == -1.0 && PyErr_Occurred()) goto fail;
-                s->noise_i += 1;
-                v += nz * g;
-            }
-            double c = floor(v + 0.5);
-            code = c < 0.0 ? 0 : c > s->adc_max[r] ? (long)s->adc_max[r] : (long)c;
-        }
+        long r = PyLong_AsLong(items[k]), code;
+        if ((r == -1 && PyErr_Occurred()) || adc_code(s, r, &code) < 0) goto fail;
         PyObject *o = PyLong_FromLong(code);
         if (o == NULL) goto fail;
         PyTuple_SET_ITEM(out, k, o);
@@ -656,6 +713,7 @@ static void Core_dealloc(Core *s)
 {
     Py_CLEAR(s->last_edge_s);
     Py_CLEAR(s->noise);
+    Py_CLEAR(s->noise_seen);
     Py_TYPE(s)->tp_free((PyObject *)s);
 }
 
@@ -770,6 +828,51 @@ static PyTypeObject CoreType = {
     .tp_methods = Core_methods,
 };
 
+/* ---- the C span's plant (hbglue.h, hilbench/bench/_span.c) ---------------------------------- */
+static int span_sense(PyObject *self, const int *roles, int n_roles, hb_plant_sense_t *out)
+{
+    Core *s = (Core *)self;
+    out->n_adc = n_roles;
+    for (int k = 0; k < n_roles; k++)
+        if (adc_code(s, roles[k], &out->adc[k]) < 0) return -1;
+    out->hall = s->hall_bits;
+    out->tripped = s->fault_input != 0;
+    out->index = s->encoder_index != 0;
+    out->encoder = s->encoder_count;
+    return 0;
+}
+
+static int span_advance(PyObject *self, long duty_a, long duty_b, long duty_c, long output_mode, char *row,
+                        int *have_edge, double *edge_s)
+{
+    Core *s = (Core *)self;
+    double duty[3] = {(double)duty_a * s->duty_scale, (double)duty_b * s->duty_scale, (double)duty_c * s->duty_scale};
+    if (advance_period(s, duty, output_mode) < 0) return -1;
+    if (row != NULL)
+        for (int i = 0; i < s->n_out; i++)
+            memcpy(row + i * sizeof(double), (const char *)s + s->out_off[i], sizeof(double));
+    *have_edge = s->last_edge_s != NULL && s->last_edge_s != Py_None;
+    *edge_s = *have_edge ? PyFloat_AsDouble(s->last_edge_s) : 0.0;
+    return 0;
+}
+
+static int span_n_outputs(PyObject *self) { return ((Core *)self)->n_out; }
+static int span_fault_input(PyObject *self) { return ((Core *)self)->fault_input != 0; }
+
+static void span_period_edges(PyObject *self, const double **edge_t, const int **edge_hall, int *n_edges,
+                              const double **mark_t, int *n_marks, int *index)
+{
+    Core *s = (Core *)self;
+    *edge_t = s->edge_t;
+    *edge_hall = s->edge_hall;
+    *n_edges = s->n_edges;
+    *mark_t = s->mark_t;
+    *n_marks = s->n_marks;
+    *index = s->encoder_index != 0;
+}
+
+static hb_plant_api_t span_api = {span_sense, span_advance, span_n_outputs, span_fault_input, span_period_edges};
+
 static PyMethodDef module_methods[] = {
     {NULL, NULL, 0, NULL},
 };
@@ -789,5 +892,13 @@ PyMODINIT_FUNC PyInit__plantcore(void)
     str_update_load = PyUnicode_InternFromString("_update_load");
     str_draw_noise = PyUnicode_InternFromString("_draw_noise");
     if (str_step_py == NULL || str_update_load == NULL || str_draw_noise == NULL) return NULL;
-    return hb_module(&moduledef, &CoreType, "Core");
+    PyObject *m = hb_module(&moduledef, &CoreType, "Core");
+    if (m == NULL) return NULL;
+    PyObject *api = PyCapsule_New(&span_api, HB_PLANT_API, NULL);
+    if (api == NULL || PyModule_AddObject(m, "SPAN_API", api) < 0) {
+        Py_XDECREF(api);
+        Py_DECREF(m);
+        return NULL;
+    }
+    return m;
 }

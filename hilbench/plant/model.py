@@ -43,7 +43,7 @@ import os
 import struct
 from collections import deque
 from dataclasses import dataclass
-from typing import Sequence
+from typing import Any, Sequence
 
 import numpy as np
 
@@ -1050,6 +1050,18 @@ if _plantcore is not None:
         sense = _plantcore.Core.sense
         append_state = _plantcore.Core.append_state
         theta_e = _plantcore.Core.theta_e  # the same read-only angle, without a Python property call
+
+        def _draw_noise(self) -> Any:
+            """The next block of standard-normal ADC noise, the same draws as `Plant._draw_noise`,
+            kept as a float64 array: the C core reads it in place (no Python float per draw)."""
+            self._noise = self._rng.standard_normal(NOISE_BLOCK)
+            self._noise_i = 0
+            return self._noise
+
+        def span_api(self) -> Any:
+            """The C step the session's C span runs (hbglue.h's plant capsule), or None while an
+            actuation delay's queue sits in front of the period (its `advance` is Python then)."""
+            return _plantcore.SPAN_API if "advance" not in self.__dict__ else None
 
         def __init__(self, params: PlantParams, seed: int = 0, *, substeps: int = DEFAULT_SUBSTEPS,
                      backend: str | None = None) -> None:

@@ -183,6 +183,7 @@ class ControlSource:
             return
         state: dict[str, Any] = {"since": -1, "columns": []}
         relays: set[asyncio.Future[None]] = set()
+        wake = asyncio.Event()  # a command was answered: ask for the stream now, not at the next poll
 
         async def commands() -> None:
             while True:
@@ -204,6 +205,7 @@ class ControlSource:
                 reply = {"ok": False, "message": str(exc), "data": None}
             await send({"type": "reply", "id": message.page_id, "cmd": message.request.get("cmd"),
                         "ok": reply.get("ok"), "message": reply.get("message"), "data": reply.get("data")})
+            wake.set()  # its effect is in the session's next frames: fetch them without waiting out the poll
 
         handling = asyncio.ensure_future(commands())
         try:
@@ -220,7 +222,11 @@ class ControlSource:
                 if data["status"].get("ended"):
                     await send({"type": "closed", "reason": "the run has ended"})
                     return
-                await asyncio.sleep(self.poll_every_s)
+                try:
+                    await asyncio.wait_for(wake.wait(), self.poll_every_s)
+                except asyncio.TimeoutError:
+                    pass
+                wake.clear()
         except (ConnectionError, OSError, KeyError, TypeError, AttributeError):
             await send({"type": "closed", "reason": "the session closed its control socket"})
         finally:

@@ -8,7 +8,7 @@ hot path: one send, one receive, one type-and-seq check.
 from __future__ import annotations
 
 import time
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from hilbench.errors import LinkTimeout, ParamError, TargetError, VersionMismatch
 from hilbench.protocol import (
@@ -37,6 +37,9 @@ from hilbench.protocol import (
     version_refusal,
 )
 
+if TYPE_CHECKING:
+    from hilbench.link import FaultyLink, Link
+
 
 def _error_name(code: int) -> str:
     try:
@@ -48,7 +51,7 @@ def _error_name(code: int) -> str:
 class RemoteTarget:
     """A target on the far end of a link, seen through the Target interface."""
 
-    def __init__(self, link: Any, *, timeout_s: float = 1.0, retry_s: float = 0.1,
+    def __init__(self, link: "Link | FaultyLink", *, timeout_s: float = 1.0, retry_s: float = 0.1,
                  protocol_version: int = PROTOCOL_VERSION) -> None:
         """``retry_s``: send a frame again after this long without its answer (a lost frame on a
         noisy line then costs one retry, not the run); a repeated Sensors is answered by the target

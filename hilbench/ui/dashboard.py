@@ -17,10 +17,12 @@ from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn
 from rich.table import Table
 from rich.text import Text
 
-from hilbench.bench.session import Snapshot, Summary
+from hilbench.bench.session import Session, Snapshot, Summary
+from hilbench.protocol import Fault
 
 STATE_NAMES = {0: "STOPPED", 1: "BOOTSTRAP", 2: "RUNNING", 3: "STALLED", 4: "FAULT"}
 OUTPUT_NAMES = {0: "off", 1: "PWM", 2: "low-side on", 3: "?"}
+FAULT_NAMES = {int(code): code.name for code in Fault}
 SPARK = "▁▂▃▄▅▆▇█"
 
 
@@ -40,24 +42,56 @@ def _fmt(value: float, spec: str = ".0f") -> str:
     return "—" if value is None or (isinstance(value, float) and math.isnan(value)) else format(value, spec)
 
 
-def render_snapshot(snap: Snapshot, params: dict[str, float], target_label: str, width: int = 100) -> Group:
-    """Everything one frame of the dashboard shows (``width``: the terminal's columns)."""
+def chart_rows(values: list[float], width: int, rows: int) -> list[str]:
+    """A chart ``rows`` characters high of the whole series (eighth blocks), top row first."""
+    if rows <= 1:
+        return [sparkline(values, width)]
+    step = max(1, len(values) // width)
+    picked = values[::step][-width:]
+    clean = [v for v in picked if not math.isnan(v)]
+    if not clean:
+        return [""] * rows
+    lo, hi = min(clean), max(clean)
+    span = (hi - lo) or 1.0
+    levels = [0 if math.isnan(v) else 1 + int((v - lo) / span * (rows * 8 - 1)) for v in picked]
+    return ["".join(" " if h - r * 8 <= 0 else "█" if h - r * 8 >= 8 else SPARK[h - r * 8 - 1] for h in levels)
+            for r in range(rows - 1, -1, -1)]
+
+
+#: below this many terminal rows the dashboard is compact (gains on one line, a one-row chart)
+COMPACT_BELOW_ROWS = 32
+
+
+def render_snapshot(snap: Snapshot, params: dict[str, float], target_label: str, width: int = 100,
+                    chart_height: int = 1, compact: bool = False) -> Group:
+    """The panels one frame of the dashboard shows (``width``: the terminal's columns; ``chart_height``:
+    rows of the speed chart; ``compact``: a small terminal, gains on one line)."""
     outputs_off = snap.output_mode == 0
     motor = Table.grid(padding=(0, 2))
     motor.add_column(style="bold")
     motor.add_column(justify="right")
     motor.add_row("reference", f"{_fmt(snap.ref_rpm)} rpm")
-    motor.add_row("speed (plant)", f"{_fmt(snap.speed_rpm)} rpm")
-    # a stopped firmware keeps its last MeasuredSpeed and duties: show that they do not apply now
-    motor.add_row("speed (firmware)", f"{_fmt(snap.measured_rpm)} rpm" + (" (held)" if outputs_off else ""))
-    motor.add_row("state", f"{STATE_NAMES.get(snap.state, snap.state)}, outputs {OUTPUT_NAMES.get(snap.output_mode, '?')}")
-    motor.add_row("sector / dir", f"{snap.sector} / {'CCW' if snap.direction_ccw else 'CW'}")
+    held = " (held)" if outputs_off else ""
+    if compact:
+        motor.add_row("speed plant/fw", f"{_fmt(snap.speed_rpm)} / {_fmt(snap.measured_rpm)} rpm{held}")
+    else:
+        motor.add_row("speed (plant)", f"{_fmt(snap.speed_rpm)} rpm")
+        # a stopped firmware keeps its last MeasuredSpeed and duties: show that they do not apply now
+        motor.add_row("speed (firmware)", f"{_fmt(snap.measured_rpm)} rpm{held}")
+    state = STATE_NAMES.get(snap.state, str(snap.state))
+    if snap.fault:  # by name, as the firmware's fault codes say (protocol Fault)
+        state += f" ({FAULT_NAMES.get(snap.fault, f'fault {snap.fault}')})"
+    style = "bold red" if snap.fault or state.startswith(("FAULT", "STALLED")) else "green" if state == "RUNNING" else ""
+    motor.add_row("state", Text(f"{state}, outputs {OUTPUT_NAMES.get(snap.output_mode, '?')}", style=style))
+    if not compact:
+        motor.add_row("sector / dir", f"{snap.sector} / {'CCW' if snap.direction_ccw else 'CW'}")
     motor.add_row("duties", "— (outputs off)" if outputs_off else " ".join(str(d) for d in snap.duties))
     motor.add_row("i a/b/c", " ".join(f"{i:+.2f}" for i in snap.i_abc) + " A")
-    motor.add_row("i bus", f"{snap.i_bus:+.3f} A")
-    for name, value in snap.telemetry.items():  # the target's own telemetry, as its profile names it
-        if name not in ("measured_speed_rpm", "ref_speed_rpm"):
-            motor.add_row(name.replace("_", " "), _fmt(value))
+    if not compact:
+        motor.add_row("i bus", f"{snap.i_bus:+.3f} A")
+        for name, value in snap.telemetry.items():  # the target's own telemetry, as its profile names it
+            if name not in ("measured_speed_rpm", "ref_speed_rpm"):
+                motor.add_row(name.replace("_", " "), _fmt(value))
 
     link = Table.grid(padding=(0, 2))
     link.add_column(style="bold")
@@ -65,29 +99,40 @@ def render_snapshot(snap: Snapshot, params: dict[str, float], target_label: str,
     link.add_row("periods/s", f"{snap.periods_per_s:,.0f}")
     link.add_row("RTT p50/p99", f"{_fmt(snap.rtt_p50_us, '.0f')}/{_fmt(snap.rtt_p99_us, '.0f')} µs")
     for key in ("crc_errors", "timeouts", "resyncs", "seq_gaps"):
-        if key in snap.link:
+        if key in snap.link and (snap.link[key] or not compact):
             link.add_row(key.replace("_", " "), str(snap.link[key]))
     link.add_row("overruns", str(snap.overruns))
-    for name, value in params.items():
-        link.add_row(name, f"{value:.5g}")
+    if not compact:
+        for name, value in params.items():
+            link.add_row(name, f"{value:.5g}")
 
     grid = Table.grid(expand=True)
     grid.add_column(ratio=1)
     grid.add_column(ratio=1)
-    grid.add_row(Panel(motor, title="motor"), Panel(link, title="link & gains"))
+    grid.add_row(Panel(motor, title="motor"), Panel(link, title="link" if compact else "link & gains"))
     speeds = [h[2] for h in snap.history]
-    chart = Text(sparkline(speeds, width=max(10, width - 4)), style="cyan")
     clean = [v for v in speeds if not math.isnan(v)]
     scale = f": {min(clean):.0f} … {max(clean):.0f} rpm" if clean else ""
-    parts: list[Any] = [
-        Text(f"hilbench run — {target_label}", style="bold"),
-        grid,
-        Panel(chart, title=f"speed (plant), the last {snap.history[-1][0] - snap.history[0][0]:.1f} s{scale}"
-              if snap.history else "speed (plant)"),
-    ]
+    title = (f"speed (plant), the last {snap.history[-1][0] - snap.history[0][0]:.1f} s{scale}"
+             if snap.history else "speed (plant)")
+    parts: list[Any] = [grid]
+    if compact:
+        if params:
+            parts.append(Text("gains: " + "  ".join(f"{k} {v:.5g}" for k, v in params.items())))
+        parts.append(Text(title, style="dim", no_wrap=True, overflow="ellipsis"))
+        parts.append(Text(sparkline(speeds, width=max(10, width)), style="cyan", no_wrap=True, overflow="crop"))
+    else:
+        chart = Text("\n".join(chart_rows(speeds, max(10, width - 4), max(1, chart_height))), style="cyan")
+        parts.append(Panel(chart, title=title))
     if snap.messages:
         parts.append(Text("\n".join(snap.messages[-2:]), style="yellow", no_wrap=True, overflow="ellipsis"))
     return Group(*parts)
+
+
+def _two_lines(text: str, width: int) -> str:
+    """A line cut to at most two terminal rows (the rest as an ellipsis)."""
+    limit = max(20, 2 * width - 1)
+    return text if len(text) <= limit else text[: limit - 1] + "…"
 
 
 class Dashboard:
@@ -109,9 +154,10 @@ class Dashboard:
         self.task = self.progress.add_task("run", total=duration_s or 1.0)
         self.command_line: Any = None  # hilbench.ui.keys.CommandLine, when the terminal can type
         self.replies: list[str] = []
+        self.warnings: list[str] = []  # the run's start-up warnings: kept at the top of every frame
         self.live = Live(console=self.console, refresh_per_second=max_fps, transient=False)
 
-    def attach(self, session: Any) -> None:
+    def attach(self, session: Session) -> None:
         """Show the session's parameters and follow every change (ctl, scenario, guard)."""
         self.params = session.param_values()
         session.on_params = self.params.update
@@ -129,13 +175,30 @@ class Dashboard:
             return
         self._last = now
         self.progress.update(self.task, completed=snap.t_s, total=snap.duration_s)
-        parts: list[Any] = [render_snapshot(snap, self.params, self.target_label, self.console.width), self.progress]
+        self.live.update(self.frame(snap))
+
+    def frame(self, snap: Snapshot) -> Group:
+        """One frame laid out for the terminal's size: the title and start-up warnings on top, the
+        progress, the command line's replies and prompt at the bottom (never cropped), the panels
+        between; a small terminal gets the compact panels, a tall one a taller speed chart."""
+        width, height = self.console.width, self.console.height
+        head: list[Any] = [Text(f"hilbench run — {self.target_label}", style="bold", no_wrap=True, overflow="ellipsis")]
+        head += [Text(_two_lines(f"warning: {w}", width), style="yellow") for w in self.warnings[-2:]]
+        foot: list[Any] = [self.progress]
         if self.command_line is not None and self.command_line.active:
             from hilbench.ui.keys import PROMPT_HELP
 
-            parts.append(Text("\n".join(self.replies[-3:]), style="cyan"))
-            parts.append(Text(f"> {self.command_line.buffer}_" if self.command_line.buffer else PROMPT_HELP, style="dim"))
-        self.live.update(Group(*parts))
+            replies = self.replies[-(1 if height < 28 else 3):]
+            foot.append(Text("\n".join(_two_lines(r, width) for r in replies), style="cyan"))
+            foot.append(Text(f"> {self.command_line.buffer}_" if self.command_line.buffer else PROMPT_HELP,
+                             style="dim", no_wrap=True, overflow="ellipsis"))
+        compact = height < COMPACT_BELOW_ROWS
+        used = sum(len(self.console.render_lines(p, self.console.options.update(width=width), pad=False))
+                   for p in head + foot)
+        grid_rows = max(11, 4 + len(self.params)) + 2  # the taller of the motor and link panels, with borders
+        chart_height = 1 if compact else max(1, min(24, height - used - grid_rows - 2 - 2 - 1))  # its border, messages
+        body = render_snapshot(snap, self.params, self.target_label, width, chart_height=chart_height, compact=compact)
+        return Group(*head, body, *foot)
 
 
 def summary_table(summary: Summary) -> Group:

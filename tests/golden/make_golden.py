@@ -17,7 +17,7 @@ def main() -> None:
                             cwd=REPO_ROOT).stdout.strip()
     cases = {}
     with tempfile.TemporaryDirectory() as tmp:
-        for case in CASES:
+        for case in (c for c in CASES if c.same_as is None):  # the others are held to these
             cases[case.name] = record(case, Path(tmp))
             print(case.name, len(cases[case.name]), "columns", flush=True)
     DIGESTS.write_text(json.dumps({"commit": commit, "cases": cases}, indent=1, sort_keys=True) + "\n")

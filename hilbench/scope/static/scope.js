@@ -1,18 +1,20 @@
 // hilbench scope: the page's own canvas renderer (no third-party code).
 // Data arrive as frames of min/max envelopes per display bucket (see hilbench/scope/stream.py);
-// each chosen column is drawn in a lane of its own with its own axis and unit.
+// each chosen column is drawn in a lane of its own with its own axis and unit, or shares another's
+// lane (S.lane: column -> the column whose lane it joins; the reference joins the speed by default).
 "use strict";
 
 const COLOURS = ["#5ab0f0", "#f0a05a", "#7fd07f", "#e070c0", "#e0d060", "#60d0d0", "#b090f0", "#f07070"];
 const MARK_COLOURS = { event: "#8fa0b0", param: "#6fcf7f", guard: "#e8b44c", fault: "#ef6b6b" };
 const DEFAULT_COLUMNS = ["speed_rpm", "ref_speed_rpm", "ia_a", "ib_a", "ic_a", "duty_a", "hall_a", "hall_b", "hall_c", "sector"];
 const KEEP_S = 120;  // live: seconds of data kept in the page
+const DEFAULT_LANES = { ref_speed_rpm: "speed_rpm", measured_speed_rpm: "speed_rpm" };
 
 const S = window.scope = {
   meta: null, units: {}, data: new Map(), selected: [], markers: [], status: {}, tLatest: 0, tFirst: null,
   frames: 0, paused: false, windowS: 2, viewEnd: null, cursors: [null, null], closed: null,
   trigger: { state: "idle", source: "ref", armedAt: 0, tTrig: null }, captures: [], showCapture: false,
-  replies: [], params: {}, lastParamResult: {},
+  replies: [], params: {}, lastParamResult: {}, lane: { ...DEFAULT_LANES }, edited: {},
 };
 const $ = (id) => document.getElementById(id);
 let ws = null, nextId = 1, dirty = true;
@@ -97,16 +99,29 @@ function setMeta(meta) {
   const names = meta.columns.map((c) => c[0]).filter((n) => n !== "t_s" && n !== "seq");
   S.selected = DEFAULT_COLUMNS.filter((n) => names.includes(n));
   const box = $("cols"); box.innerHTML = "";
+  const analog = names.filter((n) => S.units[n] !== "bit");
   for (const n of names) {
+    const row = document.createElement("div");
     const l = document.createElement("label");
     l.title = `${n} [${S.units[n] || ""}]`;
     l.innerHTML = `<input type="checkbox" data-col="${n}" ${S.selected.includes(n) ? "checked" : ""}> ${n} <span class="unit">${S.units[n] || ""}</span>`;
-    box.appendChild(l);
+    row.appendChild(l);
+    if (S.units[n] !== "bit") {
+      const sel = document.createElement("select");
+      sel.id = `lane-${n}`; sel.dataset.lane = n; sel.title = `the lane ${n} is drawn in`;
+      sel.innerHTML = `<option value="">own lane</option>` + analog.filter((m) => m !== n).map((m) => `<option value="${m}">with ${m}</option>`).join("");
+      sel.value = S.lane[n] && analog.includes(S.lane[n]) ? S.lane[n] : "";
+      row.appendChild(sel);
+    }
+    box.appendChild(row);
   }
-  box.addEventListener("change", () => {
-    S.selected = [...box.querySelectorAll("input:checked")].map((e) => e.dataset.col);
+  box.addEventListener("change", (e) => {
+    if (e.target.dataset.lane) { S.lane[e.target.dataset.lane] = e.target.value || undefined; dirty = true; return; }
+    S.selected = [...box.querySelectorAll("input:checked")].map((el) => el.dataset.col);
     subscribe();
   });
+  $("trig-col").innerHTML = analog.map((n) => `<option value="${n}">${n}</option>`).join("");
+  if (analog.includes("speed_rpm")) $("trig-col").value = "speed_rpm";
   buildParams(meta);
   if (!meta.live) { S.paused = true; $("pause").textContent = "run"; }
   subscribe();
@@ -127,17 +142,24 @@ function buildParams(meta) {
       <button id="set-${name}">set</button><div class="result" id="result-${name}"></div>`;
     box.appendChild(div);
     const slider = $(`slider-${name}`), input = $(`param-${name}`);
-    slider.addEventListener("input", () => { input.value = slider.value; });
-    input.addEventListener("input", () => { slider.value = input.value; });
-    $(`set-${name}`).addEventListener("click", () => {
-      const v = Number(input.value);
-      setResult(name, "", "sending…");
-      command({ cmd: "set", params: { [name]: v } }, (r) => {
-        if (r.ok) setResult(name, "ok", `${name}=${fmt(v)} ${r.message}`);
-        else setResult(name, "bad", `refused: ${r.message}`);
-      });
-    });
+    slider.addEventListener("input", () => { input.value = slider.value; S.edited[name] = true; });
+    input.addEventListener("input", () => { slider.value = input.value; S.edited[name] = true; });
+    $(`set-${name}`).addEventListener("click", () => writeParams([name]));
   }
+}
+
+// one atomic `set` of these parameters (the firmware's constraints hold for the set as a whole)
+function writeParams(names) {
+  const params = Object.fromEntries(names.map((n) => [n, Number($(`param-${n}`).value)]));
+  const text = names.map((n) => `${n}=${fmt(params[n])}`).join(" ");
+  for (const n of names) setResult(n, "", "sending…");
+  command({ cmd: "set", params }, (r) => {
+    for (const n of names) {
+      if (r.ok) { S.edited[n] = false; setResult(n, "ok", `${text} ${r.message}`); }
+      else setResult(n, "bad", `refused: ${r.message}`);
+    }
+    if (names.length > 1) { const el = $("result-together"); el.className = "result " + (r.ok ? "ok" : "bad"); el.textContent = r.ok ? `${text} ${r.message}` : `refused: ${r.message}`; }
+  });
 }
 
 function setResult(name, cls, text) {
@@ -148,8 +170,10 @@ function setResult(name, cls, text) {
 function setStatus(st) {
   S.status = st;
   $("st-t").textContent = st.t_s != null ? st.t_s.toFixed(3) : "–";
-  $("st-state").textContent = st.state ?? "–";
-  $("st-fault").textContent = st.fault ?? "–";
+  $("st-state").textContent = st.state_name || (st.state ?? "–");
+  $("st-state").className = st.state_name === "RUNNING" ? "ok" : st.state_name === "FAULT" || st.state_name === "STALLED" ? "bad" : "";
+  $("st-fault").textContent = st.fault_name || (st.fault ?? "–");
+  $("st-fault").className = st.fault ? "bad" : "";
   $("st-ref").textContent = st.ref_rpm != null ? fmt(st.ref_rpm) : "–";
   $("st-rate").textContent = st.periods_per_s ? Math.round(st.periods_per_s).toLocaleString("en") : "–";
   $("st-rtt").textContent = st.rtt_p50_us != null ? `${st.rtt_p50_us.toFixed(1)} / ${(st.rtt_p99_us ?? 0).toFixed(1)}` : "–";
@@ -159,7 +183,14 @@ function setStatus(st) {
   const shown = Object.entries(link).filter(([k, v]) => k === "frames_rx" || (v && !k.startsWith("frames_") && !k.startsWith("bytes_")));
   $("st-link").textContent = Object.keys(link).length ? shown.map(([k, v]) => `${k} ${v}`).join(" · ") : "in process";
   if (!S.closed) { $("conn").textContent = st.ended ? "run ended" : "live"; $("conn").className = "fig ok"; }
-  if (st.params) for (const [n, v] of Object.entries(st.params)) { const el = $(`now-${n}`); if (el && v != null) el.textContent = fmt(v); }
+  if (st.params) for (const [n, v] of Object.entries(st.params)) {
+    const el = $(`now-${n}`); if (!el || v == null) continue;
+    el.textContent = fmt(v);
+    const box = $(`param-${n}`), slider = $(`slider-${n}`);
+    if (!S.edited[n] && document.activeElement !== box && document.activeElement !== slider) {  // the value now, until edited
+      box.value = Number(v.toPrecision(6)); slider.value = v;
+    }
+  }
   if (st.guard != null) $("guard").checked = st.guard;
 }
 
@@ -190,7 +221,10 @@ function onReply(r) {
   if (cb) cb(r);
 }
 function subscribe() {
-  if (ws && ws.readyState === 1) ws.send(JSON.stringify({ type: "subscribe", columns: ["t_s", ...S.selected] }));
+  const cols = ["t_s", ...S.selected];
+  const trig = $("trig-col").value;
+  if (trig && !cols.includes(trig)) cols.push(trig);  // a level trigger needs its trace, shown or not
+  if (ws && ws.readyState === 1) ws.send(JSON.stringify({ type: "subscribe", columns: cols }));
   dirty = true;
 }
 
@@ -200,6 +234,9 @@ function checkTrigger() {
   if (tr.state === "armed") {
     const t = findTrigger(tr.source, tr.armedAt);
     if (t !== null) { tr.tTrig = t; tr.state = "triggered"; }
+    else if (tr.mode === "auto" && S.tLatest >= tr.armedAt + S.windowS) {  // no trigger for a window: capture anyway
+      tr.tTrig = S.tLatest - (1 - preFraction()) * S.windowS; tr.state = "triggered"; tr.forced = true;
+    }
   }
   if (tr.state === "triggered") {
     const W = S.windowS, pre = preFraction();
@@ -208,7 +245,10 @@ function checkTrigger() {
       for (const n of S.selected) cap.data.set(n, clip(S.data.get(n) || [], tr.tTrig - pre * W, tr.tTrig + (1 - pre) * W));
       S.captures.unshift(cap); S.captures.length = Math.min(S.captures.length, 2);
       tr.state = "captured"; S.showCapture = true;
-      $("trig-state").textContent = `captured: trigger at t = ${tr.tTrig.toFixed(4)} s (${S.captures.length > 1 ? "previous capture dimmed" : "first capture"})`;
+      if (tr.mode !== "single") S.trigger = { ...tr, state: "armed", armedAt: tr.tTrig + (1 - pre) * W, tTrig: null, forced: false };
+      $("trig-state").textContent = (tr.forced ? `auto: no trigger within ${fmt(W)} s, free capture at t = ${tr.tTrig.toFixed(4)} s`
+        : `captured: trigger at t = ${tr.tTrig.toFixed(4)} s`) + ` (${S.captures.length > 1 ? "previous capture dimmed" : "first capture"})`
+        + (tr.mode !== "single" ? `; re-armed (${tr.mode})` : "");
       $("trig-state").className = "result ok";
       dirty = true;
     } else {
@@ -217,19 +257,39 @@ function checkTrigger() {
   }
 }
 
+// the first crossing of `level` after `after` in the direction asked: the trace must first be seen
+// beyond the level by the hysteresis on the other side (a whole display bucket's envelope there)
+function findLevel(name, after, level, hyst, edge) {
+  let below = false, above = false;
+  for (const s of S.data.get(name) || []) for (let i = 0; i < s.n; i++) {
+    const t = s.t0 + i * s.dt;
+    if (t <= after) continue;
+    const lo = s.lo[i], hi = s.hi[i];
+    if (edge !== "falling" && below && hi >= level) return t;
+    if (edge !== "rising" && above && lo <= level) return t;
+    if (hi < level - hyst) below = true;
+    if (lo > level + hyst) above = true;
+  }
+  return null;
+}
+
 function preFraction() { return Math.min(0.9, Math.max(0, Number($("trig-pre").value) / 100)); }
 
 function findTrigger(source, after) {
-  if (source === "ref") {
+  const edge = S.trigger.edge || "either";
+  if (source === "ref") {  // a jump of the reference by at least the threshold, in the chosen direction
     const segs = S.data.get("ref_speed_rpm") || [], thr = Number($("trig-thr").value) || 1;
-    let prev = null;
+    let prev = null;  // the reference at the end of the previous bucket
     for (const s of segs) for (let i = 0; i < s.n; i++) {
-      const t = s.t0 + i * s.dt, mid = (s.lo[i] + s.hi[i]) / 2;
-      if (t > after && (s.hi[i] - s.lo[i] >= thr || (prev !== null && Math.abs(mid - prev) >= thr))) return t;
-      prev = mid;
+      const t = s.t0 + i * s.dt, lo = s.lo[i], hi = s.hi[i];
+      const up = hi - (prev === null ? lo : prev), down = (prev === null ? hi : prev) - lo;
+      if (t > after && up >= thr && edge !== "falling") return t;
+      if (t > after && down >= thr && edge !== "rising") return t;
+      prev = up > down ? hi : lo;  // a bucket holding a jump ends on the side away from where it began
     }
     return null;
   }
+  if (source === "level") return findLevel(S.trigger.col, after, S.trigger.level, S.trigger.hyst, edge);
   for (const [t, kind] of S.markers) if (t > after && (source === "event" || kind === source)) return t;
   return null;
 }
@@ -238,13 +298,26 @@ function findTrigger(source, after) {
 const canvas = $("plot"), ctx = canvas.getContext("2d");
 const AXIS_W = 84, TIME_H = 22;
 
+// lanes of the chosen columns: a column whose S.lane names another chosen analog column joins its
+// lane (one axis for both); digital columns at the bottom, a thin lane each
 function lanes(names) {
-  names = [...names.filter((n) => S.units[n] !== "bit"), ...names.filter((n) => S.units[n] === "bit")];  // digital at the bottom
-  const H = canvas.clientHeight - TIME_H, digital = names.filter((n) => S.units[n] === "bit").length;
-  const dh = Math.min(30, H / Math.max(1, names.length));
-  const ah = (H - digital * dh) / Math.max(1, names.length - digital);
+  const groups = [], byHost = new Map();
+  for (const n of names) {
+    const host = S.lane[n];
+    if (host && host !== n && names.includes(host) && !S.lane[host] && S.units[n] !== "bit") continue;  // joins below
+    const g = { names: [n], bit: S.units[n] === "bit" }; groups.push(g); byHost.set(n, g);
+  }
+  for (const n of names) {
+    const host = S.lane[n];
+    if (byHost.has(n) || !byHost.has(host)) continue;
+    byHost.get(host).names.push(n);
+  }
+  const ordered = [...groups.filter((g) => !g.bit), ...groups.filter((g) => g.bit)];
+  const H = canvas.clientHeight - TIME_H, digital = ordered.filter((g) => g.bit).length;
+  const dh = Math.min(30, H / Math.max(1, ordered.length));
+  const ah = (H - digital * dh) / Math.max(1, ordered.length - digital);
   let y = 0; const out = [];
-  for (const n of names) { const h = S.units[n] === "bit" ? dh : ah; out.push({ name: n, y, h }); y += h; }
+  for (const g of ordered) { const h = g.bit ? dh : ah; out.push({ name: g.names[0], names: g.names, bit: g.bit, y, h }); y += h; }
   return out;
 }
 
@@ -293,6 +366,12 @@ function niceTicks(a, b, n) {
   return out;
 }
 
+// a round tick's label: as many decimals as the tick spacing needs, no more
+function tickText(v, span) {
+  const decimals = Math.max(0, Math.min(6, -Math.floor(Math.log10(span / 4)) + 1));
+  return Math.abs(v) >= 1e5 ? v.toExponential(1) : String(Number(v.toFixed(decimals)) || 0);
+}
+
 function fmt(v) {
   if (v == null || isNaN(v)) return "–";
   const a = Math.abs(v);
@@ -326,45 +405,56 @@ function draw() {
     ctx.fillText(`${Number(t.toPrecision(6))} s`, x, H - 6);
   }
   if (relative) { ctx.textAlign = "left"; ctx.fillStyle = "#e8b44c"; ctx.fillText("t − t(trigger)", 4, H - 6); }
-  ls.forEach((lane, li) => {
-    const colour = COLOURS[li % COLOURS.length];
-    const layers = [];
-    if (relative) {
-      const [cur, prev] = S.captures;
-      layers.push({ segs: cur.data.get(lane.name) || [], off: cur.tTrig, alpha: 1 });
-      if (prev && $("trig-compare").checked) layers.push({ segs: prev.data.get(lane.name) || [], off: prev.tTrig, alpha: 0.35 });
-    } else layers.push({ segs: S.data.get(lane.name) || [], off: 0, alpha: 1 });
-    const px = layers.map((l) => pixels(l.segs, ta, tb, w, l.off));
+  let colourIndex = 0;
+  ls.forEach((lane) => {
+    const traces = lane.names.map((name) => {
+      const layers = [];
+      if (relative) {
+        const [cur, prev] = S.captures;
+        layers.push({ segs: cur.data.get(name) || [], off: cur.tTrig, alpha: 1 });
+        if (prev && $("trig-compare").checked) layers.push({ segs: prev.data.get(name) || [], off: prev.tTrig, alpha: 0.35 });
+      } else layers.push({ segs: S.data.get(name) || [], off: 0, alpha: 1 });
+      return { name, colour: COLOURS[colourIndex++ % COLOURS.length], layers, px: layers.map((l) => pixels(l.segs, ta, tb, w, l.off)) };
+    });
     let ymin = Infinity, ymax = -Infinity;
-    for (const [lo, hi] of px) for (let i = 0; i < w; i++) if (!isNaN(lo[i])) { ymin = Math.min(ymin, lo[i]); ymax = Math.max(ymax, hi[i]); }
-    if (S.units[lane.name] === "bit") { ymin = 0; ymax = 1; }
+    for (const tr of traces) for (const [lo, hi] of tr.px) for (let i = 0; i < w; i++) if (!isNaN(lo[i])) { ymin = Math.min(ymin, lo[i]); ymax = Math.max(ymax, hi[i]); }
+    if (lane.bit) { ymin = 0; ymax = 1; }
     if (!isFinite(ymin)) { ymin = 0; ymax = 1; }
     if (ymax - ymin < 1e-9) { ymin -= 0.5; ymax += 0.5; }
-    else if (S.units[lane.name] !== "bit") { const pad = (ymax - ymin) * 0.06; ymin -= pad; ymax += pad; }
+    else if (!lane.bit) { const pad = (ymax - ymin) * 0.06; ymin -= pad; ymax += pad; }
+    lane.ymin = ymin; lane.ymax = ymax;
     ctx.strokeStyle = "#2a3440"; ctx.beginPath(); ctx.moveTo(0, lane.y + lane.h); ctx.lineTo(W, lane.y + lane.h); ctx.stroke();
-    ctx.textAlign = "left"; ctx.fillStyle = colour;
-    ctx.fillText(lane.name, 4, lane.y + 12, AXIS_W - 8);
-    ctx.textAlign = "right";
-    ctx.fillStyle = "#7d8a96";
-    if (lane.h > 40) {
-      ctx.fillText(`${fmt(ymax)}`, AXIS_W - 6, lane.y + 24);
-      ctx.fillText(`${fmt(ymin)}`, AXIS_W - 6, lane.y + lane.h - 4);
-      ctx.fillText(`[${S.units[lane.name] || "–"}]`, AXIS_W - 6, lane.y + lane.h / 2 + 8);
-      if (ymin < 0 && ymax > 0) {  // the zero line
-        const y0 = lane.y + 3 + (1 - (0 - ymin) / (ymax - ymin)) * (lane.h - 6);
-        ctx.strokeStyle = "#26313c"; ctx.beginPath(); ctx.moveTo(AXIS_W, y0); ctx.lineTo(AXIS_W + w, y0); ctx.stroke();
+    ctx.textAlign = "left";
+    traces.forEach((tr, k) => { ctx.fillStyle = tr.colour; ctx.fillText(tr.name, 4, lane.y + 12 + k * 12, AXIS_W - 8); });
+    const yOf = (v) => lane.y + 3 + (1 - (v - ymin) / (ymax - ymin)) * (lane.h - 6);
+    if (lane.h > 40 && !lane.bit) {  // round ticks with the unit, and the zero line
+      const units = [...new Set(lane.names.map((n) => S.units[n] || "–"))].join(", ");
+      const top = lane.y + 12 + traces.length * 12;
+      ctx.fillStyle = "#7d8a96"; ctx.fillText(`[${units}]`, 4, top, AXIS_W - 8);
+      ctx.textAlign = "right";
+      for (const v of niceTicks(ymin, ymax, Math.max(3, Math.floor(lane.h / 30)))) {
+        const yy = yOf(v);
+        if (yy < top + 4 || yy > lane.y + lane.h - 2) continue;
+        ctx.strokeStyle = v === 0 ? "#34404c" : "#182029"; ctx.beginPath(); ctx.moveTo(AXIS_W, yy); ctx.lineTo(AXIS_W + w, yy); ctx.stroke();
+        ctx.fillStyle = "#7d8a96"; ctx.fillText(tickText(v, ymax - ymin), AXIS_W - 4, yy + 4);
       }
     }
-    for (let k = layers.length - 1; k >= 0; k--) drawBand(px[k][0], px[k][1], AXIS_W, lane, ymin, ymax, colour, layers[k].alpha);
+    for (const tr of traces) for (let k = tr.layers.length - 1; k >= 0; k--) drawBand(tr.px[k][0], tr.px[k][1], AXIS_W, lane, ymin, ymax, tr.colour, tr.layers[k].alpha);
   });
   // markers
   const marks = relative ? S.markers.map(([t, k, x]) => [t - S.captures[0].tTrig, k, x]) : S.markers;
   ctx.setLineDash([3, 3]); ctx.textAlign = "left";
+  const rowEnds = [];  // marker labels: each in the first row where it overlaps no other, else not written
   for (const [t, kind, text] of marks) {
     if (t < ta || t > tb) continue;
     const x = xOf(t); ctx.strokeStyle = MARK_COLOURS[kind] || "#8fa0b0";
     ctx.beginPath(); ctx.moveTo(x, 0); ctx.lineTo(x, H - TIME_H); ctx.stroke();
-    ctx.fillStyle = ctx.strokeStyle; ctx.fillText(text.slice(0, 40), x + 3, 10 + (Math.round(x) % 3) * 11);
+    const label = text.slice(0, 40), width = ctx.measureText(label).width + 6;
+    let row = rowEnds.findIndex((end) => end <= x);
+    if (row < 0 && rowEnds.length < 4) { row = rowEnds.length; rowEnds.push(0); }
+    if (row < 0) continue;
+    rowEnds[row] = x + width;
+    ctx.fillStyle = ctx.strokeStyle; ctx.fillText(label, Math.min(x + 3, AXIS_W + w - width), 10 + row * 11);
   }
   ctx.setLineDash([]);
   if (relative) { const x = xOf(0); ctx.strokeStyle = "#e8b44c"; ctx.beginPath(); ctx.moveTo(x, 0); ctx.lineTo(x, H - TIME_H); ctx.stroke(); }
@@ -374,7 +464,13 @@ function draw() {
     if (t === null || t < ta || t > tb) return;
     const x = xOf(t); ctx.strokeStyle = cursorColours[i]; ctx.beginPath(); ctx.moveTo(x, 0); ctx.lineTo(x, H - TIME_H); ctx.stroke();
   });
+  const why = !S.meta ? "waiting for the session…" : !S.selected.length ? "no trace chosen: tick one on the left"
+    : !S.frames ? "no rows yet: the session sends them while this page watches (a run without --record too)"
+    : S.closed ? `no more rows: ${S.closed}` : "";
+  if (why) { ctx.textAlign = "center"; ctx.fillStyle = "#e8b44c"; ctx.font = "14px system-ui, sans-serif"; ctx.fillText(why, AXIS_W + w / 2, (H - TIME_H) / 2); }
+  S.notice = why;
   S.view = { ta, tb, w, relative };
+  S.lanes = ls.map((l) => ({ names: l.names, y: l.y, h: l.h, ymin: l.ymin, ymax: l.ymax }));  // for scripts and tests
   readout();
 }
 
@@ -448,17 +544,32 @@ $("fit").addEventListener("click", () => {
 $("trig-arm").addEventListener("click", () => {
   // live: the next trigger from now on; a recording: the first one after the view's start
   const from = S.meta && !S.meta.live && S.view ? S.view.ta : S.tLatest;
-  S.trigger = { state: "armed", source: $("trig-source").value, armedAt: from, tTrig: null };
+  S.trigger = { state: "armed", source: $("trig-source").value, armedAt: from, tTrig: null, edge: $("trig-edge").value,
+    mode: $("trig-mode").value, col: $("trig-col").value, level: Number($("trig-level").value), hyst: Math.max(0, Number($("trig-hyst").value) || 0) };
   S.showCapture = false;
-  $("trig-state").textContent = `armed at t = ${from.toFixed(3)} s on ${$("trig-source").selectedOptions[0].text}`;
+  const what = S.trigger.source === "level" ? `${S.trigger.col} ${S.trigger.edge} through ${fmt(S.trigger.level)} ${S.units[S.trigger.col] || ""}`
+    : `${$("trig-source").selectedOptions[0].text} (${S.trigger.edge})`;
+  $("trig-state").textContent = `armed at t = ${from.toFixed(3)} s on ${what}, ${S.trigger.mode}`;
   $("trig-state").className = "result"; dirty = true;
   checkTrigger();
 });
 $("trig-live").addEventListener("click", () => { S.showCapture = false; setPaused(false); });
 $("trig-compare").addEventListener("change", () => { dirty = true; });
+$("trig-col").addEventListener("change", () => subscribe());
+$("set-together").addEventListener("click", () => {
+  const names = Object.keys(S.edited).filter((n) => S.edited[n]);
+  if (!names.length) { $("result-together").className = "result bad"; $("result-together").textContent = "nothing edited: change two or more values first"; return; }
+  writeParams(names);
+});
 $("ref-set").addEventListener("click", () => command({ cmd: "ref", rpm: Number($("ref-input").value) }));
 $("load-set").addEventListener("click", () => command({ cmd: "load", nm: Number($("load-input").value) }));
-$("step-go").addEventListener("click", () => command({ cmd: "step", from_rpm: Number($("step-from").value), to_rpm: Number($("step-to").value) }));
+$("step-go").addEventListener("click", () => {
+  const el = $("result-step");
+  el.className = "result"; el.textContent = "stepping: 1 s hold, the step, 1 s after it…";
+  command({ cmd: "step", from_rpm: Number($("step-from").value), to_rpm: Number($("step-to").value) }, (r) => {
+    el.className = "result " + (r.ok ? "ok" : "bad"); el.textContent = r.ok ? r.message : `refused: ${r.message}`;
+  });
+});
 $("press-s2").addEventListener("click", () => command({ cmd: "press", button: "s2" }));
 $("end-run").addEventListener("click", () => { if (confirm("End the run?")) command({ cmd: "stop" }); });
 $("guard").addEventListener("change", () => command({ cmd: "guard", on: $("guard").checked }));

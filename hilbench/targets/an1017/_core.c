@@ -31,6 +31,7 @@ typedef struct {
     int16_t tel_vals[3];  /* the values in tel */
     PyObject *tel;        /* the last telemetry tuple, reused while its values do not change */
     PyObject *last_drive; /* the answer to a repeated seq (a duplicated frame): no second step */
+    char span_last;       /* the last step was the C span's: last_seq has a Drive, not yet built */
 } Core;
 
 #define MAX_SPAN_EDGES 64 /* edges of one span in process (a wire Sensors carries at most 16) */
@@ -193,6 +194,13 @@ static PyObject *Core_step(Core *s, PyObject *sensors)
         PyObject *last_seq = PyTuple_GET_ITEM(s->last_drive, 0);
         if (last_seq == in.seq || PyLong_AsLongLong(last_seq) == in.seq_value) return Py_NewRef(s->last_drive);
         if (PyErr_Occurred()) return NULL;
+    } else if (s->span_last && s->last_seq == in.seq_value) { /* the C span's last step, repeated */
+        PyObject *drive = finish(s, in.seq);
+        if (drive != NULL) {
+            Py_XSETREF(s->last_drive, Py_NewRef(drive));
+            s->span_last = 0;
+        }
+        return drive;
     }
     span_edge_t edges[MAX_SPAN_EDGES];
     PyObject *given = in.edges; /* Sensors.edges: (time in 100 ns, lines) pairs */
@@ -206,9 +214,59 @@ static PyObject *Core_step(Core *s, PyObject *sensors)
     PyObject *drive = finish(s, in.seq);
     if (drive != NULL) {
         Py_XSETREF(s->last_drive, Py_NewRef(drive));
+        s->span_last = 0;
     }
     return drive;
 }
+
+/* ---------------------------------------------------------------- the C span's step (hbglue.h) */
+/* Core_step on C values: the same span, the same repeat rule; the Drive object is built only
+ * when the span ends (span_drive). */
+static int span_step(PyObject *self, const hb_csensors_t *in, hb_cdrive_t *out)
+{
+    Core *s = (Core *)self;
+    int repeat = s->span_last && s->last_seq == in->seq;
+    if (s->last_drive != NULL) { /* as Core_step: the kept Drive's own seq */
+        long long last = PyLong_AsLongLong(PyTuple_GET_ITEM(s->last_drive, 0));
+        if (last == -1 && PyErr_Occurred()) return -1;
+        repeat = last == in->seq;
+    }
+    if (!repeat) {
+        span_edge_t edges[HB_SPAN_MAX_EDGES]; /* Sensors.edges as Core_step reads them: 2 Tcy per 100 ns */
+        int n = in->n_edges < HB_SPAN_MAX_EDGES ? in->n_edges : HB_SPAN_MAX_EDGES;
+        for (int i = 0; i < n; i++) {
+            edges[i].offset = (long long)in->edge_t[i] * 2;
+            edges[i].lines = (uint8_t)(in->edge_lines[i] & 0xFF);
+        }
+        run_span(s, s->period_tcy, in->inputs, edges, n, in->n_adc > 0, in->n_adc > 0 ? in->adc[0] : 0);
+        s->last_seq = in->seq;
+        Py_CLEAR(s->last_drive);
+        s->span_last = 1;
+    }
+    hrt_report_t o;
+    hrt_report(&s->fw.rt, 0u, &o);
+    out->duty_a = o.duty_a; out->duty_b = o.duty_b; out->duty_c = o.duty_c;
+    out->output_mode = o.output_mode; out->state = o.state; out->sector = o.sector;
+    out->direction_ccw = o.direction_ccw != 0; out->required_ccw = o.required_ccw != 0; out->fault = o.fault;
+    out->n_tel = 3;
+    out->tel[0] = o.telemetry[0]; out->tel[1] = o.telemetry[1]; out->tel[2] = o.telemetry[2];
+    return 0;
+}
+
+static PyObject *span_drive(PyObject *self, PyObject *seq)
+{
+    Core *s = (Core *)self;
+    if (!s->span_last && s->last_drive != NULL) return Py_NewRef(s->last_drive);
+    if (need_drive() < 0) return NULL;
+    PyObject *drive = finish(s, seq);
+    if (drive != NULL) {
+        Py_XSETREF(s->last_drive, Py_NewRef(drive));
+        s->span_last = 0;
+    }
+    return drive;
+}
+
+static hb_target_api_t span_api = {span_step, span_drive};
 
 static PyObject *Core_run(Core *s, PyObject *const *args, Py_ssize_t nargs)
 {
@@ -356,6 +414,7 @@ static int Core_init(Core *s, PyObject *args, PyObject *kwds)
     s->last_seq = 0;
     Py_CLEAR(s->tel);
     Py_CLEAR(s->last_drive);
+    s->span_last = 0;
     return 0;
 }
 
@@ -466,6 +525,7 @@ static int set_last_drive(Core *s, PyObject *v, void *c)
         return -1;
     }
     Py_CLEAR(s->last_drive);
+    s->span_last = 0;
     return 0;
 }
 
@@ -579,5 +639,13 @@ PyMODINIT_FUNC PyInit__core(void)
         duty_ints[i] = PyLong_FromLong(i);
         if (duty_ints[i] == NULL) return NULL;
     }
-    return hb_module(&moduledef, &CoreType, "Core");
+    PyObject *m = hb_module(&moduledef, &CoreType, "Core");
+    if (m == NULL) return NULL;
+    PyObject *api = PyCapsule_New(&span_api, HB_TARGET_API, NULL);
+    if (api == NULL || PyModule_AddObject(m, "SPAN_API", api) < 0) {
+        Py_XDECREF(api);
+        Py_DECREF(m);
+        return NULL;
+    }
+    return m;
 }

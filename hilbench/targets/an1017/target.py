@@ -400,6 +400,11 @@ if _an1017core is not None:
             super().__init__(options, reference=reference, backend=backend)
             self.step = self.fw.step  # type: ignore[method-assign]  # no Python frame per period; it answers repeats itself
 
+        def span_core(self) -> tuple[Any, Any]:
+            """The C step the session's C span runs: (hbglue.h's target capsule, the core whose
+            `step` it stands for)."""
+            return _an1017core.SPAN_API, self.fw
+
         def _value(self, param_id: int) -> int:
             if param_id not in PARAMS:
                 raise ParamError(f"an1017 param {param_id}: unknown id")

@@ -27,6 +27,8 @@ typedef struct {
     long long halves;   /* half PWM periods per lockstep exchange */
     long long last_seq;
     PyObject *last_drive; /* the answer to a repeated seq (a duplicated frame): no second step */
+    char span_last;       /* the last step was the C span's: last_seq has a Drive, not yet built */
+    uint16_t duty[3];     /* the duties of the last step */
 } Core;
 
 /* ---------------------------------------------------------------- Drive */
@@ -102,26 +104,123 @@ static int run_halves(Core *s, long long n, const sensors_t *in, uint16_t duty[3
 }
 
 /* ---------------------------------------------------------------- methods */
+/* step(sensors) -> Drive: FocTarget.step, with the kit's RepeatAnswer rule here (a Sensors
+ * repeating the last Drive's seq gets that Drive, no step), as the AN1017 core answers repeats. */
 static PyObject *Core_step(Core *s, PyObject *sensors)
 {
     sensors_t in;
-    uint16_t duty[3];
     if (need_drive() < 0 || unpack_sensors(sensors, &in) < 0) return NULL;
     long long seq = PyLong_AsLongLong(in.seq);
     if (seq == -1 && PyErr_Occurred()) return NULL;
-    if (s->last_drive != NULL) { /* a repeat of the last Drive's own seq (the kit's RepeatAnswer): no step */
-        PyObject *last_seq = PyTuple_GET_ITEM(s->last_drive, 0);
-        if (last_seq == in.seq || PyLong_AsLongLong(last_seq) == seq) return Py_NewRef(s->last_drive);
-        if (PyErr_Occurred()) return NULL;
+    if (s->last_drive != NULL) {
+        long long last = PyLong_AsLongLong(PyTuple_GET_ITEM(s->last_drive, 0));
+        if (last == -1 && PyErr_Occurred()) return NULL;
+        if (last == seq) return Py_NewRef(s->last_drive);
+    } else if (s->span_last && s->last_seq == seq) { /* the C span's last step, repeated */
+        PyObject *drive = make_drive(s, in.seq, s->duty);
+        if (drive != NULL) {
+            s->last_drive = Py_NewRef(drive);
+            s->span_last = 0;
+        }
+        return drive;
     }
     s->last_seq = seq;
     foc_buttons(&s->fw, (uint16_t)(in.inputs & 0xFFFF));
-    if (run_halves(s, s->halves, &in, duty) < 0) return NULL;
-    PyObject *drive = make_drive(s, in.seq, duty);
+    if (run_halves(s, s->halves, &in, s->duty) < 0) return NULL;
+    PyObject *drive = make_drive(s, in.seq, s->duty);
     if (drive != NULL) {
         Py_XSETREF(s->last_drive, Py_NewRef(drive));
+        s->span_last = 0;
     }
     return drive;
+}
+
+/* ---------------------------------------------------------------- the C span's step (hbglue.h) */
+static int span_step(PyObject *self, const hb_csensors_t *in, hb_cdrive_t *out)
+{
+    Core *s = (Core *)self;
+    int repeat = s->span_last && s->last_seq == in->seq;
+    if (s->last_drive != NULL) { /* as Core_step: the kept Drive's own seq */
+        long long last = PyLong_AsLongLong(PyTuple_GET_ITEM(s->last_drive, 0));
+        if (last == -1 && PyErr_Occurred()) return -1;
+        repeat = last == in->seq;
+    }
+    if (!repeat) {
+        long long n = s->halves;
+        if (n < 0 || n > HALVES_MAX) {
+            PyErr_Format(PyExc_ValueError, "foc core: %lld half periods in one exchange (0..%lld)", n, HALVES_MAX);
+            return -1;
+        }
+        s->last_seq = in->seq;
+        foc_buttons(&s->fw, (uint16_t)(in->inputs & 0xFFFF));
+        if (!(n == 0 || (n == 1 && s->fw.half != 0u))) { /* load_adc */
+            if (in->n_adc < 3) {
+                PyErr_SetString(PyExc_ValueError, "foc core: Sensors.adc must hold (ia, ib, vbus)");
+                return -1;
+            }
+            for (int k = 0; k < 3; k++) s->fw.adc_result[k] = (uint16_t)((unsigned long)in->adc[k] & 0xFFFFUL);
+        }
+        foc_encoder(&s->fw, (uint16_t)((unsigned long)in->encoder & 0xFFFFUL), (in->inputs & input_index) != 0);
+        foc_run_halves(&s->fw, (uint32_t)n, s->duty);
+        Py_CLEAR(s->last_drive);
+        s->span_last = 1;
+    }
+    foc_out_t o;
+    foc_outputs(&s->fw, &o);
+    out->duty_a = s->duty[0] <= FOC_T1PR ? s->duty[0] : FOC_T1PR;
+    out->duty_b = s->duty[1] <= FOC_T1PR ? s->duty[1] : FOC_T1PR;
+    out->duty_c = s->duty[2] <= FOC_T1PR ? s->duty[2] : FOC_T1PR;
+    out->output_mode = o.output_mode; out->state = o.state; out->sector = o.sector;
+    out->direction_ccw = o.ccw != 0; out->required_ccw = o.req_ccw != 0; out->fault = o.fault & 63u;
+    out->n_tel = 8;
+    for (int k = 0; k < 8; k++) out->tel[k] = o.telemetry[k];
+    return 0;
+}
+
+static PyObject *span_drive(PyObject *self, PyObject *seq)
+{
+    Core *s = (Core *)self;
+    if (!s->span_last && s->last_drive != NULL) return Py_NewRef(s->last_drive);
+    if (need_drive() < 0) return NULL;
+    PyObject *drive = make_drive(s, seq, s->duty);
+    if (drive != NULL) {
+        Py_XSETREF(s->last_drive, Py_NewRef(drive));
+        s->span_last = 0;
+    }
+    return drive;
+}
+
+static hb_target_api_t span_api = {span_step, span_drive};
+
+/* last_drive: None or the Drive a repeated seq gets; only None may be written (forget it) */
+static PyObject *get_last_drive(Core *s, void *c)
+{
+    (void)c;
+    if (s->last_drive == NULL) Py_RETURN_NONE;
+    return Py_NewRef(s->last_drive);
+}
+
+static int set_last_drive(Core *s, PyObject *v, void *c)
+{
+    (void)c;
+    if (v != NULL && v != Py_None) {
+        PyErr_SetString(PyExc_TypeError, "foc core last_drive: only None may be written");
+        return -1;
+    }
+    Py_CLEAR(s->last_drive);
+    s->span_last = 0;
+    return 0;
+}
+
+static PyGetSetDef Core_getset[] = {
+    {"last_drive", (getter)get_last_drive, (setter)set_last_drive, "the Drive a repeated seq gets (None: none)", NULL},
+    {NULL, NULL, NULL, NULL, NULL},
+};
+
+static void Core_dealloc(Core *s)
+{
+    Py_CLEAR(s->last_drive);
+    Py_TYPE(s)->tp_free((PyObject *)s);
 }
 
 static PyObject *Core_inputs(Core *s, PyObject *arg)
@@ -238,38 +337,9 @@ static int Core_init(Core *s, PyObject *args, PyObject *kwds)
     s->halves = 1;
     s->last_seq = 0;
     Py_CLEAR(s->last_drive);
+    s->span_last = 0;
     return 0;
 }
-
-static void Core_dealloc(Core *s)
-{
-    Py_CLEAR(s->last_drive);
-    Py_TYPE(s)->tp_free((PyObject *)s);
-}
-
-/* last_drive: None or the Drive a repeated seq gets; only None may be written (forget it) */
-static PyObject *get_last_drive(Core *s, void *c)
-{
-    (void)c;
-    if (s->last_drive == NULL) Py_RETURN_NONE;
-    return Py_NewRef(s->last_drive);
-}
-
-static int set_last_drive(Core *s, PyObject *v, void *c)
-{
-    (void)c;
-    if (v != NULL && v != Py_None) {
-        PyErr_SetString(PyExc_TypeError, "foc core last_drive: only None may be written");
-        return -1;
-    }
-    Py_CLEAR(s->last_drive);
-    return 0;
-}
-
-static PyGetSetDef Core_getset[] = {
-    {"last_drive", (getter)get_last_drive, (setter)set_last_drive, "the Drive a repeated seq gets (None: none)", NULL},
-    {NULL, NULL, NULL, NULL, NULL},
-};
 
 static PyObject *Core_new(PyTypeObject *type, PyObject *args, PyObject *kwds)
 {
@@ -342,9 +412,9 @@ static PyTypeObject CoreType = {
     .tp_flags = Py_TPFLAGS_DEFAULT | Py_TPFLAGS_BASETYPE,
     .tp_doc = "The FOC firmware (firmware/foc) in process: Core(**foc_config_t fields).",
     .tp_new = Core_new,
-    .tp_init = (initproc)Core_init,
     .tp_dealloc = (destructor)Core_dealloc,
     .tp_getset = Core_getset,
+    .tp_init = (initproc)Core_init,
     .tp_members = Core_members,
     .tp_methods = Core_methods,
 };
@@ -387,5 +457,13 @@ PyMODINIT_FUNC PyInit__core(void)
     for (int i = 0; i <= FOC_T1PR; i++) {
         if ((duty_ints[i] = PyLong_FromLong(i)) == NULL) return NULL;
     }
-    return hb_module(&moduledef, &CoreType, "Core");
+    PyObject *m = hb_module(&moduledef, &CoreType, "Core");
+    if (m == NULL) return NULL;
+    PyObject *api = PyCapsule_New(&span_api, HB_TARGET_API, NULL);
+    if (api == NULL || PyModule_AddObject(m, "SPAN_API", api) < 0) {
+        Py_XDECREF(api);
+        Py_DECREF(m);
+        return NULL;
+    }
+    return m;
 }

@@ -381,6 +381,11 @@ if _core is not None:
             self._repeat = _CoreRepeat(self.fw)  # the C step answers a repeat itself (its last_drive)
             self.step = self.fw.step  # type: ignore[method-assign]  # no Python frame per exchange
 
+        def span_core(self) -> tuple[Any, Any]:
+            """The C step the session's C span runs: (hbglue.h's target capsule, the core whose
+            `step` it stands for)."""
+            return _core.SPAN_API, self.fw
+
         def hello(self, host: HostHello) -> TargetHello:
             out = super().hello(host)
             self.fw.halves = self._halves
