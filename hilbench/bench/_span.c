@@ -226,6 +226,35 @@ static PyObject *Span_run(Span *s, PyObject *const *args, Py_ssize_t nargs)
     return PyLong_FromLongLong(k);
 }
 
+/* edges(have_edge, hall_before) -> ((time in 100 ns, lines), ...) or None (more than max_edges): the
+ * Sensors.edges a period after the plant's last advance gets in a run (tests/test_span.py compares
+ * them with hilbench.bench.sensing's); nothing is stepped or sensed. */
+static PyObject *Span_edges(Span *s, PyObject *const *args, Py_ssize_t nargs)
+{
+    if (nargs != 2) {
+        PyErr_SetString(PyExc_TypeError, "Span.edges(have_edge, hall_before)");
+        return NULL;
+    }
+    int have_edge = PyObject_IsTrue(args[0]);
+    long hall_before = PyLong_AsLong(args[1]);
+    if (have_edge < 0 || (hall_before == -1 && PyErr_Occurred())) return NULL;
+    long keep = s->hall_before;
+    hb_csensors_t in;
+    int index = 0;
+    s->hall_before = hall_before;
+    int fits = period_edges(s, have_edge, &in, &index);
+    s->hall_before = keep;
+    if (!fits) Py_RETURN_NONE;
+    PyObject *out = PyTuple_New(in.n_edges);
+    if (out == NULL) return NULL;
+    for (int i = 0; i < in.n_edges; i++) {
+        PyObject *e = Py_BuildValue("(ll)", in.edge_t[i], in.edge_lines[i]);
+        if (e == NULL) { Py_DECREF(out); return NULL; }
+        PyTuple_SET_ITEM(out, i, e);
+    }
+    return out;
+}
+
 static int Span_init(Span *s, PyObject *args, PyObject *kwds)
 {
     static char *kw[] = {"plant", "plant_api", "core", "target_api", "roles", "edge_limit", "read_index", "rows",
@@ -324,6 +353,8 @@ static PyMemberDef Span_members[] = {
 static PyMethodDef Span_methods[] = {
     {"run", (PyCFunction)(void (*)(void))Span_run, METH_FASTCALL,
      "run(k, stop, buttons, ref_rpm, edge_s, drive, hall_before) -> the period it stopped before."},
+    {"edges", (PyCFunction)(void (*)(void))Span_edges, METH_FASTCALL,
+     "edges(have_edge, hall_before) -> the Sensors.edges of the period after the plant's last advance, or None."},
     {NULL, NULL, 0, NULL},
 };
 
