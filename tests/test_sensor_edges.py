@@ -6,7 +6,7 @@ from __future__ import annotations
 
 from hilbench.bench.faults import SensorFaults
 from hilbench.bench.sensing import hall_edges, with_index_marks
-from hilbench.protocol import INPUT_INDEX
+from hilbench.protocol import INPUT_INDEX, Sensors
 
 
 def test_hall_edges_in_100ns_units_clipped_to_the_period() -> None:
@@ -22,18 +22,22 @@ def test_index_marks_join_the_edges_in_time_order_with_the_halls_then_in_force()
     assert with_index_marks((), (1e-3,), 9999, hall_before=5) == ((9999, 5 | INPUT_INDEX),)
 
 
+def _sensors(inputs: int, edges: tuple[tuple[int, int], ...]) -> Sensors:
+    return Sensors(7, inputs, edges, 0, ())
+
+
 def test_forced_hall_lines_read_forced_on_every_edge() -> None:
     faults = SensorFaults()
     faults.apply("hall_b_high", 0.0, None)
-    assert faults.filter(1, ((10, 1), (20, 5))) == (3, ((10, 3), (20, 7)))
+    assert faults.filter(_sensors(1, ((10, 1), (20, 5)))) == _sensors(3, ((10, 3), (20, 7)))
     faults.apply("hall_a_low", 0.0, None)
-    assert faults.filter(3, ((10, 1), (20, 3))) == (2, ((10, 0), (20, 2)))
+    assert faults.filter(_sensors(3, ((10, 1), (20, 3)))) == _sensors(2, ((10, 0), (20, 2)))
 
 
 def test_a_missing_edge_drops_the_period_that_changes_the_halls() -> None:
     faults = SensorFaults()
-    faults.last_hall = 1
+    faults.halls.last = 1
     faults.apply("hall_missing_edge", 0.0, None)
-    assert faults.filter(1, ()) == (1, ())  # no change yet: armed
-    assert faults.filter(3, ((40, 3),)) == (1, ())  # the edge never reaches the target
+    assert faults.filter(_sensors(1, ())) == _sensors(1, ())  # no change yet: armed
+    assert faults.filter(_sensors(3, ((40, 3),))) == _sensors(1, ())  # the edge never reaches the target
     assert not faults.active

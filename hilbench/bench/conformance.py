@@ -2,7 +2,7 @@
 
     hilbench conformance sil:firmware/tiny
     hilbench conformance serial:/dev/ttyUSB0?baud=250000 --json
-    pytest --pyargs hilbench.testing.conformance --hil-target simavr:an1017   (marker hil_conformance)
+    pytest --pyargs hilbench.testing.conformance --hil-target simavr:firmware/tiny   (marker hil_conformance)
 
 The promises (firmware_protocol/PROTOCOL.md; the runtime keeps them for every firmware on it, the
 Python target kit and `serve` for the in-process and emulator targets):
