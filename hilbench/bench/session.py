@@ -63,6 +63,7 @@ try:  # the lockstep span in C (optional, built with the C cores)
     from hilbench.bench import _span
 except ImportError:  # pragma: no cover - no compiler at install time
     _span = None  # type: ignore[assignment]
+
 INPUT_INDEX = int(Input.INDEX)
 INPUT_FAULT = int(Input.FAULT)
 HALL_MASK = int(Input.HALL_A | Input.HALL_B | Input.HALL_C)
