@@ -44,7 +44,7 @@ def make_stream(step_us: int, sector_us: float = 2000.0) -> list[Sensors]:
             idx += 1
             edge = int(round((next_edge - t0) * 10))
             next_edge += sector_us
-        out.append(Sensors(k & 0xFF, HALL_OF_SECTOR[idx % 6], edge, 0, (900, 0, 0)))
+        out.append(Sensors(k & 0xFF, HALL_OF_SECTOR[idx % 6], () if edge == 0xFFFF else ((edge, HALL_OF_SECTOR[idx % 6]),), 0, (900, 0, 0)))
     return out
 
 

@@ -33,7 +33,7 @@ from pathlib import Path
 from hilbench.bench.recorder import Recorder
 from hilbench.bench.scenario import Event
 from hilbench.bench.session import Session, SessionOptions
-from hilbench.bench.settings import load_config
+from hilbench import load_config  # the name both this tree and the baseline (730876f) export
 from hilbench.config import plant_params_from_config
 from hilbench.plant.model import Plant
 from hilbench.targets import make_target

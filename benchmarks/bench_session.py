@@ -125,11 +125,12 @@ def c_floor(spec: str, seconds: float, *, config: Path | None = None) -> float:
             raise SystemExit(f"{spec}: no C span here (the C cores are not built)")
         k, n = session.periods_done, int(seconds * 1e6 / PERIOD_US)
         t0 = time.perf_counter()
-        done = span.run(k, k + n, session.scenario.buttons, session.ref_rpm, session._edge_s, session.drive) - k
+        done = span.run(k, k + n, session.scenario.buttons, session.ref_rpm, session._edge_s, session.drive,
+                        session._hall_before) - k
         elapsed = time.perf_counter() - t0
         session.end()
     if done < n:
-        raise SystemExit(f"{spec}: the C floor's span stopped after {done} of {n} periods (the comparator tripped)")
+        raise SystemExit(f"{spec}: the C floor's span stopped after {done} of {n} periods (the comparator tripped, or too many edges)")
     return n / elapsed
 
 

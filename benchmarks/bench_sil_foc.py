@@ -49,7 +49,7 @@ class Loop(NamedTuple):
 
 def frame_sizes() -> tuple[int, int]:
     """Wire bytes of a typical FOC Sensors and Drive (3 ADC codes; 8 telemetry words)."""
-    sensors = Sensors(17, 0x08, 0xFFFF, 4321, (2100, 1990, 3185))
+    sensors = Sensors(17, 0x08, (), 4321, (2100, 1990, 3185))
     drive = Drive(17, 4010, 3491, 3491, 1, 2, 6, False, False, 0, (11000, 10950, 2100, -30, 2080, 9000, 200, 2600))
     return len(encode_frame(sensors)), len(encode_frame(drive))
 

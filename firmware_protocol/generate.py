@@ -34,16 +34,18 @@ TEST_OUT = HERE / "tests" / "hbp_test_fields.h"
 SCALAR_FMT = {"u8": "B", "u16": "H", "u32": "I", "i16": "h", "i32": "i", "bool": "B", "bits8": "B", "bits16": "H",
               "bits32": "I"}
 SCALAR_SIZE = {"u8": 1, "u16": 2, "u32": 4, "i16": 2, "i32": 4, "bool": 1, "bits8": 1, "bits16": 2, "bits32": 4}
-ARRAY_ELEM = {"u8[]": ("B", 1), "u16[]": ("H", 2), "i16[]": ("h", 2), "pair[]": ("Bi", 5)}
-C_SCALAR = {"u8": "uint8_t", "u16": "uint16_t", "u32": "uint32_t", "i16": "int16_t", "i32": "int32_t",
-            "bool": "uint8_t"}
-C_ELEM = {"u8[]": "uint8_t", "u16[]": "uint16_t", "i16[]": "int16_t", "pair[]": "hbp_pair_t"}
+ARRAY_ELEM = {"u8[]": ("B", 1), "u16[]": ("H", 2), "i16[]": ("h", 2), "pair[]": ("Bi", 5), "edge[]": ("HB", 3)}
+#: arrays of (a, b) tuples: flattened on the wire
+TUPLE_ARRAYS = ("pair[]", "edge[]")
+C_SCALAR = {"u8": "hbp_u8", "u16": "uint16_t", "u32": "uint32_t", "i16": "int16_t", "i32": "int32_t",
+            "bool": "hbp_u8"}
+C_ELEM = {"u8[]": "hbp_u8", "u16[]": "uint16_t", "i16[]": "int16_t", "pair[]": "hbp_pair_t", "edge[]": "hbp_edge_t"}
 RANGE = {"u8": (0, 0xFF), "u16": (0, 0xFFFF), "u32": (0, 0xFFFFFFFF), "i16": (-0x8000, 0x7FFF),
          "i32": (-0x80000000, 0x7FFFFFFF)}
 BITS_WIDTH = {"bits8": 8, "bits16": 16, "bits32": 32}
 # Keys that do not describe the wire (documentation, Python fast-path hints, Python defaults): left out
 # of the schema fingerprint so that editing them does not make every built firmware "mismatched".
-NON_WIRE_KEYS = frozenset({"doc", "hot", "hot_n", "default"})
+NON_WIRE_KEYS = frozenset({"doc", "hot", "hot_n", "default", "py_order"})
 
 
 def _wire_content(value: object) -> object:
@@ -88,6 +90,7 @@ class Message:
     dir: str
     fields: tuple[Field, ...]
     hot: bool = False  # sent every period: inlined into encode_frame/decode_body
+    py_order: tuple[str, ...] | None = None  # the NamedTuple's field order, when not the wire's
 
     @property
     def snake(self) -> str:
@@ -98,8 +101,8 @@ class Message:
             out += ch.lower()
         return out
 
-    def py_fields(self) -> list[str]:
-        """Python field names after seq, with bit fields expanded."""
+    def wire_names(self) -> list[str]:
+        """Field names after seq in wire order, with bit fields expanded."""
         names: list[str] = []
         for f in self.fields:
             if f.bits:
@@ -107,6 +110,15 @@ class Message:
             else:
                 names.append(f.name)
         return names
+
+    def py_fields(self) -> list[str]:
+        """Python field names after seq (the NamedTuple's order), with bit fields expanded."""
+        return list(self.py_order) if self.py_order else self.wire_names()
+
+    def reorder(self, args: list[str]) -> list[str]:
+        """Expressions for ["seq"] + wire_names(), in the NamedTuple's order."""
+        by_name = dict(zip(["seq"] + self.wire_names(), args))
+        return [by_name[n] for n in ["seq"] + self.py_fields()]
 
     @property
     def fixed(self) -> tuple[Field, ...]:
@@ -140,7 +152,11 @@ def load(path: Path = SCHEMA) -> tuple[dict, list[tuple[str, str, str, list]], l
                 seen_var = True
             elif seen_var:
                 raise SystemExit(f"schema.toml message {m['name']}: fixed field {f.name} after a variable one")
-        msgs.append(Message(m["name"], m["type"], type_ids[m["type"]], m["dir"], tuple(fields), m.get("hot", False)))
+        py_order = tuple(m["py_order"]) if "py_order" in m else None
+        if py_order and sorted(py_order) != sorted(f.name for f in fields):
+            raise SystemExit(f"schema.toml message {m['name']}: py_order must list every field once")
+        msgs.append(Message(m["name"], m["type"], type_ids[m["type"]], m["dir"], tuple(fields), m.get("hot", False),
+                            py_order))
     return data, enums, msgs
 
 
@@ -209,19 +225,33 @@ def _specialisable(m: Message) -> bool:
     return not var or (len(var) == 1 and var[0].last and var[0].type != "str")
 
 
+def _two_arrays(m: Message) -> bool:
+    """Fixed fields, one counted numeric array, one trailing numeric array (Sensors): one struct per
+    pair of counts."""
+    var = [f for f in m.fields if f.variable]
+    return (len(var) == 2 and not var[0].last and var[1].last and "str" not in (var[0].type, var[1].type)
+            and var[0].type not in TUPLE_ARRAYS)
+
+
+def _fast(m: Message) -> bool:
+    """Whether the message gets straight-line wire encoders and decoders."""
+    return _specialisable(m) or _two_arrays(m)
+
+
 def _gen_python_wire(w: Callable[[str], None], data: dict, msgs: list[Message]) -> None:
     """Full-wire fast paths: encode_X(m) -> wire bytes and _decode_X(raw, n) -> message.
 
     The hot path (one Sensors and one Drive per period at 20 kHz) pays for every Python operation,
     so each specialisable message gets a straight-line encoder (fields unpacked once, one struct
-    pack, the array count of the AN1017 profile unrolled, CRC, COBS inline for the usual one-zero
-    frame) and a decoder that unpacks the COBS-decoded buffer in place with a struct chosen by the
-    encoded length. Messages with strings or counted arrays reuse pack_X/unpack_X.
+    pack, the array count of the AN1017 profile unrolled, lengths, COBS inline for the usual frame
+    without a zero, the CRC) and a decoder that unpacks the COBS-decoded buffer in place with a
+    struct chosen by the message's length. Messages with strings or counted arrays reuse
+    pack_X/unpack_X.
     """
-    max_enc = data["max_frame_bytes"] + 2  # BY_LEN tables are indexed by the COBS body length
+    max_msg = data["max_frame_bytes"] + 1  # BY_LEN tables are indexed by the message length
     w("")
     w("# ---------------------------------------------------------------------------------------------")
-    w("# Full-wire fast paths (type . seq . payload . crc16, COBS, 0x00) used by hilbench.protocol.codec.")
+    w("# Full-wire fast paths (L . message . L, COBS, check bytes, 0x00) used by hilbench.protocol.codec.")
     w("")
     for m in msgs:
         if not _specialisable(m):
@@ -233,11 +263,20 @@ def _gen_python_wire(w: Callable[[str], None], data: dict, msgs: list[Message]) 
             _code, size = ARRAY_ELEM[f.type]
             mx = data[f.max]
             fl = m.fixed_len
-            w(f"_{up}_BY_LEN = tuple(_{up}_ST[(k - {fl + 3}) // {size}] if k >= {fl + 3} and "
-              f"(k - {fl + 3}) % {size} == 0 and (k - {fl + 3}) // {size} <= {mx} else None "
-              f"for k in range({max_enc}))")
+            w(f"_{up}_BY_LEN = tuple(_{up}_ST[(k - {fl}) // {size}] if k >= {fl} and "
+              f"(k - {fl}) % {size} == 0 and (k - {fl}) // {size} <= {mx} else None "
+              f"for k in range({max_msg}))")
             if f.hot_n is not None:
                 w(f"_{up}_ST{f.hot_n} = _{up}_ST[{f.hot_n}]")
+    for m in msgs:
+        if _two_arrays(m):
+            a, b = [f for f in m.fields if f.variable]
+            fixed_fmt = "<BB" + "".join(SCALAR_FMT[f.type] for f in m.fixed) + "B"
+            w(f"_{m.name.upper()}_ST2 = tuple(tuple(struct.Struct({fixed_fmt!r} + {ARRAY_ELEM[a.type][0]!r} * i + "
+              f"{ARRAY_ELEM[b.type][0]!r} * j) for j in range({data[b.max]} + 1)) for i in range({data[a.max]} + 1))")
+            if a.hot_n is not None:
+                for j in (0, 1):
+                    w(f"_{m.name.upper()}_ST_{a.hot_n}_{j} = _{m.name.upper()}_ST2[{a.hot_n}][{j}]")
     for m in msgs:
         has_checks = any(f.bits for f in m.fields)
         variants = [("", True)] + ([("_unchecked", False)] if has_checks else [])
@@ -298,6 +337,8 @@ def _pack_lines(data: dict, m: Message, checks: str) -> list[str]:
         out.extend("    " + line for line in check_lines)
     args = [str(m.type_id), "x_seq"]
     var = [f for f in m.fields if f.variable]
+    if _two_arrays(m):
+        return out + _pack_two_arrays(data, m, args + [e for f in m.fixed for e in _py_pack_scalar_exprs(f, ref)])
     for f in m.fixed:
         if f.bits and var:  # the word is used by more than one pack call below: build it once
             out.append(f"    w_{f.name} = {_py_pack_scalar_exprs(f, ref)[0]}")
@@ -314,13 +355,13 @@ def _pack_lines(data: dict, m: Message, checks: str) -> list[str]:
     first = "if"
     if f.hot_n is not None:
         elems = [f"e{i}" for i in range(f.hot_n)]
-        flat = elems if f.type != "pair[]" else [f"{e}[{k}]" for e in elems for k in (0, 1)]
+        flat = elems if f.type not in TUPLE_ARRAYS else [f"{e}[{k}]" for e in elems for k in (0, 1)]
         out.append(f"    if n == {f.hot_n}:")
         out.append(f"        {_targets(elems)} = {arr}")
         out.append(f"        body = _{up}_ST{f.hot_n}.pack({', '.join(args + flat)})")
         first = "elif"
     out.append(f"    {first} n <= {mx}:")
-    if f.type == "pair[]":
+    if f.type in TUPLE_ARRAYS:
         out.append(f"        body = _{up}_ST[n].pack({', '.join(args)}, *[v for pair in {arr} for v in pair])")
     else:
         out.append(f"        body = _{up}_ST[n].pack({', '.join(args)}, *{arr})")
@@ -329,20 +370,39 @@ def _pack_lines(data: dict, m: Message, checks: str) -> list[str]:
     return out
 
 
-# CRC appended, then COBS: below 254 bytes each split part is one block behind its code byte.
+def _pack_two_arrays(data: dict, m: Message, args: list[str]) -> list[str]:
+    """Lines that pack a counted array and a trailing one (the hot counts unrolled) into `body`."""
+    up = m.name.upper()
+    a, b = [f for f in m.fields if f.variable]
+    flat_b = "[v for e in x_{0} for v in e]".format(b.name) if b.type in TUPLE_ARRAYS else f"x_{b.name}"
+    out = [f"    na = len(x_{a.name})", f"    nb = len(x_{b.name})"]
+    if a.hot_n is not None:
+        elems = [f"e{i}" for i in range(a.hot_n)]
+        out.append(f"    if na == {a.hot_n} and nb == 0:")
+        out.append(f"        {_targets(elems)} = x_{a.name}")
+        out.append(f"        body = _{up}_ST_{a.hot_n}_0.pack({', '.join(args + [str(a.hot_n)] + elems)})")
+        out.append(f"    elif na <= {data[a.max]} and nb <= {data[b.max]}:")
+    else:
+        out.append(f"    if na <= {data[a.max]} and nb <= {data[b.max]}:")
+    out.append(f"        body = _{up}_ST2[na][nb].pack({', '.join(args)}, na, *x_{a.name}, *{flat_b})")
+    out.append("    else:")
+    out.append(f"        raise ProtocolError(f\"encode {m.name}: {a.name} has {{na}} entries (at most {data[a.max]}), "
+               f"{b.name} {{nb}} (at most {data[b.max]})\")")
+    return out
+
+
+# Lengths around the message, COBS (below 254 bytes each split part is one block behind its code
+# byte; a message without a zero byte is one block), then the CRC over those bytes, as check bytes.
 _WIRE_LINES = [
-    "    p = (body + _be16(_crc(body, 0xFFFF))).split(b'\\x00')",
-    "    k = len(p)",
-    "    if k == 2:  # one 0x00 in the frame",
-    "        a, b = p",
-    "        return b''.join((_CODE[len(a)], a, _CODE[len(b)], b, b'\\x00'))",
-    "    if k == 3:",
-    "        a, b, c = p",
-    "        return b''.join((_CODE[len(a)], a, _CODE[len(b)], b, _CODE[len(c)], c, b'\\x00'))",
-    "    if k == 4:  # u16 duties and counts below 256 make three zeros common",
-    "        a, b, c, d = p",
-    "        return b''.join((_CODE[len(a)], a, _CODE[len(b)], b, _CODE[len(c)], c, _CODE[len(d)], d, b'\\x00'))",
-    "    return cobs_join(p)",
+    "    k = len(body)",
+    "    if k > MAX_FRAME_BYTES:",
+    "        raise ProtocolError(f\"encode {type(m).__name__}: a message of {k} bytes exceeds {MAX_FRAME_BYTES}\")",
+    "    ln = _BYTE[k + 6]",
+    "    if 0 in body:",
+    "        return wire_join((ln + body + ln).split(b'\\x00'))",
+    "    e = b''.join((_CODE[k + 2], ln, body, ln))",
+    "    c = _crc(e, 0xFFFF)",
+    "    return e + _CHECK((c >> 9 | 0x80) << 24 | (c >> 2 & 0x7F | 0x80) << 16 | ((c & 3) << 5 | 0x80) << 8, 4, 'big')",
 ]
 
 
@@ -352,7 +412,7 @@ def _gen_encoder(w: Callable[[str], None], data: dict, m: Message, suffix: str, 
         w(f'    """{m.name} -> complete wire bytes (CRC, COBS, 0x00); ProtocolError/struct.error if unencodable."""')
     else:
         w(f'    """encode_{m.snake} without the bit-field range checks: for messages built by trusted code only."""')
-    if not _specialisable(m):
+    if not _fast(m):
         w(f"    return frame_bytes(pack_{m.snake}(m))")
         return
     for line in _pack_lines(data, m, "always" if checked else "never") + _WIRE_LINES:
@@ -361,7 +421,7 @@ def _gen_encoder(w: Callable[[str], None], data: dict, m: Message, suffix: str, 
 
 def _gen_encode_frame(w: Callable[[str], None], data: dict, msgs: list[Message]) -> None:
     """encode_frame with the hot messages inlined (one Python call per frame instead of two)."""
-    hot = [m for m in msgs if m.hot]
+    hot = [m for m in msgs if m.hot and _fast(m)]
     w("def encode_frame(m: Message, validate: bool = True) -> bytes:")
     w('    """One message -> its complete wire bytes, 0x00 included (ProtocolError if unencodable).')
     w("")
@@ -388,34 +448,42 @@ def _gen_encode_frame(w: Callable[[str], None], data: dict, msgs: list[Message])
 
 
 def _gen_decode_body(w: Callable[[str], None], data: dict, msgs: list[Message]) -> None:
-    """decode_body: COBS undo, CRC check, then the hot messages inline and the rest by table."""
-    w("def decode_body(body: bytes, n: int) -> Message:")
-    w('    """A COBS frame body of n bytes (no 0x00 in it, n <= MAX_ENCODED_BYTES) -> message.')
+    """decode_body: check bytes and CRC, COBS undone, lengths, then the hot messages inline and the
+    rest by table."""
+    w("def decode_body(g: bytes, n: int) -> Message:")
+    w('    """One frame\'s n wire bytes between delimiters (no 0x00 in them, n <= MAX_WIRE_BYTES) -> message.')
     w("")
-    w("    Raises CobsError, LengthError, CrcError or UnknownTypeError. The COBS code bytes after the")
-    w("    first stand where the frame's 0x00s were, so they are zeroed in a copy; the CRC is checked")
-    w("    on that buffer as it is (see framing.CRC_PRE: the register after frame . crc_hi . crc_lo is 0")
-    w("    exactly when the CRC matches); the type byte picks the decoder.")
+    w("    Raises LengthError, CrcError, CobsError or UnknownTypeError. The CRC is checked on the wire")
+    w("    bytes as they are; then COBS: the code bytes after the first stand where the body's 0x00s")
+    w("    were, so they are zeroed in a copy (raw[i + 1] is the body's byte i); both lengths must be n;")
+    w("    the type byte picks the decoder.")
     w('    """')
-    w("    i = body[0]")
-    w("    if i < n:")
-    w("        raw = bytearray(body)")
-    w("        while i < n:")
+    w("    if n < 8:")
+    w("        raise LengthError(f\"frame of {n} wire bytes is shorter than 8\")")
+    w("    m = n - 3")
+    w("    t0 = g[m]")
+    w("    t1 = g[n - 2]")
+    w("    t2 = g[n - 1]")
+    w("    if not (t0 & t1 & t2 & 0x80) or t2 & 0x1F or _crc(g[:m], 0xFFFF) != (t0 & 0x7F) << 9 | (t1 & 0x7F) << 2 | t2 >> 5 & 3:")
+    w("        raise CrcError(f\"check bytes do not match a {n}-byte frame\")")
+    w("    i = g[0]")
+    w("    if i < m:")
+    w("        raw = bytearray(g)")
+    w("        while i < m:")
     w("            code = raw[i]")
     w("            raw[i] = 0")
     w("            i += code")
-    w("        if i != n:")
-    w("            raise CobsError(f\"COBS: last block runs {i - n} bytes past the frame end\")")
-    w("    elif i == n:")
-    w("        raw = body  # no 0x00 in the frame: nothing to undo")
+    w("        if i != m:")
+    w("            raise CobsError(f\"COBS: last block runs {i - m} bytes past the frame end\")")
+    w("    elif i == m:")
+    w("        raw = g  # no 0x00 in the body: nothing to undo")
     w("    else:")
-    w("        raise CobsError(f\"COBS: block at offset 0 runs {i - n} bytes past the frame end\")")
-    w("    if n < 5:")
-    w("        raise LengthError(f\"frame of {n - 1} bytes is shorter than 4\")")
-    w("    if _crc(raw, _CRC_PRE[raw[0]]):")
-    w("        raise CrcError(f\"CRC mismatch in a {n - 1}-byte frame (type {raw[1]:#04x})\")")
-    w("    t = raw[1]")
-    for i, m in enumerate(m for m in msgs if m.hot):
+    w("        raise CobsError(f\"COBS: block at offset 0 runs {i - m} bytes past the frame end\")")
+    w("    if raw[1] != n or raw[n - 4] != n:")
+    w("        raise LengthError(f\"a {n}-byte frame says it is {raw[1]} and {raw[n - 4]} bytes long\")")
+    w("    k = n - 6  # the message's length")
+    w("    t = raw[2]")
+    for i, m in enumerate(m for m in msgs if m.hot and _fast(m)):
         w(f"    {'if' if i == 0 else 'elif'} t == {m.type_id:#04x}:")
         lines = _decode_lines(data, m, inline=True)
         for line in lines:
@@ -423,7 +491,7 @@ def _gen_decode_body(w: Callable[[str], None], data: dict, msgs: list[Message]) 
     w("    decode = DECODERS[t]")
     w("    if decode is None:")
     w("        raise UnknownTypeError(f\"unknown frame type {t:#04x}\")")
-    w("    return decode(raw, n)")
+    w("    return decode(raw, k)")
 
 
 def _targets(names: Iterable[str]) -> str:
@@ -433,17 +501,17 @@ def _targets(names: Iterable[str]) -> str:
 
 
 def _gen_decoder(w: Callable[[str], None], data: dict, m: Message) -> None:
-    w(f"def _decode_{m.snake}(raw: bytes, n: int) -> {m.name}:")
-    w(f'    """COBS-decoded frame of n bytes (first code byte, type . seq . payload, CRC checked) -> {m.name}."""')
-    if not _specialisable(m):
-        w(f"    return unpack_{m.snake}(bytes(raw[1:n - 2]))")
+    w(f"def _decode_{m.snake}(raw: bytes, k: int) -> {m.name}:")
+    w(f'    """A checked frame (raw[2:2 + k] is the message: type . seq . payload) -> {m.name}."""')
+    if not _fast(m):
+        w(f"    return unpack_{m.snake}(bytes(raw[2:2 + k]))")
         return
     for line in _decode_lines(data, m, inline=False):
         w(line)
 
 
 def _decode_lines(data: dict, m: Message, inline: bool) -> list[str]:
-    """Lines (4-space indent) that turn raw (n bytes) into a message and return it.
+    """Lines (4-space indent) that turn raw (the message at raw[2:2 + k]) into a message and return it.
 
     inline=True (inside decode_body): a bad length is not raised here but falls through to the
     table decoder, which raises the LengthError.
@@ -457,38 +525,58 @@ def _decode_lines(data: dict, m: Message, inline: bool) -> list[str]:
     for f in m.fixed:
         args.extend(_py_unpack_scalar(f, f"v[{idx}]"))
         idx += 1
+    if _two_arrays(m):
+        a, b = var
+        sa, sb = ARRAY_ELEM[a.type][1], ARRAY_ELEM[b.type][1]
+        first = f"v[{idx + 1}:{idx + 1} + na]"
+        second = (f"tuple(zip(v[{idx + 1} + na::2], v[{idx + 2} + na::2]))" if b.type in TUPLE_ARRAYS
+                  else f"v[{idx + 1} + na:]")
+        out.append(f"    na = raw[{2 + fl}] if k > {fl} else 255")
+        out.append(f"    r = k - {fl + 1} - {sa} * na")
+        test = f"na <= {data[a.max]} and r >= 0 and r % {sb} == 0 and r // {sb} <= {data[b.max]}"
+        if inline:
+            out.append(f"    if {test}:")
+            out.append(f"        v = _{up}_ST2[na][r // {sb}].unpack_from(raw, 2)")
+            out.append(f"        return _tnew({m.name}, ({', '.join(m.reorder(args + [first, second]))}))")
+        else:
+            out.append(f"    if not ({test}):")
+            out.append(f"        raise LengthError(f\"{m.name}: payload of {{k - 2}} bytes does not hold {{na}} {a.name} "
+                       f"and whole {b.name}\")")
+            out.append(f"    v = _{up}_ST2[na][r // {sb}].unpack_from(raw, 2)")
+            out.append(f"    return _tnew({m.name}, ({', '.join(m.reorder(args + [first, second]))}))")
+        return out
     if not var:
         if inline:
-            out.append(f"    if n == {fl + 3}:")
+            out.append(f"    if k == {fl}:")
             cond = len(out)
         else:
-            out.append(f"    if n != {fl + 3}:")
-            out.append(f"        raise LengthError(f\"{m.name}: payload of {{n - 5}} bytes, expected {fl - 2}\")")
-        out.append(f"    v = _{up}_ST.unpack_from(raw, 1)")
+            out.append(f"    if k != {fl}:")
+            out.append(f"        raise LengthError(f\"{m.name}: payload of {{k - 2}} bytes, expected {fl - 2}\")")
+        out.append(f"    v = _{up}_ST.unpack_from(raw, 2)")
     else:
         f = var[0]
         _code, size = ARRAY_ELEM[f.type]
         mx = data[f.max]
-        out.append(f"    st = _{up}_BY_LEN[n]")
+        out.append(f"    st = _{up}_BY_LEN[k]")
         if inline:
             out.append("    if st is not None:")
             cond = len(out)
         else:
             out.append("    if st is None:")
-            out.append(f"        raise LengthError(f\"{m.name}: payload of {{n - 5}} bytes is not {fl - 2} + {size}*n (n <= {mx})\")")
-        out.append("    v = st.unpack_from(raw, 1)")
-        if f.type == "pair[]":
+            out.append(f"        raise LengthError(f\"{m.name}: payload of {{k - 2}} bytes is not {fl - 2} + {size}*n (n <= {mx})\")")
+        out.append("    v = st.unpack_from(raw, 2)")
+        if f.type in TUPLE_ARRAYS:
             args.append(f"tuple(zip(v[{idx}::2], v[{idx + 1}::2]))")
         else:
             args.append(f"v[{idx}:]")
-    if not var and args == [f"v[{i}]" for i in range(1, idx)]:
+    if not var and args == [f"v[{i}]" for i in range(1, idx)] and not m.py_order:
         out.append(f"    return _tnew({m.name}, v[1:])")
     else:
         for i, f in enumerate(m.fixed):
             if f.bits:  # name the bit-field word once instead of indexing v in every term
                 out.append(f"    w{i + 2} = v[{i + 2}]")
                 args = [a.replace(f"v[{i + 2}]", f"w{i + 2}") for a in args]
-        out.append(f"    return _tnew({m.name}, ({_targets(args)}))")
+        out.append(f"    return _tnew({m.name}, ({_targets(m.reorder(args))}))")
     if inline:  # everything after the length test belongs to its if-block
         out = out[:cond] + ["    " + line for line in out[cond:]]
     return out
@@ -515,16 +603,18 @@ def gen_python(data: dict, enums: list, msgs: list[Message]) -> str:
     w("from binascii import crc_hqx as _crc")
     w("")
     w("from hilbench.errors import ProtocolError")
+    w("from hilbench.protocol.framing import BYTE as _BYTE")
     w("from hilbench.protocol.framing import COBS_CODE as _CODE")
-    w("from hilbench.protocol.framing import CRC_PRE as _CRC_PRE")
-    w("from hilbench.protocol.framing import CobsError, CrcError, LengthError, UnknownTypeError, cobs_join, frame_bytes")
+    w("from hilbench.protocol.framing import CobsError, CrcError, LengthError, UnknownTypeError, frame_bytes, wire_join")
     w("")
-    w("_be16 = struct.Struct('>H').pack  # the CRC goes high byte first (PROTOCOL.md, Framing)")
+    w("_CHECK = int.to_bytes  # the check bytes and the delimiter as one int (PROTOCOL.md, Framing)")
     w(f"PROTOCOL_VERSION = {data['protocol_version']}")
     w("# First 4 bytes of SHA-256 over the schema's canonical wire content (generate.schema_fingerprint).")
     w(f"SCHEMA_FINGERPRINT = {schema_fingerprint(data):#010x}")
     w(f"MAX_FRAME_BYTES = {data['max_frame_bytes']}")
     w(f"MAX_NAME_CHARS = {data['max_name_chars']}")
+    w(f"MAX_UNIT_CHARS = {data['max_unit_chars']}")
+    w(f"MAX_EDGES = {data['max_edges']}")
     w(f"MAX_ADC = {data['max_adc']}")
     w(f"MAX_TELEMETRY = {data['max_telemetry']}")
     w(f"MAX_PARAM_PAIRS = {data['max_param_pairs']}")
@@ -550,18 +640,19 @@ def gen_python(data: dict, enums: list, msgs: list[Message]) -> str:
         w(f'    """{ "host -> target" if m.dir == "h2t" else "target -> host"}, frame type {m.type_id:#04x}."""')
         w("")
         w("    seq: int")
-        for f in m.fields:
+        by_name = {f.name: f for f in m.fields}
+        for f in (by_name[n] for n in m.py_order) if m.py_order else m.fields:
             if f.bits:
                 for bname, _w, kind in f.bits:
                     w(f"    {bname}: {'bool' if kind == 'bool' else 'int'}")
             elif f.type == "bool":
                 w(f"    {f.name}: bool")
             elif f.type == "str":
-                w(f"    {f.name}: str")
-            elif f.type == "pair[]":
-                w(f"    {f.name}: tuple[tuple[int, int], ...]")
+                w(f"    {f.name}: str" + (f" = {f.default}" if f.default is not None else ""))
+            elif f.type in TUPLE_ARRAYS:
+                w(f"    {f.name}: tuple[tuple[int, int], ...]" + (f" = {f.default}" if f.default is not None else ""))
             elif f.variable:
-                w(f"    {f.name}: tuple[int, ...]")
+                w(f"    {f.name}: tuple[int, ...]" + (f" = {f.default}" if f.default is not None else ""))
             elif f.default is not None:
                 w(f"    {f.name}: int = {f.default}")
             else:
@@ -606,7 +697,7 @@ def gen_python(data: dict, enums: list, msgs: list[Message]) -> str:
             w(f"    arr = m.{f.name}")
             w(f"    if len(arr) > {mx}:")
             w(f"        raise ProtocolError(f\"encode {m.name}: {f.name} has {{len(arr)}} entries, at most {mx}\")")
-            if f.type == "pair[]":
+            if f.type in TUPLE_ARRAYS:
                 w(f"    return _{up}_ST[len(arr)].pack({', '.join(fixed_args)}, *[v for pair in arr for v in pair])")
             else:
                 w(f"    return _{up}_ST[len(arr)].pack({', '.join(fixed_args)}, *arr)")
@@ -620,7 +711,8 @@ def gen_python(data: dict, enums: list, msgs: list[Message]) -> str:
                     code, _size = ARRAY_ELEM[f.type]
                     w(f"    if len(m.{f.name}) > {mx}:")
                     w(f"        raise ProtocolError(f\"encode {m.name}: {f.name} has {{len(m.{f.name})}} entries, at most {mx}\")")
-                    w(f"    raw = struct.pack('<' + {code!r} * len(m.{f.name}), *m.{f.name})")
+                    flat = f"[v for e in m.{f.name} for v in e]" if f.type in TUPLE_ARRAYS else f"m.{f.name}"
+                    w(f"    raw = struct.pack('<' + {code!r} * len(m.{f.name}), *{flat})")
                 if not f.last:
                     w("    parts.append(bytes((len(raw),)))" if f.type == "str" else
                       f"    parts.append(bytes((len(m.{f.name}),)))")
@@ -644,10 +736,10 @@ def gen_python(data: dict, enums: list, msgs: list[Message]) -> str:
             w(f"    if len(b) != {fl}:")
             w(f"        raise LengthError(f\"{m.name}: payload of {{len(b) - 2}} bytes, expected {fl - 2}\")")
             w(f"    v = _{up}_ST.unpack(b)")
-            if args == [f"v[{i}]" for i in range(1, idx)]:
+            if args == [f"v[{i}]" for i in range(1, idx)] and not m.py_order:
                 w(f"    return _tnew({m.name}, v[1:])")
             else:
-                w(f"    return _tnew({m.name}, ({', '.join(args)},))")
+                w(f"    return _tnew({m.name}, ({', '.join(m.reorder(args))},))")
         elif len(var) == 1 and var[0].last and var[0].type != "str":
             f = var[0]
             _code, size = ARRAY_ELEM[f.type]
@@ -656,11 +748,11 @@ def gen_python(data: dict, enums: list, msgs: list[Message]) -> str:
             w(f"    if r or n < 0 or n > {mx}:")
             w(f"        raise LengthError(f\"{m.name}: payload of {{len(b) - 2}} bytes is not {fl - 2} + {size}*n (n <= {mx})\")")
             w(f"    v = _{up}_ST[n].unpack(b)")
-            if f.type == "pair[]":
+            if f.type in TUPLE_ARRAYS:
                 args.append(f"tuple(zip(v[{idx}::2], v[{idx + 1}::2]))")
             else:
                 args.append(f"v[{idx}:]")
-            w(f"    return _tnew({m.name}, ({', '.join(args)},))")
+            w(f"    return _tnew({m.name}, ({', '.join(m.reorder(args))},))")
         else:
             w(f"    if len(b) < {fl}:")
             w(f"        raise LengthError(f\"{m.name}: payload of {{len(b) - 2}} bytes, at least {fl - 2}\")")
@@ -686,12 +778,16 @@ def gen_python(data: dict, enums: list, msgs: list[Message]) -> str:
                     w(f"    f_{f.name} = _unascii(b[pos:pos + n], {m.name!r}, {f.name!r})")
                 elif f.type == "u8[]":
                     w(f"    f_{f.name} = tuple(b[pos:pos + n])")
+                elif f.type in TUPLE_ARRAYS:
+                    code, size = ARRAY_ELEM[f.type]
+                    w(f"    x = struct.unpack_from('<' + {code!r} * n, b, pos)")
+                    w(f"    f_{f.name} = tuple(zip(x[::2], x[1::2]))")
                 else:
                     code, size = ARRAY_ELEM[f.type]
                     w(f"    f_{f.name} = struct.unpack_from('<' + {code!r} * n, b, pos)")
                 w(f"    pos += n * {size}")
                 args.append(f"f_{f.name}")
-            w(f"    return _tnew({m.name}, ({', '.join(args)},))")
+            w(f"    return _tnew({m.name}, ({', '.join(m.reorder(args))},))")
         w("")
     w("")
     w("def _ascii(text: str, max_chars: int, msg: str, field: str) -> bytes:")
@@ -731,8 +827,8 @@ def gen_python(data: dict, enums: list, msgs: list[Message]) -> str:
     w("HOST_TO_TARGET = frozenset({" + ", ".join(m.name for m in msgs if m.dir == "h2t") + "})")
     w("TARGET_TO_HOST = frozenset({" + ", ".join(m.name for m in msgs if m.dir == "t2h") + "})")
     w("")
-    names = ["PROTOCOL_VERSION", "SCHEMA_FINGERPRINT", "MAX_FRAME_BYTES", "MAX_NAME_CHARS", "MAX_ADC", "MAX_TELEMETRY",
-             "MAX_PARAM_PAIRS", "Message", "PACKERS", "UNPACKERS", "ENCODERS", "UNCHECKED_ENCODERS",
+    names = ["PROTOCOL_VERSION", "SCHEMA_FINGERPRINT", "MAX_FRAME_BYTES", "MAX_NAME_CHARS", "MAX_UNIT_CHARS",
+             "MAX_EDGES", "MAX_ADC", "MAX_TELEMETRY", "MAX_PARAM_PAIRS", "Message", "PACKERS", "UNPACKERS", "ENCODERS", "UNCHECKED_ENCODERS",
              "DECODERS", "MESSAGE_TYPES", "HOST_TO_TARGET",
              "TARGET_TO_HOST"]
     names += [e[0] for e in enums]
@@ -751,8 +847,19 @@ def gen_python(data: dict, enums: list, msgs: list[Message]) -> str:
 
 
 def c_max(data: dict, key: str) -> str:
-    return {"max_adc": "HBP_MAX_ADC", "max_telemetry": "HBP_MAX_TELEMETRY",
-            "max_name_chars": "HBP_MAX_NAME", "max_param_pairs": "HBP_MAX_PARAM_PAIRS"}[key]
+    return {"max_adc": "HBP_MAX_ADC", "max_telemetry": "HBP_MAX_TELEMETRY", "max_name_chars": "HBP_MAX_NAME",
+            "max_unit_chars": "HBP_MAX_UNIT", "max_param_pairs": "HBP_MAX_PARAM_PAIRS",
+            "max_edges": "HBP_MAX_EDGES"}[key]
+
+
+# The C codec is table-driven: each message is a const layout (hbp_messages.c) that the one packer
+# and unpacker in hbp.c walk. A table entry costs a few bytes of flash where a function per message
+# cost hundreds (a 16-bit MCU's flash is the limit: docs/board.md).
+C_KIND = {"u8": "HBP_F_U8", "bool": "HBP_F_BOOL", "u16": "HBP_F_U16", "i16": "HBP_F_I16", "u32": "HBP_F_U32",
+          "i32": "HBP_F_I32"}
+C_ARRAY_KIND = {"u8[]": "HBP_F_U8", "u16[]": "HBP_F_U16", "i16[]": "HBP_F_I16", "pair[]": "HBP_F_PAIR",
+                "edge[]": "HBP_F_EDGE"}
+BITS_BYTES = {"bits8": 1, "bits16": 2, "bits32": 4}
 
 
 def gen_header(data: dict, enums: list, msgs: list[Message]) -> str:
@@ -764,6 +871,10 @@ def gen_header(data: dict, enums: list, msgs: list[Message]) -> str:
     w("")
     w("#include <stdint.h>")
     w("")
+    w("/* A byte of the wire: at least 8 bits (16 on the C28x, whose char is 16 bits); only its low 8")
+    w("   bits are ever used. */")
+    w("typedef uint_least8_t hbp_u8;")
+    w("")
     w(f"#define HBP_PROTOCOL_VERSION {data['protocol_version']}u")
     w("/* First 4 bytes of SHA-256 over schema.toml's canonical wire content (see PROTOCOL.md). The #ifndef")
     w("   exists only so that a test can build a deliberately mismatched target; never override it in a")
@@ -771,16 +882,16 @@ def gen_header(data: dict, enums: list, msgs: list[Message]) -> str:
     w("#ifndef HBP_SCHEMA_FINGERPRINT")
     w(f"#define HBP_SCHEMA_FINGERPRINT {schema_fingerprint(data):#010x}UL")
     w("#endif")
-    w(f"#define HBP_MAX_FRAME {data['max_frame_bytes']}u /* decoded frame: type, seq, payload, crc16 */")
+    w(f"#define HBP_MAX_FRAME {data['max_frame_bytes']}u /* a message: type, seq, payload */")
     w(f"#define HBP_MAX_NAME {data['max_name_chars']}u")
+    w(f"#define HBP_MAX_UNIT {data['max_unit_chars']}u")
     w(f"#define HBP_MAX_PARAM_PAIRS {data['max_param_pairs']}u")
     w("/* Array capacities of the structs below; a firmware may lower them to its profile (-D...). */")
-    w("#ifndef HBP_MAX_ADC")
-    w(f"#define HBP_MAX_ADC {data['max_adc']}u")
-    w("#endif")
-    w("#ifndef HBP_MAX_TELEMETRY")
-    w(f"#define HBP_MAX_TELEMETRY {data['max_telemetry']}u")
-    w("#endif")
+    for key, macro in (("max_adc", "HBP_MAX_ADC"), ("max_telemetry", "HBP_MAX_TELEMETRY"),
+                       ("max_edges", "HBP_MAX_EDGES")):
+        w(f"#ifndef {macro}")
+        w(f"#define {macro} {data[key]}u")
+        w("#endif")
     w("")
     for name, prefix, doc, members in enums:
         w(f"/* {doc} */")
@@ -789,287 +900,78 @@ def gen_header(data: dict, enums: list, msgs: list[Message]) -> str:
         w("")
     w("/* One (parameter id, value) pair of ParamSet. */")
     w("typedef struct {")
-    w("    uint8_t id;")
+    w("    hbp_u8 id;")
     w("    int32_t value;")
     w("} hbp_pair_t;")
+    w("")
+    w("/* One input edge of Sensors: its time from the span's start (100 ns units) and the lines after it. */")
+    w("typedef struct {")
+    w("    uint16_t time_100ns;")
+    w("    hbp_u8 lines;")
+    w("} hbp_edge_t;")
+    w("")
+    w("/* A message's layout for the table-driven codec (hbp.c): one entry per wire field, in order. */")
+    w("#define HBP_F_U8 1u")
+    w("#define HBP_F_BOOL 2u")
+    w("#define HBP_F_U16 3u")
+    w("#define HBP_F_I16 4u")
+    w("#define HBP_F_U32 5u")
+    w("#define HBP_F_I32 6u")
+    w("#define HBP_F_PAIR 7u")
+    w("#define HBP_F_EDGE 8u")
+    w("#define HBP_F_STR 9u   /* a NUL-terminated char array: aux = max chars */")
+    w("#define HBP_F_ARRAY 10u /* aux = element kind, max = capacity, count at `count` */")
+    w("#define HBP_F_BITS 11u  /* a word of aux bytes holding the next `max` HBP_F_BIT entries */")
+    w("#define HBP_F_BIT 12u   /* aux = width in bits; the member is a uint8_t (width <= 8) or uint16_t */")
+    w("#define HBP_F_LAST 0x80u /* (or'ed into kind) the last field: its length is the frame's rest */")
+    w("typedef struct {")
+    w("    hbp_u8 kind;")
+    w("    hbp_u8 offset; /* of the member in the message struct */")
+    w("    hbp_u8 aux;")
+    w("    hbp_u8 max;")
+    w("    hbp_u8 count;  /* HBP_F_ARRAY: offset of its n_ member */")
+    w("} hbp_field_t;")
+    w("typedef struct {")
+    w("    hbp_u8 type;")
+    w("    hbp_u8 n_fields;")
+    w("    const hbp_field_t *fields;")
+    w("} hbp_layout_t;")
     w("")
     for m in msgs:
         w(f"/* {m.name}: {'host -> target' if m.dir == 'h2t' else 'target -> host'}, type {m.type_id:#04x}, "
           f"{m.fixed_len - 2} fixed payload bytes. */")
         w(f"#define HBP_{m.type_name}_FIXED_LEN {m.fixed_len}u /* type + seq + fixed fields */")
         w("typedef struct {")
-        w("    uint8_t seq;")
+        w("    hbp_u8 seq;")
         for f in m.fields:
             if f.bits:
                 for bname, width, kind in f.bits:
-                    w(f"    {'uint8_t' if width <= 8 else 'uint16_t'} {bname};{' /* 0 or 1 */' if kind == 'bool' else ''}")
+                    w(f"    {'hbp_u8' if width <= 8 else 'uint16_t'} {bname};{' /* 0 or 1 */' if kind == 'bool' else ''}")
             elif f.type == "str":
-                w(f"    char {f.name}[HBP_MAX_NAME + 1u]; /* NUL-terminated ASCII */")
+                w(f"    char {f.name}[{c_max(data, f.max)} + 1u]; /* NUL-terminated ASCII */")
             elif f.variable:
-                w(f"    uint8_t n_{f.name};")
+                w(f"    hbp_u8 n_{f.name};")
                 w(f"    {C_ELEM[f.type]} {f.name}[{c_max(data, f.max)}];")
             else:
                 w(f"    {C_SCALAR[f.type]} {f.name};")
-        if not m.fields:
-            pass
         w(f"}} hbp_{m.snake}_t;")
+        w(f"extern const hbp_layout_t hbp_layout_{m.snake};")
         w("")
-    w("/* hbp_pack_X writes type, seq and payload (no CRC) to frame[0..] (room for HBP_MAX_FRAME bytes)")
-    w("   and returns the length, or 0 if the message does not fit (a count above its maximum).")
-    w("   hbp_unpack_X parses such a frame (CRC already stripped) of len bytes and returns HBP_ERROR_NONE")
-    w("   or HBP_ERROR_LENGTH. */")
+    w("/* hbp_pack_into(layout, m, frame, cap) writes type, seq and payload to frame[0..cap) and returns the")
+    w("   length, or 0 if the message does not fit (a count above its maximum, or more than cap bytes);")
+    w("   hbp_pack(layout, m, frame): cap HBP_MAX_FRAME.")
+    w("   hbp_unpack(layout, frame, len, m) parses such a frame of len bytes: HBP_ERROR_NONE or")
+    w("   HBP_ERROR_LENGTH. (hbp.c; the layouts are in hbp_messages.c.) */")
+    w("hbp_u8 hbp_pack_into(const hbp_layout_t *layout, const void *m, hbp_u8 *frame, hbp_u8 cap);")
+    w("#define hbp_pack(layout, m, frame) hbp_pack_into((layout), (m), (frame), HBP_MAX_FRAME)")
+    w("hbp_u8 hbp_unpack(const hbp_layout_t *layout, const hbp_u8 *frame, hbp_u8 len, void *m);")
     for m in msgs:
-        w(f"uint8_t hbp_pack_{m.snake}(const hbp_{m.snake}_t *m, uint8_t *frame);")
-        w(f"uint8_t hbp_unpack_{m.snake}(const uint8_t *frame, uint8_t len, hbp_{m.snake}_t *m);")
+        w(f"#define hbp_pack_{m.snake}(m, frame) hbp_pack(&hbp_layout_{m.snake}, (const hbp_{m.snake}_t *)(m), (frame))")
+        w(f"#define hbp_unpack_{m.snake}(frame, len, m) hbp_unpack(&hbp_layout_{m.snake}, (frame), (len), "
+          f"(hbp_{m.snake}_t *)(m))")
     w("")
     w("/* 1 if the type byte names a message of this protocol. */")
-    w("uint8_t hbp_type_known(uint8_t type);")
-    w("")
-    w("#endif /* HBP_MESSAGES_H */")
-    w("")
-    return "\n".join(L)
-
-
-def gen_c(data: dict, enums: list, msgs: list[Message]) -> str:
-    L: list[str] = []
-    w = L.append
-    w("/* hbp_messages.c: GENERATED by firmware_protocol/generate.py from schema.toml. Do not edit.")
-    w("   C99, no heap, no floating point, safe with a 16-bit int. */")
-    w('#include "hbp_messages.h"')
-    w("")
-    w("static void put16(uint8_t *p, uint16_t v)")
-    w("{")
-    w("    p[0] = (uint8_t)(v & 0xFFu);")
-    w("    p[1] = (uint8_t)(v >> 8);")
-    w("}")
-    w("")
-    w("static void put32(uint8_t *p, uint32_t v)")
-    w("{")
-    w("    p[0] = (uint8_t)(v & 0xFFu);")
-    w("    p[1] = (uint8_t)((v >> 8) & 0xFFu);")
-    w("    p[2] = (uint8_t)((v >> 16) & 0xFFu);")
-    w("    p[3] = (uint8_t)(v >> 24);")
-    w("}")
-    w("")
-    w("static uint16_t get16(const uint8_t *p)")
-    w("{")
-    w("    return (uint16_t)((uint16_t)p[0] | (uint16_t)((uint16_t)p[1] << 8));")
-    w("}")
-    w("")
-    w("static uint32_t get32(const uint8_t *p)")
-    w("{")
-    w("    return (uint32_t)p[0] | ((uint32_t)p[1] << 8) | ((uint32_t)p[2] << 16) | ((uint32_t)p[3] << 24);")
-    w("}")
-    w("")
-    w("static void puti16(uint8_t *p, int16_t v)")
-    w("{")
-    w("    put16(p, (uint16_t)v); /* two's complement: conversion to unsigned is well defined */")
-    w("}")
-    w("")
-    w("static int16_t geti16(const uint8_t *p)")
-    w("{")
-    w("    uint16_t u = get16(p);")
-    w("    if (u < 0x8000u) {")
-    w("        return (int16_t)u;")
-    w("    }")
-    w("    return (int16_t)(-(int16_t)(0xFFFFu - u) - 1); /* no implementation-defined conversion */")
-    w("}")
-    w("")
-    if any(f.type == "i32" or f.type == "pair[]" for m in msgs for f in m.fields):
-        w("static void puti32(uint8_t *p, int32_t v)")
-        w("{")
-        w("    put32(p, (uint32_t)v); /* two's complement: conversion to unsigned is well defined */")
-        w("}")
-        w("")
-        w("static int32_t geti32(const uint8_t *p)")
-        w("{")
-        w("    uint32_t u = get32(p);")
-        w("    if (u < 0x80000000UL) {")
-        w("        return (int32_t)u;")
-        w("    }")
-        w("    return (int32_t)(-(int32_t)(0xFFFFFFFFUL - u) - 1); /* no implementation-defined conversion */")
-        w("}")
-        w("")
-    used = set()
-    for m in msgs:
-        for f in m.fields:
-            used.add(f.type)
-    for m in msgs:
-        s = m.snake
-        # ---- pack
-        w(f"uint8_t hbp_pack_{s}(const hbp_{s}_t *m, uint8_t *frame)")
-        w("{")
-        w(f"    uint8_t pos = {m.fixed_len};")
-        has_loop = any(f.variable and f.type != "str" for f in m.fields)
-        if has_loop or any(f.type == "str" for f in m.fields):
-            w("    uint8_t i;")
-        if not m.fields:
-            w("    (void)0;")
-        w(f"    frame[0] = HBP_MSG_{m.type_name};")
-        w("    frame[1] = m->seq;")
-        off = 2
-        for f in m.fixed:
-            if f.bits:
-                # every term is unsigned (bits32: uint32_t), never a signed int: correct and
-                # -Wconversion clean with a 16-bit int
-                suffix = "UL" if f.type == "bits32" else "u"
-                terms = []
-                shift = 0
-                for bname, width, kind in f.bits:
-                    mask = (1 << width) - 1
-                    if kind == "bool":
-                        t = f"(m->{bname} ? {1 << shift:#x}{suffix} : 0{suffix})"
-                    elif f.type == "bits32":
-                        t = f"((uint32_t)(m->{bname} & {mask:#x}u) << {shift})"
-                    else:
-                        t = f"(unsigned)((unsigned)(m->{bname} & {mask:#x}u) << {shift})"
-                    terms.append(t)
-                    shift += width
-                expr = " | ".join(terms)
-                if f.type == "bits32":
-                    w(f"    put32(&frame[{off}], {expr});")
-                elif f.type == "bits16":
-                    w(f"    put16(&frame[{off}], (uint16_t)({expr}));")
-                else:
-                    w(f"    frame[{off}] = (uint8_t)({expr});")
-            elif f.type in ("u8", "bool"):
-                w(f"    frame[{off}] = {'(uint8_t)(m->' + f.name + ' ? 1u : 0u)' if f.type == 'bool' else 'm->' + f.name};")
-            elif f.type == "u16":
-                w(f"    put16(&frame[{off}], m->{f.name});")
-            elif f.type == "u32":
-                w(f"    put32(&frame[{off}], m->{f.name});")
-            elif f.type == "i16":
-                w(f"    puti16(&frame[{off}], m->{f.name});")
-            elif f.type == "i32":
-                w(f"    puti32(&frame[{off}], m->{f.name});")
-            off += SCALAR_SIZE[f.type]
-        for f in m.fields:
-            if not f.variable:
-                continue
-            cm = c_max(data, f.max)
-            if f.type == "str":
-                w(f"    for (i = 0u; i < HBP_MAX_NAME && m->{f.name}[i] != '\\0'; i++) {{")
-                w("    }")
-                if not f.last:
-                    w("    frame[pos++] = i;")
-                w(f"    {{ uint8_t k; for (k = 0u; k < i; k++) {{ frame[pos++] = (uint8_t)m->{f.name}[k]; }} }}")
-            else:
-                w(f"    if (m->n_{f.name} > {cm}) {{")
-                w("        return 0u;")
-                w("    }")
-                if not f.last:
-                    w(f"    frame[pos++] = m->n_{f.name};")
-                w(f"    for (i = 0u; i < m->n_{f.name}; i++) {{")
-                if f.type == "u8[]":
-                    w(f"        frame[pos++] = m->{f.name}[i];")
-                elif f.type == "u16[]":
-                    w(f"        put16(&frame[pos], m->{f.name}[i]);")
-                    w("        pos = (uint8_t)(pos + 2u);")
-                elif f.type == "i16[]":
-                    w(f"        puti16(&frame[pos], m->{f.name}[i]);")
-                    w("        pos = (uint8_t)(pos + 2u);")
-                elif f.type == "pair[]":
-                    w(f"        frame[pos] = m->{f.name}[i].id;")
-                    w(f"        puti32(&frame[pos + 1u], m->{f.name}[i].value);")
-                    w("        pos = (uint8_t)(pos + 5u);")
-                w("    }")
-        w("    return pos;")
-        w("}")
-        w("")
-        # ---- unpack
-        w(f"uint8_t hbp_unpack_{s}(const uint8_t *frame, uint8_t len, hbp_{s}_t *m)")
-        w("{")
-        var = [f for f in m.fields if f.variable]
-        if var:
-            w(f"    uint8_t pos = {m.fixed_len};")
-            w("    uint8_t i;")
-            w("    uint8_t n;")
-        if var:
-            w(f"    if (len < {m.fixed_len}u || frame[0] != HBP_MSG_{m.type_name}) {{")
-        else:
-            w(f"    if (len != {m.fixed_len}u || frame[0] != HBP_MSG_{m.type_name}) {{")
-        w("        return HBP_ERROR_LENGTH;")
-        w("    }")
-        w("    m->seq = frame[1];")
-        off = 2
-        for f in m.fixed:
-            if f.bits:
-                # the word in its own unsigned type, shifted and masked as that type: no int operand
-                # (frame[k] >> s would be a signed int: a -Wconversion error with a 16-bit int)
-                wtype = {"bits8": "uint8_t", "bits16": "uint16_t", "bits32": "uint32_t"}[f.type]
-                getter = {"bits8": f"frame[{off}]", "bits16": f"get16(&frame[{off}])",
-                          "bits32": f"get32(&frame[{off}])"}[f.type]
-                suffix = "UL" if f.type == "bits32" else "u"
-                w("    {")
-                w(f"        {wtype} word = {getter};")
-                shift = 0
-                for bname, width, kind in f.bits:
-                    ct = "uint8_t" if width <= 8 else "uint16_t"
-                    src = "word" if f.type == "bits32" else "(unsigned)word"
-                    w(f"        m->{bname} = ({ct})(({src} >> {shift}) & {(1 << width) - 1:#x}{suffix});")
-                    shift += width
-                w("    }")
-            elif f.type == "u8":
-                w(f"    m->{f.name} = frame[{off}];")
-            elif f.type == "bool":
-                w(f"    m->{f.name} = (uint8_t)(frame[{off}] != 0u);")
-            elif f.type == "u16":
-                w(f"    m->{f.name} = get16(&frame[{off}]);")
-            elif f.type == "u32":
-                w(f"    m->{f.name} = get32(&frame[{off}]);")
-            elif f.type == "i16":
-                w(f"    m->{f.name} = geti16(&frame[{off}]);")
-            elif f.type == "i32":
-                w(f"    m->{f.name} = geti32(&frame[{off}]);")
-            off += SCALAR_SIZE[f.type]
-        for f in var:
-            cm = c_max(data, f.max)
-            size = 1 if f.type == "str" else ARRAY_ELEM[f.type][1]
-            if f.last:
-                w(f"    n = (uint8_t)((uint8_t)(len - pos) / {size}u);")
-                w(f"    if ((uint8_t)(len - pos) != (uint8_t)(n * {size}u)) {{")
-                w("        return HBP_ERROR_LENGTH;")
-                w("    }")
-            else:
-                w("    if (pos >= len) {")
-                w("        return HBP_ERROR_LENGTH;")
-                w("    }")
-                w("    n = frame[pos++];")
-                w(f"    if ((unsigned)n * {size}u > (unsigned)(len - pos)) {{")
-                w("        return HBP_ERROR_LENGTH;")
-                w("    }")
-            w(f"    if (n > {cm}) {{")
-            w("        return HBP_ERROR_LENGTH;")
-            w("    }")
-            if f.type == "str":
-                w("    for (i = 0u; i < n; i++) {")
-                w("        uint8_t c = frame[pos++];")
-                w("        if (c < 0x20u || c > 0x7Eu) {")
-                w("            return HBP_ERROR_LENGTH;")
-                w("        }")
-                w(f"        m->{f.name}[i] = (char)c;")
-                w("    }")
-                w(f"    m->{f.name}[n] = '\\0';")
-            else:
-                w(f"    m->n_{f.name} = n;")
-                w("    for (i = 0u; i < n; i++) {")
-                if f.type == "u8[]":
-                    w(f"        m->{f.name}[i] = frame[pos++];")
-                elif f.type == "u16[]":
-                    w(f"        m->{f.name}[i] = get16(&frame[pos]);")
-                    w("        pos = (uint8_t)(pos + 2u);")
-                elif f.type == "i16[]":
-                    w(f"        m->{f.name}[i] = geti16(&frame[pos]);")
-                    w("        pos = (uint8_t)(pos + 2u);")
-                elif f.type == "pair[]":
-                    w(f"        m->{f.name}[i].id = frame[pos];")
-                    w(f"        m->{f.name}[i].value = geti32(&frame[pos + 1u]);")
-                    w("        pos = (uint8_t)(pos + 5u);")
-                w("    }")
-        w("    return HBP_ERROR_NONE;")
-        w("}")
-        w("")
-    w("uint8_t hbp_type_known(uint8_t type)")
+    w("static inline hbp_u8 hbp_type_known(hbp_u8 type)")
     w("{")
     w("    switch (type) {")
     for m in msgs:
@@ -1080,6 +982,52 @@ def gen_c(data: dict, enums: list, msgs: list[Message]) -> str:
     w("    }")
     w("}")
     w("")
+    w("#endif /* HBP_MESSAGES_H */")
+    w("")
+    return "\n".join(L)
+
+
+def _c_fields(data: dict, m: Message) -> list[str]:
+    """The layout entries of one message (C initialisers)."""
+    st = f"hbp_{m.snake}_t"
+    rows: list[str] = []
+    for f in m.fields:
+        last = " | HBP_F_LAST" if f.last and f.variable else ""
+        if f.bits:
+            rows.append(f"{{HBP_F_BITS, 0u, {BITS_BYTES[f.type]}u, {len(f.bits)}u, 0u}}")
+            for bname, width, _kind in f.bits:
+                rows.append(f"{{HBP_F_BIT, (hbp_u8)offsetof({st}, {bname}), {width}u, 0u, 0u}}")
+        elif f.type == "str":
+            rows.append(f"{{HBP_F_STR{last}, (hbp_u8)offsetof({st}, {f.name}), {c_max(data, f.max)}, 0u, 0u}}")
+        elif f.variable:
+            rows.append(f"{{HBP_F_ARRAY{last}, (hbp_u8)offsetof({st}, {f.name}), {C_ARRAY_KIND[f.type]}, "
+                        f"{c_max(data, f.max)}, (hbp_u8)offsetof({st}, n_{f.name})}}")
+        else:
+            rows.append(f"{{{C_KIND[f.type]}, (hbp_u8)offsetof({st}, {f.name}), 0u, 0u, 0u}}")
+    return rows
+
+
+def gen_c(data: dict, enums: list, msgs: list[Message]) -> str:
+    """The layouts of every message, for hbp.c's one packer and one unpacker."""
+    L: list[str] = []
+    w = L.append
+    w("/* hbp_messages.c: GENERATED by firmware_protocol/generate.py from schema.toml. Do not edit.")
+    w("   One const layout per message (its wire fields in order) for hbp_pack/hbp_unpack in hbp.c. With")
+    w("   -fdata-sections and --gc-sections a build keeps only the layouts it uses. C99, no heap. */")
+    w("#include <stddef.h>")
+    w("")
+    w('#include "hbp_messages.h"')
+    w("")
+    for m in msgs:
+        rows = _c_fields(data, m)
+        if rows:
+            w(f"static const hbp_field_t fields_{m.snake}[{len(rows)}] = {{")
+            for r in rows:
+                w(f"    {r},")
+            w("};")
+        w(f"const hbp_layout_t hbp_layout_{m.snake} = {{HBP_MSG_{m.type_name}, {len(rows)}u, "
+          f"{'fields_' + m.snake if rows else '0'}}};")
+        w("")
     return "\n".join(L)
 
 
@@ -1100,7 +1048,7 @@ def gen_test_fields(data: dict, enums: list, msgs: list[Message]) -> str:
         w(f"    hbp_{m.snake}_t {m.snake};")
     w("} hbp_any_t;")
     w("")
-    w("static const char *hbp_test_name(uint8_t type)")
+    w("static const char *hbp_test_name(hbp_u8 type)")
     w("{")
     w("    switch (type) {")
     for m in msgs:
@@ -1109,7 +1057,7 @@ def gen_test_fields(data: dict, enums: list, msgs: list[Message]) -> str:
     w("    }")
     w("}")
     w("")
-    w("static uint8_t hbp_test_unpack(const uint8_t *frame, uint8_t len, hbp_any_t *m)")
+    w("static hbp_u8 hbp_test_unpack(const hbp_u8 *frame, hbp_u8 len, hbp_any_t *m)")
     w("{")
     w("    switch (frame[0]) {")
     for m in msgs:
@@ -1118,7 +1066,7 @@ def gen_test_fields(data: dict, enums: list, msgs: list[Message]) -> str:
     w("    }")
     w("}")
     w("")
-    w("static uint8_t hbp_test_pack(uint8_t type, const hbp_any_t *m, uint8_t *frame)")
+    w("static hbp_u8 hbp_test_pack(hbp_u8 type, const hbp_any_t *m, hbp_u8 *frame)")
     w("{")
     w("    switch (type) {")
     for m in msgs:
@@ -1129,7 +1077,7 @@ def gen_test_fields(data: dict, enums: list, msgs: list[Message]) -> str:
     w("")
     w("/* 0: no such field; 1: scalar in *value; 2: array (*count entries, entry `index` in *value;")
     w("   pair arrays are flattened id, value, id, value...); 3: string in *str. */")
-    w("static int hbp_test_field(uint8_t type, const hbp_any_t *m, const char *name, unsigned index,")
+    w("static int hbp_test_field(hbp_u8 type, const hbp_any_t *m, const char *name, unsigned index,")
     w("                          long long *value, unsigned *count, const char **str)")
     w("{")
     for m in msgs:
@@ -1142,11 +1090,12 @@ def gen_test_fields(data: dict, enums: list, msgs: list[Message]) -> str:
                     w(f'        if (strcmp(name, "{bname}") == 0) {{ *value = x->{bname}; return 1; }}')
             elif f.type == "str":
                 w(f'        if (strcmp(name, "{f.name}") == 0) {{ *str = x->{f.name}; return 3; }}')
-            elif f.type == "pair[]":
+            elif f.type in TUPLE_ARRAYS:
+                first, second = ("id", "value") if f.type == "pair[]" else ("time_100ns", "lines")
                 w(f'        if (strcmp(name, "{f.name}") == 0) {{')
                 w(f"            *count = 2u * x->n_{f.name};")
-                w(f"            if (index < *count) {{ *value = (index % 2u == 0u) ? x->{f.name}[index / 2u].id "
-                  f": x->{f.name}[index / 2u].value; }}")
+                w(f"            if (index < *count) {{ *value = (index % 2u == 0u) ? x->{f.name}[index / 2u].{first} "
+                  f": x->{f.name}[index / 2u].{second}; }}")
                 w("            return 2;")
                 w("        }")
             elif f.variable:

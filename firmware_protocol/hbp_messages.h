@@ -4,15 +4,20 @@
 
 #include <stdint.h>
 
-#define HBP_PROTOCOL_VERSION 2u
+/* A byte of the wire: at least 8 bits (16 on the C28x, whose char is 16 bits); only its low 8
+   bits are ever used. */
+typedef uint_least8_t hbp_u8;
+
+#define HBP_PROTOCOL_VERSION 3u
 /* First 4 bytes of SHA-256 over schema.toml's canonical wire content (see PROTOCOL.md). The #ifndef
    exists only so that a test can build a deliberately mismatched target; never override it in a
    firmware. */
 #ifndef HBP_SCHEMA_FINGERPRINT
-#define HBP_SCHEMA_FINGERPRINT 0x6fcf503fUL
+#define HBP_SCHEMA_FINGERPRINT 0x84267f7fUL
 #endif
-#define HBP_MAX_FRAME 64u /* decoded frame: type, seq, payload, crc16 */
-#define HBP_MAX_NAME 12u
+#define HBP_MAX_FRAME 62u /* a message: type, seq, payload */
+#define HBP_MAX_NAME 16u
+#define HBP_MAX_UNIT 8u
 #define HBP_MAX_PARAM_PAIRS 4u
 /* Array capacities of the structs below; a firmware may lower them to its profile (-D...). */
 #ifndef HBP_MAX_ADC
@@ -20,6 +25,9 @@
 #endif
 #ifndef HBP_MAX_TELEMETRY
 #define HBP_MAX_TELEMETRY 8u
+#endif
+#ifndef HBP_MAX_EDGES
+#define HBP_MAX_EDGES 16u
 #endif
 
 /* Frame type byte */
@@ -38,6 +46,10 @@
 #define HBP_MSG_STATUS_REQUEST 0x40u
 #define HBP_MSG_STATUS 0x41u
 #define HBP_MSG_ERROR_REPORT 0x42u
+#define HBP_MSG_TELEMETRY_DESCRIBE 0x50u
+#define HBP_MSG_TELEMETRY_INFO 0x51u
+#define HBP_MSG_TARGET_DESCRIBE 0x52u
+#define HBP_MSG_TARGET_INFO 0x53u
 
 /* Bits of Sensors.inputs (1 = hall high / button pressed / fault active) */
 #define HBP_INPUT_HALL_A 0x01u
@@ -48,8 +60,17 @@
 #define HBP_INPUT_FAULT 0x20u
 #define HBP_INPUT_INDEX 0x40u
 
-/* Special values of Sensors.edge_time_100ns */
+/* No edge (protocol 2's Sensors.edge_time_100ns; protocol 3 lists edges and has no such marker) */
 #define HBP_EDGE_NONE 0xffffu
+
+/* TargetInfo.duty_timing: when a duty the firmware writes takes effect */
+#define HBP_DUTY_IMMEDIATE 0x00u
+#define HBP_DUTY_NEXT_PERIOD 0x01u
+#define HBP_DUTY_HALF_PERIOD 0x02u
+
+/* TargetInfo.duty_report: which duties a Drive carries */
+#define HBP_REPORT_WRITTEN 0x00u
+#define HBP_REPORT_ACTIVE 0x01u
 
 /* HostHello.mode */
 #define HBP_MODE_LOCKSTEP 0x00u
@@ -130,199 +151,329 @@
 #define HBP_ERROR_OVERRUN 0x08u
 #define HBP_ERROR_WATCHDOG 0x09u
 #define HBP_ERROR_BAD_REQUEST 0x0au
+#define HBP_ERROR_UNKNOWN_TELEMETRY 0x0bu
 
 /* One (parameter id, value) pair of ParamSet. */
 typedef struct {
-    uint8_t id;
+    hbp_u8 id;
     int32_t value;
 } hbp_pair_t;
+
+/* One input edge of Sensors: its time from the span's start (100 ns units) and the lines after it. */
+typedef struct {
+    uint16_t time_100ns;
+    hbp_u8 lines;
+} hbp_edge_t;
+
+/* A message's layout for the table-driven codec (hbp.c): one entry per wire field, in order. */
+#define HBP_F_U8 1u
+#define HBP_F_BOOL 2u
+#define HBP_F_U16 3u
+#define HBP_F_I16 4u
+#define HBP_F_U32 5u
+#define HBP_F_I32 6u
+#define HBP_F_PAIR 7u
+#define HBP_F_EDGE 8u
+#define HBP_F_STR 9u   /* a NUL-terminated char array: aux = max chars */
+#define HBP_F_ARRAY 10u /* aux = element kind, max = capacity, count at `count` */
+#define HBP_F_BITS 11u  /* a word of aux bytes holding the next `max` HBP_F_BIT entries */
+#define HBP_F_BIT 12u   /* aux = width in bits; the member is a uint8_t (width <= 8) or uint16_t */
+#define HBP_F_LAST 0x80u /* (or'ed into kind) the last field: its length is the frame's rest */
+typedef struct {
+    hbp_u8 kind;
+    hbp_u8 offset; /* of the member in the message struct */
+    hbp_u8 aux;
+    hbp_u8 max;
+    hbp_u8 count;  /* HBP_F_ARRAY: offset of its n_ member */
+} hbp_field_t;
+typedef struct {
+    hbp_u8 type;
+    hbp_u8 n_fields;
+    const hbp_field_t *fields;
+} hbp_layout_t;
 
 /* HostHello: host -> target, type 0x01, 10 fixed payload bytes. */
 #define HBP_HOST_HELLO_FIXED_LEN 12u /* type + seq + fixed fields */
 typedef struct {
-    uint8_t seq;
-    uint8_t protocol_version;
+    hbp_u8 seq;
+    hbp_u8 protocol_version;
     uint16_t period_us;
-    uint8_t mode;
+    hbp_u8 mode;
     uint16_t watchdog_ms;
     uint32_t schema_fingerprint;
 } hbp_host_hello_t;
+extern const hbp_layout_t hbp_layout_host_hello;
 
 /* TargetHello: target -> host, type 0x02, 15 fixed payload bytes. */
 #define HBP_TARGET_HELLO_FIXED_LEN 17u /* type + seq + fixed fields */
 typedef struct {
-    uint8_t seq;
-    uint8_t protocol_version;
+    hbp_u8 seq;
+    hbp_u8 protocol_version;
     uint32_t schema_fingerprint;
     uint16_t firmware_version;
     uint16_t pwm_period_counts;
     uint32_t pwm_freq_hz;
-    uint8_t n_params;
-    uint8_t adc_bits;
+    hbp_u8 n_params;
+    hbp_u8 adc_bits;
     char firmware_name[HBP_MAX_NAME + 1u]; /* NUL-terminated ASCII */
-    uint8_t n_adc_roles;
-    uint8_t adc_roles[HBP_MAX_ADC];
-    uint8_t n_telemetry_ids;
-    uint8_t telemetry_ids[HBP_MAX_TELEMETRY];
+    hbp_u8 n_adc_roles;
+    hbp_u8 adc_roles[HBP_MAX_ADC];
+    hbp_u8 n_telemetry_ids;
+    hbp_u8 telemetry_ids[HBP_MAX_TELEMETRY];
 } hbp_target_hello_t;
+extern const hbp_layout_t hbp_layout_target_hello;
 
-/* Sensors: host -> target, type 0x10, 5 fixed payload bytes. */
-#define HBP_SENSORS_FIXED_LEN 7u /* type + seq + fixed fields */
+/* Sensors: host -> target, type 0x10, 3 fixed payload bytes. */
+#define HBP_SENSORS_FIXED_LEN 5u /* type + seq + fixed fields */
 typedef struct {
-    uint8_t seq;
-    uint8_t inputs;
-    uint16_t edge_time_100ns;
+    hbp_u8 seq;
+    hbp_u8 inputs;
     uint16_t encoder;
-    uint8_t n_adc;
+    hbp_u8 n_adc;
     uint16_t adc[HBP_MAX_ADC];
+    hbp_u8 n_edges;
+    hbp_edge_t edges[HBP_MAX_EDGES];
 } hbp_sensors_t;
+extern const hbp_layout_t hbp_layout_sensors;
 
 /* Drive: target -> host, type 0x11, 8 fixed payload bytes. */
 #define HBP_DRIVE_FIXED_LEN 10u /* type + seq + fixed fields */
 typedef struct {
-    uint8_t seq;
+    hbp_u8 seq;
     uint16_t duty_a;
     uint16_t duty_b;
     uint16_t duty_c;
-    uint8_t output_mode;
-    uint8_t state;
-    uint8_t sector;
-    uint8_t direction_ccw; /* 0 or 1 */
-    uint8_t required_ccw; /* 0 or 1 */
-    uint8_t fault;
-    uint8_t n_telemetry;
+    hbp_u8 output_mode;
+    hbp_u8 state;
+    hbp_u8 sector;
+    hbp_u8 direction_ccw; /* 0 or 1 */
+    hbp_u8 required_ccw; /* 0 or 1 */
+    hbp_u8 fault;
+    hbp_u8 n_telemetry;
     int16_t telemetry[HBP_MAX_TELEMETRY];
 } hbp_drive_t;
+extern const hbp_layout_t hbp_layout_drive;
 
 /* ParamDescribe: host -> target, type 0x20, 1 fixed payload bytes. */
 #define HBP_PARAM_DESCRIBE_FIXED_LEN 3u /* type + seq + fixed fields */
 typedef struct {
-    uint8_t seq;
-    uint8_t param_id;
+    hbp_u8 seq;
+    hbp_u8 param_id;
 } hbp_param_describe_t;
+extern const hbp_layout_t hbp_layout_param_describe;
 
 /* ParamInfo: target -> host, type 0x21, 15 fixed payload bytes. */
 #define HBP_PARAM_INFO_FIXED_LEN 17u /* type + seq + fixed fields */
 typedef struct {
-    uint8_t seq;
-    uint8_t param_id;
-    uint8_t ptype;
-    uint8_t access;
+    hbp_u8 seq;
+    hbp_u8 param_id;
+    hbp_u8 ptype;
+    hbp_u8 access;
     int32_t min_value;
     int32_t max_value;
     int32_t value;
     char name[HBP_MAX_NAME + 1u]; /* NUL-terminated ASCII */
+    char unit[HBP_MAX_UNIT + 1u]; /* NUL-terminated ASCII */
 } hbp_param_info_t;
+extern const hbp_layout_t hbp_layout_param_info;
 
 /* ParamGet: host -> target, type 0x22, 1 fixed payload bytes. */
 #define HBP_PARAM_GET_FIXED_LEN 3u /* type + seq + fixed fields */
 typedef struct {
-    uint8_t seq;
-    uint8_t param_id;
+    hbp_u8 seq;
+    hbp_u8 param_id;
 } hbp_param_get_t;
+extern const hbp_layout_t hbp_layout_param_get;
 
 /* ParamValue: target -> host, type 0x23, 6 fixed payload bytes. */
 #define HBP_PARAM_VALUE_FIXED_LEN 8u /* type + seq + fixed fields */
 typedef struct {
-    uint8_t seq;
-    uint8_t param_id;
-    uint8_t result;
+    hbp_u8 seq;
+    hbp_u8 param_id;
+    hbp_u8 result;
     int32_t value;
 } hbp_param_value_t;
+extern const hbp_layout_t hbp_layout_param_value;
 
 /* ParamSet: host -> target, type 0x24, 0 fixed payload bytes. */
 #define HBP_PARAM_SET_FIXED_LEN 2u /* type + seq + fixed fields */
 typedef struct {
-    uint8_t seq;
-    uint8_t n_pairs;
+    hbp_u8 seq;
+    hbp_u8 n_pairs;
     hbp_pair_t pairs[HBP_MAX_PARAM_PAIRS];
 } hbp_param_set_t;
+extern const hbp_layout_t hbp_layout_param_set;
 
 /* ParamSetResult: target -> host, type 0x25, 3 fixed payload bytes. */
 #define HBP_PARAM_SET_RESULT_FIXED_LEN 5u /* type + seq + fixed fields */
 typedef struct {
-    uint8_t seq;
-    uint8_t result;
-    uint8_t param_id;
-    uint8_t detail;
+    hbp_u8 seq;
+    hbp_u8 result;
+    hbp_u8 param_id;
+    hbp_u8 detail;
 } hbp_param_set_result_t;
+extern const hbp_layout_t hbp_layout_param_set_result;
 
 /* Start: host -> target, type 0x30, 0 fixed payload bytes. */
 #define HBP_START_FIXED_LEN 2u /* type + seq + fixed fields */
 typedef struct {
-    uint8_t seq;
+    hbp_u8 seq;
 } hbp_start_t;
+extern const hbp_layout_t hbp_layout_start;
 
 /* Stop: host -> target, type 0x31, 0 fixed payload bytes. */
 #define HBP_STOP_FIXED_LEN 2u /* type + seq + fixed fields */
 typedef struct {
-    uint8_t seq;
+    hbp_u8 seq;
 } hbp_stop_t;
+extern const hbp_layout_t hbp_layout_stop;
 
 /* StatusRequest: host -> target, type 0x40, 0 fixed payload bytes. */
 #define HBP_STATUS_REQUEST_FIXED_LEN 2u /* type + seq + fixed fields */
 typedef struct {
-    uint8_t seq;
+    hbp_u8 seq;
 } hbp_status_request_t;
+extern const hbp_layout_t hbp_layout_status_request;
 
 /* Status: target -> host, type 0x41, 13 fixed payload bytes. */
 #define HBP_STATUS_FIXED_LEN 15u /* type + seq + fixed fields */
 typedef struct {
-    uint8_t seq;
+    hbp_u8 seq;
     uint16_t rx_frames;
     uint16_t rx_errors;
     uint16_t resyncs;
     uint16_t unknown;
     uint16_t overruns;
     uint16_t watchdog_trips;
-    uint8_t last_error;
+    hbp_u8 last_error;
 } hbp_status_t;
+extern const hbp_layout_t hbp_layout_status;
 
 /* ErrorReport: target -> host, type 0x42, 6 fixed payload bytes. */
 #define HBP_ERROR_REPORT_FIXED_LEN 8u /* type + seq + fixed fields */
 typedef struct {
-    uint8_t seq;
-    uint8_t code;
-    uint8_t detail;
+    hbp_u8 seq;
+    hbp_u8 code;
+    hbp_u8 detail;
     uint32_t schema_fingerprint;
 } hbp_error_report_t;
+extern const hbp_layout_t hbp_layout_error_report;
 
-/* hbp_pack_X writes type, seq and payload (no CRC) to frame[0..] (room for HBP_MAX_FRAME bytes)
-   and returns the length, or 0 if the message does not fit (a count above its maximum).
-   hbp_unpack_X parses such a frame (CRC already stripped) of len bytes and returns HBP_ERROR_NONE
-   or HBP_ERROR_LENGTH. */
-uint8_t hbp_pack_host_hello(const hbp_host_hello_t *m, uint8_t *frame);
-uint8_t hbp_unpack_host_hello(const uint8_t *frame, uint8_t len, hbp_host_hello_t *m);
-uint8_t hbp_pack_target_hello(const hbp_target_hello_t *m, uint8_t *frame);
-uint8_t hbp_unpack_target_hello(const uint8_t *frame, uint8_t len, hbp_target_hello_t *m);
-uint8_t hbp_pack_sensors(const hbp_sensors_t *m, uint8_t *frame);
-uint8_t hbp_unpack_sensors(const uint8_t *frame, uint8_t len, hbp_sensors_t *m);
-uint8_t hbp_pack_drive(const hbp_drive_t *m, uint8_t *frame);
-uint8_t hbp_unpack_drive(const uint8_t *frame, uint8_t len, hbp_drive_t *m);
-uint8_t hbp_pack_param_describe(const hbp_param_describe_t *m, uint8_t *frame);
-uint8_t hbp_unpack_param_describe(const uint8_t *frame, uint8_t len, hbp_param_describe_t *m);
-uint8_t hbp_pack_param_info(const hbp_param_info_t *m, uint8_t *frame);
-uint8_t hbp_unpack_param_info(const uint8_t *frame, uint8_t len, hbp_param_info_t *m);
-uint8_t hbp_pack_param_get(const hbp_param_get_t *m, uint8_t *frame);
-uint8_t hbp_unpack_param_get(const uint8_t *frame, uint8_t len, hbp_param_get_t *m);
-uint8_t hbp_pack_param_value(const hbp_param_value_t *m, uint8_t *frame);
-uint8_t hbp_unpack_param_value(const uint8_t *frame, uint8_t len, hbp_param_value_t *m);
-uint8_t hbp_pack_param_set(const hbp_param_set_t *m, uint8_t *frame);
-uint8_t hbp_unpack_param_set(const uint8_t *frame, uint8_t len, hbp_param_set_t *m);
-uint8_t hbp_pack_param_set_result(const hbp_param_set_result_t *m, uint8_t *frame);
-uint8_t hbp_unpack_param_set_result(const uint8_t *frame, uint8_t len, hbp_param_set_result_t *m);
-uint8_t hbp_pack_start(const hbp_start_t *m, uint8_t *frame);
-uint8_t hbp_unpack_start(const uint8_t *frame, uint8_t len, hbp_start_t *m);
-uint8_t hbp_pack_stop(const hbp_stop_t *m, uint8_t *frame);
-uint8_t hbp_unpack_stop(const uint8_t *frame, uint8_t len, hbp_stop_t *m);
-uint8_t hbp_pack_status_request(const hbp_status_request_t *m, uint8_t *frame);
-uint8_t hbp_unpack_status_request(const uint8_t *frame, uint8_t len, hbp_status_request_t *m);
-uint8_t hbp_pack_status(const hbp_status_t *m, uint8_t *frame);
-uint8_t hbp_unpack_status(const uint8_t *frame, uint8_t len, hbp_status_t *m);
-uint8_t hbp_pack_error_report(const hbp_error_report_t *m, uint8_t *frame);
-uint8_t hbp_unpack_error_report(const uint8_t *frame, uint8_t len, hbp_error_report_t *m);
+/* TelemetryDescribe: host -> target, type 0x50, 1 fixed payload bytes. */
+#define HBP_TELEMETRY_DESCRIBE_FIXED_LEN 3u /* type + seq + fixed fields */
+typedef struct {
+    hbp_u8 seq;
+    hbp_u8 index;
+} hbp_telemetry_describe_t;
+extern const hbp_layout_t hbp_layout_telemetry_describe;
+
+/* TelemetryInfo: target -> host, type 0x51, 11 fixed payload bytes. */
+#define HBP_TELEMETRY_INFO_FIXED_LEN 13u /* type + seq + fixed fields */
+typedef struct {
+    hbp_u8 seq;
+    hbp_u8 index;
+    hbp_u8 telemetry_id;
+    hbp_u8 ptype;
+    int32_t scale_num;
+    int32_t scale_den;
+    char name[HBP_MAX_NAME + 1u]; /* NUL-terminated ASCII */
+    char unit[HBP_MAX_UNIT + 1u]; /* NUL-terminated ASCII */
+} hbp_telemetry_info_t;
+extern const hbp_layout_t hbp_layout_telemetry_info;
+
+/* TargetDescribe: host -> target, type 0x52, 0 fixed payload bytes. */
+#define HBP_TARGET_DESCRIBE_FIXED_LEN 2u /* type + seq + fixed fields */
+typedef struct {
+    hbp_u8 seq;
+} hbp_target_describe_t;
+extern const hbp_layout_t hbp_layout_target_describe;
+
+/* TargetInfo: target -> host, type 0x53, 6 fixed payload bytes. */
+#define HBP_TARGET_INFO_FIXED_LEN 8u /* type + seq + fixed fields */
+typedef struct {
+    hbp_u8 seq;
+    hbp_u8 duty_timing;
+    hbp_u8 duty_report;
+    hbp_u8 inputs;
+    uint16_t encoder_counts;
+    hbp_u8 max_edges;
+} hbp_target_info_t;
+extern const hbp_layout_t hbp_layout_target_info;
+
+/* hbp_pack_into(layout, m, frame, cap) writes type, seq and payload to frame[0..cap) and returns the
+   length, or 0 if the message does not fit (a count above its maximum, or more than cap bytes);
+   hbp_pack(layout, m, frame): cap HBP_MAX_FRAME.
+   hbp_unpack(layout, frame, len, m) parses such a frame of len bytes: HBP_ERROR_NONE or
+   HBP_ERROR_LENGTH. (hbp.c; the layouts are in hbp_messages.c.) */
+hbp_u8 hbp_pack_into(const hbp_layout_t *layout, const void *m, hbp_u8 *frame, hbp_u8 cap);
+#define hbp_pack(layout, m, frame) hbp_pack_into((layout), (m), (frame), HBP_MAX_FRAME)
+hbp_u8 hbp_unpack(const hbp_layout_t *layout, const hbp_u8 *frame, hbp_u8 len, void *m);
+#define hbp_pack_host_hello(m, frame) hbp_pack(&hbp_layout_host_hello, (const hbp_host_hello_t *)(m), (frame))
+#define hbp_unpack_host_hello(frame, len, m) hbp_unpack(&hbp_layout_host_hello, (frame), (len), (hbp_host_hello_t *)(m))
+#define hbp_pack_target_hello(m, frame) hbp_pack(&hbp_layout_target_hello, (const hbp_target_hello_t *)(m), (frame))
+#define hbp_unpack_target_hello(frame, len, m) hbp_unpack(&hbp_layout_target_hello, (frame), (len), (hbp_target_hello_t *)(m))
+#define hbp_pack_sensors(m, frame) hbp_pack(&hbp_layout_sensors, (const hbp_sensors_t *)(m), (frame))
+#define hbp_unpack_sensors(frame, len, m) hbp_unpack(&hbp_layout_sensors, (frame), (len), (hbp_sensors_t *)(m))
+#define hbp_pack_drive(m, frame) hbp_pack(&hbp_layout_drive, (const hbp_drive_t *)(m), (frame))
+#define hbp_unpack_drive(frame, len, m) hbp_unpack(&hbp_layout_drive, (frame), (len), (hbp_drive_t *)(m))
+#define hbp_pack_param_describe(m, frame) hbp_pack(&hbp_layout_param_describe, (const hbp_param_describe_t *)(m), (frame))
+#define hbp_unpack_param_describe(frame, len, m) hbp_unpack(&hbp_layout_param_describe, (frame), (len), (hbp_param_describe_t *)(m))
+#define hbp_pack_param_info(m, frame) hbp_pack(&hbp_layout_param_info, (const hbp_param_info_t *)(m), (frame))
+#define hbp_unpack_param_info(frame, len, m) hbp_unpack(&hbp_layout_param_info, (frame), (len), (hbp_param_info_t *)(m))
+#define hbp_pack_param_get(m, frame) hbp_pack(&hbp_layout_param_get, (const hbp_param_get_t *)(m), (frame))
+#define hbp_unpack_param_get(frame, len, m) hbp_unpack(&hbp_layout_param_get, (frame), (len), (hbp_param_get_t *)(m))
+#define hbp_pack_param_value(m, frame) hbp_pack(&hbp_layout_param_value, (const hbp_param_value_t *)(m), (frame))
+#define hbp_unpack_param_value(frame, len, m) hbp_unpack(&hbp_layout_param_value, (frame), (len), (hbp_param_value_t *)(m))
+#define hbp_pack_param_set(m, frame) hbp_pack(&hbp_layout_param_set, (const hbp_param_set_t *)(m), (frame))
+#define hbp_unpack_param_set(frame, len, m) hbp_unpack(&hbp_layout_param_set, (frame), (len), (hbp_param_set_t *)(m))
+#define hbp_pack_param_set_result(m, frame) hbp_pack(&hbp_layout_param_set_result, (const hbp_param_set_result_t *)(m), (frame))
+#define hbp_unpack_param_set_result(frame, len, m) hbp_unpack(&hbp_layout_param_set_result, (frame), (len), (hbp_param_set_result_t *)(m))
+#define hbp_pack_start(m, frame) hbp_pack(&hbp_layout_start, (const hbp_start_t *)(m), (frame))
+#define hbp_unpack_start(frame, len, m) hbp_unpack(&hbp_layout_start, (frame), (len), (hbp_start_t *)(m))
+#define hbp_pack_stop(m, frame) hbp_pack(&hbp_layout_stop, (const hbp_stop_t *)(m), (frame))
+#define hbp_unpack_stop(frame, len, m) hbp_unpack(&hbp_layout_stop, (frame), (len), (hbp_stop_t *)(m))
+#define hbp_pack_status_request(m, frame) hbp_pack(&hbp_layout_status_request, (const hbp_status_request_t *)(m), (frame))
+#define hbp_unpack_status_request(frame, len, m) hbp_unpack(&hbp_layout_status_request, (frame), (len), (hbp_status_request_t *)(m))
+#define hbp_pack_status(m, frame) hbp_pack(&hbp_layout_status, (const hbp_status_t *)(m), (frame))
+#define hbp_unpack_status(frame, len, m) hbp_unpack(&hbp_layout_status, (frame), (len), (hbp_status_t *)(m))
+#define hbp_pack_error_report(m, frame) hbp_pack(&hbp_layout_error_report, (const hbp_error_report_t *)(m), (frame))
+#define hbp_unpack_error_report(frame, len, m) hbp_unpack(&hbp_layout_error_report, (frame), (len), (hbp_error_report_t *)(m))
+#define hbp_pack_telemetry_describe(m, frame) hbp_pack(&hbp_layout_telemetry_describe, (const hbp_telemetry_describe_t *)(m), (frame))
+#define hbp_unpack_telemetry_describe(frame, len, m) hbp_unpack(&hbp_layout_telemetry_describe, (frame), (len), (hbp_telemetry_describe_t *)(m))
+#define hbp_pack_telemetry_info(m, frame) hbp_pack(&hbp_layout_telemetry_info, (const hbp_telemetry_info_t *)(m), (frame))
+#define hbp_unpack_telemetry_info(frame, len, m) hbp_unpack(&hbp_layout_telemetry_info, (frame), (len), (hbp_telemetry_info_t *)(m))
+#define hbp_pack_target_describe(m, frame) hbp_pack(&hbp_layout_target_describe, (const hbp_target_describe_t *)(m), (frame))
+#define hbp_unpack_target_describe(frame, len, m) hbp_unpack(&hbp_layout_target_describe, (frame), (len), (hbp_target_describe_t *)(m))
+#define hbp_pack_target_info(m, frame) hbp_pack(&hbp_layout_target_info, (const hbp_target_info_t *)(m), (frame))
+#define hbp_unpack_target_info(frame, len, m) hbp_unpack(&hbp_layout_target_info, (frame), (len), (hbp_target_info_t *)(m))
 
 /* 1 if the type byte names a message of this protocol. */
-uint8_t hbp_type_known(uint8_t type);
+static inline hbp_u8 hbp_type_known(hbp_u8 type)
+{
+    switch (type) {
+    case HBP_MSG_HOST_HELLO:
+    case HBP_MSG_TARGET_HELLO:
+    case HBP_MSG_SENSORS:
+    case HBP_MSG_DRIVE:
+    case HBP_MSG_PARAM_DESCRIBE:
+    case HBP_MSG_PARAM_INFO:
+    case HBP_MSG_PARAM_GET:
+    case HBP_MSG_PARAM_VALUE:
+    case HBP_MSG_PARAM_SET:
+    case HBP_MSG_PARAM_SET_RESULT:
+    case HBP_MSG_START:
+    case HBP_MSG_STOP:
+    case HBP_MSG_STATUS_REQUEST:
+    case HBP_MSG_STATUS:
+    case HBP_MSG_ERROR_REPORT:
+    case HBP_MSG_TELEMETRY_DESCRIBE:
+    case HBP_MSG_TELEMETRY_INFO:
+    case HBP_MSG_TARGET_DESCRIBE:
+    case HBP_MSG_TARGET_INFO:
+        return 1u;
+    default:
+        return 0u;
+    }
+}
 
 #endif /* HBP_MESSAGES_H */

@@ -217,6 +217,46 @@ def link_test(target: str, periods: int, period_us: int, timeout_ms: int) -> Non
         sys.exit(130)
 
 
+@cli.command()
+@click.argument("target")
+@click.option("--period-us", type=click.IntRange(1, 65535), default=50, show_default=True,
+              help="Period announced in the handshakes (a multiple of the firmware's PWM period).")
+@click.option("--only", "only", multiple=True, metavar="TEXT", help="Run only the checks whose names contain TEXT.")
+@click.option("--json", "as_json", is_flag=True, help="Print the results as JSON.")
+@_friendly
+def conformance(target: str, period_us: int, only: tuple[str, ...], as_json: bool) -> None:
+    """Check that TARGET keeps the protocol's promises: handshake and fingerprint, self-description,
+    parameter describe/get/set (all or nothing, each result code), a repeated seq answered once,
+    stop/start, the watchdog in lockstep and real time, bad frames counted and never acted on.
+
+    TARGET is any spec: inprocess:NAME, emulator:NAME, sil:NAME|PATH, simavr:NAME|PATH, qemu:NAME|PATH,
+    serial:/dev/ttyUSB0?baud=250000 (a board running a firmware on the hilbench runtime). Exit 1 if
+    a check fails.
+    """
+    import json
+
+    from hilbench.bench.conformance import as_dicts, run_checks
+
+    results = run_checks(target, period_us=period_us, only=only)
+    if as_json:
+        click.echo(json.dumps({"target": target, "checks": as_dicts(results)}, indent=2))
+    else:
+        from rich.console import Console
+        from rich.markup import escape
+        from rich.table import Table
+
+        table = Table(title=f"conformance: {escape(target)}")
+        table.add_column("check")
+        table.add_column("result")
+        table.add_column("detail")
+        colour = {"PASS": "green", "FAIL": "red", "skip": "yellow"}
+        for r in results:
+            table.add_row(escape(r.name), f"[{colour[r.status]}]{r.status}[/{colour[r.status]}]", escape(r.detail))
+        Console().print(table)
+    if any(r.ok is False for r in results):
+        sys.exit(1)
+
+
 @cli.command(context_settings={"show_default": True})
 @click.argument("config", required=False, type=click.Path(dir_okay=False))
 @click.option("--target", "target_spec", default=None, metavar="SPEC",

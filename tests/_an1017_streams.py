@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import random
 
+from _firmware import one_edge
 from hilbench.protocol import Sensors
 from hilbench.targets.an1017.target import (
     PARAM_KD,
@@ -106,7 +107,7 @@ def random_script(seed: int, n_steps: int, step_us: int) -> list[tuple]:
                 PARAM_STALL_MS: rng.choice((10, 55, 100, 1000)),
             }[pid]
             script.append(("params", ((pid, value),)))
-        script.append(("sensors", Sensors(k & 0xFF, inputs, edge, k & 0xFFFF, (pot, 512, 700))))
+        script.append(("sensors", Sensors(k & 0xFF, inputs, one_edge(edge, inputs), k & 0xFFFF, (pot, 512, 700))))
         if rng.random() < 0.003:
             script.append(("probe",))  # look at the firmware state mid-stream
         t_us = t1

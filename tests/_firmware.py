@@ -18,6 +18,11 @@ import pytest
 
 from hilbench.protocol import EDGE_NONE, INPUT_S2, MODE_LOCKSTEP, PROTOCOL_VERSION, HostHello, Sensors
 
+
+def one_edge(edge_time_100ns: int, inputs: int) -> tuple[tuple[int, int], ...]:
+    """Sensors.edges of a period with at most one hall edge (protocol 2's edge time; EDGE_NONE: none)."""
+    return () if edge_time_100ns == EDGE_NONE else ((edge_time_100ns, inputs & 7),)
+
 CW_HALLS = (0b100, 0b110, 0b010, 0b011, 0b001, 0b101)
 
 
@@ -57,7 +62,7 @@ def random_stream(seed: int, periods: int, period_us: int = 50) -> Iterator[Sens
     if rng.random() < 0.5:
         yield Command("start")
     else:
-        yield Sensors(0, CW_HALLS[pos] | INPUT_S2, EDGE_NONE, 0, (pot, 512, 700))
+        yield Sensors(0, CW_HALLS[pos] | INPUT_S2, (), 0, (pot, 512, 700))
     phase = 0.0
     hold = 0  # periods left of a stall
     for k in range(periods):
@@ -84,7 +89,7 @@ def random_stream(seed: int, periods: int, period_us: int = 50) -> Iterator[Sens
         if rng.random() < 0.00015:
             inputs |= INPUT_S2
         adc = (pot, rng.randrange(1024), rng.randrange(1024))[: rng.choice((3, 3, 3, 1, 0))]
-        yield Sensors((k + 1) & 0xFF, inputs, edge, rng.randrange(0x10000), adc)  # seq 0 went with S2
+        yield Sensors((k + 1) & 0xFF, inputs, one_edge(edge, inputs), rng.randrange(0x10000), adc)  # seq 0 went with S2
         c = rng.random()
         if c < 0.0001:
             yield Command(rng.choice(("start", "stop")))

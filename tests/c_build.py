@@ -11,7 +11,8 @@ REPO = Path(__file__).resolve().parent.parent
 FIRMWARE_DIR = REPO / "firmware_protocol"
 STRICT_FLAGS = ("-std=c99", "-pedantic", "-Wall", "-Wextra", "-Wconversion", "-Werror")
 SANITIZE_FLAGS = ("-fsanitize=address,undefined", "-fno-sanitize-recover=all", "-fno-omit-frame-pointer", "-g")
-LIBRARY_SOURCES = (FIRMWARE_DIR / "hbp.c", FIRMWARE_DIR / "hbp_messages.c")
+LIBRARY_SOURCES = (FIRMWARE_DIR / "hbp.c", FIRMWARE_DIR / "hbp_codec.c", FIRMWARE_DIR / "hbp_messages.c",
+                   FIRMWARE_DIR / "hbp_params.c")
 
 
 def build_c(sources: Iterable[Path | str], output: Path | str, extra_flags: Sequence[str] = (),

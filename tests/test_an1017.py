@@ -6,6 +6,7 @@ and hand arithmetic in the comments — never from the model's own output.
 
 from __future__ import annotations
 
+from _firmware import one_edge
 import pytest
 
 from hilbench.targets.an1017.target import (
@@ -42,7 +43,7 @@ HALL_OF_SECTOR = (0b100, 0b110, 0b010, 0b011, 0b001, 0b101)
 
 
 def sensors(seq: int, hall: int, edge: int = EDGE_NONE, pot: int = 512, s2: bool = False) -> Sensors:
-    return Sensors(seq & 0xFF, hall | (S2 if s2 else 0), edge, 0, (pot, 0, 0))
+    return Sensors(seq & 0xFF, hall | (S2 if s2 else 0), one_edge(edge, hall), 0, (pot, 0, 0))
 
 
 # ---- Table 6 / MINPERIOD ---------------------------------------------------------------------
@@ -324,7 +325,7 @@ def test_measured_speed_follows_edge_timing(ccw):
     t.start()
     pot = 200 if ccw else 900
     for k, (hall, edge) in enumerate(_hall_stream(1200, 2000.0, 50, ccw)):
-        d = t.step(Sensors(k & 0xFF, hall, edge, 0, (pot, 0, 0)))
+        d = t.step(Sensors(k & 0xFF, hall, one_edge(edge, hall), 0, (pot, 0, 0)))
     assert d.telemetry[1] == (-5452 if ccw else 5452)
     assert d.direction_ccw is ccw
 
@@ -336,7 +337,7 @@ def _run_stream(target, stream, pot_of_step, stop_at=None):
             target.start()
         if stop_at is not None and k == stop_at:
             target.stop()
-        out.append(target.step(Sensors(k & 0xFF, hall, edge, 0, (pot_of_step(k), 0, 0))))
+        out.append(target.step(Sensors(k & 0xFF, hall, one_edge(edge, hall), 0, (pot_of_step(k), 0, 0))))
     return out
 
 
@@ -370,7 +371,7 @@ def test_advance_real_time_matches_lockstep_for_whole_periods():
     stream = _hall_stream(400, 1000.0, 50)
     a.start(), b.start()
     for k, (hall, edge) in enumerate(stream):
-        s = Sensors(k & 0xFF, hall, edge, 0, (800, 0, 0))
+        s = Sensors(k & 0xFF, hall, one_edge(edge, hall), 0, (800, 0, 0))
         assert a.step(s) == b.advance(50.0, s)
 
 
@@ -382,7 +383,7 @@ def test_hello_and_drive_encode_on_the_wire():
     assert decode_frame(encode_frame(h)[:-1]) == h
     t.start()
     for k, (hall, edge) in enumerate(_hall_stream(40, 1000.0, 1000, ccw=True)):
-        d = t.step(Sensors(k, hall, edge, 0, (100, 0, 0)))
+        d = t.step(Sensors(k, hall, one_edge(edge, hall), 0, (100, 0, 0)))
         assert decode_frame(encode_frame(d)[:-1]) == d
     for pid in PARAMS:
         info = t.describe(pid)

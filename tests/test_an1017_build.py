@@ -10,6 +10,7 @@ Period), so one Q15 step is 9 375 000/(p·(MINPERIOD − 1)·32768) rpm.
 
 from __future__ import annotations
 
+from _firmware import one_edge
 import pytest
 
 from hilbench.bench.bench import Bench
@@ -69,7 +70,7 @@ def test_measured_speed_of_a_four_pole_pair_build():
     t = An1017Target(An1017Options(pole_pairs=4))
     t.start()
     for k, (hall, edge) in enumerate(_hall_stream(1600, 2500.0, 50)):
-        d = t.step(Sensors(k & 0xFF, hall, edge, 0, (900, 0, 0)))
+        d = t.step(Sensors(k & 0xFF, hall, one_edge(edge, hall), 0, (900, 0, 0)))
     # MeasuredSpeed = trunc(390·32768/Period) with Period 2343 or 2344
     assert d.telemetry[1] in (390 * 32768 // 2343, 390 * 32768 // 2344)
     assert d.telemetry[1] * rpm_per_speed_q15(4, 6000) == pytest.approx(1000.0, rel=1e-3)
@@ -148,7 +149,7 @@ def _with_fault_bursts(script: list[tuple], seed: int) -> list[tuple]:
             if left:
                 left -= 1
                 s = item[1]
-                item = ("sensors", Sensors(s.seq, s.inputs | FAULT_BIT, s.edge_time_100ns, s.encoder, s.adc))
+                item = ("sensors", Sensors(s.seq, s.inputs | FAULT_BIT, s.edges, s.encoder, s.adc))
         out.append(item)
     return out
 
@@ -164,7 +165,7 @@ def test_flta_stops_the_motor_latched_until_a_stop_start():
     def step(extra: int = 0):
         nonlocal k
         hall, edge = stream[k]
-        d = t.step(Sensors(k & 0xFF, hall | extra, edge, 0, (900, 0, 0)))
+        d = t.step(Sensors(k & 0xFF, hall | extra, one_edge(edge, hall), 0, (900, 0, 0)))
         k += 1
         return d
 
@@ -216,7 +217,7 @@ def test_flta_board_firmware_equals_the_model(tmp_path, gcc):
             left = rng.randint(1, 40)
         if left:
             left -= 1
-            item = Sensors(item.seq, item.inputs | FAULT_BIT, item.edge_time_100ns, item.encoder, item.adc)
+            item = Sensors(item.seq, item.inputs | FAULT_BIT, item.edges, item.encoder, item.adc)
         d = tuple(model.step(item))
         assert core.step(item) == d, item
         faults += d[9] == 3

@@ -14,6 +14,7 @@ from __future__ import annotations
 import dataclasses
 import random
 
+from _firmware import one_edge
 import pytest
 
 from conftest import require_c_an1017
@@ -194,7 +195,8 @@ def test_c_equals_reference_closed_loop_default_scenario(variant):
         e = plant.last_edge_s
         edge = EDGE_NONE if e is None else min(int(e * 1e7), 499)
         s2 = any(a <= k < b for a, b in s2_windows)
-        sensors = Sensors(k & 0xFF, plant.hall_bits | (S2 if s2 else 0), edge, 0, plant.adc_codes((1, 2, 3)))
+        sensors = Sensors(k & 0xFF, plant.hall_bits | (S2 if s2 else 0), one_edge(edge, plant.hall_bits), 0,
+                          plant.adc_codes((1, 2, 3)))
         d_ref = ref_t.step(sensors)
         d_c = c_t.step(sensors)
         assert d_c == d_ref, f"period {k}:\n c         {d_c}\n reference {d_ref}"

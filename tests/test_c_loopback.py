@@ -20,6 +20,7 @@ from c_build import FIRMWARE_DIR, LIBRARY_SOURCES, build_c
 from hilbench.errors import VersionMismatch
 from hilbench.link import open_link
 from hilbench.processes import spawn
+from hilbench.protocol.framing import check_bytes, crc16
 from hilbench.protocol import (
     PROTOCOL_VERSION,
     SCHEMA_FINGERPRINT,
@@ -122,7 +123,7 @@ def expected_drive(s: Sensors, running: bool) -> Drive:
     return Drive(s.seq, adc[0], adc[1], adc[2],
                  OutputMode.PWM if running else OutputMode.OFF, State.RUNNING if running else State.STOPPED,
                  TABLE8.get(hall, 7), bool(s.inputs & Input.S3), False, 0,
-                 (i16(s.encoder), i16(s.edge_time_100ns), s.seq))
+                 (i16(s.encoder), i16(s.edges[0][0]) if s.edges else -1, s.seq))
 
 
 @pytest.mark.slow
@@ -167,7 +168,8 @@ def test_handshake_params_and_periods(target: PtyTarget) -> None:
             running = not running
         last_s2 = s2
         n_adc = 3 if rng.random() < 0.9 else rng.randrange(0, 3)
-        s = Sensors(k & 0xFF, inputs, rng.randrange(0, 0x10000), rng.randrange(0, 0x10000),
+        edges = tuple((rng.randrange(0, 0x10000), rng.randrange(0, 0x100)) for _ in range(rng.choice((0, 0, 1, 2, 16))))
+        s = Sensors(k & 0xFF, inputs, edges, rng.randrange(0, 0x10000),
                     tuple(rng.randrange(0, 1024 if rng.random() < 0.95 else 0x10000) for _ in range(n_adc)))
         assert target.ask(s) == expected_drive(s, running), k
     status = target.ask(StatusRequest(17))
@@ -182,8 +184,10 @@ def test_handshake_params_and_periods(target: PtyTarget) -> None:
 def test_wrong_version_gets_error_report_and_no_hello(target: PtyTarget) -> None:
     reply = target.ask(HostHello(3, PROTOCOL_VERSION + 1, 1000, 0, 100))
     assert reply == ErrorReport(3, ErrorCode.VERSION, PROTOCOL_VERSION, SCHEMA_FINGERPRINT)
-    # garbage then a good request: the target resynchronises and counts the bad frame
-    os.write(target.master, b"\x07\x01\x02\x00")
+    # a frame whose check bytes match but whose COBS block runs past its end, then a good request:
+    # the target resynchronises and counts the bad frame
+    cobs = bytes([0x09, 0x0A, 0x30, 0x01, 0x0A])
+    os.write(target.master, cobs + check_bytes(crc16(cobs)) + b"\x00")
     status = target.ask(StatusRequest(4))
     assert status.rx_errors == 1 and status.resyncs == 1 and status.last_error == ErrorCode.COBS
 

@@ -54,10 +54,11 @@ def _run_in_tmux(tmp_path: Path, columns: int, rows: int) -> tuple[Tmux, Path]:
     runtime.mkdir(mode=0o700)
     env = {**os.environ, "XDG_RUNTIME_DIR": str(runtime), "TERM": "xterm-256color"}
     done = tmp_path / "done"
-    # 1 ms periods: the default scenario's 2500 rpm makes 1250 hall edges/s, more than the exchanges,
-    # so the run starts with a warning (and 600 simulated seconds run for long enough to type at it)
+    # real time at 200 us periods: the run starts with a warning (a host rarely answers within that;
+    # protocol 3 carries every hall edge, so the old warning of edges lost at 1 ms periods is gone),
+    # and 600 s run for long enough to type at it
     command = (f"cd {REPO_ROOT} && XDG_RUNTIME_DIR={runtime} {sys.executable} -m hilbench run --target inprocess:an1017 "
-               f"--set link.period_us=1000 --duration 600; echo $? > {done}; sleep 600")
+               f"--mode realtime --set link.period_us=200 --duration 600; echo $? > {done}; sleep 600")
     return Tmux(tmux, f"hb-{os.getpid()}-{columns}", columns, rows, command, env), done
 
 
@@ -70,7 +71,7 @@ def test_dashboard_at_80x24_shows_the_help_reply_and_the_warning(tmp_path: Path)
         screen = pane.wait_for(lambda s: "> help: get | set NAME=V" in s, "the reply to help")
         lines = screen.splitlines()
         assert len(lines) <= 24 and all(len(line) <= 80 for line in lines)
-        assert "warning: at 2500 rpm the halls change 1250 times/s" in screen  # the start-up warning, still there
+        assert "warning: real time at 200 us periods" in screen  # the start-up warning, still there
         assert "hilbench run — inprocess:an1017" in lines[0]
         assert "gains: kp 0.10001" in screen and "state" in screen
         pane.type("get")
@@ -79,7 +80,7 @@ def test_dashboard_at_80x24_shows_the_help_reply_and_the_warning(tmp_path: Path)
         pane.wait_for(lambda s: done.exists(), "the run's end", timeout_s=60)
     finally:
         pane.close()
-    assert done.read_text().strip() == "9"  # the summary's speed_error check fails at 1 ms periods: hall edges lost
+    assert done.read_text().strip() in ("0", "9")  # stopped: the checks judge what ran (held or not on this host)
 
 
 @pytest.mark.slow
@@ -96,7 +97,7 @@ def test_dashboard_at_160x50_gives_the_speed_chart_the_height(tmp_path: Path) ->
     pane, done = _run_in_tmux(tmp_path, 160, 50)
     try:
         screen = pane.wait_for(lambda s: "link & gains" in s and chart_rows(s) >= 10, "a chart of 10 rows or more")
-        assert "warning: at 2500 rpm" in screen
+        assert "warning: real time at 200 us" in screen
         pane.type("stop")
         pane.wait_for(lambda s: done.exists(), "the run's end", timeout_s=60)
     finally:

@@ -34,6 +34,7 @@ pytestmark = pytest.mark.slow
 AVR_DIR = FIRMWARE_DIR / "ports" / "avr"
 STRICT = ("-std=c99", "-pedantic", "-Wall", "-Wextra", "-Wconversion", "-Werror")
 AVR_FLAGS = ("-mmcu=atmega328p", "-DF_CPU=16000000UL", "-Os", "-DHBP_MAX_ADC=3u", "-DHBP_MAX_TELEMETRY=3u",
+             "-DHBP_MAX_EDGES=3u",
              "-DAN1017_VARIANT=AN1017_VARIANT_SEED", f"-I{FIRMWARE_DIR}", f"-I{RUNTIME_DIR}", f"-I{PROTOCOL_DIR}")
 ATMEGA328P_RAM_BYTES = 2048
 

@@ -4,7 +4,7 @@ hilbench.targets.an1017._core is that source behind a CPython glue, tests/test_a
 
 The firmware and the runtime are compiled here as a plain shared library with gcc and called through
 ctypes: one runtime span per period (hrt_span_begin / hrt_span_edge / hrt_span_end with the
-Sensors' inputs, edge time and pot), hrt_report for the Drive, the firmware's command and parameter
+Sensors' inputs, edges and pot), hrt_report for the Drive, the firmware's command and parameter
 entry points for Start/Stop and writes the Python model accepts. Every Drive must equal the Python
 model's (hilbench/targets/an1017/firmware.py through An1017Target) on the seeded random streams.
 """
@@ -18,7 +18,7 @@ import pytest
 
 from _firmware import Command, random_stream
 from c_build import build_c
-from hilbench.protocol import EDGE_NONE, HostHello, MODE_LOCKSTEP, PROTOCOL_VERSION, Sensors
+from hilbench.protocol import HostHello, MODE_LOCKSTEP, PROTOCOL_VERSION, Sensors
 from hilbench.targets.an1017.firmware import An1017Options
 from hilbench.targets.an1017.target import An1017Target
 from hilbench.targets.sil import FIRMWARE_DIR, RUNTIME_DIR
@@ -67,14 +67,13 @@ class InProcessCore:
         self.period_tcy = period_us * 20
 
     def step(self, s: Sensors) -> tuple:
-        """One span of the runtime, as its link serves a Sensors with (at most) one edge."""
-        have_edge = s.edge_time_100ns != EDGE_NONE
+        """One span of the runtime, as its link serves a Sensors: every edge at its time (100 ns = 2 Tcy)."""
         start = ctypes.c_uint32.from_buffer(self.state).value  # hrt_t.now, the state's first field
         pot = (ctypes.c_uint16 * 1)(s.adc[0] if s.adc else 0)
-        self.lib.hrt_span_begin(self.state, s.inputs, int(have_edge), 0, pot, min(1, len(s.adc)), s.encoder)
-        if have_edge:
-            offset = min(s.edge_time_100ns * 2, self.period_tcy - 1)
-            self.lib.hrt_span_edge(self.state, (start + offset) & 0xFFFFFFFF, s.inputs & 7)
+        self.lib.hrt_span_begin(self.state, s.inputs, len(s.edges), 0, pot, min(1, len(s.adc)), s.encoder)
+        for time_100ns, lines in s.edges:
+            offset = min(time_100ns * 2, self.period_tcy - 1)
+            self.lib.hrt_span_edge(self.state, (start + offset) & 0xFFFFFFFF, lines)
         self.lib.hrt_span_end(self.state, (start + self.period_tcy) & 0xFFFFFFFF)
         o = Drive()
         self.lib.hrt_report(self.state, s.seq, ctypes.byref(o))
@@ -95,10 +94,9 @@ class InProcessCore:
             self.apply(command.pairs)
 
     def apply(self, pairs: tuple[tuple[int, int], ...]) -> None:
-        values = (ctypes.c_int32 * 8)(*(self.lib.an1017_param_value(self.state, i) for i in range(8)))
+        """A write the model accepted, id by id in its order, as the runtime applies one."""
         for pid, value in pairs:
-            values[pid] = value
-        self.lib.an1017_apply_params(self.state, values, int(any(pid <= 2 for pid, _ in pairs)))
+            self.lib.an1017_param_set(self.state, pid, ctypes.c_int32(value))
 
 
 @pytest.mark.parametrize("variant", ["seed", "v11"])

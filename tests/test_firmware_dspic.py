@@ -36,7 +36,7 @@ from hilbench.targets.sil import FIRMWARE_DIR, PROTOCOL_DIR, RUNTIME_DIR, RUNTIM
 
 PORT = FIRMWARE_DIR / "ports" / "dspic30f2010"
 SOURCES = (PORT / "main.c", FIRMWARE_DIR / "an1017.c", *RUNTIME_SOURCES)
-DEFS = ("-DHBP_MAX_ADC=3u", "-DHBP_MAX_TELEMETRY=3u", "-DHRT_PORT_HW=1", f"-I{PORT / 'hostcheck'}",
+DEFS = ("-DHBP_MAX_ADC=3u", "-DHBP_MAX_TELEMETRY=3u", "-DHBP_MAX_EDGES=3u", "-DHRT_PORT_HW=1", "-DHRT_DESCRIBE=0", f"-I{PORT / 'hostcheck'}",
         f"-I{FIRMWARE_DIR}", f"-I{RUNTIME_DIR}", f"-I{PROTOCOL_DIR}")
 #: the firmware's functions the runtime calls through its declaration (an1017_firmware), by the
 #: function that holds the indirect call; any other holder is the scheduler, which calls the bodies
@@ -52,7 +52,10 @@ CALLBACKS = {
     "on_describe": {"decl_param_get"},
     "on_get": {"decl_param_get"},
     "hrt_link_handle": {"decl_start", "decl_stop"},
+    "hrt_link_handle": {"decl_start", "decl_stop"},
     "hrt_link_watchdog": {"decl_stop"},
+    "hbp_send_frame": {"hrt_port_send"},
+    "put_crc": {"hrt_port_send"},
 }
 DSPIC30F2010_RAM_BYTES = 512
 ISRS = ("_PWMInterrupt", "_T1Interrupt", "_T2Interrupt", "_FLTAInterrupt", "_U1RXInterrupt")

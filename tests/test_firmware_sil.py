@@ -83,7 +83,7 @@ def test_sil_realtime_watchdog_turns_pwm_off(sil_exe: Path) -> None:
         t = sil.target
         t.hello(HostHello(0, PROTOCOL_VERSION, 50, MODE_REALTIME, 50))
         t.start()
-        d = t.step(Sensors(1, 0b100, EDGE_NONE, 0, (700, 512, 512)))
+        d = t.step(Sensors(1, 0b100, (), 0, (700, 512, 512)))
         assert d.fault == 0
         msg = sil.link.recv(2.0)  # nothing more is sent: the firmware's watchdog speaks after 50 ms
         assert isinstance(msg, Drive)
@@ -253,31 +253,62 @@ def test_sil_refuses_another_protocol_or_schema(sil_exe: Path) -> None:
         assert reply.adc_bits == 10 and reply.seq == 6
 
 
-def test_in_place_cobs_encoding_the_runtime_relies_on(tmp_path: Path, gcc: str) -> None:
-    """The runtime's link packs replies at wire[1] and calls hbp_encode_frame(wire + 1, len, wire): the bytes
-    must equal an encoding into a separate buffer, for every length and zero pattern."""
+def test_sil_describes_itself_as_the_in_process_target_does(sil_exe: Path) -> None:
+    """Protocol 3's self-description from the C declaration (the runtime answers it) equals what the
+    in-process target says: TargetInfo but max_edges (the SIL build's HBP_MAX_EDGES = 3), every
+    TelemetryInfo, every ParamInfo with its unit; an index past the last telemetry slot is refused."""
+    from hilbench.errors import TargetError
+    from hilbench.protocol import TargetInfo
+
+    model = An1017Target(An1017Options())
+    model.hello(HostHello(0, PROTOCOL_VERSION, 50, MODE_LOCKSTEP, 0))
+    with SilTarget.open("seed", exe=sil_exe) as sil:
+        t = sil.target
+        t.hello(HostHello(0, PROTOCOL_VERSION, 50, MODE_LOCKSTEP, 0))
+        info = t.describe_target()
+        assert isinstance(info, TargetInfo) and info.max_edges == 3
+        assert info._replace(seq=0, max_edges=16) == model.describe_target()
+        for i in range(3):
+            assert t.describe_telemetry(i)._replace(seq=0) == model.describe_telemetry(i)
+        with pytest.raises(TargetError, match="UNKNOWN_TELEMETRY"):
+            t.describe_telemetry(3)
+        for i in range(8):
+            assert t.describe(i)._replace(seq=0) == model.describe(i)
+
+
+def test_streamed_frames_equal_the_encoded_ones(tmp_path: Path, gcc: str) -> None:
+    """The runtime's link streams every reply (hbp_send_frame: lengths, COBS and check bytes made as
+    they go, no wire buffer): the bytes must equal hbp_encode_frame's, for every length and zero
+    pattern, and hbp_encode_frame in place (the message at out + 2) must give them too."""
     from c_build import LIBRARY_SOURCES
 
-    src = tmp_path / "inplace.c"
+    src = tmp_path / "stream.c"
     src.write_text(r'''
 #include <stdio.h>
 #include <string.h>
 #include "hbp.h"
+static uint8_t sent[HBP_MAX_WIRE + 8];
+static unsigned n_sent;
+static void put(const hbp_u8 *bytes, hbp_u8 n) {
+    while (n--) sent[n_sent++] = *bytes++;
+}
 int main(void) {
     uint8_t frame[HBP_MAX_FRAME], out[HBP_MAX_WIRE], wire[HBP_MAX_WIRE];
     uint32_t x = 12345u;
     unsigned bad = 0u, n = 0u;
     uint8_t len, i, k;
-    for (len = 2u; len <= (uint8_t)(HBP_MAX_FRAME - 2u); len++) {
+    for (len = 2u; len <= (uint8_t)HBP_MAX_FRAME; len++) {
         for (k = 0u; k < 200u; k++) {
             for (i = 0u; i < len; i++) {
                 x = x * 1103515245u + 12345u;
                 frame[i] = (uint8_t)((x >> 16) % 4u == 0u ? 0u : (x >> 8));  /* zeros one byte in four */
             }
             uint8_t a = hbp_encode_frame(frame, len, out);
-            memcpy(&wire[1], frame, len);
-            uint8_t b = hbp_encode_frame(&wire[1], len, wire);
-            if (a != b || memcmp(out, wire, a) != 0) bad++;
+            n_sent = 0u;
+            hbp_send_frame(frame, len, put);
+            memcpy(&wire[2], frame, len);
+            uint8_t b = hbp_encode_frame(&wire[2], len, wire);
+            if (a != n_sent || memcmp(out, sent, a) != 0 || a != b || memcmp(out, wire, a) != 0) bad++;
             n++;
         }
     }
@@ -285,7 +316,7 @@ int main(void) {
     return 0;
 }
 ''')
-    exe = build_c([src, *LIBRARY_SOURCES], tmp_path / "inplace")
+    exe = build_c([src, *LIBRARY_SOURCES], tmp_path / "stream")
     n, bad = subprocess.run([str(exe)], capture_output=True, text=True, timeout=30, check=True).stdout.split()
     assert int(n) == 61 * 200 and bad == "0"
 

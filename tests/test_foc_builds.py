@@ -98,6 +98,21 @@ def test_f2812_port_compiles_and_links_warning_free(cc: str, defines: tuple[str,
     assert done.returncode == 0, done.stderr
 
 
+def test_the_whole_f2812_program_has_no_8_bit_types(gcc: str, tmp_path: Path) -> None:
+    """What the C28x (no int8_t/uint8_t: CHAR_BIT = 16) asks of the runtime, the protocol library and
+    the port too (docs/foc.md): every source of the F2812 program compiles with them poisoned (octets
+    are hbp_u8, uint_least8_t: 16 bits there)."""
+    sources = [F2812 / "main.c", F2812 / "hostcheck" / "regs.c", *build.SOURCES, build.FIRMWARE_DIR / "foc_hrt.c",
+               build.RUNTIME_DIR / "hrt.c", build.RUNTIME_DIR / "hrt_link.c", build.PROTOCOL_DIR / "hbp.c",
+               build.PROTOCOL_DIR / "hbp_messages.c"]
+    includes = [f"-I{d}" for d in (F2812 / "hostcheck", build.FIRMWARE_DIR, build.RUNTIME_DIR, build.PROTOCOL_DIR)]
+    for source in sources:
+        done = subprocess.run([gcc, *STRICT_FLAGS, "-DHRT_PORT_HW=1", "-DC28X_POISON_UINT8", "-include",
+                               str(F2812 / "hostcheck" / "c28x_types.h"), *includes, "-c", str(source),
+                               "-o", str(tmp_path / "x.o")], capture_output=True, text=True, timeout=120)
+        assert done.returncode == 0, f"{source.name}: {done.stderr}"
+
+
 def test_f2812_port_refuses_to_drive_the_bridge_from_simulated_sensors(gcc, tmp_path: Path) -> None:
     """HIL_DRIVE_BRIDGE without HIL_LOCAL_SENSORS would switch a real bridge from the plant's
     currents and encoder: the build stops with one line that says so."""
@@ -138,7 +153,7 @@ def test_sil_foc_start_while_running_keeps_the_duties(gcc) -> None:
     import random
 
     from hilbench.bench.launcher import open_target
-    from hilbench.protocol import EDGE_NONE, MODE_LOCKSTEP, PROTOCOL_VERSION, HostHello, Sensors
+    from hilbench.protocol import MODE_LOCKSTEP, PROTOCOL_VERSION, HostHello, Sensors
 
     hello = HostHello(0, PROTOCOL_VERSION, 50, MODE_LOCKSTEP, 0)
     with open_target("sil:foc", timeout_s=2.0) as sil, open_target("inprocess:foc") as inproc:
@@ -155,7 +170,7 @@ def test_sil_foc_start_while_running_keeps_the_duties(gcc) -> None:
                     t.start()
             encoder = (encoder + rng.randint(0, 3)) & 0xFFFF
             adc = (rng.randint(1900, 2200), rng.randint(1900, 2200), 3000)
-            sensors = Sensors((k + 1) & 0xFF, 0, EDGE_NONE, encoder, adc)
+            sensors = Sensors((k + 1) & 0xFF, 0, (), encoder, adc)
             drives = [tuple(t.step(sensors)) for t in targets]
             assert drives[0] == drives[1], (k, drives)
             states.add(drives[0][5])

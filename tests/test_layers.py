@@ -90,6 +90,5 @@ def test_the_in_process_core_restates_no_firmware() -> None:
     glue = (REPO_ROOT / "hilbench" / "targets" / "an1017" / "_core.c").read_text()
     assert '#include "an1017.h"' in glue
     defines = _c_defines(REPO_ROOT / "hilbench" / "targets" / "an1017" / "_core.c")
-    assert set(defines) <= {"EDGE_NONE", "SPAN_MAX_TCY"}
-    assert defines["EDGE_NONE"] == Edge.NONE  # the protocol's "no edge in this period", restated for the C side
+    assert set(defines) <= {"SPAN_MAX_TCY", "MAX_SPAN_EDGES"}
     assert not re.search(r"static const \w+ \w+\[", glue), "a table in the glue"

@@ -18,7 +18,7 @@ from hilbench.protocol import Drive, HostHello, Sensors, encode_frame
 
 
 def _sensors(seq: int) -> Sensors:
-    return Sensors(seq, 0x05, 1234, 40000, (100, 200, 300))
+    return Sensors(seq, 0x05, ((1234, 0x05),), 40000, (100, 200, 300))
 
 
 @pytest.fixture

@@ -15,6 +15,7 @@ import threading
 import time
 from typing import Any
 
+from _firmware import one_edge
 import pytest
 import serial
 import serial.rfc2217
@@ -39,7 +40,7 @@ def sensors_script(n: int) -> list[Sensors]:
         halls = HALL_SEQUENCE[(k // 40) % 6]
         buttons = INPUT_S2 if 5 <= k < 15 else 0
         edge = (k * 500) & 0xFFFF if k % 40 == 0 else EDGE_NONE
-        out.append(Sensors((k + 1) & 0xFF, halls | buttons, edge, 0, (700 + (k % 7), 0, 650)))
+        out.append(Sensors((k + 1) & 0xFF, halls | buttons, one_edge(edge, halls), 0, (700 + (k % 7), 0, 650)))
     return out
 
 

@@ -1,7 +1,9 @@
 """Issue 23 (the suite under load): lockstep is the host's clock, so a host that pauses between
-periods (a loaded machine, a script between two `run` calls) must not change the recording. The
-session asks for no watchdog in lockstep; a firmware build whose watchdog ran on its wall clock
-tripped 1.3 s into a suite run beside two CPU-bound processes and its recording differed."""
+periods (a loaded machine, a script between two `run` calls) must not change the recording. A
+firmware build whose watchdog stopped the firmware tripped 1.3 s into a suite run beside two
+CPU-bound processes and its recording differed. Now the watchdog runs in lockstep too (issues 24,
+27: a host killed turns the outputs off), but a lockstep trip leaves the firmware's state alone:
+the pause below trips it, and the recording is still the model's."""
 
 from __future__ import annotations
 
@@ -34,7 +36,7 @@ def _record(target: str, path: Path, pause_s: float) -> int:
 @pytest.mark.slow
 def test_a_host_pausing_in_lockstep_changes_nothing(tmp_path: Path) -> None:
     require_tool("gcc", "the SIL build of the AN1017 firmware")
-    assert _record("sil:an1017", tmp_path / "paused.npz", PAUSE_S) == 0
+    assert _record("sil:an1017", tmp_path / "paused.npz", PAUSE_S) >= 1  # the watchdog tripped in the pause
     _record("inprocess:an1017", tmp_path / "model.npz", 0.0)
     paused, model = read_recording(tmp_path / "paused.npz"), read_recording(tmp_path / "model.npz")
     for name, column in model.columns.items():

@@ -36,20 +36,22 @@ def test_hello_declares_the_documented_profile() -> None:
 
 @pytest.mark.parametrize("halls,sector", sorted(TABLE_8.items()))
 def test_sector_follows_table_8(halls: int, sector: int) -> None:
-    assert LoopbackTarget().step(Sensors(0, halls, 0, 0, ())).sector == sector
+    assert LoopbackTarget().step(Sensors(0, halls, (), 0, ())).sector == sector
 
 
 def test_step_maps_every_field_exactly() -> None:
     t = LoopbackTarget()
-    d = t.step(Sensors(77, 0b011 | S3, 0x8001, 0xFFFF, (1023, 5, 600)))
-    assert d == Drive(77, 1023, 5, 600, 0, 0, 3, True, False, 0, (-1, -32767, 77))
-    d = t.step(Sensors(78, 0b100, 0x7FFF, 0x8000, (9,)))
+    d = t.step(Sensors(77, 0b011 | S3, ((0x8001, 3), (0x9000, 2)), 0xFFFF, (1023, 5, 600)))
+    assert d == Drive(77, 1023, 5, 600, 0, 0, 3, True, False, 0, (-1, -32767, 77))  # the first edge's time
+    d = t.step(Sensors(78, 0b100, ((0x7FFF, 4),), 0x8000, (9,)))
     assert d == Drive(78, 9, 0, 0, 0, 0, 0, False, False, 0, (-32768, 32767, 78))
+    d = t.step(Sensors(79, 0b100, (), 0x8000, (9,)))
+    assert d.telemetry == (-32768, -1, 79)  # no edge
 
 
 def test_start_stop_and_s2_edges() -> None:
     t = LoopbackTarget()
-    s = Sensors(0, 1, 0, 0, (1, 2, 3))
+    s = Sensors(0, 1, (), 0, (1, 2, 3))
     assert (t.step(s).output_mode, t.step(s).state) == (0, 0)  # OFF, STOPPED
     t.start()
     assert (t.step(s).output_mode, t.step(s).state) == (1, 2)  # PWM, RUNNING
@@ -67,7 +69,7 @@ def test_hello_starts_stopped() -> None:
     t = LoopbackTarget()
     t.start()
     t.hello(HostHello(0, PROTOCOL_VERSION, 1000, 0, 0))
-    assert t.step(Sensors(0, 1, 0, 0, ())).state == 0
+    assert t.step(Sensors(0, 1, (), 0, ())).state == 0
 
 
 def test_params_describe_and_get() -> None:
@@ -105,8 +107,8 @@ def test_set_params_each_result_code_and_atomicity() -> None:
 def test_watchdog_trip_turns_outputs_off() -> None:
     t = LoopbackTarget()
     t.start()
-    t.step(Sensors(5, 1, 0, 0, (1, 2, 3)))
+    t.step(Sensors(5, 1, (), 0, (1, 2, 3)))
     d = t.watchdog_trip()
     assert (d.output_mode, d.state, d.fault) == (0, 0, 1)  # OFF, STOPPED, WATCHDOG
     assert t.status().watchdog_trips == 1
-    assert t.step(Sensors(6, 1, 0, 0, ())).state == 0  # stays stopped
+    assert t.step(Sensors(6, 1, (), 0, ())).state == 0  # stays stopped

@@ -125,3 +125,26 @@ def test_the_plant_says_which_mode_its_integrator_cannot_follow() -> None:
     assert stiff_modes(params().motor, 50, 2) == []
     assert stiff_modes(stiff, 50, 21) == []
     assert stiff_modes(stiff, 100, 19)[0].substeps_needed == pytest.approx(20.0)  # two 50 us chunks, not 40
+
+
+@pytest.mark.parametrize("backend", available_backends())
+def test_a_long_period_lists_every_index_mark(backend: str) -> None:
+    """An index mark in any chunk of a long period is kept (sense() reports it, not only a mark in the
+    last chunk) and timed at the start of its chunk, as the chunk-by-chunk steps see it."""
+    fast, slow = Plant(params(), seed=1, backend=backend), Plant(params(), seed=1, backend=backend)
+    fast.set_period(1000)
+    for plant in (fast, slow):
+        plant.reset(speed_rad_s=300.0)  # coasting with the switches open
+    h = Period(1000).chunk_s
+    marks = 0
+    for _ in range(200):
+        fast.advance(0.0, 0.0, 0.0, OUTPUT_OFF)
+        want = []
+        for i in range(20):
+            slow.step(0.0, 0.0, 0.0, OUTPUT_OFF, h)
+            if slow.encoder_index:
+                want.append(i * h)
+        assert fast.index_marks() == tuple(want)
+        assert fast.encoder_index == bool(want) == fast.sense(())[2]
+        marks += len(want)
+    assert marks >= 5

@@ -16,7 +16,7 @@ import pytest
 
 from c_build import FIRMWARE_DIR, LIBRARY_SOURCES, STRICT_FLAGS
 
-AN1017_PROFILE = ("-DHBP_MAX_ADC=3u", "-DHBP_MAX_TELEMETRY=3u")
+AN1017_PROFILE = ("-DHBP_MAX_ADC=3u", "-DHBP_MAX_TELEMETRY=3u", "-DHBP_MAX_EDGES=3u")
 MCUS = ("atmega328p", "atmega2560")
 RAM_BUDGET = 128  # bytes of static RAM for the library in the AN1017 profile (issue 10)
 
@@ -63,8 +63,8 @@ def test_loopback_firmware_builds_and_fits_the_ram_budget(avr_gcc: str, mcu: str
     elf = _avr(avr_gcc, mcu, [FIRMWARE_DIR / "examples" / "avr_loopback.c", *LIBRARY_SOURCES],
                tmp_path / "loopback.elf", *AN1017_PROFILE)
     sym = _static_symbols(elf)
-    # hbp_rx_t on AVR (no padding): 24 buffer + 5 state + 5 u16 counters + 1 last_error = 40 bytes
-    assert sym["loopback_rx"] == 40
+    # hbp_rx_t on AVR (no padding): 23 buffer + 10 state + CRC 2 + 5 u16 counters + 1 last_error = 46 bytes
+    assert sym["loopback_rx"] == 46
     library = sym["loopback_rx"] + sym["param_values"]  # the receiver + the firmware's three int32 values
     print(f"{mcu}: static RAM of the protocol library (AN1017 profile) {library} B = hbp_rx_t "
           f"{sym['loopback_rx']} + 3 int32 values {sym['param_values']} (budget {RAM_BUDGET}); named static "

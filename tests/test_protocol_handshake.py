@@ -41,11 +41,11 @@ OTHER = 0x0BADF00D
 
 
 def _by_the_recipe(text: str) -> int:
-    """PROTOCOL.md: SHA-256 over the parsed schema without doc/hot/hot_n/default, sorted compact
+    """PROTOCOL.md: SHA-256 over the parsed schema without doc/hot/hot_n/default/py_order, sorted compact
     ASCII JSON; the first 4 bytes, big-endian."""
     def strip(v):
         if isinstance(v, dict):
-            return {k: strip(x) for k, x in v.items() if k not in ("doc", "hot", "hot_n", "default")}
+            return {k: strip(x) for k, x in v.items() if k not in ("doc", "hot", "hot_n", "default", "py_order")}
         if isinstance(v, list):
             return [strip(x) for x in v]
         return v

@@ -119,7 +119,7 @@ def test_vector_python(vec: Vector) -> None:
 def c_vector_programs(tmp_path_factory, gcc: str) -> list[Path]:
     out = tmp_path_factory.mktemp("cvec")
     sources = [FIRMWARE_DIR / "tests" / "test_vectors.c", *LIBRARY_SOURCES]
-    flags = ("-DHBP_RX_MAX=64u", f"-I{FIRMWARE_DIR / 'tests'}")
+    flags = ("-DHBP_RX_MAX=63u", f"-I{FIRMWARE_DIR / 'tests'}")
     return [build_c(sources, out / "test_vectors", extra_flags=flags),
             build_c(sources, out / "test_vectors_san", extra_flags=flags, sanitize=True)]
 

@@ -188,12 +188,15 @@ def test_item12_impossible_and_doubtful_settings_said_before_the_run() -> None:
     from hilbench.bench.settings import load_config
     from hilbench.errors import ConfigError
 
-    warnings = check_run(load_config(None, ["link.period_us=1000"]))  # the default scenario reaches 2500 rpm
-    assert any("1250 times/s" in w and "1000 times/s" in w and "link.period_us <= 800" in w for w in warnings)
+    # protocol 3 carries every edge of a period: 1 ms at 2500 rpm (1250 edges/s) is fine now
+    assert check_run(load_config(None, ["link.period_us=1000"])) == []
     assert check_run(load_config(None)) == []  # 50 us: 20000 exchanges/s
+    # 6 ms at 2500 rpm on a 20-pole-pair motor: up to 32 edges, more than the 16 a Sensors carries
+    warnings = check_run(load_config(None, ["link.period_us=6000", "motor.pole_pairs=20"]))
+    assert any("holds up to 32 hall edges" in w and "link.period_us <= 2800" in w for w in warnings), warnings
     warnings = check_run(load_config(None, ['run.mode="realtime"']))
     assert any("real time at 50 us" in w for w in warnings)
-    # 37 bytes per exchange (17 + 20 at their largest) * 10 bits at 9600 baud = 38.5 ms > 1 ms
+    # 45 bytes per exchange (22 + 23 at their largest with an edge) * 10 bits at 9600 baud = 47 ms > 1 ms
     with pytest.raises(ConfigError, match="9600 baud"):
         check_run(load_config(None, ['run.mode="realtime"', 'link.target="serial:/dev/ttyX?baud=9600"',
                                      "link.period_us=1000"]))

@@ -25,7 +25,7 @@ def _stream(n: int, seed: int) -> list[Sensors]:
     out = []
     for k in range(n):
         inputs = halls[(k // 37) % 6] | (S2 if 10 <= k < 14 else 0)
-        out.append(Sensors(k & 0xFF, inputs, 0xFFFF, k & 0xFFFF, (700 + (k // 50), 512 + rng.randrange(3), 640)))
+        out.append(Sensors(k & 0xFF, inputs, (), k & 0xFFFF, (700 + (k // 50), 512 + rng.randrange(3), 640)))
     return out
 
 
@@ -127,11 +127,11 @@ def test_item8_c_loopback_answers_a_repeated_seq_without_stepping(tmp_path: Any,
     target = PtyTarget(exe)
     try:
         target.ask(HostHello(0, PROTOCOL_VERSION, 1000, 0, 100))
-        press = Sensors(1, 1 | S2, 0, 0, (1, 2, 3))
+        press = Sensors(1, 1 | S2, (), 0, (1, 2, 3))
         first = target.ask(press)
         again = target.ask(press)  # the duplicate: the same answer, S2 not seen as a second edge
         assert first.state == 2 and again == first
-        assert target.ask(Sensors(2, 1, 0, 0, (1, 2, 3))).state == 2  # released: still running
-        assert target.ask(Sensors(3, 1 | S2, 0, 0, (1, 2, 3))).state == 0  # the next press stops
+        assert target.ask(Sensors(2, 1, (), 0, (1, 2, 3))).state == 2  # released: still running
+        assert target.ask(Sensors(3, 1 | S2, (), 0, (1, 2, 3))).state == 0  # the next press stops
     finally:
         target.close()

@@ -14,14 +14,15 @@ import pytest
 
 import hilbench
 from hilbench.bench.faults import FAULT_KINDS, SensorFaults
-from hilbench.protocol import Edge, Input, Sensors
+from hilbench.protocol import Input, Sensors
 
-EDGE_NONE = int(Edge.NONE)
 S2 = int(Input.S2)
+Edges = tuple[tuple[int, int], ...]
 
 
-def sensors(inputs: int, edge: int = 123, encoder: int = 1000, adc: tuple[int, ...] = (512, 300, 640)) -> Sensors:
-    return Sensors(7, inputs, edge, encoder, adc)
+def sensors(inputs: int, edges: Edges | None = None, encoder: int = 1000, adc: tuple[int, ...] = (512, 300, 640)) -> Sensors:
+    """A period's Sensors; its one edge at 123 x 100 ns to the halls of ``inputs`` unless ``edges``."""
+    return Sensors(7, inputs, ((123, inputs & 7),) if edges is None else edges, encoder, adc)
 
 
 def test_every_kind_is_a_class_and_clear_ends_them() -> None:
@@ -32,9 +33,10 @@ def test_every_kind_is_a_class_and_clear_ends_them() -> None:
 def test_a_stuck_hall_line_changes_that_bit_only() -> None:
     faults = SensorFaults()
     faults.apply("hall_b_high", 0.0, None)
-    assert faults.filter(sensors(0b001 | S2)) == sensors(0b011 | S2)
+    assert faults.filter(sensors(0b001 | S2)) == sensors(0b011 | S2)  # on every edge too
     faults.apply("hall_a_low", 0.0, None)  # a new fault replaces the passing one
     assert faults.filter(sensors(0b101)) == sensors(0b100)
+    assert faults.filter(sensors(0b101, edges=((5, 0b001), (90, 0b101)))) == sensors(0b100, edges=((5, 0b000), (90, 0b100)))
     assert faults.filter(sensors(0b010)) == sensors(0b010)
 
 
@@ -42,8 +44,9 @@ def test_a_missing_edge_swallows_the_next_hall_change_once() -> None:
     faults = SensorFaults()
     faults.halls.last = 0b001
     faults.apply("hall_missing_edge", 0.0, None)
-    assert faults.filter(sensors(0b001, edge=EDGE_NONE)) == sensors(0b001, edge=EDGE_NONE)  # no change yet
-    assert faults.filter(sensors(0b011 | S2, edge=400)) == sensors(0b001 | S2, edge=EDGE_NONE)  # never reaches it
+    assert faults.filter(sensors(0b001, edges=())) == sensors(0b001, edges=())  # no change yet
+    two = ((400, 0b011), (410, 0b010))  # this period's edges: none reaches the target
+    assert faults.filter(sensors(0b010 | S2, edges=two)) == sensors(0b001 | S2, edges=())
     assert not faults.on  # spent: the next change reaches the target
 
 

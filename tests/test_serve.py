@@ -31,7 +31,7 @@ def expected_drive(s: Sensors, running: bool = False) -> Drive:
     adc = tuple(s.adc) + (0, 0, 0)
     return Drive(s.seq, adc[0], adc[1], adc[2], 1 if running else 0, 2 if running else 0,
                  SECTOR[s.inputs & 7], bool(s.inputs & 0x10), False, 0,
-                 (i16(s.encoder), i16(s.edge_time_100ns), s.seq))
+                 (i16(s.encoder), i16(s.edges[0][0]) if s.edges else -1, s.seq))
 
 
 class Served:

@@ -72,7 +72,7 @@ class Emulator:
 
     def sensors(self, inputs: int = HALLS) -> Sensors:
         self.seq = (self.seq + 1) & 0xFF
-        return Sensors(self.seq, inputs, EDGE_NONE, 0, (POT_CODE, 0, 700))
+        return Sensors(self.seq, inputs, (), 0, (POT_CODE, 0, 700))
 
     def close(self) -> None:
         self.spawned.close()  # closes our end: the emulator sees the hang-up and exits; reaped

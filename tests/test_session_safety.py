@@ -86,12 +86,12 @@ def test_a_sensors_after_advance_with_the_same_seq_is_a_new_period(backend: str)
     target.hello(host)
     target.start()
     for k in range(1, 400):
-        target.step(Sensors(k & 0xFF, 0b001, 0xFFFF, 0, (700, 0, 0)))
-    target.advance(50.0, Sensors(5, 0b011, 0xFFFF, 0, (700, 0, 0)))
+        target.step(Sensors(k & 0xFF, 0b001, (), 0, (700, 0, 0)))
+    target.advance(50.0, Sensors(5, 0b011, (), 0, (700, 0, 0)))
     before_us = target.time_us
-    drive = target.step(Sensors(5, 0b011, 0xFFFF, 0, (700, 0, 0)))
+    drive = target.step(Sensors(5, 0b011, (), 0, (700, 0, 0)))
     assert drive.seq == 5 and target.time_us - before_us == 50.0
-    again = target.step(Sensors(5, 0b011, 0xFFFF, 0, (700, 0, 0)))  # a true repeat: the same Drive, no step
+    again = target.step(Sensors(5, 0b011, (), 0, (700, 0, 0)))  # a true repeat: the same Drive, no step
     assert again == drive and target.time_us - before_us == 50.0
 
 

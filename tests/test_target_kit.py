@@ -52,7 +52,7 @@ def test_a_set_is_checked_whole_in_the_c_runtimes_order_before_any_write() -> No
 
 def test_describe_and_get_speak_the_protocol() -> None:
     params, _, _ = table()
-    assert tuple(params.describe(0)) == (0, 0, Q15, RW, 0, 900, 100, "a")
+    assert tuple(params.describe(0)) == (0, 0, Q15, RW, 0, 900, 100, "a", "A")  # protocol 3: the unit last
     assert tuple(params.get(1)) == (0, 1, int(Result.OK), 200)
     assert tuple(params.get(5)) == (0, 5, int(Result.UNKNOWN_ID), 0)
     with pytest.raises(ParamError):
@@ -67,11 +67,11 @@ def test_a_repeat_gets_the_last_drive_without_a_step() -> None:
         return (sensors.seq, len(steps))  # type: ignore[return-value]
 
     answer = RepeatAnswer(step)
-    first = answer.step(Sensors(3, 0, 0, 0, ()))
-    assert answer.step(Sensors(3, 1, 2, 3, ())) is first and steps == [3] and answer.repeats == 1
-    answer.step(Sensors(4, 0, 0, 0, ()))
+    first = answer.step(Sensors(3, 0, (), 0, ()))
+    assert answer.step(Sensors(3, 1, (), 3, ())) is first and steps == [3] and answer.repeats == 1
+    answer.step(Sensors(4, 0, (), 0, ()))
     answer.forget()
-    answer.step(Sensors(4, 0, 0, 0, ()))
+    answer.step(Sensors(4, 0, (), 0, ()))
     assert steps == [3, 4, 4]
 
 
@@ -87,9 +87,9 @@ def test_every_built_in_target_answers_a_repeated_seq_once(target: object) -> No
     target.hello(HostHello(0, PROTOCOL_VERSION, 50, 0, 0))  # type: ignore[attr-defined]
     target.start()  # type: ignore[attr-defined]
     adc = (700, 512, 600)
-    drives = [target.step(Sensors(k, 0b001, 0xFFFF, k * 3, adc)) for k in range(1, 40)]  # type: ignore[attr-defined]
+    drives = [target.step(Sensors(k, 0b001, (), k * 3, adc)) for k in range(1, 40)]  # type: ignore[attr-defined]
     clock = getattr(target, "time_us", None)
-    again = target.step(Sensors(39, 0b011, 123, 999, adc))  # type: ignore[attr-defined]
+    again = target.step(Sensors(39, 0b011, ((123, 0b011),), 999, adc))  # type: ignore[attr-defined]
     assert again == drives[-1] and getattr(target, "time_us", None) == clock  # the firmware did not step
-    after = target.step(Sensors(40, 0b001, 0xFFFF, 120, adc))  # type: ignore[attr-defined]
+    after = target.step(Sensors(40, 0b001, (), 120, adc))  # type: ignore[attr-defined]
     assert after.seq == 40

@@ -417,20 +417,19 @@ uint8_t an1017_check_gains(int32_t kp, int32_t ki, int32_t kd)
     return 0u;
 }
 
-/* One checked value (ids of a write in order: gains written together end as one pending set). */
-static void param_set(an1017_t *s, uint8_t id, int32_t value)
+void an1017_param_set(an1017_t *s, uint8_t id, int32_t value)
 {
     int16_t v = (int16_t)value; /* every declared range fits 16 bits */
+    if (id <= AN1017_PARAM_KD) { /* the others as they stand (pending ones included), this one new */
+        int16_t g[3];
+        g[0] = an1017_param_value(s, AN1017_PARAM_KP);
+        g[1] = an1017_param_value(s, AN1017_PARAM_KI);
+        g[2] = an1017_param_value(s, AN1017_PARAM_KD);
+        g[id] = v;
+        an1017_set_gains(s, g[0], g[1], g[2]);
+        return;
+    }
     switch (id) {
-    case AN1017_PARAM_KP:
-        an1017_set_gains(s, v, an1017_param_value(s, AN1017_PARAM_KI), an1017_param_value(s, AN1017_PARAM_KD));
-        break;
-    case AN1017_PARAM_KI:
-        an1017_set_gains(s, an1017_param_value(s, AN1017_PARAM_KP), v, an1017_param_value(s, AN1017_PARAM_KD));
-        break;
-    case AN1017_PARAM_KD:
-        an1017_set_gains(s, an1017_param_value(s, AN1017_PARAM_KP), an1017_param_value(s, AN1017_PARAM_KI), v);
-        break;
     case AN1017_PARAM_PH_ADV_ON:
         s->phase_advance_on = (uint8_t)(v != 0);
         break;
@@ -452,18 +451,6 @@ static void param_set(an1017_t *s, uint8_t id, int32_t value)
     }
 }
 
-void an1017_apply_params(an1017_t *s, const int32_t values[AN1017_N_PARAMS], uint8_t gains_touched)
-{
-    uint8_t id;
-    if (gains_touched) {
-        an1017_set_gains(s, (int16_t)values[AN1017_PARAM_KP], (int16_t)values[AN1017_PARAM_KI],
-                         (int16_t)values[AN1017_PARAM_KD]);
-    }
-    for (id = AN1017_PARAM_PH_ADV_ON; id < AN1017_N_PARAMS; id++) {
-        param_set(s, id, values[id]);
-    }
-}
-
 /* ------------------------------------------------------------------ the runtime's declaration */
 
 static uint8_t is_gain(uint8_t id)
@@ -478,7 +465,7 @@ static int32_t decl_param_get(hrt_t *rt, uint8_t id)
 
 static void decl_param_set(hrt_t *rt, uint8_t id, int32_t value)
 {
-    param_set(FW(rt), id, value);
+    an1017_param_set(FW(rt), id, value);
 }
 
 /* The note's PID constraints on the candidate gains, checked only when a gain is written. The

@@ -174,9 +174,9 @@ void an1017_set_gains(an1017_t *s, int16_t kp, int16_t ki, int16_t kd);
 /* The note's PID constraints: 0 when all hold, else the first broken one:
  * 1 Kp + Ki + Kd < 0.9999, 2 -Kp - 2Kd > -1.0, 3 Kd < 0.9999. */
 uint8_t an1017_check_gains(int32_t kp, int32_t ki, int32_t kd);
-/* Apply a complete set of declared values (ids 0..7) already checked against their declared ranges
- * (all fit 16 bits); the gains only if gains_touched. */
-void an1017_apply_params(an1017_t *s, const int32_t values[AN1017_N_PARAMS], uint8_t gains_touched);
+/* One declared value already checked against its range (all fit 16 bits); the ids of one write in
+ * order: gains written together end as one set, pending until the next Timer1 ISR while running. */
+void an1017_param_set(an1017_t *s, uint8_t id, int32_t value);
 int16_t an1017_max_ph_adv(int16_t deg);
 
 #endif /* AN1017_H */

@@ -9,8 +9,15 @@
 #define HRT_MAX_ATTACH 0u
 #define HRT_ENCODER 0         /* no encoder */
 #define HRT_MICROS 0          /* no micros() */
-/* The largest frame sent (type..payload): TargetHello, 17 fixed + name (1 + 6) + ADC roles (1 + 3)
- * + telemetry ids (3) = 31 bytes; ParamInfo of "ref_override", 17 + 12 = 29; Drive 11 + 6 = 17. */
+#define HRT_HALF_PERIOD 0     /* duties reload at the next period (HRT_DUTY_NEXT_PERIOD) */
+#define HRT_MAIN_RATE 0       /* the main body runs once per span */
+/* The largest message sent (type..payload): TargetHello, 17 fixed + name (1 + 6) + ADC roles (1 + 3)
+ * + telemetry ids (3) = 31 bytes; ParamInfo of "ph_adv_deg" in "deg", 17 + 11 + 3 = 31; TelemetryInfo of
+ * "measured_speed" in "rpm", 13 + 15 + 3 = 31; Drive 11 + 6 = 17. (The link streams the wire bytes.) */
 #define HRT_TX_FRAME_MAX 32u
+/* The declaration's clock and PWM period as constants (an1017.h), so the runtime's arithmetic on them
+ * folds at compile time: 20 Tcy per us, 1000 Tcy a 20 kHz PWM period. */
+#define HRT_TICKS_PER_US 20u
+#define HRT_PWM_PERIOD_TICKS 1000u
 
 #endif /* AN1017_HRT_CONFIG_H */

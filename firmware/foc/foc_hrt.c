@@ -79,7 +79,7 @@ static void decl_start(hrt_t *rt)
     }
 }
 
-static void decl_stop(hrt_t *rt, uint8_t why)
+static void decl_stop(hrt_t *rt, hbp_u8 why)
 {
     if (why == HRT_STOP_WATCHDOG) {
         foc_stop(&FW(rt)->foc, FOC_STATE_FAULT, FOC_FAULT_WATCHDOG);
@@ -91,7 +91,7 @@ static void decl_stop(hrt_t *rt, uint8_t why)
 
 /* ---------------------------------------------------------------------------- parameters */
 
-static foc_pi_t *loop_of(foc_t *s, uint8_t id)
+static foc_pi_t *loop_of(foc_t *s, hbp_u8 id)
 {
     if (id <= FOC_PARAM_SPD_OUT_MAX) {
         return &s->pid_spd;
@@ -99,7 +99,7 @@ static foc_pi_t *loop_of(foc_t *s, uint8_t id)
     return id <= FOC_PARAM_ID_OUT_MAX ? &s->pid_id : &s->pid_iq;
 }
 
-static int32_t decl_param_get(hrt_t *rt, uint8_t id)
+static int32_t decl_param_get(hrt_t *rt, hbp_u8 id)
 {
     foc_app_t *app = FW(rt);
     foc_t *s = &app->foc;
@@ -117,7 +117,7 @@ static int32_t decl_param_get(hrt_t *rt, uint8_t id)
         break;
     }
     p = loop_of(s, id);
-    switch ((uint8_t)((id - FOC_PARAM_SPD_KP) % 4u)) {
+    switch ((hbp_u8)((id - FOC_PARAM_SPD_KP) % 4u)) {
     case 0u:
         return p->kp;
     case 1u:
@@ -129,7 +129,7 @@ static int32_t decl_param_get(hrt_t *rt, uint8_t id)
     }
 }
 
-static void decl_param_set(hrt_t *rt, uint8_t id, int32_t value)
+static void decl_param_set(hrt_t *rt, hbp_u8 id, int32_t value)
 {
     foc_app_t *app = FW(rt);
     foc_t *s = &app->foc;
@@ -152,7 +152,7 @@ static void decl_param_set(hrt_t *rt, uint8_t id, int32_t value)
         break;
     }
     p = loop_of(s, id);
-    switch ((uint8_t)((id - FOC_PARAM_SPD_KP) % 4u)) {
+    switch ((hbp_u8)((id - FOC_PARAM_SPD_KP) % 4u)) {
     case 0u:
         p->kp = value;
         break;
@@ -195,14 +195,14 @@ static const hrt_param_decl_t params[FOC_N_PARAMS] = {
 static void decl_report(hrt_t *rt, hrt_report_t *out)
 {
     foc_out_t o;
-    uint8_t k;
+    hbp_u8 k;
     foc_outputs(&FW(rt)->foc, &o);
-    out->output_mode = (uint8_t)o.output_mode;
-    out->state = (uint8_t)o.state;
-    out->sector = (uint8_t)o.sector;
-    out->direction_ccw = (uint8_t)o.ccw;
-    out->required_ccw = (uint8_t)o.req_ccw;
-    out->fault = (uint8_t)o.fault;
+    out->output_mode = (hbp_u8)o.output_mode;
+    out->state = (hbp_u8)o.state;
+    out->sector = (hbp_u8)o.sector;
+    out->direction_ccw = (hbp_u8)o.ccw;
+    out->required_ccw = (hbp_u8)o.req_ccw;
+    out->fault = (hbp_u8)o.fault;
     for (k = 0u; k < FOC_N_TELEMETRY; k++) {
         out->telemetry[k] = o.telemetry[k];
     }
@@ -220,7 +220,7 @@ static const hrt_telemetry_decl_t telemetry[FOC_N_TELEMETRY] = {
     {"v_q_pu", "pu", 1L, 32768L, HBP_TELEMETRY_VQ, HBP_PTYPE_Q15},
 };
 
-static const uint8_t adc_roles[3] = {HBP_ADC_IA, HBP_ADC_IB, HBP_ADC_VBUS};
+static const hbp_u8 adc_roles[3] = {HBP_ADC_IA, HBP_ADC_IB, HBP_ADC_VBUS};
 
 static const hrt_edge_decl_t edges[1] = {
     {body_index, HRT_IN_INDEX, HRT_EDGE_RISING},
@@ -237,7 +237,7 @@ const hrt_firmware_t hrt_firmware = {
     .duty_report = HRT_REPORT_ACTIVE,
     .pwm_priority = 2u,
     .pwm_isr = body_t1_underflow,
-    .inputs = (uint8_t)(HRT_IN_S2 | HRT_IN_INDEX),
+    .inputs = (hbp_u8)(HRT_IN_S2 | HRT_IN_INDEX),
     .encoder_counts = 10000u,
     .adc_bits = 12u,
     .n_adc = 3u,

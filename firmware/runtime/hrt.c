@@ -26,8 +26,8 @@ static void advance_to(hrt_t *rt, uint32_t t)
 void hrt_init(hrt_t *rt)
 {
     const hrt_firmware_t *decl = &hrt_firmware;
-    uint8_t i;
-    uint8_t *p = (uint8_t *)rt;
+    hbp_u8 i;
+    hbp_u8 *p = (hbp_u8 *)rt;
     uint16_t k;
     uint16_t mid;
     for (k = 0u; k < (uint16_t)sizeof *rt; k++) { /* no memset: no C library needed */
@@ -68,7 +68,7 @@ uint32_t hrt_micros(hrt_t *rt)
 }
 #endif
 
-uint16_t hrt_duty_active(const hrt_t *rt, uint8_t phase)
+uint16_t hrt_duty_active(const hrt_t *rt, hbp_u8 phase)
 {
     return (hrt_firmware.duty_timing == HRT_DUTY_IMMEDIATE) ? rt->duty[phase] : rt->duty_active[phase];
 }
@@ -90,7 +90,7 @@ static void active_changes(hrt_t *rt)
 {
 #if HRT_REPORT_MEAN
     uint32_t dt = rt->now - rt->acc_mark;
-    uint8_t i;
+    hbp_u8 i;
     for (i = 0u; i < 3u; i++) {
         rt->duty_acc[i] += (uint64_t)hrt_duty_active(rt, i) * dt;
     }
@@ -109,38 +109,38 @@ void hrt_pwm_preset(hrt_t *rt, uint16_t a, uint16_t b, uint16_t c)
     rt->duty_active[2] = c;
 }
 
-void hrt_timer_start(hrt_t *rt, uint8_t id, uint32_t first_ticks)
+void hrt_timer_start(hrt_t *rt, hbp_u8 id, uint32_t first_ticks)
 {
-    uint8_t bit = (uint8_t)(1u << id);
+    hbp_u8 bit = (hbp_u8)(1u << id);
     if (first_ticks == 0u) {
         first_ticks = 1u;
     }
     rt->timer_due[id] = rt->now + first_ticks;
-    rt->timers_on = (uint8_t)(rt->timers_on | bit);
-    rt->timers_hw = (uint8_t)(rt->timers_hw & (uint8_t)~bit);
+    rt->timers_on = (hbp_u8)(rt->timers_on | bit);
+    rt->timers_hw = (hbp_u8)(rt->timers_hw & (hbp_u8)~bit);
 #if defined(HRT_PORT_HW) && HRT_PORT_HW
     if ((rt->flags & HRT_F_HW) != 0u && hrt_port_timer(id, 1u, first_ticks)) {
-        rt->timers_hw = (uint8_t)(rt->timers_hw | bit);
+        rt->timers_hw = (hbp_u8)(rt->timers_hw | bit);
     }
 #endif
 }
 
-void hrt_timer_stop(hrt_t *rt, uint8_t id)
+void hrt_timer_stop(hrt_t *rt, hbp_u8 id)
 {
-    uint8_t bit = (uint8_t)(1u << id);
+    hbp_u8 bit = (hbp_u8)(1u << id);
 #if defined(HRT_PORT_HW) && HRT_PORT_HW
     if ((rt->timers_hw & bit) != 0u) {
         (void)hrt_port_timer(id, 0u, 0u);
     }
 #endif
-    rt->timers_on = (uint8_t)(rt->timers_on & (uint8_t)~bit);
-    rt->timers_hw = (uint8_t)(rt->timers_hw & (uint8_t)~bit);
+    rt->timers_on = (hbp_u8)(rt->timers_on & (hbp_u8)~bit);
+    rt->timers_hw = (hbp_u8)(rt->timers_hw & (hbp_u8)~bit);
 }
 
-uint8_t hrt_attach_interrupt(hrt_t *rt, uint8_t lines, uint8_t polarity, hrt_body_fn body)
+hbp_u8 hrt_attach_interrupt(hrt_t *rt, hbp_u8 lines, hbp_u8 polarity, hrt_body_fn body)
 {
 #if HRT_MAX_ATTACH > 0
-    uint8_t i;
+    hbp_u8 i;
     for (i = 0u; i < HRT_MAX_ATTACH; i++) { /* replace an attachment of the same lines, or take a free slot */
         if (rt->attached[i].body != 0 && rt->attached[i].lines == lines) {
             break;
@@ -171,32 +171,32 @@ uint8_t hrt_attach_interrupt(hrt_t *rt, uint8_t lines, uint8_t polarity, hrt_bod
 
 /* ---------------------------------------------------------------------------- dispatching */
 
-static uint8_t polarity_matches(uint8_t polarity, uint8_t lines, uint8_t changed, uint8_t levels)
+static hbp_u8 polarity_matches(hbp_u8 polarity, hbp_u8 lines, hbp_u8 changed, hbp_u8 levels)
 {
-    uint8_t mine = (uint8_t)(changed & lines);
+    hbp_u8 mine = (hbp_u8)(changed & lines);
     if (mine == 0u) {
         return 0u;
     }
     if (polarity == HRT_EDGE_RISING) {
-        return (uint8_t)((mine & levels) != 0u);
+        return (hbp_u8)((mine & levels) != 0u);
     }
     if (polarity == HRT_EDGE_FALLING) {
-        return (uint8_t)((mine & (uint8_t)~levels) != 0u);
+        return (hbp_u8)((mine & (hbp_u8)~levels) != 0u);
     }
     return 1u;
 }
 
 /* The edge lines take `lines` now: the bodies of the changed ones, in declared order. */
-static void apply_edge(hrt_t *rt, uint8_t lines)
+static void apply_edge(hrt_t *rt, hbp_u8 lines)
 {
     const hrt_firmware_t *d = &hrt_firmware;
-    uint8_t levels = (uint8_t)((rt->in & (uint8_t)~HRT_IN_EDGE_LINES) | (lines & HRT_IN_HALLS));
-    uint8_t changed = (uint8_t)(((rt->in ^ levels) & HRT_IN_HALLS) | (lines & HRT_IN_INDEX));
-    uint8_t i;
+    hbp_u8 levels = (hbp_u8)((rt->in & (hbp_u8)~HRT_IN_EDGE_LINES) | (lines & HRT_IN_HALLS));
+    hbp_u8 changed = (hbp_u8)(((rt->in ^ levels) & HRT_IN_HALLS) | (lines & HRT_IN_INDEX));
+    hbp_u8 i;
     if (changed == 0u) {
         return;
     }
-    rt->in = (uint8_t)(levels | (lines & HRT_IN_INDEX)); /* INDEX reads 1 during its own edge only */
+    rt->in = (hbp_u8)(levels | (lines & HRT_IN_INDEX)); /* INDEX reads 1 during its own edge only */
     rt->changed = changed;
     for (i = 0u; i < d->n_edges; i++) {
         if (polarity_matches(d->edges[i].polarity, d->edges[i].lines, changed, rt->in)) {
@@ -211,7 +211,7 @@ static void apply_edge(hrt_t *rt, uint8_t lines)
         }
     }
 #endif
-    rt->in = (uint8_t)(rt->in & (uint8_t)~HRT_IN_INDEX);
+    rt->in = (hbp_u8)(rt->in & (hbp_u8)~HRT_IN_INDEX);
     rt->changed = 0u;
 }
 
@@ -224,44 +224,58 @@ static void pwm_boundary(hrt_t *rt)
         rt->duty_active[0] = rt->duty[0];
         rt->duty_active[1] = rt->duty[1];
         rt->duty_active[2] = rt->duty[2];
-    } else if (d->duty_timing == HRT_DUTY_HALF_PERIOD) {
-        rt->flags = (uint8_t)(rt->flags | HRT_F_RELOAD);
     }
+#if HRT_HALF_PERIOD
+    else if (d->duty_timing == HRT_DUTY_HALF_PERIOD) {
+        rt->flags = (hbp_u8)(rt->flags | HRT_F_RELOAD);
+    }
+#endif
     if (d->pwm_isr != 0) {
         d->pwm_isr(rt);
     }
     rt->pwm_count = (uint16_t)(rt->pwm_count + 1u);
 }
 
+#if HRT_HALF_PERIOD
 static void reload(hrt_t *rt)
 {
     active_changes(rt);
-    rt->flags = (uint8_t)(rt->flags & (uint8_t)~HRT_F_RELOAD);
+    rt->flags = (hbp_u8)(rt->flags & (hbp_u8)~HRT_F_RELOAD);
     rt->duty_active[0] = rt->duty[0];
     rt->duty_active[1] = rt->duty[1];
     rt->duty_active[2] = rt->duty[2];
 }
 
+#endif
+
 /* The timer slot of a periodic main body. */
-static uint8_t main_slot(const hrt_firmware_t *d)
+static hbp_u8 main_slot(const hrt_firmware_t *d)
 {
+#if HRT_MAIN_RATE
     return (d->main_body != 0 && d->main_period_ticks != 0u) ? d->n_timers : HRT_NONE;
+#else
+    (void)d;
+    return HRT_NONE;
+#endif
 }
 
-static void expire(hrt_t *rt, uint8_t id)
+static void expire(hrt_t *rt, hbp_u8 id)
 {
     const hrt_firmware_t *d = &hrt_firmware;
     uint32_t period;
     hrt_body_fn body;
+#if HRT_MAIN_RATE
     if (id == main_slot(d)) {
         period = d->main_period_ticks;
         body = d->main_body;
-    } else {
+    } else
+#endif
+    {
         period = d->timers[id].period_ticks;
         body = d->timers[id].body;
     }
     if (period == 0u) {
-        rt->timers_on = (uint8_t)(rt->timers_on & (uint8_t)~(uint8_t)(1u << id));
+        rt->timers_on = (hbp_u8)(rt->timers_on & (hbp_u8)~(hbp_u8)(1u << id));
     } else {
         rt->timer_due[id] += period; /* before the body, which may stop or restart it */
     }
@@ -274,64 +288,63 @@ static void expire(hrt_t *rt, uint8_t id)
 #define EV_TIMER 3u
 
 /* The first event before (bound_rel ticks from now, bound_prio): due earlier, or due at the bound
- * with a priority below bound_prio. Ties: the lower priority first; equal priorities: PWM, reload,
- * timers in declared order. Returns its kind (EV_NONE: none), *rel its time from now. A leaf, so
- * that the bodies run on a small stack. */
-static HRT_NOINLINE uint8_t next_event(const hrt_t *rt, uint32_t bound_rel, uint8_t bound_prio, uint8_t *id,
+ * with a priority below bound_prio. Ties: the lower priority first; equal priorities: the PWM
+ * boundary (or reload), then the timers in declared order. Returns its kind (EV_NONE: none), *id the
+ * timer, *rel its time from now. A leaf, so that the bodies run on a small stack. */
+static HRT_NOINLINE hbp_u8 next_event(const hrt_t *rt, uint32_t bound_rel, hbp_u8 bound_prio, hbp_u8 *id,
                                        uint32_t *rel_out)
 {
     const hrt_firmware_t *d = &hrt_firmware;
-    uint32_t best = bound_rel;
-    uint8_t best_prio = bound_prio;
-    uint8_t kind = EV_NONE;
-    uint8_t n_slots = d->n_timers;
-    uint8_t i;
-    uint32_t rel;
-    if (main_slot(d) != HRT_NONE) {
-        n_slots = (uint8_t)(n_slots + 1u);
+    hbp_u8 n_slots = (hbp_u8)(d->n_timers + (main_slot(d) != HRT_NONE ? 1u : 0u));
+    hbp_u8 usable = (hbp_u8)(rt->timers_on & (hbp_u8)~rt->timers_hw);
+    hbp_u8 kind = EV_NONE;
+    hbp_u8 k = EV_PWM; /* the PWM boundary first (it wins ties of equal priority), then the timers */
+    hbp_u8 prio = d->pwm_priority;
+    hbp_u8 i = 0u;
+    uint32_t rel = rt->pwm_due - rt->now;
+#if HRT_HALF_PERIOD
+    if ((rt->flags & HRT_F_RELOAD) != 0u && rel - (d->pwm_period_ticks >> 1) < rel) {
+        rel -= d->pwm_period_ticks >> 1; /* the half-period reload comes first */
+        k = EV_RELOAD;
     }
-    for (i = 0u; i <= n_slots; i++) {
-        uint8_t prio = d->pwm_priority;
-        uint8_t k = EV_TIMER;
-        if (i == n_slots) { /* the PWM boundary, then the half-period reload */
-            rel = rt->pwm_due - rt->now;
-            k = EV_PWM;
-            if ((rt->flags & HRT_F_RELOAD) != 0u) {
-                uint32_t r = rel - (d->pwm_period_ticks >> 1);
-                if (r < rel) {
-                    rel = r;
-                    k = EV_RELOAD;
-                }
-            }
-        } else if ((rt->timers_on & (uint8_t)(1u << i)) != 0u && (rt->timers_hw & (uint8_t)(1u << i)) == 0u) {
-            prio = (i < d->n_timers) ? d->timers[i].priority : d->main_priority;
-            rel = rt->timer_due[i] - rt->now;
-        } else {
-            continue;
-        }
-        if (rel < best || (rel == best && prio < best_prio) ||
-            (rel == best && prio == best_prio && k != EV_TIMER && kind == EV_TIMER)) {
-            best = rel;
-            best_prio = prio;
+#endif
+    for (;;) {
+        if (rel < bound_rel || (rel == bound_rel && prio < bound_prio)) {
+            bound_rel = rel;
+            bound_prio = prio;
             kind = k;
-            *id = i;
+            *id = (hbp_u8)(i - 1u);
         }
+        while (i < n_slots && ((unsigned)usable & (1u << i)) == 0u) {
+            i++;
+        }
+        if (i >= n_slots) {
+            break;
+        }
+        rel = rt->timer_due[i] - rt->now;
+#if HRT_MAIN_RATE
+        prio = (i < d->n_timers) ? d->timers[i].priority : d->main_priority;
+#else
+        prio = d->timers[i].priority;
+#endif
+        k = EV_TIMER;
+        i++;
     }
-    *rel_out = best;
+    *rel_out = bound_rel;
     return kind;
 }
 
 /* Serve every event before (bound, bound_prio) (see next_event). */
-static void run_until(hrt_t *rt, uint32_t bound, uint8_t bound_prio)
+static void run_until(hrt_t *rt, uint32_t bound, hbp_u8 bound_prio)
 {
     uint32_t bound_rel = bound - rt->now;
     if (bound_rel >= HRT_HALF_RANGE) {
         return; /* the bound is already past */
     }
     for (;;) {
-        uint8_t id = 0u;
+        hbp_u8 id = 0u;
         uint32_t rel;
-        uint8_t kind = next_event(rt, bound_rel, bound_prio, &id, &rel);
+        hbp_u8 kind = next_event(rt, bound_rel, bound_prio, &id, &rel);
         if (kind == EV_NONE) {
             return;
         }
@@ -340,9 +353,13 @@ static void run_until(hrt_t *rt, uint32_t bound, uint8_t bound_prio)
         if (kind == EV_PWM) {
             rt->pwm_due += hrt_firmware.pwm_period_ticks;
             pwm_boundary(rt);
-        } else if (kind == EV_RELOAD) {
+        }
+#if HRT_HALF_PERIOD
+        else if (kind == EV_RELOAD) {
             reload(rt);
-        } else {
+        }
+#endif
+        else {
             expire(rt, id);
         }
     }
@@ -350,12 +367,12 @@ static void run_until(hrt_t *rt, uint32_t bound, uint8_t bound_prio)
 
 /* ------------------------------------------------------------------------------- lockstep */
 
-void hrt_span_begin(hrt_t *rt, uint8_t inputs, uint8_t n_edges, uint8_t edges_have_index, const uint16_t *adc,
-                    uint8_t n_adc, uint16_t encoder)
+void hrt_span_begin(hrt_t *rt, hbp_u8 inputs, hbp_u8 n_edges, hbp_u8 edges_have_index, const uint16_t *adc,
+                    hbp_u8 n_adc, uint16_t encoder)
 {
     const hrt_firmware_t *d = &hrt_firmware;
-    uint8_t start = 0u;
-    uint8_t hall = (uint8_t)(rt->in & HRT_IN_HALLS);
+    hbp_u8 start = 0u;
+    hbp_u8 hall = (hbp_u8)(rt->in & HRT_IN_HALLS);
 #if HRT_REPORT_MEAN
     rt->duty_acc[0] = 0u;
     rt->duty_acc[1] = 0u;
@@ -368,11 +385,11 @@ void hrt_span_begin(hrt_t *rt, uint8_t inputs, uint8_t n_edges, uint8_t edges_ha
         d->main_body(rt);
     }
     if (n_edges == 0u && ((inputs ^ hall) & HRT_IN_HALLS) != 0u) {
-        hall = (uint8_t)(inputs & HRT_IN_HALLS);
+        hall = (hbp_u8)(inputs & HRT_IN_HALLS);
         start = 1u;
     }
     if ((inputs & HRT_IN_INDEX) != 0u && !edges_have_index) {
-        hall = (uint8_t)(hall | HRT_IN_INDEX);
+        hall = (hbp_u8)(hall | HRT_IN_INDEX);
         start = 1u;
     }
     if (start) { /* at the span's first tick, after the events of that tick with a lower priority */
@@ -381,7 +398,7 @@ void hrt_span_begin(hrt_t *rt, uint8_t inputs, uint8_t n_edges, uint8_t edges_ha
     }
 }
 
-void hrt_span_edge(hrt_t *rt, uint32_t at_ticks, uint8_t lines)
+void hrt_span_edge(hrt_t *rt, uint32_t at_ticks, hbp_u8 lines)
 {
     if (at_ticks - rt->now >= HRT_HALF_RANGE) {
         at_ticks = rt->now; /* an edge listed out of order is served now */
@@ -400,7 +417,7 @@ void hrt_span_end(hrt_t *rt, uint32_t end_ticks)
 #if HRT_REPORT_MEAN
     {
         uint32_t span = rt->now - rt->span_start;
-        uint8_t i;
+        hbp_u8 i;
         active_changes(rt);
         for (i = 0u; i < 3u; i++) {
             uint64_t q = span ? rt->duty_acc[i] / span : hrt_duty_active(rt, i);
@@ -416,21 +433,21 @@ void hrt_span_end(hrt_t *rt, uint32_t end_ticks)
 
 /* ------------------------------------------------------------------------------ real time */
 
-void hrt_rt_enter(hrt_t *rt, uint8_t hw)
+void hrt_rt_enter(hrt_t *rt, hbp_u8 hw)
 {
-    rt->flags = (uint8_t)(hw ? (rt->flags | HRT_F_HW) : (rt->flags & (uint8_t)~HRT_F_HW));
+    rt->flags = (hbp_u8)(hw ? (rt->flags | HRT_F_HW) : (rt->flags & (hbp_u8)~HRT_F_HW));
 }
 
 /* Soft timers due by now (real time on a hardware port). */
 static void rt_soft_timers(hrt_t *rt, uint32_t now)
 {
-    uint8_t i;
-    uint8_t n_slots = hrt_firmware.n_timers;
+    hbp_u8 i;
+    hbp_u8 n_slots = hrt_firmware.n_timers;
     if (main_slot(&hrt_firmware) != HRT_NONE) {
-        n_slots = (uint8_t)(n_slots + 1u);
+        n_slots = (hbp_u8)(n_slots + 1u);
     }
     for (i = 0u; i < n_slots; i++) {
-        uint8_t bit = (uint8_t)(1u << i);
+        hbp_u8 bit = (hbp_u8)(1u << i);
         if ((rt->timers_on & bit) != 0u && (rt->timers_hw & bit) == 0u &&
             now - rt->timer_due[i] < HRT_HALF_RANGE) {
             advance_to(rt, rt->timer_due[i]);
@@ -448,22 +465,24 @@ void hrt_rt_pwm(hrt_t *rt, uint32_t now)
     rt_soft_timers(rt, now);
 }
 
+#if HRT_HALF_PERIOD
 void hrt_rt_reload(hrt_t *rt, uint32_t now)
 {
     advance_to(rt, now);
     reload(rt);
 }
+#endif
 
-void hrt_rt_timer(hrt_t *rt, uint8_t id, uint32_t now)
+void hrt_rt_timer(hrt_t *rt, hbp_u8 id, uint32_t now)
 {
-    if ((rt->timers_on & (uint8_t)(1u << id)) == 0u) {
+    if ((rt->timers_on & (hbp_u8)(1u << id)) == 0u) {
         return;
     }
     advance_to(rt, now);
     expire(rt, id);
 }
 
-void hrt_rt_edge(hrt_t *rt, uint8_t lines, uint32_t at)
+void hrt_rt_edge(hrt_t *rt, hbp_u8 lines, uint32_t at)
 {
     uint32_t keep = rt->now;
     rt->now = at; /* the capture time the edge bodies read (it may lie before the present) */
@@ -471,10 +490,10 @@ void hrt_rt_edge(hrt_t *rt, uint8_t lines, uint32_t at)
     rt->now = keep;
 }
 
-void hrt_rt_levels(hrt_t *rt, uint8_t levels, const uint16_t *adc, uint8_t n_adc, uint16_t encoder)
+void hrt_rt_levels(hrt_t *rt, hbp_u8 levels, const uint16_t *adc, hbp_u8 n_adc, uint16_t encoder)
 {
-    uint8_t i;
-    rt->in = (uint8_t)((rt->in & HRT_IN_HALLS) | (levels & (uint8_t)~HRT_IN_EDGE_LINES));
+    hbp_u8 i;
+    rt->in = (hbp_u8)((rt->in & HRT_IN_HALLS) | (levels & (hbp_u8)~HRT_IN_EDGE_LINES));
     for (i = 0u; i < n_adc && i < HRT_MAX_ADC; i++) {
         rt->adc[i] = adc[i];
     }
@@ -495,9 +514,9 @@ void hrt_rt_main(hrt_t *rt, uint32_t now)
 
 /* ----------------------------------------------------------------------------- parameters */
 
-int32_t hrt_param_candidate(hrt_t *rt, const hrt_param_request_t *req, uint8_t id)
+int32_t hrt_param_candidate(hrt_t *rt, const hrt_param_request_t *req, hbp_u8 id)
 {
-    uint8_t i;
+    hbp_u8 i;
     int32_t value = hrt_firmware.param_get(rt, id);
     for (i = 0u; i < req->n; i++) {
         if (req->id[i] == id) {
@@ -507,18 +526,18 @@ int32_t hrt_param_candidate(hrt_t *rt, const hrt_param_request_t *req, uint8_t i
     return value;
 }
 
-uint8_t hrt_param_write(hrt_t *rt, const hrt_param_request_t *req, uint8_t *param_id, uint8_t *detail)
+hbp_u8 hrt_param_write(hrt_t *rt, const hrt_param_request_t *req, hbp_u8 *param_id, hbp_u8 *detail)
 {
     const hrt_firmware_t *d = &hrt_firmware;
-    uint8_t i;
-    uint8_t j;
+    hbp_u8 i;
+    hbp_u8 j;
     *param_id = 0u;
     *detail = 0u;
     if (req->n == 0u || req->n > HBP_MAX_PARAM_PAIRS) {
         return HBP_RESULT_BAD_REQUEST;
     }
     for (i = 0u; i < req->n; i++) {
-        uint8_t id = req->id[i];
+        hbp_u8 id = req->id[i];
         int32_t value = req->value[i];
         *param_id = id;
         if (id >= d->n_params) {
@@ -537,7 +556,7 @@ uint8_t hrt_param_write(hrt_t *rt, const hrt_param_request_t *req, uint8_t *para
         }
     }
     if (d->param_check != 0) {
-        uint8_t result = d->param_check(rt, req, param_id, detail);
+        hbp_u8 result = d->param_check(rt, req, param_id, detail);
         if (result != HBP_RESULT_OK) {
             return result;
         }
@@ -558,7 +577,7 @@ static uint16_t clamp_duty(uint16_t v)
 }
 
 /* The duty the declaration's duty_report names, of one phase. */
-static uint16_t reported_duty(const hrt_t *rt, uint8_t phase)
+static uint16_t reported_duty(const hrt_t *rt, hbp_u8 phase)
 {
     if (hrt_firmware.duty_report != HRT_REPORT_ACTIVE) {
         return rt->duty[phase]; /* the registers as written: in effect from the next latch */
@@ -571,7 +590,7 @@ static uint16_t reported_duty(const hrt_t *rt, uint8_t phase)
     return hrt_duty_active(rt, phase);
 }
 
-void hrt_report(hrt_t *rt, uint8_t seq, hrt_report_t *out)
+void hrt_report(hrt_t *rt, hbp_u8 seq, hrt_report_t *out)
 {
     out->seq = seq;
     out->duty_a = clamp_duty(reported_duty(rt, 0u));

@@ -55,6 +55,12 @@
 #ifndef HRT_MICROS
 #define HRT_MICROS 1           /* hrt_micros (0: saves the 2 bytes of the tick counter's wraps) */
 #endif
+#ifndef HRT_HALF_PERIOD
+#define HRT_HALF_PERIOD 1      /* HRT_DUTY_HALF_PERIOD served (0: a firmware that does not declare it saves its code) */
+#endif
+#ifndef HRT_MAIN_RATE
+#define HRT_MAIN_RATE 1        /* a main body at a declared rate (0: once per span only) */
+#endif
 #ifndef HRT_REPORT_MEAN
 #define HRT_REPORT_MEAN 0      /* HRT_REPORT_ACTIVE as a mean over the span (1: 3 x 64-bit accumulators) */
 #endif
@@ -100,15 +106,15 @@ typedef void (*hrt_body_fn)(hrt_t *rt);
 typedef struct {
     hrt_body_fn body;
     uint32_t period_ticks; /* 0: one-shot (stops after its body), else periodic */
-    uint8_t priority;
+    hbp_u8 priority;
 } hrt_timer_decl_t;
 
 /* An edge event: body runs when one of `lines` changes with the polarity asked for. The bodies of
  * lines that change at the same instant run in the order of the declaration. */
 typedef struct {
     hrt_body_fn body;
-    uint8_t lines;    /* HRT_IN_* */
-    uint8_t polarity; /* HRT_EDGE_* */
+    hbp_u8 lines;    /* HRT_IN_* */
+    hbp_u8 polarity; /* HRT_EDGE_* */
 } hrt_edge_decl_t;
 
 /* A parameter: the wire's ParamInfo. Values are int32_t; ptype says how to read them. */
@@ -117,8 +123,8 @@ typedef struct {
     const char *unit; /* <= HRT_MAX_UNIT printable ASCII ("" = none) */
     int32_t min_value;
     int32_t max_value;
-    uint8_t ptype;    /* HBP_PTYPE_* */
-    uint8_t access;   /* HBP_ACCESS_* */
+    hbp_u8 ptype;    /* HBP_PTYPE_* */
+    hbp_u8 access;   /* HBP_ACCESS_* */
 } hrt_param_decl_t;
 
 #define HRT_MAX_UNIT 8u
@@ -129,14 +135,14 @@ typedef struct {
     const char *unit;
     int32_t scale_num;
     int32_t scale_den; /* > 0 */
-    uint8_t id;       /* HBP_TELEMETRY_*, or a target-defined id 0x80..0xFE */
-    uint8_t ptype;    /* HBP_PTYPE_Q15 / INT / BOOL: how the raw value reads */
+    hbp_u8 id;       /* HBP_TELEMETRY_*, or a target-defined id 0x80..0xFE */
+    hbp_u8 ptype;    /* HBP_PTYPE_Q15 / INT / BOOL: how the raw value reads */
 } hrt_telemetry_decl_t;
 
 /* A checked parameter write (at most HBP_MAX_PARAM_PAIRS distinct ids). */
 typedef struct {
-    uint8_t n;
-    uint8_t id[HBP_MAX_PARAM_PAIRS];
+    hbp_u8 n;
+    hbp_u8 id[HBP_MAX_PARAM_PAIRS];
     int32_t value[HBP_MAX_PARAM_PAIRS];
 } hrt_param_request_t;
 
@@ -149,48 +155,48 @@ typedef struct {
     /* identity */
     const char *name;            /* <= HBP_MAX_NAME printable ASCII: the HELLO's firmware_name */
     uint16_t version;
-    uint8_t ticks_per_us;        /* the virtual clock: its ticks per microsecond (20: a 20 MHz Tcy) */
+    hbp_u8 ticks_per_us;        /* the virtual clock: its ticks per microsecond (20: a 20 MHz Tcy) */
     uint16_t period_step_us;     /* an agreed period must be a multiple of it (0: any) */
     /* PWM */
     uint32_t pwm_period_ticks;   /* one PWM period (the PWM-period ISR's rate) */
     uint16_t pwm_counts;         /* the compare count of 100 % duty (Drive's scale) */
-    uint8_t duty_timing;         /* HRT_DUTY_* */
-    uint8_t duty_report;         /* HRT_REPORT_* (default 0: WRITTEN) */
-    uint8_t pwm_priority;
+    hbp_u8 duty_timing;         /* HRT_DUTY_* */
+    hbp_u8 duty_report;         /* HRT_REPORT_* (default 0: WRITTEN) */
+    hbp_u8 pwm_priority;
     hrt_body_fn pwm_isr;         /* at every PWM period boundary, after the duty latch; may be 0 */
     /* inputs */
-    uint8_t inputs;              /* HRT_IN_* lines the firmware reads (its self-description) */
+    hbp_u8 inputs;              /* HRT_IN_* lines the firmware reads (its self-description) */
     uint16_t encoder_counts;     /* quadrature counts per revolution (0: no encoder) */
-    uint8_t adc_bits;
-    uint8_t n_adc;               /* ADC channels, in the order Sensors carries them */
-    const uint8_t *adc_roles;    /* HBP_ADC_* per channel */
+    hbp_u8 adc_bits;
+    hbp_u8 n_adc;               /* ADC channels, in the order Sensors carries them */
+    const hbp_u8 *adc_roles;    /* HBP_ADC_* per channel */
     /* interrupt bodies */
     const hrt_timer_decl_t *timers;
-    uint8_t n_timers;            /* <= HRT_MAX_TIMERS */
+    hbp_u8 n_timers;            /* <= HRT_MAX_TIMERS */
     const hrt_edge_decl_t *edges;
-    uint8_t n_edges;
-    uint8_t edge_priority;       /* of input edges against timers and the PWM at the same tick */
+    hbp_u8 n_edges;
+    hbp_u8 edge_priority;       /* of input edges against timers and the PWM at the same tick */
     hrt_body_fn main_body;       /* the main loop's body, or 0 */
     /* 0: once at the start of every span, before any ISR; else its rate (it then takes the timer
      * slot n_timers, so HRT_MAX_TIMERS > n_timers) */
     uint32_t main_period_ticks;
-    uint8_t main_priority;
+    hbp_u8 main_priority;
     /* parameters */
     const hrt_param_decl_t *params;
-    uint8_t n_params;
-    int32_t (*param_get)(hrt_t *rt, uint8_t id);
-    void (*param_set)(hrt_t *rt, uint8_t id, int32_t value); /* a checked value; ids of one write in order */
+    hbp_u8 n_params;
+    int32_t (*param_get)(hrt_t *rt, hbp_u8 id);
+    void (*param_set)(hrt_t *rt, hbp_u8 id, int32_t value); /* a checked value; ids of one write in order */
     /* Cross-parameter constraints of a write whose ids, access and ranges are already checked: return
      * HBP_RESULT_OK, or HBP_RESULT_CONSTRAINT with *param_id and *detail (the constraint number) set.
      * hrt_param_candidate gives the value an id would have after the write. May be 0. */
-    uint8_t (*param_check)(hrt_t *rt, const hrt_param_request_t *req, uint8_t *param_id, uint8_t *detail);
+    hbp_u8 (*param_check)(hrt_t *rt, const hrt_param_request_t *req, hbp_u8 *param_id, hbp_u8 *detail);
     /* telemetry and the Drive */
     const hrt_telemetry_decl_t *telemetry;
-    uint8_t n_telemetry;         /* <= HBP_MAX_TELEMETRY */
+    hbp_u8 n_telemetry;         /* <= HBP_MAX_TELEMETRY */
     void (*report)(hrt_t *rt, hrt_report_t *out);
     /* commands */
     void (*start)(hrt_t *rt);                 /* the host's Start (the S2 button as a command) */
-    void (*stop)(hrt_t *rt, uint8_t why);     /* HRT_STOP_*: outputs off */
+    void (*stop)(hrt_t *rt, hbp_u8 why);     /* HRT_STOP_*: outputs off */
 } hrt_firmware_t;
 
 /* The one firmware of this program (the firmware's source defines it). */
@@ -202,8 +208,8 @@ hrt_t *hrt_firmware_init(void);
 
 /* ---- runtime state (the first member of the firmware's struct; the fields are the runtime's) ---- */
 typedef struct {
-    uint8_t lines;
-    uint8_t polarity;
+    hbp_u8 lines;
+    hbp_u8 polarity;
     hrt_body_fn body;
 } hrt_attached_t;
 
@@ -221,11 +227,11 @@ struct hrt {
 #if HRT_ENCODER
     uint16_t encoder;            /* the newest quadrature count */
 #endif
-    uint8_t timers_on;           /* bit i: timer i runs */
-    uint8_t timers_hw;           /* bit i: the port runs timer i in hardware (real time) */
-    uint8_t in;                  /* input levels now (HRT_IN_*; INDEX set only during its edge) */
-    uint8_t changed;             /* the lines of the edge being served */
-    uint8_t flags;               /* HRT_F_* */
+    hbp_u8 timers_on;           /* bit i: timer i runs */
+    hbp_u8 timers_hw;           /* bit i: the port runs timer i in hardware (real time) */
+    hbp_u8 in;                  /* input levels now (HRT_IN_*; INDEX set only during its edge) */
+    hbp_u8 changed;             /* the lines of the edge being served */
+    hbp_u8 flags;               /* HRT_F_* */
 #if HRT_REPORT_MEAN
     uint64_t duty_acc[3];        /* sum of duty_active x ticks since acc_mark's span began */
     uint32_t acc_mark;           /* the tick up to which duty_acc counts */
@@ -259,9 +265,9 @@ void hrt_init(hrt_t *rt);
  *   `end` belongs to the next span).
  * Times are absolute ticks (hrt_now at begin + an offset); an edge at or after the span's end is
  * the caller's to move to the span's last tick (end - 1). A span of no ticks runs nothing. */
-void hrt_span_begin(hrt_t *rt, uint8_t inputs, uint8_t n_edges, uint8_t edges_have_index, const uint16_t *adc,
-                    uint8_t n_adc, uint16_t encoder);
-void hrt_span_edge(hrt_t *rt, uint32_t at_ticks, uint8_t lines);
+void hrt_span_begin(hrt_t *rt, hbp_u8 inputs, hbp_u8 n_edges, hbp_u8 edges_have_index, const uint16_t *adc,
+                    hbp_u8 n_adc, uint16_t encoder);
+void hrt_span_edge(hrt_t *rt, uint32_t at_ticks, hbp_u8 lines);
 void hrt_span_end(hrt_t *rt, uint32_t end_ticks);
 
 /* ---- real time: the glue a port calls from the chip's own interrupts (docs/porting.md) ----
@@ -269,18 +275,20 @@ void hrt_span_end(hrt_t *rt, uint32_t end_ticks);
  * hrt_port_timer, HRT_PORT_HW builds) expire through hrt_rt_timer; the others are served by
  * hrt_rt_pwm at PWM-period resolution. */
 void hrt_rt_pwm(hrt_t *rt, uint32_t now);            /* the PWM-period interrupt: latch, PWM ISR, soft timers */
+#if HRT_HALF_PERIOD
 void hrt_rt_reload(hrt_t *rt, uint32_t now);         /* the half-period reload interrupt (HALF_PERIOD) */
-void hrt_rt_timer(hrt_t *rt, uint8_t id, uint32_t now); /* a hardware-run timer expired */
-void hrt_rt_edge(hrt_t *rt, uint8_t lines, uint32_t at); /* input edge lines changed (capture time `at`) */
-void hrt_rt_levels(hrt_t *rt, uint8_t levels, const uint16_t *adc, uint8_t n_adc, uint16_t encoder);
+#endif
+void hrt_rt_timer(hrt_t *rt, hbp_u8 id, uint32_t now); /* a hardware-run timer expired */
+void hrt_rt_edge(hrt_t *rt, hbp_u8 lines, uint32_t at); /* input edge lines changed (capture time `at`) */
+void hrt_rt_levels(hrt_t *rt, hbp_u8 levels, const uint16_t *adc, hbp_u8 n_adc, uint16_t encoder);
 void hrt_rt_main(hrt_t *rt, uint32_t now);           /* from the main loop: the main body */
-void hrt_rt_enter(hrt_t *rt, uint8_t hw);            /* real time begins (hw: the port's interrupts run it) */
+void hrt_rt_enter(hrt_t *rt, hbp_u8 hw);            /* real time begins (hw: the port's interrupts run it) */
 
 #if defined(HRT_PORT_HW) && HRT_PORT_HW
 /* A port whose interrupts run the bodies in real time provides this: start (on = 1, first expiry
  * `first_ticks` from now) or stop a timer in hardware; return 1 if it does so, 0 to leave the
  * timer to the runtime (served in hrt_rt_pwm). */
-uint8_t hrt_port_timer(uint8_t id, uint8_t on, uint32_t first_ticks);
+hbp_u8 hrt_port_timer(hbp_u8 id, hbp_u8 on, uint32_t first_ticks);
 #endif
 
 /* ---- services for the firmware's bodies ---- */
@@ -291,19 +299,19 @@ static inline uint32_t hrt_now(const hrt_t *rt)      /* ticks: an edge body's ca
 #if HRT_MICROS
 uint32_t hrt_micros(hrt_t *rt);                      /* microseconds (wraps at 2^32 us) */
 #endif
-static inline uint8_t hrt_inputs(const hrt_t *rt)    /* HRT_IN_* levels now */
+static inline hbp_u8 hrt_inputs(const hrt_t *rt)    /* HRT_IN_* levels now */
 {
     return rt->in;
 }
-static inline uint8_t hrt_pin(const hrt_t *rt, uint8_t line)
+static inline hbp_u8 hrt_pin(const hrt_t *rt, hbp_u8 line)
 {
-    return (uint8_t)((rt->in & line) != 0u);
+    return (hbp_u8)((rt->in & line) != 0u);
 }
-static inline uint8_t hrt_edge_lines(const hrt_t *rt) /* in an edge body: the lines that changed */
+static inline hbp_u8 hrt_edge_lines(const hrt_t *rt) /* in an edge body: the lines that changed */
 {
     return rt->changed;
 }
-static inline uint16_t hrt_adc(const hrt_t *rt, uint8_t channel)
+static inline uint16_t hrt_adc(const hrt_t *rt, hbp_u8 channel)
 {
     return rt->adc[channel];
 }
@@ -325,7 +333,7 @@ static inline uint16_t hrt_pwm_count(const hrt_t *rt) /* in the PWM ISR: this bo
 void hrt_pwm_write(hrt_t *rt, uint16_t a, uint16_t b, uint16_t c);
 /* Registers and outputs at once (a start-up preset, an override): no latch to wait for. */
 void hrt_pwm_preset(hrt_t *rt, uint16_t a, uint16_t b, uint16_t c);
-static inline uint16_t hrt_duty(const hrt_t *rt, uint8_t phase) /* as written */
+static inline uint16_t hrt_duty(const hrt_t *rt, hbp_u8 phase) /* as written */
 {
     return rt->duty[phase];
 }
@@ -333,29 +341,29 @@ static inline uint16_t *hrt_duty_registers(hrt_t *rt) /* the three registers, to
 {
     return rt->duty;
 }
-uint16_t hrt_duty_active(const hrt_t *rt, uint8_t phase); /* at the outputs now */
+uint16_t hrt_duty_active(const hrt_t *rt, hbp_u8 phase); /* at the outputs now */
 /* Start a declared timer: its first expiry first_ticks from now (>= 1), then every period_ticks. */
-void hrt_timer_start(hrt_t *rt, uint8_t id, uint32_t first_ticks);
-void hrt_timer_stop(hrt_t *rt, uint8_t id);
-static inline uint8_t hrt_timer_running(const hrt_t *rt, uint8_t id)
+void hrt_timer_start(hrt_t *rt, hbp_u8 id, uint32_t first_ticks);
+void hrt_timer_stop(hrt_t *rt, hbp_u8 id);
+static inline hbp_u8 hrt_timer_running(const hrt_t *rt, hbp_u8 id)
 {
-    return (uint8_t)(((unsigned)rt->timers_on >> id) & 1u);
+    return (hbp_u8)(((unsigned)rt->timers_on >> id) & 1u);
 }
 /* Arduino-style attachInterrupt on the virtual inputs (HRT_MAX_ATTACH > 0): body runs on the lines'
  * edges of that polarity, after the declared edge bodies; body 0 detaches. Returns 0 when full. */
-uint8_t hrt_attach_interrupt(hrt_t *rt, uint8_t lines, uint8_t polarity, hrt_body_fn body);
+hbp_u8 hrt_attach_interrupt(hrt_t *rt, hbp_u8 lines, hbp_u8 polarity, hrt_body_fn body);
 
 /* ---- parameters (the link calls these; a firmware may too) ---- */
 /* The value id would have after req (req's value if it writes id, else the present one). */
-int32_t hrt_param_candidate(hrt_t *rt, const hrt_param_request_t *req, uint8_t id);
+int32_t hrt_param_candidate(hrt_t *rt, const hrt_param_request_t *req, hbp_u8 id);
 /* Check a write whole (ids, access, ranges, duplicates, then the firmware's constraints) and apply
  * all of it or nothing. Returns HBP_RESULT_*; *param_id names the offending id (the last written id
  * when OK), *detail the constraint number. */
-uint8_t hrt_param_write(hrt_t *rt, const hrt_param_request_t *req, uint8_t *param_id, uint8_t *detail);
+hbp_u8 hrt_param_write(hrt_t *rt, const hrt_param_request_t *req, hbp_u8 *param_id, hbp_u8 *detail);
 
 /* ---- outputs ---- */
 /* The Drive of the present state: the duties the declaration's duty_report names (clamped to
  * pwm_counts), then the firmware's report. */
-void hrt_report(hrt_t *rt, uint8_t seq, hrt_report_t *out);
+void hrt_report(hrt_t *rt, hbp_u8 seq, hrt_report_t *out);
 
 #endif /* HRT_H */

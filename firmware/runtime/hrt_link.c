@@ -1,29 +1,46 @@
-/* hrt_link.c: the runtime's protocol side (see hrt_link.h). */
+/* hrt_link.c: the runtime's protocol side (see hrt_link.h).
+ *
+ * Requests are read in place from the receive buffer and replies written field by field into l->tx,
+ * then streamed out (hbp_send_frame): no message structs, no codec tables. The byte layouts are the
+ * schema's (firmware_protocol/schema.toml); tests/test_runtime_link.py decodes every reply with the
+ * codec generated from it. */
 #include "hrt_link.h"
 
-/* The rare requests (handshake, parameters) keep their message structs in their own frames, off
- * the lockstep path's stack (GCC and XC16; other compilers may inline them). */
+/* The rare requests (handshake, parameters) keep their locals in their own frames, off the lockstep
+ * path's stack (GCC and XC16; other compilers may inline them). */
 #if defined(__GNUC__)
 #define HRT_NOINLINE __attribute__((noinline))
 #else
 #define HRT_NOINLINE
 #endif
 
-#define TX (&l->wire[1]) /* where a reply is packed */
+/* The clock and the PWM period as constants when hrt_config.h names them (the compiler then folds the
+ * arithmetic a 16-bit chip would call a library routine for), else the declaration's. */
+#ifdef HRT_TICKS_PER_US
+#define TICKS_PER_US ((uint32_t)(HRT_TICKS_PER_US))
+#else
+#define TICKS_PER_US ((uint32_t)hrt_firmware.ticks_per_us)
+#endif
+#ifdef HRT_PWM_PERIOD_TICKS
+#define PWM_PERIOD_TICKS ((uint32_t)(HRT_PWM_PERIOD_TICKS))
+#else
+#define PWM_PERIOD_TICKS (hrt_firmware.pwm_period_ticks)
+#endif
 
-static uint8_t name_len(const char *s, uint8_t max)
+static uint16_t get_u16(const hbp_u8 *p)
 {
-    uint8_t n = 0u;
-    while (n < max && s[n] != '\0') {
-        n++;
-    }
-    return n;
+    return (uint16_t)((uint16_t)(p[0] & 0xFFu) | (uint16_t)((uint16_t)(p[1] & 0xFFu) << 8));
+}
+
+static uint32_t get_u32(const hbp_u8 *p)
+{
+    return (uint32_t)get_u16(p) | ((uint32_t)get_u16(&p[2]) << 16);
 }
 
 /* A little-endian two's-complement i32 (no implementation-defined conversion). */
-static int32_t get_i32(const uint8_t *p)
+static int32_t get_i32(const hbp_u8 *p)
 {
-    uint32_t u = (uint32_t)p[0] | ((uint32_t)p[1] << 8) | ((uint32_t)p[2] << 16) | ((uint32_t)p[3] << 24);
+    uint32_t u = get_u32(p);
     if (u < 0x80000000UL) {
         return (int32_t)u;
     }
@@ -40,88 +57,162 @@ void hrt_link_init(hrt_link_t *l, hrt_t *rt)
     l->watchdog_trips = 0u;
     l->mode = HBP_MODE_LOCKSTEP;
     l->flags = 0u;
-    l->last_error = HBP_ERROR_NONE;
     l->last_seq = 0u;
+    l->tx_len = 0u;
 }
 
-/* Encode in place and send the frame packed at l->wire[1] (len 0: nothing). In place is safe with
- * hbp_encode_frame's single forward pass: it computes the CRC first, output byte i + 1 is input
- * byte i (a data byte lands on itself) and a code byte goes to the position of a byte already read
- * (or wire[0]); the CRC and the delimiter land after the frame. */
-static void send_frame(hrt_link_t *l, uint8_t len)
+/* ---- replies, field by field ---- */
+
+static void w8(hrt_link_t *l, hbp_u8 v)
 {
-    uint8_t n;
-    if (len == 0u || len > HRT_TX_FRAME_MAX) {
-        return;
+    if (l->tx_len < HRT_TX_FRAME_MAX) {
+        l->tx[l->tx_len] = (hbp_u8)(v & 0xFFu);
     }
-    n = hbp_encode_frame(TX, len, l->wire);
-    if (n > 0u) {
-        hrt_port_send(l->wire, n);
+    l->tx_len = (hbp_u8)(l->tx_len < 0xFFu ? l->tx_len + 1u : 0xFFu); /* past the end: not sent */
+}
+
+static void w16(hrt_link_t *l, uint16_t v)
+{
+    w8(l, (hbp_u8)(v & 0xFFu));
+    w8(l, (hbp_u8)(v >> 8));
+}
+
+static void w32(hrt_link_t *l, uint32_t v)
+{
+    w16(l, (uint16_t)(v & 0xFFFFu));
+    w16(l, (uint16_t)(v >> 16));
+}
+
+/* A declared name (at most max printable characters), with its count unless it is the last field. */
+static void wname(hrt_link_t *l, const char *s, hbp_u8 max, hbp_u8 counted)
+{
+    hbp_u8 n = 0u;
+    while (n < max && s[n] != '\0') {
+        n++;
+    }
+    if (counted) {
+        w8(l, n);
+    }
+    while (n-- > 0u) {
+        w8(l, (hbp_u8)*s++);
     }
 }
 
-static void send_error(hrt_link_t *l, uint8_t seq, uint8_t code, uint8_t detail)
+static void begin(hrt_link_t *l, hbp_u8 type, hbp_u8 seq)
 {
-    hbp_error_report_t e;
-    hbp_error_report(seq, code, detail, &e); /* carries this build's schema fingerprint */
-    l->last_error = code;
-    send_frame(l, hbp_pack_error_report(&e, TX));
+    l->tx_len = 0u;
+    w8(l, type);
+    w8(l, seq);
 }
 
-void hrt_link_send_drive(hrt_link_t *l, uint8_t seq)
+/* Send the reply written since begin (nothing when it did not fit HRT_TX_FRAME_MAX: the host times
+ * out and says so). */
+static void finish(hrt_link_t *l)
 {
-    hbp_drive_t d;
+    if (l->tx_len <= HRT_TX_FRAME_MAX) {
+        hbp_send_frame(l->tx, l->tx_len, hrt_port_send);
+    }
+}
+
+static void send_error(hrt_link_t *l, hbp_u8 seq, hbp_u8 code, hbp_u8 detail)
+{
+    l->rx.last_error = code; /* Status reports it as the last error */
+    begin(l, HBP_MSG_ERROR_REPORT, seq);
+    w8(l, code);
+    w8(l, detail);
+    w32(l, HBP_SCHEMA_FINGERPRINT); /* this build's: the host names both when they differ */
+    finish(l);
+}
+
+void hrt_link_send_drive(hrt_link_t *l, hbp_u8 seq)
+{
+    hrt_report_t d;
+    hbp_u8 i;
     hrt_report(l->rt, seq, &d);
-    send_frame(l, hbp_pack_drive(&d, TX));
+    if ((l->flags & HRT_LINK_F_TRIPPED) != 0u) { /* the watchdog turned the outputs off: say so */
+        d.output_mode = HBP_OUTPUT_OFF;
+        if (d.fault == HBP_FAULT_NONE) {
+            d.fault = HBP_FAULT_WATCHDOG;
+        }
+    }
+    begin(l, HBP_MSG_DRIVE, seq);
+    w16(l, d.duty_a);
+    w16(l, d.duty_b);
+    w16(l, d.duty_c);
+    w16(l, (uint16_t)((unsigned)(d.output_mode & 3u) | ((unsigned)(d.state & 7u) << 2) |
+                      ((unsigned)(d.sector & 7u) << 5) | ((unsigned)(d.direction_ccw != 0u) << 8) |
+                      ((unsigned)(d.required_ccw != 0u) << 9) | ((unsigned)(d.fault & 0x3Fu) << 10)));
+    for (i = 0u; i < d.n_telemetry; i++) {
+        w16(l, (uint16_t)d.telemetry[i]);
+    }
+    finish(l);
 }
 
-/* TargetHello: the firmware's declaration (its own frame, off the handshake's). */
-static HRT_NOINLINE void send_target_hello(hrt_link_t *l, uint8_t seq)
+/* TargetHello: the firmware's declaration. */
+static HRT_NOINLINE void send_target_hello(hrt_link_t *l, hbp_u8 seq)
 {
     const hrt_firmware_t *d = &hrt_firmware;
-    hbp_target_hello_t t;
-    uint8_t i;
-    uint8_t n = name_len(d->name, HBP_MAX_NAME);
-    t.seq = seq;
-    t.protocol_version = HBP_PROTOCOL_VERSION;
-    t.schema_fingerprint = HBP_SCHEMA_FINGERPRINT;
-    t.adc_bits = d->adc_bits;
-    t.firmware_version = d->version;
-    t.pwm_period_counts = d->pwm_counts;
-    t.pwm_freq_hz = (uint32_t)((uint32_t)d->ticks_per_us * 1000000UL / d->pwm_period_ticks);
-    t.n_params = d->n_params;
-    for (i = 0u; i < n; i++) {
-        t.firmware_name[i] = d->name[i];
+    hbp_u8 i;
+    hbp_u8 n_adc = (d->n_adc > HBP_MAX_ADC) ? (hbp_u8)HBP_MAX_ADC : d->n_adc;
+    begin(l, HBP_MSG_TARGET_HELLO, seq);
+    w8(l, HBP_PROTOCOL_VERSION);
+    w32(l, HBP_SCHEMA_FINGERPRINT);
+    w16(l, d->version);
+    w16(l, d->pwm_counts);
+    w32(l, (uint32_t)(TICKS_PER_US * 1000000UL / PWM_PERIOD_TICKS));
+    w8(l, d->n_params);
+    w8(l, d->adc_bits);
+    wname(l, d->name, HBP_MAX_NAME, 1u);
+    w8(l, n_adc);
+    for (i = 0u; i < n_adc; i++) {
+        w8(l, d->adc_roles[i]);
     }
-    t.firmware_name[n] = '\0';
-    t.n_adc_roles = (d->n_adc > HBP_MAX_ADC) ? (uint8_t)HBP_MAX_ADC : d->n_adc;
-    for (i = 0u; i < t.n_adc_roles; i++) {
-        t.adc_roles[i] = d->adc_roles[i];
-    }
-    t.n_telemetry_ids = d->n_telemetry;
     for (i = 0u; i < d->n_telemetry; i++) {
-        t.telemetry_ids[i] = d->telemetry[i].id;
+        w8(l, d->telemetry[i].id);
     }
-    if ((uint8_t)(HBP_TARGET_HELLO_FIXED_LEN + 2u + n + t.n_adc_roles + d->n_telemetry) <= HRT_TX_FRAME_MAX) {
-        send_frame(l, hbp_pack_target_hello(&t, TX)); /* (else the build's HRT_TX_FRAME_MAX is too small) */
-    }
+    finish(l);
 }
 
-static HRT_NOINLINE void on_hello(hrt_link_t *l, const uint8_t *buf, uint8_t len, uint8_t seq)
+#if HRT_DESCRIBE
+/* TargetInfo: what a host needs beyond the HELLO to serve the firmware (TargetDescribe). */
+static HRT_NOINLINE void on_target_describe(hrt_link_t *l, hbp_u8 seq)
 {
-    hbp_host_hello_t h;
-    uint8_t err = hbp_check_host_hello(buf, len, &h); /* version and schema fingerprint */
+    const hrt_firmware_t *d = &hrt_firmware;
+    /* the edges one Sensors may carry: what the receive buffer holds beside the declared ADC codes */
+    hbp_u8 room = (hbp_u8)((HBP_RX_MAX - 1u - HBP_SENSORS_FIXED_LEN - 1u - 2u * d->n_adc) / 3u);
+    begin(l, HBP_MSG_TARGET_INFO, seq);
+    w8(l, d->duty_timing);
+    w8(l, d->duty_report);
+    w8(l, d->inputs);
+    w16(l, d->encoder_counts);
+    w8(l, (room < HBP_MAX_EDGES) ? room : (hbp_u8)HBP_MAX_EDGES);
+    finish(l);
+}
+#endif
+
+/* HostHello, read in place: the version byte first (a HostHello of another version may have another
+ * length), then the length, the schema fingerprint, the period and the mode. */
+static HRT_NOINLINE void on_hello(hrt_link_t *l, const hbp_u8 *buf, hbp_u8 len, hbp_u8 seq)
+{
+    uint16_t period_us;
+    hbp_u8 mode;
     uint16_t step = hrt_firmware.period_step_us;
-    if (err == HBP_ERROR_VERSION) {
+    if (len >= 3u && buf[2] != HBP_PROTOCOL_VERSION) {
         send_error(l, seq, HBP_ERROR_VERSION, HBP_PROTOCOL_VERSION);
         return;
     }
-    if (err != HBP_ERROR_NONE) {
+    if (len != HBP_HOST_HELLO_FIXED_LEN) {
         send_error(l, seq, HBP_ERROR_LENGTH, buf[0]);
         return;
     }
-    if (h.period_us == 0u || (step != 0u && h.period_us % step != 0u) ||
-        (h.mode != HBP_MODE_LOCKSTEP && h.mode != HBP_MODE_REALTIME)) {
+    if (get_u32(&buf[8]) != HBP_SCHEMA_FINGERPRINT) {
+        send_error(l, seq, HBP_ERROR_VERSION, HBP_PROTOCOL_VERSION);
+        return;
+    }
+    period_us = get_u16(&buf[3]);
+    mode = buf[5];
+    if (period_us == 0u || (step != 0u && period_us % step != 0u) ||
+        (mode != HBP_MODE_LOCKSTEP && mode != HBP_MODE_REALTIME)) {
         send_error(l, seq, HBP_ERROR_BAD_REQUEST, 0u);
         return;
     }
@@ -131,96 +222,92 @@ static HRT_NOINLINE void on_hello(hrt_link_t *l, const uint8_t *buf, uint8_t len
         hrt_rt_enter(l->rt, 0u);
     }
 #endif
-    l->period_us = h.period_us;
-    l->mode = h.mode;
-    l->watchdog_ms = h.watchdog_ms;
+    l->period_us = period_us;
+    l->mode = mode;
+    l->watchdog_ms = get_u16(&buf[6]);
     l->flags = HRT_LINK_F_HELLO; /* a new session numbers its Sensors from 0 again */
     send_target_hello(l, seq);
 }
 
-#if defined(HRT_PORT_HW) && HRT_PORT_HW
-static void rt_hw_sensors(hrt_link_t *l, const uint8_t *buf, uint8_t n_adc);
-#endif
+/* Sensors, read in place: inputs u8, encoder u16, ADC codes (a count, u16 each), edges to the end
+ * (time u16 in 100 ns units, lines u8 each). */
+#define SENSORS_INPUTS 2u
+#define SENSORS_ENCODER 3u
+#define SENSORS_N_ADC 5u
+#define SENSORS_ADC 6u
 
-static uint16_t get_u16(const uint8_t *p)
+/* 100 ns units (the wire's edge times) in the firmware's ticks. */
+static uint32_t ticks_of(uint32_t t_100ns)
 {
-    return (uint16_t)((uint16_t)p[0] | (uint16_t)((uint16_t)p[1] << 8));
+    /* exact: t_100ns < 2^16, ticks_per_us < 2^8 */
+    return (TICKS_PER_US % 10u == 0u) ? t_100ns * (TICKS_PER_US / 10u) : t_100ns * TICKS_PER_US / 10u;
 }
 
-/* Sensors, read in place: inputs u8, edge time u16 (100 ns), encoder u16, ADC codes u16 to the end. */
-#define SENSORS_INPUTS 2u
-#define SENSORS_EDGE 3u
-#define SENSORS_ENCODER 5u
-#define SENSORS_ADC 7u
-
-/* One span of the agreed period (lockstep) or of the time that passed (real time). */
-static void run_span(hrt_link_t *l, const uint8_t *buf, uint8_t n_adc, uint32_t span)
+/* A Sensors' inputs, ADC codes and edges into the runtime. Lockstep (span > 0): one span of the
+ * agreed period, or of the time that passed (real time on a port that runs the bodies itself), every
+ * edge at its time (one at or beyond the span's end at its last tick). Real time on a port whose
+ * interrupts run the bodies (span 0): the inputs the bodies read, each edge captured at its time
+ * back-dated from now by the rest of the period (an estimate: the frame's own transit is not known). */
+static void serve_sensors(hrt_link_t *l, const hbp_u8 *buf, hbp_u8 len, uint32_t span)
 {
     hrt_t *rt = l->rt;
     uint32_t start = rt->now;
-    uint8_t inputs = buf[SENSORS_INPUTS];
-    uint16_t edge = get_u16(&buf[SENSORS_EDGE]);
-    uint8_t have_edge = (uint8_t)(edge != HBP_EDGE_NONE);
+    hbp_u8 inputs = buf[SENSORS_INPUTS];
+    hbp_u8 at = (hbp_u8)(SENSORS_ADC + 2u * buf[SENSORS_N_ADC]); /* the first edge */
+    hbp_u8 n_edges = (hbp_u8)((hbp_u8)(len - at) / 3u);
+    hbp_u8 has_index = 0u;
     uint16_t adc[HRT_MAX_ADC];
-    uint8_t i;
-    for (i = 0u; i < n_adc && i < HRT_MAX_ADC; i++) {
-        adc[i] = get_u16(&buf[SENSORS_ADC + 2u * i]);
+    hbp_u8 n_adc;
+    hbp_u8 i;
+    for (n_adc = 0u; n_adc < buf[SENSORS_N_ADC] && n_adc < HRT_MAX_ADC; n_adc++) {
+        adc[n_adc] = get_u16(&buf[SENSORS_ADC + 2u * n_adc]);
     }
-    hrt_span_begin(rt, inputs, have_edge, 0u, adc, i, get_u16(&buf[SENSORS_ENCODER]));
-    if (have_edge) {
-        uint32_t off = (uint32_t)edge * hrt_firmware.ticks_per_us / 10u;
-        if (off >= span) {
-            off = span - 1u;
+#if defined(HRT_PORT_HW) && HRT_PORT_HW
+    if (span == 0u) {
+        uint32_t period_100ns = (uint32_t)l->period_us * 10u;
+        start = hrt_port_now();
+        if ((l->flags & HRT_LINK_F_RT) == 0u) {
+            l->flags = (hbp_u8)(l->flags | HRT_LINK_F_RT);
+            hrt_rt_enter(rt, 1u);
+            hrt_port_realtime(1u);
         }
-        hrt_span_edge(rt, start + off, (uint8_t)(inputs & HRT_IN_HALLS));
+        hrt_port_lock();
+        hrt_rt_levels(rt, inputs, adc, n_adc, get_u16(&buf[SENSORS_ENCODER]));
+        hrt_rt_main(rt, start);
+        if (n_edges == 0u) {
+            hrt_rt_edge(rt, (hbp_u8)(inputs & HRT_IN_EDGE_LINES), start); /* a change without its time */
+        }
+        for (; at < len; at = (hbp_u8)(at + 3u)) {
+            uint32_t t = get_u16(&buf[at]);
+            hrt_rt_edge(rt, buf[at + 2u], start - ((t < period_100ns) ? ticks_of(period_100ns - t) : 0u));
+        }
+        hrt_port_unlock();
+        return;
+    }
+#endif
+    for (i = 0u; i < n_edges; i++) {
+        has_index = (hbp_u8)(has_index | (buf[at + 3u * i + 2u] & HRT_IN_INDEX));
+    }
+    hrt_span_begin(rt, inputs, n_edges, has_index, adc, n_adc, get_u16(&buf[SENSORS_ENCODER]));
+    for (; at < len; at = (hbp_u8)(at + 3u)) {
+        uint32_t off = ticks_of(get_u16(&buf[at]));
+        hrt_span_edge(rt, start + ((off < span) ? off : span - 1u), buf[at + 2u]);
     }
     hrt_span_end(rt, start + span);
 }
 
-#if defined(HRT_PORT_HW) && HRT_PORT_HW
-/* Real time on a port whose interrupts run the bodies: a Sensors updates the inputs they read. A
- * hall change is captured at the frame's edge time, back-dated from now by the rest of the period
- * (an estimate: the frame's own transit is not known). */
-static void rt_hw_sensors(hrt_link_t *l, const uint8_t *buf, uint8_t n_adc)
+static HRT_NOINLINE void on_sensors(hrt_link_t *l, const hbp_u8 *buf, hbp_u8 len, hbp_u8 seq)
 {
-    hrt_t *rt = l->rt;
-    uint32_t now = hrt_port_now();
-    uint8_t inputs = buf[SENSORS_INPUTS];
-    uint16_t edge = get_u16(&buf[SENSORS_EDGE]);
-    uint16_t adc[HRT_MAX_ADC];
-    uint8_t i;
-    if ((l->flags & HRT_LINK_F_RT) == 0u) {
-        l->flags = (uint8_t)(l->flags | HRT_LINK_F_RT);
-        hrt_rt_enter(rt, 1u);
-        hrt_port_realtime(1u);
-    }
-    for (i = 0u; i < n_adc && i < HRT_MAX_ADC; i++) {
-        adc[i] = get_u16(&buf[SENSORS_ADC + 2u * i]);
-    }
-    hrt_port_lock();
-    hrt_rt_levels(rt, inputs, adc, i, get_u16(&buf[SENSORS_ENCODER]));
-    hrt_rt_main(rt, now);
-    if (((inputs ^ rt->in) & HRT_IN_HALLS) != 0u) {
-        uint32_t back = 0u;
-        if (edge != HBP_EDGE_NONE) {
-            uint32_t period_100ns = (uint32_t)l->period_us * 10u;
-            if ((uint32_t)edge < period_100ns) {
-                back = (period_100ns - edge) * hrt_firmware.ticks_per_us / 10u;
-            }
-        }
-        hrt_rt_edge(rt, (uint8_t)(inputs & HRT_IN_HALLS), now - back);
-    }
-    hrt_port_unlock();
-}
-#endif
-
-static HRT_NOINLINE void on_sensors(hrt_link_t *l, const uint8_t *buf, uint8_t len, uint8_t seq)
-{
-    uint32_t span = (uint32_t)l->period_us * hrt_firmware.ticks_per_us;
-    uint8_t n_adc = (uint8_t)((uint8_t)(len - SENSORS_ADC) / 2u);
-    if (len < SENSORS_ADC || (uint8_t)(SENSORS_ADC + 2u * n_adc) != len || n_adc > HBP_MAX_ADC) {
+    uint32_t span = (uint32_t)l->period_us * TICKS_PER_US;
+    hbp_u8 edges_at = (hbp_u8)(SENSORS_ADC + 2u * buf[SENSORS_N_ADC]);
+    if (len < SENSORS_ADC || buf[SENSORS_N_ADC] > HBP_MAX_ADC || edges_at > len ||
+        (hbp_u8)(len - edges_at) % 3u != 0u || (hbp_u8)(len - edges_at) / 3u > HBP_MAX_EDGES) {
         send_error(l, seq, HBP_ERROR_LENGTH, buf[0]);
         return;
+    }
+    if (l->mode == HBP_MODE_LOCKSTEP) { /* the host is there: a tripped watchdog gives the outputs back */
+        l->last_rx = hrt_port_now();
+        l->flags = (hbp_u8)(l->flags & (hbp_u8)~HRT_LINK_F_TRIPPED);
     }
     if ((l->flags & HRT_LINK_F_ANSWERED) != 0u && seq == l->last_seq) {
         /* the host sent it again (our Drive was lost or late): the same answer, no second step */
@@ -230,134 +317,177 @@ static HRT_NOINLINE void on_sensors(hrt_link_t *l, const uint8_t *buf, uint8_t l
     if (l->mode == HBP_MODE_REALTIME) {
         uint32_t now = hrt_port_now();
         if ((l->flags & HRT_LINK_F_SENSORS) != 0u) {
-            span = now - l->last_rx; /* the time that really passed */
+            uint32_t passed = now - l->last_rx; /* the time that really passed, at most HRT_RT_MAX_PERIODS
+                                                 * periods: a firmware too slow for real time on its chip
+                                                 * falls behind instead of running ever longer spans */
+            span = (passed < HRT_RT_MAX_PERIODS * span) ? passed : HRT_RT_MAX_PERIODS * span;
         }
     }
     l->last_rx = hrt_port_now();
-    l->flags = (uint8_t)((l->flags | HRT_LINK_F_SENSORS | HRT_LINK_F_ANSWERED) & (uint8_t)~HRT_LINK_F_TRIPPED);
+    l->flags = (hbp_u8)((l->flags | HRT_LINK_F_SENSORS | HRT_LINK_F_ANSWERED) & (hbp_u8)~HRT_LINK_F_TRIPPED);
 #if defined(HRT_PORT_HW) && HRT_PORT_HW
     if (l->mode == HBP_MODE_REALTIME) {
-        rt_hw_sensors(l, buf, n_adc);
-        span = 0u;
+        span = 0u; /* the port's interrupts run the bodies: the inputs only */
+        serve_sensors(l, buf, len, 0u);
     }
 #endif
     if (span > 0u) {
-        run_span(l, buf, n_adc, span);
+        serve_sensors(l, buf, len, span);
     }
     l->last_seq = seq;
     hrt_link_send_drive(l, seq);
 }
 
-static HRT_NOINLINE void on_describe(hrt_link_t *l, const uint8_t *buf, uint8_t len, uint8_t seq)
+/* ParamDescribe, ParamGet, TelemetryDescribe: one id byte. */
+static HRT_NOINLINE void on_describe(hrt_link_t *l, hbp_u8 id, hbp_u8 seq)
 {
     const hrt_firmware_t *d = &hrt_firmware;
-    hbp_param_describe_t q;
-    hbp_param_info_t info;
     const hrt_param_decl_t *p;
-    uint8_t i;
-    uint8_t n;
-    if (hbp_unpack_param_describe(buf, len, &q) != HBP_ERROR_NONE) {
-        send_error(l, seq, HBP_ERROR_LENGTH, buf[0]);
+    if (id >= d->n_params) {
+        send_error(l, seq, HBP_ERROR_UNKNOWN_PARAM, id);
         return;
     }
-    if (q.param_id >= d->n_params) {
-        send_error(l, seq, HBP_ERROR_UNKNOWN_PARAM, q.param_id);
-        return;
-    }
-    p = &d->params[q.param_id];
-    info.seq = seq;
-    info.param_id = q.param_id;
-    info.ptype = p->ptype;
-    info.access = p->access;
-    info.min_value = p->min_value;
-    info.max_value = p->max_value;
-    info.value = d->param_get(l->rt, q.param_id);
-    n = name_len(p->name, HBP_MAX_NAME);
-    for (i = 0u; i < n; i++) {
-        info.name[i] = p->name[i];
-    }
-    info.name[n] = '\0';
-    if ((uint8_t)(HBP_PARAM_INFO_FIXED_LEN + n) <= HRT_TX_FRAME_MAX) {
-        send_frame(l, hbp_pack_param_info(&info, TX));
-    }
+    p = &d->params[id];
+    begin(l, HBP_MSG_PARAM_INFO, seq);
+    w8(l, id);
+    w8(l, p->ptype);
+    w8(l, p->access);
+    w32(l, (uint32_t)p->min_value);
+    w32(l, (uint32_t)p->max_value);
+    w32(l, (uint32_t)d->param_get(l->rt, id));
+    wname(l, p->name, HBP_MAX_NAME, 1u);
+#if HRT_DESCRIBE
+    wname(l, p->unit, HBP_MAX_UNIT, 0u);
+#endif
+    finish(l);
 }
 
-static HRT_NOINLINE void on_get(hrt_link_t *l, const uint8_t *buf, uint8_t len, uint8_t seq)
+#if HRT_DESCRIBE
+static HRT_NOINLINE void on_telemetry(hrt_link_t *l, hbp_u8 index, hbp_u8 seq)
 {
-    hbp_param_get_t q;
-    hbp_param_value_t v;
-    if (hbp_unpack_param_get(buf, len, &q) != HBP_ERROR_NONE) {
-        send_error(l, seq, HBP_ERROR_LENGTH, buf[0]);
+    const hrt_firmware_t *d = &hrt_firmware;
+    const hrt_telemetry_decl_t *t;
+    if (index >= d->n_telemetry) {
+        send_error(l, seq, HBP_ERROR_UNKNOWN_TELEMETRY, index);
         return;
     }
-    v.seq = seq;
-    v.param_id = q.param_id;
-    if (q.param_id < hrt_firmware.n_params) {
-        v.result = HBP_RESULT_OK;
-        v.value = hrt_firmware.param_get(l->rt, q.param_id);
-    } else {
-        v.result = HBP_RESULT_UNKNOWN_ID;
-        v.value = 0;
-    }
-    send_frame(l, hbp_pack_param_value(&v, TX));
+    t = &d->telemetry[index];
+    begin(l, HBP_MSG_TELEMETRY_INFO, seq);
+    w8(l, index);
+    w8(l, t->id);
+    w8(l, t->ptype);
+    w32(l, (uint32_t)t->scale_num);
+    w32(l, (uint32_t)t->scale_den);
+    wname(l, t->name, HBP_MAX_NAME, 1u);
+    wname(l, t->unit, HBP_MAX_UNIT, 0u);
+    finish(l);
+}
+#endif
+
+static HRT_NOINLINE void on_get(hrt_link_t *l, hbp_u8 id, hbp_u8 seq)
+{
+    hbp_u8 known = (hbp_u8)(id < hrt_firmware.n_params);
+    begin(l, HBP_MSG_PARAM_VALUE, seq);
+    w8(l, id);
+    w8(l, (hbp_u8)(known ? HBP_RESULT_OK : HBP_RESULT_UNKNOWN_ID));
+    w32(l, known ? (uint32_t)hrt_firmware.param_get(l->rt, id) : 0u);
+    finish(l);
 }
 
 /* ParamSet: the pairs read in place into a request, checked whole, applied all or nothing. */
-static HRT_NOINLINE void on_set(hrt_link_t *l, const uint8_t *buf, uint8_t len, uint8_t seq)
+static HRT_NOINLINE void on_set(hrt_link_t *l, const hbp_u8 *buf, hbp_u8 len, hbp_u8 seq)
 {
     hrt_param_request_t req;
-    hbp_param_set_result_t r;
-    uint8_t i;
-    uint8_t n = (uint8_t)((uint8_t)(len - HBP_PARAM_SET_FIXED_LEN) / 5u);
-    if (len < HBP_PARAM_SET_FIXED_LEN || (uint8_t)(HBP_PARAM_SET_FIXED_LEN + 5u * n) != len ||
+    hbp_u8 result;
+    hbp_u8 param_id;
+    hbp_u8 detail;
+    hbp_u8 i;
+    hbp_u8 n = (hbp_u8)((hbp_u8)(len - HBP_PARAM_SET_FIXED_LEN) / 5u);
+    if (len < HBP_PARAM_SET_FIXED_LEN || (hbp_u8)(HBP_PARAM_SET_FIXED_LEN + 5u * n) != len ||
         n > HBP_MAX_PARAM_PAIRS) {
         send_error(l, seq, HBP_ERROR_LENGTH, buf[0]);
         return;
     }
     req.n = n;
     for (i = 0u; i < n; i++) {
-        const uint8_t *pair = &buf[HBP_PARAM_SET_FIXED_LEN + 5u * i];
+        const hbp_u8 *pair = &buf[HBP_PARAM_SET_FIXED_LEN + 5u * i];
         req.id[i] = pair[0];
         req.value[i] = get_i32(&pair[1]);
     }
-    r.seq = seq;
     hrt_port_lock();
-    r.result = hrt_param_write(l->rt, &req, &r.param_id, &r.detail);
+    result = hrt_param_write(l->rt, &req, &param_id, &detail);
     hrt_port_unlock();
-    send_frame(l, hbp_pack_param_set_result(&r, TX));
+    begin(l, HBP_MSG_PARAM_SET_RESULT, seq);
+    w8(l, result);
+    w8(l, param_id);
+    w8(l, detail);
+    finish(l);
 }
 
-static HRT_NOINLINE void on_status(hrt_link_t *l, uint8_t seq)
+static HRT_NOINLINE void on_status(hrt_link_t *l, hbp_u8 seq)
 {
-    hbp_status_t st;
-    hbp_rx_status(&l->rx, seq, l->watchdog_trips, &st);
-    if (l->last_error != HBP_ERROR_NONE) {
-        st.last_error = l->last_error;
-    }
-    send_frame(l, hbp_pack_status(&st, TX));
+    const hbp_rx_t *rx = &l->rx;
+    begin(l, HBP_MSG_STATUS, seq);
+    w16(l, rx->frames);
+    w16(l, rx->errors);
+    w16(l, rx->resyncs);
+    w16(l, rx->unknown);
+    w16(l, rx->overruns);
+    w16(l, l->watchdog_trips);
+    w8(l, rx->last_error);
+    finish(l);
 }
 
-void hrt_link_handle(hrt_link_t *l, const uint8_t *frame, uint8_t len)
+void hrt_link_handle(hrt_link_t *l, const hbp_u8 *frame, hbp_u8 len)
 {
     hrt_t *rt = l->rt;
-    uint8_t type = frame[0];
-    uint8_t seq = frame[1];
+    hbp_u8 type = frame[0];
+    hbp_u8 seq = frame[1];
+    hbp_u8 want; /* the payload-less and one-byte requests' length */
     switch (type) {
     case HBP_MSG_SENSORS:
         on_sensors(l, frame, len, seq);
-        break;
+        return;
     case HBP_MSG_HOST_HELLO:
         on_hello(l, frame, len, seq);
-        break;
-    case HBP_MSG_PARAM_DESCRIBE:
-        on_describe(l, frame, len, seq);
-        break;
-    case HBP_MSG_PARAM_GET:
-        on_get(l, frame, len, seq);
-        break;
+        return;
     case HBP_MSG_PARAM_SET:
         on_set(l, frame, len, seq);
+        return;
+    case HBP_MSG_PARAM_DESCRIBE:
+    case HBP_MSG_PARAM_GET:
+    case HBP_MSG_TELEMETRY_DESCRIBE:
+        want = 3u;
         break;
+    case HBP_MSG_START:
+    case HBP_MSG_STOP:
+    case HBP_MSG_STATUS_REQUEST:
+    case HBP_MSG_TARGET_DESCRIBE:
+        want = 2u;
+        break;
+    default:
+        send_error(l, seq, HBP_ERROR_BAD_REQUEST, 0u); /* a target -> host message */
+        return;
+    }
+    if (len != want) {
+        send_error(l, seq, HBP_ERROR_LENGTH, type);
+        return;
+    }
+    switch (type) {
+    case HBP_MSG_PARAM_DESCRIBE:
+        on_describe(l, frame[2], seq);
+        break;
+    case HBP_MSG_PARAM_GET:
+        on_get(l, frame[2], seq);
+        break;
+#if HRT_DESCRIBE
+    case HBP_MSG_TELEMETRY_DESCRIBE:
+        on_telemetry(l, frame[2], seq);
+        break;
+    case HBP_MSG_TARGET_DESCRIBE:
+        on_target_describe(l, seq);
+        break;
+#endif
     case HBP_MSG_START:
         hrt_port_lock();
         hrt_firmware.start(rt); /* no reply */
@@ -371,8 +501,8 @@ void hrt_link_handle(hrt_link_t *l, const uint8_t *frame, uint8_t len)
     case HBP_MSG_STATUS_REQUEST:
         on_status(l, seq);
         break;
-    default:
-        send_error(l, seq, HBP_ERROR_BAD_REQUEST, 0u); /* a target -> host message */
+    default: /* a request this build does not serve (HRT_DESCRIBE 0) */
+        send_error(l, seq, HBP_ERROR_BAD_REQUEST, type);
         break;
     }
 }
@@ -387,15 +517,22 @@ void hrt_link_watchdog(hrt_link_t *l)
     if (l->mode == HBP_MODE_LOCKSTEP && limit_ms < HRT_LOCKSTEP_WATCHDOG_MIN_MS) {
         limit_ms = HRT_LOCKSTEP_WATCHDOG_MIN_MS;
     }
-    ticks_per_ms = (uint32_t)hrt_firmware.ticks_per_us * 1000u;
+    ticks_per_ms = TICKS_PER_US * 1000u;
     if ((hrt_port_now() - l->last_rx) / ticks_per_ms >= limit_ms) {
-        /* frames stopped: outputs off, one unsolicited Drive that says so */
-        l->flags = (uint8_t)(l->flags | HRT_LINK_F_TRIPPED);
+        /* frames stopped: outputs off, one unsolicited Drive that says so. In lockstep the firmware's
+         * virtual time stands still while the host is away, so its state is left as it is (a host
+         * pausing on a loaded machine changes no recording): the port turns the outputs off and the
+         * Drives say OFF until the next Sensors. In real time the firmware stops (HRT_STOP_WATCHDOG). */
+        l->flags = (hbp_u8)(l->flags | HRT_LINK_F_TRIPPED);
         l->watchdog_trips = (uint16_t)(l->watchdog_trips + 1u);
-        l->last_error = HBP_ERROR_WATCHDOG;
-        hrt_port_lock();
-        (&hrt_firmware)->stop(l->rt, HRT_STOP_WATCHDOG);
-        hrt_port_unlock();
+        l->rx.last_error = HBP_ERROR_WATCHDOG;
+        if (l->mode == HBP_MODE_LOCKSTEP) {
+            HRT_PORT_OUTPUTS_OFF();
+        } else {
+            hrt_port_lock();
+            (&hrt_firmware)->stop(l->rt, HRT_STOP_WATCHDOG);
+            hrt_port_unlock();
+        }
         hrt_link_send_drive(l, l->last_seq);
     }
 }

@@ -2,12 +2,16 @@
  * hilbench protocol through one hrt_link_t.
  *
  * The link owns the handshake (the HELLO and the firmware's self-description from its
- * hrt_firmware_t), the parameter protocol (describe, get, all-or-nothing set), Start/Stop, Status,
+ * hrt_firmware_t: TargetHello, then TelemetryInfo and ParamInfo on request, with names, units and
+ * scales), the parameter protocol (describe, get, all-or-nothing set), Start/Stop, Status,
  * the answer to a repeated seq (the last Drive again, no second step), telemetry packing, and the
  * watchdog in every mode: when no valid Sensors arrived for the agreed watchdog_ms (in lockstep at
- * least HRT_LOCKSTEP_WATCHDOG_MIN_MS, so that a host pausing between periods is not mistaken for a
- * host gone) the firmware is stopped (HRT_STOP_WATCHDOG: outputs off) and one unsolicited Drive says
- * so. Lockstep: one Sensors = one agreed period of virtual time (hrt_span_*). Real time: each Sensors
+ * least HRT_LOCKSTEP_WATCHDOG_MIN_MS) the outputs go off and one unsolicited Drive says so (OFF,
+ * fault WATCHDOG), counted in Status. Real time: the firmware is stopped (HRT_STOP_WATCHDOG).
+ * Lockstep: the firmware's state is left as it is (virtual time stands still while the host is
+ * away), the port forces the outputs off (HRT_PORT_OUTPUTS_OFF) and the next Sensors gives them
+ * back, so a host pausing on a loaded machine changes no recording. Lockstep: one Sensors = one agreed period of virtual time (hrt_span_*), every input edge it
+ * carries at its time. Real time: each Sensors
  * advances the firmware by the time that passed on the port's clock, or, on a port whose own
  * interrupts run the bodies (HRT_PORT_HW), updates the inputs they read.
  *
@@ -22,24 +26,43 @@
 #include "hbp.h"
 #include "hrt.h"
 
-/* The largest frame the link sends (type..payload, before the CRC): a build may lower it to what
- * its declaration needs (the link checks every variable-length reply against it). */
+/* The largest message the link sends (type..payload): a build may lower it to what its declaration
+ * needs (hrt_config.h); a reply that would not fit is not sent (the host times out and says so). */
 #ifndef HRT_TX_FRAME_MAX
-#define HRT_TX_FRAME_MAX (HBP_MAX_FRAME - 2u)
+#define HRT_TX_FRAME_MAX HBP_MAX_FRAME
 #endif
-#define HRT_TX_WIRE_MAX (HRT_TX_FRAME_MAX + 4u)
 
+
+/* The self-description beyond the HELLO (TargetDescribe, TelemetryDescribe, ParamInfo's units).
+ * 1 by default; a chip whose flash cannot spare the ~450 bytes (the dsPIC30F2010's AN1017 build)
+ * may set 0 for hrt_link.c alone: it then answers those requests with ErrorReport(BAD_REQUEST) and
+ * sends empty units, and the host serves it from its profile. */
+#ifndef HRT_DESCRIBE
+#define HRT_DESCRIBE 1
+#endif
+/* Real time on a port without its own timers: each Sensors advances the firmware by the time that
+ * passed, at most this many agreed periods (a firmware too slow for real time on its chip falls
+ * behind instead of spending ever longer spans catching up). */
+#ifndef HRT_RT_MAX_PERIODS
+#define HRT_RT_MAX_PERIODS 4u
+#endif
 #ifndef HRT_LOCKSTEP_WATCHDOG_MIN_MS
 #define HRT_LOCKSTEP_WATCHDOG_MIN_MS 1000u
 #endif
+/* A lockstep watchdog trip leaves the firmware's state alone (its virtual time stands still): a
+ * port whose pins can switch something (a bridge in lockstep) defines this to force them off until
+ * the next Sensors; on the others the Drives saying OFF are the outputs. */
+#ifndef HRT_PORT_OUTPUTS_OFF
+#define HRT_PORT_OUTPUTS_OFF() ((void)0)
+#endif
 
 /* ---- what a port provides ---- */
-void hrt_port_send(const uint8_t *wire, uint8_t len); /* a whole encoded frame */
+void hrt_port_send(const hbp_u8 *bytes, hbp_u8 len); /* wire bytes, in order (a frame in pieces) */
 uint32_t hrt_port_now(void);  /* a free-running clock in the firmware's ticks, wrapping at 2^32 */
 void hrt_port_lock(void);     /* hold off the interrupts that run bodies (real time on a hardware port) */
 void hrt_port_unlock(void);
 #if defined(HRT_PORT_HW) && HRT_PORT_HW
-void hrt_port_realtime(uint8_t on); /* enter (1) or leave (0) real time: start or stop the chip's timers */
+void hrt_port_realtime(hbp_u8 on); /* enter (1) or leave (0) real time: start or stop the chip's timers */
 #endif
 
 #define HRT_LINK_F_SENSORS 0x01u  /* a Sensors arrived since the handshake */
@@ -55,25 +78,25 @@ typedef struct {
     uint32_t last_rx;          /* the port's clock at the last Sensors */
     uint16_t watchdog_ms;
     uint16_t watchdog_trips;
-    uint8_t mode;              /* HBP_MODE_* */
-    uint8_t flags;             /* HRT_LINK_F_* */
-    uint8_t last_error;        /* HBP_ERROR_* of the last ErrorReport sent or the watchdog */
-    uint8_t last_seq;
-    uint8_t wire[HRT_TX_WIRE_MAX]; /* the frame being sent: packed at wire[1], encoded in place */
+    hbp_u8 mode;              /* HBP_MODE_* */
+    hbp_u8 flags;             /* HRT_LINK_F_* */
+    hbp_u8 last_seq;
+    hbp_u8 tx_len;             /* bytes written to tx (more than HRT_TX_FRAME_MAX: it did not fit) */
+    hbp_u8 tx[HRT_TX_FRAME_MAX]; /* the message being sent (hbp_send_frame makes its wire bytes) */
 } hrt_link_t;
 
 void hrt_link_init(hrt_link_t *l, hrt_t *rt);
-static inline uint8_t hrt_link_rx_byte(hrt_link_t *l, uint8_t byte)
+static inline hbp_u8 hrt_link_rx_byte(hrt_link_t *l, hbp_u8 byte)
 {
     return hbp_rx_byte(&l->rx, byte);
 }
 /* Handle the frame waiting in l->rx, if any, and release it; then the watchdog. */
 void hrt_link_poll(hrt_link_t *l);
 /* Handle one frame (type, seq, payload; CRC stripped) and send its reply, if it has one. */
-void hrt_link_handle(hrt_link_t *l, const uint8_t *frame, uint8_t len);
+void hrt_link_handle(hrt_link_t *l, const hbp_u8 *frame, hbp_u8 len);
 /* The watchdog alone (a port that handles frames itself calls it from its main loop). */
 void hrt_link_watchdog(hrt_link_t *l);
 /* Send the Drive of the present state with this seq. */
-void hrt_link_send_drive(hrt_link_t *l, uint8_t seq);
+void hrt_link_send_drive(hrt_link_t *l, hbp_u8 seq);
 
 #endif /* HRT_LINK_H */

@@ -137,7 +137,7 @@ int loopback_handle(const uint8_t *buf, uint8_t len)
         d.fault = HBP_FAULT_NONE;
         d.n_telemetry = 3u;
         d.telemetry[0] = as_int16(s.encoder);
-        d.telemetry[1] = as_int16(s.edge_time_100ns);
+        d.telemetry[1] = (s.n_edges > 0u) ? as_int16(s.edges[0].time_100ns) : -1; /* the first edge's time */
         d.telemetry[2] = (int16_t)s.seq;
         last_drive = d;
         have_last_drive = 1u;
@@ -180,6 +180,43 @@ int loopback_handle(const uint8_t *buf, uint8_t len)
         running = (uint8_t)(type == HBP_MSG_START);
         have_last_drive = 0u;
         return 0;
+    case HBP_MSG_TARGET_DESCRIBE: {
+        hbp_target_info_t info;
+        if (len != 2u) {
+            return send_error(seq, HBP_ERROR_LENGTH, type);
+        }
+        memset(&info, 0, sizeof info);
+        info.seq = seq;
+        info.duty_timing = HBP_DUTY_IMMEDIATE;
+        info.duty_report = HBP_REPORT_WRITTEN;
+        info.inputs = (uint8_t)(HBP_INPUT_HALL_A | HBP_INPUT_HALL_B | HBP_INPUT_HALL_C | HBP_INPUT_S2 | HBP_INPUT_S3);
+        info.encoder_counts = 0u;
+        info.max_edges = (uint8_t)HBP_MAX_EDGES;
+        return send_frame(frame, hbp_pack_target_info(&info, frame));
+    }
+    case HBP_MSG_TELEMETRY_DESCRIBE: {
+        static const char *const names[3] = {"echo_encoder", "echo_edge", "echo_seq"};
+        static const char *const units[3] = {"counts", "100ns", ""};
+        hbp_telemetry_info_t info;
+        uint8_t index;
+        if (len != 3u) {
+            return send_error(seq, HBP_ERROR_LENGTH, type);
+        }
+        index = buf[2];
+        if (index >= 3u) {
+            return send_error(seq, HBP_ERROR_UNKNOWN_TELEMETRY, index);
+        }
+        memset(&info, 0, sizeof info);
+        info.seq = seq;
+        info.index = index;
+        info.telemetry_id = (uint8_t)(HBP_TELEMETRY_ECHO_ENCODER + index);
+        info.ptype = HBP_PTYPE_INT;
+        info.scale_num = 1;
+        info.scale_den = 1;
+        strcpy(info.name, names[index]);
+        strcpy(info.unit, units[index]);
+        return send_frame(frame, hbp_pack_telemetry_info(&info, frame));
+    }
     case HBP_MSG_STATUS_REQUEST: {
         hbp_status_t st;
         if (len != 2u) {

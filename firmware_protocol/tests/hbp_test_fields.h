@@ -22,9 +22,13 @@ typedef union {
     hbp_status_request_t status_request;
     hbp_status_t status;
     hbp_error_report_t error_report;
+    hbp_telemetry_describe_t telemetry_describe;
+    hbp_telemetry_info_t telemetry_info;
+    hbp_target_describe_t target_describe;
+    hbp_target_info_t target_info;
 } hbp_any_t;
 
-static const char *hbp_test_name(uint8_t type)
+static const char *hbp_test_name(hbp_u8 type)
 {
     switch (type) {
     case HBP_MSG_HOST_HELLO: return "HostHello";
@@ -42,11 +46,15 @@ static const char *hbp_test_name(uint8_t type)
     case HBP_MSG_STATUS_REQUEST: return "StatusRequest";
     case HBP_MSG_STATUS: return "Status";
     case HBP_MSG_ERROR_REPORT: return "ErrorReport";
+    case HBP_MSG_TELEMETRY_DESCRIBE: return "TelemetryDescribe";
+    case HBP_MSG_TELEMETRY_INFO: return "TelemetryInfo";
+    case HBP_MSG_TARGET_DESCRIBE: return "TargetDescribe";
+    case HBP_MSG_TARGET_INFO: return "TargetInfo";
     default: return 0;
     }
 }
 
-static uint8_t hbp_test_unpack(const uint8_t *frame, uint8_t len, hbp_any_t *m)
+static hbp_u8 hbp_test_unpack(const hbp_u8 *frame, hbp_u8 len, hbp_any_t *m)
 {
     switch (frame[0]) {
     case HBP_MSG_HOST_HELLO: return hbp_unpack_host_hello(frame, len, &m->host_hello);
@@ -64,11 +72,15 @@ static uint8_t hbp_test_unpack(const uint8_t *frame, uint8_t len, hbp_any_t *m)
     case HBP_MSG_STATUS_REQUEST: return hbp_unpack_status_request(frame, len, &m->status_request);
     case HBP_MSG_STATUS: return hbp_unpack_status(frame, len, &m->status);
     case HBP_MSG_ERROR_REPORT: return hbp_unpack_error_report(frame, len, &m->error_report);
+    case HBP_MSG_TELEMETRY_DESCRIBE: return hbp_unpack_telemetry_describe(frame, len, &m->telemetry_describe);
+    case HBP_MSG_TELEMETRY_INFO: return hbp_unpack_telemetry_info(frame, len, &m->telemetry_info);
+    case HBP_MSG_TARGET_DESCRIBE: return hbp_unpack_target_describe(frame, len, &m->target_describe);
+    case HBP_MSG_TARGET_INFO: return hbp_unpack_target_info(frame, len, &m->target_info);
     default: return HBP_ERROR_UNKNOWN_TYPE;
     }
 }
 
-static uint8_t hbp_test_pack(uint8_t type, const hbp_any_t *m, uint8_t *frame)
+static hbp_u8 hbp_test_pack(hbp_u8 type, const hbp_any_t *m, hbp_u8 *frame)
 {
     switch (type) {
     case HBP_MSG_HOST_HELLO: return hbp_pack_host_hello(&m->host_hello, frame);
@@ -86,13 +98,17 @@ static uint8_t hbp_test_pack(uint8_t type, const hbp_any_t *m, uint8_t *frame)
     case HBP_MSG_STATUS_REQUEST: return hbp_pack_status_request(&m->status_request, frame);
     case HBP_MSG_STATUS: return hbp_pack_status(&m->status, frame);
     case HBP_MSG_ERROR_REPORT: return hbp_pack_error_report(&m->error_report, frame);
+    case HBP_MSG_TELEMETRY_DESCRIBE: return hbp_pack_telemetry_describe(&m->telemetry_describe, frame);
+    case HBP_MSG_TELEMETRY_INFO: return hbp_pack_telemetry_info(&m->telemetry_info, frame);
+    case HBP_MSG_TARGET_DESCRIBE: return hbp_pack_target_describe(&m->target_describe, frame);
+    case HBP_MSG_TARGET_INFO: return hbp_pack_target_info(&m->target_info, frame);
     default: return 0u;
     }
 }
 
 /* 0: no such field; 1: scalar in *value; 2: array (*count entries, entry `index` in *value;
    pair arrays are flattened id, value, id, value...); 3: string in *str. */
-static int hbp_test_field(uint8_t type, const hbp_any_t *m, const char *name, unsigned index,
+static int hbp_test_field(hbp_u8 type, const hbp_any_t *m, const char *name, unsigned index,
                           long long *value, unsigned *count, const char **str)
 {
     if (type == HBP_MSG_HOST_HELLO) {
@@ -130,11 +146,15 @@ static int hbp_test_field(uint8_t type, const hbp_any_t *m, const char *name, un
         const hbp_sensors_t *x = &m->sensors;
         if (strcmp(name, "seq") == 0) { *value = x->seq; return 1; }
         if (strcmp(name, "inputs") == 0) { *value = x->inputs; return 1; }
-        if (strcmp(name, "edge_time_100ns") == 0) { *value = x->edge_time_100ns; return 1; }
         if (strcmp(name, "encoder") == 0) { *value = x->encoder; return 1; }
         if (strcmp(name, "adc") == 0) {
             *count = x->n_adc;
             if (index < *count) { *value = x->adc[index]; }
+            return 2;
+        }
+        if (strcmp(name, "edges") == 0) {
+            *count = 2u * x->n_edges;
+            if (index < *count) { *value = (index % 2u == 0u) ? x->edges[index / 2u].time_100ns : x->edges[index / 2u].lines; }
             return 2;
         }
     }
@@ -171,6 +191,7 @@ static int hbp_test_field(uint8_t type, const hbp_any_t *m, const char *name, un
         if (strcmp(name, "max_value") == 0) { *value = x->max_value; return 1; }
         if (strcmp(name, "value") == 0) { *value = x->value; return 1; }
         if (strcmp(name, "name") == 0) { *str = x->name; return 3; }
+        if (strcmp(name, "unit") == 0) { *str = x->unit; return 3; }
     }
     if (type == HBP_MSG_PARAM_GET) {
         const hbp_param_get_t *x = &m->param_get;
@@ -229,6 +250,35 @@ static int hbp_test_field(uint8_t type, const hbp_any_t *m, const char *name, un
         if (strcmp(name, "code") == 0) { *value = x->code; return 1; }
         if (strcmp(name, "detail") == 0) { *value = x->detail; return 1; }
         if (strcmp(name, "schema_fingerprint") == 0) { *value = x->schema_fingerprint; return 1; }
+    }
+    if (type == HBP_MSG_TELEMETRY_DESCRIBE) {
+        const hbp_telemetry_describe_t *x = &m->telemetry_describe;
+        if (strcmp(name, "seq") == 0) { *value = x->seq; return 1; }
+        if (strcmp(name, "index") == 0) { *value = x->index; return 1; }
+    }
+    if (type == HBP_MSG_TELEMETRY_INFO) {
+        const hbp_telemetry_info_t *x = &m->telemetry_info;
+        if (strcmp(name, "seq") == 0) { *value = x->seq; return 1; }
+        if (strcmp(name, "index") == 0) { *value = x->index; return 1; }
+        if (strcmp(name, "telemetry_id") == 0) { *value = x->telemetry_id; return 1; }
+        if (strcmp(name, "ptype") == 0) { *value = x->ptype; return 1; }
+        if (strcmp(name, "scale_num") == 0) { *value = x->scale_num; return 1; }
+        if (strcmp(name, "scale_den") == 0) { *value = x->scale_den; return 1; }
+        if (strcmp(name, "name") == 0) { *str = x->name; return 3; }
+        if (strcmp(name, "unit") == 0) { *str = x->unit; return 3; }
+    }
+    if (type == HBP_MSG_TARGET_DESCRIBE) {
+        const hbp_target_describe_t *x = &m->target_describe;
+        if (strcmp(name, "seq") == 0) { *value = x->seq; return 1; }
+    }
+    if (type == HBP_MSG_TARGET_INFO) {
+        const hbp_target_info_t *x = &m->target_info;
+        if (strcmp(name, "seq") == 0) { *value = x->seq; return 1; }
+        if (strcmp(name, "duty_timing") == 0) { *value = x->duty_timing; return 1; }
+        if (strcmp(name, "duty_report") == 0) { *value = x->duty_report; return 1; }
+        if (strcmp(name, "inputs") == 0) { *value = x->inputs; return 1; }
+        if (strcmp(name, "encoder_counts") == 0) { *value = x->encoder_counts; return 1; }
+        if (strcmp(name, "max_edges") == 0) { *value = x->max_edges; return 1; }
     }
     return 0;
 }

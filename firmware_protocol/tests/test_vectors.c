@@ -3,7 +3,8 @@
  * For each vector the wire bytes go one at a time through the receive state machine (as from a UART
  * ISR). At each delimiter that ends a non-empty chunk the outcome is compared with the next `expect`
  * line: a good frame is unpacked, compared field by field, packed again and re-encoded (the bytes
- * must be identical); an error must be counted with the expected kind. Build with -DHBP_RX_MAX=64u.
+ * must be identical, both through hbp_encode_frame and through the streaming hbp_send_frame); an error
+ * must be counted with the expected kind. Build with -DHBP_RX_MAX=63u.
  * Usage: test_vectors VECTORS.txt   -> prints "N vectors ok", exit 0; or the first failure, exit 1.
  */
 #include <stdio.h>
@@ -14,12 +15,23 @@
 #include "hbp_test_fields.h"
 
 #define MAX_WIRE 512
+
+static hbp_u8 sent[HBP_MAX_WIRE];
+static unsigned sent_len;
+
+static void put(const hbp_u8 *bytes, hbp_u8 n)
+{
+    unsigned i;
+    for (i = 0u; i < n && sent_len < sizeof sent; i++) {
+        sent[sent_len++] = bytes[i];
+    }
+}
 #define MAX_EXPECTS 8
 #define LINE_MAX_CHARS 4096
 
 typedef struct {
     char name[64];
-    uint8_t wire[MAX_WIRE];
+    hbp_u8 wire[MAX_WIRE];
     unsigned wire_len;
     char expects[MAX_EXPECTS][LINE_MAX_CHARS];
     unsigned n_expects;
@@ -32,7 +44,7 @@ static int fail(const vector_t *v, const char *what)
     return 1;
 }
 
-static const char *error_kind(uint8_t code)
+static const char *error_kind(hbp_u8 code)
 {
     switch (code) {
     case HBP_ERROR_CRC: return "crc";
@@ -45,7 +57,7 @@ static const char *error_kind(uint8_t code)
 }
 
 /* Compare an unpacked message with "Name f=v f=v ..." */
-static int check_fields(const vector_t *v, uint8_t type, const hbp_any_t *m, const char *expect)
+static int check_fields(const vector_t *v, hbp_u8 type, const hbp_any_t *m, const char *expect)
 {
     char buf[LINE_MAX_CHARS];
     char *tok;
@@ -110,8 +122,8 @@ static int run_vector(const vector_t *v)
     unsigned next = 0u;
     hbp_rx_init(&rx);
     for (i = 0u; i < v->wire_len; i++) {
-        uint8_t byte = v->wire[i];
-        uint8_t got = hbp_rx_byte(&rx, byte); /* a chunk's outcome is known at its delimiter */
+        hbp_u8 byte = v->wire[i];
+        hbp_u8 got = hbp_rx_byte(&rx, byte); /* a chunk's outcome is known at its delimiter */
         if (byte != 0u) {
             continue;
         }
@@ -127,12 +139,12 @@ static int run_vector(const vector_t *v)
             next++;
             if (got) {
                 hbp_any_t m;
-                uint8_t frame[HBP_MAX_FRAME];
-                uint8_t out[HBP_MAX_WIRE];
-                uint8_t type = rx.buf[0];
-                uint8_t res = hbp_test_unpack(rx.buf, rx.frame_len, &m);
-                uint8_t flen;
-                uint8_t wlen;
+                hbp_u8 frame[HBP_MAX_FRAME];
+                hbp_u8 out[HBP_MAX_WIRE];
+                hbp_u8 type = rx.buf[0];
+                hbp_u8 res = hbp_test_unpack(rx.buf, rx.frame_len, &m);
+                hbp_u8 flen;
+                hbp_u8 wlen;
                 if (res != HBP_ERROR_NONE) {
                     hbp_rx_release(&rx);
                     if (strncmp(expect, "error ", 6) != 0 || strcmp(expect + 6, error_kind(res)) != 0) {
@@ -150,8 +162,8 @@ static int run_vector(const vector_t *v)
                 }
                 if (v->hello >= 0) {
                     hbp_host_hello_t h;
-                    uint8_t r = hbp_check_hello(&m.host_hello);
-                    uint8_t r2 = hbp_check_host_hello(rx.buf, rx.frame_len, &h);
+                    hbp_u8 r = hbp_check_hello(&m.host_hello);
+                    hbp_u8 r2 = hbp_check_host_hello(rx.buf, rx.frame_len, &h);
                     if ((r == HBP_ERROR_NONE) != (v->hello == 1) || r2 != r) {
                         return fail(v, "hello check differs");
                     }
@@ -160,6 +172,15 @@ static int run_vector(const vector_t *v)
                 wlen = hbp_encode_frame(frame, flen, out);
                 if (wlen != i + 1u - chunk_start || memcmp(out, &v->wire[chunk_start], wlen) != 0) {
                     return fail(v, "re-encoded bytes differ");
+                }
+                sent_len = 0u;
+                hbp_send_frame(frame, flen, put);
+                if (sent_len != wlen || memcmp(sent, out, wlen) != 0) {
+                    return fail(v, "streamed bytes differ");
+                }
+                memcpy(&out[2], frame, flen); /* in place, as the runtime's link once packed */
+                if (hbp_encode_frame(&out[2], flen, out) != wlen || memcmp(out, &v->wire[chunk_start], wlen) != 0) {
+                    return fail(v, "in-place encoding differs");
                 }
                 hbp_rx_release(&rx);
             } else {
@@ -182,7 +203,7 @@ static int run_vector(const vector_t *v)
     return 0;
 }
 
-static unsigned parse_hex(const char *s, uint8_t *out, unsigned cap)
+static unsigned parse_hex(const char *s, hbp_u8 *out, unsigned cap)
 {
     unsigned n = 0u;
     while (*s != '\0' && *s != '\n' && n < cap) {
@@ -191,7 +212,7 @@ static unsigned parse_hex(const char *s, uint8_t *out, unsigned cap)
         if (end == s) {
             break;
         }
-        out[n++] = (uint8_t)b;
+        out[n++] = (hbp_u8)b;
         s = end;
     }
     return n;

@@ -2,8 +2,9 @@
 """Write vectors.txt: golden frames for the Python and C decoders.
 
 Deliberately independent of the codec: every frame is laid out here by hand from the byte layout in
-PROTOCOL.md, the CRC is a bitwise CRC-16/CCITT-FALSE sent high byte first and COBS is a byte-by-byte
-encoder. The schema fingerprint is computed here from schema.toml by the recipe in PROTOCOL.md.
+PROTOCOL.md, the framing (lengths, COBS, check bytes) is reference_codec.py's bitwise CRC-16/CCITT-FALSE
+and byte-by-byte COBS. The schema fingerprint is computed here from schema.toml by the recipe in
+PROTOCOL.md.
 
 Format, one block per vector:
     vector NAME
@@ -23,7 +24,8 @@ import struct
 import tomllib
 from pathlib import Path
 
-from reference_codec import cobs, crc16  # the independent CRC/COBS beside this script
+from reference_codec import check_bytes, cobs, crc16  # the independent CRC/COBS beside this script
+from reference_codec import wire as ref_wire
 
 HERE = Path(__file__).resolve().parent
 OUT = HERE / "vectors.txt"
@@ -31,7 +33,7 @@ OUT = HERE / "vectors.txt"
 
 def _strip(value: object) -> object:
     if isinstance(value, dict):
-        return {k: _strip(v) for k, v in value.items() if k not in ("doc", "hot", "hot_n", "default")}
+        return {k: _strip(v) for k, v in value.items() if k not in ("doc", "hot", "hot_n", "default", "py_order")}
     if isinstance(value, list):
         return [_strip(v) for v in value]
     return value
@@ -44,13 +46,8 @@ FP = int.from_bytes(hashlib.sha256(json.dumps(
 OTHER_FP = FP ^ 0x00010000  # a firmware built from another schema
 
 
-def with_crc(raw: bytes, flip: int = 0) -> bytes:
-    c = crc16(raw) ^ flip
-    return raw + bytes((c >> 8, c & 0xFF))  # high byte first
-
-
 def wire(raw: bytes, flip: int = 0) -> bytes:
-    return cobs(with_crc(raw, flip)) + b"\x00"
+    return ref_wire(raw, flip)
 
 
 VECTORS: list[tuple[str, bytes, list[str], str | None]] = []
@@ -67,41 +64,68 @@ def drive(seq: int, duties: tuple[int, int, int], mode: int, state: int, sector:
     return bytes([0x11, seq]) + struct.pack(f"<3HH{len(telemetry)}h", *duties, flags, *telemetry)
 
 
+def hello_tail(name: bytes, roles: bytes, telemetry: bytes) -> bytes:
+    """TargetHello's name and ADC roles (count-prefixed) and telemetry ids (the rest)."""
+    return bytes([len(name)]) + name + bytes([len(roles)]) + roles + telemetry
+
+
+# TargetHello: version u8, fingerprint u32, fw version u16, pwm counts u16, pwm Hz u32, n_params u8, adc_bits u8,
+# then hello_tail
+HELLO = "<BIHHIBB"
+
+
 def build() -> None:
     # HostHello: version u8, period_us u16, mode u8, watchdog_ms u16, schema fingerprint u32
-    add("host_hello_v2", wire(bytes([0x01, 0]) + struct.pack("<BHBHI", 2, 1000, 0, 100, FP)),
-        [f"HostHello seq=0 protocol_version=2 period_us=1000 mode=0 watchdog_ms=100 schema_fingerprint={FP}"],
+    add("host_hello_v3", wire(bytes([0x01, 0]) + struct.pack("<BHBHI", 3, 1000, 0, 100, FP)),
+        [f"HostHello seq=0 protocol_version=3 period_us=1000 mode=0 watchdog_ms=100 schema_fingerprint={FP}"],
         "accept")
-    add("host_hello_wrong_version", wire(bytes([0x01, 7]) + struct.pack("<BHBHI", 3, 50, 1, 0, FP)),
-        [f"HostHello seq=7 protocol_version=3 period_us=50 mode=1 watchdog_ms=0 schema_fingerprint={FP}"], "reject")
-    add("host_hello_other_schema", wire(bytes([0x01, 8]) + struct.pack("<BHBHI", 2, 50, 0, 0, OTHER_FP)),
-        [f"HostHello seq=8 protocol_version=2 period_us=50 mode=0 watchdog_ms=0 schema_fingerprint={OTHER_FP}"],
+    add("host_hello_wrong_version", wire(bytes([0x01, 7]) + struct.pack("<BHBHI", 4, 50, 1, 0, FP)),
+        [f"HostHello seq=7 protocol_version=4 period_us=50 mode=1 watchdog_ms=0 schema_fingerprint={FP}"], "reject")
+    add("host_hello_other_schema", wire(bytes([0x01, 8]) + struct.pack("<BHBHI", 3, 50, 0, 0, OTHER_FP)),
+        [f"HostHello seq=8 protocol_version=3 period_us=50 mode=0 watchdog_ms=0 schema_fingerprint={OTHER_FP}"],
         "reject")
-    # TargetHello: version, fingerprint u32, fw version u16, pwm counts u16, pwm Hz u32, n_params, adc_bits,
-    # name (count-prefixed), adc roles (count-prefixed), telemetry ids (rest)
     add("target_hello_loopback",
-        wire(bytes([0x02, 0]) + struct.pack("<BIHHIBB", 2, FP, 1, 1000, 20000, 3, 10) + bytes([8]) + b"loopback"
-             + bytes([3, 1, 2, 3]) + bytes([10, 11, 12])),
-        [f"TargetHello seq=0 protocol_version=2 schema_fingerprint={FP} firmware_version=1 pwm_period_counts=1000 "
+        wire(bytes([0x02, 0]) + struct.pack(HELLO, 3, FP, 1, 1000, 20000, 3, 10)
+             + hello_tail(b"loopback", bytes([1, 2, 3]), bytes([10, 11, 12]))),
+        [f"TargetHello seq=0 protocol_version=3 schema_fingerprint={FP} firmware_version=1 pwm_period_counts=1000 "
          "pwm_freq_hz=20000 n_params=3 adc_bits=10 firmware_name=loopback adc_roles=1,2,3 telemetry_ids=10,11,12"])
+    add("target_hello_an1017",
+        wire(bytes([0x02, 1]) + struct.pack(HELLO, 3, FP, 0x0101, 1000, 20000, 8, 10)
+             + hello_tail(b"AN1017", bytes([1, 2, 3]), bytes([1, 2, 3]))),
+        [f"TargetHello seq=1 protocol_version=3 schema_fingerprint={FP} firmware_version=257 "
+         "pwm_period_counts=1000 pwm_freq_hz=20000 n_params=8 adc_bits=10 firmware_name=AN1017 adc_roles=1,2,3 "
+         "telemetry_ids=1,2,3"])
     add("target_hello_foc",
-        wire(bytes([0x02, 1]) + struct.pack("<BIHHIBB", 2, FP, 0x0200, 7500, 10000, 6, 12) + bytes([11])
-             + b"f2812_foc_1" + bytes([3, 4, 5, 3]) + bytes([1, 2, 5, 6, 9, 0x80, 0xFE])),
-        [f"TargetHello seq=1 protocol_version=2 schema_fingerprint={FP} firmware_version=512 "
-         "pwm_period_counts=7500 pwm_freq_hz=10000 n_params=6 adc_bits=12 firmware_name=f2812_foc_1 "
-         "adc_roles=4,5,3 telemetry_ids=1,2,5,6,9,128,254"])
+        wire(bytes([0x02, 2]) + struct.pack(HELLO, 3, FP, 0x0200, 7500, 10000, 16, 12)
+             + hello_tail(b"f2812_foc_1", bytes([4, 5, 3]), bytes([1, 2, 8, 5, 6, 9, 0x80, 0xFE]))),
+        [f"TargetHello seq=2 protocol_version=3 schema_fingerprint={FP} firmware_version=512 "
+         "pwm_period_counts=7500 pwm_freq_hz=10000 n_params=16 adc_bits=12 firmware_name=f2812_foc_1 "
+         "adc_roles=4,5,3 telemetry_ids=1,2,8,5,6,9,128,254"])
     add("target_hello_empty_lists",
-        wire(bytes([0x02, 255]) + struct.pack("<BIHHIBB", 2, 0xFFFFFFFF, 65535, 0, 4294967295, 0, 0)
-             + bytes([0]) + bytes([0])),
-        ["TargetHello seq=255 protocol_version=2 schema_fingerprint=4294967295 firmware_version=65535 "
+        wire(bytes([0x02, 255]) + struct.pack(HELLO, 3, 0xFFFFFFFF, 65535, 0, 4294967295, 0, 0)
+             + hello_tail(b"", b"", b"")),
+        ["TargetHello seq=255 protocol_version=3 schema_fingerprint=4294967295 firmware_version=65535 "
          "pwm_period_counts=0 pwm_freq_hz=4294967295 n_params=0 adc_bits=0 firmware_name= adc_roles= telemetry_ids="])
-    # Sensors: inputs u8, edge u16, encoder u16, adc u16...
-    add("sensors_an1017", wire(bytes([0x10, 5]) + struct.pack("<BHH3H", 0x0B, 1234, 0xFFFF, 512, 0, 1023)),
-        ["Sensors seq=5 inputs=11 edge_time_100ns=1234 encoder=65535 adc=512,0,1023"])
-    add("sensors_foc_index", wire(bytes([0x10, 6]) + struct.pack("<BHH3H", 0x40, 0xFFFF, 9999, 4095, 2048, 0)),
-        ["Sensors seq=6 inputs=64 edge_time_100ns=65535 encoder=9999 adc=4095,2048,0"])
-    add("sensors_no_edge_no_adc", wire(bytes([0x10, 0]) + struct.pack("<BHH", 0, 0xFFFF, 0)),
-        ["Sensors seq=0 inputs=0 edge_time_100ns=65535 encoder=0 adc="])
+    add("target_describe", wire(bytes([0x52, 9])), ["TargetDescribe seq=9"])
+    # TargetInfo: duty_timing u8, duty_report u8, inputs u8, encoder_counts u16, max_edges u8
+    add("target_info_an1017", wire(bytes([0x53, 9]) + struct.pack("<BBBHB", 1, 0, 0x2F, 0, 3)),
+        ["TargetInfo seq=9 duty_timing=1 duty_report=0 inputs=47 encoder_counts=0 max_edges=3"])
+    add("target_info_foc", wire(bytes([0x53, 10]) + struct.pack("<BBBHB", 2, 1, 0x48, 10000, 16)),
+        ["TargetInfo seq=10 duty_timing=2 duty_report=1 inputs=72 encoder_counts=10000 max_edges=16"])
+    # Sensors: inputs u8, encoder u16, adc (count u8, u16 each), edges (u16 time in 100 ns, u8 lines) to the end
+    add("sensors_an1017_one_edge",
+        wire(bytes([0x10, 5]) + struct.pack("<BHB3HHB", 0x0B, 0xFFFF, 3, 512, 0, 1023, 1234, 0x03)),
+        ["Sensors seq=5 inputs=11 edges=1234,3 encoder=65535 adc=512,0,1023"])
+    add("sensors_three_edges",
+        wire(bytes([0x10, 6]) + struct.pack("<BHB3H" + "HB" * 3, 0x06, 0, 3, 700, 1, 2, 10, 0x04, 4000, 0x06, 9999,
+                                           0x02)),
+        ["Sensors seq=6 inputs=6 edges=10,4,4000,6,9999,2 encoder=0 adc=700,1,2"])
+    add("sensors_foc_index", wire(bytes([0x10, 7]) + struct.pack("<BHB3H", 0x40, 9999, 3, 4095, 2048, 0)),
+        ["Sensors seq=7 inputs=64 edges= encoder=9999 adc=4095,2048,0"])
+    add("sensors_index_edge", wire(bytes([0x10, 8]) + struct.pack("<BHBHB", 0x41, 3, 0, 250, 0x41)),
+        ["Sensors seq=8 inputs=65 edges=250,65 encoder=3 adc="])
+    add("sensors_no_edge_no_adc", wire(bytes([0x10, 0]) + struct.pack("<BHB", 0, 0, 0)),
+        ["Sensors seq=0 inputs=0 edges= encoder=0 adc="])
     add("drive_an1017", wire(drive(5, (1000, 512, 1), 1, 2, 4, 1, 0, 0, (-2, 32767, -32768))),
         ["Drive seq=5 duty_a=1000 duty_b=512 duty_c=1 output_mode=1 state=2 sector=4 direction_ccw=1 "
          "required_ccw=0 fault=0 telemetry=-2,32767,-32768"])
@@ -112,13 +136,17 @@ def build() -> None:
         ["Drive seq=0 duty_a=0 duty_b=0 duty_c=0 output_mode=2 state=1 sector=7 direction_ccw=0 "
          "required_ccw=1 fault=1 telemetry=0,0,0"])
     add("param_describe", wire(bytes([0x20, 3, 1])), ["ParamDescribe seq=3 param_id=1"])
-    add("param_info_kp", wire(bytes([0x21, 3]) + struct.pack("<BBBiii", 0, 0, 1, 0, 32767, 3277) + b"kp"),
-        ["ParamInfo seq=3 param_id=0 ptype=0 access=1 min_value=0 max_value=32767 value=3277 name=kp"])
+    # ParamInfo: id u8, ptype u8, access u8, min i32, max i32, value i32, name (count-prefixed), unit (the rest)
+    add("param_info_kp", wire(bytes([0x21, 3]) + struct.pack("<BBBiii", 0, 0, 1, 0, 32767, 3277) + b"\x02kp"),
+        ["ParamInfo seq=3 param_id=0 ptype=0 access=1 min_value=0 max_value=32767 value=3277 name=kp unit="])
+    add("param_info_stall_ms", wire(bytes([0x21, 9]) + struct.pack("<BBBiii", 7, 1, 1, 10, 30000, 100)
+                                    + b"\x08stall_msms"),
+        ["ParamInfo seq=9 param_id=7 ptype=1 access=1 min_value=10 max_value=30000 value=100 name=stall_ms unit=ms"])
     # an IQ24 gain: 0.75 = 12582912, range [0, 127.99...]
     add("param_info_iq24", wire(bytes([0x21, 4]) + struct.pack("<BBBiii", 5, 3, 1, -2**31, 2**31 - 1, 12582912)
-                                + b"iq_kp"),
+                                + b"\x05iq_kp"),
         ["ParamInfo seq=4 param_id=5 ptype=3 access=1 min_value=-2147483648 max_value=2147483647 value=12582912 "
-         "name=iq_kp"])
+         "name=iq_kp unit="])
     add("param_get", wire(bytes([0x22, 4, 2])), ["ParamGet seq=4 param_id=2"])
     add("param_value_unknown", wire(bytes([0x23, 4]) + struct.pack("<BBi", 9, 1, 0)),
         ["ParamValue seq=4 param_id=9 result=1 value=0"])
@@ -138,37 +166,47 @@ def build() -> None:
         ["Status seq=3 rx_frames=10000 rx_errors=3 resyncs=2 unknown=1 overruns=0 watchdog_trips=65535 "
          "last_error=2"])
     # ErrorReport: code u8, detail u8, the sender's schema fingerprint u32
-    add("error_report_version", wire(bytes([0x42, 7, 1, 2]) + struct.pack("<I", FP)),
-        [f"ErrorReport seq=7 code=1 detail=2 schema_fingerprint={FP}"])
+    add("error_report_version", wire(bytes([0x42, 7, 1, 3]) + struct.pack("<I", FP)),
+        [f"ErrorReport seq=7 code=1 detail=3 schema_fingerprint={FP}"])
+    add("telemetry_describe", wire(bytes([0x50, 4, 1])), ["TelemetryDescribe seq=4 index=1"])
+    # TelemetryInfo: index u8, id u8, ptype u8, scale_num i32, scale_den i32, name (count-prefixed), unit (the rest)
+    add("telemetry_info_speed", wire(bytes([0x51, 4]) + struct.pack("<BBBii", 1, 2, 0, 9375000, 51118080)
+                                     + b"\x0emeasured_speedrpm"),
+        ["TelemetryInfo seq=4 index=1 telemetry_id=2 ptype=0 scale_num=9375000 scale_den=51118080 "
+         "name=measured_speed unit=rpm"])
     # ---- malformed
-    add("bad_crc", wire(bytes([0x10, 5]) + struct.pack("<BHH3H", 0x0B, 1234, 0xFFFF, 512, 0, 1023), flip=0x0001),
-        ["error crc"])
-    add("crc_low_byte_first", cobs(bytes([0x30, 0x11]) + bytes((crc16(bytes([0x30, 0x11])) & 0xFF,
-                                                                crc16(bytes([0x30, 0x11])) >> 8))) + b"\x00",
-        ["error crc"])
-    start = with_crc(bytes([0x30, 0x11]))
-    assert 0 not in start, "pick a seq whose frame has no zero byte"
-    add("truncated", cobs(start)[:-2] + b"\x00", ["error cobs"])
+    sensors = bytes([0x10, 5]) + struct.pack("<BHB3HHB", 0x0B, 0xFFFF, 3, 512, 0, 1023, 1234, 0x03)
+    add("bad_crc", wire(sensors, flip=0x0001), ["error crc"])
+    good = wire(bytes([0x30, 0x11]))
+    add("check_top_bit_clear", good[:-4] + bytes((good[-4] & 0x7F,)) + good[-3:], ["error crc"])
+    add("check_reserved_bit_set", good[:-2] + bytes((good[-2] | 0x01,)) + good[-1:], ["error crc"])
+    # the v2 weakness: the delimiter turned into 0x01 and idle filler after it; and a frame that lost its end
+    add("delimiter_flipped_then_idle", good[:-1] + b"\x01\x00", ["error crc"])  # the 0x01 is read as a check byte
+    add("leading_length_wrong", ref_wire(bytes([0x30, 0x11]), lengths=(9, 8)), ["error length"])
+    add("trailing_length_wrong", ref_wire(bytes([0x30, 0x11]), lengths=(8, 7)), ["error length"])
+    add("truncated", good[:-3] + b"\x00", ["error length"])
+    cobs_bad = bytes([0x09, 8, 0x30, 0x11, 8])  # its first block runs past the end; the CRC covers it
+    add("cobs_block_past_end", cobs_bad + check_bytes(crc16(cobs_bad)) + b"\x00", ["error cobs"])
     add("too_short", bytes([0x02, 0x30, 0x00]), ["error length"])
     add("oversized", bytes([0x01] * 80) + b"\x00", ["error oversized"])
     add("oversized_block", bytes([0x50]) + bytes(range(1, 80)) + b"\x00", ["error oversized"])
     add("unknown_type", wire(bytes([0x7E, 9, 1, 2])), ["error unknown_type"])
     add("start_with_payload", wire(bytes([0x30, 1, 0x55])), ["error length"])
-    add("sensors_odd_payload", wire(bytes([0x10, 1]) + struct.pack("<BHH", 0, 0, 0) + b"\x01"), ["error length"])
+    add("sensors_partial_edge", wire(bytes([0x10, 1]) + struct.pack("<BHB", 0, 0, 0) + b"\x01"), ["error length"])
+    add("sensors_adc_count_past_end", wire(bytes([0x10, 1]) + struct.pack("<BHBH", 0, 0, 4, 7)), ["error length"])
     add("drive_too_many_telemetry", wire(drive(1, (0, 0, 0), 0, 0, 0, 0, 0, 0, tuple(range(9)))), ["error length"])
     add("param_set_partial_pair", wire(bytes([0x24, 1, 0, 1, 2, 3])), ["error length"])
-    add("param_set_v1_pair", wire(bytes([0x24, 1, 0, 1, 0])), ["error length"])
     add("error_report_v1_layout", wire(bytes([0x42, 7, 1, 1])), ["error length"])
     add("target_hello_name_past_end",
-        wire(bytes([0x02, 0]) + struct.pack("<BIHHIBB", 2, FP, 1, 1000, 20000, 3, 10) + bytes([20]) + b"abc"),
+        wire(bytes([0x02, 0]) + struct.pack(HELLO, 3, FP, 1, 1000, 20000, 3, 10) + bytes([20]) + b"abc"),
         ["error length"])
     add("param_info_name_not_ascii",
-        wire(bytes([0x21, 3]) + struct.pack("<BBBiii", 0, 0, 1, 0, 1, 0) + b"k\x01"), ["error length"])
-    s = wire(bytes([0x10, 9]) + struct.pack("<BHH3H", 0x08, 0xFFFF, 7, 1, 2, 3))
+        wire(bytes([0x21, 3]) + struct.pack("<BBBiii", 0, 0, 1, 0, 1, 0) + b"\x02k\x01"), ["error length"])
+    s = wire(bytes([0x10, 9]) + struct.pack("<BHB3H", 0x08, 7, 3, 1, 2, 3))
     d = wire(drive(9, (5, 6, 7), 1, 2, 0, 0, 0, 0, (7, -1, 9)))
     add("garbage_between_frames", b"\xde\xad\xbe\xef\x00" + s + b"\xff\xff\x00\x00" + d + b"\x00\x00",
-        ["error cobs", "Sensors seq=9 inputs=8 edge_time_100ns=65535 encoder=7 adc=1,2,3",
-         "error cobs", "Drive seq=9 duty_a=5 duty_b=6 duty_c=7 output_mode=1 state=2 sector=0 direction_ccw=0 "
+        ["error length", "Sensors seq=9 inputs=8 edges= encoder=7 adc=1,2,3",
+         "error length", "Drive seq=9 duty_a=5 duty_b=6 duty_c=7 output_mode=1 state=2 sector=0 direction_ccw=0 "
          "required_ccw=0 fault=0 telemetry=7,-1,9"])
 
 

@@ -47,13 +47,14 @@ static inline int hb_longlong(PyObject *o, long long *out)
 
 /* ---- messages ----------------------------------------------------------------------------- */
 
-/* The fields of a Sensors tuple (protocol: seq, inputs, edge_time_100ns, encoder, adc); seq, encoder
- * and adc are borrowed from the tuple (a core that reads the encoder converts it: hb_longlong). */
+/* The fields of a Sensors tuple (protocol 3: seq, inputs, edges, encoder, adc); seq, edges, encoder
+ * and adc are borrowed from the tuple (a core that reads the encoder converts it: hb_longlong; one
+ * that reads the edges, (time in 100 ns, lines) pairs, walks them). */
 typedef struct {
     PyObject *seq;
     long long seq_value;
     long inputs;
-    long edge;
+    PyObject *edges;
     PyObject *encoder;
     PyObject *adc;
 } hb_sensors_t;
@@ -68,8 +69,8 @@ static inline int hb_sensors(PyObject *sensors, hb_sensors_t *out, const char *w
     out->seq = PyTuple_GET_ITEM(sensors, 0);
     out->encoder = PyTuple_GET_ITEM(sensors, 3);
     out->adc = PyTuple_GET_ITEM(sensors, 4);
-    if (hb_longlong(out->seq, &out->seq_value) < 0 || hb_long(PyTuple_GET_ITEM(sensors, 1), &out->inputs) < 0
-        || hb_long(PyTuple_GET_ITEM(sensors, 2), &out->edge) < 0)
+    out->edges = PyTuple_GET_ITEM(sensors, 2);
+    if (hb_longlong(out->seq, &out->seq_value) < 0 || hb_long(PyTuple_GET_ITEM(sensors, 1), &out->inputs) < 0)
         return -1;
     return 0;
 }
@@ -171,12 +172,23 @@ typedef struct {
                    int *have_edge, double *edge_s);
     int (*n_outputs)(PyObject *plant);
     int (*fault_input)(PyObject *plant); /* the comparator's latch */
+    /* period_edges(plant, &edge_t, &edge_hall, &n_edges, &mark_t, &n_marks, &index): the hall edges (s from
+     * the period's start, hall bits after) and index marks (s) of the last advance (Plant.edges,
+     * Plant.index_marks: the plant's own arrays, read only) and sense()'s index flag, all without
+     * sense()'s ADC noise draws */
+    void (*period_edges)(PyObject *plant, const double **edge_t, const int **edge_hall, int *n_edges,
+                         const double **mark_t, int *n_marks, int *index);
 } hb_plant_api_t;
 
-/* A Sensors and a Drive as C values (the protocol's fields). */
+#define HB_SPAN_MAX_EDGES 16 /* protocol 3's Sensors: at most MAX_EDGES input edges */
+
+/* A Sensors and a Drive as C values (the protocol's fields; Sensors.edges as n_edges (time in
+ * 100 ns, lines) pairs). */
 typedef struct {
     long long seq;
-    long inputs, edge, encoder;
+    long inputs, encoder;
+    int n_edges;
+    long edge_t[HB_SPAN_MAX_EDGES], edge_lines[HB_SPAN_MAX_EDGES];
     int n_adc;
     long adc[HB_SPAN_MAX_ADC];
 } hb_csensors_t;

@@ -2,20 +2,22 @@
  *
  * hilbench.bench.session's tight loop (`Session._tight_runner`) hands a span [k, stop) here when
  * the plant and the target each have a C step (their SPAN_API capsules, hbglue.h): per period the
- * plant's sensors, the Sensors (halls | buttons, the index mark, the last edge in 100 ns, the
+ * plant's sensors, protocol 3's Sensors (halls | buttons, the index mark, every hall edge and index
+ * mark of the last period in 100 ns with its lines, as hilbench.bench.sensing builds them; the
  * encoder, the ADC codes), the target's step, the row (the session's own fields, the telemetry,
  * the plant's declared outputs: columns.session_row's bytes) and the plant's period. It is
  * `Session._periods_one_by_one` period for period; tests/test_span.py checks both record the same
- * bytes. A period whose Sensors would carry the overcurrent comparator's trip is left to Python
- * (the span stops before it: the trip is noted there), as is anything with a sensor fault or real
+ * bytes. A period whose Sensors would carry the overcurrent comparator's trip, or more edges than
+ * the target takes (the session's bench limit), is left to Python (the span stops before it, before
+ * the plant's sensors are read: the trip is noted there, the limit raised), as is anything with a sensor fault or real
  * time (the session does not call this then).
  */
 #include "hbglue.h"
 #include <string.h>
 #include <time.h>
 
-#define EDGE_NONE 0xFFFF
 #define INPUT_INDEX 0x40
+#define HALL_MASK 0x07
 #define INPUT_FAULT 0x20
 #define OWN_BYTES (8 + 8 * 4 + 8 + 8 + 1) /* k Q, hall..fault 8 i, rtt d, lateness d, marker B */
 #define RTT_EVERY_MASK 63 /* the lockstep round-trip sample: one period in 64, as the Python loop */
@@ -26,8 +28,9 @@ typedef struct {
     const hb_plant_api_t *papi;
     const hb_target_api_t *tapi;
     int roles[HB_SPAN_MAX_ADC];
-    int n_roles, n_tel, n_out, read_index, host_ref;
+    int n_roles, n_tel, n_out, read_index, host_ref, max_edges;
     long edge_limit;
+    long hall_before; /* the hall bits of the last Sensors (an index mark before the period's first hall edge) */
     Py_ssize_t row_bytes;
     long long k;      /* where the last run stopped (the failing period after an exception) */
     int running;      /* a run is in progress (a Python call inside it must not start another) */
@@ -74,9 +77,57 @@ static double now_s(void)
     return (double)ts.tv_sec + 1e-9 * (double)ts.tv_nsec;
 }
 
-/* run(k, stop, buttons, ref_rpm, edge_s, drive) -> the period it stopped before: stop, or the first
- * period whose Sensors carry the comparator's trip. edge_s and drive are the members after it (also
- * after an exception, with k the failing period). */
+/* int(t_s * 1e7) capped to the period (sensing.py's min(int(t * 1e7), limit)) */
+static long edge_time(double t_s, long limit)
+{
+    double e = t_s * 1e7;
+    return e >= (double)limit ? limit : (long)e;
+}
+
+/* Period k's Sensors.edges into in (sensing.hall_edges and with_index_marks): 1 when they fit,
+ * 0 when there are more than the target takes (left to Python, which raises the bench limit). */
+static int period_edges(const Span *s, int have_edge, hb_csensors_t *in, int *index)
+{
+    const double *edge_t, *mark_t;
+    const int *edge_hall;
+    int n_edges, n_marks, n = 0;
+    s->papi->period_edges(s->plant, &edge_t, &edge_hall, &n_edges, &mark_t, &n_marks, index);
+    if (have_edge) { /* every hall edge of the period, timed */
+        if (n_edges > s->max_edges) return 0;
+        for (; n < n_edges; n++) {
+            in->edge_t[n] = edge_time(edge_t[n], s->edge_limit);
+            in->edge_lines[n] = edge_hall[n];
+        }
+    }
+    if (*index && s->read_index) { /* the index marks among them: the halls in force then, INDEX set */
+        if (n + n_marks > s->max_edges) return 0;
+        int n_hall = n;
+        for (int m = 0; m < n_marks; m++, n++) { /* appended, each with the halls of the hall edges before it */
+            long t = edge_time(mark_t[m], s->edge_limit), hall = s->hall_before;
+            for (int i = 0; i < n_hall && in->edge_t[i] <= t; i++) hall = in->edge_lines[i] & HALL_MASK;
+            in->edge_t[n] = t;
+            in->edge_lines[n] = hall | INPUT_INDEX;
+        }
+        for (int i = 1; i < n; i++) { /* a stable sort by (time, INDEX bit), as sorted() */
+            long t = in->edge_t[i], lines = in->edge_lines[i];
+            int j = i;
+            for (; j > 0 && (in->edge_t[j - 1] > t
+                             || (in->edge_t[j - 1] == t && (in->edge_lines[j - 1] & INPUT_INDEX) > (lines & INPUT_INDEX)));
+                 j--) {
+                in->edge_t[j] = in->edge_t[j - 1];
+                in->edge_lines[j] = in->edge_lines[j - 1];
+            }
+            in->edge_t[j] = t;
+            in->edge_lines[j] = lines;
+        }
+    }
+    in->n_edges = n;
+    return 1;
+}
+
+/* run(k, stop, buttons, ref_rpm, edge_s, drive, hall_before) -> the period it stopped before: stop,
+ * or the first period whose Sensors carry the comparator's trip or too many edges. edge_s, drive and
+ * hall_before are the members after it (also after an exception, with k the failing period). */
 static PyObject *span_run(Span *s, PyObject *const *args, Py_ssize_t nargs);
 
 static PyObject *Span_run(Span *s, PyObject *const *args, Py_ssize_t nargs)
@@ -92,8 +143,8 @@ static PyObject *Span_run(Span *s, PyObject *const *args, Py_ssize_t nargs)
 
 static PyObject *span_run(Span *s, PyObject *const *args, Py_ssize_t nargs)
 {
-    if (nargs != 6) {
-        PyErr_SetString(PyExc_TypeError, "Span.run(k, stop, buttons, ref_rpm, edge_s, drive)");
+    if (nargs != 7) {
+        PyErr_SetString(PyExc_TypeError, "Span.run(k, stop, buttons, ref_rpm, edge_s, drive, hall_before)");
         return NULL;
     }
     if (s->papi == NULL || s->tapi == NULL || s->plant == NULL || s->core == NULL) {
@@ -101,7 +152,7 @@ static PyObject *span_run(Span *s, PyObject *const *args, Py_ssize_t nargs)
         return NULL;
     }
     long long k = PyLong_AsLongLong(args[0]), stop = PyLong_AsLongLong(args[1]);
-    long buttons = PyLong_AsLong(args[2]);
+    long buttons = PyLong_AsLong(args[2]), hall_before = PyLong_AsLong(args[6]);
     double ref_rpm = PyFloat_AsDouble(args[3]);
     if (PyErr_Occurred()) return NULL;
     int have_edge = args[4] != Py_None;
@@ -110,6 +161,7 @@ static PyObject *span_run(Span *s, PyObject *const *args, Py_ssize_t nargs)
     s->running = 1;
     Py_XSETREF(s->edge_s, Py_NewRef(args[4]));
     Py_XSETREF(s->drive, Py_NewRef(args[5]));
+    s->hall_before = hall_before;
     s->k = k;
     Py_ssize_t used = 0;
     char *base = NULL;
@@ -127,17 +179,14 @@ static PyObject *span_run(Span *s, PyObject *const *args, Py_ssize_t nargs)
         /* Ctrl-C between periods, as in the Python loop (not left to the Python calls a span may make) */
         if (!(k & RTT_EVERY_MASK) && PyErr_CheckSignals() < 0) { failed = 1; break; }
         if (s->papi->fault_input(s->plant)) break; /* the trip is the Python loop's (it notes it) */
+        int index = 0;
+        if (!period_edges(s, have_edge, &in, &index)) break; /* too many: Python raises the bench limit */
         if (s->papi->sense(s->plant, s->roles, s->n_roles, &ps) < 0) { failed = 1; break; }
         long inputs = ps.hall | buttons;
         if (ps.index && s->read_index) inputs |= INPUT_INDEX;
-        long edge = EDGE_NONE;
-        if (have_edge) {
-            double e = edge_s * 1e7; /* int(edge_s * 1e7), capped to the period */
-            edge = e >= (double)s->edge_limit ? s->edge_limit : (long)e;
-        }
+        s->hall_before = ps.hall;
         in.seq = k & 0xFF;
         in.inputs = inputs;
-        in.edge = edge;
         in.encoder = ps.encoder;
         in.n_adc = ps.n_adc;
         memcpy(in.adc, ps.adc, sizeof(long) * (size_t)ps.n_adc);
@@ -198,20 +247,53 @@ static PyObject *span_run(Span *s, PyObject *const *args, Py_ssize_t nargs)
     return PyLong_FromLongLong(k);
 }
 
+/* edges(have_edge, hall_before) -> ((time in 100 ns, lines), ...) or None (more than max_edges): the
+ * Sensors.edges a period after the plant's last advance gets in a run (tests/test_span.py compares
+ * them with hilbench.bench.sensing's); nothing is stepped or sensed. */
+static PyObject *Span_edges(Span *s, PyObject *const *args, Py_ssize_t nargs)
+{
+    if (nargs != 2) {
+        PyErr_SetString(PyExc_TypeError, "Span.edges(have_edge, hall_before)");
+        return NULL;
+    }
+    int have_edge = PyObject_IsTrue(args[0]);
+    long hall_before = PyLong_AsLong(args[1]);
+    if (have_edge < 0 || (hall_before == -1 && PyErr_Occurred())) return NULL;
+    long keep = s->hall_before;
+    hb_csensors_t in;
+    int index = 0;
+    s->hall_before = hall_before;
+    int fits = period_edges(s, have_edge, &in, &index);
+    s->hall_before = keep;
+    if (!fits) Py_RETURN_NONE;
+    PyObject *out = PyTuple_New(in.n_edges);
+    if (out == NULL) return NULL;
+    for (int i = 0; i < in.n_edges; i++) {
+        PyObject *e = Py_BuildValue("(ll)", in.edge_t[i], in.edge_lines[i]);
+        if (e == NULL) { Py_DECREF(out); return NULL; }
+        PyTuple_SET_ITEM(out, i, e);
+    }
+    return out;
+}
+
 static int Span_init(Span *s, PyObject *args, PyObject *kwds)
 {
     static char *kw[] = {"plant", "plant_api", "core", "target_api", "roles", "edge_limit", "read_index", "rows",
-                         "n_telemetry", "host_ref", "rtt_append", NULL};
+                         "n_telemetry", "host_ref", "rtt_append", "max_edges", NULL};
     PyObject *plant, *papi, *core, *tapi, *roles, *rows, *rtt;
     long edge_limit;
-    int read_index, n_tel, host_ref;
+    int read_index, n_tel, host_ref, max_edges;
     if (s->running) {
         PyErr_SetString(PyExc_RuntimeError, "Span: cannot be initialised again while it runs");
         return -1;
     }
-    if (!PyArg_ParseTupleAndKeywords(args, kwds, "OOOOOlpOipO:Span", kw, &plant, &papi, &core, &tapi, &roles,
-                                     &edge_limit, &read_index, &rows, &n_tel, &host_ref, &rtt))
+    if (!PyArg_ParseTupleAndKeywords(args, kwds, "OOOOOlpOipOi:Span", kw, &plant, &papi, &core, &tapi, &roles,
+                                     &edge_limit, &read_index, &rows, &n_tel, &host_ref, &rtt, &max_edges))
         return -1;
+    if (max_edges < 0 || max_edges > HB_SPAN_MAX_EDGES) {
+        PyErr_Format(PyExc_ValueError, "Span: max_edges %d (0..%d)", max_edges, HB_SPAN_MAX_EDGES);
+        return -1;
+    }
     const hb_plant_api_t *plant_api = PyCapsule_GetPointer(papi, HB_PLANT_API);
     const hb_target_api_t *target_api = PyCapsule_GetPointer(tapi, HB_TARGET_API);
     if (plant_api == NULL || target_api == NULL) return -1;
@@ -251,6 +333,8 @@ static int Span_init(Span *s, PyObject *args, PyObject *kwds)
     s->read_index = read_index;
     s->n_tel = n_tel;
     s->host_ref = host_ref;
+    s->max_edges = max_edges;
+    s->hall_before = 0;
     s->n_out = s->papi->n_outputs(plant);
     s->row_bytes = OWN_BYTES + (host_ref ? 8 : 0) + 4 * n_tel + 8 * (Py_ssize_t)s->n_out;
     Py_XSETREF(s->edge_s, Py_NewRef(Py_None));
@@ -291,13 +375,16 @@ static PyMemberDef Span_members[] = {
     {"k", T_LONGLONG, offsetof(Span, k), READONLY, "where the last run stopped (the failing period after an error)"},
     {"edge_s", T_OBJECT, offsetof(Span, edge_s), READONLY, "the last period's hall edge (None: none)"},
     {"drive", T_OBJECT, offsetof(Span, drive), READONLY, "the last Drive"},
+    {"hall_before", T_LONG, offsetof(Span, hall_before), READONLY, "the hall bits of the last Sensors"},
     {"row_bytes", T_PYSSIZET, offsetof(Span, row_bytes), READONLY, "bytes per recorded row"},
     {NULL, 0, 0, 0, NULL},
 };
 
 static PyMethodDef Span_methods[] = {
     {"run", (PyCFunction)(void (*)(void))Span_run, METH_FASTCALL,
-     "run(k, stop, buttons, ref_rpm, edge_s, drive) -> the period it stopped before."},
+     "run(k, stop, buttons, ref_rpm, edge_s, drive, hall_before) -> the period it stopped before."},
+    {"edges", (PyCFunction)(void (*)(void))Span_edges, METH_FASTCALL,
+     "edges(have_edge, hall_before) -> the Sensors.edges of the period after the plant's last advance, or None."},
     {NULL, NULL, 0, NULL},
 };
 
@@ -307,7 +394,7 @@ static PyTypeObject SpanType = {
     .tp_basicsize = sizeof(Span),
     .tp_flags = Py_TPFLAGS_DEFAULT | Py_TPFLAGS_HAVE_GC,
     .tp_doc = "Span(plant, plant_api, core, target_api, roles, edge_limit, read_index, rows, n_telemetry, host_ref, "
-              "rtt_append): the session's lockstep periods in C.",
+              "rtt_append, max_edges): the session's lockstep periods in C.",
     .tp_new = PyType_GenericNew,
     .tp_init = (initproc)Span_init,
     .tp_dealloc = (destructor)Span_dealloc,

@@ -28,6 +28,11 @@ OWN_FIELDS: tuple[tuple[str, str], ...] = (
 )
 
 
+#: the bench's own columns (a telemetry column of a self-described firmware never takes these names)
+BENCH_COLUMNS = ("t_s", "seq", "hall", "sector", "duty_a", "duty_b", "duty_c", "output_mode", "state", "fault",
+                 "rtt_us", "lateness_us", "marker")
+
+
 @dataclass(frozen=True)
 class SessionRow:
     """The layout of a session's recorded row and the session's own part of it."""
@@ -76,4 +81,4 @@ def _declared_order(profile: TargetProfile, telemetry_id: int) -> int:
     return len(profile.telemetry) + telemetry_id
 
 
-__all__ = ["OWN_FIELDS", "RPM_PER_RAD_S", "SessionRow", "session_row"]
+__all__ = ["BENCH_COLUMNS", "OWN_FIELDS", "RPM_PER_RAD_S", "SessionRow", "session_row"]

@@ -1,7 +1,7 @@
 """Injected sensor faults: each kind a class whose `filter(sensors)` changes what the target gets.
 
-A fault sees the whole Sensors of a period (hall bits and every other input, the edge time, the
-encoder count, the ADC codes) and returns the ones the target gets. The session calls
+A fault sees the whole Sensors of a period (hall bits and every other input, every timed input
+edge, the encoder count, the ADC codes) and returns the ones the target gets. The session calls
 `SensorFaults.filter` only while a fault is in force, so a clean run pays nothing. A new fault
 starts: the passing faults end (one at a time, as on a bench with one probe), lasting damage stays
 (counts an encoder lost stay lost). Adding a kind is one class here with `@fault_kind` and its test:
@@ -15,9 +15,8 @@ import math
 from dataclasses import dataclass
 from typing import ClassVar
 
-from hilbench.protocol import Edge, Sensors
+from hilbench.protocol import Sensors
 
-EDGE_NONE = int(Edge.NONE)
 HALL_MASK = 0x7  # Sensors.inputs bits 0..2: halls A, B, C
 _new_sensors = tuple.__new__  # Sensors is a NamedTuple: its Python-level __new__ is slow
 
@@ -75,15 +74,18 @@ class HallForced(SensorFault):
         self.high, self.low = (bit, 0) if kind.endswith("high") else (0, bit)
 
     def filter(self, sensors: Sensors) -> Sensors:
-        inputs = sensors[1]
+        inputs, edges = sensors[1], sensors[2]
         self.halls.last = inputs & HALL_MASK
-        return _new_sensors(Sensors, (sensors[0], (inputs | self.high) & ~self.low, *sensors[2:]))
+        high, low = self.high, self.low
+        if edges:  # the line reads forced on every edge too (an edge stays: the other lines moved)
+            edges = tuple([(t, (lines | high) & ~low) for t, lines in edges])
+        return _new_sensors(Sensors, (sensors[0], (inputs | high) & ~low, edges, *sensors[3:]))
 
 
 @fault_kind
 class HallMissingEdge(SensorFault):
-    """The next hall edge never reaches the target: the halls it saw last, no edge time, for one
-    period (then the fault is spent)."""
+    """The next hall edge never reaches the target: the halls it saw last and none of the period's
+    edges, for one period (then the fault is spent)."""
 
     kinds = ("hall_missing_edge",)
 
@@ -92,7 +94,7 @@ class HallMissingEdge(SensorFault):
         last = self.halls.last
         if inputs & HALL_MASK != last:
             self.spent = True
-            return _new_sensors(Sensors, (sensors[0], inputs & ~HALL_MASK | last, EDGE_NONE, *sensors[3:]))
+            return _new_sensors(Sensors, (sensors[0], inputs & ~HALL_MASK | last, (), *sensors[3:]))
         self.halls.last = inputs & HALL_MASK
         return sensors
 

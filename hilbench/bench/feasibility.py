@@ -1,11 +1,12 @@
 """What a run's settings allow, checked before it starts (issue 16, item 12).
 
-Lockstep and real time both carry one hall edge time per period: when the motor's halls change
-more often than the bench exchanges, edges are lost and the firmware's speed is wrong (at 1 ms
-periods and 2500 rpm on a 5-pole-pair motor: 1250 edges/s against 1000 exchanges/s, 31 % off).
-In real time a serial link must also move a Sensors and a Drive frame inside each period, and a
-general-purpose host cannot answer within a few tens of microseconds every period. Impossible
-settings are refused; doubtful ones give a warning the CLI prints before the run.
+A Sensors carries every hall edge and index mark of its period with its time (protocol 3), so
+no edge is lost at any period; a period may hold at most the target's TargetInfo.max_edges (16
+on the wire): more, at a long period and a high speed, is said before the run and refused in it.
+In real time a serial link must also move a Sensors (3 bytes more per edge) and a Drive frame
+inside each period, and a general-purpose host cannot answer within a few tens of microseconds
+every period. Impossible settings are refused; doubtful ones give a warning the CLI prints before
+the run.
 """
 
 from __future__ import annotations
@@ -25,11 +26,11 @@ BITS_PER_BYTE = 10
 REALTIME_MIN_PERIOD_US = 250
 
 
-def _frame_bytes(n_adc: int, n_telemetry: int) -> int:
-    """Sensors + Drive frames on the wire, at their largest values."""
+def _frame_bytes(n_adc: int, n_telemetry: int, n_edges: int = 0) -> int:
+    """Sensors (with ``n_edges`` edges) + Drive frames on the wire, at their largest values."""
     from hilbench.protocol import Drive, Sensors, encode_frame
 
-    sensors = encode_frame(Sensors(255, 0xFF, 0xFFFF, 0xFFFF, (0xFFFF,) * n_adc))
+    sensors = encode_frame(Sensors(255, 0xFF, ((0xFFFF, 0xFF),) * n_edges, 0xFFFF, (0xFFFF,) * n_adc))
     drive = encode_frame(Drive(255, 0xFFFF, 0xFFFF, 0xFFFF, 1, 2, 3, True, False, 0, (-32768,) * n_telemetry))
     return len(sensors) + len(drive)
 
@@ -42,15 +43,20 @@ def check_run(cfg: BenchConfig, events: tuple = ()) -> list[str]:
     period_us = cfg.link.period_us
     exchanges_per_s = Period(period_us).per_s
     refs = [abs(e.ref_rpm) for e in (events or settings.scenario_events(cfg)) if getattr(e, "ref_rpm", None) is not None]
+    edges_per_period = 1
     if refs:
+        from hilbench.protocol import MAX_EDGES
+
         max_rpm = max(refs)
         edges_per_s = max_rpm / 60.0 * cfg.motor.pole_pairs * HALL_EDGES_PER_ELECTRICAL_REV
-        if edges_per_s > exchanges_per_s:
-            most_us = math.floor(1e6 / edges_per_s)
+        # edges in a window of one period (one more when it starts just before an edge), an index a turn
+        edges_per_period = math.floor(edges_per_s * period_us / 1e6) + 1 + math.ceil(max_rpm / 60.0 * period_us / 1e6)
+        if edges_per_period > MAX_EDGES:
+            most_us = math.floor((MAX_EDGES - 2) * 1e6 / edges_per_s)
             warnings.append(
-                f"at {max_rpm:g} rpm the halls change {edges_per_s:.0f} times/s but the bench exchanges "
-                f"{exchanges_per_s:.0f} times/s (link.period_us = {period_us}): hall edges are lost and the "
-                f"firmware's speed will be wrong; use link.period_us <= {most_us}")
+                f"at {max_rpm:g} rpm a period of {period_us} us holds up to {edges_per_period} hall edges, more "
+                f"than the {MAX_EDGES} a Sensors carries (a firmware may take fewer: its TargetInfo.max_edges); "
+                f"the run stops if a period has more; use link.period_us <= {most_us}")
     if cfg.run.mode == "realtime":
         baud = re.search(r"[?&]baud=(\d+)", cfg.link.target)
         if baud:
@@ -59,7 +65,7 @@ def check_run(cfg: BenchConfig, events: tuple = ()) -> list[str]:
                 n_tele = len(profile.telemetry)
             except ConfigError:
                 n_tele = 8
-            wire_us = _frame_bytes(len(cfg.adc), n_tele) * BITS_PER_BYTE / int(baud.group(1)) * 1e6
+            wire_us = _frame_bytes(len(cfg.adc), n_tele, min(edges_per_period, 16)) * BITS_PER_BYTE / int(baud.group(1)) * 1e6
             if wire_us >= period_us:
                 raise ConfigError(
                     f"[link] period_us: {period_us} us is shorter than the {wire_us:.0f} us a Sensors and a Drive "

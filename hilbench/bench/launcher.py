@@ -95,7 +95,7 @@ def open_target(
     options: object | None = None,
     mode: str = "lockstep",
     timeout_s: float = 0.5,
-    watchdog_ms: int = 100,
+    watchdog_ms: int | None = 100,
     retry_s: float = 0.1,
 ) -> TargetHandle:
     """Connect to the target named by ``spec`` (the link layer's one grammar, see
@@ -123,18 +123,19 @@ def open_target(
                       "(use emulator:NAME, inprocess:NAME, sil:NAME, simavr:NAME or a port)")
 
 
-def emulator_command(profile: TargetProfile, options: object, port: str, mode: str, watchdog_ms: int) -> list[str]:
-    """The emulator process's command line. ``-P``: the working directory is not put on the import
+def emulator_command(profile: TargetProfile, options: object, port: str, mode: str, watchdog_ms: int | None) -> list[str]:
+    """The emulator process's command line (mode "any" and watchdog_ms None: as each HostHello asks). ``-P``: the working directory is not put on the import
     path, so a folder named like a package there cannot shadow hilbench."""
     import json
 
+    forced = ([] if mode == "any" else ["--mode", mode]) + ([] if watchdog_ms is None else ["--watchdog-ms", str(watchdog_ms)])
     return [
-        sys.executable, "-P", "-m", profile.emulator_module, profile.name, "--port", port, "--mode", mode,
-        "--watchdog-ms", str(watchdog_ms), "--options", json.dumps(profile.options_as_dict(options)),
+        sys.executable, "-P", "-m", profile.emulator_module, profile.name, "--port", port, *forced,
+        "--options", json.dumps(profile.options_as_dict(options)),
     ]
 
 
-def _spawn_emulator(profile: TargetProfile, options: object, mode: str, watchdog_ms: int,
+def _spawn_emulator(profile: TargetProfile, options: object, mode: str, watchdog_ms: int | None,
                     remote: "RemoteTarget") -> TargetHandle:
     """The target's model as its own process, serving the far end of the remote's pty."""
     link = remote.link

@@ -24,13 +24,14 @@ from typing import TYPE_CHECKING, Any, Callable, Generator, Iterable, Protocol
 
 from hilbench.bench import segments as segmentation
 from hilbench.bench.clock import CpuLatencyRequest
-from hilbench.bench.columns import session_row
+from hilbench.bench.columns import BENCH_COLUMNS, session_row
 from hilbench.bench.control import COMMANDS, ControlRequest
 from hilbench.bench.faults import SensorFaults, SensorSpec
 from hilbench.bench.livetuning import GuardSettings, LiveTuning
 from hilbench.bench.pacing import RealtimePacing, SessionAborted
 from hilbench.bench.parts import BusPart, HistoryPart, LivePart, ScenarioPart, Schedule
 from hilbench.bench.recorder import MARKER_EVENT, MARKER_FAULT, MARKER_PARAM, Recorder, fields_struct
+from hilbench.bench.sensing import hall_edges, with_index_marks
 from hilbench.bench.scenario import PERIOD_TOLERANCE, Event, ScenarioPlayer, first_period_at
 from hilbench.bench.settings import SessionOptions
 from hilbench.bench.streamstats import StreamingPercentiles
@@ -38,10 +39,22 @@ from hilbench.bench.summary import Segment, Snapshot, Summary
 from hilbench.errors import BenchLimitError, HilbenchError, LinkError, ProtocolError, SimulationError, TargetError
 from hilbench.plant.model import RPM_PER_RAD_S, PlantOutput
 from hilbench.plant.period import Period
-from hilbench.protocol import PROTOCOL_VERSION, Drive, Edge, HostHello, Input, OutputMode, Sensors, TargetHello, check_target_hello
+from hilbench.protocol import (
+    MAX_EDGES,
+    PROTOCOL_VERSION,
+    Drive,
+    HostHello,
+    Input,
+    OutputMode,
+    Sensors,
+    TargetHello,
+    TargetInfo,
+    check_target_hello,
+)
 from hilbench.targets.base import Target
 from hilbench.targets.profile import ParamReference, PotReference, TargetProfile
-from hilbench.targets.registry import profile_for_firmware
+from hilbench.targets.describe import describe as describe_firmware, described_profile
+from hilbench.targets.registry import profile_for_firmware, registered_for_firmware
 
 if TYPE_CHECKING:
     from hilbench.bench.display import DisplayStream
@@ -51,7 +64,6 @@ try:  # the lockstep span in C (optional, built with the C cores)
 except ImportError:  # pragma: no cover - no compiler at install time
     _span = None  # type: ignore[assignment]
 
-EDGE_NONE = int(Edge.NONE)
 INPUT_INDEX = int(Input.INDEX)
 INPUT_FAULT = int(Input.FAULT)
 HALL_MASK = int(Input.HALL_A | Input.HALL_B | Input.HALL_C)
@@ -92,6 +104,8 @@ class PlantLike(Protocol):
     def step(self, duty_a: float, duty_b: float, duty_c: float, output_mode: int, dt_s: float,
              state_to: bytearray | None = None, /) -> float | None: ...
     def sense(self, roles: tuple[int, ...]) -> tuple[int, bool, bool, int, tuple[int, ...]]: ...
+    def edges(self) -> tuple[tuple[float, int], ...]: ...  # every hall edge of the last advance
+    def index_marks(self) -> tuple[float, ...]: ...  # every encoder index mark of the last advance
 
 
 class ControlSource(Protocol):
@@ -131,6 +145,7 @@ class Session:
         self.expected_profile = profile
         self.profile: TargetProfile = profile or profile_for_firmware("")
         self.hello: TargetHello | None = None
+        self.target_info: TargetInfo | None = None  # TargetDescribe's answer (None: the target has none)
         self.tuning = LiveTuning(target, self.profile, target_label, guard)
         self.tuning.on_change = self._on_param_change
         self.faults = SensorFaults()
@@ -158,6 +173,7 @@ class Session:
         self._qos: CpuLatencyRequest | None = None
         self._trip_noted = False  # the overcurrent comparator's trip is an event once per latch
         self._edge_s: float | None = None
+        self._hall_before = 0
         self._next_k = 0
         self._rows_changed = False  # watch_rows changed the row writer: the tight loop is made again
 
@@ -174,15 +190,23 @@ class Session:
     def handshake(self) -> TargetHello:
         """Agree period and mode; learn the target's profile, telemetry and parameters."""
         mode = 0 if self.options.mode == "lockstep" else 1
-        # lockstep: the host is the clock, so a host that pauses (a loaded machine, a script between
-        # runs) is not gone; a watchdog on the target's wall clock would make the recording depend
-        # on the machine's load (a SIL build tripped it 1.3 s into a suite run beside two CPU hogs)
-        watchdog_ms = self.options.watchdog_ms if mode == 1 else 0
-        host = HostHello(0, PROTOCOL_VERSION, self.options.period_us, mode, watchdog_ms)
+        # the watchdog in both modes: a host killed turns the target's outputs off. In lockstep a
+        # trip leaves the firmware's state alone (its time stands still while the host is away:
+        # the runtime's and the emulators' lockstep watchdog, at least 1 s), so a host that pauses
+        # on a loaded machine changes no recording (tests/test_lockstep_pause.py)
+        host = HostHello(0, PROTOCOL_VERSION, self.options.period_us, mode, self.options.watchdog_ms)
         hello = self.target.hello(host)
         check_target_hello(hello, where=self.target_label)  # protocol version and schema fingerprint
         self.hello = hello
-        found = profile_for_firmware(hello.firmware_name)
+        found = registered_for_firmware(hello.firmware_name)
+        if found is None:  # no module knows it: the firmware's own description (protocol 3)
+            description = describe_firmware(self.target, hello)
+            self.target_info = description.target
+            reserved = frozenset(BENCH_COLUMNS) | {out.column for out in self.plant.outputs}
+            found = described_profile(profile_for_firmware(hello.firmware_name), description, reserved)
+        else:
+            describe = getattr(self.target, "describe_target", None)
+            self.target_info = describe() if describe is not None else None
         expected = self.expected_profile
         if expected is not None and found.firmware_name.upper() != expected.firmware_name.upper():
             raise TargetError(f"{self.target_label}: the target says it runs {hello.firmware_name!r}, "
@@ -195,6 +219,20 @@ class Session:
             self.telemetry_index[column.column] = (index, column.scale)
         self.faults.spec = SensorSpec(adc_full_scale=(1 << hello.adc_bits) - 1)
         return hello
+
+    def target_max_edges(self) -> int:
+        """The input edges one Sensors may carry: the target's TargetInfo.max_edges, else the protocol's."""
+        info = self.target_info
+        return min(int(info.max_edges), MAX_EDGES) if info is not None and info.max_edges else MAX_EDGES
+
+    def too_many_edges(self, k: int, n: int) -> None:
+        """Period k has more input edges than the target takes in one Sensors: a bench limit."""
+        period_us, most = self.options.period_us, self.target_max_edges()
+        raise BenchLimitError(
+            f"{self.target_label}: period {k} has {n} input edges (hall and index), the target takes at most "
+            f"{most} a period (its TargetInfo.max_edges); use a shorter link.period_us (at most "
+            f"{max(1, period_us * most // (n + 1))} us at this speed) or a firmware built with a "
+            f"larger HBP_MAX_EDGES")
 
     # ------------------------------------------------------------------ parameters
     @property
@@ -373,6 +411,7 @@ class Session:
         self.plant.set_period(options.period_us, options.actuation_delay_periods, self.hello.pwm_period_counts)
         self._next_k = 0
         self._edge_s = self.plant.last_edge_s
+        self._hall_before = self.plant.hall_bits  # the plant's halls at the last Sensors (before a period's edges)
         self.drive = None
 
     def _begin_realtime(self, summary: Summary) -> None:
@@ -481,6 +520,9 @@ class Session:
                     advance: Callable[..., float | None] = self.plant.advance, step: Callable[[Sensors], Drive] = self.target.step,
                     pacing: RealtimePacing | None = self.pacing, roles: tuple[int, ...] = tuple(hello.adc_roles),
                     edge_limit: int = self.options.period_us * 10 - 1, read_index: bool = self.profile.has("encoder"),
+                    plant_edges: Callable[[], tuple[tuple[float, int], ...]] = self.plant.edges,
+                    plant_marks: Callable[[], tuple[float, ...]] = self.plant.index_marks,
+                    max_edges: int = self.target_max_edges(),
                     new: Callable[..., Sensors] = tuple.__new__, pack: Callable[..., bytes] | None = pack,
                     pack_telemetry: Callable[..., bytes] | None = pack_telemetry,
                     extend: Callable[[bytes], None] | None = extend, rows: bytearray | None = rows,
@@ -488,7 +530,7 @@ class Session:
                     perf: Callable[[], float] = time.perf_counter,
                     span: Any = self._c_span(rows)) -> Generator[int, tuple[int, int], None]:
             k, stop = yield 0
-            edge_s, drive = session._edge_s, session.drive
+            edge_s, drive, hall_before = session._edge_s, session.drive, session._hall_before
             rtt, late, marker = 0.0, 0.0, 0  # lockstep: no wall-clock figures in the row
             in_span = False
             while True:
@@ -498,22 +540,31 @@ class Session:
                         py_stop = stop
                         if span is not None and not filtering:  # the periods in C (hilbench/bench/_span.c)
                             in_span = True
-                            k = span.run(k, stop, buttons, session.ref_rpm, edge_s, drive)
+                            k = span.run(k, stop, buttons, session.ref_rpm, edge_s, drive, hall_before)
                             in_span = False
-                            edge_s, drive = span.edge_s, span.drive
+                            edge_s, drive, hall_before = span.edge_s, span.drive, span.hall_before
                             if k >= stop:
                                 break
-                            py_stop = k + 1  # the comparator tripped: its period here, then C again
+                            py_stop = k + 1  # a comparator trip or too many edges: its period here, then C again
                         for k in range(k, py_stop):
                             hall, tripped, index, count, adc = sense(roles)  # the plant's sensors after the last period
                             inputs = hall | buttons
-                            if index and read_index:  # the encoder's index mark passed
+                            if edge_s is None:  # a period without a hall edge (most): nothing more to do
+                                edges = ()
+                            else:  # every hall edge of the period, timed
+                                edges = hall_edges(plant_edges(), edge_limit)
+                                if len(edges) > max_edges:
+                                    session.too_many_edges(k, len(edges))
+                            if index and read_index:  # the encoder's index marks passed: among the edges
                                 inputs |= INPUT_INDEX
+                                edges = with_index_marks(edges, plant_marks(), edge_limit, hall_before)
+                                if len(edges) > max_edges:
+                                    session.too_many_edges(k, len(edges))
+                            hall_before = hall
                             if tripped:  # the board's overcurrent comparator drives FAULT
                                 inputs |= INPUT_FAULT
                                 session._comparator(k)
-                            edge = EDGE_NONE if edge_s is None else min(int(edge_s * 1e7), edge_limit)
-                            sensors = new(Sensors, (k & 0xFF, inputs, edge, count, adc))
+                            sensors = new(Sensors, (k & 0xFF, inputs, edges, count, adc))
                             if filtering:  # a sensor fault is in force: the target gets what it leaves
                                 sensors = faults.filter(sensors)
                                 hall, filtering = sensors[1] & HALL_MASK, faults.on
@@ -543,12 +594,12 @@ class Session:
                         k = py_stop
                 except BaseException:
                     if in_span:  # where the C span stopped, and what it left
-                        k, edge_s, drive = span.k, span.edge_s, span.drive
+                        k, edge_s, drive, hall_before = span.k, span.edge_s, span.drive, span.hall_before
                         in_span = False
                     session.periods_done = k
                     raise
                 finally:
-                    session._edge_s, session.drive = edge_s, drive
+                    session._edge_s, session.drive, session._hall_before = edge_s, drive, hall_before
                 k, stop = yield stop
 
         runner = periods()
@@ -571,7 +622,7 @@ class Session:
         span = _span.Span(plant=self.plant, plant_api=papi, core=core[1], target_api=core[0], roles=tuple(hello.adc_roles),
                           edge_limit=self.options.period_us * 10 - 1, read_index=self.profile.has("encoder"), rows=rows,
                           n_telemetry=len(hello.telemetry_ids), host_ref=self._record_host_ref,
-                          rtt_append=self.lockstep_rtts.append)
+                          rtt_append=self.lockstep_rtts.append, max_edges=self.target_max_edges())
         if rows is not None and self.recorder is not None and span.row_bytes != self.recorder.rows.struct.size:
             return None  # a row the C span does not write (columns.OWN_FIELDS changed without _span.c)
         return span
@@ -598,8 +649,8 @@ class Session:
         return stop
 
     def _sensors(self, k: int) -> tuple[Sensors, int, bool]:
-        """Period k's Sensors: the plant's sensors as the last period left them, the buttons, the
-        last edge in 100 ns, what a sensor fault in force leaves; with the hall bits the target
+        """Period k's Sensors: the plant's sensors as the last period left them, the buttons, every
+        input edge of the period with its time in 100 ns, what a sensor fault in force leaves; with the hall bits the target
         gets and whether the comparator has tripped."""
         hall, tripped, index, count, adc = self.plant.sense(tuple(self.hello.adc_roles))  # type: ignore[union-attr]
         inputs = hall | self.scenario.buttons
@@ -608,9 +659,14 @@ class Session:
         if tripped:
             inputs |= INPUT_FAULT
             self._comparator(k)
-        edge_s = self._edge_s
-        edge = EDGE_NONE if edge_s is None else min(int(edge_s * 1e7), self.options.period_us * 10 - 1)
-        sensors = Sensors(k & 0xFF, inputs, edge, count, adc)
+        limit = self.options.period_us * 10 - 1
+        edges = () if self._edge_s is None else hall_edges(self.plant.edges(), limit)  # every hall edge, timed
+        if index and self.profile.has("encoder"):
+            edges = with_index_marks(edges, self.plant.index_marks(), limit, self._hall_before)
+        self._hall_before = hall
+        if len(edges) > self.target_max_edges():
+            self.too_many_edges(k, len(edges))
+        sensors = Sensors(k & 0xFF, inputs, edges, count, adc)
         if self.faults.on:
             sensors = self.faults.filter(sensors)
             hall = sensors.inputs & HALL_MASK

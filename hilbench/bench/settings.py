@@ -48,7 +48,7 @@ class LinkSection:
     period_us: int = field(default=50, metadata=spec(unit="us", ge=50, le=6000, doc="one exchange per period"))
     timeout_ms: int = field(default=500, metadata=spec(unit="ms", ge=1, le=60000, doc="silence that ends the run"))
     retry_ms: int = field(default=100, metadata=spec(unit="ms", ge=1, le=60000, doc="send a frame again after this long without its answer (a lost frame costs a retry, not the run)"))
-    watchdog_ms: int = field(default=100, metadata=spec(unit="ms", ge=0, le=60000, doc="target turns PWM off after this silence (real time)"))
+    watchdog_ms: int = field(default=100, metadata=spec(unit="ms", ge=0, le=60000, doc="target turns its outputs off after this silence (real time; lockstep: at least 1 s, the firmware left as it was, the next Sensors gives them back)"))
     actuation_delay_periods: int = field(default=0, metadata=spec(ge=0, le=100, doc="extra whole periods before duties reach the plant"))
     overrun_policy: Literal["continue", "abort"] = "continue"
     max_consecutive_overruns: int = field(default=10, metadata=spec(ge=1, le=1_000_000))

@@ -51,10 +51,11 @@ typedef struct {
     int noise_held;            /* 0: the block is a list (its items read, its length asked each draw) */
     /* the exchange period (model.Plant.set_period) and the hall edges of the last one */
     double period_s, chunk_s, duty_scale;
-    int chunks, n_edges;
+    int chunks, n_edges, n_marks;
     long long periods;
     double edge_t[MAX_CHUNKS];
     int edge_hall[MAX_CHUNKS];
+    double mark_t[MAX_CHUNKS]; /* the encoder's index marks of the last advance (chunk starts) */
     /* the recorded outputs: offsets of double members, in model.OUTPUTS order */
     Py_ssize_t out_off[MAX_OUTPUTS];
     int n_out;
@@ -484,7 +485,7 @@ static PyObject *Core_step(Core *s, PyObject *const *args, Py_ssize_t nargs)
 }
 
 /* One exchange period in its chunks with the duties (fractions) held: the clock, the hall edges
- * (edges()), last_edge_s. 0, or -1 with an exception. */
+ * (edges()), the index marks (index_marks()), last_edge_s. 0, or -1 with an exception. */
 static int advance_period(Core *s, const double duty[3], long mode)
 {
     const double h = s->chunk_s;
@@ -492,6 +493,7 @@ static int advance_period(Core *s, const double duty[3], long mode)
     int have = 0;
     double edge = 0.0;
     s->n_edges = 0;
+    s->n_marks = 0;
     for (int i = 0; i < chunks; i++) { /* long periods: the plant keeps its accurate step, duties held */
         int sub_have = 0;
         double sub_edge = 0.0;
@@ -503,7 +505,10 @@ static int advance_period(Core *s, const double duty[3], long mode)
             s->edge_hall[s->n_edges] = s->hall_bits;
             s->n_edges++;
         }
+        if (s->encoder_index) /* an index mark passed in this chunk: timed at its start */
+            s->mark_t[s->n_marks++] = (double)i * h;
     }
+    s->encoder_index = (char)(s->n_marks > 0); /* a mark anywhere in the period */
     s->periods += 1;
     s->t_s = (double)s->periods * s->period_s; /* one time base: k periods are Period.t_s(k) */
     set_edge(s, have, edge);
@@ -541,6 +546,20 @@ static PyObject *Core_edges(Core *s, PyObject *unused)
         PyObject *e = Py_BuildValue("(di)", s->edge_t[i], s->edge_hall[i]);
         if (e == NULL) { Py_DECREF(out); return NULL; }
         PyTuple_SET_ITEM(out, i, e);
+    }
+    return out;
+}
+
+/* index_marks() -> (t_s, ...): the encoder's index marks of the last advance (model.Plant.index_marks) */
+static PyObject *Core_index_marks(Core *s, PyObject *unused)
+{
+    (void)unused;
+    PyObject *out = PyTuple_New(s->n_marks);
+    if (out == NULL) return NULL;
+    for (int i = 0; i < s->n_marks; i++) {
+        PyObject *t = PyFloat_FromDouble(s->mark_t[i]);
+        if (t == NULL) { Py_DECREF(out); return NULL; }
+        PyTuple_SET_ITEM(out, i, t);
     }
     return out;
 }
@@ -808,6 +827,7 @@ static PyMethodDef Core_methods[] = {
     {"advance", (PyCFunction)(void (*)(void))Core_advance, METH_FASTCALL,
      "advance(duty_a, duty_b, duty_c, output_mode[, state_to]) -> last_edge_s: one exchange period (see model.Plant)."},
     {"edges", (PyCFunction)Core_edges, METH_NOARGS, "edges(): ((t_s, hall_bits), ...) of the last advance."},
+    {"index_marks", (PyCFunction)Core_index_marks, METH_NOARGS, "index_marks(): (t_s, ...) of the last advance."},
     {"_set_outputs", (PyCFunction)Core_set_outputs, METH_O, "_set_outputs(names): what append_state copies."},
     {"adc_codes", (PyCFunction)Core_adc_codes, METH_O, "adc_codes(roles): ADC codes (see model.Plant)."},
     {"sense", (PyCFunction)Core_sense, METH_O,
@@ -861,7 +881,19 @@ static int span_advance(PyObject *self, long duty_a, long duty_b, long duty_c, l
 static int span_n_outputs(PyObject *self) { return ((Core *)self)->n_out; }
 static int span_fault_input(PyObject *self) { return ((Core *)self)->fault_input != 0; }
 
-static hb_plant_api_t span_api = {span_sense, span_advance, span_n_outputs, span_fault_input};
+static void span_period_edges(PyObject *self, const double **edge_t, const int **edge_hall, int *n_edges,
+                              const double **mark_t, int *n_marks, int *index)
+{
+    Core *s = (Core *)self;
+    *edge_t = s->edge_t;
+    *edge_hall = s->edge_hall;
+    *n_edges = s->n_edges;
+    *mark_t = s->mark_t;
+    *n_marks = s->n_marks;
+    *index = s->encoder_index != 0;
+}
+
+static hb_plant_api_t span_api = {span_sense, span_advance, span_n_outputs, span_fault_input, span_period_edges};
 
 static PyMethodDef module_methods[] = {
     {NULL, NULL, 0, NULL},

@@ -213,6 +213,7 @@ class Plant:
         self.t_s = 0.0
         self._periods = 0
         self._edges: list[tuple[float, int]] = []
+        self._index_marks: list[float] = []
         self.fault_input = False  # the overcurrent comparator's latched output (the target's FAULT input)
         self._stuck = self.w_m == 0.0 and self._tc > 0.0
         self._nidx = math.floor((self._th - self._hall_base) / SIXTY)
@@ -478,13 +479,18 @@ class Plant:
         duty_a, duty_b, duty_c = duty_a * scale, duty_b * scale, duty_c * scale
         h = self._chunk_s
         edges: list[tuple[float, int]] = []
+        marks: list[float] = []
         edge_s = None
         for i in range(self._chunks):  # long periods: the plant keeps its accurate step, duties held
             self._step_py(duty_a, duty_b, duty_c, output_mode, h)
             if self.last_edge_s is not None:
                 edge_s = i * h + self.last_edge_s
                 edges.append((edge_s, self.hall_bits))
+            if self.encoder_index:  # an index mark passed in this chunk: timed at its start
+                marks.append(i * h)
         self._edges = edges
+        self._index_marks = marks
+        self.encoder_index = bool(marks)  # a mark anywhere in the period, not only in its last chunk
         self.last_edge_s = edge_s
         self._periods += 1
         self.t_s = self._periods * self._period_s  # one time base: k periods are Period.t_s(k)
@@ -499,6 +505,12 @@ class Plant:
         after it), in order; one per chunk of at most MAX_STEP_US (two sector changes in 50 us
         would be above 40 000 rpm with five pole pairs)."""
         return tuple(self._edges)
+
+    def index_marks(self) -> tuple[float, ...]:
+        """The encoder's index marks of the last `advance`: the start of each chunk (at most MAX_STEP_US)
+        in which one passed, from the period's start, in order (a period of one chunk: its start, where
+        a target that reads only Sensors.inputs' INDEX bit takes it too)."""
+        return tuple(self._index_marks)
 
     # ----------------------------------------------------------------- one step, by physics
     def step(self, duty_a: float, duty_b: float, duty_c: float, output_mode: int, dt_s: float,
@@ -1033,6 +1045,7 @@ if _plantcore is not None:
         step = _plantcore.Core.step
         advance = _plantcore.Core.advance
         edges = _plantcore.Core.edges
+        index_marks = _plantcore.Core.index_marks
         adc_codes = _plantcore.Core.adc_codes
         sense = _plantcore.Core.sense
         append_state = _plantcore.Core.append_state

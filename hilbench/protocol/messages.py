@@ -16,16 +16,18 @@ from typing import Callable, NamedTuple, Union
 from binascii import crc_hqx as _crc
 
 from hilbench.errors import ProtocolError
+from hilbench.protocol.framing import BYTE as _BYTE
 from hilbench.protocol.framing import COBS_CODE as _CODE
-from hilbench.protocol.framing import CRC_PRE as _CRC_PRE
-from hilbench.protocol.framing import CobsError, CrcError, LengthError, UnknownTypeError, cobs_join, frame_bytes
+from hilbench.protocol.framing import CobsError, CrcError, LengthError, UnknownTypeError, frame_bytes, wire_join
 
-_be16 = struct.Struct('>H').pack  # the CRC goes high byte first (PROTOCOL.md, Framing)
-PROTOCOL_VERSION = 2
+_CHECK = int.to_bytes  # the check bytes and the delimiter as one int (PROTOCOL.md, Framing)
+PROTOCOL_VERSION = 3
 # First 4 bytes of SHA-256 over the schema's canonical wire content (generate.schema_fingerprint).
-SCHEMA_FINGERPRINT = 0x6fcf503f
-MAX_FRAME_BYTES = 64
-MAX_NAME_CHARS = 12
+SCHEMA_FINGERPRINT = 0x84267f7f
+MAX_FRAME_BYTES = 62
+MAX_NAME_CHARS = 16
+MAX_UNIT_CHARS = 8
+MAX_EDGES = 16
 MAX_ADC = 8
 MAX_TELEMETRY = 8
 MAX_PARAM_PAIRS = 4
@@ -51,6 +53,10 @@ class MsgType(IntEnum):
     STATUS_REQUEST = 0x40
     STATUS = 0x41
     ERROR_REPORT = 0x42
+    TELEMETRY_DESCRIBE = 0x50
+    TELEMETRY_INFO = 0x51
+    TARGET_DESCRIBE = 0x52
+    TARGET_INFO = 0x53
 
 
 class Input(IntEnum):
@@ -66,9 +72,24 @@ class Input(IntEnum):
 
 
 class Edge(IntEnum):
-    """Special values of Sensors.edge_time_100ns."""
+    """No edge (protocol 2's Sensors.edge_time_100ns; protocol 3 lists edges and has no such marker)."""
 
     NONE = 0xffff
+
+
+class DutyTiming(IntEnum):
+    """TargetInfo.duty_timing: when a duty the firmware writes takes effect."""
+
+    IMMEDIATE = 0
+    NEXT_PERIOD = 1
+    HALF_PERIOD = 2
+
+
+class DutyReport(IntEnum):
+    """TargetInfo.duty_report: which duties a Drive carries."""
+
+    WRITTEN = 0
+    ACTIVE = 1
 
 
 class Mode(IntEnum):
@@ -179,6 +200,7 @@ class ErrorCode(IntEnum):
     OVERRUN = 8
     WATCHDOG = 9
     BAD_REQUEST = 0xa
+    UNKNOWN_TELEMETRY = 0xb
 
 
 MSG_HOST_HELLO = MsgType.HOST_HELLO
@@ -196,6 +218,10 @@ MSG_STOP = MsgType.STOP
 MSG_STATUS_REQUEST = MsgType.STATUS_REQUEST
 MSG_STATUS = MsgType.STATUS
 MSG_ERROR_REPORT = MsgType.ERROR_REPORT
+MSG_TELEMETRY_DESCRIBE = MsgType.TELEMETRY_DESCRIBE
+MSG_TELEMETRY_INFO = MsgType.TELEMETRY_INFO
+MSG_TARGET_DESCRIBE = MsgType.TARGET_DESCRIBE
+MSG_TARGET_INFO = MsgType.TARGET_INFO
 INPUT_HALL_A = Input.HALL_A
 INPUT_HALL_B = Input.HALL_B
 INPUT_HALL_C = Input.HALL_C
@@ -204,6 +230,11 @@ INPUT_S3 = Input.S3
 INPUT_FAULT = Input.FAULT
 INPUT_INDEX = Input.INDEX
 EDGE_NONE = Edge.NONE
+DUTY_IMMEDIATE = DutyTiming.IMMEDIATE
+DUTY_NEXT_PERIOD = DutyTiming.NEXT_PERIOD
+DUTY_HALF_PERIOD = DutyTiming.HALF_PERIOD
+REPORT_WRITTEN = DutyReport.WRITTEN
+REPORT_ACTIVE = DutyReport.ACTIVE
 MODE_LOCKSTEP = Mode.LOCKSTEP
 MODE_REALTIME = Mode.REALTIME
 OUTPUT_OFF = OutputMode.OFF
@@ -264,6 +295,7 @@ ERROR_UNKNOWN_PARAM = ErrorCode.UNKNOWN_PARAM
 ERROR_OVERRUN = ErrorCode.OVERRUN
 ERROR_WATCHDOG = ErrorCode.WATCHDOG
 ERROR_BAD_REQUEST = ErrorCode.BAD_REQUEST
+ERROR_UNKNOWN_TELEMETRY = ErrorCode.UNKNOWN_TELEMETRY
 
 
 class HostHello(NamedTuple):
@@ -302,7 +334,7 @@ class Sensors(NamedTuple):
 
     seq: int
     inputs: int
-    edge_time_100ns: int
+    edges: tuple[tuple[int, int], ...]
     encoder: int
     adc: tuple[int, ...]
 
@@ -347,6 +379,7 @@ class ParamInfo(NamedTuple):
     max_value: int
     value: int
     name: str
+    unit: str = ''
 
     TYPE = 0x21
 
@@ -441,11 +474,56 @@ class ErrorReport(NamedTuple):
     TYPE = 0x42
 
 
-Message = Union[HostHello, TargetHello, Sensors, Drive, ParamDescribe, ParamInfo, ParamGet, ParamValue, ParamSet, ParamSetResult, Start, Stop, StatusRequest, Status, ErrorReport]
+class TelemetryDescribe(NamedTuple):
+    """host -> target, frame type 0x50."""
+
+    seq: int
+    index: int
+
+    TYPE = 0x50
+
+
+class TelemetryInfo(NamedTuple):
+    """target -> host, frame type 0x51."""
+
+    seq: int
+    index: int
+    telemetry_id: int
+    ptype: int
+    scale_num: int
+    scale_den: int
+    name: str
+    unit: str
+
+    TYPE = 0x51
+
+
+class TargetDescribe(NamedTuple):
+    """host -> target, frame type 0x52."""
+
+    seq: int
+
+    TYPE = 0x52
+
+
+class TargetInfo(NamedTuple):
+    """target -> host, frame type 0x53."""
+
+    seq: int
+    duty_timing: int
+    duty_report: int
+    inputs: int
+    encoder_counts: int
+    max_edges: int
+
+    TYPE = 0x53
+
+
+Message = Union[HostHello, TargetHello, Sensors, Drive, ParamDescribe, ParamInfo, ParamGet, ParamValue, ParamSet, ParamSetResult, Start, Stop, StatusRequest, Status, ErrorReport, TelemetryDescribe, TelemetryInfo, TargetDescribe, TargetInfo]
 
 _HOSTHELLO_ST = struct.Struct('<BBBHBHI')
 _TARGETHELLO_ST = struct.Struct('<BBBIHHIBB')
-_SENSORS_ST = tuple(struct.Struct('<BBBHH' + 'H' * n) for n in range(8 + 1))
+_SENSORS_ST = struct.Struct('<BBBH')
 _DRIVE_ST = tuple(struct.Struct('<BBHHHH' + 'h' * n) for n in range(8 + 1))
 _PARAMDESCRIBE_ST = struct.Struct('<BBB')
 _PARAMINFO_ST = struct.Struct('<BBBBBiii')
@@ -458,6 +536,10 @@ _STOP_ST = struct.Struct('<BB')
 _STATUSREQUEST_ST = struct.Struct('<BB')
 _STATUS_ST = struct.Struct('<BBHHHHHHB')
 _ERRORREPORT_ST = struct.Struct('<BBBBI')
+_TELEMETRYDESCRIBE_ST = struct.Struct('<BBB')
+_TELEMETRYINFO_ST = struct.Struct('<BBBBBii')
+_TARGETDESCRIBE_ST = struct.Struct('<BB')
+_TARGETINFO_ST = struct.Struct('<BBBBBHB')
 
 
 def pack_host_hello(m: HostHello) -> bytes:
@@ -468,7 +550,7 @@ def pack_host_hello(m: HostHello) -> bytes:
 def pack_target_hello(m: TargetHello) -> bytes:
     """TargetHello -> type . seq . payload (no CRC)."""
     parts = [_TARGETHELLO_ST.pack(2, m.seq, m.protocol_version, m.schema_fingerprint, m.firmware_version, m.pwm_period_counts, m.pwm_freq_hz, m.n_params, m.adc_bits)]
-    raw = _ascii(m.firmware_name, 12, 'TargetHello', 'firmware_name')
+    raw = _ascii(m.firmware_name, 16, 'TargetHello', 'firmware_name')
     parts.append(bytes((len(raw),)))
     parts.append(raw)
     if len(m.adc_roles) > 8:
@@ -485,10 +567,17 @@ def pack_target_hello(m: TargetHello) -> bytes:
 
 def pack_sensors(m: Sensors) -> bytes:
     """Sensors -> type . seq . payload (no CRC)."""
-    arr = m.adc
-    if len(arr) > 8:
-        raise ProtocolError(f"encode Sensors: adc has {len(arr)} entries, at most 8")
-    return _SENSORS_ST[len(arr)].pack(16, m.seq, m.inputs, m.edge_time_100ns, m.encoder, *arr)
+    parts = [_SENSORS_ST.pack(16, m.seq, m.inputs, m.encoder)]
+    if len(m.adc) > 8:
+        raise ProtocolError(f"encode Sensors: adc has {len(m.adc)} entries, at most 8")
+    raw = struct.pack('<' + 'H' * len(m.adc), *m.adc)
+    parts.append(bytes((len(m.adc),)))
+    parts.append(raw)
+    if len(m.edges) > 16:
+        raise ProtocolError(f"encode Sensors: edges has {len(m.edges)} entries, at most 16")
+    raw = struct.pack('<' + 'HB' * len(m.edges), *[v for e in m.edges for v in e])
+    parts.append(raw)
+    return b''.join(parts)
 
 
 def pack_drive(m: Drive) -> bytes:
@@ -514,7 +603,10 @@ def pack_param_describe(m: ParamDescribe) -> bytes:
 def pack_param_info(m: ParamInfo) -> bytes:
     """ParamInfo -> type . seq . payload (no CRC)."""
     parts = [_PARAMINFO_ST.pack(33, m.seq, m.param_id, m.ptype, m.access, m.min_value, m.max_value, m.value)]
-    raw = _ascii(m.name, 12, 'ParamInfo', 'name')
+    raw = _ascii(m.name, 16, 'ParamInfo', 'name')
+    parts.append(bytes((len(raw),)))
+    parts.append(raw)
+    raw = _ascii(m.unit, 8, 'ParamInfo', 'unit')
     parts.append(raw)
     return b''.join(parts)
 
@@ -567,6 +659,32 @@ def pack_error_report(m: ErrorReport) -> bytes:
     return _ERRORREPORT_ST.pack(66, m.seq, m.code, m.detail, m.schema_fingerprint)
 
 
+def pack_telemetry_describe(m: TelemetryDescribe) -> bytes:
+    """TelemetryDescribe -> type . seq . payload (no CRC)."""
+    return _TELEMETRYDESCRIBE_ST.pack(80, m.seq, m.index)
+
+
+def pack_telemetry_info(m: TelemetryInfo) -> bytes:
+    """TelemetryInfo -> type . seq . payload (no CRC)."""
+    parts = [_TELEMETRYINFO_ST.pack(81, m.seq, m.index, m.telemetry_id, m.ptype, m.scale_num, m.scale_den)]
+    raw = _ascii(m.name, 16, 'TelemetryInfo', 'name')
+    parts.append(bytes((len(raw),)))
+    parts.append(raw)
+    raw = _ascii(m.unit, 8, 'TelemetryInfo', 'unit')
+    parts.append(raw)
+    return b''.join(parts)
+
+
+def pack_target_describe(m: TargetDescribe) -> bytes:
+    """TargetDescribe -> type . seq . payload (no CRC)."""
+    return _TARGETDESCRIBE_ST.pack(82, m.seq)
+
+
+def pack_target_info(m: TargetInfo) -> bytes:
+    """TargetInfo -> type . seq . payload (no CRC)."""
+    return _TARGETINFO_ST.pack(83, m.seq, m.duty_timing, m.duty_report, m.inputs, m.encoder_counts, m.max_edges)
+
+
 def unpack_host_hello(b: bytes) -> HostHello:
     """type . seq . payload (no CRC) -> HostHello; LengthError if malformed."""
     if len(b) != 12:
@@ -587,8 +705,8 @@ def unpack_target_hello(b: bytes) -> TargetHello:
     pos += 1
     if pos + n * 1 > len(b):
         raise LengthError(f"TargetHello: firmware_name count {n} runs past the frame end")
-    if n > 12:
-        raise LengthError(f"TargetHello: firmware_name has {n} entries, at most 12")
+    if n > 16:
+        raise LengthError(f"TargetHello: firmware_name has {n} entries, at most 16")
     f_firmware_name = _unascii(b[pos:pos + n], 'TargetHello', 'firmware_name')
     pos += n * 1
     if pos >= len(b):
@@ -613,11 +731,29 @@ def unpack_target_hello(b: bytes) -> TargetHello:
 
 def unpack_sensors(b: bytes) -> Sensors:
     """type . seq . payload (no CRC) -> Sensors; LengthError if malformed."""
-    n, r = divmod(len(b) - 7, 2)
-    if r or n < 0 or n > 8:
-        raise LengthError(f"Sensors: payload of {len(b) - 2} bytes is not 5 + 2*n (n <= 8)")
-    v = _SENSORS_ST[n].unpack(b)
-    return _tnew(Sensors, (v[1], v[2], v[3], v[4], v[5:],))
+    if len(b) < 5:
+        raise LengthError(f"Sensors: payload of {len(b) - 2} bytes, at least 3")
+    v = _SENSORS_ST.unpack_from(b)
+    pos = 5
+    if pos >= len(b):
+        raise LengthError("Sensors: missing the count of adc")
+    n = b[pos]
+    pos += 1
+    if pos + n * 2 > len(b):
+        raise LengthError(f"Sensors: adc count {n} runs past the frame end")
+    if n > 8:
+        raise LengthError(f"Sensors: adc has {n} entries, at most 8")
+    f_adc = struct.unpack_from('<' + 'H' * n, b, pos)
+    pos += n * 2
+    n, r = divmod(len(b) - pos, 3)
+    if r:
+        raise LengthError("Sensors: edges has a partial entry")
+    if n > 16:
+        raise LengthError(f"Sensors: edges has {n} entries, at most 16")
+    x = struct.unpack_from('<' + 'HB' * n, b, pos)
+    f_edges = tuple(zip(x[::2], x[1::2]))
+    pos += n * 3
+    return _tnew(Sensors, (v[1], v[2], f_edges, v[3], f_adc,))
 
 
 def unpack_drive(b: bytes) -> Drive:
@@ -643,14 +779,24 @@ def unpack_param_info(b: bytes) -> ParamInfo:
         raise LengthError(f"ParamInfo: payload of {len(b) - 2} bytes, at least 15")
     v = _PARAMINFO_ST.unpack_from(b)
     pos = 17
-    n, r = divmod(len(b) - pos, 1)
-    if r:
-        raise LengthError("ParamInfo: name has a partial entry")
-    if n > 12:
-        raise LengthError(f"ParamInfo: name has {n} entries, at most 12")
+    if pos >= len(b):
+        raise LengthError("ParamInfo: missing the count of name")
+    n = b[pos]
+    pos += 1
+    if pos + n * 1 > len(b):
+        raise LengthError(f"ParamInfo: name count {n} runs past the frame end")
+    if n > 16:
+        raise LengthError(f"ParamInfo: name has {n} entries, at most 16")
     f_name = _unascii(b[pos:pos + n], 'ParamInfo', 'name')
     pos += n * 1
-    return _tnew(ParamInfo, (v[1], v[2], v[3], v[4], v[5], v[6], v[7], f_name,))
+    n, r = divmod(len(b) - pos, 1)
+    if r:
+        raise LengthError("ParamInfo: unit has a partial entry")
+    if n > 8:
+        raise LengthError(f"ParamInfo: unit has {n} entries, at most 8")
+    f_unit = _unascii(b[pos:pos + n], 'ParamInfo', 'unit')
+    pos += n * 1
+    return _tnew(ParamInfo, (v[1], v[2], v[3], v[4], v[5], v[6], v[7], f_name, f_unit,))
 
 
 def unpack_param_get(b: bytes) -> ParamGet:
@@ -726,6 +872,56 @@ def unpack_error_report(b: bytes) -> ErrorReport:
     return _tnew(ErrorReport, v[1:])
 
 
+def unpack_telemetry_describe(b: bytes) -> TelemetryDescribe:
+    """type . seq . payload (no CRC) -> TelemetryDescribe; LengthError if malformed."""
+    if len(b) != 3:
+        raise LengthError(f"TelemetryDescribe: payload of {len(b) - 2} bytes, expected 1")
+    v = _TELEMETRYDESCRIBE_ST.unpack(b)
+    return _tnew(TelemetryDescribe, v[1:])
+
+
+def unpack_telemetry_info(b: bytes) -> TelemetryInfo:
+    """type . seq . payload (no CRC) -> TelemetryInfo; LengthError if malformed."""
+    if len(b) < 13:
+        raise LengthError(f"TelemetryInfo: payload of {len(b) - 2} bytes, at least 11")
+    v = _TELEMETRYINFO_ST.unpack_from(b)
+    pos = 13
+    if pos >= len(b):
+        raise LengthError("TelemetryInfo: missing the count of name")
+    n = b[pos]
+    pos += 1
+    if pos + n * 1 > len(b):
+        raise LengthError(f"TelemetryInfo: name count {n} runs past the frame end")
+    if n > 16:
+        raise LengthError(f"TelemetryInfo: name has {n} entries, at most 16")
+    f_name = _unascii(b[pos:pos + n], 'TelemetryInfo', 'name')
+    pos += n * 1
+    n, r = divmod(len(b) - pos, 1)
+    if r:
+        raise LengthError("TelemetryInfo: unit has a partial entry")
+    if n > 8:
+        raise LengthError(f"TelemetryInfo: unit has {n} entries, at most 8")
+    f_unit = _unascii(b[pos:pos + n], 'TelemetryInfo', 'unit')
+    pos += n * 1
+    return _tnew(TelemetryInfo, (v[1], v[2], v[3], v[4], v[5], v[6], f_name, f_unit,))
+
+
+def unpack_target_describe(b: bytes) -> TargetDescribe:
+    """type . seq . payload (no CRC) -> TargetDescribe; LengthError if malformed."""
+    if len(b) != 2:
+        raise LengthError(f"TargetDescribe: payload of {len(b) - 2} bytes, expected 0")
+    v = _TARGETDESCRIBE_ST.unpack(b)
+    return _tnew(TargetDescribe, v[1:])
+
+
+def unpack_target_info(b: bytes) -> TargetInfo:
+    """type . seq . payload (no CRC) -> TargetInfo; LengthError if malformed."""
+    if len(b) != 8:
+        raise LengthError(f"TargetInfo: payload of {len(b) - 2} bytes, expected 6")
+    v = _TARGETINFO_ST.unpack(b)
+    return _tnew(TargetInfo, v[1:])
+
+
 def _ascii(text: str, max_chars: int, msg: str, field: str) -> bytes:
     """Encode a short printable ASCII name (no NUL: names are length-delimited)."""
     try:
@@ -746,31 +942,29 @@ def _unascii(raw: bytes, msg: str, field: str) -> str:
 
 
 # ---------------------------------------------------------------------------------------------
-# Full-wire fast paths (type . seq . payload . crc16, COBS, 0x00) used by hilbench.protocol.codec.
+# Full-wire fast paths (L . message . L, COBS, check bytes, 0x00) used by hilbench.protocol.codec.
 
-_SENSORS_BY_LEN = tuple(_SENSORS_ST[(k - 10) // 2] if k >= 10 and (k - 10) % 2 == 0 and (k - 10) // 2 <= 8 else None for k in range(66))
-_SENSORS_ST3 = _SENSORS_ST[3]
-_DRIVE_BY_LEN = tuple(_DRIVE_ST[(k - 13) // 2] if k >= 13 and (k - 13) % 2 == 0 and (k - 13) // 2 <= 8 else None for k in range(66))
+_DRIVE_BY_LEN = tuple(_DRIVE_ST[(k - 10) // 2] if k >= 10 and (k - 10) % 2 == 0 and (k - 10) // 2 <= 8 else None for k in range(63))
 _DRIVE_ST3 = _DRIVE_ST[3]
-_PARAMSET_BY_LEN = tuple(_PARAMSET_ST[(k - 5) // 5] if k >= 5 and (k - 5) % 5 == 0 and (k - 5) // 5 <= 4 else None for k in range(66))
+_PARAMSET_BY_LEN = tuple(_PARAMSET_ST[(k - 2) // 5] if k >= 2 and (k - 2) % 5 == 0 and (k - 2) // 5 <= 4 else None for k in range(63))
+_SENSORS_ST2 = tuple(tuple(struct.Struct('<BBBHB' + 'H' * i + 'HB' * j) for j in range(16 + 1)) for i in range(8 + 1))
+_SENSORS_ST_3_0 = _SENSORS_ST2[3][0]
+_SENSORS_ST_3_1 = _SENSORS_ST2[3][1]
 
 
 def encode_host_hello(m: HostHello) -> bytes:
     """HostHello -> complete wire bytes (CRC, COBS, 0x00); ProtocolError/struct.error if unencodable."""
     x_seq, x_protocol_version, x_period_us, x_mode, x_watchdog_ms, x_schema_fingerprint = m
     body = _HOSTHELLO_ST.pack(1, x_seq, x_protocol_version, x_period_us, x_mode, x_watchdog_ms, x_schema_fingerprint)
-    p = (body + _be16(_crc(body, 0xFFFF))).split(b'\x00')
-    k = len(p)
-    if k == 2:  # one 0x00 in the frame
-        a, b = p
-        return b''.join((_CODE[len(a)], a, _CODE[len(b)], b, b'\x00'))
-    if k == 3:
-        a, b, c = p
-        return b''.join((_CODE[len(a)], a, _CODE[len(b)], b, _CODE[len(c)], c, b'\x00'))
-    if k == 4:  # u16 duties and counts below 256 make three zeros common
-        a, b, c, d = p
-        return b''.join((_CODE[len(a)], a, _CODE[len(b)], b, _CODE[len(c)], c, _CODE[len(d)], d, b'\x00'))
-    return cobs_join(p)
+    k = len(body)
+    if k > MAX_FRAME_BYTES:
+        raise ProtocolError(f"encode {type(m).__name__}: a message of {k} bytes exceeds {MAX_FRAME_BYTES}")
+    ln = _BYTE[k + 6]
+    if 0 in body:
+        return wire_join((ln + body + ln).split(b'\x00'))
+    e = b''.join((_CODE[k + 2], ln, body, ln))
+    c = _crc(e, 0xFFFF)
+    return e + _CHECK((c >> 9 | 0x80) << 24 | (c >> 2 & 0x7F | 0x80) << 16 | ((c & 3) << 5 | 0x80) << 8, 4, 'big')
 
 
 def encode_target_hello(m: TargetHello) -> bytes:
@@ -780,27 +974,25 @@ def encode_target_hello(m: TargetHello) -> bytes:
 
 def encode_sensors(m: Sensors) -> bytes:
     """Sensors -> complete wire bytes (CRC, COBS, 0x00); ProtocolError/struct.error if unencodable."""
-    x_seq, x_inputs, x_edge_time_100ns, x_encoder, x_adc = m
-    n = len(x_adc)
-    if n == 3:
+    x_seq, x_inputs, x_edges, x_encoder, x_adc = m
+    na = len(x_adc)
+    nb = len(x_edges)
+    if na == 3 and nb == 0:
         e0, e1, e2 = x_adc
-        body = _SENSORS_ST3.pack(16, x_seq, x_inputs, x_edge_time_100ns, x_encoder, e0, e1, e2)
-    elif n <= 8:
-        body = _SENSORS_ST[n].pack(16, x_seq, x_inputs, x_edge_time_100ns, x_encoder, *x_adc)
+        body = _SENSORS_ST_3_0.pack(16, x_seq, x_inputs, x_encoder, 3, e0, e1, e2)
+    elif na <= 8 and nb <= 16:
+        body = _SENSORS_ST2[na][nb].pack(16, x_seq, x_inputs, x_encoder, na, *x_adc, *[v for e in x_edges for v in e])
     else:
-        raise ProtocolError(f"encode Sensors: adc has {n} entries, at most 8")
-    p = (body + _be16(_crc(body, 0xFFFF))).split(b'\x00')
-    k = len(p)
-    if k == 2:  # one 0x00 in the frame
-        a, b = p
-        return b''.join((_CODE[len(a)], a, _CODE[len(b)], b, b'\x00'))
-    if k == 3:
-        a, b, c = p
-        return b''.join((_CODE[len(a)], a, _CODE[len(b)], b, _CODE[len(c)], c, b'\x00'))
-    if k == 4:  # u16 duties and counts below 256 make three zeros common
-        a, b, c, d = p
-        return b''.join((_CODE[len(a)], a, _CODE[len(b)], b, _CODE[len(c)], c, _CODE[len(d)], d, b'\x00'))
-    return cobs_join(p)
+        raise ProtocolError(f"encode Sensors: adc has {na} entries (at most 8), edges {nb} (at most 16)")
+    k = len(body)
+    if k > MAX_FRAME_BYTES:
+        raise ProtocolError(f"encode {type(m).__name__}: a message of {k} bytes exceeds {MAX_FRAME_BYTES}")
+    ln = _BYTE[k + 6]
+    if 0 in body:
+        return wire_join((ln + body + ln).split(b'\x00'))
+    e = b''.join((_CODE[k + 2], ln, body, ln))
+    c = _crc(e, 0xFFFF)
+    return e + _CHECK((c >> 9 | 0x80) << 24 | (c >> 2 & 0x7F | 0x80) << 16 | ((c & 3) << 5 | 0x80) << 8, 4, 'big')
 
 
 def encode_drive(m: Drive) -> bytes:
@@ -822,18 +1014,15 @@ def encode_drive(m: Drive) -> bytes:
         body = _DRIVE_ST[n].pack(17, x_seq, x_duty_a, x_duty_b, x_duty_c, w_flags, *x_telemetry)
     else:
         raise ProtocolError(f"encode Drive: telemetry has {n} entries, at most 8")
-    p = (body + _be16(_crc(body, 0xFFFF))).split(b'\x00')
-    k = len(p)
-    if k == 2:  # one 0x00 in the frame
-        a, b = p
-        return b''.join((_CODE[len(a)], a, _CODE[len(b)], b, b'\x00'))
-    if k == 3:
-        a, b, c = p
-        return b''.join((_CODE[len(a)], a, _CODE[len(b)], b, _CODE[len(c)], c, b'\x00'))
-    if k == 4:  # u16 duties and counts below 256 make three zeros common
-        a, b, c, d = p
-        return b''.join((_CODE[len(a)], a, _CODE[len(b)], b, _CODE[len(c)], c, _CODE[len(d)], d, b'\x00'))
-    return cobs_join(p)
+    k = len(body)
+    if k > MAX_FRAME_BYTES:
+        raise ProtocolError(f"encode {type(m).__name__}: a message of {k} bytes exceeds {MAX_FRAME_BYTES}")
+    ln = _BYTE[k + 6]
+    if 0 in body:
+        return wire_join((ln + body + ln).split(b'\x00'))
+    e = b''.join((_CODE[k + 2], ln, body, ln))
+    c = _crc(e, 0xFFFF)
+    return e + _CHECK((c >> 9 | 0x80) << 24 | (c >> 2 & 0x7F | 0x80) << 16 | ((c & 3) << 5 | 0x80) << 8, 4, 'big')
 
 
 def encode_drive_unchecked(m: Drive) -> bytes:
@@ -848,36 +1037,30 @@ def encode_drive_unchecked(m: Drive) -> bytes:
         body = _DRIVE_ST[n].pack(17, x_seq, x_duty_a, x_duty_b, x_duty_c, w_flags, *x_telemetry)
     else:
         raise ProtocolError(f"encode Drive: telemetry has {n} entries, at most 8")
-    p = (body + _be16(_crc(body, 0xFFFF))).split(b'\x00')
-    k = len(p)
-    if k == 2:  # one 0x00 in the frame
-        a, b = p
-        return b''.join((_CODE[len(a)], a, _CODE[len(b)], b, b'\x00'))
-    if k == 3:
-        a, b, c = p
-        return b''.join((_CODE[len(a)], a, _CODE[len(b)], b, _CODE[len(c)], c, b'\x00'))
-    if k == 4:  # u16 duties and counts below 256 make three zeros common
-        a, b, c, d = p
-        return b''.join((_CODE[len(a)], a, _CODE[len(b)], b, _CODE[len(c)], c, _CODE[len(d)], d, b'\x00'))
-    return cobs_join(p)
+    k = len(body)
+    if k > MAX_FRAME_BYTES:
+        raise ProtocolError(f"encode {type(m).__name__}: a message of {k} bytes exceeds {MAX_FRAME_BYTES}")
+    ln = _BYTE[k + 6]
+    if 0 in body:
+        return wire_join((ln + body + ln).split(b'\x00'))
+    e = b''.join((_CODE[k + 2], ln, body, ln))
+    c = _crc(e, 0xFFFF)
+    return e + _CHECK((c >> 9 | 0x80) << 24 | (c >> 2 & 0x7F | 0x80) << 16 | ((c & 3) << 5 | 0x80) << 8, 4, 'big')
 
 
 def encode_param_describe(m: ParamDescribe) -> bytes:
     """ParamDescribe -> complete wire bytes (CRC, COBS, 0x00); ProtocolError/struct.error if unencodable."""
     x_seq, x_param_id = m
     body = _PARAMDESCRIBE_ST.pack(32, x_seq, x_param_id)
-    p = (body + _be16(_crc(body, 0xFFFF))).split(b'\x00')
-    k = len(p)
-    if k == 2:  # one 0x00 in the frame
-        a, b = p
-        return b''.join((_CODE[len(a)], a, _CODE[len(b)], b, b'\x00'))
-    if k == 3:
-        a, b, c = p
-        return b''.join((_CODE[len(a)], a, _CODE[len(b)], b, _CODE[len(c)], c, b'\x00'))
-    if k == 4:  # u16 duties and counts below 256 make three zeros common
-        a, b, c, d = p
-        return b''.join((_CODE[len(a)], a, _CODE[len(b)], b, _CODE[len(c)], c, _CODE[len(d)], d, b'\x00'))
-    return cobs_join(p)
+    k = len(body)
+    if k > MAX_FRAME_BYTES:
+        raise ProtocolError(f"encode {type(m).__name__}: a message of {k} bytes exceeds {MAX_FRAME_BYTES}")
+    ln = _BYTE[k + 6]
+    if 0 in body:
+        return wire_join((ln + body + ln).split(b'\x00'))
+    e = b''.join((_CODE[k + 2], ln, body, ln))
+    c = _crc(e, 0xFFFF)
+    return e + _CHECK((c >> 9 | 0x80) << 24 | (c >> 2 & 0x7F | 0x80) << 16 | ((c & 3) << 5 | 0x80) << 8, 4, 'big')
 
 
 def encode_param_info(m: ParamInfo) -> bytes:
@@ -889,36 +1072,30 @@ def encode_param_get(m: ParamGet) -> bytes:
     """ParamGet -> complete wire bytes (CRC, COBS, 0x00); ProtocolError/struct.error if unencodable."""
     x_seq, x_param_id = m
     body = _PARAMGET_ST.pack(34, x_seq, x_param_id)
-    p = (body + _be16(_crc(body, 0xFFFF))).split(b'\x00')
-    k = len(p)
-    if k == 2:  # one 0x00 in the frame
-        a, b = p
-        return b''.join((_CODE[len(a)], a, _CODE[len(b)], b, b'\x00'))
-    if k == 3:
-        a, b, c = p
-        return b''.join((_CODE[len(a)], a, _CODE[len(b)], b, _CODE[len(c)], c, b'\x00'))
-    if k == 4:  # u16 duties and counts below 256 make three zeros common
-        a, b, c, d = p
-        return b''.join((_CODE[len(a)], a, _CODE[len(b)], b, _CODE[len(c)], c, _CODE[len(d)], d, b'\x00'))
-    return cobs_join(p)
+    k = len(body)
+    if k > MAX_FRAME_BYTES:
+        raise ProtocolError(f"encode {type(m).__name__}: a message of {k} bytes exceeds {MAX_FRAME_BYTES}")
+    ln = _BYTE[k + 6]
+    if 0 in body:
+        return wire_join((ln + body + ln).split(b'\x00'))
+    e = b''.join((_CODE[k + 2], ln, body, ln))
+    c = _crc(e, 0xFFFF)
+    return e + _CHECK((c >> 9 | 0x80) << 24 | (c >> 2 & 0x7F | 0x80) << 16 | ((c & 3) << 5 | 0x80) << 8, 4, 'big')
 
 
 def encode_param_value(m: ParamValue) -> bytes:
     """ParamValue -> complete wire bytes (CRC, COBS, 0x00); ProtocolError/struct.error if unencodable."""
     x_seq, x_param_id, x_result, x_value = m
     body = _PARAMVALUE_ST.pack(35, x_seq, x_param_id, x_result, x_value)
-    p = (body + _be16(_crc(body, 0xFFFF))).split(b'\x00')
-    k = len(p)
-    if k == 2:  # one 0x00 in the frame
-        a, b = p
-        return b''.join((_CODE[len(a)], a, _CODE[len(b)], b, b'\x00'))
-    if k == 3:
-        a, b, c = p
-        return b''.join((_CODE[len(a)], a, _CODE[len(b)], b, _CODE[len(c)], c, b'\x00'))
-    if k == 4:  # u16 duties and counts below 256 make three zeros common
-        a, b, c, d = p
-        return b''.join((_CODE[len(a)], a, _CODE[len(b)], b, _CODE[len(c)], c, _CODE[len(d)], d, b'\x00'))
-    return cobs_join(p)
+    k = len(body)
+    if k > MAX_FRAME_BYTES:
+        raise ProtocolError(f"encode {type(m).__name__}: a message of {k} bytes exceeds {MAX_FRAME_BYTES}")
+    ln = _BYTE[k + 6]
+    if 0 in body:
+        return wire_join((ln + body + ln).split(b'\x00'))
+    e = b''.join((_CODE[k + 2], ln, body, ln))
+    c = _crc(e, 0xFFFF)
+    return e + _CHECK((c >> 9 | 0x80) << 24 | (c >> 2 & 0x7F | 0x80) << 16 | ((c & 3) << 5 | 0x80) << 8, 4, 'big')
 
 
 def encode_param_set(m: ParamSet) -> bytes:
@@ -929,244 +1106,303 @@ def encode_param_set(m: ParamSet) -> bytes:
         body = _PARAMSET_ST[n].pack(36, x_seq, *[v for pair in x_pairs for v in pair])
     else:
         raise ProtocolError(f"encode ParamSet: pairs has {n} entries, at most 4")
-    p = (body + _be16(_crc(body, 0xFFFF))).split(b'\x00')
-    k = len(p)
-    if k == 2:  # one 0x00 in the frame
-        a, b = p
-        return b''.join((_CODE[len(a)], a, _CODE[len(b)], b, b'\x00'))
-    if k == 3:
-        a, b, c = p
-        return b''.join((_CODE[len(a)], a, _CODE[len(b)], b, _CODE[len(c)], c, b'\x00'))
-    if k == 4:  # u16 duties and counts below 256 make three zeros common
-        a, b, c, d = p
-        return b''.join((_CODE[len(a)], a, _CODE[len(b)], b, _CODE[len(c)], c, _CODE[len(d)], d, b'\x00'))
-    return cobs_join(p)
+    k = len(body)
+    if k > MAX_FRAME_BYTES:
+        raise ProtocolError(f"encode {type(m).__name__}: a message of {k} bytes exceeds {MAX_FRAME_BYTES}")
+    ln = _BYTE[k + 6]
+    if 0 in body:
+        return wire_join((ln + body + ln).split(b'\x00'))
+    e = b''.join((_CODE[k + 2], ln, body, ln))
+    c = _crc(e, 0xFFFF)
+    return e + _CHECK((c >> 9 | 0x80) << 24 | (c >> 2 & 0x7F | 0x80) << 16 | ((c & 3) << 5 | 0x80) << 8, 4, 'big')
 
 
 def encode_param_set_result(m: ParamSetResult) -> bytes:
     """ParamSetResult -> complete wire bytes (CRC, COBS, 0x00); ProtocolError/struct.error if unencodable."""
     x_seq, x_result, x_param_id, x_detail = m
     body = _PARAMSETRESULT_ST.pack(37, x_seq, x_result, x_param_id, x_detail)
-    p = (body + _be16(_crc(body, 0xFFFF))).split(b'\x00')
-    k = len(p)
-    if k == 2:  # one 0x00 in the frame
-        a, b = p
-        return b''.join((_CODE[len(a)], a, _CODE[len(b)], b, b'\x00'))
-    if k == 3:
-        a, b, c = p
-        return b''.join((_CODE[len(a)], a, _CODE[len(b)], b, _CODE[len(c)], c, b'\x00'))
-    if k == 4:  # u16 duties and counts below 256 make three zeros common
-        a, b, c, d = p
-        return b''.join((_CODE[len(a)], a, _CODE[len(b)], b, _CODE[len(c)], c, _CODE[len(d)], d, b'\x00'))
-    return cobs_join(p)
+    k = len(body)
+    if k > MAX_FRAME_BYTES:
+        raise ProtocolError(f"encode {type(m).__name__}: a message of {k} bytes exceeds {MAX_FRAME_BYTES}")
+    ln = _BYTE[k + 6]
+    if 0 in body:
+        return wire_join((ln + body + ln).split(b'\x00'))
+    e = b''.join((_CODE[k + 2], ln, body, ln))
+    c = _crc(e, 0xFFFF)
+    return e + _CHECK((c >> 9 | 0x80) << 24 | (c >> 2 & 0x7F | 0x80) << 16 | ((c & 3) << 5 | 0x80) << 8, 4, 'big')
 
 
 def encode_start(m: Start) -> bytes:
     """Start -> complete wire bytes (CRC, COBS, 0x00); ProtocolError/struct.error if unencodable."""
     x_seq, = m
     body = _START_ST.pack(48, x_seq)
-    p = (body + _be16(_crc(body, 0xFFFF))).split(b'\x00')
-    k = len(p)
-    if k == 2:  # one 0x00 in the frame
-        a, b = p
-        return b''.join((_CODE[len(a)], a, _CODE[len(b)], b, b'\x00'))
-    if k == 3:
-        a, b, c = p
-        return b''.join((_CODE[len(a)], a, _CODE[len(b)], b, _CODE[len(c)], c, b'\x00'))
-    if k == 4:  # u16 duties and counts below 256 make three zeros common
-        a, b, c, d = p
-        return b''.join((_CODE[len(a)], a, _CODE[len(b)], b, _CODE[len(c)], c, _CODE[len(d)], d, b'\x00'))
-    return cobs_join(p)
+    k = len(body)
+    if k > MAX_FRAME_BYTES:
+        raise ProtocolError(f"encode {type(m).__name__}: a message of {k} bytes exceeds {MAX_FRAME_BYTES}")
+    ln = _BYTE[k + 6]
+    if 0 in body:
+        return wire_join((ln + body + ln).split(b'\x00'))
+    e = b''.join((_CODE[k + 2], ln, body, ln))
+    c = _crc(e, 0xFFFF)
+    return e + _CHECK((c >> 9 | 0x80) << 24 | (c >> 2 & 0x7F | 0x80) << 16 | ((c & 3) << 5 | 0x80) << 8, 4, 'big')
 
 
 def encode_stop(m: Stop) -> bytes:
     """Stop -> complete wire bytes (CRC, COBS, 0x00); ProtocolError/struct.error if unencodable."""
     x_seq, = m
     body = _STOP_ST.pack(49, x_seq)
-    p = (body + _be16(_crc(body, 0xFFFF))).split(b'\x00')
-    k = len(p)
-    if k == 2:  # one 0x00 in the frame
-        a, b = p
-        return b''.join((_CODE[len(a)], a, _CODE[len(b)], b, b'\x00'))
-    if k == 3:
-        a, b, c = p
-        return b''.join((_CODE[len(a)], a, _CODE[len(b)], b, _CODE[len(c)], c, b'\x00'))
-    if k == 4:  # u16 duties and counts below 256 make three zeros common
-        a, b, c, d = p
-        return b''.join((_CODE[len(a)], a, _CODE[len(b)], b, _CODE[len(c)], c, _CODE[len(d)], d, b'\x00'))
-    return cobs_join(p)
+    k = len(body)
+    if k > MAX_FRAME_BYTES:
+        raise ProtocolError(f"encode {type(m).__name__}: a message of {k} bytes exceeds {MAX_FRAME_BYTES}")
+    ln = _BYTE[k + 6]
+    if 0 in body:
+        return wire_join((ln + body + ln).split(b'\x00'))
+    e = b''.join((_CODE[k + 2], ln, body, ln))
+    c = _crc(e, 0xFFFF)
+    return e + _CHECK((c >> 9 | 0x80) << 24 | (c >> 2 & 0x7F | 0x80) << 16 | ((c & 3) << 5 | 0x80) << 8, 4, 'big')
 
 
 def encode_status_request(m: StatusRequest) -> bytes:
     """StatusRequest -> complete wire bytes (CRC, COBS, 0x00); ProtocolError/struct.error if unencodable."""
     x_seq, = m
     body = _STATUSREQUEST_ST.pack(64, x_seq)
-    p = (body + _be16(_crc(body, 0xFFFF))).split(b'\x00')
-    k = len(p)
-    if k == 2:  # one 0x00 in the frame
-        a, b = p
-        return b''.join((_CODE[len(a)], a, _CODE[len(b)], b, b'\x00'))
-    if k == 3:
-        a, b, c = p
-        return b''.join((_CODE[len(a)], a, _CODE[len(b)], b, _CODE[len(c)], c, b'\x00'))
-    if k == 4:  # u16 duties and counts below 256 make three zeros common
-        a, b, c, d = p
-        return b''.join((_CODE[len(a)], a, _CODE[len(b)], b, _CODE[len(c)], c, _CODE[len(d)], d, b'\x00'))
-    return cobs_join(p)
+    k = len(body)
+    if k > MAX_FRAME_BYTES:
+        raise ProtocolError(f"encode {type(m).__name__}: a message of {k} bytes exceeds {MAX_FRAME_BYTES}")
+    ln = _BYTE[k + 6]
+    if 0 in body:
+        return wire_join((ln + body + ln).split(b'\x00'))
+    e = b''.join((_CODE[k + 2], ln, body, ln))
+    c = _crc(e, 0xFFFF)
+    return e + _CHECK((c >> 9 | 0x80) << 24 | (c >> 2 & 0x7F | 0x80) << 16 | ((c & 3) << 5 | 0x80) << 8, 4, 'big')
 
 
 def encode_status(m: Status) -> bytes:
     """Status -> complete wire bytes (CRC, COBS, 0x00); ProtocolError/struct.error if unencodable."""
     x_seq, x_rx_frames, x_rx_errors, x_resyncs, x_unknown, x_overruns, x_watchdog_trips, x_last_error = m
     body = _STATUS_ST.pack(65, x_seq, x_rx_frames, x_rx_errors, x_resyncs, x_unknown, x_overruns, x_watchdog_trips, x_last_error)
-    p = (body + _be16(_crc(body, 0xFFFF))).split(b'\x00')
-    k = len(p)
-    if k == 2:  # one 0x00 in the frame
-        a, b = p
-        return b''.join((_CODE[len(a)], a, _CODE[len(b)], b, b'\x00'))
-    if k == 3:
-        a, b, c = p
-        return b''.join((_CODE[len(a)], a, _CODE[len(b)], b, _CODE[len(c)], c, b'\x00'))
-    if k == 4:  # u16 duties and counts below 256 make three zeros common
-        a, b, c, d = p
-        return b''.join((_CODE[len(a)], a, _CODE[len(b)], b, _CODE[len(c)], c, _CODE[len(d)], d, b'\x00'))
-    return cobs_join(p)
+    k = len(body)
+    if k > MAX_FRAME_BYTES:
+        raise ProtocolError(f"encode {type(m).__name__}: a message of {k} bytes exceeds {MAX_FRAME_BYTES}")
+    ln = _BYTE[k + 6]
+    if 0 in body:
+        return wire_join((ln + body + ln).split(b'\x00'))
+    e = b''.join((_CODE[k + 2], ln, body, ln))
+    c = _crc(e, 0xFFFF)
+    return e + _CHECK((c >> 9 | 0x80) << 24 | (c >> 2 & 0x7F | 0x80) << 16 | ((c & 3) << 5 | 0x80) << 8, 4, 'big')
 
 
 def encode_error_report(m: ErrorReport) -> bytes:
     """ErrorReport -> complete wire bytes (CRC, COBS, 0x00); ProtocolError/struct.error if unencodable."""
     x_seq, x_code, x_detail, x_schema_fingerprint = m
     body = _ERRORREPORT_ST.pack(66, x_seq, x_code, x_detail, x_schema_fingerprint)
-    p = (body + _be16(_crc(body, 0xFFFF))).split(b'\x00')
-    k = len(p)
-    if k == 2:  # one 0x00 in the frame
-        a, b = p
-        return b''.join((_CODE[len(a)], a, _CODE[len(b)], b, b'\x00'))
-    if k == 3:
-        a, b, c = p
-        return b''.join((_CODE[len(a)], a, _CODE[len(b)], b, _CODE[len(c)], c, b'\x00'))
-    if k == 4:  # u16 duties and counts below 256 make three zeros common
-        a, b, c, d = p
-        return b''.join((_CODE[len(a)], a, _CODE[len(b)], b, _CODE[len(c)], c, _CODE[len(d)], d, b'\x00'))
-    return cobs_join(p)
+    k = len(body)
+    if k > MAX_FRAME_BYTES:
+        raise ProtocolError(f"encode {type(m).__name__}: a message of {k} bytes exceeds {MAX_FRAME_BYTES}")
+    ln = _BYTE[k + 6]
+    if 0 in body:
+        return wire_join((ln + body + ln).split(b'\x00'))
+    e = b''.join((_CODE[k + 2], ln, body, ln))
+    c = _crc(e, 0xFFFF)
+    return e + _CHECK((c >> 9 | 0x80) << 24 | (c >> 2 & 0x7F | 0x80) << 16 | ((c & 3) << 5 | 0x80) << 8, 4, 'big')
 
 
-def _decode_host_hello(raw: bytes, n: int) -> HostHello:
-    """COBS-decoded frame of n bytes (first code byte, type . seq . payload, CRC checked) -> HostHello."""
-    if n != 15:
-        raise LengthError(f"HostHello: payload of {n - 5} bytes, expected 10")
-    v = _HOSTHELLO_ST.unpack_from(raw, 1)
+def encode_telemetry_describe(m: TelemetryDescribe) -> bytes:
+    """TelemetryDescribe -> complete wire bytes (CRC, COBS, 0x00); ProtocolError/struct.error if unencodable."""
+    x_seq, x_index = m
+    body = _TELEMETRYDESCRIBE_ST.pack(80, x_seq, x_index)
+    k = len(body)
+    if k > MAX_FRAME_BYTES:
+        raise ProtocolError(f"encode {type(m).__name__}: a message of {k} bytes exceeds {MAX_FRAME_BYTES}")
+    ln = _BYTE[k + 6]
+    if 0 in body:
+        return wire_join((ln + body + ln).split(b'\x00'))
+    e = b''.join((_CODE[k + 2], ln, body, ln))
+    c = _crc(e, 0xFFFF)
+    return e + _CHECK((c >> 9 | 0x80) << 24 | (c >> 2 & 0x7F | 0x80) << 16 | ((c & 3) << 5 | 0x80) << 8, 4, 'big')
+
+
+def encode_telemetry_info(m: TelemetryInfo) -> bytes:
+    """TelemetryInfo -> complete wire bytes (CRC, COBS, 0x00); ProtocolError/struct.error if unencodable."""
+    return frame_bytes(pack_telemetry_info(m))
+
+
+def encode_target_describe(m: TargetDescribe) -> bytes:
+    """TargetDescribe -> complete wire bytes (CRC, COBS, 0x00); ProtocolError/struct.error if unencodable."""
+    x_seq, = m
+    body = _TARGETDESCRIBE_ST.pack(82, x_seq)
+    k = len(body)
+    if k > MAX_FRAME_BYTES:
+        raise ProtocolError(f"encode {type(m).__name__}: a message of {k} bytes exceeds {MAX_FRAME_BYTES}")
+    ln = _BYTE[k + 6]
+    if 0 in body:
+        return wire_join((ln + body + ln).split(b'\x00'))
+    e = b''.join((_CODE[k + 2], ln, body, ln))
+    c = _crc(e, 0xFFFF)
+    return e + _CHECK((c >> 9 | 0x80) << 24 | (c >> 2 & 0x7F | 0x80) << 16 | ((c & 3) << 5 | 0x80) << 8, 4, 'big')
+
+
+def encode_target_info(m: TargetInfo) -> bytes:
+    """TargetInfo -> complete wire bytes (CRC, COBS, 0x00); ProtocolError/struct.error if unencodable."""
+    x_seq, x_duty_timing, x_duty_report, x_inputs, x_encoder_counts, x_max_edges = m
+    body = _TARGETINFO_ST.pack(83, x_seq, x_duty_timing, x_duty_report, x_inputs, x_encoder_counts, x_max_edges)
+    k = len(body)
+    if k > MAX_FRAME_BYTES:
+        raise ProtocolError(f"encode {type(m).__name__}: a message of {k} bytes exceeds {MAX_FRAME_BYTES}")
+    ln = _BYTE[k + 6]
+    if 0 in body:
+        return wire_join((ln + body + ln).split(b'\x00'))
+    e = b''.join((_CODE[k + 2], ln, body, ln))
+    c = _crc(e, 0xFFFF)
+    return e + _CHECK((c >> 9 | 0x80) << 24 | (c >> 2 & 0x7F | 0x80) << 16 | ((c & 3) << 5 | 0x80) << 8, 4, 'big')
+
+
+def _decode_host_hello(raw: bytes, k: int) -> HostHello:
+    """A checked frame (raw[2:2 + k] is the message: type . seq . payload) -> HostHello."""
+    if k != 12:
+        raise LengthError(f"HostHello: payload of {k - 2} bytes, expected 10")
+    v = _HOSTHELLO_ST.unpack_from(raw, 2)
     return _tnew(HostHello, v[1:])
 
 
-def _decode_target_hello(raw: bytes, n: int) -> TargetHello:
-    """COBS-decoded frame of n bytes (first code byte, type . seq . payload, CRC checked) -> TargetHello."""
-    return unpack_target_hello(bytes(raw[1:n - 2]))
+def _decode_target_hello(raw: bytes, k: int) -> TargetHello:
+    """A checked frame (raw[2:2 + k] is the message: type . seq . payload) -> TargetHello."""
+    return unpack_target_hello(bytes(raw[2:2 + k]))
 
 
-def _decode_sensors(raw: bytes, n: int) -> Sensors:
-    """COBS-decoded frame of n bytes (first code byte, type . seq . payload, CRC checked) -> Sensors."""
-    st = _SENSORS_BY_LEN[n]
+def _decode_sensors(raw: bytes, k: int) -> Sensors:
+    """A checked frame (raw[2:2 + k] is the message: type . seq . payload) -> Sensors."""
+    na = raw[7] if k > 5 else 255
+    r = k - 6 - 2 * na
+    if not (na <= 8 and r >= 0 and r % 3 == 0 and r // 3 <= 16):
+        raise LengthError(f"Sensors: payload of {k - 2} bytes does not hold {na} adc and whole edges")
+    v = _SENSORS_ST2[na][r // 3].unpack_from(raw, 2)
+    return _tnew(Sensors, (v[1], v[2], tuple(zip(v[5 + na::2], v[6 + na::2])), v[3], v[5:5 + na]))
+
+
+def _decode_drive(raw: bytes, k: int) -> Drive:
+    """A checked frame (raw[2:2 + k] is the message: type . seq . payload) -> Drive."""
+    st = _DRIVE_BY_LEN[k]
     if st is None:
-        raise LengthError(f"Sensors: payload of {n - 5} bytes is not 5 + 2*n (n <= 8)")
-    v = st.unpack_from(raw, 1)
-    return _tnew(Sensors, (v[1], v[2], v[3], v[4], v[5:]))
-
-
-def _decode_drive(raw: bytes, n: int) -> Drive:
-    """COBS-decoded frame of n bytes (first code byte, type . seq . payload, CRC checked) -> Drive."""
-    st = _DRIVE_BY_LEN[n]
-    if st is None:
-        raise LengthError(f"Drive: payload of {n - 5} bytes is not 8 + 2*n (n <= 8)")
-    v = st.unpack_from(raw, 1)
+        raise LengthError(f"Drive: payload of {k - 2} bytes is not 8 + 2*n (n <= 8)")
+    v = st.unpack_from(raw, 2)
     w5 = v[5]
     return _tnew(Drive, (v[1], v[2], v[3], v[4], w5 & 3, w5 >> 2 & 7, w5 >> 5 & 7, (w5 >> 8 & 1) != 0, (w5 >> 9 & 1) != 0, w5 >> 10, v[6:]))
 
 
-def _decode_param_describe(raw: bytes, n: int) -> ParamDescribe:
-    """COBS-decoded frame of n bytes (first code byte, type . seq . payload, CRC checked) -> ParamDescribe."""
-    if n != 6:
-        raise LengthError(f"ParamDescribe: payload of {n - 5} bytes, expected 1")
-    v = _PARAMDESCRIBE_ST.unpack_from(raw, 1)
+def _decode_param_describe(raw: bytes, k: int) -> ParamDescribe:
+    """A checked frame (raw[2:2 + k] is the message: type . seq . payload) -> ParamDescribe."""
+    if k != 3:
+        raise LengthError(f"ParamDescribe: payload of {k - 2} bytes, expected 1")
+    v = _PARAMDESCRIBE_ST.unpack_from(raw, 2)
     return _tnew(ParamDescribe, v[1:])
 
 
-def _decode_param_info(raw: bytes, n: int) -> ParamInfo:
-    """COBS-decoded frame of n bytes (first code byte, type . seq . payload, CRC checked) -> ParamInfo."""
-    return unpack_param_info(bytes(raw[1:n - 2]))
+def _decode_param_info(raw: bytes, k: int) -> ParamInfo:
+    """A checked frame (raw[2:2 + k] is the message: type . seq . payload) -> ParamInfo."""
+    return unpack_param_info(bytes(raw[2:2 + k]))
 
 
-def _decode_param_get(raw: bytes, n: int) -> ParamGet:
-    """COBS-decoded frame of n bytes (first code byte, type . seq . payload, CRC checked) -> ParamGet."""
-    if n != 6:
-        raise LengthError(f"ParamGet: payload of {n - 5} bytes, expected 1")
-    v = _PARAMGET_ST.unpack_from(raw, 1)
+def _decode_param_get(raw: bytes, k: int) -> ParamGet:
+    """A checked frame (raw[2:2 + k] is the message: type . seq . payload) -> ParamGet."""
+    if k != 3:
+        raise LengthError(f"ParamGet: payload of {k - 2} bytes, expected 1")
+    v = _PARAMGET_ST.unpack_from(raw, 2)
     return _tnew(ParamGet, v[1:])
 
 
-def _decode_param_value(raw: bytes, n: int) -> ParamValue:
-    """COBS-decoded frame of n bytes (first code byte, type . seq . payload, CRC checked) -> ParamValue."""
-    if n != 11:
-        raise LengthError(f"ParamValue: payload of {n - 5} bytes, expected 6")
-    v = _PARAMVALUE_ST.unpack_from(raw, 1)
+def _decode_param_value(raw: bytes, k: int) -> ParamValue:
+    """A checked frame (raw[2:2 + k] is the message: type . seq . payload) -> ParamValue."""
+    if k != 8:
+        raise LengthError(f"ParamValue: payload of {k - 2} bytes, expected 6")
+    v = _PARAMVALUE_ST.unpack_from(raw, 2)
     return _tnew(ParamValue, v[1:])
 
 
-def _decode_param_set(raw: bytes, n: int) -> ParamSet:
-    """COBS-decoded frame of n bytes (first code byte, type . seq . payload, CRC checked) -> ParamSet."""
-    st = _PARAMSET_BY_LEN[n]
+def _decode_param_set(raw: bytes, k: int) -> ParamSet:
+    """A checked frame (raw[2:2 + k] is the message: type . seq . payload) -> ParamSet."""
+    st = _PARAMSET_BY_LEN[k]
     if st is None:
-        raise LengthError(f"ParamSet: payload of {n - 5} bytes is not 0 + 5*n (n <= 4)")
-    v = st.unpack_from(raw, 1)
+        raise LengthError(f"ParamSet: payload of {k - 2} bytes is not 0 + 5*n (n <= 4)")
+    v = st.unpack_from(raw, 2)
     return _tnew(ParamSet, (v[1], tuple(zip(v[2::2], v[3::2]))))
 
 
-def _decode_param_set_result(raw: bytes, n: int) -> ParamSetResult:
-    """COBS-decoded frame of n bytes (first code byte, type . seq . payload, CRC checked) -> ParamSetResult."""
-    if n != 8:
-        raise LengthError(f"ParamSetResult: payload of {n - 5} bytes, expected 3")
-    v = _PARAMSETRESULT_ST.unpack_from(raw, 1)
+def _decode_param_set_result(raw: bytes, k: int) -> ParamSetResult:
+    """A checked frame (raw[2:2 + k] is the message: type . seq . payload) -> ParamSetResult."""
+    if k != 5:
+        raise LengthError(f"ParamSetResult: payload of {k - 2} bytes, expected 3")
+    v = _PARAMSETRESULT_ST.unpack_from(raw, 2)
     return _tnew(ParamSetResult, v[1:])
 
 
-def _decode_start(raw: bytes, n: int) -> Start:
-    """COBS-decoded frame of n bytes (first code byte, type . seq . payload, CRC checked) -> Start."""
-    if n != 5:
-        raise LengthError(f"Start: payload of {n - 5} bytes, expected 0")
-    v = _START_ST.unpack_from(raw, 1)
+def _decode_start(raw: bytes, k: int) -> Start:
+    """A checked frame (raw[2:2 + k] is the message: type . seq . payload) -> Start."""
+    if k != 2:
+        raise LengthError(f"Start: payload of {k - 2} bytes, expected 0")
+    v = _START_ST.unpack_from(raw, 2)
     return _tnew(Start, v[1:])
 
 
-def _decode_stop(raw: bytes, n: int) -> Stop:
-    """COBS-decoded frame of n bytes (first code byte, type . seq . payload, CRC checked) -> Stop."""
-    if n != 5:
-        raise LengthError(f"Stop: payload of {n - 5} bytes, expected 0")
-    v = _STOP_ST.unpack_from(raw, 1)
+def _decode_stop(raw: bytes, k: int) -> Stop:
+    """A checked frame (raw[2:2 + k] is the message: type . seq . payload) -> Stop."""
+    if k != 2:
+        raise LengthError(f"Stop: payload of {k - 2} bytes, expected 0")
+    v = _STOP_ST.unpack_from(raw, 2)
     return _tnew(Stop, v[1:])
 
 
-def _decode_status_request(raw: bytes, n: int) -> StatusRequest:
-    """COBS-decoded frame of n bytes (first code byte, type . seq . payload, CRC checked) -> StatusRequest."""
-    if n != 5:
-        raise LengthError(f"StatusRequest: payload of {n - 5} bytes, expected 0")
-    v = _STATUSREQUEST_ST.unpack_from(raw, 1)
+def _decode_status_request(raw: bytes, k: int) -> StatusRequest:
+    """A checked frame (raw[2:2 + k] is the message: type . seq . payload) -> StatusRequest."""
+    if k != 2:
+        raise LengthError(f"StatusRequest: payload of {k - 2} bytes, expected 0")
+    v = _STATUSREQUEST_ST.unpack_from(raw, 2)
     return _tnew(StatusRequest, v[1:])
 
 
-def _decode_status(raw: bytes, n: int) -> Status:
-    """COBS-decoded frame of n bytes (first code byte, type . seq . payload, CRC checked) -> Status."""
-    if n != 18:
-        raise LengthError(f"Status: payload of {n - 5} bytes, expected 13")
-    v = _STATUS_ST.unpack_from(raw, 1)
+def _decode_status(raw: bytes, k: int) -> Status:
+    """A checked frame (raw[2:2 + k] is the message: type . seq . payload) -> Status."""
+    if k != 15:
+        raise LengthError(f"Status: payload of {k - 2} bytes, expected 13")
+    v = _STATUS_ST.unpack_from(raw, 2)
     return _tnew(Status, v[1:])
 
 
-def _decode_error_report(raw: bytes, n: int) -> ErrorReport:
-    """COBS-decoded frame of n bytes (first code byte, type . seq . payload, CRC checked) -> ErrorReport."""
-    if n != 11:
-        raise LengthError(f"ErrorReport: payload of {n - 5} bytes, expected 6")
-    v = _ERRORREPORT_ST.unpack_from(raw, 1)
+def _decode_error_report(raw: bytes, k: int) -> ErrorReport:
+    """A checked frame (raw[2:2 + k] is the message: type . seq . payload) -> ErrorReport."""
+    if k != 8:
+        raise LengthError(f"ErrorReport: payload of {k - 2} bytes, expected 6")
+    v = _ERRORREPORT_ST.unpack_from(raw, 2)
     return _tnew(ErrorReport, v[1:])
+
+
+def _decode_telemetry_describe(raw: bytes, k: int) -> TelemetryDescribe:
+    """A checked frame (raw[2:2 + k] is the message: type . seq . payload) -> TelemetryDescribe."""
+    if k != 3:
+        raise LengthError(f"TelemetryDescribe: payload of {k - 2} bytes, expected 1")
+    v = _TELEMETRYDESCRIBE_ST.unpack_from(raw, 2)
+    return _tnew(TelemetryDescribe, v[1:])
+
+
+def _decode_telemetry_info(raw: bytes, k: int) -> TelemetryInfo:
+    """A checked frame (raw[2:2 + k] is the message: type . seq . payload) -> TelemetryInfo."""
+    return unpack_telemetry_info(bytes(raw[2:2 + k]))
+
+
+def _decode_target_describe(raw: bytes, k: int) -> TargetDescribe:
+    """A checked frame (raw[2:2 + k] is the message: type . seq . payload) -> TargetDescribe."""
+    if k != 2:
+        raise LengthError(f"TargetDescribe: payload of {k - 2} bytes, expected 0")
+    v = _TARGETDESCRIBE_ST.unpack_from(raw, 2)
+    return _tnew(TargetDescribe, v[1:])
+
+
+def _decode_target_info(raw: bytes, k: int) -> TargetInfo:
+    """A checked frame (raw[2:2 + k] is the message: type . seq . payload) -> TargetInfo."""
+    if k != 8:
+        raise LengthError(f"TargetInfo: payload of {k - 2} bytes, expected 6")
+    v = _TARGETINFO_ST.unpack_from(raw, 2)
+    return _tnew(TargetInfo, v[1:])
 
 
 ENCODERS: dict[type, Callable[..., bytes]] = {
@@ -1185,6 +1421,10 @@ ENCODERS: dict[type, Callable[..., bytes]] = {
     StatusRequest: encode_status_request,
     Status: encode_status,
     ErrorReport: encode_error_report,
+    TelemetryDescribe: encode_telemetry_describe,
+    TelemetryInfo: encode_telemetry_info,
+    TargetDescribe: encode_target_describe,
+    TargetInfo: encode_target_info,
 }
 
 # Range checks of bit fields skipped: only for messages the caller built itself (see codec).
@@ -1204,6 +1444,10 @@ UNCHECKED_ENCODERS: dict[type, Callable[..., bytes]] = {
     StatusRequest: encode_status_request,
     Status: encode_status,
     ErrorReport: encode_error_report,
+    TelemetryDescribe: encode_telemetry_describe,
+    TelemetryInfo: encode_telemetry_info,
+    TargetDescribe: encode_target_describe,
+    TargetInfo: encode_target_info,
 }
 
 # Indexed by the frame type byte; None for a type this protocol version does not know.
@@ -1223,6 +1467,10 @@ _decoders[0x31] = _decode_stop
 _decoders[0x40] = _decode_status_request
 _decoders[0x41] = _decode_status
 _decoders[0x42] = _decode_error_report
+_decoders[0x50] = _decode_telemetry_describe
+_decoders[0x51] = _decode_telemetry_info
+_decoders[0x52] = _decode_target_describe
+_decoders[0x53] = _decode_target_info
 DECODERS: tuple = tuple(_decoders)
 del _decoders
 _ENCODE_ERRORS = (struct.error, TypeError, ValueError, OverflowError, IndexError, AttributeError)
@@ -1238,15 +1486,16 @@ def encode_frame(m: Message, validate: bool = True) -> bytes:
     t = type(m)
     try:
         if t is Sensors:
-            x_seq, x_inputs, x_edge_time_100ns, x_encoder, x_adc = m
-            n = len(x_adc)
-            if n == 3:
+            x_seq, x_inputs, x_edges, x_encoder, x_adc = m
+            na = len(x_adc)
+            nb = len(x_edges)
+            if na == 3 and nb == 0:
                 e0, e1, e2 = x_adc
-                body = _SENSORS_ST3.pack(16, x_seq, x_inputs, x_edge_time_100ns, x_encoder, e0, e1, e2)
-            elif n <= 8:
-                body = _SENSORS_ST[n].pack(16, x_seq, x_inputs, x_edge_time_100ns, x_encoder, *x_adc)
+                body = _SENSORS_ST_3_0.pack(16, x_seq, x_inputs, x_encoder, 3, e0, e1, e2)
+            elif na <= 8 and nb <= 16:
+                body = _SENSORS_ST2[na][nb].pack(16, x_seq, x_inputs, x_encoder, na, *x_adc, *[v for e in x_edges for v in e])
             else:
-                raise ProtocolError(f"encode Sensors: adc has {n} entries, at most 8")
+                raise ProtocolError(f"encode Sensors: adc has {na} entries (at most 8), edges {nb} (at most 16)")
         elif t is Drive:
             x_seq, x_duty_a, x_duty_b, x_duty_c, x_output_mode, x_state, x_sector, x_direction_ccw, x_required_ccw, x_fault, x_telemetry = m
             if validate:
@@ -1271,63 +1520,68 @@ def encode_frame(m: Message, validate: bool = True) -> bytes:
             if enc is None:
                 raise ProtocolError(f"encode: {t.__name__} is not a protocol message")
             return enc(m)
-        p = (body + _be16(_crc(body, 0xFFFF))).split(b'\x00')
+        k = len(body)
     except _ENCODE_ERRORS as exc:
         raise ProtocolError(f"encode {t.__name__}: {exc}") from None
-    k = len(p)
-    if k == 2:  # one 0x00 in the frame
-        a, b = p
-        return b''.join((_CODE[len(a)], a, _CODE[len(b)], b, b'\x00'))
-    if k == 3:
-        a, b, c = p
-        return b''.join((_CODE[len(a)], a, _CODE[len(b)], b, _CODE[len(c)], c, b'\x00'))
-    if k == 4:  # u16 duties and counts below 256 make three zeros common
-        a, b, c, d = p
-        return b''.join((_CODE[len(a)], a, _CODE[len(b)], b, _CODE[len(c)], c, _CODE[len(d)], d, b'\x00'))
-    return cobs_join(p)
+    if k > MAX_FRAME_BYTES:
+        raise ProtocolError(f"encode {type(m).__name__}: a message of {k} bytes exceeds {MAX_FRAME_BYTES}")
+    ln = _BYTE[k + 6]
+    if 0 in body:
+        return wire_join((ln + body + ln).split(b'\x00'))
+    e = b''.join((_CODE[k + 2], ln, body, ln))
+    c = _crc(e, 0xFFFF)
+    return e + _CHECK((c >> 9 | 0x80) << 24 | (c >> 2 & 0x7F | 0x80) << 16 | ((c & 3) << 5 | 0x80) << 8, 4, 'big')
 
 
-def decode_body(body: bytes, n: int) -> Message:
-    """A COBS frame body of n bytes (no 0x00 in it, n <= MAX_ENCODED_BYTES) -> message.
+def decode_body(g: bytes, n: int) -> Message:
+    """One frame's n wire bytes between delimiters (no 0x00 in them, n <= MAX_WIRE_BYTES) -> message.
 
-    Raises CobsError, LengthError, CrcError or UnknownTypeError. The COBS code bytes after the
-    first stand where the frame's 0x00s were, so they are zeroed in a copy; the CRC is checked
-    on that buffer as it is (see framing.CRC_PRE: the register after frame . crc_hi . crc_lo is 0
-    exactly when the CRC matches); the type byte picks the decoder.
+    Raises LengthError, CrcError, CobsError or UnknownTypeError. The CRC is checked on the wire
+    bytes as they are; then COBS: the code bytes after the first stand where the body's 0x00s
+    were, so they are zeroed in a copy (raw[i + 1] is the body's byte i); both lengths must be n;
+    the type byte picks the decoder.
     """
-    i = body[0]
-    if i < n:
-        raw = bytearray(body)
-        while i < n:
+    if n < 8:
+        raise LengthError(f"frame of {n} wire bytes is shorter than 8")
+    m = n - 3
+    t0 = g[m]
+    t1 = g[n - 2]
+    t2 = g[n - 1]
+    if not (t0 & t1 & t2 & 0x80) or t2 & 0x1F or _crc(g[:m], 0xFFFF) != (t0 & 0x7F) << 9 | (t1 & 0x7F) << 2 | t2 >> 5 & 3:
+        raise CrcError(f"check bytes do not match a {n}-byte frame")
+    i = g[0]
+    if i < m:
+        raw = bytearray(g)
+        while i < m:
             code = raw[i]
             raw[i] = 0
             i += code
-        if i != n:
-            raise CobsError(f"COBS: last block runs {i - n} bytes past the frame end")
-    elif i == n:
-        raw = body  # no 0x00 in the frame: nothing to undo
+        if i != m:
+            raise CobsError(f"COBS: last block runs {i - m} bytes past the frame end")
+    elif i == m:
+        raw = g  # no 0x00 in the body: nothing to undo
     else:
-        raise CobsError(f"COBS: block at offset 0 runs {i - n} bytes past the frame end")
-    if n < 5:
-        raise LengthError(f"frame of {n - 1} bytes is shorter than 4")
-    if _crc(raw, _CRC_PRE[raw[0]]):
-        raise CrcError(f"CRC mismatch in a {n - 1}-byte frame (type {raw[1]:#04x})")
-    t = raw[1]
+        raise CobsError(f"COBS: block at offset 0 runs {i - m} bytes past the frame end")
+    if raw[1] != n or raw[n - 4] != n:
+        raise LengthError(f"a {n}-byte frame says it is {raw[1]} and {raw[n - 4]} bytes long")
+    k = n - 6  # the message's length
+    t = raw[2]
     if t == 0x10:
-        st = _SENSORS_BY_LEN[n]
-        if st is not None:
-            v = st.unpack_from(raw, 1)
-            return _tnew(Sensors, (v[1], v[2], v[3], v[4], v[5:]))
+        na = raw[7] if k > 5 else 255
+        r = k - 6 - 2 * na
+        if na <= 8 and r >= 0 and r % 3 == 0 and r // 3 <= 16:
+            v = _SENSORS_ST2[na][r // 3].unpack_from(raw, 2)
+            return _tnew(Sensors, (v[1], v[2], tuple(zip(v[5 + na::2], v[6 + na::2])), v[3], v[5:5 + na]))
     elif t == 0x11:
-        st = _DRIVE_BY_LEN[n]
+        st = _DRIVE_BY_LEN[k]
         if st is not None:
-            v = st.unpack_from(raw, 1)
+            v = st.unpack_from(raw, 2)
             w5 = v[5]
             return _tnew(Drive, (v[1], v[2], v[3], v[4], w5 & 3, w5 >> 2 & 7, w5 >> 5 & 7, (w5 >> 8 & 1) != 0, (w5 >> 9 & 1) != 0, w5 >> 10, v[6:]))
     decode = DECODERS[t]
     if decode is None:
         raise UnknownTypeError(f"unknown frame type {t:#04x}")
-    return decode(raw, n)
+    return decode(raw, k)
 
 
 PACKERS: dict[type, Callable[..., bytes]] = {
@@ -1346,6 +1600,10 @@ PACKERS: dict[type, Callable[..., bytes]] = {
     StatusRequest: pack_status_request,
     Status: pack_status,
     ErrorReport: pack_error_report,
+    TelemetryDescribe: pack_telemetry_describe,
+    TelemetryInfo: pack_telemetry_info,
+    TargetDescribe: pack_target_describe,
+    TargetInfo: pack_target_info,
 }
 
 UNPACKERS: dict[int, Callable[[bytes], Message]] = {
@@ -1364,6 +1622,10 @@ UNPACKERS: dict[int, Callable[[bytes], Message]] = {
     0x40: unpack_status_request,
     0x41: unpack_status,
     0x42: unpack_error_report,
+    0x50: unpack_telemetry_describe,
+    0x51: unpack_telemetry_info,
+    0x52: unpack_target_describe,
+    0x53: unpack_target_info,
 }
 
 MESSAGE_TYPES: dict[int, type] = {
@@ -1382,16 +1644,22 @@ MESSAGE_TYPES: dict[int, type] = {
     0x40: StatusRequest,
     0x41: Status,
     0x42: ErrorReport,
+    0x50: TelemetryDescribe,
+    0x51: TelemetryInfo,
+    0x52: TargetDescribe,
+    0x53: TargetInfo,
 }
 
-HOST_TO_TARGET = frozenset({HostHello, Sensors, ParamDescribe, ParamGet, ParamSet, Start, Stop, StatusRequest})
-TARGET_TO_HOST = frozenset({TargetHello, Drive, ParamInfo, ParamValue, ParamSetResult, Status, ErrorReport})
+HOST_TO_TARGET = frozenset({HostHello, Sensors, ParamDescribe, ParamGet, ParamSet, Start, Stop, StatusRequest, TelemetryDescribe, TargetDescribe})
+TARGET_TO_HOST = frozenset({TargetHello, Drive, ParamInfo, ParamValue, ParamSetResult, Status, ErrorReport, TelemetryInfo, TargetInfo})
 
 __all__ = [
     'PROTOCOL_VERSION',
     'SCHEMA_FINGERPRINT',
     'MAX_FRAME_BYTES',
     'MAX_NAME_CHARS',
+    'MAX_UNIT_CHARS',
+    'MAX_EDGES',
     'MAX_ADC',
     'MAX_TELEMETRY',
     'MAX_PARAM_PAIRS',
@@ -1407,6 +1675,8 @@ __all__ = [
     'MsgType',
     'Input',
     'Edge',
+    'DutyTiming',
+    'DutyReport',
     'Mode',
     'OutputMode',
     'State',
@@ -1432,6 +1702,10 @@ __all__ = [
     'MSG_STATUS_REQUEST',
     'MSG_STATUS',
     'MSG_ERROR_REPORT',
+    'MSG_TELEMETRY_DESCRIBE',
+    'MSG_TELEMETRY_INFO',
+    'MSG_TARGET_DESCRIBE',
+    'MSG_TARGET_INFO',
     'INPUT_HALL_A',
     'INPUT_HALL_B',
     'INPUT_HALL_C',
@@ -1440,6 +1714,11 @@ __all__ = [
     'INPUT_FAULT',
     'INPUT_INDEX',
     'EDGE_NONE',
+    'DUTY_IMMEDIATE',
+    'DUTY_NEXT_PERIOD',
+    'DUTY_HALF_PERIOD',
+    'REPORT_WRITTEN',
+    'REPORT_ACTIVE',
     'MODE_LOCKSTEP',
     'MODE_REALTIME',
     'OUTPUT_OFF',
@@ -1500,6 +1779,7 @@ __all__ = [
     'ERROR_OVERRUN',
     'ERROR_WATCHDOG',
     'ERROR_BAD_REQUEST',
+    'ERROR_UNKNOWN_TELEMETRY',
     'HostHello',
     'TargetHello',
     'Sensors',
@@ -1515,4 +1795,8 @@ __all__ = [
     'StatusRequest',
     'Status',
     'ErrorReport',
+    'TelemetryDescribe',
+    'TelemetryInfo',
+    'TargetDescribe',
+    'TargetInfo',
 ]

@@ -73,7 +73,7 @@ class ParamTable:
         if spec is None:
             raise ParamError(f"describe: unknown param id {param_id}")
         return ParamInfo(0, param_id, spec.ptype, spec.access, spec.min_value, spec.max_value, self.read(param_id),
-                         spec.name)
+                         spec.name, spec.unit)
 
     def get(self, param_id: int) -> ParamValue:
         """One value; result UNKNOWN_ID for an undeclared id."""

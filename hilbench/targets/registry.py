@@ -89,14 +89,21 @@ def get_profile(name: str) -> TargetProfile:
     return profile
 
 
-def profile_for_firmware(firmware_name: str) -> TargetProfile:
-    """The profile of a firmware by the name in its HELLO; a neutral one for unknown firmware."""
+def registered_for_firmware(firmware_name: str) -> TargetProfile | None:
+    """The registered profile of a firmware by the name in its HELLO (None: no module knows it)."""
     _load_all()
     wanted = firmware_name.strip().upper()
     for profile in _profiles.values():
         if profile.firmware_name.upper() == wanted:
             return profile
-    return generic_profile(firmware_name.strip())
+    return None
+
+
+def profile_for_firmware(firmware_name: str) -> TargetProfile:
+    """The profile of a firmware by the name in its HELLO; a neutral one for unknown firmware (the
+    session completes it from the firmware's own description: hilbench.targets.describe)."""
+    found = registered_for_firmware(firmware_name)
+    return found if found is not None else generic_profile(firmware_name.strip())
 
 
 def make_target(name: str, options: Any = None) -> "Target":
@@ -113,5 +120,6 @@ __all__ = [
     "known_targets",
     "make_target",
     "profile_for_firmware",
+    "registered_for_firmware",
     "register",
 ]

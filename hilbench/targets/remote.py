@@ -29,7 +29,11 @@ from hilbench.protocol import (
     Status,
     StatusRequest,
     Stop,
+    TargetDescribe,
     TargetHello,
+    TargetInfo,
+    TelemetryDescribe,
+    TelemetryInfo,
     version_refusal,
 )
 
@@ -149,6 +153,20 @@ class RemoteTarget:
         self.watchdog_ms = host.watchdog_ms
         self.firmware_name = reply.firmware_name
         self.link.reset_sequence()
+        return reply
+
+    # -- self-description (protocol 3) --------------------------------------------------------
+    def describe_target(self) -> TargetInfo | None:
+        """The target's TargetInfo (duty timing, the inputs it reads, its encoder, the edges a Sensors
+        may carry); None when it answers with an ErrorReport (a target that does not describe itself)."""
+        reply = self._request(TargetDescribe(self._next_seq()), TargetInfo)
+        return None if type(reply) is ErrorReport else reply
+
+    def describe_telemetry(self, index: int) -> TelemetryInfo:
+        """Telemetry slot ``index`` of Drive: name, unit, scale (TargetError when it has none)."""
+        reply = self._request(TelemetryDescribe(self._next_seq(), index), TelemetryInfo)
+        if type(reply) is ErrorReport:
+            raise self._refused(f"TelemetryDescribe {index}", reply)
         return reply
 
     # -- parameters ----------------------------------------------------------------------

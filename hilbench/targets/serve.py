@@ -3,7 +3,11 @@
 Lockstep: each Sensors advances the model by exactly one period (target.step) and is answered
 by its Drive with the same seq. Real time (HostHello mode 1, or forced): each Sensors advances
 the model by the wall time since the previous one (target.advance); when no Sensors arrives for
-watchdog_ms the model's watchdog trips and its Drive (outputs off) is sent unsolicited.
+watchdog_ms the model's watchdog trips and its Drive (outputs off) is sent unsolicited. The
+watchdog runs in lockstep too (at least LOCKSTEP_WATCHDOG_MIN_S, as the firmware runtime's
+HRT_LOCKSTEP_WATCHDOG_MIN_MS): a host gone silent gets its outputs off (a Drive saying OFF and
+WATCHDOG, counted in Status), but the model does not step or stop: its time stands still while
+the host is away, so a host pausing on a loaded machine changes no recording.
 Bad frames are counted by the link's decoder; nothing a host sends can crash the server.
 """
 
@@ -27,6 +31,7 @@ from hilbench.protocol import (
     ErrorReport,
     Fault,
     HostHello,
+    OutputMode,
     ParamDescribe,
     ParamGet,
     ParamSet,
@@ -34,6 +39,8 @@ from hilbench.protocol import (
     Start,
     Status,
     StatusRequest,
+    TargetDescribe,
+    TelemetryDescribe,
     Stop,
     host_hello_mismatch,
 )
@@ -45,6 +52,7 @@ if TYPE_CHECKING:
 log = logging.getLogger("hilbench.serve")
 
 _POLL_S = 0.2  # how often an idle server looks at stop_event
+LOCKSTEP_WATCHDOG_MIN_S = 1.0  # the firmware runtime's HRT_LOCKSTEP_WATCHDOG_MIN_MS
 _MAX_LOGGED_FAULTS = 5
 
 
@@ -122,6 +130,22 @@ class _Server:
             return
         self.link.send(reply._replace(seq=msg.seq))
 
+    def on_describe_target(self, msg: TargetDescribe) -> None:
+        describe = getattr(self.target, "describe_target", None)
+        info = describe() if describe is not None else None
+        if info is None:  # a model that does not describe itself
+            self.error(msg.seq, ErrorCode.BAD_REQUEST, int(TargetDescribe.TYPE))
+            return
+        self.link.send(info._replace(seq=msg.seq))
+
+    def on_describe_telemetry(self, msg: TelemetryDescribe) -> None:
+        describe = getattr(self.target, "describe_telemetry", None)
+        info = describe(msg.index) if describe is not None else None
+        if info is None:
+            self.error(msg.seq, ErrorCode.UNKNOWN_TELEMETRY, msg.index)
+            return
+        self.link.send(info._replace(seq=msg.seq))
+
     def on_get(self, msg: ParamGet) -> None:
         self.link.send(self.target.get_param(msg.param_id)._replace(seq=msg.seq))
 
@@ -155,6 +179,7 @@ class _Server:
         handlers = {
             HostHello: self.on_hello, ParamDescribe: self.on_describe, ParamGet: self.on_get,
             ParamSet: self.on_set, Start: self.on_start, Stop: self.on_stop, StatusRequest: self.on_status,
+            TargetDescribe: self.on_describe_target, TelemetryDescribe: self.on_describe_telemetry,
         }
         try:
             while not self._stopped():
@@ -184,12 +209,16 @@ class _Server:
         first other message (None: a poll's timeout, stop_event is to be looked at). With nobody to
         ask us to stop, wait for frames without a timeout (one blocking read per period, no poll)."""
         recv, send, answer, report, stop_event = self.link.recv_or_none, self.link.send, self.answer, self.report, self.stop_event
-        wait = None if stop_event is None else _POLL_S
+        watching = self.watchdog_s > 0  # a watchdog agreed: wake to look at it, and note each Sensors' time
+        wait = None if stop_event is None and not watching else _POLL_S
         while True:
             msg = recv(wait)
             if type(msg) is not Sensors:
                 return msg
             report.sensors += 1
+            if watching:
+                self.last_sensors_t = time.monotonic()
+                self.tripped = False
             try:
                 send(answer.step(msg))
             except LinkClosed:
@@ -260,13 +289,20 @@ class _Server:
             pass
 
     def check_watchdog(self) -> None:
-        if self.mode != MODE_REALTIME or self.watchdog_s <= 0 or self.last_sensors_t is None or self.tripped:
+        """No Sensors for the watchdog time: outputs off and one unsolicited Drive that says so (real
+        time: the model's own trip; lockstep: the last Drive with the outputs OFF, the model untouched)."""
+        if self.watchdog_s <= 0 or self.last_sensors_t is None or self.tripped:
             return
-        if time.monotonic() - self.last_sensors_t >= self.watchdog_s:
+        lockstep = self.mode != MODE_REALTIME
+        limit_s = max(self.watchdog_s, LOCKSTEP_WATCHDOG_MIN_S) if lockstep else self.watchdog_s
+        if time.monotonic() - self.last_sensors_t >= limit_s:
             self.tripped = True
             self.report.watchdog_trips += 1
             self.last_error = int(ErrorCode.WATCHDOG)
-            drive = self.target.watchdog_trip()
+            last = self.answer.last
+            if lockstep and last is None:
+                return  # no Drive yet to say it with: the outputs were never on since the last request
+            drive = last._replace(output_mode=OutputMode.OFF, fault=Fault.WATCHDOG) if lockstep else self.target.watchdog_trip()
             log.warning("%s: no Sensors for %.0f ms: watchdog tripped, outputs off", self.link.name,
                         self.watchdog_s * 1000)
             self.link.send(drive)

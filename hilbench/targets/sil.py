@@ -36,15 +36,14 @@ FIRMWARE_DIR = REPO / "firmware" / "an1017"
 RUNTIME_DIR = REPO / "firmware" / "runtime"
 PROTOCOL_DIR = REPO / "firmware_protocol"
 #: the runtime (scheduler, real-time glue, the protocol's side) and the wire library, under every firmware
-RUNTIME_SOURCES = (RUNTIME_DIR / "hrt.c", RUNTIME_DIR / "hrt_link.c", PROTOCOL_DIR / "hbp.c",
-                   PROTOCOL_DIR / "hbp_messages.c")
+RUNTIME_SOURCES = (RUNTIME_DIR / "hrt.c", RUNTIME_DIR / "hrt_link.c", PROTOCOL_DIR / "hbp.c")
 RUNTIME_HEADERS = (RUNTIME_DIR / "hrt.h", RUNTIME_DIR / "hrt_link.h", PROTOCOL_DIR / "hbp.h",
                    PROTOCOL_DIR / "hbp_messages.h")
 SOURCES = (FIRMWARE_DIR / "an1017.c", FIRMWARE_DIR / "ports" / "host" / "main.c", *RUNTIME_SOURCES)
 HEADERS = (FIRMWARE_DIR / "an1017.h", FIRMWARE_DIR / "hrt_config.h", FIRMWARE_DIR / "q15.h", *RUNTIME_HEADERS)
 # the strict flags every firmware build uses, and the AN1017 profile's protocol capacities
 CFLAGS = ("-std=c99", "-pedantic", "-Wall", "-Wextra", "-Wconversion", "-Werror", "-O2",
-          "-DHBP_MAX_ADC=3u", "-DHBP_MAX_TELEMETRY=3u")
+          "-DHBP_MAX_ADC=3u", "-DHBP_MAX_TELEMETRY=3u", "-DHBP_MAX_EDGES=3u")
 READY_TIMEOUT_S = 10.0
 Variant = Literal["seed", "v11"]
 
@@ -186,7 +185,7 @@ AVR_DIR = FIRMWARE_DIR / "ports" / "avr"
 AVR_MCU = "atmega328p"
 AVR_F_CPU_HZ = 16_000_000
 AVR_CFLAGS = (f"-mmcu={AVR_MCU}", f"-DF_CPU={AVR_F_CPU_HZ}UL", "-Os", "-std=c99", "-pedantic", "-Wall", "-Wextra",
-              "-Wconversion", "-Werror", "-DHBP_MAX_ADC=3u", "-DHBP_MAX_TELEMETRY=3u")
+              "-Wconversion", "-Werror", "-DHBP_MAX_ADC=3u", "-DHBP_MAX_TELEMETRY=3u", "-DHBP_MAX_EDGES=3u")
 
 
 def build_avr(variant: Variant = "seed", defines: tuple[str, ...] = ()) -> Path:

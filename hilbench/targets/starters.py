@@ -209,15 +209,30 @@ class HostExecutableStarter:
         return start_process([str(exe), *self.args(options), "--ready", host_tty], f"sil:{self.name}")
 
 
+def build_folder(kind: str, folder: Path, goal: str, pattern: str) -> Path:
+    """A firmware folder with a Makefile on firmware/runtime/firmware.mk: `make -C FOLDER GOAL` (make
+    decides what is stale), then the one file of ``pattern`` in its build/."""
+    make = need_tool(kind, "make", "make")
+    run_build(kind, str(folder), [make, "-s", "-C", str(folder), goal])
+    found = sorted((folder / "build").glob(pattern))
+    if len(found) != 1:
+        raise ConfigError(f"{kind}:{folder}: `make {goal}` left {len(found)} files {pattern} in {folder / 'build'} "
+                          "(a folder on firmware/runtime/firmware.mk leaves one)")
+    return found[0]
+
+
 def sil_path_starter(path: str) -> HostExecutableStarter:
-    """`sil:PATH`: an executable built with a hilbench host port (firmware/runtime/ports/host)."""
-    exe = Path(path).expanduser()
+    """`sil:PATH`: an executable built with a hilbench host port (firmware/runtime/ports/host), or a
+    firmware folder whose Makefile includes firmware/runtime/firmware.mk (`make sil` builds it)."""
+    where = Path(path).expanduser()
 
     def build(options: object) -> Path:
-        if not exe.is_file() or not os.access(exe, os.X_OK):
-            raise ConfigError(f"sil:{path}: no executable there (build the firmware's host port first, "
-                              "e.g. make -C firmware/template)")
-        return exe
+        if where.is_dir() and (where / "Makefile").is_file():
+            return build_folder("sil", where, "sil", "*_sil")
+        if not where.is_file() or not os.access(where, os.X_OK):
+            raise ConfigError(f"sil:{path}: no executable there and no firmware folder with a Makefile (build the "
+                              "firmware's host port first, e.g. make -C firmware/template)")
+        return where
 
     return HostExecutableStarter(build, name=str(path))
 
@@ -255,13 +270,17 @@ class SimavrStarter:
 
 
 def simavr_path_starter(path: str) -> SimavrStarter:
-    """`simavr:PATH`: an ATmega328P ELF built with a hilbench AVR port (16 MHz, USART0 at 250 kbaud)."""
-    elf = Path(path).expanduser()
+    """`simavr:PATH`: an ATmega328P ELF built with a hilbench AVR port (16 MHz, USART0 at 250 kbaud), or
+    a firmware folder on firmware/runtime/firmware.mk (`make avr` builds it)."""
+    where = Path(path).expanduser()
 
     def build(options: object) -> Path:
-        if not elf.is_file():
-            raise ConfigError(f"simavr:{path}: no ELF there (build the firmware's AVR port first)")
-        return elf
+        if where.is_dir() and (where / "Makefile").is_file():
+            return build_folder("simavr", where, "avr", "*_avr.elf")
+        if not where.is_file():
+            raise ConfigError(f"simavr:{path}: no ELF there and no firmware folder with a Makefile (build the "
+                              "firmware's AVR port first, e.g. make -C firmware/template avr)")
+        return where
 
     return SimavrStarter(build, name=str(path))
 
@@ -301,6 +320,7 @@ __all__ = [
     "PATH_STARTERS",
     "SimavrStarter",
     "Started",
+    "build_folder",
     "build_run_simavr",
     "cache_root",
     "cached_build",

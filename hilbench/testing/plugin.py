@@ -90,6 +90,11 @@ def pytest_configure(config: pytest.Config) -> None:
         "(speed_loop, realtime, fault_injection, tuning, hall_sensors, link, board, emulator, inprocess) "
         "or runs another firmware (the name its HELLO carries)",
     )
+    config.addinivalue_line(
+        "markers",
+        "hil_conformance: a check of the conformance suite (pytest --pyargs hilbench.testing.conformance "
+        "--hil-target SPEC)",
+    )
     targets = list(config.getoption("hil_target") or []) or _split_specs(os.environ.get(TARGET_ENV, ""))
     config_path = config.getoption("hil_config") or os.environ.get(CONFIG_ENV) or None
     record = config.getoption("hil_record")

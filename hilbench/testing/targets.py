@@ -109,9 +109,11 @@ def check_spec(spec: str) -> None:
     from hilbench.link import parse_target_spec
     from hilbench.targets.registry import get_profile
 
+    from hilbench.targets.starters import FIRMWARE_KINDS
+
     parsed = parse_target_spec(spec)
-    if parsed.kind in ("inprocess", "emulator", "sil"):
-        get_profile(parsed.name)
+    if parsed.kind in ("inprocess", "emulator") or (parsed.kind in FIRMWARE_KINDS and not parsed.program):
+        get_profile(parsed.name)  # a build at a path (sil:PATH, simavr:PATH, qemu:PATH) describes itself
 
 
 def hello_text(hello: "TargetHello") -> str:

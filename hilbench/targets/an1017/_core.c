@@ -17,7 +17,6 @@
 
 #include "an1017.h"
 
-#define EDGE_NONE 0xFFFF
 #define SPAN_MAX_TCY 0x40000000LL /* the runtime counts a span in 32 bits: longer ones are cut */
 
 static PyTypeObject *drive_type = NULL;
@@ -35,37 +34,102 @@ typedef struct {
     char span_last;       /* the last step was the C span's: last_seq has a Drive, not yet built */
 } Core;
 
-/* One span of the runtime: the Sensors' levels at its start, the hall change at its edge (at its
- * start without one), as the wire's Sensors with one edge. */
-static void one_span(an1017_t *fw, uint32_t duration, uint8_t in, int have_edge, uint32_t off, int have_pot,
+#define MAX_SPAN_EDGES 64 /* edges of one span in process (a wire Sensors carries at most 16) */
+
+typedef struct {
+    long long offset; /* Tcy from the span's start */
+    uint8_t lines;
+} span_edge_t;
+
+/* The edges an argument names: None (none), an offset in Tcy (the halls of `inputs` change then: the
+ * older one-edge form), or a sequence of (time, lines) pairs, time x scale Tcy (Sensors.edges: 2 Tcy
+ * per 100 ns). Returns the count, -1 with an exception. */
+static int edges_of(PyObject *obj, long inputs, long long scale, span_edge_t *out)
+{
+    if (obj == Py_None) {
+        return 0;
+    }
+    if (PyLong_Check(obj)) {
+        long long off = PyLong_AsLongLong(obj);
+        if (off == -1 && PyErr_Occurred()) return -1;
+        out[0].offset = off;
+        out[0].lines = (uint8_t)(inputs & HRT_IN_HALLS);
+        return 1;
+    }
+    PyObject *seq = PySequence_Fast(obj, "an1017 core: edges must be a sequence of (time, lines) pairs");
+    if (seq == NULL) return -1;
+    Py_ssize_t n = PySequence_Fast_GET_SIZE(seq);
+    if (n > MAX_SPAN_EDGES) {
+        Py_DECREF(seq);
+        PyErr_Format(PyExc_ValueError, "an1017 core: %zd edges in one span (at most %d)", n, MAX_SPAN_EDGES);
+        return -1;
+    }
+    for (Py_ssize_t i = 0; i < n; i++) {
+        PyObject *pair = PySequence_Fast_GET_ITEM(seq, i);
+        if (!PyTuple_Check(pair) || PyTuple_GET_SIZE(pair) != 2) {
+            Py_DECREF(seq);
+            PyErr_SetString(PyExc_TypeError, "an1017 core: an edge is a (time, lines) pair");
+            return -1;
+        }
+        long long t = PyLong_AsLongLong(PyTuple_GET_ITEM(pair, 0));
+        long lines = PyLong_AsLong(PyTuple_GET_ITEM(pair, 1));
+        if (PyErr_Occurred()) {
+            Py_DECREF(seq);
+            return -1;
+        }
+        out[i].offset = t * scale;
+        out[i].lines = (uint8_t)(lines & 0xFF);
+    }
+    Py_DECREF(seq);
+    return (int)n;
+}
+
+/* One span of the runtime (at most SPAN_MAX_TCY): the Sensors' levels at its start, each edge at its
+ * time (one beyond the span at its last Tcy), as the runtime's link serves a wire Sensors. */
+static void one_span(an1017_t *fw, uint32_t duration, uint8_t in, const span_edge_t *edges, int n, int have_pot,
                      uint16_t pot)
 {
     hrt_t *rt = &fw->rt;
     uint32_t start = rt->now;
-    hrt_span_begin(rt, in, (uint8_t)(have_edge != 0), 0u, &pot, (uint8_t)(have_pot != 0), 0u);
-    if (have_edge) {
-        hrt_span_edge(rt, start + (off >= duration ? duration - 1u : off), (uint8_t)(in & HRT_IN_HALLS));
+    uint8_t has_index = 0u;
+    int i;
+    for (i = 0; i < n; i++) {
+        has_index = (uint8_t)(has_index | (edges[i].lines & HRT_IN_INDEX));
+    }
+    hrt_span_begin(rt, in, (uint8_t)n, has_index, &pot, (uint8_t)(have_pot != 0), 0u);
+    for (i = 0; i < n; i++) {
+        long long off = edges[i].offset;
+        uint32_t at = (off <= 0) ? 0u : (off >= (long long)duration) ? duration - 1u : (uint32_t)off;
+        hrt_span_edge(rt, start + at, edges[i].lines);
     }
     hrt_span_end(rt, start + duration);
 }
 
-/* A span of any length from now: one runtime span per at most SPAN_MAX_TCY. The Sensors' FLTA bit
- * acts at the span's start only (as in one span); S2 and the halls are idempotent when repeated. */
-static void run_span(Core *s, long long duration, long inputs, int have_edge, long long edge, int have_pot, long pot)
+/* A span of any length from now: one runtime span per at most SPAN_MAX_TCY, each edge in the one it
+ * falls in. The Sensors' FLTA bit acts at the span's start only (as in one span); S2 and the halls are
+ * idempotent when repeated. */
+static void run_span(Core *s, long long duration, long inputs, span_edge_t *edges, int n, int have_pot, long pot)
 {
     uint8_t in = (uint8_t)(inputs & 0xFF);
-    uint32_t off = have_edge ? (uint32_t)(edge <= 0 ? 0 : edge > 0x7FFFFFFFLL ? 0x7FFFFFFFLL : edge) : 0u;
     if (duration <= 0) {
         return;
     }
     s->t += duration;
     while (duration > SPAN_MAX_TCY) {
-        one_span(&s->fw, (uint32_t)SPAN_MAX_TCY, in, have_edge, off, have_pot, (uint16_t)pot);
+        int k = 0;
+        while (k < n && edges[k].offset < SPAN_MAX_TCY) {
+            k++;
+        }
+        one_span(&s->fw, (uint32_t)SPAN_MAX_TCY, in, edges, k, have_pot, (uint16_t)pot);
+        for (int i = k; i < n; i++) {
+            edges[i].offset -= SPAN_MAX_TCY;
+        }
+        edges += k;
+        n -= k;
         duration -= SPAN_MAX_TCY;
         in = (uint8_t)(in & ~AN1017_INPUT_FAULT);
-        have_edge = 0;
     }
-    one_span(&s->fw, (uint32_t)duration, in, have_edge, off, have_pot, (uint16_t)pot);
+    one_span(&s->fw, (uint32_t)duration, in, edges, n, have_pot, (uint16_t)pot);
 }
 
 static PyObject *finish(Core *s, PyObject *seq)
@@ -138,11 +202,14 @@ static PyObject *Core_step(Core *s, PyObject *sensors)
         }
         return drive;
     }
+    span_edge_t edges[MAX_SPAN_EDGES];
+    PyObject *given = in.edges; /* Sensors.edges: (time in 100 ns, lines) pairs */
+    int n = (PyTuple_Check(given) && PyTuple_GET_SIZE(given) == 0) ? 0 : edges_of(given, in.inputs, 2, edges);
+    if (n < 0) return NULL;
     long pot = 0;
     int have_pot = 0;
     if (pot_of(in.adc, &pot, &have_pot) < 0) return NULL;
-    int have_edge = in.edge != EDGE_NONE;
-    run_span(s, s->period_tcy, in.inputs, have_edge, have_edge ? (long long)in.edge * 2 : 0, have_pot, pot);
+    run_span(s, s->period_tcy, in.inputs, edges, n, have_pot, pot);
     s->last_seq = in.seq_value;
     PyObject *drive = finish(s, in.seq);
     if (drive != NULL) {
@@ -165,9 +232,13 @@ static int span_step(PyObject *self, const hb_csensors_t *in, hb_cdrive_t *out)
         repeat = last == in->seq;
     }
     if (!repeat) {
-        int have_edge = in->edge != EDGE_NONE;
-        run_span(s, s->period_tcy, in->inputs, have_edge, have_edge ? (long long)in->edge * 2 : 0, in->n_adc > 0,
-                 in->n_adc > 0 ? in->adc[0] : 0);
+        span_edge_t edges[HB_SPAN_MAX_EDGES]; /* Sensors.edges as Core_step reads them: 2 Tcy per 100 ns */
+        int n = in->n_edges < HB_SPAN_MAX_EDGES ? in->n_edges : HB_SPAN_MAX_EDGES;
+        for (int i = 0; i < n; i++) {
+            edges[i].offset = (long long)in->edge_t[i] * 2;
+            edges[i].lines = (uint8_t)(in->edge_lines[i] & 0xFF);
+        }
+        run_span(s, s->period_tcy, in->inputs, edges, n, in->n_adc > 0, in->n_adc > 0 ? in->adc[0] : 0);
         s->last_seq = in->seq;
         Py_CLEAR(s->last_drive);
         s->span_last = 1;
@@ -200,7 +271,7 @@ static hb_target_api_t span_api = {span_step, span_drive};
 static PyObject *Core_run(Core *s, PyObject *const *args, Py_ssize_t nargs)
 {
     if (nargs != 4) {
-        PyErr_SetString(PyExc_TypeError, "an1017 core run(duration_tcy, inputs, edge_offset_tcy, pot_code)");
+        PyErr_SetString(PyExc_TypeError, "an1017 core run(duration_tcy, inputs, edges, pot_code)");
         return NULL;
     }
     long long duration = PyLong_AsLongLong(args[0]);
@@ -211,18 +282,16 @@ static PyObject *Core_run(Core *s, PyObject *const *args, Py_ssize_t nargs)
     }
     long inputs = PyLong_AsLong(args[1]);
     if (inputs == -1 && PyErr_Occurred()) return NULL;
-    long long edge = 0;
+    span_edge_t edges[MAX_SPAN_EDGES];
+    int n = edges_of(args[2], inputs, 1, edges); /* None, an offset in Tcy, or (offset in Tcy, lines) pairs */
+    if (n < 0) return NULL;
     long pot = 0;
-    int have_edge = args[2] != Py_None, have_pot = args[3] != Py_None;
-    if (have_edge) {
-        edge = PyLong_AsLongLong(args[2]);
-        if (edge == -1 && PyErr_Occurred()) return NULL;
-    }
+    int have_pot = args[3] != Py_None;
     if (have_pot) {
         pot = PyLong_AsLong(args[3]);
         if (pot == -1 && PyErr_Occurred()) return NULL;
     }
-    run_span(s, duration, inputs, have_edge, edge, have_pot, pot);
+    run_span(s, duration, inputs, edges, n, have_pot, pot);
     Py_RETURN_NONE;
 }
 
@@ -282,7 +351,14 @@ static PyObject *Core_apply_params(Core *s, PyObject *args)
         v[i] = (int32_t)x;
     }
     Py_DECREF(seq);
-    an1017_apply_params(&s->fw, v, (uint8_t)gains_touched);
+    /* a checked, complete set of declared values: the gains as one set when written, the others as
+     * they are (the same state as the firmware's own writes, id by id) */
+    if (gains_touched) {
+        an1017_set_gains(&s->fw, (int16_t)v[AN1017_PARAM_KP], (int16_t)v[AN1017_PARAM_KI], (int16_t)v[AN1017_PARAM_KD]);
+    }
+    for (uint8_t id = AN1017_PARAM_PH_ADV_ON; id < AN1017_N_PARAMS; id++) {
+        an1017_param_set(&s->fw, id, v[id]);
+    }
     Py_RETURN_NONE;
 }
 
@@ -493,7 +569,7 @@ static PyMemberDef Core_members[] = {
 static PyMethodDef Core_methods[] = {
     {"step", (PyCFunction)Core_step, METH_O, "step(sensors) -> Drive: one lockstep period of period_tcy."},
     {"run", (PyCFunction)(void (*)(void))Core_run, METH_FASTCALL,
-     "run(duration_tcy, inputs, edge_offset_tcy | None, pot_code | None): An1017Firmware.run."},
+     "run(duration_tcy, inputs, edges | edge_offset_tcy | None, pot_code | None): An1017Firmware.run."},
     {"finish", (PyCFunction)Core_finish, METH_O, "finish(seq) -> Drive for the current state."},
     {"press_start", (PyCFunction)Core_press_start, METH_NOARGS, "S2 while stopped: ChargeBootstraps, then RunMotor."},
     {"press_stop", (PyCFunction)Core_press_stop, METH_VARARGS, "press_stop(state=STOPPED, fault=NONE): StopMotor()."},

@@ -28,7 +28,7 @@ Where the AN1017 application note (Chinese edition) and the v1.1 firmware source
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Literal
+from typing import Literal, Sequence
 
 from hilbench.errors import ConfigError
 from hilbench.targets.an1017.fixedpoint import divf, float_to_q15, sat16, wrap16
@@ -514,21 +514,30 @@ class An1017Firmware:
             self.press_stop(STATE_FAULT, FAULT_OVERCURRENT)
 
     # ---- the step function -------------------------------------------------------------------
-    def run(self, duration_tcy: int, inputs: int, edge_offset_tcy: int | None, pot_code: int | None) -> None:
-        """Advance by duration_tcy with these inputs; halls change at edge_offset_tcy (None = at 0)."""
+    def run(self, duration_tcy: int, inputs: int, edges: "int | None | Sequence[tuple[int, int]]",
+            pot_code: int | None) -> None:
+        """Advance by duration_tcy with these inputs. The halls change at `edges`: None, at the span's
+        start if `inputs` differ from them; an offset in Tcy, then; or (protocol 3) a sequence of
+        (offset_tcy, hall bits), each edge at its time (none: as None). Offsets beyond the span are
+        served at its last Tcy; an edge listed out of order at the one before it."""
         if pot_code is not None:
             self.pot_code = pot_code
         self._main_loop_buttons(inputs)
         self._flta(inputs)
         t = self.t
         t_end = t + duration_tcy
-        new_hall = inputs & 7
-        edge_at = -1
-        if new_hall != self.hall:
-            off = 0 if edge_offset_tcy is None else edge_offset_tcy
-            if off >= duration_tcy:
-                off = duration_tcy - 1
-            edge_at = t + (off if off > 0 else 0)
+        pending: list[tuple[int, int]] = []
+        if edges is None or isinstance(edges, int) or not edges:
+            if inputs & 7 != self.hall and duration_tcy > 0:
+                pending.append((0 if not isinstance(edges, int) else edges, inputs & 7))
+        else:
+            pending = [(off, bits & 7) for off, bits in edges]
+        last = 0
+        for i, (off, bits) in enumerate(pending):  # clamped to the span, in time order
+            off = max(last, min(max(off, 0), duration_tcy - 1))
+            pending[i] = (t + off, bits)
+            last = off
+        pending.reverse()  # the next edge at the end: pop() it
         while True:
             nxt = t_end
             kind = 0
@@ -536,13 +545,13 @@ class An1017Firmware:
                 nxt, kind = self.t1_next, 1
             if self.booting and self.boot_end < nxt:
                 nxt, kind = self.boot_end, 2
-            if edge_at >= 0 and edge_at < nxt:
-                nxt, kind = edge_at, 3
+            if pending and pending[-1][0] < nxt:
+                nxt, kind = pending[-1][0], 3
             # PWM boundaries b·1000 with t ≤ b·1000 < nxt
             first = -(-t // PWM_PERIOD_TCY)
-            last = -(-nxt // PWM_PERIOD_TCY)
-            if last > first:
-                self._pwm_run(first, last - first)
+            last_b = -(-nxt // PWM_PERIOD_TCY)
+            if last_b > first:
+                self._pwm_run(first, last_b - first)
             t = nxt
             if kind == 0:
                 break
@@ -552,6 +561,5 @@ class An1017Firmware:
             elif kind == 2:
                 self._run_motor()
             else:
-                edge_at = -1
-                self._apply_hall(new_hall, nxt)
+                self._apply_hall(pending.pop()[1], nxt)
         self.t = t_end

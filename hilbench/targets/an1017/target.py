@@ -47,7 +47,6 @@ from hilbench.protocol import (
     Access,
     AdcRole,
     Drive,
-    Edge,
     ErrorCode,
     HostHello,
     ParamInfo,
@@ -58,11 +57,14 @@ from hilbench.protocol import (
     Sensors,
     Status,
     TargetHello,
+    TargetInfo,
     TelemetryId,
+    TelemetryInfo,
 )
+from hilbench.protocol import DUTY_NEXT_PERIOD, INPUT_FAULT, INPUT_HALL_A, INPUT_HALL_B, INPUT_HALL_C, INPUT_S2, MAX_EDGES, REPORT_WRITTEN
+from hilbench.targets.an1017.firmware import PERIOD_X_RPM_X_POLE_PAIRS
 
 # plain ints of the protocol constants (IntEnum members are slower in the per-period path)
-EDGE_NONE = int(Edge.NONE)
 PTYPE_Q15, PTYPE_INT, PTYPE_BOOL = int(ParamType.Q15), int(ParamType.INT), int(ParamType.BOOL)
 ACCESS_RO, ACCESS_RW = int(Access.RO), int(Access.RW)
 RESULT_OK = int(Result.OK)
@@ -83,8 +85,15 @@ _tuple_new = tuple.__new__  # Drive is a NamedTuple: this skips its Python-level
 if Drive._fields[1:4] != ("duty_a", "duty_b", "duty_c") or len(Drive._fields) != 11:
     # _finish builds Drives from positional tuples: a changed message must not go unnoticed
     raise ConfigError(f"an1017: Drive fields changed to {Drive._fields}; update the tuple layout in an1017.py")
-if Sensors._fields != ("seq", "inputs", "edge_time_100ns", "encoder", "adc"):
+if Sensors._fields != ("seq", "inputs", "edges", "encoder", "adc"):
     raise ConfigError(f"an1017: Sensors fields changed to {Sensors._fields}; update the unpacking in step()")
+
+
+
+def edges_tcy(edges: Any) -> "tuple[tuple[int, int], ...] | None":
+    """Sensors.edges (time in 100 ns, lines) as the firmware's (offset in Tcy, hall bits); None for none."""
+    return tuple((t << 1, lines) for t, lines in edges) if edges else None
+
 
 # declared parameters (the board firmware's table, firmware/an1017)
 PARAM_KP, PARAM_KI, PARAM_KD = 0, 1, 2
@@ -108,6 +117,9 @@ PARAMS: dict[int, tuple[str, int, int, int, int]] = {
 GAIN_PARAMS = (PARAM_KP, PARAM_KI, PARAM_KD)
 #: the gains each of the application note's constraints involves (the written one is named)
 CONSTRAINT_GAINS = {1: (PARAM_KP, PARAM_KI, PARAM_KD), 2: (PARAM_KP, PARAM_KD), 3: (PARAM_KD,)}
+#: the firmware's self-description (an1017.c's hrt_firmware; tests/test_firmware_sil.py compares them)
+INPUTS_READ = INPUT_HALL_A | INPUT_HALL_B | INPUT_HALL_C | INPUT_S2 | INPUT_FAULT
+TELEMETRY_DECL = (("ref_speed", "rpm"), ("measured_speed", "rpm"), ("control_output", "q15"))
 
 __all__ = [
     "An1017Target",
@@ -228,6 +240,24 @@ class An1017Target:
         """The declaration of one parameter; an unknown id raises ParamError."""
         return self.params.describe(param_id)
 
+    def describe_target(self) -> TargetInfo:
+        """The PWM's reload at the next period (PWMCON2.IUE = 0), the Drive's duties as written, the
+        halls, S2 and FLTA read, no encoder; any number of edges in process."""
+        return TargetInfo(0, DUTY_NEXT_PERIOD, REPORT_WRITTEN, INPUTS_READ, 0, MAX_EDGES)
+
+    def describe_telemetry(self, index: int) -> TelemetryInfo | None:
+        """Slot ``index`` of Drive.telemetry: the speeds in rpm (one Q15 step is 9 375 000 / (pole pairs
+        x (MINPERIOD - 1) x 32768) rpm for this build), the PID's output as Q15."""
+        if not 0 <= index < len(TELEMETRY_DECL):
+            return None
+        name, unit = TELEMETRY_DECL[index]
+        if unit == "rpm":
+            min_period, _ = build_periods(self.options.pole_pairs, self.options.max_speed_rpm)
+            num, den = PERIOD_X_RPM_X_POLE_PAIRS, self.options.pole_pairs * (min_period - 1) * 32768
+        else:
+            num, den = 1, 1
+        return TelemetryInfo(0, index, TELEMETRY_IDS[index], PTYPE_Q15, num, den, name, unit)
+
     def get_param(self, param_id: int) -> ParamValue:
         """Read one parameter; result UNKNOWN_ID for an undeclared id."""
         return self.params.get(param_id)
@@ -299,9 +329,9 @@ class An1017Target:
 
     def _step_new(self, sensors: Sensors) -> Drive:
         """One new period (not a repeat)."""
-        seq, inputs, edge, _, adc = sensors
+        seq, inputs, edges, _, adc = sensors
         self._last_seq = seq
-        self.fw.run(self._period_tcy, inputs, None if edge == EDGE_NONE else edge << 1, adc[0] if adc else None)
+        self.fw.run(self._period_tcy, inputs, edges_tcy(edges) if edges else None, adc[0] if adc else None)
         return self._finish(seq)
 
     def _forget_repeat(self) -> None:
@@ -312,10 +342,9 @@ class An1017Target:
         total = duration_us * TCY_PER_US + self._frac_tcy
         tcy = int(total)
         self._frac_tcy = total - tcy
-        edge = sensors.edge_time_100ns
         adc = sensors.adc
         if tcy > 0:
-            self.fw.run(tcy, sensors.inputs, None if edge == EDGE_NONE else edge << 1, adc[0] if adc else None)
+            self.fw.run(tcy, sensors.inputs, edges_tcy(sensors.edges), adc[0] if adc else None)
         self._last_seq = sensors.seq
         return self._finish(sensors.seq)
 

@@ -354,14 +354,21 @@ if _core is not None:
         qep = property(lambda self: _View(self, "qep_"))
         speed = property(lambda self: _View(self, "sp_"))
 
-    class _CoreRepeat:
-        """The kit's RepeatAnswer where the C core keeps the last Drive: forgetting it clears it."""
+    class _CoreRepeat(RepeatAnswer):
+        """The kit's answer to a repeated seq as the C step keeps it (the core's last_drive, as the AN1017
+        core does): forget() clears it there."""
 
-        def __init__(self, fw: Any) -> None:
-            self.fw = fw
+        __slots__ = ("core",)
+
+        def __init__(self, core: Any) -> None:
+            super().__init__(core.step)
+            self.core = core
+
+        def step(self, sensors: Sensors) -> Drive:
+            return self.core.step(sensors)  # type: ignore[no-any-return]
 
         def forget(self) -> None:
-            self.fw.last_drive = None
+            self.core.last_drive = None
 
     class _CFocTarget(FocTarget):
         """FocTarget on the compiled firmware: `step` is the C method of `fw` itself; the half
@@ -371,8 +378,8 @@ if _core is not None:
 
         def __init__(self, options: FocOptions = FocOptions(), *, backend: str | None = None) -> None:
             super().__init__(options, backend=backend)
-            self._repeat = _CoreRepeat(self.fw)  # the C step answers a repeated seq itself (as AN1017's core)
-            self.step = self.fw.step  # type: ignore[method-assign]
+            self._repeat = _CoreRepeat(self.fw)  # the C step answers a repeat itself (its last_drive)
+            self.step = self.fw.step  # type: ignore[method-assign]  # no Python frame per exchange
 
         def span_core(self) -> tuple[Any, Any]:
             """The C step the session's C span runs: (hbglue.h's target capsule, the core whose

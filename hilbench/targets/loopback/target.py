@@ -8,7 +8,7 @@ in firmware_protocol/PROTOCOL.md, so a test can assert every field of every Driv
   another rising S2 stops);
 - sector from the hall bits C B A by AN1017 Table 8 (001->4, 010->2, 011->3, 100->0, 101->5,
   110->1, 000/111 -> 7 invalid); direction_ccw = S3 input; required_ccw False; fault 0;
-- telemetry = (encoder as int16, edge_time_100ns as int16, seq).
+- telemetry = (encoder as int16, the first edge's time (100 ns) as int16, -1 without one, seq).
 Parameters: 0 "kp" Q15 RW [0, 32767] = 3277, 1 "ki" Q15 RW [0, 32767] = 328, 2 "version" INT
 RO = 1; constraint 1: kp + ki <= 32767 (else CONSTRAINT, param_id 0, detail 1).
 """
@@ -48,7 +48,10 @@ from hilbench.protocol import (
     Sensors,
     Status,
     TargetHello,
+    TargetInfo,
+    TelemetryInfo,
 )
+from hilbench.protocol import DUTY_IMMEDIATE, INPUT_HALL_A, INPUT_HALL_B, INPUT_HALL_C, MAX_EDGES, REPORT_WRITTEN
 
 FIRMWARE_NAME: Final = "loopback"
 FIRMWARE_VERSION: Final = 1
@@ -110,6 +113,18 @@ class LoopbackTarget:
         return TargetHello(host.seq, PROTOCOL_VERSION, SCHEMA_FINGERPRINT, FIRMWARE_VERSION, PWM_PERIOD_COUNTS,
                            PWM_FREQ_HZ, len(self.params), 10, FIRMWARE_NAME, ADC_ROLES, TELEMETRY_IDS)  # 10-bit ADC
 
+    def describe_target(self) -> TargetInfo:
+        """As the C loopback: duties at once and as written, halls and the buttons, no encoder."""
+        return TargetInfo(0, DUTY_IMMEDIATE, REPORT_WRITTEN,
+                          INPUT_HALL_A | INPUT_HALL_B | INPUT_HALL_C | INPUT_S2 | INPUT_S3, 0, MAX_EDGES)
+
+    def describe_telemetry(self, index: int) -> TelemetryInfo | None:
+        """The echoes as the C loopback names them: raw int16 values."""
+        if not 0 <= index < len(TELEMETRY_IDS):
+            return None
+        name, unit = (("echo_encoder", "counts"), ("echo_edge", "100ns"), ("echo_seq", ""))[index]
+        return TelemetryInfo(0, index, TELEMETRY_IDS[index], PTYPE_INT, 1, 1, name, unit)
+
     def describe(self, param_id: int) -> ParamInfo:
         return self.params.describe(param_id)
 
@@ -156,7 +171,7 @@ class LoopbackTarget:
             bool(inputs & INPUT_S3),
             False,
             FAULT_NONE,
-            (_int16(sensors.encoder), _int16(sensors.edge_time_100ns), sensors.seq),
+            (_int16(sensors.encoder), _int16(sensors.edges[0][0]) if sensors.edges else -1, sensors.seq),
         )
 
     def advance(self, duration_us: float, sensors: Sensors) -> Drive:

@@ -46,7 +46,7 @@ static hrt_link_t host_link;
 
 /* ---------------------------------------------------------------------------- the port */
 
-void hrt_port_send(const uint8_t *wire, uint8_t len)
+void hrt_port_send(const hbp_u8 *wire, hbp_u8 len)
 {
     unsigned i;
     for (i = 0u; i < len; i++) {
@@ -74,7 +74,7 @@ void hrt_port_unlock(void)
     IER = saved_ier;
 }
 
-uint8_t hrt_port_timer(uint8_t id, uint8_t on, uint32_t first_ticks)
+hbp_u8 hrt_port_timer(hbp_u8 id, hbp_u8 on, uint32_t first_ticks)
 {
     (void)id;
     (void)on;
@@ -82,7 +82,7 @@ uint8_t hrt_port_timer(uint8_t id, uint8_t on, uint32_t first_ticks)
     return 0u; /* the firmware declares no timers */
 }
 
-void hrt_port_realtime(uint8_t on)
+void hrt_port_realtime(hbp_u8 on)
 {
     EvaRegs.EVAIFRA.all = EVA_T1UFINT | EVA_T1PINT;
     EvaRegs.EVAIFRC.all = EVA_CAP3INT;
@@ -138,7 +138,7 @@ interrupt void isr_index(void)
 interrupt void isr_sci_rx(void)
 {
     while (SciaRegs.SCIFFRX.bit.RXFFST != 0u) {
-        (void)hrt_link_rx_byte(&host_link, (uint8_t)(SciaRegs.SCIRXBUF.all & 0xFFu));
+        (void)hrt_link_rx_byte(&host_link, (hbp_u8)(SciaRegs.SCIRXBUF.all & 0xFFu));
     }
     SciaRegs.SCIFFRX.bit.RXFFOVRCLR = 1u;
     SciaRegs.SCIFFRX.bit.RXFFINTCLR = 1u;

@@ -4,7 +4,7 @@
  * hrt_firmware_init().
  *
  * USART0 at F_CPU / (8 * (UBRR0 + 1)) with U2X0 (16 MHz, UBRR0 = 7: 250 000 baud, exact, the same
- * rate as the dsPIC30F2010 port). Its RX-complete interrupt feeds the receive state machine; the
+ * rate as the dsPIC30F2010 port; -DHRT_AVR_UBRR=1u: 1 000 000 baud). Its RX-complete interrupt feeds the receive state machine; the
  * main loop handles a complete frame and writes the reply by polling UDRE0. Timer1 (clk/8, 2 MHz)
  * with an overflow count is the free-running clock of real-time mode and the watchdog; its overflow
  * interrupt (every 32.8 ms) also wakes the sleeping main loop, so the watchdog is checked while no
@@ -19,12 +19,22 @@
 #ifndef F_CPU
 #define F_CPU 16000000UL
 #endif
-#define UART_UBRR 7u /* 250 000 baud with U2X0 at 16 MHz */
+#ifndef HRT_AVR_UBRR
+#define HRT_AVR_UBRR 7u /* 250 000 baud with U2X0 at 16 MHz (1u: 1 000 000 baud) */
+#endif
+#define UART_UBRR HRT_AVR_UBRR
+/* USART0's receive interrupt: USART_RX_vect on the ATmega328P, USART0_RX_vect on the ATmega1284P and
+ * ATmega2560 */
+#if defined(USART0_RX_vect)
+#define HRT_AVR_RX_VECT USART0_RX_vect
+#else
+#define HRT_AVR_RX_VECT USART_RX_vect
+#endif
 
 static hrt_link_t host_link;
 static volatile uint16_t timer1_overflows;
 
-ISR(USART_RX_vect)
+ISR(HRT_AVR_RX_VECT)
 {
     (void)hrt_link_rx_byte(&host_link, UDR0);
 }
