@@ -115,3 +115,18 @@ def test_the_pytest_module_runs_on_a_target() -> None:
                              "hil_conformance"], capture_output=True, text=True, timeout=300, cwd=REPO_ROOT / "docs")
     assert result.returncode == 0, result.stdout + result.stderr
     assert f"{len(CHECKS)} passed" in result.stdout
+
+
+@pytest.mark.parametrize("spec", ["emulator:an1017", "sil:an1017"])
+def test_a_stop_disarms_the_watchdog(spec: str) -> None:
+    """A host that ends cleanly (Stop) and leaves is no host gone: no watchdog trip after it (the trip
+    left a FAULT the next session started in, failing its no_fault check); the C runtime and the
+    Python server alike."""
+    from hilbench.bench.conformance import Connection, check_stop_disarms_watchdog
+
+    _require_tools(spec)
+    conn = Connection(spec)
+    try:
+        assert "no trip" in check_stop_disarms_watchdog(conn.wire)
+    finally:
+        conn.close()

@@ -497,6 +497,9 @@ void hrt_link_handle(hrt_link_t *l, const hbp_u8 *frame, hbp_u8 len)
         hrt_port_lock();
         hrt_firmware.stop(rt, HRT_STOP_COMMAND);
         hrt_port_unlock();
+        /* the host stopped the outputs and may now leave: the watchdog waits for its next Sensors
+         * (a trip after a clean end would leave a FAULT the next session starts in) */
+        l->flags = (hbp_u8)(l->flags & (hbp_u8)~HRT_LINK_F_SENSORS);
         break;
     case HBP_MSG_STATUS_REQUEST:
         on_status(l, seq);

@@ -354,6 +354,24 @@ def check_stop_start(w: Wire) -> str:
     return f"outputs on {started * w.period_us} us after Start, off at the first period after Stop"
 
 
+def check_stop_disarms_watchdog(w: Wire) -> str:
+    """A host that stops the outputs and leaves is no host gone: no watchdog trip after its Stop (a
+    trip would leave a FAULT the next session starts in); the next Sensors arms it again."""
+    watchdog_ms = 200
+    w.handshake(MODE_REALTIME, watchdog_ms)
+    trips0 = w.status().watchdog_trips
+    w.link.send(Start(w.next_seq()))
+    for _ in range(20):
+        w.period()
+    w.link.send(Stop(w.next_seq()))
+    quiet_s = 3 * watchdog_ms / 1000
+    tripped = [m for m in w.silence(quiet_s) if type(m) is Drive and m.fault == FAULT_WATCHDOG]
+    _require(not tripped, f"the watchdog tripped after the host's Stop: {tripped[0] if tripped else ''}")
+    trips = w.status().watchdog_trips
+    _require(trips == trips0, f"Status.watchdog_trips {trips0} -> {trips} after a Stop")
+    return f"no trip in {quiet_s * 1000:.0f} ms after a Stop (watchdog {watchdog_ms} ms)"
+
+
 def check_watchdog(w: Wire, mode: int) -> str:
     watchdog_ms = 200
     w.handshake(mode, watchdog_ms)

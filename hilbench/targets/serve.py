@@ -156,7 +156,9 @@ class _Server:
         self.target.start()
 
     def on_stop(self, msg: Stop) -> None:
+        """The host stopped the outputs and may now leave: the watchdog waits for its next Sensors."""
         self.target.stop()
+        self.last_sensors_t = None
 
     def on_status(self, msg: StatusRequest) -> None:
         own = self.target.status()
