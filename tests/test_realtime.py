@@ -86,6 +86,24 @@ def test_a_stall_past_whole_periods_skips_them_holding_the_drive(tmp_path: Path)
     # the plant kept to the wall clock: one row per period, no gaps
     assert list(data.columns["seq"]) == list(range(summary.periods))
     assert summary.as_dict()["skipped_periods"] == summary.skipped_periods
+    # the longest run of skipped periods is at least this stall's three (the machine may add longer ones)
+    runs = np.split(skipped_rows, np.flatnonzero(np.diff(skipped_rows) != 1) + 1) if len(skipped_rows) else []
+    longest = max(runs, key=len)
+    assert summary.longest_stall_periods == len(longest) >= 3
+    assert summary.longest_stall_at_s == pytest.approx(data.columns["t_s"][longest[0]])
+
+
+def test_a_stall_of_two_hall_sectors_is_real_time_not_held() -> None:
+    """Few overruns in all, but one stall that held the Drive for two hall sectors or more: the
+    firmware drove 120 degrees behind the rotor, so the run is not a real-time one from there."""
+    from hilbench.bench.feasibility import overrun_warning
+
+    sector_s = 60.0 / (2500.0 * 5 * 6)  # 800 us: 2500 rpm, 5 pole pairs, 6 hall edges an electrical turn
+    text = overrun_warning(3750, 23, stall_periods=6, stall_at_s=1.8, period_us=800, sector_s=sector_s)
+    assert text is not None and text.startswith("real time NOT held: the host stalled 6 periods in a row at 1.800 s")
+    assert "6.0 hall sectors" in text
+    assert overrun_warning(3750, 23, stall_periods=1, stall_at_s=1.8, period_us=800, sector_s=sector_s) is None
+    assert overrun_warning(3750, 23, stall_periods=6, stall_at_s=1.8, period_us=800, sector_s=None) is None
 
 
 def test_abort_policy_stops_after_consecutive_overruns(tmp_path: Path) -> None:

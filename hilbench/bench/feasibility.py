@@ -78,12 +78,34 @@ def check_run(cfg: BenchConfig, events: tuple = ()) -> list[str]:
     return warnings
 
 
-def overrun_warning(periods: int, overruns: int, limit: float = 0.05) -> str | None:
-    """After a real-time run: say so when real time was not held."""
-    if periods <= 0 or overruns / periods <= limit:
+def hall_sector_s(cfg: BenchConfig) -> float | None:
+    """The time one hall sector takes at the scenario's fastest reference (None: no reference)."""
+    from hilbench.bench import settings
+
+    refs = [abs(e.ref_rpm) for e in settings.scenario_events(cfg) if getattr(e, "ref_rpm", None)]
+    if not refs:
+        return None
+    return 60.0 / (max(refs) * cfg.motor.pole_pairs * HALL_EDGES_PER_ELECTRICAL_REV)
+
+
+def overrun_warning(periods: int, overruns: int, limit: float = 0.05, *, stall_periods: int = 0,
+                    stall_at_s: float = 0.0, period_us: int = 0, sector_s: float | None = None) -> str | None:
+    """After a real-time run: say so when real time was not held: too many overruns, or one stall in
+    which the Drive was held (no exchange) for two hall sectors or more at the scenario's top speed:
+    the firmware then drives 120 degrees or more behind the rotor, which brakes it and can trip the
+    overcurrent limit however few periods overran in all."""
+    if periods <= 0:
+        return None
+    stall_s = stall_periods * Period(period_us).s if period_us > 0 else 0.0
+    if sector_s is not None and stall_periods > 0 and stall_s >= 2.0 * sector_s:
+        return (f"real time NOT held: the host stalled {stall_periods} periods in a row at {stall_at_s:.3f} s "
+                f"({stall_s * 1e3:.1f} ms with the Drive held, {stall_s / sector_s:.1f} hall sectors at the "
+                f"scenario's top speed); the recording is not a real-time run from there (a less loaded host, "
+                f"or --mode lockstep)")
+    if overruns / periods <= limit:
         return None
     return (f"real time NOT held: {overruns} of {periods} periods ({100.0 * overruns / periods:.1f} %) overran "
             f"their slot; the recording is not a real-time run (try a longer link.period_us)")
 
 
-__all__ = ["check_run", "overrun_warning"]
+__all__ = ["check_run", "hall_sector_s", "overrun_warning"]

@@ -36,6 +36,9 @@ class RealtimePacing:
         self.overruns = 0
         self.consecutive = 0
         self.skipped = 0
+        self.stall = 0  # skipped periods in a row so far
+        self.longest_stall = 0  # the most skipped periods in a row (the Drive held that long)
+        self.longest_stall_k = 0  # the first period of that stall
         self.rtt = 0.0
         self.late = 0.0
         self.marker = 0
@@ -51,9 +54,13 @@ class RealtimePacing:
         self.lateness.append(late)
         if late >= self.period_s and drive is not None:
             self.skipped += 1
+            self.stall += 1
+            if self.stall > self.longest_stall:
+                self.longest_stall, self.longest_stall_k = self.stall, k + 1 - self.stall
             self.rtt = 0.0
             self.marker = MARKER_SKIPPED
             return drive
+        self.stall = 0
         sent = time.perf_counter()
         drive = step(sensors)
         self.rtt = time.perf_counter() - sent

@@ -73,7 +73,7 @@ def run_bench(
 ) -> Summary:
     """Run the bench described by ``cfg`` with its scenario; raises HilbenchError kinds on faults.
     ``warn`` gets the warnings (impossible-looking settings, real time over a network) before the run."""
-    from hilbench.bench.feasibility import check_run, overrun_warning
+    from hilbench.bench.feasibility import check_run, hall_sector_s, overrun_warning
 
     warnings = check_run(cfg)  # impossible settings raise here, before anything is opened
     bench = Bench(cfg, record=record, scenario=True, observer=observer, control=control, keep_rows=False)
@@ -100,7 +100,10 @@ def run_bench(
 
             summary.checks = run_checks(cfg.check, summary, bench.signals)
     assert summary is not None
-    summary.warnings = warnings + [w for w in [overrun_warning(summary.periods, summary.overruns)] if w]
+    held = overrun_warning(summary.periods, summary.overruns, stall_periods=summary.longest_stall_periods,
+                           stall_at_s=summary.longest_stall_at_s, period_us=cfg.link.period_us,
+                           sector_s=hall_sector_s(cfg))
+    summary.warnings = warnings + [w for w in [held] if w]
     return summary
 
 

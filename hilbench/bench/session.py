@@ -795,6 +795,8 @@ class Session:
             summary.lateness_us = pacing.lateness.percentiles(1e6)
             summary.overruns = pacing.overruns
             summary.skipped_periods = pacing.skipped
+            summary.longest_stall_periods = pacing.longest_stall
+            summary.longest_stall_at_s = pacing.longest_stall_k * pacing.period_s
         summary.link = self.link_stats()
         if self.recorder is not None:
             self.recorder.event(segmentation.end_event(summary.sim_s))

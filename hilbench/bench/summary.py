@@ -44,6 +44,9 @@ class Summary:
     overruns: int = 0
     #: overruns in which the host was a whole period late, so no exchange took place (Drive held)
     skipped_periods: int = 0
+    #: the most periods skipped in a row (the Drive held, the firmware without sensors) and when it began
+    longest_stall_periods: int = 0
+    longest_stall_at_s: float = 0.0
     #: real time: whether idle CPUs were kept awake (the PM QoS request), or why not
     cpu_latency: str = ""
     #: real time: which CPU the host loop and the emulator process shared (set by bench.run)
@@ -98,6 +101,8 @@ class Summary:
             "lateness_us": self.lateness_us,
             "overruns": self.overruns,
             "skipped_periods": self.skipped_periods,
+            "longest_stall_periods": self.longest_stall_periods,
+            "longest_stall_at_s": self.longest_stall_at_s,
             "cpu_latency": self.cpu_latency,
             "cpus": self.cpus,
             "link": self.link,
