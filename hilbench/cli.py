@@ -108,6 +108,8 @@ def ports() -> None:
 
 
 _MODES = {"auto": None, "lockstep": 0, "realtime": 1}
+#: how long `run --scope` lets its scope process relay the last replies and close its pages
+SCOPE_GRACE_S = 3.0
 
 
 @cli.command()
@@ -350,13 +352,13 @@ def run(config: str | None, target_spec: str | None, mode: str | None, duration_
                 summary = run_bench(cfg, record=record, observer=dashboard, control=control, on_ready=dashboard.attach,
                                     warn=dashboard.warnings.append)  # kept on top of every frame (and in the summary)
     finally:
-        if scope_server is not None:
-            scope_server.close()
-        if control is not None:
+        if control is not None:  # first: the scope sees its session gone, relays what is on its way, ends
             control.close()
             note = control.trouble()
             if note:
                 click.echo(f"hilbench: warning: control socket: {note}", err=True)
+        if scope_server is not None:
+            scope_server.close(grace_s=SCOPE_GRACE_S)
     from hilbench.bench.checks import checks_text, raise_if_failed
 
     if as_json:

@@ -104,14 +104,28 @@ async def frames_of(url: str, column: str, then: dict[str, Any]) -> tuple[int, d
                 if message["type"] == "stream":
                     buckets += sum(f["n"] for f in message["frames"] if column in f["cols"])
             await ws.send_str(json.dumps(then))
-            while True:
-                reply = json.loads((await asyncio.wait_for(ws.receive(), 30)).data)
-                if reply["type"] == "reply":
+            reply: dict[str, Any] | None = None
+            closed = False
+            while True:  # the reply, then (a stop ends the run) "closed" and a clean close
+                received = await asyncio.wait_for(ws.receive(), 30)
+                if received.type != aiohttp.WSMsgType.TEXT:
+                    assert received.type in (aiohttp.WSMsgType.CLOSE, aiohttp.WSMsgType.CLOSED), received
+                    assert reply is not None, f"the page got no reply before {received}"
+                    assert closed, f"the connection ended without 'closed': {received}"
                     return buckets, reply
+                message = json.loads(received.data)
+                if message["type"] == "reply":
+                    reply = message
+                elif message["type"] == "closed":
+                    assert reply is not None, f"'closed' before the reply: {message}"
+                    closed = True
+                    assert message["reason"] in ("the run has ended", "the session closed its control socket"), message
 
 
 def test_run_scope_without_a_recording_streams_traces() -> None:
-    """Issue 22, item 1: `hilbench run --scope` without --record streamed nothing (an empty page)."""
+    """Issue 22, item 1: `hilbench run --scope` without --record streamed nothing (an empty page).
+    A stop clicked on the page gets its reply, then "closed" (the run has ended) and a clean close:
+    the run lets its scope process relay them before it ends it."""
     served = Served("run", "--target", "inprocess:an1017", "--duration", "600", "--no-ui", "--scope")
     try:
         url = served.wait_url()

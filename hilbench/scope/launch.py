@@ -104,9 +104,18 @@ class ScopeProcess:
                 self._found.set()
         self._found.set()  # the child ended (with or without its URL)
 
-    def close(self) -> None:
+    def close(self, grace_s: float = 0.0) -> None:
+        """Stop it; with ``grace_s``, first let it end by itself (after the session's control socket
+        closed it relays the replies on their way, closes its pages and exits)."""
+        import subprocess
+
         from hilbench.processes import reap
 
+        if grace_s > 0:
+            try:
+                self.proc.wait(grace_s)
+            except subprocess.TimeoutExpired:
+                pass
         reap(self.proc, 5.0)
         self._reader.join(5)
         if self.proc.stderr is not None:

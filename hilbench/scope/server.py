@@ -101,6 +101,12 @@ def socket_owner(peer_port: int, local_port: int, tables: tuple[str, ...] = ("/p
 # sources
 
 
+#: how long the replies on their way may take to reach a page once the run has ended
+RELAY_GRACE_S = 2.0
+#: how often `hilbench scope --socket` looks whether its session has gone
+GONE_POLL_S = 0.1
+
+
 class _Upstream:
     """One connection to the session's control socket, shared by every page of this scope: pages
     never hold control connections of their own (the session keeps MAX_CONNECTIONS for `ctl`)."""
@@ -160,6 +166,10 @@ class _Upstream:
 class ControlSource:
     """A running session, through its control socket (one connection for every page)."""
 
+    def gone(self) -> bool:
+        """The session has ended: its control socket is no longer there."""
+        return not self.socket_path.exists()
+
     def __init__(self, socket_path: str | os.PathLike[str], poll_every_s: float = POLL_EVERY_S) -> None:
         self.socket_path = Path(socket_path)
         self.poll_every_s = poll_every_s
@@ -207,6 +217,11 @@ class ControlSource:
                         "ok": reply.get("ok"), "message": reply.get("message"), "data": reply.get("data")})
             wake.set()  # its effect is in the session's next frames: fetch them without waiting out the poll
 
+        async def settle() -> None:
+            """The replies already on their way (a stop's, above all) reach the page before "closed"."""
+            if relays:
+                await asyncio.wait(set(relays), timeout=RELAY_GRACE_S)
+
         handling = asyncio.ensure_future(commands())
         try:
             while True:
@@ -220,6 +235,8 @@ class ControlSource:
                     state["since"] = data["seq"]
                     await send({"type": "stream", **data})
                 if data["status"].get("ended"):
+                    handling.cancel()
+                    await settle()
                     await send({"type": "closed", "reason": "the run has ended"})
                     return
                 try:
@@ -228,6 +245,8 @@ class ControlSource:
                     pass
                 wake.clear()
         except (ConnectionError, OSError, KeyError, TypeError, AttributeError):
+            handling.cancel()
+            await settle()
             await send({"type": "closed", "reason": "the session closed its control socket"})
         finally:
             handling.cancel()
@@ -433,6 +452,9 @@ class ScopeServer:
                     pass
 
         serving = asyncio.ensure_future(self.source.serve(send, inbox))
+        # the source is done (the run ended, the session went away): the page gets a clean close
+        # after its last message instead of a connection cut when this process ends
+        serving.add_done_callback(lambda _: asyncio.ensure_future(ws.close()))
         try:
             async for msg in ws:
                 if msg.type != WSMsgType.TEXT:
@@ -515,10 +537,15 @@ class ScopeServer:
         self.close()
 
     def serve_forever(self) -> None:
-        """Block until interrupted (the `hilbench scope` command)."""
+        """Block until interrupted (the `hilbench scope` command), or until a session's source is
+        gone and every page has had its last message and its close (`run --scope` then waits for
+        this process to end by itself, so a stop clicked on the page gets its reply)."""
+        gone = getattr(self.source, "gone", None)
         try:
             while self._thread is not None and self._thread.is_alive():
-                self._thread.join(0.5)
+                self._thread.join(GONE_POLL_S)
+                if gone is not None and self.pages == 0 and gone():
+                    break
         finally:
             self.close()
 
