@@ -92,6 +92,11 @@ def _kill_and_watch(port: str, period_us: int, run_s: float, watchdog_ms: int) -
         os.kill(host.pid, signal.SIGKILL)
         host.wait(timeout=30)
         killed_at = time.monotonic()
+        # the two readers split frames between them: this decoder may hold the head of a frame whose
+        # tail the host took, which would merge with the trip's Drive into one bad frame. A fresh
+        # reader starts at nothing; a tail still pending ends in a delimiter and is one dropped frame.
+        link.close()
+        link = _listen(port)
         deadline = killed_at + 10.0
         seen = []
         while time.monotonic() < deadline:
