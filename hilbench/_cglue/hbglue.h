@@ -208,4 +208,23 @@ typedef struct {
     PyObject *(*drive)(PyObject *core, PyObject *seq);
 } hb_target_api_t;
 
+/* A core's answer to a repeated seq, as its `last_drive` attribute: None or the Drive kept; only None
+ * may be written (forget it, and that the C span stepped last). One getter and setter for every core. */
+static inline PyObject *hb_last_drive_get(PyObject *last_drive)
+{
+    if (last_drive == NULL) Py_RETURN_NONE;
+    return Py_NewRef(last_drive);
+}
+
+static inline int hb_last_drive_forget(PyObject **last_drive, char *span_last, PyObject *v, const char *core)
+{
+    if (v != NULL && v != Py_None) {
+        PyErr_Format(PyExc_TypeError, "%s core last_drive: only None may be written", core);
+        return -1;
+    }
+    Py_CLEAR(*last_drive);
+    *span_last = 0;
+    return 0;
+}
+
 #endif /* HBGLUE_H */

@@ -513,20 +513,13 @@ static int set_pot_code(Core *s, PyObject *v, void *c)
 static PyObject *get_last_drive(Core *s, void *c)
 {
     (void)c;
-    if (s->last_drive == NULL) Py_RETURN_NONE;
-    return Py_NewRef(s->last_drive);
+    return hb_last_drive_get(s->last_drive);
 }
 
 static int set_last_drive(Core *s, PyObject *v, void *c)
 {
     (void)c;
-    if (v != NULL && v != Py_None) {
-        PyErr_SetString(PyExc_TypeError, "an1017 core last_drive: only None may be written");
-        return -1;
-    }
-    Py_CLEAR(s->last_drive);
-    s->span_last = 0;
-    return 0;
+    return hb_last_drive_forget(&s->last_drive, &s->span_last, v, "an1017");
 }
 
 static PyGetSetDef Core_getset[] = {
