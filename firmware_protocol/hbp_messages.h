@@ -13,7 +13,7 @@ typedef uint_least8_t hbp_u8;
    exists only so that a test can build a deliberately mismatched target; never override it in a
    firmware. */
 #ifndef HBP_SCHEMA_FINGERPRINT
-#define HBP_SCHEMA_FINGERPRINT 0x84267f7fUL
+#define HBP_SCHEMA_FINGERPRINT 0x062224b0UL
 #endif
 #define HBP_MAX_FRAME 62u /* a message: type, seq, payload */
 #define HBP_MAX_NAME 16u
@@ -72,9 +72,10 @@ typedef uint_least8_t hbp_u8;
 #define HBP_REPORT_WRITTEN 0x00u
 #define HBP_REPORT_ACTIVE 0x01u
 
-/* HostHello.mode */
+/* HostHello.mode (PREDICT: lockstep whose Drive carries the duties predicted for the next period) */
 #define HBP_MODE_LOCKSTEP 0x00u
 #define HBP_MODE_REALTIME 0x01u
+#define HBP_MODE_PREDICT 0x02u
 
 /* Drive.output_mode */
 #define HBP_OUTPUT_OFF 0x00u

@@ -675,4 +675,11 @@ const hrt_firmware_t hrt_firmware = {
     .report = decl_report,
     .start = decl_start,
     .stop = decl_stop,
+#if HRT_PREDICT_BYTES > 0
+    .state_size = (uint16_t)sizeof(an1017_t), /* mode PREDICT copies it */
+#endif
 };
+#if HRT_PREDICT_BYTES > 0
+/* the copy of the state that mode PREDICT keeps fits (C99: a negative array size stops the build) */
+typedef char an1017_predict_room[(sizeof(an1017_t) <= HRT_PREDICT_BYTES) ? 1 : -1];
+#endif

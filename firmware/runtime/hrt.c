@@ -45,6 +45,11 @@ void hrt_init(hrt_t *rt)
     for (i = 0u; i < HRT_MAX_ADC; i++) {
         rt->adc[i] = mid;
     }
+#if HRT_REPORT_MEAN
+    if (decl->duty_report == HRT_REPORT_ACTIVE) {
+        rt->flags = HRT_F_MEAN; /* the Drive reports the span's mean */
+    }
+#endif
 }
 
 /* ------------------------------------------------------------------------------- services */
@@ -91,6 +96,9 @@ static void active_changes(hrt_t *rt)
 #if HRT_REPORT_MEAN
     uint32_t dt = rt->now - rt->acc_mark;
     hbp_u8 i;
+    if ((rt->flags & HRT_F_MEAN) == 0u) {
+        return; /* no mean asked for: no 64-bit arithmetic at every latch */
+    }
     for (i = 0u; i < 3u; i++) {
         rt->duty_acc[i] += (uint64_t)hrt_duty_active(rt, i) * dt;
     }
@@ -415,7 +423,7 @@ void hrt_span_end(hrt_t *rt, uint32_t end_ticks)
         advance_to(rt, end_ticks);
     }
 #if HRT_REPORT_MEAN
-    {
+    if ((rt->flags & HRT_F_MEAN) != 0u) {
         uint32_t span = rt->now - rt->span_start;
         hbp_u8 i;
         active_changes(rt);

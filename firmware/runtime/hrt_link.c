@@ -61,6 +61,13 @@ void hrt_link_init(hrt_link_t *l, hrt_t *rt)
     l->tx_len = 0u;
 }
 
+/* Mode PREDICT: this build has room for the firmware's state, and the firmware says how big it is. */
+#if HRT_PREDICT_BYTES > 0
+#define CAN_PREDICT (hrt_firmware.state_size != 0u && hrt_firmware.state_size <= HRT_PREDICT_BYTES)
+#else
+#define CAN_PREDICT 0
+#endif
+
 /* ---- replies, field by field ---- */
 
 static void w8(hrt_link_t *l, hbp_u8 v)
@@ -135,6 +142,13 @@ void hrt_link_send_drive(hrt_link_t *l, hbp_u8 seq)
             d.fault = HBP_FAULT_WATCHDOG;
         }
     }
+#if HRT_PREDICT_BYTES > 0
+    if (l->mode == HBP_MODE_PREDICT) { /* the duties predicted for the next span */
+        d.duty_a = l->predicted[0];
+        d.duty_b = l->predicted[1];
+        d.duty_c = l->predicted[2];
+    }
+#endif
     begin(l, HBP_MSG_DRIVE, seq);
     w16(l, d.duty_a);
     w16(l, d.duty_b);
@@ -212,7 +226,7 @@ static HRT_NOINLINE void on_hello(hrt_link_t *l, const hbp_u8 *buf, hbp_u8 len, 
     period_us = get_u16(&buf[3]);
     mode = buf[5];
     if (period_us == 0u || (step != 0u && period_us % step != 0u) ||
-        (mode != HBP_MODE_LOCKSTEP && mode != HBP_MODE_REALTIME)) {
+        (mode != HBP_MODE_LOCKSTEP && mode != HBP_MODE_REALTIME && !(mode == HBP_MODE_PREDICT && CAN_PREDICT))) {
         send_error(l, seq, HBP_ERROR_BAD_REQUEST, 0u);
         return;
     }
@@ -296,6 +310,33 @@ static void serve_sensors(hrt_link_t *l, const hbp_u8 *buf, hbp_u8 len, uint32_t
     hrt_span_end(rt, start + span);
 }
 
+#if HRT_PREDICT_BYTES > 0
+/* Mode PREDICT, after a span: the next span as the firmware would run it on the present inputs and
+ * no edge (it extrapolates as it would on the chip until the next edge), on its own state; keep the
+ * mean of the duties active over it, and put the state back. The next Sensors runs that span for
+ * real, with its edges. Deterministic: the same state and span give the same prediction. */
+static HRT_NOINLINE void predict(hrt_link_t *l, uint32_t span)
+{
+    hrt_t *rt = l->rt;
+    hbp_u8 *state = (hbp_u8 *)(void *)rt;
+    uint16_t n = hrt_firmware.state_size;
+    uint16_t i;
+    for (i = 0u; i < n; i++) {
+        l->snapshot[i] = state[i];
+    }
+    rt->flags = (hbp_u8)(rt->flags | HRT_F_MEAN);
+    hrt_span_begin(rt, (hbp_u8)(rt->in & (hbp_u8)~HRT_IN_INDEX), 0u, 0u, 0, 0u, hrt_encoder(rt));
+    hrt_span_end(rt, rt->now + span);
+    for (i = 0u; i < 3u; i++) {
+        uint16_t v = hrt_span_mean(rt, (hbp_u8)i);
+        l->predicted[i] = (v > hrt_firmware.pwm_counts) ? hrt_firmware.pwm_counts : v;
+    }
+    for (i = 0u; i < n; i++) {
+        state[i] = l->snapshot[i];
+    }
+}
+#endif
+
 static HRT_NOINLINE void on_sensors(hrt_link_t *l, const hbp_u8 *buf, hbp_u8 len, hbp_u8 seq)
 {
     uint32_t span = (uint32_t)l->period_us * TICKS_PER_US;
@@ -305,7 +346,7 @@ static HRT_NOINLINE void on_sensors(hrt_link_t *l, const hbp_u8 *buf, hbp_u8 len
         send_error(l, seq, HBP_ERROR_LENGTH, buf[0]);
         return;
     }
-    if (l->mode == HBP_MODE_LOCKSTEP) { /* the host is there: a tripped watchdog gives the outputs back */
+    if (l->mode != HBP_MODE_REALTIME) { /* the host is there: a tripped watchdog gives the outputs back */
         l->last_rx = hrt_port_now();
         l->flags = (hbp_u8)(l->flags & (hbp_u8)~HRT_LINK_F_TRIPPED);
     }
@@ -333,6 +374,11 @@ static HRT_NOINLINE void on_sensors(hrt_link_t *l, const hbp_u8 *buf, hbp_u8 len
 #endif
     if (span > 0u) {
         serve_sensors(l, buf, len, span);
+#if HRT_PREDICT_BYTES > 0
+        if (l->mode == HBP_MODE_PREDICT) {
+            predict(l, span);
+        }
+#endif
     }
     l->last_seq = seq;
     hrt_link_send_drive(l, seq);
@@ -517,7 +563,7 @@ void hrt_link_watchdog(hrt_link_t *l)
     if (limit_ms == 0u || (l->flags & (HRT_LINK_F_SENSORS | HRT_LINK_F_TRIPPED)) != HRT_LINK_F_SENSORS) {
         return;
     }
-    if (l->mode == HBP_MODE_LOCKSTEP && limit_ms < HRT_LOCKSTEP_WATCHDOG_MIN_MS) {
+    if (l->mode != HBP_MODE_REALTIME && limit_ms < HRT_LOCKSTEP_WATCHDOG_MIN_MS) {
         limit_ms = HRT_LOCKSTEP_WATCHDOG_MIN_MS;
     }
     ticks_per_ms = TICKS_PER_US * 1000u;
@@ -529,7 +575,7 @@ void hrt_link_watchdog(hrt_link_t *l)
         l->flags = (hbp_u8)(l->flags | HRT_LINK_F_TRIPPED);
         l->watchdog_trips = (uint16_t)(l->watchdog_trips + 1u);
         l->rx.last_error = HBP_ERROR_WATCHDOG;
-        if (l->mode == HBP_MODE_LOCKSTEP) {
+        if (l->mode != HBP_MODE_REALTIME) {
             HRT_PORT_OUTPUTS_OFF();
         } else {
             hrt_port_lock();
