@@ -67,6 +67,12 @@ void hrt_link_init(hrt_link_t *l, hrt_t *rt)
 #else
 #define CAN_PREDICT 0
 #endif
+/* Lockstep, predicted or not (a build without prediction never agrees to PREDICT: its code as before). */
+#if HRT_PREDICT_BYTES > 0
+#define LOCKSTEP(mode) ((mode) != HBP_MODE_REALTIME)
+#else
+#define LOCKSTEP(mode) ((mode) == HBP_MODE_LOCKSTEP)
+#endif
 
 /* ---- replies, field by field ---- */
 
@@ -346,7 +352,7 @@ static HRT_NOINLINE void on_sensors(hrt_link_t *l, const hbp_u8 *buf, hbp_u8 len
         send_error(l, seq, HBP_ERROR_LENGTH, buf[0]);
         return;
     }
-    if (l->mode != HBP_MODE_REALTIME) { /* the host is there: a tripped watchdog gives the outputs back */
+    if (LOCKSTEP(l->mode)) { /* the host is there: a tripped watchdog gives the outputs back */
         l->last_rx = hrt_port_now();
         l->flags = (hbp_u8)(l->flags & (hbp_u8)~HRT_LINK_F_TRIPPED);
     }
@@ -563,7 +569,7 @@ void hrt_link_watchdog(hrt_link_t *l)
     if (limit_ms == 0u || (l->flags & (HRT_LINK_F_SENSORS | HRT_LINK_F_TRIPPED)) != HRT_LINK_F_SENSORS) {
         return;
     }
-    if (l->mode != HBP_MODE_REALTIME && limit_ms < HRT_LOCKSTEP_WATCHDOG_MIN_MS) {
+    if (LOCKSTEP(l->mode) && limit_ms < HRT_LOCKSTEP_WATCHDOG_MIN_MS) {
         limit_ms = HRT_LOCKSTEP_WATCHDOG_MIN_MS;
     }
     ticks_per_ms = TICKS_PER_US * 1000u;
@@ -575,7 +581,7 @@ void hrt_link_watchdog(hrt_link_t *l)
         l->flags = (hbp_u8)(l->flags | HRT_LINK_F_TRIPPED);
         l->watchdog_trips = (uint16_t)(l->watchdog_trips + 1u);
         l->rx.last_error = HBP_ERROR_WATCHDOG;
-        if (l->mode != HBP_MODE_REALTIME) {
+        if (LOCKSTEP(l->mode)) {
             HRT_PORT_OUTPUTS_OFF();
         } else {
             hrt_port_lock();
