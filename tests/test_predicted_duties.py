@@ -72,6 +72,9 @@ def sil_1ms(tmp_path_factory: pytest.TempPathFactory, gcc: str) -> tuple[Summary
 def test_default_scenario_at_1ms_passes_its_checks_on_sil(sil_1ms: tuple[Summary, list[dict[str, str]]]) -> None:
     summary, rows = sil_1ms
     assert summary.predicted_duties, summary.as_dict()
+    assert summary.as_dict()["predicted_duties"] is True
+    assert summary.recording is not None
+    assert "# predicted_duties: true" in Path(summary.recording).read_text()  # the recording's metadata says so
     assert summary.end_reason == "completed" and len(rows) == 3800
     assert summary.checks and summary.checks_passed, [c.as_dict() for c in summary.checks]
 
