@@ -382,11 +382,13 @@ void hrt_span_begin(hrt_t *rt, hbp_u8 inputs, hbp_u8 n_edges, hbp_u8 edges_have_
     hbp_u8 start = 0u;
     hbp_u8 hall = (hbp_u8)(rt->in & HRT_IN_HALLS);
 #if HRT_REPORT_MEAN
-    rt->duty_acc[0] = 0u;
-    rt->duty_acc[1] = 0u;
-    rt->duty_acc[2] = 0u;
-    rt->acc_mark = rt->now;
-    rt->span_start = rt->now;
+    if ((rt->flags & HRT_F_MEAN) != 0u) { /* the span's mean is kept: its accumulators from now */
+        rt->duty_acc[0] = 0u;
+        rt->duty_acc[1] = 0u;
+        rt->duty_acc[2] = 0u;
+        rt->acc_mark = rt->now;
+        rt->span_start = rt->now;
+    }
 #endif
     hrt_rt_levels(rt, inputs, adc, n_adc, encoder);
     if (d->main_body != 0 && d->main_period_ticks == 0u) {
