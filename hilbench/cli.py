@@ -229,8 +229,7 @@ def link_test(target: str, periods: int, period_us: int, timeout_ms: int) -> Non
 def conformance(target: str, period_us: int, only: tuple[str, ...], as_json: bool) -> None:
     """Check that TARGET keeps the protocol's promises: handshake and fingerprint, self-description,
     parameter describe/get/set (all or nothing, each result code), a repeated seq answered once,
-    stop/start, a stop disarming the watchdog, the watchdog in lockstep and real time, bad frames
-    counted and never acted on.
+    stop/start, the watchdog in lockstep and real time, bad frames counted and never acted on.
 
     TARGET is any spec: inprocess:NAME, emulator:NAME, sil:NAME|PATH, simavr:NAME|PATH, qemu:NAME|PATH,
     serial:/dev/ttyUSB0?baud=250000 (a board running a firmware on the hilbench runtime). Exit 1 if
