@@ -6,7 +6,11 @@
 (`make size` in this folder runs it with the Makefile's own sources and defines.) Method:
 1. Compile every source of the build with `clang --target=msp430` (a 16-bit target with 16-bit
    registers and pointers, like the dsPIC), at -O1 (what XC16's free licence allows) and at -Os
-   (a PRO licence), with function and data sections; hostcheck/xc.h stands in for <xc.h>.
+   (a PRO licence), with function and data sections; hostcheck/xc.h stands in for <xc.h>. At -O1
+   with clang's inliner held to functions declared `inline` (-finline-hint-functions), as XC16's
+   GCC inliner is at -O1: its -finline-small-functions (inlining functions not declared inline) is
+   on at -O2, -O3 and -Os only (XC16 user's guide), while clang's -O1 inlines any function under its
+   cost threshold, copying e.g. the link's field writers into every reply.
 2. Keep what the linker's --gc-sections would keep: the sections reachable through relocations from
    main and the interrupt handlers (no msp430 linker here, so the reachability is computed).
 3. Convert to dsPIC program words: one 24-bit word per MSP430 instruction kept; constants and the
@@ -134,12 +138,16 @@ def kept(objects: list[Path]) -> Kept:
                 tuple(sorted(sec for _obj, sec in seen)))
 
 
+#: clang options per level beside the level itself (step 1 of the method: XC16 -O1's inliner)
+LEVEL_OPTIONS = {"-O1": ("-finline-hint-functions",), "-Os": ()}
+
+
 def compile_objects(cflags: list[str], sources: list[str], level: str, out: Path) -> list[Path]:
     objects = []
     for source in sources:
         obj = out / f"{Path(source).stem}{level}.o"
-        _run(["clang", "--target=msp430", level, "-ffunction-sections", "-fdata-sections", "-w", *cflags, "-c",
-              source, "-o", str(obj)])
+        _run(["clang", "--target=msp430", level, *LEVEL_OPTIONS.get(level, ()), "-ffunction-sections",
+              "-fdata-sections", "-w", *cflags, "-c", source, "-o", str(obj)])
         objects.append(obj)
     return objects
 
@@ -162,6 +170,7 @@ def main(argv: list[str]) -> int:
     cflags, sources = rest[1:split], rest[split + 1:]
     flash_bytes, ram_bytes = DEVICES[args.device]
     print(f"dsPIC{args.device} size estimate (no XC16 here): clang --target=msp430, function/data sections, "
+          f"-O1 inlining only functions declared inline (as XC16 -O1), "
           f"kept = reachable from main and the interrupt handlers; dsPIC words = MSP430 instructions + "
           f"constants and data initialisers / 2 + {sum(ALLOWANCE_WORDS.values())} words allowance; bytes = words x 3")
     for what, words in ALLOWANCE_WORDS.items():
