@@ -42,6 +42,8 @@ ALLOWANCE_WORDS = {
     "run-time library: 32-bit multiply, 32/32 and 32/16 divide and remainder, memset": 160,
 }
 ROOTS = re.compile(r"^(main|_\w+Interrupt)$")
+#: how many of the largest kept sections `make size` names (what to cut next)
+LARGEST = 16
 
 
 @dataclass(frozen=True)
@@ -54,6 +56,7 @@ class Kept:
     bss_bytes: int
     helpers: tuple[str, ...]
     sections: tuple[str, ...]
+    words: tuple[tuple[int, str], ...] = ()  # dsPIC words of each kept section, largest first
 
 
 def _run(argv: list[str]) -> str:
@@ -127,15 +130,20 @@ def kept(objects: list[Path]) -> Kept:
             else:
                 todo.append(where)
     totals = {"ins": 0, ".text": 0, ".rodata": 0, ".data": 0, ".bss": 0}
+    words = []
     for obj, sec in seen:
         sizes, _syms, _refs, ins = info[obj]
         kind = "." + sec.split(".")[1]
         if kind in totals:
             totals[kind] += sizes.get(sec, 0)
         totals["ins"] += ins.get(sec, 0)
+        if kind == ".text":
+            words.append((ins.get(sec, 0), sec))
+        elif kind in (".rodata", ".data"):
+            words.append(((sizes.get(sec, 0) + 1) // 2, sec))
     return Kept(totals["ins"], totals[".text"], totals[".rodata"], totals[".data"], totals[".bss"],
                 tuple(sorted(h for h in helpers if h.startswith("__") or h.startswith("mem"))),
-                tuple(sorted(sec for _obj, sec in seen)))
+                tuple(sorted(sec for _obj, sec in seen)), tuple(sorted(words, reverse=True)))
 
 
 #: clang options per level beside the level itself (step 1 of the method: XC16 -O1's inliner)
@@ -182,6 +190,7 @@ def main(argv: list[str]) -> int:
             print(f"  {level}: {k.instructions} instructions ({k.code_bytes} B msp430 code), constants {k.const_bytes} B, "
                   f"data {k.data_bytes} B, bss {k.bss_bytes} B, library calls {', '.join(k.helpers) or 'none'} "
                   f"-> {words} words = {words * 3} B")
+    print("  largest at -O1 (dsPIC words): " + ", ".join(f"{sec.split('.', 2)[2]} {n}" for n, sec in k.words[:LARGEST]))
     print(f"static RAM (msp430, 2-byte alignment as on the dsPIC): {k.data_bytes + k.bss_bytes} B of "
           f"{ram_bytes} B; stack bound: tests/test_firmware_dspic.py")
     percent = 100.0 * words * 3 / flash_bytes
