@@ -490,34 +490,39 @@ static HRT_NOINLINE void on_status(hrt_link_t *l, hbp_u8 seq)
     finish(l);
 }
 
+/* A request by its type, told apart by the type's group (its high nibble, as the schema numbers the
+ * messages) first: a switch over the sparse types themselves (0x01..0x52) becomes a jump table of
+ * one entry per value in between, more flash than the whole dispatch on a 12 KB chip (docs/board.md,
+ * section 3a). */
 void hrt_link_handle(hrt_link_t *l, const hbp_u8 *frame, hbp_u8 len)
 {
     hrt_t *rt = l->rt;
     hbp_u8 type = frame[0];
     hbp_u8 seq = frame[1];
-    hbp_u8 want; /* the payload-less and one-byte requests' length */
-    switch (type) {
-    case HBP_MSG_SENSORS:
+    hbp_u8 group = (hbp_u8)(type >> 4);
+    hbp_u8 want = 0u; /* the payload-less (2) and one-byte (3) requests' length; 0: not a request */
+    if (type == HBP_MSG_SENSORS) {
         on_sensors(l, frame, len, seq);
         return;
-    case HBP_MSG_HOST_HELLO:
+    }
+    if (type == HBP_MSG_HOST_HELLO) {
         on_hello(l, frame, len, seq);
         return;
-    case HBP_MSG_PARAM_SET:
+    }
+    if (type == HBP_MSG_PARAM_SET) {
         on_set(l, frame, len, seq);
         return;
-    case HBP_MSG_PARAM_DESCRIBE:
-    case HBP_MSG_PARAM_GET:
-    case HBP_MSG_TELEMETRY_DESCRIBE:
-        want = 3u;
-        break;
-    case HBP_MSG_START:
-    case HBP_MSG_STOP:
-    case HBP_MSG_STATUS_REQUEST:
-    case HBP_MSG_TARGET_DESCRIBE:
-        want = 2u;
-        break;
-    default:
+    }
+    if (group == (HBP_MSG_PARAM_GET >> 4)) {
+        want = (hbp_u8)((type == HBP_MSG_PARAM_DESCRIBE || type == HBP_MSG_PARAM_GET) ? 3u : 0u);
+    } else if (group == (HBP_MSG_START >> 4)) {
+        want = (hbp_u8)((type == HBP_MSG_START || type == HBP_MSG_STOP) ? 2u : 0u);
+    } else if (group == (HBP_MSG_STATUS_REQUEST >> 4)) {
+        want = (hbp_u8)((type == HBP_MSG_STATUS_REQUEST) ? 2u : 0u);
+    } else if (group == (HBP_MSG_TELEMETRY_DESCRIBE >> 4)) {
+        want = (hbp_u8)((type == HBP_MSG_TELEMETRY_DESCRIBE) ? 3u : (type == HBP_MSG_TARGET_DESCRIBE) ? 2u : 0u);
+    }
+    if (want == 0u) {
         send_error(l, seq, HBP_ERROR_BAD_REQUEST, 0u); /* a target -> host message */
         return;
     }
@@ -525,40 +530,35 @@ void hrt_link_handle(hrt_link_t *l, const hbp_u8 *frame, hbp_u8 len)
         send_error(l, seq, HBP_ERROR_LENGTH, type);
         return;
     }
-    switch (type) {
-    case HBP_MSG_PARAM_DESCRIBE:
-        on_describe(l, frame[2], seq);
-        break;
-    case HBP_MSG_PARAM_GET:
-        on_get(l, frame[2], seq);
-        break;
-#if HRT_DESCRIBE
-    case HBP_MSG_TELEMETRY_DESCRIBE:
-        on_telemetry(l, frame[2], seq);
-        break;
-    case HBP_MSG_TARGET_DESCRIBE:
-        on_target_describe(l, seq);
-        break;
-#endif
-    case HBP_MSG_START:
+    if (group == (HBP_MSG_PARAM_GET >> 4)) {
+        if (type == HBP_MSG_PARAM_DESCRIBE) {
+            on_describe(l, frame[2], seq);
+        } else {
+            on_get(l, frame[2], seq);
+        }
+    } else if (group == (HBP_MSG_START >> 4)) {
         hrt_port_lock();
-        hrt_firmware.start(rt); /* no reply */
+        if (type == HBP_MSG_START) {
+            hrt_firmware.start(rt); /* no reply */
+        } else {
+            hrt_firmware.stop(rt, HRT_STOP_COMMAND);
+            /* the host stopped the outputs and may now leave: the watchdog waits for its next Sensors
+             * (a trip after a clean end would leave a FAULT the next session starts in) */
+            l->flags = (hbp_u8)(l->flags & (hbp_u8)~HRT_LINK_F_SENSORS);
+        }
         hrt_port_unlock();
-        break;
-    case HBP_MSG_STOP:
-        hrt_port_lock();
-        hrt_firmware.stop(rt, HRT_STOP_COMMAND);
-        hrt_port_unlock();
-        /* the host stopped the outputs and may now leave: the watchdog waits for its next Sensors
-         * (a trip after a clean end would leave a FAULT the next session starts in) */
-        l->flags = (hbp_u8)(l->flags & (hbp_u8)~HRT_LINK_F_SENSORS);
-        break;
-    case HBP_MSG_STATUS_REQUEST:
+    } else if (group == (HBP_MSG_STATUS_REQUEST >> 4)) {
         on_status(l, seq);
-        break;
-    default: /* a request this build does not serve (HRT_DESCRIBE 0) */
-        send_error(l, seq, HBP_ERROR_BAD_REQUEST, type);
-        break;
+    } else { /* TelemetryDescribe, TargetDescribe */
+#if HRT_DESCRIBE
+        if (type == HBP_MSG_TELEMETRY_DESCRIBE) {
+            on_telemetry(l, frame[2], seq);
+        } else {
+            on_target_describe(l, seq);
+        }
+#else
+        send_error(l, seq, HBP_ERROR_BAD_REQUEST, type); /* a request this build does not serve */
+#endif
     }
 }
 
