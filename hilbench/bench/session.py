@@ -200,8 +200,10 @@ class Session:
         hello = self.target.hello(host)
         check_target_hello(hello, where=self.target_label)  # protocol version and schema fingerprint
         self.predicting = False
-        if mode == int(Mode.LOCKSTEP) and self.options.predict_duties and \
-                hello.pwm_freq_hz * self.options.period_us >= 2_000_000:  # periods of 2 PWM periods or more
+        # a target on a link (a firmware on the C runtime can predict; `serve` refuses for a Python one);
+        # an in-process target never predicts, so one that ignores the mode is not taken at its word
+        if mode == int(Mode.LOCKSTEP) and self.options.predict_duties and getattr(self.target, "link", None) is not None \
+                and hello.pwm_freq_hz * self.options.period_us >= 2_000_000:  # periods of 2 PWM periods or more
             hello = self._hello_predicting(host) or hello
         self.hello = hello
         found = registered_for_firmware(hello.firmware_name)
