@@ -36,7 +36,7 @@ from hilbench.bench.scenario import PERIOD_TOLERANCE, Event, ScenarioPlayer, fir
 from hilbench.bench.settings import SessionOptions
 from hilbench.bench.streamstats import StreamingPercentiles
 from hilbench.bench.summary import Segment, Snapshot, Summary
-from hilbench.errors import BenchLimitError, HilbenchError, LinkError, ProtocolError, SimulationError, TargetError
+from hilbench.errors import BenchLimitError, ConfigError, HilbenchError, LinkError, ProtocolError, SimulationError, TargetError
 from hilbench.plant.model import RPM_PER_RAD_S, PlantOutput
 from hilbench.plant.period import Period
 from hilbench.protocol import (
@@ -235,7 +235,7 @@ class Session:
         build without room for the copy of the state) gets the plain lockstep HostHello again: None."""
         try:
             hello = self.target.hello(host._replace(mode=int(Mode.PREDICT)))
-        except HilbenchError:
+        except (TargetError, ConfigError):  # a refusal; a link error is no answer and ends the run
             hello = self.target.hello(host)  # as agreed before the refusal, whatever the target did with it
             check_target_hello(hello, where=self.target_label)
             return None
