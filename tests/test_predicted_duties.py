@@ -21,7 +21,7 @@ from _firmware import require_file, require_tool
 from hilbench.bench.run import RunRequest, load_run_config, run_bench
 from hilbench.bench.summary import Summary
 from hilbench.errors import HilbenchError
-from hilbench.protocol import MODE_LOCKSTEP, MODE_PREDICT, PROTOCOL_VERSION, HostHello, Sensors
+from hilbench.protocol import MODE_LOCKSTEP, MODE_PREDICT, PROTOCOL_VERSION, Drive, HostHello, Sensors
 from hilbench.targets.an1017.target import An1017Target
 from hilbench.targets.sil import SilTarget, build_sil
 
@@ -144,3 +144,35 @@ def test_a_predicting_build_answers_a_repeated_seq_with_the_same_prediction(gcc:
         again = t.step(Sensors(199, 0b100, (), 0, (700, 0, 0)))
         assert again == drives[-1]
         assert len({(d.duty_a, d.duty_b, d.duty_c) for d in drives}) > 1  # the firmware runs: duties change
+
+
+def _hall_stream(n: int) -> list[Sensors]:
+    """Hall states turning one sector every 3 periods, each change an edge 4000 ticks into its period;
+    a pot rising from 200 to 800 counts: the firmware starts, turns and ramps."""
+    halls = (1, 3, 2, 6, 4, 5)
+    stream, prev = [], halls[0]
+    for k in range(n):
+        h = halls[(k // 3) % 6]
+        stream.append(Sensors(k & 0xFF, h, ((4000, h),) if h != prev else (), 0, (200 + min(k, 600), 0, 0)))
+        prev = h
+    return stream
+
+
+def test_a_prediction_leaves_no_trace_in_the_firmware(gcc: str) -> None:
+    """Mode PREDICT runs a copy of the firmware and puts its state back: the same Sensors stream in mode
+    0 and mode PREDICT gives Drives equal in everything but the duties they carry (state, sector,
+    direction, fault, telemetry), so the prediction never changes what the firmware does."""
+    def drives(mode: int, stream: list[Sensors]) -> list[Drive]:
+        with SilTarget.open("seed", exe=build_sil(), timeout_s=5.0) as sil:
+            t = sil.target
+            t.hello(HostHello(0, PROTOCOL_VERSION, 1000, mode, 0))
+            t.start()
+            return [t.step(s) for s in stream]
+
+    stream = _hall_stream(1500)
+    plain, predicted = drives(MODE_LOCKSTEP, stream), drives(MODE_PREDICT, stream)
+    def rest(d: Drive) -> tuple[object, ...]:
+        return (d.output_mode, d.state, d.sector, d.direction_ccw, d.fault, d.telemetry)
+    assert [rest(d) for d in plain] == [rest(d) for d in predicted]
+    assert len({d.state for d in plain}) > 1  # it started and ran
+    assert sum((a.duty_a, a.duty_b, a.duty_c) != (b.duty_a, b.duty_b, b.duty_c) for a, b in zip(plain, predicted)) > 0
