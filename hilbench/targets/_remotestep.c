@@ -1,0 +1,527 @@
+/* RemoteTarget.step in C, for the session's lockstep span (hilbench/bench/_span.c) with a process target.
+ *
+ * hilbench.targets.remote.RemoteTarget.step (over hilbench.link.Link) is the reference: send the
+ * Sensors frame, one poll and one read, and when those bytes are exactly one good Drive frame with
+ * the Sensors' seq on a clean stream, that Drive. This is the same exchange on C values through
+ * hbglue.h's target capsule, with protocol 3's C codec (firmware_protocol/: hbp_encode_frame,
+ * hbp_rx_byte, hbp_unpack) in place of the Python one. Only that common case is done here; anything
+ * else goes back to the Python reference at the point the C path reached, with what it read:
+ *   - the link not in its fast state (a frame pending, no direct fd, blocking, a partial frame or an
+ *     owed resync), or a Sensors field outside its wire range: RemoteTarget.step on the Sensors;
+ *   - a short or failed write: the rest through Link._write (as Link.send);
+ *   - nothing within retry_s, a failed read, end of file, bytes that are not exactly one good Drive
+ *     with our seq: Link._took (recv_or_none's end) and RemoteTarget._answer (step's end).
+ * So every error (a bad frame, a timeout, the target gone, a repeated or stray seq) is raised by
+ * the same Python code as in the Python loop. The link's counters (frames, bytes, the fast frames,
+ * the Drive seq the link expects next and its gaps) are kept here during a span and written back
+ * to the Link before any Python call and when the span ends (drive()).
+ * tests/test_remote_step.py checks recordings against the Python loop and each error path.
+ */
+#include "hbglue.h"
+#include "hbp.h"
+#include <errno.h>
+#include <math.h>
+#include <poll.h>
+#include <string.h>
+#include <time.h>
+#include <unistd.h>
+
+#define READ_CHUNK 65536 /* hilbench.link.transport._READ_CHUNK */
+
+typedef struct {
+    PyObject_HEAD
+    PyObject *target, *link, *step, *drive_type, *sensors_type;
+    PyObject *last_drive; /* the last step's Drive when Python made it (NULL: the C values below) */
+    hb_cdrive_t last;     /* the last step's Drive as C values */
+    long last_seq;
+    int fd, retry_ms;
+    double retry_s;
+    /* the link's counters while a span runs: deltas, and the Drive seq it expects next */
+    int synced;           /* next_seq loaded from the link (and the deltas are to be written back) */
+    long long frames_tx, bytes_tx, bytes_rx, fast_frames, seq_gaps;
+    int next_seq;         /* -1: None (no Drive seen yet) */
+    unsigned char rx[READ_CHUNK];
+} Remote;
+
+static double monotonic_s(void)
+{
+    struct timespec ts;
+    clock_gettime(CLOCK_MONOTONIC, &ts); /* time.monotonic's clock */
+    return (double)ts.tv_sec + 1e-9 * (double)ts.tv_nsec;
+}
+
+/* link.<name> += delta */
+static int add_attr(PyObject *link, const char *name, long long delta)
+{
+    if (delta == 0) return 0;
+    PyObject *v = PyObject_GetAttrString(link, name);
+    if (v == NULL) return -1;
+    PyObject *d = PyLong_FromLongLong(delta);
+    PyObject *sum = d == NULL ? NULL : PyNumber_Add(v, d);
+    Py_DECREF(v);
+    Py_XDECREF(d);
+    if (sum == NULL) return -1;
+    int r = PyObject_SetAttrString(link, name, sum);
+    Py_DECREF(sum);
+    return r;
+}
+
+/* The Drive entry of link._next_seq (its type object is self->drive_type) */
+static int load_next_seq(Remote *s)
+{
+    PyObject *table = PyObject_GetAttrString(s->link, "_next_seq");
+    if (table == NULL) return -1;
+    PyObject *v = PyDict_Check(table) ? PyDict_GetItemWithError(table, s->drive_type) : NULL;
+    Py_DECREF(table);
+    if (v == NULL) {
+        if (!PyErr_Occurred()) PyErr_SetString(PyExc_RuntimeError, "remote step: the link does not sequence Drive");
+        return -1;
+    }
+    if (v == Py_None) s->next_seq = -1;
+    else {
+        long n = PyLong_AsLong(v);
+        if (n == -1 && PyErr_Occurred()) return -1;
+        s->next_seq = (int)n;
+    }
+    return 0;
+}
+
+/* Write the span's counters back to the Link (before any Python call and at the span's end). */
+static int flush(Remote *s)
+{
+    if (!s->synced) return 0;
+    s->synced = 0;
+    int r = 0;
+    r |= add_attr(s->link, "frames_tx", s->frames_tx);
+    r |= add_attr(s->link, "bytes_tx", s->bytes_tx);
+    r |= add_attr(s->link, "bytes_rx", s->bytes_rx);
+    r |= add_attr(s->link, "fast_frames", s->fast_frames);
+    r |= add_attr(s->link, "seq_gaps", s->seq_gaps);
+    s->frames_tx = s->bytes_tx = s->bytes_rx = s->fast_frames = s->seq_gaps = 0;
+    if (r < 0) return -1;
+    PyObject *table = PyObject_GetAttrString(s->link, "_next_seq");
+    if (table == NULL) return -1;
+    PyObject *v = s->next_seq < 0 ? Py_NewRef(Py_None) : PyLong_FromLong(s->next_seq);
+    r = v == NULL ? -1 : PyObject_SetItem(table, s->drive_type, v);
+    Py_XDECREF(v);
+    Py_DECREF(table);
+    return r;
+}
+
+/* link.<name> as a C long (bools and ints) */
+static int attr_long(PyObject *o, const char *name, long *out)
+{
+    PyObject *v = PyObject_GetAttrString(o, name);
+    if (v == NULL) return -1;
+    *out = PyLong_AsLong(v);
+    Py_DECREF(v);
+    return (*out == -1 && PyErr_Occurred()) ? -1 : 0;
+}
+
+/* 1 when the link is as Link.recv_or_none's fast path needs it (nothing pending, its fd read
+ * directly, non-blocking, clean), 0 if not, -1 with an exception. */
+static int link_fast(Remote *s)
+{
+    long fd_r, blocking, clean;
+    if (attr_long(s->link, "_fd_r", &fd_r) < 0 || attr_long(s->link, "_blocking", &blocking) < 0
+        || attr_long(s->link, "_clean", &clean) < 0)
+        return -1;
+    if (fd_r != s->fd || blocking || !clean) return 0;
+    PyObject *pending = PyObject_GetAttrString(s->link, "_pending");
+    if (pending == NULL) return -1;
+    Py_ssize_t n = PyObject_Length(pending);
+    Py_DECREF(pending);
+    if (n < 0) return -1;
+    return n == 0;
+}
+
+/* The Sensors as hilbench.protocol's Sensors tuple (for the Python reference). */
+static PyObject *sensors_object(Remote *s, const hb_csensors_t *in)
+{
+    PyObject *edges = PyTuple_New(in->n_edges), *adc = PyTuple_New(in->n_adc);
+    if (edges == NULL || adc == NULL) goto fail;
+    for (int i = 0; i < in->n_edges; i++) {
+        PyObject *e = Py_BuildValue("(ll)", in->edge_t[i], in->edge_lines[i]);
+        if (e == NULL) goto fail;
+        PyTuple_SET_ITEM(edges, i, e);
+    }
+    for (int i = 0; i < in->n_adc; i++) {
+        PyObject *a = PyLong_FromLong(in->adc[i]);
+        if (a == NULL) goto fail;
+        PyTuple_SET_ITEM(adc, i, a);
+    }
+    PyObject *out = PyObject_CallFunction(s->sensors_type, "LlOlO", in->seq, in->inputs, edges, in->encoder, adc);
+    Py_DECREF(edges);
+    Py_DECREF(adc);
+    return out;
+fail:
+    Py_XDECREF(edges);
+    Py_XDECREF(adc);
+    return NULL;
+}
+
+/* A Drive object -> C values (the Python reference's answer). */
+static int drive_values(PyObject *drive, hb_cdrive_t *out)
+{
+    if (!PyTuple_Check(drive) || PyTuple_GET_SIZE(drive) != HB_DRIVE_FIELDS) {
+        PyErr_SetString(PyExc_TypeError, "remote step: the answer is not a Drive");
+        return -1;
+    }
+    long *f[9] = {&out->duty_a, &out->duty_b, &out->duty_c, &out->output_mode, &out->state, &out->sector,
+                  &out->direction_ccw, &out->required_ccw, &out->fault};
+    for (int i = 0; i < 9; i++) {
+        *f[i] = PyLong_AsLong(PyTuple_GET_ITEM(drive, i + 1));
+        if (*f[i] == -1 && PyErr_Occurred()) return -1;
+    }
+    PyObject *tel = PyTuple_GET_ITEM(drive, 10);
+    Py_ssize_t n = PyTuple_Check(tel) ? PyTuple_GET_SIZE(tel) : -1;
+    if (n < 0 || n > HB_SPAN_MAX_TEL) {
+        PyErr_SetString(PyExc_ValueError, "remote step: the Drive's telemetry is not a tuple of at most 16");
+        return -1;
+    }
+    out->n_tel = (int)n;
+    for (Py_ssize_t i = 0; i < n; i++) {
+        out->tel[i] = PyLong_AsLong(PyTuple_GET_ITEM(tel, i));
+        if (out->tel[i] == -1 && PyErr_Occurred()) return -1;
+    }
+    return 0;
+}
+
+/* Keep a Drive the Python reference made as the step's answer. */
+static int answer_from(Remote *s, PyObject *drive, hb_cdrive_t *out)
+{
+    if (drive == NULL) return -1;
+    int r = drive_values(drive, out);
+    if (r == 0) {
+        Py_XSETREF(s->last_drive, drive);
+        s->last = *out;
+    } else {
+        Py_DECREF(drive);
+    }
+    return r;
+}
+
+/* The Sensors' wire fields, or 0 when one is outside its range (the Python encoder raises). */
+static int pack_sensors(const hb_csensors_t *in, hbp_sensors_t *m)
+{
+    if (in->seq < 0 || in->seq > 0xFF || in->inputs < 0 || in->inputs > 0xFF || in->encoder < 0 || in->encoder > 0xFFFF
+        || in->n_adc > (int)HBP_MAX_ADC || in->n_edges > (int)HBP_MAX_EDGES)
+        return 0;
+    m->seq = (hbp_u8)in->seq;
+    m->inputs = (hbp_u8)in->inputs;
+    m->encoder = (uint16_t)in->encoder;
+    m->n_adc = (hbp_u8)in->n_adc;
+    for (int i = 0; i < in->n_adc; i++) {
+        if (in->adc[i] < 0 || in->adc[i] > 0xFFFF) return 0;
+        m->adc[i] = (uint16_t)in->adc[i];
+    }
+    m->n_edges = (hbp_u8)in->n_edges;
+    for (int i = 0; i < in->n_edges; i++) {
+        if (in->edge_t[i] < 0 || in->edge_t[i] > 0xFFFF || in->edge_lines[i] < 0 || in->edge_lines[i] > 0xFF) return 0;
+        m->edges[i].time_100ns = (uint16_t)in->edge_t[i];
+        m->edges[i].lines = (hbp_u8)in->edge_lines[i];
+    }
+    return 1;
+}
+
+/* One read's bytes as exactly one good Drive frame (what Link._take_read's fast path and the
+ * generated decoder accept): 1 and *d, or 0. */
+static int one_drive(const unsigned char *data, Py_ssize_t n, hbp_drive_t *d)
+{
+    if (n < 2 || data[n - 1] != 0 || memchr(data, 0, (size_t)(n - 1)) != NULL) return 0;
+    hbp_rx_t rx;
+    hbp_rx_init(&rx);
+    hbp_u8 got = 0u;
+    for (Py_ssize_t i = 0; i < n; i++) got = hbp_rx_byte(&rx, (hbp_u8)data[i]);
+    if (!got || rx.frame_len < 2u || rx.buf[0] != HBP_MSG_DRIVE) return 0;
+    return hbp_unpack_drive(rx.buf, rx.frame_len, d) == HBP_ERROR_NONE;
+}
+
+static void drive_to_c(const hbp_drive_t *m, hb_cdrive_t *out)
+{
+    out->duty_a = m->duty_a; out->duty_b = m->duty_b; out->duty_c = m->duty_c;
+    out->output_mode = m->output_mode; out->state = m->state; out->sector = m->sector;
+    out->direction_ccw = m->direction_ccw != 0; out->required_ccw = m->required_ccw != 0; out->fault = m->fault;
+    out->n_tel = m->n_telemetry;
+    for (int i = 0; i < m->n_telemetry; i++) out->tel[i] = m->telemetry[i];
+}
+
+/* Step's end in Python: Link._took(data, deadline, timeout) then RemoteTarget._answer(sensors, msg). */
+static int python_rest(Remote *s, const hb_csensors_t *in, PyObject *data, double deadline, hb_cdrive_t *out)
+{
+    PyObject *sensors = sensors_object(s, in);
+    if (sensors == NULL) return -1;
+    PyObject *msg = PyObject_CallMethod(s->link, "_took", "Odd", data, deadline, s->retry_s);
+    PyObject *drive = msg == NULL ? NULL : PyObject_CallMethod(s->target, "_answer", "OO", sensors, msg);
+    Py_XDECREF(msg);
+    Py_DECREF(sensors);
+    return answer_from(s, drive, out);
+}
+
+static int remote_step(PyObject *self, const hb_csensors_t *in, hb_cdrive_t *out)
+{
+    Remote *s = (Remote *)self;
+    hbp_sensors_t m;
+    int fast = link_fast(s);
+    if (fast < 0) return -1;
+    if (!fast || !pack_sensors(in, &m)) { /* the Python reference, whole */
+        if (flush(s) < 0) return -1;
+        PyObject *sensors = sensors_object(s, in);
+        if (sensors == NULL) return -1;
+        PyObject *drive = PyObject_CallOneArg(s->step, sensors);
+        Py_DECREF(sensors);
+        return answer_from(s, drive, out);
+    }
+    if (!s->synced) {
+        if (load_next_seq(s) < 0) return -1;
+        s->synced = 1;
+    }
+    hbp_u8 frame[HBP_MAX_WIRE + 2], wire[HBP_MAX_WIRE + 2];
+    hbp_u8 len = hbp_pack_sensors(&m, frame);
+    hbp_u8 n_wire = len ? hbp_encode_frame(frame, len, wire) : 0u;
+    if (n_wire == 0u) { /* cannot happen for fields in range; the reference names it if it does */
+        if (flush(s) < 0) return -1;
+        PyObject *sensors = sensors_object(s, in);
+        if (sensors == NULL) return -1;
+        PyObject *drive = PyObject_CallOneArg(s->step, sensors);
+        Py_DECREF(sensors);
+        return answer_from(s, drive, out);
+    }
+    /* Link.send: one write; the rest (or all of it after an error) through the transport */
+    ssize_t w = write(s->fd, wire, n_wire);
+    if (w < 0) w = 0;
+    if (w != (ssize_t)n_wire) {
+        if (flush(s) < 0) return -1;
+        PyObject *timeout = PyObject_GetAttrString(s->link, "timeout_s");
+        PyObject *rest = PyBytes_FromStringAndSize((const char *)wire + w, (Py_ssize_t)n_wire - w);
+        PyObject *r = (timeout == NULL || rest == NULL) ? NULL : PyObject_CallMethod(s->link, "_write", "OO", rest, timeout);
+        Py_XDECREF(timeout);
+        Py_XDECREF(rest);
+        if (r == NULL) return -1;
+        Py_DECREF(r);
+        if (load_next_seq(s) < 0) return -1;
+        s->synced = 1;
+    }
+    s->frames_tx += 1;
+    s->bytes_tx += n_wire;
+    /* recv_or_none(retry_s): one poll and one read */
+    double t0 = monotonic_s();
+    struct pollfd p = {s->fd, POLLIN | POLLPRI, 0};
+    int ready;
+    do {
+        ready = poll(&p, 1, s->retry_ms);
+    } while (ready < 0 && errno == EINTR && PyErr_CheckSignals() == 0);
+    if (ready < 0 && PyErr_Occurred()) {
+        flush(s);
+        return -1;
+    }
+    ssize_t n = -1;
+    if (ready > 0) n = read(s->fd, s->rx, READ_CHUNK);
+    hbp_drive_t d;
+    if (n > 0 && one_drive(s->rx, n, &d) && d.seq == in->seq) {
+        s->bytes_rx += n;
+        s->fast_frames += 1;
+        if (s->next_seq >= 0 && d.seq != s->next_seq) s->seq_gaps += 1;
+        s->next_seq = (d.seq + 1) & 0xFF;
+        drive_to_c(&d, out);
+        s->last = *out;
+        s->last_seq = d.seq;
+        Py_CLEAR(s->last_drive);
+        return 0;
+    }
+    if (flush(s) < 0) return -1;
+    PyObject *data = n >= 0 ? PyBytes_FromStringAndSize((const char *)s->rx, n) : Py_NewRef(Py_None);
+    if (data == NULL) return -1;
+    int r = python_rest(s, in, data, t0 + s->retry_s, out);
+    Py_DECREF(data);
+    return r;
+}
+
+/* The Drive object of the last step (the span's end): the one Python made, or one from the C values. */
+static PyObject *remote_drive(PyObject *self, PyObject *seq)
+{
+    Remote *s = (Remote *)self;
+    if (flush(s) < 0) return NULL;
+    if (s->last_drive != NULL) return Py_NewRef(s->last_drive);
+    const hb_cdrive_t *d = &s->last;
+    PyObject *tel = PyTuple_New(d->n_tel);
+    if (tel == NULL) return NULL;
+    for (int i = 0; i < d->n_tel; i++) {
+        PyObject *v = PyLong_FromLong(d->tel[i]);
+        if (v == NULL) { Py_DECREF(tel); return NULL; }
+        PyTuple_SET_ITEM(tel, i, v);
+    }
+    PyObject *drive = PyObject_CallFunction(s->drive_type, "OllllllOOlO", seq, d->duty_a, d->duty_b, d->duty_c,
+                                            d->output_mode, d->state, d->sector,
+                                            d->direction_ccw ? Py_True : Py_False, d->required_ccw ? Py_True : Py_False,
+                                            d->fault, tel);
+    Py_DECREF(tel);
+    return drive;
+}
+
+static hb_target_api_t span_api = {remote_step, remote_drive};
+
+/* ---------------------------------------------------------------- the type and the module */
+
+static int Remote_init(Remote *s, PyObject *args, PyObject *kwds)
+{
+    static char *kw[] = {"target", "link", "step", "drive_type", "sensors_type", "fd", "retry_s", NULL};
+    PyObject *target, *link, *step, *drive_type, *sensors_type;
+    int fd;
+    double retry_s;
+    if (!PyArg_ParseTupleAndKeywords(args, kwds, "OOOOOid:Remote", kw, &target, &link, &step, &drive_type,
+                                     &sensors_type, &fd, &retry_s))
+        return -1;
+    if (fd < 0 || !(retry_s >= 0.0) || retry_s > 1e6) {
+        PyErr_Format(PyExc_ValueError, "Remote: fd %d, retry_s %g", fd, retry_s);
+        return -1;
+    }
+    Py_XSETREF(s->target, Py_NewRef(target));
+    Py_XSETREF(s->link, Py_NewRef(link));
+    Py_XSETREF(s->step, Py_NewRef(step));
+    Py_XSETREF(s->drive_type, Py_NewRef(drive_type));
+    Py_XSETREF(s->sensors_type, Py_NewRef(sensors_type));
+    Py_CLEAR(s->last_drive);
+    s->fd = fd;
+    s->retry_s = retry_s;
+    s->retry_ms = retry_s > 0 ? (int)ceil(retry_s * 1000.0) : 0; /* select.poll's rounding: up */
+    s->synced = 0;
+    s->frames_tx = s->bytes_tx = s->bytes_rx = s->fast_frames = s->seq_gaps = 0;
+    memset(&s->last, 0, sizeof s->last);
+    return 0;
+}
+
+static int Remote_traverse(Remote *s, visitproc visit, void *arg)
+{
+    Py_VISIT(s->target);
+    Py_VISIT(s->link);
+    Py_VISIT(s->step);
+    Py_VISIT(s->drive_type);
+    Py_VISIT(s->sensors_type);
+    Py_VISIT(s->last_drive);
+    return 0;
+}
+
+static int Remote_clear(Remote *s)
+{
+    Py_CLEAR(s->target);
+    Py_CLEAR(s->link);
+    Py_CLEAR(s->step);
+    Py_CLEAR(s->drive_type);
+    Py_CLEAR(s->sensors_type);
+    Py_CLEAR(s->last_drive);
+    return 0;
+}
+
+static void Remote_dealloc(Remote *s)
+{
+    PyObject_GC_UnTrack(s);
+    Remote_clear(s);
+    Py_TYPE(s)->tp_free((PyObject *)s);
+}
+
+static PyMemberDef Remote_members[] = {
+    {"step", T_OBJECT, offsetof(Remote, step), READONLY, "the Python step this one stands for (RemoteTarget.step)"},
+    {NULL, 0, 0, 0, NULL},
+};
+
+static PyTypeObject RemoteType = {
+    PyVarObject_HEAD_INIT(NULL, 0)
+    .tp_name = "hilbench.targets._remotestep.Remote",
+    .tp_basicsize = sizeof(Remote),
+    .tp_flags = Py_TPFLAGS_DEFAULT | Py_TPFLAGS_HAVE_GC,
+    .tp_doc = "Remote(target, link, step, drive_type, sensors_type, fd, retry_s): RemoteTarget.step in C "
+              "for the session's C span (SPAN_API).",
+    .tp_new = PyType_GenericNew,
+    .tp_init = (initproc)Remote_init,
+    .tp_dealloc = (destructor)Remote_dealloc,
+    .tp_traverse = (traverseproc)Remote_traverse,
+    .tp_clear = (inquiry)Remote_clear,
+    .tp_members = Remote_members,
+};
+
+/* encode_sensors(seq, inputs, edges, encoder, adc) -> the wire bytes, or None outside the wire ranges
+ * (the Python encoder raises there): for the tests, which compare it with encode_frame. */
+static PyObject *encode_sensors(PyObject *mod, PyObject *args)
+{
+    (void)mod;
+    long long seq;
+    long inputs, encoder;
+    PyObject *edges, *adc;
+    if (!PyArg_ParseTuple(args, "LlOlO:encode_sensors", &seq, &inputs, &edges, &encoder, &adc)) return NULL;
+    hb_csensors_t in;
+    memset(&in, 0, sizeof in);
+    in.seq = seq;
+    in.inputs = inputs;
+    in.encoder = encoder;
+    Py_ssize_t ne = PySequence_Length(edges), na = PySequence_Length(adc);
+    if (ne < 0 || na < 0) return NULL;
+    if (ne > HB_SPAN_MAX_EDGES || na > HB_SPAN_MAX_ADC) Py_RETURN_NONE;
+    in.n_edges = (int)ne;
+    in.n_adc = (int)na;
+    for (Py_ssize_t i = 0; i < ne; i++) {
+        PyObject *e = PySequence_GetItem(edges, i);
+        if (e == NULL) return NULL;
+        int ok = PyArg_ParseTuple(e, "ll", &in.edge_t[i], &in.edge_lines[i]);
+        Py_DECREF(e);
+        if (!ok) return NULL;
+    }
+    for (Py_ssize_t i = 0; i < na; i++) {
+        PyObject *a = PySequence_GetItem(adc, i);
+        if (a == NULL) return NULL;
+        in.adc[i] = PyLong_AsLong(a);
+        Py_DECREF(a);
+        if (in.adc[i] == -1 && PyErr_Occurred()) return NULL;
+    }
+    hbp_sensors_t m;
+    hbp_u8 frame[HBP_MAX_WIRE + 2], wire[HBP_MAX_WIRE + 2];
+    if (!pack_sensors(&in, &m)) Py_RETURN_NONE;
+    hbp_u8 len = hbp_pack_sensors(&m, frame);
+    hbp_u8 n = len ? hbp_encode_frame(frame, len, wire) : 0u;
+    if (n == 0u) Py_RETURN_NONE;
+    return PyBytes_FromStringAndSize((const char *)wire, n);
+}
+
+/* decode_drive(data) -> (seq, duty_a, duty_b, duty_c, output_mode, state, sector, ccw, required_ccw, fault,
+ * telemetry) when data (one read, delimiter included) is exactly one good Drive frame, else None:
+ * for the tests, which compare it with decode_frame. */
+static PyObject *decode_drive(PyObject *mod, PyObject *arg)
+{
+    (void)mod;
+    char *data;
+    Py_ssize_t n;
+    if (PyBytes_AsStringAndSize(arg, &data, &n) < 0) return NULL;
+    hbp_drive_t d;
+    if (!one_drive((const unsigned char *)data, n, &d)) Py_RETURN_NONE;
+    hb_cdrive_t c;
+    drive_to_c(&d, &c);
+    PyObject *tel = PyTuple_New(c.n_tel);
+    if (tel == NULL) return NULL;
+    for (int i = 0; i < c.n_tel; i++) PyTuple_SET_ITEM(tel, i, PyLong_FromLong(c.tel[i]));
+    return Py_BuildValue("(illlllliiiN)", d.seq, c.duty_a, c.duty_b, c.duty_c, c.output_mode, c.state, c.sector,
+                         (int)c.direction_ccw, (int)c.required_ccw, c.fault, tel);
+}
+
+static PyMethodDef module_methods[] = {
+    {"encode_sensors", encode_sensors, METH_VARARGS, "encode_sensors(seq, inputs, edges, encoder, adc) -> bytes or None"},
+    {"decode_drive", decode_drive, METH_O, "decode_drive(data) -> the Drive's fields or None"},
+    {NULL, NULL, 0, NULL},
+};
+
+static struct PyModuleDef moduledef = {
+    PyModuleDef_HEAD_INIT, "_remotestep", "RemoteTarget.step in C for the session's C span (optional).", -1,
+    module_methods, NULL, NULL, NULL, NULL,
+};
+
+PyMODINIT_FUNC PyInit__remotestep(void)
+{
+    PyObject *m = hb_module(&moduledef, &RemoteType, "Remote");
+    if (m == NULL) return NULL;
+    PyObject *api = PyCapsule_New(&span_api, HB_TARGET_API, NULL);
+    if (api == NULL || PyModule_AddObject(m, "SPAN_API", api) < 0) {
+        Py_XDECREF(api);
+        Py_DECREF(m);
+        return NULL;
+    }
+    return m;
+}
