@@ -37,7 +37,8 @@ typedef struct {
     int fd, retry_ms;
     double retry_s;
     /* the link's counters while a span runs: deltas, and the Drive seq it expects next */
-    int synced;           /* next_seq loaded from the link (and the deltas are to be written back) */
+    int synced;           /* no Python ran since the link was last looked at: its state is as this step left it,
+                             next_seq is loaded and the deltas are to be written back */
     long long frames_tx, bytes_tx, bytes_rx, fast_frames, seq_gaps;
     int next_seq;         /* -1: None (no Drive seen yet) */
     unsigned char rx[READ_CHUNK];
@@ -262,8 +263,11 @@ static int remote_step(PyObject *self, const hb_csensors_t *in, hb_cdrive_t *out
 {
     Remote *s = (Remote *)self;
     hbp_sensors_t m;
-    int fast = link_fast(s);
-    if (fast < 0) return -1;
+    int fast = 1;
+    if (!s->synced) { /* a span's first step, or the first after a Python call: how the link is now */
+        fast = link_fast(s);
+        if (fast < 0) return -1;
+    }
     if (!fast || !pack_sensors(in, &m)) { /* the Python reference, whole */
         if (flush(s) < 0) return -1;
         PyObject *sensors = sensors_object(s, in);
@@ -308,9 +312,13 @@ static int remote_step(PyObject *self, const hb_csensors_t *in, hb_cdrive_t *out
     double t0 = monotonic_s();
     struct pollfd p = {s->fd, POLLIN | POLLPRI, 0};
     int ready;
-    do {
+    int err;
+    do { /* the GIL released for the wait, as select.poll does */
+        Py_BEGIN_ALLOW_THREADS
         ready = poll(&p, 1, s->retry_ms);
-    } while (ready < 0 && errno == EINTR && PyErr_CheckSignals() == 0);
+        err = errno;
+        Py_END_ALLOW_THREADS
+    } while (ready < 0 && err == EINTR && PyErr_CheckSignals() == 0);
     if (ready < 0 && PyErr_Occurred()) {
         flush(s);
         return -1;
