@@ -28,6 +28,17 @@
 
 #define READ_CHUNK 65536 /* hilbench.link.transport._READ_CHUNK */
 
+/* A Link's counters kept in C while C exchanges frames on its fd: deltas, and the seq it expects next
+ * of the sequenced type received here (Drive on the host, Sensors on a target). */
+typedef struct {
+    PyObject *link, *key; /* borrowed: the Link and the message type (its key in link._next_seq) */
+    int fd;
+    int synced;           /* no Python ran since the link was last looked at: its state is as C left it,
+                             next_seq is loaded and the deltas are to be written back */
+    long long frames_tx, bytes_tx, bytes_rx, fast_frames, seq_gaps;
+    int next_seq;         /* -1: None (none seen yet) */
+} tally_t;
+
 typedef struct {
     PyObject_HEAD
     PyObject *target, *link, *step, *drive_type, *sensors_type;
@@ -36,11 +47,7 @@ typedef struct {
     long last_seq;
     int fd, retry_ms;
     double retry_s;
-    /* the link's counters while a span runs: deltas, and the Drive seq it expects next */
-    int synced;           /* no Python ran since the link was last looked at: its state is as this step left it,
-                             next_seq is loaded and the deltas are to be written back */
-    long long frames_tx, bytes_tx, bytes_rx, fast_frames, seq_gaps;
-    int next_seq;         /* -1: None (no Drive seen yet) */
+    tally_t t; /* the link's counters while a span runs */
     unsigned char rx[READ_CHUNK];
 } Remote;
 
@@ -67,15 +74,15 @@ static int add_attr(PyObject *link, const char *name, long long delta)
     return r;
 }
 
-/* The Drive entry of link._next_seq (its type object is self->drive_type) */
-static int load_next_seq(Remote *s)
+/* The key's entry of link._next_seq */
+static int load_next_seq(tally_t *s)
 {
     PyObject *table = PyObject_GetAttrString(s->link, "_next_seq");
     if (table == NULL) return -1;
-    PyObject *v = PyDict_Check(table) ? PyDict_GetItemWithError(table, s->drive_type) : NULL;
+    PyObject *v = PyDict_Check(table) ? PyDict_GetItemWithError(table, s->key) : NULL;
     Py_DECREF(table);
     if (v == NULL) {
-        if (!PyErr_Occurred()) PyErr_SetString(PyExc_RuntimeError, "remote step: the link does not sequence Drive");
+        if (!PyErr_Occurred()) PyErr_SetString(PyExc_RuntimeError, "remote step: the link does not sequence this message type");
         return -1;
     }
     if (v == Py_None) s->next_seq = -1;
@@ -88,7 +95,7 @@ static int load_next_seq(Remote *s)
 }
 
 /* Write the span's counters back to the Link (before any Python call and at the span's end). */
-static int flush(Remote *s)
+static int flush(tally_t *s)
 {
     if (!s->synced) return 0;
     s->synced = 0;
@@ -103,7 +110,7 @@ static int flush(Remote *s)
     PyObject *table = PyObject_GetAttrString(s->link, "_next_seq");
     if (table == NULL) return -1;
     PyObject *v = s->next_seq < 0 ? Py_NewRef(Py_None) : PyLong_FromLong(s->next_seq);
-    r = v == NULL ? -1 : PyObject_SetItem(table, s->drive_type, v);
+    r = v == NULL ? -1 : PyObject_SetItem(table, s->key, v);
     Py_XDECREF(v);
     Py_DECREF(table);
     return r;
@@ -121,7 +128,7 @@ static int attr_long(PyObject *o, const char *name, long *out)
 
 /* 1 when the link is as Link.recv_or_none's fast path needs it (nothing pending, its fd read
  * directly, non-blocking, clean), 0 if not, -1 with an exception. */
-static int link_fast(Remote *s)
+static int link_fast(tally_t *s)
 {
     long fd_r, blocking, clean;
     if (attr_long(s->link, "_fd_r", &fd_r) < 0 || attr_long(s->link, "_blocking", &blocking) < 0
@@ -225,17 +232,22 @@ static int pack_sensors(const hb_csensors_t *in, hbp_sensors_t *m)
     return 1;
 }
 
-/* One read's bytes as exactly one good Drive frame (what Link._take_read's fast path and the
- * generated decoder accept): 1 and *d, or 0. */
-static int one_drive(const unsigned char *data, Py_ssize_t n, hbp_drive_t *d)
+/* One read's bytes as exactly one good frame of message type ``type`` (what Link._take_read's fast
+ * path and the generated decoder accept), unpacked by ``layout`` into *m: 1, or 0. */
+static int one_message(const unsigned char *data, Py_ssize_t n, hbp_u8 type, const hbp_layout_t *layout, void *m)
 {
-    if (n < 2 || data[n - 1] != 0 || memchr(data, 0, (size_t)(n - 1)) != NULL) return 0;
+    if (n < 2 || n > HBP_MAX_WIRE || data[n - 1] != 0 || memchr(data, 0, (size_t)(n - 1)) != NULL) return 0;
     hbp_rx_t rx;
     hbp_rx_init(&rx);
     hbp_u8 got = 0u;
     for (Py_ssize_t i = 0; i < n; i++) got = hbp_rx_byte(&rx, (hbp_u8)data[i]);
-    if (!got || rx.frame_len < 2u || rx.buf[0] != HBP_MSG_DRIVE) return 0;
-    return hbp_unpack_drive(rx.buf, rx.frame_len, d) == HBP_ERROR_NONE;
+    if (!got || rx.frame_len < 2u || rx.buf[0] != type) return 0;
+    return hbp_unpack(layout, rx.buf, rx.frame_len, m) == HBP_ERROR_NONE;
+}
+
+static int one_drive(const unsigned char *data, Py_ssize_t n, hbp_drive_t *d)
+{
+    return one_message(data, n, HBP_MSG_DRIVE, &hbp_layout_drive, d);
 }
 
 static void drive_to_c(const hbp_drive_t *m, hb_cdrive_t *out)
@@ -264,27 +276,27 @@ static int remote_step(PyObject *self, const hb_csensors_t *in, hb_cdrive_t *out
     Remote *s = (Remote *)self;
     hbp_sensors_t m;
     int fast = 1;
-    if (!s->synced) { /* a span's first step, or the first after a Python call: how the link is now */
-        fast = link_fast(s);
+    if (!s->t.synced) { /* a span's first step, or the first after a Python call: how the link is now */
+        fast = link_fast(&s->t);
         if (fast < 0) return -1;
     }
     if (!fast || !pack_sensors(in, &m)) { /* the Python reference, whole */
-        if (flush(s) < 0) return -1;
+        if (flush(&s->t) < 0) return -1;
         PyObject *sensors = sensors_object(s, in);
         if (sensors == NULL) return -1;
         PyObject *drive = PyObject_CallOneArg(s->step, sensors);
         Py_DECREF(sensors);
         return answer_from(s, drive, out);
     }
-    if (!s->synced) {
-        if (load_next_seq(s) < 0) return -1;
-        s->synced = 1;
+    if (!s->t.synced) {
+        if (load_next_seq(&s->t) < 0) return -1;
+        s->t.synced = 1;
     }
     hbp_u8 frame[HBP_MAX_WIRE + 2], wire[HBP_MAX_WIRE + 2];
     hbp_u8 len = hbp_pack_sensors(&m, frame);
     hbp_u8 n_wire = len ? hbp_encode_frame(frame, len, wire) : 0u;
     if (n_wire == 0u) { /* cannot happen for fields in range; the reference names it if it does */
-        if (flush(s) < 0) return -1;
+        if (flush(&s->t) < 0) return -1;
         PyObject *sensors = sensors_object(s, in);
         if (sensors == NULL) return -1;
         PyObject *drive = PyObject_CallOneArg(s->step, sensors);
@@ -295,7 +307,7 @@ static int remote_step(PyObject *self, const hb_csensors_t *in, hb_cdrive_t *out
     ssize_t w = write(s->fd, wire, n_wire);
     if (w < 0) w = 0;
     if (w != (ssize_t)n_wire) {
-        if (flush(s) < 0) return -1;
+        if (flush(&s->t) < 0) return -1;
         PyObject *timeout = PyObject_GetAttrString(s->link, "timeout_s");
         PyObject *rest = PyBytes_FromStringAndSize((const char *)wire + w, (Py_ssize_t)n_wire - w);
         PyObject *r = (timeout == NULL || rest == NULL) ? NULL : PyObject_CallMethod(s->link, "_write", "OO", rest, timeout);
@@ -303,11 +315,11 @@ static int remote_step(PyObject *self, const hb_csensors_t *in, hb_cdrive_t *out
         Py_XDECREF(rest);
         if (r == NULL) return -1;
         Py_DECREF(r);
-        if (load_next_seq(s) < 0) return -1;
-        s->synced = 1;
+        if (load_next_seq(&s->t) < 0) return -1;
+        s->t.synced = 1;
     }
-    s->frames_tx += 1;
-    s->bytes_tx += n_wire;
+    s->t.frames_tx += 1;
+    s->t.bytes_tx += n_wire;
     /* recv_or_none(retry_s): one poll and one read */
     double t0 = monotonic_s();
     struct pollfd p = {s->fd, POLLIN | POLLPRI, 0};
@@ -320,24 +332,24 @@ static int remote_step(PyObject *self, const hb_csensors_t *in, hb_cdrive_t *out
         Py_END_ALLOW_THREADS
     } while (ready < 0 && err == EINTR && PyErr_CheckSignals() == 0);
     if (ready < 0 && PyErr_Occurred()) {
-        flush(s);
+        flush(&s->t);
         return -1;
     }
     ssize_t n = -1;
     if (ready > 0) n = read(s->fd, s->rx, READ_CHUNK);
     hbp_drive_t d;
     if (n > 0 && one_drive(s->rx, n, &d) && d.seq == in->seq) {
-        s->bytes_rx += n;
-        s->fast_frames += 1;
-        if (s->next_seq >= 0 && d.seq != s->next_seq) s->seq_gaps += 1;
-        s->next_seq = (d.seq + 1) & 0xFF;
+        s->t.bytes_rx += n;
+        s->t.fast_frames += 1;
+        if (s->t.next_seq >= 0 && d.seq != s->t.next_seq) s->t.seq_gaps += 1;
+        s->t.next_seq = (d.seq + 1) & 0xFF;
         drive_to_c(&d, out);
         s->last = *out;
         s->last_seq = d.seq;
         Py_CLEAR(s->last_drive);
         return 0;
     }
-    if (flush(s) < 0) return -1;
+    if (flush(&s->t) < 0) return -1;
     PyObject *data = n >= 0 ? PyBytes_FromStringAndSize((const char *)s->rx, n) : Py_NewRef(Py_None);
     if (data == NULL) return -1;
     int r = python_rest(s, in, data, t0 + s->retry_s, out);
@@ -349,7 +361,7 @@ static int remote_step(PyObject *self, const hb_csensors_t *in, hb_cdrive_t *out
 static PyObject *remote_drive(PyObject *self, PyObject *seq)
 {
     Remote *s = (Remote *)self;
-    if (flush(s) < 0) return NULL;
+    if (flush(&s->t) < 0) return NULL;
     if (s->last_drive != NULL) return Py_NewRef(s->last_drive);
     const hb_cdrive_t *d = &s->last;
     PyObject *tel = PyTuple_New(d->n_tel);
@@ -393,8 +405,10 @@ static int Remote_init(Remote *s, PyObject *args, PyObject *kwds)
     s->fd = fd;
     s->retry_s = retry_s;
     s->retry_ms = retry_s > 0 ? (int)ceil(retry_s * 1000.0) : 0; /* select.poll's rounding: up */
-    s->synced = 0;
-    s->frames_tx = s->bytes_tx = s->bytes_rx = s->fast_frames = s->seq_gaps = 0;
+    memset(&s->t, 0, sizeof s->t);
+    s->t.link = s->link;
+    s->t.key = s->drive_type;
+    s->t.fd = fd;
     memset(&s->last, 0, sizeof s->last);
     return 0;
 }
