@@ -144,7 +144,7 @@ static int link_fast(tally_t *s)
 }
 
 /* The Sensors as hilbench.protocol's Sensors tuple (for the Python reference). */
-static PyObject *sensors_object(Remote *s, const hb_csensors_t *in)
+static PyObject *sensors_object(PyObject *sensors_type, const hb_csensors_t *in)
 {
     PyObject *edges = PyTuple_New(in->n_edges), *adc = PyTuple_New(in->n_adc);
     if (edges == NULL || adc == NULL) goto fail;
@@ -158,7 +158,7 @@ static PyObject *sensors_object(Remote *s, const hb_csensors_t *in)
         if (a == NULL) goto fail;
         PyTuple_SET_ITEM(adc, i, a);
     }
-    PyObject *out = PyObject_CallFunction(s->sensors_type, "LlOlO", in->seq, in->inputs, edges, in->encoder, adc);
+    PyObject *out = PyObject_CallFunction(sensors_type, "LlOlO", in->seq, in->inputs, edges, in->encoder, adc);
     Py_DECREF(edges);
     Py_DECREF(adc);
     return out;
@@ -262,7 +262,7 @@ static void drive_to_c(const hbp_drive_t *m, hb_cdrive_t *out)
 /* Step's end in Python: Link._took(data, deadline, timeout) then RemoteTarget._answer(sensors, msg). */
 static int python_rest(Remote *s, const hb_csensors_t *in, PyObject *data, double deadline, hb_cdrive_t *out)
 {
-    PyObject *sensors = sensors_object(s, in);
+    PyObject *sensors = sensors_object(s->sensors_type, in);
     if (sensors == NULL) return -1;
     PyObject *msg = PyObject_CallMethod(s->link, "_took", "Odd", data, deadline, s->retry_s);
     PyObject *drive = msg == NULL ? NULL : PyObject_CallMethod(s->target, "_answer", "OO", sensors, msg);
@@ -282,7 +282,7 @@ static int remote_step(PyObject *self, const hb_csensors_t *in, hb_cdrive_t *out
     }
     if (!fast || !pack_sensors(in, &m)) { /* the Python reference, whole */
         if (flush(&s->t) < 0) return -1;
-        PyObject *sensors = sensors_object(s, in);
+        PyObject *sensors = sensors_object(s->sensors_type, in);
         if (sensors == NULL) return -1;
         PyObject *drive = PyObject_CallOneArg(s->step, sensors);
         Py_DECREF(sensors);
@@ -297,7 +297,7 @@ static int remote_step(PyObject *self, const hb_csensors_t *in, hb_cdrive_t *out
     hbp_u8 n_wire = len ? hbp_encode_frame(frame, len, wire) : 0u;
     if (n_wire == 0u) { /* cannot happen for fields in range; the reference names it if it does */
         if (flush(&s->t) < 0) return -1;
-        PyObject *sensors = sensors_object(s, in);
+        PyObject *sensors = sensors_object(s->sensors_type, in);
         if (sensors == NULL) return -1;
         PyObject *drive = PyObject_CallOneArg(s->step, sensors);
         Py_DECREF(sensors);
@@ -380,6 +380,249 @@ static PyObject *remote_drive(PyObject *self, PyObject *seq)
 }
 
 static hb_target_api_t span_api = {remote_step, remote_drive};
+
+/* ------------------------------------------------------------ serve()'s lockstep loop in C */
+/* hilbench.targets.serve._Server._lockstep is the reference: wait for a frame; a Sensors is counted,
+ * its time noted when a watchdog is agreed, answered with answer.step(msg) (RepeatAnswer: the last
+ * Drive again for a repeated seq, else the target's step with the Sensors' seq) and the Drive sent;
+ * anything else returns to the server. Here the same for the common case, on C values through the
+ * target's capsule: a read that is exactly one good Sensors whose seq is not the last Drive's, on a
+ * link in its fast state. Everything else goes back to Python where C stopped: the bytes read through
+ * Link._took (the message it makes is returned, and the server's loop handles it as its own recv's);
+ * a step that raises through _Server.handler_fault; a Drive outside its wire ranges through
+ * Link.send. The server's and the answer's state (report.sensors, last_sensors_t, tripped,
+ * answer.last) and the link's counters are written back before any Python call and on return. */
+
+typedef struct {
+    PyObject *server, *answer, *report, *api_core, *drive_type;
+    const hb_target_api_t *api;
+    int watching;
+    long long stepped;    /* Sensors answered by C since the last write-back */
+    long last_seq;        /* the seq of the last Drive C made (-1: none since the write-back) */
+    double last_t;
+} serving_t;
+
+static int set_attr_obj(PyObject *o, const char *name, PyObject *v)
+{
+    if (v == NULL) return -1;
+    int r = PyObject_SetAttrString(o, name, v);
+    Py_DECREF(v);
+    return r;
+}
+
+/* The server's and answer's state after the Sensors C answered; the link's counters. */
+static int serving_sync(serving_t *g, tally_t *t)
+{
+    int r = flush(t);
+    if (g->stepped > 0) {
+        if (add_attr(g->report, "sensors", g->stepped) < 0) r = -1;
+        if (g->watching) {
+            if (set_attr_obj(g->server, "last_sensors_t", PyFloat_FromDouble(g->last_t)) < 0) r = -1;
+            if (PyObject_SetAttrString(g->server, "tripped", Py_False) < 0) r = -1;
+        }
+        g->stepped = 0;
+    }
+    if (g->last_seq >= 0) { /* answer.last: the Drive of C's last step (RepeatAnswer's own rule) */
+        PyObject *seq = PyLong_FromLong(g->last_seq);
+        PyObject *drive = seq == NULL ? NULL : g->api->drive(g->api_core, seq);
+        Py_XDECREF(seq);
+        if (set_attr_obj(g->answer, "last", drive) < 0) r = -1;
+        g->last_seq = -1;
+    }
+    return r;
+}
+
+/* answer.last's seq: -1 when None */
+static int answer_last_seq(serving_t *g, long *out)
+{
+    PyObject *last = PyObject_GetAttrString(g->answer, "last");
+    if (last == NULL) return -1;
+    *out = -1;
+    if (last != Py_None) {
+        PyObject *seq = PySequence_GetItem(last, 0);
+        *out = seq == NULL ? -1 : PyLong_AsLong(seq);
+        Py_XDECREF(seq);
+    }
+    Py_DECREF(last);
+    return PyErr_Occurred() ? -1 : 0;
+}
+
+static void sensors_to_c(const hbp_sensors_t *m, hb_csensors_t *in)
+{
+    in->seq = m->seq;
+    in->inputs = m->inputs;
+    in->encoder = m->encoder;
+    in->n_adc = m->n_adc < HB_SPAN_MAX_ADC ? m->n_adc : HB_SPAN_MAX_ADC;
+    for (int i = 0; i < in->n_adc; i++) in->adc[i] = m->adc[i];
+    in->n_edges = m->n_edges < HB_SPAN_MAX_EDGES ? m->n_edges : HB_SPAN_MAX_EDGES;
+    for (int i = 0; i < in->n_edges; i++) {
+        in->edge_t[i] = m->edges[i].time_100ns;
+        in->edge_lines[i] = m->edges[i].lines;
+    }
+}
+
+/* A Drive in its wire ranges (encode_frame's checks): its frame in wire, else 0. */
+static hbp_u8 drive_wire(long seq, const hb_cdrive_t *d, hbp_u8 *wire)
+{
+    if (d->duty_a < 0 || d->duty_a > 0xFFFF || d->duty_b < 0 || d->duty_b > 0xFFFF || d->duty_c < 0
+        || d->duty_c > 0xFFFF || d->output_mode < 0 || d->output_mode > 3 || d->state < 0 || d->state > 7
+        || d->sector < 0 || d->sector > 7 || d->fault < 0 || d->fault > 63 || d->n_tel > (int)HBP_MAX_TELEMETRY)
+        return 0u;
+    hbp_drive_t m;
+    m.seq = (hbp_u8)seq;
+    m.duty_a = (uint16_t)d->duty_a; m.duty_b = (uint16_t)d->duty_b; m.duty_c = (uint16_t)d->duty_c;
+    m.output_mode = (hbp_u8)d->output_mode; m.state = (hbp_u8)d->state; m.sector = (hbp_u8)d->sector;
+    m.direction_ccw = d->direction_ccw != 0; m.required_ccw = d->required_ccw != 0; m.fault = (hbp_u8)d->fault;
+    m.n_telemetry = (hbp_u8)d->n_tel;
+    for (int i = 0; i < d->n_tel; i++) {
+        if (d->tel[i] < -32768 || d->tel[i] > 32767) return 0u;
+        m.telemetry[i] = (int16_t)d->tel[i];
+    }
+    hbp_u8 frame[HBP_MAX_WIRE + 2];
+    hbp_u8 len = hbp_pack_drive(&m, frame);
+    return len ? hbp_encode_frame(frame, len, wire) : 0u;
+}
+
+/* The Python server's answer to an exception while handling ``in`` (handler_fault); -1 when it
+ * re-raises (LinkClosed). */
+static int handler_fault(serving_t *g, const hb_csensors_t *in, PyObject *sensors_type)
+{
+    PyObject *et, *ev, *tb;
+    PyErr_Fetch(&et, &ev, &tb);
+    PyErr_NormalizeException(&et, &ev, &tb);
+    if (ev == NULL) { PyErr_Restore(et, ev, tb); return -1; }
+    if (tb != NULL) PyException_SetTraceback(ev, tb);
+    PyObject *sensors = sensors_object(sensors_type, in);
+    PyObject *r = sensors == NULL ? NULL : PyObject_CallMethod(g->server, "handler_fault", "OO", sensors, ev);
+    Py_XDECREF(sensors);
+    Py_XDECREF(et); Py_XDECREF(ev); Py_XDECREF(tb);
+    if (r == NULL) return -1;
+    Py_DECREF(r);
+    return 0;
+}
+
+/* serve_lockstep(server, link, fd, api, core, wait_s, watching, drive_type, sensors_type) -> the
+ * first message C did not answer (None: nothing within wait_s), as the server's recv(wait) gives it. */
+static PyObject *serve_lockstep(PyObject *mod, PyObject *args)
+{
+    (void)mod;
+    PyObject *server, *link, *capsule, *core, *drive_type, *sensors_type;
+    int fd, watching;
+    double wait_s;
+    if (!PyArg_ParseTuple(args, "OOiOOdpOO:serve_lockstep", &server, &link, &fd, &capsule, &core, &wait_s, &watching,
+                          &drive_type, &sensors_type))
+        return NULL;
+    const hb_target_api_t *api = PyCapsule_GetPointer(capsule, HB_TARGET_API);
+    if (api == NULL) return NULL;
+    serving_t g = {server, NULL, NULL, core, drive_type, api, watching, 0, -1, 0.0};
+    tally_t t;
+    memset(&t, 0, sizeof t);
+    t.link = link;
+    t.key = sensors_type;
+    t.fd = fd;
+    PyObject *out = NULL;
+    g.answer = PyObject_GetAttrString(server, "answer");
+    g.report = g.answer == NULL ? NULL : PyObject_GetAttrString(server, "report");
+    if (g.report == NULL) goto done;
+    static unsigned char rx[READ_CHUNK];
+    int wait_ms = wait_s > 0 ? (int)ceil(wait_s * 1000.0) : 0;
+    long repeat_seq = -2; /* answer.last's seq, looked at again after any Python call */
+    for (;;) {
+        if (!t.synced) {
+            int fast = link_fast(&t);
+            if (fast < 0 || (fast && load_next_seq(&t) < 0)) goto done;
+            if (!fast) { /* the reference's recv, whole */
+                out = PyObject_CallMethod(link, "recv_or_none", "d", wait_s);
+                goto done;
+            }
+            t.synced = 1;
+            if (answer_last_seq(&g, &repeat_seq) < 0) goto done;
+        }
+        double t0 = monotonic_s();
+        struct pollfd p = {fd, POLLIN | POLLPRI, 0};
+        int ready, err;
+        do {
+            Py_BEGIN_ALLOW_THREADS
+            ready = poll(&p, 1, wait_ms);
+            err = errno;
+            Py_END_ALLOW_THREADS
+        } while (ready < 0 && err == EINTR && PyErr_CheckSignals() == 0);
+        if (ready < 0 && PyErr_Occurred()) goto done;
+        ssize_t n = ready > 0 ? read(fd, rx, READ_CHUNK) : -1;
+        hbp_sensors_t m;
+        if (!(n > 0 && one_message(rx, n, HBP_MSG_SENSORS, &hbp_layout_sensors, &m) && (long)m.seq != repeat_seq)) {
+            if (serving_sync(&g, &t) < 0) goto done; /* the reference takes it from here */
+            PyObject *data = n >= 0 ? PyBytes_FromStringAndSize((const char *)rx, n) : Py_NewRef(Py_None);
+            if (data == NULL) goto done;
+            out = PyObject_CallMethod(link, "_took", "Odd", data, t0 + wait_s, wait_s);
+            Py_DECREF(data);
+            goto done;
+        }
+        t.bytes_rx += n; /* Link._take_read's fast path */
+        t.fast_frames += 1;
+        if (t.next_seq >= 0 && m.seq != t.next_seq) t.seq_gaps += 1;
+        t.next_seq = (m.seq + 1) & 0xFF;
+        g.stepped += 1;
+        if (watching) g.last_t = monotonic_s();
+        hb_csensors_t in;
+        hb_cdrive_t d;
+        sensors_to_c(&m, &in);
+        if (api->step(core, &in, &d) < 0) { /* the model raised: the server answers BAD_REQUEST */
+            PyObject *et, *ev, *tb;
+            PyErr_Fetch(&et, &ev, &tb);
+            int r = serving_sync(&g, &t);
+            PyErr_Restore(et, ev, tb);
+            if (r < 0 || handler_fault(&g, &in, sensors_type) < 0) goto done;
+            continue;
+        }
+        repeat_seq = g.last_seq = m.seq;
+        hbp_u8 wire[HBP_MAX_WIRE + 2];
+        hbp_u8 n_wire = drive_wire(m.seq, &d, wire);
+        ssize_t w = n_wire ? write(fd, wire, n_wire) : 0;
+        if (w < 0) w = 0;
+        if (n_wire && w == (ssize_t)n_wire) {
+            t.frames_tx += 1;
+            t.bytes_tx += n_wire;
+            continue;
+        }
+        /* a Drive outside its ranges, or a short write: Link.send on the Drive object (answer.last) */
+        if (serving_sync(&g, &t) < 0) goto done;
+        PyObject *drive = PyObject_GetAttrString(g.answer, "last");
+        PyObject *r = NULL;
+        if (drive != NULL && n_wire == 0u) r = PyObject_CallMethod(link, "send", "O", drive);
+        else if (drive != NULL) { /* Link.send's own continuation after a short write */
+            PyObject *timeout = PyObject_GetAttrString(link, "timeout_s");
+            PyObject *rest = PyBytes_FromStringAndSize((const char *)wire + w, (Py_ssize_t)n_wire - w);
+            r = (timeout == NULL || rest == NULL) ? NULL : PyObject_CallMethod(link, "_write", "OO", rest, timeout);
+            Py_XDECREF(timeout);
+            Py_XDECREF(rest);
+            if (r != NULL && (add_attr(link, "frames_tx", 1) < 0 || add_attr(link, "bytes_tx", n_wire) < 0)) Py_CLEAR(r);
+        }
+        Py_XDECREF(drive);
+        if (r != NULL) { Py_DECREF(r); continue; }
+        PyObject *closed = PyImport_ImportModule("hilbench.errors");
+        PyObject *link_closed = closed == NULL ? NULL : PyObject_GetAttrString(closed, "LinkClosed");
+        Py_XDECREF(closed);
+        int is_closed = link_closed == NULL || PyErr_ExceptionMatches(link_closed);
+        Py_XDECREF(link_closed);
+        if (is_closed || !PyErr_ExceptionMatches(PyExc_Exception)) goto done; /* LinkClosed: the server's end */
+        if (handler_fault(&g, &in, sensors_type) < 0) goto done;
+    }
+done:
+    if (out == NULL) {
+        PyObject *et, *ev, *tb;
+        PyErr_Fetch(&et, &ev, &tb);
+        if (g.report != NULL) serving_sync(&g, &t);
+        PyErr_Clear();
+        PyErr_Restore(et, ev, tb);
+        if (!PyErr_Occurred()) PyErr_SetString(PyExc_RuntimeError, "serve_lockstep: lost its error");
+    } else if (g.report != NULL && serving_sync(&g, &t) < 0) {
+        Py_CLEAR(out);
+    }
+    Py_XDECREF(g.answer);
+    Py_XDECREF(g.report);
+    return out;
+}
 
 /* ---------------------------------------------------------------- the type and the module */
 
@@ -524,9 +767,30 @@ static PyObject *decode_drive(PyObject *mod, PyObject *arg)
                          (int)c.direction_ccw, (int)c.required_ccw, c.fault, tel);
 }
 
+/* decode_sensors(data) -> (seq, inputs, edges, encoder, adc) when data is exactly one good Sensors
+ * frame, else None: for the tests, which compare it with decode_frame. */
+static PyObject *decode_sensors(PyObject *mod, PyObject *arg)
+{
+    (void)mod;
+    char *data;
+    Py_ssize_t n;
+    if (PyBytes_AsStringAndSize(arg, &data, &n) < 0) return NULL;
+    hbp_sensors_t m;
+    if (!one_message((const unsigned char *)data, n, HBP_MSG_SENSORS, &hbp_layout_sensors, &m)) Py_RETURN_NONE;
+    PyObject *edges = PyTuple_New(m.n_edges), *adc = PyTuple_New(m.n_adc);
+    if (edges == NULL || adc == NULL) { Py_XDECREF(edges); Py_XDECREF(adc); return NULL; }
+    for (int i = 0; i < m.n_edges; i++) PyTuple_SET_ITEM(edges, i, Py_BuildValue("(ii)", m.edges[i].time_100ns, m.edges[i].lines));
+    for (int i = 0; i < m.n_adc; i++) PyTuple_SET_ITEM(adc, i, PyLong_FromLong(m.adc[i]));
+    return Py_BuildValue("(iiNiN)", m.seq, m.inputs, edges, m.encoder, adc);
+}
+
 static PyMethodDef module_methods[] = {
     {"encode_sensors", encode_sensors, METH_VARARGS, "encode_sensors(seq, inputs, edges, encoder, adc) -> bytes or None"},
     {"decode_drive", decode_drive, METH_O, "decode_drive(data) -> the Drive's fields or None"},
+    {"decode_sensors", decode_sensors, METH_O, "decode_sensors(data) -> the Sensors' fields or None"},
+    {"serve_lockstep", serve_lockstep, METH_VARARGS,
+     "serve_lockstep(server, link, fd, api, core, wait_s, watching, drive_type, sensors_type) -> the first message "
+     "not answered in C, or None"},
     {NULL, NULL, 0, NULL},
 };
 
