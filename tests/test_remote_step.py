@@ -262,3 +262,70 @@ def test_a_silent_or_dead_target_ends_both_paths_with_the_same_error(faults: str
     assert c[0] is py[0] and issubclass(c[0], HilbenchError)
     assert c[1:] == py[1:]
     assert c[2] > 1000
+
+
+# ------------------------------------------------------------------------ serve's loop, in a thread
+def _served_an1017(loop: str, stream: list[Sensors], monkeypatch: pytest.MonkeyPatch) -> tuple[list[Drive], Any]:
+    """serve(AN1017 with its C core) in a thread on a pty, its loop in C or Python (``loop``); the host
+    steps ``stream`` (a Sensors twice in a row: a repeated seq), a ParamGet every 500 Sensors and a
+    Status at the end. Returns the Drives and the server's report."""
+    from hilbench.link import open_link
+    from hilbench.protocol import MODE_LOCKSTEP
+    from hilbench.targets import make_target
+    from hilbench.targets.serve import serve
+    import threading
+
+    monkeypatch.setenv("HILBENCH_SERVE_LOOP", loop)
+    calls = [0]
+    serve_lockstep = remote._remotestep.serve_lockstep
+
+    def counted(*args: Any) -> Any:  # how often the server's loop called into C (a spy, not a stand-in)
+        calls[0] += 1
+        return serve_lockstep(*args)
+
+    monkeypatch.setattr(remote._remotestep, "serve_lockstep", counted)
+    target = make_target("an1017")
+    assert getattr(target, "span_core", None) is not None, "the AN1017 C core is not built"
+    host_link = open_link("pty", timeout_s=2.0)
+    far_link = open_link(host_link.peer_path, timeout_s=2.0)
+    reports: list[Any] = []
+    thread = threading.Thread(target=lambda: reports.append(serve(target, far_link)), daemon=True)
+    thread.start()
+    try:
+        host = remote.RemoteTarget(host_link, timeout_s=2.0)
+        host.handshake(50, MODE_LOCKSTEP, 100)  # a watchdog: serve waits with a timeout (its C loop's case)
+        drives = []
+        for i, s in enumerate(stream):
+            if i % 500 == 499:
+                host.get_param(0)
+            drives.append(host.step(s))
+        host.status()
+    finally:
+        host_link.close()
+        thread.join(timeout=20)
+        far_link.close()
+    assert not thread.is_alive() and reports
+    reports[0].c_calls = calls[0]
+    return drives, reports[0]
+
+
+def test_serves_c_loop_answers_what_its_python_loop_answers(monkeypatch: pytest.MonkeyPatch) -> None:
+    rng = random.Random(30)
+    halls = (1, 3, 2, 6, 4, 5)
+    stream: list[Sensors] = []
+    for k in range(3000):
+        s = Sensors(k & 0xFF, halls[(k // 40) % 6] | (0x08 if 20 <= k < 30 else 0), (), 0, (700 + k // 20, 512, 640))
+        stream.append(s)
+        if rng.random() < 0.02:
+            stream.append(s)  # sent again: answered with the last Drive, no step
+    c_drives, c_report = _served_an1017("c", stream, monkeypatch)
+    py_drives, py_report = _served_an1017("python", stream, monkeypatch)
+    assert py_report.c_calls == 0
+    assert 0 < c_report.c_calls < len(stream) / 10  # C answered most Sensors, many per call
+    assert c_drives == py_drives
+    assert [type(d) for d in c_drives] == [Drive] * len(stream)
+    assert c_report.duplicates == py_report.duplicates > 0
+    assert (c_report.sensors, c_report.requests, c_report.handler_faults) == (
+        py_report.sensors, py_report.requests, py_report.handler_faults)
+    for key in ("frames_rx", "frames_tx", "bytes_rx", "bytes_tx", "seq_gaps", "frame_errors"):
+        assert c_report.link_stats[key] == py_report.link_stats[key], key
