@@ -501,6 +501,47 @@ static int handler_fault(serving_t *g, const hb_csensors_t *in, PyObject *sensor
     return 0;
 }
 
+/* The Drive of a Sensors C stepped, sent as Link.send sends it; a Drive outside its wire ranges, or
+ * what a short write left, through the Link in Python (a failure other than LinkClosed goes to the
+ * server's handler_fault, as in its loop). 0, or -1 with an exception (the server's loop ends). */
+static int send_drive(serving_t *g, tally_t *t, PyObject *link, int fd, const hb_csensors_t *in,
+                      const hb_cdrive_t *d, PyObject *sensors_type)
+{
+    hbp_u8 wire[HBP_MAX_WIRE + 2];
+    hbp_u8 n_wire = drive_wire((long)in->seq, d, wire);
+    ssize_t w = n_wire ? write(fd, wire, n_wire) : 0;
+    if (w < 0) w = 0;
+    if (n_wire && w == (ssize_t)n_wire) {
+        t->frames_tx += 1;
+        t->bytes_tx += n_wire;
+        return 0;
+    }
+    if (serving_sync(g, t) < 0) return -1;
+    PyObject *drive = PyObject_GetAttrString(g->answer, "last"); /* the Drive object, as the server sends it */
+    PyObject *r = NULL;
+    if (drive != NULL && n_wire == 0u) r = PyObject_CallMethod(link, "send", "O", drive);
+    else if (drive != NULL) { /* Link.send's own continuation after a short write */
+        PyObject *timeout = PyObject_GetAttrString(link, "timeout_s");
+        PyObject *rest = PyBytes_FromStringAndSize((const char *)wire + w, (Py_ssize_t)n_wire - w);
+        r = (timeout == NULL || rest == NULL) ? NULL : PyObject_CallMethod(link, "_write", "OO", rest, timeout);
+        Py_XDECREF(timeout);
+        Py_XDECREF(rest);
+        if (r != NULL && (add_attr(link, "frames_tx", 1) < 0 || add_attr(link, "bytes_tx", n_wire) < 0)) Py_CLEAR(r);
+    }
+    Py_XDECREF(drive);
+    if (r != NULL) {
+        Py_DECREF(r);
+        return 0;
+    }
+    PyObject *errors = PyImport_ImportModule("hilbench.errors");
+    PyObject *link_closed = errors == NULL ? NULL : PyObject_GetAttrString(errors, "LinkClosed");
+    Py_XDECREF(errors);
+    int is_closed = link_closed == NULL || PyErr_ExceptionMatches(link_closed);
+    Py_XDECREF(link_closed);
+    if (is_closed || !PyErr_ExceptionMatches(PyExc_Exception)) return -1; /* LinkClosed: the server's end */
+    return handler_fault(g, in, sensors_type);
+}
+
 /* serve_lockstep(server, link, fd, api, core, wait_s, watching, drive_type, sensors_type) -> the
  * first message C did not answer (None: nothing within wait_s), as the server's recv(wait) gives it. */
 static PyObject *serve_lockstep(PyObject *mod, PyObject *args)
@@ -576,37 +617,7 @@ static PyObject *serve_lockstep(PyObject *mod, PyObject *args)
             continue;
         }
         repeat_seq = g.last_seq = m.seq;
-        hbp_u8 wire[HBP_MAX_WIRE + 2];
-        hbp_u8 n_wire = drive_wire(m.seq, &d, wire);
-        ssize_t w = n_wire ? write(fd, wire, n_wire) : 0;
-        if (w < 0) w = 0;
-        if (n_wire && w == (ssize_t)n_wire) {
-            t.frames_tx += 1;
-            t.bytes_tx += n_wire;
-            continue;
-        }
-        /* a Drive outside its ranges, or a short write: Link.send on the Drive object (answer.last) */
-        if (serving_sync(&g, &t) < 0) goto done;
-        PyObject *drive = PyObject_GetAttrString(g.answer, "last");
-        PyObject *r = NULL;
-        if (drive != NULL && n_wire == 0u) r = PyObject_CallMethod(link, "send", "O", drive);
-        else if (drive != NULL) { /* Link.send's own continuation after a short write */
-            PyObject *timeout = PyObject_GetAttrString(link, "timeout_s");
-            PyObject *rest = PyBytes_FromStringAndSize((const char *)wire + w, (Py_ssize_t)n_wire - w);
-            r = (timeout == NULL || rest == NULL) ? NULL : PyObject_CallMethod(link, "_write", "OO", rest, timeout);
-            Py_XDECREF(timeout);
-            Py_XDECREF(rest);
-            if (r != NULL && (add_attr(link, "frames_tx", 1) < 0 || add_attr(link, "bytes_tx", n_wire) < 0)) Py_CLEAR(r);
-        }
-        Py_XDECREF(drive);
-        if (r != NULL) { Py_DECREF(r); continue; }
-        PyObject *closed = PyImport_ImportModule("hilbench.errors");
-        PyObject *link_closed = closed == NULL ? NULL : PyObject_GetAttrString(closed, "LinkClosed");
-        Py_XDECREF(closed);
-        int is_closed = link_closed == NULL || PyErr_ExceptionMatches(link_closed);
-        Py_XDECREF(link_closed);
-        if (is_closed || !PyErr_ExceptionMatches(PyExc_Exception)) goto done; /* LinkClosed: the server's end */
-        if (handler_fault(&g, &in, sensors_type) < 0) goto done;
+        if (send_drive(&g, &t, link, fd, &in, &d, sensors_type) < 0) goto done;
     }
 done:
     if (out == NULL) {
