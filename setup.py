@@ -34,7 +34,7 @@ setup(
             extra_compile_args=_flags,
             optional=True,
         ),
-        Extension(  # RemoteTarget.step in C for the C span, on protocol 3's C codec (firmware_protocol/)
+        Extension(  # the process paths in C (RemoteTarget.step for the C span, serve()'s loop) on protocol 3's C library
             "hilbench.targets._remotestep",
             sources=["hilbench/targets/_remotestep.c", "firmware_protocol/hbp.c", "firmware_protocol/hbp_codec.c",
                      "firmware_protocol/hbp_messages.c"],

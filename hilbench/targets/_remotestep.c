@@ -1,4 +1,6 @@
-/* RemoteTarget.step in C, for the session's lockstep span (hilbench/bench/_span.c) with a process target.
+/* The process paths' lockstep exchange in C, on protocol 3's C library: the host's RemoteTarget.step
+ * for the session's lockstep span (hilbench/bench/_span.c) with a process target, and a target
+ * process's serve() lockstep loop (serve_lockstep, further below).
  *
  * hilbench.targets.remote.RemoteTarget.step (over hilbench.link.Link) is the reference: send the
  * Sensors frame, one poll and one read, and when those bytes are exactly one good Drive frame with
@@ -806,7 +808,8 @@ static PyMethodDef module_methods[] = {
 };
 
 static struct PyModuleDef moduledef = {
-    PyModuleDef_HEAD_INIT, "_remotestep", "RemoteTarget.step in C for the session's C span (optional).", -1,
+    PyModuleDef_HEAD_INIT, "_remotestep",
+    "The process paths' lockstep exchange in C: RemoteTarget.step for the session's C span, serve()'s loop (optional).", -1,
     module_methods, NULL, NULL, NULL, NULL,
 };
 
