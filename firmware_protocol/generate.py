@@ -970,16 +970,21 @@ def gen_header(data: dict, enums: list, msgs: list[Message]) -> str:
         w(f"#define hbp_unpack_{m.snake}(frame, len, m) hbp_unpack(&hbp_layout_{m.snake}, (frame), (len), "
           f"(hbp_{m.snake}_t *)(m))")
     w("")
-    w("/* 1 if the type byte names a message of this protocol. */")
+    w("/* 1 if the type byte names a message of this protocol. Ranges of consecutive types, not a switch:")
+    w(" * a switch over the sparse types becomes a table of one entry per value from the first to the last")
+    w(" * (flash a 12 KB chip cannot spare). */")
     w("static inline hbp_u8 hbp_type_known(hbp_u8 type)")
     w("{")
-    w("    switch (type) {")
-    for m in msgs:
-        w(f"    case HBP_MSG_{m.type_name}:")
-    w("        return 1u;")
-    w("    default:")
-    w("        return 0u;")
-    w("    }")
+    runs: list[list[Message]] = []
+    for m in sorted(msgs, key=lambda m: m.type_id):
+        if runs and m.type_id == runs[-1][-1].type_id + 1:
+            runs[-1].append(m)
+        else:
+            runs.append([m])
+    tests = [f"type == HBP_MSG_{r[0].type_name}" if len(r) == 1
+             else f"type <= HBP_MSG_{r[-1].type_name}" if r[0].type_id == 0  # no `unsigned >= 0` (-Wtype-limits)
+             else f"(type >= HBP_MSG_{r[0].type_name} && type <= HBP_MSG_{r[-1].type_name})" for r in runs]
+    w("    return (hbp_u8)(" + (" ||\n                    ".join(tests)) + ");")
     w("}")
     w("")
     w("#endif /* HBP_MESSAGES_H */")

@@ -19,8 +19,8 @@
  * HBP_RX_MAX = 23: the largest host -> target message, ParamSet with 4 (id, value) pairs, 22 bytes,
  * and its trailing length byte):
  *   hbp_rx_t   23 (buffer) + 4 (COBS state, lengths) + 3 (check-byte window) + 3 (flags, ready, frame
- *              length) + 2 (CRC) + 10 (five u16 counters) + 1 (last_error) = 46 bytes (AVR), 48 with
- *              16-bit alignment.
+ *              length) + 1 (last_error) + 2 (CRC) + 10 (five u16 counters) = 46 bytes, with 16-bit alignment
+ *              too (the bytes first, 34 of them here, then the u16s: no padding).
  * Sending packs a message into a caller's buffer of HBP_MAX_WIRE bytes (the runtime's link keeps one
  * sized to its own replies) and encodes it in place.
  */
@@ -88,13 +88,13 @@ typedef struct {
     hbp_u8 flags;      /* HBP_RX_F_* */
     volatile hbp_u8 ready;
     hbp_u8 frame_len;  /* length of the ready message */
+    hbp_u8 last_error; /* HBP_ERROR_* of the most recent fault (beside the bytes: no padding) */
     uint16_t crc;      /* over the wire bytes older than the window */
     uint16_t frames;   /* good frames */
     uint16_t errors;   /* bad frames: check bytes, COBS, length, oversized */
     uint16_t resyncs;  /* good frames that followed bad input */
     uint16_t unknown;  /* good frame, unknown type */
     uint16_t overruns; /* frames dropped because the previous one was not released */
-    hbp_u8 last_error; /* HBP_ERROR_* of the most recent fault */
 } hbp_rx_t;
 
 #define HBP_RX_F_STARTED 0x01u /* a non-zero byte arrived since the last delimiter */

@@ -13,7 +13,7 @@ typedef uint_least8_t hbp_u8;
    exists only so that a test can build a deliberately mismatched target; never override it in a
    firmware. */
 #ifndef HBP_SCHEMA_FINGERPRINT
-#define HBP_SCHEMA_FINGERPRINT 0x84267f7fUL
+#define HBP_SCHEMA_FINGERPRINT 0x062224b0UL
 #endif
 #define HBP_MAX_FRAME 62u /* a message: type, seq, payload */
 #define HBP_MAX_NAME 16u
@@ -72,9 +72,10 @@ typedef uint_least8_t hbp_u8;
 #define HBP_REPORT_WRITTEN 0x00u
 #define HBP_REPORT_ACTIVE 0x01u
 
-/* HostHello.mode */
+/* HostHello.mode (PREDICT: lockstep whose Drive carries the duties predicted for the next period) */
 #define HBP_MODE_LOCKSTEP 0x00u
 #define HBP_MODE_REALTIME 0x01u
+#define HBP_MODE_PREDICT 0x02u
 
 /* Drive.output_mode */
 #define HBP_OUTPUT_OFF 0x00u
@@ -447,33 +448,17 @@ hbp_u8 hbp_unpack(const hbp_layout_t *layout, const hbp_u8 *frame, hbp_u8 len, v
 #define hbp_pack_target_info(m, frame) hbp_pack(&hbp_layout_target_info, (const hbp_target_info_t *)(m), (frame))
 #define hbp_unpack_target_info(frame, len, m) hbp_unpack(&hbp_layout_target_info, (frame), (len), (hbp_target_info_t *)(m))
 
-/* 1 if the type byte names a message of this protocol. */
+/* 1 if the type byte names a message of this protocol. Ranges of consecutive types, not a switch:
+ * a switch over the sparse types becomes a table of one entry per value from the first to the last
+ * (flash a 12 KB chip cannot spare). */
 static inline hbp_u8 hbp_type_known(hbp_u8 type)
 {
-    switch (type) {
-    case HBP_MSG_HOST_HELLO:
-    case HBP_MSG_TARGET_HELLO:
-    case HBP_MSG_SENSORS:
-    case HBP_MSG_DRIVE:
-    case HBP_MSG_PARAM_DESCRIBE:
-    case HBP_MSG_PARAM_INFO:
-    case HBP_MSG_PARAM_GET:
-    case HBP_MSG_PARAM_VALUE:
-    case HBP_MSG_PARAM_SET:
-    case HBP_MSG_PARAM_SET_RESULT:
-    case HBP_MSG_START:
-    case HBP_MSG_STOP:
-    case HBP_MSG_STATUS_REQUEST:
-    case HBP_MSG_STATUS:
-    case HBP_MSG_ERROR_REPORT:
-    case HBP_MSG_TELEMETRY_DESCRIBE:
-    case HBP_MSG_TELEMETRY_INFO:
-    case HBP_MSG_TARGET_DESCRIBE:
-    case HBP_MSG_TARGET_INFO:
-        return 1u;
-    default:
-        return 0u;
-    }
+    return (hbp_u8)((type >= HBP_MSG_HOST_HELLO && type <= HBP_MSG_TARGET_HELLO) ||
+                    (type >= HBP_MSG_SENSORS && type <= HBP_MSG_DRIVE) ||
+                    (type >= HBP_MSG_PARAM_DESCRIBE && type <= HBP_MSG_PARAM_SET_RESULT) ||
+                    (type >= HBP_MSG_START && type <= HBP_MSG_STOP) ||
+                    (type >= HBP_MSG_STATUS_REQUEST && type <= HBP_MSG_ERROR_REPORT) ||
+                    (type >= HBP_MSG_TELEMETRY_DESCRIBE && type <= HBP_MSG_TARGET_INFO));
 }
 
 #endif /* HBP_MESSAGES_H */

@@ -97,7 +97,8 @@ def stop_simavr(process: subprocess.Popen[bytes]) -> str:
 
 def run_recording(tmp_path: Path, spec: str, name: str):
     cfg = load_run_config(RunRequest(str(BENCH_CONFIGS / "hurst_mclv.toml"), target=spec, duration_s=2.0,
-                                     overrides=("link.period_us=1000", "link.timeout_ms=2000")))
+                                     overrides=("link.period_us=1000", "link.timeout_ms=2000",
+                                                "link.predict_duties=false")))  # as the model: no prediction
     out = tmp_path / f"{name}.csv"
     summary = run_bench(cfg, record=out)
     return [ln for ln in out.read_text().splitlines() if not ln.startswith("# ")], summary

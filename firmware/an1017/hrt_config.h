@@ -15,6 +15,16 @@
  * + telemetry ids (3) = 31 bytes; ParamInfo of "ph_adv_deg" in "deg", 17 + 11 + 3 = 31; TelemetryInfo of
  * "measured_speed" in "rpm", 13 + 15 + 3 = 31; Drive 11 + 6 = 17. (The link streams the wire bytes.) */
 #define HRT_TX_FRAME_MAX 32u
+/* Mode PREDICT (the next span's duties predicted from a copy of the state, for periods of many PWM
+ * periods): room for the state, sizeof(an1017_t) on every build here (an1017.c checks it), and the
+ * mean duties it needs. The dsPIC30F2010 build sets HRT_PREDICT_BYTES=0u on its command line (no RAM
+ * for a second copy of the state): its runtime is then as without prediction. */
+#ifndef HRT_PREDICT_BYTES
+#define HRT_PREDICT_BYTES 192u
+#endif
+#if HRT_PREDICT_BYTES > 0
+#define HRT_REPORT_MEAN 1
+#endif
 /* The declaration's clock and PWM period as constants (an1017.h), so the runtime's arithmetic on them
  * folds at compile time: 20 Tcy per us, 1000 Tcy a 20 kHz PWM period. */
 #define HRT_TICKS_PER_US 20u

@@ -55,11 +55,9 @@ static inline int16_t q15_wrap(int32_t x)
 /* a + b clamped to 1.31, without ever overflowing int32_t. */
 static inline int32_t q15_sat_add32(int32_t a, int32_t b)
 {
-    if (b > 0 && a > Q15_ACC_MAX - b) {
-        return Q15_ACC_MAX;
-    }
-    if (b < 0 && a < Q15_ACC_MIN - b) {
-        return Q15_ACC_MIN;
+    uint32_t sum = (uint32_t)a + (uint32_t)b; /* wraps: defined for unsigned */
+    if ((((uint32_t)a ^ sum) & ((uint32_t)b ^ sum) & 0x80000000UL) != 0u) {
+        return (a < 0) ? Q15_ACC_MIN : Q15_ACC_MAX; /* a and b of one sign, the sum of the other */
     }
     return a + b;
 }
@@ -86,8 +84,8 @@ static inline int32_t q15_frac_mul(int16_t a, int16_t b)
 static inline int32_t q15_mac_sata(int32_t acc, int16_t a, int16_t b)
 {
     int32_t p = (int32_t)a * (int32_t)b;
-    if (p == (int32_t)0x40000000) { /* -1 * -1: add 2^31 in two halves */
-        return q15_sat_add32(q15_sat_add32(acc, (int32_t)0x40000000), (int32_t)0x40000000);
+    if (p == (int32_t)0x40000000) { /* -1 * -1: acc + 2^31, which saturates unless acc < 0 */
+        return (acc >= 0) ? Q15_ACC_MAX : (int32_t)((uint32_t)acc + 0x80000000UL);
     }
     return q15_sat_add32(acc, p * (int32_t)2);
 }

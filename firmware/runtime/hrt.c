@@ -45,6 +45,11 @@ void hrt_init(hrt_t *rt)
     for (i = 0u; i < HRT_MAX_ADC; i++) {
         rt->adc[i] = mid;
     }
+#if HRT_REPORT_MEAN
+    if (decl->duty_report == HRT_REPORT_ACTIVE) {
+        rt->flags = HRT_F_MEAN; /* the Drive reports the span's mean */
+    }
+#endif
 }
 
 /* ------------------------------------------------------------------------------- services */
@@ -91,6 +96,9 @@ static void active_changes(hrt_t *rt)
 #if HRT_REPORT_MEAN
     uint32_t dt = rt->now - rt->acc_mark;
     hbp_u8 i;
+    if ((rt->flags & HRT_F_MEAN) == 0u) {
+        return; /* no mean asked for: no 64-bit arithmetic at every latch */
+    }
     for (i = 0u; i < 3u; i++) {
         rt->duty_acc[i] += (uint64_t)hrt_duty_active(rt, i) * dt;
     }
@@ -374,11 +382,13 @@ void hrt_span_begin(hrt_t *rt, hbp_u8 inputs, hbp_u8 n_edges, hbp_u8 edges_have_
     hbp_u8 start = 0u;
     hbp_u8 hall = (hbp_u8)(rt->in & HRT_IN_HALLS);
 #if HRT_REPORT_MEAN
-    rt->duty_acc[0] = 0u;
-    rt->duty_acc[1] = 0u;
-    rt->duty_acc[2] = 0u;
-    rt->acc_mark = rt->now;
-    rt->span_start = rt->now;
+    if ((rt->flags & HRT_F_MEAN) != 0u) { /* the span's mean is kept: its accumulators from now */
+        rt->duty_acc[0] = 0u;
+        rt->duty_acc[1] = 0u;
+        rt->duty_acc[2] = 0u;
+        rt->acc_mark = rt->now;
+        rt->span_start = rt->now;
+    }
 #endif
     hrt_rt_levels(rt, inputs, adc, n_adc, encoder);
     if (d->main_body != 0 && d->main_period_ticks == 0u) {
@@ -415,7 +425,7 @@ void hrt_span_end(hrt_t *rt, uint32_t end_ticks)
         advance_to(rt, end_ticks);
     }
 #if HRT_REPORT_MEAN
-    {
+    if ((rt->flags & HRT_F_MEAN) != 0u) {
         uint32_t span = rt->now - rt->span_start;
         hbp_u8 i;
         active_changes(rt);

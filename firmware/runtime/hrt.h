@@ -61,6 +61,13 @@
 #ifndef HRT_MAIN_RATE
 #define HRT_MAIN_RATE 1        /* a main body at a declared rate (0: once per span only) */
 #endif
+/* Room for a copy of the firmware's state, to predict the next span's duties (HostHello mode PREDICT,
+ * hrt_link.c): at least the firmware's state_size. 0 (the default): no prediction, no copy, the
+ * declaration without state_size; a firmware opts in in its hrt_config.h, a chip short of RAM (the
+ * dsPIC30F2010's AN1017 build) opts out with 0 on its command line. Needs HRT_REPORT_MEAN 1. */
+#ifndef HRT_PREDICT_BYTES
+#define HRT_PREDICT_BYTES 0u
+#endif
 #ifndef HRT_REPORT_MEAN
 #define HRT_REPORT_MEAN 0      /* HRT_REPORT_ACTIVE as a mean over the span (1: 3 x 64-bit accumulators) */
 #endif
@@ -197,6 +204,12 @@ typedef struct {
     /* commands */
     void (*start)(hrt_t *rt);                 /* the host's Start (the S2 button as a command) */
     void (*stop)(hrt_t *rt, hbp_u8 why);     /* HRT_STOP_*: outputs off */
+#if HRT_PREDICT_BYTES > 0
+    /* sizeof the firmware's state struct (its hrt_t first): what the link copies and puts back to
+     * predict a span (mode PREDICT; HRT_PREDICT_BYTES >= it). The state must be all of the firmware's
+     * state: its bodies write nothing else (no other statics, no port registers). 0: no prediction. */
+    uint16_t state_size;
+#endif
 } hrt_firmware_t;
 
 /* The one firmware of this program (the firmware's source defines it). */
@@ -245,6 +258,7 @@ struct hrt {
 
 #define HRT_F_RELOAD 0x01u       /* a half-period reload is due at pwm_due - period / 2 */
 #define HRT_F_HW 0x02u           /* real time on a port whose interrupts run the bodies */
+#define HRT_F_MEAN 0x04u         /* the span's mean duties are kept (HRT_REPORT_MEAN: duty_report ACTIVE, or a prediction) */
 
 /* ---- setup ---- */
 /* Zero the runtime state: time 0, the first PWM boundary at 0, duties at half the period counts,
@@ -269,6 +283,14 @@ void hrt_span_begin(hrt_t *rt, hbp_u8 inputs, hbp_u8 n_edges, hbp_u8 edges_have_
                     hbp_u8 n_adc, uint16_t encoder);
 void hrt_span_edge(hrt_t *rt, uint32_t at_ticks, hbp_u8 lines);
 void hrt_span_end(hrt_t *rt, uint32_t end_ticks);
+#if HRT_REPORT_MEAN
+/* After hrt_span_end of a span run with HRT_F_MEAN: the time-weighted mean of a phase's active duty
+ * over it (rounded half to even). */
+static inline uint16_t hrt_span_mean(const hrt_t *rt, hbp_u8 phase)
+{
+    return rt->duty_mean[phase];
+}
+#endif
 
 /* ---- real time: the glue a port calls from the chip's own interrupts (docs/porting.md) ----
  * `now` is the port's clock in the firmware's ticks. Timers a port runs in hardware (it says so in

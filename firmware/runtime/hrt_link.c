@@ -61,6 +61,19 @@ void hrt_link_init(hrt_link_t *l, hrt_t *rt)
     l->tx_len = 0u;
 }
 
+/* Mode PREDICT: this build has room for the firmware's state, and the firmware says how big it is. */
+#if HRT_PREDICT_BYTES > 0
+#define CAN_PREDICT (hrt_firmware.state_size != 0u && hrt_firmware.state_size <= HRT_PREDICT_BYTES)
+#else
+#define CAN_PREDICT 0
+#endif
+/* Lockstep, predicted or not (a build without prediction never agrees to PREDICT: its code as before). */
+#if HRT_PREDICT_BYTES > 0
+#define LOCKSTEP(mode) ((mode) != HBP_MODE_REALTIME)
+#else
+#define LOCKSTEP(mode) ((mode) == HBP_MODE_LOCKSTEP)
+#endif
+
 /* ---- replies, field by field ---- */
 
 static void w8(hrt_link_t *l, hbp_u8 v)
@@ -135,6 +148,13 @@ void hrt_link_send_drive(hrt_link_t *l, hbp_u8 seq)
             d.fault = HBP_FAULT_WATCHDOG;
         }
     }
+#if HRT_PREDICT_BYTES > 0
+    if (l->mode == HBP_MODE_PREDICT) { /* the duties predicted for the next span */
+        d.duty_a = l->predicted[0];
+        d.duty_b = l->predicted[1];
+        d.duty_c = l->predicted[2];
+    }
+#endif
     begin(l, HBP_MSG_DRIVE, seq);
     w16(l, d.duty_a);
     w16(l, d.duty_b);
@@ -212,7 +232,7 @@ static HRT_NOINLINE void on_hello(hrt_link_t *l, const hbp_u8 *buf, hbp_u8 len, 
     period_us = get_u16(&buf[3]);
     mode = buf[5];
     if (period_us == 0u || (step != 0u && period_us % step != 0u) ||
-        (mode != HBP_MODE_LOCKSTEP && mode != HBP_MODE_REALTIME)) {
+        (mode != HBP_MODE_LOCKSTEP && mode != HBP_MODE_REALTIME && !(mode == HBP_MODE_PREDICT && CAN_PREDICT))) {
         send_error(l, seq, HBP_ERROR_BAD_REQUEST, 0u);
         return;
     }
@@ -296,6 +316,33 @@ static void serve_sensors(hrt_link_t *l, const hbp_u8 *buf, hbp_u8 len, uint32_t
     hrt_span_end(rt, start + span);
 }
 
+#if HRT_PREDICT_BYTES > 0
+/* Mode PREDICT, after a span: the next span as the firmware would run it on the present inputs and
+ * no edge (it extrapolates as it would on the chip until the next edge), on its own state; keep the
+ * mean of the duties active over it, and put the state back. The next Sensors runs that span for
+ * real, with its edges. Deterministic: the same state and span give the same prediction. */
+static HRT_NOINLINE void predict(hrt_link_t *l, uint32_t span)
+{
+    hrt_t *rt = l->rt;
+    hbp_u8 *state = (hbp_u8 *)(void *)rt;
+    uint16_t n = hrt_firmware.state_size;
+    uint16_t i;
+    for (i = 0u; i < n; i++) {
+        l->snapshot[i] = state[i];
+    }
+    rt->flags = (hbp_u8)(rt->flags | HRT_F_MEAN);
+    hrt_span_begin(rt, (hbp_u8)(rt->in & (hbp_u8)~HRT_IN_INDEX), 0u, 0u, 0, 0u, hrt_encoder(rt));
+    hrt_span_end(rt, rt->now + span);
+    for (i = 0u; i < 3u; i++) {
+        uint16_t v = hrt_span_mean(rt, (hbp_u8)i);
+        l->predicted[i] = (v > hrt_firmware.pwm_counts) ? hrt_firmware.pwm_counts : v;
+    }
+    for (i = 0u; i < n; i++) {
+        state[i] = l->snapshot[i];
+    }
+}
+#endif
+
 static HRT_NOINLINE void on_sensors(hrt_link_t *l, const hbp_u8 *buf, hbp_u8 len, hbp_u8 seq)
 {
     uint32_t span = (uint32_t)l->period_us * TICKS_PER_US;
@@ -305,7 +352,7 @@ static HRT_NOINLINE void on_sensors(hrt_link_t *l, const hbp_u8 *buf, hbp_u8 len
         send_error(l, seq, HBP_ERROR_LENGTH, buf[0]);
         return;
     }
-    if (l->mode == HBP_MODE_LOCKSTEP) { /* the host is there: a tripped watchdog gives the outputs back */
+    if (LOCKSTEP(l->mode)) { /* the host is there: a tripped watchdog gives the outputs back */
         l->last_rx = hrt_port_now();
         l->flags = (hbp_u8)(l->flags & (hbp_u8)~HRT_LINK_F_TRIPPED);
     }
@@ -333,6 +380,11 @@ static HRT_NOINLINE void on_sensors(hrt_link_t *l, const hbp_u8 *buf, hbp_u8 len
 #endif
     if (span > 0u) {
         serve_sensors(l, buf, len, span);
+#if HRT_PREDICT_BYTES > 0
+        if (l->mode == HBP_MODE_PREDICT) {
+            predict(l, span);
+        }
+#endif
     }
     l->last_seq = seq;
     hrt_link_send_drive(l, seq);
@@ -438,34 +490,39 @@ static HRT_NOINLINE void on_status(hrt_link_t *l, hbp_u8 seq)
     finish(l);
 }
 
+/* A request by its type, told apart by the type's group (its high nibble, as the schema numbers the
+ * messages) first: a switch over the sparse types themselves (0x01..0x52) becomes a jump table of
+ * one entry per value in between, more flash than the whole dispatch on a 12 KB chip (docs/board.md,
+ * section 3a). */
 void hrt_link_handle(hrt_link_t *l, const hbp_u8 *frame, hbp_u8 len)
 {
     hrt_t *rt = l->rt;
     hbp_u8 type = frame[0];
     hbp_u8 seq = frame[1];
-    hbp_u8 want; /* the payload-less and one-byte requests' length */
-    switch (type) {
-    case HBP_MSG_SENSORS:
+    hbp_u8 group = (hbp_u8)(type >> 4);
+    hbp_u8 want = 0u; /* the payload-less (2) and one-byte (3) requests' length; 0: not a request */
+    if (type == HBP_MSG_SENSORS) {
         on_sensors(l, frame, len, seq);
         return;
-    case HBP_MSG_HOST_HELLO:
+    }
+    if (type == HBP_MSG_HOST_HELLO) {
         on_hello(l, frame, len, seq);
         return;
-    case HBP_MSG_PARAM_SET:
+    }
+    if (type == HBP_MSG_PARAM_SET) {
         on_set(l, frame, len, seq);
         return;
-    case HBP_MSG_PARAM_DESCRIBE:
-    case HBP_MSG_PARAM_GET:
-    case HBP_MSG_TELEMETRY_DESCRIBE:
-        want = 3u;
-        break;
-    case HBP_MSG_START:
-    case HBP_MSG_STOP:
-    case HBP_MSG_STATUS_REQUEST:
-    case HBP_MSG_TARGET_DESCRIBE:
-        want = 2u;
-        break;
-    default:
+    }
+    if (group == (HBP_MSG_PARAM_GET >> 4)) {
+        want = (hbp_u8)((type == HBP_MSG_PARAM_DESCRIBE || type == HBP_MSG_PARAM_GET) ? 3u : 0u);
+    } else if (group == (HBP_MSG_START >> 4)) {
+        want = (hbp_u8)((type == HBP_MSG_START || type == HBP_MSG_STOP) ? 2u : 0u);
+    } else if (group == (HBP_MSG_STATUS_REQUEST >> 4)) {
+        want = (hbp_u8)((type == HBP_MSG_STATUS_REQUEST) ? 2u : 0u);
+    } else if (group == (HBP_MSG_TELEMETRY_DESCRIBE >> 4)) {
+        want = (hbp_u8)((type == HBP_MSG_TELEMETRY_DESCRIBE) ? 3u : (type == HBP_MSG_TARGET_DESCRIBE) ? 2u : 0u);
+    }
+    if (want == 0u) {
         send_error(l, seq, HBP_ERROR_BAD_REQUEST, 0u); /* a target -> host message */
         return;
     }
@@ -473,40 +530,35 @@ void hrt_link_handle(hrt_link_t *l, const hbp_u8 *frame, hbp_u8 len)
         send_error(l, seq, HBP_ERROR_LENGTH, type);
         return;
     }
-    switch (type) {
-    case HBP_MSG_PARAM_DESCRIBE:
-        on_describe(l, frame[2], seq);
-        break;
-    case HBP_MSG_PARAM_GET:
-        on_get(l, frame[2], seq);
-        break;
-#if HRT_DESCRIBE
-    case HBP_MSG_TELEMETRY_DESCRIBE:
-        on_telemetry(l, frame[2], seq);
-        break;
-    case HBP_MSG_TARGET_DESCRIBE:
-        on_target_describe(l, seq);
-        break;
-#endif
-    case HBP_MSG_START:
+    if (group == (HBP_MSG_PARAM_GET >> 4)) {
+        if (type == HBP_MSG_PARAM_DESCRIBE) {
+            on_describe(l, frame[2], seq);
+        } else {
+            on_get(l, frame[2], seq);
+        }
+    } else if (group == (HBP_MSG_START >> 4)) {
         hrt_port_lock();
-        hrt_firmware.start(rt); /* no reply */
+        if (type == HBP_MSG_START) {
+            hrt_firmware.start(rt); /* no reply */
+        } else {
+            hrt_firmware.stop(rt, HRT_STOP_COMMAND);
+            /* the host stopped the outputs and may now leave: the watchdog waits for its next Sensors
+             * (a trip after a clean end would leave a FAULT the next session starts in) */
+            l->flags = (hbp_u8)(l->flags & (hbp_u8)~HRT_LINK_F_SENSORS);
+        }
         hrt_port_unlock();
-        break;
-    case HBP_MSG_STOP:
-        hrt_port_lock();
-        hrt_firmware.stop(rt, HRT_STOP_COMMAND);
-        hrt_port_unlock();
-        /* the host stopped the outputs and may now leave: the watchdog waits for its next Sensors
-         * (a trip after a clean end would leave a FAULT the next session starts in) */
-        l->flags = (hbp_u8)(l->flags & (hbp_u8)~HRT_LINK_F_SENSORS);
-        break;
-    case HBP_MSG_STATUS_REQUEST:
+    } else if (group == (HBP_MSG_STATUS_REQUEST >> 4)) {
         on_status(l, seq);
-        break;
-    default: /* a request this build does not serve (HRT_DESCRIBE 0) */
-        send_error(l, seq, HBP_ERROR_BAD_REQUEST, type);
-        break;
+    } else { /* TelemetryDescribe, TargetDescribe */
+#if HRT_DESCRIBE
+        if (type == HBP_MSG_TELEMETRY_DESCRIBE) {
+            on_telemetry(l, frame[2], seq);
+        } else {
+            on_target_describe(l, seq);
+        }
+#else
+        send_error(l, seq, HBP_ERROR_BAD_REQUEST, type); /* a request this build does not serve */
+#endif
     }
 }
 
@@ -517,7 +569,7 @@ void hrt_link_watchdog(hrt_link_t *l)
     if (limit_ms == 0u || (l->flags & (HRT_LINK_F_SENSORS | HRT_LINK_F_TRIPPED)) != HRT_LINK_F_SENSORS) {
         return;
     }
-    if (l->mode == HBP_MODE_LOCKSTEP && limit_ms < HRT_LOCKSTEP_WATCHDOG_MIN_MS) {
+    if (LOCKSTEP(l->mode) && limit_ms < HRT_LOCKSTEP_WATCHDOG_MIN_MS) {
         limit_ms = HRT_LOCKSTEP_WATCHDOG_MIN_MS;
     }
     ticks_per_ms = TICKS_PER_US * 1000u;
@@ -529,7 +581,7 @@ void hrt_link_watchdog(hrt_link_t *l)
         l->flags = (hbp_u8)(l->flags | HRT_LINK_F_TRIPPED);
         l->watchdog_trips = (uint16_t)(l->watchdog_trips + 1u);
         l->rx.last_error = HBP_ERROR_WATCHDOG;
-        if (l->mode == HBP_MODE_LOCKSTEP) {
+        if (LOCKSTEP(l->mode)) {
             HRT_PORT_OUTPUTS_OFF();
         } else {
             hrt_port_lock();

@@ -11,7 +11,10 @@
  * Lockstep: the firmware's state is left as it is (virtual time stands still while the host is
  * away), the port forces the outputs off (HRT_PORT_OUTPUTS_OFF) and the next Sensors gives them
  * back, so a host pausing on a loaded machine changes no recording. Lockstep: one Sensors = one agreed period of virtual time (hrt_span_*), every input edge it
- * carries at its time. Real time: each Sensors
+ * carries at its time. Mode PREDICT (HRT_PREDICT_BYTES > 0) is lockstep whose Drive carries, instead of
+ * the duties the declaration reports, the mean duties of the NEXT span as the firmware would run it
+ * with no new input (its state copied, the span run, the state put back): the host holds those over
+ * that span, so a period of many PWM periods does not hold duties that were right at its start. Real time: each Sensors
  * advances the firmware by the time that passed on the port's clock, or, on a port whose own
  * interrupts run the bodies (HRT_PORT_HW), updates the inputs they read.
  *
@@ -45,6 +48,9 @@
  * behind instead of spending ever longer spans catching up). */
 #ifndef HRT_RT_MAX_PERIODS
 #define HRT_RT_MAX_PERIODS 4u
+#endif
+#if HRT_PREDICT_BYTES > 0 && !HRT_REPORT_MEAN
+#error "HRT_PREDICT_BYTES needs HRT_REPORT_MEAN 1 (a predicted span's mean duties)"
 #endif
 #ifndef HRT_LOCKSTEP_WATCHDOG_MIN_MS
 #define HRT_LOCKSTEP_WATCHDOG_MIN_MS 1000u
@@ -83,6 +89,10 @@ typedef struct {
     hbp_u8 last_seq;
     hbp_u8 tx_len;             /* bytes written to tx (more than HRT_TX_FRAME_MAX: it did not fit) */
     hbp_u8 tx[HRT_TX_FRAME_MAX]; /* the message being sent (hbp_send_frame makes its wire bytes) */
+#if HRT_PREDICT_BYTES > 0
+    uint16_t predicted[3];     /* mode PREDICT: the mean duties predicted for the next span */
+    hbp_u8 snapshot[HRT_PREDICT_BYTES]; /* the firmware's state, kept while a span is predicted */
+#endif
 } hrt_link_t;
 
 void hrt_link_init(hrt_link_t *l, hrt_t *rt);

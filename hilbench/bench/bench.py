@@ -157,6 +157,7 @@ class Bench:
             "config": settings.config_metadata(cfg),
             "period_us": period_us,
             "mode": session.options.mode,
+            "predicted_duties": session.predicting,  # the Drives' duties: predicted over each period
         }
         if self._record_path is None:
             return MemoryRecorder(metadata) if self._keep_rows else None

@@ -393,13 +393,16 @@ def check_watchdog(w: Wire, mode: int) -> str:
     if not w.simulated:  # a simulated MCU's clock is the simulator's, not the wall's
         _require(waited >= limit_s * 0.9, f"the watchdog tripped after {waited * 1000:.0f} ms, before {limit_s * 1000:.0f} ms")
     trips = w.status().watchdog_trips
-    _require(trips == (trips0 + 1) & 0xFFFF, f"Status.watchdog_trips {trips0} -> {trips}")
-    resumed = ""
+    counted = (trips - trips0) & 0xFFFF
+    # A host stalled longer than the watchdog on a loaded machine trips it during the 20 periods
+    # too: more than one trip is the watchdog doing its job; none is a trip not counted.
+    _require(counted >= 1, f"Status.watchdog_trips {trips0} -> {trips}: the trip was not counted")
+    resumed = "" if counted == 1 else f" ({counted - 1} more trip(s) while this host stalled)"
     if mode != MODE_REALTIME:  # lockstep: the firmware was left as it was; the next Sensors gives the outputs back
         after = w.period()
         _require(after.fault != FAULT_WATCHDOG and after.output_mode == before.output_mode,
                  f"lockstep: the period after the trip {after}, before it {before} (the trip changed the firmware)")
-        resumed = ", the next Sensors gave them back"
+        resumed = ", the next Sensors gave them back" + resumed
     w.handshake()  # a new session for the next check
     name = "real time" if mode == MODE_REALTIME else "lockstep"
     return (f"{name}: outputs off, fault WATCHDOG, {waited * 1000:.0f} ms after the last Sensors (limit "

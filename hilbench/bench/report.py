@@ -79,7 +79,7 @@ def summarise(data: RecordingData) -> dict[str, Any]:
         "rows": n,
         "time_s": f"{c['t_s'][0]:.6f} .. {c['t_s'][-1]:.6f}" if n else "empty",
         "target": f"{hello.get('firmware_name', '?')} via {meta.get('target', '?')}",
-        "mode": meta.get("mode", "?"),
+        "mode": meta.get("mode", "?") + (", duties predicted over each period" if meta.get("predicted_duties") else ""),
         "period_us": meta.get("period_us", "?"),
         "seed": meta.get("seed", "?"),
         "ended": how_it_ended(data),

@@ -45,6 +45,7 @@ from hilbench.protocol import (
     Drive,
     HostHello,
     Input,
+    Mode,
     OutputMode,
     Sensors,
     TargetHello,
@@ -145,6 +146,7 @@ class Session:
         self.expected_profile = profile
         self.profile: TargetProfile = profile or profile_for_firmware("")
         self.hello: TargetHello | None = None
+        self.predicting = False  # lockstep with the duties predicted over each period (HostHello mode PREDICT)
         self.target_info: TargetInfo | None = None  # TargetDescribe's answer (None: the target has none)
         self.tuning = LiveTuning(target, self.profile, target_label, guard)
         self.tuning.on_change = self._on_param_change
@@ -197,6 +199,12 @@ class Session:
         host = HostHello(0, PROTOCOL_VERSION, self.options.period_us, mode, self.options.watchdog_ms)
         hello = self.target.hello(host)
         check_target_hello(hello, where=self.target_label)  # protocol version and schema fingerprint
+        self.predicting = False
+        # a target on a link (a firmware on the C runtime can predict; `serve` refuses for a Python one);
+        # an in-process target never predicts, so one that ignores the mode is not taken at its word
+        if mode == int(Mode.LOCKSTEP) and self.options.predict_duties and getattr(self.target, "link", None) is not None \
+                and hello.pwm_freq_hz * self.options.period_us >= 2_000_000:  # periods of 2 PWM periods or more
+            hello = self._hello_predicting(host) or hello
         self.hello = hello
         found = registered_for_firmware(hello.firmware_name)
         if found is None:  # no module knows it: the firmware's own description (protocol 3)
@@ -218,6 +226,21 @@ class Session:
             column = self.profile.telemetry_column(tid)
             self.telemetry_index[column.column] = (index, column.scale)
         self.faults.spec = SensorSpec(adc_full_scale=(1 << hello.adc_bits) - 1)
+        return hello
+
+    def _hello_predicting(self, host: HostHello) -> TargetHello | None:
+        """HostHello mode PREDICT: lockstep whose Drives carry the mean duties the firmware is predicted
+        to have over the next period (firmware/runtime/hrt_link.c), so that a period of many PWM periods
+        does not hold the duties of its start for all of it. A target that refuses (a Python model, a
+        build without room for the copy of the state) gets the plain lockstep HostHello again: None."""
+        try:
+            hello = self.target.hello(host._replace(mode=int(Mode.PREDICT)))
+        except HilbenchError:
+            hello = self.target.hello(host)  # as agreed before the refusal, whatever the target did with it
+            check_target_hello(hello, where=self.target_label)
+            return None
+        check_target_hello(hello, where=self.target_label)
+        self.predicting = True
         return hello
 
     def target_max_edges(self) -> int:
@@ -392,7 +415,8 @@ class Session:
         if self.hello is None:
             self.handshake()
         assert self.hello is not None
-        summary = Summary(self.target_label, options.mode, options.period_us, firmware=self.hello.firmware_name)
+        summary = Summary(self.target_label, options.mode, options.period_us, firmware=self.hello.firmware_name,
+                          predicted_duties=self.predicting)
         summary.recording = str(self.recorder.path) if self.recorder is not None else None
         self.summary = summary
         duration = options.duration_s if options.duration_s is not None else self.player.end_s

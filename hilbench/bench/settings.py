@@ -53,6 +53,7 @@ class LinkSection:
     overrun_policy: Literal["continue", "abort"] = "continue"
     max_consecutive_overruns: int = field(default=10, metadata=spec(ge=1, le=1_000_000))
     cpu_latency_qos: bool = field(default=True, metadata=spec(doc="real time: hold /dev/cpu_dma_latency at 0 so idle CPUs poll, not halt (needs root)"))
+    predict_duties: bool = field(default=True, metadata=spec(doc="lockstep, a period of 2 PWM periods or more: the target's duties predicted over each period when it can (HostHello mode PREDICT), not its last ones held"))
     pin_realtime: bool = field(default=True, metadata=spec(doc="real time: the host loop and the emulator process it started share one CPU"))
     realtime_cpu: int | None = field(default=None, metadata=spec(ge=0, le=4095, doc="that CPU (default: the last one this process may use)"))
     allow_pole_pair_mismatch: bool = field(default=False, metadata=spec(doc="run a plant whose [motor] pole_pairs differ from the firmware's build (its speeds then scale by the ratio)"))
@@ -120,6 +121,7 @@ class SessionOptions:
     overrun_policy: Literal["continue", "abort"] = "continue"
     max_consecutive_overruns: int = 10
     cpu_latency_qos: bool = True  # real time: keep idle CPUs from halting (clock.CpuLatencyRequest)
+    predict_duties: bool = True  # lockstep, periods of >= 2 PWM periods: HostHello mode PREDICT when the target has it
     seed: int = 0
     observe_every_periods: int = 400
     history_every_periods: int = 20
@@ -186,6 +188,7 @@ def session_options(cfg: BenchConfig) -> SessionOptions:
         overrun_policy=link.overrun_policy,
         max_consecutive_overruns=link.max_consecutive_overruns,
         cpu_latency_qos=link.cpu_latency_qos,
+        predict_duties=link.predict_duties,
         seed=effective_seed(cfg),
         overspeed_rpm=cfg.protection.overspeed_rpm,
         bus_capacitance_f=cfg.protection.bus_capacitance_f,

@@ -33,6 +33,8 @@ class Summary:
     target: str
     mode: str
     period_us: int
+    #: lockstep whose Drives carried the duties predicted over each period (HostHello mode PREDICT)
+    predicted_duties: bool = False
     periods: int = 0
     sim_s: float = 0.0
     wall_s: float = 0.0
@@ -80,6 +82,7 @@ class Summary:
             "firmware": self.firmware,
             "mode": self.mode,
             "period_us": self.period_us,
+            "predicted_duties": self.predicted_duties,
             "periods": self.periods,
             "sim_s": self.sim_s,
             "wall_s": self.wall_s,

@@ -23,7 +23,7 @@ from hilbench.protocol.framing import CobsError, CrcError, LengthError, UnknownT
 _CHECK = int.to_bytes  # the check bytes and the delimiter as one int (PROTOCOL.md, Framing)
 PROTOCOL_VERSION = 3
 # First 4 bytes of SHA-256 over the schema's canonical wire content (generate.schema_fingerprint).
-SCHEMA_FINGERPRINT = 0x84267f7f
+SCHEMA_FINGERPRINT = 0x062224b0
 MAX_FRAME_BYTES = 62
 MAX_NAME_CHARS = 16
 MAX_UNIT_CHARS = 8
@@ -93,10 +93,11 @@ class DutyReport(IntEnum):
 
 
 class Mode(IntEnum):
-    """HostHello.mode."""
+    """HostHello.mode (PREDICT: lockstep whose Drive carries the duties predicted for the next period)."""
 
     LOCKSTEP = 0
     REALTIME = 1
+    PREDICT = 2
 
 
 class OutputMode(IntEnum):
@@ -237,6 +238,7 @@ REPORT_WRITTEN = DutyReport.WRITTEN
 REPORT_ACTIVE = DutyReport.ACTIVE
 MODE_LOCKSTEP = Mode.LOCKSTEP
 MODE_REALTIME = Mode.REALTIME
+MODE_PREDICT = Mode.PREDICT
 OUTPUT_OFF = OutputMode.OFF
 OUTPUT_PWM = OutputMode.PWM
 OUTPUT_LOW_SIDE = OutputMode.LOW_SIDE
@@ -1721,6 +1723,7 @@ __all__ = [
     'REPORT_ACTIVE',
     'MODE_LOCKSTEP',
     'MODE_REALTIME',
+    'MODE_PREDICT',
     'OUTPUT_OFF',
     'OUTPUT_PWM',
     'OUTPUT_LOW_SIDE',

@@ -9,6 +9,8 @@
   (the AN1017 board firmware's, firmware/an1017/an1017_bridge.c).
 * `RepeatAnswer`: the answer to a repeated sequence number (a duplicated Sensors frame): the last
   Drive again, the firmware not stepped.
+* `served_mode`: a HostHello's mode, refused unless it is lockstep or real time (a Python target
+  does not predict its next period's duties: mode PREDICT is the C runtime's, firmware/runtime).
 
 The same table describes a firmware's parameters to the bench (a profile's `params`), so a profile
 built from a self-describing firmware's handshake holds the same `ParamSpec`s.
@@ -19,8 +21,8 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import Callable, Iterable, Mapping, Sequence
 
-from hilbench.errors import ParamError
-from hilbench.protocol import Access, Drive, ParamInfo, ParamSetResult, ParamValue, Result, Sensors
+from hilbench.errors import ConfigError, ParamError
+from hilbench.protocol import Access, Drive, HostHello, Mode, ParamInfo, ParamSetResult, ParamValue, Result, Sensors
 
 #: the most pairs one ParamSet may carry (the C runtime's HBP_MAX_PARAM_PAIRS)
 MAX_SET_PAIRS = 4
@@ -31,6 +33,15 @@ RESULT_READ_ONLY = int(Result.READ_ONLY)
 RESULT_OUT_OF_RANGE = int(Result.OUT_OF_RANGE)
 RESULT_CONSTRAINT = int(Result.CONSTRAINT)
 RESULT_BAD_REQUEST = int(Result.BAD_REQUEST)
+
+
+def served_mode(host: HostHello, where: str) -> int:
+    """The mode of `host` when this target serves it (lockstep, real time); ConfigError otherwise, so a
+    host asking for mode PREDICT learns it is not served (a wire target answers BAD_REQUEST)."""
+    mode = int(host.mode)
+    if mode not in (Mode.LOCKSTEP, Mode.REALTIME):
+        raise ConfigError(f"{where} hello: mode {mode} is not served (0 lockstep, 1 realtime)")
+    return mode
 
 
 @dataclass(frozen=True)

@@ -105,6 +105,10 @@ class _Server:
             log.error("%s: %s; handshake refused", self.link.name, host_hello_mismatch(msg))
             self.error(msg.seq, ErrorCode.VERSION, PROTOCOL_VERSION)
             return
+        if msg.mode not in (MODE_LOCKSTEP, MODE_REALTIME):  # PREDICT is the C runtime's: no Python target predicts
+            log.error("%s: host asks for mode %d, this server serves 0 and 1; handshake refused", self.link.name, msg.mode)
+            self.error(msg.seq, ErrorCode.BAD_REQUEST, msg.mode)
+            return
         if self.forced_mode is not None and msg.mode != self.forced_mode:
             log.error("%s: host asks for mode %d but this server runs mode %d; handshake refused",
                       self.link.name, msg.mode, self.forced_mode)

@@ -24,6 +24,8 @@ STATE_NAMES = {0: "STOPPED", 1: "BOOTSTRAP", 2: "RUNNING", 3: "STALLED", 4: "FAU
 OUTPUT_NAMES = {0: "off", 1: "PWM", 2: "low-side on", 3: "?"}
 FAULT_NAMES = {int(code): code.name for code in Fault}
 SPARK = "▁▂▃▄▅▆▇█"
+#: the summary's mode line when the Drives carried the duties predicted over each period (mode PREDICT)
+_PREDICTED = ", duties predicted over each period"
 
 
 def sparkline(values: list[float], width: int = 100) -> str:
@@ -204,7 +206,7 @@ class Dashboard:
 def summary_table(summary: Summary) -> Group:
     """The end-of-run summary: how each reference was followed, link and timing figures."""
     head = Table(title=f"hilbench run — {summary.target}", show_header=False, box=None)
-    head.add_row("mode", f"{summary.mode}, period {summary.period_us} µs")
+    head.add_row("mode", f"{summary.mode}, period {summary.period_us} µs{_PREDICTED if summary.predicted_duties else ''}")
     head.add_row("ended", summary.end_reason + (f": {summary.fault}" if summary.fault else ""))
     head.add_row("simulated", f"{summary.sim_s:.3f} s in {summary.periods:,} periods")
     head.add_row("wall", f"{summary.wall_s:.2f} s ({summary.realtime_factor:.2f}× real time)")
@@ -241,7 +243,7 @@ def summary_text(summary: Summary) -> str:
     """The plain summary of --no-ui: one fact per line."""
     lines = [
         f"target: {summary.target}",
-        f"mode: {summary.mode}, period {summary.period_us} us",
+        f"mode: {summary.mode}, period {summary.period_us} us{_PREDICTED if summary.predicted_duties else ''}",
         f"ended: {summary.end_reason}" + (f": {summary.fault}" if summary.fault else ""),
         f"simulated: {summary.sim_s:.3f} s, {summary.periods} periods, wall {summary.wall_s:.2f} s, "
         f"{summary.realtime_factor:.2f}x real time",

@@ -26,7 +26,7 @@ import os
 from typing import Any, Mapping
 
 from hilbench.errors import ConfigError, ParamError
-from hilbench.targets.kit import ParamSpec, ParamTable, RepeatAnswer
+from hilbench.targets.kit import ParamSpec, ParamTable, RepeatAnswer, served_mode
 from hilbench.targets.an1017.firmware import (
     GAIN_CONSTRAINT_NAMES,
     STATE_FAULT,
@@ -196,10 +196,11 @@ class An1017Target:
         period_us = int(host.period_us)
         if period_us <= 0 or period_us % PWM_PERIOD_US:
             raise ConfigError(f"an1017 hello: period_us {period_us} is not a positive multiple of {PWM_PERIOD_US}")
+        mode = served_mode(host, "an1017")
         self.period_us = period_us
         self._period_tcy = period_us * TCY_PER_US
         self._forget_repeat()
-        self.mode = int(host.mode)
+        self.mode = mode
         self.watchdog_ms = int(host.watchdog_ms)
         return TargetHello(
             host.seq,

@@ -22,7 +22,7 @@ from __future__ import annotations
 from typing import Any
 
 from hilbench.errors import ConfigError
-from hilbench.targets.kit import ParamSpec, ParamTable, RepeatAnswer
+from hilbench.targets.kit import ParamSpec, ParamTable, RepeatAnswer, served_mode
 from hilbench.protocol import (
     PROTOCOL_VERSION,
     Access,
@@ -191,9 +191,10 @@ class FocTarget:
         period_us = int(host.period_us)
         if period_us <= 0 or period_us % HALF_PERIOD_US:
             raise ConfigError(f"foc hello: period_us {period_us} is not a positive multiple of {HALF_PERIOD_US}")
+        mode = served_mode(host, "foc")
         self.period_us = period_us
         self._halves = period_us // HALF_PERIOD_US
-        self.mode = int(host.mode)
+        self.mode = mode
         self.watchdog_ms = int(host.watchdog_ms)
         self._repeat.forget()
         return self._hello(host)

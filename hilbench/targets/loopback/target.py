@@ -17,7 +17,7 @@ from __future__ import annotations
 
 from typing import Final, Mapping
 
-from hilbench.targets.kit import ParamSpec, ParamTable, RepeatAnswer
+from hilbench.targets.kit import ParamSpec, ParamTable, RepeatAnswer, served_mode
 from hilbench.protocol import (
     ACCESS_RO,
     ACCESS_RW,
@@ -108,6 +108,7 @@ class LoopbackTarget:
 
     def hello(self, host: HostHello) -> TargetHello:
         """A handshake starts a session stopped."""
+        served_mode(host, "loopback")
         self.running = False
         self._repeat.forget()
         return TargetHello(host.seq, PROTOCOL_VERSION, SCHEMA_FINGERPRINT, FIRMWARE_VERSION, PWM_PERIOD_COUNTS,

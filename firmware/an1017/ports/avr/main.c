@@ -86,7 +86,7 @@ int main(void)
     for (;;) {
         hrt_link_poll(&host_link);
         cli();
-        if (!host_link.rx.ready && host_link.mode == HBP_MODE_LOCKSTEP) {
+        if (!host_link.rx.ready && host_link.mode != HBP_MODE_REALTIME) {
             /* nothing to do until a byte arrives or Timer1 overflows: sleep (sei then sleep is atomic on AVR) */
             sleep_enable();
             sei();

@@ -20,6 +20,7 @@
 
 #include "sim_avr.h"
 #include "sim_elf.h"
+#include "sim_time.h"
 #include "uart_pty.h"
 
 static uart_pty_t uart_pty;
@@ -48,6 +49,32 @@ static void pace(const avr_t *avr, double start_s, avr_cycle_count_t *next_check
         ts.tv_nsec = (long)((ahead_s - (double)ts.tv_sec) * 1e9);
         nanosleep(&ts, NULL);
     }
+}
+
+/* The CPU sleeps (SLEEP with interrupts on) for how_long cycles, until its next timer event. simavr's
+ * own callback sleeps until the wall clock reaches the simulated time of that event since the start:
+ * after the firmware ran busy for a while (real time on a port without its own timers never sleeps)
+ * the simulated time is seconds ahead of the wall, and the next sleep waits all of it out, serving no
+ * UART byte meanwhile (a host's Stop in real time, then lockstep traffic: no answer for ~5x the time
+ * spent in real time). Here a sleep lasts at most its own length in wall time: the lead taken while
+ * busy is not paid back (lockstep counts virtual time; --realtime paces the busy time itself). */
+static void sleep_own_length(avr_t *avr, avr_cycle_count_t how_long)
+{
+    uint64_t deadline_ns = avr_cycles_to_nsec(avr, avr->cycle + how_long);
+    uint64_t runtime_ns = avr_get_time_stamp(avr);
+    uint64_t own_ns = avr_cycles_to_nsec(avr, how_long);
+    uint64_t wait_ns;
+    struct timespec ts;
+    if (runtime_ns >= deadline_ns) {
+        return;
+    }
+    wait_ns = deadline_ns - runtime_ns;
+    if (wait_ns > own_ns) {
+        wait_ns = own_ns;
+    }
+    ts.tv_sec = (time_t)(wait_ns / 1000000000u);
+    ts.tv_nsec = (long)(wait_ns % 1000000000u);
+    nanosleep(&ts, NULL);
 }
 
 static void on_signal(int sig)
@@ -89,6 +116,7 @@ int main(int argc, char **argv)
     avr_init(avr);
     avr_load_firmware(avr, &fw);
     avr->frequency = (uint32_t)freq;
+    avr->sleep = sleep_own_length;
     uart_pty_init(avr, &uart_pty);
     uart_pty_connect(&uart_pty, '0');
     signal(SIGTERM, on_signal);

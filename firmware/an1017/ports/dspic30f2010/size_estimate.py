@@ -6,7 +6,11 @@
 (`make size` in this folder runs it with the Makefile's own sources and defines.) Method:
 1. Compile every source of the build with `clang --target=msp430` (a 16-bit target with 16-bit
    registers and pointers, like the dsPIC), at -O1 (what XC16's free licence allows) and at -Os
-   (a PRO licence), with function and data sections; hostcheck/xc.h stands in for <xc.h>.
+   (a PRO licence), with function and data sections; hostcheck/xc.h stands in for <xc.h>. At -O1
+   with clang's inliner held to functions declared `inline` (-finline-hint-functions), as XC16's
+   GCC inliner is at -O1: its -finline-small-functions (inlining functions not declared inline) is
+   on at -O2, -O3 and -Os only (XC16 user's guide), while clang's -O1 inlines any function under its
+   cost threshold, copying e.g. the link's field writers into every reply.
 2. Keep what the linker's --gc-sections would keep: the sections reachable through relocations from
    main and the interrupt handlers (no msp430 linker here, so the reachability is computed).
 3. Convert to dsPIC program words: one 24-bit word per MSP430 instruction kept; constants and the
@@ -38,6 +42,8 @@ ALLOWANCE_WORDS = {
     "run-time library: 32-bit multiply, 32/32 and 32/16 divide and remainder, memset": 160,
 }
 ROOTS = re.compile(r"^(main|_\w+Interrupt)$")
+#: how many of the largest kept sections `make size` names (what to cut next)
+LARGEST = 16
 
 
 @dataclass(frozen=True)
@@ -50,6 +56,7 @@ class Kept:
     bss_bytes: int
     helpers: tuple[str, ...]
     sections: tuple[str, ...]
+    words: tuple[tuple[int, str], ...] = ()  # dsPIC words of each kept section, largest first
 
 
 def _run(argv: list[str]) -> str:
@@ -123,23 +130,32 @@ def kept(objects: list[Path]) -> Kept:
             else:
                 todo.append(where)
     totals = {"ins": 0, ".text": 0, ".rodata": 0, ".data": 0, ".bss": 0}
+    words = []
     for obj, sec in seen:
         sizes, _syms, _refs, ins = info[obj]
         kind = "." + sec.split(".")[1]
         if kind in totals:
             totals[kind] += sizes.get(sec, 0)
         totals["ins"] += ins.get(sec, 0)
+        if kind == ".text":
+            words.append((ins.get(sec, 0), sec))
+        elif kind in (".rodata", ".data"):
+            words.append(((sizes.get(sec, 0) + 1) // 2, sec))
     return Kept(totals["ins"], totals[".text"], totals[".rodata"], totals[".data"], totals[".bss"],
                 tuple(sorted(h for h in helpers if h.startswith("__") or h.startswith("mem"))),
-                tuple(sorted(sec for _obj, sec in seen)))
+                tuple(sorted(sec for _obj, sec in seen)), tuple(sorted(words, reverse=True)))
+
+
+#: clang options per level beside the level itself (step 1 of the method: XC16 -O1's inliner)
+LEVEL_OPTIONS = {"-O1": ("-finline-hint-functions",), "-Os": ()}
 
 
 def compile_objects(cflags: list[str], sources: list[str], level: str, out: Path) -> list[Path]:
     objects = []
     for source in sources:
         obj = out / f"{Path(source).stem}{level}.o"
-        _run(["clang", "--target=msp430", level, "-ffunction-sections", "-fdata-sections", "-w", *cflags, "-c",
-              source, "-o", str(obj)])
+        _run(["clang", "--target=msp430", level, *LEVEL_OPTIONS.get(level, ()), "-ffunction-sections",
+              "-fdata-sections", "-w", *cflags, "-c", source, "-o", str(obj)])
         objects.append(obj)
     return objects
 
@@ -162,6 +178,7 @@ def main(argv: list[str]) -> int:
     cflags, sources = rest[1:split], rest[split + 1:]
     flash_bytes, ram_bytes = DEVICES[args.device]
     print(f"dsPIC{args.device} size estimate (no XC16 here): clang --target=msp430, function/data sections, "
+          f"-O1 inlining only functions declared inline (as XC16 -O1), "
           f"kept = reachable from main and the interrupt handlers; dsPIC words = MSP430 instructions + "
           f"constants and data initialisers / 2 + {sum(ALLOWANCE_WORDS.values())} words allowance; bytes = words x 3")
     for what, words in ALLOWANCE_WORDS.items():
@@ -173,6 +190,7 @@ def main(argv: list[str]) -> int:
             print(f"  {level}: {k.instructions} instructions ({k.code_bytes} B msp430 code), constants {k.const_bytes} B, "
                   f"data {k.data_bytes} B, bss {k.bss_bytes} B, library calls {', '.join(k.helpers) or 'none'} "
                   f"-> {words} words = {words * 3} B")
+    print("  largest at -O1 (dsPIC words): " + ", ".join(f"{sec.split('.', 2)[2]} {n}" for n, sec in k.words[:LARGEST]))
     print(f"static RAM (msp430, 2-byte alignment as on the dsPIC): {k.data_bytes + k.bss_bytes} B of "
           f"{ram_bytes} B; stack bound: tests/test_firmware_dspic.py")
     percent = 100.0 * words * 3 / flash_bytes
