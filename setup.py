@@ -34,6 +34,15 @@ setup(
             extra_compile_args=_flags,
             optional=True,
         ),
+        Extension(  # the process paths in C (RemoteTarget.step for the C span, serve()'s loop) on protocol 3's C library
+            "hilbench.targets._remotestep",
+            sources=["hilbench/targets/_remotestep.c", "firmware_protocol/hbp.c", "firmware_protocol/hbp_codec.c",
+                     "firmware_protocol/hbp_messages.c"],
+            include_dirs=GLUE + ["firmware_protocol"],
+            depends=GLUE_HEADER + ["firmware_protocol/hbp.h", "firmware_protocol/hbp_messages.h"],
+            extra_compile_args=_flags,
+            optional=True,
+        ),
         Extension(  # CSV rows in C (Recorder._format_csv is the reference)
             "hilbench.bench._csvrows",
             sources=["hilbench/bench/_csvrows.c"],

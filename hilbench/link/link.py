@@ -191,23 +191,39 @@ class Link:
             self._set_blocking(False)
         if fd >= 0:
             t0 = monotonic()
-            msg = self._read_ready(fd, timeout_s)
+            return self._took(self._read_once(fd, timeout_s), t0 + timeout_s, timeout_s)
+        return self._wait(timeout_s, timeout_s)
+
+    def _read_once(self, fd: int, timeout_s: float) -> bytes | None:
+        """One poll and one read: what arrived (b"": end of file), or None (nothing, or a read
+        error, which the transport names on the next read: hang-up, closed)."""
+        if not self._poll_fd(timeout_s * 1000.0 if timeout_s > 0 else 0):
+            return None
+        try:
+            return os.read(fd, _READ_CHUNK)
+        except OSError:  # BlockingIOError included: nothing after all
+            return None
+
+    def _took(self, data: bytes | None, deadline: float, timeout_s: float) -> Message | None:
+        """recv_or_none's end after one poll and read (`_read_once`'s answer): the frame they brought,
+        else the wait through the transport up to ``deadline``. hilbench/targets/_remotestep.c, the
+        C form of RemoteTarget.step, hands what it read here whenever it is not one good Drive."""
+        if data is not None:
+            if not data:
+                raise self.transport._hung_up("end of file")  # type: ignore[attr-defined]
+            msg = self._take_read(data)
             if msg is not None:
                 return msg
-            remaining = t0 + timeout_s - monotonic()
-            return self._wait(remaining, timeout_s) if remaining > 0 else None
-        return self._wait(timeout_s, timeout_s)
+        remaining = deadline - monotonic()
+        return self._wait(remaining, timeout_s) if remaining > 0 else None
 
     def _read_ready(self, fd: int, timeout_s: float) -> Message | None:
         """One poll and one read: the frame that arrived, or None (nothing yet, or part of one).
 
         A read error returns None: the caller's wait reads again through the transport, which
         names the error (hang-up, closed). End of file is a hang-up."""
-        if not self._poll_fd(timeout_s * 1000.0 if timeout_s > 0 else 0):
-            return None
-        try:
-            data = os.read(fd, _READ_CHUNK)
-        except OSError:  # BlockingIOError included: nothing after all
+        data = self._read_once(fd, timeout_s)
+        if data is None:
             return None
         if not data:
             raise self.transport._hung_up("end of file")  # type: ignore[attr-defined]

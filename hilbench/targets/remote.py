@@ -8,6 +8,7 @@ hot path: one send, one receive, one type-and-seq check.
 from __future__ import annotations
 
 import time
+from types import MethodType
 from typing import TYPE_CHECKING, Any
 
 from hilbench.errors import LinkTimeout, ParamError, TargetError, VersionMismatch
@@ -37,8 +38,15 @@ from hilbench.protocol import (
     version_refusal,
 )
 
+from hilbench.link.link import Link
+
+try:  # step in C for the session's C span (optional, built with the C cores)
+    from hilbench.targets import _remotestep
+except ImportError:  # pragma: no cover - no compiler at install time
+    _remotestep = None  # type: ignore[assignment]
+
 if TYPE_CHECKING:
-    from hilbench.link import FaultyLink, Link
+    from hilbench.link import FaultyLink
 
 
 def _error_name(code: int) -> str:
@@ -215,9 +223,28 @@ class RemoteTarget:
         msg = self.link.recv_or_none(self.retry_s)
         if type(msg) is Drive and msg.seq == sensors.seq:
             return msg
+        return self._answer(sensors, msg)
+
+    def _answer(self, sensors: Sensors, msg: Any) -> Drive:
+        """`step`'s end when the first thing received (``msg``; None: nothing within retry_s) is not
+        our Drive (also where hilbench/targets/_remotestep.c hands such an answer back)."""
+        if type(msg) is Drive and msg.seq == sensors.seq:
+            return msg
         if msg is not None:
             self._note_stray(msg)
         return self._step_slow(sensors)
+
+    def span_core(self) -> tuple[Any, Any] | None:
+        """The C form of `step` for the session's C span (hilbench/targets/_remotestep.c): (hbglue.h's
+        target capsule, the core whose `step` it stands for), or None (not built, or a link that is
+        not a plain Link on a file descriptor: a fault injector, TCP through a transport)."""
+        link = self.link
+        fd = getattr(link, "_fd_w", -1)
+        if _remotestep is None or type(link) is not Link or fd < 0:
+            return None
+        core = _remotestep.Remote(target=self, link=link, step=MethodType(RemoteTarget.step, self), drive_type=Drive,
+                                  sensors_type=Sensors, fd=fd, retry_s=self.retry_s)
+        return _remotestep.SPAN_API, core
 
     def _step_slow(self, sensors: Sensors) -> Drive:
         """The first answer was late, lost or something else: skip strays, send the same Sensors

@@ -15,10 +15,11 @@ from __future__ import annotations
 
 import logging
 import gc
+import os
 import threading
 import time
 from dataclasses import dataclass, field
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, Callable
 
 from hilbench.errors import HilbenchError, LinkClosed, ParamError
 from hilbench.targets.kit import RepeatAnswer
@@ -45,8 +46,14 @@ from hilbench.protocol import (
     host_hello_mismatch,
 )
 
+from hilbench.link.link import Link
+
+try:  # the lockstep loop in C (optional, built with the C cores)
+    from hilbench.targets import _remotestep
+except ImportError:  # pragma: no cover - no compiler at install time
+    _remotestep = None  # type: ignore[assignment]
+
 if TYPE_CHECKING:
-    from hilbench.link import Link
     from hilbench.targets.base import Target
 
 log = logging.getLogger("hilbench.serve")
@@ -217,8 +224,9 @@ class _Server:
         recv, send, answer, report, stop_event = self.link.recv_or_none, self.link.send, self.answer, self.report, self.stop_event
         watching = self.watchdog_s > 0  # a watchdog agreed: wake to look at it, and note each Sensors' time
         wait = None if stop_event is None and not watching else _POLL_S
+        in_c = self._in_c(wait)
         while True:
-            msg = recv(wait)
+            msg = recv(wait) if in_c is None else in_c()
             if type(msg) is not Sensors:
                 return msg
             report.sensors += 1
@@ -233,6 +241,25 @@ class _Server:
                 self.handler_fault(msg, exc)
             if stop_event is not None and stop_event.is_set():
                 return None
+
+    def _in_c(self, wait: float | None) -> Callable[[], Any] | None:
+        """This loop's periods in C (hilbench/targets/_remotestep.c `serve_lockstep`: the Sensors
+        that arrive alone on a clean stream, answered through the target's C step, until the first
+        message it leaves to this loop), when the target has a C step that is its `step` (its
+        `span_core`), the link is a plain Link on a file descriptor, nobody may ask us to stop and
+        HILBENCH_SERVE_LOOP is not "python" (the reference, this loop alone); else None."""
+        span_core = getattr(self.target, "span_core", None)
+        link = self.link
+        fd = getattr(link, "_fd_w", -1)
+        if (_remotestep is None or span_core is None or self.stop_event is not None or wait is None
+                or type(link) is not Link or fd < 0 or os.environ.get("HILBENCH_SERVE_LOOP") == "python"):
+            return None
+        core = span_core()
+        if core is None or self.target.step != core[1].step:
+            return None
+        args = (self, link, fd, core[0], core[1], wait, self.watchdog_s > 0, Drive, Sensors)
+        serve_lockstep = _remotestep.serve_lockstep
+        return lambda: serve_lockstep(*args)
 
     def _new_period(self, msg: Sensors) -> Drive:
         """A new Sensors (not a repeat): lockstep steps one period, real time the wall time since the

@@ -1,0 +1,331 @@
+"""RemoteTarget.step in C (hilbench/targets/_remotestep.c) for the session's C span with a process
+target is the Python loop's exchange, proven equal: its codec gives the Python codec's bytes and
+answers, the recordings and link counters of emulator and SIL runs are the Python loop's column for
+column (also with live writes, sensor faults, and a target whose own link corrupts and duplicates
+frames), and a target that falls silent or dies ends both runs with the same error."""
+
+from __future__ import annotations
+
+import os
+import random
+import signal
+import subprocess
+import sys
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pytest
+
+import hilbench
+from hilbench.bench.session import Session, _span
+from hilbench.errors import DecodeError, HilbenchError, ProtocolError
+from hilbench.plant import model
+from hilbench.processes import reap, spawn
+from hilbench.protocol import Drive, Sensors, decode_frame, encode_frame
+from hilbench.targets import remote
+
+from _firmware import require_tool
+
+ROOT = Path(__file__).resolve().parent.parent
+RANDOM = ROOT / "tests" / "golden" / "random_an1017.toml"
+SERVO = ROOT / "bench_configs" / "servo_200w.toml"
+
+pytestmark = pytest.mark.skipif(_span is None or model._CPlant is None or remote._remotestep is None,
+                                reason="the C span or the C remote step is not built")
+
+
+# ------------------------------------------------------------------------------------ the codec
+def _random_sensors(rng: random.Random) -> Sensors:
+    edges = tuple(sorted((rng.randrange(0, 1 << 16), rng.randrange(256)) for _ in range(rng.choice((0, 0, 1, 2, 5, 16)))))
+    adc = tuple(rng.randrange(0, 1 << 16) for _ in range(rng.choice((0, 1, 3, 8))))
+    return Sensors(rng.randrange(256), rng.randrange(256), edges, rng.randrange(0, 1 << 16), adc)
+
+
+def test_the_c_sensors_frame_is_the_python_encoders() -> None:
+    """Every count of ADC codes and edges; a message too long for a frame is None in C and a
+    ProtocolError in Python (the C step leaves it to the Python reference, which raises it)."""
+    rng = random.Random(27)
+    too_long = 0
+    for _ in range(3000):
+        s = _random_sensors(rng)
+        try:
+            expected: bytes | None = encode_frame(s)
+        except ProtocolError:
+            expected, too_long = None, too_long + 1
+        assert remote._remotestep.encode_sensors(s.seq, s.inputs, s.edges, s.encoder, s.adc) == expected
+    assert 0 < too_long < 3000
+
+
+@pytest.mark.parametrize("field, value", [("encoder", 1 << 16), ("encoder", -1), ("inputs", 256), ("adc", (70000,)),
+                                          ("adc", (1,) * 9), ("edges", ((70000, 1),)), ("edges", ((5, 300),)),
+                                          ("edges", ((5, 1),) * 17)])
+def test_a_sensors_field_outside_its_wire_range_is_left_to_the_python_encoder(field: str, value: Any) -> None:
+    s = Sensors(1, 2, (), 3, (4, 5, 6))._replace(**{field: value})
+    assert remote._remotestep.encode_sensors(s.seq, s.inputs, s.edges, s.encoder, s.adc) is None
+    with pytest.raises(ProtocolError):
+        encode_frame(s)
+
+
+def _python_drive(data: bytes) -> tuple | None:
+    """What Link._take_read's fast path takes as one Drive from one read (else None)."""
+    if not data or data[-1] != 0:
+        return None
+    try:
+        msg = decode_frame(data[:-1])
+    except DecodeError:
+        return None
+    return tuple(msg) if type(msg) is Drive else None
+
+
+def test_the_c_drive_decoder_accepts_what_the_python_decoder_accepts() -> None:
+    """Good Drives of every telemetry count, and for each: every single-bit flip, bursts, cuts,
+    two frames in one read, another message type."""
+    rng = random.Random(28)
+    decode = remote._remotestep.decode_drive
+    for i in range(300):
+        d = Drive(rng.randrange(256), rng.randrange(1 << 12), rng.randrange(1 << 12), rng.randrange(1 << 12),
+                  rng.randrange(4), rng.randrange(8), rng.randrange(8), rng.random() < 0.5, rng.random() < 0.5,
+                  rng.randrange(64), tuple(rng.randrange(-32768, 32768) for _ in range(rng.randrange(9))))
+        wire = encode_frame(d)
+        assert decode(wire) == tuple(d)
+        variants = [wire[:-1], wire[:n] + b"\x00" if (n := rng.randrange(1, len(wire))) else wire, wire + wire,
+                    encode_frame(Sensors(1, 2, (), 3, (4,)))]
+        for bit in range(len(wire) * 8):
+            variants.append(bytes(b ^ (1 << (bit % 8)) if j == bit // 8 else b for j, b in enumerate(wire)))
+        for _ in range(20):
+            at, width = rng.randrange(len(wire)), rng.randrange(1, 17)
+            burst = int.from_bytes(wire, "big") ^ (((1 << width) - 1) << (8 * len(wire) - at * 8 - width if
+                                                                           8 * len(wire) - at * 8 - width > 0 else 0))
+            variants.append(burst.to_bytes(len(wire), "big"))
+        for v in variants:
+            assert decode(v) == _python_drive(v), (i, v.hex())
+
+
+def test_the_c_sensors_decoder_accepts_what_the_python_decoder_accepts() -> None:
+    """serve's C loop reads Sensors: good ones of every size, every single-bit flip of each, cuts."""
+    rng = random.Random(29)
+    decode = remote._remotestep.decode_sensors
+    for i in range(300):
+        s = _random_sensors(rng)
+        try:
+            wire = encode_frame(s)
+        except ProtocolError:
+            continue
+        assert decode(wire) == tuple(s)
+        variants = [wire[:-1], wire + wire, wire[: rng.randrange(1, len(wire))] + b"\x00"]
+        for bit in range(len(wire) * 8):
+            variants.append(bytes(b ^ (1 << (bit % 8)) if j == bit // 8 else b for j, b in enumerate(wire)))
+        for v in variants:
+            expected = None
+            if v and v[-1] == 0:
+                try:
+                    msg = decode_frame(v[:-1])
+                except DecodeError:
+                    msg = None
+                expected = tuple(msg) if type(msg) is Sensors else None
+            assert decode(v) == expected, (i, v.hex())
+
+
+# ------------------------------------------------------------------------------- the recordings
+def _run(mode: str, target: str, config: Path | None, scenario: Path | None, seconds: float,
+         overrides: tuple[str, ...] = ()) -> tuple[dict[str, np.ndarray], tuple[str, ...], dict[str, int], list[Any]]:
+    """One run with the C span ("c") or the Python loop ("python"): the columns, the events, the
+    link's counters and the span objects the session made."""
+    cfg = hilbench.load_config(config, [f'link.target="{target}"', f"run.duration_s={seconds}", *overrides],
+                               scenario_path=scenario)
+    spans: list[Any] = []
+    # the Python reference on both ends: an emulator process started here runs serve()'s Python loop
+    os.environ["HILBENCH_SERVE_LOOP"] = "c" if mode == "c" else "python"
+    with hilbench.Bench(cfg, scenario=True) as bench:
+        session = bench.session
+        assert isinstance(session, Session)
+        session.c_span = mode == "c"  # type: ignore[misc]
+        make = session._c_span
+        session._c_span = lambda rows: spans.append(make(rows)) or spans[-1]  # type: ignore[method-assign]
+        bench.run()
+        signals = bench.signals()
+        columns = {name: np.asarray(signals[name]) for name in signals}
+        link = session.target.link  # type: ignore[attr-defined]
+        stats = link.stats.as_dict()
+        stats["stale_frames"] = session.target.stale_frames  # type: ignore[attr-defined]
+        stats["retries"] = session.target.retries  # type: ignore[attr-defined]
+        stats["fast_frames"] = getattr(link, "fast_frames", -1)
+        return columns, bench.events, stats, spans
+
+
+def _same(a: dict[str, np.ndarray], b: dict[str, np.ndarray]) -> list[str]:
+    assert a.keys() == b.keys() and len(a["t_s"]) > 1000
+    return [name for name in a if not np.array_equal(a[name], b[name], equal_nan=True)]
+
+
+@pytest.fixture(autouse=True)
+def _serve_loop_env(monkeypatch: pytest.MonkeyPatch) -> None:
+    """`_run` sets HILBENCH_SERVE_LOOP for the emulator processes it starts; put it back after."""
+    monkeypatch.setenv("HILBENCH_SERVE_LOOP", "c")
+
+
+@pytest.mark.parametrize("target, config, scenario, seconds, overrides", [
+    ("emulator:an1017", None, None, 0.3, ()),
+    # the host's own injector corrupts and duplicates its Sensors: the host steps in Python (a
+    # FaultyLink), the emulator's C loop hands every bad frame and repeated seq to its Python loop
+    ("emulator:an1017?corrupt=5e-5&corrupt_dir=tx&dup=0.003&fault_seed=5", None, None, 0.4,
+     ("link.timeout_ms=2000", "link.retry_ms=20")),
+    ("emulator:an1017", None, RANDOM, 0.8, ()),  # live writes, every sensor fault kind, buttons
+    ("emulator:an1017", None, None, 1.5, ("link.period_us=1000",)),  # several hall edges per Sensors
+    ("sil:an1017", None, None, 0.3, ()),
+    ("sil:foc", SERVO, None, 0.3, ()),
+])
+def test_a_process_target_records_with_the_c_step_what_the_python_loop_records(
+        target: str, config: Path | None, scenario: Path | None, seconds: float, overrides: tuple[str, ...]) -> None:
+    if target.startswith("sil:"):
+        require_tool("gcc", "the SIL firmware is built with gcc")
+    c, c_events, c_stats, c_spans = _run("c", target, config, scenario, seconds, overrides)
+    py, py_events, py_stats, py_spans = _run("python", target, config, scenario, seconds, overrides)
+    assert not _same(c, py)
+    assert c_events == py_events
+    assert all(span is None for span in py_spans)
+    if "corrupt" in target:  # (a retry on a loaded machine moves the injector's later faults)
+        assert c_stats["retries"] > 0 and py_stats["retries"] > 0
+        return
+    assert c_stats == py_stats
+    assert any(span is not None and span.k > 0 for span in c_spans)  # the C span ran, with the C step
+
+
+# ------------------------------------------------------------- a faulty or failing target process
+def _emulator(faults: str) -> tuple[subprocess.Popen[bytes], str]:
+    """The AN1017 emulator as its own process on a pty whose own link (the target's end) has
+    ``faults`` (the link spec's query); returns it and the pty path the host opens."""
+    process = spawn([sys.executable, "-P", "-m", "hilbench.targets.emulator", "an1017", "--port", f"pty?{faults}",
+                     "--mode", "lockstep"], stdin=subprocess.DEVNULL, stdout=subprocess.PIPE,
+                    stderr=subprocess.DEVNULL, start_new_session=True)
+    assert process.stdout is not None
+    path = process.stdout.readline().decode().strip()  # announced once it answers
+    if not path.startswith("/dev/"):
+        reap(process)
+        pytest.fail(f"the emulator announced {path!r}")
+    return process, path
+
+
+def test_a_target_that_corrupts_and_repeats_frames_gets_the_same_answers_from_both_paths() -> None:
+    """Bad frames (its Drive's bits flipped) and Drives sent twice (a stale seq in the next period),
+    from the target's own seeded injector: the C step hands each to the Python reference."""
+    runs = []
+    for mode in ("c", "python"):
+        process, path = _emulator("corrupt=5e-5&corrupt_dir=tx&dup=0.003&fault_seed=5")
+        try:  # a lost Drive costs a retry: 20 ms here, not the default 100
+            runs.append(_run(mode, path, None, None, 0.4, ("link.timeout_ms=2000", "link.retry_ms=20")))
+        finally:
+            reap(process)
+    (c, c_events, c_stats, c_spans), (py, py_events, py_stats, _) = runs
+    assert not _same(c, py)
+    assert c_events == py_events
+    assert c_stats["crc_errors"] + c_stats["cobs_errors"] + c_stats["length_errors"] > 0
+    assert c_stats["stale_frames"] > 0 and c_stats["retries"] > 0
+    assert any(span is not None and span.k > 0 for span in c_spans)
+    # (the counters themselves may differ: a retry sent because the loaded machine delayed an answer
+    # past retry_ms is one more frame through the target's injector, which moves its later faults)
+    assert py_stats["crc_errors"] + py_stats["cobs_errors"] + py_stats["length_errors"] > 0
+
+
+def _failing(mode: str, faults: str, kill_after: int | None) -> tuple[type, str, int, bytes]:
+    """A lockstep run against an emulator with ``faults`` on its own link, killed after
+    ``kill_after`` periods when given: the error, its message, the period and the rows recorded."""
+    process, path = _emulator(faults)
+    try:
+        cfg = hilbench.load_config(None, [f'link.target="{path}"', "run.duration_s=0.5", "link.timeout_ms=300"])
+        with hilbench.Bench(cfg, scenario=True) as bench:
+            session = bench.session
+            assert isinstance(session, Session)
+            session.c_span = mode == "c"  # type: ignore[misc]
+            session.begin()
+            with pytest.raises(HilbenchError) as caught:
+                if kill_after is not None:
+                    session.advance(kill_after)
+                    os.kill(process.pid, signal.SIGKILL)
+                    process.wait(timeout=10)
+                session.advance(session.planned_periods)
+            recorder = session.recorder
+            rows = bytes(recorder.rows.data) if recorder is not None and hasattr(recorder, "rows") else b""
+            return type(caught.value), str(caught.value), session.periods_done, rows
+    finally:
+        reap(process)
+
+
+@pytest.mark.parametrize("faults, kill_after", [
+    ("silent_after=1500&fault_seed=1", None),  # the target stops answering: a timeout
+    ("fault_seed=1", 1200),  # the target process dies: the far end hung up
+])
+def test_a_silent_or_dead_target_ends_both_paths_with_the_same_error(faults: str, kill_after: int | None) -> None:
+    c = _failing("c", faults, kill_after)
+    py = _failing("python", faults, kill_after)
+    assert c[0] is py[0] and issubclass(c[0], HilbenchError)
+    assert c[1:] == py[1:]
+    assert c[2] > 1000
+
+
+# ------------------------------------------------------------------------ serve's loop, in a thread
+def _served_an1017(loop: str, stream: list[Sensors], monkeypatch: pytest.MonkeyPatch) -> tuple[list[Drive], Any]:
+    """serve(AN1017 with its C core) in a thread on a pty, its loop in C or Python (``loop``); the host
+    steps ``stream`` (a Sensors twice in a row: a repeated seq), a ParamGet every 500 Sensors and a
+    Status at the end. Returns the Drives and the server's report."""
+    from hilbench.link import open_link
+    from hilbench.protocol import MODE_LOCKSTEP
+    from hilbench.targets import make_target
+    from hilbench.targets.serve import serve
+    import threading
+
+    monkeypatch.setenv("HILBENCH_SERVE_LOOP", loop)
+    calls = [0]
+    serve_lockstep = remote._remotestep.serve_lockstep
+
+    def counted(*args: Any) -> Any:  # how often the server's loop called into C (a spy, not a stand-in)
+        calls[0] += 1
+        return serve_lockstep(*args)
+
+    monkeypatch.setattr(remote._remotestep, "serve_lockstep", counted)
+    target = make_target("an1017")
+    assert getattr(target, "span_core", None) is not None, "the AN1017 C core is not built"
+    host_link = open_link("pty", timeout_s=2.0)
+    far_link = open_link(host_link.peer_path, timeout_s=2.0)
+    reports: list[Any] = []
+    thread = threading.Thread(target=lambda: reports.append(serve(target, far_link)), daemon=True)
+    thread.start()
+    try:
+        host = remote.RemoteTarget(host_link, timeout_s=2.0)
+        host.handshake(50, MODE_LOCKSTEP, 100)  # a watchdog: serve waits with a timeout (its C loop's case)
+        drives = []
+        for i, s in enumerate(stream):
+            if i % 500 == 499:
+                host.get_param(0)
+            drives.append(host.step(s))
+        host.status()
+    finally:
+        host_link.close()
+        thread.join(timeout=20)
+        far_link.close()
+    assert not thread.is_alive() and reports
+    reports[0].c_calls = calls[0]
+    return drives, reports[0]
+
+
+def test_serves_c_loop_answers_what_its_python_loop_answers(monkeypatch: pytest.MonkeyPatch) -> None:
+    rng = random.Random(30)
+    halls = (1, 3, 2, 6, 4, 5)
+    stream: list[Sensors] = []
+    for k in range(3000):
+        s = Sensors(k & 0xFF, halls[(k // 40) % 6] | (0x08 if 20 <= k < 30 else 0), (), 0, (700 + k // 20, 512, 640))
+        stream.append(s)
+        if rng.random() < 0.02:
+            stream.append(s)  # sent again: answered with the last Drive, no step
+    c_drives, c_report = _served_an1017("c", stream, monkeypatch)
+    py_drives, py_report = _served_an1017("python", stream, monkeypatch)
+    assert py_report.c_calls == 0
+    assert 0 < c_report.c_calls < len(stream) / 10  # C answered most Sensors, many per call
+    assert c_drives == py_drives
+    assert [type(d) for d in c_drives] == [Drive] * len(stream)
+    assert c_report.duplicates == py_report.duplicates > 0
+    assert (c_report.sensors, c_report.requests, c_report.handler_faults) == (
+        py_report.sensors, py_report.requests, py_report.handler_faults)
+    for key in ("frames_rx", "frames_tx", "bytes_rx", "bytes_tx", "seq_gaps", "frame_errors"):
+        assert c_report.link_stats[key] == py_report.link_stats[key], key
