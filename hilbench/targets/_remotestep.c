@@ -38,6 +38,7 @@ typedef struct {
     int synced;           /* no Python ran since the link was last looked at: its state is as C left it,
                              next_seq is loaded and the deltas are to be written back */
     long long frames_tx, bytes_tx, bytes_rx, fast_frames, seq_gaps;
+    int sequenced;        /* the link keeps a running seq for the type (Link._next_seq has it) */
     int next_seq;         /* -1: None (none seen yet) */
 } tally_t;
 
@@ -50,6 +51,7 @@ typedef struct {
     int fd, retry_ms;
     double retry_s;
     tally_t t; /* the link's counters while a span runs */
+    long long c_steps;    /* steps answered wholly in C (for the tests: the fast path is the common one) */
     unsigned char rx[READ_CHUNK];
 } Remote;
 
@@ -58,6 +60,36 @@ static double monotonic_s(void)
     struct timespec ts;
     clock_gettime(CLOCK_MONOTONIC, &ts); /* time.monotonic's clock */
     return (double)ts.tv_sec + 1e-9 * (double)ts.tv_nsec;
+}
+
+/* Link._take_read's fast path: one good frame of the type, its seq against the one expected. */
+static void tally_frame(tally_t *s, Py_ssize_t n, int seq)
+{
+    s->bytes_rx += n;
+    s->fast_frames += 1;
+    if (!s->sequenced) return;
+    if (s->next_seq >= 0 && seq != s->next_seq) s->seq_gaps += 1;
+    s->next_seq = (seq + 1) & 0xFF;
+}
+
+/* Wait up to timeout_ms from t0 (monotonic_s) for input on fd, the GIL released (as select.poll);
+ * a signal runs its Python handlers and the wait goes on for what is left of the timeout (PEP 475).
+ * poll's result: > 0 ready, 0 nothing in time, < 0 failed (with an exception when a handler raised). */
+static int poll_in(int fd, int timeout_ms, double t0)
+{
+    struct pollfd p = {fd, POLLIN | POLLPRI, 0};
+    int ready, err, wait_ms = timeout_ms;
+    for (;;) {
+        Py_BEGIN_ALLOW_THREADS
+        ready = poll(&p, 1, wait_ms);
+        err = errno;
+        Py_END_ALLOW_THREADS
+        if (ready >= 0 || err != EINTR || PyErr_CheckSignals() < 0) return ready;
+        if (timeout_ms > 0) {
+            double left_ms = (t0 - monotonic_s()) * 1000.0 + (double)timeout_ms;
+            wait_ms = left_ms > 0.0 ? (int)ceil(left_ms) : 0;
+        }
+    }
 }
 
 /* link.<name> += delta */
@@ -76,24 +108,29 @@ static int add_attr(PyObject *link, const char *name, long long delta)
     return r;
 }
 
-/* The key's entry of link._next_seq */
+/* The key's entry of link._next_seq; a type it has no entry for is not sequenced (Link._take_read
+ * counts no gaps for it and keeps no seq). */
 static int load_next_seq(tally_t *s)
 {
     PyObject *table = PyObject_GetAttrString(s->link, "_next_seq");
     if (table == NULL) return -1;
-    PyObject *v = PyDict_Check(table) ? PyDict_GetItemWithError(table, s->key) : NULL;
+    PyObject *v = PyObject_GetItem(table, s->key);
     Py_DECREF(table);
+    s->sequenced = v != NULL;
+    s->next_seq = -1;
     if (v == NULL) {
-        if (!PyErr_Occurred()) PyErr_SetString(PyExc_RuntimeError, "remote step: the link does not sequence this message type");
-        return -1;
+        if (!PyErr_ExceptionMatches(PyExc_KeyError)) return -1;
+        PyErr_Clear();
+        return 0;
     }
-    if (v == Py_None) s->next_seq = -1;
-    else {
+    int r = 0;
+    if (v != Py_None) {
         long n = PyLong_AsLong(v);
-        if (n == -1 && PyErr_Occurred()) return -1;
-        s->next_seq = (int)n;
+        if (n == -1 && PyErr_Occurred()) r = -1;
+        else s->next_seq = (int)n;
     }
-    return 0;
+    Py_DECREF(v);
+    return r;
 }
 
 /* Write the span's counters back to the Link (before any Python call and at the span's end). */
@@ -109,6 +146,7 @@ static int flush(tally_t *s)
     r |= add_attr(s->link, "seq_gaps", s->seq_gaps);
     s->frames_tx = s->bytes_tx = s->bytes_rx = s->fast_frames = s->seq_gaps = 0;
     if (r < 0) return -1;
+    if (!s->sequenced) return 0;
     PyObject *table = PyObject_GetAttrString(s->link, "_next_seq");
     if (table == NULL) return -1;
     PyObject *v = s->next_seq < 0 ? Py_NewRef(Py_None) : PyLong_FromLong(s->next_seq);
@@ -324,15 +362,7 @@ static int remote_step(PyObject *self, const hb_csensors_t *in, hb_cdrive_t *out
     s->t.bytes_tx += n_wire;
     /* recv_or_none(retry_s): one poll and one read */
     double t0 = monotonic_s();
-    struct pollfd p = {s->fd, POLLIN | POLLPRI, 0};
-    int ready;
-    int err;
-    do { /* the GIL released for the wait, as select.poll does */
-        Py_BEGIN_ALLOW_THREADS
-        ready = poll(&p, 1, s->retry_ms);
-        err = errno;
-        Py_END_ALLOW_THREADS
-    } while (ready < 0 && err == EINTR && PyErr_CheckSignals() == 0);
+    int ready = poll_in(s->fd, s->retry_ms, t0);
     if (ready < 0 && PyErr_Occurred()) {
         flush(&s->t);
         return -1;
@@ -341,19 +371,20 @@ static int remote_step(PyObject *self, const hb_csensors_t *in, hb_cdrive_t *out
     if (ready > 0) n = read(s->fd, s->rx, READ_CHUNK);
     hbp_drive_t d;
     if (n > 0 && one_drive(s->rx, n, &d) && d.seq == in->seq) {
-        s->t.bytes_rx += n;
-        s->t.fast_frames += 1;
-        if (s->t.next_seq >= 0 && d.seq != s->t.next_seq) s->t.seq_gaps += 1;
-        s->t.next_seq = (d.seq + 1) & 0xFF;
+        tally_frame(&s->t, n, d.seq);
         drive_to_c(&d, out);
         s->last = *out;
         s->last_seq = d.seq;
+        s->c_steps += 1;
         Py_CLEAR(s->last_drive);
         return 0;
     }
-    if (flush(&s->t) < 0) return -1;
+    /* the bytes taken before any Python call (another thread may run then) */
     PyObject *data = n >= 0 ? PyBytes_FromStringAndSize((const char *)s->rx, n) : Py_NewRef(Py_None);
-    if (data == NULL) return -1;
+    if (data == NULL || flush(&s->t) < 0) {
+        Py_XDECREF(data);
+        return -1;
+    }
     int r = python_rest(s, in, data, t0 + s->retry_s, out);
     Py_DECREF(data);
     return r;
@@ -564,13 +595,21 @@ static PyObject *serve_lockstep(PyObject *mod, PyObject *args)
     t.key = sensors_type;
     t.fd = fd;
     PyObject *out = NULL;
+    unsigned char *rx = NULL; /* this call's own read buffer: the GIL may change hands in the loop */
     g.answer = PyObject_GetAttrString(server, "answer");
     g.report = g.answer == NULL ? NULL : PyObject_GetAttrString(server, "report");
     if (g.report == NULL) goto done;
-    static unsigned char rx[READ_CHUNK];
+    rx = PyMem_Malloc(READ_CHUNK);
+    if (rx == NULL) {
+        PyErr_NoMemory();
+        goto done;
+    }
     int wait_ms = wait_s > 0 ? (int)ceil(wait_s * 1000.0) : 0;
     long repeat_seq = -2; /* answer.last's seq, looked at again after any Python call */
     for (;;) {
+        /* Ctrl-C between periods, as the Python loop sees it (a signal that lands while C steps or
+         * sends interrupts no poll: the next one finds data) */
+        if (PyErr_CheckSignals() < 0) goto done;
         if (!t.synced) {
             int fast = link_fast(&t);
             if (fast < 0 || (fast && load_next_seq(&t) < 0)) goto done;
@@ -582,35 +621,29 @@ static PyObject *serve_lockstep(PyObject *mod, PyObject *args)
             if (answer_last_seq(&g, &repeat_seq) < 0) goto done;
         }
         double t0 = monotonic_s();
-        struct pollfd p = {fd, POLLIN | POLLPRI, 0};
-        int ready, err;
-        do {
-            Py_BEGIN_ALLOW_THREADS
-            ready = poll(&p, 1, wait_ms);
-            err = errno;
-            Py_END_ALLOW_THREADS
-        } while (ready < 0 && err == EINTR && PyErr_CheckSignals() == 0);
+        int ready = poll_in(fd, wait_ms, t0);
         if (ready < 0 && PyErr_Occurred()) goto done;
         ssize_t n = ready > 0 ? read(fd, rx, READ_CHUNK) : -1;
         hbp_sensors_t m;
         if (!(n > 0 && one_message(rx, n, HBP_MSG_SENSORS, &hbp_layout_sensors, &m) && (long)m.seq != repeat_seq)) {
-            if (serving_sync(&g, &t) < 0) goto done; /* the reference takes it from here */
             PyObject *data = n >= 0 ? PyBytes_FromStringAndSize((const char *)rx, n) : Py_NewRef(Py_None);
             if (data == NULL) goto done;
+            if (serving_sync(&g, &t) < 0) { /* the reference takes it from here */
+                Py_DECREF(data);
+                goto done;
+            }
             out = PyObject_CallMethod(link, "_took", "Odd", data, t0 + wait_s, wait_s);
             Py_DECREF(data);
             goto done;
         }
-        t.bytes_rx += n; /* Link._take_read's fast path */
-        t.fast_frames += 1;
-        if (t.next_seq >= 0 && m.seq != t.next_seq) t.seq_gaps += 1;
-        t.next_seq = (m.seq + 1) & 0xFF;
+        tally_frame(&t, n, m.seq); /* Link._take_read's fast path */
         g.stepped += 1;
         if (watching) g.last_t = monotonic_s();
         hb_csensors_t in;
         hb_cdrive_t d;
         sensors_to_c(&m, &in);
         if (api->step(core, &in, &d) < 0) { /* the model raised: the server answers BAD_REQUEST */
+            if (!PyErr_ExceptionMatches(PyExc_Exception)) goto done; /* KeyboardInterrupt, SystemExit: out */
             PyObject *et, *ev, *tb;
             PyErr_Fetch(&et, &ev, &tb);
             int r = serving_sync(&g, &t);
@@ -632,6 +665,7 @@ done:
     } else if (g.report != NULL && serving_sync(&g, &t) < 0) {
         Py_CLEAR(out);
     }
+    PyMem_Free(rx);
     Py_XDECREF(g.answer);
     Py_XDECREF(g.report);
     return out;
@@ -662,6 +696,7 @@ static int Remote_init(Remote *s, PyObject *args, PyObject *kwds)
     s->retry_s = retry_s;
     s->retry_ms = retry_s > 0 ? (int)ceil(retry_s * 1000.0) : 0; /* select.poll's rounding: up */
     memset(&s->t, 0, sizeof s->t);
+    s->c_steps = 0;
     s->t.link = s->link;
     s->t.key = s->drive_type;
     s->t.fd = fd;
@@ -700,6 +735,7 @@ static void Remote_dealloc(Remote *s)
 
 static PyMemberDef Remote_members[] = {
     {"step", T_OBJECT, offsetof(Remote, step), READONLY, "the Python step this one stands for (RemoteTarget.step)"},
+    {"c_steps", T_LONGLONG, offsetof(Remote, c_steps), READONLY, "steps answered wholly in C (no Python call)"},
     {NULL, 0, 0, 0, NULL},
 };
 
@@ -775,7 +811,11 @@ static PyObject *decode_drive(PyObject *mod, PyObject *arg)
     drive_to_c(&d, &c);
     PyObject *tel = PyTuple_New(c.n_tel);
     if (tel == NULL) return NULL;
-    for (int i = 0; i < c.n_tel; i++) PyTuple_SET_ITEM(tel, i, PyLong_FromLong(c.tel[i]));
+    for (int i = 0; i < c.n_tel; i++) {
+        PyObject *v = PyLong_FromLong(c.tel[i]);
+        if (v == NULL) { Py_DECREF(tel); return NULL; }
+        PyTuple_SET_ITEM(tel, i, v);
+    }
     return Py_BuildValue("(illlllliiiN)", d.seq, c.duty_a, c.duty_b, c.duty_c, c.output_mode, c.state, c.sector,
                          (int)c.direction_ccw, (int)c.required_ccw, c.fault, tel);
 }
@@ -792,8 +832,13 @@ static PyObject *decode_sensors(PyObject *mod, PyObject *arg)
     if (!one_message((const unsigned char *)data, n, HBP_MSG_SENSORS, &hbp_layout_sensors, &m)) Py_RETURN_NONE;
     PyObject *edges = PyTuple_New(m.n_edges), *adc = PyTuple_New(m.n_adc);
     if (edges == NULL || adc == NULL) { Py_XDECREF(edges); Py_XDECREF(adc); return NULL; }
-    for (int i = 0; i < m.n_edges; i++) PyTuple_SET_ITEM(edges, i, Py_BuildValue("(ii)", m.edges[i].time_100ns, m.edges[i].lines));
-    for (int i = 0; i < m.n_adc; i++) PyTuple_SET_ITEM(adc, i, PyLong_FromLong(m.adc[i]));
+    for (int i = 0; i < m.n_edges + m.n_adc; i++) {
+        PyObject *v = i < m.n_edges ? Py_BuildValue("(ii)", m.edges[i].time_100ns, m.edges[i].lines)
+                                    : PyLong_FromLong(m.adc[i - m.n_edges]);
+        if (v == NULL) { Py_DECREF(edges); Py_DECREF(adc); return NULL; }
+        if (i < m.n_edges) PyTuple_SET_ITEM(edges, i, v);
+        else PyTuple_SET_ITEM(adc, i - m.n_edges, v);
+    }
     return Py_BuildValue("(iiNiN)", m.seq, m.inputs, edges, m.encoder, adc);
 }
 
