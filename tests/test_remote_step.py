@@ -137,7 +137,16 @@ def _run(mode: str, target: str, config: Path | None, scenario: Path | None, sec
     spans: list[Any] = []
     # the Python reference on both ends: an emulator process started here runs serve()'s Python loop
     os.environ["HILBENCH_SERVE_LOOP"] = "c" if mode == "c" else "python"
-    with hilbench.Bench(cfg, scenario=True) as bench:
+    cores: list[Any] = []
+    span_core = remote.RemoteTarget.span_core
+
+    def noted_span_core(self: remote.RemoteTarget) -> Any:  # the C cores the spans run (a spy, not a stand-in)
+        core = span_core(self)
+        cores.append(core)
+        return core
+
+    with hilbench.Bench(cfg, scenario=True) as bench, pytest.MonkeyPatch.context() as patch:
+        patch.setattr(remote.RemoteTarget, "span_core", noted_span_core)
         session = bench.session
         assert isinstance(session, Session)
         session.c_span = mode == "c"  # type: ignore[misc]
@@ -151,6 +160,7 @@ def _run(mode: str, target: str, config: Path | None, scenario: Path | None, sec
         stats["stale_frames"] = session.target.stale_frames  # type: ignore[attr-defined]
         stats["retries"] = session.target.retries  # type: ignore[attr-defined]
         stats["fast_frames"] = getattr(link, "fast_frames", -1)
+        stats["c_steps"] = sum(core[1].c_steps for core in cores if core is not None)
         return columns, bench.events, stats, spans
 
 
@@ -187,9 +197,13 @@ def test_a_process_target_records_with_the_c_step_what_the_python_loop_records(
     assert all(span is None for span in py_spans)
     if "corrupt" in target:  # (a retry on a loaded machine moves the injector's later faults)
         assert c_stats["retries"] > 0 and py_stats["retries"] > 0
+        assert c_stats["c_steps"] == py_stats["c_steps"] == 0  # a FaultyLink: no C step
         return
+    c_steps = c_stats.pop("c_steps")
+    assert py_stats.pop("c_steps") == 0
     assert c_stats == py_stats
     assert any(span is not None and span.k > 0 for span in c_spans)  # the C span ran, with the C step
+    assert c_steps > c_stats["frames_tx"] / 2  # and the C step answered most periods itself
 
 
 # ------------------------------------------------------------- a faulty or failing target process
@@ -223,6 +237,7 @@ def test_a_target_that_corrupts_and_repeats_frames_gets_the_same_answers_from_bo
     assert c_stats["crc_errors"] + c_stats["cobs_errors"] + c_stats["length_errors"] > 0
     assert c_stats["stale_frames"] > 0 and c_stats["retries"] > 0
     assert any(span is not None and span.k > 0 for span in c_spans)
+    assert c_stats["c_steps"] > c_stats["frames_tx"] / 2 and py_stats["c_steps"] == 0  # C answered most periods
     # (the counters themselves may differ: a retry sent because the loaded machine delayed an answer
     # past retry_ms is one more frame through the target's injector, which moves its later faults)
     assert py_stats["crc_errors"] + py_stats["cobs_errors"] + py_stats["length_errors"] > 0
@@ -329,3 +344,115 @@ def test_serves_c_loop_answers_what_its_python_loop_answers(monkeypatch: pytest.
         py_report.sensors, py_report.requests, py_report.handler_faults)
     for key in ("frames_rx", "frames_tx", "bytes_rx", "bytes_tx", "seq_gaps", "frame_errors"):
         assert c_report.link_stats[key] == py_report.link_stats[key], key
+
+
+# ------------------------------------------------------------------- signals in serve's C loop
+def _serve_in_main_thread(host: Any, loop: str, monkeypatch: pytest.MonkeyPatch, timeout_s: float = 2.0) -> Any:
+    """serve() of the AN1017 C core in this (the main) thread, the only one Python signal handlers
+    run in, while ``host(remote_target)`` runs in a thread; returns serve's report, or raises what
+    serve raised. The host's link closes when host returns (serve's end when it still serves)."""
+    from hilbench.link import open_link
+    from hilbench.protocol import MODE_LOCKSTEP
+    from hilbench.targets import make_target
+    from hilbench.targets.serve import serve
+    import threading
+
+    monkeypatch.setenv("HILBENCH_SERVE_LOOP", loop)
+    target = make_target("an1017")
+    assert getattr(target, "span_core", None) is not None, "the AN1017 C core is not built"
+    host_link = open_link("pty", timeout_s=2.0)
+    far_link = open_link(host_link.peer_path, timeout_s=2.0)
+
+    def run_host() -> None:
+        try:
+            remote_target = remote.RemoteTarget(host_link, timeout_s=timeout_s)
+            remote_target.handshake(50, MODE_LOCKSTEP, 100)  # a watchdog: serve's C loop polls with a timeout
+            host(remote_target)
+        except HilbenchError:
+            pass  # serve stopped answering
+        finally:
+            host_link.close()
+
+    thread = threading.Thread(target=run_host, daemon=True)
+    thread.start()
+    try:
+        return serve(target, far_link)
+    finally:
+        thread.join(timeout=20)
+        far_link.close()
+        assert not thread.is_alive()
+
+
+def _stream(remote_target: Any, stop: Any, limit: int) -> int:
+    """Sensors one period after another until stop is set or ``limit`` periods; the count."""
+    halls = (1, 3, 2, 6, 4, 5)
+    k = 0
+    while not stop.is_set() and k < limit:
+        remote_target.step(Sensors(k & 0xFF, halls[(k // 40) % 6], (), 0, (700, 512, 640)))
+        k += 1
+    return k
+
+
+@pytest.mark.parametrize("loop", ["c", "python"])
+def test_ctrl_c_stops_serve_while_a_host_keeps_sending(loop: str, monkeypatch: pytest.MonkeyPatch) -> None:
+    """SIGINT taken by another thread (the C handler notes it; serve's poll is not interrupted and
+    finds data every period): serve still raises KeyboardInterrupt before the host stops sending."""
+    import threading
+
+    stop, done = threading.Event(), threading.Event()
+
+    def host(remote_target: Any) -> None:
+        _stream(remote_target, stop, 200)
+        signal.pthread_kill(threading.get_ident(), signal.SIGINT)  # this thread's, not serve's
+        _stream(remote_target, stop, 5000)
+        done.set()
+
+    previous = signal.signal(signal.SIGINT, signal.default_int_handler)
+    try:
+        with pytest.raises(KeyboardInterrupt):
+            _serve_in_main_thread(host, loop, monkeypatch)
+        assert not done.is_set()  # the host was still sending
+    finally:
+        stop.set()
+        signal.signal(signal.SIGINT, previous)
+
+
+def test_a_poll_interrupted_by_signals_still_times_out(monkeypatch: pytest.MonkeyPatch) -> None:
+    """A host that falls silent while signals keep interrupting serve's poll (a handler that does
+    nothing, every couple of ms): the poll's timeout still runs out, so the watchdog trips (each
+    signal used to restart the poll with its whole timeout, and the watchdog never came)."""
+    import threading
+
+    main = threading.get_ident()
+    tripped, signalling = threading.Event(), threading.Event()
+    trips: list[Any] = []
+
+    def signaller() -> None:
+        signalling.set()
+        for _ in range(6000):  # >= 12 s of signals; the watchdog is due after 1 s of silence
+            if tripped.is_set():
+                return
+            signal.pthread_kill(main, signal.SIGUSR1)
+            tripped.wait(0.002)
+        signalling.clear()
+
+    def host(remote_target: Any) -> None:
+        _stream(remote_target, threading.Event(), 50)
+        feeder = threading.Thread(target=signaller, daemon=True)
+        feeder.start()
+        try:
+            trips.append(remote_target.watchdog_trip())  # waits timeout_s (10 s) past the watchdog
+            trips.append(signalling.is_set())
+        finally:
+            tripped.set()
+            feeder.join(timeout=20)
+
+    noted = [0]
+    previous = signal.signal(signal.SIGUSR1, lambda *_: noted.__setitem__(0, noted[0] + 1))
+    try:
+        report = _serve_in_main_thread(host, "c", monkeypatch, timeout_s=10.0)
+    finally:
+        signal.signal(signal.SIGUSR1, previous)
+    assert noted[0] > 0
+    assert len(trips) == 2 and trips[0].fault and trips[1]  # the watchdog Drive while the signals still came
+    assert report.sensors == 50
