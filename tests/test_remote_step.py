@@ -20,6 +20,7 @@ import pytest
 import hilbench
 from hilbench.bench.session import Session, _span
 from hilbench.errors import DecodeError, HilbenchError, ProtocolError
+from hilbench.link import Link
 from hilbench.plant import model
 from hilbench.processes import reap, spawn
 from hilbench.protocol import Drive, Sensors, decode_frame, encode_frame
@@ -280,10 +281,12 @@ def test_a_silent_or_dead_target_ends_both_paths_with_the_same_error(faults: str
 
 
 # ------------------------------------------------------------------------ serve's loop, in a thread
-def _served_an1017(loop: str, stream: list[Sensors], monkeypatch: pytest.MonkeyPatch) -> tuple[list[Drive], Any]:
-    """serve(AN1017 with its C core) in a thread on a pty, its loop in C or Python (``loop``); the host
-    steps ``stream`` (a Sensors twice in a row: a repeated seq), a ParamGet every 500 Sensors and a
-    Status at the end. Returns the Drives and the server's report."""
+def _served_an1017(loop: str, stream: list[Sensors], monkeypatch: pytest.MonkeyPatch,
+                   sequenced: tuple[type, ...] = (Sensors, Drive)) -> tuple[list[Drive], Any]:
+    """serve(AN1017 with its C core) in a thread on a pty, its loop in C or Python (``loop``), its
+    link keeping a running seq of the ``sequenced`` types; the host steps ``stream`` (a Sensors
+    twice in a row: a repeated seq), a ParamGet every 500 Sensors and a Status at the end. Returns
+    the Drives and the server's report."""
     from hilbench.link import open_link
     from hilbench.protocol import MODE_LOCKSTEP
     from hilbench.targets import make_target
@@ -303,6 +306,8 @@ def _served_an1017(loop: str, stream: list[Sensors], monkeypatch: pytest.MonkeyP
     assert getattr(target, "span_core", None) is not None, "the AN1017 C core is not built"
     host_link = open_link("pty", timeout_s=2.0)
     far_link = open_link(host_link.peer_path, timeout_s=2.0)
+    if sequenced != (Sensors, Drive):
+        far_link = Link(far_link.transport, far_link.name, timeout_s=2.0, sequenced_types=sequenced)
     reports: list[Any] = []
     thread = threading.Thread(target=lambda: reports.append(serve(target, far_link)), daemon=True)
     thread.start()
@@ -346,11 +351,28 @@ def test_serves_c_loop_answers_what_its_python_loop_answers(monkeypatch: pytest.
         assert c_report.link_stats[key] == py_report.link_stats[key], key
 
 
+@pytest.mark.parametrize("sequenced", [(), (Drive,)])
+def test_serves_c_loop_on_a_link_that_keeps_no_sensors_seq_answers_as_its_python_loop(
+        sequenced: tuple[type, ...], monkeypatch: pytest.MonkeyPatch) -> None:
+    """A Link that sequences no Sensors (Link's sequenced_types): no gap is counted for the seqs the
+    host skips, in C as in Python (C used to raise a RuntimeError there)."""
+    halls = (1, 3, 2, 6, 4, 5)
+    stream = [Sensors(k & 0xFF, halls[(k // 40) % 6], (), 0, (700, 512, 640)) for k in range(1200) if k % 97 != 50]
+    c_drives, c_report = _served_an1017("c", stream, monkeypatch, sequenced)
+    py_drives, py_report = _served_an1017("python", stream, monkeypatch, sequenced)
+    assert 0 < c_report.c_calls < len(stream) / 10 and py_report.c_calls == 0
+    assert c_drives == py_drives
+    assert c_report.link_stats == py_report.link_stats
+    assert c_report.link_stats["seq_gaps"] == 0
+
+
 # ------------------------------------------------------------------- signals in serve's C loop
-def _serve_in_main_thread(host: Any, loop: str, monkeypatch: pytest.MonkeyPatch, timeout_s: float = 2.0) -> Any:
-    """serve() of the AN1017 C core in this (the main) thread, the only one Python signal handlers
-    run in, while ``host(remote_target)`` runs in a thread; returns serve's report, or raises what
-    serve raised. The host's link closes when host returns (serve's end when it still serves)."""
+def _serve_in_main_thread(host: Any, loop: str, monkeypatch: pytest.MonkeyPatch, timeout_s: float = 2.0,
+                          target: Any = None) -> Any:
+    """serve() of ``target`` (default: the AN1017 C core) in this (the main) thread, the only one
+    Python signal handlers run in, while ``host(remote_target)`` runs in a thread; returns serve's
+    report, or raises what serve raised. The host's link closes when host returns (serve's end
+    when it still serves)."""
     from hilbench.link import open_link
     from hilbench.protocol import MODE_LOCKSTEP
     from hilbench.targets import make_target
@@ -358,8 +380,8 @@ def _serve_in_main_thread(host: Any, loop: str, monkeypatch: pytest.MonkeyPatch,
     import threading
 
     monkeypatch.setenv("HILBENCH_SERVE_LOOP", loop)
-    target = make_target("an1017")
-    assert getattr(target, "span_core", None) is not None, "the AN1017 C core is not built"
+    target = make_target("an1017") if target is None else target
+    assert getattr(target, "span_core", None) is not None, "the target's C step is not built"
     host_link = open_link("pty", timeout_s=2.0)
     far_link = open_link(host_link.peer_path, timeout_s=2.0)
 
@@ -456,3 +478,55 @@ def test_a_poll_interrupted_by_signals_still_times_out(monkeypatch: pytest.Monke
     assert noted[0] > 0
     assert len(trips) == 2 and trips[0].fault and trips[1]  # the watchdog Drive while the signals still came
     assert report.sensors == 50
+
+
+@pytest.mark.parametrize("loop", ["c", "python"])
+def test_ctrl_c_inside_the_targets_step_stops_serve(loop: str, monkeypatch: pytest.MonkeyPatch) -> None:
+    """A KeyboardInterrupt out of the target's step is not a model fault to answer BAD_REQUEST to: it
+    ends serve, in C as in Python. The target is a RemoteTarget (its step in C) relaying to an
+    AN1017 served in a thread, held inside one step while SIGINT comes to serve's thread."""
+    from hilbench.link import open_link
+    from hilbench.targets import make_target
+    from hilbench.targets.serve import serve
+    import threading
+
+    main = threading.get_ident()
+    armed, entered, release = threading.Event(), threading.Event(), threading.Event()
+    inner = make_target("an1017")
+    inner_step = inner.step
+
+    def held_step(sensors: Sensors) -> Drive:  # the far target answers this Sensors only once released
+        if armed.is_set():
+            entered.set()
+            release.wait(20)
+        return inner_step(sensors)
+
+    inner.step = held_step  # type: ignore[method-assign]
+    relay_link = open_link("pty", timeout_s=2.0)
+    inner_link = open_link(relay_link.peer_path, timeout_s=2.0)
+    inner_thread = threading.Thread(target=lambda: serve(inner, inner_link), daemon=True)
+    inner_thread.start()
+
+    def host(remote_target: Any) -> None:
+        _stream(remote_target, threading.Event(), 30)
+        armed.set()
+        killer = threading.Thread(target=lambda: entered.wait(20) and signal.pthread_kill(main, signal.SIGINT))
+        killer.start()
+        try:
+            _stream(remote_target, threading.Event(), 1)
+        finally:
+            killer.join(timeout=20)
+
+    previous = signal.signal(signal.SIGINT, signal.default_int_handler)
+    try:
+        relay = remote.RemoteTarget(relay_link, timeout_s=10.0)
+        with pytest.raises(KeyboardInterrupt):
+            _serve_in_main_thread(host, loop, monkeypatch, target=relay)
+        assert entered.is_set()
+    finally:
+        signal.signal(signal.SIGINT, previous)
+        release.set()
+        relay_link.close()
+        inner_thread.join(timeout=20)
+        inner_link.close()
+    assert not inner_thread.is_alive()

@@ -363,8 +363,12 @@ static int remote_step(PyObject *self, const hb_csensors_t *in, hb_cdrive_t *out
     /* recv_or_none(retry_s): one poll and one read */
     double t0 = monotonic_s();
     int ready = poll_in(s->fd, s->retry_ms, t0);
-    if (ready < 0 && PyErr_Occurred()) {
-        flush(&s->t);
+    if (ready < 0 && PyErr_Occurred()) { /* a signal handler raised (Ctrl-C): the counters kept, its error raised */
+        PyObject *et, *ev, *tb;
+        PyErr_Fetch(&et, &ev, &tb);
+        flush(&s->t); /* (Python calls: not with an exception set) */
+        PyErr_Clear();
+        PyErr_Restore(et, ev, tb);
         return -1;
     }
     ssize_t n = -1;
