@@ -138,6 +138,20 @@ static inline PyObject *hb_module(struct PyModuleDef *def, PyTypeObject *type, c
     return m;
 }
 
+/* ``m`` with the span's C API ``api`` added as the capsule SPAN_API named ``capsule`` (HB_PLANT_API,
+ * HB_TARGET_API); on failure ``m`` is released and NULL returned with an exception. */
+static inline PyObject *hb_add_span_api(PyObject *m, void *api, const char *capsule)
+{
+    if (m == NULL) return NULL;
+    PyObject *c = PyCapsule_New(api, capsule, NULL);
+    if (c == NULL || PyModule_AddObject(m, "SPAN_API", c) < 0) {
+        Py_XDECREF(c);
+        Py_DECREF(m);
+        return NULL;
+    }
+    return m;
+}
+
 /* A member-table row: the Python name, the structmember type (T_DOUBLE, T_LONGLONG, ...), the
  * field of struct ``st`` and the flags (0 or READONLY). */
 #define HB_MEMBER(pyname, tcode, st, field, flags) {pyname, tcode, offsetof(st, field), flags, NULL}

@@ -915,12 +915,5 @@ PyMODINIT_FUNC PyInit__plantcore(void)
     str_draw_noise = PyUnicode_InternFromString("_draw_noise");
     if (str_step_py == NULL || str_update_load == NULL || str_draw_noise == NULL) return NULL;
     PyObject *m = hb_module(&moduledef, &CoreType, "Core");
-    if (m == NULL) return NULL;
-    PyObject *api = PyCapsule_New(&span_api, HB_PLANT_API, NULL);
-    if (api == NULL || PyModule_AddObject(m, "SPAN_API", api) < 0) {
-        Py_XDECREF(api);
-        Py_DECREF(m);
-        return NULL;
-    }
-    return m;
+    return hb_add_span_api(m, &span_api, HB_PLANT_API);
 }

@@ -865,12 +865,5 @@ static struct PyModuleDef moduledef = {
 PyMODINIT_FUNC PyInit__remotestep(void)
 {
     PyObject *m = hb_module(&moduledef, &RemoteType, "Remote");
-    if (m == NULL) return NULL;
-    PyObject *api = PyCapsule_New(&span_api, HB_TARGET_API, NULL);
-    if (api == NULL || PyModule_AddObject(m, "SPAN_API", api) < 0) {
-        Py_XDECREF(api);
-        Py_DECREF(m);
-        return NULL;
-    }
-    return m;
+    return hb_add_span_api(m, &span_api, HB_TARGET_API);
 }

@@ -451,12 +451,5 @@ PyMODINIT_FUNC PyInit__core(void)
         if ((duty_ints[i] = PyLong_FromLong(i)) == NULL) return NULL;
     }
     PyObject *m = hb_module(&moduledef, &CoreType, "Core");
-    if (m == NULL) return NULL;
-    PyObject *api = PyCapsule_New(&span_api, HB_TARGET_API, NULL);
-    if (api == NULL || PyModule_AddObject(m, "SPAN_API", api) < 0) {
-        Py_XDECREF(api);
-        Py_DECREF(m);
-        return NULL;
-    }
-    return m;
+    return hb_add_span_api(m, &span_api, HB_TARGET_API);
 }
