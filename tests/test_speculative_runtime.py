@@ -1,0 +1,138 @@
+"""SensorsBatch -> BatchDigest on the C runtime (firmware/runtime/hrt_link.c), against per-period lockstep.
+
+The same Sensors stream goes to one SIL process period by period and to another in batches; each
+batch's answer must carry the CRC-32 (zlib's, chained from the batch before: PROTOCOL.md "Batches")
+of exactly the Drives the first process sent, and its last Drive. The records codec round-trips
+against its own decoder and the C decoder (through the digest), never against copied output.
+"""
+
+from __future__ import annotations
+
+import zlib
+
+import pytest
+
+from _firmware import Command, random_stream, require_tool
+from hilbench.protocol import MODE_LOCKSTEP, PROTOCOL_VERSION, ErrorReport, HostHello, Sensors
+from hilbench.protocol.messages import pack_drive
+from hilbench.protocol.batch import BatchBuilder, BatchState, decode_records, drive_digest
+from hilbench.protocol.messages import MAX_BATCH_BYTES
+
+
+def _sensors(n: int, seed: int = 3) -> list[Sensors]:
+    out = [s for s in random_stream(seed, n) if isinstance(s, Sensors)]
+    return [s._replace(seq=k & 0xFF) for k, s in enumerate(out)]
+
+
+def _batches(stream: list[Sensors]) -> list[tuple[int, int, bytes]]:
+    builder = BatchBuilder()
+    out: list[tuple[int, int, bytes]] = []
+    first = 0
+    for k, s in enumerate(stream):
+        if not builder.add(s):
+            count, records = builder.take()
+            out.append((first, count, records))
+            first = k
+            assert builder.add(s)
+    count, records = builder.take()
+    out.append((first, count, records))
+    return out
+
+
+def test_records_round_trip_and_fit_a_frame() -> None:
+    stream = _sensors(3000)
+    batches = _batches(stream)
+    state = BatchState()
+    decoded: list[Sensors] = []
+    for first, count, records in batches:
+        assert len(records) <= MAX_BATCH_BYTES
+        decoded += decode_records(state, first, count, records)
+    assert [tuple(s) for s in decoded] == [tuple(s) for s in stream]
+
+
+def test_an_unchanged_period_costs_at_most_a_byte_and_runs_share_one() -> None:
+    s = Sensors(0, 5, (), 0, (600, 512, 700))
+    builder = BatchBuilder()
+    assert builder.add(s)
+    for k in range(1, 101):
+        assert builder.add(s._replace(seq=k & 0xFF))
+    count, records = builder.take()
+    # the first period: h, inputs, ADC count + 3 codes = 9 bytes; the 100 same periods: one run byte
+    assert (count, len(records), records[-1]) == (101, 10, 0x80 | 99)
+
+
+def test_chained_digest_is_zlib_crc32_over_drive_messages() -> None:
+    from hilbench.protocol import Drive
+
+    d = [Drive(k, k, 2 * k, 3, 1, 2, 1, False, False, 0, (k, -k, 7)) for k in range(5)]
+    whole = zlib.crc32(b"".join(pack_drive(x) for x in d))
+    assert drive_digest(d[2:], drive_digest(d[:2])) == whole
+
+
+def _sil_pair():
+    require_tool("gcc", "the SIL build")
+    from hilbench.bench.launcher import open_target
+
+    return open_target("sil:an1017", timeout_s=2.0), open_target("sil:an1017", timeout_s=2.0)
+
+
+def test_a_batch_runs_its_periods_exactly_as_per_period_lockstep() -> None:
+    stream = _sensors(4000, seed=11)
+    one, two = _sil_pair()
+    with one, two:
+        hello = HostHello(0, PROTOCOL_VERSION, 50, MODE_LOCKSTEP, 0)
+        a, b = one.target, two.target
+        assert a.hello(hello) == b.hello(hello)
+        a.start()
+        b.start()
+        drives = [a.step(s) for s in stream]
+        digest = 0
+        for first, count, records in _batches(stream):
+            b.send_batch(first, count, records)
+            reply = b.recv_digest(2.0)
+            assert reply is not None and (reply.first_seq, reply.count) == (first, count)
+            digest = drive_digest(drives[first:first + count], digest)
+            assert reply.digest == digest, f"batch at period {first}"
+            last = drives[first + count - 1]
+            assert tuple(reply)[5:] == tuple(last)[1:], f"batch at period {first}: the last Drive"
+            assert reply.next_seq == first + count
+        # a repeat (the answer was lost) is answered from the kept digest, not run again
+        first, count, records = _batches(stream)[-1]
+        b.send_batch(first, count, records)
+        again = b.recv_digest(2.0)
+        assert again is not None and again.digest == digest and again.count == count
+        # a batch out of order is refused with the period expected next
+        b.send_batch(first + count + 5, 1, bytes((0x80,)))
+        refused = b.recv_digest(2.0)
+        assert refused is not None and (refused.count, refused.next_seq) == (0, first + count)
+        # and the state did not move: the same period now runs as per period lockstep does
+        nxt = stream[-1]._replace(seq=(first + count) & 0xFF)
+        b.send_batch(first + count, 1, bytes((0x80,)))
+        c = b.recv_digest(2.0)
+        d = a.step(nxt)
+        assert c is not None and c.digest == drive_digest([d], digest)
+
+
+@pytest.mark.parametrize("records, count", [
+    (bytes((0x40, 0x00)), 1),          # an edge count of 0
+    (bytes((0x04, 0x01)), 1),          # a change of an ADC channel that does not exist yet
+    (bytes((0x80,)), 2),               # one period of records, a count of 2
+    (bytes((0x81,)), 1),               # a run past the count
+    (bytes((0x01,)), 1),               # the inputs byte missing
+])
+def test_malformed_records_are_refused_and_change_nothing(records: bytes, count: int) -> None:
+    require_tool("gcc", "the SIL build")
+    from hilbench.bench.launcher import open_target
+
+    with open_target("sil:an1017", timeout_s=2.0) as handle:
+        t = handle.target
+        t.hello(HostHello(0, PROTOCOL_VERSION, 50, MODE_LOCKSTEP, 0))
+        t.send_batch(0, count, records)
+        msg = t.link.recv(2.0)
+        assert type(msg) is ErrorReport
+        with pytest.raises(Exception):
+            decode_records(BatchState(), 0, count, records)
+        # nothing ran: the first good batch starts the records afresh at period 0
+        t.send_batch(0, 1, bytes((0x80,)))
+        reply = t.recv_digest(2.0)
+        assert reply is not None and reply.count == 1
