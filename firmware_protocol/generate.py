@@ -887,10 +887,9 @@ def gen_header(data: dict, enums: list, msgs: list[Message]) -> str:
     w(f"#define HBP_MAX_NAME {data['max_name_chars']}u")
     w(f"#define HBP_MAX_UNIT {data['max_unit_chars']}u")
     w(f"#define HBP_MAX_PARAM_PAIRS {data['max_param_pairs']}u")
-    w(f"#define HBP_MAX_BATCH {data['max_batch_bytes']}u /* SensorsBatch.records */")
     w("/* Array capacities of the structs below; a firmware may lower them to its profile (-D...). */")
     for key, macro in (("max_adc", "HBP_MAX_ADC"), ("max_telemetry", "HBP_MAX_TELEMETRY"),
-                       ("max_edges", "HBP_MAX_EDGES")):
+                       ("max_edges", "HBP_MAX_EDGES"), ("max_batch_bytes", "HBP_MAX_BATCH")):
         w(f"#ifndef {macro}")
         w(f"#define {macro} {data[key]}u")
         w("#endif")

@@ -58,10 +58,11 @@ static const hbp_field_t fields_sensors_batch[3] = {
 };
 const hbp_layout_t hbp_layout_sensors_batch = {HBP_MSG_SENSORS_BATCH, 3u, fields_sensors_batch};
 
-static const hbp_field_t fields_batch_digest[15] = {
+static const hbp_field_t fields_batch_digest[16] = {
     {HBP_F_U16, (hbp_u8)offsetof(hbp_batch_digest_t, first_seq), 0u, 0u, 0u},
     {HBP_F_U8, (hbp_u8)offsetof(hbp_batch_digest_t, count), 0u, 0u, 0u},
     {HBP_F_U16, (hbp_u8)offsetof(hbp_batch_digest_t, next_seq), 0u, 0u, 0u},
+    {HBP_F_U8, (hbp_u8)offsetof(hbp_batch_digest_t, room), 0u, 0u, 0u},
     {HBP_F_U32, (hbp_u8)offsetof(hbp_batch_digest_t, digest), 0u, 0u, 0u},
     {HBP_F_U16, (hbp_u8)offsetof(hbp_batch_digest_t, duty_a), 0u, 0u, 0u},
     {HBP_F_U16, (hbp_u8)offsetof(hbp_batch_digest_t, duty_b), 0u, 0u, 0u},
@@ -75,7 +76,7 @@ static const hbp_field_t fields_batch_digest[15] = {
     {HBP_F_BIT, (hbp_u8)offsetof(hbp_batch_digest_t, fault), 6u, 0u, 0u},
     {HBP_F_ARRAY | HBP_F_LAST, (hbp_u8)offsetof(hbp_batch_digest_t, telemetry), HBP_F_I16, HBP_MAX_TELEMETRY, (hbp_u8)offsetof(hbp_batch_digest_t, n_telemetry)},
 };
-const hbp_layout_t hbp_layout_batch_digest = {HBP_MSG_BATCH_DIGEST, 15u, fields_batch_digest};
+const hbp_layout_t hbp_layout_batch_digest = {HBP_MSG_BATCH_DIGEST, 16u, fields_batch_digest};
 
 static const hbp_field_t fields_param_describe[1] = {
     {HBP_F_U8, (hbp_u8)offsetof(hbp_param_describe_t, param_id), 0u, 0u, 0u},

@@ -13,13 +13,12 @@ typedef uint_least8_t hbp_u8;
    exists only so that a test can build a deliberately mismatched target; never override it in a
    firmware. */
 #ifndef HBP_SCHEMA_FINGERPRINT
-#define HBP_SCHEMA_FINGERPRINT 0xe42e6a03UL
+#define HBP_SCHEMA_FINGERPRINT 0x786e658bUL
 #endif
 #define HBP_MAX_FRAME 62u /* a message: type, seq, payload */
 #define HBP_MAX_NAME 16u
 #define HBP_MAX_UNIT 8u
 #define HBP_MAX_PARAM_PAIRS 4u
-#define HBP_MAX_BATCH 17u /* SensorsBatch.records */
 /* Array capacities of the structs below; a firmware may lower them to its profile (-D...). */
 #ifndef HBP_MAX_ADC
 #define HBP_MAX_ADC 8u
@@ -29,6 +28,9 @@ typedef uint_least8_t hbp_u8;
 #endif
 #ifndef HBP_MAX_EDGES
 #define HBP_MAX_EDGES 16u
+#endif
+#ifndef HBP_MAX_BATCH
+#define HBP_MAX_BATCH 57u
 #endif
 
 /* Frame type byte */
@@ -269,13 +271,14 @@ typedef struct {
 } hbp_sensors_batch_t;
 extern const hbp_layout_t hbp_layout_sensors_batch;
 
-/* BatchDigest: target -> host, type 0x13, 17 fixed payload bytes. */
-#define HBP_BATCH_DIGEST_FIXED_LEN 19u /* type + seq + fixed fields */
+/* BatchDigest: target -> host, type 0x13, 18 fixed payload bytes. */
+#define HBP_BATCH_DIGEST_FIXED_LEN 20u /* type + seq + fixed fields */
 typedef struct {
     hbp_u8 seq;
     uint16_t first_seq;
     hbp_u8 count;
     uint16_t next_seq;
+    hbp_u8 room;
     uint32_t digest;
     uint16_t duty_a;
     uint16_t duty_b;

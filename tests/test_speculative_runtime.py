@@ -94,7 +94,7 @@ def test_a_batch_runs_its_periods_exactly_as_per_period_lockstep() -> None:
             digest = drive_digest(drives[first:first + count], digest)
             assert reply.digest == digest, f"batch at period {first}"
             last = drives[first + count - 1]
-            assert tuple(reply)[5:] == tuple(last)[1:], f"batch at period {first}: the last Drive"
+            assert tuple(reply)[6:] == tuple(last)[1:], f"batch at period {first}: the last Drive"
             assert reply.next_seq == first + count
         # a repeat (the answer was lost) is answered from the kept digest, not run again
         first, count, records = _batches(stream)[-1]

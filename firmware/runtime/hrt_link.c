@@ -424,10 +424,13 @@ static HRT_NOINLINE void on_sensors(hrt_link_t *l, const hbp_u8 *buf, hbp_u8 len
 #define REC_RUN 0x80u    /* (REC_RUN | n): n + 1 periods as the one before, without edges */
 #define REC_INPUTS 0x01u /* the inputs byte follows */
 #define REC_ENCODER 0x02u /* the encoder: a value (below) */
-#define REC_ADC0 0x04u   /* ADC channels 0, 1, 2 (0x04, 0x08, 0x10): a value each */
+#define REC_ADC0 0x04u   /* ADC channels 0, 1, 2 (0x04, 0x08, 0x10): a nibble each (below) */
 #define REC_ADC_ALL 0x20u /* a channel count, then every channel's code as u16 */
 #define REC_EDGES 0x40u  /* an edge count (1..), then the edges as in Sensors (time u16, lines u8) */
 #define SENSORS_MSG_MAX (SENSORS_ADC + 2u * HBP_MAX_ADC + 3u * HBP_MAX_EDGES)
+/* The records a batch may carry here: what the receive buffer holds beside the fixed fields. */
+#define BATCH_ROOM ((HBP_RX_MAX - 1u - HBP_SENSORS_BATCH_FIXED_LEN < HBP_MAX_BATCH) ? \
+                    (hbp_u8)(HBP_RX_MAX - 1u - HBP_SENSORS_BATCH_FIXED_LEN) : (hbp_u8)HBP_MAX_BATCH)
 
 /* CRC-32 (IEEE 802.3, reflected, zlib's crc32), a nibble at a time: 64 bytes of table. */
 static const uint32_t crc32_nibble[16] = {
@@ -501,17 +504,33 @@ static hbp_u8 rec_period(hrt_batch_in_t *in, const hbp_u8 *p, hbp_u8 left, hbp_u
             at = (hbp_u8)(at + 2u);
         }
     }
-    for (i = 0u; i < 3u; i++) {
-        if ((h & (hbp_u8)(REC_ADC0 << i)) != 0u) {
-            if (i >= in->n_adc) {
-                return 0u;
-            }
-            used = rec_value(&p[at], (hbp_u8)(left - at), &in->adc[i]);
-            if (used == 0u) {
-                return 0u;
-            }
-            at = (hbp_u8)(at + used);
+    { /* the ADC channels 0..2 that changed: a signed 4-bit change each (-7..7), two a byte, the lower
+       * nibble first; -8 says the code follows as u16 after the nibbles (in channel order) */
+        hbp_u8 j = 0u;
+        hbp_u8 nibbles = (hbp_u8)(((h >> 2) & 1u) + ((h >> 3) & 1u) + ((h >> 4) & 1u));
+        hbp_u8 tail = (hbp_u8)(at + (nibbles + 1u) / 2u);
+        if (tail > left) {
+            return 0u;
         }
+        for (i = 0u; i < 3u; i++) {
+            if ((h & (hbp_u8)(REC_ADC0 << i)) != 0u) {
+                hbp_u8 nib = (hbp_u8)(((unsigned)(p[at + j / 2u] & 0xFFu) >> (4u * (unsigned)(j & 1u))) & 0x0Fu);
+                if (i >= in->n_adc) {
+                    return 0u;
+                }
+                if (nib == 8u) {
+                    if ((hbp_u8)(left - tail) < 2u) {
+                        return 0u;
+                    }
+                    in->adc[i] = get_u16(&p[tail]);
+                    tail = (hbp_u8)(tail + 2u);
+                } else {
+                    in->adc[i] = (uint16_t)(in->adc[i] + ((nib < 8u) ? (uint16_t)nib : (uint16_t)(0xFFF0u | nib)));
+                }
+                j++;
+            }
+        }
+        at = tail;
     }
     if ((h & REC_EDGES) != 0u) {
         if (at >= left) {
@@ -535,18 +554,19 @@ static void send_digest(hrt_link_t *l, hbp_u8 seq, uint16_t first, hbp_u8 count,
     hbp_u8 i;
     write_drive(l, (hbp_u8)((count != 0u) ? ((first + count - 1u) & 0xFFu) : l->last_seq));
     n = (hbp_u8)(l->tx_len - 2u);
-    if (l->tx_len > HRT_TX_FRAME_MAX || (hbp_u8)(11u + n) > HRT_TX_FRAME_MAX) {
+    if (l->tx_len > HRT_TX_FRAME_MAX || (hbp_u8)(12u + n) > HRT_TX_FRAME_MAX) {
         return; /* does not fit this build's reply buffer: the host times out and says so */
     }
     for (i = n; i > 0u; i--) {
-        l->tx[10u + i] = l->tx[1u + i];
+        l->tx[11u + i] = l->tx[1u + i];
     }
     begin(l, HBP_MSG_BATCH_DIGEST, seq);
     w16(l, first);
     w8(l, count);
     w16(l, next);
+    w8(l, BATCH_ROOM);
     w32(l, digest);
-    l->tx_len = (hbp_u8)(11u + n);
+    l->tx_len = (hbp_u8)(12u + n);
     finish(l);
 }
 
@@ -576,7 +596,7 @@ static HRT_NOINLINE void on_batch(hrt_link_t *l, const hbp_u8 *buf, hbp_u8 len, 
             return;
         }
         if (first != next) {
-            send_digest(l, seq, first, 0u, next, 0UL);
+            send_digest(l, seq, first, 0u, next, l->b_digest); /* what it has run, and the digest through it */
             return;
         }
     } else {

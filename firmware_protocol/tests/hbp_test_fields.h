@@ -201,6 +201,7 @@ static int hbp_test_field(hbp_u8 type, const hbp_any_t *m, const char *name, uns
         if (strcmp(name, "first_seq") == 0) { *value = x->first_seq; return 1; }
         if (strcmp(name, "count") == 0) { *value = x->count; return 1; }
         if (strcmp(name, "next_seq") == 0) { *value = x->next_seq; return 1; }
+        if (strcmp(name, "room") == 0) { *value = x->room; return 1; }
         if (strcmp(name, "digest") == 0) { *value = x->digest; return 1; }
         if (strcmp(name, "duty_a") == 0) { *value = x->duty_a; return 1; }
         if (strcmp(name, "duty_b") == 0) { *value = x->duty_b; return 1; }

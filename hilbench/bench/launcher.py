@@ -56,6 +56,9 @@ class TargetHandle:
             return {}
         stats = self.link.stats.as_dict()
         stats["retries"] = int(getattr(self.target, "retries", 0))
+        speculation = getattr(self.target, "speculation_stats", None)
+        if speculation is not None:  # twin-speculative lockstep (hilbench.bench.speculative)
+            stats.update(speculation())
         return stats
 
     def child_status(self) -> str:

@@ -8,7 +8,8 @@ before, so a period in which only the hall edges or nothing changed costs one by
       0x01 inputs   u8
       0x02 encoder  a value
       0x20 ADC      u8 count, then every channel's code as u16 (the first period; a count change)
-      0x04 0x08 0x10  ADC channels 0, 1, 2: a value each
+      0x04 0x08 0x10  ADC channels 0, 1, 2 changed: a signed 4-bit change each (-7..7), two a byte,
+                    the lower nibble first; a nibble -8 says the code follows as u16 after the nibbles
       0x40 edges    u8 count (1..), then each edge as in Sensors: time u16 (100 ns), lines u8
     a value: one byte d != 0x80, the change as a signed byte (-127..127); or 0x80, then the value u16
 
@@ -34,6 +35,9 @@ REC_ADC_ALL = 0x20
 REC_EDGES = 0x40
 MAX_RUN = 128
 MAX_BATCH_PERIODS = 255
+#: the records every runtime build takes (its receive buffer holds a 22-byte ParamSet): a first batch's
+#: size; BatchDigest.room says what the target takes after it
+MIN_BATCH_BYTES = 17
 
 
 def _value(old: int, new: int) -> bytes:
@@ -70,10 +74,20 @@ class BatchState:
             for code in adc:
                 body += code.to_bytes(2, "little")
         else:
+            nibbles: list[int] = []
+            tail = bytearray()
             for i in range(min(3, len(adc))):
                 if adc[i] != self.adc[i]:
                     h |= REC_ADC0 << i
-                    body += _value(self.adc[i], adc[i])
+                    d = adc[i] - self.adc[i]
+                    if -7 <= d <= 7:
+                        nibbles.append(d & 0xF)
+                    else:
+                        nibbles.append(8)
+                        tail += adc[i].to_bytes(2, "little")
+            for j in range(0, len(nibbles), 2):
+                body.append(nibbles[j] | ((nibbles[j + 1] << 4) if j + 1 < len(nibbles) else 0))
+            body += tail
         if s.edges:
             h |= REC_EDGES
             body.append(len(s.edges))
@@ -89,6 +103,7 @@ class BatchBuilder:
 
     state: BatchState = field(default_factory=BatchState)
     max_periods: int = MAX_BATCH_PERIODS
+    max_bytes: int = MAX_BATCH_BYTES
     records: bytearray = field(default_factory=bytearray)
     count: int = 0
     _run_at: int = -1  # index of the run byte the next unchanged period may extend (-1: none)
@@ -103,19 +118,19 @@ class BatchBuilder:
             at = self._run_at
             if at >= 0 and (self.records[at] & 0x7F) < MAX_RUN - 1:
                 self.records[at] += 1
-            elif len(self.records) < MAX_BATCH_BYTES:
+            elif len(self.records) < self.max_bytes:
                 self._run_at = len(self.records)
                 self.records.append(REC_RUN)
             else:
                 self.state.inputs, self.state.encoder, self.state.adc = saved
                 return False
-        elif len(self.records) + len(rec) <= MAX_BATCH_BYTES:
+        elif len(self.records) + len(rec) <= self.max_bytes:
             self.records += rec
             self._run_at = -1
         else:
-            if len(rec) > MAX_BATCH_BYTES:
+            if len(rec) > self.max_bytes:
                 raise ProtocolError(f"SensorsBatch: one period's record of {len(rec)} bytes does not fit "
-                                    f"a batch ({MAX_BATCH_BYTES} bytes)")
+                                    f"a batch ({self.max_bytes} bytes)")
             self.state.inputs, self.state.encoder, self.state.adc = saved
             return False
         self.count += 1
@@ -163,11 +178,18 @@ def decode_records(state: BatchState, first_seq: int, count: int, records: bytes
                     n = records[at]
                     adc = [int.from_bytes(records[at + 1 + 2 * i:at + 3 + 2 * i], "little") for i in range(n)]
                     at += 1 + 2 * n
-                for i in range(3):
-                    if h & (REC_ADC0 << i):
-                        if i >= len(adc):
-                            raise ProtocolError(f"SensorsBatch: a change of ADC channel {i} of {len(adc)}")
-                        adc[i], at = _read_value(records, at, adc[i])
+                changed = [i for i in range(3) if h & (REC_ADC0 << i)]
+                tail = at + (len(changed) + 1) // 2
+                for j, i in enumerate(changed):
+                    if i >= len(adc):
+                        raise ProtocolError(f"SensorsBatch: a change of ADC channel {i} of {len(adc)}")
+                    nib = (records[at + j // 2] >> (4 * (j & 1))) & 0xF
+                    if nib == 8:
+                        adc[i] = int.from_bytes(records[tail:tail + 2], "little")
+                        tail += 2
+                    else:
+                        adc[i] = (adc[i] + (nib if nib < 8 else nib - 16)) & 0xFFFF
+                at = tail
                 state.adc = tuple(adc)
                 if h & REC_EDGES:
                     n = records[at]
@@ -198,6 +220,7 @@ __all__ = [
     "BatchBuilder",
     "BatchState",
     "MAX_BATCH_PERIODS",
+    "MIN_BATCH_BYTES",
     "decode_records",
     "drive_digest",
 ]

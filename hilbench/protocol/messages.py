@@ -23,7 +23,7 @@ from hilbench.protocol.framing import CobsError, CrcError, LengthError, UnknownT
 _CHECK = int.to_bytes  # the check bytes and the delimiter as one int (PROTOCOL.md, Framing)
 PROTOCOL_VERSION = 3
 # First 4 bytes of SHA-256 over the schema's canonical wire content (generate.schema_fingerprint).
-SCHEMA_FINGERPRINT = 0xe42e6a03
+SCHEMA_FINGERPRINT = 0x786e658b
 MAX_FRAME_BYTES = 62
 MAX_NAME_CHARS = 16
 MAX_UNIT_CHARS = 8
@@ -31,7 +31,7 @@ MAX_EDGES = 16
 MAX_ADC = 8
 MAX_TELEMETRY = 8
 MAX_PARAM_PAIRS = 4
-MAX_BATCH_BYTES = 17
+MAX_BATCH_BYTES = 57
 
 _tnew = tuple.__new__
 
@@ -384,6 +384,7 @@ class BatchDigest(NamedTuple):
     first_seq: int
     count: int
     next_seq: int
+    room: int
     digest: int
     duty_a: int
     duty_b: int
@@ -565,8 +566,8 @@ _HOSTHELLO_ST = struct.Struct('<BBBHBHI')
 _TARGETHELLO_ST = struct.Struct('<BBBIHHIBB')
 _SENSORS_ST = struct.Struct('<BBBH')
 _DRIVE_ST = tuple(struct.Struct('<BBHHHH' + 'h' * n) for n in range(8 + 1))
-_SENSORSBATCH_ST = tuple(struct.Struct('<BBHB' + 'B' * n) for n in range(17 + 1))
-_BATCHDIGEST_ST = tuple(struct.Struct('<BBHBHIHHHH' + 'h' * n) for n in range(8 + 1))
+_SENSORSBATCH_ST = tuple(struct.Struct('<BBHB' + 'B' * n) for n in range(57 + 1))
+_BATCHDIGEST_ST = tuple(struct.Struct('<BBHBHBIHHHH' + 'h' * n) for n in range(8 + 1))
 _PARAMDESCRIBE_ST = struct.Struct('<BBB')
 _PARAMINFO_ST = struct.Struct('<BBBBBiii')
 _PARAMGET_ST = struct.Struct('<BBB')
@@ -640,8 +641,8 @@ def pack_drive(m: Drive) -> bytes:
 def pack_sensors_batch(m: SensorsBatch) -> bytes:
     """SensorsBatch -> type . seq . payload (no CRC)."""
     arr = m.records
-    if len(arr) > 17:
-        raise ProtocolError(f"encode SensorsBatch: records has {len(arr)} entries, at most 17")
+    if len(arr) > 57:
+        raise ProtocolError(f"encode SensorsBatch: records has {len(arr)} entries, at most 57")
     return _SENSORSBATCH_ST[len(arr)].pack(18, m.seq, m.first_seq, m.count, *arr)
 
 
@@ -657,7 +658,7 @@ def pack_batch_digest(m: BatchDigest) -> bytes:
     arr = m.telemetry
     if len(arr) > 8:
         raise ProtocolError(f"encode BatchDigest: telemetry has {len(arr)} entries, at most 8")
-    return _BATCHDIGEST_ST[len(arr)].pack(19, m.seq, m.first_seq, m.count, m.next_seq, m.digest, m.duty_a, m.duty_b, m.duty_c, (m.output_mode | m.state << 2 | m.sector << 5 | (256 if m.direction_ccw else 0) | (512 if m.required_ccw else 0) | m.fault << 10), *arr)
+    return _BATCHDIGEST_ST[len(arr)].pack(19, m.seq, m.first_seq, m.count, m.next_seq, m.room, m.digest, m.duty_a, m.duty_b, m.duty_c, (m.output_mode | m.state << 2 | m.sector << 5 | (256 if m.direction_ccw else 0) | (512 if m.required_ccw else 0) | m.fault << 10), *arr)
 
 
 def pack_param_describe(m: ParamDescribe) -> bytes:
@@ -833,19 +834,19 @@ def unpack_drive(b: bytes) -> Drive:
 def unpack_sensors_batch(b: bytes) -> SensorsBatch:
     """type . seq . payload (no CRC) -> SensorsBatch; LengthError if malformed."""
     n, r = divmod(len(b) - 5, 1)
-    if r or n < 0 or n > 17:
-        raise LengthError(f"SensorsBatch: payload of {len(b) - 2} bytes is not 3 + 1*n (n <= 17)")
+    if r or n < 0 or n > 57:
+        raise LengthError(f"SensorsBatch: payload of {len(b) - 2} bytes is not 3 + 1*n (n <= 57)")
     v = _SENSORSBATCH_ST[n].unpack(b)
     return _tnew(SensorsBatch, (v[1], v[2], v[3], v[4:],))
 
 
 def unpack_batch_digest(b: bytes) -> BatchDigest:
     """type . seq . payload (no CRC) -> BatchDigest; LengthError if malformed."""
-    n, r = divmod(len(b) - 19, 2)
+    n, r = divmod(len(b) - 20, 2)
     if r or n < 0 or n > 8:
-        raise LengthError(f"BatchDigest: payload of {len(b) - 2} bytes is not 17 + 2*n (n <= 8)")
+        raise LengthError(f"BatchDigest: payload of {len(b) - 2} bytes is not 18 + 2*n (n <= 8)")
     v = _BATCHDIGEST_ST[n].unpack(b)
-    return _tnew(BatchDigest, (v[1], v[2], v[3], v[4], v[5], v[6], v[7], v[8], v[9] & 3, v[9] >> 2 & 7, v[9] >> 5 & 7, (v[9] >> 8 & 1) != 0, (v[9] >> 9 & 1) != 0, v[9] >> 10, v[10:],))
+    return _tnew(BatchDigest, (v[1], v[2], v[3], v[4], v[5], v[6], v[7], v[8], v[9], v[10] & 3, v[10] >> 2 & 7, v[10] >> 5 & 7, (v[10] >> 8 & 1) != 0, (v[10] >> 9 & 1) != 0, v[10] >> 10, v[11:],))
 
 
 def unpack_param_describe(b: bytes) -> ParamDescribe:
@@ -1029,8 +1030,8 @@ def _unascii(raw: bytes, msg: str, field: str) -> str:
 
 _DRIVE_BY_LEN = tuple(_DRIVE_ST[(k - 10) // 2] if k >= 10 and (k - 10) % 2 == 0 and (k - 10) // 2 <= 8 else None for k in range(63))
 _DRIVE_ST3 = _DRIVE_ST[3]
-_SENSORSBATCH_BY_LEN = tuple(_SENSORSBATCH_ST[(k - 5) // 1] if k >= 5 and (k - 5) % 1 == 0 and (k - 5) // 1 <= 17 else None for k in range(63))
-_BATCHDIGEST_BY_LEN = tuple(_BATCHDIGEST_ST[(k - 19) // 2] if k >= 19 and (k - 19) % 2 == 0 and (k - 19) // 2 <= 8 else None for k in range(63))
+_SENSORSBATCH_BY_LEN = tuple(_SENSORSBATCH_ST[(k - 5) // 1] if k >= 5 and (k - 5) % 1 == 0 and (k - 5) // 1 <= 57 else None for k in range(63))
+_BATCHDIGEST_BY_LEN = tuple(_BATCHDIGEST_ST[(k - 20) // 2] if k >= 20 and (k - 20) % 2 == 0 and (k - 20) // 2 <= 8 else None for k in range(63))
 _PARAMSET_BY_LEN = tuple(_PARAMSET_ST[(k - 2) // 5] if k >= 2 and (k - 2) % 5 == 0 and (k - 2) // 5 <= 4 else None for k in range(63))
 _SENSORS_ST2 = tuple(tuple(struct.Struct('<BBBHB' + 'H' * i + 'HB' * j) for j in range(16 + 1)) for i in range(8 + 1))
 _SENSORS_ST_3_0 = _SENSORS_ST2[3][0]
@@ -1137,10 +1138,10 @@ def encode_sensors_batch(m: SensorsBatch) -> bytes:
     """SensorsBatch -> complete wire bytes (CRC, COBS, 0x00); ProtocolError/struct.error if unencodable."""
     x_seq, x_first_seq, x_count, x_records = m
     n = len(x_records)
-    if n <= 17:
+    if n <= 57:
         body = _SENSORSBATCH_ST[n].pack(18, x_seq, x_first_seq, x_count, *x_records)
     else:
-        raise ProtocolError(f"encode SensorsBatch: records has {n} entries, at most 17")
+        raise ProtocolError(f"encode SensorsBatch: records has {n} entries, at most 57")
     k = len(body)
     if k > MAX_FRAME_BYTES:
         raise ProtocolError(f"encode {type(m).__name__}: a message of {k} bytes exceeds {MAX_FRAME_BYTES}")
@@ -1154,7 +1155,7 @@ def encode_sensors_batch(m: SensorsBatch) -> bytes:
 
 def encode_batch_digest(m: BatchDigest) -> bytes:
     """BatchDigest -> complete wire bytes (CRC, COBS, 0x00); ProtocolError/struct.error if unencodable."""
-    x_seq, x_first_seq, x_count, x_next_seq, x_digest, x_duty_a, x_duty_b, x_duty_c, x_output_mode, x_state, x_sector, x_direction_ccw, x_required_ccw, x_fault, x_telemetry = m
+    x_seq, x_first_seq, x_count, x_next_seq, x_room, x_digest, x_duty_a, x_duty_b, x_duty_c, x_output_mode, x_state, x_sector, x_direction_ccw, x_required_ccw, x_fault, x_telemetry = m
     if ((x_output_mode) >> 2) | ((x_state | x_sector) >> 3) | ((x_fault) >> 6):
         if (x_output_mode) >> 2:
             raise ProtocolError(f"encode {type(m).__name__}: output_mode must be 0..3")
@@ -1165,7 +1166,7 @@ def encode_batch_digest(m: BatchDigest) -> bytes:
     w_flags = (x_output_mode | x_state << 2 | x_sector << 5 | (256 if x_direction_ccw else 0) | (512 if x_required_ccw else 0) | x_fault << 10)
     n = len(x_telemetry)
     if n <= 8:
-        body = _BATCHDIGEST_ST[n].pack(19, x_seq, x_first_seq, x_count, x_next_seq, x_digest, x_duty_a, x_duty_b, x_duty_c, w_flags, *x_telemetry)
+        body = _BATCHDIGEST_ST[n].pack(19, x_seq, x_first_seq, x_count, x_next_seq, x_room, x_digest, x_duty_a, x_duty_b, x_duty_c, w_flags, *x_telemetry)
     else:
         raise ProtocolError(f"encode BatchDigest: telemetry has {n} entries, at most 8")
     k = len(body)
@@ -1181,11 +1182,11 @@ def encode_batch_digest(m: BatchDigest) -> bytes:
 
 def encode_batch_digest_unchecked(m: BatchDigest) -> bytes:
     """encode_batch_digest without the bit-field range checks: for messages built by trusted code only."""
-    x_seq, x_first_seq, x_count, x_next_seq, x_digest, x_duty_a, x_duty_b, x_duty_c, x_output_mode, x_state, x_sector, x_direction_ccw, x_required_ccw, x_fault, x_telemetry = m
+    x_seq, x_first_seq, x_count, x_next_seq, x_room, x_digest, x_duty_a, x_duty_b, x_duty_c, x_output_mode, x_state, x_sector, x_direction_ccw, x_required_ccw, x_fault, x_telemetry = m
     w_flags = (x_output_mode | x_state << 2 | x_sector << 5 | (256 if x_direction_ccw else 0) | (512 if x_required_ccw else 0) | x_fault << 10)
     n = len(x_telemetry)
     if n <= 8:
-        body = _BATCHDIGEST_ST[n].pack(19, x_seq, x_first_seq, x_count, x_next_seq, x_digest, x_duty_a, x_duty_b, x_duty_c, w_flags, *x_telemetry)
+        body = _BATCHDIGEST_ST[n].pack(19, x_seq, x_first_seq, x_count, x_next_seq, x_room, x_digest, x_duty_a, x_duty_b, x_duty_c, w_flags, *x_telemetry)
     else:
         raise ProtocolError(f"encode BatchDigest: telemetry has {n} entries, at most 8")
     k = len(body)
@@ -1445,7 +1446,7 @@ def _decode_sensors_batch(raw: bytes, k: int) -> SensorsBatch:
     """A checked frame (raw[2:2 + k] is the message: type . seq . payload) -> SensorsBatch."""
     st = _SENSORSBATCH_BY_LEN[k]
     if st is None:
-        raise LengthError(f"SensorsBatch: payload of {k - 2} bytes is not 3 + 1*n (n <= 17)")
+        raise LengthError(f"SensorsBatch: payload of {k - 2} bytes is not 3 + 1*n (n <= 57)")
     v = st.unpack_from(raw, 2)
     return _tnew(SensorsBatch, (v[1], v[2], v[3], v[4:]))
 
@@ -1454,10 +1455,10 @@ def _decode_batch_digest(raw: bytes, k: int) -> BatchDigest:
     """A checked frame (raw[2:2 + k] is the message: type . seq . payload) -> BatchDigest."""
     st = _BATCHDIGEST_BY_LEN[k]
     if st is None:
-        raise LengthError(f"BatchDigest: payload of {k - 2} bytes is not 17 + 2*n (n <= 8)")
+        raise LengthError(f"BatchDigest: payload of {k - 2} bytes is not 18 + 2*n (n <= 8)")
     v = st.unpack_from(raw, 2)
-    w9 = v[9]
-    return _tnew(BatchDigest, (v[1], v[2], v[3], v[4], v[5], v[6], v[7], v[8], w9 & 3, w9 >> 2 & 7, w9 >> 5 & 7, (w9 >> 8 & 1) != 0, (w9 >> 9 & 1) != 0, w9 >> 10, v[10:]))
+    w10 = v[10]
+    return _tnew(BatchDigest, (v[1], v[2], v[3], v[4], v[5], v[6], v[7], v[8], v[9], w10 & 3, w10 >> 2 & 7, w10 >> 5 & 7, (w10 >> 8 & 1) != 0, (w10 >> 9 & 1) != 0, w10 >> 10, v[11:]))
 
 
 def _decode_param_describe(raw: bytes, k: int) -> ParamDescribe:
