@@ -26,6 +26,9 @@ def _friendly(func: Callable[..., Any]) -> Callable[..., Any]:
         except HilbenchError as exc:
             lines = [line.strip() for line in str(exc).splitlines() if line.strip()]
             text = lines[0] if len(lines) == 1 else f"{len(lines)} problems: " + "; ".join(lines)
+            records = getattr(exc, "records", "")
+            if records:  # a divergence's periods around it, both sides (stdout: the error stays one line)
+                click.echo(records)
             click.echo(f"hilbench: {exc.kind}: {text}", err=True)  # one line, however many problems
             sys.exit(exc.exit_code)
         except KeyboardInterrupt:
