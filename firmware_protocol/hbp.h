@@ -15,7 +15,8 @@
  * between delimiters, T = the CRC-16/CCITT-FALSE of the COBS bytes, 7 bits per check byte with the
  * top bit set.
  *
- * Static RAM (AN1017 profile: -DHBP_MAX_ADC=3u -DHBP_MAX_TELEMETRY=3u -DHBP_MAX_EDGES=3u, so
+ * Static RAM (AN1017 profile, the dsPIC build: -DHBP_MAX_ADC=3u -DHBP_MAX_TELEMETRY=3u -DHBP_MAX_EDGES=3u
+ * -DHBP_MAX_BATCH=17u, so
  * HBP_RX_MAX = 23: the largest host -> target message, ParamSet with 4 (id, value) pairs, 22 bytes,
  * and its trailing length byte):
  *   hbp_rx_t   23 (buffer) + 4 (COBS state, lengths) + 3 (check-byte window) + 3 (flags, ready, frame

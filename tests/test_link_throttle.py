@@ -66,6 +66,8 @@ def test_a_write_reaches_the_far_end_at_the_wire_time_of_its_last_byte() -> None
     wire, t = _throttled()
     t.write(b"x" * 19, 1.0)
     t.write(b"y" * 10, 1.0)  # queued behind the first on the same wire
+    assert wire.written == [] and wire.now == 0.0  # a write returns at once, as into a tty's buffer
+    assert t.read(1.0) == b""  # the wait hands each over at its time
     assert wire.written[0] == (pytest.approx(19 * BYTE_250K_S), b"x" * 19)
     assert wire.written[1] == (pytest.approx(29 * BYTE_250K_S), b"y" * 10)
     assert t.wire_bytes_tx == 29
@@ -75,7 +77,19 @@ def test_an_idle_wire_starts_a_write_when_it_is_made() -> None:
     wire, t = _throttled(1_250_000)
     wire.now = 5.0
     t.write(b"z" * 5, 1.0)
+    t.flush()
     assert wire.written[0][0] == pytest.approx(5.0 + 5 * 10 / 1_250_000)
+
+
+def test_a_write_waits_only_while_the_buffer_is_full() -> None:
+    from hilbench.link.throttle import TX_BUFFER_BYTES
+
+    wire, t = _throttled()
+    t.write(b"a" * TX_BUFFER_BYTES, 1.0)
+    assert wire.now == 0.0
+    t.write(b"b" * 100, 1.0)  # 100 bytes over: it waits until the first 100 bytes' worth has gone
+    assert wire.now == pytest.approx(TX_BUFFER_BYTES * BYTE_250K_S)
+    assert wire.written == [(pytest.approx(TX_BUFFER_BYTES * BYTE_250K_S), b"a" * TX_BUFFER_BYTES)]
 
 
 def test_received_bytes_are_delivered_no_earlier_than_their_wire_time() -> None:
@@ -110,9 +124,10 @@ def test_a_read_returns_empty_at_its_deadline_while_bytes_are_still_on_the_wire(
 def test_the_two_directions_are_independent_full_duplex() -> None:
     wire, t = _throttled()
     wire.arrivals = [(0.0, b"r" * 50)]  # the far end sends while we send
-    t.write(b"w" * 50, 1.0)  # the write collects (stamps) the received bytes while it waits
+    t.write(b"w" * 50, 1.0)
+    assert t.read(1.0) == b"r" * 50  # delivered at 50 byte times, not 100
+    assert wire.now == pytest.approx(50 * BYTE_250K_S)
     assert wire.written[0][0] == pytest.approx(50 * BYTE_250K_S)
-    assert t.read(0.0) == b"r" * 50  # delivered at 50 byte times, not 100
 
 
 def test_per_period_lockstep_behind_250_kbaud_is_held_to_the_wire_rate() -> None:
@@ -171,6 +186,7 @@ def test_a_throttled_pty_carries_frames_to_a_real_far_end() -> None:
         try:
             sensors = Sensors(seq=3, inputs=5, edges=(), encoder=0, adc=(1, 2, 3))
             link.send(sensors)
+            link.transport.flush()  # no read follows to hand it over at its time: wait for it here
             got = b""
             decoder = FrameDecoder()
             frames: list[object] = []

@@ -5,15 +5,18 @@ byte takes 10 bits of wire time (start, 8 data, stop) in each direction, and the
 are independent (full duplex). ThrottledTransport makes any transport behave like that wire:
 
 - **send**: the bytes go onto the wire when it is free (after the bytes sent before them) and
-  reach the far end when their last bit has gone: a write returns once they are handed over,
-  at the wire time of its last byte.
+  reach the far end when their last bit has gone. A write returns at once, as a write into an
+  operating system's serial buffer does (it waits only while more than TX_BUFFER_BYTES are queued);
+  the bytes are handed to the far end at their wire time by the next read or write, whose waits
+  wake for it.
 - **receive**: bytes the far end wrote are delivered no earlier than their wire time: they start
   on the wire when they were written or when the bytes before them have gone, whichever is later.
 
 Every wait is on a deadline through the inner transport's own read (which also collects what
 arrives meanwhile), so a clock and an inner transport given by a test make the arithmetic
-checkable without wall time. The delivery time is stamped when the host reads the bytes: if the
-host is busy elsewhere the bytes count from then (a conservative wire, never a faster one).
+checkable without wall time. Times are taken when the host next touches the link: while it is
+busy elsewhere, bytes reach the far end and are stamped on arrival later, never earlier (a
+conservative wire, never a faster one).
 """
 
 from __future__ import annotations
@@ -25,6 +28,7 @@ from typing import Callable
 from hilbench.link.transport import Transport
 
 BITS_PER_BYTE = 10  # 8N1: a start bit, 8 data bits, a stop bit
+TX_BUFFER_BYTES = 4096  # what a write may queue before it waits (a Linux tty's buffer is 4 KB)
 
 
 class ThrottledTransport(Transport):
@@ -41,6 +45,8 @@ class ThrottledTransport(Transport):
         self._tx_free_s = 0.0  # when the host -> target wire is free again
         self._rx_free_s = 0.0  # when the target -> host wire is free again
         self._rx: deque[tuple[float, bytes]] = deque()  # (delivery time, bytes), in order
+        self._tx: deque[tuple[float, bytes]] = deque()  # (wire time of the last byte, bytes), in order
+        self._tx_queued = 0
         self.wire_bytes_tx = 0
         self.wire_bytes_rx = 0
 
@@ -53,10 +59,25 @@ class ThrottledTransport(Transport):
         self._rx.append((self._rx_free_s, data))
 
     def _pump(self, timeout_s: float) -> None:
-        """Collect what the inner transport has (waiting at most timeout_s for it)."""
+        """Hand over the sent bytes whose time has come, then collect what the inner transport has
+        (waiting at most timeout_s, and no longer than until the next sent bytes are due)."""
+        self._deliver()
+        if self._tx:
+            timeout_s = min(timeout_s, self._tx[0][0] - self._clock())
         data = self.inner.read(max(timeout_s, 0.0))
         if data:
             self._stamp_rx(data)
+        self._deliver()
+
+    def _deliver(self) -> None:
+        tx = self._tx
+        if not tx:
+            return
+        now = self._clock()
+        while tx and tx[0][0] <= now:
+            data = tx.popleft()[1]
+            self._tx_queued -= len(data)
+            self.inner.write(data, 1.0)
 
     def _due(self) -> bytes:
         """Every received byte whose wire time has come, in order."""
@@ -79,24 +100,30 @@ class ThrottledTransport(Transport):
             if deadline is not None and now >= deadline:
                 return b""
             wait = self._rx[0][0] - now if self._rx else None
+            if self._tx:
+                wait = self._tx[0][0] - now if wait is None else min(wait, self._tx[0][0] - now)
             if deadline is not None:
                 wait = deadline - now if wait is None else min(wait, deadline - now)
             self._pump(1.0 if wait is None else wait)
 
     def write(self, data: bytes, timeout_s: float) -> None:
-        """Hand data to the far end at the wire time of its last byte (the wire waits for the
-        bytes before it); what arrives meanwhile is collected and stamped."""
+        """Queue data for the wire (it reaches the far end at the wire time of its last byte, after
+        the bytes before it); waits only while more than TX_BUFFER_BYTES are queued."""
         if not data:
             return
         start = max(self._clock(), self._tx_free_s)
         self._tx_free_s = start + len(data) * self.byte_s
         self.wire_bytes_tx += len(data)
-        while True:
-            remaining = self._tx_free_s - self._clock()
-            if remaining <= 0:
-                break
-            self._pump(remaining)
-        self.inner.write(data, timeout_s)
+        self._tx.append((self._tx_free_s, bytes(data)))
+        self._tx_queued += len(data)
+        self._deliver()
+        while self._tx_queued > TX_BUFFER_BYTES:
+            self._pump(self._tx[0][0] - self._clock())
+
+    def flush(self) -> None:
+        """Wait until every queued byte has reached the far end."""
+        while self._tx:
+            self._pump(self._tx[0][0] - self._clock())
 
     def fileno(self) -> int | None:
         return self.inner.fileno()
@@ -105,7 +132,11 @@ class ThrottledTransport(Transport):
         return self.inner._hung_up(why)  # type: ignore[attr-defined]
 
     def close(self) -> None:
+        try:
+            self.flush()  # what was written still reaches the far end (a Stop before the close)
+        except Exception:  # noqa: BLE001 - a far end that hung up takes nothing more
+            pass
         self.inner.close()
 
 
-__all__ = ["BITS_PER_BYTE", "ThrottledTransport"]
+__all__ = ["BITS_PER_BYTE", "TX_BUFFER_BYTES", "ThrottledTransport"]
