@@ -57,8 +57,48 @@ def test_an_unchanged_period_costs_at_most_a_byte_and_runs_share_one() -> None:
     for k in range(1, 101):
         assert builder.add(s._replace(seq=k & 0xFF))
     count, records = builder.take()
-    # the first period: h, inputs, ADC count + 3 codes = 9 bytes; the 100 same periods: one run byte
-    assert (count, len(records), records[-1]) == (101, 10, 0x80 | 99)
+    # the first period: h, inputs, ADC count + 3 codes = 9 bytes; the 100 same periods: runs of at
+    # most 64 (0x80 | n stands for n + 1)
+    assert (count, len(records), records[-2:]) == (101, 11, bytes((0x80 | 63, 0x80 | 35)))
+
+
+def _noisy(n: int, seed: int = 5) -> list[Sensors]:
+    """Halls turning now and then, ADC codes with the noise of a few LSB (the plant's kind)."""
+    import random
+
+    rng = random.Random(seed)
+    adc = [600, 512, 700]
+    out = []
+    halls = (1, 3, 2, 6, 4, 5)
+    pos = 0
+    encoder = step = 0
+    for k in range(n):
+        edges: tuple[tuple[int, int], ...] = ()
+        if k % 17 == 5:
+            pos = (pos + 1) % 6
+            edges = ((rng.randrange(500), halls[pos]),)
+        if k % 200 == 0:
+            step = rng.randrange(-5, 6)  # the encoder turns steadily, at a speed that changes now and then
+        encoder = (encoder + step + (rng.choice((0, 0, 0, 1, -1)) if k % 3 else 0)) & 0xFFFF
+        if k % 7:  # some periods change nothing but the encoder's step: runs
+            adc = [max(0, min(1023, a + rng.choice((-2, -1, 0, 0, 1, 1, 2, 3, -9, 40)))) for a in adc]
+        out.append(Sensors(k & 0xFF, halls[pos] | (0x08 if k < 3 else 0), edges, encoder, tuple(adc)))
+    return out
+
+
+def test_small_adc_changes_cost_one_byte_and_round_trip() -> None:
+    s = Sensors(0, 5, (), 0, (600, 512, 700))
+    builder = BatchBuilder()
+    assert builder.add(s)
+    assert builder.add(s._replace(seq=1, adc=(601, 511, 702)))  # +1, -1, +2: one byte
+    count, records = builder.take()
+    assert records[9:] == bytes((0xC0 | 1 | 3 << 2 | 2 << 4,))
+    stream = _noisy(3000)
+    state = BatchState()
+    decoded: list[Sensors] = []
+    for first, count, records in _batches(stream):
+        decoded += decode_records(state, first, count, records)
+    assert [tuple(x) for x in decoded] == [tuple(x) for x in stream]
 
 
 def test_chained_digest_is_zlib_crc32_over_drive_messages() -> None:
@@ -76,8 +116,9 @@ def _sil_pair():
     return open_target("sil:an1017", timeout_s=2.0), open_target("sil:an1017", timeout_s=2.0)
 
 
-def test_a_batch_runs_its_periods_exactly_as_per_period_lockstep() -> None:
-    stream = _sensors(4000, seed=11)
+@pytest.mark.parametrize("kind", ["random", "noisy"])
+def test_a_batch_runs_its_periods_exactly_as_per_period_lockstep(kind: str) -> None:
+    stream = _sensors(4000, seed=11) if kind == "random" else _noisy(4000)
     one, two = _sil_pair()
     with one, two:
         hello = HostHello(0, PROTOCOL_VERSION, 50, MODE_LOCKSTEP, 0)

@@ -421,9 +421,11 @@ static HRT_NOINLINE void on_sensors(hrt_link_t *l, const hbp_u8 *buf, hbp_u8 len
 #define BATCH_FIRST 2u
 #define BATCH_COUNT 4u
 #define BATCH_RECORDS 5u
-#define REC_RUN 0x80u    /* (REC_RUN | n): n + 1 periods as the one before, without edges */
+#define REC_RUN 0x80u    /* (REC_RUN | n), n < 64: n + 1 periods as the one before, without edges */
+#define REC_TINY 0xC0u   /* (REC_TINY | c2 c1 c0): one period whose only change is ADC channels 0..2 by
+                          * 2-bit codes (0: none, 1: +1, 2: +2, 3: -1), channel 0 in the low bits */
 #define REC_INPUTS 0x01u /* the inputs byte follows */
-#define REC_ENCODER 0x02u /* the encoder: a value (below) */
+#define REC_ENCODER 0x02u /* the encoder: a value (below) from the prediction (the last step again) */
 #define REC_ADC0 0x04u   /* ADC channels 0, 1, 2 (0x04, 0x08, 0x10): a nibble each (below) */
 #define REC_ADC_ALL 0x20u /* a channel count, then every channel's code as u16 */
 #define REC_EDGES 0x40u  /* an edge count (1..), then the edges as in Sensors (time u16, lines u8) */
@@ -482,12 +484,17 @@ static hbp_u8 rec_period(hrt_batch_in_t *in, const hbp_u8 *p, hbp_u8 left, hbp_u
         }
         in->inputs = (hbp_u8)(p[at++] & 0xFFu);
     }
-    if ((h & REC_ENCODER) != 0u) {
-        used = rec_value(&p[at], (hbp_u8)(left - at), &in->encoder);
-        if (used == 0u) {
-            return 0u;
+    { /* the encoder: predicted to move by its last step; a record says how far it was off */
+        uint16_t value = (uint16_t)(in->encoder + in->enc_step);
+        if ((h & REC_ENCODER) != 0u) {
+            used = rec_value(&p[at], (hbp_u8)(left - at), &value);
+            if (used == 0u) {
+                return 0u;
+            }
+            at = (hbp_u8)(at + used);
+            in->enc_step = (uint16_t)(value - in->encoder);
         }
-        at = (hbp_u8)(at + used);
+        in->encoder = value;
     }
     if ((h & REC_ADC_ALL) != 0u) {
         hbp_u8 k;
@@ -604,6 +611,7 @@ static HRT_NOINLINE void on_batch(hrt_link_t *l, const hbp_u8 *buf, hbp_u8 len, 
         l->b_digest = 0UL;
         l->b_in.inputs = 0u;
         l->b_in.encoder = 0u;
+        l->b_in.enc_step = 0u;
         l->b_in.n_adc = 0u;
         for (i = 0u; i < HBP_MAX_ADC; i++) {
             l->b_in.adc[i] = 0u;
@@ -621,8 +629,24 @@ static HRT_NOINLINE void on_batch(hrt_link_t *l, const hbp_u8 *buf, hbp_u8 len, 
             hbp_u8 edges_at = 0u;
             hbp_u8 n_edges = 0u;
             hbp_u8 used = 1u;
-            if ((h & REC_RUN) != 0u) {
-                runs = (hbp_u8)((h & 0x7Fu) + 1u);
+            if ((h & REC_TINY) == REC_TINY) {
+                hbp_u8 i;
+                in->encoder = (uint16_t)(in->encoder + in->enc_step);
+                for (i = 0u; i < 3u; i++) {
+                    hbp_u8 code = (hbp_u8)(((unsigned)h >> (2u * (unsigned)i)) & 3u);
+                    if (code != 0u) {
+                        if (i >= in->n_adc) {
+                            used = 0u;
+                            break;
+                        }
+                        in->adc[i] = (uint16_t)(in->adc[i] + ((code == 3u) ? 0xFFFFu : (uint16_t)code));
+                    }
+                }
+            } else if ((h & REC_RUN) != 0u) {
+                runs = (hbp_u8)((h & 0x3Fu) + 1u);
+                if (pass == 0u) { /* (pass 1 moves the encoder period by period) */
+                    in->encoder = (uint16_t)(in->encoder + (uint16_t)((unsigned)runs * (unsigned)in->enc_step));
+                }
             } else {
                 used = rec_period(in, &buf[at], (hbp_u8)(len - at), &edges_at, &n_edges);
             }
@@ -646,6 +670,11 @@ static HRT_NOINLINE void on_batch(hrt_link_t *l, const hbp_u8 *buf, hbp_u8 len, 
                 }
                 for (k = 0u; k < runs; k++) {
                     hbp_u8 s = (hbp_u8)((unsigned)(first + (uint16_t)done + (uint16_t)k) & 0xFFu);
+                    if ((h & REC_TINY) == REC_RUN) { /* a run: each period moves the encoder by its step */
+                        in->encoder = (uint16_t)(in->encoder + in->enc_step);
+                        msg[SENSORS_ENCODER] = (hbp_u8)(in->encoder & 0xFFu);
+                        msg[SENSORS_ENCODER + 1u] = (hbp_u8)(in->encoder >> 8);
+                    }
                     msg[1] = s;
                     l->last_rx = hrt_port_now();
                     l->flags = (hbp_u8)((l->flags | HRT_LINK_F_SENSORS | HRT_LINK_F_ANSWERED) &

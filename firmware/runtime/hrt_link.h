@@ -86,6 +86,7 @@ void hrt_port_realtime(hbp_u8 on); /* enter (1) or leave (0) real time: start or
 #if HRT_SPECULATE
 typedef struct {
     uint16_t encoder;
+    uint16_t enc_step;          /* the encoder's last change: a period without an encoder record repeats it */
     uint16_t adc[HBP_MAX_ADC];
     hbp_u8 inputs;
     hbp_u8 n_adc;

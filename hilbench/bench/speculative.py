@@ -84,6 +84,7 @@ class SpeculativeTarget:
         self.window = window
         self.period_us = period_us
         self.active = False
+        self._no_encoder = False  # TargetInfo said the firmware has no encoder input
         self.stats = SpeculationStats()
         self._log: list[LogItem] = []
         self._reset()
@@ -129,9 +130,10 @@ class SpeculativeTarget:
             self.active = False
             return self.remote.step(sensors)
         drive = self.twin.step(sensors)
-        if not self._builder.add(sensors):
+        sent = sensors._replace(encoder=0) if self._no_encoder else sensors
+        if not self._builder.add(sent):
             self._flush()
-            self._builder.add(sensors)
+            self._builder.add(sent)
         self._crc = zlib.crc32(pack_drive(drive), self._crc)
         self._next += 1
         return drive
@@ -175,7 +177,11 @@ class SpeculativeTarget:
         return self.remote.status()
 
     def describe_target(self) -> object:
-        return self.remote.describe_target()
+        """TargetInfo; a target with no encoder (encoder_counts 0) is sent none in batches (the twin
+        still steps on the plant's count, so a firmware that read it after all would diverge)."""
+        info = self.remote.describe_target()
+        self._no_encoder = info is not None and getattr(info, "encoder_counts", 1) == 0
+        return info
 
     def describe_telemetry(self, index: int) -> object:
         return self.remote.describe_telemetry(index)

@@ -3,10 +3,13 @@
 A batch carries the Sensors of consecutive periods as records of what changed since the period
 before, so a period in which only the hall edges or nothing changed costs one byte or less:
 
-    0x80 | n                       n + 1 periods as the one before, without edges (a run)
+    0x80 | n, n < 64               n + 1 periods as the one before, without edges (a run)
+    0xC0 | c2 c1 c0                a period whose only change is ADC channels 0..2 by 2-bit codes
+                                   (0 none, 1 +1, 2 +2, 3 -1; channel 0 in the low bits): noise
     h (bit 7 clear), then in order:
       0x01 inputs   u8
-      0x02 encoder  a value
+      0x02 encoder  a value, from the prediction: the encoder's last change again (a period without
+                    this record, a run's or a tiny one's included, moves it by that step)
       0x20 ADC      u8 count, then every channel's code as u16 (the first period; a count change)
       0x04 0x08 0x10  ADC channels 0, 1, 2 changed: a signed 4-bit change each (-7..7), two a byte,
                     the lower nibble first; a nibble -8 says the code follows as u16 after the nibbles
@@ -28,12 +31,14 @@ from hilbench.errors import ProtocolError
 from hilbench.protocol.messages import MAX_BATCH_BYTES, Drive, Sensors, pack_drive
 
 REC_RUN = 0x80
+REC_TINY = 0xC0
+_TINY_CODES = {1: 1, 2: 2, -1: 3}
 REC_INPUTS = 0x01
 REC_ENCODER = 0x02
 REC_ADC0 = 0x04  # channels 0, 1, 2: 0x04, 0x08, 0x10
 REC_ADC_ALL = 0x20
 REC_EDGES = 0x40
-MAX_RUN = 128
+MAX_RUN = 64
 MAX_BATCH_PERIODS = 255
 #: the records every runtime build takes (its receive buffer holds a 22-byte ParamSet): a first batch's
 #: size; BatchDigest.room says what the target takes after it
@@ -56,6 +61,13 @@ class BatchState:
     inputs: int = 0
     encoder: int = 0
     adc: tuple[int, ...] = ()
+    enc_step: int = 0  # the encoder's last change (u16): the prediction of the next
+
+    def saved(self) -> tuple[int, int, tuple[int, ...], int]:
+        return self.inputs, self.encoder, self.adc, self.enc_step
+
+    def restore(self, saved: tuple[int, int, tuple[int, ...], int]) -> None:
+        self.inputs, self.encoder, self.adc, self.enc_step = saved
 
     def record(self, s: Sensors) -> bytes:
         """One period's record (b"" for a period as the one before, without edges); advances."""
@@ -64,9 +76,11 @@ class BatchState:
         if s.inputs != self.inputs:
             h |= REC_INPUTS
             body.append(s.inputs)
-        if s.encoder != self.encoder:
+        predicted = (self.encoder + self.enc_step) & 0xFFFF
+        if s.encoder != predicted:
             h |= REC_ENCODER
-            body += _value(self.encoder, s.encoder)
+            body += _value(predicted, s.encoder)
+            self.enc_step = (s.encoder - self.encoder) & 0xFFFF
         adc = tuple(s.adc)
         if len(adc) != len(self.adc) or (len(adc) > 3 and adc[3:] != self.adc[3:]):
             h |= REC_ADC_ALL
@@ -88,6 +102,17 @@ class BatchState:
             for j in range(0, len(nibbles), 2):
                 body.append(nibbles[j] | ((nibbles[j + 1] << 4) if j + 1 < len(nibbles) else 0))
             body += tail
+        if h & ~(REC_ADC0 * 7) == 0 and h and not s.edges:  # only small ADC changes: one byte if it can
+            tiny = REC_TINY
+            for i in range(3):
+                if h & (REC_ADC0 << i):
+                    code = _TINY_CODES.get(adc[i] - self.adc[i])
+                    if code is None:
+                        break
+                    tiny |= code << (2 * i)
+            else:
+                self.adc, self.encoder = adc, s.encoder
+                return bytes((tiny,))
         if s.edges:
             h |= REC_EDGES
             body.append(len(s.edges))
@@ -112,26 +137,26 @@ class BatchBuilder:
         """Add one period's Sensors; False (nothing changed) when it does not fit this batch."""
         if self.count >= self.max_periods:
             return False
-        saved = (self.state.inputs, self.state.encoder, self.state.adc)
+        saved = self.state.saved()
         rec = self.state.record(s)
         if not rec:
             at = self._run_at
-            if at >= 0 and (self.records[at] & 0x7F) < MAX_RUN - 1:
+            if at >= 0 and (self.records[at] & 0x3F) < MAX_RUN - 1:
                 self.records[at] += 1
             elif len(self.records) < self.max_bytes:
                 self._run_at = len(self.records)
                 self.records.append(REC_RUN)
             else:
-                self.state.inputs, self.state.encoder, self.state.adc = saved
+                self.state.restore(saved)
                 return False
-        elif len(self.records) + len(rec) <= self.max_bytes:
+        elif len(self.records) + len(rec) <= self.max_bytes:  # (a tiny record is no run to extend)
             self.records += rec
             self._run_at = -1
         else:
             if len(rec) > self.max_bytes:
                 raise ProtocolError(f"SensorsBatch: one period's record of {len(rec)} bytes does not fit "
                                     f"a batch ({self.max_bytes} bytes)")
-            self.state.inputs, self.state.encoder, self.state.adc = saved
+            self.state.restore(saved)
             return False
         self.count += 1
         return True
@@ -165,14 +190,27 @@ def decode_records(state: BatchState, first_seq: int, count: int, records: bytes
             at += 1
             edges: tuple[tuple[int, int], ...] = ()
             runs = 1
-            if h & REC_RUN:
-                runs = (h & 0x7F) + 1
+            if h & REC_TINY == REC_TINY:
+                state.encoder = (state.encoder + state.enc_step) & 0xFFFF
+                adc = list(state.adc)
+                for i in range(3):
+                    code = (h >> (2 * i)) & 3
+                    if code:
+                        if i >= len(adc):
+                            raise ProtocolError(f"SensorsBatch: a change of ADC channel {i} of {len(adc)}")
+                        adc[i] = (adc[i] + (-1 if code == 3 else code)) & 0xFFFF
+                state.adc = tuple(adc)
+            elif h & REC_RUN:
+                runs = (h & 0x3F) + 1
             else:
                 if h & REC_INPUTS:
                     state.inputs = records[at]
                     at += 1
+                value = (state.encoder + state.enc_step) & 0xFFFF
                 if h & REC_ENCODER:
-                    state.encoder, at = _read_value(records, at, state.encoder)
+                    value, at = _read_value(records, at, value)
+                    state.enc_step = (value - state.encoder) & 0xFFFF
+                state.encoder = value
                 adc = list(state.adc)
                 if h & REC_ADC_ALL:
                     n = records[at]
@@ -201,6 +239,8 @@ def decode_records(state: BatchState, first_seq: int, count: int, records: bytes
             if at > len(records) or len(out) + runs > count:
                 raise ProtocolError("SensorsBatch: the records run past the frame or the count")
             for _ in range(runs):
+                if h & REC_TINY == REC_RUN:  # a run: each period moves the encoder by its step
+                    state.encoder = (state.encoder + state.enc_step) & 0xFFFF
                 out.append(Sensors((first_seq + len(out)) & 0xFF, state.inputs, edges, state.encoder, state.adc))
     except IndexError:
         raise ProtocolError("SensorsBatch: the records end inside a period") from None
