@@ -159,6 +159,8 @@ def test_wire_baud_is_a_key_of_every_spec_with_a_link() -> None:
     assert parse_target_spec("sil:an1017").wire_baud is None
     spec = parse_target_spec("emulator:an1017?wire_baud=250000&drop=0.1")
     assert spec.wire_baud == 250_000 and spec.faults is not None and spec.faults.drop_rate == 0.1
+    assert parse_target_spec("simavr:an1017?twin=auto").twin == "auto"
+    assert parse_target_spec("/dev/ttyUSB0?baud=250000&twin=off").twin == "off"
 
 
 @pytest.mark.parametrize("text, says", [
@@ -166,6 +168,7 @@ def test_wire_baud_is_a_key_of_every_spec_with_a_link() -> None:
     ("sil:an1017?wire_baud=fast", "is not a whole number"),
     ("inprocess:an1017?wire_baud=250000", "an in-process target has no link"),
     ("sil:an1017?wire_bauds=250000", "did you mean 'wire_baud'"),
+    ("sil:an1017?twin=on", "twin='on' must be auto or off"),
 ])
 def test_bad_wire_baud_is_one_config_line(text: str, says: str) -> None:
     with pytest.raises(ConfigError, match=says.replace("(", r"\(")) as info:

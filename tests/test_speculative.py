@@ -67,6 +67,7 @@ def _run(tmp: Path, name: str, target: str, twin: str, duration_s: float, scenar
 CASES = [
     pytest.param("sil:an1017", 0.1, AN1017_WRITES, None, ("gcc",), id="sil-an1017"),
     pytest.param("sil:foc", 0.1, FOC_WRITES, SERVO, ("gcc",), id="sil-foc"),
+    pytest.param("sil:an1017?twin=auto", 0.05, AN1017_WRITES, None, ("gcc",), id="sil-an1017-spec-key"),
     pytest.param("simavr:an1017", 0.1, AN1017_WRITES, None, ("avr-gcc", "simavr"), id="simavr-an1017",
                  marks=pytest.mark.slow),
     pytest.param("simavr:foc", 0.1, FOC_WRITES, SERVO, ("avr-gcc", "simavr"), id="simavr-foc", marks=pytest.mark.slow),
@@ -82,8 +83,11 @@ def test_speculative_recording_is_the_per_period_one(tmp_path: Path, target: str
                                                       config: Path | None, tools: tuple[str, ...]) -> None:
     for tool in tools:
         require_tool(tool, f"the {target} build")
-    code_off, off, rows_off, err_off = _run(tmp_path, "case", target, "off", duration_s, scenario, config)
-    code_on, on, rows_on, err_on = _run(tmp_path, "case", target, "auto", duration_s, scenario, config)
+    code_off, off, rows_off, err_off = _run(tmp_path, "case", target.split("?")[0], "off", duration_s, scenario,
+                                            config)
+    # the spec's key wins over the config's: ?twin=auto with [link] twin = "off" speculates too
+    code_on, on, rows_on, err_on = _run(tmp_path, "case", target, "off" if "twin=" in target else "auto",
+                                        duration_s, scenario, config)
     assert code_off == 0, err_off
     assert code_on == 0, err_on
     periods = round(duration_s / 50e-6)

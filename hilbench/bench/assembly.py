@@ -99,7 +99,10 @@ def with_twin(target: Target, cfg: BenchConfig, options: SessionOptions, profile
     from hilbench.bench.speculative import SpeculativeTarget
     from hilbench.targets.remote import RemoteTarget
 
-    if cfg.link.twin != "auto" or options.mode != "lockstep" or profile is None or profile.twin is None \
+    from hilbench.link import parse_target_spec
+
+    wanted = parse_target_spec(cfg.link.target).twin or cfg.link.twin  # the spec's key over the config's
+    if wanted != "auto" or options.mode != "lockstep" or profile is None or profile.twin is None \
             or not isinstance(target, RemoteTarget):
         return target
     make_twin = profile.twin

@@ -114,6 +114,7 @@ class TargetSpec:
     baud: int = DEFAULT_BAUD
     faults: FaultSpec | None = None
     wire_baud: int | None = None  # hold the link to this baud's wire time (hilbench.link.throttle)
+    twin: str | None = None  # "auto" / "off": twin-speculative lockstep, over [link] twin (hilbench.bench.speculative)
 
     @property
     def has_link(self) -> bool:
@@ -137,6 +138,8 @@ def describe_spec_forms() -> str:
     lines += [f"  {key:<{width}}  {_FAULT_KEYS[key][1]}" for key in _FAULT_KEYS]
     lines.append(f"Wire time (any spec with a link): {WIRE_BAUD_KEY}=N holds the link to the wire time of an "
                  "8N1 UART at N baud, 10 bits a byte each way (e.g. sil:an1017?wire_baud=250000)")
+    lines.append(f"Twin (any spec with a link): {TWIN_KEY}=auto|off, twin-speculative lockstep when the target's "
+                 "firmware has a bit-exact host twin (over [link] twin)")
     return "\n".join(lines)
 
 
@@ -224,7 +227,8 @@ _FAULT_KEYS: dict[str, tuple[str, str, Callable[[str], object]]] = {
 FAULT_KEYS = tuple(_FAULT_KEYS)
 #: the keys of any spec with a link: the fault keys and the wire throttle
 WIRE_BAUD_KEY = "wire_baud"
-LINK_KEYS = (*FAULT_KEYS, WIRE_BAUD_KEY)
+TWIN_KEY = "twin"
+LINK_KEYS = (*FAULT_KEYS, WIRE_BAUD_KEY, TWIN_KEY)
 
 
 # -- parsing -----------------------------------------------------------------------------
@@ -294,6 +298,13 @@ def _wire_baud_of(text: str, values: dict[str, str]) -> int | None:
         raise ConfigError(f"target spec {text!r}: {WIRE_BAUD_KEY}={values[WIRE_BAUD_KEY]!r} {exc}") from None
 
 
+def _twin_of(text: str, values: dict[str, str]) -> str | None:
+    value = values.get(TWIN_KEY)
+    if value is None or value in ("auto", "off"):
+        return value
+    raise ConfigError(f"target spec {text!r}: {TWIN_KEY}={value!r} must be auto or off")
+
+
 def _baud_of(text: str, values: dict[str, str]) -> int:
     if "baud" not in values:
         return DEFAULT_BAUD
@@ -334,7 +345,8 @@ def _parse_url(text: str, body: str, scheme: str) -> TargetSpec:
             raise ConfigError(f"target spec {text!r}: {scheme}:// needs HOST:PORT, e.g. {scheme}://127.0.0.1:5000")
     url = base + ("?" + "&".join(passed) if passed else "")
     return TargetSpec(text, KIND_PORT, port=url, port_kind=PORT_URL, baud=_baud_of(text, values),
-                      faults=_faults(text, values), wire_baud=_wire_baud_of(text, values))
+                      faults=_faults(text, values), wire_baud=_wire_baud_of(text, values),
+                          twin=_twin_of(text, values))
 
 
 def parse_target_spec(text: str) -> TargetSpec:
@@ -352,7 +364,8 @@ def parse_target_spec(text: str) -> TargetSpec:
     if colon and prefix in FIRMWARE_KINDS and ("/" in rest or rest.startswith(("~", "."))):
         values, _ = _split_query(text, query, LINK_KEYS, ())  # a path to a build of any firmware
         return TargetSpec(text, prefix, program=rest, faults=_faults(text, values),
-                          wire_baud=_wire_baud_of(text, values))
+                          wire_baud=_wire_baud_of(text, values),
+                          twin=_twin_of(text, values))
     if colon and prefix in _NAMED_KINDS:
         return _parse_named(text, prefix, rest, query)
     if colon and prefix == KIND_EXEC:
@@ -360,7 +373,8 @@ def parse_target_spec(text: str) -> TargetSpec:
             raise _fail(text, "exec: needs a program path")
         values, _ = _split_query(text, query, LINK_KEYS, ())
         return TargetSpec(text, KIND_EXEC, program=rest, faults=_faults(text, values),
-                          wire_baud=_wire_baud_of(text, values))
+                          wire_baud=_wire_baud_of(text, values),
+                          twin=_twin_of(text, values))
     return _parse_port(text, head, query)
 
 
@@ -372,7 +386,8 @@ def _parse_named(text: str, kind: str, name: str, query: str) -> TargetSpec:
         _split_query(text, query, (), ())  # an in-process target has no link to wrap
         return TargetSpec(text, KIND_INPROCESS, name=name)
     values, _ = _split_query(text, query, LINK_KEYS, ())
-    return TargetSpec(text, kind, name=name, faults=_faults(text, values), wire_baud=_wire_baud_of(text, values))
+    return TargetSpec(text, kind, name=name, faults=_faults(text, values), wire_baud=_wire_baud_of(text, values),
+                          twin=_twin_of(text, values))
 
 
 def _parse_port(text: str, head: str, query: str) -> TargetSpec:
@@ -383,7 +398,8 @@ def _parse_port(text: str, head: str, query: str) -> TargetSpec:
             raise _fail(text, "fd: needs a file descriptor number, e.g. fd:3")
         values, _ = _split_query(text, query, LINK_KEYS, ())
         return TargetSpec(text, KIND_PORT, port=head, port_kind=PORT_FD if colon else PORT_PTY,
-                          faults=_faults(text, values), wire_baud=_wire_baud_of(text, values))
+                          faults=_faults(text, values), wire_baud=_wire_baud_of(text, values),
+                          twin=_twin_of(text, values))
     if colon and prefix == "serial":
         head = rest
         if not head.startswith("/"):
@@ -391,7 +407,8 @@ def _parse_port(text: str, head: str, query: str) -> TargetSpec:
     if head.startswith("/"):
         values, _ = _split_query(text, query, ("baud", *LINK_KEYS), ())
         return TargetSpec(text, KIND_PORT, port=head, port_kind=PORT_DEVICE, baud=_baud_of(text, values),
-                          faults=_faults(text, values), wire_baud=_wire_baud_of(text, values))
+                          faults=_faults(text, values), wire_baud=_wire_baud_of(text, values),
+                          twin=_twin_of(text, values))
     raise ConfigError(f"unknown target spec {text!r} (accepted: {_FORMS_LINE})")
 
 
@@ -399,6 +416,7 @@ __all__ = [
     "DEFAULT_BAUD",
     "FAULT_KEYS",
     "LINK_KEYS",
+    "TWIN_KEY",
     "WIRE_BAUD_KEY",
     "FaultSpec",
     "KIND_EMULATOR",
