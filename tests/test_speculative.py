@@ -122,7 +122,7 @@ def test_a_one_lsb_difference_is_caught_and_located(tmp_path: Path) -> None:
     from hilbench.targets.sil import build_sil
 
     exe = build_sil(tmp_path, defines=("-DAN1017_TEST_ONE_LSB_PHASE=40000u",))
-    duration = "0.1"
+    duration = "0.2"
     good_code, _, good_rows, err = _run(tmp_path, "good", "sil:an1017", "off", float(duration), AN1017_WRITES)
     assert good_code == 0, err
     bad_spec = f"sil:{exe}"
@@ -138,6 +138,11 @@ def test_a_one_lsb_difference_is_caught_and_located(tmp_path: Path) -> None:
     named = line.split("field ")[1].split(":")[0]
     assert named in fields | {"duty_a"} and named.startswith("duty_a"), (line, fields)
     assert len(err.strip().splitlines()) == 1, err
+    # a run that ends a few periods after it: the difference is in the batches still in flight at the
+    # end, which the end confirms before it stops the target (never a "completed" run)
+    code, _, _, err = _run(tmp_path, "end", bad_spec, "auto", (period + 5) * 50e-6, AN1017_WRITES, extra=extra)
+    assert code == 10, err
+    assert f"first differing period {period} " in err.strip().splitlines()[0], err
 
 
 def test_lost_and_corrupted_frames_on_a_throttled_wire_are_resent_never_committed_wrong(tmp_path: Path) -> None:
