@@ -16,11 +16,13 @@ replayed from a reset in per-period lockstep to name the first differing period 
 
 from __future__ import annotations
 
+import pickle
+import tempfile
 import time
 import zlib
 from collections import deque
 from dataclasses import dataclass
-from typing import Callable
+from typing import Callable, Iterable, Iterator
 
 from hilbench.errors import DivergenceError, LinkTimeout
 from hilbench.protocol import (
@@ -70,6 +72,35 @@ class SpeculationStats:
 LogItem = tuple[str, object]
 
 
+class RunLog:
+    """What the run sent (handshake, batches' records, writes, Start/Stop), in order, for the replay
+    that locates a divergence: kept in a temporary file, so memory stays flat however long the run."""
+
+    def __init__(self) -> None:
+        self._file = tempfile.TemporaryFile()
+
+    def clear(self) -> None:
+        self._file.seek(0)
+        self._file.truncate()
+
+    def append(self, item: LogItem) -> None:
+        pickle.dump(item, self._file, protocol=pickle.HIGHEST_PROTOCOL)
+
+    def items(self) -> Iterator[LogItem]:
+        """Every item so far, in order (the file is read from the start; appends go on after)."""
+        self._file.flush()
+        end = self._file.tell()
+        self._file.seek(0)
+        try:
+            while self._file.tell() < end:
+                yield pickle.load(self._file)  # our own items, written above
+        finally:
+            self._file.seek(end)
+
+    def close(self) -> None:
+        self._file.close()
+
+
 class SpeculativeTarget:
     """A RemoteTarget with its host twin: the Target interface, speculating in lockstep."""
 
@@ -86,7 +117,7 @@ class SpeculativeTarget:
         self.active = False
         self._no_encoder = False  # TargetInfo said the firmware has no encoder input
         self.stats = SpeculationStats()
-        self._log: list[LogItem] = []
+        self._log = RunLog()
         self._reset()
 
     # -- bookkeeping -------------------------------------------------------------------------
@@ -117,7 +148,8 @@ class SpeculativeTarget:
         if host.mode == MODE_LOCKSTEP:
             twin_hello = self.twin.hello(host)
             self.active = twin_hello._replace(seq=hello.seq) == hello
-        self._log = [("hello", host)]
+        self._log.clear()
+        self._log.append(("hello", host))
         return hello
 
     def step(self, sensors: Sensors) -> Drive:
@@ -193,6 +225,7 @@ class SpeculativeTarget:
         return self.remote.watchdog_trip()
 
     def close(self) -> None:
+        self._log.close()
         self.remote.close()
 
     # -- batches -----------------------------------------------------------------------------
@@ -290,7 +323,7 @@ class SpeculativeTarget:
         if self.reopen is None or self.make_twin is None:
             raise DivergenceError(f"{self.link.name}: the target's Drives differ from its twin's {where}; "
                                   "no fresh target to replay the run and locate it")
-        found = locate_divergence(self._log, self.reopen, self.make_twin, last, self.period_us)
+        found = locate_divergence(self._log.items(), self.reopen, self.make_twin, last, self.period_us)
         if found is None:
             raise DivergenceError(f"{self.link.name}: the target's digest differs from its twin's {where}, but a "
                                   "replay from a reset in per-period lockstep found no differing Drive (is the "
@@ -301,7 +334,7 @@ class SpeculativeTarget:
         return self._pending[0].first if self._pending else 0
 
 
-def locate_divergence(log: list[LogItem], reopen: Callable[[], tuple[Target, Callable[[], None]]],
+def locate_divergence(log: Iterable[LogItem], reopen: Callable[[], tuple[Target, Callable[[], None]]],
                       make_twin: Callable[[], Target], last: int, period_us: int, context: int = 3) -> DivergenceError | None:
     """Replay ``log`` (the run's handshake, batches, writes) from a reset on a fresh target and twin,
     one period at a time, up to period ``last``: the first Drive field that differs, as an error
