@@ -17,6 +17,8 @@ import pytest
 sys.path.insert(0, str(Path(__file__).resolve().parent / "golden"))
 from golden import CASES, Case, load_golden, record  # noqa: E402
 
+from _firmware import require_tool  # noqa: E402
+
 GOLDEN = load_golden()
 
 
@@ -25,6 +27,8 @@ GOLDEN = load_golden()
 def test_recording_equals_the_golden_digests(case: Case, tmp_path: Path, request: pytest.FixtureRequest) -> None:
     for tool in case.tools:
         if shutil.which(tool) is None:
+            if tool != "gcc":
+                require_tool(tool, f"the {case.target} build")
             request.getfixturevalue(tool)  # skips, or fails under HILBENCH_REQUIRE_GCC=1
     got = record(case, tmp_path)
     want = GOLDEN[case.golden_name]

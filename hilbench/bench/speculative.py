@@ -36,6 +36,8 @@ from hilbench.protocol import (
     Sensors,
     Status,
     TargetHello,
+    TargetInfo,
+    TelemetryInfo,
 )
 from hilbench.protocol.batch import MIN_BATCH_BYTES, BatchBuilder, BatchState, decode_records
 from hilbench.protocol.messages import MAX_BATCH_BYTES, pack_drive
@@ -208,14 +210,14 @@ class SpeculativeTarget:
         self.drain()
         return self.remote.status()
 
-    def describe_target(self) -> object:
+    def describe_target(self) -> TargetInfo | None:
         """TargetInfo; a target with no encoder (encoder_counts 0) is sent none in batches (the twin
         still steps on the plant's count, so a firmware that read it after all would diverge)."""
         info = self.remote.describe_target()
-        self._no_encoder = info is not None and getattr(info, "encoder_counts", 1) == 0
+        self._no_encoder = info is not None and info.encoder_counts == 0
         return info
 
-    def describe_telemetry(self, index: int) -> object:
+    def describe_telemetry(self, index: int) -> TelemetryInfo:
         return self.remote.describe_telemetry(index)
 
     def advance(self, duration_us: float, sensors: Sensors) -> Drive:

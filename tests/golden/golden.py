@@ -66,6 +66,19 @@ CASES: tuple[Case, ...] = (
     Case("servo-emulator", "emulator:foc", config=SERVO),
     # the FOC firmware in C came after 730876f: its SIL build is held to 730876f's in-process servo
     Case("servo-sil", "sil:foc", config=SERVO, tools=("gcc",), same_as="servo-inprocess"),
+    # twin-speculative lockstep (issue 25) must record exactly what per-period lockstep records
+    Case("default-sil-twin", "sil:an1017?twin=auto", tools=("gcc",), same_as="default-sil"),
+    Case("random-sil-twin", "sil:an1017?twin=auto", scenario=RANDOM, tools=("gcc",), same_as="random-sil"),
+    Case("servo-sil-twin", "sil:foc?twin=auto", config=SERVO, tools=("gcc",), same_as="servo-inprocess"),
+    Case("default-simavr-twin", "simavr:an1017?twin=auto", tools=("avr-gcc", "simavr"), same_as="default-sil"),
+    Case("random-simavr-twin", "simavr:an1017?twin=auto", scenario=RANDOM, tools=("avr-gcc", "simavr"),
+         same_as="random-sil"),
+    Case("servo-simavr-twin", "simavr:foc?twin=auto", config=SERVO, tools=("avr-gcc", "simavr"),
+         same_as="servo-inprocess"),
+    Case("default-qemu-twin", "qemu:an1017?twin=auto", tools=("arm-none-eabi-gcc", "qemu-system-arm"),
+         same_as="default-sil"),
+    Case("servo-qemu-twin", "qemu:foc?twin=auto", config=SERVO, tools=("arm-none-eabi-gcc", "qemu-system-arm"),
+         same_as="servo-inprocess"),
 )
 
 
