@@ -146,17 +146,17 @@ def test_a_one_lsb_difference_is_caught_and_located(tmp_path: Path) -> None:
 
 
 def test_lost_and_corrupted_frames_on_a_throttled_wire_are_resent_never_committed_wrong(tmp_path: Path) -> None:
-    """A 1 Mbaud wire that drops 5 % of the host's frames and flips bits both ways at 2e-4 (a frame in
-    ~10): batches are resent, answers lost on the way back are recovered, and the recording is the
-    per-period one."""
+    """A 1 Mbaud wire that drops 10 % of the host's frames and flips bits both ways at 5e-4 (a batch
+    frame in 4, an answer in 9): batches are resent, answers lost on the way back are recovered, and
+    the recording is the per-period one."""
     require_tool("gcc", "the SIL build")
     clean_code, _, clean_rows, err = _run(tmp_path, "clean", "sil:an1017", "off", 0.1, AN1017_WRITES)
     assert clean_code == 0, err
-    target = "sil:an1017?wire_baud=1000000&drop=0.05&corrupt=2e-4&fault_seed=11"
+    target = "sil:an1017?wire_baud=1000000&drop=0.1&corrupt=5e-4&fault_seed=11"
     code, summary, rows, err = _run(tmp_path, "faulty", target, "auto", 0.1, AN1017_WRITES,
                                     extra=("--set", "link.retry_ms=20"))
     assert code == 0, err
     link = summary["link"]
-    assert link["speculative_resends"] > 0 and link["crc_errors"] + link["frame_errors"] > 0, link
+    assert link["speculative_resends"] > 0 and link["frame_errors"] > 0, link
     assert link["speculative_periods"] == 2000
     assert rows == clean_rows

@@ -132,6 +132,7 @@ class SpeculativeTarget:
         self._synced = False  # a batch was confirmed since the handshake (the board's records run on)
         self._t0: float | None = None
         self._progress_s = time.monotonic()  # the last commit (or the first send after one)
+        self._asked_again: set[int] = set()  # batches whose digest differed once and were sent again
 
     @property
     def retries(self) -> int:
@@ -309,6 +310,10 @@ class SpeculativeTarget:
 
     def _commit(self, batch: _Batch, digest: int) -> None:
         if digest != batch.digest:
+            if batch.first not in self._asked_again:  # an answer the wire corrupted past its CRC (2^-16)?
+                self._asked_again.add(batch.first)  # ask again: a repeat gets the kept digest
+                self._resend([b for b in self._pending if b.first >= batch.first])
+                return
             self.active = False
             self._diverged(batch)
         while self._pending and self._pending[0].first <= batch.first:
