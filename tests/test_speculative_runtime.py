@@ -9,6 +9,7 @@ against its own decoder and the C decoder (through the digest), never against co
 from __future__ import annotations
 
 import zlib
+from pathlib import Path
 
 import pytest
 
@@ -177,3 +178,22 @@ def test_malformed_records_are_refused_and_change_nothing(records: bytes, count:
         t.send_batch(0, 1, bytes((0x80,)))
         reply = t.recv_digest(2.0)
         assert reply is not None and reply.count == 1
+
+
+def test_the_golden_batch_vector_decodes_as_protocol_md_describes_it() -> None:
+    """firmware_protocol/vectors 'sensors_batch', read by hand from PROTOCOL.md's record table: a first
+    period with inputs 5 and ADC (600, 512, 700); a 1-byte record +1 on channel 0, -1 on channel 1; a run of
+    3; a period with inputs 1 and one edge at 12.3 us to lines 1."""
+    from hilbench.protocol import decode_frame
+    from hilbench.protocol.messages import SensorsBatch
+
+    vectors = (Path(__file__).resolve().parents[1] / "firmware_protocol" / "vectors" / "vectors.txt").read_text()
+    block = vectors.split("vector sensors_batch\n", 1)[1]
+    wire = bytes.fromhex(block.split("wire ", 1)[1].split("\n", 1)[0])
+    msg = decode_frame(wire[:-1])
+    assert type(msg) is SensorsBatch and (msg.first_seq, msg.count) == (65535, 6)
+    got = decode_records(BatchState(), msg.first_seq, msg.count, bytes(msg.records))
+    adc0, adc1 = (600, 512, 700), (601, 511, 700)
+    want = [(255, 5, (), 0, adc0), (0, 5, (), 0, adc1), (1, 5, (), 0, adc1), (2, 5, (), 0, adc1), (3, 5, (), 0, adc1),
+            (4, 1, ((123, 1),), 0, adc1)]
+    assert [tuple(s) for s in got] == want
