@@ -117,7 +117,6 @@ class SpeculativeTarget:
         self.window = window
         self.period_us = period_us
         self.active = False
-        self._no_encoder = False  # TargetInfo said the firmware has no encoder input
         self.stats = SpeculationStats()
         self._log = RunLog()
         self._reset()
@@ -165,10 +164,9 @@ class SpeculativeTarget:
             self.active = False
             return self.remote.step(sensors)
         drive = self.twin.step(sensors)
-        sent = sensors._replace(encoder=0) if self._no_encoder else sensors
-        if not self._builder.add(sent):
+        if not self._builder.add(sensors):
             self._flush()
-            self._builder.add(sent)
+            self._builder.add(sensors)
         self._crc = zlib.crc32(pack_drive(drive), self._crc)
         self._next += 1
         return drive
@@ -215,7 +213,7 @@ class SpeculativeTarget:
         """TargetInfo; a target with no encoder (encoder_counts 0) is sent none in batches (the twin
         still steps on the plant's count, so a firmware that read it after all would diverge)."""
         info = self.remote.describe_target()
-        self._no_encoder = info is not None and info.encoder_counts == 0
+        self._builder.state.ignore_encoder = info is not None and info.encoder_counts == 0
         return info
 
     def describe_telemetry(self, index: int) -> TelemetryInfo:
