@@ -145,6 +145,28 @@ def test_a_one_lsb_difference_is_caught_and_located(tmp_path: Path) -> None:
     assert f"first differing period {period} " in err.strip().splitlines()[0], err
 
 
+def test_on_divergence_continue_goes_on_per_period_and_ends_with_exit_code_10(tmp_path: Path) -> None:
+    """[link] on_divergence = "continue": the run records every period (after the difference one
+    exchange a period, the target's own Drives) and ends with the divergence's line and exit code 10;
+    its rows up to the first difference are the per-period run's."""
+    require_tool("gcc", "the SIL build")
+    from hilbench.targets.sil import build_sil
+
+    exe = build_sil(tmp_path, defines=("-DAN1017_TEST_ONE_LSB_PHASE=40000u",))
+    extra = ("--set", "link.firmware=an1017")
+    code_off, _, rows_off, err = _run(tmp_path, "off", f"sil:{exe}", "off", 0.2, AN1017_WRITES, extra=extra)
+    assert code_off == 0, err
+    code, _, rows, err = _run(tmp_path, "on", f"sil:{exe}", "auto", 0.2, AN1017_WRITES,
+                              extra=(*extra, "--set", "link.on_divergence=continue"))
+    assert code == 10, err
+    line = err.strip().splitlines()[-1]
+    assert line.startswith("hilbench: divergence: first differing period "), err
+    period = int(line.split("first differing period ")[1].split()[0])
+    assert len(rows) == len(rows_off) == 4001  # every period recorded
+    assert rows[:period + 1] == rows_off[:period + 1]  # the header and the periods before the difference
+    assert rows[period + 1] != rows_off[period + 1]  # the twin's Drive there, not the target's
+
+
 def test_lost_and_corrupted_frames_on_a_throttled_wire_are_resent_never_committed_wrong(tmp_path: Path) -> None:
     """A 1 Mbaud wire that drops 10 % of the host's frames and flips bits both ways at 5e-4 (a batch
     frame in 4, an answer in 9): batches are resent, answers lost on the way back are recovered, and

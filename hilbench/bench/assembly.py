@@ -112,7 +112,7 @@ def with_twin(target: Target, cfg: BenchConfig, options: SessionOptions, profile
         return handle.target, handle.close
 
     return SpeculativeTarget(target, make_twin(cfg.target), reopen=reopen, make_twin=lambda: make_twin(cfg.target),
-                             period_us=options.period_us)
+                             period_us=options.period_us, keep_going=cfg.link.on_divergence == "continue")
 
 
 def given_target(target: Target) -> TargetHandle:

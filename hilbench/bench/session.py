@@ -780,6 +780,9 @@ class Session:
             self._confirm_speculation()
             self._stop_target()
             self._close(f"end: {summary.end_reason} at period {self.periods_done}")
+            diverged = getattr(self.target, "divergence", None)
+            if diverged is not None:  # [link] on_divergence = "continue": the run went on; it ends with it
+                raise diverged
         return summary
 
     def _fault(self, note: str, what: str) -> None:

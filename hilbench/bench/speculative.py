@@ -107,7 +107,10 @@ class SpeculativeTarget:
     """A RemoteTarget with its host twin: the Target interface, speculating in lockstep."""
 
     def __init__(self, remote: RemoteTarget, twin: Target, *, reopen: Callable[[], tuple[Target, Callable[[], None]]] | None = None,
-                 make_twin: Callable[[], Target] | None = None, period_us: int = 50, window: int = WINDOW) -> None:
+                 make_twin: Callable[[], Target] | None = None, period_us: int = 50, window: int = WINDOW,
+                 keep_going: bool = False) -> None:
+        """``keep_going``: after a divergence the run goes on one exchange a period (the error is kept
+        in ``divergence`` for the end of the run) instead of ending with it."""
         self.remote = remote
         self.twin = twin
         self.link = remote.link
@@ -117,6 +120,8 @@ class SpeculativeTarget:
         self.window = window
         self.period_us = period_us
         self.active = False
+        self.keep_going = keep_going
+        self.divergence: DivergenceError | None = None
         self.stats = SpeculationStats()
         self._log = RunLog()
         self._reset()
@@ -169,12 +174,14 @@ class SpeculativeTarget:
             self._builder.add(sensors)
         self._crc = zlib.crc32(pack_drive(drive), self._crc)
         self._next += 1
+        if self.divergence is not None:  # keep_going: what is batched runs out (unchecked), then per period
+            self.drain()
         return drive
 
     def set_params(self, pairs: tuple[tuple[int, int], ...]) -> ParamSetResult:
+        self.drain()
         if not self.active:
             return self.remote.set_params(pairs)
-        self.drain()
         result = self.remote.set_params(pairs)
         mine = self.twin.set_params(pairs)
         self._log.append(("set", pairs))
@@ -191,8 +198,8 @@ class SpeculativeTarget:
         self._both("stop")
 
     def _both(self, what: str) -> None:
+        self.drain()
         if self.active:
-            self.drain()
             getattr(self.twin, what)()
             self._log.append((what, None))
         getattr(self.remote, what)()
@@ -237,6 +244,8 @@ class SpeculativeTarget:
         self._flush()
         while self._pending:
             self._wait()
+        if self.divergence is not None:  # keep_going: the batches ran out; one exchange a period from here
+            self.active = False
 
     def _flush(self) -> None:
         count, records = self._builder.take()
@@ -307,13 +316,16 @@ class SpeculativeTarget:
         # a stale answer (a batch already committed, a resend's second answer): nothing to do
 
     def _commit(self, batch: _Batch, digest: int) -> None:
-        if digest != batch.digest:
+        if digest != batch.digest and self.divergence is None:
             if batch.first not in self._asked_again:  # an answer the wire corrupted past its CRC (2^-16)?
                 self._asked_again.add(batch.first)  # ask again: a repeat gets the kept digest
                 self._resend([b for b in self._pending if b.first >= batch.first])
                 return
-            self.active = False
-            self._diverged(batch)
+            error = self._diverged(batch)
+            if not self.keep_going:
+                self.active = False
+                raise error
+            self.divergence = error  # the batches in flight run out unchecked; then per period (`step`)
         while self._pending and self._pending[0].first <= batch.first:
             done = self._pending.popleft()
             self.stats.periods += done.count
@@ -322,18 +334,21 @@ class SpeculativeTarget:
             self.stats.wall_s = time.perf_counter() - self._t0
 
     # -- a divergence ------------------------------------------------------------------------
-    def _diverged(self, batch: _Batch) -> None:
+    def _diverged(self, batch: _Batch) -> DivergenceError:
+        """The divergence in or before ``batch``, located by a replay when a fresh target can be opened."""
         last = batch.first + batch.count - 1
         where = f"in periods {self._committed_through()}..{last} (batch at period {batch.first})"
         if self.reopen is None or self.make_twin is None:
-            raise DivergenceError(f"{self.link.name}: the target's Drives differ from its twin's {where}; "
-                                  "no fresh target to replay the run and locate it")
+            return DivergenceError(f"{self.link.name}: the target's Drives differ from its twin's {where}; "
+                                   "no fresh target to replay the run and locate it")
         found = locate_divergence(self._log.items(), self.reopen, self.make_twin, last, self.period_us)
         if found is None:
-            raise DivergenceError(f"{self.link.name}: the target's digest differs from its twin's {where}, but a "
-                                  "replay from a reset in per-period lockstep found no differing Drive (is the "
-                                  "target deterministic?)")
-        raise found
+            return DivergenceError(f"{self.link.name}: the target's digest differs from its twin's {where}, but a "
+                                   "replay from a reset in per-period lockstep found no differing Drive (is the "
+                                   "target deterministic?)")
+        return found
+
+
 
     def _committed_through(self) -> int:
         return self._pending[0].first if self._pending else 0
