@@ -302,7 +302,8 @@ def run(config: str | None, target_spec: str | None, mode: str | None, duration_
       hilbench run bench_configs/hurst_mclv.toml --record run.csv
       hilbench run --set target.kp=0.15 --duration 2 --no-ui
       hilbench run --target serial:/dev/ttyUSB0?baud=250000 --mode realtime --set link.period_us=1000
-      hilbench run --target 'simavr:an1017?twin=auto'   (the host twin runs ahead, the target confirms)
+      hilbench run --target 'sil:NAME?wire_baud=250000&twin=auto'   (a build with a host twin: the twin
+        runs ahead, the target confirms batches of periods; `hilbench targets` lists the NAMEs)
     While it runs, `hilbench ctl get|set|ref|load` talks to it from another terminal.
     The summary ends with the config's [[check]] verdicts; a failed check exits with code 9;
     a twin-speculative run whose target differs from its twin exits with code 10.

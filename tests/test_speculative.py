@@ -167,6 +167,27 @@ def test_on_divergence_continue_goes_on_per_period_and_ends_with_exit_code_10(tm
     assert rows[period + 1] != rows_off[period + 1]  # the twin's Drive there, not the target's
 
 
+@pytest.mark.parametrize("build", ["emulator", "sil-without-batches"])
+def test_a_target_that_refuses_batches_runs_per_period_with_the_same_recording(tmp_path: Path, build: str) -> None:
+    """The Python emulator process and a SIL build with -DHRT_SPECULATE=0 answer a SensorsBatch with an
+    ErrorReport: the periods the twin ran ahead go to them one by one (checked), then the run goes on
+    per period, and the recording is the per-period one."""
+    extra: tuple[str, ...] = ()
+    target = "emulator:an1017"
+    if build != "emulator":
+        require_tool("gcc", "the SIL build")
+        from hilbench.targets.sil import build_sil
+
+        target = f"sil:{build_sil(tmp_path, defines=('-DHRT_SPECULATE=0',))}"
+        extra = ("--set", "link.firmware=an1017")
+    code_off, off, rows_off, err = _run(tmp_path, "off", target, "off", 0.05, AN1017_WRITES, extra=extra)
+    assert code_off == 0, err
+    code, on, rows, err = _run(tmp_path, "on", target, "auto", 0.05, AN1017_WRITES, extra=extra)
+    assert code == 0, err
+    assert on["link"]["speculative_periods"] == 0 and on["link"]["speculative_batches"] == 1
+    assert rows == rows_off
+
+
 def test_lost_and_corrupted_frames_on_a_throttled_wire_are_resent_never_committed_wrong(tmp_path: Path) -> None:
     """A 1 Mbaud wire that drops 10 % of the host's frames and flips bits both ways at 5e-4 (a batch
     frame in 4, an answer in 9): batches are resent, answers lost on the way back are recovered, and

@@ -24,11 +24,13 @@ from collections import deque
 from dataclasses import dataclass
 from typing import Callable, Iterable, Iterator
 
-from hilbench.errors import DivergenceError, LinkTimeout
+from hilbench.errors import DivergenceError, LinkTimeout, TargetError
 from hilbench.protocol import (
     MODE_LOCKSTEP,
     BatchDigest,
     Drive,
+    ErrorCode,
+    ErrorReport,
     HostHello,
     ParamInfo,
     ParamSetResult,
@@ -137,6 +139,7 @@ class SpeculativeTarget:
         self._t0: float | None = None
         self._progress_s = time.monotonic()  # the last commit (or the first send after one)
         self._asked_again: set[int] = set()  # batches whose digest differed once and were sent again
+        self._unconfirmed: list[tuple[int, Sensors, Drive]] = []  # the periods before the first digest
 
     @property
     def retries(self) -> int:
@@ -169,8 +172,12 @@ class SpeculativeTarget:
             self.active = False
             return self.remote.step(sensors)
         drive = self.twin.step(sensors)
+        if not self._synced:  # until the target has taken a batch: kept, to run one by one if it refuses
+            self._unconfirmed.append((self._next, sensors, drive))
         if not self._builder.add(sensors):
             self._flush()
+            if not self.active:  # it refused batches: the periods so far, this one included, ran one by one
+                return drive
             self._builder.add(sensors)
         self._crc = zlib.crc32(pack_drive(drive), self._crc)
         self._next += 1
@@ -258,6 +265,8 @@ class SpeculativeTarget:
         limit = self.window if self._synced else 1
         while len(self._pending) >= limit:
             self._wait()
+            if not self.active:
+                return  # the target refused batches (`_refused`): these periods ran one by one
             limit = self.window if self._synced else 1
         if self._t0 is None:
             self._t0 = time.perf_counter()
@@ -281,12 +290,35 @@ class SpeculativeTarget:
                 raise LinkTimeout(f"link {self.link.name}: no BatchDigest for the batch at period {head.first} "
                                   f"within {timeout_s * 1000:.0f} ms ({self.stats.resends} batches resent)")
             reply = self.remote.recv_digest(max(self.remote.retry_s - (time.monotonic() - self._last_sent()), 1e-4))
+            if type(reply) is ErrorReport:
+                if any(b.frame_seq == reply.seq for b in self._pending):
+                    self._refused(reply)
+                    return
+                continue  # a stray report (counted by the remote)
             if reply is not None:
                 self._answer(reply)
                 return
             if time.monotonic() - self._last_sent() >= self.remote.retry_s:
                 self._resend(list(self._pending))
                 return
+
+    def _refused(self, report: ErrorReport) -> None:
+        """The target answered a batch with an ErrorReport: before its first digest, it does not take
+        batches (a Python emulator, a build with HRT_SPECULATE=0): every period the twin ran ahead goes
+        to it one by one, its Drive checked against the twin's, and the run goes on per period."""
+        if self._synced:
+            raise TargetError(f"{self.link.name}: the target refused a SensorsBatch after taking others: "
+                              f"{_error_text(report)}")
+        self.active = False
+        self._pending.clear()
+        self._builder.take()
+        unconfirmed, self._unconfirmed = self._unconfirmed, []
+        recent: deque[tuple[int, Sensors, Drive, Drive]] = deque(maxlen=4)
+        for k, sensors, mine in unconfirmed:
+            theirs = self.remote.step(sensors)
+            recent.append((k, sensors, theirs, mine))
+            if theirs != mine:
+                raise _divergence_error(k, sensors, theirs, mine, recent, self.period_us)
 
     def _last_sent(self) -> float:
         return max(b.sent_s for b in self._pending)
@@ -311,6 +343,7 @@ class SpeculativeTarget:
             if batch.first & 0xFFFF == reply.first_seq and batch.count == reply.count:
                 self._commit(batch, reply.digest)
                 self._synced = True
+                self._unconfirmed = []
                 self._builder.max_bytes = max(MIN_BATCH_BYTES, min(reply.room, MAX_BATCH_BYTES))
                 return
         # a stale answer (a batch already committed, a resend's second answer): nothing to do
@@ -352,6 +385,13 @@ class SpeculativeTarget:
 
     def _committed_through(self) -> int:
         return self._pending[0].first if self._pending else 0
+
+
+def _error_text(report: ErrorReport) -> str:
+    try:
+        return f"{ErrorCode(report.code).name} (detail {report.detail})"
+    except ValueError:
+        return f"error code {report.code} (detail {report.detail})"
 
 
 def locate_divergence(log: Iterable[LogItem], reopen: Callable[[], tuple[Target, Callable[[], None]]],

@@ -261,8 +261,9 @@ class RemoteTarget:
         self._send(SensorsBatch(seq, first_seq & 0xFFFF, count, tuple(records)))
         return seq
 
-    def recv_digest(self, timeout_s: float) -> BatchDigest | None:
-        """The next BatchDigest within timeout_s (None: none); other frames are counted as strays."""
+    def recv_digest(self, timeout_s: float) -> BatchDigest | ErrorReport | None:
+        """The next BatchDigest or ErrorReport (a target that refused a batch) within timeout_s (None:
+        none); other frames are counted as strays."""
         deadline = time.monotonic() + timeout_s
         while True:
             msg = self.link.recv_or_none(max(deadline - time.monotonic(), 0.0))
@@ -271,6 +272,8 @@ class RemoteTarget:
             if type(msg) is BatchDigest:
                 return msg
             self._note_stray(msg)
+            if type(msg) is ErrorReport:
+                return msg
             if time.monotonic() >= deadline:
                 return None
 
