@@ -577,16 +577,127 @@ static void send_digest(hrt_link_t *l, hbp_u8 seq, uint16_t first, hbp_u8 count,
     finish(l);
 }
 
-/* Check every record (pass 0, on a copy of the decoder state), then run the periods (pass 1). */
-static HRT_NOINLINE void on_batch(hrt_link_t *l, const hbp_u8 *buf, hbp_u8 len, hbp_u8 seq)
+/* A 1-byte record (REC_TINY | c2 c1 c0): the encoder moves by its step, ADC channels 0..2 by the codes.
+ * 0 when a code changes a channel the state does not have. */
+static hbp_u8 rec_tiny(hrt_batch_in_t *in, hbp_u8 h)
+{
+    hbp_u8 i;
+    in->encoder = (uint16_t)(in->encoder + in->enc_step);
+    for (i = 0u; i < 3u; i++) {
+        hbp_u8 code = (hbp_u8)(((unsigned)h >> (2u * (unsigned)i)) & 3u);
+        if (code != 0u) {
+            if (i >= in->n_adc) {
+                return 0u;
+            }
+            in->adc[i] = (uint16_t)(in->adc[i] + ((code == 3u) ? 0xFFFFu : (uint16_t)code));
+        }
+    }
+    return 1u;
+}
+
+/* The decoder state of a first batch (after a handshake or a per-period Sensors): all zero. */
+static void batch_reset(hrt_link_t *l)
+{
+    hbp_u8 i;
+    l->b_digest = 0UL;
+    l->b_in.inputs = 0u;
+    l->b_in.encoder = 0u;
+    l->b_in.enc_step = 0u;
+    l->b_in.n_adc = 0u;
+    for (i = 0u; i < HBP_MAX_ADC; i++) {
+        l->b_in.adc[i] = 0u;
+    }
+}
+
+/* `runs` periods from period seq0: each the Sensors message per-period lockstep would send (the decoder
+ * state and the record's edges; a run moves the encoder by its step each period), served as on_sensors
+ * serves it, its Drive folded into crc instead of sent. */
+static uint32_t run_periods(hrt_link_t *l, hrt_batch_in_t *in, const hbp_u8 *edges, hbp_u8 n_edges,
+                            hbp_u8 is_run, uint16_t seq0, hbp_u8 runs, uint32_t crc)
 {
     uint32_t span = (uint32_t)l->period_us * TICKS_PER_US;
+    hbp_u8 msg[SENSORS_MSG_MAX];
+    hbp_u8 m = SENSORS_ADC;
+    hbp_u8 k;
+    msg[0] = HBP_MSG_SENSORS;
+    msg[SENSORS_INPUTS] = in->inputs;
+    msg[SENSORS_N_ADC] = in->n_adc;
+    for (k = 0u; k < in->n_adc; k++) {
+        msg[m++] = (hbp_u8)(in->adc[k] & 0xFFu);
+        msg[m++] = (hbp_u8)(in->adc[k] >> 8);
+    }
+    for (k = 0u; k < (hbp_u8)(3u * n_edges); k++) {
+        msg[m++] = edges[k];
+    }
+    for (k = 0u; k < runs; k++) {
+        hbp_u8 s = (hbp_u8)((unsigned)(seq0 + (uint16_t)k) & 0xFFu);
+        if (is_run) {
+            in->encoder = (uint16_t)(in->encoder + in->enc_step);
+        }
+        msg[1] = s;
+        msg[SENSORS_ENCODER] = (hbp_u8)(in->encoder & 0xFFu);
+        msg[SENSORS_ENCODER + 1u] = (hbp_u8)(in->encoder >> 8);
+        l->last_rx = hrt_port_now();
+        l->flags = (hbp_u8)((l->flags | HRT_LINK_F_SENSORS | HRT_LINK_F_ANSWERED) & (hbp_u8)~HRT_LINK_F_TRIPPED);
+        serve_sensors(l, msg, m, span);
+#if HRT_PREDICT_BYTES > 0
+        if (l->mode == HBP_MODE_PREDICT) {
+            predict(l, span);
+        }
+#endif
+        l->last_seq = s;
+        write_drive(l, s);
+        crc = crc32_update(crc, l->tx, l->tx_len);
+    }
+    return crc;
+}
+
+/* The records of a batch: checked (pass 0, on a copy of the decoder state), then run (pass 1, the
+ * state carried on). 0 when a record is malformed or they do not make `count` periods (pass 0). */
+static hbp_u8 batch_records(hrt_link_t *l, const hbp_u8 *buf, hbp_u8 len, uint16_t first, hbp_u8 count,
+                            hbp_u8 pass, uint32_t *crc)
+{
+    hrt_batch_in_t check = l->b_in;
+    hrt_batch_in_t *in = (pass == 0u) ? &check : &l->b_in;
+    hbp_u8 at = BATCH_RECORDS;
+    hbp_u8 done = 0u;
+    while (at < len && done < count) {
+        hbp_u8 h = (hbp_u8)(buf[at] & 0xFFu);
+        hbp_u8 runs = 1u;
+        hbp_u8 edges_at = 0u;
+        hbp_u8 n_edges = 0u;
+        hbp_u8 used = 1u;
+        hbp_u8 is_run = (hbp_u8)((h & REC_TINY) == REC_RUN);
+        if ((h & REC_TINY) == REC_TINY) {
+            used = rec_tiny(in, h);
+        } else if (is_run) {
+            runs = (hbp_u8)((h & 0x3Fu) + 1u);
+            if (pass == 0u) { /* (pass 1 moves the encoder period by period) */
+                in->encoder = (uint16_t)(in->encoder + (uint16_t)((unsigned)runs * (unsigned)in->enc_step));
+            }
+        } else {
+            used = rec_period(in, &buf[at], (hbp_u8)(len - at), &edges_at, &n_edges);
+        }
+        if (used == 0u || runs > (hbp_u8)(count - done)) {
+            return 0u;
+        }
+        if (pass == 1u) {
+            *crc = run_periods(l, in, &buf[at + edges_at], n_edges, is_run, (uint16_t)(first + done), runs, *crc);
+        }
+        done = (hbp_u8)(done + runs);
+        at = (hbp_u8)(at + used);
+    }
+    return (hbp_u8)(at == len && done == count);
+}
+
+/* A SensorsBatch: a repeat gets the kept answer, a batch out of order a refusal; else every record is
+ * checked before any period runs, then they run and the digest goes out. */
+static HRT_NOINLINE void on_batch(hrt_link_t *l, const hbp_u8 *buf, hbp_u8 len, hbp_u8 seq)
+{
     uint16_t first;
     hbp_u8 count;
-    hbp_u8 pass;
-    hbp_u8 msg[SENSORS_MSG_MAX];
     uint32_t crc;
-    if (len < BATCH_RECORDS || !LOCKSTEP(l->mode) || span == 0u) {
+    if (len < BATCH_RECORDS || !LOCKSTEP(l->mode) || l->period_us == 0u) {
         send_error(l, seq, (len < BATCH_RECORDS) ? HBP_ERROR_LENGTH : HBP_ERROR_BAD_REQUEST, buf[0]);
         return;
     }
@@ -607,97 +718,14 @@ static HRT_NOINLINE void on_batch(hrt_link_t *l, const hbp_u8 *buf, hbp_u8 len, 
             return;
         }
     } else {
-        hbp_u8 i;
-        l->b_digest = 0UL;
-        l->b_in.inputs = 0u;
-        l->b_in.encoder = 0u;
-        l->b_in.enc_step = 0u;
-        l->b_in.n_adc = 0u;
-        for (i = 0u; i < HBP_MAX_ADC; i++) {
-            l->b_in.adc[i] = 0u;
-        }
+        batch_reset(l);
     }
     crc = l->b_digest ^ 0xFFFFFFFFUL; /* the digest goes on from the last batch's: it vouches for every period */
-    for (pass = 0u; pass < 2u; pass++) {
-        hrt_batch_in_t check = l->b_in;
-        hrt_batch_in_t *in = (pass == 0u) ? &check : &l->b_in;
-        hbp_u8 at = BATCH_RECORDS;
-        hbp_u8 done = 0u;
-        while (at < len && done < count) {
-            hbp_u8 h = (hbp_u8)(buf[at] & 0xFFu);
-            hbp_u8 runs = 1u;
-            hbp_u8 edges_at = 0u;
-            hbp_u8 n_edges = 0u;
-            hbp_u8 used = 1u;
-            if ((h & REC_TINY) == REC_TINY) {
-                hbp_u8 i;
-                in->encoder = (uint16_t)(in->encoder + in->enc_step);
-                for (i = 0u; i < 3u; i++) {
-                    hbp_u8 code = (hbp_u8)(((unsigned)h >> (2u * (unsigned)i)) & 3u);
-                    if (code != 0u) {
-                        if (i >= in->n_adc) {
-                            used = 0u;
-                            break;
-                        }
-                        in->adc[i] = (uint16_t)(in->adc[i] + ((code == 3u) ? 0xFFFFu : (uint16_t)code));
-                    }
-                }
-            } else if ((h & REC_RUN) != 0u) {
-                runs = (hbp_u8)((h & 0x3Fu) + 1u);
-                if (pass == 0u) { /* (pass 1 moves the encoder period by period) */
-                    in->encoder = (uint16_t)(in->encoder + (uint16_t)((unsigned)runs * (unsigned)in->enc_step));
-                }
-            } else {
-                used = rec_period(in, &buf[at], (hbp_u8)(len - at), &edges_at, &n_edges);
-            }
-            if (used == 0u || runs > (hbp_u8)(count - done)) {
-                break;
-            }
-            if (pass == 1u) {
-                hbp_u8 k;
-                hbp_u8 m = SENSORS_ADC;
-                msg[0] = HBP_MSG_SENSORS;
-                msg[SENSORS_INPUTS] = in->inputs;
-                msg[SENSORS_ENCODER] = (hbp_u8)(in->encoder & 0xFFu);
-                msg[SENSORS_ENCODER + 1u] = (hbp_u8)(in->encoder >> 8);
-                msg[SENSORS_N_ADC] = in->n_adc;
-                for (k = 0u; k < in->n_adc; k++) {
-                    msg[m++] = (hbp_u8)(in->adc[k] & 0xFFu);
-                    msg[m++] = (hbp_u8)(in->adc[k] >> 8);
-                }
-                for (k = 0u; k < (hbp_u8)(3u * n_edges); k++) {
-                    msg[m++] = buf[at + edges_at + k];
-                }
-                for (k = 0u; k < runs; k++) {
-                    hbp_u8 s = (hbp_u8)((unsigned)(first + (uint16_t)done + (uint16_t)k) & 0xFFu);
-                    if ((h & REC_TINY) == REC_RUN) { /* a run: each period moves the encoder by its step */
-                        in->encoder = (uint16_t)(in->encoder + in->enc_step);
-                        msg[SENSORS_ENCODER] = (hbp_u8)(in->encoder & 0xFFu);
-                        msg[SENSORS_ENCODER + 1u] = (hbp_u8)(in->encoder >> 8);
-                    }
-                    msg[1] = s;
-                    l->last_rx = hrt_port_now();
-                    l->flags = (hbp_u8)((l->flags | HRT_LINK_F_SENSORS | HRT_LINK_F_ANSWERED) &
-                                        (hbp_u8)~HRT_LINK_F_TRIPPED);
-                    serve_sensors(l, msg, m, span);
-#if HRT_PREDICT_BYTES > 0
-                    if (l->mode == HBP_MODE_PREDICT) {
-                        predict(l, span);
-                    }
-#endif
-                    l->last_seq = s;
-                    write_drive(l, s);
-                    crc = crc32_update(crc, l->tx, l->tx_len);
-                }
-            }
-            done = (hbp_u8)(done + runs);
-            at = (hbp_u8)(at + used);
-        }
-        if (pass == 0u && (at != len || done != count)) {
-            send_error(l, seq, HBP_ERROR_LENGTH, buf[0]);
-            return;
-        }
+    if (!batch_records(l, buf, len, first, count, 0u, &crc)) {
+        send_error(l, seq, HBP_ERROR_LENGTH, buf[0]);
+        return;
     }
+    (void)batch_records(l, buf, len, first, count, 1u, &crc);
     l->b_synced = 1u;
     l->b_first = first;
     l->b_count = count;
