@@ -8,6 +8,7 @@ servo's SIL build came after the digests were made: it is held to the in-process
 
 from __future__ import annotations
 
+import os
 import shutil
 import sys
 from pathlib import Path
@@ -25,6 +26,8 @@ GOLDEN = load_golden()
 @pytest.mark.slow
 @pytest.mark.parametrize("case", CASES, ids=[c.name for c in CASES])
 def test_recording_equals_the_golden_digests(case: Case, tmp_path: Path, request: pytest.FixtureRequest) -> None:
+    if case.long and os.environ.get("HILBENCH_LONG_TESTS") != "1":
+        pytest.skip(f"{case.name}: minutes on a simulator, run with HILBENCH_LONG_TESTS=1")
     for tool in case.tools:
         if shutil.which(tool) is None:
             if tool != "gcc":

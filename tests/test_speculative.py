@@ -203,3 +203,26 @@ def test_lost_and_corrupted_frames_on_a_throttled_wire_are_resent_never_committe
     assert link["speculative_resends"] > 0 and link["frame_errors"] > 0, link
     assert link["speculative_periods"] == 2000
     assert rows == clean_rows
+
+
+def test_a_divergence_on_a_board_port_names_its_batch_and_says_why_it_is_not_located(tmp_path: Path) -> None:
+    """A far end on a port (here the one-LSB SIL build on its own pty, as a board on a serial port) is
+    not started by the host, so nothing can reset it for the replay: the run still ends with exit code
+    10, one line naming the periods of the batch whose digest differed and why the first differing
+    period is not named (opening the port again would have failed on the run's own lock)."""
+    require_tool("gcc", "the SIL build")
+    from hilbench.processes import reap
+    from hilbench.targets.sil import build_sil
+    from test_board_guide import _start
+
+    exe = build_sil(tmp_path, defines=("-DAN1017_TEST_ONE_LSB_PHASE=40000u",))
+    board, pty = _start([str(exe), "--pty"])
+    try:
+        code, _, _, err = _run(tmp_path, "board", f"serial:{pty}", "auto", 0.2, AN1017_WRITES,
+                               extra=("--set", "link.firmware=an1017"))
+    finally:
+        reap(board, 10.0)
+    assert code == 10, err
+    line = err.strip().splitlines()[-1]
+    assert line.startswith("hilbench: divergence: ") and "cannot be reset from here" in line, err
+    assert "Traceback" not in err

@@ -101,7 +101,8 @@ def with_twin(target: Target, cfg: BenchConfig, options: SessionOptions, profile
 
     from hilbench.link import parse_target_spec
 
-    wanted = parse_target_spec(cfg.link.target).twin or cfg.link.twin  # the spec's key over the config's
+    spec = parse_target_spec(cfg.link.target)
+    wanted = spec.twin or cfg.link.twin  # the spec's key over the config's
     if wanted != "auto" or options.mode != "lockstep" or profile is None or profile.twin is None \
             or not isinstance(target, RemoteTarget):
         return target
@@ -111,7 +112,10 @@ def with_twin(target: Target, cfg: BenchConfig, options: SessionOptions, profile
         handle = connect(cfg, options, profile)  # a fresh target: the replay that locates a divergence
         return handle.target, handle.close
 
-    return SpeculativeTarget(target, make_twin(cfg.target), reopen=reopen, make_twin=lambda: make_twin(cfg.target),
+    # only a far end the host starts itself comes back from a reset: a board on a port (or behind a
+    # URL) is the same board in the same state when opened again, and its port is held by this run
+    return SpeculativeTarget(target, make_twin(cfg.target), reopen=reopen if spec.spawns_process else None,
+                             make_twin=lambda: make_twin(cfg.target),
                              period_us=options.period_us, keep_going=cfg.link.on_divergence == "continue")
 
 

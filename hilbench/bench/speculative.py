@@ -24,7 +24,7 @@ from collections import deque
 from dataclasses import dataclass
 from typing import Callable, Iterable, Iterator
 
-from hilbench.errors import DivergenceError, LinkTimeout, TargetError
+from hilbench.errors import DivergenceError, HilbenchError, LinkTimeout, TargetError
 from hilbench.protocol import (
     MODE_LOCKSTEP,
     BatchDigest,
@@ -373,8 +373,13 @@ class SpeculativeTarget:
         where = f"in periods {self._committed_through()}..{last} (batch at period {batch.first})"
         if self.reopen is None or self.make_twin is None:
             return DivergenceError(f"{self.link.name}: the target's Drives differ from its twin's {where}; "
-                                   "no fresh target to replay the run and locate it")
-        found = locate_divergence(self._log.items(), self.reopen, self.make_twin, last, self.period_us)
+                                   "a board on a port cannot be reset from here to replay the run and locate "
+                                   "it (run the same scenario on its SIL build, or per period with twin = \"off\")")
+        try:
+            found = locate_divergence(self._log.items(), self.reopen, self.make_twin, last, self.period_us)
+        except HilbenchError as exc:  # the divergence stays the run's error; why it was not located is said
+            return DivergenceError(f"{self.link.name}: the target's Drives differ from its twin's {where}; "
+                                   f"the replay that locates it failed: {exc}")
         if found is None:
             return DivergenceError(f"{self.link.name}: the target's digest differs from its twin's {where}, but a "
                                    "replay from a reset in per-period lockstep found no differing Drive (is the "
