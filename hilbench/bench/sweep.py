@@ -373,7 +373,7 @@ class _SweepRun:
     counted for ``progress``; a point's result is its worst tolerance case.
 
     Memory stays bounded whatever the number of points: a finished point keeps its figures, and
-    only the best point so far keeps its response curves (≈160 kB a step test); the curves of a
+    only the best point so far keeps its response curves (240 kB for a 1 s step test); the curves of a
     point whose tolerance cases are still coming are dropped once it is finished."""
 
     def __init__(self, swept: list[SweepPoint], n_cases: int, key: str, saved: "SweepStore | None",
