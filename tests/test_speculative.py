@@ -277,3 +277,14 @@ def test_a_period_whose_record_fits_no_batch_goes_alone_and_batches_go_on(gcc: s
     assert drives[1] == drives[0]
     assert len({(d.duty_a, d.duty_b, d.duty_c) for d in drives[0]}) > 20  # the firmware drives: not a constant answer
     assert stats.alone == 1 and stats.batches > 5 and stats.periods == len(stream) - 1
+
+
+def test_a_run_that_predicts_duties_says_why_the_twin_stayed_off(tmp_path: Path, gcc: str) -> None:
+    """twin = auto at 100 us periods: the session asks for predicted duties, the twin does not
+    predict, and the summary says so (it said '0 of N periods confirmed' before, with no reason)."""
+    argv = [sys.executable, "-m", "hilbench", "run", "--target", "sil:an1017?twin=auto", "--set", "link.period_us=100",
+            "--duration", "0.02", "--no-ui", "--no-control"]
+    done = subprocess.run(argv, capture_output=True, text=True, timeout=300, cwd=tmp_path)
+    assert done.returncode == 0, done.stderr
+    assert "speculative: off: the duties were predicted over each period" in done.stdout
+    assert "link.predict_duties=false" in done.stdout
