@@ -165,6 +165,12 @@ def test_on_divergence_continue_goes_on_per_period_and_ends_with_exit_code_10(tm
     assert len(rows) == len(rows_off) == 4001  # every period recorded
     assert rows[:period + 1] == rows_off[:period + 1]  # the header and the periods before the difference
     assert rows[period + 1] != rows_off[period + 1]  # the twin's Drive there, not the target's
+    # the recording says which rows are the twin's, unconfirmed: from the diverged batch's first period
+    events = [line for line in (tmp_path / "on-auto.csv").read_text().splitlines()
+              if line.startswith("# event:") and "twin-speculative divergence" in line]
+    assert len(events) == 1, events
+    first, last = (int(v) for v in events[0].split("periods ")[1].split(" ")[0].split(".."))
+    assert first <= period <= last < first + 400, events
 
 
 @pytest.mark.parametrize("build", ["emulator", "sil-without-batches"])

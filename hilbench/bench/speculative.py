@@ -126,6 +126,10 @@ class SpeculativeTarget:
         self.active = False
         self.keep_going = keep_going
         self.divergence: DivergenceError | None = None
+        #: keep_going: told (first, resume) when the run goes per period after a divergence: the rows
+        #: of periods first..resume-1 are the twin's, unconfirmed (the target's differ in them)
+        self.on_unconfirmed: Callable[[int, int], None] | None = None
+        self._diverged_from = 0
         self.stats = SpeculationStats()
         self._log = RunLog()
         self._reset()
@@ -284,6 +288,8 @@ class SpeculativeTarget:
             self._wait()
         if self.divergence is not None:  # keep_going: the batches ran out; one exchange a period from here
             self.active = False
+            if self.on_unconfirmed is not None and self._next is not None:
+                self.on_unconfirmed(self._diverged_from, self._next)
 
     def _flush(self) -> None:
         count, records = self._builder.take()
@@ -390,6 +396,7 @@ class SpeculativeTarget:
                 self.active = False
                 raise error
             self.divergence = error  # the batches in flight run out unchecked; then per period (`step`)
+            self._diverged_from = self._committed_through()  # the first period no digest confirmed
         while self._pending and self._pending[0].first <= batch.first:
             done = self._pending.popleft()
             self.stats.periods += done.count
