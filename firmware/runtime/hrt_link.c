@@ -69,7 +69,7 @@ void hrt_link_init(hrt_link_t *l, hrt_t *rt)
 #endif
 /* Lockstep, predicted or not (a build without prediction never agrees to PREDICT: its code as before). */
 #if HRT_PREDICT_BYTES > 0
-#define LOCKSTEP(mode) ((mode) != HBP_MODE_REALTIME)
+#define LOCKSTEP(mode) ((mode) == HBP_MODE_LOCKSTEP || (mode) == HBP_MODE_PREDICT)
 #else
 #define LOCKSTEP(mode) ((mode) == HBP_MODE_LOCKSTEP)
 #endif
@@ -137,7 +137,8 @@ static void send_error(hrt_link_t *l, hbp_u8 seq, hbp_u8 code, hbp_u8 detail)
     finish(l);
 }
 
-void hrt_link_send_drive(hrt_link_t *l, hbp_u8 seq)
+/* The Drive of the present state, written into l->tx (hrt_link_send_drive sends it). */
+static void fill_drive(hrt_link_t *l, hbp_u8 seq)
 {
     hrt_report_t d;
     hbp_u8 i;
@@ -165,8 +166,34 @@ void hrt_link_send_drive(hrt_link_t *l, hbp_u8 seq)
     for (i = 0u; i < d.n_telemetry; i++) {
         w16(l, (uint16_t)d.telemetry[i]);
     }
+}
+
+void hrt_link_send_drive(hrt_link_t *l, hbp_u8 seq)
+{
+    fill_drive(l, seq);
     finish(l);
 }
+
+#if HRT_MONITOR
+void hrt_link_stream(hrt_link_t *l)
+{
+    uint32_t period = (uint32_t)l->period_us * TICKS_PER_US;
+    uint32_t now = hrt_port_now();
+    hbp_u8 seq = l->last_seq;
+    if (l->mode != HBP_MODE_MONITOR || (l->flags & HRT_LINK_F_HELLO) == 0u || now - l->stream_at < period) {
+        return;
+    }
+    while (now - l->stream_at >= period) { /* a slot missed (the UART was busy) is a seq skipped */
+        l->stream_at += period;
+        seq = (hbp_u8)(seq + 1u);
+    }
+    l->last_seq = seq;
+    hrt_port_lock();
+    fill_drive(l, seq);
+    hrt_port_unlock();
+    finish(l);
+}
+#endif
 
 /* TargetHello: the firmware's declaration. */
 static HRT_NOINLINE void send_target_hello(hrt_link_t *l, hbp_u8 seq)
@@ -232,7 +259,8 @@ static HRT_NOINLINE void on_hello(hrt_link_t *l, const hbp_u8 *buf, hbp_u8 len, 
     period_us = get_u16(&buf[3]);
     mode = buf[5];
     if (period_us == 0u || (step != 0u && period_us % step != 0u) ||
-        (mode != HBP_MODE_LOCKSTEP && mode != HBP_MODE_REALTIME && !(mode == HBP_MODE_PREDICT && CAN_PREDICT))) {
+        (mode != HBP_MODE_LOCKSTEP && mode != HBP_MODE_REALTIME && !(mode == HBP_MODE_PREDICT && CAN_PREDICT) &&
+         !(mode == HBP_MODE_MONITOR && HRT_MONITOR))) {
         send_error(l, seq, HBP_ERROR_BAD_REQUEST, 0u);
         return;
     }
@@ -246,6 +274,14 @@ static HRT_NOINLINE void on_hello(hrt_link_t *l, const hbp_u8 *buf, hbp_u8 len, 
     l->mode = mode;
     l->watchdog_ms = get_u16(&buf[6]);
     l->flags = HRT_LINK_F_HELLO; /* a new session numbers its Sensors from 0 again */
+#if HRT_MONITOR
+    if (mode == HBP_MODE_MONITOR) { /* the stream starts: the watchdog counts from now */
+        l->flags = (hbp_u8)(HRT_LINK_F_HELLO | HRT_LINK_F_SENSORS);
+        l->last_rx = hrt_port_now();
+        l->stream_at = l->last_rx;
+        l->last_seq = 0u;
+    }
+#endif
     send_target_hello(l, seq);
 }
 
@@ -501,6 +537,17 @@ void hrt_link_handle(hrt_link_t *l, const hbp_u8 *frame, hbp_u8 len)
     hbp_u8 seq = frame[1];
     hbp_u8 group = (hbp_u8)(type >> 4);
     hbp_u8 want = 0u; /* the payload-less (2) and one-byte (3) requests' length; 0: not a request */
+#if HRT_MONITOR
+    if (l->mode == HBP_MODE_MONITOR && (l->flags & HRT_LINK_F_HELLO) != 0u && type != HBP_MSG_HOST_HELLO) {
+        /* the host is there: any frame feeds the watchdog (a tripped one stays stopped until Start) */
+        l->last_rx = hrt_port_now();
+        l->flags = (hbp_u8)((l->flags | HRT_LINK_F_SENSORS) & (hbp_u8)~HRT_LINK_F_TRIPPED);
+        if (type == HBP_MSG_SENSORS) { /* the board runs on its own sensors */
+            send_error(l, seq, HBP_ERROR_BAD_REQUEST, type);
+            return;
+        }
+    }
+#endif
     if (type == HBP_MSG_SENSORS) {
         on_sensors(l, frame, len, seq);
         return;

@@ -52,6 +52,15 @@
 #if HRT_PREDICT_BYTES > 0 && !HRT_REPORT_MEAN
 #error "HRT_PREDICT_BYTES needs HRT_REPORT_MEAN 1 (a predicted span's mean duties)"
 #endif
+/* Monitor mode (HostHello mode MONITOR; a real-motor build sets 1, every other build leaves it 0 and
+ * carries none of its code): the port runs the firmware on its own timers and sensors from power-on
+ * (hrt_rt_*), the host sends no Sensors, and hrt_link_stream, from the port's main loop, sends an
+ * unsolicited Drive every agreed period_us, its seq counting periods of the port's clock (a skipped
+ * slot is a seq skipped, never a burst). Any valid frame from the host feeds the watchdog; silence
+ * for watchdog_ms stops the firmware (HRT_STOP_WATCHDOG), as in real time. */
+#ifndef HRT_MONITOR
+#define HRT_MONITOR 0
+#endif
 #ifndef HRT_LOCKSTEP_WATCHDOG_MIN_MS
 #define HRT_LOCKSTEP_WATCHDOG_MIN_MS 1000u
 #endif
@@ -89,6 +98,9 @@ typedef struct {
     hbp_u8 last_seq;
     hbp_u8 tx_len;             /* bytes written to tx (more than HRT_TX_FRAME_MAX: it did not fit) */
     hbp_u8 tx[HRT_TX_FRAME_MAX]; /* the message being sent (hbp_send_frame makes its wire bytes) */
+#if HRT_MONITOR
+    uint32_t stream_at;        /* monitor mode: the port's clock at the slot of the last streamed Drive */
+#endif
 #if HRT_PREDICT_BYTES > 0
     uint16_t predicted[3];     /* mode PREDICT: the mean duties predicted for the next span */
     hbp_u8 snapshot[HRT_PREDICT_BYTES]; /* the firmware's state, kept while a span is predicted */
@@ -108,5 +120,10 @@ void hrt_link_handle(hrt_link_t *l, const hbp_u8 *frame, hbp_u8 len);
 void hrt_link_watchdog(hrt_link_t *l);
 /* Send the Drive of the present state with this seq. */
 void hrt_link_send_drive(hrt_link_t *l, hbp_u8 seq);
+#if HRT_MONITOR
+/* Monitor mode: send the Drive of the present state when a period_us slot has passed (from the
+ * port's main loop; the state is read with the port locked, the bytes sent unlocked). */
+void hrt_link_stream(hrt_link_t *l);
+#endif
 
 #endif /* HRT_LINK_H */

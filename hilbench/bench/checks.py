@@ -165,6 +165,9 @@ def run_checks(entries: Sequence[CheckEntry], summary: "Summary", signals: Signa
             return _other_firmware(entry, summary.firmware)
         try:
             return _judge_run(entry, summary, columns)
+        except KeyError as exc:  # a column this run did not record (monitor mode records no plant)
+            return CheckResult(entry.label, entry.kind, True, f"not judged: {exc.args[0] if exc.args else exc}",
+                               skipped=True)
         except _NoRows:
             return CheckResult(entry.label, entry.kind, True, "not judged: no rows were kept "
                                "(record the run, --record run.npz, to judge the signals)", skipped=True)

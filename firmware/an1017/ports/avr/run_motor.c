@@ -1,0 +1,262 @@
+/* run_motor.c: the pin-level harness of the AVR real-motor build (make MODE=motor): the firmware runs
+ * free on its own simulated timers in simavr against hilbench's plant, wired to the chip's pins.
+ *
+ * Usage: run_motor [--realtime] [--f-cpu HZ] FIRMWARE.elf CONFIG.toml [TABLE.KEY=VALUE ...]
+ *
+ * --f-cpu: the simulated clock, the firmware's F_CPU (default 80 MHz, make MODE=motor's: AN1017's
+ * 20 kHz PWM interrupt takes ~2 100 AVR cycles, more than the 800 of a PWM period at a real
+ * ATmega2560's 16 MHz; at 80 MHz it leaves the main loop about half the CPU: the harness prints
+ * "masked_fraction", the share of cycles with interrupts held off). CONFIG "" is the default config.
+ *
+ * The plant is hilbench's own (hilbench.bench.pinplant.PinPlant: the Plant and its C core that a
+ * HIL session integrates, built from CONFIG and the overrides), run by the Python interpreter this
+ * program embeds: one plant source for the bench and the harness. The wiring (main.c, HIL_MOTOR):
+ * - at every PWM period boundary (Timer3, fast PWM, at BOTTOM: every ICR3 + 1 cycles from its start)
+ *   the compare registers OCR3A..C as written (the double-buffered values the hardware takes at that
+ *   boundary: the previous period's ISR wrote them) over ICR3 + 1 are the duties, PA0 the bridge enable;
+ *   the plant advances one PWM period with them held;
+ * - every hall edge of that period goes onto PD0..PD2 (INT0..INT2) at its own cycle;
+ * - the pot's voltage goes onto ADC0 (AVcc = AREF = 5 V).
+ * USART0 is on a pty as in run_simavr.c: prints "ready PTY_PATH", then the host opens PTY_PATH and
+ * talks in HostHello mode MONITOR. --realtime paces the simulation to the wall clock (the host's
+ * watchdog and keep-alive count wall time). Runs until SIGTERM/SIGINT or a crash; then prints
+ * "cycles N" and "periods N" on stderr.
+ */
+#define PY_SSIZE_T_CLEAN
+#include <Python.h>
+
+#include <signal.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+#include <time.h>
+
+#include "avr_adc.h"
+#include "avr_ioport.h"
+#include "sim_avr.h"
+#include "sim_elf.h"
+#include "sim_time.h"
+#include "uart_pty.h"
+
+/* ATmega2560 data-space addresses (avr-libc iomxx0_1.h, the data sheet's register summary) */
+#define REG_PORTA 0x22u
+#define REG_TCCR3B 0x91u
+#define REG_ICR3 0x96u
+#define REG_OCR3A 0x98u
+#define REG_OCR3B 0x9Au
+#define REG_OCR3C 0x9Cu
+#define BRIDGE_ENABLE 0x01u
+#define MAX_PENDING 64
+
+static uart_pty_t uart_pty;
+static volatile sig_atomic_t stop_requested = 0;
+
+typedef struct {
+    avr_cycle_count_t at;
+    int bits;
+} edge_t;
+
+static edge_t pending[MAX_PENDING];
+static int n_pending = 0;
+
+static void on_signal(int sig)
+{
+    (void)sig;
+    stop_requested = 1;
+}
+
+static double wall_s(void)
+{
+    struct timespec ts;
+    clock_gettime(CLOCK_MONOTONIC, &ts);
+    return (double)ts.tv_sec + (double)ts.tv_nsec * 1e-9;
+}
+
+static uint16_t reg16(const avr_t *avr, unsigned addr)
+{
+    return (uint16_t)(avr->data[addr] | (avr->data[addr + 1u] << 8));
+}
+
+static int py_fail(const char *what)
+{
+    fprintf(stderr, "run_motor: %s\n", what);
+    if (PyErr_Occurred()) {
+        PyErr_Print();
+    }
+    return 1;
+}
+
+static void set_halls(avr_irq_t **halls, int bits)
+{
+    int i;
+    for (i = 0; i < 3; i++) {
+        avr_raise_irq(halls[i], (uint32_t)((bits >> i) & 1));
+    }
+}
+
+/* One PWM period of the plant with the registers as they are; its edges queued at their cycles. */
+static int plant_period(avr_t *avr, PyObject *plant, avr_cycle_count_t start, avr_irq_t *pot)
+{
+    double top = (double)reg16(avr, REG_ICR3) + 1.0;
+    double a = top > 0 ? reg16(avr, REG_OCR3A) / top : 0.0;
+    double b = top > 0 ? reg16(avr, REG_OCR3B) / top : 0.0;
+    double c = top > 0 ? reg16(avr, REG_OCR3C) / top : 0.0;
+    int enabled = (avr->data[REG_PORTA] & BRIDGE_ENABLE) != 0;
+    PyObject *edges = PyObject_CallMethod(plant, "period", "dddi", a, b, c, enabled);
+    PyObject *mv;
+    Py_ssize_t i;
+    if (edges == NULL) {
+        return py_fail("the plant's period failed");
+    }
+    for (i = 0; i < PyTuple_Size(edges) && n_pending < MAX_PENDING; i++) {
+        PyObject *e = PyTuple_GetItem(edges, i);
+        double t_s = PyFloat_AsDouble(PyTuple_GetItem(e, 0));
+        pending[n_pending].at = start + (avr_cycle_count_t)(t_s * (double)avr->frequency + 0.5);
+        pending[n_pending].bits = (int)PyLong_AsLong(PyTuple_GetItem(e, 1));
+        n_pending++;
+    }
+    Py_DECREF(edges);
+    mv = PyObject_CallMethod(plant, "pot_mv", NULL);
+    if (mv == NULL) {
+        return py_fail("the plant's pot failed");
+    }
+    avr_raise_irq(pot, (uint32_t)PyLong_AsLong(mv));
+    Py_DECREF(mv);
+    return 0;
+}
+
+static PyObject *make_plant(const char *config, int n_overrides, char **overrides, unsigned period_us)
+{
+    PyObject *module = PyImport_ImportModule("hilbench.bench.pinplant");
+    PyObject *words;
+    PyObject *plant;
+    int i;
+    if (module == NULL) {
+        return NULL;
+    }
+    words = PyTuple_New(n_overrides);
+    for (i = 0; i < n_overrides; i++) {
+        PyTuple_SetItem(words, i, PyUnicode_FromString(overrides[i]));
+    }
+    plant = PyObject_CallMethod(module, "PinPlant", "sOI", config, words, period_us);
+    Py_DECREF(words);
+    Py_DECREF(module);
+    return plant;
+}
+
+int main(int argc, char **argv)
+{
+    elf_firmware_t fw;
+    int realtime = argc > 1 && strcmp(argv[1], "--realtime") == 0;
+    uint32_t f_cpu = 80000000u;
+    avr_t *avr;
+    avr_irq_t *halls[3];
+    avr_irq_t *pot;
+    PyObject *plant;
+    PyObject *bits;
+    int state = cpu_Running;
+    avr_cycle_count_t t3_start = 0;
+    avr_cycle_count_t next_boundary = 0;
+    avr_cycle_count_t pwm_cycles = 0;
+    avr_cycle_count_t next_pace = 0;
+    unsigned long periods = 0;
+    avr_cycle_count_t busy_cycles = 0;
+    double start_s;
+    int i;
+    if (realtime) {
+        argv++;
+        argc--;
+    }
+    if (argc > 2 && strcmp(argv[1], "--f-cpu") == 0) {
+        f_cpu = (uint32_t)strtoul(argv[2], NULL, 10);
+        argv += 2;
+        argc -= 2;
+    }
+    if (argc < 3) {
+        fprintf(stderr, "usage: run_motor [--realtime] [--f-cpu HZ] FIRMWARE.elf CONFIG.toml [TABLE.KEY=VALUE ...]\n");
+        return 2;
+    }
+    memset(&fw, 0, sizeof fw);
+    if (elf_read_firmware(argv[1], &fw) != 0) {
+        fprintf(stderr, "run_motor: cannot read %s\n", argv[1]);
+        return 1;
+    }
+    avr = avr_make_mcu_by_name("atmega2560");
+    if (avr == NULL) {
+        fprintf(stderr, "run_motor: simavr has no atmega2560\n");
+        return 1;
+    }
+    avr_init(avr);
+    avr_load_firmware(avr, &fw);
+    avr->frequency = f_cpu;
+    avr->vcc = avr->avcc = avr->aref = 5000u;
+    Py_InitializeEx(0); /* no Python signal handlers: SIGTERM stays ours */
+    plant = make_plant(argv[2], argc - 3, argv + 3, 50u);
+    if (plant == NULL) {
+        return py_fail("cannot make the plant (hilbench.bench.pinplant.PinPlant)");
+    }
+    for (i = 0; i < 3; i++) {
+        halls[i] = avr_io_getirq(avr, AVR_IOCTL_IOPORT_GETIRQ('D'), i);
+    }
+    pot = avr_io_getirq(avr, AVR_IOCTL_ADC_GETIRQ, ADC_IRQ_ADC0);
+    bits = PyObject_GetAttrString(plant, "hall_bits");
+    if (bits == NULL) {
+        return py_fail("the plant has no hall_bits");
+    }
+    set_halls(halls, (int)PyLong_AsLong(bits)); /* the rotor's position at power-on */
+    Py_DECREF(bits);
+    uart_pty_init(avr, &uart_pty);
+    uart_pty_connect(&uart_pty, '0');
+    signal(SIGTERM, on_signal);
+    signal(SIGINT, on_signal);
+    printf("ready %s\n", uart_pty.pty.slavename);
+    fflush(stdout);
+    start_s = wall_s();
+    while (!stop_requested && state != cpu_Done && state != cpu_Crashed) {
+        {
+            avr_cycle_count_t before = avr->cycle;
+            int masked = !avr->sreg[S_I];
+            state = avr_run(avr);
+            if (masked) {
+                busy_cycles += avr->cycle - before; /* interrupts held off: an ISR or a locked section */
+            }
+        }
+        if (pwm_cycles == 0u) {
+            if ((avr->data[REG_TCCR3B] & 7u) != 0u && reg16(avr, REG_ICR3) != 0u) { /* Timer3 started: BOTTOM now */
+                t3_start = avr->cycle;
+                pwm_cycles = (avr_cycle_count_t)reg16(avr, REG_ICR3) + 1u;
+                next_boundary = t3_start;
+            }
+        }
+        if (pwm_cycles != 0u && avr->cycle >= next_boundary) {
+            if (plant_period(avr, plant, next_boundary, pot) != 0) {
+                return 1;
+            }
+            periods++;
+            next_boundary += pwm_cycles;
+        }
+        while (n_pending > 0 && avr->cycle >= pending[0].at) {
+            set_halls(halls, pending[0].bits);
+            n_pending--;
+            memmove(&pending[0], &pending[1], (size_t)n_pending * sizeof pending[0]);
+        }
+        if (realtime && avr->cycle >= next_pace) { /* never ahead of the wall clock (1 ms grain) */
+            double ahead_s = (double)avr->cycle / (double)avr->frequency - (wall_s() - start_s);
+            next_pace = avr->cycle + avr->frequency / 1000u;
+            if (ahead_s > 0.0) {
+                struct timespec ts;
+                ts.tv_sec = (time_t)ahead_s;
+                ts.tv_nsec = (long)((ahead_s - (double)ts.tv_sec) * 1e9);
+                nanosleep(&ts, NULL);
+            }
+        }
+    }
+    fprintf(stderr, "cycles %llu\n", (unsigned long long)avr->cycle);
+    fprintf(stderr, "periods %lu\n", periods);
+    fprintf(stderr, "masked_fraction %.3f\n", avr->cycle ? (double)busy_cycles / (double)avr->cycle : 0.0);
+    if (state == cpu_Crashed) {
+        fprintf(stderr, "run_motor: the firmware crashed at pc 0x%05x\n", (unsigned)avr->pc);
+        return 1;
+    }
+    return 0;
+}

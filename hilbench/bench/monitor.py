@@ -1,0 +1,374 @@
+"""Monitor mode: the plant is the real motor. The board runs on its own sensors and timers, streams
+a Drive every agreed period (HostHello mode MONITOR), and takes checked parameter writes.
+
+No plant model: the session records the board's stream as the same rows as a HIL run (the bench's
+columns and the telemetry columns of the target's profile; the plant's columns are absent), so
+`report` and the scope read a real-motor run as they read a simulated one and two runs overlay. A
+row's time is the board's own: the stream's seq counts agreed periods of the board's clock (a slot
+the board could not send is a seq skipped, a frame lost on the wire a row missing: both counted).
+The scenario acts at the board's time: a reference through the profile's `monitor_reference` (the
+board's pot is not the bench's), S2 as the Start command, parameter writes. The control socket's
+`get`, `set`, `ref`, `start`, `press s2`, `guard` and `stop` act as in a HIL run, and the guard
+watches new gains on the firmware's measured speed. Any frame to the board feeds its watchdog: the
+session sends a StatusRequest every quarter of the watchdog time, so a host that dies leaves the
+motor stopped within the watchdog time. The session knows no terminal and no firmware by name.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from dataclasses import dataclass, field
+from typing import TYPE_CHECKING, Any, Callable, Iterable
+
+from hilbench.bench import segments as segmentation
+from hilbench.bench.columns import session_row
+from hilbench.bench.control import COMMANDS, ControlRequest
+from hilbench.bench.livetuning import GuardSettings, LiveTuning
+from hilbench.bench.recorder import MARKER_EVENT, MARKER_FAULT, MARKER_PARAM, MemoryRecorder, Recorder, fields_struct
+from hilbench.bench.scenario import Event
+from hilbench.bench.summary import Summary
+from hilbench.errors import ConfigError, HilbenchError, LinkError, TargetError
+from hilbench.protocol import Drive, Mode, ParamSetResult, State, Status, StatusRequest, TargetHello
+from hilbench.targets.profile import ParamReference, TargetProfile
+from hilbench.targets.registry import profile_for_firmware
+
+if TYPE_CHECKING:
+    from hilbench.targets.remote import RemoteTarget
+
+MODE_MONITOR = int(Mode.MONITOR)
+STATE_FAULT = int(State.FAULT)
+#: the wall time the session waits for the first streamed Drive before it says the board is silent
+FIRST_DRIVE_S = 5.0
+
+
+@dataclass(frozen=True)
+class MonitorOptions:
+    """A monitor session's settings (from the config's [link] and [run] tables)."""
+
+    period_us: int = 2000  # the stream's period on the board's clock
+    watchdog_ms: int = 500
+    duration_s: float | None = None  # the board's seconds; None: the scenario's end
+    timeout_s: float = 2.0  # no Drive for this long (wall): the link is lost
+    poll_control_s: float = 0.05
+
+
+@dataclass
+class MonitorStats:
+    """What the stream did: rows, the seqs the board skipped and the frames lost between."""
+
+    rows: int = 0
+    gaps: int = 0
+    missing_periods: int = 0
+    statuses: int = 0
+    strays: int = 0
+    last_status: Status | None = None
+    wall_start: float = field(default_factory=time.monotonic)
+
+
+class MonitorSession:
+    """One monitor-mode run over a board that streams (a `RemoteTarget` on its link)."""
+
+    def __init__(self, target: "RemoteTarget", events: Iterable[Event], options: MonitorOptions = MonitorOptions(), *,
+                 profile: TargetProfile | None = None, recorder: Recorder | MemoryRecorder | None = None,
+                 control: Any = None, guard: GuardSettings = GuardSettings(), target_label: str = "board",
+                 observer: Callable[[dict[str, float]], None] | None = None) -> None:
+        self.target = target
+        self.options = options
+        self.events = sorted(events, key=lambda e: e.at_s)
+        self.expected_profile = profile
+        self.profile: TargetProfile = profile or profile_for_firmware("")
+        self.recorder = recorder
+        self.control = control
+        self.observer = observer
+        self.target_label = target_label
+        self.tuning = LiveTuning(target, self.profile, target_label, guard)
+        self.tuning.on_change = self._on_param_change
+        self.live: Any = None  # `ctl step` needs the HIL session's history: refused here (see COMMANDS use)
+        self.hello: TargetHello | None = None
+        self.drive: Drive | None = None
+        self.ref_rpm = 0.0
+        self.t_s = 0.0
+        self.messages: list[str] = []
+        self.stats = MonitorStats()
+        self.summary: Summary | None = None
+        self._k = -1  # the unwrapped seq of the last row
+        self._pack: Any = None
+        self._tele_pack: Any = None
+        self._speed_index = -1
+        self._speed_scale = 0.0
+        self._end_reason: str | None = None
+        self._next_event = 0
+        self._inbox: list[Drive] = []
+        self._sent_at = 0.0  # the wall time of the last frame sent to the board (any feeds its watchdog)
+        #: the held references and how the motor followed them, on the firmware's measured speed (the
+        #: only speed there is: it stands for the plant's in the segments and the [[check]] verdicts)
+        self.segmenter = segmentation.Segmenter()
+
+    # ------------------------------------------------------------------ handshake
+    def handshake(self) -> TargetHello:
+        """HostHello mode MONITOR: the board agrees to stream every period_us; its profile, params."""
+        hello = self.target.handshake(self.options.period_us, MODE_MONITOR, self.options.watchdog_ms)
+        self.hello = hello
+        if self.expected_profile is None or self.expected_profile.firmware_name.strip().upper() != hello.firmware_name.strip().upper():
+            self.profile = profile_for_firmware(hello.firmware_name)
+            self.tuning.profile = self.profile
+        self.tuning.declare(hello.n_params)
+        self.target.stray_sink = self._stray
+        ids = tuple(hello.telemetry_ids)
+        for index, tid in enumerate(ids):
+            column = self.profile.telemetry_column(tid)
+            if column.column == self.profile.speed_column:
+                self._speed_index, self._speed_scale = index, column.scale
+        row = session_row(self.profile, ids, self.options.period_us / 1e6, plant_outputs=())
+        self._row = row
+        self._pack = fields_struct(row.own_fields).pack
+        self._tele_pack = fields_struct(row.telemetry_fields).pack
+        self._host_ref = any(name == "host_ref_rpm" for name, _ in row.own_fields)
+        if self.recorder is not None:
+            self.recorder.start(row.layout)
+        return hello
+
+    # ------------------------------------------------------------------ what a control command uses
+    def param_values(self) -> dict[str, float]:
+        return self.tuning.values()
+
+    def set_params(self, values: dict[str, float], t_s: float | None = None, *, guard: bool = True) -> None:
+        self._sent_at = time.monotonic()
+        self.tuning.set(values, self.t_s if t_s is None else t_s, guard=guard)
+
+    def set_reference(self, rpm: float) -> None:
+        """The reference through the profile's monitor reference (a parameter, with its enable)."""
+        reference = self.profile.monitor_reference
+        if reference is None and isinstance(self.profile.reference, ParamReference):
+            reference = self.profile.reference
+        if reference is None:
+            raise ConfigError(f"monitor: target {self.profile.name!r} declares no parameter the host can set its "
+                              "speed reference with (profile monitor_reference); use the board's own pot")
+        values = {reference.param: reference.value(rpm)}
+        if reference.enable is not None:
+            values = {reference.enable: 1.0, **values}
+        self.ref_rpm = rpm
+        self.tuning.reference_changed(self.t_s)
+        self._sent_at = time.monotonic()
+        self.tuning.set(values, self.t_s, guard=False)
+
+    def reference_now(self, rpm: float, t_s: float, note: str) -> None:
+        self.set_reference(rpm)
+        self.segment("ref", t_s, rpm)
+        self.note(t_s, note)
+
+    def stop_run(self, t_s: float, reason: str, note: str) -> None:
+        self._end_reason = reason
+        self.note(t_s, note)
+
+    def press(self, button: str, t_s: float) -> None:
+        """S2 as the Start command while stopped, Stop while running (the board's own S2 acts too)."""
+        if button != "s2":
+            raise ConfigError(f"monitor: press {button}: only s2 (Start/Stop) reaches the board")
+        running = self.drive is not None and int(self.drive.state) not in (int(State.STOPPED), STATE_FAULT, int(State.STALLED))
+        self._sent_at = time.monotonic()
+        if running:
+            self.target.stop()
+        else:
+            self.target.start()
+
+    def segment(self, kind: str, t_s: float, ref_rpm: float = 0.0, ramp_s: float = 0.0) -> None:
+        """A reference change, a press or the end, for the segments (and `report`, as events)."""
+        if kind == "ref":
+            self.segmenter.reference(t_s, ref_rpm, ramp_s)
+            text = segmentation.reference_event(t_s, ref_rpm, ramp_s)
+        elif kind == "press":
+            self.segmenter.press(t_s)
+            text = segmentation.press_event(t_s)
+        else:
+            self.segmenter.end(t_s)
+            text = segmentation.end_event(t_s)
+        if self.recorder is not None:
+            self.recorder.event(text)
+
+    def set_load(self, kind: str, value: float) -> None:
+        raise ConfigError("monitor: the load is the real motor's (no plant to load)")
+
+    def note(self, t_s: float, text: str) -> None:
+        self.messages.append(f"{t_s:.3f} s: {text}")
+        del self.messages[:-64]
+        if self.recorder is not None:
+            self.recorder.event(f"t={t_s:.6f} {text}", MARKER_EVENT)
+
+    def display_stream(self) -> Any:
+        raise ConfigError("monitor: the scope's stream is not served in monitor mode yet; "
+                          "record the run and open it with `hilbench report --open`")
+
+    def _on_param_change(self, t_s: float, text: str, values: dict[str, float]) -> None:
+        self.messages.append(f"{t_s:.3f} s: {text}")
+        if self.recorder is not None:
+            self.recorder.event(f"t={t_s:.6f} {text}", MARKER_PARAM)
+
+    # ------------------------------------------------------------------ the stream
+    def _stray(self, msg: Any) -> None:
+        if type(msg) is Drive:
+            self._inbox.append(msg)
+        elif type(msg) is Status:
+            self.stats.statuses += 1
+            self.stats.last_status = msg
+        elif type(msg) is not ParamSetResult:
+            self.stats.strays += 1
+
+    def run(self) -> Summary:
+        """Handshake, then rows until the duration (the board's time) or the scenario's end."""
+        if self.hello is None:
+            self.handshake()
+        assert self.hello is not None
+        options = self.options
+        duration = options.duration_s
+        if duration is None:
+            ends = [e.at_s for e in self.events if e.end]
+            duration = min(ends) if ends else 5.0
+        summary = Summary(self.target_label, "monitor", options.period_us, firmware=self.hello.firmware_name)
+        self.summary = summary
+        link = self.target.link
+        keepalive_s = max(0.02, options.watchdog_ms / 4000.0) if options.watchdog_ms else 0.25
+        next_control = time.monotonic()
+        last_drive_wall = time.monotonic()
+        self._fire_events(0.0)
+        try:
+            while self._end_reason is None:
+                now = time.monotonic()
+                if now - self._sent_at >= keepalive_s:  # nothing else went out lately: feed the watchdog
+                    link.send(StatusRequest(0))  # (its answer is counted); never right before a request: the
+                    self._sent_at = now          # board holds one received frame, a second one meanwhile is lost
+                if self.control is not None and now >= next_control:
+                    for request in self.control.poll():
+                        self._handle_control(request)
+                    next_control = now + options.poll_control_s
+                msg = self._inbox.pop(0) if self._inbox else link.recv_or_none(min(0.02, keepalive_s))
+                if msg is None:
+                    limit = FIRST_DRIVE_S if self._k < 0 else options.timeout_s
+                    if time.monotonic() - last_drive_wall > limit:
+                        raise LinkError(f"link {link.name}: no Drive streamed for {limit:g} s in monitor mode "
+                                        "(is the board built for it? make MODE=motor)")
+                    continue
+                if type(msg) is not Drive:
+                    self._stray(msg)
+                    continue
+                last_drive_wall = time.monotonic()
+                self._row_of(msg)
+                if self.t_s >= duration:
+                    self._end_reason = "completed"
+        finally:
+            self._end(summary)
+        return summary
+
+    def _row_of(self, drive: Drive) -> None:
+        """The Drive as a row at the board's time; the scenario's events due by then; the guard."""
+        if self._k < 0:
+            k = 0
+        else:
+            step = (drive.seq - self._k) & 0xFF
+            if step == 0:
+                return  # the same slot again (the watchdog's Drive repeats the last seq)
+            if step > 1:
+                self.stats.gaps += 1
+                self.stats.missing_periods += step - 1
+            k = self._k + step
+        self._k = k
+        self.t_s = k * self.options.period_us / 1e6
+        self.drive = drive
+        self.stats.rows += 1
+        self._fire_events(self.t_s)
+        tele = drive.telemetry
+        if self.recorder is not None:
+            own = [k, 0, int(drive.sector), int(drive.duty_a), int(drive.duty_b), int(drive.duty_c),
+                   int(drive.output_mode), int(drive.state), int(drive.fault), math.nan, math.nan,
+                   MARKER_FAULT if drive.fault else 0]
+            if self._host_ref:
+                own.append(self.ref_rpm)
+            n = len(self._row.telemetry_fields)
+            values = tuple(tele[:n]) + (0,) * (n - len(tele))
+            self.recorder.rows.extend(self._pack(*own) + self._tele_pack(*values))
+            self.recorder.maybe_flush()
+        speed = tele[self._speed_index] * self._speed_scale if 0 <= self._speed_index < len(tele) else math.nan
+        if math.isfinite(speed):
+            self.segmenter.sample(self.t_s, speed, speed)
+        if self.observer is not None:
+            self.observer({"t_s": self.t_s, "ref_rpm": self.ref_rpm, "measured_rpm": speed, "state": float(drive.state)})
+        if self.t_s < self.tuning.watching and math.isfinite(speed):
+            note = self.tuning.guard_check(self.t_s, self.ref_rpm, speed, 0.0, drive.state, drive.fault, False)
+            if note is not None:
+                self.note(self.t_s, note)
+
+    def _fire_events(self, t_s: float) -> None:
+        while self._next_event < len(self.events) and self.events[self._next_event].at_s <= t_s + 1e-12:
+            event = self.events[self._next_event]
+            self._next_event += 1
+            if event.end:
+                self._end_reason = "completed"
+            elif event.ref_rpm is not None:
+                self.set_reference(event.ref_rpm)
+                self.segment("ref", t_s, event.ref_rpm)
+            elif event.press is not None:
+                self.press(event.press, t_s)
+                self.segment("press", t_s)
+            elif event.params:
+                self._sent_at = time.monotonic()
+                self.tuning.set(dict(event.params), t_s)  # noted by the tuning's change note
+                continue
+            else:
+                self.note(t_s, f"{event.describe()}: not applicable in monitor mode (no plant), skipped")
+                continue
+            self.note(t_s, event.describe())
+
+    def _handle_control(self, request: ControlRequest) -> None:
+        command = COMMANDS.get(request.cmd)
+        try:
+            if command is None or request.cmd in ("step", "load", "stream"):
+                request.reply(False, f"command {request.cmd!r} is not available in monitor mode"
+                              + ("; run `hilbench step --mode monitor`" if request.cmd == "step" else ""))
+            else:
+                command.act(self, request, self.t_s)
+        except HilbenchError as exc:
+            request.reply(False, str(exc))
+        except (ValueError, TypeError, ArithmeticError, KeyError) as exc:
+            if not request.replied:
+                request.reply(False, f"{request.cmd}: refused ({type(exc).__name__}: {str(exc)[:80]})")
+
+    def _end(self, summary: Summary) -> None:
+        """Stop the motor (the board's outputs off), close the recording; the summary's figures."""
+        try:
+            self.target.stop()
+        except (HilbenchError, OSError):
+            pass
+        self.target.stray_sink = None
+        stats = self.stats
+        summary.periods = self._k + 1
+        summary.sim_s = self.t_s
+        summary.wall_s = time.monotonic() - stats.wall_start
+        summary.end_reason = self._end_reason or "interrupted"
+        summary.params = self.param_values()
+        summary.segments = self.segmenter.finish(self.t_s)
+        summary.link = {"rows": stats.rows, "stream_gaps": stats.gaps, "missing_periods": stats.missing_periods,
+                        "status_replies": stats.statuses, "stray_frames": stats.strays}
+        link_stats = getattr(self.target.link, "stats", None)
+        if link_stats is not None:
+            summary.link.update(frames_rx=link_stats.frames_rx, frame_errors=link_stats.frame_errors,
+                                garbage_bytes=link_stats.garbage_bytes)
+        if stats.last_status is not None:  # the board's own counters: what it received
+            summary.link.update(board_rx_errors=stats.last_status.rx_errors, board_overruns=stats.last_status.overruns)
+        if self.drive is not None and self.drive.fault:
+            summary.fault_code = int(self.drive.fault)
+        if self.recorder is not None:
+            summary.recording = str(getattr(self.recorder, "path", "")) or None
+            self.recorder.close(None if summary.end_reason == "completed" else summary.end_reason)
+            summary.rows_recorded = int(getattr(self.recorder, "rows_written", stats.rows))
+
+
+def monitor_options(period_us: int, watchdog_ms: int, duration_s: float | None, timeout_s: float) -> MonitorOptions:
+    """The options from the config's values (a watchdog of 0 is refused: a real motor must stop when the host goes)."""
+    if watchdog_ms <= 0:
+        raise ConfigError("monitor: link.watchdog_ms must be > 0 (the board stops its motor when the host goes silent)")
+    return MonitorOptions(period_us=period_us, watchdog_ms=watchdog_ms, duration_s=duration_s,
+                          timeout_s=max(timeout_s, 4.0 * period_us / 1e6, 1.0))
+
+
+__all__ = ["MODE_MONITOR", "MonitorOptions", "MonitorSession", "MonitorStats", "monitor_options"]

@@ -1,0 +1,159 @@
+"""Issue 24, the real motor tested without a board, at the pin level: the AVR real-motor build
+(make MODE=motor: halls on INT0..2, the duties on Timer3's compare units, HostHello mode MONITOR)
+runs free on its own simulated timers in simavr, its pins wired to hilbench's plant by run_motor.c;
+hilbench talks to it in monitor mode over the pty: a live gain write and a speed step, recorded.
+The same scenario runs in lockstep HIL (the same firmware source in process, the same plant config,
+a period of one PWM period: the plant steps as in the harness) and the step's figures, from the
+firmware's own measured speed in both, must agree within the tolerances below.
+
+Why the tolerance is not zero (each a real difference between a chip and a lockstep exchange):
+- hall edges: lockstep hands the firmware every edge's exact time; on the pins the firmware reads
+  Timer1 in the INT0..2 interrupt, which waits for a running PWM interrupt (~26 us at 80 MHz): the
+  measured period, hence the measured speed and the loop, jitter by up to that much;
+- duties: the AVR's compare units have 4 000 steps per period at 80 MHz against the firmware's 1 000
+  counts (exact), but the compare takes the registers at the timer's BOTTOM while the ISR writes them
+  some microseconds later than a lockstep span's boundary: the same one-period latency, not the same
+  instant;
+- the Timer1 speed loop is served at PWM-period resolution in real time (the runtime's soft timer:
+  up to 50 us late), in lockstep at its exact tick;
+- the host writes the step's reference when it reads the row at the step's time: the board's clock
+  has moved on by the link's latency (in simulated time small, the simulation being slower than the
+  wall), and rows come every 2 ms (the figures are read on that grid), lockstep's every 50 us.
+Rise time within 10 ms + 15 %, overshoot within 5 percentage points, the final speed within 2 % of
+the step.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+import select
+import subprocess
+import sys
+import sysconfig
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from _firmware import require_file, require_tool
+from hilbench.bench.monitorrun import analyse_measured
+from hilbench.bench.recorder import read_recording
+from hilbench.bench.steptest import StepTest
+from hilbench.processes import reap, spawn
+from hilbench.targets.an1017 import PROFILE, pot_code_for_rpm, rpm_for_pot_code
+from hilbench.targets.sil import FIRMWARE_DIR
+
+pytestmark = pytest.mark.slow
+
+REPO = Path(__file__).resolve().parent.parent
+AVR_DIR = FIRMWARE_DIR / "ports" / "avr"
+#: the step's speeds, each exactly on a pot code (lockstep's reference is the pot, monitor's the override)
+FROM_RPM = rpm_for_pot_code(pot_code_for_rpm(1000.0))
+TO_RPM = rpm_for_pot_code(pot_code_for_rpm(1500.0))
+SETTLE_S = 1.0
+AFTER_S = 0.8
+KP_LIVE = 0.15  # written live at 0.5 s (the firmware's default is 0.1)
+#: the stream's period: the simulated board sends one Drive every ~3.5 ms at most (docs/board.md,
+#: "The AVR real-motor build"), so 5 ms loses no slot
+PERIOD_MONITOR_US = 5000
+RISE_TOL_S = 0.010
+RISE_TOL_FRACTION = 0.15
+OVERSHOOT_TOL_PCT = 5.0
+FINAL_TOL_FRACTION = 0.02
+
+
+def _config(path: Path) -> Path:
+    """The packaged config with [[check]] tables a monitor run can judge (no plant columns)."""
+    path.write_text('extends = "packaged"\n\n[[check]]\nkind = "speed_error"\nmax_pct = 5.0\nmin_hold_s = 0.5\n\n'
+                    '[[check]]\nkind = "no_fault"\n', encoding="utf-8")
+    return path
+
+
+def _scenario(path: Path) -> Path:
+    path.write_text(
+        "[[scenario]]\nat_s = 0.0\nref_rpm = %r\n\n[[scenario]]\nat_s = 0.0\npress = \"s2\"\n\n"
+        "[[scenario]]\nat_s = 0.5\nset = { kp = %r }\n\n[[scenario]]\nat_s = %r\nref_rpm = %r\n\n"
+        "[[scenario]]\nat_s = %r\nend = true\n" % (FROM_RPM, KP_LIVE, SETTLE_S, TO_RPM, SETTLE_S + AFTER_S),
+        encoding="utf-8")
+    return path
+
+
+@pytest.fixture(scope="module")
+def motor_build(tmp_path_factory) -> Path:
+    require_tool("avr-gcc", "the AVR real-motor build (apt: gcc-avr avr-libc)")
+    require_tool("make", "the AVR build's Makefile")
+    require_tool("simavr", "the pin-level harness (apt: simavr)")
+    require_file("/usr/include/simavr/parts/uart_pty.h", "libsimavr-dev", "the harness's UART pty")
+    config = f"python{sys.version_info.major}.{sys.version_info.minor}-config"
+    require_tool(config, "the harness embeds this Python (its hilbench plant): apt python3-dev, or pyenv's")
+    out = tmp_path_factory.mktemp("motor")
+    result = subprocess.run(["make", "-C", str(AVR_DIR), f"OUT={out}", "MODE=motor", f"PYTHON_CONFIG={config}"],
+                            capture_output=True, text=True, timeout=300)
+    assert result.returncode == 0, result.stdout + result.stderr
+    return out
+
+
+def _start_harness(build: Path) -> tuple[subprocess.Popen[bytes], str]:
+    env = dict(os.environ, PYTHONPATH=os.pathsep.join([str(REPO), sysconfig.get_paths()["purelib"]]))
+    process = spawn([str(build / "run_motor"), "--realtime", str(build / "an1017_avr_motor_seed.elf"), ""],
+                    stdin=subprocess.DEVNULL, stdout=subprocess.PIPE, stderr=subprocess.PIPE, env=env)
+    assert process.stdout is not None
+    fd = process.stdout.fileno()
+    seen = b""
+    deadline = time.monotonic() + 60.0
+    while b"\nready " not in b"\n" + seen or not seen.split(b"ready ", 1)[1].count(b"\n"):
+        ready, _, _ = select.select([fd], [], [], max(deadline - time.monotonic(), 0.0))
+        chunk = os.read(fd, 4096) if ready else b""
+        if not chunk:
+            reap(process)
+            pytest.fail(f"run_motor said no 'ready' line: {seen!r} {process.stderr.read() if process.stderr else b''!r}")
+        seen += chunk
+    return process, seen.split(b"ready ", 1)[1].split(b"\n", 1)[0].decode()
+
+
+def _hilbench(*args: str, timeout_s: float = 900.0) -> subprocess.CompletedProcess[str]:
+    return subprocess.run([sys.executable, "-m", "hilbench", *args], capture_output=True, text=True,
+                          timeout=timeout_s)
+
+
+def test_monitor_mode_live_gain_and_step_agree_with_lockstep(motor_build: Path, tmp_path: Path) -> None:
+    scenario = _scenario(tmp_path / "step.toml")
+    config = _config(tmp_path / "bench.toml")
+    test = StepTest(FROM_RPM, TO_RPM, SETTLE_S, AFTER_S)
+    harness, pty = _start_harness(motor_build)
+    try:
+        monitor = _hilbench("run", str(config), "--target", pty, "--mode", "monitor", "--scenario", str(scenario),
+                            "--set", f"link.period_us={PERIOD_MONITOR_US}", "--set", "link.watchdog_ms=500",
+                            "--record", str(tmp_path / "motor.csv"), "--no-ui", "--no-control")
+    finally:
+        reap(harness)
+    assert monitor.returncode == 0, monitor.stdout + monitor.stderr
+    assert "check speed_error: PASS" in monitor.stdout and "check no_fault: PASS" in monitor.stdout, monitor.stdout
+    lockstep = _hilbench("run", str(config), "--target", "inprocess:an1017", "--scenario", str(scenario),
+                         "--set", "link.period_us=50", "--record", str(tmp_path / "hil.csv"), "--no-ui", "--no-control")
+    assert lockstep.returncode == 0, lockstep.stdout + lockstep.stderr
+
+    real = read_recording(tmp_path / "motor.csv")
+    hil = read_recording(tmp_path / "hil.csv")
+    assert real.metadata["mode"] == "monitor"
+    # every slot of the stream from the live write on arrived (the start may miss a few: the board
+    # answers the start's parameter writes while it starts its motor)
+    t_real = real.columns["t_s"]
+    assert np.allclose(np.diff(t_real[t_real >= 0.4]), PERIOD_MONITOR_US / 1e6), np.diff(t_real)
+    assert any("kp" in text for text in real.events), real.events  # the live write, recorded at its time
+    # the same format: every column of the monitor recording is a column of the HIL one, same units
+    assert set(real.columns) <= set(hil.columns), set(real.columns) - set(hil.columns)
+    assert all(real.units.get(name) == hil.units.get(name) for name in real.columns)
+    fig_real = analyse_measured(real.columns, test, PROFILE, "measured_speed_rpm", {"kp": KP_LIVE}, monitor=True).metrics
+    fig_hil = analyse_measured(hil.columns, test, PROFILE, "measured_speed_rpm", {"kp": KP_LIVE}, monitor=False).metrics
+    print(f"monitor: {fig_real}\nlockstep: {fig_hil}")
+    assert fig_hil.rise_time_s is not None and fig_real.rise_time_s is not None
+    assert math.isclose(fig_real.rise_time_s, fig_hil.rise_time_s,
+                        abs_tol=RISE_TOL_S + RISE_TOL_FRACTION * fig_hil.rise_time_s)
+    assert abs(fig_real.overshoot_pct - fig_hil.overshoot_pct) <= OVERSHOOT_TOL_PCT
+    step = abs(TO_RPM - FROM_RPM)
+    final_real = fig_real.y_final_ref - fig_real.ss_error
+    final_hil = fig_hil.y_final_ref - fig_hil.ss_error
+    assert abs(final_real - final_hil) <= FINAL_TOL_FRACTION * step
