@@ -137,8 +137,14 @@ static void send_error(hrt_link_t *l, hbp_u8 seq, hbp_u8 code, hbp_u8 detail)
     finish(l);
 }
 
-/* The Drive of the present state, written into l->tx (hrt_link_send_drive sends it). */
+/* The Drive of the present state, written into l->tx. A monitor build fills it with the port locked
+ * and sends it unlocked (hrt_link_stream); every other build keeps it one function, sending too (no
+ * call more on a 12 KB chip: tests/test_dspic_size.py). */
+#if HRT_MONITOR
 static void fill_drive(hrt_link_t *l, hbp_u8 seq)
+#else
+void hrt_link_send_drive(hrt_link_t *l, hbp_u8 seq)
+#endif
 {
     hrt_report_t d;
     hbp_u8 i;
@@ -166,15 +172,18 @@ static void fill_drive(hrt_link_t *l, hbp_u8 seq)
     for (i = 0u; i < d.n_telemetry; i++) {
         w16(l, (uint16_t)d.telemetry[i]);
     }
+#if !HRT_MONITOR
+    finish(l);
+#endif
 }
 
+#if HRT_MONITOR
 void hrt_link_send_drive(hrt_link_t *l, hbp_u8 seq)
 {
     fill_drive(l, seq);
     finish(l);
 }
 
-#if HRT_MONITOR
 void hrt_link_stream(hrt_link_t *l)
 {
     uint32_t period = (uint32_t)l->period_us * TICKS_PER_US;

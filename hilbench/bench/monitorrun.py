@@ -13,7 +13,7 @@ from typing import TYPE_CHECKING, Any, Callable
 
 import numpy as np
 
-from hilbench import __version__
+from hilbench.version import __version__
 from hilbench.bench import settings
 from hilbench.bench.assembly import configured_profile
 from hilbench.bench.bench import Signals
