@@ -30,7 +30,6 @@ import os
 import select
 import subprocess
 import sys
-import sysconfig
 import time
 from pathlib import Path
 
@@ -96,8 +95,8 @@ def motor_build(tmp_path_factory) -> Path:
 
 
 def _start_harness(build: Path) -> tuple[subprocess.Popen[bytes], str]:
-    env = dict(os.environ, PYTHONPATH=os.pathsep.join([str(REPO), sysconfig.get_paths()["purelib"]]))
-    process = spawn([str(build / "run_motor"), "--realtime", str(build / "an1017_avr_motor_seed.elf"), ""],
+    env = dict(os.environ, VIRTUAL_ENV=sys.prefix, PYTHONPATH=str(REPO))  # this interpreter's hilbench and numpy
+    process = spawn([str(build / "run_motor"), "--realtime", str(build / "an1017_avr_motor_seed.elf")],
                     stdin=subprocess.DEVNULL, stdout=subprocess.PIPE, stderr=subprocess.PIPE, env=env)
     assert process.stdout is not None
     fd = process.stdout.fileno()
@@ -157,3 +156,50 @@ def test_monitor_mode_live_gain_and_step_agree_with_lockstep(motor_build: Path, 
     final_real = fig_real.y_final_ref - fig_real.ss_error
     final_hil = fig_hil.y_final_ref - fig_hil.ss_error
     assert abs(final_real - final_hil) <= FINAL_TOL_FRACTION * step
+
+
+def test_motor_build_refuses_frames_and_stops_when_the_host_goes_silent(motor_build: Path) -> None:
+    """A real-motor build agrees to monitor mode only (its motor never runs from a simulated rotor:
+    a lockstep HostHello and a Sensors are refused), and when the host falls silent its watchdog
+    stops the motor: the stream says outputs OFF, fault WATCHDOG, about watchdog_ms of the board's
+    time after the host's last frame."""
+    from hilbench.link import open_link
+    from hilbench.protocol import Drive, ErrorReport, Fault, HostHello, MODE_LOCKSTEP, MODE_MONITOR, OutputMode, \
+        PROTOCOL_VERSION, Sensors, StatusRequest
+    from hilbench.targets.remote import RemoteTarget
+
+    harness, pty = _start_harness(motor_build)
+    link = open_link(pty, timeout_s=5.0)
+    try:
+        target = RemoteTarget(link, timeout_s=5.0, retry_s=1.0)
+        refused = target._request(HostHello(1, PROTOCOL_VERSION, 1000, MODE_LOCKSTEP, 500), ErrorReport)
+        assert type(refused) is ErrorReport, refused
+        watchdog_ms, period_us = 300, 5000
+        target.handshake(period_us, MODE_MONITOR, watchdog_ms)
+        link.send(Sensors(1, 0, (), 0, ()))
+        assert type(target._await(Sensors(1, 0, (), 0, ()), (ErrorReport,), time.monotonic(), 10.0, "refusal")) \
+            is ErrorReport
+        target.set_params(((5, 1), (6, 5000)))  # ref_ovr_on, ref_override: ~900 rpm
+        target.start()
+        running_seq = None
+        deadline = time.monotonic() + 120.0
+        while running_seq is None and time.monotonic() < deadline:  # keep the host alive until it runs
+            link.send(StatusRequest(2))
+            msg = link.recv_or_none(0.05)
+            if type(msg) is Drive and msg.output_mode == int(OutputMode.PWM):
+                running_seq = msg.seq
+        assert running_seq is not None, "the motor never ran"
+        last = running_seq  # the host falls silent now: the seq of the last Drive it saw
+        while time.monotonic() < deadline:
+            msg = link.recv_or_none(1.0)
+            if type(msg) is not Drive:
+                continue
+            if msg.fault == int(Fault.WATCHDOG):
+                assert msg.output_mode == int(OutputMode.OFF)
+                board_ms = ((msg.seq - last) & 0xFF) * period_us / 1000.0
+                assert watchdog_ms - period_us / 1000.0 <= board_ms <= watchdog_ms + 4 * period_us / 1000.0, board_ms
+                return
+        pytest.fail("no watchdog Drive")
+    finally:
+        link.close()
+        reap(harness)

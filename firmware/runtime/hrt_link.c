@@ -267,9 +267,13 @@ static HRT_NOINLINE void on_hello(hrt_link_t *l, const hbp_u8 *buf, hbp_u8 len, 
     }
     period_us = get_u16(&buf[3]);
     mode = buf[5];
+#if HRT_MONITOR
+    if (period_us == 0u || (step != 0u && period_us % step != 0u) || mode != HBP_MODE_MONITOR) {
+        /* a real-motor build runs on its motor's own sensors: it never takes them from frames */
+#else
     if (period_us == 0u || (step != 0u && period_us % step != 0u) ||
-        (mode != HBP_MODE_LOCKSTEP && mode != HBP_MODE_REALTIME && !(mode == HBP_MODE_PREDICT && CAN_PREDICT) &&
-         !(mode == HBP_MODE_MONITOR && HRT_MONITOR))) {
+        (mode != HBP_MODE_LOCKSTEP && mode != HBP_MODE_REALTIME && !(mode == HBP_MODE_PREDICT && CAN_PREDICT))) {
+#endif
         send_error(l, seq, HBP_ERROR_BAD_REQUEST, 0u);
         return;
     }
@@ -547,14 +551,14 @@ void hrt_link_handle(hrt_link_t *l, const hbp_u8 *frame, hbp_u8 len)
     hbp_u8 group = (hbp_u8)(type >> 4);
     hbp_u8 want = 0u; /* the payload-less (2) and one-byte (3) requests' length; 0: not a request */
 #if HRT_MONITOR
-    if (l->mode == HBP_MODE_MONITOR && (l->flags & HRT_LINK_F_HELLO) != 0u && type != HBP_MSG_HOST_HELLO) {
+    if ((l->flags & HRT_LINK_F_HELLO) != 0u && type != HBP_MSG_HOST_HELLO) {
         /* the host is there: any frame feeds the watchdog (a tripped one stays stopped until Start) */
         l->last_rx = hrt_port_now();
         l->flags = (hbp_u8)((l->flags | HRT_LINK_F_SENSORS) & (hbp_u8)~HRT_LINK_F_TRIPPED);
-        if (type == HBP_MSG_SENSORS) { /* the board runs on its own sensors */
-            send_error(l, seq, HBP_ERROR_BAD_REQUEST, type);
-            return;
-        }
+    }
+    if (type == HBP_MSG_SENSORS) { /* a real-motor build runs on its own sensors, never on frames */
+        send_error(l, seq, HBP_ERROR_BAD_REQUEST, type);
+        return;
     }
 #endif
     if (type == HBP_MSG_SENSORS) {

@@ -57,7 +57,8 @@
  * (hrt_rt_*), the host sends no Sensors, and hrt_link_stream, from the port's main loop, sends an
  * unsolicited Drive every agreed period_us, its seq counting periods of the port's clock (a skipped
  * slot is a seq skipped, never a burst). Any valid frame from the host feeds the watchdog; silence
- * for watchdog_ms stops the firmware (HRT_STOP_WATCHDOG), as in real time. */
+ * for watchdog_ms stops the firmware (HRT_STOP_WATCHDOG), as in real time. Such a build agrees to no
+ * other mode and refuses every Sensors: its motor is never driven from a simulated rotor. */
 #ifndef HRT_MONITOR
 #define HRT_MONITOR 0
 #endif

@@ -1,12 +1,14 @@
 /* run_motor.c: the pin-level harness of the AVR real-motor build (make MODE=motor): the firmware runs
  * free on its own simulated timers in simavr against hilbench's plant, wired to the chip's pins.
  *
- * Usage: run_motor [--realtime] [--f-cpu HZ] FIRMWARE.elf CONFIG.toml [TABLE.KEY=VALUE ...]
+ * Usage: run_motor [--realtime] [--f-cpu HZ] FIRMWARE.elf [CONFIG.toml [TABLE.KEY=VALUE ...]]
  *
  * --f-cpu: the simulated clock, the firmware's F_CPU (default 80 MHz, make MODE=motor's: AN1017's
  * 20 kHz PWM interrupt takes ~2 100 AVR cycles, more than the 800 of a PWM period at a real
  * ATmega2560's 16 MHz; at 80 MHz it leaves the main loop about half the CPU: the harness prints
- * "masked_fraction", the share of cycles with interrupts held off). CONFIG "" is the default config.
+ * "masked_fraction", the share of cycles with interrupts held off). No CONFIG (or ""): hilbench's
+ * default config. The interpreter imports hilbench from PYTHONPATH, or from the active venv
+ * ($VIRTUAL_ENV's site-packages, .pth files included: an editable install works).
  *
  * The plant is hilbench's own (hilbench.bench.pinplant.PinPlant: the Plant and its C core that a
  * HIL session integrates, built from CONFIG and the overrides), run by the Python interpreter this
@@ -172,8 +174,8 @@ int main(int argc, char **argv)
         argv += 2;
         argc -= 2;
     }
-    if (argc < 3) {
-        fprintf(stderr, "usage: run_motor [--realtime] [--f-cpu HZ] FIRMWARE.elf CONFIG.toml [TABLE.KEY=VALUE ...]\n");
+    if (argc < 2) {
+        fprintf(stderr, "usage: run_motor [--realtime] [--f-cpu HZ] FIRMWARE.elf [CONFIG.toml [TABLE.KEY=VALUE ...]]\n");
         return 2;
     }
     memset(&fw, 0, sizeof fw);
@@ -191,7 +193,13 @@ int main(int argc, char **argv)
     avr->frequency = f_cpu;
     avr->vcc = avr->avcc = avr->aref = 5000u;
     Py_InitializeEx(0); /* no Python signal handlers: SIGTERM stays ours */
-    plant = make_plant(argv[2], argc - 3, argv + 3, 50u);
+    if (PyRun_SimpleString("import os, site, sys\n"
+                           "venv = os.environ.get('VIRTUAL_ENV')\n"
+                           "if venv: site.addsitedir(os.path.join(venv, 'lib', 'python%d.%d' % sys.version_info[:2], "
+                           "'site-packages'))\n") != 0) {
+        return py_fail("cannot read the venv's site-packages");
+    }
+    plant = make_plant(argc > 2 ? argv[2] : "", argc > 3 ? argc - 3 : 0, argv + 3, 50u);
     if (plant == NULL) {
         return py_fail("cannot make the plant (hilbench.bench.pinplant.PinPlant)");
     }
