@@ -40,6 +40,10 @@ MODE_MONITOR = int(Mode.MONITOR)
 STATE_FAULT = int(State.FAULT)
 #: the wall time the session waits for the first streamed Drive before it says the board is silent
 FIRST_DRIVE_S = 5.0
+#: a Start not seen in the stream this long after (the board's clock) is sent again
+START_SEEN_S = 0.05
+#: a reference ramp is written as steps this far apart on the board's clock (each a checked write)
+RAMP_WRITE_S = 0.02
 
 
 @dataclass(frozen=True)
@@ -100,7 +104,10 @@ class MonitorSession:
         self._end_reason: str | None = None
         self._next_event = 0
         self._inbox: list[Drive] = []
-        self._sent_at = 0.0  # the wall time of the last frame sent to the board (any feeds its watchdog)
+        self._sent_board_s = 0.0  # the board's time at the last frame sent to it (any feeds its watchdog)
+        self._start_sent_s: float | None = None  # a Start (no reply) waiting to be seen in the stream
+        self._ramp: tuple[float, float, float, float] | None = None  # (t0, from, to, duration): a reference ramp
+        self._ramp_written = 0.0
         #: the held references and how the motor followed them, on the firmware's measured speed (the
         #: only speed there is: it stands for the plant's in the segments and the [[check]] verdicts)
         self.segmenter = segmentation.Segmenter()
@@ -134,7 +141,7 @@ class MonitorSession:
         return self.tuning.values()
 
     def set_params(self, values: dict[str, float], t_s: float | None = None, *, guard: bool = True) -> None:
-        self._sent_at = time.monotonic()
+        self._sent_board_s = self.t_s
         self.tuning.set(values, self.t_s if t_s is None else t_s, guard=guard)
 
     def set_reference(self, rpm: float) -> None:
@@ -150,7 +157,7 @@ class MonitorSession:
             values = {reference.enable: 1.0, **values}
         self.ref_rpm = rpm
         self.tuning.reference_changed(self.t_s)
-        self._sent_at = time.monotonic()
+        self._sent_board_s = self.t_s
         self.tuning.set(values, self.t_s, guard=False)
 
     def reference_now(self, rpm: float, t_s: float, note: str) -> None:
@@ -167,11 +174,26 @@ class MonitorSession:
         if button != "s2":
             raise ConfigError(f"monitor: press {button}: only s2 (Start/Stop) reaches the board")
         running = self.drive is not None and int(self.drive.state) not in (int(State.STOPPED), STATE_FAULT, int(State.STALLED))
-        self._sent_at = time.monotonic()
+        self._sent_board_s = self.t_s
         if running:
             self.target.stop()
+            self._start_sent_s = None
         else:
             self.target.start()
+            self._start_sent_s = self.t_s
+
+    def _check_started(self) -> None:
+        """A Start has no answer: when the stream still says STOPPED a while after it, the frame was
+        lost (the board was busy sending): send it again."""
+        drive = self.drive
+        if self._start_sent_s is None or drive is None:
+            return
+        if int(drive.state) != int(State.STOPPED):
+            self._start_sent_s = None
+        elif self.t_s - self._start_sent_s >= START_SEEN_S:
+            self.target.start()
+            self._start_sent_s = self.t_s
+            self._sent_board_s = self.t_s
 
     def segment(self, kind: str, t_s: float, ref_rpm: float = 0.0, ramp_s: float = 0.0) -> None:
         """A reference change, a press or the end, for the segments (and `report`, as events)."""
@@ -228,21 +250,26 @@ class MonitorSession:
         summary = Summary(self.target_label, "monitor", options.period_us, firmware=self.hello.firmware_name)
         self.summary = summary
         link = self.target.link
-        keepalive_s = max(0.02, options.watchdog_ms / 4000.0) if options.watchdog_ms else 0.25
+        keepalive_s = options.watchdog_ms / 4000.0
         next_control = time.monotonic()
         last_drive_wall = time.monotonic()
         self._fire_events(0.0)
         try:
             while self._end_reason is None:
                 now = time.monotonic()
-                if now - self._sent_at >= keepalive_s:  # nothing else went out lately: feed the watchdog
-                    link.send(StatusRequest(0))  # (its answer is counted); never right before a request: the
-                    self._sent_at = now          # board holds one received frame, a second one meanwhile is lost
+                if self.t_s - self._sent_board_s >= keepalive_s:
+                    # nothing else went out for a quarter of the watchdog on the board's clock (the
+                    # one its watchdog counts; a simulated board may run slower than the wall): feed
+                    # it. Never more often: the board holds one received frame, and a second one
+                    # arriving while it sends its stream is lost (counted in its Status)
+                    link.send(StatusRequest(0))
+                    self._sent_board_s = self.t_s
+                    self._check_started()
                 if self.control is not None and now >= next_control:
                     for request in self.control.poll():
                         self._handle_control(request)
                     next_control = now + options.poll_control_s
-                msg = self._inbox.pop(0) if self._inbox else link.recv_or_none(min(0.02, keepalive_s))
+                msg = self._inbox.pop(0) if self._inbox else link.recv_or_none(0.02)
                 if msg is None:
                     limit = FIRST_DRIVE_S if self._k < 0 else options.timeout_s
                     if time.monotonic() - last_drive_wall > limit:
@@ -277,6 +304,13 @@ class MonitorSession:
         self.drive = drive
         self.stats.rows += 1
         self._fire_events(self.t_s)
+        if self._ramp is not None and self.t_s - self._ramp_written >= RAMP_WRITE_S:
+            t0, start, end, ramp_s = self._ramp
+            done = min(1.0, (self.t_s - t0) / ramp_s)
+            self.set_reference(start + (end - start) * done)
+            self._ramp_written = self.t_s
+            if done >= 1.0:
+                self._ramp = None
         tele = drive.telemetry
         if self.recorder is not None:
             own = [k, 0, int(drive.sector), int(drive.duty_a), int(drive.duty_b), int(drive.duty_c),
@@ -304,14 +338,19 @@ class MonitorSession:
             self._next_event += 1
             if event.end:
                 self._end_reason = "completed"
+            elif event.ref_rpm is not None and event.ramp_s > 0.0:  # written every RAMP_WRITE_S on the way
+                self._ramp = (t_s, self.ref_rpm, event.ref_rpm, event.ramp_s)
+                self._ramp_written = -math.inf
+                self.segment("ref", t_s, event.ref_rpm, event.ramp_s)
             elif event.ref_rpm is not None:
+                self._ramp = None
                 self.set_reference(event.ref_rpm)
                 self.segment("ref", t_s, event.ref_rpm)
             elif event.press is not None:
                 self.press(event.press, t_s)
                 self.segment("press", t_s)
             elif event.params:
-                self._sent_at = time.monotonic()
+                self._sent_board_s = self.t_s
                 self.tuning.set(dict(event.params), t_s)  # noted by the tuning's change note
                 continue
             else:
@@ -359,7 +398,8 @@ class MonitorSession:
             summary.fault_code = int(self.drive.fault)
         if self.recorder is not None:
             summary.recording = str(getattr(self.recorder, "path", "")) or None
-            self.recorder.close(None if summary.end_reason == "completed" else summary.end_reason)
+            self.recorder.event(segmentation.end_event(self.t_s))
+            self.recorder.close(f"end: {summary.end_reason} at period {summary.periods}")
             summary.rows_recorded = int(getattr(self.recorder, "rows_written", stats.rows))
 
 
