@@ -29,7 +29,7 @@ from hilbench.bench.recorder import MARKER_EVENT, MARKER_FAULT, MARKER_PARAM, Me
 from hilbench.bench.scenario import Event
 from hilbench.bench.summary import Summary
 from hilbench.errors import ConfigError, HilbenchError, LinkError, TargetError
-from hilbench.protocol import Drive, Mode, ParamSetResult, State, Status, StatusRequest, TargetHello
+from hilbench.protocol import Drive, Mode, OutputMode, ParamSetResult, State, Status, StatusRequest, TargetHello
 from hilbench.targets.profile import ParamReference, TargetProfile
 from hilbench.targets.registry import profile_for_firmware
 
@@ -40,6 +40,10 @@ MODE_MONITOR = int(Mode.MONITOR)
 STATE_FAULT = int(State.FAULT)
 #: the wall time the session waits for the first streamed Drive before it says the board is silent
 FIRST_DRIVE_S = 5.0
+#: a Stop is sent again when this many streamed Drives after it still show the outputs on (at most
+#: STOP_ATTEMPTS times)
+STOP_SEEN_DRIVES = 10
+STOP_ATTEMPTS = 5
 #: a Start not seen in the stream this long after (the board's clock) is sent again
 START_SEEN_S = 0.05
 #: a reference ramp is written as steps this far apart on the board's clock (each a checked write)
@@ -237,11 +241,22 @@ class MonitorSession:
         elif type(msg) is not ParamSetResult:
             self.stats.strays += 1
 
-    def run(self) -> Summary:
-        """Handshake, then rows until the duration (the board's time) or the scenario's end."""
+    def run(self, make_recorder: Callable[["MonitorSession"], Recorder | MemoryRecorder | None] | None = None,
+            gains: dict[str, float] | None = None) -> Summary:
+        """Handshake, ``make_recorder``'s recorder (it gets the session after the handshake), the
+        ``gains`` written, then rows until the duration (the board's time) or the scenario's end.
+        One call: the board's watchdog counts from the handshake, so nothing slow comes between."""
         if self.hello is None:
             self.handshake()
         assert self.hello is not None
+        if make_recorder is not None:
+            self.recorder = make_recorder(self)
+            if self.recorder is not None:
+                self.recorder.start(self._row.layout)
+        self.target.link.send(StatusRequest(0))  # the watchdog counts from the handshake: fed now
+        self._sent_board_s = 0.0
+        if gains:
+            self.set_params(gains, 0.0, guard=False)
         options = self.options
         duration = options.duration_s
         if duration is None:
@@ -372,10 +387,26 @@ class MonitorSession:
             if not request.replied:
                 request.reply(False, f"{request.cmd}: refused ({type(exc).__name__}: {str(exc)[:80]})")
 
+    def _stop_confirmed(self) -> None:
+        """Stop, until the stream says the outputs are off: a Stop has no answer and the board loses
+        a frame that arrives while it sends (a lost one would leave the motor to the watchdog, and
+        the watchdog's fault to the next session)."""
+        link = self.target.link
+        for _ in range(STOP_ATTEMPTS):
+            self.target.stop()
+            seen = 0
+            deadline = time.monotonic() + 2.0
+            while seen < STOP_SEEN_DRIVES and time.monotonic() < deadline:
+                msg = self._inbox.pop(0) if self._inbox else link.recv_or_none(0.05)
+                if type(msg) is Drive:
+                    seen += 1
+                    if int(msg.output_mode) == int(OutputMode.OFF) and int(msg.state) != int(State.RUNNING):
+                        return
+
     def _end(self, summary: Summary) -> None:
         """Stop the motor (the board's outputs off), close the recording; the summary's figures."""
         try:
-            self.target.stop()
+            self._stop_confirmed()
         except (HilbenchError, OSError):
             pass
         self.target.stray_sink = None
@@ -392,8 +423,9 @@ class MonitorSession:
         if link_stats is not None:
             summary.link.update(frames_rx=link_stats.frames_rx, frame_errors=link_stats.frame_errors,
                                 garbage_bytes=link_stats.garbage_bytes)
-        if stats.last_status is not None:  # the board's own counters: what it received
-            summary.link.update(board_rx_errors=stats.last_status.rx_errors, board_overruns=stats.last_status.overruns)
+        if stats.last_status is not None:  # the board's own counters: what it received, its watchdog
+            summary.link.update(board_rx_errors=stats.last_status.rx_errors, board_overruns=stats.last_status.overruns,
+                                board_watchdog_trips=stats.last_status.watchdog_trips)
         if self.drive is not None and self.drive.fault:
             summary.fault_code = int(self.drive.fault)
         if self.recorder is not None:

@@ -32,8 +32,14 @@ if TYPE_CHECKING:
     from hilbench.bench.steptest import StepResult, StepTest
 
 
+#: monitor mode's least request timeout and retry interval (wall seconds)
+MONITOR_TIMEOUT_S = 5.0
+MONITOR_RETRY_S = 0.5
+
+
 def _options(cfg: BenchConfig, duration_s: float | None) -> MonitorOptions:
-    return monitor_options(cfg.link.period_us, cfg.link.watchdog_ms, duration_s, cfg.link.timeout_ms / 1000.0)
+    return monitor_options(cfg.link.period_us, cfg.link.watchdog_ms, duration_s,
+                           max(cfg.link.timeout_ms / 1000.0, MONITOR_TIMEOUT_S))
 
 
 def _metadata(cfg: BenchConfig, session: MonitorSession) -> dict[str, Any]:
@@ -60,8 +66,10 @@ def run_monitor_session(
 ) -> tuple[Summary, Signals | None]:
     """One monitor session on the configured board: handshake, ``gains`` written, the events played
     at the board's time; the summary and (recorded or kept) the signals."""
-    handle = open_target(cfg.link.target, mode="realtime", timeout_s=max(cfg.link.timeout_ms / 1000.0, 0.5),
-                         watchdog_ms=cfg.link.watchdog_ms, retry_s=cfg.link.retry_ms / 1000.0)
+    # a request's answer waits behind the stream's Drives, and a frame sent again while the board
+    # sends is one it loses (it holds one received frame): patient timeouts and retries
+    handle = open_target(cfg.link.target, mode="realtime", timeout_s=max(cfg.link.timeout_ms / 1000.0, MONITOR_TIMEOUT_S),
+                         watchdog_ms=cfg.link.watchdog_ms, retry_s=max(cfg.link.retry_ms / 1000.0, MONITOR_RETRY_S))
     try:
         target = handle.target
         if not hasattr(target, "stray_sink"):
@@ -74,21 +82,17 @@ def run_monitor_session(
                               tuning.guard_current_a)
         session = MonitorSession(target, events, _options(cfg, duration_s), profile=configured_profile(cfg),
                                  control=control, guard=guard, target_label=cfg.link.target)  # type: ignore[arg-type]
-        session.handshake()
-        recorder: Recorder | MemoryRecorder | None = None
-        if record is not None:
-            recorder = Recorder(Path(record), _metadata(cfg, session),
-                                flush_rows=max(1, round(Period(cfg.link.period_us).per_s)))
-        elif keep_rows:
-            recorder = MemoryRecorder(_metadata(cfg, session))
-        if recorder is not None:
-            session.recorder = recorder
-            recorder.start(session._row.layout)
-        if gains:
-            session.set_params(gains, 0.0, guard=False)
         if on_ready is not None:
             on_ready(session)
-        summary = session.run()
+
+        def make_recorder(ready: MonitorSession) -> Recorder | MemoryRecorder | None:
+            if record is not None:
+                return Recorder(Path(record), _metadata(cfg, ready),
+                                flush_rows=max(1, round(Period(cfg.link.period_us).per_s)))
+            return MemoryRecorder(_metadata(cfg, ready)) if keep_rows else None
+
+        summary = session.run(make_recorder, gains)
+        recorder = session.recorder
     finally:
         handle.close()
     signals: Signals | None = None
