@@ -1,7 +1,7 @@
 """The AN1017 firmware in the loop on the host (SIL): build firmware/an1017 with gcc, run it on a pty.
 
-The C firmware (firmware/an1017/: its ISR bodies and state, and ports/host/main.c, on the runtime
-firmware/runtime/ and the firmware_protocol/ C library) is the very source that runs on the
+The C firmware (firmware/an1017/: its ISR bodies and state, and ports/host/an1017_host.c on the
+runtime's shared host port, on the runtime firmware/runtime/ and the firmware_protocol/ C library) is the very source that runs on the
 dsPIC30F2010 and in the AVR simulator. `build_sil()` compiles it once into a cache directory keyed by the sources, flags and
 compiler; `start_sil(tty_path)` starts it serving that tty and returns when it listens;
 `SilTarget` opens a pty link, starts the process on it and hands back a RemoteTarget (what the
@@ -39,7 +39,8 @@ PROTOCOL_DIR = REPO / "firmware_protocol"
 RUNTIME_SOURCES = (RUNTIME_DIR / "hrt.c", RUNTIME_DIR / "hrt_link.c", PROTOCOL_DIR / "hbp.c")
 RUNTIME_HEADERS = (RUNTIME_DIR / "hrt.h", RUNTIME_DIR / "hrt_link.h", PROTOCOL_DIR / "hbp.h",
                    PROTOCOL_DIR / "hbp_messages.h")
-SOURCES = (FIRMWARE_DIR / "an1017.c", FIRMWARE_DIR / "ports" / "host" / "main.c", *RUNTIME_SOURCES)
+SOURCES = (FIRMWARE_DIR / "an1017.c", FIRMWARE_DIR / "ports" / "host" / "an1017_host.c",
+           RUNTIME_DIR / "ports" / "host" / "hrt_host.c", *RUNTIME_SOURCES)
 HEADERS = (FIRMWARE_DIR / "an1017.h", FIRMWARE_DIR / "hrt_config.h", FIRMWARE_DIR / "q15.h", *RUNTIME_HEADERS)
 # the strict flags every firmware build uses, and the AN1017 profile's protocol capacities
 CFLAGS = ("-std=c99", "-pedantic", "-Wall", "-Wextra", "-Wconversion", "-Werror", "-O2",

@@ -2,8 +2,10 @@
  * in the loop) on a tty. The firmware defines hrt_firmware and hrt_firmware_init(); link this file,
  * the firmware, hrt.c, hrt_link.c and firmware_protocol/hbp*.c (see firmware/template/Makefile).
  *
- * Usage: PROGRAM [--ready] TTY_PATH
- *        PROGRAM --pty
+ * Usage: PROGRAM [--NAME VALUE]... [--ready] TTY_PATH
+ *        PROGRAM [--NAME VALUE]... --pty
+ * A firmware with options of its own (AN1017's --variant) takes them in hrt_host_option(); the
+ * default one takes none.
  * Serves the hilbench protocol on TTY_PATH (a pty slave, a serial device) until it hangs up; exit
  * 0 then, 1 on errors, 2 on bad usage. With --ready it prints "ready TTY_PATH" on stdout once the
  * tty is open, so a launcher knows when bytes can be sent. With --pty it makes its own pty, prints
@@ -114,9 +116,18 @@ static int make_raw(int fd)
     return tcsetattr(fd, TCSANOW, &t);
 }
 
+/* A firmware's own option --NAME VALUE: 1 taken, 0 not its option, -1 a bad value. A firmware
+ * that has options defines this function; the host port's own (weak) one takes none. */
+__attribute__((weak)) int hrt_host_option(const char *name, const char *value)
+{
+    (void)name;
+    (void)value;
+    return 0;
+}
+
 static int usage(const char *argv0)
 {
-    fprintf(stderr, "usage: %s [--ready] TTY_PATH | --pty\n", argv0);
+    fprintf(stderr, "usage: %s [--NAME VALUE]... [--ready] TTY_PATH | --pty\n", argv0);
     return 2;
 }
 
@@ -134,6 +145,11 @@ int main(int argc, char **argv)
             ready = 1;
         } else if (strcmp(argv[i], "--pty") == 0) {
             own_pty = 1;
+        } else if (strncmp(argv[i], "--", 2) == 0 && i + 1 < argc) {
+            if (hrt_host_option(argv[i] + 2, argv[i + 1]) != 1) {
+                return usage(argv[0]);
+            }
+            i++;
         } else if (argv[i][0] == '-' || path != NULL) {
             return usage(argv[0]);
         } else {
