@@ -46,6 +46,8 @@ STOP_SEEN_DRIVES = 10
 STOP_ATTEMPTS = 5
 #: a Start not seen in the stream this long after (the board's clock) is sent again
 START_SEEN_S = 0.05
+#: the stream's shortest period (a Drive's wire time at 250 kbaud is ~0.9 ms)
+MIN_PERIOD_US = 1000
 #: a reference ramp is written as steps this far apart on the board's clock (each a checked write)
 RAMP_WRITE_S = 0.02
 
@@ -119,7 +121,11 @@ class MonitorSession:
     # ------------------------------------------------------------------ handshake
     def handshake(self) -> TargetHello:
         """HostHello mode MONITOR: the board agrees to stream every period_us; its profile, params."""
-        hello = self.target.handshake(self.options.period_us, MODE_MONITOR, self.options.watchdog_ms)
+        try:
+            hello = self.target.handshake(self.options.period_us, MODE_MONITOR, self.options.watchdog_ms)
+        except TargetError as exc:
+            raise TargetError(f"{exc} (monitor mode needs a real-motor build of the firmware, e.g. make MODE=motor; "
+                              "a HIL build refuses it)") from None
         self.hello = hello
         if self.expected_profile is None or self.expected_profile.firmware_name.strip().upper() != hello.firmware_name.strip().upper():
             self.profile = profile_for_firmware(hello.firmware_name)
@@ -437,6 +443,9 @@ class MonitorSession:
 
 def monitor_options(period_us: int, watchdog_ms: int, duration_s: float | None, timeout_s: float) -> MonitorOptions:
     """The options from the config's values (a watchdog of 0 is refused: a real motor must stop when the host goes)."""
+    if period_us < MIN_PERIOD_US:
+        raise ConfigError(f"monitor: link.period_us={period_us} is shorter than one Drive on the wire (22 bytes for "
+                          f"AN1017: 0.9 ms at 250 kbaud); the stream's period must be >= {MIN_PERIOD_US} us, e.g. 5000")
     if watchdog_ms <= 0:
         raise ConfigError("monitor: link.watchdog_ms must be > 0 (the board stops its motor when the host goes silent)")
     return MonitorOptions(period_us=period_us, watchdog_ms=watchdog_ms, duration_s=duration_s,
