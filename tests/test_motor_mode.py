@@ -203,3 +203,35 @@ def test_motor_build_refuses_frames_and_stops_when_the_host_goes_silent(motor_bu
     finally:
         link.close()
         reap(harness)
+
+
+def test_ctl_tunes_the_real_motor_live(motor_build: Path, tmp_path: Path) -> None:
+    """`hilbench ctl set` during `hilbench run --mode monitor`: a checked write on the running board
+    (the guard then watches the new gains), its answer, the values read back by `ctl get`, the write
+    in the recording at the board's time; a write the firmware's constraints refuse is refused."""
+    import json
+
+    harness, pty = _start_harness(motor_build)
+    run = spawn([sys.executable, "-m", "hilbench", "run", "--target", pty, "--mode", "monitor", "--no-ui",
+                 "--set", f"link.period_us={PERIOD_MONITOR_US}", "--set", "link.watchdog_ms=500",
+                 "--set", "run.duration_s=3.0", "--record", str(tmp_path / "motor.csv")],
+                stdout=subprocess.PIPE, stderr=subprocess.PIPE)
+    try:
+        deadline = time.monotonic() + 300.0
+        while _hilbench("ctl", "get", timeout_s=60).returncode != 0:  # until the session's socket answers
+            assert time.monotonic() < deadline and run.poll() is None, "no monitor session answered ctl get"
+        done = _hilbench("ctl", "set", "kp=0.12", "ki=0.012", timeout_s=120)
+        assert done.returncode == 0, done.stdout + done.stderr
+        refused = _hilbench("ctl", "set", "kp=0.9", "ki=0.2", timeout_s=120)
+        assert refused.returncode != 0 and "Kp + Ki + Kd" in refused.stdout + refused.stderr, refused
+        got = _hilbench("ctl", "get", timeout_s=120)  # piped: the JSON
+        assert got.returncode == 0, got.stderr
+        params = json.loads(got.stdout)["params"]
+        assert abs(params["kp"] - 0.12) < 1e-4 and abs(params["ki"] - 0.012) < 1e-4, params
+        out, err = run.communicate(timeout=600)
+        assert run.returncode in (0, 9), (out, err)  # the config's checks judge a run ctl changed
+    finally:
+        reap(run, 10.0)
+        reap(harness)
+    events = read_recording(tmp_path / "motor.csv").events
+    assert any("kp=0.12" in text for text in events), events

@@ -34,6 +34,7 @@ from hilbench.targets.profile import ParamReference, TargetProfile
 from hilbench.targets.registry import profile_for_firmware
 
 if TYPE_CHECKING:
+    from hilbench.bench.session import ControlSource
     from hilbench.targets.remote import RemoteTarget
 
 MODE_MONITOR = int(Mode.MONITOR)
@@ -81,7 +82,7 @@ class MonitorSession:
 
     def __init__(self, target: "RemoteTarget", events: Iterable[Event], options: MonitorOptions = MonitorOptions(), *,
                  profile: TargetProfile | None = None, recorder: Recorder | MemoryRecorder | None = None,
-                 control: Any = None, guard: GuardSettings = GuardSettings(), target_label: str = "board",
+                 control: "ControlSource | None" = None, guard: GuardSettings = GuardSettings(), target_label: str = "board",
                  observer: Callable[[dict[str, float]], None] | None = None) -> None:
         self.target = target
         self.options = options
