@@ -368,7 +368,7 @@ class MonitorSession:
                 self._ramp = None
                 self.set_reference(event.ref_rpm)
                 self.segment("ref", t_s, event.ref_rpm)
-            elif event.press is not None:
+            elif event.press == "s2":
                 self.press(event.press, t_s)
                 self.segment("press", t_s)
             elif event.params:
