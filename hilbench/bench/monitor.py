@@ -445,8 +445,8 @@ class MonitorSession:
 def monitor_options(period_us: int, watchdog_ms: int, duration_s: float | None, timeout_s: float) -> MonitorOptions:
     """The options from the config's values (a watchdog of 0 is refused: a real motor must stop when the host goes)."""
     if period_us < MIN_PERIOD_US:
-        raise ConfigError(f"monitor: link.period_us={period_us} is shorter than one Drive on the wire (22 bytes for "
-                          f"AN1017: 0.9 ms at 250 kbaud); the stream's period must be >= {MIN_PERIOD_US} us, e.g. 5000")
+        raise ConfigError(f"monitor: link.period_us={period_us} is shorter than one Drive on the wire (a Drive with "
+                          f"three telemetry values is 22 bytes: 0.9 ms at 250 kbaud); the stream's period must be >= {MIN_PERIOD_US} us, e.g. 5000")
     if watchdog_ms <= 0:
         raise ConfigError("monitor: link.watchdog_ms must be > 0 (the board stops its motor when the host goes silent)")
     return MonitorOptions(period_us=period_us, watchdog_ms=watchdog_ms, duration_s=duration_s,

@@ -1,7 +1,7 @@
 """The bench's plant for a pin-level harness: a simulated chip's pins against the config's motor.
 
-A harness that runs a firmware free on a simulated MCU (firmware/an1017/ports/avr/run_motor.c:
-simavr, the real-motor build) embeds Python and calls `PinPlant.period` once per PWM period at the
+A harness that runs a firmware free on a simulated MCU (a port's run_motor.c: simavr, a
+real-motor build) embeds Python and calls `PinPlant.period` once per PWM period at the
 period boundary with the compare registers as fractions of the PWM's top and the bridge enable;
 the plant (the same `Plant` and C core a HIL session integrates, built from the same config)
 advances one PWM period with those duties held, and the harness puts every hall edge of it on the
