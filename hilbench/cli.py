@@ -318,7 +318,7 @@ def run(config: str | None, target_spec: str | None, mode: str | None, duration_
                          scenario=scenario_file)
     cfg = load_run_config(request)  # (run_bench checks what the host and link allow, and warns)
     if cfg.run.mode == "monitor":
-        _run_monitor(cfg, record, no_control, as_json)
+        _run_monitor(cfg, record, no_control, plain=no_ui or as_json, as_json=as_json)
         return
     control = None
     if not no_control:
@@ -377,13 +377,17 @@ def run(config: str | None, target_spec: str | None, mode: str | None, duration_
     raise_if_failed(summary.checks)  # exit code 9: the run completed, a [[check]] did not hold
 
 
-def _run_monitor(cfg: Any, record: str | None, no_control: bool, as_json: bool) -> None:
-    """`run --mode monitor`: the board's stream recorded, `ctl` on the control socket, a plain summary."""
+def _run_monitor(cfg: Any, record: str | None, no_control: bool, plain: bool, as_json: bool = False) -> None:
+    """`run --mode monitor`: the board's stream recorded, `ctl` on the control socket, the live
+    dashboard on a terminal (the measured speed; no plant currents), a summary."""
+    import contextlib
     import json as json_module
+
+    from rich.console import Console
 
     from hilbench.bench.checks import checks_text, raise_if_failed
     from hilbench.bench.monitorrun import run_monitor
-    from hilbench.ui.dashboard import summary_text
+    from hilbench.ui.dashboard import Dashboard, summary_text
 
     control = None
     if not no_control:
@@ -395,8 +399,24 @@ def _run_monitor(cfg: Any, record: str | None, no_control: bool, as_json: bool) 
         if control is not None:
             click.echo(f"hilbench: control socket {control.path} (hilbench ctl --socket {control.path} ...)", err=True)
 
+    console = Console()
     try:
-        summary = run_monitor(cfg, record=record, control=control, on_ready=announce)
+        if plain or not console.is_terminal:
+            summary = run_monitor(cfg, record=record, control=control, on_ready=announce)
+        else:
+            dashboard = Dashboard(cfg.link.target, cfg.run.duration_s, console=console)
+            keys: Any = contextlib.nullcontext()
+            if control is not None:
+                from hilbench.ui.keys import CommandLine
+
+                keys = dashboard.command_line = CommandLine(control.path, dashboard.replies.append)
+
+            def ready(session: Any) -> None:
+                dashboard.params = session.param_values()
+                session.on_params = dashboard.params.update
+
+            with keys, dashboard:
+                summary = run_monitor(cfg, record=record, control=control, on_ready=ready, observer=dashboard)
     finally:
         if control is not None:
             control.close()

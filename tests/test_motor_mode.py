@@ -235,3 +235,32 @@ def test_ctl_tunes_the_real_motor_live(motor_build: Path, tmp_path: Path) -> Non
         reap(harness)
     events = read_recording(tmp_path / "motor.csv").events
     assert any("kp=0.12" in text for text in events), events
+
+
+def test_dashboard_shows_the_real_motor_live(motor_build: Path, tmp_path: Path) -> None:
+    """`hilbench run --mode monitor` on a terminal (tmux, 100x40): the live dashboard follows the
+    board's stream (the firmware's speed near its reference, state RUNNING), then the summary."""
+    from test_dashboard_tmux import Tmux
+
+    tmux = require_tool("tmux", "the dashboard's test in a real terminal")
+    harness, pty = _start_harness(motor_build)
+    runtime = tmp_path / "xdg"
+    runtime.mkdir(mode=0o700)
+    env = {**os.environ, "XDG_RUNTIME_DIR": str(runtime), "TERM": "xterm-256color"}
+    done = tmp_path / "done"
+    command = (f"cd {REPO} && {sys.executable} -m hilbench run --target {pty} --mode monitor "
+               f"--set link.period_us={PERIOD_MONITOR_US} --set link.watchdog_ms=500 --set run.duration_s=2.0; "
+               f"echo $? > {done}; sleep 600")
+    pane = Tmux(tmux, f"hbm-{os.getpid()}", 100, 40, command, env)
+    try:
+        screen = pane.wait_for(lambda s: "RUNNING" in s and "speed (firmware)" in s, "the running motor", 300.0)
+        assert "hilbench run" in screen and "ref_override" in screen, screen
+        deadline = time.monotonic() + 600.0
+        while not done.exists() or not done.read_text().strip():  # the run's exit status, written at its end
+            assert time.monotonic() < deadline, pane.screen()
+            time.sleep(0.2)  # polling the file the pane's shell writes: the condition the test waits on
+        assert done.read_text().strip() == "0", pane.screen()
+        assert "check speed_error: PASS" in pane.screen(), pane.screen()
+    finally:
+        pane.close()
+        reap(harness)

@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import math
 import time
+from collections import deque
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any, Callable, Iterable
 
@@ -27,7 +28,7 @@ from hilbench.bench.control import COMMANDS, ControlRequest
 from hilbench.bench.livetuning import GuardSettings, LiveTuning
 from hilbench.bench.recorder import MARKER_EVENT, MARKER_FAULT, MARKER_PARAM, MemoryRecorder, Recorder, fields_struct
 from hilbench.bench.scenario import Event
-from hilbench.bench.summary import Summary
+from hilbench.bench.summary import Snapshot, Summary
 from hilbench.errors import ConfigError, HilbenchError, LinkError, TargetError
 from hilbench.protocol import Drive, Mode, OutputMode, ParamSetResult, State, Status, StatusRequest, TargetHello
 from hilbench.targets.profile import ParamReference, TargetProfile
@@ -47,6 +48,9 @@ STOP_SEEN_DRIVES = 10
 STOP_ATTEMPTS = 5
 #: a Start not seen in the stream this long after (the board's clock) is sent again
 START_SEEN_S = 0.05
+#: a live view's sample every this many rows, and the samples it keeps (as a HIL session's)
+OBSERVE_EVERY_ROWS = 10
+HISTORY_SAMPLES = 8192
 #: the stream's shortest period (a Drive's wire time at 250 kbaud is ~0.9 ms)
 MIN_PERIOD_US = 1000
 #: a reference ramp is written as steps this far apart on the board's clock (each a checked write)
@@ -83,7 +87,7 @@ class MonitorSession:
     def __init__(self, target: "RemoteTarget", events: Iterable[Event], options: MonitorOptions = MonitorOptions(), *,
                  profile: TargetProfile | None = None, recorder: Recorder | MemoryRecorder | None = None,
                  control: "ControlSource | None" = None, guard: GuardSettings = GuardSettings(), target_label: str = "board",
-                 observer: Callable[[dict[str, float]], None] | None = None) -> None:
+                 observer: Callable[[Snapshot], None] | None = None) -> None:
         self.target = target
         self.options = options
         self.events = sorted(events, key=lambda e: e.at_s)
@@ -110,6 +114,7 @@ class MonitorSession:
         self._speed_scale = 0.0
         self._end_reason: str | None = None
         self._next_event = 0
+        self._duration_s = 0.0
         self._inbox: list[Drive] = []
         self._sent_board_s = 0.0  # the board's time at the last frame sent to it (any feeds its watchdog)
         self._start_sent_s: float | None = None  # a Start (no reply) waiting to be seen in the stream
@@ -118,6 +123,10 @@ class MonitorSession:
         #: the held references and how the motor followed them, on the firmware's measured speed (the
         #: only speed there is: it stands for the plant's in the segments and the [[check]] verdicts)
         self.segmenter = segmentation.Segmenter()
+        #: (t_s, ref_rpm, speed_rpm, measured_rpm) for a live view: the measured speed in both (no plant)
+        self.history: deque[tuple[float, float, float, float]] = deque(maxlen=HISTORY_SAMPLES)
+        self.on_params: Callable[[dict[str, float]], None] | None = None  # a live view follows the writes
+        self._observed_at = (time.perf_counter(), 0)
 
     # ------------------------------------------------------------------ handshake
     def handshake(self) -> TargetHello:
@@ -234,6 +243,8 @@ class MonitorSession:
                           "record the run and open it with `hilbench report --open`")
 
     def _on_param_change(self, t_s: float, text: str, values: dict[str, float]) -> None:
+        if self.on_params is not None:
+            self.on_params(values)
         self.messages.append(f"{t_s:.3f} s: {text}")
         if self.recorder is not None:
             self.recorder.event(f"t={t_s:.6f} {text}", MARKER_PARAM)
@@ -269,6 +280,7 @@ class MonitorSession:
         if duration is None:
             ends = [e.at_s for e in self.events if e.end]
             duration = min(ends) if ends else 5.0
+        self._duration_s = duration
         summary = Summary(self.target_label, "monitor", options.period_us, firmware=self.hello.firmware_name)
         self.summary = summary
         link = self.target.link
@@ -347,12 +359,32 @@ class MonitorSession:
         speed = tele[self._speed_index] * self._speed_scale if 0 <= self._speed_index < len(tele) else math.nan
         if math.isfinite(speed):
             self.segmenter.sample(self.t_s, speed, speed)
-        if self.observer is not None:
-            self.observer({"t_s": self.t_s, "ref_rpm": self.ref_rpm, "measured_rpm": speed, "state": float(drive.state)})
+        if k % OBSERVE_EVERY_ROWS == 0:
+            self.history.append((self.t_s, self.ref_rpm, speed, speed))
+            if self.observer is not None:
+                self.observer(self._snapshot(k, drive, speed))
         if self.t_s < self.tuning.watching and math.isfinite(speed):
             note = self.tuning.guard_check(self.t_s, self.ref_rpm, speed, 0.0, drive.state, drive.fault, False)
             if note is not None:
                 self.note(self.t_s, note)
+
+    def _snapshot(self, k: int, drive: Drive, speed: float) -> Snapshot:
+        """What a live view shows (the dashboard's Snapshot): the motor's speed is the measured one,
+        the plant's currents are not known (NaN)."""
+        now = time.perf_counter()
+        last_wall, last_k = self._observed_at
+        self._observed_at = (now, k)
+        telemetry = {self.profile.telemetry_column(tid).column: value * self.profile.telemetry_column(tid).scale
+                     for tid, value in zip(self.hello.telemetry_ids if self.hello else (), drive.telemetry)}
+        nan = math.nan
+        return Snapshot(
+            t_s=self.t_s, duration_s=self._duration_s, period=k, ref_rpm=self.ref_rpm, speed_rpm=speed,
+            measured_rpm=speed, state=drive.state, sector=drive.sector, direction_ccw=bool(drive.direction_ccw),
+            output_mode=drive.output_mode, duties=(drive.duty_a, drive.duty_b, drive.duty_c), i_abc=(nan, nan, nan),
+            i_bus=nan, telemetry=telemetry, periods_per_s=(k - last_k) / max(now - last_wall, 1e-9),
+            rtt_p50_us=nan, rtt_p99_us=nan,
+            link={"rows": self.stats.rows, "missing_periods": self.stats.missing_periods}, overruns=0,
+            messages=self.messages[-4:], history=list(self.history), fault=drive.fault)
 
     def _fire_events(self, t_s: float) -> None:
         while self._next_event < len(self.events) and self.events[self._next_event].at_s <= t_s + 1e-12:

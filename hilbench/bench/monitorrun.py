@@ -22,7 +22,7 @@ from hilbench.bench.metrics import step_metrics
 from hilbench.bench.monitor import MonitorOptions, MonitorSession, monitor_options
 from hilbench.bench.recorder import MemoryRecorder, Recorder, read_recording
 from hilbench.bench.scenario import Event
-from hilbench.bench.summary import Summary
+from hilbench.bench.summary import Snapshot, Summary
 from hilbench.config import BenchConfig
 from hilbench.errors import ConfigError
 from hilbench.plant.period import Period
@@ -63,6 +63,7 @@ def run_monitor_session(
     control: Any = None,
     gains: dict[str, float] | None = None,
     on_ready: Callable[[MonitorSession], None] | None = None,
+    observer: Callable[[Snapshot], None] | None = None,
 ) -> tuple[Summary, Signals | None]:
     """One monitor session on the configured board: handshake, ``gains`` written, the events played
     at the board's time; the summary and (recorded or kept) the signals."""
@@ -81,7 +82,8 @@ def run_monitor_session(
         guard = GuardSettings(tuning.guard, tuning.guard_window_s, tuning.guard_oscillation_rpm, tuning.guard_swings,
                               tuning.guard_current_a)
         session = MonitorSession(target, events, _options(cfg, duration_s), profile=configured_profile(cfg),
-                                 control=control, guard=guard, target_label=cfg.link.target)  # type: ignore[arg-type]
+                                 control=control, guard=guard, target_label=cfg.link.target,  # type: ignore[arg-type]
+                                 observer=observer)
         if on_ready is not None:
             on_ready(session)
 
@@ -105,11 +107,12 @@ def run_monitor_session(
 
 
 def run_monitor(cfg: BenchConfig, *, record: str | Path | None = None, control: Any = None,
-                on_ready: Callable[[MonitorSession], None] | None = None) -> Summary:
+                on_ready: Callable[[MonitorSession], None] | None = None,
+                observer: Callable[[Snapshot], None] | None = None) -> Summary:
     """`hilbench run --mode monitor`: the config's scenario on the board; its [[check]] tables judged."""
     summary, signals = run_monitor_session(cfg, settings.scenario_events(cfg), record=record,
                                            keep_rows=bool(cfg.check), duration_s=cfg.run.duration_s,
-                                           control=control, on_ready=on_ready)
+                                           control=control, on_ready=on_ready, observer=observer)
     if cfg.check:
         from hilbench.bench.checks import run_checks
 
