@@ -318,7 +318,8 @@ def run(config: str | None, target_spec: str | None, mode: str | None, duration_
                          scenario=scenario_file)
     cfg = load_run_config(request)  # (run_bench checks what the host and link allow, and warns)
     if cfg.run.mode == "monitor":
-        _run_monitor(cfg, record, no_control, plain=no_ui or as_json, as_json=as_json)
+        _run_monitor(cfg, record, no_control, plain=no_ui or as_json, as_json=as_json, scope=scope,
+                     open_browser=open_browser)
         return
     control = None
     if not no_control:
@@ -377,7 +378,8 @@ def run(config: str | None, target_spec: str | None, mode: str | None, duration_
     raise_if_failed(summary.checks)  # exit code 9: the run completed, a [[check]] did not hold
 
 
-def _run_monitor(cfg: Any, record: str | None, no_control: bool, plain: bool, as_json: bool = False) -> None:
+def _run_monitor(cfg: Any, record: str | None, no_control: bool, plain: bool, as_json: bool = False,
+                 scope: bool = False, open_browser: bool = False) -> None:
     """`run --mode monitor`: the board's stream recorded, `ctl` on the control socket, the live
     dashboard on a terminal (the measured speed; no plant currents), a summary."""
     import contextlib
@@ -399,6 +401,14 @@ def _run_monitor(cfg: Any, record: str | None, no_control: bool, plain: bool, as
         if control is not None:
             click.echo(f"hilbench: control socket {control.path} (hilbench ctl --socket {control.path} ...)", err=True)
 
+    scope_server: Any = None
+    if scope:  # the live scope on the run's control socket, as in a HIL run
+        from hilbench.errors import ConfigError
+        from hilbench.scope.launch import ScopeProcess
+
+        if control is None:
+            raise ConfigError("run --scope needs the control socket (drop --no-control)")
+        scope_server = ScopeProcess(control.path, open_browser=open_browser)
     console = Console()
     try:
         if plain or not console.is_terminal:
@@ -420,6 +430,8 @@ def _run_monitor(cfg: Any, record: str | None, no_control: bool, plain: bool, as
     finally:
         if control is not None:
             control.close()
+        if scope_server is not None:
+            scope_server.close(grace_s=SCOPE_GRACE_S)
     if as_json:
         click.echo(json_module.dumps(summary.as_dict(), indent=2, default=str))
     else:

@@ -224,6 +224,13 @@ def test_ctl_tunes_the_real_motor_live(motor_build: Path, tmp_path: Path) -> Non
         assert done.returncode == 0, done.stdout + done.stderr
         refused = _hilbench("ctl", "set", "kp=0.9", "ki=0.2", timeout_s=120)
         assert refused.returncode != 0 and "Kp + Ki + Kd" in refused.stdout + refused.stderr, refused
+        from hilbench.bench.control import ControlClient
+
+        stream = ControlClient().request({"cmd": "stream", "since": -1, "columns": ["measured_speed_rpm", "duty_a"]},
+                                         timeout_s=120)  # what the scope asks for, every 100-200 ms
+        assert stream["ok"], stream
+        meta = stream["data"]["meta"]
+        assert meta["mode"] == "monitor" and ["measured_speed_rpm", "rpm"] in meta["columns"], meta
         got = _hilbench("ctl", "get", timeout_s=120)  # piped: the JSON
         assert got.returncode == 0, got.stderr
         params = json.loads(got.stdout)["params"]

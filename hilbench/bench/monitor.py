@@ -25,16 +25,18 @@ from typing import TYPE_CHECKING, Any, Callable, Iterable
 from hilbench.bench import segments as segmentation
 from hilbench.bench.columns import session_row
 from hilbench.bench.control import COMMANDS, ControlRequest
-from hilbench.bench.livetuning import GuardSettings, LiveTuning
+from hilbench.bench.livetuning import GuardSettings, LiveTuning, raw_per_unit
 from hilbench.bench.recorder import MARKER_EVENT, MARKER_FAULT, MARKER_PARAM, MemoryRecorder, Recorder, fields_struct
 from hilbench.bench.scenario import Event
 from hilbench.bench.summary import Snapshot, Summary
 from hilbench.errors import ConfigError, HilbenchError, LinkError, TargetError
+from hilbench.plant.period import Period
 from hilbench.protocol import Drive, Mode, OutputMode, ParamSetResult, State, Status, StatusRequest, TargetHello
 from hilbench.targets.profile import ParamReference, TargetProfile
 from hilbench.targets.registry import profile_for_firmware
 
 if TYPE_CHECKING:
+    from hilbench.bench.display import DisplayStream
     from hilbench.bench.session import ControlSource
     from hilbench.targets.remote import RemoteTarget
 
@@ -66,6 +68,7 @@ class MonitorOptions:
     duration_s: float | None = None  # the board's seconds; None: the scenario's end
     timeout_s: float = 2.0  # no Drive for this long (wall): the link is lost
     poll_control_s: float = 0.05
+    mode: str = "monitor"  # (what the scope's page shows as the run's mode)
 
 
 @dataclass
@@ -127,6 +130,10 @@ class MonitorSession:
         self.history: deque[tuple[float, float, float, float]] = deque(maxlen=HISTORY_SAMPLES)
         self.on_params: Callable[[dict[str, float]], None] | None = None  # a live view follows the writes
         self._observed_at = (time.perf_counter(), 0)
+        self.period = Period(options.period_us)  # the stream's period (the scope's time base)
+        self.display: "DisplayStream | None" = None  # the scope's stream, made when a scope asks
+        self.lockstep_rtts: list[float] = []  # (a HIL session's figure: none here)
+        self._values: dict[str, float] | None = None  # the parameters now (param_values)
 
     # ------------------------------------------------------------------ handshake
     def handshake(self) -> TargetHello:
@@ -158,7 +165,11 @@ class MonitorSession:
 
     # ------------------------------------------------------------------ what a control command uses
     def param_values(self) -> dict[str, float]:
-        return self.tuning.values()
+        """The parameters as read once after the handshake and written since (every write is this
+        session's, checked and answered): no round trips on a link the stream already fills."""
+        if self._values is None:
+            self._values = self.tuning.values() if self.hello is not None else {}
+        return dict(self._values)
 
     def set_params(self, values: dict[str, float], t_s: float | None = None, *, guard: bool = True) -> None:
         self._sent_board_s = self.t_s
@@ -238,11 +249,39 @@ class MonitorSession:
         if self.recorder is not None:
             self.recorder.event(f"t={t_s:.6f} {text}", MARKER_EVENT)
 
-    def display_stream(self) -> Any:
-        raise ConfigError("monitor: the scope's stream is not served in monitor mode yet; "
-                          "record the run and open it with `hilbench report --open`")
+    # ------------------------------------------------------------------ the scope's display stream
+    def display_stream(self) -> "DisplayStream":
+        """The scope's display stream (hilbench.bench.display), made on the first request: it reads
+        the rows as they are recorded, as in a HIL run."""
+        if self.display is None:
+            from hilbench.bench.display import DisplayStream
+
+            self.display = DisplayStream(self)  # type: ignore[arg-type]
+        return self.display
+
+    def watch_rows(self, on: bool) -> None:
+        """Rows for the scope in a run that records none: a bounded window while a scope watches."""
+        from hilbench.bench.recorder import WindowRecorder
+
+        if on and self.recorder is None and self.hello is not None:
+            window = WindowRecorder(max(1, round(self.period.per_s)))
+            window.start(self._row.layout)
+            self.recorder = window  # type: ignore[assignment]
+        elif not on and isinstance(self.recorder, WindowRecorder):
+            self.recorder = None
+
+    def link_stats(self) -> dict[str, int]:
+        stats = self.stats
+        return {"rows": stats.rows, "missing_periods": stats.missing_periods, "status_replies": stats.statuses}
+
+    @property
+    def ended(self) -> bool:
+        return self._end_reason is not None
 
     def _on_param_change(self, t_s: float, text: str, values: dict[str, float]) -> None:
+        if self._values is not None:  # as the board holds them (its fixed-point value of each)
+            self._values.update({name: self.tuning.encode(name, value)[1] / raw_per_unit(self.tuning.info[name].ptype)
+                                 for name, value in values.items()})
         if self.on_params is not None:
             self.on_params(values)
         self.messages.append(f"{t_s:.3f} s: {text}")
@@ -355,6 +394,9 @@ class MonitorSession:
             n = len(self._row.telemetry_fields)
             values = tuple(tele[:n]) + (0,) * (n - len(tele))
             self.recorder.rows.extend(self._pack(*own) + self._tele_pack(*values))
+        if self.display is not None and (k % OBSERVE_EVERY_ROWS == 0 or self._flush_coming()):
+            self.display.due(k, drive, None)  # the scope takes its rows before a flush empties the buffer
+        if self.recorder is not None:
             self.recorder.maybe_flush()
         speed = tele[self._speed_index] * self._speed_scale if 0 <= self._speed_index < len(tele) else math.nan
         if math.isfinite(speed):
@@ -386,6 +428,10 @@ class MonitorSession:
             link={"rows": self.stats.rows, "missing_periods": self.stats.missing_periods}, overruns=0,
             messages=self.messages[-4:], history=list(self.history), fault=drive.fault)
 
+    def _flush_coming(self) -> bool:
+        recorder = self.recorder
+        return recorder is not None and len(recorder.rows) >= getattr(recorder, "flush_rows", math.inf)
+
     def _fire_events(self, t_s: float) -> None:
         while self._next_event < len(self.events) and self.events[self._next_event].at_s <= t_s + 1e-12:
             event = self.events[self._next_event]
@@ -415,7 +461,7 @@ class MonitorSession:
     def _handle_control(self, request: ControlRequest) -> None:
         command = COMMANDS.get(request.cmd)
         try:
-            if command is None or request.cmd in ("step", "load", "stream"):
+            if command is None or request.cmd in ("step", "load"):
                 request.reply(False, f"command {request.cmd!r} is not available in monitor mode"
                               + ("; run `hilbench step --mode monitor`" if request.cmd == "step" else ""))
             else:
