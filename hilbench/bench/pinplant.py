@@ -17,6 +17,7 @@ from typing import Sequence
 from hilbench.bench.assembly import build_plant
 from hilbench.bench.settings import configured_target_profile, load_config
 from hilbench.protocol import OutputMode
+from hilbench.targets.profile import PotReference
 
 OUTPUT_OFF = int(OutputMode.OFF)
 OUTPUT_PWM = int(OutputMode.PWM)
@@ -28,7 +29,10 @@ class PinPlant:
     def __init__(self, config_path: str | None, overrides: Sequence[str] = (), pwm_period_us: int = 50,
                  pot_full_scale_mv: float = 5000.0) -> None:
         cfg = load_config(config_path or None, tuple(overrides))
-        self.plant = build_plant(cfg, configured_target_profile(cfg))
+        profile = configured_target_profile(cfg)
+        self.plant = build_plant(cfg, profile)
+        if isinstance(profile.reference, PotReference):  # the board's pot where it asks for no speed
+            self.plant.pot_fraction = profile.reference.pot_fraction(0.0)
         self.plant.set_period(int(pwm_period_us), 0, 1.0)
         self.pot_full_scale_mv = float(pot_full_scale_mv)
         self.periods = 0

@@ -185,12 +185,14 @@ def _standard_figures(plt, c, units, events):  # type: ignore[no-untyped-def]
     currents = [(name, label, "A", {"lw": 0.6, "color": f"C{k}"})
                 for k, (name, label) in enumerate((("ia_a", "i_a"), ("ib_a", "i_b"), ("ic_a", "i_c")))]
     currents.append(("ibus_a", "i_bus", "A", {"lw": 0.8, "color": "k"}))
-    yield _lanes_figure(plt, t, c, currents, "phase and bus currents", events), "currents"
+    if any(name in c for name, *_ in currents):  # (a monitor-mode recording has no plant currents)
+        yield _lanes_figure(plt, t, c, currents, "phase and bus currents", events), "currents"
     duties = [(name, name, "counts", {"lw": 0.6, "color": f"C{k}"}) for k, name in enumerate(("duty_a", "duty_b", "duty_c"))]
     yield _lanes_figure(plt, t, c, duties, "PWM duties from the target", events), "duties"
     if "hall" in c and "sector" in c:
         yield _hall_figure(plt, t, c, events), "hall"
-    if "rtt_us" in c and "lateness_us" in c and (np.any(c["rtt_us"] != 0) or np.any(c["lateness_us"] != 0)):
+    if "rtt_us" in c and "lateness_us" in c and (np.any(np.nan_to_num(c["rtt_us"]) != 0)
+                                                 or np.any(np.nan_to_num(c["lateness_us"]) != 0)):
         # a log axis of what is positive: a period answered early (lateness < 0) is on time, drawn at the floor
         floor = LINK_FLOOR_US
         timing_c = {"rtt_us": np.maximum(c["rtt_us"], floor), "lateness_us": np.maximum(c["lateness_us"], floor)}
