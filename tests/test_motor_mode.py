@@ -134,6 +134,9 @@ def test_monitor_mode_live_gain_and_step_agree_with_lockstep(motor_build: Path, 
                          "--set", "link.period_us=50", "--record", str(tmp_path / "hil.csv"), "--no-ui", "--no-control")
     assert lockstep.returncode == 0, lockstep.stdout + lockstep.stderr
 
+    for name in ("motor", "hil"):  # `report` reads both alike, plots included
+        shown = _hilbench("report", str(tmp_path / f"{name}.csv"), "--plot", str(tmp_path / f"{name}-plots"))
+        assert shown.returncode == 0 and (tmp_path / f"{name}-plots" / f"{name}_speed.png").exists(), shown.stderr
     real = read_recording(tmp_path / "motor.csv")
     hil = read_recording(tmp_path / "hil.csv")
     assert real.metadata["mode"] == "monitor"
