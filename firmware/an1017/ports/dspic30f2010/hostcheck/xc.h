@@ -96,7 +96,11 @@ HOSTCHECK_SFR(ADCHS);
 HOSTCHECK_SFR(ADPCFG);
 HOSTCHECK_SFR(ADCBUF0);
 
-/* ---- input capture and change notification (the real-motor build's halls) ---- */
+/* ---- input capture and change notification (the real-motor build's halls) ----
+ * ICxCON: ICM 2:0 (001 = every edge), ICBNE 3, ICOV 4, ICI 6:5, ICTMR 7 (1 = TMR2, 0 = TMR3), ICSIDL 13
+ * (Family Reference Manual DS70062, Input Capture). IFS1/IEC1's INT1, IC7, IC8 bit positions are as
+ * recalled from the data sheet's interrupt table and not checked against p30F2010.h here: this
+ * compile check needs only the names, which XC16's header defines. */
 HOSTCHECK_SFR(IC7CON);
 HOSTCHECK_SFR(IC8CON);
 HOSTCHECK_SFR(IC7BUF);
