@@ -52,12 +52,13 @@ def _host(port: str, period_us: int, watchdog_ms: int) -> subprocess.Popen[bytes
 
 
 def _listen(port: str) -> Link:
-    """A second, non-exclusive reader of the stand-in's pty (the host holds its exclusive lock)."""
-    import serial  # pyserial
-
+    """A second reader of the stand-in's pty (the host holds its exclusive lock), opened with a plain
+    open(): pyserial's open flushes the input, and a trip's Drive queued between the kill and this
+    open was thrown away with it (no Drive in 10 s, once in a loaded full suite). The stand-in made
+    its pty raw."""
     device = port.split(":", 1)[1].split("?")[0]
-    handle = serial.Serial(device, timeout=0, exclusive=False)
-    return Link(FdTransport(handle.fd, device, owns_fd=False, on_close=handle.close), device)
+    fd = os.open(device, os.O_RDWR | os.O_NOCTTY | os.O_NONBLOCK)
+    return Link(FdTransport(fd, device, owns_fd=True), device)
 
 
 def _recv_beside(link: Link, host: subprocess.Popen[bytes], timeout_s: float) -> object:
