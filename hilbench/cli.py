@@ -450,9 +450,12 @@ def _run_monitor(cfg: Any, record: str | None, no_control: bool, plain: bool, as
 @click.option("--json", "as_json", is_flag=True, help="Print the summary as JSON.")
 @click.option("--window", "window", default=None, metavar="T0:T1", help="Plot only simulated seconds T0..T1 (e.g. 1.0:1.05).")
 @click.option("--open", "open_viewer", is_flag=True, help="Show the recording in the scope's viewer (served on 127.0.0.1 until Ctrl-C).")
+@click.option("--overlay", "overlay", multiple=True, type=click.Path(dir_okay=False), metavar="OTHER",
+              help="With --plot: one more figure with the speed of this recording and of OTHER on one time axis "
+                   "(a HIL run and a real-motor run of the same scenario; repeat for more).")
 @_friendly
 def report(recording: str, plot_dir: str | None, csv_file: str | None, as_json: bool, window: str | None = None,
-           open_viewer: bool = False) -> None:
+           open_viewer: bool = False, overlay: tuple[str, ...] = ()) -> None:
     """Summarise a recording (CSV, NPZ, or the journal of a run that was killed).
 
     \b
@@ -460,6 +463,7 @@ def report(recording: str, plot_dir: str | None, csv_file: str | None, as_json: 
       hilbench report run.npz --plot plots/
       hilbench report run.npz --csv run.csv
       hilbench report run.npz --open
+      hilbench report motor.csv --plot plots/ --overlay hil.csv
     """
     import json as json_module
     from pathlib import Path
@@ -482,6 +486,15 @@ def report(recording: str, plot_dir: str | None, csv_file: str | None, as_json: 
         from hilbench.ui.plots import parse_window
 
         info["plots"] = [str(p) for p in plot_recording(data, Path(plot_dir), window=parse_window(window))]
+        if overlay:
+            from hilbench.ui.plots import plot_speed_overlay
+
+            others = [read_recording(other) for other in overlay]
+            info["plots"].append(str(plot_speed_overlay([data, *others], Path(plot_dir), window=parse_window(window))))
+    elif overlay:
+        from hilbench.errors import ConfigError
+
+        raise ConfigError("report --overlay draws into the --plot folder: give --plot DIR")
     if as_json:
         click.echo(json_module.dumps(info, indent=2, default=str))
         return

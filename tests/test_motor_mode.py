@@ -137,6 +137,9 @@ def test_monitor_mode_live_gain_and_step_agree_with_lockstep(motor_build: Path, 
     for name in ("motor", "hil"):  # `report` reads both alike, plots included
         shown = _hilbench("report", str(tmp_path / f"{name}.csv"), "--plot", str(tmp_path / f"{name}-plots"))
         assert shown.returncode == 0 and (tmp_path / f"{name}-plots" / f"{name}_speed.png").exists(), shown.stderr
+    shown = _hilbench("report", str(tmp_path / "motor.csv"), "--plot", str(tmp_path / "both"),
+                      "--overlay", str(tmp_path / "hil.csv"))  # the two runs on one time axis
+    assert shown.returncode == 0 and (tmp_path / "both" / "motor_overlay_speed.png").exists(), shown.stderr
     real = read_recording(tmp_path / "motor.csv")
     hil = read_recording(tmp_path / "hil.csv")
     assert real.metadata["mode"] == "monitor"

@@ -310,7 +310,8 @@ class MonitorSession:
             self.recorder = make_recorder(self)
             if self.recorder is not None:
                 self.recorder.start(self._row.layout)
-        self.target.link.send(StatusRequest(0))  # the watchdog counts from the handshake: fed now
+        self._stray(self.target.status())  # the watchdog counts from the handshake: fed now, and
+        # answered before anything else goes out (a second frame while the board sends is lost)
         self._sent_board_s = 0.0
         if gains:
             self.set_params(gains, 0.0, guard=False)
