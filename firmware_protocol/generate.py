@@ -618,6 +618,7 @@ def gen_python(data: dict, enums: list, msgs: list[Message]) -> str:
     w(f"MAX_ADC = {data['max_adc']}")
     w(f"MAX_TELEMETRY = {data['max_telemetry']}")
     w(f"MAX_PARAM_PAIRS = {data['max_param_pairs']}")
+    w(f"MAX_BATCH_BYTES = {data['max_batch_bytes']}")
     w("")
     w("_tnew = tuple.__new__")
     w("")
@@ -849,7 +850,7 @@ def gen_python(data: dict, enums: list, msgs: list[Message]) -> str:
 def c_max(data: dict, key: str) -> str:
     return {"max_adc": "HBP_MAX_ADC", "max_telemetry": "HBP_MAX_TELEMETRY", "max_name_chars": "HBP_MAX_NAME",
             "max_unit_chars": "HBP_MAX_UNIT", "max_param_pairs": "HBP_MAX_PARAM_PAIRS",
-            "max_edges": "HBP_MAX_EDGES"}[key]
+            "max_edges": "HBP_MAX_EDGES", "max_batch_bytes": "HBP_MAX_BATCH"}[key]
 
 
 # The C codec is table-driven: each message is a const layout (hbp_messages.c) that the one packer
@@ -888,7 +889,7 @@ def gen_header(data: dict, enums: list, msgs: list[Message]) -> str:
     w(f"#define HBP_MAX_PARAM_PAIRS {data['max_param_pairs']}u")
     w("/* Array capacities of the structs below; a firmware may lower them to its profile (-D...). */")
     for key, macro in (("max_adc", "HBP_MAX_ADC"), ("max_telemetry", "HBP_MAX_TELEMETRY"),
-                       ("max_edges", "HBP_MAX_EDGES")):
+                       ("max_edges", "HBP_MAX_EDGES"), ("max_batch_bytes", "HBP_MAX_BATCH")):
         w(f"#ifndef {macro}")
         w(f"#define {macro} {data[key]}u")
         w("#endif")

@@ -15,7 +15,8 @@
  * between delimiters, T = the CRC-16/CCITT-FALSE of the COBS bytes, 7 bits per check byte with the
  * top bit set.
  *
- * Static RAM (AN1017 profile: -DHBP_MAX_ADC=3u -DHBP_MAX_TELEMETRY=3u -DHBP_MAX_EDGES=3u, so
+ * Static RAM (AN1017 profile, the dsPIC build: -DHBP_MAX_ADC=3u -DHBP_MAX_TELEMETRY=3u -DHBP_MAX_EDGES=3u
+ * -DHBP_MAX_BATCH=17u, so
  * HBP_RX_MAX = 23: the largest host -> target message, ParamSet with 4 (id, value) pairs, 22 bytes,
  * and its trailing length byte):
  *   hbp_rx_t   23 (buffer) + 4 (COBS state, lengths) + 3 (check-byte window) + 3 (flags, ready, frame
@@ -41,12 +42,17 @@
 /* Largest host -> target messages (type..payload) for the configured capacities. */
 #define HBP_SENSORS_MAX_LEN (HBP_SENSORS_FIXED_LEN + 1u + 2u * HBP_MAX_ADC + 3u * HBP_MAX_EDGES)
 #define HBP_PARAM_SET_MAX_LEN (HBP_PARAM_SET_FIXED_LEN + 5u * HBP_MAX_PARAM_PAIRS)
+/* A SensorsBatch with HBP_MAX_BATCH bytes of records (a build short of RAM lowers HBP_MAX_BATCH, down to
+ * 17: a ParamSet's size, which every host's first batch keeps to). */
+#define HBP_SENSORS_BATCH_MAX_LEN (HBP_SENSORS_BATCH_FIXED_LEN + HBP_MAX_BATCH)
 /* The receive buffer: the largest of them (no message exceeds HBP_MAX_FRAME) and its trailing length. */
 #ifndef HBP_RX_MAX
-#if HBP_SENSORS_MAX_LEN > HBP_MAX_FRAME
+#if HBP_SENSORS_MAX_LEN > HBP_MAX_FRAME || HBP_SENSORS_BATCH_MAX_LEN > HBP_MAX_FRAME
 #define HBP_RX_MAX (HBP_MAX_FRAME + 1u)
-#elif HBP_SENSORS_MAX_LEN > HBP_PARAM_SET_MAX_LEN
+#elif HBP_SENSORS_MAX_LEN > HBP_PARAM_SET_MAX_LEN && HBP_SENSORS_MAX_LEN >= HBP_SENSORS_BATCH_MAX_LEN
 #define HBP_RX_MAX (HBP_SENSORS_MAX_LEN + 1u)
+#elif HBP_SENSORS_BATCH_MAX_LEN > HBP_PARAM_SET_MAX_LEN
+#define HBP_RX_MAX (HBP_SENSORS_BATCH_MAX_LEN + 1u)
 #else
 #define HBP_RX_MAX (HBP_PARAM_SET_MAX_LEN + 1u)
 #endif

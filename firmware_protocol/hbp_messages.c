@@ -51,6 +51,33 @@ static const hbp_field_t fields_drive[11] = {
 };
 const hbp_layout_t hbp_layout_drive = {HBP_MSG_DRIVE, 11u, fields_drive};
 
+static const hbp_field_t fields_sensors_batch[3] = {
+    {HBP_F_U16, (hbp_u8)offsetof(hbp_sensors_batch_t, first_seq), 0u, 0u, 0u},
+    {HBP_F_U8, (hbp_u8)offsetof(hbp_sensors_batch_t, count), 0u, 0u, 0u},
+    {HBP_F_ARRAY | HBP_F_LAST, (hbp_u8)offsetof(hbp_sensors_batch_t, records), HBP_F_U8, HBP_MAX_BATCH, (hbp_u8)offsetof(hbp_sensors_batch_t, n_records)},
+};
+const hbp_layout_t hbp_layout_sensors_batch = {HBP_MSG_SENSORS_BATCH, 3u, fields_sensors_batch};
+
+static const hbp_field_t fields_batch_digest[16] = {
+    {HBP_F_U16, (hbp_u8)offsetof(hbp_batch_digest_t, first_seq), 0u, 0u, 0u},
+    {HBP_F_U8, (hbp_u8)offsetof(hbp_batch_digest_t, count), 0u, 0u, 0u},
+    {HBP_F_U16, (hbp_u8)offsetof(hbp_batch_digest_t, next_seq), 0u, 0u, 0u},
+    {HBP_F_U8, (hbp_u8)offsetof(hbp_batch_digest_t, room), 0u, 0u, 0u},
+    {HBP_F_U32, (hbp_u8)offsetof(hbp_batch_digest_t, digest), 0u, 0u, 0u},
+    {HBP_F_U16, (hbp_u8)offsetof(hbp_batch_digest_t, duty_a), 0u, 0u, 0u},
+    {HBP_F_U16, (hbp_u8)offsetof(hbp_batch_digest_t, duty_b), 0u, 0u, 0u},
+    {HBP_F_U16, (hbp_u8)offsetof(hbp_batch_digest_t, duty_c), 0u, 0u, 0u},
+    {HBP_F_BITS, 0u, 2u, 6u, 0u},
+    {HBP_F_BIT, (hbp_u8)offsetof(hbp_batch_digest_t, output_mode), 2u, 0u, 0u},
+    {HBP_F_BIT, (hbp_u8)offsetof(hbp_batch_digest_t, state), 3u, 0u, 0u},
+    {HBP_F_BIT, (hbp_u8)offsetof(hbp_batch_digest_t, sector), 3u, 0u, 0u},
+    {HBP_F_BIT, (hbp_u8)offsetof(hbp_batch_digest_t, direction_ccw), 1u, 0u, 0u},
+    {HBP_F_BIT, (hbp_u8)offsetof(hbp_batch_digest_t, required_ccw), 1u, 0u, 0u},
+    {HBP_F_BIT, (hbp_u8)offsetof(hbp_batch_digest_t, fault), 6u, 0u, 0u},
+    {HBP_F_ARRAY | HBP_F_LAST, (hbp_u8)offsetof(hbp_batch_digest_t, telemetry), HBP_F_I16, HBP_MAX_TELEMETRY, (hbp_u8)offsetof(hbp_batch_digest_t, n_telemetry)},
+};
+const hbp_layout_t hbp_layout_batch_digest = {HBP_MSG_BATCH_DIGEST, 16u, fields_batch_digest};
+
 static const hbp_field_t fields_param_describe[1] = {
     {HBP_F_U8, (hbp_u8)offsetof(hbp_param_describe_t, param_id), 0u, 0u, 0u},
 };

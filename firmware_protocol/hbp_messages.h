@@ -13,7 +13,7 @@ typedef uint_least8_t hbp_u8;
    exists only so that a test can build a deliberately mismatched target; never override it in a
    firmware. */
 #ifndef HBP_SCHEMA_FINGERPRINT
-#define HBP_SCHEMA_FINGERPRINT 0x4dc44845UL
+#define HBP_SCHEMA_FINGERPRINT 0x82ba34c0UL
 #endif
 #define HBP_MAX_FRAME 62u /* a message: type, seq, payload */
 #define HBP_MAX_NAME 16u
@@ -29,12 +29,17 @@ typedef uint_least8_t hbp_u8;
 #ifndef HBP_MAX_EDGES
 #define HBP_MAX_EDGES 16u
 #endif
+#ifndef HBP_MAX_BATCH
+#define HBP_MAX_BATCH 57u
+#endif
 
 /* Frame type byte */
 #define HBP_MSG_HOST_HELLO 0x01u
 #define HBP_MSG_TARGET_HELLO 0x02u
 #define HBP_MSG_SENSORS 0x10u
 #define HBP_MSG_DRIVE 0x11u
+#define HBP_MSG_SENSORS_BATCH 0x12u
+#define HBP_MSG_BATCH_DIGEST 0x13u
 #define HBP_MSG_PARAM_DESCRIBE 0x20u
 #define HBP_MSG_PARAM_INFO 0x21u
 #define HBP_MSG_PARAM_GET 0x22u
@@ -256,6 +261,40 @@ typedef struct {
 } hbp_drive_t;
 extern const hbp_layout_t hbp_layout_drive;
 
+/* SensorsBatch: host -> target, type 0x12, 3 fixed payload bytes. */
+#define HBP_SENSORS_BATCH_FIXED_LEN 5u /* type + seq + fixed fields */
+typedef struct {
+    hbp_u8 seq;
+    uint16_t first_seq;
+    hbp_u8 count;
+    hbp_u8 n_records;
+    hbp_u8 records[HBP_MAX_BATCH];
+} hbp_sensors_batch_t;
+extern const hbp_layout_t hbp_layout_sensors_batch;
+
+/* BatchDigest: target -> host, type 0x13, 18 fixed payload bytes. */
+#define HBP_BATCH_DIGEST_FIXED_LEN 20u /* type + seq + fixed fields */
+typedef struct {
+    hbp_u8 seq;
+    uint16_t first_seq;
+    hbp_u8 count;
+    uint16_t next_seq;
+    hbp_u8 room;
+    uint32_t digest;
+    uint16_t duty_a;
+    uint16_t duty_b;
+    uint16_t duty_c;
+    hbp_u8 output_mode;
+    hbp_u8 state;
+    hbp_u8 sector;
+    hbp_u8 direction_ccw; /* 0 or 1 */
+    hbp_u8 required_ccw; /* 0 or 1 */
+    hbp_u8 fault;
+    hbp_u8 n_telemetry;
+    int16_t telemetry[HBP_MAX_TELEMETRY];
+} hbp_batch_digest_t;
+extern const hbp_layout_t hbp_layout_batch_digest;
+
 /* ParamDescribe: host -> target, type 0x20, 1 fixed payload bytes. */
 #define HBP_PARAM_DESCRIBE_FIXED_LEN 3u /* type + seq + fixed fields */
 typedef struct {
@@ -418,6 +457,10 @@ hbp_u8 hbp_unpack(const hbp_layout_t *layout, const hbp_u8 *frame, hbp_u8 len, v
 #define hbp_unpack_sensors(frame, len, m) hbp_unpack(&hbp_layout_sensors, (frame), (len), (hbp_sensors_t *)(m))
 #define hbp_pack_drive(m, frame) hbp_pack(&hbp_layout_drive, (const hbp_drive_t *)(m), (frame))
 #define hbp_unpack_drive(frame, len, m) hbp_unpack(&hbp_layout_drive, (frame), (len), (hbp_drive_t *)(m))
+#define hbp_pack_sensors_batch(m, frame) hbp_pack(&hbp_layout_sensors_batch, (const hbp_sensors_batch_t *)(m), (frame))
+#define hbp_unpack_sensors_batch(frame, len, m) hbp_unpack(&hbp_layout_sensors_batch, (frame), (len), (hbp_sensors_batch_t *)(m))
+#define hbp_pack_batch_digest(m, frame) hbp_pack(&hbp_layout_batch_digest, (const hbp_batch_digest_t *)(m), (frame))
+#define hbp_unpack_batch_digest(frame, len, m) hbp_unpack(&hbp_layout_batch_digest, (frame), (len), (hbp_batch_digest_t *)(m))
 #define hbp_pack_param_describe(m, frame) hbp_pack(&hbp_layout_param_describe, (const hbp_param_describe_t *)(m), (frame))
 #define hbp_unpack_param_describe(frame, len, m) hbp_unpack(&hbp_layout_param_describe, (frame), (len), (hbp_param_describe_t *)(m))
 #define hbp_pack_param_info(m, frame) hbp_pack(&hbp_layout_param_info, (const hbp_param_info_t *)(m), (frame))
@@ -455,7 +498,7 @@ hbp_u8 hbp_unpack(const hbp_layout_t *layout, const hbp_u8 *frame, hbp_u8 len, v
 static inline hbp_u8 hbp_type_known(hbp_u8 type)
 {
     return (hbp_u8)((type >= HBP_MSG_HOST_HELLO && type <= HBP_MSG_TARGET_HELLO) ||
-                    (type >= HBP_MSG_SENSORS && type <= HBP_MSG_DRIVE) ||
+                    (type >= HBP_MSG_SENSORS && type <= HBP_MSG_BATCH_DIGEST) ||
                     (type >= HBP_MSG_PARAM_DESCRIBE && type <= HBP_MSG_PARAM_SET_RESULT) ||
                     (type >= HBP_MSG_START && type <= HBP_MSG_STOP) ||
                     (type >= HBP_MSG_STATUS_REQUEST && type <= HBP_MSG_ERROR_REPORT) ||

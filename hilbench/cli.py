@@ -26,6 +26,9 @@ def _friendly(func: Callable[..., Any]) -> Callable[..., Any]:
         except HilbenchError as exc:
             lines = [line.strip() for line in str(exc).splitlines() if line.strip()]
             text = lines[0] if len(lines) == 1 else f"{len(lines)} problems: " + "; ".join(lines)
+            records = getattr(exc, "records", "")
+            if records:  # a divergence's periods around it, both sides (stdout: the error stays one line)
+                click.echo(records)
             click.echo(f"hilbench: {exc.kind}: {text}", err=True)  # one line, however many problems
             sys.exit(exc.exit_code)
         except KeyboardInterrupt:
@@ -301,8 +304,11 @@ def run(config: str | None, target_spec: str | None, mode: str | None, duration_
       hilbench run --set target.kp=0.15 --duration 2 --no-ui
       hilbench run --target serial:/dev/ttyUSB0?baud=250000 --mode realtime --set link.period_us=1000
       hilbench run --target serial:/dev/ttyUSB0?baud=250000 --mode monitor --set link.period_us=2000 --record motor.csv
+      hilbench run --target 'sil:NAME?wire_baud=250000&twin=auto'   (a build with a host twin: the twin
+        runs ahead, the target confirms batches of periods; `hilbench targets` lists the NAMEs)
     While it runs, `hilbench ctl get|set|ref|load` talks to it from another terminal.
-    The summary ends with the config's [[check]] verdicts; a failed check exits with code 9.
+    The summary ends with the config's [[check]] verdicts; a failed check exits with code 9;
+    a twin-speculative run whose target differs from its twin exits with code 10.
     """
     import json as json_module
 

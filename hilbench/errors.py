@@ -90,8 +90,21 @@ class CheckFailed(HilbenchError):
     kind = "check failed"
 
 
+class DivergenceError(TargetError):
+    """Twin-speculative lockstep: the target's Drives differ from its host twin's (the first
+    differing period and field, when the replay located it). Its own exit code."""
+
+    exit_code = 10
+    kind = "divergence"
+
+    def __init__(self, message: str, records: str = "") -> None:
+        super().__init__(message)
+        self.records = records  # both sides' periods around it, a small text table
+
+
 __all__ = [
     "HilbenchError",
+    "DivergenceError",
     "ConfigError",
     "ProtocolError",
     "DecodeError",

@@ -7,7 +7,7 @@ from pathlib import Path
 
 from c_build import FIRMWARE_DIR, LIBRARY_SOURCES, build_c
 
-AN1017_PROFILE = ("-DHBP_MAX_ADC=3u", "-DHBP_MAX_TELEMETRY=3u", "-DHBP_MAX_EDGES=3u")
+AN1017_PROFILE = ("-DHBP_MAX_ADC=3u", "-DHBP_MAX_TELEMETRY=3u", "-DHBP_MAX_EDGES=3u", "-DHBP_MAX_BATCH=17u")  # the dsPIC build's
 
 
 def test_library_compiles_strict(gcc: str, tmp_path: Path) -> None:

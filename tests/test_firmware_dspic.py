@@ -36,7 +36,7 @@ from hilbench.targets.sil import FIRMWARE_DIR, PROTOCOL_DIR, RUNTIME_DIR, RUNTIM
 
 PORT = FIRMWARE_DIR / "ports" / "dspic30f2010"
 SOURCES = (PORT / "main.c", FIRMWARE_DIR / "an1017.c", *RUNTIME_SOURCES)
-DEFS = ("-DHBP_MAX_ADC=3u", "-DHBP_MAX_TELEMETRY=3u", "-DHBP_MAX_EDGES=3u", "-DHRT_PORT_HW=1", "-DHRT_DESCRIBE=0", "-DHRT_PREDICT_BYTES=0u", f"-I{PORT / 'hostcheck'}",
+DEFS = ("-DHBP_MAX_ADC=3u", "-DHBP_MAX_TELEMETRY=3u", "-DHBP_MAX_EDGES=3u", "-DHBP_MAX_BATCH=17u", "-DHRT_PORT_HW=1", "-DHRT_DESCRIBE=0", "-DHRT_PREDICT_BYTES=0u", "-DHRT_SPECULATE=0", f"-I{PORT / 'hostcheck'}",
         f"-I{FIRMWARE_DIR}", f"-I{RUNTIME_DIR}", f"-I{PROTOCOL_DIR}")
 #: the firmware's functions the runtime calls through its declaration (an1017_firmware), by the
 #: function that holds the indirect call; any other holder is the scheduler, which calls the bodies

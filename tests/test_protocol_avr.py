@@ -16,7 +16,7 @@ import pytest
 
 from c_build import FIRMWARE_DIR, LIBRARY_SOURCES, STRICT_FLAGS
 
-AN1017_PROFILE = ("-DHBP_MAX_ADC=3u", "-DHBP_MAX_TELEMETRY=3u", "-DHBP_MAX_EDGES=3u")
+AN1017_PROFILE = ("-DHBP_MAX_ADC=3u", "-DHBP_MAX_TELEMETRY=3u", "-DHBP_MAX_EDGES=3u", "-DHBP_MAX_BATCH=17u")  # the dsPIC build's
 MCUS = ("atmega328p", "atmega2560")
 RAM_BUDGET = 128  # bytes of static RAM for the library in the AN1017 profile (issue 10)
 

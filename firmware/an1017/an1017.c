@@ -289,6 +289,13 @@ void an1017_isr_pwm(an1017_t *s)
     }
     /* without PHASE_ADVANCE the firmware adds nothing: phase_adv stays 0 */
     an1017_svm(volts, (uint16_t)(s->phase + (uint16_t)s->phase_adv), hrt_duty_registers(&s->rt));
+#ifdef AN1017_TEST_ONE_LSB_PHASE
+    /* tests/test_speculative.py only: a deliberate one-LSB difference under a rare condition (the phase
+     * passing one value), which twin-speculative lockstep must catch and locate */
+    if ((uint16_t)(s->phase - (uint16_t)(AN1017_TEST_ONE_LSB_PHASE)) < s->phase_inc) {
+        hrt_duty_registers(&s->rt)[0]++;
+    }
+#endif
 }
 
 void an1017_isr_timer1(an1017_t *s)

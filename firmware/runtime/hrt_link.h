@@ -62,6 +62,15 @@
 #ifndef HRT_MONITOR
 #define HRT_MONITOR 0
 #endif
+/* Twin-speculative lockstep (SensorsBatch -> BatchDigest): 1 by default; a chip that will never run
+ * behind a host twin and cannot spare the flash (the dsPIC30F2010's AN1017 build) sets 0, and its
+ * link is then exactly as without it (a SensorsBatch is answered ErrorReport(BAD_REQUEST)). */
+#ifndef HRT_SPECULATE
+#define HRT_SPECULATE (!HRT_MONITOR) /* a real-motor build takes no Sensors, batched or not */
+#endif
+#if HRT_MONITOR && HRT_SPECULATE
+#error "a real-motor build (HRT_MONITOR) takes no SensorsBatch: leave HRT_SPECULATE at 0"
+#endif
 #ifndef HRT_LOCKSTEP_WATCHDOG_MIN_MS
 #define HRT_LOCKSTEP_WATCHDOG_MIN_MS 1000u
 #endif
@@ -87,6 +96,16 @@ void hrt_port_realtime(hbp_u8 on); /* enter (1) or leave (0) real time: start or
 #define HRT_LINK_F_HELLO 0x08u    /* a handshake happened */
 #define HRT_LINK_F_RT 0x10u       /* real time on a hardware port is running */
 
+#if HRT_SPECULATE
+typedef struct {
+    uint16_t encoder;
+    uint16_t enc_step;          /* the encoder's last change: a period without an encoder record repeats it */
+    uint16_t adc[HBP_MAX_ADC];
+    hbp_u8 inputs;
+    hbp_u8 n_adc;
+} hrt_batch_in_t;
+#endif
+
 typedef struct {
     hrt_t *rt;
     hbp_rx_t rx;
@@ -101,6 +120,15 @@ typedef struct {
     hbp_u8 tx[HRT_TX_FRAME_MAX]; /* the message being sent (hbp_send_frame makes its wire bytes) */
 #if HRT_MONITOR
     uint32_t stream_at;        /* monitor mode: the port's clock at the slot of the last streamed Drive */
+#endif
+#if HRT_SPECULATE
+    /* SensorsBatch: the periods' inputs as the records left them (they carry over from batch to batch),
+     * the period the next batch starts at, and the last batch's answer (kept for a repeat) */
+    hrt_batch_in_t b_in;
+    hbp_u8 b_synced;           /* 1: a batch was run since the handshake or the last Sensors */
+    hbp_u8 b_count;            /* the last batch's period count */
+    uint16_t b_first;          /* the last batch's first period */
+    uint32_t b_digest;         /* the CRC-32 of the last batch's Drives */
 #endif
 #if HRT_PREDICT_BYTES > 0
     uint16_t predicted[3];     /* mode PREDICT: the mean duties predicted for the next span */

@@ -11,6 +11,8 @@ typedef union {
     hbp_target_hello_t target_hello;
     hbp_sensors_t sensors;
     hbp_drive_t drive;
+    hbp_sensors_batch_t sensors_batch;
+    hbp_batch_digest_t batch_digest;
     hbp_param_describe_t param_describe;
     hbp_param_info_t param_info;
     hbp_param_get_t param_get;
@@ -35,6 +37,8 @@ static const char *hbp_test_name(hbp_u8 type)
     case HBP_MSG_TARGET_HELLO: return "TargetHello";
     case HBP_MSG_SENSORS: return "Sensors";
     case HBP_MSG_DRIVE: return "Drive";
+    case HBP_MSG_SENSORS_BATCH: return "SensorsBatch";
+    case HBP_MSG_BATCH_DIGEST: return "BatchDigest";
     case HBP_MSG_PARAM_DESCRIBE: return "ParamDescribe";
     case HBP_MSG_PARAM_INFO: return "ParamInfo";
     case HBP_MSG_PARAM_GET: return "ParamGet";
@@ -61,6 +65,8 @@ static hbp_u8 hbp_test_unpack(const hbp_u8 *frame, hbp_u8 len, hbp_any_t *m)
     case HBP_MSG_TARGET_HELLO: return hbp_unpack_target_hello(frame, len, &m->target_hello);
     case HBP_MSG_SENSORS: return hbp_unpack_sensors(frame, len, &m->sensors);
     case HBP_MSG_DRIVE: return hbp_unpack_drive(frame, len, &m->drive);
+    case HBP_MSG_SENSORS_BATCH: return hbp_unpack_sensors_batch(frame, len, &m->sensors_batch);
+    case HBP_MSG_BATCH_DIGEST: return hbp_unpack_batch_digest(frame, len, &m->batch_digest);
     case HBP_MSG_PARAM_DESCRIBE: return hbp_unpack_param_describe(frame, len, &m->param_describe);
     case HBP_MSG_PARAM_INFO: return hbp_unpack_param_info(frame, len, &m->param_info);
     case HBP_MSG_PARAM_GET: return hbp_unpack_param_get(frame, len, &m->param_get);
@@ -87,6 +93,8 @@ static hbp_u8 hbp_test_pack(hbp_u8 type, const hbp_any_t *m, hbp_u8 *frame)
     case HBP_MSG_TARGET_HELLO: return hbp_pack_target_hello(&m->target_hello, frame);
     case HBP_MSG_SENSORS: return hbp_pack_sensors(&m->sensors, frame);
     case HBP_MSG_DRIVE: return hbp_pack_drive(&m->drive, frame);
+    case HBP_MSG_SENSORS_BATCH: return hbp_pack_sensors_batch(&m->sensors_batch, frame);
+    case HBP_MSG_BATCH_DIGEST: return hbp_pack_batch_digest(&m->batch_digest, frame);
     case HBP_MSG_PARAM_DESCRIBE: return hbp_pack_param_describe(&m->param_describe, frame);
     case HBP_MSG_PARAM_INFO: return hbp_pack_param_info(&m->param_info, frame);
     case HBP_MSG_PARAM_GET: return hbp_pack_param_get(&m->param_get, frame);
@@ -161,6 +169,40 @@ static int hbp_test_field(hbp_u8 type, const hbp_any_t *m, const char *name, uns
     if (type == HBP_MSG_DRIVE) {
         const hbp_drive_t *x = &m->drive;
         if (strcmp(name, "seq") == 0) { *value = x->seq; return 1; }
+        if (strcmp(name, "duty_a") == 0) { *value = x->duty_a; return 1; }
+        if (strcmp(name, "duty_b") == 0) { *value = x->duty_b; return 1; }
+        if (strcmp(name, "duty_c") == 0) { *value = x->duty_c; return 1; }
+        if (strcmp(name, "output_mode") == 0) { *value = x->output_mode; return 1; }
+        if (strcmp(name, "state") == 0) { *value = x->state; return 1; }
+        if (strcmp(name, "sector") == 0) { *value = x->sector; return 1; }
+        if (strcmp(name, "direction_ccw") == 0) { *value = x->direction_ccw; return 1; }
+        if (strcmp(name, "required_ccw") == 0) { *value = x->required_ccw; return 1; }
+        if (strcmp(name, "fault") == 0) { *value = x->fault; return 1; }
+        if (strcmp(name, "telemetry") == 0) {
+            *count = x->n_telemetry;
+            if (index < *count) { *value = x->telemetry[index]; }
+            return 2;
+        }
+    }
+    if (type == HBP_MSG_SENSORS_BATCH) {
+        const hbp_sensors_batch_t *x = &m->sensors_batch;
+        if (strcmp(name, "seq") == 0) { *value = x->seq; return 1; }
+        if (strcmp(name, "first_seq") == 0) { *value = x->first_seq; return 1; }
+        if (strcmp(name, "count") == 0) { *value = x->count; return 1; }
+        if (strcmp(name, "records") == 0) {
+            *count = x->n_records;
+            if (index < *count) { *value = x->records[index]; }
+            return 2;
+        }
+    }
+    if (type == HBP_MSG_BATCH_DIGEST) {
+        const hbp_batch_digest_t *x = &m->batch_digest;
+        if (strcmp(name, "seq") == 0) { *value = x->seq; return 1; }
+        if (strcmp(name, "first_seq") == 0) { *value = x->first_seq; return 1; }
+        if (strcmp(name, "count") == 0) { *value = x->count; return 1; }
+        if (strcmp(name, "next_seq") == 0) { *value = x->next_seq; return 1; }
+        if (strcmp(name, "room") == 0) { *value = x->room; return 1; }
+        if (strcmp(name, "digest") == 0) { *value = x->digest; return 1; }
         if (strcmp(name, "duty_a") == 0) { *value = x->duty_a; return 1; }
         if (strcmp(name, "duty_b") == 0) { *value = x->duty_b; return 1; }
         if (strcmp(name, "duty_c") == 0) { *value = x->duty_c; return 1; }

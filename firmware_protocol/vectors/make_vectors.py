@@ -135,6 +135,21 @@ def build() -> None:
     add("drive_zeros_low_side", wire(drive(0, (0, 0, 0), 2, 1, 7, 0, 1, 1, (0, 0, 0))),
         ["Drive seq=0 duty_a=0 duty_b=0 duty_c=0 output_mode=2 state=1 sector=7 direction_ccw=0 "
          "required_ccw=1 fault=1 telemetry=0,0,0"])
+    # SensorsBatch: first_seq u16, count u8, records to the end (PROTOCOL.md "Batches": a first period with the
+    # inputs and three ADC codes, a tiny ADC record, a run of 3, a period with one hall edge)
+    records = (bytes([0x21, 0x05, 3]) + struct.pack("<3H", 600, 512, 700) + bytes([0xC0 | 1 | 3 << 2, 0x82])
+               + bytes([0x41, 0x01, 1]) + struct.pack("<HB", 123, 0x01))
+    add("sensors_batch", wire(bytes([0x12, 40]) + struct.pack("<HB", 65535, 6) + records),
+        ["SensorsBatch seq=40 first_seq=65535 count=6 records=" + ",".join(str(b) for b in records)])
+    # BatchDigest: first_seq u16, count u8, next_seq u16, room u8, digest u32, then a Drive's fields
+    add("batch_digest", wire(bytes([0x13, 40]) + struct.pack("<HBHBI", 65535, 6, 5, 57, 0xCBF43926)
+                             + drive(0, (1000, 512, 1), 1, 2, 4, 1, 0, 0, (-2, 32767, -32768))[2:]),
+        ["BatchDigest seq=40 first_seq=65535 count=6 next_seq=5 room=57 digest=3421780262 duty_a=1000 duty_b=512 "
+         "duty_c=1 output_mode=1 state=2 sector=4 direction_ccw=1 required_ccw=0 fault=0 telemetry=-2,32767,-32768"])
+    add("batch_refused", wire(bytes([0x13, 41]) + struct.pack("<HBHBI", 100, 0, 90, 17, 0)
+                              + drive(0, (0, 0, 0), 0, 0, 7, 0, 0, 0, ())[2:]),
+        ["BatchDigest seq=41 first_seq=100 count=0 next_seq=90 room=17 digest=0 duty_a=0 duty_b=0 duty_c=0 "
+         "output_mode=0 state=0 sector=7 direction_ccw=0 required_ccw=0 fault=0 telemetry="])
     add("param_describe", wire(bytes([0x20, 3, 1])), ["ParamDescribe seq=3 param_id=1"])
     # ParamInfo: id u8, ptype u8, access u8, min i32, max i32, value i32, name (count-prefixed), unit (the rest)
     add("param_info_kp", wire(bytes([0x21, 3]) + struct.pack("<BBBiii", 0, 0, 1, 0, 32767, 3277) + b"\x02kp"),

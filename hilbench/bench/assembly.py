@@ -80,6 +80,8 @@ def build_bench(
     profile = configured_profile(cfg) if target is None else None
     handle = connect(cfg, options, profile) if target is None else given_target(target)
     try:
+        if target is None:
+            handle.target = with_twin(handle.target, cfg, options, profile)
         if plant is None:
             plant = build_plant(cfg, profile if target is None else profile_for_firmware(target.firmware_name))
         session = Session(handle.target, plant, events, options, profile=profile, recorder=recorder,  # type: ignore[arg-type]
@@ -91,10 +93,36 @@ def build_bench(
     return BenchParts(handle, plant, session, profile, options)
 
 
+def with_twin(target: Target, cfg: BenchConfig, options: SessionOptions, profile: TargetProfile | None) -> Target:
+    """``target`` with its host twin ([link] twin = "auto", lockstep, a target on a link whose profile
+    offers a bit-exact twin: hilbench.bench.speculative), else ``target`` itself."""
+    from hilbench.bench.speculative import SpeculativeTarget
+    from hilbench.targets.remote import RemoteTarget
+
+    from hilbench.link import parse_target_spec
+
+    spec = parse_target_spec(cfg.link.target)
+    wanted = spec.twin or cfg.link.twin  # the spec's key over the config's
+    if wanted != "auto" or options.mode != "lockstep" or profile is None or profile.twin is None \
+            or not isinstance(target, RemoteTarget):
+        return target
+    make_twin = profile.twin
+
+    def reopen() -> tuple[Target, Callable[[], None]]:
+        handle = connect(cfg, options, profile)  # a fresh target: the replay that locates a divergence
+        return handle.target, handle.close
+
+    # only a far end the host starts itself comes back from a reset: a board on a port (or behind a
+    # URL) is the same board in the same state when opened again, and its port is held by this run
+    return SpeculativeTarget(target, make_twin(cfg.target), reopen=reopen if spec.spawns_process else None,
+                             make_twin=lambda: make_twin(cfg.target),
+                             period_us=options.period_us, keep_going=cfg.link.on_divergence == "continue")
+
+
 def given_target(target: Target) -> TargetHandle:
     """A Target object the caller made (an in-process model, a proxy over its own link) as a
     handle; the caller keeps it, so closing the bench does not close it."""
     return TargetHandle(target, label=f"{type(target).__name__} ({target.firmware_name})")
 
 
-__all__ = ["BenchParts", "build_bench", "build_plant", "configured_profile", "connect", "given_target"]
+__all__ = ["BenchParts", "build_bench", "build_plant", "configured_profile", "connect", "given_target", "with_twin"]

@@ -56,6 +56,9 @@ class TargetHandle:
             return {}
         stats = self.link.stats.as_dict()
         stats["retries"] = int(getattr(self.target, "retries", 0))
+        speculation = getattr(self.target, "speculation_stats", None)
+        if speculation is not None:  # twin-speculative lockstep (hilbench.bench.speculative)
+            stats.update(speculation())
         return stats
 
     def child_status(self) -> str:
@@ -206,7 +209,7 @@ def _start_firmware(parsed: "TargetSpec", profile: TargetProfile | None, options
     """A build of a firmware as its own process (built first if needed), on a pty: the host's pty
     pair's slave, or the pty the process made. The spec's faults wrap the link either way."""
     from hilbench.link import open_link
-    from hilbench.link.ports import apply_faults
+    from hilbench.link.ports import apply_link_options
     from hilbench.targets.remote import RemoteTarget
 
     starter, profile, name = _starter(parsed, profile)
@@ -222,7 +225,7 @@ def _start_firmware(parsed: "TargetSpec", profile: TargetProfile | None, options
     else:
         started = starter.start(options, None)
         try:
-            link = apply_faults(open_link(started.tty_path, timeout_s=timeout_s), parsed.faults)
+            link = apply_link_options(open_link(started.tty_path, timeout_s=timeout_s), parsed)
         except BaseException:
             started.close()
             raise

@@ -777,8 +777,12 @@ class Session:
         if not self._closed:
             if self._end_reason is not None:
                 summary.end_reason = self._end_reason
+            self._confirm_speculation()
             self._stop_target()
             self._close(f"end: {summary.end_reason} at period {self.periods_done}")
+            diverged = getattr(self.target, "divergence", None)
+            if diverged is not None:  # [link] on_divergence = "continue": the run went on; it ends with it
+                raise diverged
         return summary
 
     def _fault(self, note: str, what: str) -> None:
@@ -788,6 +792,18 @@ class Session:
         self._end_reason = "fault"
         self._deenergise()
         self._close(note, fault=True)
+
+    def _confirm_speculation(self) -> None:
+        """Twin-speculative lockstep (hilbench.bench.speculative): the periods still in flight confirmed
+        by the target before the end; a divergence or a silent link there ends the run as a fault."""
+        drain = getattr(self.target, "drain", None)
+        if drain is None:
+            return
+        try:
+            drain()
+        except (LinkError, TargetError) as exc:
+            self._fault(f"fault at period {self.periods_done}: {exc}", str(exc))
+            raise
 
     def _stop_target(self) -> None:
         """A clean end: the target stops its outputs (S2 as a command)."""

@@ -54,6 +54,8 @@ class LinkSection:
     max_consecutive_overruns: int = field(default=10, metadata=spec(ge=1, le=1_000_000))
     cpu_latency_qos: bool = field(default=True, metadata=spec(doc="real time: hold /dev/cpu_dma_latency at 0 so idle CPUs poll, not halt (needs root)"))
     predict_duties: bool = field(default=True, metadata=spec(doc="lockstep, a period of 2 PWM periods or more: the target's duties predicted over each period when it can (HostHello mode PREDICT), not its last ones held"))
+    twin: Literal["auto", "off"] = field(default="off", metadata=spec(doc="lockstep on a firmware build whose profile has a bit-exact host twin: auto runs the twin ahead and has the target confirm batches of periods by digest (twin-speculative lockstep; same recording, at the target's speed rather than the wire's); off: one exchange a period"))
+    on_divergence: Literal["end", "continue"] = field(default="end", metadata=spec(doc="twin-speculative lockstep: when the target's Drives differ from its twin's, end the run (exit code 10), or go on one exchange a period and exit with code 10 at the end"))
     pin_realtime: bool = field(default=True, metadata=spec(doc="real time: the host loop and the emulator process it started share one CPU"))
     realtime_cpu: int | None = field(default=None, metadata=spec(ge=0, le=4095, doc="that CPU (default: the last one this process may use)"))
     allow_pole_pair_mismatch: bool = field(default=False, metadata=spec(doc="run a plant whose [motor] pole_pairs differ from the firmware's build (its speeds then scale by the ratio)"))

@@ -12,6 +12,7 @@ from hilbench.link.ports import apply_faults, open_link
 from hilbench.link.pty import PtyPair, open_pty_pair
 from hilbench.link.spec import DEFAULT_BAUD, FaultSpec, TargetSpec, describe_spec_forms, parse_target_spec
 from hilbench.link.tcp import TcpListener, parse_tcp_listen, serve_tcp_once
+from hilbench.link.throttle import ThrottledTransport
 
 __all__ = [
     "DEFAULT_BAUD",
@@ -24,6 +25,7 @@ __all__ = [
     "PtyPair",
     "TargetSpec",
     "TcpListener",
+    "ThrottledTransport",
     "apply_faults",
     "describe_spec_forms",
     "open_link",

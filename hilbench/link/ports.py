@@ -26,6 +26,7 @@ from hilbench.link.spec import (
     TargetSpec,
     parse_target_spec,
 )
+from hilbench.link.throttle import ThrottledTransport
 from hilbench.link.transport import FdTransport, PtyMasterTransport, SerialUrlTransport
 
 # URL schemes whose pyserial port is a plain socket carrying the bytes as they are (no telnet
@@ -43,7 +44,22 @@ def open_link(spec: str | TargetSpec, *, timeout_s: float = DEFAULT_TIMEOUT_S) -
     cannot be opened is a LinkError naming it.
     """
     parsed = spec if isinstance(spec, TargetSpec) else parse_target_spec(spec)
-    return apply_faults(_open_plain(parsed, timeout_s), parsed.faults)
+    return apply_link_options(_open_plain(parsed, timeout_s), parsed)
+
+
+def apply_link_options(link: Link, parsed: TargetSpec) -> Link | FaultyLink:
+    """The spec's wire throttle (``wire_baud``) under the link, then its faults around it."""
+    return apply_faults(throttle(link, parsed.wire_baud), parsed.faults)
+
+
+def throttle(link: Link, wire_baud: int | None) -> Link:
+    """link itself without a baud; else a link over the same transport held to that wire time.
+    The fault injector goes around it, so a corrupted byte still takes its wire time."""
+    if wire_baud is None:
+        return link
+    transport = ThrottledTransport(link.transport, wire_baud)
+    return Link(transport, f"{link.name} (wire {wire_baud} baud)", timeout_s=link.timeout_s,
+                peer_path=link.peer_path)
 
 
 def apply_faults(link: Link, faults: FaultSpec | None) -> Link | FaultyLink:
@@ -140,4 +156,4 @@ def _set_nodelay(fd: int) -> None:
         sock.close()
 
 
-__all__ = ["apply_faults", "open_link"]
+__all__ = ["apply_faults", "apply_link_options", "open_link", "throttle"]

@@ -113,6 +113,8 @@ class TargetSpec:
     port_kind: str = ""  # PORT_PTY, PORT_DEVICE, PORT_FD or PORT_URL
     baud: int = DEFAULT_BAUD
     faults: FaultSpec | None = None
+    wire_baud: int | None = None  # hold the link to this baud's wire time (hilbench.link.throttle)
+    twin: str | None = None  # "auto" / "off": twin-speculative lockstep, over [link] twin (hilbench.bench.speculative)
 
     @property
     def has_link(self) -> bool:
@@ -134,6 +136,10 @@ def describe_spec_forms() -> str:
                  "emulator:an1017?corrupt=1e-3&fault_seed=7):")
     width = max(len(key) for key in _FAULT_KEYS)
     lines += [f"  {key:<{width}}  {_FAULT_KEYS[key][1]}" for key in _FAULT_KEYS]
+    lines.append(f"Wire time (any spec with a link): {WIRE_BAUD_KEY}=N holds the link to the wire time of an "
+                 "8N1 UART at N baud, 10 bits a byte each way (e.g. sil:an1017?wire_baud=250000)")
+    lines.append(f"Twin (any spec with a link): {TWIN_KEY}=auto|off, twin-speculative lockstep when the target's "
+                 "firmware has a bit-exact host twin (over [link] twin)")
     return "\n".join(lines)
 
 
@@ -219,6 +225,10 @@ _FAULT_KEYS: dict[str, tuple[str, str, Callable[[str], object]]] = {
     "fault_seed": ("seed", "seed of the fault generators (default 0): same seed, same faults", _seed),
 }
 FAULT_KEYS = tuple(_FAULT_KEYS)
+#: the keys of any spec with a link: the fault keys and the wire throttle
+WIRE_BAUD_KEY = "wire_baud"
+TWIN_KEY = "twin"
+LINK_KEYS = (*FAULT_KEYS, WIRE_BAUD_KEY, TWIN_KEY)
 
 
 # -- parsing -----------------------------------------------------------------------------
@@ -257,7 +267,7 @@ def _split_query(text: str, query: str, ours: tuple[str, ...],
 
 def _unknown_key(key: str, known_keys: tuple[str, ...]) -> str:
     """Why key is refused: no link to fault, baud on a port without one, or a plain unknown key."""
-    if not known_keys and key in _FAULT_KEYS:
+    if not known_keys and key in LINK_KEYS:
         return f"{key!r}: an in-process target has no link to inject faults into (use emulator:NAME)"
     if key == "baud":
         return "baud applies only to device paths and pyserial URLs"
@@ -277,6 +287,22 @@ def _faults(text: str, values: dict[str, str]) -> FaultSpec | None:
         except _BadValue as exc:
             raise ConfigError(f"target spec {text!r}: {key}={raw!r} {exc}") from None
     return FaultSpec(**fields) if fields else None  # type: ignore[arg-type]
+
+
+def _wire_baud_of(text: str, values: dict[str, str]) -> int | None:
+    if WIRE_BAUD_KEY not in values:
+        return None
+    try:
+        return _baud(values[WIRE_BAUD_KEY])
+    except _BadValue as exc:
+        raise ConfigError(f"target spec {text!r}: {WIRE_BAUD_KEY}={values[WIRE_BAUD_KEY]!r} {exc}") from None
+
+
+def _twin_of(text: str, values: dict[str, str]) -> str | None:
+    value = values.get(TWIN_KEY)
+    if value is None or value in ("auto", "off"):
+        return value
+    raise ConfigError(f"target spec {text!r}: {TWIN_KEY}={value!r} must be auto or off")
 
 
 def _baud_of(text: str, values: dict[str, str]) -> int:
@@ -311,7 +337,7 @@ def _parse_url(text: str, body: str, scheme: str) -> TargetSpec:
             f"{_did_you_mean(scheme, known_schemes)}; known: {', '.join(known_schemes)}"
         )
     base, _, query = body.partition("?")
-    ours = ("baud", *FAULT_KEYS)
+    ours = ("baud", *LINK_KEYS)
     values, passed = _split_query(text, query, ours, _PYSERIAL_OPTIONS.get(scheme))
     if scheme in _NEEDS_HOST_PORT:
         host, colon, port = base[len(scheme) + 3:].rstrip("/").rpartition(":")
@@ -319,7 +345,8 @@ def _parse_url(text: str, body: str, scheme: str) -> TargetSpec:
             raise ConfigError(f"target spec {text!r}: {scheme}:// needs HOST:PORT, e.g. {scheme}://127.0.0.1:5000")
     url = base + ("?" + "&".join(passed) if passed else "")
     return TargetSpec(text, KIND_PORT, port=url, port_kind=PORT_URL, baud=_baud_of(text, values),
-                      faults=_faults(text, values))
+                      faults=_faults(text, values), wire_baud=_wire_baud_of(text, values),
+                          twin=_twin_of(text, values))
 
 
 def parse_target_spec(text: str) -> TargetSpec:
@@ -335,15 +362,19 @@ def parse_target_spec(text: str) -> TargetSpec:
     head, _, query = body.partition("?")
     prefix, colon, rest = head.partition(":")
     if colon and prefix in FIRMWARE_KINDS and ("/" in rest or rest.startswith(("~", "."))):
-        values, _ = _split_query(text, query, FAULT_KEYS, ())  # a path to a build of any firmware
-        return TargetSpec(text, prefix, program=rest, faults=_faults(text, values))
+        values, _ = _split_query(text, query, LINK_KEYS, ())  # a path to a build of any firmware
+        return TargetSpec(text, prefix, program=rest, faults=_faults(text, values),
+                          wire_baud=_wire_baud_of(text, values),
+                          twin=_twin_of(text, values))
     if colon and prefix in _NAMED_KINDS:
         return _parse_named(text, prefix, rest, query)
     if colon and prefix == KIND_EXEC:
         if not rest:
             raise _fail(text, "exec: needs a program path")
-        values, _ = _split_query(text, query, FAULT_KEYS, ())
-        return TargetSpec(text, KIND_EXEC, program=rest, faults=_faults(text, values))
+        values, _ = _split_query(text, query, LINK_KEYS, ())
+        return TargetSpec(text, KIND_EXEC, program=rest, faults=_faults(text, values),
+                          wire_baud=_wire_baud_of(text, values),
+                          twin=_twin_of(text, values))
     return _parse_port(text, head, query)
 
 
@@ -354,8 +385,9 @@ def _parse_named(text: str, kind: str, name: str, query: str) -> TargetSpec:
     if kind == KIND_INPROCESS:
         _split_query(text, query, (), ())  # an in-process target has no link to wrap
         return TargetSpec(text, KIND_INPROCESS, name=name)
-    values, _ = _split_query(text, query, FAULT_KEYS, ())
-    return TargetSpec(text, kind, name=name, faults=_faults(text, values))
+    values, _ = _split_query(text, query, LINK_KEYS, ())
+    return TargetSpec(text, kind, name=name, faults=_faults(text, values), wire_baud=_wire_baud_of(text, values),
+                          twin=_twin_of(text, values))
 
 
 def _parse_port(text: str, head: str, query: str) -> TargetSpec:
@@ -364,23 +396,28 @@ def _parse_port(text: str, head: str, query: str) -> TargetSpec:
     if head == "pty" or (colon and prefix == "fd"):
         if prefix == "fd" and not rest.isdigit():
             raise _fail(text, "fd: needs a file descriptor number, e.g. fd:3")
-        values, _ = _split_query(text, query, FAULT_KEYS, ())
+        values, _ = _split_query(text, query, LINK_KEYS, ())
         return TargetSpec(text, KIND_PORT, port=head, port_kind=PORT_FD if colon else PORT_PTY,
-                          faults=_faults(text, values))
+                          faults=_faults(text, values), wire_baud=_wire_baud_of(text, values),
+                          twin=_twin_of(text, values))
     if colon and prefix == "serial":
         head = rest
         if not head.startswith("/"):
             raise _fail(text, "serial: needs a device path, e.g. serial:/dev/ttyUSB0?baud=250000")
     if head.startswith("/"):
-        values, _ = _split_query(text, query, ("baud", *FAULT_KEYS), ())
+        values, _ = _split_query(text, query, ("baud", *LINK_KEYS), ())
         return TargetSpec(text, KIND_PORT, port=head, port_kind=PORT_DEVICE, baud=_baud_of(text, values),
-                          faults=_faults(text, values))
+                          faults=_faults(text, values), wire_baud=_wire_baud_of(text, values),
+                          twin=_twin_of(text, values))
     raise ConfigError(f"unknown target spec {text!r} (accepted: {_FORMS_LINE})")
 
 
 __all__ = [
     "DEFAULT_BAUD",
     "FAULT_KEYS",
+    "LINK_KEYS",
+    "TWIN_KEY",
+    "WIRE_BAUD_KEY",
     "FaultSpec",
     "KIND_EMULATOR",
     "KIND_EXEC",

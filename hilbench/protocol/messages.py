@@ -23,7 +23,7 @@ from hilbench.protocol.framing import CobsError, CrcError, LengthError, UnknownT
 _CHECK = int.to_bytes  # the check bytes and the delimiter as one int (PROTOCOL.md, Framing)
 PROTOCOL_VERSION = 3
 # First 4 bytes of SHA-256 over the schema's canonical wire content (generate.schema_fingerprint).
-SCHEMA_FINGERPRINT = 0x4dc44845
+SCHEMA_FINGERPRINT = 0x82ba34c0
 MAX_FRAME_BYTES = 62
 MAX_NAME_CHARS = 16
 MAX_UNIT_CHARS = 8
@@ -31,6 +31,7 @@ MAX_EDGES = 16
 MAX_ADC = 8
 MAX_TELEMETRY = 8
 MAX_PARAM_PAIRS = 4
+MAX_BATCH_BYTES = 57
 
 _tnew = tuple.__new__
 
@@ -42,6 +43,8 @@ class MsgType(IntEnum):
     TARGET_HELLO = 2
     SENSORS = 0x10
     DRIVE = 0x11
+    SENSORS_BATCH = 0x12
+    BATCH_DIGEST = 0x13
     PARAM_DESCRIBE = 0x20
     PARAM_INFO = 0x21
     PARAM_GET = 0x22
@@ -209,6 +212,8 @@ MSG_HOST_HELLO = MsgType.HOST_HELLO
 MSG_TARGET_HELLO = MsgType.TARGET_HELLO
 MSG_SENSORS = MsgType.SENSORS
 MSG_DRIVE = MsgType.DRIVE
+MSG_SENSORS_BATCH = MsgType.SENSORS_BATCH
+MSG_BATCH_DIGEST = MsgType.BATCH_DIGEST
 MSG_PARAM_DESCRIBE = MsgType.PARAM_DESCRIBE
 MSG_PARAM_INFO = MsgType.PARAM_INFO
 MSG_PARAM_GET = MsgType.PARAM_GET
@@ -361,6 +366,40 @@ class Drive(NamedTuple):
     telemetry: tuple[int, ...]
 
     TYPE = 0x11
+
+
+class SensorsBatch(NamedTuple):
+    """host -> target, frame type 0x12."""
+
+    seq: int
+    first_seq: int
+    count: int
+    records: tuple[int, ...]
+
+    TYPE = 0x12
+
+
+class BatchDigest(NamedTuple):
+    """target -> host, frame type 0x13."""
+
+    seq: int
+    first_seq: int
+    count: int
+    next_seq: int
+    room: int
+    digest: int
+    duty_a: int
+    duty_b: int
+    duty_c: int
+    output_mode: int
+    state: int
+    sector: int
+    direction_ccw: bool
+    required_ccw: bool
+    fault: int
+    telemetry: tuple[int, ...]
+
+    TYPE = 0x13
 
 
 class ParamDescribe(NamedTuple):
@@ -523,12 +562,14 @@ class TargetInfo(NamedTuple):
     TYPE = 0x53
 
 
-Message = Union[HostHello, TargetHello, Sensors, Drive, ParamDescribe, ParamInfo, ParamGet, ParamValue, ParamSet, ParamSetResult, Start, Stop, StatusRequest, Status, ErrorReport, TelemetryDescribe, TelemetryInfo, TargetDescribe, TargetInfo]
+Message = Union[HostHello, TargetHello, Sensors, Drive, SensorsBatch, BatchDigest, ParamDescribe, ParamInfo, ParamGet, ParamValue, ParamSet, ParamSetResult, Start, Stop, StatusRequest, Status, ErrorReport, TelemetryDescribe, TelemetryInfo, TargetDescribe, TargetInfo]
 
 _HOSTHELLO_ST = struct.Struct('<BBBHBHI')
 _TARGETHELLO_ST = struct.Struct('<BBBIHHIBB')
 _SENSORS_ST = struct.Struct('<BBBH')
 _DRIVE_ST = tuple(struct.Struct('<BBHHHH' + 'h' * n) for n in range(8 + 1))
+_SENSORSBATCH_ST = tuple(struct.Struct('<BBHB' + 'B' * n) for n in range(57 + 1))
+_BATCHDIGEST_ST = tuple(struct.Struct('<BBHBHBIHHHH' + 'h' * n) for n in range(8 + 1))
 _PARAMDESCRIBE_ST = struct.Struct('<BBB')
 _PARAMINFO_ST = struct.Struct('<BBBBBiii')
 _PARAMGET_ST = struct.Struct('<BBB')
@@ -597,6 +638,29 @@ def pack_drive(m: Drive) -> bytes:
     if len(arr) > 8:
         raise ProtocolError(f"encode Drive: telemetry has {len(arr)} entries, at most 8")
     return _DRIVE_ST[len(arr)].pack(17, m.seq, m.duty_a, m.duty_b, m.duty_c, (m.output_mode | m.state << 2 | m.sector << 5 | (256 if m.direction_ccw else 0) | (512 if m.required_ccw else 0) | m.fault << 10), *arr)
+
+
+def pack_sensors_batch(m: SensorsBatch) -> bytes:
+    """SensorsBatch -> type . seq . payload (no CRC)."""
+    arr = m.records
+    if len(arr) > 57:
+        raise ProtocolError(f"encode SensorsBatch: records has {len(arr)} entries, at most 57")
+    return _SENSORSBATCH_ST[len(arr)].pack(18, m.seq, m.first_seq, m.count, *arr)
+
+
+def pack_batch_digest(m: BatchDigest) -> bytes:
+    """BatchDigest -> type . seq . payload (no CRC)."""
+    if ((m.output_mode) >> 2) | ((m.state | m.sector) >> 3) | ((m.fault) >> 6):
+        if (m.output_mode) >> 2:
+            raise ProtocolError(f"encode {type(m).__name__}: output_mode must be 0..3")
+        if (m.state | m.sector) >> 3:
+            raise ProtocolError(f"encode {type(m).__name__}: state/sector must be 0..7")
+        if (m.fault) >> 6:
+            raise ProtocolError(f"encode {type(m).__name__}: fault must be 0..63")
+    arr = m.telemetry
+    if len(arr) > 8:
+        raise ProtocolError(f"encode BatchDigest: telemetry has {len(arr)} entries, at most 8")
+    return _BATCHDIGEST_ST[len(arr)].pack(19, m.seq, m.first_seq, m.count, m.next_seq, m.room, m.digest, m.duty_a, m.duty_b, m.duty_c, (m.output_mode | m.state << 2 | m.sector << 5 | (256 if m.direction_ccw else 0) | (512 if m.required_ccw else 0) | m.fault << 10), *arr)
 
 
 def pack_param_describe(m: ParamDescribe) -> bytes:
@@ -767,6 +831,24 @@ def unpack_drive(b: bytes) -> Drive:
         raise LengthError(f"Drive: payload of {len(b) - 2} bytes is not 8 + 2*n (n <= 8)")
     v = _DRIVE_ST[n].unpack(b)
     return _tnew(Drive, (v[1], v[2], v[3], v[4], v[5] & 3, v[5] >> 2 & 7, v[5] >> 5 & 7, (v[5] >> 8 & 1) != 0, (v[5] >> 9 & 1) != 0, v[5] >> 10, v[6:],))
+
+
+def unpack_sensors_batch(b: bytes) -> SensorsBatch:
+    """type . seq . payload (no CRC) -> SensorsBatch; LengthError if malformed."""
+    n, r = divmod(len(b) - 5, 1)
+    if r or n < 0 or n > 57:
+        raise LengthError(f"SensorsBatch: payload of {len(b) - 2} bytes is not 3 + 1*n (n <= 57)")
+    v = _SENSORSBATCH_ST[n].unpack(b)
+    return _tnew(SensorsBatch, (v[1], v[2], v[3], v[4:],))
+
+
+def unpack_batch_digest(b: bytes) -> BatchDigest:
+    """type . seq . payload (no CRC) -> BatchDigest; LengthError if malformed."""
+    n, r = divmod(len(b) - 20, 2)
+    if r or n < 0 or n > 8:
+        raise LengthError(f"BatchDigest: payload of {len(b) - 2} bytes is not 18 + 2*n (n <= 8)")
+    v = _BATCHDIGEST_ST[n].unpack(b)
+    return _tnew(BatchDigest, (v[1], v[2], v[3], v[4], v[5], v[6], v[7], v[8], v[9], v[10] & 3, v[10] >> 2 & 7, v[10] >> 5 & 7, (v[10] >> 8 & 1) != 0, (v[10] >> 9 & 1) != 0, v[10] >> 10, v[11:],))
 
 
 def unpack_param_describe(b: bytes) -> ParamDescribe:
@@ -950,6 +1032,8 @@ def _unascii(raw: bytes, msg: str, field: str) -> str:
 
 _DRIVE_BY_LEN = tuple(_DRIVE_ST[(k - 10) // 2] if k >= 10 and (k - 10) % 2 == 0 and (k - 10) // 2 <= 8 else None for k in range(63))
 _DRIVE_ST3 = _DRIVE_ST[3]
+_SENSORSBATCH_BY_LEN = tuple(_SENSORSBATCH_ST[(k - 5) // 1] if k >= 5 and (k - 5) % 1 == 0 and (k - 5) // 1 <= 57 else None for k in range(63))
+_BATCHDIGEST_BY_LEN = tuple(_BATCHDIGEST_ST[(k - 20) // 2] if k >= 20 and (k - 20) % 2 == 0 and (k - 20) // 2 <= 8 else None for k in range(63))
 _PARAMSET_BY_LEN = tuple(_PARAMSET_ST[(k - 2) // 5] if k >= 2 and (k - 2) % 5 == 0 and (k - 2) // 5 <= 4 else None for k in range(63))
 _SENSORS_ST2 = tuple(tuple(struct.Struct('<BBBHB' + 'H' * i + 'HB' * j) for j in range(16 + 1)) for i in range(8 + 1))
 _SENSORS_ST_3_0 = _SENSORS_ST2[3][0]
@@ -1041,6 +1125,72 @@ def encode_drive_unchecked(m: Drive) -> bytes:
         body = _DRIVE_ST[n].pack(17, x_seq, x_duty_a, x_duty_b, x_duty_c, w_flags, *x_telemetry)
     else:
         raise ProtocolError(f"encode Drive: telemetry has {n} entries, at most 8")
+    k = len(body)
+    if k > MAX_FRAME_BYTES:
+        raise ProtocolError(f"encode {type(m).__name__}: a message of {k} bytes exceeds {MAX_FRAME_BYTES}")
+    ln = _BYTE[k + 6]
+    if 0 in body:
+        return wire_join((ln + body + ln).split(b'\x00'))
+    e = b''.join((_CODE[k + 2], ln, body, ln))
+    c = _crc(e, 0xFFFF)
+    return e + _CHECK((c >> 9 | 0x80) << 24 | (c >> 2 & 0x7F | 0x80) << 16 | ((c & 3) << 5 | 0x80) << 8, 4, 'big')
+
+
+def encode_sensors_batch(m: SensorsBatch) -> bytes:
+    """SensorsBatch -> complete wire bytes (CRC, COBS, 0x00); ProtocolError/struct.error if unencodable."""
+    x_seq, x_first_seq, x_count, x_records = m
+    n = len(x_records)
+    if n <= 57:
+        body = _SENSORSBATCH_ST[n].pack(18, x_seq, x_first_seq, x_count, *x_records)
+    else:
+        raise ProtocolError(f"encode SensorsBatch: records has {n} entries, at most 57")
+    k = len(body)
+    if k > MAX_FRAME_BYTES:
+        raise ProtocolError(f"encode {type(m).__name__}: a message of {k} bytes exceeds {MAX_FRAME_BYTES}")
+    ln = _BYTE[k + 6]
+    if 0 in body:
+        return wire_join((ln + body + ln).split(b'\x00'))
+    e = b''.join((_CODE[k + 2], ln, body, ln))
+    c = _crc(e, 0xFFFF)
+    return e + _CHECK((c >> 9 | 0x80) << 24 | (c >> 2 & 0x7F | 0x80) << 16 | ((c & 3) << 5 | 0x80) << 8, 4, 'big')
+
+
+def encode_batch_digest(m: BatchDigest) -> bytes:
+    """BatchDigest -> complete wire bytes (CRC, COBS, 0x00); ProtocolError/struct.error if unencodable."""
+    x_seq, x_first_seq, x_count, x_next_seq, x_room, x_digest, x_duty_a, x_duty_b, x_duty_c, x_output_mode, x_state, x_sector, x_direction_ccw, x_required_ccw, x_fault, x_telemetry = m
+    if ((x_output_mode) >> 2) | ((x_state | x_sector) >> 3) | ((x_fault) >> 6):
+        if (x_output_mode) >> 2:
+            raise ProtocolError(f"encode {type(m).__name__}: output_mode must be 0..3")
+        if (x_state | x_sector) >> 3:
+            raise ProtocolError(f"encode {type(m).__name__}: state/sector must be 0..7")
+        if (x_fault) >> 6:
+            raise ProtocolError(f"encode {type(m).__name__}: fault must be 0..63")
+    w_flags = (x_output_mode | x_state << 2 | x_sector << 5 | (256 if x_direction_ccw else 0) | (512 if x_required_ccw else 0) | x_fault << 10)
+    n = len(x_telemetry)
+    if n <= 8:
+        body = _BATCHDIGEST_ST[n].pack(19, x_seq, x_first_seq, x_count, x_next_seq, x_room, x_digest, x_duty_a, x_duty_b, x_duty_c, w_flags, *x_telemetry)
+    else:
+        raise ProtocolError(f"encode BatchDigest: telemetry has {n} entries, at most 8")
+    k = len(body)
+    if k > MAX_FRAME_BYTES:
+        raise ProtocolError(f"encode {type(m).__name__}: a message of {k} bytes exceeds {MAX_FRAME_BYTES}")
+    ln = _BYTE[k + 6]
+    if 0 in body:
+        return wire_join((ln + body + ln).split(b'\x00'))
+    e = b''.join((_CODE[k + 2], ln, body, ln))
+    c = _crc(e, 0xFFFF)
+    return e + _CHECK((c >> 9 | 0x80) << 24 | (c >> 2 & 0x7F | 0x80) << 16 | ((c & 3) << 5 | 0x80) << 8, 4, 'big')
+
+
+def encode_batch_digest_unchecked(m: BatchDigest) -> bytes:
+    """encode_batch_digest without the bit-field range checks: for messages built by trusted code only."""
+    x_seq, x_first_seq, x_count, x_next_seq, x_room, x_digest, x_duty_a, x_duty_b, x_duty_c, x_output_mode, x_state, x_sector, x_direction_ccw, x_required_ccw, x_fault, x_telemetry = m
+    w_flags = (x_output_mode | x_state << 2 | x_sector << 5 | (256 if x_direction_ccw else 0) | (512 if x_required_ccw else 0) | x_fault << 10)
+    n = len(x_telemetry)
+    if n <= 8:
+        body = _BATCHDIGEST_ST[n].pack(19, x_seq, x_first_seq, x_count, x_next_seq, x_room, x_digest, x_duty_a, x_duty_b, x_duty_c, w_flags, *x_telemetry)
+    else:
+        raise ProtocolError(f"encode BatchDigest: telemetry has {n} entries, at most 8")
     k = len(body)
     if k > MAX_FRAME_BYTES:
         raise ProtocolError(f"encode {type(m).__name__}: a message of {k} bytes exceeds {MAX_FRAME_BYTES}")
@@ -1294,6 +1444,25 @@ def _decode_drive(raw: bytes, k: int) -> Drive:
     return _tnew(Drive, (v[1], v[2], v[3], v[4], w5 & 3, w5 >> 2 & 7, w5 >> 5 & 7, (w5 >> 8 & 1) != 0, (w5 >> 9 & 1) != 0, w5 >> 10, v[6:]))
 
 
+def _decode_sensors_batch(raw: bytes, k: int) -> SensorsBatch:
+    """A checked frame (raw[2:2 + k] is the message: type . seq . payload) -> SensorsBatch."""
+    st = _SENSORSBATCH_BY_LEN[k]
+    if st is None:
+        raise LengthError(f"SensorsBatch: payload of {k - 2} bytes is not 3 + 1*n (n <= 57)")
+    v = st.unpack_from(raw, 2)
+    return _tnew(SensorsBatch, (v[1], v[2], v[3], v[4:]))
+
+
+def _decode_batch_digest(raw: bytes, k: int) -> BatchDigest:
+    """A checked frame (raw[2:2 + k] is the message: type . seq . payload) -> BatchDigest."""
+    st = _BATCHDIGEST_BY_LEN[k]
+    if st is None:
+        raise LengthError(f"BatchDigest: payload of {k - 2} bytes is not 18 + 2*n (n <= 8)")
+    v = st.unpack_from(raw, 2)
+    w10 = v[10]
+    return _tnew(BatchDigest, (v[1], v[2], v[3], v[4], v[5], v[6], v[7], v[8], v[9], w10 & 3, w10 >> 2 & 7, w10 >> 5 & 7, (w10 >> 8 & 1) != 0, (w10 >> 9 & 1) != 0, w10 >> 10, v[11:]))
+
+
 def _decode_param_describe(raw: bytes, k: int) -> ParamDescribe:
     """A checked frame (raw[2:2 + k] is the message: type . seq . payload) -> ParamDescribe."""
     if k != 3:
@@ -1414,6 +1583,8 @@ ENCODERS: dict[type, Callable[..., bytes]] = {
     TargetHello: encode_target_hello,
     Sensors: encode_sensors,
     Drive: encode_drive,
+    SensorsBatch: encode_sensors_batch,
+    BatchDigest: encode_batch_digest,
     ParamDescribe: encode_param_describe,
     ParamInfo: encode_param_info,
     ParamGet: encode_param_get,
@@ -1437,6 +1608,8 @@ UNCHECKED_ENCODERS: dict[type, Callable[..., bytes]] = {
     TargetHello: encode_target_hello,
     Sensors: encode_sensors,
     Drive: encode_drive_unchecked,
+    SensorsBatch: encode_sensors_batch,
+    BatchDigest: encode_batch_digest_unchecked,
     ParamDescribe: encode_param_describe,
     ParamInfo: encode_param_info,
     ParamGet: encode_param_get,
@@ -1460,6 +1633,8 @@ _decoders[0x01] = _decode_host_hello
 _decoders[0x02] = _decode_target_hello
 _decoders[0x10] = _decode_sensors
 _decoders[0x11] = _decode_drive
+_decoders[0x12] = _decode_sensors_batch
+_decoders[0x13] = _decode_batch_digest
 _decoders[0x20] = _decode_param_describe
 _decoders[0x21] = _decode_param_info
 _decoders[0x22] = _decode_param_get
@@ -1593,6 +1768,8 @@ PACKERS: dict[type, Callable[..., bytes]] = {
     TargetHello: pack_target_hello,
     Sensors: pack_sensors,
     Drive: pack_drive,
+    SensorsBatch: pack_sensors_batch,
+    BatchDigest: pack_batch_digest,
     ParamDescribe: pack_param_describe,
     ParamInfo: pack_param_info,
     ParamGet: pack_param_get,
@@ -1615,6 +1792,8 @@ UNPACKERS: dict[int, Callable[[bytes], Message]] = {
     0x02: unpack_target_hello,
     0x10: unpack_sensors,
     0x11: unpack_drive,
+    0x12: unpack_sensors_batch,
+    0x13: unpack_batch_digest,
     0x20: unpack_param_describe,
     0x21: unpack_param_info,
     0x22: unpack_param_get,
@@ -1637,6 +1816,8 @@ MESSAGE_TYPES: dict[int, type] = {
     0x02: TargetHello,
     0x10: Sensors,
     0x11: Drive,
+    0x12: SensorsBatch,
+    0x13: BatchDigest,
     0x20: ParamDescribe,
     0x21: ParamInfo,
     0x22: ParamGet,
@@ -1654,8 +1835,8 @@ MESSAGE_TYPES: dict[int, type] = {
     0x53: TargetInfo,
 }
 
-HOST_TO_TARGET = frozenset({HostHello, Sensors, ParamDescribe, ParamGet, ParamSet, Start, Stop, StatusRequest, TelemetryDescribe, TargetDescribe})
-TARGET_TO_HOST = frozenset({TargetHello, Drive, ParamInfo, ParamValue, ParamSetResult, Status, ErrorReport, TelemetryInfo, TargetInfo})
+HOST_TO_TARGET = frozenset({HostHello, Sensors, SensorsBatch, ParamDescribe, ParamGet, ParamSet, Start, Stop, StatusRequest, TelemetryDescribe, TargetDescribe})
+TARGET_TO_HOST = frozenset({TargetHello, Drive, BatchDigest, ParamInfo, ParamValue, ParamSetResult, Status, ErrorReport, TelemetryInfo, TargetInfo})
 
 __all__ = [
     'PROTOCOL_VERSION',
@@ -1695,6 +1876,8 @@ __all__ = [
     'MSG_TARGET_HELLO',
     'MSG_SENSORS',
     'MSG_DRIVE',
+    'MSG_SENSORS_BATCH',
+    'MSG_BATCH_DIGEST',
     'MSG_PARAM_DESCRIBE',
     'MSG_PARAM_INFO',
     'MSG_PARAM_GET',
@@ -1790,6 +1973,8 @@ __all__ = [
     'TargetHello',
     'Sensors',
     'Drive',
+    'SensorsBatch',
+    'BatchDigest',
     'ParamDescribe',
     'ParamInfo',
     'ParamGet',

@@ -141,6 +141,9 @@ class TargetProfile(Generic[Options]):
     #: the profile of a build with these options, for a firmware whose build constants are options
     #: (its reference scale, telemetry scales and `built_for` follow them); None: options change none
     configure: "Callable[[Options], TargetProfile[Options]] | None" = None
+    #: an in-process target bit-exact with the builds of `starters` (the same C source compiled into this
+    #: process): the host twin of twin-speculative lockstep ([link] twin); None: the target has none
+    twin: "Callable[[Options], Target] | None" = None
     #: where its PWM unit centres the pulses and when its ADC samples the phase currents (the plant's
     #: switching inverter reads it); None: the plant's default (PwmTiming())
     pwm_timing: PwmTiming | None = None

@@ -14,6 +14,8 @@ from typing import TYPE_CHECKING, Any, Callable
 from hilbench.errors import LinkTimeout, ParamError, TargetError, VersionMismatch
 from hilbench.protocol import (
     MODE_LOCKSTEP,
+    BatchDigest,
+    SensorsBatch,
     PROTOCOL_VERSION,
     Drive,
     ErrorCode,
@@ -256,6 +258,29 @@ class RemoteTarget:
         again every retry_s (the target answers a repeated seq with its last Drive), until ours
         arrives or the timeout."""
         return self._await(sensors, (Drive,), time.monotonic(), self.timeout_s, f"no Drive for Sensors seq {sensors.seq}")
+
+    # -- twin-speculative lockstep (hilbench.bench.speculative) ------------------------------
+    def send_batch(self, first_seq: int, count: int, records: bytes) -> int:
+        """Send a SensorsBatch without waiting; its frame seq (the answer echoes it)."""
+        seq = self._next_seq()
+        self._send(SensorsBatch(seq, first_seq & 0xFFFF, count, tuple(records)))
+        return seq
+
+    def recv_digest(self, timeout_s: float) -> BatchDigest | ErrorReport | None:
+        """The next BatchDigest or ErrorReport (a target that refused a batch) within timeout_s (None:
+        none); other frames are counted as strays."""
+        deadline = time.monotonic() + timeout_s
+        while True:
+            msg = self.link.recv_or_none(max(deadline - time.monotonic(), 0.0))
+            if msg is None:
+                return None
+            if type(msg) is BatchDigest:
+                return msg
+            self._note_stray(msg)
+            if type(msg) is ErrorReport:
+                return msg
+            if time.monotonic() >= deadline:
+                return None
 
     def advance(self, duration_us: float, sensors: Sensors) -> Drive:
         """Real time: the far end runs on its own clock; the exchange is the same."""

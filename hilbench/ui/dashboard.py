@@ -221,6 +221,8 @@ def summary_table(summary: Summary) -> Group:
         head.add_row("CPUs", summary.cpus)
     if summary.link:
         head.add_row("link", ", ".join(f"{k} {v}" for k, v in summary.link.items()))
+    if "speculative_periods" in summary.link:
+        head.add_row("speculative", _speculative_text(summary))
     if summary.params:
         head.add_row("parameters", ", ".join(f"{k} {v:.5g}" for k, v in summary.params.items()))
     if summary.recording:
@@ -237,6 +239,14 @@ def summary_table(summary: Summary) -> Group:
             _fmt(s.measured_rpm, ".1f"), f"{s.error_pct:+.2f}", "[green]yes[/]" if ok else "[red]no[/]",
         )
     return Group(head, seg) if summary.segments else Group(head)
+
+
+def _speculative_text(summary: Summary) -> str:
+    """Twin-speculative lockstep's share of the run and its rate (hilbench.bench.speculative)."""
+    link = summary.link
+    return (f"{link['speculative_periods']} of {summary.periods} periods confirmed by the target's digests "
+            f"in {link['speculative_batches']} batches ({link['speculative_resends']} resent), "
+            f"{link['speculative_periods_per_s']} periods/s")
 
 
 def summary_text(summary: Summary) -> str:
@@ -259,6 +269,8 @@ def summary_text(summary: Summary) -> str:
         lines.append(f"cpus: {summary.cpus}")
     if summary.link:
         lines.append("link: " + ", ".join(f"{k} {v}" for k, v in summary.link.items()))
+    if "speculative_periods" in summary.link:
+        lines.append(f"speculative: {_speculative_text(summary)}")
     if summary.params:  # as the dashboard's table has them (issue 16, item 17)
         lines.append("parameters: " + ", ".join(f"{k} {v:.5g}" for k, v in summary.params.items()))
     for s in summary.segments:

@@ -35,6 +35,7 @@ class Case:
     scenario: str | None = None  # repository-relative scenario file
     tools: tuple[str, ...] = ()  # system tools the target needs (gcc for sil:)
     same_as: str | None = None  # a target 730876f did not have: it must record that case's digests
+    long: bool = False  # minutes on a simulator: only with HILBENCH_LONG_TESTS=1 (CI's 20-minute budget)
 
     @property
     def golden_name(self) -> str:
@@ -66,6 +67,19 @@ CASES: tuple[Case, ...] = (
     Case("servo-emulator", "emulator:foc", config=SERVO),
     # the FOC firmware in C came after 730876f: its SIL build is held to 730876f's in-process servo
     Case("servo-sil", "sil:foc", config=SERVO, tools=("gcc",), same_as="servo-inprocess"),
+    # twin-speculative lockstep (issue 25) must record exactly what per-period lockstep records
+    Case("default-sil-twin", "sil:an1017?twin=auto", tools=("gcc",), same_as="default-sil"),
+    Case("random-sil-twin", "sil:an1017?twin=auto", scenario=RANDOM, tools=("gcc",), same_as="random-sil"),
+    Case("servo-sil-twin", "sil:foc?twin=auto", config=SERVO, tools=("gcc",), same_as="servo-inprocess"),
+    Case("default-simavr-twin", "simavr:an1017?twin=auto", tools=("avr-gcc", "simavr"), same_as="default-sil"),
+    Case("random-simavr-twin", "simavr:an1017?twin=auto", scenario=RANDOM, tools=("avr-gcc", "simavr"),
+         same_as="random-sil", long=True),  # 110 s here; live writes on simavr: tests/test_speculative.py
+    Case("servo-simavr-twin", "simavr:foc?twin=auto", config=SERVO, tools=("avr-gcc", "simavr"),
+         same_as="servo-inprocess"),
+    Case("default-qemu-twin", "qemu:an1017?twin=auto", tools=("arm-none-eabi-gcc", "qemu-system-arm"),
+         same_as="default-sil"),
+    Case("servo-qemu-twin", "qemu:foc?twin=auto", config=SERVO, tools=("arm-none-eabi-gcc", "qemu-system-arm"),
+         same_as="servo-inprocess", long=True),  # 62 s here; the servo on QEMU, short: tests/test_speculative.py
 )
 
 

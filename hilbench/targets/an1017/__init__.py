@@ -81,6 +81,18 @@ def _make(settings: An1017Settings | None) -> "Target":
                                       max_speed_rpm=settings.max_speed_rpm))
 
 
+def _twin(settings: An1017Settings | None) -> "Target":
+    """The in-process target on the firmware's own C source (the `c` backend): bit-exact with the
+    sil:, simavr: and qemu: builds (tests/test_golden_recordings.py), the twin of speculation."""
+    from hilbench.targets.an1017.firmware import An1017Options
+    from hilbench.targets.an1017.target import An1017Target
+
+    if not isinstance(settings, An1017Settings):
+        settings = An1017Settings()
+    return An1017Target(An1017Options(variant=settings.variant, pole_pairs=settings.pole_pairs,
+                                      max_speed_rpm=settings.max_speed_rpm), backend="c")
+
+
 def _settings(settings: object) -> An1017Settings:
     return settings if isinstance(settings, An1017Settings) else An1017Settings()
 
@@ -172,6 +184,7 @@ PROFILE: TargetProfile[An1017Settings] = TargetProfile(
     name="an1017",
     firmware_name="AN1017",
     make=_make,
+    twin=_twin,
     description="Microchip AN1017 hall-sensored sinusoidal drive, dsPIC30F2010 (PICDEM MC LV)",
     options_type=An1017Settings,
     tunable=GAIN_NAMES,

@@ -53,6 +53,14 @@ def _make(options: FocOptions | None) -> "Target":
     return FocTarget(options if isinstance(options, FocOptions) else FocOptions())
 
 
+def _twin(options: FocOptions | None) -> "Target":
+    """The in-process target on the firmware's own C source (the `c` backend), bit-exact with its
+    builds: the twin of speculation."""
+    from hilbench.targets.foc.target import FocTarget
+
+    return FocTarget(options if isinstance(options, FocOptions) else FocOptions(), backend="c")
+
+
 def _sil_exe(options: object) -> Any:
     from hilbench.targets.foc.build import build_sil
 
@@ -82,6 +90,7 @@ PROFILE: TargetProfile[FocOptions] = TargetProfile(
     name="foc",
     firmware_name="F2812FOC",
     make=_make,
+    twin=_twin,
     description="sensored FOC with the simplified SVPWM, TMS320F2812 in IQ24 (the 200 W servo of the F2812 FOC paper)",
     options_type=FocOptions,
     tunable=("spd_kp", "spd_ki", "spd_kc"),
