@@ -712,7 +712,8 @@ def step(config: str | None, from_rpm: float, to_rpm: float, gains: tuple[str, .
 
             results = []
             for index, gain_set in enumerate(sets or [{}]):
-                results.append(monitor_step(cfg, test, gain_set, record=record if index == 0 else None))
+                results.append(monitor_step(cfg, test, gain_set, record=record if index == 0 else None,
+                                            warn=lambda text: console.print(f"[yellow]warning:[/] {text}")))
                 progress.update(task, completed=index + 1)
         else:
             results = run_step_tests(cfg, test, sets, progress=lambda done, total: progress.update(task, completed=done))

@@ -31,7 +31,7 @@ from hilbench.bench.scenario import Event
 from hilbench.bench.summary import Snapshot, Summary
 from hilbench.errors import ConfigError, HilbenchError, LinkError, TargetError
 from hilbench.plant.period import Period
-from hilbench.protocol import Drive, Mode, OutputMode, ParamSetResult, State, Status, StatusRequest, TargetHello
+from hilbench.protocol import Drive, Mode, OutputMode, ParamSetResult, Start, State, Status, StatusRequest, Stop, TargetHello
 from hilbench.targets.profile import ParamReference, TargetProfile
 from hilbench.targets.registry import profile_for_firmware
 
@@ -57,6 +57,10 @@ HISTORY_SAMPLES = 8192
 MIN_PERIOD_US = 1000
 #: a reference ramp is written as steps this far apart on the board's clock (each a checked write)
 RAMP_WRITE_S = 0.02
+#: after a frame that has no answer (Start, Stop, a keep-alive), the Drives streamed before the next
+#: frame goes out: the board holds one received frame and drops one arriving before its main loop
+#: took the last (a Drive sent after one it was busy sending means its loop ran in between)
+TAKEN_AFTER_DRIVES = 2
 
 
 @dataclass(frozen=True)
@@ -119,6 +123,8 @@ class MonitorSession:
         self._next_event = 0
         self._duration_s = 0.0
         self._inbox: list[Drive] = []
+        self._drives_rx = 0  # Drives received from the link (the inbox's included)
+        self._unanswered_at: int | None = None  # _drives_rx when a frame with no answer went out
         self._sent_board_s = 0.0  # the board's time at the last frame sent to it (any feeds its watchdog)
         self._start_sent_s: float | None = None  # a Start (no reply) waiting to be seen in the stream
         self._ramp: tuple[float, float, float, float] | None = None  # (t0, from, to, duration): a reference ramp
@@ -154,7 +160,7 @@ class MonitorSession:
             column = self.profile.telemetry_column(tid)
             if column.column == self.profile.speed_column:
                 self._speed_index, self._speed_scale = index, column.scale
-        row = session_row(self.profile, ids, self.options.period_us / 1e6, plant_outputs=())
+        row = session_row(self.profile, ids, self.options.period_us / 1e6, plant_outputs=(), halls=False)
         self._row = row
         self._pack = fields_struct(row.own_fields).pack
         self._tele_pack = fields_struct(row.telemetry_fields).pack
@@ -291,12 +297,45 @@ class MonitorSession:
     # ------------------------------------------------------------------ the stream
     def _stray(self, msg: Any) -> None:
         if type(msg) is Drive:
+            self._drives_rx += 1
             self._inbox.append(msg)
         elif type(msg) is Status:
             self.stats.statuses += 1
             self.stats.last_status = msg
         elif type(msg) is not ParamSetResult:
             self.stats.strays += 1
+
+    def _receive(self, timeout_s: float) -> Any:
+        """The next frame from the board (None within ``timeout_s``); Drives are counted."""
+        msg = self.target.link.recv_or_none(timeout_s)
+        if type(msg) is Drive:
+            self._drives_rx += 1
+        return msg
+
+    def _before_send(self, msg: Any) -> None:
+        """Ahead of every frame to the board (the target's send gate): while the last frame with no
+        answer may still sit in the board's one-frame buffer, wait for TAKEN_AFTER_DRIVES streamed
+        Drives (kept for their rows). Else a ParamSet right after a Start was dropped (the board's
+        `overruns`) and waited out its retry (0.5 s of wall, ~0.1 s of a simulated board's time): the
+        reference came late and a restarted motor stalled (tests/test_board_guide.py, section 13)."""
+        if self._unanswered_at is not None:
+            deadline = time.monotonic() + self.options.timeout_s
+            while self._drives_rx < self._unanswered_at + TAKEN_AFTER_DRIVES and time.monotonic() < deadline:
+                frame = self._receive(min(0.02, max(0.0, deadline - time.monotonic())))
+                if type(frame) is Drive:
+                    self._inbox.append(frame)
+                elif frame is not None:
+                    self._stray(frame)
+            self._unanswered_at = None
+        if type(msg) in (Start, Stop):
+            self._unanswered_at = self._drives_rx
+
+    def _keep_alive(self) -> None:
+        """A StatusRequest whose answer is not waited for (a stray Status): it feeds the watchdog."""
+        msg = StatusRequest(0)
+        self._before_send(msg)
+        self.target.link.send(msg)
+        self._unanswered_at = self._drives_rx
 
     def run(self, make_recorder: Callable[["MonitorSession"], Recorder | MemoryRecorder | None] | None = None,
             gains: dict[str, float] | None = None) -> Summary:
@@ -306,6 +345,7 @@ class MonitorSession:
         if self.hello is None:
             self.handshake()
         assert self.hello is not None
+        self.target.gate_sends(self._before_send)
         if make_recorder is not None:
             self.recorder = make_recorder(self)
             if self.recorder is not None:
@@ -336,14 +376,14 @@ class MonitorSession:
                     # one its watchdog counts; a simulated board may run slower than the wall): feed
                     # it. Never more often: the board holds one received frame, and a second one
                     # arriving while it sends its stream is lost (counted in its Status)
-                    link.send(StatusRequest(0))
+                    self._keep_alive()
                     self._sent_board_s = self.t_s
                     self._check_started()
                 if self.control is not None and now >= next_control:
                     for request in self.control.poll():
                         self._handle_control(request)
                     next_control = now + options.poll_control_s
-                msg = self._inbox.pop(0) if self._inbox else link.recv_or_none(0.02)
+                msg = self._inbox.pop(0) if self._inbox else self._receive(0.02)
                 if msg is None:
                     limit = FIRST_DRIVE_S if self._k < 0 else options.timeout_s
                     if time.monotonic() - last_drive_wall > limit:
@@ -387,7 +427,7 @@ class MonitorSession:
                 self._ramp = None
         tele = drive.telemetry
         if self.recorder is not None:
-            own = [k, 0, int(drive.sector), int(drive.duty_a), int(drive.duty_b), int(drive.duty_c),
+            own = [k, int(drive.sector), int(drive.duty_a), int(drive.duty_b), int(drive.duty_c),
                    int(drive.output_mode), int(drive.state), int(drive.fault), math.nan, math.nan,
                    MARKER_FAULT if drive.fault else 0]
             if self._host_ref:
@@ -473,28 +513,33 @@ class MonitorSession:
             if not request.replied:
                 request.reply(False, f"{request.cmd}: refused ({type(exc).__name__}: {str(exc)[:80]})")
 
-    def _stop_confirmed(self) -> None:
+    def _stop_confirmed(self) -> bool:
         """Stop, until the stream says the outputs are off: a Stop has no answer and the board loses
         a frame that arrives while it sends (a lost one would leave the motor to the watchdog, and
-        the watchdog's fault to the next session)."""
-        link = self.target.link
+        the watchdog's fault to the next session). False: no Drive said so after STOP_ATTEMPTS Stops."""
         for _ in range(STOP_ATTEMPTS):
             self.target.stop()
             seen = 0
             deadline = time.monotonic() + 2.0
             while seen < STOP_SEEN_DRIVES and time.monotonic() < deadline:
-                msg = self._inbox.pop(0) if self._inbox else link.recv_or_none(0.05)
+                msg = self._inbox.pop(0) if self._inbox else self._receive(0.05)
                 if type(msg) is Drive:
                     seen += 1
                     if int(msg.output_mode) == int(OutputMode.OFF) and int(msg.state) != int(State.RUNNING):
-                        return
+                        return True
+        return False
 
     def _end(self, summary: Summary) -> None:
         """Stop the motor (the board's outputs off), close the recording; the summary's figures."""
         try:
-            self._stop_confirmed()
-        except (HilbenchError, OSError):
-            pass
+            stopped, why = self._stop_confirmed(), "no streamed Drive showed the outputs off"
+        except (HilbenchError, OSError) as exc:
+            stopped, why = False, str(exc)
+        if not stopped:
+            summary.warnings.append(f"Stop not confirmed after {STOP_ATTEMPTS} Stops ({why}): the board's watchdog "
+                                    f"turns its outputs off {self.options.watchdog_ms} ms after the last frame; "
+                                    "check that the motor stopped")
+        self.target.gate_sends(None)
         self.target.stray_sink = None
         stats = self.stats
         summary.periods = self._k + 1

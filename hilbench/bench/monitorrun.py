@@ -127,18 +127,23 @@ def run_monitor(cfg: BenchConfig, *, record: str | Path | None = None, control: 
             return Signals({**signals.columns, "speed_rpm": signals.columns[speed]},
                            {**signals.units, "speed_rpm": signals.units.get(speed, "rpm")})
 
-        summary.checks = run_checks(cfg.check, summary, columns)
+        from hilbench.plant.model import OUTPUTS
+
+        no_plant = {out.column: "a monitor-mode run records no plant (the plant is the real motor)" for out in OUTPUTS}
+        summary.checks = run_checks(cfg.check, summary, columns, absent=no_plant)
     return summary
 
 
 def monitor_step(cfg: BenchConfig, test: "StepTest", gains: dict[str, float] | None = None,
-                 record: str | Path | None = None) -> "StepResult":
+                 record: str | Path | None = None, warn: Callable[[str], None] | None = None) -> "StepResult":
     """`hilbench step --mode monitor`: the step test on the board's motor, its figures from the
-    firmware's measured speed (the telemetry column the profile names), from the step's row on."""
-    from hilbench.bench.steptest import StepResult
-
+    firmware's measured speed (the telemetry column the profile names), from the step's row on;
+    ``warn`` gets the session's warnings (e.g. a Stop the stream never confirmed)."""
     summary, signals = run_monitor_session(cfg, test.events(), record=record, keep_rows=record is None,
                                            duration_s=test.duration_s, gains=gains)
+    for warning in summary.warnings:
+        if warn is not None:
+            warn(warning)
     assert signals is not None
     profile = configured_profile(cfg) or settings.configured_target_profile(cfg)
     column = profile.speed_column

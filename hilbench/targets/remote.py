@@ -121,6 +121,20 @@ class RemoteTarget:
                 return reply
             self._note_stray(reply)
 
+    def gate_sends(self, before: Callable[[Any], None] | None) -> None:
+        """Monitor mode: ``before(msg)`` runs ahead of every frame this target sends (a board that
+        holds one received frame loses a second one sent too soon); None: frames go straight out."""
+        link = self.link
+        if before is None:
+            self._send = link.send
+            return
+
+        def send(msg: Any) -> None:
+            before(msg)
+            link.send(msg)
+
+        self._send = send
+
     def _note_stray(self, reply: Any) -> None:
         if self.stray_sink is not None and type(reply) is not ErrorReport:
             self.stray_sink(reply)  # monitor mode: the Drives streamed while a request waits its answer

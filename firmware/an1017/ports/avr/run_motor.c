@@ -48,6 +48,8 @@
 #define REG_OCR3B 0x9Au
 #define REG_OCR3C 0x9Cu
 #define BRIDGE_ENABLE 0x01u
+/* hall edges queued for their cycles: one PWM period's and the rest of the last one's (a motor at
+ * 60 000 rpm with 32 pole pairs makes ~10 edges in 50 us); more is refused, never dropped */
 #define MAX_PENDING 64
 
 static uart_pty_t uart_pty;
@@ -88,6 +90,34 @@ static int py_fail(const char *what)
     return 1;
 }
 
+/* A Python int as a C long; -1 with an error set when it is not one. */
+static int py_long(PyObject *value, long *out)
+{
+    if (value == NULL || !PyLong_Check(value)) {
+        return -1;
+    }
+    *out = PyLong_AsLong(value);
+    return (*out == -1 && PyErr_Occurred()) ? -1 : 0;
+}
+
+/* One edge of the plant's period, (seconds from the period's start, the hall bits after it). */
+static int py_edge(PyObject *edge, double *t_s, long *bits)
+{
+    PyObject *at;
+    if (!PyTuple_Check(edge) || PyTuple_Size(edge) != 2) {
+        return -1;
+    }
+    at = PyTuple_GetItem(edge, 0);
+    *t_s = PyFloat_AsDouble(at);
+    if (*t_s == -1.0 && PyErr_Occurred()) {
+        return -1;
+    }
+    if (py_long(PyTuple_GetItem(edge, 1), bits) != 0 || *bits < 0 || *bits > 7 || *t_s < 0.0) {
+        return -1;
+    }
+    return 0;
+}
+
 static void set_halls(avr_irq_t **halls, int bits)
 {
     int i;
@@ -107,22 +137,36 @@ static int plant_period(avr_t *avr, PyObject *plant, avr_cycle_count_t start, av
     PyObject *edges = PyObject_CallMethod(plant, "period", "dddi", a, b, c, enabled);
     PyObject *mv;
     Py_ssize_t i;
-    if (edges == NULL) {
-        return py_fail("the plant's period failed");
+    Py_ssize_t n;
+    long value;
+    if (edges == NULL || !PyTuple_Check(edges)) {
+        Py_XDECREF(edges);
+        return py_fail("the plant's period did not return a tuple of edges");
     }
-    for (i = 0; i < PyTuple_Size(edges) && n_pending < MAX_PENDING; i++) {
-        PyObject *e = PyTuple_GetItem(edges, i);
-        double t_s = PyFloat_AsDouble(PyTuple_GetItem(e, 0));
+    n = PyTuple_Size(edges);
+    if (n > (Py_ssize_t)(MAX_PENDING - n_pending)) {
+        fprintf(stderr, "run_motor: %ld hall edges in one PWM period with %d still queued, more than the %d the "
+                "harness holds (refused: an edge dropped would be a wrong motor)\n", (long)n, n_pending, MAX_PENDING);
+        Py_DECREF(edges);
+        return 1;
+    }
+    for (i = 0; i < n; i++) {
+        double t_s;
+        if (py_edge(PyTuple_GetItem(edges, i), &t_s, &value) != 0) {
+            Py_DECREF(edges);
+            return py_fail("the plant's edge is not (seconds >= 0, hall bits 0..7)");
+        }
         pending[n_pending].at = start + (avr_cycle_count_t)(t_s * (double)avr->frequency + 0.5);
-        pending[n_pending].bits = (int)PyLong_AsLong(PyTuple_GetItem(e, 1));
+        pending[n_pending].bits = (int)value;
         n_pending++;
     }
     Py_DECREF(edges);
     mv = PyObject_CallMethod(plant, "pot_mv", NULL);
-    if (mv == NULL) {
-        return py_fail("the plant's pot failed");
+    if (py_long(mv, &value) != 0 || value < 0 || value > 65535L) {
+        Py_XDECREF(mv);
+        return py_fail("the plant's pot_mv is not a voltage in mV");
     }
-    avr_raise_irq(pot, (uint32_t)PyLong_AsLong(mv));
+    avr_raise_irq(pot, (uint32_t)value);
     Py_DECREF(mv);
     return 0;
 }
@@ -137,8 +181,18 @@ static PyObject *make_plant(const char *config, int n_overrides, char **override
         return NULL;
     }
     words = PyTuple_New(n_overrides);
+    if (words == NULL) {
+        Py_DECREF(module);
+        return NULL;
+    }
     for (i = 0; i < n_overrides; i++) {
-        PyTuple_SetItem(words, i, PyUnicode_FromString(overrides[i]));
+        PyObject *word = PyUnicode_DecodeFSDefault(overrides[i]);
+        if (word == NULL) {
+            Py_DECREF(words);
+            Py_DECREF(module);
+            return NULL;
+        }
+        PyTuple_SET_ITEM(words, i, word); /* steals the reference */
     }
     plant = PyObject_CallMethod(module, "PinPlant", "sOI", config, words, period_us);
     Py_DECREF(words);
@@ -208,10 +262,14 @@ int main(int argc, char **argv)
     }
     pot = avr_io_getirq(avr, AVR_IOCTL_ADC_GETIRQ, ADC_IRQ_ADC0);
     bits = PyObject_GetAttrString(plant, "hall_bits");
-    if (bits == NULL) {
-        return py_fail("the plant has no hall_bits");
+    {
+        long value;
+        if (py_long(bits, &value) != 0 || value < 0 || value > 7) {
+            Py_XDECREF(bits);
+            return py_fail("the plant's hall_bits is not 0..7");
+        }
+        set_halls(halls, (int)value); /* the rotor's position at power-on */
     }
-    set_halls(halls, (int)PyLong_AsLong(bits)); /* the rotor's position at power-on */
     Py_DECREF(bits);
     uart_pty_init(avr, &uart_pty);
     uart_pty_connect(&uart_pty, '0');
