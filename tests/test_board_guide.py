@@ -25,7 +25,7 @@ from typing import IO
 
 import pytest
 
-from _firmware import require_tool
+from _firmware import python_config, require_tool
 from hilbench.processes import reap, spawn
 
 pytestmark = pytest.mark.slow
@@ -215,7 +215,7 @@ def _motor_part(commands: list[str], tmp_path: Path) -> set[str]:
             assert done.returncode == 0 and "flash estimate:" in lines[-1], done
             ran.add(command)
         elif command.startswith("make ") and "/tmp/motor" in command:
-            config = f"python{sys.version_info.major}.{sys.version_info.minor}-config"
+            config = python_config("the AVR real-motor harness embeds this Python")
             done = subprocess.run([*shlex.split(command.replace("/tmp/motor", str(out))), f"PYTHON_CONFIG={config}"],
                                   cwd=REPO, capture_output=True, text=True, timeout=600)
             assert done.returncode == 0, done.stderr

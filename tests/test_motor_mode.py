@@ -36,7 +36,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from _firmware import require_file, require_tool
+from _firmware import python_config, require_file, require_tool
 from hilbench.bench.monitorrun import analyse_measured
 from hilbench.bench.recorder import read_recording
 from hilbench.bench.steptest import StepTest
@@ -86,8 +86,7 @@ def motor_build(tmp_path_factory) -> Path:
     require_tool("make", "the AVR build's Makefile")
     require_tool("simavr", "the pin-level harness (apt: simavr)")
     require_file("/usr/include/simavr/parts/uart_pty.h", "libsimavr-dev", "the harness's UART pty")
-    config = f"python{sys.version_info.major}.{sys.version_info.minor}-config"
-    require_tool(config, "the harness embeds this Python (its hilbench plant): apt python3-dev, or pyenv's")
+    config = python_config("the harness embeds this Python (its hilbench plant)")
     out = tmp_path_factory.mktemp("motor")
     result = subprocess.run(["make", "-C", str(AVR_DIR), f"OUT={out}", "MODE=motor", f"PYTHON_CONFIG={config}"],
                             capture_output=True, text=True, timeout=300)
