@@ -100,3 +100,30 @@ def test_an_adc_offset_shifts_every_channel_by_a_32nd_of_full_scale() -> None:
     assert np.all(shift[:, :100] == 0) and np.all(shift[:, 200:] == 0)
     during = duties[0][:, 100:200]
     assert np.array_equal(shift[:, 100:200], np.minimum(during + 32, 1023) - during) and np.all(shift[:, 100:200] > 0)
+
+
+def test_a_missing_edge_mid_run_holds_the_halls_of_the_last_sensors() -> None:
+    """Injected long after the start, a missing edge holds the halls the target got last — not
+    those of the run's start (the fault's baseline was set once, when the session began)."""
+    with hilbench.Bench() as bench:  # AN1017 in process
+        bench.set_reference(1000.0)
+        bench.press("s2")
+        bench.run(0.4)
+        assert bench.speed_rpm > 500
+        session = bench.session
+        assert session is not None
+        got: list[Sensors] = []
+        step = session.target.step
+        session.target.step = lambda s: (got.append(s), step(s))[1]  # type: ignore[method-assign]
+        session._rows_changed = True  # the periods' runner binds the step again
+        start_halls = int(bench.signals()["hall"][0])
+        bench.inject_fault("hall_missing_edge")
+        for _ in range(2000):  # one period at a time, up to the first hall change
+            before = session.hall_bits_sent
+            bench.run(50e-6)
+            if session.hall_bits_sent != before:
+                break
+        else:
+            raise AssertionError("no hall change in 0.1 s")
+        assert before != start_halls, "the run's start halls again: the test shows nothing"
+        assert got[-1].inputs & 7 == before and got[-1].edges == ()  # the last halls, none of the edges

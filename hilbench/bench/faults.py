@@ -138,9 +138,12 @@ class SensorFaults:
         """Whether `filter` must see this period's Sensors."""
         return bool(self.active)
 
-    def apply(self, kind: str, t_s: float, duration_s: float | None) -> None:
+    def apply(self, kind: str, t_s: float, duration_s: float | None, hall_bits: int | None = None) -> None:
         """Start fault ``kind`` (one of FAULT_KINDS; "clear" ends every passing fault) at ``t_s``,
-        for ``duration_s`` (None: until the next)."""
+        for ``duration_s`` (None: until the next). ``hall_bits``: the halls of the last Sensors
+        (a missing edge is the next change from these, not from the halls of the run's start)."""
+        if hall_bits is not None:
+            self.halls.last = hall_bits
         self.active = [fault for fault in self.active if fault.lasting]
         self.clear_at_s = math.inf
         if kind != "clear":

@@ -154,7 +154,7 @@ class ScenarioPart:
             if event.press == "s2":
                 session.segment("press", t_s)
         elif event.fault is not None:
-            session.faults.apply(event.fault, t_s, event.fault_duration_s)
+            session.faults.apply(event.fault, t_s, event.fault_duration_s, session.hall_bits_sent)
         elif event.params:
             try:
                 session.tuning.set(dict(event.params), t_s)

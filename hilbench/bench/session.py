@@ -188,6 +188,11 @@ class Session:
     def control(self) -> ControlSource | None:
         return self.live.control
 
+    @property
+    def hall_bits_sent(self) -> int:
+        """The plant's halls of the last period's Sensors (before any sensor fault's filter)."""
+        return self._hall_before
+
     # ------------------------------------------------------------------ handshake
     def handshake(self) -> TargetHello:
         """Agree period and mode; learn the target's profile, telemetry and parameters."""
@@ -426,7 +431,6 @@ class Session:
             self._begin_realtime(summary)
         self.lockstep_rtts = StreamingPercentiles()
         self.scenario.start(self.plant.vbus_v)
-        self.faults.halls.last = self.plant.hall_bits
         self._wall_start = time.perf_counter()
         missing = (-1, 0.0)  # (telemetry index, scale) of the firmware's measured speed and reference
         self.sampler.start((self.telemetry_index.get(self.profile.speed_column or "", missing),

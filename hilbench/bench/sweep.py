@@ -103,7 +103,7 @@ class SweepPoint:
 
     params: Params
     constraint: str | None = None  # the broken constraint, None when simulated
-    result: StepResult | None = None
+    result: StepResult | None = None  # its figures; curves only on the sweep's best point (bounded memory)
     rank: int | None = None
     cases: int = 1  # tolerance cases run
 
@@ -370,23 +370,29 @@ def sweep_points(
 
 class _SweepRun:
     """The points of one sweep as their step tests come back: resumed from a store, appended to it,
-    counted for ``progress``; a point's result is its worst tolerance case."""
+    counted for ``progress``; a point's result is its worst tolerance case.
+
+    Memory stays bounded whatever the number of points: a finished point keeps its figures, and
+    only the best point so far keeps its response curves (240 kB for a 1 s step test); the curves of a
+    point whose tolerance cases are still coming are dropped once it is finished."""
 
     def __init__(self, swept: list[SweepPoint], n_cases: int, key: str, saved: "SweepStore | None",
                  progress: Callable[[int, int], None] | None) -> None:
         self.swept, self.n_cases, self.key, self.saved, self.progress = swept, n_cases, key, saved, progress
-        self.results: dict[int, list[StepResult]] = {}
+        self.pending: dict[int, list[StepResult]] = {}  # points whose tolerance cases are still coming
+        self.finished: dict[int, tuple[StepResult, int]] = {}  # point -> (worst case, cases run)
+        self._best: int | None = None  # the finished point whose curves are kept
         if saved is not None:
             for index, (metrics, stalled, cases) in saved.done.items():
-                self.results[index] = [StepResult("resumed", dict(swept[index].params), metrics, np.empty(0),
-                                                  np.empty(0), metrics.y_final_ref, stalled)] * cases
+                self.finished[index] = (StepResult("resumed", dict(swept[index].params), metrics, np.empty(0),
+                                                   np.empty(0), metrics.y_final_ref, stalled), cases)
         self.total = sum(1 for p in swept if not p.skipped)
-        self.done = len(self.results)
+        self.done = len(self.finished)
         if progress is not None:
             progress(self.done, self.total)
 
     def to_run(self) -> list[int]:
-        return [i for i, p in enumerate(self.swept) if not p.skipped and i not in self.results]
+        return [i for i, p in enumerate(self.swept) if not p.skipped and i not in self.finished]
 
     def collect(self, futures: Iterable[Any]) -> None:
         """Every task's results, in point order whatever finishes first."""
@@ -395,24 +401,45 @@ class _SweepRun:
                 self._add(index, result)
 
     def _add(self, index: int, result: StepResult) -> None:
-        runs = self.results.setdefault(index, [])
+        runs = self.pending.setdefault(index, [])
         runs.append(result)
         if len(runs) < self.n_cases:
             return
+        del self.pending[index]
+        worst = max(runs, key=lambda r: _order(r, self.key))
+        self._finish(index, worst, len(runs))
         self.done += 1  # the point's last tolerance case
         if self.saved is not None:
-            self.saved.append(index, max(runs, key=lambda r: _order(r, self.key)), self.n_cases)
+            self.saved.append(index, worst, self.n_cases)
         if self.progress is not None:
             self.progress(self.done, self.total)
+
+    def _finish(self, index: int, worst: StepResult, cases: int) -> None:
+        """Keep the point's figures; its curves only if it is the best so far (ties: the first
+        point, as the ranking orders them)."""
+        best = self._best
+        if best is None or (_order(worst, self.key), index) < (_order(self.finished[best][0], self.key), best):
+            if best is not None:
+                old, old_cases = self.finished[best]
+                self.finished[best] = (_figures_only(old), old_cases)
+            self._best = index
+        else:
+            worst = _figures_only(worst)
+        self.finished[index] = (worst, cases)
 
     def final_points(self) -> list[SweepPoint]:
         out = []
         for index, point in enumerate(self.swept):
-            runs = self.results.get(index)
-            if runs:
-                point = dataclasses.replace(point, result=max(runs, key=lambda r: _order(r, self.key)), cases=len(runs))
+            if index in self.finished:
+                worst, cases = self.finished[index]
+                point = dataclasses.replace(point, result=worst, cases=cases)
             out.append(point)
         return out
+
+
+def _figures_only(result: StepResult) -> StepResult:
+    """A step result without its response curves (a sweep keeps those of its best point only)."""
+    return dataclasses.replace(result, t_s=np.empty(0), speed_rpm=np.empty(0), firmware_ref_rpm=None)
 
 
 def _rank(points: Sequence[SweepPoint], key: str) -> tuple[tuple[SweepPoint, ...], tuple[SweepPoint, ...]]:
