@@ -80,14 +80,20 @@ static inline int32_t q15_frac_mul(int16_t a, int16_t b)
     return p * (int32_t)2;
 }
 
-/* MAC with SATA: acc + a*b (fractional), clamped to 1.31 after the add. */
+/* MAC with SATA: acc + a*b (fractional), clamped to 1.31 after the add. The product shifted once is
+ * added as a 32-bit word; the addend's sign is the product's (only -1 * -1, whose shifted product 2^31
+ * does not fit, would read negative from the word's top bit): the sum overflows when acc and the
+ * addend have one sign and the wrapped sum the other. */
 static inline int32_t q15_mac_sata(int32_t acc, int16_t a, int16_t b)
 {
     int32_t p = (int32_t)a * (int32_t)b;
-    if (p == (int32_t)0x40000000) { /* -1 * -1: acc + 2^31, which saturates unless acc < 0 */
-        return (acc >= 0) ? Q15_ACC_MAX : (int32_t)((uint32_t)acc + 0x80000000UL);
+    uint32_t sum = (uint32_t)acc + ((uint32_t)p << 1);
+    uint16_t hi = (uint16_t)(sum >> 16);
+    uint16_t addend_sign = (p < 0) ? 0x8000u : 0u;
+    if (((((uint16_t)((uint32_t)acc >> 16)) ^ hi) & (addend_sign ^ hi) & 0x8000u) != 0u) {
+        return (acc < 0) ? Q15_ACC_MIN : Q15_ACC_MAX;
     }
-    return q15_sat_add32(acc, p * (int32_t)2);
+    return (sum < 0x80000000UL) ? (int32_t)sum : (int32_t)(-(int32_t)(0xFFFFFFFFUL - sum) - 1);
 }
 
 /* Bits 31:16 of an accumulator value as a Q15 word (a register move on the chip). */
