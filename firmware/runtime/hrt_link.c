@@ -426,6 +426,7 @@ static HRT_NOINLINE void on_sensors(hrt_link_t *l, const hbp_u8 *buf, hbp_u8 len
         hrt_link_send_drive(l, seq);
         return;
     }
+#if !(defined(HRT_PORT_HW) && HRT_PORT_HW) /* (a hardware port's real time runs no span: below) */
     if (l->mode == HBP_MODE_REALTIME) {
         uint32_t now = hrt_port_now();
         if ((l->flags & HRT_LINK_F_SENSORS) != 0u) {
@@ -435,6 +436,7 @@ static HRT_NOINLINE void on_sensors(hrt_link_t *l, const hbp_u8 *buf, hbp_u8 len
             span = (passed < HRT_RT_MAX_PERIODS * span) ? passed : HRT_RT_MAX_PERIODS * span;
         }
     }
+#endif
     l->last_rx = hrt_port_now();
     l->flags = (hbp_u8)((l->flags | HRT_LINK_F_SENSORS | HRT_LINK_F_ANSWERED) & (hbp_u8)~HRT_LINK_F_TRIPPED);
 #if HRT_SPECULATE

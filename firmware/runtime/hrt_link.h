@@ -40,9 +40,7 @@
  * 1 by default; a chip whose flash cannot spare the ~450 bytes (the dsPIC30F2010's AN1017 build)
  * may set 0 for hrt_link.c alone: it then answers those requests with ErrorReport(BAD_REQUEST) and
  * sends empty units, and the host serves it from its profile. */
-#ifndef HRT_DESCRIBE
-#define HRT_DESCRIBE 1
-#endif
+/* (HRT_DESCRIBE's default is in hrt.h: a declaration's describe-only texts follow it, HRT_DESCRIBED) */
 /* Real time on a port without its own timers: each Sensors advances the firmware by the time that
  * passed, at most this many agreed periods (a firmware too slow for real time on its chip falls
  * behind instead of spending ever longer spans catching up). */
