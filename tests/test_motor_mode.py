@@ -168,18 +168,24 @@ def test_monitor_mode_live_gain_and_step_agree_with_lockstep(motor_build: Path, 
 
 def test_motor_build_refuses_frames_and_stops_when_the_host_goes_silent(motor_build: Path) -> None:
     """A real-motor build agrees to monitor mode only (its motor never runs from a simulated rotor:
-    a lockstep HostHello and a Sensors are refused), and when the host falls silent its watchdog
+    a lockstep HostHello and a Sensors are refused; a write or a Start before the MONITOR hello
+    that agrees its watchdog too), and when the host falls silent its watchdog
     stops the motor: the stream says outputs OFF, fault WATCHDOG, about watchdog_ms of the board's
     time after the host's last frame."""
     from hilbench.link import open_link
-    from hilbench.protocol import Drive, ErrorReport, Fault, HostHello, MODE_LOCKSTEP, MODE_MONITOR, OutputMode, \
-        PROTOCOL_VERSION, Sensors, Status, StatusRequest
+    from hilbench.protocol import Drive, ErrorCode, ErrorReport, Fault, HostHello, MODE_LOCKSTEP, MODE_MONITOR, \
+        OutputMode, ParamSet, PROTOCOL_VERSION, Sensors, Start, Status, StatusRequest
     from hilbench.targets.remote import RemoteTarget
 
     harness, pty = _start_harness(motor_build)
     link = open_link(pty, timeout_s=5.0)
     try:
         target = RemoteTarget(link, timeout_s=5.0, retry_s=1.0)
+        # before a MONITOR hello has agreed a watchdog: no write and no Start (the motor would run with none)
+        for request in (ParamSet(3, ((5, 1), (6, 5000))), Start(4)):
+            link.send(request)
+            refusal = target._await(request, (ErrorReport,), time.monotonic(), 10.0, "refusal")
+            assert type(refusal) is ErrorReport and refusal.code == int(ErrorCode.BAD_REQUEST), refusal
         refused = target._request(HostHello(1, PROTOCOL_VERSION, 1000, MODE_LOCKSTEP, 500), ErrorReport)
         assert type(refused) is ErrorReport, refused
         watchdog_ms, period_us = 300, 5000

@@ -904,6 +904,12 @@ void hrt_link_handle(hrt_link_t *l, const hbp_u8 *frame, hbp_u8 len)
         send_error(l, seq, HBP_ERROR_BAD_REQUEST, type);
         return;
     }
+    if ((l->flags & HRT_LINK_F_HELLO) == 0u && (type == HBP_MSG_START || type == HBP_MSG_PARAM_SET)) {
+        /* nothing runs or changes the motor before a MONITOR hello has agreed a watchdog: a Start
+         * from a host that never said hello ran the motor with none */
+        send_error(l, seq, HBP_ERROR_BAD_REQUEST, type);
+        return;
+    }
 #endif
     if (type == HBP_MSG_SENSORS) {
         on_sensors(l, frame, len, seq);
