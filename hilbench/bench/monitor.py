@@ -573,6 +573,10 @@ def monitor_options(period_us: int, watchdog_ms: int, duration_s: float | None, 
                           f"three telemetry values is 22 bytes: 0.9 ms at 250 kbaud); the stream's period must be >= {MIN_PERIOD_US} us, e.g. 5000")
     if watchdog_ms <= 0:
         raise ConfigError("monitor: link.watchdog_ms must be > 0 (the board stops its motor when the host goes silent)")
+    if watchdog_ms * 1000 < 8 * period_us:  # keep-alives every quarter of it, each waiting for 2 streamed Drives
+        raise ConfigError(f"monitor: link.watchdog_ms={watchdog_ms} is less than 8 stream periods (link.period_us="
+                          f"{period_us}): the keep-alives cannot reach the board before its watchdog stops the motor; "
+                          f"use link.watchdog_ms >= {-(-8 * period_us // 1000)}")
     return MonitorOptions(period_us=period_us, watchdog_ms=watchdog_ms, duration_s=duration_s,
                           timeout_s=max(timeout_s, 4.0 * period_us / 1e6, 1.0))
 
