@@ -329,14 +329,30 @@ class MonitorSession:
                     self._stray(frame)
             self._unanswered_at = None
         if type(msg) in (Start, Stop):
+            self._drain_ready()
             self._unanswered_at = self._drives_rx
+
+    def _drain_ready(self) -> None:
+        """Take every frame already here (Drives kept for their rows): the Drives counted after an
+        unanswered frame are then the board's since it was sent, not ones a lagging host had not
+        read yet (a loaded host counted those, sent its next frame too soon, and the board dropped it)."""
+        while True:
+            frame = self._receive(0.0)
+            if frame is None:
+                return
+            if type(frame) is Drive:
+                self._inbox.append(frame)
+            else:
+                self._stray(frame)
 
     def _keep_alive(self) -> None:
         """A StatusRequest whose answer is not waited for (a stray Status): it feeds the watchdog."""
         msg = StatusRequest(0)
         self._before_send(msg)
+        self._drain_ready()
+        sent_at = self._drives_rx
         self.target.link.send(msg)
-        self._unanswered_at = self._drives_rx
+        self._unanswered_at = sent_at
 
     def run(self, make_recorder: Callable[["MonitorSession"], Recorder | MemoryRecorder | None] | None = None,
             gains: dict[str, float] | None = None) -> Summary:
