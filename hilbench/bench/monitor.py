@@ -314,11 +314,7 @@ class MonitorSession:
         if self._unanswered_at is not None:
             deadline = time.monotonic() + self.options.timeout_s
             while self._drives_rx < self._unanswered_at + TAKEN_AFTER_DRIVES and time.monotonic() < deadline:
-                frame = self._receive(min(0.02, max(0.0, deadline - time.monotonic())))
-                if type(frame) is Drive:
-                    self._inbox.append(frame)
-                elif frame is not None:
-                    self._stray(frame)
+                self._hold(min(0.02, max(0.0, deadline - time.monotonic())))
             self._unanswered_at = None
         if type(msg) in (Start, Stop):
             self._drain_ready()
@@ -328,14 +324,20 @@ class MonitorSession:
         """Take every frame already here (Drives kept for their rows): the Drives counted after an
         unanswered frame are then the board's since it was sent, not ones a lagging host had not
         read yet (a loaded host counted those, sent its next frame too soon, and the board dropped it)."""
-        while True:
-            frame = self._receive(0.0)
-            if frame is None:
-                return
-            if type(frame) is Drive:
-                self._inbox.append(frame)
-            else:
-                self._stray(frame)
+        while self._hold(0.0):
+            pass
+
+    def _hold(self, timeout_s: float) -> bool:
+        """One frame taken outside the row loop: a Drive kept in the inbox for its row, anything else
+        as a stray; False when none came within ``timeout_s``."""
+        frame = self._receive(timeout_s)
+        if frame is None:
+            return False
+        if type(frame) is Drive:
+            self._inbox.append(frame)
+        else:
+            self._stray(frame)
+        return True
 
     def _keep_alive(self) -> None:
         """A StatusRequest whose answer is not waited for (a stray Status): it feeds the watchdog."""
