@@ -30,6 +30,7 @@ from hilbench.version import __version__
 from hilbench.bench import settings
 from hilbench.bench.cpus import CpuPinning
 from hilbench.bench.assembly import BenchParts, build_bench, configured_profile, connect
+from hilbench.bench.column_chunks import ArrayChunks, ColumnChunks, recording_chunks
 from hilbench.bench.recorder import MemoryRecorder, Recorder, read_recording
 from hilbench.bench.scenario import Event
 from hilbench.bench.session import ControlSource, PlantLike, Session, Snapshot, Summary
@@ -303,6 +304,18 @@ class Bench:
             recorder.flush()
         data = read_recording(recorder.path)
         return Signals(data.columns, data.units)
+
+    def signal_chunks(self) -> ColumnChunks:
+        """The recorded columns to read a chunk of rows at a time (the run's checks: memory bounded
+        however long the run, where `signals` holds every column whole)."""
+        recorder = self.recorder
+        if isinstance(recorder, MemoryRecorder):
+            return ArrayChunks(recorder.columns(), {name: unit for name, unit, _ in recorder.rows.layout.column_specs})
+        if recorder is None:
+            raise ConfigError("Bench: nothing recorded yet")
+        if not recorder.closed:
+            recorder.flush()
+        return recording_chunks(recorder.path)
 
     @property
     def events(self) -> tuple[str, ...]:

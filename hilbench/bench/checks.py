@@ -47,6 +47,8 @@ from typing import TYPE_CHECKING, Callable, Iterator, Literal, Mapping, Sequence
 
 import numpy as np
 
+from hilbench.bench.chunk_scans import FirstNonzero, RunningPeak, SettleScan, WindowScan
+from hilbench.bench.column_chunks import ArrayChunks, ColumnChunks
 from hilbench.fieldspec import spec
 from hilbench.errors import CheckFailed, HilbenchError
 
@@ -144,7 +146,8 @@ class CheckResult:
                 "figure": self.figure, "value": self.value, "bound": self.bound}
 
 
-SignalsSource = Callable[[], Mapping[str, np.ndarray]]
+#: a run's recorded signals: whole arrays (a run that kept its rows) or a recording read in chunks
+SignalsSource = Callable[[], "Mapping[str, np.ndarray] | ColumnChunks"]
 
 #: kinds judged on the summary alone; the others read the recorded signals
 SUMMARY_KINDS = ("speed_error", "overruns")
@@ -152,19 +155,20 @@ SUMMARY_KINDS = ("speed_error", "overruns")
 
 def run_checks(entries: Sequence[CheckEntry], summary: "Summary", signals: SignalsSource,
                absent: Mapping[str, str] | None = None) -> list[CheckResult]:
-    """Judge every run kind of ``entries`` on a finished run; ``signals`` is read only if needed.
-    ``absent``: columns this kind of run cannot record, each with the reason (a check reading one
-    says SKIP with it; any other missing column is the check's failure or a bug, never a SKIP)."""
-    cache: dict[str, Mapping[str, np.ndarray]] = {}
+    """Judge every run kind of ``entries`` on a finished run; ``signals`` is read only if needed,
+    and then only the columns a check reads, a chunk of rows at a time (memory bounded however
+    long the run). ``absent``: columns this kind of run cannot record, each with the reason (a
+    check reading one says SKIP with it; any other missing column is the check's failure or a
+    bug, never a SKIP)."""
+    cache: dict[str, _Signals] = {}
 
-    def columns() -> Mapping[str, np.ndarray]:
+    def columns() -> _Signals:
         if "s" not in cache:
             try:
-                cache["s"] = signals()
+                source = signals()
             except HilbenchError as exc:  # nothing recorded: `hilbench run` without --record keeps no rows
                 raise _NoRows(str(exc)) from None
-            if absent:
-                cache["s"] = _WithAbsent(cache["s"], absent)
+            cache["s"] = _Signals(source if isinstance(source, ColumnChunks) else ArrayChunks(source), absent or {})
         return cache["s"]
 
     def judge(entry: CheckEntry) -> CheckResult:
@@ -189,30 +193,27 @@ class _Absent(Exception):
     """A check reads a column this kind of run cannot record."""
 
 
-class _WithAbsent(Mapping[str, np.ndarray]):
-    """A run's signals; reading (or asking for) a column ``absent`` names raises `_Absent` with its reason."""
+class _Signals:
+    """A run's signals for the checks: asking for a column ``absent`` names raises `_Absent` with
+    its reason; reading gives the columns asked for, a chunk of rows at a time."""
 
-    def __init__(self, signals: Mapping[str, np.ndarray], absent: Mapping[str, str]) -> None:
-        self._signals = signals
+    def __init__(self, source: ColumnChunks, absent: Mapping[str, str]) -> None:
+        self._source = source
         self._absent = absent
 
-    def _refuse(self, name: object) -> None:
-        if isinstance(name, str) and name in self._absent and name not in self._signals:
+    def _refuse(self, name: str) -> None:
+        if name in self._absent and name not in self._source.names:
             raise _Absent(f"no column {name!r}: {self._absent[name]}")
 
-    def __getitem__(self, name: str) -> np.ndarray:
+    def has(self, name: str) -> bool:
         self._refuse(name)
-        return self._signals[name]
+        return name in self._source.names
 
-    def __contains__(self, name: object) -> bool:
-        self._refuse(name)
-        return name in self._signals
-
-    def __iter__(self) -> Iterator[str]:
-        return iter(self._signals)
-
-    def __len__(self) -> int:
-        return len(self._signals)
+    def chunks(self, *names: str) -> Iterator[dict[str, np.ndarray]]:
+        """t_s and ``names`` chunk by chunk (KeyError: a column the run does not have)."""
+        for name in names:
+            self._refuse(name)
+        return self._source.chunks(names)
 
 
 def _for_firmware(entry: CheckEntry, firmware: str) -> bool:
@@ -249,11 +250,8 @@ def _result(entry: CheckEntry, passed: bool, figure: str, value: float | None, b
     return CheckResult(entry.label, entry.kind, bool(passed), figure, value, bound)
 
 
-def _window(entry: CheckEntry, t: np.ndarray) -> tuple[np.ndarray, str]:
-    end = entry.to_s if entry.to_s is not None else math.inf
-    mask = (t >= entry.from_s) & (t <= end)
-    last = float(t[-1]) if t.size else 0.0
-    return mask, f"{entry.from_s:.3f}-{min(end, last):.3f} s"
+def _scan(entry: CheckEntry) -> WindowScan:
+    return WindowScan(entry.from_s, entry.to_s)
 
 
 #: how a run can end before its scenario: the last held reference was cut short, not completed
@@ -282,7 +280,7 @@ def _unjudged(entry: CheckEntry, why: str, bound: float | None) -> CheckResult:
     return CheckResult(entry.label, entry.kind, True, f"not judged: {why}", None, bound, skipped=True)
 
 
-Columns = Callable[[], Mapping[str, np.ndarray]]
+Columns = Callable[[], "_Signals"]
 
 
 def _judge_run(entry: CheckEntry, summary: "Summary", columns: Columns) -> CheckResult:
@@ -304,29 +302,19 @@ def _speed_error(entry: CheckEntry, summary: "Summary", columns: Columns) -> Che
                    abs(err), bound)
 
 
-def _settle_time(t: np.ndarray, speed: np.ndarray, seg: "Segment", band: float) -> float:
-    """From a segment's start until the speed stays within ``band`` of its reference to its end
-    (inf: outside the band at the end)."""
-    mask = (t >= seg.t_start_s) & (t < seg.t_end_s)
-    tt, yy = t[mask], speed[mask]
-    outside = np.flatnonzero(np.abs(yy - seg.ref_rpm) > band * abs(seg.ref_rpm))
-    if outside.size == 0:
-        return 0.0
-    if outside[-1] == yy.size - 1:
-        return math.inf  # still outside at the segment's end
-    return float(tt[outside[-1] + 1] - seg.t_start_s)
-
-
 def _settling_time(entry: CheckEntry, summary: "Summary", columns: Columns) -> CheckResult:
     """The slowest settling into the band of the held references judged."""
     chosen, why = _segments(entry, summary)
     if not chosen:
         return _unjudged(entry, why, entry.max_s)
-    c = columns()
     band = entry.band_pct / 100.0
+    scans = [(n, SettleScan(seg, band)) for n, seg in chosen]
+    for chunk in columns().chunks("speed_rpm"):  # every segment judged in one pass
+        for _, scan in scans:
+            scan.offer(chunk["t_s"], chunk["speed_rpm"])
     worst_n, worst_s, worst_seg = 0, -1.0, chosen[0][1]
-    for n, seg in chosen:
-        settle = _settle_time(c["t_s"], c["speed_rpm"], seg, band)
+    for n, scan in scans:
+        settle, seg = scan.settle_s, scan.segment
         if settle > worst_s:
             worst_n, worst_s, worst_seg = n, settle, seg
     bound = float(entry.max_s or 0.0)
@@ -338,27 +326,37 @@ def _settling_time(entry: CheckEntry, summary: "Summary", columns: Columns) -> C
 
 
 def _peak_current(entry: CheckEntry, summary: "Summary", columns: Columns) -> CheckResult:
-    c = columns()
-    mask, window = _window(entry, c["t_s"])
-    stacked = np.abs(np.stack([c["ia_a"][mask], c["ib_a"][mask], c["ic_a"][mask]]))
-    return _max_abs(entry, "|ia|,|ib|,|ic|", stacked.max(axis=0) if stacked.size else stacked,
-                    c["t_s"][mask], float(entry.max_a or 0.0), "A", window)
+    window, peak = _scan(entry), RunningPeak()
+    for c in columns().chunks("ia_a", "ib_a", "ic_a"):
+        mask = window.mask(c["t_s"])
+        stacked = np.abs(np.stack([c["ia_a"][mask], c["ib_a"][mask], c["ic_a"][mask]]))
+        values = stacked.max(axis=0) if stacked.size else stacked
+        peak.offer(values, values, c["t_s"][mask])
+    return _max_abs(entry, "|ia|,|ib|,|ic|", peak, float(entry.max_a or 0.0), "A", window.text)
 
 
 def _speed_limit(entry: CheckEntry, summary: "Summary", columns: Columns) -> CheckResult:
-    c = columns()
-    mask, window = _window(entry, c["t_s"])
-    return _max_abs(entry, "|speed_rpm|", np.abs(c["speed_rpm"][mask]), c["t_s"][mask],
-                    float(entry.max_rpm or 0.0), "rpm", window)
+    window, peak = _scan(entry), RunningPeak()
+    for c in columns().chunks("speed_rpm"):
+        mask = window.mask(c["t_s"])
+        values = np.abs(c["speed_rpm"][mask])
+        peak.offer(values, values, c["t_s"][mask])
+    return _max_abs(entry, "|speed_rpm|", peak, float(entry.max_rpm or 0.0), "rpm", window.text)
 
 
 def _signal(entry: CheckEntry, summary: "Summary", columns: Columns) -> CheckResult:
     c = columns()
-    mask, window = _window(entry, c["t_s"])
     name = entry.signal or ""
-    if name not in c:
+    if not c.has(name):
         return _result(entry, False, f"no column {name!r} in the recording", None, None)
-    return _within(entry, name, c[name][mask], c["t_s"][mask], window)
+    lo = -math.inf if entry.min is None else entry.min
+    hi = math.inf if entry.max is None else entry.max
+    window, worst = _scan(entry), RunningPeak()
+    for chunk in c.chunks(name):
+        mask = window.mask(chunk["t_s"])
+        values = chunk[name][mask]
+        worst.offer(np.maximum(lo - values, values - hi), values, chunk["t_s"][mask])
+    return _within(entry, name, worst, window.text)
 
 
 def _no_fault(entry: CheckEntry, summary: "Summary", columns: Columns) -> CheckResult:
@@ -369,14 +367,14 @@ def _no_fault(entry: CheckEntry, summary: "Summary", columns: Columns) -> CheckR
         c = columns()
     except _NoRows:
         return _no_fault_live(entry, summary)
-    mask, window = _window(entry, c["t_s"])
-    codes = c["fault"][mask]
-    bad = np.flatnonzero(codes != 0)
-    if bad.size:
-        i = int(bad[0])
-        return _result(entry, False, f"firmware fault code {int(codes[i])} at {float(c['t_s'][mask][i]):.4f} s "
-                                     f"(over {window}, {bad.size} periods with a fault)", float(bad.size), 0.0)
-    return _result(entry, True, f"no fault over {window}", 0.0, 0.0)
+    window, first = _scan(entry), FirstNonzero()
+    for chunk in c.chunks("fault"):
+        mask = window.mask(chunk["t_s"])
+        first.offer(chunk["fault"][mask], chunk["t_s"][mask])
+    if first.count:
+        return _result(entry, False, f"firmware fault code {int(first.code)} at {first.t_s:.4f} s "
+                                     f"(over {window.text}, {first.count} periods with a fault)", float(first.count), 0.0)
+    return _result(entry, True, f"no fault over {window.text}", 0.0, 0.0)
 
 
 def _no_fault_live(entry: CheckEntry, summary: "Summary") -> CheckResult:
@@ -410,28 +408,21 @@ _RUN_JUDGES: dict[str, Callable[[CheckEntry, "Summary", Columns], CheckResult]] 
 assert tuple(_RUN_JUDGES) == RUN_KINDS
 
 
-def _max_abs(entry: CheckEntry, what: str, values: np.ndarray, t: np.ndarray, bound: float, unit: str,
-             window: str) -> CheckResult:
-    if values.size == 0:
+def _max_abs(entry: CheckEntry, what: str, peak: RunningPeak, bound: float, unit: str, window: str) -> CheckResult:
+    if not peak.found:
         return _result(entry, False, f"no samples over {window}", None, bound)
-    i = int(np.argmax(values))
-    peak = float(values[i])
-    ok = peak <= bound
-    return _result(entry, ok, f"max {what} {peak:.4g} {unit} at {float(t[i]):.4f} s over {window} "
-                              f"{'<=' if ok else '>'} {bound:g} {unit}", peak, bound)
+    ok = peak.value <= bound
+    return _result(entry, ok, f"max {what} {peak.value:.4g} {unit} at {peak.t_s:.4f} s over {window} "
+                              f"{'<=' if ok else '>'} {bound:g} {unit}", peak.value, bound)
 
 
-def _within(entry: CheckEntry, name: str, values: np.ndarray, t: np.ndarray, window: str) -> CheckResult:
-    if values.size == 0:
+def _within(entry: CheckEntry, name: str, worst: RunningPeak, window: str) -> CheckResult:
+    if not worst.found:
         return _result(entry, False, f"no samples over {window}", None, None)
-    lo = -math.inf if entry.min is None else entry.min
-    hi = math.inf if entry.max is None else entry.max
-    excess = np.maximum(lo - values, values - hi)
-    i = int(np.argmax(excess))
-    ok = float(excess[i]) <= 0.0
+    ok = worst.key <= 0.0
     limits = f"[{'' if entry.min is None else format(entry.min, 'g')}, {'' if entry.max is None else format(entry.max, 'g')}]"
-    return _result(entry, ok, f"{name} worst {float(values[i]):.4g} at {float(t[i]):.4f} s over {window} "
-                              f"{'within' if ok else 'outside'} {limits}", float(values[i]), entry.max if entry.max is not None else entry.min)
+    return _result(entry, ok, f"{name} worst {worst.value:.4g} at {worst.t_s:.4f} s over {window} "
+                              f"{'within' if ok else 'outside'} {limits}", worst.value, entry.max if entry.max is not None else entry.min)
 
 
 # ---------------------------------------------------------------- step kinds

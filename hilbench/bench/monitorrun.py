@@ -17,10 +17,11 @@ from hilbench.version import __version__
 from hilbench.bench import settings
 from hilbench.bench.assembly import configured_profile
 from hilbench.bench.bench import Signals
+from hilbench.bench.column_chunks import AliasChunks, ArrayChunks, ColumnChunks, recording_chunks
 from hilbench.bench.launcher import open_target
 from hilbench.bench.metrics import step_metrics
 from hilbench.bench.monitor import MonitorOptions, MonitorSession, monitor_options
-from hilbench.bench.recorder import MemoryRecorder, Recorder, read_recording
+from hilbench.bench.recorder import MemoryRecorder, Recorder
 from hilbench.bench.scenario import Event
 from hilbench.bench.summary import Snapshot, Summary
 from hilbench.config import BenchConfig
@@ -64,9 +65,10 @@ def run_monitor_session(
     gains: dict[str, float] | None = None,
     on_ready: Callable[[MonitorSession], None] | None = None,
     observer: Callable[[Snapshot], None] | None = None,
-) -> tuple[Summary, Signals | None]:
+) -> tuple[Summary, ColumnChunks | None]:
     """One monitor session on the configured board: handshake, ``gains`` written, the events played
-    at the board's time; the summary and (recorded or kept) the signals."""
+    at the board's time; the summary and (recorded or kept) the signals, to read in chunks (a
+    recording is not read here: a check reads only its columns, a chunk at a time)."""
     # a request's answer waits behind the stream's Drives, and a frame sent again while the board
     # sends is one it loses (it holds one received frame): patient timeouts and retries
     handle = open_target(cfg.link.target, mode="realtime", timeout_s=max(cfg.link.timeout_ms / 1000.0, MONITOR_TIMEOUT_S),
@@ -97,12 +99,11 @@ def run_monitor_session(
         recorder = session.recorder
     finally:
         handle.close()
-    signals: Signals | None = None
+    signals: ColumnChunks | None = None
     if isinstance(recorder, MemoryRecorder):
-        signals = Signals(recorder.columns(), {n: u for n, u, _ in recorder.rows.layout.column_specs})
+        signals = ArrayChunks(recorder.columns(), {n: u for n, u, _ in recorder.rows.layout.column_specs})
     elif record is not None:
-        data = read_recording(record)
-        signals = Signals(data.columns, data.units)
+        signals = recording_chunks(record)
     return summary, signals
 
 
@@ -118,16 +119,15 @@ def run_monitor(cfg: BenchConfig, *, record: str | Path | None = None, control: 
     if cfg.check:
         from hilbench.bench.checks import run_checks
 
-        def columns() -> Signals:
+        def columns() -> ColumnChunks:
             """The recorded signals, the firmware's measured speed standing for the plant's speed
             (`speed_rpm`: there is no other in monitor mode)."""
             if signals is None:  # the signal checks say SKIP (memory stays flat however long the run)
                 raise ConfigError("monitor: nothing recorded")
             speed = settings.configured_target_profile(cfg).speed_column
-            if speed is None or speed not in signals:
+            if speed is None or speed not in signals.names:
                 return signals
-            return Signals({**signals.columns, "speed_rpm": signals.columns[speed]},
-                           {**signals.units, "speed_rpm": signals.units.get(speed, "rpm")})
+            return AliasChunks(signals, {"speed_rpm": speed})
 
         from hilbench.plant.model import OUTPUTS
 
@@ -141,12 +141,13 @@ def monitor_step(cfg: BenchConfig, test: "StepTest", gains: dict[str, float] | N
     """`hilbench step --mode monitor`: the step test on the board's motor, its figures from the
     firmware's measured speed (the telemetry column the profile names), from the step's row on;
     ``warn`` gets the session's warnings (e.g. a Stop the stream never confirmed)."""
-    summary, signals = run_monitor_session(cfg, test.events(), record=record, keep_rows=record is None,
-                                           duration_s=test.duration_s, gains=gains)
+    summary, kept = run_monitor_session(cfg, test.events(), record=record, keep_rows=record is None,
+                                        duration_s=test.duration_s, gains=gains)
     for warning in summary.warnings:
         if warn is not None:
             warn(warning)
-    assert signals is not None
+    assert kept is not None
+    signals = Signals(kept.whole(), kept.units)  # a step test's few seconds
     profile = configured_profile(cfg) or settings.configured_target_profile(cfg)
     column = profile.speed_column
     if column is None or column not in signals:

@@ -26,7 +26,7 @@ import struct
 import zipfile
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Sequence
+from typing import Any, Iterator, Sequence
 
 import numpy as np
 
@@ -565,17 +565,34 @@ def _read_csv(path: Path) -> RecordingData:
 
     metadata: dict[str, Any] = {}
     events: list[str] = []
+    header: dict[str, Any] = {}
     blocks: list[np.ndarray] = []
+    for block in csv_blocks(path, metadata, events, header):
+        blocks.append(block)
+        if len(block) == 4096:
+            check_columns_fit(str(path), len(header["names"]), 4096 * len(blocks))
+    names: list[str] = header["names"]
+    table = np.concatenate(blocks) if len(blocks) > 1 else blocks[0]
+    columns = {name: table[:, i].copy() for i, name in enumerate(names)}
+    return RecordingData(path, columns, metadata, tuple(events), header["units"])
+
+
+def csv_blocks(path: Path, metadata: dict[str, Any], events: list[str], header: dict[str, Any],
+               block_rows: int = 4096) -> Iterator[np.ndarray]:
+    """A CSV recording's rows as float64 blocks of ``block_rows`` rows (the last one shorter, maybe
+    empty); its header's names and units go into ``header`` before the first block, its metadata
+    and events into theirs as they are read. A row cut by a crash ends the file; one with rows
+    after it is a damaged file (RecordingError)."""
     block: list[list[float]] = []
     names: list[str] | None = None
-    units: dict[str, str] = {}
     torn: tuple[int, int] | None = None  # (line, cells) of a row cut by a crash: only the last row may be
     with open(path, encoding="utf-8") as handle:
         for n, line in enumerate(_csv_lines(handle, path), 1):
             if _csv_comment(line, metadata, events):
                 continue
             if names is None:
-                names, units = _csv_header(path, line)
+                names, header["units"] = _csv_header(path, line)
+                header["names"] = names
                 continue
             if torn is not None:  # rows after a damaged one: not a crash's cut, the file is damaged
                 raise RecordingError(f"recording {path}: line {torn[0]}: a row of {torn[1]} values, the header names "
@@ -585,16 +602,12 @@ def _read_csv(path: Path) -> RecordingData:
                 torn = (n, len(cells))  # a row cut by a crash: everything before it stands
                 continue
             block.append([float(cell) for cell in cells])
-            if len(block) >= 4096:  # rows into arrays as they come: a list of floats is 4x their size
-                blocks.append(np.asarray(block, dtype=float))
+            if len(block) >= block_rows:  # rows into arrays as they come: a list of floats is 4x their size
+                yield np.asarray(block, dtype=float)
                 block = []
-                check_columns_fit(str(path), len(names), 4096 * len(blocks))
     if names is None:
         raise RecordingError(f"recording {path}: no header line (empty or not a hilbench CSV)")
-    blocks.append(np.asarray(block, dtype=float).reshape(-1, len(names)))
-    table = np.concatenate(blocks) if len(blocks) > 1 else blocks[0]
-    columns = {name: table[:, i].copy() for i, name in enumerate(names)}
-    return RecordingData(path, columns, metadata, tuple(events), units)
+    yield np.asarray(block, dtype=float).reshape(-1, len(names))
 
 
 def _read_journal_rows(path: Path, head_only: bool = False) -> tuple[dict[str, Any], RowLayout, Any]:

@@ -119,6 +119,37 @@ def check_columns(where: str, columns: Mapping[str, Any], required: tuple[str, .
     return out
 
 
+def check_column_header(where: str, name: str, shape: tuple[int, ...], dtype: np.dtype, n_rows: int | None) -> None:
+    """A column known by its header only (an NPZ member read in chunks) by `check_columns`' rules:
+    one number per row, as many rows as t_s (``n_rows``; None: this is t_s)."""
+    if len(shape) != 1:
+        raise RecordingError(f"recording {where}: column {name} has shape {shape}, not one value per row")
+    if dtype.kind not in "biuf":
+        raise RecordingError(f"recording {where}: column {name} holds {dtype} values, not numbers")
+    if n_rows is not None and shape[0] != n_rows:
+        raise RecordingError(f"recording {where}: column {name} has {shape[0]} rows, t_s has {n_rows}")
+
+
+def check_chunk(where: str, first_row: int, columns: Mapping[str, np.ndarray], t_before: float | None) -> None:
+    """Rows ``first_row..`` of a recording read in chunks, by `check_columns`' rules and with its
+    row numbers: t_s finite and increasing (from ``t_before``, the last t_s of the chunk before),
+    the whole-number columns finite."""
+    t = columns["t_s"]
+    bad = np.flatnonzero(~np.isfinite(t))
+    if len(bad):
+        raise RecordingError(f"recording {where}: t_s is {t[bad[0]]} at row {first_row + bad[0]}")
+    joined = t if t_before is None else np.concatenate(([t_before], t))
+    back = np.flatnonzero(np.diff(joined) <= 0)
+    if len(back):
+        row = first_row + back[0] + (1 if t_before is None else 0)
+        raise RecordingError(f"recording {where}: t_s does not increase at row {row} "
+                             f"({joined[back[0]]!r} then {joined[back[0] + 1]!r})")
+    for name in WHOLE_COLUMNS:
+        bad = np.flatnonzero(~np.isfinite(columns[name])) if name in columns else ()
+        if len(bad):
+            raise RecordingError(f"recording {where}: {name} is {columns[name][bad[0]]} at row {first_row + bad[0]}")
+
+
 def check_events(where: str, events: Any) -> tuple[str, ...]:
     """Events as text; a ``segment:`` event with numbers that are not finite is refused."""
     if not _text_list(list(events) if isinstance(events, tuple) else events):
@@ -131,4 +162,5 @@ def check_events(where: str, events: Any) -> tuple[str, ...]:
     return tuple(events)
 
 
-__all__ = ["METADATA_TYPES", "WHOLE_COLUMNS", "check_columns", "check_columns_fit", "check_events", "check_metadata"]
+__all__ = ["METADATA_TYPES", "WHOLE_COLUMNS", "check_chunk", "check_column_header", "check_columns", "check_columns_fit",
+           "check_events", "check_metadata"]

@@ -98,7 +98,7 @@ def run_bench(
         if cfg.check:  # the config's pass/fail criteria, on what was recorded
             from hilbench.bench.checks import run_checks
 
-            summary.checks = run_checks(cfg.check, summary, bench.signals)
+            summary.checks = run_checks(cfg.check, summary, bench.signal_chunks)
     assert summary is not None
     held = overrun_warning(summary.periods, summary.overruns, stall_periods=summary.longest_stall_periods,
                            stall_at_s=summary.longest_stall_at_s, period_us=cfg.link.period_us,

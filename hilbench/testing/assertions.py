@@ -172,7 +172,7 @@ def assert_config_checks(bench: "Bench") -> "list[CheckResult]":
     from hilbench.bench.checks import run_checks
 
     summary = bench.summary()
-    results = run_checks(bench.config.check, summary, bench.signals)
+    results = run_checks(bench.config.check, summary, bench.signal_chunks)
     for r in results:
         if r.value is not None:
             record_metric(f"check.{r.name}", round(float(r.value), 6))
