@@ -1,0 +1,261 @@
+"""[[check]] tables judged a chunk of rows at a time: the same verdicts as the whole-array evaluation
+(`run_checks` before it read in chunks, loaded from git) on one recording with several segments and
+every run kind, read from an NPZ, its journal and a CSV and cut into chunks of 1 row and more; and
+the peak memory of judging a recording does not grow with its length."""
+
+from __future__ import annotations
+
+import importlib.util
+import json
+import math
+import subprocess
+import sys
+import textwrap
+from pathlib import Path
+from types import ModuleType
+from typing import Iterator, Sequence
+
+import numpy as np
+import pytest
+
+from conftest import REPO_ROOT
+from hilbench.bench.checks import CheckEntry, CheckResult, run_checks
+from hilbench.bench.column_chunks import Chunk, ColumnChunks, recording_chunks
+from hilbench.bench.npzwriter import ColumnArchive
+from hilbench.bench.recorder import COLUMN_NAMES, Recorder, read_recording
+from hilbench.bench.summary import Segment, Summary
+
+#: main when the checks began to read in chunks: its run_checks evaluated whole arrays
+WHOLE_ARRAY_COMMIT = "fe6a6bf"
+DT_S = 1e-3
+N_ROWS = 4000
+SEGMENTS = (  # (from_s, to_s, ref_rpm): settles, never settles, always within, leaves at its last row
+    (0.0, 0.8, 1000.0), (0.8, 1.6, 2000.0), (1.6, 2.2, -1500.0), (2.2, 3.0, 500.0), (3.0, 4.0, 800.0))
+
+
+def _signals() -> dict[str, np.ndarray]:
+    """4 s at 1 kHz over five held references, with exact ties, a NaN current and two faults."""
+    t = np.arange(N_ROWS) * DT_S
+    columns = {name: np.zeros(N_ROWS) for name in COLUMN_NAMES}
+    speed = np.zeros(N_ROWS)
+    for start, end, ref in SEGMENTS:
+        rows = (t >= start) & (t < end)
+        speed[rows] = ref * (1.0 - np.exp(-(t[rows] - start) / 0.05))
+        columns["ref_speed_rpm"][rows] = ref
+    rows = (t >= 0.8) & (t < 1.6)
+    speed[rows] = np.minimum(2000.0 + 400.0 * np.sin(2 * math.pi * 7 * t[rows]), 2300.0)  # ties at 2300
+    speed[(t >= 1.6) & (t < 2.2)] = -1500.0
+    speed[(t >= 2.2) & (t < 3.0)] = 500.0
+    speed[np.flatnonzero(t < 3.0)[-1]] = 700.0  # outside the band at the segment's last row only
+    w = 2 * math.pi * 50
+    columns.update(t_s=t, seq=np.arange(N_ROWS) % 256.0, speed_rpm=speed, measured_speed_rpm=speed * 0.999,
+                   ia_a=np.round(2.0 * np.sin(w * t), 3), ib_a=np.round(2.0 * np.sin(w * t - 2 * math.pi / 3), 3),
+                   ic_a=np.round(2.0 * np.sin(w * t + 2 * math.pi / 3), 3), ibus_a=0.5 * np.cos(3 * t),
+                   load_nm=0.01 * t)
+    columns["ib_a"][3500] = np.nan
+    columns["ibus_a"][2500] = np.nan
+    columns["fault"][3000:3010] = 3.0
+    columns["fault"][3800] = 5.0
+    columns["marker"][3000] = 3.0
+    return columns
+
+
+def _summary() -> Summary:
+    summary = Summary("synthetic", "lockstep", 1000, periods=N_ROWS, sim_s=N_ROWS * DT_S, overruns=2)
+    summary.firmware = "AN1017"
+    summary.segments = [Segment(a, b, ref, plant_rpm=ref * 1.004, measured_rpm=ref) for a, b, ref in SEGMENTS]
+    return summary
+
+
+ENTRIES = (
+    CheckEntry(kind="speed_error", max_pct=2.0),
+    CheckEntry(kind="speed_error", max_pct=0.1, segment=3),
+    CheckEntry(kind="settling_time", max_s=0.3),
+    CheckEntry(kind="settling_time", max_s=0.3, segment=1),
+    CheckEntry(kind="settling_time", max_s=0.3, segment=3),
+    CheckEntry(kind="settling_time", max_s=0.5, band_pct=1.0, segment=1),
+    CheckEntry(kind="settling_time", max_s=0.5, band_pct=30.0, segment=2),
+    CheckEntry(kind="settling_time", max_s=0.5, segment=4),
+    CheckEntry(kind="settling_time", max_s=0.5, segment=9),
+    CheckEntry(kind="settling_time", max_s=0.5, min_hold_s=10.0),
+    CheckEntry(kind="peak_current", max_a=2.5),
+    CheckEntry(kind="peak_current", max_a=1.5, to_s=3.0),
+    CheckEntry(kind="peak_current", max_a=1.5, from_s=0.5, to_s=0.55),
+    CheckEntry(kind="peak_current", max_a=1.5, from_s=100.0),
+    CheckEntry(kind="speed_limit", max_rpm=2200.0),
+    CheckEntry(kind="speed_limit", max_rpm=2500.0, from_s=1.7),
+    CheckEntry(kind="signal", signal="ibus_a", max=0.4),
+    CheckEntry(kind="signal", signal="ibus_a", min=-0.45, max=0.45, to_s=2.4),
+    CheckEntry(kind="signal", signal="load_nm", min=0.001),
+    CheckEntry(kind="signal", signal="speed_rpm", min=-1600.0, max=2400.0),
+    CheckEntry(kind="signal", signal="nope", max=1.0),
+    CheckEntry(kind="no_fault"),
+    CheckEntry(kind="no_fault", to_s=2.9),
+    CheckEntry(kind="no_fault", from_s=3.5),
+    CheckEntry(kind="overruns", max=0),
+    CheckEntry(kind="peak_current", max_a=1.0, firmware="OTHER"),
+)
+
+
+class _Cut(ColumnChunks):
+    """Another source's chunks, cut every ``rows`` rows."""
+
+    def __init__(self, source: ColumnChunks, rows: int) -> None:
+        self._source, self._rows = source, rows
+        self.names, self.units = source.names, source.units
+
+    def _chunks(self, names: Sequence[str], chunk_rows: int) -> Iterator[Chunk]:
+        return self._source.chunks(names, self._rows)
+
+
+def _recordings(tmp_path: Path) -> list[Path]:
+    """The signals as an NPZ, as the journal of a run killed before its close, and as a CSV."""
+    columns = _signals()
+    paths = []
+    for name, close in (("run.npz", True), ("killed.npz", False), ("run.csv", True)):
+        recorder = Recorder(tmp_path / name, {"period_us": 1000}, flush_rows=997)
+        recorder.start()
+        for row in zip(*(columns[c].tolist() for c in COLUMN_NAMES)):
+            recorder.append(row)
+            recorder.maybe_flush()
+        if close:
+            recorder.close("end: completed")
+        else:
+            recorder.flush()
+        paths.append(tmp_path / name)
+    assert (tmp_path / "killed.npz.journal").exists() and not (tmp_path / "killed.npz").exists()
+    return paths
+
+
+def _whole_array_checks(tmp_path: Path) -> ModuleType:
+    """hilbench/bench/checks.py as it was before it read in chunks (its judges take whole arrays)."""
+    shown = subprocess.run(["git", "-C", str(REPO_ROOT), "show", f"{WHOLE_ARRAY_COMMIT}:hilbench/bench/checks.py"],
+                           capture_output=True, text=True)
+    if shown.returncode != 0:
+        pytest.skip(f"git cannot show {WHOLE_ARRAY_COMMIT}:hilbench/bench/checks.py (a shallow clone?)")
+    source = tmp_path / "checks_whole_array.py"
+    source.write_text(shown.stdout)
+    spec = importlib.util.spec_from_file_location("checks_whole_array", source)
+    assert spec is not None and spec.loader is not None
+    module = importlib.util.module_from_spec(spec)
+    sys.modules["checks_whole_array"] = module
+    try:
+        spec.loader.exec_module(module)
+    finally:
+        del sys.modules["checks_whole_array"]
+    return module
+
+
+def _dicts(results: Sequence[CheckResult]) -> list[dict[str, object]]:
+    return [{k: ("nan" if isinstance(v, float) and math.isnan(v) else v) for k, v in r.as_dict().items()}
+            for r in results]
+
+
+def test_chunked_verdicts_equal_the_whole_array_ones_on_every_kind_and_every_cut(tmp_path: Path) -> None:
+    before = _whole_array_checks(tmp_path)
+    summary = _summary()
+    for path in _recordings(tmp_path):
+        whole = read_recording(path).columns
+        expected = _dicts(before.run_checks(ENTRIES, summary, lambda: whole))
+        assert len(expected) == len(ENTRIES)
+        for rows in (1, 7, 333, 997, N_ROWS, 10 * N_ROWS):
+            got = _dicts(run_checks(ENTRIES, summary, lambda: _Cut(recording_chunks(path), rows)))
+            assert got == expected, (path.name, rows)
+        in_memory = _dicts(run_checks(ENTRIES, summary, lambda: whole))  # rows kept in memory: views of them
+        assert in_memory == expected
+    figures = {r["name"] + str(i): r["figure"] for i, r in enumerate(expected)}
+    assert "never (outside the band" in json.dumps(figures) and "nan" in json.dumps(figures)  # the delicate cases ran
+
+
+def test_a_column_the_run_cannot_have_says_skip_as_before(tmp_path: Path) -> None:
+    before = _whole_array_checks(tmp_path)
+    columns = _signals()
+    for name in ("ia_a", "ib_a", "ic_a", "speed_rpm"):
+        del columns[name]
+    absent = {"ia_a": "no plant", "speed_rpm": "no plant"}
+    entries = ENTRIES[2:3] + ENTRIES[10:11] + ENTRIES[14:15] + ENTRIES[21:22]
+    assert _dicts(run_checks(entries, _summary(), lambda: columns, absent=absent)) == \
+        _dicts(before.run_checks(entries, _summary(), lambda: columns, absent=absent))
+
+
+def test_a_damaged_recording_read_in_chunks_is_one_recording_error(tmp_path: Path) -> None:
+    """t_s that goes back across a chunk's cut is refused as read_recording refuses it, by its row."""
+    from hilbench.errors import RecordingError
+
+    path = tmp_path / "back.npz"
+    columns = _signals()
+    columns["t_s"][1500] = columns["t_s"][1499]
+    with ColumnArchive(path, list(COLUMN_NAMES), N_ROWS) as archive:
+        archive.write(0, columns)
+        archive.add("metadata", np.asarray(json.dumps({"columns": [[n, ""] for n in COLUMN_NAMES]})))
+    with pytest.raises(RecordingError) as whole:
+        read_recording(path)
+    with pytest.raises(RecordingError) as chunked:
+        for _ in recording_chunks(path).chunks(["speed_rpm"], 1500):
+            pass
+    assert str(chunked.value) == str(whole.value) and "row 1500" in str(whole.value)
+
+
+_CHILD = textwrap.dedent("""
+    import resource, sys
+    from hilbench.bench.checks import CheckEntry, run_checks
+    from hilbench.bench.column_chunks import recording_chunks
+    from hilbench.bench.summary import Segment, Summary
+
+    path, n_rows = sys.argv[1], int(sys.argv[2])
+    summary = Summary("long", "lockstep", 50, periods=n_rows, sim_s=n_rows * 5e-5)
+    summary.segments = [Segment(0.0, n_rows * 5e-5, 1000.0, plant_rpm=1000.0)]
+    entries = [CheckEntry(kind="settling_time", max_s=1.0), CheckEntry(kind="peak_current", max_a=2.0),
+               CheckEntry(kind="speed_limit", max_rpm=3500.0), CheckEntry(kind="signal", signal="ia_a", max=3.0),
+               CheckEntry(kind="no_fault")]
+    results = run_checks(entries, summary, lambda: recording_chunks(path))
+    assert all(r.passed for r in results), [r.line() for r in results]
+    print(resource.getrusage(resource.RUSAGE_SELF).ru_maxrss)
+""")
+
+
+def _long_recording(path: Path, n_rows: int) -> None:
+    """``n_rows`` periods at 20 kHz of the columns the checks read, written a chunk at a time."""
+    names = ["t_s", "speed_rpm", "ia_a", "ib_a", "ic_a", "fault", "marker"]
+    chunk = 1 << 18
+    with ColumnArchive(path, names, n_rows) as archive:
+        for first in range(0, n_rows, chunk):
+            t = np.arange(first, min(n_rows, first + chunk)) * 5e-5
+            phase = 2 * np.pi * 50 * t
+            archive.write(first, {"t_s": t, "speed_rpm": 1000.0 * (1 - np.exp(-t / 0.1)), "ia_a": np.sin(phase),
+                                  "ib_a": np.sin(phase - 2.0944), "ic_a": np.sin(phase + 2.0944),
+                                  "fault": np.zeros_like(t), "marker": np.zeros_like(t)})
+        archive.add("metadata", np.asarray(json.dumps({"period_us": 50, "columns": [[n, ""] for n in names]})))
+
+
+def _peak_kib(path: Path, n_rows: int) -> int:
+    done = subprocess.run([sys.executable, "-c", _CHILD, str(path), str(n_rows)], capture_output=True, text=True,
+                          timeout=120, cwd=REPO_ROOT)
+    assert done.returncode == 0, done.stderr[-2000:]
+    return int(done.stdout.split()[-1])  # Linux: KiB
+
+
+def test_judging_a_recording_ten_times_longer_takes_no_more_memory(tmp_path: Path) -> None:
+    """300 000 and 3 000 000 rows (15 s and 150 s at 20 kHz; 7 columns, 168 MB): the whole-array
+    evaluation held 5 of them (120 MB) and copies; read in chunks the peak moves by less than
+    16 MB (a chunk is 0.5 MB a column)."""
+    short, long = tmp_path / "short.npz", tmp_path / "long.npz"
+    _long_recording(short, 300_000)
+    _long_recording(long, 3_000_000)
+    grew_kib = _peak_kib(long, 3_000_000) - _peak_kib(short, 300_000)
+    assert grew_kib < 16 * 1024, f"peak RSS grew by {grew_kib / 1024:.1f} MB for 10x the rows"
+
+
+def test_a_monitor_run_judges_the_measured_speed_as_speed_rpm_in_chunks(tmp_path: Path) -> None:
+    """Monitor mode: the firmware's measured speed stands for speed_rpm (AliasChunks), read in chunks,
+    as the whole-array checks judged a copy of the columns with speed_rpm replaced."""
+    from hilbench.bench.column_chunks import AliasChunks
+
+    before = _whole_array_checks(tmp_path)
+    path = _recordings(tmp_path)[0]
+    whole = dict(read_recording(path).columns)
+    whole["speed_rpm"] = whole.pop("measured_speed_rpm")
+    entries = ENTRIES[2:10] + ENTRIES[14:16]
+    source = recording_chunks(path)
+    got = run_checks(entries, _summary(), lambda: AliasChunks(_Cut(source, 333), {"speed_rpm": "measured_speed_rpm"}))
+    assert _dicts(got) == _dicts(before.run_checks(entries, _summary(), lambda: whole))
