@@ -38,6 +38,7 @@ class ColumnChunks(ABC):
 
     names: tuple[str, ...]
     units: dict[str, str]
+    where = "in memory"  # the file, in a RecordingError
 
     @abstractmethod
     def _chunks(self, names: Sequence[str], chunk_rows: int) -> Iterator[Chunk]:
@@ -59,7 +60,7 @@ class ColumnChunks(ABC):
             raise
         except (OSError, ValueError, EOFError, struct.error, zipfile.BadZipFile) as exc:
             reason = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
-            raise RecordingError(f"recording {getattr(self, 'path', '?')}: unreadable ({reason[:160]})") from None
+            raise RecordingError(f"recording {self.where}: unreadable ({reason[:160]})") from None
 
     def whole(self, names: Sequence[str] | None = None) -> dict[str, np.ndarray]:
         """The columns ``names`` (default: all) as whole arrays: for a short run only (a step test)."""
@@ -122,6 +123,7 @@ class NpzChunks(ColumnChunks):
 
     def __init__(self, path: Path) -> None:
         self.path = path
+        self.where = str(path)
         with zipfile.ZipFile(path) as archive:
             _npz_members(path, archive)  # a member promising more than it holds is refused before any read
             with archive.open("metadata.npy") as member:
@@ -142,7 +144,7 @@ class NpzChunks(ColumnChunks):
                 raise RecordingError(f"recording {path}: no column {name}")
 
     def _chunks(self, names: Sequence[str], chunk_rows: int) -> Iterator[Chunk]:
-        checked = _Checked(str(self.path))
+        checked = _Checked(self.where)
         with zipfile.ZipFile(self.path) as archive:
             members = {name: archive.open(f"{name}.npy") for name in names}
             try:
@@ -183,12 +185,13 @@ class JournalChunks(ColumnChunks):
 
     def __init__(self, path: Path) -> None:
         self.path = path
+        self.where = str(path)
         _, self._layout, _ = _read_journal_rows(path, head_only=True)
         self.names = self._layout.column_names
         self.units = {name: unit for name, unit, _ in self._layout.column_specs}
 
     def _chunks(self, names: Sequence[str], chunk_rows: int) -> Iterator[Chunk]:
-        checked = _Checked(str(self.path))
+        checked = _Checked(self.where)
         itemsize = self._layout.dtype.itemsize
         with open(self.path, "rb") as handle:
             (head_len,) = struct.unpack("<I", handle.read(8)[4:])
@@ -209,6 +212,7 @@ class CsvChunks(ColumnChunks):
 
     def __init__(self, path: Path) -> None:
         self.path = path
+        self.where = str(path)
         header: dict[str, object] = {}
         blocks = csv_blocks(path, {}, [], header, block_rows=1)
         try:
@@ -222,7 +226,7 @@ class CsvChunks(ColumnChunks):
         self.units = {str(k): str(v) for k, v in units.items()}
 
     def _chunks(self, names: Sequence[str], chunk_rows: int) -> Iterator[Chunk]:
-        checked = _Checked(str(self.path))
+        checked = _Checked(self.where)
         index = {name: i for i, name in enumerate(self.names)}
         for block in csv_blocks(self.path, {}, [], {}, block_rows=chunk_rows):
             if len(block):
