@@ -171,7 +171,7 @@ def run_checks(entries: Sequence[CheckEntry], summary: "Summary", signals: Signa
             cache["s"] = _Signals(source if isinstance(source, ColumnChunks) else ArrayChunks(source), absent or {})
         return cache["s"]
 
-    def judge(entry: CheckEntry) -> CheckResult:
+    def judge(entry: CheckEntry) -> CheckResult | _Pending:
         if not _for_firmware(entry, summary.firmware):
             return _other_firmware(entry, summary.firmware)
         try:
@@ -182,7 +182,13 @@ def run_checks(entries: Sequence[CheckEntry], summary: "Summary", signals: Signa
             return CheckResult(entry.label, entry.kind, True, "not judged: no rows were kept "
                                "(record the run, --record run.npz, to judge the signals)", skipped=True)
 
-    return [judge(entry) for entry in entries if entry.kind in RUN_KINDS]
+    outcomes = [judge(entry) for entry in entries if entry.kind in RUN_KINDS]
+    pending = [outcome for outcome in outcomes if isinstance(outcome, _Pending)]
+    if pending:  # one pass over the rows for every check that reads them (a CSV is parsed once)
+        for chunk in columns().chunks(*dict.fromkeys(name for p in pending for name in p.names)):
+            for p in pending:
+                p.offer(chunk)
+    return [outcome.finish() if isinstance(outcome, _Pending) else outcome for outcome in outcomes]
 
 
 class _NoRows(Exception):
@@ -209,11 +215,25 @@ class _Signals:
         self._refuse(name)
         return name in self._source.names
 
-    def chunks(self, *names: str) -> Iterator[dict[str, np.ndarray]]:
-        """t_s and ``names`` chunk by chunk (KeyError: a column the run does not have)."""
+    def reads(self, *names: str) -> tuple[str, ...]:
+        """``names``, each refused if the run cannot have it."""
         for name in names:
             self._refuse(name)
-        return self._source.chunks(names)
+        return names
+
+    def chunks(self, *names: str) -> Iterator[dict[str, np.ndarray]]:
+        """t_s and ``names`` chunk by chunk (KeyError: a column the run does not have)."""
+        return self._source.chunks(self.reads(*names))
+
+
+@dataclass(frozen=True)
+class _Pending:
+    """A check that reads rows: the columns it reads, what it does with each chunk of them (t_s
+    with them, in row order), and its verdict after the last."""
+
+    names: tuple[str, ...]
+    offer: Callable[[dict[str, np.ndarray]], None]
+    finish: Callable[[], CheckResult]
 
 
 def _for_firmware(entry: CheckEntry, firmware: str) -> bool:
@@ -283,12 +303,12 @@ def _unjudged(entry: CheckEntry, why: str, bound: float | None) -> CheckResult:
 Columns = Callable[[], "_Signals"]
 
 
-def _judge_run(entry: CheckEntry, summary: "Summary", columns: Columns) -> CheckResult:
-    """One run kind's verdict (`_RUN_JUDGES`)."""
+def _judge_run(entry: CheckEntry, summary: "Summary", columns: Columns) -> CheckResult | _Pending:
+    """One run kind's verdict (`_RUN_JUDGES`), or what it reads of the rows to reach it."""
     return _RUN_JUDGES[entry.kind](entry, summary, columns)
 
 
-def _speed_error(entry: CheckEntry, summary: "Summary", columns: Columns) -> CheckResult:
+def _speed_error(entry: CheckEntry, summary: "Summary", columns: Columns) -> CheckResult | _Pending:
     """The worst steady-state error of the held references judged."""
     chosen, why = _segments(entry, summary)
     if not chosen:
@@ -302,79 +322,99 @@ def _speed_error(entry: CheckEntry, summary: "Summary", columns: Columns) -> Che
                    abs(err), bound)
 
 
-def _settling_time(entry: CheckEntry, summary: "Summary", columns: Columns) -> CheckResult:
+def _settling_time(entry: CheckEntry, summary: "Summary", columns: Columns) -> CheckResult | _Pending:
     """The slowest settling into the band of the held references judged."""
     chosen, why = _segments(entry, summary)
     if not chosen:
         return _unjudged(entry, why, entry.max_s)
+    names = columns().reads("speed_rpm")
     band = entry.band_pct / 100.0
     scans = [(n, SettleScan(seg, band)) for n, seg in chosen]
-    for chunk in columns().chunks("speed_rpm"):  # every segment judged in one pass
+
+    def offer(chunk: dict[str, np.ndarray]) -> None:
         for _, scan in scans:
             scan.offer(chunk["t_s"], chunk["speed_rpm"])
-    worst_n, worst_s, worst_seg = 0, -1.0, chosen[0][1]
-    for n, scan in scans:
-        settle, seg = scan.settle_s, scan.segment
-        if settle > worst_s:
-            worst_n, worst_s, worst_seg = n, settle, seg
-    bound = float(entry.max_s or 0.0)
-    ok = worst_s <= bound
-    shown = "never (outside the band at the segment's end)" if math.isinf(worst_s) else f"{worst_s:.3f} s"
-    return _result(entry, ok, f"slowest {shown} to stay within {entry.band_pct:g} % (segment {worst_n}, "
-                              f"{worst_seg.ref_rpm:+.0f} rpm from {worst_seg.t_start_s:.2f} s) "
-                              f"{'<=' if ok else '>'} {bound:g} s", worst_s, bound)
+
+    def finish() -> CheckResult:
+        worst_n, worst_s, worst_seg = 0, -1.0, chosen[0][1]
+        for n, scan in scans:
+            if scan.settle_s > worst_s:
+                worst_n, worst_s, worst_seg = n, scan.settle_s, scan.segment
+        bound = float(entry.max_s or 0.0)
+        ok = worst_s <= bound
+        shown = "never (outside the band at the segment's end)" if math.isinf(worst_s) else f"{worst_s:.3f} s"
+        return _result(entry, ok, f"slowest {shown} to stay within {entry.band_pct:g} % (segment {worst_n}, "
+                                  f"{worst_seg.ref_rpm:+.0f} rpm from {worst_seg.t_start_s:.2f} s) "
+                                  f"{'<=' if ok else '>'} {bound:g} s", worst_s, bound)
+
+    return _Pending(names, offer, finish)
 
 
-def _peak_current(entry: CheckEntry, summary: "Summary", columns: Columns) -> CheckResult:
+def _peak_current(entry: CheckEntry, summary: "Summary", columns: Columns) -> CheckResult | _Pending:
+    names = columns().reads("ia_a", "ib_a", "ic_a")
     window, peak = _scan(entry), RunningPeak()
-    for c in columns().chunks("ia_a", "ib_a", "ic_a"):
+
+    def offer(c: dict[str, np.ndarray]) -> None:
         mask = window.mask(c["t_s"])
         stacked = np.abs(np.stack([c["ia_a"][mask], c["ib_a"][mask], c["ic_a"][mask]]))
         values = stacked.max(axis=0) if stacked.size else stacked
         peak.offer(values, values, c["t_s"][mask])
-    return _max_abs(entry, "|ia|,|ib|,|ic|", peak, float(entry.max_a or 0.0), "A", window.text)
+
+    return _Pending(names, offer, lambda: _max_abs(entry, "|ia|,|ib|,|ic|", peak, float(entry.max_a or 0.0), "A",
+                                                   window.text))
 
 
-def _speed_limit(entry: CheckEntry, summary: "Summary", columns: Columns) -> CheckResult:
+def _speed_limit(entry: CheckEntry, summary: "Summary", columns: Columns) -> CheckResult | _Pending:
+    names = columns().reads("speed_rpm")
     window, peak = _scan(entry), RunningPeak()
-    for c in columns().chunks("speed_rpm"):
+
+    def offer(c: dict[str, np.ndarray]) -> None:
         mask = window.mask(c["t_s"])
         values = np.abs(c["speed_rpm"][mask])
         peak.offer(values, values, c["t_s"][mask])
-    return _max_abs(entry, "|speed_rpm|", peak, float(entry.max_rpm or 0.0), "rpm", window.text)
+
+    return _Pending(names, offer, lambda: _max_abs(entry, "|speed_rpm|", peak, float(entry.max_rpm or 0.0), "rpm",
+                                                   window.text))
 
 
-def _signal(entry: CheckEntry, summary: "Summary", columns: Columns) -> CheckResult:
-    c = columns()
+def _signal(entry: CheckEntry, summary: "Summary", columns: Columns) -> CheckResult | _Pending:
     name = entry.signal or ""
-    if not c.has(name):
+    if not columns().has(name):
         return _result(entry, False, f"no column {name!r} in the recording", None, None)
     lo = -math.inf if entry.min is None else entry.min
     hi = math.inf if entry.max is None else entry.max
     window, worst = _scan(entry), RunningPeak()
-    for chunk in c.chunks(name):
-        mask = window.mask(chunk["t_s"])
-        values = chunk[name][mask]
-        worst.offer(np.maximum(lo - values, values - hi), values, chunk["t_s"][mask])
-    return _within(entry, name, worst, window.text)
+
+    def offer(c: dict[str, np.ndarray]) -> None:
+        mask = window.mask(c["t_s"])
+        values = c[name][mask]
+        worst.offer(np.maximum(lo - values, values - hi), values, c["t_s"][mask])
+
+    return _Pending((name,), offer, lambda: _within(entry, name, worst, window.text))
 
 
-def _no_fault(entry: CheckEntry, summary: "Summary", columns: Columns) -> CheckResult:
+def _no_fault(entry: CheckEntry, summary: "Summary", columns: Columns) -> CheckResult | _Pending:
     """The run did not end on a fault and the firmware's fault column stayed 0 over the window."""
     if summary.end_reason == "fault" or summary.fault:
         return _result(entry, False, f"the run ended on a fault: {summary.fault}", 1.0, 0.0)
     try:
-        c = columns()
+        names = columns().reads("fault")
     except _NoRows:
         return _no_fault_live(entry, summary)
     window, first = _scan(entry), FirstNonzero()
-    for chunk in c.chunks("fault"):
-        mask = window.mask(chunk["t_s"])
-        first.offer(chunk["fault"][mask], chunk["t_s"][mask])
-    if first.count:
-        return _result(entry, False, f"firmware fault code {int(first.code)} at {first.t_s:.4f} s "
-                                     f"(over {window.text}, {first.count} periods with a fault)", float(first.count), 0.0)
-    return _result(entry, True, f"no fault over {window.text}", 0.0, 0.0)
+
+    def offer(c: dict[str, np.ndarray]) -> None:
+        mask = window.mask(c["t_s"])
+        first.offer(c["fault"][mask], c["t_s"][mask])
+
+    def finish() -> CheckResult:
+        if first.count:
+            return _result(entry, False, f"firmware fault code {int(first.code)} at {first.t_s:.4f} s "
+                                         f"(over {window.text}, {first.count} periods with a fault)",
+                           float(first.count), 0.0)
+        return _result(entry, True, f"no fault over {window.text}", 0.0, 0.0)
+
+    return _Pending(names, offer, finish)
 
 
 def _no_fault_live(entry: CheckEntry, summary: "Summary") -> CheckResult:
@@ -389,7 +429,7 @@ def _no_fault_live(entry: CheckEntry, summary: "Summary") -> CheckResult:
     return _result(entry, True, f"no fault seen live over {window} (no rows kept)", 0.0, 0.0)
 
 
-def _overruns(entry: CheckEntry, summary: "Summary", columns: Columns) -> CheckResult:
+def _overruns(entry: CheckEntry, summary: "Summary", columns: Columns) -> CheckResult | _Pending:
     count, periods = summary.overruns, max(1, summary.periods)
     pct = 100.0 * count / periods
     ok = (entry.max is None or count <= entry.max) and (entry.max_pct is None or pct <= entry.max_pct)
@@ -401,7 +441,7 @@ def _overruns(entry: CheckEntry, summary: "Summary", columns: Columns) -> CheckR
 
 
 #: each run kind's judge
-_RUN_JUDGES: dict[str, Callable[[CheckEntry, "Summary", Columns], CheckResult]] = {
+_RUN_JUDGES: dict[str, Callable[[CheckEntry, "Summary", Columns], CheckResult | _Pending]] = {
     "speed_error": _speed_error, "settling_time": _settling_time, "peak_current": _peak_current,
     "speed_limit": _speed_limit, "signal": _signal, "no_fault": _no_fault, "overruns": _overruns,
 }

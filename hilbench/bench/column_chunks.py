@@ -228,7 +228,8 @@ class CsvChunks(ColumnChunks):
     def _chunks(self, names: Sequence[str], chunk_rows: int) -> Iterator[Chunk]:
         checked = _Checked(self.where)
         index = {name: i for i, name in enumerate(self.names)}
-        for block in csv_blocks(self.path, {}, [], {}, block_rows=chunk_rows):
+        # parsed 4096 rows at a time at most: a row is a list of Python floats until its block is an array
+        for block in csv_blocks(self.path, {}, [], {}, block_rows=min(chunk_rows, 4096)):
             if len(block):
                 yield checked({name: block[:, index[name]].copy() for name in names})
 
