@@ -477,20 +477,24 @@ def report(recording: str, plot_dir: str | None, csv_file: str | None, as_json: 
     from rich.console import Console
     from rich.table import Table
 
+    from hilbench.bench.column_chunks import recording_chunks
     from hilbench.bench.recorder import read_recording
-    from hilbench.bench.report import summarise
+    from hilbench.bench.recording_head import read_head
+    from hilbench.bench.report import summarise_chunks
 
-    data = read_recording(recording)
-    info = summarise(data)
+    source = recording_chunks(recording)  # read a chunk of rows at a time: memory bounded however long
+    head = read_head(source)
+    info = summarise_chunks(head, source)
     if csv_file is not None:
-        from hilbench.bench.recorder import export_csv
+        from hilbench.bench.csv_export import export_csv_chunks
 
-        info["csv"] = str(export_csv(data, csv_file))
+        info["csv"] = str(export_csv_chunks(head, source, csv_file))
     if plot_dir is not None:
         from hilbench.ui.plots import plot_recording
 
         from hilbench.ui.plots import parse_window
 
+        data = read_recording(recording)  # the plots still read the recording whole
         info["plots"] = [str(p) for p in plot_recording(data, Path(plot_dir), window=parse_window(window))]
         if overlay:
             from hilbench.ui.plots import plot_speed_overlay

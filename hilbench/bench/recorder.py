@@ -805,24 +805,11 @@ class WindowRecorder:
 _WINDOW_EVENTS = 1000
 
 
-def _export_format(fmt: str, values: np.ndarray) -> str:
-    """``fmt``, unless it is an integer format and the column holds a value that is no integer
-    (NaN or infinity: "%d" cannot write them): then one that writes every value."""
-    if fmt.endswith("d") and not np.isfinite(values).all():
-        return "%.6g"
-    return fmt
-
-
 def export_csv(data: RecordingData, path: str | Path) -> Path:
     """Write a recording (e.g. a fast NPZ one) as the same CSV a `--record run.csv` run writes."""
-    out = Recorder(Path(path), dict(data.metadata), flush_rows=max(1, data.n_rows))
-    out.metadata.pop("columns", None)
-    fmts = {name: fmt for name, _, fmt in COLUMNS}
-    specs = [(name, data.units.get(name, ""), _export_format(data.formats.get(name) or fmts.get(name, "%.6g"),
-                                                           data.columns[name])) for name in data.columns]
-    out.start(float_layout(specs))
-    names = list(data.columns)
-    table = np.column_stack([data.columns[name] for name in names]) if data.n_rows else np.zeros((0, len(names)))
-    out.rows.extend(np.ascontiguousarray(table, dtype="<f8").tobytes())
-    out.close()
-    return out.path
+    from hilbench.bench.column_chunks import ArrayChunks
+    from hilbench.bench.csv_export import export_csv_chunks
+    from hilbench.bench.recording_head import RecordingHead
+
+    head = RecordingHead(data.path, data.metadata, data.events, data.units, data.formats)
+    return export_csv_chunks(head, ArrayChunks(data.columns, data.units), path)

@@ -143,21 +143,43 @@ def replay(events: Iterable[str], t_s: Sequence[float], plant_rpm: Sequence[floa
            period_s: float, every_periods: int, end_s: float) -> list[Segment]:
     """The segments of a recording: its ``segment:`` events over the rows the session sampled
     (every ``every_periods``-th period, at k * period_s, as the session's own history)."""
-    calls = [call for call in map(parse_segment_event, events) if call is not None]
-    segmenter = Segmenter()
-    i = 0
-    for row in range(len(t_s)):
-        k = round(t_s[row] / period_s)
-        if k % every_periods:
-            continue
-        t = k * period_s
-        while i < len(calls) and _period_of(calls[i][0], period_s) <= k:  # by period, as the session ran them
-            _apply(segmenter, calls[i])
-            i += 1
-        segmenter.sample(t, float(plant_rpm[row]), float(measured_rpm[row]))
-    for call in calls[i:]:
-        _apply(segmenter, call)
-    return segmenter.finish(end_s)
+    replaying = Replay(events, period_s, every_periods)
+    replaying.rows(t_s, plant_rpm, measured_rpm)
+    return replaying.finish(end_s)
+
+
+class Replay:
+    """`replay` a chunk of rows at a time (rows in order): the same segments, in the Segmenter's
+    bounded memory however long the recording."""
+
+    def __init__(self, events: Iterable[str], period_s: float, every_periods: int) -> None:
+        self._calls = [call for call in map(parse_segment_event, events) if call is not None]
+        self._next = 0
+        self._period_s = period_s
+        self._every = every_periods
+        self._segmenter = Segmenter()
+
+    def rows(self, t_s: Sequence[float], plant_rpm: Sequence[float], measured_rpm: Sequence[float]) -> None:
+        """The next rows of the recording."""
+        calls, period_s, every, segmenter = self._calls, self._period_s, self._every, self._segmenter
+        i = self._next
+        for row in range(len(t_s)):
+            k = round(t_s[row] / period_s)
+            if k % every:
+                continue
+            t = k * period_s
+            while i < len(calls) and _period_of(calls[i][0], period_s) <= k:  # by period, as the session ran them
+                _apply(segmenter, calls[i])
+                i += 1
+            segmenter.sample(t, float(plant_rpm[row]), float(measured_rpm[row]))
+        self._next = i
+
+    def finish(self, end_s: float) -> list[Segment]:
+        """The events after the last row, then every segment, the open one closed at ``end_s``."""
+        for call in self._calls[self._next:]:
+            _apply(self._segmenter, call)
+        self._next = len(self._calls)
+        return self._segmenter.finish(end_s)
 
 
 def _period_of(t_s: float, period_s: float) -> float:
@@ -177,5 +199,5 @@ def _apply(segmenter: Segmenter, call: tuple[float, str, float, float]) -> None:
         segmenter.end(when)
 
 
-__all__ = ["Segmenter", "replay", "reference_event", "press_event", "end_event", "is_segment_event", "parse_segment_event",
+__all__ = ["Replay", "Segmenter", "replay", "reference_event", "press_event", "end_event", "is_segment_event", "parse_segment_event",
            "START_PRESS_S"]
