@@ -478,7 +478,6 @@ def report(recording: str, plot_dir: str | None, csv_file: str | None, as_json: 
     from rich.table import Table
 
     from hilbench.bench.column_chunks import recording_chunks
-    from hilbench.bench.recorder import read_recording
     from hilbench.bench.recording_head import read_head
     from hilbench.bench.report import summarise_chunks
 
@@ -490,17 +489,16 @@ def report(recording: str, plot_dir: str | None, csv_file: str | None, as_json: 
 
         info["csv"] = str(export_csv_chunks(head, source, csv_file))
     if plot_dir is not None:
-        from hilbench.ui.plots import plot_recording
+        from hilbench.ui.plots import parse_window, plot_recording_chunks
 
-        from hilbench.ui.plots import parse_window
-
-        data = read_recording(recording)  # the plots still read the recording whole
-        info["plots"] = [str(p) for p in plot_recording(data, Path(plot_dir), window=parse_window(window))]
+        shown = parse_window(window)
+        info["plots"] = [str(p) for p in plot_recording_chunks(head, source, Path(plot_dir), window=shown)]
         if overlay:
-            from hilbench.ui.plots import plot_speed_overlay
+            from hilbench.ui.plots import plot_speed_overlay_chunks
 
-            others = [read_recording(other) for other in overlay]
-            info["plots"].append(str(plot_speed_overlay([data, *others], Path(plot_dir), window=parse_window(window))))
+            others = [recording_chunks(other) for other in overlay]
+            heads = [(head, source), *((read_head(other), other) for other in others)]
+            info["plots"].append(str(plot_speed_overlay_chunks(heads, Path(plot_dir), window=shown)))
     elif overlay:
         from hilbench.errors import ConfigError
 
