@@ -77,14 +77,18 @@ def test_a_whole_run_is_readable(tmp_path: Path) -> None:
     data = recording(tmp_path, lateness_us=-3.0)
     c = data.columns
     c["hall"] = np.array([1, 3, 2, 6, 4, 5])[(c["t_s"] * 3000).astype(int) % 6].astype(float)  # a new code every 1/3000 s
+    from hilbench.bench.column_chunks import ArrayChunks
+    from hilbench.ui.plot_data import view
+
     plt = _pyplot()
-    fig = _lanes_figure(plt, c["t_s"], c, [(n, n, "A", {"color": f"C{k}"}) for k, n in enumerate(("ia_a", "ib_a", "ic_a"))],
+    v = view(ArrayChunks(c), ("ia_a", "ib_a", "ic_a", "hall", "sector"))  # what the figures draw, read in chunks
+    fig = _lanes_figure(plt, v, [(n, n, "A", {"color": f"C{k}"}) for k, n in enumerate(("ia_a", "ib_a", "ic_a"))],
                         "currents")
     assert len(fig.axes) == 3 and len({ax.lines[0].get_color() for ax in fig.axes}) == 3
     plt.close(fig)
     edges = int(np.count_nonzero(np.diff(c["hall"])))
     assert edges > MAX_HALL_EDGES  # 2999 over the second
-    fig = _hall_figure(plt, c["t_s"], c, [])
+    fig = _hall_figure(plt, v, [])
     rate = fig.axes[0].lines[0].get_ydata()
     assert np.median(rate) == pytest.approx(3000, rel=0.02)  # one edge per code change: 3000 per second
     plt.close(fig)

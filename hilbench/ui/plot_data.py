@@ -208,25 +208,23 @@ def _hall_chunk(result: RecordingView, builders: dict[str, TraceBuilder], t: np.
         builders[f"hall_{x}"].add(t, ((hall >> bit) & 1).astype(np.float64) * 0.8)
     assert result.hall is not None and result.sector is not None
     result.hall.ticks.add(t[(hall == 0) | (hall == 7)])
-    edges = _changes(result.hall, hall, t)
-    del edges
+    _changes(result.hall, hall, t)
     sector = _sector_codes(sector_values)
-    before_last = result.sector.last
-    changes = _changes(result.sector, sector, t)
-    previous = np.concatenate([[before_last if before_last is not None else sector[0]], sector[:-1]])
+    changes, previous = _changes(result.sector, sector, t)
     before, after = previous[changes], sector[changes]
     jump = ((after - before) % 6 != 1) & ((before - after) % 6 != 1) | (after > 5) | (before > 5)
     result.sector.ticks.add(t[changes[jump]])
 
 
-def _changes(rate: Rate, codes: np.ndarray, t: np.ndarray) -> np.ndarray:
-    """The rows of this chunk whose code differs from the row before (across the chunk's cut)."""
+def _changes(rate: Rate, codes: np.ndarray, t: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The rows of this chunk whose code differs from the row before (across the chunk's cut),
+    counted and binned into ``rate``; and each row's previous code."""
     previous = np.concatenate([[rate.last if rate.last is not None else codes[0]], codes[:-1]])
     changes = np.flatnonzero(codes != previous)
     rate.last = int(codes[-1])
     rate.count += len(changes)
     rate.counts += np.histogram(t[changes], bins=rate.bins)[0]
-    return changes
+    return changes, previous
 
 
 __all__ = ["MAX_POINTS", "MAX_TICKS", "Rate", "RecordingView", "Ticks", "Trace", "TraceBuilder", "view", "whole_trace"]
