@@ -265,3 +265,57 @@ def test_the_c_span_builds_the_edges_sensing_builds() -> None:
                 assert span.edges(edge_s is not None, hall_before) == expected
                 hall_before = plant.hall_bits
         assert seen["marks"] > 10 and seen["several"] > 10 and seen["over"] > 0
+
+
+def _summary_run(mode: str, config: Path | None, scenario: Path | None, seconds: float, overrides: tuple[str, ...],
+                 record: Path | None, observe: bool) -> tuple:
+    """One run's history, segments, fault figures, periods, events and recording (mode as `_run`)."""
+    cfg = hilbench.load_config(config, ['link.target="inprocess:an1017"' if config is None else 'link.target="inprocess:foc"',
+                                        f"run.duration_s={seconds}", *overrides], scenario_path=scenario)
+    snapshots: list[tuple] = []
+    observer = (lambda snap: snapshots.append((snap.period, snap.measured_rpm, snap.speed_rpm))) if observe else None
+    with hilbench.Bench(cfg, scenario=True, record=record, observer=observer) as bench:
+        session = bench.session
+        assert session is not None
+        session.c_span = mode == "c"  # type: ignore[misc]
+        session._readable_periods = mode == "readable"  # type: ignore[attr-defined]
+        try:
+            bench.run()
+        except hilbench.HilbenchError as exc:
+            ended = str(exc)
+        else:
+            ended = ""
+        summary = session.summary
+        figures = (list(session.history), repr(summary.segments), summary.fault_code, summary.fault_first_s,
+                   summary.fault_last_s, session.periods_done, summary.end_reason, session.live.guard_ref_rpm, ended,
+                   snapshots, bench.events)
+        in_c = session._span_samples is not None
+    data = hilbench.read_recording(record) if record is not None else None
+    columns = {k: v for k, v in data.columns.items()} if data is not None else {}
+    return figures, columns, in_c
+
+
+@pytest.mark.parametrize("config, scenario, seconds, overrides, observe", [
+    (None, RANDOM, 1.7, (), False),  # live writes, sensor faults (their periods in Python), faults of the firmware
+    (None, None, 0.6, (), True),  # an observer: the part at every observe period
+    (None, None, 0.9, ("protection.overspeed_rpm=1100",), False),  # the limit at a sample in the C span
+    (None, RANDOM, 0.8, ("protection.overcurrent_a=0.35",), False),  # comparator trips: periods C leaves to Python
+    (SERVO, None, 0.6, (), False),
+])
+def test_the_c_span_samples_the_history_the_python_loop_samples(tmp_path: Path, config: Path | None,
+                                                               scenario: Path | None, seconds: float,
+                                                               overrides: tuple[str, ...], observe: bool) -> None:
+    """The history samples the C span takes and hands over in bulk give the Python loop's history,
+    segments, fault figures, guard reference, snapshots, end (an overspeed at its very period) and
+    recording (its flushes at the same periods: a small chunk)."""
+    runs = {}
+    for mode in ("c", "python", "readable"):
+        runs[mode] = _summary_run(mode, config, scenario, seconds, overrides, tmp_path / f"{mode}.npz", observe)
+    assert runs["c"][2] and not runs["python"][2]  # the C span took the samples
+    for mode in ("python", "readable"):
+        assert runs["c"][0] == runs[mode][0]
+        assert not _same(runs["c"][1], runs[mode][1])
+    figures = runs["c"][0]
+    assert len(figures[0]) > 20
+    if any("overspeed" in o for o in overrides):
+        assert "overspeed" in figures[8] and figures[5] % 20 == 0

@@ -192,6 +192,7 @@ typedef struct {
      * sense()'s ADC noise draws */
     void (*period_edges)(PyObject *plant, const double **edge_t, const int **edge_hall, int *n_edges,
                          const double **mark_t, int *n_marks, int *index);
+    double (*speed_rad_s)(PyObject *plant); /* the rotor's mechanical speed (Plant.w_m) */
 } hb_plant_api_t;
 
 #define HB_SPAN_MAX_EDGES 16 /* protocol 3's Sensors: at most MAX_EDGES input edges */
