@@ -92,8 +92,10 @@ def closed_loop(spec: str, seconds: float, record_dir: str, fmt: str, *, config:
     from it left out).
     """
     events = foc_scenario(seconds) if config == SERVO else scenario(seconds)
+    path = Path(record_dir) / f"bench.{fmt}"
+    path.unlink(missing_ok=True)  # the last repeat's recording: freeing its pages is not this run's work
     with open_target(spec, timeout_s=2.0) as handle:
-        recorder = Recorder(Path(record_dir) / f"bench.{fmt}", {"bench": True}, flush_rows=20_000)
+        recorder = Recorder(path, {"bench": True}, flush_rows=20_000)
         session, plant = _session(handle, spec, seconds, config, events, recorder)
         session.c_span = c_span
         t0, cpu0 = time.perf_counter(), time.process_time()

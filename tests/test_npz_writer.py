@@ -178,3 +178,191 @@ def test_members_beyond_4_gib_are_found_by_zip64(tmp_path: Path, monkeypatch: py
             assert np.frombuffer(member.read(16), "<f8").tolist() == [-1.0, -2.0]
     with np.load(path, allow_pickle=False) as npz:
         assert str(npz["metadata"]) == '{"k": 1}'  # read whole: its CRC, beyond 4 GiB, checked
+
+
+# ------------------------------------------------------------------ the archive written while the run goes on
+needs_writer = pytest.mark.skipif(npzwriter._npzcolumns is None, reason="the background column writer is not built")
+#: the reference's conversions of random bit patterns (signalling NaNs, overflows) warn; the values are the point
+hostile_values = pytest.mark.filterwarnings("ignore::RuntimeWarning")
+
+
+def _every_code_layout() -> recorder_module.RowLayout:
+    """A row of every struct code a layout may use, scaled, unscaled, NaN-scaled and wrapped columns."""
+    fields = (("k", "Q"), ("b", "B"), ("h", "h"), ("hu", "H"), ("i", "i"), ("iu", "I"), ("q", "q"), ("f", "f"),
+              ("d", "d"), ("marker", "B"))
+    columns = (("t_s", "s", "%.6f", "k", 5e-5), ("b", "", "%d", "b", 1.0), ("h", "", "%d", "h", 0.1),
+               ("hu", "", "%d", "hu", 1.0), ("i", "", "%d", "i", 1.5), ("iu", "", "%d", "iu", 1.0),
+               ("q", "", "%d", "q", 3.0), ("f", "", "%g", "f", 1.0), ("d", "", "%g", "d", 57.29577951308232),
+               ("nan", "", "%g", "i", float("nan")), ("deg", "deg", "%.3f", "d", 57.29577951308232),
+               ("neg", "", "%g", "q", -1.0), ("marker", "", "%d", "marker", 1.0))
+    return recorder_module.RowLayout(fields, columns, wrap=(("deg", 360.0), ("neg", 7.0)))
+
+
+def _hostile_rows(layout: recorder_module.RowLayout, n_rows: int, seed: int) -> bytes:
+    """Random raw bytes (every integer, every double bit pattern: NaN, inf, subnormals, huge) with
+    some doubles that land on the wrap's edges (multiples, tiny negatives)."""
+    rng = np.random.default_rng(seed)
+    rows = np.frombuffer(rng.bytes(n_rows * layout.dtype.itemsize), dtype=layout.dtype).copy()
+    edges = np.array([0.0, -0.0, 360.0 / 57.29577951308232, -1e-300, 1e300, -720.0, np.inf, -np.inf, np.nan, 2.5])
+    rows["d"][::3] = rng.choice(edges, size=len(rows["d"][::3]))
+    rows["q"][::5] = rng.choice([0, -7, 7, -1, 14, -(2**63), 2**63 - 1], size=len(rows["q"][::5]))
+    rows["marker"] = rng.integers(0, 4, size=n_rows)
+    rows["k"] = np.arange(n_rows)  # the time column increases (read_recording checks it)
+    return rows.tobytes()
+
+
+def _record(path: Path, layout: recorder_module.RowLayout, raw: bytes, plan: int | None, *, flush_rows: int = 1000,
+            mark_last: bool = False) -> recorder_module.Recorder:
+    """A recording of ``raw`` rows appended a few at a time (the session's `maybe_flush` after each
+    few), its background archive planned for ``plan`` rows (None: none)."""
+    rec = recorder_module.Recorder(path, {"layout": "every code"}, flush_rows=flush_rows)
+    rec.start(layout)
+    if plan is not None:
+        rec.expect_rows(plan)
+    size = layout.dtype.itemsize
+    for first in range(0, len(raw) // size, 37):
+        rec.rows.extend(raw[first * size:(first + 37) * size])
+        if first % 111 == 0:
+            rec.event(f"note at {first}", recorder_module.MARKER_EVENT)
+        rec.maybe_flush()
+    if mark_last:
+        rec.mark_last(recorder_module.MARKER_FAULT)
+    rec.close("end")
+    return rec
+
+
+@needs_writer
+@hostile_values
+@pytest.mark.parametrize("n_rows", [0, 1, 4095, 4096, 10_000, 23_456])
+def test_the_archive_written_while_the_run_goes_on_is_the_journals_byte_for_byte(
+        tmp_path: Path, monkeypatch: pytest.MonkeyPatch, n_rows: int) -> None:
+    """Every struct code, NaN and infinite scales and values, wrapped columns (numpy.mod's sign and
+    edges), markers and events: the background archive's bytes equal the archive written from the
+    journal (the reference), and numpy reads the values `RowLayout.to_columns` gives."""
+    monkeypatch.setattr(recorder_module, "BACKGROUND_CHUNK_ROWS", 300)  # many hand-overs between flushes
+    layout = _every_code_layout()
+    raw = _hostile_rows(layout, n_rows, seed=n_rows)
+    finished = []
+    real_finish = npzwriter.BackgroundArchive.finish
+
+    def spy(self: npzwriter.BackgroundArchive, metadata: np.ndarray) -> bool:
+        finished.append(real_finish(self, metadata))
+        return finished[-1]
+
+    monkeypatch.setattr(npzwriter.BackgroundArchive, "finish", spy)
+    _record(tmp_path / "bg.npz", layout, raw, n_rows)
+    _record(tmp_path / "ref.npz", layout, raw, None)
+    assert finished == ([True] if n_rows else [])  # (no rows: nothing to plan)
+    assert (tmp_path / "bg.npz").read_bytes() == (tmp_path / "ref.npz").read_bytes()
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["bg.npz", "ref.npz"]
+    data = read_recording(tmp_path / "bg.npz")
+    with np.errstate(all="ignore"):
+        expected = layout.to_columns(np.frombuffer(raw, dtype=layout.dtype).copy())
+    for name in layout.column_names:
+        if name != "marker":
+            np.testing.assert_array_equal(data.columns[name], expected[name], err_msg=name)
+
+
+@needs_writer
+@hostile_values
+@pytest.mark.parametrize("plan, mark_last", [(9_000, False), (11_000, False), (10_000, True)])
+def test_a_run_that_ends_otherwise_than_planned_gets_the_journals_archive(tmp_path: Path, monkeypatch: pytest.MonkeyPatch,
+                                                                           plan: int, mark_last: bool) -> None:
+    """Fewer rows than planned, more, or a fault marker on a row already handed over (every row is
+    handed at once here): the archive is written from the journal at the close (the same bytes as
+    without a plan, the marker in it), nothing else left."""
+    monkeypatch.setattr(recorder_module, "BACKGROUND_CHUNK_ROWS", 1 if mark_last else 200)
+    layout = _every_code_layout()
+    raw = _hostile_rows(layout, 10_000, seed=3)
+    finished = []
+    real_finish = npzwriter.BackgroundArchive.finish
+    monkeypatch.setattr(npzwriter.BackgroundArchive, "finish",
+                        lambda self, metadata: finished.append(real_finish(self, metadata)) or finished[-1])
+    _record(tmp_path / "bg.npz", layout, raw, plan, flush_rows=20_000, mark_last=mark_last)
+    _record(tmp_path / "ref.npz", layout, raw, None, flush_rows=20_000, mark_last=mark_last)
+    assert finished == [False]
+    assert (tmp_path / "bg.npz").read_bytes() == (tmp_path / "ref.npz").read_bytes()
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["bg.npz", "ref.npz"]
+    if mark_last:
+        assert read_recording(tmp_path / "bg.npz").columns["marker"][-1] == recorder_module.MARKER_FAULT
+
+
+def _threads() -> int:
+    return len(os.listdir("/proc/self/task"))
+
+
+@needs_writer
+@hostile_values
+def test_a_write_that_fails_on_the_thread_falls_back_and_every_thread_is_joined(tmp_path: Path) -> None:
+    """The thread's pwrite fails (its descriptor made read-only under it: EBADF): the close writes
+    the archive from the journal, which still has every row; no thread is left, nor the unfinished
+    archive."""
+    layout = _every_code_layout()
+    raw = _hostile_rows(layout, 5000, seed=4)
+    before = _threads()
+    rec = recorder_module.Recorder(tmp_path / "bg.npz", {}, flush_rows=100_000)
+    rec.start(layout)
+    rec.expect_rows(5000)
+    background = rec._background
+    assert background is not None and _threads() == before + 1
+    read_only = os.open(tmp_path / "bg.npz.journal", os.O_RDONLY)
+    os.dup2(read_only, background._archive._fd)  # the thread's writes now fail
+    os.close(read_only)
+    size = layout.dtype.itemsize
+    for first in range(0, 5000, 1000):
+        rec.rows.extend(raw[first * size:(first + 1000) * size])
+        rec._hand_over()
+    rec.close("end")
+    assert background.given_up and isinstance(background.failed, OSError) and background.failed.errno == errno.EBADF
+    assert _threads() == before
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["bg.npz"]
+    data = read_recording(tmp_path / "bg.npz")
+    with np.errstate(all="ignore"):
+        expected = layout.to_columns(np.frombuffer(raw, dtype=layout.dtype).copy())
+    np.testing.assert_array_equal(data.columns["d"], expected["d"])
+
+
+@needs_writer
+def test_a_killed_runs_journal_reads_and_its_unfinished_archive_goes_with_the_next_run(tmp_path: Path) -> None:
+    """A run killed while its archive was being written: the journal is the recording (read as
+    before); the unfinished archive beside it is removed when the next run records to that path."""
+    script = (
+        "import os, sys, numpy as np\n"
+        "from hilbench.bench import recorder as r\n"
+        "rec = r.Recorder(sys.argv[1], {'killed': True}, flush_rows=1000)\n"
+        "rec.start(r.float_layout(r.COLUMNS))\n"
+        "rec.expect_rows(10_000)\n"
+        "for k in range(5_000):\n"
+        "    rec.append([k * 5e-5] + [float(k)] * (r.N_COLUMNS - 1))\n"
+        "    rec.maybe_flush()\n"
+        "os.kill(os.getpid(), 9)\n"
+    )
+    path = tmp_path / "run.npz"
+    done = subprocess.run([sys.executable, "-c", script, str(path)], capture_output=True, timeout=120)
+    assert done.returncode == -9
+    assert (tmp_path / "run.npz.tmp.npz").exists() and not path.exists()
+    data = read_recording(path)  # the journal
+    assert data.n_rows == 5_000 and data.metadata["killed"] is True
+    np.testing.assert_array_equal(data.columns["seq"], np.arange(5_000.0))
+    recorder_module.Recorder(path, {}).close()
+    assert not (tmp_path / "run.npz.tmp.npz").exists()
+
+
+@needs_writer
+def test_a_planned_session_run_writes_its_archive_while_it_runs(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """`hilbench run`'s path (a session run to its planned end): the archive comes from the thread,
+    and equals the one the journal gives."""
+    finished = []
+    real_finish = npzwriter.BackgroundArchive.finish
+    monkeypatch.setattr(npzwriter.BackgroundArchive, "finish",
+                        lambda self, metadata: finished.append(real_finish(self, metadata)) or finished[-1])
+    paths = []
+    for name, writer in (("bg.npz", npzwriter._npzcolumns), ("ref.npz", None)):
+        monkeypatch.setattr(npzwriter, "_npzcolumns", writer)
+        cfg = hilbench.load_config(None, ['link.target="inprocess:an1017"', "run.duration_s=0.6"])
+        with hilbench.Bench(cfg, scenario=True, record=tmp_path / name) as bench:
+            bench.run()
+        paths.append(tmp_path / name)
+    assert finished == [True]
+    assert paths[0].read_bytes() == paths[1].read_bytes()
+    assert read_recording(paths[0]).n_rows == 12_000

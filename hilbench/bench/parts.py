@@ -336,15 +336,15 @@ class HistoryPart:
 
     def _observe_due(self, k: int) -> float:
         """The first observe period from k on where observing does something: every one with a
-        display or an observer, else the one where the recorder's pending rows reach its flush."""
+        display or an observer, else the one where the recorder's next write is due (its flush,
+        or rows for its background archive: `Recorder.rows_to_write`)."""
         session, every = self.session, self.observe_every
         first = max(k, 1)
         if session.display is None and session.observer is None:
-            recorder = session.recorder
-            flush_rows = getattr(recorder, "flush_rows", None)
-            if recorder is None or flush_rows is None:
+            rows_to_write = getattr(session.recorder, "rows_to_write", None)
+            if rows_to_write is None:  # no recorder, or one that keeps every row in memory
                 return math.inf
-            first = max(first, k - 1 + flush_rows - len(recorder.rows))  # after that period: flush_rows pending
+            first = max(first, k - 1 + rows_to_write())  # after that period its next write is due
         return -(-first // every) * every
 
     def run(self, k: int) -> None:
