@@ -15,11 +15,15 @@
  * close, byte for byte.
  */
 #define PY_SSIZE_T_CLEAN
+#ifndef _GNU_SOURCE
+#define _GNU_SOURCE /* SCHED_BATCH */
+#endif
 #include <Python.h>
 #include <errno.h>
 #include <limits.h>
 #include <math.h>
 #include <pthread.h>
+#include <sched.h>
 #include <stdint.h>
 #include <stdlib.h>
 #include <string.h>
@@ -108,6 +112,8 @@ typedef struct {
     unsigned long long queued, done; /* rows handed over, rows written (done: the thread's) */
     unsigned char *rows;             /* the thread's buffers: raw rows read back, one column */
     double *values;
+    unsigned char *header;           /* each column's .npy header, written by the thread before its row 0 */
+    Py_ssize_t header_len;
     pthread_mutex_t lock;
     pthread_cond_t wake;
     pthread_t thread;
@@ -171,14 +177,24 @@ static int write_rows(Writer *w, size_t n)
 static void *writer_thread(void *arg)
 {
     Writer *w = arg;
+    int err = 0;
+#ifdef SCHED_BATCH
+    /* a batch thread: its wake-up does not preempt the simulating thread that woke it (on a busy
+     * machine it still gets its fair share; on an idle CPU it runs at once) */
+    struct sched_param batch = {0};
+    pthread_setschedparam(pthread_self(), SCHED_BATCH, &batch);
+#endif
+    for (int j = 0; j < w->n_cols && !err; j++)
+        err = pwrite_all(w->fd, w->header, (size_t)w->header_len, w->cols[j].place - w->header_len);
     pthread_mutex_lock(&w->lock);
-    for (;;) {
+    if (err) w->error = err;
+    for (; !err;) {
         while (w->queued == w->done && !w->stopping) pthread_cond_wait(&w->wake, &w->lock);
         if (w->discard || w->queued == w->done) break; /* stopping: dropped, or every row written */
         unsigned long long n = w->queued - w->done;
         if (n > READ_ROWS) n = READ_ROWS;
         pthread_mutex_unlock(&w->lock);
-        int err = write_rows(w, (size_t)n);
+        err = write_rows(w, (size_t)n);
         pthread_mutex_lock(&w->lock);
         if (err) {
             w->error = err;
@@ -262,34 +278,44 @@ static PyObject *Writer_abandon(Writer *w, PyObject *Py_UNUSED(ignored))
 
 static int Writer_init(Writer *w, PyObject *args, PyObject *kwds)
 {
-    static char *kw[] = {"fd", "journal_fd", "journal_offset", "itemsize", "columns", NULL};
+    static char *kw[] = {"fd", "journal_fd", "journal_offset", "itemsize", "columns", "header", NULL};
     int fd, journal_fd;
     long long journal_offset;
     Py_ssize_t itemsize;
     PyObject *columns;
+    Py_buffer header = {0};
     if (w->ready) {
         PyErr_SetString(PyExc_RuntimeError, "ColumnWriter: cannot be initialised twice");
         return -1;
     }
-    if (!PyArg_ParseTupleAndKeywords(args, kwds, "iiLnO:ColumnWriter", kw, &fd, &journal_fd, &journal_offset,
-                                     &itemsize, &columns))
+    if (!PyArg_ParseTupleAndKeywords(args, kwds, "iiLnOy*:ColumnWriter", kw, &fd, &journal_fd, &journal_offset,
+                                     &itemsize, &columns, &header))
         return -1;
     if (itemsize < 1 || journal_offset < 0) {
+        PyBuffer_Release(&header);
         PyErr_SetString(PyExc_ValueError, "ColumnWriter: itemsize must be positive, journal_offset not negative");
         return -1;
     }
     PyObject *seq = PySequence_Fast(columns, "ColumnWriter: columns must be a sequence");
-    if (seq == NULL) return -1;
+    if (seq == NULL) {
+        PyBuffer_Release(&header);
+        return -1;
+    }
     Py_ssize_t n = PySequence_Fast_GET_SIZE(seq);
     if (n < 1 || n > INT_MAX) {
         Py_DECREF(seq);
+        PyBuffer_Release(&header);
         PyErr_SetString(PyExc_ValueError, "ColumnWriter: no columns");
         return -1;
     }
     column_t *cols = calloc((size_t)n, sizeof(column_t));
     unsigned char *rows = malloc((size_t)READ_ROWS * (size_t)itemsize);
     double *values = malloc(READ_ROWS * sizeof(double));
-    if (cols == NULL || rows == NULL || values == NULL) {
+    unsigned char *head = malloc((size_t)header.len + 1);
+    if (head != NULL) memcpy(head, header.buf, (size_t)header.len);
+    Py_ssize_t head_len = header.len;
+    PyBuffer_Release(&header);
+    if (cols == NULL || rows == NULL || values == NULL || head == NULL) {
         PyErr_NoMemory();
         goto bad;
     }
@@ -303,7 +329,7 @@ static int Writer_init(Writer *w, PyObject *args, PyObject *kwds)
         static const char codes[] = "BhHiIqQfd", widths[] = {1, 2, 2, 4, 4, 8, 8, 4, 8};
         const char *at = strlen(code) == 1 ? strchr(codes, code[0]) : NULL;
         int width = at != NULL ? widths[at - codes] : 0;
-        if (at == NULL || col->field < 0 || col->field + width > itemsize || col->place < 0) {
+        if (at == NULL || col->field < 0 || col->field + width > itemsize || col->place < head_len) {
             PyErr_Format(PyExc_ValueError, "ColumnWriter: column %zd: a field %s at %zd of a %zd-byte row", j, code,
                          col->field, itemsize);
             goto bad;
@@ -329,6 +355,8 @@ static int Writer_init(Writer *w, PyObject *args, PyObject *kwds)
     w->cols = cols;
     w->rows = rows;
     w->values = values;
+    w->header = head;
+    w->header_len = head_len;
     w->ready = 1;
     int err = pthread_create(&w->thread, NULL, writer_thread, w);
     if (err) {
@@ -342,6 +370,7 @@ bad:
     free(cols);
     free(rows);
     free(values);
+    free(head);
     return -1;
 }
 
@@ -355,6 +384,7 @@ static void Writer_dealloc(Writer *w)
     free(w->cols);
     free(w->rows);
     free(w->values);
+    free(w->header);
     Py_TYPE(w)->tp_free((PyObject *)w);
 }
 
@@ -401,9 +431,9 @@ static PyTypeObject WriterType = {
     .tp_name = "hilbench.bench._npzcolumns.ColumnWriter",
     .tp_basicsize = sizeof(Writer),
     .tp_flags = Py_TPFLAGS_DEFAULT,
-    .tp_doc = "ColumnWriter(fd, journal_fd, journal_offset, itemsize, columns): a journal's raw rows to an archive's "
-              "float64 columns on a thread; columns: (field offset, struct code, scale, modulo or 0, file offset of "
-              "row 0, crc so far).",
+    .tp_doc = "ColumnWriter(fd, journal_fd, journal_offset, itemsize, columns, header): a journal's raw rows to an "
+              "archive's float64 columns on a thread; columns: (field offset, struct code, scale, modulo or 0, file "
+              "offset of row 0, crc so far); header: the .npy header the thread writes before each column's row 0.",
     .tp_new = PyType_GenericNew,
     .tp_init = (initproc)Writer_init,
     .tp_dealloc = (destructor)Writer_dealloc,

@@ -86,7 +86,9 @@ class ColumnArchive:
             archive.add("metadata", np.asarray(text))
     """
 
-    def __init__(self, path: Path, names: Sequence[str], n_rows: int) -> None:
+    def __init__(self, path: Path, names: Sequence[str], n_rows: int, *, write_headers: bool = True) -> None:
+        """``write_headers=False``: each column's .npy header (`column_header`, before its row 0) is
+        the caller's to write (`BackgroundArchive`'s thread)."""
         self.path = path
         self.n_rows = n_rows
         self._header = _column_header(n_rows)
@@ -106,8 +108,14 @@ class ColumnArchive:
         self._fd = os.open(path, os.O_WRONLY | os.O_CREAT | os.O_TRUNC | os.O_CLOEXEC, 0o644)
         for name in names:
             _, _, data_offset, _ = self._members[self._index[name]]
-            os.pwrite(self._fd, self._header, data_offset)
+            if write_headers:
+                os.pwrite(self._fd, self._header, data_offset)
             self._crc[name] = zlib.crc32(self._header)
+
+    @property
+    def column_header(self) -> bytes:
+        """The .npy header every column's member starts with."""
+        return self._header
 
     def write(self, first: int, columns: dict[str, np.ndarray]) -> None:
         """Rows ``first..`` of each column; a column's pieces come in row order."""
@@ -190,12 +198,12 @@ class BackgroundArchive:
         offsets, wraps = _field_offsets(layout), dict(layout.wrap)
         self._journal_fd = os.open(journal, os.O_RDONLY | os.O_CLOEXEC)
         try:
-            self._archive = ColumnArchive(path, layout.column_names, n_rows)
+            self._archive = ColumnArchive(path, layout.column_names, n_rows, write_headers=False)
             columns = [(offsets[src][0], offsets[src][1], scale, wraps.get(name, 0.0), place, crc)
                        for (name, _, _, src, scale), (place, crc) in zip(layout.columns, self._archive.places())]
             try:
                 self._writer = _npzcolumns.ColumnWriter(self._archive._fd, self._journal_fd, journal_offset,
-                                                        layout.dtype.itemsize, columns)
+                                                        layout.dtype.itemsize, columns, self._archive.column_header)
             except BaseException:
                 self._archive.abandon()
                 raise

@@ -437,9 +437,6 @@ class Session:
         self.sampler.start((self.telemetry_index.get(self.profile.speed_column or "", missing),
                             self.telemetry_index.get("ref_speed_rpm", missing)), self._wall_start)
         self._record = self._row_writer()
-        expect_rows = getattr(self.recorder, "expect_rows", None)
-        if expect_rows is not None:  # an NPZ archive written while the run goes on (if it ends as planned)
-            expect_rows(self.planned_periods)
         self.plant.set_period(options.period_us, options.actuation_delay_periods, self.hello.pwm_period_counts)
         self._next_k = 0
         self._edge_s = self.plant.last_edge_s
@@ -476,6 +473,9 @@ class Session:
         closes the run (recording with a fault marker) and propagates."""
         if self.ended:
             return False
+        expect_rows = getattr(self.recorder, "expect_rows", None)
+        if expect_rows is not None and self._next_k == 0 and n_periods == self.planned_periods:
+            expect_rows(n_periods)  # the whole planned run in one call: its NPZ archive written as it goes
         gc_was_enabled = gc.isenabled()
         gc.disable()  # no collector pauses inside periods (recorded rows are plain numbers)
         try:
