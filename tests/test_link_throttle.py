@@ -207,3 +207,22 @@ def test_a_throttled_pty_carries_frames_to_a_real_far_end() -> None:
             os.close(far)
     finally:
         link.close()
+
+
+def test_a_far_end_far_ahead_of_its_wire_loses_the_excess_and_memory_stays_bounded() -> None:
+    """A far end that writes 1 MB at once (faster than any UART): the throttle holds at most
+    RX_AHEAD_BYTES for their wire time, counts the rest as an overrun, and delivers what it kept
+    in order at the wire's pace."""
+    from hilbench.link.throttle import RX_AHEAD_BYTES
+
+    wire, link = _throttled()
+    data = bytes(range(256)) * 4096  # 1 MiB
+    wire.arrivals.append((0.0, data))
+    first = link.read(0.0)
+    assert first == b"" and link.rx_overrun_bytes == len(data) - RX_AHEAD_BYTES
+    got = link.read(BYTE_250K_S * RX_AHEAD_BYTES + 1.0)
+    assert got == data[:RX_AHEAD_BYTES]  # what was kept, in order, when its last bit has come
+    assert wire.now == pytest.approx(BYTE_250K_S * RX_AHEAD_BYTES)
+    wire.arrivals.append((wire.now, b"\xff" * 10))  # room again: nothing more is lost
+    assert link.read(1.0) == b"\xff" * 10
+    assert link.rx_overrun_bytes == len(data) - RX_AHEAD_BYTES

@@ -165,6 +165,12 @@ def test_on_divergence_continue_goes_on_per_period_and_ends_with_exit_code_10(tm
     assert len(rows) == len(rows_off) == 4001  # every period recorded
     assert rows[:period + 1] == rows_off[:period + 1]  # the header and the periods before the difference
     assert rows[period + 1] != rows_off[period + 1]  # the twin's Drive there, not the target's
+    # the recording says which rows are the twin's, unconfirmed: from the diverged batch's first period
+    events = [line for line in (tmp_path / "on-auto.csv").read_text().splitlines()
+              if line.startswith("# event:") and "twin-speculative divergence" in line]
+    assert len(events) == 1, events
+    first, last = (int(v) for v in events[0].split("periods ")[1].split(" ")[0].split(".."))
+    assert first <= period <= last < first + 400, events
 
 
 @pytest.mark.parametrize("build", ["emulator", "sil-without-batches"])
@@ -226,3 +232,65 @@ def test_a_divergence_on_a_board_port_names_its_batch_and_says_why_it_is_not_loc
     line = err.strip().splitlines()[-1]
     assert line.startswith("hilbench: divergence: ") and "cannot be reset from here" in line, err
     assert "Traceback" not in err
+
+
+def _sensor_stream(n: int) -> list:
+    """Sensors of n periods from period 0: the first carries three hall edges beside every ADC code
+    (19 bytes of record: more than the 17 a first batch may hold), then halls that step every 7
+    periods, ADC noise and the S2 press that starts the firmware."""
+    from hilbench.protocol import Sensors
+
+    sectors = (0b001, 0b011, 0b010, 0b110, 0b100, 0b101)
+    out = [Sensors(0, sectors[0] | 0x08, ((100, sectors[1]), (200, sectors[2]), (300, sectors[3])), 0, (600, 500, 640))]
+    for k in range(1, n):
+        halls = sectors[(3 + k // 7) % 6]
+        edges = ((250, halls),) if k % 7 == 0 else ()
+        out.append(Sensors(k & 0xFF, halls | (0x08 if k < 40 else 0), edges, 0, (600 + k % 3, 500 - k % 2, 640)))
+    return out
+
+
+def test_a_period_whose_record_fits_no_batch_goes_alone_and_batches_go_on(gcc: str) -> None:
+    """A first period with 19 bytes of record (17 fit a first batch) goes as a per-period Sensors, its
+    Drive checked against the twin's; the batches then start afresh and the Drives stay those of
+    per-period lockstep. (It ended the run with a ProtocolError before, exit 3.)"""
+    from hilbench.bench.speculative import SpeculativeTarget, locate_divergence
+    from hilbench.bench.launcher import open_target
+    from hilbench.protocol import MODE_LOCKSTEP, PROTOCOL_VERSION, HostHello
+    from hilbench.targets.registry import get_profile
+
+    stream = _sensor_stream(600)
+    hello = HostHello(0, PROTOCOL_VERSION, 50, MODE_LOCKSTEP, 0)
+    drives = []
+    for twin in (False, True):
+        with open_target("sil:an1017", timeout_s=5.0) as handle:
+            profile = get_profile("an1017")
+            target = SpeculativeTarget(handle.target, profile.twin(profile.default_options()), period_us=50) \
+                if twin else handle.target
+            target.hello(hello)
+            got = [target.step(s) for s in stream]
+            if twin:
+                target.drain()
+                stats, log = target.stats, list(target._log.items())
+        drives.append(got)
+
+    def reopen() -> tuple:
+        handle = open_target("sil:an1017", timeout_s=5.0)
+        return handle.target, handle.close
+
+    # the replay that locates a divergence goes through the period that went alone: none found
+    assert [kind for kind, _ in log[:3]] == ["hello", "step", "batch"]
+    assert locate_divergence(log, reopen, lambda: profile.twin(profile.default_options()), len(stream) - 1, 50) is None
+    assert drives[1] == drives[0]
+    assert len({(d.duty_a, d.duty_b, d.duty_c) for d in drives[0]}) > 20  # the firmware drives: not a constant answer
+    assert stats.alone == 1 and stats.batches > 5 and stats.periods == len(stream) - 1
+
+
+def test_a_run_that_predicts_duties_says_why_the_twin_stayed_off(tmp_path: Path, gcc: str) -> None:
+    """twin = auto at 100 us periods: the session asks for predicted duties, the twin does not
+    predict, and the summary says so (it said '0 of N periods confirmed' before, with no reason)."""
+    argv = [sys.executable, "-m", "hilbench", "run", "--target", "sil:an1017?twin=auto", "--set", "link.period_us=100",
+            "--duration", "0.02", "--no-ui", "--no-control"]
+    done = subprocess.run(argv, capture_output=True, text=True, timeout=300, cwd=tmp_path)
+    assert done.returncode == 0, done.stderr
+    assert "speculative: off: the duties were predicted over each period" in done.stdout
+    assert "link.predict_duties=false" in done.stdout

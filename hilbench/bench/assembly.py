@@ -87,10 +87,25 @@ def build_bench(
         session = Session(handle.target, plant, events, options, profile=profile, recorder=recorder,  # type: ignore[arg-type]
                           observer=observer, control=control, link_stats=handle.link_stats,
                           target_label=handle.label, guard=settings.guard_settings(cfg))
+        _note_unconfirmed_rows(handle.target, session)
     except BaseException:
         handle.close()
         raise
     return BenchParts(handle, plant, session, profile, options)
+
+
+def _note_unconfirmed_rows(target: Target, session: Session) -> None:
+    """A twin-speculative run that goes on after a divergence notes, in the recording, which rows are
+    the twin's without the target's confirmation (hilbench.bench.speculative)."""
+    from hilbench.bench.speculative import SpeculativeTarget
+
+    if isinstance(target, SpeculativeTarget) and target.keep_going:
+        def note(first: int, resume: int) -> None:
+            session.note(session.now_s, f"twin-speculative divergence: periods {first}..{resume - 1} are the twin's "
+                                        f"rows, not confirmed by the target (its Drives differ among them); "
+                                        f"the target's own from period {resume}")
+
+        target.on_unconfirmed = note
 
 
 def with_twin(target: Target, cfg: BenchConfig, options: SessionOptions, profile: TargetProfile | None) -> Target:

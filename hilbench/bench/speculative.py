@@ -41,7 +41,7 @@ from hilbench.protocol import (
     TargetInfo,
     TelemetryInfo,
 )
-from hilbench.protocol.batch import MIN_BATCH_BYTES, BatchBuilder, BatchState, decode_records
+from hilbench.protocol.batch import MIN_BATCH_BYTES, BatchBuilder, BatchState, RecordTooLarge, decode_records
 from hilbench.protocol.messages import MAX_BATCH_BYTES, pack_drive
 from hilbench.targets.base import Target
 from hilbench.targets.remote import RemoteTarget
@@ -65,12 +65,14 @@ class SpeculationStats:
     periods: int = 0  # periods committed by a digest
     batches: int = 0
     resends: int = 0
+    alone: int = 0  # periods whose record fit no batch: sent as a per-period Sensors
     wall_s: float = 0.0  # time from the first batch to the last commit
 
     def as_dict(self) -> dict[str, int]:
         rate = self.periods / self.wall_s if self.wall_s > 0 else 0.0
         return {"speculative_periods": self.periods, "speculative_batches": self.batches,
-                "speculative_resends": self.resends, "speculative_periods_per_s": int(rate)}
+                "speculative_resends": self.resends, "speculative_alone": self.alone,
+                "speculative_periods_per_s": int(rate)}
 
 
 LogItem = tuple[str, object]
@@ -124,6 +126,10 @@ class SpeculativeTarget:
         self.active = False
         self.keep_going = keep_going
         self.divergence: DivergenceError | None = None
+        #: keep_going: told (first, resume) when the run goes per period after a divergence: the rows
+        #: of periods first..resume-1 are the twin's, unconfirmed (the target's differ in them)
+        self.on_unconfirmed: Callable[[int, int], None] | None = None
+        self._diverged_from = 0
         self.stats = SpeculationStats()
         self._log = RunLog()
         self._reset()
@@ -174,16 +180,45 @@ class SpeculativeTarget:
         drive = self.twin.step(sensors)
         if not self._synced:  # until the target has taken a batch: kept, to run one by one if it refuses
             self._unconfirmed.append((self._next, sensors, drive))
-        if not self._builder.add(sensors):
-            self._flush()
-            if not self.active:  # it refused batches: the periods so far, this one included, ran one by one
-                return drive
-            self._builder.add(sensors)
+        try:
+            if not self._builder.add(sensors):
+                self._flush()
+                if not self.active:  # it refused batches: the periods so far, this one included, ran one by one
+                    return drive
+                self._builder.add(sensors)
+        except RecordTooLarge:
+            return self._alone(sensors, drive)
         self._crc = zlib.crc32(pack_drive(drive), self._crc)
         self._next += 1
         if self.divergence is not None:  # keep_going: what is batched runs out (unchecked), then per period
             self.drain()
         return drive
+
+    def _alone(self, sensors: Sensors, drive: Drive) -> Drive:
+        """A period whose record fits no batch the target takes (e.g. an encoder, six ADC codes and
+        edges in a first batch's 17 bytes): what is batched is committed, then the period goes as a
+        per-period Sensors and its Drive is checked against the twin's; both sides start the next
+        batch's records and digest afresh (PROTOCOL.md, "Batches"), and the run goes on in batches."""
+        k = self._next
+        assert k is not None
+        if self._unconfirmed and self._unconfirmed[-1][0] == k:
+            self._unconfirmed.pop()  # it goes now, not with the unconfirmed periods of a refusal
+        self.drain()
+        theirs = self.remote.step(sensors)
+        self._log.append(("step", sensors))
+        self.stats.alone += 1
+        self._next = k + 1
+        if theirs != drive:
+            error = _divergence_error(k, sensors, theirs, drive, deque([(k, sensors, theirs, drive)]), self.period_us)
+            self.active = False
+            if not self.keep_going:
+                raise error
+            self.divergence = self.divergence or error
+        if self.active:  # the target's records and digest start afresh with the next batch: so do ours
+            builder = BatchBuilder(max_bytes=self._builder.max_bytes)
+            builder.state.ignore_encoder = self._builder.state.ignore_encoder
+            self._builder, self._crc, self._first, self._synced = builder, 0, k + 1, False
+        return theirs
 
     def set_params(self, pairs: tuple[tuple[int, int], ...]) -> ParamSetResult:
         self.drain()
@@ -253,6 +288,8 @@ class SpeculativeTarget:
             self._wait()
         if self.divergence is not None:  # keep_going: the batches ran out; one exchange a period from here
             self.active = False
+            if self.on_unconfirmed is not None and self._next is not None:
+                self.on_unconfirmed(self._diverged_from, self._next)
 
     def _flush(self) -> None:
         count, records = self._builder.take()
@@ -359,6 +396,7 @@ class SpeculativeTarget:
                 self.active = False
                 raise error
             self.divergence = error  # the batches in flight run out unchecked; then per period (`step`)
+            self._diverged_from = self._committed_through()  # the first period no digest confirmed
         while self._pending and self._pending[0].first <= batch.first:
             done = self._pending.popleft()
             self.stats.periods += done.count
@@ -421,6 +459,16 @@ def locate_divergence(log: Iterable[LogItem], reopen: Callable[[], tuple[Target,
             elif kind in ("start", "stop"):
                 getattr(target, kind)()
                 getattr(twin, kind)()
+            elif kind == "step":  # a period that went alone: the records start afresh after it
+                assert isinstance(item, Sensors)
+                k = item.seq if not recent else recent[-1][0] + 1
+                mine, theirs = twin.step(item), target.step(item)
+                recent.append((k, item, theirs, mine))
+                if mine != theirs:
+                    return _divergence_error(k, item, theirs, mine, recent, period_us)
+                if k >= last:
+                    return None
+                state = BatchState()
             else:
                 first, count, records = item  # type: ignore[misc]
                 for i, sensors in enumerate(decode_records(state, first, count, records)):

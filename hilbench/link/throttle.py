@@ -29,6 +29,10 @@ from hilbench.link.transport import Transport
 
 BITS_PER_BYTE = 10  # 8N1: a start bit, 8 data bits, a stop bit
 TX_BUFFER_BYTES = 4096  # what a write may queue before it waits (a Linux tty's buffer is 4 KB)
+#: received bytes held back for their wire time at most: a far end that writes faster than its wire
+#: for long (no UART can) loses what is beyond, counted in ``rx_overrun_bytes``, as a UART overrun
+#: would; memory stays bounded whatever the far end does
+RX_AHEAD_BYTES = 65536
 
 
 class ThrottledTransport(Transport):
@@ -47,12 +51,21 @@ class ThrottledTransport(Transport):
         self._rx: deque[tuple[float, bytes]] = deque()  # (delivery time, bytes), in order
         self._tx: deque[tuple[float, bytes]] = deque()  # (wire time of the last byte, bytes), in order
         self._tx_queued = 0
+        self._rx_queued = 0
         self.wire_bytes_tx = 0
         self.wire_bytes_rx = 0
+        self.rx_overrun_bytes = 0
 
     # -- the wire's arithmetic -------------------------------------------------------------
     def _stamp_rx(self, data: bytes) -> None:
         """Received bytes on the target -> host wire: delivered when their last bit has come."""
+        room = RX_AHEAD_BYTES - self._rx_queued
+        if len(data) > room:  # far ahead of the wire: what does not fit is lost (an overrun)
+            self.rx_overrun_bytes += len(data) - max(room, 0)
+            data = data[:max(room, 0)]
+            if not data:
+                return
+        self._rx_queued += len(data)
         start = max(self._clock(), self._rx_free_s)
         self._rx_free_s = start + len(data) * self.byte_s
         self.wire_bytes_rx += len(data)
@@ -86,6 +99,7 @@ class ThrottledTransport(Transport):
         rx = self._rx
         while rx and rx[0][0] <= now:
             out += rx.popleft()[1]
+        self._rx_queued -= len(out)
         return bytes(out)
 
     # -- Transport ----------------------------------------------------------------------------

@@ -150,6 +150,10 @@ class BatchState:
         return bytes((h,)) + bytes(body) if h else b""
 
 
+class RecordTooLarge(ProtocolError):
+    """One period's record is larger than any batch the target takes (it goes as a per-period Sensors)."""
+
+
 @dataclass
 class BatchBuilder:
     """Records of consecutive periods until a batch is full (MAX_BATCH_BYTES, or `max_periods`)."""
@@ -181,10 +185,10 @@ class BatchBuilder:
             self.records += rec
             self._run_at = -1
         else:
-            if len(rec) > self.max_bytes:
-                raise ProtocolError(f"SensorsBatch: one period's record of {len(rec)} bytes does not fit "
-                                    f"a batch ({self.max_bytes} bytes)")
             self.state.restore(saved)
+            if len(rec) > self.max_bytes:
+                raise RecordTooLarge(f"SensorsBatch: one period's record of {len(rec)} bytes does not fit "
+                                     f"a batch ({self.max_bytes} bytes)")
             return False
         self.count += 1
         return True

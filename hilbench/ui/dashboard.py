@@ -244,8 +244,14 @@ def summary_table(summary: Summary) -> Group:
 def _speculative_text(summary: Summary) -> str:
     """Twin-speculative lockstep's share of the run and its rate (hilbench.bench.speculative)."""
     link = summary.link
+    if not link["speculative_periods"]:  # twin = auto, but the run went per period: say why
+        if summary.predicted_duties:
+            return ("off: the duties were predicted over each period (mode PREDICT, a period of 2 PWM periods "
+                    "or more) and the twin does not predict; --set link.predict_duties=false to speculate")
+        return "off: the target took no batch (one exchange a period)"
+    alone = f", {link['speculative_alone']} alone" if link.get("speculative_alone") else ""
     return (f"{link['speculative_periods']} of {summary.periods} periods confirmed by the target's digests "
-            f"in {link['speculative_batches']} batches ({link['speculative_resends']} resent), "
+            f"in {link['speculative_batches']} batches ({link['speculative_resends']} resent{alone}), "
             f"{link['speculative_periods_per_s']} periods/s")
 
 
