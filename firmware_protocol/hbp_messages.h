@@ -13,7 +13,7 @@ typedef uint_least8_t hbp_u8;
    exists only so that a test can build a deliberately mismatched target; never override it in a
    firmware. */
 #ifndef HBP_SCHEMA_FINGERPRINT
-#define HBP_SCHEMA_FINGERPRINT 0x786e658bUL
+#define HBP_SCHEMA_FINGERPRINT 0x82ba34c0UL
 #endif
 #define HBP_MAX_FRAME 62u /* a message: type, seq, payload */
 #define HBP_MAX_NAME 16u
@@ -77,10 +77,11 @@ typedef uint_least8_t hbp_u8;
 #define HBP_REPORT_WRITTEN 0x00u
 #define HBP_REPORT_ACTIVE 0x01u
 
-/* HostHello.mode (PREDICT: lockstep whose Drive carries the duties predicted for the next period) */
+/* HostHello.mode (PREDICT: lockstep whose Drive carries the duties predicted for the next period; MONITOR: the target runs its real motor on its own sensors and timers and streams a Drive every period_us unsolicited, no Sensors) */
 #define HBP_MODE_LOCKSTEP 0x00u
 #define HBP_MODE_REALTIME 0x01u
 #define HBP_MODE_PREDICT 0x02u
+#define HBP_MODE_MONITOR 0x03u
 
 /* Drive.output_mode */
 #define HBP_OUTPUT_OFF 0x00u

@@ -268,8 +268,9 @@ def conformance(target: str, period_us: int, only: tuple[str, ...], as_json: boo
               help="emulator:NAME (the default: its own process on a virtual serial pair), inprocess:NAME, "
                    "a board: serial:/dev/ttyUSB0?baud=250000, or a pyserial URL (socket://HOST:PORT, rfc2217://...). "
                    "`hilbench targets` lists the NAMEs.")
-@click.option("--mode", type=click.Choice(["lockstep", "realtime"]), default=None,
-              help="lockstep: the host is the clock (deterministic); realtime: periods paced to the wall clock (idle CPUs kept awake while it runs when allowed: link.cpu_latency_qos).")
+@click.option("--mode", type=click.Choice(["lockstep", "realtime", "monitor"]), default=None,
+              help="lockstep: the host is the clock (deterministic); realtime: periods paced to the wall clock (idle CPUs kept awake while it runs when allowed: link.cpu_latency_qos); "
+                   "monitor: the board runs its real motor (a real-motor build, make MODE=motor), no plant: its telemetry stream is recorded every link.period_us, gains and the reference are written live.")
 @click.option("--duration", "duration_s", type=click.FloatRange(min=0, min_open=True), default=None,
               metavar="S", help="Simulated seconds (default: the scenario's end).")
 @click.option("--record", type=click.Path(dir_okay=False), default=None, metavar="FILE",
@@ -302,6 +303,7 @@ def run(config: str | None, target_spec: str | None, mode: str | None, duration_
       hilbench run bench_configs/hurst_mclv.toml --record run.csv
       hilbench run --set target.kp=0.15 --duration 2 --no-ui
       hilbench run --target serial:/dev/ttyUSB0?baud=250000 --mode realtime --set link.period_us=1000
+      hilbench run --target serial:/dev/ttyUSB0?baud=250000 --mode monitor --set link.period_us=2000 --record motor.csv
       hilbench run --target 'sil:NAME?wire_baud=250000&twin=auto'   (a build with a host twin: the twin
         runs ahead, the target confirms batches of periods; `hilbench targets` lists the NAMEs)
     While it runs, `hilbench ctl get|set|ref|load` talks to it from another terminal.
@@ -321,6 +323,10 @@ def run(config: str | None, target_spec: str | None, mode: str | None, duration_
     request = RunRequest(config, check_overrides(overrides) + extra, target_spec, mode, duration_s, record,
                          scenario=scenario_file)
     cfg = load_run_config(request)  # (run_bench checks what the host and link allow, and warns)
+    if cfg.run.mode == "monitor":
+        _run_monitor(cfg, record, no_control, plain=no_ui or as_json, as_json=as_json, scope=scope,
+                     open_browser=open_browser)
+        return
     control = None
     if not no_control:
         from hilbench.bench.control import ControlServer
@@ -378,6 +384,69 @@ def run(config: str | None, target_spec: str | None, mode: str | None, duration_
     raise_if_failed(summary.checks)  # exit code 9: the run completed, a [[check]] did not hold
 
 
+def _run_monitor(cfg: Any, record: str | None, no_control: bool, plain: bool, as_json: bool = False,
+                 scope: bool = False, open_browser: bool = False) -> None:
+    """`run --mode monitor`: the board's stream recorded, `ctl` on the control socket, the live
+    dashboard on a terminal (the measured speed; no plant currents), a summary."""
+    import contextlib
+    import json as json_module
+
+    from rich.console import Console
+
+    from hilbench.bench.checks import checks_text, raise_if_failed
+    from hilbench.bench.monitorrun import run_monitor
+    from hilbench.ui.dashboard import Dashboard, summary_text
+
+    control = None
+    if not no_control:
+        from hilbench.bench.control import ControlServer
+
+        control = ControlServer()
+
+    def announce(session: Any) -> None:
+        if control is not None:
+            click.echo(f"hilbench: control socket {control.path} (hilbench ctl --socket {control.path} ...)", err=True)
+
+    scope_server: Any = None
+    if scope:  # the live scope on the run's control socket, as in a HIL run
+        from hilbench.errors import ConfigError
+        from hilbench.scope.launch import ScopeProcess
+
+        if control is None:
+            raise ConfigError("run --scope needs the control socket (drop --no-control)")
+        scope_server = ScopeProcess(control.path, open_browser=open_browser)
+    console = Console()
+    try:
+        if plain or not console.is_terminal:
+            summary = run_monitor(cfg, record=record, control=control, on_ready=announce)
+        else:
+            dashboard = Dashboard(cfg.link.target, cfg.run.duration_s, console=console)
+            keys: Any = contextlib.nullcontext()
+            if control is not None:
+                from hilbench.ui.keys import CommandLine
+
+                keys = dashboard.command_line = CommandLine(control.path, dashboard.replies.append)
+
+            def ready(session: Any) -> None:
+                dashboard.params = session.param_values()
+                session.on_params = dashboard.params.update
+
+            with keys, dashboard:
+                summary = run_monitor(cfg, record=record, control=control, on_ready=ready, observer=dashboard)
+    finally:
+        if control is not None:
+            control.close()
+        if scope_server is not None:
+            scope_server.close(grace_s=SCOPE_GRACE_S)
+    if as_json:
+        click.echo(json_module.dumps(summary.as_dict(), indent=2, default=str))
+    else:
+        click.echo(summary_text(summary))
+        if summary.checks:
+            click.echo(checks_text(summary.checks))
+    raise_if_failed(summary.checks)
+
+
 @cli.command()
 @click.argument("recording", type=click.Path(dir_okay=False))
 @click.option("--plot", "plot_dir", type=click.Path(file_okay=False), default=None, metavar="DIR",
@@ -387,9 +456,12 @@ def run(config: str | None, target_spec: str | None, mode: str | None, duration_
 @click.option("--json", "as_json", is_flag=True, help="Print the summary as JSON.")
 @click.option("--window", "window", default=None, metavar="T0:T1", help="Plot only simulated seconds T0..T1 (e.g. 1.0:1.05).")
 @click.option("--open", "open_viewer", is_flag=True, help="Show the recording in the scope's viewer (served on 127.0.0.1 until Ctrl-C).")
+@click.option("--overlay", "overlay", multiple=True, type=click.Path(dir_okay=False), metavar="OTHER",
+              help="With --plot: one more figure with the speed of this recording and of OTHER on one time axis "
+                   "(a HIL run and a real-motor run of the same scenario; repeat for more).")
 @_friendly
 def report(recording: str, plot_dir: str | None, csv_file: str | None, as_json: bool, window: str | None = None,
-           open_viewer: bool = False) -> None:
+           open_viewer: bool = False, overlay: tuple[str, ...] = ()) -> None:
     """Summarise a recording (CSV, NPZ, or the journal of a run that was killed).
 
     \b
@@ -397,6 +469,7 @@ def report(recording: str, plot_dir: str | None, csv_file: str | None, as_json: 
       hilbench report run.npz --plot plots/
       hilbench report run.npz --csv run.csv
       hilbench report run.npz --open
+      hilbench report motor.csv --plot plots/ --overlay hil.csv
     """
     import json as json_module
     from pathlib import Path
@@ -419,6 +492,15 @@ def report(recording: str, plot_dir: str | None, csv_file: str | None, as_json: 
         from hilbench.ui.plots import parse_window
 
         info["plots"] = [str(p) for p in plot_recording(data, Path(plot_dir), window=parse_window(window))]
+        if overlay:
+            from hilbench.ui.plots import plot_speed_overlay
+
+            others = [read_recording(other) for other in overlay]
+            info["plots"].append(str(plot_speed_overlay([data, *others], Path(plot_dir), window=parse_window(window))))
+    elif overlay:
+        from hilbench.errors import ConfigError
+
+        raise ConfigError("report --overlay draws into the --plot folder: give --plot DIR")
     if as_json:
         click.echo(json_module.dumps(info, indent=2, default=str))
         return
@@ -579,10 +661,15 @@ def ctl_text(cmd: str, reply: dict[str, Any]) -> str:
 @click.option("--csv", "csv_file", type=click.Path(dir_okay=False), default=None, metavar="FILE.csv",
               help="Write the metrics of every gain set as CSV.")
 @click.option("--json", "as_json", is_flag=True, help="Print the metrics as JSON.")
+@click.option("--mode", type=click.Choice(["lockstep", "monitor"]), default="lockstep", show_default=True,
+              help="monitor: the step on the board's real motor (--target its port; a real-motor build): the figures "
+                   "from the firmware's measured speed, the reference written live.")
+@click.option("--record", type=click.Path(dir_okay=False), default=None, metavar="FILE",
+              help="monitor: keep the run's rows in FILE (.csv or .npz), the same format as a HIL run's.")
 @_friendly
 def step(config: str | None, from_rpm: float, to_rpm: float, gains: tuple[str, ...], target_spec: str | None,
          settle_s: float, after_s: float, overrides: tuple[str, ...], plot_file: str | None,
-         csv_file: str | None, as_json: bool) -> None:
+         csv_file: str | None, as_json: bool, mode: str = "lockstep", record: str | None = None) -> None:
     """Run a speed step and measure it: rise (10-90 %), overshoot, settling (2 %), steady-state
     error and ripple, IAE, ITAE, peak current. Several --gains give one comparison table.
 
@@ -591,6 +678,7 @@ def step(config: str | None, from_rpm: float, to_rpm: float, gains: tuple[str, .
       hilbench step --from 1000 --to 2000
       hilbench step --gains 0.1,0.01,0 --gains 0.2,0.02,0 --plot steps.png
       hilbench step --gains kp=0.2,ki=0.02 --from 1500 --to -1500
+      hilbench step --mode monitor --target serial:/dev/ttyUSB0?baud=250000 --from 1000 --to 1500
     The config's step_* [[check]] tables are judged on every gain set; a failed one exits with code 9.
     """
     import json as json_module
@@ -605,7 +693,11 @@ def step(config: str | None, from_rpm: float, to_rpm: float, gains: tuple[str, .
     from hilbench.bench.steptest import StepTest, parse_gain_sets, require_speed_loop, result_row
 
     test = StepTest(from_rpm, to_rpm, settle_s, after_s)
-    cfg = load_run_config(RunRequest(config, check_overrides(overrides), target_spec, "lockstep"))
+    cfg = load_run_config(RunRequest(config, check_overrides(overrides), target_spec, mode))
+    if mode == "monitor" and target_spec is None:
+        from hilbench.errors import ConfigError
+
+        raise ConfigError("step --mode monitor needs --target: the board's port (e.g. serial:/dev/ttyUSB0?baud=250000)")
     if target_spec is None:
         cfg = in_process(cfg)
     profile = settings_profile(cfg)
@@ -615,7 +707,16 @@ def step(config: str | None, from_rpm: float, to_rpm: float, gains: tuple[str, .
     console = Console(stderr=True)
     with Progress(console=console, transient=True) as progress:
         task = progress.add_task("step tests", total=max(1, len(sets)))
-        results = run_step_tests(cfg, test, sets, progress=lambda done, total: progress.update(task, completed=done))
+        if mode == "monitor":  # one real step per gain set, one after the other on the same motor
+            from hilbench.bench.monitorrun import monitor_step
+
+            results = []
+            for index, gain_set in enumerate(sets or [{}]):
+                results.append(monitor_step(cfg, test, gain_set, record=record if index == 0 else None,
+                                            warn=lambda text: console.print(f"[yellow]warning:[/] {text}")))
+                progress.update(task, completed=index + 1)
+        else:
+            results = run_step_tests(cfg, test, sets, progress=lambda done, total: progress.update(task, completed=done))
     from hilbench.bench.checks import checks_text, raise_if_failed, step_checks
 
     verdicts = [step_checks(cfg.check, r, profile.firmware_name) for r in results]

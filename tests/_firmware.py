@@ -11,8 +11,10 @@ from __future__ import annotations
 import os
 import random
 import shutil
+import sys
 from collections.abc import Iterator
 from dataclasses import dataclass
+from pathlib import Path
 
 import pytest
 
@@ -42,6 +44,15 @@ def require_tool(name: str, why: str) -> str:
             pytest.fail(f"{name} is required (HILBENCH_REQUIRE_TOOLS=1) for {why} but is not on PATH")
         pytest.skip(f"{name} not installed ({why})")
     return path
+
+
+def python_config(why: str) -> str:
+    """The running interpreter's pythonX.Y-config (its base installation's: a harness that embeds
+    Python then embeds the one the tests run, whatever else is on PATH), else PATH's; skip or fail as
+    `require_tool` (apt: python3-dev, the headers and libpython of the system's python3)."""
+    name = f"python{sys.version_info.major}.{sys.version_info.minor}-config"
+    own = Path(sys.base_prefix) / "bin" / name
+    return require_tool(str(own) if own.exists() else name, f"{why} (apt: python3-dev)")
 
 
 @dataclass(frozen=True)

@@ -14,6 +14,7 @@ the failure is then the host's, stated, not the firmware's or the guide's.
 
 from __future__ import annotations
 
+import os
 import re
 import shlex
 import subprocess
@@ -24,7 +25,7 @@ from typing import IO
 
 import pytest
 
-from _firmware import require_tool
+from _firmware import python_config, require_tool
 from hilbench.processes import reap, spawn
 
 pytestmark = pytest.mark.slow
@@ -39,6 +40,7 @@ BOARD_ONLY = {
     "ipecmd -TPPK4 -P30F2010 -M -Fan1017_dspic30f2010.hex",
     "cat /sys/bus/usb-serial/devices/ttyUSB0/latency_timer",
     "echo 1 | sudo tee /sys/bus/usb-serial/devices/ttyUSB0/latency_timer",
+    "make -C firmware/an1017/ports/dspic30f2010 MODE=motor DEVICE=30F4012",
 }
 NOT_HELD = "real time NOT held"
 
@@ -153,7 +155,7 @@ def _sil_part(commands: list[str], tmp_path: Path) -> set[str]:
     sil, sil_pty = _start([sys.executable, "-m", "hilbench.targets.sil"])
     try:
         for command in commands:
-            if command in ran or command.startswith("hilbench ctl") or _is_avr(command):
+            if command in ran or command.startswith("hilbench ctl") or _is_avr(command) or _is_motor(command):
                 continue
             if command.startswith("cd "):
                 folder = REPO / command[3:]
@@ -192,11 +194,55 @@ def _avr_part(commands: list[str], tmp_path: Path) -> set[str]:
     return set(avr)
 
 
+def _is_motor(command: str) -> bool:
+    """Section 13: the real-motor build and monitor mode (the board's commands run against the AVR
+    real-motor build in simavr, wired to the plant at the pin level)."""
+    return "--mode monitor" in command or "MODE=motor" in command or "/tmp/motor" in command \
+        or "pts/M" in command or command == "hilbench report motor.csv"
+
+
+def _motor_part(commands: list[str], tmp_path: Path) -> set[str]:
+    """Section 13 as written: `make size MODE=motor` here, the AVR real-motor build made into a
+    fresh folder, its harness started (this interpreter's hilbench), then every monitor-mode command
+    against its pty, the board's port included, --record motor.csv into the test's folder."""
+    motor = [c for c in commands if _is_motor(c)]
+    out = tmp_path / "motor"
+    ran = set()
+    for command in motor:
+        if command.startswith("make ") and "size" in command.split():
+            done = subprocess.run(shlex.split(command), cwd=REPO, capture_output=True, text=True, timeout=600)
+            lines = [line for line in done.stdout.splitlines() if not line.startswith("make")]  # -C's notes
+            assert done.returncode == 0 and "flash estimate:" in lines[-1], done
+            ran.add(command)
+        elif command.startswith("make ") and "/tmp/motor" in command:
+            config = python_config("the AVR real-motor harness embeds this Python")
+            done = subprocess.run([*shlex.split(command.replace("/tmp/motor", str(out))), f"PYTHON_CONFIG={config}"],
+                                  cwd=REPO, capture_output=True, text=True, timeout=600)
+            assert done.returncode == 0, done.stderr
+            ran.add(command)
+    start = next(c for c in motor if c.startswith("/tmp/motor/run_motor"))
+    env = dict(os.environ, VIRTUAL_ENV=sys.prefix, PYTHONPATH=str(REPO))
+    harness = spawn(shlex.split(start.replace("/tmp/motor", str(out))), stdin=subprocess.DEVNULL,
+                    stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, bufsize=0, cwd=REPO, env=env)
+    try:
+        pty = _ready(harness)
+        ran.add(start)
+        for command in motor:
+            if command.startswith("hilbench"):
+                real = command.replace(BOARD_PORT, f"serial:{pty}").replace("/dev/pts/M", pty)
+                real = real.replace("motor.csv", str(tmp_path / "motor.csv"))
+                _passes(command, _cli(real, 900))
+                ran.add(command)
+    finally:
+        reap(harness, 10.0)
+    return ran
+
+
 def test_board_guide_against_the_stand_ins(tmp_path: Path) -> None:
     require_tool("gcc", "the SIL firmware (apt: gcc)")
     require_tool("avr-gcc", "the AVR stand-in (apt: gcc-avr avr-libc)")
     require_tool("simavr", "the AVR stand-in (apt: simavr libsimavr-dev libsimavrparts1)")
     require_tool("clang", "make size (apt: clang llvm)")
     commands = [c for c in guide_commands() if c not in BOARD_ONLY]
-    ran = _sil_part(commands, tmp_path) | _avr_part(commands, tmp_path)
+    ran = _sil_part(commands, tmp_path) | _avr_part(commands, tmp_path) | _motor_part(commands, tmp_path)
     assert ran == set(commands), set(commands) - ran

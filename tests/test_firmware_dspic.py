@@ -66,9 +66,11 @@ MARGIN_BYTES = 32
 
 
 @pytest.mark.parametrize("options", [(), ("-DHIL_LOCAL_POT",),
-                                     ("-DAN1017_VARIANT=AN1017_VARIANT_V11",)], ids=["default", "options", "v11"])
+                                     ("-DAN1017_VARIANT=AN1017_VARIANT_V11",),
+                                     ("-DHIL_LOCAL_HALLS", "-DHIL_DRIVE_BRIDGE", "-DHRT_MONITOR=1")],
+                         ids=["default", "options", "v11", "motor"])
 def test_dspic_port_compiles_warning_free(gcc: str, tmp_path: Path, options: tuple[str, ...]) -> None:
-    for source in SOURCES:
+    for source in (*SOURCES, PORT / "an1017_dspic30f2010.c"):  # each source, and the Makefile's one unit of them
         result = subprocess.run([gcc, *STRICT_FLAGS, "-Os", *DEFS, *options, "-c", str(source), "-o",
                                  str(tmp_path / (source.stem + ".o"))], capture_output=True, text=True, timeout=120)
         assert result.returncode == 0, result.stderr

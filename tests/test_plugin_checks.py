@@ -89,6 +89,23 @@ def test_checks_written_for_one_firmware_are_not_judged_on_another() -> None:
     assert not run_checks([CheckEntry(kind="peak_current", max_a=1.0, firmware="AN1017")], summary, lambda: columns)[0].passed
 
 
+def test_a_column_the_run_cannot_have_is_skip_with_its_reason_and_no_other() -> None:
+    """A monitor-mode run records no plant: a check reading the phase currents says SKIP with why
+    (`absent`); a column missing from any other run is not turned into a pass."""
+    summary, columns = _synthetic()
+    for name in ("ia_a", "ib_a", "ic_a"):
+        del columns[name]
+    why = "a monitor-mode run records no plant"
+    entries = [CheckEntry(kind="peak_current", max_a=1.0), CheckEntry(kind="signal", signal="ia_a", max=1.0),
+               CheckEntry(kind="speed_limit", max_rpm=2000.0)]
+    skipped, signal, limit = run_checks(entries, summary, lambda: columns, absent={"ia_a": why, "ib_a": why})
+    assert skipped.passed and skipped.skipped and skipped.figure == f"not judged: no column 'ia_a': {why}"
+    assert signal.skipped and why in signal.figure
+    assert limit.passed and not limit.skipped  # the columns it reads are there: judged
+    with pytest.raises(KeyError):  # not monitor mode: a missing column is no SKIP
+        run_checks(entries[:1], summary, lambda: columns)
+
+
 def test_no_fault_and_overruns() -> None:
     summary, columns = _synthetic()
     columns["fault"][5000:5010] = 3

@@ -67,10 +67,11 @@ static uint16_t sector_of(uint8_t hall)
 
 /* ------------------------------------------------------------------------------------- SVM */
 
-/* t * k >> 15 in the firmware's 32-bit intermediate, truncated to an unsigned 16-bit result. */
+/* t * k >> 15 in the firmware's 32-bit intermediate, truncated to an unsigned 16-bit result: bits 30:15
+ * of the product, i.e. the high word of the product shifted left once. */
 static uint16_t scale15(uint16_t t, int16_t k)
 {
-    return (uint16_t)((uint32_t)q15_asr32((int32_t)t * (int32_t)k, 15u) & 0xFFFFu);
+    return (uint16_t)(((uint32_t)((int32_t)t * (int32_t)k) << 1) >> 16);
 }
 
 void an1017_svm(int16_t volts, uint16_t angle, uint16_t pdc[3])
@@ -103,10 +104,11 @@ void an1017_svm(int16_t volts, uint16_t angle, uint16_t pdc[3])
     angle1 = (uint16_t)(SIXTY_DEG - angle2);
     t1 = AN1017_ROM_U16(&sine_table[(uint8_t)(angle1 >> 6)]);
     t2 = AN1017_ROM_U16(&sine_table[(uint8_t)(angle2 >> 6)]);
+    /* then * TPWM >> 15: the product is below 2^26, so bits 30:15 are all of the quotient */
     t1 = scale15(t1, volts);
-    t1 = (uint16_t)(((uint32_t)t1 * AN1017_TPWM) >> 15);
+    t1 = (uint16_t)((((uint32_t)t1 * AN1017_TPWM) << 1) >> 16);
     t2 = scale15(t2, volts);
-    t2 = (uint16_t)(((uint32_t)t2 * AN1017_TPWM) >> 15);
+    t2 = (uint16_t)((((uint32_t)t2 * AN1017_TPWM) << 1) >> 16);
     h = (uint16_t)((uint16_t)(AN1017_TPWM - t1 - t2) >> 1);
     x = (uint16_t)(t1 + t2 + h);
     y1 = (uint16_t)(t1 + h);
@@ -321,14 +323,14 @@ void an1017_isr_timer1(an1017_t *s)
     s->phase_inc = (uint16_t)(PHASEINC_NUMERATOR / period);
     /* MeasuredSpeed = DIVF(_MINPERIOD, Period), _MINPERIOD = MINPERIOD - 1 keeps DIVF's |num| < |den|;
      * MINPERIOD <= Period <= MAXPERIOD <= 32767 fits a positive int16 */
-    ms = q15_divf((int16_t)(s->min_period - 1u), (int16_t)period);
+    ms = q15_divf_pos((uint16_t)(s->min_period - 1u), period);
     if (s->cur_ccw) {
         ms = (int16_t)-ms;
     }
     s->measured_speed = ms;
     /* [PID] SpeedControl: e0 = SAC(Ref - Meas); A = LAC ControlOutput; three MACs with SATA;
      * ControlOutput = SAC A (truncating) */
-    e0 = q15_sat((int32_t)s->ref_speed - ms);
+    e0 = q15_sub_sat(s->ref_speed, ms);
     acc = q15_lac(s->control_output);
     acc = mac_sata(acc, e0, s->c0);
     acc = mac_sata(acc, s->e1, s->c1);
@@ -628,10 +630,10 @@ static const hrt_param_decl_t params[AN1017_N_PARAMS] = {
     {"ki", "", 0, 32767, HBP_PTYPE_Q15, HBP_ACCESS_RW},
     {"kd", "", 0, 32767, HBP_PTYPE_Q15, HBP_ACCESS_RW},
     {"ph_adv_on", "", 0, 1, HBP_PTYPE_BOOL, HBP_ACCESS_RW},
-    {"ph_adv_deg", "deg", 0, 60, HBP_PTYPE_INT, HBP_ACCESS_RW},
+    {"ph_adv_deg", HRT_DESCRIBED("deg"), 0, 60, HBP_PTYPE_INT, HBP_ACCESS_RW},
     {"ref_ovr_on", "", 0, 1, HBP_PTYPE_BOOL, HBP_ACCESS_RW},
     {"ref_override", "", -32767 - 1, 32767, HBP_PTYPE_Q15, HBP_ACCESS_RW},
-    {"stall_ms", "ms", 10, 30000, HBP_PTYPE_INT, HBP_ACCESS_RW},
+    {"stall_ms", HRT_DESCRIBED("ms"), 10, 30000, HBP_PTYPE_INT, HBP_ACCESS_RW},
 };
 
 /* RefSpeed, MeasuredSpeed in rpm: one Q15 step is 9 375 000 / (pole pairs * (MINPERIOD - 1) * 32768) rpm
@@ -639,9 +641,9 @@ static const hrt_param_decl_t params[AN1017_N_PARAMS] = {
 #define AN1017_RPM_NUM ((int32_t)AN1017_PERIOD_X_RPM)
 #define AN1017_RPM_DEN ((int32_t)(AN1017_POLE_PAIRS * (AN1017_MINPERIOD_RAW - 1UL) * 32768UL))
 static const hrt_telemetry_decl_t telemetry[3] = {
-    {"ref_speed", "rpm", AN1017_RPM_NUM, AN1017_RPM_DEN, HBP_TELEMETRY_REF_SPEED, HBP_PTYPE_Q15},
-    {"measured_speed", "rpm", AN1017_RPM_NUM, AN1017_RPM_DEN, HBP_TELEMETRY_MEASURED_SPEED, HBP_PTYPE_Q15},
-    {"control_output", "q15", 1, 1, HBP_TELEMETRY_CONTROL_OUTPUT, HBP_PTYPE_Q15},
+    {HRT_DESCRIBED("ref_speed"), HRT_DESCRIBED("rpm"), AN1017_RPM_NUM, AN1017_RPM_DEN, HBP_TELEMETRY_REF_SPEED, HBP_PTYPE_Q15},
+    {HRT_DESCRIBED("measured_speed"), HRT_DESCRIBED("rpm"), AN1017_RPM_NUM, AN1017_RPM_DEN, HBP_TELEMETRY_MEASURED_SPEED, HBP_PTYPE_Q15},
+    {HRT_DESCRIBED("control_output"), HRT_DESCRIBED("q15"), 1, 1, HBP_TELEMETRY_CONTROL_OUTPUT, HBP_PTYPE_Q15},
 };
 
 /* AN2 pot, AN1 bus current, AN0 bus voltage: only the pot is used */

@@ -80,26 +80,54 @@ static inline int32_t q15_frac_mul(int16_t a, int16_t b)
     return p * (int32_t)2;
 }
 
-/* MAC with SATA: acc + a*b (fractional), clamped to 1.31 after the add. */
+/* MAC with SATA: acc + a*b (fractional), clamped to 1.31 after the add. The product shifted once is
+ * added as a 32-bit word; the addend's sign is the product's (only -1 * -1, whose shifted product 2^31
+ * does not fit, would read negative from the word's top bit): the sum overflows when acc and the
+ * addend have one sign and the wrapped sum the other. */
 static inline int32_t q15_mac_sata(int32_t acc, int16_t a, int16_t b)
 {
     int32_t p = (int32_t)a * (int32_t)b;
-    if (p == (int32_t)0x40000000) { /* -1 * -1: acc + 2^31, which saturates unless acc < 0 */
-        return (acc >= 0) ? Q15_ACC_MAX : (int32_t)((uint32_t)acc + 0x80000000UL);
+    uint32_t sum = (uint32_t)acc + ((uint32_t)p << 1);
+    uint16_t hi = (uint16_t)(sum >> 16);
+    uint16_t addend_sign = (p < 0) ? 0x8000u : 0u;
+    if (((((uint16_t)((uint32_t)acc >> 16)) ^ hi) & (addend_sign ^ hi) & 0x8000u) != 0u) {
+        return (acc < 0) ? Q15_ACC_MIN : Q15_ACC_MAX;
     }
-    return q15_sat_add32(acc, p * (int32_t)2);
+    return (sum < 0x80000000UL) ? (int32_t)sum : (int32_t)(-(int32_t)(0xFFFFFFFFUL - sum) - 1);
 }
 
-/* SAC without rounding: bits 31:16 (truncation, i.e. floor), saturated by SATDW. */
+/* Bits 31:16 of an accumulator value as a Q15 word (a register move on the chip). */
+static inline int16_t q15_hi(uint32_t acc)
+{
+    return q15_wrap((int32_t)(acc >> 16));
+}
+
+/* SAC without rounding: bits 31:16 (truncation, i.e. floor), saturated by SATDW. floor(acc / 2^16) of
+ * an int32_t always lies in -32768..32767, so the saturation never acts: SAC is the high word. */
 static inline int16_t q15_sac(int32_t acc)
 {
-    return q15_sat(q15_asr32(acc, 16u));
+    return q15_hi((uint32_t)acc);
 }
 
-/* MPY then SAC: the truncating fractional product (-1 * -1 -> 32767). */
+/* MPY then SAC: the truncating fractional product (-1 * -1 -> 32767): bits 31:16 of a*b << 1. */
 static inline int16_t q15_mul(int16_t a, int16_t b)
 {
-    return q15_sac(q15_frac_mul(a, b));
+    int32_t p = (int32_t)a * (int32_t)b;
+    if (p == (int32_t)0x40000000) {
+        return (int16_t)Q15_MAX;
+    }
+    return q15_hi((uint32_t)p << 1);
+}
+
+/* a - b clamped to Q15 (SAC of A - B), in 16-bit arithmetic: the difference overflows only when a and b
+ * differ in sign and the wrapped difference has b's sign; then it saturates toward a's side. */
+static inline int16_t q15_sub_sat(int16_t a, int16_t b)
+{
+    uint16_t d = (uint16_t)((uint16_t)a - (uint16_t)b);
+    if ((((uint16_t)a ^ (uint16_t)b) & ((uint16_t)a ^ d) & 0x8000u) != 0u) {
+        return (a < 0) ? (int16_t)Q15_MIN : (int16_t)Q15_MAX;
+    }
+    return (int16_t)(a - b); /* no overflow: exact */
 }
 
 /* DIVF: 1.15 quotient trunc(num * 32768 / den) for 0 <= |num| < |den| (the chip's precondition;
@@ -110,6 +138,12 @@ static inline int16_t q15_divf(int16_t num, int16_t den)
     uint32_t d = (uint32_t)((den < 0) ? -(int32_t)den : (int32_t)den);
     int32_t q = (int32_t)((n << 15) / d);
     return (int16_t)(((num < 0) != (den < 0)) ? -q : q);
+}
+
+/* DIVF of 0 <= num < den (AN1017's MeasuredSpeed): q15_divf without the signs. */
+static inline int16_t q15_divf_pos(uint16_t num, uint16_t den)
+{
+    return (int16_t)(((uint32_t)num << 15) / den);
 }
 
 #endif /* AN1017_Q15_H */

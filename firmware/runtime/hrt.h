@@ -72,6 +72,17 @@
 #define HRT_REPORT_MEAN 0      /* HRT_REPORT_ACTIVE as a mean over the span (1: 3 x 64-bit accumulators) */
 #endif
 #define HRT_NONE 0xFFu
+/* The self-description beyond the HELLO (hrt_link.h explains it): 1 by default. A declaration writes the
+ * texts only a description sends (telemetry names and units, parameter units) as HRT_DESCRIBED("rpm"),
+ * so a build without it keeps none of them in its flash (it sends empty units). */
+#ifndef HRT_DESCRIBE
+#define HRT_DESCRIBE 1
+#endif
+#if HRT_DESCRIBE
+#define HRT_DESCRIBED(text) text
+#else
+#define HRT_DESCRIBED(text) ""
+#endif
 
 /* ---- input lines: the bits of Sensors.inputs (the protocol's HBP_INPUT_*) ---- */
 #define HRT_IN_HALL_A HBP_INPUT_HALL_A

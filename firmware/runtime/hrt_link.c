@@ -72,7 +72,7 @@ void hrt_link_init(hrt_link_t *l, hrt_t *rt)
 #endif
 /* Lockstep, predicted or not (a build without prediction never agrees to PREDICT: its code as before). */
 #if HRT_PREDICT_BYTES > 0
-#define LOCKSTEP(mode) ((mode) != HBP_MODE_REALTIME)
+#define LOCKSTEP(mode) ((mode) == HBP_MODE_LOCKSTEP || (mode) == HBP_MODE_PREDICT)
 #else
 #define LOCKSTEP(mode) ((mode) == HBP_MODE_LOCKSTEP)
 #endif
@@ -140,9 +140,11 @@ static void send_error(hrt_link_t *l, hbp_u8 seq, hbp_u8 code, hbp_u8 detail)
     finish(l);
 }
 
-/* The Drive of the present state, written to l->tx (a batch folds its bytes into the digest). */
-#if HRT_SPECULATE
-static void write_drive(hrt_link_t *l, hbp_u8 seq)
+/* The Drive of the present state, written into l->tx: a monitor build fills it with the port locked
+ * and sends it unlocked (hrt_link_stream), a batch folds its bytes into the digest; every other build
+ * keeps it one function, sending too (no call more on a 12 KB chip: tests/test_dspic_size.py). */
+#if HRT_MONITOR || HRT_SPECULATE
+static void fill_drive(hrt_link_t *l, hbp_u8 seq)
 #else
 void hrt_link_send_drive(hrt_link_t *l, hbp_u8 seq)
 #endif
@@ -173,14 +175,42 @@ void hrt_link_send_drive(hrt_link_t *l, hbp_u8 seq)
     for (i = 0u; i < d.n_telemetry; i++) {
         w16(l, (uint16_t)d.telemetry[i]);
     }
-#if !HRT_SPECULATE
+#if !(HRT_MONITOR || HRT_SPECULATE)
     finish(l);
 #endif
 }
-#if HRT_SPECULATE
+
+#if HRT_MONITOR || HRT_SPECULATE
 void hrt_link_send_drive(hrt_link_t *l, hbp_u8 seq)
 {
-    write_drive(l, seq);
+#if HRT_MONITOR /* the timers' and the halls' interrupts change what the Drive reports */
+    hrt_port_lock();
+    fill_drive(l, seq);
+    hrt_port_unlock();
+#else
+    fill_drive(l, seq);
+#endif
+    finish(l);
+}
+#endif
+
+#if HRT_MONITOR
+void hrt_link_stream(hrt_link_t *l)
+{
+    uint32_t period = (uint32_t)l->period_us * TICKS_PER_US;
+    uint32_t now = hrt_port_now();
+    hbp_u8 seq = l->last_seq;
+    if (l->mode != HBP_MODE_MONITOR || (l->flags & HRT_LINK_F_HELLO) == 0u || now - l->stream_at < period) {
+        return;
+    }
+    while (now - l->stream_at >= period) { /* a slot missed (the UART was busy) is a seq skipped */
+        l->stream_at += period;
+        seq = (hbp_u8)(seq + 1u);
+    }
+    l->last_seq = seq;
+    hrt_port_lock();
+    fill_drive(l, seq);
+    hrt_port_unlock();
     finish(l);
 }
 #endif
@@ -248,8 +278,15 @@ static HRT_NOINLINE void on_hello(hrt_link_t *l, const hbp_u8 *buf, hbp_u8 len, 
     }
     period_us = get_u16(&buf[3]);
     mode = buf[5];
+#if HRT_MONITOR
+    if (period_us == 0u || (step != 0u && period_us % step != 0u) || mode != HBP_MODE_MONITOR ||
+        get_u16(&buf[6]) == 0u) {
+        /* a real-motor build runs on its motor's own sensors: it never takes them from frames; and
+         * its motor stops when the host falls silent, so a hello without a watchdog is refused */
+#else
     if (period_us == 0u || (step != 0u && period_us % step != 0u) ||
         (mode != HBP_MODE_LOCKSTEP && mode != HBP_MODE_REALTIME && !(mode == HBP_MODE_PREDICT && CAN_PREDICT))) {
+#endif
         send_error(l, seq, HBP_ERROR_BAD_REQUEST, 0u);
         return;
     }
@@ -263,6 +300,14 @@ static HRT_NOINLINE void on_hello(hrt_link_t *l, const hbp_u8 *buf, hbp_u8 len, 
     l->mode = mode;
     l->watchdog_ms = get_u16(&buf[6]);
     l->flags = HRT_LINK_F_HELLO; /* a new session numbers its Sensors from 0 again */
+#if HRT_MONITOR
+    if (mode == HBP_MODE_MONITOR) { /* the stream starts: the watchdog counts from now */
+        l->flags = (hbp_u8)(HRT_LINK_F_HELLO | HRT_LINK_F_SENSORS);
+        l->last_rx = hrt_port_now();
+        l->stream_at = l->last_rx;
+        l->last_seq = 0u;
+    }
+#endif
 #if HRT_SPECULATE
     l->b_synced = 0u; /* the next SensorsBatch starts the records afresh */
 #endif
@@ -381,6 +426,7 @@ static HRT_NOINLINE void on_sensors(hrt_link_t *l, const hbp_u8 *buf, hbp_u8 len
         hrt_link_send_drive(l, seq);
         return;
     }
+#if !(defined(HRT_PORT_HW) && HRT_PORT_HW) /* (a hardware port's real time runs no span: below) */
     if (l->mode == HBP_MODE_REALTIME) {
         uint32_t now = hrt_port_now();
         if ((l->flags & HRT_LINK_F_SENSORS) != 0u) {
@@ -390,6 +436,7 @@ static HRT_NOINLINE void on_sensors(hrt_link_t *l, const hbp_u8 *buf, hbp_u8 len
             span = (passed < HRT_RT_MAX_PERIODS * span) ? passed : HRT_RT_MAX_PERIODS * span;
         }
     }
+#endif
     l->last_rx = hrt_port_now();
     l->flags = (hbp_u8)((l->flags | HRT_LINK_F_SENSORS | HRT_LINK_F_ANSWERED) & (hbp_u8)~HRT_LINK_F_TRIPPED);
 #if HRT_SPECULATE
@@ -559,7 +606,7 @@ static void send_digest(hrt_link_t *l, hbp_u8 seq, uint16_t first, hbp_u8 count,
 {
     hbp_u8 n;
     hbp_u8 i;
-    write_drive(l, (hbp_u8)((count != 0u) ? ((first + count - 1u) & 0xFFu) : l->last_seq));
+    fill_drive(l, (hbp_u8)((count != 0u) ? ((first + count - 1u) & 0xFFu) : l->last_seq));
     n = (hbp_u8)(l->tx_len - 2u);
     if (l->tx_len > HRT_TX_FRAME_MAX || (hbp_u8)(12u + n) > HRT_TX_FRAME_MAX) {
         return; /* does not fit this build's reply buffer: the host times out and says so */
@@ -646,7 +693,7 @@ static uint32_t run_periods(hrt_link_t *l, hrt_batch_in_t *in, const hbp_u8 *edg
         }
 #endif
         l->last_seq = s;
-        write_drive(l, s);
+        fill_drive(l, s);
         /* a Drive that did not fit tx (a build whose HRT_TX_FRAME_MAX is too small) is folded as
          * nothing: never read past tx, and the digest then differs from the twin's, as it should */
         crc = crc32_update(crc, l->tx, l->tx_len <= HRT_TX_FRAME_MAX ? l->tx_len : 0u);
@@ -847,6 +894,23 @@ void hrt_link_handle(hrt_link_t *l, const hbp_u8 *frame, hbp_u8 len)
     hbp_u8 seq = frame[1];
     hbp_u8 group = (hbp_u8)(type >> 4);
     hbp_u8 want = 0u; /* the payload-less (2) and one-byte (3) requests' length; 0: not a request */
+#if HRT_MONITOR
+    if ((l->flags & HRT_LINK_F_HELLO) != 0u && type != HBP_MSG_HOST_HELLO) {
+        /* the host is there: any frame feeds the watchdog (a tripped one stays stopped until Start) */
+        l->last_rx = hrt_port_now();
+        l->flags = (hbp_u8)((l->flags | HRT_LINK_F_SENSORS) & (hbp_u8)~HRT_LINK_F_TRIPPED);
+    }
+    if (type == HBP_MSG_SENSORS) { /* a real-motor build runs on its own sensors, never on frames */
+        send_error(l, seq, HBP_ERROR_BAD_REQUEST, type);
+        return;
+    }
+    if ((l->flags & HRT_LINK_F_HELLO) == 0u && (type == HBP_MSG_START || type == HBP_MSG_PARAM_SET)) {
+        /* nothing runs or changes the motor before a MONITOR hello has agreed a watchdog: a Start
+         * from a host that never said hello ran the motor with none */
+        send_error(l, seq, HBP_ERROR_BAD_REQUEST, type);
+        return;
+    }
+#endif
     if (type == HBP_MSG_SENSORS) {
         on_sensors(l, frame, len, seq);
         return;

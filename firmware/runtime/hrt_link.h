@@ -40,9 +40,7 @@
  * 1 by default; a chip whose flash cannot spare the ~450 bytes (the dsPIC30F2010's AN1017 build)
  * may set 0 for hrt_link.c alone: it then answers those requests with ErrorReport(BAD_REQUEST) and
  * sends empty units, and the host serves it from its profile. */
-#ifndef HRT_DESCRIBE
-#define HRT_DESCRIBE 1
-#endif
+/* (HRT_DESCRIBE's default is in hrt.h: a declaration's describe-only texts follow it, HRT_DESCRIBED) */
 /* Real time on a port without its own timers: each Sensors advances the firmware by the time that
  * passed, at most this many agreed periods (a firmware too slow for real time on its chip falls
  * behind instead of spending ever longer spans catching up). */
@@ -52,11 +50,24 @@
 #if HRT_PREDICT_BYTES > 0 && !HRT_REPORT_MEAN
 #error "HRT_PREDICT_BYTES needs HRT_REPORT_MEAN 1 (a predicted span's mean duties)"
 #endif
+/* Monitor mode (HostHello mode MONITOR; a real-motor build sets 1, every other build leaves it 0 and
+ * carries none of its code): the port runs the firmware on its own timers and sensors from power-on
+ * (hrt_rt_*), the host sends no Sensors, and hrt_link_stream, from the port's main loop, sends an
+ * unsolicited Drive every agreed period_us, its seq counting periods of the port's clock (a skipped
+ * slot is a seq skipped, never a burst). Any valid frame from the host feeds the watchdog; silence
+ * for watchdog_ms stops the firmware (HRT_STOP_WATCHDOG), as in real time. Such a build agrees to no
+ * other mode and refuses every Sensors: its motor is never driven from a simulated rotor. */
+#ifndef HRT_MONITOR
+#define HRT_MONITOR 0
+#endif
 /* Twin-speculative lockstep (SensorsBatch -> BatchDigest): 1 by default; a chip that will never run
  * behind a host twin and cannot spare the flash (the dsPIC30F2010's AN1017 build) sets 0, and its
  * link is then exactly as without it (a SensorsBatch is answered ErrorReport(BAD_REQUEST)). */
 #ifndef HRT_SPECULATE
-#define HRT_SPECULATE 1
+#define HRT_SPECULATE (!HRT_MONITOR) /* a real-motor build takes no Sensors, batched or not */
+#endif
+#if HRT_MONITOR && HRT_SPECULATE
+#error "a real-motor build (HRT_MONITOR) takes no SensorsBatch: leave HRT_SPECULATE at 0"
 #endif
 #ifndef HRT_LOCKSTEP_WATCHDOG_MIN_MS
 #define HRT_LOCKSTEP_WATCHDOG_MIN_MS 1000u
@@ -105,6 +116,9 @@ typedef struct {
     hbp_u8 last_seq;
     hbp_u8 tx_len;             /* bytes written to tx (more than HRT_TX_FRAME_MAX: it did not fit) */
     hbp_u8 tx[HRT_TX_FRAME_MAX]; /* the message being sent (hbp_send_frame makes its wire bytes) */
+#if HRT_MONITOR
+    uint32_t stream_at;        /* monitor mode: the port's clock at the slot of the last streamed Drive */
+#endif
 #if HRT_SPECULATE
     /* SensorsBatch: the periods' inputs as the records left them (they carry over from batch to batch),
      * the period the next batch starts at, and the last batch's answer (kept for a repeat) */
@@ -133,5 +147,10 @@ void hrt_link_handle(hrt_link_t *l, const hbp_u8 *frame, hbp_u8 len);
 void hrt_link_watchdog(hrt_link_t *l);
 /* Send the Drive of the present state with this seq. */
 void hrt_link_send_drive(hrt_link_t *l, hbp_u8 seq);
+#if HRT_MONITOR
+/* Monitor mode: send the Drive of the present state when a period_us slot has passed (from the
+ * port's main loop; the state is read with the port locked, the bytes sent unlocked). */
+void hrt_link_stream(hrt_link_t *l);
+#endif
 
 #endif /* HRT_LINK_H */

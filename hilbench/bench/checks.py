@@ -34,14 +34,16 @@ cannot be judged fails and says why (no such column, no samples in its window, a
 the run does not have); the segment kinds over every segment say SKIP ("not judged", passing) when
 no segment was held `min_hold_s` (a short run is not a failed one; the other kinds still look at
 it), and so do the signal kinds of a run that kept no rows; `no_fault` without rows is judged from
-the fault code the live history saw (`Summary.fault_first_s`). The CLI exits with `CheckFailed.exit_code` (9) when one fails.
+the fault code the live history saw (`Summary.fault_first_s`). A run that cannot have a column (a
+monitor-mode run records no plant: `absent` names such columns with the reason) says SKIP with that
+reason for a check that reads one. The CLI exits with `CheckFailed.exit_code` (9) when one fails.
 """
 
 from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
-from typing import TYPE_CHECKING, Callable, Literal, Mapping, Sequence
+from typing import TYPE_CHECKING, Callable, Iterator, Literal, Mapping, Sequence
 
 import numpy as np
 
@@ -148,8 +150,11 @@ SignalsSource = Callable[[], Mapping[str, np.ndarray]]
 SUMMARY_KINDS = ("speed_error", "overruns")
 
 
-def run_checks(entries: Sequence[CheckEntry], summary: "Summary", signals: SignalsSource) -> list[CheckResult]:
-    """Judge every run kind of ``entries`` on a finished run; ``signals`` is read only if needed."""
+def run_checks(entries: Sequence[CheckEntry], summary: "Summary", signals: SignalsSource,
+               absent: Mapping[str, str] | None = None) -> list[CheckResult]:
+    """Judge every run kind of ``entries`` on a finished run; ``signals`` is read only if needed.
+    ``absent``: columns this kind of run cannot record, each with the reason (a check reading one
+    says SKIP with it; any other missing column is the check's failure or a bug, never a SKIP)."""
     cache: dict[str, Mapping[str, np.ndarray]] = {}
 
     def columns() -> Mapping[str, np.ndarray]:
@@ -158,6 +163,8 @@ def run_checks(entries: Sequence[CheckEntry], summary: "Summary", signals: Signa
                 cache["s"] = signals()
             except HilbenchError as exc:  # nothing recorded: `hilbench run` without --record keeps no rows
                 raise _NoRows(str(exc)) from None
+            if absent:
+                cache["s"] = _WithAbsent(cache["s"], absent)
         return cache["s"]
 
     def judge(entry: CheckEntry) -> CheckResult:
@@ -165,6 +172,8 @@ def run_checks(entries: Sequence[CheckEntry], summary: "Summary", signals: Signa
             return _other_firmware(entry, summary.firmware)
         try:
             return _judge_run(entry, summary, columns)
+        except _Absent as exc:
+            return CheckResult(entry.label, entry.kind, True, f"not judged: {exc}", skipped=True)
         except _NoRows:
             return CheckResult(entry.label, entry.kind, True, "not judged: no rows were kept "
                                "(record the run, --record run.npz, to judge the signals)", skipped=True)
@@ -174,6 +183,36 @@ def run_checks(entries: Sequence[CheckEntry], summary: "Summary", signals: Signa
 
 class _NoRows(Exception):
     """The run kept no rows to judge signals on."""
+
+
+class _Absent(Exception):
+    """A check reads a column this kind of run cannot record."""
+
+
+class _WithAbsent(Mapping[str, np.ndarray]):
+    """A run's signals; reading (or asking for) a column ``absent`` names raises `_Absent` with its reason."""
+
+    def __init__(self, signals: Mapping[str, np.ndarray], absent: Mapping[str, str]) -> None:
+        self._signals = signals
+        self._absent = absent
+
+    def _refuse(self, name: object) -> None:
+        if isinstance(name, str) and name in self._absent and name not in self._signals:
+            raise _Absent(f"no column {name!r}: {self._absent[name]}")
+
+    def __getitem__(self, name: str) -> np.ndarray:
+        self._refuse(name)
+        return self._signals[name]
+
+    def __contains__(self, name: object) -> bool:
+        self._refuse(name)
+        return name in self._signals
+
+    def __iter__(self) -> Iterator[str]:
+        return iter(self._signals)
+
+    def __len__(self) -> int:
+        return len(self._signals)
 
 
 def _for_firmware(entry: CheckEntry, firmware: str) -> bool:

@@ -43,23 +43,24 @@ class SessionRow:
 
 
 def session_row(profile: TargetProfile, telemetry_ids: tuple[int, ...], period_s: float,
-                plant_outputs: Sequence[PlantOutput] = OUTPUTS) -> SessionRow:
+                plant_outputs: Sequence[PlantOutput] = OUTPUTS, halls: bool = True) -> SessionRow:
     """The row for a target that sends ``telemetry_ids`` (in the HELLO's order) and a plant that
-    records ``plant_outputs`` (its `outputs`)."""
+    records ``plant_outputs`` (its `outputs`); ``halls`` False: no hall column (no one sends the
+    halls to a monitor session: the board reads them itself)."""
     telemetry = [profile.telemetry_column(tid) for tid in telemetry_ids]
     tele_fields = tuple((f"tele_{i}", "i") for i in range(len(telemetry)))
     ordered = sorted(range(len(telemetry)), key=lambda i: _declared_order(profile, telemetry[i].telemetry_id))
     tele_columns = tuple(
         (telemetry[i].column, telemetry[i].unit, telemetry[i].fmt, f"tele_{i}", telemetry[i].scale) for i in ordered
     )
-    own = OWN_FIELDS
+    own = OWN_FIELDS if halls else tuple(f for f in OWN_FIELDS if f[0] != "hall")
     if not any(c[0] == "ref_speed_rpm" for c in tele_columns):  # the host's reference instead
         tele_columns += (("ref_speed_rpm", "rpm", "%.3f", "host_ref_rpm", 1.0),)
         own += (("host_ref_rpm", "d"),)
     plant_columns = tuple((out.column, out.unit, out.fmt, out.field, out.scale) for out in plant_outputs)
     columns = (
-        ("t_s", "s", "%.6f", "k", period_s), ("seq", "", "%d", "k", 1.0), ("hall", "bits CBA", "%d", "hall", 1.0),
-        ("sector", "", "%d", "sector", 1.0),
+        ("t_s", "s", "%.6f", "k", period_s), ("seq", "", "%d", "k", 1.0),
+        *((("hall", "bits CBA", "%d", "hall", 1.0),) if halls else ()), ("sector", "", "%d", "sector", 1.0),
         *plant_columns,
         *tele_columns,
         ("duty_a", "counts", "%d", "duty_a", 1.0), ("duty_b", "counts", "%d", "duty_b", 1.0),

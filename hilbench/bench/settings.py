@@ -34,7 +34,7 @@ assert LoadKind.__args__ == LOAD_KINDS  # type: ignore[attr-defined]
 class RunSection:
     """[run]: how long and how."""
 
-    mode: Literal["lockstep", "realtime"] = field(default="lockstep", metadata=spec(doc="lockstep (virtual time) or realtime (wall clock)"))
+    mode: Literal["lockstep", "realtime", "monitor"] = field(default="lockstep", metadata=spec(doc="lockstep (virtual time), realtime (wall clock) or monitor (the board runs its real motor; no plant)"))
     duration_s: float | None = field(default=None, metadata=spec(unit="s", gt=0, le=86400, doc="default: the scenario's end"))
     seed: int | None = field(default=None, metadata=spec(ge=0, doc="seed of every random source of the run (default: [plant] seed)"))
 
@@ -115,7 +115,7 @@ class SessionOptions:
     """How a session runs (the [run], [link] and [protection] tables of a bench config)."""
 
     period_us: int = 50
-    mode: Literal["lockstep", "realtime"] = "lockstep"
+    mode: Literal["lockstep", "realtime", "monitor"] = "lockstep"
     duration_s: float | None = None  # None: until the scenario's end event
     actuation_delay_periods: int = 0
     timeout_s: float = 0.5

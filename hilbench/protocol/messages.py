@@ -23,7 +23,7 @@ from hilbench.protocol.framing import CobsError, CrcError, LengthError, UnknownT
 _CHECK = int.to_bytes  # the check bytes and the delimiter as one int (PROTOCOL.md, Framing)
 PROTOCOL_VERSION = 3
 # First 4 bytes of SHA-256 over the schema's canonical wire content (generate.schema_fingerprint).
-SCHEMA_FINGERPRINT = 0x786e658b
+SCHEMA_FINGERPRINT = 0x82ba34c0
 MAX_FRAME_BYTES = 62
 MAX_NAME_CHARS = 16
 MAX_UNIT_CHARS = 8
@@ -96,11 +96,12 @@ class DutyReport(IntEnum):
 
 
 class Mode(IntEnum):
-    """HostHello.mode (PREDICT: lockstep whose Drive carries the duties predicted for the next period)."""
+    """HostHello.mode (PREDICT: lockstep whose Drive carries the duties predicted for the next period; MONITOR: the target runs its real motor on its own sensors and timers and streams a Drive every period_us unsolicited, no Sensors)."""
 
     LOCKSTEP = 0
     REALTIME = 1
     PREDICT = 2
+    MONITOR = 3
 
 
 class OutputMode(IntEnum):
@@ -244,6 +245,7 @@ REPORT_ACTIVE = DutyReport.ACTIVE
 MODE_LOCKSTEP = Mode.LOCKSTEP
 MODE_REALTIME = Mode.REALTIME
 MODE_PREDICT = Mode.PREDICT
+MODE_MONITOR = Mode.MONITOR
 OUTPUT_OFF = OutputMode.OFF
 OUTPUT_PWM = OutputMode.PWM
 OUTPUT_LOW_SIDE = OutputMode.LOW_SIDE
@@ -1907,6 +1909,7 @@ __all__ = [
     'MODE_LOCKSTEP',
     'MODE_REALTIME',
     'MODE_PREDICT',
+    'MODE_MONITOR',
     'OUTPUT_OFF',
     'OUTPUT_PWM',
     'OUTPUT_LOW_SIDE',

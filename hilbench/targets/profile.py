@@ -77,6 +77,9 @@ class ParamReference:
     param: str
     value_per_rpm: float
     kind: Literal["pot", "param"] = "param"
+    #: a boolean parameter written 1 with the value (a firmware whose reference is a pot takes a
+    #: written one only while its override is on: monitor mode, where the pot is the board's)
+    enable: str | None = None
 
     def value(self, speed_rpm: float) -> float:
         return speed_rpm * self.value_per_rpm
@@ -116,6 +119,9 @@ class TargetProfile(Generic[Options]):
     tunable: tuple[str, ...] = ()  # the gains `step`, `sweep` and the guard work on
     check_params: Callable[[Mapping[str, int]], str | None] | None = None  # raw values -> broken constraint
     reference: PotReference | ParamReference | None = None
+    #: how the host sets the reference in monitor mode (the board's own pot is not the bench's);
+    #: None: `reference` when it is a parameter
+    monitor_reference: ParamReference | None = None
     telemetry: tuple[TelemetryColumn, ...] = ()
     params: tuple[ParamSpec, ...] = ()  # the declared parameters (name, type, range, unit), when known
     speed_column: str | None = None  # the telemetry column that is the firmware's measured speed

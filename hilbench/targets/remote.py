@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import time
 from types import MethodType
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, Callable
 
 from hilbench.errors import LinkTimeout, ParamError, TargetError, VersionMismatch
 from hilbench.protocol import (
@@ -78,6 +78,8 @@ class RemoteTarget:
         self.watchdog_ms = 0
         self.retries = 0  # frames sent again after no answer within retry_s (a lost frame either way)
         self._req_seq = 0
+        #: where frames that answer nothing go instead of being counted as stale (None: counted)
+        self.stray_sink: Callable[[Any], None] | None = None
         self._send = link.send
         self._recv = link.recv
 
@@ -119,7 +121,24 @@ class RemoteTarget:
                 return reply
             self._note_stray(reply)
 
+    def gate_sends(self, before: Callable[[Any], None] | None) -> None:
+        """Monitor mode: ``before(msg)`` runs ahead of every frame this target sends (a board that
+        holds one received frame loses a second one sent too soon); None: frames go straight out."""
+        link = self.link
+        if before is None:
+            self._send = link.send
+            return
+
+        def send(msg: Any) -> None:
+            before(msg)
+            link.send(msg)
+
+        self._send = send
+
     def _note_stray(self, reply: Any) -> None:
+        if self.stray_sink is not None and type(reply) is not ErrorReport:
+            self.stray_sink(reply)  # monitor mode: the Drives streamed while a request waits its answer
+            return
         if type(reply) is ErrorReport:
             self.error_reports += 1
             self.last_error_report = reply

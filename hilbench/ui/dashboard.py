@@ -280,6 +280,10 @@ def summary_text(summary: Summary) -> str:
     if summary.params:  # as the dashboard's table has them (issue 16, item 17)
         lines.append("parameters: " + ", ".join(f"{k} {v:.5g}" for k, v in summary.params.items()))
     for s in summary.segments:
+        if summary.mode == "monitor":  # no plant: the motor's speed is what the firmware measures
+            lines.append(f"ref {s.ref_rpm:+.0f} rpm [{s.t_start_s:.2f}-{s.t_end_s:.2f} s]: motor (firmware's "
+                         f"measurement) {_fmt(s.measured_rpm, '+.1f')} rpm, error {s.error_pct:+.2f} %")
+            continue
         lines.append(
             f"ref {s.ref_rpm:+.0f} rpm [{s.t_start_s:.2f}-{s.t_end_s:.2f} s]: plant {s.plant_rpm:+.1f} rpm, "
             f"firmware {_fmt(s.measured_rpm, '+.1f')} rpm, error {s.error_pct:+.2f} %"

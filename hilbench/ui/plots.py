@@ -8,6 +8,7 @@ did the link keep time.
 from __future__ import annotations
 
 from pathlib import Path
+from typing import Sequence
 
 import numpy as np
 
@@ -185,12 +186,14 @@ def _standard_figures(plt, c, units, events):  # type: ignore[no-untyped-def]
     currents = [(name, label, "A", {"lw": 0.6, "color": f"C{k}"})
                 for k, (name, label) in enumerate((("ia_a", "i_a"), ("ib_a", "i_b"), ("ic_a", "i_c")))]
     currents.append(("ibus_a", "i_bus", "A", {"lw": 0.8, "color": "k"}))
-    yield _lanes_figure(plt, t, c, currents, "phase and bus currents", events), "currents"
+    if any(name in c for name, *_ in currents):  # (a monitor-mode recording has no plant currents)
+        yield _lanes_figure(plt, t, c, currents, "phase and bus currents", events), "currents"
     duties = [(name, name, "counts", {"lw": 0.6, "color": f"C{k}"}) for k, name in enumerate(("duty_a", "duty_b", "duty_c"))]
     yield _lanes_figure(plt, t, c, duties, "PWM duties from the target", events), "duties"
     if "hall" in c and "sector" in c:
         yield _hall_figure(plt, t, c, events), "hall"
-    if "rtt_us" in c and "lateness_us" in c and (np.any(c["rtt_us"] != 0) or np.any(c["lateness_us"] != 0)):
+    if "rtt_us" in c and "lateness_us" in c and (np.any(np.nan_to_num(c["rtt_us"]) != 0)
+                                                 or np.any(np.nan_to_num(c["lateness_us"]) != 0)):
         # a log axis of what is positive: a period answered early (lateness < 0) is on time, drawn at the floor
         floor = LINK_FLOOR_US
         timing_c = {"rtt_us": np.maximum(c["rtt_us"], floor), "lateness_us": np.maximum(c["lateness_us"], floor)}
@@ -260,6 +263,27 @@ def _sector_rate(ax, t, changes, sector) -> None:  # type: ignore[no-untyped-def
                 label=f"out-of-sequence changes ({int(jump.sum())})")
     ax.set_ylabel("sector changes / s")
     ax.legend(loc="upper right", fontsize=7)
+
+
+def plot_speed_overlay(recordings: Sequence[RecordingData], out_dir: Path,
+                       window: tuple[float, float] | None = None) -> Path:
+    """The speed of several recordings on one time axis (a HIL run and a real-motor run of the same
+    scenario): each one's measured speed (the firmware's; a HIL run's plant speed too) and the first
+    one's reference. The recordings share the column names and units, whatever their mode."""
+    curves: list[tuple[str, np.ndarray, np.ndarray]] = []
+    reference: tuple[np.ndarray, np.ndarray] | None = None
+    for data in recordings:
+        c = _in_window(data.columns, window)
+        mode = str(data.metadata.get("mode", "")) or "run"
+        name = f"{data.path.name} ({mode})"
+        for column, what in (("measured_speed_rpm", "firmware measured"), ("speed_rpm", "plant")):
+            if column in c and not np.all(np.isnan(c[column])):
+                curves.append((f"{name}: {what}", c["t_s"], c[column]))
+        if reference is None and "ref_speed_rpm" in c:
+            reference = (c["t_s"], c["ref_speed_rpm"])
+    stem = recordings[0].path.name.split(".")[0]
+    return plot_overlay(curves, reference, out_dir / f"{stem}_overlay_speed.png",
+                        "speed: " + " vs ".join(d.path.name for d in recordings), "reference (firmware, first)")
 
 
 def plot_overlay(curves: list[tuple[str, np.ndarray, np.ndarray]], reference: tuple[np.ndarray, np.ndarray] | None, path: Path, title: str,

@@ -14,7 +14,7 @@ from typing import TYPE_CHECKING, Literal, Mapping
 from hilbench.fieldspec import spec
 from hilbench.pwm import PwmTiming
 from hilbench.protocol import TelemetryId
-from hilbench.targets.profile import MotorBuild, PotReference, TargetProfile, TelemetryColumn
+from hilbench.targets.profile import MotorBuild, ParamReference, PotReference, TargetProfile, TelemetryColumn
 
 from hilbench.targets.qemu import QemuStarter
 from hilbench.targets.starters import HostExecutableStarter, SimavrStarter
@@ -172,7 +172,12 @@ def _configure(settings: An1017Settings | None) -> "TargetProfile[An1017Settings
 
     An1017Options(pole_pairs=settings.pole_pairs, max_speed_rpm=settings.max_speed_rpm)  # checks the build
     scale = rpm_per_speed_q15(settings.pole_pairs, settings.max_speed_rpm)
-    return replace(PROFILE, reference=_pot(scale), telemetry=_telemetry(scale))
+    return replace(PROFILE, reference=_pot(scale), telemetry=_telemetry(scale), monitor_reference=_override(scale))
+
+
+def _override(rpm_per_speed_q15: float) -> ParamReference:
+    """Monitor mode: the reference override (ref_ovr_on, ref_override in Q15 of the speed scale)."""
+    return ParamReference("ref_override", 1.0 / (rpm_per_speed_q15 * 32768.0), enable="ref_ovr_on")
 
 
 PROFILE: TargetProfile[An1017Settings] = TargetProfile(
@@ -187,6 +192,7 @@ PROFILE: TargetProfile[An1017Settings] = TargetProfile(
     reference=PotReference(pot_code_for_rpm, rpm_for_pot_code, POT_MAX_CODE),
     telemetry=_telemetry(RPM_PER_SPEED_Q15),
     speed_column="measured_speed_rpm",
+    monitor_reference=_override(RPM_PER_SPEED_Q15),
     built_for=_built_for,
     initial_params=_initial_params,
     capabilities=frozenset({"speed_loop", "realtime", "fault_injection", "tuning", "hall_sensors"}),

@@ -29,6 +29,13 @@
  * runtime timer served at PWM-period resolution), and each Sensors updates the inputs they read
  * (a hall edge with its capture time back-dated by the frame's edge time).
  *
+ * The real-motor build (make MODE=motor: HIL_LOCAL_HALLS, HIL_DRIVE_BRIDGE, HRT_MONITOR=1) reads the
+ * motor's halls as AN1017 does (CN5 on RB3, IC7 on RB4 and IC8 on RB5 capturing TMR2, the Tcy clock),
+ * the pot on AN2 and S2 on RC14, runs on the chip's timers from power-on (ChargeBootstraps, then the
+ * bridge through OVDCON), FLTA armed, and talks to the host in HostHello mode MONITOR only: a Drive
+ * with the declared telemetry every agreed period, gains and the reference override written with the
+ * checked parameter protocol, no Sensors taken, the motor stopped when the host goes silent.
+ *
  * Build: make (XC16, see Makefile). CI compiles this file with host gcc against hostcheck/xc.h.
  */
 #include <xc.h>
@@ -47,8 +54,11 @@
 #if defined(HIL_DRIVE_BRIDGE) && !defined(HIL_LOCAL_HALLS)
 #error "HIL_DRIVE_BRIDGE needs HIL_LOCAL_HALLS: the bridge is never switched from the bench's simulated halls"
 #endif
-#if defined(HIL_LOCAL_HALLS)
-#error "HIL_LOCAL_HALLS (the real-motor mode: halls from RB3-RB5) is not implemented in this port yet (issue 24)"
+#if defined(HIL_LOCAL_HALLS) && !HRT_MONITOR
+#error "HIL_LOCAL_HALLS (the real-motor build) needs HRT_MONITOR=1: the host monitors, it never sends the sensors (make MODE=motor)"
+#endif
+#if defined(HIL_LOCAL_HALLS) && !defined(HIL_LOCAL_POT)
+#define HIL_LOCAL_POT /* the real motor's reference: the board's pot, or the host's override parameter */
 #endif
 
 #if defined(__XC16__)
@@ -93,11 +103,21 @@ void hrt_port_lock(void)
     IEC2bits.PWMIE = 0;
     IEC0bits.T1IE = 0;
     IEC2bits.FLTAIE = 0;
+#if defined(HIL_LOCAL_HALLS)
+    IEC0bits.CNIE = 0;
+    IEC1bits.IC7IE = 0;
+    IEC1bits.IC8IE = 0;
+#endif
 }
 
 void hrt_port_unlock(void)
 {
     IEC2bits.FLTAIE = 1;
+#if defined(HIL_LOCAL_HALLS)
+    IEC0bits.CNIE = 1;
+    IEC1bits.IC7IE = 1;
+    IEC1bits.IC8IE = 1;
+#endif
     if (realtime_on) {
         IEC0bits.T1IE = 1;
         IEC2bits.PWMIE = 1;
@@ -169,6 +189,66 @@ void hrt_port_realtime(uint8_t on)
         realtime_on = 0u;
     }
 }
+
+/* ---- the real-motor build: the motor's own halls (AN1017's CN5 = A on RB3, IC7 = B on RB4, IC8 = C
+ * on RB5; facts: docs/board.md "Real-motor mode") ---- */
+#if defined(HIL_LOCAL_HALLS)
+static uint8_t halls_now(void)
+{
+    return (uint8_t)((PORTB >> 3) & 7u); /* bit 0 = RB3 = A, 1 = RB4 = B, 2 = RB5 = C (HRT_IN_HALL_*) */
+}
+
+/* A capture of TMR2 (the Tcy clock's low word) as the full clock: the newest time whose low word it
+ * is (the ISR runs less than 65 536 Tcy, 3.3 ms, after the edge). */
+static uint32_t captured_at(uint16_t capture)
+{
+    uint32_t now = hrt_port_now();
+    return now - (uint16_t)((uint16_t)now - capture);
+}
+
+void AN1017_ISR _CNInterrupt(void) /* hall A: CN5 has no capture, the edge is timed here */
+{
+    IFS0bits.CNIF = 0;
+    hrt_rt_edge(&fw.rt, halls_now(), hrt_port_now());
+    write_outputs();
+}
+
+void AN1017_ISR _IC7Interrupt(void) /* hall B: IC7 captures TMR2 at the edge */
+{
+    uint16_t capture = IC7BUF;
+    IFS1bits.IC7IF = 0;
+    while (IC7CONbits.ICBNE) { /* the FIFO's newer captures, as AN1017 flushes it */
+        capture = IC7BUF;
+    }
+    hrt_rt_edge(&fw.rt, halls_now(), captured_at(capture));
+    write_outputs();
+}
+
+void AN1017_ISR _IC8Interrupt(void) /* hall C */
+{
+    uint16_t capture = IC8BUF;
+    IFS1bits.IC8IF = 0;
+    while (IC8CONbits.ICBNE) {
+        capture = IC8BUF;
+    }
+    hrt_rt_edge(&fw.rt, halls_now(), captured_at(capture));
+    write_outputs();
+}
+
+static void init_halls(void)
+{
+    IC7CON = 0x0081u;  /* ICTMR = 1 (TMR2, the Tcy clock), ICM = 001: capture every edge */
+    IC8CON = 0x0081u;
+    CNEN1 = 0x0020u;   /* CN5 (RB3) only, as AN1017 */
+    IFS0bits.CNIF = 0;
+    IFS1bits.IC7IF = 0;
+    IFS1bits.IC8IF = 0;
+    fw.rt.in = halls_now(); /* the rotor's position at power-on */
+    IEC0bits.CNIE = 1;
+    IEC1bits.IC7IE = 1;
+    IEC1bits.IC8IE = 1;
+}
+#endif
 
 /* ---- interrupts ---- */
 
@@ -305,8 +385,17 @@ int main(void)
     init_pwm();
     init_adc();
     init_uart();
+#if defined(HIL_LOCAL_HALLS)
+    init_halls();
+    hrt_rt_enter(&fw.rt, 1u); /* the chip's interrupts run the firmware from power-on */
+    hrt_port_realtime(1u);
+    hrt_port_unlock();
+#endif
     for (;;) {
         hrt_link_poll(&host_link); /* lockstep spans, real-time inputs, parameters, the handshake, the watchdog */
+#if defined(HIL_LOCAL_HALLS)
+        hrt_link_stream(&host_link); /* monitor mode: the telemetry stream */
+#endif
         if (s2_debounced((uint8_t)(PORTCbits.RC14 == 0), hrt_port_now(), &s2_level)) {
             /* the board's own S2: released -> toggle, as main() does */
             hrt_port_lock();
