@@ -62,6 +62,27 @@ static uint32_t crc32_update(uint32_t crc, const unsigned char *p, size_t n)
     return ~crc;
 }
 
+/* Four equally long streams at once: each one's chain of table look-ups waits on its last step, so
+ * four independent chains keep the CPU busy where one leaves it waiting (about 3x one stream's rate). */
+static void crc32_update4(uint32_t crc[4], const unsigned char *const p[4], size_t n)
+{
+    uint32_t c[4] = {~crc[0], ~crc[1], ~crc[2], ~crc[3]};
+    size_t at = 0;
+    for (; at + 8 <= n; at += 8)
+        for (int s = 0; s < 4; s++) {
+            uint64_t w;
+            memcpy(&w, p[s] + at, 8);
+            w ^= c[s];
+            c[s] = crc_table[7][w & 0xFF] ^ crc_table[6][(w >> 8) & 0xFF] ^ crc_table[5][(w >> 16) & 0xFF]
+                   ^ crc_table[4][(w >> 24) & 0xFF] ^ crc_table[3][(w >> 32) & 0xFF] ^ crc_table[2][(w >> 40) & 0xFF]
+                   ^ crc_table[1][(w >> 48) & 0xFF] ^ crc_table[0][w >> 56];
+        }
+    for (int s = 0; s < 4; s++) {
+        for (size_t i = at; i < n; i++) c[s] = crc_table[0][(c[s] ^ p[s][i]) & 0xFF] ^ (c[s] >> 8);
+        crc[s] = ~c[s];
+    }
+}
+
 /* ---- one column of raw rows ------------------------------------------------------------------ */
 typedef struct {
     Py_ssize_t field;  /* the field's byte offset in a row */
@@ -110,7 +131,7 @@ typedef struct {
     Py_ssize_t itemsize;
     column_t *cols;
     unsigned long long queued, done; /* rows handed over, rows written (done: the thread's) */
-    unsigned char *rows;             /* the thread's buffers: raw rows read back, one column */
+    unsigned char *rows;             /* the thread's buffers: raw rows read back, their columns */
     double *values;
     unsigned char *header;           /* each column's .npy header, written by the thread before its row 0 */
     Py_ssize_t header_len;
@@ -158,17 +179,30 @@ static int write_rows(Writer *w, size_t n)
     int err = pread_all(w->journal_fd, w->rows, n * (size_t)w->itemsize,
                         w->journal_offset + (long long)(w->done * (unsigned long long)w->itemsize));
     if (err) return err;
-    double *values = w->values;
-    for (int j = 0; j < w->n_cols; j++) {
+    size_t bytes = n * sizeof(double);
+    for (int j = 0; j < w->n_cols; j++) { /* every column converted (READ_ROWS values each) */
         column_t *col = &w->cols[j];
+        double *values = w->values + (size_t)j * READ_ROWS;
         const unsigned char *p = w->rows + col->field;
         for (size_t i = 0; i < n; i++, p += w->itemsize) values[i] = field_value(p, col->code);
         if (col->scale != 1.0)
             for (size_t i = 0; i < n; i++) values[i] = values[i] * col->scale;
         if (col->modulo > 0.0)
             for (size_t i = 0; i < n; i++) values[i] = np_remainder(values[i], col->modulo);
-        col->crc = crc32_update(col->crc, (const unsigned char *)values, n * sizeof(double));
-        err = pwrite_all(w->fd, (const unsigned char *)values, n * sizeof(double), col->place + (long long)(8 * w->done));
+    }
+    int j = 0;
+    for (; j + 4 <= w->n_cols; j += 4) { /* their CRCs four at a time */
+        uint32_t crc[4] = {w->cols[j].crc, w->cols[j + 1].crc, w->cols[j + 2].crc, w->cols[j + 3].crc};
+        const unsigned char *p[4];
+        for (int s = 0; s < 4; s++) p[s] = (const unsigned char *)(w->values + (size_t)(j + s) * READ_ROWS);
+        crc32_update4(crc, p, bytes);
+        for (int s = 0; s < 4; s++) w->cols[j + s].crc = crc[s];
+    }
+    for (; j < w->n_cols; j++)
+        w->cols[j].crc = crc32_update(w->cols[j].crc, (const unsigned char *)(w->values + (size_t)j * READ_ROWS), bytes);
+    for (j = 0; j < w->n_cols; j++) {
+        err = pwrite_all(w->fd, (const unsigned char *)(w->values + (size_t)j * READ_ROWS), bytes,
+                         w->cols[j].place + (long long)(8 * w->done));
         if (err) return err;
     }
     return 0;
@@ -310,7 +344,7 @@ static int Writer_init(Writer *w, PyObject *args, PyObject *kwds)
     }
     column_t *cols = calloc((size_t)n, sizeof(column_t));
     unsigned char *rows = malloc((size_t)READ_ROWS * (size_t)itemsize);
-    double *values = malloc(READ_ROWS * sizeof(double));
+    double *values = malloc((size_t)n * READ_ROWS * sizeof(double));
     unsigned char *head = malloc((size_t)header.len + 1);
     if (head != NULL) memcpy(head, header.buf, (size_t)header.len);
     Py_ssize_t head_len = header.len;
