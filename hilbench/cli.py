@@ -703,6 +703,12 @@ def step(config: str | None, from_rpm: float, to_rpm: float, gains: tuple[str, .
     profile = settings_profile(cfg)
     require_speed_loop(profile, "step")
     sets = parse_gain_sets(gains, profile.tunable)
+    if record is not None and (mode != "monitor" or len(sets) > 1):
+        from hilbench.errors import ConfigError
+
+        raise ConfigError("step --record keeps the rows of one real step (--mode monitor, one gain set); "
+                          + ("give one --gains" if mode == "monitor" else
+                             "a lockstep step's rows: hilbench run --record with the same scenario"))
     target_spec = cfg.link.target
     console = Console(stderr=True)
     with Progress(console=console, transient=True) as progress:
@@ -712,7 +718,7 @@ def step(config: str | None, from_rpm: float, to_rpm: float, gains: tuple[str, .
 
             results = []
             for index, gain_set in enumerate(sets or [{}]):
-                results.append(monitor_step(cfg, test, gain_set, record=record if index == 0 else None,
+                results.append(monitor_step(cfg, test, gain_set, record=record,
                                             warn=lambda text: console.print(f"[yellow]warning:[/] {text}")))
                 progress.update(task, completed=index + 1)
         else:

@@ -339,3 +339,16 @@ def test_dashboard_shows_the_real_motor_live(motor_build: Path, tmp_path: Path) 
     finally:
         pane.close()
         reap(harness)
+
+
+def test_monitor_options_refuse_a_watchdog_the_keep_alives_cannot_feed() -> None:
+    """Keep-alives go every quarter of the watchdog, each after two streamed Drives: a watchdog
+    shorter than 8 stream periods always stopped the motor; refused in one line with the least."""
+    from hilbench.bench.monitor import monitor_options
+    from hilbench.errors import ConfigError
+
+    with pytest.raises(ConfigError, match=r"watchdog_ms=100 is less than 8 stream periods.*>= 520"):
+        monitor_options(65_000, 100, None, 5.0)
+    with pytest.raises(ConfigError, match="must be > 0"):
+        monitor_options(5_000, 0, None, 5.0)
+    assert monitor_options(5_000, 100, None, 5.0).watchdog_ms == 100

@@ -321,7 +321,8 @@ def _served_an1017(loop: str, stream: list[Sensors], monkeypatch: pytest.MonkeyP
     thread = threading.Thread(target=lambda: reports.append(serve(target, far_link)), daemon=True)
     thread.start()
     try:
-        host = remote.RemoteTarget(host_link, timeout_s=2.0)
+        # no retries: a pty loses nothing, and a retry under load would count a request (and frames) twice
+        host = remote.RemoteTarget(host_link, timeout_s=20.0, retry_s=10.0)
         host.handshake(50, MODE_LOCKSTEP, 100)  # a watchdog: serve waits with a timeout (its C loop's case)
         drives = []
         for i, s in enumerate(stream):

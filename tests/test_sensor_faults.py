@@ -127,3 +127,14 @@ def test_a_missing_edge_mid_run_holds_the_halls_of_the_last_sensors() -> None:
             raise AssertionError("no hall change in 0.1 s")
         assert before != start_halls, "the run's start halls again: the test shows nothing"
         assert got[-1].inputs & 7 == before and got[-1].edges == ()  # the last halls, none of the edges
+
+
+def test_a_missing_edge_after_a_forced_line_holds_the_forced_halls_the_target_got() -> None:
+    """A missing edge injected while a stuck line is in force: its baseline is the halls the target
+    got (forced), not the plant's, so the forced line's end is the change it holds back once."""
+    faults = SensorFaults()
+    faults.apply("hall_b_high", 0.0, None, hall_bits=0b001)
+    assert faults.filter(sensors(0b001)) == sensors(0b011)  # the target gets b forced high
+    faults.apply("hall_missing_edge", 0.1, None, hall_bits=0b001)  # the plant's halls: 0b001
+    assert faults.filter(sensors(0b001)) == sensors(0b011, edges=())  # the jump back to the plant's: held once
+    assert not faults.on

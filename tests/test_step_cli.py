@@ -66,3 +66,14 @@ def test_sweep_cli_ranks_skips_and_saves(tmp_path: Path) -> None:
     params = json.loads(run.stdout)["params"]
     assert params["kp"] == pytest.approx(ranked[0]["kp"], abs=1e-4)
     assert params["ki"] == pytest.approx(ranked[0]["ki"], abs=1e-4)
+
+
+def test_step_record_is_refused_where_it_would_keep_nothing(tmp_path: Path) -> None:
+    """--record keeps one real step's rows (--mode monitor, one gain set): in lockstep, or with
+    several gain sets, it was silently ignored (or kept the first set's only); now one line, exit 2."""
+    result = run_cli("step", "--record", str(tmp_path / "x.csv"), timeout=120)
+    assert result.returncode == 2 and "step --record keeps the rows of one real step" in result.stderr, result.stderr
+    assert len(result.stderr.strip().splitlines()) == 1 and not (tmp_path / "x.csv").exists()
+    many = run_cli("step", "--mode", "monitor", "--target", "serial:/dev/null", "--gains", "0.1,0.01,0",
+                   "--gains", "0.2,0.02,0", "--record", str(tmp_path / "y.csv"), timeout=120)
+    assert many.returncode == 2 and "give one --gains" in many.stderr, many.stderr

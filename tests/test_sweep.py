@@ -235,3 +235,29 @@ def test_the_saved_best_is_what_the_firmware_holds(tmp_path: Path) -> None:
     frag = tmp_path / "best.toml"
     frag.write_text(default_config_text() + "\n" + text)
     assert load_config(frag).target.kp == 24940 / 32768
+
+
+def test_a_pooled_sweep_holds_a_window_of_results_not_the_whole_sweep() -> None:
+    """With a process pool, a finished future keeps its results (every step test's curves): the
+    sweep keeps only tasks_in_flight tasks submitted and drops each future once read, so what it
+    holds at once is a window, however many points (it held every point's curves before)."""
+    import tracemalloc
+
+    from hilbench.bench.sweep import CHUNK_TESTS
+
+    cfg = load_config(None)
+    tiny = StepTest(800.0, 1200.0, 0.025, 0.02)
+    one = run_step_tests(in_process(cfg), tiny, [{"kp": 0.1}])[0]
+    curve_bytes = one.t_s.nbytes + one.speed_rpm.nbytes + (one.firmware_ref_rpm.nbytes if one.firmware_ref_rpm is not None else 0)
+    points = [("kp", tuple(0.05 + 0.001 * i for i in range(240))), ("ki", (0.01, 0.02))]  # 480 points
+    tracemalloc.start()
+    try:
+        sweep = sweep_grid(cfg, points, tiny, workers=2)
+        _, peak = tracemalloc.get_traced_memory()
+    finally:
+        tracemalloc.stop()
+    window_tests = 2 * 2 * CHUNK_TESTS  # tasks_in_flight of a pool of 2, CHUNK_TESTS step tests a task
+    assert len(sweep.points) == 480 and all(p.result is not None for p in sweep.points)
+    print(f"peak {peak / 1e6:.1f} MB, a step test's curves {curve_bytes / 1e3:.0f} kB, all of them {480 * curve_bytes / 1e6:.1f} MB")
+    assert peak < 480 * curve_bytes / 2, (peak, curve_bytes)  # all the curves at once: 480 * curve_bytes
+    assert peak < 3 * window_tests * curve_bytes + 4_000_000, (peak, curve_bytes)

@@ -10,9 +10,12 @@
  * of |dividend| < |divisor|, truncated toward zero.
  *
  * Every operation is exact with a 16-bit `int` (dsPIC30F, AVR): products are formed in int32_t,
- * accumulator sums in a saturating add that never overflows (q15_sat_add32), so no int64_t is
- * needed on a 16-bit MCU. Right shifts of negative values are written as floor divisions
- * (q15_asr32) because C leaves `>>` of a negative value to the implementation.
+ * the MAC's sum as one 32-bit unsigned add whose overflow is read from the high words and the
+ * product's sign, SAC and the shifted product as high words (a floor division by 2^16 that C's `>>`
+ * of a negative value would leave to the implementation), and differences that fit 16 bits in
+ * 16 bits, so no int64_t is needed on a 16-bit MCU. These forms replaced 32-bit ones to fit the
+ * dsPIC30F2010 (docs/board.md, section 3a); tests/test_q15_forms.py holds them equal to the earlier
+ * forms (tests/q15_c/q15_before.h) on every operand pair of the 16-bit operations.
  */
 #ifndef AN1017_Q15_H
 #define AN1017_Q15_H
@@ -23,15 +26,6 @@
 #define Q15_MIN (-32767 - 1)
 #define Q15_ACC_MAX ((int32_t)0x7FFFFFFF)
 #define Q15_ACC_MIN ((int32_t)-0x7FFFFFFF - (int32_t)1)
-
-/* Arithmetic (flooring) right shift of a signed 32-bit value, n in 0..30. */
-static inline int32_t q15_asr32(int32_t a, uint8_t n)
-{
-    if (a >= 0) {
-        return (int32_t)((uint32_t)a >> n);
-    }
-    return (int32_t)~(((uint32_t)~(uint32_t)a) >> n);
-}
 
 /* Clamp to the Q15 range (SATDW on a data write, or the firmware's own clamps). */
 static inline int16_t q15_sat(int32_t x)
@@ -52,32 +46,10 @@ static inline int16_t q15_wrap(int32_t x)
     return (u & 0x8000u) ? (int16_t)(-(int16_t)(0x7FFFu - (u & 0x7FFFu)) - 1) : (int16_t)u;
 }
 
-/* a + b clamped to 1.31, without ever overflowing int32_t. */
-static inline int32_t q15_sat_add32(int32_t a, int32_t b)
-{
-    uint32_t sum = (uint32_t)a + (uint32_t)b; /* wraps: defined for unsigned */
-    if ((((uint32_t)a ^ sum) & ((uint32_t)b ^ sum) & 0x80000000UL) != 0u) {
-        return (a < 0) ? Q15_ACC_MIN : Q15_ACC_MAX; /* a and b of one sign, the sum of the other */
-    }
-    return a + b;
-}
-
 /* LAC: a Q15 word into accumulator bits 31:16. */
 static inline int32_t q15_lac(int16_t q)
 {
     return (int32_t)q * (int32_t)65536;
-}
-
-/* Fractional product a*b << 1 as an accumulator value. Only -1 * -1 (2^31) does not fit 1.31:
- * the chip's 40-bit accumulator holds it, and the 1.31 saturation that follows (SATA) makes it
- * 0x7FFFFFFF; this returns that saturated value directly. */
-static inline int32_t q15_frac_mul(int16_t a, int16_t b)
-{
-    int32_t p = (int32_t)a * (int32_t)b;
-    if (p == (int32_t)0x40000000) {
-        return Q15_ACC_MAX;
-    }
-    return p * (int32_t)2;
 }
 
 /* MAC with SATA: acc + a*b (fractional), clamped to 1.31 after the add. The product shifted once is

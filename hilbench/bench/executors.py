@@ -41,6 +41,23 @@ class InThisProcess:
         return _Deferred(fn, args)
 
 
+def tasks_in_flight(pool: Executor) -> int:
+    """How many tasks a caller keeps submitted at once: two per worker. A caller that submits this
+    many, reads each result in order and drops its future holds this window's results in memory,
+    not the whole batch's (a finished future keeps its result for as long as it lives)."""
+    if isinstance(pool, InThisProcess):
+        return 1
+    if isinstance(pool, ProcessPoolExecutor):
+        return 2 * max(1, pool._max_workers)  # type: ignore[attr-defined]
+    scheduler_info = getattr(pool, "scheduler_info", None)  # a distributed.Client
+    if callable(scheduler_info):
+        try:
+            return 2 * max(1, len(scheduler_info().get("workers", {})))
+        except Exception:  # noqa: BLE001 - a scheduler that does not say: the local guess below
+            pass
+    return 2 * (os.cpu_count() or 1)
+
+
 def _dask() -> Any:
     try:
         import distributed
@@ -91,4 +108,4 @@ def open_executor(spec: str | None, workers: int | None) -> Iterator[tuple[Execu
     raise ConfigError(f"executor {spec!r}: unknown (use {EXECUTOR_FORMS})")
 
 
-__all__ = ["EXECUTOR_FORMS", "Executor", "InThisProcess", "open_executor"]
+__all__ = ["EXECUTOR_FORMS", "Executor", "InThisProcess", "open_executor", "tasks_in_flight"]

@@ -131,6 +131,7 @@ class SensorFaults:
         self.spec = spec
         self.halls = HallTrack()
         self.active: list[SensorFault] = []
+        self._sent_halls = 0  # the halls of the last Sensors a fault filtered
         self.clear_at_s = math.inf
 
     @property
@@ -140,10 +141,11 @@ class SensorFaults:
 
     def apply(self, kind: str, t_s: float, duration_s: float | None, hall_bits: int | None = None) -> None:
         """Start fault ``kind`` (one of FAULT_KINDS; "clear" ends every passing fault) at ``t_s``,
-        for ``duration_s`` (None: until the next). ``hall_bits``: the halls of the last Sensors
-        (a missing edge is the next change from these, not from the halls of the run's start)."""
-        if hall_bits is not None:
-            self.halls.last = hall_bits
+        for ``duration_s`` (None: until the next). ``hall_bits``: the plant's halls of the last Sensors
+        (a missing edge is the next change from what the target got, not from the halls of the run's
+        start; while a fault was in force, the halls it left)."""
+        if hall_bits is not None:  # what the target got: a fault in force filtered the last Sensors
+            self.halls.last = self._sent_halls if self.active else hall_bits
         self.active = [fault for fault in self.active if fault.lasting]
         self.clear_at_s = math.inf
         if kind != "clear":
@@ -155,6 +157,7 @@ class SensorFaults:
         """The Sensors the target gets this period."""
         for fault in self.active:
             sensors = fault.filter(sensors)
+        self._sent_halls = sensors[1] & HALL_MASK
         if any(fault.spent for fault in self.active):
             self.active = [fault for fault in self.active if not fault.spent]
         return sensors

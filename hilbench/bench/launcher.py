@@ -56,6 +56,10 @@ class TargetHandle:
             return {}
         stats = self.link.stats.as_dict()
         stats["retries"] = int(getattr(self.target, "retries", 0))
+        link = getattr(self.link, "inner", self.link)  # under a fault injector, the link it wraps
+        overrun = getattr(getattr(link, "transport", None), "rx_overrun_bytes", None)
+        if overrun is not None:  # a wire throttle (?wire_baud=): what a far end far ahead of it lost
+            stats["wire_rx_overrun_bytes"] = int(overrun)
         speculation = getattr(self.target, "speculation_stats", None)
         if speculation is not None:  # twin-speculative lockstep (hilbench.bench.speculative)
             stats.update(speculation())

@@ -20,7 +20,7 @@ import math
 import time
 from collections import deque
 from dataclasses import dataclass, field
-from typing import TYPE_CHECKING, Any, Callable, Iterable
+from typing import TYPE_CHECKING, Callable, Iterable
 
 from hilbench.bench import segments as segmentation
 from hilbench.bench.columns import session_row
@@ -32,6 +32,7 @@ from hilbench.bench.summary import Snapshot, Summary
 from hilbench.errors import ConfigError, HilbenchError, LinkError, TargetError
 from hilbench.plant.period import Period
 from hilbench.protocol import Drive, Mode, OutputMode, ParamSetResult, Start, State, Status, StatusRequest, Stop, TargetHello
+from hilbench.protocol.messages import Message
 from hilbench.targets.profile import ParamReference, TargetProfile
 from hilbench.targets.registry import profile_for_firmware
 
@@ -106,7 +107,7 @@ class MonitorSession:
         self.target_label = target_label
         self.tuning = LiveTuning(target, self.profile, target_label, guard)
         self.tuning.on_change = self._on_param_change
-        self.live: Any = None  # `ctl step` needs the HIL session's history: refused here (see COMMANDS use)
+        self.live: None = None  # `ctl step` needs the HIL session's history: refused here (see COMMANDS use)
         self.hello: TargetHello | None = None
         self.drive: Drive | None = None
         self.ref_rpm = 0.0
@@ -115,8 +116,8 @@ class MonitorSession:
         self.stats = MonitorStats()
         self.summary: Summary | None = None
         self._k = -1  # the unwrapped seq of the last row
-        self._pack: Any = None
-        self._tele_pack: Any = None
+        self._pack: Callable[..., bytes] | None = None
+        self._tele_pack: Callable[..., bytes] | None = None
         self._speed_index = -1
         self._speed_scale = 0.0
         self._end_reason: str | None = None
@@ -295,7 +296,7 @@ class MonitorSession:
             self.recorder.event(f"t={t_s:.6f} {text}", MARKER_PARAM)
 
     # ------------------------------------------------------------------ the stream
-    def _stray(self, msg: Any) -> None:
+    def _stray(self, msg: Message) -> None:
         if type(msg) is Drive:
             self._drives_rx += 1
             self._inbox.append(msg)
@@ -305,14 +306,14 @@ class MonitorSession:
         elif type(msg) is not ParamSetResult:
             self.stats.strays += 1
 
-    def _receive(self, timeout_s: float) -> Any:
+    def _receive(self, timeout_s: float) -> Message | None:
         """The next frame from the board (None within ``timeout_s``); Drives are counted."""
         msg = self.target.link.recv_or_none(timeout_s)
         if type(msg) is Drive:
             self._drives_rx += 1
         return msg
 
-    def _before_send(self, msg: Any) -> None:
+    def _before_send(self, msg: Message) -> None:
         """Ahead of every frame to the board (the target's send gate): while the last frame with no
         answer may still sit in the board's one-frame buffer, wait for TAKEN_AFTER_DRIVES streamed
         Drives (kept for their rows). Else a ParamSet right after a Start was dropped (the board's
@@ -434,6 +435,7 @@ class MonitorSession:
                 own.append(self.ref_rpm)
             n = len(self._row.telemetry_fields)
             values = tuple(tele[:n]) + (0,) * (n - len(tele))
+            assert self._pack is not None and self._tele_pack is not None  # set with the row layout at the start
             self.recorder.rows.extend(self._pack(*own) + self._tele_pack(*values))
         if self.display is not None and (k % OBSERVE_EVERY_ROWS == 0 or self._flush_coming()):
             self.display.due(k, drive, None)  # the scope takes its rows before a flush empties the buffer
@@ -573,6 +575,10 @@ def monitor_options(period_us: int, watchdog_ms: int, duration_s: float | None, 
                           f"three telemetry values is 22 bytes: 0.9 ms at 250 kbaud); the stream's period must be >= {MIN_PERIOD_US} us, e.g. 5000")
     if watchdog_ms <= 0:
         raise ConfigError("monitor: link.watchdog_ms must be > 0 (the board stops its motor when the host goes silent)")
+    if watchdog_ms * 1000 < 8 * period_us:  # keep-alives every quarter of it, each waiting for 2 streamed Drives
+        raise ConfigError(f"monitor: link.watchdog_ms={watchdog_ms} is less than 8 stream periods (link.period_us="
+                          f"{period_us}): the keep-alives cannot reach the board before its watchdog stops the motor; "
+                          f"use link.watchdog_ms >= {-(-8 * period_us // 1000)}")
     return MonitorOptions(period_us=period_us, watchdog_ms=watchdog_ms, duration_s=duration_s,
                           timeout_s=max(timeout_s, 4.0 * period_us / 1e6, 1.0))
 

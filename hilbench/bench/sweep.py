@@ -19,13 +19,14 @@ import itertools
 import json
 import math
 import os
+from collections import deque
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Callable, Iterable, Mapping, Sequence
 
 import numpy as np
 
-from hilbench.bench.executors import open_executor
+from hilbench.bench.executors import Executor, open_executor, tasks_in_flight
 from hilbench.bench.metrics import METRIC_COLUMNS, StepMetrics
 from hilbench.bench.sampling import Axis, Point, zoom
 from hilbench.bench.steptest import StepResult, StepTest, require_speed_loop
@@ -359,9 +360,10 @@ def sweep_points(
              if store is not None else None)
     run = _SweepRun(swept, len(cases), key, saved, progress)
     jobs = [(i, c, dict(swept[i].params)) for i in run.to_run() for c in range(len(cases))]
+    cfgs = [_with_tolerance(cfg, case) for case in cases]
     with open_executor(executor, workers) as (pool, where):
-        run.collect(pool.submit(_run_task, [_with_tolerance(cfg, case) for case in cases], test, jobs[i:i + CHUNK_TESTS])
-                    for i in range(0, len(jobs), CHUNK_TESTS))
+        run.collect(pool, ((cfgs, test, jobs[i:i + CHUNK_TESTS]) for i in range(0, len(jobs), CHUNK_TESTS)),
+                    tasks_in_flight(pool))
     final, ranked = _rank(run.final_points(), key)
     return SweepResult(metric=key, axes=tuple(name for name, _ in points[0]), points=final, ranked=ranked,
                        skipped=len(swept) - run.total, test=test, sim_s=len(jobs) * test.duration_s,
@@ -394,11 +396,22 @@ class _SweepRun:
     def to_run(self) -> list[int]:
         return [i for i, p in enumerate(self.swept) if not p.skipped and i not in self.finished]
 
-    def collect(self, futures: Iterable[Any]) -> None:
-        """Every task's results, in point order whatever finishes first."""
-        for future in list(futures):
-            for index, result in future.result():
-                self._add(index, result)
+    def collect(self, pool: Executor, tasks: Iterable[tuple[list[BenchConfig], StepTest, list[tuple[int, int, dict[str, float]]]]],
+                window: int) -> None:
+        """Every task's results, in point order whatever finishes first. At most ``window`` tasks
+        are submitted at once and each future is dropped once read: a finished future keeps its
+        results (every step test's curves), so holding them all held the whole sweep's."""
+        in_flight: deque[Any] = deque()
+        for args in tasks:
+            in_flight.append(pool.submit(_run_task, *args))
+            if len(in_flight) >= window:
+                self._take(in_flight.popleft())
+        while in_flight:
+            self._take(in_flight.popleft())
+
+    def _take(self, future: Any) -> None:
+        for index, result in future.result():
+            self._add(index, result)
 
     def _add(self, index: int, result: StepResult) -> None:
         runs = self.pending.setdefault(index, [])

@@ -248,6 +248,9 @@ def _speculative_text(summary: Summary) -> str:
         if summary.predicted_duties:
             return ("off: the duties were predicted over each period (mode PREDICT, a period of 2 PWM periods "
                     "or more) and the twin does not predict; --set link.predict_duties=false to speculate")
+        if link.get("speculative_alone"):
+            return (f"off: every period went alone ({link['speculative_alone']}: each one's record larger than the "
+                    "batches the target takes)")
         return "off: the target took no batch (one exchange a period)"
     alone = f", {link['speculative_alone']} alone" if link.get("speculative_alone") else ""
     return (f"{link['speculative_periods']} of {summary.periods} periods confirmed by the target's digests "

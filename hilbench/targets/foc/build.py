@@ -73,14 +73,15 @@ def build_sil(options: FocOptions = FocOptions()) -> Path:
 
 
 def build_avr(settings: object) -> Path:
-    """The ATmega1284P ELF of this `[target]` table (firmware/foc/ports/avr with avr-gcc), cached."""
+    """The ATmega1284P ELF of this `[target]` table (the runtime's AVR port, firmware/runtime/ports/avr,
+    with avr-gcc; the ATmega1284P for the 32 KB IQ24 sine table), cached."""
     from hilbench.targets.starters import cached_build, need_tool, run_build
 
     avr_gcc = need_tool("simavr", "avr-gcc", "gcc-avr avr-libc")
-    folder = FIRMWARE_DIR / "ports" / "avr"
-    sources = [folder / "main.c", *SOURCES, FIRMWARE_DIR / "foc_hrt.c", RUNTIME_DIR / "hrt.c",
+    sources = [RUNTIME_DIR / "ports" / "avr" / "hrt_avr.c", *SOURCES, FIRMWARE_DIR / "foc_hrt.c", RUNTIME_DIR / "hrt.c",
                RUNTIME_DIR / "hrt_link.c", PROTOCOL_DIR / "hbp.c", PROTOCOL_DIR / "hbp_messages.c"]
-    cmd = [avr_gcc, "-mmcu=atmega1284p", "-DF_CPU=16000000UL", "-Os", *STRICT_FLAGS[:-1],
+    # the runtime's own AVR port, its USART at 1 000 000 baud (UBRR0 = 1 with U2X0 at 16 MHz)
+    cmd = [avr_gcc, "-mmcu=atmega1284p", "-DF_CPU=16000000UL", "-DHRT_AVR_UBRR=1u", "-Os", *STRICT_FLAGS[:-1],
            *config_defines(_options(settings)), *(f"-I{d}" for d in (FIRMWARE_DIR, RUNTIME_DIR, PROTOCOL_DIR)),
            *(str(s) for s in sources)]
     return cached_build("simavr", "foc_avr", [*sources, *_headers()], cmd,
