@@ -235,15 +235,7 @@ class MonitorSession:
 
     def segment(self, kind: str, t_s: float, ref_rpm: float = 0.0, ramp_s: float = 0.0) -> None:
         """A reference change, a press or the end, for the segments (and `report`, as events)."""
-        if kind == "ref":
-            self.segmenter.reference(t_s, ref_rpm, ramp_s)
-            text = segmentation.reference_event(t_s, ref_rpm, ramp_s)
-        elif kind == "press":
-            self.segmenter.press(t_s)
-            text = segmentation.press_event(t_s)
-        else:
-            self.segmenter.end(t_s)
-            text = segmentation.end_event(t_s)
+        text = self.segmenter.tell(kind, t_s, ref_rpm, ramp_s)
         if self.recorder is not None:
             self.recorder.event(text)
 
@@ -322,21 +314,39 @@ class MonitorSession:
         if self._unanswered_at is not None:
             deadline = time.monotonic() + self.options.timeout_s
             while self._drives_rx < self._unanswered_at + TAKEN_AFTER_DRIVES and time.monotonic() < deadline:
-                frame = self._receive(min(0.02, max(0.0, deadline - time.monotonic())))
-                if type(frame) is Drive:
-                    self._inbox.append(frame)
-                elif frame is not None:
-                    self._stray(frame)
+                self._hold(min(0.02, max(0.0, deadline - time.monotonic())))
             self._unanswered_at = None
         if type(msg) in (Start, Stop):
+            self._drain_ready()
             self._unanswered_at = self._drives_rx
+
+    def _drain_ready(self) -> None:
+        """Take every frame already here (Drives kept for their rows): the Drives counted after an
+        unanswered frame are then the board's since it was sent, not ones a lagging host had not
+        read yet (a loaded host counted those, sent its next frame too soon, and the board dropped it)."""
+        while self._hold(0.0):
+            pass
+
+    def _hold(self, timeout_s: float) -> bool:
+        """One frame taken outside the row loop: a Drive kept in the inbox for its row, anything else
+        as a stray; False when none came within ``timeout_s``."""
+        frame = self._receive(timeout_s)
+        if frame is None:
+            return False
+        if type(frame) is Drive:
+            self._inbox.append(frame)
+        else:
+            self._stray(frame)
+        return True
 
     def _keep_alive(self) -> None:
         """A StatusRequest whose answer is not waited for (a stray Status): it feeds the watchdog."""
         msg = StatusRequest(0)
         self._before_send(msg)
+        self._drain_ready()
+        sent_at = self._drives_rx
         self.target.link.send(msg)
-        self._unanswered_at = self._drives_rx
+        self._unanswered_at = sent_at
 
     def run(self, make_recorder: Callable[["MonitorSession"], Recorder | MemoryRecorder | None] | None = None,
             gains: dict[str, float] | None = None) -> Summary:

@@ -64,6 +64,18 @@ class Segmenter:
     def end(self, t_s: float) -> None:
         self._close(t_s)
 
+    def tell(self, kind: str, t_s: float, ref_rpm: float = 0.0, ramp_s: float = 0.0) -> str:
+        """A reference change ("ref"), a press ("press") or the end (anything else); the recording's
+        note of it (what `report` replays)."""
+        if kind == "ref":
+            self.reference(t_s, ref_rpm, ramp_s)
+            return reference_event(t_s, ref_rpm, ramp_s)
+        if kind == "press":
+            self.press(t_s)
+            return press_event(t_s)
+        self.end(t_s)
+        return end_event(t_s)
+
     def sample(self, t_s: float, plant_rpm: float, measured_rpm: float) -> None:
         current = self._open
         if current is None or t_s < current.hold_from_s:

@@ -380,15 +380,7 @@ class Session:
 
     def segment(self, kind: str, t_s: float, ref_rpm: float = 0.0, ramp_s: float = 0.0) -> None:
         """Tell the segmentation (and the recording, for `report`) of a reference change, a press, the end."""
-        if kind == "ref":
-            self.segmenter.reference(t_s, ref_rpm, ramp_s)
-            text = segmentation.reference_event(t_s, ref_rpm, ramp_s)
-        elif kind == "press":
-            self.segmenter.press(t_s)
-            text = segmentation.press_event(t_s)
-        else:
-            self.segmenter.end(t_s)
-            text = segmentation.end_event(t_s)
+        text = self.segmenter.tell(kind, t_s, ref_rpm, ramp_s)
         if self.recorder is not None:
             self.recorder.event(text)
 

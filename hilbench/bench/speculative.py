@@ -205,7 +205,7 @@ class SpeculativeTarget:
             self._unconfirmed.pop()  # it goes now, not with the unconfirmed periods of a refusal
         self.drain()
         theirs = self.remote.step(sensors)
-        self._log.append(("step", sensors))
+        self._log.append(("step", (k, sensors)))
         self.stats.alone += 1
         self._next = k + 1
         if theirs != drive:
@@ -459,20 +459,14 @@ def locate_divergence(log: Iterable[LogItem], reopen: Callable[[], tuple[Target,
             elif kind in ("start", "stop"):
                 getattr(target, kind)()
                 getattr(twin, kind)()
-            elif kind == "step":  # a period that went alone: the records start afresh after it
-                assert isinstance(item, Sensors)
-                k = item.seq if not recent else recent[-1][0] + 1
-                mine, theirs = twin.step(item), target.step(item)
-                recent.append((k, item, theirs, mine))
-                if mine != theirs:
-                    return _divergence_error(k, item, theirs, mine, recent, period_us)
-                if k >= last:
-                    return None
-                state = BatchState()
             else:
-                first, count, records = item  # type: ignore[misc]
-                for i, sensors in enumerate(decode_records(state, first, count, records)):
-                    k = first + i
+                if kind == "step":  # a period that went alone: the records start afresh after it
+                    periods: Iterable[tuple[int, Sensors]] = (item,)  # type: ignore[assignment]
+                    state = BatchState()
+                else:
+                    first, count, records = item  # type: ignore[misc]
+                    periods = ((first + i, s) for i, s in enumerate(decode_records(state, first, count, records)))
+                for k, sensors in periods:
                     mine, theirs = twin.step(sensors), target.step(sensors)
                     recent.append((k, sensors, theirs, mine))
                     if mine != theirs:
