@@ -5,6 +5,7 @@
 from __future__ import annotations
 
 import errno
+import json
 import os
 import resource
 import subprocess
@@ -366,3 +367,76 @@ def test_a_planned_session_run_writes_its_archive_while_it_runs(tmp_path: Path, 
     assert finished == [True]
     assert paths[0].read_bytes() == paths[1].read_bytes()
     assert read_recording(paths[0]).n_rows == 12_000
+
+
+_FULL_DISK_RUN = (
+    "import json, os, sys, hilbench\n"
+    "disk = sys.argv[1]\n"
+    "path = os.path.join(disk, 'run.npz')\n"
+    "cfg = hilbench.load_config(None, ['link.target=\"inprocess:an1017\"', 'run.duration_s=1.0'])\n"
+    "error = ''\n"
+    "try:\n"
+    "    with hilbench.Bench(cfg, scenario=True, record=path) as bench:\n"
+    "        bench.run()\n"
+    "except hilbench.HilbenchError as exc:\n"
+    "    error = str(exc)\n"
+    "data = hilbench.read_recording(path if os.path.exists(path) else path + '.journal')\n"
+    "print(json.dumps({'error': error, 'rows': data.n_rows, 'columns': len(data.columns),\n"
+    "                  'files': sorted(os.listdir(disk)), 'journal_bytes': os.path.getsize(path + '.journal')}))\n"
+)
+
+
+@needs_writer
+def test_a_full_disk_gives_the_background_archive_up_and_the_journal_keeps_every_row(tmp_path: Path) -> None:
+    """A 4 MiB tmpfs of its own (unshare -rm): the journal of a 1 s run fits, the journal and the
+    archive growing beside it do not. The journal's write that fails gives the archive up (its
+    blocks freed) and is written again: every row is kept, the close says the archive could not
+    be written and where the rows are, no unfinished archive is left (the journal lost a third of
+    the rows when the archive kept its blocks)."""
+    from _firmware import require_tool
+
+    unshare = require_tool("unshare", "a full disk: a small tmpfs in a namespace of its own")
+    if subprocess.run([unshare, "-rm", "true"], capture_output=True, timeout=60).returncode != 0:
+        pytest.skip("unshare -rm is not permitted here (no user namespaces): no tmpfs of the test's own")
+    disk = tmp_path / "disk"
+    disk.mkdir()
+    size = 4 << 20
+    done = subprocess.run([unshare, "-rm", "sh", "-c", f'mount -t tmpfs -o size={size} tmpfs "$1" && exec "$2" -c "$3" "$1"',
+                           "sh", str(disk), sys.executable, _FULL_DISK_RUN], capture_output=True, text=True, timeout=600)
+    assert done.returncode == 0, done.stderr[-2000:]
+    out = json.loads(done.stdout.strip().splitlines()[-1])
+    archive_bytes = 8 * out["rows"] * out["columns"]
+    assert out["journal_bytes"] + 64 * 1024 < size < out["journal_bytes"] + archive_bytes  # the case: both do not fit
+    assert out["rows"] == 20_000, out
+    assert "archive could not be written" in out["error"] and "every row is kept" in out["error"], out
+    assert out["files"] == ["run.npz.journal", "run.npz.journal.events"], out
+
+
+@needs_writer
+@hostile_values
+def test_a_failed_journal_write_is_written_again_where_it_belongs(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """A journal write that fails (ENOSPC) after stray bytes landed: the background archive is given
+    up and removed, the write is done again at the rows' place (the stray bytes cut off), and the
+    archive the close writes from the journal equals the one of a run that never failed."""
+    layout = _every_code_layout()
+    raw = _hostile_rows(layout, 10_000, seed=8)
+    monkeypatch.setattr(recorder_module, "BACKGROUND_CHUNK_ROWS", 500)
+    real = recorder_module.Recorder._pwrite_rows
+    calls, seen = [], []
+
+    def fails_once(self: recorder_module.Recorder, first: int, end: int, offset: int) -> None:
+        calls.append(offset)
+        if len(calls) == 5:
+            seen.append(self._background)
+            os.pwrite(self._file.fileno(), b"\xee" * 7777, offset)  # stray bytes past the rows' end too
+            raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC))
+        real(self, first, end, offset)
+
+    monkeypatch.setattr(recorder_module.Recorder, "_pwrite_rows", fails_once)
+    _record(tmp_path / "bg.npz", layout, raw, 10_000, flush_rows=3000)
+    monkeypatch.undo()
+    _record(tmp_path / "ref.npz", layout, raw, None, flush_rows=3000)
+    assert len(calls) > 6 and calls[4] == calls[5]  # the failed write, again at its place
+    assert seen[0] is not None and seen[0].given_up
+    assert (tmp_path / "bg.npz").read_bytes() == (tmp_path / "ref.npz").read_bytes()
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["bg.npz", "ref.npz"]

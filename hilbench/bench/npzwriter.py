@@ -245,9 +245,17 @@ class BackgroundArchive:
         return True
 
     def abandon(self) -> None:
-        """The thread joined, what it had not written dropped, the descriptors closed (idempotent)."""
+        """The thread joined, what it had not written dropped, the unfinished file emptied and
+        removed (its blocks go back to a full disk, where the journal needs them), the descriptors
+        closed (idempotent; a finished archive is left alone)."""
         self.given_up = True
         self._writer.abandon()
+        if self._archive._fd >= 0:  # still ours: not finished
+            try:
+                os.ftruncate(self._archive._fd, 0)
+                self.path.unlink(missing_ok=True)
+            except OSError:  # the close writes the archive from the journal (or says why it cannot)
+                pass
         self._archive.abandon()
         self._close_journal()
 

@@ -22,11 +22,14 @@ it runs (`npzwriter.BackgroundArchive`): its settled rows go to the journal ever
 BACKGROUND_CHUNK_ROWS rows (not only at each flush, so a killed run keeps more of them), and a
 thread reads them back, converts and writes them, so the close only finishes the archive. A run
 that ends with another number of rows (or a fault marker on a row already in the journal, which is
-then patched there) has its archive written from the journal at the close.
+then patched there) has its archive written from the journal at the close. A journal write that
+fails beside it (a full disk) gives the archive up, its file removed, and is written again: the
+journal, not the archive, keeps the rows.
 """
 
 from __future__ import annotations
 
+import errno
 import json
 import os
 import struct
@@ -396,13 +399,40 @@ class Recorder:
         n_rows, size = len(rows), rows.struct.size
         if n_rows <= self._handed:
             return
+        self._write_journal(self._handed, n_rows)
+        if self._background is not None:  # (a full disk may have given it up)
+            self._background.submit(n_rows - self._handed)
+        self._handed = n_rows
+
+    def _write_journal(self, first: int, end: int) -> None:
+        """Pending rows first..end-1 written at their place in the journal (pwrite: no buffer left
+        holding a failed write's bytes). A failed write while a background archive takes space
+        beside the journal (a full disk) gives that archive up, its file emptied, and is tried once
+        more: the journal, not the archive, keeps the rows (the close writes the archive from it)."""
+        size = self.rows.struct.size
+        offset = self._journal_start + (self.rows_written + first) * size
         try:
-            self._file.write(memoryview(rows.data)[self._handed * size:n_rows * size])
-            self._file.flush()
+            try:
+                self._pwrite_rows(first, end, offset)
+            except OSError:
+                background = self._background
+                if background is None or background.given_up:
+                    raise
+                background.abandon()  # its blocks freed
+                os.ftruncate(self._file.fileno(), offset)  # whatever part of the failed write landed
+                self._pwrite_rows(first, end, offset)
         except OSError as exc:
             raise RecordingError(f"recording {self.path}: write failed ({exc.strerror})") from None
-        self._background.submit(n_rows - self._handed)
-        self._handed = n_rows
+
+    def _pwrite_rows(self, first: int, end: int, offset: int) -> None:
+        size, fd = self.rows.struct.size, self._file.fileno()
+        with memoryview(self.rows.data) as whole, whole[first * size:end * size] as data:  # released whatever fails
+            done = 0
+            while done < len(data):
+                n = os.pwrite(fd, data[done:], offset + done)
+                if n <= 0:
+                    raise OSError(errno.EIO, os.strerror(errno.EIO))
+                done += n
 
     def flush(self) -> None:
         """Write every pending row and event and push them to the OS."""
@@ -414,10 +444,10 @@ class Recorder:
         n_rows = len(rows)
         if not n_rows and not events:
             return
+        if self.is_npz:  # raw rows as they are (the layout is in the header), those not there yet
+            self._write_journal(self._handed, n_rows)
         try:
             if self.is_npz:
-                size = rows.struct.size  # raw rows as they are (the layout is in the header), those not there yet
-                self._file.write(memoryview(rows.data)[self._handed * size:] if self._handed else rows.data)
                 if events:  # the metadata keeps them at close; the side file until then
                     self.metadata.setdefault("events", []).extend(text for _, text, _ in events)
                     with open(_events_path(self._journal_path()), "a", encoding="utf-8") as side:
