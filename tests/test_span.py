@@ -300,14 +300,20 @@ def _summary_run(mode: str, config: Path | None, scenario: Path | None, seconds:
     (None, None, 0.6, (), True),  # an observer: the part at every observe period
     (None, None, 0.9, ("protection.overspeed_rpm=1100",), False),  # the limit at a sample in the C span
     (None, RANDOM, 0.8, ("protection.overcurrent_a=0.35",), False),  # comparator trips: periods C leaves to Python
+    (None, RANDOM, 0.8, ("protection.overcurrent_a=0.35",), "at a trip"),  # and one of them an observe period
     (SERVO, None, 0.6, (), False),
 ])
-def test_the_c_span_samples_the_history_the_python_loop_samples(tmp_path: Path, config: Path | None,
-                                                               scenario: Path | None, seconds: float,
-                                                               overrides: tuple[str, ...], observe: bool) -> None:
+def test_the_c_span_samples_the_history_the_python_loop_samples(tmp_path: Path, monkeypatch: pytest.MonkeyPatch,
+                                                               config: Path | None, scenario: Path | None,
+                                                               seconds: float, overrides: tuple[str, ...],
+                                                               observe: bool | str) -> None:
     """The history samples the C span takes and hands over in bulk give the Python loop's history,
     segments, fault figures, guard reference, snapshots, end (an overspeed at its very period) and
-    recording (its flushes at the same periods: a small chunk)."""
+    recording (its flushes at the same periods: a small chunk). "at a trip": the first comparator
+    trip's period (one C leaves to Python) is a history and an observe period, observed once."""
+    if observe == "at a trip":
+        trip_k = _first_trip(config, scenario, seconds, overrides)
+        _observe_at(monkeypatch, trip_k)
     runs = {}
     for mode in ("c", "python", "readable"):
         runs[mode] = _summary_run(mode, config, scenario, seconds, overrides, tmp_path / f"{mode}.npz", observe)
@@ -319,3 +325,36 @@ def test_the_c_span_samples_the_history_the_python_loop_samples(tmp_path: Path, 
     assert len(figures[0]) > 20
     if any("overspeed" in o for o in overrides):
         assert "overspeed" in figures[8] and figures[5] % 20 == 0
+    if observe == "at a trip":
+        assert [snap[0] for snap in figures[9]].count(trip_k) == 1
+
+
+def _first_trip(config: Path | None, scenario: Path | None, seconds: float, overrides: tuple[str, ...]) -> int:
+    """The period of the run's first comparator trip (the Python loop's)."""
+    cfg = hilbench.load_config(config, ['link.target="inprocess:an1017"', f"run.duration_s={seconds}", *overrides],
+                               scenario_path=scenario)
+    trips: list[int] = []
+    with hilbench.Bench(cfg, scenario=True) as bench:
+        session = bench.session
+        assert session is not None
+        session.c_span = False  # type: ignore[misc]
+        comparator = session._comparator
+        session._comparator = lambda k: (trips.append(k), comparator(k))  # type: ignore[method-assign]
+        try:
+            bench.run()
+        except hilbench.HilbenchError:
+            pass
+    assert trips
+    return trips[0]
+
+
+def _observe_at(monkeypatch: pytest.MonkeyPatch, k: int) -> None:
+    """Sessions whose history and observe periods both fall on period k."""
+    import dataclasses
+    import math
+
+    from hilbench.bench import settings
+
+    options = settings.session_options
+    monkeypatch.setattr(settings, "session_options", lambda cfg: dataclasses.replace(
+        options(cfg), history_every_periods=math.gcd(k, 20), observe_every_periods=k))

@@ -321,6 +321,7 @@ class HistoryPart:
         self.overspeed_rpm = math.inf
         self._obs_last = (0.0, 0)
         self._sampled = (-1, math.nan)  # the last sample's period and measured speed
+        self._observed = -1  # the last observe period observed (once a period, whoever sampled it)
 
     def start(self, speed_telemetry: tuple[tuple[int, float], tuple[int, float]], wall_s: float) -> None:
         options = self.session.options
@@ -351,7 +352,8 @@ class HistoryPart:
         taken, meas = self._sampled
         if taken != k:  # a period the Python loop ran: its sample here
             self.sample(k)
-        elif k % self.session.options.observe_every_periods == 0 and k:  # the C span's, taken in bulk
+        elif k % self.session.options.observe_every_periods == 0 and k and self._observed != k:
+            # the C span's sample, taken in bulk: observed here (one C left to Python was, at its sample)
             self._observe(k, self.session.drive, meas)  # type: ignore[arg-type]
 
     def sample(self, k: int) -> None:
@@ -407,6 +409,7 @@ class HistoryPart:
 
     def _observe(self, k: int, drive: Drive, meas: float) -> None:
         session, pacing = self.session, self.session.pacing
+        self._observed = k
         if session.display is not None:  # the scope takes its rows before a flush empties the buffer
             session.display.due(k, drive, pacing)
         if session.recorder is not None:
