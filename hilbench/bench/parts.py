@@ -303,6 +303,9 @@ def step_text(metrics: dict[str, Any]) -> str:
 # ------------------------------------------------------------------------------------- after the exchange
 #: a history sample as the C span takes it (hilbench/bench/_span.c's put_sample): the period, the
 #: rotor's speed, the Drive's fault code, the raw telemetry of the measured speed and of the reference
+#: the most history samples one C span takes before the part takes them (bounded memory: about 0.3 MB
+#: while they are taken; 2048 samples are 2 s of simulated time at 50 us periods, every 20th sampled)
+SPAN_SAMPLES = 2048
 SAMPLE_DTYPE = np.dtype([("k", "<i8"), ("w_m", "<f8"), ("fault", "<i4"), ("meas", "<i4"), ("ref", "<i4")])
 
 
@@ -338,14 +341,18 @@ class HistoryPart:
     def _observe_due(self, k: int) -> float:
         """The first observe period from k on where observing does something: every one with a
         display or an observer, else the one where the recorder's next write is due (its flush,
-        or rows for its background archive: `Recorder.rows_to_write`)."""
+        or rows for its background archive: `Recorder.rows_to_write`); at the latest the one after
+        SPAN_SAMPLES samples (the span's sample buffer, and what `take` makes of it, stay that
+        size however long the run: a span as long as the run held all its samples)."""
         session, every = self.session, self.observe_every
         first = max(k, 1)
         if session.display is None and session.observer is None:
+            most = k + SPAN_SAMPLES * self.every
             rows_to_write = getattr(session.recorder, "rows_to_write", None)
             if rows_to_write is None:  # no recorder, or one that keeps every row in memory
-                return math.inf
-            first = max(first, k - 1 + rows_to_write())  # after that period its next write is due
+                first = most
+            else:  # after that period its next write is due
+                first = max(first, min(k - 1 + rows_to_write(), most))
         return -(-first // every) * every
 
     def run(self, k: int) -> None:
@@ -375,10 +382,11 @@ class HistoryPart:
         if not -self.overspeed_rpm <= plant_rpm <= self.overspeed_rpm:
             self._overspeed(k, plant_rpm)
 
-    def take(self, samples: bytearray) -> None:
-        """The samples the C span took (`SAMPLE_DTYPE` rows), as `sample` would have taken each; a
-        sample beyond the overspeed limit is the span's last: the run ends at its period."""
-        rows = np.frombuffer(bytes(samples), dtype=SAMPLE_DTYPE)  # a copy: no view holds the span's buffer
+    def take(self, samples: bytes) -> None:
+        """The samples the C span took (`SAMPLE_DTYPE` rows, copied out of its buffer), as `sample`
+        would have taken each; a sample beyond the overspeed limit is the span's last: the run ends
+        at its period."""
+        rows = np.frombuffer(samples, dtype=SAMPLE_DTYPE)
         if not len(rows):
             return
         session = self.session
@@ -467,4 +475,4 @@ class BusPart:
                                     f"{options.overvoltage_v:g} V limit ([protection] overvoltage_v)")
 
 
-__all__ = ["SAMPLE_DTYPE", "STEP_REPLY_UNITS", "step_text", "BUTTON_HOLD_S", "BusPart", "CtlStep", "HistoryPart", "LivePart", "Part", "ScenarioPart", "Schedule"]
+__all__ = ["SAMPLE_DTYPE", "SPAN_SAMPLES", "STEP_REPLY_UNITS", "step_text", "BUTTON_HOLD_S", "BusPart", "CtlStep", "HistoryPart", "LivePart", "Part", "ScenarioPart", "Schedule"]

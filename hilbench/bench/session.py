@@ -580,7 +580,7 @@ class Session:
                                 k_next, k = k, span.k
                                 taken = bytes(samples)
                                 del samples[:]
-                                sampler.take(taken)  # type: ignore[arg-type]
+                                sampler.take(taken)
                                 k = k_next
                             if k >= stop:
                                 break
@@ -642,7 +642,7 @@ class Session:
                             taken = bytes(samples)
                             del samples[:]
                             session._edge_s, session.drive, session._hall_before = edge_s, drive, hall_before
-                            sampler.take(taken)  # type: ignore[arg-type]
+                            sampler.take(taken)
                     session.periods_done = k
                     raise
                 finally:
