@@ -440,3 +440,37 @@ def test_a_failed_journal_write_is_written_again_where_it_belongs(tmp_path: Path
     assert seen[0] is not None and seen[0].given_up
     assert (tmp_path / "bg.npz").read_bytes() == (tmp_path / "ref.npz").read_bytes()
     assert sorted(p.name for p in tmp_path.iterdir()) == ["bg.npz", "ref.npz"]
+
+
+@needs_writer
+@pytest.mark.parametrize("mode", ["lockstep", "realtime"])
+def test_a_real_time_run_plans_no_background_archive(tmp_path: Path, monkeypatch: pytest.MonkeyPatch, mode: str) -> None:
+    """In real time the writer's thread would run on the CPU the run is pinned to (it inherits the
+    affinity), beside the paced thread: a real-time run writes its archive from the journal at the
+    close; a lockstep run of the same plan has its archive written while it runs."""
+    from hilbench.bench.launcher import open_target
+    from hilbench.bench.scenario import Event
+    from hilbench.bench.session import Session, SessionOptions
+    from hilbench.bench.settings import load_config
+    from hilbench.config import plant_params_from_config
+    from hilbench.plant.model import Plant
+
+    planned: list[int] = []
+    real_init = npzwriter.BackgroundArchive.__init__
+
+    def spy(self: npzwriter.BackgroundArchive, path: Path, layout: recorder_module.RowLayout, n_rows: int,
+            *rest: object) -> None:
+        planned.append(n_rows)
+        real_init(self, path, layout, n_rows, *rest)  # type: ignore[arg-type]
+
+    monkeypatch.setattr(npzwriter.BackgroundArchive, "__init__", spy)
+    cfg = load_config(None)
+    options = SessionOptions(period_us=1000, mode=mode, duration_s=0.03, cpu_latency_qos=False)  # type: ignore[arg-type]
+    recorder = recorder_module.Recorder(tmp_path / "run.npz", {})
+    with open_target("inprocess:an1017", timeout_s=2.0) as handle:
+        session = Session(handle.target, Plant(plant_params_from_config(cfg), seed=0), (Event(at_s=0.0, ref_rpm=1000.0),),
+                          options, recorder=recorder, target_label="in-process")
+        session.run()
+    assert planned == ([] if mode == "realtime" else [30])
+    assert read_recording(tmp_path / "run.npz").n_rows == 30
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["run.npz"]

@@ -466,8 +466,10 @@ class Session:
         if self.ended:
             return False
         expect_rows = getattr(self.recorder, "expect_rows", None)
-        if expect_rows is not None and self._next_k == 0 and n_periods == self.planned_periods:
-            expect_rows(n_periods)  # the whole planned run in one call: its NPZ archive written as it goes
+        if expect_rows is not None and self._next_k == 0 and n_periods == self.planned_periods and self.pacing is None:
+            # the whole planned run in one call: its NPZ archive written as it goes (lockstep only: in real
+            # time the writer's thread would share the CPU the run is pinned to)
+            expect_rows(n_periods)
         gc_was_enabled = gc.isenabled()
         gc.disable()  # no collector pauses inside periods (recorded rows are plain numbers)
         try:
