@@ -474,3 +474,22 @@ def test_a_real_time_run_plans_no_background_archive(tmp_path: Path, monkeypatch
     assert planned == ([] if mode == "realtime" else [30])
     assert read_recording(tmp_path / "run.npz").n_rows == 30
     assert sorted(p.name for p in tmp_path.iterdir()) == ["run.npz"]
+
+
+@needs_writer
+@pytest.mark.parametrize("error", [ValueError("a column the writer refuses"), RuntimeError("no thread"), MemoryError()])
+def test_a_background_archive_that_cannot_start_leaves_the_run_to_the_journal(tmp_path: Path, monkeypatch: pytest.MonkeyPatch,
+                                                                              error: Exception) -> None:
+    """Whatever the background archive raises when it is set up (before the run's first period, outside
+    the run's own error handling): the run goes on without it, its archive written from the journal
+    at the close, every row there, nothing left beside it."""
+    def broken(self: npzwriter.BackgroundArchive, path: Path, *rest: object) -> None:
+        path.write_bytes(b"half made")
+        raise error
+
+    monkeypatch.setattr(npzwriter.BackgroundArchive, "__init__", broken)
+    cfg = hilbench.load_config(None, ['link.target="inprocess:an1017"', "run.duration_s=0.3"])
+    with hilbench.Bench(cfg, scenario=True, record=tmp_path / "run.npz") as bench:
+        bench.run()
+    assert read_recording(tmp_path / "run.npz").n_rows == 6000
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["run.npz"]

@@ -347,8 +347,9 @@ class Recorder:
         try:
             self._background = npzwriter.BackgroundArchive(self._tmp_path(), self.rows.layout, n_rows,
                                                            self._journal_path(), self._journal_start)
-        except OSError:  # the close writes it from the journal (and says so if it cannot)
-            self._background = None
+        except Exception:  # noqa: BLE001 - an accelerator's failure, whatever it is: the close writes the
+            self._background = None  # archive from the journal (the reference; it says so if it cannot)
+            self._tmp_path().unlink(missing_ok=True)
         self._handed = 0
 
     def rows_to_write(self) -> int:
