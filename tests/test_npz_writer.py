@@ -493,3 +493,24 @@ def test_a_background_archive_that_cannot_start_leaves_the_run_to_the_journal(tm
         bench.run()
     assert read_recording(tmp_path / "run.npz").n_rows == 6000
     assert sorted(p.name for p in tmp_path.iterdir()) == ["run.npz"]
+
+
+def test_a_write_that_writes_nothing_is_an_error_not_a_loop(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """A pwrite that returns 0 for a non-empty piece (nothing written, no errno) is EIO: the write
+    loop tried it again without end. (The C writer's pwrite_all has the same check; no file here
+    makes pwrite return 0, so it is not exercised.)"""
+    archive = ColumnArchive(tmp_path / "x.npz", ["a"], 10)
+    calls: list[int] = []
+
+    def writes_nothing(fd: int, data: bytes, offset: int) -> int:
+        calls.append(offset)
+        if len(calls) > 100:
+            raise RuntimeError("the write loop goes on without end")
+        return 0
+
+    monkeypatch.setattr(os, "pwrite", writes_nothing)
+    with pytest.raises(OSError) as info:
+        archive.write(0, {"a": np.zeros(10)})
+    monkeypatch.undo()
+    archive.abandon()
+    assert info.value.errno == errno.EIO and len(calls) == 1

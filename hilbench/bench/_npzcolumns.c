@@ -149,6 +149,7 @@ static int pwrite_all(int fd, const unsigned char *p, size_t n, long long offset
             if (errno == EINTR) continue;
             return errno;
         }
+        if (done == 0) return EIO; /* nothing written of n > 0 bytes: never loop on it */
         p += done;
         n -= (size_t)done;
         offset += done;

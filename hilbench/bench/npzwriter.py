@@ -19,6 +19,7 @@ written from the journal at the close, as before.
 
 from __future__ import annotations
 
+import errno
 import io
 import os
 import struct
@@ -109,7 +110,7 @@ class ColumnArchive:
         for name in names:
             _, _, data_offset, _ = self._members[self._index[name]]
             if write_headers:
-                os.pwrite(self._fd, self._header, data_offset)
+                _pwrite_all(self._fd, memoryview(self._header), data_offset)
             self._crc[name] = zlib.crc32(self._header)
 
     @property
@@ -152,7 +153,7 @@ class ColumnArchive:
             raise ValueError(f"column {short[0]}: {self._written[short[0]]} of {self.n_rows} rows written")
         directory: list[bytes] = []
         for name, (member, offset, _, size) in zip(self._written, self._members):
-            os.pwrite(self._fd, _local_header(member, self._crc[name], size), offset)
+            _pwrite_all(self._fd, memoryview(_local_header(member, self._crc[name], size)), offset)
             directory.append(_central_header(member, self._crc[name], size, offset))
         offset = self._end
         for member, crc, data in self._small:
@@ -281,6 +282,8 @@ def _field_offsets(layout: "RowLayout") -> dict[str, tuple[int, str]]:
 def _pwrite_all(fd: int, data: memoryview, offset: int) -> None:
     while len(data):
         n = os.pwrite(fd, data, offset)
+        if n <= 0:  # nothing written of a non-empty piece: an error, not a loop without end
+            raise OSError(errno.EIO, os.strerror(errno.EIO))
         data, offset = data[n:], offset + n
 
 
