@@ -107,11 +107,15 @@ class ColumnArchive:
         self._index = {name: i for i, name in enumerate(names)}
         self._small: list[tuple[bytes, int, bytes]] = []  # name, crc, bytes
         self._fd = os.open(path, os.O_WRONLY | os.O_CREAT | os.O_TRUNC | os.O_CLOEXEC, 0o644)
-        for name in names:
-            _, _, data_offset, _ = self._members[self._index[name]]
-            if write_headers:
-                _pwrite_all(self._fd, memoryview(self._header), data_offset)
-            self._crc[name] = zlib.crc32(self._header)
+        try:
+            for name in names:
+                _, _, data_offset, _ = self._members[self._index[name]]
+                if write_headers:
+                    _pwrite_all(self._fd, memoryview(self._header), data_offset)
+                self._crc[name] = zlib.crc32(self._header)
+        except BaseException:  # a full disk already: no descriptor left open
+            self.abandon()
+            raise
 
     @property
     def column_header(self) -> bytes:
