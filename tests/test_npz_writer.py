@@ -514,3 +514,52 @@ def test_a_write_that_writes_nothing_is_an_error_not_a_loop(tmp_path: Path, monk
     monkeypatch.undo()
     archive.abandon()
     assert info.value.errno == errno.EIO and len(calls) == 1
+
+
+def _endless_writer() -> tuple[object, list[int], str]:
+    """A column writer whose thread has rows for a long while (zeros from /dev/zero to /dev/null),
+    its descriptors and its thread's id."""
+    fds = [os.open("/dev/null", os.O_WRONLY | os.O_CLOEXEC), os.open("/dev/zero", os.O_RDONLY | os.O_CLOEXEC)]
+    before = set(os.listdir("/proc/self/task"))
+    writer = npzwriter._npzcolumns.ColumnWriter(fds[0], fds[1], 0, 8, [(0, "d", 1.0, 0.0, 16, 0)], b"h" * 16)
+    new = set(os.listdir("/proc/self/task")) - before
+    assert len(new) == 1
+    return writer, fds, new.pop()
+
+
+def _thread_ended(tid: str, timeout_s: float = 30.0) -> bool:
+    """Whether the thread is gone from /proc (joined, it may linger there for a moment)."""
+    import time
+
+    deadline = time.monotonic() + timeout_s
+    while os.path.exists(f"/proc/self/task/{tid}"):
+        if time.monotonic() > deadline:
+            return False
+        time.sleep(0.01)
+    return True
+
+
+@needs_writer
+def test_the_writer_thread_blocks_every_signal() -> None:
+    """The writer's thread is created with every signal blocked: Ctrl-C, a timer or a child's end is
+    the Python thread's to handle, never an EINTR or a handler on the writer."""
+    import signal
+
+    import time
+
+    writer, fds, tid = _endless_writer()
+    try:
+        deadline = time.monotonic() + 30.0  # the thread runs its own code (SCHED_BATCH, its first act):
+        while os.sched_getscheduler(int(tid)) != os.SCHED_BATCH:  # its start (all blocked) is over
+            assert time.monotonic() < deadline, "the writer's thread did not start"
+            time.sleep(0.01)
+        status = Path(f"/proc/self/task/{tid}/status").read_text()
+        blocked = int(next(line.split()[1] for line in status.splitlines() if line.startswith("SigBlk:")), 16)
+        for sig in (signal.SIGINT, signal.SIGTERM, signal.SIGHUP, signal.SIGALRM, signal.SIGCHLD, signal.SIGUSR1,
+                    signal.SIGPIPE):
+            assert blocked >> (sig - 1) & 1, f"{sig!r} not blocked (SigBlk {blocked:#x})"
+    finally:
+        writer.abandon()  # type: ignore[attr-defined]
+        for fd in fds:
+            os.close(fd)
+

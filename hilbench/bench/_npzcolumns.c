@@ -11,7 +11,7 @@
  * Python object, so it never waits for the GIL, and the simulating thread copies nothing for it.
  * `finish` joins it and gives the rows written and each column's CRC; `abandon` joins it and drops
  * the rest. A failed read or write stops the thread: `submit` and `finish` raise OSError with its
- * errno. tests/test_npz_writer.py checks the archive equals the one written from the journal at the
+ * errno. The thread runs with every signal blocked. tests/test_npz_writer.py checks the archive equals the one written from the journal at the
  * close, byte for byte.
  */
 #define PY_SSIZE_T_CLEAN
@@ -24,6 +24,7 @@
 #include <math.h>
 #include <pthread.h>
 #include <sched.h>
+#include <signal.h>
 #include <stdint.h>
 #include <stdlib.h>
 #include <string.h>
@@ -393,7 +394,13 @@ static int Writer_init(Writer *w, PyObject *args, PyObject *kwds)
     w->header = head;
     w->header_len = head_len;
     w->ready = 1;
+    /* every signal blocked in the thread (it inherits the creating thread's mask): a signal is the
+     * Python thread's to handle, never an EINTR or a handler run on the writer */
+    sigset_t all, before;
+    sigfillset(&all);
+    pthread_sigmask(SIG_SETMASK, &all, &before);
     int err = pthread_create(&w->thread, NULL, writer_thread, w);
+    pthread_sigmask(SIG_SETMASK, &before, NULL);
     if (err) {
         os_error(err);
         return -1;
