@@ -563,3 +563,81 @@ def test_the_writer_thread_blocks_every_signal() -> None:
         for fd in fds:
             os.close(fd)
 
+
+@needs_writer
+def test_ctrl_c_while_the_writer_finishes_drops_its_rows_and_joins_its_thread() -> None:
+    """`finish` waits for the thread to write every row handed over; Ctrl-C in that wait ends it
+    (KeyboardInterrupt, the rest dropped, the thread joined) instead of waiting it out. SIGINT is
+    sent every 50 ms until one lands inside `finish` (one landing before it is raised there: finish
+    is called again)."""
+    import signal
+    import threading
+
+    total = 2**31  # zeros the thread takes some seconds to write: the wait is still on when SIGINT comes
+    state = {"raise": True}
+
+    def on_sigint(signum: int, frame: object) -> None:
+        if state["raise"]:
+            state["raise"] = False
+            raise KeyboardInterrupt
+
+    writer, fds, tid = _endless_writer()
+    writer.submit(total)  # type: ignore[attr-defined]
+    stop = threading.Event()
+    sender = threading.Thread(target=lambda: [os.kill(os.getpid(), signal.SIGINT) for _ in iter(lambda: stop.wait(0.05), True)])
+    previous = signal.signal(signal.SIGINT, on_sigint)
+    try:
+        sender.start()
+        for _ in range(1000):
+            try:
+                writer.finish()  # type: ignore[attr-defined]
+                break  # (without the wait's signal check: every row written, then the interrupt)
+            except KeyboardInterrupt:
+                if writer.rows_done is not None:  # type: ignore[attr-defined]
+                    break  # raised inside finish, the thread joined
+                state["raise"] = True  # raised before finish began: again
+    finally:
+        state["raise"] = False
+        stop.set()
+        sender.join(timeout=60)
+        signal.signal(signal.SIGINT, previous)
+        writer.abandon()  # type: ignore[attr-defined]
+        for fd in fds:
+            os.close(fd)
+    assert writer.rows_done is not None and writer.rows_done < total  # type: ignore[attr-defined]
+    assert _thread_ended(tid)
+
+
+@needs_writer
+@hostile_values
+def test_ctrl_c_while_the_close_finishes_the_archive_leaves_the_journal(tmp_path: Path) -> None:
+    """Ctrl-C while the close waits for the writer's last rows: the archive is given up (its thread
+    joined, its unfinished file removed), the interrupt propagates, the journal keeps every row."""
+    layout = _every_code_layout()
+    raw = _hostile_rows(layout, 5000, seed=9)
+    path = tmp_path / "bg.npz"
+    rec = recorder_module.Recorder(path, {}, flush_rows=100_000)
+    rec.start(layout)
+    rec.expect_rows(5000)
+    background = rec._background
+    assert background is not None
+    writer = background._writer
+
+    class Interrupted:  # the writer's finish as Ctrl-C in its wait ends it
+        def submit(self, n_rows: int) -> None:
+            writer.submit(n_rows)
+
+        def finish(self) -> None:
+            writer.abandon()
+            raise KeyboardInterrupt
+
+        def abandon(self) -> None:
+            writer.abandon()
+
+    background._writer = Interrupted()
+    rec.rows.extend(raw)
+    with pytest.raises(KeyboardInterrupt):
+        rec.close("end")
+    assert background.given_up
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["bg.npz.journal", "bg.npz.journal.events"]
+    assert read_recording(path).n_rows == 5000

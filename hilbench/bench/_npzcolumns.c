@@ -9,10 +9,11 @@
  * unless the scale is 1, an angle wrapped as numpy.mod wraps it), carries its CRC-32 (zlib's) and
  * writes it with pwrite at the column's place, while the run goes on. The thread never touches a
  * Python object, so it never waits for the GIL, and the simulating thread copies nothing for it.
- * `finish` joins it and gives the rows written and each column's CRC; `abandon` joins it and drops
- * the rest. A failed read or write stops the thread: `submit` and `finish` raise OSError with its
- * errno. The thread runs with every signal blocked. tests/test_npz_writer.py checks the archive equals the one written from the journal at the
- * close, byte for byte.
+ * `finish` joins it and gives the rows written and each column's CRC (Ctrl-C while it waits drops
+ * the rest and raises KeyboardInterrupt); `abandon` joins it and drops the rest. A failed read or
+ * write stops the thread: `submit` and `finish` raise OSError with its errno. The thread runs with
+ * every signal blocked. tests/test_npz_writer.py checks the archive equals the one written from
+ * the journal at the close, byte for byte.
  */
 #define PY_SSIZE_T_CLEAN
 #ifndef _GNU_SOURCE
@@ -28,6 +29,7 @@
 #include <stdint.h>
 #include <stdlib.h>
 #include <string.h>
+#include <time.h>
 #include <unistd.h>
 
 #if defined(__BYTE_ORDER__) && __BYTE_ORDER__ != __ORDER_LITTLE_ENDIAN__
@@ -137,9 +139,10 @@ typedef struct {
     unsigned char *header;           /* each column's .npy header, written by the thread before its row 0 */
     Py_ssize_t header_len;
     pthread_mutex_t lock;
-    pthread_cond_t wake;
+    pthread_cond_t wake;             /* the thread's: rows queued, or stopping */
+    pthread_cond_t ended;            /* the caller's: the thread is about to return (exited) */
     pthread_t thread;
-    int ready, running, stopping, discard, error; /* error: the errno of the failed read or write */
+    int ready, running, stopping, discard, exited, error; /* error: the errno of the failed read or write */
 } Writer;
 
 static int pwrite_all(int fd, const unsigned char *p, size_t n, long long offset)
@@ -238,23 +241,51 @@ static void *writer_thread(void *arg)
         }
         w->done += n;
     }
+    w->exited = 1;
+    pthread_cond_signal(&w->ended);
     pthread_mutex_unlock(&w->lock);
     return NULL;
 }
 
-/* Stop the thread (after every row handed over, or dropping them) and join it, the GIL released. */
-static void stop_thread(Writer *w, int discard)
+#define STOP_POLL_NS 50000000L /* how often a wait for the thread looks for a signal (Ctrl-C) */
+
+/* Stop the thread (after every row handed over, or dropping them) and join it, the GIL released.
+ * Waiting for every row (not discard), a signal's handler that raises (Ctrl-C: KeyboardInterrupt)
+ * ends the wait: the rows not written yet are dropped, the thread joined, -1 returned with the
+ * exception set (the caller gives the archive up; the journal keeps every row). */
+static int stop_thread(Writer *w, int discard)
 {
-    if (!w->running) return;
+    if (!w->running) return 0;
+    int status = 0, exited = 0;
+    while (!exited) {
+        Py_BEGIN_ALLOW_THREADS
+        pthread_mutex_lock(&w->lock);
+        w->stopping = 1;
+        if (discard) w->discard = 1;
+        pthread_cond_signal(&w->wake);
+        if (!w->exited) {
+            struct timespec until;
+            clock_gettime(CLOCK_MONOTONIC, &until);
+            until.tv_nsec += STOP_POLL_NS;
+            if (until.tv_nsec >= 1000000000L) {
+                until.tv_sec += 1;
+                until.tv_nsec -= 1000000000L;
+            }
+            pthread_cond_timedwait(&w->ended, &w->lock, &until);
+        }
+        exited = w->exited;
+        pthread_mutex_unlock(&w->lock);
+        Py_END_ALLOW_THREADS
+        if (!exited && !discard && PyErr_CheckSignals() < 0) { /* interrupted: drop the rest, still join */
+            discard = 1;
+            status = -1;
+        }
+    }
     Py_BEGIN_ALLOW_THREADS
-    pthread_mutex_lock(&w->lock);
-    w->stopping = 1;
-    if (discard) w->discard = 1;
-    pthread_cond_signal(&w->wake);
-    pthread_mutex_unlock(&w->lock);
-    pthread_join(w->thread, NULL);
+    pthread_join(w->thread, NULL); /* it has returned, or is returning */
     Py_END_ALLOW_THREADS
     w->running = 0;
+    return status;
 }
 
 static PyObject *os_error(int err)
@@ -290,7 +321,7 @@ static PyObject *Writer_finish(Writer *w, PyObject *Py_UNUSED(ignored))
         PyErr_SetString(PyExc_ValueError, "ColumnWriter.finish: finished or abandoned");
         return NULL;
     }
-    stop_thread(w, 0);
+    if (stop_thread(w, 0) < 0) return NULL; /* a signal's exception (Ctrl-C) */
     if (w->error) return os_error(w->error);
     PyObject *crcs = PyTuple_New(w->n_cols);
     if (crcs == NULL) return NULL;
@@ -377,7 +408,14 @@ static int Writer_init(Writer *w, PyObject *args, PyObject *kwds)
         PyErr_SetString(PyExc_OSError, "ColumnWriter: no lock");
         goto bad;
     }
-    if (pthread_cond_init(&w->wake, NULL)) {
+    pthread_condattr_t monotonic;
+    int no_cond = pthread_condattr_init(&monotonic);
+    if (!no_cond) {
+        no_cond = pthread_condattr_setclock(&monotonic, CLOCK_MONOTONIC) || pthread_cond_init(&w->ended, &monotonic);
+        pthread_condattr_destroy(&monotonic);
+    }
+    if (no_cond || pthread_cond_init(&w->wake, NULL)) {
+        if (!no_cond) pthread_cond_destroy(&w->ended);
         pthread_mutex_destroy(&w->lock);
         PyErr_SetString(PyExc_OSError, "ColumnWriter: no condition");
         goto bad;
@@ -422,6 +460,7 @@ static void Writer_dealloc(Writer *w)
     if (w->ready) {
         pthread_mutex_destroy(&w->lock);
         pthread_cond_destroy(&w->wake);
+        pthread_cond_destroy(&w->ended);
     }
     free(w->cols);
     free(w->rows);

@@ -190,7 +190,7 @@ class BackgroundArchive:
     """The archive of a run that plans ``n_rows`` rows of ``layout``, written while it runs from its
     journal: `submit(n)` says the journal's next n rows are written (and flushed); a thread reads them
     back and writes each column at its place. `finish` completes the archive when exactly ``n_rows``
-    were handed over and written (False otherwise: the file is left to the caller, who writes it
+    were handed over and written (False otherwise: the unfinished file is removed, the caller writes it
     from the journal)."""
 
     def __init__(self, path: Path, layout: "RowLayout", n_rows: int, journal: Path, journal_offset: int) -> None:
@@ -233,7 +233,8 @@ class BackgroundArchive:
 
     def finish(self, metadata: np.ndarray) -> bool:
         """The archive complete with ``metadata`` (True), or given up: another number of rows than
-        planned, a failed read or write (False; the descriptors closed, the file left to the caller)."""
+        planned, a failed read or write (False; the descriptors closed, the unfinished file removed).
+        Ctrl-C while the thread writes its last rows gives it up too, and propagates."""
         if self.given_up or self.rows != self.n_rows:
             self.abandon()
             return False
@@ -246,6 +247,9 @@ class BackgroundArchive:
             self.failed = exc
             self.abandon()
             return False
+        except BaseException:  # Ctrl-C while the thread finished: given up, the journal keeps every row
+            self.abandon()
+            raise
         self._close_journal()
         return True
 
