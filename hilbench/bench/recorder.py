@@ -31,6 +31,7 @@ from __future__ import annotations
 
 import errno
 import json
+import math
 import os
 import struct
 import zipfile
@@ -128,6 +129,11 @@ class RowLayout:
                 or len(set(column_names)) != len(column_names):
             raise ValueError(f"RowLayout: bad codes {bad}, unknown fields {missing}, columns {column_names}, "
                              f"marker field: {'marker' in names}")
+        wrapped = [name for name, _ in self.wrap]
+        bad_modulo = [(name, modulo) for name, modulo in self.wrap if not 0.0 < modulo < math.inf]
+        if bad_modulo or len(set(wrapped)) != len(wrapped):  # one conversion: to_column's and the C writer's
+            raise ValueError(f"RowLayout: a wrap needs a positive, finite modulo and one entry a column: "
+                             f"{list(self.wrap)}")
 
     @property
     def column_specs(self) -> tuple[tuple[str, str, str], ...]:
