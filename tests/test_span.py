@@ -358,3 +358,28 @@ def _observe_at(monkeypatch: pytest.MonkeyPatch, k: int) -> None:
     options = settings.session_options
     monkeypatch.setattr(settings, "session_options", lambda cfg: dataclasses.replace(
         options(cfg), history_every_periods=math.gcd(k, 20), observe_every_periods=k))
+
+
+def test_a_plant_capsule_of_the_api_before_speed_rad_s_is_refused() -> None:
+    """hb_plant_api_t gained speed_rad_s (the history samples): its capsule's name carries the
+    version, so a plant module built before it (a stale build) is refused by the span by name,
+    never read past the end of its older struct."""
+    import ctypes
+
+    cfg = hilbench.load_config(None, ['link.target="inprocess:an1017"', "run.duration_s=0.01"])
+    with hilbench.Bench(cfg, scenario=True) as bench:
+        session = bench.session
+        assert isinstance(session, Session)
+        capsule = session.plant.span_api()
+        name = repr(capsule).split('"')[1]
+        assert name == "hilbench.plant.span_api.v2"
+        get_pointer, new_capsule = ctypes.pythonapi.PyCapsule_GetPointer, ctypes.pythonapi.PyCapsule_New
+        get_pointer.restype, get_pointer.argtypes = ctypes.c_void_p, [ctypes.py_object, ctypes.c_char_p]
+        new_capsule.restype, new_capsule.argtypes = ctypes.py_object, [ctypes.c_void_p, ctypes.c_char_p, ctypes.c_void_p]
+        old_name = ctypes.c_char_p(b"hilbench.plant.span_api")  # kept alive: the capsule holds its pointer
+        old = new_capsule(get_pointer(capsule, name.encode()), old_name, None)
+        session.plant.span_api = lambda: old  # type: ignore[method-assign]
+        with pytest.raises(ValueError, match="incorrect name"):
+            _bare_span(session, None, None)
+        session.plant.span_api = lambda: capsule  # type: ignore[method-assign]
+        assert _bare_span(session, None, None) is not None

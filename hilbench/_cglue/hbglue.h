@@ -165,7 +165,9 @@ static inline PyObject *hb_add_span_api(PyObject *m, void *api, const char *caps
  * the same bytes. */
 #define HB_SPAN_MAX_ADC 8
 #define HB_SPAN_MAX_TEL 16
-#define HB_PLANT_API "hilbench.plant.span_api"
+/* The plant's capsule is versioned with its struct: v2 has speed_rad_s (a module built before it,
+ * left in place by a stale build, is refused by name instead of read past its end). */
+#define HB_PLANT_API "hilbench.plant.span_api.v2"
 #define HB_TARGET_API "hilbench.target.span_api"
 
 /* What a plant's sense() gives, in C. */
