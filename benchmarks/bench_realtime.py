@@ -5,9 +5,9 @@
 Issue 5's goal: at 1 kHz for 60 s, fewer than 0.5 % of periods overrun on this machine. The
 machine is a shared 2-core VM, so the figures move with its load; run it when nothing else does.
 The baseline, a raw two-process pty echo paced the same way, runs for half the time before the
-bench and half after it. Both hold the CPU wake-up latency request (/dev/cpu_dma_latency) and put
-host and target on one CPU, as the session does by default; --no-qos and --no-pin measure both
-without them.
+bench and half after it. Both hold the CPU wake-up latency request (/dev/cpu_dma_latency), put
+host and target on one CPU and run them at SCHED_FIFO 10 when allowed, as the session does by
+default; --no-qos, --no-pin and --no-fifo measure both without them.
 """
 
 from __future__ import annotations
@@ -27,7 +27,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 from bench_link import echo_child, frame_sizes  # noqa: E402
 
 from hilbench.bench.clock import CpuLatencyRequest, Pacer  # noqa: E402
-from hilbench.bench.cpus import CpuPinning  # noqa: E402
+from hilbench.bench.cpus import CpuPinning, FifoPriority  # noqa: E402
 
 from hilbench.bench.run import RunRequest, load_run_config, run_bench
 from hilbench.config import default_config_text
@@ -52,7 +52,8 @@ ref_rpm = -1000.0
 """
 
 
-def paced_raw_echo(seconds: float, period_us: int, qos: bool, pin: bool) -> tuple[float, float, int, int]:
+def paced_raw_echo(seconds: float, period_us: int, qos: bool, pin: bool,
+                   fifo: bool) -> tuple[float, float, int, int]:
     """The baseline: the same pacing with a raw two-process pty echo of the same frame sizes.
 
     Returns (lateness p99 us, round-trip p99 us, overruns, periods) — an overrun is a period whose
@@ -67,7 +68,8 @@ def paced_raw_echo(seconds: float, period_us: int, qos: bool, pin: bool) -> tupl
     overruns = 0
     request = b"\xaa" * req_len
     with echo_child(req_len, resp_len) as (fd, child), CpuLatencyRequest() if qos else contextlib.nullcontext(), \
-            CpuPinning([child.pid]) if pin else contextlib.nullcontext():
+            CpuPinning([child.pid]) if pin else contextlib.nullcontext(), \
+            FifoPriority([child.pid], 10) if fifo else contextlib.nullcontext():
         pacer = Pacer(period_s)
         pacer.start()
         for k in range(n):
@@ -100,6 +102,8 @@ def main() -> None:
                         help="without the CPU wake-up latency request, in the bench and its baseline")
     parser.add_argument("--no-pin", action="store_true",
                         help="host and target processes free to run on any CPU, in the bench and its baseline")
+    parser.add_argument("--no-fifo", action="store_true",
+                        help="host and target normally scheduled (not SCHED_FIFO), in the bench and its baseline")
     args = parser.parse_args()
     # the Hurst bench with the motor running for the whole span
     config = Path(tempfile.mkdtemp()) / "realtime.toml"
@@ -107,15 +111,17 @@ def main() -> None:
     cfg = load_run_config(RunRequest(
         str(config),
         overrides=(f"link.period_us={args.period_us}", f"link.cpu_latency_qos={'false' if args.no_qos else 'true'}",
-                   f"link.pin_realtime={'false' if args.no_pin else 'true'}"),
+                   f"link.pin_realtime={'false' if args.no_pin else 'true'}",
+                   f"link.realtime_priority={0 if args.no_fifo else 10}"),
         target="emulator:an1017",
         mode="realtime",
         duration_s=args.seconds,
     ))
     half = args.seconds / 2
-    before = paced_raw_echo(half, args.period_us, not args.no_qos, not args.no_pin)  # the baseline on both sides of the run
+    baseline = (args.period_us, not args.no_qos, not args.no_pin, not args.no_fifo)
+    before = paced_raw_echo(half, *baseline)  # the baseline on both sides of the run
     summary = run_bench(cfg)
-    after = paced_raw_echo(half, args.period_us, not args.no_qos, not args.no_pin)
+    after = paced_raw_echo(half, *baseline)
     lat, rtt = summary.lateness_us, summary.rtt_us
     print(f"real time, {args.period_us} us periods, {summary.periods} periods "
           f"({summary.sim_s:.1f} s) against {summary.target}")

@@ -195,6 +195,29 @@ def test_cpu_pinning_puts_host_and_child_on_one_cpu_and_restores_the_host() -> N
         child.communicate(b"", timeout=10)  # end of input: the child exits and is reaped
 
 
+def test_fifo_priority_raises_host_and_child_and_restores_the_host() -> None:
+    """As root (or with CAP_SYS_NICE) both run SCHED_FIFO for the run; otherwise the status says why."""
+    import subprocess
+    import sys
+
+    from hilbench.bench.cpus import FifoPriority
+
+    before = os.sched_getscheduler(0)
+    child = subprocess.Popen([sys.executable, "-c", "import sys; sys.stdin.read()"], stdin=subprocess.PIPE)
+    try:
+        with FifoPriority([child.pid], 10) as priority:
+            if priority.status.startswith("normal scheduling (SCHED_FIFO 10: "):  # not permitted here
+                assert os.sched_getscheduler(0) == before
+            else:
+                assert priority.status == f"SCHED_FIFO 10: host, pid {child.pid}"
+                for pid in (0, child.pid):
+                    assert os.sched_getscheduler(pid) & ~os.SCHED_RESET_ON_FORK == os.SCHED_FIFO
+                    assert os.sched_getparam(pid).sched_priority == 10
+        assert os.sched_getscheduler(0) == before
+    finally:
+        child.communicate(b"", timeout=10)  # end of input: the child exits and is reaped
+
+
 def test_a_cpu_this_process_may_not_use_is_a_config_error() -> None:
     from hilbench.bench.cpus import CpuPinning
     from hilbench.errors import ConfigError
@@ -210,8 +233,12 @@ def test_realtime_run_pins_the_emulator_with_the_host(tmp_path: Path) -> None:
                                      target="emulator:an1017", mode="realtime", duration_s=0.2))
     before = os.sched_getaffinity(0)
     summary = run_bench(cfg)
-    assert summary.cpus.startswith("host and pid ") and summary.cpus.endswith(f"on CPU {max(before)}")
+    assert summary.cpus.startswith("host and pid ") and f"on CPU {max(before)}; " in summary.cpus
+    pid = summary.cpus.split()[3]
+    assert summary.cpus.endswith((f"SCHED_FIFO 10: host, pid {pid}", ")"))  # or why not, in parentheses
     assert os.sched_getaffinity(0) == before  # the caller's CPUs are back
-    no_pin = load_run_config(RunRequest(str(config), overrides=(f"link.period_us={PERIOD_US}", "link.pin_realtime=false"),
+    assert os.sched_getscheduler(0) == os.SCHED_OTHER  # and its scheduling
+    no_pin = load_run_config(RunRequest(str(config), overrides=(f"link.period_us={PERIOD_US}", "link.pin_realtime=false",
+                                                                "link.realtime_priority=0"),
                                         target="emulator:an1017", mode="realtime", duration_s=0.2))
     assert run_bench(no_pin).cpus == ""

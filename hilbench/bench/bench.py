@@ -28,7 +28,7 @@ import numpy as np
 
 from hilbench.version import __version__
 from hilbench.bench import settings
-from hilbench.bench.cpus import CpuPinning
+from hilbench.bench.cpus import CpuPinning, FifoPriority
 from hilbench.bench.assembly import BenchParts, build_bench, configured_profile, connect
 from hilbench.bench.recorder import MemoryRecorder, Recorder, read_recording
 from hilbench.bench.scenario import Event
@@ -108,7 +108,7 @@ class Bench:
         self._observer = observer
         self._control = control
         self._parts: BenchParts | None = None
-        self._pinning: CpuPinning | None = None
+        self._scheduling: list[CpuPinning | FifoPriority] = []  # a real-time run's CPU and priority, undone at close
         self.session: Session | None = None
         self.recorder: Recorder | MemoryRecorder | None = None
         self.warnings: list[str] = []  # what the caller should tell the user before the run
@@ -135,13 +135,22 @@ class Bench:
                 session.set_params(initial, 0.0, guard=False)
             self.recorder = self._make_recorder(hello, session, options.period_us)
             session.recorder = self.recorder
-            if options.mode == "realtime" and cfg.link.pin_realtime and handle.process is not None:
-                self._pinning = CpuPinning([handle.process.pid], cfg.link.realtime_cpu).__enter__()
+            if options.mode == "realtime":
+                self._schedule_realtime(handle.process)
             session.begin()
         except BaseException:
             self.close()
             raise
         return self
+
+    def _schedule_realtime(self, process: "subprocess.Popen[bytes] | None") -> None:
+        """This thread and the target process it started on one CPU, at SCHED_FIFO, as [link] asks."""
+        link = self.config.link
+        pids = [process.pid] if process is not None else []
+        if link.pin_realtime and pids:
+            self._scheduling.append(CpuPinning(pids, link.realtime_cpu).__enter__())
+        if link.realtime_priority > 0:
+            self._scheduling.append(FifoPriority(pids, link.realtime_priority).__enter__())
 
     def _make_recorder(self, hello: TargetHello, session: Session, period_us: int) -> Recorder | MemoryRecorder | None:
         cfg = self.config
@@ -169,12 +178,11 @@ class Bench:
         try:
             if self.session is not None and hasattr(self.session, "summary"):
                 summary = self.session.end()
-                if self._pinning is not None:
-                    summary.cpus = self._pinning.status
+                if self._scheduling:
+                    summary.cpus = "; ".join(held.status for held in self._scheduling)
         finally:
-            if self._pinning is not None:
-                self._pinning.__exit__(None, None, None)
-                self._pinning = None
+            while self._scheduling:
+                self._scheduling.pop().__exit__(None, None, None)
             if isinstance(self.recorder, Recorder) and not self.recorder.closed:
                 self.recorder.close("aborted")
             if self._parts is not None:

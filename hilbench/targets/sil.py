@@ -195,11 +195,12 @@ def build_avr(variant: Variant = "seed", defines: tuple[str, ...] = ()) -> Path:
     from hilbench.targets.starters import cached_build, need_tool, run_build
 
     avr_gcc = need_tool("simavr:an1017", "avr-gcc", "gcc-avr avr-libc")
-    sources = (AVR_DIR / "main.c", FIRMWARE_DIR / "an1017.c", *RUNTIME_SOURCES)
+    sources = (AVR_DIR / "main.c", RUNTIME_DIR / "ports" / "avr" / "hrt_avr.c", FIRMWARE_DIR / "an1017.c",
+               *RUNTIME_SOURCES)
     variant_define = "-DAN1017_VARIANT=" + ("AN1017_VARIANT_V11" if variant == "v11" else "AN1017_VARIANT_SEED")
     cmd = [avr_gcc, *AVR_CFLAGS, variant_define, *defines, f"-I{FIRMWARE_DIR}", f"-I{RUNTIME_DIR}",
            f"-I{PROTOCOL_DIR}", *(str(s) for s in sources)]
-    return cached_build("simavr", f"an1017_{variant}", [*sources, *HEADERS], cmd,
+    return cached_build("simavr", f"an1017_{variant}", [*sources, *HEADERS, RUNTIME_DIR / "ports" / "avr" / "hrt_avr.h"], cmd,
                         lambda out: run_build("simavr", "an1017", [*cmd, "-o", str(out)]))
 
 

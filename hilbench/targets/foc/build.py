@@ -57,7 +57,8 @@ def sil_sources() -> tuple[Path, ...]:
 
 
 def _headers() -> list[Path]:
-    return sorted(p for d in (FIRMWARE_DIR, RUNTIME_DIR, PROTOCOL_DIR) if d.is_dir() for p in d.glob("*.h"))
+    return sorted(p for d in (FIRMWARE_DIR, RUNTIME_DIR, RUNTIME_DIR / "ports" / "avr", PROTOCOL_DIR) if d.is_dir()
+                  for p in d.glob("*.h"))
 
 
 def build_sil(options: FocOptions = FocOptions()) -> Path:

@@ -18,97 +18,33 @@
  *   in MONITOR, and it accepts no other mode but the handshake's LOCKSTEP/REALTIME refusal below).
  *   run_motor.c is its pin-level harness: simavr with hilbench's plant on these pins.
  *
- * USART0 at F_CPU / (8 * (UBRR0 + 1)) with U2X0 (16 MHz, UBRR0 = 7: 250 000 baud, exact, the same
- * rate as the dsPIC30F2010 port). Its RX-complete interrupt feeds the receive state machine; the
- * main loop handles a complete frame and writes the reply by polling UDRE0. Timer1 (clk/8, 2 MHz)
- * with an overflow count is the free-running clock of real-time mode and the watchdog; its overflow
- * interrupt (every 32.8 ms) also wakes the sleeping main loop, so the watchdog is checked while no
- * bytes arrive.
+ * The UART, Timer1 (the free-running clock of real time and the watchdog), the main loop and, in the
+ * real-motor build, the interrupt masking are the runtime's AVR port (firmware/runtime/ports/avr/
+ * hrt_avr.c, linked with this file); here: the firmware's state, and the real-motor build's pins.
  */
 #include <avr/interrupt.h>
 #include <avr/io.h>
-#include <avr/sleep.h>
 
 #include "an1017.h"
 #include "hrt_link.h"
+#include "ports/avr/hrt_avr.h"
 
 #ifndef F_CPU
 #define F_CPU 16000000UL
 #endif
-#define UART_UBRR ((uint16_t)(F_CPU / 2000000UL - 1UL)) /* 250 000 baud with U2X0: 7 at 16 MHz, exact at any whole 2 MHz */
-#define TCY_PER_T1 (20000000UL / (F_CPU / 8UL)) /* Timer1 at clk/8 in the firmware's 20 MHz Tcy */
 #if 20000000UL % (F_CPU / 8UL) != 0UL
 #error "F_CPU / 8 must divide 20 MHz (16, 32, 40 or 80 MHz): Timer1 is the firmware's Tcy clock"
-#endif
-#if defined(USART0_RX_vect)
-#define UART_RX_VECT USART0_RX_vect /* ATmega2560 */
-#else
-#define UART_RX_VECT USART_RX_vect /* ATmega328P */
 #endif
 #if defined(HIL_MOTOR) && !HRT_MONITOR
 #error "the real-motor build needs HRT_MONITOR=1 (make MODE=motor sets it)"
 #endif
 
 static an1017_t fw;
-static hrt_link_t host_link;
-static volatile uint16_t timer1_overflows;
 
-ISR(UART_RX_VECT)
+hrt_t *hrt_firmware_init(void)
 {
-    (void)hrt_link_rx_byte(&host_link, UDR0);
-}
-
-ISR(TIMER1_OVF_vect)
-{
-    timer1_overflows = (uint16_t)(timer1_overflows + 1u);
-}
-
-void hrt_port_send(const uint8_t *wire, uint8_t len)
-{
-    uint8_t i;
-    for (i = 0u; i < len; i++) {
-        while (!(UCSR0A & (1u << UDRE0))) {
-        }
-        UDR0 = wire[i];
-    }
-}
-
-#if defined(HIL_MOTOR)
-/* The timer and hall interrupts run the firmware's bodies: the main loop holds them off. */
-void hrt_port_lock(void)
-{
-    cli();
-}
-
-void hrt_port_unlock(void)
-{
-    sei();
-}
-#else
-void hrt_port_lock(void)
-{
-    /* only the UART RX interrupt runs, and it touches no firmware state */
-}
-
-void hrt_port_unlock(void)
-{
-}
-#endif
-
-uint32_t hrt_port_now(void)
-{
-    uint16_t high;
-    uint16_t low;
-    uint8_t sreg = SREG;
-    cli();
-    low = TCNT1;
-    high = timer1_overflows;
-    if ((TIFR1 & (1u << TOV1)) && low < 0x8000u) {
-        high = (uint16_t)(high + 1u); /* an overflow not yet served */
-    }
-    SREG = sreg;
-    /* F_CPU / 8 ticks -> 20 MHz Tcy (16 MHz: x10) */
-    return (((uint32_t)high << 16) | low) * TCY_PER_T1;
+    an1017_init(&fw, AN1017_VARIANT);
+    return &fw.rt;
 }
 
 #if defined(HIL_MOTOR)
@@ -165,7 +101,7 @@ ISR(INT0_vect)
 ISR(INT1_vect, ISR_ALIASOF(INT0_vect));
 ISR(INT2_vect, ISR_ALIASOF(INT0_vect));
 
-static void init_motor(void)
+void hrt_avr_monitor_start(void)
 {
     DDRA = BRIDGE_ENABLE;
     PORTA = 0u;                                 /* bridge off */
@@ -187,41 +123,3 @@ static void init_motor(void)
     hrt_rt_enter(&fw.rt, 1u);
 }
 #endif
-
-int main(void)
-{
-    an1017_init(&fw, AN1017_VARIANT);
-    hrt_link_init(&host_link, &fw.rt);
-    UBRR0H = (uint8_t)(UART_UBRR >> 8);
-    UBRR0L = (uint8_t)(UART_UBRR & 0xFFu);
-    UCSR0A = (uint8_t)(1u << U2X0);
-    UCSR0C = (uint8_t)((1u << UCSZ01) | (1u << UCSZ00)); /* 8N1 */
-    UCSR0B = (uint8_t)((1u << RXEN0) | (1u << TXEN0) | (1u << RXCIE0));
-    TCCR1A = 0u;
-    TCCR1B = (uint8_t)(1u << CS11); /* clk/8 */
-    TIMSK1 = (uint8_t)(1u << TOIE1);
-#if defined(HIL_MOTOR)
-    init_motor();
-    sei();
-    for (;;) { /* the timers run the firmware (the PWM ISR writes the outputs every period, after a
-                * Start, a Stop or the watchdog too); the loop serves the host and streams. The
-                * firmware's main body (the board's S2 and the FLTA level) has no pin in this build:
-                * the host's Start and Stop are S2, the watchdog and Stop are the way to stop. */
-        hrt_link_poll(&host_link);
-        hrt_link_stream(&host_link);
-    }
-#endif
-    sei();
-    for (;;) {
-        hrt_link_poll(&host_link);
-        cli();
-        if (!host_link.rx.ready && host_link.mode != HBP_MODE_REALTIME) {
-            /* nothing to do until a byte arrives or Timer1 overflows: sleep (sei then sleep is atomic on AVR) */
-            sleep_enable();
-            sei();
-            sleep_cpu();
-            sleep_disable();
-        }
-        sei();
-    }
-}
