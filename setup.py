@@ -1,7 +1,8 @@
 """Build hook for the optional compiled cores: the plant (hilbench/plant/_plantcore.c), the
 AN1017 board firmware (firmware/an1017/an1017.c on the runtime firmware/runtime/hrt.c, behind the
 glue hilbench/targets/an1017/_core.c) and the F2812 FOC firmware (firmware/foc/*.c behind the glue
-hilbench/targets/foc/_core.c).
+hilbench/targets/foc/_core.c), the session's C span (hilbench/bench/_span.c) and the NPZ archive's
+background column writer (hilbench/bench/_npzcolumns.c).
 
 All metadata is in pyproject.toml. The extension is `optional`: without a C compiler
 `pip install .` still succeeds and hilbench.plant falls back to its pure-Python step
@@ -41,6 +42,13 @@ setup(
             include_dirs=GLUE + ["firmware_protocol"],
             depends=GLUE_HEADER + ["firmware_protocol/hbp.h", "firmware_protocol/hbp_messages.h"],
             extra_compile_args=_flags,
+            optional=True,
+        ),
+        Extension(  # an NPZ archive's columns written on a thread while the run goes on (the journal path is the reference)
+            "hilbench.bench._npzcolumns",
+            sources=["hilbench/bench/_npzcolumns.c"],
+            extra_compile_args=_flags + (["-pthread"] if sys.platform != "win32" else []),
+            extra_link_args=["-pthread"] if sys.platform != "win32" else [],
             optional=True,
         ),
         Extension(  # CSV rows in C (Recorder._format_csv is the reference)

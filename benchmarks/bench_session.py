@@ -7,11 +7,17 @@ periods/s and real-time factor at 20 kHz exchanges:
       hilbench/bench/_span.c run directly, nothing recorded, no part);
   (a) the firmware in-process with NPZ recording (the session's C span between events), the loop
       alone, the same with CSV recording, and the session's Python loop (HILBENCH_SESSION_SPAN=python);
+      and the NPZ run and the C floor per CPU second of the simulating thread (an extra figure: the
+      NPZ archive's columns are written by a thread of their own, whose CPU it leaves out; the
+      acceptance figure is the wall-clock one);
   the FOC on the 200 W servo: its C floor and in-process with NPZ recording;
   (b) the firmware as its own process on a pty: the Python emulator and the SIL build of the C
       firmware, and a raw two-process pty echo of the same frame sizes as their baseline;
-and ends with the ratios (issue 28's acceptance lines): in-process NPZ / C floor, CSV / NPZ,
-FOC NPZ / FOC C floor, emulator / raw echo, SIL / raw echo.
+and ends with the ratios (issue 28's acceptance lines, wall clock, in the same run): in-process NPZ /
+C floor, CSV / NPZ, FOC NPZ / FOC C floor, emulator / raw echo, SIL / raw echo; and one extra line,
+not an acceptance line: the NPZ run's and the C floor's periods per CPU second of the simulating
+thread (the recording's own thread left out). Each NPZ run records to a fresh path (the previous
+repeat's file removed before timing).
 
 With ``--baseline-python PY`` it also runs (a) under another installation of hilbench (e.g. the
 commit before a change, installed in its own venv), interleaved with this one, and prints the
@@ -84,23 +90,27 @@ def _session(handle: object, spec: str, seconds: float | None, config: Path | No
 
 
 def closed_loop(spec: str, seconds: float, record_dir: str, fmt: str, *, config: Path | None = None,
-                c_span: bool = True) -> tuple[float, str, float, float]:
+                c_span: bool = True) -> tuple[float, str, float, float, float]:
     """Periods/s of one lockstep run against ``spec``, every period recorded to ``fmt``.
 
     Returns (periods/s including closing the recording, plant backend, periods/s of the loop alone,
     periods per CPU second of this process including the close: time the machine's other load took
-    from it left out).
+    from it left out, periods per CPU second of the simulating thread alone: the recording's own
+    thread left out, as on a machine with a CPU free for it).
     """
     events = foc_scenario(seconds) if config == SERVO else scenario(seconds)
+    path = Path(record_dir) / f"bench.{fmt}"
+    path.unlink(missing_ok=True)  # the last repeat's recording: freeing its pages is not this run's work
     with open_target(spec, timeout_s=2.0) as handle:
-        recorder = Recorder(Path(record_dir) / f"bench.{fmt}", {"bench": True}, flush_rows=20_000)
+        recorder = Recorder(path, {"bench": True}, flush_rows=20_000)
         session, plant = _session(handle, spec, seconds, config, events, recorder)
         session.c_span = c_span
-        t0, cpu0 = time.perf_counter(), time.process_time()
+        t0, cpu0, thread0 = time.perf_counter(), time.process_time(), time.thread_time()
         summary = session.run()
         elapsed, cpu = time.perf_counter() - t0, time.process_time() - cpu0
+        thread = time.thread_time() - thread0
     return (summary.periods / elapsed, getattr(plant, "backend", "python"), summary.periods / summary.wall_s,
-            summary.periods / cpu if cpu > 0 else float("nan"))
+            summary.periods / cpu if cpu > 0 else float("nan"), summary.periods / thread if thread > 0 else float("nan"))
 
 
 def warm_up(record_dir: str) -> None:
@@ -111,23 +121,26 @@ def warm_up(record_dir: str) -> None:
     closed_loop("inprocess:an1017", 0.01, record_dir, "npz")
 
 
-def c_floor(spec: str, seconds: float, *, config: Path | None = None) -> float:
+def c_floor(spec: str, seconds: float, *, config: Path | None = None, thread_cpu: list[float] | None = None) -> float:
     """Periods/s of the plant's and the firmware's C steps alone: a session brought to speed (its
-    scenario's start), then its C span run directly for ``seconds`` with nothing recorded."""
+    scenario's start), then its C span run directly for ``seconds`` with nothing recorded (and the
+    periods per CPU second of this thread appended to ``thread_cpu``)."""
     warm_s = 0.3 if config == SERVO else 0.05
     events = foc_scenario(warm_s + seconds) if config == SERVO else scenario(warm_s + seconds)
     with open_target(spec, timeout_s=2.0) as handle:
         session, _ = _session(handle, spec, None, config, events, None)
         session.begin()
         session.advance(int(warm_s * 1e6 / PERIOD_US))
-        span = session._c_span(None)
+        span = session._c_span(None, sampled=False)
         if span is None:
             raise SystemExit(f"{spec}: no C span here (the C cores are not built)")
         k, n = session.periods_done, int(seconds * 1e6 / PERIOD_US)
-        t0 = time.perf_counter()
+        t0, thread0 = time.perf_counter(), time.thread_time()
         done = span.run(k, k + n, session.scenario.buttons, session.ref_rpm, session._edge_s, session.drive,
                         session._hall_before) - k
-        elapsed = time.perf_counter() - t0
+        elapsed, thread = time.perf_counter() - t0, time.thread_time() - thread0
+        if thread_cpu is not None:
+            thread_cpu.append(n / thread if thread > 0 else float("nan"))
         session.end()
     if done < n:
         raise SystemExit(f"{spec}: the C floor's span stopped after {done} of {n} periods (the comparator tripped, or too many edges)")
@@ -192,7 +205,7 @@ def main() -> None:
     if args.measure_inprocess:  # one (a) figure for --baseline-python, as JSON
         with tempfile.TemporaryDirectory() as tmp:
             warm_up(tmp)
-            rate, _, loop_rate, cpu_rate = closed_loop("inprocess:an1017", args.seconds, tmp, "npz")
+            rate, _, loop_rate, cpu_rate, _ = closed_loop("inprocess:an1017", args.seconds, tmp, "npz")
             print(json.dumps({"rate": rate, "loop_rate": loop_rate, "cpu_rate": cpu_rate}))
         return
     if args.baseline_python:
@@ -217,7 +230,7 @@ def run_paths(args: argparse.Namespace) -> None:
     from bench_sil import emulator_loop, sil_loop
 
     sensors_len, drive_len = frame_sizes()
-    names = ("floor", "npz", "npz_loop", "csv", "python", "foc_floor", "foc_npz") + (
+    names = ("floor", "npz", "npz_loop", "csv", "python", "foc_floor", "foc_npz", "floor_thread", "npz_thread") + (
         () if args.no_process else ("emulator", "sil", "raw"))
     rates: dict[str, list[float]] = {name: [] for name in names}
     backend = "?"
@@ -230,10 +243,11 @@ def run_paths(args: argparse.Namespace) -> None:
     with tempfile.TemporaryDirectory() as tmp:
         warm_up(tmp)
         for _ in range(args.repeats):  # interleaved, so drifts in machine load hit every figure alike
-            rates["floor"].append(c_floor("inprocess:an1017", seconds))
-            rate, backend, loop_rate, _ = closed_loop("inprocess:an1017", seconds, tmp, "npz")
+            rates["floor"].append(c_floor("inprocess:an1017", seconds, thread_cpu=rates["floor_thread"]))
+            rate, backend, loop_rate, _, thread_rate = closed_loop("inprocess:an1017", seconds, tmp, "npz")
             rates["npz"].append(rate)
             rates["npz_loop"].append(loop_rate)
+            rates["npz_thread"].append(thread_rate)
             rates["csv"].append(closed_loop("inprocess:an1017", seconds, tmp, "csv")[0])
             rates["python"].append(closed_loop("inprocess:an1017", seconds, tmp, "npz", c_span=False)[0])
             rates["foc_floor"].append(c_floor("inprocess:foc", seconds, config=SERVO))
@@ -254,6 +268,8 @@ def run_paths(args: argparse.Namespace) -> None:
     line("C floor AN1017 (plant + firmware C)", "floor", " (no session, nothing recorded)")
     line("(a) in-process AN1017, NPZ recording", "npz", " (goal >= 50x, >= 70 % of the floor)")
     line("    the same, loop only", "npz_loop", " (without writing the final .npz)")
+    line("    the same, per CPU s of its thread", "npz_thread", " (the recording's thread and other load left out)")
+    line("    C floor, per CPU s of its thread", "floor_thread")
     line("    in-process AN1017, CSV recording", "csv", " (goal >= 60 % of NPZ)")
     line("    the session's Python loop, NPZ", "python", " (HILBENCH_SESSION_SPAN=python: the reference)")
     line("C floor FOC (servo, plant + firmware C)", "foc_floor")
@@ -263,6 +279,8 @@ def run_paths(args: argparse.Namespace) -> None:
         line("    SIL firmware process on a pty", "sil")
         line(f"    raw pty echo {sensors_len}/{drive_len} B", "raw", " (round trips)")
     print(f"ratio in-process NPZ / C floor: {med['npz'] / med['floor']:.2f}")
+    print(f"extra, not an acceptance line: periods per CPU s of the simulating thread, NPZ run / C floor "
+          f"{med['npz_thread'] / med['floor_thread']:.2f} (the recording's thread's CPU left out; no wall clock)")
     print(f"ratio in-process CSV / NPZ: {med['csv'] / med['npz']:.2f}")
     print(f"ratio in-process NPZ C span / Python loop: {med['npz'] / med['python']:.2f}")
     print(f"ratio FOC NPZ / FOC C floor: {med['foc_npz'] / med['foc_floor']:.2f}")

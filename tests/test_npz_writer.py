@@ -5,6 +5,7 @@
 from __future__ import annotations
 
 import errno
+import json
 import os
 import resource
 import subprocess
@@ -178,3 +179,465 @@ def test_members_beyond_4_gib_are_found_by_zip64(tmp_path: Path, monkeypatch: py
             assert np.frombuffer(member.read(16), "<f8").tolist() == [-1.0, -2.0]
     with np.load(path, allow_pickle=False) as npz:
         assert str(npz["metadata"]) == '{"k": 1}'  # read whole: its CRC, beyond 4 GiB, checked
+
+
+# ------------------------------------------------------------------ the archive written while the run goes on
+needs_writer = pytest.mark.skipif(npzwriter._npzcolumns is None, reason="the background column writer is not built")
+#: the reference's conversions of random bit patterns (signalling NaNs, overflows) warn; the values are the point
+hostile_values = pytest.mark.filterwarnings("ignore::RuntimeWarning")
+
+
+def _every_code_layout() -> recorder_module.RowLayout:
+    """A row of every struct code a layout may use, scaled, unscaled, NaN-scaled and wrapped columns."""
+    fields = (("k", "Q"), ("b", "B"), ("h", "h"), ("hu", "H"), ("i", "i"), ("iu", "I"), ("q", "q"), ("f", "f"),
+              ("d", "d"), ("marker", "B"))
+    columns = (("t_s", "s", "%.6f", "k", 5e-5), ("b", "", "%d", "b", 1.0), ("h", "", "%d", "h", 0.1),
+               ("hu", "", "%d", "hu", 1.0), ("i", "", "%d", "i", 1.5), ("iu", "", "%d", "iu", 1.0),
+               ("q", "", "%d", "q", 3.0), ("f", "", "%g", "f", 1.0), ("d", "", "%g", "d", 57.29577951308232),
+               ("nan", "", "%g", "i", float("nan")), ("deg", "deg", "%.3f", "d", 57.29577951308232),
+               ("neg", "", "%g", "q", -1.0), ("marker", "", "%d", "marker", 1.0))
+    return recorder_module.RowLayout(fields, columns, wrap=(("deg", 360.0), ("neg", 7.0)))
+
+
+def _hostile_rows(layout: recorder_module.RowLayout, n_rows: int, seed: int) -> bytes:
+    """Random raw bytes (every integer, every double bit pattern: NaN, inf, subnormals, huge) with
+    some doubles that land on the wrap's edges (multiples, tiny negatives)."""
+    rng = np.random.default_rng(seed)
+    rows = np.frombuffer(rng.bytes(n_rows * layout.dtype.itemsize), dtype=layout.dtype).copy()
+    edges = np.array([0.0, -0.0, 360.0 / 57.29577951308232, -1e-300, 1e300, -720.0, np.inf, -np.inf, np.nan, 2.5])
+    rows["d"][::3] = rng.choice(edges, size=len(rows["d"][::3]))
+    rows["q"][::5] = rng.choice([0, -7, 7, -1, 14, -(2**63), 2**63 - 1], size=len(rows["q"][::5]))
+    rows["marker"] = rng.integers(0, 4, size=n_rows)
+    rows["k"] = np.arange(n_rows)  # the time column increases (read_recording checks it)
+    return rows.tobytes()
+
+
+def _record(path: Path, layout: recorder_module.RowLayout, raw: bytes, plan: int | None, *, flush_rows: int = 1000,
+            mark_last: bool = False) -> recorder_module.Recorder:
+    """A recording of ``raw`` rows appended a few at a time (the session's `maybe_flush` after each
+    few), its background archive planned for ``plan`` rows (None: none)."""
+    rec = recorder_module.Recorder(path, {"layout": "every code"}, flush_rows=flush_rows)
+    rec.start(layout)
+    if plan is not None:
+        rec.expect_rows(plan)
+    size = layout.dtype.itemsize
+    for first in range(0, len(raw) // size, 37):
+        rec.rows.extend(raw[first * size:(first + 37) * size])
+        if first % 111 == 0:
+            rec.event(f"note at {first}", recorder_module.MARKER_EVENT)
+        rec.maybe_flush()
+    if mark_last:
+        rec.mark_last(recorder_module.MARKER_FAULT)
+    rec.close("end")
+    return rec
+
+
+@needs_writer
+@hostile_values
+@pytest.mark.parametrize("n_rows", [0, 1, 4095, 4096, 10_000, 23_456])
+def test_the_archive_written_while_the_run_goes_on_is_the_journals_byte_for_byte(
+        tmp_path: Path, monkeypatch: pytest.MonkeyPatch, n_rows: int) -> None:
+    """Every struct code, NaN and infinite scales and values, wrapped columns (numpy.mod's sign and
+    edges), markers and events: the background archive's bytes equal the archive written from the
+    journal (the reference), and numpy reads the values `RowLayout.to_columns` gives."""
+    monkeypatch.setattr(recorder_module, "BACKGROUND_CHUNK_ROWS", 300)  # many hand-overs between flushes
+    layout = _every_code_layout()
+    raw = _hostile_rows(layout, n_rows, seed=n_rows)
+    finished = []
+    real_finish = npzwriter.BackgroundArchive.finish
+
+    def spy(self: npzwriter.BackgroundArchive, metadata: np.ndarray) -> bool:
+        finished.append(real_finish(self, metadata))
+        return finished[-1]
+
+    monkeypatch.setattr(npzwriter.BackgroundArchive, "finish", spy)
+    _record(tmp_path / "bg.npz", layout, raw, n_rows)
+    _record(tmp_path / "ref.npz", layout, raw, None)
+    assert finished == ([True] if n_rows else [])  # (no rows: nothing to plan)
+    assert (tmp_path / "bg.npz").read_bytes() == (tmp_path / "ref.npz").read_bytes()
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["bg.npz", "ref.npz"]
+    data = read_recording(tmp_path / "bg.npz")
+    with np.errstate(all="ignore"):
+        expected = layout.to_columns(np.frombuffer(raw, dtype=layout.dtype).copy())
+    for name in layout.column_names:
+        if name != "marker":
+            np.testing.assert_array_equal(data.columns[name], expected[name], err_msg=name)
+
+
+@needs_writer
+@hostile_values
+@pytest.mark.parametrize("plan, mark_last", [(9_000, False), (11_000, False), (10_000, True)])
+def test_a_run_that_ends_otherwise_than_planned_gets_the_journals_archive(tmp_path: Path, monkeypatch: pytest.MonkeyPatch,
+                                                                           plan: int, mark_last: bool) -> None:
+    """Fewer rows than planned, more, or a fault marker on a row already handed over (every row is
+    handed at once here): the archive is written from the journal at the close (the same bytes as
+    without a plan, the marker in it), nothing else left."""
+    monkeypatch.setattr(recorder_module, "BACKGROUND_CHUNK_ROWS", 1 if mark_last else 200)
+    layout = _every_code_layout()
+    raw = _hostile_rows(layout, 10_000, seed=3)
+    finished = []
+    real_finish = npzwriter.BackgroundArchive.finish
+    monkeypatch.setattr(npzwriter.BackgroundArchive, "finish",
+                        lambda self, metadata: finished.append(real_finish(self, metadata)) or finished[-1])
+    _record(tmp_path / "bg.npz", layout, raw, plan, flush_rows=20_000, mark_last=mark_last)
+    _record(tmp_path / "ref.npz", layout, raw, None, flush_rows=20_000, mark_last=mark_last)
+    assert finished == [False]
+    assert (tmp_path / "bg.npz").read_bytes() == (tmp_path / "ref.npz").read_bytes()
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["bg.npz", "ref.npz"]
+    if mark_last:
+        assert read_recording(tmp_path / "bg.npz").columns["marker"][-1] == recorder_module.MARKER_FAULT
+
+
+def _threads() -> int:
+    return len(os.listdir("/proc/self/task"))
+
+
+@needs_writer
+@hostile_values
+def test_a_write_that_fails_on_the_thread_falls_back_and_every_thread_is_joined(tmp_path: Path) -> None:
+    """The thread's pwrite fails (its descriptor made read-only under it: EBADF): the close writes
+    the archive from the journal, which still has every row; no thread is left, nor the unfinished
+    archive."""
+    layout = _every_code_layout()
+    raw = _hostile_rows(layout, 5000, seed=4)
+    before = _threads()
+    rec = recorder_module.Recorder(tmp_path / "bg.npz", {}, flush_rows=100_000)
+    rec.start(layout)
+    rec.expect_rows(5000)
+    background = rec._background
+    assert background is not None and _threads() == before + 1
+    read_only = os.open(tmp_path / "bg.npz.journal", os.O_RDONLY)
+    os.dup2(read_only, background._archive._fd)  # the thread's writes now fail
+    os.close(read_only)
+    size = layout.dtype.itemsize
+    for first in range(0, 5000, 1000):
+        rec.rows.extend(raw[first * size:(first + 1000) * size])
+        rec._hand_over()
+    rec.close("end")
+    assert background.given_up and isinstance(background.failed, OSError) and background.failed.errno == errno.EBADF
+    assert _threads() == before
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["bg.npz"]
+    data = read_recording(tmp_path / "bg.npz")
+    with np.errstate(all="ignore"):
+        expected = layout.to_columns(np.frombuffer(raw, dtype=layout.dtype).copy())
+    np.testing.assert_array_equal(data.columns["d"], expected["d"])
+
+
+@needs_writer
+def test_a_killed_runs_journal_reads_and_its_unfinished_archive_goes_with_the_next_run(tmp_path: Path) -> None:
+    """A run killed while its archive was being written: the journal is the recording (read as
+    before); the unfinished archive beside it is removed when the next run records to that path."""
+    script = (
+        "import os, sys, numpy as np\n"
+        "from hilbench.bench import recorder as r\n"
+        "rec = r.Recorder(sys.argv[1], {'killed': True}, flush_rows=1000)\n"
+        "rec.start(r.float_layout(r.COLUMNS))\n"
+        "rec.expect_rows(10_000)\n"
+        "for k in range(5_000):\n"
+        "    rec.append([k * 5e-5] + [float(k)] * (r.N_COLUMNS - 1))\n"
+        "    rec.maybe_flush()\n"
+        "os.kill(os.getpid(), 9)\n"
+    )
+    path = tmp_path / "run.npz"
+    done = subprocess.run([sys.executable, "-c", script, str(path)], capture_output=True, timeout=120)
+    assert done.returncode == -9
+    assert (tmp_path / "run.npz.tmp.npz").exists() and not path.exists()
+    data = read_recording(path)  # the journal
+    assert data.n_rows == 5_000 and data.metadata["killed"] is True
+    np.testing.assert_array_equal(data.columns["seq"], np.arange(5_000.0))
+    recorder_module.Recorder(path, {}).close()
+    assert not (tmp_path / "run.npz.tmp.npz").exists()
+
+
+@needs_writer
+def test_a_planned_session_run_writes_its_archive_while_it_runs(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """`hilbench run`'s path (a session run to its planned end): the archive comes from the thread,
+    and equals the one the journal gives."""
+    finished = []
+    real_finish = npzwriter.BackgroundArchive.finish
+    monkeypatch.setattr(npzwriter.BackgroundArchive, "finish",
+                        lambda self, metadata: finished.append(real_finish(self, metadata)) or finished[-1])
+    paths = []
+    for name, writer in (("bg.npz", npzwriter._npzcolumns), ("ref.npz", None)):
+        monkeypatch.setattr(npzwriter, "_npzcolumns", writer)
+        cfg = hilbench.load_config(None, ['link.target="inprocess:an1017"', "run.duration_s=0.6"])
+        with hilbench.Bench(cfg, scenario=True, record=tmp_path / name) as bench:
+            bench.run()
+        paths.append(tmp_path / name)
+    assert finished == [True]
+    assert paths[0].read_bytes() == paths[1].read_bytes()
+    assert read_recording(paths[0]).n_rows == 12_000
+
+
+_FULL_DISK_RUN = (
+    "import json, os, sys, hilbench\n"
+    "disk = sys.argv[1]\n"
+    "path = os.path.join(disk, 'run.npz')\n"
+    "cfg = hilbench.load_config(None, ['link.target=\"inprocess:an1017\"', 'run.duration_s=1.0'])\n"
+    "error = ''\n"
+    "try:\n"
+    "    with hilbench.Bench(cfg, scenario=True, record=path) as bench:\n"
+    "        bench.run()\n"
+    "except hilbench.HilbenchError as exc:\n"
+    "    error = str(exc)\n"
+    "data = hilbench.read_recording(path if os.path.exists(path) else path + '.journal')\n"
+    "print(json.dumps({'error': error, 'rows': data.n_rows, 'columns': len(data.columns),\n"
+    "                  'files': sorted(os.listdir(disk)), 'journal_bytes': os.path.getsize(path + '.journal')}))\n"
+)
+
+
+@needs_writer
+def test_a_full_disk_gives_the_background_archive_up_and_the_journal_keeps_every_row(tmp_path: Path) -> None:
+    """A 4 MiB tmpfs of its own (unshare -rm): the journal of a 1 s run fits, the journal and the
+    archive growing beside it do not. The journal's write that fails gives the archive up (its
+    blocks freed) and is written again: every row is kept, the close says the archive could not
+    be written and where the rows are, no unfinished archive is left (the journal lost a third of
+    the rows when the archive kept its blocks)."""
+    from _firmware import require_tool
+
+    unshare = require_tool("unshare", "a full disk: a small tmpfs in a namespace of its own")
+    if subprocess.run([unshare, "-rm", "true"], capture_output=True, timeout=60).returncode != 0:
+        pytest.skip("unshare -rm is not permitted here (no user namespaces): no tmpfs of the test's own")
+    disk = tmp_path / "disk"
+    disk.mkdir()
+    size = 4 << 20
+    done = subprocess.run([unshare, "-rm", "sh", "-c", f'mount -t tmpfs -o size={size} tmpfs "$1" && exec "$2" -c "$3" "$1"',
+                           "sh", str(disk), sys.executable, _FULL_DISK_RUN], capture_output=True, text=True, timeout=600)
+    assert done.returncode == 0, done.stderr[-2000:]
+    out = json.loads(done.stdout.strip().splitlines()[-1])
+    archive_bytes = 8 * out["rows"] * out["columns"]
+    assert out["journal_bytes"] + 64 * 1024 < size < out["journal_bytes"] + archive_bytes  # the case: both do not fit
+    assert out["rows"] == 20_000, out
+    assert "archive could not be written" in out["error"] and "every row is kept" in out["error"], out
+    assert out["files"] == ["run.npz.journal", "run.npz.journal.events"], out
+
+
+@needs_writer
+@hostile_values
+def test_a_failed_journal_write_is_written_again_where_it_belongs(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """A journal write that fails (ENOSPC) after stray bytes landed: the background archive is given
+    up and removed, the write is done again at the rows' place (the stray bytes cut off), and the
+    archive the close writes from the journal equals the one of a run that never failed."""
+    layout = _every_code_layout()
+    raw = _hostile_rows(layout, 10_000, seed=8)
+    monkeypatch.setattr(recorder_module, "BACKGROUND_CHUNK_ROWS", 500)
+    real = recorder_module.Recorder._pwrite_rows
+    calls, seen = [], []
+
+    def fails_once(self: recorder_module.Recorder, first: int, end: int, offset: int) -> None:
+        calls.append(offset)
+        if len(calls) == 5:
+            seen.append(self._background)
+            os.pwrite(self._file.fileno(), b"\xee" * 7777, offset)  # stray bytes past the rows' end too
+            raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC))
+        real(self, first, end, offset)
+
+    monkeypatch.setattr(recorder_module.Recorder, "_pwrite_rows", fails_once)
+    _record(tmp_path / "bg.npz", layout, raw, 10_000, flush_rows=3000)
+    monkeypatch.undo()
+    _record(tmp_path / "ref.npz", layout, raw, None, flush_rows=3000)
+    assert len(calls) > 6 and calls[4] == calls[5]  # the failed write, again at its place
+    assert seen[0] is not None and seen[0].given_up
+    assert (tmp_path / "bg.npz").read_bytes() == (tmp_path / "ref.npz").read_bytes()
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["bg.npz", "ref.npz"]
+
+
+@needs_writer
+@pytest.mark.parametrize("mode", ["lockstep", "realtime"])
+def test_a_real_time_run_plans_no_background_archive(tmp_path: Path, monkeypatch: pytest.MonkeyPatch, mode: str) -> None:
+    """In real time the writer's thread would run on the CPU the run is pinned to (it inherits the
+    affinity), beside the paced thread: a real-time run writes its archive from the journal at the
+    close; a lockstep run of the same plan has its archive written while it runs."""
+    from hilbench.bench.launcher import open_target
+    from hilbench.bench.scenario import Event
+    from hilbench.bench.session import Session, SessionOptions
+    from hilbench.bench.settings import load_config
+    from hilbench.config import plant_params_from_config
+    from hilbench.plant.model import Plant
+
+    planned: list[int] = []
+    real_init = npzwriter.BackgroundArchive.__init__
+
+    def spy(self: npzwriter.BackgroundArchive, path: Path, layout: recorder_module.RowLayout, n_rows: int,
+            *rest: object) -> None:
+        planned.append(n_rows)
+        real_init(self, path, layout, n_rows, *rest)  # type: ignore[arg-type]
+
+    monkeypatch.setattr(npzwriter.BackgroundArchive, "__init__", spy)
+    cfg = load_config(None)
+    options = SessionOptions(period_us=1000, mode=mode, duration_s=0.03, cpu_latency_qos=False)  # type: ignore[arg-type]
+    recorder = recorder_module.Recorder(tmp_path / "run.npz", {})
+    with open_target("inprocess:an1017", timeout_s=2.0) as handle:
+        session = Session(handle.target, Plant(plant_params_from_config(cfg), seed=0), (Event(at_s=0.0, ref_rpm=1000.0),),
+                          options, recorder=recorder, target_label="in-process")
+        session.run()
+    assert planned == ([] if mode == "realtime" else [30])
+    assert read_recording(tmp_path / "run.npz").n_rows == 30
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["run.npz"]
+
+
+@needs_writer
+@pytest.mark.parametrize("error", [ValueError("a column the writer refuses"), RuntimeError("no thread"), MemoryError()])
+def test_a_background_archive_that_cannot_start_leaves_the_run_to_the_journal(tmp_path: Path, monkeypatch: pytest.MonkeyPatch,
+                                                                              error: Exception) -> None:
+    """Whatever the background archive raises when it is set up (before the run's first period, outside
+    the run's own error handling): the run goes on without it, its archive written from the journal
+    at the close, every row there, nothing left beside it."""
+    def broken(self: npzwriter.BackgroundArchive, path: Path, *rest: object) -> None:
+        path.write_bytes(b"half made")
+        raise error
+
+    monkeypatch.setattr(npzwriter.BackgroundArchive, "__init__", broken)
+    cfg = hilbench.load_config(None, ['link.target="inprocess:an1017"', "run.duration_s=0.3"])
+    with hilbench.Bench(cfg, scenario=True, record=tmp_path / "run.npz") as bench:
+        bench.run()
+    assert read_recording(tmp_path / "run.npz").n_rows == 6000
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["run.npz"]
+
+
+def test_a_write_that_writes_nothing_is_an_error_not_a_loop(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """A pwrite that returns 0 for a non-empty piece (nothing written, no errno) is EIO: the write
+    loop tried it again without end. (The C writer's pwrite_all has the same check; no file here
+    makes pwrite return 0, so it is not exercised.)"""
+    archive = ColumnArchive(tmp_path / "x.npz", ["a"], 10)
+    calls: list[int] = []
+
+    def writes_nothing(fd: int, data: bytes, offset: int) -> int:
+        calls.append(offset)
+        if len(calls) > 100:
+            raise RuntimeError("the write loop goes on without end")
+        return 0
+
+    monkeypatch.setattr(os, "pwrite", writes_nothing)
+    with pytest.raises(OSError) as info:
+        archive.write(0, {"a": np.zeros(10)})
+    monkeypatch.undo()
+    archive.abandon()
+    assert info.value.errno == errno.EIO and len(calls) == 1
+
+
+def _endless_writer() -> tuple[object, list[int], str]:
+    """A column writer whose thread has rows for a long while (zeros from /dev/zero to /dev/null),
+    its descriptors and its thread's id."""
+    fds = [os.open("/dev/null", os.O_WRONLY | os.O_CLOEXEC), os.open("/dev/zero", os.O_RDONLY | os.O_CLOEXEC)]
+    before = set(os.listdir("/proc/self/task"))
+    writer = npzwriter._npzcolumns.ColumnWriter(fds[0], fds[1], 0, 8, [(0, "d", 1.0, 0.0, 16, 0)], b"h" * 16)
+    new = set(os.listdir("/proc/self/task")) - before
+    assert len(new) == 1
+    return writer, fds, new.pop()
+
+
+def _thread_ended(tid: str, timeout_s: float = 30.0) -> bool:
+    """Whether the thread is gone from /proc (joined, it may linger there for a moment)."""
+    import time
+
+    deadline = time.monotonic() + timeout_s
+    while os.path.exists(f"/proc/self/task/{tid}"):
+        if time.monotonic() > deadline:
+            return False
+        time.sleep(0.01)
+    return True
+
+
+@needs_writer
+def test_the_writer_thread_blocks_every_signal() -> None:
+    """The writer's thread is created with every signal blocked: Ctrl-C, a timer or a child's end is
+    the Python thread's to handle, never an EINTR or a handler on the writer."""
+    import signal
+
+    import time
+
+    writer, fds, tid = _endless_writer()
+    try:
+        deadline = time.monotonic() + 30.0  # the thread runs its own code (SCHED_BATCH, its first act):
+        while os.sched_getscheduler(int(tid)) != os.SCHED_BATCH:  # its start (all blocked) is over
+            assert time.monotonic() < deadline, "the writer's thread did not start"
+            time.sleep(0.01)
+        status = Path(f"/proc/self/task/{tid}/status").read_text()
+        blocked = int(next(line.split()[1] for line in status.splitlines() if line.startswith("SigBlk:")), 16)
+        for sig in (signal.SIGINT, signal.SIGTERM, signal.SIGHUP, signal.SIGALRM, signal.SIGCHLD, signal.SIGUSR1,
+                    signal.SIGPIPE):
+            assert blocked >> (sig - 1) & 1, f"{sig!r} not blocked (SigBlk {blocked:#x})"
+    finally:
+        writer.abandon()  # type: ignore[attr-defined]
+        for fd in fds:
+            os.close(fd)
+
+
+@needs_writer
+def test_ctrl_c_while_the_writer_finishes_drops_its_rows_and_joins_its_thread() -> None:
+    """`finish` waits for the thread to write every row handed over; Ctrl-C in that wait ends it
+    (KeyboardInterrupt, the rest dropped, the thread joined) instead of waiting it out. SIGINT is
+    sent every 50 ms until one lands inside `finish` (one landing before it is raised there: finish
+    is called again)."""
+    import signal
+    import threading
+
+    total = 2**31  # zeros the thread takes some seconds to write: the wait is still on when SIGINT comes
+    state = {"raise": True}
+
+    def on_sigint(signum: int, frame: object) -> None:
+        if state["raise"]:
+            state["raise"] = False
+            raise KeyboardInterrupt
+
+    writer, fds, tid = _endless_writer()
+    writer.submit(total)  # type: ignore[attr-defined]
+    stop = threading.Event()
+    sender = threading.Thread(target=lambda: [os.kill(os.getpid(), signal.SIGINT) for _ in iter(lambda: stop.wait(0.05), True)])
+    previous = signal.signal(signal.SIGINT, on_sigint)
+    try:
+        sender.start()
+        for _ in range(1000):
+            try:
+                writer.finish()  # type: ignore[attr-defined]
+                break  # (without the wait's signal check: every row written, then the interrupt)
+            except KeyboardInterrupt:
+                if writer.rows_done is not None:  # type: ignore[attr-defined]
+                    break  # raised inside finish, the thread joined
+                state["raise"] = True  # raised before finish began: again
+    finally:
+        state["raise"] = False
+        stop.set()
+        sender.join(timeout=60)
+        signal.signal(signal.SIGINT, previous)
+        writer.abandon()  # type: ignore[attr-defined]
+        for fd in fds:
+            os.close(fd)
+    assert writer.rows_done is not None and writer.rows_done < total  # type: ignore[attr-defined]
+    assert _thread_ended(tid)
+
+
+@needs_writer
+@hostile_values
+def test_ctrl_c_while_the_close_finishes_the_archive_leaves_the_journal(tmp_path: Path) -> None:
+    """Ctrl-C while the close waits for the writer's last rows: the archive is given up (its thread
+    joined, its unfinished file removed), the interrupt propagates, the journal keeps every row."""
+    layout = _every_code_layout()
+    raw = _hostile_rows(layout, 5000, seed=9)
+    path = tmp_path / "bg.npz"
+    rec = recorder_module.Recorder(path, {}, flush_rows=100_000)
+    rec.start(layout)
+    rec.expect_rows(5000)
+    background = rec._background
+    assert background is not None
+    writer = background._writer
+
+    class Interrupted:  # the writer's finish as Ctrl-C in its wait ends it
+        def submit(self, n_rows: int) -> None:
+            writer.submit(n_rows)
+
+        def finish(self) -> None:
+            writer.abandon()
+            raise KeyboardInterrupt
+
+        def abandon(self) -> None:
+            writer.abandon()
+
+    background._writer = Interrupted()
+    rec.rows.extend(raw)
+    with pytest.raises(KeyboardInterrupt):
+        rec.close("end")
+    assert background.given_up
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["bg.npz.journal", "bg.npz.journal.events"]
+    assert read_recording(path).n_rows == 5000

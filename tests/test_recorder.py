@@ -174,6 +174,20 @@ def test_a_layout_set_after_rows_were_appended_is_refused(tmp_path: Path) -> Non
         rec.start(_raw_layout())
 
 
+@pytest.mark.parametrize("wrap", [(("theta", 0.0),), (("theta", -360.0),), (("theta", float("nan")),),
+                                  (("theta", float("inf")),), (("theta", 360.0), ("theta", 180.0))])
+def test_a_layout_refuses_a_wrap_two_conversions_would_read_otherwise(wrap: tuple[tuple[str, float], ...]) -> None:
+    """A wrap's modulo must be positive and finite, and a column wrapped once: numpy.mod by 0 or a
+    negative modulo, or a column wrapped twice (to_column applies every entry, the archive's C
+    writer one), gave the journal's and the background archive's columns two readings."""
+    base = _raw_layout()
+    fields = (*base.fields, ("angle", "d"))
+    columns = (*base.columns, ("theta", "deg", "%.3f", "angle", 1.0))
+    RowLayout(fields, columns, wrap=(("theta", 360.0),))  # the reference: fine
+    with pytest.raises(ValueError, match="positive, finite modulo and one entry a column"):
+        RowLayout(fields, columns, wrap=wrap)
+
+
 @pytest.mark.parametrize("suffix", [".csv", ".npz"])
 def test_a_fault_marker_wins_over_an_event_on_the_same_row(tmp_path: Path, suffix: str) -> None:
     path = tmp_path / f"run{suffix}"

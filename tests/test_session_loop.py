@@ -40,9 +40,11 @@ def _run(readable: bool, target: str, config: Path | None, scenario: Path | None
         return {name: np.asarray(signals[name]) for name in signals}, bench.events
 
 
-def test_the_parts_act_only_in_their_periods(monkeypatch: pytest.MonkeyPatch) -> None:
+@pytest.mark.parametrize("c_span", [False, True])
+def test_the_parts_act_only_in_their_periods(monkeypatch: pytest.MonkeyPatch, c_span: bool) -> None:
     """The history sample every 20 periods and the scenario in its events' periods; between them
-    the loop runs plain periods."""
+    the loop runs plain periods. The C span takes the history samples itself: the part is then due
+    only where it has more to do (none here: no display, no observer, no recorder to flush)."""
     seen: dict[str, list[int]] = {"history": [], "scenario": []}
     history_run, scenario_run = HistoryPart.run, ScenarioPart.run
 
@@ -57,9 +59,15 @@ def test_the_parts_act_only_in_their_periods(monkeypatch: pytest.MonkeyPatch) ->
     monkeypatch.setattr(HistoryPart, "run", history)
     monkeypatch.setattr(ScenarioPart, "run", scenario)
     with hilbench.Bench(target="inprocess:an1017") as bench:
+        session = bench.session
+        assert session is not None
+        session.c_span = c_span  # type: ignore[misc]
         bench.set_reference(1000)  # at period 0
         bench.run(0.01)
         bench.press("s2")  # at period 200; released 2 ms (40 periods) later
         bench.run(0.01)
-    assert seen["history"] == list(range(0, 400, 20))
+        sampled = [round(t_s / session.period.s) for t_s, _, _, _ in session.history]
+        in_c = session._span_samples is not None
+    assert sampled == list(range(0, 400, 20))
+    assert seen["history"] == ([] if c_span and in_c else list(range(0, 400, 20)))
     assert seen["scenario"] == [0, 200, 240]

@@ -265,3 +265,121 @@ def test_the_c_span_builds_the_edges_sensing_builds() -> None:
                 assert span.edges(edge_s is not None, hall_before) == expected
                 hall_before = plant.hall_bits
         assert seen["marks"] > 10 and seen["several"] > 10 and seen["over"] > 0
+
+
+def _summary_run(mode: str, config: Path | None, scenario: Path | None, seconds: float, overrides: tuple[str, ...],
+                 record: Path | None, observe: bool) -> tuple:
+    """One run's history, segments, fault figures, periods, events and recording (mode as `_run`)."""
+    cfg = hilbench.load_config(config, ['link.target="inprocess:an1017"' if config is None else 'link.target="inprocess:foc"',
+                                        f"run.duration_s={seconds}", *overrides], scenario_path=scenario)
+    snapshots: list[tuple] = []
+    observer = (lambda snap: snapshots.append((snap.period, snap.measured_rpm, snap.speed_rpm))) if observe else None
+    with hilbench.Bench(cfg, scenario=True, record=record, observer=observer) as bench:
+        session = bench.session
+        assert session is not None
+        session.c_span = mode == "c"  # type: ignore[misc]
+        session._readable_periods = mode == "readable"  # type: ignore[attr-defined]
+        try:
+            bench.run()
+        except hilbench.HilbenchError as exc:
+            ended = str(exc)
+        else:
+            ended = ""
+        summary = session.summary
+        figures = (list(session.history), repr(summary.segments), summary.fault_code, summary.fault_first_s,
+                   summary.fault_last_s, session.periods_done, summary.end_reason, session.live.guard_ref_rpm, ended,
+                   snapshots, bench.events)
+        in_c = session._span_samples is not None
+    data = hilbench.read_recording(record) if record is not None else None
+    columns = {k: v for k, v in data.columns.items()} if data is not None else {}
+    return figures, columns, in_c
+
+
+@pytest.mark.parametrize("config, scenario, seconds, overrides, observe", [
+    (None, RANDOM, 1.7, (), False),  # live writes, sensor faults (their periods in Python), faults of the firmware
+    (None, None, 0.6, (), True),  # an observer: the part at every observe period
+    (None, None, 0.9, ("protection.overspeed_rpm=1100",), False),  # the limit at a sample in the C span
+    (None, RANDOM, 0.8, ("protection.overcurrent_a=0.35",), False),  # comparator trips: periods C leaves to Python
+    (None, RANDOM, 0.8, ("protection.overcurrent_a=0.35",), "at a trip"),  # and one of them an observe period
+    (SERVO, None, 0.6, (), False),
+])
+def test_the_c_span_samples_the_history_the_python_loop_samples(tmp_path: Path, monkeypatch: pytest.MonkeyPatch,
+                                                               config: Path | None, scenario: Path | None,
+                                                               seconds: float, overrides: tuple[str, ...],
+                                                               observe: bool | str) -> None:
+    """The history samples the C span takes and hands over in bulk give the Python loop's history,
+    segments, fault figures, guard reference, snapshots, end (an overspeed at its very period) and
+    recording (its flushes at the same periods: a small chunk). "at a trip": the first comparator
+    trip's period (one C leaves to Python) is a history and an observe period, observed once."""
+    if observe == "at a trip":
+        trip_k = _first_trip(config, scenario, seconds, overrides)
+        _observe_at(monkeypatch, trip_k)
+    runs = {}
+    for mode in ("c", "python", "readable"):
+        runs[mode] = _summary_run(mode, config, scenario, seconds, overrides, tmp_path / f"{mode}.npz", observe)
+    assert runs["c"][2] and not runs["python"][2]  # the C span took the samples
+    for mode in ("python", "readable"):
+        assert runs["c"][0] == runs[mode][0]
+        assert not _same(runs["c"][1], runs[mode][1])
+    figures = runs["c"][0]
+    assert len(figures[0]) > 20
+    if any("overspeed" in o for o in overrides):
+        assert "overspeed" in figures[8] and figures[5] % 20 == 0
+    if observe == "at a trip":
+        assert [snap[0] for snap in figures[9]].count(trip_k) == 1
+
+
+def _first_trip(config: Path | None, scenario: Path | None, seconds: float, overrides: tuple[str, ...]) -> int:
+    """The period of the run's first comparator trip (the Python loop's)."""
+    cfg = hilbench.load_config(config, ['link.target="inprocess:an1017"', f"run.duration_s={seconds}", *overrides],
+                               scenario_path=scenario)
+    trips: list[int] = []
+    with hilbench.Bench(cfg, scenario=True) as bench:
+        session = bench.session
+        assert session is not None
+        session.c_span = False  # type: ignore[misc]
+        comparator = session._comparator
+        session._comparator = lambda k: (trips.append(k), comparator(k))  # type: ignore[method-assign]
+        try:
+            bench.run()
+        except hilbench.HilbenchError:
+            pass
+    assert trips
+    return trips[0]
+
+
+def _observe_at(monkeypatch: pytest.MonkeyPatch, k: int) -> None:
+    """Sessions whose history and observe periods both fall on period k."""
+    import dataclasses
+    import math
+
+    from hilbench.bench import settings
+
+    options = settings.session_options
+    monkeypatch.setattr(settings, "session_options", lambda cfg: dataclasses.replace(
+        options(cfg), history_every_periods=math.gcd(k, 20), observe_every_periods=k))
+
+
+def test_a_plant_capsule_of_the_api_before_speed_rad_s_is_refused() -> None:
+    """hb_plant_api_t gained speed_rad_s (the history samples): its capsule's name carries the
+    version, so a plant module built before it (a stale build) is refused by the span by name,
+    never read past the end of its older struct."""
+    import ctypes
+
+    cfg = hilbench.load_config(None, ['link.target="inprocess:an1017"', "run.duration_s=0.01"])
+    with hilbench.Bench(cfg, scenario=True) as bench:
+        session = bench.session
+        assert isinstance(session, Session)
+        capsule = session.plant.span_api()
+        name = repr(capsule).split('"')[1]
+        assert name == "hilbench.plant.span_api.v2"
+        get_pointer, new_capsule = ctypes.pythonapi.PyCapsule_GetPointer, ctypes.pythonapi.PyCapsule_New
+        get_pointer.restype, get_pointer.argtypes = ctypes.c_void_p, [ctypes.py_object, ctypes.c_char_p]
+        new_capsule.restype, new_capsule.argtypes = ctypes.py_object, [ctypes.c_void_p, ctypes.c_char_p, ctypes.c_void_p]
+        old_name = ctypes.c_char_p(b"hilbench.plant.span_api")  # kept alive: the capsule holds its pointer
+        old = new_capsule(get_pointer(capsule, name.encode()), old_name, None)
+        session.plant.span_api = lambda: old  # type: ignore[method-assign]
+        with pytest.raises(ValueError, match="incorrect name"):
+            _bare_span(session, None, None)
+        session.plant.span_api = lambda: capsule  # type: ignore[method-assign]
+        assert _bare_span(session, None, None) is not None

@@ -165,7 +165,9 @@ static inline PyObject *hb_add_span_api(PyObject *m, void *api, const char *caps
  * the same bytes. */
 #define HB_SPAN_MAX_ADC 8
 #define HB_SPAN_MAX_TEL 16
-#define HB_PLANT_API "hilbench.plant.span_api"
+/* The plant's capsule is versioned with its struct: v2 has speed_rad_s (a module built before it,
+ * left in place by a stale build, is refused by name instead of read past its end). */
+#define HB_PLANT_API "hilbench.plant.span_api.v2"
 #define HB_TARGET_API "hilbench.target.span_api"
 
 /* What a plant's sense() gives, in C. */
@@ -192,6 +194,7 @@ typedef struct {
      * sense()'s ADC noise draws */
     void (*period_edges)(PyObject *plant, const double **edge_t, const int **edge_hall, int *n_edges,
                          const double **mark_t, int *n_marks, int *index);
+    double (*speed_rad_s)(PyObject *plant); /* the rotor's mechanical speed (Plant.w_m) */
 } hb_plant_api_t;
 
 #define HB_SPAN_MAX_EDGES 16 /* protocol 3's Sensors: at most MAX_EDGES input edges */

@@ -11,6 +11,13 @@
  * the target takes (the session's bench limit), is left to Python (the span stops before it, before
  * the plant's sensors are read: the trip is noted there, the limit raised), as is anything with a sensor fault or real
  * time (the session does not call this then).
+ *
+ * The history sample (hilbench.bench.parts.HistoryPart: every `sample_every`-th period, after its
+ * plant period) is taken here too when asked for: the period, the rotor's speed, the Drive's fault
+ * code and the telemetry of the measured speed and of the firmware's reference, appended to the
+ * `samples` bytearray (SAMPLE_BYTES each, `parts.SAMPLE_DTYPE`) for the part to take in bulk when the
+ * span returns; a sample beyond the overspeed limit ends the span after its period (span.k is that
+ * period; the part raises the bench limit there, as the Python loop does).
  */
 #include "hbglue.h"
 #include <string.h>
@@ -21,6 +28,7 @@
 #define INPUT_FAULT 0x20
 #define OWN_BYTES (8 + 8 * 4 + 8 + 8 + 1) /* k Q, hall..fault 8 i, rtt d, lateness d, marker B */
 #define RTT_EVERY_MASK 63 /* the lockstep round-trip sample: one period in 64, as the Python loop */
+#define SAMPLE_BYTES (8 + 8 + 3 * 4) /* k q, w_m d, fault i, measured i, reference i (parts.SAMPLE_DTYPE) */
 
 typedef struct {
     PyObject_HEAD
@@ -36,6 +44,9 @@ typedef struct {
     int running;      /* a run is in progress (a Python call inside it must not start another) */
     PyObject *edge_s; /* the last period's hall edge (None: none), as Plant.advance returns it */
     PyObject *drive;  /* the last Drive (the one given when the span stepped nothing) */
+    PyObject *samples; /* the history samples (a bytearray), NULL: none taken here */
+    int sample_every, i_meas, i_ref; /* every how many periods; telemetry indexes (-1: none) */
+    double overspeed_rpm, rpm_per_rad_s;
 } Span;
 
 static void put_i32(char *p, long v)
@@ -125,8 +136,20 @@ static int period_edges(const Span *s, int have_edge, hb_csensors_t *in, int *in
     return 1;
 }
 
+/* Period k's history sample appended at p (SAMPLE_BYTES). */
+static void put_sample(const Span *s, char *p, long long k, double w_m, const hb_cdrive_t *d)
+{
+    int64_t kk = (int64_t)k;
+    memcpy(p, &kk, 8);
+    memcpy(p + 8, &w_m, 8);
+    put_i32(p + 16, d->fault);
+    put_i32(p + 20, s->i_meas >= 0 && s->i_meas < d->n_tel ? d->tel[s->i_meas] : 0);
+    put_i32(p + 24, s->i_ref >= 0 && s->i_ref < d->n_tel ? d->tel[s->i_ref] : 0);
+}
+
 /* run(k, stop, buttons, ref_rpm, edge_s, drive, hall_before) -> the period it stopped before: stop,
- * or the first period whose Sensors carry the comparator's trip or too many edges. edge_s, drive and
+ * the first period whose Sensors carry the comparator's trip or too many edges, or the one after a
+ * history sample beyond the overspeed limit (span.k is then the sample's period). edge_s, drive and
  * hall_before are the members after it (also after an exception, with k the failing period). */
 static PyObject *span_run(Span *s, PyObject *const *args, Py_ssize_t nargs);
 
@@ -163,14 +186,22 @@ static PyObject *span_run(Span *s, PyObject *const *args, Py_ssize_t nargs)
     Py_XSETREF(s->drive, Py_NewRef(args[5]));
     s->hall_before = hall_before;
     s->k = k;
-    Py_ssize_t used = 0;
-    char *base = NULL;
+    Py_ssize_t used = 0, sused = 0;
+    char *base = NULL, *sbase = NULL;
     if (s->rows != NULL && stop > k) {
         used = PyByteArray_GET_SIZE(s->rows);
         if (PyByteArray_Resize(s->rows, used + (Py_ssize_t)(stop - k) * s->row_bytes) < 0) return NULL;
         base = PyByteArray_AS_STRING(s->rows);
     }
-    int failed = 0, stepped = 0;
+    if (s->samples != NULL && stop > k) {
+        sused = PyByteArray_GET_SIZE(s->samples);
+        if (PyByteArray_Resize(s->samples, sused + (Py_ssize_t)((stop - k) / s->sample_every + 1) * SAMPLE_BYTES) < 0) {
+            if (base != NULL) PyByteArray_Resize(s->rows, used);
+            return NULL;
+        }
+        sbase = PyByteArray_AS_STRING(s->samples);
+    }
+    int failed = 0, stepped = 0, limit = 0;
     long long last_seq = 0;
     hb_plant_sense_t ps;
     hb_csensors_t in;
@@ -220,12 +251,22 @@ static PyObject *span_run(Span *s, PyObject *const *args, Py_ssize_t nargs)
             break;
         }
         if (row != NULL) used += (Py_ssize_t)s->n_out * 8;
+        if (sbase != NULL && k % s->sample_every == 0) { /* the history sample, after the plant's period */
+            double w_m = s->papi->speed_rad_s(s->plant), rpm = w_m * s->rpm_per_rad_s;
+            put_sample(s, sbase + sused, k, w_m, &d);
+            sused += SAMPLE_BYTES;
+            if (!(-s->overspeed_rpm <= rpm && rpm <= s->overspeed_rpm)) { /* NaN too: the part raises there */
+                limit = 1;
+                break;
+            }
+        }
     }
     s->k = k;
     PyObject *et = NULL, *ev = NULL, *tb = NULL;
     if (failed) PyErr_Fetch(&et, &ev, &tb);
     int fine = 1;
     if (base != NULL && PyByteArray_Resize(s->rows, used) < 0) fine = 0;
+    if (sbase != NULL && PyByteArray_Resize(s->samples, sused) < 0) fine = 0;
     if (fine && stepped) {
         PyObject *seq = PyLong_FromLongLong(last_seq);
         PyObject *drive = seq == NULL ? NULL : s->tapi->drive(s->core, seq);
@@ -244,7 +285,7 @@ static PyObject *span_run(Span *s, PyObject *const *args, Py_ssize_t nargs)
         return NULL;
     }
     if (!fine) return NULL;
-    return PyLong_FromLongLong(k);
+    return PyLong_FromLongLong(limit ? k + 1 : k);
 }
 
 /* edges(have_edge, hall_before) -> ((time in 100 ns, lines), ...) or None (more than max_edges): the
@@ -279,17 +320,24 @@ static PyObject *Span_edges(Span *s, PyObject *const *args, Py_ssize_t nargs)
 static int Span_init(Span *s, PyObject *args, PyObject *kwds)
 {
     static char *kw[] = {"plant", "plant_api", "core", "target_api", "roles", "edge_limit", "read_index", "rows",
-                         "n_telemetry", "host_ref", "rtt_append", "max_edges", NULL};
-    PyObject *plant, *papi, *core, *tapi, *roles, *rows, *rtt;
+                         "n_telemetry", "host_ref", "rtt_append", "max_edges", "sample_every", "samples",
+                         "meas_index", "ref_index", "overspeed_rpm", "rpm_per_rad_s", NULL};
+    PyObject *plant, *papi, *core, *tapi, *roles, *rows, *rtt, *samples = Py_None;
     long edge_limit;
-    int read_index, n_tel, host_ref, max_edges;
+    int read_index, n_tel, host_ref, max_edges, sample_every = 0, i_meas = -1, i_ref = -1;
+    double overspeed_rpm = Py_HUGE_VAL, rpm_per_rad_s = 0.0;
     if (s->running) {
         PyErr_SetString(PyExc_RuntimeError, "Span: cannot be initialised again while it runs");
         return -1;
     }
-    if (!PyArg_ParseTupleAndKeywords(args, kwds, "OOOOOlpOipOi:Span", kw, &plant, &papi, &core, &tapi, &roles,
-                                     &edge_limit, &read_index, &rows, &n_tel, &host_ref, &rtt, &max_edges))
+    if (!PyArg_ParseTupleAndKeywords(args, kwds, "OOOOOlpOipOi|$iOiidd:Span", kw, &plant, &papi, &core, &tapi, &roles,
+                                     &edge_limit, &read_index, &rows, &n_tel, &host_ref, &rtt, &max_edges,
+                                     &sample_every, &samples, &i_meas, &i_ref, &overspeed_rpm, &rpm_per_rad_s))
         return -1;
+    if (samples != Py_None && (!PyByteArray_Check(samples) || sample_every < 1)) {
+        PyErr_SetString(PyExc_TypeError, "Span: samples must be a bytearray (with sample_every >= 1) or None");
+        return -1;
+    }
     if (max_edges < 0 || max_edges > HB_SPAN_MAX_EDGES) {
         PyErr_Format(PyExc_ValueError, "Span: max_edges %d (0..%d)", max_edges, HB_SPAN_MAX_EDGES);
         return -1;
@@ -329,6 +377,12 @@ static int Span_init(Span *s, PyObject *args, PyObject *kwds)
     Py_XSETREF(s->core, Py_NewRef(core));
     Py_XSETREF(s->rows, rows == Py_None ? NULL : Py_NewRef(rows));
     Py_XSETREF(s->rtt_append, rtt == Py_None ? NULL : Py_NewRef(rtt));
+    Py_XSETREF(s->samples, samples == Py_None ? NULL : Py_NewRef(samples));
+    s->sample_every = sample_every;
+    s->i_meas = i_meas;
+    s->i_ref = i_ref;
+    s->overspeed_rpm = overspeed_rpm;
+    s->rpm_per_rad_s = rpm_per_rad_s;
     s->edge_limit = edge_limit;
     s->read_index = read_index;
     s->n_tel = n_tel;
@@ -350,6 +404,7 @@ static int Span_traverse(Span *s, visitproc visit, void *arg)
     Py_VISIT(s->rtt_append);
     Py_VISIT(s->edge_s);
     Py_VISIT(s->drive);
+    Py_VISIT(s->samples);
     return 0;
 }
 
@@ -361,6 +416,7 @@ static int Span_clear(Span *s)
     Py_CLEAR(s->rtt_append);
     Py_CLEAR(s->edge_s);
     Py_CLEAR(s->drive);
+    Py_CLEAR(s->samples);
     return 0;
 }
 
@@ -372,7 +428,7 @@ static void Span_dealloc(Span *s)
 }
 
 static PyMemberDef Span_members[] = {
-    {"k", T_LONGLONG, offsetof(Span, k), READONLY, "where the last run stopped (the failing period after an error)"},
+    {"k", T_LONGLONG, offsetof(Span, k), READONLY, "where the last run stopped (the failing period after an error, an overspeed sample's period)"},
     {"edge_s", T_OBJECT, offsetof(Span, edge_s), READONLY, "the last period's hall edge (None: none)"},
     {"drive", T_OBJECT, offsetof(Span, drive), READONLY, "the last Drive"},
     {"hall_before", T_LONG, offsetof(Span, hall_before), READONLY, "the hall bits of the last Sensors"},
@@ -394,7 +450,8 @@ static PyTypeObject SpanType = {
     .tp_basicsize = sizeof(Span),
     .tp_flags = Py_TPFLAGS_DEFAULT | Py_TPFLAGS_HAVE_GC,
     .tp_doc = "Span(plant, plant_api, core, target_api, roles, edge_limit, read_index, rows, n_telemetry, host_ref, "
-              "rtt_append, max_edges): the session's lockstep periods in C.",
+              "rtt_append, max_edges, *, sample_every=0, samples=None, meas_index=-1, ref_index=-1, overspeed_rpm=inf, "
+              "rpm_per_rad_s=0.0): the session's lockstep periods in C (and its history samples).",
     .tp_new = PyType_GenericNew,
     .tp_init = (initproc)Span_init,
     .tp_dealloc = (destructor)Span_dealloc,

@@ -9,18 +9,34 @@ chunk, whatever the number of rows; the rows are read once.
 
 The file is a plain ZIP64 archive as `zipfile` writes one (stored members, fixed 1980-01-01
 stamps, so equal columns give equal bytes), read by `np.load` and any unzip.
+
+`BackgroundArchive` writes the same archive while a run goes on: the rows the recorder has written
+to its journal are read back, converted and written by a thread of its own
+(hilbench/bench/_npzcolumns.c, without the GIL) into an archive sized for the rows the run plans;
+the close then only writes the headers. A run that records another number of rows has its archive
+written from the journal at the close, as before.
 """
 
 from __future__ import annotations
 
+import errno
 import io
 import os
 import struct
 import zlib
 from pathlib import Path
-from typing import Sequence
+from typing import TYPE_CHECKING, Sequence
 
 import numpy as np
+
+try:  # the columns written on a thread of their own (optional; the journal path is the reference)
+    from hilbench.bench import _npzcolumns
+except ImportError:  # pragma: no cover - no compiler at install time
+    _npzcolumns = None  # type: ignore[assignment]
+
+if TYPE_CHECKING:
+    from hilbench.bench.recorder import RowLayout
+
 
 _DOS_DATE = (0 << 9) | (1 << 5) | 1  # 1980-01-01
 _DOS_TIME = 0
@@ -71,7 +87,9 @@ class ColumnArchive:
             archive.add("metadata", np.asarray(text))
     """
 
-    def __init__(self, path: Path, names: Sequence[str], n_rows: int) -> None:
+    def __init__(self, path: Path, names: Sequence[str], n_rows: int, *, write_headers: bool = True) -> None:
+        """``write_headers=False``: each column's .npy header (`column_header`, before its row 0) is
+        the caller's to write (`BackgroundArchive`'s thread)."""
         self.path = path
         self.n_rows = n_rows
         self._header = _column_header(n_rows)
@@ -89,10 +107,20 @@ class ColumnArchive:
         self._index = {name: i for i, name in enumerate(names)}
         self._small: list[tuple[bytes, int, bytes]] = []  # name, crc, bytes
         self._fd = os.open(path, os.O_WRONLY | os.O_CREAT | os.O_TRUNC | os.O_CLOEXEC, 0o644)
-        for name in names:
-            _, _, data_offset, _ = self._members[self._index[name]]
-            os.pwrite(self._fd, self._header, data_offset)
-            self._crc[name] = zlib.crc32(self._header)
+        try:
+            for name in names:
+                _, _, data_offset, _ = self._members[self._index[name]]
+                if write_headers:
+                    _pwrite_all(self._fd, memoryview(self._header), data_offset)
+                self._crc[name] = zlib.crc32(self._header)
+        except BaseException:  # a full disk already: no descriptor left open
+            self.abandon()
+            raise
+
+    @property
+    def column_header(self) -> bytes:
+        """The .npy header every column's member starts with."""
+        return self._header
 
     def write(self, first: int, columns: dict[str, np.ndarray]) -> None:
         """Rows ``first..`` of each column; a column's pieces come in row order."""
@@ -104,6 +132,18 @@ class ColumnArchive:
             _pwrite_all(self._fd, data, data_offset + len(self._header) + 8 * first)
             self._crc[name] = zlib.crc32(data, self._crc[name])
             self._written[name] = first + len(values)
+
+    def places(self) -> list[tuple[int, int]]:
+        """(file offset of row 0, CRC-32 so far) of each column, in order: where a writer of
+        their rows (`BackgroundArchive`) puts them."""
+        return [(data_offset + len(self._header), self._crc[name])
+                for name, (_, _, data_offset, _) in zip(self._written, self._members)]
+
+    def written(self, n_rows: int, crcs: Sequence[int]) -> None:
+        """Every column's rows ``..n_rows`` were written elsewhere, with these CRCs (in order)."""
+        for name, crc in zip(self._written, crcs, strict=True):
+            self._crc[name] = crc
+            self._written[name] = n_rows
 
     def add(self, name: str, array: np.ndarray) -> None:
         """A small array after the columns (the metadata)."""
@@ -117,7 +157,7 @@ class ColumnArchive:
             raise ValueError(f"column {short[0]}: {self._written[short[0]]} of {self.n_rows} rows written")
         directory: list[bytes] = []
         for name, (member, offset, _, size) in zip(self._written, self._members):
-            os.pwrite(self._fd, _local_header(member, self._crc[name], size), offset)
+            _pwrite_all(self._fd, memoryview(_local_header(member, self._crc[name], size)), offset)
             directory.append(_central_header(member, self._crc[name], size, offset))
         offset = self._end
         for member, crc, data in self._small:
@@ -146,10 +186,113 @@ class ColumnArchive:
             self.abandon()  # the descriptor is closed whatever went wrong, a failed close too
 
 
+class BackgroundArchive:
+    """The archive of a run that plans ``n_rows`` rows of ``layout``, written while it runs from its
+    journal: `submit(n)` says the journal's next n rows are written (and flushed); a thread reads them
+    back and writes each column at its place. `finish` completes the archive when exactly ``n_rows``
+    were handed over and written (False otherwise: the unfinished file is removed, the caller writes it
+    from the journal)."""
+
+    def __init__(self, path: Path, layout: "RowLayout", n_rows: int, journal: Path, journal_offset: int) -> None:
+        if _npzcolumns is None:
+            raise RuntimeError("BackgroundArchive: the column writer is not built")
+        self.path, self.n_rows = path, n_rows
+        self.rows = 0  # handed over so far
+        self.given_up = False  # more rows than planned, or a failed read or write: `finish` says False
+        self.failed: OSError | None = None  # the thread's failed read or write
+        offsets, wraps = _field_offsets(layout), dict(layout.wrap)
+        self._journal_fd = os.open(journal, os.O_RDONLY | os.O_CLOEXEC)
+        try:
+            self._archive = ColumnArchive(path, layout.column_names, n_rows, write_headers=False)
+            columns = [(offsets[src][0], offsets[src][1], scale, wraps.get(name, 0.0), place, crc)
+                       for (name, _, _, src, scale), (place, crc) in zip(layout.columns, self._archive.places())]
+            try:
+                self._writer = _npzcolumns.ColumnWriter(self._archive._fd, self._journal_fd, journal_offset,
+                                                        layout.dtype.itemsize, columns, self._archive.column_header)
+            except BaseException:
+                self._archive.abandon()
+                raise
+        except BaseException:
+            os.close(self._journal_fd)
+            raise
+
+    def submit(self, n_rows: int) -> None:
+        """The journal's next ``n_rows`` rows are there; beyond the plan the archive is given up."""
+        if self.given_up:
+            return
+        if self.rows + n_rows > self.n_rows:  # more than planned: the journal writes the archive
+            self.abandon()
+            return
+        try:
+            self._writer.submit(n_rows)
+        except OSError as exc:
+            self.failed = exc
+            self.abandon()
+            return
+        self.rows += n_rows
+
+    def finish(self, metadata: np.ndarray) -> bool:
+        """The archive complete with ``metadata`` (True), or given up: another number of rows than
+        planned, a failed read or write (False; the descriptors closed, the unfinished file removed).
+        Ctrl-C while the thread writes its last rows gives it up too, and propagates."""
+        if self.given_up or self.rows != self.n_rows:
+            self.abandon()
+            return False
+        try:
+            n_rows, crcs = self._writer.finish()
+            self._archive.written(n_rows, crcs)
+            self._archive.add("metadata", metadata)
+            self._archive.close()
+        except OSError as exc:
+            self.failed = exc
+            self.abandon()
+            return False
+        except BaseException:  # Ctrl-C while the thread finished: given up, the journal keeps every row
+            self.abandon()
+            raise
+        self._close_journal()
+        return True
+
+    def abandon(self) -> None:
+        """The thread joined, what it had not written dropped, the unfinished file emptied and
+        removed (its blocks go back to a full disk, where the journal needs them), the descriptors
+        closed (idempotent; a finished archive is left alone)."""
+        self.given_up = True
+        self._writer.abandon()
+        if self._archive._fd >= 0:  # still ours: not finished
+            try:
+                os.ftruncate(self._archive._fd, 0)
+                self.path.unlink(missing_ok=True)
+            except OSError:  # the close writes the archive from the journal (or says why it cannot)
+                pass
+        self._archive.abandon()
+        self._close_journal()
+
+    def _close_journal(self) -> None:
+        if self._journal_fd >= 0:
+            os.close(self._journal_fd)
+            self._journal_fd = -1
+
+    def __del__(self) -> None:
+        if getattr(self, "_writer", None) is not None:
+            self.abandon()
+
+
+def _field_offsets(layout: "RowLayout") -> dict[str, tuple[int, str]]:
+    """Each field's (byte offset in a raw row, struct code)."""
+    out, offset = {}, 0
+    for name, code in layout.fields:
+        out[name] = (offset, code)
+        offset += struct.calcsize("<" + code)
+    return out
+
+
 def _pwrite_all(fd: int, data: memoryview, offset: int) -> None:
     while len(data):
         n = os.pwrite(fd, data, offset)
+        if n <= 0:  # nothing written of a non-empty piece: an error, not a loop without end
+            raise OSError(errno.EIO, os.strerror(errno.EIO))
         data, offset = data[n:], offset + n
 
 
-__all__ = ["ColumnArchive"]
+__all__ = ["BackgroundArchive", "ColumnArchive"]

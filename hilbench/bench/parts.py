@@ -6,13 +6,19 @@ buttons' release, a fault's end) and the live part (the guard's look, `ctl step`
 socket). After it: the history sample (speed history, segments, the observer, the display, the
 overspeed limit) and the bus capacitor. The session runs the periods between in a tight loop;
 nothing a part changes is cached across a part's call, so no part can miss another's change.
+When the session's C span runs the periods, it takes the history samples itself and the part
+takes them in bulk when the span returns (`HistoryPart.take`): the part is then due only where it
+has more to do (the display, the observer, the recorder's flush).
 """
 
 from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from itertools import repeat
 from typing import TYPE_CHECKING, Any, Callable, Iterable, Protocol, Sequence
+
+import numpy as np
 
 from hilbench.bench.recorder import MARKER_EVENT
 from hilbench.bench.scenario import Event, Ramp, ScenarioPlayer
@@ -295,17 +301,30 @@ def step_text(metrics: dict[str, Any]) -> str:
 
 
 # ------------------------------------------------------------------------------------- after the exchange
+#: a history sample as the C span takes it (hilbench/bench/_span.c's put_sample): the period, the
+#: rotor's speed, the Drive's fault code, the raw telemetry of the measured speed and of the reference
+#: the most history samples one C span takes before the part takes them (bounded memory: about 0.3 MB
+#: while they are taken; 2048 samples are 2 s of simulated time at 50 us periods, every 20th sampled)
+SPAN_SAMPLES = 2048
+SAMPLE_DTYPE = np.dtype([("k", "<i8"), ("w_m", "<f8"), ("fault", "<i4"), ("meas", "<i4"), ("ref", "<i4")])
+
+
 class HistoryPart:
     """Every history period: the speed history and segments, the overspeed limit, and every
-    observe period the display stream, the recorder's flush and the observer's `Snapshot`."""
+    observe period the display stream, the recorder's flush and the observer's `Snapshot`.
+    Periods the C span runs are sampled there and taken here in bulk (`take`); the part is then
+    due only at the observe periods where something is to be done (`due_at`)."""
 
     def __init__(self, session: "Session", live: LivePart) -> None:
         self.session = session
         self.live = live
         self.every = session.options.history_every_periods
+        self.observe_every = math.lcm(self.every, session.options.observe_every_periods)
         self.speed_telemetry = ((-1, 0.0), (-1, 0.0))  # (index, scale) of the measured speed and reference
         self.overspeed_rpm = math.inf
         self._obs_last = (0.0, 0)
+        self._sampled = (-1, math.nan)  # the last sample's period and measured speed
+        self._observed = -1  # the last observe period observed (once a period, whoever sampled it)
 
     def start(self, speed_telemetry: tuple[tuple[int, float], tuple[int, float]], wall_s: float) -> None:
         options = self.session.options
@@ -315,9 +334,37 @@ class HistoryPart:
 
     def due_at(self, k: int) -> float:
         every = self.every
-        return -(-k // every) * every
+        if not self.session.samples_in_c:  # the Python loop runs the periods: every history period
+            return -(-k // every) * every
+        return self._observe_due(k)
+
+    def _observe_due(self, k: int) -> float:
+        """The first observe period from k on where observing does something: every one with a
+        display or an observer, else the one where the recorder's next write is due (its flush,
+        or rows for its background archive: `Recorder.rows_to_write`); at the latest the one after
+        SPAN_SAMPLES samples (the span's sample buffer, and what `take` makes of it, stay that
+        size however long the run: a span as long as the run held all its samples)."""
+        session, every = self.session, self.observe_every
+        first = max(k, 1)
+        if session.display is None and session.observer is None:
+            most = k + SPAN_SAMPLES * self.every
+            rows_to_write = getattr(session.recorder, "rows_to_write", None)
+            if rows_to_write is None:  # no recorder, or one that keeps every row in memory
+                first = most
+            else:  # after that period its next write is due
+                first = max(first, min(k - 1 + rows_to_write(), most))
+        return -(-first // every) * every
 
     def run(self, k: int) -> None:
+        taken, meas = self._sampled
+        if taken != k:  # a period the Python loop ran: its sample here
+            self.sample(k)
+        elif k % self.session.options.observe_every_periods == 0 and k and self._observed != k:
+            # the C span's sample, taken in bulk: observed here (one C left to Python was, at its sample)
+            self._observe(k, self.session.drive, meas)  # type: ignore[arg-type]
+
+    def sample(self, k: int) -> None:
+        """Period k's sample, after its plant period: the reference of `take`."""
         session = self.session
         drive = session.drive
         tele = drive.telemetry
@@ -326,17 +373,51 @@ class HistoryPart:
         self.live.guard_ref_rpm = tele[i_ref] * s_ref if i_ref >= 0 else session.ref_rpm  # the firmware's own when it reports one
         t_s, plant_rpm = session.period.t_s(k), session.plant.w_m * RPM_PER_RAD_S
         session.history.append((t_s, session.ref_rpm, plant_rpm, meas))
+        self._sampled = (k, meas)
         if drive.fault:  # the firmware's fault as the live state shows it (no_fault without a recording)
             session.fault_seen(t_s, drive.fault)
         session.segmenter.sample(t_s, plant_rpm, meas)
         if k % session.options.observe_every_periods == 0 and k:
             self._observe(k, drive, meas)
         if not -self.overspeed_rpm <= plant_rpm <= self.overspeed_rpm:
-            session.end_on_limit(k, f"overspeed: the plant turns at {plant_rpm:.0f} rpm, beyond the "
-                                    f"{session.options.overspeed_rpm:g} rpm limit ([protection] overspeed_rpm)")
+            self._overspeed(k, plant_rpm)
+
+    def take(self, samples: bytes) -> None:
+        """The samples the C span took (`SAMPLE_DTYPE` rows, copied out of its buffer), as `sample`
+        would have taken each; a sample beyond the overspeed limit is the span's last: the run ends
+        at its period."""
+        rows = np.frombuffer(samples, dtype=SAMPLE_DTYPE)
+        if not len(rows):
+            return
+        session = self.session
+        (i_meas, s_meas), (i_ref, s_ref) = self.speed_telemetry
+        ks = rows["k"]
+        t_s = (ks * session.period.s).tolist()  # float(k) * s, as Period.t_s
+        plant_rpm = (rows["w_m"] * RPM_PER_RAD_S).tolist()
+        meas = (rows["meas"] * s_meas).tolist() if i_meas >= 0 else [math.nan] * len(rows)
+        last = int(rows["ref"][-1])
+        self.live.guard_ref_rpm = last * s_ref if i_ref >= 0 else session.ref_rpm
+        session.history.extend(zip(t_s, repeat(session.ref_rpm), plant_rpm, meas))
+        self._sampled = (int(ks[-1]), meas[-1])
+        faults = np.flatnonzero(rows["fault"])
+        for i in (faults[:1].tolist() + faults[-1:].tolist()):  # the first and the last: what fault_seen keeps
+            session.fault_seen(t_s[i], int(rows["fault"][i]))
+        session.segmenter.sample_many(t_s, plant_rpm, meas)
+        rpm = plant_rpm[-1]
+        if not -self.overspeed_rpm <= rpm <= self.overspeed_rpm:
+            k = int(ks[-1])
+            if k % session.options.observe_every_periods == 0 and k:
+                self._observe(k, session.drive, meas[-1])  # type: ignore[arg-type]
+            self._overspeed(k, rpm)
+
+    def _overspeed(self, k: int, plant_rpm: float) -> None:
+        session = self.session
+        session.end_on_limit(k, f"overspeed: the plant turns at {plant_rpm:.0f} rpm, beyond the "
+                                f"{session.options.overspeed_rpm:g} rpm limit ([protection] overspeed_rpm)")
 
     def _observe(self, k: int, drive: Drive, meas: float) -> None:
         session, pacing = self.session, self.session.pacing
+        self._observed = k
         if session.display is not None:  # the scope takes its rows before a flush empties the buffer
             session.display.due(k, drive, pacing)
         if session.recorder is not None:
@@ -394,4 +475,4 @@ class BusPart:
                                     f"{options.overvoltage_v:g} V limit ([protection] overvoltage_v)")
 
 
-__all__ = ["STEP_REPLY_UNITS", "step_text", "BUTTON_HOLD_S", "BusPart", "CtlStep", "HistoryPart", "LivePart", "Part", "ScenarioPart", "Schedule"]
+__all__ = ["SAMPLE_DTYPE", "SPAN_SAMPLES", "STEP_REPLY_UNITS", "step_text", "BUTTON_HOLD_S", "BusPart", "CtlStep", "HistoryPart", "LivePart", "Part", "ScenarioPart", "Schedule"]

@@ -16,11 +16,22 @@ scale). The journal keeps raw rows as they are, with the layout in its header, s
 without a conversion and a killed run's journal reads back on its own.
 
 A chunk is ``flush_rows`` periods (by default one simulated second at the run's period).
+
+An NPZ run that says how many rows it plans (`Recorder.expect_rows`) has its archive written while
+it runs (`npzwriter.BackgroundArchive`): its settled rows go to the journal every
+BACKGROUND_CHUNK_ROWS rows (not only at each flush, so a killed run keeps more of them), and a
+thread reads them back, converts and writes them, so the close only finishes the archive. A run
+that ends with another number of rows (or a fault marker on a row already in the journal, which is
+then patched there) has its archive written from the journal at the close. A journal write that
+fails beside it (a full disk) gives the archive up, its file removed, and is written again: the
+journal, not the archive, keeps the rows.
 """
 
 from __future__ import annotations
 
+import errno
 import json
+import math
 import os
 import struct
 import zipfile
@@ -76,6 +87,8 @@ MARKER_END = 4
 MARKER_SKIPPED = 5  # real time: the host missed the period's slot, no exchange (the Drive is held)
 
 _JOURNAL_MAGIC = b"HBJ2"
+#: rows an NPZ run hands to its background archive at a time (between flushes)
+BACKGROUND_CHUNK_ROWS = 4096
 
 #: struct codes a layout may use and their NumPy types (little-endian, packed without padding)
 _CODE_DTYPES = {"B": "u1", "h": "<i2", "H": "<u2", "i": "<i4", "I": "<u4", "q": "<i8", "Q": "<u8",
@@ -116,6 +129,11 @@ class RowLayout:
                 or len(set(column_names)) != len(column_names):
             raise ValueError(f"RowLayout: bad codes {bad}, unknown fields {missing}, columns {column_names}, "
                              f"marker field: {'marker' in names}")
+        wrapped = [name for name, _ in self.wrap]
+        bad_modulo = [(name, modulo) for name, modulo in self.wrap if not 0.0 < modulo < math.inf]
+        if bad_modulo or len(set(wrapped)) != len(wrapped):  # one conversion: to_column's and the C writer's
+            raise ValueError(f"RowLayout: a wrap needs a positive, finite modulo and one entry a column: "
+                             f"{list(self.wrap)}")
 
     @property
     def column_specs(self) -> tuple[tuple[str, str, str], ...]:
@@ -265,6 +283,9 @@ class Recorder:
     rows_written: int = 0
     closed: bool = False
     started: bool = False
+    _background: Any = field(default=None, repr=False)  # npzwriter.BackgroundArchive, when the rows are planned
+    _handed: int = field(default=0, repr=False)  # pending rows already in the journal (handed to it)
+    _journal_start: int = field(default=0, repr=False)  # the journal's row 0
 
     def __post_init__(self) -> None:
         self.path = Path(self.path)
@@ -276,6 +297,7 @@ class Recorder:
             if self.is_npz:
                 self._file = open(self._journal_path(), "wb")
                 _events_path(self._journal_path()).unlink(missing_ok=True)  # a killed earlier run's
+                self._tmp_path().unlink(missing_ok=True)  # and its unfinished archive
             else:
                 self._file = open(self.path, "w", encoding="utf-8", newline="\n")
         except OSError as exc:
@@ -298,6 +320,7 @@ class Recorder:
             if self.is_npz:
                 head = json.dumps({"layout": layout.as_json(), "metadata": self.metadata}, default=str).encode()
                 self._file.write(_JOURNAL_MAGIC + struct.pack("<I", len(head)) + head)
+                self._journal_start = 8 + len(head)
             else:
                 # the header first: pandas.read_csv(f, comment="#") and numpy.loadtxt(f, delimiter=",",
                 # skiprows=1) read the file with no line counting (metadata and events are # lines)
@@ -312,6 +335,37 @@ class Recorder:
     def _journal_path(self) -> Path:
         return self.path.with_name(self.path.name + ".journal")
 
+    def _tmp_path(self) -> Path:
+        """Where the archive is written before it takes the recording's name."""
+        return self.path.with_name(self.path.name + ".tmp.npz")
+
+    def expect_rows(self, n_rows: int) -> None:
+        """The run plans ``n_rows`` rows (call it after `start`, before the first row): an NPZ
+        archive of that many is written while it runs; without the compiled column writer, or for
+        a CSV, nothing changes."""
+        if not self.is_npz or not self.started or self.closed or self._background is not None or n_rows <= 0 \
+                or self.rows_written or len(self.rows):
+            return
+        from hilbench.bench import npzwriter
+
+        if npzwriter._npzcolumns is None:
+            return
+        try:
+            self._background = npzwriter.BackgroundArchive(self._tmp_path(), self.rows.layout, n_rows,
+                                                           self._journal_path(), self._journal_start)
+        except Exception:  # noqa: BLE001 - an accelerator's failure, whatever it is: the close writes the
+            self._background = None  # archive from the journal (the reference; it says so if it cannot)
+            self._tmp_path().unlink(missing_ok=True)
+        self._handed = 0
+
+    def rows_to_write(self) -> int:
+        """How many more rows before `maybe_flush` has work: a flush, or rows for the background archive."""
+        pending = len(self.rows)
+        rows = self.flush_rows - pending
+        if self._background is not None and not self._background.given_up:
+            rows = min(rows, BACKGROUND_CHUNK_ROWS - (pending - self._handed))
+        return rows
+
     def event(self, text: str, marker: int = MARKER_NONE) -> None:
         """Note an event at the next row to be appended; a marker goes into that row."""
         self._events.append((len(self.rows), text.replace("\n", " "), marker))
@@ -320,11 +374,72 @@ class Recorder:
         """Set the marker of the newest pending row (the last good period): it wins over events."""
         self.rows.settle(self._events)
         self.rows.mark_last(marker)
+        n_rows = len(self.rows)
+        if self._background is not None and 0 < n_rows <= self._handed:  # that row is in the journal already
+            self._rewrite_journal_row(n_rows - 1)
+            self._background.abandon()  # its thread may have read it without the marker
+
+    def _rewrite_journal_row(self, index: int) -> None:
+        """Pending row ``index``, already in the journal, written there again as it is now."""
+        size = self.rows.struct.size
+        try:
+            self._file.flush()
+            os.pwrite(self._file.fileno(), bytes(self.rows.data[index * size:(index + 1) * size]),
+                      self._journal_start + (self.rows_written + index) * size)
+        except OSError as exc:
+            raise RecordingError(f"recording {self.path}: write failed ({exc.strerror})") from None
 
     def maybe_flush(self) -> None:
-        """Write out the pending chunk if it is full; cheap to call every period."""
-        if len(self.rows) >= self.flush_rows:
+        """Write out the pending chunk if it is full (else hand the background archive its next
+        rows when enough wait); cheap to call every period."""
+        pending = len(self.rows)
+        if pending >= self.flush_rows:
             self.flush()
+        elif self._background is not None and pending - self._handed >= BACKGROUND_CHUNK_ROWS:
+            self.rows.settle(self._events)  # their markers are final: events note the next row to come
+            self._hand_over()
+
+    def _hand_over(self) -> None:
+        """The settled pending rows not in the journal yet written there, and handed to the
+        background archive's thread (which reads them back)."""
+        rows = self.rows
+        n_rows, size = len(rows), rows.struct.size
+        if n_rows <= self._handed:
+            return
+        self._write_journal(self._handed, n_rows)
+        if self._background is not None:  # (a full disk may have given it up)
+            self._background.submit(n_rows - self._handed)
+        self._handed = n_rows
+
+    def _write_journal(self, first: int, end: int) -> None:
+        """Pending rows first..end-1 written at their place in the journal (pwrite: no buffer left
+        holding a failed write's bytes). A failed write while a background archive takes space
+        beside the journal (a full disk) gives that archive up, its file emptied, and is tried once
+        more: the journal, not the archive, keeps the rows (the close writes the archive from it)."""
+        size = self.rows.struct.size
+        offset = self._journal_start + (self.rows_written + first) * size
+        try:
+            try:
+                self._pwrite_rows(first, end, offset)
+            except OSError:
+                background = self._background
+                if background is None or background.given_up:
+                    raise
+                background.abandon()  # its blocks freed
+                os.ftruncate(self._file.fileno(), offset)  # whatever part of the failed write landed
+                self._pwrite_rows(first, end, offset)
+        except OSError as exc:
+            raise RecordingError(f"recording {self.path}: write failed ({exc.strerror})") from None
+
+    def _pwrite_rows(self, first: int, end: int, offset: int) -> None:
+        size, fd = self.rows.struct.size, self._file.fileno()
+        with memoryview(self.rows.data) as whole, whole[first * size:end * size] as data:  # released whatever fails
+            done = 0
+            while done < len(data):
+                n = os.pwrite(fd, data[done:], offset + done)
+                if n <= 0:
+                    raise OSError(errno.EIO, os.strerror(errno.EIO))
+                done += n
 
     def flush(self) -> None:
         """Write every pending row and event and push them to the OS."""
@@ -336,9 +451,10 @@ class Recorder:
         n_rows = len(rows)
         if not n_rows and not events:
             return
+        if self.is_npz:  # raw rows as they are (the layout is in the header), those not there yet
+            self._write_journal(self._handed, n_rows)
         try:
             if self.is_npz:
-                self._file.write(rows.data)  # raw rows as they are: the layout is in the header
                 if events:  # the metadata keeps them at close; the side file until then
                     self.metadata.setdefault("events", []).extend(text for _, text, _ in events)
                     with open(_events_path(self._journal_path()), "a", encoding="utf-8") as side:
@@ -350,9 +466,12 @@ class Recorder:
             self._file.flush()
         except OSError as exc:
             raise RecordingError(f"recording {self.path}: write failed ({exc.strerror})") from None
+        if self._background is not None and n_rows > self._handed:
+            self._background.submit(n_rows - self._handed)  # in the journal now
         self.rows_written += n_rows
         rows.clear()
         events.clear()
+        self._handed = 0
 
     def _csv_text(self, columns: list[np.ndarray], n_rows: int, events: list[tuple[int, str, int]]) -> str:
         """The CSV text of these rows and events: `_format_csv` (the reference), or its accelerator
@@ -390,14 +509,21 @@ class Recorder:
         if final_note:
             self.event(final_note)
             self.metadata["end"] = final_note
-        self.flush()
+        try:
+            self.flush()
+        except BaseException:
+            if self._background is not None:  # its thread joined: the journal keeps the rows
+                self._background.abandon()
+            raise
         self.closed = True
         self._file.close()
         if self.is_npz:
             self.metadata["columns"] = [list(spec) for spec in self.rows.layout.column_specs]  # name, unit, CSV format
-            tmp = self.path.with_name(self.path.name + ".tmp.npz")
+            tmp = self._tmp_path()
+            background, self._background = self._background, None
             try:
-                _write_npz_from_journal(tmp, self._journal_path(), self.metadata)
+                if background is None or not background.finish(np.asarray(json.dumps(self.metadata, default=str))):
+                    _write_npz_from_journal(tmp, self._journal_path(), self.metadata)  # the reference
                 os.replace(tmp, self.path)
             except (OSError, RecordingError) as exc:  # a full disk, a file size limit: the journal stays
                 tmp.unlink(missing_ok=True)
@@ -789,6 +915,10 @@ class WindowRecorder:
     def maybe_flush(self) -> None:
         if len(self.rows) >= self.flush_rows:
             self.flush()
+
+    def rows_to_write(self) -> int:
+        """How many more rows before `maybe_flush` drops them."""
+        return self.flush_rows - len(self.rows)
 
     def flush(self) -> None:
         """Drop the rows held (the buffer object stays: the session's loop holds it); events noted at

@@ -11,6 +11,7 @@ those events over the recorded rows, so both see the same samples and give the s
 
 from __future__ import annotations
 
+import bisect
 import math
 import re
 from dataclasses import dataclass, field
@@ -86,6 +87,29 @@ class Segmenter:
         if len(current.samples) >= self.capacity:  # keep every other one: half the rate from now on
             del current.samples[1::2]
             current.stride *= 2
+
+    def sample_many(self, t_s: Sequence[float], plant_rpm: Sequence[float], measured_rpm: Sequence[float]) -> None:
+        """`sample` for each of these samples in turn (times ascending), a slice at a time."""
+        current = self._open
+        if current is None:
+            return
+        n = len(t_s)
+        i = bisect.bisect_left(t_s, current.hold_from_s)  # those before the hold: not seen
+        while i < n:
+            first = i + (-current.seen) % current.stride  # the next one kept
+            if first >= n:
+                current.seen += n - i
+                return
+            room = self.capacity - len(current.samples)
+            end = min(n, first + room * current.stride)
+            stop = first + ((end - first - 1) // current.stride) * current.stride + 1  # after the last one kept
+            step = current.stride
+            current.samples.extend(zip(t_s[first:stop:step], plant_rpm[first:stop:step], measured_rpm[first:stop:step]))
+            current.seen += stop - i
+            i = stop
+            if len(current.samples) >= self.capacity:  # keep every other one: half the rate from now on
+                del current.samples[1::2]
+                current.stride *= 2
 
     def finish(self, t_s: float) -> list[Segment]:
         """Close the open hold at t_s; every segment of the run."""

@@ -178,6 +178,7 @@ class Session:
         self._hall_before = 0
         self._next_k = 0
         self._rows_changed = False  # watch_rows changed the row writer: the tight loop is made again
+        self._span_samples: bytearray | None = None  # the C span's history samples (None: no C span runs)
 
     @property
     def player(self) -> ScenarioPlayer:
@@ -449,6 +450,12 @@ class Session:
         summary.cpu_latency = self._qos.status
 
     @property
+    def samples_in_c(self) -> bool:
+        """Whether the next periods run in the C span, which takes their history samples itself
+        (a sensor fault in force sends them to the Python loop)."""
+        return self._span_samples is not None and not self.faults.on
+
+    @property
     def ended(self) -> bool:
         """The scenario's end, `ctl stop` or a fault ended the run."""
         return self._end_reason is not None
@@ -458,6 +465,11 @@ class Session:
         closes the run (recording with a fault marker) and propagates."""
         if self.ended:
             return False
+        expect_rows = getattr(self.recorder, "expect_rows", None)
+        if expect_rows is not None and self._next_k == 0 and n_periods == self.planned_periods and self.pacing is None:
+            # the whole planned run in one call: its NPZ archive written as it goes (lockstep only: in real
+            # time the writer's thread would share the CPU the run is pinned to)
+            expect_rows(n_periods)
         gc_was_enabled = gc.isenabled()
         gc.disable()  # no collector pauses inside periods (recorded rows are plain numbers)
         try:
@@ -507,13 +519,13 @@ class Session:
                 if schedule.run_before(k):
                     return k
                 before_k = schedule.next_before(k + 1)
-            after_k = schedule.next_after(k)
-            stop = after_k + 1  # a history part is always there: an int
-            if before_k < stop:
-                stop = before_k
             if self._rows_changed:  # a scope started or stopped watching a run without a recording
                 self._rows_changed = False
                 run = self._periods_runner()
+            after_k = schedule.next_after(k)  # (the history part's periods depend on the runner: after it)
+            stop = after_k + 1
+            if before_k < stop:
+                stop = before_k
             k = run((k, k_to if k_to < stop else int(stop)))
             if after_k == k - 1:
                 self.periods_done = after_k
@@ -523,6 +535,7 @@ class Session:
     def _periods_runner(self) -> Callable[[tuple[int, int]], int]:
         """What runs the periods [k, stop) between the parts': the tight loop (`_tight_runner`), or
         its readable form period by period (`_periods_one_by_one`, for tests); returns `stop`."""
+        self._span_samples = None
         if getattr(self, "_readable_periods", False):
             return lambda span: self._periods_one_by_one(*span)
         return self._tight_runner()
@@ -548,7 +561,8 @@ class Session:
                     extend: Callable[[bytes], None] | None = extend, rows: bytearray | None = rows,
                     host_ref: bool = self._record_host_ref, rtts: StreamingPercentiles = self.lockstep_rtts,
                     perf: Callable[[], float] = time.perf_counter,
-                    span: Any = self._c_span(rows)) -> Generator[int, tuple[int, int], None]:
+                    span: Any = self._c_span(rows), samples: bytearray | None = self._span_samples,
+                    sampler: HistoryPart = self.sampler) -> Generator[int, tuple[int, int], None]:
             k, stop = yield 0
             edge_s, drive, hall_before = session._edge_s, session.drive, session._hall_before
             rtt, late, marker = 0.0, 0.0, 0  # lockstep: no wall-clock figures in the row
@@ -563,6 +577,13 @@ class Session:
                             k = span.run(k, stop, buttons, session.ref_rpm, edge_s, drive, hall_before)
                             in_span = False
                             edge_s, drive, hall_before = span.edge_s, span.drive, span.hall_before
+                            if samples:  # the history samples it took (an overspeed in the last ends the run there)
+                                session._edge_s, session.drive, session._hall_before = edge_s, drive, hall_before
+                                k_next, k = k, span.k
+                                taken = bytes(samples)
+                                del samples[:]
+                                sampler.take(taken)
+                                k = k_next
                             if k >= stop:
                                 break
                             py_stop = k + 1  # a comparator trip or too many edges: its period here, then C again
@@ -611,11 +632,19 @@ class Session:
                             edge_s = advance(duty_a, duty_b, duty_c, output_mode, rows)  # the plant's period; it appends its outputs
                             if pacing is not None:
                                 pacing.finished(k)
+                        if samples is not None and not filtering and not k % sampler.every:
+                            session._edge_s, session.drive, session._hall_before = edge_s, drive, hall_before
+                            sampler.sample(k)  # a period C left to Python, at a history period: its sample now
                         k = py_stop
                 except BaseException:
                     if in_span:  # where the C span stopped, and what it left
                         k, edge_s, drive, hall_before = span.k, span.edge_s, span.drive, span.hall_before
                         in_span = False
+                        if samples:  # the samples of the periods before it, as the Python loop took them
+                            taken = bytes(samples)
+                            del samples[:]
+                            session._edge_s, session.drive, session._hall_before = edge_s, drive, hall_before
+                            sampler.take(taken)
                     session.periods_done = k
                     raise
                 finally:
@@ -626,10 +655,11 @@ class Session:
         next(runner)
         return runner.send
 
-    def _c_span(self, rows: bytearray | None) -> Any:
+    def _c_span(self, rows: bytearray | None, *, sampled: bool = True) -> Any:
         """The C span runner (hilbench/bench/_span.c: `_tight_runner`'s periods without Python per
-        period) when plant and target both have a C step and the session runs lockstep; else None.
-        `c_span = False` (or HILBENCH_SESSION_SPAN=python) keeps the Python loop."""
+        period, and their history samples unless not ``sampled``) when plant and target both have a
+        C step and the session runs lockstep; else None. `c_span = False` (or
+        HILBENCH_SESSION_SPAN=python) keeps the Python loop."""
         if _span is None or not self.c_span or self.pacing is not None or os.environ.get("HILBENCH_SESSION_SPAN") == "python":
             return None
         plant_api, target_core = getattr(self.plant, "span_api", None), getattr(self.target, "span_core", None)
@@ -639,12 +669,19 @@ class Session:
             return None
         hello = self.hello
         assert hello is not None
+        sampler = self.sampler
+        (i_meas, _), (i_ref, _) = sampler.speed_telemetry
+        samples = bytearray()
         span = _span.Span(plant=self.plant, plant_api=papi, core=core[1], target_api=core[0], roles=tuple(hello.adc_roles),
                           edge_limit=self.options.period_us * 10 - 1, read_index=self.profile.has("encoder"), rows=rows,
                           n_telemetry=len(hello.telemetry_ids), host_ref=self._record_host_ref,
-                          rtt_append=self.lockstep_rtts.append, max_edges=self.target_max_edges())
+                          rtt_append=self.lockstep_rtts.append, max_edges=self.target_max_edges(),
+                          sample_every=sampler.every, samples=samples if sampled else None, meas_index=i_meas,
+                          ref_index=i_ref, overspeed_rpm=sampler.overspeed_rpm, rpm_per_rad_s=RPM_PER_RAD_S)
         if rows is not None and self.recorder is not None and span.row_bytes != self.recorder.rows.struct.size:
             return None  # a row the C span does not write (columns.OWN_FIELDS changed without _span.c)
+        if sampled:
+            self._span_samples = samples  # the history part takes them from here (`samples_in_c`)
         return span
 
     def _periods_one_by_one(self, k: int, stop: int) -> int:

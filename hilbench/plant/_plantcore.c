@@ -893,7 +893,10 @@ static void span_period_edges(PyObject *self, const double **edge_t, const int *
     *index = s->encoder_index != 0;
 }
 
-static hb_plant_api_t span_api = {span_sense, span_advance, span_n_outputs, span_fault_input, span_period_edges};
+static double span_speed_rad_s(PyObject *self) { return ((Core *)self)->w_m; }
+
+static hb_plant_api_t span_api = {span_sense, span_advance, span_n_outputs, span_fault_input, span_period_edges,
+                                  span_speed_rad_s};
 
 static PyMethodDef module_methods[] = {
     {NULL, NULL, 0, NULL},
