@@ -174,6 +174,8 @@ def test_chunked_verdicts_equal_the_whole_array_ones_on_every_kind_and_every_cut
 
 def test_a_column_the_run_cannot_have_says_skip_as_before(tmp_path: Path) -> None:
     before = _whole_array_checks(tmp_path)
+    if before is None:
+        pytest.skip("git cannot show the checks before chunking (a shallow clone or an sdist)")
     columns = _signals()
     for name in ("ia_a", "ib_a", "ic_a", "speed_rpm"):
         del columns[name]
@@ -257,6 +259,8 @@ def test_a_monitor_run_judges_the_measured_speed_as_speed_rpm_in_chunks(tmp_path
     from hilbench.bench.column_chunks import AliasChunks
 
     before = _whole_array_checks(tmp_path)
+    if before is None:
+        pytest.skip("git cannot show the checks before chunking (a shallow clone or an sdist)")
     path = _recordings(tmp_path)[0]
     whole = dict(read_recording(path).columns)
     whole["speed_rpm"] = whole.pop("measured_speed_rpm")

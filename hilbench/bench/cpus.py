@@ -107,8 +107,11 @@ class FifoPriority:
 
     def __exit__(self, *exc_info: object) -> None:
         if self._previous is not None:
+            # keep reset-on-fork set: only a CAP_SYS_NICE thread may clear it (an RLIMIT_RTPRIO user
+            # restoring plain SCHED_OTHER would get EPERM and stay SCHED_FIFO)
+            policy, param = self._previous
             try:
-                os.sched_setscheduler(0, self._previous[0], self._previous[1])
-            except OSError:
-                pass
+                os.sched_setscheduler(0, policy | os.SCHED_RESET_ON_FORK, param)
+            except OSError as exc:
+                self.status += f"; not restored: {exc.strerror}"
             self._previous = None
