@@ -167,13 +167,13 @@ class ColumnArchive:
             offset += len(local) + len(data)
         table = b"".join(directory)
         _pwrite_all(self._fd, memoryview(table + _end_records(len(directory), offset, len(table))), offset)
-        os.close(self._fd)
-        self._fd = -1
+        fd, self._fd = self._fd, -1  # a close that fails has still released the number: never close it twice
+        os.close(fd)
 
     def abandon(self) -> None:
         if self._fd >= 0:
-            os.close(self._fd)
-            self._fd = -1
+            fd, self._fd = self._fd, -1
+            os.close(fd)
 
     def __enter__(self) -> "ColumnArchive":
         return self
