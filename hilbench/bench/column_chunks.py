@@ -24,7 +24,7 @@ from typing import IO, Iterator, Mapping, Sequence
 import numpy as np
 
 from hilbench.bench import recording_checks as rules
-from hilbench.bench.recorder import COLUMNS, _npz_members, _read_journal_rows, csv_blocks
+from hilbench.bench.recorder import COLUMNS, _npz_members, _read_journal_rows, csv_blocks, recording_path
 from hilbench.errors import RecordingError
 
 #: rows per chunk: 0.5 MB a float64 column
@@ -237,13 +237,7 @@ class CsvChunks(ColumnChunks):
 def recording_chunks(path: str | Path) -> ColumnChunks:
     """A recording (CSV, NPZ, or the journal of an NPZ run killed before its close) to read in
     chunks; RecordingError, as `read_recording` says it, for a file that is not one."""
-    path = Path(path)
-    if not path.exists():
-        journal = path.with_name(path.name + ".journal")
-        if path.suffix == ".npz" and journal.exists():
-            path = journal
-        else:
-            raise RecordingError(f"recording {path}: no such file")
+    path = recording_path(path)
     try:
         if path.name.endswith(".journal"):
             return JournalChunks(path)

@@ -599,16 +599,22 @@ class RecordingData:
         return len(self.columns["t_s"])
 
 
-def read_recording(path: str | Path) -> RecordingData:
-    """Read a CSV, NPZ or NPZ journal recording; a truncated tail is tolerated. What is read is
-    checked (hilbench.bench.recording_checks): a damaged file is one RecordingError line."""
+def recording_path(path: str | Path) -> Path:
+    """The file that holds a recording: ``path``, or the journal of an NPZ run killed before its
+    close; RecordingError when neither exists."""
     path = Path(path)
     if not path.exists():
         journal = path.with_name(path.name + ".journal")
         if path.suffix == ".npz" and journal.exists():
-            path = journal
-        else:
-            raise RecordingError(f"recording {path}: no such file")
+            return journal
+        raise RecordingError(f"recording {path}: no such file")
+    return path
+
+
+def read_recording(path: str | Path) -> RecordingData:
+    """Read a CSV, NPZ or NPZ journal recording; a truncated tail is tolerated. What is read is
+    checked (hilbench.bench.recording_checks): a damaged file is one RecordingError line."""
+    path = recording_path(path)
     try:
         if path.name.endswith(".journal"):
             data = _read_journal(path)
