@@ -59,13 +59,16 @@ static const char PAIRS[201] = "000102030405060708091011121314151617181920212223
                                "40414243444546474849505152535455565758596061626364656667686970717273747576777879"
                                "8081828384858687888990919293949596979899";
 
-static const uint64_t POW10[10] = {1ULL, 10ULL, 100ULL, 1000ULL, 10000ULL, 100000ULL, 1000000ULL, 10000000ULL,
-                                   100000000ULL, 1000000000ULL};
+static const uint64_t POW10_64[20] = {1ULL, 10ULL, 100ULL, 1000ULL, 10000ULL, 100000ULL, 1000000ULL, 10000000ULL,
+                                       100000000ULL, 1000000000ULL, 10000000000ULL, 100000000000ULL,
+                                       1000000000000ULL, 10000000000000ULL, 100000000000000ULL,
+                                       1000000000000000ULL, 10000000000000000ULL, 100000000000000000ULL,
+                                       1000000000000000000ULL, 10000000000000000000ULL};
 
-/* v's digits written right-aligned to end at `end`, at least `width` of them (zeros before); the count */
-static int digits_before(char *end, uint64_t v, int width)
+/* v's digits written right-aligned to end at `end`, exactly `n` of them (zeros before) */
+static void digits_before(char *end, uint64_t v, int n)
 {
-    char *p = end;
+    char *p = end, *first = end - n;
     while (v >= 100) {
         unsigned r = (unsigned)(v % 100u);
         v /= 100u;
@@ -75,29 +78,66 @@ static int digits_before(char *end, uint64_t v, int width)
     if (v >= 10) {
         p -= 2;
         memcpy(p, PAIRS + 2 * v, 2);
-    } else {
+    } else if (p > first || v) {
         *--p = (char)('0' + (int)v);
     }
-    while (end - p < width) *--p = '0';
-    return (int)(end - p);
+    while (p > first) *--p = '0';
+}
+
+/* the number of decimal digits of v (1 for 0) */
+static int n_digits(uint64_t v)
+{
+    int n = 1;
+    while (n < 20 && v >= POW10_64[n]) n++;
+    return n;
 }
 
 /* v's decimal digits at out; their count */
 static int put_u64(char *out, uint64_t v)
 {
-    char tmp[24];
-    int n = digits_before(tmp + 24, v, 1);
-    memcpy(out, tmp + 24 - n, (size_t)n);
+    int n = n_digits(v);
+    digits_before(out + n, v, n);
     return n;
+}
+
+/* a finite double's exact value as m * 2^e (m below 2^53; m = 0 for a zero) */
+static uint64_t binary(double x, int *e)
+{
+    uint64_t bits;
+    memcpy(&bits, &x, 8);
+    int biased = (int)((bits >> 52) & 0x7FF);
+    uint64_t m = bits & ((1ULL << 52) - 1);
+    if (biased == 0) { /* a subnormal (or a zero) */
+        *e = -1074;
+        return m;
+    }
+    *e = biased - 1075;
+    return m | (1ULL << 52);
+}
+
+/* q / 10^prec and its remainder, prec <= 9 (constant divisors: the compiler multiplies) */
+static uint64_t div_pow10(uint64_t q, int prec, uint64_t *rem)
+{
+    uint64_t d;
+    switch (prec) {
+    case 0: *rem = 0; return q;
+    case 1: d = q / 10u; *rem = q - d * 10u; return d;
+    case 2: d = q / 100u; *rem = q - d * 100u; return d;
+    case 3: d = q / 1000u; *rem = q - d * 1000u; return d;
+    case 4: d = q / 10000u; *rem = q - d * 10000u; return d;
+    case 5: d = q / 100000u; *rem = q - d * 100000u; return d;
+    case 6: d = q / 1000000u; *rem = q - d * 1000000u; return d;
+    case 7: d = q / 10000000u; *rem = q - d * 10000000u; return d;
+    case 8: d = q / 100000000u; *rem = q - d * 100000000u; return d;
+    default: d = q / 1000000000u; *rem = q - d * 1000000000u; return d;
+    }
 }
 
 /* The exact decimal digits of |x| >= 2^53 (an integer: m * 2^e, e >= 0) at out; their count. */
 static int put_huge(char *out, double x)
 {
-    int e2;
-    double fr = frexp(fabs(x), &e2);
-    uint64_t m = (uint64_t)ldexp(fr, 53);
-    int e = e2 - 53;
+    int e;
+    uint64_t m = binary(x, &e);
     uint32_t limb[40]; /* base 10^9, least significant first: 2^1024 < 10^309 fits in 35 */
     int n = 0;
     while (m) {
@@ -119,7 +159,7 @@ static int put_huge(char *out, double x)
         e -= k;
     }
     int len = put_u64(out, limb[n - 1]);
-    for (int i = n - 2; i >= 0; i--) len += digits_before(out + len + 9, limb[i], 9);
+    for (int i = n - 2; i >= 0; i--, len += 9) digits_before(out + len + 9, limb[i], 9);
     return len;
 }
 
@@ -129,17 +169,14 @@ static int fixed(char *out, double x, int prec)
 {
     int len = 0;
     if (signbit(x)) out[len++] = '-';
-    double a = fabs(x);
-    int e2;
-    double fr = frexp(a, &e2); /* a = fr * 2^e2, fr in [0.5, 1) */
-    uint64_t m = (uint64_t)ldexp(fr, 53); /* exact: 53 bits */
-    int e = e2 - 53;                       /* a = m * 2^e */
-    unsigned __int128 p = (unsigned __int128)m * POW10[prec];
+    int e;
+    uint64_t m = binary(x, &e);
+    unsigned __int128 p = (unsigned __int128)m * POW10_64[prec];
     unsigned __int128 q;
-    if (a == 0.0) {
+    if (m == 0) {
         q = 0;
     } else if (e >= 0) {
-        q = p << e; /* a < 2^63 and 10^9 < 2^30: below 2^93 */
+        q = p << e; /* |x| < 2^63 and 10^9 < 2^30: below 2^93 */
     } else {
         int s = -e;
         if (s >= 100) { /* p < 2^83: p / 2^s < 1/2, rounds to 0 */
@@ -150,16 +187,10 @@ static int fixed(char *out, double x, int prec)
             if (r > half || (r == half && (q & 1u))) q += 1;
         }
     }
-    unsigned __int128 whole;
     uint64_t frac;
-    if (q >> 64) { /* rare: a 128-bit division */
-        whole = q / POW10[prec];
-        frac = (uint64_t)(q - whole * POW10[prec]);
-    } else {
-        whole = (uint64_t)q / POW10[prec];
-        frac = (uint64_t)q % POW10[prec];
-    }
-    if (whole >> 64) { /* rare: beyond 2^64 (a 128-bit division a digit) */
+    if (q >> 64) { /* rare: |x| * 10^N beyond 2^64, a 128-bit division a digit */
+        unsigned __int128 whole = q / POW10_64[prec];
+        frac = (uint64_t)(q - whole * POW10_64[prec]);
         char tmp[48];
         int nd = 0;
         while (whole) {
@@ -168,11 +199,12 @@ static int fixed(char *out, double x, int prec)
         }
         while (nd) out[len++] = tmp[--nd];
     } else {
-        len += put_u64(out + len, (uint64_t)whole);
+        len += put_u64(out + len, div_pow10((uint64_t)q, prec, &frac));
     }
     if (prec) {
         out[len++] = '.';
-        len += digits_before(out + len + prec, frac, prec);
+        digits_before(out + len + prec, frac, prec);
+        len += prec;
     }
     return len;
 }
