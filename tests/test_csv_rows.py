@@ -196,24 +196,33 @@ def test_a_layout_the_writer_refuses_is_written_by_the_reference(tmp_path: Path)
 
 
 def test_a_write_that_fails_on_the_thread_is_a_recording_error_and_the_thread_is_joined(tmp_path: Path) -> None:
-    """/dev/full: the thread's write fails with ENOSPC; the flush that waits for it says so (one
-    RecordingError line), and the close leaves no thread behind."""
+    """A full disk (/dev/full: ENOSPC): the thread's write fails; the flush that waits for it says so
+    (one RecordingError line), so does the close, and no thread is left behind."""
     before = set(os.listdir("/proc/self/task"))
     rec = recorder_module.Recorder(tmp_path / "r.csv", {})
     rec.start()
     assert rec._csv_writer is not None
-    fd = os.open("/dev/full", os.O_WRONLY)
-    try:
-        os.dup2(fd, rec._file.fileno())  # the writer's descriptor now writes to a full disk
-        for k in range(10):
-            rec.append(tuple([float(k)] * recorder_module.N_COLUMNS))
-        with pytest.raises(RecordingError, match=f"write failed \\({os.strerror(errno.ENOSPC)}\\)"):
-            rec.flush()
-        with pytest.raises(RecordingError):
-            rec.close()
-    finally:
-        os.close(fd)
+    with open("/dev/full", "wb") as full:  # the writer takes a descriptor of its own: one on a full disk
+        rec._csv_writer = recorder_module._csv_row_writer(full.fileno(), rec.rows.layout)
+    for k in range(10):
+        rec.append(tuple([float(k)] * recorder_module.N_COLUMNS))
+    with pytest.raises(RecordingError, match=f"write failed \\({os.strerror(errno.ENOSPC)}\\)"):
+        rec.flush()
+    with pytest.raises(RecordingError, match="write failed"):
+        rec.close()
+    del rec
     assert set(os.listdir("/proc/self/task")) == before
+
+
+def test_the_writer_writes_on_a_descriptor_of_its_own(tmp_path: Path) -> None:
+    """The caller's descriptor closed (and its number reused) while rows wait: they go to the file."""
+    with open(tmp_path / "x.csv", "wb") as out:
+        writer = _csvrows.RowWriter(out.fileno(), 8, [(0, "d", 1.0, 0.0, "%d")], 100)
+    with open(tmp_path / "other", "wb") as other:  # likely the number just freed
+        writer.submit(np.arange(3, dtype=np.float64).tobytes(), [])
+        writer.close()
+    assert (tmp_path / "x.csv").read_text() == "0\n1\n2\n"
+    assert (tmp_path / "other").read_bytes() == b"" and other.closed
 
 
 def test_the_writer_thread_blocks_every_signal(tmp_path: Path) -> None:

@@ -11,8 +11,8 @@
  * into Python, so the formatting runs without the GIL.
  *
  * format_rows(rows, itemsize, columns) -> str: the rows of a bytes-like (whole rows) as CSV lines.
- * RowWriter(fd, itemsize, columns, max_rows): the same text written to fd by a thread of its own
- * (every signal blocked in it): `submit(rows, events)` hands over a copy of whole raw rows and the
+ * RowWriter(fd, itemsize, columns, max_rows): the same text written to fd (a duplicate of it, the
+ * writer's own) by a thread of its own (every signal blocked in it): `submit(rows, events)` hands over a copy of whole raw rows and the
  * event lines that go before row i ((i, bytes), i up to the number of rows: after the last); it
  * waits, the GIL released, while more than max_rows rows wait to be written. `drain()` waits until
  * every row handed over is written (a signal's exception raised meanwhile is raised after it: no
@@ -27,6 +27,7 @@
 #endif
 #include <Python.h>
 #include <errno.h>
+#include <fcntl.h>
 #include <math.h>
 #include <pthread.h>
 #include <sched.h>
@@ -611,6 +612,8 @@ static void stop_thread(Writer *w, int discard)
     pthread_join(w->thread, NULL);
     Py_END_ALLOW_THREADS
     w->running = 0;
+    close(w->fd); /* its own duplicate: nothing written on it any more */
+    w->fd = -1;
 }
 
 /* close(): every row handed over written, the thread joined (OSError: a failed write) */
@@ -654,6 +657,15 @@ static int Writer_init(Writer *w, PyObject *args, PyObject *kwds)
         PyErr_NoMemory();
         return -1;
     }
+    /* a descriptor of its own (the same open file): whoever closes the caller's, the thread never
+     * writes on a closed or reused number */
+    int own_fd = fcntl(fd, F_DUPFD_CLOEXEC, 0);
+    if (own_fd < 0) {
+        PyErr_SetFromErrno(PyExc_OSError);
+        free(text);
+        PyMem_Free(cols);
+        return -1;
+    }
     if (pthread_mutex_init(&w->lock, NULL)) goto no_sync;
     if (pthread_cond_init(&w->wake, NULL)) {
         pthread_mutex_destroy(&w->lock);
@@ -664,7 +676,7 @@ static int Writer_init(Writer *w, PyObject *args, PyObject *kwds)
         pthread_mutex_destroy(&w->lock);
         goto no_sync;
     }
-    w->fd = fd;
+    w->fd = own_fd;
     w->itemsize = itemsize;
     w->max_rows = (size_t)max_rows;
     w->n_cols = n_cols;
@@ -680,11 +692,12 @@ static int Writer_init(Writer *w, PyObject *args, PyObject *kwds)
     pthread_sigmask(SIG_SETMASK, &before, NULL);
     if (err) {
         os_error(err);
-        return -1;
+        return -1; /* dealloc closes own_fd */
     }
     w->running = 1;
     return 0;
 no_sync:
+    close(own_fd);
     free(text);
     PyMem_Free(cols);
     PyErr_SetString(PyExc_OSError, "RowWriter: no lock or condition");
@@ -694,6 +707,7 @@ no_sync:
 static void Writer_dealloc(Writer *w)
 {
     stop_thread(w, 1);
+    if (w->ready && w->fd >= 0) close(w->fd); /* the thread never started */
     if (w->ready) {
         pthread_mutex_destroy(&w->lock);
         pthread_cond_destroy(&w->wake);
