@@ -25,6 +25,11 @@ that ends with another number of rows (or a fault marker on a row already in the
 then patched there) has its archive written from the journal at the close. A journal write that
 fails beside it (a full disk) gives the archive up, its file removed, and is written again: the
 journal, not the archive, keeps the rows.
+
+A CSV run's rows are formatted and written by the C row writer's thread (`_csvrows.RowWriter`,
+when built): settled rows are handed to it every BACKGROUND_CHUNK_ROWS rows (the newest kept back,
+for `mark_last`) and at each flush, which returns once they are written; `_format_csv` is its
+reference (without it, or for a format it does not take).
 """
 
 from __future__ import annotations
