@@ -263,3 +263,15 @@ def test_the_writer_holds_at_most_max_rows_waiting(tmp_path: Path) -> None:
     os.close(write_fd)
     assert os.read(read_fd, 10) == b""
     os.close(read_fd)
+
+
+@pytest.mark.parametrize("suffix", [".csv", ".npz"])
+def test_an_event_with_a_lone_surrogate_is_written_escaped(tmp_path: Path, suffix: str) -> None:
+    """JSON from a control client may carry "\\ud800": the event is written with it escaped, not
+    a UnicodeEncodeError out of the flush."""
+    rec = recorder_module.Recorder(tmp_path / f"r{suffix}", {})
+    rec.start()
+    rec.event("set name=\ud800x")
+    rec.append(tuple([0.0] * recorder_module.N_COLUMNS))
+    rec.close("end")
+    assert read_recording(tmp_path / f"r{suffix}").events[0] == "set name=\\ud800x"

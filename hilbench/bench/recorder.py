@@ -380,8 +380,11 @@ class Recorder:
         return rows
 
     def event(self, text: str, marker: int = MARKER_NONE) -> None:
-        """Note an event at the next row to be appended; a marker goes into that row."""
-        self._events.append((len(self.rows), text.replace("\n", " "), marker))
+        """Note an event at the next row to be appended; a marker goes into that row. The text is
+        one line of UTF-8 (a lone surrogate, which a control client's JSON can carry, as its escape:
+        a CSV or an events file could not take it)."""
+        line = text.replace("\n", " ").encode("utf-8", "backslashreplace").decode("utf-8")
+        self._events.append((len(self.rows), line, marker))
 
     def mark_last(self, marker: int) -> None:
         """Set the marker of the newest pending row (the last good period): it wins over events."""
