@@ -381,7 +381,7 @@ def run(config: str | None, target_spec: str | None, mode: str | None, duration_
         console.print(summary_table(summary))
     if summary.checks and not as_json:
         click.echo(checks_text(summary.checks))
-    raise_if_failed(summary.checks)  # exit code 9: the run completed, a [[check]] did not hold
+    raise_if_failed(summary.checks)  # exit code 9: a [[check]] did not hold (6: one could not read the recording)
 
 
 def _run_monitor(cfg: Any, record: str | None, no_control: bool, plain: bool, as_json: bool = False,

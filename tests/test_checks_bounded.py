@@ -268,3 +268,60 @@ def test_a_monitor_run_judges_the_measured_speed_as_speed_rpm_in_chunks(tmp_path
     source = recording_chunks(path)
     got = run_checks(entries, _summary(), lambda: AliasChunks(_Cut(source, 333), {"speed_rpm": "measured_speed_rpm"}))
     assert _dicts(got) == _dicts(before.run_checks(entries, _summary(), lambda: whole))
+
+
+def _huge_npz(path: Path) -> Path:
+    """An NPZ whose two columns hold 1.1e9 rows each (17.6 GB, over RECORDING_MAX_BYTES): a sparse
+    file, its rows never written, its headers whole."""
+    n_rows = 1_100_000_000
+    archive = ColumnArchive(path, ["t_s", "marker"], n_rows)
+    archive.written(n_rows, [0, 0])  # the rows are holes: nothing reads them before the bound refuses the file
+    archive.add("metadata", np.asarray(json.dumps({"period_us": 50})))
+    archive.close()
+    return path
+
+
+def test_a_recording_the_checks_cannot_read_fails_them_as_a_recording_error_not_a_skip(tmp_path: Path) -> None:
+    """A damaged header, a file over the reader's bound, a file gone, rows damaged on the way: every
+    check that reads the rows FAILs naming the file and why, and raise_if_failed raises that one line
+    as a RecordingError (exit code 6). They said SKIP "no rows were kept" (no_fault: PASS)."""
+    from hilbench.bench.checks import raise_if_failed
+    from hilbench.errors import RecordingError
+
+    (tmp_path / "header.csv").write_text("t_s[s],garbage\x00\n0.0,1\n")
+    (tmp_path / "header.npz").write_bytes(b"PK\x03\x04" + b"\x00" * 60)
+    back = tmp_path / "back.npz"
+    columns = _signals()
+    columns["t_s"][1500] = columns["t_s"][1499]
+    with ColumnArchive(back, list(COLUMN_NAMES), N_ROWS) as archive:
+        archive.write(0, columns)
+        archive.add("metadata", np.asarray(json.dumps({"columns": [[n, ""] for n in COLUMN_NAMES]})))
+    cases = {"header.csv": "not a hilbench CSV", "header.npz": "unreadable", "gone.npz": "no such file",
+             "huge.npz": "more than the limit of 16 GiB", "back.npz": "row 1500"}
+    _huge_npz(tmp_path / "huge.npz")
+    reading = ENTRIES[2:3] + ENTRIES[10:11] + ENTRIES[16:17] + ENTRIES[21:22]  # settling, peak, signal, no_fault
+    for name, why in cases.items():
+        path = tmp_path / name
+        results = run_checks(ENTRIES[:1] + reading, _summary(), lambda: recording_chunks(path))
+        assert results[0].passed and not results[0].unreadable  # speed_error: judged on the summary alone
+        for result in results[1:]:
+            assert not result.passed and not result.skipped and result.unreadable, (name, result.line())
+            assert result.line().startswith(f"check {result.name}: FAIL cannot be judged: recording {path}")
+            assert why in result.figure, (name, result.figure)
+        with pytest.raises(RecordingError) as raised:
+            raise_if_failed(results)
+        message = str(raised.value)
+        assert raised.value.exit_code == 6 and "\n" not in message and str(path) in message and why in message
+
+
+def test_a_run_that_recorded_nothing_still_says_skip(tmp_path: Path) -> None:
+    """No --record: the signals source says so with a HilbenchError that is not a RecordingError."""
+    from hilbench.bench.checks import raise_if_failed
+    from hilbench.errors import ConfigError
+
+    def nothing() -> ColumnChunks:
+        raise ConfigError("Bench: nothing recorded yet")
+
+    results = run_checks(ENTRIES[2:3] + ENTRIES[10:11] + ENTRIES[16:17], _summary(), nothing)
+    assert all(r.passed and r.skipped and not r.unreadable and "no rows were kept" in r.figure for r in results)
+    raise_if_failed(results)
