@@ -158,3 +158,35 @@ def test_a_lane_missing_is_named_and_an_overlay_without_speed_is_drawn_without_i
         overlay = plot_speed_overlay_chunks(heads, tmp_path / "o")
     assert overlay.paths[0].stat().st_size > 5_000
     assert overlay.left_out == ("overlay of motor.npz (no speed_rpm or measured_speed_rpm with values)",)
+
+
+def test_dense_halls_and_sectors_are_drawn_as_their_rates_with_their_ticks(tmp_path: Path) -> None:
+    """One function draws both rates (duplicates D3: _hall_rate and _sector_rate were one shape):
+    3000 codes a second in either lane, an invalid hall code every 997th period and a sector jump
+    every 1301st, each counted here from the arrays."""
+    from hilbench.bench.column_chunks import ArrayChunks
+    from hilbench.ui.plot_data import view
+    from hilbench.ui.plots import _hall_figure
+
+    c = recording(tmp_path).columns
+    step = (c["t_s"] * 3000).astype(int)
+    c["hall"] = np.array([1, 3, 2, 6, 4, 5])[step % 6].astype(float)
+    c["hall"][::997] = 7
+    c["sector"] = (step % 6).astype(float)
+    c["sector"][::1301] = 3
+    invalid = int(np.count_nonzero(c["hall"] == 7))
+    sector = c["sector"].astype(int)
+    before, after = sector[:-1], sector[1:]
+    changed = before != after
+    jumps = int(np.count_nonzero(changed & ((after - before) % 6 != 1) & ((before - after) % 6 != 1)))
+    plt = _pyplot()
+    fig = _hall_figure(plt, view(ArrayChunks(c), ("hall", "sector")), [])
+    halls, sectors = fig.axes
+    assert halls.get_ylabel() == "hall edges / s" and sectors.get_ylabel() == "sector changes / s"
+    assert [t.get_text() for t in halls.get_legend().get_texts()] == \
+        ["hall edges per second", f"invalid hall code ({invalid} periods)"]
+    assert [t.get_text() for t in sectors.get_legend().get_texts()] == \
+        ["sector changes per second", f"out-of-sequence changes ({jumps})"]
+    assert np.median(sectors.lines[0].get_ydata()) == pytest.approx(3000, rel=0.02)
+    assert "too many to draw as steps" in halls.texts[0].get_text() and not sectors.texts
+    plt.close(fig)

@@ -17,7 +17,7 @@ from hilbench.bench.column_chunks import ArrayChunks, ColumnChunks
 from hilbench.bench.recorder import RecordingData
 from hilbench.bench.recording_head import RecordingHead
 from hilbench.errors import ConfigError, HilbenchError
-from hilbench.ui.plot_data import MAX_POINTS, RecordingView, Trace, view, whole_trace
+from hilbench.ui.plot_data import MAX_POINTS, Rate, RecordingView, Trace, view, whole_trace
 
 
 class PlotUnavailable(HilbenchError):
@@ -264,7 +264,9 @@ def _hall_figure(plt, v: RecordingView, events):  # type: ignore[no-untyped-def]
     assert v.hall is not None and v.sector is not None
     fig, (ax1, ax2) = plt.subplots(2, 1, figsize=(10, 5), sharex=True, gridspec_kw={"height_ratios": [3, 2]})
     if v.hall.count > MAX_HALL_EDGES:  # steps would be a solid bar: the edge rate, and invalid codes
-        _hall_rate(ax1, v)
+        _rate(ax1, v, v.hall, "hall edges", "C0", "invalid hall code ({count} periods)")
+        ax1.text(0.01, 0.97, f"{v.hall.count} edges: too many to draw as steps (report --window T0:T1 shows them)",
+                 transform=ax1.transAxes, va="top", fontsize=7, color="0.35")
     else:
         for bit, name in enumerate(("A", "B", "C")):
             _draw(ax1, v.traces[f"hall_{name.lower()}"], f"hall {name}", {"lw": 0.8, "color": f"C{bit}"},
@@ -272,7 +274,7 @@ def _hall_figure(plt, v: RecordingView, events):  # type: ignore[no-untyped-def]
         ax1.set_yticks([0.4, 1.6, 2.8], ["A", "B", "C"])
         ax1.set_ylabel("hall")
     if v.sector.count > MAX_HALL_EDGES:  # as dense as the halls: its rate, and the out-of-sequence jumps
-        _sector_rate(ax2, v)
+        _rate(ax2, v, v.sector, "sector changes", "C3", "out-of-sequence changes ({count})")
     else:
         _draw(ax2, v.traces["sector"], "sector", {"lw": 0.8, "color": "C3"}, digital=True)
         ax2.set_ylabel("sector")
@@ -284,36 +286,17 @@ def _hall_figure(plt, v: RecordingView, events):  # type: ignore[no-untyped-def]
     return fig
 
 
-def _hall_rate(ax, v: RecordingView) -> None:  # type: ignore[no-untyped-def]
-    """Too many hall edges to draw as steps: edges per second over ~200 bins (6 an electrical
-    revolution), and every period with an invalid code (0 or 7) as a red tick."""
-    assert v.hall is not None
+def _rate(ax, v: RecordingView, rate: Rate, what: str, colour: str, ticks_label: str) -> None:  # type: ignore[no-untyped-def]
+    """Too many hall edges or sector changes to draw as steps: ``what`` per second over ~200 bins
+    (6 hall edges an electrical revolution), and each of ``rate``'s ticks (a period with an invalid
+    hall code, 0 or 7; a sector change not to a neighbour) as a red one, labelled ``ticks_label``
+    with its {count}."""
     span = float(v.t_last_s - v.t_first_s) or 1.0
-    bins = v.hall.bins
-    ax.step(bins[:-1], v.hall.counts / (span / 200), where="post", color="C0", lw=0.9, label="hall edges per second")
-    bad = v.hall.ticks
-    if bad.count:
-        ticks = bad.array()
-        ax.plot(ticks, np.zeros(ticks.size), "|", color="tab:red", ms=8, label=f"invalid hall code ({bad.count} periods)")
-    ax.set_ylabel("hall edges / s")
-    ax.legend(loc="upper right", fontsize=7)
-    ax.text(0.01, 0.97, f"{v.hall.count} edges: too many to draw as steps (report --window T0:T1 shows them)",
-            transform=ax.transAxes, va="top", fontsize=7, color="0.35")
-
-
-def _sector_rate(ax, v: RecordingView) -> None:  # type: ignore[no-untyped-def]
-    """Too many sector changes to draw as steps: changes per second, and every change that is not
-    to a neighbouring sector (a skipped or invalid one, 7) as a red tick."""
-    assert v.sector is not None
-    span = float(v.t_last_s - v.t_first_s) or 1.0
-    bins = v.sector.bins
-    ax.step(bins[:-1], v.sector.counts / (span / 200), where="post", color="C3", lw=0.9, label="sector changes per second")
-    jumps = v.sector.ticks
-    if jumps.count:
-        ticks = jumps.array()
-        ax.plot(ticks, np.zeros(ticks.size), "|", color="tab:red", ms=8,
-                label=f"out-of-sequence changes ({jumps.count})")
-    ax.set_ylabel("sector changes / s")
+    ax.step(rate.bins[:-1], rate.counts / (span / 200), where="post", color=colour, lw=0.9, label=f"{what} per second")
+    if rate.ticks.count:
+        ticks = rate.ticks.array()
+        ax.plot(ticks, np.zeros(ticks.size), "|", color="tab:red", ms=8, label=ticks_label.format(count=rate.ticks.count))
+    ax.set_ylabel(f"{what} / s")
     ax.legend(loc="upper right", fontsize=7)
 
 
