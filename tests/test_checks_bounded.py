@@ -5,24 +5,21 @@ the peak memory of judging a recording does not grow with its length."""
 
 from __future__ import annotations
 
-import importlib.util
 import json
 import math
-import subprocess
-import sys
 import textwrap
 from pathlib import Path
 from types import ModuleType
-from typing import Iterator, Sequence
+from typing import Sequence
 
 import numpy as np
 import pytest
 
-from conftest import REPO_ROOT
+from _recordings import Cut, every_kind, module_at, peak_rss_kib, write_archive
 from hilbench.bench.checks import CheckEntry, CheckResult, run_checks
-from hilbench.bench.column_chunks import Chunk, ColumnChunks, recording_chunks
+from hilbench.bench.column_chunks import ColumnChunks, recording_chunks
 from hilbench.bench.npzwriter import ColumnArchive
-from hilbench.bench.recorder import COLUMN_NAMES, Recorder, read_recording
+from hilbench.bench.recorder import COLUMN_NAMES, read_recording
 from hilbench.bench.summary import Segment, Summary
 
 #: main when the checks began to read in chunks: its run_checks evaluated whole arrays
@@ -97,54 +94,16 @@ ENTRIES = (
 )
 
 
-class _Cut(ColumnChunks):
-    """Another source's chunks, cut every ``rows`` rows."""
-
-    def __init__(self, source: ColumnChunks, rows: int) -> None:
-        self._source, self._rows = source, rows
-        self.names, self.units = source.names, source.units
-
-    def _chunks(self, names: Sequence[str], chunk_rows: int) -> Iterator[Chunk]:
-        return self._source.chunks(names, self._rows)
-
-
 def _recordings(tmp_path: Path) -> list[Path]:
     """The signals as an NPZ, as the journal of a run killed before its close, and as a CSV."""
     columns = _signals()
-    paths = []
-    for name, close in (("run.npz", True), ("killed.npz", False), ("run.csv", True)):
-        recorder = Recorder(tmp_path / name, {"period_us": 1000}, flush_rows=997)
-        recorder.start()
-        for row in zip(*(columns[c].tolist() for c in COLUMN_NAMES)):
-            recorder.append(row)
-            recorder.maybe_flush()
-        if close:
-            recorder.close("end: completed")
-        else:
-            recorder.flush()
-        paths.append(tmp_path / name)
-    assert (tmp_path / "killed.npz.journal").exists() and not (tmp_path / "killed.npz").exists()
-    return paths
+    return every_kind(tmp_path, lambda name: columns)
 
 
 def _whole_array_checks(tmp_path: Path) -> ModuleType | None:
     """hilbench/bench/checks.py as it was before it read in chunks (its judges take whole arrays); None
     where git cannot show it (a shallow clone, an unpacked sdist)."""
-    shown = subprocess.run(["git", "-C", str(REPO_ROOT), "show", f"{WHOLE_ARRAY_COMMIT}:hilbench/bench/checks.py"],
-                           capture_output=True, text=True)
-    if shown.returncode != 0:
-        return None
-    source = tmp_path / "checks_whole_array.py"
-    source.write_text(shown.stdout)
-    spec = importlib.util.spec_from_file_location("checks_whole_array", source)
-    assert spec is not None and spec.loader is not None
-    module = importlib.util.module_from_spec(spec)
-    sys.modules["checks_whole_array"] = module
-    try:
-        spec.loader.exec_module(module)
-    finally:
-        del sys.modules["checks_whole_array"]
-    return module
+    return module_at(WHOLE_ARRAY_COMMIT, "hilbench/bench/checks.py", tmp_path)
 
 
 def _dicts(results: Sequence[CheckResult]) -> list[dict[str, object]]:
@@ -159,12 +118,12 @@ def test_chunked_verdicts_equal_the_whole_array_ones_on_every_kind_and_every_cut
     summary = _summary()
     for path in _recordings(tmp_path):
         whole = read_recording(path).columns
-        expected = _dicts(run_checks(ENTRIES, summary, lambda: _Cut(recording_chunks(path), 10 * N_ROWS)))
+        expected = _dicts(run_checks(ENTRIES, summary, lambda: Cut(recording_chunks(path), 10 * N_ROWS)))
         if before is not None:
             assert _dicts(before.run_checks(ENTRIES, summary, lambda: whole)) == expected, path.name
         assert len(expected) == len(ENTRIES)
         for rows in (1, 7, 333, 997, N_ROWS):
-            got = _dicts(run_checks(ENTRIES, summary, lambda: _Cut(recording_chunks(path), rows)))
+            got = _dicts(run_checks(ENTRIES, summary, lambda: Cut(recording_chunks(path), rows)))
             assert got == expected, (path.name, rows)
         in_memory = _dicts(run_checks(ENTRIES, summary, lambda: whole))  # rows kept in memory: views of them
         assert in_memory == expected
@@ -185,16 +144,18 @@ def test_a_column_the_run_cannot_have_says_skip_as_before(tmp_path: Path) -> Non
         _dicts(before.run_checks(entries, _summary(), lambda: columns, absent=absent))
 
 
+def _back(path: Path) -> Path:
+    """The signals with t_s going back at row 1500 (no run writes that: straight into the archive)."""
+    columns = _signals()
+    columns["t_s"][1500] = columns["t_s"][1499]
+    return write_archive(path, COLUMN_NAMES, N_ROWS, lambda k: {name: columns[name][k] for name in COLUMN_NAMES}, {})
+
+
 def test_a_damaged_recording_read_in_chunks_is_one_recording_error(tmp_path: Path) -> None:
     """t_s that goes back across a chunk's cut is refused as read_recording refuses it, by its row."""
     from hilbench.errors import RecordingError
 
-    path = tmp_path / "back.npz"
-    columns = _signals()
-    columns["t_s"][1500] = columns["t_s"][1499]
-    with ColumnArchive(path, list(COLUMN_NAMES), N_ROWS) as archive:
-        archive.write(0, columns)
-        archive.add("metadata", np.asarray(json.dumps({"columns": [[n, ""] for n in COLUMN_NAMES]})))
+    path = _back(tmp_path / "back.npz")
     with pytest.raises(RecordingError) as whole:
         read_recording(path)
     with pytest.raises(RecordingError) as chunked:
@@ -221,25 +182,21 @@ _CHILD = textwrap.dedent("""
 """)
 
 
-def _long_recording(path: Path, n_rows: int) -> None:
+def _long_recording(path: Path, n_rows: int) -> Path:
     """``n_rows`` periods at 20 kHz of the columns the checks read, written a chunk at a time."""
-    names = ["t_s", "speed_rpm", "ia_a", "ib_a", "ic_a", "fault", "marker"]
-    chunk = 1 << 18
-    with ColumnArchive(path, names, n_rows) as archive:
-        for first in range(0, n_rows, chunk):
-            t = np.arange(first, min(n_rows, first + chunk)) * 5e-5
-            phase = 2 * np.pi * 50 * t
-            archive.write(first, {"t_s": t, "speed_rpm": 1000.0 * (1 - np.exp(-t / 0.1)), "ia_a": np.sin(phase),
-                                  "ib_a": np.sin(phase - 2.0944), "ic_a": np.sin(phase + 2.0944),
-                                  "fault": np.zeros_like(t), "marker": np.zeros_like(t)})
-        archive.add("metadata", np.asarray(json.dumps({"period_us": 50, "columns": [[n, ""] for n in names]})))
+    def chunk(k: np.ndarray) -> dict[str, np.ndarray]:
+        t = k * 5e-5
+        phase = 2 * np.pi * 50 * t
+        return {"t_s": t, "speed_rpm": 1000.0 * (1 - np.exp(-t / 0.1)), "ia_a": np.sin(phase),
+                "ib_a": np.sin(phase - 2.0944), "ic_a": np.sin(phase + 2.0944),
+                "fault": np.zeros_like(t), "marker": np.zeros_like(t)}
+
+    return write_archive(path, ["t_s", "speed_rpm", "ia_a", "ib_a", "ic_a", "fault", "marker"], n_rows, chunk,
+                         {"period_us": 50})
 
 
 def _peak_kib(path: Path, n_rows: int) -> int:
-    done = subprocess.run([sys.executable, "-c", _CHILD, str(path), str(n_rows)], capture_output=True, text=True,
-                          timeout=120, cwd=REPO_ROOT)
-    assert done.returncode == 0, done.stderr[-2000:]
-    return int(done.stdout.split()[-1])  # Linux: KiB
+    return peak_rss_kib(_CHILD, str(path), str(n_rows), timeout_s=120)
 
 
 def test_judging_a_recording_ten_times_longer_takes_no_more_memory(tmp_path: Path) -> None:
@@ -266,7 +223,7 @@ def test_a_monitor_run_judges_the_measured_speed_as_speed_rpm_in_chunks(tmp_path
     whole["speed_rpm"] = whole.pop("measured_speed_rpm")
     entries = ENTRIES[2:10] + ENTRIES[14:16]
     source = recording_chunks(path)
-    got = run_checks(entries, _summary(), lambda: AliasChunks(_Cut(source, 333), {"speed_rpm": "measured_speed_rpm"}))
+    got = run_checks(entries, _summary(), lambda: AliasChunks(Cut(source, 333), {"speed_rpm": "measured_speed_rpm"}))
     assert _dicts(got) == _dicts(before.run_checks(entries, _summary(), lambda: whole))
 
 
@@ -290,12 +247,7 @@ def test_a_recording_the_checks_cannot_read_fails_them_as_a_recording_error_not_
 
     (tmp_path / "header.csv").write_text("t_s[s],garbage\x00\n0.0,1\n")
     (tmp_path / "header.npz").write_bytes(b"PK\x03\x04" + b"\x00" * 60)
-    back = tmp_path / "back.npz"
-    columns = _signals()
-    columns["t_s"][1500] = columns["t_s"][1499]
-    with ColumnArchive(back, list(COLUMN_NAMES), N_ROWS) as archive:
-        archive.write(0, columns)
-        archive.add("metadata", np.asarray(json.dumps({"columns": [[n, ""] for n in COLUMN_NAMES]})))
+    _back(tmp_path / "back.npz")
     cases = {"header.csv": "not a hilbench CSV", "header.npz": "unreadable", "gone.npz": "no such file",
              "huge.npz": "more than the limit of 16 GiB", "back.npz": "row 1500"}
     _huge_npz(tmp_path / "huge.npz")

@@ -107,15 +107,13 @@ _NO_DUTIES = (("t_s", "s", "%.6f"), ("seq", "", "%d"), ("hall", "bits CBA", "%d"
 
 def _no_duty_recording(path: Path) -> Path:
     """Half a second at 1 kHz of the _NO_DUTIES columns, written by the recorder as a run writes it."""
-    from hilbench.bench.recorder import Recorder, float_layout
+    from _recordings import write_recording
 
-    recorder = Recorder(path, {"period_us": 1000, "mode": "monitor"})
-    recorder.start(float_layout(_NO_DUTIES))
-    for k in range(500):
-        hall = (1, 3, 2, 6, 4, 5)[(k // 10) % 6]
-        recorder.append((k * 1e-3, k % 256, hall, (k // 10) % 6, 990.0, 1000.0, 1200 + k, 0, 0))
-    recorder.close("end: completed")
-    return path
+    k = np.arange(500)
+    columns = {"t_s": k * 1e-3, "seq": k % 256, "hall": np.array([1, 3, 2, 6, 4, 5])[(k // 10) % 6],
+               "sector": (k // 10) % 6, "measured_speed_rpm": np.full(500, 990.0),
+               "ref_speed_rpm": np.full(500, 1000.0), "iq_ref_q15": 1200 + k, "fault": 0 * k, "marker": 0 * k}
+    return write_recording(path, columns, specs=_NO_DUTIES, metadata={"period_us": 1000, "mode": "monitor"})
 
 
 def test_a_recording_without_duties_plots_what_it_has_and_names_what_it_left_out(tmp_path: Path) -> None:
