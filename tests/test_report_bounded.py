@@ -308,3 +308,60 @@ def test_a_report_of_a_recording_ten_times_longer_takes_no_more_memory(tmp_path:
     _long_recording(long, 2_000_000)
     grew_kib = _peak_kib(long, tmp_path / "long") - _peak_kib(short, tmp_path / "short")
     assert grew_kib < 16 * 1024, f"peak RSS grew by {grew_kib / 1024:.1f} MB for 10x the rows"
+
+
+def _whole_frame(path: Path, columns: list[str], max_buckets: int) -> dict[str, object]:
+    """The scope's frame of a recording computed here from its whole arrays: min/max envelopes of
+    buckets of ceil(rows / max_buckets) rows, the hall bits from the hall codes."""
+    from hilbench.bench.display import b64_f32
+
+    c = read_recording(path).columns
+    t = c["t_s"]
+    bucket = max(1, -(-len(t) // max_buckets))
+    cols = {}
+    for name in columns:
+        bit = {"hall_a": 0, "hall_b": 1, "hall_c": 2}.get(name)
+        values = c[name] if name in c else (c["hall"].astype(np.int64) >> bit) & 1 if bit is not None else None
+        if values is not None:
+            lo, hi = envelope(np.asarray(values, dtype=np.float64), bucket)
+            cols[name] = [b64_f32(lo), b64_f32(hi)]
+    return {"seq": 1, "t0": float(t[0]), "dt": bucket * float(np.median(np.diff(t[:1000]))),
+            "n": -(-len(t) // bucket), "cols": cols}
+
+
+def test_report_open_sends_the_frames_of_the_whole_arrays_read_in_chunks(tmp_path: Path) -> None:
+    """`report --open`'s source (the scope's RecordingSource) read a chunk at a time: the frames the
+    whole arrays give, every row (6000 <= MAX_BUCKETS) and in buckets of 9 and 13 rows."""
+    pytest.importorskip("aiohttp", reason="the scope extra (aiohttp) is not installed")
+    from hilbench.scope.server import RecordingSource
+
+    columns = ["speed_rpm", "ibus_a", "hall_b", "hall_c", "measured_speed_rpm", "nope", "iq_ref_q15", "t_s"]
+    for path in _recordings(tmp_path):
+        source = RecordingSource(path)
+        for max_buckets in (RecordingSource.MAX_BUCKETS, 700, 462):
+            source.MAX_BUCKETS = max_buckets
+            assert source.frame(columns) == _whole_frame(Path(source.source.where), columns, max_buckets), \
+                (path.name, max_buckets)
+        assert source.n_rows == N_ROWS and len(source.markers()) == len([e for e in EVENTS if e[1].startswith("t=")])
+
+
+_OPEN_CHILD = textwrap.dedent("""
+    import resource, sys
+    from hilbench.scope.server import RecordingSource
+
+    source = RecordingSource(sys.argv[1])
+    frame = source.frame([name for name, _ in source._names()])
+    assert frame["n"] == RecordingSource.MAX_BUCKETS and len(frame["cols"]) == 19, frame["n"]
+    print(resource.getrusage(resource.RUSAGE_SELF).ru_maxrss)
+""")
+
+
+def test_report_open_of_a_recording_ten_times_longer_takes_no_more_memory(tmp_path: Path) -> None:
+    """200 000 and 2 000 000 rows (16 columns, 256 MB): the scope's source of `report --open` read
+    every column whole (the peak grew by ~250 MB); in chunks it moves by less than 16 MB."""
+    pytest.importorskip("aiohttp", reason="the scope extra (aiohttp) is not installed")
+    short, long = tmp_path / "short.npz", tmp_path / "long.npz"
+    _long_recording(short, 200_000)
+    _long_recording(long, 2_000_000)
+    grew_kib = peak_rss_kib(_OPEN_CHILD, str(long)) - peak_rss_kib(_OPEN_CHILD, str(short))
+    assert grew_kib < 16 * 1024, f"peak RSS grew by {grew_kib / 1024:.1f} MB for 10x the rows"
