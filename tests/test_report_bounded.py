@@ -365,3 +365,24 @@ def test_report_open_of_a_recording_ten_times_longer_takes_no_more_memory(tmp_pa
     _long_recording(long, 2_000_000)
     grew_kib = peak_rss_kib(_OPEN_CHILD, str(long)) - peak_rss_kib(_OPEN_CHILD, str(short))
     assert grew_kib < 16 * 1024, f"peak RSS grew by {grew_kib / 1024:.1f} MB for 10x the rows"
+
+
+def test_a_recording_full_of_faults_names_the_first_fault_rows_and_counts_the_rest(tmp_path: Path) -> None:
+    """50 000 periods, every one a fault: the report listed 50 000 fault rows (a list as long as the
+    recording); now the first MAX_FAULT_ROWS by their seq, and how many more there are."""
+    from conftest import run_cli
+    from hilbench.bench.report import MAX_FAULT_ROWS
+
+    n_rows = 50_000
+    names = ("t_s", "seq", "marker", "speed_rpm")
+    path = write_archive(tmp_path / "faults.npz", names, n_rows, lambda k: {
+        "t_s": k * 5e-5, "seq": (k % 256).astype(float), "marker": np.full(len(k), float(MARKER_FAULT)),
+        "speed_rpm": np.zeros(len(k))}, {"period_us": 50}, chunk_rows=4096)
+    source = recording_chunks(path)
+    info = summarise_chunks(read_head(source), Cut(source, 333))
+    assert info["fault_rows"] == [k % 256 for k in range(MAX_FAULT_ROWS)]
+    assert info["fault_rows_left_out"] == n_rows - MAX_FAULT_ROWS
+    done = run_cli("report", str(path))
+    assert done.returncode == 0 and "fault rows left out" in done.stdout and str(n_rows - MAX_FAULT_ROWS) in done.stdout
+    few = summarise_chunks(read_head(recording_chunks(_recordings(tmp_path)[0])), recording_chunks(tmp_path / "run.npz"))
+    assert "fault_rows_left_out" not in few and len(few["fault_rows"]) == 3
