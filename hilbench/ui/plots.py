@@ -225,7 +225,7 @@ def _standard_figures(plt, v: RecordingView, names: Sequence[str], units, events
     if any(name in c for name, *_ in speeds):
         yield _line_figure(plt, v, c, speeds, "speed [rpm]", "speed vs reference", events), "speed"
     else:
-        left_out.append(f"speed (no {', '.join(_SPEEDS)})")
+        left_out.append(_missing("speed", _SPEEDS, names) or "speed")
     own = [name for name in _own_columns(names) if name != "t_s"]
     if own:
         lines = [(name, f"{name} [{units.get(name, '')}]", {"lw": 0.8}) for name in own]
