@@ -12,8 +12,10 @@ hilbench. The process tells us (a hook on the pacer's start) which thread runs t
 a second of warm-up we take, over a window of ``--seconds``, from /proc (schedstat's CPU ns and
 timeslices, status's voluntary/involuntary switches) and from ``perf stat`` (syscall tracepoints,
 counting only: no ptrace) what the host's loop thread, the host's other threads and the emulator
-process's threads did, and divide by the periods of the window. Medians of the runs are printed
-with the ratio tree / baseline.
+process's threads did, and divide by the periods of the window; "per exchange" divides the loop's
+CPU outside the pacer's wait and the emulator's by the Sensors the host wrote (a skipped period
+exchanges nothing, so a run that skips more looks cheaper per period). Medians of the runs are
+printed with the ratio tree / baseline.
 """
 
 from __future__ import annotations
@@ -203,10 +205,17 @@ def _print(label: str, runs: list[dict[str, dict[str, float]]]) -> dict[str, dic
         medians[group] = {k: statistics.median(run[group].get(k, 0.0) for run in runs) for k in keys}
     print(f"{label}: per period, median of {len(runs)} runs "
           f"(overruns in the runs, not a figure here: {[int(r['_run']['overruns']) for r in runs]})")
+    exchanges = medians["host loop"].get("sys_write")  # one Sensors written per exchange (a skipped period has none)
+    if exchanges:
+        for group in ("host loop", "emulator"):
+            row = medians[group]
+            row["exchange_cpu_us"] = row.get("work_cpu_us", row["cpu_us"]) / exchanges
     for group, row in medians.items():
         sys_all = row.get("sys_all")
         named = {k[4:]: v for k, v in row.items() if k.startswith("sys_") and k != "sys_all" and v >= 0.005}
         work = f" (outside the pacer's wait {row['work_cpu_us']:5.1f})" if "work_cpu_us" in row else ""
+        if "exchange_cpu_us" in row:
+            work += f" [{row['exchange_cpu_us']:5.1f} per exchange]"
         print(f"  {group:10s} CPU {row['cpu_us']:7.1f} us{work}  user {row['user_us']:5.1f} kernel {row['kernel_us']:5.1f}  "
               f"run-queue wait {row['runq_us']:6.1f} us  "
               f"switches vol {row['vol_cs']:5.2f} invol {row['invol_cs']:5.2f}"
@@ -236,7 +245,7 @@ def main() -> None:
     if args.baseline_python:
         tree, base = medians["this tree"], medians["baseline"]
         for group in ("host loop", "emulator"):
-            for key in ("cpu_us", "work_cpu_us", "sys_all", "vol_cs"):
+            for key in ("cpu_us", "work_cpu_us", "exchange_cpu_us", "sys_all", "vol_cs"):
                 if key in tree[group] and base[group].get(key):
                     print(f"ratio {group} {key} this tree / baseline: {tree[group][key] / base[group][key]:.2f}")
         def work(m: dict[str, dict[str, float]]) -> float:
