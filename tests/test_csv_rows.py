@@ -275,3 +275,23 @@ def test_an_event_with_a_lone_surrogate_is_written_escaped(tmp_path: Path, suffi
     rec.append(tuple([0.0] * recorder_module.N_COLUMNS))
     rec.close("end")
     assert read_recording(tmp_path / f"r{suffix}").events[0] == "set name=\\ud800x"
+
+
+@pytest.mark.parametrize("name", ["r.csv", "r.npz", "killed.npz"])
+def test_an_event_with_any_line_break_stays_one_event_and_the_recording_readable(tmp_path: Path, name: str) -> None:
+    """A carriage return (or another break str.splitlines knows) in an event's text: a CSV, read
+    with universal newlines, had a line of one value in its rows (the whole recording unreadable), a
+    killed run's events file one event per piece. Each break is a space, as a newline was."""
+    rec = recorder_module.Recorder(tmp_path / name, {})
+    rec.start()
+    rec.append(tuple([0.0] * recorder_module.N_COLUMNS))
+    rec.event("a\rb\r\nc\vd\x1ce\x85f\u2028g\nh")
+    rec.append(tuple([1.0] * recorder_module.N_COLUMNS))
+    if name == "killed.npz":
+        rec.flush()
+        data = read_recording(tmp_path / "killed.npz.journal")
+    else:
+        rec.close("end")
+        data = read_recording(tmp_path / name)
+    assert data.n_rows == 2
+    assert data.events[0] == "a b  c d e f g h"

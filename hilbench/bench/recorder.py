@@ -381,9 +381,10 @@ class Recorder:
 
     def event(self, text: str, marker: int = MARKER_NONE) -> None:
         """Note an event at the next row to be appended; a marker goes into that row. The text is
-        one line of UTF-8 (a lone surrogate, which a control client's JSON can carry, as its escape:
-        a CSV or an events file could not take it)."""
-        line = text.replace("\n", " ").encode("utf-8", "backslashreplace").decode("utf-8")
+        one line of UTF-8: every line break a reader splits on (a CSV is read with universal newlines,
+        a journal's events file with str.splitlines) a space, a lone surrogate (which a control
+        client's JSON can carry) as its escape (a CSV or an events file could not take it)."""
+        line = text.translate(_ONE_LINE).encode("utf-8", "backslashreplace").decode("utf-8")
         self._events.append((len(self.rows), line, marker))
 
     def mark_last(self, marker: int) -> None:
@@ -560,6 +561,10 @@ class Recorder:
                                      f"every row is kept in {self._journal_path()}") from None
             self._journal_path().unlink()
             _events_path(self._journal_path()).unlink(missing_ok=True)
+
+
+#: the characters str.splitlines (a journal's events file) and universal newlines (a CSV) break lines at
+_ONE_LINE = str.maketrans({c: " " for c in "\n\r\v\f\x1c\x1d\x1e\x85\u2028\u2029"})
 
 
 def _csv_line(fmt: str, formats: Sequence[str], row: tuple[float, ...]) -> str:
