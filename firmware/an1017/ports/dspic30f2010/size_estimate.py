@@ -576,7 +576,7 @@ def main(argv: list[str]) -> int:
     print(f"dsPIC{args.device} size estimate (no XC16 here): clang --target=msp430, function/data sections, "
           f"-O1 inlining only functions declared inline (as XC16 -O1), "
           f"kept = reachable from main and the interrupt handlers; dsPIC words = MSP430 instructions converted "
-          f"by rules a-c (docs/board.md 3a) + "
+          f"by rules a-d (docs/board.md 3a) + "
           f"constants and data initialisers / 2 + {sum(allowance.values())} words allowance; bytes = words x 3")
     for what, words in allowance.items():
         print(f"  allowance {words:4d} words: {what}")
