@@ -28,6 +28,7 @@ from bench_link import echo_child, frame_sizes  # noqa: E402
 
 from hilbench.bench.clock import CpuLatencyRequest, Pacer  # noqa: E402
 from hilbench.bench.cpus import CpuPinning, FifoPriority  # noqa: E402
+from hilbench.bench.pacing import spin_for_this_thread  # noqa: E402
 
 from hilbench.bench.run import RunRequest, load_run_config, run_bench
 from hilbench.config import default_config_text
@@ -71,6 +72,7 @@ def paced_raw_echo(seconds: float, period_us: int, qos: bool, pin: bool,
             CpuPinning([child.pid]) if pin else contextlib.nullcontext(), \
             FifoPriority([child.pid], 10) if fifo else contextlib.nullcontext():
         pacer = Pacer(period_s)
+        pacer.spin_s = spin_for_this_thread(pacer.spin_s)  # as the session's pacing does
         pacer.start()
         for k in range(n):
             late.append(pacer.wait_for(k))

@@ -7,9 +7,9 @@ periods/s and real-time factor at 20 kHz exchanges:
       hilbench/bench/_span.c run directly, nothing recorded, no part);
   (a) the firmware in-process with NPZ recording (the session's C span between events), the loop
       alone, the same with CSV recording, and the session's Python loop (HILBENCH_SESSION_SPAN=python);
-      and the NPZ run and the C floor per CPU second of the simulating thread (an extra figure: the
-      NPZ archive's columns are written by a thread of their own, whose CPU it leaves out; the
-      acceptance figure is the wall-clock one);
+      and the NPZ run, the CSV run and the C floor per CPU second of the simulating thread (an extra
+      figure: the NPZ archive's columns and the CSV rows are written by threads of their own, whose
+      CPU it leaves out; the acceptance figure is the wall-clock one);
   the FOC on the 200 W servo: its C floor and in-process with NPZ recording;
   (b) the firmware as its own process on a pty: the Python emulator and the SIL build of the C
       firmware, and a raw two-process pty echo of the same frame sizes as their baseline;
@@ -230,7 +230,8 @@ def run_paths(args: argparse.Namespace) -> None:
     from bench_sil import emulator_loop, sil_loop
 
     sensors_len, drive_len = frame_sizes()
-    names = ("floor", "npz", "npz_loop", "csv", "python", "foc_floor", "foc_npz", "floor_thread", "npz_thread") + (
+    names = ("floor", "npz", "npz_loop", "csv", "python", "foc_floor", "foc_npz", "floor_thread", "npz_thread",
+             "csv_thread") + (
         () if args.no_process else ("emulator", "sil", "raw"))
     rates: dict[str, list[float]] = {name: [] for name in names}
     backend = "?"
@@ -248,7 +249,9 @@ def run_paths(args: argparse.Namespace) -> None:
             rates["npz"].append(rate)
             rates["npz_loop"].append(loop_rate)
             rates["npz_thread"].append(thread_rate)
-            rates["csv"].append(closed_loop("inprocess:an1017", seconds, tmp, "csv")[0])
+            csv = closed_loop("inprocess:an1017", seconds, tmp, "csv")
+            rates["csv"].append(csv[0])
+            rates["csv_thread"].append(csv[4])
             rates["python"].append(closed_loop("inprocess:an1017", seconds, tmp, "npz", c_span=False)[0])
             rates["foc_floor"].append(c_floor("inprocess:foc", seconds, config=SERVO))
             rates["foc_npz"].append(closed_loop("inprocess:foc", seconds, tmp, "npz", config=SERVO)[0])
@@ -271,6 +274,7 @@ def run_paths(args: argparse.Namespace) -> None:
     line("    the same, per CPU s of its thread", "npz_thread", " (the recording's thread and other load left out)")
     line("    C floor, per CPU s of its thread", "floor_thread")
     line("    in-process AN1017, CSV recording", "csv", " (goal >= 60 % of NPZ)")
+    line("    the same, per CPU s of its thread", "csv_thread", " (the CSV writer's thread and other load left out)")
     line("    the session's Python loop, NPZ", "python", " (HILBENCH_SESSION_SPAN=python: the reference)")
     line("C floor FOC (servo, plant + firmware C)", "foc_floor")
     line("FOC in-process, NPZ recording", "foc_npz", " (goal >= 40x)")
@@ -282,6 +286,8 @@ def run_paths(args: argparse.Namespace) -> None:
     print(f"extra, not an acceptance line: periods per CPU s of the simulating thread, NPZ run / C floor "
           f"{med['npz_thread'] / med['floor_thread']:.2f} (the recording's thread's CPU left out; no wall clock)")
     print(f"ratio in-process CSV / NPZ: {med['csv'] / med['npz']:.2f}")
+    print(f"extra, not an acceptance line: periods per CPU s of the simulating thread, CSV run / NPZ run "
+          f"{med['csv_thread'] / med['npz_thread']:.2f} (each writer's own thread's CPU left out)")
     print(f"ratio in-process NPZ C span / Python loop: {med['npz'] / med['python']:.2f}")
     print(f"ratio FOC NPZ / FOC C floor: {med['foc_npz'] / med['foc_floor']:.2f}")
     if exe is not None:

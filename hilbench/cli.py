@@ -381,7 +381,7 @@ def run(config: str | None, target_spec: str | None, mode: str | None, duration_
         console.print(summary_table(summary))
     if summary.checks and not as_json:
         click.echo(checks_text(summary.checks))
-    raise_if_failed(summary.checks)  # exit code 9: the run completed, a [[check]] did not hold
+    raise_if_failed(summary.checks)  # exit code 9: a [[check]] did not hold (6: one could not read the recording)
 
 
 def _run_monitor(cfg: Any, record: str | None, no_control: bool, plain: bool, as_json: bool = False,
@@ -450,7 +450,8 @@ def _run_monitor(cfg: Any, record: str | None, no_control: bool, plain: bool, as
 @cli.command()
 @click.argument("recording", type=click.Path(dir_okay=False))
 @click.option("--plot", "plot_dir", type=click.Path(file_okay=False), default=None, metavar="DIR",
-              help="Write PNG plots (speed, currents, duties, hall, link) into DIR (needs the plot extra).")
+              help="Write PNG plots (speed, currents, duties, hall, link) into DIR (needs the plot extra); "
+                   "a figure whose columns the recording lacks is left out and named in 'plots left out'.")
 @click.option("--csv", "csv_file", type=click.Path(dir_okay=False), default=None, metavar="FILE.csv",
               help="Also write the recording as CSV (e.g. from a fast .npz run).")
 @click.option("--json", "as_json", is_flag=True, help="Print the summary as JSON.")
@@ -492,13 +493,17 @@ def report(recording: str, plot_dir: str | None, csv_file: str | None, as_json: 
         from hilbench.ui.plots import parse_window, plot_recording_chunks
 
         shown = parse_window(window)
-        info["plots"] = [str(p) for p in plot_recording_chunks(head, source, Path(plot_dir), window=shown)]
+        plots = plot_recording_chunks(head, source, Path(plot_dir), window=shown)
         if overlay:
-            from hilbench.ui.plots import plot_speed_overlay_chunks
+            from hilbench.ui.plots import Plots, plot_speed_overlay_chunks
 
             others = [recording_chunks(other) for other in overlay]
             heads = [(head, source), *((read_head(other), other) for other in others)]
-            info["plots"].append(str(plot_speed_overlay_chunks(heads, Path(plot_dir), window=shown)))
+            overlaid = plot_speed_overlay_chunks(heads, Path(plot_dir), window=shown)
+            plots = Plots(plots.paths + overlaid.paths, plots.left_out + overlaid.left_out)
+        info["plots"] = [str(p) for p in plots]
+        if plots.left_out:  # what the recording's columns could not draw (a monitor run: no plant currents)
+            info["plots_left_out"] = "; ".join(plots.left_out)
     elif overlay:
         from hilbench.errors import ConfigError
 

@@ -5,24 +5,21 @@ the peak memory of judging a recording does not grow with its length."""
 
 from __future__ import annotations
 
-import importlib.util
 import json
 import math
-import subprocess
-import sys
 import textwrap
 from pathlib import Path
 from types import ModuleType
-from typing import Iterator, Sequence
+from typing import Sequence
 
 import numpy as np
 import pytest
 
-from conftest import REPO_ROOT
+from _recordings import Cut, every_kind, module_at, peak_rss_kib, write_archive
 from hilbench.bench.checks import CheckEntry, CheckResult, run_checks
-from hilbench.bench.column_chunks import Chunk, ColumnChunks, recording_chunks
+from hilbench.bench.column_chunks import ColumnChunks, recording_chunks
 from hilbench.bench.npzwriter import ColumnArchive
-from hilbench.bench.recorder import COLUMN_NAMES, Recorder, read_recording
+from hilbench.bench.recorder import COLUMN_NAMES, read_recording
 from hilbench.bench.summary import Segment, Summary
 
 #: main when the checks began to read in chunks: its run_checks evaluated whole arrays
@@ -97,54 +94,16 @@ ENTRIES = (
 )
 
 
-class _Cut(ColumnChunks):
-    """Another source's chunks, cut every ``rows`` rows."""
-
-    def __init__(self, source: ColumnChunks, rows: int) -> None:
-        self._source, self._rows = source, rows
-        self.names, self.units = source.names, source.units
-
-    def _chunks(self, names: Sequence[str], chunk_rows: int) -> Iterator[Chunk]:
-        return self._source.chunks(names, self._rows)
-
-
 def _recordings(tmp_path: Path) -> list[Path]:
     """The signals as an NPZ, as the journal of a run killed before its close, and as a CSV."""
     columns = _signals()
-    paths = []
-    for name, close in (("run.npz", True), ("killed.npz", False), ("run.csv", True)):
-        recorder = Recorder(tmp_path / name, {"period_us": 1000}, flush_rows=997)
-        recorder.start()
-        for row in zip(*(columns[c].tolist() for c in COLUMN_NAMES)):
-            recorder.append(row)
-            recorder.maybe_flush()
-        if close:
-            recorder.close("end: completed")
-        else:
-            recorder.flush()
-        paths.append(tmp_path / name)
-    assert (tmp_path / "killed.npz.journal").exists() and not (tmp_path / "killed.npz").exists()
-    return paths
+    return every_kind(tmp_path, lambda name: columns)
 
 
 def _whole_array_checks(tmp_path: Path) -> ModuleType | None:
     """hilbench/bench/checks.py as it was before it read in chunks (its judges take whole arrays); None
     where git cannot show it (a shallow clone, an unpacked sdist)."""
-    shown = subprocess.run(["git", "-C", str(REPO_ROOT), "show", f"{WHOLE_ARRAY_COMMIT}:hilbench/bench/checks.py"],
-                           capture_output=True, text=True)
-    if shown.returncode != 0:
-        return None
-    source = tmp_path / "checks_whole_array.py"
-    source.write_text(shown.stdout)
-    spec = importlib.util.spec_from_file_location("checks_whole_array", source)
-    assert spec is not None and spec.loader is not None
-    module = importlib.util.module_from_spec(spec)
-    sys.modules["checks_whole_array"] = module
-    try:
-        spec.loader.exec_module(module)
-    finally:
-        del sys.modules["checks_whole_array"]
-    return module
+    return module_at(WHOLE_ARRAY_COMMIT, "hilbench/bench/checks.py", tmp_path)
 
 
 def _dicts(results: Sequence[CheckResult]) -> list[dict[str, object]]:
@@ -159,12 +118,12 @@ def test_chunked_verdicts_equal_the_whole_array_ones_on_every_kind_and_every_cut
     summary = _summary()
     for path in _recordings(tmp_path):
         whole = read_recording(path).columns
-        expected = _dicts(run_checks(ENTRIES, summary, lambda: _Cut(recording_chunks(path), 10 * N_ROWS)))
+        expected = _dicts(run_checks(ENTRIES, summary, lambda: Cut(recording_chunks(path), 10 * N_ROWS)))
         if before is not None:
             assert _dicts(before.run_checks(ENTRIES, summary, lambda: whole)) == expected, path.name
         assert len(expected) == len(ENTRIES)
         for rows in (1, 7, 333, 997, N_ROWS):
-            got = _dicts(run_checks(ENTRIES, summary, lambda: _Cut(recording_chunks(path), rows)))
+            got = _dicts(run_checks(ENTRIES, summary, lambda: Cut(recording_chunks(path), rows)))
             assert got == expected, (path.name, rows)
         in_memory = _dicts(run_checks(ENTRIES, summary, lambda: whole))  # rows kept in memory: views of them
         assert in_memory == expected
@@ -185,16 +144,18 @@ def test_a_column_the_run_cannot_have_says_skip_as_before(tmp_path: Path) -> Non
         _dicts(before.run_checks(entries, _summary(), lambda: columns, absent=absent))
 
 
+def _back(path: Path) -> Path:
+    """The signals with t_s going back at row 1500 (no run writes that: straight into the archive)."""
+    columns = _signals()
+    columns["t_s"][1500] = columns["t_s"][1499]
+    return write_archive(path, COLUMN_NAMES, N_ROWS, lambda k: {name: columns[name][k] for name in COLUMN_NAMES}, {})
+
+
 def test_a_damaged_recording_read_in_chunks_is_one_recording_error(tmp_path: Path) -> None:
     """t_s that goes back across a chunk's cut is refused as read_recording refuses it, by its row."""
     from hilbench.errors import RecordingError
 
-    path = tmp_path / "back.npz"
-    columns = _signals()
-    columns["t_s"][1500] = columns["t_s"][1499]
-    with ColumnArchive(path, list(COLUMN_NAMES), N_ROWS) as archive:
-        archive.write(0, columns)
-        archive.add("metadata", np.asarray(json.dumps({"columns": [[n, ""] for n in COLUMN_NAMES]})))
+    path = _back(tmp_path / "back.npz")
     with pytest.raises(RecordingError) as whole:
         read_recording(path)
     with pytest.raises(RecordingError) as chunked:
@@ -221,25 +182,21 @@ _CHILD = textwrap.dedent("""
 """)
 
 
-def _long_recording(path: Path, n_rows: int) -> None:
+def _long_recording(path: Path, n_rows: int) -> Path:
     """``n_rows`` periods at 20 kHz of the columns the checks read, written a chunk at a time."""
-    names = ["t_s", "speed_rpm", "ia_a", "ib_a", "ic_a", "fault", "marker"]
-    chunk = 1 << 18
-    with ColumnArchive(path, names, n_rows) as archive:
-        for first in range(0, n_rows, chunk):
-            t = np.arange(first, min(n_rows, first + chunk)) * 5e-5
-            phase = 2 * np.pi * 50 * t
-            archive.write(first, {"t_s": t, "speed_rpm": 1000.0 * (1 - np.exp(-t / 0.1)), "ia_a": np.sin(phase),
-                                  "ib_a": np.sin(phase - 2.0944), "ic_a": np.sin(phase + 2.0944),
-                                  "fault": np.zeros_like(t), "marker": np.zeros_like(t)})
-        archive.add("metadata", np.asarray(json.dumps({"period_us": 50, "columns": [[n, ""] for n in names]})))
+    def chunk(k: np.ndarray) -> dict[str, np.ndarray]:
+        t = k * 5e-5
+        phase = 2 * np.pi * 50 * t
+        return {"t_s": t, "speed_rpm": 1000.0 * (1 - np.exp(-t / 0.1)), "ia_a": np.sin(phase),
+                "ib_a": np.sin(phase - 2.0944), "ic_a": np.sin(phase + 2.0944),
+                "fault": np.zeros_like(t), "marker": np.zeros_like(t)}
+
+    return write_archive(path, ["t_s", "speed_rpm", "ia_a", "ib_a", "ic_a", "fault", "marker"], n_rows, chunk,
+                         {"period_us": 50})
 
 
 def _peak_kib(path: Path, n_rows: int) -> int:
-    done = subprocess.run([sys.executable, "-c", _CHILD, str(path), str(n_rows)], capture_output=True, text=True,
-                          timeout=120, cwd=REPO_ROOT)
-    assert done.returncode == 0, done.stderr[-2000:]
-    return int(done.stdout.split()[-1])  # Linux: KiB
+    return peak_rss_kib(_CHILD, str(path), str(n_rows), timeout_s=120)
 
 
 def test_judging_a_recording_ten_times_longer_takes_no_more_memory(tmp_path: Path) -> None:
@@ -266,5 +223,61 @@ def test_a_monitor_run_judges_the_measured_speed_as_speed_rpm_in_chunks(tmp_path
     whole["speed_rpm"] = whole.pop("measured_speed_rpm")
     entries = ENTRIES[2:10] + ENTRIES[14:16]
     source = recording_chunks(path)
-    got = run_checks(entries, _summary(), lambda: AliasChunks(_Cut(source, 333), {"speed_rpm": "measured_speed_rpm"}))
+    got = run_checks(entries, _summary(), lambda: AliasChunks(Cut(source, 333), {"speed_rpm": "measured_speed_rpm"}))
     assert _dicts(got) == _dicts(before.run_checks(entries, _summary(), lambda: whole))
+
+
+def _huge_npz(path: Path) -> str:
+    """An NPZ whose two columns hold 1.1e9 rows each (17.6 GB, over RECORDING_MAX_BYTES): a sparse
+    file, its rows never written, its headers whole. "" made, else why not."""
+    n_rows = 1_100_000_000
+    try:
+        archive = ColumnArchive(path, ["t_s", "marker"], n_rows)
+        archive.written(n_rows, [0, 0])  # the rows are holes: nothing reads them before the bound refuses the file
+        archive.add("metadata", np.asarray(json.dumps({"period_us": 50})))
+        archive.close()
+    except OSError as exc:  # a file system without sparse files this large
+        return f"cannot make a sparse 17.6 GB file in {path.parent}: {exc.strerror or exc}"
+    return ""
+
+
+def test_a_recording_the_checks_cannot_read_fails_them_as_a_recording_error_not_a_skip(tmp_path: Path) -> None:
+    """A damaged header, a file over the reader's bound, a file gone, rows damaged on the way: every
+    check that reads the rows FAILs naming the file and why, and raise_if_failed raises that one line
+    as a RecordingError (exit code 6). They said SKIP "no rows were kept" (no_fault: PASS)."""
+    from hilbench.bench.checks import raise_if_failed
+    from hilbench.errors import RecordingError
+
+    (tmp_path / "header.csv").write_text("t_s[s],garbage\x00\n0.0,1\n")
+    (tmp_path / "header.npz").write_bytes(b"PK\x03\x04" + b"\x00" * 60)
+    _back(tmp_path / "back.npz")
+    cases = {"header.csv": "not a hilbench CSV", "header.npz": "unreadable", "gone.npz": "no such file",
+             "huge.npz": "more than the limit of 16 GiB", "back.npz": "row 1500"}
+    if _huge_npz(tmp_path / "huge.npz"):
+        del cases["huge.npz"]  # (the other cases still run)
+    reading = ENTRIES[2:3] + ENTRIES[10:11] + ENTRIES[16:17] + ENTRIES[21:22]  # settling, peak, signal, no_fault
+    for name, why in cases.items():
+        path = tmp_path / name
+        results = run_checks(ENTRIES[:1] + reading, _summary(), lambda: recording_chunks(path))
+        assert results[0].passed and not results[0].unreadable  # speed_error: judged on the summary alone
+        for result in results[1:]:
+            assert not result.passed and not result.skipped and result.unreadable, (name, result.line())
+            assert result.line().startswith(f"check {result.name}: FAIL cannot be judged: recording {path}")
+            assert why in result.figure, (name, result.figure)
+        with pytest.raises(RecordingError) as raised:
+            raise_if_failed(results)
+        message = str(raised.value)
+        assert raised.value.exit_code == 6 and "\n" not in message and str(path) in message and why in message
+
+
+def test_a_run_that_recorded_nothing_still_says_skip(tmp_path: Path) -> None:
+    """No --record: the signals source says so with a HilbenchError that is not a RecordingError."""
+    from hilbench.bench.checks import raise_if_failed
+    from hilbench.errors import ConfigError
+
+    def nothing() -> ColumnChunks:
+        raise ConfigError("Bench: nothing recorded yet")
+
+    results = run_checks(ENTRIES[2:3] + ENTRIES[10:11] + ENTRIES[16:17], _summary(), nothing)
+    assert all(r.passed and r.skipped and not r.unreadable and "no rows were kept" in r.figure for r in results)
+    raise_if_failed(results)

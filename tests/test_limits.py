@@ -88,7 +88,7 @@ def test_every_limit_is_stated_in_the_docs() -> None:
     text = (REPO_ROOT / "docs" / "design.md").read_text()
     section = text[text.index("## Limits"):]
     section = section[:section.find("\n## ", 5)] if "\n## " in section[5:] else section
-    from hilbench.bench import control
+    from hilbench.bench import control, report
     from hilbench.scope import server
 
     stated = {
@@ -99,6 +99,7 @@ def test_every_limit_is_stated_in_the_docs() -> None:
         "RECORDING_LINE_MAX_BYTES": limits.size_text(limits.RECORDING_LINE_MAX_BYTES),
         "RECORDING_MAX_COLUMNS": str(limits.RECORDING_MAX_COLUMNS),
         "RECORDING_MAX_BYTES": limits.size_text(limits.RECORDING_MAX_BYTES),
+        "MAX_FAULT_ROWS": str(report.MAX_FAULT_ROWS),
         "MAX_LINE_BYTES": limits.size_text(control.MAX_LINE_BYTES),
         "MAX_REPLY_BYTES": limits.size_text(control.MAX_REPLY_BYTES),
         "MAX_UNSENT_BYTES": limits.size_text(control.MAX_UNSENT_BYTES),

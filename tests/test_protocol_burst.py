@@ -15,9 +15,12 @@ next frame, which is rejected).
 
 from __future__ import annotations
 
+import multiprocessing
+import os
 import random
 import subprocess
 from binascii import crc_hqx
+from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
 
 import numpy as np
@@ -74,17 +77,43 @@ def burst_check_exe(tmp_path_factory, gcc: str) -> Path:
                    extra_flags=("-DHBP_RX_MAX=63u", "-O2"))
 
 
+WORKERS = max(1, min(4, len(os.sched_getaffinity(0))))  # the exhaustive checks split over the CPUs
+
+
+def shares(frames: list[bytes], n: int) -> list[list[bytes]]:
+    """The frames dealt to n workers, longest first to the least loaded (bursts grow with length)."""
+    groups: list[list[bytes]] = [[] for _ in range(n)]
+    load = [0] * n
+    for frame in sorted(frames, key=len, reverse=True):
+        k = load.index(min(load))
+        groups[k].append(frame)
+        load[k] += len(frame)
+    return [g for g in groups if g]
+
+
 @pytest.mark.slow
 def test_c_receiver_rejects_every_burst_exhaustively(burst_check_exe: Path, tmp_path: Path) -> None:
-    """The real C receive state machine (hbp_rx_byte) over every burst of every golden stream."""
-    frames = tmp_path / "frames.txt"
-    frames.write_text("".join(f.hex() + "\n" for f in FRAMES), encoding="ascii")
-    result = subprocess.run([str(burst_check_exe), str(frames)], capture_output=True, text=True, timeout=1800)
-    print(result.stdout.strip())
-    assert result.returncode == 0, result.stdout + result.stderr
-    total = sum(bursts_in(8 * len(stream_of(f)), s) for f in FRAMES for s in range(8 * len(stream_of(f))))
-    assert f"streams {len(FRAMES)} bursts {total} accepted 0" in result.stdout
-    assert total > 150_000_000
+    """The real C receive state machine (hbp_rx_byte) over every burst of every golden stream (the
+    frames split over the CPUs, one process each)."""
+    runs = []
+    for k, group in enumerate(shares(FRAMES, WORKERS)):
+        frames = tmp_path / f"frames{k}.txt"
+        frames.write_text("".join(f.hex() + "\n" for f in group), encoding="ascii")
+        runs.append((group, subprocess.Popen([str(burst_check_exe), str(frames)], stdout=subprocess.PIPE,
+                                             stderr=subprocess.PIPE, text=True)))
+    try:
+        outs = [(group, *proc.communicate(timeout=1800), proc.returncode) for group, proc in runs]
+    finally:
+        for _, proc in runs:
+            if proc.poll() is None:
+                proc.kill()
+                proc.wait()
+    for group, out, err, rc in outs:
+        print(out.strip())
+        assert rc == 0, out + err
+        total = sum(bursts_in(8 * len(stream_of(f)), s) for f in group for s in range(8 * len(stream_of(f))))
+        assert f"streams {len(group)} bursts {total} accepted 0" in out
+    assert sum(bursts_in(8 * len(stream_of(f)), s) for f in FRAMES for s in range(8 * len(stream_of(f)))) > 150_000_000
 
 
 # ---------------------------------------------------------------------------------------------
@@ -204,9 +233,9 @@ def test_python_decoder_rejects_every_burst_exhaustively() -> None:
     the check bytes; computed here from the real crc_hqx on single bits); every other burst goes
     through the real FrameDecoder."""
     grand = lin = real = 0
-    for frame in FRAMES:
-        total, linear, r = _python_check(frame)
-        grand, lin, real = grand + total, lin + linear, real + r
+    with ProcessPoolExecutor(WORKERS, mp_context=multiprocessing.get_context("forkserver")) as pool:
+        for total, linear, r in pool.map(_python_check, sorted(FRAMES, key=len, reverse=True)):
+            grand, lin, real = grand + total, lin + linear, real + r
     print(f"{grand} bursts over {len(FRAMES)} golden streams: all rejected ({lin} by linearity, {real} "
           "through FrameDecoder)")
     assert grand > 150_000_000

@@ -218,6 +218,25 @@ def test_fifo_priority_raises_host_and_child_and_restores_the_host() -> None:
         child.communicate(b"", timeout=10)  # end of input: the child exits and is reaped
 
 
+def test_the_pacer_spins_less_under_a_realtime_policy_and_the_session_picks_it() -> None:
+    """A SCHED_FIFO thread's sleeps have no timer slack: its pacer spins REALTIME_POLICY_SPIN_S; a
+    normal thread keeps the pacer's own spin (and so does one where FIFO is not permitted)."""
+    from hilbench.bench.cpus import FifoPriority
+    from hilbench.bench.pacing import REALTIME_POLICY_SPIN_S, RealtimePacing, spin_for_this_thread
+
+    normal = RealtimePacing(PERIOD_US, abort_after=None, label="t")
+    default_s = normal.pacer.spin_s
+    normal.start_at(0)
+    assert normal.pacer.spin_s == spin_for_this_thread(default_s) == default_s
+    with FifoPriority([], 10) as priority:
+        pacing = RealtimePacing(PERIOD_US, abort_after=None, label="t")
+        pacing.start_at(5)
+        fifo = not priority.status.startswith("normal scheduling")
+        assert pacing.pacer.spin_s == (REALTIME_POLICY_SPIN_S if fifo else default_s)
+    normal.start_at(7)  # the policy back to normal: the pacer's own spin again
+    assert normal.pacer.spin_s == default_s
+
+
 def test_a_cpu_this_process_may_not_use_is_a_config_error() -> None:
     from hilbench.bench.cpus import CpuPinning
     from hilbench.errors import ConfigError

@@ -6,27 +6,22 @@ where git can show it); and the peak memory of a report does not grow with the r
 
 from __future__ import annotations
 
-import importlib.util
 import json
 import math
-import subprocess
-import sys
 import textwrap
 from pathlib import Path
 from types import ModuleType
-from typing import Iterator, Sequence
 
 import numpy as np
 import pytest
 
-from conftest import REPO_ROOT
+from _recordings import Cut, every_kind, module_at, peak_rss_kib, write_archive
 from hilbench.bench import segments as segmentation
 from hilbench.bench.chunk_quantiles import spread
-from hilbench.bench.column_chunks import Chunk, ColumnChunks, recording_chunks
+from hilbench.bench.column_chunks import recording_chunks
 from hilbench.bench.csv_export import export_csv_chunks
 from hilbench.bench.display import envelope
-from hilbench.bench.npzwriter import ColumnArchive
-from hilbench.bench.recorder import COLUMNS, MARKER_FAULT, MARKER_SKIPPED, Recorder, float_layout, read_recording
+from hilbench.bench.recorder import COLUMNS, MARKER_FAULT, MARKER_SKIPPED, read_recording
 from hilbench.bench.recording_head import read_head
 from hilbench.bench.report import summarise_chunks
 from hilbench.plant.period import Period
@@ -83,36 +78,13 @@ def _recordings(tmp_path: Path) -> list[Path]:
     columns = _signals()
     metadata = {"period_us": PERIOD_US, "mode": "realtime", "target": "synthetic", "seed": 3,
                 "target_hello": {"firmware_name": "SYNTH"}}
-    at = dict(EVENTS)
-    paths = []
-    for name, close in (("run.npz", True), ("killed.npz", False), ("run.csv", True)):
+
+    def columns_for(name: str) -> dict[str, np.ndarray]:
         # a %d column with a NaN: the export writes it as %.6g (a CSV run cannot write it at all)
         columns["control_output_q15"][NAN_ROW] = np.nan if name.endswith(".npz") else 0.0
-        recorder = Recorder(tmp_path / name, dict(metadata), flush_rows=997)
-        recorder.start(float_layout(SPECS))
-        for k, row in enumerate(zip(*(columns[c].tolist() for c in NAMES))):
-            if k in at:
-                recorder.event(at[k])
-            recorder.append(row)
-            recorder.maybe_flush()
-        if close:
-            recorder.close("end: completed")
-        else:
-            recorder.flush()
-        paths.append(tmp_path / name)
-    assert (tmp_path / "killed.npz.journal").exists() and not (tmp_path / "killed.npz").exists()
-    return paths
+        return columns
 
-
-class _Cut(ColumnChunks):
-    """Another source's chunks, cut every ``rows`` rows."""
-
-    def __init__(self, source: ColumnChunks, rows: int) -> None:
-        self._source, self._rows = source, rows
-        self.names, self.units, self.where = source.names, source.units, source.where
-
-    def _chunks(self, names: Sequence[str], chunk_rows: int) -> Iterator[Chunk]:
-        return self._source.chunks(names, self._rows)
+    return every_kind(tmp_path, columns_for, specs=SPECS, metadata=metadata, events=dict(EVENTS))
 
 
 def _expected_summary(path: Path) -> dict[str, object]:
@@ -163,7 +135,7 @@ def test_the_summary_read_in_chunks_is_the_whole_array_summary_at_every_cut(tmp_
         assert "NaN" in expected or "nan" in expected  # the NaN bus current ran
         head = read_head(source)
         for rows in (7, 333, 997, 4096, 10 * N_ROWS):
-            got = json.dumps(summarise_chunks(head, _Cut(source, rows)), default=str)
+            got = json.dumps(summarise_chunks(head, Cut(source, rows)), default=str)
             assert got == expected, (path.name, rows)
     assert len(json.loads(expected)["segments"]) == 5
 
@@ -172,9 +144,9 @@ def test_the_csv_export_is_the_same_bytes_at_every_cut_and_the_rows_a_csv_run_wr
     npz, journal, csv = _recordings(tmp_path)
     source = recording_chunks(npz)
     head = read_head(source)
-    whole = export_csv_chunks(head, _Cut(source, 10 * N_ROWS), tmp_path / "whole.csv").read_bytes()
+    whole = export_csv_chunks(head, Cut(source, 10 * N_ROWS), tmp_path / "whole.csv").read_bytes()
     for rows in (1, 333, 4096):
-        assert export_csv_chunks(head, _Cut(source, rows), tmp_path / f"cut{rows}.csv").read_bytes() == whole
+        assert export_csv_chunks(head, Cut(source, rows), tmp_path / f"cut{rows}.csv").read_bytes() == whole
     assert export_csv_chunks(read_head(recording_chunks(journal)), recording_chunks(journal),
                              tmp_path / "journal.csv").read_text().splitlines()[1:] != []
 
@@ -228,33 +200,19 @@ def test_the_plots_read_in_chunks_are_the_same_png_bytes_at_every_cut(tmp_path: 
     source = recording_chunks(path)
     head = read_head(source)
     for window in (None, (1.0, 1.5)):  # decimated, every row (and the halls as steps)
-        whole = plot_recording_chunks(head, _Cut(source, 10 * N_ROWS), tmp_path / "whole", window=window)
-        cut = plot_recording_chunks(head, _Cut(source, 333), tmp_path / "cut", window=window)
+        whole = plot_recording_chunks(head, Cut(source, 10 * N_ROWS), tmp_path / "whole", window=window)
+        cut = plot_recording_chunks(head, Cut(source, 333), tmp_path / "cut", window=window)
         assert [p.read_bytes() for p in cut] == [p.read_bytes() for p in whole], window
     names = {p.name for p in plot_recording_chunks(head, source, tmp_path / "n")}
     assert names == {f"run_{x}.png" for x in ("speed", "telemetry", "currents", "duties", "hall", "link")}
-    cut = plot_speed_overlay_chunks([(head, _Cut(source, 333)), (head, source)], tmp_path / "o1")
-    assert cut.read_bytes() == plot_speed_overlay_chunks([(head, source), (head, source)], tmp_path / "o2").read_bytes()
+    (cut,) = plot_speed_overlay_chunks([(head, Cut(source, 333)), (head, source)], tmp_path / "o1")
+    (whole,) = plot_speed_overlay_chunks([(head, source), (head, source)], tmp_path / "o2")
+    assert cut.read_bytes() == whole.read_bytes()
 
 
 def _whole_read_module(tmp_path: Path, module_path: str) -> ModuleType | None:
     """``module_path`` as it was when report read the recording whole; None where git cannot show it."""
-    shown = subprocess.run(["git", "-C", str(REPO_ROOT), "show", f"{WHOLE_READ_COMMIT}:{module_path}"],
-                           capture_output=True, text=True)
-    if shown.returncode != 0:
-        return None
-    name = "whole_read_" + Path(module_path).stem
-    source = tmp_path / f"{name}.py"
-    source.write_text(shown.stdout)
-    spec = importlib.util.spec_from_file_location(name, source)
-    assert spec is not None and spec.loader is not None
-    module = importlib.util.module_from_spec(spec)
-    sys.modules[name] = module
-    try:
-        spec.loader.exec_module(module)
-    finally:
-        del sys.modules[name]
-    return module
+    return module_at(WHOLE_READ_COMMIT, module_path, tmp_path)
 
 
 def test_the_report_is_what_it_was_when_it_read_the_recording_whole(tmp_path: Path) -> None:
@@ -267,10 +225,10 @@ def test_the_report_is_what_it_was_when_it_read_the_recording_whole(tmp_path: Pa
         data = read_recording(path)
         source = recording_chunks(path)
         head = read_head(source)
-        assert json.dumps(summarise_chunks(head, _Cut(source, 333)), default=str) == \
+        assert json.dumps(summarise_chunks(head, Cut(source, 333)), default=str) == \
             json.dumps(report.summarise(data), default=str), path.name
         old = recorder.export_csv(recorder.read_recording(path), tmp_path / "old.csv").read_bytes()
-        assert export_csv_chunks(head, _Cut(source, 333), tmp_path / "new.csv").read_bytes() == old, path.name
+        assert export_csv_chunks(head, Cut(source, 333), tmp_path / "new.csv").read_bytes() == old, path.name
     pytest.importorskip("matplotlib")
     plots = _whole_read_module(tmp_path, "hilbench/ui/plots.py")
     assert plots is not None
@@ -281,13 +239,13 @@ def test_the_report_is_what_it_was_when_it_read_the_recording_whole(tmp_path: Pa
     head = read_head(source)
     for window in (None, (1.0, 1.5)):
         old_pngs = plots.plot_recording(data, tmp_path / "old", window=window)
-        new_pngs = plot_recording_chunks(head, _Cut(source, 333), tmp_path / "new", window=window)
+        new_pngs = plot_recording_chunks(head, Cut(source, 333), tmp_path / "new", window=window)
         assert [p.name for p in new_pngs] == [p.name for p in old_pngs]
         for old_png, new_png in zip(old_pngs, new_pngs):
             assert new_png.read_bytes() == old_png.read_bytes(), (window, new_png.name)
     window = (1.0, 1.5)  # the overlay was drawn point by point: the same where it is not decimated
     old_overlay = plots.plot_speed_overlay([data, data], tmp_path / "old", window=window)
-    new_overlay = plot_speed_overlay_chunks([(head, _Cut(source, 333)), (head, source)], tmp_path / "new", window)
+    (new_overlay,) = plot_speed_overlay_chunks([(head, Cut(source, 333)), (head, source)], tmp_path / "new", window)
     assert new_overlay.read_bytes() == old_overlay.read_bytes()
 
 
@@ -318,34 +276,27 @@ _LONG = ("t_s", "seq", "marker", "speed_rpm", "ref_speed_rpm", "ia_a", "ib_a", "
          "duty_a", "duty_b", "duty_c", "rtt_us", "lateness_us")
 
 
-def _long_recording(path: Path, n_rows: int) -> None:
+def _long_recording(path: Path, n_rows: int) -> Path:
     """``n_rows`` periods at 20 kHz of a real-time run with two holds, written a chunk at a time."""
-    chunk = 1 << 18
-    with ColumnArchive(path, list(_LONG), n_rows) as archive:
-        for first in range(0, n_rows, chunk):
-            k = np.arange(first, min(n_rows, first + chunk))
-            t = k * 5e-5
-            phase = 2 * np.pi * 50 * t
-            archive.write(first, {
-                "t_s": t, "seq": (k % 256).astype(float), "marker": np.where(k % 1000 == 7, MARKER_SKIPPED, 0.0),
+    def chunk(k: np.ndarray) -> dict[str, np.ndarray]:
+        t = k * 5e-5
+        phase = 2 * np.pi * 50 * t
+        return {"t_s": t, "seq": (k % 256).astype(float), "marker": np.where(k % 1000 == 7, MARKER_SKIPPED, 0.0),
                 "speed_rpm": 1000.0 * (1 - np.exp(-t / 0.1)), "ref_speed_rpm": np.full(len(k), 1000.0),
                 "ia_a": np.sin(phase), "ib_a": np.sin(phase - 2.0944), "ic_a": np.sin(phase + 2.0944),
                 "ibus_a": 0.3 * np.cos(phase), "hall": np.array([1, 3, 2, 6, 4, 5.0])[(k // 67) % 6],
                 "sector": ((k // 67) % 6).astype(float), "duty_a": (k * 31 % 1000).astype(float),
-                "duty_b": (k * 37 % 1000).astype(float), "duty_c": (k * 41 % 1000).astype(float), "rtt_us": 50.0 + (k * 7919 % 1000) / 10.0,
-                "lateness_us": (k * 104729 % 2000) / 10.0 - 50.0})
-        events = [segmentation.reference_event(0.0, 1000.0), segmentation.reference_event(n_rows * 2.5e-5, 1200.0)]
-        metadata = {"period_us": 50, "mode": "realtime", "events": events, "end": "end: completed",
-                    "columns": [[n, ""] for n in _LONG]}
-        archive.add("metadata", np.asarray(json.dumps(metadata)))
+                "duty_b": (k * 37 % 1000).astype(float), "duty_c": (k * 41 % 1000).astype(float),
+                "rtt_us": 50.0 + (k * 7919 % 1000) / 10.0, "lateness_us": (k * 104729 % 2000) / 10.0 - 50.0}
+
+    events = [segmentation.reference_event(0.0, 1000.0), segmentation.reference_event(n_rows * 2.5e-5, 1200.0)]
+    return write_archive(path, _LONG, n_rows, chunk,
+                         {"period_us": 50, "mode": "realtime", "events": events, "end": "end: completed"})
 
 
 def _peak_kib(path: Path, out: Path) -> int:
     out.mkdir()
-    done = subprocess.run([sys.executable, "-c", _CHILD, str(path), str(out)], capture_output=True, text=True,
-                          timeout=300, cwd=REPO_ROOT)
-    assert done.returncode == 0, done.stderr[-2000:]
-    return int(done.stdout.split()[-1])  # Linux: KiB
+    return peak_rss_kib(_CHILD, str(path), str(out))
 
 
 def test_a_report_of_a_recording_ten_times_longer_takes_no_more_memory(tmp_path: Path) -> None:
@@ -357,3 +308,81 @@ def test_a_report_of_a_recording_ten_times_longer_takes_no_more_memory(tmp_path:
     _long_recording(long, 2_000_000)
     grew_kib = _peak_kib(long, tmp_path / "long") - _peak_kib(short, tmp_path / "short")
     assert grew_kib < 16 * 1024, f"peak RSS grew by {grew_kib / 1024:.1f} MB for 10x the rows"
+
+
+def _whole_frame(path: Path, columns: list[str], max_buckets: int) -> dict[str, object]:
+    """The scope's frame of a recording computed here from its whole arrays: min/max envelopes of
+    buckets of ceil(rows / max_buckets) rows, the hall bits from the hall codes."""
+    from hilbench.bench.display import b64_f32
+
+    c = read_recording(path).columns
+    t = c["t_s"]
+    bucket = max(1, -(-len(t) // max_buckets))
+    cols = {}
+    for name in columns:
+        bit = {"hall_a": 0, "hall_b": 1, "hall_c": 2}.get(name)
+        values = c[name] if name in c else (c["hall"].astype(np.int64) >> bit) & 1 if bit is not None else None
+        if values is not None:
+            lo, hi = envelope(np.asarray(values, dtype=np.float64), bucket)
+            cols[name] = [b64_f32(lo), b64_f32(hi)]
+    return {"seq": 1, "t0": float(t[0]), "dt": bucket * float(np.median(np.diff(t[:1000]))),
+            "n": -(-len(t) // bucket), "cols": cols}
+
+
+def test_report_open_sends_the_frames_of_the_whole_arrays_read_in_chunks(tmp_path: Path) -> None:
+    """`report --open`'s source (the scope's RecordingSource) read a chunk at a time: the frames the
+    whole arrays give, every row (6000 <= MAX_BUCKETS) and in buckets of 9 and 13 rows."""
+    pytest.importorskip("aiohttp", reason="the scope extra (aiohttp) is not installed")
+    from hilbench.scope.server import RecordingSource
+
+    columns = ["speed_rpm", "ibus_a", "hall_b", "hall_c", "measured_speed_rpm", "nope", "iq_ref_q15", "t_s"]
+    for path in _recordings(tmp_path):
+        source = RecordingSource(path)
+        for max_buckets in (RecordingSource.MAX_BUCKETS, 700, 462):
+            source.MAX_BUCKETS = max_buckets
+            assert source.frame(columns) == _whole_frame(Path(source.source.where), columns, max_buckets), \
+                (path.name, max_buckets)
+        assert source.n_rows == N_ROWS and len(source.markers()) == len([e for e in EVENTS if e[1].startswith("t=")])
+
+
+_OPEN_CHILD = textwrap.dedent("""
+    import resource, sys
+    from hilbench.scope.server import RecordingSource
+
+    source = RecordingSource(sys.argv[1])
+    frame = source.frame([name for name, _ in source._names()])
+    assert frame["n"] == RecordingSource.MAX_BUCKETS and len(frame["cols"]) == 19, frame["n"]
+    print(resource.getrusage(resource.RUSAGE_SELF).ru_maxrss)
+""")
+
+
+def test_report_open_of_a_recording_ten_times_longer_takes_no_more_memory(tmp_path: Path) -> None:
+    """200 000 and 2 000 000 rows (16 columns, 256 MB): the scope's source of `report --open` read
+    every column whole (the peak grew by ~250 MB); in chunks it moves by less than 16 MB."""
+    pytest.importorskip("aiohttp", reason="the scope extra (aiohttp) is not installed")
+    short, long = tmp_path / "short.npz", tmp_path / "long.npz"
+    _long_recording(short, 200_000)
+    _long_recording(long, 2_000_000)
+    grew_kib = peak_rss_kib(_OPEN_CHILD, str(long)) - peak_rss_kib(_OPEN_CHILD, str(short))
+    assert grew_kib < 16 * 1024, f"peak RSS grew by {grew_kib / 1024:.1f} MB for 10x the rows"
+
+
+def test_a_recording_full_of_faults_names_the_first_fault_rows_and_counts_the_rest(tmp_path: Path) -> None:
+    """50 000 periods, every one a fault: the report listed 50 000 fault rows (a list as long as the
+    recording); now the first MAX_FAULT_ROWS by their seq, and how many more there are."""
+    from conftest import run_cli
+    from hilbench.bench.report import MAX_FAULT_ROWS
+
+    n_rows = 50_000
+    names = ("t_s", "seq", "marker", "speed_rpm")
+    path = write_archive(tmp_path / "faults.npz", names, n_rows, lambda k: {
+        "t_s": k * 5e-5, "seq": (k % 256).astype(float), "marker": np.full(len(k), float(MARKER_FAULT)),
+        "speed_rpm": np.zeros(len(k))}, {"period_us": 50}, chunk_rows=4096)
+    source = recording_chunks(path)
+    info = summarise_chunks(read_head(source), Cut(source, 333))
+    assert info["fault_rows"] == [k % 256 for k in range(MAX_FAULT_ROWS)]
+    assert info["fault_rows_left_out"] == n_rows - MAX_FAULT_ROWS
+    done = run_cli("report", str(path))
+    assert done.returncode == 0 and "fault rows left out" in done.stdout and str(n_rows - MAX_FAULT_ROWS) in done.stdout
+    few = summarise_chunks(read_head(recording_chunks(_recordings(tmp_path)[0])), recording_chunks(tmp_path / "run.npz"))
+    assert "fault_rows_left_out" not in few and len(few["fault_rows"]) == 3

@@ -10,6 +10,7 @@ import sys
 import time
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 from conftest import REPO_ROOT, hurst_bench_config, run_cli
@@ -129,11 +130,14 @@ def test_target_fault_ends_run_with_one_line_and_marked_recording(tmp_path: Path
 
 
 @pytest.mark.slow
-def test_ctrl_c_stops_cleanly(tmp_path: Path) -> None:
-    record = tmp_path / "int.npz"
+@pytest.mark.parametrize("suffix", [".npz", ".csv"])
+def test_ctrl_c_stops_cleanly(tmp_path: Path, suffix: str) -> None:
+    """Ctrl-C: exit 130, one line, children reaped, the recording readable with its end noted (a
+    CSV's rows written by its writer's thread up to the interrupt, events after them)."""
+    record = tmp_path / f"int{suffix}"
     proc = _start_run(tmp_path, record)
     try:
-        _wait_for_rows(Path(str(record) + ".journal"), proc)
+        _wait_for_rows(Path(str(record) + ".journal") if suffix == ".npz" else record, proc)
         children = _children(proc.pid)
         proc.send_signal(signal.SIGINT)
         stdout, stderr = proc.communicate(timeout=30)
@@ -148,7 +152,9 @@ def test_ctrl_c_stops_cleanly(tmp_path: Path) -> None:
         assert _gone(child)
     data = read_recording(record)
     assert data.n_rows > 1000
-    assert data.metadata["end"].startswith("interrupted")
+    assert data.metadata["end"].startswith("interrupted") if suffix == ".npz" else \
+        data.events[-1].startswith("interrupted")
+    assert np.all(np.diff(data.columns["seq"]) == 1)  # every row up to the interrupt, none twice
 
 
 @pytest.mark.parametrize(

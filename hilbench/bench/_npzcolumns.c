@@ -32,6 +32,8 @@
 #include <time.h>
 #include <unistd.h>
 
+#include "_rawfields.h"
+
 #if defined(__BYTE_ORDER__) && __BYTE_ORDER__ != __ORDER_LITTLE_ENDIAN__
 #error "the raw rows and the .npy columns are little-endian: a little-endian host only"
 #endif
@@ -96,33 +98,7 @@ typedef struct {
     uint32_t crc;      /* of the member's bytes so far */
 } column_t;
 
-static double field_value(const unsigned char *p, char code)
-{
-    switch (code) {
-    case 'B': return (double)p[0];
-    case 'h': { int16_t v; memcpy(&v, p, 2); return (double)v; }
-    case 'H': { uint16_t v; memcpy(&v, p, 2); return (double)v; }
-    case 'i': { int32_t v; memcpy(&v, p, 4); return (double)v; }
-    case 'I': { uint32_t v; memcpy(&v, p, 4); return (double)v; }
-    case 'q': { int64_t v; memcpy(&v, p, 8); return (double)v; }
-    case 'Q': { uint64_t v; memcpy(&v, p, 8); return (double)v; }
-    case 'f': { float v; memcpy(&v, p, 4); return (double)v; }
-    default: { double v; memcpy(&v, p, 8); return v; }
-    }
-}
-
-/* numpy's float remainder (npy_remainder / npy_divmod): the sign of the divisor */
-static double np_remainder(double a, double b)
-{
-    double mod = fmod(a, b);
-    if (!b) return mod;
-    if (mod) {
-        if ((b < 0) != (mod < 0)) mod += b;
-    } else {
-        mod = copysign(0.0, b);
-    }
-    return mod;
-}
+/* field_value and np_remainder: _rawfields.h (the CSV row writer reads raw rows the same way) */
 
 /* ---- the writer and its thread --------------------------------------------------------------- */
 #define READ_ROWS 8192 /* rows the thread reads back from the journal at a time */
@@ -393,10 +369,8 @@ static int Writer_init(Writer *w, PyObject *args, PyObject *kwds)
         if (!PyArg_ParseTuple(PySequence_Fast_GET_ITEM(seq, j), "nsddLk:ColumnWriter column", &col->field, &code,
                               &col->scale, &col->modulo, &col->place, &crc))
             goto bad;
-        static const char codes[] = "BhHiIqQfd", widths[] = {1, 2, 2, 4, 4, 8, 8, 4, 8};
-        const char *at = strlen(code) == 1 ? strchr(codes, code[0]) : NULL;
-        int width = at != NULL ? widths[at - codes] : 0;
-        if (at == NULL || col->field < 0 || col->field + width > itemsize || col->place < head_len) {
+        int width = field_width(code);
+        if (width == 0 || col->field < 0 || col->field + width > itemsize || col->place < head_len) {
             PyErr_Format(PyExc_ValueError, "ColumnWriter: column %zd: a field %s at %zd of a %zd-byte row", j, code,
                          col->field, itemsize);
             goto bad;

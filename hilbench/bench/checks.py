@@ -36,7 +36,10 @@ no segment was held `min_hold_s` (a short run is not a failed one; the other kin
 it), and so do the signal kinds of a run that kept no rows; `no_fault` without rows is judged from
 the fault code the live history saw (`Summary.fault_first_s`). A run that cannot have a column (a
 monitor-mode run records no plant: `absent` names such columns with the reason) says SKIP with that
-reason for a check that reads one. The CLI exits with `CheckFailed.exit_code` (9) when one fails.
+reason for a check that reads one. A recording that cannot be read (damaged, beyond the reader's
+bound, gone) is never a SKIP: each check that reads it fails naming the file and why, and
+`raise_if_failed` raises that RecordingError (exit code 6). The CLI exits with
+`CheckFailed.exit_code` (9) when a check fails on its figure.
 """
 
 from __future__ import annotations
@@ -50,7 +53,7 @@ import numpy as np
 from hilbench.bench.chunk_scans import FirstNonzero, RunningPeak, SettleScan, WindowScan
 from hilbench.bench.column_chunks import ArrayChunks, ColumnChunks
 from hilbench.fieldspec import spec
-from hilbench.errors import CheckFailed, HilbenchError
+from hilbench.errors import CheckFailed, HilbenchError, RecordingError
 
 if TYPE_CHECKING:
     from hilbench.bench.steptest import StepResult
@@ -136,6 +139,7 @@ class CheckResult:
     value: float | None = None
     bound: float | None = None
     skipped: bool = False  # not judged (no rows, another firmware, no held segment): passes, says SKIP
+    unreadable: bool = False  # its recording could not be read: fails, and is a RecordingError (exit 6)
 
     def line(self) -> str:
         verdict = "SKIP" if self.skipped else "PASS" if self.passed else "FAIL"
@@ -157,19 +161,27 @@ def run_checks(entries: Sequence[CheckEntry], summary: "Summary", signals: Signa
                absent: Mapping[str, str] | None = None) -> list[CheckResult]:
     """Judge every run kind of ``entries`` on a finished run; ``signals`` is read only if needed,
     and then only the columns a check reads, a chunk of rows at a time (memory bounded however
-    long the run). ``absent``: columns this kind of run cannot record, each with the reason (a
-    check reading one says SKIP with it; any other missing column is the check's failure or a
-    bug, never a SKIP)."""
-    cache: dict[str, _Signals] = {}
+    long the run). ``signals`` raises a RecordingError for a recording it cannot read (every check
+    reading it fails with it) and any other HilbenchError when nothing was recorded (they say
+    SKIP). ``absent``: columns this kind of run cannot record, each with the reason (a check
+    reading one says SKIP with it; any other missing column is the check's failure or a bug,
+    never a SKIP)."""
+    cache: dict[str, _Signals | Exception] = {}
 
     def columns() -> _Signals:
         if "s" not in cache:
             try:
                 source = signals()
+            except RecordingError as exc:  # a recording that is there but cannot be read: an error, not a SKIP
+                cache["s"] = _Unreadable(exc)
             except HilbenchError as exc:  # nothing recorded: `hilbench run` without --record keeps no rows
-                raise _NoRows(str(exc)) from None
-            cache["s"] = _Signals(source if isinstance(source, ColumnChunks) else ArrayChunks(source), absent or {})
-        return cache["s"]
+                cache["s"] = _NoRows(str(exc))
+            else:
+                cache["s"] = _Signals(source if isinstance(source, ColumnChunks) else ArrayChunks(source), absent or {})
+        got = cache["s"]
+        if isinstance(got, Exception):
+            raise got
+        return got
 
     def judge(entry: CheckEntry) -> CheckResult | _Pending:
         if not _for_firmware(entry, summary.firmware):
@@ -181,18 +193,37 @@ def run_checks(entries: Sequence[CheckEntry], summary: "Summary", signals: Signa
         except _NoRows:
             return CheckResult(entry.label, entry.kind, True, "not judged: no rows were kept "
                                "(record the run, --record run.npz, to judge the signals)", skipped=True)
+        except _Unreadable as exc:
+            return _unreadable(entry, exc.error)
 
-    outcomes = [judge(entry) for entry in entries if entry.kind in RUN_KINDS]
+    judged = [entry for entry in entries if entry.kind in RUN_KINDS]
+    outcomes = [judge(entry) for entry in judged]
     pending = [outcome for outcome in outcomes if isinstance(outcome, _Pending)]
     if pending:  # one pass over the rows for every check that reads them (a CSV is parsed once)
-        for chunk in columns().chunks(*dict.fromkeys(name for p in pending for name in p.names)):
-            for p in pending:
-                p.offer(chunk)
+        try:
+            for chunk in columns().chunks(*dict.fromkeys(name for p in pending for name in p.names)):
+                for p in pending:
+                    p.offer(chunk)
+        except RecordingError as exc:  # damaged on the way (a row out of order, a file cut short)
+            return [_unreadable(e, exc) if isinstance(o, _Pending) else o for e, o in zip(judged, outcomes)]
     return [outcome.finish() if isinstance(outcome, _Pending) else outcome for outcome in outcomes]
+
+
+def _unreadable(entry: CheckEntry, error: RecordingError) -> CheckResult:
+    """A check whose recording cannot be read: failed, naming the file and why (never a SKIP)."""
+    return CheckResult(entry.label, entry.kind, False, f"cannot be judged: {error}", unreadable=True)
 
 
 class _NoRows(Exception):
     """The run kept no rows to judge signals on."""
+
+
+class _Unreadable(Exception):
+    """The run's recording is there but cannot be read (``error`` says which and why)."""
+
+    def __init__(self, error: RecordingError) -> None:
+        super().__init__(str(error))
+        self.error = error
 
 
 class _Absent(Exception):
@@ -253,7 +284,11 @@ def step_checks(entries: Sequence[CheckEntry], result: "StepResult", firmware: s
 
 
 def raise_if_failed(results: Sequence[CheckResult], where: str = "") -> None:
-    """CheckFailed (exit code 9) naming every failed check, when one failed."""
+    """CheckFailed (exit code 9) naming every failed check, when one failed; RecordingError (exit
+    code 6) naming the file and why, when a check could not read its recording."""
+    unreadable = [r for r in results if r.unreadable]
+    if unreadable:
+        raise RecordingError(f"{where}{len(unreadable)} of {len(results)} checks {unreadable[0].figure}")
     failed = [r for r in results if not r.passed]
     if failed:
         what = "; ".join(f"{r.name}: {r.figure}" for r in failed)

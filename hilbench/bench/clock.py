@@ -2,7 +2,8 @@
 request that keeps idle CPUs from halting while a real-time run lasts.
 
 ``time.sleep`` overshoots by ~0.1 ms (timer slack) and sometimes by milliseconds, so the pacer
-sleeps until ``spin_s`` before the deadline and spins on ``perf_counter`` for the rest. The pacer
+sleeps until ``spin_s`` before the deadline and spins on ``perf_counter`` for the rest (a thread
+under SCHED_FIFO has no slack and spins less: `pacing.spin_for_this_thread`). The pacer
 never skips: a late period starts at once and its lateness is reported (the session skips the
 exchange of a period whose whole slot has gone).
 """

@@ -25,6 +25,11 @@ that ends with another number of rows (or a fault marker on a row already in the
 then patched there) has its archive written from the journal at the close. A journal write that
 fails beside it (a full disk) gives the archive up, its file removed, and is written again: the
 journal, not the archive, keeps the rows.
+
+A CSV run's rows are formatted and written by the C row writer's thread (`_csvrows.RowWriter`,
+when built): settled rows are handed to it every BACKGROUND_CHUNK_ROWS rows (the newest kept back,
+for `mark_last`) and at each flush, which returns once they are written; `_format_csv` is its
+reference (without it, or for a format it does not take).
 """
 
 from __future__ import annotations
@@ -43,7 +48,7 @@ import numpy as np
 
 from hilbench.errors import RecordingError
 
-try:  # CSV rows in C (optional; `Recorder._format_csv` is the reference)
+try:  # CSV rows in C from raw rows, on a thread (optional; `Recorder._format_csv` is the reference)
     from hilbench.bench import _csvrows
 except ImportError:  # pragma: no cover - no compiler at install time
     _csvrows = None  # type: ignore[assignment]
@@ -87,8 +92,11 @@ MARKER_END = 4
 MARKER_SKIPPED = 5  # real time: the host missed the period's slot, no exchange (the Drive is held)
 
 _JOURNAL_MAGIC = b"HBJ2"
-#: rows an NPZ run hands to its background archive at a time (between flushes)
+#: rows an NPZ run hands to its background archive at a time (between flushes), and a CSV run to its
+#: row writer's thread
 BACKGROUND_CHUNK_ROWS = 4096
+#: rows a CSV run's writer thread may have waiting (handed over, not written yet): its memory bound
+CSV_WRITER_MAX_ROWS = 2 * BACKGROUND_CHUNK_ROWS
 
 #: struct codes a layout may use and their NumPy types (little-endian, packed without padding)
 _CODE_DTYPES = {"B": "u1", "h": "<i2", "H": "<u2", "i": "<i4", "I": "<u4", "q": "<i8", "Q": "<u8",
@@ -286,6 +294,7 @@ class Recorder:
     _background: Any = field(default=None, repr=False)  # npzwriter.BackgroundArchive, when the rows are planned
     _handed: int = field(default=0, repr=False)  # pending rows already in the journal (handed to it)
     _journal_start: int = field(default=0, repr=False)  # the journal's row 0
+    _csv_writer: Any = field(default=None, repr=False)  # _csvrows.RowWriter: a CSV's rows written on a thread
 
     def __post_init__(self) -> None:
         self.path = Path(self.path)
@@ -331,6 +340,8 @@ class Recorder:
         except OSError as exc:
             raise RecordingError(f"recording {self.path}: write failed ({exc.strerror})") from None
         self.started = True
+        if not self.is_npz:
+            self._csv_writer = _csv_row_writer(self._file.fileno(), layout)
 
     def _journal_path(self) -> Path:
         return self.path.with_name(self.path.name + ".journal")
@@ -364,11 +375,16 @@ class Recorder:
         rows = self.flush_rows - pending
         if self._background is not None and not self._background.given_up:
             rows = min(rows, BACKGROUND_CHUNK_ROWS - (pending - self._handed))
+        elif self._csv_writer is not None:  # (the newest row is kept back: mark_last may still mark it)
+            rows = min(rows, BACKGROUND_CHUNK_ROWS + 1 - (pending - self._handed))
         return rows
 
     def event(self, text: str, marker: int = MARKER_NONE) -> None:
-        """Note an event at the next row to be appended; a marker goes into that row."""
-        self._events.append((len(self.rows), text.replace("\n", " "), marker))
+        """Note an event at the next row to be appended; a marker goes into that row. The text is
+        one line of UTF-8 (a lone surrogate, which a control client's JSON can carry, as its escape:
+        a CSV or an events file could not take it)."""
+        line = text.replace("\n", " ").encode("utf-8", "backslashreplace").decode("utf-8")
+        self._events.append((len(self.rows), line, marker))
 
     def mark_last(self, marker: int) -> None:
         """Set the marker of the newest pending row (the last good period): it wins over events."""
@@ -398,6 +414,9 @@ class Recorder:
         elif self._background is not None and pending - self._handed >= BACKGROUND_CHUNK_ROWS:
             self.rows.settle(self._events)  # their markers are final: events note the next row to come
             self._hand_over()
+        elif self._csv_writer is not None and pending - 1 - self._handed >= BACKGROUND_CHUNK_ROWS:
+            self.rows.settle(self._events)
+            self._hand_over_csv(len(self.rows) - 1)  # the newest kept back: mark_last may mark it
 
     def _hand_over(self) -> None:
         """The settled pending rows not in the journal yet written there, and handed to the
@@ -410,6 +429,22 @@ class Recorder:
         if self._background is not None:  # (a full disk may have given it up)
             self._background.submit(n_rows - self._handed)
         self._handed = n_rows
+
+    def _hand_over_csv(self, end: int) -> None:
+        """Pending rows (settled) up to ``end`` and the events before them (those at ``end`` too
+        when it is every pending row: after the last) handed to the CSV writer's thread, which
+        writes their text while the run goes on (it waits while CSV_WRITER_MAX_ROWS rows wait)."""
+        rows, events, first = self.rows, self._events, self._handed
+        n_events = sum(1 for index, _, _ in events if index < end or (index == end == len(rows)))
+        lines = [(index - first, f"# event: {text}\n".encode()) for index, text, _ in events[:n_events]]
+        size = rows.struct.size
+        with memoryview(rows.data) as whole, whole[first * size:end * size] as data:  # copied by submit
+            try:
+                self._csv_writer.submit(data, lines)
+            except OSError as exc:
+                raise RecordingError(f"recording {self.path}: write failed ({exc.strerror})") from None
+        del events[:n_events]
+        self._handed = end
 
     def _write_journal(self, first: int, end: int) -> None:
         """Pending rows first..end-1 written at their place in the journal (pwrite: no buffer left
@@ -459,10 +494,14 @@ class Recorder:
                     self.metadata.setdefault("events", []).extend(text for _, text, _ in events)
                     with open(_events_path(self._journal_path()), "a", encoding="utf-8") as side:
                         side.write("".join(f"{text}\n" for _, text, _ in events))
+            elif self._csv_writer is not None:  # the rest to the thread; the flush returns when it is written
+                self._hand_over_csv(n_rows)
+                self._csv_writer.drain()
             else:
                 columns = rows.columns()
-                names = rows.layout.column_names
-                self._file.write(self._csv_text([columns[name] for name in names], n_rows, events))
+                table = np.column_stack([columns[name] for name in rows.layout.column_names]) if n_rows else \
+                    np.zeros((0, len(columns)))
+                self._file.write(self._format_csv(list(map(tuple, table.tolist())), events))
             self._file.flush()
         except OSError as exc:
             raise RecordingError(f"recording {self.path}: write failed ({exc.strerror})") from None
@@ -473,33 +512,18 @@ class Recorder:
         events.clear()
         self._handed = 0
 
-    def _csv_text(self, columns: list[np.ndarray], n_rows: int, events: list[tuple[int, str, int]]) -> str:
-        """The CSV text of these rows and events: `_format_csv` (the reference), or its accelerator
-        `_csvrows.format_rows` (C; the same text, tests/test_csv_rows.py) between the events."""
-        formats = [f for _, _, f in self.rows.layout.column_specs]
-        if _csvrows is not None and n_rows:
-            parts: list[str | None] = []
-            start = 0
-            for index, text, _ in events:
-                parts += [_csvrows.format_rows(columns, formats, start, index), f"# event: {text}\n"]
-                start = index
-            parts.append(_csvrows.format_rows(columns, formats, start, n_rows))
-            if None not in parts:  # else a format or a value the C path leaves to Python
-                return "".join(parts)  # type: ignore[arg-type]
-        table = np.column_stack(columns) if n_rows else np.zeros((0, len(formats)))
-        return self._format_csv(list(map(tuple, table.tolist())), events)
-
     def _format_csv(self, rows: list[tuple[float, ...]], events: list[tuple[int, str, int]]) -> str:
-        fmt = ",".join(f for _, _, f in self.rows.layout.column_specs) + "\n"
-        if not events:
-            return "".join([fmt % row for row in rows])
+        """The CSV text of these rows (the columns' values) and events: the reference of the C
+        row writer (hilbench/bench/_csvrows.c; the same text, tests/test_csv_rows.py)."""
+        formats = [f for _, _, f in self.rows.layout.column_specs]
+        fmt = ",".join(formats) + "\n"
         parts: list[str] = []
         start = 0
         for index, text, _ in events:
-            parts.extend(fmt % row for row in rows[start:index])
+            parts.extend(_csv_line(fmt, formats, row) for row in rows[start:index])
             parts.append(f"# event: {text}\n")
             start = index
-        parts.extend(fmt % row for row in rows[start:])
+        parts.extend(_csv_line(fmt, formats, row) for row in rows[start:])
         return "".join(parts)
 
     def close(self, final_note: str | None = None) -> None:
@@ -511,9 +535,13 @@ class Recorder:
             self.metadata["end"] = final_note
         try:
             self.flush()
+            if self._csv_writer is not None:  # every row written: its thread joined
+                self._csv_writer.close()
         except BaseException:
             if self._background is not None:  # its thread joined: the journal keeps the rows
                 self._background.abandon()
+            if self._csv_writer is not None:  # (after a failed write: nothing waits)
+                self._csv_writer.abandon()
             raise
         self.closed = True
         self._file.close()
@@ -532,6 +560,33 @@ class Recorder:
                                      f"every row is kept in {self._journal_path()}") from None
             self._journal_path().unlink()
             _events_path(self._journal_path()).unlink(missing_ok=True)
+
+
+def _csv_line(fmt: str, formats: Sequence[str], row: tuple[float, ...]) -> str:
+    """``fmt % row``; a NaN or an infinity in a whole-number column (which ``%d`` refuses: a target
+    that does not report the quantity) written as ``%.0f`` writes it, ``nan``, ``inf`` or ``-inf``,
+    which readers (float, numpy.loadtxt, pandas) take back."""
+    try:
+        return fmt % row
+    except (ValueError, OverflowError):
+        return ",".join("%.0f" % x if f.endswith(("d", "i", "u")) and not math.isfinite(x) else f % x
+                        for f, x in zip(formats, row)) + "\n"
+
+
+def _csv_row_writer(fd: int, layout: RowLayout) -> Any:
+    """A `_csvrows.RowWriter` for ``layout``'s rows on ``fd`` (its thread writes them as
+    `Recorder._format_csv` would), or None: not built, a format it leaves to the reference, or any
+    failure to start it (the flush then formats the rows itself)."""
+    if _csvrows is None:
+        return None
+    from hilbench.bench.npzwriter import _field_offsets
+
+    offsets, wraps = _field_offsets(layout), dict(layout.wrap)
+    columns = [(*offsets[src], scale, wraps.get(name, 0.0), fmt) for name, _, fmt, src, scale in layout.columns]
+    try:
+        return _csvrows.RowWriter(fd, layout.dtype.itemsize, columns, CSV_WRITER_MAX_ROWS)
+    except Exception:  # noqa: BLE001 - an accelerator's failure, whatever it is: the reference writes the rows
+        return None
 
 
 #: rows converted at a time when an NPZ archive is written from its journal (bounded memory)

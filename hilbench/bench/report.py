@@ -14,6 +14,10 @@ from hilbench.bench.recording_head import RecordingHead
 from hilbench.bench.recorder import MARKER_FAULT, MARKER_SKIPPED, RecordingData
 from hilbench.plant.period import Period
 
+#: fault rows a report names (the first ones); the rest are counted: a recording full of faults
+#: would otherwise list every row
+MAX_FAULT_ROWS = 1000
+
 _EVENT_TIME = re.compile(r"^t=([0-9.]+) (.*)$")
 _REF = re.compile(r"^ref (-?[0-9.]+) rpm")
 
@@ -100,12 +104,14 @@ def _head(data: RecordingData) -> RecordingHead:
 
 
 class _Extremes:
-    """One pass: rows, first and last time, fault rows, the largest magnitudes (a NaN wins, as np.max)."""
+    """One pass: rows, first and last time, the first MAX_FAULT_ROWS fault rows and how many there
+    are, the largest magnitudes (a NaN wins, as np.max)."""
 
     def __init__(self, names: tuple[str, ...]) -> None:
         self.rows = 0
         self.t_first_s = self.t_last_s = 0.0
         self.fault_rows: list[int] = []
+        self.faults = 0
         self.has_seq = "seq" in names
         self.peaks: dict[str, float] = {}
 
@@ -117,6 +123,8 @@ class _Extremes:
             self.t_first_s = t[0]
         self.t_last_s = t[-1]
         faults = np.flatnonzero(chunk["marker"] == MARKER_FAULT)
+        self.faults += len(faults)
+        faults = faults[:max(0, MAX_FAULT_ROWS - len(self.fault_rows))]
         self.fault_rows += [int(chunk["seq"][i]) if self.has_seq else int(i) + self.rows for i in faults]
         self.rows += len(t)
         for name, values in chunk.items():
@@ -146,6 +154,8 @@ def summarise_chunks(head: RecordingHead, source: ColumnChunks) -> dict[str, Any
         "ended": _ended(head, n, float(scan.t_last_s) if n else None),
         "fault_rows": scan.fault_rows,
     }
+    if scan.faults > len(scan.fault_rows):  # (only then: the summary of a few faults is as it was)
+        info["fault_rows_left_out"] = scan.faults - len(scan.fault_rows)  # after the first MAX_FAULT_ROWS
     peaks = scan.peaks
     if n and "speed_rpm" in peaks:
         info["max_speed_rpm"] = round(float(peaks["speed_rpm"]), 2)

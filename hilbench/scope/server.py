@@ -255,45 +255,67 @@ class ControlSource:
 
 
 class RecordingSource:
-    """A recording (CSV, NPZ or a killed run's journal), sent as envelope frames."""
+    """A recording (CSV, NPZ or a killed run's journal), sent as envelope frames, read a chunk of
+    rows at a time: memory is a chunk and at most MAX_BUCKETS envelope points a column, however
+    long the recording (it was read whole: every column in memory)."""
 
     MAX_BUCKETS = 20_000
+    #: rows of t_s the period is the median step of
+    PERIOD_ROWS = 1000
 
     def __init__(self, path: str | os.PathLike[str]) -> None:
-        from hilbench.bench.recorder import read_recording
+        from hilbench.bench.column_chunks import recording_chunks
+        from hilbench.bench.recording_head import read_head
 
         self.path = Path(path)
-        self.data = read_recording(self.path)
+        self.source = recording_chunks(self.path)
+        self.head = read_head(self.source)
+        self.n_rows, self.t_last_s, self._t_start = self._scan()
+
+    def _scan(self) -> tuple[int, float, np.ndarray]:
+        """Every column read once now, so a damaged recording is one line at the start (not an error
+        in the server's thread later): the rows, the last time, and the first PERIOD_ROWS times."""
+        n, t_last, start = 0, 0.0, np.zeros(0)
+        for chunk in self.source.chunks(self.source.names):
+            t = chunk["t_s"]
+            if len(t):
+                n, t_last = n + len(t), float(t[-1])
+                if len(start) < self.PERIOD_ROWS:
+                    start = np.concatenate([start, t[: self.PERIOD_ROWS - len(start)]])
+        return n, t_last, start
 
     def _names(self) -> list[tuple[str, str]]:
         from hilbench.bench.display import HALL_BITS
 
-        names = [(name, self.data.units.get(name, "")) for name in self.data.columns]
-        if "hall" in self.data.columns:
+        names = [(name, self.source.units.get(name, "")) for name in self.source.names]
+        if "hall" in self.source.names:
             at = [n for n, _ in names].index("hall") + 1
             names[at:at] = [(n, "bit") for _, n in HALL_BITS]
         return names
 
     def frame(self, columns: list[str]) -> dict[str, Any]:
-        """Everything in one frame (buckets of a fixed size, at most MAX_BUCKETS of them)."""
-        from hilbench.bench.display import HALL_BITS, b64_f32, envelope
+        """Everything in one frame (buckets of a fixed size, at most MAX_BUCKETS of them), the
+        recording read a chunk at a time."""
+        from hilbench.bench.display import HALL_BITS, b64_f32
+        from hilbench.ui.plot_data import TraceBuilder
 
-        data = self.data
-        t = np.asarray(data.columns["t_s"], dtype=np.float64)
-        n = len(t)
-        period_s = float(np.median(np.diff(t[: min(n, 1000)]))) if n > 1 else 1.0
+        n, t = self.n_rows, self._t_start
+        period_s = float(np.median(np.diff(t))) if n > 1 else 1.0
         bucket = max(1, -(-n // self.MAX_BUCKETS))
+        bits = {name: bit for bit, name in HALL_BITS} if "hall" in self.source.names else {}
+        wanted = [name for name in dict.fromkeys(columns) if name in self.source.names or name in bits]
+        builders = {name: TraceBuilder(n, bucket) for name in wanted}
+        read = [name for name in wanted if name in self.source.names] + (["hall"] if set(wanted) & set(bits) else [])
+        for chunk in self.source.chunks(list(dict.fromkeys(read))):
+            for name, builder in builders.items():
+                values = chunk.get(name)
+                if values is None:  # a hall bit
+                    values = (chunk["hall"].astype(np.int64) >> bits[name]) & 1
+                builder.add(chunk["t_s"], values)
         cols: dict[str, list[str]] = {}
-        hall = data.columns.get("hall")
-        for name in columns:
-            values = data.columns.get(name)
-            if values is None and hall is not None and name in {b for _, b in HALL_BITS}:
-                bit = next(b for b, nm in HALL_BITS if nm == name)
-                values = (np.asarray(hall).astype(np.int64) >> bit) & 1
-            if values is None:
-                continue
-            lo, hi = envelope(np.asarray(values, dtype=np.float64), bucket)
-            cols[name] = [b64_f32(lo), b64_f32(hi)]
+        for name, builder in builders.items():
+            trace = builder.trace()
+            cols[name] = [b64_f32(trace.lo), b64_f32(trace.lo if trace.hi is None else trace.hi)]
         n_buckets = -(-n // bucket)
         return {"seq": 1, "t0": float(t[0]) if n else 0.0, "dt": bucket * period_s, "n": n_buckets, "cols": cols}
 
@@ -301,7 +323,7 @@ class RecordingSource:
         from hilbench.bench.display import marker_kind, parse_event
 
         out = []
-        for text in self.data.events:
+        for text in self.head.events:
             parsed = parse_event(text)
             if parsed is not None:
                 out.append([parsed[0], marker_kind(parsed[1], 0), parsed[1]])
@@ -313,14 +335,13 @@ class RecordingSource:
                 "period_s": None}
 
     async def serve(self, send: Callable[[dict[str, Any]], Any], inbox: "asyncio.Queue[Subscribe | Command]") -> None:
-        t_end = float(self.data.columns["t_s"][-1]) if self.data.n_rows else 0.0
-        status = {"t_s": t_end, "ended": True}
+        status = {"t_s": self.t_last_s if self.n_rows else 0.0, "ended": True}
         await send({"type": "stream", "seq": 0, "frames": [], "status": status, "markers": self.markers(), "meta": self.meta()})
         while True:
             message = await inbox.get()
-            if isinstance(message, Subscribe):
-                await send({"type": "stream", "seq": 1, "frames": [self.frame(list(message.columns))], "status": status,
-                            "markers": [], "replace": True})
+            if isinstance(message, Subscribe):  # the file is read on a thread: other pages go on meanwhile
+                frame = await asyncio.to_thread(self.frame, list(message.columns))
+                await send({"type": "stream", "seq": 1, "frames": [frame], "status": status, "markers": [], "replace": True})
             else:
                 await send(refusal(Refused("a recording cannot be steered", message.page_id), message.request.get("cmd")))
 

@@ -196,12 +196,10 @@ class _Server:
         }
         try:
             while not self._stopped():
-                msg = self._lockstep() if self.mode != MODE_REALTIME else self.link.recv_or_none(self.realtime_wait())
+                msg = self._lockstep() if self.mode != MODE_REALTIME else self._realtime()
                 if msg is None:
                     self.check_watchdog()
-                elif type(msg) is Sensors:
-                    self._sensors(msg)
-                else:
+                else:  # (both loops answer every Sensors themselves)
                     self._request(msg, handlers)
         except LinkClosed as exc:
             self.report.reason = str(exc)
@@ -233,6 +231,26 @@ class _Server:
             if watching:
                 self.last_sensors_t = time.monotonic()
                 self.tripped = False
+            try:
+                send(answer.step(msg))
+            except LinkClosed:
+                raise
+            except Exception as exc:  # noqa: BLE001 - a model bug must not take the server down
+                self.handler_fault(msg, exc)
+            if stop_event is not None and stop_event.is_set():
+                return None
+
+    def _realtime(self) -> Any:
+        """Real time's hot path (`_lockstep`'s twin): each Sensors answered in place, waiting at
+        most until the watchdog is due (`realtime_wait`); returns the first other message
+        (None: nothing within the wait, or stop_event set)."""
+        recv, send, answer, report, stop_event = self.link.recv_or_none, self.link.send, self.answer, self.report, self.stop_event
+        wait = self.realtime_wait
+        while True:
+            msg = recv(wait())
+            if type(msg) is not Sensors:
+                return msg
+            report.sensors += 1
             try:
                 send(answer.step(msg))
             except LinkClosed:
@@ -274,16 +292,6 @@ class _Server:
             self.tripped = False
             drive = self.target.advance(span_us, msg)
         return drive if drive.seq == msg.seq else drive._replace(seq=msg.seq)
-
-    def _sensors(self, msg: Sensors) -> None:
-        """A Sensors outside the lockstep loop (real time)."""
-        self.report.sensors += 1
-        try:
-            self.link.send(self.answer.step(msg))
-        except LinkClosed:
-            raise
-        except Exception as exc:  # noqa: BLE001 - a model bug must not take the server down
-            self.handler_fault(msg, exc)
 
     def _request(self, msg: Any, handlers: dict[type, Any]) -> None:
         """A request between periods: the next Sensors is a new period whatever its seq."""

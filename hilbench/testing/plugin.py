@@ -407,9 +407,12 @@ def _keep(request: pytest.FixtureRequest, state: _State, paths: list[Path], fold
                 notes.append(f"plots skipped: {exc}")
                 break
             try:
-                for plot in plot_recording(read_recording(path), folder / "plots", stem=path.stem):
+                plots = plot_recording(read_recording(path), folder / "plots", stem=path.stem)
+                for plot in plots:
                     attached.append(str(plot))
                     record_property("hil_plot", str(plot))
+                if plots.note() is not None:
+                    notes.append(f"{path.name}: {plots.note()}")
             except PlotUnavailable as exc:
                 notes.append(f"plots skipped: {exc}")
                 break

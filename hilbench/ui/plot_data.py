@@ -45,10 +45,13 @@ def whole_trace(t_s: np.ndarray, y: np.ndarray) -> Trace:
 
 
 class TraceBuilder:
-    """One trace of ``n_rows`` rows, fed in order, chunk by chunk."""
+    """One trace of ``n_rows`` rows, fed in order, chunk by chunk; ``bucket`` rows an envelope point
+    (default: every row up to 2 * MAX_POINTS rows, else MAX_POINTS points)."""
 
-    def __init__(self, n_rows: int) -> None:
-        self.bucket = 1 if n_rows <= 2 * MAX_POINTS else -(-n_rows // MAX_POINTS)
+    def __init__(self, n_rows: int, bucket: int | None = None) -> None:
+        if bucket is None:
+            bucket = 1 if n_rows <= 2 * MAX_POINTS else -(-n_rows // MAX_POINTS)
+        self.bucket = max(1, bucket)
         self._t: list[np.ndarray] = []
         self._lo: list[np.ndarray] = []
         self._hi: list[np.ndarray] = []

@@ -7,8 +7,9 @@ did the link keep time.
 
 from __future__ import annotations
 
+from dataclasses import dataclass
 from pathlib import Path
-from typing import Sequence
+from typing import Iterator, Sequence
 
 import numpy as np
 
@@ -16,7 +17,7 @@ from hilbench.bench.column_chunks import ArrayChunks, ColumnChunks
 from hilbench.bench.recorder import RecordingData
 from hilbench.bench.recording_head import RecordingHead
 from hilbench.errors import ConfigError, HilbenchError
-from hilbench.ui.plot_data import MAX_POINTS, RecordingView, Trace, view, whole_trace
+from hilbench.ui.plot_data import MAX_POINTS, Rate, RecordingView, Trace, view, whole_trace
 
 
 class PlotUnavailable(HilbenchError):
@@ -41,6 +42,26 @@ def _pyplot():  # type: ignore[no-untyped-def]
 LINK_FLOOR_US = 0.1
 #: more hall edges than this in view: the halls are drawn as their edge rate, not as steps
 MAX_HALL_EDGES = 400
+
+
+@dataclass(frozen=True)
+class Plots:
+    """The PNGs written (iterates as their paths), and each standard figure the recording's columns
+    could not draw, as "what (no column, ...)": a monitor-mode or custom-firmware layout may lack the
+    plant's currents or the duties, and its plots must still be drawn and say so."""
+
+    paths: tuple[Path, ...]
+    left_out: tuple[str, ...] = ()
+
+    def __iter__(self) -> Iterator[Path]:
+        return iter(self.paths)
+
+    def __len__(self) -> int:
+        return len(self.paths)
+
+    def note(self) -> str | None:
+        """One line naming what was left out, or None when every figure was drawn in full."""
+        return "plots left out: " + "; ".join(self.left_out) if self.left_out else None
 
 
 def parse_window(text: str | None) -> tuple[float, float] | None:
@@ -142,29 +163,30 @@ def _lanes_figure(plt, v: RecordingView, series, title: str, events=()):  # type
 
 
 def plot_recording(data: RecordingData, out_dir: Path, stem: str | None = None,
-                   window: tuple[float, float] | None = None) -> list[Path]:
-    """Write the standard plots of a recording in memory into ``out_dir``; returns their paths."""
+                   window: tuple[float, float] | None = None) -> Plots:
+    """Write the standard plots of a recording in memory into ``out_dir``."""
     head = RecordingHead(data.path, data.metadata, data.events, data.units, data.formats)
     return plot_recording_chunks(head, ArrayChunks(data.columns, data.units), out_dir, stem, window)
 
 
 def plot_recording_chunks(head: RecordingHead, source: ColumnChunks, out_dir: Path, stem: str | None = None,
-                          window: tuple[float, float] | None = None) -> list[Path]:
-    """Write the standard plots of a recording into ``out_dir``, its rows read a chunk at a time;
-    returns their paths. ``window``: only simulated seconds t0..t1 (every period drawn when it is
-    short enough)."""
+                          window: tuple[float, float] | None = None) -> Plots:
+    """Write the standard plots of a recording into ``out_dir``, its rows read a chunk at a time:
+    each figure the columns allow, and what they did not. ``window``: only simulated seconds t0..t1
+    (every period drawn when it is short enough)."""
     plt = _pyplot()
     stem = stem or head.path.name.split(".")[0]
     v = view(source, _plotted_columns(source.names), window, LINK_FLOOR_US)
     out_dir.mkdir(parents=True, exist_ok=True)
     written: list[Path] = []
-    for fig, name in _standard_figures(plt, v, source.names, head.units, _events(head.events)):
+    left_out: list[str] = []
+    for fig, name in _standard_figures(plt, v, source.names, head.units, _events(head.events), left_out):
         path = out_dir / f"{stem}_{name}.png"
         fig.tight_layout()
         fig.savefig(path, dpi=110)
         plt.close(fig)
         written.append(path)
-    return written
+    return Plots(tuple(written), tuple(left_out))
 
 
 _SPEEDS = ("ref_speed_rpm", "speed_rpm", "measured_speed_rpm")
@@ -185,14 +207,25 @@ def _plotted_columns(names: Sequence[str]) -> list[str]:
     return [*_SPEEDS, *_own_columns(names), *_CURRENTS, *_DUTIES, "hall", "sector", "rtt_us", "lateness_us"]
 
 
-def _standard_figures(plt, v: RecordingView, names: Sequence[str], units, events):  # type: ignore[no-untyped-def]
-    """(figure, name) of each standard plot the columns allow, made one at a time."""
+def _missing(what: str, wanted: Sequence[str], names: Sequence[str]) -> str | None:
+    """"what (no a, b)" for the columns of ``wanted`` the recording lacks; None when it has them all."""
+    lacking = [name for name in wanted if name not in names]
+    return f"{what} (no {', '.join(lacking)})" if lacking else None
+
+
+def _standard_figures(plt, v: RecordingView, names: Sequence[str], units, events,  # type: ignore[no-untyped-def]
+                      left_out: list[str]):
+    """(figure, name) of each standard plot the columns allow, made one at a time; a figure whose
+    columns are all missing is left out, and a lane missing from one that is drawn, named in ``left_out``."""
     c = v.traces
     speeds = [("ref_speed_rpm", "reference (firmware)", {"lw": 1.2, "color": "k", "ls": "--"}),
               ("speed_rpm", "speed (plant)", {"lw": 1.0})]
     if "measured_speed_rpm" in c and v.has_values["measured_speed_rpm"]:
         speeds.append(("measured_speed_rpm", "speed (firmware measured)", {"lw": 0.8, "alpha": 0.8}))
-    yield _line_figure(plt, v, c, speeds, "speed [rpm]", "speed vs reference", events), "speed"
+    if any(name in c for name, *_ in speeds):
+        yield _line_figure(plt, v, c, speeds, "speed [rpm]", "speed vs reference", events), "speed"
+    else:
+        left_out.append(_missing("speed", _SPEEDS, names) or "speed")
     own = [name for name in _own_columns(names) if name != "t_s"]
     if own:
         lines = [(name, f"{name} [{units.get(name, '')}]", {"lw": 0.8}) for name in own]
@@ -200,13 +233,22 @@ def _standard_figures(plt, v: RecordingView, names: Sequence[str], units, events
     currents = [(name, label, "A", {"lw": 0.6, "color": f"C{k}"})
                 for k, (name, label) in enumerate((("ia_a", "i_a"), ("ib_a", "i_b"), ("ic_a", "i_c")))]
     currents.append(("ibus_a", "i_bus", "A", {"lw": 0.8, "color": "k"}))
-    if any(name in c for name, *_ in currents):  # (a monitor-mode recording has no plant currents)
-        yield _lanes_figure(plt, v, currents, "phase and bus currents", events), "currents"
     duties = [(name, name, "counts", {"lw": 0.6, "color": f"C{k}"}) for k, name in enumerate(_DUTIES)]
-    yield _lanes_figure(plt, v, duties, "PWM duties from the target", events), "duties"
+    for what, lanes, title in (("currents", currents, "phase and bus currents"),
+                               ("duties", duties, "PWM duties from the target")):
+        missing = _missing(what, [name for name, *_ in lanes], names)
+        if missing is not None:
+            left_out.append(missing)
+        if any(name in c for name, *_ in lanes):  # (a monitor-mode recording has no plant currents)
+            yield _lanes_figure(plt, v, lanes, title, events), what
     if v.hall is not None:
         yield _hall_figure(plt, v, events), "hall"
-    if "rtt_us" in c and "lateness_us" in c and (v.nonzero["rtt_us"] or v.nonzero["lateness_us"]):
+    else:
+        left_out.append(_missing("hall", ("hall", "sector"), names) or "hall")
+    link = _missing("link", ("rtt_us", "lateness_us"), names)
+    if link is not None:
+        left_out.append(link)
+    elif v.nonzero["rtt_us"] or v.nonzero["lateness_us"]:
         # a log axis of what is positive: a period answered early (lateness < 0) is on time, drawn at the floor
         floor = LINK_FLOOR_US
         timing = [("rtt_us", "round trip [µs]", {"lw": 0.5}),
@@ -222,7 +264,9 @@ def _hall_figure(plt, v: RecordingView, events):  # type: ignore[no-untyped-def]
     assert v.hall is not None and v.sector is not None
     fig, (ax1, ax2) = plt.subplots(2, 1, figsize=(10, 5), sharex=True, gridspec_kw={"height_ratios": [3, 2]})
     if v.hall.count > MAX_HALL_EDGES:  # steps would be a solid bar: the edge rate, and invalid codes
-        _hall_rate(ax1, v)
+        _rate(ax1, v, v.hall, "hall edges", "C0", "invalid hall code ({count} periods)")
+        ax1.text(0.01, 0.97, f"{v.hall.count} edges: too many to draw as steps (report --window T0:T1 shows them)",
+                 transform=ax1.transAxes, va="top", fontsize=7, color="0.35")
     else:
         for bit, name in enumerate(("A", "B", "C")):
             _draw(ax1, v.traces[f"hall_{name.lower()}"], f"hall {name}", {"lw": 0.8, "color": f"C{bit}"},
@@ -230,7 +274,7 @@ def _hall_figure(plt, v: RecordingView, events):  # type: ignore[no-untyped-def]
         ax1.set_yticks([0.4, 1.6, 2.8], ["A", "B", "C"])
         ax1.set_ylabel("hall")
     if v.sector.count > MAX_HALL_EDGES:  # as dense as the halls: its rate, and the out-of-sequence jumps
-        _sector_rate(ax2, v)
+        _rate(ax2, v, v.sector, "sector changes", "C3", "out-of-sequence changes ({count})")
     else:
         _draw(ax2, v.traces["sector"], "sector", {"lw": 0.8, "color": "C3"}, digital=True)
         ax2.set_ylabel("sector")
@@ -242,41 +286,22 @@ def _hall_figure(plt, v: RecordingView, events):  # type: ignore[no-untyped-def]
     return fig
 
 
-def _hall_rate(ax, v: RecordingView) -> None:  # type: ignore[no-untyped-def]
-    """Too many hall edges to draw as steps: edges per second over ~200 bins (6 an electrical
-    revolution), and every period with an invalid code (0 or 7) as a red tick."""
-    assert v.hall is not None
+def _rate(ax, v: RecordingView, rate: Rate, what: str, colour: str, ticks_label: str) -> None:  # type: ignore[no-untyped-def]
+    """Too many hall edges or sector changes to draw as steps: ``what`` per second over ~200 bins
+    (6 hall edges an electrical revolution), and each of ``rate``'s ticks (a period with an invalid
+    hall code, 0 or 7; a sector change not to a neighbour) as a red one, labelled ``ticks_label``
+    with its {count}."""
     span = float(v.t_last_s - v.t_first_s) or 1.0
-    bins = v.hall.bins
-    ax.step(bins[:-1], v.hall.counts / (span / 200), where="post", color="C0", lw=0.9, label="hall edges per second")
-    bad = v.hall.ticks
-    if bad.count:
-        ticks = bad.array()
-        ax.plot(ticks, np.zeros(ticks.size), "|", color="tab:red", ms=8, label=f"invalid hall code ({bad.count} periods)")
-    ax.set_ylabel("hall edges / s")
-    ax.legend(loc="upper right", fontsize=7)
-    ax.text(0.01, 0.97, f"{v.hall.count} edges: too many to draw as steps (report --window T0:T1 shows them)",
-            transform=ax.transAxes, va="top", fontsize=7, color="0.35")
-
-
-def _sector_rate(ax, v: RecordingView) -> None:  # type: ignore[no-untyped-def]
-    """Too many sector changes to draw as steps: changes per second, and every change that is not
-    to a neighbouring sector (a skipped or invalid one, 7) as a red tick."""
-    assert v.sector is not None
-    span = float(v.t_last_s - v.t_first_s) or 1.0
-    bins = v.sector.bins
-    ax.step(bins[:-1], v.sector.counts / (span / 200), where="post", color="C3", lw=0.9, label="sector changes per second")
-    jumps = v.sector.ticks
-    if jumps.count:
-        ticks = jumps.array()
-        ax.plot(ticks, np.zeros(ticks.size), "|", color="tab:red", ms=8,
-                label=f"out-of-sequence changes ({jumps.count})")
-    ax.set_ylabel("sector changes / s")
+    ax.step(rate.bins[:-1], rate.counts / (span / 200), where="post", color=colour, lw=0.9, label=f"{what} per second")
+    if rate.ticks.count:
+        ticks = rate.ticks.array()
+        ax.plot(ticks, np.zeros(ticks.size), "|", color="tab:red", ms=8, label=ticks_label.format(count=rate.ticks.count))
+    ax.set_ylabel(f"{what} / s")
     ax.legend(loc="upper right", fontsize=7)
 
 
 def plot_speed_overlay(recordings: Sequence[RecordingData], out_dir: Path,
-                       window: tuple[float, float] | None = None) -> Path:
+                       window: tuple[float, float] | None = None) -> Plots:
     """`plot_speed_overlay_chunks` of recordings in memory."""
     return plot_speed_overlay_chunks(
         [(RecordingHead(d.path, d.metadata, d.events, d.units, d.formats), ArrayChunks(d.columns, d.units))
@@ -284,20 +309,25 @@ def plot_speed_overlay(recordings: Sequence[RecordingData], out_dir: Path,
 
 
 def plot_speed_overlay_chunks(recordings: Sequence[tuple[RecordingHead, ColumnChunks]], out_dir: Path,
-                              window: tuple[float, float] | None = None) -> Path:
+                              window: tuple[float, float] | None = None) -> Plots:
     """The speed of several recordings on one time axis (a HIL run and a real-motor run of the same
     scenario): each one's measured speed (the firmware's; a HIL run's plant speed too) and the first
     one's reference. The recordings share the column names and units, whatever their mode. Each
-    read a chunk at a time; a curve of more than 2 * MAX_POINTS rows in view drawn as its envelope."""
+    read a chunk at a time; a curve of more than 2 * MAX_POINTS rows in view drawn as its envelope.
+    A recording with no speed to draw is named in the result's ``left_out``."""
     curves: list[tuple[str, Trace]] = []
     reference: Trace | None = None
+    left_out: list[str] = []
     for head, source in recordings:
         v = view(source, _SPEEDS, window)
         mode = str(head.metadata.get("mode", "")) or "run"
         name = f"{head.path.name} ({mode})"
+        drawn = len(curves)
         for column, what in (("measured_speed_rpm", "firmware measured"), ("speed_rpm", "plant")):
             if column in v.traces and v.has_values[column]:
                 curves.append((f"{name}: {what}", v.traces[column]))
+        if len(curves) == drawn:
+            left_out.append(f"overlay of {head.path.name} (no speed_rpm or measured_speed_rpm with values)")
         if reference is None and "ref_speed_rpm" in v.traces:
             reference = v.traces["ref_speed_rpm"]
     heads = [head for head, _ in recordings]
@@ -308,8 +338,9 @@ def plot_speed_overlay_chunks(recordings: Sequence[tuple[RecordingHead, ColumnCh
         _draw(ax, reference, "reference (firmware, first)", {"color": "k", "ls": "--", "lw": 1.0})
     for label, trace in curves:
         _draw(ax, trace, label, {"lw": 1.0})
-    return _finish_overlay(plt, fig, ax, "speed: " + " vs ".join(h.path.name for h in heads),
+    path = _finish_overlay(plt, fig, ax, "speed: " + " vs ".join(h.path.name for h in heads),
                            out_dir / f"{stem}_overlay_speed.png")
+    return Plots((path,), tuple(left_out))
 
 
 def plot_overlay(curves: list[tuple[str, np.ndarray, np.ndarray]], reference: tuple[np.ndarray, np.ndarray] | None, path: Path, title: str,
@@ -329,7 +360,8 @@ def _finish_overlay(plt, fig, ax, title: str, path: Path) -> Path:  # type: igno
     ax.set_ylabel("speed [rpm]")
     ax.set_title(title)
     ax.grid(alpha=0.3)
-    ax.legend(loc="best")
+    if ax.get_legend_handles_labels()[0]:  # (nothing to draw: no empty legend and its warning)
+        ax.legend(loc="best")
     fig.tight_layout()
     path.parent.mkdir(parents=True, exist_ok=True)
     fig.savefig(path, dpi=110)
