@@ -439,6 +439,25 @@ uint8_t an1017_check_gains(int32_t kp, int32_t ki, int32_t kd)
     return 0u;
 }
 
+/* an1017_check_gains for gains within their declared range 0..32767, the same verdict in 16-bit
+ * unsigned arithmetic (what a 16-bit chip computes without 32-bit adds and compares). Exact there:
+ * kp + ki <= 65534 does not wrap, and past its test kp + ki < 32764, so kp + ki + kd <= 65530;
+ * -kp - 2 kd > -32768 is kp + 2 kd < 32768, false for kd >= 16384, else kp + 2 kd <= 65533. */
+static uint8_t check_gains_in_range(uint16_t kp, uint16_t ki, uint16_t kd)
+{
+    uint16_t sum = (uint16_t)(kp + ki);
+    if (sum >= (uint16_t)GAIN_LIMIT_Q15 || (uint16_t)(sum + kd) >= (uint16_t)GAIN_LIMIT_Q15) {
+        return 1u;
+    }
+    if (kd >= 16384u || (uint16_t)(kp + (uint16_t)(2u * kd)) >= 32768u) {
+        return 2u;
+    }
+    if (kd >= (uint16_t)GAIN_LIMIT_Q15) {
+        return 3u;
+    }
+    return 0u;
+}
+
 void an1017_param_set(an1017_t *s, uint8_t id, int32_t value)
 {
     int16_t v = (int16_t)value; /* every declared range fits 16 bits */
@@ -491,33 +510,41 @@ static void decl_param_set(hrt_t *rt, uint8_t id, int32_t value)
 }
 
 /* The note's PID constraints on the candidate gains, checked only when a gain is written. The
- * offending id is the first written gain that takes part in the broken constraint. */
+ * offending id is the first written gain that takes part in the broken constraint. The candidates
+ * are the gains as they stand (pending ones included) with the request's written over them (the
+ * runtime has refused a request that names an id twice), in one pass over the request. */
 static uint8_t decl_param_check(hrt_t *rt, const hrt_param_request_t *req, uint8_t *param_id, uint8_t *detail)
 {
+    /* bit id of involved[broken]: gain id takes part in constraint broken (1: all, 2: kp and kd, 3: kd) */
+    static const uint8_t involved[4] = {0u, 7u, 5u, 4u};
+    const an1017_t *s = FW(rt);
+    uint16_t gain[3]; /* 0..32767: the runtime checked the request's ranges, the stored gains were */
     uint8_t i;
     uint8_t broken;
     uint8_t first_gain = HRT_NONE;
+    gain[AN1017_PARAM_KP] = (uint16_t)an1017_param_value(s, AN1017_PARAM_KP);
+    gain[AN1017_PARAM_KI] = (uint16_t)an1017_param_value(s, AN1017_PARAM_KI);
+    gain[AN1017_PARAM_KD] = (uint16_t)an1017_param_value(s, AN1017_PARAM_KD);
     for (i = 0u; i < req->n; i++) {
-        if (is_gain(req->id[i]) && first_gain == HRT_NONE) {
-            first_gain = req->id[i];
+        uint8_t id = req->id[i];
+        if (is_gain(id)) {
+            gain[id] = (uint16_t)req->value[i];
+            if (first_gain == HRT_NONE) {
+                first_gain = id;
+            }
         }
     }
     if (first_gain == HRT_NONE) {
         return HBP_RESULT_OK;
     }
-    broken = an1017_check_gains(hrt_param_candidate(rt, req, AN1017_PARAM_KP),
-                                hrt_param_candidate(rt, req, AN1017_PARAM_KI),
-                                hrt_param_candidate(rt, req, AN1017_PARAM_KD));
+    broken = check_gains_in_range(gain[AN1017_PARAM_KP], gain[AN1017_PARAM_KI], gain[AN1017_PARAM_KD]);
     if (broken == 0u) {
         return HBP_RESULT_OK;
     }
     *param_id = first_gain;
     for (i = 0u; i < req->n; i++) {
         uint8_t id = req->id[i];
-        uint8_t involved = (uint8_t)((broken == 1u && is_gain(id)) ||
-                                     (broken == 2u && (id == AN1017_PARAM_KP || id == AN1017_PARAM_KD)) ||
-                                     (broken == 3u && id == AN1017_PARAM_KD));
-        if (involved) {
+        if (is_gain(id) && (((unsigned)involved[broken] >> id) & 1u) != 0u) {
             *param_id = id;
             break;
         }
