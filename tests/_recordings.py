@@ -82,7 +82,7 @@ def module_at(commit: str, module_path: str, folder: Path) -> ModuleType | None:
     """``module_path`` (e.g. hilbench/bench/checks.py) as it was at ``commit``, loaded from a copy in
     ``folder``; None where git cannot show it (a shallow clone, an unpacked sdist)."""
     shown = subprocess.run(["git", "-C", str(REPO_ROOT), "show", f"{commit}:{module_path}"],
-                           capture_output=True, text=True)
+                           capture_output=True, text=True, timeout=60)
     if shown.returncode != 0:
         return None
     name = f"at_{commit}_{Path(module_path).stem}"

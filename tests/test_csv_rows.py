@@ -252,11 +252,23 @@ def test_the_writer_holds_at_most_max_rows_waiting(tmp_path: Path) -> None:
     submitted = []
     feeder = threading.Thread(target=lambda: [submitted.append(writer.submit(rows, [])) for _ in range(8)])
     feeder.start()
-    feeder.join(timeout=2.0)
+    import fcntl
+    import select
+    import termios
+    import time
+
+    def unread() -> int:
+        return int.from_bytes(fcntl.ioctl(read_fd, termios.FIONREAD, b"\0" * 4), "little")
+
+    deadline = time.monotonic() + 60
+    while unread() < 65536 and time.monotonic() < deadline:  # the pipe full: the feeder cannot finish now
+        select.select([], [], [], 0.01)
     assert feeder.is_alive() and len(submitted) < 8  # waiting for room
     got = 0
-    while got < 8 * 17_000:
-        got += len(os.read(read_fd, 1 << 16))
+    while got < 8 * 17_000 and time.monotonic() < deadline + 60:
+        if select.select([read_fd], [], [], 1.0)[0]:
+            got += len(os.read(read_fd, 1 << 16))
+    assert got == 8 * 17_000
     feeder.join(timeout=60)
     assert not feeder.is_alive() and len(submitted) == 8
     writer.close()

@@ -96,12 +96,12 @@ def test_c_receiver_rejects_every_burst_exhaustively(burst_check_exe: Path, tmp_
     """The real C receive state machine (hbp_rx_byte) over every burst of every golden stream (the
     frames split over the CPUs, one process each)."""
     runs = []
-    for k, group in enumerate(shares(FRAMES, WORKERS)):
-        frames = tmp_path / f"frames{k}.txt"
-        frames.write_text("".join(f.hex() + "\n" for f in group), encoding="ascii")
-        runs.append((group, subprocess.Popen([str(burst_check_exe), str(frames)], stdout=subprocess.PIPE,
-                                             stderr=subprocess.PIPE, text=True)))
     try:
+        for k, group in enumerate(shares(FRAMES, WORKERS)):
+            frames = tmp_path / f"frames{k}.txt"
+            frames.write_text("".join(f.hex() + "\n" for f in group), encoding="ascii")
+            runs.append((group, subprocess.Popen([str(burst_check_exe), str(frames)], stdout=subprocess.PIPE,
+                                                 stderr=subprocess.PIPE, text=True)))
         outs = [(group, *proc.communicate(timeout=1800), proc.returncode) for group, proc in runs]
     finally:
         for _, proc in runs:
@@ -234,7 +234,7 @@ def test_python_decoder_rejects_every_burst_exhaustively() -> None:
     through the real FrameDecoder."""
     grand = lin = real = 0
     with ProcessPoolExecutor(WORKERS, mp_context=multiprocessing.get_context("forkserver")) as pool:
-        for total, linear, r in pool.map(_python_check, sorted(FRAMES, key=len, reverse=True)):
+        for total, linear, r in pool.map(_python_check, sorted(FRAMES, key=len, reverse=True), timeout=1800):
             grand, lin, real = grand + total, lin + linear, real + r
     print(f"{grand} bursts over {len(FRAMES)} golden streams: all rejected ({lin} by linearity, {real} "
           "through FrameDecoder)")

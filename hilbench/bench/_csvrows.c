@@ -387,6 +387,8 @@ typedef struct {
     pthread_t thread;
     chunk_t *head, *tail;
     size_t queued_rows; /* in the queue and in the thread's hands */
+    size_t queued_chunks; /* the same in chunks (a chunk of events alone has no rows) */
+    unsigned long long accepted; /* chunks ever queued: the caller tells a submit that took its chunk */
     size_t want_rows;   /* the rows of the chunk a submit waits to queue */
     int busy, stopping, discard, exited, error;
 } Writer;
@@ -465,6 +467,7 @@ static void *writer_thread(void *arg)
         pthread_mutex_lock(&w->lock);
         w->busy = 0;
         w->queued_rows -= c->n_rows;
+        w->queued_chunks--;
         free(c);
         if (err) {
             w->error = err;
@@ -475,6 +478,7 @@ static void *writer_thread(void *arg)
     free_chunks(w->head); /* dropped: discarded, or after a failed write */
     w->head = w->tail = NULL;
     w->queued_rows = 0;
+    w->queued_chunks = 0;
     w->exited = 1;
     pthread_cond_broadcast(&w->moved);
     pthread_mutex_unlock(&w->lock);
@@ -503,7 +507,7 @@ static int wait_until(Writer *w, int (*done)(Writer *))
 
 static int has_room(Writer *w) { return w->queued_rows == 0 || w->queued_rows + w->want_rows <= w->max_rows; }
 
-static int drained(Writer *w) { return w->queued_rows == 0; }
+static int drained(Writer *w) { return w->queued_chunks == 0; }
 
 /* submit(rows, events): whole raw rows (a copy is taken) and [(row index, event line bytes), ...] */
 static PyObject *Writer_submit(Writer *w, PyObject *const *args, Py_ssize_t nargs)
@@ -573,6 +577,8 @@ static PyObject *Writer_submit(Writer *w, PyObject *const *args, Py_ssize_t narg
         if (w->tail != NULL) w->tail->next = c; else w->head = c;
         w->tail = c;
         w->queued_rows += n_rows;
+        w->queued_chunks++;
+        w->accepted++;
         c = NULL;
         pthread_cond_signal(&w->wake);
     }
@@ -727,6 +733,17 @@ static PyMethodDef Writer_methods[] = {
     {NULL, NULL, 0, NULL},
 };
 
+static PyObject *Writer_accepted(Writer *w, void *Py_UNUSED(closure))
+{
+    return PyLong_FromUnsignedLongLong(w->accepted);
+}
+
+static PyGetSetDef Writer_getset[] = {
+    {"accepted", (getter)Writer_accepted, NULL,
+     "chunks submit has queued so far: a caller interrupted right after a submit returned tells whether it took the chunk", NULL},
+    {NULL, NULL, NULL, NULL, NULL},
+};
+
 static PyTypeObject WriterType = {
     PyVarObject_HEAD_INIT(NULL, 0)
     .tp_name = "hilbench.bench._csvrows.RowWriter",
@@ -738,6 +755,7 @@ static PyTypeObject WriterType = {
     .tp_init = (initproc)Writer_init,
     .tp_dealloc = (destructor)Writer_dealloc,
     .tp_methods = Writer_methods,
+    .tp_getset = Writer_getset,
 };
 
 static PyMethodDef methods[] = {

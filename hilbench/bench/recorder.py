@@ -439,13 +439,19 @@ class Recorder:
         n_events = sum(1 for index, _, _ in events if index < end or (index == end == len(rows)))
         lines = [(index - first, f"# event: {text}\n".encode()) for index, text, _ in events[:n_events]]
         size = rows.struct.size
-        with memoryview(rows.data) as whole, whole[first * size:end * size] as data:  # copied by submit
-            try:
-                self._csv_writer.submit(data, lines)
-            except OSError as exc:
-                raise RecordingError(f"recording {self.path}: write failed ({exc.strerror})") from None
-        del events[:n_events]
-        self._handed = end
+        writer = self._csv_writer
+        accepted = writer.accepted
+        try:
+            with memoryview(rows.data) as whole, whole[first * size:end * size] as data:  # copied by submit
+                writer.submit(data, lines)
+        except OSError as exc:
+            raise RecordingError(f"recording {self.path}: write failed ({exc.strerror})") from None
+        except ValueError as exc:  # its thread gone after a failed write: one line, not a traceback
+            raise RecordingError(f"recording {self.path}: {exc}") from None
+        finally:  # the chunk taken, whatever came after (a Ctrl-C raised as submit returns): never twice
+            if writer.accepted != accepted:
+                del events[:n_events]
+                self._handed = end
 
     def _write_journal(self, first: int, end: int) -> None:
         """Pending rows first..end-1 written at their place in the journal (pwrite: no buffer left
@@ -498,11 +504,13 @@ class Recorder:
             elif self._csv_writer is not None:  # the rest to the thread; the flush returns when it is written
                 self._hand_over_csv(n_rows)
                 self._csv_writer.drain()
-            else:
+            else:  # the reference (those a thread took before an interrupted close are written)
+                first = self._handed
                 columns = rows.columns()
-                table = np.column_stack([columns[name] for name in rows.layout.column_names]) if n_rows else \
-                    np.zeros((0, len(columns)))
-                self._file.write(self._format_csv(list(map(tuple, table.tolist())), events))
+                table = np.column_stack([columns[name][first:] for name in rows.layout.column_names]) \
+                    if n_rows > first else np.zeros((0, len(columns)))
+                self._file.write(self._format_csv(list(map(tuple, table.tolist())),
+                                                  [(index - first, text, marker) for index, text, marker in events]))
             self._file.flush()
         except OSError as exc:
             raise RecordingError(f"recording {self.path}: write failed ({exc.strerror})") from None
@@ -527,6 +535,16 @@ class Recorder:
         parts.extend(_csv_line(fmt, formats, row) for row in rows[start:])
         return "".join(parts)
 
+    def _restart_csv_writer(self) -> None:
+        """An interrupted close: the rows handed over written and the thread joined, and a new
+        thread for what a later close hands over (the file's offset is shared: it appends)."""
+        try:
+            self._csv_writer.close()
+        except OSError:
+            self._csv_writer.abandon()
+            return
+        self._csv_writer = _csv_row_writer(self._file.fileno(), self.rows.layout)
+
     def close(self, final_note: str | None = None) -> None:
         """Flush, note how the run ended, and (NPZ) write the archive atomically."""
         if self.closed:
@@ -538,11 +556,14 @@ class Recorder:
             self.flush()
             if self._csv_writer is not None:  # every row written: its thread joined
                 self._csv_writer.close()
-        except BaseException:
+        except BaseException as exc:
             if self._background is not None:  # its thread joined: the journal keeps the rows
                 self._background.abandon()
-            if self._csv_writer is not None:  # (after a failed write: nothing waits)
-                self._csv_writer.abandon()
+            if self._csv_writer is not None:
+                if isinstance(exc, (OSError, RecordingError)):  # a failed write: nothing more is written
+                    self._csv_writer.abandon()
+                else:  # Ctrl-C: the queued chunks are the only copy of their rows
+                    self._restart_csv_writer()
             raise
         self.closed = True
         self._file.close()
@@ -936,6 +957,16 @@ class MemoryRecorder:
     def flush(self) -> None:
         """Nothing to flush: rows stay in memory."""
 
+    def _restart_csv_writer(self) -> None:
+        """An interrupted close: the rows handed over written and the thread joined, and a new
+        thread for what a later close hands over (the file's offset is shared: it appends)."""
+        try:
+            self._csv_writer.close()
+        except OSError:
+            self._csv_writer.abandon()
+            return
+        self._csv_writer = _csv_row_writer(self._file.fileno(), self.rows.layout)
+
     def close(self, final_note: str | None = None) -> None:
         if final_note:
             self.event(final_note)
@@ -992,6 +1023,16 @@ class WindowRecorder:
         n_rows = len(self.rows)
         self.events = [(index - n_rows, text, marker) for index, text, marker in self.events if index >= n_rows]
         self.rows.clear()
+
+    def _restart_csv_writer(self) -> None:
+        """An interrupted close: the rows handed over written and the thread joined, and a new
+        thread for what a later close hands over (the file's offset is shared: it appends)."""
+        try:
+            self._csv_writer.close()
+        except OSError:
+            self._csv_writer.abandon()
+            return
+        self._csv_writer = _csv_row_writer(self._file.fileno(), self.rows.layout)
 
     def close(self, final_note: str | None = None) -> None:
         self.closed = True
