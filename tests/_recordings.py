@@ -18,7 +18,7 @@ import numpy as np
 from conftest import REPO_ROOT
 from hilbench.bench.column_chunks import Chunk, ColumnChunks
 from hilbench.bench.npzwriter import ColumnArchive
-from hilbench.bench.recorder import COLUMNS, Recorder, float_layout
+from hilbench.bench.recorder import COLUMNS, Recorder, RowLayout, float_layout
 
 #: (file name, closed): a run's NPZ, an NPZ run killed before its close (its journal), a CSV run
 KINDS = (("run.npz", True), ("killed.npz", False), ("run.csv", True))
@@ -107,3 +107,17 @@ def peak_rss_kib(code: str, *args: str, timeout_s: float = 300.0) -> int:
                           cwd=REPO_ROOT)
     assert done.returncode == 0, done.stderr[-2000:]
     return int(done.stdout.split()[-1])
+
+
+def hostile_rows(layout: RowLayout, n_rows: int, seed: int) -> bytes:
+    """Random raw bytes of a layout with fields d (double), q (int64), marker and k (every integer,
+    every double bit pattern: NaN, inf, subnormals, huge), some doubles on a 360-degree wrap's edges
+    and integers at their limits; k increases (read_recording checks the time column)."""
+    rng = np.random.default_rng(seed)
+    rows = np.frombuffer(rng.bytes(n_rows * layout.dtype.itemsize), dtype=layout.dtype).copy()
+    edges = np.array([0.0, -0.0, 360.0 / 57.29577951308232, -1e-300, 1e300, -720.0, np.inf, -np.inf, np.nan, 2.5])
+    rows["d"][::3] = rng.choice(edges, size=len(rows["d"][::3]))
+    rows["q"][::5] = rng.choice([0, -7, 7, -1, 14, -(2**63), 2**63 - 1], size=len(rows["q"][::5]))
+    rows["marker"] = rng.integers(0, 4, size=n_rows)
+    rows["k"] = np.arange(n_rows)
+    return rows.tobytes()

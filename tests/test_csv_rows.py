@@ -15,6 +15,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from _recordings import hostile_rows
 from hilbench.bench import recorder as recorder_module
 from hilbench.bench.npzwriter import _field_offsets
 from hilbench.bench.recorder import RowLayout, read_recording
@@ -83,22 +84,9 @@ def _every_code_layout(*, wrap: bool = True) -> RowLayout:
     return RowLayout(fields, columns, wrap=(("deg", 360.0), ("neg", 7.0)) if wrap else ())
 
 
-def _hostile_rows(layout: RowLayout, n_rows: int, seed: int) -> bytes:
-    """Random raw bytes (every integer, every double bit pattern: NaN, inf, subnormals, huge) with
-    some doubles on the wrap's edges and integers at their limits."""
-    rng = np.random.default_rng(seed)
-    rows = np.frombuffer(rng.bytes(n_rows * layout.dtype.itemsize), dtype=layout.dtype).copy()
-    edges = np.array([0.0, -0.0, 360.0 / 57.29577951308232, -1e-300, 1e300, -720.0, np.inf, -np.inf, np.nan, 2.5])
-    rows["d"][::3] = rng.choice(edges, size=len(rows["d"][::3]))
-    rows["q"][::5] = rng.choice([0, -7, 7, -1, 14, -(2**63), 2**63 - 1], size=len(rows["q"][::5]))
-    rows["marker"] = rng.integers(0, 4, size=n_rows)
-    rows["k"] = np.arange(n_rows)  # the time column increases (read_recording checks it)
-    return rows.tobytes()
-
-
 def test_raw_rows_of_every_code_are_the_references_text() -> None:
     layout = _every_code_layout()
-    raw = _hostile_rows(layout, 5000, seed=3)
+    raw = hostile_rows(layout, 5000, seed=3)
     assert _csvrows.format_rows(raw, layout.dtype.itemsize, _columns(layout)) == _reference(layout, raw)
 
 
@@ -140,7 +128,7 @@ def test_a_csv_recording_is_the_same_text_with_the_writer_and_the_reference(
     """Rows handed to the writer's thread between flushes (chunk rows at a time, the newest kept
     back for mark_last) and at each flush are the reference's text, byte for byte."""
     layout = _every_code_layout()
-    raw = _hostile_rows(layout, n_rows, seed=n_rows)
+    raw = hostile_rows(layout, n_rows, seed=n_rows)
     monkeypatch.setattr(recorder_module, "BACKGROUND_CHUNK_ROWS", chunk)
     monkeypatch.setattr(recorder_module, "CSV_WRITER_MAX_ROWS", 2 * chunk)
     _record(tmp_path / "c.csv", layout, raw, flush_rows=flush_rows, mark_last=mark_last)

@@ -18,6 +18,7 @@ import pytest
 
 import hilbench
 from _hostile import assert_one_line_error
+from _recordings import hostile_rows
 from hilbench.bench import npzwriter
 from hilbench.bench import recorder as recorder_module
 from hilbench.bench.npzwriter import ColumnArchive
@@ -199,19 +200,6 @@ def _every_code_layout() -> recorder_module.RowLayout:
     return recorder_module.RowLayout(fields, columns, wrap=(("deg", 360.0), ("neg", 7.0)))
 
 
-def _hostile_rows(layout: recorder_module.RowLayout, n_rows: int, seed: int) -> bytes:
-    """Random raw bytes (every integer, every double bit pattern: NaN, inf, subnormals, huge) with
-    some doubles that land on the wrap's edges (multiples, tiny negatives)."""
-    rng = np.random.default_rng(seed)
-    rows = np.frombuffer(rng.bytes(n_rows * layout.dtype.itemsize), dtype=layout.dtype).copy()
-    edges = np.array([0.0, -0.0, 360.0 / 57.29577951308232, -1e-300, 1e300, -720.0, np.inf, -np.inf, np.nan, 2.5])
-    rows["d"][::3] = rng.choice(edges, size=len(rows["d"][::3]))
-    rows["q"][::5] = rng.choice([0, -7, 7, -1, 14, -(2**63), 2**63 - 1], size=len(rows["q"][::5]))
-    rows["marker"] = rng.integers(0, 4, size=n_rows)
-    rows["k"] = np.arange(n_rows)  # the time column increases (read_recording checks it)
-    return rows.tobytes()
-
-
 def _record(path: Path, layout: recorder_module.RowLayout, raw: bytes, plan: int | None, *, flush_rows: int = 1000,
             mark_last: bool = False) -> recorder_module.Recorder:
     """A recording of ``raw`` rows appended a few at a time (the session's `maybe_flush` after each
@@ -242,7 +230,7 @@ def test_the_archive_written_while_the_run_goes_on_is_the_journals_byte_for_byte
     journal (the reference), and numpy reads the values `RowLayout.to_columns` gives."""
     monkeypatch.setattr(recorder_module, "BACKGROUND_CHUNK_ROWS", 300)  # many hand-overs between flushes
     layout = _every_code_layout()
-    raw = _hostile_rows(layout, n_rows, seed=n_rows)
+    raw = hostile_rows(layout, n_rows, seed=n_rows)
     finished = []
     real_finish = npzwriter.BackgroundArchive.finish
 
@@ -274,7 +262,7 @@ def test_a_run_that_ends_otherwise_than_planned_gets_the_journals_archive(tmp_pa
     without a plan, the marker in it), nothing else left."""
     monkeypatch.setattr(recorder_module, "BACKGROUND_CHUNK_ROWS", 1 if mark_last else 200)
     layout = _every_code_layout()
-    raw = _hostile_rows(layout, 10_000, seed=3)
+    raw = hostile_rows(layout, 10_000, seed=3)
     finished = []
     real_finish = npzwriter.BackgroundArchive.finish
     monkeypatch.setattr(npzwriter.BackgroundArchive, "finish",
@@ -299,7 +287,7 @@ def test_a_write_that_fails_on_the_thread_falls_back_and_every_thread_is_joined(
     the archive from the journal, which still has every row; no thread is left, nor the unfinished
     archive."""
     layout = _every_code_layout()
-    raw = _hostile_rows(layout, 5000, seed=4)
+    raw = hostile_rows(layout, 5000, seed=4)
     before = _threads()
     rec = recorder_module.Recorder(tmp_path / "bg.npz", {}, flush_rows=100_000)
     rec.start(layout)
@@ -419,7 +407,7 @@ def test_a_failed_journal_write_is_written_again_where_it_belongs(tmp_path: Path
     up and removed, the write is done again at the rows' place (the stray bytes cut off), and the
     archive the close writes from the journal equals the one of a run that never failed."""
     layout = _every_code_layout()
-    raw = _hostile_rows(layout, 10_000, seed=8)
+    raw = hostile_rows(layout, 10_000, seed=8)
     monkeypatch.setattr(recorder_module, "BACKGROUND_CHUNK_ROWS", 500)
     real = recorder_module.Recorder._pwrite_rows
     calls, seen = [], []
@@ -614,7 +602,7 @@ def test_ctrl_c_while_the_close_finishes_the_archive_leaves_the_journal(tmp_path
     """Ctrl-C while the close waits for the writer's last rows: the archive is given up (its thread
     joined, its unfinished file removed), the interrupt propagates, the journal keeps every row."""
     layout = _every_code_layout()
-    raw = _hostile_rows(layout, 5000, seed=9)
+    raw = hostile_rows(layout, 5000, seed=9)
     path = tmp_path / "bg.npz"
     rec = recorder_module.Recorder(path, {}, flush_rows=100_000)
     rec.start(layout)

@@ -38,6 +38,7 @@
 #include <unistd.h>
 
 #include "_rawfields.h"
+#include "_writerthread.h"
 
 #if defined(__BYTE_ORDER__) && __BYTE_ORDER__ != __ORDER_LITTLE_ENDIAN__
 #error "the raw rows are little-endian: a little-endian host only"
@@ -449,11 +450,7 @@ static int write_chunk(Writer *w, const chunk_t *c)
 static void *writer_thread(void *arg)
 {
     Writer *w = arg;
-#ifdef SCHED_BATCH
-    /* a batch thread, as the NPZ archive's writer: its wake-up does not preempt the simulating thread */
-    struct sched_param batch = {0};
-    pthread_setschedparam(pthread_self(), SCHED_BATCH, &batch);
-#endif
+    become_batch_thread();
     pthread_mutex_lock(&w->lock);
     for (;;) {
         while (w->head == NULL && !w->stopping) pthread_cond_wait(&w->wake, &w->lock);
@@ -690,12 +687,7 @@ static int Writer_init(Writer *w, PyObject *args, PyObject *kwds)
     w->text = text;
     w->text_cap = cap;
     w->ready = 1;
-    /* every signal blocked in the thread (it inherits the creating thread's mask) */
-    sigset_t all, before;
-    sigfillset(&all);
-    pthread_sigmask(SIG_SETMASK, &all, &before);
-    int err = pthread_create(&w->thread, NULL, writer_thread, w);
-    pthread_sigmask(SIG_SETMASK, &before, NULL);
+    int err = start_writer_thread(&w->thread, writer_thread, w);
     if (err) {
         os_error(err);
         return -1; /* dealloc closes own_fd */

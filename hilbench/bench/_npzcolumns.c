@@ -33,6 +33,7 @@
 #include <unistd.h>
 
 #include "_rawfields.h"
+#include "_writerthread.h"
 
 #if defined(__BYTE_ORDER__) && __BYTE_ORDER__ != __ORDER_LITTLE_ENDIAN__
 #error "the raw rows and the .npy columns are little-endian: a little-endian host only"
@@ -193,12 +194,7 @@ static void *writer_thread(void *arg)
 {
     Writer *w = arg;
     int err = 0;
-#ifdef SCHED_BATCH
-    /* a batch thread: its wake-up does not preempt the simulating thread that woke it (on a busy
-     * machine it still gets its fair share; on an idle CPU it runs at once) */
-    struct sched_param batch = {0};
-    pthread_setschedparam(pthread_self(), SCHED_BATCH, &batch);
-#endif
+    become_batch_thread();
     for (int j = 0; j < w->n_cols && !err; j++)
         err = pwrite_all(w->fd, w->header, (size_t)w->header_len, w->cols[j].place - w->header_len);
     pthread_mutex_lock(&w->lock);
@@ -406,13 +402,7 @@ static int Writer_init(Writer *w, PyObject *args, PyObject *kwds)
     w->header = head;
     w->header_len = head_len;
     w->ready = 1;
-    /* every signal blocked in the thread (it inherits the creating thread's mask): a signal is the
-     * Python thread's to handle, never an EINTR or a handler run on the writer */
-    sigset_t all, before;
-    sigfillset(&all);
-    pthread_sigmask(SIG_SETMASK, &all, &before);
-    int err = pthread_create(&w->thread, NULL, writer_thread, w);
-    pthread_sigmask(SIG_SETMASK, &before, NULL);
+    int err = start_writer_thread(&w->thread, writer_thread, w);
     if (err) {
         os_error(err);
         return -1;

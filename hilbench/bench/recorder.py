@@ -957,16 +957,6 @@ class MemoryRecorder:
     def flush(self) -> None:
         """Nothing to flush: rows stay in memory."""
 
-    def _restart_csv_writer(self) -> None:
-        """An interrupted close: the rows handed over written and the thread joined, and a new
-        thread for what a later close hands over (the file's offset is shared: it appends)."""
-        try:
-            self._csv_writer.close()
-        except OSError:
-            self._csv_writer.abandon()
-            return
-        self._csv_writer = _csv_row_writer(self._file.fileno(), self.rows.layout)
-
     def close(self, final_note: str | None = None) -> None:
         if final_note:
             self.event(final_note)
@@ -1023,16 +1013,6 @@ class WindowRecorder:
         n_rows = len(self.rows)
         self.events = [(index - n_rows, text, marker) for index, text, marker in self.events if index >= n_rows]
         self.rows.clear()
-
-    def _restart_csv_writer(self) -> None:
-        """An interrupted close: the rows handed over written and the thread joined, and a new
-        thread for what a later close hands over (the file's offset is shared: it appends)."""
-        try:
-            self._csv_writer.close()
-        except OSError:
-            self._csv_writer.abandon()
-            return
-        self._csv_writer = _csv_row_writer(self._file.fileno(), self.rows.layout)
 
     def close(self, final_note: str | None = None) -> None:
         self.closed = True
