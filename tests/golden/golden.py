@@ -75,7 +75,7 @@ CASES: tuple[Case, ...] = (
     Case("random-simavr-twin", "simavr:an1017?twin=auto", scenario=RANDOM, tools=("avr-gcc", "simavr"),
          same_as="random-sil", long=True),  # 110 s here; live writes on simavr: tests/test_speculative.py
     Case("servo-simavr-twin", "simavr:foc?twin=auto", config=SERVO, tools=("avr-gcc", "simavr"),
-         same_as="servo-inprocess"),
+         same_as="servo-inprocess", long=True),  # 73 s here; the servo on simavr, short: tests/test_speculative.py
     Case("default-qemu-twin", "qemu:an1017?twin=auto", tools=("arm-none-eabi-gcc", "qemu-system-arm"),
          same_as="default-sil"),
     Case("servo-qemu-twin", "qemu:foc?twin=auto", config=SERVO, tools=("arm-none-eabi-gcc", "qemu-system-arm"),
