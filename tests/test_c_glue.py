@@ -8,6 +8,9 @@ import re
 from conftest import REPO_ROOT
 
 EXTENSIONS = ("hilbench/plant/_plantcore.c", "hilbench/targets/an1017/_core.c", "hilbench/targets/foc/_core.c")
+#: every extension setup.py builds (the sdist test): those above and those with headers of their own
+ALL_EXTENSIONS = (*EXTENSIONS, "hilbench/bench/_span.c", "hilbench/targets/_remotestep.c", "hilbench/bench/_npzcolumns.c",
+                  "hilbench/bench/_csvrows.c", "hilbench/plant/_switching.c")
 
 
 def test_every_extension_is_glued_by_the_shared_header() -> None:
@@ -26,7 +29,9 @@ def test_the_sdist_ships_every_header_the_extensions_include() -> None:
     setup = (REPO_ROOT / "setup.py").read_text()
     include_dirs = sorted({d for d in re.findall(r'"([\w/]+)"', setup) if (REPO_ROOT / d).is_dir()})
     assert "hilbench/_cglue" in include_dirs
-    for source in EXTENSIONS:
+    built = set(re.findall(r'"(hilbench/[\w/]+\.c)"', setup))
+    assert built == set(ALL_EXTENSIONS), f"setup.py builds {sorted(built)}: ALL_EXTENSIONS is out of date"
+    for source in ALL_EXTENSIONS:
         here = source.rsplit("/", 1)[0]
         for header in re.findall(r'#include "([^"]+)"', (REPO_ROOT / source).read_text()):
             found = [f"{folder}/{header}" for folder in [here, *include_dirs] if (REPO_ROOT / folder / header).exists()]

@@ -232,15 +232,16 @@ def test_the_writer_thread_blocks_every_signal(tmp_path: Path) -> None:
 def test_the_writer_holds_at_most_max_rows_waiting(tmp_path: Path) -> None:
     """A pipe nobody reads: the thread blocks in its write, and a submit beyond max_rows waiting
     blocks too (bounded memory) until the reader drains the pipe."""
+    import fcntl
     import threading
 
     read_fd, write_fd = os.pipe()
+    fcntl.fcntl(write_fd, fcntl.F_SETPIPE_SZ, 65536)  # the default, set: a 64 KiB-page kernel's pipe is 1 MiB
     writer = _csvrows.RowWriter(write_fd, 8, [(0, "d", 1.0, 0.0, "%.9f")], 1000)
     rows = np.full(1000, 123456.123456789).tobytes()  # 17 bytes a row: 8 chunks outgrow a pipe's 64 KiB
     submitted = []
     feeder = threading.Thread(target=lambda: [submitted.append(writer.submit(rows, [])) for _ in range(8)])
     feeder.start()
-    import fcntl
     import select
     import termios
     import time
@@ -249,13 +250,16 @@ def test_the_writer_holds_at_most_max_rows_waiting(tmp_path: Path) -> None:
         return int.from_bytes(fcntl.ioctl(read_fd, termios.FIONREAD, b"\0" * 4), "little")
 
     # The pipe full: its 16 pages taken, though not to the byte (a write of 17 000 B starts a new page
-    # rather than share one it does not fit in: 59 808 B seen). 3/4 of 64 KiB says the thread has
-    # written what fits; the feeder cannot finish anyway (8 x 17 000 B > the pipe + 2 chunks held).
+    # rather than share one it does not fit in: 59 808 B seen), so wait for 3/4 of 64 KiB. The chunk
+    # the thread writes counts against max_rows (1000 = one chunk): it has taken the chunks in the
+    # pipe and the one it is blocked in, 65 536 // 17 000 + 1 = 4, and no more; a second to let a
+    # broken limit take a fifth (the join returns at once if the feeder finishes: the failure).
     deadline = time.monotonic() + 60
     while unread() < 49_152 and time.monotonic() < deadline:
         select.select([], [], [], 0.01)
     assert unread() >= 49_152, f"the pipe never filled: {unread()} B unread"
-    assert feeder.is_alive() and len(submitted) < 8  # waiting for room
+    feeder.join(timeout=1.0)
+    assert feeder.is_alive() and len(submitted) <= 65536 // 17_000 + 1, len(submitted)  # waiting for room
     got = 0
     while got < 8 * 17_000 and time.monotonic() < deadline + 60:
         if select.select([read_fd], [], [], 1.0)[0]:
@@ -299,3 +303,26 @@ def test_an_event_with_any_line_break_stays_one_event_and_the_recording_readable
         data = read_recording(tmp_path / name)
     assert data.n_rows == 2
     assert data.events[0] == "a b  c d e f g h"
+
+
+def test_starting_a_writer_thread_leaves_the_callers_signal_mask_as_it_was() -> None:
+    """Both writers start their thread with every signal blocked (hilbench/bench/_writerthread.h:
+    Ctrl-C stays the main thread's) by blocking them around pthread_create: the caller's own mask
+    is restored, or a run after its first recording would never see Ctrl-C."""
+    from hilbench.bench import npzwriter
+
+    signal.pthread_sigmask(signal.SIG_UNBLOCK, [signal.SIGINT])
+    before = signal.pthread_sigmask(signal.SIG_BLOCK, [])
+    out = os.open(os.devnull, os.O_WRONLY | os.O_CLOEXEC)
+    zero = os.open("/dev/zero", os.O_RDONLY | os.O_CLOEXEC)
+    try:
+        rows = _csvrows.RowWriter(out, 8, [(0, "d", 1.0, 0.0, "%.9f")], 1000)
+        assert signal.pthread_sigmask(signal.SIG_BLOCK, []) == before
+        rows.close()
+        if npzwriter._npzcolumns is not None:
+            columns = npzwriter._npzcolumns.ColumnWriter(out, zero, 0, 8, [(0, "d", 1.0, 0.0, 16, 0)], b"h" * 16)
+            assert signal.pthread_sigmask(signal.SIG_BLOCK, []) == before
+            columns.abandon()
+    finally:
+        os.close(out)
+        os.close(zero)
