@@ -109,6 +109,20 @@ def peak_rss_kib(code: str, *args: str, timeout_s: float = 300.0) -> int:
     return int(done.stdout.split()[-1])
 
 
+def every_code_layout(*, wrap: bool = True) -> RowLayout:
+    """A row of every struct code a layout may use: scaled, unscaled, NaN-scaled (a whole-number
+    column too) and wrapped columns, in every format the CSV writer takes (the NPZ writer's columns
+    are float64 whatever the format: tests/test_csv_rows.py and tests/test_npz_writer.py)."""
+    fields = (("k", "Q"), ("b", "B"), ("h", "h"), ("hu", "H"), ("i", "i"), ("iu", "I"), ("q", "q"), ("f", "f"),
+              ("d", "d"), ("marker", "B"))
+    columns = (("t_s", "s", "%.6f", "k", 5e-5), ("b", "", "%d", "b", 1.0), ("h", "", "%d", "h", 0.1),
+               ("hu", "", "%.1f", "hu", 1.0), ("i", "", "%d", "i", 1.5), ("iu", "", "%.0f", "iu", 1.0),
+               ("q", "", "%d", "q", 3.0), ("f", "", "%.5f", "f", 1.0), ("d", "", "%.9f", "d", 57.29577951308232),
+               ("nan", "", "%d", "i", float("nan")), ("deg", "deg", "%.3f", "d", 57.29577951308232),
+               ("neg", "", "%.4f", "q", -1.0), ("marker", "", "%d", "marker", 1.0))
+    return RowLayout(fields, columns, wrap=(("deg", 360.0), ("neg", 7.0)) if wrap else ())
+
+
 def hostile_rows(layout: RowLayout, n_rows: int, seed: int) -> bytes:
     """Random raw bytes of a layout with fields d (double), q (int64), marker and k (every integer,
     every double bit pattern: NaN, inf, subnormals, huge), some doubles on a 360-degree wrap's edges

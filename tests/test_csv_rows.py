@@ -15,7 +15,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from _recordings import hostile_rows
+from _recordings import every_code_layout, hostile_rows
 from hilbench.bench import recorder as recorder_module
 from hilbench.bench.npzwriter import _field_offsets
 from hilbench.bench.recorder import RowLayout, read_recording
@@ -71,21 +71,8 @@ def test_every_cell_is_what_percent_formatting_writes(fmt: str) -> None:
     assert text == _reference(layout, raw.tobytes())
 
 
-def _every_code_layout(*, wrap: bool = True) -> RowLayout:
-    """A row of every struct code a layout may use: scaled, unscaled, NaN-scaled (a whole-number
-    column too) and wrapped columns, in every format the writer takes."""
-    fields = (("k", "Q"), ("b", "B"), ("h", "h"), ("hu", "H"), ("i", "i"), ("iu", "I"), ("q", "q"), ("f", "f"),
-              ("d", "d"), ("marker", "B"))
-    columns = (("t_s", "s", "%.6f", "k", 5e-5), ("b", "", "%d", "b", 1.0), ("h", "", "%d", "h", 0.1),
-               ("hu", "", "%.1f", "hu", 1.0), ("i", "", "%d", "i", 1.5), ("iu", "", "%.0f", "iu", 1.0),
-               ("q", "", "%d", "q", 3.0), ("f", "", "%.5f", "f", 1.0), ("d", "", "%.9f", "d", 57.29577951308232),
-               ("nan", "", "%d", "i", float("nan")), ("deg", "deg", "%.3f", "d", 57.29577951308232),
-               ("neg", "", "%.4f", "q", -1.0), ("marker", "", "%d", "marker", 1.0))
-    return RowLayout(fields, columns, wrap=(("deg", 360.0), ("neg", 7.0)) if wrap else ())
-
-
 def test_raw_rows_of_every_code_are_the_references_text() -> None:
-    layout = _every_code_layout()
+    layout = every_code_layout()
     raw = hostile_rows(layout, 5000, seed=3)
     assert _csvrows.format_rows(raw, layout.dtype.itemsize, _columns(layout)) == _reference(layout, raw)
 
@@ -127,7 +114,7 @@ def test_a_csv_recording_is_the_same_text_with_the_writer_and_the_reference(
         tmp_path: Path, monkeypatch: pytest.MonkeyPatch, n_rows: int, flush_rows: int, chunk: int, mark_last: bool) -> None:
     """Rows handed to the writer's thread between flushes (chunk rows at a time, the newest kept
     back for mark_last) and at each flush are the reference's text, byte for byte."""
-    layout = _every_code_layout()
+    layout = every_code_layout()
     raw = hostile_rows(layout, n_rows, seed=n_rows)
     monkeypatch.setattr(recorder_module, "BACKGROUND_CHUNK_ROWS", chunk)
     monkeypatch.setattr(recorder_module, "CSV_WRITER_MAX_ROWS", 2 * chunk)

@@ -18,7 +18,7 @@ import pytest
 
 import hilbench
 from _hostile import assert_one_line_error
-from _recordings import hostile_rows
+from _recordings import every_code_layout, hostile_rows
 from hilbench.bench import npzwriter
 from hilbench.bench import recorder as recorder_module
 from hilbench.bench.npzwriter import ColumnArchive
@@ -188,18 +188,6 @@ needs_writer = pytest.mark.skipif(npzwriter._npzcolumns is None, reason="the bac
 hostile_values = pytest.mark.filterwarnings("ignore::RuntimeWarning")
 
 
-def _every_code_layout() -> recorder_module.RowLayout:
-    """A row of every struct code a layout may use, scaled, unscaled, NaN-scaled and wrapped columns."""
-    fields = (("k", "Q"), ("b", "B"), ("h", "h"), ("hu", "H"), ("i", "i"), ("iu", "I"), ("q", "q"), ("f", "f"),
-              ("d", "d"), ("marker", "B"))
-    columns = (("t_s", "s", "%.6f", "k", 5e-5), ("b", "", "%d", "b", 1.0), ("h", "", "%d", "h", 0.1),
-               ("hu", "", "%d", "hu", 1.0), ("i", "", "%d", "i", 1.5), ("iu", "", "%d", "iu", 1.0),
-               ("q", "", "%d", "q", 3.0), ("f", "", "%g", "f", 1.0), ("d", "", "%g", "d", 57.29577951308232),
-               ("nan", "", "%g", "i", float("nan")), ("deg", "deg", "%.3f", "d", 57.29577951308232),
-               ("neg", "", "%g", "q", -1.0), ("marker", "", "%d", "marker", 1.0))
-    return recorder_module.RowLayout(fields, columns, wrap=(("deg", 360.0), ("neg", 7.0)))
-
-
 def _record(path: Path, layout: recorder_module.RowLayout, raw: bytes, plan: int | None, *, flush_rows: int = 1000,
             mark_last: bool = False) -> recorder_module.Recorder:
     """A recording of ``raw`` rows appended a few at a time (the session's `maybe_flush` after each
@@ -229,7 +217,7 @@ def test_the_archive_written_while_the_run_goes_on_is_the_journals_byte_for_byte
     edges), markers and events: the background archive's bytes equal the archive written from the
     journal (the reference), and numpy reads the values `RowLayout.to_columns` gives."""
     monkeypatch.setattr(recorder_module, "BACKGROUND_CHUNK_ROWS", 300)  # many hand-overs between flushes
-    layout = _every_code_layout()
+    layout = every_code_layout()
     raw = hostile_rows(layout, n_rows, seed=n_rows)
     finished = []
     real_finish = npzwriter.BackgroundArchive.finish
@@ -261,7 +249,7 @@ def test_a_run_that_ends_otherwise_than_planned_gets_the_journals_archive(tmp_pa
     handed at once here): the archive is written from the journal at the close (the same bytes as
     without a plan, the marker in it), nothing else left."""
     monkeypatch.setattr(recorder_module, "BACKGROUND_CHUNK_ROWS", 1 if mark_last else 200)
-    layout = _every_code_layout()
+    layout = every_code_layout()
     raw = hostile_rows(layout, 10_000, seed=3)
     finished = []
     real_finish = npzwriter.BackgroundArchive.finish
@@ -286,7 +274,7 @@ def test_a_write_that_fails_on_the_thread_falls_back_and_every_thread_is_joined(
     """The thread's pwrite fails (its descriptor made read-only under it: EBADF): the close writes
     the archive from the journal, which still has every row; no thread is left, nor the unfinished
     archive."""
-    layout = _every_code_layout()
+    layout = every_code_layout()
     raw = hostile_rows(layout, 5000, seed=4)
     before = _threads()
     rec = recorder_module.Recorder(tmp_path / "bg.npz", {}, flush_rows=100_000)
@@ -406,7 +394,7 @@ def test_a_failed_journal_write_is_written_again_where_it_belongs(tmp_path: Path
     """A journal write that fails (ENOSPC) after stray bytes landed: the background archive is given
     up and removed, the write is done again at the rows' place (the stray bytes cut off), and the
     archive the close writes from the journal equals the one of a run that never failed."""
-    layout = _every_code_layout()
+    layout = every_code_layout()
     raw = hostile_rows(layout, 10_000, seed=8)
     monkeypatch.setattr(recorder_module, "BACKGROUND_CHUNK_ROWS", 500)
     real = recorder_module.Recorder._pwrite_rows
@@ -601,7 +589,7 @@ def test_ctrl_c_while_the_writer_finishes_drops_its_rows_and_joins_its_thread() 
 def test_ctrl_c_while_the_close_finishes_the_archive_leaves_the_journal(tmp_path: Path) -> None:
     """Ctrl-C while the close waits for the writer's last rows: the archive is given up (its thread
     joined, its unfinished file removed), the interrupt propagates, the journal keeps every row."""
-    layout = _every_code_layout()
+    layout = every_code_layout()
     raw = hostile_rows(layout, 5000, seed=9)
     path = tmp_path / "bg.npz"
     rec = recorder_module.Recorder(path, {}, flush_rows=100_000)
