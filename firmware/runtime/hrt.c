@@ -6,6 +6,13 @@
  * rt->now and less than 2^31 ticks ahead, so `due - now` (unsigned) orders them. */
 #define HRT_HALF_RANGE 0x80000000UL
 
+/* The timers the port runs in hardware (none unless it may: HRT_HW_TIMERS, hrt.h). */
+#if HRT_HW_TIMERS
+#define TIMERS_HW(rt) ((rt)->timers_hw)
+#else
+#define TIMERS_HW(rt) 0u
+#endif
+
 /* Keep a function out of its callers (GCC, XC16): a leaf's locals then never sit under a body's. */
 #if defined(__GNUC__)
 #define HRT_NOINLINE __attribute__((noinline))
@@ -125,8 +132,8 @@ void hrt_timer_start(hrt_t *rt, hbp_u8 id, uint32_t first_ticks)
     }
     rt->timer_due[id] = rt->now + first_ticks;
     rt->timers_on = (hbp_u8)(rt->timers_on | bit);
+#if HRT_HW_TIMERS
     rt->timers_hw = (hbp_u8)(rt->timers_hw & (hbp_u8)~bit);
-#if defined(HRT_PORT_HW) && HRT_PORT_HW
     if ((rt->flags & HRT_F_HW) != 0u && hrt_port_timer(id, 1u, first_ticks)) {
         rt->timers_hw = (hbp_u8)(rt->timers_hw | bit);
     }
@@ -136,13 +143,13 @@ void hrt_timer_start(hrt_t *rt, hbp_u8 id, uint32_t first_ticks)
 void hrt_timer_stop(hrt_t *rt, hbp_u8 id)
 {
     hbp_u8 bit = (hbp_u8)(1u << id);
-#if defined(HRT_PORT_HW) && HRT_PORT_HW
+#if HRT_HW_TIMERS
     if ((rt->timers_hw & bit) != 0u) {
         (void)hrt_port_timer(id, 0u, 0u);
     }
+    rt->timers_hw = (hbp_u8)(rt->timers_hw & (hbp_u8)~bit);
 #endif
     rt->timers_on = (hbp_u8)(rt->timers_on & (hbp_u8)~bit);
-    rt->timers_hw = (hbp_u8)(rt->timers_hw & (hbp_u8)~bit);
 }
 
 hbp_u8 hrt_attach_interrupt(hrt_t *rt, hbp_u8 lines, hbp_u8 polarity, hrt_body_fn body)
@@ -304,7 +311,7 @@ static HRT_NOINLINE hbp_u8 next_event(const hrt_t *rt, uint32_t bound_rel, hbp_u
 {
     const hrt_firmware_t *d = &hrt_firmware;
     hbp_u8 n_slots = (hbp_u8)(d->n_timers + (main_slot(d) != HRT_NONE ? 1u : 0u));
-    hbp_u8 usable = (hbp_u8)(rt->timers_on & (hbp_u8)~rt->timers_hw);
+    hbp_u8 usable = (hbp_u8)(rt->timers_on & (hbp_u8)~TIMERS_HW(rt));
     hbp_u8 kind = EV_NONE;
     hbp_u8 k = EV_PWM; /* the PWM boundary first (it wins ties of equal priority), then the timers */
     hbp_u8 prio = d->pwm_priority;
@@ -458,7 +465,7 @@ static void rt_soft_timers(hrt_t *rt, uint32_t now)
     }
     for (i = 0u; i < n_slots; i++) {
         hbp_u8 bit = (hbp_u8)(1u << i);
-        if ((rt->timers_on & bit) != 0u && (rt->timers_hw & bit) == 0u &&
+        if ((rt->timers_on & bit) != 0u && (TIMERS_HW(rt) & bit) == 0u &&
             now - rt->timer_due[i] < HRT_HALF_RANGE) {
             advance_to(rt, rt->timer_due[i]);
             expire(rt, i);

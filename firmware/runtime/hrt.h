@@ -72,6 +72,26 @@
 #define HRT_REPORT_MEAN 0      /* HRT_REPORT_ACTIVE as a mean over the span (1: 3 x 64-bit accumulators) */
 #endif
 #define HRT_NONE 0xFFu
+/* Monitor mode (a real-motor build, hrt_link.h) and real time (HostHello mode REALTIME): the modes in
+ * which a port's own clock and interrupts drive the firmware. HRT_REALTIME is 1 by default (0 in a
+ * monitor build, which agrees to no other mode); a lockstep-only build (the dsPIC30F2010's board
+ * profile, docs/board.md "Does it fit") sets 0: the link refuses the mode and neither it nor the
+ * runtime keeps code for it. */
+#ifndef HRT_MONITOR
+#define HRT_MONITOR 0
+#endif
+#ifndef HRT_REALTIME
+#define HRT_REALTIME (!HRT_MONITOR)
+#endif
+#if HRT_MONITOR && HRT_REALTIME
+#error "a real-motor build (HRT_MONITOR) agrees to mode MONITOR only: leave HRT_REALTIME at 0"
+#endif
+/* The port runs timers in hardware (HRT_PORT_HW) in a mode this build has (hrt_port_timer). */
+#if defined(HRT_PORT_HW) && HRT_PORT_HW && (HRT_REALTIME || HRT_MONITOR)
+#define HRT_HW_TIMERS 1
+#else
+#define HRT_HW_TIMERS 0
+#endif
 /* The self-description beyond the HELLO (hrt_link.h explains it): 1 by default. A declaration writes the
  * texts only a description sends (telemetry names and units, parameter units) as HRT_DESCRIBED("rpm"),
  * so a build without it keeps none of them in its flash (it sends empty units). */
@@ -317,7 +337,7 @@ void hrt_rt_levels(hrt_t *rt, hbp_u8 levels, const uint16_t *adc, hbp_u8 n_adc, 
 void hrt_rt_main(hrt_t *rt, uint32_t now);           /* from the main loop: the main body */
 void hrt_rt_enter(hrt_t *rt, hbp_u8 hw);            /* real time begins (hw: the port's interrupts run it) */
 
-#if defined(HRT_PORT_HW) && HRT_PORT_HW
+#if HRT_HW_TIMERS
 /* A port whose interrupts run the bodies in real time provides this: start (on = 1, first expiry
  * `first_ticks` from now) or stop a timer in hardware; return 1 if it does so, 0 to leave the
  * timer to the runtime (served in hrt_rt_pwm). */

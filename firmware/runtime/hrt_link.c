@@ -70,8 +70,19 @@ void hrt_link_init(hrt_link_t *l, hrt_t *rt)
 #else
 #define CAN_PREDICT 0
 #endif
-/* Lockstep, predicted or not (a build without prediction never agrees to PREDICT: its code as before). */
-#if HRT_PREDICT_BYTES > 0
+/* Real time on a port whose interrupts run the bodies (a Sensors updates the inputs they read), or
+ * on one without (a Sensors runs the time that passed). */
+#if defined(HRT_PORT_HW) && HRT_PORT_HW && HRT_REALTIME
+#define RT_HW 1
+#else
+#define RT_HW 0
+#endif
+#define RT_SPAN (HRT_REALTIME && !RT_HW)
+/* Lockstep, predicted or not (a build without prediction never agrees to PREDICT: its code as before;
+ * a lockstep-only build agrees to nothing else). */
+#if !HRT_REALTIME && !HRT_MONITOR
+#define LOCKSTEP(mode) 1
+#elif HRT_PREDICT_BYTES > 0
 #define LOCKSTEP(mode) ((mode) == HBP_MODE_LOCKSTEP || (mode) == HBP_MODE_PREDICT)
 #else
 #define LOCKSTEP(mode) ((mode) == HBP_MODE_LOCKSTEP)
@@ -285,12 +296,13 @@ static HRT_NOINLINE void on_hello(hrt_link_t *l, const hbp_u8 *buf, hbp_u8 len, 
          * its motor stops when the host falls silent, so a hello without a watchdog is refused */
 #else
     if (period_us == 0u || (step != 0u && period_us % step != 0u) ||
-        (mode != HBP_MODE_LOCKSTEP && mode != HBP_MODE_REALTIME && !(mode == HBP_MODE_PREDICT && CAN_PREDICT))) {
+        (mode != HBP_MODE_LOCKSTEP && !(mode == HBP_MODE_REALTIME && HRT_REALTIME) &&
+         !(mode == HBP_MODE_PREDICT && CAN_PREDICT))) {
 #endif
         send_error(l, seq, HBP_ERROR_BAD_REQUEST, 0u);
         return;
     }
-#if defined(HRT_PORT_HW) && HRT_PORT_HW
+#if RT_HW
     if ((l->flags & HRT_LINK_F_RT) != 0u) {
         hrt_port_realtime(0u);
         hrt_rt_enter(l->rt, 0u);
@@ -333,13 +345,12 @@ static uint32_t ticks_of(uint32_t t_100ns)
  * edge at its time (one at or beyond the span's end at its last tick). Real time on a port whose
  * interrupts run the bodies (span 0): the inputs the bodies read, each edge captured at its time
  * back-dated from now by the rest of the period (an estimate: the frame's own transit is not known). */
-static void serve_sensors(hrt_link_t *l, const hbp_u8 *buf, hbp_u8 len, uint32_t span)
+static void serve_sensors(hrt_link_t *l, const hbp_u8 *buf, hbp_u8 len, hbp_u8 n_edges, uint32_t span)
 {
     hrt_t *rt = l->rt;
     uint32_t start = rt->now;
     hbp_u8 inputs = buf[SENSORS_INPUTS];
     hbp_u8 at = (hbp_u8)(SENSORS_ADC + 2u * buf[SENSORS_N_ADC]); /* the first edge */
-    hbp_u8 n_edges = (hbp_u8)((hbp_u8)(len - at) / 3u);
     hbp_u8 has_index = 0u;
     uint16_t adc[HRT_MAX_ADC];
     hbp_u8 n_adc;
@@ -347,7 +358,7 @@ static void serve_sensors(hrt_link_t *l, const hbp_u8 *buf, hbp_u8 len, uint32_t
     for (n_adc = 0u; n_adc < buf[SENSORS_N_ADC] && n_adc < HRT_MAX_ADC; n_adc++) {
         adc[n_adc] = get_u16(&buf[SENSORS_ADC + 2u * n_adc]);
     }
-#if defined(HRT_PORT_HW) && HRT_PORT_HW
+#if RT_HW
     if (span == 0u) {
         uint32_t period_100ns = (uint32_t)l->period_us * 10u;
         start = hrt_port_now();
@@ -370,8 +381,8 @@ static void serve_sensors(hrt_link_t *l, const hbp_u8 *buf, hbp_u8 len, uint32_t
         return;
     }
 #endif
-    for (i = 0u; i < n_edges; i++) {
-        has_index = (hbp_u8)(has_index | (buf[at + 3u * i + 2u] & HRT_IN_INDEX));
+    for (i = at; i < len; i = (hbp_u8)(i + 3u)) {
+        has_index = (hbp_u8)(has_index | (buf[i + 2u] & HRT_IN_INDEX));
     }
     hrt_span_begin(rt, inputs, n_edges, has_index, adc, n_adc, get_u16(&buf[SENSORS_ENCODER]));
     for (; at < len; at = (hbp_u8)(at + 3u)) {
@@ -411,14 +422,19 @@ static HRT_NOINLINE void predict(hrt_link_t *l, uint32_t span)
 static HRT_NOINLINE void on_sensors(hrt_link_t *l, const hbp_u8 *buf, hbp_u8 len, hbp_u8 seq)
 {
     uint32_t span = (uint32_t)l->period_us * TICKS_PER_US;
-    hbp_u8 edges_at = (hbp_u8)(SENSORS_ADC + 2u * buf[SENSORS_N_ADC]);
-    if (len < SENSORS_ADC || buf[SENSORS_N_ADC] > HBP_MAX_ADC || edges_at > len ||
-        (hbp_u8)(len - edges_at) % 3u != 0u || (hbp_u8)(len - edges_at) / 3u > HBP_MAX_EDGES) {
+    uint32_t now = hrt_port_now();
+    hbp_u8 at = (hbp_u8)(SENSORS_ADC + 2u * buf[SENSORS_N_ADC]); /* the first edge */
+    hbp_u8 n_edges = 0u;
+    while (at + 3u <= len) { /* the edges, 3 bytes each, counted (a division costs a library call on a 16-bit chip) */
+        at = (hbp_u8)(at + 3u);
+        n_edges++;
+    }
+    if (len < SENSORS_ADC || buf[SENSORS_N_ADC] > HBP_MAX_ADC || at != len || n_edges > HBP_MAX_EDGES) {
         send_error(l, seq, HBP_ERROR_LENGTH, buf[0]);
         return;
     }
     if (LOCKSTEP(l->mode)) { /* the host is there: a tripped watchdog gives the outputs back */
-        l->last_rx = hrt_port_now();
+        l->last_rx = now;
         l->flags = (hbp_u8)(l->flags & (hbp_u8)~HRT_LINK_F_TRIPPED);
     }
     if ((l->flags & HRT_LINK_F_ANSWERED) != 0u && seq == l->last_seq) {
@@ -426,9 +442,8 @@ static HRT_NOINLINE void on_sensors(hrt_link_t *l, const hbp_u8 *buf, hbp_u8 len
         hrt_link_send_drive(l, seq);
         return;
     }
-#if !(defined(HRT_PORT_HW) && HRT_PORT_HW) /* (a hardware port's real time runs no span: below) */
+#if RT_SPAN /* (a hardware port's real time runs no span: below) */
     if (l->mode == HBP_MODE_REALTIME) {
-        uint32_t now = hrt_port_now();
         if ((l->flags & HRT_LINK_F_SENSORS) != 0u) {
             uint32_t passed = now - l->last_rx; /* the time that really passed, at most HRT_RT_MAX_PERIODS
                                                  * periods: a firmware too slow for real time on its chip
@@ -437,19 +452,19 @@ static HRT_NOINLINE void on_sensors(hrt_link_t *l, const hbp_u8 *buf, hbp_u8 len
         }
     }
 #endif
-    l->last_rx = hrt_port_now();
+    l->last_rx = now;
     l->flags = (hbp_u8)((l->flags | HRT_LINK_F_SENSORS | HRT_LINK_F_ANSWERED) & (hbp_u8)~HRT_LINK_F_TRIPPED);
 #if HRT_SPECULATE
     l->b_synced = 0u; /* a period run one by one: the next SensorsBatch starts the records afresh */
 #endif
-#if defined(HRT_PORT_HW) && HRT_PORT_HW
+#if RT_HW
     if (l->mode == HBP_MODE_REALTIME) {
         span = 0u; /* the port's interrupts run the bodies: the inputs only */
-        serve_sensors(l, buf, len, 0u);
+        serve_sensors(l, buf, len, n_edges, 0u);
     }
 #endif
     if (span > 0u) {
-        serve_sensors(l, buf, len, span);
+        serve_sensors(l, buf, len, n_edges, span);
 #if HRT_PREDICT_BYTES > 0
         if (l->mode == HBP_MODE_PREDICT) {
             predict(l, span);
@@ -686,7 +701,7 @@ static uint32_t run_periods(hrt_link_t *l, hrt_batch_in_t *in, const hbp_u8 *edg
         msg[SENSORS_ENCODER + 1u] = (hbp_u8)(in->encoder >> 8);
         l->last_rx = hrt_port_now();
         l->flags = (hbp_u8)((l->flags | HRT_LINK_F_SENSORS | HRT_LINK_F_ANSWERED) & (hbp_u8)~HRT_LINK_F_TRIPPED);
-        serve_sensors(l, msg, m, span);
+        serve_sensors(l, msg, m, n_edges, span);
 #if HRT_PREDICT_BYTES > 0
         if (l->mode == HBP_MODE_PREDICT) {
             predict(l, span);

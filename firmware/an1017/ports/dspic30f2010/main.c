@@ -86,7 +86,9 @@ _FGS(CODE_PROT_OFF);
 static an1017_t fw;
 static hrt_link_t host_link;
 static volatile uint16_t tcy_high; /* Timer2 overflows: bits 31:16 of the Tcy clock */
+#if HRT_HW_TIMERS
 static uint8_t realtime_on;
+#endif
 
 void hrt_port_send(const uint8_t *wire, uint8_t len)
 {
@@ -100,8 +102,10 @@ void hrt_port_send(const uint8_t *wire, uint8_t len)
 
 void hrt_port_lock(void)
 {
+#if HRT_HW_TIMERS
     IEC2bits.PWMIE = 0;
     IEC0bits.T1IE = 0;
+#endif
     IEC2bits.FLTAIE = 0;
 #if defined(HIL_LOCAL_HALLS)
     IEC0bits.CNIE = 0;
@@ -118,10 +122,12 @@ void hrt_port_unlock(void)
     IEC1bits.IC7IE = 1;
     IEC1bits.IC8IE = 1;
 #endif
+#if HRT_HW_TIMERS
     if (realtime_on) {
         IEC0bits.T1IE = 1;
         IEC2bits.PWMIE = 1;
     }
+#endif
 }
 
 /* Called from the main loop and from the priority-4 ISRs, where the Timer2 interrupt (the same
@@ -157,7 +163,8 @@ static void write_outputs(void)
 #endif
 }
 
-/* ---- real time: the chip's timers ---- */
+/* ---- real time: the chip's timers (a lockstep-only build, HRT_REALTIME=0, has none of it) ---- */
+#if HRT_HW_TIMERS
 
 /* Timer1 runs in hardware (PR1 fixed: its period is the declared one); the end of ChargeBootstraps
  * is left to the runtime. */
@@ -189,6 +196,7 @@ void hrt_port_realtime(uint8_t on)
         realtime_on = 0u;
     }
 }
+#endif
 
 /* ---- the real-motor build: the motor's own halls (AN1017's CN5 = A on RB3, IC7 = B on RB4, IC8 = C
  * on RB5; facts: docs/board.md "Real-motor mode") ---- */
@@ -269,6 +277,7 @@ void AN1017_ISR _T2Interrupt(void)
     tcy_high = (uint16_t)(tcy_high + 1u);
 }
 
+#if HRT_HW_TIMERS
 /* Real time only: one PWM period boundary, the same work as the lockstep scheduler's. */
 void AN1017_ISR _PWMInterrupt(void)
 {
@@ -285,6 +294,7 @@ void AN1017_ISR _T1Interrupt(void)
     IFS0bits.T1IF = 0;
     hrt_rt_timer(&fw.rt, AN1017_TIMER_T1, hrt_port_now());
 }
+#endif
 
 void AN1017_ISR _FLTAInterrupt(void)
 {
@@ -293,7 +303,10 @@ void AN1017_ISR _FLTAInterrupt(void)
     write_outputs();
 }
 
-/* ---- the board's S2 (RC14, active low): a mechanical contact bounces for a few ms ---- */
+/* ---- the board's S2 (RC14, active low): a mechanical contact bounces for a few ms. A lockstep-only
+ * build (HRT_REALTIME=0) has none of it: its S2 is the bench's (the Sensors bit, at its time in the
+ * span); the board's would act between spans, at no time of the session ---- */
+#if HRT_HW_TIMERS
 
 #define S2_STABLE_TCY 400000UL /* 20 ms at FCY = 20 MHz: a level must hold this long to count */
 
@@ -314,6 +327,7 @@ static uint8_t s2_debounced(uint8_t raw, uint32_t now, uint8_t *level)
     }
     return 0u;
 }
+#endif
 
 /* ---- initialisation ---- */
 
@@ -377,7 +391,9 @@ static void init_adc(void)
 
 int main(void)
 {
+#if HRT_HW_TIMERS
     uint8_t s2_level = 0u;
+#endif
     an1017_init(&fw, AN1017_VARIANT);
     hrt_link_init(&host_link, &fw.rt);
     init_io();
@@ -396,12 +412,14 @@ int main(void)
 #if defined(HIL_LOCAL_HALLS)
         hrt_link_stream(&host_link); /* monitor mode: the telemetry stream */
 #endif
+#if HRT_HW_TIMERS
         if (s2_debounced((uint8_t)(PORTCbits.RC14 == 0), hrt_port_now(), &s2_level)) {
             /* the board's own S2: released -> toggle, as main() does */
             hrt_port_lock();
             an1017_main_loop_buttons(&fw, (uint8_t)(s2_level ? AN1017_INPUT_S2 : 0u));
             hrt_port_unlock();
         }
+#endif
         hrt_port_lock(); /* a frame, the button or the watchdog may have changed the outputs */
         write_outputs();
         hrt_port_unlock();
