@@ -13,6 +13,8 @@
 #define TIMERS_HW(rt) 0u
 #endif
 
+/* `static inline`: a small helper, or one called once, that XC16's -O1 inlines as GCC's does (the
+ * dsPIC30F2010's 4K words, docs/board.md section 3a, measured one by one); the others stay calls. */
 /* Keep a function out of its callers (GCC, XC16): a leaf's locals then never sit under a body's. */
 #if defined(__GNUC__)
 #define HRT_NOINLINE __attribute__((noinline))
@@ -20,7 +22,7 @@
 #define HRT_NOINLINE
 #endif
 
-static void advance_to(hrt_t *rt, uint32_t t)
+static inline void advance_to(hrt_t *rt, uint32_t t)
 {
 #if HRT_MICROS
     if (t < rt->now) {
@@ -186,7 +188,7 @@ hbp_u8 hrt_attach_interrupt(hrt_t *rt, hbp_u8 lines, hbp_u8 polarity, hrt_body_f
 
 /* ---------------------------------------------------------------------------- dispatching */
 
-static hbp_u8 polarity_matches(hbp_u8 polarity, hbp_u8 lines, hbp_u8 changed, hbp_u8 levels)
+static inline hbp_u8 polarity_matches(hbp_u8 polarity, hbp_u8 lines, hbp_u8 changed, hbp_u8 levels)
 {
     hbp_u8 mine = (hbp_u8)(changed & lines);
     if (mine == 0u) {
@@ -231,7 +233,7 @@ static void apply_edge(hrt_t *rt, hbp_u8 lines)
 }
 
 /* One PWM period boundary: the latch, the PWM ISR, the boundary count. */
-static void pwm_boundary(hrt_t *rt)
+static inline void pwm_boundary(hrt_t *rt)
 {
     const hrt_firmware_t *d = &hrt_firmware;
     if (d->duty_timing == HRT_DUTY_NEXT_PERIOD) {
@@ -274,7 +276,7 @@ static hbp_u8 main_slot(const hrt_firmware_t *d)
 #endif
 }
 
-static void expire(hrt_t *rt, hbp_u8 id)
+static inline void expire(hrt_t *rt, hbp_u8 id)
 {
     const hrt_firmware_t *d = &hrt_firmware;
     uint32_t period;
@@ -588,13 +590,13 @@ hbp_u8 hrt_param_write(hrt_t *rt, const hrt_param_request_t *req, hbp_u8 *param_
 
 /* -------------------------------------------------------------------------------- reports */
 
-static uint16_t clamp_duty(uint16_t v)
+static inline uint16_t clamp_duty(uint16_t v)
 {
     return (v > hrt_firmware.pwm_counts) ? hrt_firmware.pwm_counts : v;
 }
 
 /* The duty the declaration's duty_report names, of one phase. */
-static uint16_t reported_duty(const hrt_t *rt, hbp_u8 phase)
+static inline uint16_t reported_duty(const hrt_t *rt, hbp_u8 phase)
 {
     if (hrt_firmware.duty_report != HRT_REPORT_ACTIVE) {
         return rt->duty[phase]; /* the registers as written: in effect from the next latch */

@@ -6,6 +6,8 @@
  * codec generated from it. */
 #include "hrt_link.h"
 
+/* `static inline`: a small helper, or one called once, that XC16's -O1 inlines as GCC's does (the
+ * dsPIC30F2010's 4K words, docs/board.md section 3a, measured one by one); the others stay calls. */
 /* The rare requests (handshake, parameters) keep their locals in their own frames, off the lockstep
  * path's stack (GCC and XC16; other compilers may inline them). */
 #if defined(__GNUC__)
@@ -27,7 +29,7 @@
 #define PWM_PERIOD_TICKS (hrt_firmware.pwm_period_ticks)
 #endif
 
-static uint16_t get_u16(const hbp_u8 *p)
+static inline uint16_t get_u16(const hbp_u8 *p)
 {
     return (uint16_t)((uint16_t)(p[0] & 0xFFu) | (uint16_t)((uint16_t)(p[1] & 0xFFu) << 8));
 }
@@ -38,7 +40,7 @@ static uint32_t get_u32(const hbp_u8 *p)
 }
 
 /* A little-endian two's-complement i32 (no implementation-defined conversion). */
-static int32_t get_i32(const hbp_u8 *p)
+static inline int32_t get_i32(const hbp_u8 *p)
 {
     uint32_t u = get_u32(p);
     if (u < 0x80000000UL) {
@@ -111,7 +113,7 @@ static void w32(hrt_link_t *l, uint32_t v)
 }
 
 /* A declared name (at most max printable characters), with its count unless it is the last field. */
-static void wname(hrt_link_t *l, const char *s, hbp_u8 max, hbp_u8 counted)
+static inline void wname(hrt_link_t *l, const char *s, hbp_u8 max, hbp_u8 counted)
 {
     hbp_u8 n = 0u;
     while (n < max && s[n] != '\0') {
@@ -334,7 +336,7 @@ static HRT_NOINLINE void on_hello(hrt_link_t *l, const hbp_u8 *buf, hbp_u8 len, 
 #define SENSORS_ADC 6u
 
 /* 100 ns units (the wire's edge times) in the firmware's ticks. */
-static uint32_t ticks_of(uint32_t t_100ns)
+static inline uint32_t ticks_of(uint32_t t_100ns)
 {
     /* exact: t_100ns < 2^16, ticks_per_us < 2^8 */
     return (TICKS_PER_US % 10u == 0u) ? t_100ns * (TICKS_PER_US / 10u) : t_100ns * TICKS_PER_US / 10u;
@@ -345,7 +347,7 @@ static uint32_t ticks_of(uint32_t t_100ns)
  * edge at its time (one at or beyond the span's end at its last tick). Real time on a port whose
  * interrupts run the bodies (span 0): the inputs the bodies read, each edge captured at its time
  * back-dated from now by the rest of the period (an estimate: the frame's own transit is not known). */
-static void serve_sensors(hrt_link_t *l, const hbp_u8 *buf, hbp_u8 len, hbp_u8 n_edges, uint32_t span)
+static inline void serve_sensors(hrt_link_t *l, const hbp_u8 *buf, hbp_u8 len, hbp_u8 n_edges, uint32_t span)
 {
     hrt_t *rt = l->rt;
     uint32_t start = rt->now;

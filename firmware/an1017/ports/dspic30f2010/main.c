@@ -61,6 +61,8 @@
 #define HIL_LOCAL_POT /* the real motor's reference: the board's pot, or the host's override parameter */
 #endif
 
+/* `static inline`: a small helper, or one called once, that XC16's -O1 inlines as GCC's does (the
+ * dsPIC30F2010's 4K words, docs/board.md section 3a, measured one by one); the others stay calls. */
 #if defined(__XC16__)
 #define AN1017_ISR __attribute__((__interrupt__, no_auto_psv))
 #else
@@ -331,7 +333,7 @@ static uint8_t s2_debounced(uint8_t raw, uint32_t now, uint8_t *level)
 
 /* ---- initialisation ---- */
 
-static void init_io(void)
+static inline void init_io(void)
 {
     ADPCFG = 0x0038u;  /* RB3..RB5 digital (halls on the board; unused under the bench) */
     TRISB = 0xFFFFu;
@@ -341,7 +343,7 @@ static void init_io(void)
     TRISF = 0xFFF7u;   /* RF3 = U1TX output, RF2 = U1RX input */
 }
 
-static void init_uart(void)
+static inline void init_uart(void)
 {
     U1BRG = UART_BRG;
     U1MODE = 0x8000u;  /* UARTEN, 8N1, ALTIO = 0 (RF2/RF3) */
@@ -354,7 +356,7 @@ static void init_uart(void)
     IEC0bits.U1RXIE = 1;
 }
 
-static void init_pwm(void)
+static inline void init_pwm(void)
 {
     PTPER = AN1017_PTPER;
     PWMCON1 = 0x0077u;
@@ -371,7 +373,7 @@ static void init_pwm(void)
     PTCON = 0x8002u;
 }
 
-static void init_timers(void)
+static inline void init_timers(void)
 {
     T1CON = 0x0020u;   /* Tcy/64, off until real time starts */
     PR1 = 313u;
@@ -381,7 +383,7 @@ static void init_timers(void)
     IEC0bits.T2IE = 1;
 }
 
-static void init_adc(void)
+static inline void init_adc(void)
 {
     ADCHS = 0x0002u;   /* CH0+ = AN2, the pot */
     ADCON3 = 0x0003u;
