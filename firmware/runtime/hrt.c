@@ -15,12 +15,6 @@
 
 /* `static inline`: a small helper, or one called once, that XC16's -O1 inlines as GCC's does (the
  * dsPIC30F2010's 4K words, docs/board.md section 3a, measured one by one); the others stay calls. */
-/* Keep a function out of its callers (GCC, XC16): a leaf's locals then never sit under a body's. */
-#if defined(__GNUC__)
-#define HRT_NOINLINE __attribute__((noinline))
-#else
-#define HRT_NOINLINE
-#endif
 
 static inline void advance_to(hrt_t *rt, uint32_t t)
 {
@@ -307,8 +301,8 @@ static inline void expire(hrt_t *rt, hbp_u8 id)
 /* The first event before (bound_rel ticks from now, bound_prio): due earlier, or due at the bound
  * with a priority below bound_prio. Ties: the lower priority first; equal priorities: the PWM
  * boundary (or reload), then the timers in declared order. Returns its kind (EV_NONE: none), *id the
- * timer, *rel its time from now. A leaf, so that the bodies run on a small stack. */
-static HRT_NOINLINE hbp_u8 next_event(const hrt_t *rt, uint32_t bound_rel, hbp_u8 bound_prio, hbp_u8 *id,
+ * timer, *rel its time from now. Inline in run_until, its one caller. */
+static inline hbp_u8 next_event(const hrt_t *rt, uint32_t bound_rel, hbp_u8 bound_prio, hbp_u8 *id,
                                        uint32_t *rel_out)
 {
     const hrt_firmware_t *d = &hrt_firmware;

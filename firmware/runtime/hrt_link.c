@@ -8,8 +8,10 @@
 
 /* `static inline`: a small helper, or one called once, that XC16's -O1 inlines as GCC's does (the
  * dsPIC30F2010's 4K words, docs/board.md section 3a, measured one by one); the others stay calls. */
-/* The rare requests (handshake, parameters) keep their locals in their own frames, off the lockstep
- * path's stack (GCC and XC16; other compilers may inline them). */
+/* The rarest requests (target and telemetry descriptions, Status, batches, prediction) keep their
+ * locals in their own frames, off the lockstep path's stack (GCC and XC16; other compilers may inline
+ * them). The handshake's and the parameters' are inline: the dsPIC30F2010's flash needed the ~85 words
+ * more than its RAM the ~20 bytes (tests/test_firmware_dspic.py: 458 of 512 bytes). */
 #if defined(__GNUC__)
 #define HRT_NOINLINE __attribute__((noinline))
 #else
@@ -229,7 +231,7 @@ void hrt_link_stream(hrt_link_t *l)
 #endif
 
 /* TargetHello: the firmware's declaration. */
-static HRT_NOINLINE void send_target_hello(hrt_link_t *l, hbp_u8 seq)
+static inline void send_target_hello(hrt_link_t *l, hbp_u8 seq)
 {
     const hrt_firmware_t *d = &hrt_firmware;
     hbp_u8 i;
@@ -272,7 +274,7 @@ static HRT_NOINLINE void on_target_describe(hrt_link_t *l, hbp_u8 seq)
 
 /* HostHello, read in place: the version byte first (a HostHello of another version may have another
  * length), then the length, the schema fingerprint, the period and the mode. */
-static HRT_NOINLINE void on_hello(hrt_link_t *l, const hbp_u8 *buf, hbp_u8 len, hbp_u8 seq)
+static inline void on_hello(hrt_link_t *l, const hbp_u8 *buf, hbp_u8 len, hbp_u8 seq)
 {
     uint16_t period_us;
     hbp_u8 mode;
@@ -421,7 +423,7 @@ static HRT_NOINLINE void predict(hrt_link_t *l, uint32_t span)
 }
 #endif
 
-static HRT_NOINLINE void on_sensors(hrt_link_t *l, const hbp_u8 *buf, hbp_u8 len, hbp_u8 seq)
+static inline void on_sensors(hrt_link_t *l, const hbp_u8 *buf, hbp_u8 len, hbp_u8 seq)
 {
     uint32_t span = (uint32_t)l->period_us * TICKS_PER_US;
     uint32_t now = hrt_port_now();
@@ -801,7 +803,7 @@ static HRT_NOINLINE void on_batch(hrt_link_t *l, const hbp_u8 *buf, hbp_u8 len, 
 #endif
 
 /* ParamDescribe, ParamGet, TelemetryDescribe: one id byte. */
-static HRT_NOINLINE void on_describe(hrt_link_t *l, hbp_u8 id, hbp_u8 seq)
+static inline void on_describe(hrt_link_t *l, hbp_u8 id, hbp_u8 seq)
 {
     const hrt_firmware_t *d = &hrt_firmware;
     const hrt_param_decl_t *p;
@@ -846,7 +848,7 @@ static HRT_NOINLINE void on_telemetry(hrt_link_t *l, hbp_u8 index, hbp_u8 seq)
 }
 #endif
 
-static HRT_NOINLINE void on_get(hrt_link_t *l, hbp_u8 id, hbp_u8 seq)
+static inline void on_get(hrt_link_t *l, hbp_u8 id, hbp_u8 seq)
 {
     hbp_u8 known = (hbp_u8)(id < hrt_firmware.n_params);
     begin(l, HBP_MSG_PARAM_VALUE, seq);
@@ -857,7 +859,7 @@ static HRT_NOINLINE void on_get(hrt_link_t *l, hbp_u8 id, hbp_u8 seq)
 }
 
 /* ParamSet: the pairs read in place into a request, checked whole, applied all or nothing. */
-static HRT_NOINLINE void on_set(hrt_link_t *l, const hbp_u8 *buf, hbp_u8 len, hbp_u8 seq)
+static inline void on_set(hrt_link_t *l, const hbp_u8 *buf, hbp_u8 len, hbp_u8 seq)
 {
     hrt_param_request_t req;
     hbp_u8 result;
