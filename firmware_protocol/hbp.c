@@ -82,25 +82,16 @@ static void rx_fail(hbp_rx_t *rx, hbp_u8 error)
     rx->flags = (hbp_u8)(rx->flags | HBP_RX_F_BAD | HBP_RX_F_DISCARD);
 }
 
+#if HBP_ERROR_NONE != 0u
+#error "hbp_rx_init's zero bytes are HBP_ERROR_NONE"
+#endif
 void hbp_rx_init(hbp_rx_t *rx)
 {
-    hbp_u8 i;
-    for (i = 0u; i < HBP_RX_MAX; i++) {
-        rx->buf[i] = 0u;
+    hbp_u8 *p = (hbp_u8 *)rx;
+    uint16_t k;
+    for (k = 0u; k < (uint16_t)sizeof *rx; k++) { /* every field 0 (HBP_ERROR_NONE), byte by byte: no memset */
+        p[k] = 0u;
     }
-    rx->window[0] = 0u;
-    rx->window[1] = 0u;
-    rx->window[2] = 0u;
-    rx->first = 0u;
-    rx->flags = 0u;
-    rx->ready = 0u;
-    rx->frame_len = 0u;
-    rx->frames = 0u;
-    rx->errors = 0u;
-    rx->resyncs = 0u;
-    rx->unknown = 0u;
-    rx->overruns = 0u;
-    rx->last_error = HBP_ERROR_NONE;
     rx_restart(rx);
 }
 

@@ -51,21 +51,18 @@ static inline int32_t get_i32(const hbp_u8 *p)
     return (int32_t)(-(int32_t)(0xFFFFFFFFUL - u) - 1);
 }
 
+#if HBP_MODE_LOCKSTEP != 0u
+#error "hrt_link_init's zero bytes are mode LOCKSTEP"
+#endif
 void hrt_link_init(hrt_link_t *l, hrt_t *rt)
 {
+    hbp_u8 *p = (hbp_u8 *)l;
+    uint16_t k;
+    for (k = 0u; k < (uint16_t)sizeof *l; k++) { /* every field 0 (mode HBP_MODE_LOCKSTEP), byte by byte */
+        p[k] = 0u;
+    }
     l->rt = rt;
     hbp_rx_init(&l->rx);
-    l->period_us = 0u;
-    l->last_rx = 0u;
-    l->watchdog_ms = 0u;
-    l->watchdog_trips = 0u;
-    l->mode = HBP_MODE_LOCKSTEP;
-    l->flags = 0u;
-    l->last_seq = 0u;
-    l->tx_len = 0u;
-#if HRT_SPECULATE
-    l->b_synced = 0u;
-#endif
 }
 
 /* Mode PREDICT: this build has room for the firmware's state, and the firmware says how big it is. */
