@@ -18,7 +18,8 @@
  * - Timer1: Tcy/64, PR1 = 313 (1.0048 ms), the speed-loop tick in real-time mode.
  * - Timer2 at Tcy, with an overflow count, is the port's clock (hrt_port_now): the runtime's time in
  *   real time, the capture time of hall edges (the firmware derives TMR3 from it; IC7 itself is not
- *   used: the hall pins are frames) and the watchdog's.
+ *   used: the hall pins are frames) and the watchdog's. A lockstep-only build (HRT_REALTIME=0, the
+ *   30F2010's board profile) runs Timer3:Timer2 as one 32-bit timer instead, without an interrupt.
  * - ADC: configured as AN1017 does (AN2 = pot R14, signed fractional, started by the PWM special
  *   event); the pot value comes from Sensors unless HIL_LOCAL_POT is defined, then from ADCBUF0.
  * - S2 (RC14, active low): pressing the board's S2 acts like the Sensors S2 bit.
@@ -87,8 +88,8 @@ _FGS(CODE_PROT_OFF);
 
 static an1017_t fw;
 static hrt_link_t host_link;
-static volatile uint16_t tcy_high; /* Timer2 overflows: bits 31:16 of the Tcy clock */
 #if HRT_HW_TIMERS
+static volatile uint16_t tcy_high; /* Timer2 overflows: bits 31:16 of the Tcy clock */
 static uint8_t realtime_on;
 #endif
 
@@ -132,6 +133,7 @@ void hrt_port_unlock(void)
 #endif
 }
 
+#if HRT_HW_TIMERS
 /* Called from the main loop and from the priority-4 ISRs, where the Timer2 interrupt (the same
  * priority) cannot run: an overflow may be pending, not yet counted in tcy_high. A low TMR2 read
  * with T2IF set is after that overflow, so it counts here (else the time would step back 65 536 Tcy
@@ -151,6 +153,17 @@ uint32_t hrt_port_now(void)
     }
     return ((uint32_t)high << 16) | low;
 }
+
+#else
+/* A lockstep-only build (HRT_REALTIME=0) captures nothing with Timer2: Timer2 and Timer3 run as one
+ * 32-bit timer (T32) at Tcy, no interrupt. Reading TMR2 latches TMR3 into TMR3HLD, so the two halves
+ * are of one instant (dsPIC30F family reference manual DS70046, "32-bit timer"). */
+uint32_t hrt_port_now(void)
+{
+    uint16_t low = TMR2; /* first: it latches TMR3HLD */
+    return ((uint32_t)TMR3HLD << 16) | low;
+}
+#endif
 
 static void write_outputs(void)
 {
@@ -273,11 +286,13 @@ void AN1017_ISR _U1RXInterrupt(void)
     }
 }
 
+#if HRT_HW_TIMERS
 void AN1017_ISR _T2Interrupt(void)
 {
     IFS0bits.T2IF = 0;
     tcy_high = (uint16_t)(tcy_high + 1u);
 }
+#endif
 
 #if HRT_HW_TIMERS
 /* Real time only: one PWM period boundary, the same work as the lockstep scheduler's. */
@@ -377,10 +392,15 @@ static inline void init_timers(void)
 {
     T1CON = 0x0020u;   /* Tcy/64, off until real time starts */
     PR1 = 313u;
-    T2CON = 0x8000u;   /* Tcy, free running: the Tcy clock */
     PR2 = 0xFFFFu;
+#if HRT_HW_TIMERS
+    T2CON = 0x8000u;   /* Tcy, free running: the Tcy clock's low word, overflows counted */
     IFS0bits.T2IF = 0;
     IEC0bits.T2IE = 1;
+#else
+    PR3 = 0xFFFFu;
+    T2CON = 0x8008u;   /* Tcy, T32: Timer3:Timer2 free running, the 32-bit Tcy clock */
+#endif
 }
 
 static inline void init_adc(void)
