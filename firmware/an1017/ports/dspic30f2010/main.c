@@ -58,6 +58,9 @@
 #if defined(HIL_LOCAL_HALLS) && !HRT_MONITOR
 #error "HIL_LOCAL_HALLS (the real-motor build) needs HRT_MONITOR=1: the host monitors, it never sends the sensors (make MODE=motor)"
 #endif
+#if defined(HIL_LOCAL_POT) && !HRT_HW_TIMERS
+#error "HIL_LOCAL_POT reads the pot in the real-time PWM interrupt, which a lockstep-only build (HRT_REALTIME=0) has not: make PROFILE=full"
+#endif
 #if defined(HIL_LOCAL_HALLS) && !defined(HIL_LOCAL_POT)
 #define HIL_LOCAL_POT /* the real motor's reference: the board's pot, or the host's override parameter */
 #endif
