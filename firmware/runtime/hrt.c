@@ -202,12 +202,12 @@ static void apply_edge(hrt_t *rt, hbp_u8 lines)
 {
     const hrt_firmware_t *d = &hrt_firmware;
     hbp_u8 levels = (hbp_u8)((rt->in & (hbp_u8)~HRT_IN_EDGE_LINES) | (lines & HRT_IN_HALLS));
-    hbp_u8 changed = (hbp_u8)(((rt->in ^ levels) & HRT_IN_HALLS) | (lines & HRT_IN_INDEX));
+    hbp_u8 changed = (hbp_u8)(((rt->in ^ levels) & HRT_IN_HALLS) | (lines & HRT_INDEX_READ));
     hbp_u8 i;
     if (changed == 0u) {
         return;
     }
-    rt->in = (hbp_u8)(levels | (lines & HRT_IN_INDEX)); /* INDEX reads 1 during its own edge only */
+    rt->in = (hbp_u8)(levels | (lines & HRT_INDEX_READ)); /* INDEX reads 1 during its own edge only */
     rt->changed = changed;
     for (i = 0u; i < d->n_edges; i++) {
         if (polarity_matches(d->edges[i].polarity, d->edges[i].lines, changed, rt->in)) {
@@ -401,7 +401,7 @@ void hrt_span_begin(hrt_t *rt, hbp_u8 inputs, hbp_u8 n_edges, hbp_u8 edges_have_
         hall = (hbp_u8)(inputs & HRT_IN_HALLS);
         start = 1u;
     }
-    if ((inputs & HRT_IN_INDEX) != 0u && !edges_have_index) {
+    if ((inputs & HRT_INDEX_READ) != 0u && !edges_have_index) {
         hall = (hbp_u8)(hall | HRT_IN_INDEX);
         start = 1u;
     }

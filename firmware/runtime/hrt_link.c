@@ -334,6 +334,9 @@ static inline void on_hello(hrt_link_t *l, const hbp_u8 *buf, hbp_u8 len, hbp_u8
 #define SENSORS_N_ADC 5u
 #define SENSORS_ADC 6u
 
+/* The encoder count of a Sensors (0 in a build without an encoder, HRT_ENCODER 0: not read). */
+#define SENSORS_ENCODER_VALUE(buf) ((uint16_t)(HRT_ENCODER ? get_u16(&(buf)[SENSORS_ENCODER]) : 0u))
+
 /* 100 ns units (the wire's edge times) in the firmware's ticks. */
 static inline uint32_t ticks_of(uint32_t t_100ns)
 {
@@ -369,7 +372,7 @@ static inline void serve_sensors(hrt_link_t *l, const hbp_u8 *buf, hbp_u8 len, h
             hrt_port_realtime(1u);
         }
         hrt_port_lock();
-        hrt_rt_levels(rt, inputs, adc, n_adc, get_u16(&buf[SENSORS_ENCODER]));
+        hrt_rt_levels(rt, inputs, adc, n_adc, SENSORS_ENCODER_VALUE(buf));
         hrt_rt_main(rt, start);
         if (n_edges == 0u) {
             hrt_rt_edge(rt, (hbp_u8)(inputs & HRT_IN_EDGE_LINES), start); /* a change without its time */
@@ -383,9 +386,9 @@ static inline void serve_sensors(hrt_link_t *l, const hbp_u8 *buf, hbp_u8 len, h
     }
 #endif
     for (i = at; i < len; i = (hbp_u8)(i + 3u)) {
-        has_index = (hbp_u8)(has_index | (buf[i + 2u] & HRT_IN_INDEX));
+        has_index = (hbp_u8)(has_index | (buf[i + 2u] & HRT_INDEX_READ));
     }
-    hrt_span_begin(rt, inputs, n_edges, has_index, adc, n_adc, get_u16(&buf[SENSORS_ENCODER]));
+    hrt_span_begin(rt, inputs, n_edges, has_index, adc, n_adc, SENSORS_ENCODER_VALUE(buf));
     for (; at < len; at = (hbp_u8)(at + 3u)) {
         uint32_t off = ticks_of(get_u16(&buf[at]));
         hrt_span_edge(rt, start + ((off < span) ? off : span - 1u), buf[at + 2u]);
