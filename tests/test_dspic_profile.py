@@ -4,7 +4,8 @@ port's Makefile (`make -n size`), build the same firmware and runtime sources fo
 pty) and for the ATmega328P in simavr: their lockstep Drives and parameter replies equal the Python
 model's, a whole bench session records what the model records, a killed host in lockstep gets the
 outputs turned off, and what the profile leaves out (real time, batches, prediction, the
-self-description beyond the HELLO) is refused as the protocol says, the host carrying on without it.
+self-description beyond the HELLO, ParamDescribe included) is refused as the protocol says, the host
+carrying on without it (the parameters described by the registered profile's model).
 """
 
 from __future__ import annotations
@@ -18,7 +19,7 @@ from pathlib import Path
 import pytest
 
 from _firmware import play, random_stream, require_file, require_tool
-from hilbench.errors import HilbenchError
+from hilbench.errors import HilbenchError, ParamError
 from hilbench.link.pty import open_pty_pair
 from hilbench.protocol import (
     MODE_LOCKSTEP,
@@ -26,7 +27,12 @@ from hilbench.protocol import (
     MODE_REALTIME,
     OUTPUT_OFF,
     PROTOCOL_VERSION,
+    RESULT_OK,
+    ErrorCode,
+    ErrorReport,
     HostHello,
+    ParamDescribe,
+    ParamInfo,
 )
 from hilbench.targets.an1017.firmware import An1017Options
 from hilbench.targets.an1017.target import An1017Target
@@ -97,8 +103,9 @@ def test_profile_sil_session_recording_identical_to_python_model(profile_sil: Pa
 
 
 def test_profile_refuses_what_it_leaves_out(profile_sil: Path) -> None:
-    """Real time and PREDICT are refused at the HELLO (BAD_REQUEST), TargetDescribe answers
-    BAD_REQUEST (the host then has no TargetInfo), the session goes on in lockstep."""
+    """Real time and PREDICT are refused at the HELLO (BAD_REQUEST); TargetDescribe and ParamDescribe
+    answer BAD_REQUEST: the host has no TargetInfo, and the registered profile's model describes the
+    parameters, with the values the firmware's ParamGet gives (after a write too)."""
     with SilTarget.open("seed", exe=profile_sil) as sil:
         t = sil.target
         for mode in (MODE_REALTIME, MODE_PREDICT):
@@ -106,7 +113,14 @@ def test_profile_refuses_what_it_leaves_out(profile_sil: Path) -> None:
                 t.hello(HostHello(0, PROTOCOL_VERSION, 50, mode, 100))
         assert t.hello(HostHello(0, PROTOCOL_VERSION, 50, MODE_LOCKSTEP, 100)).firmware_name == "AN1017"
         assert t.describe_target() is None
-        assert [t.describe(i).name for i in range(8)][:3] == ["kp", "ki", "kd"]
+        refused = t._request(ParamDescribe(t._next_seq(), 0), ParamInfo)
+        assert type(refused) is ErrorReport and refused.code == ErrorCode.BAD_REQUEST, refused
+        assert t.set_params(((4, 25),)).result == RESULT_OK
+        model = An1017Target(An1017Options(variant="seed"))
+        assert model.set_params(((4, 25),)).result == RESULT_OK
+        assert [t.describe(i)[1:] for i in range(8)] == [model.describe(i)[1:] for i in range(8)]
+        with pytest.raises(ParamError):
+            t.describe(8)
 
 
 def _profile_avr(profile: tuple[str, ...]):

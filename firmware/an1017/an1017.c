@@ -655,14 +655,14 @@ static inline void decl_stop(hrt_t *rt, uint8_t why)
 
 /* Declared parameters (ids 0..7, the same table as hilbench/targets/an1017/target.py's PARAMS). */
 static const hrt_param_decl_t params[AN1017_N_PARAMS] = {
-    {"kp", "", 0, 32767, HBP_PTYPE_Q15, HBP_ACCESS_RW},
-    {"ki", "", 0, 32767, HBP_PTYPE_Q15, HBP_ACCESS_RW},
-    {"kd", "", 0, 32767, HBP_PTYPE_Q15, HBP_ACCESS_RW},
-    {"ph_adv_on", "", 0, 1, HBP_PTYPE_BOOL, HBP_ACCESS_RW},
-    {"ph_adv_deg", HRT_DESCRIBED("deg"), 0, 60, HBP_PTYPE_INT, HBP_ACCESS_RW},
-    {"ref_ovr_on", "", 0, 1, HBP_PTYPE_BOOL, HBP_ACCESS_RW},
-    {"ref_override", "", -32767 - 1, 32767, HBP_PTYPE_Q15, HBP_ACCESS_RW},
-    {"stall_ms", HRT_DESCRIBED("ms"), 10, 30000, HBP_PTYPE_INT, HBP_ACCESS_RW},
+    {HRT_DESCRIBED("kp"), "", 0, 32767, HBP_PTYPE_Q15, HBP_ACCESS_RW},
+    {HRT_DESCRIBED("ki"), "", 0, 32767, HBP_PTYPE_Q15, HBP_ACCESS_RW},
+    {HRT_DESCRIBED("kd"), "", 0, 32767, HBP_PTYPE_Q15, HBP_ACCESS_RW},
+    {HRT_DESCRIBED("ph_adv_on"), "", 0, 1, HBP_PTYPE_BOOL, HBP_ACCESS_RW},
+    {HRT_DESCRIBED("ph_adv_deg"), HRT_DESCRIBED("deg"), 0, 60, HBP_PTYPE_INT, HBP_ACCESS_RW},
+    {HRT_DESCRIBED("ref_ovr_on"), "", 0, 1, HBP_PTYPE_BOOL, HBP_ACCESS_RW},
+    {HRT_DESCRIBED("ref_override"), "", -32767 - 1, 32767, HBP_PTYPE_Q15, HBP_ACCESS_RW},
+    {HRT_DESCRIBED("stall_ms"), HRT_DESCRIBED("ms"), 10, 30000, HBP_PTYPE_INT, HBP_ACCESS_RW},
 };
 
 /* RefSpeed, MeasuredSpeed in rpm: one Q15 step is 9 375 000 / (pole pairs * (MINPERIOD - 1) * 32768) rpm

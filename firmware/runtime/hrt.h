@@ -117,7 +117,7 @@
 #define HRT_IN_EDGE_LINES (HRT_IN_HALLS | HRT_IN_INDEX)
 /* INDEX for a firmware that reads it (its declaration's inputs), else 0: one that does not never sees an
  * INDEX pulse, and a build whose declaration is a constant in the unit (the dsPIC's) keeps no code for one. */
-#define HRT_INDEX_READ ((hbp_u8)(hrt_firmware.inputs & HRT_IN_INDEX))
+#define HRT_INDEX_READ ((unsigned)hrt_firmware.inputs & HRT_IN_INDEX)
 
 /* ---- declarations ---- */
 /* When a duty written by hrt_pwm_write takes effect (the PWM's reload rule). */

@@ -802,6 +802,7 @@ static HRT_NOINLINE void on_batch(hrt_link_t *l, const hbp_u8 *buf, hbp_u8 len, 
 }
 #endif
 
+#if HRT_DESCRIBE
 /* ParamDescribe, ParamGet, TelemetryDescribe: one id byte. */
 static inline void on_describe(hrt_link_t *l, hbp_u8 id, hbp_u8 seq)
 {
@@ -820,13 +821,10 @@ static inline void on_describe(hrt_link_t *l, hbp_u8 id, hbp_u8 seq)
     w32(l, (uint32_t)p->max_value);
     w32(l, (uint32_t)d->param_get(l->rt, id));
     wname(l, p->name, HBP_MAX_NAME, 1u);
-#if HRT_DESCRIBE
     wname(l, p->unit, HBP_MAX_UNIT, 0u);
-#endif
     finish(l);
 }
 
-#if HRT_DESCRIBE
 static HRT_NOINLINE void on_telemetry(hrt_link_t *l, hbp_u8 index, hbp_u8 seq)
 {
     const hrt_firmware_t *d = &hrt_firmware;
@@ -948,17 +946,22 @@ void hrt_link_handle(hrt_link_t *l, const hbp_u8 *frame, hbp_u8 len)
         on_set(l, frame, len, seq);
         return;
     }
+    /* (a build without the self-description, HRT_DESCRIBE 0, serves no ParamDescribe, TelemetryDescribe or
+     * TargetDescribe: they are refused as the target -> host messages are) */
     if (group == (HBP_MSG_PARAM_GET >> 4)) {
-        want = (hbp_u8)((type == HBP_MSG_PARAM_DESCRIBE || type == HBP_MSG_PARAM_GET) ? 3u : 0u);
+        want = (hbp_u8)((type == HBP_MSG_PARAM_GET || (HRT_DESCRIBE && type == HBP_MSG_PARAM_DESCRIBE)) ? 3u : 0u);
     } else if (group == (HBP_MSG_START >> 4)) {
         want = (hbp_u8)((type == HBP_MSG_START || type == HBP_MSG_STOP) ? 2u : 0u);
     } else if (group == (HBP_MSG_STATUS_REQUEST >> 4)) {
         want = (hbp_u8)((type == HBP_MSG_STATUS_REQUEST) ? 2u : 0u);
-    } else if (group == (HBP_MSG_TELEMETRY_DESCRIBE >> 4)) {
+    }
+#if HRT_DESCRIBE
+    else if (group == (HBP_MSG_TELEMETRY_DESCRIBE >> 4)) {
         want = (hbp_u8)((type == HBP_MSG_TELEMETRY_DESCRIBE) ? 3u : (type == HBP_MSG_TARGET_DESCRIBE) ? 2u : 0u);
     }
+#endif
     if (want == 0u) {
-        send_error(l, seq, HBP_ERROR_BAD_REQUEST, 0u); /* a target -> host message */
+        send_error(l, seq, HBP_ERROR_BAD_REQUEST, 0u); /* a target -> host message, or one not served */
         return;
     }
     if (len != want) {
@@ -966,11 +969,13 @@ void hrt_link_handle(hrt_link_t *l, const hbp_u8 *frame, hbp_u8 len)
         return;
     }
     if (group == (HBP_MSG_PARAM_GET >> 4)) {
+#if HRT_DESCRIBE
         if (type == HBP_MSG_PARAM_DESCRIBE) {
             on_describe(l, frame[2], seq);
-        } else {
-            on_get(l, frame[2], seq);
+            return;
         }
+#endif
+        on_get(l, frame[2], seq);
     } else if (group == (HBP_MSG_START >> 4)) {
         hrt_port_lock();
         if (type == HBP_MSG_START) {
@@ -984,17 +989,14 @@ void hrt_link_handle(hrt_link_t *l, const hbp_u8 *frame, hbp_u8 len)
         hrt_port_unlock();
     } else if (group == (HBP_MSG_STATUS_REQUEST >> 4)) {
         on_status(l, seq);
-    } else { /* TelemetryDescribe, TargetDescribe */
-#if HRT_DESCRIBE
-        if (type == HBP_MSG_TELEMETRY_DESCRIBE) {
-            on_telemetry(l, frame[2], seq);
-        } else {
-            on_target_describe(l, seq);
-        }
-#else
-        send_error(l, seq, HBP_ERROR_BAD_REQUEST, type); /* a request this build does not serve */
-#endif
     }
+#if HRT_DESCRIBE
+    else if (type == HBP_MSG_TELEMETRY_DESCRIBE) {
+        on_telemetry(l, frame[2], seq);
+    } else {
+        on_target_describe(l, seq);
+    }
+#endif
 }
 
 void hrt_link_watchdog(hrt_link_t *l)
