@@ -655,14 +655,14 @@ static inline void decl_stop(hrt_t *rt, uint8_t why)
 
 /* Declared parameters (ids 0..7, the same table as hilbench/targets/an1017/target.py's PARAMS). */
 static const hrt_param_decl_t params[AN1017_N_PARAMS] = {
-    {HRT_DESCRIBED("kp"), "", 0, 32767, HBP_PTYPE_Q15, HBP_ACCESS_RW},
-    {HRT_DESCRIBED("ki"), "", 0, 32767, HBP_PTYPE_Q15, HBP_ACCESS_RW},
-    {HRT_DESCRIBED("kd"), "", 0, 32767, HBP_PTYPE_Q15, HBP_ACCESS_RW},
-    {HRT_DESCRIBED("ph_adv_on"), "", 0, 1, HBP_PTYPE_BOOL, HBP_ACCESS_RW},
-    {HRT_DESCRIBED("ph_adv_deg"), HRT_DESCRIBED("deg"), 0, 60, HBP_PTYPE_INT, HBP_ACCESS_RW},
-    {HRT_DESCRIBED("ref_ovr_on"), "", 0, 1, HBP_PTYPE_BOOL, HBP_ACCESS_RW},
-    {HRT_DESCRIBED("ref_override"), "", -32767 - 1, 32767, HBP_PTYPE_Q15, HBP_ACCESS_RW},
-    {HRT_DESCRIBED("stall_ms"), HRT_DESCRIBED("ms"), 10, 30000, HBP_PTYPE_INT, HBP_ACCESS_RW},
+    HRT_PARAM("kp", "", 0, 32767, HBP_PTYPE_Q15, HBP_ACCESS_RW),
+    HRT_PARAM("ki", "", 0, 32767, HBP_PTYPE_Q15, HBP_ACCESS_RW),
+    HRT_PARAM("kd", "", 0, 32767, HBP_PTYPE_Q15, HBP_ACCESS_RW),
+    HRT_PARAM("ph_adv_on", "", 0, 1, HBP_PTYPE_BOOL, HBP_ACCESS_RW),
+    HRT_PARAM("ph_adv_deg", "deg", 0, 60, HBP_PTYPE_INT, HBP_ACCESS_RW),
+    HRT_PARAM("ref_ovr_on", "", 0, 1, HBP_PTYPE_BOOL, HBP_ACCESS_RW),
+    HRT_PARAM("ref_override", "", -32767 - 1, 32767, HBP_PTYPE_Q15, HBP_ACCESS_RW),
+    HRT_PARAM("stall_ms", "ms", 10, 30000, HBP_PTYPE_INT, HBP_ACCESS_RW),
 };
 
 /* RefSpeed, MeasuredSpeed in rpm: one Q15 step is 9 375 000 / (pole pairs * (MINPERIOD - 1) * 32768) rpm
@@ -670,9 +670,9 @@ static const hrt_param_decl_t params[AN1017_N_PARAMS] = {
 #define AN1017_RPM_NUM ((int32_t)AN1017_PERIOD_X_RPM)
 #define AN1017_RPM_DEN ((int32_t)(AN1017_POLE_PAIRS * (AN1017_MINPERIOD_RAW - 1UL) * 32768UL))
 static const hrt_telemetry_decl_t telemetry[3] = {
-    {HRT_DESCRIBED("ref_speed"), HRT_DESCRIBED("rpm"), AN1017_RPM_NUM, AN1017_RPM_DEN, HBP_TELEMETRY_REF_SPEED, HBP_PTYPE_Q15},
-    {HRT_DESCRIBED("measured_speed"), HRT_DESCRIBED("rpm"), AN1017_RPM_NUM, AN1017_RPM_DEN, HBP_TELEMETRY_MEASURED_SPEED, HBP_PTYPE_Q15},
-    {HRT_DESCRIBED("control_output"), HRT_DESCRIBED("q15"), 1, 1, HBP_TELEMETRY_CONTROL_OUTPUT, HBP_PTYPE_Q15},
+    HRT_TELEMETRY("ref_speed", "rpm", AN1017_RPM_NUM, AN1017_RPM_DEN, HBP_TELEMETRY_REF_SPEED, HBP_PTYPE_Q15),
+    HRT_TELEMETRY("measured_speed", "rpm", AN1017_RPM_NUM, AN1017_RPM_DEN, HBP_TELEMETRY_MEASURED_SPEED, HBP_PTYPE_Q15),
+    HRT_TELEMETRY("control_output", "q15", 1, 1, HBP_TELEMETRY_CONTROL_OUTPUT, HBP_PTYPE_Q15),
 };
 
 /* AN2 pot, AN1 bus current, AN0 bus voltage: only the pot is used */

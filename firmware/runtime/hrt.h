@@ -92,9 +92,9 @@
 #else
 #define HRT_HW_TIMERS 0
 #endif
-/* The self-description beyond the HELLO (hrt_link.h explains it): 1 by default. A declaration writes the
- * texts only a description sends (telemetry names and units, parameter units) as HRT_DESCRIBED("rpm"),
- * so a build without it keeps none of them in its flash (it sends empty units). */
+/* The self-description beyond the HELLO (hrt_link.h explains it): 1 by default. A build without it keeps
+ * none of the texts and scales only a description sends (parameter and telemetry names, units, types:
+ * HRT_PARAM, HRT_TELEMETRY; HRT_DESCRIBED("rpm") for a text elsewhere). */
 #ifndef HRT_DESCRIBE
 #define HRT_DESCRIBE 1
 #endif
@@ -158,27 +158,48 @@ typedef struct {
     hbp_u8 polarity; /* HRT_EDGE_* */
 } hrt_edge_decl_t;
 
-/* A parameter: the wire's ParamInfo. Values are int32_t; ptype says how to read them. */
+/* A parameter: the wire's ParamInfo. Values are int32_t; ptype says how to read them. A build without
+ * the self-description (HRT_DESCRIBE 0) keeps only what a checked write reads: the range and the access.
+ * A declaration that is built both ways writes its entries with HRT_PARAM (the fields in this order). */
 typedef struct {
+#if HRT_DESCRIBE
     const char *name; /* <= HBP_MAX_NAME printable ASCII */
     const char *unit; /* <= HRT_MAX_UNIT printable ASCII ("" = none) */
+#endif
     int32_t min_value;
     int32_t max_value;
+#if HRT_DESCRIBE
     hbp_u8 ptype;    /* HBP_PTYPE_* */
+#endif
     hbp_u8 access;   /* HBP_ACCESS_* */
 } hrt_param_decl_t;
+#if HRT_DESCRIBE
+#define HRT_PARAM(name, unit, min, max, ptype, access) {name, unit, min, max, ptype, access}
+#else
+#define HRT_PARAM(name, unit, min, max, ptype, access) {min, max, access}
+#endif
 
 #define HRT_MAX_UNIT 8u
 
-/* A telemetry slot of Drive: value (int16_t) x scale_num / scale_den is the quantity in `unit`. */
+/* A telemetry slot of Drive: value (int16_t) x scale_num / scale_den is the quantity in `unit`. A build
+ * without the self-description keeps only the id (TargetHello's); HRT_TELEMETRY writes an entry both ways. */
 typedef struct {
+#if HRT_DESCRIBE
     const char *name; /* <= HBP_MAX_NAME printable ASCII, a column name: [a-z0-9_] */
     const char *unit;
     int32_t scale_num;
     int32_t scale_den; /* > 0 */
+#endif
     hbp_u8 id;       /* HBP_TELEMETRY_*, or a target-defined id 0x80..0xFE */
+#if HRT_DESCRIBE
     hbp_u8 ptype;    /* HBP_PTYPE_Q15 / INT / BOOL: how the raw value reads */
+#endif
 } hrt_telemetry_decl_t;
+#if HRT_DESCRIBE
+#define HRT_TELEMETRY(name, unit, num, den, id, ptype) {name, unit, num, den, id, ptype}
+#else
+#define HRT_TELEMETRY(name, unit, num, den, id, ptype) {id}
+#endif
 
 /* A checked parameter write (at most HBP_MAX_PARAM_PAIRS distinct ids). */
 typedef struct {
