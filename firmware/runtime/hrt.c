@@ -120,34 +120,6 @@ void hrt_pwm_preset(hrt_t *rt, uint16_t a, uint16_t b, uint16_t c)
     rt->duty_active[2] = c;
 }
 
-void hrt_timer_start(hrt_t *rt, hbp_u8 id, uint32_t first_ticks)
-{
-    hbp_u8 bit = (hbp_u8)(1u << id);
-    if (first_ticks == 0u) {
-        first_ticks = 1u;
-    }
-    rt->timer_due[id] = rt->now + first_ticks;
-    rt->timers_on = (hbp_u8)(rt->timers_on | bit);
-#if HRT_HW_TIMERS
-    rt->timers_hw = (hbp_u8)(rt->timers_hw & (hbp_u8)~bit);
-    if ((rt->flags & HRT_F_HW) != 0u && hrt_port_timer(id, 1u, first_ticks)) {
-        rt->timers_hw = (hbp_u8)(rt->timers_hw | bit);
-    }
-#endif
-}
-
-void hrt_timer_stop(hrt_t *rt, hbp_u8 id)
-{
-    hbp_u8 bit = (hbp_u8)(1u << id);
-#if HRT_HW_TIMERS
-    if ((rt->timers_hw & bit) != 0u) {
-        (void)hrt_port_timer(id, 0u, 0u);
-    }
-    rt->timers_hw = (hbp_u8)(rt->timers_hw & (hbp_u8)~bit);
-#endif
-    rt->timers_on = (hbp_u8)(rt->timers_on & (hbp_u8)~bit);
-}
-
 hbp_u8 hrt_attach_interrupt(hrt_t *rt, hbp_u8 lines, hbp_u8 polarity, hrt_body_fn body)
 {
 #if HRT_MAX_ATTACH > 0

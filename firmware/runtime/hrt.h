@@ -420,8 +420,35 @@ static inline uint16_t *hrt_duty_registers(hrt_t *rt) /* the three registers, to
 }
 uint16_t hrt_duty_active(const hrt_t *rt, hbp_u8 phase); /* at the outputs now */
 /* Start a declared timer: its first expiry first_ticks from now (>= 1), then every period_ticks. */
-void hrt_timer_start(hrt_t *rt, hbp_u8 id, uint32_t first_ticks);
-void hrt_timer_stop(hrt_t *rt, hbp_u8 id);
+/* (inline: a firmware starts and stops its timers with constant ids and times, which then fold) */
+static inline void hrt_timer_start(hrt_t *rt, hbp_u8 id, uint32_t first_ticks)
+{
+    hbp_u8 bit = (hbp_u8)(1u << id);
+    if (first_ticks == 0u) {
+        first_ticks = 1u;
+    }
+    rt->timer_due[id] = rt->now + first_ticks;
+    rt->timers_on = (hbp_u8)(rt->timers_on | bit);
+#if HRT_HW_TIMERS
+    rt->timers_hw = (hbp_u8)(rt->timers_hw & (hbp_u8)~bit);
+    if ((rt->flags & HRT_F_HW) != 0u && hrt_port_timer(id, 1u, first_ticks)) {
+        rt->timers_hw = (hbp_u8)(rt->timers_hw | bit);
+    }
+#endif
+}
+
+static inline void hrt_timer_stop(hrt_t *rt, hbp_u8 id)
+{
+    hbp_u8 bit = (hbp_u8)(1u << id);
+#if HRT_HW_TIMERS
+    if ((rt->timers_hw & bit) != 0u) {
+        (void)hrt_port_timer(id, 0u, 0u);
+    }
+    rt->timers_hw = (hbp_u8)(rt->timers_hw & (hbp_u8)~bit);
+#endif
+    rt->timers_on = (hbp_u8)(rt->timers_on & (hbp_u8)~bit);
+}
+
 static inline hbp_u8 hrt_timer_running(const hrt_t *rt, hbp_u8 id)
 {
     return (hbp_u8)(((unsigned)rt->timers_on >> id) & 1u);

@@ -105,7 +105,7 @@ static void w16(hrt_link_t *l, uint16_t v)
     w8(l, (hbp_u8)(v >> 8));
 }
 
-static void w32(hrt_link_t *l, uint32_t v)
+static inline void w32(hrt_link_t *l, uint32_t v)
 {
     w16(l, (uint16_t)(v & 0xFFFFu));
     w16(l, (uint16_t)(v >> 16));
