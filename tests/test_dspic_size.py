@@ -218,7 +218,7 @@ def test_host_only_code_is_not_kept() -> None:
     sources = [str(PORT / "main.c"), str(FIRMWARE_DIR / "an1017.c"), *(str(s) for s in RUNTIME_SOURCES)]
     with tempfile.TemporaryDirectory() as tmp:
         kept = est.kept(est.compile_objects(list(DEFS), sources, "-O1", Path(tmp)))
-    assert ".text.on_sensors" in kept.sections and ".text.an1017_isr_timer1" in kept.sections
+    assert ".text.hrt_link_handle" in kept.sections and ".text.an1017_isr_timer1" in kept.sections
     host_side = re.compile(r"\.text\.hbp_(unpack_(target_hello|drive|param_info)|pack_sensors)")
     kept_host_code = [s for s in kept.sections if host_side.match(s)]
     assert not kept_host_code, kept_host_code

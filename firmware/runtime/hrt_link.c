@@ -11,7 +11,7 @@
 /* The rarest requests (target and telemetry descriptions, Status, batches, prediction) keep their
  * locals in their own frames, off the lockstep path's stack (GCC and XC16; other compilers may inline
  * them). The handshake's and the parameters' are inline: the dsPIC30F2010's flash needed the ~85 words
- * more than its RAM the ~20 bytes (tests/test_firmware_dspic.py: 458 of 512 bytes). */
+ * more than its RAM the ~20 bytes (tests/test_firmware_dspic.py: 456 of 512 bytes). */
 #if defined(__GNUC__)
 #define HRT_NOINLINE __attribute__((noinline))
 #else

@@ -36,10 +36,11 @@
 #endif
 
 
-/* The self-description beyond the HELLO (TargetDescribe, TelemetryDescribe, ParamInfo's units).
- * 1 by default; a chip whose flash cannot spare the ~450 bytes (the dsPIC30F2010's AN1017 build)
- * may set 0 for hrt_link.c alone: it then answers those requests with ErrorReport(BAD_REQUEST) and
- * sends empty units, and the host serves it from its profile. */
+/* The self-description beyond the HELLO (TargetDescribe, TelemetryDescribe, ParamDescribe). 1 by
+ * default; a chip whose flash cannot spare it (the dsPIC30F2010's AN1017 build) sets 0 on its command
+ * line (every file: the declaration's tables keep fewer fields, hrt.h): it then answers those requests
+ * with ErrorReport(BAD_REQUEST), and a host that knows the firmware by its HELLO's name serves them
+ * from its registered profile (hilbench's RemoteTarget.describe: the model's declaration). */
 /* (HRT_DESCRIBE's default is in hrt.h: a declaration's describe-only texts follow it, HRT_DESCRIBED) */
 /* Real time on a port without its own timers: each Sensors advances the firmware by the time that
  * passed, at most this many agreed periods (a firmware too slow for real time on its chip falls
