@@ -24,8 +24,9 @@
  *   event); the pot value comes from Sensors unless HIL_LOCAL_POT is defined, then from ADCBUF0.
  * - S2 (RC14, active low): pressing the board's S2 acts like the Sensors S2 bit.
  * Lockstep: Timer1/Timer3 stay off (the firmware's timers are gated); each Sensors runs one period
- * of ISR bodies at their virtual times (the runtime's hrt_span_*). Real time (this port is built
- * with HRT_PORT_HW = 1): the PWM and Timer1 interrupts run the ISR bodies on the chip's own clock
+ * of ISR bodies at their virtual times (the runtime's hrt_span_*). Real time (make PROFILE=full, the
+ * 30F4012's default; the 30F2010's lockstep profile, HRT_REALTIME=0, keeps none of it; this port is
+ * built with HRT_PORT_HW = 1): the PWM and Timer1 interrupts run the ISR bodies on the chip's own clock
  * through the runtime's real-time glue (hrt_rt_pwm, hrt_rt_timer; the end of ChargeBootstraps is a
  * runtime timer served at PWM-period resolution), and each Sensors updates the inputs they read
  * (a hall edge with its capture time back-dated by the frame's edge time).
