@@ -14,12 +14,9 @@ RAM figure = static + a computed stack bound:
   an upper bound), with the dsPIC's larger costs added: +2 bytes per
   call (its return address is 4 bytes, the AVR's 2) and +24 bytes per interrupt level (PC, SR and
   IPL pushed by the hardware: 4; W0-W7 saved by the compiler for an ISR that calls functions: 16;
-  RCOUNT and one spare word: 4). The runtime serves the timers the port does not run in hardware
-  from the PWM interrupt; Timer1 is the port's, so its body is not counted there. On main's stack
-  sits one ISR: PWM, Timer1, Timer2, FLTA and
-  UART1 RX share priority 4, so they never nest. In lockstep PWM and Timer1 interrupts are off
-  (the firmware's timers are gated); in real time Sensors frames update the inputs instead of
-  running spans (the ISRs run the firmware): the bound is the larger of the two modes.
+  RCOUNT and one spare word: 4). The 30F2010's build is the lockstep profile (docs/board.md "Does
+  it fit"): no real time, so no PWM, Timer1 or Timer2 interrupt; on main's stack sits one ISR (UART1
+  RX and FLTA share priority 4, so they never nest).
 """
 
 from __future__ import annotations
@@ -36,8 +33,17 @@ from hilbench.targets.sil import FIRMWARE_DIR, PROTOCOL_DIR, RUNTIME_DIR, RUNTIM
 
 PORT = FIRMWARE_DIR / "ports" / "dspic30f2010"
 SOURCES = (PORT / "main.c", FIRMWARE_DIR / "an1017.c", *RUNTIME_SOURCES)
-DEFS = ("-DHBP_MAX_ADC=3u", "-DHBP_MAX_TELEMETRY=3u", "-DHBP_MAX_EDGES=3u", "-DHBP_MAX_BATCH=17u", "-DHRT_PORT_HW=1", "-DHRT_DESCRIBE=0", "-DHRT_PREDICT_BYTES=0u", "-DHRT_SPECULATE=0", f"-I{PORT / 'hostcheck'}",
-        f"-I{FIRMWARE_DIR}", f"-I{RUNTIME_DIR}", f"-I{PROTOCOL_DIR}")
+#: the Makefile's defines of every build of the port, and its include folders
+BASE_DEFS = ("-DHBP_MAX_ADC=3u", "-DHBP_MAX_TELEMETRY=3u", "-DHBP_MAX_EDGES=3u", "-DHBP_MAX_BATCH=17u", "-DHRT_PORT_HW=1",
+             "-DHRT_DESCRIBE=0", "-DHRT_PREDICT_BYTES=0u", "-DHRT_SPECULATE=0")
+INCLUDES = (f"-I{PORT / 'hostcheck'}", f"-I{FIRMWARE_DIR}", f"-I{RUNTIME_DIR}", f"-I{PROTOCOL_DIR}")
+#: the 30F2010's build: its board profile (PROFILE=lockstep, the Makefile's default for the chip;
+#: docs/board.md "Does it fit"), lockstep sessions only
+LOCKSTEP_PROFILE = ("-DHRT_REALTIME=0",)
+DEFS = (*BASE_DEFS, *LOCKSTEP_PROFILE, *INCLUDES)
+#: PROFILE=full (the 30F4012's default): real time too
+FULL_DEFS = (*BASE_DEFS, *INCLUDES)
+MOTOR = ("-DHIL_LOCAL_HALLS", "-DHIL_DRIVE_BRIDGE", "-DHRT_MONITOR=1")
 #: the firmware's functions the runtime calls through its declaration (an1017_firmware), by the
 #: function that holds the indirect call; any other holder is the scheduler, which calls the bodies
 CALLBACKS = {
@@ -58,20 +64,21 @@ CALLBACKS = {
     "put_crc": {"hrt_port_send"},
 }
 DSPIC30F2010_RAM_BYTES = 512
-ISRS = ("_PWMInterrupt", "_T1Interrupt", "_T2Interrupt", "_FLTAInterrupt", "_U1RXInterrupt")
+#: the 30F2010's (lockstep profile) interrupt handlers; PROFILE=full adds PWM, Timer1 and Timer2
+ISRS = ("_FLTAInterrupt", "_U1RXInterrupt")
 DSPIC_EXTRA_PER_CALL = 2
 DSPIC_ISR_CONTEXT = 24
-LOCKSTEP_ISRS = ("_T2Interrupt", "_FLTAInterrupt", "_U1RXInterrupt")
+LOCKSTEP_ISRS = ISRS
 MARGIN_BYTES = 32
 
 
-@pytest.mark.parametrize("options", [(), ("-DHIL_LOCAL_POT",),
-                                     ("-DAN1017_VARIANT=AN1017_VARIANT_V11",),
-                                     ("-DHIL_LOCAL_HALLS", "-DHIL_DRIVE_BRIDGE", "-DHRT_MONITOR=1")],
-                         ids=["default", "options", "v11", "motor"])
+@pytest.mark.parametrize("options", [DEFS, (*FULL_DEFS, "-DHIL_LOCAL_POT"),
+                                     (*DEFS, "-DAN1017_VARIANT=AN1017_VARIANT_V11"), FULL_DEFS,
+                                     (*BASE_DEFS, *INCLUDES, *MOTOR)],
+                         ids=["default", "options", "v11", "full", "motor"])
 def test_dspic_port_compiles_warning_free(gcc: str, tmp_path: Path, options: tuple[str, ...]) -> None:
     for source in (*SOURCES, PORT / "an1017_dspic30f2010.c"):  # each source, and the Makefile's one unit of them
-        result = subprocess.run([gcc, *STRICT_FLAGS, "-Os", *DEFS, *options, "-c", str(source), "-o",
+        result = subprocess.run([gcc, *STRICT_FLAGS, "-Os", *options, "-c", str(source), "-o",
                                  str(tmp_path / (source.stem + ".o"))], capture_output=True, text=True, timeout=120)
         assert result.returncode == 0, result.stderr
 
@@ -85,6 +92,24 @@ def test_dspic_port_refuses_to_drive_the_bridge_from_simulated_halls(gcc: str, t
     done = subprocess.run([gcc, *STRICT_FLAGS, "-Os", *DEFS, *options, "-c", str(PORT / "main.c"), "-o",
                            str(tmp_path / "main.o")], capture_output=True, text=True, timeout=120)
     assert done.returncode != 0 and "HIL_DRIVE_BRIDGE needs HIL_LOCAL_HALLS" in done.stderr, done.stderr
+
+
+def test_dspic_defines_are_the_makefiles() -> None:
+    """DEFS and FULL_DEFS are what `make size` compiles with (PROFILE=lockstep and PROFILE=full)."""
+    require_tool("make", "the dsPIC Makefile (apt: make)")
+    for make_args, defs in (((), DEFS), (("PROFILE=full",), FULL_DEFS)):
+        done = subprocess.run(["make", "-s", "-n", "--no-print-directory", "-C", str(PORT), "size", *make_args],
+                              capture_output=True, text=True, timeout=60, check=True)
+        makefile = [f for f in done.stdout.split() if f.startswith("-D") and not f.startswith("-DAN1017_VARIANT")]
+        assert makefile == [f for f in defs if f.startswith("-D")], (make_args, makefile)
+
+
+@pytest.mark.parametrize("options", [(), ("-DHIL_DRIVE_BRIDGE",)], ids=["pot", "pot+bridge"])
+def test_dspic_lockstep_profile_refuses_the_local_pot(gcc: str, tmp_path: Path, options: tuple[str, ...]) -> None:
+    """HIL_LOCAL_POT reads the pot in the real-time PWM interrupt, which the lockstep profile has not."""
+    done = subprocess.run([gcc, *STRICT_FLAGS, "-Os", *DEFS, "-DHIL_LOCAL_POT", *options, "-c", str(PORT / "main.c"),
+                           "-o", str(tmp_path / "main.o")], capture_output=True, text=True, timeout=120)
+    assert done.returncode != 0 and "HIL_LOCAL_POT reads the pot" in done.stderr, done.stderr
 
 
 def static_ram_bytes(gcc: str, tmp_path: Path) -> dict[str, int]:
@@ -151,18 +176,14 @@ def stack_bound_bytes(tmp_path: Path) -> tuple[int, dict[str, tuple[int, list[st
         return frames.get(fn, 0) + best, [fn, *path]
 
     paths = {fn: deepest(fn) for fn in ("main", *ISRS)}
-    # the port runs Timer1 in hardware (hrt_port_timer says so), so the PWM interrupt's soft timers
-    # never include its body: that one runs from _T1Interrupt
-    paths["_PWMInterrupt"] = deepest("_PWMInterrupt", skip=("body_timer1",))
-    paths["main (real time)"] = deepest("main", skip=("hrt_span_edge", "hrt_span_end", "hrt_span_begin"))
+    # the lockstep profile has no real time: main's frame path and one ISR's (they never nest)
     lockstep = paths["main"][0] + max(paths[f][0] for f in LOCKSTEP_ISRS) + DSPIC_ISR_CONTEXT
-    realtime = paths["main (real time)"][0] + max(paths[f][0] for f in ISRS) + DSPIC_ISR_CONTEXT
-    return max(lockstep, realtime), paths
+    return lockstep, paths
 
 
 def test_dspic_port_ram_fits_512_bytes(gcc: str, tmp_path: Path, capsys) -> None:
     sizes = static_ram_bytes(gcc, tmp_path)
-    assert set(sizes) == {"fw", "host_link", "tcy_high", "realtime_on", "s2_changed_at", "s2_raw_was"}, sizes
+    assert set(sizes) == {"fw", "host_link"}, sizes  # the lockstep profile: no clock overflows, no board S2
     static = sum(sizes.values())
     stack, paths = stack_bound_bytes(tmp_path)
     assert "hrt_link_handle" in paths["main"][1], paths["main"]  # the analysis found the frame path
@@ -174,7 +195,7 @@ def test_dspic_port_ram_fits_512_bytes(gcc: str, tmp_path: Path, capsys) -> None
 
 
 def test_dspic_clock_counts_a_pending_timer2_overflow(gcc: str, tmp_path: Path) -> None:
-    """Issue 24: hrt_port_now() inside a priority-4 ISR, where the Timer2 overflow interrupt cannot
+    """Issue 24 (PROFILE=full, where Timer2 also times the motor build's hall captures): hrt_port_now() inside a priority-4 ISR, where the Timer2 overflow interrupt cannot
     run yet: TMR2 has wrapped to a low value and T2IF is set, so the clock is one overflow later,
     not 65 536 Tcy earlier (which could trip the watchdog). A high TMR2 read with T2IF set was read
     before the overflow and stays as it is."""
@@ -193,7 +214,7 @@ int main(void) {
 }
 ''')
     exe = tmp_path / "clock"
-    done = subprocess.run([gcc, "-std=c99", *DEFS, str(harness), *(str(s) for s in SOURCES[1:]),
+    done = subprocess.run([gcc, "-std=c99", *FULL_DEFS, str(harness), *(str(s) for s in SOURCES[1:]),
                            str(PORT / "hostcheck" / "sfr.c"), "-o", str(exe)], capture_output=True, text=True,
                           timeout=120)
     assert done.returncode == 0, done.stderr
@@ -201,8 +222,30 @@ int main(void) {
     assert [int(v) for v in lines] == [7 * 65536 + 0xFFF0, 8 * 65536 + 5, 7 * 65536 + 0xFFFE]
 
 
+def test_dspic_lockstep_profile_clock_is_timer3_timer2(gcc: str, tmp_path: Path) -> None:
+    """The lockstep profile's clock: Timer3:Timer2 as one 32-bit timer, TMR2 read first (it latches TMR3
+    into TMR3HLD), no overflow interrupt."""
+    harness = tmp_path / "clock32.c"
+    harness.write_text(f'#define main port_main\n#include "{PORT / "main.c"}"\n#undef main\n' r'''
+#include <stdio.h>
+int main(void) {
+    init_timers();
+    TMR2 = 0xFFF0u; TMR3HLD = 0x0007u;
+    printf("%lu %u %u %u\n", (unsigned long)hrt_port_now(), (unsigned)T2CON, (unsigned)PR2, (unsigned)PR3);
+    return 0;
+}
+''')
+    exe = tmp_path / "clock32"
+    done = subprocess.run([gcc, "-std=c99", *DEFS, str(harness), *(str(s) for s in SOURCES[1:]),
+                           str(PORT / "hostcheck" / "sfr.c"), "-o", str(exe)], capture_output=True, text=True,
+                          timeout=120)
+    assert done.returncode == 0, done.stderr
+    out = subprocess.run([str(exe)], capture_output=True, text=True, timeout=10, check=True).stdout.split()
+    assert [int(v) for v in out] == [7 * 65536 + 0xFFF0, 0x8008, 0xFFFF, 0xFFFF]
+
+
 def test_dspic_board_s2_is_debounced(gcc: str, tmp_path: Path) -> None:
-    """Issue 24: the board's S2 contact bounces; a level counts once it held 20 ms (400 000 Tcy), so a
+    """Issue 24 (PROFILE=full; the lockstep profile's S2 is the bench's, the Sensors bit): the board's S2 contact bounces; a level counts once it held 20 ms (400 000 Tcy), so a
     press with bounces on both edges toggles start/stop once for the press and once for the release."""
     harness = tmp_path / "s2.c"
     harness.write_text(f'#define main port_main\n#include "{PORT / "main.c"}"\n#undef main\n' r'''
@@ -224,7 +267,7 @@ int main(void) {
 }
 ''')
     exe = tmp_path / "s2"
-    done = subprocess.run([gcc, "-std=c99", *DEFS, str(harness), *(str(s) for s in SOURCES[1:]),
+    done = subprocess.run([gcc, "-std=c99", *FULL_DEFS, str(harness), *(str(s) for s in SOURCES[1:]),
                            str(PORT / "hostcheck" / "sfr.c"), "-o", str(exe)], capture_output=True, text=True,
                           timeout=120)
     assert done.returncode == 0, done.stderr

@@ -53,6 +53,8 @@ static const uint16_t sector_table[8] AN1017_ROM = {0xFFFFu, 4u, 2u, 3u, 0u, 5u,
 
 #define FW(rt) ((an1017_t *)(void *)(rt)) /* the runtime's state is the firmware's first member */
 
+/* `static inline`: a small helper, or one called once, that XC16's -O1 inlines as GCC's does (the
+ * dsPIC30F2010's 4K words, docs/board.md section 3a, measured one by one); the others stay calls. */
 /* Keep a helper out of its callers (GCC, XC16, clang): one copy in flash instead of one per call. */
 #if defined(__GNUC__)
 #define AN1017_NOINLINE __attribute__((noinline))
@@ -60,7 +62,7 @@ static const uint16_t sector_table[8] AN1017_ROM = {0xFFFFu, 4u, 2u, 3u, 0u, 5u,
 #define AN1017_NOINLINE
 #endif
 
-static uint16_t sector_of(uint8_t hall)
+static inline uint16_t sector_of(uint8_t hall)
 {
     return AN1017_ROM_U16(&sector_table[hall & 7u]);
 }
@@ -443,7 +445,7 @@ uint8_t an1017_check_gains(int32_t kp, int32_t ki, int32_t kd)
  * unsigned arithmetic (what a 16-bit chip computes without 32-bit adds and compares). Exact there:
  * kp + ki <= 65534 does not wrap, and past its test kp + ki < 32764, so kp + ki + kd <= 65530;
  * -kp - 2 kd > -32768 is kp + 2 kd < 32768, false for kd >= 16384, else kp + 2 kd <= 65533. */
-static uint8_t check_gains_in_range(uint16_t kp, uint16_t ki, uint16_t kd)
+static inline uint8_t check_gains_in_range(uint16_t kp, uint16_t ki, uint16_t kd)
 {
     uint16_t sum = (uint16_t)(kp + ki);
     if (sum >= (uint16_t)GAIN_LIMIT_Q15 || (uint16_t)(sum + kd) >= (uint16_t)GAIN_LIMIT_Q15) {
@@ -494,17 +496,17 @@ void an1017_param_set(an1017_t *s, uint8_t id, int32_t value)
 
 /* ------------------------------------------------------------------ the runtime's declaration */
 
-static uint8_t is_gain(uint8_t id)
+static inline uint8_t is_gain(uint8_t id)
 {
     return (uint8_t)(id <= AN1017_PARAM_KD);
 }
 
-static int32_t decl_param_get(hrt_t *rt, uint8_t id)
+static inline int32_t decl_param_get(hrt_t *rt, uint8_t id)
 {
     return an1017_param_value(FW(rt), id);
 }
 
-static void decl_param_set(hrt_t *rt, uint8_t id, int32_t value)
+static inline void decl_param_set(hrt_t *rt, uint8_t id, int32_t value)
 {
     an1017_param_set(FW(rt), id, value);
 }
@@ -555,7 +557,7 @@ static uint8_t decl_param_check(hrt_t *rt, const hrt_param_request_t *req, uint8
 
 /* The PWM period boundary: the ADC ISR when due (every period, or every 16th with SEVOPS 1:16),
  * then, after the duty latch, the PWM ISR. */
-static void body_pwm(hrt_t *rt)
+static inline void body_pwm(hrt_t *rt)
 {
     an1017_t *s = FW(rt);
     if (s->adc_every || (hrt_pwm_count(rt) & ADC_POSTSCALE_MASK) == 0u) {
@@ -612,7 +614,7 @@ static void body_hall_c(hrt_t *rt)
 /* main(): S2 as the main loop polls it, then FLTA (FLTACON = 0x0007, latched): outputs inactive,
  * the FLTA ISR stops with FAULT; only a stop/start restarts, not while the pin is asserted. Under
  * the bench the span's fault bit acts at its start. */
-static void body_main(hrt_t *rt)
+static inline void body_main(hrt_t *rt)
 {
     an1017_t *s = FW(rt);
     uint8_t in = hrt_inputs(rt);
@@ -622,7 +624,7 @@ static void body_main(hrt_t *rt)
     }
 }
 
-static void decl_report(hrt_t *rt, hrt_report_t *out)
+static inline void decl_report(hrt_t *rt, hrt_report_t *out)
 {
     const an1017_t *s = FW(rt);
     out->output_mode = s->output_mode;
@@ -636,12 +638,12 @@ static void decl_report(hrt_t *rt, hrt_report_t *out)
     out->telemetry[2] = s->control_output;
 }
 
-static void decl_start(hrt_t *rt)
+static inline void decl_start(hrt_t *rt)
 {
     an1017_press_start(FW(rt)); /* S2 as a command */
 }
 
-static void decl_stop(hrt_t *rt, uint8_t why)
+static inline void decl_stop(hrt_t *rt, uint8_t why)
 {
     an1017_t *s = FW(rt);
     if (why == HRT_STOP_WATCHDOG) {
@@ -653,14 +655,14 @@ static void decl_stop(hrt_t *rt, uint8_t why)
 
 /* Declared parameters (ids 0..7, the same table as hilbench/targets/an1017/target.py's PARAMS). */
 static const hrt_param_decl_t params[AN1017_N_PARAMS] = {
-    {"kp", "", 0, 32767, HBP_PTYPE_Q15, HBP_ACCESS_RW},
-    {"ki", "", 0, 32767, HBP_PTYPE_Q15, HBP_ACCESS_RW},
-    {"kd", "", 0, 32767, HBP_PTYPE_Q15, HBP_ACCESS_RW},
-    {"ph_adv_on", "", 0, 1, HBP_PTYPE_BOOL, HBP_ACCESS_RW},
-    {"ph_adv_deg", HRT_DESCRIBED("deg"), 0, 60, HBP_PTYPE_INT, HBP_ACCESS_RW},
-    {"ref_ovr_on", "", 0, 1, HBP_PTYPE_BOOL, HBP_ACCESS_RW},
-    {"ref_override", "", -32767 - 1, 32767, HBP_PTYPE_Q15, HBP_ACCESS_RW},
-    {"stall_ms", HRT_DESCRIBED("ms"), 10, 30000, HBP_PTYPE_INT, HBP_ACCESS_RW},
+    HRT_PARAM("kp", "", 0, 32767, HBP_PTYPE_Q15, HBP_ACCESS_RW),
+    HRT_PARAM("ki", "", 0, 32767, HBP_PTYPE_Q15, HBP_ACCESS_RW),
+    HRT_PARAM("kd", "", 0, 32767, HBP_PTYPE_Q15, HBP_ACCESS_RW),
+    HRT_PARAM("ph_adv_on", "", 0, 1, HBP_PTYPE_BOOL, HBP_ACCESS_RW),
+    HRT_PARAM("ph_adv_deg", "deg", 0, 60, HBP_PTYPE_INT, HBP_ACCESS_RW),
+    HRT_PARAM("ref_ovr_on", "", 0, 1, HBP_PTYPE_BOOL, HBP_ACCESS_RW),
+    HRT_PARAM("ref_override", "", -32767 - 1, 32767, HBP_PTYPE_Q15, HBP_ACCESS_RW),
+    HRT_PARAM("stall_ms", "ms", 10, 30000, HBP_PTYPE_INT, HBP_ACCESS_RW),
 };
 
 /* RefSpeed, MeasuredSpeed in rpm: one Q15 step is 9 375 000 / (pole pairs * (MINPERIOD - 1) * 32768) rpm
@@ -668,9 +670,9 @@ static const hrt_param_decl_t params[AN1017_N_PARAMS] = {
 #define AN1017_RPM_NUM ((int32_t)AN1017_PERIOD_X_RPM)
 #define AN1017_RPM_DEN ((int32_t)(AN1017_POLE_PAIRS * (AN1017_MINPERIOD_RAW - 1UL) * 32768UL))
 static const hrt_telemetry_decl_t telemetry[3] = {
-    {HRT_DESCRIBED("ref_speed"), HRT_DESCRIBED("rpm"), AN1017_RPM_NUM, AN1017_RPM_DEN, HBP_TELEMETRY_REF_SPEED, HBP_PTYPE_Q15},
-    {HRT_DESCRIBED("measured_speed"), HRT_DESCRIBED("rpm"), AN1017_RPM_NUM, AN1017_RPM_DEN, HBP_TELEMETRY_MEASURED_SPEED, HBP_PTYPE_Q15},
-    {HRT_DESCRIBED("control_output"), HRT_DESCRIBED("q15"), 1, 1, HBP_TELEMETRY_CONTROL_OUTPUT, HBP_PTYPE_Q15},
+    HRT_TELEMETRY("ref_speed", "rpm", AN1017_RPM_NUM, AN1017_RPM_DEN, HBP_TELEMETRY_REF_SPEED, HBP_PTYPE_Q15),
+    HRT_TELEMETRY("measured_speed", "rpm", AN1017_RPM_NUM, AN1017_RPM_DEN, HBP_TELEMETRY_MEASURED_SPEED, HBP_PTYPE_Q15),
+    HRT_TELEMETRY("control_output", "q15", 1, 1, HBP_TELEMETRY_CONTROL_OUTPUT, HBP_PTYPE_Q15),
 };
 
 /* AN2 pot, AN1 bus current, AN0 bus voltage: only the pot is used */

@@ -6,14 +6,17 @@
  * rt->now and less than 2^31 ticks ahead, so `due - now` (unsigned) orders them. */
 #define HRT_HALF_RANGE 0x80000000UL
 
-/* Keep a function out of its callers (GCC, XC16): a leaf's locals then never sit under a body's. */
-#if defined(__GNUC__)
-#define HRT_NOINLINE __attribute__((noinline))
+/* The timers the port runs in hardware (none unless it may: HRT_HW_TIMERS, hrt.h). */
+#if HRT_HW_TIMERS
+#define TIMERS_HW(rt) ((rt)->timers_hw)
 #else
-#define HRT_NOINLINE
+#define TIMERS_HW(rt) 0u
 #endif
 
-static void advance_to(hrt_t *rt, uint32_t t)
+/* `static inline`: a small helper, or one called once, that XC16's -O1 inlines as GCC's does (the
+ * dsPIC30F2010's 4K words, docs/board.md section 3a, measured one by one); the others stay calls. */
+
+static inline void advance_to(hrt_t *rt, uint32_t t)
 {
 #if HRT_MICROS
     if (t < rt->now) {
@@ -117,34 +120,6 @@ void hrt_pwm_preset(hrt_t *rt, uint16_t a, uint16_t b, uint16_t c)
     rt->duty_active[2] = c;
 }
 
-void hrt_timer_start(hrt_t *rt, hbp_u8 id, uint32_t first_ticks)
-{
-    hbp_u8 bit = (hbp_u8)(1u << id);
-    if (first_ticks == 0u) {
-        first_ticks = 1u;
-    }
-    rt->timer_due[id] = rt->now + first_ticks;
-    rt->timers_on = (hbp_u8)(rt->timers_on | bit);
-    rt->timers_hw = (hbp_u8)(rt->timers_hw & (hbp_u8)~bit);
-#if defined(HRT_PORT_HW) && HRT_PORT_HW
-    if ((rt->flags & HRT_F_HW) != 0u && hrt_port_timer(id, 1u, first_ticks)) {
-        rt->timers_hw = (hbp_u8)(rt->timers_hw | bit);
-    }
-#endif
-}
-
-void hrt_timer_stop(hrt_t *rt, hbp_u8 id)
-{
-    hbp_u8 bit = (hbp_u8)(1u << id);
-#if defined(HRT_PORT_HW) && HRT_PORT_HW
-    if ((rt->timers_hw & bit) != 0u) {
-        (void)hrt_port_timer(id, 0u, 0u);
-    }
-#endif
-    rt->timers_on = (hbp_u8)(rt->timers_on & (hbp_u8)~bit);
-    rt->timers_hw = (hbp_u8)(rt->timers_hw & (hbp_u8)~bit);
-}
-
 hbp_u8 hrt_attach_interrupt(hrt_t *rt, hbp_u8 lines, hbp_u8 polarity, hrt_body_fn body)
 {
 #if HRT_MAX_ATTACH > 0
@@ -179,7 +154,7 @@ hbp_u8 hrt_attach_interrupt(hrt_t *rt, hbp_u8 lines, hbp_u8 polarity, hrt_body_f
 
 /* ---------------------------------------------------------------------------- dispatching */
 
-static hbp_u8 polarity_matches(hbp_u8 polarity, hbp_u8 lines, hbp_u8 changed, hbp_u8 levels)
+static inline hbp_u8 polarity_matches(hbp_u8 polarity, hbp_u8 lines, hbp_u8 changed, hbp_u8 levels)
 {
     hbp_u8 mine = (hbp_u8)(changed & lines);
     if (mine == 0u) {
@@ -199,12 +174,12 @@ static void apply_edge(hrt_t *rt, hbp_u8 lines)
 {
     const hrt_firmware_t *d = &hrt_firmware;
     hbp_u8 levels = (hbp_u8)((rt->in & (hbp_u8)~HRT_IN_EDGE_LINES) | (lines & HRT_IN_HALLS));
-    hbp_u8 changed = (hbp_u8)(((rt->in ^ levels) & HRT_IN_HALLS) | (lines & HRT_IN_INDEX));
+    hbp_u8 changed = (hbp_u8)(((rt->in ^ levels) & HRT_IN_HALLS) | (lines & HRT_INDEX_READ));
     hbp_u8 i;
     if (changed == 0u) {
         return;
     }
-    rt->in = (hbp_u8)(levels | (lines & HRT_IN_INDEX)); /* INDEX reads 1 during its own edge only */
+    rt->in = (hbp_u8)(levels | (lines & HRT_INDEX_READ)); /* INDEX reads 1 during its own edge only */
     rt->changed = changed;
     for (i = 0u; i < d->n_edges; i++) {
         if (polarity_matches(d->edges[i].polarity, d->edges[i].lines, changed, rt->in)) {
@@ -224,7 +199,7 @@ static void apply_edge(hrt_t *rt, hbp_u8 lines)
 }
 
 /* One PWM period boundary: the latch, the PWM ISR, the boundary count. */
-static void pwm_boundary(hrt_t *rt)
+static inline void pwm_boundary(hrt_t *rt)
 {
     const hrt_firmware_t *d = &hrt_firmware;
     if (d->duty_timing == HRT_DUTY_NEXT_PERIOD) {
@@ -267,7 +242,7 @@ static hbp_u8 main_slot(const hrt_firmware_t *d)
 #endif
 }
 
-static void expire(hrt_t *rt, hbp_u8 id)
+static inline void expire(hrt_t *rt, hbp_u8 id)
 {
     const hrt_firmware_t *d = &hrt_firmware;
     uint32_t period;
@@ -298,13 +273,13 @@ static void expire(hrt_t *rt, hbp_u8 id)
 /* The first event before (bound_rel ticks from now, bound_prio): due earlier, or due at the bound
  * with a priority below bound_prio. Ties: the lower priority first; equal priorities: the PWM
  * boundary (or reload), then the timers in declared order. Returns its kind (EV_NONE: none), *id the
- * timer, *rel its time from now. A leaf, so that the bodies run on a small stack. */
-static HRT_NOINLINE hbp_u8 next_event(const hrt_t *rt, uint32_t bound_rel, hbp_u8 bound_prio, hbp_u8 *id,
+ * timer, *rel its time from now. Inline in run_until, its one caller. */
+static inline hbp_u8 next_event(const hrt_t *rt, uint32_t bound_rel, hbp_u8 bound_prio, hbp_u8 *id,
                                        uint32_t *rel_out)
 {
     const hrt_firmware_t *d = &hrt_firmware;
     hbp_u8 n_slots = (hbp_u8)(d->n_timers + (main_slot(d) != HRT_NONE ? 1u : 0u));
-    hbp_u8 usable = (hbp_u8)(rt->timers_on & (hbp_u8)~rt->timers_hw);
+    hbp_u8 usable = (hbp_u8)(rt->timers_on & (hbp_u8)~TIMERS_HW(rt));
     hbp_u8 kind = EV_NONE;
     hbp_u8 k = EV_PWM; /* the PWM boundary first (it wins ties of equal priority), then the timers */
     hbp_u8 prio = d->pwm_priority;
@@ -398,7 +373,7 @@ void hrt_span_begin(hrt_t *rt, hbp_u8 inputs, hbp_u8 n_edges, hbp_u8 edges_have_
         hall = (hbp_u8)(inputs & HRT_IN_HALLS);
         start = 1u;
     }
-    if ((inputs & HRT_IN_INDEX) != 0u && !edges_have_index) {
+    if ((inputs & HRT_INDEX_READ) != 0u && !edges_have_index) {
         hall = (hbp_u8)(hall | HRT_IN_INDEX);
         start = 1u;
     }
@@ -458,7 +433,7 @@ static void rt_soft_timers(hrt_t *rt, uint32_t now)
     }
     for (i = 0u; i < n_slots; i++) {
         hbp_u8 bit = (hbp_u8)(1u << i);
-        if ((rt->timers_on & bit) != 0u && (rt->timers_hw & bit) == 0u &&
+        if ((rt->timers_on & bit) != 0u && (TIMERS_HW(rt) & bit) == 0u &&
             now - rt->timer_due[i] < HRT_HALF_RANGE) {
             advance_to(rt, rt->timer_due[i]);
             expire(rt, i);
@@ -581,13 +556,13 @@ hbp_u8 hrt_param_write(hrt_t *rt, const hrt_param_request_t *req, hbp_u8 *param_
 
 /* -------------------------------------------------------------------------------- reports */
 
-static uint16_t clamp_duty(uint16_t v)
+static inline uint16_t clamp_duty(uint16_t v)
 {
     return (v > hrt_firmware.pwm_counts) ? hrt_firmware.pwm_counts : v;
 }
 
 /* The duty the declaration's duty_report names, of one phase. */
-static uint16_t reported_duty(const hrt_t *rt, hbp_u8 phase)
+static inline uint16_t reported_duty(const hrt_t *rt, hbp_u8 phase)
 {
     if (hrt_firmware.duty_report != HRT_REPORT_ACTIVE) {
         return rt->duty[phase]; /* the registers as written: in effect from the next latch */

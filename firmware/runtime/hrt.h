@@ -72,9 +72,29 @@
 #define HRT_REPORT_MEAN 0      /* HRT_REPORT_ACTIVE as a mean over the span (1: 3 x 64-bit accumulators) */
 #endif
 #define HRT_NONE 0xFFu
-/* The self-description beyond the HELLO (hrt_link.h explains it): 1 by default. A declaration writes the
- * texts only a description sends (telemetry names and units, parameter units) as HRT_DESCRIBED("rpm"),
- * so a build without it keeps none of them in its flash (it sends empty units). */
+/* Monitor mode (a real-motor build, hrt_link.h) and real time (HostHello mode REALTIME): the modes in
+ * which a port's own clock and interrupts drive the firmware. HRT_REALTIME is 1 by default (0 in a
+ * monitor build, which agrees to no other mode); a lockstep-only build (the dsPIC30F2010's board
+ * profile, docs/board.md "Does it fit") sets 0: the link refuses the mode and neither it nor the
+ * runtime keeps code for it. */
+#ifndef HRT_MONITOR
+#define HRT_MONITOR 0
+#endif
+#ifndef HRT_REALTIME
+#define HRT_REALTIME (!HRT_MONITOR)
+#endif
+#if HRT_MONITOR && HRT_REALTIME
+#error "a real-motor build (HRT_MONITOR) agrees to mode MONITOR only: leave HRT_REALTIME at 0"
+#endif
+/* The port runs timers in hardware (HRT_PORT_HW) in a mode this build has (hrt_port_timer). */
+#if defined(HRT_PORT_HW) && HRT_PORT_HW && (HRT_REALTIME || HRT_MONITOR)
+#define HRT_HW_TIMERS 1
+#else
+#define HRT_HW_TIMERS 0
+#endif
+/* The self-description beyond the HELLO (hrt_link.h explains it): 1 by default. A build without it keeps
+ * none of the texts and scales only a description sends (parameter and telemetry names, units, types:
+ * HRT_PARAM, HRT_TELEMETRY; HRT_DESCRIBED("rpm") for a text elsewhere). */
 #ifndef HRT_DESCRIBE
 #define HRT_DESCRIBE 1
 #endif
@@ -95,6 +115,9 @@
 #define HRT_IN_INDEX HBP_INPUT_INDEX /* an event: a pulse began at the edge's time */
 /* Lines that change at timed edges (the rest change at a span's start). */
 #define HRT_IN_EDGE_LINES (HRT_IN_HALLS | HRT_IN_INDEX)
+/* INDEX for a firmware that reads it (its declaration's inputs), else 0: one that does not never sees an
+ * INDEX pulse, and a build whose declaration is a constant in the unit (the dsPIC's) keeps no code for one. */
+#define HRT_INDEX_READ ((unsigned)hrt_firmware.inputs & HRT_IN_INDEX)
 
 /* ---- declarations ---- */
 /* When a duty written by hrt_pwm_write takes effect (the PWM's reload rule). */
@@ -135,27 +158,48 @@ typedef struct {
     hbp_u8 polarity; /* HRT_EDGE_* */
 } hrt_edge_decl_t;
 
-/* A parameter: the wire's ParamInfo. Values are int32_t; ptype says how to read them. */
+/* A parameter: the wire's ParamInfo. Values are int32_t; ptype says how to read them. A build without
+ * the self-description (HRT_DESCRIBE 0) keeps only what a checked write reads: the range and the access.
+ * A declaration that is built both ways writes its entries with HRT_PARAM (the fields in this order). */
 typedef struct {
+#if HRT_DESCRIBE
     const char *name; /* <= HBP_MAX_NAME printable ASCII */
     const char *unit; /* <= HRT_MAX_UNIT printable ASCII ("" = none) */
+#endif
     int32_t min_value;
     int32_t max_value;
+#if HRT_DESCRIBE
     hbp_u8 ptype;    /* HBP_PTYPE_* */
+#endif
     hbp_u8 access;   /* HBP_ACCESS_* */
 } hrt_param_decl_t;
+#if HRT_DESCRIBE
+#define HRT_PARAM(name, unit, min, max, ptype, access) {name, unit, min, max, ptype, access}
+#else
+#define HRT_PARAM(name, unit, min, max, ptype, access) {min, max, access}
+#endif
 
 #define HRT_MAX_UNIT 8u
 
-/* A telemetry slot of Drive: value (int16_t) x scale_num / scale_den is the quantity in `unit`. */
+/* A telemetry slot of Drive: value (int16_t) x scale_num / scale_den is the quantity in `unit`. A build
+ * without the self-description keeps only the id (TargetHello's); HRT_TELEMETRY writes an entry both ways. */
 typedef struct {
+#if HRT_DESCRIBE
     const char *name; /* <= HBP_MAX_NAME printable ASCII, a column name: [a-z0-9_] */
     const char *unit;
     int32_t scale_num;
     int32_t scale_den; /* > 0 */
+#endif
     hbp_u8 id;       /* HBP_TELEMETRY_*, or a target-defined id 0x80..0xFE */
+#if HRT_DESCRIBE
     hbp_u8 ptype;    /* HBP_PTYPE_Q15 / INT / BOOL: how the raw value reads */
+#endif
 } hrt_telemetry_decl_t;
+#if HRT_DESCRIBE
+#define HRT_TELEMETRY(name, unit, num, den, id, ptype) {name, unit, num, den, id, ptype}
+#else
+#define HRT_TELEMETRY(name, unit, num, den, id, ptype) {id}
+#endif
 
 /* A checked parameter write (at most HBP_MAX_PARAM_PAIRS distinct ids). */
 typedef struct {
@@ -317,7 +361,7 @@ void hrt_rt_levels(hrt_t *rt, hbp_u8 levels, const uint16_t *adc, hbp_u8 n_adc, 
 void hrt_rt_main(hrt_t *rt, uint32_t now);           /* from the main loop: the main body */
 void hrt_rt_enter(hrt_t *rt, hbp_u8 hw);            /* real time begins (hw: the port's interrupts run it) */
 
-#if defined(HRT_PORT_HW) && HRT_PORT_HW
+#if HRT_HW_TIMERS
 /* A port whose interrupts run the bodies in real time provides this: start (on = 1, first expiry
  * `first_ticks` from now) or stop a timer in hardware; return 1 if it does so, 0 to leave the
  * timer to the runtime (served in hrt_rt_pwm). */
@@ -376,8 +420,35 @@ static inline uint16_t *hrt_duty_registers(hrt_t *rt) /* the three registers, to
 }
 uint16_t hrt_duty_active(const hrt_t *rt, hbp_u8 phase); /* at the outputs now */
 /* Start a declared timer: its first expiry first_ticks from now (>= 1), then every period_ticks. */
-void hrt_timer_start(hrt_t *rt, hbp_u8 id, uint32_t first_ticks);
-void hrt_timer_stop(hrt_t *rt, hbp_u8 id);
+/* (inline: a firmware starts and stops its timers with constant ids and times, which then fold) */
+static inline void hrt_timer_start(hrt_t *rt, hbp_u8 id, uint32_t first_ticks)
+{
+    hbp_u8 bit = (hbp_u8)(1u << id);
+    if (first_ticks == 0u) {
+        first_ticks = 1u;
+    }
+    rt->timer_due[id] = rt->now + first_ticks;
+    rt->timers_on = (hbp_u8)(rt->timers_on | bit);
+#if HRT_HW_TIMERS
+    rt->timers_hw = (hbp_u8)(rt->timers_hw & (hbp_u8)~bit);
+    if ((rt->flags & HRT_F_HW) != 0u && hrt_port_timer(id, 1u, first_ticks)) {
+        rt->timers_hw = (hbp_u8)(rt->timers_hw | bit);
+    }
+#endif
+}
+
+static inline void hrt_timer_stop(hrt_t *rt, hbp_u8 id)
+{
+    hbp_u8 bit = (hbp_u8)(1u << id);
+#if HRT_HW_TIMERS
+    if ((rt->timers_hw & bit) != 0u) {
+        (void)hrt_port_timer(id, 0u, 0u);
+    }
+    rt->timers_hw = (hbp_u8)(rt->timers_hw & (hbp_u8)~bit);
+#endif
+    rt->timers_on = (hbp_u8)(rt->timers_on & (hbp_u8)~bit);
+}
+
 static inline hbp_u8 hrt_timer_running(const hrt_t *rt, hbp_u8 id)
 {
     return (hbp_u8)(((unsigned)rt->timers_on >> id) & 1u);

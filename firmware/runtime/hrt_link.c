@@ -6,8 +6,12 @@
  * codec generated from it. */
 #include "hrt_link.h"
 
-/* The rare requests (handshake, parameters) keep their locals in their own frames, off the lockstep
- * path's stack (GCC and XC16; other compilers may inline them). */
+/* `static inline`: a small helper, or one called once, that XC16's -O1 inlines as GCC's does (the
+ * dsPIC30F2010's 4K words, docs/board.md section 3a, measured one by one); the others stay calls. */
+/* The rarest requests (target and telemetry descriptions, Status, batches, prediction) keep their
+ * locals in their own frames, off the lockstep path's stack (GCC and XC16; other compilers may inline
+ * them). The handshake's and the parameters' are inline: the dsPIC30F2010's flash needed the ~85 words
+ * more than its RAM the ~20 bytes (tests/test_firmware_dspic.py: 456 of 512 bytes). */
 #if defined(__GNUC__)
 #define HRT_NOINLINE __attribute__((noinline))
 #else
@@ -27,7 +31,7 @@
 #define PWM_PERIOD_TICKS (hrt_firmware.pwm_period_ticks)
 #endif
 
-static uint16_t get_u16(const hbp_u8 *p)
+static inline uint16_t get_u16(const hbp_u8 *p)
 {
     return (uint16_t)((uint16_t)(p[0] & 0xFFu) | (uint16_t)((uint16_t)(p[1] & 0xFFu) << 8));
 }
@@ -38,7 +42,7 @@ static uint32_t get_u32(const hbp_u8 *p)
 }
 
 /* A little-endian two's-complement i32 (no implementation-defined conversion). */
-static int32_t get_i32(const hbp_u8 *p)
+static inline int32_t get_i32(const hbp_u8 *p)
 {
     uint32_t u = get_u32(p);
     if (u < 0x80000000UL) {
@@ -47,21 +51,18 @@ static int32_t get_i32(const hbp_u8 *p)
     return (int32_t)(-(int32_t)(0xFFFFFFFFUL - u) - 1);
 }
 
+#if HBP_MODE_LOCKSTEP != 0u
+#error "hrt_link_init's zero bytes are mode LOCKSTEP"
+#endif
 void hrt_link_init(hrt_link_t *l, hrt_t *rt)
 {
+    hbp_u8 *p = (hbp_u8 *)l;
+    uint16_t k;
+    for (k = 0u; k < (uint16_t)sizeof *l; k++) { /* every field 0 (mode HBP_MODE_LOCKSTEP), byte by byte */
+        p[k] = 0u;
+    }
     l->rt = rt;
     hbp_rx_init(&l->rx);
-    l->period_us = 0u;
-    l->last_rx = 0u;
-    l->watchdog_ms = 0u;
-    l->watchdog_trips = 0u;
-    l->mode = HBP_MODE_LOCKSTEP;
-    l->flags = 0u;
-    l->last_seq = 0u;
-    l->tx_len = 0u;
-#if HRT_SPECULATE
-    l->b_synced = 0u;
-#endif
 }
 
 /* Mode PREDICT: this build has room for the firmware's state, and the firmware says how big it is. */
@@ -70,8 +71,19 @@ void hrt_link_init(hrt_link_t *l, hrt_t *rt)
 #else
 #define CAN_PREDICT 0
 #endif
-/* Lockstep, predicted or not (a build without prediction never agrees to PREDICT: its code as before). */
-#if HRT_PREDICT_BYTES > 0
+/* Real time on a port whose interrupts run the bodies (a Sensors updates the inputs they read), or
+ * on one without (a Sensors runs the time that passed). */
+#if defined(HRT_PORT_HW) && HRT_PORT_HW && HRT_REALTIME
+#define RT_HW 1
+#else
+#define RT_HW 0
+#endif
+#define RT_SPAN (HRT_REALTIME && !RT_HW)
+/* Lockstep, predicted or not (a build without prediction never agrees to PREDICT: its code as before;
+ * a lockstep-only build agrees to nothing else). */
+#if !HRT_REALTIME && !HRT_MONITOR
+#define LOCKSTEP(mode) 1
+#elif HRT_PREDICT_BYTES > 0
 #define LOCKSTEP(mode) ((mode) == HBP_MODE_LOCKSTEP || (mode) == HBP_MODE_PREDICT)
 #else
 #define LOCKSTEP(mode) ((mode) == HBP_MODE_LOCKSTEP)
@@ -93,14 +105,14 @@ static void w16(hrt_link_t *l, uint16_t v)
     w8(l, (hbp_u8)(v >> 8));
 }
 
-static void w32(hrt_link_t *l, uint32_t v)
+static inline void w32(hrt_link_t *l, uint32_t v)
 {
     w16(l, (uint16_t)(v & 0xFFFFu));
     w16(l, (uint16_t)(v >> 16));
 }
 
 /* A declared name (at most max printable characters), with its count unless it is the last field. */
-static void wname(hrt_link_t *l, const char *s, hbp_u8 max, hbp_u8 counted)
+static inline void wname(hrt_link_t *l, const char *s, hbp_u8 max, hbp_u8 counted)
 {
     hbp_u8 n = 0u;
     while (n < max && s[n] != '\0') {
@@ -216,7 +228,7 @@ void hrt_link_stream(hrt_link_t *l)
 #endif
 
 /* TargetHello: the firmware's declaration. */
-static HRT_NOINLINE void send_target_hello(hrt_link_t *l, hbp_u8 seq)
+static inline void send_target_hello(hrt_link_t *l, hbp_u8 seq)
 {
     const hrt_firmware_t *d = &hrt_firmware;
     hbp_u8 i;
@@ -259,7 +271,7 @@ static HRT_NOINLINE void on_target_describe(hrt_link_t *l, hbp_u8 seq)
 
 /* HostHello, read in place: the version byte first (a HostHello of another version may have another
  * length), then the length, the schema fingerprint, the period and the mode. */
-static HRT_NOINLINE void on_hello(hrt_link_t *l, const hbp_u8 *buf, hbp_u8 len, hbp_u8 seq)
+static inline void on_hello(hrt_link_t *l, const hbp_u8 *buf, hbp_u8 len, hbp_u8 seq)
 {
     uint16_t period_us;
     hbp_u8 mode;
@@ -285,12 +297,13 @@ static HRT_NOINLINE void on_hello(hrt_link_t *l, const hbp_u8 *buf, hbp_u8 len, 
          * its motor stops when the host falls silent, so a hello without a watchdog is refused */
 #else
     if (period_us == 0u || (step != 0u && period_us % step != 0u) ||
-        (mode != HBP_MODE_LOCKSTEP && mode != HBP_MODE_REALTIME && !(mode == HBP_MODE_PREDICT && CAN_PREDICT))) {
+        (mode != HBP_MODE_LOCKSTEP && !(mode == HBP_MODE_REALTIME && HRT_REALTIME) &&
+         !(mode == HBP_MODE_PREDICT && CAN_PREDICT))) {
 #endif
         send_error(l, seq, HBP_ERROR_BAD_REQUEST, 0u);
         return;
     }
-#if defined(HRT_PORT_HW) && HRT_PORT_HW
+#if RT_HW
     if ((l->flags & HRT_LINK_F_RT) != 0u) {
         hrt_port_realtime(0u);
         hrt_rt_enter(l->rt, 0u);
@@ -321,8 +334,11 @@ static HRT_NOINLINE void on_hello(hrt_link_t *l, const hbp_u8 *buf, hbp_u8 len, 
 #define SENSORS_N_ADC 5u
 #define SENSORS_ADC 6u
 
+/* The encoder count of a Sensors (0 in a build without an encoder, HRT_ENCODER 0: not read). */
+#define SENSORS_ENCODER_VALUE(buf) ((uint16_t)(HRT_ENCODER ? get_u16(&(buf)[SENSORS_ENCODER]) : 0u))
+
 /* 100 ns units (the wire's edge times) in the firmware's ticks. */
-static uint32_t ticks_of(uint32_t t_100ns)
+static inline uint32_t ticks_of(uint32_t t_100ns)
 {
     /* exact: t_100ns < 2^16, ticks_per_us < 2^8 */
     return (TICKS_PER_US % 10u == 0u) ? t_100ns * (TICKS_PER_US / 10u) : t_100ns * TICKS_PER_US / 10u;
@@ -333,13 +349,12 @@ static uint32_t ticks_of(uint32_t t_100ns)
  * edge at its time (one at or beyond the span's end at its last tick). Real time on a port whose
  * interrupts run the bodies (span 0): the inputs the bodies read, each edge captured at its time
  * back-dated from now by the rest of the period (an estimate: the frame's own transit is not known). */
-static void serve_sensors(hrt_link_t *l, const hbp_u8 *buf, hbp_u8 len, uint32_t span)
+static inline void serve_sensors(hrt_link_t *l, const hbp_u8 *buf, hbp_u8 len, hbp_u8 n_edges, uint32_t span)
 {
     hrt_t *rt = l->rt;
     uint32_t start = rt->now;
     hbp_u8 inputs = buf[SENSORS_INPUTS];
     hbp_u8 at = (hbp_u8)(SENSORS_ADC + 2u * buf[SENSORS_N_ADC]); /* the first edge */
-    hbp_u8 n_edges = (hbp_u8)((hbp_u8)(len - at) / 3u);
     hbp_u8 has_index = 0u;
     uint16_t adc[HRT_MAX_ADC];
     hbp_u8 n_adc;
@@ -347,7 +362,7 @@ static void serve_sensors(hrt_link_t *l, const hbp_u8 *buf, hbp_u8 len, uint32_t
     for (n_adc = 0u; n_adc < buf[SENSORS_N_ADC] && n_adc < HRT_MAX_ADC; n_adc++) {
         adc[n_adc] = get_u16(&buf[SENSORS_ADC + 2u * n_adc]);
     }
-#if defined(HRT_PORT_HW) && HRT_PORT_HW
+#if RT_HW
     if (span == 0u) {
         uint32_t period_100ns = (uint32_t)l->period_us * 10u;
         start = hrt_port_now();
@@ -357,7 +372,7 @@ static void serve_sensors(hrt_link_t *l, const hbp_u8 *buf, hbp_u8 len, uint32_t
             hrt_port_realtime(1u);
         }
         hrt_port_lock();
-        hrt_rt_levels(rt, inputs, adc, n_adc, get_u16(&buf[SENSORS_ENCODER]));
+        hrt_rt_levels(rt, inputs, adc, n_adc, SENSORS_ENCODER_VALUE(buf));
         hrt_rt_main(rt, start);
         if (n_edges == 0u) {
             hrt_rt_edge(rt, (hbp_u8)(inputs & HRT_IN_EDGE_LINES), start); /* a change without its time */
@@ -370,10 +385,10 @@ static void serve_sensors(hrt_link_t *l, const hbp_u8 *buf, hbp_u8 len, uint32_t
         return;
     }
 #endif
-    for (i = 0u; i < n_edges; i++) {
-        has_index = (hbp_u8)(has_index | (buf[at + 3u * i + 2u] & HRT_IN_INDEX));
+    for (i = at; i < len; i = (hbp_u8)(i + 3u)) {
+        has_index = (hbp_u8)(has_index | (buf[i + 2u] & HRT_INDEX_READ));
     }
-    hrt_span_begin(rt, inputs, n_edges, has_index, adc, n_adc, get_u16(&buf[SENSORS_ENCODER]));
+    hrt_span_begin(rt, inputs, n_edges, has_index, adc, n_adc, SENSORS_ENCODER_VALUE(buf));
     for (; at < len; at = (hbp_u8)(at + 3u)) {
         uint32_t off = ticks_of(get_u16(&buf[at]));
         hrt_span_edge(rt, start + ((off < span) ? off : span - 1u), buf[at + 2u]);
@@ -408,17 +423,22 @@ static HRT_NOINLINE void predict(hrt_link_t *l, uint32_t span)
 }
 #endif
 
-static HRT_NOINLINE void on_sensors(hrt_link_t *l, const hbp_u8 *buf, hbp_u8 len, hbp_u8 seq)
+static inline void on_sensors(hrt_link_t *l, const hbp_u8 *buf, hbp_u8 len, hbp_u8 seq)
 {
     uint32_t span = (uint32_t)l->period_us * TICKS_PER_US;
-    hbp_u8 edges_at = (hbp_u8)(SENSORS_ADC + 2u * buf[SENSORS_N_ADC]);
-    if (len < SENSORS_ADC || buf[SENSORS_N_ADC] > HBP_MAX_ADC || edges_at > len ||
-        (hbp_u8)(len - edges_at) % 3u != 0u || (hbp_u8)(len - edges_at) / 3u > HBP_MAX_EDGES) {
+    uint32_t now = hrt_port_now();
+    hbp_u8 at = (hbp_u8)(SENSORS_ADC + 2u * buf[SENSORS_N_ADC]); /* the first edge */
+    hbp_u8 n_edges = 0u;
+    while (at + 3u <= len) { /* the edges, 3 bytes each, counted (a division costs a library call on a 16-bit chip) */
+        at = (hbp_u8)(at + 3u);
+        n_edges++;
+    }
+    if (len < SENSORS_ADC || buf[SENSORS_N_ADC] > HBP_MAX_ADC || at != len || n_edges > HBP_MAX_EDGES) {
         send_error(l, seq, HBP_ERROR_LENGTH, buf[0]);
         return;
     }
     if (LOCKSTEP(l->mode)) { /* the host is there: a tripped watchdog gives the outputs back */
-        l->last_rx = hrt_port_now();
+        l->last_rx = now;
         l->flags = (hbp_u8)(l->flags & (hbp_u8)~HRT_LINK_F_TRIPPED);
     }
     if ((l->flags & HRT_LINK_F_ANSWERED) != 0u && seq == l->last_seq) {
@@ -426,9 +446,8 @@ static HRT_NOINLINE void on_sensors(hrt_link_t *l, const hbp_u8 *buf, hbp_u8 len
         hrt_link_send_drive(l, seq);
         return;
     }
-#if !(defined(HRT_PORT_HW) && HRT_PORT_HW) /* (a hardware port's real time runs no span: below) */
+#if RT_SPAN /* (a hardware port's real time runs no span: below) */
     if (l->mode == HBP_MODE_REALTIME) {
-        uint32_t now = hrt_port_now();
         if ((l->flags & HRT_LINK_F_SENSORS) != 0u) {
             uint32_t passed = now - l->last_rx; /* the time that really passed, at most HRT_RT_MAX_PERIODS
                                                  * periods: a firmware too slow for real time on its chip
@@ -437,19 +456,19 @@ static HRT_NOINLINE void on_sensors(hrt_link_t *l, const hbp_u8 *buf, hbp_u8 len
         }
     }
 #endif
-    l->last_rx = hrt_port_now();
+    l->last_rx = now;
     l->flags = (hbp_u8)((l->flags | HRT_LINK_F_SENSORS | HRT_LINK_F_ANSWERED) & (hbp_u8)~HRT_LINK_F_TRIPPED);
 #if HRT_SPECULATE
     l->b_synced = 0u; /* a period run one by one: the next SensorsBatch starts the records afresh */
 #endif
-#if defined(HRT_PORT_HW) && HRT_PORT_HW
+#if RT_HW
     if (l->mode == HBP_MODE_REALTIME) {
         span = 0u; /* the port's interrupts run the bodies: the inputs only */
-        serve_sensors(l, buf, len, 0u);
+        serve_sensors(l, buf, len, n_edges, 0u);
     }
 #endif
     if (span > 0u) {
-        serve_sensors(l, buf, len, span);
+        serve_sensors(l, buf, len, n_edges, span);
 #if HRT_PREDICT_BYTES > 0
         if (l->mode == HBP_MODE_PREDICT) {
             predict(l, span);
@@ -686,7 +705,7 @@ static uint32_t run_periods(hrt_link_t *l, hrt_batch_in_t *in, const hbp_u8 *edg
         msg[SENSORS_ENCODER + 1u] = (hbp_u8)(in->encoder >> 8);
         l->last_rx = hrt_port_now();
         l->flags = (hbp_u8)((l->flags | HRT_LINK_F_SENSORS | HRT_LINK_F_ANSWERED) & (hbp_u8)~HRT_LINK_F_TRIPPED);
-        serve_sensors(l, msg, m, span);
+        serve_sensors(l, msg, m, n_edges, span);
 #if HRT_PREDICT_BYTES > 0
         if (l->mode == HBP_MODE_PREDICT) {
             predict(l, span);
@@ -783,8 +802,9 @@ static HRT_NOINLINE void on_batch(hrt_link_t *l, const hbp_u8 *buf, hbp_u8 len, 
 }
 #endif
 
+#if HRT_DESCRIBE
 /* ParamDescribe, ParamGet, TelemetryDescribe: one id byte. */
-static HRT_NOINLINE void on_describe(hrt_link_t *l, hbp_u8 id, hbp_u8 seq)
+static inline void on_describe(hrt_link_t *l, hbp_u8 id, hbp_u8 seq)
 {
     const hrt_firmware_t *d = &hrt_firmware;
     const hrt_param_decl_t *p;
@@ -801,13 +821,10 @@ static HRT_NOINLINE void on_describe(hrt_link_t *l, hbp_u8 id, hbp_u8 seq)
     w32(l, (uint32_t)p->max_value);
     w32(l, (uint32_t)d->param_get(l->rt, id));
     wname(l, p->name, HBP_MAX_NAME, 1u);
-#if HRT_DESCRIBE
     wname(l, p->unit, HBP_MAX_UNIT, 0u);
-#endif
     finish(l);
 }
 
-#if HRT_DESCRIBE
 static HRT_NOINLINE void on_telemetry(hrt_link_t *l, hbp_u8 index, hbp_u8 seq)
 {
     const hrt_firmware_t *d = &hrt_firmware;
@@ -829,7 +846,7 @@ static HRT_NOINLINE void on_telemetry(hrt_link_t *l, hbp_u8 index, hbp_u8 seq)
 }
 #endif
 
-static HRT_NOINLINE void on_get(hrt_link_t *l, hbp_u8 id, hbp_u8 seq)
+static inline void on_get(hrt_link_t *l, hbp_u8 id, hbp_u8 seq)
 {
     hbp_u8 known = (hbp_u8)(id < hrt_firmware.n_params);
     begin(l, HBP_MSG_PARAM_VALUE, seq);
@@ -840,7 +857,7 @@ static HRT_NOINLINE void on_get(hrt_link_t *l, hbp_u8 id, hbp_u8 seq)
 }
 
 /* ParamSet: the pairs read in place into a request, checked whole, applied all or nothing. */
-static HRT_NOINLINE void on_set(hrt_link_t *l, const hbp_u8 *buf, hbp_u8 len, hbp_u8 seq)
+static inline void on_set(hrt_link_t *l, const hbp_u8 *buf, hbp_u8 len, hbp_u8 seq)
 {
     hrt_param_request_t req;
     hbp_u8 result;
@@ -929,17 +946,22 @@ void hrt_link_handle(hrt_link_t *l, const hbp_u8 *frame, hbp_u8 len)
         on_set(l, frame, len, seq);
         return;
     }
+    /* (a build without the self-description, HRT_DESCRIBE 0, serves no ParamDescribe, TelemetryDescribe or
+     * TargetDescribe: they are refused as the target -> host messages are) */
     if (group == (HBP_MSG_PARAM_GET >> 4)) {
-        want = (hbp_u8)((type == HBP_MSG_PARAM_DESCRIBE || type == HBP_MSG_PARAM_GET) ? 3u : 0u);
+        want = (hbp_u8)((type == HBP_MSG_PARAM_GET || (HRT_DESCRIBE && type == HBP_MSG_PARAM_DESCRIBE)) ? 3u : 0u);
     } else if (group == (HBP_MSG_START >> 4)) {
         want = (hbp_u8)((type == HBP_MSG_START || type == HBP_MSG_STOP) ? 2u : 0u);
     } else if (group == (HBP_MSG_STATUS_REQUEST >> 4)) {
         want = (hbp_u8)((type == HBP_MSG_STATUS_REQUEST) ? 2u : 0u);
-    } else if (group == (HBP_MSG_TELEMETRY_DESCRIBE >> 4)) {
+    }
+#if HRT_DESCRIBE
+    else if (group == (HBP_MSG_TELEMETRY_DESCRIBE >> 4)) {
         want = (hbp_u8)((type == HBP_MSG_TELEMETRY_DESCRIBE) ? 3u : (type == HBP_MSG_TARGET_DESCRIBE) ? 2u : 0u);
     }
+#endif
     if (want == 0u) {
-        send_error(l, seq, HBP_ERROR_BAD_REQUEST, 0u); /* a target -> host message */
+        send_error(l, seq, HBP_ERROR_BAD_REQUEST, 0u); /* a target -> host message, or one not served */
         return;
     }
     if (len != want) {
@@ -947,11 +969,13 @@ void hrt_link_handle(hrt_link_t *l, const hbp_u8 *frame, hbp_u8 len)
         return;
     }
     if (group == (HBP_MSG_PARAM_GET >> 4)) {
+#if HRT_DESCRIBE
         if (type == HBP_MSG_PARAM_DESCRIBE) {
             on_describe(l, frame[2], seq);
-        } else {
-            on_get(l, frame[2], seq);
+            return;
         }
+#endif
+        on_get(l, frame[2], seq);
     } else if (group == (HBP_MSG_START >> 4)) {
         hrt_port_lock();
         if (type == HBP_MSG_START) {
@@ -965,17 +989,14 @@ void hrt_link_handle(hrt_link_t *l, const hbp_u8 *frame, hbp_u8 len)
         hrt_port_unlock();
     } else if (group == (HBP_MSG_STATUS_REQUEST >> 4)) {
         on_status(l, seq);
-    } else { /* TelemetryDescribe, TargetDescribe */
-#if HRT_DESCRIBE
-        if (type == HBP_MSG_TELEMETRY_DESCRIBE) {
-            on_telemetry(l, frame[2], seq);
-        } else {
-            on_target_describe(l, seq);
-        }
-#else
-        send_error(l, seq, HBP_ERROR_BAD_REQUEST, type); /* a request this build does not serve */
-#endif
     }
+#if HRT_DESCRIBE
+    else if (type == HBP_MSG_TELEMETRY_DESCRIBE) {
+        on_telemetry(l, frame[2], seq);
+    } else {
+        on_target_describe(l, seq);
+    }
+#endif
 }
 
 void hrt_link_watchdog(hrt_link_t *l)

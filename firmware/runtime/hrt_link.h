@@ -36,10 +36,11 @@
 #endif
 
 
-/* The self-description beyond the HELLO (TargetDescribe, TelemetryDescribe, ParamInfo's units).
- * 1 by default; a chip whose flash cannot spare the ~450 bytes (the dsPIC30F2010's AN1017 build)
- * may set 0 for hrt_link.c alone: it then answers those requests with ErrorReport(BAD_REQUEST) and
- * sends empty units, and the host serves it from its profile. */
+/* The self-description beyond the HELLO (TargetDescribe, TelemetryDescribe, ParamDescribe). 1 by
+ * default; a chip whose flash cannot spare it (the dsPIC30F2010's AN1017 build) sets 0 on its command
+ * line (every file: the declaration's tables keep fewer fields, hrt.h): it then answers those requests
+ * with ErrorReport(BAD_REQUEST), and a host that knows the firmware by its HELLO's name serves them
+ * from its registered profile (hilbench's RemoteTarget.describe: the model's declaration). */
 /* (HRT_DESCRIBE's default is in hrt.h: a declaration's describe-only texts follow it, HRT_DESCRIBED) */
 /* Real time on a port without its own timers: each Sensors advances the firmware by the time that
  * passed, at most this many agreed periods (a firmware too slow for real time on its chip falls
@@ -57,9 +58,7 @@
  * slot is a seq skipped, never a burst). Any valid frame from the host feeds the watchdog; silence
  * for watchdog_ms stops the firmware (HRT_STOP_WATCHDOG), as in real time. Such a build agrees to no
  * other mode and refuses every Sensors: its motor is never driven from a simulated rotor. */
-#ifndef HRT_MONITOR
-#define HRT_MONITOR 0
-#endif
+/* (HRT_MONITOR's default is in hrt.h, beside HRT_REALTIME's) */
 /* Twin-speculative lockstep (SensorsBatch -> BatchDigest): 1 by default; a chip that will never run
  * behind a host twin and cannot spare the flash (the dsPIC30F2010's AN1017 build) sets 0, and its
  * link is then exactly as without it (a SensorsBatch is answered ErrorReport(BAD_REQUEST)). */
@@ -84,7 +83,7 @@ void hrt_port_send(const hbp_u8 *bytes, hbp_u8 len); /* wire bytes, in order (a 
 uint32_t hrt_port_now(void);  /* a free-running clock in the firmware's ticks, wrapping at 2^32 */
 void hrt_port_lock(void);     /* hold off the interrupts that run bodies (real time on a hardware port) */
 void hrt_port_unlock(void);
-#if defined(HRT_PORT_HW) && HRT_PORT_HW
+#if HRT_HW_TIMERS
 void hrt_port_realtime(hbp_u8 on); /* enter (1) or leave (0) real time: start or stop the chip's timers */
 #endif
 

@@ -80,6 +80,8 @@ class RemoteTarget:
         self._req_seq = 0
         #: where frames that answer nothing go instead of being counted as stale (None: counted)
         self.stray_sink: Callable[[Any], None] | None = None
+        #: the in-process model that describes the parameters of a build that does not (None: not needed yet)
+        self._describer: Any = None
         self._send = link.send
         self._recv = link.recv
 
@@ -181,6 +183,7 @@ class RemoteTarget:
         self.target_hello = reply
         self.watchdog_ms = host.watchdog_ms
         self.firmware_name = reply.firmware_name
+        self._describer = None
         self.link.reset_sequence()
         return reply
 
@@ -204,8 +207,29 @@ class RemoteTarget:
         if type(reply) is ErrorReport:
             if reply.code == ErrorCode.UNKNOWN_PARAM:
                 raise ParamError(f"link {self.link.name}: target {self.firmware_name!r} has no param id {param_id}")
+            if reply.code == ErrorCode.BAD_REQUEST:
+                served = self._described_by_profile(param_id)
+                if served is not None:
+                    return served
             raise self._refused(f"ParamDescribe {param_id}", reply)
         return reply
+
+    def _described_by_profile(self, param_id: int) -> ParamInfo | None:
+        """A build without its self-description (HRT_DESCRIBE 0: the dsPIC30F2010's, which has no flash
+        for it, docs/board.md "Does it fit") refuses ParamDescribe: the registered profile's in-process
+        model of the same firmware declares the same parameters, and the target's own ParamGet gives the
+        value. None for a firmware no hilbench module knows (it has only its own description)."""
+        if self._describer is None:
+            from hilbench.targets.registry import registered_for_firmware
+
+            profile = registered_for_firmware(self.firmware_name) if self.firmware_name else None
+            if profile is None:
+                return None
+            self._describer = profile.make(profile.default_options())
+        if param_id >= (self.target_hello.n_params if self.target_hello is not None else 0):
+            raise ParamError(f"link {self.link.name}: target {self.firmware_name!r} has no param id {param_id}")
+        value = self.get_param(param_id)
+        return self._describer.describe(param_id)._replace(seq=value.seq, value=value.value)
 
     def describe_all(self) -> list[ParamInfo]:
         """Every declared parameter (ids 0..n_params-1 by the handshake's count)."""

@@ -18,13 +18,15 @@
  * - Timer1: Tcy/64, PR1 = 313 (1.0048 ms), the speed-loop tick in real-time mode.
  * - Timer2 at Tcy, with an overflow count, is the port's clock (hrt_port_now): the runtime's time in
  *   real time, the capture time of hall edges (the firmware derives TMR3 from it; IC7 itself is not
- *   used: the hall pins are frames) and the watchdog's.
+ *   used: the hall pins are frames) and the watchdog's. A lockstep-only build (HRT_REALTIME=0, the
+ *   30F2010's board profile) runs Timer3:Timer2 as one 32-bit timer instead, without an interrupt.
  * - ADC: configured as AN1017 does (AN2 = pot R14, signed fractional, started by the PWM special
  *   event); the pot value comes from Sensors unless HIL_LOCAL_POT is defined, then from ADCBUF0.
  * - S2 (RC14, active low): pressing the board's S2 acts like the Sensors S2 bit.
  * Lockstep: Timer1/Timer3 stay off (the firmware's timers are gated); each Sensors runs one period
- * of ISR bodies at their virtual times (the runtime's hrt_span_*). Real time (this port is built
- * with HRT_PORT_HW = 1): the PWM and Timer1 interrupts run the ISR bodies on the chip's own clock
+ * of ISR bodies at their virtual times (the runtime's hrt_span_*). Real time (make PROFILE=full, the
+ * 30F4012's default; the 30F2010's lockstep profile, HRT_REALTIME=0, keeps none of it; this port is
+ * built with HRT_PORT_HW = 1): the PWM and Timer1 interrupts run the ISR bodies on the chip's own clock
  * through the runtime's real-time glue (hrt_rt_pwm, hrt_rt_timer; the end of ChargeBootstraps is a
  * runtime timer served at PWM-period resolution), and each Sensors updates the inputs they read
  * (a hall edge with its capture time back-dated by the frame's edge time).
@@ -57,10 +59,15 @@
 #if defined(HIL_LOCAL_HALLS) && !HRT_MONITOR
 #error "HIL_LOCAL_HALLS (the real-motor build) needs HRT_MONITOR=1: the host monitors, it never sends the sensors (make MODE=motor)"
 #endif
+#if defined(HIL_LOCAL_POT) && !HRT_HW_TIMERS
+#error "HIL_LOCAL_POT reads the pot in the real-time PWM interrupt, which a lockstep-only build (HRT_REALTIME=0) has not: make PROFILE=full"
+#endif
 #if defined(HIL_LOCAL_HALLS) && !defined(HIL_LOCAL_POT)
 #define HIL_LOCAL_POT /* the real motor's reference: the board's pot, or the host's override parameter */
 #endif
 
+/* `static inline`: a small helper, or one called once, that XC16's -O1 inlines as GCC's does (the
+ * dsPIC30F2010's 4K words, docs/board.md section 3a, measured one by one); the others stay calls. */
 #if defined(__XC16__)
 #define AN1017_ISR __attribute__((__interrupt__, no_auto_psv))
 #else
@@ -85,8 +92,10 @@ _FGS(CODE_PROT_OFF);
 
 static an1017_t fw;
 static hrt_link_t host_link;
+#if HRT_HW_TIMERS
 static volatile uint16_t tcy_high; /* Timer2 overflows: bits 31:16 of the Tcy clock */
 static uint8_t realtime_on;
+#endif
 
 void hrt_port_send(const uint8_t *wire, uint8_t len)
 {
@@ -100,8 +109,10 @@ void hrt_port_send(const uint8_t *wire, uint8_t len)
 
 void hrt_port_lock(void)
 {
+#if HRT_HW_TIMERS
     IEC2bits.PWMIE = 0;
     IEC0bits.T1IE = 0;
+#endif
     IEC2bits.FLTAIE = 0;
 #if defined(HIL_LOCAL_HALLS)
     IEC0bits.CNIE = 0;
@@ -118,12 +129,15 @@ void hrt_port_unlock(void)
     IEC1bits.IC7IE = 1;
     IEC1bits.IC8IE = 1;
 #endif
+#if HRT_HW_TIMERS
     if (realtime_on) {
         IEC0bits.T1IE = 1;
         IEC2bits.PWMIE = 1;
     }
+#endif
 }
 
+#if HRT_HW_TIMERS
 /* Called from the main loop and from the priority-4 ISRs, where the Timer2 interrupt (the same
  * priority) cannot run: an overflow may be pending, not yet counted in tcy_high. A low TMR2 read
  * with T2IF set is after that overflow, so it counts here (else the time would step back 65 536 Tcy
@@ -144,6 +158,17 @@ uint32_t hrt_port_now(void)
     return ((uint32_t)high << 16) | low;
 }
 
+#else
+/* A lockstep-only build (HRT_REALTIME=0) captures nothing with Timer2: Timer2 and Timer3 run as one
+ * 32-bit timer (T32) at Tcy, no interrupt. Reading TMR2 latches TMR3 into TMR3HLD, so the two halves
+ * are of one instant (dsPIC30F family reference manual DS70046, "32-bit timer"). */
+uint32_t hrt_port_now(void)
+{
+    uint16_t low = TMR2; /* first: it latches TMR3HLD */
+    return ((uint32_t)TMR3HLD << 16) | low;
+}
+#endif
+
 static void write_outputs(void)
 {
     PDC1 = hrt_duty(&fw.rt, 0u); /* the MCPWM latches them at its period boundary (IUE = 0) */
@@ -157,7 +182,8 @@ static void write_outputs(void)
 #endif
 }
 
-/* ---- real time: the chip's timers ---- */
+/* ---- real time: the chip's timers (a lockstep-only build, HRT_REALTIME=0, has none of it) ---- */
+#if HRT_HW_TIMERS
 
 /* Timer1 runs in hardware (PR1 fixed: its period is the declared one); the end of ChargeBootstraps
  * is left to the runtime. */
@@ -189,6 +215,7 @@ void hrt_port_realtime(uint8_t on)
         realtime_on = 0u;
     }
 }
+#endif
 
 /* ---- the real-motor build: the motor's own halls (AN1017's CN5 = A on RB3, IC7 = B on RB4, IC8 = C
  * on RB5; facts: docs/board.md "Real-motor mode") ---- */
@@ -263,12 +290,15 @@ void AN1017_ISR _U1RXInterrupt(void)
     }
 }
 
+#if HRT_HW_TIMERS
 void AN1017_ISR _T2Interrupt(void)
 {
     IFS0bits.T2IF = 0;
     tcy_high = (uint16_t)(tcy_high + 1u);
 }
+#endif
 
+#if HRT_HW_TIMERS
 /* Real time only: one PWM period boundary, the same work as the lockstep scheduler's. */
 void AN1017_ISR _PWMInterrupt(void)
 {
@@ -285,6 +315,7 @@ void AN1017_ISR _T1Interrupt(void)
     IFS0bits.T1IF = 0;
     hrt_rt_timer(&fw.rt, AN1017_TIMER_T1, hrt_port_now());
 }
+#endif
 
 void AN1017_ISR _FLTAInterrupt(void)
 {
@@ -293,7 +324,10 @@ void AN1017_ISR _FLTAInterrupt(void)
     write_outputs();
 }
 
-/* ---- the board's S2 (RC14, active low): a mechanical contact bounces for a few ms ---- */
+/* ---- the board's S2 (RC14, active low): a mechanical contact bounces for a few ms. A lockstep-only
+ * build (HRT_REALTIME=0) has none of it: its S2 is the bench's (the Sensors bit, at its time in the
+ * span); the board's would act between spans, at no time of the session ---- */
+#if HRT_HW_TIMERS
 
 #define S2_STABLE_TCY 400000UL /* 20 ms at FCY = 20 MHz: a level must hold this long to count */
 
@@ -314,10 +348,11 @@ static uint8_t s2_debounced(uint8_t raw, uint32_t now, uint8_t *level)
     }
     return 0u;
 }
+#endif
 
 /* ---- initialisation ---- */
 
-static void init_io(void)
+static inline void init_io(void)
 {
     ADPCFG = 0x0038u;  /* RB3..RB5 digital (halls on the board; unused under the bench) */
     TRISB = 0xFFFFu;
@@ -327,7 +362,7 @@ static void init_io(void)
     TRISF = 0xFFF7u;   /* RF3 = U1TX output, RF2 = U1RX input */
 }
 
-static void init_uart(void)
+static inline void init_uart(void)
 {
     U1BRG = UART_BRG;
     U1MODE = 0x8000u;  /* UARTEN, 8N1, ALTIO = 0 (RF2/RF3) */
@@ -340,7 +375,7 @@ static void init_uart(void)
     IEC0bits.U1RXIE = 1;
 }
 
-static void init_pwm(void)
+static inline void init_pwm(void)
 {
     PTPER = AN1017_PTPER;
     PWMCON1 = 0x0077u;
@@ -357,17 +392,22 @@ static void init_pwm(void)
     PTCON = 0x8002u;
 }
 
-static void init_timers(void)
+static inline void init_timers(void)
 {
     T1CON = 0x0020u;   /* Tcy/64, off until real time starts */
     PR1 = 313u;
-    T2CON = 0x8000u;   /* Tcy, free running: the Tcy clock */
     PR2 = 0xFFFFu;
+#if HRT_HW_TIMERS
+    T2CON = 0x8000u;   /* Tcy, free running: the Tcy clock's low word, overflows counted */
     IFS0bits.T2IF = 0;
     IEC0bits.T2IE = 1;
+#else
+    PR3 = 0xFFFFu;
+    T2CON = 0x8008u;   /* Tcy, T32: Timer3:Timer2 free running, the 32-bit Tcy clock */
+#endif
 }
 
-static void init_adc(void)
+static inline void init_adc(void)
 {
     ADCHS = 0x0002u;   /* CH0+ = AN2, the pot */
     ADCON3 = 0x0003u;
@@ -377,7 +417,9 @@ static void init_adc(void)
 
 int main(void)
 {
+#if HRT_HW_TIMERS
     uint8_t s2_level = 0u;
+#endif
     an1017_init(&fw, AN1017_VARIANT);
     hrt_link_init(&host_link, &fw.rt);
     init_io();
@@ -396,12 +438,14 @@ int main(void)
 #if defined(HIL_LOCAL_HALLS)
         hrt_link_stream(&host_link); /* monitor mode: the telemetry stream */
 #endif
+#if HRT_HW_TIMERS
         if (s2_debounced((uint8_t)(PORTCbits.RC14 == 0), hrt_port_now(), &s2_level)) {
             /* the board's own S2: released -> toggle, as main() does */
             hrt_port_lock();
             an1017_main_loop_buttons(&fw, (uint8_t)(s2_level ? AN1017_INPUT_S2 : 0u));
             hrt_port_unlock();
         }
+#endif
         hrt_port_lock(); /* a frame, the button or the watchdog may have changed the outputs */
         write_outputs();
         hrt_port_unlock();

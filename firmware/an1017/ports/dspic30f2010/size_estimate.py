@@ -566,6 +566,7 @@ def main(argv: list[str]) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--device", default="30F2010", choices=sorted(DEVICES))
     parser.add_argument("--handlers", type=int, default=5, help="the build's interrupt handlers (their context code)")
+    parser.add_argument("--all", action="store_true", help="list every kept section at -O1, not only the largest")
     args, rest = parser.parse_known_args(argv)
     if rest.count("--") != 2:
         parser.error("give -- CFLAGS... -- SOURCES...")
@@ -589,7 +590,9 @@ def main(argv: list[str]) -> int:
                   f"data {k.data_bytes} B, bss {k.bss_bytes} B, library calls {', '.join(k.helpers) or 'none'} "
                   f"-> {words} words = {words * 3} B")
             print(f"    conversion {level}: " + conversion_steps(c))
-    print("  largest at -O1 (dsPIC words): " + ", ".join(f"{sec.split('.', 2)[2]} {n}" for n, sec in k.words[:LARGEST]))
+    shown = k.words if args.all else k.words[:LARGEST]
+    print(f"  {'kept' if args.all else 'largest'} at -O1 (dsPIC words): " +
+          ", ".join(f"{sec.split('.', 2)[2]} {n}" for n, sec in shown))
     print(f"static RAM (msp430, 2-byte alignment as on the dsPIC): {k.data_bytes + k.bss_bytes} B of "
           f"{ram_bytes} B; stack bound: tests/test_firmware_dspic.py")
     percent = 100.0 * words * 3 / flash_bytes
