@@ -92,6 +92,7 @@ void hbp_rx_init(hbp_rx_t *rx)
     for (k = 0u; k < (uint16_t)sizeof *rx; k++) { /* every field 0 (HBP_ERROR_NONE), byte by byte: no memset */
         p[k] = 0u;
     }
+    rx->ready = 0u; /* again through its volatile lvalue: the loop's store through a plain pointer is not one */
     rx_restart(rx);
 }
 

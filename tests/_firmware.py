@@ -10,7 +10,10 @@ from __future__ import annotations
 
 import os
 import random
+import re
+import shlex
 import shutil
+import subprocess
 import sys
 from collections.abc import Iterator
 from dataclasses import dataclass
@@ -19,6 +22,9 @@ from pathlib import Path
 import pytest
 
 from hilbench.protocol import EDGE_NONE, INPUT_S2, MODE_LOCKSTEP, PROTOCOL_VERSION, HostHello, Sensors
+from hilbench.targets.sil import FIRMWARE_DIR
+
+DSPIC_PORT = FIRMWARE_DIR / "ports" / "dspic30f2010"
 
 
 def one_edge(edge_time_100ns: int, inputs: int) -> tuple[tuple[int, int], ...]:
@@ -44,6 +50,16 @@ def require_tool(name: str, why: str) -> str:
             pytest.fail(f"{name} is required (HILBENCH_REQUIRE_TOOLS=1) for {why} but is not on PATH")
         pytest.skip(f"{name} not installed ({why})")
     return path
+
+
+def port_defines(*make_args: str) -> tuple[str, ...]:
+    """The runtime and protocol defines (-DHRT_*, -DHBP_*) the dsPIC Makefile builds with, but the port's
+    own HRT_PORT_HW (the host and AVR ports are not hardware ports)."""
+    require_tool("make", "the dsPIC Makefile (apt: make)")
+    done = subprocess.run(["make", "-s", "-n", "--no-print-directory", "-C", str(DSPIC_PORT), "size", *make_args],
+                          capture_output=True, text=True, timeout=60, check=True)
+    return tuple(f for f in shlex.split(done.stdout) if re.match(r"-D(HRT|HBP)_", f) and
+                 not f.startswith("-DHRT_PORT_HW"))
 
 
 def python_config(why: str) -> str:

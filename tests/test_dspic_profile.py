@@ -4,22 +4,21 @@ port's Makefile (`make -n size`), build the same firmware and runtime sources fo
 pty) and for the ATmega328P in simavr: their lockstep Drives and parameter replies equal the Python
 model's, a whole bench session records what the model records, a killed host in lockstep gets the
 outputs turned off, and what the profile leaves out (real time, batches, prediction, the
-self-description beyond the HELLO, ParamDescribe included) is refused as the protocol says, the host
-carrying on without it (the parameters described by the registered profile's model).
+self-description beyond the HELLO, ParamDescribe included) is refused as the protocol says (the
+detail of a refused request: its type), the host carrying on without it (the parameters described by
+the registered profile's model, only for a build whose HELLO is the model's: a renamed firmware or
+another version is refused), and `hilbench conformance` reports it "not served", no failure.
 """
 
 from __future__ import annotations
 
 import os
-import re
-import shlex
-import subprocess
 from pathlib import Path
 
 import pytest
 
-from _firmware import play, random_stream, require_file, require_tool
-from hilbench.errors import HilbenchError, ParamError
+from _firmware import play, port_defines, random_stream, require_file, require_tool
+from hilbench.errors import HilbenchError, ParamError, TargetError
 from hilbench.link.pty import open_pty_pair
 from hilbench.protocol import (
     MODE_LOCKSTEP,
@@ -28,33 +27,23 @@ from hilbench.protocol import (
     OUTPUT_OFF,
     PROTOCOL_VERSION,
     RESULT_OK,
+    SCHEMA_FINGERPRINT,
     ErrorCode,
     ErrorReport,
     HostHello,
     ParamDescribe,
     ParamInfo,
+    TargetDescribe,
+    TelemetryDescribe,
 )
 from hilbench.targets.an1017.firmware import An1017Options
 from hilbench.targets.an1017.target import An1017Target
-from hilbench.targets.sil import FIRMWARE_DIR, SilTarget, build_avr, build_sil, start_sil, stop_sil
+from hilbench.targets.sil import SilTarget, build_avr, build_sil, start_sil, stop_sil
 from hilbench.targets.starters import SimavrStarter, start_process
 from test_firmware_sil import run_recording
 from test_watchdog_kill import LOCKSTEP_FLOOR_S, _trip_after_kill
 
 pytestmark = pytest.mark.slow
-
-PORT = FIRMWARE_DIR / "ports" / "dspic30f2010"
-
-
-def port_defines(*make_args: str) -> tuple[str, ...]:
-    """The runtime and protocol defines (-DHRT_*, -DHBP_*) the dsPIC Makefile builds with, but the port's
-    own HRT_PORT_HW (the host and AVR ports are not hardware ports)."""
-    require_tool("make", "the dsPIC Makefile (apt: make)")
-    done = subprocess.run(["make", "-s", "-n", "--no-print-directory", "-C", str(PORT), "size", *make_args],
-                          capture_output=True, text=True, timeout=60, check=True)
-    return tuple(f for f in shlex.split(done.stdout) if re.match(r"-D(HRT|HBP)_", f) and
-                 not f.startswith("-DHRT_PORT_HW"))
-
 
 @pytest.fixture(scope="module")
 def profile() -> tuple[str, ...]:
@@ -108,13 +97,18 @@ def test_profile_refuses_what_it_leaves_out(profile_sil: Path) -> None:
     parameters, with the values the firmware's ParamGet gives (after a write too)."""
     with SilTarget.open("seed", exe=profile_sil) as sil:
         t = sil.target
-        for mode in (MODE_REALTIME, MODE_PREDICT):
+        for seq, mode in ((1, MODE_REALTIME), (2, MODE_PREDICT)):
             with pytest.raises(HilbenchError, match="BAD_REQUEST"):
                 t.hello(HostHello(0, PROTOCOL_VERSION, 50, mode, 100))
+            sil.link.send(HostHello(seq, PROTOCOL_VERSION, 50, mode, 100))  # PROTOCOL.md: a refused mode, detail 0
+            assert sil.link.recv(2.0) == ErrorReport(seq, ErrorCode.BAD_REQUEST, 0, SCHEMA_FINGERPRINT)
         assert t.hello(HostHello(0, PROTOCOL_VERSION, 50, MODE_LOCKSTEP, 100)).firmware_name == "AN1017"
         assert t.describe_target() is None
-        refused = t._request(ParamDescribe(t._next_seq(), 0), ParamInfo)
-        assert type(refused) is ErrorReport and refused.code == ErrorCode.BAD_REQUEST, refused
+        for request in (ParamDescribe(t._next_seq(), 0), TelemetryDescribe(t._next_seq(), 0),
+                        TargetDescribe(t._next_seq())):  # PROTOCOL.md: detail = the request's type
+            refused = t._request(request, ParamInfo)
+            assert refused == ErrorReport(request.seq, ErrorCode.BAD_REQUEST, int(request.TYPE),
+                                          SCHEMA_FINGERPRINT), refused
         assert t.set_params(((4, 25),)).result == RESULT_OK
         model = An1017Target(An1017Options(variant="seed"))
         assert model.set_params(((4, 25),)).result == RESULT_OK
@@ -163,3 +157,41 @@ def test_profile_avr_in_simavr_drive_for_drive_on_a_seeded_stream(profile: tuple
             link.close()
     finally:
         firmware.close()
+
+
+@pytest.mark.parametrize("define,refusal", [
+    ('-DAN1017_FIRMWARE_NAME="AN1017X"', "target 'AN1017X' does not describe its parameters (built without "
+                                         "HRT_DESCRIBE?) and no registered firmware profile knows it"),
+    ("-DAN1017_FIRMWARE_VERSION=0x0102u", "firmware_version 258 (model 257)"),
+])
+def test_profile_build_another_firmware_is_not_described_by_guess(tmp_path_factory, gcc: str,
+                                                                 profile: tuple[str, ...], define: str,
+                                                                 refusal: str) -> None:
+    """The registered model describes a build's parameters only if its own TargetHello declares what the
+    build's does: a renamed firmware or another version is refused (TargetError, one line naming both),
+    before any parameter is read or written."""
+    exe = build_sil(tmp_path_factory.mktemp("sil_other"), defines=(*profile, define))
+    with SilTarget.open("seed", exe=exe) as sil:
+        sil.target.handshake(50)
+        with pytest.raises(TargetError) as refused:
+            sil.target.describe(0)
+    assert refusal in str(refused.value) and "\n" not in str(refused.value), refused.value
+    assert not isinstance(refused.value, ParamError), refused.value
+
+
+def test_profile_conformance_reports_what_it_leaves_out_as_not_served(profile_sil: Path) -> None:
+    """`hilbench conformance` on the profile's build: real time and ParamDescribe are refused as the
+    protocol says, so those checks are "not served", no failure; the ParamSet checks run with the
+    declaration RemoteTarget.describe gives (the registered model's, the firmware's values)."""
+    from hilbench.bench.conformance import run_checks
+
+    firmware = start_process([str(profile_sil), "--pty"], "sil:an1017 profile --pty")
+    try:
+        results = {r.name: r for r in run_checks(f"serial:{firmware.tty_path}")}
+    finally:
+        firmware.close()
+    not_served = {"parameters: describe and get", "watchdog (real time)"}
+    assert {name for name, r in results.items() if r.status == "not served"} == not_served, results
+    assert all(r.ok is True for name, r in results.items() if name not in not_served), results
+    assert "ParamGet checked" in results["parameters: describe and get"].detail, results
+    assert "all-or-nothing" in results["parameters: set, all or nothing"].detail, results

@@ -38,8 +38,14 @@
 #define AN1017_PWM_FREQ_HZ 20000UL
 #define AN1017_PERIOD_STEP_US 50u         /* an agreed period is a whole number of PWM periods */
 #define AN1017_ADC_BITS 10u               /* the dsPIC30F2010's 10-bit ADC */
+/* the HELLO's identity; a fork or a later version defines its own (-D), and a host then does not take the
+ * registered model's word for its parameters (hilbench RemoteTarget.describe) */
+#ifndef AN1017_FIRMWARE_NAME
 #define AN1017_FIRMWARE_NAME "AN1017"
+#endif
+#ifndef AN1017_FIRMWARE_VERSION
 #define AN1017_FIRMWARE_VERSION 0x0101u   /* v1.1 */
+#endif
 
 /* ---- runtime timers (ids into hrt_firmware.timers) ---- */
 #define AN1017_TIMER_T1 0u                /* Timer1, the speed loop tick, while the motor runs */

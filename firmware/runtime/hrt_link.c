@@ -62,7 +62,7 @@ void hrt_link_init(hrt_link_t *l, hrt_t *rt)
         p[k] = 0u;
     }
     l->rt = rt;
-    hbp_rx_init(&l->rx);
+    hbp_rx_init(&l->rx); /* (which stores rx.ready, the one volatile field, through its volatile lvalue) */
 }
 
 /* Mode PREDICT: this build has room for the firmware's state, and the firmware says how big it is. */
@@ -961,7 +961,7 @@ void hrt_link_handle(hrt_link_t *l, const hbp_u8 *frame, hbp_u8 len)
     }
 #endif
     if (want == 0u) {
-        send_error(l, seq, HBP_ERROR_BAD_REQUEST, 0u); /* a target -> host message, or one not served */
+        send_error(l, seq, HBP_ERROR_BAD_REQUEST, type); /* a target -> host message, or one not served */
         return;
     }
     if (len != want) {

@@ -26,6 +26,11 @@ Python target kit and `serve` for the in-process and emulator targets):
 - bad frames (bad check bytes, bad COBS, a wrong length, garbage, a frame of an unknown type) are
   counted in Status and never acted on: no reply, no parameter changed, the next good request
   answered.
+
+What the protocol lets a build leave out and refuse (real time, refused at the HELLO with BAD_REQUEST;
+ParamDescribe, refused with BAD_REQUEST and its type as the detail, by a build without its
+self-description) is reported "not served", not a failure; the parameter checks then run with the
+declaration the host's RemoteTarget.describe gives (the registered model of the same build).
 """
 
 from __future__ import annotations
@@ -82,16 +87,24 @@ RETRY_S = 0.25  # an unanswered request is sent again after this long (the host'
 @dataclass
 class CheckResult:
     name: str
-    ok: bool | None  # None: not applicable to this target (skipped, with the reason)
+    ok: bool | None  # None: not applicable to this target (skipped, or not served, with the reason)
     detail: str
+    served: bool = True  # False: the target refuses what the check needs as the protocol says (NotServed)
 
     @property
     def status(self) -> str:
+        if not self.served:
+            return "not served"
         return "skip" if self.ok is None else ("PASS" if self.ok else "FAIL")
 
 
 class ConformanceFailure(AssertionError):
     pass
+
+
+class NotServed(Exception):
+    """The target refuses an optional capability the check needs, as the protocol says it may (a build
+    without real time or without its self-description, firmware_protocol/PROTOCOL.md): no failure."""
 
 
 def _require(cond: bool, what: str) -> None:
@@ -156,8 +169,12 @@ class Wire:
         return got
 
     def handshake(self, mode: int = MODE_LOCKSTEP, watchdog_ms: int = 0) -> TargetHello:
+        """A new session; NotServed when a mode other than lockstep (which every target serves) is
+        refused with BAD_REQUEST."""
         reply = self.ask(HostHello(self.next_seq(), PROTOCOL_VERSION, self.period_us, mode, watchdog_ms),
                          (TargetHello, ErrorReport))
+        if mode != MODE_LOCKSTEP and type(reply) is ErrorReport and reply.code == ErrorCode.BAD_REQUEST:
+            raise NotServed(f"HostHello mode {mode} refused (BAD_REQUEST, detail {reply.detail}): a build without it")
         _require(isinstance(reply, TargetHello), f"HostHello answered {reply}")
         self.hello = reply
         self.k = 0
@@ -204,7 +221,7 @@ def check_self_description(w: Wire) -> str:
     hello = w.handshake()
     info = w.ask(TargetDescribe(w.next_seq()), (TargetInfo, ErrorReport))
     if type(info) is ErrorReport:
-        _require(info.code == ErrorCode.BAD_REQUEST, f"TargetDescribe answered {info}")
+        _require(_refused_optional(info, TargetDescribe), f"TargetDescribe answered {info}")
         return "does not describe itself (ErrorReport BAD_REQUEST): served from its HELLO"
     _require(info.duty_timing in (0, 1, 2) and info.duty_report in (0, 1), f"TargetInfo {info}")
     _require(1 <= info.max_edges <= 16, f"TargetInfo.max_edges {info.max_edges}")
@@ -221,23 +238,48 @@ def check_self_description(w: Wire) -> str:
     return f"TargetInfo {tuple(info)[1:]}; telemetry {', '.join(names) or 'none'}"
 
 
-def _params(w: Wire) -> list[ParamInfo]:
+def _refused_optional(reply: Any, request: type) -> bool:
+    """Whether ``reply`` is the protocol's refusal of a request the target does not serve: ErrorReport
+    BAD_REQUEST whose detail is the request's type (a wrong detail fails the check)."""
+    if type(reply) is not ErrorReport or reply.code != ErrorCode.BAD_REQUEST:
+        return False
+    _require(reply.detail == request.TYPE,
+             f"{request.__name__} refused with detail {reply.detail:#04x}, not its type {request.TYPE:#04x}")
+    return True
+
+
+def _params(w: Wire) -> tuple[list[ParamInfo], bool]:
+    """Every declared parameter's ParamInfo and whether the target gave them itself: a build without
+    its self-description refuses ParamDescribe, and the declaration is then the one the host's
+    RemoteTarget.describe gives (the registered model of the same build, the target's values)."""
     hello = w.hello or w.handshake()
     out = []
     for pid in range(hello.n_params):
         p = w.ask(ParamDescribe(w.next_seq(), pid), (ParamInfo, ErrorReport))
+        if pid == 0 and _refused_optional(p, ParamDescribe):
+            return _declared_by_host(w), False
         _require(type(p) is ParamInfo and p.param_id == pid, f"ParamDescribe {pid} answered {p}")
         out.append(p)
-    return out
+    return out, True
+
+
+def _declared_by_host(w: Wire) -> list[ParamInfo]:
+    """RemoteTarget.describe for every id, in a session of its own (the Wire's next one starts afresh)."""
+    from hilbench.targets.remote import RemoteTarget
+
+    remote = RemoteTarget(w.link, timeout_s=REPLY_S, retry_s=RETRY_S)
+    w.hello, w.k = remote.handshake(w.period_us), 0
+    return [remote.describe(pid) for pid in range(w.hello.n_params)]
 
 
 def check_param_describe_get(w: Wire) -> str:
     w.handshake()
-    params = _params(w)
+    params, own = _params(w)
     n = len(params)
-    past = w.ask(ParamDescribe(w.next_seq(), n), (ParamInfo, ErrorReport))
-    _require(type(past) is ErrorReport and past.code == ErrorCode.UNKNOWN_PARAM and past.detail == n,
-             f"ParamDescribe {n} (past the last) answered {past}")
+    if own:
+        past = w.ask(ParamDescribe(w.next_seq(), n), (ParamInfo, ErrorReport))
+        _require(type(past) is ErrorReport and past.code == ErrorCode.UNKNOWN_PARAM and past.detail == n,
+                 f"ParamDescribe {n} (past the last) answered {past}")
     for p in params:
         _require(p.min_value <= p.max_value and p.access in (ACCESS_RO, ACCESS_RW), f"ParamInfo {p}")
         v = w.ask(ParamGet(w.next_seq(), p.param_id), (ParamValue, ErrorReport))
@@ -246,7 +288,10 @@ def check_param_describe_get(w: Wire) -> str:
         _require(p.min_value <= v.value <= p.max_value, f"{p.name} = {v.value} outside [{p.min_value}, {p.max_value}]")
     past_get = w.ask(ParamGet(w.next_seq(), n), (ParamValue, ErrorReport))
     _require(type(past_get) is ParamValue and past_get.result == RESULT_UNKNOWN_ID, f"ParamGet {n} answered {past_get}")
-    return f"{n} parameters: " + ", ".join(f"{p.name}{f' [{p.unit}]' if p.unit else ''}" for p in params)
+    what = f"{n} parameters: " + ", ".join(f"{p.name}{f' [{p.unit}]' if p.unit else ''}" for p in params)
+    if not own:
+        raise NotServed(f"ParamDescribe refused (BAD_REQUEST); ParamGet checked against the host's model: {what}")
+    return what
 
 
 def _value(w: Wire, pid: int) -> int:
@@ -261,7 +306,7 @@ def _set(w: Wire, pairs: tuple[tuple[int, int], ...]) -> ParamSetResult:
 
 def check_param_set(w: Wire) -> str:
     w.handshake()
-    params = _params(w)
+    params, _ = _params(w)
     rw = [p for p in params if p.access == ACCESS_RW]
     ro = [p for p in params if p.access == ACCESS_RO]
     n = len(params)
@@ -422,7 +467,7 @@ def check_bad_frames(w: Wire) -> str:
     from hilbench.protocol.framing import unframe
 
     w.handshake()
-    params = _params(w)
+    params, _ = _params(w)
     rw = next((p for p in params if p.access == ACCESS_RW and p.min_value != p.max_value), None)
     before = _value(w, rw.param_id) if rw is not None else None
     status0 = w.status()
@@ -558,6 +603,8 @@ def run_checks(spec: str, *, period_us: int = 50, only: tuple[str, ...] = ()) ->
             try:
                 conn.wire.drain()
                 results.append(CheckResult(name, True, check(conn.wire)))
+            except NotServed as exc:
+                results.append(CheckResult(name, None, f"not served: {exc}", served=False))
             except ConformanceFailure as exc:
                 results.append(CheckResult(name, False, str(exc)))
             except (HilbenchError, LinkTimeout) as exc:
@@ -575,5 +622,5 @@ def as_dicts(results: list[CheckResult]) -> list[dict[str, Any]]:
     return [dict(asdict(r), status=r.status) for r in results]
 
 
-__all__ = ["CHECKS", "CheckResult", "Connection", "FreshWire", "spawnable", "ConformanceFailure", "Wire", "as_dicts", "iter_check_names",
-           "run_checks"]
+__all__ = ["CHECKS", "CheckResult", "Connection", "FreshWire", "spawnable", "ConformanceFailure", "NotServed", "Wire",
+           "as_dicts", "iter_check_names", "run_checks"]

@@ -11,12 +11,13 @@ import time
 from types import MethodType
 from typing import TYPE_CHECKING, Any, Callable
 
-from hilbench.errors import LinkTimeout, ParamError, TargetError, VersionMismatch
+from hilbench.errors import HilbenchError, LinkTimeout, ParamError, TargetError, VersionMismatch
 from hilbench.protocol import (
     MODE_LOCKSTEP,
     BatchDigest,
     SensorsBatch,
     PROTOCOL_VERSION,
+    RESULT_OK,
     Drive,
     ErrorCode,
     ErrorReport,
@@ -51,6 +52,16 @@ if TYPE_CHECKING:
     from hilbench.link import FaultyLink
 
 
+#: the TargetHello fields that must equal the registered model's before it may describe a target's parameters
+_SAME_BUILD = ("firmware_version", "n_params", "telemetry_ids", "adc_roles", "pwm_period_counts")
+
+
+def _field(hello: TargetHello, name: str) -> Any:
+    """A TargetHello field as compared: a sequence as a tuple (a model may build its hello with lists)."""
+    value = getattr(hello, name)
+    return tuple(value) if isinstance(value, (list, tuple)) else value
+
+
 def _error_name(code: int) -> str:
     try:
         return ErrorCode(code).name
@@ -82,6 +93,7 @@ class RemoteTarget:
         self.stray_sink: Callable[[Any], None] | None = None
         #: the in-process model that describes the parameters of a build that does not (None: not needed yet)
         self._describer: Any = None
+        self._period_us = 0  # the agreed period (the model's HELLO asks for the same)
         self._send = link.send
         self._recv = link.recv
 
@@ -183,6 +195,7 @@ class RemoteTarget:
         self.target_hello = reply
         self.watchdog_ms = host.watchdog_ms
         self.firmware_name = reply.firmware_name
+        self._period_us = host.period_us
         self._describer = None
         self.link.reset_sequence()
         return reply
@@ -214,22 +227,43 @@ class RemoteTarget:
             raise self._refused(f"ParamDescribe {param_id}", reply)
         return reply
 
-    def _described_by_profile(self, param_id: int) -> ParamInfo | None:
+    def _described_by_profile(self, param_id: int) -> ParamInfo:
         """A build without its self-description (HRT_DESCRIBE 0: the dsPIC30F2010's, which has no flash
         for it, docs/board.md "Does it fit") refuses ParamDescribe: the registered profile's in-process
-        model of the same firmware declares the same parameters, and the target's own ParamGet gives the
-        value. None for a firmware no hilbench module knows (it has only its own description)."""
+        model of the same build declares the same parameters, and the target's own ParamGet gives the
+        value."""
         if self._describer is None:
-            from hilbench.targets.registry import registered_for_firmware
-
-            profile = registered_for_firmware(self.firmware_name) if self.firmware_name else None
-            if profile is None:
-                return None
-            self._describer = profile.make(profile.default_options())
+            self._describer = self._profile_model()
         if param_id >= (self.target_hello.n_params if self.target_hello is not None else 0):
             raise ParamError(f"link {self.link.name}: target {self.firmware_name!r} has no param id {param_id}")
         value = self.get_param(param_id)
+        if value.result != RESULT_OK:
+            raise ParamError(f"link {self.link.name}: target {self.firmware_name!r} answers ParamGet {param_id} "
+                             f"with result {value.result}")
         return self._describer.describe(param_id)._replace(seq=value.seq, value=value.value)
+
+    def _profile_model(self) -> Any:
+        """The registered profile's model, only if its own TargetHello declares what the target's does:
+        a name alone is a guess, and nothing acts on a board by guess (another version or fork of the
+        firmware may number or bound its parameters otherwise)."""
+        from hilbench.targets.registry import registered_for_firmware
+
+        mine = self.target_hello
+        profile = registered_for_firmware(self.firmware_name) if mine is not None else None
+        if profile is None or mine is None:
+            raise TargetError(f"link {self.link.name}: target {self.firmware_name!r} does not describe its "
+                              "parameters (built without HRT_DESCRIBE?) and no registered firmware profile knows it")
+        model = profile.make(profile.default_options())
+        where = f"link {self.link.name}: target {self.firmware_name!r} does not describe its parameters and"
+        try:
+            theirs = model.hello(HostHello(0, PROTOCOL_VERSION, self._period_us, MODE_LOCKSTEP, 0))
+        except HilbenchError as exc:
+            raise TargetError(f"{where} the model of profile {profile.name!r} refuses its period: {exc}") from exc
+        differ = [f"{f} {_field(mine, f)!r} (model {_field(theirs, f)!r})" for f in _SAME_BUILD
+                  if _field(mine, f) != _field(theirs, f)]
+        if differ:
+            raise TargetError(f"{where} is not the build profile {profile.name!r} models: " + ", ".join(differ))
+        return model
 
     def describe_all(self) -> list[ParamInfo]:
         """Every declared parameter (ids 0..n_params-1 by the handshake's count)."""
