@@ -25,8 +25,9 @@ from typing import IO
 
 import pytest
 
-from _firmware import python_config, require_tool
+from _firmware import port_defines, python_config, require_tool
 from hilbench.processes import reap, spawn
+from hilbench.targets.sil import build_sil
 
 pytestmark = pytest.mark.slow
 
@@ -41,6 +42,7 @@ BOARD_ONLY = {
     "cat /sys/bus/usb-serial/devices/ttyUSB0/latency_timer",
     "echo 1 | sudo tee /sys/bus/usb-serial/devices/ttyUSB0/latency_timer",
     "make -C firmware/an1017/ports/dspic30f2010 MODE=motor DEVICE=30F4012",
+    "make -C firmware/an1017/ports/dspic30f2010 DEVICE=30F4012",
 }
 NOT_HELD = "real time NOT held"
 
@@ -119,9 +121,10 @@ def _start(argv: list[str], stderr: int | IO[bytes] = subprocess.DEVNULL) -> tup
 
 
 def _ctl_during_run(commands: list[str], port: str) -> None:
-    """Section 9: ctl while a run runs (its control socket; XDG_RUNTIME_DIR is the test's own)."""
-    run = spawn([sys.executable, "-m", "hilbench", "run", "--target", port, "--no-ui", "--mode", "realtime",
-                 "--set", "run.duration_s=60", "--set", "link.period_us=1000"], stdout=subprocess.DEVNULL,
+    """Section 9: ctl while a run runs (its control socket; XDG_RUNTIME_DIR is the test's own), a lockstep
+    run on the board's default build (no ParamDescribe: ctl names the parameters from the host's model)."""
+    run = spawn([sys.executable, "-m", "hilbench", "run", "--target", port, "--no-ui",
+                 "--set", "run.duration_s=600", "--set", "link.period_us=250"], stdout=subprocess.DEVNULL,
                 stderr=subprocess.DEVNULL, cwd=REPO)
     try:
         listed = _cli("hilbench ctl list", 30)
@@ -146,13 +149,36 @@ def test_every_guide_command_is_run_or_needs_the_board() -> None:
     commands = guide_commands()
     assert set(BOARD_ONLY) <= set(commands), set(BOARD_ONLY) - set(commands)
     assert len(commands) >= 20, commands
+    for i, command in enumerate(commands):  # the 30F2010's default build refuses real time: PROFILE=full first
+        if BOARD_PORT in command and "--mode realtime" in command:
+            makes = [c for c in commands[:i] if c.startswith("make")]
+            assert makes and ("DEVICE=30F4012" in makes[-1] or "PROFILE=full" in makes[-1]), (command, makes[-1:])
+
+
+def _board_sils(tmp_path: Path) -> tuple[Path, Path]:
+    """The board's stand-ins: the SIL built with the port's default profile's defines (the 30F2010's
+    lockstep build: no real time, no ParamDescribe) and with PROFILE=full's (the 30F4012's, real time)."""
+    profile = build_sil(tmp_path / "profile", defines=port_defines())
+    full = build_sil(tmp_path / "full", defines=port_defines("PROFILE=full"))
+    return profile, full
+
+
+def _on_board(command: str, lockstep_pty: str, realtime_pty: str) -> str:
+    """A section 3-9 command with the board's port replaced by its stand-in's pty: real time only on the
+    PROFILE=full build (the page builds `DEVICE=30F4012` for it), everything else on the profile's."""
+    pty = realtime_pty if "--mode realtime" in command else lockstep_pty
+    return command.replace(BOARD_PORT, f"serial:{pty}?baud=250000")
 
 
 def _sil_part(commands: list[str], tmp_path: Path) -> set[str]:
-    """Sections 3-9 (the board's port -> the SIL's pty) and section 11's SIL commands; ctl last
-    (its gain write stays in the SIL, as it would on a board)."""
+    """Sections 3-9 (the board's port -> a SIL of the board's build, _on_board) and section 11's SIL
+    commands (its own stand-in, the host build); ctl last, during a lockstep run on the profile's
+    build (its gain write stays in the SIL, as it would on a board)."""
     ran, folder = set(), REPO
+    profile_exe, full_exe = _board_sils(tmp_path)
     sil, sil_pty = _start([sys.executable, "-m", "hilbench.targets.sil"])
+    board, board_pty = _start([str(profile_exe), "--pty"])
+    board_rt, board_rt_pty = _start([str(full_exe), "--pty"])
     try:
         for command in commands:
             if command in ran or command.startswith("hilbench ctl") or _is_avr(command) or _is_motor(command):
@@ -164,14 +190,15 @@ def _sil_part(commands: list[str], tmp_path: Path) -> set[str]:
                 done = subprocess.run(["make", "-s", "size"], cwd=folder, capture_output=True, text=True, timeout=600)
                 assert done.returncode == 0 and "flash estimate:" in done.stdout.splitlines()[-1], done
             elif command != "python -m hilbench.targets.sil":  # that one is the stand-in, started above
-                real = command.replace(BOARD_PORT, f"serial:{sil_pty}?baud=250000").replace("/dev/pts/N", sil_pty)
+                real = _on_board(command, board_pty, board_rt_pty).replace("/dev/pts/N", sil_pty)
                 _passes(command, _cli(real.replace("--record board.csv", f"--record {tmp_path / 'board.csv'}"), 600))
             ran.add(command)
         ctl = [c for c in commands if c.startswith("hilbench ctl")]
-        _ctl_during_run(ctl, f"serial:{sil_pty}")
+        _ctl_during_run(ctl, f"serial:{board_pty}")
         return ran | set(ctl)
     finally:
-        reap(sil, 10.0)
+        for process in (board_rt, board, sil):
+            reap(process, 10.0)
 
 
 def _is_avr(command: str) -> bool:
