@@ -180,3 +180,41 @@ def test_simavr_runs_the_same_firmware_folder_bit_for_bit(tmp_path: Path) -> Non
     assert len(outs[0]) == len(outs[1]) == 2000
     for a, b in zip(*outs):
         assert {k: v for k, v in a.items() if k not in skip} == {k: v for k, v in b.items() if k not in skip}
+
+
+def _gcc_link(tmp_path: Path, fw_defines: tuple[str, ...], runtime_defines: tuple[str, ...]) -> subprocess.CompletedProcess[str]:
+    """firmware/tiny's SIL with its declaration and the runtime compiled with their own defines, linked."""
+    from hilbench.targets.foc.build import STRICT_FLAGS
+
+    runtime, proto = REPO_ROOT / "firmware" / "runtime", REPO_ROOT / "firmware_protocol"
+    includes = [f"-I{d}" for d in (REPO_ROOT / "firmware" / "tiny", runtime, proto)]
+    fw = subprocess.run(["gcc", *STRICT_FLAGS, *fw_defines, *includes, "-c", str(REPO_ROOT / "firmware" / "tiny" / "tiny.c"),
+                         "-o", str(tmp_path / "tiny.o")], capture_output=True, text=True, timeout=120)
+    assert fw.returncode == 0, fw.stderr
+    core = [runtime / "hrt.c", runtime / "hrt_link.c", proto / "hbp.c", runtime / "ports" / "host" / "hrt_host.c"]
+    return subprocess.run(["gcc", *STRICT_FLAGS, *runtime_defines, *includes, str(tmp_path / "tiny.o"), *map(str, core),
+                           "-o", str(tmp_path / "tiny_sil")], capture_output=True, text=True, timeout=120)
+
+
+def test_declarations_build_without_the_self_description_and_a_mixed_build_does_not_link(tmp_path: Path) -> None:
+    """HRT_DESCRIBE=0 changes the declaration's layout: template, tiny and foc write their entries with
+    HRT_PARAM/HRT_TELEMETRY and compile that way too (the strict flags, -Werror); a declaration and a
+    runtime compiled with different HRT_DESCRIBE fail to link (hrt.h: the symbol carries it) instead of
+    reading the entries at the wrong offsets."""
+    from hilbench.targets.foc.build import FIRMWARE_DIR as FOC, STRICT_FLAGS
+
+    if shutil.which("gcc") is None or shutil.which("make") is None:
+        pytest.skip("gcc and make build the SIL firmwares")
+    for folder in ("tiny", "template"):
+        done = subprocess.run(["make", "-s", "-C", str(REPO_ROOT / "firmware" / folder), "sil",
+                               f"BUILD={tmp_path / folder}", "DEFS=-DHRT_DESCRIBE=0"],
+                              capture_output=True, text=True, timeout=300)
+        assert done.returncode == 0, (folder, done.stderr)
+    runtime, proto = REPO_ROOT / "firmware" / "runtime", REPO_ROOT / "firmware_protocol"
+    foc = subprocess.run(["gcc", *STRICT_FLAGS, "-DHRT_DESCRIBE=0", *(f"-I{d}" for d in (FOC, runtime, proto)), "-c",
+                          str(FOC / "foc_hrt.c"), "-o", str(tmp_path / "foc_hrt.o")], capture_output=True, text=True,
+                         timeout=120)
+    assert foc.returncode == 0, foc.stderr
+    assert _gcc_link(tmp_path, ("-DHRT_DESCRIBE=0",), ("-DHRT_DESCRIBE=0",)).returncode == 0
+    mixed = _gcc_link(tmp_path, ("-DHRT_DESCRIBE=0",), ())
+    assert mixed.returncode != 0 and "hrt_firmware_built_with_HRT_DESCRIBE_1" in mixed.stderr, mixed.stderr

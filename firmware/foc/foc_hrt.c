@@ -172,22 +172,22 @@ static void decl_param_set(hrt_t *rt, hbp_u8 id, int32_t value)
 #define ONE_IQ24 16777216L
 /* ids 0..15, the table of hilbench/targets/foc/target.py's PARAMS */
 static const hrt_param_decl_t params[FOC_N_PARAMS] = {
-    {"ref_rpm", "rpm", -3000L, 3000L, HBP_PTYPE_INT, HBP_ACCESS_RW},
-    {"id_ref", "pu", -ONE_IQ24 / 2L, ONE_IQ24 / 2L, HBP_PTYPE_IQ24, HBP_ACCESS_RW},
-    {"spd_kp", "", 0L, 8L * ONE_IQ24, HBP_PTYPE_IQ24, HBP_ACCESS_RW},
-    {"spd_ki", "", 0L, ONE_IQ24, HBP_PTYPE_IQ24, HBP_ACCESS_RW},
-    {"spd_kc", "", 0L, ONE_IQ24, HBP_PTYPE_IQ24, HBP_ACCESS_RW},
-    {"spd_out_max", "pu", 0L, ONE_IQ24, HBP_PTYPE_IQ24, HBP_ACCESS_RW},
-    {"id_kp", "", 0L, 8L * ONE_IQ24, HBP_PTYPE_IQ24, HBP_ACCESS_RW},
-    {"id_ki", "", 0L, ONE_IQ24, HBP_PTYPE_IQ24, HBP_ACCESS_RW},
-    {"id_kc", "", 0L, ONE_IQ24, HBP_PTYPE_IQ24, HBP_ACCESS_RW},
-    {"id_out_max", "pu", 0L, ONE_IQ24, HBP_PTYPE_IQ24, HBP_ACCESS_RW},
-    {"iq_kp", "", 0L, 8L * ONE_IQ24, HBP_PTYPE_IQ24, HBP_ACCESS_RW},
-    {"iq_ki", "", 0L, ONE_IQ24, HBP_PTYPE_IQ24, HBP_ACCESS_RW},
-    {"iq_kc", "", 0L, ONE_IQ24, HBP_PTYPE_IQ24, HBP_ACCESS_RW},
-    {"iq_out_max", "pu", 0L, ONE_IQ24, HBP_PTYPE_IQ24, HBP_ACCESS_RW},
-    {"torque_mode", "", 0L, 1L, HBP_PTYPE_BOOL, HBP_ACCESS_RW},
-    {"iq_ref_set", "pu", -ONE_IQ24, ONE_IQ24, HBP_PTYPE_IQ24, HBP_ACCESS_RW},
+    HRT_PARAM("ref_rpm", "rpm", -3000L, 3000L, HBP_PTYPE_INT, HBP_ACCESS_RW),
+    HRT_PARAM("id_ref", "pu", -ONE_IQ24 / 2L, ONE_IQ24 / 2L, HBP_PTYPE_IQ24, HBP_ACCESS_RW),
+    HRT_PARAM("spd_kp", "", 0L, 8L * ONE_IQ24, HBP_PTYPE_IQ24, HBP_ACCESS_RW),
+    HRT_PARAM("spd_ki", "", 0L, ONE_IQ24, HBP_PTYPE_IQ24, HBP_ACCESS_RW),
+    HRT_PARAM("spd_kc", "", 0L, ONE_IQ24, HBP_PTYPE_IQ24, HBP_ACCESS_RW),
+    HRT_PARAM("spd_out_max", "pu", 0L, ONE_IQ24, HBP_PTYPE_IQ24, HBP_ACCESS_RW),
+    HRT_PARAM("id_kp", "", 0L, 8L * ONE_IQ24, HBP_PTYPE_IQ24, HBP_ACCESS_RW),
+    HRT_PARAM("id_ki", "", 0L, ONE_IQ24, HBP_PTYPE_IQ24, HBP_ACCESS_RW),
+    HRT_PARAM("id_kc", "", 0L, ONE_IQ24, HBP_PTYPE_IQ24, HBP_ACCESS_RW),
+    HRT_PARAM("id_out_max", "pu", 0L, ONE_IQ24, HBP_PTYPE_IQ24, HBP_ACCESS_RW),
+    HRT_PARAM("iq_kp", "", 0L, 8L * ONE_IQ24, HBP_PTYPE_IQ24, HBP_ACCESS_RW),
+    HRT_PARAM("iq_ki", "", 0L, ONE_IQ24, HBP_PTYPE_IQ24, HBP_ACCESS_RW),
+    HRT_PARAM("iq_kc", "", 0L, ONE_IQ24, HBP_PTYPE_IQ24, HBP_ACCESS_RW),
+    HRT_PARAM("iq_out_max", "pu", 0L, ONE_IQ24, HBP_PTYPE_IQ24, HBP_ACCESS_RW),
+    HRT_PARAM("torque_mode", "", 0L, 1L, HBP_PTYPE_BOOL, HBP_ACCESS_RW),
+    HRT_PARAM("iq_ref_set", "pu", -ONE_IQ24, ONE_IQ24, HBP_PTYPE_IQ24, HBP_ACCESS_RW),
 };
 
 /* ---------------------------------------------------------------------------- telemetry */
@@ -210,14 +210,14 @@ static void decl_report(hrt_t *rt, hrt_report_t *out)
 
 /* Q15 per unit of the servo build's bases: speed of BaseRpm 3000, current of 5 A, voltage of Udc/sqrt3 */
 static const hrt_telemetry_decl_t telemetry[FOC_N_TELEMETRY] = {
-    {"ref_speed_rpm", "rpm", 3000L, 32768L, HBP_TELEMETRY_REF_SPEED, HBP_PTYPE_Q15},
-    {"measured_speed_rpm", "rpm", 3000L, 32768L, HBP_TELEMETRY_MEASURED_SPEED, HBP_PTYPE_Q15},
-    {"iq_ref_a", "A", 5L, 32768L, HBP_TELEMETRY_IQ_REF, HBP_PTYPE_Q15},
-    {"i_d_a", "A", 5L, 32768L, HBP_TELEMETRY_ID, HBP_PTYPE_Q15},
-    {"i_q_a", "A", 5L, 32768L, HBP_TELEMETRY_IQ, HBP_PTYPE_Q15},
-    {"fw_theta_e_deg", "deg", 45L, 4096L, HBP_TELEMETRY_THETA_E, HBP_PTYPE_Q15},
-    {"v_d_pu", "pu", 1L, 32768L, HBP_TELEMETRY_VD, HBP_PTYPE_Q15},
-    {"v_q_pu", "pu", 1L, 32768L, HBP_TELEMETRY_VQ, HBP_PTYPE_Q15},
+    HRT_TELEMETRY("ref_speed_rpm", "rpm", 3000L, 32768L, HBP_TELEMETRY_REF_SPEED, HBP_PTYPE_Q15),
+    HRT_TELEMETRY("measured_speed_rpm", "rpm", 3000L, 32768L, HBP_TELEMETRY_MEASURED_SPEED, HBP_PTYPE_Q15),
+    HRT_TELEMETRY("iq_ref_a", "A", 5L, 32768L, HBP_TELEMETRY_IQ_REF, HBP_PTYPE_Q15),
+    HRT_TELEMETRY("i_d_a", "A", 5L, 32768L, HBP_TELEMETRY_ID, HBP_PTYPE_Q15),
+    HRT_TELEMETRY("i_q_a", "A", 5L, 32768L, HBP_TELEMETRY_IQ, HBP_PTYPE_Q15),
+    HRT_TELEMETRY("fw_theta_e_deg", "deg", 45L, 4096L, HBP_TELEMETRY_THETA_E, HBP_PTYPE_Q15),
+    HRT_TELEMETRY("v_d_pu", "pu", 1L, 32768L, HBP_TELEMETRY_VD, HBP_PTYPE_Q15),
+    HRT_TELEMETRY("v_q_pu", "pu", 1L, 32768L, HBP_TELEMETRY_VQ, HBP_PTYPE_Q15),
 };
 
 static const hbp_u8 adc_roles[3] = {HBP_ADC_IA, HBP_ADC_IB, HBP_ADC_VBUS};

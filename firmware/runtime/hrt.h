@@ -267,7 +267,15 @@ typedef struct {
 #endif
 } hrt_firmware_t;
 
-/* The one firmware of this program (the firmware's source defines it). */
+/* The one firmware of this program (the firmware's source defines it). HRT_DESCRIBE changes the layout
+ * of the parameter and telemetry entries, so the symbol carries it: a declaration compiled one way and a
+ * runtime compiled the other fail to link (undefined reference to hrt_firmware_built_with_HRT_DESCRIBE_N)
+ * instead of reading each other's entries at the wrong offsets. The source still writes `hrt_firmware`. */
+#if HRT_DESCRIBE
+#define hrt_firmware hrt_firmware_built_with_HRT_DESCRIBE_1
+#else
+#define hrt_firmware hrt_firmware_built_with_HRT_DESCRIBE_0
+#endif
 extern const hrt_firmware_t hrt_firmware;
 /* The firmware's power-on, for the runtime's shared ports (firmware/runtime/ports/CHIP): initialise its
  * one static state (hrt_init first) and return its runtime. A firmware with ports of its own (AN1017)

@@ -145,15 +145,15 @@ static const hrt_edge_decl_t edges[1] = {
 };
 
 static const hrt_param_decl_t params[N_PARAMS] = {
-    {"duty_pct", "%", 0, 100, HBP_PTYPE_INT, HBP_ACCESS_RW},
-    {"advance_deg", "deg", 0, 60, HBP_PTYPE_INT, HBP_ACCESS_RW},
-    {"limit_rpm", "rpm", 100, 20000, HBP_PTYPE_INT, HBP_ACCESS_RW},
+    HRT_PARAM("duty_pct", "%", 0, 100, HBP_PTYPE_INT, HBP_ACCESS_RW),
+    HRT_PARAM("advance_deg", "deg", 0, 60, HBP_PTYPE_INT, HBP_ACCESS_RW),
+    HRT_PARAM("limit_rpm", "rpm", 100, 20000, HBP_PTYPE_INT, HBP_ACCESS_RW),
 };
 
 static const hrt_telemetry_decl_t telemetry[3] = {
-    {"speed", "rpm", 1, 1, HBP_TELEMETRY_MEASURED_SPEED, HBP_PTYPE_INT},
-    {"sector", "", 1, 1, 0x80u, HBP_PTYPE_INT},
-    {"edge_interval", "us", 1, 1, 0x81u, HBP_PTYPE_INT},
+    HRT_TELEMETRY("speed", "rpm", 1, 1, HBP_TELEMETRY_MEASURED_SPEED, HBP_PTYPE_INT),
+    HRT_TELEMETRY("sector", "", 1, 1, 0x80u, HBP_PTYPE_INT),
+    HRT_TELEMETRY("edge_interval", "us", 1, 1, 0x81u, HBP_PTYPE_INT),
 };
 
 static const uint8_t adc_roles[1] = {HBP_ADC_POT};

@@ -125,15 +125,15 @@ static void body_main(hrt_t *rt)
 }
 
 static const hrt_param_decl_t params[3] = {
-    {"speed_ref", "rpm", -6000, 6000, HBP_PTYPE_INT, HBP_ACCESS_RW},
-    {"v_per_krpm", "%", 0, 100, HBP_PTYPE_INT, HBP_ACCESS_RW},
-    {"accel_rpm_s", "rpm/s", 1, 20000, HBP_PTYPE_INT, HBP_ACCESS_RW},
+    HRT_PARAM("speed_ref", "rpm", -6000, 6000, HBP_PTYPE_INT, HBP_ACCESS_RW),
+    HRT_PARAM("v_per_krpm", "%", 0, 100, HBP_PTYPE_INT, HBP_ACCESS_RW),
+    HRT_PARAM("accel_rpm_s", "rpm/s", 1, 20000, HBP_PTYPE_INT, HBP_ACCESS_RW),
 };
 
 static const hrt_telemetry_decl_t telemetry[3] = {
-    {"ref_speed", "rpm", 1, 1, HBP_TELEMETRY_REF_SPEED, HBP_PTYPE_INT},
-    {"tiny_angle", "deg", 1, 10, TELEMETRY_ANGLE, HBP_PTYPE_INT},
-    {"tiny_modulation", "", 1, 1000, TELEMETRY_MODULATION, HBP_PTYPE_INT},
+    HRT_TELEMETRY("ref_speed", "rpm", 1, 1, HBP_TELEMETRY_REF_SPEED, HBP_PTYPE_INT),
+    HRT_TELEMETRY("tiny_angle", "deg", 1, 10, TELEMETRY_ANGLE, HBP_PTYPE_INT),
+    HRT_TELEMETRY("tiny_modulation", "", 1, 1000, TELEMETRY_MODULATION, HBP_PTYPE_INT),
 };
 
 static int32_t decl_param_get(hrt_t *rt, uint8_t id)
