@@ -14,9 +14,11 @@ RAM figure = static + a computed stack bound:
   an upper bound), with the dsPIC's larger costs added: +2 bytes per
   call (its return address is 4 bytes, the AVR's 2) and +24 bytes per interrupt level (PC, SR and
   IPL pushed by the hardware: 4; W0-W7 saved by the compiler for an ISR that calls functions: 16;
-  RCOUNT and one spare word: 4). The 30F2010's build is the lockstep profile (docs/board.md "Does
-  it fit"): no real time, so no PWM, Timer1 or Timer2 interrupt; on main's stack sits one ISR (UART1
-  RX and FLTA share priority 4, so they never nest).
+  RCOUNT and one spare word: 4). Every interrupt of the port has priority 4, so they never nest:
+  on main's stack sits one ISR frame, the deepest. Two builds: the 30F2010's default, the lockstep
+  profile (docs/board.md "Does it fit": no real time, so only the UART1 RX and FLTA interrupts), and
+  the real-motor build (`make MODE=motor`: real time on the chip's timers, the PWM, Timer1, Timer2,
+  FLTA, UART1 RX interrupts and the halls' CN, IC7 and IC8).
 """
 
 from __future__ import annotations
@@ -66,9 +68,16 @@ CALLBACKS = {
 DSPIC30F2010_RAM_BYTES = 512
 #: the 30F2010's (lockstep profile) interrupt handlers; PROFILE=full adds PWM, Timer1 and Timer2
 ISRS = ("_FLTAInterrupt", "_U1RXInterrupt")
+#: the real-motor build's: real time and the motor's halls
+MOTOR_ISRS = ("_PWMInterrupt", "_T1Interrupt", "_T2Interrupt", "_FLTAInterrupt", "_U1RXInterrupt", "_CNInterrupt",
+              "_IC7Interrupt", "_IC8Interrupt")
+#: the builds whose RAM is bounded: defines, interrupt handlers, the static RAM objects
+RAM_BUILDS = {
+    "lockstep": (DEFS, ISRS, {"fw", "host_link"}),  # no clock overflows, no board S2
+    "motor": ((*BASE_DEFS, *INCLUDES, *MOTOR), MOTOR_ISRS, None),
+}
 DSPIC_EXTRA_PER_CALL = 2
 DSPIC_ISR_CONTEXT = 24
-LOCKSTEP_ISRS = ISRS
 MARGIN_BYTES = 32
 
 
@@ -112,12 +121,12 @@ def test_dspic_lockstep_profile_refuses_the_local_pot(gcc: str, tmp_path: Path, 
     assert done.returncode != 0 and "HIL_LOCAL_POT reads the pot" in done.stderr, done.stderr
 
 
-def static_ram_bytes(gcc: str, tmp_path: Path) -> dict[str, int]:
+def static_ram_bytes(gcc: str, tmp_path: Path, defs: tuple[str, ...] = DEFS) -> dict[str, int]:
     """RAM objects (.bss/.data) of the host build and their sizes."""
     objects = []
     for source in SOURCES:
         obj = tmp_path / (source.stem + ".o")
-        subprocess.run([gcc, *STRICT_FLAGS, "-Os", "-fno-pic", "-fno-pie", *DEFS, "-c", str(source), "-o", str(obj)],
+        subprocess.run([gcc, *STRICT_FLAGS, "-Os", "-fno-pic", "-fno-pie", *defs, "-c", str(source), "-o", str(obj)],
                        check=True, capture_output=True, timeout=120)
         objects.append(str(obj))
     out = subprocess.run(["nm", "-S", *objects], capture_output=True, text=True, check=True, timeout=30).stdout
@@ -129,12 +138,13 @@ def static_ram_bytes(gcc: str, tmp_path: Path) -> dict[str, int]:
     return sizes
 
 
-def stack_bound_bytes(tmp_path: Path) -> tuple[int, dict[str, tuple[int, list[str]]]]:
+def stack_bound_bytes(tmp_path: Path, defs: tuple[str, ...] = DEFS,
+                      isrs: tuple[str, ...] = ISRS) -> tuple[int, dict[str, tuple[int, list[str]]]]:
     avr_gcc = require_tool("avr-gcc", "the computed stack bound of the dsPIC port (apt: gcc-avr avr-libc)")
     elf = tmp_path / "dspic_port_16bit.elf"
     build = tmp_path / "su"
     build.mkdir()
-    cmd = [avr_gcc, "-mmcu=atmega328p", "-std=c99", "-Os", "-fstack-usage", *DEFS, *(str(s) for s in SOURCES),
+    cmd = [avr_gcc, "-mmcu=atmega328p", "-std=c99", "-Os", "-fstack-usage", *defs, *(str(s) for s in SOURCES),
            str(PORT / "hostcheck" / "sfr.c"), "-o", str(elf)]
     result = subprocess.run(cmd, capture_output=True, text=True, timeout=180, cwd=build)
     assert result.returncode == 0, result.stderr
@@ -175,20 +185,24 @@ def stack_bound_bytes(tmp_path: Path) -> tuple[int, dict[str, tuple[int, list[st
                 best, path = depth, sub
         return frames.get(fn, 0) + best, [fn, *path]
 
-    paths = {fn: deepest(fn) for fn in ("main", *ISRS)}
-    # the lockstep profile has no real time: main's frame path and one ISR's (they never nest)
-    lockstep = paths["main"][0] + max(paths[f][0] for f in LOCKSTEP_ISRS) + DSPIC_ISR_CONTEXT
-    return lockstep, paths
+    paths = {fn: deepest(fn) for fn in ("main", *isrs)}
+    if "_PWMInterrupt" in paths:  # Timer1 runs in hardware (hrt_port_timer): its body runs from _T1Interrupt
+        paths["_PWMInterrupt"] = deepest("_PWMInterrupt", skip=("body_timer1",))
+    # main's deepest path and one ISR's on top (all at priority 4: they never nest)
+    return paths["main"][0] + max(paths[f][0] for f in isrs) + DSPIC_ISR_CONTEXT, paths
 
 
-def test_dspic_port_ram_fits_512_bytes(gcc: str, tmp_path: Path, capsys) -> None:
-    sizes = static_ram_bytes(gcc, tmp_path)
-    assert set(sizes) == {"fw", "host_link"}, sizes  # the lockstep profile: no clock overflows, no board S2
+@pytest.mark.parametrize("build", sorted(RAM_BUILDS))
+def test_dspic_port_ram_fits_512_bytes(gcc: str, tmp_path: Path, capsys, build: str) -> None:
+    defs, isrs, statics = RAM_BUILDS[build]
+    sizes = static_ram_bytes(gcc, tmp_path, defs)
+    assert statics is None or set(sizes) == statics, sizes
     static = sum(sizes.values())
-    stack, paths = stack_bound_bytes(tmp_path)
+    stack, paths = stack_bound_bytes(tmp_path, defs, isrs)
     assert "hrt_link_handle" in paths["main"][1], paths["main"]  # the analysis found the frame path
+    assert all(paths[f][0] > 0 for f in isrs), {f: paths[f] for f in isrs}  # every handler is in the build
     with capsys.disabled():
-        print(f"\ndsPIC30F2010 RAM: static {static} B ({', '.join(f'{k} {v}' for k, v in sorted(sizes.items()))}) "
+        print(f"\ndsPIC30F2010 RAM ({build}): static {static} B ({', '.join(f'{k} {v}' for k, v in sorted(sizes.items()))}) "
               f"+ stack bound {stack} B = {static + stack} of {DSPIC30F2010_RAM_BYTES} B (margin {MARGIN_BYTES} B "
               f"required); deepest main path {' > '.join(paths['main'][1])}")
     assert static + stack <= DSPIC30F2010_RAM_BYTES - MARGIN_BYTES
@@ -224,13 +238,14 @@ int main(void) {
 
 def test_dspic_lockstep_profile_clock_is_timer3_timer2(gcc: str, tmp_path: Path) -> None:
     """The lockstep profile's clock: Timer3:Timer2 as one 32-bit timer, TMR2 read first (it latches TMR3
-    into TMR3HLD), no overflow interrupt."""
+    into TMR3HLD: hostcheck's TMR2 does too), no overflow interrupt. TMR3HLD starts stale, so a clock
+    that read it before TMR2 would return its stale high word."""
     harness = tmp_path / "clock32.c"
     harness.write_text(f'#define main port_main\n#include "{PORT / "main.c"}"\n#undef main\n' r'''
 #include <stdio.h>
 int main(void) {
     init_timers();
-    TMR2 = 0xFFF0u; TMR3HLD = 0x0007u;
+    TMR2 = 0xFFF0u; TMR3 = 0x0007u; TMR3HLD = 0x1234u;   /* the holding register still holds an old high word */
     printf("%lu %u %u %u\n", (unsigned long)hrt_port_now(), (unsigned)T2CON, (unsigned)PR2, (unsigned)PR3);
     return 0;
 }

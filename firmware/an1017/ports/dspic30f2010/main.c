@@ -23,7 +23,8 @@
  * - ADC: configured as AN1017 does (AN2 = pot R14, signed fractional, started by the PWM special
  *   event); the pot value comes from Sensors unless HIL_LOCAL_POT is defined, then from ADCBUF0.
  * - S2 (RC14, active low): pressing the board's S2 acts like the Sensors S2 bit.
- * Lockstep: Timer1/Timer3 stay off (the firmware's timers are gated); each Sensors runs one period
+ * Lockstep: Timer1 stays off (the firmware's timers are gated; in the lockstep profile Timer3 runs as
+ * the clock's high word, above); each Sensors runs one period
  * of ISR bodies at their virtual times (the runtime's hrt_span_*). Real time (make PROFILE=full, the
  * 30F4012's default; the 30F2010's lockstep profile, HRT_REALTIME=0, keeps none of it; this port is
  * built with HRT_PORT_HW = 1): the PWM and Timer1 interrupts run the ISR bodies on the chip's own clock
@@ -161,7 +162,9 @@ uint32_t hrt_port_now(void)
 #else
 /* A lockstep-only build (HRT_REALTIME=0) captures nothing with Timer2: Timer2 and Timer3 run as one
  * 32-bit timer (T32) at Tcy, no interrupt. Reading TMR2 latches TMR3 into TMR3HLD, so the two halves
- * are of one instant (dsPIC30F family reference manual DS70046, "32-bit timer"). */
+ * are of one instant (dsPIC30F family reference manual DS70046, "32-bit timer"). Safe only because no
+ * ISR of this build (UART1 RX, FLTA) calls hrt_port_now: one that read TMR2 between the two reads below
+ * would latch TMR3HLD anew, of a later instant. */
 uint32_t hrt_port_now(void)
 {
     uint16_t low = TMR2; /* first: it latches TMR3HLD */
