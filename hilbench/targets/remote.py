@@ -221,9 +221,7 @@ class RemoteTarget:
             if reply.code == ErrorCode.UNKNOWN_PARAM:
                 raise ParamError(f"link {self.link.name}: target {self.firmware_name!r} has no param id {param_id}")
             if reply.code == ErrorCode.BAD_REQUEST:
-                served = self._described_by_profile(param_id)
-                if served is not None:
-                    return served
+                return self._described_by_profile(param_id)
             raise self._refused(f"ParamDescribe {param_id}", reply)
         return reply
 
@@ -250,7 +248,7 @@ class RemoteTarget:
 
         mine = self.target_hello
         profile = registered_for_firmware(self.firmware_name) if mine is not None else None
-        if profile is None or mine is None:
+        if profile is None or mine is None:  # (mine for the type checker: no profile without it)
             raise TargetError(f"link {self.link.name}: target {self.firmware_name!r} does not describe its "
                               "parameters (built without HRT_DESCRIBE?) and no registered firmware profile knows it")
         model = profile.make(profile.default_options())
