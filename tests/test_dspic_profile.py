@@ -24,7 +24,6 @@ from hilbench.protocol import (
     MODE_LOCKSTEP,
     MODE_PREDICT,
     MODE_REALTIME,
-    OUTPUT_OFF,
     PROTOCOL_VERSION,
     RESULT_OK,
     SCHEMA_FINGERPRINT,
@@ -41,7 +40,8 @@ from hilbench.targets.an1017.target import An1017Target
 from hilbench.targets.sil import SilTarget, build_avr, build_sil, start_sil, stop_sil
 from hilbench.targets.starters import SimavrStarter, start_process
 from test_firmware_sil import run_recording
-from test_watchdog_kill import LOCKSTEP_FLOOR_S, _trip_after_kill
+from test_firmware_avr import assert_drive_for_drive
+from test_watchdog_kill import LOCKSTEP_FLOOR_S, _trip_after_kill, assert_outputs_off
 
 pytestmark = pytest.mark.slow
 
@@ -133,28 +133,13 @@ def test_profile_killed_host_in_lockstep_gets_the_outputs_turned_off(where: str,
         waited, trip, status = _trip_after_kill(firmware, MODE_LOCKSTEP)
     finally:
         firmware.close()
-    assert trip.output_mode == OUTPUT_OFF, trip
-    assert status.watchdog_trips == 1, status
-    if where == "sil":
-        assert waited >= LOCKSTEP_FLOOR_S * 0.9, f"tripped {waited * 1000:.0f} ms after the kill"
+    assert_outputs_off(where, waited, trip, status, LOCKSTEP_FLOOR_S)
 
 
 def test_profile_avr_in_simavr_drive_for_drive_on_a_seeded_stream(profile: tuple[str, ...]) -> None:
-    from hilbench.link import open_link
-    from hilbench.targets.remote import RemoteTarget
-
     firmware = _profile_avr(profile)
     try:
-        link = open_link(firmware.tty_path, timeout_s=2.0)
-        try:
-            avr = RemoteTarget(link, timeout_s=2.0)
-            model = An1017Target(An1017Options(variant="seed"))
-            n, seen = play(random_stream(5, 1500, 1000), [model, avr], 1000)
-            assert n >= 1500 and {1, 2} <= {state for state, _, _ in seen}, seen
-            status = avr.status()
-            assert status.rx_errors == 0 and status.overruns <= avr.retries, (status, avr.retries)
-        finally:
-            link.close()
+        assert_drive_for_drive(firmware.tty_path)
     finally:
         firmware.close()
 

@@ -135,22 +135,27 @@ def test_avr_in_simavr_holds_a_lockstep_session_equal_to_the_python_model(avr_bu
     assert data + bss + stack < ATMEGA328P_RAM_BYTES
 
 
+def assert_drive_for_drive(pty_path: str) -> None:
+    """The AVR build on ``pty_path`` against the seed model: every Drive field (directions included)
+    and every parameter reply, on a seeded random stream."""
+    link = open_link(pty_path, timeout_s=2.0)
+    try:
+        avr = RemoteTarget(link, timeout_s=2.0)
+        model = An1017Target(An1017Options(variant="seed"))
+        n, seen = play(random_stream(5, 1500, 1000), [model, avr], 1000)
+        assert n >= 1500 and {1, 2} <= {state for state, _, _ in seen}, seen
+        status = avr.status()
+        # a frame the host sent again (no answer within retry_s: simavr slowed by a loaded machine)
+        # may arrive while the firmware still handles the first: dropped whole, counted as an
+        # overrun. Never more overruns than retries, and no receive error at all.
+        assert status.rx_errors == 0 and status.overruns <= avr.retries, (status, avr.retries)
+    finally:
+        link.close()
+
+
 def test_avr_in_simavr_drive_for_drive_on_a_seeded_stream(avr_build: Path) -> None:
-    """Every Drive field (directions included) and every parameter reply, on a random stream."""
     process, pty_path = start_simavr(avr_build)
     try:
-        link = open_link(pty_path, timeout_s=2.0)
-        try:
-            avr = RemoteTarget(link, timeout_s=2.0)
-            model = An1017Target(An1017Options(variant="seed"))
-            n, seen = play(random_stream(5, 1500, 1000), [model, avr], 1000)
-            assert n >= 1500 and {1, 2} <= {state for state, _, _ in seen}, seen
-            status = avr.status()
-            # a frame the host sent again (no answer within retry_s: simavr slowed by a loaded machine)
-            # may arrive while the firmware still handles the first: dropped whole, counted as an
-            # overrun. Never more overruns than retries, and no receive error at all.
-            assert status.rx_errors == 0 and status.overruns <= avr.retries, (status, avr.retries)
-        finally:
-            link.close()
+        assert_drive_for_drive(pty_path)
     finally:
         stop_simavr(process)

@@ -208,14 +208,26 @@ def test_dspic_port_ram_fits_512_bytes(gcc: str, tmp_path: Path, capsys, build: 
     assert static + stack <= DSPIC30F2010_RAM_BYTES - MARGIN_BYTES
 
 
+def run_port_harness(gcc: str, tmp_path: Path, name: str, c_main: str, defs: tuple[str, ...]) -> list[str]:
+    """main.c's statics and functions driven by a test's own C ``main`` (the port's renamed port_main),
+    built with host gcc against hostcheck's SFRs; what it prints, split into words."""
+    harness = tmp_path / f"{name}.c"
+    harness.write_text(f'#define main port_main\n#include "{PORT / "main.c"}"\n#undef main\n#include <stdio.h>\n'
+                       + c_main)
+    exe = tmp_path / name
+    done = subprocess.run([gcc, "-std=c99", *defs, str(harness), *(str(s) for s in SOURCES[1:]),
+                           str(PORT / "hostcheck" / "sfr.c"), "-o", str(exe)], capture_output=True, text=True,
+                          timeout=120)
+    assert done.returncode == 0, done.stderr
+    return subprocess.run([str(exe)], capture_output=True, text=True, timeout=10, check=True).stdout.split()
+
+
 def test_dspic_clock_counts_a_pending_timer2_overflow(gcc: str, tmp_path: Path) -> None:
     """Issue 24 (PROFILE=full, where Timer2 also times the motor build's hall captures): hrt_port_now() inside a priority-4 ISR, where the Timer2 overflow interrupt cannot
     run yet: TMR2 has wrapped to a low value and T2IF is set, so the clock is one overflow later,
     not 65 536 Tcy earlier (which could trip the watchdog). A high TMR2 read with T2IF set was read
     before the overflow and stays as it is."""
-    harness = tmp_path / "clock.c"
-    harness.write_text(f'#define main port_main\n#include "{PORT / "main.c"}"\n#undef main\n' r'''
-#include <stdio.h>
+    lines = run_port_harness(gcc, tmp_path, "clock", r'''
 int main(void) {
     tcy_high = 7u;
     TMR2 = 0xFFF0u; IFS0bits.T2IF = 0;
@@ -226,13 +238,7 @@ int main(void) {
     printf("%lu\n", (unsigned long)hrt_port_now());
     return 0;
 }
-''')
-    exe = tmp_path / "clock"
-    done = subprocess.run([gcc, "-std=c99", *FULL_DEFS, str(harness), *(str(s) for s in SOURCES[1:]),
-                           str(PORT / "hostcheck" / "sfr.c"), "-o", str(exe)], capture_output=True, text=True,
-                          timeout=120)
-    assert done.returncode == 0, done.stderr
-    lines = subprocess.run([str(exe)], capture_output=True, text=True, timeout=10, check=True).stdout.split()
+''', FULL_DEFS)
     assert [int(v) for v in lines] == [7 * 65536 + 0xFFF0, 8 * 65536 + 5, 7 * 65536 + 0xFFFE]
 
 
@@ -240,31 +246,21 @@ def test_dspic_lockstep_profile_clock_is_timer3_timer2(gcc: str, tmp_path: Path)
     """The lockstep profile's clock: Timer3:Timer2 as one 32-bit timer, TMR2 read first (it latches TMR3
     into TMR3HLD: hostcheck's TMR2 does too), no overflow interrupt. TMR3HLD starts stale, so a clock
     that read it before TMR2 would return its stale high word."""
-    harness = tmp_path / "clock32.c"
-    harness.write_text(f'#define main port_main\n#include "{PORT / "main.c"}"\n#undef main\n' r'''
-#include <stdio.h>
+    out = run_port_harness(gcc, tmp_path, "clock32", r'''
 int main(void) {
     init_timers();
     TMR2 = 0xFFF0u; TMR3 = 0x0007u; TMR3HLD = 0x1234u;   /* the holding register still holds an old high word */
     printf("%lu %u %u %u\n", (unsigned long)hrt_port_now(), (unsigned)T2CON, (unsigned)PR2, (unsigned)PR3);
     return 0;
 }
-''')
-    exe = tmp_path / "clock32"
-    done = subprocess.run([gcc, "-std=c99", *DEFS, str(harness), *(str(s) for s in SOURCES[1:]),
-                           str(PORT / "hostcheck" / "sfr.c"), "-o", str(exe)], capture_output=True, text=True,
-                          timeout=120)
-    assert done.returncode == 0, done.stderr
-    out = subprocess.run([str(exe)], capture_output=True, text=True, timeout=10, check=True).stdout.split()
+''', DEFS)
     assert [int(v) for v in out] == [7 * 65536 + 0xFFF0, 0x8008, 0xFFFF, 0xFFFF]
 
 
 def test_dspic_board_s2_is_debounced(gcc: str, tmp_path: Path) -> None:
     """Issue 24 (PROFILE=full; the lockstep profile's S2 is the bench's, the Sensors bit): the board's S2 contact bounces; a level counts once it held 20 ms (400 000 Tcy), so a
     press with bounces on both edges toggles start/stop once for the press and once for the release."""
-    harness = tmp_path / "s2.c"
-    harness.write_text(f'#define main port_main\n#include "{PORT / "main.c"}"\n#undef main\n' r'''
-#include <stdio.h>
+    out = run_port_harness(gcc, tmp_path, "s2", r'''
 int main(void) {
     /* (time in us, raw pressed level): bounces at 0-3 ms, pressed until 100 ms, bounces at release */
     static const unsigned long t_us[] = {0, 500, 900, 1500, 3000, 10000, 22000, 23100, 50000,
@@ -280,13 +276,7 @@ int main(void) {
     printf("\n");
     return 0;
 }
-''')
-    exe = tmp_path / "s2"
-    done = subprocess.run([gcc, "-std=c99", *FULL_DEFS, str(harness), *(str(s) for s in SOURCES[1:]),
-                           str(PORT / "hostcheck" / "sfr.c"), "-o", str(exe)], capture_output=True, text=True,
-                          timeout=120)
-    assert done.returncode == 0, done.stderr
-    out = subprocess.run([str(exe)], capture_output=True, text=True, timeout=10, check=True).stdout.split()
+''', FULL_DEFS)
     # pressed for good at 3 ms (the last bounce) -> counts at 23.1 ms, the first sample 20 ms later;
     # released for good at 110 ms -> not at 129.9 ms (19.9 ms), at 130.5 ms
     assert out == ["23100:1", "130500:0"]
