@@ -47,7 +47,8 @@ setup(
         Extension(  # an NPZ archive's columns written on a thread while the run goes on (the journal path is the reference)
             "hilbench.bench._npzcolumns",
             sources=["hilbench/bench/_npzcolumns.c"],
-            depends=["hilbench/bench/_rawfields.h", "hilbench/bench/_writerthread.h"],  # a raw row's fields as columns, shared with _csvrows
+            depends=["hilbench/bench/_rawfields.h", "hilbench/bench/_writerthread.h",  # a raw row's fields as columns, shared with _csvrows
+                     "hilbench/bench/_crc32.h"],
             extra_compile_args=_flags + (["-pthread"] if sys.platform != "win32" else []),
             extra_link_args=["-pthread"] if sys.platform != "win32" else [],
             optional=True,

@@ -113,12 +113,15 @@ def closed_loop(spec: str, seconds: float, record_dir: str, fmt: str, *, config:
             summary.periods / cpu if cpu > 0 else float("nan"), summary.periods / thread if thread > 0 else float("nan"))
 
 
-def warm_up(record_dir: str) -> None:
-    """A short run first, so the timed one holds no first-run costs: modules a run imports lazily
-    (the NPZ writer at the close) are compiled from source at each run where no bytecode is cached
-    (PYTHONDONTWRITEBYTECODE=1 on an editable tree, against a pip-installed baseline with its .pyc:
-    ~14 ms of a 1 s run's ~100 ms), and the first run's page faults."""
-    closed_loop("inprocess:an1017", 0.01, record_dir, "npz")
+def warm_up(record_dir: str, seconds: float) -> None:
+    """A run as long as the timed ones first (NPZ and CSV), so the timed ones hold no first-run costs:
+    modules a run imports lazily (the NPZ writer at the close) are compiled from source at each run
+    where no bytecode is cached (PYTHONDONTWRITEBYTECODE=1 on an editable tree, against a
+    pip-installed baseline with its .pyc: ~14 ms of a 1 s run's ~100 ms), and the first run's page
+    faults (its row buffers and the writers' chunk buffers, which later runs reuse: a process runs
+    many runs, a sweep or a test suite)."""
+    for fmt in ("npz", "csv"):
+        closed_loop("inprocess:an1017", seconds, record_dir, fmt)
 
 
 def c_floor(spec: str, seconds: float, *, config: Path | None = None, thread_cpu: list[float] | None = None) -> float:
@@ -204,7 +207,7 @@ def main() -> None:
         return
     if args.measure_inprocess:  # one (a) figure for --baseline-python, as JSON
         with tempfile.TemporaryDirectory() as tmp:
-            warm_up(tmp)
+            warm_up(tmp, args.seconds)
             rate, _, loop_rate, cpu_rate, _ = closed_loop("inprocess:an1017", args.seconds, tmp, "npz")
             print(json.dumps({"rate": rate, "loop_rate": loop_rate, "cpu_rate": cpu_rate}))
         return
@@ -242,7 +245,7 @@ def run_paths(args: argparse.Namespace) -> None:
         exe = build_sil()
     seconds = args.seconds
     with tempfile.TemporaryDirectory() as tmp:
-        warm_up(tmp)
+        warm_up(tmp, seconds)
         for _ in range(args.repeats):  # interleaved, so drifts in machine load hit every figure alike
             rates["floor"].append(c_floor("inprocess:an1017", seconds, thread_cpu=rates["floor_thread"]))
             rate, backend, loop_rate, _, thread_rate = closed_loop("inprocess:an1017", seconds, tmp, "npz")

@@ -1,20 +1,23 @@
-/* An NPZ archive's columns written from a run's journal on a thread of their own (hilbench.bench.npzwriter).
+/* An NPZ archive's columns written on a thread of their own while a run goes on (hilbench.bench.npzwriter).
  *
- * A run's recording reaches its .npz at the close: the journal read back, each column of the raw
- * rows converted to float64, its CRC-32 carried along, written at its place in the archive
- * (npzwriter.ColumnArchive). That was a third of a fast run's time, spent after the run. Here the
- * recorder writes its rows to the journal a chunk at a time and tells this writer (`submit(n)`: the
- * next n rows are in the journal); its thread reads them back (pread on its own descriptor), converts
- * each column exactly as recorder.RowLayout.to_column does (the field as a double, times its scale
- * unless the scale is 1, an angle wrapped as numpy.mod wraps it), carries its CRC-32 (zlib's) and
- * writes it with pwrite at the column's place, while the run goes on. The thread never touches a
- * Python object, so it never waits for the GIL, and the simulating thread copies nothing for it.
- * `finish` joins it and gives the rows written and each column's CRC (Ctrl-C while it waits drops
- * the rest and raises KeyboardInterrupt); `abandon` joins it and drops the rest. A failed read or
- * write stops the thread: `submit` and `finish` raise OSError with its errno. The thread runs with
- * every signal blocked. tests/test_npz_writer.py checks the archive equals the one written from
- * the journal at the close, byte for byte.
- */
+ * A run's recording reaches its .npz at the close: each column of the raw rows converted to float64,
+ * its CRC-32 carried along, written at its place in the archive (npzwriter.ColumnArchive). That was a
+ * third of a fast run's time, spent after the run. Here the recorder hands each chunk of raw rows to
+ * this writer (`submit_rows(data)`: copied into one of two buffers the writer reuses, so the
+ * simulating thread neither writes the journal nor touches fresh pages); its thread writes the chunk
+ * to the run's journal at its place (the journal is the killed run's recording: every chunk handed
+ * over goes there, in order, even once the archive is given up), then converts each column exactly
+ * as recorder.RowLayout.to_column does (the field as a double, times its scale unless the scale is
+ * 1, an angle wrapped as numpy.mod wraps it), carries its CRC-32 (zlib's) and writes it with pwrite
+ * at the column's place. The thread never touches a Python object, so it never waits for the GIL.
+ * A journal write that fails (a full disk) gives the archive up, its file emptied to free its
+ * blocks, and is tried once more at its place; failing again, it stops the thread (`submit_rows`,
+ * `finish` raise OSError with its errno; `abandon` returns it). A failed archive write gives the
+ * archive up (`finish` raises OSError) while the journal goes on. `finish` joins the thread and
+ * gives the rows written and each column's CRC (Ctrl-C while it waits drops the archive's rest and
+ * raises KeyboardInterrupt, the rows handed over still journaled); `abandon` joins it once every
+ * row handed over is journaled. The thread runs with every signal blocked. tests/test_npz_writer.py
+ * checks the archive equals the one written from the journal at the close, byte for byte. */
 #define PY_SSIZE_T_CLEAN
 #ifndef _GNU_SOURCE
 #define _GNU_SOURCE /* SCHED_BATCH */
@@ -32,6 +35,7 @@
 #include <time.h>
 #include <unistd.h>
 
+#include "_crc32.h"
 #include "_rawfields.h"
 #include "_writerthread.h"
 
@@ -39,55 +43,7 @@
 #error "the raw rows and the .npy columns are little-endian: a little-endian host only"
 #endif
 
-/* ---- CRC-32 (zlib's: reflected 0xEDB88320), eight bytes at a time ---------------------------------- */
-static uint32_t crc_table[8][256];
-
-static void crc_init(void)
-{
-    for (uint32_t n = 0; n < 256; n++) {
-        uint32_t c = n;
-        for (int k = 0; k < 8; k++) c = (c & 1) ? 0xEDB88320u ^ (c >> 1) : c >> 1;
-        crc_table[0][n] = c;
-    }
-    for (uint32_t n = 0; n < 256; n++)
-        for (int t = 1; t < 8; t++) crc_table[t][n] = crc_table[0][crc_table[t - 1][n] & 0xFF] ^ (crc_table[t - 1][n] >> 8);
-}
-
-static uint32_t crc32_update(uint32_t crc, const unsigned char *p, size_t n)
-{
-    crc = ~crc;
-    for (; n >= 8; p += 8, n -= 8) {
-        uint64_t w;
-        memcpy(&w, p, 8);
-        w ^= crc;
-        crc = crc_table[7][w & 0xFF] ^ crc_table[6][(w >> 8) & 0xFF] ^ crc_table[5][(w >> 16) & 0xFF]
-              ^ crc_table[4][(w >> 24) & 0xFF] ^ crc_table[3][(w >> 32) & 0xFF] ^ crc_table[2][(w >> 40) & 0xFF]
-              ^ crc_table[1][(w >> 48) & 0xFF] ^ crc_table[0][w >> 56];
-    }
-    while (n--) crc = crc_table[0][(crc ^ *p++) & 0xFF] ^ (crc >> 8);
-    return ~crc;
-}
-
-/* Four equally long streams at once: each one's chain of table look-ups waits on its last step, so
- * four independent chains keep the CPU busy where one leaves it waiting (about 3x one stream's rate). */
-static void crc32_update4(uint32_t crc[4], const unsigned char *const p[4], size_t n)
-{
-    uint32_t c[4] = {~crc[0], ~crc[1], ~crc[2], ~crc[3]};
-    size_t at = 0;
-    for (; at + 8 <= n; at += 8)
-        for (int s = 0; s < 4; s++) {
-            uint64_t w;
-            memcpy(&w, p[s] + at, 8);
-            w ^= c[s];
-            c[s] = crc_table[7][w & 0xFF] ^ crc_table[6][(w >> 8) & 0xFF] ^ crc_table[5][(w >> 16) & 0xFF]
-                   ^ crc_table[4][(w >> 24) & 0xFF] ^ crc_table[3][(w >> 32) & 0xFF] ^ crc_table[2][(w >> 40) & 0xFF]
-                   ^ crc_table[1][(w >> 48) & 0xFF] ^ crc_table[0][w >> 56];
-        }
-    for (int s = 0; s < 4; s++) {
-        for (size_t i = at; i < n; i++) c[s] = crc_table[0][(c[s] ^ p[s][i]) & 0xFF] ^ (c[s] >> 8);
-        crc[s] = ~c[s];
-    }
-}
+/* ---- CRC-32 (zlib's): _crc32.h, by carry-less multiplication where the CPU has it ------------------ */
 
 /* ---- one column of raw rows ------------------------------------------------------------------ */
 typedef struct {
@@ -102,7 +58,17 @@ typedef struct {
 /* field_value and np_remainder: _rawfields.h (the CSV row writer reads raw rows the same way) */
 
 /* ---- the writer and its thread --------------------------------------------------------------- */
-#define READ_ROWS 8192 /* rows the thread reads back from the journal at a time */
+#define READ_ROWS 8192 /* rows the thread converts at a time */
+#define SLOTS 2        /* chunks handed over and not yet journaled and converted: the caller's copy, the thread's */
+
+enum { SLOT_FREE, SLOT_FILLED, SLOT_JOURNALED };
+
+typedef struct {
+    unsigned char *data;       /* the chunk's raw rows, copied in by submit_rows */
+    size_t capacity, n_rows;
+    unsigned long long first;  /* the chunk's first row (of the journal) */
+    int state;
+} slot_t;
 
 typedef struct {
     PyObject_HEAD
@@ -110,17 +76,85 @@ typedef struct {
     long long journal_offset;        /* where the journal's row 0 is */
     Py_ssize_t itemsize;
     column_t *cols;
-    unsigned long long queued, done; /* rows handed over, rows written (done: the thread's) */
-    unsigned char *rows;             /* the thread's buffers: raw rows read back, their columns */
-    double *values;
+    unsigned long long queued;       /* rows handed over */
+    unsigned long long journaled;    /* rows in the journal (the thread's) */
+    unsigned long long done;         /* rows written to the archive (the thread's) */
+    slot_t slots[SLOTS];
+    int next_fill, next_journal, next_take; /* the slot submit_rows fills next, the one the thread journals
+                                               next, the one it converts next (each in turn) */
+    double *values;                  /* the thread's buffer: the converted columns */
     unsigned char *header;           /* each column's .npy header, written by the thread before its row 0 */
     Py_ssize_t header_len;
     pthread_mutex_t lock;
-    pthread_cond_t wake;             /* the thread's: rows queued, or stopping */
-    pthread_cond_t ended;            /* the caller's: the thread is about to return (exited) */
+    pthread_cond_t wake;             /* the thread's: a chunk handed over, or stopping */
+    pthread_cond_t freed;            /* the caller's: a slot freed, or the thread ended (exited) */
     pthread_t thread;
-    int ready, running, stopping, discard, exited, error; /* error: the errno of the failed read or write */
+    int ready, running, stopping, discard, exited;
+    int error;                       /* the errno of a failed archive write: the archive is given up */
+    int journal_error;               /* the errno of a failed journal write (after one more try): rows lost */
+    int archive_off;                 /* the archive given up (discard, a failed write, a full disk): journal only */
+    int test_failures, test_errno;   /* fail_journal_writes: the next journal writes that fail (tests) */
 } Writer;
+
+/* Chunk buffers kept for the next writer when one is done with them (a process runs many runs: fresh
+ * pages cost a virtual machine more than copying the rows into them), at most POOLED of at most
+ * POOLED_BYTES each: about 1 MB held for a run's default chunks. */
+#define POOLED 4
+#define POOLED_BYTES (16u << 20)
+static struct {
+    unsigned char *data;
+    size_t capacity;
+} pool[POOLED];
+static pthread_mutex_t pool_lock = PTHREAD_MUTEX_INITIALIZER;
+
+/* The slot (free, not the thread's) with room for n bytes: a pooled buffer that has it, or its own
+ * grown: 0, or -1 (no memory). */
+static int slot_reserve(slot_t *slot, size_t n)
+{
+    if (slot->capacity >= n) return 0;
+    pthread_mutex_lock(&pool_lock);
+    for (int i = 0; i < POOLED; i++)
+        if (pool[i].data != NULL && pool[i].capacity >= n) {
+            unsigned char *old = slot->data;
+            size_t old_capacity = slot->capacity;
+            slot->data = pool[i].data;
+            slot->capacity = pool[i].capacity;
+            pool[i].data = old; /* (NULL, or a smaller one: kept for a smaller chunk) */
+            pool[i].capacity = old_capacity;
+            pthread_mutex_unlock(&pool_lock);
+            return 0;
+        }
+    pthread_mutex_unlock(&pool_lock);
+    unsigned char *grown = realloc(slot->data, n);
+    if (grown == NULL) return -1;
+    slot->data = grown;
+    slot->capacity = n;
+    return 0;
+}
+
+/* A writer's slot buffer back to the pool (the largest kept), or freed. */
+static void slot_release(slot_t *slot)
+{
+    unsigned char *data = slot->data;
+    size_t capacity = slot->capacity;
+    slot->data = NULL;
+    slot->capacity = 0;
+    if (data == NULL) return;
+    if (capacity <= POOLED_BYTES) {
+        pthread_mutex_lock(&pool_lock);
+        for (int i = 0; i < POOLED && data != NULL; i++)
+            if (pool[i].data == NULL || pool[i].capacity < capacity) { /* an empty place, or a smaller one out */
+                unsigned char *out = pool[i].data;
+                size_t out_capacity = pool[i].capacity;
+                pool[i].data = data;
+                pool[i].capacity = capacity;
+                data = out;
+                capacity = out_capacity;
+            }
+        pthread_mutex_unlock(&pool_lock);
+    }
+    free(data);
+}
 
 static int pwrite_all(int fd, const unsigned char *p, size_t n, long long offset)
 {
@@ -138,121 +172,194 @@ static int pwrite_all(int fd, const unsigned char *p, size_t n, long long offset
     return 0;
 }
 
-static int pread_all(int fd, unsigned char *p, size_t n, long long offset)
+/* One journal write of the chunk at its place, or (the tests' fail_journal_writes) a failure after
+ * some of its bytes landed, and a few beyond its end. */
+static int journal_pwrite(Writer *w, const slot_t *slot, long long offset)
 {
-    while (n) {
-        ssize_t done = pread(fd, p, n, (off_t)offset);
-        if (done < 0) {
-            if (errno == EINTR) continue;
-            return errno;
-        }
-        if (done == 0) return EIO; /* the journal is shorter than the rows handed over */
-        p += done;
-        n -= (size_t)done;
-        offset += done;
+    size_t bytes = slot->n_rows * (size_t)w->itemsize;
+    pthread_mutex_lock(&w->lock);
+    int fail = w->test_failures > 0 ? w->test_errno : 0;
+    if (fail) w->test_failures--;
+    pthread_mutex_unlock(&w->lock);
+    if (fail) {
+        static const unsigned char stray[777] = {0xEE};
+        pwrite_all(w->journal_fd, slot->data, bytes / 2, offset);
+        pwrite_all(w->journal_fd, stray, sizeof stray, offset + (long long)bytes);
+        return fail;
     }
-    return 0;
+    return pwrite_all(w->journal_fd, slot->data, bytes, offset);
 }
 
-/* The next n rows read back from the journal, every column converted, its CRC carried, written at
- * its place: 0 or an errno. */
-static int write_rows(Writer *w, size_t n)
+/* The archive given up after a failed write (err: what finish says): no more of it written, its
+ * file emptied so its blocks go back to a full disk, where the journal needs them. */
+static void give_archive_up(Writer *w, int err)
 {
-    int err = pread_all(w->journal_fd, w->rows, n * (size_t)w->itemsize,
-                        w->journal_offset + (long long)(w->done * (unsigned long long)w->itemsize));
-    if (err) return err;
+    pthread_mutex_lock(&w->lock);
+    w->archive_off = 1;
+    if (!w->error) w->error = err;
+    pthread_mutex_unlock(&w->lock);
+    if (ftruncate(w->fd, 0)) { /* (the close writes the archive from the journal, or says why it cannot) */
+    }
+}
+
+/* The chunk written to the journal at its place. A failed write (a full disk) gives the archive up,
+ * its blocks freed (its file emptied), cuts what part of the write landed, and is tried once more:
+ * the journal, not the archive, keeps the rows. 0, or the errno of the second try (what part of it
+ * landed cut off too: the journal ends with the rows before the chunk). */
+static int write_journal(Writer *w, const slot_t *slot)
+{
+    long long offset = w->journal_offset + (long long)(slot->first * (unsigned long long)w->itemsize);
+    int err = journal_pwrite(w, slot, offset);
+    if (!err) return 0;
+    give_archive_up(w, err);
+    if (ftruncate(w->journal_fd, (off_t)offset)) return err;
+    err = journal_pwrite(w, slot, offset);
+    if (err && ftruncate(w->journal_fd, (off_t)offset)) { /* failed again: the journal ends at the rows before */
+    }
+    return err;
+}
+
+/* The chunk's rows (already journaled) converted, each column's CRC carried, written at its place:
+ * 0 or an errno. */
+static int write_rows(Writer *w, const unsigned char *rows, size_t n)
+{
     size_t bytes = n * sizeof(double);
     for (int j = 0; j < w->n_cols; j++) { /* every column converted (READ_ROWS values each) */
         column_t *col = &w->cols[j];
         double *values = w->values + (size_t)j * READ_ROWS;
-        const unsigned char *p = w->rows + col->field;
-        for (size_t i = 0; i < n; i++, p += w->itemsize) values[i] = field_value(p, col->code);
+        field_column(values, rows + col->field, n, (size_t)w->itemsize, col->code);
         if (col->scale != 1.0)
             for (size_t i = 0; i < n; i++) values[i] = values[i] * col->scale;
         if (col->modulo > 0.0)
             for (size_t i = 0; i < n; i++) values[i] = np_remainder(values[i], col->modulo);
     }
-    int j = 0;
-    for (; j + 4 <= w->n_cols; j += 4) { /* their CRCs four at a time */
-        uint32_t crc[4] = {w->cols[j].crc, w->cols[j + 1].crc, w->cols[j + 2].crc, w->cols[j + 3].crc};
-        const unsigned char *p[4];
-        for (int s = 0; s < 4; s++) p[s] = (const unsigned char *)(w->values + (size_t)(j + s) * READ_ROWS);
-        crc32_update4(crc, p, bytes);
-        for (int s = 0; s < 4; s++) w->cols[j + s].crc = crc[s];
-    }
-    for (; j < w->n_cols; j++)
-        w->cols[j].crc = crc32_update(w->cols[j].crc, (const unsigned char *)(w->values + (size_t)j * READ_ROWS), bytes);
-    for (j = 0; j < w->n_cols; j++) {
-        err = pwrite_all(w->fd, (const unsigned char *)(w->values + (size_t)j * READ_ROWS), bytes,
-                         w->cols[j].place + (long long)(8 * w->done));
+    for (int j = 0; j < w->n_cols; j++) /* their CRCs */
+        w->cols[j].crc = crc32_fast(w->cols[j].crc, (const unsigned char *)(w->values + (size_t)j * READ_ROWS), bytes);
+    for (int j = 0; j < w->n_cols; j++) {
+        int err = pwrite_all(w->fd, (const unsigned char *)(w->values + (size_t)j * READ_ROWS), bytes,
+                             w->cols[j].place + (long long)(8 * w->done));
         if (err) return err;
     }
     return 0;
 }
 
+/* A journaled chunk into the archive, READ_ROWS rows at a time (unless the archive is off):
+ * a failed write gives the archive up (its errno kept for finish). Called without the lock. */
+static void archive_chunk(Writer *w, const slot_t *slot)
+{
+    for (size_t at = 0; at < slot->n_rows;) {
+        pthread_mutex_lock(&w->lock);
+        int off = w->archive_off || w->discard;
+        pthread_mutex_unlock(&w->lock);
+        if (off) return;
+        size_t n = slot->n_rows - at < READ_ROWS ? slot->n_rows - at : READ_ROWS;
+        int err = write_rows(w, slot->data + at * (size_t)w->itemsize, n);
+        if (err) {
+            give_archive_up(w, err);
+            return;
+        }
+        pthread_mutex_lock(&w->lock);
+        w->done += n;
+        pthread_mutex_unlock(&w->lock);
+        at += n;
+    }
+}
+
+/* Each chunk handed over, in order: into the journal first (every chunk waiting goes there before
+ * the next conversion: a killed run loses as little as can be; always, even when the archive is off
+ * or dropped), then into the archive. A failed journal write stops the thread (its chunk stays
+ * filled). */
 static void *writer_thread(void *arg)
 {
     Writer *w = arg;
-    int err = 0;
     become_batch_thread();
+    int err = 0;
     for (int j = 0; j < w->n_cols && !err; j++)
         err = pwrite_all(w->fd, w->header, (size_t)w->header_len, w->cols[j].place - w->header_len);
+    if (err) give_archive_up(w, err);
     pthread_mutex_lock(&w->lock);
-    if (err) w->error = err;
-    for (; !err;) {
-        while (w->queued == w->done && !w->stopping) pthread_cond_wait(&w->wake, &w->lock);
-        if (w->discard || w->queued == w->done) break; /* stopping: dropped, or every row written */
-        unsigned long long n = w->queued - w->done;
-        if (n > READ_ROWS) n = READ_ROWS;
-        pthread_mutex_unlock(&w->lock);
-        err = write_rows(w, (size_t)n);
-        pthread_mutex_lock(&w->lock);
-        if (err) {
-            w->error = err;
-            break;
+    for (;;) {
+        slot_t *to_journal = &w->slots[w->next_journal], *to_convert = &w->slots[w->next_take];
+        if (to_journal->state == SLOT_FILLED) {
+            pthread_mutex_unlock(&w->lock);
+            err = write_journal(w, to_journal);
+            pthread_mutex_lock(&w->lock);
+            if (err) {
+                w->journal_error = err;
+                break;
+            }
+            w->journaled += to_journal->n_rows;
+            to_journal->state = SLOT_JOURNALED;
+            w->next_journal = (w->next_journal + 1) % SLOTS;
+        } else if (to_convert->state == SLOT_JOURNALED) {
+            pthread_mutex_unlock(&w->lock);
+            archive_chunk(w, to_convert);
+            pthread_mutex_lock(&w->lock);
+            to_convert->state = SLOT_FREE;
+            w->next_take = (w->next_take + 1) % SLOTS;
+            pthread_cond_broadcast(&w->freed);
+        } else if (w->stopping) {
+            break; /* every chunk handed over journaled and converted (or dropped) */
+        } else {
+            pthread_cond_wait(&w->wake, &w->lock);
         }
-        w->done += n;
     }
     w->exited = 1;
-    pthread_cond_signal(&w->ended);
+    pthread_cond_broadcast(&w->freed);
     pthread_mutex_unlock(&w->lock);
     return NULL;
 }
 
 #define STOP_POLL_NS 50000000L /* how often a wait for the thread looks for a signal (Ctrl-C) */
 
-/* Stop the thread (after every row handed over, or dropping them) and join it, the GIL released.
- * Waiting for every row (not discard), a signal's handler that raises (Ctrl-C: KeyboardInterrupt)
- * ends the wait: the rows not written yet are dropped, the thread joined, -1 returned with the
- * exception set (the caller gives the archive up; the journal keeps every row). */
+/* Wait on `freed` (the GIL released) until ready(w) or the thread has exited, looking for a signal
+ * every STOP_POLL_NS: 0, or -1 with a signal handler's exception set (Ctrl-C). Called with the
+ * lock held (released while waiting), returns with it held. */
+static int wait_freed(Writer *w, int (*ready)(Writer *), int interruptible)
+{
+    while (!ready(w) && !w->exited) {
+        int interrupted = 0;
+        Py_BEGIN_ALLOW_THREADS
+        struct timespec until;
+        clock_gettime(CLOCK_MONOTONIC, &until);
+        until.tv_nsec += STOP_POLL_NS;
+        if (until.tv_nsec >= 1000000000L) {
+            until.tv_sec += 1;
+            until.tv_nsec -= 1000000000L;
+        }
+        pthread_cond_timedwait(&w->freed, &w->lock, &until);
+        Py_END_ALLOW_THREADS
+        if (!ready(w) && !w->exited && interruptible) {
+            pthread_mutex_unlock(&w->lock);
+            interrupted = PyErr_CheckSignals() < 0;
+            pthread_mutex_lock(&w->lock);
+        }
+        if (interrupted) return -1;
+    }
+    return 0;
+}
+
+static int never(Writer *w) { (void)w; return 0; }
+
+/* Stop the thread and join it, the GIL released: every chunk handed over is journaled first (a
+ * journal write is short, and the journal must keep every row); the archive gets them too unless
+ * discard. Waiting for the archive (not discard), a signal's handler that raises (Ctrl-C:
+ * KeyboardInterrupt) turns the wait into a discard: the thread still journals what it holds and is
+ * joined, -1 returned with the exception set (the caller gives the archive up). */
 static int stop_thread(Writer *w, int discard)
 {
     if (!w->running) return 0;
-    int status = 0, exited = 0;
-    while (!exited) {
-        Py_BEGIN_ALLOW_THREADS
-        pthread_mutex_lock(&w->lock);
-        w->stopping = 1;
-        if (discard) w->discard = 1;
-        pthread_cond_signal(&w->wake);
-        if (!w->exited) {
-            struct timespec until;
-            clock_gettime(CLOCK_MONOTONIC, &until);
-            until.tv_nsec += STOP_POLL_NS;
-            if (until.tv_nsec >= 1000000000L) {
-                until.tv_sec += 1;
-                until.tv_nsec -= 1000000000L;
-            }
-            pthread_cond_timedwait(&w->ended, &w->lock, &until);
-        }
-        exited = w->exited;
-        pthread_mutex_unlock(&w->lock);
-        Py_END_ALLOW_THREADS
-        if (!exited && !discard && PyErr_CheckSignals() < 0) { /* interrupted: drop the rest, still join */
-            discard = 1;
-            status = -1;
-        }
+    int status = 0;
+    pthread_mutex_lock(&w->lock);
+    w->stopping = 1;
+    if (discard) w->discard = 1;
+    pthread_cond_signal(&w->wake);
+    if (wait_freed(w, never, !discard) < 0) {
+        status = -1;
+        w->discard = 1;
+        wait_freed(w, never, 0);
     }
+    pthread_mutex_unlock(&w->lock);
     Py_BEGIN_ALLOW_THREADS
     pthread_join(w->thread, NULL); /* it has returned, or is returning */
     Py_END_ALLOW_THREADS
@@ -266,27 +373,61 @@ static PyObject *os_error(int err)
     return PyErr_SetFromErrno(PyExc_OSError);
 }
 
-/* submit(n_rows): the journal's next n_rows rows (written and flushed) are the thread's to write */
-static PyObject *Writer_submit(Writer *w, PyObject *arg)
+static int slot_free(Writer *w) { return w->slots[w->next_fill].state == SLOT_FREE; }
+
+/* submit_rows(data): whole raw rows, copied: the thread writes them to the journal at their place
+ * (after those handed over before), then into the archive. Waits while the thread still holds two
+ * chunks. OSError: a journal write failed (the rows of that chunk are not in the journal). */
+static PyObject *Writer_submit_rows(Writer *w, PyObject *arg)
 {
-    unsigned long long n = PyLong_AsUnsignedLongLong(arg);
-    if (n == (unsigned long long)-1 && PyErr_Occurred()) return NULL;
+    Py_buffer data;
+    if (PyObject_GetBuffer(arg, &data, PyBUF_SIMPLE) < 0) return NULL;
+    PyObject *result = NULL;
     if (!w->running) {
-        PyErr_SetString(PyExc_ValueError, "ColumnWriter.submit: finished or abandoned");
-        return NULL;
+        PyErr_SetString(PyExc_ValueError, "ColumnWriter.submit_rows: finished or abandoned");
+        goto out;
     }
+    if (data.len % w->itemsize) {
+        PyErr_Format(PyExc_ValueError, "ColumnWriter.submit_rows: %zd bytes are not whole %zd-byte rows", data.len,
+                     w->itemsize);
+        goto out;
+    }
+    size_t n_rows = (size_t)(data.len / w->itemsize);
     pthread_mutex_lock(&w->lock);
-    int err = w->error;
-    if (!err && n) {
-        w->queued += n;
-        pthread_cond_signal(&w->wake);
+    if (wait_freed(w, slot_free, 1) < 0) {
+        pthread_mutex_unlock(&w->lock);
+        goto out;
     }
+    int err = w->journal_error ? w->journal_error : (w->exited ? EIO : 0);
     pthread_mutex_unlock(&w->lock);
-    if (err) return os_error(err);
-    Py_RETURN_NONE;
+    if (err) {
+        os_error(err);
+        goto out;
+    }
+    if (n_rows) {
+        slot_t *slot = &w->slots[w->next_fill]; /* free: the thread does not touch it */
+        if (slot_reserve(slot, (size_t)data.len) < 0) {
+            PyErr_NoMemory();
+            goto out;
+        }
+        memcpy(slot->data, data.buf, (size_t)data.len);
+        pthread_mutex_lock(&w->lock);
+        slot->n_rows = n_rows;
+        slot->first = w->queued;
+        slot->state = SLOT_FILLED;
+        w->queued += n_rows;
+        w->next_fill = (w->next_fill + 1) % SLOTS;
+        pthread_cond_signal(&w->wake);
+        pthread_mutex_unlock(&w->lock);
+    }
+    result = Py_NewRef(Py_None);
+out:
+    PyBuffer_Release(&data);
+    return result;
 }
 
-/* finish() -> (rows written, (crc, ...)): every row handed over written, the thread joined */
+/* finish() -> (rows written, (crc, ...)): every row handed over journaled and written, the thread
+ * joined. OSError: a journal write failed, or an archive write (the archive is given up). */
 static PyObject *Writer_finish(Writer *w, PyObject *Py_UNUSED(ignored))
 {
     if (!w->running) {
@@ -294,6 +435,7 @@ static PyObject *Writer_finish(Writer *w, PyObject *Py_UNUSED(ignored))
         return NULL;
     }
     if (stop_thread(w, 0) < 0) return NULL; /* a signal's exception (Ctrl-C) */
+    if (w->journal_error) return os_error(w->journal_error);
     if (w->error) return os_error(w->error);
     PyObject *crcs = PyTuple_New(w->n_cols);
     if (crcs == NULL) return NULL;
@@ -308,10 +450,25 @@ static PyObject *Writer_finish(Writer *w, PyObject *Py_UNUSED(ignored))
     return Py_BuildValue("(KN)", w->done, crcs);
 }
 
-/* abandon(): the thread joined, the rows not written yet dropped (idempotent) */
+/* abandon() -> None or the errno of a failed journal write: the thread joined once every chunk
+ * handed over is journaled, the archive's work dropped (idempotent) */
 static PyObject *Writer_abandon(Writer *w, PyObject *Py_UNUSED(ignored))
 {
     stop_thread(w, 1);
+    if (w->journal_error) return PyLong_FromLong(w->journal_error);
+    Py_RETURN_NONE;
+}
+
+/* fail_journal_writes(count, errno): the next count journal writes fail with errno after half their
+ * bytes and some beyond their end landed (a full disk, for the tests) */
+static PyObject *Writer_fail_journal_writes(Writer *w, PyObject *args)
+{
+    int count, err;
+    if (!PyArg_ParseTuple(args, "ii:fail_journal_writes", &count, &err)) return NULL;
+    pthread_mutex_lock(&w->lock);
+    w->test_failures = count;
+    w->test_errno = err;
+    pthread_mutex_unlock(&w->lock);
     Py_RETURN_NONE;
 }
 
@@ -348,13 +505,12 @@ static int Writer_init(Writer *w, PyObject *args, PyObject *kwds)
         return -1;
     }
     column_t *cols = calloc((size_t)n, sizeof(column_t));
-    unsigned char *rows = malloc((size_t)READ_ROWS * (size_t)itemsize);
     double *values = malloc((size_t)n * READ_ROWS * sizeof(double));
     unsigned char *head = malloc((size_t)header.len + 1);
     if (head != NULL) memcpy(head, header.buf, (size_t)header.len);
     Py_ssize_t head_len = header.len;
     PyBuffer_Release(&header);
-    if (cols == NULL || rows == NULL || values == NULL || head == NULL) {
+    if (cols == NULL || values == NULL || head == NULL) {
         PyErr_NoMemory();
         goto bad;
     }
@@ -381,11 +537,11 @@ static int Writer_init(Writer *w, PyObject *args, PyObject *kwds)
     pthread_condattr_t monotonic;
     int no_cond = pthread_condattr_init(&monotonic);
     if (!no_cond) {
-        no_cond = pthread_condattr_setclock(&monotonic, CLOCK_MONOTONIC) || pthread_cond_init(&w->ended, &monotonic);
+        no_cond = pthread_condattr_setclock(&monotonic, CLOCK_MONOTONIC) || pthread_cond_init(&w->freed, &monotonic);
         pthread_condattr_destroy(&monotonic);
     }
     if (no_cond || pthread_cond_init(&w->wake, NULL)) {
-        if (!no_cond) pthread_cond_destroy(&w->ended);
+        if (!no_cond) pthread_cond_destroy(&w->freed);
         pthread_mutex_destroy(&w->lock);
         PyErr_SetString(PyExc_OSError, "ColumnWriter: no condition");
         goto bad;
@@ -397,7 +553,6 @@ static int Writer_init(Writer *w, PyObject *args, PyObject *kwds)
     w->itemsize = itemsize;
     w->n_cols = (int)n;
     w->cols = cols;
-    w->rows = rows;
     w->values = values;
     w->header = head;
     w->header_len = head_len;
@@ -412,7 +567,6 @@ static int Writer_init(Writer *w, PyObject *args, PyObject *kwds)
 bad:
     Py_DECREF(seq);
     free(cols);
-    free(rows);
     free(values);
     free(head);
     return -1;
@@ -424,10 +578,10 @@ static void Writer_dealloc(Writer *w)
     if (w->ready) {
         pthread_mutex_destroy(&w->lock);
         pthread_cond_destroy(&w->wake);
-        pthread_cond_destroy(&w->ended);
+        pthread_cond_destroy(&w->freed);
     }
+    for (int i = 0; i < SLOTS; i++) slot_release(&w->slots[i]);
     free(w->cols);
-    free(w->rows);
     free(w->values);
     free(w->header);
     Py_TYPE(w)->tp_free((PyObject *)w);
@@ -452,21 +606,34 @@ static PyObject *crc32_func(PyObject *Py_UNUSED(module), PyObject *const *args, 
     }
     Py_buffer view;
     if (PyObject_GetBuffer(args[0], &view, PyBUF_SIMPLE) < 0) return NULL;
-    uint32_t crc = crc32_update((uint32_t)value, view.buf, (size_t)view.len);
+    uint32_t crc = crc32_fast((uint32_t)value, view.buf, (size_t)view.len);
     PyBuffer_Release(&view);
     return PyLong_FromUnsignedLong(crc);
 }
 
 static PyMethodDef Writer_methods[] = {
-    {"submit", (PyCFunction)Writer_submit, METH_O,
-     "submit(n_rows): the journal's next n_rows rows (written, flushed) are the thread's to write."},
+    {"submit_rows", (PyCFunction)Writer_submit_rows, METH_O,
+     "submit_rows(data): whole raw rows, copied: the thread journals them, then writes them to the archive."},
     {"finish", (PyCFunction)Writer_finish, METH_NOARGS,
-     "finish() -> (rows written, (crc, ...)): every row handed over written, the thread joined."},
-    {"abandon", (PyCFunction)Writer_abandon, METH_NOARGS, "abandon(): the thread joined, rows not written dropped."},
+     "finish() -> (rows written, (crc, ...)): every row handed over journaled and written, the thread joined."},
+    {"abandon", (PyCFunction)Writer_abandon, METH_NOARGS,
+     "abandon() -> None or a failed journal write's errno: the thread joined once every row handed over is "
+     "journaled, the archive's work dropped."},
+    {"fail_journal_writes", (PyCFunction)Writer_fail_journal_writes, METH_VARARGS,
+     "fail_journal_writes(count, errno): the next count journal writes fail (tests: a full disk)."},
     {NULL, NULL, 0, NULL},
 };
 
+static PyObject *Writer_journaled(Writer *w, void *Py_UNUSED(closure))
+{
+    pthread_mutex_lock(&w->lock);
+    unsigned long long journaled = w->journaled;
+    pthread_mutex_unlock(&w->lock);
+    return PyLong_FromUnsignedLongLong(journaled);
+}
+
 static PyGetSetDef Writer_getset[] = {
+    {"journaled", (getter)Writer_journaled, NULL, "rows the thread has written to the journal so far", NULL},
     {"rows_done", (getter)Writer_rows_done, NULL, "rows written (None while the thread runs)", NULL},
     {NULL, NULL, NULL, NULL, NULL},
 };
@@ -476,8 +643,8 @@ static PyTypeObject WriterType = {
     .tp_name = "hilbench.bench._npzcolumns.ColumnWriter",
     .tp_basicsize = sizeof(Writer),
     .tp_flags = Py_TPFLAGS_DEFAULT,
-    .tp_doc = "ColumnWriter(fd, journal_fd, journal_offset, itemsize, columns, header): a journal's raw rows to an "
-              "archive's float64 columns on a thread; columns: (field offset, struct code, scale, modulo or 0, file "
+    .tp_doc = "ColumnWriter(fd, journal_fd, journal_offset, itemsize, columns, header): raw rows handed over "
+              "(submit_rows) written to the journal and as an archive's float64 columns on a thread; columns: (field offset, struct code, scale, modulo or 0, file "
               "offset of row 0, crc so far); header: the .npy header the thread writes before each column's row 0.",
     .tp_new = PyType_GenericNew,
     .tp_init = (initproc)Writer_init,
@@ -498,7 +665,7 @@ static struct PyModuleDef moduledef = {
 
 PyMODINIT_FUNC PyInit__npzcolumns(void)
 {
-    crc_init();
+    crc32_init_tables(); /* before any writer thread: it only reads the tables */
     if (PyType_Ready(&WriterType) < 0) return NULL;
     PyObject *m = PyModule_Create(&moduledef);
     if (m == NULL) return NULL;

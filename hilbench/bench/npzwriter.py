@@ -111,7 +111,7 @@ class ColumnArchive:
             for name in names:
                 _, _, data_offset, _ = self._members[self._index[name]]
                 if write_headers:
-                    _pwrite_all(self._fd, memoryview(self._header), data_offset)
+                    pwrite_all(self._fd, memoryview(self._header), data_offset)
                 self._crc[name] = zlib.crc32(self._header)
         except BaseException:  # a full disk already: no descriptor left open
             self.abandon()
@@ -129,7 +129,7 @@ class ColumnArchive:
                 raise ValueError(f"column {name}: rows from {first}, expected from {self._written[name]}")
             data = np.ascontiguousarray(values, dtype="<f8").data.cast("B")
             _, _, data_offset, _ = self._members[self._index[name]]
-            _pwrite_all(self._fd, data, data_offset + len(self._header) + 8 * first)
+            pwrite_all(self._fd, data, data_offset + len(self._header) + 8 * first)
             self._crc[name] = zlib.crc32(data, self._crc[name])
             self._written[name] = first + len(values)
 
@@ -157,16 +157,16 @@ class ColumnArchive:
             raise ValueError(f"column {short[0]}: {self._written[short[0]]} of {self.n_rows} rows written")
         directory: list[bytes] = []
         for name, (member, offset, _, size) in zip(self._written, self._members):
-            _pwrite_all(self._fd, memoryview(_local_header(member, self._crc[name], size)), offset)
+            pwrite_all(self._fd, memoryview(_local_header(member, self._crc[name], size)), offset)
             directory.append(_central_header(member, self._crc[name], size, offset))
         offset = self._end
         for member, crc, data in self._small:
             local = _local_header(member, crc, len(data))
-            _pwrite_all(self._fd, memoryview(local + data), offset)
+            pwrite_all(self._fd, memoryview(local + data), offset)
             directory.append(_central_header(member, crc, len(data), offset))
             offset += len(local) + len(data)
         table = b"".join(directory)
-        _pwrite_all(self._fd, memoryview(table + _end_records(len(directory), offset, len(table))), offset)
+        pwrite_all(self._fd, memoryview(table + _end_records(len(directory), offset, len(table))), offset)
         fd, self._fd = self._fd, -1  # a close that fails has still released the number: never close it twice
         os.close(fd)
 
@@ -187,21 +187,24 @@ class ColumnArchive:
 
 
 class BackgroundArchive:
-    """The archive of a run that plans ``n_rows`` rows of ``layout``, written while it runs from its
-    journal: `submit(n)` says the journal's next n rows are written (and flushed); a thread reads them
-    back and writes each column at its place. `finish` completes the archive when exactly ``n_rows``
-    were handed over and written (False otherwise: the unfinished file is removed, the caller writes it
-    from the journal)."""
+    """The archive of a run that plans ``n_rows`` rows of ``layout``, and its journal, written while
+    it runs: `submit_rows(data)` hands a chunk of raw rows over (copied); a thread writes it to the
+    journal at its place, then each column to the archive. `finish` completes the archive when
+    exactly ``n_rows`` were handed over and written (False otherwise: the unfinished file is removed,
+    the caller writes it from the journal). Every chunk handed over reaches the journal, whatever
+    becomes of the archive, unless a journal write fails twice (`journal_failed`)."""
 
     def __init__(self, path: Path, layout: "RowLayout", n_rows: int, journal: Path, journal_offset: int) -> None:
         if _npzcolumns is None:
             raise RuntimeError("BackgroundArchive: the column writer is not built")
         self.path, self.n_rows = path, n_rows
         self.rows = 0  # handed over so far
-        self.given_up = False  # more rows than planned, or a failed read or write: `finish` says False
-        self.failed: OSError | None = None  # the thread's failed read or write
+        self.given_up = False  # more rows than planned, a failed write, or abandoned: `finish` says False
+        self.failed: OSError | None = None  # the thread's failed archive write (or the journal write that gave it up)
+        self.journal_failed: OSError | None = None  # a journal write that failed twice: rows not in the journal
         offsets, wraps = _field_offsets(layout), dict(layout.wrap)
-        self._journal_fd = os.open(journal, os.O_RDONLY | os.O_CLOEXEC)
+        self._itemsize = layout.dtype.itemsize
+        self._journal_fd = os.open(journal, os.O_WRONLY | os.O_CLOEXEC)
         try:
             self._archive = ColumnArchive(path, layout.column_names, n_rows, write_headers=False)
             columns = [(offsets[src][0], offsets[src][1], scale, wraps.get(name, 0.0), place, crc)
@@ -216,27 +219,36 @@ class BackgroundArchive:
             os.close(self._journal_fd)
             raise
 
-    def submit(self, n_rows: int) -> None:
-        """The journal's next ``n_rows`` rows are there; beyond the plan the archive is given up."""
+    def submit_rows(self, data: memoryview) -> bool:
+        """Hand these whole raw rows over (the journal's next ones): True, or False when the thread is
+        done with (given up, or more rows than planned: the caller writes them to the journal itself).
+        Raises OSError when a journal write failed twice (the rows of that chunk are not in it)."""
         if self.given_up:
-            return
+            return False
+        n_rows = len(data) // self._itemsize
         if self.rows + n_rows > self.n_rows:  # more than planned: the journal writes the archive
             self.abandon()
-            return
+            if self.journal_failed is not None:
+                raise self.journal_failed
+            return False
         try:
-            self._writer.submit(n_rows)
+            self._writer.submit_rows(data)
         except OSError as exc:
-            self.failed = exc
+            self.journal_failed = exc
             self.abandon()
-            return
+            raise
         self.rows += n_rows
+        return True
 
     def finish(self, metadata: np.ndarray) -> bool:
         """The archive complete with ``metadata`` (True), or given up: another number of rows than
-        planned, a failed read or write (False; the descriptors closed, the unfinished file removed).
-        Ctrl-C while the thread writes its last rows gives it up too, and propagates."""
+        planned, a failed write (False; the descriptors closed, the unfinished file removed; raises
+        OSError when a journal write failed twice). Ctrl-C while the thread writes its last rows gives
+        it up too (every row handed over journaled), and propagates."""
         if self.given_up or self.rows != self.n_rows:
             self.abandon()
+            if self.journal_failed is not None:
+                raise self.journal_failed
             return False
         try:
             n_rows, crcs = self._writer.finish()
@@ -246,6 +258,8 @@ class BackgroundArchive:
         except OSError as exc:
             self.failed = exc
             self.abandon()
+            if self.journal_failed is not None:
+                raise self.journal_failed from None
             return False
         except BaseException:  # Ctrl-C while the thread finished: given up, the journal keeps every row
             self.abandon()
@@ -254,11 +268,14 @@ class BackgroundArchive:
         return True
 
     def abandon(self) -> None:
-        """The thread joined, what it had not written dropped, the unfinished file emptied and
-        removed (its blocks go back to a full disk, where the journal needs them), the descriptors
-        closed (idempotent; a finished archive is left alone)."""
+        """The thread joined once every row handed over is in the journal (a journal write that failed
+        twice: `journal_failed`), the archive's work dropped, the unfinished file emptied and removed
+        (its blocks go back to a full disk, where the journal needs them), the descriptors closed
+        (idempotent; a finished archive is left alone)."""
         self.given_up = True
-        self._writer.abandon()
+        failed_errno = self._writer.abandon()
+        if failed_errno is not None and self.journal_failed is None:
+            self.journal_failed = OSError(failed_errno, os.strerror(failed_errno))
         if self._archive._fd >= 0:  # still ours: not finished
             try:
                 os.ftruncate(self._archive._fd, 0)
@@ -287,7 +304,8 @@ def _field_offsets(layout: "RowLayout") -> dict[str, tuple[int, str]]:
     return out
 
 
-def _pwrite_all(fd: int, data: memoryview, offset: int) -> None:
+def pwrite_all(fd: int, data: memoryview, offset: int) -> None:
+    """All of ``data`` written at ``offset`` (pwrite until done; nothing written is an error)."""
     while len(data):
         n = os.pwrite(fd, data, offset)
         if n <= 0:  # nothing written of a non-empty piece: an error, not a loop without end
@@ -295,4 +313,4 @@ def _pwrite_all(fd: int, data: memoryview, offset: int) -> None:
         data, offset = data[n:], offset + n
 
 
-__all__ = ["BackgroundArchive", "ColumnArchive"]
+__all__ = ["BackgroundArchive", "ColumnArchive", "pwrite_all"]

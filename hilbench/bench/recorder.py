@@ -18,13 +18,16 @@ without a conversion and a killed run's journal reads back on its own.
 A chunk is ``flush_rows`` periods (by default one simulated second at the run's period).
 
 An NPZ run that says how many rows it plans (`Recorder.expect_rows`) has its archive written while
-it runs (`npzwriter.BackgroundArchive`): its settled rows go to the journal every
-BACKGROUND_CHUNK_ROWS rows (not only at each flush, so a killed run keeps more of them), and a
-thread reads them back, converts and writes them, so the close only finishes the archive. A run
-that ends with another number of rows (or a fault marker on a row already in the journal, which is
-then patched there) has its archive written from the journal at the close. A journal write that
-fails beside it (a full disk) gives the archive up, its file removed, and is written again: the
-journal, not the archive, keeps the rows.
+it runs (`npzwriter.BackgroundArchive`): its chunk becomes BACKGROUND_CHUNK_ROWS rows (at most
+``flush_rows``), each flush hands the chunk to a thread (copied into a buffer it reuses: the
+simulating thread neither writes the journal nor touches fresh pages, which on a virtual machine
+cost more than the run's rows), and the thread writes it to the journal, then converts and writes
+its columns, so the close only finishes the archive. A killed run loses at most the pending chunk
+and the one the thread holds; the memory the rows take stays that of one small chunk. A run that
+ends with another number of rows (or a fault marker on a row already in the journal, which is then
+patched there) has its archive written from the journal at the close. A journal write that fails
+(a full disk) gives the archive up, its file emptied, and is written again: the journal, not the
+archive, keeps the rows.
 
 A CSV run's rows are formatted and written by the C row writer's thread (`_csvrows.RowWriter`,
 when built): settled rows are handed to it every BACKGROUND_CHUNK_ROWS rows (the newest kept back,
@@ -46,6 +49,7 @@ from typing import Any, Iterator, Sequence
 
 import numpy as np
 
+from hilbench.bench.npzwriter import pwrite_all
 from hilbench.errors import RecordingError
 
 try:  # CSV rows in C from raw rows, on a thread (optional; `Recorder._format_csv` is the reference)
@@ -92,9 +96,13 @@ MARKER_END = 4
 MARKER_SKIPPED = 5  # real time: the host missed the period's slot, no exchange (the Drive is held)
 
 _JOURNAL_MAGIC = b"HBJ2"
-#: rows an NPZ run hands to its background archive at a time (between flushes), and a CSV run to its
-#: row writer's thread
+#: rows an NPZ run with a background archive flushes at a time (its chunk), and a CSV run hands to
+#: its row writer's thread between flushes
 BACKGROUND_CHUNK_ROWS = 4096
+#: rows a planned NPZ run leaves for the close (one more flush before them, at the session's next
+#: observe period: every 400 by default): the rows the close waits for the background archive's thread
+#: to convert
+LAST_CHUNK_ROWS = 1024
 #: rows a CSV run's writer thread may have waiting (handed over, not written yet): its memory bound
 CSV_WRITER_MAX_ROWS = 2 * BACKGROUND_CHUNK_ROWS
 
@@ -240,6 +248,10 @@ class RowBuffer:
         """Set the marker field of pending row ``index``."""
         struct.pack_into(self._marker_code, self.data, index * self.struct.size + self._marker_offset, value)
 
+    def mark_row(self, row: bytearray, value: int) -> None:
+        """Set the marker field of one packed row of this layout (a row read back from a journal)."""
+        struct.pack_into(self._marker_code, row, self._marker_offset, value)
+
     def marker_at(self, index: int) -> int:
         return int(struct.unpack_from(self._marker_code, self.data, index * self.struct.size + self._marker_offset)[0])
 
@@ -292,9 +304,11 @@ class Recorder:
     closed: bool = False
     started: bool = False
     _background: Any = field(default=None, repr=False)  # npzwriter.BackgroundArchive, when the rows are planned
-    _handed: int = field(default=0, repr=False)  # pending rows already in the journal (handed to it)
+    _handed: int = field(default=0, repr=False)  # a CSV's pending rows already handed to its writer's thread
     _journal_start: int = field(default=0, repr=False)  # the journal's row 0
     _csv_writer: Any = field(default=None, repr=False)  # _csvrows.RowWriter: a CSV's rows written on a thread
+    _next_row_marker: int = field(default=MARKER_NONE, repr=False)  # an event's, flushed before its row came
+    _last_flush_at: int = field(default=0, repr=False)  # a planned run's rows at its last flush before the close
 
     def __post_init__(self) -> None:
         self.path = Path(self.path)
@@ -304,7 +318,7 @@ class Recorder:
         self.is_npz = suffix == ".npz"
         try:  # open now, so an unwritable path fails before the run starts
             if self.is_npz:
-                self._file = open(self._journal_path(), "wb")
+                self._file = open(self._journal_path(), "w+b")  # read too: `_mark_journal_row`
                 _events_path(self._journal_path()).unlink(missing_ok=True)  # a killed earlier run's
                 self._tmp_path().unlink(missing_ok=True)  # and its unfinished archive
             else:
@@ -367,15 +381,17 @@ class Recorder:
         except Exception:  # noqa: BLE001 - an accelerator's failure, whatever it is: the close writes the
             self._background = None  # archive from the journal (the reference; it says so if it cannot)
             self._tmp_path().unlink(missing_ok=True)
-        self._handed = 0
+            return
+        self.flush_rows = min(self.flush_rows, BACKGROUND_CHUNK_ROWS)
+        self._last_flush_at = n_rows - LAST_CHUNK_ROWS  # (a plan that small: no flush more)
 
     def rows_to_write(self) -> int:
-        """How many more rows before `maybe_flush` has work: a flush, or rows for the background archive."""
+        """How many more rows before `maybe_flush` has work: a flush, or rows for a CSV's writer thread."""
         pending = len(self.rows)
         rows = self.flush_rows - pending
-        if self._background is not None and not self._background.given_up:
-            rows = min(rows, BACKGROUND_CHUNK_ROWS - (pending - self._handed))
-        elif self._csv_writer is not None:  # (the newest row is kept back: mark_last may still mark it)
+        if self._last_flush_at > 0:  # (0: none, or done)
+            rows = min(rows, self._last_flush_at - self.rows_written - pending)
+        if self._csv_writer is not None:  # (the newest row is kept back: mark_last may still mark it)
             rows = min(rows, BACKGROUND_CHUNK_ROWS + 1 - (pending - self._handed))
         return rows
 
@@ -388,21 +404,27 @@ class Recorder:
         self._events.append((len(self.rows), line, marker))
 
     def mark_last(self, marker: int) -> None:
-        """Set the marker of the newest pending row (the last good period): it wins over events."""
-        self.rows.settle(self._events)
-        self.rows.mark_last(marker)
-        n_rows = len(self.rows)
-        if self._background is not None and 0 < n_rows <= self._handed:  # that row is in the journal already
-            self._rewrite_journal_row(n_rows - 1)
-            self._background.abandon()  # its thread may have read it without the marker
+        """Set the marker of the newest row (the last good period): it wins over events. An NPZ's
+        newest row already flushed (none pending) is patched in the journal."""
+        self._settle()
+        if len(self.rows) or not self.is_npz or not self.rows_written:
+            self.rows.mark_last(marker)
+            return
+        if self._background is not None:
+            self._background.abandon()  # its thread may have read that row without the marker
+        self._mark_journal_row(self.rows_written - 1, marker)
 
-    def _rewrite_journal_row(self, index: int) -> None:
-        """Pending row ``index``, already in the journal, written there again as it is now."""
+    def _mark_journal_row(self, index: int, marker: int) -> None:
+        """Set the marker of row ``index`` of the journal (read, marked, written back in place)."""
         size = self.rows.struct.size
+        offset = self._journal_start + index * size
         try:
             self._file.flush()
-            os.pwrite(self._file.fileno(), bytes(self.rows.data[index * size:(index + 1) * size]),
-                      self._journal_start + (self.rows_written + index) * size)
+            row = bytearray(os.pread(self._file.fileno(), size, offset))
+            if len(row) != size:
+                raise OSError(errno.EIO, f"row {index} is not in the journal")
+            self.rows.mark_row(row, marker)
+            os.pwrite(self._file.fileno(), row, offset)
         except OSError as exc:
             raise RecordingError(f"recording {self.path}: write failed ({exc.strerror})") from None
 
@@ -412,24 +434,12 @@ class Recorder:
         pending = len(self.rows)
         if pending >= self.flush_rows:
             self.flush()
-        elif self._background is not None and pending - self._handed >= BACKGROUND_CHUNK_ROWS:
-            self.rows.settle(self._events)  # their markers are final: events note the next row to come
-            self._hand_over()
+        elif 0 < self._last_flush_at <= self.rows_written + pending:
+            self._last_flush_at = 0  # once: the last chunk, the close's, is small
+            self.flush()
         elif self._csv_writer is not None and pending - 1 - self._handed >= BACKGROUND_CHUNK_ROWS:
-            self.rows.settle(self._events)
+            self._settle()
             self._hand_over_csv(len(self.rows) - 1)  # the newest kept back: mark_last may mark it
-
-    def _hand_over(self) -> None:
-        """The settled pending rows not in the journal yet written there, and handed to the
-        background archive's thread (which reads them back)."""
-        rows = self.rows
-        n_rows, size = len(rows), rows.struct.size
-        if n_rows <= self._handed:
-            return
-        self._write_journal(self._handed, n_rows)
-        if self._background is not None:  # (a full disk may have given it up)
-            self._background.submit(n_rows - self._handed)
-        self._handed = n_rows
 
     def _hand_over_csv(self, end: int) -> None:
         """Pending rows (settled) up to ``end`` and the events before them (those at ``end`` too
@@ -453,35 +463,56 @@ class Recorder:
                 del events[:n_events]
                 self._handed = end
 
-    def _write_journal(self, first: int, end: int) -> None:
-        """Pending rows first..end-1 written at their place in the journal (pwrite: no buffer left
-        holding a failed write's bytes). A failed write while a background archive takes space
-        beside the journal (a full disk) gives that archive up, its file emptied, and is tried once
-        more: the journal, not the archive, keeps the rows (the close writes the archive from it)."""
-        size = self.rows.struct.size
-        offset = self._journal_start + (self.rows_written + first) * size
-        try:
+    def _journal_rows(self, n_rows: int) -> None:
+        """The pending rows to the journal, at their place: handed to the background archive's thread
+        (which journals them, then converts them), or written here when there is none (any more)."""
+        background = self._background
+        if background is not None and n_rows:
             try:
-                self._pwrite_rows(first, end, offset)
+                if background.journal_failed is None:
+                    size = self.rows.struct.size
+                    with memoryview(self.rows.data) as whole, whole[:n_rows * size] as data:  # copied by the writer
+                        if background.submit_rows(data):
+                            return
+                if background.journal_failed is not None:  # a hole in the journal: nothing goes after it
+                    raise background.journal_failed
+            except OSError as exc:
+                raise RecordingError(f"recording {self.path}: write failed ({exc.strerror})") from None
+        self._write_journal(0, n_rows)
+
+    def _write_events_file(self, text: str) -> None:
+        """Events appended to the journal's side file. A failed write while a background archive
+        takes space (a full disk) gives that archive up, its blocks freed, and is tried once more
+        (what part of the failed one landed cut off)."""
+        data = text.encode("utf-8")
+        fd = os.open(_events_path(self._journal_path()), os.O_WRONLY | os.O_CREAT | os.O_CLOEXEC, 0o644)
+        try:
+            offset = os.lseek(fd, 0, os.SEEK_END)
+            try:
+                pwrite_all(fd, memoryview(data), offset)
             except OSError:
                 background = self._background
                 if background is None or background.given_up:
                     raise
-                background.abandon()  # its blocks freed
-                os.ftruncate(self._file.fileno(), offset)  # whatever part of the failed write landed
-                self._pwrite_rows(first, end, offset)
+                background.abandon()  # (every row handed over journaled first)
+                os.ftruncate(fd, offset)
+                pwrite_all(fd, memoryview(data), offset)
+        finally:
+            os.close(fd)
+
+    def _write_journal(self, first: int, end: int) -> None:
+        """Pending rows first..end-1 written at their place in the journal (pwrite: no buffer left
+        holding a failed write's bytes)."""
+        offset = self._journal_start + (self.rows_written + first) * self.rows.struct.size
+        try:
+            self._pwrite_rows(first, end, offset)
         except OSError as exc:
             raise RecordingError(f"recording {self.path}: write failed ({exc.strerror})") from None
 
     def _pwrite_rows(self, first: int, end: int, offset: int) -> None:
-        size, fd = self.rows.struct.size, self._file.fileno()
+        size = self.rows.struct.size
         with memoryview(self.rows.data) as whole, whole[first * size:end * size] as data:  # released whatever fails
-            done = 0
-            while done < len(data):
-                n = os.pwrite(fd, data[done:], offset + done)
-                if n <= 0:
-                    raise OSError(errno.EIO, os.strerror(errno.EIO))
-                done += n
+            pwrite_all(self._file.fileno(), data, offset)
 
     def flush(self) -> None:
         """Write every pending row and event and push them to the OS."""
@@ -489,18 +520,19 @@ class Recorder:
             self.start()
         events = self._events
         rows = self.rows
-        rows.settle(events)
+        self._settle()
         n_rows = len(rows)
         if not n_rows and not events:
             return
-        if self.is_npz:  # raw rows as they are (the layout is in the header), those not there yet
-            self._write_journal(self._handed, n_rows)
+        markers = [marker for _, _, marker in events if marker != MARKER_NONE]  # settled: those of the next row
+        next_row_marker = markers[-1] if markers else MARKER_NONE
+        if self.is_npz:  # raw rows as they are (the layout is in the header)
+            self._journal_rows(n_rows)
         try:
             if self.is_npz:
                 if events:  # the metadata keeps them at close; the side file until then
                     self.metadata.setdefault("events", []).extend(text for _, text, _ in events)
-                    with open(_events_path(self._journal_path()), "a", encoding="utf-8") as side:
-                        side.write("".join(f"{text}\n" for _, text, _ in events))
+                    self._write_events_file("".join(f"{text}\n" for _, text, _ in events))
             elif self._csv_writer is not None:  # the rest to the thread; the flush returns when it is written
                 self._hand_over_csv(n_rows)
                 self._csv_writer.drain()
@@ -514,12 +546,26 @@ class Recorder:
             self._file.flush()
         except OSError as exc:
             raise RecordingError(f"recording {self.path}: write failed ({exc.strerror})") from None
-        if self._background is not None and n_rows > self._handed:
-            self._background.submit(n_rows - self._handed)  # in the journal now
         self.rows_written += n_rows
         rows.clear()
+        self._next_row_marker = next_row_marker
         events.clear()
         self._handed = 0
+
+    def rows_done(self) -> None:
+        """No more rows come: an NPZ's pending rows written now, so a background archive's thread
+        converts them while the caller does other work before `close`."""
+        if self.is_npz and self._background is not None and not self.closed:
+            self.flush()
+
+    def _settle(self) -> None:
+        """`RowBuffer.settle`, and the marker of an event a flush wrote before its row came (noted
+        at the next row when the chunk ended) set on that row, the chunk's first, unless it has one."""
+        self.rows.settle(self._events)
+        if self._next_row_marker != MARKER_NONE and len(self.rows):
+            if self.rows.marker_at(0) == MARKER_NONE:
+                self.rows.mark(0, self._next_row_marker)
+            self._next_row_marker = MARKER_NONE
 
     def _format_csv(self, rows: list[tuple[float, ...]], events: list[tuple[int, str, int]]) -> str:
         """The CSV text of these rows (the columns' values) and events: the reference of the C
@@ -568,6 +614,8 @@ class Recorder:
         self.closed = True
         self._file.close()
         if self.is_npz:
+            if "events" in self.metadata:  # after "end", however many flushes came first: the same bytes
+                self.metadata["events"] = self.metadata.pop("events")
             self.metadata["columns"] = [list(spec) for spec in self.rows.layout.column_specs]  # name, unit, CSV format
             tmp = self._tmp_path()
             background, self._background = self._background, None

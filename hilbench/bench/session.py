@@ -859,6 +859,9 @@ class Session:
         self._finish(note, fault)
 
     def _finish(self, note: str, fault: bool) -> None:
+        rows_done = getattr(self.recorder, "rows_done", None)
+        if rows_done is not None and not fault:  # (a fault marks the last row first)
+            rows_done()  # an archive's thread converts the last rows while the summary is made
         summary, pacing = self.summary, self.pacing
         summary.periods = self.periods_done
         summary.sim_s = self.now_s
