@@ -313,29 +313,32 @@ static void *writer_thread(void *arg)
 #define STOP_POLL_NS 50000000L /* how often a wait for the thread looks for a signal (Ctrl-C) */
 
 /* Wait on `freed` (the GIL released) until ready(w) or the thread has exited, looking for a signal
- * every STOP_POLL_NS: 0, or -1 with a signal handler's exception set (Ctrl-C). Called with the
- * lock held (released while waiting), returns with it held. */
+ * every STOP_POLL_NS when interruptible: 0 with the lock held, or -1 without it and with a signal
+ * handler's exception set (Ctrl-C). Called without the lock: the lock is never held while the GIL
+ * is taken or given back (a Python thread that holds the GIL may be waiting for the lock). */
 static int wait_freed(Writer *w, int (*ready)(Writer *), int interruptible)
 {
-    while (!ready(w) && !w->exited) {
-        int interrupted = 0;
+    for (;;) {
+        int done;
         Py_BEGIN_ALLOW_THREADS
-        struct timespec until;
-        clock_gettime(CLOCK_MONOTONIC, &until);
-        until.tv_nsec += STOP_POLL_NS;
-        if (until.tv_nsec >= 1000000000L) {
-            until.tv_sec += 1;
-            until.tv_nsec -= 1000000000L;
+        pthread_mutex_lock(&w->lock);
+        if (!ready(w) && !w->exited) {
+            struct timespec until;
+            clock_gettime(CLOCK_MONOTONIC, &until);
+            until.tv_nsec += STOP_POLL_NS;
+            if (until.tv_nsec >= 1000000000L) {
+                until.tv_sec += 1;
+                until.tv_nsec -= 1000000000L;
+            }
+            pthread_cond_timedwait(&w->freed, &w->lock, &until);
         }
-        pthread_cond_timedwait(&w->freed, &w->lock, &until);
+        done = ready(w) || w->exited;
+        pthread_mutex_unlock(&w->lock);
         Py_END_ALLOW_THREADS
-        if (!ready(w) && !w->exited && interruptible) {
-            pthread_mutex_unlock(&w->lock);
-            interrupted = PyErr_CheckSignals() < 0;
-            pthread_mutex_lock(&w->lock);
-        }
-        if (interrupted) return -1;
+        if (done) break;
+        if (interruptible && PyErr_CheckSignals() < 0) return -1;
     }
+    pthread_mutex_lock(&w->lock); /* (the state stays ready: only the caller changes it back) */
     return 0;
 }
 
@@ -354,9 +357,12 @@ static int stop_thread(Writer *w, int discard)
     w->stopping = 1;
     if (discard) w->discard = 1;
     pthread_cond_signal(&w->wake);
-    if (wait_freed(w, never, !discard) < 0) {
+    pthread_mutex_unlock(&w->lock);
+    if (wait_freed(w, never, !discard) < 0) { /* interrupted: the archive's rest dropped, still joined */
         status = -1;
+        pthread_mutex_lock(&w->lock);
         w->discard = 1;
+        pthread_mutex_unlock(&w->lock);
         wait_freed(w, never, 0);
     }
     pthread_mutex_unlock(&w->lock);
@@ -393,11 +399,7 @@ static PyObject *Writer_submit_rows(Writer *w, PyObject *arg)
         goto out;
     }
     size_t n_rows = (size_t)(data.len / w->itemsize);
-    pthread_mutex_lock(&w->lock);
-    if (wait_freed(w, slot_free, 1) < 0) {
-        pthread_mutex_unlock(&w->lock);
-        goto out;
-    }
+    if (wait_freed(w, slot_free, 1) < 0) goto out; /* (a signal's exception: nothing handed over) */
     int err = w->journal_error ? w->journal_error : (w->exited ? EIO : 0);
     pthread_mutex_unlock(&w->lock);
     if (err) {

@@ -626,6 +626,9 @@ class Recorder:
             except (OSError, RecordingError) as exc:  # a full disk, a file size limit: the journal stays
                 tmp.unlink(missing_ok=True)
                 reason = (exc.strerror or str(exc)) if isinstance(exc, OSError) else str(exc)
+                if background is not None and background.journal_failed is not None:  # the last chunk's journal write
+                    raise RecordingError(f"recording {self.path}: write failed ({reason}); the rows before the "
+                                         f"last chunk are kept in {self._journal_path()}") from None
                 raise RecordingError(f"recording {self.path}: the archive could not be written ({reason}); "
                                      f"every row is kept in {self._journal_path()}") from None
             self._journal_path().unlink()
