@@ -29,7 +29,7 @@ noisy machine where wall-clock medians scatter by as much. Each interpreter runs
 callgrind for a short and a long scenario; the difference over the extra periods is the per-period
 cost with start-up, handshake and imports cancelled out (the close of the recording stays in).
 
-    python benchmarks/bench_session.py [--seconds 1.0] [--repeats 3] [--no-process] [--baseline-python PY] [--instructions]
+    python benchmarks/bench_session.py [--seconds 1.0] [--repeats 5] [--no-process] [--baseline-python PY] [--instructions]
 """
 
 from __future__ import annotations
@@ -179,7 +179,7 @@ def instructions_per_period(python: str, short_s: float = 0.2, long_s: float = 1
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     parser.add_argument("--seconds", type=float, default=1.0, help="simulated seconds per run")
-    parser.add_argument("--repeats", type=int, default=3)
+    parser.add_argument("--repeats", type=int, default=5)
     parser.add_argument("--baseline-python", default=None, metavar="PY",
                         help="an interpreter with another hilbench installed: (a) is measured there too")
     parser.add_argument("--instructions", action="store_true",
