@@ -257,11 +257,9 @@ def _merge_check(f1: bytes, f2: bytes) -> int:
         block = np.tile(np.concatenate((orig, np.zeros(1, dtype=np.uint8))), (patterns.size, 1))
         block[:, first:first + masks.shape[1]] ^= masks
         changed = block[:, :len(stream)] != orig
-        want = []
-        for row in changed:
-            for (lo, hi), msg in zip(spans, msgs):
-                if not row[lo - 1:hi + 2].any():  # its bytes and both its delimiters intact
-                    want.append(msg)
+        # per burst (row) and frame (column): its bytes and both its delimiters intact
+        intact = np.stack([~changed[:, lo - 1:hi + 2].any(axis=1) for lo, hi in spans], axis=1)
+        want = [msgs[j] for j in np.nonzero(intact)[1]]  # row by row, each row's frames in stream order
         got = FrameDecoder().feed(block.tobytes())
         assert got == want, (f1.hex(), f2.hex(), start)
         tried += patterns.size
