@@ -152,7 +152,9 @@ def test_lossy_socket_spec_gives_a_seeded_faulty_link(served: ServedInThread) ->
     script = sensors_script(300)
     expected = reference_drives(script)
     try:
-        remote = RemoteTarget(link, timeout_s=0.02)
+        # a lost frame costs retry_s then timeout_s (0.07 s, the default retry_s made it 0.12 s); no
+        # Sensors is sent again within them, so the seeded injector sees the same bytes either way
+        remote = RemoteTarget(link, timeout_s=0.02, retry_s=0.05)
         remote.handshake(PERIOD_US, MODE_LOCKSTEP, 0, attempts=50)
         got = lost = 0
         for s, want in zip(script, expected):
