@@ -85,7 +85,7 @@ static inline uint32_t hb_crc32_shift1(uint32_t r)
     return (r >> 1) ^ (HB_CRC32_POLY & (0u - (r & 1u)));
 }
 
-static void crc32_init_tables(void)
+static inline void crc32_init_tables(void)
 {
     if (HB_CRC32_LOAD_STATE() != 0) return;
     for (uint32_t b = 0; b < 256; b++) {
@@ -154,7 +154,7 @@ __attribute__((target("pclmul,sse4.1"))) static inline __m128i hb_crc32_load(con
 }
 
 /* the register r (no inversions) over n >= 16 bytes, by folding */
-__attribute__((target("pclmul,sse4.1"))) static uint32_t hb_crc32_clmul(uint32_t r, const unsigned char *p, size_t n)
+__attribute__((target("pclmul,sse4.1"))) static inline uint32_t hb_crc32_clmul(uint32_t r, const unsigned char *p, size_t n)
 {
     const __m128i k128 = _mm_set_epi64x((long long)HB_CRC32_X127, (long long)HB_CRC32_X191);
     __m128i x = _mm_xor_si128(hb_crc32_load(p), _mm_cvtsi32_si128((int)r));
@@ -190,7 +190,7 @@ static inline int crc32_accelerated(void)
     return HB_CRC32_LOAD_STATE() == 2;
 }
 
-static uint32_t crc32_fast(uint32_t crc, const unsigned char *p, size_t n)
+static inline uint32_t crc32_fast(uint32_t crc, const unsigned char *p, size_t n)
 {
     int state = HB_CRC32_LOAD_STATE();
     if (state == 0) return ~hb_crc32_bitwise(~crc, p, n); /* exact without the tables, if slow */

@@ -182,7 +182,8 @@ static int journal_pwrite(Writer *w, const slot_t *slot, long long offset)
     if (fail) w->test_failures--;
     pthread_mutex_unlock(&w->lock);
     if (fail) {
-        static const unsigned char stray[777] = {0xEE};
+        unsigned char stray[777];
+        memset(stray, 0xEE, sizeof stray);
         pwrite_all(w->journal_fd, slot->data, bytes / 2, offset);
         pwrite_all(w->journal_fd, stray, sizeof stray, offset + (long long)bytes);
         return fail;
@@ -212,7 +213,7 @@ static int write_journal(Writer *w, const slot_t *slot)
     int err = journal_pwrite(w, slot, offset);
     if (!err) return 0;
     give_archive_up(w, err);
-    if (ftruncate(w->journal_fd, (off_t)offset)) return err;
+    if (ftruncate(w->journal_fd, (off_t)offset)) return err; /* (the recorder cuts the journal to `journaled`) */
     err = journal_pwrite(w, slot, offset);
     if (err && ftruncate(w->journal_fd, (off_t)offset)) { /* failed again: the journal ends at the rows before */
     }
@@ -338,7 +339,7 @@ static int wait_freed(Writer *w, int (*ready)(Writer *), int interruptible)
         if (done) break;
         if (interruptible && PyErr_CheckSignals() < 0) return -1;
     }
-    pthread_mutex_lock(&w->lock); /* (the state stays ready: only the caller changes it back) */
+    pthread_mutex_lock(&w->lock); /* (still ready: only the caller, one at a time, changes it back) */
     return 0;
 }
 
@@ -381,13 +382,16 @@ static PyObject *os_error(int err)
 
 static int slot_free(Writer *w) { return w->slots[w->next_fill].state == SLOT_FREE; }
 
-/* submit_rows(data): whole raw rows, copied: the thread writes them to the journal at their place
- * (after those handed over before), then into the archive. Waits while the thread still holds two
- * chunks. OSError: a journal write failed (the rows of that chunk are not in the journal). */
-static PyObject *Writer_submit_rows(Writer *w, PyObject *arg)
+/* submit_rows(first_row, data): whole raw rows, the journal's rows from first_row on (the rows handed
+ * over so far: `queued`; another first_row is a ValueError, so no row is taken twice or skipped),
+ * copied: the thread writes them to the journal at their place, then into the archive. Waits while
+ * the thread still holds two chunks. OSError: a journal write failed (the rows of that chunk are not
+ * in the journal). One caller at a time (the recorder's thread). */
+static PyObject *Writer_submit_rows(Writer *w, PyObject *args)
 {
+    unsigned long long first_row;
     Py_buffer data;
-    if (PyObject_GetBuffer(arg, &data, PyBUF_SIMPLE) < 0) return NULL;
+    if (!PyArg_ParseTuple(args, "Ky*:submit_rows", &first_row, &data)) return NULL;
     PyObject *result = NULL;
     if (!w->running) {
         PyErr_SetString(PyExc_ValueError, "ColumnWriter.submit_rows: finished or abandoned");
@@ -399,6 +403,11 @@ static PyObject *Writer_submit_rows(Writer *w, PyObject *arg)
         goto out;
     }
     size_t n_rows = (size_t)(data.len / w->itemsize);
+    if (first_row != w->queued) { /* (queued changes only here: no lock needed to read it) */
+        PyErr_Format(PyExc_ValueError, "ColumnWriter.submit_rows: rows from %llu, expected from %llu", first_row,
+                     w->queued);
+        goto out;
+    }
     if (wait_freed(w, slot_free, 1) < 0) goto out; /* (a signal's exception: nothing handed over) */
     int err = w->journal_error ? w->journal_error : (w->exited ? EIO : 0);
     pthread_mutex_unlock(&w->lock);
@@ -426,6 +435,20 @@ static PyObject *Writer_submit_rows(Writer *w, PyObject *arg)
 out:
     PyBuffer_Release(&data);
     return result;
+}
+
+static int all_journaled(Writer *w) { return w->journaled == w->queued || w->journal_error; }
+
+/* sync() -> None: returns once every row handed over is in the journal (the thread goes on with the
+ * archive); OSError: a journal write failed. Ctrl-C ends the wait (KeyboardInterrupt). */
+static PyObject *Writer_sync(Writer *w, PyObject *Py_UNUSED(ignored))
+{
+    if (!w->running) Py_RETURN_NONE; /* joined: whatever it journaled is there */
+    if (wait_freed(w, all_journaled, 1) < 0) return NULL;
+    int err = w->journal_error;
+    pthread_mutex_unlock(&w->lock);
+    if (err) return os_error(err);
+    Py_RETURN_NONE;
 }
 
 /* finish() -> (rows written, (crc, ...)): every row handed over journaled and written, the thread
@@ -614,8 +637,10 @@ static PyObject *crc32_func(PyObject *Py_UNUSED(module), PyObject *const *args, 
 }
 
 static PyMethodDef Writer_methods[] = {
-    {"submit_rows", (PyCFunction)Writer_submit_rows, METH_O,
-     "submit_rows(data): whole raw rows, copied: the thread journals them, then writes them to the archive."},
+    {"submit_rows", (PyCFunction)Writer_submit_rows, METH_VARARGS,
+     "submit_rows(first_row, data): whole raw rows from the journal's first_row on (== queued), copied: the "
+     "thread journals them, then writes them to the archive."},
+    {"sync", (PyCFunction)Writer_sync, METH_NOARGS, "sync(): returns once every row handed over is in the journal."},
     {"finish", (PyCFunction)Writer_finish, METH_NOARGS,
      "finish() -> (rows written, (crc, ...)): every row handed over journaled and written, the thread joined."},
     {"abandon", (PyCFunction)Writer_abandon, METH_NOARGS,
@@ -634,7 +659,13 @@ static PyObject *Writer_journaled(Writer *w, void *Py_UNUSED(closure))
     return PyLong_FromUnsignedLongLong(journaled);
 }
 
+static PyObject *Writer_queued(Writer *w, void *Py_UNUSED(closure))
+{
+    return PyLong_FromUnsignedLongLong(w->queued);
+}
+
 static PyGetSetDef Writer_getset[] = {
+    {"queued", (getter)Writer_queued, NULL, "rows handed over so far", NULL},
     {"journaled", (getter)Writer_journaled, NULL, "rows the thread has written to the journal so far", NULL},
     {"rows_done", (getter)Writer_rows_done, NULL, "rows written (None while the thread runs)", NULL},
     {NULL, NULL, NULL, NULL, NULL},
@@ -645,8 +676,9 @@ static PyTypeObject WriterType = {
     .tp_name = "hilbench.bench._npzcolumns.ColumnWriter",
     .tp_basicsize = sizeof(Writer),
     .tp_flags = Py_TPFLAGS_DEFAULT,
-    .tp_doc = "ColumnWriter(fd, journal_fd, journal_offset, itemsize, columns, header): raw rows handed over "
-              "(submit_rows) written to the journal and as an archive's float64 columns on a thread; columns: (field offset, struct code, scale, modulo or 0, file "
+    .tp_doc = "ColumnWriter(fd, journal_fd, journal_offset, itemsize, columns, header): raw rows handed "
+              "over (submit_rows) written to the journal and as an archive's float64 columns on a thread; "
+              "columns: (field offset, struct code, scale, modulo or 0, file "
               "offset of row 0, crc so far); header: the .npy header the thread writes before each column's row 0.",
     .tp_new = PyType_GenericNew,
     .tp_init = (initproc)Writer_init,

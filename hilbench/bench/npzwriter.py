@@ -10,11 +10,11 @@ chunk, whatever the number of rows; the rows are read once.
 The file is a plain ZIP64 archive as `zipfile` writes one (stored members, fixed 1980-01-01
 stamps, so equal columns give equal bytes), read by `np.load` and any unzip.
 
-`BackgroundArchive` writes the same archive while a run goes on: the rows the recorder has written
-to its journal are read back, converted and written by a thread of its own
-(hilbench/bench/_npzcolumns.c, without the GIL) into an archive sized for the rows the run plans;
-the close then only writes the headers. A run that records another number of rows has its archive
-written from the journal at the close, as before.
+`BackgroundArchive` writes the same archive while a run goes on: the recorder hands it each chunk of
+raw rows, which a thread of its own (hilbench/bench/_npzcolumns.c, without the GIL) writes to the
+run's journal, then converts and writes into an archive sized for the rows the run plans; the close
+then only writes the metadata and the directory. A run that records another number of rows has its
+archive written from the journal at the close, as before.
 """
 
 from __future__ import annotations
@@ -28,6 +28,8 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Sequence
 
 import numpy as np
+
+from hilbench.bench.fileio import pwrite_all
 
 try:  # the columns written on a thread of their own (optional; the journal path is the reference)
     from hilbench.bench import _npzcolumns
@@ -219,26 +221,51 @@ class BackgroundArchive:
             os.close(self._journal_fd)
             raise
 
-    def submit_rows(self, data: memoryview) -> bool:
-        """Hand these whole raw rows over (the journal's next ones): True, or False when the thread is
-        done with (given up, or more rows than planned: the caller writes them to the journal itself).
-        Raises OSError when a journal write failed twice (the rows of that chunk are not in it)."""
+    def submit_rows(self, first_row: int, data: memoryview) -> bool:
+        """Hand these whole raw rows over, the journal's rows from ``first_row`` on: True (taken, now
+        or before: a chunk handed over again after an interruption is not taken twice), or False
+        when the thread is done with (given up, or more rows than planned: the caller writes them to
+        the journal itself). Raises OSError when a journal write failed twice (the rows of that chunk
+        are not in it)."""
+        n_rows = len(data) // self._itemsize
+        taken = self.rows - first_row  # rows of these the writer took before (handed over, then interrupted)
+        if taken >= n_rows:
+            return True
+        if taken > 0:
+            data, first_row = data[taken * self._itemsize:], self.rows
         if self.given_up:
             return False
-        n_rows = len(data) // self._itemsize
-        if self.rows + n_rows > self.n_rows:  # more than planned: the journal writes the archive
+        if first_row + len(data) // self._itemsize > self.n_rows:  # more than planned: the journal writes the archive
             self.abandon()
             if self.journal_failed is not None:
                 raise self.journal_failed
             return False
         try:
-            self._writer.submit_rows(data)
+            self._writer.submit_rows(first_row, data)
         except OSError as exc:
             self.journal_failed = exc
             self.abandon()
             raise
-        self.rows += n_rows
+        finally:  # (what the writer took, whatever interrupted it)
+            self.rows = self._writer.queued
         return True
+
+    def sync(self) -> None:
+        """Return once every row handed over is in the journal (its reader sees them all). Raises
+        OSError when a journal write failed twice."""
+        if self.given_up:
+            return
+        try:
+            self._writer.sync()
+        except OSError as exc:
+            self.journal_failed = exc
+            self.abandon()
+            raise
+
+    @property
+    def journaled(self) -> int:
+        """Rows the thread has written to the journal."""
+        return int(self._writer.journaled)
 
     def finish(self, metadata: np.ndarray) -> bool:
         """The archive complete with ``metadata`` (True), or given up: another number of rows than
@@ -304,13 +331,4 @@ def _field_offsets(layout: "RowLayout") -> dict[str, tuple[int, str]]:
     return out
 
 
-def pwrite_all(fd: int, data: memoryview, offset: int) -> None:
-    """All of ``data`` written at ``offset`` (pwrite until done; nothing written is an error)."""
-    while len(data):
-        n = os.pwrite(fd, data, offset)
-        if n <= 0:  # nothing written of a non-empty piece: an error, not a loop without end
-            raise OSError(errno.EIO, os.strerror(errno.EIO))
-        data, offset = data[n:], offset + n
-
-
-__all__ = ["BackgroundArchive", "ColumnArchive", "pwrite_all"]
+__all__ = ["BackgroundArchive", "ColumnArchive"]

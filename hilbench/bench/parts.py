@@ -340,8 +340,8 @@ class HistoryPart:
 
     def _observe_due(self, k: int) -> float:
         """The first observe period from k on where observing does something: every one with a
-        display or an observer, else the one where the recorder's next write is due (its flush,
-        or rows for its background archive: `Recorder.rows_to_write`); at the latest the one after
+        display or an observer, else the one where the recorder's next write is due (its flush, or
+        a CSV's rows for its writer thread: `Recorder.rows_to_write`); at the latest the one after
         SPAN_SAMPLES samples (the span's sample buffer, and what `take` makes of it, stay that
         size however long the run: a span as long as the run held all its samples)."""
         session, every = self.session, self.observe_every

@@ -1,4 +1,4 @@
-"""Recordings: one row per period, written incrementally so a crash loses at most one chunk.
+"""Recordings: one row per period, written incrementally so a crash loses at most the last chunks.
 
 Two formats share one column schema:
 
@@ -23,7 +23,7 @@ it runs (`npzwriter.BackgroundArchive`): its chunk becomes BACKGROUND_CHUNK_ROWS
 simulating thread neither writes the journal nor touches fresh pages, which on a virtual machine
 cost more than the run's rows), and the thread writes it to the journal, then converts and writes
 its columns, so the close only finishes the archive. A killed run loses at most the pending chunk
-and the one the thread holds; the memory the rows take stays that of one small chunk. A run that
+and the two the thread holds; the memory the rows take stays that of one small chunk. A run that
 ends with another number of rows (or a fault marker on a row already in the journal, which is then
 patched there) has its archive written from the journal at the close. A journal write that fails
 (a full disk) gives the archive up, its file emptied, and is written again: the journal, not the
@@ -45,11 +45,11 @@ import struct
 import zipfile
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Iterator, Sequence
+from typing import Any, Iterator, NoReturn, Sequence
 
 import numpy as np
 
-from hilbench.bench.npzwriter import pwrite_all
+from hilbench.bench.fileio import pwrite_all
 from hilbench.errors import RecordingError
 
 try:  # CSV rows in C from raw rows, on a thread (optional; `Recorder._format_csv` is the reference)
@@ -433,10 +433,10 @@ class Recorder:
         rows when enough wait); cheap to call every period."""
         pending = len(self.rows)
         if pending >= self.flush_rows:
-            self.flush()
+            self._flush()
         elif 0 < self._last_flush_at <= self.rows_written + pending:
             self._last_flush_at = 0  # once: the last chunk, the close's, is small
-            self.flush()
+            self._flush()
         elif self._csv_writer is not None and pending - 1 - self._handed >= BACKGROUND_CHUNK_ROWS:
             self._settle()
             self._hand_over_csv(len(self.rows) - 1)  # the newest kept back: mark_last may mark it
@@ -467,18 +467,29 @@ class Recorder:
         """The pending rows to the journal, at their place: handed to the background archive's thread
         (which journals them, then converts them), or written here when there is none (any more)."""
         background = self._background
-        if background is not None and n_rows:
+        if background is not None and n_rows and background.journal_failed is None:
+            size = self.rows.struct.size
             try:
-                if background.journal_failed is None:
-                    size = self.rows.struct.size
-                    with memoryview(self.rows.data) as whole, whole[:n_rows * size] as data:  # copied by the writer
-                        if background.submit_rows(data):
-                            return
-                if background.journal_failed is not None:  # a hole in the journal: nothing goes after it
-                    raise background.journal_failed
+                with memoryview(self.rows.data) as whole, whole[:n_rows * size] as data:  # copied by the writer
+                    if background.submit_rows(self.rows_written, data):
+                        return
             except OSError as exc:
-                raise RecordingError(f"recording {self.path}: write failed ({exc.strerror})") from None
+                self._journal_lost(exc)
+        if background is not None and background.journal_failed is not None:  # nothing goes after a hole
+            self._journal_lost(background.journal_failed)
         self._write_journal(0, n_rows)
+
+    def _journal_lost(self, exc: OSError) -> NoReturn:
+        """A journal write on the archive's thread failed twice: the journal cut to the rows it
+        holds whole, and a RecordingError saying how many."""
+        background = self._background
+        kept = background.journaled if background is not None else self.rows_written
+        try:
+            os.truncate(self._journal_path(), self._journal_start + kept * self.rows.struct.size)
+        except OSError:
+            pass
+        raise RecordingError(f"recording {self.path}: write failed ({exc.strerror}); "
+                             f"{self._journal_path()} keeps the first {kept} rows") from None
 
     def _write_events_file(self, text: str) -> None:
         """Events appended to the journal's side file. A failed write while a background archive
@@ -515,7 +526,19 @@ class Recorder:
             pwrite_all(self._file.fileno(), data, offset)
 
     def flush(self) -> None:
-        """Write every pending row and event and push them to the OS."""
+        """Write every pending row and event and push them to the OS (an NPZ's background archive's
+        thread has journaled every row when this returns: a reader of the journal sees them all)."""
+        self._flush()
+        background = self._background
+        if background is not None:
+            try:
+                background.sync()
+            except OSError as exc:
+                self._journal_lost(exc)
+
+    def _flush(self) -> None:
+        """`flush`, an NPZ's rows only handed to its background archive's thread (which journals them
+        a moment later): the run's own flushes, which must not wait."""
         if not self.started:
             self.start()
         events = self._events
@@ -530,9 +553,9 @@ class Recorder:
             self._journal_rows(n_rows)
         try:
             if self.is_npz:
-                if events:  # the metadata keeps them at close; the side file until then
-                    self.metadata.setdefault("events", []).extend(text for _, text, _ in events)
+                if events:  # the side file keeps them until the close, the metadata at the close
                     self._write_events_file("".join(f"{text}\n" for _, text, _ in events))
+                    self.metadata.setdefault("events", []).extend(text for _, text, _ in events)
             elif self._csv_writer is not None:  # the rest to the thread; the flush returns when it is written
                 self._hand_over_csv(n_rows)
                 self._csv_writer.drain()
@@ -552,11 +575,11 @@ class Recorder:
         events.clear()
         self._handed = 0
 
-    def rows_done(self) -> None:
-        """No more rows come: an NPZ's pending rows written now, so a background archive's thread
-        converts them while the caller does other work before `close`."""
+    def no_more_rows(self) -> None:
+        """No more rows come: an NPZ's pending rows handed to its background archive's thread now, so
+        it converts them while the caller does other work before `close`."""
         if self.is_npz and self._background is not None and not self.closed:
-            self.flush()
+            self._flush()
 
     def _settle(self) -> None:
         """`RowBuffer.settle`, and the marker of an event a flush wrote before its row came (noted
@@ -626,9 +649,8 @@ class Recorder:
             except (OSError, RecordingError) as exc:  # a full disk, a file size limit: the journal stays
                 tmp.unlink(missing_ok=True)
                 reason = (exc.strerror or str(exc)) if isinstance(exc, OSError) else str(exc)
-                if background is not None and background.journal_failed is not None:  # the last chunk's journal write
-                    raise RecordingError(f"recording {self.path}: write failed ({reason}); the rows before the "
-                                         f"last chunk are kept in {self._journal_path()}") from None
+                if background is not None and background.journal_failed is not None:  # a late chunk's journal write
+                    self._journal_lost(background.journal_failed)
                 raise RecordingError(f"recording {self.path}: the archive could not be written ({reason}); "
                                      f"every row is kept in {self._journal_path()}") from None
             self._journal_path().unlink()

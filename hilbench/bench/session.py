@@ -859,9 +859,12 @@ class Session:
         self._finish(note, fault)
 
     def _finish(self, note: str, fault: bool) -> None:
-        rows_done = getattr(self.recorder, "rows_done", None)
-        if rows_done is not None and not fault:  # (a fault marks the last row first)
-            rows_done()  # an archive's thread converts the last rows while the summary is made
+        no_more_rows = getattr(self.recorder, "no_more_rows", None)
+        if no_more_rows is not None and not fault:  # (a fault marks the last row first)
+            try:
+                no_more_rows()  # an archive's thread converts the last rows while the summary is made
+            except RecordingError:  # the close meets it again and says it, after the summary
+                pass
         summary, pacing = self.summary, self.pacing
         summary.periods = self.periods_done
         summary.sim_s = self.now_s
