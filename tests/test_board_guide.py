@@ -19,6 +19,7 @@ import re
 import shlex
 import subprocess
 import sys
+import tempfile
 import time
 from pathlib import Path
 from typing import IO
@@ -123,16 +124,19 @@ def _start(argv: list[str], stderr: int | IO[bytes] = subprocess.DEVNULL) -> tup
 def _ctl_during_run(commands: list[str], port: str) -> None:
     """Section 9: ctl while a run runs (its control socket; XDG_RUNTIME_DIR is the test's own), a lockstep
     run on the board's default build (no ParamDescribe: ctl names the parameters from the host's model)."""
+    errors = tempfile.TemporaryFile()
     run = spawn([sys.executable, "-m", "hilbench", "run", "--target", port, "--no-ui",
                  "--set", "run.duration_s=600", "--set", "link.period_us=250"], stdout=subprocess.DEVNULL,
-                stderr=subprocess.DEVNULL, cwd=REPO)
+                stderr=errors, cwd=REPO)
     try:
-        listed = _cli("hilbench ctl list", 30)
-        for _ in range(60):  # until the session's socket answers (each try has its own timeout)
-            if _cli("hilbench ctl get", 30).returncode == 0:
-                break
-        else:
-            pytest.fail(f"no session answered ctl get: {listed.stdout}")
+        deadline = time.monotonic() + 300  # a loaded machine starts the run slowly: a time, not a count of tries
+        while _cli("hilbench ctl get", 30).returncode != 0:  # until the session's socket answers
+            if run.poll() is not None or time.monotonic() > deadline:
+                errors.seek(0)
+                state = "running" if run.returncode is None else f"exit {run.returncode}"
+                listed = _cli("hilbench ctl list", 30).stdout.strip()
+                pytest.fail(f"no session answered ctl get (the run: {state}; ctl list: {listed}; "
+                            f"its stderr: {errors.read()[-2000:]!r})")
         for command in commands:
             done = _cli(command, 60)
             if "kp=0.9" in command:  # the page: refused, constraint #1
@@ -143,6 +147,7 @@ def _ctl_during_run(commands: list[str], port: str) -> None:
         run.wait(timeout=60)
     finally:
         reap(run, 10.0)
+        errors.close()
 
 
 def test_every_guide_command_is_run_or_needs_the_board() -> None:
