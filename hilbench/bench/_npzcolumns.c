@@ -687,8 +687,98 @@ static PyTypeObject WriterType = {
     .tp_getset = Writer_getset,
 };
 
+/* ---- a file's last descriptor closed on a thread of its own ---------------------------------- */
+/* The last close of an unlinked file frees its pages in the closing thread: a 1 s run's journal,
+ * ~300 pages, 0.25 ms of the run's close on these VMs. The recorder unlinks the journal (cheap while
+ * a descriptor is open), then hands that descriptor here (`close_later`). One detached thread,
+ * started at the first call (again in a forked child, which inherits the queue but not the thread),
+ * closes them in turn; with the queue full, or no thread, the caller closes it at once. */
+#define CLOSE_QUEUE 64
+static struct {
+    pthread_mutex_t lock;
+    pthread_cond_t wake;
+    int fds[CLOSE_QUEUE];
+    int head, count;
+    pid_t owner; /* the process whose closer thread runs (0: none yet) */
+    int pending; /* taken off the queue and not yet closed */
+} closer = {PTHREAD_MUTEX_INITIALIZER, PTHREAD_COND_INITIALIZER};
+
+static void *closer_thread(void *Py_UNUSED(arg))
+{
+    become_batch_thread();
+    pthread_mutex_lock(&closer.lock);
+    for (;;) {
+        while (closer.count == 0) pthread_cond_wait(&closer.wake, &closer.lock);
+        int fd = closer.fds[closer.head];
+        closer.head = (closer.head + 1) % CLOSE_QUEUE;
+        closer.count--;
+        closer.pending++;
+        pthread_mutex_unlock(&closer.lock);
+        close(fd);
+        pthread_mutex_lock(&closer.lock);
+        closer.pending--;
+    }
+    return NULL;
+}
+
+static void closer_before_fork(void) { pthread_mutex_lock(&closer.lock); }
+static void closer_after_fork_parent(void) { pthread_mutex_unlock(&closer.lock); }
+static void closer_after_fork_child(void) /* no closer thread here: a fresh lock and condition */
+{
+    pthread_mutex_init(&closer.lock, NULL);
+    pthread_cond_init(&closer.wake, NULL);
+    closer.owner = 0;
+    closer.pending = 0;
+}
+
+/* close_later(fd): fd closed on the closer thread (now, on this one, when that cannot be) */
+static PyObject *close_later(PyObject *Py_UNUSED(module), PyObject *arg)
+{
+    long value = PyLong_AsLong(arg);
+    if (value == -1 && PyErr_Occurred()) return NULL;
+    if (value < 0 || value > INT_MAX) {
+        PyErr_SetString(PyExc_ValueError, "close_later: not a descriptor");
+        return NULL;
+    }
+    int fd = (int)value, queued = 0;
+    pthread_mutex_lock(&closer.lock);
+    if (closer.owner != getpid()) {
+        pthread_t thread;
+        if (start_writer_thread(&thread, closer_thread, NULL) == 0) {
+            pthread_detach(thread);
+            closer.owner = getpid();
+        }
+    }
+    if (closer.owner == getpid() && closer.count < CLOSE_QUEUE) {
+        closer.fds[(closer.head + closer.count) % CLOSE_QUEUE] = fd;
+        closer.count++;
+        pthread_cond_signal(&closer.wake);
+        queued = 1;
+    }
+    pthread_mutex_unlock(&closer.lock);
+    if (!queued) {
+        Py_BEGIN_ALLOW_THREADS
+        close(fd);
+        Py_END_ALLOW_THREADS
+    }
+    Py_RETURN_NONE;
+}
+
+/* closes_pending() -> int: descriptors handed to close_later and not yet closed (tests) */
+static PyObject *closes_pending(PyObject *Py_UNUSED(module), PyObject *Py_UNUSED(ignored))
+{
+    pthread_mutex_lock(&closer.lock);
+    int n = closer.owner == getpid() ? closer.count + closer.pending : 0;
+    pthread_mutex_unlock(&closer.lock);
+    return PyLong_FromLong(n);
+}
+
 static PyMethodDef module_methods[] = {
     {"crc32", (PyCFunction)(void (*)(void))crc32_func, METH_FASTCALL, "crc32(data, value=0): zlib.crc32's value."},
+    {"close_later", (PyCFunction)close_later, METH_O,
+     "close_later(fd): fd closed on a thread of its own (the last close of an unlinked file frees its pages)."},
+    {"closes_pending", (PyCFunction)closes_pending, METH_NOARGS,
+     "closes_pending() -> int: descriptors handed to close_later not yet closed."},
     {NULL, NULL, 0, NULL},
 };
 
@@ -700,6 +790,9 @@ static struct PyModuleDef moduledef = {
 PyMODINIT_FUNC PyInit__npzcolumns(void)
 {
     crc32_init_tables(); /* before any writer thread: it only reads the tables */
+    static int fork_handlers;
+    if (!fork_handlers && pthread_atfork(closer_before_fork, closer_after_fork_parent, closer_after_fork_child) == 0)
+        fork_handlers = 1;
     if (PyType_Ready(&WriterType) < 0) return NULL;
     PyObject *m = PyModule_Create(&moduledef);
     if (m == NULL) return NULL;

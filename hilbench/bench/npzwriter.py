@@ -268,7 +268,8 @@ class BackgroundArchive:
         return int(self._writer.journaled)
 
     def finish(self, metadata: np.ndarray) -> bool:
-        """The archive complete with ``metadata`` (True), or given up: another number of rows than
+        """The archive complete with ``metadata`` (True: the journal's descriptor still open, for
+        `release_journal`), or given up: another number of rows than
         planned, a failed write (False; the descriptors closed, the unfinished file removed; raises
         OSError when a journal write failed twice). Ctrl-C while the thread writes its last rows gives
         it up too (every row handed over journaled), and propagates."""
@@ -291,8 +292,14 @@ class BackgroundArchive:
         except BaseException:  # Ctrl-C while the thread finished: given up, the journal keeps every row
             self.abandon()
             raise
-        self._close_journal()
         return True
+
+    def release_journal(self) -> None:
+        """The journal's descriptor (kept open by `finish`) closed on a thread of its own: once the
+        journal is unlinked, its last close frees its pages, work the run's close need not wait for."""
+        fd, self._journal_fd = self._journal_fd, -1
+        if fd >= 0:
+            _npzcolumns.close_later(fd)
 
     def abandon(self) -> None:
         """The thread joined once every row handed over is in the journal (a journal write that failed

@@ -38,6 +38,7 @@ reference (without it, or for a format it does not take).
 from __future__ import annotations
 
 import errno
+import functools
 import json
 import math
 import os
@@ -156,11 +157,11 @@ class RowLayout:
         """(name, unit, CSV format) of each column, in order."""
         return tuple((name, unit, fmt) for name, unit, fmt, _, _ in self.columns)
 
-    @property
+    @functools.cached_property  # (a run's set-up asks several times; the layout is frozen)
     def column_names(self) -> tuple[str, ...]:
         return tuple(c[0] for c in self.columns)
 
-    @property
+    @functools.cached_property
     def dtype(self) -> np.dtype:
         return np.dtype([(name, _CODE_DTYPES[code]) for name, code in self.fields])
 
@@ -309,6 +310,7 @@ class Recorder:
     _csv_writer: Any = field(default=None, repr=False)  # _csvrows.RowWriter: a CSV's rows written on a thread
     _next_row_marker: int = field(default=MARKER_NONE, repr=False)  # an event's, flushed before its row came
     _last_flush_at: int = field(default=0, repr=False)  # a planned run's rows at its last flush before the close
+    _events_file: Any = field(default=None, repr=False)  # an NPZ's events side file, once it has some
 
     def __post_init__(self) -> None:
         self.path = Path(self.path)
@@ -496,20 +498,19 @@ class Recorder:
         takes space (a full disk) gives that archive up, its blocks freed, and is tried once more
         (what part of the failed one landed cut off)."""
         data = text.encode("utf-8")
-        fd = os.open(_events_path(self._journal_path()), os.O_WRONLY | os.O_CREAT | os.O_CLOEXEC, 0o644)
+        if self._events_file is None:  # open until the close (a flush's open and close: ~30 µs each)
+            self._events_file = open(_events_path(self._journal_path()), "ab", buffering=0)
+        fd = self._events_file.fileno()
+        offset = os.fstat(fd).st_size  # (appended: a write lands at the end, wherever this says)
         try:
-            offset = os.lseek(fd, 0, os.SEEK_END)
-            try:
-                pwrite_all(fd, memoryview(data), offset)
-            except OSError:
-                background = self._background
-                if background is None or background.given_up:
-                    raise
-                background.abandon()  # (every row handed over journaled first)
-                os.ftruncate(fd, offset)
-                pwrite_all(fd, memoryview(data), offset)
-        finally:
-            os.close(fd)
+            pwrite_all(fd, memoryview(data), offset)
+        except OSError:
+            background = self._background
+            if background is None or background.given_up:
+                raise
+            background.abandon()  # (every row handed over journaled first)
+            os.ftruncate(fd, offset)
+            pwrite_all(fd, memoryview(data), offset)
 
     def _write_journal(self, first: int, end: int) -> None:
         """Pending rows first..end-1 written at their place in the journal (pwrite: no buffer left
@@ -575,6 +576,11 @@ class Recorder:
         events.clear()
         self._handed = 0
 
+    def _close_events_file(self) -> None:
+        events_file, self._events_file = self._events_file, None
+        if events_file is not None:
+            events_file.close()
+
     def no_more_rows(self) -> None:
         """No more rows come: an NPZ's pending rows handed to its background archive's thread now, so
         it converts them while the caller does other work before `close`."""
@@ -626,6 +632,7 @@ class Recorder:
             if self._csv_writer is not None:  # every row written: its thread joined
                 self._csv_writer.close()
         except BaseException as exc:
+            self._close_events_file()
             if self._background is not None:  # its thread joined: the journal keeps the rows
                 self._background.abandon()
             if self._csv_writer is not None:
@@ -636,6 +643,7 @@ class Recorder:
             raise
         self.closed = True
         self._file.close()
+        self._close_events_file()
         if self.is_npz:
             if "events" in self.metadata:  # after "end", however many flushes came first: the same bytes
                 self.metadata["events"] = self.metadata.pop("events")
@@ -653,8 +661,11 @@ class Recorder:
                     self._journal_lost(background.journal_failed)
                 raise RecordingError(f"recording {self.path}: the archive could not be written ({reason}); "
                                      f"every row is kept in {self._journal_path()}") from None
-            self._journal_path().unlink()
-            _events_path(self._journal_path()).unlink(missing_ok=True)
+            journal = self._journal_path()
+            journal.unlink()
+            if background is not None:  # its pages freed on another thread: its last descriptor is there
+                background.release_journal()
+            _events_path(journal).unlink(missing_ok=True)
 
 
 #: the characters str.splitlines (a journal's events file) and universal newlines (a CSV) break lines at
