@@ -726,3 +726,65 @@ def test_ctrl_c_while_the_close_finishes_the_archive_leaves_the_journal(tmp_path
     assert background.given_up
     assert sorted(p.name for p in tmp_path.iterdir()) == ["bg.npz.journal", "bg.npz.journal.events"]
     assert read_recording(path).n_rows == 5000
+
+
+def _closed_soon(fd: int, deadline_s: float = 30.0) -> bool:
+    """Whether the closer thread has closed ``fd`` before the deadline."""
+    import time
+
+    deadline = time.monotonic() + deadline_s
+    while npzwriter._npzcolumns.closes_pending():
+        if time.monotonic() > deadline:
+            return False
+        time.sleep(0.005)
+    try:
+        os.fstat(fd)
+    except OSError as exc:
+        return exc.errno == errno.EBADF
+    return False
+
+
+@needs_writer
+def test_the_journals_last_descriptor_is_closed_on_the_closer_thread_after_the_unlink(
+        tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """A planned run's close unlinks the journal while the archive's descriptor on it is open (cheap),
+    then hands that descriptor to the closer thread, whose close frees the journal's pages: the
+    journal's name is gone when the close returns, its descriptor soon after; none is left open."""
+    handed: list[int] = []
+    real = npzwriter._npzcolumns.close_later
+
+    def close_later(fd: int) -> None:
+        handed.append(fd)
+        assert not (tmp_path / "run.npz.journal").exists()  # unlinked first: this close frees the pages
+        real(fd)
+
+    monkeypatch.setattr(npzwriter._npzcolumns, "close_later", close_later)
+    before = _open_fds()
+    cfg = hilbench.load_config(None, ['link.target="inprocess:an1017"', "run.duration_s=0.2"])
+    with hilbench.Bench(cfg, scenario=True, record=tmp_path / "run.npz") as bench:
+        bench.run()
+    assert len(handed) == 1
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["run.npz"]
+    assert _closed_soon(handed[0])
+    assert _open_fds() == before
+
+
+@needs_writer
+def test_a_forked_child_closes_what_it_hands_over_on_a_closer_of_its_own(tmp_path: Path) -> None:
+    """A child forked after the closer thread started (a sweep's worker) inherits its queue, not
+    its thread: its own close_later starts one."""
+    warm = os.open(tmp_path / "a", os.O_WRONLY | os.O_CREAT | os.O_CLOEXEC, 0o600)
+    npzwriter._npzcolumns.close_later(warm)  # the parent's closer thread runs
+    assert _closed_soon(warm)
+    fd = os.open(tmp_path / "b", os.O_WRONLY | os.O_CREAT | os.O_CLOEXEC, 0o600)
+    pid = os.fork()
+    if pid == 0:  # the child: only C calls and os._exit
+        code = 1
+        try:
+            npzwriter._npzcolumns.close_later(fd)
+            code = 0 if _closed_soon(fd) else 2
+        finally:
+            os._exit(code)
+    os.close(fd)
+    _, status = os.waitpid(pid, 0)
+    assert os.waitstatus_to_exitcode(status) == 0
