@@ -53,7 +53,20 @@ typedef struct {
     double modulo;     /* > 0: the column wrapped into [0, modulo) as numpy.mod does; 0: not wrapped */
     long long place;   /* the file offset of the column's row 0 */
     uint32_t crc;      /* of the member's bytes so far */
+    unsigned char *prefix; /* what the thread writes before row 0: the member's ZIP local header (its CRC
+                              written by finish), if given, and the .npy header */
+    Py_ssize_t prefix_len;
+    int has_local;
 } column_t;
+
+#define LOCAL_CRC_AT 14 /* a ZIP local header's CRC-32: after signature, versions, flags, method, time, date */
+
+static void free_columns(column_t *cols, Py_ssize_t n)
+{
+    if (cols == NULL) return;
+    for (Py_ssize_t j = 0; j < n; j++) free(cols[j].prefix);
+    free(cols);
+}
 
 /* field_value and np_remainder: _rawfields.h (the CSV row writer reads raw rows the same way) */
 
@@ -83,8 +96,6 @@ typedef struct {
     int next_fill, next_journal, next_take; /* the slot submit_rows fills next, the one the thread journals
                                                next, the one it converts next (each in turn) */
     double *values;                  /* the thread's buffer: the converted columns */
-    unsigned char *header;           /* each column's .npy header, written by the thread before its row 0 */
-    Py_ssize_t header_len;
     pthread_mutex_t lock;
     pthread_cond_t wake;             /* the thread's: a chunk handed over, or stopping */
     pthread_cond_t freed;            /* the caller's: a slot freed, or the thread ended (exited) */
@@ -276,7 +287,7 @@ static void *writer_thread(void *arg)
     become_batch_thread();
     int err = 0;
     for (int j = 0; j < w->n_cols && !err; j++)
-        err = pwrite_all(w->fd, w->header, (size_t)w->header_len, w->cols[j].place - w->header_len);
+        err = pwrite_all(w->fd, w->cols[j].prefix, (size_t)w->cols[j].prefix_len, w->cols[j].place - w->cols[j].prefix_len);
     if (err) give_archive_up(w, err);
     pthread_mutex_lock(&w->lock);
     for (;;) {
@@ -462,6 +473,16 @@ static PyObject *Writer_finish(Writer *w, PyObject *Py_UNUSED(ignored))
     if (stop_thread(w, 0) < 0) return NULL; /* a signal's exception (Ctrl-C) */
     if (w->journal_error) return os_error(w->journal_error);
     if (w->error) return os_error(w->error);
+    int err = 0;
+    Py_BEGIN_ALLOW_THREADS
+    for (int j = 0; j < w->n_cols && !err; j++) { /* each local header's CRC, now known */
+        const column_t *col = &w->cols[j];
+        const unsigned char crc[4] = {(unsigned char)col->crc, (unsigned char)(col->crc >> 8),
+                                      (unsigned char)(col->crc >> 16), (unsigned char)(col->crc >> 24)};
+        if (col->has_local) err = pwrite_all(w->fd, crc, 4, col->place - col->prefix_len + LOCAL_CRC_AT);
+    }
+    Py_END_ALLOW_THREADS
+    if (err) return os_error(err);
     PyObject *crcs = PyTuple_New(w->n_cols);
     if (crcs == NULL) return NULL;
     for (int j = 0; j < w->n_cols; j++) {
@@ -531,30 +552,43 @@ static int Writer_init(Writer *w, PyObject *args, PyObject *kwds)
     }
     column_t *cols = calloc((size_t)n, sizeof(column_t));
     double *values = malloc((size_t)n * READ_ROWS * sizeof(double));
-    unsigned char *head = malloc((size_t)header.len + 1);
-    if (head != NULL) memcpy(head, header.buf, (size_t)header.len);
-    Py_ssize_t head_len = header.len;
-    PyBuffer_Release(&header);
-    if (cols == NULL || values == NULL || head == NULL) {
+    if (cols == NULL || values == NULL) {
+        PyBuffer_Release(&header);
         PyErr_NoMemory();
         goto bad;
     }
     for (Py_ssize_t j = 0; j < n; j++) {
-        const char *code;
+        const char *code, *local = NULL;
+        Py_ssize_t local_len = 0;
         unsigned long crc;
         column_t *col = &cols[j];
-        if (!PyArg_ParseTuple(PySequence_Fast_GET_ITEM(seq, j), "nsddLk:ColumnWriter column", &col->field, &code,
-                              &col->scale, &col->modulo, &col->place, &crc))
+        if (!PyArg_ParseTuple(PySequence_Fast_GET_ITEM(seq, j), "nsddLk|y#:ColumnWriter column", &col->field, &code,
+                              &col->scale, &col->modulo, &col->place, &crc, &local, &local_len)) {
+            PyBuffer_Release(&header);
             goto bad;
+        }
         int width = field_width(code);
-        if (width == 0 || col->field < 0 || col->field + width > itemsize || col->place < head_len) {
+        col->prefix_len = local_len + header.len;
+        if (width == 0 || col->field < 0 || col->field + width > itemsize || col->place < col->prefix_len
+            || (local_len > 0 && local_len < LOCAL_CRC_AT + 4)) {
             PyErr_Format(PyExc_ValueError, "ColumnWriter: column %zd: a field %s at %zd of a %zd-byte row", j, code,
                          col->field, itemsize);
+            PyBuffer_Release(&header);
             goto bad;
         }
         col->code = code[0];
         col->crc = (uint32_t)crc;
+        col->has_local = local_len > 0;
+        col->prefix = malloc((size_t)col->prefix_len + 1);
+        if (col->prefix == NULL) {
+            PyBuffer_Release(&header);
+            PyErr_NoMemory();
+            goto bad;
+        }
+        if (local_len) memcpy(col->prefix, local, (size_t)local_len);
+        memcpy(col->prefix + local_len, header.buf, (size_t)header.len);
     }
+    PyBuffer_Release(&header);
     if (pthread_mutex_init(&w->lock, NULL)) {
         PyErr_SetString(PyExc_OSError, "ColumnWriter: no lock");
         goto bad;
@@ -579,8 +613,6 @@ static int Writer_init(Writer *w, PyObject *args, PyObject *kwds)
     w->n_cols = (int)n;
     w->cols = cols;
     w->values = values;
-    w->header = head;
-    w->header_len = head_len;
     w->ready = 1;
     int err = start_writer_thread(&w->thread, writer_thread, w);
     if (err) {
@@ -591,9 +623,8 @@ static int Writer_init(Writer *w, PyObject *args, PyObject *kwds)
     return 0;
 bad:
     Py_DECREF(seq);
-    free(cols);
+    free_columns(cols, n);
     free(values);
-    free(head);
     return -1;
 }
 
@@ -606,9 +637,8 @@ static void Writer_dealloc(Writer *w)
         pthread_cond_destroy(&w->freed);
     }
     for (int i = 0; i < SLOTS; i++) slot_release(&w->slots[i]);
-    free(w->cols);
+    free_columns(w->cols, w->n_cols);
     free(w->values);
-    free(w->header);
     Py_TYPE(w)->tp_free((PyObject *)w);
 }
 
@@ -679,7 +709,8 @@ static PyTypeObject WriterType = {
     .tp_doc = "ColumnWriter(fd, journal_fd, journal_offset, itemsize, columns, header): raw rows handed "
               "over (submit_rows) written to the journal and as an archive's float64 columns on a thread; "
               "columns: (field offset, struct code, scale, modulo or 0, file "
-              "offset of row 0, crc so far); header: the .npy header the thread writes before each column's row 0.",
+              "offset of row 0, crc so far[, its member's ZIP local header]); header: the .npy header the thread "
+              "writes before each column's row 0, after the local header (whose CRC finish writes).",
     .tp_new = PyType_GenericNew,
     .tp_init = (initproc)Writer_init,
     .tp_dealloc = (destructor)Writer_dealloc,
@@ -701,7 +732,7 @@ static struct {
     int head, count;
     pid_t owner; /* the process whose closer thread runs (0: none yet) */
     int pending; /* taken off the queue and not yet closed */
-} closer = {PTHREAD_MUTEX_INITIALIZER, PTHREAD_COND_INITIALIZER};
+} closer = {.lock = PTHREAD_MUTEX_INITIALIZER, .wake = PTHREAD_COND_INITIALIZER};
 
 static void *closer_thread(void *Py_UNUSED(arg))
 {

@@ -90,10 +90,12 @@ class ColumnArchive:
     """
 
     def __init__(self, path: Path, names: Sequence[str], n_rows: int, *, write_headers: bool = True) -> None:
-        """``write_headers=False``: each column's .npy header (`column_header`, before its row 0) is
-        the caller's to write (`BackgroundArchive`'s thread)."""
+        """``write_headers=False``: each column's ZIP local header (`local_header`, with the CRC
+        `written` gives) and .npy header (`column_header`), before its row 0, are the caller's to write
+        (`BackgroundArchive`'s thread)."""
         self.path = path
         self.n_rows = n_rows
+        self._write_headers = write_headers
         self._header = _column_header(n_rows)
         self._members: list[tuple[bytes, int, int, int]] = []  # name, local header offset, data offset, size
         size = len(self._header) + 8 * n_rows
@@ -135,6 +137,11 @@ class ColumnArchive:
             self._crc[name] = zlib.crc32(data, self._crc[name])
             self._written[name] = first + len(values)
 
+    def local_header(self, index: int) -> bytes:
+        """Column ``index``'s ZIP local header, its CRC-32 0 (at byte 14: the writer puts it there)."""
+        member, _, _, size = self._members[index]
+        return _local_header(member, 0, size)
+
     def places(self) -> list[tuple[int, int]]:
         """(file offset of row 0, CRC-32 so far) of each column, in order: where a writer of
         their rows (`BackgroundArchive`) puts them."""
@@ -159,7 +166,8 @@ class ColumnArchive:
             raise ValueError(f"column {short[0]}: {self._written[short[0]]} of {self.n_rows} rows written")
         directory: list[bytes] = []
         for name, (member, offset, _, size) in zip(self._written, self._members):
-            pwrite_all(self._fd, memoryview(_local_header(member, self._crc[name], size)), offset)
+            if self._write_headers:
+                pwrite_all(self._fd, memoryview(_local_header(member, self._crc[name], size)), offset)
             directory.append(_central_header(member, self._crc[name], size, offset))
         offset = self._end
         for member, crc, data in self._small:
@@ -209,8 +217,10 @@ class BackgroundArchive:
         self._journal_fd = os.open(journal, os.O_WRONLY | os.O_CLOEXEC)
         try:
             self._archive = ColumnArchive(path, layout.column_names, n_rows, write_headers=False)
-            columns = [(offsets[src][0], offsets[src][1], scale, wraps.get(name, 0.0), place, crc)
-                       for (name, _, _, src, scale), (place, crc) in zip(layout.columns, self._archive.places())]
+            columns = [(offsets[src][0], offsets[src][1], scale, wraps.get(name, 0.0), place, crc,
+                        self._archive.local_header(j))
+                       for j, ((name, _, _, src, scale), (place, crc)) in enumerate(zip(layout.columns,
+                                                                                       self._archive.places()))]
             try:
                 self._writer = _npzcolumns.ColumnWriter(self._archive._fd, self._journal_fd, journal_offset,
                                                         layout.dtype.itemsize, columns, self._archive.column_header)
