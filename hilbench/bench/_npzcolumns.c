@@ -754,10 +754,10 @@ static void *closer_thread(void *Py_UNUSED(arg))
 
 static void closer_before_fork(void) { pthread_mutex_lock(&closer.lock); }
 static void closer_after_fork_parent(void) { pthread_mutex_unlock(&closer.lock); }
-static void closer_after_fork_child(void) /* no closer thread here: a fresh lock and condition */
+static void closer_after_fork_child(void) /* no closer thread here (nor its wait on the condition) */
 {
-    pthread_mutex_init(&closer.lock, NULL);
     pthread_cond_init(&closer.wake, NULL);
+    pthread_mutex_unlock(&closer.lock); /* (this thread locked it before the fork) */
     closer.owner = 0;
     closer.pending = 0;
 }
