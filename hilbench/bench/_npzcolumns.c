@@ -95,7 +95,8 @@ typedef struct {
     slot_t slots[SLOTS];
     int next_fill, next_journal, next_take; /* the slot submit_rows fills next, the one the thread journals
                                                next, the one it converts next (each in turn) */
-    double *values;                  /* the thread's buffer: the converted columns */
+    double *values;                  /* the thread's buffer: the converted columns (values_buf's, pooled) */
+    slot_t values_buf;
     pthread_mutex_t lock;
     pthread_cond_t wake;             /* the thread's: a chunk handed over, or stopping */
     pthread_cond_t freed;            /* the caller's: a slot freed, or the thread ended (exited) */
@@ -107,9 +108,10 @@ typedef struct {
     int test_failures, test_errno;   /* fail_journal_writes: the next journal writes that fail (tests) */
 } Writer;
 
-/* Chunk buffers kept for the next writer when one is done with them (a process runs many runs: fresh
- * pages cost a virtual machine more than copying the rows into them), at most POOLED of at most
- * POOLED_BYTES each: about 1 MB held for a run's default chunks. */
+/* Chunk buffers and the converted columns' buffer kept for the next writer when one is done with them
+ * (a process runs many runs: fresh pages cost a virtual machine 2-4 us each, the thread's 1.6 MB of
+ * columns ~1 ms of a 1 s run), at most POOLED of at most POOLED_BYTES each: about 2 MB held after
+ * a run of the default layout. */
 #define POOLED 4
 #define POOLED_BYTES (16u << 20)
 static struct {
@@ -118,23 +120,27 @@ static struct {
 } pool[POOLED];
 static pthread_mutex_t pool_lock = PTHREAD_MUTEX_INITIALIZER;
 
-/* The slot (free, not the thread's) with room for n bytes: a pooled buffer that has it, or its own
- * grown: 0, or -1 (no memory). */
+/* The slot (free, not the thread's) with room for n bytes: the smallest pooled buffer that has it
+ * (a chunk's buffer does not take the larger one the converted columns need), or its own grown:
+ * 0, or -1 (no memory). */
 static int slot_reserve(slot_t *slot, size_t n)
 {
     if (slot->capacity >= n) return 0;
     pthread_mutex_lock(&pool_lock);
+    int best = -1;
     for (int i = 0; i < POOLED; i++)
-        if (pool[i].data != NULL && pool[i].capacity >= n) {
-            unsigned char *old = slot->data;
-            size_t old_capacity = slot->capacity;
-            slot->data = pool[i].data;
-            slot->capacity = pool[i].capacity;
-            pool[i].data = old; /* (NULL, or a smaller one: kept for a smaller chunk) */
-            pool[i].capacity = old_capacity;
-            pthread_mutex_unlock(&pool_lock);
-            return 0;
-        }
+        if (pool[i].data != NULL && pool[i].capacity >= n && (best < 0 || pool[i].capacity < pool[best].capacity))
+            best = i;
+    if (best >= 0) {
+        unsigned char *old = slot->data;
+        size_t old_capacity = slot->capacity;
+        slot->data = pool[best].data;
+        slot->capacity = pool[best].capacity;
+        pool[best].data = old; /* (NULL, or a smaller one: kept for a smaller chunk) */
+        pool[best].capacity = old_capacity;
+        pthread_mutex_unlock(&pool_lock);
+        return 0;
+    }
     pthread_mutex_unlock(&pool_lock);
     unsigned char *grown = realloc(slot->data, n);
     if (grown == NULL) return -1;
@@ -551,8 +557,7 @@ static int Writer_init(Writer *w, PyObject *args, PyObject *kwds)
         return -1;
     }
     column_t *cols = calloc((size_t)n, sizeof(column_t));
-    double *values = malloc((size_t)n * READ_ROWS * sizeof(double));
-    if (cols == NULL || values == NULL) {
+    if (cols == NULL || slot_reserve(&w->values_buf, (size_t)n * READ_ROWS * sizeof(double)) < 0) {
         PyBuffer_Release(&header);
         PyErr_NoMemory();
         goto bad;
@@ -612,7 +617,7 @@ static int Writer_init(Writer *w, PyObject *args, PyObject *kwds)
     w->itemsize = itemsize;
     w->n_cols = (int)n;
     w->cols = cols;
-    w->values = values;
+    w->values = (double *)w->values_buf.data;
     w->ready = 1;
     int err = start_writer_thread(&w->thread, writer_thread, w);
     if (err) {
@@ -624,7 +629,7 @@ static int Writer_init(Writer *w, PyObject *args, PyObject *kwds)
 bad:
     Py_DECREF(seq);
     free_columns(cols, n);
-    free(values);
+    slot_release(&w->values_buf);
     return -1;
 }
 
@@ -638,7 +643,7 @@ static void Writer_dealloc(Writer *w)
     }
     for (int i = 0; i < SLOTS; i++) slot_release(&w->slots[i]);
     free_columns(w->cols, w->n_cols);
-    free(w->values);
+    slot_release(&w->values_buf);
     Py_TYPE(w)->tp_free((PyObject *)w);
 }
 
