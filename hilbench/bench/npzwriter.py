@@ -160,7 +160,8 @@ class ColumnArchive:
         self._small.append((f"{name}.npy".encode(), zlib.crc32(data), data))
 
     def close(self) -> None:
-        """The local headers with their CRCs, the small members, the central directory."""
+        """The local headers with their CRCs (unless the caller writes them), the small members, the
+        central directory."""
         short = [name for name, n in self._written.items() if n != self.n_rows]
         if short:
             raise ValueError(f"column {short[0]}: {self._written[short[0]]} of {self.n_rows} rows written")
