@@ -20,6 +20,7 @@ archive written from the journal at the close, as before.
 from __future__ import annotations
 
 import errno
+import functools
 import io
 import os
 import struct
@@ -53,10 +54,14 @@ def _npy(array: np.ndarray) -> bytes:
     return out.getvalue()
 
 
+@functools.lru_cache(maxsize=16)  # (a sweep's runs plan the same rows)
 def _column_header(n_rows: int) -> bytes:
     out = io.BytesIO()
     np.lib.format.write_array_header_1_0(out, {"descr": "<f8", "fortran_order": False, "shape": (n_rows,)})
     return out.getvalue()
+
+
+_LOCAL_FIXED = 30 + 20  # a local header's fixed fields and its ZIP64 extra field (name between them)
 
 
 def _local_header(name: bytes, crc: int, size: int) -> bytes:
@@ -102,7 +107,7 @@ class ColumnArchive:
         offset = 0
         for name in names:
             member = f"{name}.npy".encode()
-            data_offset = offset + len(_local_header(member, 0, size))
+            data_offset = offset + _LOCAL_FIXED + len(member)
             self._members.append((member, offset, data_offset, size))
             offset = data_offset + size
         self._end = offset
@@ -112,11 +117,11 @@ class ColumnArchive:
         self._small: list[tuple[bytes, int, bytes]] = []  # name, crc, bytes
         self._fd = os.open(path, os.O_WRONLY | os.O_CREAT | os.O_TRUNC | os.O_CLOEXEC, 0o644)
         try:
-            for name in names:
-                _, _, data_offset, _ = self._members[self._index[name]]
+            header_crc = zlib.crc32(self._header)
+            for name, (_, _, data_offset, _) in zip(names, self._members):
                 if write_headers:
                     pwrite_all(self._fd, memoryview(self._header), data_offset)
-                self._crc[name] = zlib.crc32(self._header)
+                self._crc[name] = header_crc
         except BaseException:  # a full disk already: no descriptor left open
             self.abandon()
             raise
