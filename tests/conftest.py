@@ -31,6 +31,13 @@ def gcc() -> str:
     return path
 
 
+@pytest.fixture(scope="session")
+def sil_builds(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """One folder for the session's SIL builds: `build_sil(sil_builds, defines=...)` compiles a set of
+    sources, flags and defines once (its file name is their digest) however many tests ask for it."""
+    return tmp_path_factory.mktemp("sil_builds")
+
+
 def run_cli(*args: str, timeout: float = 60.0, input_text: str | None = None) -> subprocess.CompletedProcess[str]:
     """Run `python -m hilbench ARGS` as a real process and reap it."""
     return subprocess.run(

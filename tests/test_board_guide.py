@@ -160,11 +160,11 @@ def test_every_guide_command_is_run_or_needs_the_board() -> None:
             assert makes and ("DEVICE=30F4012" in makes[-1] or "PROFILE=full" in makes[-1]), (command, makes[-1:])
 
 
-def _board_sils(tmp_path: Path) -> tuple[Path, Path]:
+def _board_sils(builds: Path) -> tuple[Path, Path]:
     """The board's stand-ins: the SIL built with the port's default profile's defines (the 30F2010's
     lockstep build: no real time, no ParamDescribe) and with PROFILE=full's (the 30F4012's, real time)."""
-    profile = build_sil(tmp_path / "profile", defines=port_defines())
-    full = build_sil(tmp_path / "full", defines=port_defines("PROFILE=full"))
+    profile = build_sil(builds, defines=port_defines())
+    full = build_sil(builds, defines=port_defines("PROFILE=full"))
     return profile, full
 
 
@@ -175,12 +175,12 @@ def _on_board(command: str, lockstep_pty: str, realtime_pty: str) -> str:
     return command.replace(BOARD_PORT, f"serial:{pty}?baud=250000")
 
 
-def _sil_part(commands: list[str], tmp_path: Path) -> set[str]:
+def _sil_part(commands: list[str], tmp_path: Path, builds: Path) -> set[str]:
     """Sections 3-9 (the board's port -> a SIL of the board's build, _on_board) and section 11's SIL
     commands (its own stand-in, the host build); ctl last, during a lockstep run on the profile's
     build (its gain write stays in the SIL, as it would on a board)."""
     ran, folder = set(), REPO
-    profile_exe, full_exe = _board_sils(tmp_path)
+    profile_exe, full_exe = _board_sils(builds)
     sil, sil_pty = _start([sys.executable, "-m", "hilbench.targets.sil"])
     board, board_pty = _start([str(profile_exe), "--pty"])
     board_rt, board_rt_pty = _start([str(full_exe), "--pty"])
@@ -270,11 +270,11 @@ def _motor_part(commands: list[str], tmp_path: Path) -> set[str]:
     return ran
 
 
-def test_board_guide_against_the_stand_ins(tmp_path: Path) -> None:
+def test_board_guide_against_the_stand_ins(tmp_path: Path, sil_builds: Path) -> None:
     require_tool("gcc", "the SIL firmware (apt: gcc)")
     require_tool("avr-gcc", "the AVR stand-in (apt: gcc-avr avr-libc)")
     require_tool("simavr", "the AVR stand-in (apt: simavr libsimavr-dev libsimavrparts1)")
     require_tool("clang", "make size (apt: clang llvm)")
     commands = [c for c in guide_commands() if c not in BOARD_ONLY]
-    ran = _sil_part(commands, tmp_path) | _avr_part(commands, tmp_path) | _motor_part(commands, tmp_path)
+    ran = _sil_part(commands, tmp_path, sil_builds) | _avr_part(commands, tmp_path) | _motor_part(commands, tmp_path)
     assert ran == set(commands), set(commands) - ran

@@ -51,8 +51,8 @@ def profile() -> tuple[str, ...]:
 
 
 @pytest.fixture(scope="module")
-def profile_sil(tmp_path_factory, gcc: str, profile: tuple[str, ...]) -> Path:
-    return build_sil(tmp_path_factory.mktemp("sil_profile"), defines=profile)
+def profile_sil(sil_builds: Path, gcc: str, profile: tuple[str, ...]) -> Path:
+    return build_sil(sil_builds, defines=profile)
 
 
 def test_the_profile_is_the_30f2010s_and_leaves_real_time_out(profile: tuple[str, ...]) -> None:
@@ -149,13 +149,13 @@ def test_profile_avr_in_simavr_drive_for_drive_on_a_seeded_stream(profile: tuple
                                          "HRT_DESCRIBE?) and no registered firmware profile knows it"),
     ("-DAN1017_FIRMWARE_VERSION=0x0102u", "firmware_version 258 (model 257)"),
 ])
-def test_profile_build_another_firmware_is_not_described_by_guess(tmp_path_factory, gcc: str,
+def test_profile_build_another_firmware_is_not_described_by_guess(sil_builds: Path, gcc: str,
                                                                  profile: tuple[str, ...], define: str,
                                                                  refusal: str) -> None:
     """The registered model describes a build's parameters only if its own TargetHello declares what the
     build's does: a renamed firmware or another version is refused (TargetError, one line naming both),
     before any parameter is read or written."""
-    exe = build_sil(tmp_path_factory.mktemp("sil_other"), defines=(*profile, define))
+    exe = build_sil(sil_builds, defines=(*profile, define))
     with SilTarget.open("seed", exe=exe) as sil:
         sil.target.handshake(50)
         with pytest.raises(TargetError) as refused:

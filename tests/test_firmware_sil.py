@@ -42,8 +42,8 @@ pytestmark = pytest.mark.slow
 
 
 @pytest.fixture(scope="module")
-def sil_exe(tmp_path_factory, gcc: str) -> Path:
-    return build_sil(tmp_path_factory.mktemp("sil"))
+def sil_exe(sil_builds: Path, gcc: str) -> Path:
+    return build_sil(sil_builds)
 
 
 @pytest.mark.parametrize("variant", ["seed", "v11"])

@@ -26,8 +26,8 @@ POLE_PAIRS = 5
 
 
 @pytest.fixture(scope="module")
-def sil_exe(tmp_path_factory, gcc: str) -> Path:
-    return build_sil(tmp_path_factory.mktemp("sil"))
+def sil_exe(sil_builds: Path, gcc: str) -> Path:
+    return build_sil(sil_builds)
 
 
 def hall_stream(rpm: float, period_us: int, total_ms: int, pot: int = 600) -> list[Sensors]:

@@ -117,13 +117,13 @@ def test_default_scenario_at_1ms_passes_its_checks_on_the_avr(sil_1ms: tuple[Sum
     assert rows == sil_1ms[1]  # column for column, row for row (lockstep: no wall-clock figure in a row)
 
 
-def test_a_target_that_cannot_predict_runs_plain_lockstep(tmp_path: Path, gcc: str) -> None:
+def test_a_target_that_cannot_predict_runs_plain_lockstep(tmp_path: Path, gcc: str, sil_builds: Path) -> None:
     """Prediction is asked for, never assumed: the Python models and a build without room for the copy
     (HRT_PREDICT_BYTES=0u, as the dsPIC30F2010's) refuse mode PREDICT and the run is plain lockstep."""
     host = HostHello(0, PROTOCOL_VERSION, 1000, MODE_PREDICT, 0)
     with pytest.raises(HilbenchError, match="mode 2 is not served"):
         An1017Target().hello(host)
-    exe = build_sil(tmp_path, defines=("-DHRT_PREDICT_BYTES=0u",))
+    exe = build_sil(sil_builds, defines=("-DHRT_PREDICT_BYTES=0u",))
     with SilTarget.open("seed", exe=exe, timeout_s=5.0) as sil:
         with pytest.raises(HilbenchError, match="BAD_REQUEST"):
             sil.target.hello(host)

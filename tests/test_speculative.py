@@ -114,14 +114,14 @@ def _first_difference(rows_a: list[str], rows_b: list[str]) -> tuple[int, set[st
     raise AssertionError("the one-LSB build never differed in these periods")
 
 
-def test_a_one_lsb_difference_is_caught_and_located(tmp_path: Path) -> None:
+def test_a_one_lsb_difference_is_caught_and_located(tmp_path: Path, sil_builds: Path) -> None:
     """A SIL build whose PWM ISR adds one count to duty A when the rotor's phase passes one value:
     per-period lockstep against the twin's build finds the first differing period; the speculative
     run must end with a divergence (exit code 10) naming that period and field."""
     require_tool("gcc", "the SIL build")
     from hilbench.targets.sil import build_sil
 
-    exe = build_sil(tmp_path, defines=("-DAN1017_TEST_ONE_LSB_PHASE=40000u",))
+    exe = build_sil(sil_builds, defines=("-DAN1017_TEST_ONE_LSB_PHASE=40000u",))
     duration = "0.2"
     good_code, _, good_rows, err = _run(tmp_path, "good", "sil:an1017", "off", float(duration), AN1017_WRITES)
     assert good_code == 0, err
@@ -145,14 +145,14 @@ def test_a_one_lsb_difference_is_caught_and_located(tmp_path: Path) -> None:
     assert f"first differing period {period} " in err.strip().splitlines()[0], err
 
 
-def test_on_divergence_continue_goes_on_per_period_and_ends_with_exit_code_10(tmp_path: Path) -> None:
+def test_on_divergence_continue_goes_on_per_period_and_ends_with_exit_code_10(tmp_path: Path, sil_builds: Path) -> None:
     """[link] on_divergence = "continue": the run records every period (after the difference one
     exchange a period, the target's own Drives) and ends with the divergence's line and exit code 10;
     its rows up to the first difference are the per-period run's."""
     require_tool("gcc", "the SIL build")
     from hilbench.targets.sil import build_sil
 
-    exe = build_sil(tmp_path, defines=("-DAN1017_TEST_ONE_LSB_PHASE=40000u",))
+    exe = build_sil(sil_builds, defines=("-DAN1017_TEST_ONE_LSB_PHASE=40000u",))
     extra = ("--set", "link.firmware=an1017")
     code_off, _, rows_off, err = _run(tmp_path, "off", f"sil:{exe}", "off", 0.2, AN1017_WRITES, extra=extra)
     assert code_off == 0, err
@@ -174,7 +174,8 @@ def test_on_divergence_continue_goes_on_per_period_and_ends_with_exit_code_10(tm
 
 
 @pytest.mark.parametrize("build", ["emulator", "sil-without-batches"])
-def test_a_target_that_refuses_batches_runs_per_period_with_the_same_recording(tmp_path: Path, build: str) -> None:
+def test_a_target_that_refuses_batches_runs_per_period_with_the_same_recording(tmp_path: Path, build: str,
+                                                                               sil_builds: Path) -> None:
     """The Python emulator process and a SIL build with -DHRT_SPECULATE=0 answer a SensorsBatch with an
     ErrorReport: the periods the twin ran ahead go to them one by one (checked), then the run goes on
     per period, and the recording is the per-period one."""
@@ -184,7 +185,7 @@ def test_a_target_that_refuses_batches_runs_per_period_with_the_same_recording(t
         require_tool("gcc", "the SIL build")
         from hilbench.targets.sil import build_sil
 
-        target = f"sil:{build_sil(tmp_path, defines=('-DHRT_SPECULATE=0',))}"
+        target = f"sil:{build_sil(sil_builds, defines=('-DHRT_SPECULATE=0',))}"
         extra = ("--set", "link.firmware=an1017")
     code_off, off, rows_off, err = _run(tmp_path, "off", target, "off", 0.05, AN1017_WRITES, extra=extra)
     assert code_off == 0, err
@@ -212,7 +213,8 @@ def test_lost_and_corrupted_frames_on_a_throttled_wire_are_resent_never_committe
     assert rows == clean_rows
 
 
-def test_a_divergence_on_a_board_port_names_its_batch_and_says_why_it_is_not_located(tmp_path: Path) -> None:
+def test_a_divergence_on_a_board_port_names_its_batch_and_says_why_it_is_not_located(tmp_path: Path,
+                                                                                     sil_builds: Path) -> None:
     """A far end on a port (here the one-LSB SIL build on its own pty, as a board on a serial port) is
     not started by the host, so nothing can reset it for the replay: the run still ends with exit code
     10, one line naming the periods of the batch whose digest differed and why the first differing
@@ -222,7 +224,7 @@ def test_a_divergence_on_a_board_port_names_its_batch_and_says_why_it_is_not_loc
     from hilbench.targets.sil import build_sil
     from test_board_guide import _start
 
-    exe = build_sil(tmp_path, defines=("-DAN1017_TEST_ONE_LSB_PHASE=40000u",))
+    exe = build_sil(sil_builds, defines=("-DAN1017_TEST_ONE_LSB_PHASE=40000u",))
     board, pty = _start([str(exe), "--pty"])
     try:
         code, _, _, err = _run(tmp_path, "board", f"serial:{pty}", "auto", 0.2, AN1017_WRITES,
