@@ -4,6 +4,7 @@
 
 from __future__ import annotations
 
+import contextlib
 import errno
 import json
 import os
@@ -728,28 +729,33 @@ def test_ctrl_c_while_the_close_finishes_the_archive_leaves_the_journal(tmp_path
     assert read_recording(path).n_rows == 5000
 
 
-def _closed_soon(fd: int, deadline_s: float = 30.0) -> bool:
-    """Whether the closer thread has closed ``fd`` before the deadline."""
+
+def _closer_idle(deadline_s: float = 30.0) -> tuple[int, int, bool]:
+    """The closer's state once nothing is queued or being closed (a deadline, not a sleep's guess)."""
     import time
 
     deadline = time.monotonic() + deadline_s
-    while npzwriter._npzcolumns.closes_pending():
-        if time.monotonic() > deadline:
-            return False
-        time.sleep(0.005)
-    try:
-        os.fstat(fd)
-    except OSError as exc:
-        return exc.errno == errno.EBADF
-    return False
+    while (state := npzwriter._npzcolumns.closer_state())[0]:
+        assert time.monotonic() < deadline, f"the closer still holds descriptors: {state}"
+        time.sleep(0.002)
+    return state
+
+
+def _journals_open() -> list[str]:
+    """This process's descriptors on a deleted journal."""
+    links = []
+    for name in os.listdir("/proc/self/fd"):
+        with contextlib.suppress(OSError):
+            links.append(os.readlink(f"/proc/self/fd/{name}"))
+    return [link for link in links if ".journal" in link and link.endswith("(deleted)")]
 
 
 @needs_writer
-def test_the_journals_last_descriptor_is_closed_on_the_closer_thread_after_the_unlink(
+def test_the_journals_last_descriptor_is_closed_by_the_closer_after_the_unlink(
         tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
     """A planned run's close unlinks the journal while the archive's descriptor on it is open (cheap),
     then hands that descriptor to the closer thread, whose close frees the journal's pages: the
-    journal's name is gone when the close returns, its descriptor soon after; none is left open."""
+    journal's name is gone when the close returns, the closer closes that descriptor, none is left."""
     handed: list[int] = []
     real = npzwriter._npzcolumns.close_later
 
@@ -759,32 +765,92 @@ def test_the_journals_last_descriptor_is_closed_on_the_closer_thread_after_the_u
         real(fd)
 
     monkeypatch.setattr(npzwriter._npzcolumns, "close_later", close_later)
+    _, closed_before, _ = _closer_idle()
     before = _open_fds()
     cfg = hilbench.load_config(None, ['link.target="inprocess:an1017"', "run.duration_s=0.2"])
     with hilbench.Bench(cfg, scenario=True, record=tmp_path / "run.npz") as bench:
         bench.run()
     assert len(handed) == 1
     assert sorted(p.name for p in tmp_path.iterdir()) == ["run.npz"]
-    assert _closed_soon(handed[0])
-    assert _open_fds() == before
+    _, closed_after, _ = _closer_idle()
+    assert closed_after == closed_before + 1  # by the closer thread, not at once on this one
+    assert _open_fds() == before and not _journals_open()
 
 
 @needs_writer
-def test_a_forked_child_closes_what_it_hands_over_on_a_closer_of_its_own(tmp_path: Path) -> None:
-    """A child forked after the closer thread started (a sweep's worker) inherits its queue, not
-    its thread: its own close_later starts one."""
-    warm = os.open(tmp_path / "a", os.O_WRONLY | os.O_CREAT | os.O_CLOEXEC, 0o600)
-    npzwriter._npzcolumns.close_later(warm)  # the parent's closer thread runs
-    assert _closed_soon(warm)
-    fd = os.open(tmp_path / "b", os.O_WRONLY | os.O_CREAT | os.O_CLOEXEC, 0o600)
-    pid = os.fork()
-    if pid == 0:  # the child: only C calls and os._exit
-        code = 1
-        try:
-            npzwriter._npzcolumns.close_later(fd)
-            code = 0 if _closed_soon(fd) else 2
-        finally:
-            os._exit(code)
-    os.close(fd)
-    _, status = os.waitpid(pid, 0)
-    assert os.waitstatus_to_exitcode(status) == 0
+def test_an_archive_that_cannot_take_its_name_leaves_no_descriptor_on_the_journal(
+        tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """The background archive finished, then its rename failed: one RecordingError, the journal kept
+    (it stands in for the archive), and no descriptor on it left open while the error is held."""
+    path = tmp_path / "run.npz"
+    real_replace = os.replace
+
+    def no_rename(src: object, dst: object) -> None:
+        if str(dst) == str(path):
+            raise OSError(errno.EXDEV, os.strerror(errno.EXDEV))
+        real_replace(src, dst)
+
+    finished: list[bool] = []
+    real_finish = npzwriter.BackgroundArchive.finish
+    monkeypatch.setattr(npzwriter.BackgroundArchive, "finish",
+                        lambda self, metadata: finished.append(real_finish(self, metadata)) or finished[-1])
+    monkeypatch.setattr(recorder_module.os, "replace", no_rename)
+    before = _open_fds()
+    cfg = hilbench.load_config(None, ['link.target="inprocess:an1017"', "run.duration_s=0.2"])
+    with pytest.raises(RecordingError) as info:
+        with hilbench.Bench(cfg, scenario=True, record=path) as bench:
+            bench.run()
+    monkeypatch.undo()
+    assert finished == [True] and str(path.with_name("run.npz.journal")) in str(info.value)
+    _closer_idle()
+    assert _open_fds() == before  # (info, and the close's frame with it, still alive)
+    assert read_recording(path.with_name("run.npz.journal")).n_rows == 4000
+
+
+@needs_writer
+def test_a_fork_with_descriptors_queued_closes_them_in_the_child_and_the_child_starts_its_own_closer(
+        tmp_path: Path) -> None:
+    """A child forked while the closer holds descriptors queued (a sweep's worker forked right after
+    a run) closes its copies of them at once (it has no closer thread), and its own close_later
+    starts a closer of its own; the parent's closer then closes the parent's."""
+    import time
+
+    closer = npzwriter._npzcolumns
+    queued = os.open(tmp_path / "queued", os.O_WRONLY | os.O_CREAT | os.O_CLOEXEC, 0o600)
+    later = os.open(tmp_path / "later", os.O_WRONLY | os.O_CREAT | os.O_CLOEXEC, 0o600)
+    _, closed_before, _ = _closer_idle()
+    closer.hold_closer(True)
+    try:
+        closer.close_later(queued)
+        assert closer.closer_state()[0] == 1
+        pid = os.fork()
+        if pid == 0:  # the child: report by exit code, never return into pytest
+            code = 9
+            try:
+                code = 1
+                os.fstat(queued)  # (the child is single-threaded here: the number cannot be reused)
+            except OSError as exc:
+                code = 2 if exc.errno != errno.EBADF else 3
+            try:
+                if code == 3:
+                    pending, closed, running = closer.closer_state()
+                    code = 4 if (pending, running) != (0, False) else 5
+                if code == 5:
+                    closer.close_later(later)
+                    pending, closed_child, _ = _closer_idle(20.0)
+                    code = 0 if closed_child == closed + 1 else 6
+            finally:
+                os._exit(code)
+    finally:
+        closer.hold_closer(False)
+    os.close(later)
+    deadline = time.monotonic() + 60.0
+    while (done := os.waitpid(pid, os.WNOHANG))[0] == 0:
+        if time.monotonic() > deadline:
+            os.kill(pid, 9)
+            os.waitpid(pid, 0)
+            pytest.fail("the forked child did not end within 60 s")
+        time.sleep(0.01)
+    assert os.waitstatus_to_exitcode(done[1]) == 0  # 1: its copy open, 4: state kept, 6: no closer of its own
+    _, closed_after, _ = _closer_idle()
+    assert closed_after == closed_before + 1  # the parent's queued one, by the parent's closer

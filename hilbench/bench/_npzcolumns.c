@@ -727,44 +727,94 @@ static PyTypeObject WriterType = {
 /* The last close of an unlinked file frees its pages in the closing thread: a 1 s run's journal,
  * ~300 pages, 0.25 ms of the run's close on these VMs. The recorder unlinks the journal (cheap while
  * a descriptor is open), then hands that descriptor here (`close_later`). One detached thread,
- * started at the first call (again in a forked child, which inherits the queue but not the thread),
- * closes them in turn; with the queue full, or no thread, the caller closes it at once. */
+ * started at need, closes them in turn and ends after CLOSER_IDLE_S without work (the process is
+ * single-threaded again between runs that are not back to back); with the queue full, or no thread,
+ * the caller closes it at once. A fork waits for a close in progress (`closing`); the child, which
+ * has no closer thread, closes the descriptors it inherited queued. */
 #define CLOSE_QUEUE 64
+#define CLOSER_IDLE_S 2
 static struct {
-    pthread_mutex_t lock;
+    pthread_mutex_t lock;    /* the queue's */
+    pthread_mutex_t closing; /* the closer's from taking a descriptor off the queue to its close (lock order:
+                                closing, then lock) */
     pthread_cond_t wake;
     int fds[CLOSE_QUEUE];
     int head, count;
-    pid_t owner; /* the process whose closer thread runs (0: none yet) */
-    int pending; /* taken off the queue and not yet closed */
-} closer = {.lock = PTHREAD_MUTEX_INITIALIZER, .wake = PTHREAD_COND_INITIALIZER};
+    int in_flight;           /* taken off the queue, not yet closed */
+    int running;             /* a closer thread runs in this process */
+    int held;                /* hold_closer (tests): the closer takes nothing off the queue */
+    long closed;             /* descriptors the closer threads closed (tests) */
+} closer = {.lock = PTHREAD_MUTEX_INITIALIZER, .closing = PTHREAD_MUTEX_INITIALIZER, .wake = PTHREAD_COND_INITIALIZER};
+
+/* Wait (lock held) until there is work or CLOSER_IDLE_S passed: 1 with work, 0 when idle. */
+static int closer_wait(void)
+{
+    struct timespec until;
+    clock_gettime(CLOCK_REALTIME, &until); /* (the condition's clock) */
+    until.tv_sec += CLOSER_IDLE_S;
+    while (closer.count == 0 || closer.held)
+        if (pthread_cond_timedwait(&closer.wake, &closer.lock, &until) == ETIMEDOUT) {
+            if (closer.count == 0) return 0;
+            clock_gettime(CLOCK_REALTIME, &until); /* held with descriptors queued: on waiting */
+            until.tv_sec += CLOSER_IDLE_S;
+        }
+    return 1;
+}
 
 static void *closer_thread(void *Py_UNUSED(arg))
 {
     become_batch_thread();
-    pthread_mutex_lock(&closer.lock);
     for (;;) {
-        while (closer.count == 0) pthread_cond_wait(&closer.wake, &closer.lock);
-        int fd = closer.fds[closer.head];
-        closer.head = (closer.head + 1) % CLOSE_QUEUE;
-        closer.count--;
-        closer.pending++;
-        pthread_mutex_unlock(&closer.lock);
-        close(fd);
         pthread_mutex_lock(&closer.lock);
-        closer.pending--;
+        if (!closer_wait()) {
+            closer.running = 0; /* (the next close_later starts another) */
+            pthread_mutex_unlock(&closer.lock);
+            return NULL;
+        }
+        pthread_mutex_unlock(&closer.lock);
+        pthread_mutex_lock(&closer.closing);
+        pthread_mutex_lock(&closer.lock);
+        int fd = -1;
+        if (closer.count > 0 && !closer.held) { /* (a fork's child handler may have emptied it meanwhile: not here) */
+            fd = closer.fds[closer.head];
+            closer.head = (closer.head + 1) % CLOSE_QUEUE;
+            closer.count--;
+            closer.in_flight = 1;
+        }
+        pthread_mutex_unlock(&closer.lock);
+        if (fd >= 0) {
+            close(fd);
+            pthread_mutex_lock(&closer.lock);
+            closer.in_flight = 0;
+            closer.closed++;
+            pthread_mutex_unlock(&closer.lock);
+        }
+        pthread_mutex_unlock(&closer.closing);
     }
-    return NULL;
 }
 
-static void closer_before_fork(void) { pthread_mutex_lock(&closer.lock); }
-static void closer_after_fork_parent(void) { pthread_mutex_unlock(&closer.lock); }
-static void closer_after_fork_child(void) /* no closer thread here (nor its wait on the condition) */
+static void closer_before_fork(void)
 {
-    pthread_cond_init(&closer.wake, NULL);
-    pthread_mutex_unlock(&closer.lock); /* (this thread locked it before the fork) */
-    closer.owner = 0;
-    closer.pending = 0;
+    pthread_mutex_lock(&closer.closing); /* no close in progress across the fork */
+    pthread_mutex_lock(&closer.lock);
+}
+
+static void closer_after_fork_parent(void)
+{
+    pthread_mutex_unlock(&closer.lock);
+    pthread_mutex_unlock(&closer.closing);
+}
+
+static void closer_after_fork_child(void) /* no closer thread here: what it inherited queued is closed now */
+{
+    for (; closer.count > 0; closer.count--) {
+        close(closer.fds[closer.head]);
+        closer.head = (closer.head + 1) % CLOSE_QUEUE;
+    }
+    closer.head = closer.in_flight = closer.running = closer.held = 0;
+    pthread_cond_init(&closer.wake, NULL); /* (the parent's closer may have been waiting on it) */
+    pthread_mutex_unlock(&closer.lock);    /* (this thread locked both before the fork) */
+    pthread_mutex_unlock(&closer.closing);
 }
 
 /* close_later(fd): fd closed on the closer thread (now, on this one, when that cannot be) */
@@ -778,14 +828,14 @@ static PyObject *close_later(PyObject *Py_UNUSED(module), PyObject *arg)
     }
     int fd = (int)value, queued = 0;
     pthread_mutex_lock(&closer.lock);
-    if (closer.owner != getpid()) {
+    if (!closer.running) {
         pthread_t thread;
         if (start_writer_thread(&thread, closer_thread, NULL) == 0) {
             pthread_detach(thread);
-            closer.owner = getpid();
+            closer.running = 1;
         }
     }
-    if (closer.owner == getpid() && closer.count < CLOSE_QUEUE) {
+    if (closer.running && closer.count < CLOSE_QUEUE) {
         closer.fds[(closer.head + closer.count) % CLOSE_QUEUE] = fd;
         closer.count++;
         pthread_cond_signal(&closer.wake);
@@ -800,21 +850,35 @@ static PyObject *close_later(PyObject *Py_UNUSED(module), PyObject *arg)
     Py_RETURN_NONE;
 }
 
-/* closes_pending() -> int: descriptors handed to close_later and not yet closed (tests) */
-static PyObject *closes_pending(PyObject *Py_UNUSED(module), PyObject *Py_UNUSED(ignored))
+/* closer_state() -> (queued or being closed, closed by closer threads so far, a closer thread runs) (tests) */
+static PyObject *closer_state(PyObject *Py_UNUSED(module), PyObject *Py_UNUSED(ignored))
 {
     pthread_mutex_lock(&closer.lock);
-    int n = closer.owner == getpid() ? closer.count + closer.pending : 0;
+    int pending = closer.count + closer.in_flight, running = closer.running;
+    long closed = closer.closed;
     pthread_mutex_unlock(&closer.lock);
-    return PyLong_FromLong(n);
+    return Py_BuildValue("(ilO)", pending, closed, running ? Py_True : Py_False);
+}
+
+/* hold_closer(flag) (tests): while held, the closer takes nothing off its queue */
+static PyObject *hold_closer(PyObject *Py_UNUSED(module), PyObject *arg)
+{
+    int held = PyObject_IsTrue(arg);
+    if (held < 0) return NULL;
+    pthread_mutex_lock(&closer.lock);
+    closer.held = held;
+    pthread_cond_signal(&closer.wake);
+    pthread_mutex_unlock(&closer.lock);
+    Py_RETURN_NONE;
 }
 
 static PyMethodDef module_methods[] = {
     {"crc32", (PyCFunction)(void (*)(void))crc32_func, METH_FASTCALL, "crc32(data, value=0): zlib.crc32's value."},
     {"close_later", (PyCFunction)close_later, METH_O,
      "close_later(fd): fd closed on a thread of its own (the last close of an unlinked file frees its pages)."},
-    {"closes_pending", (PyCFunction)closes_pending, METH_NOARGS,
-     "closes_pending() -> int: descriptors handed to close_later not yet closed."},
+    {"closer_state", (PyCFunction)closer_state, METH_NOARGS,
+     "closer_state() -> (descriptors queued or being closed, closed by closer threads so far, a closer runs)."},
+    {"hold_closer", (PyCFunction)hold_closer, METH_O, "hold_closer(flag): the closer takes nothing while held (tests)."},
     {NULL, NULL, 0, NULL},
 };
 

@@ -336,9 +336,9 @@ class BackgroundArchive:
         self._close_journal()
 
     def _close_journal(self) -> None:
-        if self._journal_fd >= 0:
-            os.close(self._journal_fd)
-            self._journal_fd = -1
+        fd, self._journal_fd = self._journal_fd, -1  # (a close that fails has released the number: never twice)
+        if fd >= 0:
+            os.close(fd)
 
     def __del__(self) -> None:
         if getattr(self, "_writer", None) is not None:

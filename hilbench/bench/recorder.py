@@ -37,6 +37,7 @@ reference (without it, or for a format it does not take).
 
 from __future__ import annotations
 
+import contextlib
 import errno
 import functools
 import json
@@ -503,14 +504,19 @@ class Recorder:
         fd = self._events_file.fileno()
         offset = os.fstat(fd).st_size  # (appended: a write lands at the end, wherever this says)
         try:
-            pwrite_all(fd, memoryview(data), offset)
-        except OSError:
-            background = self._background
-            if background is None or background.given_up:
-                raise
-            background.abandon()  # (every row handed over journaled first)
-            os.ftruncate(fd, offset)
-            pwrite_all(fd, memoryview(data), offset)
+            try:
+                pwrite_all(fd, memoryview(data), offset)
+            except OSError:
+                background = self._background
+                if background is None or background.given_up:
+                    raise
+                background.abandon()  # (every row handed over journaled first)
+                os.ftruncate(fd, offset)
+                pwrite_all(fd, memoryview(data), offset)
+        except OSError:  # no torn line left for the next flush to append after
+            with contextlib.suppress(OSError):
+                os.ftruncate(fd, offset)
+            raise
 
     def _write_journal(self, first: int, end: int) -> None:
         """Pending rows first..end-1 written at their place in the journal (pwrite: no buffer left
@@ -632,40 +638,51 @@ class Recorder:
             if self._csv_writer is not None:  # every row written: its thread joined
                 self._csv_writer.close()
         except BaseException as exc:
-            self._close_events_file()
-            if self._background is not None:  # its thread joined: the journal keeps the rows
-                self._background.abandon()
-            if self._csv_writer is not None:
-                if isinstance(exc, (OSError, RecordingError)):  # a failed write: nothing more is written
-                    self._csv_writer.abandon()
-                else:  # Ctrl-C: the queued chunks are the only copy of their rows
-                    self._restart_csv_writer()
+            try:
+                if self._background is not None:  # its thread joined: the journal keeps the rows
+                    self._background.abandon()
+                if self._csv_writer is not None:
+                    if isinstance(exc, (OSError, RecordingError)):  # a failed write: nothing more is written
+                        self._csv_writer.abandon()
+                    else:  # Ctrl-C: the queued chunks are the only copy of their rows
+                        self._restart_csv_writer()
+            finally:
+                self._close_events_file()
             raise
         self.closed = True
-        self._file.close()
-        self._close_events_file()
+        try:
+            self._file.close()
+        finally:
+            self._close_events_file()
         if self.is_npz:
             if "events" in self.metadata:  # after "end", however many flushes came first: the same bytes
                 self.metadata["events"] = self.metadata.pop("events")
             self.metadata["columns"] = [list(spec) for spec in self.rows.layout.column_specs]  # name, unit, CSV format
-            tmp = self._tmp_path()
             background, self._background = self._background, None
             try:
-                if background is None or not background.finish(np.asarray(json.dumps(self.metadata, default=str))):
-                    _write_npz_from_journal(tmp, self._journal_path(), self.metadata)  # the reference
-                os.replace(tmp, self.path)
-            except (OSError, RecordingError) as exc:  # a full disk, a file size limit: the journal stays
-                tmp.unlink(missing_ok=True)
-                reason = (exc.strerror or str(exc)) if isinstance(exc, OSError) else str(exc)
-                if background is not None and background.journal_failed is not None:  # a late chunk's journal write
-                    self._journal_lost(background.journal_failed)
-                raise RecordingError(f"recording {self.path}: the archive could not be written ({reason}); "
-                                     f"every row is kept in {self._journal_path()}") from None
-            journal = self._journal_path()
-            journal.unlink()
-            if background is not None:  # its pages freed on another thread: its last descriptor is there
-                background.release_journal()
-            _events_path(journal).unlink(missing_ok=True)
+                self._write_archive(background)
+                journal = self._journal_path()
+                journal.unlink()
+                _events_path(journal).unlink(missing_ok=True)
+            finally:  # the archive's descriptor on the journal, on every path: once the journal is unlinked,
+                if background is not None:  # this last close frees its pages, on another thread
+                    background.release_journal()
+
+    def _write_archive(self, background: Any) -> None:
+        """The archive, from the background archive's thread or else from the journal, under the
+        recording's name; a RecordingError (the journal kept) when it cannot be written."""
+        tmp = self._tmp_path()
+        try:
+            if background is None or not background.finish(np.asarray(json.dumps(self.metadata, default=str))):
+                _write_npz_from_journal(tmp, self._journal_path(), self.metadata)  # the reference
+            os.replace(tmp, self.path)
+        except (OSError, RecordingError) as exc:  # a full disk, a file size limit: the journal stays
+            tmp.unlink(missing_ok=True)
+            reason = (exc.strerror or str(exc)) if isinstance(exc, OSError) else str(exc)
+            if background is not None and background.journal_failed is not None:  # a late chunk's journal write
+                self._journal_lost(background.journal_failed)
+            raise RecordingError(f"recording {self.path}: the archive could not be written ({reason}); "
+                                 f"every row is kept in {self._journal_path()}") from None
 
 
 #: the characters str.splitlines (a journal's events file) and universal newlines (a CSV) break lines at
