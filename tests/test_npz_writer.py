@@ -729,16 +729,11 @@ def test_ctrl_c_while_the_close_finishes_the_archive_leaves_the_journal(tmp_path
     assert read_recording(path).n_rows == 5000
 
 
-
-def _closer_idle(deadline_s: float = 30.0) -> tuple[int, int, bool]:
-    """The closer's state once nothing is queued or being closed (a deadline, not a sleep's guess)."""
-    import time
-
-    deadline = time.monotonic() + deadline_s
-    while (state := npzwriter._npzcolumns.closer_state())[0]:
-        assert time.monotonic() < deadline, f"the closer still holds descriptors: {state}"
-        time.sleep(0.002)
-    return state
+def _closer_idle(timeout_s: float = 30.0) -> tuple[int, int, bool]:
+    """The closer's state once nothing is queued or being closed."""
+    closer = npzwriter._npzcolumns
+    assert _wait_for(lambda: closer.closer_state()[0] == 0, timeout_s), closer.closer_state()
+    return closer.closer_state()
 
 
 def _journals_open() -> list[str]:
@@ -813,8 +808,6 @@ def test_a_fork_with_descriptors_queued_closes_them_in_the_child_and_the_child_s
     """A child forked while the closer holds descriptors queued (a sweep's worker forked right after
     a run) closes its copies of them at once (it has no closer thread), and its own close_later
     starts a closer of its own; the parent's closer then closes the parent's."""
-    import time
-
     closer = npzwriter._npzcolumns
     queued = os.open(tmp_path / "queued", os.O_WRONLY | os.O_CREAT | os.O_CLOEXEC, 0o600)
     later = os.open(tmp_path / "later", os.O_WRONLY | os.O_CREAT | os.O_CLOEXEC, 0o600)
@@ -825,32 +818,44 @@ def test_a_fork_with_descriptors_queued_closes_them_in_the_child_and_the_child_s
         assert closer.closer_state()[0] == 1
         pid = os.fork()
         if pid == 0:  # the child: report by exit code, never return into pytest
-            code = 9
+            code = 9  # (an exception in its checks)
             try:
-                code = 1
-                os.fstat(queued)  # (the child is single-threaded here: the number cannot be reused)
-            except OSError as exc:
-                code = 2 if exc.errno != errno.EBADF else 3
-            try:
-                if code == 3:
-                    pending, closed, running = closer.closer_state()
-                    code = 4 if (pending, running) != (0, False) else 5
-                if code == 5:
-                    closer.close_later(later)
-                    pending, closed_child, _ = _closer_idle(20.0)
-                    code = 0 if closed_child == closed + 1 else 6
+                code = _forked_child_checks(queued, later)
             finally:
                 os._exit(code)
     finally:
         closer.hold_closer(False)
     os.close(later)
-    deadline = time.monotonic() + 60.0
-    while (done := os.waitpid(pid, os.WNOHANG))[0] == 0:
-        if time.monotonic() > deadline:
-            os.kill(pid, 9)
-            os.waitpid(pid, 0)
-            pytest.fail("the forked child did not end within 60 s")
-        time.sleep(0.01)
-    assert os.waitstatus_to_exitcode(done[1]) == 0  # 1: its copy open, 4: state kept, 6: no closer of its own
+    status: list[int] = []
+
+    def ended() -> bool:
+        done, code = os.waitpid(pid, os.WNOHANG)
+        if done:
+            status.append(os.waitstatus_to_exitcode(code))
+        return bool(done)
+
+    if not _wait_for(ended, 60.0):
+        os.kill(pid, 9)
+        os.waitpid(pid, 0)
+        pytest.fail("the forked child did not end within 60 s")
+    assert status == [0], _forked_child_checks.__doc__
     _, closed_after, _ = _closer_idle()
     assert closed_after == closed_before + 1  # the parent's queued one, by the parent's closer
+
+
+def _forked_child_checks(queued: int, later: int) -> int:
+    """The forked child's checks as its exit code: 0 all hold; 1 its copy of the queued descriptor
+    is still open; 2 it inherited the closer's queue or thread as running; 3 its own close_later did
+    not start a closer that closed the descriptor; 9 an exception."""
+    closer = npzwriter._npzcolumns
+    try:
+        os.fstat(queued)  # (the child is single-threaded here: the number cannot have been reused)
+        return 1
+    except OSError as exc:
+        if exc.errno != errno.EBADF:
+            return 1
+    pending, closed, running = closer.closer_state()
+    if pending or running:
+        return 2
+    closer.close_later(later)
+    return 0 if _wait_for(lambda: closer.closer_state()[:2] == (0, closed + 1), 20.0) else 3

@@ -558,7 +558,6 @@ static int Writer_init(Writer *w, PyObject *args, PyObject *kwds)
     }
     column_t *cols = calloc((size_t)n, sizeof(column_t));
     if (cols == NULL || slot_reserve(&w->values_buf, (size_t)n * READ_ROWS * sizeof(double)) < 0) {
-        PyBuffer_Release(&header);
         PyErr_NoMemory();
         goto bad;
     }
@@ -568,17 +567,18 @@ static int Writer_init(Writer *w, PyObject *args, PyObject *kwds)
         unsigned long crc;
         column_t *col = &cols[j];
         if (!PyArg_ParseTuple(PySequence_Fast_GET_ITEM(seq, j), "nsddLk|y#:ColumnWriter column", &col->field, &code,
-                              &col->scale, &col->modulo, &col->place, &crc, &local, &local_len)) {
-            PyBuffer_Release(&header);
+                              &col->scale, &col->modulo, &col->place, &crc, &local, &local_len))
             goto bad;
-        }
         int width = field_width(code);
         col->prefix_len = local_len + header.len;
-        if (width == 0 || col->field < 0 || col->field + width > itemsize || col->place < col->prefix_len
-            || (local_len > 0 && local_len < LOCAL_CRC_AT + 4)) {
+        if (width == 0 || col->field < 0 || col->field + width > itemsize || col->place < col->prefix_len) {
             PyErr_Format(PyExc_ValueError, "ColumnWriter: column %zd: a field %s at %zd of a %zd-byte row", j, code,
                          col->field, itemsize);
-            PyBuffer_Release(&header);
+            goto bad;
+        }
+        if (local_len > 0 && local_len < LOCAL_CRC_AT + 4) {
+            PyErr_Format(PyExc_ValueError, "ColumnWriter: column %zd: a %zd-byte local header has no CRC field", j,
+                         local_len);
             goto bad;
         }
         col->code = code[0];
@@ -586,7 +586,6 @@ static int Writer_init(Writer *w, PyObject *args, PyObject *kwds)
         col->has_local = local_len > 0;
         col->prefix = malloc((size_t)col->prefix_len + 1);
         if (col->prefix == NULL) {
-            PyBuffer_Release(&header);
             PyErr_NoMemory();
             goto bad;
         }
@@ -627,6 +626,7 @@ static int Writer_init(Writer *w, PyObject *args, PyObject *kwds)
     w->running = 1;
     return 0;
 bad:
+    PyBuffer_Release(&header); /* (a no-op once released) */
     Py_DECREF(seq);
     free_columns(cols, n);
     slot_release(&w->values_buf);
