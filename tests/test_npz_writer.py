@@ -52,6 +52,21 @@ def test_a_column_archive_is_an_npz_that_numpy_and_zip_read(tmp_path: Path) -> N
     assert again.read_bytes() == path.read_bytes()  # the same columns, the same bytes
 
 
+@pytest.mark.parametrize("array", [
+    np.asarray(""), np.asarray('{"k": 1}'), np.asarray("\u00e9\u2028\U0001F600" * 300), np.asarray("x" * 70_000),
+    np.arange(5.0), np.zeros((3, 4), dtype="<i2"), np.asfortranarray(np.ones((3, 4))), np.asarray(3.5),
+], ids=["empty", "json", "non-ascii", "long", "floats", "int16-2d", "fortran", "scalar"])
+def test_a_small_member_has_the_bytes_numpy_writes(array: np.ndarray) -> None:
+    """The metadata member's .npy bytes are numpy's write_array's (its header, then the data as in
+    memory), for text of any length and characters, and for other arrays (a Fortran-ordered one
+    goes to write_array itself)."""
+    import io
+
+    out = io.BytesIO()
+    np.lib.format.write_array(out, array, allow_pickle=False)
+    assert npzwriter._npy(array) == out.getvalue()
+
+
 def test_a_column_archive_refuses_pieces_out_of_order_and_missing_rows(tmp_path: Path) -> None:
     archive = ColumnArchive(tmp_path / "x.npz", ["a"], 10)
     with pytest.raises(ValueError, match="rows from 5, expected from 0"):
@@ -264,6 +279,44 @@ def test_a_run_that_ends_otherwise_than_planned_gets_the_journals_archive(tmp_pa
     assert sorted(p.name for p in tmp_path.iterdir()) == ["bg.npz", "ref.npz"]
     if mark_last:
         assert read_recording(tmp_path / "bg.npz").columns["marker"][-1] == recorder_module.MARKER_FAULT
+
+
+@needs_writer
+@hostile_values
+def test_the_writer_thread_writes_the_crcs_once_the_planned_rows_are_in(tmp_path: Path) -> None:
+    """Once every planned row is handed over, the thread writes each local header's CRC itself
+    (the close's wait is shorter by those writes): they are in the unfinished archive before the
+    close, right (the member's CRC-32 in the file), and the finished archive is the reference's."""
+    import zlib
+
+    layout = every_code_layout()
+    n_rows = 5_000
+    raw = hostile_rows(layout, n_rows, seed=11)
+    rec = recorder_module.Recorder(tmp_path / "bg.npz", {"layout": "every code"}, flush_rows=2_000)
+    rec.start(layout)
+    rec.expect_rows(n_rows)
+    rec.rows.extend(raw)
+    rec.flush()  # every row handed over and journaled; the thread converts them
+    archive = rec._background._archive
+    unfinished = rec._tmp_path()
+
+    def crcs_in_file() -> bool:
+        data = unfinished.read_bytes()
+        for member, offset, data_offset, size in archive._members:
+            if len(data) < data_offset + size:
+                return False
+            (crc,) = np.frombuffer(data[offset + 14:offset + 18], "<u4")
+            if crc != zlib.crc32(data[data_offset:data_offset + size]):
+                return False
+        return True
+
+    assert _wait_for(crcs_in_file), "the thread did not write the CRCs before the close"
+    rec.close("end")
+    ref = recorder_module.Recorder(tmp_path / "ref.npz", {"layout": "every code"}, flush_rows=2_000)
+    ref.start(layout)
+    ref.rows.extend(raw)
+    ref.close("end")  # no plan: the archive written from the journal at the close
+    assert (tmp_path / "bg.npz").read_bytes() == (tmp_path / "ref.npz").read_bytes()
 
 
 def _threads() -> int:

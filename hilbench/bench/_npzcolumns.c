@@ -92,6 +92,9 @@ typedef struct {
     unsigned long long queued;       /* rows handed over */
     unsigned long long journaled;    /* rows in the journal (the thread's) */
     unsigned long long done;         /* rows written to the archive (the thread's) */
+    unsigned long long planned;      /* the rows the archive is sized for (0: not said) */
+    int crcs_written;                /* the local headers' CRCs written: by the thread, once it converted
+                                        the planned rows (while the caller makes its summary), or by finish */
     slot_t slots[SLOTS];
     int next_fill, next_journal, next_take; /* the slot submit_rows fills next, the one the thread journals
                                                next, the one it converts next (each in turn) */
@@ -261,6 +264,19 @@ static int write_rows(Writer *w, const unsigned char *rows, size_t n)
     return 0;
 }
 
+/* Each local header's CRC-32, now known: 0 or an errno. */
+static int write_crcs(Writer *w)
+{
+    int err = 0;
+    for (int j = 0; j < w->n_cols && !err; j++) {
+        const column_t *col = &w->cols[j];
+        const unsigned char crc[4] = {(unsigned char)col->crc, (unsigned char)(col->crc >> 8),
+                                      (unsigned char)(col->crc >> 16), (unsigned char)(col->crc >> 24)};
+        if (col->has_local) err = pwrite_all(w->fd, crc, 4, col->place - col->prefix_len + LOCAL_CRC_AT);
+    }
+    return err;
+}
+
 /* A journaled chunk into the archive, READ_ROWS rows at a time (unless the archive is off):
  * a failed write gives the archive up (its errno kept for finish). Called without the lock. */
 static void archive_chunk(Writer *w, const slot_t *slot)
@@ -278,8 +294,19 @@ static void archive_chunk(Writer *w, const slot_t *slot)
         }
         pthread_mutex_lock(&w->lock);
         w->done += n;
+        int last = w->done == w->planned;
         pthread_mutex_unlock(&w->lock);
         at += n;
+        if (last) { /* the planned rows all in: the CRCs now, not in finish's wait */
+            err = write_crcs(w);
+            if (err) {
+                give_archive_up(w, err);
+                return;
+            }
+            pthread_mutex_lock(&w->lock);
+            w->crcs_written = 1;
+            pthread_mutex_unlock(&w->lock);
+        }
     }
 }
 
@@ -480,14 +507,11 @@ static PyObject *Writer_finish(Writer *w, PyObject *Py_UNUSED(ignored))
     if (w->journal_error) return os_error(w->journal_error);
     if (w->error) return os_error(w->error);
     int err = 0;
-    Py_BEGIN_ALLOW_THREADS
-    for (int j = 0; j < w->n_cols && !err; j++) { /* each local header's CRC, now known */
-        const column_t *col = &w->cols[j];
-        const unsigned char crc[4] = {(unsigned char)col->crc, (unsigned char)(col->crc >> 8),
-                                      (unsigned char)(col->crc >> 16), (unsigned char)(col->crc >> 24)};
-        if (col->has_local) err = pwrite_all(w->fd, crc, 4, col->place - col->prefix_len + LOCAL_CRC_AT);
+    if (!w->crcs_written) { /* (the thread joined: no lock) */
+        Py_BEGIN_ALLOW_THREADS
+        err = write_crcs(w);
+        Py_END_ALLOW_THREADS
     }
-    Py_END_ALLOW_THREADS
     if (err) return os_error(err);
     PyObject *crcs = PyTuple_New(w->n_cols);
     if (crcs == NULL) return NULL;
@@ -526,9 +550,9 @@ static PyObject *Writer_fail_journal_writes(Writer *w, PyObject *args)
 
 static int Writer_init(Writer *w, PyObject *args, PyObject *kwds)
 {
-    static char *kw[] = {"fd", "journal_fd", "journal_offset", "itemsize", "columns", "header", NULL};
+    static char *kw[] = {"fd", "journal_fd", "journal_offset", "itemsize", "columns", "header", "planned_rows", NULL};
     int fd, journal_fd;
-    long long journal_offset;
+    long long journal_offset, planned_rows = 0;
     Py_ssize_t itemsize;
     PyObject *columns;
     Py_buffer header = {0};
@@ -536,12 +560,13 @@ static int Writer_init(Writer *w, PyObject *args, PyObject *kwds)
         PyErr_SetString(PyExc_RuntimeError, "ColumnWriter: cannot be initialised twice");
         return -1;
     }
-    if (!PyArg_ParseTupleAndKeywords(args, kwds, "iiLnOy*:ColumnWriter", kw, &fd, &journal_fd, &journal_offset,
-                                     &itemsize, &columns, &header))
+    if (!PyArg_ParseTupleAndKeywords(args, kwds, "iiLnOy*|L:ColumnWriter", kw, &fd, &journal_fd, &journal_offset,
+                                     &itemsize, &columns, &header, &planned_rows))
         return -1;
-    if (itemsize < 1 || journal_offset < 0) {
+    if (itemsize < 1 || journal_offset < 0 || planned_rows < 0) {
         PyBuffer_Release(&header);
-        PyErr_SetString(PyExc_ValueError, "ColumnWriter: itemsize must be positive, journal_offset not negative");
+        PyErr_SetString(PyExc_ValueError,
+                        "ColumnWriter: itemsize must be positive, journal_offset and planned_rows not negative");
         return -1;
     }
     PyObject *seq = PySequence_Fast(columns, "ColumnWriter: columns must be a sequence");
@@ -614,6 +639,7 @@ static int Writer_init(Writer *w, PyObject *args, PyObject *kwds)
     w->journal_fd = journal_fd;
     w->journal_offset = journal_offset;
     w->itemsize = itemsize;
+    w->planned = (unsigned long long)planned_rows;
     w->n_cols = (int)n;
     w->cols = cols;
     w->values = (double *)w->values_buf.data;
@@ -711,11 +737,12 @@ static PyTypeObject WriterType = {
     .tp_name = "hilbench.bench._npzcolumns.ColumnWriter",
     .tp_basicsize = sizeof(Writer),
     .tp_flags = Py_TPFLAGS_DEFAULT,
-    .tp_doc = "ColumnWriter(fd, journal_fd, journal_offset, itemsize, columns, header): raw rows handed "
-              "over (submit_rows) written to the journal and as an archive's float64 columns on a thread; "
+    .tp_doc = "ColumnWriter(fd, journal_fd, journal_offset, itemsize, columns, header, planned_rows=0): raw rows "
+              "handed over (submit_rows) written to the journal and as an archive's float64 columns on a thread; "
               "columns: (field offset, struct code, scale, modulo or 0, file "
               "offset of row 0, crc so far[, its member's ZIP local header]); header: the .npy header the thread "
-              "writes before each column's row 0, after the local header (whose CRC finish writes).",
+              "writes before each column's row 0, after the local header (whose CRC the thread writes once it has "
+              "converted planned_rows rows, else finish).",
     .tp_new = PyType_GenericNew,
     .tp_init = (initproc)Writer_init,
     .tp_dealloc = (destructor)Writer_dealloc,

@@ -49,8 +49,15 @@ _FULL32 = 0xFFFFFFFF
 
 
 def _npy(array: np.ndarray) -> bytes:
+    """The .npy bytes of a small array (the metadata): numpy's own version 1.0 header, then the data
+    as it is in memory (write_array's bytes for these, without its chunked copy loop: ~80 us of a run's
+    close, measured cold after a 1 s run)."""
     out = io.BytesIO()
-    np.lib.format.write_array(out, array, allow_pickle=False)
+    if array.dtype.hasobject or not array.flags.c_contiguous:
+        np.lib.format.write_array(out, array, allow_pickle=False)
+    else:
+        np.lib.format.write_array_header_1_0(out, np.lib.format.header_data_from_array_1_0(array))
+        out.write(array.tobytes())
     return out.getvalue()
 
 
@@ -229,7 +236,8 @@ class BackgroundArchive:
                                                                                        self._archive.places()))]
             try:
                 self._writer = _npzcolumns.ColumnWriter(self._archive._fd, self._journal_fd, journal_offset,
-                                                        layout.dtype.itemsize, columns, self._archive.column_header)
+                                                        layout.dtype.itemsize, columns, self._archive.column_header,
+                                                        planned_rows=n_rows)
             except BaseException:
                 self._archive.abandon()
                 raise

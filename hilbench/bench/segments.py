@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import bisect
 import math
+import operator
 import re
 from dataclasses import dataclass, field
 from typing import Iterable, Sequence
@@ -37,6 +38,9 @@ class _Open:
     stride: int = 1
     seen: int = 0
     samples: list[tuple[float, float, float]] = field(default_factory=list)
+
+
+_time, _plant, _measured = operator.itemgetter(0), operator.itemgetter(1), operator.itemgetter(2)  # of a sample
 
 
 class Segmenter:
@@ -124,11 +128,12 @@ class Segmenter:
         if end_s - start <= MIN_HOLD_S or current.ref_rpm == 0:
             return
         window_start = end_s - WINDOW_FRACTION * (end_s - start)
-        window = [(p, m) for t, p, m in current.samples if window_start <= t < end_s]
+        samples = current.samples  # in time order: the window is a slice of them
+        window = samples[bisect.bisect_left(samples, window_start, key=_time):bisect.bisect_left(samples, end_s, key=_time)]
         if not window:
             return
-        plant = sum(p for p, _ in window) / len(window)
-        measured = [m for _, m in window if not math.isnan(m)]
+        plant = sum(map(_plant, window)) / len(window)
+        measured = [m for m in map(_measured, window) if m == m]  # (NaN: not reported)
         self.segments.append(Segment(current.t_s, end_s, float(current.ref_rpm), plant,
                                      sum(measured) / len(measured) if measured else math.nan))
 
