@@ -6,8 +6,9 @@ Issue 5's goal: at 1 kHz for 60 s, fewer than 0.5 % of periods overrun on this m
 machine is a shared 2-core VM, so the figures move with its load; run it when nothing else does.
 The baseline, a raw two-process pty echo paced the same way, runs for half the time before the
 bench and half after it. Both hold the CPU wake-up latency request (/dev/cpu_dma_latency), put
-host and target on one CPU and run them at SCHED_FIFO 10 when allowed, as the session does by
-default; --no-qos, --no-pin and --no-fifo measure both without them.
+host and target on one CPU and raise them to SCHED_FIFO 10 (when allowed) once overruns say other
+work takes that CPU, as the session does by default; --no-qos, --no-pin and --no-fifo measure both
+without them, --fifo-always with SCHED_FIFO from the start.
 """
 
 from __future__ import annotations
@@ -28,7 +29,7 @@ from bench_link import echo_child, frame_sizes  # noqa: E402
 
 from hilbench.bench.clock import CpuLatencyRequest, Pacer  # noqa: E402
 from hilbench.bench.cpus import CpuPinning, FifoPriority  # noqa: E402
-from hilbench.bench.pacing import spin_for_this_thread  # noqa: E402
+from hilbench.bench.pacing import ContentionWatch, spin_for_this_thread  # noqa: E402
 
 from hilbench.bench.run import RunRequest, load_run_config, run_bench
 from hilbench.config import default_config_text
@@ -54,8 +55,10 @@ ref_rpm = -1000.0
 
 
 def paced_raw_echo(seconds: float, period_us: int, qos: bool, pin: bool,
-                   fifo: bool) -> tuple[float, float, int, int]:
-    """The baseline: the same pacing with a raw two-process pty echo of the same frame sizes.
+                   fifo: str) -> tuple[float, float, int, int]:
+    """The baseline: the same pacing with a raw two-process pty echo of the same frame sizes, and
+    the same scheduling (``fifo``: "contended", raised once overruns say so as the session's
+    pacing does; "always"; "never").
 
     Returns (lateness p99 us, round-trip p99 us, overruns, periods) — an overrun is a period whose
     wait + exchange ends after the next period's start, or whose slot had passed before it started
@@ -68,16 +71,28 @@ def paced_raw_echo(seconds: float, period_us: int, qos: bool, pin: bool,
     rtt: list[float] = []
     overruns = 0
     request = b"\xaa" * req_len
+    watch, last_overrun = ContentionWatch(period_s), -2
     with echo_child(req_len, resp_len) as (fd, child), CpuLatencyRequest() if qos else contextlib.nullcontext(), \
             CpuPinning([child.pid]) if pin else contextlib.nullcontext(), \
-            FifoPriority([child.pid], 10) if fifo else contextlib.nullcontext():
+            FifoPriority([child.pid], 10, when=fifo) if fifo != "never" else contextlib.nullcontext() as priority:
         pacer = Pacer(period_s)
-        pacer.spin_s = spin_for_this_thread(pacer.spin_s)  # as the session's pacing does
+        default_spin_s = pacer.spin_s
+        pacer.spin_s = spin_for_this_thread(default_spin_s)  # as the session's pacing does
+
+        def overrun(k: int) -> None:  # counted; a new episode may say the CPU is contended
+            nonlocal overruns, last_overrun
+            overruns += 1
+            if last_overrun != k - 1 and isinstance(priority, FifoPriority) and priority.when == "contended" \
+                    and watch.episode(k):
+                priority.engage(k * period_s)
+                pacer.spin_s = spin_for_this_thread(default_spin_s)
+            last_overrun = k
+
         pacer.start()
         for k in range(n):
             late.append(pacer.wait_for(k))
             if late[-1] >= period_s:  # the session's policy: a slot already gone is skipped
-                overruns += 1
+                overrun(k)
                 continue
             sent = time.perf_counter()
             os.write(fd, request)
@@ -88,7 +103,7 @@ def paced_raw_echo(seconds: float, period_us: int, qos: bool, pin: bool,
             done = time.perf_counter()
             rtt.append(done - sent)
             if done - pacer.t0 - k * period_s > period_s:
-                overruns += 1
+                overrun(k)
 
     def p99(values: list[float]) -> float:
         return statistics.quantiles(values, n=100)[98] * 1e6
@@ -106,6 +121,9 @@ def main() -> None:
                         help="host and target processes free to run on any CPU, in the bench and its baseline")
     parser.add_argument("--no-fifo", action="store_true",
                         help="host and target normally scheduled (not SCHED_FIFO), in the bench and its baseline")
+    parser.add_argument("--fifo-always", action="store_true",
+                        help="host and target at SCHED_FIFO from the start ([link] realtime_fifo = \"always\"), "
+                             "not once the CPU is contended (the default), in the bench and its baseline")
     args = parser.parse_args()
     # the Hurst bench with the motor running for the whole span
     config = Path(tempfile.mkdtemp()) / "realtime.toml"
@@ -114,13 +132,15 @@ def main() -> None:
         str(config),
         overrides=(f"link.period_us={args.period_us}", f"link.cpu_latency_qos={'false' if args.no_qos else 'true'}",
                    f"link.pin_realtime={'false' if args.no_pin else 'true'}",
-                   f"link.realtime_priority={0 if args.no_fifo else 10}"),
+                   f"link.realtime_priority={0 if args.no_fifo else 10}",
+                   f"link.realtime_fifo={'always' if args.fifo_always else 'contended'}"),
         target="emulator:an1017",
         mode="realtime",
         duration_s=args.seconds,
     ))
     half = args.seconds / 2
-    baseline = (args.period_us, not args.no_qos, not args.no_pin, not args.no_fifo)
+    fifo = "never" if args.no_fifo else "always" if args.fifo_always else "contended"
+    baseline = (args.period_us, not args.no_qos, not args.no_pin, fifo)
     before = paced_raw_echo(half, *baseline)  # the baseline on both sides of the run
     summary = run_bench(cfg)
     after = paced_raw_echo(half, *baseline)

@@ -237,6 +237,103 @@ def test_the_pacer_spins_less_under_a_realtime_policy_and_the_session_picks_it()
     assert normal.pacer.spin_s == default_s
 
 
+def test_overrun_episodes_close_together_say_the_cpu_is_contended() -> None:
+    """CONTENDED_EPISODES episodes within CONTENDED_WINDOW_S say contended; as many spread wider
+    (an idle VM's stalls now and then) do not."""
+    from hilbench.bench.pacing import CONTENDED_EPISODES, CONTENDED_WINDOW_S, ContentionWatch
+
+    watch = ContentionWatch(PERIOD_US * 1e-6)
+    window = round(CONTENDED_WINDOW_S / (PERIOD_US * 1e-6))
+    spread = window // (CONTENDED_EPISODES - 1) + 1  # the first and the last of any 8 one window apart or more
+    assert not any(watch.episode(i * spread) for i in range(3 * CONTENDED_EPISODES))
+    k = (3 * CONTENDED_EPISODES - 1) * spread + window  # a window after the last of them
+    close = [watch.episode(k + i * 10) for i in range(CONTENDED_EPISODES)]
+    assert close == [False] * (CONTENDED_EPISODES - 1) + [True]
+
+
+def test_a_contended_cpu_raises_the_run_once_and_its_pacer_spins_less(tmp_path: Path) -> None:
+    """Overruns one after another (a target that holds the CPU 1.5 periods every 20th period) call
+    the session's on_contended once, with the run's time; the pacer's spin follows the thread's
+    policy from then on. A stall of many periods in a row is one episode."""
+    from hilbench.bench.cpus import FifoPriority
+    from hilbench.bench.pacing import CONTENDED_EPISODES, REALTIME_POLICY_SPIN_S
+
+    stalls = {40 + 20 * i for i in range(CONTENDED_EPISODES + 4)}
+    calls: list[float] = []
+    before = os.sched_getscheduler(0)
+    with open_target("inprocess:an1017", timeout_s=2.0) as handle:
+        target = StallingTarget(handle.target, stall_at=stalls, stall_periods=1.5)
+        session, _ = _session(target, tmp_path, 0.4)
+        fifo = FifoPriority([], 10, when="contended").__enter__()
+        try:
+            def engage(at_s: float) -> None:
+                calls.append(at_s)
+                fifo.engage(at_s)
+
+            session.on_contended = engage
+            summary = session.run()
+            raised = fifo.status.startswith("SCHED_FIFO 10 from ")
+            spin_s = session.pacing.pacer.spin_s if session.pacing is not None else None
+        finally:
+            fifo.__exit__(None, None, None)
+    assert len(calls) == 1, calls
+    eighth = sorted(target.stalled_periods)[CONTENDED_EPISODES - 1]
+    assert 0 < calls[0] <= (eighth + 2) * PERIOD_US * 1e-6  # by the eighth stall (the machine may add overruns)
+    assert "(the CPU was contended)" in fifo.status
+    if raised:  # permitted here (root or CAP_SYS_NICE): the pacer spins as a FIFO thread does
+        assert spin_s == REALTIME_POLICY_SPIN_S
+    assert summary.overruns >= CONTENDED_EPISODES
+    assert os.sched_getscheduler(0) & ~os.SCHED_RESET_ON_FORK == before & ~os.SCHED_RESET_ON_FORK
+
+
+def test_fifo_when_contended_waits_for_engage_and_restores_the_host() -> None:
+    import subprocess
+    import sys
+
+    from hilbench.bench.cpus import FifoPriority
+
+    before = os.sched_getscheduler(0)
+    child = subprocess.Popen([sys.executable, "-c", "import sys; sys.stdin.read()"], stdin=subprocess.PIPE)
+    try:
+        with FifoPriority([child.pid], 10, when="contended") as priority:
+            assert priority.status == "normal scheduling (SCHED_FIFO 10 once the CPU is contended: not needed)"
+            assert os.sched_getscheduler(0) == before and os.sched_getscheduler(child.pid) & ~os.SCHED_RESET_ON_FORK == 0
+            priority.engage(1.5)
+            priority.engage(2.5)  # once
+            if "not permitted" not in priority.status:
+                assert priority.status == f"SCHED_FIFO 10 from 1.500 s (the CPU was contended): host, pid {child.pid}"
+                for pid in (0, child.pid):
+                    assert os.sched_getscheduler(pid) & ~os.SCHED_RESET_ON_FORK == os.SCHED_FIFO
+        assert os.sched_getscheduler(0) & ~os.SCHED_RESET_ON_FORK == before & ~os.SCHED_RESET_ON_FORK
+    finally:
+        child.communicate(b"", timeout=10)
+    with pytest.raises(ValueError, match="when='sometimes'"):
+        FifoPriority([], 10, when="sometimes")
+
+
+@pytest.mark.slow
+def test_a_cpu_bound_process_on_the_runs_cpu_raises_the_run_to_fifo(tmp_path: Path) -> None:
+    """[link] realtime_fifo = "contended" (the default) against the emulator process, with a
+    CPU-bound process pinned to the run's CPU: the run is raised to SCHED_FIFO as it goes, and the
+    summary says when (or why it could not be)."""
+    import subprocess
+    import sys
+
+    from hilbench.bench.cpus import default_cpu
+
+    config = hurst_bench_config(tmp_path, 1.0)
+    cfg = load_run_config(RunRequest(str(config), overrides=(f"link.period_us={PERIOD_US}",),
+                                     target="emulator:an1017", mode="realtime", duration_s=1.0))
+    hog = subprocess.Popen([sys.executable, "-c", "while True: pass"])
+    try:
+        os.sched_setaffinity(hog.pid, {default_cpu()})
+        summary = run_bench(cfg)
+    finally:
+        hog.kill()
+        hog.wait(timeout=10)
+    assert "(the CPU was contended)" in summary.cpus, summary.cpus
+
+
 def test_a_cpu_this_process_may_not_use_is_a_config_error() -> None:
     from hilbench.bench.cpus import CpuPinning
     from hilbench.errors import ConfigError

@@ -145,13 +145,17 @@ class Bench:
         return self
 
     def _schedule_realtime(self, process: "subprocess.Popen[bytes] | None") -> None:
-        """This thread and the target process it started on one CPU, at SCHED_FIFO, as [link] asks."""
+        """This thread and the target process it started on one CPU, at SCHED_FIFO (from the start, or
+        once the CPU is contended), as [link] asks."""
         link = self.config.link
         pids = [process.pid] if process is not None else []
         if link.pin_realtime and pids:
             self._scheduling.append(CpuPinning(pids, link.realtime_cpu).__enter__())
         if link.realtime_priority > 0:
-            self._scheduling.append(FifoPriority(pids, link.realtime_priority).__enter__())
+            fifo = FifoPriority(pids, link.realtime_priority, when=link.realtime_fifo).__enter__()
+            self._scheduling.append(fifo)
+            if link.realtime_fifo == "contended" and self.session is not None:
+                self.session.on_contended = fifo.engage
 
     def _make_recorder(self, hello: TargetHello, session: Session, period_us: int) -> Recorder | MemoryRecorder | None:
         cfg = self.config

@@ -1,5 +1,6 @@
 """Where and how a real-time run's processes run: the host loop and the emulator it started, on one
-CPU, and ahead of the machine's other work (SCHED_FIFO) when allowed.
+CPU, and ahead of the machine's other work (SCHED_FIFO) when allowed: from the start, or (the
+default) once overruns say other work takes that CPU (`pacing.ContentionWatch`).
 
 In a real-time exchange the host and the target take turns (one waits while the other works), so
 they need one CPU, not two. On a VM each vCPU is stalled now and then by the hypervisor; with
@@ -9,7 +10,10 @@ does. On these machines that halved the overruns of a 1 kHz run (median 0.35 % -
 With other work on that CPU (a build, a browser, the test suite), a normally scheduled host or
 emulator waits its turn behind it; under SCHED_FIFO it runs as soon as it is woken (the kernel keeps
 5 % of each second for normal tasks, /proc/sys/kernel/sched_rt_runtime_us). With two CPU-bound
-processes beside a 10 s run at 1 kHz here: 412 and 566 overruns without it, 311 and 90 with it.
+processes beside a 10 s run at 1 kHz here: 1 659 and 1 684 overruns without it, 33 and 31 with it
+from the start, 41 and 67 raised once contended. On an idle CPU FIFO costs overruns instead (the
+pty's kernel worker is kept off a FIFO task's CPU: README, "real time"): median 61 against 36 of
+nine 30 s runs each.
 """
 
 from __future__ import annotations
@@ -18,6 +22,10 @@ import os
 from typing import Iterable
 
 from hilbench.errors import ConfigError
+
+
+#: when a real-time run's host loop and emulator get SCHED_FIFO ([link] realtime_fifo)
+FIFO_WHEN = ("contended", "always")
 
 
 def default_cpu() -> int:
@@ -75,25 +83,44 @@ class FifoPriority:
     """SCHED_FIFO at ``priority`` for the calling thread and ``pids`` while a real-time run lasts; the
     calling thread's policy comes back after (the processes end with the run).
 
-    It needs root or CAP_SYS_NICE (or an RLIMIT_RTPRIO): without, the run goes on normally scheduled
-    and ``status`` says why. SCHED_RESET_ON_FORK: nothing the run starts inherits the priority.
+    ``when="always"`` raises them as the run starts; ``"contended"`` leaves them normally scheduled
+    until `engage` (the pacing calls it once overruns say other work takes the run's CPU:
+    `pacing.ContentionWatch`), since on an idle CPU FIFO costs overruns (the pty's kernel worker
+    is kept off the FIFO task's CPU, README "real time"). It needs root or CAP_SYS_NICE (or an
+    RLIMIT_RTPRIO): without, the run goes on normally scheduled and ``status`` says why.
+    SCHED_RESET_ON_FORK: nothing the run starts inherits the priority.
     """
 
-    def __init__(self, pids: Iterable[int], priority: int) -> None:
+    def __init__(self, pids: Iterable[int], priority: int, *, when: str = "always") -> None:
+        if when not in FIFO_WHEN:
+            raise ValueError(f"FifoPriority: when={when!r}, not one of {FIFO_WHEN}")
         self.pids = tuple(pids)
         self.priority = priority
+        self.when = when
         self._previous: tuple[int, os.sched_param] | None = None
         self.status = "normal scheduling"
 
     def __enter__(self) -> "FifoPriority":
+        if self.when == "contended":
+            self.status = f"normal scheduling (SCHED_FIFO {self.priority} once the CPU is contended: not needed)"
+        else:
+            self.engage()
+        return self
+
+    def engage(self, at_s: float | None = None) -> None:
+        """SCHED_FIFO for the calling thread and ``pids`` from now on (``at_s``: the run's time, for
+        the status); once."""
+        if self._previous is not None:
+            return
         policy = os.SCHED_FIFO | os.SCHED_RESET_ON_FORK
         param = os.sched_param(self.priority)
+        since = "" if at_s is None else f" from {at_s:.3f} s (the CPU was contended)"
         try:
             previous = (os.sched_getscheduler(0), os.sched_getparam(0))
             os.sched_setscheduler(0, policy, param)
         except OSError as exc:
-            self.status = f"normal scheduling (SCHED_FIFO {self.priority}: {exc.strerror})"
-            return self
+            self.status = f"normal scheduling (SCHED_FIFO {self.priority}{since}: {exc.strerror})"
+            return
         self._previous = previous
         raised = ["host"]
         for pid in self.pids:
@@ -102,8 +129,7 @@ class FifoPriority:
                 raised.append(f"pid {pid}")
             except OSError as exc:
                 raised.append(f"not pid {pid} ({exc.strerror})")
-        self.status = f"SCHED_FIFO {self.priority}: {', '.join(raised)}"
-        return self
+        self.status = f"SCHED_FIFO {self.priority}{since}: {', '.join(raised)}"
 
     def __exit__(self, *exc_info: object) -> None:
         if self._previous is not None:

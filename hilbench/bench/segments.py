@@ -44,7 +44,8 @@ _time, _plant, _measured = operator.itemgetter(0), operator.itemgetter(1), opera
 
 
 class Segmenter:
-    """Reference changes, stops and speed samples in; `Segment`s out, in bounded memory."""
+    """Reference changes, stops and speed samples in; `Segment`s out, in bounded memory. Samples come
+    in time order (every caller's are a period count's), so a hold's window is a slice of them."""
 
     def __init__(self, capacity: int = 4096) -> None:
         self.capacity = capacity

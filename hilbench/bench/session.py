@@ -160,6 +160,9 @@ class Session:
         self.ref_rpm = 0.0  # the reference the host asks for now
         self.drive: Drive | None = None  # the last Drive
         self.pacing: RealtimePacing | None = None
+        #: real time: called once, with the run's time, when overruns say other work takes the run's CPU
+        #: (the bench raises the run to SCHED_FIFO then: [link] realtime_fifo = "contended")
+        self.on_contended: Callable[[float], None] | None = None
         self.lockstep_rtts = StreamingPercentiles()
         self.telemetry_index: dict[str, tuple[int, float]] = {}
         self.duration_s = 0.0
@@ -441,6 +444,7 @@ class Session:
         self.pacing = RealtimePacing(
             options.period_us, label=self.target_label,
             abort_after=options.max_consecutive_overruns if options.overrun_policy == "abort" else None,
+            on_contended=self.on_contended,
         )
         if not options.cpu_latency_qos:
             summary.cpu_latency = "not requested ([link] cpu_latency_qos = false)"
