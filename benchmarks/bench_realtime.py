@@ -55,12 +55,12 @@ ref_rpm = -1000.0
 
 
 def paced_raw_echo(seconds: float, period_us: int, qos: bool, pin: bool,
-                   fifo: str) -> tuple[float, float, int, int]:
+                   fifo: str) -> tuple[float, float, int, int, str]:
     """The baseline: the same pacing with a raw two-process pty echo of the same frame sizes, and
     the same scheduling (``fifo``: "contended", raised once overruns say so as the session's
     pacing does; "always"; "never").
 
-    Returns (lateness p99 us, round-trip p99 us, overruns, periods) — an overrun is a period whose
+    Returns (lateness p99 us, round-trip p99 us, overruns, periods, scheduling) — an overrun is a period whose
     wait + exchange ends after the next period's start, or whose slot had passed before it started
     (then it is skipped), as the session counts them.
     """
@@ -71,7 +71,8 @@ def paced_raw_echo(seconds: float, period_us: int, qos: bool, pin: bool,
     rtt: list[float] = []
     overruns = 0
     request = b"\xaa" * req_len
-    watch, last_overrun = ContentionWatch(period_s), -2
+    watch: ContentionWatch | None = ContentionWatch(period_s) if fifo == "contended" else None
+    last_overrun = -2
     with echo_child(req_len, resp_len) as (fd, child), CpuLatencyRequest() if qos else contextlib.nullcontext(), \
             CpuPinning([child.pid]) if pin else contextlib.nullcontext(), \
             FifoPriority([child.pid], 10, when=fifo) if fifo != "never" else contextlib.nullcontext() as priority:
@@ -79,11 +80,12 @@ def paced_raw_echo(seconds: float, period_us: int, qos: bool, pin: bool,
         default_spin_s = pacer.spin_s
         pacer.spin_s = spin_for_this_thread(default_spin_s)  # as the session's pacing does
 
-        def overrun(k: int) -> None:  # counted; a new episode may say the CPU is contended
-            nonlocal overruns, last_overrun
+        def overrun(k: int) -> None:  # counted; a new episode may say the CPU is contended (once, as the session)
+            nonlocal overruns, last_overrun, watch
             overruns += 1
-            if last_overrun != k - 1 and isinstance(priority, FifoPriority) and priority.when == "contended" \
-                    and watch.episode(k):
+            if last_overrun != k - 1 and watch is not None and watch.episode(k):
+                watch = None
+                assert isinstance(priority, FifoPriority)
                 priority.engage(k * period_s)
                 pacer.spin_s = spin_for_this_thread(default_spin_s)
             last_overrun = k
@@ -108,7 +110,7 @@ def paced_raw_echo(seconds: float, period_us: int, qos: bool, pin: bool,
     def p99(values: list[float]) -> float:
         return statistics.quantiles(values, n=100)[98] * 1e6
 
-    return p99(late), p99(rtt), overruns, n
+    return p99(late), p99(rtt), overruns, n, priority.status if isinstance(priority, FifoPriority) else "normal scheduling"
 
 
 def main() -> None:
@@ -159,9 +161,9 @@ def main() -> None:
     base_share = base_over / base_n
     print(f"baseline in the same run: raw two-process pty echo, same pacing and skip policy, "
           f"{args.seconds / 2:g} s before and {args.seconds / 2:g} s after the bench")
-    for name, (b_late, b_rtt, b_over, b_n) in (("before", before), ("after", after)):
+    for name, (b_late, b_rtt, b_over, b_n, b_sched) in (("before", before), ("after", after)):
         print(f"  {name:6s} lateness p99 {b_late:8.1f} us   round trip p99 {b_rtt:8.1f} us   "
-              f"overruns {b_over} of {b_n} = {b_over / b_n:.3%}")
+              f"overruns {b_over} of {b_n} = {b_over / b_n:.3%}   ({b_sched})")
     if base_over:
         print(f"  bench overruns / baseline overruns: {share / base_share:.2f}x")
 

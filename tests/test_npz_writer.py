@@ -55,7 +55,9 @@ def test_a_column_archive_is_an_npz_that_numpy_and_zip_read(tmp_path: Path) -> N
 @pytest.mark.parametrize("array", [
     np.asarray(""), np.asarray('{"k": 1}'), np.asarray("\u00e9\u2028\U0001F600" * 300), np.asarray("x" * 70_000),
     np.arange(5.0), np.zeros((3, 4), dtype="<i2"), np.asfortranarray(np.ones((3, 4))), np.asarray(3.5),
-], ids=["empty", "json", "non-ascii", "long", "floats", "int16-2d", "fortran", "scalar"])
+    np.zeros(2, dtype=[(f"f{i}", "<f8") for i in range(5_000)]),
+], ids=["empty", "json", "non-ascii", "long", "floats", "int16-2d", "fortran", "scalar", "record-header-v2"])
+@pytest.mark.filterwarnings("ignore:Stored array in format 2.0")
 def test_a_small_member_has_the_bytes_numpy_writes(array: np.ndarray) -> None:
     """The metadata member's .npy bytes are numpy's write_array's (its header, then the data as in
     memory), for text of any length and characters, and for other arrays (a Fortran-ordered one
@@ -317,6 +319,24 @@ def test_the_writer_thread_writes_the_crcs_once_the_planned_rows_are_in(tmp_path
     ref.rows.extend(raw)
     ref.close("end")  # no plan: the archive written from the journal at the close
     assert (tmp_path / "bg.npz").read_bytes() == (tmp_path / "ref.npz").read_bytes()
+
+
+@needs_writer
+def test_a_writer_takes_no_row_beyond_its_plan(tmp_path: Path) -> None:
+    """The archive is sized for the planned rows: a chunk that would go past them is refused (one
+    line), not written over the next member with a CRC already written for the plan."""
+    fds = [os.open(tmp_path / name, os.O_WRONLY | os.O_CREAT | os.O_CLOEXEC, 0o644) for name in ("a", "j")]
+    try:
+        writer = npzwriter._npzcolumns.ColumnWriter(fds[0], fds[1], 0, 8, [(0, "d", 1.0, 0.0, 16, 0)], b"h" * 16,
+                                                    planned_rows=4)
+        writer.submit_rows(0, memoryview(np.arange(3.0).tobytes()))
+        with pytest.raises(ValueError, match="rows up to 5, beyond the 4 planned"):
+            writer.submit_rows(3, memoryview(np.arange(2.0).tobytes()))
+        writer.submit_rows(3, memoryview(np.arange(1.0).tobytes()))
+        assert writer.finish()[0] == 4
+    finally:
+        for fd in fds:
+            os.close(fd)
 
 
 def _threads() -> int:

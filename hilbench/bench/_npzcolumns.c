@@ -54,7 +54,7 @@ typedef struct {
     long long place;   /* the file offset of the column's row 0 */
     uint32_t crc;      /* of the member's bytes so far */
     unsigned char *prefix; /* what the thread writes before row 0: the member's ZIP local header (its CRC
-                              written by finish), if given, and the .npy header */
+                              written once every row is in: write_crcs), if given, and the .npy header */
     Py_ssize_t prefix_len;
     int has_local;
 } column_t;
@@ -452,6 +452,11 @@ static PyObject *Writer_submit_rows(Writer *w, PyObject *args)
                      w->queued);
         goto out;
     }
+    if (w->planned && w->queued + n_rows > w->planned) { /* (the archive is sized for the plan) */
+        PyErr_Format(PyExc_ValueError, "ColumnWriter.submit_rows: rows up to %llu, beyond the %llu planned",
+                     w->queued + (unsigned long long)n_rows, w->planned);
+        goto out;
+    }
     if (wait_freed(w, slot_free, 1) < 0) goto out; /* (a signal's exception: nothing handed over) */
     int err = w->journal_error ? w->journal_error : (w->exited ? EIO : 0);
     pthread_mutex_unlock(&w->lock);
@@ -507,7 +512,7 @@ static PyObject *Writer_finish(Writer *w, PyObject *Py_UNUSED(ignored))
     if (w->journal_error) return os_error(w->journal_error);
     if (w->error) return os_error(w->error);
     int err = 0;
-    if (!w->crcs_written) { /* (the thread joined: no lock) */
+    if (!w->crcs_written || w->done != w->planned) { /* (the thread joined: no lock) */
         Py_BEGIN_ALLOW_THREADS
         err = write_crcs(w);
         Py_END_ALLOW_THREADS

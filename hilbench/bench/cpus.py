@@ -19,13 +19,15 @@ nine 30 s runs each.
 from __future__ import annotations
 
 import os
-from typing import Iterable
+import threading
+from typing import Iterable, Literal, get_args
 
 from hilbench.errors import ConfigError
 
 
 #: when a real-time run's host loop and emulator get SCHED_FIFO ([link] realtime_fifo)
-FIFO_WHEN = ("contended", "always")
+FifoWhen = Literal["contended", "always"]
+FIFO_WHEN: tuple[str, ...] = get_args(FifoWhen)
 
 
 def default_cpu() -> int:
@@ -83,21 +85,25 @@ class FifoPriority:
     """SCHED_FIFO at ``priority`` for the calling thread and ``pids`` while a real-time run lasts; the
     calling thread's policy comes back after (the processes end with the run).
 
-    ``when="always"`` raises them as the run starts; ``"contended"`` leaves them normally scheduled
-    until `engage` (the pacing calls it once overruns say other work takes the run's CPU:
-    `pacing.ContentionWatch`), since on an idle CPU FIFO costs overruns (the pty's kernel worker
-    is kept off the FIFO task's CPU, README "real time"). It needs root or CAP_SYS_NICE (or an
-    RLIMIT_RTPRIO): without, the run goes on normally scheduled and ``status`` says why.
-    SCHED_RESET_ON_FORK: nothing the run starts inherits the priority.
+    ``when="always"`` (this class's default, for a caller that asks for FIFO outright) raises them
+    as the run starts; ``"contended"`` (the bench's default, [link] realtime_fifo) leaves them
+    normally scheduled until `engage` (the pacing calls it once overruns say other work takes the
+    run's CPU: `pacing.ContentionWatch`), since on an idle CPU FIFO costs overruns (the pty's kernel
+    worker is kept off the FIFO task's CPU, README "real time"). `engage` raises the thread that
+    calls it (the run's loop) and the exit restores that thread, whichever thread exits. It needs
+    root or CAP_SYS_NICE (or an RLIMIT_RTPRIO): without, the run goes on normally scheduled and
+    ``status`` says why (with "contended", once the CPU was). SCHED_RESET_ON_FORK: nothing the run
+    starts inherits the priority.
     """
 
-    def __init__(self, pids: Iterable[int], priority: int, *, when: str = "always") -> None:
+    def __init__(self, pids: Iterable[int], priority: int, *, when: FifoWhen = "always") -> None:
         if when not in FIFO_WHEN:
             raise ValueError(f"FifoPriority: when={when!r}, not one of {FIFO_WHEN}")
         self.pids = tuple(pids)
         self.priority = priority
         self.when = when
         self._previous: tuple[int, os.sched_param] | None = None
+        self._thread = 0  # the raised thread (0: none)
         self.status = "normal scheduling"
 
     def __enter__(self) -> "FifoPriority":
@@ -121,7 +127,7 @@ class FifoPriority:
         except OSError as exc:
             self.status = f"normal scheduling (SCHED_FIFO {self.priority}{since}: {exc.strerror})"
             return
-        self._previous = previous
+        self._previous, self._thread = previous, threading.get_native_id()
         raised = ["host"]
         for pid in self.pids:
             try:
@@ -137,7 +143,9 @@ class FifoPriority:
             # restoring plain SCHED_OTHER would get EPERM and stay SCHED_FIFO)
             policy, param = self._previous
             try:
-                os.sched_setscheduler(0, policy | os.SCHED_RESET_ON_FORK, param)
+                os.sched_setscheduler(self._thread, policy | os.SCHED_RESET_ON_FORK, param)
+            except ProcessLookupError:  # that thread has ended: nothing of it to restore
+                pass
             except OSError as exc:
                 self.status += f"; not restored: {exc.strerror}"
             self._previous = None

@@ -133,7 +133,6 @@ class RealtimePacing:
                 f"(period {self.period_us} us); try a longer period or --mode lockstep"
             )
 
-
     def _contended(self, k: int) -> None:
         """Tell the bench the CPU is contended (it raises the run to SCHED_FIFO), once; the pacer's
         spin follows the thread's policy."""

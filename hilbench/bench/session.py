@@ -161,7 +161,8 @@ class Session:
         self.drive: Drive | None = None  # the last Drive
         self.pacing: RealtimePacing | None = None
         #: real time: called once, with the run's time, when overruns say other work takes the run's CPU
-        #: (the bench raises the run to SCHED_FIFO then: [link] realtime_fifo = "contended")
+        #: (the bench raises the run to SCHED_FIFO then: [link] realtime_fifo = "contended"); set before
+        #: `begin`, which hands it to the pacing
         self.on_contended: Callable[[float], None] | None = None
         self.lockstep_rtts = StreamingPercentiles()
         self.telemetry_index: dict[str, tuple[int, float]] = {}

@@ -16,7 +16,9 @@ from pathlib import Path
 from typing import Any, Literal, Sequence
 
 from hilbench.bench.checks import CheckEntry
+from hilbench.bench.cpus import FifoWhen
 from hilbench.bench.livetuning import GuardSettings
+from hilbench.bench.pacing import CONTENDED_EPISODES, CONTENDED_WINDOW_S
 from hilbench.bench.faults import FAULT_KINDS
 from hilbench.bench.scenario import LOAD_KINDS, Event, default_scenario
 from hilbench.config import PLANT_SECTIONS, BenchConfig
@@ -59,7 +61,7 @@ class LinkSection:
     pin_realtime: bool = field(default=True, metadata=spec(doc="real time: the host loop and the emulator process it started share one CPU"))
     realtime_cpu: int | None = field(default=None, metadata=spec(ge=0, le=4095, doc="that CPU (default: the last one this process may use)"))
     realtime_priority: int = field(default=10, metadata=spec(ge=0, le=99, doc="real time: SCHED_FIFO priority of the host loop and the emulator process it started while the run lasts, ahead of the machine's other work (needs root or CAP_SYS_NICE; 0: normal scheduling)"))
-    realtime_fifo: Literal["contended", "always"] = field(default="contended", metadata=spec(doc="real time: when that priority is taken: contended, once overruns say other work takes the run's CPU (8 overrun episodes within 1 s; on an idle CPU FIFO costs overruns), for the rest of the run; always: from the start"))
+    realtime_fifo: FifoWhen = field(default="contended", metadata=spec(doc=f"real time: when that priority is taken: contended, once overruns say other work takes the run's CPU ({CONTENDED_EPISODES} overrun episodes within {CONTENDED_WINDOW_S:g} s; on an idle CPU FIFO costs overruns), for the rest of the run; always: from the start"))
     allow_pole_pair_mismatch: bool = field(default=False, metadata=spec(doc="run a plant whose [motor] pole_pairs differ from the firmware's build (its speeds then scale by the ratio)"))
 
 
