@@ -261,8 +261,9 @@ def test_a_run_of_consecutive_overruns_is_one_episode() -> None:
     pacing = RealtimePacing(PERIOD_US, abort_after=None, label="t", on_contended=calls.append)
     period_s = pacing.period_s
 
-    def period(k: int, late: bool) -> None:  # period k's work ends now: in its slot, or two periods after
-        pacing.pacer.t0 = time.perf_counter() - (k + (2 if late else 0)) * period_s
+    def period(k: int, late: bool) -> None:  # period k's work ends now: two periods after its slot, or
+        # well inside it (a second to spare: a loaded machine may hold this thread between the lines)
+        pacing.pacer.t0 = time.perf_counter() - (k + 2 if late else k - 1000) * period_s
         pacing.finished(k)
 
     stalls = [range(start, start + 50) for start in (100, 300, 500)]
