@@ -72,7 +72,6 @@ def paced_raw_echo(seconds: float, period_us: int, qos: bool, pin: bool,
     overruns = 0
     request = b"\xaa" * req_len
     watch: ContentionWatch | None = ContentionWatch(period_s) if fifo == "contended" else None
-    last_overrun = -2
     with echo_child(req_len, resp_len) as (fd, child), CpuLatencyRequest() if qos else contextlib.nullcontext(), \
             CpuPinning([child.pid]) if pin else contextlib.nullcontext(), \
             FifoPriority([child.pid], 10, when=fifo) if fifo != "never" else contextlib.nullcontext() as priority:
@@ -81,14 +80,13 @@ def paced_raw_echo(seconds: float, period_us: int, qos: bool, pin: bool,
         pacer.spin_s = spin_for_this_thread(default_spin_s)  # as the session's pacing does
 
         def overrun(k: int) -> None:  # counted; a new episode may say the CPU is contended (once, as the session)
-            nonlocal overruns, last_overrun, watch
+            nonlocal overruns, watch
             overruns += 1
-            if last_overrun != k - 1 and watch is not None and watch.episode(k):
+            if watch is not None and watch.overrun(k):
                 watch = None
                 assert isinstance(priority, FifoPriority)
                 priority.engage(k * period_s)
                 pacer.spin_s = spin_for_this_thread(default_spin_s)
-            last_overrun = k
 
         pacer.start()
         for k in range(n):

@@ -246,9 +246,9 @@ def test_overrun_episodes_close_together_say_the_cpu_is_contended() -> None:
     watch = ContentionWatch(PERIOD_US * 1e-6)
     window = round(CONTENDED_WINDOW_S / (PERIOD_US * 1e-6))
     spread = window // (CONTENDED_EPISODES - 1) + 1  # the first and the last of any 8 one window apart or more
-    assert not any(watch.episode(i * spread) for i in range(3 * CONTENDED_EPISODES))
+    assert not any(watch.overrun(i * spread) for i in range(3 * CONTENDED_EPISODES))
     k = (3 * CONTENDED_EPISODES - 1) * spread + window  # a window after the last of them
-    close = [watch.episode(k + i * 10) for i in range(CONTENDED_EPISODES)]
+    close = [watch.overrun(k + i * 10) for i in range(CONTENDED_EPISODES)]
     assert close == [False] * (CONTENDED_EPISODES - 1) + [True]
 
 

@@ -54,9 +54,14 @@ class ContentionWatch:
     def __init__(self, period_s: float) -> None:
         self.window_periods = max(1, round(CONTENDED_WINDOW_S / period_s))
         self._starts: deque[int] = deque(maxlen=CONTENDED_EPISODES)
+        self._last = -2  # the last overrun's period
 
-    def episode(self, k: int) -> bool:
-        """An overrun episode began at period k: whether the CPU is contended now."""
+    def overrun(self, k: int) -> bool:
+        """Period k overran: whether the CPU is contended now (only an overrun that begins an
+        episode, its period before not one, can say so)."""
+        begins, self._last = self._last != k - 1, k
+        if not begins:
+            return False
         starts = self._starts
         starts.append(k)
         return len(starts) == CONTENDED_EPISODES and k - starts[0] < self.window_periods
@@ -125,7 +130,7 @@ class RealtimePacing:
             return
         self.overruns += 1
         self.consecutive += 1
-        if self.consecutive == 1 and self.on_contended is not None and self._contention.episode(k):
+        if self.on_contended is not None and self._contention.overrun(k):
             self._contended(k)
         if self.abort_after is not None and self.consecutive >= self.abort_after:
             raise SessionAborted(
