@@ -126,7 +126,8 @@ def main() -> None:
                              "not once the CPU is contended (the default), in the bench and its baseline")
     args = parser.parse_args()
     # the Hurst bench with the motor running for the whole span
-    config = Path(tempfile.mkdtemp()) / "realtime.toml"
+    folder = tempfile.TemporaryDirectory(prefix="hb-bench-")  # removed when the benchmark ends
+    config = Path(folder.name) / "realtime.toml"
     config.write_text(default_config_text() + SCENARIO)
     cfg = load_run_config(RunRequest(
         str(config),

@@ -55,7 +55,8 @@ def timed_wait(self, k, cpu=time.thread_time_ns):  # the loop thread's CPU in th
     waited[1] += 1
     return late
 clock.Pacer.start, clock.Pacer.wait_for = started, timed_wait
-config = Path(tempfile.mkdtemp()) / "realtime.toml"
+folder = tempfile.TemporaryDirectory(prefix="hb-bench-")  # removed when the benchmark ends
+config = Path(folder.name) / "realtime.toml"
 config.write_text(default_config_text() + scenario)
 words = [f"link.period_us={period_us}", "link.cpu_latency_qos=true", "link.pin_realtime=true",
          f"link.realtime_priority={priority}"]

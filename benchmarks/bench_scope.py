@@ -28,6 +28,7 @@ from __future__ import annotations
 import argparse
 import asyncio
 import json
+import shutil
 import statistics
 import subprocess
 import sys
@@ -155,13 +156,15 @@ def lockstep_once(seconds: float, scope: str) -> tuple[float, float, str]:
             return wall, cpu, f"{stats.get('messages')} messages, {stats.get('bytes', 0) / 1e6:.1f} MB, {stats.get('buckets')} buckets"
     finally:
         control.close()
+        shutil.rmtree(folder, ignore_errors=True)
 
 
 def realtime_once(seconds: float, scope: bool) -> Any:
     from hilbench.bench.run import RunRequest, load_run_config, run_bench
     from hilbench.config import default_config_text
 
-    config = Path(tempfile.mkdtemp()) / "realtime.toml"
+    config_folder = tempfile.TemporaryDirectory(prefix="hb-bench-")  # removed when this returns
+    config = Path(config_folder.name) / "realtime.toml"
     config.write_text(default_config_text() + "\n[[scenario]]\nat_s = 0.0\nref_rpm = 1500.0\nramp_s = 0.3\n\n"
                       "[[scenario]]\nat_s = 0.03\npress = \"s2\"\n")
     cfg = load_run_config(RunRequest(str(config), overrides=("link.period_us=1000",), target="emulator:an1017",
@@ -184,6 +187,7 @@ def realtime_once(seconds: float, scope: bool) -> Any:
         return summary, f"{stats.get('messages')} messages, {stats.get('bytes', 0) / 1e6:.1f} MB"
     finally:
         control.close()
+        shutil.rmtree(folder, ignore_errors=True)
 
 
 #: in the page: set the reference from its form, then resolve with the milliseconds until the new value

@@ -21,6 +21,7 @@ from __future__ import annotations
 import argparse
 import json
 import os
+import shutil
 import subprocess
 import sys
 import tempfile
@@ -76,6 +77,7 @@ def child(seconds: float, every: float, target: str, record: str | None) -> dict
     finally:
         bench.close()
         control.close()
+        shutil.rmtree(sock_dir, ignore_errors=True)
     size = os.path.getsize(record) if record and os.path.exists(record) else 0
     return {"seconds": seconds, "samples": samples, "run_max_mb": max(r for _, _, r in samples),
             "before_close_mb": before_close, "close_peak_mb": close_peak, "after_close_mb": after_close,

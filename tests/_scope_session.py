@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import contextlib
+import shutil
 import tempfile
 import threading
 from pathlib import Path
@@ -41,6 +42,7 @@ def running_session(chunk_s: float = 0.01, pause_s: float = 0.004, keep_rows: bo
         stop.set()
         thread.join(30)
         control.close()
+        shutil.rmtree(folder, ignore_errors=True)
     assert not thread.is_alive(), "the session thread did not end"
     if failure:
         raise failure[0]

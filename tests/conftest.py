@@ -10,6 +10,8 @@ import os
 import shutil
 import subprocess
 import sys
+import tempfile
+from collections.abc import Iterator
 from pathlib import Path
 
 import pytest
@@ -18,6 +20,18 @@ REPO_ROOT = Path(__file__).resolve().parent.parent
 FIRMWARE_DIR = REPO_ROOT / "firmware_protocol"
 BENCH_CONFIGS = REPO_ROOT / "bench_configs"
 sys.path.insert(0, str(FIRMWARE_DIR / "vectors"))  # reference_codec: the independent CRC and COBS
+
+
+@pytest.fixture
+def tmpdir_short() -> Iterator[Path]:
+    """A fresh folder under /tmp, removed after the test: a socket's path must stay under AF_UNIX's
+    ~107 bytes and another user must be able to reach it once opened up (pytest's tmp_path may be
+    longer and sits in a 0700 folder)."""
+    folder = Path(tempfile.mkdtemp(prefix="hbt-"))
+    try:
+        yield folder
+    finally:
+        shutil.rmtree(folder, ignore_errors=True)
 
 
 @pytest.fixture(scope="session")

@@ -8,10 +8,8 @@ from __future__ import annotations
 
 import json
 import os
-import shutil
 import socket
 import stat
-import tempfile
 import threading
 import time
 from pathlib import Path
@@ -65,16 +63,6 @@ def poll_until(server: ControlServer, n: int, timeout_s: float = TIMEOUT_S) -> l
         got += server.poll()
         pace.wait(0.0005)
     return got
-
-
-@pytest.fixture
-def tmpdir_short() -> Iterator[Path]:
-    # AF_UNIX paths are limited to ~107 bytes: pytest's tmp_path can be longer.
-    d = Path(tempfile.mkdtemp(prefix="hbt-"))
-    try:
-        yield d
-    finally:
-        shutil.rmtree(d, ignore_errors=True)
 
 
 @pytest.fixture

@@ -9,7 +9,6 @@ import os
 import pwd
 import socket
 import stat
-import tempfile
 import time
 from pathlib import Path
 
@@ -63,12 +62,12 @@ def test_scopes_cannot_take_the_connections_of_ctl() -> None:
                 sock.close()
 
 
-def test_a_reader_that_does_not_read_is_closed_and_counted(monkeypatch: pytest.MonkeyPatch) -> None:
+def test_a_reader_that_does_not_read_is_closed_and_counted(monkeypatch: pytest.MonkeyPatch, tmpdir_short: Path) -> None:
     """Repro: a socket flooded with requests whose replies are never read grew the session from 52
     to 124 MB. Now its requests are no longer read once PAUSE_UNSENT_BYTES of replies wait, and it
     is closed after SLOW_READER_S; others are served meanwhile."""
     monkeypatch.setattr(control_module, "SLOW_READER_S", 1.0)
-    folder = Path(tempfile.mkdtemp(prefix="hb-ctl-"))
+    folder = tmpdir_short
     server = ControlServer(folder / "s" / "ctl.sock", publish=False)
     try:
         flood = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
@@ -132,11 +131,11 @@ def _as_user(uid: int, action) -> bytes:  # type: ignore[no-untyped-def]
     return out
 
 
-def test_a_session_refuses_another_user_whatever_the_file_modes() -> None:
+def test_a_session_refuses_another_user_whatever_the_file_modes(tmpdir_short: Path) -> None:
     """The socket's directory (0700) keeps other users out; with it opened up (chmod 711), the
     session still refuses their connection: SO_PEERCRED names another uid."""
     uid = _nobody()
-    folder = Path(tempfile.mkdtemp(prefix="hb-ctl-"))
+    folder = tmpdir_short
     os.chmod(folder, 0o711)
     server = ControlServer(folder / "s" / "ctl.sock", publish=False)
     try:
@@ -167,10 +166,10 @@ def knock_result_is_errno(out: bytes) -> bool:
     return out.startswith(b"connect: ")
 
 
-def test_ctl_refuses_a_session_of_another_user() -> None:
+def test_ctl_refuses_a_session_of_another_user(tmpdir_short: Path) -> None:
     """`hilbench ctl --socket PATH` where another user listens: the client checks the peer too."""
     uid = _nobody()
-    folder = Path(tempfile.mkdtemp(prefix="hb-ctl-"))
+    folder = tmpdir_short
     os.chmod(folder, 0o777)
     path = folder / "ctl.sock"
     ready_r, ready_w = os.pipe()
