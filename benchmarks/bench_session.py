@@ -169,7 +169,7 @@ def instructions_per_period(python: str, short_s: float = 0.2, long_s: float = 1
         for seconds in (short_s, long_s):
             out = Path(tmp) / "callgrind.out"
             subprocess.run(["valgrind", "--tool=callgrind", f"--callgrind-out-file={out}", python, __file__,
-                            what, "--seconds", str(seconds)],
+                            what, "--seconds", str(seconds), "--warm-seconds", str(short_s)],
                            capture_output=True, text=True, timeout=900, cwd=tmp, env=env, check=True)
             line = next(ln for ln in out.read_text().splitlines() if ln.startswith(("summary:", "totals:")))
             totals.append(int(line.split()[1]))
@@ -188,6 +188,8 @@ def main() -> None:
                         help="leave out the process paths (emulator, SIL, raw echo): the in-process figures only")
     parser.add_argument("--measure-inprocess", action="store_true", help=argparse.SUPPRESS)
     parser.add_argument("--measure-floor", action="store_true", help=argparse.SUPPRESS)
+    # --instructions: the same warm-up in its short and long runs, so that it cancels out of their difference
+    parser.add_argument("--warm-seconds", type=float, default=None, help=argparse.SUPPRESS)
     args = parser.parse_args()
     if args.instructions:
         if shutil.which("valgrind") is None:
@@ -207,7 +209,7 @@ def main() -> None:
         return
     if args.measure_inprocess:  # one (a) figure for --baseline-python, as JSON
         with tempfile.TemporaryDirectory() as tmp:
-            warm_up(tmp, args.seconds)
+            warm_up(tmp, args.seconds if args.warm_seconds is None else args.warm_seconds)
             rate, _, loop_rate, cpu_rate, _ = closed_loop("inprocess:an1017", args.seconds, tmp, "npz")
             print(json.dumps({"rate": rate, "loop_rate": loop_rate, "cpu_rate": cpu_rate}))
         return
