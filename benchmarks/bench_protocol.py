@@ -1,4 +1,4 @@
-"""Codec cost per frame of the hot-path messages (Sensors, Drive): protocol v1 vs v2 and a struct baseline.
+"""Codec cost per frame of the hot-path messages (Sensors, Drive): protocol v1 vs this tree's (v3) and a struct baseline.
 
 One lockstep period costs the host an encode of Sensors and a decode of Drive, and the target the
 reverse. This prints, all measured in the same run (median over interleaved repeats, µs per frame):
@@ -7,7 +7,7 @@ reverse. This prints, all measured in the same run (median over interleaved repe
   object), the least any pure-Python codec could cost;
 - v1: the protocol-1 codec (10-bit duties in a u32 word, CRC low byte first checked by a table),
   loaded from git at --baseline-rev (default: the last protocol-1 commit) into a private package;
-- v2: hilbench.protocol encode_frame / decode_frame / FrameDecoder.feed (one frame per read).
+- v3: this tree's hilbench.protocol encode_frame / decode_frame / FrameDecoder.feed (one frame per read).
 
 The machine is a noisy shared 2-core VM: compare the ratios, not the absolute times.
 Run: python benchmarks/bench_protocol.py [--baseline-rev REV] [--repeats N] [--profile]
@@ -35,22 +35,32 @@ V1_REV = "c0fb63a"  # the last commit of protocol version 1
 REPEATS = 15
 NUMBER = 20_000
 
-SENSORS = Sensors(17, 0x0B, 1234, 40000, (512, 300, 800))  # AN1017 profile: 3 ADC channels
+#: protocol 1's Sensors fields (one edge time); this tree's lists each edge as (time, hall state)
+SENSORS_V1 = (17, 0x0B, 1234, 40000, (512, 300, 800))  # AN1017 profile: 3 ADC channels
+SENSORS = Sensors(17, 0x0B, ((1234, 0x03),), 40000, (512, 300, 800))
 DRIVE = Drive(17, 1000, 512, 3, 1, 2, 4, True, False, 0, (-1234, 300, 17))  # 3 telemetry slots
 
 
 def load_codec(rev: str) -> ModuleType:
     """hilbench.protocol as of `rev`, imported as the private package hbv1.protocol (git show)."""
-    root = Path(tempfile.mkdtemp(prefix="hbv1-"))
-    pkg = root / "hbv1" / "protocol"
-    pkg.mkdir(parents=True)
-    (root / "hbv1" / "__init__.py").write_text("")
-    for name in ("__init__", "framing", "codec", "messages"):
-        text = subprocess.run(["git", "-C", str(REPO), "show", f"{rev}:hilbench/protocol/{name}.py"],
-                              capture_output=True, text=True, check=True, timeout=30).stdout
-        (pkg / f"{name}.py").write_text(text.replace("hilbench.protocol", "hbv1.protocol"))
-    sys.path.insert(0, str(root))
-    return importlib.import_module("hbv1.protocol")
+    names = ("__init__", "framing", "codec", "messages")
+    with tempfile.TemporaryDirectory(prefix="hbv1-") as folder:  # every module imported before it goes
+        root = Path(folder)
+        pkg = root / "hbv1" / "protocol"
+        pkg.mkdir(parents=True)
+        (root / "hbv1" / "__init__.py").write_text("")
+        for name in names:
+            text = subprocess.run(["git", "-C", str(REPO), "show", f"{rev}:hilbench/protocol/{name}.py"],
+                                  capture_output=True, text=True, check=True, timeout=30).stdout
+            (pkg / f"{name}.py").write_text(text.replace("hilbench.protocol", "hbv1.protocol"))
+        sys.path.insert(0, folder)
+        try:
+            codec = importlib.import_module("hbv1.protocol")
+            for name in names[1:]:
+                importlib.import_module(f"hbv1.protocol.{name}")
+        finally:
+            sys.path.remove(folder)
+    return codec
 
 
 def measure(cases: dict[str, str], env: dict, repeats: int = REPEATS) -> dict[str, float]:
@@ -67,18 +77,18 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--baseline-rev", default=V1_REV, help="git revision of the v1 codec (default %(default)s)")
     parser.add_argument("--repeats", type=int, default=REPEATS, help="interleaved repeats (default %(default)s)")
-    parser.add_argument("--profile", action="store_true", help="also print a cProfile of the v2 path")
+    parser.add_argument("--profile", action="store_true", help="also print a cProfile of the v3 path")
     args = parser.parse_args()
 
     v1 = load_codec(args.baseline_rev)
-    s1 = v1.Sensors(*SENSORS)
+    s1 = v1.Sensors(*SENSORS_V1)
     d1 = v1.Drive(*DRIVE)
     wire_s, wire_d = encode_frame(SENSORS), encode_frame(DRIVE)
     wire_s1, wire_d1 = v1.encode_frame(s1), v1.encode_frame(d1)
     assert decode_frame(wire_s[:-1]) == SENSORS and decode_frame(wire_d[:-1]) == DRIVE
     assert v1.decode_frame(wire_s1[:-1]) == s1 and v1.decode_frame(wire_d1[:-1]) == d1
     base_s = struct.Struct("<BBBHH3H")
-    base_d = struct.Struct("<BB3HH3h")  # v2 layout: three u16 duties, a u16 flags word, telemetry
+    base_d = struct.Struct("<BB3HH3h")  # protocol 2 layout: three u16 duties, a u16 flags word, telemetry
     packed_s = base_s.pack(0x10, 17, 0x0B, 1234, 40000, 512, 300, 800)
     packed_d = base_d.pack(0x11, 17, 1000, 512, 3, 0x189, -1234, 300, 17)
     env = dict(globals(), base_s=base_s, base_d=base_d, packed_s=packed_s, packed_d=packed_d,
@@ -96,16 +106,16 @@ def main() -> None:
         "v1 decode Drive": "v1.decode_frame(body_d1)",
         "v1 feed Sensors (1 frame/read)": "dec1.feed(wire_s1)",
         "v1 feed Drive (1 frame/read)": "dec1.feed(wire_d1)",
-        "v2 encode Sensors": "encode_frame(s)",
-        "v2 decode Sensors": "decode_frame(body_s)",
-        "v2 encode Drive": "encode_frame(d)",
-        "v2 decode Drive": "decode_frame(body_d)",
-        "v2 encode Drive validate=False": "encode_frame(d, False)",
-        "v2 feed Sensors (1 frame/read)": "dec.feed(wire_s)",
-        "v2 feed Drive (1 frame/read)": "dec.feed(wire_d)",
+        "v3 encode Sensors": "encode_frame(s)",
+        "v3 decode Sensors": "decode_frame(body_s)",
+        "v3 encode Drive": "encode_frame(d)",
+        "v3 decode Drive": "decode_frame(body_d)",
+        "v3 encode Drive validate=False": "encode_frame(d, False)",
+        "v3 feed Sensors (1 frame/read)": "dec.feed(wire_s)",
+        "v3 feed Drive (1 frame/read)": "dec.feed(wire_d)",
     }
     r = measure(cases, env, args.repeats)
-    print(f"wire bytes: v1 Sensors {len(wire_s1)}, Drive {len(wire_d1)}; v2 Sensors {len(wire_s)}, "
+    print(f"wire bytes: v1 Sensors {len(wire_s1)}, Drive {len(wire_d1)}; v3 Sensors {len(wire_s)}, "
           f"Drive {len(wire_d)} (delimiter included)")
     print(f"{'case':38s} {'µs/frame (median)':>18s} {'x baseline':>11s}")
     for name, us in r.items():
@@ -117,9 +127,9 @@ def main() -> None:
     for kind in ("Sensors", "Drive"):
         for op in ("encode", "decode", "feed"):
             key = f"{op} {kind}" + (" (1 frame/read)" if op == "feed" else "")
-            old, new = r[f"v1 {key}"], r[f"v2 {key}"]
-            print(f"{op:6s} {kind:8s} v1 {old:5.2f} µs  v2 {new:5.2f} µs  v2/v1 {new / old:5.2f}")
-    for label in ("v1", "v2"):
+            old, new = r[f"v1 {key}"], r[f"v3 {key}"]
+            print(f"{op:6s} {kind:8s} v1 {old:5.2f} µs  v3 {new:5.2f} µs  v3/v1 {new / old:5.2f}")
+    for label in ("v1", "v3"):
         host = r[f"{label} encode Sensors"] + r[f"{label} decode Drive"]
         target = r[f"{label} decode Sensors"] + r[f"{label} encode Drive"]
         print(f"{label} per lockstep period: host {host:5.2f} µs, target {target:5.2f} µs "

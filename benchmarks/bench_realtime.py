@@ -126,19 +126,19 @@ def main() -> None:
                              "not once the CPU is contended (the default), in the bench and its baseline")
     args = parser.parse_args()
     # the Hurst bench with the motor running for the whole span
-    folder = tempfile.TemporaryDirectory(prefix="hb-bench-")  # removed when the benchmark ends
-    config = Path(folder.name) / "realtime.toml"
-    config.write_text(default_config_text() + SCENARIO)
-    cfg = load_run_config(RunRequest(
-        str(config),
-        overrides=(f"link.period_us={args.period_us}", f"link.cpu_latency_qos={'false' if args.no_qos else 'true'}",
-                   f"link.pin_realtime={'false' if args.no_pin else 'true'}",
-                   f"link.realtime_priority={0 if args.no_fifo else 10}",
-                   f"link.realtime_fifo={'always' if args.fifo_always else 'contended'}"),
-        target="emulator:an1017",
-        mode="realtime",
-        duration_s=args.seconds,
-    ))
+    with tempfile.TemporaryDirectory(prefix="hb-bench-") as folder:  # the config, read at once
+        config = Path(folder) / "realtime.toml"
+        config.write_text(default_config_text() + SCENARIO)
+        cfg = load_run_config(RunRequest(
+            str(config),
+            overrides=(f"link.period_us={args.period_us}", f"link.cpu_latency_qos={'false' if args.no_qos else 'true'}",
+                       f"link.pin_realtime={'false' if args.no_pin else 'true'}",
+                       f"link.realtime_priority={0 if args.no_fifo else 10}",
+                       f"link.realtime_fifo={'always' if args.fifo_always else 'contended'}"),
+            target="emulator:an1017",
+            mode="realtime",
+            duration_s=args.seconds,
+        ))
     half = args.seconds / 2
     fifo = "never" if args.no_fifo else "always" if args.fifo_always else "contended"
     baseline = (args.period_us, not args.no_qos, not args.no_pin, fifo)

@@ -55,17 +55,17 @@ def timed_wait(self, k, cpu=time.thread_time_ns):  # the loop thread's CPU in th
     waited[1] += 1
     return late
 clock.Pacer.start, clock.Pacer.wait_for = started, timed_wait
-folder = tempfile.TemporaryDirectory(prefix="hb-bench-")  # removed when the benchmark ends
-config = Path(folder.name) / "realtime.toml"
-config.write_text(default_config_text() + scenario)
 words = [f"link.period_us={period_us}", "link.cpu_latency_qos=true", "link.pin_realtime=true",
          f"link.realtime_priority={priority}"]
-try:
-    cfg = load_run_config(RunRequest(str(config), overrides=tuple(words), target="emulator:an1017",
-                                     mode="realtime", duration_s=seconds))
-except Exception:  # a tree without [link] realtime_priority
-    cfg = load_run_config(RunRequest(str(config), overrides=tuple(words[:-1]), target="emulator:an1017",
-                                     mode="realtime", duration_s=seconds))
+with tempfile.TemporaryDirectory(prefix="hb-bench-") as folder:  # the config, read at once
+    config = Path(folder) / "realtime.toml"
+    config.write_text(default_config_text() + scenario)
+    try:
+        cfg = load_run_config(RunRequest(str(config), overrides=tuple(words), target="emulator:an1017",
+                                         mode="realtime", duration_s=seconds))
+    except Exception:  # a tree without [link] realtime_priority
+        cfg = load_run_config(RunRequest(str(config), overrides=tuple(words[:-1]), target="emulator:an1017",
+                                         mode="realtime", duration_s=seconds))
 summary = run_bench(cfg)
 print(f"END {summary.periods} {summary.overruns} {waited[0] / max(1, waited[1]) / 1e3} {summary.cpus}", flush=True)
 """

@@ -163,12 +163,12 @@ def realtime_once(seconds: float, scope: bool) -> Any:
     from hilbench.bench.run import RunRequest, load_run_config, run_bench
     from hilbench.config import default_config_text
 
-    config_folder = tempfile.TemporaryDirectory(prefix="hb-bench-")  # removed when this returns
-    config = Path(config_folder.name) / "realtime.toml"
-    config.write_text(default_config_text() + "\n[[scenario]]\nat_s = 0.0\nref_rpm = 1500.0\nramp_s = 0.3\n\n"
-                      "[[scenario]]\nat_s = 0.03\npress = \"s2\"\n")
-    cfg = load_run_config(RunRequest(str(config), overrides=("link.period_us=1000",), target="emulator:an1017",
-                                     mode="realtime", duration_s=seconds))
+    with tempfile.TemporaryDirectory(prefix="hb-bench-") as config_folder:  # the config, read at once
+        config = Path(config_folder) / "realtime.toml"
+        config.write_text(default_config_text() + "\n[[scenario]]\nat_s = 0.0\nref_rpm = 1500.0\nramp_s = 0.3\n\n"
+                          "[[scenario]]\nat_s = 0.03\npress = \"s2\"\n")
+        cfg = load_run_config(RunRequest(str(config), overrides=("link.period_us=1000",), target="emulator:an1017",
+                                         mode="realtime", duration_s=seconds))
     folder = Path(tempfile.mkdtemp(prefix="hb-bench-scope-"))
     control = ControlServer(folder / "ctl" / "ctl.sock", publish=False)
     try:

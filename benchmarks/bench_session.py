@@ -119,7 +119,9 @@ def warm_up(record_dir: str, seconds: float) -> None:
     where no bytecode is cached (PYTHONDONTWRITEBYTECODE=1 on an editable tree, against a
     pip-installed baseline with its .pyc: ~14 ms of a 1 s run's ~100 ms), and the first run's page
     faults (its row buffers and the writers' chunk buffers, which later runs reuse: a process runs
-    many runs, a sweep or a test suite)."""
+    many runs, a sweep or a test suite). --instructions warms its short and long runs alike instead
+    (the short run's length), so the warm-up cancels out of their difference; the long run's buffers
+    beyond that length then fault in its own count, a small bias against the NPZ run."""
     for fmt in ("npz", "csv"):
         closed_loop("inprocess:an1017", seconds, record_dir, fmt)
 
@@ -189,6 +191,7 @@ def main() -> None:
     parser.add_argument("--measure-inprocess", action="store_true", help=argparse.SUPPRESS)
     parser.add_argument("--measure-floor", action="store_true", help=argparse.SUPPRESS)
     # --instructions: the same warm-up in its short and long runs, so that it cancels out of their difference
+    # (--measure-floor has no warm-up run and ignores it)
     parser.add_argument("--warm-seconds", type=float, default=None, help=argparse.SUPPRESS)
     args = parser.parse_args()
     if args.instructions:
