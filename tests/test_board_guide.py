@@ -111,7 +111,8 @@ def _passes(command: str, done: subprocess.CompletedProcess[str], port: str = ""
     if "--mode realtime" in command and done.returncode == 4 and _starved(text, queued_s, port):
         print(f"\n{command}: the stand-in went silent on an oversubscribed host and answers again (allowed)")
         return
-    assert done.returncode == 0, f"{command}: exit {done.returncode}\n{text[-2500:]}"
+    waited = f" (the stand-in waited {queued_s:.3f} s for a CPU meanwhile)" if port else ""
+    assert done.returncode == 0, f"{command}: exit {done.returncode}{waited}\n{text[-2500:]}"
     assert "FAIL" not in done.stdout, f"{command}:\n{done.stdout[-2500:]}"
 
 
