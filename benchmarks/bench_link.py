@@ -265,8 +265,9 @@ def build_c_loopback(out_dir: str) -> str | None:
         return None
     fw = REPO / "firmware_protocol"
     exe = os.path.join(out_dir, "loopback_target")
-    subprocess.run([gcc, "-std=c99", "-O2", f"-I{fw}", str(fw / "hbp.c"), str(fw / "hbp_messages.c"),
-                    str(fw / "examples" / "loopback_target.c"), "-o", exe], check=True, timeout=120)
+    library = sorted(str(source) for source in fw.glob("hbp*.c"))  # the wire library, whatever its files
+    subprocess.run([gcc, "-std=c99", "-O2", f"-I{fw}", *library, str(fw / "examples" / "loopback_target.c"),
+                    "-o", exe], check=True, timeout=120)
     return exe
 
 
