@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import contextlib
 import os
+import tempfile
 from concurrent.futures import ProcessPoolExecutor
 from typing import Any, Callable, Iterator, Protocol
 
@@ -91,8 +92,14 @@ def open_executor(spec: str | None, workers: int | None) -> Iterator[tuple[Execu
         except ValueError:
             raise ConfigError(f"executor {spec!r}: expected local-dask:N with N a number of workers") from None
         distributed = _dask()
-        with distributed.LocalCluster(n_workers=n, threads_per_worker=1, processes=True,
-                                      dashboard_address=None) as cluster, distributed.Client(cluster) as client:
+        import dask  # distributed's own dependency
+
+        # the scheduler's and the workers' scratch space (dask-scratch-space in /tmp otherwise) goes with the cluster
+        with tempfile.TemporaryDirectory(prefix="hilbench-dask-") as scratch, \
+                dask.config.set({"temporary-directory": scratch}), \
+                distributed.LocalCluster(n_workers=n, threads_per_worker=1, processes=True, dashboard_address=None,
+                                         local_directory=scratch) as cluster, \
+                distributed.Client(cluster) as client:
             yield client, f"a local Dask cluster of {n} workers"
         return
     if spec.startswith(("tcp://", "tls://", "dask://")):
