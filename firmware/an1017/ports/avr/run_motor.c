@@ -32,6 +32,7 @@
 #include <stdlib.h>
 #include <string.h>
 #include <time.h>
+#include <unistd.h>
 
 #include "avr_adc.h"
 #include "avr_ioport.h"
@@ -39,6 +40,22 @@
 #include "sim_elf.h"
 #include "sim_time.h"
 #include "uart_pty.h"
+
+#define UART_LINK "/tmp/simavr-uart0"
+
+/* simavr's uart_pty_connect links /tmp/simavr-uart0 to the pty; at the end the link goes, unless
+   another simulator started since has pointed it at its own pty */
+static void remove_uart_link(const char *pty)
+{
+    char target[256];
+    ssize_t n = readlink(UART_LINK, target, sizeof target - 1);
+    if (n > 0) {
+        target[n] = '\0';
+        if (strcmp(target, pty) == 0) {
+            unlink(UART_LINK);
+        }
+    }
+}
 
 /* ATmega2560 data-space addresses (avr-libc iomxx0_1.h, the data sheet's register summary) */
 #define REG_PORTA 0x22u
@@ -320,6 +337,7 @@ int main(int argc, char **argv)
     fprintf(stderr, "cycles %llu\n", (unsigned long long)avr->cycle);
     fprintf(stderr, "periods %lu\n", periods);
     fprintf(stderr, "masked_fraction %.3f\n", avr->cycle ? (double)busy_cycles / (double)avr->cycle : 0.0);
+    remove_uart_link(uart_pty.pty.slavename);
     if (state == cpu_Crashed) {
         fprintf(stderr, "run_motor: the firmware crashed at pc 0x%05x\n", (unsigned)avr->pc);
         return 1;

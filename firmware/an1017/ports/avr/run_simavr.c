@@ -17,11 +17,28 @@
 #include <stdlib.h>
 #include <string.h>
 #include <time.h>
+#include <unistd.h>
 
 #include "sim_avr.h"
 #include "sim_elf.h"
 #include "sim_time.h"
 #include "uart_pty.h"
+
+#define UART_LINK "/tmp/simavr-uart0"
+
+/* simavr's uart_pty_connect links /tmp/simavr-uart0 to the pty; at the end the link goes, unless
+   another simulator started since has pointed it at its own pty */
+static void remove_uart_link(const char *pty)
+{
+    char target[256];
+    ssize_t n = readlink(UART_LINK, target, sizeof target - 1);
+    if (n > 0) {
+        target[n] = '\0';
+        if (strcmp(target, pty) == 0) {
+            unlink(UART_LINK);
+        }
+    }
+}
 
 static uart_pty_t uart_pty;
 static volatile sig_atomic_t stop_requested = 0;
@@ -146,6 +163,7 @@ int main(int argc, char **argv)
         fprintf(stderr, "cycles %llu\n", (unsigned long long)avr->cycle); /* simulated time x F_CPU */
     }
     /* no uart_pty_stop(): its thread may sit in select(); exiting the process ends it */
+    remove_uart_link(uart_pty.pty.slavename);
     if (state == cpu_Crashed) {
         fprintf(stderr, "run_simavr: the firmware crashed at pc 0x%04x\n", (unsigned)avr->pc);
         return 1;
