@@ -94,12 +94,13 @@ def open_executor(spec: str | None, workers: int | None) -> Iterator[tuple[Execu
         distributed = _dask()
         import dask  # distributed's own dependency
 
-        # the scheduler's and the workers' scratch space (dask-scratch-space in /tmp otherwise) goes with the cluster
-        with tempfile.TemporaryDirectory(prefix="hilbench-dask-") as scratch, \
-                dask.config.set({"temporary-directory": scratch}), \
-                distributed.LocalCluster(n_workers=n, threads_per_worker=1, processes=True, dashboard_address=None,
-                                         local_directory=scratch) as cluster, \
-                distributed.Client(cluster) as client:
+        # the scheduler's and the workers' scratch space (dask-scratch-space in /tmp otherwise) goes with the
+        # cluster; a removal that fails (a worker still writing as a failed sweep ends) hides no error
+        with (tempfile.TemporaryDirectory(prefix="hilbench-dask-", ignore_cleanup_errors=True) as scratch,
+              dask.config.set({"temporary-directory": scratch}),
+              distributed.LocalCluster(n_workers=n, threads_per_worker=1, processes=True, dashboard_address=None,
+                                       local_directory=scratch) as cluster,
+              distributed.Client(cluster) as client):
             yield client, f"a local Dask cluster of {n} workers"
         return
     if spec.startswith(("tcp://", "tls://", "dask://")):

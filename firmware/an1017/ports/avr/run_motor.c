@@ -44,7 +44,8 @@
 #define UART_LINK "/tmp/simavr-uart0"
 
 /* simavr's uart_pty_connect links /tmp/simavr-uart0 to the pty; at the end the link goes, unless
-   another simulator started since has pointed it at its own pty */
+   another simulator started since has pointed it at its own pty (one re-pointing it between the
+   readlink and the unlink loses it: a convenience link, not a port). The same in run_simavr.c. */
 static void remove_uart_link(const char *pty)
 {
     char target[256];
@@ -234,6 +235,7 @@ int main(int argc, char **argv)
     avr_cycle_count_t next_pace = 0;
     unsigned long periods = 0;
     avr_cycle_count_t busy_cycles = 0;
+    int plant_failed = 0;
     double start_s;
     int i;
     if (realtime) {
@@ -295,7 +297,7 @@ int main(int argc, char **argv)
     printf("ready %s\n", uart_pty.pty.slavename);
     fflush(stdout);
     start_s = wall_s();
-    while (!stop_requested && state != cpu_Done && state != cpu_Crashed) {
+    while (!stop_requested && !plant_failed && state != cpu_Done && state != cpu_Crashed) {
         {
             avr_cycle_count_t before = avr->cycle;
             int masked = !avr->sreg[S_I];
@@ -313,7 +315,8 @@ int main(int argc, char **argv)
         }
         if (pwm_cycles != 0u && avr->cycle >= next_boundary) {
             if (plant_period(avr, plant, next_boundary, pot) != 0) {
-                return 1;
+                plant_failed = 1; /* its error printed; the loop ends, the pty's link is removed below */
+                break;
             }
             periods++;
             next_boundary += pwm_cycles;
@@ -338,6 +341,9 @@ int main(int argc, char **argv)
     fprintf(stderr, "periods %lu\n", periods);
     fprintf(stderr, "masked_fraction %.3f\n", avr->cycle ? (double)busy_cycles / (double)avr->cycle : 0.0);
     remove_uart_link(uart_pty.pty.slavename);
+    if (plant_failed) {
+        return 1;
+    }
     if (state == cpu_Crashed) {
         fprintf(stderr, "run_motor: the firmware crashed at pc 0x%05x\n", (unsigned)avr->pc);
         return 1;

@@ -27,7 +27,8 @@
 #define UART_LINK "/tmp/simavr-uart0"
 
 /* simavr's uart_pty_connect links /tmp/simavr-uart0 to the pty; at the end the link goes, unless
-   another simulator started since has pointed it at its own pty */
+   another simulator started since has pointed it at its own pty (one re-pointing it between the
+   readlink and the unlink loses it: a convenience link, not a port). The same in run_motor.c. */
 static void remove_uart_link(const char *pty)
 {
     char target[256];
