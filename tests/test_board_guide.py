@@ -57,6 +57,18 @@ def _queued_s(pid: int) -> float:
     return int(Path(f"/proc/{pid}/schedstat").read_text().split()[1]) / 1e9
 
 
+def _state(pid: int) -> str:
+    """A stand-in's state for a failure's message: running or sleeping and where, its CPU seconds, or gone."""
+    try:
+        fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
+        wchan = Path(f"/proc/{pid}/wchan").read_text().strip() or "-"
+    except OSError:
+        return "gone"
+    if fields[0] == "Z":
+        return "exited"
+    return f"state {fields[0]} in {wchan}, {(int(fields[11]) + int(fields[12])) / os.sysconf('SC_CLK_TCK'):.2f} s of CPU"
+
+
 def _starved(text: str, queued_s: float, port: str) -> bool:
     """Whether a real-time run's silent stand-in was starved, not hung: during the run it waited
     for a CPU at least as long as the link's timeout (a stand-in this test started is neither
@@ -98,9 +110,11 @@ EXPECTED_FAILURE = {
 }
 
 
-def _passes(command: str, done: subprocess.CompletedProcess[str], port: str = "", queued_s: float = 0.0) -> None:
+def _passes(command: str, done: subprocess.CompletedProcess[str], port: str = "", queued_s: float = 0.0,
+            state: str = "") -> None:
     """The command passed its checks, or failed as the page says or as the module doc allows (``port``
-    and ``queued_s``: the stand-in it ran against, and how long that waited for a CPU meanwhile)."""
+    and ``queued_s``: the stand-in it ran against, and how long that waited for a CPU meanwhile; ``state``: the
+    stand-in's after the command, for the failure's message: a silent stand-in starved, blocked, busy or gone)."""
     text = done.stdout + done.stderr
     if command in EXPECTED_FAILURE:
         assert done.returncode == 9 and EXPECTED_FAILURE[command] in text, (command, text[-2500:])
@@ -111,7 +125,7 @@ def _passes(command: str, done: subprocess.CompletedProcess[str], port: str = ""
     if "--mode realtime" in command and done.returncode == 4 and _starved(text, queued_s, port):
         print(f"\n{command}: the stand-in went silent on an oversubscribed host and answers again (allowed)")
         return
-    waited = f" (the stand-in waited {queued_s:.3f} s for a CPU meanwhile)" if port else ""
+    waited = f" (the stand-in waited {queued_s:.3f} s for a CPU meanwhile; after: {state})" if port else ""
     assert done.returncode == 0, f"{command}: exit {done.returncode}{waited}\n{text[-2500:]}"
     assert "FAIL" not in done.stdout, f"{command}:\n{done.stdout[-2500:]}"
 
@@ -229,7 +243,7 @@ def _sil_part(commands: list[str], tmp_path: Path, builds: Path) -> set[str]:
                 pid = serving.get(target.removeprefix("serial:").split("?")[0], 0)
                 queued = _queued_s(pid) if pid else 0.0
                 done = _cli(real.replace("--record board.csv", f"--record {tmp_path / 'board.csv'}"), 600)
-                _passes(command, done, target, (_queued_s(pid) - queued) if pid else 0.0)
+                _passes(command, done, target, (_queued_s(pid) - queued) if pid else 0.0, _state(pid) if pid else "")
             ran.add(command)
         ctl = [c for c in commands if c.startswith("hilbench ctl")]
         _ctl_during_run(ctl, f"serial:{board_pty}")
