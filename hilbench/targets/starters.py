@@ -35,6 +35,7 @@ READY_LINE = re.compile(rb"^ready (\S+)")
 
 REPO = Path(__file__).resolve().parent.parent.parent
 RUN_SIMAVR_SOURCE = REPO / "firmware" / "an1017" / "ports" / "avr" / "run_simavr.c"
+RUN_SIMAVR_HEADER = RUN_SIMAVR_SOURCE.with_name("uart_link.h")  # in the build's key: it changes the runner
 SIMAVR_INCLUDE = Path("/usr/include/simavr")
 
 
@@ -248,7 +249,7 @@ def build_run_simavr() -> Path:
     cmd = [gcc, "-std=gnu99", "-O2", "-Wall", "-Wextra", "-Werror", f"-I{SIMAVR_INCLUDE}",
            f"-I{SIMAVR_INCLUDE / 'parts'}", str(RUN_SIMAVR_SOURCE)]
     libs = ["-lsimavrparts", "-lsimavr", "-lpthread", "-lutil"]
-    return cached_build(kind, "run_simavr", [RUN_SIMAVR_SOURCE], cmd + libs,
+    return cached_build(kind, "run_simavr", [RUN_SIMAVR_SOURCE, RUN_SIMAVR_HEADER], cmd + libs,
                         lambda out: run_build(kind, "run_simavr", [*cmd, "-o", str(out), *libs]))
 
 

@@ -17,29 +17,13 @@
 #include <stdlib.h>
 #include <string.h>
 #include <time.h>
-#include <unistd.h>
 
 #include "sim_avr.h"
 #include "sim_elf.h"
 #include "sim_time.h"
 #include "uart_pty.h"
 
-#define UART_LINK "/tmp/simavr-uart0"
-
-/* simavr's uart_pty_connect links /tmp/simavr-uart0 to the pty; at the end the link goes, unless
-   another simulator started since has pointed it at its own pty (one re-pointing it between the
-   readlink and the unlink loses it: a convenience link, not a port). The same in run_motor.c. */
-static void remove_uart_link(const char *pty)
-{
-    char target[256];
-    ssize_t n = readlink(UART_LINK, target, sizeof target - 1);
-    if (n > 0) {
-        target[n] = '\0';
-        if (strcmp(target, pty) == 0) {
-            unlink(UART_LINK);
-        }
-    }
-}
+#include "uart_link.h"
 
 static uart_pty_t uart_pty;
 static volatile sig_atomic_t stop_requested = 0;
