@@ -123,7 +123,7 @@ def _passes(command: str, done: subprocess.CompletedProcess[str], port: str = ""
         print(f"\n{command}: checks failed with real time not held by this host (allowed, see the module doc)")
         return
     if "--mode realtime" in command and done.returncode == 4 and _starved(text, queued_s, port):
-        print(f"\n{command}: the stand-in went silent on an oversubscribed host and answers again (allowed)")
+        print(f"\n{command}: the stand-in went silent while starved of a CPU and answers again (allowed)")
         return
     waited = f" (the stand-in waited {queued_s:.3f} s for a CPU meanwhile; after: {state})" if port else ""
     assert done.returncode == 0, f"{command}: exit {done.returncode}{waited}\n{text[-2500:]}"
