@@ -21,7 +21,6 @@ from __future__ import annotations
 import argparse
 import json
 import os
-import shutil
 import subprocess
 import sys
 import tempfile
@@ -50,34 +49,32 @@ def child(seconds: float, every: float, target: str, record: str | None) -> dict
     import hilbench
     from hilbench.bench.control import ControlServer
 
-    sock_dir = tempfile.mkdtemp(prefix="soak-")
-    control = ControlServer(Path(sock_dir) / "s" / "ctl.sock", publish=False)
-    samples: list[tuple[float, float, float]] = []
-    started = time.perf_counter()
-    bench = hilbench.Bench(target=target, record=record, keep_rows=False, control=control)
-    try:
-        bench.open()
-        bench.set_reference(1500)
-        bench.press("s2")
-        t, step = 0.0, 0
-        while t < seconds - 1e-9:
-            chunk = min(every, seconds - t)
-            bench.run(chunk)
-            t += chunk
-            step += 1
-            bench.set_reference(1500 if step % 2 else 2000)  # reference changes: segments keep coming
-            samples.append((t, time.perf_counter() - started, _status_mb("VmRSS")))
-        before_close = _status_mb("VmRSS")
-        reset = _reset_peak()
-        closing = time.perf_counter()
-        bench.close()
-        close_s = time.perf_counter() - closing
-        close_peak = _status_mb("VmHWM") if reset else float("nan")
-        after_close = _status_mb("VmRSS")
-    finally:
-        bench.close()
-        control.close()
-        shutil.rmtree(sock_dir, ignore_errors=True)
+    with tempfile.TemporaryDirectory(prefix="soak-", ignore_cleanup_errors=True) as sock_dir, \
+            ControlServer(Path(sock_dir) / "s" / "ctl.sock", publish=False) as control:  # both go however it ends
+        samples: list[tuple[float, float, float]] = []
+        started = time.perf_counter()
+        bench = hilbench.Bench(target=target, record=record, keep_rows=False, control=control)
+        try:
+            bench.open()
+            bench.set_reference(1500)
+            bench.press("s2")
+            t, step = 0.0, 0
+            while t < seconds - 1e-9:
+                chunk = min(every, seconds - t)
+                bench.run(chunk)
+                t += chunk
+                step += 1
+                bench.set_reference(1500 if step % 2 else 2000)  # reference changes: segments keep coming
+                samples.append((t, time.perf_counter() - started, _status_mb("VmRSS")))
+            before_close = _status_mb("VmRSS")
+            reset = _reset_peak()
+            closing = time.perf_counter()
+            bench.close()
+            close_s = time.perf_counter() - closing
+            close_peak = _status_mb("VmHWM") if reset else float("nan")
+            after_close = _status_mb("VmRSS")
+        finally:
+            bench.close()
     size = os.path.getsize(record) if record and os.path.exists(record) else 0
     return {"seconds": seconds, "samples": samples, "run_max_mb": max(r for _, _, r in samples),
             "before_close_mb": before_close, "close_peak_mb": close_peak, "after_close_mb": after_close,

@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import contextlib
-import shutil
 import tempfile
 import threading
 from pathlib import Path
@@ -19,30 +18,30 @@ def running_session(chunk_s: float = 0.01, pause_s: float = 0.004, keep_rows: bo
     The session runs ``chunk_s`` simulated seconds, then rests ``pause_s`` (about twice real time,
     so its in-memory recording stays small however long a test takes). ``keep_rows=False``: no rows
     kept, as `hilbench run` without --record."""
-    folder = Path(tempfile.mkdtemp(prefix="hb-scope-"))
-    control = ControlServer(folder / "ctl" / "ctl.sock", publish=False)
-    stop = threading.Event()
-    failure: list[BaseException] = []
+    with tempfile.TemporaryDirectory(prefix="hb-scope-", ignore_cleanup_errors=True) as folder:  # removed however it ends
+        control = ControlServer(Path(folder) / "ctl" / "ctl.sock", publish=False)
+        stop = threading.Event()
+        failure: list[BaseException] = []
 
-    def drive() -> None:
+        def drive() -> None:
+            try:
+                with hilbench.Bench(target="inprocess:an1017", control=control, keep_rows=keep_rows) as bench:
+                    bench.set_reference(1500)
+                    bench.press("s2")
+                    while not stop.is_set() and bench.run(chunk_s):
+                        stop.wait(pause_s)  # pacing, not synchronisation
+            except BaseException as exc:  # noqa: BLE001 - reported to the test
+                failure.append(exc)
+
+        thread = threading.Thread(target=drive, name="scope-test-session", daemon=True)
         try:
-            with hilbench.Bench(target="inprocess:an1017", control=control, keep_rows=keep_rows) as bench:
-                bench.set_reference(1500)
-                bench.press("s2")
-                while not stop.is_set() and bench.run(chunk_s):
-                    stop.wait(pause_s)  # pacing, not synchronisation
-        except BaseException as exc:  # noqa: BLE001 - reported to the test
-            failure.append(exc)
-
-    thread = threading.Thread(target=drive, name="scope-test-session", daemon=True)
-    thread.start()
-    try:
-        yield control.path
-    finally:
-        stop.set()
-        thread.join(30)
-        control.close()
-        shutil.rmtree(folder, ignore_errors=True)
+            thread.start()
+            yield control.path
+        finally:
+            stop.set()
+            if thread.ident is not None:
+                thread.join(30)
+            control.close()
     assert not thread.is_alive(), "the session thread did not end"
     if failure:
         raise failure[0]
