@@ -262,3 +262,26 @@ def test_wrapped_columns_stay_below_their_modulo() -> None:
         rec.rows.append((0, 0, amps, 0))
     assert list(rec.columns()["theta_e_deg"]) == [359.5, 0.0, 0.25]
     assert RowLayout.from_json(layout.as_json()) == layout
+
+
+def test_closed_memory_recorder_reads_its_rows_in_place_and_lets_them_grow_after() -> None:
+    """A closed MemoryRecorder's columns are read from its buffer without a copy first, as equal
+    values of their own; no view outlives the call, even one that raised (the buffer can still
+    grow and shrink: a live view would make that a BufferError)."""
+    recorder = MemoryRecorder()
+    recorder.start()
+    for k in range(50):
+        recorder.append([float(k + c) for c in range(N_COLUMNS)])
+    copied = recorder.columns()
+    recorder.close()
+    in_place = recorder.columns()
+    assert set(in_place) == set(copied)
+    for name, values in copied.items():
+        np.testing.assert_array_equal(in_place[name], values)
+        assert not np.shares_memory(in_place[name], np.frombuffer(recorder.rows.data, dtype=np.uint8))
+    with pytest.raises(KeyError) as raised:
+        recorder.columns(("no_such_column",))
+    recorder.rows.append([0.0] * N_COLUMNS)  # grows while the error's traceback is held: no view is left
+    assert raised.tb is not None
+    del recorder.rows.data[:]
+    assert len(recorder.rows) == 0
