@@ -264,17 +264,28 @@ def test_wrapped_columns_stay_below_their_modulo() -> None:
     assert RowLayout.from_json(layout.as_json()) == layout
 
 
-def test_closed_memory_recorder_reads_its_rows_in_place_and_lets_them_grow_after() -> None:
-    """A closed MemoryRecorder's columns are read from its buffer without a copy first, as equal
-    values of their own; no view outlives the call, even one that raised (the buffer can still
-    grow and shrink: a live view would make that a BufferError)."""
+def test_closed_memory_recorder_reads_its_rows_in_place_and_lets_them_grow_after(monkeypatch: pytest.MonkeyPatch) -> None:
+    """A closed MemoryRecorder's columns are read from its buffer without a copy first (an open
+    one's from a copy), as equal values of their own; no view outlives the call, even one that
+    raised (the buffer can still grow and shrink: a live view would make that a BufferError)."""
     recorder = MemoryRecorder()
     recorder.start()
     for k in range(50):
         recorder.append([float(k + c) for c in range(N_COLUMNS)])
+    read_from: list[bytes | bytearray] = []
+    layout_rows = RowLayout._rows
+
+    def noting_rows(self: RowLayout, raw: bytes | bytearray | np.ndarray) -> np.ndarray:
+        if not isinstance(raw, np.ndarray):  # the buffers it reads (not the views made of them)
+            read_from.append(raw)
+        return layout_rows(self, raw)
+
+    monkeypatch.setattr(RowLayout, "_rows", noting_rows)
     copied = recorder.columns()
     recorder.close()
     in_place = recorder.columns()
+    assert type(read_from[0]) is bytes and read_from[1] is recorder.rows.data  # a copy while open, in place once closed
+    read_from.clear()
     assert set(in_place) == set(copied)
     for name, values in copied.items():
         np.testing.assert_array_equal(in_place[name], values)

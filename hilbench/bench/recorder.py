@@ -283,10 +283,11 @@ class RowBuffer:
     def columns(self, names: Sequence[str] | None = None, *, in_place: bool = False) -> dict[str, np.ndarray]:
         """Every column (or those named) of the pending rows as float64 arrays of their own.
         The rows are copied first: while a view into the buffer lives, the buffer cannot grow, and
-        a run on another thread may be appending. ``in_place``: no more rows will come (a closed
-        recorder's), so they are read where they are (a step test's 20 000 rows are 3 MB); the
-        view is gone by the return (an unknown name is refused before it exists: an error's
-        traceback would keep it alive)."""
+        a run on another thread may be appending. ``in_place``: the run that appended them has
+        ended (a closed recorder's), so they are read where they are (a step test's 20 000 rows
+        are 3 MB). The view lives only during this call (an unknown name is refused before it
+        exists: an error's traceback would keep it alive), so a later run on this thread (`Bench.run`
+        after `summary`) appends as before."""
         layout = self.layout
         wanted = layout.column_names if names is None else tuple(names)
         unknown = [name for name in wanted if name not in layout.column_names]
@@ -1072,7 +1073,7 @@ class MemoryRecorder:
 
     def columns(self, names: Sequence[str] | None = None) -> dict[str, np.ndarray]:
         """Every column (or those named: a step test's few) as an array, markers applied (read in
-        place once the run has closed the recorder: no row comes after)."""
+        place once the run has closed the recorder: its rows are no longer appended to meanwhile)."""
         self.rows.settle(self.events)
         return self.rows.columns(names, in_place=self.closed)
 
