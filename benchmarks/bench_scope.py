@@ -119,16 +119,10 @@ def lockstep_once(seconds: float, scope: str) -> tuple[float, float, str]:
     """Wall and CPU seconds of this process (all its threads) for ``seconds`` simulated seconds,
     and a note on what the page received.
     ``scope``: "none", "process" (`run --scope`'s arrangement) or "thread" (all in this process)."""
-    with tempfile.TemporaryDirectory(prefix="hb-bench-scope-", ignore_cleanup_errors=True) as folder:
-        return _lockstep_in(Path(folder), seconds, scope)
-
-
-def _lockstep_in(folder: Path, seconds: float, scope: str) -> tuple[float, float, str]:
-    """`lockstep_once` with its control socket in ``folder``."""
     from hilbench.scope.launch import ScopeProcess
 
-    control = ControlServer(folder / "ctl" / "ctl.sock", publish=False)
-    try:
+    with tempfile.TemporaryDirectory(prefix="hb-bench-scope-", ignore_cleanup_errors=True) as folder, \
+            ControlServer(Path(folder) / "ctl" / "ctl.sock", publish=False) as control:  # both go however it ends
         with hilbench.Bench(target="inprocess:an1017", control=control) as bench:
             bench.set_reference(1500)
             bench.press("s2")
@@ -158,12 +152,10 @@ def _lockstep_in(folder: Path, seconds: float, scope: str) -> tuple[float, float
                 server_process.close()
             stats = page_process.stats
             return wall, cpu, f"{stats.get('messages')} messages, {stats.get('bytes', 0) / 1e6:.1f} MB, {stats.get('buckets')} buckets"
-    finally:
-        control.close()
 
 
 def realtime_once(seconds: float, scope: bool) -> Any:
-    from hilbench.bench.run import RunRequest, load_run_config
+    from hilbench.bench.run import RunRequest, load_run_config, run_bench
     from hilbench.config import default_config_text
 
     with tempfile.TemporaryDirectory(prefix="hb-bench-") as config_folder:  # the config, read at once
@@ -172,16 +164,8 @@ def realtime_once(seconds: float, scope: bool) -> Any:
                           "[[scenario]]\nat_s = 0.03\npress = \"s2\"\n")
         cfg = load_run_config(RunRequest(str(config), overrides=("link.period_us=1000",), target="emulator:an1017",
                                          mode="realtime", duration_s=seconds))
-    with tempfile.TemporaryDirectory(prefix="hb-bench-scope-", ignore_cleanup_errors=True) as folder:
-        return _realtime_in(Path(folder), cfg, scope)
-
-
-def _realtime_in(folder: Path, cfg: Any, scope: bool) -> Any:
-    """`realtime_once` with its control socket in ``folder``."""
-    from hilbench.bench.run import run_bench
-
-    control = ControlServer(folder / "ctl" / "ctl.sock", publish=False)
-    try:
+    with tempfile.TemporaryDirectory(prefix="hb-bench-scope-", ignore_cleanup_errors=True) as folder, \
+            ControlServer(Path(folder) / "ctl" / "ctl.sock", publish=False) as control:  # both go however it ends
         if not scope:
             return run_bench(cfg, control=control), ""
         from hilbench.scope.launch import ScopeProcess
@@ -195,8 +179,6 @@ def _realtime_in(folder: Path, cfg: Any, scope: bool) -> Any:
             server_process.close()
         stats = page_process.stats
         return summary, f"{stats.get('messages')} messages, {stats.get('bytes', 0) / 1e6:.1f} MB"
-    finally:
-        control.close()
 
 
 #: in the page: set the reference from its form, then resolve with the milliseconds until the new value

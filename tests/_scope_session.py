@@ -18,8 +18,8 @@ def running_session(chunk_s: float = 0.01, pause_s: float = 0.004, keep_rows: bo
     The session runs ``chunk_s`` simulated seconds, then rests ``pause_s`` (about twice real time,
     so its in-memory recording stays small however long a test takes). ``keep_rows=False``: no rows
     kept, as `hilbench run` without --record."""
-    with tempfile.TemporaryDirectory(prefix="hb-scope-", ignore_cleanup_errors=True) as folder:  # removed however it ends
-        control = ControlServer(Path(folder) / "ctl" / "ctl.sock", publish=False)
+    with tempfile.TemporaryDirectory(prefix="hb-scope-", ignore_cleanup_errors=True) as folder, \
+            ControlServer(Path(folder) / "ctl" / "ctl.sock", publish=False) as control:  # both go however it ends
         stop = threading.Event()
         failure: list[BaseException] = []
 
@@ -40,8 +40,7 @@ def running_session(chunk_s: float = 0.01, pause_s: float = 0.004, keep_rows: bo
         finally:
             stop.set()
             if thread.ident is not None:
-                thread.join(30)
-            control.close()
+                thread.join(30)  # before the control server closes, at the block's end
     assert not thread.is_alive(), "the session thread did not end"
     if failure:
         raise failure[0]
