@@ -36,7 +36,8 @@ from hilbench.bench.scenario import PERIOD_TOLERANCE, Event, ScenarioPlayer, fir
 from hilbench.bench.settings import SessionOptions
 from hilbench.bench.streamstats import StreamingPercentiles
 from hilbench.bench.summary import Segment, Snapshot, Summary
-from hilbench.errors import BenchLimitError, ConfigError, HilbenchError, LinkError, ProtocolError, SimulationError, TargetError
+from hilbench.errors import (BenchLimitError, ConfigError, HilbenchError, LinkError, ProtocolError, RecordingError,
+                             SimulationError, TargetError)
 from hilbench.plant.model import RPM_PER_RAD_S, PlantOutput
 from hilbench.plant.period import Period
 from hilbench.protocol import (
