@@ -26,8 +26,6 @@ import tempfile
 import time
 from pathlib import Path
 
-import numpy as np
-
 from hilbench.bench.settings import load_config
 
 from hilbench.config import plant_params_from_config

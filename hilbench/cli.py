@@ -694,9 +694,7 @@ def step(config: str | None, from_rpm: float, to_rpm: float, gains: tuple[str, .
 
     from rich.console import Console
     from rich.progress import Progress
-    from rich.table import Table
 
-    from hilbench.bench.metrics import METRIC_COLUMNS, compare_table
     from hilbench.bench.run import RunRequest, check_overrides, in_process, load_run_config, run_step_tests, settings_profile
     from hilbench.bench.steptest import StepTest, parse_gain_sets, require_speed_loop, result_row
 
@@ -858,7 +856,6 @@ def sweep(config: str | None, axes: tuple[str, ...], sample: str, rounds: int, s
     from rich.console import Console
     from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn
 
-    from hilbench.bench import sampling
     from hilbench.bench.run import RunRequest, check_overrides, load_run_config, settings_profile
     from hilbench.bench.steptest import StepTest
     from hilbench.bench.sweep import refine, sweep_points, write_sweep_csv

@@ -5,8 +5,6 @@ from __future__ import annotations
 
 from typing import Any
 
-import pytest
-
 import hilbench
 from hilbench.bench.parts import CTL_STEP_AFTER_S, CTL_STEP_HOLD_S
 

@@ -12,8 +12,6 @@ import sys
 import tempfile
 from pathlib import Path
 
-import pytest
-
 from _firmware import require_tool
 from hilbench.targets.sil import FIRMWARE_DIR, RUNTIME_SOURCES
 

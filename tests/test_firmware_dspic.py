@@ -60,7 +60,6 @@ CALLBACKS = {
     "on_describe": {"decl_param_get"},
     "on_get": {"decl_param_get"},
     "hrt_link_handle": {"decl_start", "decl_stop"},
-    "hrt_link_handle": {"decl_start", "decl_stop"},
     "hrt_link_watchdog": {"decl_stop"},
     "hbp_send_frame": {"hrt_port_send"},
     "put_crc": {"hrt_port_send"},

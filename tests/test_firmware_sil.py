@@ -21,7 +21,6 @@ from hilbench.bench.run import RunRequest, load_run_config, run_bench
 from hilbench.link.pty import open_pty_pair
 from hilbench.processes import spawn
 from hilbench.protocol import (
-    EDGE_NONE,
     FAULT_WATCHDOG,
     MODE_LOCKSTEP,
     MODE_REALTIME,

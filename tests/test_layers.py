@@ -7,7 +7,7 @@ import re
 
 from conftest import REPO_ROOT
 
-from hilbench.protocol import Edge, Input, OutputMode, State
+from hilbench.protocol import Input, OutputMode, State
 from hilbench.targets.an1017 import firmware, svm
 
 

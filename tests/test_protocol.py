@@ -41,7 +41,7 @@ from hilbench.protocol import (
     encode_frame,
 )
 from hilbench.protocol.framing import cobs_decode, cobs_encode, crc16
-from reference_codec import cobs as ref_cobs, crc16 as ref_crc, wire as ref_wire  # independent
+from reference_codec import crc16 as ref_crc, wire as ref_wire  # independent
 
 REPO = Path(__file__).resolve().parent.parent
 

@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import os
 import subprocess
 import sys
 from pathlib import Path
@@ -257,7 +256,7 @@ def test_item17_dashboard_fits_80x24_with_a_scale_and_no_stale_values() -> None:
     for snap in (running, stopped):
         out = io.StringIO()
         Console(file=out, width=80, height=24, color_system=None).print(
-            render_snapshot(snap, bench_params := {"kp": 0.1, "ki": 0.01, "kd": 0.0}, "inprocess:an1017", 80))
+            render_snapshot(snap, {"kp": 0.1, "ki": 0.01, "kd": 0.0}, "inprocess:an1017", 80))
         lines = out.getvalue().splitlines()
         assert all(len(line) <= 80 for line in lines) and len(lines) <= 24 - 3, lines  # + progress and prompt
         assert " rpm" in next(line for line in lines if "speed (plant), the last" in line).split("the last")[1]

@@ -6,7 +6,6 @@ when gcc is available.
 
 from __future__ import annotations
 
-import os
 import threading
 from pathlib import Path
 
@@ -15,7 +14,7 @@ import pytest
 from hilbench.bench.linktest import run_link_test, sensors_for_period
 from hilbench.errors import LinkTimeout, ParamError, VersionMismatch
 from hilbench.link import FaultyLink, open_link
-from hilbench.protocol import PROTOCOL_VERSION, Drive, Sensors, StatusRequest, encode_frame
+from hilbench.protocol import PROTOCOL_VERSION, Drive, Sensors, encode_frame
 from hilbench.targets.loopback.target import LoopbackTarget
 from hilbench.targets.remote import RemoteTarget
 from hilbench.targets.serve import serve

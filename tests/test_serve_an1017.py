@@ -26,7 +26,6 @@ from hilbench.errors import ParamError
 from hilbench.protocol import (
     ACCESS_RW,
     ADC_POT,
-    EDGE_NONE,
     FAULT_NONE,
     FAULT_WATCHDOG,
     INPUT_S2,

@@ -13,7 +13,7 @@ from pathlib import Path
 
 import pytest
 
-from _firmware import Command, random_stream, require_tool
+from _firmware import random_stream, require_tool
 from hilbench.protocol import MODE_LOCKSTEP, PROTOCOL_VERSION, ErrorReport, HostHello, Sensors
 from hilbench.protocol.messages import pack_drive
 from hilbench.protocol.batch import BatchBuilder, BatchState, decode_records, drive_digest

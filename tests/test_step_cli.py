@@ -9,8 +9,6 @@ from pathlib import Path
 import pytest
 
 from conftest import run_cli
-from hilbench.bench.run import RunRequest, load_run_config, run_step_tests
-from hilbench.bench.steptest import StepTest
 
 
 def test_step_cli_compares_gain_sets(tmp_path: Path) -> None:

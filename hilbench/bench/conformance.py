@@ -77,7 +77,6 @@ from hilbench.protocol import (
     TelemetryInfo,
     encode_frame,
 )
-from hilbench.protocol.framing import check_bytes, crc16
 
 REPLY_S = 2.0  # how long a check waits for an answer (a simulated MCU on a loaded machine is slow)
 SILENCE_S = 0.3  # how long "no answer" is waited for

@@ -41,7 +41,6 @@ def check_run(cfg: BenchConfig, events: tuple = ()) -> list[str]:
 
     warnings: list[str] = []
     period_us = cfg.link.period_us
-    exchanges_per_s = Period(period_us).per_s
     refs = [abs(e.ref_rpm) for e in (events or settings.scenario_events(cfg)) if getattr(e, "ref_rpm", None) is not None]
     edges_per_period = 1
     if refs:

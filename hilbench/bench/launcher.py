@@ -176,7 +176,7 @@ def _spawn_emulator(profile: TargetProfile, options: object, mode: str, watchdog
 def _starter(parsed: "TargetSpec", profile: TargetProfile | None) -> tuple["FirmwareStarter", object | None, str]:
     """The starter a firmware spec names: a registered target's build, or a build at a path."""
     from hilbench.targets.registry import get_profile
-    from hilbench.targets.starters import PATH_STARTERS, HostExecutableStarter, starter_for
+    from hilbench.targets.starters import PATH_STARTERS, starter_for
 
     if parsed.program:
         make = PATH_STARTERS.get(parsed.kind)

@@ -7,7 +7,6 @@ closed and the board's motor stopped whatever happens.
 
 from __future__ import annotations
 
-import dataclasses
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, Callable
 

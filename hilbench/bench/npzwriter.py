@@ -19,7 +19,6 @@ archive written from the journal at the close, as before.
 
 from __future__ import annotations
 
-import errno
 import functools
 import io
 import os

@@ -42,7 +42,7 @@ from typing import Any, Callable, Protocol
 import numpy as np
 
 from hilbench.bench.control import MAX_REPLY_BYTES
-from hilbench.errors import ConfigError, LinkError
+from hilbench.errors import ConfigError
 from hilbench.scope.httplog import RateLimitedLog, scope_logger
 from hilbench.scope.messages import Command, Refused, Subscribe, parse_page_message, refusal
 

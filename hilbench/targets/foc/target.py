@@ -35,7 +35,6 @@ from hilbench.protocol import (
     ParamSetResult,
     ParamType,
     ParamValue,
-    Result,
     Sensors,
     Status,
     TargetHello,
