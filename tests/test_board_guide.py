@@ -23,6 +23,7 @@ import subprocess
 import sys
 import tempfile
 import time
+from dataclasses import dataclass
 from pathlib import Path
 from typing import IO
 
@@ -69,16 +70,27 @@ def _state(pid: int) -> str:
     return f"state {fields[0]} in {wchan}, {(int(fields[11]) + int(fields[12])) / os.sysconf('SC_CLK_TCK'):.2f} s of CPU"
 
 
-def _starved(text: str, queued_s: float, port: str) -> bool:
+@dataclass(frozen=True)
+class StandIn:
+    """The stand-in a command ran against: its port, how long it waited for a CPU during the
+    command, and its state after (for a failure's message: a silent stand-in starved, blocked, busy
+    or gone)."""
+
+    port: str
+    queued_s: float
+    state: str
+
+
+def _starved(text: str, stand_in: StandIn) -> bool:
     """Whether a real-time run's silent stand-in was starved, not hung: during the run it waited
     for a CPU at least as long as the link's timeout (a stand-in this test started is neither
     pinned nor raised; beside a SCHED_FIFO host and CPU-bound work it can wait that long), and it
     passes a link-test right after."""
     silent = SILENT.search(text)
-    if silent is None or queued_s < int(silent.group(1)) / 1e3:
+    if silent is None or stand_in.queued_s < int(silent.group(1)) / 1e3:
         return False
-    check = _cli(f"hilbench link-test {port} --periods 500", 120)
-    print(f"\nthe stand-in waited {queued_s:.2f} s for a CPU; link-test after: exit {check.returncode}")
+    check = _cli(f"hilbench link-test {stand_in.port} --periods 500", 120)
+    print(f"\nthe stand-in waited {stand_in.queued_s:.2f} s for a CPU; link-test after: exit {check.returncode}")
     return check.returncode == 0
 
 
@@ -110,11 +122,9 @@ EXPECTED_FAILURE = {
 }
 
 
-def _passes(command: str, done: subprocess.CompletedProcess[str], port: str = "", queued_s: float = 0.0,
-            state: str = "") -> None:
-    """The command passed its checks, or failed as the page says or as the module doc allows (``port``
-    and ``queued_s``: the stand-in it ran against, and how long that waited for a CPU meanwhile; ``state``: the
-    stand-in's after the command, for the failure's message: a silent stand-in starved, blocked, busy or gone)."""
+def _passes(command: str, done: subprocess.CompletedProcess[str], stand_in: StandIn | None = None) -> None:
+    """The command passed its checks, or failed as the page says or as the module doc allows
+    (``stand_in``: the one this test started that it ran against, if any)."""
     text = done.stdout + done.stderr
     if command in EXPECTED_FAILURE:
         assert done.returncode == 9 and EXPECTED_FAILURE[command] in text, (command, text[-2500:])
@@ -122,10 +132,11 @@ def _passes(command: str, done: subprocess.CompletedProcess[str], port: str = ""
     if "--mode realtime" in command and done.returncode == 9 and NOT_HELD in text:
         print(f"\n{command}: checks failed with real time not held by this host (allowed, see the module doc)")
         return
-    if "--mode realtime" in command and done.returncode == 4 and _starved(text, queued_s, port):
+    if "--mode realtime" in command and done.returncode == 4 and stand_in is not None and _starved(text, stand_in):
         print(f"\n{command}: the stand-in went silent while starved of a CPU and answers again (allowed)")
         return
-    waited = f" (the stand-in waited {queued_s:.3f} s for a CPU meanwhile; after: {state})" if port else ""
+    waited = f" (the stand-in waited {stand_in.queued_s:.3f} s for a CPU meanwhile; after: {stand_in.state})" \
+        if stand_in is not None else ""
     assert done.returncode == 0, f"{command}: exit {done.returncode}{waited}\n{text[-2500:]}"
     assert "FAIL" not in done.stdout, f"{command}:\n{done.stdout[-2500:]}"
 
@@ -243,7 +254,7 @@ def _sil_part(commands: list[str], tmp_path: Path, builds: Path) -> set[str]:
                 pid = serving.get(target.removeprefix("serial:").split("?")[0], 0)
                 queued = _queued_s(pid) if pid else 0.0
                 done = _cli(real.replace("--record board.csv", f"--record {tmp_path / 'board.csv'}"), 600)
-                _passes(command, done, target, (_queued_s(pid) - queued) if pid else 0.0, _state(pid) if pid else "")
+                _passes(command, done, StandIn(target, _queued_s(pid) - queued, _state(pid)) if pid else None)
             ran.add(command)
         ctl = [c for c in commands if c.startswith("hilbench ctl")]
         _ctl_during_run(ctl, f"serial:{board_pty}")
