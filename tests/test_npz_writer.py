@@ -617,10 +617,11 @@ def test_a_real_time_run_plans_no_background_archive(tmp_path: Path, monkeypatch
     assert sorted(p.name for p in tmp_path.iterdir()) == ["run.npz"]
 
 
+@needs_writer
 def test_a_full_disk_as_the_last_rows_go_is_said_at_the_close(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
-    """The disk fills just as the session hands the last rows over (`no_more_rows`, before its summary):
-    the summary is still made and the close says the error as a RecordingError (caught by a name the
-    session had not imported, it was a NameError with a traceback)."""
+    """The disk fills just as the session hands the last rows and an event over (`no_more_rows`, before
+    its summary): the summary is still made and the close says the error as a RecordingError (caught
+    by a name the session had not imported, it was a NameError with a traceback)."""
     from hilbench.bench.launcher import open_target
     from hilbench.bench.scenario import Event
     from hilbench.bench.session import Session, SessionOptions
@@ -635,7 +636,7 @@ def test_a_full_disk_as_the_last_rows_go_is_said_at_the_close(tmp_path: Path, mo
         def full(*_: object) -> None:
             raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC))
 
-        monkeypatch.setattr(self, "_write_events_file", full)
+        monkeypatch.setattr(recorder_module, "pwrite_all", full)  # every write from here on
         self.event("the last event")  # pending, so the hand-over writes it
         try:
             real(self)
@@ -644,15 +645,20 @@ def test_a_full_disk_as_the_last_rows_go_is_said_at_the_close(tmp_path: Path, mo
             raise
 
     monkeypatch.setattr(recorder_module.Recorder, "no_more_rows", disk_fills)
+    threads = _threads()
     options = SessionOptions(period_us=1000, mode="lockstep", duration_s=0.03, cpu_latency_qos=False)
     recorder = recorder_module.Recorder(tmp_path / "run.npz", {})
-    with open_target("inprocess:an1017", timeout_s=2.0) as handle:
-        session = Session(handle.target, Plant(plant_params_from_config(load_config(None)), seed=0),
-                          (Event(at_s=0.0, ref_rpm=1000.0),), options, recorder=recorder, target_label="in-process")
-        with pytest.raises(RecordingError, match="No space left on device"):
-            session.run()  # the close, after the summary, meets the error again and says it
+    try:
+        with open_target("inprocess:an1017", timeout_s=2.0) as handle:
+            session = Session(handle.target, Plant(plant_params_from_config(load_config(None)), seed=0),
+                              (Event(at_s=0.0, ref_rpm=1000.0),), options, recorder=recorder, target_label="in-process")
+            with pytest.raises(RecordingError, match="No space left on device"):
+                session.run()  # the close, after the summary, meets the error again and says it
+    finally:
+        recorder._file.close()  # (a failed close leaves the journal to the collector)
     assert raised and os.strerror(errno.ENOSPC) in str(raised[0])  # the hand-over's, caught
     assert session.summary.periods == 30
+    assert _threads() == threads
 
 
 @needs_writer
