@@ -12,8 +12,9 @@ import resource
 import subprocess
 import sys
 import zipfile
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 import pytest
@@ -26,6 +27,9 @@ from hilbench.bench import recorder as recorder_module
 from hilbench.bench.npzwriter import ColumnArchive
 from hilbench.bench.recorder import read_recording
 from hilbench.errors import RecordingError
+
+if TYPE_CHECKING:
+    from hilbench.bench.session import Session
 
 
 def test_a_column_archive_is_an_npz_that_numpy_and_zip_read(tmp_path: Path) -> None:
@@ -583,12 +587,10 @@ def test_the_recorded_signals_after_a_run_hold_every_row(tmp_path: Path) -> None
             assert len(bench.signals()["t_s"]) == 12_000
 
 
-@needs_writer
-@pytest.mark.parametrize("mode", ["lockstep", "realtime"])
-def test_a_real_time_run_plans_no_background_archive(tmp_path: Path, monkeypatch: pytest.MonkeyPatch, mode: str) -> None:
-    """In real time the writer's thread would run on the CPU the run is pinned to (it inherits the
-    affinity), beside the paced thread: a real-time run writes its archive from the journal at the
-    close; a lockstep run of the same plan has its archive written while it runs."""
+@contextlib.contextmanager
+def _session_of_30_periods(recorder: recorder_module.Recorder, mode: str) -> Iterator[Session]:
+    """A session of the in-process AN1017 for 30 periods of 1 ms at 1000 rpm, recording to ``recorder``
+    (its target open while the block runs)."""
     from hilbench.bench.launcher import open_target
     from hilbench.bench.scenario import Event
     from hilbench.bench.session import Session, SessionOptions
@@ -596,6 +598,18 @@ def test_a_real_time_run_plans_no_background_archive(tmp_path: Path, monkeypatch
     from hilbench.config import plant_params_from_config
     from hilbench.plant.model import Plant
 
+    options = SessionOptions(period_us=1000, mode=mode, duration_s=0.03, cpu_latency_qos=False)  # type: ignore[arg-type]
+    with open_target("inprocess:an1017", timeout_s=2.0) as handle:
+        yield Session(handle.target, Plant(plant_params_from_config(load_config(None)), seed=0),
+                      (Event(at_s=0.0, ref_rpm=1000.0),), options, recorder=recorder, target_label="in-process")
+
+
+@needs_writer
+@pytest.mark.parametrize("mode", ["lockstep", "realtime"])
+def test_a_real_time_run_plans_no_background_archive(tmp_path: Path, monkeypatch: pytest.MonkeyPatch, mode: str) -> None:
+    """In real time the writer's thread would run on the CPU the run is pinned to (it inherits the
+    affinity), beside the paced thread: a real-time run writes its archive from the journal at the
+    close; a lockstep run of the same plan has its archive written while it runs."""
     planned: list[int] = []
     real_init = npzwriter.BackgroundArchive.__init__
 
@@ -605,12 +619,7 @@ def test_a_real_time_run_plans_no_background_archive(tmp_path: Path, monkeypatch
         real_init(self, path, layout, n_rows, *rest)  # type: ignore[arg-type]
 
     monkeypatch.setattr(npzwriter.BackgroundArchive, "__init__", spy)
-    cfg = load_config(None)
-    options = SessionOptions(period_us=1000, mode=mode, duration_s=0.03, cpu_latency_qos=False)  # type: ignore[arg-type]
-    recorder = recorder_module.Recorder(tmp_path / "run.npz", {})
-    with open_target("inprocess:an1017", timeout_s=2.0) as handle:
-        session = Session(handle.target, Plant(plant_params_from_config(cfg), seed=0), (Event(at_s=0.0, ref_rpm=1000.0),),
-                          options, recorder=recorder, target_label="in-process")
+    with _session_of_30_periods(recorder_module.Recorder(tmp_path / "run.npz", {}), mode) as session:
         session.run()
     assert planned == ([] if mode == "realtime" else [30])
     assert read_recording(tmp_path / "run.npz").n_rows == 30
@@ -622,13 +631,6 @@ def test_a_full_disk_as_the_last_rows_go_is_said_at_the_close(tmp_path: Path, mo
     """The disk fills just as the session hands the last rows and an event over (`no_more_rows`, before
     its summary): the summary is still made and the close says the error as a RecordingError (caught
     by a name the session had not imported, it was a NameError with a traceback)."""
-    from hilbench.bench.launcher import open_target
-    from hilbench.bench.scenario import Event
-    from hilbench.bench.session import Session, SessionOptions
-    from hilbench.bench.settings import load_config
-    from hilbench.config import plant_params_from_config
-    from hilbench.plant.model import Plant
-
     real = recorder_module.Recorder.no_more_rows
     raised: list[RecordingError] = []
 
@@ -646,14 +648,11 @@ def test_a_full_disk_as_the_last_rows_go_is_said_at_the_close(tmp_path: Path, mo
 
     monkeypatch.setattr(recorder_module.Recorder, "no_more_rows", disk_fills)
     threads = _threads()
-    options = SessionOptions(period_us=1000, mode="lockstep", duration_s=0.03, cpu_latency_qos=False)
     recorder = recorder_module.Recorder(tmp_path / "run.npz", {})
     try:
-        with open_target("inprocess:an1017", timeout_s=2.0) as handle:
-            session = Session(handle.target, Plant(plant_params_from_config(load_config(None)), seed=0),
-                              (Event(at_s=0.0, ref_rpm=1000.0),), options, recorder=recorder, target_label="in-process")
-            with pytest.raises(RecordingError, match="No space left on device"):
-                session.run()  # the close, after the summary, meets the error again and says it
+        with _session_of_30_periods(recorder, "lockstep") as session, \
+                pytest.raises(RecordingError, match="No space left on device"):
+            session.run()  # the close, after the summary, meets the error again and says it
     finally:
         recorder._file.close()  # (a failed close leaves the journal to the collector)
     assert raised and os.strerror(errno.ENOSPC) in str(raised[0])  # the hand-over's, caught
