@@ -6,7 +6,6 @@ from __future__ import annotations
 
 import math
 import random
-from collections import deque
 from pathlib import Path
 from typing import Any
 
@@ -18,6 +17,7 @@ from hilbench.bench import recorder as recorder_module
 from hilbench.bench.recorder import read_recording
 from hilbench.bench.report import reference_segments
 from hilbench.bench.segments import Segmenter
+from hilbench.bench.history import SpeedHistory
 from hilbench.bench.session import HISTORY_SAMPLES
 from hilbench.bench.streamstats import StreamingPercentiles
 
@@ -61,7 +61,7 @@ def test_item7_session_keeps_bounded_history_and_run_keeps_no_rows(tmp_path: Pat
 
     with hilbench.Bench(target="inprocess:an1017") as bench:
         history = bench._session.history
-        assert isinstance(history, deque) and history.maxlen == HISTORY_SAMPLES
+        assert isinstance(history, SpeedHistory) and history.maxlen == HISTORY_SAMPLES
         assert not isinstance(bench._session.lockstep_rtts, list)
     cfg = load_run_config(RunRequest(str(hurst_bench_config(tmp_path, 0.05)), target="inprocess:an1017"))
     summary = run_bench(cfg)

@@ -15,7 +15,6 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from itertools import repeat
 from typing import TYPE_CHECKING, Any, Callable, Iterable, Protocol, Sequence
 
 import numpy as np
@@ -277,7 +276,7 @@ class LivePart:
     def _step_metrics(self, t_step: float, to_rpm: float) -> dict[str, Any]:
         from hilbench.bench.metrics import step_metrics
 
-        history = self.session.history
+        history = list(self.session.history)  # (tuples made once: read twice below)
         t = [h[0] for h in history if h[0] >= t_step - 0.05]
         y = [h[2] for h in history if h[0] >= t_step - 0.05]
         before = [v for tt, v in zip(t, y) if tt < t_step] or y[:1]
@@ -372,7 +371,7 @@ class HistoryPart:
         meas = tele[i_meas] * s_meas if i_meas >= 0 else math.nan
         self.live.guard_ref_rpm = tele[i_ref] * s_ref if i_ref >= 0 else session.ref_rpm  # the firmware's own when it reports one
         t_s, plant_rpm = session.period.t_s(k), session.plant.w_m * RPM_PER_RAD_S
-        session.history.append((t_s, session.ref_rpm, plant_rpm, meas))
+        session.history.append(t_s, session.ref_rpm, plant_rpm, meas)
         self._sampled = (k, meas)
         if drive.fault:  # the firmware's fault as the live state shows it (no_fault without a recording)
             session.fault_seen(t_s, drive.fault)
@@ -392,12 +391,14 @@ class HistoryPart:
         session = self.session
         (i_meas, s_meas), (i_ref, s_ref) = self.speed_telemetry
         ks = rows["k"]
-        t_s = (ks * session.period.s).tolist()  # float(k) * s, as Period.t_s
-        plant_rpm = (rows["w_m"] * RPM_PER_RAD_S).tolist()
-        meas = (rows["meas"] * s_meas).tolist() if i_meas >= 0 else [math.nan] * len(rows)
+        t_s_array = ks * session.period.s  # float(k) * s, as Period.t_s
+        rpm_array = rows["w_m"] * RPM_PER_RAD_S
+        meas_array = rows["meas"] * s_meas if i_meas >= 0 else np.full(len(rows), math.nan)
         last = int(rows["ref"][-1])
         self.live.guard_ref_rpm = last * s_ref if i_ref >= 0 else session.ref_rpm
-        session.history.extend(zip(t_s, repeat(session.ref_rpm), plant_rpm, meas))
+        session.history.extend(t_s_array, session.ref_rpm, rpm_array, meas_array)
+        t_s, plant_rpm = t_s_array.tolist(), rpm_array.tolist()
+        meas = meas_array.tolist() if i_meas >= 0 else [math.nan] * len(rows)
         self._sampled = (int(ks[-1]), meas[-1])
         faults = np.flatnonzero(rows["fault"])
         for i in (faults[:1].tolist() + faults[-1:].tolist()):  # the first and the last: what fault_seen keeps

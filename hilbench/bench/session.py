@@ -19,7 +19,6 @@ import math
 import os
 import struct
 import time
-from collections import deque
 from typing import TYPE_CHECKING, Any, Callable, Generator, Iterable, Protocol
 
 from hilbench.bench import segments as segmentation
@@ -27,6 +26,7 @@ from hilbench.bench.clock import CpuLatencyRequest
 from hilbench.bench.columns import BENCH_COLUMNS, session_row
 from hilbench.bench.control import COMMANDS, ControlRequest
 from hilbench.bench.faults import SensorFaults, SensorSpec
+from hilbench.bench.history import SpeedHistory
 from hilbench.bench.livetuning import GuardSettings, LiveTuning
 from hilbench.bench.pacing import RealtimePacing, SessionAborted
 from hilbench.bench.parts import BusPart, HistoryPart, LivePart, ScenarioPart, Schedule
@@ -154,7 +154,7 @@ class Session:
         self.faults = SensorFaults()
         self.messages: list[str] = []
         #: (t_s, ref_rpm, plant_rpm, measured_rpm): the newest HISTORY_SAMPLES (memory stays flat)
-        self.history: deque[tuple[float, float, float, float]] = deque(maxlen=HISTORY_SAMPLES)
+        self.history = SpeedHistory(HISTORY_SAMPLES)
         self.segmenter = segmentation.Segmenter()
         self.on_params: Callable[[dict[str, float]], None] | None = None
         self.periods_done = 0

@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, Sequence
 
 if TYPE_CHECKING:
     from hilbench.bench.checks import CheckResult
@@ -144,7 +144,7 @@ class Snapshot:
     link: dict[str, int]
     overruns: int
     messages: list[str]
-    history: list[tuple[float, float, float, float]]
+    history: Sequence[tuple[float, float, float, float]]  # oldest first (the session's SpeedHistory, live)
     fault: int = 0  # the firmware's fault code (0: none)
 
 
