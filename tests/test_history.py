@@ -2,8 +2,10 @@
 oldest first, that reads as the deque of tuples it replaced did, whichever way samples arrived."""
 from __future__ import annotations
 
+import copy
 import math
 from collections import deque
+from collections.abc import Sequence
 
 import numpy as np
 import pytest
@@ -33,8 +35,19 @@ def test_it_reads_as_a_bounded_deque_of_the_same_samples(maxlen: int, chunks: li
         reference.append(one)
         k += 1
         assert list(history) == list(reference) and len(history) == len(reference)
-        assert history[0] == reference[0] and history[-1] == reference[-1] and history[len(history) // 2] == reference[len(reference) // 2]
-    assert history.maxlen == maxlen
+        assert [history[i] for i in range(-len(history), len(history))] == list(reference) * 2
+        assert list(reversed(history)) == list(reversed(reference)) and history[1:-1] == list(reference)[1:-1]
+        assert history.column("plant_rpm") == [s[2] for s in reference]
+    assert history.maxlen == maxlen and isinstance(history, Sequence)
+
+
+def test_a_copy_is_independent_as_a_deque_copy_was() -> None:
+    history = SpeedHistory(3)
+    for sample in _samples(0, 3):
+        history.append(*sample)
+    twin = copy.copy(history)
+    history.append(*_samples(3, 1)[0])
+    assert list(twin) == _samples(0, 3) and list(history) == _samples(1, 3)
 
 
 def test_a_missing_measurement_reads_as_nan_and_equal_histories_compare_equal() -> None:

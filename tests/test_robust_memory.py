@@ -14,10 +14,10 @@ import pytest
 
 import hilbench
 from hilbench.bench import recorder as recorder_module
+from hilbench.bench.history import SpeedHistory
 from hilbench.bench.recorder import read_recording
 from hilbench.bench.report import reference_segments
 from hilbench.bench.segments import Segmenter
-from hilbench.bench.history import SpeedHistory
 from hilbench.bench.session import HISTORY_SAMPLES
 from hilbench.bench.streamstats import StreamingPercentiles
 

@@ -16,15 +16,16 @@ motor stopped within the watchdog time. The session knows no terminal and no fir
 
 from __future__ import annotations
 
+import copy
 import math
 import time
-from collections import deque
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Callable, Iterable
 
 from hilbench.bench import segments as segmentation
 from hilbench.bench.columns import session_row
 from hilbench.bench.control import COMMANDS, ControlRequest
+from hilbench.bench.history import SpeedHistory
 from hilbench.bench.livetuning import GuardSettings, LiveTuning, raw_per_unit
 from hilbench.bench.recorder import MARKER_EVENT, MARKER_FAULT, MARKER_PARAM, MemoryRecorder, Recorder, fields_struct
 from hilbench.bench.scenario import Event
@@ -134,7 +135,7 @@ class MonitorSession:
         #: only speed there is: it stands for the plant's in the segments and the [[check]] verdicts)
         self.segmenter = segmentation.Segmenter()
         #: (t_s, ref_rpm, speed_rpm, measured_rpm) for a live view: the measured speed in both (no plant)
-        self.history: deque[tuple[float, float, float, float]] = deque(maxlen=HISTORY_SAMPLES)
+        self.history = SpeedHistory(HISTORY_SAMPLES)
         self.on_params: Callable[[dict[str, float]], None] | None = None  # a live view follows the writes
         self._observed_at = (time.perf_counter(), 0)
         self.period = Period(options.period_us)  # the stream's period (the scope's time base)
@@ -455,7 +456,7 @@ class MonitorSession:
         if math.isfinite(speed):
             self.segmenter.sample(self.t_s, speed, speed)
         if k % OBSERVE_EVERY_ROWS == 0:
-            self.history.append((self.t_s, self.ref_rpm, speed, speed))
+            self.history.append(self.t_s, self.ref_rpm, speed, speed)
             if self.observer is not None:
                 self.observer(self._snapshot(k, drive, speed))
         if self.t_s < self.tuning.watching and math.isfinite(speed):
@@ -479,7 +480,7 @@ class MonitorSession:
             i_bus=nan, telemetry=telemetry, periods_per_s=(k - last_k) / max(now - last_wall, 1e-9),
             rtt_p50_us=nan, rtt_p99_us=nan,
             link={"rows": self.stats.rows, "missing_periods": self.stats.missing_periods}, overruns=0,
-            messages=self.messages[-4:], history=list(self.history), fault=drive.fault)
+            messages=self.messages[-4:], history=copy.copy(self.history), fault=drive.fault)
 
     def _flush_coming(self) -> bool:
         recorder = self.recorder

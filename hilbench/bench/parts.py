@@ -392,12 +392,12 @@ class HistoryPart:
         (i_meas, s_meas), (i_ref, s_ref) = self.speed_telemetry
         ks = rows["k"]
         t_s_array = ks * session.period.s  # float(k) * s, as Period.t_s
-        rpm_array = rows["w_m"] * RPM_PER_RAD_S
+        plant_rpm_array = rows["w_m"] * RPM_PER_RAD_S
         meas_array = rows["meas"] * s_meas if i_meas >= 0 else np.full(len(rows), math.nan)
         last = int(rows["ref"][-1])
         self.live.guard_ref_rpm = last * s_ref if i_ref >= 0 else session.ref_rpm
-        session.history.extend(t_s_array, session.ref_rpm, rpm_array, meas_array)
-        t_s, plant_rpm = t_s_array.tolist(), rpm_array.tolist()
+        session.history.extend(t_s_array, session.ref_rpm, plant_rpm_array, meas_array)
+        t_s, plant_rpm = t_s_array.tolist(), plant_rpm_array.tolist()
         meas = meas_array.tolist() if i_meas >= 0 else [math.nan] * len(rows)
         self._sampled = (int(ks[-1]), meas[-1])
         faults = np.flatnonzero(rows["fault"])

@@ -17,6 +17,7 @@ from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn
 from rich.table import Table
 from rich.text import Text
 
+from hilbench.bench.history import SpeedHistory
 from hilbench.bench.session import Session, Snapshot, Summary
 from hilbench.protocol import Fault
 
@@ -112,7 +113,8 @@ def render_snapshot(snap: Snapshot, params: dict[str, float], target_label: str,
     grid.add_column(ratio=1)
     grid.add_column(ratio=1)
     grid.add_row(Panel(motor, title="motor"), Panel(link, title="link" if compact else "link & gains"))
-    speeds = [h[2] for h in snap.history]
+    history = snap.history  # the session's ring: one column, not a tuple per sample
+    speeds = history.column("plant_rpm") if isinstance(history, SpeedHistory) else [h[2] for h in history]
     clean = [v for v in speeds if not math.isnan(v)]
     scale = f": {min(clean):.0f} … {max(clean):.0f} rpm" if clean else ""
     title = (f"speed (plant), the last {snap.history[-1][0] - snap.history[0][0]:.1f} s{scale}"
