@@ -383,3 +383,63 @@ def test_a_plant_capsule_of_the_api_before_speed_rad_s_is_refused() -> None:
             _bare_span(session, None, None)
         session.plant.span_api = lambda: capsule  # type: ignore[method-assign]
         assert _bare_span(session, None, None) is not None
+
+
+@pytest.mark.parametrize("config, scenario, seconds", [
+    (None, None, 1.0),  # the default scenario: events at 0, 10 ms (S2), 12 ms (its release) and the end
+    (None, RANDOM, 1.7),  # live writes, sensor faults (their periods in Python), markers on the rows of events
+    (SERVO, None, 0.6),
+])
+def test_the_c_span_hands_the_recorders_chunks_over_and_the_archive_is_the_python_loops(
+        tmp_path: Path, monkeypatch: pytest.MonkeyPatch, config: Path | None, scenario: Path | None, seconds: float) -> None:
+    """A planned NPZ run: the C span hands each chunk to the recorder from inside the span
+    (`Recorder.span_rows`), so the recorder's writes end no span; the archive is the Python loop's
+    (which flushes at the parts' periods) byte for byte."""
+    from hilbench.bench.recorder import Recorder
+
+    if npzwriter_missing():
+        pytest.skip("the compiled column writer is not built (no archive is written while the run goes on)")
+    handed: list[int] = []  # (those of the mode "c")
+    span_rows = Recorder.span_rows
+    monkeypatch.setattr(Recorder, "span_rows", lambda self, n: handed.append(n) or span_rows(self, n))
+    spans = {}
+    for mode in ("c", "c, the parts flushing", "python"):
+        cfg = hilbench.load_config(config, ['link.target="inprocess:an1017"' if config is None else 'link.target="inprocess:foc"',
+                                            f"run.duration_s={seconds}"], scenario_path=scenario)
+        with hilbench.Bench(cfg, scenario=True, record=tmp_path / f"{mode}.npz") as bench:
+            session = bench.session
+            assert session is not None
+            session.c_span = mode != "python"  # type: ignore[misc]
+            if mode == "c, the parts flushing":  # as before the spans handed over: a chunk ends a span
+                monkeypatch.setattr(bench.session.recorder, "hand_over_at", lambda: 0)
+            runs: list[int] = []
+            make = session._c_span
+
+            def counting(rows: bytearray | None, **kw: bool) -> object:
+                span = make(rows, **kw)
+                if span is None:
+                    return None
+
+                class Counted:  # the span, its runs counted
+                    def __getattr__(self, name: str) -> object:
+                        return getattr(span, name)
+
+                    def run(self, *args: object) -> int:
+                        runs.append(1)
+                        return span.run(*args)
+                return Counted()
+            session._c_span = counting  # type: ignore[method-assign]
+            bench.run()
+        spans[mode] = len(runs)
+    archive = (tmp_path / "c.npz").read_bytes()
+    assert archive == (tmp_path / "python.npz").read_bytes() == (tmp_path / "c, the parts flushing.npz").read_bytes()
+    n_rows = hilbench.read_recording(tmp_path / "c.npz").n_rows
+    assert handed and sum(handed) < n_rows  # inside the spans (a sensor fault's periods: the parts'); the close takes the last
+    assert spans["python"] == 0
+    assert spans["c"] < spans["c, the parts flushing"]  # a chunk handed over ends no span
+
+
+def npzwriter_missing() -> bool:
+    from hilbench.bench import npzwriter
+
+    return npzwriter._npzcolumns is None

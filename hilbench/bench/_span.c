@@ -18,6 +18,15 @@
  * `samples` bytearray (SAMPLE_BYTES each, `parts.SAMPLE_DTYPE`) for the part to take in bulk when the
  * span returns; a sample beyond the overspeed limit ends the span after its period (span.k is that
  * period; the part raises the bench limit there, as the Python loop does).
+ *
+ * A run given `hand_over_at` (a count of pending rows; 0: none) hands the recorder its rows from inside
+ * the span: before the period at which that many rows are pending it calls `hand_over(n_rows)` (the
+ * recorder's `span_rows`: the rows journaled and archived on the recorder's thread, its bookkeeping
+ * done), which returns the next count (0: no more in this run), and writes on from the buffer's start.
+ * So the recorder's chunks no longer end the span (each end is the parts' Python, ~0.1 ms on this
+ * VM); the rows buffer holds at most one chunk. The buffer's size is not changed during the call (the
+ * recorder reads the first n_rows rows where they are); a call that raises stops the span before that
+ * period, its rows still pending.
  */
 #include "hbglue.h"
 #include <string.h>
@@ -32,7 +41,7 @@
 
 typedef struct {
     PyObject_HEAD
-    PyObject *plant, *core, *rows, *rtt_append;
+    PyObject *plant, *core, *rows, *rtt_append, *hand_over;
     const hb_plant_api_t *papi;
     const hb_target_api_t *tapi;
     int roles[HB_SPAN_MAX_ADC];
@@ -147,10 +156,42 @@ static void put_sample(const Span *s, char *p, long long k, double w_m, const hb
     put_i32(p + 24, s->i_ref >= 0 && s->i_ref < d->n_tel ? d->tel[s->i_ref] : 0);
 }
 
-/* run(k, stop, buttons, ref_rpm, edge_s, drive, hall_before) -> the period it stopped before: stop,
- * the first period whose Sensors carry the comparator's trip or too many edges, or the one after a
- * history sample beyond the overspeed limit (span.k is then the sample's period). edge_s, drive and
- * hall_before are the members after it (also after an exception, with k the failing period). */
+/* Room in the rows buffer for n_rows more rows after `used` bytes (*base and *cap follow the buffer). */
+static int reserve_rows(Span *s, char **base, Py_ssize_t *cap, Py_ssize_t used, long long n_rows)
+{
+    Py_ssize_t need = used + (Py_ssize_t)n_rows * s->row_bytes;
+    if (need <= *cap) return 0;
+    if (PyByteArray_Resize(s->rows, need) < 0) return -1;
+    *base = PyByteArray_AS_STRING(s->rows);
+    *cap = need;
+    return 0;
+}
+
+/* The pending rows handed over (`hand_over(n_rows)`): 0 with *hand_at the next count and nothing
+ * pending, -1 with an exception set (the rows still pending). */
+static int hand_rows_over(Span *s, Py_ssize_t *used, Py_ssize_t cap, long long *hand_at)
+{
+    PyObject *n = PyLong_FromSsize_t(*used / s->row_bytes);
+    PyObject *next = n == NULL ? NULL : PyObject_CallOneArg(s->hand_over, n);
+    Py_XDECREF(n);
+    if (next == NULL) return -1;
+    long long at = PyLong_AsLongLong(next);
+    Py_DECREF(next);
+    if (at == -1 && PyErr_Occurred()) return -1;
+    if (PyByteArray_GET_SIZE(s->rows) != cap) { /* its pointer is the span's: nobody else may resize it now */
+        PyErr_SetString(PyExc_RuntimeError, "Span.run: the rows buffer was resized during a hand-over");
+        return -1;
+    }
+    *used = 0;
+    *hand_at = at > 0 ? at : 0;
+    return 0;
+}
+
+/* run(k, stop, buttons, ref_rpm, edge_s, drive, hall_before[, hand_over_at]) -> the period it stopped
+ * before: stop, the first period whose Sensors carry the comparator's trip or too many edges, or the
+ * one after a history sample beyond the overspeed limit (span.k is then the sample's period). edge_s,
+ * drive and hall_before are the members after it (also after an exception, with k the failing
+ * period). hand_over_at: the pending-row count at which the rows are handed over (0: not in this run). */
 static PyObject *span_run(Span *s, PyObject *const *args, Py_ssize_t nargs);
 
 static PyObject *Span_run(Span *s, PyObject *const *args, Py_ssize_t nargs)
@@ -166,8 +207,8 @@ static PyObject *Span_run(Span *s, PyObject *const *args, Py_ssize_t nargs)
 
 static PyObject *span_run(Span *s, PyObject *const *args, Py_ssize_t nargs)
 {
-    if (nargs != 7) {
-        PyErr_SetString(PyExc_TypeError, "Span.run(k, stop, buttons, ref_rpm, edge_s, drive, hall_before)");
+    if (nargs != 7 && nargs != 8) {
+        PyErr_SetString(PyExc_TypeError, "Span.run(k, stop, buttons, ref_rpm, edge_s, drive, hall_before[, hand_over_at])");
         return NULL;
     }
     if (s->papi == NULL || s->tapi == NULL || s->plant == NULL || s->core == NULL) {
@@ -177,7 +218,13 @@ static PyObject *span_run(Span *s, PyObject *const *args, Py_ssize_t nargs)
     long long k = PyLong_AsLongLong(args[0]), stop = PyLong_AsLongLong(args[1]);
     long buttons = PyLong_AsLong(args[2]), hall_before = PyLong_AsLong(args[6]);
     double ref_rpm = PyFloat_AsDouble(args[3]);
+    long long hand_at = nargs == 8 ? PyLong_AsLongLong(args[7]) : 0;
     if (PyErr_Occurred()) return NULL;
+    if (hand_at > 0 && (s->hand_over == NULL || s->rows == NULL)) {
+        PyErr_SetString(PyExc_ValueError, "Span.run: hand_over_at without a hand_over and a rows buffer");
+        return NULL;
+    }
+    if (hand_at < 0) hand_at = 0;
     int have_edge = args[4] != Py_None;
     double edge_s = have_edge ? PyFloat_AsDouble(args[4]) : 0.0;
     if (have_edge && edge_s == -1.0 && PyErr_Occurred()) return NULL;
@@ -186,12 +233,14 @@ static PyObject *span_run(Span *s, PyObject *const *args, Py_ssize_t nargs)
     Py_XSETREF(s->drive, Py_NewRef(args[5]));
     s->hall_before = hall_before;
     s->k = k;
-    Py_ssize_t used = 0, sused = 0;
+    Py_ssize_t used = 0, sused = 0, cap = 0;
     char *base = NULL, *sbase = NULL;
-    if (s->rows != NULL && stop > k) {
-        used = PyByteArray_GET_SIZE(s->rows);
-        if (PyByteArray_Resize(s->rows, used + (Py_ssize_t)(stop - k) * s->row_bytes) < 0) return NULL;
+    if (s->rows != NULL && stop > k) { /* room for the span's rows, or (handing over) for those up to the first hand-over */
+        used = cap = PyByteArray_GET_SIZE(s->rows);
         base = PyByteArray_AS_STRING(s->rows);
+        long long pending = used / s->row_bytes, first = stop - k;
+        if (hand_at > 0 && hand_at - pending < first) first = hand_at > pending ? hand_at - pending : 0;
+        if (reserve_rows(s, &base, &cap, used, first) < 0) return NULL;
     }
     if (s->samples != NULL && stop > k) {
         sused = PyByteArray_GET_SIZE(s->samples);
@@ -209,6 +258,16 @@ static PyObject *span_run(Span *s, PyObject *const *args, Py_ssize_t nargs)
     for (; k < stop; k++) {
         /* Ctrl-C between periods, as in the Python loop (not left to the Python calls a span may make) */
         if (!(k & RTT_EVERY_MASK) && PyErr_CheckSignals() < 0) { failed = 1; break; }
+        if (base != NULL) {
+            if (hand_at > 0 && used >= (Py_ssize_t)hand_at * s->row_bytes) { /* the recorder's chunk: handed over here */
+                if (hand_rows_over(s, &used, cap, &hand_at) < 0) { failed = 1; break; }
+            }
+            if (used + s->row_bytes > cap) { /* (only when handing over: room for the rows up to the next one) */
+                long long more = stop - k, pending = used / s->row_bytes;
+                if (hand_at > pending && hand_at - pending < more) more = hand_at - pending;
+                if (reserve_rows(s, &base, &cap, used, more) < 0) { failed = 1; break; }
+            }
+        }
         if (s->papi->fault_input(s->plant)) break; /* the trip is the Python loop's (it notes it) */
         int index = 0;
         if (!period_edges(s, have_edge, &in, &index)) break; /* too many: Python raises the bench limit */
@@ -321,8 +380,8 @@ static int Span_init(Span *s, PyObject *args, PyObject *kwds)
 {
     static char *kw[] = {"plant", "plant_api", "core", "target_api", "roles", "edge_limit", "read_index", "rows",
                          "n_telemetry", "host_ref", "rtt_append", "max_edges", "sample_every", "samples",
-                         "meas_index", "ref_index", "overspeed_rpm", "rpm_per_rad_s", NULL};
-    PyObject *plant, *papi, *core, *tapi, *roles, *rows, *rtt, *samples = Py_None;
+                         "meas_index", "ref_index", "overspeed_rpm", "rpm_per_rad_s", "hand_over", NULL};
+    PyObject *plant, *papi, *core, *tapi, *roles, *rows, *rtt, *samples = Py_None, *hand_over = Py_None;
     long edge_limit;
     int read_index, n_tel, host_ref, max_edges, sample_every = 0, i_meas = -1, i_ref = -1;
     double overspeed_rpm = Py_HUGE_VAL, rpm_per_rad_s = 0.0;
@@ -330,12 +389,17 @@ static int Span_init(Span *s, PyObject *args, PyObject *kwds)
         PyErr_SetString(PyExc_RuntimeError, "Span: cannot be initialised again while it runs");
         return -1;
     }
-    if (!PyArg_ParseTupleAndKeywords(args, kwds, "OOOOOlpOipOi|$iOiidd:Span", kw, &plant, &papi, &core, &tapi, &roles,
+    if (!PyArg_ParseTupleAndKeywords(args, kwds, "OOOOOlpOipOi|$iOiiddO:Span", kw, &plant, &papi, &core, &tapi, &roles,
                                      &edge_limit, &read_index, &rows, &n_tel, &host_ref, &rtt, &max_edges,
-                                     &sample_every, &samples, &i_meas, &i_ref, &overspeed_rpm, &rpm_per_rad_s))
+                                     &sample_every, &samples, &i_meas, &i_ref, &overspeed_rpm, &rpm_per_rad_s,
+                                     &hand_over))
         return -1;
     if (samples != Py_None && (!PyByteArray_Check(samples) || sample_every < 1)) {
         PyErr_SetString(PyExc_TypeError, "Span: samples must be a bytearray (with sample_every >= 1) or None");
+        return -1;
+    }
+    if (hand_over != Py_None && !PyCallable_Check(hand_over)) {
+        PyErr_SetString(PyExc_TypeError, "Span: hand_over must be callable or None");
         return -1;
     }
     if (max_edges < 0 || max_edges > HB_SPAN_MAX_EDGES) {
@@ -378,6 +442,7 @@ static int Span_init(Span *s, PyObject *args, PyObject *kwds)
     Py_XSETREF(s->rows, rows == Py_None ? NULL : Py_NewRef(rows));
     Py_XSETREF(s->rtt_append, rtt == Py_None ? NULL : Py_NewRef(rtt));
     Py_XSETREF(s->samples, samples == Py_None ? NULL : Py_NewRef(samples));
+    Py_XSETREF(s->hand_over, hand_over == Py_None ? NULL : Py_NewRef(hand_over));
     s->sample_every = sample_every;
     s->i_meas = i_meas;
     s->i_ref = i_ref;
@@ -405,6 +470,7 @@ static int Span_traverse(Span *s, visitproc visit, void *arg)
     Py_VISIT(s->edge_s);
     Py_VISIT(s->drive);
     Py_VISIT(s->samples);
+    Py_VISIT(s->hand_over);
     return 0;
 }
 
@@ -417,6 +483,7 @@ static int Span_clear(Span *s)
     Py_CLEAR(s->edge_s);
     Py_CLEAR(s->drive);
     Py_CLEAR(s->samples);
+    Py_CLEAR(s->hand_over);
     return 0;
 }
 
@@ -438,7 +505,7 @@ static PyMemberDef Span_members[] = {
 
 static PyMethodDef Span_methods[] = {
     {"run", (PyCFunction)(void (*)(void))Span_run, METH_FASTCALL,
-     "run(k, stop, buttons, ref_rpm, edge_s, drive, hall_before) -> the period it stopped before."},
+     "run(k, stop, buttons, ref_rpm, edge_s, drive, hall_before[, hand_over_at]) -> the period it stopped before."},
     {"edges", (PyCFunction)(void (*)(void))Span_edges, METH_FASTCALL,
      "edges(have_edge, hall_before) -> the Sensors.edges of the period after the plant's last advance, or None."},
     {NULL, NULL, 0, NULL},
@@ -451,7 +518,8 @@ static PyTypeObject SpanType = {
     .tp_flags = Py_TPFLAGS_DEFAULT | Py_TPFLAGS_HAVE_GC,
     .tp_doc = "Span(plant, plant_api, core, target_api, roles, edge_limit, read_index, rows, n_telemetry, host_ref, "
               "rtt_append, max_edges, *, sample_every=0, samples=None, meas_index=-1, ref_index=-1, overspeed_rpm=inf, "
-              "rpm_per_rad_s=0.0): the session's lockstep periods in C (and its history samples).",
+              "rpm_per_rad_s=0.0, hand_over=None): the session's lockstep periods in C (and its history samples, and the "
+              "hand-over of its rows to the recorder).",
     .tp_new = PyType_GenericNew,
     .tp_init = (initproc)Span_init,
     .tp_dealloc = (destructor)Span_dealloc,

@@ -348,8 +348,8 @@ class HistoryPart:
         if session.display is None and session.observer is None:
             most = k + SPAN_SAMPLES * self.every
             rows_to_write = getattr(session.recorder, "rows_to_write", None)
-            if rows_to_write is None:  # no recorder, or one that keeps every row in memory
-                first = most
+            if rows_to_write is None or session.rows_in_c:  # no recorder, one that keeps every row in
+                first = most  # memory, or the C span hands its chunks over itself
             else:  # after that period its next write is due
                 first = max(first, min(k - 1 + rows_to_write(), most))
         return -(-first // every) * every

@@ -257,16 +257,18 @@ class RowBuffer:
     def marker_at(self, index: int) -> int:
         return int(struct.unpack_from(self._marker_code, self.data, index * self.struct.size + self._marker_offset)[0])
 
-    def settle(self, events: list[tuple[int, str, int]]) -> None:
+    def settle(self, events: list[tuple[int, str, int]], n_rows: int | None = None) -> None:
         """Make the pending rows final: cut a row left half-appended (an interrupt between its two
         appends), then write the markers of pending events into their rows and forget them
         (entries kept for their text). The last event of a row wins among events; a marker the
-        row already has (a skipped period, a fault) is kept."""
-        extra = len(self.data) % self.struct.size
-        if extra:
-            del self.data[-extra:]
+        row already has (a skipped period, a fault) is kept. ``n_rows``: only the first n_rows, the
+        buffer's size left alone (the C span's, which is writing after them: `Recorder.span_rows`)."""
+        if n_rows is None:
+            extra = len(self.data) % self.struct.size
+            if extra:
+                del self.data[-extra:]
+            n_rows = len(self)
         by_row: dict[int, int] = {}
-        n_rows = len(self)
         for i, (index, text, marker) in enumerate(events):
             if marker and index < n_rows:
                 by_row[index] = marker
@@ -395,6 +397,27 @@ class Recorder:
             return
         self.flush_rows = min(self.flush_rows, BACKGROUND_CHUNK_ROWS)
         self._last_flush_at = n_rows - LAST_CHUNK_ROWS  # (a plan that small: no flush more)
+
+    def hand_over_at(self) -> int:
+        """The count of pending rows at which the session's C span hands them over (`span_rows`):
+        a planned NPZ run's chunk (its background archive's), or its last flush; 0: not handed over
+        from inside a span (no background archive: the parts' flushes write them)."""
+        if self._background is None or self.closed:
+            return 0
+        rows = self.flush_rows
+        if self._last_flush_at > 0:
+            rows = min(rows, self._last_flush_at - self.rows_written)
+        return max(rows, 1)
+
+    def span_rows(self, n_rows: int) -> int:
+        """The first ``n_rows`` pending rows, which the C span has written and writes on after,
+        flushed as `maybe_flush` would (the buffer's size is the span's: not changed here; the span
+        writes on from its start once this returns). Returns the next `hand_over_at`."""
+        if 0 < self._last_flush_at <= self.rows_written + n_rows:
+            self._last_flush_at = 0  # once: the last chunk, the close's, is small
+        self._settle(n_rows)
+        self._write_out(n_rows)
+        return self.hand_over_at()
 
     def rows_to_write(self) -> int:
         """How many more rows before `maybe_flush` has work: a flush, or rows for a CSV's writer thread."""
@@ -556,12 +579,18 @@ class Recorder:
         a moment later): the run's own flushes, which must not wait."""
         if not self.started:
             self.start()
+        self._settle()
+        n_rows = len(self.rows)
+        if not n_rows and not self._events:
+            return
+        self._write_out(n_rows)
+        self.rows.clear()
+
+    def _write_out(self, n_rows: int) -> None:
+        """The first ``n_rows`` pending rows (settled) and every pending event written; the caller
+        empties the buffer of them."""
         events = self._events
         rows = self.rows
-        self._settle()
-        n_rows = len(rows)
-        if not n_rows and not events:
-            return
         markers = [marker for _, _, marker in events if marker != MARKER_NONE]  # settled: those of the next row
         next_row_marker = markers[-1] if markers else MARKER_NONE
         if self.is_npz:  # raw rows as they are (the layout is in the header)
@@ -585,7 +614,6 @@ class Recorder:
         except OSError as exc:
             raise RecordingError(f"recording {self.path}: write failed ({exc.strerror})") from None
         self.rows_written += n_rows
-        rows.clear()
         self._next_row_marker = next_row_marker
         events.clear()
         self._handed = 0
@@ -601,11 +629,11 @@ class Recorder:
         if self.is_npz and self._background is not None and not self.closed:
             self._flush()
 
-    def _settle(self) -> None:
+    def _settle(self, n_rows: int | None = None) -> None:
         """`RowBuffer.settle`, and the marker of an event a flush wrote before its row came (noted
         at the next row when the chunk ended) set on that row, the chunk's first, unless it has one."""
-        self.rows.settle(self._events)
-        if self._next_row_marker != MARKER_NONE and len(self.rows):
+        self.rows.settle(self._events, n_rows)
+        if self._next_row_marker != MARKER_NONE and (len(self.rows) if n_rows is None else n_rows):
             if self.rows.marker_at(0) == MARKER_NONE:
                 self.rows.mark(0, self._next_row_marker)
             self._next_row_marker = MARKER_NONE
@@ -1112,6 +1140,27 @@ class WindowRecorder:
     def maybe_flush(self) -> None:
         if len(self.rows) >= self.flush_rows:
             self.flush()
+
+    def hand_over_at(self) -> int:
+        """The count of pending rows at which the session's C span hands them over (`span_rows`):
+        a planned NPZ run's chunk (its background archive's), or its last flush; 0: not handed over
+        from inside a span (no background archive: the parts' flushes write them)."""
+        if self._background is None or self.closed:
+            return 0
+        rows = self.flush_rows
+        if self._last_flush_at > 0:
+            rows = min(rows, self._last_flush_at - self.rows_written)
+        return max(rows, 1)
+
+    def span_rows(self, n_rows: int) -> int:
+        """The first ``n_rows`` pending rows, which the C span has written and writes on after,
+        flushed as `maybe_flush` would (the buffer's size is the span's: not changed here; the span
+        writes on from its start once this returns). Returns the next `hand_over_at`."""
+        if 0 < self._last_flush_at <= self.rows_written + n_rows:
+            self._last_flush_at = 0  # once: the last chunk, the close's, is small
+        self._settle(n_rows)
+        self._write_out(n_rows)
+        return self.hand_over_at()
 
     def rows_to_write(self) -> int:
         """How many more rows before `maybe_flush` drops them."""

@@ -184,6 +184,7 @@ class Session:
         self._next_k = 0
         self._rows_changed = False  # watch_rows changed the row writer: the tight loop is made again
         self._span_samples: bytearray | None = None  # the C span's history samples (None: no C span runs)
+        self._span_hand_over_at: Callable[[], int] | None = None  # the recorder's, when the C span hands its rows over
 
     @property
     def player(self) -> ScenarioPlayer:
@@ -462,6 +463,12 @@ class Session:
         return self._span_samples is not None and not self.faults.on
 
     @property
+    def rows_in_c(self) -> bool:
+        """Whether the next periods run in the C span and it hands the recorder's chunks over itself
+        (`Recorder.span_rows`): no part need end the span for the recorder's writes."""
+        return self._span_hand_over_at is not None and self.samples_in_c and self._span_hand_over_at() > 0
+
+    @property
     def ended(self) -> bool:
         """The scenario's end, `ctl stop` or a fault ended the run."""
         return self._end_reason is not None
@@ -542,6 +549,7 @@ class Session:
         """What runs the periods [k, stop) between the parts': the tight loop (`_tight_runner`), or
         its readable form period by period (`_periods_one_by_one`, for tests); returns `stop`."""
         self._span_samples = None
+        self._span_hand_over_at = None
         if getattr(self, "_readable_periods", False):
             return lambda span: self._periods_one_by_one(*span)
         return self._tight_runner()
@@ -568,7 +576,8 @@ class Session:
                     host_ref: bool = self._record_host_ref, rtts: StreamingPercentiles = self.lockstep_rtts,
                     perf: Callable[[], float] = time.perf_counter,
                     span: Any = self._c_span(rows), samples: bytearray | None = self._span_samples,
-                    sampler: HistoryPart = self.sampler) -> Generator[int, tuple[int, int], None]:
+                    sampler: HistoryPart = self.sampler,
+                    hand_over_at: Callable[[], int] | None = self._span_hand_over_at) -> Generator[int, tuple[int, int], None]:
             k, stop = yield 0
             edge_s, drive, hall_before = session._edge_s, session.drive, session._hall_before
             rtt, late, marker = 0.0, 0.0, 0  # lockstep: no wall-clock figures in the row
@@ -580,7 +589,8 @@ class Session:
                         py_stop = stop
                         if span is not None and not filtering:  # the periods in C (hilbench/bench/_span.c)
                             in_span = True
-                            k = span.run(k, stop, buttons, session.ref_rpm, edge_s, drive, hall_before)
+                            k = span.run(k, stop, buttons, session.ref_rpm, edge_s, drive, hall_before,
+                                         hand_over_at() if hand_over_at is not None else 0)
                             in_span = False
                             edge_s, drive, hall_before = span.edge_s, span.drive, span.hall_before
                             if samples:  # the history samples it took (an overspeed in the last ends the run there)
@@ -678,16 +688,20 @@ class Session:
         sampler = self.sampler
         (i_meas, _), (i_ref, _) = sampler.speed_telemetry
         samples = bytearray()
+        span_rows = getattr(self.recorder, "span_rows", None) if rows is not None else None
         span = _span.Span(plant=self.plant, plant_api=papi, core=core[1], target_api=core[0], roles=tuple(hello.adc_roles),
                           edge_limit=self.options.period_us * 10 - 1, read_index=self.profile.has("encoder"), rows=rows,
                           n_telemetry=len(hello.telemetry_ids), host_ref=self._record_host_ref,
                           rtt_append=self.lockstep_rtts.append, max_edges=self.target_max_edges(),
                           sample_every=sampler.every, samples=samples if sampled else None, meas_index=i_meas,
-                          ref_index=i_ref, overspeed_rpm=sampler.overspeed_rpm, rpm_per_rad_s=RPM_PER_RAD_S)
+                          ref_index=i_ref, overspeed_rpm=sampler.overspeed_rpm, rpm_per_rad_s=RPM_PER_RAD_S,
+                          hand_over=span_rows)
         if rows is not None and self.recorder is not None and span.row_bytes != self.recorder.rows.struct.size:
             return None  # a row the C span does not write (columns.OWN_FIELDS changed without _span.c)
         if sampled:
             self._span_samples = samples  # the history part takes them from here (`samples_in_c`)
+        if span_rows is not None:  # the recorder's chunks handed over from inside the span (`rows_in_c`)
+            self._span_hand_over_at = self.recorder.hand_over_at  # type: ignore[union-attr]
         return span
 
     def _periods_one_by_one(self, k: int, stop: int) -> int:
