@@ -1141,27 +1141,6 @@ class WindowRecorder:
         if len(self.rows) >= self.flush_rows:
             self.flush()
 
-    def hand_over_at(self) -> int:
-        """The count of pending rows at which the session's C span hands them over (`span_rows`):
-        a planned NPZ run's chunk (its background archive's), or its last flush; 0: not handed over
-        from inside a span (no background archive: the parts' flushes write them)."""
-        if self._background is None or self.closed:
-            return 0
-        rows = self.flush_rows
-        if self._last_flush_at > 0:
-            rows = min(rows, self._last_flush_at - self.rows_written)
-        return max(rows, 1)
-
-    def span_rows(self, n_rows: int) -> int:
-        """The first ``n_rows`` pending rows, which the C span has written and writes on after,
-        flushed as `maybe_flush` would (the buffer's size is the span's: not changed here; the span
-        writes on from its start once this returns). Returns the next `hand_over_at`."""
-        if 0 < self._last_flush_at <= self.rows_written + n_rows:
-            self._last_flush_at = 0  # once: the last chunk, the close's, is small
-        self._settle(n_rows)
-        self._write_out(n_rows)
-        return self.hand_over_at()
-
     def rows_to_write(self) -> int:
         """How many more rows before `maybe_flush` drops them."""
         return self.flush_rows - len(self.rows)
