@@ -101,9 +101,9 @@ _JOURNAL_MAGIC = b"HBJ2"
 #: rows an NPZ run with a background archive flushes at a time (its chunk), and a CSV run hands to
 #: its row writer's thread between flushes
 BACKGROUND_CHUNK_ROWS = 4096
-#: rows a planned NPZ run leaves for the close (one more flush before them, at the session's next
-#: observe period: every 400 by default): the rows the close waits for the background archive's thread
-#: to convert
+#: rows a planned NPZ run leaves for the close (one more flush before them: there, when the C span hands
+#: the chunks over, else at the session's next observe period, every 400 by default): the rows the
+#: close waits for the background archive's thread to convert
 LAST_CHUNK_ROWS = 1024
 #: rows a CSV run's writer thread may have waiting (handed over, not written yet): its memory bound
 CSV_WRITER_MAX_ROWS = 2 * BACKGROUND_CHUNK_ROWS
