@@ -26,7 +26,7 @@
  * So the recorder's chunks no longer end the span (each end is the parts' Python, ~0.1 ms on this
  * VM); the rows buffer holds at most one chunk. The buffer's size is not changed during the call (the
  * recorder reads the first n_rows rows where they are); a call that raises stops the span before that
- * period, its rows still pending.
+ * period (its rows still pending when the recorder raised before taking them).
  */
 #include "hbglue.h"
 #include <string.h>
@@ -175,6 +175,7 @@ static int hand_rows_over(Span *s, Py_ssize_t *used, Py_ssize_t cap, long long *
     PyObject *next = n == NULL ? NULL : PyObject_CallOneArg(s->hand_over, n);
     Py_XDECREF(n);
     if (next == NULL) return -1;
+    *used = 0; /* taken by the recorder (its rows_written counts them) whatever follows */
     long long at = PyLong_AsLongLong(next);
     Py_DECREF(next);
     if (at == -1 && PyErr_Occurred()) return -1;
@@ -182,7 +183,6 @@ static int hand_rows_over(Span *s, Py_ssize_t *used, Py_ssize_t cap, long long *
         PyErr_SetString(PyExc_RuntimeError, "Span.run: the rows buffer was resized during a hand-over");
         return -1;
     }
-    *used = 0;
     *hand_at = at > 0 ? at : 0;
     return 0;
 }

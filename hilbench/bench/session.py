@@ -700,8 +700,10 @@ class Session:
             return None  # a row the C span does not write (columns.OWN_FIELDS changed without _span.c)
         if sampled:
             self._span_samples = samples  # the history part takes them from here (`samples_in_c`)
-        if span_rows is not None:  # the recorder's chunks handed over from inside the span (`rows_in_c`)
-            self._span_hand_over_at = self.recorder.hand_over_at  # type: ignore[union-attr]
+        hand_over_at = getattr(self.recorder, "hand_over_at", None)
+        if span_rows is not None and hand_over_at is not None:  # the recorder's chunks handed over from inside
+            # the span (`rows_in_c`); not while a scope's display stream takes the rows before each flush
+            self._span_hand_over_at = lambda: 0 if self.display is not None else hand_over_at()
         return span
 
     def _periods_one_by_one(self, k: int, stop: int) -> int:
