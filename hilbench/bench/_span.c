@@ -235,12 +235,9 @@ static PyObject *span_run(Span *s, PyObject *const *args, Py_ssize_t nargs)
     s->k = k;
     Py_ssize_t used = 0, sused = 0, cap = 0;
     char *base = NULL, *sbase = NULL;
-    if (s->rows != NULL && stop > k) { /* room for the span's rows, or (handing over) for those up to the first hand-over */
+    if (s->rows != NULL && stop > k) { /* the loop makes room: for the span's rows, or up to each hand-over */
         used = cap = PyByteArray_GET_SIZE(s->rows);
         base = PyByteArray_AS_STRING(s->rows);
-        long long pending = used / s->row_bytes, first = stop - k;
-        if (hand_at > 0 && hand_at - pending < first) first = hand_at > pending ? hand_at - pending : 0;
-        if (reserve_rows(s, &base, &cap, used, first) < 0) return NULL;
     }
     if (s->samples != NULL && stop > k) {
         sused = PyByteArray_GET_SIZE(s->samples);
@@ -262,7 +259,7 @@ static PyObject *span_run(Span *s, PyObject *const *args, Py_ssize_t nargs)
             if (hand_at > 0 && used >= (Py_ssize_t)hand_at * s->row_bytes) { /* the recorder's chunk: handed over here */
                 if (hand_rows_over(s, &used, cap, &hand_at) < 0) { failed = 1; break; }
             }
-            if (used + s->row_bytes > cap) { /* (only when handing over: room for the rows up to the next one) */
+            if (used + s->row_bytes > cap) { /* room for the rest of the span, or the rows up to the next hand-over */
                 long long more = stop - k, pending = used / s->row_bytes;
                 if (hand_at > pending && hand_at - pending < more) more = hand_at - pending;
                 if (reserve_rows(s, &base, &cap, used, more) < 0) { failed = 1; break; }
