@@ -669,8 +669,8 @@ class Recorder:
         if final_note:
             self.event(final_note)
             self.metadata["end"] = final_note
-        try:
-            self.flush()
+        try:  # (no sync: an NPZ archive's thread journals every row before `finish` or `abandon` returns,
+            self._flush()  # and its last rows are converted meanwhile)
             if self._csv_writer is not None:  # every row written: its thread joined
                 self._csv_writer.close()
         except BaseException as exc:
