@@ -122,7 +122,7 @@ def test_rows_are_taken_before_the_recorder_flushes(tmp_path: Path) -> None:
     for a, b in zip(frames, frames[1:]):
         assert a["t0"] + (a["n"] - 1) * a["dt"] < b["t0"] <= a["t0"] + a["n"] * a["dt"] + 1e-9
     end = frames[-1]["t0"] + frames[-1]["n"] * frames[-1]["dt"]
-    assert end == pytest.approx(2.6, abs=0.05)
+    assert end == pytest.approx(2.6, abs=1e-3)
 
 
 def test_press_and_stream_over_the_control_path() -> None:
@@ -216,4 +216,32 @@ def test_a_run_without_a_recording_streams_a_bounded_window() -> None:
         assert np.allclose(decode(frame["cols"]["speed_rpm"][0]), lo, rtol=1e-6, atol=1e-3)
         assert np.allclose(decode(frame["cols"]["speed_rpm"][1]), hi, rtol=1e-6, atol=1e-3)
     end = frames[-1]["t0"] + frames[-1]["n"] * frames[-1]["dt"]
-    assert end == pytest.approx(2.6, abs=0.05) and t[-1] >= end - 1e-3
+    assert end == pytest.approx(2.6, abs=1e-3) and t[-1] >= end - 1e-3
+
+
+def test_a_scope_watching_a_planned_npz_run_gets_every_row(tmp_path: Path) -> None:
+    """A planned NPZ run hands its chunks to the archive's thread from inside the C span; while a
+    scope watches, the span leaves that to the parts, so the display takes each chunk before the
+    recorder lets it go: frames follow each other without a gap over the whole run, and each
+    frame's envelope holds the recording's rows."""
+    with hilbench.Bench(target="inprocess:an1017", record=tmp_path / "run.npz",
+                        overrides=["run.duration_s=1.5"]) as bench:
+        session = bench.session
+        assert session is not None and session.planned_periods == 30_000
+        first = ask(bench, -1, ["t_s", "speed_rpm"])
+        bench.run()  # the whole planned run in one call: its archive written as it goes
+        assert bench.recorder is not None and bench.recorder.hand_over_at() > 0  # (a planned archive)
+        assert not session.rows_in_c
+        later = ask(bench, first["seq"], ["t_s", "speed_rpm"])
+    with np.load(tmp_path / "run.npz") as archive:
+        speed = archive["speed_rpm"]
+    frames = first["frames"] + later["frames"]
+    assert frames[0]["t0"] == 0.0
+    for a, b in zip(frames, frames[1:]):
+        assert a["t0"] + (a["n"] - 1) * a["dt"] < b["t0"] <= a["t0"] + a["n"] * a["dt"] + 1e-9
+    assert frames[-1]["t0"] + frames[-1]["n"] * frames[-1]["dt"] == pytest.approx(1.5, abs=1e-3)
+    period_s = 50e-6
+    starts = [int(round(f["t0"] / period_s)) for f in frames] + [len(speed)]
+    for frame, start, end in zip(frames, starts, starts[1:]):
+        lo, hi = decode(frame["cols"]["speed_rpm"][0]), decode(frame["cols"]["speed_rpm"][1])
+        assert lo.min() == np.float32(speed[start:end].min()) and hi.max() == np.float32(speed[start:end].max())

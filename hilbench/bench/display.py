@@ -130,7 +130,8 @@ class DisplayStream:
         self.seq = 0
         self.takes = 0
         self.error: str | None = None
-        self._offset = 0  # bytes of recorder.rows.data already taken
+        self._rows: Any = None  # the recorder's row buffer taken from
+        self._taken = 0  # rows of it taken, counted from the run's first (its `dropped` rows on: in the buffer)
         self._boundary: set[tuple[int, str]] = set()
         self.marks: deque[tuple[int, float, str, str]] = deque(maxlen=1000)  # (seq, t_s, kind, text)
         self._asked_at = -math.inf
@@ -158,14 +159,21 @@ class DisplayStream:
                 self.session.watch_rows(False)
                 self._asked_at = -math.inf
             return
-        recorder = self.session.recorder
-        flush_coming = recorder is not None and len(recorder.rows) >= getattr(recorder, "flush_rows", math.inf)
-        if flush_coming or self.clock() - self._last_take >= self.take_every_s:
-            try:
-                self.take()
-            except Exception as exc:  # noqa: BLE001 - a scope must never end a run: it goes to sleep instead
-                self.error = f"scope stream stopped: {type(exc).__name__}: {exc}"
-                self._asked_at = -math.inf
+        if _flush_coming(self.session.recorder) or self.clock() - self._last_take >= self.take_every_s:
+            self._take_or_sleep()
+
+    def closing(self) -> None:
+        """The run ends: the rows not taken yet taken now, before the close writes them out (while a
+        scope watches)."""
+        if self._asked_at != -math.inf and self.active:
+            self._take_or_sleep()
+
+    def _take_or_sleep(self) -> None:
+        try:
+            self.take()
+        except Exception as exc:  # noqa: BLE001 - a scope must never end a run: it goes to sleep instead
+            self.error = f"scope stream stopped: {type(exc).__name__}: {exc}"
+            self._asked_at = -math.inf
 
     def take(self) -> None:
         """Decimate the rows appended since the last take into one frame (the tracked columns only:
@@ -177,19 +185,21 @@ class DisplayStream:
         rows = recorder.rows
         if rows.layout is not self._layout:
             self._learn(rows.layout)
+        if rows is not self._rows:  # another recorder's buffer (a scope's window, or none): from its start
+            self._rows, self._taken = rows, rows.dropped
         size = rows.struct.size
         data = rows.data
-        if len(data) < self._offset:  # the buffer was flushed without us: start over
-            self._offset = 0
-        end = len(data) - (len(data) % size)  # a row may be half-appended
-        if end <= self._offset:
+        # the rows not taken yet: those the buffer still holds (a flush may have let some go untaken;
+        # counted from the run's start, so a buffer refilled to the same length is not mistaken for one
+        # with nothing new)
+        row_from, row_to = max(self._taken - rows.dropped, 0), len(data) // size  # (a row may be half-appended)
+        if row_to <= row_from:
             return
-        row_from, row_to = self._offset // size, end // size
         # a view, not a copy: this runs on the session's thread, so the buffer cannot grow while
         # the view lives, and the view is gone when this returns
-        raw = np.frombuffer(data, dtype=rows.layout.dtype, count=row_to - row_from, offset=self._offset)
+        raw = np.frombuffer(data, dtype=rows.layout.dtype, count=row_to - row_from, offset=row_from * size)
         try:
-            self._offset = end
+            self._taken = rows.dropped + row_to
             self.seq += 1
             self._take_events(recorder, row_from, row_to)
             bucket = self.bucket_periods
@@ -235,6 +245,7 @@ class DisplayStream:
 
     def _learn(self, layout: Any) -> None:
         self._layout = layout
+        self._rows = None  # (a new layout: the buffer was emptied) taken from its start
         names = list(layout.column_names)
         units = {name: unit for name, unit, _ in layout.column_specs}
         wrap = dict(layout.wrap)
@@ -262,9 +273,9 @@ class DisplayStream:
         recorder = self.session.recorder
         if recorder is None:
             return
-        size = recorder.rows.struct.size
-        keep = int(HISTORY_S / self.session.period.s) * size
-        self._offset = max(0, len(recorder.rows.data) - len(recorder.rows.data) % size - keep)
+        rows = recorder.rows
+        self._rows = rows
+        self._taken = rows.dropped + max(0, len(rows) - int(HISTORY_S / self.session.period.s))
         self.frames.clear()
 
     # ------------------------------------------------------------------ a scope's request
@@ -353,6 +364,17 @@ class DisplayStream:
             "link": {k: v for k, v in session.link_stats().items() if isinstance(v, (int, float))},
             "ended": session.ended,
         }
+
+
+def _flush_coming(recorder: Any) -> bool:
+    """Whether the recorder's next `maybe_flush` writes rows out (a full chunk, a planned run's
+    last one before the close, a CSV's rows for its thread: `Recorder.rows_to_write`)."""
+    if recorder is None:
+        return False
+    rows_to_write = getattr(recorder, "rows_to_write", None)
+    if rows_to_write is not None:
+        return bool(rows_to_write() <= 0)
+    return len(recorder.rows) >= getattr(recorder, "flush_rows", math.inf)
 
 
 def _name(kind: type[IntEnum], code: int) -> str:

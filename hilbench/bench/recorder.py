@@ -231,6 +231,7 @@ class RowBuffer:
     def configure(self, layout: RowLayout) -> None:
         """Set the row layout (empties the buffer: call it before the first row)."""
         self.layout = layout
+        self.dropped = 0  # rows let go from the front (written out): the buffer's row 0 is the run's row `dropped`
         self.struct = fields_struct(layout.fields)
         self.pack = self.struct.pack
         self.data = bytearray()
@@ -299,6 +300,7 @@ class RowBuffer:
         return {name: layout.to_column(rows, name) for name in wanted}
 
     def clear(self) -> None:
+        self.dropped += len(self)
         del self.data[:]
 
 
@@ -417,6 +419,7 @@ class Recorder:
             self._last_flush_at = 0  # once: the last chunk, the close's, is small
         self._settle(n_rows)
         self._write_out(n_rows)
+        self.rows.dropped += n_rows  # (the span writes its next rows over them)
         return self.hand_over_at()
 
     def rows_to_write(self) -> int:

@@ -881,6 +881,8 @@ class Session:
         self._finish(note, fault)
 
     def _finish(self, note: str, fault: bool) -> None:
+        if self.display is not None:  # a watching scope takes the last rows before the close writes them out
+            self.display.closing()
         no_more_rows = getattr(self.recorder, "no_more_rows", None)
         if no_more_rows is not None and not fault:  # (a fault marks the last row first)
             try:
