@@ -73,6 +73,12 @@ def _recv_beside(link: Link, host: subprocess.Popen[bytes], timeout_s: float) ->
         raise
 
 
+def _tail(host: subprocess.Popen[bytes]) -> str:
+    """The end of a finished host's output (its summary or its error line), for a failure's message."""
+    out, err = host.communicate(timeout=10)
+    return (out[-400:] + err[-400:]).decode(errors="replace")
+
+
 def _kill_and_watch(port: str, period_us: int, run_s: float, watchdog_ms: int) -> tuple[Drive, float]:
     """Run the host run_s seconds, SIGKILL it: the trip's Drive and its delay (s). The test opens
     the port just before the kill (a second reader for a few ms), so that a simulator running faster
@@ -93,11 +99,16 @@ def _kill_and_watch(port: str, period_us: int, run_s: float, watchdog_ms: int) -
         os.kill(host.pid, signal.SIGKILL)
         host.wait(timeout=30)
         killed_at = time.monotonic()
+        assert host.returncode == -signal.SIGKILL, \
+            f"the host ended before the kill (exit {host.returncode}): {_tail(host)}"
         # the two readers split frames between them: this decoder may hold the head of a frame whose
         # tail the host took, which would merge with the trip's Drive into one bad frame. A fresh
         # reader starts at nothing; a tail still pending ends in a delimiter and is one dropped frame.
+        # It opens before the old one closes: the pty's last close would flush its input (a trip's
+        # Drive queued in that moment lost).
+        fresh = _listen(port)
         link.close()
-        link = _listen(port)
+        link = fresh
         deadline = killed_at + 10.0
         seen = []
         while time.monotonic() < deadline:
@@ -107,7 +118,7 @@ def _kill_and_watch(port: str, period_us: int, run_s: float, watchdog_ms: int) -
             if msg is not None:
                 seen.append(msg)
         pytest.fail(f"no watchdog Drive within 10 s after the host was killed; received {seen[-5:]}, "
-                    f"link {link.stats}")
+                    f"link {link.stats}; the host said: {_tail(host)}")
     finally:
         if link is not None:
             link.close()
