@@ -162,6 +162,10 @@ class DisplayStream:
         if _flush_coming(self.session.recorder) or self.clock() - self._last_take >= self.take_every_s:
             self._take_or_sleep()
 
+    def flush_coming(self) -> bool:
+        """Whether the recorder's next `maybe_flush` writes rows out (a loop's cue to call `due` now)."""
+        return _flush_coming(self.session.recorder)
+
     def closing(self) -> None:
         """The run ends: the rows not taken yet taken now, before the close writes them out (while a
         scope watches)."""

@@ -448,7 +448,7 @@ class MonitorSession:
             values = tuple(tele[:n]) + (0,) * (n - len(tele))
             assert self._pack is not None and self._tele_pack is not None  # set with the row layout at the start
             self.recorder.rows.extend(self._pack(*own) + self._tele_pack(*values))
-        if self.display is not None and (k % OBSERVE_EVERY_ROWS == 0 or self._flush_coming()):
+        if self.display is not None and (k % OBSERVE_EVERY_ROWS == 0 or self.display.flush_coming()):
             self.display.due(k, drive, None)  # the scope takes its rows before a flush empties the buffer
         if self.recorder is not None:
             self.recorder.maybe_flush()
@@ -481,10 +481,6 @@ class MonitorSession:
             rtt_p50_us=nan, rtt_p99_us=nan,
             link={"rows": self.stats.rows, "missing_periods": self.stats.missing_periods}, overruns=0,
             messages=self.messages[-4:], history=copy.copy(self.history), fault=drive.fault)
-
-    def _flush_coming(self) -> bool:
-        recorder = self.recorder
-        return recorder is not None and len(recorder.rows) >= getattr(recorder, "flush_rows", math.inf)
 
     def _fire_events(self, t_s: float) -> None:
         while self._next_event < len(self.events) and self.events[self._next_event].at_s <= t_s + 1e-12:
@@ -575,6 +571,8 @@ class MonitorSession:
         if self.recorder is not None:
             summary.recording = str(getattr(self.recorder, "path", "")) or None
             self.recorder.event(segmentation.end_event(self.t_s))
+            if self.display is not None:  # a watching scope takes the last rows before the close writes them out
+                self.display.closing()
             self.recorder.close(f"end: {summary.end_reason} at period {summary.periods}")
             summary.rows_recorded = int(getattr(self.recorder, "rows_written", stats.rows))
 

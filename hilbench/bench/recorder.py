@@ -319,6 +319,7 @@ class Recorder:
     started: bool = False
     _background: Any = field(default=None, repr=False)  # npzwriter.BackgroundArchive, when the rows are planned
     _handed: int = field(default=0, repr=False)  # a CSV's pending rows already handed to its writer's thread
+    _span_taken: int = field(default=0, repr=False)  # rows a C span's interrupted hand-over took (`span_stopped`)
     _journal_start: int = field(default=0, repr=False)  # the journal's row 0
     _csv_writer: Any = field(default=None, repr=False)  # _csvrows.RowWriter: a CSV's rows written on a thread
     _next_row_marker: int = field(default=MARKER_NONE, repr=False)  # an event's, flushed before its row came
@@ -415,12 +416,27 @@ class Recorder:
         """The first ``n_rows`` pending rows, which the C span has written and writes on after,
         flushed as `maybe_flush` would (the buffer's size is the span's: not changed here; the span
         writes on from its start once this returns). Returns the next `hand_over_at`."""
-        if 0 < self._last_flush_at <= self.rows_written + n_rows:
-            self._last_flush_at = 0  # once: the last chunk, the close's, is small
-        self._settle(n_rows)
-        self._write_out(n_rows)
-        self.rows.dropped += n_rows  # (the span writes its next rows over them)
-        return self.hand_over_at()
+        written, dropped = self.rows_written, self.rows.dropped
+        try:
+            if 0 < self._last_flush_at <= self.rows_written + n_rows:
+                self._last_flush_at = 0  # once: the last chunk, the close's, is small
+            self._settle(n_rows)
+            self._write_out(n_rows)
+            self.rows.dropped += n_rows  # (the span writes its next rows over them)
+            return self.hand_over_at()
+        except BaseException:  # a Ctrl-C after the rows were taken: the span stops with them still
+            if self.rows_written != written:  # in its buffer, which `span_stopped` empties
+                self.rows.dropped = dropped
+                self._span_taken = n_rows
+            raise
+
+    def span_stopped(self) -> None:
+        """A C span stopped by an exception: rows a hand-over had taken (written, counted) before it
+        are let go from the buffer, where the span left them, so the close does not write them again."""
+        n_rows, self._span_taken = self._span_taken, 0
+        if n_rows:
+            del self.rows.data[:n_rows * self.rows.struct.size]
+            self.rows.dropped += n_rows
 
     def rows_to_write(self) -> int:
         """How many more rows before `maybe_flush` has work: a flush, or rows for a CSV's writer thread."""
@@ -586,8 +602,12 @@ class Recorder:
         n_rows = len(self.rows)
         if not n_rows and not self._events:
             return
-        self._write_out(n_rows)
-        self.rows.clear()
+        written = self.rows_written
+        try:
+            self._write_out(n_rows)
+        finally:  # (also under a Ctrl-C once they are counted: the close must not write them again)
+            if self.rows_written != written:
+                self.rows.clear()
 
     def _write_out(self, n_rows: int) -> None:
         """The first ``n_rows`` pending rows (settled) and every pending event written; the caller

@@ -577,7 +577,9 @@ class Session:
                     perf: Callable[[], float] = time.perf_counter,
                     span: Any = self._c_span(rows), samples: bytearray | None = self._span_samples,
                     sampler: HistoryPart = self.sampler,
-                    hand_over_at: Callable[[], int] | None = self._span_hand_over_at) -> Generator[int, tuple[int, int], None]:
+                    hand_over_at: Callable[[], int] | None = self._span_hand_over_at,
+                    span_stopped: Callable[[], None] | None = getattr(self.recorder, "span_stopped", None),
+                    ) -> Generator[int, tuple[int, int], None]:
             k, stop = yield 0
             edge_s, drive, hall_before = session._edge_s, session.drive, session._hall_before
             rtt, late, marker = 0.0, 0.0, 0  # lockstep: no wall-clock figures in the row
@@ -656,6 +658,8 @@ class Session:
                     if in_span:  # where the C span stopped, and what it left
                         k, edge_s, drive, hall_before = span.k, span.edge_s, span.drive, span.hall_before
                         in_span = False
+                        if span_stopped is not None:  # rows an interrupted hand-over took leave the buffer
+                            span_stopped()
                         if samples:  # the samples of the periods before it, as the Python loop took them
                             taken = bytes(samples)
                             del samples[:]
@@ -881,6 +885,10 @@ class Session:
         self._finish(note, fault)
 
     def _finish(self, note: str, fault: bool) -> None:
+        if self.recorder is not None:  # the end's event and the fault's mark first: a watching scope shows them
+            self.recorder.event(segmentation.end_event(self.now_s))
+            if fault:
+                self.recorder.mark_last(MARKER_FAULT)
         if self.display is not None:  # a watching scope takes the last rows before the close writes them out
             self.display.closing()
         no_more_rows = getattr(self.recorder, "no_more_rows", None)
@@ -901,16 +909,12 @@ class Session:
             summary.longest_stall_periods = pacing.longest_stall
             summary.longest_stall_at_s = pacing.longest_stall_k * pacing.period_s
         summary.link = self.link_stats()
-        if self.recorder is not None:
-            self.recorder.event(segmentation.end_event(summary.sim_s))
         summary.segments = self.segmenter.finish(summary.sim_s)
         try:
             summary.params = self.param_values() if not fault else {}
         except HilbenchError:
             summary.params = {}
         if self.recorder is not None:
-            if fault:
-                self.recorder.mark_last(MARKER_FAULT)
             self.recorder.close(note)
             summary.rows_recorded = self.recorder.rows_written
 

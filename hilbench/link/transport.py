@@ -63,6 +63,9 @@ class FdTransport(Transport):
         self._poll = select.poll()
         self._poll.register(fd, select.POLLIN | select.POLLPRI)
         self._closed = False
+        # a raw tty (VMIN 0) reads 0 bytes when a poll's wake-up found nothing left (another reader of
+        # the same pty took it): not an end of file, which a tty reports as POLLHUP or EIO
+        self._empty_is_eof = not os.isatty(fd)
 
     def fileno(self) -> int | None:
         return self.fd
@@ -88,7 +91,8 @@ class FdTransport(Transport):
                 raise self._hung_up(os.strerror(exc.errno or 0)) from None
             raise LinkError(f"link {self.name}: read failed: {exc.strerror}") from None
         if not data:
-            raise self._hung_up("end of file")
+            if self._empty_is_eof or any(ev & select.POLLHUP for _, ev in events):
+                raise self._hung_up("end of file")
         return data
 
     def write(self, data: bytes, timeout_s: float) -> None:
