@@ -451,3 +451,41 @@ def test_recv_without_timeout_blocks_for_frames_and_sees_hang_up(pty_pair) -> No
     host.close()
     with pytest.raises(LinkClosed):
         far.recv_or_none(None)
+
+
+def test_a_raw_ttys_empty_read_is_no_hang_up_but_a_pipes_is() -> None:
+    """A raw tty (VMIN 0, VTIME 0) reads 0 bytes when nothing is waiting, as after a poll whose
+    wake-up another reader of the same pty answered first; its end is EIO or POLLHUP. A pipe's 0
+    bytes are its end of file."""
+    import tty
+
+    from hilbench.link.transport import FdTransport
+
+    master, slave = os.openpty()
+    tty.setraw(slave)
+    attrs = termios.tcgetattr(slave)
+    attrs[6][termios.VMIN], attrs[6][termios.VTIME] = 0, 0
+    termios.tcsetattr(slave, termios.TCSANOW, attrs)
+    link = Link(FdTransport(slave, "pty"), "pty")
+    try:
+        assert os.read(slave, 64) == b""  # the premise: nothing waiting reads as 0 bytes
+        assert link._data_or_eof(b"") is False
+        assert link.recv_or_none(0.01) is None
+        os.close(master)
+        master = -1
+        with pytest.raises(LinkClosed):  # the far end's close: EIO / POLLHUP
+            link.recv_or_none(0.5)
+    finally:
+        link.close()
+        if master >= 0:
+            os.close(master)
+    r, w = os.pipe()
+    pipe = Link(FdTransport(r, "pipe"), "pipe")
+    try:
+        os.close(w)
+        with pytest.raises(LinkClosed, match="end of file"):
+            pipe._data_or_eof(b"")
+        with pytest.raises(LinkClosed):
+            pipe.recv_or_none(0.5)
+    finally:
+        pipe.close()

@@ -208,9 +208,7 @@ class Link:
         """recv_or_none's end after one poll and read (`_read_once`'s answer): the frame they brought,
         else the wait through the transport up to ``deadline``. hilbench/targets/_remotestep.c, the
         C form of RemoteTarget.step, hands what it read here whenever it is not one good Drive."""
-        if data is not None:
-            if not data:
-                raise self.transport._hung_up("end of file")  # type: ignore[attr-defined]
+        if data is not None and self._data_or_eof(data):
             msg = self._take_read(data)
             if msg is not None:
                 return msg
@@ -223,11 +221,19 @@ class Link:
         A read error returns None: the caller's wait reads again through the transport, which
         names the error (hang-up, closed). End of file is a hang-up."""
         data = self._read_once(fd, timeout_s)
-        if data is None:
+        if data is None or not self._data_or_eof(data):
             return None
-        if not data:
-            raise self.transport._hung_up("end of file")  # type: ignore[attr-defined]
         return self._take_read(data)
+
+    def _data_or_eof(self, data: bytes) -> bool:
+        """True for bytes; 0 bytes raise the hang-up, but from a raw tty (the transport's
+        `empty_read_is_eof` false), where they mean that another reader took what a poll woke us
+        for (a tty's hang-up is an error or POLLHUP, which the transport's next read names)."""
+        if data:
+            return True
+        if self.transport.empty_read_is_eof:
+            raise self.transport._hung_up("end of file")  # type: ignore[attr-defined]
+        return False
 
     def _take_read(self, data: bytes) -> Message | None:
         """What one read brought: the frame itself when it is exactly one good frame (the fast

@@ -142,6 +142,10 @@ class ThrottledTransport(Transport):
     def fileno(self) -> int | None:
         return self.inner.fileno()
 
+    @property
+    def empty_read_is_eof(self) -> bool:  # type: ignore[override]
+        return self.inner.empty_read_is_eof
+
     def _hung_up(self, why: str) -> Exception:
         return self.inner._hung_up(why)  # type: ignore[attr-defined]
 

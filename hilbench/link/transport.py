@@ -33,6 +33,9 @@ class Transport:
     """What a Link needs from the bytes underneath."""
 
     name: str
+    #: whether a read of 0 bytes after a poll said "readable" is the far end's end of file (a pipe, a
+    #: socket); a raw tty (VMIN 0) reads 0 bytes when another reader took the bytes first
+    empty_read_is_eof: bool = True
 
     def read(self, timeout_s: float | None) -> bytes:  # pragma: no cover - interface
         """Everything waiting (b'' after timeout_s); LinkClosed when the far end hung up."""
@@ -63,9 +66,8 @@ class FdTransport(Transport):
         self._poll = select.poll()
         self._poll.register(fd, select.POLLIN | select.POLLPRI)
         self._closed = False
-        # a raw tty (VMIN 0) reads 0 bytes when a poll's wake-up found nothing left (another reader of
-        # the same pty took it): not an end of file, which a tty reports as POLLHUP or EIO
-        self._empty_is_eof = not os.isatty(fd)
+        # a tty's end is POLLHUP or EIO: its 0-byte read is a wake-up another reader of the pty answered
+        self.empty_read_is_eof = not os.isatty(fd)
 
     def fileno(self) -> int | None:
         return self.fd
@@ -91,7 +93,7 @@ class FdTransport(Transport):
                 raise self._hung_up(os.strerror(exc.errno or 0)) from None
             raise LinkError(f"link {self.name}: read failed: {exc.strerror}") from None
         if not data:
-            if self._empty_is_eof or any(ev & select.POLLHUP for _, ev in events):
+            if self.empty_read_is_eof or any(ev & select.POLLHUP for _, ev in events):
                 raise self._hung_up("end of file")
         return data
 
