@@ -473,7 +473,9 @@ def test_a_raw_ttys_empty_read_is_no_hang_up_but_a_pipes_is() -> None:
         assert link.recv_or_none(0.01) is None
         os.close(master)
         master = -1
-        with pytest.raises(LinkClosed):  # the far end's close: EIO / POLLHUP
+        with pytest.raises(LinkClosed):  # the far end's close, with no time left to wait: the fast path's
+            link.recv_or_none(0)
+        with pytest.raises(LinkClosed):  # and the transport's (EIO / POLLHUP)
             link.recv_or_none(0.5)
     finally:
         link.close()

@@ -426,6 +426,7 @@ class Recorder:
             return self.hand_over_at()
         except BaseException:  # a Ctrl-C after the rows were taken: the span stops with them still
             if self.rows_written != written:  # in its buffer, which `span_stopped` empties
+                self._written_out()
                 self.rows.dropped = dropped
                 self._span_taken = n_rows
             raise
@@ -607,7 +608,14 @@ class Recorder:
             self._write_out(n_rows)
         finally:  # (also under a Ctrl-C once they are counted: the close must not write them again)
             if self.rows_written != written:
+                self._written_out()
                 self.rows.clear()
+
+    def _written_out(self) -> None:
+        """What `_write_out` ends with once its rows are counted, done again after an exception there
+        (a Ctrl-C): the events went with the rows, a CSV's rows all left the buffer for its file."""
+        self._events.clear()
+        self._handed = 0
 
     def _write_out(self, n_rows: int) -> None:
         """The first ``n_rows`` pending rows (settled) and every pending event written; the caller
@@ -621,8 +629,12 @@ class Recorder:
         try:
             if self.is_npz:
                 if events:  # the side file keeps them until the close, the metadata at the close
-                    self._write_events_file("".join(f"{text}\n" for _, text, _ in events))
-                    self.metadata.setdefault("events", []).extend(text for _, text, _ in events)
+                    texts = [text for _, text, _ in events]
+                    self._write_events_file("".join(f"{text}\n" for text in texts))
+                    try:
+                        self.metadata.setdefault("events", []).extend(texts)
+                    finally:  # written: not again after a Ctrl-C from here on
+                        events.clear()
             elif self._csv_writer is not None:  # the rest to the thread; the flush returns when it is written
                 self._hand_over_csv(n_rows)
                 self._csv_writer.drain()

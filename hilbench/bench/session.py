@@ -885,14 +885,12 @@ class Session:
         self._finish(note, fault)
 
     def _finish(self, note: str, fault: bool) -> None:
-        if self.recorder is not None:  # the end's event and the fault's mark first: a watching scope shows them
+        if self.recorder is not None:  # the end's event first: a watching scope shows it
             self.recorder.event(segmentation.end_event(self.now_s))
-            if fault:
-                self.recorder.mark_last(MARKER_FAULT)
-        if self.display is not None:  # a watching scope takes the last rows before the close writes them out
+        if self.display is not None and not fault:  # a watching scope takes the last rows before the close writes them out
             self.display.closing()
         no_more_rows = getattr(self.recorder, "no_more_rows", None)
-        if no_more_rows is not None and not fault:  # (a fault marks the last row first)
+        if no_more_rows is not None and not fault:  # (a fault marks the last row first, below)
             try:
                 no_more_rows()  # an archive's thread converts the last rows while the summary is made
             except RecordingError:  # the close meets it again and says it, after the summary
@@ -915,6 +913,10 @@ class Session:
         except HilbenchError:
             summary.params = {}
         if self.recorder is not None:
+            if fault:
+                self.recorder.mark_last(MARKER_FAULT)
+                if self.display is not None:  # (after the mark: a watching scope shows it)
+                    self.display.closing()
             self.recorder.close(note)
             summary.rows_recorded = self.recorder.rows_written
 

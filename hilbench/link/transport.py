@@ -66,7 +66,8 @@ class FdTransport(Transport):
         self._poll = select.poll()
         self._poll.register(fd, select.POLLIN | select.POLLPRI)
         self._closed = False
-        # a tty's end is POLLHUP or EIO: its 0-byte read is a wake-up another reader of the pty answered
+        # a live tty's 0-byte read is a wake-up another reader of the pty answered (its end: POLLHUP, EIO,
+        # or isatty false)
         self.empty_read_is_eof = not os.isatty(fd)
 
     def fileno(self) -> int | None:
@@ -93,7 +94,7 @@ class FdTransport(Transport):
                 raise self._hung_up(os.strerror(exc.errno or 0)) from None
             raise LinkError(f"link {self.name}: read failed: {exc.strerror}") from None
         if not data:
-            if self.empty_read_is_eof or any(ev & select.POLLHUP for _, ev in events):
+            if self.empty_read_is_eof or any(ev & select.POLLHUP for _, ev in events) or not os.isatty(self.fd):
                 raise self._hung_up("end of file")
         return data
 
