@@ -481,6 +481,15 @@ def test_a_raw_ttys_empty_read_is_no_hang_up_but_a_pipes_is() -> None:
         link.close()
         if master >= 0:
             os.close(master)
+    master, slave = os.openpty()  # the master's side: its far end (the slave) closes, EIO
+    tty.setraw(slave)
+    link = Link(FdTransport(master, "ptmx"), "ptmx")
+    try:
+        os.close(slave)
+        with pytest.raises(LinkClosed):
+            link.recv_or_none(0)
+    finally:
+        link.close()
     r, w = os.pipe()
     pipe = Link(FdTransport(r, "pipe"), "pipe")
     try:

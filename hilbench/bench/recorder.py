@@ -607,9 +607,11 @@ class Recorder:
         try:
             self._write_out(n_rows)
         finally:  # (also under a Ctrl-C once they are counted: the close must not write them again)
-            if self.rows_written != written:
+            if self.rows_written != written:  # (no call before the rows are let go: a Ctrl-C lands at calls)
+                rows = self.rows
+                del rows.data[:]
+                rows.dropped += n_rows
                 self._written_out()
-                self.rows.clear()
 
     def _written_out(self) -> None:
         """What `_write_out` ends with once its rows are counted, done again after an exception there
@@ -630,9 +632,10 @@ class Recorder:
             if self.is_npz:
                 if events:  # the side file keeps them until the close, the metadata at the close
                     texts = [text for _, text, _ in events]
+                    kept = self.metadata.setdefault("events", [])
                     self._write_events_file("".join(f"{text}\n" for text in texts))
                     try:
-                        self.metadata.setdefault("events", []).extend(texts)
+                        kept.extend(texts)
                     finally:  # written: not again after a Ctrl-C from here on
                         events.clear()
             elif self._csv_writer is not None:  # the rest to the thread; the flush returns when it is written

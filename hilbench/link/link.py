@@ -16,7 +16,7 @@ from dataclasses import asdict, dataclass
 from typing import Any, Callable, Iterable
 
 from hilbench.errors import DecodeError, LinkError, LinkTimeout
-from hilbench.link.transport import _READ_CHUNK, FdTransport, Transport
+from hilbench.link.transport import _HANGUP_ERRNOS, _READ_CHUNK, FdTransport, Transport
 from hilbench.protocol import Drive, FrameDecoder, Sensors, decode_frame, encode_frame
 from hilbench.protocol.messages import Message
 
@@ -195,13 +195,15 @@ class Link:
         return self._wait(timeout_s, timeout_s)
 
     def _read_once(self, fd: int, timeout_s: float) -> bytes | None:
-        """One poll and one read: what arrived (b"": end of file), or None (nothing, or a read
-        error, which the transport names on the next read: hang-up, closed)."""
+        """One poll and one read: what arrived (b"": end of file, or a raw tty's empty read), or None
+        (nothing, or a read error the transport names on the next read); a hang-up's error raises."""
         if not self._poll_fd(timeout_s * 1000.0 if timeout_s > 0 else 0):
             return None
         try:
             return os.read(fd, _READ_CHUNK)
-        except OSError:  # BlockingIOError included: nothing after all
+        except OSError as exc:  # BlockingIOError included: nothing after all
+            if exc.errno in _HANGUP_ERRNOS:  # (said now: with no time left no later read would)
+                raise self.transport._hung_up(os.strerror(exc.errno or 0)) from None  # type: ignore[attr-defined]
             return None
 
     def _took(self, data: bytes | None, deadline: float, timeout_s: float) -> Message | None:
@@ -218,8 +220,8 @@ class Link:
     def _read_ready(self, fd: int, timeout_s: float) -> Message | None:
         """One poll and one read: the frame that arrived, or None (nothing yet, or part of one).
 
-        A read error returns None: the caller's wait reads again through the transport, which
-        names the error (hang-up, closed). End of file is a hang-up."""
+        Another read error returns None: the caller's wait reads again through the transport, which
+        names it. End of file and a hang-up's error raise the hang-up."""
         data = self._read_once(fd, timeout_s)
         if data is None or not self._data_or_eof(data):
             return None
