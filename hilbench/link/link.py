@@ -228,13 +228,11 @@ class Link:
         return self._take_read(data)
 
     def _data_or_eof(self, data: bytes) -> bool:
-        """True for bytes; 0 bytes raise the hang-up, but from a raw tty that still answers as one
-        (the transport's `empty_read_is_eof` false), where they mean that another reader took what
-        a poll woke us for. A hung-up tty reads 0 bytes too, and fails isatty (its tcgetattr)."""
+        """True for bytes; 0 bytes raise the hang-up where they are the far end's end of file (the
+        transport's `empty_read_ends`: not on a raw tty that still answers as one), else False."""
         if data:
             return True
-        fd = self.transport.fileno()
-        if self.transport.empty_read_is_eof or fd is None or not os.isatty(fd):
+        if self.transport.empty_read_ends():
             raise self.transport._hung_up("end of file")  # type: ignore[attr-defined]
         return False
 

@@ -142,9 +142,8 @@ class ThrottledTransport(Transport):
     def fileno(self) -> int | None:
         return self.inner.fileno()
 
-    @property
-    def empty_read_is_eof(self) -> bool:  # type: ignore[override]
-        return self.inner.empty_read_is_eof
+    def empty_read_ends(self) -> bool:
+        return self.inner.empty_read_ends()
 
     def _hung_up(self, why: str) -> Exception:
         return self.inner._hung_up(why)  # type: ignore[attr-defined]

@@ -33,9 +33,6 @@ class Transport:
     """What a Link needs from the bytes underneath."""
 
     name: str
-    #: whether a read of 0 bytes after a poll said "readable" is the far end's end of file (a pipe, a
-    #: socket); a raw tty (VMIN 0) reads 0 bytes when another reader took the bytes first
-    empty_read_is_eof: bool = True
 
     def read(self, timeout_s: float | None) -> bytes:  # pragma: no cover - interface
         """Everything waiting (b'' after timeout_s); LinkClosed when the far end hung up."""
@@ -47,6 +44,11 @@ class Transport:
 
     def fileno(self) -> int | None:
         return None
+
+    def empty_read_ends(self) -> bool:
+        """Whether a read of 0 bytes after a poll said "readable" is the far end's end of file (a
+        pipe, a socket), as here; not on a raw tty that still answers as one (`FdTransport`)."""
+        return True
 
     def close(self) -> None:  # pragma: no cover - interface
         raise NotImplementedError
@@ -66,12 +68,15 @@ class FdTransport(Transport):
         self._poll = select.poll()
         self._poll.register(fd, select.POLLIN | select.POLLPRI)
         self._closed = False
-        # a live tty's 0-byte read is a wake-up another reader of the pty answered (its end: POLLHUP, EIO,
-        # or isatty false)
-        self.empty_read_is_eof = not os.isatty(fd)
+        self._tty = os.isatty(fd)
 
     def fileno(self) -> int | None:
         return self.fd
+
+    def empty_read_ends(self) -> bool:
+        """A raw tty (VMIN 0) reads 0 bytes when another reader of the pty took what a poll woke us
+        for: no end while it still answers as a tty (a hung-up one fails isatty, its tcgetattr)."""
+        return not self._tty or not os.isatty(self.fd)
 
     def _hung_up(self, why: str) -> LinkClosed:
         return LinkClosed(f"link {self.name}: the far end hung up ({why})")
@@ -94,7 +99,7 @@ class FdTransport(Transport):
                 raise self._hung_up(os.strerror(exc.errno or 0)) from None
             raise LinkError(f"link {self.name}: read failed: {exc.strerror}") from None
         if not data:
-            if self.empty_read_is_eof or any(ev & select.POLLHUP for _, ev in events) or not os.isatty(self.fd):
+            if any(ev & select.POLLHUP for _, ev in events) or self.empty_read_ends():
                 raise self._hung_up("end of file")
         return data
 
