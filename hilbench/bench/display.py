@@ -159,7 +159,7 @@ class DisplayStream:
                 self.session.watch_rows(False)
                 self._asked_at = -math.inf
             return
-        if _flush_coming(self.session.recorder) or self.clock() - self._last_take >= self.take_every_s:
+        if self.flush_coming() or self.clock() - self._last_take >= self.take_every_s:
             self._take_or_sleep()
 
     def flush_coming(self) -> bool:

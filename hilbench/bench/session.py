@@ -885,12 +885,10 @@ class Session:
         self._finish(note, fault)
 
     def _finish(self, note: str, fault: bool) -> None:
-        if self.recorder is not None:  # the end's event first: a watching scope shows it
-            self.recorder.event(segmentation.end_event(self.now_s))
-        if self.display is not None and not fault:  # a watching scope takes the last rows before the close writes them out
+        if self.display is not None:  # a watching scope takes the last rows before the close writes them out
             self.display.closing()
         no_more_rows = getattr(self.recorder, "no_more_rows", None)
-        if no_more_rows is not None and not fault:  # (a fault marks the last row first, below)
+        if no_more_rows is not None and not fault:  # (a fault marks the last row first)
             try:
                 no_more_rows()  # an archive's thread converts the last rows while the summary is made
             except RecordingError:  # the close meets it again and says it, after the summary
@@ -907,6 +905,8 @@ class Session:
             summary.longest_stall_periods = pacing.longest_stall
             summary.longest_stall_at_s = pacing.longest_stall_k * pacing.period_s
         summary.link = self.link_stats()
+        if self.recorder is not None:
+            self.recorder.event(segmentation.end_event(summary.sim_s))
         summary.segments = self.segmenter.finish(summary.sim_s)
         try:
             summary.params = self.param_values() if not fault else {}
@@ -915,8 +915,6 @@ class Session:
         if self.recorder is not None:
             if fault:
                 self.recorder.mark_last(MARKER_FAULT)
-                if self.display is not None:  # (after the mark: a watching scope shows it)
-                    self.display.closing()
             self.recorder.close(note)
             summary.rows_recorded = self.recorder.rows_written
 
