@@ -25,6 +25,7 @@ the step.
 
 from __future__ import annotations
 
+import json
 import math
 import os
 import select
@@ -32,6 +33,7 @@ import subprocess
 import sys
 import time
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pytest
@@ -282,8 +284,6 @@ def test_ctl_tunes_the_real_motor_live(motor_build: Path, tmp_path: Path) -> Non
     (the guard then watches the new gains), its answer, the values read back by `ctl get`, the write
     in the recording at the board's time; a write the firmware's constraints refuse is refused; `ctl
     stop` ends the run (it runs until then, however long the commands take on a loaded machine)."""
-    import json
-
     harness, pty = _start_harness(motor_build)
     run = spawn([sys.executable, "-m", "hilbench", "run", "--target", pty, "--mode", "monitor", "--no-ui",
                  "--set", f"link.period_us={PERIOD_MONITOR_US}", "--set", "link.watchdog_ms=500",
@@ -361,3 +361,72 @@ def test_monitor_options_refuse_a_watchdog_the_keep_alives_cannot_feed() -> None
     with pytest.raises(ConfigError, match="must be > 0"):
         monitor_options(5_000, 0, None, 5.0)
     assert monitor_options(5_000, 100, None, 5.0).watchdog_ms == 100
+
+
+class _Scope:
+    """A control source with a scope's `stream` requests, one every ``every_s`` (as the page asks;
+    a scope that stops asking lets the display go idle), each from the last answer's seq on; the
+    frames of every answer kept."""
+
+    def __init__(self, columns: list[str], every_s: float = 0.2) -> None:
+        self.columns, self.every_s = columns, every_s
+        self.seq = -1
+        self.frames: list[dict[str, Any]] = []
+        self._asked = -math.inf
+
+    def poll(self) -> list[Any]:
+        from hilbench.bench.control import ControlRequest
+
+        if time.monotonic() - self._asked < self.every_s:
+            return []
+        self._asked = time.monotonic()
+        return [ControlRequest("stream", {"since": self.seq, "columns": self.columns}, self._asked, _send=self.took)]
+
+    def took(self, line: bytes) -> None:
+        answer = json.loads(line)
+        assert answer["ok"], answer
+        self.take(answer["data"])
+
+    def take(self, data: dict[str, Any]) -> None:
+        self.frames += data["frames"]
+        self.seq = data["seq"]
+
+
+def test_a_scope_watching_the_real_motor_gets_every_row(motor_build: Path, tmp_path: Path) -> None:
+    """The scope on a monitor run (the real motor's stream, recorded in chunks of one second): the
+    display takes the rows before each flush lets them go (`flush_coming`) and the last ones before
+    the close writes them out (`closing`), so its frames follow each other without a gap up to the
+    recording's last row, each bucket the envelope of the recorded rows."""
+    from test_scope_stream import decode
+    from hilbench.bench.display import envelope
+    from hilbench.bench.monitorrun import run_monitor_session
+    from hilbench.bench.run import RunRequest, load_run_config
+    from hilbench.bench.scenario import Event
+
+    harness, pty = _start_harness(motor_build)
+    cfg = load_run_config(RunRequest(overrides=(f"link.period_us={PERIOD_MONITOR_US}", "link.watchdog_ms=500"),
+                                     target=pty, mode="monitor"))
+    scope = _Scope(["t_s", "measured_speed_rpm"])
+    sessions: list[Any] = []
+    events = (Event(at_s=0.0, ref_rpm=FROM_RPM), Event(at_s=0.0, press="s2"), Event(at_s=2.475, end=True))
+    try:
+        summary, _ = run_monitor_session(cfg, events, record=tmp_path / "motor.npz", duration_s=2.475,
+                                         control=scope, on_ready=sessions.append)
+    finally:
+        reap(harness)
+    assert summary.periods >= 400, summary
+    display = sessions[0].display
+    assert display is not None and display.error is None, display.error
+    scope.take(display.request(scope.seq, scope.columns, sessions[0].t_s))  # the rows the close's take added
+    recording = read_recording(tmp_path / "motor.npz")
+    t_rec, speed = recording.columns["t_s"], recording.columns["measured_speed_rpm"]
+    frames = scope.frames
+    starts = [int(np.searchsorted(t_rec, f["t0"] - 1e-9)) for f in frames]
+    assert starts[0] == 0, (frames[0]["t0"], t_rec[:3])
+    ends = starts[1:] + [len(t_rec)]
+    for frame, start, end in zip(frames, starts, ends):  # each frame's rows: the next one starts after them
+        bucket = int(round(frame["dt"] * 1e6 / PERIOD_MONITOR_US))
+        assert frame["n"] == -(-(end - start) // bucket), (frame["t0"], frame["n"], start, end)
+        lo, hi = envelope(speed[start:end], bucket)
+        assert np.array_equal(decode(frame["cols"]["measured_speed_rpm"][0]), lo.astype(np.float32))
+        assert np.array_equal(decode(frame["cols"]["measured_speed_rpm"][1]), hi.astype(np.float32))
