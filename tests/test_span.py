@@ -479,3 +479,50 @@ def test_a_ctrl_c_just_after_a_chunk_is_written_loses_no_row_and_writes_none_twi
     t_s = np.asarray(recording.columns["t_s"])
     assert len(t_s) in (periods, periods + 1) and len(t_s) > sum(chunks) // 2, (len(t_s), periods, chunks)
     assert t_s[0] == 0.0 and np.allclose(np.diff(t_s), 50e-6)  # each period's row once, none missing
+
+
+def test_a_ctrl_c_as_the_reference_csv_writes_a_chunk_writes_no_row_twice(tmp_path: Path,
+                                                                          monkeypatch: pytest.MonkeyPatch) -> None:
+    """A CSV without its C writer's thread (the reference): a Ctrl-C is raised as the file's write of
+    a chunk returns (CPython delivers it when the call ends; a file's write runs to its end), and the
+    close writes every row once (it wrote that chunk a second time, after its rows)."""
+    from hilbench.bench import recorder as recorder_module
+    from hilbench.bench.recorder import Recorder
+
+    monkeypatch.setattr(recorder_module, "_csvrows", None)
+    writes: list[int] = []
+
+    class InterruptedSecondWrite:
+        def __init__(self, file: object) -> None:
+            self.file = file
+
+        def write(self, text: str) -> int:
+            done = self.file.write(text)  # type: ignore[attr-defined]
+            writes.append(len(text))
+            if len(writes) == 2:
+                raise KeyboardInterrupt
+            return done
+
+        def __getattr__(self, name: str) -> object:
+            return getattr(self.file, name)
+
+    start = Recorder.start
+
+    def started(self: Recorder, *args: object, **kwargs: object) -> None:
+        start(self, *args, **kwargs)  # type: ignore[arg-type]
+        self._file = InterruptedSecondWrite(self._file)  # (the header written: the chunks' writes from here)
+
+    monkeypatch.setattr(Recorder, "start", started)
+    out = tmp_path / "run.csv"
+    with hilbench.Bench(target="inprocess:an1017", record=out, overrides=["run.duration_s=2.5"]) as bench:
+        session = bench.session
+        assert session is not None and session.recorder is not None and session.recorder._csv_writer is None
+        with pytest.raises(KeyboardInterrupt):
+            bench.run()
+        periods = session.periods_done
+    assert len(writes) >= 3, writes  # two chunks, then the close's
+    recording = hilbench.read_recording(out)
+    assert recording.events and len(set(recording.events)) == len(recording.events), recording.events
+    t_s = np.asarray(recording.columns["t_s"])
+    assert len(t_s) in (periods, periods + 1), (len(t_s), periods)
+    assert t_s[0] == 0.0 and np.allclose(np.diff(t_s), 50e-6)  # each period's row once, none missing

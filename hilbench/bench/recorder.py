@@ -646,8 +646,16 @@ class Recorder:
                 columns = rows.columns()
                 table = np.column_stack([columns[name][first:] for name in rows.layout.column_names]) \
                     if n_rows > first else np.zeros((0, len(columns)))
-                self._file.write(self._format_csv(list(map(tuple, table.tolist())),
-                                                  [(index - first, text, marker) for index, text, marker in events]))
+                csv_text = self._format_csv(list(map(tuple, table.tolist())),
+                                            [(index - first, text, marker) for index, text, marker in events])
+                try:
+                    self._file.write(csv_text)
+                except OSError:
+                    raise
+                except BaseException:  # a Ctrl-C is raised as the write returns (a file's write runs to
+                    self.rows_written += n_rows  # its end): its rows are in the file, not to be written again
+                    self._next_row_marker = next_row_marker
+                    raise
             self._file.flush()
         except OSError as exc:
             raise RecordingError(f"recording {self.path}: write failed ({exc.strerror})") from None
