@@ -650,10 +650,10 @@ class Recorder:
                                             [(index - first, text, marker) for index, text, marker in events])
                 try:
                     self._file.write(csv_text)
-                except OSError:
+                except Exception:  # the write's own error (a full disk, no memory): nothing counted
                     raise
-                except BaseException:  # a Ctrl-C is raised as the write returns (a file's write runs to
-                    self.rows_written += n_rows  # its end): its rows are in the file, not to be written again
+                except BaseException:  # a signal's (Ctrl-C), raised as the write returns (a file's write
+                    self.rows_written += n_rows  # runs to its end): its rows are in the file, not to write again
                     self._next_row_marker = next_row_marker
                     raise
             self._file.flush()
