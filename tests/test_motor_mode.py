@@ -392,7 +392,8 @@ class _Scope:
         self.seq = data["seq"]
 
 
-def test_a_scope_watching_the_real_motor_gets_every_row(motor_build: Path, tmp_path: Path) -> None:
+def test_a_scope_watching_the_real_motor_gets_every_row(motor_build: Path, tmp_path: Path,
+                                                       monkeypatch: pytest.MonkeyPatch) -> None:
     """The scope on a monitor run (the real motor's stream, recorded in chunks of one second): the
     display takes the rows before each flush lets them go (`flush_coming`) and the last ones before
     the close writes them out (`closing`), so its frames follow each other without a gap up to the
@@ -403,6 +404,9 @@ def test_a_scope_watching_the_real_motor_gets_every_row(motor_build: Path, tmp_p
     from hilbench.bench.run import RunRequest, load_run_config
     from hilbench.bench.scenario import Event
 
+    from hilbench.bench import display as display_module
+
+    monkeypatch.setattr(display_module, "IDLE_AFTER_S", math.inf)  # the scope stays attached however slow the stop
     harness, pty = _start_harness(motor_build)
     cfg = load_run_config(RunRequest(overrides=(f"link.period_us={PERIOD_MONITOR_US}", "link.watchdog_ms=500"),
                                      target=pty, mode="monitor"))

@@ -650,6 +650,7 @@ class Recorder:
                                             [(index - first, text, marker) for index, text, marker in events])
                 try:
                     self._file.write(csv_text)
+                    self._file.flush()
                 except Exception:  # the write's own error (a full disk, no memory): nothing counted
                     raise
                 except BaseException:  # a signal's (Ctrl-C), raised as the write returns (a file's write
