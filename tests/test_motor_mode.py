@@ -39,6 +39,7 @@ import numpy as np
 import pytest
 
 from _firmware import python_config, require_file, require_tool
+from hilbench.bench.control import ControlRequest
 from hilbench.bench.monitorrun import analyse_measured
 from hilbench.bench.recorder import read_recording
 from hilbench.bench.steptest import StepTest
@@ -363,6 +364,11 @@ def test_monitor_options_refuse_a_watchdog_the_keep_alives_cannot_feed() -> None
     assert monitor_options(5_000, 100, None, 5.0).watchdog_ms == 100
 
 
+#: the scope test's run: it ends off an observe row (495, not a multiple of OBSERVE_EVERY_ROWS), so
+#: only the display's take at the close (`closing`) gives it the last rows
+SCOPE_RUN_S = 2.475
+
+
 class _Scope:
     """A control source with a scope's `stream` requests, one every ``every_s`` (as the page asks;
     a scope that stops asking lets the display go idle), each from the last answer's seq on; the
@@ -372,15 +378,13 @@ class _Scope:
         self.columns, self.every_s = columns, every_s
         self.seq = -1
         self.frames: list[dict[str, Any]] = []
-        self._asked = -math.inf
+        self._asked_s = -math.inf
 
-    def poll(self) -> list[Any]:
-        from hilbench.bench.control import ControlRequest
-
-        if time.monotonic() - self._asked < self.every_s:
+    def poll(self) -> list[ControlRequest]:
+        if time.monotonic() - self._asked_s < self.every_s:
             return []
-        self._asked = time.monotonic()
-        return [ControlRequest("stream", {"since": self.seq, "columns": self.columns}, self._asked, _send=self.took)]
+        self._asked_s = time.monotonic()
+        return [ControlRequest("stream", {"since": self.seq, "columns": self.columns}, self._asked_s, _send=self.took)]
 
     def took(self, line: bytes) -> None:
         answer = json.loads(line)
@@ -399,12 +403,10 @@ def test_a_scope_watching_the_real_motor_gets_every_row(motor_build: Path, tmp_p
     the close writes them out (`closing`), so its frames follow each other without a gap up to the
     recording's last row, each bucket the envelope of the recorded rows."""
     from test_scope_stream import decode
-    from hilbench.bench.display import envelope
+    from hilbench.bench import display as display_module
     from hilbench.bench.monitorrun import run_monitor_session
     from hilbench.bench.run import RunRequest, load_run_config
     from hilbench.bench.scenario import Event
-
-    from hilbench.bench import display as display_module
 
     monkeypatch.setattr(display_module, "IDLE_AFTER_S", math.inf)  # the scope stays attached however slow the stop
     harness, pty = _start_harness(motor_build)
@@ -412,9 +414,9 @@ def test_a_scope_watching_the_real_motor_gets_every_row(motor_build: Path, tmp_p
                                      target=pty, mode="monitor"))
     scope = _Scope(["t_s", "measured_speed_rpm"])
     sessions: list[Any] = []
-    events = (Event(at_s=0.0, ref_rpm=FROM_RPM), Event(at_s=0.0, press="s2"), Event(at_s=2.475, end=True))
+    events = (Event(at_s=0.0, ref_rpm=FROM_RPM), Event(at_s=0.0, press="s2"), Event(at_s=SCOPE_RUN_S, end=True))
     try:
-        summary, _ = run_monitor_session(cfg, events, record=tmp_path / "motor.npz", duration_s=2.475,
+        summary, _ = run_monitor_session(cfg, events, record=tmp_path / "motor.npz", duration_s=SCOPE_RUN_S,
                                          control=scope, on_ready=sessions.append)
     finally:
         reap(harness)
@@ -431,6 +433,6 @@ def test_a_scope_watching_the_real_motor_gets_every_row(motor_build: Path, tmp_p
     for frame, start, end in zip(frames, starts, ends):  # each frame's rows: the next one starts after them
         bucket = int(round(frame["dt"] * 1e6 / PERIOD_MONITOR_US))
         assert frame["n"] == -(-(end - start) // bucket), (frame["t0"], frame["n"], start, end)
-        lo, hi = envelope(speed[start:end], bucket)
+        lo, hi = display_module.envelope(speed[start:end], bucket)
         assert np.array_equal(decode(frame["cols"]["measured_speed_rpm"][0]), lo.astype(np.float32))
         assert np.array_equal(decode(frame["cols"]["measured_speed_rpm"][1]), hi.astype(np.float32))

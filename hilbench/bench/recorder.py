@@ -638,9 +638,11 @@ class Recorder:
                         kept.extend(texts)
                     finally:  # written: not again after a Ctrl-C from here on
                         events.clear()
+                self._file.flush()
             elif self._csv_writer is not None:  # the rest to the thread; the flush returns when it is written
                 self._hand_over_csv(n_rows)
                 self._csv_writer.drain()
+                self._file.flush()
             else:  # the reference (those a thread took before an interrupted close are written)
                 first = self._handed
                 columns = rows.columns()
@@ -657,7 +659,6 @@ class Recorder:
                     self.rows_written += n_rows  # runs to its end): its rows are in the file, not to write again
                     self._next_row_marker = next_row_marker
                     raise
-            self._file.flush()
         except OSError as exc:
             raise RecordingError(f"recording {self.path}: write failed ({exc.strerror})") from None
         self.rows_written += n_rows
