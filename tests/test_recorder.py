@@ -2,13 +2,18 @@
 
 from __future__ import annotations
 
+import errno
+import os
 import subprocess
 import sys
+import threading
 from pathlib import Path
+from typing import TextIO
 
 import numpy as np
 import pytest
 
+from hilbench.bench import recorder as recorder_module
 from hilbench.bench.recorder import (
     COLUMN_NAMES,
     COLUMNS,
@@ -295,3 +300,71 @@ def test_closed_memory_recorder_reads_its_rows_in_place_and_lets_them_grow_after
     assert raised.tb is not None
     del recorder.rows.data[:]
     assert len(recorder.rows) == 0
+
+
+class _ChunkWriteFails:
+    """A CSV file whose writes after the header raise ``error`` once the text is written (``written``
+    True: where CPython raises a Ctrl-C, as the write returns) or before (False: a write's own error)."""
+
+    def __init__(self, file: TextIO, error: BaseException, written: bool) -> None:
+        self.file, self.error, self.written = file, error, written
+
+    def write(self, text: str) -> int:
+        if self.written:
+            self.file.write(text)
+        raise self.error
+
+    def __getattr__(self, name: str) -> object:
+        return getattr(self.file, name)
+
+
+def _reference_csv(path: Path, monkeypatch: pytest.MonkeyPatch, error: BaseException, written: bool) -> Recorder:
+    """A started reference-path CSV recorder (no C row writer) with 5 rows pending, its next write
+    failing with ``error``."""
+    monkeypatch.setattr(recorder_module, "_csvrows", None)
+    rec = Recorder(path, {}, flush_rows=1000)
+    rec.start()
+    assert rec._csv_writer is None
+    rec._file = _ChunkWriteFails(rec._file, error, written)  # type: ignore[assignment]
+    for k in range(5):
+        rec.append(_row(k))
+    return rec
+
+
+def test_a_full_disk_on_the_reference_csv_path_is_one_clear_error_and_counts_no_row(
+        tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    rec = _reference_csv(tmp_path / "run.csv", monkeypatch, OSError(errno.ENOSPC, os.strerror(errno.ENOSPC)), False)
+    with pytest.raises(RecordingError, match=r"run\.csv: write failed \(No space left on device\)$"):
+        rec.flush()
+    assert rec.rows_written == 0
+
+
+def test_a_ctrl_c_as_the_reference_csv_write_returns_counts_the_rows_only_on_a_regular_file(
+        tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """A regular file's write runs to its end before the signal's exception: its rows are in the file.
+    A FIFO's can stop part-way, so nothing is counted there (the close writes the chunk again)."""
+    rec = _reference_csv(tmp_path / "run.csv", monkeypatch, KeyboardInterrupt(), True)
+    with pytest.raises(KeyboardInterrupt):
+        rec.flush()
+    assert rec.rows_written == 5
+
+    fifo = tmp_path / "fifo.csv"
+    os.mkfifo(fifo)
+    drained = bytearray()
+
+    def drain() -> None:
+        with open(fifo, "rb") as reader:
+            while chunk := reader.read(65536):
+                drained.extend(chunk)
+
+    reader = threading.Thread(target=drain, daemon=True)
+    reader.start()
+    piped = _reference_csv(fifo, monkeypatch, KeyboardInterrupt(), True)
+    assert not piped._csv_regular
+    with pytest.raises(KeyboardInterrupt):
+        piped.flush()
+    assert piped.rows_written == 0
+    piped._file = piped._file.file  # type: ignore[attr-defined]
+    piped._file.close()
+    reader.join(timeout=30)
+    assert not reader.is_alive() and drained.startswith(b"t_s[s],seq,")

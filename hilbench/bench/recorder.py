@@ -43,6 +43,7 @@ import functools
 import json
 import math
 import os
+import stat
 import struct
 import zipfile
 from dataclasses import dataclass, field
@@ -325,6 +326,7 @@ class Recorder:
     _next_row_marker: int = field(default=MARKER_NONE, repr=False)  # an event's, flushed before its row came
     _last_flush_at: int = field(default=0, repr=False)  # a planned run's rows at its last flush before the close
     _events_file: Any = field(default=None, repr=False)  # an NPZ's events side file, once it has some
+    _csv_regular: bool = field(default=True, repr=False)  # a CSV to a regular file: a write runs to its end
 
     def __post_init__(self) -> None:
         self.path = Path(self.path)
@@ -339,6 +341,7 @@ class Recorder:
                 self._tmp_path().unlink(missing_ok=True)  # and its unfinished archive
             else:
                 self._file = open(self.path, "w", encoding="utf-8", newline="\n")
+                self._csv_regular = stat.S_ISREG(os.fstat(self._file.fileno()).st_mode)
         except OSError as exc:
             raise RecordingError(f"recording {self.path}: cannot write ({exc.strerror})") from None
         self.append = self.rows.append
@@ -655,9 +658,10 @@ class Recorder:
                     self._file.flush()
                 except Exception:  # the write's own error (a full disk, no memory): nothing counted
                     raise
-                except BaseException:  # a signal's (Ctrl-C), raised as the write returns (a file's write
-                    self.rows_written += n_rows  # runs to its end): its rows are in the file, not to write again
-                    self._next_row_marker = next_row_marker
+                except BaseException:  # a signal's (Ctrl-C), raised as the write returns (a regular file's
+                    if self._csv_regular:  # write runs to its end): its rows are in the file, not to write again
+                        self.rows_written += n_rows  # (a pipe's can stop part-way: how far is unknown)
+                        self._next_row_marker = next_row_marker
                     raise
         except OSError as exc:
             raise RecordingError(f"recording {self.path}: write failed ({exc.strerror})") from None
