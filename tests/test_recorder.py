@@ -368,3 +368,21 @@ def test_a_ctrl_c_as_the_reference_csv_write_returns_counts_the_rows_only_on_a_r
     piped._file.close()
     reader.join(timeout=30)
     assert not reader.is_alive() and drained.startswith(b"t_s[s],seq,")
+
+
+@pytest.mark.parametrize("suffix", [".csv", ".npz"])
+def test_a_flush_of_events_alone_keeps_the_marker_waiting_for_its_row(tmp_path: Path, suffix: str) -> None:
+    """A fault noted with no row pending is written at once and its marker goes on the next row; a
+    later flush with only unmarked events in it (a note, a live write) does not drop that marker."""
+    path = tmp_path / f"run{suffix}"
+    rec = Recorder(path, {}, flush_rows=1000)
+    rec.append(_row(0))
+    rec.flush()
+    rec.event("fault: overcurrent", MARKER_FAULT)
+    rec.flush()  # the event written before its row came
+    rec.event("set kp=0.2")
+    rec.flush()  # events alone
+    rec.append(_row(1))
+    rec.close("end: completed")
+    markers = read_recording(path).columns["marker"]
+    assert markers.tolist() == [0, MARKER_FAULT]

@@ -628,7 +628,8 @@ class Recorder:
         events = self._events
         rows = self.rows
         markers = [marker for _, _, marker in events if marker != MARKER_NONE]  # settled: those of the next row
-        next_row_marker = markers[-1] if markers else MARKER_NONE
+        # no row written: an earlier flush's marker still waits for its row (settling took it otherwise)
+        next_row_marker = markers[-1] if markers else self._next_row_marker if n_rows == 0 else MARKER_NONE
         if self.is_npz:  # raw rows as they are (the layout is in the header)
             self._journal_rows(n_rows)
         try:
