@@ -433,6 +433,7 @@ def test_a_scope_watching_the_real_motor_gets_every_row(motor_build: Path, tmp_p
     for frame, start, end in zip(frames, starts, ends):  # each frame's rows: the next one starts after them
         bucket = int(round(frame["dt"] * 1e6 / PERIOD_MONITOR_US))
         assert frame["n"] == -(-(end - start) // bucket), (frame["t0"], frame["n"], start, end)
-        lo, hi = display_module.envelope(speed[start:end], bucket)
-        assert np.array_equal(decode(frame["cols"]["measured_speed_rpm"][0]), lo.astype(np.float32))
-        assert np.array_equal(decode(frame["cols"]["measured_speed_rpm"][1]), hi.astype(np.float32))
+        for name, values in (("measured_speed_rpm", speed), ("t_s", t_rec)):  # t_s: each bucket's first and last row
+            lo, hi = display_module.envelope(values[start:end], bucket)
+            assert np.array_equal(decode(frame["cols"][name][0]), lo.astype(np.float32)), (name, frame["t0"])
+            assert np.array_equal(decode(frame["cols"][name][1]), hi.astype(np.float32)), (name, frame["t0"])
