@@ -223,6 +223,10 @@ typedef struct {
     /* drive(core, seq): the Drive object Target.step would have returned for the last step (it
      * becomes the core's answer to a repeat); a new reference or NULL with an exception */
     PyObject *(*drive)(PyObject *core, PyObject *seq);
+    /* advance(core, span_us, in, out): Target.advance on C values, real time's step: the model run for
+     * span_us of wall time (sub-cycle remainders carried), no repeat rule (the server's); 0 or -1 with
+     * an exception. NULL where the core has none (real time's serve loop then stays in Python). */
+    int (*advance)(PyObject *core, double span_us, const hb_csensors_t *in, hb_cdrive_t *out);
 } hb_target_api_t;
 
 /* A core's answer to a repeated seq, as its `last_drive` attribute: None or the Drive kept; only None

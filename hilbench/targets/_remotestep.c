@@ -1,6 +1,6 @@
 /* The process paths' lockstep exchange in C, on protocol 3's C library: the host's RemoteTarget.step
  * for the session's lockstep span (hilbench/bench/_span.c) with a process target, and a target
- * process's serve() lockstep loop (serve_lockstep, further below).
+ * process's serve() loops, lockstep and real time (serve_lockstep, serve_realtime, further below).
  *
  * hilbench.targets.remote.RemoteTarget.step (over hilbench.link.Link) is the reference: send the
  * Sensors frame, one poll and one read, and when those bytes are exactly one good Drive frame with
@@ -416,7 +416,7 @@ static PyObject *remote_drive(PyObject *self, PyObject *seq)
     return drive;
 }
 
-static hb_target_api_t span_api = {remote_step, remote_drive};
+static hb_target_api_t span_api = {remote_step, remote_drive, NULL}; /* a process answers real time itself */
 
 /* ------------------------------------------------------------ serve()'s lockstep loop in C */
 /* hilbench.targets.serve._Server._lockstep is the reference: wait for a frame; a Sensors is counted,
@@ -579,20 +579,55 @@ static int send_drive(serving_t *g, tally_t *t, PyObject *link, int fd, const hb
     return handler_fault(g, in, sensors_type);
 }
 
-/* serve_lockstep(server, link, fd, api, core, wait_s, watching, drive_type, sensors_type) -> the
- * first message C did not answer (None: nothing within wait_s), as the server's recv(wait) gives it. */
-static PyObject *serve_lockstep(PyObject *mod, PyObject *args)
+/* How a serve loop waits and steps: lockstep (a fixed wait, each Sensors one agreed period: the
+ * core's step) or real time (_Server._realtime: waiting at most until the watchdog is due, each new
+ * Sensors the wall time since the last one: the core's advance). */
+typedef struct {
+    int realtime;
+    double wait_s;                        /* lockstep: recv's timeout */
+    double poll_s, watchdog_s, period_us; /* real time: _POLL_S, the agreed watchdog, the first span */
+    int tripped;                          /* real time: the server's `tripped` (its watchdog fired) */
+} serve_mode_t;
+
+/* The wait before the next read: lockstep's fixed one, or real time's _Server.realtime_wait. */
+static double serve_wait(const serve_mode_t *mode, const serving_t *g, double now)
 {
-    (void)mod;
-    PyObject *server, *link, *capsule, *core, *drive_type, *sensors_type;
-    int fd, watching;
-    double wait_s;
-    if (!PyArg_ParseTuple(args, "OOiOOdpOO:serve_lockstep", &server, &link, &fd, &capsule, &core, &wait_s, &watching,
-                          &drive_type, &sensors_type))
-        return NULL;
+    if (!mode->realtime) return mode->wait_s;
+    double wait = mode->poll_s;
+    if (mode->watchdog_s > 0 && g->last_t >= 0 && !mode->tripped) {
+        double left = g->last_t + mode->watchdog_s - now;
+        wait = left < 0 ? 0 : left < wait ? left : wait;
+    }
+    return wait;
+}
+
+/* One new Sensors through the core: lockstep's step, or real time's advance by the wall time since
+ * the last one (_Server._new_period); 0 or -1 with the model's exception. */
+static int serve_step(serve_mode_t *mode, serving_t *g, const hb_csensors_t *in, hb_cdrive_t *d)
+{
+    if (!mode->realtime) {
+        if (g->watching) g->last_t = monotonic_s();
+        return g->api->step(g->api_core, in, d);
+    }
+    double now = monotonic_s();
+    double span_us = g->last_t >= 0 ? (now - g->last_t) * 1e6 : mode->period_us;
+    g->last_t = now;
+    mode->tripped = 0;
+    return g->api->advance(g->api_core, span_us, in, d);
+}
+
+/* The serve loop of both modes (serve_lockstep, serve_realtime): the first message C did not answer
+ * (None: nothing within the wait), as the server's recv gives it. */
+static PyObject *serve_loop(PyObject *server, PyObject *link, int fd, PyObject *capsule, PyObject *core, int watching,
+                            PyObject *drive_type, PyObject *sensors_type, serve_mode_t *mode)
+{
     const hb_target_api_t *api = PyCapsule_GetPointer(capsule, HB_TARGET_API);
     if (api == NULL) return NULL;
-    serving_t g = {server, NULL, NULL, core, drive_type, api, watching, 0, -1, 0.0};
+    if (mode->realtime && api->advance == NULL) {
+        PyErr_SetString(PyExc_TypeError, "serve_realtime: the target's core has no C advance");
+        return NULL;
+    }
+    serving_t g = {server, NULL, NULL, core, drive_type, api, watching, 0, -1, -1.0};
     tally_t t;
     memset(&t, 0, sizeof t);
     t.link = link;
@@ -603,17 +638,25 @@ static PyObject *serve_lockstep(PyObject *mod, PyObject *args)
     g.answer = PyObject_GetAttrString(server, "answer");
     g.report = g.answer == NULL ? NULL : PyObject_GetAttrString(server, "report");
     if (g.report == NULL) goto done;
+    if (mode->realtime) { /* the last Sensors' time, as the Python loop left it */
+        PyObject *last = PyObject_GetAttrString(server, "last_sensors_t");
+        if (last == NULL) goto done;
+        g.last_t = last == Py_None ? -1.0 : PyFloat_AsDouble(last);
+        Py_DECREF(last);
+        if (PyErr_Occurred()) goto done;
+    }
     rx = PyMem_Malloc(READ_CHUNK);
     if (rx == NULL) {
         PyErr_NoMemory();
         goto done;
     }
-    int wait_ms = wait_s > 0 ? (int)ceil(wait_s * 1000.0) : 0;
     long repeat_seq = -2; /* answer.last's seq, looked at again after any Python call */
     for (;;) {
         /* Ctrl-C between periods, as the Python loop sees it (a signal that lands while C steps or
          * sends interrupts no poll: the next one finds data) */
         if (PyErr_CheckSignals() < 0) goto done;
+        double t0 = monotonic_s();
+        double wait_s = serve_wait(mode, &g, t0);
         if (!t.synced) {
             int fast = link_fast(&t);
             if (fast < 0 || (fast && load_next_seq(&t) < 0)) goto done;
@@ -624,8 +667,7 @@ static PyObject *serve_lockstep(PyObject *mod, PyObject *args)
             t.synced = 1;
             if (answer_last_seq(&g, &repeat_seq) < 0) goto done;
         }
-        double t0 = monotonic_s();
-        int ready = poll_in(fd, wait_ms, t0);
+        int ready = poll_in(fd, wait_s > 0 ? (int)ceil(wait_s * 1000.0) : 0, t0);
         if (ready < 0 && PyErr_Occurred()) goto done;
         ssize_t n = ready > 0 ? read(fd, rx, READ_CHUNK) : -1;
         hbp_sensors_t m;
@@ -642,11 +684,10 @@ static PyObject *serve_lockstep(PyObject *mod, PyObject *args)
         }
         tally_frame(&t, n, m.seq); /* Link._take_read's fast path */
         g.stepped += 1;
-        if (watching) g.last_t = monotonic_s();
         hb_csensors_t in;
         hb_cdrive_t d;
         sensors_to_c(&m, &in);
-        if (api->step(core, &in, &d) < 0) { /* the model raised: the server answers BAD_REQUEST */
+        if (serve_step(mode, &g, &in, &d) < 0) { /* the model raised: the server answers BAD_REQUEST */
             if (!PyErr_ExceptionMatches(PyExc_Exception)) goto done; /* KeyboardInterrupt, SystemExit: out */
             PyObject *et, *ev, *tb;
             PyErr_Fetch(&et, &ev, &tb);
@@ -665,7 +706,7 @@ done:
         if (g.report != NULL) serving_sync(&g, &t);
         PyErr_Clear();
         PyErr_Restore(et, ev, tb);
-        if (!PyErr_Occurred()) PyErr_SetString(PyExc_RuntimeError, "serve_lockstep: lost its error");
+        if (!PyErr_Occurred()) PyErr_SetString(PyExc_RuntimeError, "serve loop: lost its error");
     } else if (g.report != NULL && serving_sync(&g, &t) < 0) {
         Py_CLEAR(out);
     }
@@ -673,6 +714,36 @@ done:
     Py_XDECREF(g.answer);
     Py_XDECREF(g.report);
     return out;
+}
+
+/* serve_lockstep(server, link, fd, api, core, wait_s, watching, drive_type, sensors_type) -> the
+ * first message C did not answer (None: nothing within wait_s), as the server's recv(wait) gives it. */
+static PyObject *serve_lockstep(PyObject *mod, PyObject *args)
+{
+    (void)mod;
+    PyObject *server, *link, *capsule, *core, *drive_type, *sensors_type;
+    int fd, watching;
+    serve_mode_t mode = {0, 0.0, 0.0, 0.0, 0.0, 0};
+    if (!PyArg_ParseTuple(args, "OOiOOdpOO:serve_lockstep", &server, &link, &fd, &capsule, &core, &mode.wait_s,
+                          &watching, &drive_type, &sensors_type))
+        return NULL;
+    return serve_loop(server, link, fd, capsule, core, watching, drive_type, sensors_type, &mode);
+}
+
+/* serve_realtime(server, link, fd, api, core, poll_s, watchdog_s, period_us, tripped, drive_type,
+ * sensors_type) -> the first message C did not answer (None: nothing before the watchdog is due or
+ * within poll_s), as _Server._realtime's recv(realtime_wait()) gives it; the server's last_sensors_t,
+ * tripped, report and answer written back as _new_period leaves them. */
+static PyObject *serve_realtime(PyObject *mod, PyObject *args)
+{
+    (void)mod;
+    PyObject *server, *link, *capsule, *core, *drive_type, *sensors_type;
+    int fd;
+    serve_mode_t mode = {1, 0.0, 0.0, 0.0, 0.0, 0};
+    if (!PyArg_ParseTuple(args, "OOiOOdddpOO:serve_realtime", &server, &link, &fd, &capsule, &core, &mode.poll_s,
+                          &mode.watchdog_s, &mode.period_us, &mode.tripped, &drive_type, &sensors_type))
+        return NULL;
+    return serve_loop(server, link, fd, capsule, core, 1, drive_type, sensors_type, &mode);
 }
 
 /* ---------------------------------------------------------------- the type and the module */
@@ -850,6 +921,9 @@ static PyMethodDef module_methods[] = {
     {"encode_sensors", encode_sensors, METH_VARARGS, "encode_sensors(seq, inputs, edges, encoder, adc) -> bytes or None"},
     {"decode_drive", decode_drive, METH_O, "decode_drive(data) -> the Drive's fields or None"},
     {"decode_sensors", decode_sensors, METH_O, "decode_sensors(data) -> the Sensors' fields or None"},
+    {"serve_realtime", serve_realtime, METH_VARARGS,
+     "serve_realtime(server, link, fd, api, core, poll_s, watchdog_s, period_us, tripped, drive_type, sensors_type) "
+     "-> the first message C did not answer: the real-time serve loop's common case in C."},
     {"serve_lockstep", serve_lockstep, METH_VARARGS,
      "serve_lockstep(server, link, fd, api, core, wait_s, watching, drive_type, sensors_type) -> the first message "
      "not answered in C, or None"},

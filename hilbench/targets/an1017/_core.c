@@ -32,6 +32,7 @@ typedef struct {
     PyObject *tel;        /* the last telemetry tuple, reused while its values do not change */
     PyObject *last_drive; /* the answer to a repeated seq (a duplicated frame): no second step */
     char span_last;       /* the last step was the C span's: last_seq has a Drive, not yet built */
+    double frac_tcy;      /* real time: the Tcy fraction the last advance left over (An1017Target._frac_tcy) */
 } Core;
 
 #define MAX_SPAN_EDGES 64 /* edges of one span in process (a wire Sensors carries at most 16) */
@@ -220,6 +221,18 @@ static PyObject *Core_step(Core *s, PyObject *sensors)
 }
 
 /* ---------------------------------------------------------------- the C span's step (hbglue.h) */
+/* The Drive's values of the firmware's state now (what finish() builds the Drive from). */
+static void report_values(Core *s, hb_cdrive_t *out)
+{
+    hrt_report_t o;
+    hrt_report(&s->fw.rt, 0u, &o);
+    out->duty_a = o.duty_a; out->duty_b = o.duty_b; out->duty_c = o.duty_c;
+    out->output_mode = o.output_mode; out->state = o.state; out->sector = o.sector;
+    out->direction_ccw = o.direction_ccw != 0; out->required_ccw = o.required_ccw != 0; out->fault = o.fault;
+    out->n_tel = 3;
+    out->tel[0] = o.telemetry[0]; out->tel[1] = o.telemetry[1]; out->tel[2] = o.telemetry[2];
+}
+
 /* Core_step on C values: the same span, the same repeat rule; the Drive object is built only
  * when the span ends (span_drive). */
 static int span_step(PyObject *self, const hb_csensors_t *in, hb_cdrive_t *out)
@@ -243,13 +256,7 @@ static int span_step(PyObject *self, const hb_csensors_t *in, hb_cdrive_t *out)
         Py_CLEAR(s->last_drive);
         s->span_last = 1;
     }
-    hrt_report_t o;
-    hrt_report(&s->fw.rt, 0u, &o);
-    out->duty_a = o.duty_a; out->duty_b = o.duty_b; out->duty_c = o.duty_c;
-    out->output_mode = o.output_mode; out->state = o.state; out->sector = o.sector;
-    out->direction_ccw = o.direction_ccw != 0; out->required_ccw = o.required_ccw != 0; out->fault = o.fault;
-    out->n_tel = 3;
-    out->tel[0] = o.telemetry[0]; out->tel[1] = o.telemetry[1]; out->tel[2] = o.telemetry[2];
+    report_values(s, out);
     return 0;
 }
 
@@ -266,7 +273,32 @@ static PyObject *span_drive(PyObject *self, PyObject *seq)
     return drive;
 }
 
-static hb_target_api_t span_api = {span_step, span_drive};
+/* An1017Target.advance on C values (real time): span_us of wall time as whole Tcy, the fraction carried
+ * in frac_tcy (the same double arithmetic as the Python method's), the firmware run for them with the
+ * Sensors' levels, edges and pot; the Drive's values as span_step gives them (built by span_drive). */
+static int span_advance(PyObject *self, double span_us, const hb_csensors_t *in, hb_cdrive_t *out)
+{
+    Core *s = (Core *)self;
+    double total = span_us * (double)AN1017_TCY_PER_US + s->frac_tcy;
+    long long tcy = (long long)total; /* int(): toward zero */
+    s->frac_tcy = total - (double)tcy;
+    if (tcy > 0) {
+        span_edge_t edges[HB_SPAN_MAX_EDGES];
+        int n = in->n_edges < HB_SPAN_MAX_EDGES ? in->n_edges : HB_SPAN_MAX_EDGES;
+        for (int i = 0; i < n; i++) {
+            edges[i].offset = (long long)in->edge_t[i] * 2;
+            edges[i].lines = (uint8_t)(in->edge_lines[i] & 0xFF);
+        }
+        run_span(s, tcy, in->inputs, edges, n, in->n_adc > 0, in->n_adc > 0 ? in->adc[0] : 0);
+    }
+    s->last_seq = in->seq;
+    Py_CLEAR(s->last_drive);
+    s->span_last = 1;
+    report_values(s, out);
+    return 0;
+}
+
+static hb_target_api_t span_api = {span_step, span_drive, span_advance};
 
 static PyObject *Core_run(Core *s, PyObject *const *args, Py_ssize_t nargs)
 {
@@ -293,6 +325,45 @@ static PyObject *Core_run(Core *s, PyObject *const *args, Py_ssize_t nargs)
     }
     run_span(s, duration, inputs, edges, n, have_pot, pot);
     Py_RETURN_NONE;
+}
+
+/* advance(span_us, sensors) -> Drive: real time's C step (span_advance) from Python, the accelerator of
+ * An1017Target.advance that the emulator's real-time serve loop runs (tests/test_realtime_serve.py
+ * holds the two equal). */
+static PyObject *Core_advance(Core *s, PyObject *const *args, Py_ssize_t nargs)
+{
+    if (nargs != 2) {
+        PyErr_SetString(PyExc_TypeError, "an1017 core advance(span_us, sensors)");
+        return NULL;
+    }
+    double span_us = PyFloat_AsDouble(args[0]);
+    if (span_us == -1.0 && PyErr_Occurred()) return NULL;
+    hb_sensors_t given;
+    if (need_drive() < 0 || hb_sensors(args[1], &given, "an1017 core advance") < 0) return NULL;
+    hb_csensors_t in;
+    memset(&in, 0, sizeof in);
+    in.seq = given.seq_value;
+    in.inputs = given.inputs;
+    span_edge_t edges[MAX_SPAN_EDGES];
+    int n = (PyTuple_Check(given.edges) && PyTuple_GET_SIZE(given.edges) == 0) ? 0 : edges_of(given.edges, in.inputs, 1, edges);
+    if (n < 0) return NULL;
+    if (n > HB_SPAN_MAX_EDGES) {
+        PyErr_Format(PyExc_ValueError, "an1017 core advance: %d edges (a Sensors carries at most %d)", n, HB_SPAN_MAX_EDGES);
+        return NULL;
+    }
+    in.n_edges = n;
+    for (int i = 0; i < n; i++) {
+        in.edge_t[i] = (long)edges[i].offset;
+        in.edge_lines[i] = edges[i].lines;
+    }
+    long pot = 0;
+    int have_pot = 0;
+    if (pot_of(given.adc, &pot, &have_pot) < 0) return NULL;
+    in.n_adc = have_pot;
+    in.adc[0] = pot;
+    hb_cdrive_t out;
+    span_advance((PyObject *)s, span_us, &in, &out);
+    return finish(s, given.seq);
 }
 
 static PyObject *Core_finish(Core *s, PyObject *seq)
@@ -556,11 +627,14 @@ static PyMemberDef Core_members[] = {
     {"t", T_LONGLONG, offsetof(Core, t), READONLY, "Tcy since power-on"},
     {"period_tcy", T_LONGLONG, offsetof(Core, period_tcy), 0, "the lockstep period in Tcy"},
     {"last_seq", T_LONGLONG, offsetof(Core, last_seq), 0, "seq of the last Sensors"},
+    {"frac_tcy", T_DOUBLE, offsetof(Core, frac_tcy), 0, "real time: the Tcy fraction the last advance left over"},
     {NULL, 0, 0, 0, NULL},
 };
 
 static PyMethodDef Core_methods[] = {
     {"step", (PyCFunction)Core_step, METH_O, "step(sensors) -> Drive: one lockstep period of period_tcy."},
+    {"advance", (PyCFunction)(void (*)(void))Core_advance, METH_FASTCALL,
+     "advance(span_us, sensors) -> Drive: real time's step in C (An1017Target.advance's accelerator)."},
     {"run", (PyCFunction)(void (*)(void))Core_run, METH_FASTCALL,
      "run(duration_tcy, inputs, edges | edge_offset_tcy | None, pot_code | None): An1017Firmware.run."},
     {"finish", (PyCFunction)Core_finish, METH_O, "finish(seq) -> Drive for the current state."},

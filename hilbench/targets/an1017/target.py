@@ -438,6 +438,19 @@ if _an1017core is not None:
         def _finish(self, seq: int) -> Drive:
             return self.fw.finish(seq)
 
+        @property
+        def _frac_tcy(self) -> float:  # type: ignore[override]
+            return self.fw.frac_tcy  # in the core: its C advance (real time's serve loop) carries it too
+
+        @_frac_tcy.setter
+        def _frac_tcy(self, value: float) -> None:
+            self.fw.frac_tcy = value
+
+        def realtime_core(self) -> tuple[Any, Any]:
+            """The C advance the emulator's real-time serve loop runs (hbglue.h's target capsule, whose
+            `advance` is `fw.advance`: this class's `advance` in C, held equal to it by the tests)."""
+            return _an1017core.SPAN_API, self.fw
+
 else:  # pragma: no cover
     _c_firmware = _CAn1017Target = None  # type: ignore[assignment,misc]
 

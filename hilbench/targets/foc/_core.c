@@ -190,7 +190,7 @@ static PyObject *span_drive(PyObject *self, PyObject *seq)
     return drive;
 }
 
-static hb_target_api_t span_api = {span_step, span_drive};
+static hb_target_api_t span_api = {span_step, span_drive, NULL}; /* real time: the Python advance */
 
 /* last_drive: None or the Drive a repeated seq gets; only None may be written (forget it) */
 static PyObject *get_last_drive(Core *s, void *c)
