@@ -7,12 +7,12 @@ from __future__ import annotations
 import random
 import threading
 import time
-from typing import Any
+from typing import Any, Callable
 
 import pytest
 
 from hilbench.link import open_link
-from hilbench.protocol import MODE_REALTIME, Drive, Sensors
+from hilbench.protocol import FAULT_WATCHDOG, MODE_REALTIME, OUTPUT_OFF, OUTPUT_PWM, Drive, Sensors
 from hilbench.targets import make_target, remote
 from hilbench.targets.an1017.target import TCY_PER_US, An1017Target, _CAn1017Target
 from hilbench.targets import serve as serve_module
@@ -49,11 +49,12 @@ def test_the_c_advance_is_the_python_advance_drive_for_drive() -> None:
     assert c_core.fw.t == python_core.fw.t
 
 
-def _served_realtime(loop: str, stream: list[Sensors], monkeypatch: pytest.MonkeyPatch) -> dict[str, Any]:
-    """serve(AN1017, C core) in a thread on a pty in real time, its loop in C or Python (``loop``);
-    the host sends ``stream`` (a Sensors twice in a row: a repeated seq) with a ParamGet every 300.
-    Returns the Drives, the report, the calls into C, the firmware's time and the bounds the wall
-    clock puts on it."""
+def _served_realtime(loop: str, host_side: Callable[[remote.RemoteTarget], dict[str, Any]],
+                     monkeypatch: pytest.MonkeyPatch, target: Any = None, watchdog_ms: int = 5000) -> dict[str, Any]:
+    """serve(``target``, default the AN1017 C core) in a thread on a pty in real time, its loop in C
+    or Python (``loop``), ``host_side(host)`` driving it after the handshake (a watchdog of
+    ``watchdog_ms``). Returns what host_side returned, with the report, the calls into C, the
+    firmware's time over the run and the server's last_sensors_t."""
     monkeypatch.setenv("HILBENCH_SERVE_LOOP", loop)
     calls = [0]
     serve_realtime = remote._remotestep.serve_realtime
@@ -71,7 +72,7 @@ def _served_realtime(loop: str, stream: list[Sensors], monkeypatch: pytest.Monke
         return run(self)
 
     monkeypatch.setattr(serve_module._Server, "run", kept)
-    target = make_target("an1017")
+    target = make_target("an1017") if target is None else target
     host_link = open_link("pty", timeout_s=2.0)
     far_link = open_link(host_link.peer_path, timeout_s=2.0)
     reports: list[Any] = []
@@ -79,8 +80,24 @@ def _served_realtime(loop: str, stream: list[Sensors], monkeypatch: pytest.Monke
     thread.start()
     try:
         host = remote.RemoteTarget(host_link, timeout_s=20.0, retry_s=10.0)
-        host.handshake(PERIOD_US, MODE_REALTIME, 5000)  # a watchdog the host never lets fire
+        host.handshake(PERIOD_US, MODE_REALTIME, watchdog_ms)
         t_start_us = target.time_us
+        out = host_side(host)
+        host.status()
+    finally:
+        host_link.close()
+        thread.join(timeout=20)
+        far_link.close()
+    assert not thread.is_alive() and reports
+    return {**out, "report": reports[0], "c_calls": calls[0], "t_us": target.time_us - t_start_us,
+            "last_sensors_t": servers[0].last_sensors_t}
+
+
+def _streamed(stream: list[Sensors]) -> Callable[[remote.RemoteTarget], dict[str, Any]]:
+    """The host sends ``stream`` (a Sensors twice in a row: a repeated seq), a ParamGet every 300;
+    its Drives, and the times around the first exchange (before the send, after the answer)."""
+
+    def host_side(host: remote.RemoteTarget) -> dict[str, Any]:
         drives, first = [], (0.0, 0.0)
         for i, sensors in enumerate(stream):
             if i % 300 == 299:
@@ -89,14 +106,9 @@ def _served_realtime(loop: str, stream: list[Sensors], monkeypatch: pytest.Monke
             drives.append(host.step(sensors))
             if i == 0:
                 first = (sent, time.monotonic())
-        host.status()
-    finally:
-        host_link.close()
-        thread.join(timeout=20)
-        far_link.close()
-    assert not thread.is_alive() and reports
-    return {"drives": drives, "report": reports[0], "c_calls": calls[0], "t_us": target.time_us - t_start_us,
-            "first": first, "last_sensors_t": servers[0].last_sensors_t}
+        return {"drives": drives, "first": first}
+
+    return host_side
 
 
 def test_serves_c_realtime_loop_answers_and_counts_as_its_python_loop(monkeypatch: pytest.MonkeyPatch) -> None:
@@ -106,8 +118,8 @@ def test_serves_c_realtime_loop_answers_and_counts_as_its_python_loop(monkeypatc
         stream.append(_sensors(k, rng))
         if rng.random() < 0.02:
             stream.append(stream[-1])  # sent again: answered with the last Drive, no advance
-    c = _served_realtime("c", stream, monkeypatch)
-    py = _served_realtime("python", stream, monkeypatch)
+    c = _served_realtime("c", _streamed(stream), monkeypatch)
+    py = _served_realtime("python", _streamed(stream), monkeypatch)
     assert py["c_calls"] == 0
     assert 0 < c["c_calls"] < len(stream) / 10  # C answered most Sensors, many per call
     for run in (c, py):
@@ -127,10 +139,89 @@ def test_the_realtime_loop_keeps_the_model_on_the_wall_clock(loop: str, monkeypa
     between the host's send and its Drive's return, which bounds it however loaded the machine."""
     rng = random.Random(32)
     stream = [_sensors(k, rng) for k in range(400)]
-    run = _served_realtime(loop, stream, monkeypatch)
+    run = _served_realtime(loop, _streamed(stream), monkeypatch)
+    assert (run["c_calls"] > 0) == (loop == "c")
     last_s = run["last_sensors_t"]
     sent_s, answered_s = run["first"]
     low_us = PERIOD_US + (last_s - answered_s) * 1e6
     high_us = PERIOD_US + (last_s - sent_s) * 1e6
     slack_us = 2.0 / TCY_PER_US  # whole Tcy: the carried fraction
     assert low_us - slack_us <= run["t_us"] <= high_us + slack_us, (low_us, run["t_us"], high_us)
+
+
+def _trip_and_resume(host: remote.RemoteTarget) -> dict[str, Any]:
+    """S2, run until the PWM is on, fall silent until the watchdog's Drive, send the last seq again
+    (a repeat after the trip), then new seqs."""
+    seq = [0]
+
+    def sensors(inputs: int = 5) -> Sensors:
+        seq[0] = (seq[0] + 1) & 0xFF
+        return Sensors(seq[0], inputs, (), 0, (600,))
+
+    host.step(sensors())
+    host.step(sensors(5 | 0x08))  # S2
+    deadline = time.monotonic() + 30.0
+    drive = host.step(sensors())
+    while drive.output_mode != OUTPUT_PWM:  # the 10 ms bootstrap on the firmware's wall clock
+        assert time.monotonic() < deadline, drive
+        drive = host.step(sensors())
+    tripped = host.watchdog_trip()
+    repeat = host.step(Sensors(seq[0], 5, (), 0, (600,)))
+    after = [host.step(sensors()) for _ in range(3)]
+    return {"running": drive, "tripped": tripped, "repeat": repeat, "after": after}
+
+
+def test_a_watchdog_trip_and_the_sensors_after_it_are_the_same_in_both_loops(monkeypatch: pytest.MonkeyPatch) -> None:
+    """The watchdog fires in the C loop's wait as in the Python loop's; a Sensors repeating the last
+    seq after the trip is a new period (outputs off, not the running Drive again), and new seqs go on."""
+    runs = {loop: _served_realtime(loop, _trip_and_resume, monkeypatch, watchdog_ms=30) for loop in ("c", "python")}
+    for loop, run in runs.items():
+        assert run["running"].output_mode == OUTPUT_PWM, loop
+        assert (run["tripped"].output_mode, run["tripped"].fault) == (OUTPUT_OFF, FAULT_WATCHDOG), loop
+        assert run["repeat"].output_mode == OUTPUT_OFF and run["repeat"].seq == run["tripped"].seq, loop
+        assert [d.output_mode for d in run["after"]] == [OUTPUT_OFF] * 3, loop
+        assert run["report"].watchdog_trips == 1 and run["report"].duplicates == 0, loop
+    assert runs["c"]["c_calls"] > 0 and runs["python"]["c_calls"] == 0
+
+
+class _OwnAdvance(_CAn1017Target):  # type: ignore[misc, valid-type]
+    """A subclass with an advance of its own: the C loop would skip it."""
+
+    advanced = 0
+
+    def advance(self, duration_us: float, sensors: Sensors) -> Drive:
+        type(self).advanced += 1
+        return super().advance(duration_us, sensors)
+
+
+class _Wrapped:
+    """A wrapper around the C target with its own advance (a stalling or faulting test target's
+    pattern), everything else passed through."""
+
+    def __init__(self) -> None:
+        self.inner = make_target("an1017")
+        self.advanced = 0
+
+    def advance(self, duration_us: float, sensors: Sensors) -> Drive:
+        self.advanced += 1
+        return self.inner.advance(duration_us, sensors)
+
+    def __getattr__(self, name: str) -> Any:
+        return getattr(self.inner, name)
+
+
+def test_a_target_with_its_own_advance_is_served_by_the_python_loop(monkeypatch: pytest.MonkeyPatch) -> None:
+    stream = [Sensors(k & 0xFF, 5, (), 0, (600,)) for k in range(50)]
+    wrapped = _Wrapped()
+    run = _served_realtime("c", _streamed(stream), monkeypatch, target=wrapped)
+    assert run["c_calls"] == 0 and wrapped.advanced == len(stream)
+    _OwnAdvance.advanced = 0
+    run = _served_realtime("c", _streamed(stream), monkeypatch, target=_OwnAdvance())
+    assert run["c_calls"] == 0 and _OwnAdvance.advanced == len(stream)
+
+
+def test_the_c_advance_refuses_a_span_that_is_not_a_finite_time() -> None:
+    target = _CAn1017Target()
+    for span_us in (float("nan"), float("inf"), -float("inf"), 1e300):
+        with pytest.raises(ValueError, match="is not a finite time"):
+            target.fw.advance(span_us, Sensors(1, 5, (), 0, (600,)))

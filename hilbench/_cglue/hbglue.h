@@ -225,7 +225,9 @@ typedef struct {
     PyObject *(*drive)(PyObject *core, PyObject *seq);
     /* advance(core, span_us, in, out): Target.advance on C values, real time's step: the model run for
      * span_us of wall time (sub-cycle remainders carried), no repeat rule (the server's); 0 or -1 with
-     * an exception. NULL where the core has none (real time's serve loop then stays in Python). */
+     * an exception. After it, drive(core, seq) must give the Drive of this advance (not a Drive kept
+     * from an earlier step). NULL where the core has none: serve_realtime refuses it (TypeError), and
+     * a target offers the C loop only with `realtime_core`. */
     int (*advance)(PyObject *core, double span_us, const hb_csensors_t *in, hb_cdrive_t *out);
 } hb_target_api_t;
 

@@ -418,11 +418,13 @@ static PyObject *remote_drive(PyObject *self, PyObject *seq)
 
 static hb_target_api_t span_api = {remote_step, remote_drive, NULL}; /* a process answers real time itself */
 
-/* ------------------------------------------------------------ serve()'s lockstep loop in C */
+/* ------------------------------------------------- serve()'s lockstep and real-time loops in C */
 /* hilbench.targets.serve._Server._lockstep is the reference: wait for a frame; a Sensors is counted,
  * its time noted when a watchdog is agreed, answered with answer.step(msg) (RepeatAnswer: the last
  * Drive again for a repeated seq, else the target's step with the Sensors' seq) and the Drive sent;
- * anything else returns to the server. Here the same for the common case, on C values through the
+ * anything else returns to the server. _Server._realtime is real time's: the wait up to the
+ * watchdog's due time (realtime_wait), each new Sensors the target's advance by the wall time since
+ * the last one (_new_period: its time always noted, `tripped` cleared). Here the same for the common case, on C values through the
  * target's capsule: a read that is exactly one good Sensors whose seq is not the last Drive's, on a
  * link in its fast state. Everything else goes back to Python where C stopped: the bytes read through
  * Link._took (the message it makes is returned, and the server's loop handles it as its own recv's);

@@ -284,17 +284,23 @@ class _Server:
         """`_realtime` in C (hilbench/targets/_remotestep.c `serve_realtime`: the Sensors that arrive
         alone on a clean stream, each advanced through the target's C advance by the wall time since
         the last one, until the first message it leaves to this loop), on `_in_c`'s conditions, when
-        the target offers its advance in C (`realtime_core`); else None. It saves the emulator's
-        Python per period in real time, where each one is taken from a cold cache: 22 us of CPU per
-        1 ms period more than `c0fb63a`'s, its round trip's median 30 us longer (issue 28)."""
+        the target's `advance` is the C one its `realtime_core` offers; else None. In real time each
+        period meets a cold cache: this Python loop cost the emulator 74 us of CPU per 1 ms period
+        (`c0fb63a`'s 52 us), the C loop 15 us (issue 28)."""
         realtime_core = getattr(self.target, "realtime_core", None)
         link = self.link
         fd = getattr(link, "_fd_w", -1)
         if (_remotestep is None or realtime_core is None or self.stop_event is not None
                 or type(link) is not Link or fd < 0 or os.environ.get("HILBENCH_SERVE_LOOP") == "python"):
             return None
-        api, core = realtime_core()
-        return lambda: _remotestep.serve_realtime(self, link, fd, api, core, _POLL_S, self.watchdog_s,
+        # the target's advance must be the one the core stands for: not a wrapper's around it
+        if getattr(self.target.advance, "__self__", None) is not getattr(realtime_core, "__self__", None):
+            return None
+        core = realtime_core()  # None: a subclass's own advance
+        if core is None:
+            return None
+        api, fw = core
+        return lambda: _remotestep.serve_realtime(self, link, fd, api, fw, _POLL_S, self.watchdog_s,
                                                   float(self.period_us), self.tripped, Drive, Sensors)
 
     def _new_period(self, msg: Sensors) -> Drive:
@@ -362,6 +368,8 @@ class _Server:
             if lockstep and last is None:
                 return  # no Drive yet to say it with: the outputs were never on since the last request
             drive = last._replace(output_mode=OutputMode.OFF, fault=Fault.WATCHDOG) if lockstep else self.target.watchdog_trip()
+            if not lockstep:  # the model stopped: a Sensors repeating the last seq is a new period, not
+                self.answer.forget()  # an answer with the outputs still on (lockstep's model stands still)
             log.warning("%s: no Sensors for %.0f ms: watchdog tripped, outputs off", self.link.name,
                         self.watchdog_s * 1000)
             self.link.send(drive)

@@ -14,6 +14,7 @@
  */
 #include "hbglue.h"
 #include <stdint.h>
+#include <math.h>
 
 #include "an1017.h"
 
@@ -338,6 +339,10 @@ static PyObject *Core_advance(Core *s, PyObject *const *args, Py_ssize_t nargs)
     }
     double span_us = PyFloat_AsDouble(args[0]);
     if (span_us == -1.0 && PyErr_Occurred()) return NULL;
+    if (!isfinite(span_us) || fabs(span_us) > 1e15) { /* int() of it raises in the Python advance */
+        PyErr_Format(PyExc_ValueError, "an1017 core advance: span_us %g is not a finite time", span_us);
+        return NULL;
+    }
     hb_sensors_t given;
     if (need_drive() < 0 || hb_sensors(args[1], &given, "an1017 core advance") < 0) return NULL;
     hb_csensors_t in;

@@ -390,8 +390,9 @@ if _an1017core is not None:
 
         Parameters go through the firmware's own an1017_param_value / an1017_check_gains /
         an1017_apply_params; hello, start/stop, watchdog and status are the Python ones. The
-        lockstep period, the last seq and its Drive live in the core, behind `_period_tcy` and
-        `_last_seq` (the core answers a repeated seq with its last Drive itself).
+        lockstep period, the last seq and its Drive and real time's carried Tcy fraction live in the
+        core, behind `_period_tcy`, `_last_seq` and `_frac_tcy` (the core answers a repeated seq with
+        its last Drive itself).
         """
 
         backend = "c"
@@ -446,9 +447,12 @@ if _an1017core is not None:
         def _frac_tcy(self, value: float) -> None:
             self.fw.frac_tcy = value
 
-        def realtime_core(self) -> tuple[Any, Any]:
+        def realtime_core(self) -> tuple[Any, Any] | None:
             """The C advance the emulator's real-time serve loop runs (hbglue.h's target capsule, whose
-            `advance` is `fw.advance`: this class's `advance` in C, held equal to it by the tests)."""
+            `advance` is `fw.advance`: this class's `advance` in C, held equal to it by the tests);
+            None for a subclass with an `advance` of its own."""
+            if type(self).advance is not An1017Target.advance:
+                return None
             return _an1017core.SPAN_API, self.fw
 
 else:  # pragma: no cover
