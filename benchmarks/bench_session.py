@@ -13,8 +13,9 @@ periods/s and real-time factor at 20 kHz exchanges:
   the FOC on the 200 W servo: its C floor and in-process with NPZ recording;
   (b) the firmware as its own process on a pty: the Python emulator and the SIL build of the C
       firmware, and a raw two-process pty echo of the same frame sizes as their baseline;
-and ends with the ratios (issue 28's acceptance lines, wall clock, in the same run): in-process NPZ /
-C floor, CSV / NPZ, FOC NPZ / FOC C floor, emulator / raw echo, SIL / raw echo; and one extra line,
+and ends with the ratios (issue 28's acceptance lines, wall clock, in the same run; each the median of
+the repeats' own ratios, the ratio of the medians beside it): in-process NPZ / C floor, CSV / NPZ, FOC
+NPZ / FOC C floor, emulator / raw echo, SIL / raw echo; and one extra line,
 not an acceptance line: the NPZ run's and the C floor's periods per CPU second of the simulating
 thread (the recording's own thread left out). Each NPZ run records to a fresh path (the previous
 repeat's file removed before timing).
@@ -290,17 +291,24 @@ def run_paths(args: argparse.Namespace) -> None:
         line("(b) emulator process on a pty", "emulator")
         line("    SIL firmware process on a pty", "sil")
         line(f"    raw pty echo {sensors_len}/{drive_len} B", "raw", " (round trips)")
-    print(f"ratio in-process NPZ / C floor: {med['npz'] / med['floor']:.2f}")
+    def ratio(label: str, top: str, bottom: str) -> None:
+        """An acceptance ratio: the median of the repeats' own ratios (each repeat runs every path back
+        to back, so a drift in the machine's load between repeats cancels), the ratio of the medians
+        beside it."""
+        paired = statistics.median(a / b for a, b in zip(rates[top], rates[bottom]))
+        print(f"ratio {label}: {paired:.2f} (ratio of the medians {med[top] / med[bottom]:.2f})")
+
+    ratio("in-process NPZ / C floor", "npz", "floor")
     print(f"extra, not an acceptance line: periods per CPU s of the simulating thread, NPZ run / C floor "
           f"{med['npz_thread'] / med['floor_thread']:.2f} (the recording's thread's CPU left out; no wall clock)")
-    print(f"ratio in-process CSV / NPZ: {med['csv'] / med['npz']:.2f}")
+    ratio("in-process CSV / NPZ", "csv", "npz")
     print(f"extra, not an acceptance line: periods per CPU s of the simulating thread, CSV run / NPZ run "
           f"{med['csv_thread'] / med['npz_thread']:.2f} (each writer's own thread's CPU left out)")
-    print(f"ratio in-process NPZ C span / Python loop: {med['npz'] / med['python']:.2f}")
-    print(f"ratio FOC NPZ / FOC C floor: {med['foc_npz'] / med['foc_floor']:.2f}")
+    ratio("in-process NPZ C span / Python loop", "npz", "python")
+    ratio("FOC NPZ / FOC C floor", "foc_npz", "foc_floor")
     if exe is not None:
-        print(f"ratio emulator / raw echo: {med['emulator'] / med['raw']:.2f}")
-        print(f"ratio SIL / raw echo: {med['sil'] / med['raw']:.2f}")
+        ratio("emulator / raw echo", "emulator", "raw")
+        ratio("SIL / raw echo", "sil", "raw")
 
 
 if __name__ == "__main__":
