@@ -17,6 +17,7 @@ from hilbench.targets import make_target, remote
 from hilbench.targets.an1017.target import TCY_PER_US, An1017Target, _CAn1017Target
 from hilbench.targets import serve as serve_module
 from hilbench.targets.serve import serve
+from test_remote_step import count_c_calls
 
 pytestmark = pytest.mark.skipif(_CAn1017Target is None or remote._remotestep is None,
                                 reason="the AN1017 C core or the process paths' C loop is not built")
@@ -56,14 +57,7 @@ def _served_realtime(loop: str, host_side: Callable[[remote.RemoteTarget], dict[
     ``watchdog_ms``). Returns what host_side returned, with the report, the calls into C, the
     firmware's time over the run and the server's last_sensors_t."""
     monkeypatch.setenv("HILBENCH_SERVE_LOOP", loop)
-    calls = [0]
-    serve_realtime = remote._remotestep.serve_realtime
-
-    def counted(*args: Any) -> Any:  # how often the server's loop called into C (a spy, not a stand-in)
-        calls[0] += 1
-        return serve_realtime(*args)
-
-    monkeypatch.setattr(remote._remotestep, "serve_realtime", counted)
+    calls = count_c_calls(monkeypatch, "serve_realtime")
     servers: list[Any] = []
     run = serve_module._Server.run
 

@@ -293,6 +293,20 @@ def test_a_silent_or_dead_target_ends_both_paths_with_the_same_error(faults: str
 
 
 # ------------------------------------------------------------------------ serve's loop, in a thread
+def count_c_calls(monkeypatch: pytest.MonkeyPatch, name: str) -> list[int]:
+    """How often the server's loop calls `_remotestep.<name>` (a serve loop in C), in the list's one
+    item as the test goes on: a spy, not a stand-in."""
+    calls = [0]
+    real = getattr(remote._remotestep, name)
+
+    def counted(*args: Any) -> Any:
+        calls[0] += 1
+        return real(*args)
+
+    monkeypatch.setattr(remote._remotestep, name, counted)
+    return calls
+
+
 def _served_an1017(loop: str, stream: list[Sensors], monkeypatch: pytest.MonkeyPatch,
                    sequenced: tuple[type, ...] = (Sensors, Drive)) -> tuple[list[Drive], Any]:
     """serve(AN1017 with its C core) in a thread on a pty, its loop in C or Python (``loop``), its
@@ -306,14 +320,7 @@ def _served_an1017(loop: str, stream: list[Sensors], monkeypatch: pytest.MonkeyP
     import threading
 
     monkeypatch.setenv("HILBENCH_SERVE_LOOP", loop)
-    calls = [0]
-    serve_lockstep = remote._remotestep.serve_lockstep
-
-    def counted(*args: Any) -> Any:  # how often the server's loop called into C (a spy, not a stand-in)
-        calls[0] += 1
-        return serve_lockstep(*args)
-
-    monkeypatch.setattr(remote._remotestep, "serve_lockstep", counted)
+    calls = count_c_calls(monkeypatch, "serve_lockstep")
     target = make_target("an1017")
     assert getattr(target, "span_core", None) is not None, "the AN1017 C core is not built"
     host_link = open_link("pty", timeout_s=2.0)

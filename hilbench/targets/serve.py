@@ -268,15 +268,13 @@ class _Server:
         `span_core`), the link is a plain Link on a file descriptor, nobody may ask us to stop and
         HILBENCH_SERVE_LOOP is not "python" (the reference, this loop alone); else None."""
         span_core = getattr(self.target, "span_core", None)
-        link = self.link
-        fd = getattr(link, "_fd_w", -1)
-        if (_remotestep is None or span_core is None or self.stop_event is not None or wait is None
-                or type(link) is not Link or fd < 0 or os.environ.get("HILBENCH_SERVE_LOOP") == "python"):
+        fd = self._c_loop_fd()
+        if span_core is None or fd is None or wait is None:
             return None
         core = span_core()
         if core is None or self.target.step != core[1].step:
             return None
-        args = (self, link, fd, core[0], core[1], wait, self.watchdog_s > 0, Drive, Sensors)
+        args = (self, self.link, fd, core[0], core[1], wait, self.watchdog_s > 0, Drive, Sensors)
         serve_lockstep = _remotestep.serve_lockstep
         return lambda: serve_lockstep(*args)
 
@@ -288,10 +286,8 @@ class _Server:
         period meets a cold cache: this Python loop cost the emulator 74 us of CPU per 1 ms period
         (`c0fb63a`'s 52 us), the C loop 15 us (issue 28)."""
         realtime_core = getattr(self.target, "realtime_core", None)
-        link = self.link
-        fd = getattr(link, "_fd_w", -1)
-        if (_remotestep is None or realtime_core is None or self.stop_event is not None
-                or type(link) is not Link or fd < 0 or os.environ.get("HILBENCH_SERVE_LOOP") == "python"):
+        fd = self._c_loop_fd()
+        if realtime_core is None or fd is None:
             return None
         # the target's advance must be the one the core stands for: not a wrapper's around it
         if getattr(self.target.advance, "__self__", None) is not getattr(realtime_core, "__self__", None):
@@ -300,8 +296,20 @@ class _Server:
         if core is None:
             return None
         api, fw = core
+        link = self.link
         return lambda: _remotestep.serve_realtime(self, link, fd, api, fw, _POLL_S, self.watchdog_s,
                                                   float(self.period_us), self.tripped, Drive, Sensors)
+
+    def _c_loop_fd(self) -> int | None:
+        """The fd a serve loop in C (`_in_c`, `_realtime_in_c`) works on: the C loops are built, the
+        link is a plain Link on a file descriptor, nobody may ask us to stop and HILBENCH_SERVE_LOOP is
+        not "python" (the reference, the Python loops alone); else None."""
+        link = self.link
+        fd = getattr(link, "_fd_w", -1)
+        if (_remotestep is None or self.stop_event is not None or type(link) is not Link or fd < 0
+                or os.environ.get("HILBENCH_SERVE_LOOP") == "python"):
+            return None
+        return fd
 
     def _new_period(self, msg: Sensors) -> Drive:
         """A new Sensors (not a repeat): lockstep steps one period, real time the wall time since the

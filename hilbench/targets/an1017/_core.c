@@ -222,6 +222,17 @@ static PyObject *Core_step(Core *s, PyObject *sensors)
 }
 
 /* ---------------------------------------------------------------- the C span's step (hbglue.h) */
+/* A Sensors' edges on C values as Core_step reads Sensors.edges (2 Tcy per 100 ns); their count. */
+static int wire_edges(const hb_csensors_t *in, span_edge_t *edges)
+{
+    int n = in->n_edges < HB_SPAN_MAX_EDGES ? in->n_edges : HB_SPAN_MAX_EDGES;
+    for (int i = 0; i < n; i++) {
+        edges[i].offset = (long long)in->edge_t[i] * 2;
+        edges[i].lines = (uint8_t)(in->edge_lines[i] & 0xFF);
+    }
+    return n;
+}
+
 /* The Drive's values of the firmware's state now (what finish() builds the Drive from). */
 static void report_values(Core *s, hb_cdrive_t *out)
 {
@@ -246,12 +257,8 @@ static int span_step(PyObject *self, const hb_csensors_t *in, hb_cdrive_t *out)
         repeat = last == in->seq;
     }
     if (!repeat) {
-        span_edge_t edges[HB_SPAN_MAX_EDGES]; /* Sensors.edges as Core_step reads them: 2 Tcy per 100 ns */
-        int n = in->n_edges < HB_SPAN_MAX_EDGES ? in->n_edges : HB_SPAN_MAX_EDGES;
-        for (int i = 0; i < n; i++) {
-            edges[i].offset = (long long)in->edge_t[i] * 2;
-            edges[i].lines = (uint8_t)(in->edge_lines[i] & 0xFF);
-        }
+        span_edge_t edges[HB_SPAN_MAX_EDGES];
+        int n = wire_edges(in, edges);
         run_span(s, s->period_tcy, in->inputs, edges, n, in->n_adc > 0, in->n_adc > 0 ? in->adc[0] : 0);
         s->last_seq = in->seq;
         Py_CLEAR(s->last_drive);
@@ -285,11 +292,7 @@ static int span_advance(PyObject *self, double span_us, const hb_csensors_t *in,
     s->frac_tcy = total - (double)tcy;
     if (tcy > 0) {
         span_edge_t edges[HB_SPAN_MAX_EDGES];
-        int n = in->n_edges < HB_SPAN_MAX_EDGES ? in->n_edges : HB_SPAN_MAX_EDGES;
-        for (int i = 0; i < n; i++) {
-            edges[i].offset = (long long)in->edge_t[i] * 2;
-            edges[i].lines = (uint8_t)(in->edge_lines[i] & 0xFF);
-        }
+        int n = wire_edges(in, edges);
         run_span(s, tcy, in->inputs, edges, n, in->n_adc > 0, in->n_adc > 0 ? in->adc[0] : 0);
     }
     s->last_seq = in->seq;
