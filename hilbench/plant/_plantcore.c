@@ -278,6 +278,25 @@ static void friction(Core *s, double i_d, double i_q, double *w, double *ij, dou
     }
 }
 
+/* model._turned: cos and sin of x - d from c = cos x and s = sin x, by Taylor polynomials of the
+ * small angle d an RK4 stage turns and a rotation (beyond TURN_MAX_RAD, libm). The same arithmetic
+ * in the same order as the Python backend (-ffp-contract=off: no fused multiply-add). */
+#define TURN_MAX_RAD 0.0625
+static inline void turned(double c, double s, double x, double d, double *c_out, double *s_out)
+{
+    if (d >= -TURN_MAX_RAD && d <= TURN_MAX_RAD) {
+        const double d2 = d * d;
+        const double cd = 1.0 - d2 * (0.5 - d2 * (1.0 / 24.0 - d2 * (1.0 / 720.0 - d2 * (1.0 / 40320.0))));
+        const double sd = d * (1.0 - d2 * (1.0 / 6.0 - d2 * (1.0 / 120.0 - d2 * (1.0 / 5040.0 - d2 * (1.0 / 362880.0)))));
+        *c_out = c * cd + s * sd;
+        *s_out = s * cd - c * sd;
+    } else {
+        x = x - d;
+        *c_out = cos(x);
+        *s_out = sin(x);
+    }
+}
+
 /* model.Plant._rk4_dq: one RK4 step of (i_d, i_q, w_m) with x0 = phi - theta; y[] = i_d, i_q, w_m
  * in, and out with y[3] = the angle turned, y[4] = the input energy part */
 #if defined(__GNUC__)
@@ -291,28 +310,29 @@ static inline void rk4_dq(const Core *s, double y[5], double x0, double vmag, do
     double h2 = 0.5 * h, h6 = h / 6.0;
     double ftj = (fr + s->tl) * ij, kvj = s->kv * ij, ktj, krj;
     if (ij == 0.0) { ktj = krj = 0.0; } else { ktj = s->kt; krj = s->kr; }
-    double a, b, w, x;
-    double cc = cos(x0), ss = sin(x0);
+    double a, b, w;
+    const double c0 = cos(x0), s0 = sin(x0); /* the step's trigonometry: stages 2-4 turn it */
+    double cc = c0, ss = s0;
     double p1 = cc * id0 + ss * iq0;
     double k1d = vdm * cc + w0 * pq * iq0 - rd * id0;
     double k1q = vqm * ss - w0 * (pd * id0 + ppsi) - rq * iq0;
     double k1w = iq0 * (ktj + krj * id0) - kvj * w0 - ftj;
-    a = id0 + h2 * k1d; b = iq0 + h2 * k1q; w = w0 + h2 * k1w; x = x0 - h2 * p * w0;
-    cc = cos(x); ss = sin(x);
+    a = id0 + h2 * k1d; b = iq0 + h2 * k1q; w = w0 + h2 * k1w;
+    turned(c0, s0, x0, h2 * p * w0, &cc, &ss);
     double p2 = cc * a + ss * b;
     double k2d = vdm * cc + w * pq * b - rd * a;
     double k2q = vqm * ss - w * (pd * a + ppsi) - rq * b;
     double k2w = b * (ktj + krj * a) - kvj * w - ftj;
     double w2 = w;
-    a = id0 + h2 * k2d; b = iq0 + h2 * k2q; w = w0 + h2 * k2w; x = x0 - h2 * p * w2;
-    cc = cos(x); ss = sin(x);
+    a = id0 + h2 * k2d; b = iq0 + h2 * k2q; w = w0 + h2 * k2w;
+    turned(c0, s0, x0, h2 * p * w2, &cc, &ss);
     double p3 = cc * a + ss * b;
     double k3d = vdm * cc + w * pq * b - rd * a;
     double k3q = vqm * ss - w * (pd * a + ppsi) - rq * b;
     double k3w = b * (ktj + krj * a) - kvj * w - ftj;
     double w3 = w;
-    a = id0 + h * k3d; b = iq0 + h * k3q; w = w0 + h * k3w; x = x0 - h * p * w3;
-    cc = cos(x); ss = sin(x);
+    a = id0 + h * k3d; b = iq0 + h * k3q; w = w0 + h * k3w;
+    turned(c0, s0, x0, h * p * w3, &cc, &ss);
     double p4 = cc * a + ss * b;
     double k4d = vdm * cc + w * pq * b - rd * a;
     double k4q = vqm * ss - w * (pd * a + ppsi) - rq * b;

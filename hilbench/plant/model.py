@@ -114,6 +114,26 @@ OUTPUTS: tuple[PlantOutput, ...] = (
 DEFAULT_SUBSTEPS = 2  # energy balance 1.7e-7 at 50 us (1 step: 2.7e-6); C cost +0.17 us/period
 N_ROLES = 6
 
+#: the largest angle (rad) an RK4 stage turns by polynomial: 20 kHz in 2 substeps reaches it at
+#: p * w_m = 5000 rad/s electrical; beyond it the stage calls cos and sin (the result is then the
+#: direct one). The polynomials' truncation is below 3e-19 there, under a rounding of the sum.
+TURN_MAX_RAD = 0.0625
+_C2, _C4, _C6, _C8 = 0.5, 1.0 / 24.0, 1.0 / 720.0, 1.0 / 40320.0
+_S3, _S5, _S7, _S9 = 1.0 / 6.0, 1.0 / 120.0, 1.0 / 5040.0, 1.0 / 362880.0
+
+
+def _turned(c: float, s: float, x: float, d: float) -> tuple[float, float]:
+    """cos and sin of x - d from c = cos x and s = sin x: a stage of RK4 turns the voltage's angle by
+    a small d, so Taylor polynomials of d and a rotation replace two libm calls. _plantcore.c's
+    `turned` is the same arithmetic in the same order (the backends stay bit-identical)."""
+    if -TURN_MAX_RAD <= d <= TURN_MAX_RAD:
+        d2 = d * d
+        cd = 1.0 - d2 * (_C2 - d2 * (_C4 - d2 * (_C6 - d2 * _C8)))
+        sd = d * (1.0 - d2 * (_S3 - d2 * (_S5 - d2 * (_S7 - d2 * _S9))))
+        return c * cd + s * sd, s * cd - c * sd
+    x = x - d
+    return math.cos(x), math.sin(x)
+
 
 def available_backends() -> tuple[str, ...]:
     """Backends this installation can run ("python" always; "c" when the extension was built)."""
@@ -659,9 +679,9 @@ class Plant:
     def _rk4_dq(self, id0: float, iq0: float, w0: float, x0: float, vmag: float, ij: float, fr: float,
                 h: float) -> tuple[float, float, float, float, float]:
         """One classic RK4 step of (i_d, i_q, w_m) and the angle it turns, with x = phi - theta the
-        voltage's angle in the rotor frame: returns (i_d, i_q, w_m, dtheta, input energy part)."""
-        cos = math.cos
-        sin = math.sin
+        voltage's angle in the rotor frame: returns (i_d, i_q, w_m, dtheta, input energy part).
+        The trigonometry once per step: stages 2-4 turn stage 1's cos and sin (`_turned`)."""
+        turned = _turned
         rd, rq, pq, pd, ppsi, p, ild, ilq, kt, kr, _ = self._hot
         vdm = vmag * ild
         vqm = vmag * ilq
@@ -675,8 +695,8 @@ class Plant:
             ktj = kt
             krj = kr
         # stage 1
-        c = cos(x0)
-        s = sin(x0)
+        c0 = c = math.cos(x0)
+        s0 = s = math.sin(x0)
         p1 = c * id0 + s * iq0
         k1d = vdm * c + w0 * pq * iq0 - rd * id0
         k1q = vqm * s - w0 * (pd * id0 + ppsi) - rq * iq0
@@ -685,9 +705,7 @@ class Plant:
         a = id0 + h2 * k1d
         b = iq0 + h2 * k1q
         w = w0 + h2 * k1w
-        x = x0 - h2 * p * w0
-        c = cos(x)
-        s = sin(x)
+        c, s = turned(c0, s0, x0, h2 * p * w0)
         p2 = c * a + s * b
         k2d = vdm * c + w * pq * b - rd * a
         k2q = vqm * s - w * (pd * a + ppsi) - rq * b
@@ -697,9 +715,7 @@ class Plant:
         a = id0 + h2 * k2d
         b = iq0 + h2 * k2q
         w = w0 + h2 * k2w
-        x = x0 - h2 * p * w2
-        c = cos(x)
-        s = sin(x)
+        c, s = turned(c0, s0, x0, h2 * p * w2)
         p3 = c * a + s * b
         k3d = vdm * c + w * pq * b - rd * a
         k3q = vqm * s - w * (pd * a + ppsi) - rq * b
@@ -709,9 +725,7 @@ class Plant:
         a = id0 + h * k3d
         b = iq0 + h * k3q
         w = w0 + h * k3w
-        x = x0 - h * p * w3
-        c = cos(x)
-        s = sin(x)
+        c, s = turned(c0, s0, x0, h * p * w3)
         p4 = c * a + s * b
         k4d = vdm * c + w * pq * b - rd * a
         k4q = vqm * s - w * (pd * a + ppsi) - rq * b
