@@ -2,7 +2,7 @@
 core records, column for column, and each compiles warning-free with its compiler's strict flags.
 
 - `sil:foc` (this host, a process on a pty): the whole servo scenario is a case of
-  tests/test_golden_recordings.py (held to 730876f's in-process servo digests); here at 100 us;
+  tests/test_golden_recordings.py (held to the in-process servo's golden digests); here at 100 us;
 - `qemu:foc` (a Cortex-M4 in QEMU's mps2-an386) and the ATmega1284P in simavr: a shorter run,
   against inprocess:foc's recording of the same run;
 - the TMS320F2812 port: compiled and linked with gcc and clang against the register header written

@@ -196,3 +196,35 @@ def test_a_noise_block_changed_in_place_reads_as_in_python() -> None:
         codes.append(plant.adc_codes(noisy) + plant.adc_codes(noisy) + plant.adc_codes(noisy))
         out.append((codes, plant._noise_i))
     assert out[0] == out[1]
+
+
+def test_the_turned_stage_angle_is_cos_and_sin_of_the_difference() -> None:
+    """`model._turned` (RK4 stages 2-4): as close to cos and sin of x - d as libm's values of the
+    rounded difference (which carries half an ulp of x) within 2 units in the last place of 1, for
+    every small turn; libm's own values beyond TURN_MAX_RAD."""
+    from hilbench.plant.model import TURN_MAX_RAD, _turned
+
+    for i in range(-400, 401):
+        x = i * 0.0157  # beyond +-2 pi: the voltage's angle in the rotor frame is not wrapped
+        tol = 2.0 * math.ulp(1.0) + math.ulp(x) / 2.0
+        for d in (0.0, 1e-9, -3e-5, 0.0101, -0.031, 0.05, -TURN_MAX_RAD, TURN_MAX_RAD):
+            c, s = _turned(math.cos(x), math.sin(x), x, d)
+            assert abs(c - math.cos(x - d)) <= tol and abs(s - math.sin(x - d)) <= tol, (x, d)
+        for d in (0.0626, -0.3, 2.0):
+            assert _turned(math.cos(x), math.sin(x), x, d) == (math.cos(x - d), math.sin(x - d))
+
+
+@needs_c
+def test_backends_are_bit_identical_where_the_stages_turn_by_libm() -> None:
+    """A 1 ms period in one substep at speed turns each stage by more than TURN_MAX_RAD: the C core
+    and the Python step take the libm branch there and still agree bit for bit."""
+    params = plant_params_from_config(load_config(CONFIGS / "hurst_mclv.toml"))
+    plants = [Plant(params, backend=b, substeps=1) for b in ("c", "python")]
+    half_turn = 0.0
+    for k in range(3040):  # 0.15 s of start-up in 50 us periods, then 1 ms periods at speed
+        dt = 50e-6 if k < 3000 else 1e-3
+        for p in plants:
+            p.step(*q_duties(p.theta_e, 11.0, 24.0), 1, dt)
+        assert snapshot(plants[0]) == snapshot(plants[1]), k
+        half_turn = max(half_turn, plants[0].w_m * params.motor.pole_pairs * dt / 2.0)
+    assert half_turn > 0.0625  # stage 2's turn: the libm branch ran

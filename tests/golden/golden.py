@@ -65,7 +65,7 @@ CASES: tuple[Case, ...] = (
     Case("random-sil", "sil:an1017", scenario=RANDOM, tools=("gcc",)),
     Case("servo-inprocess", "inprocess:foc", config=SERVO),
     Case("servo-emulator", "emulator:foc", config=SERVO),
-    # the FOC firmware in C came after 730876f: its SIL build is held to 730876f's in-process servo
+    # the FOC firmware in C came after 730876f: its SIL build is held to the in-process servo's digests
     Case("servo-sil", "sil:foc", config=SERVO, tools=("gcc",), same_as="servo-inprocess"),
     # twin-speculative lockstep (issue 25) must record exactly what per-period lockstep records
     Case("default-sil-twin", "sil:an1017?twin=auto", tools=("gcc",), same_as="default-sil"),
