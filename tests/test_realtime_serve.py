@@ -5,19 +5,16 @@ loop answers, counts and keeps the model on the wall clock as the Python loop do
 from __future__ import annotations
 
 import random
-import threading
 import time
 from typing import Any, Callable
 
 import pytest
 
-from hilbench.link import open_link
 from hilbench.protocol import FAULT_WATCHDOG, MODE_REALTIME, OUTPUT_OFF, OUTPUT_PWM, Drive, Sensors
 from hilbench.targets import make_target, remote
 from hilbench.targets.an1017.target import TCY_PER_US, An1017Target, _CAn1017Target
 from hilbench.targets import serve as serve_module
-from hilbench.targets.serve import serve
-from test_remote_step import count_c_calls
+from test_remote_step import count_c_calls, served_on_a_pty
 
 pytestmark = pytest.mark.skipif(_CAn1017Target is None or remote._remotestep is None,
                                 reason="the AN1017 C core or the process paths' C loop is not built")
@@ -67,22 +64,12 @@ def _served_realtime(loop: str, host_side: Callable[[remote.RemoteTarget], dict[
 
     monkeypatch.setattr(serve_module._Server, "run", kept)
     target = make_target("an1017") if target is None else target
-    host_link = open_link("pty", timeout_s=2.0)
-    far_link = open_link(host_link.peer_path, timeout_s=2.0)
-    reports: list[Any] = []
-    thread = threading.Thread(target=lambda: reports.append(serve(target, far_link)), daemon=True)
-    thread.start()
-    try:
+    with served_on_a_pty(target) as (host_link, reports):
         host = remote.RemoteTarget(host_link, timeout_s=20.0, retry_s=10.0)
         host.handshake(PERIOD_US, MODE_REALTIME, watchdog_ms)
         t_start_us = target.time_us
         out = host_side(host)
         host.status()
-    finally:
-        host_link.close()
-        thread.join(timeout=20)
-        far_link.close()
-    assert not thread.is_alive() and reports
     return {**out, "report": reports[0], "c_calls": calls[0], "t_us": target.time_us - t_start_us,
             "last_sensors_t": servers[0].last_sensors_t}
 

@@ -6,6 +6,7 @@ frames), and a target that falls silent or dies ends both runs with the same err
 
 from __future__ import annotations
 
+import contextlib
 import os
 import random
 import re
@@ -13,7 +14,7 @@ import signal
 import subprocess
 import sys
 from pathlib import Path
-from typing import Any
+from typing import Any, Iterator
 
 import numpy as np
 import pytest
@@ -313,24 +314,14 @@ def _served_an1017(loop: str, stream: list[Sensors], monkeypatch: pytest.MonkeyP
     link keeping a running seq of the ``sequenced`` types; the host steps ``stream`` (a Sensors
     twice in a row: a repeated seq), a ParamGet every 500 Sensors and a Status at the end. Returns
     the Drives and the server's report."""
-    from hilbench.link import open_link
     from hilbench.protocol import MODE_LOCKSTEP
     from hilbench.targets import make_target
-    from hilbench.targets.serve import serve
-    import threading
 
     monkeypatch.setenv("HILBENCH_SERVE_LOOP", loop)
     calls = count_c_calls(monkeypatch, "serve_lockstep")
     target = make_target("an1017")
     assert getattr(target, "span_core", None) is not None, "the AN1017 C core is not built"
-    host_link = open_link("pty", timeout_s=2.0)
-    far_link = open_link(host_link.peer_path, timeout_s=2.0)
-    if sequenced != (Sensors, Drive):
-        far_link = Link(far_link.transport, far_link.name, timeout_s=2.0, sequenced_types=sequenced)
-    reports: list[Any] = []
-    thread = threading.Thread(target=lambda: reports.append(serve(target, far_link)), daemon=True)
-    thread.start()
-    try:
+    with served_on_a_pty(target, sequenced) as (host_link, reports):
         # no retries: a pty loses nothing, and a retry under load would count a request (and frames) twice
         host = remote.RemoteTarget(host_link, timeout_s=20.0, retry_s=10.0)
         host.handshake(50, MODE_LOCKSTEP, 100)  # a watchdog: serve waits with a timeout (its C loop's case)
@@ -340,13 +331,34 @@ def _served_an1017(loop: str, stream: list[Sensors], monkeypatch: pytest.MonkeyP
                 host.get_param(0)
             drives.append(host.step(s))
         host.status()
+    reports[0].c_calls = calls[0]
+    return drives, reports[0]
+
+
+@contextlib.contextmanager
+def served_on_a_pty(target: Any, sequenced: tuple[type, ...] = (Sensors, Drive)) -> Iterator[tuple[Link, list[Any]]]:
+    """``target`` served (`serve`) by a thread on the far end of a new pty, its link keeping a running
+    seq of the ``sequenced`` types: yields the host's end and the list the server's report lands in
+    (there once the block has left and the server ended)."""
+    import threading
+
+    from hilbench.link import open_link
+    from hilbench.targets.serve import serve
+
+    host_link = open_link("pty", timeout_s=2.0)
+    far_link = open_link(host_link.peer_path, timeout_s=2.0)
+    if sequenced != (Sensors, Drive):
+        far_link = Link(far_link.transport, far_link.name, timeout_s=2.0, sequenced_types=sequenced)
+    reports: list[Any] = []
+    thread = threading.Thread(target=lambda: reports.append(serve(target, far_link)), daemon=True)
+    thread.start()
+    try:
+        yield host_link, reports
     finally:
         host_link.close()
         thread.join(timeout=20)
         far_link.close()
     assert not thread.is_alive() and reports
-    reports[0].c_calls = calls[0]
-    return drives, reports[0]
 
 
 def test_serves_c_loop_answers_what_its_python_loop_answers(monkeypatch: pytest.MonkeyPatch) -> None:
