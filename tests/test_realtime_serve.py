@@ -1,6 +1,6 @@
 """Real time's serve loop in C (hilbench/targets/_remotestep.c `serve_realtime`) against its Python
-reference (`_Server._realtime`): the AN1017 core's C advance equals `An1017Target.advance`, and the
-loop answers, counts and keeps the model on the wall clock as the Python loop does."""
+reference (`_Server._realtime`): the AN1017 and the FOC cores' C advance equal their targets' Python
+`advance`, and the loop answers, counts and keeps the model on the wall clock as the Python loop does."""
 
 from __future__ import annotations
 
@@ -10,9 +10,11 @@ from typing import Any, Callable
 
 import pytest
 
-from hilbench.protocol import FAULT_WATCHDOG, MODE_REALTIME, OUTPUT_OFF, OUTPUT_PWM, Drive, Sensors
+from hilbench.protocol import (FAULT_WATCHDOG, INPUT_INDEX, INPUT_S2, MODE_REALTIME, OUTPUT_OFF, OUTPUT_PWM, Drive,
+                               Sensors)
 from hilbench.targets import make_target, remote
 from hilbench.targets.an1017.target import TCY_PER_US, An1017Target, _CAn1017Target
+from hilbench.targets.foc.target import FocTarget, _CFocTarget
 from hilbench.targets import serve as serve_module
 from test_remote_step import count_c_calls, served_on_a_pty
 
@@ -45,6 +47,39 @@ def test_the_c_advance_is_the_python_advance_drive_for_drive() -> None:
         assert An1017Target.advance(reference, span_us, sensors) == expected, k
         assert c_core.fw.frac_tcy == python_core.fw.frac_tcy == reference._frac_tcy, k
     assert c_core.fw.t == python_core.fw.t
+
+
+def _foc_sensors(k: int, rng: random.Random, encoder: int) -> Sensors:
+    """A servo's Sensors: S2 now and then, the encoder's count and index, (ia, ib, vbus) codes."""
+    inputs = (INPUT_S2 if rng.random() < 0.002 else 0) | (INPUT_INDEX if rng.random() < 0.01 else 0)
+    return Sensors(k & 0xFF, inputs, (), encoder, (rng.randint(0, 4095), rng.randint(0, 4095), rng.randint(3000, 3300)))
+
+
+@pytest.mark.skipif(_CFocTarget is None, reason="the FOC C core is not built")
+def test_the_foc_c_advance_is_the_python_advance_drive_for_drive() -> None:
+    """The FOC core's `fw.advance` against `_CFocTarget.advance` on the same core and against the
+    Python reference firmware's `FocTarget.advance`: every Drive and the carried part of a half
+    period equal, over spans of whole and broken half periods, zero, and several periods."""
+    python_core, c_core = _CFocTarget(), _CFocTarget()
+    reference = FocTarget(backend="python")
+    targets = (python_core, c_core, reference)
+    for target in targets:
+        target.start()
+    rng = random.Random(29)
+    encoder = 0
+    for k in range(6000):
+        encoder = (encoder + rng.randint(-12, 12)) & 0xFFFF
+        span_us = rng.choice([1000.0, 999.97, 1000.4, 50.0, 49.99, 0.0, 0.02, rng.uniform(0.0, 3000.0)])
+        sensors = _foc_sensors(k, rng, encoder)
+        expected = _CFocTarget.advance(python_core, span_us, sensors)
+        assert c_core.fw.advance(span_us, sensors) == expected, k
+        assert reference.advance(span_us, sensors) == expected, k
+        assert c_core.fw.frac_us == python_core.fw.frac_us == reference._frac_us, k
+    assert c_core.fw.isr_count == python_core.fw.isr_count == reference.fw.isr_count > 0
+    with pytest.raises(ValueError, match="is not a finite time"):
+        c_core.fw.advance(float("nan"), sensors)
+    with pytest.raises(ValueError, match="half periods in one exchange"):  # more than one exchange may hold
+        c_core.fw.advance(1e9, sensors)
 
 
 def _served_realtime(loop: str, host_side: Callable[[remote.RemoteTarget], dict[str, Any]],
@@ -189,6 +224,22 @@ class _Wrapped:
 
     def __getattr__(self, name: str) -> Any:
         return getattr(self.inner, name)
+
+
+@pytest.mark.skipif(_CFocTarget is None, reason="the FOC C core is not built")
+def test_the_foc_emulator_is_served_by_the_c_realtime_loop_as_by_the_python_loop(monkeypatch: pytest.MonkeyPatch) -> None:
+    rng = random.Random(33)
+    stream: list[Sensors] = []
+    for k in range(1500):
+        stream.append(_foc_sensors(k, rng, (k * 7) & 0xFFFF))
+        if rng.random() < 0.02:
+            stream.append(stream[-1])  # sent again: answered with the last Drive, no advance
+    runs = {loop: _served_realtime(loop, _streamed(stream), monkeypatch, target=make_target("foc")) for loop in ("c", "python")}
+    assert runs["python"]["c_calls"] == 0 and 0 < runs["c"]["c_calls"] < len(stream) / 10
+    for run in runs.values():
+        assert [d.seq for d in run["drives"]] == [s.seq for s in stream]
+        assert run["report"].handler_faults == 0 and run["report"].duplicates > 0
+    assert runs["c"]["report"].sensors == runs["python"]["report"].sensors
 
 
 def test_a_target_with_its_own_advance_is_served_by_the_python_loop(monkeypatch: pytest.MonkeyPatch) -> None:

@@ -29,6 +29,7 @@ typedef struct {
     PyObject *last_drive; /* the answer to a repeated seq (a duplicated frame): no second step */
     char span_last;       /* the last step was the C span's: last_seq has a Drive, not yet built */
     uint16_t duty[3];     /* the duties of the last step */
+    double frac_us;       /* real time: the part of a half period the last advance left over (FocTarget._frac_us) */
 } Core;
 
 /* ---------------------------------------------------------------- Drive */
@@ -136,6 +137,20 @@ static PyObject *Core_step(Core *s, PyObject *sensors)
 }
 
 /* ---------------------------------------------------------------- the C span's step (hbglue.h) */
+/* The Drive's values of the last step (its duties clamped to the wire's range, as make_drive does) */
+static void report_values(Core *s, hb_cdrive_t *out)
+{
+    foc_out_t o;
+    foc_outputs(&s->fw, &o);
+    out->duty_a = s->duty[0] <= FOC_T1PR ? s->duty[0] : FOC_T1PR;
+    out->duty_b = s->duty[1] <= FOC_T1PR ? s->duty[1] : FOC_T1PR;
+    out->duty_c = s->duty[2] <= FOC_T1PR ? s->duty[2] : FOC_T1PR;
+    out->output_mode = o.output_mode; out->state = o.state; out->sector = o.sector;
+    out->direction_ccw = o.ccw != 0; out->required_ccw = o.req_ccw != 0; out->fault = o.fault & 63u;
+    out->n_tel = 8;
+    for (int k = 0; k < 8; k++) out->tel[k] = o.telemetry[k];
+}
+
 static int span_step(PyObject *self, const hb_csensors_t *in, hb_cdrive_t *out)
 {
     Core *s = (Core *)self;
@@ -165,15 +180,56 @@ static int span_step(PyObject *self, const hb_csensors_t *in, hb_cdrive_t *out)
         Py_CLEAR(s->last_drive);
         s->span_last = 1;
     }
-    foc_out_t o;
-    foc_outputs(&s->fw, &o);
-    out->duty_a = s->duty[0] <= FOC_T1PR ? s->duty[0] : FOC_T1PR;
-    out->duty_b = s->duty[1] <= FOC_T1PR ? s->duty[1] : FOC_T1PR;
-    out->duty_c = s->duty[2] <= FOC_T1PR ? s->duty[2] : FOC_T1PR;
-    out->output_mode = o.output_mode; out->state = o.state; out->sector = o.sector;
-    out->direction_ccw = o.ccw != 0; out->required_ccw = o.req_ccw != 0; out->fault = o.fault & 63u;
-    out->n_tel = 8;
-    for (int k = 0; k < 8; k++) out->tel[k] = o.telemetry[k];
+    report_values(s, out);
+    return 0;
+}
+
+/* Python's float floor division (CPython's float_floor_div: fmod, then the quotient rounded), so
+ * that the C advance splits a span into half periods exactly as FocTarget.advance's `//` does */
+static double py_floordiv(double a, double b)
+{
+    double mod = fmod(a, b);
+    double div = (a - mod) / b;
+    if (mod != 0.0 && ((b < 0) != (mod < 0))) div -= 1.0;
+    if (div == 0.0) return copysign(0.0, a / b);
+    double floordiv = floor(div);
+    if (div - floordiv > 0.5) floordiv += 1.0;
+    return floordiv;
+}
+
+/* FocTarget.advance on C values (real time): whole half periods of span_us, the remainder carried in
+ * frac_us (the same double arithmetic as the Python method's), S2, then the halves run with the
+ * Sensors' encoder and ADC results (none: the active compare values' on-times kept); the Drive's
+ * values as span_step gives them (built by span_drive). 0, or -1 with the ValueError run_halves
+ * raises for a span of more halves than one exchange may hold. */
+static int span_advance(PyObject *self, double span_us, const hb_csensors_t *in, hb_cdrive_t *out)
+{
+    Core *s = (Core *)self;
+    double total = span_us + s->frac_us;
+    long long n = (long long)py_floordiv(total, (double)FOC_HALF_PERIOD_US);
+    s->frac_us = total - (double)(n * (long long)FOC_HALF_PERIOD_US);
+    s->last_seq = in->seq;
+    foc_buttons(&s->fw, (uint16_t)(in->inputs & 0xFFFF));
+    if (n != 0) {
+        if (n < 0 || n > HALVES_MAX) {
+            PyErr_Format(PyExc_ValueError, "foc core: %lld half periods in one exchange (0..%lld)", n, HALVES_MAX);
+            return -1;
+        }
+        if (!(n == 1 && s->fw.half != 0u)) { /* load_adc */
+            if (in->n_adc < 3) {
+                PyErr_SetString(PyExc_ValueError, "foc core: Sensors.adc must hold (ia, ib, vbus)");
+                return -1;
+            }
+            for (int k = 0; k < 3; k++) s->fw.adc_result[k] = (uint16_t)((unsigned long)in->adc[k] & 0xFFFFUL);
+        }
+        foc_encoder(&s->fw, (uint16_t)((unsigned long)in->encoder & 0xFFFFUL), (in->inputs & input_index) != 0);
+        foc_run_halves(&s->fw, (uint32_t)n, s->duty);
+    } else {
+        foc_active_duties(&s->fw, s->duty);
+    }
+    Py_CLEAR(s->last_drive);
+    s->span_last = 1;
+    report_values(s, out);
     return 0;
 }
 
@@ -190,7 +246,44 @@ static PyObject *span_drive(PyObject *self, PyObject *seq)
     return drive;
 }
 
-static hb_target_api_t span_api = {span_step, span_drive, NULL}; /* real time: the Python advance */
+static hb_target_api_t span_api = {span_step, span_drive, span_advance};
+
+/* advance(span_us, sensors) -> Drive: real time's C step (span_advance) from Python, the accelerator of
+ * FocTarget.advance that the emulator's real-time serve loop runs (tests/test_realtime_serve.py
+ * holds the two equal). */
+static PyObject *Core_advance(Core *s, PyObject *const *args, Py_ssize_t nargs)
+{
+    if (nargs != 2) {
+        PyErr_SetString(PyExc_TypeError, "foc core advance(span_us, sensors)");
+        return NULL;
+    }
+    double span_us = PyFloat_AsDouble(args[0]);
+    if (span_us == -1.0 && PyErr_Occurred()) return NULL;
+    if (!isfinite(span_us) || fabs(span_us) > 1e15) { /* int() of it raises in the Python advance */
+        PyErr_Format(PyExc_ValueError, "foc core advance: span_us %g is not a finite time", span_us);
+        return NULL;
+    }
+    sensors_t given;
+    if (need_drive() < 0 || unpack_sensors(args[1], &given) < 0) return NULL;
+    hb_csensors_t in;
+    memset(&in, 0, sizeof in);
+    in.seq = PyLong_AsLongLong(given.seq);
+    if (in.seq == -1 && PyErr_Occurred()) return NULL;
+    in.inputs = given.inputs;
+    in.encoder = (long)((unsigned long long)given.encoder & 0xFFFFULL);
+    if (PyTuple_Check(given.adc)) {
+        Py_ssize_t n = PyTuple_GET_SIZE(given.adc);
+        in.n_adc = n < 3 ? (int)n : 3;
+        for (int k = 0; k < in.n_adc; k++) {
+            long long v = PyLong_AsLongLong(PyTuple_GET_ITEM(given.adc, k));
+            if (v == -1 && PyErr_Occurred()) return NULL;
+            in.adc[k] = (long)((unsigned long long)v & 0xFFFFULL);
+        }
+    }
+    hb_cdrive_t out;
+    if (span_advance((PyObject *)s, span_us, &in, &out) < 0) return NULL;
+    return span_drive((PyObject *)s, given.seq);
+}
 
 /* last_drive: None or the Drive a repeated seq gets; only None may be written (forget it) */
 static PyObject *get_last_drive(Core *s, void *c)
@@ -382,6 +475,7 @@ static PyMemberDef Core_members[] = {
     U16("sp_unwrap", speed.unwrap), I32("sp_elec_theta", speed.elec_theta),
     {"halves", T_LONGLONG, offsetof(Core, halves), 0, "half PWM periods per lockstep exchange"},
     {"last_seq", T_LONGLONG, offsetof(Core, last_seq), 0, "seq of the last Sensors"},
+    {"frac_us", T_DOUBLE, offsetof(Core, frac_us), 0, "real time: the part of a half period the last advance left over"},
     {NULL, 0, 0, 0, NULL},
 };
 
@@ -392,6 +486,8 @@ static PyMethodDef Core_methods[] = {
      "run_halves(n, sensors) -> (a, b, c): the encoder, then n halves; their mean on-times."},
     {"drive", (PyCFunction)(void (*)(void))Core_drive, METH_FASTCALL, "drive(seq, a, b, c) -> Drive."},
     {"active_duties", (PyCFunction)Core_active_duties, METH_NOARGS, "the on-times of the active compare values"},
+    {"advance", (PyCFunction)(void (*)(void))Core_advance, METH_FASTCALL,
+     "advance(span_us, sensors) -> Drive: real time's step in C (FocTarget.advance's accelerator)."},
     {"start", (PyCFunction)Core_start, METH_NOARGS, "foc_start."},
     {"stop", (PyCFunction)(void (*)(void))Core_stop, METH_FASTCALL, "stop(state=0, fault=0): foc_stop."},
     {"set_speed_ref_rpm", (PyCFunction)Core_set_speed_ref_rpm, METH_O, "foc_set_speed_ref_rpm: _IQ(rpm/BaseRpm)."},

@@ -399,6 +399,22 @@ if _core is not None:
         def _last_seq(self, value: int) -> None:
             self.fw.last_seq = value
 
+        @property
+        def _frac_us(self) -> float:  # type: ignore[override]
+            return self.fw.frac_us  # in the core: its C advance (real time's serve loop) carries it too
+
+        @_frac_us.setter
+        def _frac_us(self, value: float) -> None:
+            self.fw.frac_us = value
+
+        def realtime_core(self) -> tuple[Any, Any] | None:
+            """The C advance the emulator's real-time serve loop runs (hbglue.h's target capsule, whose
+            `advance` is `fw.advance`: this class's `advance` in C, held equal to it by the tests);
+            None for a subclass with an `advance` of its own."""
+            if type(self).advance is not _CFocTarget.advance:
+                return None
+            return _core.SPAN_API, self.fw
+
         def advance(self, duration_us: float, sensors: Sensors) -> Drive:
             total = duration_us + self._frac_us
             n = int(total // HALF_PERIOD_US)
