@@ -11,6 +11,8 @@
   Drive again, the firmware not stepped.
 * `served_mode`: a HostHello's mode, refused unless it is lockstep or real time (a Python target
   does not predict its next period's duties: mode PREDICT is the C runtime's, firmware/runtime).
+* `core_field` and `realtime_core_of`: a target on a compiled core keeps the state its C paths
+  share in the core's struct, and offers the core's C advance to real time's serve loop.
 
 The same table describes a firmware's parameters to the bench (a profile's `params`), so a profile
 built from a self-describing firmware's handshake holds the same `ParamSpec`s.
@@ -19,7 +21,7 @@ built from a self-describing firmware's handshake holds the same `ParamSpec`s.
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Callable, Iterable, Mapping, Sequence
+from typing import Any, Callable, Iterable, Mapping, Sequence
 
 from hilbench.errors import ConfigError, ParamError
 from hilbench.protocol import Access, Drive, HostHello, Mode, ParamInfo, ParamSetResult, ParamValue, Result, Sensors
@@ -33,6 +35,20 @@ RESULT_READ_ONLY = int(Result.READ_ONLY)
 RESULT_OUT_OF_RANGE = int(Result.OUT_OF_RANGE)
 RESULT_CONSTRAINT = int(Result.CONSTRAINT)
 RESULT_BAD_REQUEST = int(Result.BAD_REQUEST)
+
+
+def core_field(name: str) -> property:
+    """A target attribute kept in its compiled core's struct (``self.fw.<name>``): the core's own C
+    paths (the session's C span, real time's serve loop) and the Python methods share one value."""
+    return property(lambda self: getattr(self.fw, name), lambda self, value: setattr(self.fw, name, value))
+
+
+def realtime_core_of(target: Any, advance: Callable[..., Drive], api: Any) -> tuple[Any, Any] | None:
+    """What a target offers real time's serve loop in C (`serve._Server._realtime_in_c`): hbglue.h's
+    target capsule ``api`` and the core ``target.fw``, whose C ``advance`` stands for ``advance`` (the
+    Python method, held equal to it by tests/test_realtime_serve.py); None when the target's class
+    has an ``advance`` of its own (the C loop would step past it)."""
+    return (api, target.fw) if type(target).advance is advance else None
 
 
 def served_mode(host: HostHello, where: str) -> int:

@@ -26,7 +26,7 @@ import os
 from typing import Any, Mapping
 
 from hilbench.errors import ConfigError, ParamError
-from hilbench.targets.kit import ParamSpec, ParamTable, RepeatAnswer, served_mode
+from hilbench.targets.kit import ParamSpec, ParamTable, RepeatAnswer, core_field, realtime_core_of, served_mode
 from hilbench.targets.an1017.firmware import (
     GAIN_CONSTRAINT_NAMES,
     STATE_FAULT,
@@ -417,43 +417,21 @@ if _an1017core is not None:
         def _apply_params(self, new: dict[int, int], gains_touched: bool) -> None:
             self.fw.apply_params(tuple(new[pid] for pid in sorted(PARAMS)), gains_touched)
 
-        @property
-        def _period_tcy(self) -> int:  # type: ignore[override]
-            return self.fw.period_tcy
-
-        @_period_tcy.setter
-        def _period_tcy(self, value: int) -> None:
-            self.fw.period_tcy = value
+        _period_tcy = core_field("period_tcy")
 
         def _forget_repeat(self) -> None:
             self.fw.last_drive = None  # the C step keeps its last Drive itself (firmware/an1017 glue)
 
-        @property
-        def _last_seq(self) -> int:  # type: ignore[override]
-            return self.fw.last_seq
-
-        @_last_seq.setter
-        def _last_seq(self, value: int) -> None:
-            self.fw.last_seq = value
+        _last_seq = core_field("last_seq")
 
         def _finish(self, seq: int) -> Drive:
             return self.fw.finish(seq)
 
-        @property
-        def _frac_tcy(self) -> float:  # type: ignore[override]
-            return self.fw.frac_tcy  # in the core: its C advance (real time's serve loop) carries it too
-
-        @_frac_tcy.setter
-        def _frac_tcy(self, value: float) -> None:
-            self.fw.frac_tcy = value
+        _frac_tcy = core_field("frac_tcy")
 
         def realtime_core(self) -> tuple[Any, Any] | None:
-            """The C advance the emulator's real-time serve loop runs (hbglue.h's target capsule, whose
-            `advance` is `fw.advance`: this class's `advance` in C, held equal to it by the tests);
-            None for a subclass with an `advance` of its own."""
-            if type(self).advance is not An1017Target.advance:
-                return None
-            return _an1017core.SPAN_API, self.fw
+            """The core's C advance (`fw.advance`, An1017Target.advance in C) for real time's serve loop."""
+            return realtime_core_of(self, An1017Target.advance, _an1017core.SPAN_API)
 
 else:  # pragma: no cover
     _c_firmware = _CAn1017Target = None  # type: ignore[assignment,misc]

@@ -151,6 +151,27 @@ static void report_values(Core *s, hb_cdrive_t *out)
     for (int k = 0; k < 8; k++) out->tel[k] = o.telemetry[k];
 }
 
+/* run_halves on C values: the ADC results when an underflow falls in the n halves (load_adc's
+ * rule), the encoder and index, the halves; their duties in s->duty. 0, or -1 with run_halves's
+ * ValueError. */
+static int span_halves(Core *s, long long n, const hb_csensors_t *in)
+{
+    if (n < 0 || n > HALVES_MAX) {
+        PyErr_Format(PyExc_ValueError, "foc core: %lld half periods in one exchange (0..%lld)", n, HALVES_MAX);
+        return -1;
+    }
+    if (!(n == 0 || (n == 1 && s->fw.half != 0u))) {
+        if (in->n_adc < 3) {
+            PyErr_SetString(PyExc_ValueError, "foc core: Sensors.adc must hold (ia, ib, vbus)");
+            return -1;
+        }
+        for (int k = 0; k < 3; k++) s->fw.adc_result[k] = (uint16_t)((unsigned long)in->adc[k] & 0xFFFFUL);
+    }
+    foc_encoder(&s->fw, (uint16_t)((unsigned long)in->encoder & 0xFFFFUL), (in->inputs & input_index) != 0);
+    foc_run_halves(&s->fw, (uint32_t)n, s->duty);
+    return 0;
+}
+
 static int span_step(PyObject *self, const hb_csensors_t *in, hb_cdrive_t *out)
 {
     Core *s = (Core *)self;
@@ -161,22 +182,9 @@ static int span_step(PyObject *self, const hb_csensors_t *in, hb_cdrive_t *out)
         repeat = last == in->seq;
     }
     if (!repeat) {
-        long long n = s->halves;
-        if (n < 0 || n > HALVES_MAX) {
-            PyErr_Format(PyExc_ValueError, "foc core: %lld half periods in one exchange (0..%lld)", n, HALVES_MAX);
-            return -1;
-        }
         s->last_seq = in->seq;
         foc_buttons(&s->fw, (uint16_t)(in->inputs & 0xFFFF));
-        if (!(n == 0 || (n == 1 && s->fw.half != 0u))) { /* load_adc */
-            if (in->n_adc < 3) {
-                PyErr_SetString(PyExc_ValueError, "foc core: Sensors.adc must hold (ia, ib, vbus)");
-                return -1;
-            }
-            for (int k = 0; k < 3; k++) s->fw.adc_result[k] = (uint16_t)((unsigned long)in->adc[k] & 0xFFFFUL);
-        }
-        foc_encoder(&s->fw, (uint16_t)((unsigned long)in->encoder & 0xFFFFUL), (in->inputs & input_index) != 0);
-        foc_run_halves(&s->fw, (uint32_t)n, s->duty);
+        if (span_halves(s, s->halves, in) < 0) return -1;
         Py_CLEAR(s->last_drive);
         s->span_last = 1;
     }
@@ -211,19 +219,7 @@ static int span_advance(PyObject *self, double span_us, const hb_csensors_t *in,
     s->last_seq = in->seq;
     foc_buttons(&s->fw, (uint16_t)(in->inputs & 0xFFFF));
     if (n != 0) {
-        if (n < 0 || n > HALVES_MAX) {
-            PyErr_Format(PyExc_ValueError, "foc core: %lld half periods in one exchange (0..%lld)", n, HALVES_MAX);
-            return -1;
-        }
-        if (!(n == 1 && s->fw.half != 0u)) { /* load_adc */
-            if (in->n_adc < 3) {
-                PyErr_SetString(PyExc_ValueError, "foc core: Sensors.adc must hold (ia, ib, vbus)");
-                return -1;
-            }
-            for (int k = 0; k < 3; k++) s->fw.adc_result[k] = (uint16_t)((unsigned long)in->adc[k] & 0xFFFFUL);
-        }
-        foc_encoder(&s->fw, (uint16_t)((unsigned long)in->encoder & 0xFFFFUL), (in->inputs & input_index) != 0);
-        foc_run_halves(&s->fw, (uint32_t)n, s->duty);
+        if (span_halves(s, n, in) < 0) return -1;
     } else {
         foc_active_duties(&s->fw, s->duty);
     }

@@ -22,7 +22,7 @@ from __future__ import annotations
 from typing import Any
 
 from hilbench.errors import ConfigError
-from hilbench.targets.kit import ParamSpec, ParamTable, RepeatAnswer, served_mode
+from hilbench.targets.kit import ParamSpec, ParamTable, RepeatAnswer, core_field, realtime_core_of, served_mode
 from hilbench.protocol import (
     PROTOCOL_VERSION,
     Access,
@@ -391,29 +391,13 @@ if _core is not None:
             self.fw.halves = self._halves
             return out
 
-        @property
-        def _last_seq(self) -> int:  # type: ignore[override]
-            return self.fw.last_seq
+        _last_seq = core_field("last_seq")
 
-        @_last_seq.setter
-        def _last_seq(self, value: int) -> None:
-            self.fw.last_seq = value
-
-        @property
-        def _frac_us(self) -> float:  # type: ignore[override]
-            return self.fw.frac_us  # in the core: its C advance (real time's serve loop) carries it too
-
-        @_frac_us.setter
-        def _frac_us(self, value: float) -> None:
-            self.fw.frac_us = value
+        _frac_us = core_field("frac_us")
 
         def realtime_core(self) -> tuple[Any, Any] | None:
-            """The C advance the emulator's real-time serve loop runs (hbglue.h's target capsule, whose
-            `advance` is `fw.advance`: this class's `advance` in C, held equal to it by the tests);
-            None for a subclass with an `advance` of its own."""
-            if type(self).advance is not _CFocTarget.advance:
-                return None
-            return _core.SPAN_API, self.fw
+            """The core's C advance (`fw.advance`, this class's `advance` in C) for real time's serve loop."""
+            return realtime_core_of(self, _CFocTarget.advance, _core.SPAN_API)
 
         def advance(self, duration_us: float, sensors: Sensors) -> Drive:
             total = duration_us + self._frac_us
