@@ -114,9 +114,10 @@ OUTPUTS: tuple[PlantOutput, ...] = (
 DEFAULT_SUBSTEPS = 2  # energy balance 1.7e-7 at 50 us (1 step: 2.7e-6); C cost +0.17 us/period
 N_ROLES = 6
 
-#: the largest angle (rad) an RK4 stage turns by polynomial: 20 kHz in 2 substeps reaches it at
-#: p * w_m = 5000 rad/s electrical; beyond it the stage calls cos and sin (the result is then the
-#: direct one). The polynomials' truncation is below 3e-19 there, under a rounding of the sum.
+#: the largest angle (rad) an RK4 stage turns by polynomial: at 20 kHz in 2 substeps stage 4 (a
+#: whole substep) reaches it at p * w_m = 2500 rad/s electrical, stages 2-3 (half a substep) at 5000;
+#: beyond it a stage calls cos and sin (the result is then the direct one). The polynomials'
+#: truncation is below 3e-19 there, under a rounding of the sum.
 TURN_MAX_RAD = 0.0625
 _C2, _C4, _C6, _C8 = 0.5, 1.0 / 24.0, 1.0 / 720.0, 1.0 / 40320.0
 _S3, _S5, _S7, _S9 = 1.0 / 6.0, 1.0 / 120.0, 1.0 / 5040.0, 1.0 / 362880.0

@@ -760,7 +760,11 @@ static int Remote_init(Remote *s, PyObject *args, PyObject *kwds)
                                      &sensors_type, &fd, &retry_s))
         return -1;
     if (fd < 0 || !(retry_s >= 0.0) || retry_s > 1e6) {
-        PyErr_Format(PyExc_ValueError, "Remote: fd %d, retry_s %g", fd, retry_s);
+        PyObject *retry = PyFloat_FromDouble(retry_s); /* (PyErr_Format has no %g) */
+        if (retry != NULL) {
+            PyErr_Format(PyExc_ValueError, "Remote: fd %d, retry_s %R", fd, retry);
+            Py_DECREF(retry);
+        }
         return -1;
     }
     Py_XSETREF(s->target, Py_NewRef(target));

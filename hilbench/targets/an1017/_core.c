@@ -342,8 +342,9 @@ static PyObject *Core_advance(Core *s, PyObject *const *args, Py_ssize_t nargs)
     }
     double span_us = PyFloat_AsDouble(args[0]);
     if (span_us == -1.0 && PyErr_Occurred()) return NULL;
-    if (!isfinite(span_us) || fabs(span_us) > 1e15) { /* int() of it raises in the Python advance */
-        PyErr_Format(PyExc_ValueError, "an1017 core advance: span_us %g is not a finite time", span_us);
+    if (!isfinite(span_us) || fabs(span_us) > 1e15) { /* not a time (int() of it raises in the Python
+                                                        * advance), or beyond 31 years: out of the C arithmetic */
+        PyErr_Format(PyExc_ValueError, "an1017 core advance: span_us %R is not a finite time (at most 1e15)", args[0]);
         return NULL;
     }
     hb_sensors_t given;
