@@ -16,6 +16,7 @@
 #endif
 #include <Python.h>
 #include <structmember.h>
+#include <math.h>
 #include <stddef.h>
 
 /* ---- arguments ---------------------------------------------------------------------------- */
@@ -30,6 +31,23 @@ static inline int hb_double(PyObject *o, double *out)
     }
     *out = PyLong_CheckExact(o) ? PyLong_AsDouble(o) : PyFloat_AsDouble(o);
     return (*out == -1.0 && PyErr_Occurred()) ? -1 : 0;
+}
+
+/* A core's advance(span_us, sensors) arguments, as every core's Python face reads them: exactly two,
+ * the first a finite time of at most 1e15 us (int() of a non-finite one raises in the Python advance;
+ * beyond 31 years it leaves the C arithmetic). 0 with *span_us, or -1 with an exception naming who. */
+static inline int hb_advance_args(PyObject *const *args, Py_ssize_t nargs, const char *who, double *span_us)
+{
+    if (nargs != 2) {
+        PyErr_Format(PyExc_TypeError, "%s advance(span_us, sensors)", who);
+        return -1;
+    }
+    if (hb_double(args[0], span_us) < 0) return -1;
+    if (!isfinite(*span_us) || fabs(*span_us) > 1e15) {
+        PyErr_Format(PyExc_ValueError, "%s advance: span_us %R is not a finite time (at most 1e15)", who, args[0]);
+        return -1;
+    }
+    return 0;
 }
 
 /* An int argument as a long / long long. 0, or -1 with an exception. */

@@ -588,7 +588,7 @@ typedef struct {
     int realtime;
     double wait_s;                        /* lockstep: recv's timeout */
     double poll_s, watchdog_s, period_us; /* real time: _POLL_S, the agreed watchdog, the first span */
-    int tripped;                          /* real time: the server's `tripped` (its watchdog fired) */
+    int tripped;                          /* real time: the server's `tripped` (its watchdog fired), read from it */
 } serve_mode_t;
 
 /* The wait before the next read: lockstep's fixed one, or real time's _Server.realtime_wait. */
@@ -640,12 +640,17 @@ static PyObject *serve_loop(PyObject *server, PyObject *link, int fd, PyObject *
     g.answer = PyObject_GetAttrString(server, "answer");
     g.report = g.answer == NULL ? NULL : PyObject_GetAttrString(server, "report");
     if (g.report == NULL) goto done;
-    if (mode->realtime) { /* the last Sensors' time, as the Python loop left it */
+    if (mode->realtime) { /* the last Sensors' time and whether the watchdog fired, as the Python loop left them */
         PyObject *last = PyObject_GetAttrString(server, "last_sensors_t");
         if (last == NULL) goto done;
         g.last_t = last == Py_None ? -1.0 : PyFloat_AsDouble(last);
         Py_DECREF(last);
         if (PyErr_Occurred()) goto done;
+        PyObject *tripped = PyObject_GetAttrString(server, "tripped");
+        if (tripped == NULL) goto done;
+        mode->tripped = PyObject_IsTrue(tripped);
+        Py_DECREF(tripped);
+        if (mode->tripped < 0) goto done;
     }
     rx = PyMem_Malloc(READ_CHUNK);
     if (rx == NULL) {
@@ -732,18 +737,18 @@ static PyObject *serve_lockstep(PyObject *mod, PyObject *args)
     return serve_loop(server, link, fd, capsule, core, watching, drive_type, sensors_type, &mode);
 }
 
-/* serve_realtime(server, link, fd, api, core, poll_s, watchdog_s, period_us, tripped, drive_type,
- * sensors_type) -> the first message C did not answer (None: nothing before the watchdog is due or
- * within poll_s), as _Server._realtime's recv(realtime_wait()) gives it; the server's last_sensors_t,
- * tripped, report and answer written back as _new_period leaves them. */
+/* serve_realtime(server, link, fd, api, core, poll_s, watchdog_s, period_us, drive_type, sensors_type)
+ * -> the first message C did not answer (None: nothing before the watchdog is due or within poll_s),
+ * as _Server._realtime's recv(realtime_wait()) gives it; the server's last_sensors_t and tripped read
+ * from it, and they, its report and answer written back as _new_period leaves them. */
 static PyObject *serve_realtime(PyObject *mod, PyObject *args)
 {
     (void)mod;
     PyObject *server, *link, *capsule, *core, *drive_type, *sensors_type;
     int fd;
     serve_mode_t mode = {1, 0.0, 0.0, 0.0, 0.0, 0};
-    if (!PyArg_ParseTuple(args, "OOiOOdddpOO:serve_realtime", &server, &link, &fd, &capsule, &core, &mode.poll_s,
-                          &mode.watchdog_s, &mode.period_us, &mode.tripped, &drive_type, &sensors_type))
+    if (!PyArg_ParseTuple(args, "OOiOOdddOO:serve_realtime", &server, &link, &fd, &capsule, &core, &mode.poll_s,
+                          &mode.watchdog_s, &mode.period_us, &drive_type, &sensors_type))
         return NULL;
     return serve_loop(server, link, fd, capsule, core, 1, drive_type, sensors_type, &mode);
 }
@@ -928,7 +933,7 @@ static PyMethodDef module_methods[] = {
     {"decode_drive", decode_drive, METH_O, "decode_drive(data) -> the Drive's fields or None"},
     {"decode_sensors", decode_sensors, METH_O, "decode_sensors(data) -> the Sensors' fields or None"},
     {"serve_realtime", serve_realtime, METH_VARARGS,
-     "serve_realtime(server, link, fd, api, core, poll_s, watchdog_s, period_us, tripped, drive_type, sensors_type) "
+     "serve_realtime(server, link, fd, api, core, poll_s, watchdog_s, period_us, drive_type, sensors_type) "
      "-> the first message C did not answer: the real-time serve loop's common case in C."},
     {"serve_lockstep", serve_lockstep, METH_VARARGS,
      "serve_lockstep(server, link, fd, api, core, wait_s, watching, drive_type, sensors_type) -> the first message "

@@ -298,7 +298,7 @@ class _Server:
         api, fw = core
         link = self.link
         return lambda: _remotestep.serve_realtime(self, link, fd, api, fw, _POLL_S, self.watchdog_s,
-                                                  float(self.period_us), self.tripped, Drive, Sensors)
+                                                  float(self.period_us), Drive, Sensors)
 
     def _c_loop_fd(self) -> int | None:
         """The fd a serve loop in C (`_in_c`, `_realtime_in_c`) works on: the C loops are built, the

@@ -336,17 +336,8 @@ static PyObject *Core_run(Core *s, PyObject *const *args, Py_ssize_t nargs)
  * holds the two equal). */
 static PyObject *Core_advance(Core *s, PyObject *const *args, Py_ssize_t nargs)
 {
-    if (nargs != 2) {
-        PyErr_SetString(PyExc_TypeError, "an1017 core advance(span_us, sensors)");
-        return NULL;
-    }
-    double span_us = PyFloat_AsDouble(args[0]);
-    if (span_us == -1.0 && PyErr_Occurred()) return NULL;
-    if (!isfinite(span_us) || fabs(span_us) > 1e15) { /* not a time (int() of it raises in the Python
-                                                        * advance), or beyond 31 years: out of the C arithmetic */
-        PyErr_Format(PyExc_ValueError, "an1017 core advance: span_us %R is not a finite time (at most 1e15)", args[0]);
-        return NULL;
-    }
+    double span_us;
+    if (hb_advance_args(args, nargs, "an1017 core", &span_us) < 0) return NULL;
     hb_sensors_t given;
     if (need_drive() < 0 || hb_sensors(args[1], &given, "an1017 core advance") < 0) return NULL;
     hb_csensors_t in;

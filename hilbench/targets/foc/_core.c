@@ -249,17 +249,8 @@ static hb_target_api_t span_api = {span_step, span_drive, span_advance};
  * holds the two equal). */
 static PyObject *Core_advance(Core *s, PyObject *const *args, Py_ssize_t nargs)
 {
-    if (nargs != 2) {
-        PyErr_SetString(PyExc_TypeError, "foc core advance(span_us, sensors)");
-        return NULL;
-    }
-    double span_us = PyFloat_AsDouble(args[0]);
-    if (span_us == -1.0 && PyErr_Occurred()) return NULL;
-    if (!isfinite(span_us) || fabs(span_us) > 1e15) { /* not a time (int() of it raises in the Python
-                                                        * advance), or beyond 31 years: out of the C arithmetic */
-        PyErr_Format(PyExc_ValueError, "foc core advance: span_us %R is not a finite time (at most 1e15)", args[0]);
-        return NULL;
-    }
+    double span_us;
+    if (hb_advance_args(args, nargs, "foc core", &span_us) < 0) return NULL;
     sensors_t given;
     if (need_drive() < 0 || unpack_sensors(args[1], &given) < 0) return NULL;
     hb_csensors_t in;
