@@ -562,3 +562,29 @@ def test_ctrl_c_inside_the_targets_step_stops_serve(loop: str, monkeypatch: pyte
         inner_thread.join(timeout=20)
         inner_link.close()
     assert not inner_thread.is_alive()
+
+
+def _status_counting(overruns: list[int]) -> Any:
+    """A Status reader whose overruns follow ``overruns`` (the last one repeats)."""
+    from hilbench.protocol import Status
+
+    left = list(overruns)
+    return lambda: Status(0, 0, 0, 0, 0, left.pop(0) if len(left) > 1 else left[0], 0, 0)
+
+
+def test_a_command_goes_again_while_the_target_counts_a_dropped_frame() -> None:
+    """Start and Stop have no reply: the Status read after each shows whether a frame was dropped."""
+    sent: list[int] = []
+    remote.send_until_taken(lambda: sent.append(1), _status_counting([5, 6, 6]), "Start")
+    assert len(sent) == 2  # a frame dropped around the first (5 -> 6), none around the second (6 -> 6)
+    sent.clear()
+    remote.send_until_taken(lambda: sent.append(1), _status_counting([3, 3]), "Start")
+    assert len(sent) == 1
+
+
+def test_a_command_dropped_every_time_is_an_error_naming_it() -> None:
+    from hilbench.protocol import Status
+
+    counter = iter(range(100))
+    with pytest.raises(HilbenchError, match=r"^Stop: a frame was dropped after each of 8 tries"):
+        remote.send_until_taken(lambda: None, lambda: Status(0, 0, 0, 0, 0, next(counter), 0, 0), "Stop")

@@ -41,6 +41,7 @@ from dataclasses import asdict, dataclass
 from typing import Any, Callable, Iterator
 
 from hilbench.errors import HilbenchError, LinkTimeout
+from hilbench.targets.remote import send_until_taken
 from hilbench.protocol import (
     ACCESS_RO,
     ACCESS_RW,
@@ -195,6 +196,10 @@ class Wire:
 
     def status(self) -> Status:
         return self.ask(StatusRequest(self.next_seq()), (Status,))
+
+    def command(self, kind: type[Start] | type[Stop]) -> None:
+        """Start or Stop, sent until the target shows it took it (as the host's RemoteTarget does)."""
+        send_until_taken(lambda: self.link.send(kind(self.next_seq())), self.status, kind.__name__)
 
 
 # ------------------------------------------------------------------------------------- the checks
@@ -351,7 +356,7 @@ def check_param_set(w: Wire) -> str:
 def _stream(w: Wire, repeat_at: int | None) -> list[Drive]:
     """A fresh session's 40 periods after Start, Sensors `repeat_at` sent twice."""
     w.handshake()
-    w.link.send(Start(w.next_seq()))
+    w.command(Start)
     out = []
     for k in range(40):
         s = w.sensors()
@@ -385,14 +390,14 @@ def check_repeated_seq(w: Wire) -> str:
 
 def check_stop_start(w: Wire) -> str:
     w.handshake()
-    w.link.send(Start(w.next_seq()))
+    w.command(Start)
     started = None
     for i in range(4000):
         if w.period().output_mode != OUTPUT_OFF:
             started = i
             break
     _require(started is not None, f"outputs still off {4000 * w.period_us / 1000:.0f} ms after Start")
-    w.link.send(Stop(w.next_seq()))
+    w.command(Stop)
     off = [w.period() for _ in range(3)]
     _require(all(d.output_mode == OUTPUT_OFF for d in off), f"outputs not off after Stop: {off[-1]}")
     return f"outputs on {started * w.period_us} us after Start, off at the first period after Stop"
@@ -404,10 +409,10 @@ def check_stop_disarms_watchdog(w: Wire) -> str:
     watchdog_ms = 200
     w.handshake(MODE_REALTIME, watchdog_ms)
     trips0 = w.status().watchdog_trips
-    w.link.send(Start(w.next_seq()))
+    w.command(Start)
     for _ in range(20):
         w.period()
-    w.link.send(Stop(w.next_seq()))
+    w.command(Stop)
     quiet_s = 3 * watchdog_ms / 1000
     tripped = [m for m in w.silence(quiet_s) if type(m) is Drive and m.fault == FAULT_WATCHDOG]
     _require(not tripped, f"the watchdog tripped after the host's Stop: {tripped[0] if tripped else ''}")
@@ -420,7 +425,7 @@ def check_watchdog(w: Wire, mode: int) -> str:
     watchdog_ms = 200
     w.handshake(mode, watchdog_ms)
     trips0 = w.status().watchdog_trips
-    w.link.send(Start(w.next_seq()))
+    w.command(Start)
     before = [w.period() for _ in range(20)][-1]
     silent_from = time.monotonic()
     limit_s = watchdog_ms / 1000 if mode == MODE_REALTIME else max(watchdog_ms / 1000, 1.0)

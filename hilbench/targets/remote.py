@@ -69,6 +69,32 @@ def _error_name(code: int) -> str:
         return f"code {code}"
 
 
+#: how many times a Start or Stop goes out before a target that drops each one is an error
+COMMAND_TRIES = 8
+
+
+def _dropped(status: Status) -> tuple[int, int]:
+    """What a target counts for a frame it did not act on: overruns (it arrived while the previous
+    one waited) and rx errors (its bytes were damaged)."""
+    return status.overruns, status.rx_errors
+
+
+def send_until_taken(send: Callable[[], None], status: Callable[[], Status], what: str) -> None:
+    """A command without a reply (Start, Stop), sent until a Status shows that no frame was dropped
+    since it went. A target's receiver drops a whole frame that arrives while it still handles the
+    previous one (a resent request's twin, a reply still going out): a lost Start leaves the firmware
+    stopped, a lost Stop the motor running. Both are idempotent, so sending one again is safe."""
+    before = _dropped(status())
+    for _ in range(COMMAND_TRIES):
+        send()
+        after = _dropped(status())
+        if after == before:
+            return
+        before = after
+    raise TargetError(f"{what}: a frame was dropped after each of {COMMAND_TRIES} tries "
+                      f"(Status overruns {before[0]}, rx errors {before[1]})")
+
+
 class RemoteTarget:
     """A target on the far end of a link, seen through the Target interface."""
 
@@ -282,10 +308,10 @@ class RemoteTarget:
 
     # -- commands --------------------------------------------------------------------------
     def start(self) -> None:
-        self._send(Start(self._next_seq()))
+        send_until_taken(lambda: self._send(Start(self._next_seq())), self.status, f"link {self.link.name}: Start")
 
     def stop(self) -> None:
-        self._send(Stop(self._next_seq()))
+        send_until_taken(lambda: self._send(Stop(self._next_seq())), self.status, f"link {self.link.name}: Stop")
 
     def status(self) -> Status:
         reply = self._request(StatusRequest(self._next_seq()), Status)
