@@ -242,6 +242,30 @@ def test_the_foc_emulator_is_served_by_the_c_realtime_loop_as_by_the_python_loop
     assert runs["c"]["report"].sensors == runs["python"]["report"].sensors
 
 
+def _s2_refused_then_repeat(host: remote.RemoteTarget) -> dict[str, Any]:
+    """Sensors answered; the next one presses S2 but lacks the ADC codes its span needs (the FOC
+    advance raises after taking S2); then the last answered seq again: the repeat's answer."""
+    for seq in range(1, 21):  # (the C loop answers from the second or so on)
+        first = host.step(Sensors(seq, 0, (), 0, (2048, 2048, 3100)))
+    host.link.send(Sensors(21, int(INPUT_S2), (), 0, ()))
+    refused = host.link.recv_or_none(20.0)
+    repeat = host.step(Sensors(20, 0, (), 0, (2048, 2048, 3100)))
+    return {"first": first, "refused": refused, "repeat": repeat}
+
+
+@pytest.mark.skipif(_CFocTarget is None, reason="the FOC C core is not built")
+def test_a_repeat_after_a_refused_sensors_is_the_drive_sent_in_both_loops(monkeypatch: pytest.MonkeyPatch) -> None:
+    """The Python loop keeps the Drive it sent as the repeat's answer when the next advance raises; the
+    C loop did rebuild it from the core, which had taken that Sensors' S2 before the raise."""
+    runs = {loop: _served_realtime(loop, _s2_refused_then_repeat, monkeypatch, target=make_target("foc"))
+            for loop in ("c", "python")}
+    for loop, run in runs.items():
+        assert type(run["refused"]).__name__ == "ErrorReport", (loop, run["refused"])
+        assert run["repeat"] == run["first"], loop
+        assert run["report"].handler_faults == 1 and run["report"].duplicates == 1, loop
+    assert runs["c"]["c_calls"] > 0
+
+
 def test_a_target_with_its_own_advance_is_served_by_the_python_loop(monkeypatch: pytest.MonkeyPatch) -> None:
     stream = [Sensors(k & 0xFF, 5, (), 0, (600,)) for k in range(50)]
     wrapped = _Wrapped()
@@ -257,3 +281,13 @@ def test_the_c_advance_refuses_a_span_that_is_not_a_finite_time() -> None:
     for span_us in (float("nan"), float("inf"), -float("inf"), 1e300):
         with pytest.raises(ValueError, match="is not a finite time"):
             target.fw.advance(span_us, Sensors(1, 5, (), 0, (600,)))
+
+
+@pytest.mark.skipif(_CFocTarget is None, reason="the FOC C core is not built")
+def test_both_foc_advances_refuse_a_span_back_in_time_or_too_long() -> None:
+    """The reference refuses what the C core cannot run (it returned zero duties for a negative span)."""
+    sensors = Sensors(1, 0, (), 0, (2048, 2048, 3100))
+    for target in (FocTarget(), _CFocTarget()):
+        for span_us in (-200.0, 50.0 * 572_663):
+            with pytest.raises(ValueError, match=r"half periods in one exchange \(0\.\.572662\)"):
+                target.advance(span_us, sensors)

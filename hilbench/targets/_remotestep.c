@@ -394,13 +394,9 @@ static int remote_step(PyObject *self, const hb_csensors_t *in, hb_cdrive_t *out
     return r;
 }
 
-/* The Drive object of the last step (the span's end): the one Python made, or one from the C values. */
-static PyObject *remote_drive(PyObject *self, PyObject *seq)
+/* A Drive object (drive_type) of C values with this seq. */
+static PyObject *drive_of(PyObject *drive_type, PyObject *seq, const hb_cdrive_t *d)
 {
-    Remote *s = (Remote *)self;
-    if (flush(&s->t) < 0) return NULL;
-    if (s->last_drive != NULL) return Py_NewRef(s->last_drive);
-    const hb_cdrive_t *d = &s->last;
     PyObject *tel = PyTuple_New(d->n_tel);
     if (tel == NULL) return NULL;
     for (int i = 0; i < d->n_tel; i++) {
@@ -408,12 +404,21 @@ static PyObject *remote_drive(PyObject *self, PyObject *seq)
         if (v == NULL) { Py_DECREF(tel); return NULL; }
         PyTuple_SET_ITEM(tel, i, v);
     }
-    PyObject *drive = PyObject_CallFunction(s->drive_type, "OllllllOOlO", seq, d->duty_a, d->duty_b, d->duty_c,
+    PyObject *drive = PyObject_CallFunction(drive_type, "OllllllOOlO", seq, d->duty_a, d->duty_b, d->duty_c,
                                             d->output_mode, d->state, d->sector,
                                             d->direction_ccw ? Py_True : Py_False, d->required_ccw ? Py_True : Py_False,
                                             d->fault, tel);
     Py_DECREF(tel);
     return drive;
+}
+
+/* The Drive object of the last step (the span's end): the one Python made, or one from the C values. */
+static PyObject *remote_drive(PyObject *self, PyObject *seq)
+{
+    Remote *s = (Remote *)self;
+    if (flush(&s->t) < 0) return NULL;
+    if (s->last_drive != NULL) return Py_NewRef(s->last_drive);
+    return drive_of(s->drive_type, seq, &s->last);
 }
 
 static hb_target_api_t span_api = {remote_step, remote_drive, NULL}; /* a process answers real time itself */
@@ -439,6 +444,7 @@ typedef struct {
     long long stepped;    /* Sensors answered by C since the last write-back */
     long last_seq;        /* the seq of the last Drive C made (-1: none since the write-back) */
     double last_t;
+    hb_cdrive_t sent;     /* that Drive's values, as sent */
 } serving_t;
 
 static int set_attr_obj(PyObject *o, const char *name, PyObject *v)
@@ -469,6 +475,18 @@ static int serving_sync(serving_t *g, tally_t *t)
         g->last_seq = -1;
     }
     return r;
+}
+
+/* answer.last after a step that raised: the Drive C last sent, as the Python loop keeps the one it
+ * sent (the core's state may have moved before the raise: S2 applied, the carried fraction). */
+static int keep_sent(serving_t *g)
+{
+    if (g->last_seq < 0) return 0; /* answer.last was written back since: it is the sent one */
+    PyObject *seq = PyLong_FromLong(g->last_seq);
+    PyObject *drive = seq == NULL ? NULL : drive_of(g->drive_type, seq, &g->sent);
+    Py_XDECREF(seq);
+    g->last_seq = -1;
+    return set_attr_obj(g->answer, "last", drive);
 }
 
 /* answer.last's seq: -1 when None */
@@ -698,12 +716,14 @@ static PyObject *serve_loop(PyObject *server, PyObject *link, int fd, PyObject *
             if (!PyErr_ExceptionMatches(PyExc_Exception)) goto done; /* KeyboardInterrupt, SystemExit: out */
             PyObject *et, *ev, *tb;
             PyErr_Fetch(&et, &ev, &tb);
-            int r = serving_sync(&g, &t);
+            int r = keep_sent(&g);
+            if (serving_sync(&g, &t) < 0) r = -1;
             PyErr_Restore(et, ev, tb);
             if (r < 0 || handler_fault(&g, &in, sensors_type) < 0) goto done;
             continue;
         }
         repeat_seq = g.last_seq = m.seq;
+        g.sent = d;
         if (send_drive(&g, &t, link, fd, &in, &d, sensors_type) < 0) goto done;
     }
 done:

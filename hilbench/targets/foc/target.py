@@ -57,6 +57,8 @@ FIRMWARE_NAME = "F2812FOC"
 FIRMWARE_VERSION = 0x0100
 PWM_FREQ_HZ = 10_000
 ADC_BITS = 12
+#: the most half periods one exchange may span (C core: foc_run_halves sums T1 counts in 32 bits; 28.6 s)
+HALVES_MAX = 572_662
 INPUT_S2 = int(Input.S2)
 INPUT_INDEX = int(getattr(Input, "INDEX", 0x40))  # protocol v2's bit; 0x40 is free in v1
 PTYPE_INT, PTYPE_BOOL = int(ParamType.INT), int(ParamType.BOOL)
@@ -255,7 +257,10 @@ class FocTarget:
         self._s2_last = s2
 
     def _run_halves(self, n: int, sensors: Sensors) -> tuple[int, int, int]:
-        """n half periods from now with these sensors; the mean high-side duty over them."""
+        """n half periods from now with these sensors; the mean high-side duty over them. A negative
+        count (a span back in time) or one past HALVES_MAX is refused, as the C core refuses it."""
+        if not 0 <= n <= HALVES_MAX:
+            raise ValueError(f"foc: {n} half periods in one exchange (0..{HALVES_MAX})")
         fw = self.fw
         adc = sensors.adc
         fw.encoder(sensors.encoder, bool(sensors.inputs & INPUT_INDEX))
