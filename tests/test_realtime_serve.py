@@ -247,6 +247,7 @@ def _s2_refused_then_repeat(host: remote.RemoteTarget) -> dict[str, Any]:
     advance raises after taking S2); then the last answered seq again: the repeat's answer."""
     for seq in range(1, 21):  # (the C loop answers from the second or so on)
         first = host.step(Sensors(seq, 0, (), 0, (2048, 2048, 3100)))
+    time.sleep(0.002)  # real time: let the span hold underflows (which read the ADC codes it lacks)
     host.link.send(Sensors(21, int(INPUT_S2), (), 0, ()))
     refused = host.link.recv_or_none(20.0)
     repeat = host.step(Sensors(20, 0, (), 0, (2048, 2048, 3100)))

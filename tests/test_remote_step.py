@@ -564,27 +564,38 @@ def test_ctrl_c_inside_the_targets_step_stops_serve(loop: str, monkeypatch: pyte
     assert not inner_thread.is_alive()
 
 
-def _status_counting(overruns: list[int]) -> Any:
-    """A Status reader whose overruns follow ``overruns`` (the last one repeats)."""
-    from hilbench.protocol import Status
+def test_a_command_waits_for_no_twin_of_a_resent_request_in_the_target() -> None:
+    """Start and Stop have no reply, and a frame arriving while a resent request's twin waits in the
+    target's receiver is dropped: after a resend, StatusRequests until one goes without one."""
+    resends = [3]
+    probes: list[int] = []
 
-    left = list(overruns)
-    return lambda: Status(0, 0, 0, 0, 0, left.pop(0) if len(left) > 1 else left[0], 0, 0)
+    def probe() -> None:  # the first probe is itself resent once, the second goes clean
+        probes.append(1)
+        resends[0] += 1 if len(probes) == 1 else 0
 
-
-def test_a_command_goes_again_while_the_target_counts_a_dropped_frame() -> None:
-    """Start and Stop have no reply: the Status read after each shows whether a frame was dropped."""
-    sent: list[int] = []
-    remote.send_until_taken(lambda: sent.append(1), _status_counting([5, 6, 6]), "Start")
-    assert len(sent) == 2  # a frame dropped around the first (5 -> 6), none around the second (6 -> 6)
-    sent.clear()
-    remote.send_until_taken(lambda: sent.append(1), _status_counting([3, 3]), "Start")
-    assert len(sent) == 1
+    assert remote.settle(lambda: resends[0], 3, probe) == 3 and probes == []  # nothing resent: no probe
+    assert remote.settle(lambda: resends[0], 2, probe) == 4 and len(probes) == 2
+    endless = iter(range(100))
+    assert remote.settle(lambda: next(endless), -1, lambda: None) == remote.SETTLE_PROBES - 1  # then sent anyway
 
 
-def test_a_command_dropped_every_time_is_an_error_naming_it() -> None:
-    from hilbench.protocol import Status
+def test_a_stop_goes_out_even_when_the_target_does_not_answer_the_probe() -> None:
+    from hilbench.errors import LinkTimeout
+    from hilbench.link import open_link
+    from hilbench.protocol import Stop
 
-    counter = iter(range(100))
-    with pytest.raises(HilbenchError, match=r"^Stop: a frame was dropped after each of 8 tries"):
-        remote.send_until_taken(lambda: None, lambda: Status(0, 0, 0, 0, 0, next(counter), 0, 0), "Stop")
+    host = open_link("pty", timeout_s=1.0)
+    far = open_link(host.peer_path, timeout_s=1.0)
+    try:
+        target = remote.RemoteTarget(host, timeout_s=0.2, retry_s=0.05)
+        target.retries = 1  # a request was resent: the Stop waits for a probe, which nobody answers
+        with pytest.raises(LinkTimeout):
+            target.stop()
+        got = []
+        while (msg := far.recv_or_none(1.0)) is not None:
+            got.append(type(msg).__name__)
+        assert got[-1] == "Stop" and set(got[:-1]) == {"StatusRequest"}, got
+    finally:
+        far.close()
+        host.close()

@@ -41,7 +41,7 @@ from dataclasses import asdict, dataclass
 from typing import Any, Callable, Iterator
 
 from hilbench.errors import HilbenchError, LinkTimeout
-from hilbench.targets.remote import send_until_taken
+from hilbench.targets.remote import settle
 from hilbench.protocol import (
     ACCESS_RO,
     ACCESS_RW,
@@ -125,6 +125,7 @@ class Wire:
         self.fresh: Callable[[], "FreshWire"] | None = None
         self.simulated = False  # an MCU in a simulator (simavr:, qemu:): its time is not the wall's
         self.resent = 0  # requests sent again for want of an answer (ask)
+        self.settled_at = 0  # `resent` when the target was last seen with no twin of a resend waiting
 
     def next_seq(self) -> int:
         self.seq = (self.seq + 1) & 0xFF
@@ -198,8 +199,9 @@ class Wire:
         return self.ask(StatusRequest(self.next_seq()), (Status,))
 
     def command(self, kind: type[Start] | type[Stop]) -> None:
-        """Start or Stop, sent until the target shows it took it (as the host's RemoteTarget does)."""
-        send_until_taken(lambda: self.link.send(kind(self.next_seq())), self.status, kind.__name__)
+        """Start or Stop, once the target holds no twin of a resent request (as RemoteTarget sends them)."""
+        self.settled_at = settle(lambda: self.resent, self.settled_at, self.status)
+        self.link.send(kind(self.next_seq()))
 
 
 # ------------------------------------------------------------------------------------- the checks

@@ -490,8 +490,10 @@ class Session:
             self._next_k = self.periods_done
         except KeyboardInterrupt:
             self.summary.end_reason = "interrupted"
-            self._stop_target()
-            self._close(f"interrupted at period {self.periods_done}")
+            try:
+                self._stop_target()  # (a second Ctrl-C while the target is asked: the recording still closes)
+            finally:
+                self._close(f"interrupted at period {self.periods_done}")
             raise
         except (LinkError, TargetError, SessionAborted, SimulationError, BenchLimitError) as exc:
             self._fault(f"fault at period {self.periods_done}: {exc}", str(exc))
@@ -837,8 +839,10 @@ class Session:
             if self._end_reason is not None:
                 summary.end_reason = self._end_reason
             self._confirm_speculation()
-            self._stop_target()
-            self._close(f"end: {summary.end_reason} at period {self.periods_done}")
+            try:
+                self._stop_target()
+            finally:  # (a Ctrl-C while the target is asked: the recording still closes)
+                self._close(f"end: {summary.end_reason} at period {self.periods_done}")
             diverged = getattr(self.target, "divergence", None)
             if diverged is not None:  # [link] on_divergence = "continue": the run went on; it ends with it
                 raise diverged

@@ -716,10 +716,12 @@ static PyObject *serve_loop(PyObject *server, PyObject *link, int fd, PyObject *
             if (!PyErr_ExceptionMatches(PyExc_Exception)) goto done; /* KeyboardInterrupt, SystemExit: out */
             PyObject *et, *ev, *tb;
             PyErr_Fetch(&et, &ev, &tb);
-            int r = keep_sent(&g);
-            if (serving_sync(&g, &t) < 0) r = -1;
+            if (keep_sent(&g) < 0 || serving_sync(&g, &t) < 0) { /* that error wins: out */
+                Py_XDECREF(et); Py_XDECREF(ev); Py_XDECREF(tb);
+                goto done;
+            }
             PyErr_Restore(et, ev, tb);
-            if (r < 0 || handler_fault(&g, &in, sensors_type) < 0) goto done;
+            if (handler_fault(&g, &in, sensors_type) < 0) goto done;
             continue;
         }
         repeat_seq = g.last_seq = m.seq;

@@ -69,30 +69,25 @@ def _error_name(code: int) -> str:
         return f"code {code}"
 
 
-#: how many times a Start or Stop goes out before a target that drops each one is an error
-COMMAND_TRIES = 8
+#: at most this many StatusRequests before a command, waiting for one answered without a resend
+SETTLE_PROBES = 4
 
 
-def _dropped(status: Status) -> tuple[int, int]:
-    """What a target counts for a frame it did not act on: overruns (it arrived while the previous
-    one waited) and rx errors (its bytes were damaged)."""
-    return status.overruns, status.rx_errors
-
-
-def send_until_taken(send: Callable[[], None], status: Callable[[], Status], what: str) -> None:
-    """A command without a reply (Start, Stop), sent until a Status shows that no frame was dropped
-    since it went. A target's receiver drops a whole frame that arrives while it still handles the
-    previous one (a resent request's twin, a reply still going out): a lost Start leaves the firmware
-    stopped, a lost Stop the motor running. Both are idempotent, so sending one again is safe."""
-    before = _dropped(status())
-    for _ in range(COMMAND_TRIES):
-        send()
-        after = _dropped(status())
-        if after == before:
-            return
-        before = after
-    raise TargetError(f"{what}: a frame was dropped after each of {COMMAND_TRIES} tries "
-                      f"(Status overruns {before[0]}, rx errors {before[1]})")
+def settle(resends: Callable[[], int], settled_at: int, probe: Callable[[], object]) -> int:
+    """Before a command without a reply (Start, Stop): a request sent again since ``settled_at``
+    (the resend count when the target was last seen idle) may have a twin still waiting in the
+    target's receiver, which drops whole any frame that arrives meanwhile (Status.overruns), and a
+    lost Start or Stop is seen nowhere. So after a resend, ``probe`` (a StatusRequest) until one is
+    answered without one: every frame sent before it was then handled or dropped, and nothing waits.
+    The new resend count; after SETTLE_PROBES the command goes anyway (a target this slow gets it
+    best-effort, as before)."""
+    for _ in range(SETTLE_PROBES):
+        now = resends()
+        if now == settled_at:
+            break
+        settled_at = now
+        probe()
+    return settled_at
 
 
 class RemoteTarget:
@@ -114,6 +109,7 @@ class RemoteTarget:
         self.last_error_report: ErrorReport | None = None
         self.watchdog_ms = 0
         self.retries = 0  # frames sent again after no answer within retry_s (a lost frame either way)
+        self._settled_at = 0  # `retries` when the target was last seen with no twin of a resend waiting
         self._req_seq = 0
         #: where frames that answer nothing go instead of being counted as stale (None: counted)
         self.stray_sink: Callable[[Any], None] | None = None
@@ -308,10 +304,18 @@ class RemoteTarget:
 
     # -- commands --------------------------------------------------------------------------
     def start(self) -> None:
-        send_until_taken(lambda: self._send(Start(self._next_seq())), self.status, f"link {self.link.name}: Start")
+        self._command(Start)
 
     def stop(self) -> None:
-        send_until_taken(lambda: self._send(Stop(self._next_seq())), self.status, f"link {self.link.name}: Stop")
+        self._command(Stop)
+
+    def _command(self, kind: type[Start] | type[Stop]) -> None:
+        """Start or Stop, once the target holds no twin of a resent request (`settle`); sent even
+        when settling fails (a silent target still gets its Stop), the failure raised after it."""
+        try:
+            self._settled_at = settle(lambda: self.retries, self._settled_at, self.status)
+        finally:
+            self._send(kind(self._next_seq()))
 
     def status(self) -> Status:
         reply = self._request(StatusRequest(self._next_seq()), Status)

@@ -261,8 +261,10 @@ class FocTarget:
         count (a span back in time) or one past HALVES_MAX is refused, as the C core refuses it."""
         if not 0 <= n <= HALVES_MAX:
             raise ValueError(f"foc: {n} half periods in one exchange (0..{HALVES_MAX})")
-        fw = self.fw
         adc = sensors.adc
+        if (n > 1 or (n == 1 and self._half == 0)) and len(adc) < 3:  # an underflow in the span reads them
+            raise ValueError("foc: Sensors.adc must hold (ia, ib, vbus)")  # (before the encoder: as the C core)
+        fw = self.fw
         fw.encoder(sensors.encoder, bool(sensors.inputs & INPUT_INDEX))
         sa = sb = sc = 0
         for _ in range(n):
