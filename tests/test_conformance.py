@@ -84,7 +84,7 @@ class _SteppingTwice:
         self.out: list = []
 
     def send(self, msg) -> None:
-        from hilbench.protocol import HostHello, Sensors, Start
+        from hilbench.protocol import HostHello, Sensors, Start, StatusRequest
 
         if isinstance(msg, HostHello):
             self.out.append(self.target.hello(msg))
@@ -93,6 +93,8 @@ class _SteppingTwice:
             self.out.append(self.target.step(msg._replace(seq=self.steps & 0xFF, encoder=self.steps))._replace(seq=msg.seq))
         elif isinstance(msg, Start):
             self.target.start()
+        elif isinstance(msg, StatusRequest):  # (the probe before a Start)
+            self.out.append(self.target.status()._replace(seq=msg.seq))
 
     def recv_or_none(self, timeout_s):
         return self.out.pop(0) if self.out else None

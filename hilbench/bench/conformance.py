@@ -125,7 +125,6 @@ class Wire:
         self.fresh: Callable[[], "FreshWire"] | None = None
         self.simulated = False  # an MCU in a simulator (simavr:, qemu:): its time is not the wall's
         self.resent = 0  # requests sent again for want of an answer (ask)
-        self.settled_at = 0  # `resent` when the target was last seen with no twin of a resend waiting
 
     def next_seq(self) -> int:
         self.seq = (self.seq + 1) & 0xFF
@@ -199,8 +198,9 @@ class Wire:
         return self.ask(StatusRequest(self.next_seq()), (Status,))
 
     def command(self, kind: type[Start] | type[Stop]) -> None:
-        """Start or Stop, once the target holds no twin of a resent request (as RemoteTarget sends them)."""
-        self.settled_at = settle(lambda: self.resent, self.settled_at, self.status)
+        """Start or Stop once nothing waits in the target's receiver (`settle`; a probe that fails
+        fails the check)."""
+        settle(lambda: self.resent, self.status)
         self.link.send(kind(self.next_seq()))
 
 

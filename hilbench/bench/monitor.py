@@ -30,7 +30,7 @@ from hilbench.bench.livetuning import GuardSettings, LiveTuning, raw_per_unit
 from hilbench.bench.recorder import MARKER_EVENT, MARKER_FAULT, MARKER_PARAM, MemoryRecorder, Recorder, fields_struct
 from hilbench.bench.scenario import Event
 from hilbench.bench.summary import Snapshot, Summary
-from hilbench.errors import ConfigError, HilbenchError, LinkError, TargetError
+from hilbench.errors import ConfigError, HilbenchError, LinkError, LinkTimeout, TargetError
 from hilbench.plant.period import Period
 from hilbench.protocol import Drive, Mode, OutputMode, ParamSetResult, Start, State, Status, StatusRequest, Stop, TargetHello
 from hilbench.protocol.messages import Message
@@ -527,7 +527,10 @@ class MonitorSession:
         a frame that arrives while it sends (a lost one would leave the motor to the watchdog, and
         the watchdog's fault to the next session). False: no Drive said so after STOP_ATTEMPTS Stops."""
         for _ in range(STOP_ATTEMPTS):
-            self.target.stop()
+            try:
+                self.target.stop()
+            except LinkTimeout:  # its probe went unanswered; the Stop went anyway: the stream tells
+                pass
             seen = 0
             deadline = time.monotonic() + 2.0
             while seen < STOP_SEEN_DRIVES and time.monotonic() < deadline:

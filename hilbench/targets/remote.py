@@ -73,21 +73,20 @@ def _error_name(code: int) -> str:
 SETTLE_PROBES = 4
 
 
-def settle(resends: Callable[[], int], settled_at: int, probe: Callable[[], object]) -> int:
-    """Before a command without a reply (Start, Stop): a request sent again since ``settled_at``
-    (the resend count when the target was last seen idle) may have a twin still waiting in the
-    target's receiver, which drops whole any frame that arrives meanwhile (Status.overruns), and a
-    lost Start or Stop is seen nowhere. So after a resend, ``probe`` (a StatusRequest) until one is
-    answered without one: every frame sent before it was then handled or dropped, and nothing waits.
-    The new resend count; after SETTLE_PROBES the command goes anyway (a target this slow gets it
-    best-effort, as before)."""
+def settle(resends: Callable[[], int], probe: Callable[[], object]) -> None:
+    """Before a command without a reply (Start, Stop): the target's receiver drops whole a frame that
+    arrives while it still handles the previous one (Status.overruns), and a lost Start or Stop is
+    seen nowhere. A frame may still be in hand there: a resent request's twin, a batch's, a Sensors
+    whose exchange a Ctrl-C cut short. So ``probe`` (a StatusRequest) until one is answered without
+    a resend: every frame sent before it was then handled or dropped, and nothing waits. After
+    SETTLE_PROBES the command goes anyway (a target this slow gets it best-effort, as before). A probe
+    after the command would not do: it is the frame dropped behind a command still in hand, and in
+    monitor mode a frame after a Stop arms the watchdog again."""
     for _ in range(SETTLE_PROBES):
-        now = resends()
-        if now == settled_at:
-            break
-        settled_at = now
+        before = resends()
         probe()
-    return settled_at
+        if resends() == before:
+            return
 
 
 class RemoteTarget:
@@ -109,7 +108,6 @@ class RemoteTarget:
         self.last_error_report: ErrorReport | None = None
         self.watchdog_ms = 0
         self.retries = 0  # frames sent again after no answer within retry_s (a lost frame either way)
-        self._settled_at = 0  # `retries` when the target was last seen with no twin of a resend waiting
         self._req_seq = 0
         #: where frames that answer nothing go instead of being counted as stale (None: counted)
         self.stray_sink: Callable[[Any], None] | None = None
@@ -310,12 +308,14 @@ class RemoteTarget:
         self._command(Stop)
 
     def _command(self, kind: type[Start] | type[Stop]) -> None:
-        """Start or Stop, once the target holds no twin of a resent request (`settle`); sent even
-        when settling fails (a silent target still gets its Stop), the failure raised after it."""
+        """Start or Stop once nothing waits in the target's receiver (`settle`); sent also when the
+        probe fails (a target that answers nothing may still take its Stop), that error raised after."""
         try:
-            self._settled_at = settle(lambda: self.retries, self._settled_at, self.status)
-        finally:
+            settle(lambda: self.retries, self.status)
+        except HilbenchError:
             self._send(kind(self._next_seq()))
+            raise
+        self._send(kind(self._next_seq()))
 
     def status(self) -> Status:
         reply = self._request(StatusRequest(self._next_seq()), Status)
