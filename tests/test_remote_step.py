@@ -599,3 +599,42 @@ def test_a_stop_goes_out_even_when_the_target_does_not_answer_the_probe() -> Non
     finally:
         far.close()
         host.close()
+
+
+def _served_foc_refusal(loop: str, monkeypatch: pytest.MonkeyPatch) -> list[str]:
+    """The FOC target (its C core) served in lockstep by ``loop``: 30 Sensors, then one without ADC
+    codes (which the host resends while no Drive comes), then 10 more. What each step got, as text."""
+    from hilbench.protocol import MODE_LOCKSTEP
+    from hilbench.targets import make_target
+
+    monkeypatch.setenv("HILBENCH_SERVE_LOOP", loop)
+    calls = count_c_calls(monkeypatch, "serve_lockstep")
+    target = make_target("foc")
+    assert getattr(target, "span_core", None) is not None, "the FOC C core is not built"
+    got: list[str] = []
+    with served_on_a_pty(target) as (host_link, reports):
+        host = remote.RemoteTarget(host_link, timeout_s=20.0, retry_s=10.0)
+        host.handshake(50, MODE_LOCKSTEP, 10_000)  # a watchdog (serve's C loop's case), longer than the test
+        host.start()
+        stream = [Sensors(k, 0, (), 4 * k, (2048, 2048, 3100)) for k in range(1, 31)]
+        stream += [Sensors(31, 0, (), 124, ())]
+        stream += [Sensors(k, 0, (), 4 * k, (2048, 2048, 3100)) for k in range(32, 42)]
+        for s in stream:
+            host.timeout_s, host.retry_s = (1.5, 0.5) if s.seq == 31 else (20.0, 10.0)
+            try:
+                got.append(repr(host.step(s)))
+            except HilbenchError as e:
+                got.append(type(e).__name__)
+    assert (calls[0] > 0) == (loop == "c")
+    return got
+
+
+def test_a_resent_sensors_the_foc_core_refused_is_refused_again_in_both_loops(monkeypatch: pytest.MonkeyPatch) -> None:
+    """The C core noted a refused Sensors' seq as its last step's before refusing it, so the host's
+    resend of it was answered as a repeat, with the duties of the step before (the reference refuses
+    it again, and the host's step ends with no Drive)."""
+    c = _served_foc_refusal("c", monkeypatch)
+    py = _served_foc_refusal("python", monkeypatch)
+    assert c == py
+    assert py[30] == "LinkTimeout"
+    assert py[31].startswith("Drive(seq=32,")

@@ -25,9 +25,11 @@ typedef struct {
     PyObject_HEAD
     foc_t fw;
     long long halves;   /* half PWM periods per lockstep exchange */
-    long long last_seq;
+    long long last_seq;   /* the last Sensors' seq, stepped or refused (the watchdog's Drive carries it) */
     PyObject *last_drive; /* the answer to a repeated seq (a duplicated frame): no second step */
-    char span_last;       /* the last step was the C span's: last_seq has a Drive, not yet built */
+    char span_last;       /* the last step was the C span's: span_seq has a Drive, not yet built */
+    long long span_seq;   /* the seq of the C span's last step: set only once that step ran, so that
+                           * a resent Sensors the core refused is refused again, not taken as a repeat */
     uint16_t duty[3];     /* the duties of the last step */
     double frac_us;       /* real time: the part of a half period the last advance left over (FocTarget._frac_us) */
 } Core;
@@ -117,7 +119,7 @@ static PyObject *Core_step(Core *s, PyObject *sensors)
         long long last = PyLong_AsLongLong(PyTuple_GET_ITEM(s->last_drive, 0));
         if (last == -1 && PyErr_Occurred()) return NULL;
         if (last == seq) return Py_NewRef(s->last_drive);
-    } else if (s->span_last && s->last_seq == seq) { /* the C span's last step, repeated */
+    } else if (s->span_last && s->span_seq == seq) { /* the C span's last step, repeated */
         PyObject *drive = make_drive(s, in.seq, s->duty);
         if (drive != NULL) {
             s->last_drive = Py_NewRef(drive);
@@ -175,7 +177,7 @@ static int span_halves(Core *s, long long n, const hb_csensors_t *in)
 static int span_step(PyObject *self, const hb_csensors_t *in, hb_cdrive_t *out)
 {
     Core *s = (Core *)self;
-    int repeat = s->span_last && s->last_seq == in->seq;
+    int repeat = s->span_last && s->span_seq == in->seq;
     if (s->last_drive != NULL) { /* as Core_step: the kept Drive's own seq */
         long long last = PyLong_AsLongLong(PyTuple_GET_ITEM(s->last_drive, 0));
         if (last == -1 && PyErr_Occurred()) return -1;
@@ -187,6 +189,7 @@ static int span_step(PyObject *self, const hb_csensors_t *in, hb_cdrive_t *out)
         if (span_halves(s, s->halves, in) < 0) return -1;
         Py_CLEAR(s->last_drive);
         s->span_last = 1;
+        s->span_seq = in->seq;
     }
     report_values(s, out);
     return 0;
@@ -225,6 +228,7 @@ static int span_advance(PyObject *self, double span_us, const hb_csensors_t *in,
     }
     Py_CLEAR(s->last_drive);
     s->span_last = 1;
+    s->span_seq = in->seq;
     report_values(s, out);
     return 0;
 }
@@ -410,6 +414,7 @@ static int Core_init(Core *s, PyObject *args, PyObject *kwds)
     foc_init(&s->fw, &c);
     s->halves = 1;
     s->last_seq = 0;
+    s->span_seq = 0;
     Py_CLEAR(s->last_drive);
     s->span_last = 0;
     return 0;
