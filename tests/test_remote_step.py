@@ -590,12 +590,34 @@ def test_a_stop_goes_out_even_when_the_target_does_not_answer_the_probe() -> Non
     far = open_link(host.peer_path, timeout_s=1.0)
     try:
         target = remote.RemoteTarget(host, timeout_s=0.2, retry_s=0.05)
-        with pytest.raises(LinkTimeout):
+        with pytest.raises(LinkTimeout, match="^Stop sent, unconfirmed: the StatusRequest before it failed: "):
             target.stop()
         got = []
         while (msg := far.recv_or_none(1.0)) is not None:
             got.append(type(msg).__name__)
         assert got[-1] == "Stop" and set(got[:-1]) == {"StatusRequest"}, got
+    finally:
+        far.close()
+        host.close()
+
+
+def test_a_monitor_press_goes_on_when_the_board_does_not_answer_the_probe() -> None:
+    """S2 on a board that answers no StatusRequest (one busy sending): the Start went out, and the
+    run goes on with a note (it raised out of the run), its Start resent if the stream says stopped."""
+    from hilbench.bench.monitor import MonitorSession
+    from hilbench.link import open_link
+
+    host = open_link("pty", timeout_s=1.0)
+    far = open_link(host.peer_path, timeout_s=1.0)
+    try:
+        session = MonitorSession(remote.RemoteTarget(host, timeout_s=0.2, retry_s=0.05), [])
+        session.press("s2", 1.5)
+        got = []
+        while (msg := far.recv_or_none(1.0)) is not None:
+            got.append(type(msg).__name__)
+        assert got[-1] == "Start" and set(got[:-1]) == {"StatusRequest"}, got
+        assert session.messages[-1].startswith("1.500 s: Start sent, unconfirmed: "), session.messages
+        assert session._start_sent_s == session.t_s
     finally:
         far.close()
         host.close()

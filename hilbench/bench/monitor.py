@@ -214,12 +214,17 @@ class MonitorSession:
             raise ConfigError(f"monitor: press {button}: only s2 (Start/Stop) reaches the board")
         running = self.drive is not None and int(self.drive.state) not in (int(State.STOPPED), STATE_FAULT, int(State.STALLED))
         self._sent_board_s = self.t_s
-        if running:
-            self.target.stop()
-            self._start_sent_s = None
-        else:
-            self.target.start()
-            self._start_sent_s = self.t_s
+        self._start_sent_s = None if running else self.t_s
+        self._command(self.target.stop if running else self.target.start, t_s)
+
+    def _command(self, send: Callable[[], None], t_s: float) -> None:
+        """A Start or Stop: when its probe goes unanswered (a board busy sending) the command still
+        went (`RemoteTarget._command`), the stream tells whether it was taken and a Start is sent
+        again (`_check_started`), so the run goes on with a note."""
+        try:
+            send()
+        except LinkTimeout as exc:
+            self.note(t_s, str(exc))
 
     def _check_started(self) -> None:
         """A Start has no answer: when the stream still says STOPPED a while after it, the frame was
@@ -230,9 +235,9 @@ class MonitorSession:
         if int(drive.state) != int(State.STOPPED):
             self._start_sent_s = None
         elif self.t_s - self._start_sent_s >= START_SEEN_S:
-            self.target.start()
             self._start_sent_s = self.t_s
             self._sent_board_s = self.t_s
+            self._command(self.target.start, self.t_s)
 
     def segment(self, kind: str, t_s: float, ref_rpm: float = 0.0, ramp_s: float = 0.0) -> None:
         """A reference change, a press or the end, for the segments (and `report`, as events)."""

@@ -309,12 +309,13 @@ class RemoteTarget:
 
     def _command(self, kind: type[Start] | type[Stop]) -> None:
         """Start or Stop once nothing waits in the target's receiver (`settle`); sent also when the
-        probe fails (a target that answers nothing may still take its Stop), that error raised after."""
+        probe fails (a target that answers nothing may still take its Stop), that error raised after,
+        of the same kind, saying the command went out."""
         try:
             settle(lambda: self.retries, self.status)
-        except HilbenchError:
+        except HilbenchError as exc:
             self._send(kind(self._next_seq()))
-            raise
+            raise type(exc)(f"{kind.__name__} sent, unconfirmed: the StatusRequest before it failed: {exc}") from exc
         self._send(kind(self._next_seq()))
 
     def status(self) -> Status:
