@@ -255,6 +255,34 @@ def test_a_new_npz_run_does_not_inherit_a_killed_runs_events(tmp_path: Path) -> 
     assert read_recording(path).events == ("new run's event",)
 
 
+def test_a_ctrl_c_as_an_npz_events_write_returns_leaves_each_event_once(
+        tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """A SIGINT that lands just after the journal's side file took a flush's events: its
+    KeyboardInterrupt comes once they are noted as written, so the next flush does not append them
+    again (a run killed after it left them twice in its journal)."""
+    import signal
+
+    path = tmp_path / "run.npz"
+    rec = Recorder(path, {}, flush_rows=1000)
+    rec.start(_raw_layout())
+    real = Recorder._write_events_file
+
+    def write_then_signal(self: Recorder, text: str) -> None:
+        real(self, text)
+        os.kill(os.getpid(), signal.SIGINT)  # (handled at the next bytecode, unless held)
+
+    monkeypatch.setattr(Recorder, "_write_events_file", write_then_signal)
+    rec.event("press s2")
+    rec.rows.append((0, 0, 0.0, 0))
+    with pytest.raises(KeyboardInterrupt):
+        rec.flush()
+    monkeypatch.undo()
+    rec.flush()  # (as the close's flush would) then killed: the journal is what remains
+    assert read_recording(path).events == ("press s2",)
+    rec.close("end: interrupted")
+    assert read_recording(path).events == ("press s2", "end: interrupted")
+
+
 def test_wrapped_columns_stay_below_their_modulo() -> None:
     base = _raw_layout()
     layout = RowLayout(base.fields, tuple((*c[:3], "amps", 1.0) if c[0] == "theta_e_deg" else c

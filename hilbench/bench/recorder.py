@@ -52,7 +52,7 @@ from typing import Any, Iterator, NoReturn, Sequence
 
 import numpy as np
 
-from hilbench.bench.fileio import pwrite_all
+from hilbench.bench.fileio import interrupts_held, pwrite_all
 from hilbench.errors import RecordingError
 
 try:  # CSV rows in C from raw rows, on a thread (optional; `Recorder._format_csv` is the reference)
@@ -637,10 +637,9 @@ class Recorder:
                 if events:  # the side file keeps them until the close, the metadata at the close
                     texts = [text for _, text, _ in events]
                     kept = self.metadata.setdefault("events", [])
-                    self._write_events_file("".join(f"{text}\n" for text in texts))
-                    try:
+                    with interrupts_held():  # written and noted so together (a Ctrl-C between: written twice)
+                        self._write_events_file("".join(f"{text}\n" for text in texts))
                         kept.extend(texts)
-                    finally:  # written: not again after a Ctrl-C from here on
                         events.clear()
                 self._file.flush()
             elif self._csv_writer is not None:  # the rest to the thread; the flush returns when it is written
