@@ -584,7 +584,6 @@ def test_a_command_waits_for_a_probe_answered_without_a_resend() -> None:
 def test_a_stop_goes_out_even_when_the_target_does_not_answer_the_probe() -> None:
     from hilbench.errors import LinkTimeout
     from hilbench.link import open_link
-    from hilbench.protocol import Stop
 
     host = open_link("pty", timeout_s=1.0)
     far = open_link(host.peer_path, timeout_s=1.0)
