@@ -414,3 +414,49 @@ def test_a_flush_of_events_alone_keeps_the_marker_waiting_for_its_row(tmp_path: 
     rec.close("end: completed")
     markers = read_recording(path).columns["marker"]
     assert markers.tolist() == [0, MARKER_FAULT]
+
+
+@pytest.mark.parametrize("suffix", [".csv", ".npz"])
+def test_a_second_recorder_on_a_path_being_recorded_is_refused_and_cuts_nothing(tmp_path: Path, suffix: str) -> None:
+    """Two sessions recording to one path: the second is refused before it truncates the first's
+    file (it cut the first's journal and left a recording of both)."""
+    path = tmp_path / f"same{suffix}"
+    first = Recorder(path, {}, flush_rows=7)
+    for k in range(20):
+        first.append(_row(k))
+        first.maybe_flush()
+    with pytest.raises(RecordingError, match=rf"same\{suffix}: cannot write \(another process is writing it"):
+        Recorder(path, {})
+    for k in range(20, 30):
+        first.append(_row(k))
+    first.close()
+    assert list(read_recording(path).columns["seq"]) == list(range(30))
+    again = Recorder(path, {})  # closed: free again
+    again.close()
+
+
+def test_a_save_onto_a_recording_being_written_is_refused(tmp_path: Path) -> None:
+    from hilbench.bench.tuning import save_error, write_fragment
+
+    path = tmp_path / "rec.csv"
+    rec = Recorder(path, {})
+    rec.append(_row(0))
+    rec.flush()
+    with pytest.raises(OSError) as refused:
+        write_fragment(path, "[target]\nkp = 0.1\n")
+    assert save_error(path, refused.value) == f"save {path}: another process is writing it: a running session's recording?"
+    rec.close()
+    assert read_recording(path).n_rows == 1
+    write_fragment(tmp_path / "gains.toml", "[target]\nkp = 0.1\n")
+    assert (tmp_path / "gains.toml").read_text() == "[target]\nkp = 0.1\n"
+
+
+def test_a_csv_recording_to_a_fifo_with_no_reader_is_refused_not_waited_for(
+        tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    from hilbench.bench import fileio
+
+    monkeypatch.setattr(fileio, "FIFO_READER_WAIT_S", 0.05)
+    fifo = tmp_path / "pipe.csv"
+    os.mkfifo(fifo)
+    with pytest.raises(RecordingError, match=r"pipe\.csv: cannot write \(a FIFO with no reader within 0\.05 s\)"):
+        Recorder(fifo, {})

@@ -6,10 +6,14 @@ from __future__ import annotations
 
 import contextlib
 import errno
+import fcntl
 import os
 import signal
+import stat
 import threading
-from typing import Iterator
+import time
+from pathlib import Path
+from typing import IO, Iterator
 
 
 def pwrite_all(fd: int, data: memoryview, offset: int) -> None:
@@ -41,4 +45,46 @@ def interrupts_held() -> Iterator[None]:
             signal.raise_signal(signal.SIGINT)
 
 
-__all__ = ["interrupts_held", "pwrite_all"]
+#: how long `open_held` waits for a FIFO's reader to open it (a consumer started just after the run)
+FIFO_READER_WAIT_S = 10.0
+
+
+def open_held(path: Path | str, *, binary: bool = False, read_too: bool = False) -> IO:
+    """``path`` opened for writing from its start and, a regular file, held (an exclusive ``flock``)
+    while it stays open: refused *before* anything is truncated when another holder has it (a
+    second session recording to the same path, a `ctl save` onto a recording being written). A FIFO
+    with no reader within FIFO_READER_WAIT_S is refused (ENXIO), not waited on for ever. Raises
+    BlockingIOError when held elsewhere, or the open's OSError."""
+    flags = (os.O_RDWR if read_too else os.O_WRONLY) | os.O_CREAT | os.O_NONBLOCK | os.O_CLOEXEC
+    deadline = time.monotonic() + FIFO_READER_WAIT_S
+    while True:  # (a FIFO's reader may be a moment behind its writer: polled for, up to the deadline)
+        try:
+            fd = os.open(path, flags, 0o666)
+            break
+        except OSError as exc:
+            if exc.errno != errno.ENXIO or time.monotonic() >= deadline:
+                raise
+            time.sleep(0.01)
+    try:
+        if stat.S_ISREG(os.fstat(fd).st_mode):  # (a device or FIFO has nothing to truncate)
+            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+            os.ftruncate(fd, 0)
+        os.set_blocking(fd, True)
+        if binary:
+            return open(fd, "w+b" if read_too else "wb")
+        return open(fd, "w", encoding="utf-8", newline="\n")
+    except BaseException:
+        os.close(fd)
+        raise
+
+
+def why_not_opened(exc: OSError) -> str:
+    """`open_held`'s refusal in words: held by another writer, a FIFO with no reader, or the OS's."""
+    if isinstance(exc, BlockingIOError):
+        return "another process is writing it: a running session's recording?"
+    if exc.errno == errno.ENXIO:
+        return f"a FIFO with no reader within {FIFO_READER_WAIT_S:g} s"
+    return str(exc.strerror or exc)
+
+
+__all__ = ["interrupts_held", "open_held", "pwrite_all", "why_not_opened"]

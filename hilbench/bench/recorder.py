@@ -52,7 +52,7 @@ from typing import Any, Iterator, NoReturn, Sequence
 
 import numpy as np
 
-from hilbench.bench.fileio import interrupts_held, pwrite_all
+from hilbench.bench.fileio import interrupts_held, open_held, pwrite_all, why_not_opened
 from hilbench.errors import RecordingError
 
 try:  # CSV rows in C from raw rows, on a thread (optional; `Recorder._format_csv` is the reference)
@@ -334,16 +334,16 @@ class Recorder:
         if suffix not in (".csv", ".npz"):
             raise RecordingError(f"recording {self.path}: unknown format {suffix!r} (use .csv or .npz)")
         self.is_npz = suffix == ".npz"
-        try:  # open now, so an unwritable path fails before the run starts
+        try:  # open now, so an unwritable path (or one another session records to) fails before the run starts
             if self.is_npz:
-                self._file = open(self._journal_path(), "w+b")  # read too: `_mark_journal_row`
+                self._file = open_held(self._journal_path(), binary=True, read_too=True)  # `_mark_journal_row` reads
                 _events_path(self._journal_path()).unlink(missing_ok=True)  # a killed earlier run's
                 self._tmp_path().unlink(missing_ok=True)  # and its unfinished archive
             else:
-                self._file = open(self.path, "w", encoding="utf-8", newline="\n")
+                self._file = open_held(self.path)
                 self._csv_regular = stat.S_ISREG(os.fstat(self._file.fileno()).st_mode)
         except OSError as exc:
-            raise RecordingError(f"recording {self.path}: cannot write ({exc.strerror})") from None
+            raise RecordingError(f"recording {self.path}: cannot write ({why_not_opened(exc)})") from None
         self.append = self.rows.append
 
     def start(self, layout: RowLayout = COLUMN_LAYOUT) -> None:

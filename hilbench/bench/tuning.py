@@ -2,7 +2,10 @@
 
 from __future__ import annotations
 
+from pathlib import Path
 from typing import Mapping
+
+from hilbench.bench.fileio import open_held, why_not_opened
 
 
 def params_fragment(params: Mapping[str, float], comment: str | None = None) -> str:
@@ -19,3 +22,15 @@ def saved_fragment(get_reply: Mapping[str, object]) -> str:
     params = dict(get_reply.get("params", {}))  # type: ignore[call-overload]
     tunable = list(get_reply.get("tunable") or params)  # type: ignore[call-overload]
     return params_fragment({name: params[name] for name in tunable if name in params})
+
+
+def write_fragment(path: Path | str, text: str) -> None:
+    """A saved fragment written to ``path``, refused with an OSError (`save_error` words it) when a
+    running session records to that file: a save must not cut a recording short."""
+    with open_held(path) as handle:
+        handle.write(text)
+
+
+def save_error(path: Path | str, exc: OSError) -> str:
+    """`write_fragment`'s failure as one line naming the file."""
+    return f"save {path}: {why_not_opened(exc)}"
