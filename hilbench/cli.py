@@ -7,6 +7,7 @@ and the error kind's exit code; nothing prints a traceback for a user's mistake.
 from __future__ import annotations
 
 import functools
+import math
 import sys
 from typing import Any, Callable, Sequence
 
@@ -14,6 +15,29 @@ import click
 
 from hilbench import __version__
 from hilbench.errors import ConfigError, HilbenchError
+
+
+class FiniteRange(click.FloatRange):
+    """A FloatRange that also refuses nan and inf: click's range lets nan through (every comparison
+    with it is false), and nan, inf or 1e308 then end in a traceback deep inside (a socket timeout,
+    a period count)."""
+
+    def __init__(self, min: float | None = None, max: float | None = None, *, unit: str,
+                 min_open: bool = False) -> None:
+        super().__init__(min, max, min_open=min_open)
+        self.unit = unit
+
+    def convert(self, value: Any, param: click.Parameter | None, ctx: click.Context | None) -> Any:
+        number = click.FLOAT.convert(value, param, ctx)
+        if not math.isfinite(number):
+            self.fail(f"{value} is not a finite number of {self.unit}", param, ctx)
+        return super().convert(number, param, ctx)
+
+
+#: bounds of the speeds and times a step or a sweep takes: those of the config's [[scenario]]
+#: ref_rpm and [run] duration_s
+SPEED_RPM = FiniteRange(-20000, 20000, unit="rpm")
+SECONDS = FiniteRange(0, 86400, unit="seconds", min_open=True)
 
 
 def _friendly(func: Callable[..., Any]) -> Callable[..., Any]:
@@ -162,11 +186,26 @@ def emulate(target: str | None, port_spec: str, mode: str, watchdog_ms: int | No
         except tomllib.TOMLDecodeError:
             values[key.strip()] = text
     target = target or _default_target_name()
+    _check_option_names(target, values)
     report = serve_on_port(target, port_spec, _MODES[mode], values, watchdog_ms=watchdog_ms, announce=announce,
                            keep_serving=not once)
     logging.getLogger("hilbench.serve").info(
         "served %d periods and %d requests; %s", report.sensors, report.requests, report.reason or "done"
     )
+
+
+def _check_option_names(target: str, values: dict[str, object]) -> None:
+    """Refuse an -o KEY the target does not have: the profile would drop it and serve without it."""
+    import dataclasses
+
+    from hilbench.targets import get_profile
+
+    profile = get_profile(target)  # an unknown target: ConfigError listing the known ones
+    known = [f.name for f in dataclasses.fields(profile.options_type)] if profile.options_type is not None else []
+    unknown = [key for key in values if key not in known]
+    if unknown:
+        offer = f"known: {', '.join(known)}" if known else "it takes no options"
+        raise ConfigError(f"--option {', '.join(unknown)}: not an option of target {target!r} ({offer})")
 
 
 @cli.command("link-test")
@@ -220,6 +259,10 @@ def link_test(target: str, periods: int, period_us: int, timeout_ms: int) -> Non
     if result.interrupted:
         click.echo("hilbench: interrupted: the figures above are those of the periods run", err=True)
         sys.exit(130)
+    if result.failure:  # the table stays: it says what was lost; the exit code says the link failed
+        from hilbench.errors import LinkError
+
+        raise LinkError(result.failure)
 
 
 @cli.command()
@@ -554,7 +597,7 @@ def scope(socket_path: str | None, session_selector: str | None, port: int, open
                    "directory or terminal; otherwise ctl refuses and lists them).")
 @click.option("--session", "session_selector", default=None, metavar="PID|N",
               help="The session by its pid or its number in `hilbench ctl list` (1: the newest).")
-@click.option("--timeout", "timeout_s", type=click.FloatRange(min=0.1), default=None,
+@click.option("--timeout", "timeout_s", type=FiniteRange(0.1, 3600, unit="seconds"), default=None,
               help="Seconds to wait for the answer (default: 5; `step`: 120, it answers after the step).")
 @click.option("--json", "as_json", is_flag=True, help="Print the session's whole reply as one JSON object.")
 @_friendly
@@ -606,14 +649,13 @@ def ctl(words: tuple[str, ...], socket_path: str | None, session_selector: str |
         raise ConfigError("ctl: give --socket or --session, not both")
     client = ControlClient(socket_path, timeout_s=timeout_s)
     if request["cmd"] == "save":  # the file is written here, where the user is, from the session's values
-        from hilbench.bench.tuning import saved_fragment
+        from hilbench.bench.tuning import saved_fragment, write_fragment
 
         reply = client.request({"cmd": "get"}, timeout_s=timeout_s)
         if not reply.get("ok"):
             raise TargetError(str(reply.get("message", "refused")))
         text = saved_fragment(reply["data"])
-        with open(request["file"], "w", encoding="utf-8") as handle:  # an OSError: a file error, exit 1
-            handle.write(text)
+        write_fragment(request["file"], text)  # (not onto a recording a session writes) an OSError: exit 1
         if as_json:
             click.echo(json_module.dumps({"ok": True, "message": f"wrote {request['file']}", "data": reply["data"]}))
         else:
@@ -653,16 +695,17 @@ def ctl_text(cmd: str, reply: dict[str, Any]) -> str:
 
 @cli.command(context_settings={"show_default": True})
 @click.argument("config", required=False, type=click.Path(dir_okay=False))
-@click.option("--from", "from_rpm", type=float, default=1000.0, help="Speed before the step, rpm (0: start from rest).")
-@click.option("--to", "to_rpm", type=float, default=2000.0, help="Speed after the step, rpm (negative: reverse).")
+@click.option("--from", "from_rpm", type=SPEED_RPM, default=1000.0,
+              help="Speed before the step, rpm (0: start from rest).")
+@click.option("--to", "to_rpm", type=SPEED_RPM, default=2000.0, help="Speed after the step, rpm (negative: reverse).")
 @click.option("--gains", "gains", multiple=True, metavar="V1,V2,...|NAME=V,...",
               help="A set of the target's tunable parameters (in their order, or by name); repeat to compare "
                    "several. Default: the firmware's own.")
 @click.option("--target", "target_spec", default=None, metavar="SPEC",
               help="Default: the configured target's in-process model (fast); emulator:NAME (its own process "
                    "on a pty) or a board's serial port.")
-@click.option("--settle", "settle_s", type=float, default=0.5, help="Seconds at --from before the step.")
-@click.option("--after", "after_s", type=float, default=0.5, help="Seconds recorded after the step (0.5 + 0.5 s: the same test as `hilbench sweep`).")
+@click.option("--settle", "settle_s", type=SECONDS, default=0.5, help="Seconds at --from before the step.")
+@click.option("--after", "after_s", type=SECONDS, default=0.5, help="Seconds recorded after the step (0.5 + 0.5 s: the same test as `hilbench sweep`).")
 @click.option("--set", "overrides", multiple=True, metavar="TABLE.KEY=VALUE", help="Override a config value.")
 @click.option("--plot", "plot_file", type=click.Path(dir_okay=False), default=None, metavar="FILE.png",
               help="One overlay plot of every response (needs the plot extra).")
@@ -821,10 +864,10 @@ def step_table(rows, title: str, sort_by: str | None = None):  # type: ignore[no
                    "the points it lacks.")
 @click.option("--metric", type=click.Choice(["itae", "iae", "settling_time_s", "rise_time_s", "overshoot_pct", "ss_error"]),
               default="itae", help="What ranks the points (smaller is better).")
-@click.option("--from", "from_rpm", type=float, default=1000.0, help="Speed before the step, rpm.")
-@click.option("--to", "to_rpm", type=float, default=2000.0, help="Speed after the step, rpm.")
-@click.option("--duration", "duration_s", type=float, default=1.0, help="Seconds per step test.")
-@click.option("--step-at", "step_at_s", type=float, default=0.5, help="When the step comes, s.")
+@click.option("--from", "from_rpm", type=SPEED_RPM, default=1000.0, help="Speed before the step, rpm.")
+@click.option("--to", "to_rpm", type=SPEED_RPM, default=2000.0, help="Speed after the step, rpm.")
+@click.option("--duration", "duration_s", type=SECONDS, default=1.0, help="Seconds per step test.")
+@click.option("--step-at", "step_at_s", type=SECONDS, default=0.5, help="When the step comes, s.")
 @click.option("--csv", "csv_file", type=click.Path(dir_okay=False), default=None, metavar="FILE", help="Every point as CSV.")
 @click.option("--save", "save_file", type=click.Path(dir_okay=False), default=None, metavar="FILE",
               help="The best parameters as a [target] fragment (load it with `hilbench run --gains-file FILE`).")
@@ -909,13 +952,13 @@ def _sweep_sample(sample: str, box: list[Any], seed: int) -> list[Any]:
 
 def _save_best(result: Any, save_file: str, cfg: Any) -> None:
     from hilbench.bench.sweep import best_fragment, held_params
+    from hilbench.bench.tuning import write_fragment
 
     best = result.best
     held = held_params(cfg, best.params) if best is not None and best.result is not None else None
     text = best_fragment(result, held)  # before opening the file: nothing simulated leaves no empty file
     try:
-        with open(save_file, "w", encoding="utf-8") as handle:
-            handle.write(text)
+        write_fragment(save_file, text)  # (not onto a recording a session writes)
     except OSError as exc:
         raise ConfigError(f"sweep --save {save_file}: {exc.strerror}") from None
 

@@ -126,3 +126,75 @@ def test_emulate_on_tcp_once_ends_after_the_first_host() -> None:
         reap(proc)
         proc.stdout.close()  # type: ignore[union-attr]
         proc.stderr.close()  # type: ignore[union-attr]
+
+
+def _assert_usage_error(result: subprocess.CompletedProcess[str], *words: str) -> str:
+    """click's usage error for an option value: exit 2, no traceback, one `Error:` line holding every word."""
+    err = result.stderr
+    assert "Traceback" not in err, err[-3000:]
+    assert result.returncode == 2, f"exit {result.returncode}, stderr: {err[-2000:]}"
+    errors = [line for line in err.splitlines() if line.startswith("Error:")]
+    assert len(errors) == 1, err[-2000:]
+    for word in words:
+        assert word in errors[0], f"{word!r} not in {errors[0]!r}"
+    return errors[0]
+
+
+@pytest.mark.parametrize("value, words", [
+    ("nan", ("'--timeout'", "nan is not a finite number of seconds")),
+    ("inf", ("'--timeout'", "inf is not a finite number of seconds")),
+    ("1e308", ("'--timeout'", "not in the range")),
+])
+def test_ctl_refuses_a_timeout_that_is_not_a_sane_number(value: str, words: tuple[str, ...], tmp_path: Path) -> None:
+    """Repro: `ctl --timeout nan|inf|1e308 get` with a session running ended in a traceback at the
+    socket's settimeout; the option is refused as it is parsed, before any session is looked up
+    (HOME has none here: the lookup would fail with a link error instead)."""
+    env = {**os.environ, "HOME": str(tmp_path), "XDG_CACHE_HOME": str(tmp_path / "cache")}
+    _assert_usage_error(hilbench("ctl", "--timeout", value, "get", env=env), *words)
+
+
+@pytest.mark.parametrize("args, words", [
+    (("step", "--from", "nan"), ("'--from'", "nan is not a finite number of rpm")),
+    (("step", "--to", "inf"), ("'--to'", "inf is not a finite number of rpm")),
+    (("step", "--from", "1e308"), ("'--from'", "not in the range -20000<=x<=20000")),
+    (("step", "--after", "inf"), ("'--after'", "inf is not a finite number of seconds")),
+    (("step", "--settle", "1e308"), ("'--settle'", "not in the range")),
+    (("sweep", "--from", "nan"), ("'--from'", "nan is not a finite number of rpm")),
+    (("sweep", "--to", "inf"), ("'--to'", "inf is not a finite number of rpm")),
+    (("sweep", "--duration", "inf"), ("'--duration'", "inf is not a finite number of seconds")),
+    (("sweep", "--step-at", "nan"), ("'--step-at'", "nan is not a finite number of seconds")),
+])
+def test_step_and_sweep_refuse_speeds_and_times_that_are_not_sane_numbers(args: tuple[str, ...],
+                                                                          words: tuple[str, ...]) -> None:
+    """Repro: `step --from nan`, `--to inf`, `--after inf`, `sweep --duration inf` ended in a
+    ValueError or OverflowError traceback deep in the plant or the reference's pot code."""
+    _assert_usage_error(hilbench(*args), *words)
+
+
+@pytest.mark.slow
+def test_link_test_fails_when_the_target_goes_silent() -> None:
+    """Repro: a target silent after 5 frames gave periods 4/10 and "8 errors counted", exit 0. The
+    table is still printed; the exit code is the link error's."""
+    result = hilbench("link-test", "emulator:loopback?silent_after=5", "--periods", "10", "--timeout-ms", "100")
+    assert_one_line_error(result, 4, "hilbench: link error: link-test emulator:loopback?silent_after=5",
+                          "of 10 periods got no Drive")
+    assert "periods (good / asked)" in result.stdout
+
+
+@pytest.mark.parametrize("json_flag", [(), ("--json",)])
+def test_conformance_refuses_an_only_that_names_no_check(json_flag: tuple[str, ...]) -> None:
+    """Repro: `conformance inprocess:an1017 --only zzzz` printed an empty table and exited 0."""
+    result = hilbench("conformance", "inprocess:an1017", "--only", "handshake", "--only", "zzzz", *json_flag)
+    line = assert_one_line_error(result, 2, "hilbench: config error: conformance --only 'zzzz'", "'handshake'",
+                                 "'stop and start'")
+    assert "'handshake'" not in line.split(":")[2]  # a name that matches is not called unknown
+    assert result.stdout == ""
+
+
+@pytest.mark.parametrize("target, words", [
+    ((), ("--option zz: not an option of target 'an1017'", "known: variant")),
+    (("loopback",), ("--option zz: not an option of target 'loopback'", "it takes no options")),
+])
+def test_emulate_refuses_an_unknown_option_name(target: tuple[str, ...], words: tuple[str, ...]) -> None:
+    """Repro: `emulate -o zz=1 --once` dropped the unknown name and served (a bad value was refused)."""
+    assert_one_line_error(hilbench("emulate", *target, "-o", "zz=1", "--once", timeout_s=30), 2, *words)

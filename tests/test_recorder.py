@@ -436,7 +436,7 @@ def test_a_second_recorder_on_a_path_being_recorded_is_refused_and_cuts_nothing(
 
 
 def test_a_save_onto_a_recording_being_written_is_refused(tmp_path: Path) -> None:
-    from hilbench.bench.tuning import save_error, write_fragment
+    from hilbench.bench.tuning import write_fragment
 
     path = tmp_path / "rec.csv"
     rec = Recorder(path, {})
@@ -444,7 +444,7 @@ def test_a_save_onto_a_recording_being_written_is_refused(tmp_path: Path) -> Non
     rec.flush()
     with pytest.raises(OSError) as refused:
         write_fragment(path, "[target]\nkp = 0.1\n")
-    assert save_error(path, refused.value) == f"save {path}: another process is writing it: a running session's recording?"
+    assert (refused.value.filename, refused.value.strerror) == (str(path), "another process is writing it: a running session's recording?")
     rec.close()
     assert read_recording(path).n_rows == 1
     write_fragment(tmp_path / "gains.toml", "[target]\nkp = 0.1\n")

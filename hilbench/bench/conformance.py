@@ -40,7 +40,7 @@ import time
 from dataclasses import asdict, dataclass
 from typing import Any, Callable, Iterator
 
-from hilbench.errors import HilbenchError, LinkTimeout
+from hilbench.errors import ConfigError, HilbenchError, LinkTimeout
 from hilbench.targets.remote import settle
 from hilbench.protocol import (
     ACCESS_RO,
@@ -600,6 +600,7 @@ def simulated(spec: str) -> bool:
 
 def run_checks(spec: str, *, period_us: int = 50, only: tuple[str, ...] = ()) -> list[CheckResult]:
     """Every check on ``spec`` (or those whose names contain one of ``only``), one connection."""
+    _check_only(only)
     conn = Connection(spec, period_us)
     results = []
     try:
@@ -618,6 +619,15 @@ def run_checks(spec: str, *, period_us: int = 50, only: tuple[str, ...] = ()) ->
     finally:
         conn.close()
     return results
+
+
+def _check_only(only: tuple[str, ...]) -> None:
+    """Refuse an ``only`` that names no check, before connecting: a typo would run nothing and pass."""
+    names = [name for name, _ in CHECKS]
+    unknown = [o for o in only if not any(o in name for name in names)]
+    if unknown:
+        raise ConfigError(f"conformance --only {', '.join(map(repr, unknown))}: no check's name contains it; "
+                          f"the checks: {', '.join(map(repr, names))}")
 
 
 def iter_check_names() -> Iterator[str]:

@@ -238,14 +238,14 @@ def _stop(session: ControlledSession, request: "ControlRequest", t_s: float) -> 
 
 def _save(session: ControlledSession, request: "ControlRequest", t_s: float) -> None:
     """A raw-socket client's save; `hilbench ctl save` writes where the user is."""
-    from hilbench.bench.tuning import save_error, saved_fragment, write_fragment
+    from hilbench.bench.tuning import saved_fragment, write_fragment
 
     data = _tuning_state(session, t_s)
     path = str(request.args["file"])
     try:
         write_fragment(path, saved_fragment(data))
     except OSError as exc:
-        request.reply(False, save_error(path, exc))
+        request.reply(False, f"save {path}: {exc.strerror or exc}")
     else:
         request.reply(True, f"wrote {path}", data)
 

@@ -53,8 +53,8 @@ def open_held(path: Path | str, *, binary: bool = False, read_too: bool = False)
     """``path`` opened for writing from its start and, a regular file, held (an exclusive ``flock``)
     while it stays open: refused *before* anything is truncated when another holder has it (a
     second session recording to the same path, a `ctl save` onto a recording being written). A FIFO
-    with no reader within FIFO_READER_WAIT_S is refused (ENXIO), not waited on for ever. Raises
-    BlockingIOError when held elsewhere, or the open's OSError."""
+    with no reader within FIFO_READER_WAIT_S is refused (ENXIO), not waited on for ever. Raises an
+    OSError naming the file, its strerror the reason in words."""
     flags = (os.O_RDWR if read_too else os.O_WRONLY) | os.O_CREAT | os.O_NONBLOCK | os.O_CLOEXEC
     deadline = time.monotonic() + FIFO_READER_WAIT_S
     while True:  # (a FIFO's reader may be a moment behind its writer: polled for, up to the deadline)
@@ -62,12 +62,18 @@ def open_held(path: Path | str, *, binary: bool = False, read_too: bool = False)
             fd = os.open(path, flags, 0o666)
             break
         except OSError as exc:
-            if exc.errno != errno.ENXIO or time.monotonic() >= deadline:
+            if exc.errno != errno.ENXIO:
                 raise
+            if time.monotonic() >= deadline:
+                raise OSError(errno.ENXIO, f"a FIFO with no reader within {FIFO_READER_WAIT_S:g} s", str(path)) from None
             time.sleep(0.01)
     try:
         if stat.S_ISREG(os.fstat(fd).st_mode):  # (a device or FIFO has nothing to truncate)
-            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+            try:
+                fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+            except BlockingIOError:
+                raise OSError(errno.EBUSY, "another process is writing it: a running session's recording?",
+                              str(path)) from None
             os.ftruncate(fd, 0)
         os.set_blocking(fd, True)
         if binary:
@@ -78,13 +84,4 @@ def open_held(path: Path | str, *, binary: bool = False, read_too: bool = False)
         raise
 
 
-def why_not_opened(exc: OSError) -> str:
-    """`open_held`'s refusal in words: held by another writer, a FIFO with no reader, or the OS's."""
-    if isinstance(exc, BlockingIOError):
-        return "another process is writing it: a running session's recording?"
-    if exc.errno == errno.ENXIO:
-        return f"a FIFO with no reader within {FIFO_READER_WAIT_S:g} s"
-    return str(exc.strerror or exc)
-
-
-__all__ = ["interrupts_held", "open_held", "pwrite_all", "why_not_opened"]
+__all__ = ["interrupts_held", "open_held", "pwrite_all"]

@@ -63,6 +63,22 @@ class LinkTestResult:
         return (self.timeouts + self.mismatches + self.link.get("frame_errors", 0) + self.link.get("seq_gaps", 0)
                 + self.remote.get("stale_frames", 0) + self.target_status.get("rx_errors", 0))
 
+    @property
+    def failure(self) -> str | None:
+        """Why the test failed (periods without a Drive, Drives the model disagrees with), or None.
+
+        Frame errors a retry recovered are counted, not a failure: the link delivered every period."""
+        if self.interrupted:
+            return None
+        lost = self.periods - self.good
+        problems = []
+        if lost:
+            problems.append(f"{lost} of {self.periods} periods got no Drive (the target went silent or the link "
+                            "lost them)")
+        if self.mismatches:
+            problems.append(f"{self.mismatches} Drives differ from the {self.firmware_name} model")
+        return f"link-test {self.target}: " + "; ".join(problems) if problems else None
+
 
 def sensors_for_period(k: int) -> Sensors:
     """A deterministic Sensors that exercises every field (never S2, so no start/stop toggling):

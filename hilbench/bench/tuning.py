@@ -5,7 +5,7 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Mapping
 
-from hilbench.bench.fileio import open_held, why_not_opened
+from hilbench.bench.fileio import open_held
 
 
 def params_fragment(params: Mapping[str, float], comment: str | None = None) -> str:
@@ -25,12 +25,8 @@ def saved_fragment(get_reply: Mapping[str, object]) -> str:
 
 
 def write_fragment(path: Path | str, text: str) -> None:
-    """A saved fragment written to ``path``, refused with an OSError (`save_error` words it) when a
-    running session records to that file: a save must not cut a recording short."""
+    """A saved fragment written to ``path``, refused with an OSError when a running session records
+    to that file: a save must not cut a recording short."""
     with open_held(path) as handle:
         handle.write(text)
 
-
-def save_error(path: Path | str, exc: OSError) -> str:
-    """`write_fragment`'s failure as one line naming the file."""
-    return f"save {path}: {why_not_opened(exc)}"

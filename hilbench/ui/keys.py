@@ -88,13 +88,13 @@ class CommandLine:
         try:
             request = parse_ctl_args(line.split())
             if request["cmd"] == "save":
-                from hilbench.bench.tuning import save_error, saved_fragment, write_fragment
+                from hilbench.bench.tuning import saved_fragment, write_fragment
 
                 reply = ControlClient(self.socket_path, timeout_s=5.0).request({"cmd": "get"}, timeout_s=5.0)
                 try:
                     write_fragment(request["file"], saved_fragment(reply["data"]))
                 except OSError as exc:
-                    return f"> {line}: {save_error(request['file'], exc)}"
+                    return f"> {line}: save {request['file']}: {exc.strerror or exc}"
                 return f"> {line}: saved"
             reply = ControlClient(self.socket_path, timeout_s=5.0).request(request, timeout_s=15.0)
         except (HilbenchError, OSError) as exc:
