@@ -616,9 +616,41 @@ def test_a_monitor_press_goes_on_when_the_board_does_not_answer_the_probe() -> N
             got.append(type(msg).__name__)
         assert got[-1] == "Start" and set(got[:-1]) == {"StatusRequest"}, got
         assert session.messages[-1].startswith("1.500 s: Start sent, unconfirmed: "), session.messages
-        assert session._start_sent_s == session.t_s
+        assert session._start_sent_s == session.t_s and session._start_rx == session._drives_rx
     finally:
         far.close()
+        host.close()
+
+
+def test_a_monitor_start_is_judged_on_the_drives_received_after_it() -> None:
+    """The Drives parked while a Start's probe waited all say STOPPED and predate it: working through
+    them must not count as the Start going unseen (it sent a second Start, and a second probe)."""
+    from hilbench.bench.monitor import START_SEEN_S, MonitorSession
+    from hilbench.link import open_link
+    from hilbench.protocol import State
+
+    host = open_link("pty", timeout_s=1.0)
+    try:
+        session = MonitorSession(remote.RemoteTarget(host, timeout_s=0.2, retry_s=0.05), [])
+        starts: list[float] = []
+        session.target.start = lambda: starts.append(session.t_s)  # type: ignore[method-assign]
+        stopped = Drive(0, 0, 0, 0, 0, int(State.STOPPED), 0, False, False, 0, (0, 0, 0))
+        session.drive = stopped
+        session._drives_rx = 10
+        session._send_start(0.0)
+        assert starts == [0.0] and session._start_rx == 10
+        session._drives_rx, session._inbox = 16, [stopped] * 6  # 6 parked, 4 new: rows of old Drives
+        session.t_s = 1.0
+        session._check_started()
+        assert starts == [0.0]
+        session._inbox = []  # every Drive now a row, the last ones after the Start
+        session.t_s = 1.0 + START_SEEN_S / 2
+        session._check_started()
+        assert starts == [0.0]
+        session.t_s = 1.0 + START_SEEN_S
+        session._check_started()
+        assert starts == [0.0, 1.0 + START_SEEN_S]
+    finally:
         host.close()
 
 

@@ -62,26 +62,40 @@ def open_held(path: Path | str, *, binary: bool = False, read_too: bool = False)
             fd = os.open(path, flags, 0o666)
             break
         except OSError as exc:
-            if exc.errno != errno.ENXIO:
+            if exc.errno != errno.ENXIO or not _is_fifo(path):  # (a socket or a device gives it too)
                 raise
             if time.monotonic() >= deadline:
                 raise OSError(errno.ENXIO, f"a FIFO with no reader within {FIFO_READER_WAIT_S:g} s", str(path)) from None
             time.sleep(0.01)
     try:
         if stat.S_ISREG(os.fstat(fd).st_mode):  # (a device or FIFO has nothing to truncate)
-            try:
-                fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
-            except BlockingIOError:
-                raise OSError(errno.EBUSY, "another process is writing it: a running session's recording?",
-                              str(path)) from None
+            _hold(fd, path)
             os.ftruncate(fd, 0)
         os.set_blocking(fd, True)
-        if binary:
-            return open(fd, "w+b" if read_too else "wb")
-        return open(fd, "w", encoding="utf-8", newline="\n")
     except BaseException:
         os.close(fd)
         raise
+    if binary:  # (the file object owns fd from here, closing it if this fails)
+        return open(fd, "w+b" if read_too else "wb")
+    return open(fd, "w", encoding="utf-8", newline="\n")
+
+
+def _hold(fd: int, path: Path | str) -> None:
+    """An exclusive flock on ``fd``, or the OSError saying another process holds one. A filesystem
+    without locks (an NFS mount with no lock daemon: ENOLCK) writes unheld, as before there were any."""
+    try:
+        fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+    except BlockingIOError:
+        raise OSError(errno.EBUSY, "another process is writing it: a running session's recording?", str(path)) from None
+    except OSError:
+        pass
+
+
+def _is_fifo(path: Path | str) -> bool:
+    try:
+        return stat.S_ISFIFO(os.stat(path).st_mode)
+    except OSError:
+        return False
 
 
 __all__ = ["interrupts_held", "open_held", "pwrite_all"]

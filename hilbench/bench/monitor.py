@@ -129,6 +129,7 @@ class MonitorSession:
         self._unanswered_at: int | None = None  # _drives_rx when a frame with no answer went out
         self._sent_board_s = 0.0  # the board's time at the last frame sent to it (any feeds its watchdog)
         self._start_sent_s: float | None = None  # a Start (no reply) waiting to be seen in the stream
+        self._start_rx = 0  # _drives_rx when that Start went out
         self._ramp: tuple[float, float, float, float] | None = None  # (t0, from, to, duration): a reference ramp
         self._ramp_written = 0.0
         #: the held references and how the motor followed them, on the firmware's measured speed (the
@@ -214,17 +215,22 @@ class MonitorSession:
             raise ConfigError(f"monitor: press {button}: only s2 (Start/Stop) reaches the board")
         running = self.drive is not None and int(self.drive.state) not in (int(State.STOPPED), STATE_FAULT, int(State.STALLED))
         self._sent_board_s = self.t_s
-        self._start_sent_s = None if running else self.t_s
-        self._command(self.target.stop if running else self.target.start, t_s)
+        if running:
+            self._start_sent_s = None
+            self.target.stop()  # its probe timing out ends the run, whose end Stops until the stream says so
+        else:
+            self._send_start(t_s)
 
-    def _command(self, send: Callable[[], None], t_s: float) -> None:
-        """A Start or Stop: when its probe goes unanswered (a board busy sending) the command still
-        went (`RemoteTarget._command`), the stream tells whether it was taken and a Start is sent
-        again (`_check_started`), so the run goes on with a note."""
+    def _send_start(self, t_s: float) -> None:
+        """A Start: when its probe goes unanswered (a board busy sending) it still went
+        (`RemoteTarget._command`), and `_check_started` sends it again if the stream stays STOPPED,
+        so the run goes on with a note. Judged on the Drives received after it (`_start_rx`)."""
+        self._start_sent_s = self.t_s
         try:
-            send()
+            self.target.start()
         except LinkTimeout as exc:
             self.note(t_s, str(exc))
+        self._start_rx = self._drives_rx
 
     def _check_started(self) -> None:
         """A Start has no answer: when the stream still says STOPPED a while after it, the frame was
@@ -232,12 +238,14 @@ class MonitorSession:
         drive = self.drive
         if self._start_sent_s is None or drive is None:
             return
+        if self._drives_rx - len(self._inbox) <= self._start_rx:  # rows still of Drives from before it
+            self._start_sent_s = self.t_s  # (parked while its probe waited): the wait counts from after
+            return
         if int(drive.state) != int(State.STOPPED):
             self._start_sent_s = None
         elif self.t_s - self._start_sent_s >= START_SEEN_S:
-            self._start_sent_s = self.t_s
             self._sent_board_s = self.t_s
-            self._command(self.target.start, self.t_s)
+            self._send_start(self.t_s)
 
     def segment(self, kind: str, t_s: float, ref_rpm: float = 0.0, ramp_s: float = 0.0) -> None:
         """A reference change, a press or the end, for the segments (and `report`, as events)."""
