@@ -524,7 +524,7 @@ def report(recording: str, plot_dir: str | None, csv_file: str | None, as_json: 
 
     from hilbench.bench.column_chunks import recording_chunks
     from hilbench.bench.recording_head import read_head
-    from hilbench.bench.report import summarise_chunks
+    from hilbench.bench.report import json_safe, summarise_chunks
 
     source = recording_chunks(recording)  # read a chunk of rows at a time: memory bounded however long
     head = read_head(source)
@@ -553,7 +553,7 @@ def report(recording: str, plot_dir: str | None, csv_file: str | None, as_json: 
 
         raise ConfigError("report --overlay draws into the --plot folder: give --plot DIR")
     if as_json:
-        click.echo(json_module.dumps(info, indent=2, default=str))
+        click.echo(json_module.dumps(json_safe(info), indent=2, default=str, allow_nan=False))
         return
     table = Table(title=f"recording {recording}", show_header=False)
     table.add_column("what", style="bold")

@@ -461,3 +461,27 @@ def test_a_csv_recording_to_a_fifo_with_no_reader_is_refused_not_waited_for(
     os.mkfifo(fifo)
     with pytest.raises(RecordingError, match=r"pipe\.csv: cannot write \(a FIFO with no reader within 0\.05 s\)"):
         Recorder(fifo, {})
+
+
+def test_an_npz_path_stays_held_until_its_archive_is_in_place(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """A second session opening the path while the first writes its archive is refused (the
+    journal's lock went with its early close: the second cut the journal and lost the first's rows)."""
+    path = tmp_path / "a.npz"
+    first = Recorder(path, {}, flush_rows=7)
+    for k in range(30):
+        first.append(_row(k))
+        first.maybe_flush()
+    real = Recorder._write_archive
+    refused: list[str] = []
+
+    def write_archive(self: Recorder, background: object) -> None:
+        try:
+            Recorder(path, {})
+        except RecordingError as exc:
+            refused.append(str(exc))
+        real(self, background)
+
+    monkeypatch.setattr(Recorder, "_write_archive", write_archive)
+    first.close()
+    assert refused and "another process is writing it" in refused[0]
+    assert list(read_recording(path).columns["seq"]) == list(range(30))

@@ -13,7 +13,6 @@ memory map would count every page it touched in the process's RSS.
 
 from __future__ import annotations
 
-import json
 import os
 import struct
 import zipfile
@@ -24,7 +23,8 @@ from typing import IO, Iterator, Mapping, Sequence
 import numpy as np
 
 from hilbench.bench import recording_checks as rules
-from hilbench.bench.recorder import COLUMNS, _npz_members, _read_journal_rows, csv_blocks, recording_path
+from hilbench.bench.recorder import (COLUMNS, _npz_members, _read_journal_rows, csv_blocks, npy_header, npz_metadata,
+                                     recording_path, unreadable)
 from hilbench.errors import RecordingError
 
 #: rows per chunk: 0.5 MB a float64 column
@@ -58,9 +58,8 @@ class ColumnChunks(ABC):
             yield from self._chunks(names, chunk_rows)
         except RecordingError:
             raise
-        except (OSError, ValueError, EOFError, struct.error, zipfile.BadZipFile) as exc:
-            reason = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
-            raise RecordingError(f"recording {self.where}: unreadable ({reason[:160]})") from None
+        except (OSError, ValueError, EOFError, struct.error, zipfile.BadZipFile, MemoryError) as exc:
+            raise unreadable(self.where, exc) from None
 
     def whole(self, names: Sequence[str] | None = None) -> dict[str, np.ndarray]:
         """The columns ``names`` (default: all) as whole arrays: for a short run only (a step test)."""
@@ -126,8 +125,7 @@ class NpzChunks(ColumnChunks):
         self.where = str(path)
         with zipfile.ZipFile(path) as archive:
             _npz_members(path, archive)  # a member promising more than it holds is refused before any read
-            with archive.open("metadata.npy") as member:
-                metadata = json.loads(str(np.lib.format.read_array(member, allow_pickle=False)))
+            metadata = npz_metadata(path, archive)
             members = {info.filename for info in archive.infolist()}
         if not isinstance(metadata, dict):
             raise RecordingError(f"recording {path}: metadata is not a table")
@@ -151,7 +149,7 @@ class NpzChunks(ColumnChunks):
                 n_rows: int | None = None
                 dtypes: dict[str, np.dtype] = {}
                 for name in names:  # t_s first: its length is every column's
-                    shape, dtype = _npy_header(members[name])
+                    shape, dtype = npy_header(self.path, f"{name}.npy", members[name])
                     rules.check_column_header(str(self.path), name, shape, dtype, n_rows)
                     n_rows = shape[0] if n_rows is None else n_rows
                     dtypes[name] = dtype
@@ -163,13 +161,6 @@ class NpzChunks(ColumnChunks):
             finally:
                 for member in members.values():
                     member.close()
-
-
-def _npy_header(member: IO[bytes]) -> tuple[tuple[int, ...], np.dtype]:
-    version = np.lib.format.read_magic(member)
-    read_header = np.lib.format.read_array_header_1_0 if version == (1, 0) else np.lib.format.read_array_header_2_0
-    shape, _, dtype = read_header(member)
-    return tuple(shape), dtype
 
 
 def _read_values(member: IO[bytes], dtype: np.dtype, count: int, path: Path) -> np.ndarray:
@@ -204,7 +195,9 @@ class JournalChunks(ColumnChunks):
                 if len(raw) != count * itemsize:
                     raise RecordingError(f"recording {self.path}: shorter than it was a moment ago")
                 rows = np.frombuffer(raw, dtype=self._layout.dtype, count=count)
-                yield checked({name: self._layout.to_column(rows, name) for name in names})
+                with np.errstate(over="ignore", invalid="ignore"):  # a huge scale: infinities, judged by the checks
+                    chunk = {name: self._layout.to_column(rows, name) for name in names}
+                yield checked(chunk)
 
 
 class CsvChunks(ColumnChunks):
@@ -246,10 +239,9 @@ def recording_chunks(path: str | Path) -> ColumnChunks:
         return CsvChunks(path)
     except RecordingError:
         raise
-    except (OSError, ValueError, KeyError, EOFError, struct.error, zipfile.BadZipFile, json.JSONDecodeError,
-            UnicodeDecodeError) as exc:
-        reason = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
-        raise RecordingError(f"recording {path}: unreadable ({reason[:160]})") from None
+    except (OSError, ValueError, KeyError, EOFError, TypeError, IndexError, RecursionError, MemoryError,
+            struct.error, zipfile.BadZipFile, UnicodeDecodeError) as exc:
+        raise unreadable(path, exc) from None
 
 
 __all__ = ["AliasChunks", "ArrayChunks", "CHUNK_ROWS", "ColumnChunks", "CsvChunks", "JournalChunks", "NpzChunks",

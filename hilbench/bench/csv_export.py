@@ -3,13 +3,15 @@ memory of one chunk (the whole table stacked at once took 1.25 GB for a 60 s run
 
 from __future__ import annotations
 
+import os
 from pathlib import Path
 
 import numpy as np
 
 from hilbench.bench.column_chunks import ColumnChunks
-from hilbench.bench.recorder import COLUMNS, Recorder, float_layout
+from hilbench.bench.recorder import COLUMNS, Recorder, _events_path, float_layout
 from hilbench.bench.recording_head import RecordingHead
+from hilbench.errors import RecordingError
 
 #: rows formatted at a time (their text is ~200 bytes a row, several copies on the way)
 EXPORT_CHUNK_ROWS = 16384
@@ -18,6 +20,7 @@ EXPORT_CHUNK_ROWS = 16384
 def export_csv_chunks(head: RecordingHead, source: ColumnChunks, path: str | Path) -> Path:
     """Write the recording as the same CSV a `--record run.csv` run writes, byte for byte the text
     of the whole-table export: each row's text depends on that row only."""
+    refuse_overwriting_source(source, Path(path))
     names = list(source.names)
     fmts = {name: fmt for name, _, fmt in COLUMNS}
     formats = {name: head.formats.get(name) or fmts.get(name, "%.6g") for name in names}
@@ -39,4 +42,32 @@ def export_csv_chunks(head: RecordingHead, source: ColumnChunks, path: str | Pat
     return out.path
 
 
-__all__ = ["export_csv_chunks"]
+def refuse_overwriting_source(source: ColumnChunks, path: Path) -> None:
+    """RecordingError when writing ``path`` would truncate a file the export reads: the recording
+    itself (by any name: a link, another spelling) or its journal and events side file. The export
+    reads the rows while it writes, so the recording would be lost and the export empty."""
+    if source.where == ColumnChunks.where:  # rows in memory: no file to protect
+        return
+    read = Path(source.where)
+    read_files = [read, _events_path(read)] if read.name.endswith(".journal") else [read]
+    written = [path]
+    if path.suffix.lower() == ".npz":  # an NPZ export writes its journal, then a temporary archive
+        journal = path.with_name(path.name + ".journal")
+        written += [journal, _events_path(journal), path.with_name(path.name + ".tmp.npz")]
+    taken = {_identity(p) for p in read_files} - {None}
+    for target in written:
+        if _identity(target) in taken:
+            raise RecordingError(f"recording {path}: the export would overwrite {read}, the recording it reads: "
+                                 f"give another path")
+
+
+def _identity(path: Path) -> tuple[int, int] | None:
+    """(device, inode) of the file at ``path`` after symlinks; None when there is none."""
+    try:
+        st = os.stat(path)
+    except OSError:
+        return None
+    return st.st_dev, st.st_ino
+
+
+__all__ = ["export_csv_chunks", "refuse_overwriting_source"]

@@ -43,6 +43,7 @@ import functools
 import json
 import math
 import os
+import re
 import stat
 import struct
 import zipfile
@@ -52,7 +53,7 @@ from typing import Any, Iterator, NoReturn, Sequence
 
 import numpy as np
 
-from hilbench.bench.fileio import interrupts_held, open_held, pwrite_all, why_not_opened
+from hilbench.bench.fileio import interrupts_held, open_held, pwrite_all
 from hilbench.errors import RecordingError
 
 try:  # CSV rows in C from raw rows, on a thread (optional; `Recorder._format_csv` is the reference)
@@ -198,15 +199,77 @@ class RowLayout:
                 "wrap": [list(w) for w in self.wrap]}
 
     @classmethod
-    def from_json(cls, obj: dict[str, Any]) -> "RowLayout":
-        raw_columns = obj["columns"]
-        if raw_columns and len(raw_columns[0]) == 2:  # journals written before columns had names
-            columns = tuple((name, unit, fmt, str(src), float(k))
-                            for (name, unit, fmt), (src, k) in zip(COLUMNS, raw_columns))
+    def from_json(cls, obj: Any) -> "RowLayout":
+        """The layout a journal's header describes. The header is input (a damaged or hand-edited
+        journal), so its shape is checked here first: ValueError naming the field, never a TypeError
+        from deep inside, nor a layout that fails later when rows are read."""
+        if not isinstance(obj, dict):
+            raise ValueError(f"layout is {_json_shown(obj)}, not a table")
+        raw_fields = obj.get("fields")
+        if not isinstance(raw_fields, list) or not raw_fields:
+            raise ValueError(f"layout fields is {_json_shown(raw_fields)}, not a list of [name, type code]")
+        for i, f in enumerate(raw_fields):
+            if not (isinstance(f, list) and len(f) == 2 and all(isinstance(x, str) for x in f)):
+                raise ValueError(f"layout field {i} is {_json_shown(f)}, not [name, type code]")
+        fields = tuple((str(n), str(c)) for n, c in raw_fields)
+        names = [n for n, _ in fields]
+        for n, code in fields:
+            if code not in _CODE_DTYPES:
+                raise ValueError(f"layout field {_json_shown(n)} has type code {_json_shown(code)}, not one of "
+                                 f"{''.join(_CODE_DTYPES)}")
+            if names.count(n) > 1:
+                raise ValueError(f"layout field {_json_shown(n)} appears more than once")
+        if "marker" not in names:
+            raise ValueError("layout fields have no marker field")
+        raw_columns = obj.get("columns")
+        legacy = isinstance(raw_columns, list) and bool(raw_columns) and isinstance(raw_columns[0], list) \
+            and len(raw_columns[0]) == 2  # journals written before columns had names
+        width, what = (2, "[field, scale]") if legacy else (5, "[name, unit, format, field, scale]")
+        if not isinstance(raw_columns, list) or not raw_columns:
+            raise ValueError(f"layout columns is {_json_shown(raw_columns)}, not a list of {what}")
+        for i, c in enumerate(raw_columns):
+            if not (isinstance(c, list) and len(c) == width and all(isinstance(x, str) for x in c[:-1])):
+                raise ValueError(f"layout column {i} is {_json_shown(c)}, not {what}")
+        if legacy:
+            columns = tuple((name, unit, fmt, src, k) for (name, unit, fmt), (src, k) in zip(COLUMNS, raw_columns))
         else:
-            columns = tuple((str(n), str(u), str(f), str(src), float(k)) for n, u, f, src, k in raw_columns)
-        return cls(tuple((str(n), str(c)) for n, c in obj["fields"]), columns,
-                   tuple((str(n), float(m)) for n, m in obj.get("wrap", ())))
+            columns = tuple((n, u, f, src, k) for n, u, f, src, k in raw_columns)
+        column_names = [c[0] for c in columns]
+        for name, _, _, src, scale in columns:
+            if not _json_number(scale) or math.isinf(scale):  # NaN: a quantity the target does not report
+                raise ValueError(f"layout column {_json_shown(name)} has scale {_json_shown(scale)}, not a finite number")
+            if src not in names:
+                raise ValueError(f"layout column {_json_shown(name)} reads field {_json_shown(src)}, not in the fields")
+            if column_names.count(name) > 1:
+                raise ValueError(f"layout column {_json_shown(name)} appears more than once")
+        for required in ("t_s", "marker"):
+            if required not in column_names:
+                raise ValueError(f"layout columns have no {required} column")
+        raw_wrap = obj.get("wrap", [])
+        if not isinstance(raw_wrap, list):
+            raise ValueError(f"layout wrap is {_json_shown(raw_wrap)}, not a list of [column, positive modulo]")
+        for i, w in enumerate(raw_wrap):
+            if not (isinstance(w, list) and len(w) == 2 and isinstance(w[0], str) and _json_number(w[1])
+                    and 0.0 < w[1] < math.inf):
+                raise ValueError(f"layout wrap {i} is {_json_shown(w)}, not [column, positive modulo]")
+        wrapped = [name for name, _ in raw_wrap]
+        if len(set(wrapped)) != len(wrapped):
+            raise ValueError(f"layout wrap names a column more than once: {_json_shown(raw_wrap)}")
+        return cls(fields, tuple((n, u, f, src, float(k)) for n, u, f, src, k in columns),
+                   tuple((str(n), float(m)) for n, m in raw_wrap))
+
+
+def _json_number(value: Any) -> bool:
+    return isinstance(value, (int, float)) and not isinstance(value, bool)
+
+
+def _json_shown(value: Any) -> str:
+    """A value of a recording's JSON as a message shows it: as JSON (null, not None), 40 characters at most."""
+    try:
+        text = json.dumps(value)
+    except (ValueError, TypeError, RecursionError):
+        text = type(value).__name__
+    return text if len(text) <= 40 else text[:37] + "..."
 
 
 def float_layout(columns: Sequence[tuple[str, str, str]]) -> RowLayout:
@@ -337,13 +400,17 @@ class Recorder:
         try:  # open now, so an unwritable path (or one another session records to) fails before the run starts
             if self.is_npz:
                 self._file = open_held(self._journal_path(), binary=True, read_too=True)  # `_mark_journal_row` reads
-                _events_path(self._journal_path()).unlink(missing_ok=True)  # a killed earlier run's
-                self._tmp_path().unlink(missing_ok=True)  # and its unfinished archive
+                try:
+                    _events_path(self._journal_path()).unlink(missing_ok=True)  # a killed earlier run's
+                    self._tmp_path().unlink(missing_ok=True)  # and its unfinished archive
+                except OSError:  # (a directory there): the journal let go, not held until collected
+                    self._file.close()
+                    raise
             else:
                 self._file = open_held(self.path)
                 self._csv_regular = stat.S_ISREG(os.fstat(self._file.fileno()).st_mode)
         except OSError as exc:
-            raise RecordingError(f"recording {self.path}: cannot write ({why_not_opened(exc)})") from None
+            raise RecordingError(f"recording {self.path}: cannot write ({exc.strerror})") from None
         self.append = self.rows.append
 
     def start(self, layout: RowLayout = COLUMN_LAYOUT) -> None:
@@ -738,11 +805,20 @@ class Recorder:
                 self._close_events_file()
             raise
         self.closed = True
-        try:
-            self._file.close()
+        try:  # an NPZ's journal stays open, its lock keeping another session off the path, until the
+            if self.is_npz:  # archive is in place and the journal gone (`_close_archive`)
+                self._file.flush()
+            else:
+                self._file.close()
         finally:
             self._close_events_file()
         if self.is_npz:
+            self._close_archive()
+
+    def _close_archive(self) -> None:
+        """The archive written under the recording's name, the journal removed, then its descriptor
+        (and lock) let go; on every path, the journal's."""
+        try:
             if "events" in self.metadata:  # after "end", however many flushes came first: the same bytes
                 self.metadata["events"] = self.metadata.pop("events")
             self.metadata["columns"] = [list(spec) for spec in self.rows.layout.column_specs]  # name, unit, CSV format
@@ -755,6 +831,8 @@ class Recorder:
             finally:  # the archive's descriptor on the journal, on every path: once the journal is unlinked,
                 if background is not None:  # this last close frees its pages, on another thread
                     background.release_journal()
+        finally:
+            self._file.close()
 
     def _write_archive(self, background: Any) -> None:
         """The archive, from the background archive's thread or else from the journal, under the
@@ -878,7 +956,62 @@ def recording_path(path: str | Path) -> Path:
         if path.suffix == ".npz" and journal.exists():
             return journal
         raise RecordingError(f"recording {path}: no such file")
+    check_regular(path)
     return path
+
+
+def check_regular(path: Path) -> None:
+    """Refuse what is not a regular file (after symlinks) before it is opened: a FIFO's open blocks
+    for ever, a device such as /dev/zero reads without end (zipfile would hold all of it)."""
+    try:
+        mode = os.stat(path).st_mode
+    except OSError as exc:
+        raise RecordingError(f"recording {path}: cannot read ({exc.strerror or 'stat failed'})") from None
+    if not stat.S_ISREG(mode):
+        kind = "a directory" if stat.S_ISDIR(mode) else "a FIFO" if stat.S_ISFIFO(mode) else \
+            "a device" if stat.S_ISCHR(mode) or stat.S_ISBLK(mode) else "a socket" if stat.S_ISSOCK(mode) else "special"
+        raise RecordingError(f"recording {path}: not a regular file ({kind})")
+
+
+def parse_json(where: str | Path, what: str, text: str | bytes) -> Any:
+    """JSON a recording holds (its metadata, a journal's header), one RecordingError line when it
+    is not: text that is not JSON, or nests deeper than the parser's stack (a hostile file)."""
+    try:
+        return json.loads(text)
+    except RecursionError:
+        raise RecordingError(f"recording {where}: {what} nests too deeply to be read") from None
+    except json.JSONDecodeError as exc:
+        raise RecordingError(f"recording {where}: {what} is not valid JSON (line {exc.lineno}, column {exc.colno})") \
+            from None
+    except (ValueError, TypeError):  # bytes that are not UTF-8
+        raise RecordingError(f"recording {where}: {what} is not JSON text") from None
+
+
+def unreadable(where: str | Path, exc: BaseException) -> RecordingError:
+    """A reader's failure the checks did not name, in words for the user (no Python exception text)."""
+    if isinstance(exc, zipfile.BadZipFile):
+        crc = re.match(r"Bad CRC-32 for file '(.{1,80})'", str(exc))
+        reason = f"member {crc.group(1)} is damaged (its CRC-32 does not match)" if crc else \
+            "not an NPZ archive (not a zip file, or cut short)" if "not a zip file" in str(exc) else \
+            "a damaged NPZ archive"
+    elif isinstance(exc, UnicodeDecodeError):
+        reason = "not UTF-8 text"
+    elif isinstance(exc, json.JSONDecodeError):
+        reason = f"not valid JSON (line {exc.lineno}, column {exc.colno})"
+    elif isinstance(exc, RecursionError):
+        reason = "nests too deeply to be read"
+    elif isinstance(exc, KeyError) and "no item named" in str(exc):
+        member = re.search(r"named '(.{1,80})'", str(exc))
+        reason = f"no member {member.group(1)} in the archive" if member else "a member is missing from the archive"
+    elif isinstance(exc, OSError):
+        reason = f"cannot read ({exc.strerror or 'I/O error'})"
+    elif isinstance(exc, (EOFError, struct.error)):
+        reason = "cut short"
+    elif isinstance(exc, MemoryError):
+        reason = "needs more memory than there is"
+    else:
+        reason = "damaged, or not a recording written by hilbench"
+    return RecordingError(f"recording {where}: unreadable ({reason})")
 
 
 def read_recording(path: str | Path) -> RecordingData:
@@ -897,10 +1030,7 @@ def read_recording(path: str | Path) -> RecordingData:
         raise
     except (OSError, ValueError, KeyError, EOFError, IndexError, TypeError, AttributeError, OverflowError,
             RecursionError, struct.error, zipfile.BadZipFile, json.JSONDecodeError, UnicodeDecodeError) as exc:
-        reason = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
-        if "allow_pickle" in reason or "pickle" in reason.lower():  # NumPy's advice for foreign bytes: never give it
-            reason = "not an NPZ archive written by hilbench"
-        raise RecordingError(f"recording {path}: unreadable ({reason[:160]})") from None
+        raise unreadable(path, exc) from None  # (NumPy's advice for foreign bytes, allow_pickle, never given)
 
 
 def _checked(data: RecordingData) -> RecordingData:
@@ -988,8 +1118,17 @@ def csv_blocks(path: Path, metadata: dict[str, Any], events: list[str], header: 
     block: list[list[float]] = []
     names: list[str] | None = None
     torn: tuple[int, int] | None = None  # (line, cells) of a row cut by a crash: only the last row may be
+    n = 0
     with open(path, encoding="utf-8") as handle:
-        for n, line in enumerate(_csv_lines(handle, path), 1):
+        lines = _csv_lines(handle, path)
+        while True:
+            try:
+                line = next(lines, None)
+            except UnicodeDecodeError:  # (decoded a few KB ahead of the lines: the line is not exact)
+                raise RecordingError(f"recording {path}: not UTF-8 text (at or after line {n + 1})") from None
+            if line is None:
+                break
+            n += 1
             if _csv_comment(line, metadata, events):
                 continue
             if names is None:
@@ -1003,13 +1142,26 @@ def csv_blocks(path: Path, metadata: dict[str, Any], events: list[str], header: 
             if len(cells) != len(names) or not line.endswith("\n"):
                 torn = (n, len(cells))  # a row cut by a crash: everything before it stands
                 continue
-            block.append([float(cell) for cell in cells])
+            try:
+                block.append([float(cell) for cell in cells])
+            except ValueError:
+                column, cell = next((names[i], c) for i, c in enumerate(cells) if not _is_float(c))
+                raise RecordingError(f"recording {path}: line {n}: column {column[:40]}: {_json_shown(cell)} is not a "
+                                     f"number") from None
             if len(block) >= block_rows:  # rows into arrays as they come: a list of floats is 4x their size
                 yield np.asarray(block, dtype=float)
                 block = []
     if names is None:
         raise RecordingError(f"recording {path}: no header line (empty or not a hilbench CSV)")
     yield np.asarray(block, dtype=float).reshape(-1, len(names))
+
+
+def _is_float(text: str) -> bool:
+    try:
+        float(text)
+    except ValueError:
+        return False
+    return True
 
 
 def _read_journal_rows(path: Path, head_only: bool = False) -> tuple[dict[str, Any], RowLayout, Any]:
@@ -1028,10 +1180,13 @@ def _read_journal_rows(path: Path, head_only: bool = False) -> tuple[dict[str, A
         head_bytes = handle.read(head_len)
     if len(head_bytes) < head_len:
         raise RecordingError(f"recording {path}: the header is cut short")
-    head = json.loads(head_bytes)
+    head = parse_json(path, "the header", head_bytes)
     if not isinstance(head, dict) or not isinstance(head.get("layout"), dict):
         raise RecordingError(f"recording {path}: not a hilbench journal (no row layout in its header)")
-    layout = RowLayout.from_json(head["layout"])
+    try:
+        layout = RowLayout.from_json(head["layout"])
+    except ValueError as exc:  # from_json's own words, naming the field
+        raise RecordingError(f"recording {path}: header: {exc}") from None
     if head_only:
         return head.get("metadata"), layout, b""
     start = 8 + head_len
@@ -1053,7 +1208,8 @@ def _read_journal(path: Path) -> RecordingData:
     from hilbench.limits import RECORDING_META_MAX_BYTES, read_text_bounded
 
     metadata, layout, rows = _read_journal_rows(path)
-    columns = layout.to_columns(rows)
+    with np.errstate(over="ignore", invalid="ignore"):  # a huge scale: infinities, judged by the checks
+        columns = layout.to_columns(rows)
     del rows
     side = _events_path(path)
     events = read_text_bounded(side, RECORDING_META_MAX_BYTES, RecordingError, f"recording {side}").splitlines() \
@@ -1080,10 +1236,7 @@ def _npz_members(path: Path, archive: zipfile.ZipFile) -> None:
                                      f"{RECORDING_META_MAX_BYTES // (1024 * 1024)} MiB")
             continue
         with archive.open(info) as member:
-            version = np.lib.format.read_magic(member)
-            read_header = np.lib.format.read_array_header_1_0 if version == (1, 0) else \
-                np.lib.format.read_array_header_2_0
-            shape, _, dtype = read_header(member)
+            shape, dtype = npy_header(path, info.filename, member)
             header_end = member.tell()
         count = int(np.prod(shape, dtype=np.int64)) if shape else 1
         if dtype.hasobject or count < 0 or header_end + count * dtype.itemsize > info.file_size:
@@ -1093,11 +1246,36 @@ def _npz_members(path: Path, archive: zipfile.ZipFile) -> None:
     check_columns_fit(str(path), len(infos) - 1, n_rows)
 
 
+def npy_header(path: Path, name: str, member: Any) -> tuple[tuple[int, ...], np.dtype]:
+    """An NPZ member's shape and dtype from its header; RecordingError naming the member when the
+    header is not one NumPy writes."""
+    try:
+        version = np.lib.format.read_magic(member)
+        read_header = np.lib.format.read_array_header_1_0 if version == (1, 0) else \
+            np.lib.format.read_array_header_2_0
+        shape, _, dtype = read_header(member)
+    except (ValueError, TypeError, SyntaxError, EOFError, struct.error):
+        raise RecordingError(f"recording {path}: member {name[:40]} has no valid NumPy array header") from None
+    return tuple(shape), dtype
+
+
+def npz_metadata(path: Path, archive: zipfile.ZipFile) -> Any:
+    """The metadata member of an NPZ archive as parsed JSON (its type not yet checked)."""
+    if "metadata.npy" not in archive.namelist():
+        raise RecordingError(f"recording {path}: no metadata member (metadata.npy) in the archive")
+    with archive.open("metadata.npy") as member:
+        try:
+            text = str(np.lib.format.read_array(member, allow_pickle=False))
+        except (ValueError, TypeError, SyntaxError, EOFError, struct.error):
+            raise RecordingError(f"recording {path}: member metadata.npy is not a NumPy array of text") from None
+    return parse_json(path, "metadata", text)
+
+
 def _read_npz(path: Path) -> RecordingData:
     with zipfile.ZipFile(path) as archive:
         _npz_members(path, archive)
+        metadata = npz_metadata(path, archive)
     with np.load(path, allow_pickle=False) as archive:
-        metadata = json.loads(str(archive["metadata"]))
         if not isinstance(metadata, dict):
             raise RecordingError(f"recording {path}: metadata is not a table")
         specs = metadata.get("columns") or [list(spec) for spec in COLUMNS]  # [name, unit(, format)]

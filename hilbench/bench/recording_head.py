@@ -8,18 +8,15 @@ keeps the ``#`` lines and drops each block of rows as it is parsed. Checked by t
 
 from __future__ import annotations
 
-import json
 import struct
 import zipfile
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-import numpy as np
-
 from hilbench.bench import recording_checks as rules
 from hilbench.bench.column_chunks import ColumnChunks, CsvChunks, JournalChunks, NpzChunks
-from hilbench.bench.recorder import _csv_format, _events_path, _read_journal_rows, csv_blocks
+from hilbench.bench.recorder import _csv_format, _events_path, _read_journal_rows, csv_blocks, npz_metadata, unreadable
 from hilbench.errors import RecordingError
 
 
@@ -48,19 +45,19 @@ def read_head(source: ColumnChunks) -> RecordingHead:
             raise RecordingError(f"recording {source.where}: not a file")
     except RecordingError:
         raise
-    except (OSError, ValueError, KeyError, EOFError, struct.error, zipfile.BadZipFile, UnicodeDecodeError) as exc:
-        reason = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
-        raise RecordingError(f"recording {path}: unreadable ({reason[:160]})") from None
+    except (OSError, ValueError, KeyError, EOFError, TypeError, IndexError, RecursionError, MemoryError,
+            struct.error, zipfile.BadZipFile, UnicodeDecodeError) as exc:
+        raise unreadable(path, exc) from None
     where = str(path)
     return RecordingHead(path, rules.check_metadata(where, metadata), rules.check_events(where, tuple(events)),
                          dict(source.units), {str(k): str(v) for k, v in formats.items() if _csv_format(v)})
 
 
 def _npz_head(path: Path) -> tuple[Any, list[str], dict[str, str]]:
-    with zipfile.ZipFile(path) as archive, archive.open("metadata.npy") as member:
-        metadata = json.loads(str(np.lib.format.read_array(member, allow_pickle=False)))
+    with zipfile.ZipFile(path) as archive:
+        metadata = npz_metadata(path, archive)
     specs = metadata.get("columns") or [] if isinstance(metadata, dict) else []
-    formats = {str(spec[0]): str(spec[2]) for spec in specs if len(spec) > 2}
+    formats = {str(spec[0]): str(spec[2]) for spec in specs if isinstance(spec, list) and len(spec) > 2}
     return metadata, list(metadata.get("events", ())) if isinstance(metadata, dict) else [], formats
 
 

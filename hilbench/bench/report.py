@@ -135,7 +135,8 @@ class _Extremes:
 
 def summarise_chunks(head: RecordingHead, source: ColumnChunks) -> dict[str, Any]:
     """The facts of a recording as plain data, its rows read a chunk at a time (the memory of a
-    chunk, the fault rows and the segments' samples, whatever the length)."""
+    chunk, the fault rows and the segments' samples, whatever the length). A figure may be a float
+    that is not finite (an infinite speed column): JSON output goes through `json_safe` first."""
     meta = head.metadata
     hello = meta.get("target_hello") or {}
     wanted = [name for name in ("marker", "seq", "speed_rpm", "ia_a", "ib_a", "ic_a", "ibus_a") if name in source.names]
@@ -173,6 +174,23 @@ def summarise_chunks(head: RecordingHead, source: ColumnChunks) -> dict[str, Any
     ]
     info["events"] = [f"{when:.4f} s {text}" for when, text in _timed_events(head.events)]
     return info
+
+
+def json_safe(value: Any, depth: int = 0) -> Any:
+    """``value`` (a summary) ready for `report --json`: each float that is not finite is the string
+    "inf", "-inf" or "nan". JSON has no such numbers (json.dumps writes Infinity or NaN, which JSON
+    parsers refuse); a string says what the table shows, where null would read as "no figure".
+    Dicts, lists and tuples are walked, everything else is kept; a value nested deeper than 32
+    levels (a hand-made metadata value) is a note saying so, so the walk and the dump stay shallow."""
+    if isinstance(value, (float, np.floating)) and not np.isfinite(value):
+        return "nan" if np.isnan(value) else "inf" if value > 0 else "-inf"
+    if isinstance(value, (dict, list, tuple)) and depth >= 32:
+        return "(nested too deeply to show)"
+    if isinstance(value, dict):
+        return {key: json_safe(item, depth + 1) for key, item in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [json_safe(item, depth + 1) for item in value]
+    return value
 
 
 def realtime_timing(data: RecordingData) -> dict[str, str | int]:
