@@ -174,10 +174,11 @@ def test_step_and_sweep_refuse_speeds_and_times_that_are_not_sane_numbers(args: 
 @pytest.mark.slow
 def test_link_test_fails_when_the_target_goes_silent() -> None:
     """Repro: a target silent after 5 frames gave periods 4/10 and "8 errors counted", exit 0. The
-    table is still printed; the exit code is the link error's."""
-    result = hilbench("link-test", "emulator:loopback?silent_after=5", "--periods", "10", "--timeout-ms", "100")
-    assert_one_line_error(result, 4, "hilbench: link error: link-test emulator:loopback?silent_after=5",
-                          "of 10 periods got no Drive")
+    table is still printed; the exit code is the link error's. (Silent after 12 frames: a slow start
+    on a loaded machine costs a few HostHellos of them, not the whole handshake.)"""
+    result = hilbench("link-test", "emulator:loopback?silent_after=12", "--periods", "20", "--timeout-ms", "250")
+    assert_one_line_error(result, 4, "hilbench: link error: link-test emulator:loopback?silent_after=12",
+                          "of 20 periods got no Drive")
     assert "periods (good / asked)" in result.stdout
 
 

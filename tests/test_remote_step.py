@@ -605,6 +605,7 @@ def test_a_monitor_press_goes_on_when_the_board_does_not_answer_the_probe() -> N
     run goes on with a note (it raised out of the run), its Start resent if the stream says stopped."""
     from hilbench.bench.monitor import MonitorSession
     from hilbench.link import open_link
+    from hilbench.protocol import Start
 
     host = open_link("pty", timeout_s=1.0)
     far = open_link(host.peer_path, timeout_s=1.0)
@@ -616,40 +617,53 @@ def test_a_monitor_press_goes_on_when_the_board_does_not_answer_the_probe() -> N
             got.append(type(msg).__name__)
         assert got[-1] == "Start" and set(got[:-1]) == {"StatusRequest"}, got
         assert session.messages[-1].startswith("1.500 s: Start sent, unconfirmed: "), session.messages
-        assert session._start_sent_s == session.t_s and session._start_rx == session._drives_rx
+        assert session._pending is Start and session._pending_rx == session._drives_rx
     finally:
         far.close()
         host.close()
 
 
-def test_a_monitor_start_is_judged_on_the_drives_received_after_it() -> None:
+def test_a_monitor_command_is_judged_on_the_drives_received_after_it() -> None:
     """The Drives parked while a Start's probe waited all say STOPPED and predate it: working through
-    them must not count as the Start going unseen (it sent a second Start, and a second probe)."""
-    from hilbench.bench.monitor import START_SEEN_S, MonitorSession
+    them must not count as the Start going unseen (it sent a second Start, and a second probe). A
+    Stop not seen taken is sent again as a Start is (a ctl or dashboard press went unchecked)."""
+    from hilbench.bench.monitor import COMMAND_SEEN_S, MonitorSession
     from hilbench.link import open_link
     from hilbench.protocol import State
 
     host = open_link("pty", timeout_s=1.0)
     try:
         session = MonitorSession(remote.RemoteTarget(host, timeout_s=0.2, retry_s=0.05), [])
-        starts: list[float] = []
-        session.target.start = lambda: starts.append(session.t_s)  # type: ignore[method-assign]
+        sent: list[tuple[str, float]] = []
+        session.target.start = lambda: sent.append(("start", session.t_s))  # type: ignore[method-assign]
+        session.target.stop = lambda: sent.append(("stop", session.t_s))  # type: ignore[method-assign]
         stopped = Drive(0, 0, 0, 0, 0, int(State.STOPPED), 0, False, False, 0, (0, 0, 0))
+        running = stopped._replace(state=int(State.RUNNING))
         session.drive = stopped
         session._drives_rx = 10
-        session._send_start(0.0)
-        assert starts == [0.0] and session._start_rx == 10
+        session.press("s2", 0.0)
+        assert sent == [("start", 0.0)] and session._pending_rx == 10
         session._drives_rx, session._inbox = 16, [stopped] * 6  # 6 parked, 4 new: rows of old Drives
         session.t_s = 1.0
-        session._check_started()
-        assert starts == [0.0]
+        session._check_command()
+        assert sent == [("start", 0.0)]
         session._inbox = []  # every Drive now a row, the last ones after the Start
-        session.t_s = 1.0 + START_SEEN_S / 2
-        session._check_started()
-        assert starts == [0.0]
-        session.t_s = 1.0 + START_SEEN_S
-        session._check_started()
-        assert starts == [0.0, 1.0 + START_SEEN_S]
+        session.t_s = 1.0 + COMMAND_SEEN_S / 2
+        session._check_command()
+        assert len(sent) == 1
+        session.t_s = 1.0 + COMMAND_SEEN_S
+        session._check_command()
+        assert sent[1] == ("start", 1.0 + COMMAND_SEEN_S)
+        session.drive, session._drives_rx = running, 17
+        session._check_command()
+        assert session._pending is None
+        session.press("s2", 2.0)  # running: a Stop, sent again while the stream says running
+        session._drives_rx, session.t_s = 18, 2.0 + COMMAND_SEEN_S
+        session._check_command()
+        assert sent[2:] == [("stop", 1.0 + COMMAND_SEEN_S), ("stop", 2.0 + COMMAND_SEEN_S)]
+        session.drive, session._drives_rx = stopped, 19
+        session._check_command()
+        assert session._pending is None and len(sent) == 4
     finally:
         host.close()
 

@@ -55,29 +55,50 @@ def open_held(path: Path | str, *, binary: bool = False, read_too: bool = False)
     second session recording to the same path, a `ctl save` onto a recording being written). A FIFO
     with no reader within FIFO_READER_WAIT_S is refused (ENXIO), not waited on for ever. Raises an
     OSError naming the file, its strerror the reason in words."""
-    flags = (os.O_RDWR if read_too else os.O_WRONLY) | os.O_CREAT | os.O_NONBLOCK | os.O_CLOEXEC
-    deadline = time.monotonic() + FIFO_READER_WAIT_S
-    while True:  # (a FIFO's reader may be a moment behind its writer: polled for, up to the deadline)
+    for _ in range(8):  # (a holder may remove the file between our open and our lock: open again)
+        fd = _open_waiting_for_reader(path, (os.O_RDWR if read_too else os.O_WRONLY) | os.O_CREAT | os.O_NONBLOCK
+                                      | os.O_CLOEXEC)
         try:
-            fd = os.open(path, flags, 0o666)
-            break
+            if stat.S_ISREG(os.fstat(fd).st_mode):  # (a device or FIFO has nothing to truncate)
+                _hold(fd, path)
+                if not _names(path, fd):
+                    os.close(fd)
+                    continue
+                os.ftruncate(fd, 0)
+            os.set_blocking(fd, True)
+        except BaseException:
+            os.close(fd)
+            raise
+        break
+    else:
+        raise OSError(errno.EBUSY, "it is removed and made again as it is opened", str(path))
+    if binary:  # (the file object owns fd from here, closing it if this fails)
+        return open(fd, "w+b" if read_too else "wb")
+    return open(fd, "w", encoding="utf-8", newline="\n")
+
+
+def _open_waiting_for_reader(path: Path | str, flags: int) -> int:
+    """os.open; a FIFO's reader may be a moment behind its writer: polled for, up to FIFO_READER_WAIT_S."""
+    deadline = time.monotonic() + FIFO_READER_WAIT_S
+    while True:
+        try:
+            return os.open(path, flags, 0o666)
         except OSError as exc:
             if exc.errno != errno.ENXIO or not _is_fifo(path):  # (a socket or a device gives it too)
                 raise
             if time.monotonic() >= deadline:
                 raise OSError(errno.ENXIO, f"a FIFO with no reader within {FIFO_READER_WAIT_S:g} s", str(path)) from None
             time.sleep(0.01)
+
+
+def _names(path: Path | str, fd: int) -> bool:
+    """Whether ``path`` still names the file open on ``fd`` (not removed, or replaced, since)."""
     try:
-        if stat.S_ISREG(os.fstat(fd).st_mode):  # (a device or FIFO has nothing to truncate)
-            _hold(fd, path)
-            os.ftruncate(fd, 0)
-        os.set_blocking(fd, True)
-    except BaseException:
-        os.close(fd)
-        raise
-    if binary:  # (the file object owns fd from here, closing it if this fails)
-        return open(fd, "w+b" if read_too else "wb")
-    return open(fd, "w", encoding="utf-8", newline="\n")
+        st = os.stat(path)
+    except OSError:
+        return False
+    held = os.fstat(fd)
+    return (st.st_dev, st.st_ino) == (held.st_dev, held.st_ino)
 
 
 def _hold(fd: int, path: Path | str) -> None:

@@ -50,8 +50,8 @@ FIRST_DRIVE_S = 5.0
 #: STOP_ATTEMPTS times)
 STOP_SEEN_DRIVES = 10
 STOP_ATTEMPTS = 5
-#: a Start not seen in the stream this long after (the board's clock) is sent again
-START_SEEN_S = 0.05
+#: a Start or Stop not seen taken in the stream this long after (the board's clock) is sent again
+COMMAND_SEEN_S = 0.05
 #: a live view's sample every this many rows, and the samples it keeps (as a HIL session's)
 OBSERVE_EVERY_ROWS = 10
 HISTORY_SAMPLES = 8192
@@ -63,6 +63,11 @@ RAMP_WRITE_S = 0.02
 #: frame goes out: the board holds one received frame and drops one arriving before its main loop
 #: took the last (a Drive sent after one it was busy sending means its loop ran in between)
 TAKEN_AFTER_DRIVES = 2
+
+
+def _running(drive: Drive) -> bool:
+    """Whether the board's motor runs (a Stop is taken when it no longer does, a Start when it does)."""
+    return int(drive.state) not in (int(State.STOPPED), STATE_FAULT, int(State.STALLED))
 
 
 @dataclass(frozen=True)
@@ -128,8 +133,9 @@ class MonitorSession:
         self._drives_rx = 0  # Drives received from the link (the inbox's included)
         self._unanswered_at: int | None = None  # _drives_rx when a frame with no answer went out
         self._sent_board_s = 0.0  # the board's time at the last frame sent to it (any feeds its watchdog)
-        self._start_sent_s: float | None = None  # a Start (no reply) waiting to be seen in the stream
-        self._start_rx = 0  # _drives_rx when that Start went out
+        self._pending: type[Start] | type[Stop] | None = None  # a Start or Stop (no reply) not yet seen taken
+        self._pending_s = 0.0  # the board's time it went (or of the first row after it)
+        self._pending_rx = 0  # _drives_rx when it went out
         self._ramp: tuple[float, float, float, float] | None = None  # (t0, from, to, duration): a reference ramp
         self._ramp_written = 0.0
         #: the held references and how the motor followed them, on the firmware's measured speed (the
@@ -213,39 +219,34 @@ class MonitorSession:
         """S2 as the Start command while stopped, Stop while running (the board's own S2 acts too)."""
         if button != "s2":
             raise ConfigError(f"monitor: press {button}: only s2 (Start/Stop) reaches the board")
-        running = self.drive is not None and int(self.drive.state) not in (int(State.STOPPED), STATE_FAULT, int(State.STALLED))
         self._sent_board_s = self.t_s
-        if running:
-            self._start_sent_s = None
-            self.target.stop()  # its probe timing out ends the run, whose end Stops until the stream says so
-        else:
-            self._send_start(t_s)
+        self._send_command(Stop if self.drive is not None and _running(self.drive) else Start, t_s)
 
-    def _send_start(self, t_s: float) -> None:
-        """A Start: when its probe goes unanswered (a board busy sending) it still went
-        (`RemoteTarget._command`), and `_check_started` sends it again if the stream stays STOPPED,
-        so the run goes on with a note. Judged on the Drives received after it (`_start_rx`)."""
-        self._start_sent_s = self.t_s
+    def _send_command(self, kind: type[Start] | type[Stop], t_s: float) -> None:
+        """A Start or Stop: when its probe goes unanswered (a board busy sending) it still went
+        (`RemoteTarget._command`), and `_check_command` sends it again while the stream does not
+        show it taken, so the run goes on with a note. Judged on the Drives received after it."""
+        self._pending, self._pending_s = kind, self.t_s
         try:
-            self.target.start()
+            self.target.start() if kind is Start else self.target.stop()
         except LinkTimeout as exc:
             self.note(t_s, str(exc))
-        self._start_rx = self._drives_rx
+        self._pending_rx = self._drives_rx
 
-    def _check_started(self) -> None:
-        """A Start has no answer: when the stream still says STOPPED a while after it, the frame was
-        lost (the board was busy sending): send it again."""
-        drive = self.drive
-        if self._start_sent_s is None or drive is None:
+    def _check_command(self) -> None:
+        """A Start or Stop has no answer: when the stream does not show it taken a while after it
+        (COMMAND_SEEN_S of rows), the frame was lost (the board was busy sending): send it again."""
+        drive, kind = self.drive, self._pending
+        if kind is None or drive is None:
             return
-        if self._drives_rx - len(self._inbox) <= self._start_rx:  # rows still of Drives from before it
-            self._start_sent_s = self.t_s  # (parked while its probe waited): the wait counts from after
+        if self._drives_rx - len(self._inbox) <= self._pending_rx:  # rows still of Drives from before it
+            self._pending_s = self.t_s  # (parked while its probe waited): the wait counts from after
             return
-        if int(drive.state) != int(State.STOPPED):
-            self._start_sent_s = None
-        elif self.t_s - self._start_sent_s >= START_SEEN_S:
+        if _running(drive) == (kind is Start):  # taken
+            self._pending = None
+        elif self.t_s - self._pending_s >= COMMAND_SEEN_S:
             self._sent_board_s = self.t_s
-            self._send_start(self.t_s)
+            self._send_command(kind, self.t_s)
 
     def segment(self, kind: str, t_s: float, ref_rpm: float = 0.0, ramp_s: float = 0.0) -> None:
         """A reference change, a press or the end, for the segments (and `report`, as events)."""
@@ -403,7 +404,7 @@ class MonitorSession:
                     # arriving while it sends its stream is lost (counted in its Status)
                     self._keep_alive()
                     self._sent_board_s = self.t_s
-                    self._check_started()
+                    self._check_command()
                 if self.control is not None and now >= next_control:
                     for request in self.control.poll():
                         self._handle_control(request)

@@ -807,7 +807,12 @@ class Recorder:
         self.closed = True
         try:  # an NPZ's journal stays open, its lock keeping another session off the path, until the
             if self.is_npz:  # archive is in place and the journal gone (`_close_archive`)
-                self._file.flush()
+                try:
+                    self._file.flush()
+                except BaseException:  # (closed: not held until collected)
+                    with contextlib.suppress(OSError):
+                        self._file.close()
+                    raise
             else:
                 self._file.close()
         finally:
