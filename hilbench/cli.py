@@ -40,6 +40,16 @@ SPEED_RPM = FiniteRange(-20000, 20000, unit="rpm")
 SECONDS = FiniteRange(0, 86400, unit="seconds", min_open=True)
 
 
+def _json_text(value: Any) -> str:
+    """A --json output: JSON proper (a figure that is not finite as "inf", "-inf" or "nan": JSON has
+    no Infinity or NaN, and parsers refuse them)."""
+    import json
+
+    from hilbench.bench.report import json_safe
+
+    return json.dumps(json_safe(value), indent=2, default=str, allow_nan=False)
+
+
 def _friendly(func: Callable[..., Any]) -> Callable[..., Any]:
     """Turn HilbenchError (and Ctrl-C) into one line and a non-zero exit code."""
 
@@ -354,7 +364,6 @@ def run(config: str | None, target_spec: str | None, mode: str | None, duration_
     The summary ends with the config's [[check]] verdicts; a failed check exits with code 9;
     a twin-speculative run whose target differs from its twin exits with code 10.
     """
-    import json as json_module
 
     from rich.console import Console
 
@@ -418,7 +427,7 @@ def run(config: str | None, target_spec: str | None, mode: str | None, duration_
     from hilbench.bench.checks import checks_text, raise_if_failed
 
     if as_json:
-        click.echo(json_module.dumps(summary.as_dict(), indent=2, default=str))
+        click.echo(_json_text(summary.as_dict()))
     elif no_ui or not console.is_terminal:
         click.echo(summary_text(summary))
     else:
@@ -433,7 +442,6 @@ def _run_monitor(cfg: Any, record: str | None, no_control: bool, plain: bool, as
     """`run --mode monitor`: the board's stream recorded, `ctl` on the control socket, the live
     dashboard on a terminal (the measured speed; no plant currents), a summary."""
     import contextlib
-    import json as json_module
 
     from rich.console import Console
 
@@ -483,7 +491,7 @@ def _run_monitor(cfg: Any, record: str | None, no_control: bool, plain: bool, as
         if scope_server is not None:
             scope_server.close(grace_s=SCOPE_GRACE_S)
     if as_json:
-        click.echo(json_module.dumps(summary.as_dict(), indent=2, default=str))
+        click.echo(_json_text(summary.as_dict()))
     else:
         click.echo(summary_text(summary))
         if summary.checks:
@@ -516,7 +524,6 @@ def report(recording: str, plot_dir: str | None, csv_file: str | None, as_json: 
       hilbench report run.npz --open
       hilbench report motor.csv --plot plots/ --overlay hil.csv
     """
-    import json as json_module
     from pathlib import Path
 
     from rich.console import Console
@@ -524,7 +531,7 @@ def report(recording: str, plot_dir: str | None, csv_file: str | None, as_json: 
 
     from hilbench.bench.column_chunks import recording_chunks
     from hilbench.bench.recording_head import read_head
-    from hilbench.bench.report import json_safe, summarise_chunks
+    from hilbench.bench.report import summarise_chunks
 
     source = recording_chunks(recording)  # read a chunk of rows at a time: memory bounded however long
     head = read_head(source)
@@ -553,7 +560,7 @@ def report(recording: str, plot_dir: str | None, csv_file: str | None, as_json: 
 
         raise ConfigError("report --overlay draws into the --plot folder: give --plot DIR")
     if as_json:
-        click.echo(json_module.dumps(json_safe(info), indent=2, default=str, allow_nan=False))
+        click.echo(_json_text(info))
         return
     table = Table(title=f"recording {recording}", show_header=False)
     table.add_column("what", style="bold")
@@ -732,7 +739,6 @@ def step(config: str | None, from_rpm: float, to_rpm: float, gains: tuple[str, .
       hilbench step --mode monitor --target serial:/dev/ttyUSB0?baud=250000 --from 1000 --to 1500
     The config's step_* [[check]] tables are judged on every gain set; a failed one exits with code 9.
     """
-    import json as json_module
     from pathlib import Path
 
     from rich.console import Console
@@ -797,7 +803,7 @@ def step(config: str | None, from_rpm: float, to_rpm: float, gains: tuple[str, .
     if as_json:
         if every:  # each gain set's verdicts beside its metrics
             rows = [{**row, "checks": [v.as_dict() for v in per_set]} for row, per_set in zip(rows, verdicts)]
-        click.echo(json_module.dumps(rows, indent=2, default=str))
+        click.echo(_json_text(rows))
         raise_if_failed(every)
         return
     _wide_console().print(step_table([(r.label, r.metrics) for r in results], f"speed step {from_rpm:g} → {to_rpm:g} rpm ({target_spec})"))

@@ -410,7 +410,7 @@ class Recorder:
                 self._file = open_held(self.path)
                 self._csv_regular = stat.S_ISREG(os.fstat(self._file.fileno()).st_mode)
         except OSError as exc:
-            raise RecordingError(f"recording {self.path}: cannot write ({exc.strerror})") from None
+            raise RecordingError(f"recording {self.path}: cannot write ({exc.strerror or exc})") from None
         self.append = self.rows.append
 
     def start(self, layout: RowLayout = COLUMN_LAYOUT) -> None:
@@ -959,6 +959,7 @@ def recording_path(path: str | Path) -> Path:
     if not path.exists():
         journal = path.with_name(path.name + ".journal")
         if path.suffix == ".npz" and journal.exists():
+            check_regular(journal)
             return journal
         raise RecordingError(f"recording {path}: no such file")
     check_regular(path)
