@@ -664,6 +664,11 @@ def test_a_monitor_command_is_judged_on_the_drives_received_after_it() -> None:
         session.drive, session._drives_rx = stopped, 19
         session._check_command()
         assert session._pending is None and len(sent) == 4
+        session.press("s2", 3.0)  # a Start the stream shows ending in a fault was taken: not sent again
+        session.drive, session._drives_rx = stopped._replace(state=int(State.FAULT)), 20
+        session.t_s += 2 * COMMAND_SEEN_S
+        session._check_command()
+        assert session._pending is None and [kind for kind, _ in sent] == ["start", "start", "stop", "stop", "start"]
     finally:
         host.close()
 

@@ -66,7 +66,7 @@ TAKEN_AFTER_DRIVES = 2
 
 
 def _running(drive: Drive) -> bool:
-    """Whether the board's motor runs (a Stop is taken when it no longer does, a Start when it does)."""
+    """Whether the board's motor runs (S2 stops it then; a Stop is taken when it no longer does)."""
     return int(drive.state) not in (int(State.STOPPED), STATE_FAULT, int(State.STALLED))
 
 
@@ -242,8 +242,8 @@ class MonitorSession:
         if self._drives_rx - len(self._inbox) <= self._pending_rx:  # rows still of Drives from before it
             self._pending_s = self.t_s  # (parked while its probe waited): the wait counts from after
             return
-        if _running(drive) == (kind is Start):  # taken
-            self._pending = None
+        if (int(drive.state) != int(State.STOPPED)) if kind is Start else not _running(drive):  # taken
+            self._pending = None  # (a Start that ends in a fault was taken: sent again, it would restart)
         elif self.t_s - self._pending_s >= COMMAND_SEEN_S:
             self._sent_board_s = self.t_s
             self._send_command(kind, self.t_s)
