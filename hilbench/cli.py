@@ -206,12 +206,9 @@ def emulate(target: str | None, port_spec: str, mode: str, watchdog_ms: int | No
 
 def _check_option_names(target: str, values: dict[str, object]) -> None:
     """Refuse an -o KEY the target does not have: the profile would drop it and serve without it."""
-    import dataclasses
-
     from hilbench.targets import get_profile
 
-    profile = get_profile(target)  # an unknown target: ConfigError listing the known ones
-    known = [f.name for f in dataclasses.fields(profile.options_type)] if profile.options_type is not None else []
+    known = get_profile(target).option_names()  # an unknown target: ConfigError listing the known ones
     unknown = [key for key in values if key not in known]
     if unknown:
         offer = f"known: {', '.join(known)}" if known else "it takes no options"

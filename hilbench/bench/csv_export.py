@@ -3,13 +3,13 @@ memory of one chunk (the whole table stacked at once took 1.25 GB for a 60 s run
 
 from __future__ import annotations
 
-import os
 from pathlib import Path
 
 import numpy as np
 
 from hilbench.bench.column_chunks import ColumnChunks
-from hilbench.bench.recorder import COLUMNS, Recorder, _events_path, float_layout
+from hilbench.bench.fileio import file_identity
+from hilbench.bench.recorder import COLUMNS, Recorder, _events_path, _journal_path_of, _tmp_archive_path_of, float_layout
 from hilbench.bench.recording_head import RecordingHead
 from hilbench.errors import RecordingError
 
@@ -52,22 +52,13 @@ def refuse_overwriting_source(source: ColumnChunks, path: Path) -> None:
     read_files = [read, _events_path(read)] if read.name.endswith(".journal") else [read]
     written = [path]
     if path.suffix.lower() == ".npz":  # an NPZ export writes its journal, then a temporary archive
-        journal = path.with_name(path.name + ".journal")
-        written += [journal, _events_path(journal), path.with_name(path.name + ".tmp.npz")]
-    taken = {_identity(p) for p in read_files} - {None}
+        journal = _journal_path_of(path)
+        written += [journal, _events_path(journal), _tmp_archive_path_of(path)]
+    taken = {file_identity(p) for p in read_files} - {None}
     for target in written:
-        if _identity(target) in taken:
+        if file_identity(target) in taken:
             raise RecordingError(f"recording {path}: the export would overwrite {read}, the recording it reads: "
                                  f"give another path")
-
-
-def _identity(path: Path) -> tuple[int, int] | None:
-    """(device, inode) of the file at ``path`` after symlinks; None when there is none."""
-    try:
-        st = os.stat(path)
-    except OSError:
-        return None
-    return st.st_dev, st.st_ino
 
 
 __all__ = ["export_csv_chunks", "refuse_overwriting_source"]

@@ -91,14 +91,20 @@ def _open_waiting_for_reader(path: Path | str, flags: int) -> int:
             time.sleep(0.01)
 
 
-def _names(path: Path | str, fd: int) -> bool:
-    """Whether ``path`` still names the file open on ``fd`` (not removed, or replaced, since)."""
+def file_identity(path: Path | str) -> tuple[int, int] | None:
+    """(device, inode) of the file at ``path`` after symlinks (one file by any name); None when there
+    is none."""
     try:
         st = os.stat(path)
     except OSError:
-        return False
+        return None
+    return st.st_dev, st.st_ino
+
+
+def _names(path: Path | str, fd: int) -> bool:
+    """Whether ``path`` still names the file open on ``fd`` (not removed, or replaced, since)."""
     held = os.fstat(fd)
-    return (st.st_dev, st.st_ino) == (held.st_dev, held.st_ino)
+    return file_identity(path) == (held.st_dev, held.st_ino)
 
 
 def _hold(fd: int, path: Path | str) -> None:
@@ -119,4 +125,4 @@ def _is_fifo(path: Path | str) -> bool:
         return False
 
 
-__all__ = ["interrupts_held", "open_held", "pwrite_all"]
+__all__ = ["file_identity", "interrupts_held", "open_held", "pwrite_all"]

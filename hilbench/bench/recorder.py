@@ -444,11 +444,10 @@ class Recorder:
             self._csv_writer = _csv_row_writer(self._file.fileno(), layout)
 
     def _journal_path(self) -> Path:
-        return self.path.with_name(self.path.name + ".journal")
+        return _journal_path_of(self.path)
 
     def _tmp_path(self) -> Path:
-        """Where the archive is written before it takes the recording's name."""
-        return self.path.with_name(self.path.name + ".tmp.npz")
+        return _tmp_archive_path_of(self.path)
 
     def expect_rows(self, n_rows: int) -> None:
         """The run plans ``n_rows`` rows (call it after `start`, before the first row): an NPZ
@@ -957,7 +956,7 @@ def recording_path(path: str | Path) -> Path:
     close; RecordingError when neither exists."""
     path = Path(path)
     if not path.exists():
-        journal = path.with_name(path.name + ".journal")
+        journal = _journal_path_of(path)
         if path.suffix == ".npz" and journal.exists():
             check_regular(journal)
             return journal
@@ -1203,6 +1202,16 @@ def _read_journal_rows(path: Path, head_only: bool = False) -> tuple[dict[str, A
     rows = np.memmap(path, dtype=layout.dtype, mode="r", offset=start, shape=(n_rows,)) if n_rows else \
         np.zeros(0, dtype=layout.dtype)
     return head.get("metadata"), layout, rows
+
+
+def _journal_path_of(path: Path) -> Path:
+    """The journal an NPZ recording's rows go to while its run goes on (kept when it is killed)."""
+    return path.with_name(path.name + ".journal")
+
+
+def _tmp_archive_path_of(path: Path) -> Path:
+    """Where an NPZ recording's archive is written before it takes the recording's name."""
+    return path.with_name(path.name + ".tmp.npz")
 
 
 def _events_path(journal: Path) -> Path:

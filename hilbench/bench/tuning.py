@@ -29,4 +29,3 @@ def write_fragment(path: Path | str, text: str) -> None:
     to that file: a save must not cut a recording short."""
     with open_held(path) as handle:
         handle.write(text)
-

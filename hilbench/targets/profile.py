@@ -156,11 +156,17 @@ class TargetProfile(Generic[Options]):
         """The options dataclass with every default (None when the target takes no options)."""
         return None if self.options_type is None else self.options_type()
 
+    def option_names(self) -> tuple[str, ...]:
+        """The names of the options dataclass's fields (none when the target takes no options)."""
+        if self.options_type is None:
+            return ()
+        return tuple(f.name for f in dataclasses.fields(self.options_type))  # type: ignore[arg-type]
+
     def options_from(self, values: Mapping[str, object]) -> Options | None:
         """Options from plain values (the emulator process gets them as JSON)."""
         if self.options_type is None:
             return None
-        known = {f.name for f in dataclasses.fields(self.options_type)}  # type: ignore[arg-type]
+        known = self.option_names()
         return self.options_type(**{k: v for k, v in values.items() if k in known})
 
     def options_as_dict(self, options: Options | None) -> dict[str, object]:
