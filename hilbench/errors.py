@@ -5,12 +5,24 @@ The CLI turns these into a single line on stderr and the kind's exit code, never
 
 from __future__ import annotations
 
+import copy
+from typing import TypeVar
+
+_E = TypeVar("_E", bound="HilbenchError")
+
 
 class HilbenchError(Exception):
     """Base of every error the bench reports to its user."""
 
     exit_code = 1
     kind = "error"
+
+    def reworded(self: _E, message: str) -> _E:
+        """The same error (its class, exit code and what it carries, such as a divergence's
+        records) saying ``message``: a caller adds what it did around it."""
+        other = copy.copy(self)
+        other.args = (message,)
+        return other
 
 
 class ConfigError(HilbenchError):

@@ -452,6 +452,52 @@ def test_a_save_onto_a_recording_being_written_is_refused(tmp_path: Path) -> Non
     assert (tmp_path / "gains.toml").read_text() == "[target]\nkp = 0.1\n"
 
 
+def test_a_save_onto_the_path_of_an_npz_recording_being_written_is_refused(tmp_path: Path) -> None:
+    """The rows go to the journal until the end, when the archive takes the recording's name: a save
+    there (written then replaced by the archive, or replacing it) is refused while the journal is held."""
+    from hilbench.bench.tuning import write_fragment
+
+    path = tmp_path / "run.npz"
+    rec = Recorder(path, {}, flush_rows=4)
+    for k in range(10):
+        rec.append(_row(k))
+        rec.maybe_flush()
+    with pytest.raises(OSError) as refused:
+        write_fragment(path, "[target]\nkp = 0.1\n")
+    assert (refused.value.filename, refused.value.strerror) == (
+        str(path), "a running session records to it (its journal is being written)")
+    assert not path.exists()
+    rec.close()
+    assert read_recording(path).n_rows == 10
+    write_fragment(tmp_path / "other.toml", "[target]\nkp = 0.1\n")  # a journal left by a killed run: not held
+    killed = tmp_path / "gains.toml"
+    (tmp_path / "gains.toml.journal").write_bytes(b"left")
+    write_fragment(killed, "[target]\nkp = 0.1\n")
+    assert killed.read_text() == "[target]\nkp = 0.1\n"
+
+
+def test_a_save_in_the_control_poll_never_waits_for_a_fifo_reader(tmp_path: Path) -> None:
+    """The session's own save (a raw control client's) answers at once: a FIFO with no reader is
+    refused without FIFO_READER_WAIT_S's wait, which would hold every period of the run."""
+    from hilbench.bench.control import COMMANDS, ControlRequest
+
+    fifo = tmp_path / "gains.toml"
+    os.mkfifo(fifo)
+    replies: list[bytes] = []
+
+    class _Session:
+        profile = type("P", (), {"tunable": ("kp",)})()
+        tuning = type("T", (), {"trips": []})()
+        ref_rpm = 0.0
+
+        def param_values(self) -> dict[str, float]:
+            return {"kp": 0.1}
+
+    request = ControlRequest("save", {"file": str(fifo)}, 0.0, _send=replies.append)
+    COMMANDS["save"].act(_Session(), request, 0.0)  # type: ignore[arg-type]
+    assert b'"ok":false' in replies[0] and b"a FIFO with no reader within 0 s" in replies[0]
+
+
 def test_a_csv_recording_to_a_fifo_with_no_reader_is_refused_not_waited_for(
         tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
     from hilbench.bench import fileio

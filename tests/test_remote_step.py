@@ -673,6 +673,41 @@ def test_a_monitor_command_is_judged_on_the_drives_received_after_it() -> None:
         host.close()
 
 
+def test_ctl_start_in_monitor_mode_is_sent_again_while_the_stream_says_stopped() -> None:
+    """`ctl start` on a monitor session goes through the same Start as a press: checked against the
+    stream and sent again (it called the target's start once, unchecked)."""
+    from hilbench.bench.control import COMMANDS, ControlRequest
+    from hilbench.bench.monitor import COMMAND_SEEN_S, MonitorSession
+    from hilbench.link import open_link
+    from hilbench.protocol import State
+
+    host = open_link("pty", timeout_s=1.0)
+    try:
+        session = MonitorSession(remote.RemoteTarget(host, timeout_s=0.2, retry_s=0.05), [])
+        sent: list[float] = []
+        session.target.start = lambda: sent.append(session.t_s)  # type: ignore[method-assign]
+        session.drive = Drive(0, 0, 0, 0, 0, int(State.STOPPED), 0, False, False, 0, (0, 0, 0))
+        session._drives_rx = 3
+        request = ControlRequest("start", {}, 0.0)
+        COMMANDS["start"].act(session, request, 0.0)
+        assert request.replied and sent == [0.0]
+        session._drives_rx, session.t_s = 5, COMMAND_SEEN_S
+        session._check_command()
+        assert sent == [0.0, COMMAND_SEEN_S]
+    finally:
+        host.close()
+
+
+def test_a_reworded_error_keeps_its_class_and_what_it_carries() -> None:
+    """A Start whose probe failed says so in the probe's own error: a divergence keeps its records."""
+    from hilbench.errors import DivergenceError
+
+    error = DivergenceError("Drives differ at period 7", records="k  twin  target")
+    again = error.reworded(f"Start sent, unconfirmed: {error}")
+    assert type(again) is DivergenceError and again.records == "k  twin  target"
+    assert str(again) == "Start sent, unconfirmed: Drives differ at period 7" and again.exit_code == 10
+
+
 def _served_foc_refusal(loop: str, monkeypatch: pytest.MonkeyPatch) -> list[str]:
     """The FOC target (its C core) served in lockstep by ``loop``: 30 Sensors, then one without ADC
     codes (which the host resends while no Drive comes), then 10 more. What each step got, as text."""

@@ -189,6 +189,7 @@ class ControlledSession(Protocol):
     def reference_now(self, rpm: float, t_s: float, note: str) -> None: ...
     def stop_run(self, t_s: float, reason: str, note: str) -> None: ...
     def press(self, button: str, t_s: float) -> None: ...
+    def send_start(self, t_s: float) -> None: ...
     def segment(self, kind: str, t_s: float, ref_rpm: float = 0.0, ramp_s: float = 0.0) -> None: ...
     def set_load(self, kind: str, value: float) -> None: ...
     def note(self, t_s: float, text: str) -> None: ...
@@ -243,7 +244,7 @@ def _save(session: ControlledSession, request: "ControlRequest", t_s: float) -> 
     data = _tuning_state(session, t_s)
     path = str(request.args["file"])
     try:
-        write_fragment(path, saved_fragment(data))
+        write_fragment(path, saved_fragment(data), reader_wait_s=0.0)  # (in the control poll: never a wait)
     except OSError as exc:
         request.reply(False, f"save {path}: {exc.strerror or exc}")
     else:
@@ -251,7 +252,7 @@ def _save(session: ControlledSession, request: "ControlRequest", t_s: float) -> 
 
 
 def _start(session: ControlledSession, request: "ControlRequest", t_s: float) -> None:
-    session.target.start()
+    session.send_start(t_s)
     session.note(t_s, "start (ctl)")
     request.reply(True, f"start command sent at t={t_s:.4f} s")
 

@@ -9,7 +9,7 @@ import numpy as np
 
 from hilbench.bench.column_chunks import ColumnChunks
 from hilbench.bench.fileio import file_identity
-from hilbench.bench.recorder import COLUMNS, Recorder, _events_path, _journal_path_of, _tmp_archive_path_of, float_layout
+from hilbench.bench.recorder import COLUMNS, Recorder, _events_path, _tmp_archive_path_of, float_layout, journal_path_of
 from hilbench.bench.recording_head import RecordingHead
 from hilbench.errors import RecordingError
 
@@ -52,7 +52,7 @@ def refuse_overwriting_source(source: ColumnChunks, path: Path) -> None:
     read_files = [read, _events_path(read)] if read.name.endswith(".journal") else [read]
     written = [path]
     if path.suffix.lower() == ".npz":  # an NPZ export writes its journal, then a temporary archive
-        journal = _journal_path_of(path)
+        journal = journal_path_of(path)
         written += [journal, _events_path(journal), _tmp_archive_path_of(path)]
     taken = {file_identity(p) for p in read_files} - {None}
     for target in written:

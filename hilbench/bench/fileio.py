@@ -49,15 +49,17 @@ def interrupts_held() -> Iterator[None]:
 FIFO_READER_WAIT_S = 10.0
 
 
-def open_held(path: Path | str, *, binary: bool = False, read_too: bool = False) -> IO:
+def open_held(path: Path | str, *, binary: bool = False, read_too: bool = False,
+              reader_wait_s: float | None = None) -> IO:
     """``path`` opened for writing from its start and, a regular file, held (an exclusive ``flock``)
     while it stays open: refused *before* anything is truncated when another holder has it (a
     second session recording to the same path, a `ctl save` onto a recording being written). A FIFO
-    with no reader within FIFO_READER_WAIT_S is refused (ENXIO), not waited on for ever. Raises an
-    OSError naming the file, its strerror the reason in words."""
+    with no reader within ``reader_wait_s`` (default FIFO_READER_WAIT_S) is refused (ENXIO), not
+    waited on for ever. Raises an OSError naming the file, its strerror the reason in words."""
+    wait_s = FIFO_READER_WAIT_S if reader_wait_s is None else reader_wait_s
     for _ in range(8):  # (a holder may remove the file between our open and our lock: open again)
         fd = _open_waiting_for_reader(path, (os.O_RDWR if read_too else os.O_WRONLY) | os.O_CREAT | os.O_NONBLOCK
-                                      | os.O_CLOEXEC)
+                                      | os.O_CLOEXEC, wait_s)
         try:
             if stat.S_ISREG(os.fstat(fd).st_mode):  # (a device or FIFO has nothing to truncate)
                 _hold(fd, path)
@@ -77,9 +79,9 @@ def open_held(path: Path | str, *, binary: bool = False, read_too: bool = False)
     return open(fd, "w", encoding="utf-8", newline="\n")
 
 
-def _open_waiting_for_reader(path: Path | str, flags: int) -> int:
-    """os.open; a FIFO's reader may be a moment behind its writer: polled for, up to FIFO_READER_WAIT_S."""
-    deadline = time.monotonic() + FIFO_READER_WAIT_S
+def _open_waiting_for_reader(path: Path | str, flags: int, wait_s: float) -> int:
+    """os.open; a FIFO's reader may be a moment behind its writer: polled for, up to ``wait_s``."""
+    deadline = time.monotonic() + wait_s
     while True:
         try:
             return os.open(path, flags, 0o666)
@@ -87,7 +89,7 @@ def _open_waiting_for_reader(path: Path | str, flags: int) -> int:
             if exc.errno != errno.ENXIO or not _is_fifo(path):  # (a socket or a device gives it too)
                 raise
             if time.monotonic() >= deadline:
-                raise OSError(errno.ENXIO, f"a FIFO with no reader within {FIFO_READER_WAIT_S:g} s", str(path)) from None
+                raise OSError(errno.ENXIO, f"a FIFO with no reader within {wait_s:g} s", str(path)) from None
             time.sleep(0.01)
 
 
@@ -118,6 +120,26 @@ def _hold(fd: int, path: Path | str) -> None:
         pass
 
 
+def held_by_another(path: Path | str) -> bool:
+    """Whether another process holds ``path`` as `open_held` does (a running session's journal);
+    False when there is no such file or it cannot be read."""
+    try:
+        fd = os.open(path, os.O_RDONLY | os.O_NONBLOCK | os.O_CLOEXEC)
+    except OSError:
+        return False
+    try:
+        if not stat.S_ISREG(os.fstat(fd).st_mode):
+            return False
+        fcntl.flock(fd, fcntl.LOCK_SH | fcntl.LOCK_NB)
+    except BlockingIOError:
+        return True
+    except OSError:  # (a filesystem without locks: nothing is held there)
+        return False
+    finally:
+        os.close(fd)
+    return False
+
+
 def _is_fifo(path: Path | str) -> bool:
     try:
         return stat.S_ISFIFO(os.stat(path).st_mode)
@@ -125,4 +147,4 @@ def _is_fifo(path: Path | str) -> bool:
         return False
 
 
-__all__ = ["file_identity", "interrupts_held", "open_held", "pwrite_all"]
+__all__ = ["file_identity", "held_by_another", "interrupts_held", "open_held", "pwrite_all"]

@@ -222,6 +222,11 @@ class MonitorSession:
         self._sent_board_s = self.t_s
         self._send_command(Stop if self.drive is not None and _running(self.drive) else Start, t_s)
 
+    def send_start(self, t_s: float) -> None:
+        """The Start command (`ctl start`), sent again while the stream does not show it taken."""
+        self._sent_board_s = self.t_s
+        self._send_command(Start, t_s)
+
     def _send_command(self, kind: type[Start] | type[Stop], t_s: float) -> None:
         """A Start or Stop: when its probe goes unanswered (a board busy sending) it still went
         (`RemoteTarget._command`), and `_check_command` sends it again while the stream does not

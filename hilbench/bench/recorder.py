@@ -444,7 +444,7 @@ class Recorder:
             self._csv_writer = _csv_row_writer(self._file.fileno(), layout)
 
     def _journal_path(self) -> Path:
-        return _journal_path_of(self.path)
+        return journal_path_of(self.path)
 
     def _tmp_path(self) -> Path:
         return _tmp_archive_path_of(self.path)
@@ -494,10 +494,11 @@ class Recorder:
             self.rows.dropped += n_rows  # (the span writes its next rows over them)
             return self.hand_over_at()
         except BaseException:  # a Ctrl-C after the rows were taken: the span stops with them still
-            if self.rows_written != written:  # in its buffer, which `span_stopped` empties
-                self._written_out()
-                self.rows.dropped = dropped
-                self._span_taken = n_rows
+            with interrupts_held():  # in its buffer, which `span_stopped` empties (a second Ctrl-C after)
+                if self.rows_written != written:
+                    self._written_out()
+                    self.rows.dropped = dropped
+                    self._span_taken = n_rows
             raise
 
     def span_stopped(self) -> None:
@@ -956,7 +957,7 @@ def recording_path(path: str | Path) -> Path:
     close; RecordingError when neither exists."""
     path = Path(path)
     if not path.exists():
-        journal = _journal_path_of(path)
+        journal = journal_path_of(path)
         if path.suffix == ".npz" and journal.exists():
             check_regular(journal)
             return journal
@@ -1204,7 +1205,7 @@ def _read_journal_rows(path: Path, head_only: bool = False) -> tuple[dict[str, A
     return head.get("metadata"), layout, rows
 
 
-def _journal_path_of(path: Path) -> Path:
+def journal_path_of(path: Path) -> Path:
     """The journal an NPZ recording's rows go to while its run goes on (kept when it is killed)."""
     return path.with_name(path.name + ".journal")
 

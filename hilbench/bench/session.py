@@ -330,6 +330,10 @@ class Session:
         self.scenario.press(button, t_s)
         self.scenario.wake(self.periods_done)  # its release is due
 
+    def send_start(self, t_s: float) -> None:
+        """The target's Start command (`ctl start`)."""
+        self.target.start()
+
     def apply_now(self, event: Event) -> None:
         """An event from a script or a test at the current period (recorded like a scenario event)."""
         self.scenario.apply(event, event.at_s)

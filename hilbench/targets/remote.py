@@ -315,7 +315,7 @@ class RemoteTarget:
             settle(lambda: self.retries, self.status)
         except HilbenchError as exc:
             self._send(kind(self._next_seq()))
-            raise type(exc)(f"{kind.__name__} sent, unconfirmed: the StatusRequest before it failed: {exc}") from exc
+            raise exc.reworded(f"{kind.__name__} sent, unconfirmed: the StatusRequest before it failed: {exc}") from exc
         self._send(kind(self._next_seq()))
 
     def status(self) -> Status:
