@@ -50,6 +50,18 @@ def _json_text(value: Any) -> str:
     return json.dumps(json_safe(value), indent=2, default=str, allow_nan=False)
 
 
+def _refuse_missing_folders(outputs: dict[str, str | None]) -> None:
+    """Each output file's folder exists, checked before the work: a step or sweep of minutes must
+    not fail at its end, nor make folders from a mistyped path."""
+    from pathlib import Path
+
+    from hilbench.errors import ConfigError
+
+    for option, name in outputs.items():
+        if name is not None and not Path(name).absolute().parent.is_dir():
+            raise ConfigError(f"{option} {name}: no folder {Path(name).absolute().parent} to write it in")
+
+
 def _friendly(func: Callable[..., Any]) -> Callable[..., Any]:
     """Turn HilbenchError (and Ctrl-C) into one line and a non-zero exit code."""
 
@@ -184,17 +196,14 @@ def emulate(target: str | None, port_spec: str, mode: str, watchdog_ms: int | No
         click.echo(path)
         sys.stdout.flush()
 
-    import tomllib
+    from hilbench.config import clipped, parse_value
 
     values: dict[str, object] = {}
     for word in options:
         key, sep, text = word.partition("=")
         if not sep:
-            raise ConfigError(f"--option {word!r}: expected KEY=VALUE, e.g. variant=v11")
-        try:
-            values[key.strip()] = tomllib.loads(f"v = {text}")["v"]
-        except tomllib.TOMLDecodeError:
-            values[key.strip()] = text
+            raise ConfigError(f"--option {clipped(repr(word), 80)}: expected KEY=VALUE, e.g. variant=v11")
+        values[key.strip()] = parse_value(text)
     target = target or _default_target_name()
     _check_option_names(target, values)
     report = serve_on_port(target, port_spec, _MODES[mode], values, watchdog_ms=watchdog_ms, announce=announce,
@@ -212,7 +221,9 @@ def _check_option_names(target: str, values: dict[str, object]) -> None:
     unknown = [key for key in values if key not in known]
     if unknown:
         offer = f"known: {', '.join(known)}" if known else "it takes no options"
-        raise ConfigError(f"--option {', '.join(unknown)}: not an option of target {target!r} ({offer})")
+        from hilbench.config import clipped
+
+        raise ConfigError(f"--option {clipped(', '.join(unknown), 80)}: not an option of target {target!r} ({offer})")
 
 
 @cli.command("link-test")
@@ -552,10 +563,11 @@ def report(recording: str, plot_dir: str | None, csv_file: str | None, as_json: 
         info["plots"] = [str(p) for p in plots]
         if plots.left_out:  # what the recording's columns could not draw (a monitor run: no plant currents)
             info["plots_left_out"] = "; ".join(plots.left_out)
-    elif overlay:
+    elif overlay or window is not None:
         from hilbench.errors import ConfigError
 
-        raise ConfigError("report --overlay draws into the --plot folder: give --plot DIR")
+        raise ConfigError(f"report {'--overlay' if overlay else '--window'} chooses what --plot draws: "
+                          "give --plot DIR")
     if as_json:
         click.echo(_json_text(info))
         return
@@ -744,6 +756,7 @@ def step(config: str | None, from_rpm: float, to_rpm: float, gains: tuple[str, .
     from hilbench.bench.run import RunRequest, check_overrides, in_process, load_run_config, run_step_tests, settings_profile
     from hilbench.bench.steptest import StepTest, parse_gain_sets, require_speed_loop, result_row
 
+    _refuse_missing_folders({"--plot": plot_file, "--csv": csv_file, "--record": record})
     test = StepTest(from_rpm, to_rpm, settle_s, after_s)
     cfg = load_run_config(RunRequest(config, check_overrides(overrides), target_spec, mode))
     if mode == "monitor" and target_spec is None:
@@ -906,6 +919,7 @@ def sweep(config: str | None, axes: tuple[str, ...], sample: str, rounds: int, s
     from hilbench.bench.steptest import StepTest
     from hilbench.bench.sweep import refine, sweep_points, write_sweep_csv
 
+    _refuse_missing_folders({"--csv": csv_file, "--save": save_file, "--resume": store})
     cfg = load_run_config(RunRequest(config, check_overrides(overrides)))
     profile = settings_profile(cfg)
     box = _sweep_box(axes or tuple(f"{n}={g}" for n, g in profile.sweep_defaults))

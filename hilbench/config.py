@@ -28,6 +28,7 @@ import dataclasses
 import difflib
 import math
 import os
+import sys
 import tomllib
 import types
 import typing
@@ -56,6 +57,7 @@ from hilbench.plant.params import (
 __all__ = [
     "BenchConfig",
     "MotorSection",
+    "Override",
     "PlantSection",
     "load_config",
     "plant_from_config",
@@ -235,17 +237,27 @@ def _rebuild_config(sections: dict[str, Any], source: str) -> BenchConfig:
 
 
 # ---------------------------------------------------------------- validation
+@dataclass(frozen=True)
+class Override:
+    """A "TABLE.KEY=VALUE" given elsewhere than `--set` (`--target`, a gains file's [target] key):
+    a message about its value names ``origin``, where the user wrote it."""
+
+    text: str
+    origin: str
+
+
 class _Collector:
-    def __init__(self, source: str, override_keys: set[str]) -> None:
+    def __init__(self, source: str, table_sources: Mapping[str, str] = types.MappingProxyType({})) -> None:
         self.source = source
-        self.override_keys = override_keys
+        self.table_sources = table_sources  # a table read from another file (--scenario FILE)
+        self.override_keys: dict[str, str] = {}  # a dotted key an override set -> how messages name it
         self.lines: list[str] = []
 
     def add(self, table: str, key: str, reason: str) -> None:
         dotted = f"{table}.{key}" if key else table
-        src = f"--set {dotted}" if dotted in self.override_keys else self.source
-        where = f"[{table}]" if table else ""
-        self.lines.append(f"{src} {where} {key}: {reason}".replace("  ", " ").replace(" :", ":"))
+        src = self.override_keys.get(dotted) or self.table_sources.get(table.split("[")[0], self.source)
+        where = f"[{clipped(table)}]" if table else ""
+        self.lines.append(f"{clipped(src, 80)} {where} {clipped(key)}: {reason}".replace("  ", " ").replace(" :", ":"))
 
 
 def _suggest(name: str, known: Sequence[str]) -> str:
@@ -259,8 +271,13 @@ def _suggest(name: str, known: Sequence[str]) -> str:
 
 def _show(value: Any) -> str:
     """A value as a message shows it: short, one line (a fuzzed value may be 5000 characters)."""
-    text = " ".join(repr(value).split())
-    return text if len(text) <= 40 else text[:37] + "..."
+    return clipped(repr(value))
+
+
+def clipped(text: str, limit: int = 40) -> str:
+    """``text`` on one line, cut to ``limit`` characters (a `--set` word may be 100 kB)."""
+    text = " ".join(text.split())
+    return text if len(text) <= limit else text[:limit - 3] + "..."
 
 
 def _type_name(tp: Any) -> str:
@@ -414,44 +431,48 @@ def _build(cls: type, data: Any, table: str, col: _Collector) -> tuple[bool, Any
 
 
 # ---------------------------------------------------------------- overrides
-def _parse_value(text: str) -> Any:
-    """TOML value syntax; a bare word that is not valid TOML is taken as a string."""
+def parse_value(text: str) -> Any:
+    """TOML value syntax; a bare word that is not valid TOML is taken as a string (so is a number
+    longer than Python converts: ValueError, which TOMLDecodeError is too)."""
     try:
         return tomllib.loads(f"v = {text}")["v"]
-    except tomllib.TOMLDecodeError:
+    except (ValueError, RecursionError):
         return text.strip()
 
 
-def _apply_override(data: dict[str, Any], item: str, col: _Collector, sections: Sections) -> str | None:
-    """One `--set TABLE.KEY=VALUE` into the raw tables; returns the dotted key it set (None: refused)."""
+def _apply_override(data: dict[str, Any], item: str, col: _Collector, sections: Sections,
+                    origin: str | None = None) -> str | None:
+    """One `--set TABLE.KEY=VALUE` into the raw tables; returns the dotted key it set (None: refused,
+    the message naming ``origin``, else the `--set` word)."""
+    where = origin or f"--set {clipped(item, 80)}"
     if "=" not in item:
-        col.lines.append(f"--set {item}: expected TABLE.KEY=VALUE")
+        col.lines.append(f"{where}: expected TABLE.KEY=VALUE")
         return None
     path, text = item.split("=", 1)
     parts = [p.strip() for p in path.strip().split(".")]
     if len(parts) == 1 and parts[0] in sections and sections.tables[parts[0]].many:  # scenario=[{...}, ...]
-        data[parts[0]] = _parse_value(text)
+        data[parts[0]] = parse_value(text)
         return parts[0]
     if len(parts) < 2 or not all(parts):
-        col.lines.append(f"--set {item}: expected TABLE.KEY=VALUE")
+        col.lines.append(f"{where}: expected TABLE.KEY=VALUE")
         return None
     node: Any = data
     for i, part in enumerate(parts[:-1]):
         if isinstance(node, dict) and part not in node and parts[i + 1].isdigit():
-            col.lines.append(f"--set {item}: the config has no [[{part}]] array to index (replace it whole: "
-                             f"--set '{part}=[{{...}}, ...]')")
+            col.lines.append(f"{where}: the config has no [[{clipped(part)}]] array to index (replace it whole: "
+                             f"--set '{clipped(part)}=[{{...}}, ...]')")
             return None
         if isinstance(node, list):
             if not part.isdigit() or int(part) >= len(node):
-                col.lines.append(f"--set {item}: no item {part} in this array")
+                col.lines.append(f"{where}: no item {clipped(part)} in this array")
                 return None
             node = node[int(part)]
         else:
             node = node.setdefault(part, {})
     if not isinstance(node, dict):
-        col.lines.append(f"--set {item}: {'.'.join(parts[:-1])} is not a table")
+        col.lines.append(f"{where}: {clipped('.'.join(parts[:-1]), 80)} is not a table")
         return None
-    node[parts[-1]] = _parse_value(text)
+    node[parts[-1]] = parse_value(text)
     table = ".".join(parts[:-1])
     return f"{table}.{parts[-1]}"
 
@@ -493,12 +514,15 @@ def packaged_name(text: str) -> str | None:
     return None
 
 
-def _parse_toml(text: str, source: str) -> dict[str, Any]:
+def parse_toml(text: str, source: str) -> dict[str, Any]:
     """tomllib, with every failure one line naming the file."""
     try:
         return tomllib.loads(text)
     except tomllib.TOMLDecodeError as exc:
         raise ConfigError(f"{source}: not valid TOML: {str(exc).splitlines()[0]}") from None
+    except ValueError:  # (tomllib's int() of a number longer than Python converts)
+        raise ConfigError(f"{source}: not valid TOML for hilbench: a number of over "
+                          f"{sys.get_int_max_str_digits()} digits") from None
     except RecursionError:
         raise ConfigError(f"{source}: not valid TOML for hilbench: arrays or tables nested too deep") from None
 
@@ -534,7 +558,7 @@ def _load_data(path: Path | None, source: str, chain: tuple[str, ...] = ()) -> d
     """A config file's tables with its ``extends = "other.toml"`` chain merged under them
     (``extends = "packaged"``: the packaged default; a relative name is beside the file)."""
     text = packaged_config_text(_packaged_source_name(source)) if path is None else _read_text(path, source)
-    data = _parse_toml(text, source)
+    data = parse_toml(text, source)
     base = data.pop("extends", None)
     if base is None:
         return data
@@ -558,7 +582,7 @@ def _load_data(path: Path | None, source: str, chain: tuple[str, ...] = ()) -> d
 def load_scenario_file(path: str | Path) -> list[Any]:
     """The [[scenario]] entries of a file (`--scenario FILE`): a file of [[scenario]] tables."""
     source = str(path)
-    data = _parse_toml(_read_text(Path(path), source), source)
+    data = parse_toml(_read_text(Path(path), source), source)
     unknown = sorted(set(data) - {"scenario"})
     if unknown or not isinstance(data.get("scenario"), list):
         raise ConfigError(f"{source}: a scenario file holds [[scenario]] tables only"
@@ -566,7 +590,7 @@ def load_scenario_file(path: str | Path) -> list[Any]:
     return list(data["scenario"])
 
 
-def load_config(path: str | Path | None = None, overrides: Sequence[str] = (), *, sections: Sections,
+def load_config(path: str | Path | None = None, overrides: Sequence[str | Override] = (), *, sections: Sections,
                 scenario_path: str | Path | None = None) -> BenchConfig:
     """Read (with its `extends` chain), merge `overrides` ("table.key=value", TOML value syntax;
     "scenario=[...]" replaces a whole array of tables) and a scenario file, validate the tables
@@ -578,12 +602,14 @@ def load_config(path: str | Path | None = None, overrides: Sequence[str] = (), *
     if scenario_path is not None:
         data["scenario"] = load_scenario_file(scenario_path)
     in_file = set(data)
-    col = _Collector(source, set())
+    col = _Collector(source, {"scenario": str(scenario_path)} if scenario_path is not None else {})
+    words = [item.text if isinstance(item, Override) else item for item in overrides]
     for item in overrides:
-        key = _apply_override(data, item, col, sections)
+        text, origin = (item.text, item.origin) if isinstance(item, Override) else (item, None)
+        key = _apply_override(data, text, col, sections, origin)
         if key:
-            col.override_keys.add(key)
-    _unknown_tables(data, in_file, overrides, sections, col)
+            col.override_keys[key] = origin or f"--set {clipped(key, 80)}"
+    _unknown_tables(data, in_file, words, sections, col)
     built = _build_tables(data, sections, col)
     if not col.lines:
         _check_integrator(built, col)
@@ -602,8 +628,8 @@ def _unknown_tables(data: Mapping[str, Any], in_file: set[str], overrides: Seque
     for key in data:
         if key not in sections:
             culprit = next((item for item in overrides if item.split("=", 1)[0].strip().split(".")[0] == key), None)
-            where = f"--set {culprit.split('=', 1)[0].strip()}" if key not in in_file and culprit else col.source
-            col.lines.append(f"{where}: unknown table [{key}]{_suggest(key, sections.names())}")
+            where = f"--set {clipped(culprit.split('=', 1)[0].strip(), 80)}" if key not in in_file and culprit else col.source
+            col.lines.append(f"{where}: unknown table [{clipped(key)}]{_suggest(key, sections.names())}")
 
 
 def _build_tables(data: Mapping[str, Any], sections: Sections, col: _Collector) -> dict[str, Any]:

@@ -56,6 +56,9 @@ def check_run(cfg: BenchConfig, events: tuple = ()) -> list[str]:
                 f"at {max_rpm:g} rpm a period of {period_us} us holds up to {edges_per_period} hall edges, more "
                 f"than the {MAX_EDGES} a Sensors carries (a firmware may take fewer: its TargetInfo.max_edges); "
                 f"the run stops if a period has more; use link.period_us <= {most_us}")
+    held = _held_frames_warning(cfg, events or settings.scenario_events(cfg))
+    if held:
+        warnings.append(held)
     if cfg.run.mode == "realtime":
         baud = re.search(r"[?&]baud=(\d+)", cfg.link.target)
         if baud:
@@ -75,6 +78,40 @@ def check_run(cfg: BenchConfig, events: tuple = ()) -> list[str]:
                 f"period; expect overruns (the summary counts them); link.period_us >= {REALTIME_MIN_PERIOD_US} "
                 f"is safer")
     return warnings
+
+
+#: a link fault's delay that makes a run wait this much longer in all is said before the run
+HELD_FRAMES_NOTE_S = 60.0
+
+
+def _held_frames_warning(cfg: BenchConfig, events: tuple) -> str | None:
+    """A delay_ms fault on most frames holds each exchange that long: a run that then takes hours
+    looks hung unless it is said before it starts."""
+    from hilbench.link.spec import parse_target_spec
+
+    try:
+        faults = parse_target_spec(cfg.link.target).faults
+    except ConfigError:  # (said where the target is opened)
+        return None
+    if faults is None or faults.delay_s <= 0.0:
+        return None
+    end_s = cfg.run.duration_s or next((e.at_s for e in events if getattr(e, "end", False)), None)
+    if end_s is None:
+        return None
+    periods = end_s / (cfg.link.period_us * 1e-6)
+    waited_s = periods * faults.delay_rate * faults.delay_s
+    if waited_s < HELD_FRAMES_NOTE_S:
+        return None
+    return (f"link fault delay_ms={faults.delay_s * 1e3:g} on {faults.delay_rate:.0%} of the frames the host sends: "
+            f"the {end_s:g} s run waits about {_duration_text(waited_s)} in all (Ctrl-C ends it, the recording kept)")
+
+
+def _duration_text(seconds: float) -> str:
+    if seconds >= 7200:
+        return f"{seconds / 3600:.0f} h"
+    if seconds >= 120:
+        return f"{seconds / 60:.0f} min"
+    return f"{seconds:.0f} s"
 
 
 def hall_sector_s(cfg: BenchConfig) -> float | None:

@@ -17,7 +17,7 @@ from hilbench.bench.assembly import build_bench
 from hilbench.bench.bench import Bench
 from hilbench.bench.session import Session, Snapshot, Summary
 from hilbench.bench.settings import load_config
-from hilbench.config import BenchConfig
+from hilbench.config import BenchConfig, Override, clipped
 from hilbench.errors import ConfigError, LinkError
 from hilbench.targets.profile import TargetProfile
 
@@ -31,7 +31,7 @@ class RunRequest:
     """What the user asked for on top of the config file."""
 
     config_path: str | None = None
-    overrides: tuple[str, ...] = ()
+    overrides: tuple[str | Override, ...] = ()  # `--set` words, a gains file's values
     target: str | None = None
     mode: str | None = None
     duration_s: float | None = None
@@ -41,13 +41,13 @@ class RunRequest:
 
 def load_run_config(request: RunRequest) -> BenchConfig:
     """The config with the command line's choices folded in as overrides (validated together)."""
-    overrides = list(request.overrides)
-    if request.target is not None:
-        overrides.append(f"link.target={json.dumps(request.target)}")  # a TOML string whatever the spec holds
+    overrides: list[str | Override] = list(request.overrides)
+    if request.target is not None:  # (a TOML string whatever the spec holds)
+        overrides.append(Override(f"link.target={json.dumps(request.target)}", "--target"))
     if request.mode is not None:
-        overrides.append(f'run.mode="{request.mode}"')
+        overrides.append(Override(f'run.mode="{request.mode}"', "--mode"))
     if request.duration_s is not None:
-        overrides.append(f"run.duration_s={request.duration_s!r}")
+        overrides.append(Override(f"run.duration_s={request.duration_s!r}", "--duration"))
     return load_config(request.config_path, overrides, scenario_path=request.scenario)
 
 
@@ -76,12 +76,11 @@ def run_bench(
     from hilbench.bench.feasibility import check_run, hall_sector_s, overrun_warning
 
     warnings = check_run(cfg)  # impossible settings raise here, before anything is opened
+    _say(warn, warnings)  # (now: opening the target may take long, a delay fault holding its handshake)
     bench = Bench(cfg, record=record, scenario=True, observer=observer, control=control, keep_rows=False)
     with bench:
         warnings += bench.warnings
-        for text in warnings:
-            if warn is not None:
-                warn(text)
+        _say(warn, bench.warnings)
         session = bench.session
         assert session is not None
         if on_ready is not None:
@@ -107,13 +106,20 @@ def run_bench(
     return summary
 
 
+def _say(warn: Callable[[str], None] | None, warnings: Sequence[str]) -> None:
+    for text in warnings:
+        if warn is not None:
+            warn(text)
+
+
 def check_overrides(words: Sequence[str]) -> tuple[str, ...]:
     """`--set KEY=VALUE` words, each checked for its shape (values are validated with the config)."""
     for word in words:
         if word.split("=", 1)[0].strip() in ("scenario", "adc") and "=" in word:
             continue  # a whole array of tables: scenario=[{at_s = 0.0, ref_rpm = 1000.0}, ...]
         if "=" not in word or "." not in word.split("=", 1)[0]:
-            raise ConfigError(f"--set {word!r}: expected TABLE.KEY=VALUE, e.g. motor.rs_ohm=2.6 or target.kp=0.2")
+            raise ConfigError(f"--set {clipped(repr(word), 80)}: expected TABLE.KEY=VALUE, e.g. motor.rs_ohm=2.6 or "
+                              "target.kp=0.2")
     return tuple(words)
 
 

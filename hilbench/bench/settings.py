@@ -21,7 +21,7 @@ from hilbench.bench.livetuning import GuardSettings
 from hilbench.bench.pacing import CONTENDED_EPISODES, CONTENDED_WINDOW_S
 from hilbench.bench.faults import FAULT_KINDS
 from hilbench.bench.scenario import LOAD_KINDS, Event, default_scenario
-from hilbench.config import PLANT_SECTIONS, BenchConfig
+from hilbench.config import PLANT_SECTIONS, BenchConfig, Override, parse_toml
 from hilbench.config import load_config as _load_tables
 from hilbench.errors import ConfigError
 from hilbench.fieldspec import spec
@@ -173,7 +173,7 @@ SECTIONS = (
 )
 
 
-def load_config(path: str | Path | None = None, overrides: Sequence[str] = (), *,
+def load_config(path: str | Path | None = None, overrides: Sequence[str | Override] = (), *,
                 scenario_path: str | Path | None = None) -> BenchConfig:
     """A bench config: a file (None: the packaged default) with its `extends` chain, `overrides`
     ("table.key=value") and a scenario file, validated as a whole (hilbench.config.load_config
@@ -238,25 +238,15 @@ def configured_target_profile(cfg: BenchConfig) -> TargetProfile:
     return target_profile(cfg.link).configured(cfg.target)
 
 
-def params_file_overrides(path: str) -> tuple[str, ...]:
+def params_file_overrides(path: str) -> tuple[Override, ...]:
     """`--gains-file FILE`: the values of a saved fragment's [target] table as overrides."""
-    import tomllib
-
-    from hilbench.errors import ConfigError
-
     from hilbench.limits import CONFIG_MAX_BYTES, read_text_bounded
 
-    text = read_text_bounded(path, CONFIG_MAX_BYTES, ConfigError, path)
-    try:
-        data = tomllib.loads(text)
-    except tomllib.TOMLDecodeError as exc:
-        raise ConfigError(f"{path}: not valid TOML: {str(exc).splitlines()[0]}") from None
-    except RecursionError:
-        raise ConfigError(f"{path}: not valid TOML for hilbench: arrays or tables nested too deep") from None
+    data = parse_toml(read_text_bounded(path, CONFIG_MAX_BYTES, ConfigError, path), path)
     table = data.get("target")
     if not isinstance(table, dict) or not table:
         raise ConfigError(f"{path}: no [target] table with parameters (write one with `hilbench ctl save`)")
-    return tuple(f"target.{k}={_toml_value(v)}" for k, v in table.items())
+    return tuple(Override(f"target.{k}={_toml_value(v)}", path) for k, v in table.items())
 
 
 def _toml_value(value: object) -> str:

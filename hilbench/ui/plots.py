@@ -338,6 +338,7 @@ def plot_speed_overlay_chunks(recordings: Sequence[tuple[RecordingHead, ColumnCh
         _draw(ax, reference, "reference (firmware, first)", {"color": "k", "ls": "--", "lw": 1.0})
     for label, trace in curves:
         _draw(ax, trace, label, {"lw": 1.0})
+    out_dir.mkdir(parents=True, exist_ok=True)  # (the --plot DIR, made as the standard plots make it)
     path = _finish_overlay(plt, fig, ax, "speed: " + " vs ".join(h.path.name for h in heads),
                            out_dir / f"{stem}_overlay_speed.png")
     return Plots((path,), tuple(left_out))
@@ -363,7 +364,6 @@ def _finish_overlay(plt, fig, ax, title: str, path: Path) -> Path:  # type: igno
     if ax.get_legend_handles_labels()[0]:  # (nothing to draw: no empty legend and its warning)
         ax.legend(loc="best")
     fig.tight_layout()
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(path, dpi=110)
+    fig.savefig(path, dpi=110)  # (its folder: the caller's, checked before the work)
     plt.close(fig)
     return path

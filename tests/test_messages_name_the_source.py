@@ -1,0 +1,82 @@
+"""A config error names where the user wrote the value: a `--scenario` file, a `--gains-file`, the
+option (`--target`), never the packaged config or a `--set` the user did not write; a 100 kB word
+is cut in the message. Output options that cannot work are refused before the work, not after."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import pytest
+from click.testing import CliRunner
+
+from hilbench.bench.run import RunRequest, check_overrides, load_run_config
+from hilbench.bench.settings import load_config, params_file_overrides
+from hilbench.cli import cli
+from hilbench.errors import ConfigError
+
+
+def _message(request: RunRequest) -> str:
+    with pytest.raises(ConfigError) as refused:
+        load_run_config(request)
+    return str(refused.value)
+
+
+def test_an_error_in_a_scenario_file_names_that_file(tmp_path: Path) -> None:
+    """Repro: `--scenario s.toml` with a bad at_s said `<packaged hurst_mclv.toml> [scenario] ...`."""
+    scenario = tmp_path / "s.toml"
+    scenario.write_text('[[scenario]]\nat_s = "soon"\nref_rpm = 900.0\n')
+    message = _message(RunRequest(scenario=str(scenario)))
+    assert message.startswith(str(scenario)) and "at_s" in message and "packaged" not in message
+
+
+def test_an_error_in_a_gains_file_names_that_file_and_key(tmp_path: Path) -> None:
+    """Repro: a gains file's bad value was blamed on `--set target.kp`, which the user never typed."""
+    gains = tmp_path / "gains.toml"
+    gains.write_text('[target]\nkp = "high"\n')
+    message = _message(RunRequest(overrides=params_file_overrides(str(gains))))
+    assert message.startswith(f"{gains} [target] kp:") and "--set" not in message
+
+
+def test_a_bad_duration_or_mode_names_its_option() -> None:
+    assert _message(RunRequest(mode="fast")).startswith("--mode")
+    assert _message(RunRequest(duration_s=-1.0)).startswith("--duration")
+
+
+def test_a_huge_set_word_is_cut_in_the_message() -> None:
+    """Repro: `--set motor.rs_ohm=<100 kB>` and a 100 kB key were echoed in full."""
+    huge = "9" * 100_000
+    for words in ([f"motor.rs_ohm={huge}x"], [f"{'a' * 100_000}.b=1"], [f"motor.{'k' * 100_000}=1"]):
+        with pytest.raises(ConfigError) as refused:
+            load_config(None, words)
+        assert len(str(refused.value)) < 400, str(refused.value)[:200]
+    with pytest.raises(ConfigError) as refused:
+        check_overrides([huge])
+    assert len(str(refused.value)) < 200
+
+
+def test_report_window_without_plot_is_refused(tmp_path: Path) -> None:
+    """Repro: `report run.csv --window 0:1` printed the summary of every row, the window ignored."""
+    recording = tmp_path / "run.csv"
+    assert CliRunner().invoke(cli, ["run", "--no-ui", "--no-control", "--duration", "0.01",
+                                    "--record", str(recording)]).exit_code == 0
+    result = CliRunner().invoke(cli, ["report", str(recording), "--window", "0:0.005"])
+    assert result.exit_code == 2 and "--window chooses what --plot draws: give --plot DIR" in result.output
+
+
+@pytest.mark.parametrize("option", ["--plot", "--csv"])
+def test_step_refuses_an_output_in_a_missing_folder_before_the_steps(option: str, tmp_path: Path) -> None:
+    """Repro: `step --plot /nonexistent/x.png` made the folder; `--csv` there failed after every step ran."""
+    missing = tmp_path / "nope" / "x.out"
+    result = CliRunner().invoke(cli, ["step", option, str(missing)])
+    assert result.exit_code == 2 and f"{option} {missing}: no folder {missing.parent}" in result.output
+    assert not missing.parent.exists()
+
+
+def test_a_delay_that_holds_the_run_for_long_is_said_before_it() -> None:
+    """Repro: `?delay_ms=60000&delay_rate=1` held every exchange a minute, with nothing said."""
+    from hilbench.bench.feasibility import check_run
+
+    cfg = load_run_config(RunRequest(target="emulator:an1017?delay_ms=60000&delay_rate=1", duration_s=2.0))
+    assert any("delay_ms=60000 on 100% of the frames" in text and "h in all" in text for text in check_run(cfg))
+    cfg = load_run_config(RunRequest(target="emulator:an1017?delay_ms=1&delay_rate=0.01", duration_s=2.0))
+    assert not any("delay_ms" in text for text in check_run(cfg))
