@@ -80,3 +80,19 @@ def test_a_delay_that_holds_the_run_for_long_is_said_before_it() -> None:
     assert any("delay_ms=60000 on 100% of the frames" in text and "h in all" in text for text in check_run(cfg))
     cfg = load_run_config(RunRequest(target="emulator:an1017?delay_ms=1&delay_rate=0.01", duration_s=2.0))
     assert not any("delay_ms" in text for text in check_run(cfg))
+
+
+def test_a_number_longer_than_python_converts_is_one_line(tmp_path: Path) -> None:
+    """Repro: `rs_ohm = 999…9` (5000 digits) in a config or a gains file was a ValueError traceback
+    (tomllib's int() past Python's 4300-digit limit); in a --set it is a word like any other."""
+    huge = "9" * 5000
+    config = tmp_path / "big.toml"
+    config.write_text(f"[motor]\nrs_ohm = {huge}\n")
+    with pytest.raises(ConfigError, match=r"big\.toml: not valid TOML for hilbench: a number of over \d+ digits"):
+        load_config(str(config))
+    gains = tmp_path / "gains.toml"
+    gains.write_text(f"[target]\nkp = {huge}\n")
+    with pytest.raises(ConfigError, match=r"gains\.toml: not valid TOML for hilbench: a number of over"):
+        params_file_overrides(str(gains))
+    with pytest.raises(ConfigError, match=r"^--set motor\.rs_ohm \[motor\] rs_ohm: expected a number, got str '9999"):
+        load_config(None, [f"motor.rs_ohm={huge}"])
