@@ -58,8 +58,22 @@ def _refuse_missing_folders(outputs: dict[str, str | None]) -> None:
     from hilbench.errors import ConfigError
 
     for option, name in outputs.items():
+        if name == "":
+            raise ConfigError(f"{option}: an empty file name")
         if name is not None and not Path(name).absolute().parent.is_dir():
             raise ConfigError(f"{option} {name}: no folder {Path(name).absolute().parent} to write it in")
+
+
+#: the longest error line printed whole: a message quoting a 100 kB word the user gave is cut
+ERROR_LINE_MAX_CHARS = 400
+
+
+def _cut(line: str) -> str:
+    """``line`` with its middle left out when it is longer than ERROR_LINE_MAX_CHARS."""
+    if len(line) <= ERROR_LINE_MAX_CHARS:
+        return line
+    head, tail = line[:ERROR_LINE_MAX_CHARS - 100], line[-60:]
+    return f"{head} ...({len(line) - len(head) - len(tail)} characters left out)... {tail}"
 
 
 def _friendly(func: Callable[..., Any]) -> Callable[..., Any]:
@@ -70,7 +84,7 @@ def _friendly(func: Callable[..., Any]) -> Callable[..., Any]:
         try:
             return func(*args, **kwargs)
         except HilbenchError as exc:
-            lines = [line.strip() for line in str(exc).splitlines() if line.strip()]
+            lines = [_cut(line.strip()) for line in str(exc).splitlines() if line.strip()]
             text = lines[0] if len(lines) == 1 else f"{len(lines)} problems: " + "; ".join(lines)
             records = getattr(exc, "records", "")
             if records:  # a divergence's periods around it, both sides (stdout: the error stays one line)
@@ -82,7 +96,7 @@ def _friendly(func: Callable[..., Any]) -> Callable[..., Any]:
             sys.exit(130)
         except OSError as exc:  # a file the user named: a directory, a missing folder, no permission
             name = f"{exc.filename}: " if exc.filename else ""
-            click.echo(f"hilbench: file error: {name}{exc.strerror or exc}", err=True)
+            click.echo(f"hilbench: file error: {_cut(f'{name}{exc.strerror or exc}')}", err=True)
             sys.exit(1)
 
     return wrapper
@@ -670,7 +684,7 @@ def ctl(words: tuple[str, ...], socket_path: str | None, session_selector: str |
         reply = client.request({"cmd": "get"}, timeout_s=timeout_s)
         if not reply.get("ok"):
             raise TargetError(str(reply.get("message", "refused")))
-        text = saved_fragment(reply["data"])
+        text = saved_fragment(reply.get("data"))
         write_fragment(request["file"], text)  # (not onto a recording a session writes) an OSError: exit 1
         if as_json:
             click.echo(json_module.dumps({"ok": True, "message": f"wrote {request['file']}", "data": reply["data"]}))
@@ -795,7 +809,9 @@ def step(config: str | None, from_rpm: float, to_rpm: float, gains: tuple[str, .
     if csv_file:
         import csv
 
-        with open(csv_file, "w", newline="", encoding="utf-8") as handle:
+        from hilbench.bench.outputs import open_output
+
+        with open_output(csv_file) as handle:  # (not onto a recording a session writes)
             writer = csv.DictWriter(handle, fieldnames=list(rows[0].keys()))
             writer.writeheader()
             writer.writerows(rows)
@@ -873,7 +889,7 @@ def step_table(rows, title: str, sort_by: str | None = None):  # type: ignore[no
 @click.option("--executor", default="local", metavar="SPEC",
               help="local (a process pool), local-dask[:N] (a Dask LocalCluster) or tcp://HOST:8786 (a Dask scheduler; "
                    "pip install 'hilbench[dask]').")
-@click.option("--workers", type=click.IntRange(min=1), default=None,
+@click.option("--workers", type=click.IntRange(min=1, max=256), default=None,
               help="Local processes (default: one per core; 1: in this process).")
 @click.option("--resume", "store", type=click.Path(dir_okay=False), default=None, metavar="FILE.jsonl",
               help="Append each finished point to FILE as it arrives; a sweep restarted with the same FILE runs only "
@@ -1026,8 +1042,19 @@ def _parse_tolerances(text: str | None) -> "Tolerances":
 
 
 def main() -> None:
-    """Console-script entry point."""
-    cli(prog_name="hilbench")
+    """Console-script entry point: click's own usage errors as click prints them, a value quoted in
+    one cut as the bench's messages are (`_cut`)."""
+    try:
+        code = cli.main(prog_name="hilbench", standalone_mode=False)
+    except click.ClickException as exc:
+        if "\n" not in exc.message:  # (a help text shown for no arguments is whole)
+            exc.message = _cut(exc.message)
+        exc.show()
+        sys.exit(exc.exit_code)
+    except click.Abort:
+        click.echo("Aborted!", err=True)
+        sys.exit(1)
+    sys.exit(code if isinstance(code, int) else 0)
 
 
 if __name__ == "__main__":

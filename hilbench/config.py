@@ -159,6 +159,8 @@ class _Section:
     chooser: Callable[[Mapping[str, Any]], type | None] | None = None
     #: the tables the chooser reads: when one of them is wrong, this one is not judged (its dataclass is unknown)
     needs: tuple[str, ...] = ()
+    #: the dotted keys whose values choose it: a chooser's error names the override that set one
+    chosen_by: tuple[str, ...] = ()
     #: for a chosen table: who the keys the chosen dataclass does not know belong to (one line), or None
     explain: Callable[[frozenset[str]], str | None] | None = None
 
@@ -172,19 +174,20 @@ class Sections:
 
     def with_table(self, name: str, cls: type | None, *, required: bool = False, many: bool = False,
                    chooser: Callable[[Mapping[str, Any]], type | None] | None = None,
-                   needs: tuple[str, ...] = (),
+                   needs: tuple[str, ...] = (), chosen_by: tuple[str, ...] = (),
                    explain: Callable[[frozenset[str]], str | None] | None = None) -> "Sections":
         """These tables and `[name]` (or `[[name]]` when many) validated into dataclass `cls`.
 
         Optional tables are built from the dataclass defaults when absent (all fields need one).
         With ``chooser`` the dataclass is chosen after every other table is built (None: the table
         must be absent, and the section is None), from the tables ``needs`` names: when one of them
-        has a problem (reported), this table is not judged against a dataclass chosen without it.
-        ``explain`` names who several keys the chosen dataclass does not know belong to, said once
+        has a problem (reported), this table is not judged against a dataclass chosen without it;
+        its error names the override (`--target`, `--set`) that set a key of ``chosen_by``. ``explain`` names who several keys the chosen dataclass does not know belong to, said once
         instead of a line per key."""
         if chooser is None and not dataclasses.is_dataclass(cls):
             raise TypeError(f"Sections.with_table {name!r}: {cls!r} is not a dataclass")
-        section = _Section(name, cls, required, many, chooser, needs=tuple(needs), explain=explain)
+        section = _Section(name, cls, required, many, chooser, needs=tuple(needs), chosen_by=tuple(chosen_by),
+                           explain=explain)
         return Sections(types.MappingProxyType({**self.tables, name: section}))
 
     def __contains__(self, name: object) -> bool:
@@ -701,8 +704,9 @@ def _build_chosen(sec: _Section, data: Mapping[str, Any], built: dict[str, Any],
         return
     try:
         cls = sec.chooser(built)
-    except ConfigError as exc:  # the chooser names the table at fault
-        col.add("", "", str(exc))
+    except ConfigError as exc:  # the chooser names the table at fault; the message, where it was set
+        origin = next((col.override_keys[key] for key in sec.chosen_by if key in col.override_keys), col.source)
+        col.lines.append(f"{clipped(origin, 80)}: {exc}")
         return
     if cls is None:
         if data.get(sec.name):

@@ -8,6 +8,7 @@ the scope's and the recordings' own.
 
 from __future__ import annotations
 
+import math
 import os
 import select
 import stat
@@ -42,6 +43,17 @@ def size_text(n_bytes: int) -> str:
         if n_bytes >= size and n_bytes % size == 0:
             return f"{n_bytes // size} {unit}"
     return f"{n_bytes} bytes"
+
+
+def is_finite_number(value: object) -> bool:
+    """A finite int or float (not a bool) that a float holds: JSON or TOML from outside may carry
+    NaN, or an int of 400 digits that overflows every figure made from it."""
+    if not isinstance(value, (int, float)) or isinstance(value, bool):
+        return False
+    try:
+        return math.isfinite(value)
+    except OverflowError:
+        return False
 
 
 def read_bounded(path: str | os.PathLike[str], limit: int, error: type[HilbenchError], what: str) -> bytes:
@@ -111,6 +123,7 @@ def check_path_size(path: Path, limit: int, error: type[HilbenchError], what: st
 
 
 __all__ = [
+    "is_finite_number",
     "CONFIG_MAX_BYTES", "STORE_LINE_MAX_BYTES", "STORE_MAX_BYTES", "RECORDING_META_MAX_BYTES",
     "RECORDING_LINE_MAX_BYTES", "RECORDING_MAX_COLUMNS", "RECORDING_MAX_BYTES", "READ_IDLE_TIMEOUT_S",
     "check_path_size", "read_bounded", "read_text_bounded", "size_text",

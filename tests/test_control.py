@@ -257,6 +257,21 @@ def test_pipelined_requests_answered_in_order(session: EchoSession) -> None:
     assert [c for c, _ in session.seen] == ["ref", "load"]
 
 
+def test_a_client_that_shuts_its_writing_still_gets_its_replies(session: EchoSession) -> None:
+    """Repro: `printf '{"cmd":"ref","rpm":1234}\\n' | nc -N -U sock` (a request, then SHUT_WR) got
+    nothing back though the session carried the request out: the server closed on the EOF. Now the
+    replies come, the last line may lack its newline, and then the server closes."""
+    raw = Raw(session.server.path)
+    try:
+        raw.send(b'{"cmd":"ref","rpm":1234,"id":1}\n{"cmd":"get","id":2}')
+        raw.sock.shutdown(socket.SHUT_WR)
+        assert [raw.reply()["id"] for _ in range(2)] == [1, 2]
+        assert raw.sock.recv(1) == b""  # then closed
+    finally:
+        raw.close()
+    assert [c for c, _ in session.seen] == ["ref", "get"]
+
+
 def test_server_survives_abrupt_clients_and_serves_new_connection(session: EchoSession) -> None:
     for junk in (b'{"cmd": "ref", "rp', b"\x00\x01\x02", b""):
         raw = Raw(session.server.path)

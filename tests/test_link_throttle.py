@@ -226,3 +226,15 @@ def test_a_far_end_far_ahead_of_its_wire_loses_the_excess_and_memory_stays_bound
     wire.arrivals.append((wire.now, b"\xff" * 10))  # room again: nothing more is lost
     assert link.read(1.0) == b"\xff" * 10
     assert link.rx_overrun_bytes == len(data) - RX_AHEAD_BYTES
+
+
+def test_a_close_at_a_few_baud_sends_what_is_due_soon_and_drops_the_rest() -> None:
+    """Repro: `link-test 'emulator:loopback?wire_baud=1'` hung in its close, waiting out the wire
+    time of every queued retry (10 s a byte at 1 baud). The close waits CLOSE_FLUSH_S at most."""
+    from hilbench.link.throttle import CLOSE_FLUSH_S
+
+    wire, t = _throttled(10)  # 1 s a byte
+    t.write(b"ab", 1.0)
+    t.write(b"c" * 100, 1.0)
+    t.close()
+    assert wire.written == [(pytest.approx(2.0), b"ab")] and wire.now <= CLOSE_FLUSH_S + 1e-9

@@ -96,3 +96,45 @@ def test_a_number_longer_than_python_converts_is_one_line(tmp_path: Path) -> Non
         params_file_overrides(str(gains))
     with pytest.raises(ConfigError, match=r"^--set motor\.rs_ohm \[motor\] rs_ohm: expected a number, got str '9999"):
         load_config(None, [f"motor.rs_ohm={huge}"])
+
+
+def test_the_readme_scenario_example_loads(tmp_path: Path) -> None:
+    """Repro: the README's example wrote `kp = 0.12` in a [[scenario]] table, which is refused
+    ("unknown key"); the example is loaded as a --scenario file here."""
+    readme = (Path(__file__).resolve().parent.parent / "README.md").read_text(encoding="utf-8")
+    block = next(b.split("```", 1)[0] for b in readme.split("```toml\n")[1:] if b.startswith("[[scenario]]"))
+    scenario = tmp_path / "example.toml"
+    scenario.write_text(block)
+    cfg = load_run_config(RunRequest(scenario=str(scenario)))
+    assert [dict(e.set or {}) for e in cfg.scenario if e.set] == [{"kp": 0.12}]
+
+
+def test_a_scenario_set_the_target_does_not_declare_is_refused_before_the_run(tmp_path: Path) -> None:
+    """Repro: `set = { zz = 1 }` (a typo) was refused in the run, on a line only the dashboard shows,
+    and the run passed; an empty `set = {}` was recorded as an event and did nothing."""
+    from hilbench.bench.run import run_bench
+
+    scenario = tmp_path / "s.toml"
+    scenario.write_text("[[scenario]]\nat_s = 0.0\nref_rpm = 1500.0\n[[scenario]]\nat_s = 0.01\nset = { zz = 1 }\n")
+    cfg = load_run_config(RunRequest(scenario=str(scenario), target="inprocess:an1017", duration_s=0.02))
+    with pytest.raises(ConfigError, match=r"at_s = 0.01: set 'zz': inprocess:an1017 declares no such parameter"):
+        run_bench(cfg)
+    scenario.write_text("[[scenario]]\nat_s = 0.0\nset = {}\n")
+    with pytest.raises(ConfigError, match=r"set: names no parameter"):
+        load_run_config(RunRequest(scenario=str(scenario)))
+
+
+def test_a_scenario_set_the_target_refuses_is_a_warning_and_an_event(tmp_path: Path) -> None:
+    """Repro: a set the firmware's constraint refuses was logged in the recording as if applied."""
+    from hilbench.bench.run import run_bench
+    from hilbench.bench.recorder import read_recording
+
+    scenario = tmp_path / "s.toml"
+    scenario.write_text("[[scenario]]\nat_s = 0.0\nref_rpm = 1500.0\n"
+                        "[[scenario]]\nat_s = 0.01\nset = { kp = 0.5, ki = 0.5, kd = 0.5 }\n")
+    cfg = load_run_config(RunRequest(scenario=str(scenario), target="inprocess:an1017", duration_s=0.02))
+    summary = run_bench(cfg, record=tmp_path / "r.csv")
+    assert any("set kp=0.5 ki=0.5 kd=0.5 at 0.010 s refused" in w for w in summary.warnings)
+    events = read_recording(tmp_path / "r.csv").events
+    assert any("refused set kp=0.5" in e for e in events) and not any(" set kp=0.5" in e and "refused" not in e
+                                                                       for e in events)

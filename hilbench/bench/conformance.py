@@ -175,6 +175,9 @@ class Wire:
                          (TargetHello, ErrorReport))
         if mode != MODE_LOCKSTEP and type(reply) is ErrorReport and reply.code == ErrorCode.BAD_REQUEST:
             raise NotServed(f"HostHello mode {mode} refused (BAD_REQUEST, detail {reply.detail}): a build without it")
+        if type(reply) is ErrorReport and reply.code == ErrorCode.BAD_REQUEST:  # (lockstep: the period, ours)
+            raise ConfigError(f"conformance --period-us {self.period_us}: the target refuses that period (HostHello "
+                              f"answered BAD_REQUEST, detail {reply.detail}); give a multiple of its PWM period")
         _require(isinstance(reply, TargetHello), f"HostHello answered {reply}")
         self.hello = reply
         self.k = 0
@@ -614,6 +617,8 @@ def run_checks(spec: str, *, period_us: int = 50, only: tuple[str, ...] = ()) ->
                 results.append(CheckResult(name, None, f"not served: {exc}", served=False))
             except ConformanceFailure as exc:
                 results.append(CheckResult(name, False, str(exc)))
+            except ConfigError:  # what was asked for, not the target, is wrong: no check can say more
+                raise
             except (HilbenchError, LinkTimeout) as exc:
                 results.append(CheckResult(name, False, f"{type(exc).__name__}: {exc}"))
     finally:

@@ -625,7 +625,7 @@ def _reply_line(ok: bool, message: str, data: Mapping[str, Any] | None, request_
 
 
 class _Conn:
-    __slots__ = ("sock", "cid", "rbuf", "wbuf", "discarding", "closing", "stream", "paused_since")
+    __slots__ = ("sock", "cid", "rbuf", "wbuf", "discarding", "closing", "stream", "paused_since", "pending", "eof")
 
     def __init__(self, sock: socket.socket, cid: int) -> None:
         self.sock = sock
@@ -636,6 +636,8 @@ class _Conn:
         self.closing = False  # close once wbuf is flushed
         self.stream = False  # asked for the stream: counted among MAX_STREAM_CONNECTIONS
         self.paused_since: float | None = None  # reading paused: its replies are not being read
+        self.pending = 0  # its requests the session has not answered yet
+        self.eof = False  # the client has shut its writing down: answered, then closed
 
 
 def peer_uid(sock: socket.socket) -> int | None:
@@ -865,7 +867,9 @@ class ControlServer:
             conn = self._conns.get(cid)
             if conn is None:
                 self.counters["dropped_replies"] += 1
-            elif len(conn.wbuf) + len(line) > MAX_UNSENT_BYTES:
+                continue
+            conn.pending -= 1
+            if len(conn.wbuf) + len(line) > MAX_UNSENT_BYTES:
                 self._drop_slow(conn)
             else:
                 conn.wbuf += line
@@ -933,7 +937,7 @@ class ControlServer:
         except OSError:
             self._drop(conn)
             return
-        if conn.closing and not conn.wbuf:
+        if not conn.wbuf and (conn.closing or (conn.eof and conn.pending <= 0)):
             self._drop(conn)
             return
         pause = len(conn.wbuf) > PAUSE_UNSENT_BYTES or conn.closing
@@ -941,8 +945,17 @@ class ControlServer:
             conn.paused_since = time.monotonic()
         elif not pause:
             conn.paused_since = None
-        events = (0 if pause else selectors.EVENT_READ) | (selectors.EVENT_WRITE if conn.wbuf else 0)
-        self._sel.modify(conn.sock, events or selectors.EVENT_READ, conn)
+        events = (0 if pause or conn.eof else selectors.EVENT_READ) | (selectors.EVENT_WRITE if conn.wbuf else 0)
+        if conn.eof and not events:  # (its replies still to come: nothing to wait for on the socket)
+            try:
+                self._sel.unregister(conn.sock)
+            except (KeyError, ValueError):
+                pass
+            return
+        try:
+            self._sel.modify(conn.sock, events or selectors.EVENT_READ, conn)
+        except KeyError:  # (a half-closed client's, unregistered while its replies were on their way)
+            self._sel.register(conn.sock, events or selectors.EVENT_READ, conn)
 
     def _read(self, conn: _Conn) -> None:
         try:
@@ -952,10 +965,20 @@ class ControlServer:
         except OSError:
             self._drop(conn)
             return
-        if not data:
-            self._drop(conn)
+        if not data:  # the client shut its writing (`nc -N`, `socat`): its requests are still answered
+            conn.eof = True
+            if conn.rbuf and not conn.discarding:
+                conn.rbuf += b"\n"  # (its last line, unterminated)
+            self._take_lines(conn)
+            if conn.cid in self._conns:
+                self._flush(conn)
             return
         conn.rbuf += data
+        if self._take_lines(conn) and conn.cid in self._conns:
+            self._flush(conn)
+
+    def _take_lines(self, conn: _Conn) -> bool:
+        """Every whole line in the connection's buffer, handled; True when one was answered here."""
         answered = False
         while True:
             nl = conn.rbuf.find(b"\n")
@@ -984,8 +1007,7 @@ class ControlServer:
             if not line.strip():
                 continue
             answered |= self._handle_line(conn, line)
-        if answered and conn.cid in self._conns:
-            self._flush(conn)
+        return answered
 
     def _reject(self, conn: _Conn, request_id: Any, reason: str, counter: str) -> None:
         self.counters["rejected"] += 1
@@ -1031,6 +1053,7 @@ class ControlServer:
             return True
         cid = conn.cid
         self.counters["requests"] += 1
+        conn.pending += 1
         self._inbox.append(
             ControlRequest(
                 cmd=cmd,

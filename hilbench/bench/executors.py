@@ -14,8 +14,11 @@ import tempfile
 from concurrent.futures import ProcessPoolExecutor
 from typing import Any, Callable, Iterator, Protocol
 
+from hilbench.config import clipped
 from hilbench.errors import ConfigError
 
+#: the most processes a local cluster is started with
+MAX_LOCAL_WORKERS = 256
 EXECUTOR_FORMS = "local (a process pool; --workers N), local-dask[:N] (a Dask LocalCluster) or tcp://HOST:PORT (a Dask scheduler)"
 
 
@@ -90,7 +93,10 @@ def open_executor(spec: str | None, workers: int | None) -> Iterator[tuple[Execu
         try:
             n = int(count) if count else max(1, workers or os.cpu_count() or 1)
         except ValueError:
-            raise ConfigError(f"executor {spec!r}: expected local-dask:N with N a number of workers") from None
+            n = 0
+        if not 1 <= n <= MAX_LOCAL_WORKERS:  # (0 workers: a cluster that never runs a task)
+            raise ConfigError(f"executor {clipped(repr(spec), 60)}: expected local-dask:N with N a number of workers, "
+                              f"1 to {MAX_LOCAL_WORKERS}")
         distributed = _dask()
         import dask  # distributed's own dependency
 

@@ -122,8 +122,10 @@ def _hold(fd: int, path: Path | str) -> None:
 
 def held_by_another(path: Path | str) -> bool:
     """Whether another process holds ``path`` as `open_held` does (a running session's journal);
-    False when there is no such file or it cannot be read."""
+    False when there is no such file, it is not a regular file or it cannot be read."""
     try:
+        if not stat.S_ISREG(os.stat(path).st_mode):  # (not even opened: a FIFO's writer would take us for its reader)
+            return False
         fd = os.open(path, os.O_RDONLY | os.O_NONBLOCK | os.O_CLOEXEC)
     except OSError:
         return False

@@ -163,8 +163,14 @@ class ScenarioPart:
         elif event.params:
             try:
                 session.tuning.set(dict(event.params), t_s)
-            except ParamError as exc:
+            except ParamError as exc:  # said in the summary and the recording, the run goes on
+                refused = f"scenario {event.describe()} at {t_s:.3f} s refused: {exc}"
                 session.message(f"{t_s:.3f} s: {exc}")
+                if session.summary is not None:
+                    session.summary.warnings.append(refused)
+                if session.recorder is not None:
+                    session.recorder.event(f"t={t_s:.6f} refused {event.describe()}: {exc}", MARKER_EVENT)
+                return
         elif event.end:
             session.scenario_end(t_s)
         if session.recorder is not None:

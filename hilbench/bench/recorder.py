@@ -53,7 +53,7 @@ from typing import Any, Iterator, NoReturn, Sequence
 
 import numpy as np
 
-from hilbench.bench.fileio import interrupts_held, open_held, pwrite_all
+from hilbench.bench.fileio import held_by_another, interrupts_held, open_held, pwrite_all
 from hilbench.errors import RecordingError
 
 try:  # CSV rows in C from raw rows, on a thread (optional; `Recorder._format_csv` is the reference)
@@ -1208,6 +1208,21 @@ def _read_journal_rows(path: Path, head_only: bool = False) -> tuple[dict[str, A
 def journal_path_of(path: Path) -> Path:
     """The journal an NPZ recording's rows go to while its run goes on (kept when it is killed)."""
     return path.with_name(path.name + ".journal")
+
+
+def held_by_a_running_session(path: Path | str) -> bool:
+    """Whether ``path``, after symlinks, names a file of a recording a running session writes: the
+    recording (a CSV), an NPZ's journal, events side file or temporary archive, or the name the NPZ's
+    archive takes at its end. What another output (a save, a step's CSV, a plot) must not write."""
+    real = Path(os.path.realpath(path))
+    if not real.name:  # ("/": nothing a recording is named)
+        return False
+    names = [real, journal_path_of(real)]
+    if real.name.endswith(".journal.events"):
+        names.append(real.with_name(real.name[:-len(".events")]))
+    if real.name.endswith(".tmp.npz"):
+        names.append(journal_path_of(real.with_name(real.name[:-len(".tmp.npz")])))
+    return any(held_by_another(name) for name in names)
 
 
 def _tmp_archive_path_of(path: Path) -> Path:

@@ -11,18 +11,17 @@ readers use with their types; events as text, ``segment:`` events with finite nu
 
 from __future__ import annotations
 
-import math
 from typing import Any, Callable, Mapping
 
 import numpy as np
 
 from hilbench.bench.segments import parse_segment_event
 from hilbench.errors import RecordingError
-from hilbench.limits import RECORDING_MAX_BYTES, RECORDING_MAX_COLUMNS, size_text
+from hilbench.limits import RECORDING_MAX_BYTES, RECORDING_MAX_COLUMNS, is_finite_number, size_text
 
 
 def _is_number(value: Any) -> bool:
-    return isinstance(value, (int, float)) and not isinstance(value, bool) and math.isfinite(value)
+    return is_finite_number(value)
 
 
 def _positive_number(value: Any) -> bool:

@@ -102,7 +102,7 @@ def run_bench(
     held = overrun_warning(summary.periods, summary.overruns, stall_periods=summary.longest_stall_periods,
                            stall_at_s=summary.longest_stall_at_s, period_us=cfg.link.period_us,
                            sector_s=hall_sector_s(cfg))
-    summary.warnings = warnings + [w for w in [held] if w]
+    summary.warnings = warnings + summary.warnings + [w for w in [held] if w]  # (the run's own: a refused set)
     return summary
 
 

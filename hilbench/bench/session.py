@@ -377,6 +377,16 @@ class Session:
             self.display = DisplayStream(self)
         return self.display
 
+    def _refuse_unknown_set_names(self) -> None:
+        """A scenario `set` of a parameter the target did not declare (a typo) is refused before the
+        first period, as a gains file's is: in the run it could only be refused, the run going on."""
+        declared = self.tuning.ids
+        for event in self.player.events:
+            unknown = [name for name, _ in event.params if name not in declared]
+            if unknown:
+                raise ConfigError(f"[[scenario]] at_s = {event.at_s:g}: set {unknown[0][:40]!r}: {self.target_label} "
+                                  f"declares no such parameter (it has {', '.join(sorted(declared)) or 'none'})")
+
     # ------------------------------------------------------------------ notes
     def message(self, text: str) -> None:
         self.messages.append(text)
@@ -423,6 +433,7 @@ class Session:
         if self.hello is None:
             self.handshake()
         assert self.hello is not None
+        self._refuse_unknown_set_names()
         summary = Summary(self.target_label, options.mode, options.period_us, firmware=self.hello.firmware_name,
                           predicted_duties=self.predicting)
         summary.recording = str(self.recorder.path) if self.recorder is not None else None

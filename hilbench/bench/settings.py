@@ -88,6 +88,8 @@ class ScenarioEntry:
             actions.append("end")
         if len(actions) != 1:
             return [("at_s", f"needs exactly one action of ref_rpm, pot, load_nm, vbus_v, press, fault, set, end (found {actions or 'none'})")]
+        if self.set is not None and not self.set:
+            return [("set", "names no parameter (e.g. set = { kp = 0.12 })")]
         if self.fault is not None and self.fault not in FAULT_KINDS:
             close = difflib.get_close_matches(self.fault, FAULT_KINDS, n=1)
             hint = f" (did you mean {close[0]!r}?)" if close else ""
@@ -167,7 +169,8 @@ SECTIONS = (
     .with_table("tuning", TuningSection)
     .with_table("run", RunSection)
     .with_table("link", LinkSection)
-    .with_table("target", None, chooser=_target_options_type, needs=("link",), explain=_target_owner)
+    .with_table("target", None, chooser=_target_options_type, needs=("link",), chosen_by=("link.target",),
+                explain=_target_owner)
     .with_table("scenario", ScenarioEntry, many=True)
     .with_table("check", CheckEntry, many=True)  # pass/fail criteria of a run (hilbench.bench.checks)
 )

@@ -28,9 +28,10 @@ import numpy as np
 
 from hilbench.bench.executors import Executor, open_executor, tasks_in_flight
 from hilbench.bench.metrics import METRIC_COLUMNS, StepMetrics
+from hilbench.bench.outputs import open_output
 from hilbench.bench.sampling import Axis, Point, zoom
 from hilbench.bench.steptest import StepResult, StepTest, require_speed_loop
-from hilbench.config import BenchConfig
+from hilbench.config import BenchConfig, clipped
 from hilbench.errors import ConfigError, ParamError, RecordingError
 from hilbench.targets.profile import TargetProfile
 
@@ -161,7 +162,7 @@ def parse_grid_spec(text: str, name: str = "grid") -> tuple[float, ...]:
             return values
     except (ValueError, OverflowError):
         pass
-    raise ConfigError(f"sweep {name} {text!r}: expected A:B:N (e.g. 0.05:0.5:10, N <= 10000) or a single number")
+    raise ConfigError(f"sweep {name} {clipped(repr(text), 60)}: expected A:B:N (e.g. 0.05:0.5:10, N <= 10000) or a single number")
 
 
 def parse_axis(text: str) -> tuple[str, tuple[float, ...]]:
@@ -312,12 +313,23 @@ def _store_row(path: Path, n: int, row: dict[str, Any], n_points: int) -> tuple[
         raise RecordingError(f"{where}: metrics must hold exactly {', '.join(_METRIC_FIELDS)}")
     for name, value in metrics.items():
         optional = "None" in str(_METRIC_FIELDS[name].type)
-        number = isinstance(value, (int, float)) and not isinstance(value, bool)
-        if not (number or (optional and value is None)):
+        if not (_a_float(value) or (optional and value is None)):
             raise RecordingError(f"{where}: metrics {name} is {str(value)[:20]}, not a number")
     if not isinstance(metrics["n_samples"], int):
         raise RecordingError(f"{where}: metrics n_samples must be a whole number")
     return index, StepMetrics(**metrics), stalled, cases
+
+
+def _a_float(value: Any) -> bool:
+    """An int or a float that a float holds (json reads 1e400 as inf, and 10**400 as an int that
+    overflows every figure computed from it)."""
+    if not isinstance(value, (int, float)) or isinstance(value, bool):
+        return False
+    try:
+        float(value)
+    except OverflowError:
+        return False
+    return True
 
 
 def _sweep_key(cfg: BenchConfig, test: StepTest, points: Sequence[Params], tolerances: Tolerances, metric: str) -> str:
@@ -517,7 +529,7 @@ def write_sweep_csv(path: str | Path, sweep: SweepResult) -> Path:
     """Every point, one row each, in order (skipped points with their constraint)."""
     out = Path(path)
     try:
-        with out.open("w", newline="") as fh:
+        with open_output(out) as fh:  # (not onto a recording a session writes)
             writer = csv.writer(fh)
             writer.writerow((*sweep.axes, "status", "constraint", "rank", "stalled", "settled", "cases",
                              *(k for k, _, _ in METRIC_COLUMNS)))

@@ -35,6 +35,10 @@ TX_BUFFER_BYTES = 4096  # what a write may queue before it waits (a Linux tty's 
 RX_AHEAD_BYTES = 65536
 
 
+#: how long a close waits for the queued bytes' wire time; what would arrive later is dropped
+CLOSE_FLUSH_S = 2.0
+
+
 class ThrottledTransport(Transport):
     """``inner`` held to ``baud`` bits/s of 8N1 wire time in each direction."""
 
@@ -149,8 +153,12 @@ class ThrottledTransport(Transport):
         return self.inner._hung_up(why)  # type: ignore[attr-defined]
 
     def close(self) -> None:
+        """What was written still reaches the far end (a Stop before the close), what is due within
+        CLOSE_FLUSH_S: at a few baud a queue of retries would hold the close for hours."""
+        deadline = self._clock() + CLOSE_FLUSH_S
         try:
-            self.flush()  # what was written still reaches the far end (a Stop before the close)
+            while self._tx and self._tx[0][0] <= deadline:
+                self._pump(self._tx[0][0] - self._clock())
         except Exception:  # noqa: BLE001 - a far end that hung up takes nothing more
             pass
         self.inner.close()

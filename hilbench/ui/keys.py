@@ -92,7 +92,7 @@ class CommandLine:
 
                 reply = ControlClient(self.socket_path, timeout_s=5.0).request({"cmd": "get"}, timeout_s=5.0)
                 try:
-                    write_fragment(request["file"], saved_fragment(reply["data"]), reader_wait_s=0.0)  # (the view waits)
+                    write_fragment(request["file"], saved_fragment(reply.get("data")), reader_wait_s=0.0)  # (the view waits)
                 except OSError as exc:
                     return f"> {line}: save {request['file']}: {exc.strerror or exc}"
                 return f"> {line}: saved"

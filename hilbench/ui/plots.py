@@ -183,10 +183,23 @@ def plot_recording_chunks(head: RecordingHead, source: ColumnChunks, out_dir: Pa
     for fig, name in _standard_figures(plt, v, source.names, head.units, _events(head.events), left_out):
         path = out_dir / f"{stem}_{name}.png"
         fig.tight_layout()
-        fig.savefig(path, dpi=110)
+        save_png(fig, path)
         plt.close(fig)
         written.append(path)
     return Plots(tuple(written), tuple(left_out))
+
+
+def save_png(fig, path: Path) -> None:  # type: ignore[no-untyped-def]
+    """The figure as a PNG at ``path``, drawn first and written in one piece (`open_output`: never
+    onto a running session's recording, even through a symlink; a FIFO takes it as a file does)."""
+    import io
+
+    from hilbench.bench.outputs import open_output
+
+    image = io.BytesIO()
+    fig.savefig(image, format="png", dpi=110)
+    with open_output(path, binary=True) as handle:
+        handle.write(image.getvalue())
 
 
 _SPEEDS = ("ref_speed_rpm", "speed_rpm", "measured_speed_rpm")
@@ -364,6 +377,6 @@ def _finish_overlay(plt, fig, ax, title: str, path: Path) -> Path:  # type: igno
     if ax.get_legend_handles_labels()[0]:  # (nothing to draw: no empty legend and its warning)
         ax.legend(loc="best")
     fig.tight_layout()
-    fig.savefig(path, dpi=110)  # (its folder: the caller's, checked before the work)
+    save_png(fig, path)  # (its folder: the caller's, checked before the work)
     plt.close(fig)
     return path
