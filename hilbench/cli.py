@@ -50,18 +50,22 @@ def _json_text(value: Any) -> str:
     return json.dumps(json_safe(value), indent=2, default=str, allow_nan=False)
 
 
-def _refuse_missing_folders(outputs: dict[str, str | None]) -> None:
-    """Each output file's folder exists, checked before the work: a step or sweep of minutes must
-    not fail at its end, nor make folders from a mistyped path."""
+def _refuse_unwritable_outputs(outputs: dict[str, str | None]) -> None:
+    """Each output file can be written, checked before the work (a step or sweep of minutes must not
+    fail at its end): a name, a folder that exists (none is made from a mistyped path), not a
+    running session's recording."""
     from pathlib import Path
 
-    from hilbench.errors import ConfigError
+    from hilbench.bench.fileio import HELD_REASON
+    from hilbench.bench.recorder import held_by_a_running_session
 
     for option, name in outputs.items():
         if name == "":
             raise ConfigError(f"{option}: an empty file name")
         if name is not None and not Path(name).absolute().parent.is_dir():
             raise ConfigError(f"{option} {name}: no folder {Path(name).absolute().parent} to write it in")
+        if name is not None and option != "--resume" and held_by_a_running_session(name):
+            raise ConfigError(f"{option} {name}: {HELD_REASON}")
 
 
 #: the longest error line printed whole: a message quoting a 100 kB word the user gave is cut
@@ -414,7 +418,6 @@ def run(config: str | None, target_spec: str | None, mode: str | None, duration_
 
     scope_server: Any = None
     if scope:  # `hilbench scope` on the run's control socket, as a child process
-        from hilbench.errors import ConfigError
         from hilbench.scope.launch import ScopeProcess
 
         if control is None:
@@ -483,7 +486,6 @@ def _run_monitor(cfg: Any, record: str | None, no_control: bool, plain: bool, as
 
     scope_server: Any = None
     if scope:  # the live scope on the run's control socket, as in a HIL run
-        from hilbench.errors import ConfigError
         from hilbench.scope.launch import ScopeProcess
 
         if control is None:
@@ -555,6 +557,9 @@ def report(recording: str, plot_dir: str | None, csv_file: str | None, as_json: 
     from hilbench.bench.recording_head import read_head
     from hilbench.bench.report import summarise_chunks
 
+    if plot_dir is None and (overlay or window is not None):  # (before anything is read or written)
+        raise ConfigError(f"report {'--overlay' if overlay else '--window'} chooses what --plot draws: "
+                          "give --plot DIR")
     source = recording_chunks(recording)  # read a chunk of rows at a time: memory bounded however long
     head = read_head(source)
     info = summarise_chunks(head, source)
@@ -577,11 +582,6 @@ def report(recording: str, plot_dir: str | None, csv_file: str | None, as_json: 
         info["plots"] = [str(p) for p in plots]
         if plots.left_out:  # what the recording's columns could not draw (a monitor run: no plant currents)
             info["plots_left_out"] = "; ".join(plots.left_out)
-    elif overlay or window is not None:
-        from hilbench.errors import ConfigError
-
-        raise ConfigError(f"report {'--overlay' if overlay else '--window'} chooses what --plot draws: "
-                          "give --plot DIR")
     if as_json:
         click.echo(_json_text(info))
         return
@@ -770,12 +770,15 @@ def step(config: str | None, from_rpm: float, to_rpm: float, gains: tuple[str, .
     from hilbench.bench.run import RunRequest, check_overrides, in_process, load_run_config, run_step_tests, settings_profile
     from hilbench.bench.steptest import StepTest, parse_gain_sets, require_speed_loop, result_row
 
-    _refuse_missing_folders({"--plot": plot_file, "--csv": csv_file, "--record": record})
+    _refuse_unwritable_outputs({"--plot": plot_file, "--csv": csv_file, "--record": record})
+    if plot_file and Path(plot_file).suffix:
+        from hilbench.ui.plots import PLOT_FORMATS
+
+        if Path(plot_file).suffix[1:].lower() not in PLOT_FORMATS:
+            raise ConfigError(f"--plot {plot_file}: a plot is written as {', '.join(PLOT_FORMATS)} (the file's suffix)")
     test = StepTest(from_rpm, to_rpm, settle_s, after_s)
     cfg = load_run_config(RunRequest(config, check_overrides(overrides), target_spec, mode))
     if mode == "monitor" and target_spec is None:
-        from hilbench.errors import ConfigError
-
         raise ConfigError("step --mode monitor needs --target: the board's port (e.g. serial:/dev/ttyUSB0?baud=250000)")
     if target_spec is None:
         cfg = in_process(cfg)
@@ -783,8 +786,6 @@ def step(config: str | None, from_rpm: float, to_rpm: float, gains: tuple[str, .
     require_speed_loop(profile, "step")
     sets = parse_gain_sets(gains, profile.tunable)
     if record is not None and (mode != "monitor" or len(sets) > 1):
-        from hilbench.errors import ConfigError
-
         raise ConfigError("step --record keeps the rows of one real step (--mode monitor, one gain set); "
                           + ("give one --gains" if mode == "monitor" else
                              "a lockstep step's rows: hilbench run --record with the same scenario"))
@@ -935,7 +936,7 @@ def sweep(config: str | None, axes: tuple[str, ...], sample: str, rounds: int, s
     from hilbench.bench.steptest import StepTest
     from hilbench.bench.sweep import refine, sweep_points, write_sweep_csv
 
-    _refuse_missing_folders({"--csv": csv_file, "--save": save_file, "--resume": store})
+    _refuse_unwritable_outputs({"--csv": csv_file, "--save": save_file, "--resume": store})
     cfg = load_run_config(RunRequest(config, check_overrides(overrides)))
     profile = settings_profile(cfg)
     box = _sweep_box(axes or tuple(f"{n}={g}" for n, g in profile.sweep_defaults))

@@ -260,7 +260,7 @@ class _Collector:
         dotted = f"{table}.{key}" if key else table
         src = self.override_keys.get(dotted) or self.table_sources.get(table.split("[")[0], self.source)
         where = f"[{clipped(table)}]" if table else ""
-        self.lines.append(f"{clipped(src, 80)} {where} {clipped(key)}: {reason}".replace("  ", " ").replace(" :", ":"))
+        self.lines.append(f"{src} {where} {clipped(key)}: {reason}".replace("  ", " ").replace(" :", ":"))
 
 
 def _suggest(name: str, known: Sequence[str]) -> str:
@@ -706,7 +706,7 @@ def _build_chosen(sec: _Section, data: Mapping[str, Any], built: dict[str, Any],
         cls = sec.chooser(built)
     except ConfigError as exc:  # the chooser names the table at fault; the message, where it was set
         origin = next((col.override_keys[key] for key in sec.chosen_by if key in col.override_keys), col.source)
-        col.lines.append(f"{clipped(origin, 80)}: {exc}")
+        col.lines.append(f"{origin}: {exc}")
         return
     if cls is None:
         if data.get(sec.name):

@@ -59,8 +59,9 @@ def test_report_window_without_plot_is_refused(tmp_path: Path) -> None:
     recording = tmp_path / "run.csv"
     assert CliRunner().invoke(cli, ["run", "--no-ui", "--no-control", "--duration", "0.01",
                                     "--record", str(recording)]).exit_code == 0
-    result = CliRunner().invoke(cli, ["report", str(recording), "--window", "0:0.005"])
+    result = CliRunner().invoke(cli, ["report", str(recording), "--window", "0:0.005", "--csv", str(tmp_path / "o.csv")])
     assert result.exit_code == 2 and "--window chooses what --plot draws: give --plot DIR" in result.output
+    assert not (tmp_path / "o.csv").exists()  # (refused before the export)
 
 
 @pytest.mark.parametrize("option", ["--plot", "--csv"])

@@ -47,9 +47,9 @@ def test_no_output_lands_on_a_running_npz_recording_by_any_of_its_names(name: st
     (tmp_path / "link.png").symlink_to(tmp_path / name)
     before = {p.name: p.read_bytes() for p in tmp_path.iterdir() if p.is_file() and not p.is_symlink()}
     for target in (tmp_path / name, tmp_path / "link.png"):
-        with pytest.raises(OSError, match="a running session records to it"):
+        with pytest.raises(OSError, match="another process is writing it"):
             write_fragment(target, "[target]\nkp = 0.1\n")
-        with pytest.raises(OSError, match="a running session records to it"), open_output(target, binary=True):
+        with pytest.raises(OSError, match="another process is writing it"), open_output(target, binary=True):
             pass
     assert before == {p.name: p.read_bytes() for p in tmp_path.iterdir() if p.is_file() and not p.is_symlink()}
     rec.close()
@@ -57,14 +57,15 @@ def test_no_output_lands_on_a_running_npz_recording_by_any_of_its_names(name: st
 
 
 def test_step_csv_onto_a_running_csv_recording_is_refused(tmp_path: Path) -> None:
-    """Repro: `step --csv live.csv` beside a run recording live.csv emptied it and exited 0."""
+    """Repro: `step --csv live.csv` beside a run recording live.csv emptied it and exited 0. Refused
+    before the steps run (their results would be lost at the end)."""
     live = tmp_path / "live.csv"
     rec = Recorder(live, {})
     rec.append(_row(0))
     rec.flush()
     kept = live.read_bytes()
     result = hilbench("step", "--settle", "0.05", "--after", "0.05", "--csv", str(live), cwd=tmp_path)
-    assert_one_line_error(result, 1, "live.csv", "a running session records to it")
+    assert_one_line_error(result, 2, "--csv", "live.csv", "another process is writing it")
     rec.close()
     assert live.read_bytes().startswith(kept)
 
@@ -180,3 +181,28 @@ def test_a_long_value_in_any_message_is_cut() -> None:
         result = hilbench(*args)
         assert result.returncode == 2 and len(result.stderr) < 1500, len(result.stderr)
         assert "characters left out" in result.stderr
+
+
+def test_a_recording_onto_a_running_npz_recordings_side_file_is_refused(tmp_path: Path) -> None:
+    """Review: `run --record run.npz.tmp.npz` beside a run recording run.npz would write its archive
+    over the first run's temporary one (a name no lock covered)."""
+    rec = _running_npz(tmp_path / "run.npz")
+    with pytest.raises(RecordingError, match=r"run\.npz\.tmp\.npz: cannot write \(another process is writing"):
+        Recorder(tmp_path / "run.npz.tmp.npz", {})
+    assert not (tmp_path / "run.npz.tmp.npz.journal").exists()
+    rec.close()
+
+
+def test_a_plot_takes_the_format_its_suffix_names(tmp_path: Path) -> None:
+    """Review: writing the figure through a buffer made `step --plot steps.pdf` a PNG named .pdf."""
+    pytest.importorskip("matplotlib")
+    from hilbench.ui.plots import _pyplot, save_png
+
+    plt = _pyplot()
+    for name, magic in (("a.pdf", b"%PDF"), ("a.png", b"\x89PNG"), ("a", b"\x89PNG"), ("a.svg", b"<?xml")):
+        fig, _ = plt.subplots()
+        save_png(fig, tmp_path / name)
+        plt.close(fig)
+        assert (tmp_path / name).read_bytes().startswith(magic), name
+    result = hilbench("step", "--plot", str(tmp_path / "x.gif"))
+    assert_one_line_error(result, 2, "--plot", "x.gif", "png, pdf, svg")

@@ -445,7 +445,7 @@ def test_a_save_onto_a_recording_being_written_is_refused(tmp_path: Path) -> Non
     rec.flush()
     with pytest.raises(OSError) as refused:
         write_fragment(path, "[target]\nkp = 0.1\n")
-    assert (refused.value.filename, refused.value.strerror) == (str(path), "a running session records to it")
+    assert (refused.value.filename, refused.value.strerror) == (str(path), "another process is writing it: a running session's recording?")
     rec.close()
     assert read_recording(path).n_rows == 1
     write_fragment(tmp_path / "gains.toml", "[target]\nkp = 0.1\n")
@@ -465,7 +465,7 @@ def test_a_save_onto_the_path_of_an_npz_recording_being_written_is_refused(tmp_p
     with pytest.raises(OSError) as refused:
         write_fragment(path, "[target]\nkp = 0.1\n")
     assert (refused.value.filename, refused.value.strerror) == (
-        str(path), "a running session records to it")
+        str(path), "another process is writing it: a running session's recording?")
     assert not path.exists()
     rec.close()
     assert read_recording(path).n_rows == 10

@@ -175,7 +175,7 @@ class Wire:
                          (TargetHello, ErrorReport))
         if mode != MODE_LOCKSTEP and type(reply) is ErrorReport and reply.code == ErrorCode.BAD_REQUEST:
             raise NotServed(f"HostHello mode {mode} refused (BAD_REQUEST, detail {reply.detail}): a build without it")
-        if type(reply) is ErrorReport and reply.code == ErrorCode.BAD_REQUEST:  # (lockstep: the period, ours)
+        if watchdog_ms == 0 and type(reply) is ErrorReport and reply.code == ErrorCode.BAD_REQUEST:  # (the period)
             raise ConfigError(f"conformance --period-us {self.period_us}: the target refuses that period (HostHello "
                               f"answered BAD_REQUEST, detail {reply.detail}); give a multiple of its PWM period")
         _require(isinstance(reply, TargetHello), f"HostHello answered {reply}")

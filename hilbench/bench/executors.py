@@ -91,7 +91,7 @@ def open_executor(spec: str | None, workers: int | None) -> Iterator[tuple[Execu
     if spec == "local-dask" or spec.startswith("local-dask:"):
         count = spec.partition(":")[2]
         try:
-            n = int(count) if count else max(1, workers or os.cpu_count() or 1)
+            n = int(count) if count else min(max(1, workers or os.cpu_count() or 1), MAX_LOCAL_WORKERS)
         except ValueError:
             n = 0
         if not 1 <= n <= MAX_LOCAL_WORKERS:  # (0 workers: a cluster that never runs a task)

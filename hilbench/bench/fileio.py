@@ -109,19 +109,33 @@ def _names(path: Path | str, fd: int) -> bool:
     return file_identity(path) == (held.st_dev, held.st_ino)
 
 
+#: why a held file is refused (its strerror)
+HELD_REASON = "another process is writing it: a running session's recording?"
+#: how long `_hold` tries again while a lock is taken: `held_elsewhere`'s probe holds one for a moment
+HOLD_RETRY_S = 0.05
+
+
 def _hold(fd: int, path: Path | str) -> None:
-    """An exclusive flock on ``fd``, or the OSError saying another process holds one. A filesystem
-    without locks (an NFS mount with no lock daemon: ENOLCK) writes unheld, as before there were any."""
-    try:
-        fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
-    except BlockingIOError:
-        raise OSError(errno.EBUSY, "another process is writing it: a running session's recording?", str(path)) from None
-    except OSError:
-        pass
+    """An exclusive flock on ``fd``, or the OSError saying another holder has one (a probe's shared
+    lock of a moment is waited out, HOLD_RETRY_S). A filesystem without locks (an NFS mount with no
+    lock daemon: ENOLCK) writes unheld, as before there were any."""
+    deadline = time.monotonic() + HOLD_RETRY_S
+    while True:
+        try:
+            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+            return
+        except BlockingIOError:
+            if time.monotonic() >= deadline:
+                raise OSError(errno.EBUSY, HELD_REASON, str(path)) from None
+            time.sleep(0.002)
+        except OSError:
+            return
 
 
-def held_by_another(path: Path | str) -> bool:
-    """Whether another process holds ``path`` as `open_held` does (a running session's journal);
+def held_elsewhere(path: Path | str) -> bool:
+    """Whether ``path`` is held as `open_held` holds it (a running session's journal) by any other
+    open of it, in this process too (flock locks an open file, not a process: the session's own
+    `ctl save` sees its recording held);
     False when there is no such file, it is not a regular file or it cannot be read."""
     try:
         if not stat.S_ISREG(os.stat(path).st_mode):  # (not even opened: a FIFO's writer would take us for its reader)
@@ -149,4 +163,4 @@ def _is_fifo(path: Path | str) -> bool:
         return False
 
 
-__all__ = ["file_identity", "held_by_another", "interrupts_held", "open_held", "pwrite_all"]
+__all__ = ["HELD_REASON", "file_identity", "held_elsewhere", "interrupts_held", "open_held", "pwrite_all"]

@@ -9,7 +9,7 @@ import errno
 from pathlib import Path
 from typing import IO, Iterator
 
-from hilbench.bench.fileio import open_held
+from hilbench.bench.fileio import HELD_REASON, open_held
 from hilbench.bench.recorder import held_by_a_running_session
 
 
@@ -19,7 +19,7 @@ def open_output(path: Path | str, *, binary: bool = False, reader_wait_s: float 
     waited for ``reader_wait_s``), refused first when it is a running session's recording file.
     An OSError raised by the block's writes (a full disk) gets the file's name."""
     if held_by_a_running_session(path):
-        raise OSError(errno.EBUSY, "a running session records to it", str(path))
+        raise OSError(errno.EBUSY, HELD_REASON, str(path))
     try:
         with open_held(path, binary=binary, reader_wait_s=reader_wait_s) as handle:
             yield handle

@@ -53,7 +53,7 @@ from typing import Any, Iterator, NoReturn, Sequence
 
 import numpy as np
 
-from hilbench.bench.fileio import held_by_another, interrupts_held, open_held, pwrite_all
+from hilbench.bench.fileio import HELD_REASON, held_elsewhere, interrupts_held, open_held, pwrite_all
 from hilbench.errors import RecordingError
 
 try:  # CSV rows in C from raw rows, on a thread (optional; `Recorder._format_csv` is the reference)
@@ -398,6 +398,8 @@ class Recorder:
             raise RecordingError(f"recording {self.path}: unknown format {suffix!r} (use .csv or .npz)")
         self.is_npz = suffix == ".npz"
         try:  # open now, so an unwritable path (or one another session records to) fails before the run starts
+            if held_by_a_running_session(self.path):  # (by any of its names: an NPZ's events, its final name)
+                raise OSError(errno.EBUSY, HELD_REASON)
             if self.is_npz:
                 self._file = open_held(self._journal_path(), binary=True, read_too=True)  # `_mark_journal_row` reads
                 try:
@@ -1222,7 +1224,7 @@ def held_by_a_running_session(path: Path | str) -> bool:
         names.append(real.with_name(real.name[:-len(".events")]))
     if real.name.endswith(".tmp.npz"):
         names.append(journal_path_of(real.with_name(real.name[:-len(".tmp.npz")])))
-    return any(held_by_another(name) for name in names)
+    return any(held_elsewhere(name) for name in names)
 
 
 def _tmp_archive_path_of(path: Path) -> Path:

@@ -321,8 +321,8 @@ def _store_row(path: Path, n: int, row: dict[str, Any], n_points: int) -> tuple[
 
 
 def _a_float(value: Any) -> bool:
-    """An int or a float that a float holds (json reads 1e400 as inf, and 10**400 as an int that
-    overflows every figure computed from it)."""
+    """An int or a float that a float holds: not an int of 400 digits, which overflows every figure
+    made from it (inf and NaN are taken, as before: a metric may be inf)."""
     if not isinstance(value, (int, float)) or isinstance(value, bool):
         return False
     try:

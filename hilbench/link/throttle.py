@@ -153,8 +153,9 @@ class ThrottledTransport(Transport):
         return self.inner._hung_up(why)  # type: ignore[attr-defined]
 
     def close(self) -> None:
-        """What was written still reaches the far end (a Stop before the close), what is due within
-        CLOSE_FLUSH_S: at a few baud a queue of retries would hold the close for hours."""
+        """What was written still reaches the far end (a Stop before the close) when its wire time
+        comes within CLOSE_FLUSH_S; later bytes, that Stop too, are dropped: at a few baud a queue
+        of retries would hold the close for hours."""
         deadline = self._clock() + CLOSE_FLUSH_S
         try:
             while self._tx and self._tx[0][0] <= deadline:

@@ -92,7 +92,10 @@ class CommandLine:
 
                 reply = ControlClient(self.socket_path, timeout_s=5.0).request({"cmd": "get"}, timeout_s=5.0)
                 try:
-                    write_fragment(request["file"], saved_fragment(reply.get("data")), reader_wait_s=0.0)  # (the view waits)
+                    if not reply.get("ok"):
+                        return f"> {line}: {reply.get('message', 'refused')}"
+                    write_fragment(request["file"], saved_fragment(reply.get("data")),  # (never waiting
+                                   reader_wait_s=0.0)  # for a FIFO's reader: the view would stop)
                 except OSError as exc:
                     return f"> {line}: save {request['file']}: {exc.strerror or exc}"
                 return f"> {line}: saved"

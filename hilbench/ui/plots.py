@@ -189,15 +189,21 @@ def plot_recording_chunks(head: RecordingHead, source: ColumnChunks, out_dir: Pa
     return Plots(tuple(written), tuple(left_out))
 
 
+#: the formats a plot file's suffix may ask for (none: PNG)
+PLOT_FORMATS = ("png", "pdf", "svg")
+
+
 def save_png(fig, path: Path) -> None:  # type: ignore[no-untyped-def]
-    """The figure as a PNG at ``path``, drawn first and written in one piece (`open_output`: never
-    onto a running session's recording, even through a symlink; a FIFO takes it as a file does)."""
+    """The figure at ``path`` in the format its suffix names (PLOT_FORMATS; PNG without one), drawn
+    first and written in one piece (`open_output`: never onto a running session's recording, even
+    through a symlink; a FIFO takes it as a file does)."""
     import io
 
     from hilbench.bench.outputs import open_output
 
     image = io.BytesIO()
-    fig.savefig(image, format="png", dpi=110)
+    suffix = path.suffix[1:].lower()
+    fig.savefig(image, format=suffix if suffix in PLOT_FORMATS else "png", dpi=110)
     with open_output(path, binary=True) as handle:
         handle.write(image.getvalue())
 
