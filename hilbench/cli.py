@@ -217,13 +217,15 @@ def emulate(target: str | None, port_spec: str, mode: str, watchdog_ms: int | No
     from hilbench.config import clipped, parse_value
 
     values: dict[str, object] = {}
+    texts: dict[str, str] = {}
     for word in options:
         key, sep, text = word.partition("=")
         if not sep:
             raise ConfigError(f"--option {clipped(repr(word), 80)}: expected KEY=VALUE, e.g. variant=v11")
-        values[key.strip()] = parse_value(text)
+        values[key.strip()], texts[key.strip()] = parse_value(text), text
     target = target or _default_target_name()
     _check_option_names(target, values)
+    _check_option_values(target, texts)
     report = serve_on_port(target, port_spec, _MODES[mode], values, watchdog_ms=watchdog_ms, announce=announce,
                            keep_serving=not once)
     logging.getLogger("hilbench.serve").info(
@@ -242,6 +244,18 @@ def _check_option_names(target: str, values: dict[str, object]) -> None:
         from hilbench.config import clipped
 
         raise ConfigError(f"--option {clipped(', '.join(unknown), 80)}: not an option of target {target!r} ({offer})")
+
+
+def _check_option_values(target: str, texts: dict[str, str]) -> None:
+    """The -o values checked as a config's [target] table is (types, ranges): the emulator would
+    take `kp=abc` as it came, and serve without it."""
+    import json
+
+    from hilbench.bench.settings import load_config
+    from hilbench.config import Override
+
+    load_config(None, [Override(f"link.target={json.dumps('inprocess:' + target)}", f"target {target!r}"),
+                       *(Override(f"target.{key}={text}", f"-o {key}") for key, text in texts.items())])
 
 
 @cli.command("link-test")

@@ -199,3 +199,13 @@ def test_conformance_refuses_an_only_that_names_no_check(json_flag: tuple[str, .
 def test_emulate_refuses_an_unknown_option_name(target: tuple[str, ...], words: tuple[str, ...]) -> None:
     """Repro: `emulate -o zz=1 --once` dropped the unknown name and served (a bad value was refused)."""
     assert_one_line_error(hilbench("emulate", *target, "-o", "zz=1", "--once", timeout_s=30), 2, *words)
+
+
+@pytest.mark.parametrize("word, reason", [
+    ("kp=abc", "expected a number, got str 'abc'"),
+    ("kp=nan", "expected a finite number, got nan"),
+    ("kp=5", "5.0 is out of range"),
+])
+def test_emulate_checks_an_option_value_as_the_config_does(word: str, reason: str) -> None:
+    """Repro (second audit): `emulate -o kp=abc` (nan, 5) served with the value taken as it came."""
+    assert_one_line_error(hilbench("emulate", "-o", word, "--once", timeout_s=30), 2, "-o kp [target] kp:", reason)
