@@ -1050,9 +1050,12 @@ def _parse_tolerances(text: str | None) -> "Tolerances":
         try:
             if not sep or name.strip() not in ("rs", "l", "psi", "j"):
                 raise ValueError
+            if name.strip() in values:
+                raise ConfigError(f"sweep --tolerance: {name.strip()} given twice")
             values[name.strip()] = float(value)
         except ValueError:
-            raise ConfigError(f"sweep --tolerance {text!r}: expected rs=F,l=F,psi=F,j=F (fractions, e.g. rs=0.1)") from None
+            raise ConfigError(f"sweep --tolerance {text[:60]!r}: expected rs=F,l=F,psi=F,j=F (fractions, e.g. "
+                              "rs=0.1)") from None
     return Tolerances(**values)
 
 

@@ -139,3 +139,23 @@ def test_a_scenario_set_the_target_refuses_is_a_warning_and_an_event(tmp_path: P
     events = read_recording(tmp_path / "r.csv").events
     assert any("refused set kp=0.5" in e for e in events) and not any(" set kp=0.5" in e and "refused" not in e
                                                                        for e in events)
+
+
+def test_a_gain_or_tolerance_given_twice_is_refused() -> None:
+    """Repro (second audit): `step --gains kp=0.1,kp=0.2` and `sweep --tolerance rs=0.1,rs=0.2` took
+    the last value; `ctl set` refuses the same."""
+    from hilbench.bench.steptest import parse_gain_sets
+
+    with pytest.raises(ConfigError, match="kp given twice"):
+        parse_gain_sets(["kp=0.1,kp=0.2"], ("kp", "ki", "kd"))
+    result = CliRunner().invoke(cli, ["sweep", "--tolerance", "rs=0.1,rs=0.2"])
+    assert result.exit_code == 2 and "rs given twice" in result.output
+
+
+def test_a_window_that_is_not_finite_says_so() -> None:
+    """Repro (second audit): `--window nan:1` said "T1 must be after T0"."""
+    from hilbench.ui.plots import parse_window
+
+    for text in ("nan:1", "0:inf"):
+        with pytest.raises(ConfigError, match="must be finite numbers of seconds"):
+            parse_window(text)

@@ -16,6 +16,7 @@ import numpy as np
 from hilbench.bench.metrics import StepMetrics, step_metrics
 from hilbench.bench.recorder import MemoryRecorder
 from hilbench.bench.scenario import Event
+from hilbench.config import clipped
 from hilbench.errors import ConfigError
 from hilbench.protocol import State
 from hilbench.targets.profile import TargetProfile
@@ -162,13 +163,18 @@ def parse_gain_sets(words: Sequence[str], names: Sequence[str]) -> list[dict[str
         parts = [p.strip() for p in word.split(",")]
         try:
             if all("=" in p for p in parts):
-                sets.append({k.strip(): float(v) for k, v in (p.split("=", 1) for p in parts)})
+                pairs = [(k.strip(), float(v)) for k, v in (p.split("=", 1) for p in parts)]
+                named = dict(pairs)
+                if len(named) < len(pairs):  # (kp=0.1,kp=0.2: which one was meant?)
+                    twice = next(k for k, _ in pairs if sum(1 for n, _ in pairs if n == k) > 1)
+                    raise ConfigError(f"--gains {clipped(repr(word), 60)}: {twice[:40]} given twice")
+                sets.append(named)
                 continue
             values = [float(p) for p in parts]
         except ValueError:
-            raise ConfigError(f"--gains {word!r}: not numbers (e.g. 0.1,0.01,0 or kp=0.1,ki=0.01)") from None
+            raise ConfigError(f"--gains {clipped(repr(word), 60)}: not numbers (e.g. 0.1,0.01,0 or kp=0.1,ki=0.01)") from None
         if not 1 <= len(values) <= len(names):
-            raise ConfigError(f"--gains {word!r}: expected up to {len(names)} comma-separated values ({','.join(names)})")
+            raise ConfigError(f"--gains {clipped(repr(word), 60)}: expected up to {len(names)} comma-separated values ({','.join(names)})")
         sets.append(dict(zip(names, values)))
     return sets
 

@@ -7,6 +7,7 @@ did the link keep time.
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Iterator, Sequence
@@ -68,12 +69,15 @@ def parse_window(text: str | None) -> tuple[float, float] | None:
     """`--window T0:T1` (simulated seconds) as (t0, t1)."""
     if text is None:
         return None
+    shown = repr(text) if len(text) <= 60 else repr(text[:57] + "...")
     try:
         t0, t1 = (float(x) for x in text.split(":"))
     except ValueError:
-        raise ConfigError(f"--window {text!r}: expected T0:T1 in seconds, e.g. 1.0:1.05") from None
+        raise ConfigError(f"--window {shown}: expected T0:T1 in seconds, e.g. 1.0:1.05") from None
+    if not (math.isfinite(t0) and math.isfinite(t1)):
+        raise ConfigError(f"--window {shown}: T0 and T1 must be finite numbers of seconds")
     if not t1 > t0:
-        raise ConfigError(f"--window {text!r}: T1 must be after T0")
+        raise ConfigError(f"--window {shown}: T1 must be after T0")
     return t0, t1
 
 
