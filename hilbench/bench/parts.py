@@ -478,7 +478,7 @@ class BusPart:
             supply = self.scenario.supply_v
             plant.vbus_v = charged if charged > supply else supply
         if 0.0 < options.overvoltage_v < plant.vbus_v:
-            session.end_on_limit(k, f"over-voltage: the bus is at {plant.vbus_v:.1f} V, beyond the "
+            session.end_on_limit(k, f"over-voltage: the bus is at {plant.vbus_v:.5g} V, beyond the "
                                     f"{options.overvoltage_v:g} V limit ([protection] overvoltage_v)")
 
 
