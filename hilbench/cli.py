@@ -1041,6 +1041,7 @@ def _show_sweep(result: Any, top: int, as_json: bool, wall_s: float, worst_case:
 def _parse_tolerances(text: str | None) -> "Tolerances":
     """`rs=0.1,l=0.1,psi=0.05,j=0.2` → Tolerances."""
     from hilbench.bench.sweep import Tolerances
+    from hilbench.config import clipped
 
     if not text:
         return Tolerances()
@@ -1054,8 +1055,8 @@ def _parse_tolerances(text: str | None) -> "Tolerances":
                 raise ConfigError(f"sweep --tolerance: {name.strip()} given twice")
             values[name.strip()] = float(value)
         except ValueError:
-            raise ConfigError(f"sweep --tolerance {text[:60]!r}: expected rs=F,l=F,psi=F,j=F (fractions, e.g. "
-                              "rs=0.1)") from None
+            raise ConfigError(f"sweep --tolerance {clipped(repr(text), 60)}: expected rs=F,l=F,psi=F,j=F (fractions, "
+                              "e.g. rs=0.1)") from None
     return Tolerances(**values)
 
 

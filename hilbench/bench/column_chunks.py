@@ -23,8 +23,8 @@ from typing import IO, Iterator, Mapping, Sequence
 import numpy as np
 
 from hilbench.bench import recording_checks as rules
-from hilbench.bench.recorder import (COLUMNS, _npz_members, _read_journal_rows, csv_blocks, npy_header, npz_metadata,
-                                     recording_path, unreadable)
+from hilbench.bench.recorder import (COLUMNS, JOURNAL_SUFFIX, _npz_members, _read_journal_rows, csv_blocks, npy_header,
+                                     npz_metadata, recording_path, unreadable)
 from hilbench.errors import RecordingError
 
 #: rows per chunk: 0.5 MB a float64 column
@@ -232,7 +232,7 @@ def recording_chunks(path: str | Path) -> ColumnChunks:
     chunks; RecordingError, as `read_recording` says it, for a file that is not one."""
     path = recording_path(path)
     try:
-        if path.name.endswith(".journal"):
+        if path.name.endswith(JOURNAL_SUFFIX):
             return JournalChunks(path)
         if path.suffix.lower() == ".npz":
             return NpzChunks(path)

@@ -9,7 +9,8 @@ import numpy as np
 
 from hilbench.bench.column_chunks import ColumnChunks
 from hilbench.bench.fileio import file_identity
-from hilbench.bench.recorder import COLUMNS, Recorder, _events_path, _tmp_archive_path_of, float_layout, journal_path_of
+from hilbench.bench.recorder import (COLUMNS, JOURNAL_SUFFIX, Recorder, _events_path, _tmp_archive_path_of, float_layout,
+                                     journal_path_of)
 from hilbench.bench.recording_head import RecordingHead
 from hilbench.errors import RecordingError
 
@@ -49,7 +50,7 @@ def refuse_overwriting_source(source: ColumnChunks, path: Path) -> None:
     if source.where == ColumnChunks.where:  # rows in memory: no file to protect
         return
     read = Path(source.where)
-    read_files = [read, _events_path(read)] if read.name.endswith(".journal") else [read]
+    read_files = [read, _events_path(read)] if read.name.endswith(JOURNAL_SUFFIX) else [read]
     written = [path]
     if path.suffix.lower() == ".npz":  # an NPZ export writes its journal, then a temporary archive
         journal = journal_path_of(path)

@@ -41,7 +41,8 @@ def check_run(cfg: BenchConfig, events: tuple = ()) -> list[str]:
 
     warnings: list[str] = []
     period_us = cfg.link.period_us
-    refs = [abs(e.ref_rpm) for e in (events or settings.scenario_events(cfg)) if getattr(e, "ref_rpm", None) is not None]
+    events = events or settings.scenario_events(cfg)
+    refs = [abs(e.ref_rpm) for e in events if getattr(e, "ref_rpm", None) is not None]
     edges_per_period = 1
     if refs:
         from hilbench.protocol import MAX_EDGES
@@ -56,7 +57,7 @@ def check_run(cfg: BenchConfig, events: tuple = ()) -> list[str]:
                 f"at {max_rpm:g} rpm a period of {period_us} us holds up to {edges_per_period} hall edges, more "
                 f"than the {MAX_EDGES} a Sensors carries (a firmware may take fewer: its TargetInfo.max_edges); "
                 f"the run stops if a period has more; use link.period_us <= {most_us}")
-    held = _held_frames_warning(cfg, events or settings.scenario_events(cfg))
+    held = _held_frames_warning(cfg, events)
     if held:
         warnings.append(held)
     if cfg.run.mode == "realtime":

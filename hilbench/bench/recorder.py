@@ -1027,7 +1027,7 @@ def read_recording(path: str | Path) -> RecordingData:
     checked (hilbench.bench.recording_checks): a damaged file is one RecordingError line."""
     path = recording_path(path)
     try:
-        if path.name.endswith(".journal"):
+        if path.name.endswith(JOURNAL_SUFFIX):
             data = _read_journal(path)
         elif path.suffix.lower() == ".npz":
             data = _read_npz(path)
@@ -1207,9 +1207,14 @@ def _read_journal_rows(path: Path, head_only: bool = False) -> tuple[dict[str, A
     return head.get("metadata"), layout, rows
 
 
+#: the names of an NPZ recording's files while its run goes on: its journal, the journal's events
+#: side file, and the archive before it takes the recording's name (each the recording's name + these)
+JOURNAL_SUFFIX, EVENTS_SUFFIX, TMP_ARCHIVE_SUFFIX = ".journal", ".events", ".tmp.npz"
+
+
 def journal_path_of(path: Path) -> Path:
     """The journal an NPZ recording's rows go to while its run goes on (kept when it is killed)."""
-    return path.with_name(path.name + ".journal")
+    return path.with_name(path.name + JOURNAL_SUFFIX)
 
 
 def held_by_a_running_session(path: Path | str) -> bool:
@@ -1220,21 +1225,21 @@ def held_by_a_running_session(path: Path | str) -> bool:
     if not real.name:  # ("/": nothing a recording is named)
         return False
     names = [real, journal_path_of(real)]
-    if real.name.endswith(".journal.events"):
-        names.append(real.with_name(real.name[:-len(".events")]))
-    if real.name.endswith(".tmp.npz"):
-        names.append(journal_path_of(real.with_name(real.name[:-len(".tmp.npz")])))
+    if real.name.endswith(JOURNAL_SUFFIX + EVENTS_SUFFIX):  # (an events side file: its journal's)
+        names.append(real.with_name(real.name[:-len(EVENTS_SUFFIX)]))
+    if real.name.endswith(TMP_ARCHIVE_SUFFIX):  # (a temporary archive: its recording's journal)
+        names.append(journal_path_of(real.with_name(real.name[:-len(TMP_ARCHIVE_SUFFIX)])))
     return any(held_elsewhere(name) for name in names)
 
 
 def _tmp_archive_path_of(path: Path) -> Path:
     """Where an NPZ recording's archive is written before it takes the recording's name."""
-    return path.with_name(path.name + ".tmp.npz")
+    return path.with_name(path.name + TMP_ARCHIVE_SUFFIX)
 
 
 def _events_path(journal: Path) -> Path:
     """The side file where an NPZ run's events wait, a line each, until the archive is written."""
-    return journal.with_name(journal.name + ".events")
+    return journal.with_name(journal.name + EVENTS_SUFFIX)
 
 
 def _read_journal(path: Path) -> RecordingData:

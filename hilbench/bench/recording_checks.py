@@ -20,12 +20,8 @@ from hilbench.errors import RecordingError
 from hilbench.limits import RECORDING_MAX_BYTES, RECORDING_MAX_COLUMNS, is_finite_number, size_text
 
 
-def _is_number(value: Any) -> bool:
-    return is_finite_number(value)
-
-
 def _positive_number(value: Any) -> bool:
-    return _is_number(value) and value > 0
+    return is_finite_number(value) and value > 0
 
 
 def _positive_int(value: Any) -> bool:

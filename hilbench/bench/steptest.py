@@ -164,10 +164,11 @@ def parse_gain_sets(words: Sequence[str], names: Sequence[str]) -> list[dict[str
         try:
             if all("=" in p for p in parts):
                 pairs = [(k.strip(), float(v)) for k, v in (p.split("=", 1) for p in parts)]
-                named = dict(pairs)
-                if len(named) < len(pairs):  # (kp=0.1,kp=0.2: which one was meant?)
-                    twice = next(k for k, _ in pairs if sum(1 for n, _ in pairs if n == k) > 1)
-                    raise ConfigError(f"--gains {clipped(repr(word), 60)}: {twice[:40]} given twice")
+                named: dict[str, float] = {}
+                for name, value in pairs:
+                    if name in named:  # (kp=0.1,kp=0.2: which one was meant?)
+                        raise ConfigError(f"--gains {clipped(repr(word), 60)}: {name[:40]} given twice")
+                    named[name] = value
                 sets.append(named)
                 continue
             values = [float(p) for p in parts]

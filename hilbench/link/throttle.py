@@ -21,6 +21,7 @@ conservative wire, never a faster one).
 
 from __future__ import annotations
 
+import math
 from collections import deque
 from time import monotonic
 from typing import Callable
@@ -138,9 +139,11 @@ class ThrottledTransport(Transport):
         while self._tx_queued > TX_BUFFER_BYTES:
             self._pump(self._tx[0][0] - self._clock())
 
-    def flush(self) -> None:
-        """Wait until every queued byte has reached the far end."""
-        while self._tx:
+    def flush(self, within_s: float = math.inf) -> None:
+        """Wait until every queued byte whose wire time comes within ``within_s`` has reached the
+        far end (by default every queued byte)."""
+        deadline = self._clock() + within_s
+        while self._tx and self._tx[0][0] <= deadline:
             self._pump(self._tx[0][0] - self._clock())
 
     def fileno(self) -> int | None:
@@ -156,10 +159,8 @@ class ThrottledTransport(Transport):
         """What was written still reaches the far end (a Stop before the close) when its wire time
         comes within CLOSE_FLUSH_S; later bytes, that Stop too, are dropped: at a few baud a queue
         of retries would hold the close for hours."""
-        deadline = self._clock() + CLOSE_FLUSH_S
         try:
-            while self._tx and self._tx[0][0] <= deadline:
-                self._pump(self._tx[0][0] - self._clock())
+            self.flush(CLOSE_FLUSH_S)
         except Exception:  # noqa: BLE001 - a far end that hung up takes nothing more
             pass
         self.inner.close()

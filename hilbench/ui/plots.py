@@ -17,6 +17,7 @@ import numpy as np
 from hilbench.bench.column_chunks import ArrayChunks, ColumnChunks
 from hilbench.bench.recorder import RecordingData
 from hilbench.bench.recording_head import RecordingHead
+from hilbench.config import clipped
 from hilbench.errors import ConfigError, HilbenchError
 from hilbench.ui.plot_data import MAX_POINTS, Rate, RecordingView, Trace, view, whole_trace
 
@@ -69,7 +70,7 @@ def parse_window(text: str | None) -> tuple[float, float] | None:
     """`--window T0:T1` (simulated seconds) as (t0, t1)."""
     if text is None:
         return None
-    shown = repr(text) if len(text) <= 60 else repr(text[:57] + "...")
+    shown = clipped(repr(text), 60)
     try:
         t0, t1 = (float(x) for x in text.split(":"))
     except ValueError:
