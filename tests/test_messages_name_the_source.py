@@ -117,9 +117,11 @@ def test_a_scenario_set_the_target_does_not_declare_is_refused_before_the_run(tm
 
     scenario = tmp_path / "s.toml"
     scenario.write_text("[[scenario]]\nat_s = 0.0\nref_rpm = 1500.0\n[[scenario]]\nat_s = 0.01\nset = { zz = 1 }\n")
+    record = tmp_path / "run.csv"
     cfg = load_run_config(RunRequest(scenario=str(scenario), target="inprocess:an1017", duration_s=0.02))
     with pytest.raises(ConfigError, match=r"at_s = 0.01: set 'zz': inprocess:an1017 declares no such parameter"):
-        run_bench(cfg)
+        run_bench(cfg, record=record)
+    assert not record.exists()  # refused at the handshake: no recording with its header only
     scenario.write_text("[[scenario]]\nat_s = 0.0\nset = {}\n")
     with pytest.raises(ConfigError, match=r"set: names no parameter"):
         load_run_config(RunRequest(scenario=str(scenario)))

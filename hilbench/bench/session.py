@@ -238,6 +238,7 @@ class Session:
             column = self.profile.telemetry_column(tid)
             self.telemetry_index[column.column] = (index, column.scale)
         self.faults.spec = SensorSpec(adc_full_scale=(1 << hello.adc_bits) - 1)
+        self._refuse_unknown_set_names()  # here, before the bench opens a recording for a run that cannot be
         return hello
 
     def _hello_predicting(self, host: HostHello) -> TargetHello | None:
@@ -378,8 +379,9 @@ class Session:
         return self.display
 
     def _refuse_unknown_set_names(self) -> None:
-        """A scenario `set` of a parameter the target did not declare (a typo) is refused before the
-        first period, as a gains file's is: in the run it could only be refused, the run going on."""
+        """A scenario `set` of a parameter the target did not declare (a typo) is refused at the
+        handshake, as a gains file's is: in the run it could only be refused, the run going on; and
+        before the recording opens, which would be left with its header only."""
         declared = self.tuning.ids
         for event in self.player.events:
             unknown = [name for name, _ in event.params if name not in declared]
@@ -433,7 +435,6 @@ class Session:
         if self.hello is None:
             self.handshake()
         assert self.hello is not None
-        self._refuse_unknown_set_names()
         summary = Summary(self.target_label, options.mode, options.period_us, firmware=self.hello.firmware_name,
                           predicted_duties=self.predicting)
         summary.recording = str(self.recorder.path) if self.recorder is not None else None
