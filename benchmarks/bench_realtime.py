@@ -54,6 +54,23 @@ ref_rpm = -1000.0
 """
 
 
+def steal_ms() -> float | None:
+    """The VM's steal time so far, all CPUs (ms; /proc/stat's 8th cpu field, in USER_HZ = 100 ticks
+    a second): time the hypervisor gave this VM's vCPUs to others. A run's overruns follow it, so it is
+    printed beside them; None where there is no such file (not Linux)."""
+    try:
+        with open("/proc/stat", encoding="ascii") as stat:
+            fields = stat.readline().split()
+        return float(fields[8]) * 10.0
+    except (OSError, IndexError, ValueError):
+        return None
+
+
+def steal_over(before: float | None) -> str:
+    after = steal_ms()
+    return "not known" if before is None or after is None else f"{after - before:.0f} ms"
+
+
 def paced_raw_echo(seconds: float, period_us: int, qos: bool, pin: bool,
                    fifo: str) -> tuple[float, float, int, int, str]:
     """The baseline: the same pacing with a raw two-process pty echo of the same frame sizes, and
@@ -142,9 +159,13 @@ def main() -> None:
     half = args.seconds / 2
     fifo = "never" if args.no_fifo else "always" if args.fifo_always else "contended"
     baseline = (args.period_us, not args.no_qos, not args.no_pin, fifo)
+    stolen = steal_ms()
     before = paced_raw_echo(half, *baseline)  # the baseline on both sides of the run
+    before_steal, stolen = steal_over(stolen), steal_ms()
     summary = run_bench(cfg)
+    bench_steal, stolen = steal_over(stolen), steal_ms()
     after = paced_raw_echo(half, *baseline)
+    after_steal = steal_over(stolen)
     lat, rtt = summary.lateness_us, summary.rtt_us
     print(f"real time, {args.period_us} us periods, {summary.periods} periods "
           f"({summary.sim_s:.1f} s) against {summary.target}")
@@ -155,14 +176,16 @@ def main() -> None:
           f"{summary.skipped_periods} of them skipped after host stalls")
     print(f"  CPU wake-up latency request: {summary.cpu_latency}; CPUs: {summary.cpus or 'not pinned'}")
     print(f"  link: {summary.link}")
+    print(f"  VM steal time over the bench (all vCPUs): {bench_steal}")
     base_over = before[2] + after[2]
     base_n = before[3] + after[3]
     base_share = base_over / base_n
     print(f"baseline in the same run: raw two-process pty echo, same pacing and skip policy, "
           f"{args.seconds / 2:g} s before and {args.seconds / 2:g} s after the bench")
-    for name, (b_late, b_rtt, b_over, b_n, b_sched) in (("before", before), ("after", after)):
+    for name, (b_late, b_rtt, b_over, b_n, b_sched), b_steal in (("before", before, before_steal),
+                                                                 ("after", after, after_steal)):
         print(f"  {name:6s} lateness p99 {b_late:8.1f} us   round trip p99 {b_rtt:8.1f} us   "
-              f"overruns {b_over} of {b_n} = {b_over / b_n:.3%}   ({b_sched})")
+              f"overruns {b_over} of {b_n} = {b_over / b_n:.3%}   ({b_sched}; VM steal {b_steal})")
     if base_over:
         print(f"  bench overruns / baseline overruns: {share / base_share:.2f}x")
 

@@ -33,3 +33,9 @@ def test_bench_link_builds_the_c_loopback_and_compares() -> None:
     require_tool("gcc", "the C loopback target (apt: gcc)")
     out = _run("bench_link.py", "--repeats", "1", "--periods", "200", "--no-tcp")
     assert "<-> C loopback" in out and out.splitlines()[-1].startswith("ratio framed py / raw"), out[-500:]
+
+
+def test_bench_realtime_prints_the_bench_its_baseline_and_the_vm_steal() -> None:
+    out = _run("bench_realtime.py", "--seconds", "1")
+    assert "against emulator:an1017" in out and "VM steal time over the bench" in out, out[-800:]
+    assert "baseline in the same run" in out and out.count("VM steal") == 3, out[-800:]

@@ -151,11 +151,28 @@ def test_cpu_latency_request_holds_the_value_and_releases_it(tmp_path: Path) -> 
 
     qos_file = tmp_path / "cpu_dma_latency"  # a plain file stands in for the device
     qos_file.write_bytes(b"")
-    with CpuLatencyRequest(path=str(qos_file)) as request:
+    driver = tmp_path / "current_driver"  # and one for the kernel's cpuidle driver
+    driver.write_text("haltpoll\n")
+    with CpuLatencyRequest(path=str(qos_file), driver_path=str(driver)) as request:
         assert request.held
-        assert "held at 0 us" in request.status
+        assert request.status == f"held at 0 us ({qos_file})"
         assert qos_file.read_bytes() == b"\x00\x00\x00\x00"
     assert not request.held
+
+
+def test_cpu_latency_request_says_when_the_kernel_cannot_honour_it(tmp_path: Path) -> None:
+    """With no cpuidle driver (a VM's kernel may have none) idle CPUs halt whatever is asked."""
+    from hilbench.bench.clock import CpuLatencyRequest
+
+    qos_file = tmp_path / "cpu_dma_latency"
+    qos_file.write_bytes(b"")
+    driver = tmp_path / "current_driver"
+    driver.write_text("none\n")
+    with CpuLatencyRequest(path=str(qos_file), driver_path=str(driver)) as request:
+        assert request.held
+        assert request.status.startswith("held at 0 us") and "without effect" in request.status
+    with CpuLatencyRequest(path=str(qos_file), driver_path=str(tmp_path / "missing")) as request:
+        assert request.status == f"held at 0 us ({qos_file})"  # not known: not said
 
 
 def test_cpu_latency_request_without_the_device_says_why(tmp_path: Path) -> None:
