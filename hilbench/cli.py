@@ -141,7 +141,7 @@ def targets() -> None:
     from rich.console import Console
     from rich.table import Table
 
-    from hilbench.targets import get_profile, known_targets
+    from hilbench.targets.registry import broken_plugins, get_profile, known_targets
 
     table = Table(title="targets (use as inprocess:NAME or emulator:NAME)")
     for column in ("name", "firmware", "tunable", "reference", "telemetry", "description"):
@@ -151,6 +151,8 @@ def targets() -> None:
         table.add_row(name, p.firmware_name, " ".join(p.tunable) or "—", p.reference.kind if p.reference else "—",
                       " ".join(c.column for c in p.telemetry) or "—", p.description)
     Console().print(table)
+    for problem in broken_plugins():
+        click.echo(f"left out: {problem}", err=True)
 
 
 @cli.command()

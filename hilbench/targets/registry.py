@@ -16,7 +16,7 @@ from __future__ import annotations
 import importlib
 import threading
 from typing import TYPE_CHECKING, Any
-from importlib.metadata import entry_points
+from importlib.metadata import EntryPoint, entry_points
 
 from hilbench.errors import ConfigError
 from hilbench.targets.profile import TargetProfile, generic_profile
@@ -39,6 +39,8 @@ _BUILTIN = {
 }
 
 _profiles: dict[str, TargetProfile] = {}
+#: plug-ins that could not be registered: entry point name -> why (`hilbench targets` lists them)
+_broken: dict[str, str] = {}
 _lock = threading.Lock()
 _loaded = False
 
@@ -63,15 +65,36 @@ def _load_all() -> None:
                 if exc.name != module:
                     raise
         for entry in entry_points(group=ENTRY_POINT_GROUP):
-            try:
-                obj = entry.load()
-            except Exception as exc:  # noqa: BLE001 - a broken plug-in must not break the bench
-                raise ConfigError(f"target plug-in {entry.name!r} ({entry.value}): cannot load: {exc}") from None
-            profile = obj() if callable(obj) and not isinstance(obj, TargetProfile) else obj
-            if not isinstance(profile, TargetProfile):
-                raise ConfigError(f"target plug-in {entry.name!r} ({entry.value}): not a TargetProfile")
-            register(profile)
+            problem = _register_plugin(entry)
+            if problem is not None:
+                _broken[entry.name] = f"target plug-in {entry.name!r} ({entry.value}): {problem}"
         _loaded = True
+
+
+def _register_plugin(entry: EntryPoint) -> str | None:
+    """Register one installed plug-in; what is wrong with it, if anything. A broken plug-in must not
+    break the bench: it is left out (and named where it is asked for), and it cannot replace a
+    built-in target."""
+    try:
+        obj = entry.load()
+        profile = obj() if callable(obj) and not isinstance(obj, TargetProfile) else obj
+    except Exception as exc:  # noqa: BLE001 - the plug-in's own code, whatever it raises
+        return f"cannot load: {type(exc).__name__}: {exc}"
+    if not isinstance(profile, TargetProfile):
+        return "not a TargetProfile"
+    if profile.name in _BUILTIN:
+        return f"its name {profile.name!r} is a built-in target's, which it may not replace"
+    try:
+        register(profile)
+    except ConfigError as exc:
+        return str(exc)
+    return None
+
+
+def broken_plugins() -> tuple[str, ...]:
+    """Why each installed plug-in that could not be registered was left out."""
+    _load_all()
+    return tuple(_broken.values())
 
 
 def known_targets() -> tuple[str, ...]:
@@ -85,6 +108,8 @@ def get_profile(name: str) -> TargetProfile:
     _load_all()
     profile = _profiles.get(name)
     if profile is None:
+        if name in _broken:
+            raise ConfigError(_broken[name])
         raise ConfigError(f"unknown target {name!r} (known: {', '.join(known_targets())})")
     return profile
 
@@ -114,6 +139,7 @@ def make_target(name: str, options: Any = None) -> "Target":
 
 __all__ = [
     "DEFAULT_TARGET",
+    "broken_plugins",
     "ENTRY_POINT_GROUP",
     "LINK_TEST_TARGET",
     "get_profile",
