@@ -42,6 +42,7 @@ from typing import Any, Callable, Iterator
 
 from hilbench.errors import ConfigError, HilbenchError, LinkTimeout
 from hilbench.targets.remote import settle
+from hilbench.protocol.handshake import hello_problem
 from hilbench.protocol import (
     ACCESS_RO,
     ACCESS_RW,
@@ -214,7 +215,8 @@ def check_handshake(w: Wire) -> str:
     _require(hello.protocol_version == PROTOCOL_VERSION, f"protocol version {hello.protocol_version}")
     _require(hello.schema_fingerprint == SCHEMA_FINGERPRINT,
              f"schema fingerprint {hello.schema_fingerprint:#010x}, this host {SCHEMA_FINGERPRINT:#010x}")
-    _require(0 < len(hello.firmware_name) and hello.pwm_period_counts > 0, f"a HELLO without a name or PWM scale: {hello}")
+    problem = hello_problem(hello)
+    _require(problem is None, f"the TargetHello declares {problem}: {hello}")
     other = HostHello(w.next_seq(), PROTOCOL_VERSION, w.period_us, MODE_LOCKSTEP, 0, SCHEMA_FINGERPRINT ^ 0x5A5A5A5A)
     refusal = w.ask(other, (TargetHello, ErrorReport))
     _require(type(refusal) is ErrorReport and refusal.code == ErrorCode.VERSION,

@@ -220,7 +220,7 @@ class Session:
         self.hello = hello
         found = registered_for_firmware(hello.firmware_name)
         if found is None:  # no module knows it: the firmware's own description (protocol 3)
-            description = describe_firmware(self.target, hello)
+            description = describe_firmware(self.target, hello, self.target_label)
             self.target_info = description.target
             reserved = frozenset(BENCH_COLUMNS) | {out.column for out in self.plant.outputs}
             found = described_profile(profile_for_firmware(hello.firmware_name), description, reserved)

@@ -9,7 +9,7 @@ No I/O here: the link layer and the targets call these.
 
 from __future__ import annotations
 
-from hilbench.errors import VersionMismatch
+from hilbench.errors import TargetError, VersionMismatch
 from hilbench.protocol.messages import (
     PROTOCOL_VERSION,
     SCHEMA_FINGERPRINT,
@@ -30,9 +30,27 @@ def mismatch_message(where: str, target_fingerprint: int, target_version: int,
 
 
 def check_target_hello(hello: TargetHello, *, where: str) -> None:
-    """Raise VersionMismatch unless the target speaks this host's protocol version and schema."""
+    """Raise VersionMismatch unless the target speaks this host's protocol version and schema, and
+    TargetError if it declares what no firmware can (`hello_problem`)."""
     if hello.protocol_version != PROTOCOL_VERSION or hello.schema_fingerprint != SCHEMA_FINGERPRINT:
         raise VersionMismatch(mismatch_message(where, hello.schema_fingerprint, hello.protocol_version))
+    problem = hello_problem(hello)
+    if problem is not None:
+        raise TargetError(f"{where}: its TargetHello declares {problem}")
+
+
+def hello_problem(hello: TargetHello) -> str | None:
+    """What a TargetHello declares that no firmware can (the plant divides by the PWM scale and the
+    ADC's full scale), or None."""
+    if not hello.firmware_name:
+        return "no firmware name"
+    if hello.pwm_period_counts <= 0:
+        return f"pwm_period_counts {hello.pwm_period_counts} (the compare count of 100 % duty must be positive)"
+    if hello.pwm_freq_hz <= 0:
+        return f"pwm_freq_hz {hello.pwm_freq_hz} (the PWM frequency must be positive)"
+    if not 1 <= hello.adc_bits <= 16:
+        return f"adc_bits {hello.adc_bits} (an ADC of 1 to 16 bits: Sensors carries u16 codes)"
+    return None
 
 
 def version_refusal(report: ErrorReport, host: HostHello, *, where: str) -> VersionMismatch:
@@ -54,5 +72,5 @@ def is_version_refusal(msg: object) -> bool:
     return type(msg) is ErrorReport and msg.code == ErrorCode.VERSION
 
 
-__all__ = ["REBUILD_HINT", "mismatch_message", "check_target_hello", "version_refusal", "host_hello_mismatch",
+__all__ = ["REBUILD_HINT", "mismatch_message", "check_target_hello", "hello_problem", "version_refusal", "host_hello_mismatch",
            "is_version_refusal"]

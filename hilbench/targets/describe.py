@@ -19,7 +19,7 @@ import re
 from dataclasses import dataclass
 from typing import Any
 
-from hilbench.errors import HilbenchError
+from hilbench.errors import HilbenchError, TargetError
 from hilbench.protocol import (
     ACCESS_RW,
     INPUT_HALL_A,
@@ -54,9 +54,10 @@ def column_name(name: str, unit: str) -> str:
     return base
 
 
-def describe(target: Any, hello: TargetHello) -> Description:
+def describe(target: Any, hello: TargetHello, where: str = "") -> Description:
     """Ask ``target`` everything it can say of itself (what it cannot is left out: a firmware that does
-    not describe its telemetry gives no TelemetryInfo, and its columns stay raw)."""
+    not describe its telemetry gives no TelemetryInfo, and its columns stay raw); ``where``: the
+    target's label, for the errors."""
     ask_target = getattr(target, "describe_target", None)
     ask_telemetry = getattr(target, "describe_telemetry", None)
     info = ask_target() if ask_target is not None else None
@@ -77,7 +78,24 @@ def describe(target: Any, hello: TargetHello) -> Description:
             params.append(target.describe(param_id))
         except HilbenchError:
             break
+    _check_params(params, f"{where}: {hello.firmware_name}" if where else hello.firmware_name)
     return Description(info, tuple(telemetry), tuple(params))
+
+
+def _check_params(params: list[ParamInfo], firmware: str) -> None:
+    """Parameters are set by name and checked against their range: a description with two of one
+    name (which would `set` write?), an answer for another id or a range whose ends are swapped
+    is the firmware's error, said at the handshake."""
+    names: dict[str, int] = {}
+    for param_id, info in enumerate(params):
+        where = f"{firmware}: ParamDescribe {param_id}"
+        if info.param_id != param_id:
+            raise TargetError(f"{where}: answered for parameter {info.param_id}")
+        if info.name in names:
+            raise TargetError(f"{where}: the name {info.name[:40]!r} is parameter {names[info.name]}'s too")
+        if info.min_value > info.max_value:
+            raise TargetError(f"{where} ({info.name[:40]!r}): min {info.min_value} > max {info.max_value}")
+        names[info.name] = param_id
 
 
 def _format(info: TelemetryInfo) -> str:
