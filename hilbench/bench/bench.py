@@ -32,11 +32,12 @@ from hilbench.bench.cpus import CpuPinning, FifoPriority
 from hilbench.bench.assembly import BenchParts, build_bench, configured_profile, connect
 from hilbench.bench.column_chunks import ArrayChunks, ColumnChunks, recording_chunks
 from hilbench.bench.recorder import MemoryRecorder, Recorder, read_recording
-from hilbench.bench.scenario import Event
+from hilbench.bench.scenario import LOAD_KINDS, Event
 from hilbench.bench.session import ControlSource, PlantLike, Session, Snapshot, Summary
 from hilbench.bench.settings import load_config
-from hilbench.config import BenchConfig
+from hilbench.config import BenchConfig, clipped
 from hilbench.errors import ConfigError, LinkError
+from hilbench.limits import is_finite_number
 from hilbench.plant.period import Period
 from hilbench.protocol import PROTOCOL_VERSION, SCHEMA_FINGERPRINT, TargetHello
 from hilbench.targets.base import Target
@@ -111,6 +112,7 @@ class Bench:
         self._parts: BenchParts | None = None
         self._scheduling: list[CpuPinning | FifoPriority] = []  # a real-time run's CPU and priority, undone at close
         self.session: Session | None = None
+        self._closed = False  # the run has ended: results may be read, nothing more run or set
         self.recorder: Recorder | MemoryRecorder | None = None
         self.warnings: list[str] = []  # what the caller should tell the user before the run
 
@@ -193,6 +195,7 @@ class Bench:
             if self._parts is not None:
                 self._parts.close()
                 self._parts = None
+            self._closed = self.session is not None
         return summary
 
     @property
@@ -218,6 +221,15 @@ class Bench:
         return self.session
 
     @property
+    def _acting(self) -> Session:
+        """The session, for a call that runs periods or changes the bench: refused once closed (the
+        target is gone and the recording written: periods run now would be lost)."""
+        if self._closed:
+            raise ConfigError("Bench: closed (its run has ended and its results stay readable; "
+                              "open a new Bench to run again)")
+        return self._session
+
+    @property
     def t_s(self) -> float:
         """Simulated time now (the start of the next period)."""
         return self._session.now_s
@@ -227,7 +239,7 @@ class Bench:
         """Run ``seconds`` of simulated time, or until ``until(bench)`` is true (looked at every
         millisecond, at most ``timeout_s``), or the config's scenario to its end when neither is
         given. Returns False when the run has ended (scenario end, `ctl stop`)."""
-        session = self._session
+        session = self._acting
         period_s = session.period.s
         if until is None:
             if seconds is None:
@@ -244,7 +256,7 @@ class Bench:
 
     # ------------------------------------------------------------------ steering
     def _act(self, event: Event) -> None:
-        session = self._session
+        session = self._acting
         session.apply_now(dataclasses.replace(event, at_s=self.t_s))
 
     def press(self, button: str = "s2") -> None:
@@ -259,6 +271,8 @@ class Bench:
 
     def set_load(self, torque_nm: float, kind: str = "constant") -> None:
         """The load from now on: constant N*m, linear/quadratic coefficient, or locked."""
+        if kind not in LOAD_KINDS:
+            raise ConfigError(f"set_load kind={str(kind)[:40]!r}: one of {', '.join(LOAD_KINDS)}")
         self._act(Event(at_s=0.0, load_nm=_finite(torque_nm, "torque_nm"), load_kind=kind))
 
     def inject_fault(self, kind: str, duration_s: float | None = None) -> None:
@@ -268,6 +282,9 @@ class Bench:
 
         if kind not in FAULT_KINDS:
             raise ConfigError(f"inject_fault {kind!r}: one of {', '.join(FAULT_KINDS)}")
+        if duration_s is not None and not (is_finite_number(duration_s) and duration_s >= 0):
+            raise ConfigError(f"inject_fault duration_s={duration_s!r}: expected a finite number of seconds >= 0, "
+                              "or None (until cleared)")
         self._act(Event(at_s=0.0, fault=kind, fault_duration_s=duration_s))
 
     def get_params(self) -> dict[str, float]:
@@ -285,8 +302,11 @@ class Bench:
             raise ConfigError("set_params: no parameter given (e.g. set_params(kp=0.1))")
         bad = {k: v for k, v in merged.items() if isinstance(v, bool) or not isinstance(v, (int, float))}
         if bad:
-            raise ConfigError(f"set_params: values must be numbers, got {bad!r}")
-        self._session.set_params({str(k): float(v) for k, v in merged.items()}, self.t_s, guard=bool(guard))
+            raise ConfigError(f"set_params: values must be numbers, got {clipped(repr(bad), 200)}")
+        # an int no float holds is as out of range as an infinity: the session's check refuses both
+        values = {str(k): float(v) if is_finite_number(v) or isinstance(v, float) else (math.inf if v > 0 else -math.inf)
+                  for k, v in merged.items()}
+        self._acting.set_params(values, self.t_s, guard=bool(guard))
 
     # ------------------------------------------------------------------ reading
     @property
@@ -346,7 +366,7 @@ class Bench:
 
 
 def _finite(value: float, what: str) -> float:
-    if not isinstance(value, (int, float)) or not math.isfinite(value):
+    if not is_finite_number(value):
         raise ConfigError(f"{what}={value!r}: expected a finite number")
     return float(value)
 
