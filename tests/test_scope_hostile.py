@@ -324,3 +324,15 @@ def test_a_flat_command_still_parses() -> None:
     from hilbench.scope.messages import Command, parse_page_message
 
     assert isinstance(parse_page_message('{"type":"cmd","cmd":"set","params":{"kp":[0.1]}}'), Command)
+
+
+@pytest.mark.parametrize("cmd", ["save", "start", "stream", "list", 5, None])
+def test_a_page_sends_only_what_its_controls_do(cmd: object) -> None:
+    """Third audit: a page (anyone holding its URL) could send `save` with any file name, and the
+    session wrote its gains over that file."""
+    from hilbench.scope.messages import PAGE_COMMANDS, Command, Refused, parse_page_message
+
+    with pytest.raises(Refused, match="one of get, set, ref, load, press, step, guard, stop"):
+        parse_page_message(json.dumps({"type": "cmd", "id": 1, "cmd": cmd, "file": "/tmp/victim.txt"}))
+    for allowed in PAGE_COMMANDS:
+        assert isinstance(parse_page_message(json.dumps({"type": "cmd", "cmd": allowed})), Command)

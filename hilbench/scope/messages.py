@@ -21,6 +21,10 @@ MAX_COLUMNS = 48
 #: how deeply a page's message may nest lists and objects (a command's arguments are flat)
 MAX_DEPTH = 16
 _NAME = re.compile(r"^[A-Za-z_][A-Za-z0-9_.]{0,31}$")
+#: the control commands a page may send: what its controls do, and `get` (it only reads). Not `save`
+#: (it writes a file the bench's user can write, by a name the page chose), nor `stream` (the page
+#: subscribes), nor `start` (the page presses S2)
+PAGE_COMMANDS = ("get", "set", "ref", "load", "press", "step", "guard", "stop")
 
 
 @dataclass(frozen=True)
@@ -84,8 +88,8 @@ def _command(message: dict[str, Any], page_id: str | int | None) -> Command:
     if "id" in message and page_id is None:
         raise Refused("cmd: id must be a short string or an integer")
     request = {k: v for k, v in message.items() if k not in ("type", "id")}
-    if not isinstance(request.get("cmd"), str) or request["cmd"] == "stream":
-        raise Refused("cmd: needs \"cmd\", a command name (not stream: the page subscribes)", page_id)
+    if request.get("cmd") not in PAGE_COMMANDS:
+        raise Refused(f"cmd: needs \"cmd\", one of {', '.join(PAGE_COMMANDS)} (a page's commands)", page_id)
     if not _finite(request):
         raise Refused("cmd: numbers must be finite", page_id)
     return Command(page_id, request)

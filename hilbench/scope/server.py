@@ -19,8 +19,9 @@ Where the data comes from (a `Source`):
 * `ControlSource`: a running session's control socket (the one `hilbench ctl` finds). Every page
   of a scope shares one connection (a stream connection: the session keeps its ctl connections
   for `ctl`); for each page the server asks ``stream`` a dozen times a second and relays the
-  frames, and relays the page's commands (set, ref, load, press, step, guard, stop) unchanged, so
-  a change from the page takes the same checked, guarded path as `hilbench ctl`.
+  frames, and relays the page's commands (`messages.PAGE_COMMANDS`: get, set, ref, load, press,
+  step, guard, stop; never save) unchanged, so a change from the page takes the same checked,
+  guarded path as `hilbench ctl`.
 * `RecordingSource`: a recording file, sent once as frames of the same shape (min/max envelopes).
 
 The page and its script are files of this package (``static/``): no third-party code, no network.
