@@ -55,6 +55,16 @@ def _window(data: Mapping[str, np.ndarray], name: str, from_s: float, to_s: floa
     return t[mask], np.asarray(data[name])[mask], window
 
 
+def _finite_number(value: object) -> bool:
+    """A finite real number (numpy's too, not a bool)."""
+    if isinstance(value, bool) or not isinstance(value, (int, float, np.floating, np.integer)):
+        return False
+    try:
+        return math.isfinite(value)
+    except OverflowError:  # an int no float holds
+        return False
+
+
 def _u(unit: str) -> str:
     return f" {unit}" if unit else ""
 
@@ -64,6 +74,9 @@ def assert_settles(source: Source, signal: str, reference: float, *, band: float
     """``signal`` is within ``reference ± band`` from ``by_s`` to ``until_s`` (default: the end);
     returns the worst deviation."""
     __tracebackhide__ = True
+    if not (_finite_number(reference) and _finite_number(band) and band >= 0):
+        raise ValueError(f"assert_settles: reference={reference!r}, band={band!r}: finite numbers, band >= 0 "
+                         "(a NaN band would pass anything)")
     data, unit_of = _columns(source)
     t, y, window = _window(data, signal, by_s, until_s)
     dev = y - reference
@@ -71,7 +84,7 @@ def assert_settles(source: Source, signal: str, reference: float, *, band: float
     worst = float(dev[i])
     record_metric(f"{signal}.dev_from_{by_s:g}s", round(worst, 6))
     unit = _u(unit_of(signal))
-    if abs(worst) > band or not math.isfinite(worst):
+    if not abs(worst) <= band:
         raise AssertionError(f"{signal} not within {reference:g} ± {band:g}{unit} over {window}: "
                              f"worst {float(y[i]):.6g}{unit} ({worst:+.4g}) at {float(t[i]):.4f} s")
     return worst
