@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import json
 import select
+import socket
 import subprocess
 import sys
 from pathlib import Path
@@ -65,3 +66,29 @@ def test_real_time_over_a_network_link_warns_that_its_latency_adds_to_the_loops(
     assert any("network's latency" in w for w in link_warnings(far))
     assert link_warnings(load_config(None, ['link.target="socket://10.0.0.7:5000"'])) == []  # lockstep: no effect
     assert link_warnings(load_config(None, ['run.mode="realtime"', "link.period_us=1000"])) == []
+
+
+@pytest.mark.slow
+def test_a_silent_client_does_not_hold_the_emulators_tcp_port_from_the_host() -> None:
+    """Third audit: a client that connected and sent nothing held `emulate --port tcp:` for ever;
+    the real host got 'no TargetHello'. It is dropped after SILENT_CLIENT_S for the next."""
+    from hilbench.targets.emulator import SILENT_CLIENT_S
+
+    server = subprocess.Popen([sys.executable, "-m", "hilbench", "emulate", "loopback", "--port", "tcp:0", "--quiet"],
+                              stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, cwd=REPO_ROOT)
+    silent = None
+    try:
+        ready, _, _ = select.select([server.stdout], [], [], 30)
+        assert ready, "the emulator printed no URL"
+        url = server.stdout.readline().strip()  # type: ignore[union-attr]
+        silent = socket.create_connection(("127.0.0.1", int(url.rsplit(":", 1)[1])))
+        # its handshake retries for 5 x 2 s, past the silent client's SILENT_CLIENT_S
+        host = run_cli("link-test", url, "--periods", "200", "--timeout-ms", "2000", timeout=120)
+        assert host.returncode == 0, host.stdout[-1500:] + host.stderr
+        silent.settimeout(SILENT_CLIENT_S + 30)
+        assert silent.recv(64) == b""  # the emulator hung up on it
+    finally:
+        if silent is not None:
+            silent.close()
+        server.kill()
+        server.communicate(timeout=10)

@@ -13,6 +13,7 @@ import json
 import os
 import sys
 import threading
+import time
 from typing import Callable, Mapping
 
 from hilbench.errors import LinkClosed
@@ -43,8 +44,8 @@ def serve_on_port(name: str, port_spec: str = "pty", mode: int | None = None,
     if port_spec.startswith("tcp:"):  # a TCP port (socket://HOST:PORT)
         host, port = parse_tcp_listen(port_spec)
 
-        def handler(link: Link) -> ServeReport:
-            return serve(target, link, stop_event=stop_event, mode=mode, watchdog_ms=watchdog_ms)
+        def handler(link: Link, stop: threading.Event | None = stop_event) -> ServeReport:
+            return serve(target, link, stop_event=stop, mode=mode, watchdog_ms=watchdog_ms)
 
         if not keep_serving:
             return serve_tcp_once(port, handler, host=host, announce=announce, stop_event=stop_event)
@@ -63,10 +64,26 @@ def serve_on_port(name: str, port_spec: str = "pty", mode: int | None = None,
             os.close(held)
 
 
-def _serve_tcp_hosts(host: str, port: int, handler: Callable[[Link], ServeReport],
+#: a TCP client that sends nothing this long after it connected is dropped for the next: a host's
+#: HostHello comes at once, and one silent client must not hold the port from the real host
+SILENT_CLIENT_S = 3.0
+_WATCH_S = 0.1
+
+
+def _drop_if_silent(link: Link, outer: threading.Event | None, connection: threading.Event) -> None:
+    """Ends ``connection``'s serving when ``outer`` is set, or when nothing came SILENT_CLIENT_S after
+    the accept; returns once it is set."""
+    deadline = time.monotonic() + SILENT_CLIENT_S
+    while not connection.wait(_WATCH_S):
+        if (outer is not None and outer.is_set()) or (link.bytes_rx == 0 and time.monotonic() >= deadline):
+            connection.set()
+
+
+def _serve_tcp_hosts(host: str, port: int, handler: Callable[[Link, threading.Event], ServeReport],
                      announce: Callable[[str], None] | None, stop_event: threading.Event | None) -> ServeReport:
     """One host after another on one listening port, as a board serves whoever opens its port
-    next, until stop_event or Ctrl-C (a host hanging up is not the end); the totals of every host."""
+    next, until stop_event or Ctrl-C (a host hanging up is not the end; a client silent for
+    SILENT_CLIENT_S is dropped); the totals of every host."""
     total = ServeReport(reason="stopped")
     with TcpListener(port, host) as listener:
         if announce is not None:
@@ -76,8 +93,16 @@ def _serve_tcp_hosts(host: str, port: int, handler: Callable[[Link], ServeReport
                 link = listener.accept(stop_event=stop_event)
             except LinkClosed:
                 break
-            with link:
-                report = handler(link)
+            connection = threading.Event()
+            watch = threading.Thread(target=_drop_if_silent, args=(link, stop_event, connection),
+                                     name="hilbench-silent-client", daemon=True)
+            watch.start()
+            try:
+                with link:
+                    report = handler(link, connection)
+            finally:
+                connection.set()
+                watch.join()
             total.sensors += report.sensors
             total.requests += report.requests
             total.error_reports += report.error_reports
