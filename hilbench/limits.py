@@ -9,6 +9,7 @@ the scope's and the recordings' own.
 from __future__ import annotations
 
 import math
+import numbers
 import os
 import select
 import stat
@@ -46,9 +47,9 @@ def size_text(n_bytes: int) -> str:
 
 
 def is_finite_number(value: object) -> bool:
-    """A finite int or float (not a bool) that a float holds: JSON or TOML from outside may carry
-    NaN, or an int of 400 digits that overflows every figure made from it."""
-    if not isinstance(value, (int, float)) or isinstance(value, bool):
+    """A finite real number (an int, a float, numpy's; not a bool) that a float holds: JSON or TOML
+    from outside may carry NaN, or an int of 400 digits that overflows every figure made from it."""
+    if not isinstance(value, numbers.Real) or isinstance(value, bool):
         return False
     try:
         return math.isfinite(value)

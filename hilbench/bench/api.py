@@ -9,7 +9,8 @@ from hilbench.bench.bench import as_config
 from hilbench.bench.run import in_process, run_step_tests, settings_profile
 from hilbench.bench.steptest import StepResult, StepTest, require_speed_loop
 from hilbench.bench.sweep import SweepResult, Tolerances, sweep_grid
-from hilbench.config import BenchConfig
+from hilbench.config import BenchConfig, clipped
+from hilbench.errors import ConfigError
 
 
 def step_test(
@@ -25,6 +26,8 @@ def step_test(
 ) -> StepResult:
     """One speed step on a fresh target (default: the configured target's in-process model) with
     ``params`` written first; returns the response and its metrics (rise, overshoot, settling, …)."""
+    if params is not None and not isinstance(params, Mapping):
+        raise ConfigError(f"step_test params={clipped(repr(params))}: expected a mapping of names to values")
     cfg = as_config(config, target, overrides)
     if target is None:
         cfg = in_process(cfg)
@@ -52,6 +55,10 @@ def sweep(
     ``executor`` (None: a local process pool of ``workers``, one per core by default; "local-dask:N";
     a Dask scheduler's "tcp://host:8786"), worst case over motor ``tolerances``, appending finished
     points to ``store`` (a restarted sweep runs only the missing ones); ranked by ``metric``."""
+    if not isinstance(axes, Mapping) or not all(hasattr(values, "__iter__") and not isinstance(values, (str, bytes))
+                                                for values in axes.values()):
+        raise ConfigError(f"sweep axes={clipped(repr(axes))}: expected a mapping of names to lists of values, "
+                          "e.g. {\"kp\": [0.1, 0.2]}")
     cfg = as_config(config, None, overrides)
     test = StepTest(from_rpm, to_rpm, settle_s, after_s)
     return sweep_grid(cfg, list(axes.items()), test, metric, executor=executor, workers=workers,

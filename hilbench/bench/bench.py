@@ -102,6 +102,9 @@ class Bench:
         memory); ``scenario``: play the config's scenario (off: the script drives); ``keep_rows=False``
         without ``record``: keep no rows at all (a run of any length in flat memory; no signals())."""
         self._keep_rows = keep_rows
+        if target is not None and not isinstance(target, (str, Target)):
+            raise ConfigError(f"Bench: target={clipped(repr(target))}: a target spec (see `hilbench targets`) "
+                              "or a Target object")
         self._target_object = None if target is None or isinstance(target, str) else target
         self._plant_object = plant
         self.config = as_config(config, target if isinstance(target, str) else None, overrides)

@@ -16,6 +16,8 @@ from typing import TYPE_CHECKING, Any, Callable, Mapping, Union
 
 import numpy as np
 
+from hilbench.limits import is_finite_number
+
 if TYPE_CHECKING:
     from hilbench.bench.bench import Bench
     from hilbench.bench.checks import CheckResult
@@ -55,16 +57,6 @@ def _window(data: Mapping[str, np.ndarray], name: str, from_s: float, to_s: floa
     return t[mask], np.asarray(data[name])[mask], window
 
 
-def _finite_number(value: object) -> bool:
-    """A finite real number (numpy's too, not a bool)."""
-    if isinstance(value, bool) or not isinstance(value, (int, float, np.floating, np.integer)):
-        return False
-    try:
-        return math.isfinite(value)
-    except OverflowError:  # an int no float holds
-        return False
-
-
 def _u(unit: str) -> str:
     return f" {unit}" if unit else ""
 
@@ -74,7 +66,7 @@ def assert_settles(source: Source, signal: str, reference: float, *, band: float
     """``signal`` is within ``reference ± band`` from ``by_s`` to ``until_s`` (default: the end);
     returns the worst deviation."""
     __tracebackhide__ = True
-    if not (_finite_number(reference) and _finite_number(band) and band >= 0):
+    if not (is_finite_number(reference) and is_finite_number(band) and band >= 0):
         raise ValueError(f"assert_settles: reference={reference!r}, band={band!r}: finite numbers, band >= 0 "
                          "(a NaN band would pass anything)")
     data, unit_of = _columns(source)
