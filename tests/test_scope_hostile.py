@@ -270,6 +270,9 @@ def test_open_leaves_no_token_file(tmp_path: Path) -> None:
             assert re.fullmatch(rf"http://127\.0\.0\.1:{served.port}/o/[A-Za-z0-9_-]+", given), given
             token = url.rstrip("/").rsplit("/", 1)[1]
             assert token not in given
+            with pytest.raises(urllib.error.HTTPError) as probe:  # a wrong nonce does not use the link up
+                urllib.request.urlopen(given.rsplit("/", 1)[0] + "/not-the-nonce", timeout=TIMEOUT_S)
+            assert probe.value.code == 403
             with urllib.request.urlopen(given, timeout=TIMEOUT_S) as page:  # redirected to the page
                 assert page.status == 200 and page.url == url
             with pytest.raises(urllib.error.HTTPError) as again:  # once only

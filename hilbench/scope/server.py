@@ -414,15 +414,17 @@ class ScopeServer:
         return app
 
     def _opened(self, nonce: str) -> Any:
-        """The one-shot open URL: a redirect to the page the first time, 403 after."""
+        """The one-shot open URL: a redirect to the page the first time, 403 after. Only the right
+        nonce uses it up: a wrong one (a probe, a typo) must not burn the browser's link."""
         import time
 
         from aiohttp import web
 
-        expected, self._open_nonce = self._open_nonce, None
+        expected = self._open_nonce
         if expected is None or time.monotonic() > self._open_until_s or not hmac.compare_digest(nonce, expected):
             self.refused["token"] += 1
             return web.Response(status=403, text="hilbench scope: this link has been used or has expired\n")
+        self._open_nonce = None
         return web.Response(status=303, headers={"Location": f"/s/{self.token}/", "Cache-Control": "no-store",
                                                  "Referrer-Policy": "no-referrer"})
 
