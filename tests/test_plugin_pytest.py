@@ -187,6 +187,20 @@ def test_hil_record_keeps_every_recording(pytester: pytest.Pytester, tmp_path: P
     assert read_recording(kept[0]).n_rows == 400
 
 
+def test_hil_record_onto_a_file_is_one_usage_error(pytester: pytest.Pytester, tmp_path: Path) -> None:
+    """Third audit: every test errored with NotADirectoryError."""
+    pytester.makepyfile(test_hilx_recfile="""
+        def test_one(bench):
+            bench.run(0.02)
+    """)
+    taken = tmp_path / "a_file"
+    taken.write_text("mine\n")
+    result = pytester.runpytest("--hil-target", INPROC, "--hil-record", str(taken), "-p", "no:cacheprovider")
+    assert result.ret == pytest.ExitCode.USAGE_ERROR
+    result.stderr.fnmatch_lines([f"ERROR: --hil-record {taken}: not a folder*"])
+    assert taken.read_text() == "mine\n"
+
+
 def test_suite_and_test_properties_in_junit(pytester: pytest.Pytester) -> None:
     pytester.makepyfile(test_hilx_props="""
         from hilbench.testing import assert_within

@@ -99,6 +99,8 @@ def pytest_configure(config: pytest.Config) -> None:
     config_path = config.getoption("hil_config") or os.environ.get(CONFIG_ENV) or None
     record = config.getoption("hil_record")
     _check_options(targets, config_path, TARGET_ENV if not config.getoption("hil_target") else "--hil-target")
+    if record and Path(record).exists() and not Path(record).is_dir():
+        raise pytest.UsageError(f"--hil-record {record}: not a folder (the recordings go into it, one file a test)")
     config.stash[_STATE] = _State(config_path, targets, Path(record).resolve() if record else None)
     config.pluginmanager.register(_Attachments(config), "hilbench-attachments")
 
