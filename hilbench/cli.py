@@ -632,6 +632,8 @@ def scope(socket_path: str | None, session_selector: str | None, port: int, open
     from hilbench.bench.control import read_discovery
     from hilbench.scope.launch import scope_for_socket
 
+    if socket_path is not None and session_selector is not None:
+        raise ConfigError("scope: give --socket or --session, not both")
     path = socket_path if socket_path is not None else read_discovery(selector=session_selector)
     scope_for_socket(path, port, open_browser).serve_forever()  # type: ignore[attr-defined]
 

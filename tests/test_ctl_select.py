@@ -80,3 +80,13 @@ def test_ctl_picks_the_session_of_this_directory_or_refuses(tmp_path: Path, monk
             proc.terminate()
         for proc in procs.values():
             proc.wait(timeout=30)
+
+
+@pytest.mark.parametrize("command", ["ctl", "scope"])
+def test_socket_and_session_together_are_refused(command: str, tmp_path: Path) -> None:
+    """Third audit: `scope --socket X --session N` ignored --session (ctl refused the pair)."""
+    words = ["get"] if command == "ctl" else []
+    done = subprocess.run([sys.executable, "-m", "hilbench", command, "--socket", str(tmp_path / "none.sock"),
+                           "--session", "1", *words], capture_output=True, text=True, timeout=60, cwd=tmp_path)
+    assert done.returncode == 2, done.stderr
+    assert done.stderr.strip() == f"hilbench: config error: {command}: give --socket or --session, not both"
