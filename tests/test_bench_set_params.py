@@ -67,3 +67,13 @@ def test_a_closed_bench_runs_and_sets_nothing_and_its_results_stay(tmp_path, rec
         with pytest.raises(ConfigError, match=r"^Bench: closed"):
             call()
     assert len(bench.signals()["t_s"]) == summary.periods == bench.summary().periods
+    with pytest.raises(ConfigError, match=r"^Bench: closed \(a Bench runs once"):  # nor opened again
+        bench.open()
+
+
+def test_numpy_numbers_are_numbers() -> None:
+    import numpy as np
+
+    with hilbench.Bench(target="inprocess:an1017") as bench:
+        bench.set_params(kp=np.float32(0.25), ki=np.int64(0), guard=False)
+        assert bench.get_params()["kp"] == pytest.approx(0.25, abs=1 / 32768)

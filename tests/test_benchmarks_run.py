@@ -35,6 +35,7 @@ def test_bench_link_builds_the_c_loopback_and_compares() -> None:
     assert "<-> C loopback" in out and out.splitlines()[-1].startswith("ratio framed py / raw"), out[-500:]
 
 
+@pytest.mark.slow
 def test_bench_realtime_prints_the_bench_its_baseline_and_the_vm_steal() -> None:
     out = _run("bench_realtime.py", "--seconds", "1")
     assert "against emulator:an1017" in out and "VM steal time over the bench" in out, out[-800:]

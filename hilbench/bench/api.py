@@ -9,8 +9,9 @@ from hilbench.bench.bench import as_config
 from hilbench.bench.run import in_process, run_step_tests, settings_profile
 from hilbench.bench.steptest import StepResult, StepTest, require_speed_loop
 from hilbench.bench.sweep import SweepResult, Tolerances, sweep_grid
-from hilbench.config import BenchConfig, clipped
+from hilbench.config import BenchConfig
 from hilbench.errors import ConfigError
+from hilbench.limits import shown
 
 
 def step_test(
@@ -27,7 +28,7 @@ def step_test(
     """One speed step on a fresh target (default: the configured target's in-process model) with
     ``params`` written first; returns the response and its metrics (rise, overshoot, settling, …)."""
     if params is not None and not isinstance(params, Mapping):
-        raise ConfigError(f"step_test params={clipped(repr(params))}: expected a mapping of names to values")
+        raise ConfigError(f"step_test params={shown(params)}: expected a mapping of names to values")
     cfg = as_config(config, target, overrides)
     if target is None:
         cfg = in_process(cfg)
@@ -57,7 +58,7 @@ def sweep(
     points to ``store`` (a restarted sweep runs only the missing ones); ranked by ``metric``."""
     if not isinstance(axes, Mapping) or not all(hasattr(values, "__iter__") and not isinstance(values, (str, bytes))
                                                 for values in axes.values()):
-        raise ConfigError(f"sweep axes={clipped(repr(axes))}: expected a mapping of names to lists of values, "
+        raise ConfigError(f"sweep axes={shown(axes)}: expected a mapping of names to lists of values, "
                           "e.g. {\"kp\": [0.1, 0.2]}")
     cfg = as_config(config, None, overrides)
     test = StepTest(from_rpm, to_rpm, settle_s, after_s)

@@ -18,6 +18,7 @@ from __future__ import annotations
 import dataclasses
 import json
 import math
+import numbers
 import os
 import subprocess
 from dataclasses import dataclass
@@ -35,9 +36,9 @@ from hilbench.bench.recorder import MemoryRecorder, Recorder, read_recording
 from hilbench.bench.scenario import LOAD_KINDS, Event
 from hilbench.bench.session import ControlSource, PlantLike, Session, Snapshot, Summary
 from hilbench.bench.settings import load_config
-from hilbench.config import BenchConfig, clipped
+from hilbench.config import BenchConfig
 from hilbench.errors import ConfigError, LinkError
-from hilbench.limits import is_finite_number
+from hilbench.limits import is_finite_number, shown
 from hilbench.plant.period import Period
 from hilbench.protocol import PROTOCOL_VERSION, SCHEMA_FINGERPRINT, TargetHello
 from hilbench.targets.base import Target
@@ -102,9 +103,9 @@ class Bench:
         memory); ``scenario``: play the config's scenario (off: the script drives); ``keep_rows=False``
         without ``record``: keep no rows at all (a run of any length in flat memory; no signals())."""
         self._keep_rows = keep_rows
-        if target is not None and not isinstance(target, (str, Target)):
-            raise ConfigError(f"Bench: target={clipped(repr(target))}: a target spec (see `hilbench targets`) "
-                              "or a Target object")
+        if target is not None and not isinstance(target, str) and not callable(getattr(target, "hello", None)):
+            raise ConfigError(f"Bench: target={shown(target)}: a target spec (see `hilbench targets`) "
+                              "or a target object (one with hello, step, ...)")
         self._target_object = None if target is None or isinstance(target, str) else target
         self._plant_object = plant
         self.config = as_config(config, target if isinstance(target, str) else None, overrides)
@@ -122,6 +123,8 @@ class Bench:
     # ------------------------------------------------------------------ open and close
     def open(self) -> "Bench":
         """Connect the target, build the plant, handshake, write the configured parameters."""
+        if self._closed:
+            raise ConfigError("Bench: closed (a Bench runs once; open a new Bench to run again)")
         cfg = self.config
         self.warnings = settings.link_warnings(cfg) if self._target_object is None else []
         events = settings.scenario_events(cfg) if self._play_scenario else ()
@@ -229,7 +232,7 @@ class Bench:
         target is gone and the recording written: periods run now would be lost)."""
         if self._closed:
             raise ConfigError("Bench: closed (its run has ended and its results stay readable; "
-                              "open a new Bench to run again)")
+                              "a Bench runs once: open a new Bench to run again)")
         return self._session
 
     @property
@@ -286,7 +289,7 @@ class Bench:
         if kind not in FAULT_KINDS:
             raise ConfigError(f"inject_fault {kind!r}: one of {', '.join(FAULT_KINDS)}")
         if duration_s is not None and not (is_finite_number(duration_s) and duration_s >= 0):
-            raise ConfigError(f"inject_fault duration_s={duration_s!r}: expected a finite number of seconds >= 0, "
+            raise ConfigError(f"inject_fault duration_s={shown(duration_s)}: expected a finite number of seconds >= 0, "
                               "or None (until cleared)")
         self._act(Event(at_s=0.0, fault=kind, fault_duration_s=duration_s))
 
@@ -303,12 +306,12 @@ class Bench:
         merged = {**(params or {}), **values}
         if not merged:
             raise ConfigError("set_params: no parameter given (e.g. set_params(kp=0.1))")
-        bad = {k: v for k, v in merged.items() if isinstance(v, bool) or not isinstance(v, (int, float))}
+        bad = [k for k, v in merged.items() if isinstance(v, bool) or not isinstance(v, numbers.Real)]
         if bad:
-            raise ConfigError(f"set_params: values must be numbers, got {clipped(repr(bad), 200)}")
+            raise ConfigError(f"set_params: values must be numbers, got {bad[0]}={shown(merged[bad[0]])}")
         # an int no float holds is as out of range as an infinity: the session's check refuses both
-        values = {str(k): float(v) if is_finite_number(v) or isinstance(v, float) else (math.inf if v > 0 else -math.inf)
-                  for k, v in merged.items()}
+        values = {str(k): float(v) if is_finite_number(v) or not isinstance(v, numbers.Integral)
+                  else (math.inf if v > 0 else -math.inf) for k, v in merged.items()}
         self._acting.set_params(values, self.t_s, guard=bool(guard))
 
     # ------------------------------------------------------------------ reading
@@ -370,13 +373,13 @@ class Bench:
 
 def _finite(value: float, what: str) -> float:
     if not is_finite_number(value):
-        raise ConfigError(f"{what}={value!r}: expected a finite number")
+        raise ConfigError(f"{what}={shown(value)}: expected a finite number")
     return float(value)
 
 
 def _periods(seconds: float, period_s: float, what: str) -> int:
     if not isinstance(seconds, (int, float)) or not math.isfinite(seconds) or seconds < 0 or seconds > 1e7:
-        raise ConfigError(f"run {what}={seconds!r}: expected 0..1e7 s")
+        raise ConfigError(f"run {what}={shown(seconds)}: expected 0..1e7 s")
     return round(seconds / period_s)
 
 

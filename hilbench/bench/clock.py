@@ -53,8 +53,9 @@ class CpuLatencyRequest:
     """Keep idle CPUs awake for the length of a real-time run.
 
     On a VM a halted vCPU is woken by the hypervisor, which takes milliseconds when the host is
-    busy: on these machines that alone made ~2 % of 1 kHz periods start over 1 ms late; with the
-    request held, ~0.1 %. It costs power (idle CPUs spin), so it is held only while pacing.
+    busy: on the VMs this was first measured on (with a cpuidle driver) that alone made ~2 % of
+    1 kHz periods start over 1 ms late; with the request held, ~0.1 %. It costs power (idle CPUs
+    spin), so it is held only while pacing.
     Without permission (it needs root or write access to the file) the run goes on without it and
     ``status`` says why. A kernel with no cpuidle driver (some VMs: `CPUIDLE_DRIVER` reads "none")
     halts idle CPUs whatever is asked: ``status`` then says the request is held without effect

@@ -42,7 +42,6 @@ from typing import Any, Callable, Iterator
 
 from hilbench.errors import ConfigError, HilbenchError, LinkTimeout
 from hilbench.targets.remote import settle
-from hilbench.protocol.handshake import hello_problem
 from hilbench.protocol import (
     ACCESS_RO,
     ACCESS_RW,
@@ -60,6 +59,7 @@ from hilbench.protocol import (
     Drive,
     ErrorCode,
     ErrorReport,
+    hello_problem,
     HostHello,
     ParamDescribe,
     ParamGet,

@@ -210,7 +210,7 @@ class Session:
         # on a loaded machine changes no recording (tests/test_lockstep_pause.py)
         host = HostHello(0, PROTOCOL_VERSION, self.options.period_us, mode, self.options.watchdog_ms)
         hello = self.target.hello(host)
-        check_target_hello(hello, where=self.target_label)  # protocol version and schema fingerprint
+        check_target_hello(hello, where=self.target_label)  # protocol version, schema fingerprint, declarations
         self.predicting = False
         # a target on a link (a firmware on the C runtime can predict; `serve` refuses for a Python one);
         # an in-process target never predicts, so one that ignores the mode is not taken at its word

@@ -18,7 +18,7 @@ from hilbench.bench.recorder import MemoryRecorder
 from hilbench.bench.scenario import Event
 from hilbench.config import clipped
 from hilbench.errors import ConfigError
-from hilbench.limits import is_finite_number
+from hilbench.limits import is_finite_number, shown
 from hilbench.protocol import State
 from hilbench.targets.profile import TargetProfile
 
@@ -57,7 +57,7 @@ class StepTest:
         for name in ("from_rpm", "to_rpm", "settle_s", "after_s"):
             value = getattr(self, name)
             if not is_finite_number(value) or abs(value) > 1e7:
-                raise ConfigError(f"step: {name}={clipped(repr(value))}: expected a finite number (|x| <= 1e7)")
+                raise ConfigError(f"step: {name}={shown(value)}: expected a finite number (|x| <= 1e7)")
         if self.from_rpm == self.to_rpm:
             raise ConfigError(f"step: --from and --to are both {self.from_rpm:g} rpm; a step needs two speeds")
         if not (self.settle_s > 0.02 and self.after_s > 0):

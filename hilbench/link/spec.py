@@ -394,11 +394,8 @@ def _parse_port(text: str, head: str, query: str) -> TargetSpec:
     """``pty``, ``fd:N``, ``serial:/dev/...`` or a bare device path: a port the bench opens."""
     prefix, colon, rest = head.partition(":")
     if head == "pty" or (colon and prefix == "fd"):
-        if prefix == "fd" and not rest.isdigit():
+        if prefix == "fd" and not (rest.isascii() and rest.isdigit()):
             raise _fail(text, "fd: needs a file descriptor number, e.g. fd:3")
-        if prefix == "fd" and int(rest) <= 2:
-            raise _fail(text, f"fd:{int(rest)} is this process's {('stdin', 'stdout', 'stderr')[int(rest)]}: a link needs "
-                              "a descriptor of its own (fd:3 and up)")
         values, _ = _split_query(text, query, LINK_KEYS, ())
         return TargetSpec(text, KIND_PORT, port=head, port_kind=PORT_FD if colon else PORT_PTY,
                           faults=_faults(text, values), wire_baud=_wire_baud_of(text, values),

@@ -13,7 +13,7 @@ from hilbench.protocol.framing import (
     OversizedError,
     UnknownTypeError,
 )
-from hilbench.protocol.handshake import check_target_hello, host_hello_mismatch, version_refusal
+from hilbench.protocol.handshake import check_target_hello, hello_problem, host_hello_mismatch, version_refusal
 from hilbench.protocol.messages import *  # noqa: F403 - constants, IntEnums, message classes
 from hilbench.protocol.messages import ParamType as _ParamType
 
@@ -30,6 +30,7 @@ __all__ = [
     "FrameDecoder",
     "COUNTER_NAMES",
     "check_target_hello",
+    "hello_problem",
     "host_hello_mismatch",
     "version_refusal",
     "param_scale",

@@ -11,6 +11,7 @@ from __future__ import annotations
 import argparse
 import json
 import os
+import select
 import sys
 import threading
 import time
@@ -44,8 +45,8 @@ def serve_on_port(name: str, port_spec: str = "pty", mode: int | None = None,
     if port_spec.startswith("tcp:"):  # a TCP port (socket://HOST:PORT)
         host, port = parse_tcp_listen(port_spec)
 
-        def handler(link: Link, stop: threading.Event | None = stop_event) -> ServeReport:
-            return serve(target, link, stop_event=stop, mode=mode, watchdog_ms=watchdog_ms)
+        def handler(link: Link) -> ServeReport:
+            return serve(target, link, stop_event=stop_event, mode=mode, watchdog_ms=watchdog_ms)
 
         if not keep_serving:
             return serve_tcp_once(port, handler, host=host, announce=announce, stop_event=stop_event)
@@ -70,16 +71,25 @@ SILENT_CLIENT_S = 3.0
 _WATCH_S = 0.1
 
 
-def _drop_if_silent(link: Link, outer: threading.Event | None, connection: threading.Event) -> None:
-    """Ends ``connection``'s serving when ``outer`` is set, or when nothing came SILENT_CLIENT_S after
-    the accept; returns once it is set."""
-    deadline = time.monotonic() + SILENT_CLIENT_S
-    while not connection.wait(_WATCH_S):
-        if (outer is not None and outer.is_set()) or (link.bytes_rx == 0 and time.monotonic() >= deadline):
-            connection.set()
+def _speaks_within(link: Link, stop_event: threading.Event | None, seconds: float) -> bool:
+    """Whether the client just accepted sent something within ``seconds`` (False: silent, or
+    stop_event set). Looked at before serving, so the serve loop (its C loop with no stop_event)
+    is the one every host gets."""
+    fd = link.fileno()
+    if fd is None:
+        return True
+    deadline = time.monotonic() + seconds
+    while stop_event is None or not stop_event.is_set():
+        left = deadline - time.monotonic()
+        if left <= 0:
+            return False
+        ready, _, _ = select.select([fd], [], [], min(left, _WATCH_S))
+        if ready:
+            return True
+    return False
 
 
-def _serve_tcp_hosts(host: str, port: int, handler: Callable[[Link, threading.Event], ServeReport],
+def _serve_tcp_hosts(host: str, port: int, handler: Callable[[Link], ServeReport],
                      announce: Callable[[str], None] | None, stop_event: threading.Event | None) -> ServeReport:
     """One host after another on one listening port, as a board serves whoever opens its port
     next, until stop_event or Ctrl-C (a host hanging up is not the end; a client silent for
@@ -93,16 +103,14 @@ def _serve_tcp_hosts(host: str, port: int, handler: Callable[[Link, threading.Ev
                 link = listener.accept(stop_event=stop_event)
             except LinkClosed:
                 break
-            connection = threading.Event()
-            watch = threading.Thread(target=_drop_if_silent, args=(link, stop_event, connection),
-                                     name="hilbench-silent-client", daemon=True)
-            watch.start()
-            try:
-                with link:
-                    report = handler(link, connection)
-            finally:
-                connection.set()
-                watch.join()
+            with link:
+                if not _speaks_within(link, stop_event, SILENT_CLIENT_S):
+                    if stop_event is not None and stop_event.is_set():
+                        break
+                    print(f"hilbench emulate: {link.name}: said nothing in {SILENT_CLIENT_S:g} s after it connected: "
+                          "dropped for the next host", file=sys.stderr, flush=True)
+                    continue
+                report = handler(link)
             total.sensors += report.sensors
             total.requests += report.requests
             total.error_reports += report.error_reports

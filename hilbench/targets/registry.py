@@ -82,7 +82,7 @@ def _register_plugin(entry: EntryPoint) -> str | None:
         return f"cannot load: {type(exc).__name__}: {exc}"
     if not isinstance(profile, TargetProfile):
         return "not a TargetProfile"
-    if profile.name in _BUILTIN:
+    if profile.name in _BUILTIN and profile.name in _profiles:
         return f"its name {profile.name!r} is a built-in target's, which it may not replace"
     try:
         register(profile)
