@@ -81,6 +81,10 @@ def as_config(config: BenchConfig | str | os.PathLike[str] | None, target: str |
     return load_config(config, extra)
 
 
+#: what a closed Bench says to a call that would run or change it
+CLOSED = "Bench: closed (its run has ended, its results stay readable; a Bench runs once: open a new one)"
+
+
 class Bench:
     """A target, a plant and a session, opened together; a context manager."""
 
@@ -124,7 +128,7 @@ class Bench:
     def open(self) -> "Bench":
         """Connect the target, build the plant, handshake, write the configured parameters."""
         if self._closed:
-            raise ConfigError("Bench: closed (a Bench runs once; open a new Bench to run again)")
+            raise ConfigError(CLOSED)
         cfg = self.config
         self.warnings = settings.link_warnings(cfg) if self._target_object is None else []
         events = settings.scenario_events(cfg) if self._play_scenario else ()
@@ -231,8 +235,7 @@ class Bench:
         """The session, for a call that runs periods or changes the bench: refused once closed (the
         target is gone and the recording written: periods run now would be lost)."""
         if self._closed:
-            raise ConfigError("Bench: closed (its run has ended and its results stay readable; "
-                              "a Bench runs once: open a new Bench to run again)")
+            raise ConfigError(CLOSED)
         return self._session
 
     @property
@@ -278,7 +281,7 @@ class Bench:
     def set_load(self, torque_nm: float, kind: str = "constant") -> None:
         """The load from now on: constant N*m, linear/quadratic coefficient, or locked."""
         if kind not in LOAD_KINDS:
-            raise ConfigError(f"set_load kind={str(kind)[:40]!r}: one of {', '.join(LOAD_KINDS)}")
+            raise ConfigError(f"set_load kind={shown(kind)}: one of {', '.join(LOAD_KINDS)}")
         self._act(Event(at_s=0.0, load_nm=_finite(torque_nm, "torque_nm"), load_kind=kind))
 
     def inject_fault(self, kind: str, duration_s: float | None = None) -> None:
@@ -378,7 +381,7 @@ def _finite(value: float, what: str) -> float:
 
 
 def _periods(seconds: float, period_s: float, what: str) -> int:
-    if not isinstance(seconds, (int, float)) or not math.isfinite(seconds) or seconds < 0 or seconds > 1e7:
+    if not is_finite_number(seconds) or not 0 <= seconds <= 1e7:
         raise ConfigError(f"run {what}={shown(seconds)}: expected 0..1e7 s")
     return round(seconds / period_s)
 
