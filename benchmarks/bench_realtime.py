@@ -66,8 +66,7 @@ def steal_ms() -> float | None:
         return None
 
 
-def steal_over(before: float | None) -> str:
-    after = steal_ms()
+def steal_between(before: float | None, after: float | None) -> str:
     return "not known" if before is None or after is None else f"{after - before:.0f} ms"
 
 
@@ -159,13 +158,14 @@ def main() -> None:
     half = args.seconds / 2
     fifo = "never" if args.no_fifo else "always" if args.fifo_always else "contended"
     baseline = (args.period_us, not args.no_qos, not args.no_pin, fifo)
-    stolen = steal_ms()
+    steal = [steal_ms()]  # at each phase's start and at the end
     before = paced_raw_echo(half, *baseline)  # the baseline on both sides of the run
-    before_steal, stolen = steal_over(stolen), steal_ms()
+    steal.append(steal_ms())
     summary = run_bench(cfg)
-    bench_steal, stolen = steal_over(stolen), steal_ms()
+    steal.append(steal_ms())
     after = paced_raw_echo(half, *baseline)
-    after_steal = steal_over(stolen)
+    steal.append(steal_ms())
+    before_steal, bench_steal, after_steal = (steal_between(a, b) for a, b in zip(steal, steal[1:]))
     lat, rtt = summary.lateness_us, summary.rtt_us
     print(f"real time, {args.period_us} us periods, {summary.periods} periods "
           f"({summary.sim_s:.1f} s) against {summary.target}")

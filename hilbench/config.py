@@ -38,7 +38,7 @@ from pathlib import Path
 from typing import Any, Callable, Literal, Mapping, Sequence
 
 from hilbench.errors import ConfigError
-from hilbench.limits import CONFIG_MAX_BYTES, read_text_bounded
+from hilbench.limits import CONFIG_MAX_BYTES, clipped, read_text_bounded
 from hilbench.fieldspec import spec
 from hilbench.plant.params import (
     AdcChannel,
@@ -275,12 +275,6 @@ def _suggest(name: str, known: Sequence[str]) -> str:
 def _show(value: Any) -> str:
     """A value as a message shows it: short, one line (a fuzzed value may be 5000 characters)."""
     return clipped(repr(value))
-
-
-def clipped(text: str, limit: int = 40) -> str:
-    """``text`` on one line, cut to ``limit`` characters (a `--set` word may be 100 kB)."""
-    text = " ".join(text.split())
-    return text if len(text) <= limit else text[:limit - 3] + "..."
 
 
 def _type_name(tp: Any) -> str:

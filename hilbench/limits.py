@@ -57,16 +57,21 @@ def is_finite_number(value: object) -> bool:
         return False
 
 
+def clipped(text: str, limit: int = 40) -> str:
+    """``text`` on one line, cut to ``limit`` characters (a `--set` word may be 100 kB)."""
+    text = " ".join(text.split())
+    return text if len(text) <= limit else text[:limit - 3] + "..."
+
+
 def shown(value: object, limit: int = 40) -> str:
-    """``value``'s repr for a message, on one line and cut to ``limit`` characters; an int too long
-    to print (Python refuses over 4300 digits) by its size."""
+    """``value``'s repr for a message, `clipped`; an int too long to print (Python refuses over 4300
+    digits) by its size."""
     if isinstance(value, int) and not isinstance(value, bool) and value.bit_length() > 128:
         return f"<an integer of {value.bit_length()} bits>"
     try:
-        text = " ".join(repr(value).split())
+        return clipped(repr(value), limit)
     except ValueError:  # a container holding such an int
         return f"<a {type(value).__name__}>"
-    return text if len(text) <= limit else text[:limit - 3] + "..."
 
 
 def read_bounded(path: str | os.PathLike[str], limit: int, error: type[HilbenchError], what: str) -> bytes:
